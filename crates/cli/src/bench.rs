@@ -1,0 +1,80 @@
+//! `stcvae bench`: throughput measurements, printed side by side in one run.
+
+use std::time::Instant;
+
+use anyhow::Result;
+use rayon::prelude::*;
+use scatter_sim::conditions::ConditionSampler;
+use scatter_sim::dataset::walk_row;
+
+use crate::generate::{DEFAULT_WALKS, pool};
+use crate::progress::si;
+
+#[derive(clap::Args)]
+pub struct Args {
+    #[command(subcommand)]
+    what: What,
+}
+
+#[derive(clap::Subcommand)]
+enum What {
+    /// Scattering events per second of the simulator, on one thread and on all threads,
+    /// and the projected time of the default 2^22-walk dataset.
+    Sim {
+        /// Walks per measurement (the authors' condition distribution, seed 1).
+        #[arg(long, default_value_t = 16384)]
+        walks: u64,
+        /// Threads of the parallel measurement (default: all cores).
+        #[arg(long)]
+        threads: Option<usize>,
+    },
+}
+
+pub fn run(a: Args) -> Result<()> {
+    match a.what {
+        What::Sim { walks, threads } => bench_sim(walks, threads),
+    }
+}
+
+/// Runs walks 0..n of the default run on the pool; returns (seconds, events).
+fn time_walks(pool: &rayon::ThreadPool, sampler: &ConditionSampler, n: u64) -> (f64, u64) {
+    let start = Instant::now();
+    let events = pool.install(|| {
+        (0..n)
+            .into_par_iter()
+            .map(|i| walk_row(1, sampler, i).1)
+            .sum::<u64>()
+    });
+    (start.elapsed().as_secs_f64(), events)
+}
+
+fn bench_sim(walks: u64, threads: Option<usize>) -> Result<()> {
+    let sampler = ConditionSampler::authors();
+    let single = pool(Some(1))?;
+    let all = pool(threads)?;
+    // Warm-up: page in code and let the CPU clock settle.
+    time_walks(&all, &sampler, walks.min(512));
+    let (t1, events) = time_walks(&single, &sampler, walks);
+    let (tn, _) = time_walks(&all, &sampler, walks);
+    let per_walk = events as f64 / walks as f64;
+    println!("stcvae bench sim: {walks} walks of the authors' distribution (seed 1), {events} events ({per_walk:.0} per walk)");
+    println!("{:>10} {:>12} {:>14} {:>12}", "threads", "seconds", "events/s", "walks/s");
+    for (n, t) in [(1, t1), (all.current_num_threads(), tn)] {
+        println!(
+            "{:>10} {:>12.3} {:>14} {:>12.0}",
+            n,
+            t,
+            si(events as f64 / t),
+            walks as f64 / t
+        );
+    }
+    println!("parallel speed-up: {:.2}x", t1 / tn);
+    let projected = DEFAULT_WALKS as f64 * tn / walks as f64;
+    println!(
+        "projected time of the default {DEFAULT_WALKS}-walk dataset on {} threads: {:.0} s ({:.1} min)",
+        all.current_num_threads(),
+        projected,
+        projected / 60.0
+    );
+    Ok(())
+}

@@ -1,0 +1,47 @@
+//! `stcvae`: learned multiple scattering for fast subsurface-scattering rendering.
+
+mod bench;
+mod generate;
+mod interrupt;
+mod merge;
+mod progress;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(
+    name = "stcvae",
+    version,
+    about = "Learned multiple scattering (ST-CVAE) for fast subsurface-scattering rendering",
+    long_about = "Learned multiple scattering (ST-CVAE) for fast subsurface-scattering rendering.\n\n\
+        Simulates random walks in a sphere of homogeneous medium (the ground truth and the \
+        training data), trains conditional VAEs on them and uses them to jump over thousands \
+        of scattering events at once when rendering translucent objects."
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Simulate random walks in the unit sphere and write a dataset (.bin) or a CSV (.csv).
+    Generate(generate::Args),
+    /// Concatenate dataset shards (.bin or .csv) into one file.
+    Merge(merge::Args),
+    /// Measure the speed of parts of stcvae.
+    Bench(bench::Args),
+}
+
+fn main() {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Generate(a) => generate::run(a),
+        Command::Merge(a) => merge::run(a),
+        Command::Bench(a) => bench::run(a),
+    };
+    if let Err(e) = result {
+        eprintln!("error: {e:#}");
+        std::process::exit(if interrupt::requested() { 130 } else { 1 });
+    }
+}

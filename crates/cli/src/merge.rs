@@ -1,0 +1,146 @@
+//! `stcvae merge`: join dataset shards.
+
+use std::fs::File;
+use std::io::{BufRead, BufReader, Write};
+use std::path::PathBuf;
+
+use anyhow::{Context, Result, bail};
+use scatter_sim::dataset::{self, DatasetReader, Header, Piece};
+use scatter_sim::output::AtomicFile;
+
+use crate::progress;
+
+#[derive(clap::Args)]
+#[command(after_help = "Shards of one run (same seed, sampler and size) are put in walk order \
+    whatever order they are given in, so `stcvae merge data/train-*.bin --out data/train.bin` \
+    reproduces the unsharded run row for row. Other inputs are concatenated in the order \
+    given. Binary inputs can be written as CSV (--out x.csv); CSV inputs are joined as text.")]
+pub struct Args {
+    /// Input files: all binary datasets, or all CSV files.
+    #[arg(required = true)]
+    inputs: Vec<PathBuf>,
+    /// Output file (.csv for CSV, else binary).
+    #[arg(long)]
+    out: PathBuf,
+}
+
+pub fn run(a: Args) -> Result<()> {
+    if a.inputs.iter().any(|p| *p == a.out) {
+        bail!("--out {} is also an input", a.out.display());
+    }
+    let csv_inputs = a.inputs.iter().filter(|p| dataset::is_csv(p)).count();
+    match csv_inputs {
+        0 => merge_binary(&a),
+        n if n == a.inputs.len() => merge_csv(&a),
+        _ => bail!("mixed inputs: merge either binary datasets or CSV files, not both"),
+    }
+}
+
+fn merge_binary(a: &Args) -> Result<()> {
+    let mut readers = a
+        .inputs
+        .iter()
+        .map(|p| DatasetReader::open(p))
+        .collect::<Result<Vec<_>, _>>()?;
+    let first = readers[0].header().pieces.first().cloned();
+    let one_run = readers
+        .iter()
+        .flat_map(|r| &r.header().pieces)
+        .all(|p| first.as_ref().is_some_and(|f| f.same_run(p)));
+    if one_run {
+        readers.sort_by_key(|r| r.header().pieces.first().map_or(0, |p| p.first_walk));
+    }
+    // Refuse duplicated walks: two pieces of one run that overlap.
+    let all: Vec<(&Piece, &PathBuf)> = readers
+        .iter()
+        .flat_map(|r| r.header().pieces.iter().map(move |p| (p, &a.inputs[0])))
+        .collect();
+    for (i, (p, _)) in all.iter().enumerate() {
+        for (q, _) in &all[i + 1..] {
+            let overlap = p.first_walk < q.first_walk + q.count && q.first_walk < p.first_walk + p.count;
+            if p.same_run(q) && overlap && p.count > 0 && q.count > 0 {
+                bail!(
+                    "inputs overlap: walks {}..{} and {}..{} of the run with seed {} appear twice",
+                    p.first_walk,
+                    p.first_walk + p.count,
+                    q.first_walk,
+                    q.first_walk + q.count,
+                    p.seed
+                );
+            }
+        }
+    }
+    let pieces = coalesce(readers.iter().flat_map(|r| r.header().pieces.clone()));
+    let header = Header::new(pieces);
+    if one_run {
+        let covered: u64 = header.count;
+        let total = header.pieces[0].total_walks;
+        if covered != total {
+            eprintln!("note: the inputs hold {covered} of the run's {total} walks");
+        }
+    }
+    let pb = progress::bar(header.count, "rows");
+    let mut sink = dataset::create_sink(&a.out, header.clone())?;
+    for r in &mut readers {
+        while let Some(row) = r.next_row()? {
+            sink.push(&row)?;
+            pb.inc(1);
+        }
+    }
+    sink.finish()?;
+    pb.finish_and_clear();
+    eprintln!(
+        "merged {} files, {} rows -> {}",
+        a.inputs.len(),
+        header.count,
+        a.out.display()
+    );
+    Ok(())
+}
+
+/// Joins adjacent pieces of one run that continue each other.
+fn coalesce(pieces: impl Iterator<Item = Piece>) -> Vec<Piece> {
+    let mut out: Vec<Piece> = Vec::new();
+    for p in pieces {
+        if let Some(last) = out.last_mut()
+            && last.same_run(&p)
+            && last.first_walk + last.count == p.first_walk
+        {
+            last.count += p.count;
+            continue;
+        }
+        out.push(p);
+    }
+    out
+}
+
+fn merge_csv(a: &Args) -> Result<()> {
+    if !dataset::is_csv(&a.out) {
+        bail!("CSV inputs can only be merged into a .csv output");
+    }
+    let mut out = AtomicFile::create(&a.out)
+        .with_context(|| format!("cannot create {}", a.out.display()))?;
+    let mut rows = 0u64;
+    for (i, path) in a.inputs.iter().enumerate() {
+        let f = File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
+        let mut lines = BufReader::new(f).lines();
+        let head = lines
+            .next()
+            .transpose()?
+            .with_context(|| format!("{}: empty file", path.display()))?;
+        if head != dataset::COLUMNS.join(",") {
+            bail!("{}: not an stcvae walk CSV (unexpected header row)", path.display());
+        }
+        if i == 0 {
+            writeln!(out, "{head}")?;
+        }
+        for line in lines {
+            writeln!(out, "{}", line?)?;
+            rows += 1;
+        }
+    }
+    out.commit()
+        .with_context(|| format!("cannot write {}", a.out.display()))?;
+    eprintln!("merged {} files, {rows} rows -> {}", a.inputs.len(), a.out.display());
+    Ok(())
+}

@@ -1,0 +1,1 @@
+//! The CVAE models of stcvae. Filled in by the training issue; empty until then.

@@ -1,0 +1,197 @@
+//! The conditions (τ, g, φ) of a walk and the samplers that draw them for a dataset.
+//!
+//! The default is the authors' training distribution: τ = 300·u³ (dense media are rare
+//! but present), g = clamp(2u − 1, ±0.999), φ = min(1, 1.000001 − u⁶) (mostly albedos
+//! very close to 1, where subsurface scattering matters).
+
+use serde::{Deserialize, Serialize};
+
+use crate::ranges::{self, G_MAX, RangeError};
+use crate::rng::WalkRng;
+
+/// The medium parameters of one walk.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Conditions {
+    /// Optical radius σ_t·r.
+    pub tau: f64,
+    /// Henyey–Greenstein parameter.
+    pub g: f64,
+    /// Single-scattering albedo φ.
+    pub albedo: f64,
+}
+
+impl Conditions {
+    pub fn validate(&self) -> Result<(), RangeError> {
+        ranges::check_tau("tau", self.tau)?;
+        ranges::check_g("g", self.g)?;
+        ranges::check_albedo("albedo", self.albedo)
+    }
+}
+
+/// How τ is drawn.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum TauSampler {
+    /// τ = max·u^exponent.
+    Power { max: f64, exponent: f64 },
+    /// τ uniform in [min, max].
+    Uniform { min: f64, max: f64 },
+    Fixed { value: f64 },
+}
+
+/// How g is drawn; the result is clamped to ±0.999.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum GSampler {
+    /// g uniform in [min, max], then clamped to ±0.999.
+    Uniform { min: f64, max: f64 },
+    Fixed { value: f64 },
+}
+
+/// How φ is drawn.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum AlbedoSampler {
+    /// φ = min(1, 1 + epsilon − u^exponent).
+    OneMinusPower { epsilon: f64, exponent: f64 },
+    /// φ uniform in [min, max].
+    Uniform { min: f64, max: f64 },
+    Fixed { value: f64 },
+}
+
+/// The joint sampler of (τ, g, φ): independent draws of each.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ConditionSampler {
+    pub tau: TauSampler,
+    pub g: GSampler,
+    pub albedo: AlbedoSampler,
+}
+
+impl Default for ConditionSampler {
+    fn default() -> Self {
+        Self::authors()
+    }
+}
+
+impl ConditionSampler {
+    /// The authors' training distribution.
+    pub fn authors() -> Self {
+        Self {
+            tau: TauSampler::Power {
+                max: ranges::AUTHORS_TAU_MAX,
+                exponent: 3.0,
+            },
+            g: GSampler::Uniform {
+                min: -1.0,
+                max: 1.0,
+            },
+            albedo: AlbedoSampler::OneMinusPower {
+                epsilon: 1e-6,
+                exponent: 6.0,
+            },
+        }
+    }
+
+    /// Every walk with the same conditions.
+    pub fn fixed(c: Conditions) -> Self {
+        Self {
+            tau: TauSampler::Fixed { value: c.tau },
+            g: GSampler::Fixed { value: c.g },
+            albedo: AlbedoSampler::Fixed { value: c.albedo },
+        }
+    }
+
+    /// Checks that every value the sampler can produce is in range; errors name the field.
+    pub fn validate(&self) -> Result<(), RangeError> {
+        let positive = |field: &str, v: f64| {
+            if v > 0.0 && v.is_finite() {
+                Ok(())
+            } else {
+                Err(RangeError {
+                    field: field.into(),
+                    value: v,
+                    allowed: "(0, inf)",
+                })
+            }
+        };
+        let ordered = |field: &str, min: f64, max: f64| {
+            if min <= max {
+                Ok(())
+            } else {
+                Err(RangeError {
+                    field: field.into(),
+                    value: min,
+                    allowed: "min <= max",
+                })
+            }
+        };
+        match self.tau {
+            TauSampler::Power { max, exponent } => {
+                ranges::check_tau("tau.max", max)?;
+                positive("tau.exponent", exponent)?;
+            }
+            TauSampler::Uniform { min, max } => {
+                ranges::check_tau("tau.min", min)?;
+                ranges::check_tau("tau.max", max)?;
+                ordered("tau.min", min, max)?;
+            }
+            TauSampler::Fixed { value } => ranges::check_tau("tau.value", value)?,
+        }
+        match self.g {
+            GSampler::Uniform { min, max } => {
+                let wide = |f: &str, v: f64| {
+                    if (-1.0..=1.0).contains(&v) {
+                        Ok(())
+                    } else {
+                        Err(RangeError {
+                            field: f.into(),
+                            value: v,
+                            allowed: "[-1, 1] (values are then clamped to +-0.999)",
+                        })
+                    }
+                };
+                wide("g.min", min)?;
+                wide("g.max", max)?;
+                ordered("g.min", min, max)?;
+            }
+            GSampler::Fixed { value } => ranges::check_g("g.value", value)?,
+        }
+        match self.albedo {
+            AlbedoSampler::OneMinusPower { epsilon, exponent } => {
+                ranges::check_albedo("albedo.epsilon", epsilon)?;
+                positive("albedo.exponent", exponent)?;
+            }
+            AlbedoSampler::Uniform { min, max } => {
+                ranges::check_albedo("albedo.min", min)?;
+                ranges::check_albedo("albedo.max", max)?;
+                ordered("albedo.min", min, max)?;
+            }
+            AlbedoSampler::Fixed { value } => ranges::check_albedo("albedo.value", value)?,
+        }
+        Ok(())
+    }
+
+    /// Draws (τ, g, φ), always three uniforms in that order (fixed fields discard theirs),
+    /// so a walk's stream position does not depend on the sampler kind.
+    pub fn sample(&self, rng: &mut WalkRng) -> Conditions {
+        let (u_tau, u_g, u_albedo) = (rng.uniform(), rng.uniform(), rng.uniform());
+        let tau = match self.tau {
+            TauSampler::Power { max, exponent } => max * u_tau.powf(exponent),
+            TauSampler::Uniform { min, max } => min + (max - min) * u_tau,
+            TauSampler::Fixed { value } => value,
+        };
+        let g = match self.g {
+            GSampler::Uniform { min, max } => (min + (max - min) * u_g).clamp(-G_MAX, G_MAX),
+            GSampler::Fixed { value } => value,
+        };
+        let albedo = match self.albedo {
+            AlbedoSampler::OneMinusPower { epsilon, exponent } => {
+                (1.0 + epsilon - u_albedo.powf(exponent)).min(1.0)
+            }
+            AlbedoSampler::Uniform { min, max } => min + (max - min) * u_albedo,
+            AlbedoSampler::Fixed { value } => value,
+        };
+        Conditions { tau, g, albedo }
+    }
+}

@@ -1,0 +1,105 @@
+//! Datasets of canonical walks: the row layout, the binary and CSV files, and the
+//! parallel, deterministic generator.
+//!
+//! Binary file layout (little endian), format version [`FORMAT_VERSION`]:
+//!
+//! | bytes | content |
+//! |---|---|
+//! | 8 | magic `STCVAEDS` |
+//! | 4 | format version (u32) |
+//! | 4 | header length H (u32) |
+//! | H | header, JSON ([`Header`]: row count, columns, provenance pieces) |
+//! | count × 56 | rows ([`Row::encode`]) |
+//! | 4 | CRC-32 of the row bytes |
+//! | 8 | end marker `STCVEND!` |
+//!
+//! The size is known from the header, so truncation is detected before any row is read,
+//! and the CRC catches corruption once the rows have streamed past.
+
+mod binary;
+mod csv;
+mod error;
+mod generate;
+mod row;
+
+pub use binary::{DatasetReader, DatasetWriter, read_dataset};
+pub use csv::CsvWriter;
+pub use error::DatasetError;
+pub use generate::{GenerateSpec, GenerateSummary, Shard, generate, walk_row};
+pub use row::{COLUMNS, ROW_BYTES, Row};
+
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+use crate::conditions::ConditionSampler;
+
+pub const MAGIC: &[u8; 8] = b"STCVAEDS";
+pub const END_MARKER: &[u8; 8] = b"STCVEND!";
+pub const FORMAT_VERSION: u32 = 1;
+
+/// Where a run of rows came from: walks `first_walk .. first_walk + count` of the run
+/// with this seed, sampler and total size. A generated file has one piece; a merged
+/// file lists the pieces it concatenates, in order.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Piece {
+    pub seed: u64,
+    pub sampler: ConditionSampler,
+    pub total_walks: u64,
+    pub first_walk: u64,
+    pub count: u64,
+}
+
+impl Piece {
+    /// True if both pieces come from the same run (same seed, sampler and size).
+    pub fn same_run(&self, other: &Piece) -> bool {
+        self.seed == other.seed
+            && self.sampler == other.sampler
+            && self.total_walks == other.total_walks
+    }
+}
+
+/// The JSON header of a binary dataset.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Header {
+    /// Number of rows.
+    pub count: u64,
+    /// Column names, in row order (informative; the layout is fixed by the version).
+    pub columns: Vec<String>,
+    pub pieces: Vec<Piece>,
+    /// The program that wrote the file.
+    pub generator: String,
+}
+
+impl Header {
+    pub fn new(pieces: Vec<Piece>) -> Self {
+        Self {
+            count: pieces.iter().map(|p| p.count).sum(),
+            columns: COLUMNS.iter().map(|c| c.to_string()).collect(),
+            pieces,
+            generator: format!("stcvae {}", env!("CARGO_PKG_VERSION")),
+        }
+    }
+}
+
+/// Where rows go: a binary dataset or a CSV file, chosen by the output extension.
+pub trait RowSink: Send {
+    fn push(&mut self, row: &Row) -> Result<(), DatasetError>;
+    /// Completes the file and moves it under its final name.
+    fn finish(self: Box<Self>) -> Result<(), DatasetError>;
+}
+
+/// True if `path` names a CSV file (by extension).
+pub fn is_csv(path: &Path) -> bool {
+    path.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("csv"))
+}
+
+/// Opens the sink for `path`: CSV for `.csv`, the binary format otherwise.
+pub fn create_sink(path: &Path, header: Header) -> Result<Box<dyn RowSink>, DatasetError> {
+    if is_csv(path) {
+        Ok(Box::new(CsvWriter::create(path, header.count)?))
+    } else {
+        Ok(Box::new(DatasetWriter::create(path, header)?))
+    }
+}

@@ -1,0 +1,50 @@
+//! The parameter ranges the project accepts, in one place.
+//!
+//! τ is the optical radius σ_t·r of the sphere, g the Henyey–Greenstein parameter and
+//! φ the single-scattering albedo. The walk cost grows like τ², so τ is capped; |g| is
+//! kept away from 1 where HG degenerates to a delta (the authors clamp to ±0.999).
+
+use thiserror::Error;
+
+/// Largest |g| anywhere in the project (the authors' clamp).
+pub const G_MAX: f64 = 0.999;
+/// Largest optical radius the simulator accepts (a walk at τ = 1000 takes ~5·10⁵ events).
+pub const TAU_LIMIT: f64 = 1000.0;
+/// Upper end of the authors' training distribution τ = 300·u³.
+pub const AUTHORS_TAU_MAX: f64 = 300.0;
+
+/// A parameter outside its allowed range; the message names the field and the range.
+#[derive(Debug, Error, Clone, PartialEq)]
+#[error("{field} = {value} is out of range: allowed {allowed}")]
+pub struct RangeError {
+    pub field: String,
+    pub value: f64,
+    pub allowed: &'static str,
+}
+
+fn check(field: &str, value: f64, ok: bool, allowed: &'static str) -> Result<(), RangeError> {
+    if ok && value.is_finite() {
+        Ok(())
+    } else {
+        Err(RangeError {
+            field: field.to_string(),
+            value,
+            allowed,
+        })
+    }
+}
+
+/// τ ∈ [0, TAU_LIMIT].
+pub fn check_tau(field: &str, tau: f64) -> Result<(), RangeError> {
+    check(field, tau, (0.0..=TAU_LIMIT).contains(&tau), "[0, 1000]")
+}
+
+/// g ∈ [−G_MAX, G_MAX].
+pub fn check_g(field: &str, g: f64) -> Result<(), RangeError> {
+    check(field, g, (-G_MAX..=G_MAX).contains(&g), "[-0.999, 0.999]")
+}
+
+/// φ ∈ [0, 1].
+pub fn check_albedo(field: &str, albedo: f64) -> Result<(), RangeError> {
+    check(field, albedo, (0.0..=1.0).contains(&albedo), "[0, 1]")
+}

@@ -1,0 +1,94 @@
+//! The unit-sphere random walk (design §2, paper §3.1).
+//!
+//! The photon arrives along +z at the centre, where event 1 happens; each event draws a
+//! new direction from HG around the arriving one, then a free flight of optical length
+//! Exp(1) (geometric length l = −ln ξ / τ in the unit sphere). The walk ends when a
+//! flight crosses the sphere. Absorption is not simulated: it enters as φ^N.
+
+use glam::DVec3;
+
+use crate::frame::{CanonicalExit, to_canonical};
+use crate::phase::hg_sample_direction;
+use crate::reservoir::Reservoir;
+use crate::rng::WalkRng;
+
+/// A finished walk in the world frame of the simulation (ω_in = +z).
+#[derive(Clone, Copy, Debug)]
+pub struct Walk {
+    /// Number of scattering events, the centre included (N ≥ 1).
+    pub n: u64,
+    /// Exit point, |x| = 1.
+    pub exit_pos: DVec3,
+    /// Exit direction (unit, pointing outward).
+    pub exit_dir: DVec3,
+    /// Index k of the representative event (1 = the centre).
+    pub event_index: u64,
+    /// Position X of the representative event.
+    pub event_pos: DVec3,
+    /// Direction W arriving at the representative event.
+    pub event_dir: DVec3,
+}
+
+/// A walk in the canonical frame: what the models learn and the dataset stores.
+#[derive(Clone, Copy, Debug)]
+pub struct CanonicalWalk {
+    pub n: u64,
+    pub exit: CanonicalExit,
+    pub event_pos: DVec3,
+    pub event_dir: DVec3,
+}
+
+impl Walk {
+    pub fn canonical(&self) -> CanonicalWalk {
+        let (exit, rot) = to_canonical(self.exit_pos, self.exit_dir);
+        CanonicalWalk {
+            n: self.n,
+            exit,
+            event_pos: rot.apply(self.event_pos),
+            event_dir: rot.apply(self.event_dir),
+        }
+    }
+}
+
+/// Simulates one walk in the unit sphere of optical radius `tau`.
+///
+/// `albedo` only steers the choice of the representative event; the path itself is
+/// independent of it. Callers validate the parameters (see [`crate::ranges`]).
+pub fn simulate_walk(tau: f64, g: f64, albedo: f64, rng: &mut WalkRng) -> Walk {
+    let mut reservoir = Reservoir::new(albedo, rng);
+    let mut pos = DVec3::ZERO;
+    let mut arriving = DVec3::Z;
+    let mut event_pos = pos;
+    let mut event_dir = arriving;
+    let inv_tau = 1.0 / tau;
+    let mut n = 1u64;
+    loop {
+        let dir = hg_sample_direction(g, arriving, rng);
+        let flight = -rng.uniform_open0().ln() * inv_tau;
+        let next = pos + dir * flight;
+        // A flight of 2 or more crosses the unit sphere from anywhere inside; testing it
+        // first also catches τ = 0 (infinite flight) before it makes NaNs.
+        if !(flight < 2.0) || next.length_squared() >= 1.0 {
+            // Distance to the sphere along dir: t² + 2bt + c = 0 with c = |p|² − 1 ≤ 0.
+            let b = pos.dot(dir);
+            let c = pos.length_squared() - 1.0;
+            let t = -b + (b * b - c).max(0.0).sqrt();
+            let exit_pos = (pos + dir * t).normalize();
+            return Walk {
+                n,
+                exit_pos,
+                exit_dir: dir,
+                event_index: reservoir.chosen(),
+                event_pos,
+                event_dir,
+            };
+        }
+        pos = next;
+        arriving = dir;
+        n += 1;
+        if reservoir.offer(n, rng) {
+            event_pos = pos;
+            event_dir = dir;
+        }
+    }
+}
