@@ -32,13 +32,13 @@ pub struct Args {
     #[arg(long)]
     samples: Option<u64>,
     /// Fixed-condition mode: optical radius τ of every walk (needs --g and --albedo).
-    #[arg(long, requires_all = ["g", "albedo"])]
+    #[arg(long, requires_all = ["g", "albedo"], allow_hyphen_values = true)]
     tau: Option<f64>,
     /// Fixed-condition mode: Henyey–Greenstein g in [-0.999, 0.999].
     #[arg(long, requires_all = ["tau", "albedo"], allow_hyphen_values = true)]
     g: Option<f64>,
     /// Fixed-condition mode: single-scattering albedo in [0, 1].
-    #[arg(long, requires_all = ["tau", "g"])]
+    #[arg(long, requires_all = ["tau", "g"], allow_hyphen_values = true)]
     albedo: Option<f64>,
     /// Random seed (overrides the config; default 1).
     #[arg(long)]
@@ -70,12 +70,30 @@ fn default_seed() -> u64 {
 pub fn load_config(path: &Path) -> Result<DatasetConfig> {
     let text = std::fs::read_to_string(path)
         .with_context(|| format!("cannot read dataset config {}", path.display()))?;
-    let cfg: DatasetConfig =
-        toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {}", path.display(), e))?;
+    let cfg: DatasetConfig = parse_toml(path, &text)?;
     cfg.conditions
         .validate()
         .map_err(|e| anyhow::anyhow!("{}: conditions.{e}", path.display()))?;
     Ok(cfg)
+}
+
+/// Parses a TOML config into `T`, with a one-line error naming the file, line and
+/// column (toml's own message spans several lines).
+pub fn parse_toml<T: serde::de::DeserializeOwned>(path: &Path, text: &str) -> Result<T> {
+    toml::from_str(text).map_err(|e| {
+        let at = e.span().map(|s| {
+            let before = &text[..s.start.min(text.len())];
+            let line = before.matches('\n').count() + 1;
+            let col = before.len() - before.rfind('\n').map_or(0, |i| i + 1) + 1;
+            format!(" line {line}, column {col}:")
+        });
+        anyhow::anyhow!(
+            "{}:{} {}",
+            path.display(),
+            at.unwrap_or_default(),
+            e.message().trim().replace('\n', " ")
+        )
+    })
 }
 
 /// A rayon pool with `threads` workers (all cores when `None`).

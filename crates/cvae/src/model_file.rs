@@ -1,0 +1,331 @@
+//! The model file: the three decoders, their standardisation, the training ranges and a
+//! checksum, in a few KiB. Read without burn by the renderers and tests.
+//!
+//! Layout (little endian): magic `STCVAEMD` (8) | version u32 | metadata length u32 |
+//! metadata (JSON, [`Metadata`]) | weights (f32; per model, per layer: W row-major
+//! [out][in], then b) | CRC-32 of all preceding bytes (u32).
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+use crate::decoder::{Decoder, Dense, MAX_WIDTH};
+use crate::features;
+
+pub const MAGIC: &[u8; 8] = b"STCVAEMD";
+pub const VERSION: u32 = 1;
+
+#[derive(Debug, Error)]
+pub enum ModelError {
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: not an stcvae model file (bad magic bytes)")]
+    BadMagic { path: PathBuf },
+    #[error("{path}: model file version {found} is not supported (this build reads version {supported})")]
+    Version {
+        path: PathBuf,
+        found: u32,
+        supported: u32,
+    },
+    #[error("{path}: truncated model file ({found} bytes, {expected} expected)")]
+    Truncated {
+        path: PathBuf,
+        expected: usize,
+        found: usize,
+    },
+    #[error("{path}: checksum mismatch: the model file is corrupt")]
+    Checksum { path: PathBuf },
+    #[error("{path}: invalid model: {msg}")]
+    Invalid { path: PathBuf, msg: String },
+}
+
+/// How the single-scattering walks (N = 1) are produced.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SingleScattering {
+    /// Drawn analytically with probability e^{−τ}; the models learn N ≥ 2 only.
+    Exact,
+    /// The paper's way: the models learn all walks, N = 1 included.
+    Learned,
+}
+
+/// Architecture and standardisation of one decoder.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DecoderSpec {
+    pub name: String,
+    pub cond: usize,
+    pub latent: usize,
+    pub out: usize,
+    pub hidden: Vec<usize>,
+    pub cond_shift: Vec<f32>,
+    pub cond_scale: Vec<f32>,
+    pub out_shift: Vec<f32>,
+    pub out_scale: Vec<f32>,
+}
+
+/// What the models were trained on: renderers warn when asked for conditions outside.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TrainingInfo {
+    pub tau_range: [f64; 2],
+    pub g_range: [f64; 2],
+    pub albedo_range: [f64; 2],
+    /// Free-form provenance: dataset, steps, seconds, config.
+    #[serde(default)]
+    pub notes: String,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Metadata {
+    pub feature_version: u32,
+    pub single_scattering: SingleScattering,
+    pub training: TrainingInfo,
+    /// LengthGen, PathGen, EventGen, in this order.
+    pub decoders: Vec<DecoderSpec>,
+}
+
+/// The three decoders, ready to evaluate.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ModelSet {
+    pub single_scattering: SingleScattering,
+    pub training: TrainingInfo,
+    pub length: Decoder,
+    pub path: Decoder,
+    pub event: Decoder,
+}
+
+const NAMES: [&str; 3] = ["lengthgen", "pathgen", "eventgen"];
+const SHAPES: [(usize, usize); 3] = [
+    (features::LENGTH_COND, features::LENGTH_OUT),
+    (features::PATH_COND, features::PATH_OUT),
+    (features::EVENT_COND, features::EVENT_OUT),
+];
+
+fn spec_of(name: &str, d: &Decoder) -> DecoderSpec {
+    DecoderSpec {
+        name: name.into(),
+        cond: d.cond,
+        latent: d.latent,
+        out: d.out,
+        hidden: d.layers[..d.layers.len() - 1]
+            .iter()
+            .map(|l| l.outputs)
+            .collect(),
+        cond_shift: d.cond_shift.clone(),
+        cond_scale: d.cond_scale.clone(),
+        out_shift: d.out_shift.clone(),
+        out_scale: d.out_scale.clone(),
+    }
+}
+
+impl ModelSet {
+    pub fn decoders(&self) -> [&Decoder; 3] {
+        [&self.length, &self.path, &self.event]
+    }
+
+    /// Serialises to the file layout.
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let meta = Metadata {
+            feature_version: features::FEATURE_VERSION,
+            single_scattering: self.single_scattering,
+            training: self.training.clone(),
+            decoders: NAMES
+                .iter()
+                .zip(self.decoders())
+                .map(|(n, d)| spec_of(n, d))
+                .collect(),
+        };
+        let json = serde_json::to_vec(&meta).expect("metadata serialises");
+        let mut out = Vec::new();
+        out.extend_from_slice(MAGIC);
+        out.extend_from_slice(&VERSION.to_le_bytes());
+        out.extend_from_slice(&(json.len() as u32).to_le_bytes());
+        out.extend_from_slice(&json);
+        for d in self.decoders() {
+            for l in &d.layers {
+                for v in l.weight.iter().chain(&l.bias) {
+                    out.extend_from_slice(&v.to_le_bytes());
+                }
+            }
+        }
+        let crc = crc32fast::hash(&out);
+        out.extend_from_slice(&crc.to_le_bytes());
+        out
+    }
+
+    /// Writes the file atomically.
+    pub fn save(&self, path: &Path) -> Result<(), ModelError> {
+        scatter_sim::output::write_atomic(path, &self.to_bytes()).map_err(|e| ModelError::Io {
+            path: path.into(),
+            source: e,
+        })
+    }
+
+    pub fn load(path: &Path) -> Result<Self, ModelError> {
+        let bytes = std::fs::read(path).map_err(|e| ModelError::Io {
+            path: path.into(),
+            source: e,
+        })?;
+        Self::from_bytes(&bytes, path)
+    }
+
+    /// Parses and validates: magic, version, checksum, metadata, shapes, finite values.
+    pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Self, ModelError> {
+        let p = || path.to_path_buf();
+        let invalid = |msg: String| ModelError::Invalid { path: p(), msg };
+        if bytes.len() < 8 || &bytes[..8] != MAGIC {
+            return Err(ModelError::BadMagic { path: p() });
+        }
+        if bytes.len() < 20 {
+            return Err(ModelError::Truncated {
+                path: p(),
+                expected: 20,
+                found: bytes.len(),
+            });
+        }
+        let version = u32::from_le_bytes(bytes[8..12].try_into().unwrap());
+        if version != VERSION {
+            return Err(ModelError::Version {
+                path: p(),
+                found: version,
+                supported: VERSION,
+            });
+        }
+        let json_len = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
+        if 16 + json_len + 4 > bytes.len() {
+            return Err(ModelError::Truncated {
+                path: p(),
+                expected: 16 + json_len + 4,
+                found: bytes.len(),
+            });
+        }
+        let body = &bytes[..bytes.len() - 4];
+        let stored = u32::from_le_bytes(bytes[bytes.len() - 4..].try_into().unwrap());
+        let meta: Result<Metadata, _> = serde_json::from_slice(&bytes[16..16 + json_len]);
+        // Size check first (a truncated file fails the checksum too, but "truncated" is
+        // the more useful message), which needs the metadata.
+        if let Ok(m) = &meta {
+            let expected = 16 + json_len + 4 * weight_count(m) + 4;
+            if expected != bytes.len() && m.decoders.len() == 3 {
+                return Err(ModelError::Truncated {
+                    path: p(),
+                    expected,
+                    found: bytes.len(),
+                });
+            }
+        }
+        if crc32fast::hash(body) != stored {
+            return Err(ModelError::Checksum { path: p() });
+        }
+        let meta = meta.map_err(|e| invalid(format!("metadata: {e}")))?;
+        if meta.feature_version != features::FEATURE_VERSION {
+            return Err(invalid(format!(
+                "feature version {} (this build uses {})",
+                meta.feature_version,
+                features::FEATURE_VERSION
+            )));
+        }
+        if meta.decoders.len() != 3 {
+            return Err(invalid(format!(
+                "{} decoders, expected 3",
+                meta.decoders.len()
+            )));
+        }
+        let mut floats = body[16 + json_len..]
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes(c.try_into().unwrap()));
+        let mut decoders = Vec::with_capacity(3);
+        for (i, spec) in meta.decoders.iter().enumerate() {
+            let (cond, out) = SHAPES[i];
+            if spec.name != NAMES[i] || spec.cond != cond || spec.out != out {
+                return Err(invalid(format!(
+                    "decoder {i} is '{}' with {} inputs and {} outputs; expected '{}' with {cond} and {out}",
+                    spec.name, spec.cond, spec.out, NAMES[i]
+                )));
+            }
+            let widths: Vec<usize> = std::iter::once(spec.cond + spec.latent)
+                .chain(spec.hidden.iter().copied())
+                .chain(std::iter::once(2 * spec.out))
+                .collect();
+            if widths.iter().any(|&w| w == 0 || w > MAX_WIDTH) {
+                return Err(invalid(format!(
+                    "{}: layer widths {widths:?} outside 1..={MAX_WIDTH}",
+                    spec.name
+                )));
+            }
+            let norm_ok = spec.cond_shift.len() == cond
+                && spec.cond_scale.len() == cond
+                && spec.out_shift.len() == out
+                && spec.out_scale.len() == out
+                && spec
+                    .cond_scale
+                    .iter()
+                    .chain(&spec.out_scale)
+                    .all(|s| s.is_finite() && *s > 0.0)
+                && spec
+                    .cond_shift
+                    .iter()
+                    .chain(&spec.out_shift)
+                    .all(|s| s.is_finite());
+            if !norm_ok {
+                return Err(invalid(format!("{}: bad standardisation", spec.name)));
+            }
+            let mut layers = Vec::new();
+            for w in widths.windows(2) {
+                let (inputs, outputs) = (w[0], w[1]);
+                let weight: Vec<f32> = floats.by_ref().take(inputs * outputs).collect();
+                let bias: Vec<f32> = floats.by_ref().take(outputs).collect();
+                if weight.len() != inputs * outputs || bias.len() != outputs {
+                    return Err(invalid("weights end early".into()));
+                }
+                if !weight.iter().chain(&bias).all(|v| v.is_finite()) {
+                    return Err(invalid(format!("{}: non-finite weight", spec.name)));
+                }
+                layers.push(Dense {
+                    inputs,
+                    outputs,
+                    weight,
+                    bias,
+                });
+            }
+            decoders.push(Decoder {
+                cond,
+                latent: spec.latent,
+                out,
+                layers,
+                cond_shift: spec.cond_shift.clone(),
+                cond_scale: spec.cond_scale.clone(),
+                out_shift: spec.out_shift.clone(),
+                out_scale: spec.out_scale.clone(),
+            });
+        }
+        let event = decoders.pop().unwrap();
+        let path_d = decoders.pop().unwrap();
+        let length = decoders.pop().unwrap();
+        Ok(Self {
+            single_scattering: meta.single_scattering,
+            training: meta.training,
+            length,
+            path: path_d,
+            event,
+        })
+    }
+}
+
+fn weight_count(m: &Metadata) -> usize {
+    m.decoders
+        .iter()
+        .map(|d| {
+            let widths: Vec<usize> = std::iter::once(d.cond + d.latent)
+                .chain(d.hidden.iter().copied())
+                .chain(std::iter::once(2 * d.out))
+                .collect();
+            widths.windows(2).map(|w| w[0] * w[1] + w[1]).sum::<usize>()
+        })
+        .sum()
+}

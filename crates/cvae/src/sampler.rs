@@ -1,0 +1,175 @@
+//! The sampling API the renderers use: (τ, g, φ) and random numbers in, a walk's
+//! summary (N, exit, representative event) out, in the canonical frame of
+//! `scatter_sim::frame`.
+
+use glam::DVec3;
+use scatter_sim::frame::CanonicalExit;
+use scatter_sim::phase::hg_sample_cos;
+use scatter_sim::rng::WalkRng;
+
+use crate::features;
+use crate::model_file::{ModelSet, SingleScattering};
+
+/// A walk drawn from the models.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ModelWalk {
+    /// Number of scattering events, before absorption (N ≥ 1).
+    pub n: u64,
+    pub exit: CanonicalExit,
+    /// Representative event X (|X| ≤ 1) and the direction W arriving there (|W| = 1).
+    pub event_pos: DVec3,
+    pub event_dir: DVec3,
+    /// True if this came from the exact single-scattering branch (no decoder ran).
+    pub single: bool,
+}
+
+/// Fills `out` with standard normal variates (Box–Muller on the walk's stream).
+pub fn normals(rng: &mut WalkRng, out: &mut [f32]) {
+    let mut i = 0;
+    while i < out.len() {
+        let r = (-2.0 * rng.uniform_open0().ln()).sqrt();
+        let (c, s) = rng.unit_circle();
+        out[i] = (r * c) as f32;
+        if i + 1 < out.len() {
+            out[i + 1] = (r * s) as f32;
+        }
+        i += 2;
+    }
+}
+
+/// Repairs a model-made exit so that it is a valid canonical exit: cos θ ∈ [−1, 1],
+/// α² + β² ≤ 1, everything finite.
+pub fn repair_exit(cos_theta: f64, beta: f64, alpha: f64) -> CanonicalExit {
+    let cos_theta = if cos_theta.is_finite() {
+        cos_theta.clamp(-1.0, 1.0)
+    } else {
+        1.0
+    };
+    let (mut a, mut b) = if alpha.is_finite() && beta.is_finite() {
+        (alpha, beta)
+    } else {
+        (0.0, 0.0)
+    };
+    let r2 = a * a + b * b;
+    if r2 > 1.0 {
+        let r = r2.sqrt();
+        a /= r;
+        b /= r;
+    }
+    CanonicalExit {
+        cos_theta,
+        alpha: a,
+        beta: b,
+    }
+}
+
+/// Repairs a model-made representative event: X clamped to the unit ball, W normalised.
+pub fn repair_event(x: DVec3, w: DVec3) -> (DVec3, DVec3) {
+    let x = if x.is_finite() { x } else { DVec3::ZERO };
+    let x = if x.length_squared() > 1.0 {
+        x.normalize()
+    } else {
+        x
+    };
+    let w = if w.is_finite() && w.length_squared() > 1e-20 {
+        w.normalize()
+    } else {
+        DVec3::Z
+    };
+    (x, w)
+}
+
+impl ModelSet {
+    /// Smallest N the decoders produce: 2 when N = 1 is handled exactly.
+    pub fn n_min(&self) -> u64 {
+        match self.single_scattering {
+            SingleScattering::Exact => 2,
+            SingleScattering::Learned => 1,
+        }
+    }
+
+    /// LengthGen: N for a walk known to have N ≥ n_min.
+    pub fn sample_multiple_n(&self, tau: f64, g: f64, rng: &mut WalkRng) -> u64 {
+        let mut z = [0f32; 8];
+        normals(rng, &mut z[..self.length.latent + 1]);
+        let (z, eps) = z.split_at(self.length.latent);
+        let mut y = [0f64; 1];
+        self.length
+            .sample(&features::length_cond(tau, g), z, eps, &mut y);
+        features::length_from_target(y[0], tau, g, self.n_min())
+    }
+
+    /// PathGen: the exit of a walk with N events (N ≥ 2, or any N in learned mode).
+    pub fn sample_exit(&self, tau: f64, g: f64, n: u64, rng: &mut WalkRng) -> CanonicalExit {
+        let mut noise = [0f32; 16];
+        let k = self.path.latent + self.path.out;
+        normals(rng, &mut noise[..k]);
+        let (z, eps) = noise[..k].split_at(self.path.latent);
+        let mut v = [0f64; 3];
+        self.path.sample(&features::path_cond(tau, g, n), z, eps, &mut v);
+        repair_exit(v[0], v[1], v[2])
+    }
+
+    /// EventGen: the representative event given the walk's N and exit.
+    pub fn sample_event(
+        &self,
+        tau: f64,
+        g: f64,
+        albedo: f64,
+        n: u64,
+        exit: CanonicalExit,
+        rng: &mut WalkRng,
+    ) -> (DVec3, DVec3) {
+        let mut noise = [0f32; 16];
+        let k = self.event.latent + self.event.out;
+        normals(rng, &mut noise[..k]);
+        let (z, eps) = noise[..k].split_at(self.event.latent);
+        let mut v = [0f64; 6];
+        let cond = features::event_cond(tau, g, albedo, n, exit.cos_theta, exit.beta, exit.alpha);
+        self.event.sample(&cond, z, eps, &mut v);
+        repair_event(
+            DVec3::new(v[0], v[1], v[2]),
+            DVec3::new(v[3], v[4], v[5]),
+        )
+    }
+
+    /// A whole walk. With `with_event` false EventGen is not run (NEE off) and the
+    /// event fields hold the centre and +z.
+    pub fn sample_walk(
+        &self,
+        tau: f64,
+        g: f64,
+        albedo: f64,
+        with_event: bool,
+        rng: &mut WalkRng,
+    ) -> ModelWalk {
+        if self.single_scattering == SingleScattering::Exact && rng.uniform() < (-tau).exp() {
+            // Exact branch: the photon left the centre in the HG direction, x = ω.
+            return ModelWalk {
+                n: 1,
+                exit: CanonicalExit {
+                    cos_theta: hg_sample_cos(g, rng.uniform()),
+                    alpha: 0.0,
+                    beta: 0.0,
+                },
+                event_pos: DVec3::ZERO,
+                event_dir: DVec3::Z,
+                single: true,
+            };
+        }
+        let n = self.sample_multiple_n(tau, g, rng);
+        let exit = self.sample_exit(tau, g, n, rng);
+        let (event_pos, event_dir) = if with_event {
+            self.sample_event(tau, g, albedo, n, exit, rng)
+        } else {
+            (DVec3::ZERO, DVec3::Z)
+        };
+        ModelWalk {
+            n,
+            exit,
+            event_pos,
+            event_dir,
+            single: false,
+        }
+    }
+}

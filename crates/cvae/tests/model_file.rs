@@ -1,0 +1,130 @@
+//! The model file round-trips and rejects damaged files with clear errors; the sampler
+//! never returns invalid walks whatever the weights.
+
+use std::path::Path;
+
+use cvae::decoder::{Decoder, Dense};
+use cvae::model_file::{ModelError, ModelSet, SingleScattering, TrainingInfo};
+use scatter_sim::WalkRng;
+
+fn random_decoder(rng: &mut WalkRng, cond: usize, latent: usize, hidden: &[usize], out: usize, gain: f32) -> Decoder {
+    let widths: Vec<usize> = std::iter::once(cond + latent).chain(hidden.iter().copied()).chain([2 * out]).collect();
+    let layers = widths
+        .windows(2)
+        .map(|w| Dense {
+            inputs: w[0],
+            outputs: w[1],
+            weight: (0..w[0] * w[1]).map(|_| gain * (rng.uniform() as f32 - 0.5)).collect(),
+            bias: (0..w[1]).map(|_| gain * (rng.uniform() as f32 - 0.5)).collect(),
+        })
+        .collect();
+    Decoder {
+        cond,
+        latent,
+        out,
+        layers,
+        cond_shift: vec![0.1; cond],
+        cond_scale: vec![1.5; cond],
+        out_shift: vec![0.0; out],
+        out_scale: vec![1.0; out],
+    }
+}
+
+pub fn random_models(seed: u64, gain: f32) -> ModelSet {
+    let mut rng = WalkRng::from_seed(seed);
+    ModelSet {
+        single_scattering: SingleScattering::Exact,
+        training: TrainingInfo {
+            tau_range: [0.0, 300.0],
+            g_range: [-0.999, 0.999],
+            albedo_range: [0.0, 1.0],
+            notes: "random test weights".into(),
+        },
+        length: random_decoder(&mut rng, 2, 2, &[8, 8], 1, gain),
+        path: random_decoder(&mut rng, 3, 5, &[16, 16, 16], 3, gain),
+        event: random_decoder(&mut rng, 7, 5, &[12, 12, 12], 6, gain),
+    }
+}
+
+#[test]
+fn round_trip_and_size() {
+    let m = random_models(1, 1.0);
+    let bytes = m.to_bytes();
+    assert!(bytes.len() <= 16 * 1024, "model file is {} bytes", bytes.len());
+    let back = ModelSet::from_bytes(&bytes, Path::new("m.stcvae")).unwrap();
+    assert_eq!(back, m);
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("m.stcvae");
+    m.save(&p).unwrap();
+    assert_eq!(ModelSet::load(&p).unwrap(), m);
+}
+
+#[test]
+fn damaged_files_are_rejected() {
+    let bytes = random_models(2, 1.0).to_bytes();
+    let p = Path::new("damaged.stcvae");
+    let load = |b: &[u8]| ModelSet::from_bytes(b, p);
+    for cut in [0, 5, 15, 40, bytes.len() / 2, bytes.len() - 1] {
+        let e = load(&bytes[..cut]).unwrap_err();
+        assert!(
+            matches!(e, ModelError::BadMagic { .. } | ModelError::Truncated { .. } | ModelError::Checksum { .. }),
+            "cut at {cut}: {e}"
+        );
+        assert!(e.to_string().contains("damaged.stcvae"));
+    }
+    let mut flipped = bytes.clone();
+    let at = bytes.len() - 100;
+    flipped[at] ^= 1;
+    assert!(matches!(load(&flipped).unwrap_err(), ModelError::Checksum { .. }));
+    let mut v9 = bytes.clone();
+    v9[8] = 9;
+    let e = load(&v9).unwrap_err();
+    assert!(matches!(e, ModelError::Version { found: 9, .. }), "{e}");
+    assert!(matches!(load(b"STCVAEDS....").unwrap_err(), ModelError::BadMagic { .. }));
+}
+
+/// Non-finite weights are refused even with a valid checksum.
+#[test]
+fn non_finite_weights_are_refused() {
+    let mut m = random_models(3, 1.0);
+    m.path.layers[1].weight[3] = f32::NAN;
+    let e = ModelSet::from_bytes(&m.to_bytes(), Path::new("nan.stcvae")).unwrap_err();
+    assert!(e.to_string().contains("non-finite"), "{e}");
+}
+
+/// Wild weights (gain 40) make the decoders return absurd values; the sampler must
+/// still produce valid walks: N ≥ 1, cos θ ∈ [−1, 1], α² + β² ≤ 1, |X| ≤ 1, |W| = 1.
+#[test]
+fn sampler_output_is_always_valid() {
+    for gain in [1.0, 40.0] {
+        let m = random_models(4, gain);
+        let mut rng = WalkRng::from_seed(8);
+        for i in 0..20_000 {
+            let tau = 300.0 * rng.uniform().powi(3);
+            let g = 1.998 * rng.uniform() - 0.999;
+            let w = m.sample_walk(tau, g, 0.99, i % 2 == 0, &mut rng);
+            assert!(w.n >= 1);
+            assert!(w.exit.cos_theta.abs() <= 1.0);
+            assert!(w.exit.alpha.powi(2) + w.exit.beta.powi(2) <= 1.0 + 1e-12);
+            assert!(w.event_pos.length() <= 1.0 + 1e-12);
+            assert!((w.event_dir.length() - 1.0).abs() < 1e-9);
+            if !w.single {
+                assert!(w.n >= 2, "N = 1 only comes from the exact branch");
+            }
+        }
+    }
+}
+
+/// The exact branch: P(N = 1) = e^{−τ}; with 100,000 draws the fraction's standard
+/// error is ≤ 0.0016, and |z| < 4 fails a correct sampler with probability 6e-5.
+#[test]
+fn single_scattering_branch_probability() {
+    let m = random_models(5, 1.0);
+    for (i, tau) in [0.3, 1.0, 3.0].into_iter().enumerate() {
+        let mut rng = WalkRng::from_seed(50 + i as u64);
+        let n = 100_000u64;
+        let hits = (0..n).filter(|_| m.sample_walk(tau, 0.2, 1.0, false, &mut rng).n == 1).count() as u64;
+        let z = scatter_sim::stats::proportion_z(hits, n, (-tau).exp());
+        assert!(z.abs() < 4.0, "tau = {tau}: z = {z:.2}");
+    }
+}
