@@ -5,9 +5,13 @@
 //! The `train` feature adds the burn models, the Adamax optimiser, training and export.
 
 pub mod decoder;
+pub mod eval;
 pub mod features;
 pub mod model_file;
 pub mod sampler;
 
 pub use model_file::{ModelError, ModelSet, SingleScattering};
 pub use sampler::ModelWalk;
+
+#[cfg(feature = "train")]
+pub mod train;

@@ -1,0 +1,191 @@
+//! Training tables: dataset rows turned into standardised feature matrices, one per model.
+
+use serde::{Deserialize, Serialize};
+
+use scatter_sim::WalkRng;
+use scatter_sim::dataset::Row;
+
+use crate::features;
+use crate::model_file::SingleScattering;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ModelKind {
+    LengthGen,
+    PathGen,
+    EventGen,
+}
+
+impl ModelKind {
+    pub const ALL: [ModelKind; 3] = [ModelKind::LengthGen, ModelKind::PathGen, ModelKind::EventGen];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            ModelKind::LengthGen => "lengthgen",
+            ModelKind::PathGen => "pathgen",
+            ModelKind::EventGen => "eventgen",
+        }
+    }
+
+    pub fn cond(self) -> usize {
+        match self {
+            ModelKind::LengthGen => features::LENGTH_COND,
+            ModelKind::PathGen => features::PATH_COND,
+            ModelKind::EventGen => features::EVENT_COND,
+        }
+    }
+
+    pub fn out(self) -> usize {
+        match self {
+            ModelKind::LengthGen => features::LENGTH_OUT,
+            ModelKind::PathGen => features::PATH_OUT,
+            ModelKind::EventGen => features::EVENT_OUT,
+        }
+    }
+}
+
+impl std::str::FromStr for ModelKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        ModelKind::ALL
+            .into_iter()
+            .find(|k| k.name() == s.to_ascii_lowercase())
+            .ok_or_else(|| format!("unknown model '{s}': expected lengthgen, pathgen or eventgen"))
+    }
+}
+
+/// Affine standardisation of inputs and outputs (stored in the model file).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Standardisation {
+    pub cond_shift: Vec<f32>,
+    pub cond_scale: Vec<f32>,
+    pub out_shift: Vec<f32>,
+    pub out_scale: Vec<f32>,
+}
+
+/// Mean and standard deviation of each column of a row-major matrix.
+fn column_stats(m: &[f32], cols: usize) -> (Vec<f32>, Vec<f32>) {
+    let rows = (m.len() / cols).max(1) as f64;
+    let mut mean = vec![0f64; cols];
+    for r in m.chunks_exact(cols) {
+        for (a, v) in mean.iter_mut().zip(r) {
+            *a += *v as f64;
+        }
+    }
+    mean.iter_mut().for_each(|a| *a /= rows);
+    let mut var = vec![0f64; cols];
+    for r in m.chunks_exact(cols) {
+        for ((a, v), mu) in var.iter_mut().zip(r).zip(&mean) {
+            *a += (*v as f64 - mu).powi(2);
+        }
+    }
+    let std = var
+        .iter()
+        .map(|v| ((v / rows).sqrt().max(1e-6)) as f32)
+        .collect();
+    (mean.iter().map(|&v| v as f32).collect(), std)
+}
+
+fn standardise(m: &mut [f32], cols: usize, shift: &[f32], scale: &[f32]) {
+    for r in m.chunks_exact_mut(cols) {
+        for ((v, s), k) in r.iter_mut().zip(shift).zip(scale) {
+            *v = (*v - s) / k;
+        }
+    }
+}
+
+/// One model's training data. LengthGen's target is dequantised afresh for every batch
+/// (ln(N + u), u ~ U(0, 1)), so the table keeps N and the prior offset instead.
+pub struct Table {
+    pub kind: ModelKind,
+    pub rows: usize,
+    cond: Vec<f32>,
+    target: Vec<f32>,
+    n: Vec<u32>,
+    prior: Vec<f32>,
+    pub norm: Standardisation,
+}
+
+impl Table {
+    /// Builds the table from dataset rows; in exact single-scattering mode only walks
+    /// with N ≥ 2 are used (N = 1 is drawn analytically at sampling time).
+    pub fn build(kind: ModelKind, rows: &[Row], mode: SingleScattering) -> Table {
+        let keep: Vec<&Row> = rows
+            .iter()
+            .filter(|r| mode == SingleScattering::Learned || r.n >= 2)
+            .collect();
+        let (c, p) = (kind.cond(), kind.out());
+        let mut cond = Vec::with_capacity(keep.len() * c);
+        let mut target = Vec::with_capacity(keep.len() * p);
+        let mut n = Vec::new();
+        let mut prior = Vec::new();
+        for r in &keep {
+            let (tau, g, nn) = (r.tau as f64, r.g as f64, r.n as u64);
+            match kind {
+                ModelKind::LengthGen => {
+                    cond.extend(features::length_cond(tau, g).map(|v| v as f32));
+                    // Midpoint dequantisation for the statistics only.
+                    target.push(features::length_target(nn, 0.5, tau, g) as f32);
+                    n.push(r.n);
+                    prior.push(features::log_n_prior(tau, g) as f32);
+                }
+                ModelKind::PathGen => {
+                    cond.extend(features::path_cond(tau, g, nn).map(|v| v as f32));
+                    target.extend([r.cos_theta, r.beta, r.alpha]);
+                }
+                ModelKind::EventGen => {
+                    cond.extend(
+                        features::event_cond(
+                            tau,
+                            g,
+                            r.albedo,
+                            nn,
+                            r.cos_theta as f64,
+                            r.beta as f64,
+                            r.alpha as f64,
+                        )
+                        .map(|v| v as f32),
+                    );
+                    target.extend(r.ev_pos.iter().chain(&r.ev_dir));
+                }
+            }
+        }
+        let (cond_shift, cond_scale) = column_stats(&cond, c);
+        let (out_shift, out_scale) = column_stats(&target, p);
+        standardise(&mut cond, c, &cond_shift, &cond_scale);
+        if kind != ModelKind::LengthGen {
+            standardise(&mut target, p, &out_shift, &out_scale);
+        }
+        Table {
+            kind,
+            rows: keep.len(),
+            cond,
+            target,
+            n,
+            prior,
+            norm: Standardisation {
+                cond_shift,
+                cond_scale,
+                out_shift,
+                out_scale,
+            },
+        }
+    }
+
+    /// Fills `cond` [B × C] and `target` [B × P] (standardised) with a random minibatch.
+    pub fn batch(&self, size: usize, rng: &mut WalkRng, cond: &mut Vec<f32>, target: &mut Vec<f32>) {
+        let (c, p) = (self.kind.cond(), self.kind.out());
+        cond.clear();
+        target.clear();
+        for _ in 0..size {
+            let i = (rng.next_u64() % self.rows as u64) as usize;
+            cond.extend_from_slice(&self.cond[i * c..(i + 1) * c]);
+            if self.kind == ModelKind::LengthGen {
+                let y = ((self.n[i] as f64 + rng.uniform()).ln() - self.prior[i] as f64) as f32;
+                target.push((y - self.norm.out_shift[0]) / self.norm.out_scale[0]);
+            } else {
+                target.extend_from_slice(&self.target[i * p..(i + 1) * p]);
+            }
+        }
+    }
+}

@@ -1,0 +1,9 @@
+//! Training with burn (feature `train`).
+
+pub mod adamax;
+pub mod data;
+pub mod network;
+pub mod trainer;
+
+pub use data::{ModelKind, Table};
+pub use trainer::{ModelConfig, TrainError, Trained, train_model};

@@ -1,0 +1,229 @@
+//! The training loop of one CVAE: minibatches from a table, negative ELBO, Adamax with
+//! warm-up and cosine learning-rate decay, periodic checkpoints, resume and clean stop.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use burn::optim::{GradientsParams, ModuleOptimizer};
+use burn::prelude::*;
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+use scatter_sim::WalkRng;
+
+use super::adamax::Adamax;
+use super::data::{ModelKind, Standardisation, Table};
+use super::network::{Architecture, Cvae};
+use crate::decoder::Decoder;
+use crate::sampler::normals;
+
+/// Training settings of one model (a `[lengthgen]`, `[pathgen]` or `[eventgen]` table
+/// of the training config).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelConfig {
+    pub latent: usize,
+    pub hidden: Vec<usize>,
+    #[serde(default)]
+    pub encoder_hidden: Option<Vec<usize>>,
+    pub steps: u64,
+    #[serde(default = "default_batch")]
+    pub batch_size: usize,
+    /// Peak learning rate (after warm-up).
+    pub lr: f64,
+    /// Learning rate at the last step (cosine decay from `lr`).
+    pub lr_final: f64,
+    #[serde(default = "default_warmup")]
+    pub warmup: u64,
+}
+
+fn default_batch() -> usize {
+    1024
+}
+fn default_warmup() -> u64 {
+    500
+}
+
+impl ModelConfig {
+    pub fn architecture(&self) -> Architecture {
+        Architecture {
+            latent: self.latent,
+            hidden: self.hidden.clone(),
+            encoder_hidden: self.encoder_hidden.clone(),
+        }
+    }
+
+    /// Linear warm-up to `lr`, then cosine decay to `lr_final` at the last step.
+    pub fn learning_rate(&self, step: u64) -> f64 {
+        if step < self.warmup {
+            return self.lr * (step + 1) as f64 / self.warmup as f64;
+        }
+        let span = (self.steps.saturating_sub(self.warmup)).max(1) as f64;
+        let t = ((step - self.warmup) as f64 / span).min(1.0);
+        self.lr_final + 0.5 * (self.lr - self.lr_final) * (1.0 + (std::f64::consts::PI * t).cos())
+    }
+
+    pub fn validate(&self, name: &str) -> Result<(), String> {
+        let bad = |f: &str, why: &str| Err(format!("{name}.{f}: {why}"));
+        if self.latent == 0 || self.latent > 16 {
+            return bad("latent", "must be in 1..=16");
+        }
+        if self.hidden.is_empty() || self.hidden.iter().any(|&h| h == 0 || h > 64) {
+            return bad("hidden", "1 to n layers of width 1..=64");
+        }
+        if self.batch_size == 0 {
+            return bad("batch_size", "must be at least 1");
+        }
+        if !(self.lr > 0.0 && self.lr < 1.0) || !(self.lr_final >= 0.0 && self.lr_final <= self.lr) {
+            return bad("lr", "need 0 < lr < 1 and 0 <= lr_final <= lr");
+        }
+        Ok(())
+    }
+}
+
+#[derive(Debug, Error)]
+pub enum TrainError {
+    #[error("interrupted: checkpoint saved in {0}")]
+    Interrupted(PathBuf),
+    #[error("{path}: {msg}")]
+    Checkpoint { path: PathBuf, msg: String },
+    #[error("{0}: the loss became non-finite at step {1}; lower the learning rate")]
+    Diverged(&'static str, u64),
+}
+
+/// Progress of a model, saved beside its weights.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct CheckpointInfo {
+    pub step: u64,
+    pub seconds: f64,
+    pub norm: Standardisation,
+    /// (step, mean loss over the preceding reporting interval); the first entry (step 1)
+    /// is the untrained model's loss.
+    pub history: Vec<(u64, f32)>,
+}
+
+/// A finished model.
+pub struct Trained {
+    pub kind: ModelKind,
+    pub decoder: Decoder,
+    pub info: CheckpointInfo,
+}
+
+fn paths(dir: &Path, kind: ModelKind) -> (PathBuf, PathBuf, PathBuf) {
+    let n = kind.name();
+    (
+        dir.join(format!("{n}.bpk")),
+        dir.join(format!("{n}-optim.bpk")),
+        dir.join(format!("{n}.json")),
+    )
+}
+
+fn save_checkpoint(dir: &Path, kind: ModelKind, model: &Cvae, optim: &ModuleOptimizer, info: &CheckpointInfo) -> Result<(), TrainError> {
+    let (m, o, j) = paths(dir, kind);
+    let err = |p: &Path, e: String| TrainError::Checkpoint { path: p.into(), msg: e };
+    std::fs::create_dir_all(dir).map_err(|e| err(dir, e.to_string()))?;
+    model.clone().save_file(&m).map_err(|e| err(&m, format!("{e:?}")))?;
+    optim.save(&o).map_err(|e| err(&o, format!("{e:?}")))?;
+    let json = serde_json::to_vec_pretty(info).expect("serialisable");
+    scatter_sim::output::write_atomic(&j, &json).map_err(|e| err(&j, e.to_string()))
+}
+
+/// The loss is read every LOG_EVERY steps (reading synchronises, so not every step) and
+/// the mean of those readings is reported and kept in the history every REPORT_EVERY.
+const LOG_EVERY: u64 = 10;
+const REPORT_EVERY: u64 = 500;
+
+/// Trains one model. `report(step, loss)` is called every few steps; `cancel` stops
+/// after the current step with a checkpoint.
+#[allow(clippy::too_many_arguments)]
+pub fn train_model(
+    kind: ModelKind,
+    table: &Table,
+    cfg: &ModelConfig,
+    seed: u64,
+    device: &Device,
+    checkpoint_dir: &Path,
+    checkpoint_every: u64,
+    resume: bool,
+    cancel: &AtomicBool,
+    report: &(dyn Fn(ModelKind, u64, f32) + Sync),
+) -> Result<Trained, TrainError> {
+    let mut rng = WalkRng::for_walk(seed, kind as u64);
+    let mut model = Cvae::new(kind.cond(), kind.out(), &cfg.architecture(), &mut rng, device);
+    let mut optim = Adamax::default().init();
+    let mut info = CheckpointInfo {
+        step: 0,
+        seconds: 0.0,
+        norm: table.norm.clone(),
+        history: Vec::new(),
+    };
+    let (mpath, opath, jpath) = paths(checkpoint_dir, kind);
+    if resume && jpath.exists() {
+        let err = |p: &Path, e: String| TrainError::Checkpoint { path: p.into(), msg: e };
+        let text = std::fs::read(&jpath).map_err(|e| err(&jpath, e.to_string()))?;
+        info = serde_json::from_slice(&text).map_err(|e| err(&jpath, e.to_string()))?;
+        if info.norm != table.norm {
+            return Err(err(&jpath, "checkpoint was trained on other data (standardisation differs)".into()));
+        }
+        model = model
+            .try_load_file(&mpath)
+            .map_err(|e| err(&mpath, format!("{e:?}")))?;
+        optim = optim.load(&opath).map_err(|e| err(&opath, format!("{e:?}")))?;
+        // A fresh stream for the rest of the run (the old one's position is not saved).
+        rng = WalkRng::for_walk(seed ^ info.step.rotate_left(32), kind as u64);
+    }
+    let start = Instant::now();
+    let base_seconds = info.seconds;
+    let (c, p, l) = (kind.cond(), kind.out(), cfg.latent);
+    let b = cfg.batch_size;
+    let (mut cond, mut target) = (Vec::new(), Vec::new());
+    let mut eps = vec![0f32; b * l];
+    let mut acc = 0f64;
+    let mut acc_n = 0u64;
+    while info.step < cfg.steps {
+        table.batch(b, &mut rng, &mut cond, &mut target);
+        normals(&mut rng, &mut eps);
+        let tc = Tensor::<2>::from_data(TensorData::new(cond.clone(), [b, c]), device);
+        let tt = Tensor::<2>::from_data(TensorData::new(target.clone(), [b, p]), device);
+        let te = Tensor::<2>::from_data(TensorData::new(eps.clone(), [b, l]), device);
+        let terms = model.loss(tc, tt, te);
+        // Step 0 is always logged: it is the untrained model's loss.
+        let log_now = info.step % LOG_EVERY == 0;
+        if log_now {
+            let v = terms.loss.clone().into_scalar::<f32>();
+            if !v.is_finite() {
+                return Err(TrainError::Diverged(kind.name(), info.step));
+            }
+            acc += v as f64;
+            acc_n += 1;
+        }
+        let grads = GradientsParams::from_grads(terms.loss.backward(), &model);
+        model = optim.step(cfg.learning_rate(info.step), model, grads);
+        info.step += 1;
+        if info.step % REPORT_EVERY == 0 || info.step == 1 || info.step == cfg.steps {
+            if acc_n > 0 {
+                let mean = (acc / acc_n as f64) as f32;
+                report(kind, info.step, mean);
+                info.history.push((info.step, mean));
+            }
+            acc = 0.0;
+            acc_n = 0;
+        }
+        let stop = cancel.load(Ordering::Relaxed);
+        if stop || (checkpoint_every > 0 && info.step % checkpoint_every == 0) {
+            info.seconds = base_seconds + start.elapsed().as_secs_f64();
+            save_checkpoint(checkpoint_dir, kind, &model, &optim, &info)?;
+            if stop {
+                return Err(TrainError::Interrupted(checkpoint_dir.into()));
+            }
+        }
+    }
+    info.seconds = base_seconds + start.elapsed().as_secs_f64();
+    save_checkpoint(checkpoint_dir, kind, &model, &optim, &info)?;
+    Ok(Trained {
+        kind,
+        decoder: model.valid().export(&table.norm),
+        info,
+    })
+}
