@@ -108,6 +108,21 @@ pub fn pool(threads: Option<usize>) -> Result<rayon::ThreadPool> {
     Ok(b.build()?)
 }
 
+/// Generates the dataset of a config file (used by `train` when its dataset is missing).
+pub fn generate_from_config(config: &Path, out: &Path) -> Result<()> {
+    run(Args {
+        config: Some(config.to_path_buf()),
+        out: out.to_path_buf(),
+        samples: None,
+        tau: None,
+        g: None,
+        albedo: None,
+        seed: None,
+        shard: None,
+        threads: None,
+    })
+}
+
 pub fn run(a: Args) -> Result<()> {
     let (mut spec, fixed) = match (a.tau, a.g, a.albedo) {
         (Some(tau), Some(g), Some(albedo)) => {

@@ -4,7 +4,9 @@ mod bench;
 mod generate;
 mod interrupt;
 mod merge;
+mod model_cmds;
 mod progress;
+mod train;
 
 use clap::{Parser, Subcommand};
 
@@ -27,6 +29,12 @@ struct Cli {
 enum Command {
     /// Simulate random walks in the unit sphere and write a dataset (.bin) or a CSV (.csv).
     Generate(generate::Args),
+    /// Train LengthGen, PathGen and EventGen and export the model file.
+    Train(train::Args),
+    /// Draw walks from a trained model at fixed conditions (CSV like `generate`).
+    Sample(model_cmds::SampleArgs),
+    /// Measure a model's distributions against fresh simulator walks (KS, Wasserstein).
+    Eval(model_cmds::EvalArgs),
     /// Concatenate dataset shards (.bin or .csv) into one file.
     Merge(merge::Args),
     /// Measure the speed of parts of stcvae.
@@ -37,6 +45,9 @@ fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Generate(a) => generate::run(a),
+        Command::Train(a) => train::run(a),
+        Command::Sample(a) => model_cmds::sample(a),
+        Command::Eval(a) => model_cmds::evaluate(a),
         Command::Merge(a) => merge::run(a),
         Command::Bench(a) => bench::run(a),
     };

@@ -227,3 +227,18 @@ pub fn train_model(
         info,
     })
 }
+
+/// The decoder of a model's last checkpoint (for exporting a set in which only some
+/// models were retrained).
+pub fn load_decoder(dir: &Path, kind: ModelKind, arch: &Architecture) -> Result<Decoder, TrainError> {
+    let (m, _, j) = paths(dir, kind);
+    let err = |p: &Path, e: String| TrainError::Checkpoint { path: p.into(), msg: e };
+    let text = std::fs::read(&j).map_err(|e| err(&j, e.to_string()))?;
+    let info: CheckpointInfo = serde_json::from_slice(&text).map_err(|e| err(&j, e.to_string()))?;
+    let device = Device::flex();
+    let mut rng = WalkRng::from_seed(0);
+    let model = Cvae::new(kind.cond(), kind.out(), arch, &mut rng, &device)
+        .try_load_file(&m)
+        .map_err(|e| err(&m, format!("{e:?}")))?;
+    Ok(model.export(&info.norm))
+}

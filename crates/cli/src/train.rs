@@ -1,0 +1,254 @@
+//! `stcvae train`: the three CVAEs from a dataset, concurrently, to a model file.
+
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use burn::prelude::Device;
+use cvae::model_file::{ModelSet, SingleScattering, TrainingInfo};
+use cvae::train::{ModelConfig, ModelKind, Table, TrainError, train_model};
+use indicatif::{MultiProgress, ProgressBar};
+use scatter_sim::dataset::{Row, read_dataset};
+use serde::Deserialize;
+
+use crate::generate::parse_toml;
+use crate::{interrupt, progress};
+
+#[derive(clap::Args)]
+#[command(after_help = "Example:\n  stcvae train --config configs/train/default.toml\n\n\
+    The three models train concurrently, one thread each. If the dataset named in the config \
+    does not exist it is generated first from `dataset_config`. Ctrl-C saves a checkpoint; \
+    --resume continues from it.")]
+pub struct Args {
+    /// Training config (TOML).
+    #[arg(long, default_value = "configs/train/default.toml")]
+    config: PathBuf,
+    /// Train only this model (lengthgen, pathgen or eventgen); the other two decoders of
+    /// the exported file come from their checkpoints.
+    #[arg(long)]
+    model: Option<ModelKind>,
+    /// Continue from the checkpoints in the config's checkpoint_dir.
+    #[arg(long)]
+    resume: bool,
+    /// Output model file (overrides the config).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Scale every model's step count (e.g. 0.01 for a smoke test).
+    #[arg(long, default_value_t = 1.0)]
+    steps_scale: f64,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct TrainConfig {
+    dataset: PathBuf,
+    /// Dataset config used to generate `dataset` when it does not exist.
+    dataset_config: Option<PathBuf>,
+    out: PathBuf,
+    checkpoint_dir: PathBuf,
+    #[serde(default = "one")]
+    seed: u64,
+    #[serde(default = "exact")]
+    single_scattering: SingleScattering,
+    #[serde(default = "checkpoint_every")]
+    checkpoint_every: u64,
+    lengthgen: ModelConfig,
+    pathgen: ModelConfig,
+    eventgen: ModelConfig,
+}
+
+fn one() -> u64 {
+    1
+}
+fn exact() -> SingleScattering {
+    SingleScattering::Exact
+}
+fn checkpoint_every() -> u64 {
+    5000
+}
+
+impl TrainConfig {
+    fn model(&self, k: ModelKind) -> &ModelConfig {
+        match k {
+            ModelKind::LengthGen => &self.lengthgen,
+            ModelKind::PathGen => &self.pathgen,
+            ModelKind::EventGen => &self.eventgen,
+        }
+    }
+}
+
+/// Paths in a config are relative to the current directory (the repository root for
+/// the shipped configs), like every other path on the command line.
+fn load(path: &Path) -> Result<TrainConfig> {
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("cannot read training config {}", path.display()))?;
+    let cfg: TrainConfig = parse_toml(path, &text)?;
+    for k in ModelKind::ALL {
+        cfg.model(k)
+            .validate(k.name())
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    }
+    Ok(cfg)
+}
+
+fn ensure_dataset(cfg: &TrainConfig) -> Result<()> {
+    if cfg.dataset.exists() {
+        return Ok(());
+    }
+    let Some(dc) = &cfg.dataset_config else {
+        bail!(
+            "dataset {} does not exist and the config names no dataset_config to generate it",
+            cfg.dataset.display()
+        );
+    };
+    eprintln!(
+        "dataset {} not found: generating it from {} first",
+        cfg.dataset.display(),
+        dc.display()
+    );
+    crate::generate::generate_from_config(dc, &cfg.dataset)
+}
+
+fn range(rows: &[Row], f: impl Fn(&Row) -> f64) -> [f64; 2] {
+    rows.iter()
+        .map(f)
+        .fold([f64::INFINITY, f64::NEG_INFINITY], |[lo, hi], v| [lo.min(v), hi.max(v)])
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let cfg = load(&a.config)?;
+    if !(a.steps_scale > 0.0) {
+        bail!("--steps-scale must be positive");
+    }
+    let out = a.out.clone().unwrap_or_else(|| cfg.out.clone());
+    ensure_dataset(&cfg)?;
+    let t0 = Instant::now();
+    eprintln!("reading {}", cfg.dataset.display());
+    let (_, rows) = read_dataset(&cfg.dataset)?;
+    let kinds: Vec<ModelKind> = match a.model {
+        Some(k) => vec![k],
+        None => ModelKind::ALL.to_vec(),
+    };
+    let tables: Vec<Table> = kinds
+        .iter()
+        .map(|&k| Table::build(k, &rows, cfg.single_scattering))
+        .collect();
+    eprintln!(
+        "{} walks ({} used: {}), read and prepared in {:.1} s",
+        rows.len(),
+        tables[0].rows,
+        if cfg.single_scattering == SingleScattering::Exact {
+            "N >= 2; N = 1 is exact"
+        } else {
+            "all, the paper's way"
+        },
+        t0.elapsed().as_secs_f64()
+    );
+    let info = TrainingInfo {
+        tau_range: range(&rows, |r| r.tau as f64),
+        g_range: range(&rows, |r| r.g as f64),
+        albedo_range: range(&rows, |r| r.albedo),
+        notes: String::new(),
+    };
+    drop(rows);
+
+    let cancel = interrupt::flag();
+    let multi = MultiProgress::new();
+    let scaled = |k: ModelKind| {
+        let mut m = cfg.model(k).clone();
+        m.steps = ((m.steps as f64 * a.steps_scale).round() as u64).max(1);
+        m.warmup = m.warmup.min(m.steps / 4);
+        m
+    };
+    let bars: Vec<ProgressBar> = kinds
+        .iter()
+        .map(|&k| {
+            let pb = multi.add(progress::bar(scaled(k).steps, "steps"));
+            pb.set_prefix(k.name());
+            pb.set_message(format!("{:>9}", k.name()));
+            pb
+        })
+        .collect();
+    let report = |k: ModelKind, step: u64, loss: f32| {
+        if let Some(i) = kinds.iter().position(|&x| x == k) {
+            bars[i].set_position(step);
+            bars[i].set_message(format!("{:>9} loss {loss:.4}", k.name()));
+        }
+    };
+    let start = Instant::now();
+    let results: Mutex<Vec<Result<cvae::train::Trained, TrainError>>> = Mutex::new(Vec::new());
+    std::thread::scope(|s| {
+        for (i, &k) in kinds.iter().enumerate() {
+            let table = &tables[i];
+            let mc = scaled(k);
+            let (cfg, results, report, bar) = (&cfg, &results, &report, &bars[i]);
+            s.spawn(move || {
+                let device = Device::flex().autodiff();
+                let r = train_model(
+                    k,
+                    table,
+                    &mc,
+                    cfg.seed,
+                    &device,
+                    &cfg.checkpoint_dir,
+                    cfg.checkpoint_every,
+                    a.resume,
+                    cancel,
+                    report,
+                );
+                bar.finish();
+                results.lock().unwrap().push(r);
+            });
+        }
+    });
+    let seconds = start.elapsed().as_secs_f64();
+    let mut trained = Vec::new();
+    for r in results.into_inner().unwrap() {
+        trained.push(r?);
+    }
+    let mut decoders = std::collections::HashMap::new();
+    let mut notes = Vec::new();
+    for t in &trained {
+        let last = t.info.history.last().map_or(f32::NAN, |h| h.1);
+        notes.push(format!(
+            "{}: {} steps, final loss {last:.4}, {:.0} s",
+            t.kind.name(),
+            t.info.step,
+            t.info.seconds
+        ));
+        decoders.insert(t.kind, t.decoder.clone());
+    }
+    for k in ModelKind::ALL {
+        if !decoders.contains_key(&k) {
+            let d = cvae::train::trainer::load_decoder(&cfg.checkpoint_dir, k, &cfg.model(k).architecture())
+                .with_context(|| format!("the model file needs {}: train it first (or all three at once)", k.name()))?;
+            notes.push(format!("{}: from checkpoint", k.name()));
+            decoders.insert(k, d);
+        }
+    }
+    let set = ModelSet {
+        single_scattering: cfg.single_scattering,
+        training: TrainingInfo {
+            notes: format!(
+                "stcvae {} train --config {}; dataset {}; {}",
+                env!("CARGO_PKG_VERSION"),
+                a.config.display(),
+                cfg.dataset.display(),
+                notes.join("; ")
+            ),
+            ..info
+        },
+        length: decoders.remove(&ModelKind::LengthGen).unwrap(),
+        path: decoders.remove(&ModelKind::PathGen).unwrap(),
+        event: decoders.remove(&ModelKind::EventGen).unwrap(),
+    };
+    set.save(&out)?;
+    eprintln!(
+        "trained in {seconds:.0} s ({}); wrote {} ({} bytes)",
+        notes.join("; "),
+        out.display(),
+        set.to_bytes().len()
+    );
+    Ok(())
+}
