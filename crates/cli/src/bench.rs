@@ -28,11 +28,15 @@ enum What {
         #[arg(long)]
         threads: Option<usize>,
     },
+    /// PT vs ST-CVAE on the bunny at the teaser's density ladder σ_t = k·(150, 187.5, 125):
+    /// speed-up at equal spp, variance ratio, events/steps per path and the bias.
+    Render(crate::bench_render::Args),
 }
 
 pub fn run(a: Args) -> Result<()> {
     match a.what {
         What::Sim { walks, threads } => bench_sim(walks, threads),
+        What::Render(r) => crate::bench_render::run(r),
     }
 }
 

@@ -1,11 +1,14 @@
 //! `stcvae`: learned multiple scattering for fast subsurface-scattering rendering.
 
 mod bench;
+mod bench_render;
 mod generate;
 mod interrupt;
 mod merge;
+mod plots;
 mod model_cmds;
 mod progress;
+mod render;
 mod train;
 
 use clap::{Parser, Subcommand};
@@ -35,7 +38,9 @@ enum Command {
     Sample(model_cmds::SampleArgs),
     /// Measure a model's distributions against fresh simulator walks (KS, Wasserstein).
     Eval(model_cmds::EvalArgs),
-    /// Concatenate dataset shards (.bin or .csv) into one file.
+    /// Render a scene with volumetric path tracing or ST-CVAE (EXR + PNG + JSON).
+    Render(render::Args),
+    /// Concatenate dataset shards (.bin or .csv), or average renders (.exr) of one scene.
     Merge(merge::Args),
     /// Measure the speed of parts of stcvae.
     Bench(bench::Args),
@@ -48,6 +53,7 @@ fn main() {
         Command::Train(a) => train::run(a),
         Command::Sample(a) => model_cmds::sample(a),
         Command::Eval(a) => model_cmds::evaluate(a),
+        Command::Render(a) => render::run(a),
         Command::Merge(a) => merge::run(a),
         Command::Bench(a) => bench::run(a),
     };

@@ -11,7 +11,9 @@ use scatter_sim::output::AtomicFile;
 use crate::progress;
 
 #[derive(clap::Args)]
-#[command(after_help = "Shards of one run (same seed, sampler and size) are put in walk order \
+#[command(after_help = "Renders: `stcvae merge a.exr b.exr --out m` averages renders of one scene \
+    (different seeds) weighted by the spp in their headers into m.exr and m.png, and refuses \
+    renders of different scenes.\n\nDatasets: shards of one run (same seed, sampler and size) are put in walk order \
     whatever order they are given in, so `stcvae merge data/train-*.bin --out data/train.bin` \
     reproduces the unsharded run row for row. Other inputs are concatenated in the order \
     given. Binary inputs can be written as CSV (--out x.csv); CSV inputs are joined as text.")]
@@ -28,12 +30,43 @@ pub fn run(a: Args) -> Result<()> {
     if a.inputs.iter().any(|p| *p == a.out) {
         bail!("--out {} is also an input", a.out.display());
     }
+    let is_exr = |p: &PathBuf| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr"));
+    let exr_inputs = a.inputs.iter().filter(|p| is_exr(p)).count();
+    if exr_inputs == a.inputs.len() {
+        return merge_images(&a);
+    } else if exr_inputs > 0 {
+        bail!("mixed inputs: merge either renders (.exr) or datasets, not both");
+    }
     let csv_inputs = a.inputs.iter().filter(|p| dataset::is_csv(p)).count();
     match csv_inputs {
         0 => merge_binary(&a),
         n if n == a.inputs.len() => merge_csv(&a),
         _ => bail!("mixed inputs: merge either binary datasets or CSV files, not both"),
     }
+}
+
+/// Renders of one scene with different seeds, averaged by spp: writes OUT.exr and OUT.png.
+fn merge_images(a: &Args) -> Result<()> {
+    let inputs: Vec<&std::path::Path> = a.inputs.iter().map(|p| p.as_path()).collect();
+    let (img, tag) = render_gpu::image_io::merge_exrs(&inputs)?;
+    let stem = a.out.with_extension("");
+    let exr = stem.with_extension("exr");
+    let png = stem.with_extension("png");
+    if let Some(dir) = exr.parent()
+        && !dir.as_os_str().is_empty()
+    {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
+    render_gpu::image_io::write_exr(&exr, &img, &tag)?;
+    render_gpu::image_io::write_png(&png, &img, 1.0)?;
+    eprintln!(
+        "merged {} renders ({} spp in all) -> {} and {}",
+        inputs.len(),
+        tag.spp,
+        exr.display(),
+        png.display()
+    );
+    Ok(())
 }
 
 fn merge_binary(a: &Args) -> Result<()> {

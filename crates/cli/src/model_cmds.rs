@@ -143,6 +143,22 @@ pub fn evaluate(a: EvalArgs) -> Result<()> {
     )?;
     writeln!(md, "Max KS over the grid: {}\n", max_ks.iter().map(|(k, v)| format!("{k} {v:.3}")).collect::<Vec<_>>().join(", "))?;
     md.extend(eval::markdown_table(&reports).into_bytes());
+    // The plots redraw the φ = 1 settings with the grid's seeds (same samples).
+    let mut cols = Vec::new();
+    for (i, &tau) in eval::TAUS.iter().enumerate() {
+        for (j, &g) in eval::GS.iter().enumerate() {
+            let seed = a.seed + (i * eval::GS.len() + j) as u64;
+            cols.push((
+                tau,
+                g,
+                eval::model_columns(&m, tau, g, 1.0, a.samples, seed),
+                eval::simulator_columns(tau, g, 1.0, a.samples, seed),
+            ));
+        }
+    }
+    let panels: Vec<crate::plots::Panel> = cols.iter().map(|(t, g, m, s)| (*t, *g, m, s)).collect();
+    let figs = crate::plots::write_all(&a.out, &panels)?;
+    writeln!(md, "\nPlots: {}", figs.iter().map(|f| format!("[{f}]({f})")).collect::<Vec<_>>().join(", "))?;
     write_atomic(&a.out.join("metrics.md"), &md)?;
     println!("{}", String::from_utf8_lossy(&md));
     Ok(())

@@ -23,6 +23,20 @@ pub struct ModelWalk {
     pub single: bool,
 }
 
+/// Λ(N) = Σ_{k=1..N} φ^k, the NEE weight of a walk's representative event (f64: φ is
+/// often within 1e-5 of 1).
+pub fn lambda(albedo: f64, n: u64) -> f64 {
+    if albedo >= 1.0 {
+        n as f64
+    } else if albedo <= 0.0 {
+        0.0
+    } else {
+        let ln = albedo.ln();
+        // φ (1 − φ^N) / (1 − φ), both differences through expm1.
+        albedo * (-(n as f64 * ln).exp_m1()) / (-ln.exp_m1())
+    }
+}
+
 /// Fills `out` with standard normal variates (Box–Muller on the walk's stream).
 pub fn normals(rng: &mut WalkRng, out: &mut [f32]) {
     let mut i = 0;
@@ -107,10 +121,13 @@ impl ModelSet {
         let (z, eps) = noise[..k].split_at(self.path.latent);
         let mut v = [0f64; 3];
         self.path.sample(&features::path_cond(tau, g, n), z, eps, &mut v);
-        repair_exit(v[0], v[1], v[2])
+        let (cos_theta, beta, alpha) = features::path_from_target(v);
+        repair_exit(cos_theta, beta, alpha)
     }
 
-    /// EventGen: the representative event given the walk's N and exit.
+    /// The representative event given the walk's N and exit. In exact mode event 1 (the
+    /// centre, W = +z) is chosen analytically with probability φ/Λ(N) and EventGen draws
+    /// among events k ≥ 2.
     pub fn sample_event(
         &self,
         tau: f64,
@@ -120,6 +137,11 @@ impl ModelSet {
         exit: CanonicalExit,
         rng: &mut WalkRng,
     ) -> (DVec3, DVec3) {
+        if self.single_scattering == SingleScattering::Exact
+            && rng.uniform() * lambda(albedo, n) < albedo
+        {
+            return (DVec3::ZERO, DVec3::Z);
+        }
         let mut noise = [0f32; 16];
         let k = self.event.latent + self.event.out;
         normals(rng, &mut noise[..k]);
@@ -127,10 +149,8 @@ impl ModelSet {
         let mut v = [0f64; 6];
         let cond = features::event_cond(tau, g, albedo, n, exit.cos_theta, exit.beta, exit.alpha);
         self.event.sample(&cond, z, eps, &mut v);
-        repair_event(
-            DVec3::new(v[0], v[1], v[2]),
-            DVec3::new(v[3], v[4], v[5]),
-        )
+        let (x, w) = features::event_from_target(v);
+        repair_event(DVec3::from_array(x), DVec3::from_array(w))
     }
 
     /// A whole walk. With `with_event` false EventGen is not run (NEE off) and the

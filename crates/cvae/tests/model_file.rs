@@ -128,3 +128,39 @@ fn single_scattering_branch_probability() {
         assert!(z.abs() < 4.0, "tau = {tau}: z = {z:.2}");
     }
 }
+
+/// The exact centre event: given N and φ, event 1 (X = 0, W = +z) is chosen with
+/// probability φ/Λ(N). 100,000 draws per case, |z| < 4 as above. EventGen never returns
+/// exactly the centre (its outputs are continuous), so X = 0 identifies the branch.
+#[test]
+fn centre_event_probability() {
+    use scatter_sim::frame::CanonicalExit;
+    let m = random_models(6, 1.0);
+    let exit = CanonicalExit { cos_theta: 0.3, alpha: 0.1, beta: -0.2 };
+    for (i, (albedo, n_events)) in [(1.0, 2u64), (0.8, 3), (0.99, 40)].into_iter().enumerate() {
+        let mut rng = WalkRng::from_seed(70 + i as u64);
+        let n = 100_000u64;
+        let hits = (0..n)
+            .filter(|_| m.sample_event(5.0, 0.3, albedo, n_events, exit, &mut rng).0 == glam::DVec3::ZERO)
+            .count() as u64;
+        let p = albedo / cvae::sampler::lambda(albedo, n_events);
+        let z = scatter_sim::stats::proportion_z(hits, n, p);
+        assert!(z.abs() < 4.0, "φ = {albedo}, N = {n_events}: p = {p:.4}, z = {z:.2}");
+    }
+}
+
+/// Λ(N) = Σ φ^k against direct summation, including φ within 1e-5 of 1.
+#[test]
+fn lambda_matches_direct_sum() {
+    for albedo in [0.0, 0.3, 0.9, 0.99999, 1.0] {
+        for n in [1u64, 2, 7, 1000] {
+            let direct: f64 = (1..=n).map(|k| albedo_pow(albedo, k)).sum();
+            let l = cvae::sampler::lambda(albedo, n);
+            assert!((l - direct).abs() <= 1e-9 * direct.max(1.0), "φ = {albedo}, N = {n}: {l} vs {direct}");
+        }
+    }
+}
+
+fn albedo_pow(a: f64, k: u64) -> f64 {
+    a.powi(k as i32)
+}

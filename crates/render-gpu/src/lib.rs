@@ -1,1 +1,22 @@
-//! The renderers of stcvae. Filled in by the rendering issues; empty until then.
+//! Rendering subsurface scattering: volumetric path tracing (the reference) and the
+//! ST-CVAE sphere-tracing integrator with next-event estimation through EventGen.
+//!
+//! The scene side (scene files, meshes, BVH, distance grid, lights, outputs) is shared
+//! by the CPU integrators here and the wgpu kernels.
+
+pub mod camera;
+pub mod distance_grid;
+pub mod error;
+pub mod geometry;
+pub mod hash;
+pub mod image_io;
+pub mod integrator;
+pub mod light;
+pub mod mesh;
+pub mod optics;
+mod ply;
+pub mod render;
+pub mod scene;
+pub mod setup;
+
+pub use error::RenderError;

@@ -107,12 +107,17 @@ pub struct Table {
 }
 
 impl Table {
-    /// Builds the table from dataset rows; in exact single-scattering mode only walks
-    /// with N ≥ 2 are used (N = 1 is drawn analytically at sampling time).
+    /// Builds the table from dataset rows. In exact mode only walks with N ≥ 2 are used
+    /// (N = 1 is drawn analytically at sampling time) and EventGen sees only events
+    /// k ≥ 2: event 1 is the centre with W = +z, drawn exactly with probability φ/Λ(N).
+    /// Conditioning on k ≥ 2 leaves the reservoir's choice among k ≥ 2 proportional to
+    /// φ^k, which is what the sampler needs.
     pub fn build(kind: ModelKind, rows: &[Row], mode: SingleScattering) -> Table {
+        let exact = mode == SingleScattering::Exact;
         let keep: Vec<&Row> = rows
             .iter()
-            .filter(|r| mode == SingleScattering::Learned || r.n >= 2)
+            .filter(|r| !exact || r.n >= 2)
+            .filter(|r| !(exact && kind == ModelKind::EventGen && features::is_centre_event(r.ev_pos)))
             .collect();
         let (c, p) = (kind.cond(), kind.out());
         let mut cond = Vec::with_capacity(keep.len() * c);
@@ -131,7 +136,10 @@ impl Table {
                 }
                 ModelKind::PathGen => {
                     cond.extend(features::path_cond(tau, g, nn).map(|v| v as f32));
-                    target.extend([r.cos_theta, r.beta, r.alpha]);
+                    target.extend(
+                        features::path_target(r.cos_theta as f64, r.beta as f64, r.alpha as f64)
+                            .map(|v| v as f32),
+                    );
                 }
                 ModelKind::EventGen => {
                     cond.extend(
@@ -146,7 +154,10 @@ impl Table {
                         )
                         .map(|v| v as f32),
                     );
-                    target.extend(r.ev_pos.iter().chain(&r.ev_dir));
+                    target.extend(
+                        features::event_target(r.ev_pos.map(f64::from), r.ev_dir.map(f64::from))
+                            .map(|v| v as f32),
+                    );
                 }
             }
         }

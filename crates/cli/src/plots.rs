@@ -1,0 +1,218 @@
+//! Eval plots like the paper's Fig. 11 (histograms of N, log scale) and Fig. 12 (cos θ
+//! histograms and the (cos θ, α), (cos θ, β) densities): simulator in black, model in red.
+//!
+//! Drawn with plotters into a memory buffer and written as PNG through the atomic writer.
+
+use std::path::Path;
+
+use anyhow::{Result, anyhow};
+use cvae::eval::{Columns, GS, TAUS};
+use plotters::prelude::*;
+use plotters::style::{FontStyle, register_font};
+
+/// DejaVu Sans (Bitstream Vera licence, see assets/fonts/LICENSE): plotters' pure-Rust
+/// text path needs a font in memory, and system fonts differ between machines.
+static FONT: &[u8] = include_bytes!("../../../assets/fonts/DejaVuSans.ttf");
+
+fn init_font() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        let _ = register_font("sans-serif", FontStyle::Normal, FONT);
+    });
+}
+
+/// One grid cell's data: (τ, g, model columns, simulator columns).
+pub type Panel<'a> = (f64, f64, &'a Columns, &'a Columns);
+
+const LOG_N: usize = 1;
+const COS: usize = 2;
+const ALPHA: usize = 3;
+const BETA: usize = 4;
+
+fn histogram(v: &[f64], lo: f64, hi: f64, bins: usize) -> Vec<f64> {
+    let mut h = vec![0f64; bins];
+    let w = (hi - lo) / bins as f64;
+    for &x in v {
+        if x >= lo && x <= hi {
+            let i = (((x - lo) / w) as usize).min(bins - 1);
+            h[i] += 1.0;
+        }
+    }
+    let total = v.len().max(1) as f64 * w;
+    h.iter_mut().for_each(|c| *c /= total);
+    h
+}
+
+fn steps(h: &[f64], lo: f64, hi: f64) -> Vec<(f64, f64)> {
+    let w = (hi - lo) / h.len() as f64;
+    h.iter()
+        .enumerate()
+        .flat_map(|(i, &c)| [(lo + i as f64 * w, c), (lo + (i + 1) as f64 * w, c)])
+        .collect()
+}
+
+fn to_png(path: &Path, buf: &[u8], w: u32, h: u32) -> Result<()> {
+    let mut out = Vec::new();
+    {
+        let mut enc = png::Encoder::new(&mut out, w, h);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        enc.write_header()?.write_image_data(buf)?;
+    }
+    scatter_sim::output::write_atomic(path, &out)?;
+    Ok(())
+}
+
+/// A 4 × 4 grid (rows τ, columns g) of 1-D histograms of column `q`.
+pub fn histogram_grid(path: &Path, panels: &[Panel], q: usize, title: &str, log_y: bool) -> Result<()> {
+    init_font();
+    let (w, h) = (1400u32, 1200u32);
+    let mut buf = vec![255u8; (w * h * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        let root = root
+            .titled(title, ("sans-serif", 24))
+            .map_err(|e| anyhow!("plot: {e}"))?;
+        let cells = root.split_evenly((TAUS.len(), GS.len()));
+        for (cell, &(tau, g, model, sim)) in cells.iter().zip(panels) {
+            let (lo, hi) = match q {
+                LOG_N => {
+                    let m = sim.0[q].iter().chain(&model.0[q]).cloned().fold(0.0, f64::max);
+                    (0.0, m.max(1.0))
+                }
+                _ => (-1.0, 1.0),
+            };
+            let bins = 50;
+            let hs = histogram(&sim.0[q], lo, hi, bins);
+            let hm = histogram(&model.0[q], lo, hi, bins);
+            let top = hs.iter().chain(&hm).cloned().fold(0.0, f64::max).max(1e-9) * 1.1;
+            let caption = format!("τ = {tau}, g = {g}");
+            let mut b = ChartBuilder::on(cell);
+            b.caption(caption, ("sans-serif", 15))
+                .margin(6)
+                .x_label_area_size(22)
+                .y_label_area_size(40);
+            if log_y {
+                let floor = 1e-4 * top;
+                let mut chart = b
+                    .build_cartesian_2d(lo..hi, (floor..top).log_scale())
+                    .map_err(|e| anyhow!("plot: {e}"))?;
+                chart
+                    .configure_mesh()
+                    .disable_mesh()
+                    .x_labels(5)
+                    .y_labels(4)
+                    .label_style(("sans-serif", 11))
+                    .draw()
+                    .map_err(|e| anyhow!("plot: {e}"))?;
+                for (hist, colour) in [(&hs, BLACK), (&hm, RED)] {
+                    let pts = steps(hist, lo, hi).into_iter().map(|(x, y)| (x, y.max(floor)));
+                    chart
+                        .draw_series(LineSeries::new(pts, colour.stroke_width(2)))
+                        .map_err(|e| anyhow!("plot: {e}"))?;
+                }
+            } else {
+                let mut chart = b
+                    .build_cartesian_2d(lo..hi, 0.0..top)
+                    .map_err(|e| anyhow!("plot: {e}"))?;
+                chart
+                    .configure_mesh()
+                    .disable_mesh()
+                    .x_labels(5)
+                    .y_labels(4)
+                    .label_style(("sans-serif", 11))
+                    .draw()
+                    .map_err(|e| anyhow!("plot: {e}"))?;
+                for (hist, colour) in [(&hs, BLACK), (&hm, RED)] {
+                    chart
+                        .draw_series(LineSeries::new(steps(hist, lo, hi), colour.stroke_width(2)))
+                        .map_err(|e| anyhow!("plot: {e}"))?;
+                }
+            }
+        }
+        root.present().map_err(|e| anyhow!("plot: {e}"))?;
+    }
+    to_png(path, &buf, w, h)
+}
+
+/// 2-D densities of (cos θ, `q`) for a few settings: simulator left, model right.
+pub fn density_pairs(path: &Path, panels: &[Panel], q: usize, qname: &str) -> Result<()> {
+    init_font();
+    let bins = 40usize;
+    let (w, h) = (900u32, 260 * panels.len() as u32 + 40);
+    let mut buf = vec![255u8; (w * h * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        let root = root
+            .titled(
+                &format!("(cos θ, {qname}) densities: simulator (left) vs model (right)"),
+                ("sans-serif", 20),
+            )
+            .map_err(|e| anyhow!("plot: {e}"))?;
+        let rows = root.split_evenly((panels.len(), 2));
+        for (i, &(tau, g, model, sim)) in panels.iter().enumerate() {
+            let grids: Vec<Vec<f64>> = [sim, model]
+                .iter()
+                .map(|c| {
+                    let mut d = vec![0f64; bins * bins];
+                    for (&x, &y) in c.0[COS].iter().zip(&c.0[q]) {
+                        let ix = (((x + 1.0) / 2.0 * bins as f64) as usize).min(bins - 1);
+                        let iy = (((y + 1.0) / 2.0 * bins as f64) as usize).min(bins - 1);
+                        d[iy * bins + ix] += 1.0;
+                    }
+                    d
+                })
+                .collect();
+            // A shared colour scale per row so the two panels compare directly.
+            let top = grids.iter().flatten().cloned().fold(0.0, f64::max).max(1.0);
+            for (k, (d, who)) in grids.iter().zip(["simulator", "model"]).enumerate() {
+                let mut chart = ChartBuilder::on(&rows[2 * i + k])
+                    .caption(format!("{who}: τ = {tau}, g = {g}"), ("sans-serif", 14))
+                    .margin(6)
+                    .x_label_area_size(22)
+                    .y_label_area_size(34)
+                    .build_cartesian_2d(-1.0..1.0, -1.0..1.0)
+                    .map_err(|e| anyhow!("plot: {e}"))?;
+                chart
+                    .configure_mesh()
+                    .disable_mesh()
+                    .x_desc("cos θ")
+                    .y_desc(qname)
+                    .x_labels(5)
+                    .y_labels(5)
+                    .label_style(("sans-serif", 11))
+                    .draw()
+                    .map_err(|e| anyhow!("plot: {e}"))?;
+                let cell = 2.0 / bins as f64;
+                chart
+                    .draw_series((0..bins * bins).map(|j| {
+                        let (ix, iy) = (j % bins, j / bins);
+                        let v = (d[j] / top).sqrt();
+                        let c = (255.0 * (1.0 - v)) as u8;
+                        let x0 = -1.0 + ix as f64 * cell;
+                        let y0 = -1.0 + iy as f64 * cell;
+                        Rectangle::new([(x0, y0), (x0 + cell, y0 + cell)], RGBColor(c, c, 255).filled())
+                    }))
+                    .map_err(|e| anyhow!("plot: {e}"))?;
+            }
+        }
+        root.present().map_err(|e| anyhow!("plot: {e}"))?;
+    }
+    to_png(path, &buf, w, h)
+}
+
+/// Writes fig11_n.png, fig12_cos_theta.png, fig12_cos_alpha.png, fig12_cos_beta.png.
+pub fn write_all(dir: &Path, panels: &[Panel]) -> Result<Vec<String>> {
+    let mut written = Vec::new();
+    histogram_grid(&dir.join("fig11_n.png"), panels, LOG_N, "log N: simulator (black) vs model (red), log density", true)?;
+    written.push("fig11_n.png".to_string());
+    histogram_grid(&dir.join("fig12_cos_theta.png"), panels, COS, "cos θ: simulator (black) vs model (red)", false)?;
+    written.push("fig12_cos_theta.png".to_string());
+    // The paper's Fig. 12 shows a few settings; pick one per τ at g = 0.4 (index 2).
+    let few: Vec<Panel> = panels.iter().filter(|p| p.1 == GS[2]).cloned().collect();
+    density_pairs(&dir.join("fig12_cos_alpha.png"), &few, ALPHA, "α")?;
+    written.push("fig12_cos_alpha.png".to_string());
+    density_pairs(&dir.join("fig12_cos_beta.png"), &few, BETA, "β")?;
+    written.push("fig12_cos_beta.png".to_string());
+    Ok(written)
+}

@@ -1,0 +1,251 @@
+//! `stcvae render`: a scene file to EXR + PNG + JSON.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use render_gpu::image_io::{RenderTag, write_exr, write_png};
+use render_gpu::integrator::{IntegratorKind, IntegratorSettings, PathStats};
+use render_gpu::render::{RenderOptions, render};
+use render_gpu::scene::SceneFile;
+use render_gpu::setup::SceneData;
+use serde::Serialize;
+
+use crate::model_cmds::{DEFAULT_MODEL, load_model};
+use crate::{interrupt, progress};
+
+pub const DEFAULT_SCENE: &str = "configs/scenes/bunny.toml";
+
+#[derive(clap::Args)]
+#[command(after_help = "With no arguments renders the shipped bunny scene with the shipped \
+    model to out/render.{exr,png,json}. Options given here override the scene's [render] table.\n\n\
+    Example:\n  stcvae render --scene configs/scenes/sphere.toml --integrator pt --spp 256 --out out/sphere_pt")]
+pub struct Args {
+    /// Scene file (TOML; the format is in the README).
+    #[arg(long, default_value = DEFAULT_SCENE)]
+    pub scene: PathBuf,
+    /// pt (volumetric path tracing, the reference) or stcvae (sphere tracing with the CVAEs).
+    #[arg(long, value_parser = parse_integrator)]
+    pub integrator: Option<IntegratorKind>,
+    /// Next-event estimation to the directional lights (true/false).
+    #[arg(long)]
+    pub nee: Option<bool>,
+    /// Samples per pixel.
+    #[arg(long)]
+    pub spp: Option<u32>,
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Model file for stcvae (default: models/default.stcvae).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Stop after the pass during which this many seconds have passed (the JSON and the
+    /// EXR header record the spp actually rendered).
+    #[arg(long)]
+    pub time_budget: Option<f64>,
+    /// Output path without extension: writes OUT.exr, OUT.png and OUT.json.
+    #[arg(long, default_value = "out/render")]
+    pub out: PathBuf,
+    /// Exposure multiplier of the PNG preview (the EXR is always linear and unscaled).
+    #[arg(long, default_value_t = 1.0)]
+    pub exposure: f32,
+}
+
+fn parse_integrator(s: &str) -> Result<IntegratorKind, String> {
+    match s {
+        "pt" => Ok(IntegratorKind::Pt),
+        "stcvae" | "st-cvae" => Ok(IntegratorKind::Stcvae),
+        _ => Err(format!("unknown integrator '{s}': expected pt or stcvae")),
+    }
+}
+
+#[derive(Serialize)]
+struct Report<'a> {
+    scene: String,
+    integrator: &'static str,
+    nee: bool,
+    model: Option<String>,
+    spp: u32,
+    seed: u64,
+    width: u32,
+    height: u32,
+    seconds: f64,
+    paths_per_second: f64,
+    /// PT: scattering events per path. ST-CVAE: the thin-region PT fallbacks per path.
+    mean_pt_events_per_path: f64,
+    mean_sphere_steps_per_path: f64,
+    min_tau: f64,
+    max_tau: Option<f64>,
+    grid_resolution: u32,
+    scene_hash: String,
+    stats: &'a PathStats,
+}
+
+/// Everything needed to render, assembled from a scene file and overrides.
+pub struct Prepared {
+    pub file: SceneFile,
+    pub data: SceneData,
+    pub model: Option<cvae::ModelSet>,
+    pub model_path: Option<PathBuf>,
+    pub max_tau: f32,
+}
+
+pub fn prepare(
+    scene_path: &Path,
+    integrator: Option<IntegratorKind>,
+    nee: Option<bool>,
+    model: Option<&Path>,
+    edit: impl FnOnce(&mut SceneFile),
+) -> Result<Prepared> {
+    let mut file = SceneFile::load(scene_path)?;
+    if let Some(i) = integrator {
+        file.render.integrator = i;
+    }
+    if let Some(n) = nee {
+        file.render.nee = n;
+    }
+    edit(&mut file);
+    file.validate()
+        .map_err(|e| anyhow::anyhow!("{}: {e}", scene_path.display()))?;
+    let stcvae = file.render.integrator == IntegratorKind::Stcvae;
+    let (model, model_path, model_bytes) = if stcvae {
+        let p = model.map(Path::to_path_buf).unwrap_or_else(|| PathBuf::from(DEFAULT_MODEL));
+        let m = load_model(Some(&p))?;
+        let bytes = m.to_bytes();
+        (Some(m), Some(p), bytes)
+    } else {
+        (None, None, Vec::new())
+    };
+    let dir = scene_path.parent().unwrap_or(Path::new("."));
+    let data = SceneData::build(&file, dir, stcvae, &model_bytes)?;
+    let trained_max = model
+        .as_ref()
+        .map_or(f64::INFINITY, |m| m.training.tau_range[1]);
+    let max_tau = match file.render.max_tau {
+        Some(t) if t > trained_max => bail!(
+            "{}: render.max_tau = {t} is beyond the model's training range (τ ≤ {trained_max:.1})",
+            scene_path.display()
+        ),
+        Some(t) => t,
+        None => trained_max,
+    } as f32;
+    Ok(Prepared {
+        file,
+        data,
+        model,
+        model_path,
+        max_tau,
+    })
+}
+
+pub fn run(a: Args) -> Result<()> {
+    if !(a.exposure > 0.0 && a.exposure.is_finite()) {
+        bail!("--exposure must be a positive number");
+    }
+    if let Some(b) = a.time_budget
+        && !(b > 0.0)
+    {
+        bail!("--time-budget must be positive (seconds)");
+    }
+    let p = prepare(&a.scene, a.integrator, a.nee, a.model.as_deref(), |f| {
+        if let Some(s) = a.spp {
+            f.render.spp = s;
+        }
+        if let Some(s) = a.seed {
+            f.render.seed = s;
+        }
+    })?;
+    let r = &p.file.render;
+    let set = IntegratorSettings {
+        kind: r.integrator,
+        nee: r.nee,
+        model: p.model.as_ref(),
+        min_tau: r.min_tau as f32,
+        max_tau: p.max_tau,
+    };
+    if p.data.lights.iter().all(|l| l.is_delta()) && !r.nee && !p.data.lights.is_empty() {
+        eprintln!("note: delta lights can only be reached by NEE; with --nee false they add nothing");
+    }
+    eprintln!(
+        "rendering {} ({}x{}, {} spp, {}{}) on the CPU with {} threads",
+        a.scene.display(),
+        p.file.camera.width,
+        p.file.camera.height,
+        r.spp,
+        r.integrator.name(),
+        if r.nee { ", NEE" } else { "" },
+        rayon::current_num_threads()
+    );
+    let pb = progress::bar(
+        p.file.camera.width as u64 * p.file.camera.height as u64 * r.spp as u64,
+        "samples",
+    );
+    let cancel = interrupt::flag();
+    let out = render(
+        &p.data,
+        &set,
+        &RenderOptions {
+            spp: r.spp,
+            seed: r.seed,
+            time_budget: a.time_budget,
+        },
+        &|done, _| pb.set_position(done),
+        cancel,
+    );
+    pb.finish_and_clear();
+    if out.spp == 0 {
+        bail!("interrupted before the first pass finished: nothing written");
+    }
+    if let Some(dir) = a.out.parent()
+        && !dir.as_os_str().is_empty()
+    {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
+    let with_ext = |e: &str| {
+        let mut s = a.out.clone().into_os_string();
+        s.push(".");
+        s.push(e);
+        PathBuf::from(s)
+    };
+    let tag = RenderTag {
+        spp: out.spp as u64,
+        scene_hash: p.data.hash,
+    };
+    write_exr(&with_ext("exr"), &out.image, &tag)?;
+    write_png(&with_ext("png"), &out.image, a.exposure)?;
+    let paths = out.stats.paths.max(1) as f64;
+    let report = Report {
+        scene: a.scene.display().to_string(),
+        integrator: r.integrator.name(),
+        nee: r.nee,
+        model: p.model_path.as_ref().map(|m| m.display().to_string()),
+        spp: out.spp,
+        seed: r.seed,
+        width: p.file.camera.width,
+        height: p.file.camera.height,
+        seconds: out.seconds,
+        paths_per_second: out.stats.paths as f64 / out.seconds.max(1e-9),
+        mean_pt_events_per_path: out.stats.events as f64 / paths,
+        mean_sphere_steps_per_path: out.stats.steps as f64 / paths,
+        min_tau: r.min_tau,
+        max_tau: p.model.as_ref().map(|_| p.max_tau as f64),
+        grid_resolution: r.grid_resolution,
+        scene_hash: format!("{:016x}", p.data.hash),
+        stats: &out.stats,
+    };
+    scatter_sim::output::write_atomic(&with_ext("json"), &serde_json::to_vec_pretty(&report)?)?;
+    if out.stats.leaks > 0 || out.stats.capped > 0 || out.stats.non_finite > 0 {
+        eprintln!(
+            "warning: {} leaked sphere exits, {} capped paths, {} non-finite estimates",
+            out.stats.leaks, out.stats.capped, out.stats.non_finite
+        );
+    }
+    eprintln!(
+        "{} spp in {:.1} s ({} paths/s; {:.1} PT events, {:.1} sphere steps per path) -> {}.{{exr,png,json}}",
+        out.spp,
+        out.seconds,
+        progress::si(report.paths_per_second),
+        report.mean_pt_events_per_path,
+        report.mean_sphere_steps_per_path,
+        a.out.display()
+    );
+    Ok(())
+}

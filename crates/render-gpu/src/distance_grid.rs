@@ -1,0 +1,172 @@
+//! The conservative distance grid of the sphere-tracing integrator (design §4).
+//!
+//! Each cell stores the exact distance d(c) from its centre c to the surface. For a query
+//! point p in that cell the returned radius is d(c) − |p − c|, which never exceeds the
+//! true distance d(p) because the distance function is 1-Lipschitz — so a sphere of
+//! that radius around p never crosses the mesh. Outside the grid the radius is 0 (the
+//! integrator then falls back to ordinary PT events).
+
+use std::path::{Path, PathBuf};
+
+use glam::{UVec3, Vec3};
+use rayon::prelude::*;
+
+use crate::geometry::Geometry;
+use crate::hash::Fnv64;
+
+pub struct DistanceGrid {
+    pub lo: Vec3,
+    pub cell: f32,
+    pub dims: UVec3,
+    /// d(c) per cell, x fastest, already reduced by the rounding margin.
+    pub values: Vec<f32>,
+}
+
+const MAGIC: &[u8; 8] = b"STCVDG01";
+
+impl DistanceGrid {
+    /// Builds the grid with `resolution` cells along the longest side of the bounds.
+    pub fn build(geo: &Geometry, resolution: u32) -> Self {
+        let extent = geo.hi - geo.lo;
+        let cell = extent.max_element() / resolution as f32;
+        let dims = (extent / cell).ceil().as_uvec3().max(UVec3::ONE);
+        let lo = geo.lo;
+        let n = (dims.x * dims.y * dims.z) as usize;
+        // Relative margin for f32 rounding in the distance computation.
+        let margin = geo.eps * 0.5;
+        let values: Vec<f32> = (0..n)
+            .into_par_iter()
+            .map(|i| {
+                let c = Self::centre_of(lo, cell, dims, i);
+                (geo.distance(c) * (1.0 - 1e-5) - margin).max(0.0)
+            })
+            .collect();
+        Self {
+            lo,
+            cell,
+            dims,
+            values,
+        }
+    }
+
+    fn centre_of(lo: Vec3, cell: f32, dims: UVec3, i: usize) -> Vec3 {
+        let i = i as u32;
+        let x = i % dims.x;
+        let y = (i / dims.x) % dims.y;
+        let z = i / (dims.x * dims.y);
+        lo + (Vec3::new(x as f32, y as f32, z as f32) + 0.5) * cell
+    }
+
+    /// A radius r with the ball B(p, r) free of the surface (0 outside the grid).
+    #[inline]
+    pub fn radius(&self, p: Vec3) -> f32 {
+        let q = (p - self.lo) / self.cell;
+        if !(q.x >= 0.0 && q.y >= 0.0 && q.z >= 0.0) {
+            return 0.0;
+        }
+        let c = q.as_uvec3();
+        if c.x >= self.dims.x || c.y >= self.dims.y || c.z >= self.dims.z {
+            return 0.0;
+        }
+        let i = (c.x + self.dims.x * (c.y + self.dims.y * c.z)) as usize;
+        let centre = self.lo + (c.as_vec3() + 0.5) * self.cell;
+        (self.values[i] - (p - centre).length()).max(0.0)
+    }
+
+    /// Loads the grid from the cache or builds and caches it when building takes long.
+    pub fn cached(geo: &Geometry, resolution: u32) -> Self {
+        let key = cache_key(geo, resolution);
+        let path = cache_dir().map(|d| d.join(format!("grid-{key:016x}-{resolution}.bin")));
+        if let Some(p) = &path
+            && let Some(g) = Self::read(p)
+        {
+            return g;
+        }
+        let t0 = std::time::Instant::now();
+        let g = Self::build(geo, resolution);
+        if t0.elapsed().as_secs_f64() > 1.0
+            && let Some(p) = &path
+        {
+            // A cache that cannot be written only costs time next run.
+            let _ = g.write(p);
+        }
+        g
+    }
+
+    fn write(&self, path: &Path) -> std::io::Result<()> {
+        let mut bytes = Vec::with_capacity(48 + self.values.len() * 4);
+        bytes.extend_from_slice(MAGIC);
+        for v in [self.lo.x, self.lo.y, self.lo.z, self.cell] {
+            bytes.extend_from_slice(&v.to_le_bytes());
+        }
+        for d in [self.dims.x, self.dims.y, self.dims.z] {
+            bytes.extend_from_slice(&d.to_le_bytes());
+        }
+        for v in &self.values {
+            bytes.extend_from_slice(&v.to_le_bytes());
+        }
+        let crc = crc32fast::hash(&bytes);
+        bytes.extend_from_slice(&crc.to_le_bytes());
+        if let Some(dir) = path.parent() {
+            std::fs::create_dir_all(dir)?;
+        }
+        scatter_sim::output::write_atomic(path, &bytes)
+    }
+
+    /// Reads a cached grid; anything unexpected means "rebuild" (None).
+    fn read(path: &Path) -> Option<Self> {
+        let b = std::fs::read(path).ok()?;
+        if b.len() < 40 + 4 || &b[..8] != MAGIC {
+            return None;
+        }
+        let (body, crc) = b.split_at(b.len() - 4);
+        if crc32fast::hash(body) != u32::from_le_bytes(crc.try_into().ok()?) {
+            return None;
+        }
+        let f = |i: usize| f32::from_le_bytes(body[8 + 4 * i..12 + 4 * i].try_into().unwrap());
+        let u = |i: usize| u32::from_le_bytes(body[8 + 4 * i..12 + 4 * i].try_into().unwrap());
+        let dims = UVec3::new(u(4), u(5), u(6));
+        let n = dims.x as usize * dims.y as usize * dims.z as usize;
+        if body.len() != 36 + 4 * n {
+            return None;
+        }
+        let values = body[36..]
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
+            .collect();
+        Some(Self {
+            lo: Vec3::new(f(0), f(1), f(2)),
+            cell: f(3),
+            dims,
+            values,
+        })
+    }
+}
+
+fn cache_key(geo: &Geometry, resolution: u32) -> u64 {
+    let mut h = Fnv64::new();
+    h.write(b"distance-grid-v1");
+    h.write(&resolution.to_le_bytes());
+    for p in &geo.mesh.positions {
+        for x in p.to_array() {
+            h.write(&x.to_le_bytes());
+        }
+    }
+    for t in &geo.mesh.triangles {
+        for i in t {
+            h.write(&i.to_le_bytes());
+        }
+    }
+    h.finish()
+}
+
+/// `$STCVAE_CACHE`, else `$XDG_CACHE_HOME/stcvae`, else `~/.cache/stcvae`.
+fn cache_dir() -> Option<PathBuf> {
+    if let Some(d) = std::env::var_os("STCVAE_CACHE") {
+        return Some(PathBuf::from(d));
+    }
+    if let Some(d) = std::env::var_os("XDG_CACHE_HOME") {
+        return Some(PathBuf::from(d).join("stcvae"));
+    }
+    std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".cache").join("stcvae"))
+}

@@ -1,0 +1,33 @@
+//! One error type for the renderer; every message is one line naming the file or field.
+
+use std::path::Path;
+
+use thiserror::Error;
+
+#[derive(Debug, Error)]
+pub enum RenderError {
+    /// Scene file problems (the message starts with the file name).
+    #[error("{0}")]
+    Scene(String),
+    /// Mesh file problems (the message starts with the file name).
+    #[error("{0}")]
+    Mesh(String),
+    /// Reading or writing a file failed.
+    #[error("{0}")]
+    Io(String),
+    /// The model file could not be used.
+    #[error("{0}")]
+    Model(String),
+    /// Images that cannot be merged, or an unreadable image.
+    #[error("{0}")]
+    Image(String),
+}
+
+impl RenderError {
+    pub fn io(path: &Path, what: impl std::fmt::Display) -> Self {
+        Self::Io(format!("{}: {what}", path.display()))
+    }
+    pub fn mesh(path: &Path, what: impl std::fmt::Display) -> Self {
+        Self::Mesh(format!("{}: {what}", path.display()))
+    }
+}

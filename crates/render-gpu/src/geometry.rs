@@ -1,0 +1,205 @@
+//! Ray and distance queries against the closed mesh, through an obvhs BVH2.
+//!
+//! Rays that start on the surface are offset along the geometric normal to the side they
+//! are meant to be on ([`Geometry::spawn`]), so a ray never re-hits the triangle it left.
+
+use std::time::Duration;
+
+use glam::{Vec3, Vec3A};
+
+// obvhs may resolve to another glam minor version than ours: cross the boundary through
+// plain arrays, which every glam version converts from and to.
+#[inline]
+fn arr(v: Vec3) -> [f32; 3] {
+    v.to_array()
+}
+#[inline]
+fn from_arr(a: impl Into<[f32; 3]>) -> Vec3A {
+    Vec3A::from_array(a.into())
+}
+use obvhs::BvhBuildParams;
+use obvhs::bvh2::Bvh2;
+use obvhs::bvh2::builder::build_bvh2_from_tris;
+use obvhs::ray::{Ray, RayHit};
+use obvhs::triangle::Triangle;
+
+use crate::mesh::TriMesh;
+
+/// A surface hit: distance along the ray, triangle and outward unit normal.
+#[derive(Clone, Copy, Debug)]
+pub struct Hit {
+    pub t: f32,
+    pub prim: u32,
+    pub normal: Vec3,
+}
+
+pub struct Geometry {
+    pub mesh: TriMesh,
+    pub tris: Vec<Triangle>,
+    pub normals: Vec<Vec3>,
+    pub bvh: Bvh2,
+    pub lo: Vec3,
+    pub hi: Vec3,
+    /// Offset used to leave a surface, relative to the scene's size.
+    pub eps: f32,
+}
+
+impl Geometry {
+    pub fn new(mesh: TriMesh) -> Self {
+        let tris: Vec<Triangle> = (0..mesh.triangles.len())
+            .map(|i| {
+                let [a, b, c] = mesh.triangle(i);
+                Triangle {
+                    v0: arr(a).into(),
+                    v1: arr(b).into(),
+                    v2: arr(c).into(),
+                }
+            })
+            .collect();
+        let normals = (0..mesh.triangles.len())
+            .map(|i| {
+                let [a, b, c] = mesh.triangle(i);
+                (b - a).cross(c - a).normalize()
+            })
+            .collect();
+        let bvh = build_bvh2_from_tris(&tris, BvhBuildParams::medium_build(), &mut Duration::default());
+        let (lo, hi) = mesh.bounds();
+        let scale = lo.abs().max(hi.abs()).max_element().max((hi - lo).max_element());
+        Self {
+            mesh,
+            tris,
+            normals,
+            bvh,
+            lo,
+            hi,
+            eps: scale * 2e-5,
+        }
+    }
+
+    /// Closest hit along `origin + t·dir`, t ∈ (0, tmax].
+    pub fn intersect(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<Hit> {
+        let ray = Ray::new(arr(origin).into(), arr(dir).into(), 0.0, tmax);
+        let mut hit = RayHit::none();
+        let found = self.bvh.ray_traverse(ray, &mut hit, |r, id| {
+            self.tris[self.bvh.primitive_indices[id] as usize].intersect(r)
+        });
+        if !found || !(hit.t <= tmax) {
+            return None;
+        }
+        let prim = self.bvh.primitive_indices[hit.primitive_id as usize];
+        Some(Hit {
+            t: hit.t,
+            prim,
+            normal: self.normals[prim as usize],
+        })
+    }
+
+    /// A point just off the surface at `p`, on the side `dir` points to.
+    #[inline]
+    pub fn spawn(&self, p: Vec3, normal: Vec3, dir: Vec3) -> Vec3 {
+        let side = if dir.dot(normal) >= 0.0 { 1.0 } else { -1.0 };
+        p + normal * (side * self.eps)
+    }
+
+    /// Exact unsigned distance from `p` to the surface (nearest-triangle BVH search).
+    pub fn distance(&self, p: Vec3) -> f32 {
+        let nodes = &self.bvh.nodes;
+        if nodes.is_empty() {
+            return f32::INFINITY;
+        }
+        let pa = Vec3A::from(p);
+        let box_d2 = |i: usize| {
+            let b = &nodes[i].aabb;
+            let q = pa.clamp(from_arr(b.min), from_arr(b.max));
+            (q - pa).length_squared()
+        };
+        let mut best = f32::INFINITY;
+        let mut stack = vec![0usize];
+        while let Some(i) = stack.pop() {
+            if box_d2(i) >= best {
+                continue;
+            }
+            let n = &nodes[i];
+            if n.prim_count > 0 {
+                for k in n.first_index..n.first_index + n.prim_count {
+                    let t = &self.tris[self.bvh.primitive_indices[k as usize] as usize];
+                    best = best.min(point_triangle_d2(pa, from_arr(t.v0), from_arr(t.v1), from_arr(t.v2)));
+                }
+            } else {
+                let (a, b) = (n.first_index as usize, n.first_index as usize + 1);
+                let (da, db) = (box_d2(a), box_d2(b));
+                // Visit the nearer child first: push it last.
+                if da < db {
+                    stack.push(b);
+                    stack.push(a);
+                } else {
+                    stack.push(a);
+                    stack.push(b);
+                }
+            }
+        }
+        best.sqrt()
+    }
+
+    /// Whether `p` is inside the closed mesh (parity of crossings along a fixed ray).
+    pub fn inside(&self, p: Vec3) -> bool {
+        // An irrational-ish direction avoids grazing edges of axis-aligned meshes.
+        let dir = Vec3::new(0.5773, 0.5774, 0.5775).normalize();
+        let mut o = p;
+        let mut crossings = 0;
+        for _ in 0..10_000 {
+            match self.intersect(o, dir, f32::INFINITY) {
+                Some(h) => {
+                    crossings += 1;
+                    o = self.spawn(o + dir * h.t, h.normal, dir);
+                }
+                None => break,
+            }
+        }
+        crossings % 2 == 1
+    }
+}
+
+/// Squared distance from `p` to triangle (a, b, c) (Ericson, Real-Time Collision
+/// Detection §5.1.5: Voronoi regions of the vertices, edges and face).
+pub fn point_triangle_d2(p: Vec3A, a: Vec3A, b: Vec3A, c: Vec3A) -> f32 {
+    let ab = b - a;
+    let ac = c - a;
+    let ap = p - a;
+    let d1 = ab.dot(ap);
+    let d2 = ac.dot(ap);
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return ap.length_squared();
+    }
+    let bp = p - b;
+    let d3 = ab.dot(bp);
+    let d4 = ac.dot(bp);
+    if d3 >= 0.0 && d4 <= d3 {
+        return bp.length_squared();
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        let v = d1 / (d1 - d3);
+        return (p - (a + ab * v)).length_squared();
+    }
+    let cp = p - c;
+    let d5 = ab.dot(cp);
+    let d6 = ac.dot(cp);
+    if d6 >= 0.0 && d5 <= d6 {
+        return cp.length_squared();
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        let w = d2 / (d2 - d6);
+        return (p - (a + ac * w)).length_squared();
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        return (p - (b + (c - b) * w)).length_squared();
+    }
+    let denom = 1.0 / (va + vb + vc);
+    let v = vb * denom;
+    let w = vc * denom;
+    (p - (a + ab * v + ac * w)).length_squared()
+}

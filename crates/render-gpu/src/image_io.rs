@@ -1,0 +1,205 @@
+//! Render outputs: linear float EXR with the render's identity in its header, a
+//! tone-mapped PNG preview, and averaging of EXRs of the same scene (`stcvae merge`).
+//!
+//! Every file is written to a temporary name and renamed, so an interrupted run never
+//! leaves a half-written image under the output name.
+
+use std::collections::HashMap;
+use std::io::Cursor;
+use std::path::Path;
+
+use exr::prelude::*;
+use scatter_sim::output::write_atomic;
+
+use crate::error::RenderError;
+
+const ATTR_SPP: &str = "stcvaeSpp";
+const ATTR_SCENE: &str = "stcvaeSceneHash";
+
+/// A linear RGB image, row 0 at the top.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RgbImage {
+    pub width: usize,
+    pub height: usize,
+    pub pixels: Vec<[f32; 3]>,
+}
+
+impl RgbImage {
+    pub fn new(width: usize, height: usize) -> Self {
+        Self {
+            width,
+            height,
+            pixels: vec![[0.0; 3]; width * height],
+        }
+    }
+}
+
+/// What an EXR header records about the render it holds.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct RenderTag {
+    pub spp: u64,
+    /// Hash of everything that defines the image except spp and seed.
+    pub scene_hash: u64,
+}
+
+pub fn write_exr(path: &Path, img: &RgbImage, tag: &RenderTag) -> std::result::Result<(), RenderError> {
+    let w = img.width;
+    let channels = SpecificChannels::rgb(|pos: Vec2<usize>| {
+        let p = img.pixels[pos.y() * w + pos.x()];
+        (p[0], p[1], p[2])
+    });
+    let mut attrs = LayerAttributes::default();
+    attrs.other.insert(
+        Text::from(ATTR_SPP),
+        AttributeValue::Text(Text::from(tag.spp.to_string().as_str())),
+    );
+    attrs.other.insert(
+        Text::from(ATTR_SCENE),
+        AttributeValue::Text(Text::from(format!("{:016x}", tag.scene_hash).as_str())),
+    );
+    let layer = Layer::new(
+        Vec2(img.width, img.height),
+        attrs,
+        Encoding::SMALL_LOSSLESS,
+        channels,
+    );
+    let image = Image::from_layer(layer);
+    let mut buf = Cursor::new(Vec::new());
+    image
+        .write()
+        .to_buffered(&mut buf)
+        .map_err(|e| RenderError::io(path, format!("cannot encode EXR: {e}")))?;
+    write_atomic(path, buf.get_ref()).map_err(|e| RenderError::io(path, e))
+}
+
+/// Reads an RGB EXR and, if present, its render tag.
+pub fn read_exr(path: &Path) -> std::result::Result<(RgbImage, Option<RenderTag>), RenderError> {
+    let image = read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .specific_channels()
+        .required("R")
+        .required("G")
+        .required("B")
+        .collect_pixels(
+            |size: Vec2<usize>, _| RgbImage::new(size.width(), size.height()),
+            |img: &mut RgbImage, pos: Vec2<usize>, (r, g, b): (f32, f32, f32)| {
+                let w = img.width;
+                img.pixels[pos.y() * w + pos.x()] = [r, g, b];
+            },
+        )
+        .first_valid_layer()
+        .all_attributes()
+        .from_file(path)
+        .map_err(|e| RenderError::Image(format!("{}: cannot read EXR: {e}", path.display())))?;
+    let other: &HashMap<Text, AttributeValue> = &image.layer_data.attributes.other;
+    let text = |k: &str| match other.get(&Text::from(k)) {
+        Some(AttributeValue::Text(t)) => Some(t.to_string()),
+        _ => None,
+    };
+    let tag = match (text(ATTR_SPP), text(ATTR_SCENE)) {
+        (Some(s), Some(h)) => Some(RenderTag {
+            spp: s.parse().map_err(|_| {
+                RenderError::Image(format!("{}: bad {ATTR_SPP} attribute `{s}`", path.display()))
+            })?,
+            scene_hash: u64::from_str_radix(&h, 16).map_err(|_| {
+                RenderError::Image(format!("{}: bad {ATTR_SCENE} attribute `{h}`", path.display()))
+            })?,
+        }),
+        _ => None,
+    };
+    Ok((image.layer_data.channel_data.pixels, tag))
+}
+
+/// sRGB transfer function of a linear value in [0, 1].
+fn srgb(x: f32) -> f32 {
+    if x <= 0.003_130_8 {
+        12.92 * x
+    } else {
+        1.055 * x.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+/// An 8-bit sRGB preview at the given exposure (values clipped at 1).
+pub fn write_png(path: &Path, img: &RgbImage, exposure: f32) -> std::result::Result<(), RenderError> {
+    let data: Vec<u8> = img
+        .pixels
+        .iter()
+        .flat_map(|p| {
+            p.map(|v| {
+                let v = if v.is_finite() { v * exposure } else { 0.0 };
+                (srgb(v.clamp(0.0, 1.0)) * 255.0 + 0.5) as u8
+            })
+        })
+        .collect();
+    let mut buf = Vec::new();
+    {
+        let mut enc = png::Encoder::new(&mut buf, img.width as u32, img.height as u32);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        let mut wr = enc
+            .write_header()
+            .map_err(|e| RenderError::io(path, format!("cannot encode PNG: {e}")))?;
+        wr.write_image_data(&data)
+            .map_err(|e| RenderError::io(path, format!("cannot encode PNG: {e}")))?;
+    }
+    write_atomic(path, &buf).map_err(|e| RenderError::io(path, e))
+}
+
+/// Averages renders of the same scene weighted by their spp. Refuses images of
+/// different scenes or sizes and images without a render tag.
+pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag), RenderError> {
+    let mut acc: Option<(RgbImage, RenderTag, Vec<[f64; 3]>)> = None;
+    for &p in paths {
+        let (img, tag) = read_exr(p)?;
+        let tag = tag.ok_or_else(|| {
+            RenderError::Image(format!(
+                "{}: no stcvae render tag (spp, scene hash) in the EXR header: not an stcvae render",
+                p.display()
+            ))
+        })?;
+        match &mut acc {
+            None => {
+                let sum = img
+                    .pixels
+                    .iter()
+                    .map(|px| px.map(|v| v as f64 * tag.spp as f64))
+                    .collect();
+                acc = Some((img, tag, sum));
+            }
+            Some((first, t0, sum)) => {
+                if tag.scene_hash != t0.scene_hash {
+                    return Err(RenderError::Image(format!(
+                        "{}: scene hash {:016x} differs from {:016x} of {}: renders of different scenes cannot be merged",
+                        p.display(),
+                        tag.scene_hash,
+                        t0.scene_hash,
+                        paths[0].display()
+                    )));
+                }
+                if (img.width, img.height) != (first.width, first.height) {
+                    return Err(RenderError::Image(format!(
+                        "{}: size {}x{} differs from {}x{}",
+                        p.display(),
+                        img.width,
+                        img.height,
+                        first.width,
+                        first.height
+                    )));
+                }
+                for (s, px) in sum.iter_mut().zip(&img.pixels) {
+                    for c in 0..3 {
+                        s[c] += px[c] as f64 * tag.spp as f64;
+                    }
+                }
+                t0.spp += tag.spp;
+            }
+        }
+    }
+    let (mut img, tag, sum) =
+        acc.ok_or_else(|| RenderError::Image("merge: no input images".into()))?;
+    for (px, s) in img.pixels.iter_mut().zip(sum) {
+        *px = s.map(|v| (v / tag.spp as f64) as f32);
+    }
+    Ok((img, tag))
+}

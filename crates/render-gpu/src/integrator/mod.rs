@@ -1,0 +1,230 @@
+//! The CPU integrators: one path loop shared by volumetric PT and ST-CVAE; they differ
+//! only in what happens at a real scattering point ([`pt_event`] or
+//! [`sphere_step::step`]).
+//!
+//! Each path traces one colour channel (the hero channel, chosen per sample and
+//! stratified over a pixel's samples) and its estimate is added, times 3, to that channel.
+
+pub mod nee;
+pub mod sphere_step;
+
+use glam::Vec3;
+use scatter_sim::phase::hg_sample_direction;
+use scatter_sim::rng::WalkRng;
+
+use crate::optics::{fresnel, reflect, refract};
+use crate::setup::{Boundary, SceneData};
+
+pub use crate::scene::IntegratorKind;
+
+/// Per-path counters, summed over a render.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct PathStats {
+    pub paths: u64,
+    /// Ordinary PT scattering events (ST-CVAE: the thin-region fallbacks).
+    pub events: u64,
+    /// ST-CVAE sphere steps.
+    pub steps: u64,
+    /// Flights from a sphere-step exit that met the surface from outside: the exit was
+    /// not inside after all (should stay 0 with a conservative grid).
+    pub leaks: u64,
+    /// Paths stopped by the safety cap on loop iterations (should stay 0).
+    pub capped: u64,
+    /// Non-finite path estimates replaced by 0 (should stay 0).
+    pub non_finite: u64,
+}
+
+impl PathStats {
+    pub fn add(&mut self, o: &PathStats) {
+        self.paths += o.paths;
+        self.events += o.events;
+        self.steps += o.steps;
+        self.leaks += o.leaks;
+        self.capped += o.capped;
+        self.non_finite += o.non_finite;
+    }
+}
+
+/// What the integrator needs beyond the scene.
+pub struct IntegratorSettings<'a> {
+    pub kind: IntegratorKind,
+    pub nee: bool,
+    pub model: Option<&'a cvae::ModelSet>,
+    /// Thin-region fallback threshold on σ_t·r.
+    pub min_tau: f32,
+    /// Largest σ_t·r of a sphere step.
+    pub max_tau: f32,
+}
+
+/// Safety cap on loop iterations of one path; far beyond any physical path here.
+const MAX_ITERATIONS: u64 = 50_000_000;
+/// Russian roulette starts below this throughput; survivors are raised back to it.
+const RR_THRESHOLD: f32 = 0.25;
+
+#[inline]
+pub(crate) fn uniform(rng: &mut WalkRng) -> f32 {
+    rng.uniform() as f32
+}
+
+/// Unbiased Russian roulette; false when the path is terminated.
+#[inline]
+pub(crate) fn roulette(beta: &mut f32, rng: &mut WalkRng) -> bool {
+    if *beta >= RR_THRESHOLD {
+        return true;
+    }
+    if *beta <= 0.0 {
+        return false;
+    }
+    if uniform(rng) * RR_THRESHOLD < *beta {
+        *beta = RR_THRESHOLD;
+        true
+    } else {
+        false
+    }
+}
+
+/// State carried along a path.
+pub(crate) struct PathState {
+    pub pos: Vec3,
+    pub dir: Vec3,
+    pub beta: f32,
+    pub radiance: f32,
+    /// Whether the path has scattered (or sphere-stepped) since the camera: with NEE on,
+    /// such a path must not also collect the sun disk when it escapes.
+    pub scattered: bool,
+    pub alive: bool,
+}
+
+/// An ordinary PT scattering event at `s.pos` (a real collision).
+pub(crate) fn pt_event(
+    scene: &SceneData,
+    set: &IntegratorSettings,
+    channel: usize,
+    s: &mut PathState,
+    stats: &mut PathStats,
+    rng: &mut WalkRng,
+) {
+    stats.events += 1;
+    let albedo = scene.albedo[channel];
+    if set.nee {
+        s.radiance += s.beta * albedo * nee::direct(scene, s.pos, s.dir, channel, rng);
+    }
+    s.beta *= albedo;
+    if !roulette(&mut s.beta, rng) {
+        s.alive = false;
+        return;
+    }
+    let d = hg_sample_direction(scene.g as f64, s.dir.as_dvec3(), rng);
+    s.dir = d.as_vec3().normalize();
+    s.scattered = true;
+}
+
+/// Radiance arriving along an escaping direction.
+fn escape(scene: &SceneData, dir: Vec3, channel: usize, with_sun: bool) -> f32 {
+    let mut l = scene.env.lookup(dir, channel);
+    if with_sun {
+        for light in &scene.lights {
+            l += light.radiance_toward(dir, channel);
+        }
+    }
+    l
+}
+
+/// Traces one camera path in `channel` and returns its radiance estimate for that channel.
+pub fn trace(
+    scene: &SceneData,
+    set: &IntegratorSettings,
+    origin: Vec3,
+    dir: Vec3,
+    channel: usize,
+    stats: &mut PathStats,
+    rng: &mut WalkRng,
+) -> f32 {
+    stats.paths += 1;
+    let geo = &scene.geo;
+    let sigma = scene.sigma_t[channel];
+    let mut s = PathState {
+        pos: origin,
+        dir,
+        beta: 1.0,
+        radiance: 0.0,
+        scattered: false,
+        alive: true,
+    };
+    let mut inside = false;
+    // True right after a sphere step: the next flight starts at a model-made exit point.
+    let mut from_step = false;
+    let mut iterations = 0u64;
+    while s.alive {
+        iterations += 1;
+        if iterations > MAX_ITERATIONS {
+            stats.capped += 1;
+            break;
+        }
+        if !inside {
+            let Some(h) = geo.intersect(s.pos, s.dir, f32::INFINITY) else {
+                s.radiance += s.beta * escape(scene, s.dir, channel, !(set.nee && s.scattered));
+                break;
+            };
+            let p = s.pos + s.dir * h.t;
+            match scene.boundary {
+                Boundary::IndexMatched => inside = true,
+                Boundary::Dielectric(ior) => {
+                    let f = fresnel(s.dir.dot(h.normal).abs(), 1.0, ior);
+                    if uniform(rng) < f {
+                        s.dir = reflect(s.dir, h.normal);
+                    } else {
+                        s.dir = refract(s.dir, h.normal, 1.0, ior).unwrap_or(s.dir);
+                        inside = true;
+                    }
+                }
+            }
+            s.pos = geo.spawn(p, h.normal, s.dir);
+            continue;
+        }
+        let t = -(1.0 - uniform(rng)).ln() / sigma;
+        if let Some(h) = geo.intersect(s.pos, s.dir, t) {
+            let p = s.pos + s.dir * h.t;
+            if s.dir.dot(h.normal) < 0.0 {
+                // Met the surface from outside while believed inside. After a sphere step
+                // the exit was not inside after all: count it and leave here, never enter.
+                if from_step {
+                    stats.leaks += 1;
+                }
+                inside = false;
+                s.pos = geo.spawn(p, h.normal, s.dir);
+                from_step = false;
+                continue;
+            }
+            match scene.boundary {
+                Boundary::IndexMatched => inside = false,
+                Boundary::Dielectric(ior) => {
+                    let f = fresnel(s.dir.dot(h.normal).abs(), ior, 1.0);
+                    if uniform(rng) < f {
+                        s.dir = reflect(s.dir, h.normal);
+                    } else {
+                        s.dir = refract(s.dir, h.normal, ior, 1.0).unwrap_or(s.dir);
+                        inside = false;
+                    }
+                }
+            }
+            s.pos = geo.spawn(p, h.normal, s.dir);
+            from_step = false;
+            continue;
+        }
+        s.pos += s.dir * t;
+        from_step = match set.kind {
+            IntegratorKind::Pt => {
+                pt_event(scene, set, channel, &mut s, stats, rng);
+                false
+            }
+            IntegratorKind::Stcvae => sphere_step::step(scene, set, channel, &mut s, stats, rng),
+        };
+    }
+    if s.radiance.is_finite() {
+        s.radiance
+    } else {
+        stats.non_finite += 1;
+        0.0
+    }
+}

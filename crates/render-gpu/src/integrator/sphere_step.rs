@@ -1,0 +1,64 @@
+//! The ST-CVAE sphere step (design §4): at a real collision p, jump over the whole walk
+//! inside the largest surface-free sphere around p with one draw from the models.
+//!
+//! φ^N already contains the albedo of event 1 (the collision at p), so p gets no
+//! separate albedo weight and no separate NEE: EventGen's representative event, with
+//! weight Λ(N) = Σ_{k=1..N} φ^k, stands for NEE at all N events of the walk.
+
+use glam::{DVec3, Vec3};
+use scatter_sim::frame::{WalkFrame, from_canonical};
+use scatter_sim::rng::WalkRng;
+
+use cvae::sampler::lambda;
+
+use super::{IntegratorSettings, PathState, PathStats, nee, pt_event, roulette};
+use crate::setup::SceneData;
+
+/// The sphere radius is shrunk by this factor so the exit point stays strictly inside.
+const SHRINK: f32 = 1.0 - 1e-4;
+
+/// One step at `s.pos`; returns true if a sphere step was taken (false: PT fallback).
+pub(crate) fn step(
+    scene: &SceneData,
+    set: &IntegratorSettings,
+    channel: usize,
+    s: &mut PathState,
+    stats: &mut PathStats,
+    rng: &mut WalkRng,
+) -> bool {
+    let (Some(model), Some(grid)) = (set.model, scene.grid.as_ref()) else {
+        pt_event(scene, set, channel, s, stats, rng);
+        return false;
+    };
+    let sigma = scene.sigma_t[channel];
+    let r = (grid.radius(s.pos) * SHRINK).min(set.max_tau / sigma);
+    let tau = sigma * r;
+    if !(r > 0.0) || tau < set.min_tau {
+        pt_event(scene, set, channel, s, stats, rng);
+        return false;
+    }
+    stats.steps += 1;
+    let albedo = scene.albedo[channel] as f64;
+    let frame = WalkFrame::new(s.dir.as_dvec3(), rng.unit_circle());
+    let walk = model.sample_walk(tau as f64, scene.g as f64, albedo, set.nee, rng);
+    let centre = s.pos.as_dvec3();
+    if set.nee {
+        let lam = if walk.single { albedo } else { lambda(albedo, walk.n) };
+        let x = centre + frame.to_world(walk.event_pos) * r as f64;
+        let w = frame.to_world(walk.event_dir).normalize();
+        s.radiance += s.beta
+            * lam as f32
+            * nee::direct(scene, x.as_vec3(), w.as_vec3(), channel, rng);
+    }
+    s.beta *= albedo.powf(walk.n as f64) as f32;
+    if !roulette(&mut s.beta, rng) {
+        s.alive = false;
+        return true;
+    }
+    let (x, omega) = from_canonical(walk.exit);
+    let exit: DVec3 = centre + frame.to_world(x) * r as f64;
+    s.pos = exit.as_vec3();
+    s.dir = Vec3::from(frame.to_world(omega).as_vec3()).normalize();
+    s.scattered = true;
+    true
+}

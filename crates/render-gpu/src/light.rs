@@ -1,0 +1,123 @@
+//! Directional lights (delta or sun disk) and the environment.
+
+use std::f32::consts::PI;
+use std::path::Path;
+
+use glam::Vec3;
+
+use crate::error::RenderError;
+use crate::image_io::{RgbImage, read_exr};
+use crate::scene::{EnvironmentDesc, LightDesc};
+
+#[derive(Clone, Copy, Debug)]
+pub struct DirectionalLight {
+    /// Unit vector pointing toward the light (minus the travel direction).
+    pub to_light: Vec3,
+    pub irradiance: [f32; 3],
+    /// Cosine of the disk's angular radius; 1 for a delta light.
+    pub cos_max: f32,
+    /// Radiance of the disk, E / (π sin²θ_max); 0 for a delta light.
+    pub radiance: [f32; 3],
+}
+
+impl DirectionalLight {
+    pub fn new(d: &LightDesc) -> Self {
+        let dir = Vec3::new(d.direction[0] as f32, d.direction[1] as f32, d.direction[2] as f32)
+            .normalize();
+        let half = (d.angular_diameter_deg * 0.5).to_radians() as f32;
+        let irradiance = d.irradiance.map(|v| v as f32);
+        let (cos_max, radiance) = if half > 0.0 {
+            // Irradiance on a plane facing the disk: E = ∫ L cos θ dω = L π sin²θ_max.
+            let s = half.sin();
+            (half.cos(), irradiance.map(|e| e / (PI * s * s)))
+        } else {
+            (1.0, [0.0; 3])
+        };
+        Self {
+            to_light: -dir,
+            irradiance,
+            cos_max,
+            radiance,
+        }
+    }
+
+    pub fn is_delta(&self) -> bool {
+        self.cos_max >= 1.0
+    }
+
+    /// A direction toward the light and the factor that multiplies phase × transmittance
+    /// in the NEE estimate: E for a delta light, L / pdf for a disk sampled uniformly in
+    /// solid angle.
+    pub fn sample(&self, u1: f32, u2: f32, channel: usize) -> (Vec3, f32) {
+        if self.is_delta() {
+            return (self.to_light, self.irradiance[channel]);
+        }
+        let cos = 1.0 - u1 * (1.0 - self.cos_max);
+        let sin = (1.0 - cos * cos).max(0.0).sqrt();
+        let phi = 2.0 * PI * u2;
+        let (t, b) = basis(self.to_light);
+        let dir = (t * (sin * phi.cos()) + b * (sin * phi.sin()) + self.to_light * cos).normalize();
+        let solid_angle = 2.0 * PI * (1.0 - self.cos_max);
+        (dir, self.radiance[channel] * solid_angle)
+    }
+
+    /// Radiance seen along `dir` (the disk; a delta light cannot be seen).
+    pub fn radiance_toward(&self, dir: Vec3, channel: usize) -> f32 {
+        if !self.is_delta() && dir.dot(self.to_light) >= self.cos_max {
+            self.radiance[channel]
+        } else {
+            0.0
+        }
+    }
+}
+
+/// An orthonormal pair perpendicular to unit `n` (Duff et al. 2017).
+pub fn basis(n: Vec3) -> (Vec3, Vec3) {
+    let s = 1f32.copysign(n.z);
+    let a = -1.0 / (s + n.z);
+    let b = n.x * n.y * a;
+    (
+        Vec3::new(1.0 + s * n.x * n.x * a, s * b, -s * n.x),
+        Vec3::new(b, s + n.y * n.y * a, -n.y),
+    )
+}
+
+/// Constant radiance, optionally times a lat-long map (y up; u = 0.5 + atan2(x, −z)/2π,
+/// v = acos(y)/π, row 0 at the top).
+pub struct Environment {
+    pub radiance: [f32; 3],
+    pub map: Option<RgbImage>,
+}
+
+impl Environment {
+    pub fn new(d: &EnvironmentDesc, scene_dir: &Path) -> Result<Self, RenderError> {
+        let map = match &d.file {
+            Some(f) => Some(read_exr(&scene_dir.join(f))?.0),
+            None => None,
+        };
+        let radiance = match (d.radiance, &map) {
+            (Some(r), _) => r.map(|v| v as f32),
+            (None, Some(_)) => [1.0; 3],
+            (None, None) => [0.0; 3],
+        };
+        Ok(Self { radiance, map })
+    }
+
+    pub fn is_black(&self) -> bool {
+        self.radiance == [0.0; 3]
+    }
+
+    pub fn lookup(&self, dir: Vec3, channel: usize) -> f32 {
+        let base = self.radiance[channel];
+        match &self.map {
+            None => base,
+            Some(m) => {
+                let u = 0.5 + dir.x.atan2(-dir.z) / (2.0 * PI);
+                let v = dir.y.clamp(-1.0, 1.0).acos() / PI;
+                let x = ((u * m.width as f32) as usize).min(m.width - 1);
+                let y = ((v * m.height as f32) as usize).min(m.height - 1);
+                base * m.pixels[y * m.width + x][channel]
+            }
+        }
+    }
+}

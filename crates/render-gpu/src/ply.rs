@@ -1,0 +1,218 @@
+//! A small PLY reader: enough for closed triangle meshes (no well-kept crate covers PLY).
+//!
+//! Supports `format ascii 1.0` and `format binary_little_endian 1.0`, a `vertex` element
+//! with x, y, z of any scalar type (other properties skipped), and a `face` element with
+//! a `vertex_indices`/`vertex_index` list (polygons fan-triangulated). Other elements are
+//! skipped when their layout allows it.
+
+use glam::Vec3;
+
+use crate::mesh::TriMesh;
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Scalar {
+    I8,
+    U8,
+    I16,
+    U16,
+    I32,
+    U32,
+    F32,
+    F64,
+}
+
+impl Scalar {
+    fn parse(s: &str) -> Result<Self, String> {
+        Ok(match s {
+            "char" | "int8" => Self::I8,
+            "uchar" | "uint8" => Self::U8,
+            "short" | "int16" => Self::I16,
+            "ushort" | "uint16" => Self::U16,
+            "int" | "int32" => Self::I32,
+            "uint" | "uint32" => Self::U32,
+            "float" | "float32" => Self::F32,
+            "double" | "float64" => Self::F64,
+            _ => return Err(format!("unknown PLY scalar type `{s}`")),
+        })
+    }
+    fn size(self) -> usize {
+        match self {
+            Self::I8 | Self::U8 => 1,
+            Self::I16 | Self::U16 => 2,
+            Self::I32 | Self::U32 | Self::F32 => 4,
+            Self::F64 => 8,
+        }
+    }
+    fn read(self, b: &[u8]) -> f64 {
+        match self {
+            Self::I8 => b[0] as i8 as f64,
+            Self::U8 => b[0] as f64,
+            Self::I16 => i16::from_le_bytes([b[0], b[1]]) as f64,
+            Self::U16 => u16::from_le_bytes([b[0], b[1]]) as f64,
+            Self::I32 => i32::from_le_bytes(b[..4].try_into().unwrap()) as f64,
+            Self::U32 => u32::from_le_bytes(b[..4].try_into().unwrap()) as f64,
+            Self::F32 => f32::from_le_bytes(b[..4].try_into().unwrap()) as f64,
+            Self::F64 => f64::from_le_bytes(b[..8].try_into().unwrap()),
+        }
+    }
+}
+
+#[derive(Debug)]
+enum Property {
+    Scalar(String, Scalar),
+    List(String, Scalar, Scalar),
+}
+
+#[derive(Debug)]
+struct Element {
+    name: String,
+    count: usize,
+    props: Vec<Property>,
+}
+
+/// Reads values one at a time from the body, ASCII or binary.
+enum Body<'a> {
+    Ascii(std::str::SplitAsciiWhitespace<'a>),
+    Binary(&'a [u8], usize),
+}
+
+impl Body<'_> {
+    fn next(&mut self, t: Scalar) -> Result<f64, String> {
+        match self {
+            Body::Ascii(it) => {
+                let tok = it.next().ok_or("the file ends early (truncated?)")?;
+                tok.parse::<f64>()
+                    .map_err(|_| format!("`{tok}` is not a number"))
+            }
+            Body::Binary(b, pos) => {
+                let n = t.size();
+                if *pos + n > b.len() {
+                    return Err("the file ends early (truncated?)".into());
+                }
+                let v = t.read(&b[*pos..*pos + n]);
+                *pos += n;
+                Ok(v)
+            }
+        }
+    }
+}
+
+pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
+    let end = find(bytes, b"end_header").ok_or("not a PLY file: no end_header")?;
+    let header = std::str::from_utf8(&bytes[..end]).map_err(|_| "the PLY header is not text")?;
+    let mut body_start = end + b"end_header".len();
+    while body_start < bytes.len() && (bytes[body_start] == b'\r' || bytes[body_start] == b'\n')
+    {
+        body_start += 1;
+        if bytes[body_start - 1] == b'\n' {
+            break;
+        }
+    }
+    let mut lines = header.lines();
+    if lines.next().map(str::trim) != Some("ply") {
+        return Err("not a PLY file: the first line is not `ply`".into());
+    }
+    let mut binary = None;
+    let mut elements: Vec<Element> = Vec::new();
+    for line in lines {
+        let w: Vec<&str> = line.split_whitespace().collect();
+        match w.as_slice() {
+            ["format", "ascii", _] => binary = Some(false),
+            ["format", "binary_little_endian", _] => binary = Some(true),
+            ["format", f, ..] => return Err(format!("PLY format `{f}` is not supported")),
+            ["element", name, count] => elements.push(Element {
+                name: name.to_string(),
+                count: count
+                    .parse()
+                    .map_err(|_| format!("bad element count `{count}`"))?,
+                props: Vec::new(),
+            }),
+            ["property", "list", c, t, name] => elements
+                .last_mut()
+                .ok_or("property before any element")?
+                .props
+                .push(Property::List(name.to_string(), Scalar::parse(c)?, Scalar::parse(t)?)),
+            ["property", t, name] => elements
+                .last_mut()
+                .ok_or("property before any element")?
+                .props
+                .push(Property::Scalar(name.to_string(), Scalar::parse(t)?)),
+            _ => {}
+        }
+    }
+    let binary = binary.ok_or("the PLY header has no format line")?;
+    let mut body = if binary {
+        Body::Binary(bytes, body_start)
+    } else {
+        let text = std::str::from_utf8(&bytes[body_start..]).map_err(|_| "the PLY body is not text")?;
+        Body::Ascii(text.split_ascii_whitespace())
+    };
+    let mut mesh = TriMesh::default();
+    for el in &elements {
+        // Guard against absurd counts before allocating.
+        if el.count > bytes.len() {
+            return Err(format!("element {} claims {} entries, more than the file can hold", el.name, el.count));
+        }
+        let is_vertex = el.name == "vertex";
+        let is_face = el.name == "face";
+        if is_vertex {
+            for axis in ["x", "y", "z"] {
+                if !el.props.iter().any(|p| matches!(p, Property::Scalar(n, _) if n == axis)) {
+                    return Err(format!("the vertex element has no `{axis}` property"));
+                }
+            }
+            mesh.positions.reserve(el.count);
+        }
+        for _ in 0..el.count {
+            let mut p = [0f32; 3];
+            for prop in &el.props {
+                match prop {
+                    Property::Scalar(name, t) => {
+                        let v = body.next(*t)?;
+                        if is_vertex {
+                            match name.as_str() {
+                                "x" => p[0] = v as f32,
+                                "y" => p[1] = v as f32,
+                                "z" => p[2] = v as f32,
+                                _ => {}
+                            }
+                        }
+                    }
+                    Property::List(name, ct, it) => {
+                        let n = body.next(*ct)?;
+                        if !(n >= 0.0 && n <= 1e6) {
+                            return Err(format!("bad list length {n} in element {}", el.name));
+                        }
+                        let mut idx = Vec::with_capacity(n as usize);
+                        for _ in 0..n as usize {
+                            idx.push(body.next(*it)?);
+                        }
+                        if is_face && (name == "vertex_indices" || name == "vertex_index") {
+                            if idx.len() < 3 {
+                                return Err("a face has fewer than 3 vertices".into());
+                            }
+                            for k in 1..idx.len() - 1 {
+                                mesh.triangles.push([idx[0], idx[k], idx[k + 1]].map(|v| v as u32));
+                            }
+                            if idx.iter().any(|&v| v < 0.0 || v.fract() != 0.0) {
+                                return Err("a face has a negative or fractional index".into());
+                            }
+                        }
+                    }
+                }
+            }
+            if is_vertex {
+                mesh.positions.push(Vec3::from_array(p));
+            }
+        }
+    }
+    let nv = mesh.positions.len() as u32;
+    if mesh.triangles.iter().flatten().any(|&i| i >= nv) {
+        return Err(format!("a face refers to a vertex beyond the {nv} vertices"));
+    }
+    Ok(mesh)
+}
+
+fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
+    hay.windows(needle.len()).position(|w| w == needle)
+}

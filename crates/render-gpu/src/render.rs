@@ -1,0 +1,113 @@
+//! The CPU render loop: tiles in parallel (rayon), samples in passes, one RNG stream per
+//! (pixel, sample) so the image is the same whatever the thread count.
+
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::Instant;
+
+use rayon::prelude::*;
+use scatter_sim::rng::WalkRng;
+
+use crate::image_io::RgbImage;
+use crate::integrator::{IntegratorSettings, PathStats, trace};
+use crate::setup::SceneData;
+
+const TILE: usize = 16;
+
+pub struct RenderOptions {
+    pub spp: u32,
+    pub seed: u64,
+    /// Stop after the pass during which this many seconds have passed.
+    pub time_budget: Option<f64>,
+}
+
+pub struct RenderOutput {
+    pub image: RgbImage,
+    /// Samples per pixel actually rendered (fewer than asked if the budget ran out).
+    pub spp: u32,
+    pub seconds: f64,
+    pub stats: PathStats,
+}
+
+/// Renders the scene. `progress(done, total)` counts pixel-samples; `cancel` stops after
+/// the current pass (the image then holds the completed passes).
+pub fn render(
+    scene: &SceneData,
+    set: &IntegratorSettings,
+    opts: &RenderOptions,
+    progress: &(dyn Fn(u64, u64) + Sync),
+    cancel: &AtomicBool,
+) -> RenderOutput {
+    let cam = &scene.camera;
+    let (w, h) = (cam.width as usize, cam.height as usize);
+    let tiles: Vec<(usize, usize)> = (0..h.div_ceil(TILE))
+        .flat_map(|ty| (0..w.div_ceil(TILE)).map(move |tx| (tx * TILE, ty * TILE)))
+        .collect();
+    let mut sum = vec![[0f64; 3]; w * h];
+    let mut stats = PathStats::default();
+    let start = Instant::now();
+    // Passes let a time budget or Ctrl-C stop between complete sets of samples.
+    let pass = opts.spp.div_ceil(16).max(1);
+    let total = w as u64 * h as u64 * opts.spp as u64;
+    let done = AtomicU64::new(0);
+    let mut s0 = 0u32;
+    while s0 < opts.spp {
+        let s1 = (s0 + pass).min(opts.spp);
+        let results: Vec<(Vec<[f64; 3]>, PathStats)> = tiles
+            .par_iter()
+            .map(|&(x0, y0)| {
+                let mut st = PathStats::default();
+                let (x1, y1) = ((x0 + TILE).min(w), (y0 + TILE).min(h));
+                let mut out = Vec::with_capacity((x1 - x0) * (y1 - y0));
+                for y in y0..y1 {
+                    for x in x0..x1 {
+                        let pixel = (y * w + x) as u64;
+                        let offset = (pixel.wrapping_mul(0x9e37_79b9_7f4a_7c15) >> 62) as u32 % 3;
+                        let mut acc = [0f64; 3];
+                        for s in s0..s1 {
+                            let mut rng = WalkRng::for_walk(opts.seed, (pixel << 32) | s as u64);
+                            let channel = ((s + offset) % 3) as usize;
+                            let jx = rng.uniform() as f32;
+                            let jy = rng.uniform() as f32;
+                            let dir = cam.ray_dir(x as f32 + jx, y as f32 + jy);
+                            let l = trace(scene, set, cam.origin, dir, channel, &mut st, &mut rng);
+                            acc[channel] += 3.0 * l as f64;
+                        }
+                        out.push(acc);
+                    }
+                }
+                let n = ((x1 - x0) * (y1 - y0)) as u64 * (s1 - s0) as u64;
+                progress(done.fetch_add(n, Ordering::Relaxed) + n, total);
+                (out, st)
+            })
+            .collect();
+        for (&(x0, y0), (out, st)) in tiles.iter().zip(results) {
+            stats.add(&st);
+            let x1 = (x0 + TILE).min(w);
+            for (i, v) in out.into_iter().enumerate() {
+                let (dx, dy) = (i % (x1 - x0), i / (x1 - x0));
+                let p = &mut sum[(y0 + dy) * w + x0 + dx];
+                for c in 0..3 {
+                    p[c] += v[c];
+                }
+            }
+        }
+        s0 = s1;
+        let out_of_time = opts
+            .time_budget
+            .is_some_and(|b| start.elapsed().as_secs_f64() >= b);
+        if out_of_time || cancel.load(Ordering::Relaxed) {
+            break;
+        }
+    }
+    let spp = s0;
+    let mut image = RgbImage::new(w, h);
+    for (px, s) in image.pixels.iter_mut().zip(&sum) {
+        *px = s.map(|v| (v / spp.max(1) as f64) as f32);
+    }
+    RenderOutput {
+        image,
+        spp,
+        seconds: start.elapsed().as_secs_f64(),
+        stats,
+    }
+}

@@ -1,0 +1,401 @@
+//! The scene file (TOML): the user-facing contract, documented in the README.
+//!
+//! Parsing rejects unknown keys; [`SceneFile::validate`] checks every range and names the
+//! offending field, so a bad file never reaches the integrators.
+
+use std::path::{Path, PathBuf};
+
+use scatter_sim::ranges::G_MAX;
+use serde::{Deserialize, Serialize};
+
+use crate::error::RenderError;
+
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneFile {
+    pub camera: CameraDesc,
+    pub object: ObjectDesc,
+    pub medium: MediumDesc,
+    #[serde(default)]
+    pub boundary: BoundaryDesc,
+    #[serde(default, rename = "light")]
+    pub lights: Vec<LightDesc>,
+    #[serde(default)]
+    pub environment: EnvironmentDesc,
+    #[serde(default)]
+    pub render: RenderDesc,
+}
+
+/// Pinhole camera; (target − origin) × up points to the right of the image, row 0 is
+/// the top row (Mitsuba's convention).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraDesc {
+    pub origin: [f64; 3],
+    pub target: [f64; 3],
+    #[serde(default = "default_up")]
+    pub up: [f64; 3],
+    /// Horizontal field of view, degrees.
+    pub fov_deg: f64,
+    pub width: u32,
+    pub height: u32,
+}
+
+fn default_up() -> [f64; 3] {
+    [0.0, 1.0, 0.0]
+}
+
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum Shape {
+    Sphere,
+    Cube,
+}
+
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObjectDesc {
+    pub shape: Option<Shape>,
+    /// Sphere radius (default 0.5).
+    pub radius: Option<f64>,
+    /// Cube edge length (default 1).
+    pub size: Option<f64>,
+    /// Mesh file, relative to the scene file.
+    pub mesh: Option<PathBuf>,
+    /// Rescale the mesh so its bounding-box height is this, centred at the origin.
+    pub height: Option<f64>,
+}
+
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct MediumDesc {
+    /// Extinction per RGB channel, 1/scene-unit.
+    pub sigma_t: [f64; 3],
+    /// Single-scattering albedo per RGB channel.
+    pub albedo: [f64; 3],
+    #[serde(default)]
+    pub g: f64,
+}
+
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "kebab-case")]
+pub enum BoundaryKind {
+    #[default]
+    IndexMatched,
+    Dielectric,
+}
+
+#[derive(Clone, Debug, Default, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct BoundaryDesc {
+    #[serde(default)]
+    pub kind: BoundaryKind,
+    /// Index of refraction of the medium (dielectric only; default 1.5).
+    pub ior: Option<f64>,
+}
+
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum LightKind {
+    Directional,
+}
+
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct LightDesc {
+    pub kind: LightKind,
+    /// The direction the light travels.
+    pub direction: [f64; 3],
+    /// Irradiance on a plane perpendicular to the light.
+    pub irradiance: [f64; 3],
+    /// Angular diameter of the sun disk; 0 = a delta light.
+    #[serde(default)]
+    pub angular_diameter_deg: f64,
+}
+
+#[derive(Clone, Debug, Default, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct EnvironmentDesc {
+    /// Constant radiance.
+    pub radiance: Option<[f64; 3]>,
+    /// Lat-long EXR, relative to the scene file (multiplied by `radiance` if both given).
+    pub file: Option<PathBuf>,
+}
+
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum IntegratorKind {
+    #[default]
+    Pt,
+    Stcvae,
+}
+
+impl IntegratorKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Pt => "pt",
+            Self::Stcvae => "stcvae",
+        }
+    }
+}
+
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct RenderDesc {
+    #[serde(default)]
+    pub integrator: IntegratorKind,
+    #[serde(default = "yes")]
+    pub nee: bool,
+    #[serde(default = "default_spp")]
+    pub spp: u32,
+    #[serde(default = "one")]
+    pub seed: u64,
+    /// Distance-grid cells along the longest side of the mesh bounds (ST-CVAE).
+    #[serde(default = "default_grid")]
+    pub grid_resolution: u32,
+    /// Thin-region fallback: below this optical radius σ_t·r a sphere step is replaced
+    /// by an ordinary PT event (ST-CVAE).
+    #[serde(default = "default_min_tau")]
+    pub min_tau: f64,
+    /// Largest optical radius of a sphere step; default: the model's training maximum.
+    pub max_tau: Option<f64>,
+}
+
+impl Default for RenderDesc {
+    fn default() -> Self {
+        Self {
+            integrator: IntegratorKind::Pt,
+            nee: true,
+            spp: default_spp(),
+            seed: 1,
+            grid_resolution: default_grid(),
+            min_tau: default_min_tau(),
+            max_tau: None,
+        }
+    }
+}
+
+fn yes() -> bool {
+    true
+}
+fn one() -> u64 {
+    1
+}
+fn default_spp() -> u32 {
+    64
+}
+fn default_grid() -> u32 {
+    128
+}
+/// Chosen by measurement (docs/BENCHMARKS.md, `stcvae bench render`): below τ ≈ 1 most
+/// walks are single scattering, so a model call costs more than the PT event it saves.
+pub const DEFAULT_MIN_TAU: f64 = 1.0;
+fn default_min_tau() -> f64 {
+    DEFAULT_MIN_TAU
+}
+
+/// Largest image side accepted.
+pub const MAX_IMAGE_SIDE: u32 = 16384;
+/// Largest grid resolution accepted (512³ floats = 512 MiB).
+pub const MAX_GRID: u32 = 512;
+
+impl SceneFile {
+    /// Parses a scene file; errors name the file and the field.
+    pub fn load(path: &Path) -> Result<Self, RenderError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| RenderError::io(path, format!("cannot read scene file: {e}")))?;
+        Self::parse(path, &text)
+    }
+
+    pub fn parse(path: &Path, text: &str) -> Result<Self, RenderError> {
+        let scene: SceneFile = toml::from_str(text).map_err(|e| {
+            let msg = e.message().to_string();
+            let line = e
+                .span()
+                .map(|s| text[..s.start.min(text.len())].lines().count().max(1));
+            RenderError::Scene(match line {
+                Some(l) => format!("{}:{l}: {msg}", path.display()),
+                None => format!("{}: {msg}", path.display()),
+            })
+        })?;
+        scene
+            .validate()
+            .map_err(|m| RenderError::Scene(format!("{}: {m}", path.display())))?;
+        Ok(scene)
+    }
+
+    /// Checks every range. The message names the field and the allowed range.
+    pub fn validate(&self) -> Result<(), String> {
+        let finite3 = |name: &str, v: [f64; 3]| -> Result<(), String> {
+            for (i, x) in v.iter().enumerate() {
+                if !x.is_finite() {
+                    return Err(format!("{name}[{i}] = {x} must be finite"));
+                }
+            }
+            Ok(())
+        };
+        let c = &self.camera;
+        finite3("camera.origin", c.origin)?;
+        finite3("camera.target", c.target)?;
+        finite3("camera.up", c.up)?;
+        let fwd = sub(c.target, c.origin);
+        if norm(fwd) < 1e-12 {
+            return Err("camera.target equals camera.origin".into());
+        }
+        if norm(cross(fwd, c.up)) < 1e-9 * norm(fwd) * norm(c.up).max(1e-300) {
+            return Err("camera.up is zero or parallel to the viewing direction".into());
+        }
+        if !(c.fov_deg > 0.0 && c.fov_deg < 180.0) {
+            return Err(format!(
+                "camera.fov_deg = {} is out of range: allowed (0, 180)",
+                c.fov_deg
+            ));
+        }
+        for (name, v) in [("camera.width", c.width), ("camera.height", c.height)] {
+            if v == 0 || v > MAX_IMAGE_SIDE {
+                return Err(format!(
+                    "{name} = {v} is out of range: allowed [1, {MAX_IMAGE_SIDE}]"
+                ));
+            }
+        }
+
+        let o = &self.object;
+        match (o.shape, &o.mesh) {
+            (Some(_), Some(_)) => {
+                return Err("object: give either `shape` or `mesh`, not both".into());
+            }
+            (None, None) => {
+                return Err(
+                    "object: missing `shape = \"sphere\"|\"cube\"` or `mesh = \"file\"`".into(),
+                );
+            }
+            _ => {}
+        }
+        for (name, v) in [
+            ("object.radius", o.radius),
+            ("object.size", o.size),
+            ("object.height", o.height),
+        ] {
+            if let Some(v) = v
+                && !(v > 0.0 && v.is_finite())
+            {
+                return Err(format!("{name} = {v} is out of range: allowed (0, inf)"));
+            }
+        }
+        if o.radius.is_some() && o.shape != Some(Shape::Sphere) {
+            return Err("object.radius applies to shape = \"sphere\" only".into());
+        }
+        if o.size.is_some() && o.shape != Some(Shape::Cube) {
+            return Err("object.size applies to shape = \"cube\" only".into());
+        }
+
+        let m = &self.medium;
+        for i in 0..3 {
+            let s = m.sigma_t[i];
+            if !(s > 0.0 && s.is_finite()) {
+                return Err(format!(
+                    "medium.sigma_t[{i}] = {s} is out of range: allowed (0, inf)"
+                ));
+            }
+            let a = m.albedo[i];
+            if !(0.0..=1.0).contains(&a) {
+                return Err(format!(
+                    "medium.albedo[{i}] = {a} is out of range: allowed [0, 1]"
+                ));
+            }
+        }
+        if !(m.g.abs() <= G_MAX) {
+            return Err(format!(
+                "medium.g = {} is out of range: allowed [-{G_MAX}, {G_MAX}]",
+                m.g
+            ));
+        }
+
+        let b = &self.boundary;
+        match b.kind {
+            BoundaryKind::IndexMatched if b.ior.is_some() => {
+                return Err(
+                    "boundary.ior applies to kind = \"dielectric\" only (index-matched means ior = 1)"
+                        .into(),
+                );
+            }
+            BoundaryKind::Dielectric => {
+                let ior = b.ior.unwrap_or(1.5);
+                if !(ior > 1.0 && ior <= 4.0) {
+                    return Err(format!(
+                        "boundary.ior = {ior} is out of range: allowed (1, 4]"
+                    ));
+                }
+            }
+            _ => {}
+        }
+
+        for (i, l) in self.lights.iter().enumerate() {
+            finite3(&format!("light[{i}].direction"), l.direction)?;
+            if norm(l.direction) < 1e-12 {
+                return Err(format!("light[{i}].direction must not be zero"));
+            }
+            for (k, e) in l.irradiance.iter().enumerate() {
+                if !(*e >= 0.0 && e.is_finite()) {
+                    return Err(format!(
+                        "light[{i}].irradiance[{k}] = {e} is out of range: allowed [0, inf)"
+                    ));
+                }
+            }
+            if !(0.0..=90.0).contains(&l.angular_diameter_deg) {
+                return Err(format!(
+                    "light[{i}].angular_diameter_deg = {} is out of range: allowed [0, 90]",
+                    l.angular_diameter_deg
+                ));
+            }
+        }
+        if let Some(r) = self.environment.radiance {
+            for (k, e) in r.iter().enumerate() {
+                if !(*e >= 0.0 && e.is_finite()) {
+                    return Err(format!(
+                        "environment.radiance[{k}] = {e} is out of range: allowed [0, inf)"
+                    ));
+                }
+            }
+        }
+
+        let r = &self.render;
+        if r.spp == 0 {
+            return Err("render.spp = 0 is out of range: allowed [1, 2^32)".into());
+        }
+        if !(4..=MAX_GRID).contains(&r.grid_resolution) {
+            return Err(format!(
+                "render.grid_resolution = {} is out of range: allowed [4, {MAX_GRID}]",
+                r.grid_resolution
+            ));
+        }
+        if !(r.min_tau >= 0.0 && r.min_tau.is_finite()) {
+            return Err(format!(
+                "render.min_tau = {} is out of range: allowed [0, inf)",
+                r.min_tau
+            ));
+        }
+        if let Some(t) = r.max_tau
+            && !(t > 0.0 && t.is_finite())
+        {
+            return Err(format!(
+                "render.max_tau = {t} is out of range: allowed (0, the model's training maximum]"
+            ));
+        }
+        Ok(())
+    }
+}
+
+fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+fn norm(a: [f64; 3]) -> f64 {
+    (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt()
+}

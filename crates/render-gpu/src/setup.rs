@@ -1,0 +1,102 @@
+//! From a scene file to what the integrators read: geometry, lights, medium, and the
+//! scene's identity hash (what `merge` compares).
+
+use std::path::Path;
+
+use crate::camera::Camera;
+use crate::distance_grid::DistanceGrid;
+use crate::error::RenderError;
+use crate::geometry::Geometry;
+use crate::hash::Fnv64;
+use crate::light::{DirectionalLight, Environment};
+use crate::mesh::{self, TriMesh};
+use crate::scene::{BoundaryKind, SceneFile, Shape};
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Boundary {
+    IndexMatched,
+    /// Index of refraction of the medium.
+    Dielectric(f32),
+}
+
+pub struct SceneData {
+    pub geo: Geometry,
+    /// The distance grid; built only for ST-CVAE.
+    pub grid: Option<DistanceGrid>,
+    pub camera: Camera,
+    pub sigma_t: [f32; 3],
+    pub albedo: [f32; 3],
+    pub g: f32,
+    pub boundary: Boundary,
+    pub lights: Vec<DirectionalLight>,
+    pub env: Environment,
+    /// Hash of everything that defines the converged image, except spp and seed.
+    pub hash: u64,
+}
+
+/// The object's mesh as the scene file describes it.
+pub fn object_mesh(scene: &SceneFile, scene_dir: &Path) -> Result<TriMesh, RenderError> {
+    let o = &scene.object;
+    let mut m = match (o.shape, &o.mesh) {
+        (Some(Shape::Sphere), _) => mesh::sphere(o.radius.unwrap_or(0.5) as f32),
+        (Some(Shape::Cube), _) => mesh::cube(o.size.unwrap_or(1.0) as f32),
+        (None, Some(p)) => mesh::load_mesh(&scene_dir.join(p))?,
+        (None, None) => unreachable!("validated: shape or mesh"),
+    };
+    if let Some(h) = o.height {
+        m.normalise_height(h as f32);
+    }
+    Ok(m)
+}
+
+impl SceneData {
+    /// Builds everything; `with_grid` also builds (or loads from the cache) the distance
+    /// grid. `extra_hash` identifies inputs outside the scene (e.g. the model file).
+    pub fn build(
+        scene: &SceneFile,
+        scene_dir: &Path,
+        with_grid: bool,
+        extra_hash: &[u8],
+    ) -> Result<Self, RenderError> {
+        let mesh = object_mesh(scene, scene_dir)?;
+        let env = crate::light::Environment::new(&scene.environment, scene_dir)?;
+        let mut h = Fnv64::new();
+        let mut ident = scene.clone();
+        ident.render.spp = 0;
+        ident.render.seed = 0;
+        h.write(serde_json::to_string(&ident).unwrap_or_default().as_bytes());
+        for p in &mesh.positions {
+            for x in p.to_array() {
+                h.write(&x.to_le_bytes());
+            }
+        }
+        if let Some(m) = &env.map {
+            for px in &m.pixels {
+                for v in px {
+                    h.write(&v.to_le_bytes());
+                }
+            }
+        }
+        h.write(extra_hash);
+        let geo = Geometry::new(mesh);
+        let grid = with_grid.then(|| DistanceGrid::cached(&geo, scene.render.grid_resolution));
+        let m = &scene.medium;
+        Ok(Self {
+            geo,
+            grid,
+            camera: Camera::new(&scene.camera),
+            sigma_t: m.sigma_t.map(|v| v as f32),
+            albedo: m.albedo.map(|v| v as f32),
+            g: m.g as f32,
+            boundary: match scene.boundary.kind {
+                BoundaryKind::IndexMatched => Boundary::IndexMatched,
+                BoundaryKind::Dielectric => {
+                    Boundary::Dielectric(scene.boundary.ior.unwrap_or(1.5) as f32)
+                }
+            },
+            lights: scene.lights.iter().map(DirectionalLight::new).collect(),
+            env,
+            hash: h.finish(),
+        })
+    }
+}

@@ -1,0 +1,76 @@
+//! Bad scene files give one clear error naming the field and the allowed range.
+
+use std::path::Path;
+
+use render_gpu::scene::SceneFile;
+
+const BASE: &str = r#"
+[camera]
+origin = [0.0, 0.0, 4.0]
+target = [0.0, 0.0, 0.0]
+fov_deg = 20.0
+width = 8
+height = 8
+
+[object]
+shape = "sphere"
+
+[medium]
+sigma_t = [10.0, 10.0, 10.0]
+albedo = [0.99, 0.99, 0.99]
+g = 0.0
+"#;
+
+fn err(text: &str) -> String {
+    match SceneFile::parse(Path::new("s.toml"), text) {
+        Ok(_) => panic!("accepted a bad scene:\n{text}"),
+        Err(e) => e.to_string(),
+    }
+}
+
+#[test]
+fn the_base_scene_is_valid() {
+    let s = SceneFile::parse(Path::new("s.toml"), BASE).unwrap();
+    assert_eq!(s.camera.up, [0.0, 1.0, 0.0]);
+    assert!(s.render.nee);
+}
+
+#[test]
+fn unknown_keys_are_rejected() {
+    let e = err(&BASE.replace("g = 0.0", "g = 0.0\nsigma_s = 1.0"));
+    assert!(e.contains("s.toml") && e.contains("sigma_s"), "{e}");
+}
+
+#[test]
+fn out_of_range_medium_names_the_field() {
+    let e = err(&BASE.replace("sigma_t = [10.0, 10.0, 10.0]", "sigma_t = [10.0, -1.0, 10.0]"));
+    assert!(e.contains("medium.sigma_t[1]") && e.contains("(0, inf)"), "{e}");
+    let e = err(&BASE.replace("albedo = [0.99, 0.99, 0.99]", "albedo = [0.99, 0.99, 1.2]"));
+    assert!(e.contains("medium.albedo[2]") && e.contains("[0, 1]"), "{e}");
+    let e = err(&BASE.replace("g = 0.0", "g = 1.0"));
+    assert!(e.contains("medium.g") && e.contains("0.999"), "{e}");
+    let e = err(&BASE.replace("g = 0.0", "g = -1.5"));
+    assert!(e.contains("medium.g"), "{e}");
+}
+
+#[test]
+fn other_fields_are_checked() {
+    let e = err(&BASE.replace("fov_deg = 20.0", "fov_deg = 200.0"));
+    assert!(e.contains("camera.fov_deg"), "{e}");
+    let e = err(&BASE.replace("width = 8", "width = 0"));
+    assert!(e.contains("camera.width"), "{e}");
+    let e = err(&BASE.replace("shape = \"sphere\"", "shape = \"sphere\"\nmesh = \"a.glb\""));
+    assert!(e.contains("shape") && e.contains("mesh"), "{e}");
+    let e = err(&BASE.replace("shape = \"sphere\"", "shape = \"torus\""));
+    assert!(e.contains("torus"), "{e}");
+    let e = err(&format!("{BASE}\n[boundary]\nkind = \"dielectric\"\nior = 0.5\n"));
+    assert!(e.contains("boundary.ior"), "{e}");
+    let e = err(&format!(
+        "{BASE}\n[[light]]\nkind = \"directional\"\ndirection = [0.0, 0.0, 0.0]\nirradiance = [1.0, 1.0, 1.0]\n"
+    ));
+    assert!(e.contains("light[0].direction"), "{e}");
+    let e = err(&format!("{BASE}\n[render]\nspp = 0\n"));
+    assert!(e.contains("render.spp"), "{e}");
+    let e = err("[camera\n");
+    assert!(e.starts_with("s.toml:1"), "{e}");
+}
