@@ -14,14 +14,26 @@ fn spec(total: u64, shard: Shard) -> GenerateSpec {
     // A cheaper cousin of the authors' sampler (τ ≤ 40) keeps the test fast while still
     // mixing short and long walks, which is what stresses the parallel ordering.
     let mut sampler = ConditionSampler::authors();
-    sampler.tau = scatter_sim::conditions::TauSampler::Power { max: 40.0, exponent: 3.0 };
-    GenerateSpec { seed: 77, sampler, total_walks: total, shard }
+    sampler.tau = scatter_sim::conditions::TauSampler::Power {
+        max: 40.0,
+        exponent: 3.0,
+    };
+    GenerateSpec {
+        seed: 77,
+        sampler,
+        total_walks: total,
+        shard,
+    }
 }
 
 fn write(spec: &GenerateSpec, path: &Path, threads: usize) {
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap();
     let mut sink = create_sink(path, Header::new(vec![spec.piece()])).unwrap();
-    pool.install(|| generate(spec, sink.as_mut(), &AtomicBool::new(false), &mut |_| {})).unwrap();
+    pool.install(|| generate(spec, sink.as_mut(), &AtomicBool::new(false), &mut |_| {}))
+        .unwrap();
     sink.finish().unwrap();
 }
 
@@ -29,7 +41,11 @@ fn write(spec: &GenerateSpec, path: &Path, threads: usize) {
 fn identical_bytes_for_any_thread_count() {
     let dir = tempfile::tempdir().unwrap();
     let s = spec(10_000, Shard::WHOLE);
-    let (a, b, c) = (dir.path().join("1.bin"), dir.path().join("2.bin"), dir.path().join("3.bin"));
+    let (a, b, c) = (
+        dir.path().join("1.bin"),
+        dir.path().join("2.bin"),
+        dir.path().join("3.bin"),
+    );
     write(&s, &a, 1);
     write(&s, &b, 2);
     write(&s, &c, 3);
@@ -72,7 +88,10 @@ fn round_trip_preserves_header_and_rows() {
     assert_eq!(rows.len(), 1_000);
     // Each row is exactly what walk_row produces for its index.
     for (i, row) in rows.iter().enumerate() {
-        assert_eq!(*row, scatter_sim::dataset::walk_row(s.seed, &s.sampler, i as u64).0);
+        assert_eq!(
+            *row,
+            scatter_sim::dataset::walk_row(s.seed, &s.sampler, i as u64).0
+        );
     }
     // Row invariants hold (the reader validated them too).
     assert!(rows.iter().all(|r| r.validate().is_ok()));
@@ -102,7 +121,10 @@ fn damaged_files_are_rejected_with_clear_errors() {
         let e = expect_err(&put("cut.bin", &bytes[..cut]));
         let msg = e.to_string();
         assert!(
-            matches!(e, DatasetError::Truncated { .. } | DatasetError::BadMagic { .. }),
+            matches!(
+                e,
+                DatasetError::Truncated { .. } | DatasetError::BadMagic { .. }
+            ),
             "cut at {cut}: {msg}"
         );
         assert!(msg.contains("cut.bin"), "error names the file: {msg}");
@@ -112,7 +134,13 @@ fn damaged_files_are_rejected_with_clear_errors() {
     let at = bytes.len() - 12 - 56 * 100 + 30;
     flipped[at] ^= 0x04;
     let e = expect_err(&put("flip.bin", &flipped));
-    assert!(matches!(e, DatasetError::Checksum { .. } | DatasetError::BadRow { .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            DatasetError::Checksum { .. } | DatasetError::BadRow { .. }
+        ),
+        "{e}"
+    );
     // Wrong version.
     let mut v2 = bytes.clone();
     v2[8] = 2;

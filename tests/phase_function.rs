@@ -33,7 +33,10 @@ fn cdf_is_the_integral_of_the_pdf() {
         for mu in [-0.99, -0.5, 0.0, 0.3, 0.9, 0.999] {
             let numeric = simpson(|t| hg_cos_pdf(g, t), -1.0, mu, 200_000);
             let exact = hg_cos_cdf(g, mu);
-            assert!((numeric - exact).abs() < 1e-7, "g = {g}, mu = {mu}: {numeric} vs {exact}");
+            assert!(
+                (numeric - exact).abs() < 1e-7,
+                "g = {g}, mu = {mu}: {numeric} vs {exact}"
+            );
         }
     }
 }
@@ -66,7 +69,11 @@ fn sampling_matches_pdf_chi_square() {
         let (obs, exp) = pool_small_bins(&counts, &expected, 20.0);
         let stat = chi_square(&obs, &exp);
         let p = chi_square_p_value(stat, obs.len() - 1);
-        assert!(p > 1e-4, "g = {g}: chi2 = {stat:.1} on {} dof, p = {p:.2e}", obs.len() - 1);
+        assert!(
+            p > 1e-4,
+            "g = {g}: chi2 = {stat:.1} on {} dof, p = {p:.2e}",
+            obs.len() - 1
+        );
     }
 }
 

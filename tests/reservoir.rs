@@ -63,7 +63,11 @@ fn chosen_index_follows_phi_k_over_lambda() {
         }
         let stat = chi_square(&o, &e);
         let p = chi_square_p_value(stat, o.len() - 1);
-        assert!(p > 1e-4, "N = {n}, phi = {albedo}: chi2 = {stat:.1}, dof {}, p = {p:.2e}", o.len() - 1);
+        assert!(
+            p > 1e-4,
+            "N = {n}, phi = {albedo}: chi2 = {stat:.1}, dof {}, p = {p:.2e}",
+            o.len() - 1
+        );
     }
 }
 

@@ -29,9 +29,15 @@ fn walks(tau: f64, g: f64, albedo: f64, seed: u64, n: u64) -> Vec<Walk> {
 fn single_scattering_probability_is_exp_minus_tau() {
     for (i, tau) in [0.5f64, 2.0, 5.0].into_iter().enumerate() {
         let n = 200_000;
-        let hits = walks(tau, 0.3, 1.0, 10 + i as u64, n).iter().filter(|w| w.n == 1).count() as u64;
+        let hits = walks(tau, 0.3, 1.0, 10 + i as u64, n)
+            .iter()
+            .filter(|w| w.n == 1)
+            .count() as u64;
         let z = proportion_z(hits, n, (-tau).exp());
-        assert!(z.abs() < 4.0, "tau = {tau}: {hits}/{n} single-scattering walks, z = {z:.2}");
+        assert!(
+            z.abs() < 4.0,
+            "tau = {tau}: {hits}/{n} single-scattering walks, z = {z:.2}"
+        );
     }
 }
 
@@ -45,11 +51,23 @@ fn single_scattering_exit_is_the_hg_direction() {
         let mut cos = Vec::new();
         for w in ws.iter().filter(|w| w.n == 1) {
             let c = w.canonical();
-            assert!(c.exit.alpha.abs() <= 1e-9 && c.exit.beta.abs() <= 1e-9, "alpha/beta {:?}", c.exit);
-            assert_eq!(c.event_pos, DVec3::ZERO, "N = 1: the representative event is the centre");
+            assert!(
+                c.exit.alpha.abs() <= 1e-9 && c.exit.beta.abs() <= 1e-9,
+                "alpha/beta {:?}",
+                c.exit
+            );
+            assert_eq!(
+                c.event_pos,
+                DVec3::ZERO,
+                "N = 1: the representative event is the centre"
+            );
             cos.push(c.exit.cos_theta);
         }
-        assert!(cos.len() > 55_000, "expected ~60,650 single-scattering walks, got {}", cos.len());
+        assert!(
+            cos.len() > 55_000,
+            "expected ~60,650 single-scattering walks, got {}",
+            cos.len()
+        );
         let n = cos.len() as f64;
         let d = ks_one_sample(&mut cos, |m| hg_cos_cdf(g, m));
         let p = ks_p_value(d, n);
@@ -67,13 +85,21 @@ fn transparent_sphere_has_only_single_scattering() {
 /// Invariants of every canonical record and the round trip canonical → world.
 #[test]
 fn canonical_frame_invariants_and_round_trip() {
-    for (i, &(tau, g, albedo)) in [(0.3, 0.0, 1.0), (3.0, 0.8, 0.9), (20.0, -0.5, 0.999), (60.0, 0.95, 1.0)]
-        .iter()
-        .enumerate()
+    for (i, &(tau, g, albedo)) in [
+        (0.3, 0.0, 1.0),
+        (3.0, 0.8, 0.9),
+        (20.0, -0.5, 0.999),
+        (60.0, 0.95, 1.0),
+    ]
+    .iter()
+    .enumerate()
     {
         for w in walks(tau, g, albedo, 30 + i as u64, 3000) {
             assert!((w.exit_pos.length() - 1.0).abs() < 1e-12);
-            assert!(w.exit_dir.dot(w.exit_pos) >= 0.0, "exit direction points inward");
+            assert!(
+                w.exit_dir.dot(w.exit_pos) >= 0.0,
+                "exit direction points inward"
+            );
             let c = w.canonical();
             let (e_n, e_b, e_t) = exit_frame(c.exit.cos_theta);
             // Exit point on the y–z half-plane with y ≥ 0.
@@ -90,7 +116,10 @@ fn canonical_frame_invariants_and_round_trip() {
             let (xc, wc) = from_canonical(c.exit);
             let rot = AzimuthRotation::aligning(w.exit_pos).inverse();
             assert!((rot.apply(xc) - w.exit_pos).length() < 1e-9, "x round trip");
-            assert!((rot.apply(wc) - w.exit_dir).length() < 1e-9, "omega round trip");
+            assert!(
+                (rot.apply(wc) - w.exit_dir).length() < 1e-9,
+                "omega round trip"
+            );
             assert!(wc.dot(e_n) >= 0.0);
             let (again, _) = to_canonical(w.exit_pos, w.exit_dir);
             assert_eq!(again, c.exit);
@@ -104,7 +133,12 @@ fn canonical_frame_invariants_and_round_trip() {
 fn walk_frame_maps_canonical_to_world() {
     let mut rng = WalkRng::from_seed(5);
     for _ in 0..1000 {
-        let w_in = DVec3::new(rng.uniform() - 0.5, rng.uniform() - 0.5, rng.uniform() - 0.5).normalize();
+        let w_in = DVec3::new(
+            rng.uniform() - 0.5,
+            rng.uniform() - 0.5,
+            rng.uniform() - 0.5,
+        )
+        .normalize();
         let f = WalkFrame::new(w_in, rng.unit_circle());
         assert!((f.to_world(DVec3::Z) - w_in).length() < 1e-12);
         assert!((f.basis.determinant() - 1.0).abs() < 1e-12);
@@ -118,9 +152,21 @@ fn walk_frame_maps_canonical_to_world() {
 fn from_canonical_repairs_out_of_range_values() {
     use scatter_sim::CanonicalExit;
     for exit in [
-        CanonicalExit { cos_theta: 1.5, alpha: 0.9, beta: 0.9 },
-        CanonicalExit { cos_theta: f64::NAN, alpha: f64::INFINITY, beta: 0.0 },
-        CanonicalExit { cos_theta: -1.0, alpha: 0.0, beta: -3.0 },
+        CanonicalExit {
+            cos_theta: 1.5,
+            alpha: 0.9,
+            beta: 0.9,
+        },
+        CanonicalExit {
+            cos_theta: f64::NAN,
+            alpha: f64::INFINITY,
+            beta: 0.0,
+        },
+        CanonicalExit {
+            cos_theta: -1.0,
+            alpha: 0.0,
+            beta: -3.0,
+        },
     ] {
         let (x, w) = from_canonical(exit);
         assert!(x.is_finite() && w.is_finite());
@@ -140,17 +186,32 @@ fn from_canonical_repairs_out_of_range_values() {
 #[test]
 fn mean_events_grow_like_tau_squared() {
     let mean_n = |tau: f64, g: f64, seed: u64| {
-        let ns: Vec<f64> = walks(tau, g, 1.0, seed, 20_000).iter().map(|w| w.n as f64).collect();
+        let ns: Vec<f64> = walks(tau, g, 1.0, seed, 20_000)
+            .iter()
+            .map(|w| w.n as f64)
+            .collect();
         mean_and_sem(&ns)
     };
     let (m50, s50) = mean_n(50.0, 0.0, 61);
     let (m100, s100) = mean_n(100.0, 0.0, 62);
     let ratio = m100 / m50;
-    assert!((3.85..=4.05).contains(&ratio), "mean N(100)/mean N(50) = {ratio:.3} ({m100:.0}±{s100:.0} / {m50:.0}±{s50:.0})");
+    assert!(
+        (3.85..=4.05).contains(&ratio),
+        "mean N(100)/mean N(50) = {ratio:.3} ({m100:.0}±{s100:.0} / {m50:.0}±{s50:.0})"
+    );
     for (tau, g, seed) in [(50.0, 0.0, 61), (100.0, 0.0, 62), (60.0, 0.5, 63)] {
-        let (m, _) = if tau == 50.0 { (m50, s50) } else if tau == 100.0 { (m100, s100) } else { mean_n(tau, g, seed) };
+        let (m, _) = if tau == 50.0 {
+            (m50, s50)
+        } else if tau == 100.0 {
+            (m100, s100)
+        } else {
+            mean_n(tau, g, seed)
+        };
         let zb = 0.71 / (1.0 - g);
         let predicted = (1.0 - g) * (tau + zb).powi(2) / 2.0;
-        assert!((m / predicted - 1.0).abs() < 0.02, "tau = {tau}, g = {g}: mean N = {m:.1}, diffusion {predicted:.1}");
+        assert!(
+            (m / predicted - 1.0).abs() < 0.02,
+            "tau = {tau}, g = {g}: mean N = {m:.1}, diffusion {predicted:.1}"
+        );
     }
 }

@@ -61,8 +61,13 @@ fn bench_sim(walks: u64, threads: Option<usize>) -> Result<()> {
     let (t1, events) = time_walks(&single, &sampler, walks);
     let (tn, _) = time_walks(&all, &sampler, walks);
     let per_walk = events as f64 / walks as f64;
-    println!("stcvae bench sim: {walks} walks of the authors' distribution (seed 1), {events} events ({per_walk:.0} per walk)");
-    println!("{:>10} {:>12} {:>14} {:>12}", "threads", "seconds", "events/s", "walks/s");
+    println!(
+        "stcvae bench sim: {walks} walks of the authors' distribution (seed 1), {events} events ({per_walk:.0} per walk)"
+    );
+    println!(
+        "{:>10} {:>12} {:>14} {:>12}",
+        "threads", "seconds", "events/s", "walks/s"
+    );
     for (n, t) in [(1, t1), (all.current_num_threads(), tn)] {
         println!(
             "{:>10} {:>12.3} {:>14} {:>12.0}",

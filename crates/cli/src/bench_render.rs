@@ -121,7 +121,16 @@ pub fn run(a: Args) -> Result<()> {
     );
     println!(
         "{:>4} {:>22} {:>9} {:>9} {:>9} {:>10} {:>12} {:>11} {:>10} {:>9}",
-        "k", "sigma_t", "PT s", "ST s", "speed-up", "var ratio", "equal-error", "PT ev/path", "ST st/path", "bias RMSE"
+        "k",
+        "sigma_t",
+        "PT s",
+        "ST s",
+        "speed-up",
+        "var ratio",
+        "equal-error",
+        "PT ev/path",
+        "ST st/path",
+        "bias RMSE"
     );
     for &k in &a.k {
         let pt = run_pair(&a, IntegratorKind::Pt, k)?;
@@ -129,19 +138,27 @@ pub fn run(a: Args) -> Result<()> {
         let (mp, vp) = mean_var(&pt);
         let (ms, vs) = mean_var(&st);
         // Scale: the 99th percentile of PT's object pixels (luminance above 1e-3 of max).
-        let mut l: Vec<f64> = pt
-            .a
-            .pixels
-            .iter()
-            .zip(&pt.b.pixels)
-            .map(|(x, y)| 0.5 * (lum(*x) + lum(*y)))
-            .collect();
+        let mut l: Vec<f64> =
+            pt.a.pixels
+                .iter()
+                .zip(&pt.b.pixels)
+                .map(|(x, y)| 0.5 * (lum(*x) + lum(*y)))
+                .collect();
         let max = l.iter().cloned().fold(0.0, f64::max);
         l.retain(|&v| v > 1e-3 * max);
         l.sort_by(f64::total_cmp);
-        let scale = if l.is_empty() { 1.0 } else { 1.0 / l[(l.len() * 99 / 100).min(l.len() - 1)].max(1e-12) };
+        let scale = if l.is_empty() {
+            1.0
+        } else {
+            1.0 / l[(l.len() * 99 / 100).min(l.len() - 1)].max(1e-12)
+        };
         let n = mp.len() as f64;
-        let mse: f64 = mp.iter().zip(&ms).map(|(x, y)| (x - y).powi(2)).sum::<f64>() / n;
+        let mse: f64 = mp
+            .iter()
+            .zip(&ms)
+            .map(|(x, y)| (x - y).powi(2))
+            .sum::<f64>()
+            / n;
         let noise: f64 = vp.iter().zip(&vs).map(|(x, y)| x + y).sum::<f64>() / n;
         let bias = (mse - noise).max(0.0).sqrt() * scale;
         let var_ratio = vp.iter().sum::<f64>() / vs.iter().sum::<f64>().max(1e-300);

@@ -191,7 +191,11 @@ pub fn run(a: Args) -> Result<()> {
                 spec.total_walks
             )
         },
-        if fixed { "fixed-condition" } else { "sampled-condition" },
+        if fixed {
+            "fixed-condition"
+        } else {
+            "sampled-condition"
+        },
         spec.seed,
         pool.current_num_threads(),
         a.out.display()

@@ -11,12 +11,14 @@ use scatter_sim::output::AtomicFile;
 use crate::progress;
 
 #[derive(clap::Args)]
-#[command(after_help = "Renders: `stcvae merge a.exr b.exr --out m` averages renders of one scene \
+#[command(
+    after_help = "Renders: `stcvae merge a.exr b.exr --out m` averages renders of one scene \
     (different seeds) weighted by the spp in their headers into m.exr and m.png, and refuses \
     renders of different scenes.\n\nDatasets: shards of one run (same seed, sampler and size) are put in walk order \
     whatever order they are given in, so `stcvae merge data/train-*.bin --out data/train.bin` \
     reproduces the unsharded run row for row. Other inputs are concatenated in the order \
-    given. Binary inputs can be written as CSV (--out x.csv); CSV inputs are joined as text.")]
+    given. Binary inputs can be written as CSV (--out x.csv); CSV inputs are joined as text."
+)]
 pub struct Args {
     /// Input files: all binary datasets, or all CSV files.
     #[arg(required = true)]
@@ -27,7 +29,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    if a.inputs.iter().any(|p| *p == a.out) {
+    if a.inputs.contains(&a.out) {
         bail!("--out {} is also an input", a.out.display());
     }
     let is_exr = |p: &PathBuf| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr"));
@@ -90,7 +92,8 @@ fn merge_binary(a: &Args) -> Result<()> {
         .collect();
     for (i, (p, _)) in all.iter().enumerate() {
         for (q, _) in &all[i + 1..] {
-            let overlap = p.first_walk < q.first_walk + q.count && q.first_walk < p.first_walk + p.count;
+            let overlap =
+                p.first_walk < q.first_walk + q.count && q.first_walk < p.first_walk + p.count;
             if p.same_run(q) && overlap && p.count > 0 && q.count > 0 {
                 bail!(
                     "inputs overlap: walks {}..{} and {}..{} of the run with seed {} appear twice",
@@ -151,8 +154,8 @@ fn merge_csv(a: &Args) -> Result<()> {
     if !dataset::is_csv(&a.out) {
         bail!("CSV inputs can only be merged into a .csv output");
     }
-    let mut out = AtomicFile::create(&a.out)
-        .with_context(|| format!("cannot create {}", a.out.display()))?;
+    let mut out =
+        AtomicFile::create(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
     let mut rows = 0u64;
     for (i, path) in a.inputs.iter().enumerate() {
         let f = File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
@@ -162,7 +165,10 @@ fn merge_csv(a: &Args) -> Result<()> {
             .transpose()?
             .with_context(|| format!("{}: empty file", path.display()))?;
         if head != dataset::COLUMNS.join(",") {
-            bail!("{}: not an stcvae walk CSV (unexpected header row)", path.display());
+            bail!(
+                "{}: not an stcvae walk CSV (unexpected header row)",
+                path.display()
+            );
         }
         if i == 0 {
             writeln!(out, "{head}")?;
@@ -174,6 +180,10 @@ fn merge_csv(a: &Args) -> Result<()> {
     }
     out.commit()
         .with_context(|| format!("cannot write {}", a.out.display()))?;
-    eprintln!("merged {} files, {rows} rows -> {}", a.inputs.len(), a.out.display());
+    eprintln!(
+        "merged {} files, {rows} rows -> {}",
+        a.inputs.len(),
+        a.out.display()
+    );
     Ok(())
 }

@@ -23,9 +23,11 @@ pub fn load_model(path: Option<&Path>) -> Result<ModelSet> {
 }
 
 #[derive(clap::Args)]
-#[command(after_help = "Example:\n  stcvae sample --model models/default.stcvae --tau 5 --g 0.4 --albedo 0.9 \
+#[command(
+    after_help = "Example:\n  stcvae sample --model models/default.stcvae --tau 5 --g 0.4 --albedo 0.9 \
     --samples 10000 --seed 3 --out s.csv\n\nThe CSV has the columns of `stcvae generate`; `n` is N as \
-    sampled, before absorption.")]
+    sampled, before absorption."
+)]
 pub struct SampleArgs {
     /// Model file (default: models/default.stcvae).
     #[arg(long)]
@@ -56,7 +58,10 @@ pub fn sample(a: SampleArgs) -> Result<()> {
     };
     c.validate().map_err(|e| anyhow::anyhow!("--{e}"))?;
     if !is_csv(&a.out) {
-        bail!("--out {}: sample writes CSV; name the file *.csv", a.out.display());
+        bail!(
+            "--out {}: sample writes CSV; name the file *.csv",
+            a.out.display()
+        );
     }
     let m = load_model(a.model.as_deref())?;
     let walks: Vec<_> = (0..a.samples)
@@ -82,9 +87,11 @@ pub fn sample(a: SampleArgs) -> Result<()> {
 }
 
 #[derive(clap::Args)]
-#[command(after_help = "Compares the model with fresh simulator walks on the paper's grid \
+#[command(
+    after_help = "Compares the model with fresh simulator walks on the paper's grid \
     τ ∈ {1, 5, 25, 125} × g ∈ {-0.7, 0, 0.4, 0.9} (φ = 1, plus φ = 0.9 for EventGen) and writes \
-    metrics.md and metrics.json.")]
+    metrics.md and metrics.json."
+)]
 pub struct EvalArgs {
     /// Model file (default: models/default.stcvae).
     #[arg(long)]
@@ -120,10 +127,19 @@ pub fn evaluate(a: EvalArgs) -> Result<()> {
     let reports = eval::evaluate_grid(&m, a.samples, a.seed, |i, _| pb.set_position(i as u64));
     pb.finish_and_clear();
     let mut max_ks = std::collections::BTreeMap::new();
-    for q in ["n", "cos_theta", "alpha", "beta", "event_radius", "event_z", "event_wz"] {
+    for q in [
+        "n",
+        "cos_theta",
+        "alpha",
+        "beta",
+        "event_radius",
+        "event_z",
+        "event_wz",
+    ] {
         max_ks.insert(q, eval::max_ks(&reports, q));
     }
-    std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
+    std::fs::create_dir_all(&a.out)
+        .with_context(|| format!("cannot create {}", a.out.display()))?;
     let json = serde_json::to_vec_pretty(&EvalJson {
         model: model_name.clone(),
         samples: a.samples,
@@ -141,7 +157,15 @@ pub fn evaluate(a: EvalArgs) -> Result<()> {
          At φ = 0.9 only the representative event (EventGen) depends on φ.\n",
         a.samples, a.samples, a.seed
     )?;
-    writeln!(md, "Max KS over the grid: {}\n", max_ks.iter().map(|(k, v)| format!("{k} {v:.3}")).collect::<Vec<_>>().join(", "))?;
+    writeln!(
+        md,
+        "Max KS over the grid: {}\n",
+        max_ks
+            .iter()
+            .map(|(k, v)| format!("{k} {v:.3}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    )?;
     md.extend(eval::markdown_table(&reports).into_bytes());
     // The plots redraw the φ = 1 settings with the grid's seeds (same samples).
     let mut cols = Vec::new();
@@ -158,7 +182,14 @@ pub fn evaluate(a: EvalArgs) -> Result<()> {
     }
     let panels: Vec<crate::plots::Panel> = cols.iter().map(|(t, g, m, s)| (*t, *g, m, s)).collect();
     let figs = crate::plots::write_all(&a.out, &panels)?;
-    writeln!(md, "\nPlots: {}", figs.iter().map(|f| format!("[{f}]({f})")).collect::<Vec<_>>().join(", "))?;
+    writeln!(
+        md,
+        "\nPlots: {}",
+        figs.iter()
+            .map(|f| format!("[{f}]({f})"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    )?;
     write_atomic(&a.out.join("metrics.md"), &md)?;
     println!("{}", String::from_utf8_lossy(&md));
     Ok(())

@@ -64,7 +64,13 @@ fn to_png(path: &Path, buf: &[u8], w: u32, h: u32) -> Result<()> {
 }
 
 /// A 4 × 4 grid (rows τ, columns g) of 1-D histograms of column `q`.
-pub fn histogram_grid(path: &Path, panels: &[Panel], q: usize, title: &str, log_y: bool) -> Result<()> {
+pub fn histogram_grid(
+    path: &Path,
+    panels: &[Panel],
+    q: usize,
+    title: &str,
+    log_y: bool,
+) -> Result<()> {
     init_font();
     let (w, h) = (1400u32, 1200u32);
     let mut buf = vec![255u8; (w * h * 3) as usize];
@@ -77,7 +83,11 @@ pub fn histogram_grid(path: &Path, panels: &[Panel], q: usize, title: &str, log_
         for (cell, &(tau, g, model, sim)) in cells.iter().zip(panels) {
             let (lo, hi) = match q {
                 LOG_N => {
-                    let m = sim.0[q].iter().chain(&model.0[q]).cloned().fold(0.0, f64::max);
+                    let m = sim.0[q]
+                        .iter()
+                        .chain(&model.0[q])
+                        .cloned()
+                        .fold(0.0, f64::max);
                     (0.0, m.max(1.0))
                 }
                 _ => (-1.0, 1.0),
@@ -106,7 +116,9 @@ pub fn histogram_grid(path: &Path, panels: &[Panel], q: usize, title: &str, log_
                     .draw()
                     .map_err(|e| anyhow!("plot: {e}"))?;
                 for (hist, colour) in [(&hs, BLACK), (&hm, RED)] {
-                    let pts = steps(hist, lo, hi).into_iter().map(|(x, y)| (x, y.max(floor)));
+                    let pts = steps(hist, lo, hi)
+                        .into_iter()
+                        .map(|(x, y)| (x, y.max(floor)));
                     chart
                         .draw_series(LineSeries::new(pts, colour.stroke_width(2)))
                         .map_err(|e| anyhow!("plot: {e}"))?;
@@ -191,7 +203,10 @@ pub fn density_pairs(path: &Path, panels: &[Panel], q: usize, qname: &str) -> Re
                         let c = (255.0 * (1.0 - v)) as u8;
                         let x0 = -1.0 + ix as f64 * cell;
                         let y0 = -1.0 + iy as f64 * cell;
-                        Rectangle::new([(x0, y0), (x0 + cell, y0 + cell)], RGBColor(c, c, 255).filled())
+                        Rectangle::new(
+                            [(x0, y0), (x0 + cell, y0 + cell)],
+                            RGBColor(c, c, 255).filled(),
+                        )
                     }))
                     .map_err(|e| anyhow!("plot: {e}"))?;
             }
@@ -204,9 +219,21 @@ pub fn density_pairs(path: &Path, panels: &[Panel], q: usize, qname: &str) -> Re
 /// Writes fig11_n.png, fig12_cos_theta.png, fig12_cos_alpha.png, fig12_cos_beta.png.
 pub fn write_all(dir: &Path, panels: &[Panel]) -> Result<Vec<String>> {
     let mut written = Vec::new();
-    histogram_grid(&dir.join("fig11_n.png"), panels, LOG_N, "log N: simulator (black) vs model (red), log density", true)?;
+    histogram_grid(
+        &dir.join("fig11_n.png"),
+        panels,
+        LOG_N,
+        "log N: simulator (black) vs model (red), log density",
+        true,
+    )?;
     written.push("fig11_n.png".to_string());
-    histogram_grid(&dir.join("fig12_cos_theta.png"), panels, COS, "cos θ: simulator (black) vs model (red)", false)?;
+    histogram_grid(
+        &dir.join("fig12_cos_theta.png"),
+        panels,
+        COS,
+        "cos θ: simulator (black) vs model (red)",
+        false,
+    )?;
     written.push("fig12_cos_theta.png".to_string());
     // The paper's Fig. 12 shows a few settings; pick one per τ at g = 0.4 (index 2).
     let few: Vec<Panel> = panels.iter().filter(|p| p.1 == GS[2]).cloned().collect();

@@ -16,9 +16,11 @@ use crate::{interrupt, progress};
 pub const DEFAULT_SCENE: &str = "configs/scenes/bunny.toml";
 
 #[derive(clap::Args)]
-#[command(after_help = "With no arguments renders the shipped bunny scene with the shipped \
+#[command(
+    after_help = "With no arguments renders the shipped bunny scene with the shipped \
     model to out/render.{exr,png,json}. Options given here override the scene's [render] table.\n\n\
-    Example:\n  stcvae render --scene configs/scenes/sphere.toml --integrator pt --spp 256 --out out/sphere_pt")]
+    Example:\n  stcvae render --scene configs/scenes/sphere.toml --integrator pt --spp 256 --out out/sphere_pt"
+)]
 pub struct Args {
     /// Scene file (TOML; the format is in the README).
     #[arg(long, default_value = DEFAULT_SCENE)]
@@ -107,7 +109,9 @@ pub fn prepare(
         .map_err(|e| anyhow::anyhow!("{}: {e}", scene_path.display()))?;
     let stcvae = file.render.integrator == IntegratorKind::Stcvae;
     let (model, model_path, model_bytes) = if stcvae {
-        let p = model.map(Path::to_path_buf).unwrap_or_else(|| PathBuf::from(DEFAULT_MODEL));
+        let p = model
+            .map(Path::to_path_buf)
+            .unwrap_or_else(|| PathBuf::from(DEFAULT_MODEL));
         let m = load_model(Some(&p))?;
         let bytes = m.to_bytes();
         (Some(m), Some(p), bytes)
@@ -162,7 +166,9 @@ pub fn run(a: Args) -> Result<()> {
         max_tau: p.max_tau,
     };
     if p.data.lights.iter().all(|l| l.is_delta()) && !r.nee && !p.data.lights.is_empty() {
-        eprintln!("note: delta lights can only be reached by NEE; with --nee false they add nothing");
+        eprintln!(
+            "note: delta lights can only be reached by NEE; with --nee false they add nothing"
+        );
     }
     eprintln!(
         "rendering {} ({}x{}, {} spp, {}{}) on the CPU with {} threads",

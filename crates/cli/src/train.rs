@@ -16,10 +16,12 @@ use crate::generate::parse_toml;
 use crate::{interrupt, progress};
 
 #[derive(clap::Args)]
-#[command(after_help = "Example:\n  stcvae train --config configs/train/default.toml\n\n\
+#[command(
+    after_help = "Example:\n  stcvae train --config configs/train/default.toml\n\n\
     The three models train concurrently, one thread each. If the dataset named in the config \
     does not exist it is generated first from `dataset_config`. Ctrl-C saves a checkpoint; \
-    --resume continues from it.")]
+    --resume continues from it."
+)]
 pub struct Args {
     /// Training config (TOML).
     #[arg(long, default_value = "configs/train/default.toml")]
@@ -113,7 +115,9 @@ fn ensure_dataset(cfg: &TrainConfig) -> Result<()> {
 fn range(rows: &[Row], f: impl Fn(&Row) -> f64) -> [f64; 2] {
     rows.iter()
         .map(f)
-        .fold([f64::INFINITY, f64::NEG_INFINITY], |[lo, hi], v| [lo.min(v), hi.max(v)])
+        .fold([f64::INFINITY, f64::NEG_INFINITY], |[lo, hi], v| {
+            [lo.min(v), hi.max(v)]
+        })
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -220,11 +224,20 @@ pub fn run(a: Args) -> Result<()> {
         decoders.insert(t.kind, t.decoder.clone());
     }
     for k in ModelKind::ALL {
-        if !decoders.contains_key(&k) {
-            let d = cvae::train::trainer::load_decoder(&cfg.checkpoint_dir, k, &cfg.model(k).architecture())
-                .with_context(|| format!("the model file needs {}: train it first (or all three at once)", k.name()))?;
+        if let std::collections::hash_map::Entry::Vacant(slot) = decoders.entry(k) {
+            let d = cvae::train::trainer::load_decoder(
+                &cfg.checkpoint_dir,
+                k,
+                &cfg.model(k).architecture(),
+            )
+            .with_context(|| {
+                format!(
+                    "the model file needs {}: train it first (or all three at once)",
+                    k.name()
+                )
+            })?;
             notes.push(format!("{}: from checkpoint", k.name()));
-            decoders.insert(k, d);
+            slot.insert(d);
         }
     }
     let set = ModelSet {

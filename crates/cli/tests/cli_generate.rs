@@ -30,7 +30,21 @@ fn stderr(out: &Output) -> String {
 fn fixed_condition_csv() {
     let dir = tempfile::tempdir().unwrap();
     let out = stcvae(
-        &["generate", "--samples", "500", "--tau", "5", "--g", "0.4", "--albedo", "1.0", "--seed", "7", "--out", "walks.csv"],
+        &[
+            "generate",
+            "--samples",
+            "500",
+            "--tau",
+            "5",
+            "--g",
+            "0.4",
+            "--albedo",
+            "1.0",
+            "--seed",
+            "7",
+            "--out",
+            "walks.csv",
+        ],
         dir.path(),
     );
     ok(&out);
@@ -45,7 +59,11 @@ fn fixed_condition_csv() {
     for r in rows {
         let f: Vec<&str> = r.split(',').collect();
         assert_eq!(f.len(), 13);
-        assert_eq!(&f[..3], ["5", "0.4", "1"], "conditions repeat the requested values");
+        assert_eq!(
+            &f[..3],
+            ["5", "0.4", "1"],
+            "conditions repeat the requested values"
+        );
         assert!(f[3].parse::<u32>().unwrap() >= 1);
     }
 }
@@ -57,15 +75,45 @@ fn shards_merge_into_the_unsharded_run() {
                g = { kind = \"uniform\", min = -1.0, max = 1.0 }\n\
                albedo = { kind = \"one-minus-power\", epsilon = 1e-6, exponent = 6.0 }\n";
     fs::write(dir.path().join("small.toml"), cfg).unwrap();
-    ok(&stcvae(&["generate", "--config", "small.toml", "--out", "whole.bin", "--threads", "1"], dir.path()));
+    ok(&stcvae(
+        &[
+            "generate",
+            "--config",
+            "small.toml",
+            "--out",
+            "whole.bin",
+            "--threads",
+            "1",
+        ],
+        dir.path(),
+    ));
     for i in 0..4 {
         let shard = format!("{i}/4");
         let name = format!("part-{i}.bin");
-        ok(&stcvae(&["generate", "--config", "small.toml", "--shard", &shard, "--out", &name], dir.path()));
+        ok(&stcvae(
+            &[
+                "generate",
+                "--config",
+                "small.toml",
+                "--shard",
+                &shard,
+                "--out",
+                &name,
+            ],
+            dir.path(),
+        ));
     }
     // Given out of order: merge sorts shards of one run by walk index.
     ok(&stcvae(
-        &["merge", "part-2.bin", "part-0.bin", "part-3.bin", "part-1.bin", "--out", "merged.bin"],
+        &[
+            "merge",
+            "part-2.bin",
+            "part-0.bin",
+            "part-3.bin",
+            "part-1.bin",
+            "--out",
+            "merged.bin",
+        ],
         dir.path(),
     ));
     let (_, whole) = read_dataset(&dir.path().join("whole.bin")).unwrap();
@@ -73,15 +121,28 @@ fn shards_merge_into_the_unsharded_run() {
     assert_eq!(header.count, 3001);
     assert!(whole == merged, "merged rows differ from the unsharded run");
     // Binary → CSV through merge equals a direct CSV run.
-    ok(&stcvae(&["merge", "merged.bin", "--out", "merged.csv"], dir.path()));
-    ok(&stcvae(&["generate", "--config", "small.toml", "--out", "direct.csv"], dir.path()));
+    ok(&stcvae(
+        &["merge", "merged.bin", "--out", "merged.csv"],
+        dir.path(),
+    ));
+    ok(&stcvae(
+        &["generate", "--config", "small.toml", "--out", "direct.csv"],
+        dir.path(),
+    ));
     assert_eq!(
         fs::read(dir.path().join("merged.csv")).unwrap(),
         fs::read(dir.path().join("direct.csv")).unwrap()
     );
     // Overlapping inputs would duplicate walks: refused.
-    let out = stcvae(&["merge", "part-0.bin", "merged.bin", "--out", "dup.bin"], dir.path());
-    assert!(!out.status.success() && stderr(&out).contains("overlap"), "{}", stderr(&out));
+    let out = stcvae(
+        &["merge", "part-0.bin", "merged.bin", "--out", "dup.bin"],
+        dir.path(),
+    );
+    assert!(
+        !out.status.success() && stderr(&out).contains("overlap"),
+        "{}",
+        stderr(&out)
+    );
     assert!(!dir.path().join("dup.bin").exists());
 }
 
@@ -89,13 +150,48 @@ fn shards_merge_into_the_unsharded_run() {
 fn bad_input_gives_one_line_errors() {
     let dir = tempfile::tempdir().unwrap();
     let cases: &[(&[&str], &str)] = &[
-        (&["generate", "--tau", "5", "--g", "1.2", "--albedo", "1", "--out", "x.csv"], "g = 1.2"),
-        (&["generate", "--tau", "-1", "--g", "0", "--albedo", "1", "--out", "x.csv"], "tau"),
-        (&["generate", "--tau", "5", "--g", "0", "--albedo", "1.5", "--out", "x.csv"], "albedo"),
-        (&["generate", "--config", "missing.toml", "--out", "x.bin"], "missing.toml"),
-        (&["generate", "--config", "typo.toml", "--out", "x.bin"], "walkz"),
-        (&["generate", "--config", "range.toml", "--out", "x.bin"], "tau.max"),
-        (&["generate", "--samples", "10", "--shard", "4/4", "--out", "x.bin"], "shard"),
+        (
+            &[
+                "generate", "--tau", "5", "--g", "1.2", "--albedo", "1", "--out", "x.csv",
+            ],
+            "g = 1.2",
+        ),
+        (
+            &[
+                "generate", "--tau", "-1", "--g", "0", "--albedo", "1", "--out", "x.csv",
+            ],
+            "tau",
+        ),
+        (
+            &[
+                "generate", "--tau", "5", "--g", "0", "--albedo", "1.5", "--out", "x.csv",
+            ],
+            "albedo",
+        ),
+        (
+            &["generate", "--config", "missing.toml", "--out", "x.bin"],
+            "missing.toml",
+        ),
+        (
+            &["generate", "--config", "typo.toml", "--out", "x.bin"],
+            "walkz",
+        ),
+        (
+            &["generate", "--config", "range.toml", "--out", "x.bin"],
+            "tau.max",
+        ),
+        (
+            &[
+                "generate",
+                "--samples",
+                "10",
+                "--shard",
+                "4/4",
+                "--out",
+                "x.bin",
+            ],
+            "shard",
+        ),
         (&["merge", "garbage.bin", "--out", "y.bin"], "garbage.bin"),
     ];
     fs::write(dir.path().join("typo.toml"), "walkz = 10\n").unwrap();
@@ -110,7 +206,10 @@ fn bad_input_gives_one_line_errors() {
         let out = stcvae(args, dir.path());
         let err = stderr(&out);
         assert!(!out.status.success(), "{args:?} succeeded");
-        assert!(err.contains(needle), "{args:?}: error does not mention {needle}: {err}");
+        assert!(
+            err.contains(needle),
+            "{args:?}: error does not mention {needle}: {err}"
+        );
         assert!(!err.contains("panicked"), "{args:?} panicked: {err}");
         assert!(!dir.path().join("x.bin").exists() && !dir.path().join("x.csv").exists());
     }

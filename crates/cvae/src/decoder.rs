@@ -79,10 +79,7 @@ impl Decoder {
         }
         input[self.cond..self.cond + self.latent].copy_from_slice(&z[..self.latent]);
         let mut head = [0f32; MAX_WIDTH];
-        self.forward(
-            &input[..self.cond + self.latent],
-            &mut head[..2 * self.out],
-        );
+        self.forward(&input[..self.cond + self.latent], &mut head[..2 * self.out]);
         for j in 0..self.out {
             let logvar = head[self.out + j].clamp(-LOGVAR_CLAMP, LOGVAR_CLAMP);
             let v = head[j] + (0.5 * logvar).exp() * eps[j];
@@ -92,6 +89,9 @@ impl Decoder {
 
     /// Number of parameters.
     pub fn parameters(&self) -> usize {
-        self.layers.iter().map(|l| l.weight.len() + l.bias.len()).sum()
+        self.layers
+            .iter()
+            .map(|l| l.weight.len() + l.bias.len())
+            .sum()
     }
 }

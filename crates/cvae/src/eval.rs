@@ -20,7 +20,14 @@ pub const ALBEDOS: [f64; 2] = [1.0, 0.9];
 
 /// The marginals compared, in report order.
 pub const QUANTITIES: [&str; 8] = [
-    "n", "log_n", "cos_theta", "alpha", "beta", "event_radius", "event_z", "event_wz",
+    "n",
+    "log_n",
+    "cos_theta",
+    "alpha",
+    "beta",
+    "event_radius",
+    "event_z",
+    "event_wz",
 ];
 
 #[derive(Clone, Debug, Serialize)]
@@ -80,13 +87,27 @@ pub fn simulator_columns(tau: f64, g: f64, albedo: f64, count: usize, seed: u64)
         .collect();
     let mut c = Columns::default();
     for w in walks {
-        c.push(w.n, w.exit.cos_theta, w.exit.alpha, w.exit.beta, w.event_pos, w.event_dir);
+        c.push(
+            w.n,
+            w.exit.cos_theta,
+            w.exit.alpha,
+            w.exit.beta,
+            w.event_pos,
+            w.event_dir,
+        );
     }
     c
 }
 
 /// `count` model walks at fixed conditions.
-pub fn model_columns(m: &ModelSet, tau: f64, g: f64, albedo: f64, count: usize, seed: u64) -> Columns {
+pub fn model_columns(
+    m: &ModelSet,
+    tau: f64,
+    g: f64,
+    albedo: f64,
+    count: usize,
+    seed: u64,
+) -> Columns {
     let walks: Vec<_> = (0..count as u64)
         .into_par_iter()
         .map(|i| {
@@ -96,7 +117,14 @@ pub fn model_columns(m: &ModelSet, tau: f64, g: f64, albedo: f64, count: usize, 
         .collect();
     let mut c = Columns::default();
     for w in walks {
-        c.push(w.n, w.exit.cos_theta, w.exit.alpha, w.exit.beta, w.event_pos, w.event_dir);
+        c.push(
+            w.n,
+            w.exit.cos_theta,
+            w.exit.alpha,
+            w.exit.beta,
+            w.event_pos,
+            w.event_dir,
+        );
     }
     c
 }
@@ -120,7 +148,14 @@ pub fn compare(model: &Columns, sim: &Columns, which: &[usize]) -> Vec<Metric> {
 
 /// Evaluates one (τ, g, φ) setting. At φ = 1 every quantity is compared; at other
 /// albedos only the representative event (the only part that depends on φ).
-pub fn evaluate_setting(m: &ModelSet, tau: f64, g: f64, albedo: f64, samples: usize, seed: u64) -> SettingReport {
+pub fn evaluate_setting(
+    m: &ModelSet,
+    tau: f64,
+    g: f64,
+    albedo: f64,
+    samples: usize,
+    seed: u64,
+) -> SettingReport {
     let sim = simulator_columns(tau, g, albedo, samples, seed);
     let model = model_columns(m, tau, g, albedo, samples, seed);
     let which: Vec<usize> = if albedo == 1.0 {
@@ -145,7 +180,10 @@ pub fn evaluate_grid(
 ) -> Vec<SettingReport> {
     let settings: Vec<(f64, f64, f64)> = ALBEDOS
         .iter()
-        .flat_map(|&a| TAUS.iter().flat_map(move |&t| GS.iter().map(move |&g| (t, g, a))))
+        .flat_map(|&a| {
+            TAUS.iter()
+                .flat_map(move |&t| GS.iter().map(move |&g| (t, g, a)))
+        })
         .collect();
     let total = settings.len();
     settings

@@ -178,7 +178,9 @@ mod tests {
             let (b, a) = rng.unit_circle();
             let r = rng.uniform().sqrt() * 0.999;
             let (c2, b2, a2) = path_from_target(path_target(c, b * r, a * r));
-            assert!((c - c2).abs() < 1e-9 && (b * r - b2).abs() < 1e-9 && (a * r - a2).abs() < 1e-9);
+            assert!(
+                (c - c2).abs() < 1e-9 && (b * r - b2).abs() < 1e-9 && (a * r - a2).abs() < 1e-9
+            );
             let x = [b * r * 0.5, a * r * 0.5, c * 0.3];
             let (x2, _) = event_from_target(event_target(x, [0.0, 0.0, 1.0]));
             for k in 0..3 {

@@ -25,7 +25,9 @@ pub enum ModelError {
     },
     #[error("{path}: not an stcvae model file (bad magic bytes)")]
     BadMagic { path: PathBuf },
-    #[error("{path}: model file version {found} is not supported (this build reads version {supported})")]
+    #[error(
+        "{path}: model file version {found} is not supported (this build reads version {supported})"
+    )]
     Version {
         path: PathBuf,
         found: u32,

@@ -120,7 +120,8 @@ impl ModelSet {
         normals(rng, &mut noise[..k]);
         let (z, eps) = noise[..k].split_at(self.path.latent);
         let mut v = [0f64; 3];
-        self.path.sample(&features::path_cond(tau, g, n), z, eps, &mut v);
+        self.path
+            .sample(&features::path_cond(tau, g, n), z, eps, &mut v);
         let (cos_theta, beta, alpha) = features::path_from_target(v);
         repair_exit(cos_theta, beta, alpha)
     }

@@ -17,8 +17,16 @@ use scatter_sim::dataset::walk_row;
 fn exported_decoder_equals_burn() {
     let dev = Device::flex();
     let mut rng = WalkRng::from_seed(1);
-    for (cond, out, latent, hidden) in [(2, 1, 2, vec![8, 8]), (3, 3, 5, vec![16, 16, 16]), (7, 6, 5, vec![12, 12, 12])] {
-        let arch = Architecture { latent, hidden, encoder_hidden: None };
+    for (cond, out, latent, hidden) in [
+        (2, 1, 2, vec![8, 8]),
+        (3, 3, 5, vec![16, 16, 16]),
+        (7, 6, 5, vec![12, 12, 12]),
+    ] {
+        let arch = Architecture {
+            latent,
+            hidden,
+            encoder_hidden: None,
+        };
         let m = Cvae::new(cond, out, &arch, &mut rng, &dev);
         let norm = cvae::train::data::Standardisation {
             cond_shift: vec![0.0; cond],
@@ -29,15 +37,24 @@ fn exported_decoder_equals_burn() {
         let d = m.export(&norm);
         let batch = 64;
         let k = cond + latent;
-        let x: Vec<f32> = (0..batch * k).map(|_| (4.0 * rng.uniform() - 2.0) as f32).collect();
-        let y = m.decoder.forward(Tensor::<2>::from_data(TensorData::new(x.clone(), [batch, k]), &dev));
+        let x: Vec<f32> = (0..batch * k)
+            .map(|_| (4.0 * rng.uniform() - 2.0) as f32)
+            .collect();
+        let y = m.decoder.forward(Tensor::<2>::from_data(
+            TensorData::new(x.clone(), [batch, k]),
+            &dev,
+        ));
         let y: Vec<f32> = y.try_into_vec_as::<f32>().unwrap();
         let mut o = vec![0f32; 2 * out];
         for r in 0..batch {
             d.forward(&x[r * k..(r + 1) * k], &mut o);
             for j in 0..2 * out {
                 let b = y[r * 2 * out + j];
-                assert!((o[j] - b).abs() <= 1e-5 * (1.0 + b.abs()), "row {r} out {j}: {} vs {b}", o[j]);
+                assert!(
+                    (o[j] - b).abs() <= 1e-5 * (1.0 + b.abs()),
+                    "row {r} out {j}: {} vs {b}",
+                    o[j]
+                );
             }
         }
     }
@@ -47,9 +64,18 @@ fn exported_decoder_equals_burn() {
 /// and the KS distance of cos θ to fresh simulator walks falls below the untrained one.
 #[test]
 fn short_training_improves_fit() {
-    let sampler = |tau: f64, g: f64| scatter_sim::ConditionSampler::fixed(scatter_sim::Conditions { tau, g, albedo: 1.0 });
+    let sampler = |tau: f64, g: f64| {
+        scatter_sim::ConditionSampler::fixed(scatter_sim::Conditions {
+            tau,
+            g,
+            albedo: 1.0,
+        })
+    };
     let mut rows = Vec::new();
-    for (i, (tau, g)) in [(3.0, 0.0), (10.0, 0.5), (6.0, -0.5)].into_iter().enumerate() {
+    for (i, (tau, g)) in [(3.0, 0.0), (10.0, 0.5), (6.0, -0.5)]
+        .into_iter()
+        .enumerate()
+    {
         let s = sampler(tau, g);
         rows.extend((0..7000).map(|w| walk_row(10 + i as u64, &s, w).0));
     }
@@ -70,8 +96,32 @@ fn short_training_improves_fit() {
     // The loss is a noisy minibatch estimate (batch 256); the untrained loss is ~1.5 per
     // sample above the fitted one, so a drop of 0.3 is far outside the noise.
     let dev = Device::flex().autodiff();
-    let untrained = train_model(ModelKind::PathGen, &table, &cfg(0), 3, &dev, dir.path(), 0, false, &AtomicBool::new(false), &report).unwrap();
-    let trained = train_model(ModelKind::PathGen, &table, &cfg(600), 3, &dev, dir.path(), 0, false, &AtomicBool::new(false), &report).unwrap();
+    let untrained = train_model(
+        ModelKind::PathGen,
+        &table,
+        &cfg(0),
+        3,
+        &dev,
+        dir.path(),
+        0,
+        false,
+        &AtomicBool::new(false),
+        &report,
+    )
+    .unwrap();
+    let trained = train_model(
+        ModelKind::PathGen,
+        &table,
+        &cfg(600),
+        3,
+        &dev,
+        dir.path(),
+        0,
+        false,
+        &AtomicBool::new(false),
+        &report,
+    )
+    .unwrap();
     let l = losses.lock().unwrap().clone();
     let (first, last) = (l.first().unwrap().1, l.last().unwrap().1);
     eprintln!("loss {first} -> {last}");
@@ -94,7 +144,12 @@ fn short_training_improves_fit() {
                 let mut z = [0f32; 8];
                 cvae::sampler::normals(&mut rng, &mut z);
                 let mut v = [0f64; 3];
-                d.sample(&cvae::features::path_cond(10.0, 0.5, w.n), &z[..5], &z[5..8], &mut v);
+                d.sample(
+                    &cvae::features::path_cond(10.0, 0.5, w.n),
+                    &z[..5],
+                    &z[5..8],
+                    &mut v,
+                );
                 v[0].clamp(-1.0, 1.0)
             })
             .collect();
@@ -105,5 +160,8 @@ fn short_training_improves_fit() {
     // The untrained decoder's outputs are noise around the data mean (KS ≳ 0.2); 600
     // steps get well below that. 0.7× leaves room for seed-to-seed variation.
     eprintln!("KS before {before:.3}, after {after:.3}");
-    assert!(after < 0.7 * before, "KS before {before:.3}, after {after:.3}");
+    assert!(
+        after < 0.7 * before,
+        "KS before {before:.3}, after {after:.3}"
+    );
 }

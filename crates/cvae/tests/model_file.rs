@@ -7,15 +7,29 @@ use cvae::decoder::{Decoder, Dense};
 use cvae::model_file::{ModelError, ModelSet, SingleScattering, TrainingInfo};
 use scatter_sim::WalkRng;
 
-fn random_decoder(rng: &mut WalkRng, cond: usize, latent: usize, hidden: &[usize], out: usize, gain: f32) -> Decoder {
-    let widths: Vec<usize> = std::iter::once(cond + latent).chain(hidden.iter().copied()).chain([2 * out]).collect();
+fn random_decoder(
+    rng: &mut WalkRng,
+    cond: usize,
+    latent: usize,
+    hidden: &[usize],
+    out: usize,
+    gain: f32,
+) -> Decoder {
+    let widths: Vec<usize> = std::iter::once(cond + latent)
+        .chain(hidden.iter().copied())
+        .chain([2 * out])
+        .collect();
     let layers = widths
         .windows(2)
         .map(|w| Dense {
             inputs: w[0],
             outputs: w[1],
-            weight: (0..w[0] * w[1]).map(|_| gain * (rng.uniform() as f32 - 0.5)).collect(),
-            bias: (0..w[1]).map(|_| gain * (rng.uniform() as f32 - 0.5)).collect(),
+            weight: (0..w[0] * w[1])
+                .map(|_| gain * (rng.uniform() as f32 - 0.5))
+                .collect(),
+            bias: (0..w[1])
+                .map(|_| gain * (rng.uniform() as f32 - 0.5))
+                .collect(),
         })
         .collect();
     Decoder {
@@ -50,7 +64,11 @@ pub fn random_models(seed: u64, gain: f32) -> ModelSet {
 fn round_trip_and_size() {
     let m = random_models(1, 1.0);
     let bytes = m.to_bytes();
-    assert!(bytes.len() <= 16 * 1024, "model file is {} bytes", bytes.len());
+    assert!(
+        bytes.len() <= 16 * 1024,
+        "model file is {} bytes",
+        bytes.len()
+    );
     let back = ModelSet::from_bytes(&bytes, Path::new("m.stcvae")).unwrap();
     assert_eq!(back, m);
     let dir = tempfile::tempdir().unwrap();
@@ -67,7 +85,12 @@ fn damaged_files_are_rejected() {
     for cut in [0, 5, 15, 40, bytes.len() / 2, bytes.len() - 1] {
         let e = load(&bytes[..cut]).unwrap_err();
         assert!(
-            matches!(e, ModelError::BadMagic { .. } | ModelError::Truncated { .. } | ModelError::Checksum { .. }),
+            matches!(
+                e,
+                ModelError::BadMagic { .. }
+                    | ModelError::Truncated { .. }
+                    | ModelError::Checksum { .. }
+            ),
             "cut at {cut}: {e}"
         );
         assert!(e.to_string().contains("damaged.stcvae"));
@@ -75,12 +98,18 @@ fn damaged_files_are_rejected() {
     let mut flipped = bytes.clone();
     let at = bytes.len() - 100;
     flipped[at] ^= 1;
-    assert!(matches!(load(&flipped).unwrap_err(), ModelError::Checksum { .. }));
+    assert!(matches!(
+        load(&flipped).unwrap_err(),
+        ModelError::Checksum { .. }
+    ));
     let mut v9 = bytes.clone();
     v9[8] = 9;
     let e = load(&v9).unwrap_err();
     assert!(matches!(e, ModelError::Version { found: 9, .. }), "{e}");
-    assert!(matches!(load(b"STCVAEDS....").unwrap_err(), ModelError::BadMagic { .. }));
+    assert!(matches!(
+        load(b"STCVAEDS....").unwrap_err(),
+        ModelError::BadMagic { .. }
+    ));
 }
 
 /// Non-finite weights are refused even with a valid checksum.
@@ -123,7 +152,9 @@ fn single_scattering_branch_probability() {
     for (i, tau) in [0.3, 1.0, 3.0].into_iter().enumerate() {
         let mut rng = WalkRng::from_seed(50 + i as u64);
         let n = 100_000u64;
-        let hits = (0..n).filter(|_| m.sample_walk(tau, 0.2, 1.0, false, &mut rng).n == 1).count() as u64;
+        let hits = (0..n)
+            .filter(|_| m.sample_walk(tau, 0.2, 1.0, false, &mut rng).n == 1)
+            .count() as u64;
         let z = scatter_sim::stats::proportion_z(hits, n, (-tau).exp());
         assert!(z.abs() < 4.0, "tau = {tau}: z = {z:.2}");
     }
@@ -136,16 +167,25 @@ fn single_scattering_branch_probability() {
 fn centre_event_probability() {
     use scatter_sim::frame::CanonicalExit;
     let m = random_models(6, 1.0);
-    let exit = CanonicalExit { cos_theta: 0.3, alpha: 0.1, beta: -0.2 };
+    let exit = CanonicalExit {
+        cos_theta: 0.3,
+        alpha: 0.1,
+        beta: -0.2,
+    };
     for (i, (albedo, n_events)) in [(1.0, 2u64), (0.8, 3), (0.99, 40)].into_iter().enumerate() {
         let mut rng = WalkRng::from_seed(70 + i as u64);
         let n = 100_000u64;
         let hits = (0..n)
-            .filter(|_| m.sample_event(5.0, 0.3, albedo, n_events, exit, &mut rng).0 == glam::DVec3::ZERO)
+            .filter(|_| {
+                m.sample_event(5.0, 0.3, albedo, n_events, exit, &mut rng).0 == glam::DVec3::ZERO
+            })
             .count() as u64;
         let p = albedo / cvae::sampler::lambda(albedo, n_events);
         let z = scatter_sim::stats::proportion_z(hits, n, p);
-        assert!(z.abs() < 4.0, "φ = {albedo}, N = {n_events}: p = {p:.4}, z = {z:.2}");
+        assert!(
+            z.abs() < 4.0,
+            "φ = {albedo}, N = {n_events}: p = {p:.4}, z = {z:.2}"
+        );
     }
 }
 
@@ -156,7 +196,10 @@ fn lambda_matches_direct_sum() {
         for n in [1u64, 2, 7, 1000] {
             let direct: f64 = (1..=n).map(|k| albedo_pow(albedo, k)).sum();
             let l = cvae::sampler::lambda(albedo, n);
-            assert!((l - direct).abs() <= 1e-9 * direct.max(1.0), "φ = {albedo}, N = {n}: {l} vs {direct}");
+            assert!(
+                (l - direct).abs() <= 1e-9 * direct.max(1.0),
+                "φ = {albedo}, N = {n}: {l} vs {direct}"
+            );
         }
     }
 }

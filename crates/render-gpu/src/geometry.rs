@@ -62,9 +62,17 @@ impl Geometry {
                 (b - a).cross(c - a).normalize()
             })
             .collect();
-        let bvh = build_bvh2_from_tris(&tris, BvhBuildParams::medium_build(), &mut Duration::default());
+        let bvh = build_bvh2_from_tris(
+            &tris,
+            BvhBuildParams::medium_build(),
+            &mut Duration::default(),
+        );
         let (lo, hi) = mesh.bounds();
-        let scale = lo.abs().max(hi.abs()).max_element().max((hi - lo).max_element());
+        let scale = lo
+            .abs()
+            .max(hi.abs())
+            .max_element()
+            .max((hi - lo).max_element());
         Self {
             mesh,
             tris,
@@ -123,7 +131,12 @@ impl Geometry {
             if n.prim_count > 0 {
                 for k in n.first_index..n.first_index + n.prim_count {
                     let t = &self.tris[self.bvh.primitive_indices[k as usize] as usize];
-                    best = best.min(point_triangle_d2(pa, from_arr(t.v0), from_arr(t.v1), from_arr(t.v2)));
+                    best = best.min(point_triangle_d2(
+                        pa,
+                        from_arr(t.v0),
+                        from_arr(t.v1),
+                        from_arr(t.v2),
+                    ));
                 }
             } else {
                 let (a, b) = (n.first_index as usize, n.first_index as usize + 1);

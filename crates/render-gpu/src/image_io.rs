@@ -42,7 +42,11 @@ pub struct RenderTag {
     pub scene_hash: u64,
 }
 
-pub fn write_exr(path: &Path, img: &RgbImage, tag: &RenderTag) -> std::result::Result<(), RenderError> {
+pub fn write_exr(
+    path: &Path,
+    img: &RgbImage,
+    tag: &RenderTag,
+) -> std::result::Result<(), RenderError> {
     let w = img.width;
     let channels = SpecificChannels::rgb(|pos: Vec2<usize>| {
         let p = img.pixels[pos.y() * w + pos.x()];
@@ -100,10 +104,16 @@ pub fn read_exr(path: &Path) -> std::result::Result<(RgbImage, Option<RenderTag>
     let tag = match (text(ATTR_SPP), text(ATTR_SCENE)) {
         (Some(s), Some(h)) => Some(RenderTag {
             spp: s.parse().map_err(|_| {
-                RenderError::Image(format!("{}: bad {ATTR_SPP} attribute `{s}`", path.display()))
+                RenderError::Image(format!(
+                    "{}: bad {ATTR_SPP} attribute `{s}`",
+                    path.display()
+                ))
             })?,
             scene_hash: u64::from_str_radix(&h, 16).map_err(|_| {
-                RenderError::Image(format!("{}: bad {ATTR_SCENE} attribute `{h}`", path.display()))
+                RenderError::Image(format!(
+                    "{}: bad {ATTR_SCENE} attribute `{h}`",
+                    path.display()
+                ))
             })?,
         }),
         _ => None,
@@ -121,7 +131,11 @@ fn srgb(x: f32) -> f32 {
 }
 
 /// An 8-bit sRGB preview at the given exposure (values clipped at 1).
-pub fn write_png(path: &Path, img: &RgbImage, exposure: f32) -> std::result::Result<(), RenderError> {
+pub fn write_png(
+    path: &Path,
+    img: &RgbImage,
+    exposure: f32,
+) -> std::result::Result<(), RenderError> {
     let data: Vec<u8> = img
         .pixels
         .iter()

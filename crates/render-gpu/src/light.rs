@@ -22,8 +22,12 @@ pub struct DirectionalLight {
 
 impl DirectionalLight {
     pub fn new(d: &LightDesc) -> Self {
-        let dir = Vec3::new(d.direction[0] as f32, d.direction[1] as f32, d.direction[2] as f32)
-            .normalize();
+        let dir = Vec3::new(
+            d.direction[0] as f32,
+            d.direction[1] as f32,
+            d.direction[2] as f32,
+        )
+        .normalize();
         let half = (d.angular_diameter_deg * 0.5).to_radians() as f32;
         let irradiance = d.irradiance.map(|v| v as f32);
         let (cos_max, radiance) = if half > 0.0 {

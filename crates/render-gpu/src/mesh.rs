@@ -140,7 +140,10 @@ fn check_closed(m: &TriMesh) -> Result<(), String> {
     }
     let boundary = edges.values().filter(|(f, b)| f + b == 1).count();
     let non_manifold = edges.values().filter(|(f, b)| f + b > 2).count();
-    let flipped = edges.values().filter(|&&(f, b)| f + b == 2 && f != b).count();
+    let flipped = edges
+        .values()
+        .filter(|&&(f, b)| f + b == 2 && f != b)
+        .count();
     if boundary > 0 || non_manifold > 0 {
         return Err(format!(
             "the mesh is not closed: {boundary} boundary edges and {non_manifold} non-manifold edges \
@@ -191,7 +194,8 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
         Some(s) => s.nodes().collect(),
         None => document.nodes().collect(),
     };
-    let mut stack: Vec<(gltf::Node, Mat4)> = roots.into_iter().map(|n| (n, Mat4::IDENTITY)).collect();
+    let mut stack: Vec<(gltf::Node, Mat4)> =
+        roots.into_iter().map(|n| (n, Mat4::IDENTITY)).collect();
     while let Some((node, parent)) = stack.pop() {
         let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
         if let Some(m) = node.mesh() {
@@ -199,7 +203,10 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
                 if prim.mode() != gltf::mesh::Mode::Triangles {
                     return Err(RenderError::mesh(
                         path,
-                        format!("primitive mode {:?} is not supported: triangles only", prim.mode()),
+                        format!(
+                            "primitive mode {:?} is not supported: triangles only",
+                            prim.mode()
+                        ),
                     ));
                 }
                 let reader = prim.reader(|b| buffers.get(b.index()).map(|v| &v[..]));
@@ -218,8 +225,10 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
                 if idx.len() % 3 != 0 || idx.iter().any(|&i| i >= n) {
                     return Err(RenderError::mesh(path, "invalid triangle indices"));
                 }
-                mesh.triangles
-                    .extend(idx.chunks(3).map(|c| [c[0] + base, c[1] + base, c[2] + base]));
+                mesh.triangles.extend(
+                    idx.chunks(3)
+                        .map(|c| [c[0] + base, c[1] + base, c[2] + base]),
+                );
             }
         }
         for c in node.children() {

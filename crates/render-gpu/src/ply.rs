@@ -101,8 +101,7 @@ pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
     let end = find(bytes, b"end_header").ok_or("not a PLY file: no end_header")?;
     let header = std::str::from_utf8(&bytes[..end]).map_err(|_| "the PLY header is not text")?;
     let mut body_start = end + b"end_header".len();
-    while body_start < bytes.len() && (bytes[body_start] == b'\r' || bytes[body_start] == b'\n')
-    {
+    while body_start < bytes.len() && (bytes[body_start] == b'\r' || bytes[body_start] == b'\n') {
         body_start += 1;
         if bytes[body_start - 1] == b'\n' {
             break;
@@ -131,7 +130,11 @@ pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
                 .last_mut()
                 .ok_or("property before any element")?
                 .props
-                .push(Property::List(name.to_string(), Scalar::parse(c)?, Scalar::parse(t)?)),
+                .push(Property::List(
+                    name.to_string(),
+                    Scalar::parse(c)?,
+                    Scalar::parse(t)?,
+                )),
             ["property", t, name] => elements
                 .last_mut()
                 .ok_or("property before any element")?
@@ -144,20 +147,28 @@ pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
     let mut body = if binary {
         Body::Binary(bytes, body_start)
     } else {
-        let text = std::str::from_utf8(&bytes[body_start..]).map_err(|_| "the PLY body is not text")?;
+        let text =
+            std::str::from_utf8(&bytes[body_start..]).map_err(|_| "the PLY body is not text")?;
         Body::Ascii(text.split_ascii_whitespace())
     };
     let mut mesh = TriMesh::default();
     for el in &elements {
         // Guard against absurd counts before allocating.
         if el.count > bytes.len() {
-            return Err(format!("element {} claims {} entries, more than the file can hold", el.name, el.count));
+            return Err(format!(
+                "element {} claims {} entries, more than the file can hold",
+                el.name, el.count
+            ));
         }
         let is_vertex = el.name == "vertex";
         let is_face = el.name == "face";
         if is_vertex {
             for axis in ["x", "y", "z"] {
-                if !el.props.iter().any(|p| matches!(p, Property::Scalar(n, _) if n == axis)) {
+                if !el
+                    .props
+                    .iter()
+                    .any(|p| matches!(p, Property::Scalar(n, _) if n == axis))
+                {
                     return Err(format!("the vertex element has no `{axis}` property"));
                 }
             }
@@ -180,7 +191,7 @@ pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
                     }
                     Property::List(name, ct, it) => {
                         let n = body.next(*ct)?;
-                        if !(n >= 0.0 && n <= 1e6) {
+                        if !(0.0..=1e6).contains(&n) {
                             return Err(format!("bad list length {n} in element {}", el.name));
                         }
                         let mut idx = Vec::with_capacity(n as usize);
@@ -192,7 +203,8 @@ pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
                                 return Err("a face has fewer than 3 vertices".into());
                             }
                             for k in 1..idx.len() - 1 {
-                                mesh.triangles.push([idx[0], idx[k], idx[k + 1]].map(|v| v as u32));
+                                mesh.triangles
+                                    .push([idx[0], idx[k], idx[k + 1]].map(|v| v as u32));
                             }
                             if idx.iter().any(|&v| v < 0.0 || v.fract() != 0.0) {
                                 return Err("a face has a negative or fractional index".into());
@@ -208,7 +220,9 @@ pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
     }
     let nv = mesh.positions.len() as u32;
     if mesh.triangles.iter().flatten().any(|&i| i >= nv) {
-        return Err(format!("a face refers to a vertex beyond the {nv} vertices"));
+        return Err(format!(
+            "a face refers to a vertex beyond the {nv} vertices"
+        ));
     }
     Ok(mesh)
 }

@@ -11,7 +11,11 @@ use scatter_sim::WalkRng;
 
 fn random_interior(geo: &Geometry, rng: &mut WalkRng) -> Vec3 {
     loop {
-        let u = Vec3::new(rng.uniform() as f32, rng.uniform() as f32, rng.uniform() as f32);
+        let u = Vec3::new(
+            rng.uniform() as f32,
+            rng.uniform() as f32,
+            rng.uniform() as f32,
+        );
         let p = geo.lo + (geo.hi - geo.lo) * u;
         if geo.inside(p) {
             return p;
@@ -33,7 +37,10 @@ fn check(geo: &Geometry, grid: &DistanceGrid, points: usize, seed: u64) -> f64 {
             let q = (1.0 - z * z).sqrt();
             let dir = Vec3::new((q * c) as f32, (q * s) as f32, z as f32);
             if let Some(h) = geo.intersect(p, dir, r) {
-                panic!("a ray from {p} meets the mesh at t = {} inside the radius {r}", h.t);
+                panic!(
+                    "a ray from {p} meets the mesh at t = {} inside the radius {r}",
+                    h.t
+                );
             }
         }
         sum_r += r as f64;
@@ -44,13 +51,17 @@ fn check(geo: &Geometry, grid: &DistanceGrid, points: usize, seed: u64) -> f64 {
 
 #[test]
 fn bunny_grid_is_conservative_and_useful() {
-    let m = load_mesh(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/bunny.ply")).unwrap();
+    let m =
+        load_mesh(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/bunny.ply")).unwrap();
     let geo = Geometry::new(m);
     let grid = DistanceGrid::build(&geo, 48);
     let efficiency = check(&geo, &grid, 3000, 11);
     // Not trivially conservative: at 48 cells the Lipschitz bound keeps most of the
     // distance (a cell's half-diagonal is ~2% of the bunny's height).
-    assert!(efficiency > 0.7, "grid keeps only {efficiency:.2} of the true distance");
+    assert!(
+        efficiency > 0.7,
+        "grid keeps only {efficiency:.2} of the true distance"
+    );
 }
 
 #[test]

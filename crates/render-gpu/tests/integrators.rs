@@ -14,7 +14,9 @@ use scatter_sim::WalkRng;
 fn model() -> cvae::ModelSet {
     let p = std::env::var_os("STCVAE_TEST_MODEL")
         .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/default.stcvae"));
+        .unwrap_or_else(|| {
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/default.stcvae")
+        });
     cvae::ModelSet::load(&p).unwrap()
 }
 
@@ -25,7 +27,11 @@ fn scene(text: &str, grid: bool) -> (SceneFile, SceneData) {
     (f, d)
 }
 
-fn settings<'a>(kind: IntegratorKind, nee: bool, m: Option<&'a cvae::ModelSet>) -> IntegratorSettings<'a> {
+fn settings<'a>(
+    kind: IntegratorKind,
+    nee: bool,
+    m: Option<&'a cvae::ModelSet>,
+) -> IntegratorSettings<'a> {
     IntegratorSettings {
         kind,
         nee,
@@ -70,17 +76,34 @@ fn assert_furnace(kind: IntegratorKind, boundary: &str, m: Option<&cvae::ModelSe
     let out = render(
         &s,
         &set,
-        &RenderOptions { spp: 12, seed: 3, time_budget: None },
+        &RenderOptions {
+            spp: 12,
+            seed: 3,
+            time_budget: None,
+        },
         &|_, _| {},
         &AtomicBool::new(false),
     );
-    assert_eq!(out.stats.capped + out.stats.non_finite + out.stats.leaks, 0, "{:?}", out.stats);
+    assert_eq!(
+        out.stats.capped + out.stats.non_finite + out.stats.leaks,
+        0,
+        "{:?}",
+        out.stats
+    );
     if kind == IntegratorKind::Stcvae {
-        assert!(out.stats.steps > out.stats.paths / 4, "sphere steps must actually run: {:?}", out.stats);
+        assert!(
+            out.stats.steps > out.stats.paths / 4,
+            "sphere steps must actually run: {:?}",
+            out.stats
+        );
     }
     for (i, p) in out.image.pixels.iter().enumerate() {
         for c in 0..3 {
-            assert!((p[c] - 0.7).abs() < 1e-4, "{kind:?} {boundary}: pixel {i} channel {c} = {}", p[c]);
+            assert!(
+                (p[c] - 0.7).abs() < 1e-4,
+                "{kind:?} {boundary}: pixel {i} channel {c} = {}",
+                p[c]
+            );
         }
     }
 }
@@ -95,12 +118,21 @@ fn white_furnace_pt() {
 fn white_furnace_stcvae() {
     let m = model();
     assert_furnace(IntegratorKind::Stcvae, "kind = \"index-matched\"", Some(&m));
-    assert_furnace(IntegratorKind::Stcvae, "kind = \"dielectric\"\nior = 1.5", Some(&m));
+    assert_furnace(
+        IntegratorKind::Stcvae,
+        "kind = \"dielectric\"\nior = 1.5",
+        Some(&m),
+    );
 }
 
 /// Mean and standard error, per channel, of the hero-channel estimates of `n` camera
 /// paths through uniformly random image positions.
-fn estimate(s: &SceneData, set: &IntegratorSettings, n: u64, seed: u64) -> ([f64; 3], [f64; 3], PathStats) {
+fn estimate(
+    s: &SceneData,
+    set: &IntegratorSettings,
+    n: u64,
+    seed: u64,
+) -> ([f64; 3], [f64; 3], PathStats) {
     let per: Vec<(usize, f64, PathStats)> = {
         use rayon::prelude::*;
         (0..n)
@@ -126,7 +158,8 @@ fn estimate(s: &SceneData, set: &IntegratorSettings, n: u64, seed: u64) -> ([f64
         stats.add(&st);
     }
     let mean = [0, 1, 2].map(|c| sum[c] / cnt[c]);
-    let sem = [0, 1, 2].map(|c| ((sq[c] / cnt[c] - mean[c] * mean[c]).max(0.0) / (cnt[c] - 1.0)).sqrt());
+    let sem =
+        [0, 1, 2].map(|c| ((sq[c] / cnt[c] - mean[c] * mean[c]).max(0.0) / (cnt[c] - 1.0)).sqrt());
     (mean, sem, stats)
 }
 
@@ -167,7 +200,14 @@ fn nee_on_equals_nee_off_pt() {
         // PT with and without NEE are both unbiased: |z| < 4 (six such comparisons in
         // this file; a false alarm has probability ~4e-4).
         let zc = z(on[c], son[c], off[c], soff[c]);
-        assert!(zc.abs() < 4.0, "channel {c}: NEE on {} ± {}, off {} ± {} (z = {zc:.2})", on[c], son[c], off[c], soff[c]);
+        assert!(
+            zc.abs() < 4.0,
+            "channel {c}: NEE on {} ± {}, off {} ± {} (z = {zc:.2})",
+            on[c],
+            son[c],
+            off[c],
+            soff[c]
+        );
         assert!(on[c] > 0.01, "the sun must light the sphere");
     }
 }
@@ -176,8 +216,18 @@ fn nee_on_equals_nee_off_pt() {
 fn nee_on_equals_nee_off_stcvae() {
     let m = model();
     let (_, s) = scene(SUN_SCENE, true);
-    let (on, son, st) = estimate(&s, &settings(IntegratorKind::Stcvae, true, Some(&m)), 300_000, 1);
-    let (off, soff, _) = estimate(&s, &settings(IntegratorKind::Stcvae, false, Some(&m)), 300_000, 2);
+    let (on, son, st) = estimate(
+        &s,
+        &settings(IntegratorKind::Stcvae, true, Some(&m)),
+        300_000,
+        1,
+    );
+    let (off, soff, _) = estimate(
+        &s,
+        &settings(IntegratorKind::Stcvae, false, Some(&m)),
+        300_000,
+        2,
+    );
     assert!(st.steps > st.paths / 4, "sphere steps must run: {st:?}");
     for c in 0..3 {
         // NEE on uses EventGen's representative event; NEE off uses PathGen's exits that
@@ -185,7 +235,14 @@ fn nee_on_equals_nee_off_stcvae() {
         // allow 3 % of the value on top of 4 standard errors (eval: event and exit
         // marginals within KS 0.05).
         let tol = 4.0 * (son[c].powi(2) + soff[c].powi(2)).sqrt() + 0.03 * off[c];
-        assert!((on[c] - off[c]).abs() < tol, "channel {c}: NEE on {} ± {}, off {} ± {}", on[c], son[c], off[c], soff[c]);
+        assert!(
+            (on[c] - off[c]).abs() < tol,
+            "channel {c}: NEE on {} ± {}, off {} ± {}",
+            on[c],
+            son[c],
+            off[c],
+            soff[c]
+        );
     }
 }
 
@@ -193,8 +250,16 @@ fn nee_on_equals_nee_off_stcvae() {
 fn stcvae_matches_pt_on_a_sphere_and_the_bunny() {
     let m = model();
     for (label, obj, sigma) in [
-        ("sphere", "shape = \"sphere\"\nradius = 0.5", "[20.0, 40.0, 80.0]"),
-        ("bunny", "mesh = \"../../assets/bunny.glb\"\nheight = 1.0", "[20.0, 40.0, 80.0]"),
+        (
+            "sphere",
+            "shape = \"sphere\"\nradius = 0.5",
+            "[20.0, 40.0, 80.0]",
+        ),
+        (
+            "bunny",
+            "mesh = \"../../assets/bunny.glb\"\nheight = 1.0",
+            "[20.0, 40.0, 80.0]",
+        ),
     ] {
         let text = SUN_SCENE
             .replace("shape = \"sphere\"\nradius = 0.5", obj)
@@ -203,8 +268,16 @@ fn stcvae_matches_pt_on_a_sphere_and_the_bunny() {
             .replace("angular_diameter_deg = 40.0", "angular_diameter_deg = 0.0");
         let (_, s) = scene(&text, true);
         let (pt, spt, _) = estimate(&s, &settings(IntegratorKind::Pt, true, None), 200_000, 5);
-        let (st, sst, stats) = estimate(&s, &settings(IntegratorKind::Stcvae, true, Some(&m)), 200_000, 6);
-        assert!(stats.steps > stats.paths / 2, "{label}: sphere steps must run: {stats:?}");
+        let (st, sst, stats) = estimate(
+            &s,
+            &settings(IntegratorKind::Stcvae, true, Some(&m)),
+            200_000,
+            6,
+        );
+        assert!(
+            stats.steps > stats.paths / 2,
+            "{label}: sphere steps must run: {stats:?}"
+        );
         for c in 0..3 {
             // The model's bias: eval keeps KS ≤ 0.05 on N and the exit; a bias of the
             // image mean of 5 % of the value bounds what such marginals can do to it.
@@ -212,7 +285,10 @@ fn stcvae_matches_pt_on_a_sphere_and_the_bunny() {
             assert!(
                 (pt[c] - st[c]).abs() < tol,
                 "{label} channel {c}: PT {} ± {}, ST-CVAE {} ± {}",
-                pt[c], spt[c], st[c], sst[c]
+                pt[c],
+                spt[c],
+                st[c],
+                sst[c]
             );
         }
     }

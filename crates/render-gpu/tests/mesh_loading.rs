@@ -5,7 +5,9 @@ use std::path::{Path, PathBuf};
 use render_gpu::mesh::{self, load_mesh};
 
 fn asset(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets").join(name)
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../assets")
+        .join(name)
 }
 
 #[test]
@@ -19,7 +21,10 @@ fn shipped_bunny_loads_closed_from_glb_and_ply() {
     }
     assert_eq!(a.triangles.len(), b.triangles.len());
     let (lo, hi) = b.bounds();
-    assert!((hi.y - lo.y - 1.0).abs() < 1e-3, "the shipped PLY has height 1");
+    assert!(
+        (hi.y - lo.y - 1.0).abs() < 1e-3,
+        "the shipped PLY has height 1"
+    );
 }
 
 #[test]
@@ -46,11 +51,18 @@ fn obj_quads_load_and_an_open_mesh_is_refused() {
     assert_eq!(m.triangles.len(), 12);
     // Remove one quad: four boundary edges.
     let open = CUBE_OBJ.replace("f 2 4 8 6\n", "");
-    let e = load_mesh(&write(&d, "open.obj", open.as_bytes())).unwrap_err().to_string();
-    assert!(e.contains("open.obj") && e.contains("4 boundary edges"), "{e}");
+    let e = load_mesh(&write(&d, "open.obj", open.as_bytes()))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("open.obj") && e.contains("4 boundary edges"),
+        "{e}"
+    );
     // Flip one quad: inconsistent orientation.
     let flipped = CUBE_OBJ.replace("f 2 4 8 6", "f 6 8 4 2");
-    let e = load_mesh(&write(&d, "flip.obj", flipped.as_bytes())).unwrap_err().to_string();
+    let e = load_mesh(&write(&d, "flip.obj", flipped.as_bytes()))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("consistently oriented"), "{e}");
 }
 
@@ -58,12 +70,20 @@ fn obj_quads_load_and_an_open_mesh_is_refused() {
 fn broken_files_give_clear_errors() {
     let d = tempfile::tempdir().unwrap();
     let ply = std::fs::read(asset("bunny.ply")).unwrap();
-    let e = load_mesh(&write(&d, "t.ply", &ply[..ply.len() / 2])).unwrap_err().to_string();
+    let e = load_mesh(&write(&d, "t.ply", &ply[..ply.len() / 2]))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("t.ply") && e.contains("truncated"), "{e}");
-    let e = load_mesh(&write(&d, "g.glb", b"glTF garbage")).unwrap_err().to_string();
+    let e = load_mesh(&write(&d, "g.glb", b"glTF garbage"))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("g.glb"), "{e}");
-    let e = load_mesh(&write(&d, "x.stl", b"solid")).unwrap_err().to_string();
+    let e = load_mesh(&write(&d, "x.stl", b"solid"))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("unknown mesh format"), "{e}");
-    let e = load_mesh(&d.path().join("missing.obj")).unwrap_err().to_string();
+    let e = load_mesh(&d.path().join("missing.obj"))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("missing.obj"), "{e}");
 }

@@ -43,10 +43,19 @@ fn unknown_keys_are_rejected() {
 
 #[test]
 fn out_of_range_medium_names_the_field() {
-    let e = err(&BASE.replace("sigma_t = [10.0, 10.0, 10.0]", "sigma_t = [10.0, -1.0, 10.0]"));
-    assert!(e.contains("medium.sigma_t[1]") && e.contains("(0, inf)"), "{e}");
+    let e = err(&BASE.replace(
+        "sigma_t = [10.0, 10.0, 10.0]",
+        "sigma_t = [10.0, -1.0, 10.0]",
+    ));
+    assert!(
+        e.contains("medium.sigma_t[1]") && e.contains("(0, inf)"),
+        "{e}"
+    );
     let e = err(&BASE.replace("albedo = [0.99, 0.99, 0.99]", "albedo = [0.99, 0.99, 1.2]"));
-    assert!(e.contains("medium.albedo[2]") && e.contains("[0, 1]"), "{e}");
+    assert!(
+        e.contains("medium.albedo[2]") && e.contains("[0, 1]"),
+        "{e}"
+    );
     let e = err(&BASE.replace("g = 0.0", "g = 1.0"));
     assert!(e.contains("medium.g") && e.contains("0.999"), "{e}");
     let e = err(&BASE.replace("g = 0.0", "g = -1.5"));
@@ -63,7 +72,9 @@ fn other_fields_are_checked() {
     assert!(e.contains("shape") && e.contains("mesh"), "{e}");
     let e = err(&BASE.replace("shape = \"sphere\"", "shape = \"torus\""));
     assert!(e.contains("torus"), "{e}");
-    let e = err(&format!("{BASE}\n[boundary]\nkind = \"dielectric\"\nior = 0.5\n"));
+    let e = err(&format!(
+        "{BASE}\n[boundary]\nkind = \"dielectric\"\nior = 0.5\n"
+    ));
     assert!(e.contains("boundary.ior"), "{e}");
     let e = err(&format!(
         "{BASE}\n[[light]]\nkind = \"directional\"\ndirection = [0.0, 0.0, 0.0]\nirradiance = [1.0, 1.0, 1.0]\n"

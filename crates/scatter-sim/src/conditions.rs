@@ -33,10 +33,18 @@ impl Conditions {
 #[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
 pub enum TauSampler {
     /// τ = max·u^exponent.
-    Power { max: f64, exponent: f64 },
+    Power {
+        max: f64,
+        exponent: f64,
+    },
     /// τ uniform in [min, max].
-    Uniform { min: f64, max: f64 },
-    Fixed { value: f64 },
+    Uniform {
+        min: f64,
+        max: f64,
+    },
+    Fixed {
+        value: f64,
+    },
 }
 
 /// How g is drawn; the result is clamped to ±0.999.
@@ -44,8 +52,13 @@ pub enum TauSampler {
 #[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
 pub enum GSampler {
     /// g uniform in [min, max], then clamped to ±0.999.
-    Uniform { min: f64, max: f64 },
-    Fixed { value: f64 },
+    Uniform {
+        min: f64,
+        max: f64,
+    },
+    Fixed {
+        value: f64,
+    },
 }
 
 /// How φ is drawn.
@@ -53,10 +66,18 @@ pub enum GSampler {
 #[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
 pub enum AlbedoSampler {
     /// φ = min(1, 1 + epsilon − u^exponent).
-    OneMinusPower { epsilon: f64, exponent: f64 },
+    OneMinusPower {
+        epsilon: f64,
+        exponent: f64,
+    },
     /// φ uniform in [min, max].
-    Uniform { min: f64, max: f64 },
-    Fixed { value: f64 },
+    Uniform {
+        min: f64,
+        max: f64,
+    },
+    Fixed {
+        value: f64,
+    },
 }
 
 /// The joint sampler of (τ, g, φ): independent draws of each.

@@ -31,7 +31,8 @@ pub fn hg_cos_cdf(g: f64, cos: f64) -> f64 {
     if g.abs() < G_ISOTROPIC {
         return 0.5 * (1.0 + mu);
     }
-    let f = (1.0 - g * g) / (2.0 * g) * (1.0 / (1.0 + g * g - 2.0 * g * mu).sqrt() - 1.0 / (1.0 + g));
+    let f =
+        (1.0 - g * g) / (2.0 * g) * (1.0 / (1.0 + g * g - 2.0 * g * mu).sqrt() - 1.0 / (1.0 + g));
     f.clamp(0.0, 1.0)
 }
 

@@ -94,9 +94,7 @@ pub fn chi_square(observed: &[u64], expected: &[f64]) -> f64 {
 
 /// Upper-tail probability of the chi-square distribution with `dof` degrees of freedom.
 pub fn chi_square_p_value(stat: f64, dof: usize) -> f64 {
-    ChiSquared::new(dof as f64)
-        .expect("dof > 0")
-        .sf(stat)
+    ChiSquared::new(dof as f64).expect("dof > 0").sf(stat)
 }
 
 /// z-score of `hits` successes in `n` Bernoulli(p) trials.

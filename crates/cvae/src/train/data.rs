@@ -17,7 +17,11 @@ pub enum ModelKind {
 }
 
 impl ModelKind {
-    pub const ALL: [ModelKind; 3] = [ModelKind::LengthGen, ModelKind::PathGen, ModelKind::EventGen];
+    pub const ALL: [ModelKind; 3] = [
+        ModelKind::LengthGen,
+        ModelKind::PathGen,
+        ModelKind::EventGen,
+    ];
 
     pub fn name(self) -> &'static str {
         match self {
@@ -117,7 +121,9 @@ impl Table {
         let keep: Vec<&Row> = rows
             .iter()
             .filter(|r| !exact || r.n >= 2)
-            .filter(|r| !(exact && kind == ModelKind::EventGen && features::is_centre_event(r.ev_pos)))
+            .filter(|r| {
+                !(exact && kind == ModelKind::EventGen && features::is_centre_event(r.ev_pos))
+            })
             .collect();
         let (c, p) = (kind.cond(), kind.out());
         let mut cond = Vec::with_capacity(keep.len() * c);
@@ -184,7 +190,13 @@ impl Table {
     }
 
     /// Fills `cond` [B × C] and `target` [B × P] (standardised) with a random minibatch.
-    pub fn batch(&self, size: usize, rng: &mut WalkRng, cond: &mut Vec<f32>, target: &mut Vec<f32>) {
+    pub fn batch(
+        &self,
+        size: usize,
+        rng: &mut WalkRng,
+        cond: &mut Vec<f32>,
+        target: &mut Vec<f32>,
+    ) {
         let (c, p) = (self.kind.cond(), self.kind.out());
         cond.clear();
         target.clear();

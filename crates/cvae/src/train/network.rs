@@ -59,7 +59,11 @@ impl Mlp {
             .iter()
             .map(|l| {
                 let [i, o] = l.weight.val().dims();
-                let w: Vec<f32> = l.weight.val().try_into_vec_as::<f32>().expect("f32 weights");
+                let w: Vec<f32> = l
+                    .weight
+                    .val()
+                    .try_into_vec_as::<f32>()
+                    .expect("f32 weights");
                 let mut weight = vec![0f32; i * o];
                 for r in 0..i {
                     for c in 0..o {
@@ -110,8 +114,17 @@ pub struct LossTerms {
 }
 
 impl Cvae {
-    pub fn new(cond: usize, out: usize, arch: &Architecture, rng: &mut WalkRng, device: &Device) -> Self {
-        let enc_hidden = arch.encoder_hidden.clone().unwrap_or_else(|| arch.hidden.clone());
+    pub fn new(
+        cond: usize,
+        out: usize,
+        arch: &Architecture,
+        rng: &mut WalkRng,
+        device: &Device,
+    ) -> Self {
+        let enc_hidden = arch
+            .encoder_hidden
+            .clone()
+            .unwrap_or_else(|| arch.hidden.clone());
         let enc: Vec<usize> = std::iter::once(cond + out)
             .chain(enc_hidden)
             .chain([2 * arch.latent])

@@ -75,7 +75,7 @@ impl ModelConfig {
         if self.batch_size == 0 {
             return bad("batch_size", "must be at least 1");
         }
-        if !(self.lr > 0.0 && self.lr < 1.0) || !(self.lr_final >= 0.0 && self.lr_final <= self.lr) {
+        if !(self.lr > 0.0 && self.lr < 1.0 && self.lr_final >= 0.0 && self.lr_final <= self.lr) {
             return bad("lr", "need 0 < lr < 1 and 0 <= lr_final <= lr");
         }
         Ok(())
@@ -119,11 +119,23 @@ fn paths(dir: &Path, kind: ModelKind) -> (PathBuf, PathBuf, PathBuf) {
     )
 }
 
-fn save_checkpoint(dir: &Path, kind: ModelKind, model: &Cvae, optim: &ModuleOptimizer, info: &CheckpointInfo) -> Result<(), TrainError> {
+fn save_checkpoint(
+    dir: &Path,
+    kind: ModelKind,
+    model: &Cvae,
+    optim: &ModuleOptimizer,
+    info: &CheckpointInfo,
+) -> Result<(), TrainError> {
     let (m, o, j) = paths(dir, kind);
-    let err = |p: &Path, e: String| TrainError::Checkpoint { path: p.into(), msg: e };
+    let err = |p: &Path, e: String| TrainError::Checkpoint {
+        path: p.into(),
+        msg: e,
+    };
     std::fs::create_dir_all(dir).map_err(|e| err(dir, e.to_string()))?;
-    model.clone().save_file(&m).map_err(|e| err(&m, format!("{e:?}")))?;
+    model
+        .clone()
+        .save_file(&m)
+        .map_err(|e| err(&m, format!("{e:?}")))?;
     optim.save(&o).map_err(|e| err(&o, format!("{e:?}")))?;
     let json = serde_json::to_vec_pretty(info).expect("serialisable");
     scatter_sim::output::write_atomic(&j, &json).map_err(|e| err(&j, e.to_string()))
@@ -150,7 +162,13 @@ pub fn train_model(
     report: &(dyn Fn(ModelKind, u64, f32) + Sync),
 ) -> Result<Trained, TrainError> {
     let mut rng = WalkRng::for_walk(seed, kind as u64);
-    let mut model = Cvae::new(kind.cond(), kind.out(), &cfg.architecture(), &mut rng, device);
+    let mut model = Cvae::new(
+        kind.cond(),
+        kind.out(),
+        &cfg.architecture(),
+        &mut rng,
+        device,
+    );
     let mut optim = Adamax::default().init();
     let mut info = CheckpointInfo {
         step: 0,
@@ -160,16 +178,24 @@ pub fn train_model(
     };
     let (mpath, opath, jpath) = paths(checkpoint_dir, kind);
     if resume && jpath.exists() {
-        let err = |p: &Path, e: String| TrainError::Checkpoint { path: p.into(), msg: e };
+        let err = |p: &Path, e: String| TrainError::Checkpoint {
+            path: p.into(),
+            msg: e,
+        };
         let text = std::fs::read(&jpath).map_err(|e| err(&jpath, e.to_string()))?;
         info = serde_json::from_slice(&text).map_err(|e| err(&jpath, e.to_string()))?;
         if info.norm != table.norm {
-            return Err(err(&jpath, "checkpoint was trained on other data (standardisation differs)".into()));
+            return Err(err(
+                &jpath,
+                "checkpoint was trained on other data (standardisation differs)".into(),
+            ));
         }
         model = model
             .try_load_file(&mpath)
             .map_err(|e| err(&mpath, format!("{e:?}")))?;
-        optim = optim.load(&opath).map_err(|e| err(&opath, format!("{e:?}")))?;
+        optim = optim
+            .load(&opath)
+            .map_err(|e| err(&opath, format!("{e:?}")))?;
         // A fresh stream for the rest of the run (the old one's position is not saved).
         rng = WalkRng::for_walk(seed ^ info.step.rotate_left(32), kind as u64);
     }
@@ -230,9 +256,16 @@ pub fn train_model(
 
 /// The decoder of a model's last checkpoint (for exporting a set in which only some
 /// models were retrained).
-pub fn load_decoder(dir: &Path, kind: ModelKind, arch: &Architecture) -> Result<Decoder, TrainError> {
+pub fn load_decoder(
+    dir: &Path,
+    kind: ModelKind,
+    arch: &Architecture,
+) -> Result<Decoder, TrainError> {
     let (m, _, j) = paths(dir, kind);
-    let err = |p: &Path, e: String| TrainError::Checkpoint { path: p.into(), msg: e };
+    let err = |p: &Path, e: String| TrainError::Checkpoint {
+        path: p.into(),
+        msg: e,
+    };
     let text = std::fs::read(&j).map_err(|e| err(&j, e.to_string()))?;
     let info: CheckpointInfo = serde_json::from_slice(&text).map_err(|e| err(&j, e.to_string()))?;
     let device = Device::flex();

@@ -54,7 +54,12 @@ pub fn transmittance(scene: &SceneData, x: Vec3, dir: Vec3, channel: usize) -> f
         }
         if let Boundary::Dielectric(ior) = scene.boundary {
             let c = dir.dot(h.normal).abs();
-            fresnel_t *= 1.0 - if inside { fresnel(c, ior, 1.0) } else { fresnel(c, 1.0, ior) };
+            fresnel_t *= 1.0
+                - if inside {
+                    fresnel(c, ior, 1.0)
+                } else {
+                    fresnel(c, 1.0, ior)
+                };
         }
         inside = !inside;
         o = geo.spawn(o + dir * h.t, h.normal, dir);

@@ -5,7 +5,7 @@
 //! separate albedo weight and no separate NEE: EventGen's representative event, with
 //! weight Λ(N) = Σ_{k=1..N} φ^k, stands for NEE at all N events of the walk.
 
-use glam::{DVec3, Vec3};
+use glam::DVec3;
 use scatter_sim::frame::{WalkFrame, from_canonical};
 use scatter_sim::rng::WalkRng;
 
@@ -43,12 +43,15 @@ pub(crate) fn step(
     let walk = model.sample_walk(tau as f64, scene.g as f64, albedo, set.nee, rng);
     let centre = s.pos.as_dvec3();
     if set.nee {
-        let lam = if walk.single { albedo } else { lambda(albedo, walk.n) };
+        let lam = if walk.single {
+            albedo
+        } else {
+            lambda(albedo, walk.n)
+        };
         let x = centre + frame.to_world(walk.event_pos) * r as f64;
         let w = frame.to_world(walk.event_dir).normalize();
-        s.radiance += s.beta
-            * lam as f32
-            * nee::direct(scene, x.as_vec3(), w.as_vec3(), channel, rng);
+        s.radiance +=
+            s.beta * lam as f32 * nee::direct(scene, x.as_vec3(), w.as_vec3(), channel, rng);
     }
     s.beta *= albedo.powf(walk.n as f64) as f32;
     if !roulette(&mut s.beta, rng) {
@@ -58,7 +61,7 @@ pub(crate) fn step(
     let (x, omega) = from_canonical(walk.exit);
     let exit: DVec3 = centre + frame.to_world(x) * r as f64;
     s.pos = exit.as_vec3();
-    s.dir = Vec3::from(frame.to_world(omega).as_vec3()).normalize();
+    s.dir = frame.to_world(omega).as_vec3().normalize();
     s.scattered = true;
     true
 }

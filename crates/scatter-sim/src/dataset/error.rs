@@ -12,7 +12,9 @@ pub enum DatasetError {
     },
     #[error("{path}: not an stcvae dataset (bad magic bytes)")]
     BadMagic { path: PathBuf },
-    #[error("{path}: dataset format version {found} is not supported (this build reads version {supported})")]
+    #[error(
+        "{path}: dataset format version {found} is not supported (this build reads version {supported})"
+    )]
     Version {
         path: PathBuf,
         found: u32,
@@ -20,7 +22,9 @@ pub enum DatasetError {
     },
     #[error("{path}: corrupt header: {msg}")]
     Header { path: PathBuf, msg: String },
-    #[error("{path}: truncated or padded: the header promises {expected} bytes, the file has {found}")]
+    #[error(
+        "{path}: truncated or padded: the header promises {expected} bytes, the file has {found}"
+    )]
     Truncated {
         path: PathBuf,
         expected: u64,

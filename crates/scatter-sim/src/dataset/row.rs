@@ -7,8 +7,19 @@ use crate::walk::CanonicalWalk;
 
 /// Column names of the CSV header, in row order.
 pub const COLUMNS: [&str; 13] = [
-    "tau", "g", "albedo", "n", "cos_theta", "beta", "alpha", "ev_x", "ev_y", "ev_z", "ev_wx",
-    "ev_wy", "ev_wz",
+    "tau",
+    "g",
+    "albedo",
+    "n",
+    "cos_theta",
+    "beta",
+    "alpha",
+    "ev_x",
+    "ev_y",
+    "ev_z",
+    "ev_wx",
+    "ev_wy",
+    "ev_wz",
 ];
 
 /// Bytes of one encoded row.
