@@ -1,0 +1,235 @@
+//! End-to-end checks of `sample`, `eval`, `render` and image `merge` through the binary,
+//! with the shipped model and scenes (run from the repository root).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn stcvae(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args(args)
+        .current_dir(root())
+        .output()
+        .expect("run stcvae")
+}
+
+fn ok(out: &Output) -> String {
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "stcvae failed: {err}");
+    err
+}
+
+fn fails(out: &Output) -> String {
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(!out.status.success(), "stcvae should have failed");
+    assert!(
+        !err.contains("panicked"),
+        "a panic instead of an error: {err}"
+    );
+    err
+}
+
+#[test]
+fn sample_writes_generate_columns_with_the_requested_conditions() {
+    let d = tempfile::tempdir().unwrap();
+    let csv = d.path().join("s.csv");
+    ok(&stcvae(&[
+        "sample",
+        "--tau",
+        "5",
+        "--g",
+        "0.4",
+        "--albedo",
+        "0.9",
+        "--samples",
+        "2000",
+        "--seed",
+        "3",
+        "--out",
+        csv.to_str().unwrap(),
+    ]));
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let mut lines = text.lines();
+    assert_eq!(
+        lines.next().unwrap(),
+        "tau,g,albedo,n,cos_theta,beta,alpha,ev_x,ev_y,ev_z,ev_wx,ev_wy,ev_wz"
+    );
+    let rows: Vec<Vec<f64>> = lines
+        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
+        .collect();
+    assert_eq!(rows.len(), 2000);
+    let mut single = 0;
+    for r in &rows {
+        assert_eq!((r[0], r[1], r[2]), (5.0, 0.4, 0.9));
+        assert!(r[3] >= 1.0 && r[4].abs() <= 1.0 && r[5] * r[5] + r[6] * r[6] <= 1.0 + 1e-6);
+        single += (r[3] == 1.0) as u32;
+    }
+    // P(N = 1) = e^{-5} = 0.0067: 13.5 expected of 2000; 0..40 is a > 5σ window.
+    assert!(single < 40, "{single} single-scattering walks");
+    // Same seed, same file.
+    let csv2 = d.path().join("s2.csv");
+    ok(&stcvae(&[
+        "sample",
+        "--tau",
+        "5",
+        "--g",
+        "0.4",
+        "--albedo",
+        "0.9",
+        "--samples",
+        "2000",
+        "--seed",
+        "3",
+        "--out",
+        csv2.to_str().unwrap(),
+    ]));
+    assert_eq!(std::fs::read(&csv).unwrap(), std::fs::read(&csv2).unwrap());
+}
+
+#[test]
+fn model_errors_are_one_line() {
+    let d = tempfile::tempdir().unwrap();
+    let bad = d.path().join("bad.stcvae");
+    std::fs::write(&bad, b"STCVAEMD garbage").unwrap();
+    let csv = d.path().join("s.csv");
+    let e = fails(&stcvae(&[
+        "sample",
+        "--model",
+        bad.to_str().unwrap(),
+        "--tau",
+        "5",
+        "--g",
+        "0",
+        "--albedo",
+        "1",
+        "--out",
+        csv.to_str().unwrap(),
+    ]));
+    assert!(
+        e.contains("bad.stcvae") && e.trim().lines().count() == 1,
+        "{e}"
+    );
+    let e = fails(&stcvae(&[
+        "sample",
+        "--tau",
+        "5",
+        "--g",
+        "1.5",
+        "--albedo",
+        "1",
+        "--out",
+        csv.to_str().unwrap(),
+    ]));
+    assert!(e.contains("g") && e.contains("0.999"), "{e}");
+    assert!(!csv.exists());
+}
+
+#[test]
+fn render_writes_exr_png_json_and_merge_averages_by_spp() {
+    let d = tempfile::tempdir().unwrap();
+    let scene = d.path().join("s.toml");
+    let text = std::fs::read_to_string(root().join("configs/scenes/sphere.toml"))
+        .unwrap()
+        .replace("width = 128", "width = 16")
+        .replace("height = 128", "height = 16");
+    std::fs::write(&scene, text).unwrap();
+    let a = d.path().join("a");
+    let b = d.path().join("b");
+    for (out, seed, spp) in [(&a, "1", "4"), (&b, "2", "8")] {
+        ok(&stcvae(&[
+            "render",
+            "--scene",
+            scene.to_str().unwrap(),
+            "--integrator",
+            "stcvae",
+            "--spp",
+            spp,
+            "--seed",
+            seed,
+            "--out",
+            out.to_str().unwrap(),
+        ]));
+    }
+    for ext in ["exr", "png", "json"] {
+        assert!(a.with_extension(ext).exists(), "missing .{ext}");
+    }
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(a.with_extension("json")).unwrap()).unwrap();
+    assert_eq!(json["spp"], 4);
+    assert!(json["mean_sphere_steps_per_path"].as_f64().unwrap() > 0.0);
+    let m = d.path().join("m");
+    ok(&stcvae(&[
+        "merge",
+        a.with_extension("exr").to_str().unwrap(),
+        b.with_extension("exr").to_str().unwrap(),
+        "--out",
+        m.to_str().unwrap(),
+    ]));
+    let (ia, _) = render_gpu::image_io::read_exr(&a.with_extension("exr")).unwrap();
+    let (ib, _) = render_gpu::image_io::read_exr(&b.with_extension("exr")).unwrap();
+    let (im, tag) = render_gpu::image_io::read_exr(&m.with_extension("exr")).unwrap();
+    assert_eq!(tag.unwrap().spp, 12);
+    for i in 0..im.pixels.len() {
+        for c in 0..3 {
+            let want = (4.0 * ia.pixels[i][c] + 8.0 * ib.pixels[i][c]) / 12.0;
+            assert!((im.pixels[i][c] - want).abs() <= 1e-5 * want.abs().max(1.0));
+        }
+    }
+    // A different scene (another σ_t) is refused.
+    let other = d.path().join("o.toml");
+    std::fs::write(
+        &other,
+        std::fs::read_to_string(&scene).unwrap().replace(
+            "sigma_t = [20.0, 20.0, 20.0]",
+            "sigma_t = [30.0, 20.0, 20.0]",
+        ),
+    )
+    .unwrap();
+    let o = d.path().join("o");
+    ok(&stcvae(&[
+        "render",
+        "--scene",
+        other.to_str().unwrap(),
+        "--spp",
+        "1",
+        "--out",
+        o.to_str().unwrap(),
+    ]));
+    let e = fails(&stcvae(&[
+        "merge",
+        a.with_extension("exr").to_str().unwrap(),
+        o.with_extension("exr").to_str().unwrap(),
+        "--out",
+        d.path().join("x").to_str().unwrap(),
+    ]));
+    assert!(e.contains("different scenes"), "{e}");
+}
+
+#[test]
+fn bad_scenes_are_one_line_errors() {
+    let d = tempfile::tempdir().unwrap();
+    let scene = d.path().join("s.toml");
+    let text = std::fs::read_to_string(root().join("configs/scenes/sphere.toml"))
+        .unwrap()
+        .replace(
+            "albedo = [0.999, 0.99, 0.95]",
+            "albedo = [0.999, 1.5, 0.95]",
+        );
+    std::fs::write(&scene, text).unwrap();
+    let out = d.path().join("r");
+    let e = fails(&stcvae(&[
+        "render",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]));
+    assert!(
+        e.contains("s.toml") && e.contains("medium.albedo[1]") && e.trim().lines().count() == 1,
+        "{e}"
+    );
+    assert!(!out.with_extension("exr").exists());
+}
