@@ -164,7 +164,7 @@ pub fn run(a: Args) -> Result<()> {
         let var_ratio = vp.iter().sum::<f64>() / vs.iter().sum::<f64>().max(1e-300);
         let speed = pt.seconds / st.seconds;
         println!(
-            "{:>4} {:>22} {:>9.2} {:>9.2} {:>8.2}x {:>10.2} {:>11.2}x {:>11.1} {:>10.1} {:>9.4}",
+            "{:>4} {:>20} {:>7.2} {:>7.2} {:>8.2}x {:>9.2} {:>10.2}x {:>10.1} {:>10.2} {:>10.1} {:>9.4} {:>9.4}",
             k,
             format!("({}, {}, {})", 150.0 * k, 187.5 * k, 125.0 * k),
             pt.seconds,
@@ -174,7 +174,9 @@ pub fn run(a: Args) -> Result<()> {
             speed * var_ratio,
             pt.stats.events as f64 / pt.stats.paths.max(1) as f64,
             st.stats.steps as f64 / st.stats.paths.max(1) as f64,
-            bias
+            st.stats.events as f64 / st.stats.paths.max(1) as f64,
+            bias,
+            noise.sqrt() * scale
         );
         if st.stats.leaks > 0 {
             println!("     ({} leaked sphere exits)", st.stats.leaks);

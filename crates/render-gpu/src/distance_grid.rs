@@ -20,6 +20,8 @@ pub struct DistanceGrid {
     pub dims: UVec3,
     /// d(c) per cell, x fastest, already reduced by the rounding margin.
     pub values: Vec<f32>,
+    /// Radii below this (two cell diagonals) are worth refining with an exact query.
+    pub near_surface: f32,
 }
 
 const MAGIC: &[u8; 8] = b"STCVDG01";
@@ -46,6 +48,7 @@ impl DistanceGrid {
             cell,
             dims,
             values,
+            near_surface: 2.0 * 3f32.sqrt() * cell,
         }
     }
 
@@ -139,6 +142,7 @@ impl DistanceGrid {
             cell: f(3),
             dims,
             values,
+            near_surface: 2.0 * 3f32.sqrt() * f(3),
         })
     }
 }

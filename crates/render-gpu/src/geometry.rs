@@ -122,8 +122,13 @@ impl Geometry {
             (q - pa).length_squared()
         };
         let mut best = f32::INFINITY;
-        let mut stack = vec![0usize];
-        while let Some(i) = stack.pop() {
+        // A BVH2 of up to 2^64 leaves needs at most 64 pending nodes (depth-first, one
+        // sibling pushed per level); a fixed array keeps the query allocation-free.
+        let mut stack = [0usize; 64];
+        let mut top = 1usize;
+        while top > 0 {
+            top -= 1;
+            let i = stack[top];
             if box_d2(i) >= best {
                 continue;
             }
@@ -142,13 +147,14 @@ impl Geometry {
                 let (a, b) = (n.first_index as usize, n.first_index as usize + 1);
                 let (da, db) = (box_d2(a), box_d2(b));
                 // Visit the nearer child first: push it last.
-                if da < db {
-                    stack.push(b);
-                    stack.push(a);
-                } else {
-                    stack.push(a);
-                    stack.push(b);
+                let (near, far) = if da < db { (a, b) } else { (b, a) };
+                if top + 2 > stack.len() {
+                    // Deeper than any balanced tree; fall back to the conservative bound.
+                    return best.sqrt().min(da.min(db).sqrt());
                 }
+                stack[top] = far;
+                stack[top + 1] = near;
+                top += 2;
             }
         }
         best.sqrt()

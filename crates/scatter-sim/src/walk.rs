@@ -40,7 +40,14 @@ pub struct CanonicalWalk {
 
 impl Walk {
     pub fn canonical(&self) -> CanonicalWalk {
-        let (exit, rot) = to_canonical(self.exit_pos, self.exit_dir);
+        let (mut exit, rot) = to_canonical(self.exit_pos, self.exit_dir);
+        if self.n == 1 {
+            // A single-scattering walk leaves the centre along ω, so x = ω and α = β = 0
+            // exactly; rounding would otherwise leave ±1e-17, which splits the point mass
+            // at 0 in two and makes exact comparisons (KS against the model) meaningless.
+            exit.alpha = 0.0;
+            exit.beta = 0.0;
+        }
         CanonicalWalk {
             n: self.n,
             exit,

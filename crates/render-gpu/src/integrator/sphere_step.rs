@@ -31,7 +31,15 @@ pub(crate) fn step(
         return false;
     };
     let sigma = scene.sigma_t[channel];
-    let r = (grid.radius(s.pos) * SHRINK).min(set.max_tau / sigma);
+    let mut free = grid.radius(s.pos);
+    if free < grid.near_surface && sigma * free < set.min_tau {
+        // Near the surface the grid's Lipschitz bound loses up to two cell half-diagonals,
+        // which at high density is many mean free paths of PT fallback events. When the
+        // grid alone would force a fallback, the exact nearest-triangle distance (about
+        // the cost of one ray cast) often still allows a sphere step.
+        free = free.max(scene.geo.distance(s.pos) * (1.0 - 1e-5) - scene.geo.eps);
+    }
+    let r = (free * SHRINK).min(set.max_tau / sigma);
     let tau = sigma * r;
     if !(r > 0.0) || tau < set.min_tau {
         pt_event(scene, set, channel, s, stats, rng);
