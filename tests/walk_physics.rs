@@ -122,7 +122,14 @@ fn canonical_frame_invariants_and_round_trip() {
             );
             assert!(wc.dot(e_n) >= 0.0);
             let (again, _) = to_canonical(w.exit_pos, w.exit_dir);
-            assert_eq!(again, c.exit);
+            if w.n == 1 {
+                // canonical() sets α = β = 0 exactly; the raw transform leaves rounding.
+                assert_eq!(again.cos_theta, c.exit.cos_theta);
+                assert!(again.alpha.abs() <= 1e-9 && again.beta.abs() <= 1e-9);
+                assert_eq!((c.exit.alpha, c.exit.beta), (0.0, 0.0));
+            } else {
+                assert_eq!(again, c.exit);
+            }
         }
     }
 }
