@@ -34,6 +34,9 @@ pub struct Args {
     /// Thin-region threshold of ST-CVAE (overrides the scene's).
     #[arg(long)]
     min_tau: Option<f64>,
+    /// Largest sphere step of ST-CVAE (overrides the scene's).
+    #[arg(long)]
+    max_tau: Option<f64>,
 }
 
 struct Run {
@@ -52,6 +55,9 @@ fn run_pair(a: &Args, kind: IntegratorKind, k: f64) -> Result<Run> {
         f.camera.height = a.size;
         if let Some(t) = a.min_tau {
             f.render.min_tau = t;
+        }
+        if a.max_tau.is_some() {
+            f.render.max_tau = a.max_tau;
         }
     })?;
     let set = IntegratorSettings {
