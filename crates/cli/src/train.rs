@@ -39,6 +39,28 @@ pub struct Args {
     /// Scale every model's step count (e.g. 0.01 for a smoke test).
     #[arg(long, default_value_t = 1.0)]
     steps_scale: f64,
+    /// burn backend: flex (pure-Rust CPU, the default) or wgpu (GPU through wgpu; needs a
+    /// build with `--features wgpu-train`).
+    #[arg(long, default_value = "flex", value_parser = ["flex", "wgpu"])]
+    backend: String,
+}
+
+/// The training device of `--backend`, with autodiff.
+fn device(backend: &str) -> Result<Device> {
+    match backend {
+        "wgpu" => {
+            #[cfg(feature = "wgpu-train")]
+            {
+                Ok(Device::wgpu(burn::tensor::DeviceKind::DefaultDevice).autodiff())
+            }
+            #[cfg(not(feature = "wgpu-train"))]
+            bail!(
+                "--backend wgpu: this binary was built without the GPU backend; rebuild with \
+                 `cargo run --release --features wgpu-train -- train --backend wgpu`"
+            )
+        }
+        _ => Ok(Device::flex().autodiff()),
+    }
 }
 
 #[derive(Deserialize)]
@@ -122,6 +144,7 @@ fn range(rows: &[Row], f: impl Fn(&Row) -> f64) -> [f64; 2] {
 
 pub fn run(a: Args) -> Result<()> {
     let cfg = load(&a.config)?;
+    let device = device(&a.backend)?;
     if !(a.steps_scale > 0.0) {
         bail!("--steps-scale must be positive");
     }
@@ -187,8 +210,8 @@ pub fn run(a: Args) -> Result<()> {
             let table = &tables[i];
             let mc = scaled(k);
             let (cfg, results, report, bar) = (&cfg, &results, &report, &bars[i]);
+            let device = device.clone();
             s.spawn(move || {
-                let device = Device::flex().autodiff();
                 let r = train_model(
                     k,
                     table,
