@@ -56,7 +56,7 @@ fn device(backend: &str) -> Result<Device> {
             #[cfg(not(feature = "wgpu-train"))]
             bail!(
                 "--backend wgpu: this binary was built without the GPU backend; rebuild with \
-                 `cargo run --release --features wgpu-train -- train --backend wgpu`"
+                 `cargo run --release --features stcvae/wgpu-train -- train --backend wgpu`"
             )
         }
         _ => Ok(Device::flex().autodiff()),

@@ -8,6 +8,8 @@
 use rayon::prelude::*;
 use serde::Serialize;
 
+use glam::DVec3;
+use scatter_sim::frame::CanonicalExit;
 use scatter_sim::stats::{ks_two_sample, wasserstein1};
 use scatter_sim::{WalkRng, simulate_walk};
 
@@ -59,6 +61,14 @@ impl SettingReport {
 pub struct Columns(pub [Vec<f64>; 8]);
 
 impl Columns {
+    fn from_walks(walks: Vec<(u64, CanonicalExit, DVec3, DVec3)>) -> Self {
+        let mut c = Columns::default();
+        for (n, e, x, w) in walks {
+            c.push(n, e.cos_theta, e.alpha, e.beta, x, w);
+        }
+        c
+    }
+
     fn push(&mut self, n: u64, cos: f64, alpha: f64, beta: f64, x: glam::DVec3, w: glam::DVec3) {
         let v = [
             n as f64,
@@ -84,19 +94,9 @@ pub fn simulator_columns(tau: f64, g: f64, albedo: f64, count: usize, seed: u64)
             let mut rng = WalkRng::for_walk(seed, i);
             simulate_walk(tau, g, albedo, &mut rng).canonical()
         })
+        .map(|w| (w.n, w.exit, w.event_pos, w.event_dir))
         .collect();
-    let mut c = Columns::default();
-    for w in walks {
-        c.push(
-            w.n,
-            w.exit.cos_theta,
-            w.exit.alpha,
-            w.exit.beta,
-            w.event_pos,
-            w.event_dir,
-        );
-    }
-    c
+    Columns::from_walks(walks)
 }
 
 /// `count` model walks at fixed conditions.
@@ -114,19 +114,9 @@ pub fn model_columns(
             let mut rng = WalkRng::for_walk(seed ^ 0x6d6f_64656c, i);
             m.sample_walk(tau, g, albedo, true, &mut rng)
         })
+        .map(|w| (w.n, w.exit, w.event_pos, w.event_dir))
         .collect();
-    let mut c = Columns::default();
-    for w in walks {
-        c.push(
-            w.n,
-            w.exit.cos_theta,
-            w.exit.alpha,
-            w.exit.beta,
-            w.event_pos,
-            w.event_dir,
-        );
-    }
-    c
+    Columns::from_walks(walks)
 }
 
 /// Compares the columns; `which` selects quantities by index into [`QUANTITIES`].
