@@ -37,6 +37,9 @@ pub struct Args {
     /// Largest sphere step of ST-CVAE (overrides the scene's).
     #[arg(long)]
     max_tau: Option<f64>,
+    /// Representative events per sphere step for NEE (overrides the scene's).
+    #[arg(long)]
+    nee_samples: Option<u32>,
 }
 
 struct Run {
@@ -59,6 +62,9 @@ fn run_pair(a: &Args, kind: IntegratorKind, k: f64) -> Result<Run> {
         if a.max_tau.is_some() {
             f.render.max_tau = a.max_tau;
         }
+        if let Some(m) = a.nee_samples {
+            f.render.nee_samples = m;
+        }
     })?;
     let set = IntegratorSettings {
         kind,
@@ -66,6 +72,7 @@ fn run_pair(a: &Args, kind: IntegratorKind, k: f64) -> Result<Run> {
         model: p.model.as_ref(),
         min_tau: p.file.render.min_tau as f32,
         max_tau: p.max_tau,
+        nee_samples: p.file.render.nee_samples,
     };
     let cancel = AtomicBool::new(false);
     let half = (a.spp / 2).max(1);

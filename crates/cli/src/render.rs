@@ -164,6 +164,7 @@ pub fn run(a: Args) -> Result<()> {
         model: p.model.as_ref(),
         min_tau: r.min_tau as f32,
         max_tau: p.max_tau,
+        nee_samples: p.file.render.nee_samples,
     };
     if p.data.lights.iter().all(|l| l.is_delta()) && !r.nee && !p.data.lights.is_empty() {
         eprintln!(

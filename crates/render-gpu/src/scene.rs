@@ -159,6 +159,11 @@ pub struct RenderDesc {
     pub min_tau: f64,
     /// Largest optical radius of a sphere step; default: the model's training maximum.
     pub max_tau: Option<f64>,
+    /// Representative events per sphere step for NEE (ST-CVAE). 2 by measurement
+    /// (docs/BENCHMARKS.md): with one, rare paths near the lit surface dominate the
+    /// variance; a second EventGen draw removed them at ~10–25 % more time.
+    #[serde(default = "default_nee_samples")]
+    pub nee_samples: u32,
 }
 
 impl Default for RenderDesc {
@@ -171,6 +176,7 @@ impl Default for RenderDesc {
             grid_resolution: default_grid(),
             min_tau: default_min_tau(),
             max_tau: None,
+            nee_samples: default_nee_samples(),
         }
     }
 }
@@ -180,6 +186,9 @@ fn yes() -> bool {
 }
 fn one() -> u64 {
     1
+}
+fn default_nee_samples() -> u32 {
+    2
 }
 fn default_spp() -> u32 {
     64
@@ -373,6 +382,12 @@ impl SceneFile {
             return Err(format!(
                 "render.min_tau = {} is out of range: allowed [0, inf)",
                 r.min_tau
+            ));
+        }
+        if !(1..=64).contains(&r.nee_samples) {
+            return Err(format!(
+                "render.nee_samples = {} is out of range: allowed [1, 64]",
+                r.nee_samples
             ));
         }
         if let Some(t) = r.max_tau

@@ -38,6 +38,7 @@ fn settings<'a>(
         model: m,
         min_tau: 1.0,
         max_tau: m.map_or(300.0, |m| m.training.tau_range[1] as f32),
+        nee_samples: 2,
     }
 }
 

@@ -54,6 +54,8 @@ pub struct IntegratorSettings<'a> {
     pub min_tau: f32,
     /// Largest σ_t·r of a sphere step.
     pub max_tau: f32,
+    /// Representative events (EventGen draws) per sphere step for NEE.
+    pub nee_samples: u32,
 }
 
 /// Safety cap on loop iterations of one path; far beyond any physical path here.

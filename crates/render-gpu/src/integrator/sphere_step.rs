@@ -56,10 +56,25 @@ pub(crate) fn step(
         } else {
             lambda(albedo, walk.n)
         };
-        let x = centre + frame.to_world(walk.event_pos) * r as f64;
-        let w = frame.to_world(walk.event_dir).normalize();
-        s.radiance +=
-            s.beta * lam as f32 * nee::direct(scene, x.as_vec3(), w.as_vec3(), channel, rng);
+        // Extra representative events (EventGen draws given the same N and exit), each
+        // weighted Λ(N)/M: the same expectation with less variance per sphere step.
+        let m = if walk.single {
+            1
+        } else {
+            set.nee_samples.max(1)
+        };
+        let mut sum = 0.0f32;
+        for k in 0..m {
+            let (ep, ed) = if k == 0 {
+                (walk.event_pos, walk.event_dir)
+            } else {
+                model.sample_event(tau as f64, scene.g as f64, albedo, walk.n, walk.exit, rng)
+            };
+            let x = centre + frame.to_world(ep) * r as f64;
+            let w = frame.to_world(ed).normalize();
+            sum += nee::direct(scene, x.as_vec3(), w.as_vec3(), channel, rng);
+        }
+        s.radiance += s.beta * lam as f32 * sum / m as f32;
     }
     s.beta *= albedo.powf(walk.n as f64) as f32;
     if !roulette(&mut s.beta, rng) {
