@@ -78,6 +78,8 @@ struct Report<'a> {
     max_tau: Option<f64>,
     grid_resolution: u32,
     scene_hash: String,
+    /// Mean of the image per channel (a quick comparison between renders).
+    mean_rgb: [f64; 3],
     stats: &'a PathStats,
 }
 
@@ -236,6 +238,10 @@ pub fn run(a: Args) -> Result<()> {
         max_tau: p.model.as_ref().map(|_| p.max_tau as f64),
         grid_resolution: r.grid_resolution,
         scene_hash: format!("{:016x}", p.data.hash),
+        mean_rgb: {
+            let n = out.image.pixels.len().max(1) as f64;
+            [0, 1, 2].map(|c| out.image.pixels.iter().map(|p| p[c] as f64).sum::<f64>() / n)
+        },
         stats: &out.stats,
     };
     scatter_sim::output::write_atomic(&with_ext("json"), &serde_json::to_vec_pretty(&report)?)?;
