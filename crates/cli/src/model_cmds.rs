@@ -19,6 +19,12 @@ pub const DEFAULT_MODEL: &str = "models/default.stcvae";
 
 pub fn load_model(path: Option<&Path>) -> Result<ModelSet> {
     let p = path.unwrap_or(Path::new(DEFAULT_MODEL));
+    if path.is_none() && !p.exists() {
+        bail!(
+            "{DEFAULT_MODEL} not found: run from the repository root (the shipped model lives \
+             there) or pass --model FILE"
+        );
+    }
     Ok(ModelSet::load(p)?)
 }
 

@@ -114,7 +114,7 @@ pub fn prepare(
         let p = model
             .map(Path::to_path_buf)
             .unwrap_or_else(|| PathBuf::from(DEFAULT_MODEL));
-        let m = load_model(Some(&p))?;
+        let m = load_model(model)?;
         let bytes = m.to_bytes();
         (Some(m), Some(p), bytes)
     } else {

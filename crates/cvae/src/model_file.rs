@@ -18,11 +18,10 @@ pub const VERSION: u32 = 1;
 
 #[derive(Debug, Error)]
 pub enum ModelError {
-    #[error("{path}: {source}")]
-    Io {
-        path: PathBuf,
-        source: std::io::Error,
-    },
+    // Not named `source`: the message already carries the I/O error, and a source would
+    // make error chains print it twice.
+    #[error("{path}: {err}")]
+    Io { path: PathBuf, err: std::io::Error },
     #[error("{path}: not an stcvae model file (bad magic bytes)")]
     BadMagic { path: PathBuf },
     #[error(
@@ -164,14 +163,14 @@ impl ModelSet {
     pub fn save(&self, path: &Path) -> Result<(), ModelError> {
         scatter_sim::output::write_atomic(path, &self.to_bytes()).map_err(|e| ModelError::Io {
             path: path.into(),
-            source: e,
+            err: e,
         })
     }
 
     pub fn load(path: &Path) -> Result<Self, ModelError> {
         let bytes = std::fs::read(path).map_err(|e| ModelError::Io {
             path: path.into(),
-            source: e,
+            err: e,
         })?;
         Self::from_bytes(&bytes, path)
     }
