@@ -34,6 +34,20 @@ impl Camera {
         }
     }
 
+    pub fn forward(&self) -> Vec3 {
+        self.forward
+    }
+    pub fn right(&self) -> Vec3 {
+        self.right
+    }
+    pub fn up(&self) -> Vec3 {
+        self.up
+    }
+    /// tan of half the horizontal field of view.
+    pub fn tan_half(&self) -> f32 {
+        self.tan_half
+    }
+
     /// Direction through image position (x, y) in pixels (continuous; (0, 0) is the
     /// top-left corner).
     pub fn ray_dir(&self, x: f32, y: f32) -> Vec3 {

@@ -21,6 +21,9 @@ pub enum RenderError {
     /// Images that cannot be merged, or an unreadable image.
     #[error("{0}")]
     Image(String),
+    /// No usable wgpu adapter, or the GPU failed.
+    #[error("{0}")]
+    Gpu(String),
 }
 
 impl RenderError {

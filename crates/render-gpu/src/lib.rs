@@ -8,6 +8,7 @@ pub mod camera;
 pub mod distance_grid;
 pub mod error;
 pub mod geometry;
+pub mod gpu;
 pub mod hash;
 pub mod image_io;
 pub mod integrator;

@@ -1,0 +1,127 @@
+//! The WGSL kernels, composed from `shaders/` (WGSL has no includes: the shared files are
+//! concatenated in a fixed order), and the one bind-group layout they all share.
+
+use std::borrow::Cow;
+
+use crate::error::RenderError;
+
+use super::context::GpuContext;
+
+const COMMON: &str = include_str!("../../../../shaders/common.wgsl");
+const SCENE: &str = include_str!("../../../../shaders/scene.wgsl");
+const NEE: &str = include_str!("../../../../shaders/nee.wgsl");
+const DECODER: &str = include_str!("../../../../shaders/decoder.wgsl");
+const PT: &str = include_str!("../../../../shaders/pt.wgsl");
+const STCVAE: &str = include_str!("../../../../shaders/stcvae.wgsl");
+const PATH: &str = include_str!("../../../../shaders/path.wgsl");
+const PROBE: &str = include_str!("../../../../shaders/probe.wgsl");
+
+/// Threads per workgroup of every kernel (`@workgroup_size(64)` in the WGSL).
+pub const WORKGROUP: u32 = 64;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kernel {
+    /// Volumetric path tracing (`render_main`).
+    Pt,
+    /// ST-CVAE sphere tracing with EventGen NEE (`render_main`).
+    Stcvae,
+    /// Test entry points (`probe_decoder`, `probe_frame`) over the PT build.
+    Probe,
+}
+
+/// The full WGSL source of a kernel.
+pub fn source(kernel: Kernel) -> String {
+    let parts: &[&str] = match kernel {
+        Kernel::Pt => &[COMMON, SCENE, NEE, PT, PATH],
+        Kernel::Stcvae => &[COMMON, SCENE, NEE, DECODER, STCVAE, PATH],
+        Kernel::Probe => &[COMMON, SCENE, NEE, DECODER, PT, PATH, PROBE],
+    };
+    parts.join("\n")
+}
+
+fn storage(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
+fn uniform(binding: u32) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Uniform,
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
+/// The bind-group layout of `shaders/scene.wgsl`: params, accum, counters, triangles,
+/// nodes, environment map, distance grid, decoder weights, model params.
+pub fn bind_group_layout(ctx: &GpuContext) -> wgpu::BindGroupLayout {
+    ctx.device
+        .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("stcvae scene"),
+            entries: &[
+                uniform(0),
+                storage(1, false),
+                storage(2, false),
+                storage(3, true),
+                storage(4, true),
+                storage(5, true),
+                storage(6, true),
+                storage(7, true),
+                uniform(8),
+            ],
+        })
+}
+
+/// Compiles `entry` of `kernel`; shader or pipeline errors come back as errors, not
+/// panics (wgpu's default handler would abort).
+pub fn pipeline(
+    ctx: &GpuContext,
+    layout: &wgpu::BindGroupLayout,
+    kernel: Kernel,
+    entry: &str,
+) -> Result<wgpu::ComputePipeline, RenderError> {
+    let scope = ctx.device.push_error_scope(wgpu::ErrorFilter::Validation);
+    let module = ctx
+        .device
+        .create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some(entry),
+            source: wgpu::ShaderSource::Wgsl(Cow::Owned(source(kernel))),
+        });
+    let pl = ctx
+        .device
+        .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some(entry),
+            bind_group_layouts: &[Some(layout)],
+            immediate_size: 0,
+        });
+    let p = ctx
+        .device
+        .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some(entry),
+            layout: Some(&pl),
+            module: &module,
+            entry_point: Some(entry),
+            compilation_options: Default::default(),
+            cache: None,
+        });
+    if let Some(e) = pollster::block_on(scope.pop()) {
+        return Err(RenderError::Gpu(format!(
+            "the {kernel:?} kernel did not compile on {}: {e}",
+            ctx.adapter
+        )));
+    }
+    Ok(p)
+}

@@ -1,0 +1,13 @@
+//! The wgpu compute renderer: the CPU integrators' estimators as WGSL kernels
+//! (`shaders/`), progressive accumulation in short dispatches, the same outputs.
+
+pub mod context;
+pub mod kernels;
+pub mod model_buffers;
+pub mod probe;
+pub mod renderer;
+pub mod resources;
+pub mod scene_buffers;
+
+pub use context::{AdapterChoice, AdapterSummary, GpuContext};
+pub use renderer::render_gpu;

@@ -1,0 +1,62 @@
+//! Runs the test entry points of `shaders/probe.wgsl` so tests can compare the WGSL
+//! building blocks (decoders, HG sampling, canonical frame) with the Rust ones.
+
+use crate::error::RenderError;
+
+use super::context::GpuContext;
+use super::kernels::{self, Kernel, WORKGROUP};
+use super::model_buffers::{ModelParams, model_buffers};
+use super::resources::{Inputs, Resources, read_back};
+use super::scene_buffers::{GpuNode, GpuTri, Params};
+
+/// One probe item: 32 floats in, 32 floats out (layouts in `shaders/probe.wgsl`).
+pub type Item = [f32; 32];
+
+/// Runs `entry` ("probe_decoder" or "probe_frame") over `items`.
+pub fn run_probe(
+    ctx: &GpuContext,
+    entry: &str,
+    model: Option<&cvae::ModelSet>,
+    items: &[Item],
+) -> Result<Vec<Item>, RenderError> {
+    let (model_params, weights) = match model {
+        Some(m) => model_buffers(m)?,
+        None => (ModelParams::default(), Vec::new()),
+    };
+    let layout = kernels::bind_group_layout(ctx);
+    let pipeline = kernels::pipeline(ctx, &layout, Kernel::Probe, entry)?;
+    let mut params = Params::default();
+    params.image[0] = items.len() as u32;
+    let bytes = std::mem::size_of_val(items) as u64;
+    let res = Resources::new(
+        ctx,
+        &layout,
+        &Inputs {
+            params: &params,
+            accum_bytes: bytes,
+            nodes: &[GpuNode::default()],
+            tris: &[GpuTri::default()],
+            env: &[[0.0; 4]],
+            grid: &[0.0],
+            weights: &weights,
+            model: &model_params,
+        },
+    )?;
+    ctx.queue
+        .write_buffer(&res.accum, 0, bytemuck::cast_slice(items));
+    let mut enc = ctx
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+    {
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+        pass.set_pipeline(&pipeline);
+        pass.set_bind_group(0, &res.bind_group, &[]);
+        pass.dispatch_workgroups((items.len() as u32).div_ceil(WORKGROUP), 1, 1);
+    }
+    ctx.queue.submit([enc.finish()]);
+    let out = read_back(ctx, &res.accum, bytes)?;
+    Ok(bytemuck::cast_slice::<u8, f32>(&out)
+        .chunks_exact(32)
+        .map(|c| c.try_into().unwrap())
+        .collect())
+}

@@ -1,0 +1,180 @@
+//! The GPU render loop: dispatches of a few samples per pixel each (no dispatch runs long
+//! enough for a GPU watchdog), counters read back after every dispatch (u32 lo/hi pairs
+//! on the GPU, u64 here), the image reduced over lanes in f64 at the end.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use crate::error::RenderError;
+use crate::image_io::RgbImage;
+use crate::integrator::{IntegratorKind, IntegratorSettings, PathStats};
+use crate::render::{RenderOptions, RenderOutput};
+use crate::setup::SceneData;
+
+use super::context::GpuContext;
+use super::kernels::{self, Kernel, WORKGROUP};
+use super::model_buffers::{ModelParams, model_buffers};
+use super::resources::{COUNTER_BYTES, Inputs, Resources, read_back, wait};
+use super::scene_buffers::{Params, env_buffer, geometry_buffers, scene_params};
+
+/// Wall time one dispatch aims at: long enough to amortise submission, well below the
+/// ~2 s watchdogs of desktop drivers.
+const TARGET_DISPATCH_SECONDS: f64 = 0.25;
+
+/// Invocations a dispatch aims to have in flight: a big GPU needs ~10⁶ to be busy; a
+/// software adapter gains nothing beyond a few per core.
+fn target_threads(ctx: &GpuContext) -> u64 {
+    if ctx.adapter.software {
+        1 << 12
+    } else {
+        1 << 20
+    }
+}
+
+/// Renders on the GPU with the estimators of the CPU integrators.
+pub fn render_gpu(
+    ctx: &GpuContext,
+    scene: &SceneData,
+    set: &IntegratorSettings,
+    opts: &RenderOptions,
+    progress: &(dyn Fn(u64, u64) + Sync),
+    cancel: &AtomicBool,
+) -> Result<RenderOutput, RenderError> {
+    let (kernel, model) = match (set.kind, set.model) {
+        (IntegratorKind::Pt, _) => (Kernel::Pt, None),
+        (IntegratorKind::Stcvae, Some(m)) => (Kernel::Stcvae, Some(model_buffers(m)?)),
+        (IntegratorKind::Stcvae, None) => {
+            return Err(RenderError::Model(
+                "the stcvae integrator needs a model".into(),
+            ));
+        }
+    };
+    if scene.lights.len() > super::scene_buffers::MAX_GPU_LIGHTS {
+        return Err(RenderError::Scene(format!(
+            "the GPU kernels take at most {} lights (the scene has {}); use --device cpu",
+            super::scene_buffers::MAX_GPU_LIGHTS,
+            scene.lights.len()
+        )));
+    }
+    let (model_params, weights) = model.unwrap_or((ModelParams::default(), Vec::new()));
+    let layout = kernels::bind_group_layout(ctx);
+    let pipeline = kernels::pipeline(ctx, &layout, kernel, "render_main")?;
+    let cam = &scene.camera;
+    let pixels = cam.width as u64 * cam.height as u64;
+    let spp = opts.spp.max(1);
+    let lanes = (target_threads(ctx) / pixels.max(1)).clamp(1, spp as u64) as u32;
+    let mut params: Params = scene_params(scene, set, opts.seed);
+    let threads = pixels * lanes as u64;
+    let accum_bytes = threads * 16;
+    let (nodes, tris) = geometry_buffers(scene);
+    let env = env_buffer(scene);
+    let grid: &[f32] = scene.grid.as_ref().map_or(&[], |g| &g.values);
+    let res = Resources::new(
+        ctx,
+        &layout,
+        &Inputs {
+            params: &params,
+            accum_bytes,
+            nodes: &nodes,
+            tris: &tris,
+            env: &env,
+            grid,
+            weights: &weights,
+            model: &model_params,
+        },
+    )?;
+    // Poison the accumulation buffer: a pixel the kernel never wrote stays NaN and is
+    // reported below instead of passing as black.
+    ctx.queue.write_buffer(
+        &res.accum,
+        0,
+        &vec![0xffu8; accum_bytes as usize], // all-ones f32 bits = NaN
+    );
+    let groups = threads.div_ceil(WORKGROUP as u64);
+    let (gx, gy) = if groups <= 65535 {
+        (groups as u32, 1)
+    } else {
+        (65535, groups.div_ceil(65535) as u32)
+    };
+    let start = Instant::now();
+    let mut stats = PathStats::default();
+    let mut s0 = 0u32;
+    let mut per_lane = 1u32;
+    let total = pixels * spp as u64;
+    while s0 < spp {
+        let s1 = (s0 as u64 + lanes as u64 * per_lane as u64).min(spp as u64) as u32;
+        params.image[2] = lanes;
+        params.image[3] = per_lane;
+        params.sampling[0] = s0;
+        params.sampling[1] = s1;
+        params.misc[3] = (s0 == 0) as u32;
+        ctx.queue
+            .write_buffer(&res.params, 0, bytemuck::bytes_of(&params));
+        ctx.queue
+            .write_buffer(&res.counters, 0, &[0u8; COUNTER_BYTES as usize]);
+        let t0 = Instant::now();
+        let mut enc = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+        {
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+            pass.set_pipeline(&pipeline);
+            pass.set_bind_group(0, &res.bind_group, &[]);
+            pass.dispatch_workgroups(gx, gy, 1);
+        }
+        ctx.queue.submit([enc.finish()]);
+        let c = read_back(ctx, &res.counters, COUNTER_BYTES)?;
+        let word = |i: usize| u32::from_le_bytes(c[4 * i..4 * i + 4].try_into().unwrap()) as u64;
+        let pair = |k: usize| word(2 * k) | (word(2 * k + 1) << 32);
+        stats.add(&PathStats {
+            paths: pair(0),
+            events: pair(1),
+            steps: pair(2),
+            leaks: pair(3),
+            capped: pair(4),
+            non_finite: pair(5),
+        });
+        let dt = t0.elapsed().as_secs_f64();
+        progress(pixels * s1 as u64, total);
+        s0 = s1;
+        // Grow (or shrink) the next dispatch toward the target duration.
+        let scale = (TARGET_DISPATCH_SECONDS / dt.max(1e-4)).clamp(0.5, 4.0);
+        per_lane = ((per_lane as f64 * scale) as u32).max(1);
+        let out_of_time = opts
+            .time_budget
+            .is_some_and(|b| start.elapsed().as_secs_f64() >= b);
+        if out_of_time || cancel.load(Ordering::Relaxed) {
+            break;
+        }
+    }
+    wait(ctx)?;
+    let bytes = read_back(ctx, &res.accum, accum_bytes)?;
+    let vals: &[f32] = bytemuck::cast_slice(&bytes);
+    let mut image = RgbImage::new(cam.width as usize, cam.height as usize);
+    let mut bad = 0usize;
+    for (p, px) in image.pixels.iter_mut().enumerate() {
+        let mut sum = [0f64; 3];
+        for l in 0..lanes as usize {
+            let q = &vals[(p * lanes as usize + l) * 4..][..3];
+            for c in 0..3 {
+                sum[c] += q[c] as f64;
+            }
+        }
+        if !sum.iter().all(|v| v.is_finite()) {
+            bad += 1;
+        }
+        *px = sum.map(|v| (v / s0.max(1) as f64) as f32);
+    }
+    if bad > 0 {
+        return Err(RenderError::Gpu(format!(
+            "{bad} of {pixels} pixels came back unwritten or non-finite from {}",
+            ctx.adapter
+        )));
+    }
+    Ok(RenderOutput {
+        image,
+        spp: s0,
+        seconds: start.elapsed().as_secs_f64(),
+        stats,
+    })
+}

@@ -1,0 +1,162 @@
+//! GPU buffers of one render (or probe run) and the bind group over them.
+
+use std::sync::mpsc;
+
+use wgpu::util::DeviceExt;
+
+use crate::error::RenderError;
+
+use super::context::GpuContext;
+use super::model_buffers::ModelParams;
+use super::scene_buffers::{GpuNode, GpuTri, Params};
+
+pub struct Resources {
+    pub params: wgpu::Buffer,
+    pub accum: wgpu::Buffer,
+    pub counters: wgpu::Buffer,
+    pub bind_group: wgpu::BindGroup,
+    /// Kept alive for the bind group.
+    _inputs: Vec<wgpu::Buffer>,
+}
+
+/// Byte size of the counter buffer: 16 u32 (six lo/hi pairs and padding).
+pub const COUNTER_BYTES: u64 = 64;
+
+/// Everything the kernels read; empty slices get a one-element dummy (wgpu forbids
+/// zero-sized bindings).
+pub struct Inputs<'a> {
+    pub params: &'a Params,
+    pub accum_bytes: u64,
+    pub nodes: &'a [GpuNode],
+    pub tris: &'a [GpuTri],
+    pub env: &'a [[f32; 4]],
+    pub grid: &'a [f32],
+    pub weights: &'a [[f32; 4]],
+    pub model: &'a ModelParams,
+}
+
+fn init(ctx: &GpuContext, label: &str, bytes: &[u8], usage: wgpu::BufferUsages) -> wgpu::Buffer {
+    let dummy = [0u8; 64];
+    let contents = if bytes.is_empty() { &dummy[..] } else { bytes };
+    ctx.device
+        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some(label),
+            contents,
+            usage,
+        })
+}
+
+impl Resources {
+    pub fn new(
+        ctx: &GpuContext,
+        layout: &wgpu::BindGroupLayout,
+        i: &Inputs,
+    ) -> Result<Self, RenderError> {
+        let max = ctx.limits.max_storage_buffer_binding_size as u64;
+        let biggest = [
+            i.accum_bytes,
+            std::mem::size_of_val(i.tris) as u64,
+            std::mem::size_of_val(i.nodes) as u64,
+            std::mem::size_of_val(i.grid) as u64,
+            std::mem::size_of_val(i.env) as u64,
+        ]
+        .into_iter()
+        .max()
+        .unwrap_or(0);
+        if biggest > max {
+            return Err(RenderError::Gpu(format!(
+                "a buffer of {biggest} bytes exceeds {}'s storage binding limit of {max} bytes \
+                 (lower the image size, grid_resolution or mesh size, or use --device cpu)",
+                ctx.adapter.name
+            )));
+        }
+        let ro = wgpu::BufferUsages::STORAGE;
+        let uni = wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST;
+        let params = init(ctx, "params", bytemuck::bytes_of(i.params), uni);
+        let accum = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("accum"),
+            size: i.accum_bytes.max(16),
+            usage: wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_SRC
+                | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let counters = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("counters"),
+            size: COUNTER_BYTES,
+            usage: wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_SRC
+                | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let tris = init(ctx, "tris", bytemuck::cast_slice(i.tris), ro);
+        let nodes = init(ctx, "nodes", bytemuck::cast_slice(i.nodes), ro);
+        let env = init(ctx, "env", bytemuck::cast_slice(i.env), ro);
+        let grid = init(ctx, "grid", bytemuck::cast_slice(i.grid), ro);
+        let weights = init(ctx, "weights", bytemuck::cast_slice(i.weights), ro);
+        let model = init(ctx, "model", bytemuck::bytes_of(i.model), uni);
+        let buffers = [
+            &params, &accum, &counters, &tris, &nodes, &env, &grid, &weights, &model,
+        ];
+        let entries: Vec<wgpu::BindGroupEntry> = buffers
+            .iter()
+            .enumerate()
+            .map(|(k, b)| wgpu::BindGroupEntry {
+                binding: k as u32,
+                resource: b.as_entire_binding(),
+            })
+            .collect();
+        let bind_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("stcvae scene"),
+            layout,
+            entries: &entries,
+        });
+        Ok(Self {
+            params,
+            accum,
+            counters,
+            bind_group,
+            _inputs: vec![tris, nodes, env, grid, weights, model],
+        })
+    }
+}
+
+/// Copies `size` bytes of `buf` to the host (blocking).
+pub fn read_back(ctx: &GpuContext, buf: &wgpu::Buffer, size: u64) -> Result<Vec<u8>, RenderError> {
+    let staging = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("readback"),
+        size,
+        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    let mut enc = ctx
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+    enc.copy_buffer_to_buffer(buf, 0, &staging, 0, size);
+    ctx.queue.submit([enc.finish()]);
+    let (tx, rx) = mpsc::channel();
+    staging.map_async(wgpu::MapMode::Read, .., move |r| {
+        let _ = tx.send(r);
+    });
+    wait(ctx)?;
+    match rx.recv() {
+        Ok(Ok(())) => {}
+        Ok(Err(e)) => return Err(RenderError::Gpu(format!("reading GPU results failed: {e}"))),
+        Err(_) => return Err(RenderError::Gpu("reading GPU results failed".into())),
+    }
+    let view = staging
+        .get_mapped_range(..)
+        .map_err(|e| RenderError::Gpu(format!("reading GPU results failed: {e}")))?;
+    let data = view.to_vec();
+    drop(view);
+    staging.unmap();
+    Ok(data)
+}
+
+/// Blocks until the queue is idle.
+pub fn wait(ctx: &GpuContext) -> Result<(), RenderError> {
+    ctx.device
+        .poll(wgpu::PollType::wait_indefinitely())
+        .map(|_| ())
+        .map_err(|e| RenderError::Gpu(format!("the GPU did not finish: {e}")))
+}

@@ -1,0 +1,178 @@
+//! Host mirrors of the structs in `shaders/scene.wgsl` (uniform `Params`, storage `Node`
+//! and `Tri`): `#[repr(C)]` + bytemuck, every field a 16-byte group so the WGSL uniform
+//! and storage layouts match without hidden padding.
+
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
+
+use crate::integrator::{IntegratorKind, IntegratorSettings};
+use crate::setup::{Boundary, SceneData};
+
+/// Lights the kernels read (the uniform holds a fixed array).
+pub const MAX_GPU_LIGHTS: usize = 4;
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct GpuLight {
+    pub to_light: [f32; 4],
+    pub irradiance: [f32; 4],
+    pub radiance: [f32; 4],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct Params {
+    pub cam_origin: [f32; 4],
+    pub cam_forward: [f32; 4],
+    pub cam_right: [f32; 4],
+    pub cam_up: [f32; 4],
+    pub sigma_t: [f32; 4],
+    pub albedo: [f32; 4],
+    pub ln_albedo: [f32; 4],
+    pub one_minus_albedo: [f32; 4],
+    pub albedo_feature: [f32; 4],
+    pub env_radiance: [f32; 4],
+    pub grid_lo: [f32; 4],
+    pub grid_dims: [u32; 4],
+    pub lights: [GpuLight; MAX_GPU_LIGHTS],
+    /// width, height, lanes, samples per lane.
+    pub image: [u32; 4],
+    /// first sample, end sample, seed lo, seed hi.
+    pub sampling: [u32; 4],
+    /// light count, nee, dielectric, stcvae.
+    pub flags: [u32; 4],
+    /// env map width, height, nee samples, first chunk.
+    pub misc: [u32; 4],
+    /// g, ior, eps, min_tau.
+    pub consts: [f32; 4],
+    /// max_tau, near_surface, 0, 0.
+    pub consts2: [f32; 4],
+}
+
+/// A BVH2 node as obvhs lays it out (children of an inner node at `first`, `first + 1`;
+/// a leaf's triangles at `first..first + count` of the reordered triangle buffer).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct GpuNode {
+    pub lo: [f32; 3],
+    pub first: u32,
+    pub hi: [f32; 3],
+    pub count: u32,
+}
+
+/// A triangle in BVH leaf order, with its outward unit normal.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+pub struct GpuTri {
+    pub v0: [f32; 4],
+    pub v1: [f32; 4],
+    pub v2: [f32; 4],
+    pub n: [f32; 4],
+}
+
+fn v4(v: Vec3, w: f32) -> [f32; 4] {
+    [v.x, v.y, v.z, w]
+}
+
+fn c4(a: [f32; 3]) -> [f32; 4] {
+    [a[0], a[1], a[2], 0.0]
+}
+
+/// BVH nodes and triangles in leaf order.
+pub fn geometry_buffers(scene: &SceneData) -> (Vec<GpuNode>, Vec<GpuTri>) {
+    let geo = &scene.geo;
+    let nodes = geo
+        .bvh
+        .nodes
+        .iter()
+        .map(|n| GpuNode {
+            lo: n.aabb.min.into(),
+            first: n.first_index,
+            hi: n.aabb.max.into(),
+            count: n.prim_count,
+        })
+        .collect();
+    let tris = geo
+        .bvh
+        .primitive_indices
+        .iter()
+        .map(|&p| {
+            let t = &geo.tris[p as usize];
+            let n = geo.normals[p as usize];
+            GpuTri {
+                v0: c4(t.v0.into()),
+                v1: c4(t.v1.into()),
+                v2: c4(t.v2.into()),
+                n: v4(n, 0.0),
+            }
+        })
+        .collect();
+    (nodes, tris)
+}
+
+/// The scene constants of a render; the per-dispatch fields (`image.z..w`, `sampling`,
+/// `misc.w`) are filled by the renderer.
+pub fn scene_params(scene: &SceneData, set: &IntegratorSettings, seed: u64) -> Params {
+    let cam = &scene.camera;
+    let albedo64 = scene.albedo.map(|a| a as f64);
+    let ln = albedo64.map(|a| if a > 0.0 { a.ln() as f32 } else { -1e30 });
+    let mut lights = [GpuLight::default(); MAX_GPU_LIGHTS];
+    for (g, l) in lights.iter_mut().zip(&scene.lights) {
+        *g = GpuLight {
+            to_light: v4(l.to_light, l.cos_max),
+            irradiance: c4(l.irradiance),
+            radiance: c4(l.radiance),
+        };
+    }
+    let (grid_lo, grid_dims, near) = match &scene.grid {
+        Some(g) => (
+            v4(g.lo, g.cell),
+            [g.dims.x, g.dims.y, g.dims.z, 1],
+            g.near_surface,
+        ),
+        None => ([0.0; 4], [0; 4], 0.0),
+    };
+    let (env_w, env_h) = scene
+        .env
+        .map
+        .as_ref()
+        .map_or((0, 0), |m| (m.width as u32, m.height as u32));
+    let (dielectric, ior) = match scene.boundary {
+        Boundary::IndexMatched => (0, 1.0),
+        Boundary::Dielectric(ior) => (1, ior),
+    };
+    Params {
+        cam_origin: v4(cam.origin, cam.tan_half()),
+        cam_forward: v4(cam.forward(), 0.0),
+        cam_right: v4(cam.right(), 0.0),
+        cam_up: v4(cam.up(), 0.0),
+        sigma_t: c4(scene.sigma_t),
+        albedo: c4(scene.albedo),
+        ln_albedo: c4(ln),
+        one_minus_albedo: c4(albedo64.map(|a| (1.0 - a) as f32)),
+        albedo_feature: c4(albedo64.map(|a| cvae::features::albedo_feature(a) as f32)),
+        env_radiance: c4(scene.env.radiance),
+        grid_lo,
+        grid_dims,
+        lights,
+        image: [cam.width, cam.height, 1, 1],
+        sampling: [0, 0, seed as u32, (seed >> 32) as u32],
+        flags: [
+            scene.lights.len().min(MAX_GPU_LIGHTS) as u32,
+            set.nee as u32,
+            dielectric,
+            (set.kind == IntegratorKind::Stcvae) as u32,
+        ],
+        misc: [env_w, env_h, set.nee_samples.max(1), 1],
+        consts: [scene.g, ior, scene.geo.eps, set.min_tau],
+        consts2: [set.max_tau, near, 0.0, 0.0],
+    }
+}
+
+/// The environment map as rgba rows (a 1-texel dummy when there is none).
+pub fn env_buffer(scene: &SceneData) -> Vec<[f32; 4]> {
+    match &scene.env.map {
+        Some(m) => m.pixels.iter().map(|p| c4(*p)).collect(),
+        None => vec![[0.0; 4]],
+    }
+}

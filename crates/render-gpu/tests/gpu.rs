@@ -1,0 +1,455 @@
+//! The wgpu renderer on Vulkan (Mesa's lavapipe in CI): WGSL building blocks equal the
+//! Rust ones, the white furnace holds, every pixel is written and finite, and CPU and GPU
+//! converge to the same image. Without a Vulkan adapter these tests print why and pass,
+//! except under CI (CI=true), where a missing adapter is a failure.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+use std::sync::{Mutex, OnceLock};
+
+use glam::DVec3;
+use render_gpu::gpu::probe::{Item, run_probe};
+use render_gpu::gpu::{AdapterChoice, GpuContext, render_gpu};
+use render_gpu::integrator::{IntegratorKind, IntegratorSettings};
+use render_gpu::render::{RenderOptions, RenderOutput, render};
+use render_gpu::scene::SceneFile;
+use render_gpu::setup::SceneData;
+use scatter_sim::WalkRng;
+use scatter_sim::frame::{CanonicalExit, WalkFrame, from_canonical};
+use scatter_sim::phase::{deflect, hg_sample_cos};
+
+/// One device for all tests of this file; tests share it one at a time (lavapipe uses
+/// every core for one dispatch anyway).
+fn gpu() -> Option<&'static Mutex<GpuContext>> {
+    static CTX: OnceLock<Option<Mutex<GpuContext>>> = OnceLock::new();
+    CTX.get_or_init(|| {
+        match GpuContext::with_backends(AdapterChoice::Any, Some(wgpu::Backends::VULKAN)) {
+            Ok(c) => {
+                eprintln!("GPU tests on {}", c.adapter);
+                Some(Mutex::new(c))
+            }
+            Err(e) => {
+                assert!(
+                    std::env::var_os("CI").is_none(),
+                    "CI must have a Vulkan adapter (mesa-vulkan-drivers): {e}"
+                );
+                eprintln!("skipping GPU tests: {e}");
+                None
+            }
+        }
+    })
+    .as_ref()
+}
+
+fn model() -> &'static cvae::ModelSet {
+    static M: OnceLock<cvae::ModelSet> = OnceLock::new();
+    M.get_or_init(|| {
+        let p = std::env::var_os("STCVAE_TEST_MODEL")
+            .map(PathBuf::from)
+            .unwrap_or_else(|| {
+                Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/default.stcvae")
+            });
+        cvae::ModelSet::load(&p).unwrap()
+    })
+}
+
+/// The WGSL HG sampling, deflection and canonical-frame mapping equal the Rust (f64)
+/// ones to f32 precision: 2e-5 absolute on unit vectors and cosines (a few f32 ulps
+/// after a handful of operations; HG's inverse CDF amplifies ξ's rounding by at most
+/// (1+|g|)³/(1−|g|) ≤ 150 for |g| ≤ 0.9, hence its 2e-4).
+#[test]
+fn wgsl_hg_and_frame_match_rust() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let mut rng = WalkRng::from_seed(17);
+    let mut items = Vec::new();
+    let mut expect = Vec::new();
+    for _ in 0..4096 {
+        let g = (rng.uniform() * 1.8 - 0.9) as f32;
+        let xi = rng.uniform() as f32;
+        let dir = loop {
+            let v = DVec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 2.0 - 1.0;
+            if v.length_squared() > 0.01 && v.length_squared() < 1.0 {
+                break v.normalize().as_vec3().as_dvec3();
+            }
+        };
+        let (c, s) = rng.unit_circle();
+        let (c, s) = (c as f32 as f64, s as f32 as f64);
+        let ct = (rng.uniform() * 2.0 - 1.0) as f32 as f64;
+        let (a, b) = rng.unit_circle();
+        let r = rng.uniform().sqrt() as f32 as f64;
+        let exit = CanonicalExit {
+            cos_theta: ct,
+            alpha: (a * r) as f32 as f64,
+            beta: (b * r) as f32 as f64,
+        };
+        let x = DVec3::new(rng.uniform(), rng.uniform(), rng.uniform()) - 0.5;
+        let x = x.as_vec3().as_dvec3();
+        let mut it: Item = [0.0; 32];
+        it[0] = g;
+        it[1] = xi;
+        it[4..7].copy_from_slice(&dir.as_vec3().to_array());
+        it[8] = c as f32;
+        it[9] = s as f32;
+        it[12] = ct as f32;
+        it[13] = exit.alpha as f32;
+        it[14] = exit.beta as f32;
+        it[16..19].copy_from_slice(&x.as_vec3().to_array());
+        items.push(it);
+        let hg = hg_sample_cos(g as f64, xi as f64);
+        let d = deflect(dir, hg, (c, s));
+        let f = WalkFrame::new(dir, (c, s));
+        let (p, w) = from_canonical(exit);
+        expect.push((hg, d, f.to_world(p), f.to_world(w), f.to_world(x)));
+    }
+    let out = run_probe(&ctx, "probe_frame", None, &items).unwrap();
+    let v = |o: &Item, k: usize| DVec3::new(o[k] as f64, o[k + 1] as f64, o[k + 2] as f64);
+    for (i, (o, e)) in out.iter().zip(&expect).enumerate() {
+        assert!(
+            (o[0] as f64 - e.0).abs() < 2e-4,
+            "item {i}: HG cos {} vs {}",
+            o[0],
+            e.0
+        );
+        // deflect uses the f32 HG cos of the GPU: compare against the Rust deflection of it.
+        let d = deflect(
+            DVec3::from_array([items[i][4], items[i][5], items[i][6]].map(|q| q as f64)),
+            o[0] as f64,
+            (items[i][8] as f64, items[i][9] as f64),
+        );
+        assert!((v(o, 4) - d).length() < 2e-5, "item {i}: deflect");
+        assert!((v(o, 8) - e.2).length() < 2e-5, "item {i}: exit point");
+        assert!((v(o, 12) - e.3).length() < 2e-5, "item {i}: exit dir");
+        assert!((v(o, 16) - e.4).length() < 2e-5, "item {i}: event position");
+    }
+}
+
+/// The WGSL decoders (vec4 rows, softplus, log-variance clamp, de-standardisation) equal
+/// the Rust decoder on random inputs within 1e-5 (relative to the output's size: both are
+/// f32 with different summation orders, so the difference is a few ulps of the larger
+/// partial sums).
+#[test]
+fn wgsl_decoders_match_rust() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let m = model();
+    let decs = [&m.length, &m.path, &m.event];
+    let mut rng = WalkRng::from_seed(5);
+    let mut items = Vec::new();
+    let mut expect = Vec::new();
+    for i in 0..3000 {
+        let id = i % 3;
+        let d = decs[id];
+        let mut it: Item = [0.0; 32];
+        let mut cond = [0f64; 12];
+        for k in 0..d.cond {
+            // Raw features around their training scale.
+            let v = (d.cond_shift[k] + d.cond_scale[k] * (rng.uniform() as f32 * 4.0 - 2.0)) as f64;
+            cond[k] = v;
+            it[k] = v as f32;
+        }
+        let mut noise = [0f32; 16];
+        cvae::sampler::normals(&mut rng, &mut noise[..d.latent + d.out]);
+        it[12..28].copy_from_slice(&noise);
+        it[28] = id as f32;
+        let mut res = [0f64; 8];
+        d.sample(
+            &cond[..d.cond],
+            &noise[..d.latent],
+            &noise[d.latent..d.latent + d.out],
+            &mut res[..d.out],
+        );
+        items.push(it);
+        expect.push((d.out, res));
+    }
+    let out = run_probe(&ctx, "probe_decoder", Some(m), &items).unwrap();
+    for (i, (o, (n, e))) in out.iter().zip(&expect).enumerate() {
+        for k in 0..*n {
+            let tol = 1e-5 * (1.0 + e[k].abs());
+            assert!(
+                (o[k] as f64 - e[k]).abs() < tol,
+                "item {i} output {k}: WGSL {} vs Rust {}",
+                o[k],
+                e[k]
+            );
+        }
+    }
+}
+
+fn scene(text: &str, grid: bool) -> SceneData {
+    let f = SceneFile::parse(Path::new("test.toml"), text).unwrap();
+    SceneData::build(&f, Path::new(env!("CARGO_MANIFEST_DIR")), grid, &[]).unwrap()
+}
+
+fn settings(kind: IntegratorKind, nee: bool) -> IntegratorSettings<'static> {
+    let m = (kind == IntegratorKind::Stcvae).then(model);
+    IntegratorSettings {
+        kind,
+        nee,
+        model: m,
+        min_tau: 1.0,
+        max_tau: m.map_or(300.0, |m| m.training.tau_range[1] as f32),
+        nee_samples: 2,
+    }
+}
+
+fn opts(spp: u32, seed: u64) -> RenderOptions {
+    RenderOptions {
+        spp,
+        seed,
+        time_budget: None,
+    }
+}
+
+fn on_gpu(
+    ctx: &GpuContext,
+    s: &SceneData,
+    set: &IntegratorSettings,
+    o: &RenderOptions,
+) -> RenderOutput {
+    render_gpu(ctx, s, set, o, &|_, _| {}, &AtomicBool::new(false)).unwrap()
+}
+
+fn on_cpu(s: &SceneData, set: &IntegratorSettings, o: &RenderOptions) -> RenderOutput {
+    render(s, set, o, &|_, _| {}, &AtomicBool::new(false))
+}
+
+/// White furnace on the GPU (design §5): albedo 1, constant environment 0.7, no lights:
+/// every path weight is 1 and every path ends in the environment, so with spp a multiple
+/// of 3 (exact hero-channel strata) every pixel is 0.7 up to f32 rounding — for PT and
+/// ST-CVAE, index-matched and dielectric. A leak, a lost path or a NaN shows.
+#[test]
+fn white_furnace_gpu() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    for boundary in [
+        "kind = \"index-matched\"",
+        "kind = \"dielectric\"\nior = 1.5",
+    ] {
+        for kind in [IntegratorKind::Pt, IntegratorKind::Stcvae] {
+            let text = format!(
+                r#"
+[camera]
+origin = [0.0, 0.0, 3.0]
+target = [0.0, 0.0, 0.0]
+fov_deg = 25.0
+width = 12
+height = 12
+[object]
+mesh = "../../assets/bunny.glb"
+height = 1.0
+[medium]
+sigma_t = [5.0, 20.0, 60.0]
+albedo = [1.0, 1.0, 1.0]
+g = 0.6
+[boundary]
+{boundary}
+[environment]
+radiance = [0.7, 0.7, 0.7]
+[render]
+grid_resolution = 64
+"#
+            );
+            let s = scene(&text, kind == IntegratorKind::Stcvae);
+            let out = on_gpu(&ctx, &s, &settings(kind, true), &opts(12, 3));
+            let st = out.stats;
+            assert_eq!(st.capped + st.non_finite + st.leaks, 0, "{kind:?}: {st:?}");
+            assert_eq!(st.paths, 12 * 12 * 12, "every sample traced once: {st:?}");
+            if kind == IntegratorKind::Stcvae {
+                assert!(st.steps > st.paths / 4, "sphere steps must run: {st:?}");
+            }
+            for (i, p) in out.image.pixels.iter().enumerate() {
+                for c in 0..3 {
+                    assert!(
+                        (p[c] - 0.7).abs() < 1e-4,
+                        "{kind:?} {boundary}: pixel {i} channel {c} = {}",
+                        p[c]
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// Per-channel block means over K renders with different seeds, and the variance of
+/// each block mean from the spread of the K renders (K − 1 degrees of freedom per pixel).
+fn blocks(r: &[RenderOutput], size: usize) -> Vec<(f64, f64)> {
+    let w = r[0].image.width;
+    let h = r[0].image.height;
+    let k = r.len() as f64;
+    let mut out = Vec::new();
+    for by in (0..h).step_by(size) {
+        for bx in (0..w).step_by(size) {
+            for c in 0..3 {
+                let (mut m, mut v, mut n) = (0.0, 0.0, 0.0);
+                for y in by..(by + size).min(h) {
+                    for x in bx..(bx + size).min(w) {
+                        let vals: Vec<f64> = r
+                            .iter()
+                            .map(|o| o.image.pixels[y * w + x][c] as f64)
+                            .collect();
+                        let mean = vals.iter().sum::<f64>() / k;
+                        let var =
+                            vals.iter().map(|q| (q - mean) * (q - mean)).sum::<f64>() / (k - 1.0);
+                        m += mean;
+                        v += var / k;
+                        n += 1.0;
+                    }
+                }
+                out.push((m / n, v / (n * n)));
+            }
+        }
+    }
+    out
+}
+
+/// CPU and GPU converge to the same image: block-mean differences divided by their
+/// estimated noise are z-scores. Each block variance is estimated from 16 pixels × 3
+/// degrees of freedom per device, so z follows a t-like law with E[z²] ≈ 1.02; over k
+/// blocks the mean of z² has standard deviation ≈ √(2/k), more with the heavy tails of
+/// paths that find the sun disk (the per-block variance estimate is then noisier). A wrong estimator (a missed Fresnel factor, a lost NEE term, a
+/// wrong Λ(N)) shifts whole regions by many σ; the thresholds (mean z² < 1.5 + 4√(2/k),
+/// max |z| < 6.5) fail it while noise alone passes with a wide margin.
+fn assert_same_image(name: &str, cpu: &[RenderOutput], gpu: &[RenderOutput]) {
+    let a = blocks(cpu, 4);
+    let b = blocks(gpu, 4);
+    let mut z2 = 0.0;
+    let mut k = 0.0;
+    let mut zmax: f64 = 0.0;
+    for (&(ma, va), &(mb, vb)) in a.iter().zip(&b) {
+        // Background blocks are noiseless up to rounding (the GPU sums in f32, the CPU in
+        // f64): a relative 1e-5 floor on the deviation keeps rounding from counting as noise.
+        let v = va + vb;
+        let floor = 1e-5 * ma.abs().max(mb.abs());
+        if v <= floor * floor {
+            assert!(
+                (ma - mb).abs() < 1e-5,
+                "{name}: noiseless block differs: {ma} vs {mb}"
+            );
+            continue;
+        }
+        let z = (ma - mb) / v.sqrt();
+        z2 += z * z;
+        zmax = zmax.max(z.abs());
+        k += 1.0;
+    }
+    let mean_z2 = z2 / k;
+    let mean = |o: &[RenderOutput]| {
+        let n = o[0].image.pixels.len() as f64 * o.len() as f64;
+        [0, 1, 2].map(|c| {
+            o.iter()
+                .flat_map(|r| r.image.pixels.iter().map(move |p| p[c] as f64))
+                .sum::<f64>()
+                / n
+        })
+    };
+    eprintln!(
+        "{name}: {k} blocks, mean z² {mean_z2:.2}, max |z| {zmax:.2}; image mean CPU {:?} GPU {:?}",
+        mean(cpu),
+        mean(gpu)
+    );
+    assert!(
+        mean_z2 < 1.5 + 4.0 * (2.0 / k).sqrt() && zmax < 6.5,
+        "{name}: CPU and GPU images differ beyond noise (mean z² {mean_z2:.2}, max |z| {zmax:.2})"
+    );
+    for o in gpu {
+        assert_eq!(
+            o.stats.capped + o.stats.non_finite,
+            0,
+            "{name}: {:?}",
+            o.stats
+        );
+    }
+}
+
+fn sphere_scene(boundary: &str) -> String {
+    format!(
+        r#"
+[camera]
+origin = [0.0, 0.0, 3.0]
+target = [0.0, 0.0, 0.0]
+fov_deg = 22.0
+width = 24
+height = 24
+[object]
+shape = "sphere"
+radius = 0.5
+[medium]
+sigma_t = [8.0, 15.0, 30.0]
+albedo = [0.99, 0.95, 0.9]
+g = 0.5
+[boundary]
+{boundary}
+[[light]]
+kind = "directional"
+direction = [-0.5, -0.6, -0.62]
+irradiance = [2.0, 2.0, 2.0]
+angular_diameter_deg = 40.0
+[environment]
+radiance = [0.1, 0.1, 0.1]
+[render]
+grid_resolution = 64
+"#
+    )
+}
+
+fn compare_devices(name: &str, text: &str, kind: IntegratorKind, nee: bool, spp: u32) {
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let s = scene(text, kind == IntegratorKind::Stcvae);
+    let set = settings(kind, nee);
+    let spp = std::env::var("STCVAE_GPU_TEST_SPP")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(spp);
+    let cpu: Vec<_> = (1..=4)
+        .map(|seed| on_cpu(&s, &set, &opts(spp, seed)))
+        .collect();
+    let gpu: Vec<_> = (5..=8)
+        .map(|seed| on_gpu(&ctx, &s, &set, &opts(spp, seed)))
+        .collect();
+    for o in &gpu {
+        assert_eq!(o.stats.paths, (o.image.pixels.len() as u64) * spp as u64);
+    }
+    assert_same_image(name, &cpu, &gpu);
+}
+
+#[test]
+fn cpu_gpu_agree_pt_sphere() {
+    let im = sphere_scene("kind = \"index-matched\"");
+    compare_devices("PT, NEE", &im, IntegratorKind::Pt, true, 96);
+    compare_devices("PT, no NEE", &im, IntegratorKind::Pt, false, 96);
+    let di = sphere_scene("kind = \"dielectric\"\nior = 1.5");
+    compare_devices("PT dielectric, NEE", &di, IntegratorKind::Pt, true, 96);
+}
+
+#[test]
+fn cpu_gpu_agree_stcvae_sphere() {
+    let im = sphere_scene("kind = \"index-matched\"");
+    compare_devices("ST-CVAE, NEE", &im, IntegratorKind::Stcvae, true, 96);
+    compare_devices("ST-CVAE, no NEE", &im, IntegratorKind::Stcvae, false, 96);
+    let di = sphere_scene("kind = \"dielectric\"\nior = 1.5");
+    compare_devices(
+        "ST-CVAE dielectric, no NEE",
+        &di,
+        IntegratorKind::Stcvae,
+        false,
+        96,
+    );
+}
+
+#[test]
+fn cpu_gpu_agree_bunny() {
+    let text = sphere_scene("kind = \"index-matched\"").replace(
+        "shape = \"sphere\"\nradius = 0.5",
+        "mesh = \"../../assets/bunny.glb\"\nheight = 1.0",
+    );
+    compare_devices("bunny PT, NEE", &text, IntegratorKind::Pt, true, 96);
+    compare_devices(
+        "bunny ST-CVAE, NEE",
+        &text,
+        IntegratorKind::Stcvae,
+        true,
+        96,
+    );
+}

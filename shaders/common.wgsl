@@ -1,0 +1,174 @@
+// Shared include: constants, the per-path RNG, small math helpers, Henyey–Greenstein
+// sampling and the canonical frame of a sphere walk. Mirrors crates/scatter-sim
+// (phase.rs, frame.rs) in f32; the equality tests live in crates/render-gpu/tests/gpu.rs.
+
+const PI: f32 = 3.14159265358979;
+const TWO_PI: f32 = 6.28318530717959;
+const INV_4PI: f32 = 0.0795774715459477;
+
+// ---- RNG: xoshiro128++ per (seed, pixel, sample), seeded through a 32-bit mixer ----
+
+var<private> rng_s: vec4<u32>;
+
+fn mix32(x0: u32) -> u32 {
+    // lowbias32 (Wellons): a bijective 32-bit finaliser with low bias.
+    var x = x0;
+    x ^= x >> 16u;
+    x *= 0x7feb352du;
+    x ^= x >> 15u;
+    x *= 0x846ca68bu;
+    x ^= x >> 16u;
+    return x;
+}
+
+fn rotl(x: u32, k: u32) -> u32 {
+    return (x << k) | (x >> (32u - k));
+}
+
+fn rng_seed(seed_lo: u32, seed_hi: u32, pixel: u32, sample: u32) {
+    let a = mix32(seed_lo ^ 0x53544356u);
+    let b = mix32(seed_hi ^ rotl(a, 7u) ^ 0x41450001u);
+    let c = mix32(pixel ^ rotl(b, 13u));
+    let d = mix32(sample ^ rotl(c, 19u) ^ 0x9e3779b9u);
+    rng_s = vec4<u32>(mix32(a ^ d), mix32(b + c), mix32(c ^ rotl(d, 11u)), mix32(d + a) | 1u);
+}
+
+fn rng_next() -> u32 {
+    let result = rotl(rng_s.x + rng_s.w, 7u) + rng_s.x;
+    let t = rng_s.y << 9u;
+    rng_s.z ^= rng_s.x;
+    rng_s.w ^= rng_s.y;
+    rng_s.y ^= rng_s.z;
+    rng_s.x ^= rng_s.w;
+    rng_s.z ^= t;
+    rng_s.w = rotl(rng_s.w, 11u);
+    return result;
+}
+
+/// Uniform in [0, 1) with 24 random bits.
+fn rand() -> f32 {
+    return f32(rng_next() >> 8u) * (1.0 / 16777216.0);
+}
+
+/// Uniform in (0, 1]: safe to take the logarithm of.
+fn rand_open0() -> f32 {
+    return f32((rng_next() >> 8u) + 1u) * (1.0 / 16777216.0);
+}
+
+/// A uniform unit vector in the plane (cos ψ, sin ψ).
+fn unit_circle() -> vec2<f32> {
+    let a = TWO_PI * rand();
+    return vec2<f32>(cos(a), sin(a));
+}
+
+// ---- math ----
+
+/// Finite test through the bits: shader compilers may assume no NaN and fold x != x.
+fn is_finite(x: f32) -> bool {
+    return (bitcast<u32>(x) & 0x7f800000u) != 0x7f800000u;
+}
+
+/// e^x − 1 without cancellation for small |x| (albedos within 1e-5 of 1).
+fn expm1(x: f32) -> f32 {
+    if abs(x) < 1e-2 {
+        return x * (1.0 + x * (0.5 + x * (1.0 / 6.0 + x * (1.0 / 24.0))));
+    }
+    return exp(x) - 1.0;
+}
+
+fn softplus(x: f32) -> f32 {
+    return max(x, 0.0) + log(1.0 + exp(-abs(x)));
+}
+
+// ---- Henyey–Greenstein (convention of scatter_sim::phase) ----
+
+fn hg_pdf(g: f32, c: f32) -> f32 {
+    let denom = 1.0 + g * g - 2.0 * g * c;
+    return (1.0 - g * g) * INV_4PI / (denom * sqrt(denom));
+}
+
+/// Inverse CDF of cos θ, in a form without cancellation at small |g| (f32 has no room
+/// for the textbook (1 + g² − s²)/2g there): with u = 2ξ − 1,
+/// cos θ = [u + g(3 + u² − g² + 2gu + g²u²)/2] / (1 + gu)², exact algebra of the same
+/// inverse CDF, so no isotropic special case is needed.
+fn hg_sample_cos(g: f32, xi: f32) -> f32 {
+    let u = 2.0 * xi - 1.0;
+    let d = 1.0 + g * u;
+    let n = u + 0.5 * g * (3.0 + u * u - g * g + 2.0 * g * u + g * g * u * u);
+    return clamp(n / (d * d), -1.0, 1.0);
+}
+
+/// Duff et al. (2017): t, b completing unit n to a right-handed basis.
+fn basis_t(n: vec3<f32>) -> vec3<f32> {
+    let s = select(-1.0, 1.0, n.z >= 0.0);
+    let a = -1.0 / (s + n.z);
+    let b = n.x * n.y * a;
+    return vec3<f32>(1.0 + s * n.x * n.x * a, s * b, -s * n.x);
+}
+
+fn basis_b(n: vec3<f32>) -> vec3<f32> {
+    let s = select(-1.0, 1.0, n.z >= 0.0);
+    let a = -1.0 / (s + n.z);
+    let b = n.x * n.y * a;
+    return vec3<f32>(b, s + n.y * n.y * a, -n.y);
+}
+
+fn deflect(dir: vec3<f32>, cos_theta: f32, cs: vec2<f32>) -> vec3<f32> {
+    let sin_theta = sqrt(max(1.0 - cos_theta * cos_theta, 0.0));
+    return dir * cos_theta + (basis_t(dir) * cs.x + basis_b(dir) * cs.y) * sin_theta;
+}
+
+fn hg_sample_direction(g: f32, dir: vec3<f32>) -> vec3<f32> {
+    let c = hg_sample_cos(g, rand());
+    return normalize(deflect(dir, c, unit_circle()));
+}
+
+// ---- canonical frame (scatter_sim::frame) ----
+
+/// The exit point of a canonical exit: (0, sin θ, cos θ).
+fn canonical_exit_point(cos_theta: f32) -> vec3<f32> {
+    let c = clamp(cos_theta, -1.0, 1.0);
+    return vec3<f32>(0.0, sqrt(max(1.0 - c * c, 0.0)), c);
+}
+
+/// The exit direction α e_b + β e_t + √(1−α²−β²) e_n with e_b = (−1, 0, 0) and
+/// e_t = (0, cos θ, −sin θ); (α, β) is rescaled onto the unit disk if needed.
+fn canonical_exit_dir(cos_theta: f32, alpha0: f32, beta0: f32) -> vec3<f32> {
+    let c = clamp(cos_theta, -1.0, 1.0);
+    let s = sqrt(max(1.0 - c * c, 0.0));
+    var a = alpha0;
+    var b = beta0;
+    if !(is_finite(a) && is_finite(b)) {
+        a = 0.0;
+        b = 0.0;
+    }
+    let r2 = a * a + b * b;
+    if r2 > 1.0 {
+        let r = sqrt(r2);
+        a /= r;
+        b /= r;
+    }
+    let n = sqrt(max(1.0 - a * a - b * b, 0.0));
+    let e_n = vec3<f32>(0.0, s, c);
+    let e_b = vec3<f32>(-1.0, 0.0, 0.0);
+    let e_t = vec3<f32>(0.0, c, -s);
+    return normalize(a * e_b + b * e_t + n * e_n);
+}
+
+/// Maps canonical coordinates to the world: +z to omega_in, the x/y axes turned by the
+/// azimuth (cos ψ, sin ψ) about it (scatter_sim::frame::WalkFrame).
+struct WalkFrame {
+    u: vec3<f32>,
+    v: vec3<f32>,
+    w: vec3<f32>,
+}
+
+fn walk_frame(omega_in: vec3<f32>, cs: vec2<f32>) -> WalkFrame {
+    let t = basis_t(omega_in);
+    let b = basis_b(omega_in);
+    return WalkFrame(t * cs.x + b * cs.y, b * cs.x - t * cs.y, omega_in);
+}
+
+fn to_world(f: WalkFrame, v: vec3<f32>) -> vec3<f32> {
+    return f.u * v.x + f.v * v.y + f.w * v.z;
+}

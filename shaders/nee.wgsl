@@ -1,0 +1,54 @@
+// Shared include: next-event estimation to the directional lights from a point inside
+// the medium (crates/render-gpu/src/integrator/nee.rs): phase toward the light, the
+// transmittance summed over every inside segment of the straight shadow ray, and with a
+// dielectric boundary the Fresnel transmittance at each crossing (documented bias).
+
+const MAX_OPTICAL_DEPTH: f32 = 50.0;
+const MAX_CROSSINGS: u32 = 64u;
+
+fn transmittance(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
+    let sigma = params.sigma_t[channel];
+    let dielectric = params.flags.z != 0u;
+    let ior = params.consts.y;
+    var o = x;
+    var inside = true;
+    var depth = 0.0;
+    var fresnel_t = 1.0;
+    for (var i = 0u; i < MAX_CROSSINGS; i++) {
+        let h = intersect(o, dir, 1e30);
+        if !h.found {
+            return exp(-depth) * fresnel_t;
+        }
+        if inside {
+            depth += sigma * h.t;
+            if depth > MAX_OPTICAL_DEPTH {
+                return 0.0;
+            }
+        }
+        let n = tri_normal(h.prim);
+        if dielectric {
+            let c = abs(dot(dir, n));
+            fresnel_t *= 1.0 - select(fresnel(c, 1.0, ior), fresnel(c, ior, 1.0), inside);
+        }
+        inside = !inside;
+        o = spawn(o + dir * h.t, n, dir);
+    }
+    return 0.0;
+}
+
+/// Σ over lights of ρ_g(W·ω_l) · T(x → light) · (E, or L/pdf for a sun disk).
+fn nee_direct(x: vec3<f32>, w: vec3<f32>, channel: u32) -> f32 {
+    var sum = 0.0;
+    let g = params.consts.x;
+    for (var i = 0u; i < params.flags.x; i++) {
+        let u1 = rand();
+        let u2 = rand();
+        let ls = light_sample(i, u1, u2, channel);
+        if ls.factor <= 0.0 {
+            continue;
+        }
+        let phase = hg_pdf(g, clamp(dot(w, ls.dir), -1.0, 1.0));
+        sum += phase * transmittance(x, ls.dir, channel) * ls.factor;
+    }
+    return sum;
+}

@@ -1,0 +1,66 @@
+// Test kernels: run the shared includes on inputs from the host so tests can compare them
+// with the Rust implementations (crates/render-gpu/tests/gpu.rs). Composed as common +
+// scene + nee + decoder + pt + path + probe. Items are 8 vec4s (32 floats) in `accum`;
+// params.image.x holds the item count.
+
+fn item_f(i: u32, k: u32) -> f32 {
+    return accum[i * 8u + k / 4u][k % 4u];
+}
+
+fn set_f(i: u32, k: u32, v: f32) {
+    accum[i * 8u + k / 4u][k % 4u] = v;
+}
+
+/// In: cond[0..12], noise[12..28], decoder id at 28. Out: outputs at 0..8.
+@compute @workgroup_size(64)
+fn probe_decoder(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gid.x;
+    if i >= params.image.x {
+        return;
+    }
+    for (var k = 0u; k < 12u; k++) {
+        dec_cond[k] = item_f(i, k);
+    }
+    for (var k = 0u; k < 16u; k++) {
+        dec_noise[k] = item_f(i, 12u + k);
+    }
+    decoder_sample(u32(item_f(i, 28u)));
+    for (var k = 0u; k < 8u; k++) {
+        set_f(i, k, dec_out[k]);
+    }
+}
+
+/// In: g, ξ at 0, 1; dir at 4..7; (cos ψ, sin ψ) at 8, 9; exit (cos θ, α, β) at 12..15;
+/// X at 16..19. Out: HG cos at 0; deflect(dir, cos, ψ) at 4..7; world exit point at
+/// 8..11; world exit direction at 12..15; world X at 16..19.
+@compute @workgroup_size(64)
+fn probe_frame(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gid.x;
+    if i >= params.image.x {
+        return;
+    }
+    let g = item_f(i, 0u);
+    let xi = item_f(i, 1u);
+    let dir = vec3<f32>(item_f(i, 4u), item_f(i, 5u), item_f(i, 6u));
+    let cs = vec2<f32>(item_f(i, 8u), item_f(i, 9u));
+    let ct = item_f(i, 12u);
+    let al = item_f(i, 13u);
+    let be = item_f(i, 14u);
+    let x = vec3<f32>(item_f(i, 16u), item_f(i, 17u), item_f(i, 18u));
+    let c = hg_sample_cos(g, xi);
+    let d = deflect(dir, c, cs);
+    let f = walk_frame(dir, cs);
+    let p = to_world(f, canonical_exit_point(ct));
+    let w = to_world(f, canonical_exit_dir(ct, al, be));
+    let xw = to_world(f, x);
+    for (var k = 0u; k < 32u; k++) {
+        set_f(i, k, 0.0);
+    }
+    set_f(i, 0u, c);
+    for (var k = 0u; k < 3u; k++) {
+        set_f(i, 4u + k, d[k]);
+        set_f(i, 8u + k, p[k]);
+        set_f(i, 12u + k, w[k]);
+        set_f(i, 16u + k, xw[k]);
+    }
+}

@@ -1,0 +1,381 @@
+// Shared include: the bindings every kernel sees and the scene queries (camera, BVH
+// closest hit and nearest-triangle distance, distance grid, dielectric optics, lights,
+// environment). Host mirror: crates/render-gpu/src/gpu/scene_buffers.rs.
+
+struct Light {
+    // xyz: unit vector toward the light; w: cosine of the disk's angular radius (1: delta).
+    to_light: vec4<f32>,
+    // Irradiance per channel (rgb).
+    irradiance: vec4<f32>,
+    // Radiance of the disk per channel (rgb); 0 for a delta light.
+    radiance: vec4<f32>,
+}
+
+struct Params {
+    cam_origin: vec4<f32>,      // w: tan(fov/2)
+    cam_forward: vec4<f32>,
+    cam_right: vec4<f32>,
+    cam_up: vec4<f32>,
+    sigma_t: vec4<f32>,
+    albedo: vec4<f32>,
+    ln_albedo: vec4<f32>,       // ln φ, computed in f64 on the host
+    one_minus_albedo: vec4<f32>,// 1 − φ, computed in f64 on the host
+    albedo_feature: vec4<f32>,  // (1 − φ)^(1/6), EventGen's input
+    env_radiance: vec4<f32>,
+    grid_lo: vec4<f32>,         // w: cell size
+    grid_dims: vec4<u32>,       // w: 1 if a grid is bound
+    lights: array<Light, 4>,
+    image: vec4<u32>,           // width, height, lanes, samples per lane
+    sampling: vec4<u32>,        // first sample, end sample, seed lo, seed hi
+    flags: vec4<u32>,           // light count, nee, dielectric, stcvae
+    misc: vec4<u32>,            // env map width, height, nee samples, first chunk
+    consts: vec4<f32>,          // g, ior, eps, min_tau
+    consts2: vec4<f32>,         // max_tau, near_surface, 0, 0
+}
+
+struct Node {
+    lo: vec3<f32>,
+    first: u32,
+    hi: vec3<f32>,
+    count: u32,
+}
+
+struct Tri {
+    v0: vec4<f32>,
+    v1: vec4<f32>,
+    v2: vec4<f32>,
+    n: vec4<f32>,
+}
+
+struct Layer {
+    w_offset: u32,
+    b_offset: u32,
+    in4: u32,
+    outputs: u32,
+}
+
+struct DecoderDesc {
+    dims: vec4<u32>,  // cond, latent, out, layers
+    norm: vec4<u32>,  // vec4 offsets of cond shift, cond scale, out shift, out scale
+    layers: array<Layer, 8>,
+}
+
+struct ModelParams {
+    decoders: array<DecoderDesc, 3>,
+    flags: vec4<u32>,  // single scattering exact, n_min, 0, 0
+}
+
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var<storage, read_write> accum: array<vec4<f32>>;
+@group(0) @binding(2) var<storage, read_write> counters: array<atomic<u32>, 16>;
+@group(0) @binding(3) var<storage, read> tris: array<Tri>;
+@group(0) @binding(4) var<storage, read> nodes: array<Node>;
+@group(0) @binding(5) var<storage, read> env_map: array<vec4<f32>>;
+@group(0) @binding(6) var<storage, read> grid: array<f32>;
+@group(0) @binding(7) var<storage, read> weights: array<vec4<f32>>;
+@group(0) @binding(8) var<uniform> model: ModelParams;
+
+fn channel_of(v: vec4<f32>, c: u32) -> f32 {
+    return v[c];
+}
+
+// ---- camera (Mitsuba's orientation; row 0 at the top) ----
+
+fn camera_dir(x: f32, y: f32) -> vec3<f32> {
+    let w = f32(params.image.x);
+    let h = f32(params.image.y);
+    let th = params.cam_origin.w;
+    let u = (2.0 * x / w - 1.0) * th;
+    let v = (1.0 - 2.0 * y / h) * th * h / w;
+    return normalize(params.cam_forward.xyz + params.cam_right.xyz * u + params.cam_up.xyz * v);
+}
+
+// ---- BVH2 traversal ----
+
+struct Hit {
+    t: f32,
+    prim: u32,
+    found: bool,
+}
+
+/// Möller–Trumbore as obvhs writes it (two-sided); t in [0, tmax], else +inf.
+fn tri_intersect(tri: Tri, o: vec3<f32>, d: vec3<f32>, tmax: f32) -> f32 {
+    let e1 = tri.v0.xyz - tri.v1.xyz;
+    let e2 = tri.v2.xyz - tri.v0.xyz;
+    let n = cross(e1, e2);
+    let c = tri.v0.xyz - o;
+    let r = cross(d, c);
+    let det = dot(n, d);
+    if det == 0.0 {
+        return 1e30;
+    }
+    let inv_det = 1.0 / det;
+    let u = dot(r, e2) * inv_det;
+    let v = dot(r, e1) * inv_det;
+    let w = 1.0 - u - v;
+    if u < 0.0 || v < 0.0 || w < 0.0 {
+        return 1e30;
+    }
+    let t = dot(n, c) * inv_det;
+    if t >= 0.0 && t <= tmax {
+        return t;
+    }
+    return 1e30;
+}
+
+fn box_entry(lo: vec3<f32>, hi: vec3<f32>, o: vec3<f32>, inv_d: vec3<f32>, tmax: f32) -> f32 {
+    let t0 = (lo - o) * inv_d;
+    let t1 = (hi - o) * inv_d;
+    let tn = max(max(min(t0.x, t1.x), min(t0.y, t1.y)), max(min(t0.z, t1.z), 0.0));
+    let tf = min(min(max(t0.x, t1.x), max(t0.y, t1.y)), min(max(t0.z, t1.z), tmax));
+    return select(1e30, tn, tn <= tf);
+}
+
+/// Closest hit along o + t·d, t ∈ [0, tmax].
+fn intersect(o: vec3<f32>, d: vec3<f32>, tmax0: f32) -> Hit {
+    var best = Hit(tmax0, 0u, false);
+    // Exact zeros would make 0·∞ = NaN in the slab test.
+    let inv_d = 1.0 / (d + select(vec3<f32>(0.0), vec3<f32>(1e-30), d == vec3<f32>(0.0)));
+    var stack: array<u32, 64>;
+    var top = 1u;
+    stack[0] = 0u;
+    loop {
+        if top == 0u {
+            break;
+        }
+        top -= 1u;
+        let node = nodes[stack[top]];
+        if box_entry(node.lo, node.hi, o, inv_d, best.t) >= 1e29 {
+            continue;
+        }
+        if node.count > 0u {
+            for (var k = node.first; k < node.first + node.count; k++) {
+                let t = tri_intersect(tris[k], o, d, best.t);
+                if t < 1e29 {
+                    best = Hit(t, k, true);
+                }
+            }
+        } else {
+            let a = node.first;
+            let b = node.first + 1u;
+            let na = nodes[a];
+            let nb = nodes[b];
+            let ta = box_entry(na.lo, na.hi, o, inv_d, best.t);
+            let tb = box_entry(nb.lo, nb.hi, o, inv_d, best.t);
+            // Push the farther child first so the nearer one is visited next.
+            if ta < 1e29 && tb < 1e29 && top + 2u <= 64u {
+                if ta < tb {
+                    stack[top] = b;
+                    stack[top + 1u] = a;
+                } else {
+                    stack[top] = a;
+                    stack[top + 1u] = b;
+                }
+                top += 2u;
+            } else if ta < 1e29 && top < 64u {
+                stack[top] = a;
+                top += 1u;
+            } else if tb < 1e29 && top < 64u {
+                stack[top] = b;
+                top += 1u;
+            }
+        }
+    }
+    return best;
+}
+
+fn tri_normal(prim: u32) -> vec3<f32> {
+    return tris[prim].n.xyz;
+}
+
+/// A point just off the surface at p, on the side dir points to.
+fn spawn(p: vec3<f32>, n: vec3<f32>, dir: vec3<f32>) -> vec3<f32> {
+    let side = select(-1.0, 1.0, dot(dir, n) >= 0.0);
+    return p + n * (side * params.consts.z);
+}
+
+/// Squared distance from p to triangle (a, b, c) (Ericson §5.1.5).
+fn point_triangle_d2(p: vec3<f32>, a: vec3<f32>, b: vec3<f32>, c: vec3<f32>) -> f32 {
+    let ab = b - a;
+    let ac = c - a;
+    let ap = p - a;
+    let d1 = dot(ab, ap);
+    let d2 = dot(ac, ap);
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return dot(ap, ap);
+    }
+    let bp = p - b;
+    let d3 = dot(ab, bp);
+    let d4 = dot(ac, bp);
+    if d3 >= 0.0 && d4 <= d3 {
+        return dot(bp, bp);
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        let q = p - (a + ab * (d1 / (d1 - d3)));
+        return dot(q, q);
+    }
+    let cp = p - c;
+    let d5 = dot(ab, cp);
+    let d6 = dot(ac, cp);
+    if d6 >= 0.0 && d5 <= d6 {
+        return dot(cp, cp);
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        let q = p - (a + ac * (d2 / (d2 - d6)));
+        return dot(q, q);
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        let q = p - (b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6))));
+        return dot(q, q);
+    }
+    let denom = 1.0 / (va + vb + vc);
+    let q = p - (a + ab * (vb * denom) + ac * (vc * denom));
+    return dot(q, q);
+}
+
+fn box_d2(p: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>) -> f32 {
+    let q = clamp(p, lo, hi) - p;
+    return dot(q, q);
+}
+
+/// Exact unsigned distance from p to the surface (nearest-triangle BVH search).
+fn surface_distance(p: vec3<f32>) -> f32 {
+    var best = 1e30;
+    var stack: array<u32, 64>;
+    var top = 1u;
+    stack[0] = 0u;
+    loop {
+        if top == 0u {
+            break;
+        }
+        top -= 1u;
+        let node = nodes[stack[top]];
+        if box_d2(p, node.lo, node.hi) >= best {
+            continue;
+        }
+        if node.count > 0u {
+            for (var k = node.first; k < node.first + node.count; k++) {
+                let t = tris[k];
+                best = min(best, point_triangle_d2(p, t.v0.xyz, t.v1.xyz, t.v2.xyz));
+            }
+        } else {
+            let a = node.first;
+            let b = node.first + 1u;
+            let da = box_d2(p, nodes[a].lo, nodes[a].hi);
+            let db = box_d2(p, nodes[b].lo, nodes[b].hi);
+            if top + 2u > 64u {
+                return sqrt(min(best, min(da, db)));
+            }
+            if da < db {
+                stack[top] = b;
+                stack[top + 1u] = a;
+            } else {
+                stack[top] = a;
+                stack[top + 1u] = b;
+            }
+            top += 2u;
+        }
+    }
+    return sqrt(best);
+}
+
+// ---- the conservative distance grid (crates/render-gpu/src/distance_grid.rs) ----
+
+fn grid_radius(p: vec3<f32>) -> f32 {
+    if params.grid_dims.w == 0u {
+        return 0.0;
+    }
+    let cell = params.grid_lo.w;
+    let q = (p - params.grid_lo.xyz) / cell;
+    if !(q.x >= 0.0 && q.y >= 0.0 && q.z >= 0.0) {
+        return 0.0;
+    }
+    let c = vec3<u32>(q);
+    let dims = params.grid_dims.xyz;
+    if c.x >= dims.x || c.y >= dims.y || c.z >= dims.z {
+        return 0.0;
+    }
+    let i = c.x + dims.x * (c.y + dims.y * c.z);
+    let centre = params.grid_lo.xyz + (vec3<f32>(c) + 0.5) * cell;
+    return max(grid[i] - length(p - centre), 0.0);
+}
+
+// ---- dielectric boundary ----
+
+fn fresnel(cos_i0: f32, n_i: f32, n_t: f32) -> f32 {
+    let cos_i = clamp(cos_i0, 0.0, 1.0);
+    let eta = n_i / n_t;
+    let sin2_t = eta * eta * (1.0 - cos_i * cos_i);
+    if sin2_t >= 1.0 {
+        return 1.0;
+    }
+    let cos_t = sqrt(1.0 - sin2_t);
+    let rs = (n_i * cos_i - n_t * cos_t) / (n_i * cos_i + n_t * cos_t);
+    let rp = (n_t * cos_i - n_i * cos_t) / (n_t * cos_i + n_i * cos_t);
+    return 0.5 * (rs * rs + rp * rp);
+}
+
+fn reflect_dir(d: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
+    return d - n * (2.0 * dot(d, n));
+}
+
+/// Refraction from n_i into n_t; returns d unchanged under total internal reflection
+/// (the caller has already chosen refraction with probability 1 − F, and F = 1 there).
+fn refract_dir(d: vec3<f32>, n0: vec3<f32>, n_i: f32, n_t: f32) -> vec3<f32> {
+    let n = select(n0, -n0, dot(d, n0) > 0.0);
+    let cos_i = -dot(d, n);
+    let eta = n_i / n_t;
+    let sin2_t = eta * eta * (1.0 - cos_i * cos_i);
+    if sin2_t >= 1.0 {
+        return d;
+    }
+    let cos_t = sqrt(1.0 - sin2_t);
+    return normalize(d * eta + n * (eta * cos_i - cos_t));
+}
+
+// ---- lights and environment (crates/render-gpu/src/light.rs) ----
+
+struct LightSample {
+    dir: vec3<f32>,
+    factor: f32,
+}
+
+fn light_sample(i: u32, u1: f32, u2: f32, channel: u32) -> LightSample {
+    let l = params.lights[i];
+    let cos_max = l.to_light.w;
+    if cos_max >= 1.0 {
+        return LightSample(l.to_light.xyz, l.irradiance[channel]);
+    }
+    let c = 1.0 - u1 * (1.0 - cos_max);
+    let s = sqrt(max(1.0 - c * c, 0.0));
+    let phi = TWO_PI * u2;
+    let n = l.to_light.xyz;
+    let dir = normalize(basis_t(n) * (s * cos(phi)) + basis_b(n) * (s * sin(phi)) + n * c);
+    let solid_angle = TWO_PI * (1.0 - cos_max);
+    return LightSample(dir, l.radiance[channel] * solid_angle);
+}
+
+fn light_radiance_toward(i: u32, dir: vec3<f32>, channel: u32) -> f32 {
+    let l = params.lights[i];
+    if l.to_light.w < 1.0 && dot(dir, l.to_light.xyz) >= l.to_light.w {
+        return l.radiance[channel];
+    }
+    return 0.0;
+}
+
+fn env_lookup(dir: vec3<f32>, channel: u32) -> f32 {
+    let base = params.env_radiance[channel];
+    let w = params.misc.x;
+    let h = params.misc.y;
+    if w == 0u {
+        return base;
+    }
+    let u = 0.5 + atan2(dir.x, -dir.z) / TWO_PI;
+    let v = acos(clamp(dir.y, -1.0, 1.0)) / PI;
+    let x = min(u32(max(u * f32(w), 0.0)), w - 1u);
+    let y = min(u32(max(v * f32(h), 0.0)), h - 1u);
+    return base * env_map[y * w + x][channel];
+}

@@ -1,0 +1,78 @@
+// Kernel: ST-CVAE sphere tracing with NEE through EventGen (crates/render-gpu/src/
+// integrator/sphere_step.rs). Composed as common + scene + nee + decoder + stcvae + path.
+//
+// φ^N already contains the albedo of event 1 (the collision at p), so p gets no separate
+// albedo weight and no separate NEE: EventGen's representative event, weighted Λ(N),
+// stands for NEE at all N events of the walk.
+
+const SHRINK: f32 = 0.9999;
+
+fn scatter_at(channel: u32) -> bool {
+    let sigma = params.sigma_t[channel];
+    let min_tau = params.consts.w;
+    let max_tau = params.consts2.x;
+    let near = params.consts2.y;
+    var free = grid_radius(ps.pos);
+    if free < near && sigma * free < min_tau {
+        // The grid's Lipschitz bound loses up to two cell diagonals near the surface; the
+        // exact distance often still allows a sphere step there.
+        free = max(free, surface_distance(ps.pos) * (1.0 - 1e-5) - params.consts.z);
+    }
+    let r = min(free * SHRINK, max_tau / sigma);
+    let tau = sigma * r;
+    if !(r > 0.0) || tau < min_tau {
+        pt_event(channel);
+        return false;
+    }
+    stats[C_STEPS] += 1u;
+    let g = params.consts.x;
+    let frame = walk_frame(ps.dir, unit_circle());
+    let centre = ps.pos;
+
+    // The walk: exact N = 1 branch (probability e^−τ, no decoder), else the decoders.
+    var n = 1.0;
+    var e = Exit(1.0, 0.0, 0.0);
+    var ev = Event(vec3<f32>(0.0), vec3<f32>(0.0, 0.0, 1.0));
+    var single = false;
+    let nee = params.flags.y != 0u;
+    if model.flags.x != 0u && rand() < exp(-tau) {
+        single = true;
+        e = Exit(hg_sample_cos(g, rand()), 0.0, 0.0);
+    } else {
+        n = sample_multiple_n(tau, g);
+        e = sample_exit(tau, g, n);
+        if nee {
+            ev = sample_event(tau, g, channel, n, e);
+        }
+    }
+    if nee {
+        var lam = params.albedo[channel];
+        var m = 1u;
+        if !single {
+            lam = lambda_n(channel, n);
+            m = max(params.misc.z, 1u);
+        }
+        // Extra representative events given the same N and exit, each weighted Λ(N)/M.
+        var sum = 0.0;
+        for (var k = 0u; k < m; k++) {
+            if k > 0u {
+                ev = sample_event(tau, g, channel, n, e);
+            }
+            let x = centre + to_world(frame, ev.x) * r;
+            let w = normalize(to_world(frame, ev.w));
+            sum += nee_direct(x, w, channel);
+        }
+        ps.radiance += ps.beta * lam * sum / f32(m);
+    }
+    ps.beta *= albedo_pow(channel, n);
+    if !roulette() {
+        ps.alive = false;
+        return true;
+    }
+    let xc = canonical_exit_point(e.cos_theta);
+    let wc = canonical_exit_dir(e.cos_theta, e.alpha, e.beta);
+    ps.pos = centre + to_world(frame, xc) * r;
+    ps.dir = normalize(to_world(frame, wc));
+    ps.scattered = true;
+    return true;
+}
