@@ -6,7 +6,8 @@
 const RR_THRESHOLD: f32 = 0.25;
 const MAX_ITERATIONS: u32 = 50000000u;
 
-// Counter slots (pairs lo/hi): paths, events, steps, leaks, capped, non-finite.
+// Counter slots (pairs lo/hi): paths, events, steps, leaks, capped, non-finite,
+// pending, truncated.
 const C_PATHS: u32 = 0u;
 const C_EVENTS: u32 = 1u;
 const C_STEPS: u32 = 2u;
@@ -14,7 +15,7 @@ const C_LEAKS: u32 = 3u;
 const C_CAPPED: u32 = 4u;
 const C_NON_FINITE: u32 = 5u;
 
-var<private> stats: array<u32, 6>;
+var<private> stats: array<u32, 8>;
 
 struct PathState {
     pos: vec3<f32>,
@@ -67,78 +68,97 @@ fn escape_radiance(dir: vec3<f32>, channel: u32, with_sun: bool) -> f32 {
     return l;
 }
 
-fn trace(origin: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
+// The rest of a path's state between bounces (private: one path per invocation).
+var<private> p_channel: u32;
+var<private> p_inside: bool;
+var<private> p_from_step: bool;
+var<private> p_iterations: u32;
+
+fn start_path(origin: vec3<f32>, dir: vec3<f32>, channel: u32) {
     stats[C_PATHS] += 1u;
+    ps = PathState(origin, dir, 1.0, 0.0, false, true);
+    p_channel = channel;
+    p_inside = false;
+    p_from_step = false;
+    p_iterations = 0u;
+}
+
+/// One iteration of the CPU path loop; sets ps.alive = false when the path ends. The
+/// kernel interleaves paths through this (path regeneration): an invocation whose path
+/// ended starts its next sample instead of idling until the longest path of its SIMD
+/// group is done — path lengths are heavy-tailed, so this is most of the speed.
+fn bounce() {
+    let channel = p_channel;
     let sigma = params.sigma_t[channel];
     let dielectric = params.flags.z != 0u;
     let ior = params.consts.y;
     let nee = params.flags.y != 0u;
-    ps = PathState(origin, dir, 1.0, 0.0, false, true);
-    var inside = false;
-    var from_step = false;
-    var iterations = 0u;
-    while ps.alive {
-        iterations += 1u;
-        if iterations > MAX_ITERATIONS {
-            stats[C_CAPPED] += 1u;
-            break;
-        }
-        if !inside {
-            let h = intersect(ps.pos, ps.dir, 1e30);
-            if !h.found {
-                ps.radiance += ps.beta * escape_radiance(ps.dir, channel, !(nee && ps.scattered));
-                break;
-            }
-            let p = ps.pos + ps.dir * h.t;
-            let n = tri_normal(h.prim);
-            if dielectric {
-                let f = fresnel(abs(dot(ps.dir, n)), 1.0, ior);
-                if rand() < f {
-                    ps.dir = reflect_dir(ps.dir, n);
-                } else {
-                    ps.dir = refract_dir(ps.dir, n, 1.0, ior);
-                    inside = true;
-                }
-            } else {
-                inside = true;
-            }
-            ps.pos = spawn(p, n, ps.dir);
-            continue;
-        }
-        let t = -log(1.0 - rand()) / sigma;
-        let h = intersect(ps.pos, ps.dir, t);
-        if h.found {
-            let p = ps.pos + ps.dir * h.t;
-            let n = tri_normal(h.prim);
-            if dot(ps.dir, n) < 0.0 {
-                // Met the surface from outside while believed inside: after a sphere step
-                // the exit was not inside after all. Count it and leave, never enter.
-                if from_step {
-                    stats[C_LEAKS] += 1u;
-                }
-                inside = false;
-                ps.pos = spawn(p, n, ps.dir);
-                from_step = false;
-                continue;
-            }
-            if dielectric {
-                let f = fresnel(abs(dot(ps.dir, n)), ior, 1.0);
-                if rand() < f {
-                    ps.dir = reflect_dir(ps.dir, n);
-                } else {
-                    ps.dir = refract_dir(ps.dir, n, ior, 1.0);
-                    inside = false;
-                }
-            } else {
-                inside = false;
-            }
-            ps.pos = spawn(p, n, ps.dir);
-            from_step = false;
-            continue;
-        }
-        ps.pos += ps.dir * t;
-        from_step = scatter_at(channel);
+    p_iterations += 1u;
+    if p_iterations > MAX_ITERATIONS {
+        stats[C_CAPPED] += 1u;
+        ps.alive = false;
+        return;
     }
+    if !p_inside {
+        let h = intersect(ps.pos, ps.dir, 1e30);
+        if !h.found {
+            ps.radiance += ps.beta * escape_radiance(ps.dir, channel, !(nee && ps.scattered));
+            ps.alive = false;
+            return;
+        }
+        let p = ps.pos + ps.dir * h.t;
+        let n = tri_normal(h.prim);
+        if dielectric {
+            let f = fresnel(abs(dot(ps.dir, n)), 1.0, ior);
+            if rand() < f {
+                ps.dir = reflect_dir(ps.dir, n);
+            } else {
+                ps.dir = refract_dir(ps.dir, n, 1.0, ior);
+                p_inside = true;
+            }
+        } else {
+            p_inside = true;
+        }
+        ps.pos = spawn(p, n, ps.dir);
+        return;
+    }
+    let t = -log(1.0 - rand()) / sigma;
+    let h = intersect(ps.pos, ps.dir, t);
+    if h.found {
+        let p = ps.pos + ps.dir * h.t;
+        let n = tri_normal(h.prim);
+        if dot(ps.dir, n) < 0.0 {
+            // Met the surface from outside while believed inside: after a sphere step
+            // the exit was not inside after all. Count it and leave, never enter.
+            if p_from_step {
+                stats[C_LEAKS] += 1u;
+            }
+            p_inside = false;
+            ps.pos = spawn(p, n, ps.dir);
+            p_from_step = false;
+            return;
+        }
+        if dielectric {
+            let f = fresnel(abs(dot(ps.dir, n)), ior, 1.0);
+            if rand() < f {
+                ps.dir = reflect_dir(ps.dir, n);
+            } else {
+                ps.dir = refract_dir(ps.dir, n, ior, 1.0);
+                p_inside = false;
+            }
+        } else {
+            p_inside = false;
+        }
+        ps.pos = spawn(p, n, ps.dir);
+        p_from_step = false;
+        return;
+    }
+    ps.pos += ps.dir * t;
+    p_from_step = scatter_at(channel);
+}
+
+/// The finished path's estimate (non-finite ones counted and dropped).
+fn path_result() -> f32 {
     if is_finite(ps.radiance) {
         return ps.radiance;
     }
@@ -156,8 +176,40 @@ fn add_counter(slot: u32, v: u32) {
     }
 }
 
-/// One invocation per (pixel, lane): lane l renders samples first + l + lanes·j of its
-/// pixel and writes (or adds) their sum to accum[pixel · lanes + l].
+// Counter slot 6: invocations that still have work after this dispatch; slot 7:
+// invocations whose bounce loop ended early (a driver loop limit: see below).
+const C_PENDING: u32 = 6u;
+const C_TRUNCATED: u32 = 7u;
+
+/// A path between dispatches, one per (pixel, lane), in `accum` as 5 vec4s: position and
+/// β; direction and radiance; the RNG state; channel/flags, iterations, samples finished,
+/// current sample; and the accumulated RGB + finished-sample count of the whole render.
+const SLOT: u32 = 5u;
+const F_ALIVE: u32 = 1u;
+const F_SCATTERED: u32 = 2u;
+const F_INSIDE: u32 = 4u;
+const F_FROM_STEP: u32 = 8u;
+const F_DONE: u32 = 16u;
+
+fn save_path(base: u32, j: u32, s: u32, done: bool) {
+    var flags = 0u;
+    if ps.alive { flags |= F_ALIVE; }
+    if ps.scattered { flags |= F_SCATTERED; }
+    if p_inside { flags |= F_INSIDE; }
+    if p_from_step { flags |= F_FROM_STEP; }
+    if done { flags |= F_DONE; }
+    accum[base] = vec4<f32>(ps.pos, ps.beta);
+    accum[base + 1u] = vec4<f32>(ps.dir, ps.radiance);
+    accum[base + 2u] = bitcast<vec4<f32>>(rng_s);
+    accum[base + 3u] = bitcast<vec4<f32>>(vec4<u32>(p_channel | (flags << 8u), p_iterations, j, s));
+}
+
+/// Renders samples first + lane + lanes·j (j < count) of a pixel, at most
+/// `params.consts2.z` bounces per dispatch, resuming where the
+/// previous dispatch stopped. llvmpipe (lavapipe) stops every loop of an invocation once
+/// 65,535 loop iterations have run in total (one shared counter, BVH traversal and
+/// decoder loops included), so the work of one dispatch must stay bounded; a bounce
+/// loop that ends early anyway is counted (C_TRUNCATED) and the host reports it.
 @compute @workgroup_size(64)
 fn render_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let width = params.image.x;
@@ -168,32 +220,82 @@ fn render_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     if pixel >= width * params.image.y {
         return;
     }
-    for (var i = 0u; i < 6u; i++) {
+    for (var i = 0u; i < 8u; i++) {
         stats[i] = 0u;
     }
+    let base = idx * SLOT;
     let px = pixel % width;
     let py = pixel / width;
     let offset = mix32(pixel * 0x9e3779b9u) % 3u;
-    var acc = vec3<f32>(0.0);
-    for (var j = 0u; j < params.image.w; j++) {
-        let s = params.sampling.x + lane + lanes * j;
-        if s >= params.sampling.y {
-            break;
-        }
-        rng_seed(params.sampling.z, params.sampling.w, pixel, s);
-        let channel = (s + offset) % 3u;
-        let jx = rand();
-        let jy = rand();
-        let dir = camera_dir(f32(px) + jx, f32(py) + jy);
-        let l = 3.0 * trace(params.cam_origin.xyz, dir, channel);
-        acc[channel] += l;
+    let first = params.sampling.x + lane;
+    var count = 0u;
+    if first < params.sampling.y {
+        count = min(params.image.w, (params.sampling.y - first + lanes - 1u) / lanes);
     }
+    var acc = accum[base + 4u];
+    if params.misc.w == 2u {
+        // First dispatch of the render: clear the accumulator (it was poisoned with NaN,
+        // so a slot never reached shows on the host).
+        acc = vec4<f32>(0.0);
+    }
+    var j = 0u;
+    var s = first;
+    var done = count == 0u;
     if params.misc.w != 0u {
-        accum[idx] = vec4<f32>(acc, 0.0);
+        // First dispatch of a chunk of samples: start this invocation's first path.
+        if !done {
+            rng_seed(params.sampling.z, params.sampling.w, pixel, s);
+            let dir = camera_dir(f32(px) + rand(), f32(py) + rand());
+            start_path(params.cam_origin.xyz, dir, (s + offset) % 3u);
+        }
     } else {
-        accum[idx] += vec4<f32>(acc, 0.0);
+        let st = bitcast<vec4<u32>>(accum[base + 3u]);
+        let flags = st.x >> 8u;
+        done = (flags & F_DONE) != 0u;
+        if !done {
+            let a = accum[base];
+            let b = accum[base + 1u];
+            ps = PathState(a.xyz, b.xyz, a.w, b.w, (flags & F_SCATTERED) != 0u, (flags & F_ALIVE) != 0u);
+            rng_s = bitcast<vec4<u32>>(accum[base + 2u]);
+            p_channel = st.x & 0xffu;
+            p_inside = (flags & F_INSIDE) != 0u;
+            p_from_step = (flags & F_FROM_STEP) != 0u;
+            p_iterations = st.y;
+            j = st.z;
+            s = st.w;
+        }
     }
-    for (var i = 0u; i < 6u; i++) {
+    if !done {
+        let budget = u32(params.consts2.z);
+        var b = 0u;
+        for (; b < budget && !done; b++) {
+            bounce();
+            if !ps.alive {
+                acc[p_channel] += 3.0 * path_result();
+                acc.w += 1.0;
+                j += 1u;
+                if j >= count {
+                    done = true;
+                } else {
+                    s = first + lanes * j;
+                    rng_seed(params.sampling.z, params.sampling.w, pixel, s);
+                    let dir = camera_dir(f32(px) + rand(), f32(py) + rand());
+                    start_path(params.cam_origin.xyz, dir, (s + offset) % 3u);
+                }
+            }
+        }
+        if b < budget && !done {
+            stats[C_TRUNCATED] = 1u;
+        }
+        save_path(base, j, s, done);
+        if !done {
+            stats[C_PENDING] = 1u;
+        }
+    } else if params.misc.w != 0u {
+        save_path(base, j, s, true);
+    }
+    accum[base + 4u] = acc;
+    for (var i = 0u; i < 8u; i++) {
         add_counter(i, stats[i]);
     }
 }

@@ -11,8 +11,9 @@ use std::sync::atomic::AtomicBool;
 use anyhow::Result;
 use render_gpu::image_io::RgbImage;
 use render_gpu::integrator::{IntegratorKind, IntegratorSettings, PathStats};
-use render_gpu::render::{RenderOptions, render};
+use render_gpu::render::RenderOptions;
 
+use crate::device::{DeviceArg, Engine};
 use crate::render::prepare;
 
 #[derive(clap::Args)]
@@ -40,6 +41,9 @@ pub struct Args {
     /// Representative events per sphere step for NEE (overrides the scene's).
     #[arg(long)]
     nee_samples: Option<u32>,
+    /// Where both integrators run: auto, gpu (any wgpu adapter) or cpu.
+    #[arg(long, value_enum, default_value_t = DeviceArg::Cpu)]
+    device: DeviceArg,
 }
 
 struct Run {
@@ -49,7 +53,7 @@ struct Run {
     stats: PathStats,
 }
 
-fn run_pair(a: &Args, kind: IntegratorKind, k: f64) -> Result<Run> {
+fn run_pair(a: &Args, engine: &Engine, kind: IntegratorKind, k: f64) -> Result<Run> {
     let p = prepare(&a.scene, Some(kind), Some(true), a.model.as_deref(), |f| {
         f.medium.sigma_t = [150.0 * k, 187.5 * k, 125.0 * k];
         f.medium.albedo = [0.99999, 0.99995, 0.975];
@@ -79,8 +83,17 @@ fn run_pair(a: &Args, kind: IntegratorKind, k: f64) -> Result<Run> {
     let mut stats = PathStats::default();
     let mut seconds = 0.0;
     let mut imgs = Vec::new();
+    if matches!(engine, Engine::Gpu(_)) {
+        // Warm-up: the first dispatch compiles the kernel; keep it out of the timing.
+        let tiny = RenderOptions {
+            spp: 1,
+            seed: 1,
+            time_budget: None,
+        };
+        engine.render(&p.data, &set, &tiny, &|_, _| {}, &cancel)?;
+    }
     for seed in [11, 12] {
-        let o = render(
+        let o = engine.render(
             &p.data,
             &set,
             &RenderOptions {
@@ -90,7 +103,7 @@ fn run_pair(a: &Args, kind: IntegratorKind, k: f64) -> Result<Run> {
             },
             &|_, _| {},
             &cancel,
-        );
+        )?;
         seconds += o.seconds;
         stats.add(&o.stats);
         imgs.push(o.image);
@@ -124,16 +137,17 @@ fn mean_var(r: &Run) -> (Vec<f64>, Vec<f64>) {
 }
 
 pub fn run(a: Args) -> Result<()> {
+    let engine = Engine::open(a.device)?;
     println!(
-        "stcvae bench render: {} ({}x{}), g = 0.875, albedo (0.99999, 0.99995, 0.975), NEE on, {} spp each (2 seeds), {} threads",
+        "stcvae bench render: {} ({}x{}), g = 0.875, albedo (0.99999, 0.99995, 0.975), NEE on, {} spp each (2 seeds), {}",
         a.scene.display(),
         a.size,
         a.size,
         a.spp,
-        rayon::current_num_threads()
+        engine.describe()
     );
     println!(
-        "{:>4} {:>22} {:>9} {:>9} {:>9} {:>10} {:>12} {:>11} {:>10} {:>9}",
+        "{:>4} {:>20} {:>7} {:>7} {:>9} {:>9} {:>11} {:>10} {:>10} {:>10} {:>9} {:>9} {:>10} {:>10}",
         "k",
         "sigma_t",
         "PT s",
@@ -143,11 +157,15 @@ pub fn run(a: Args) -> Result<()> {
         "equal-error",
         "PT ev/path",
         "ST st/path",
-        "bias RMSE"
+        "ST ev/path",
+        "bias RMSE",
+        "noise",
+        "PT paths/s",
+        "ST paths/s"
     );
     for &k in &a.k {
-        let pt = run_pair(&a, IntegratorKind::Pt, k)?;
-        let st = run_pair(&a, IntegratorKind::Stcvae, k)?;
+        let pt = run_pair(&a, &engine, IntegratorKind::Pt, k)?;
+        let st = run_pair(&a, &engine, IntegratorKind::Stcvae, k)?;
         let (mp, vp) = mean_var(&pt);
         let (ms, vs) = mean_var(&st);
         // Scale: the 99th percentile of PT's object pixels (luminance above 1e-3 of max).
@@ -177,7 +195,7 @@ pub fn run(a: Args) -> Result<()> {
         let var_ratio = vp.iter().sum::<f64>() / vs.iter().sum::<f64>().max(1e-300);
         let speed = pt.seconds / st.seconds;
         println!(
-            "{:>4} {:>20} {:>7.2} {:>7.2} {:>8.2}x {:>9.2} {:>10.2}x {:>10.1} {:>10.2} {:>10.1} {:>9.4} {:>9.4}",
+            "{:>4} {:>20} {:>7.2} {:>7.2} {:>8.2}x {:>9.2} {:>10.2}x {:>10.1} {:>10.2} {:>10.2} {:>9.4} {:>9.4} {:>10} {:>10}",
             k,
             format!("({}, {}, {})", 150.0 * k, 187.5 * k, 125.0 * k),
             pt.seconds,
@@ -189,7 +207,9 @@ pub fn run(a: Args) -> Result<()> {
             st.stats.steps as f64 / st.stats.paths.max(1) as f64,
             st.stats.events as f64 / st.stats.paths.max(1) as f64,
             bias,
-            noise.sqrt() * scale
+            noise.sqrt() * scale,
+            crate::progress::si(pt.stats.paths as f64 / pt.seconds.max(1e-9)),
+            crate::progress::si(st.stats.paths as f64 / st.seconds.max(1e-9))
         );
         if st.stats.leaks > 0 {
             println!("     ({} leaked sphere exits)", st.stats.leaks);

@@ -2,6 +2,7 @@
 
 mod bench;
 mod bench_render;
+mod device;
 mod generate;
 mod interrupt;
 mod merge;

@@ -5,11 +5,12 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use render_gpu::image_io::{RenderTag, write_exr, write_png};
 use render_gpu::integrator::{IntegratorKind, IntegratorSettings, PathStats};
-use render_gpu::render::{RenderOptions, render};
+use render_gpu::render::RenderOptions;
 use render_gpu::scene::SceneFile;
 use render_gpu::setup::SceneData;
 use serde::Serialize;
 
+use crate::device::{DeviceArg, Engine};
 use crate::model_cmds::{DEFAULT_MODEL, load_model};
 use crate::{interrupt, progress};
 
@@ -46,6 +47,10 @@ pub struct Args {
     /// Output path without extension: writes OUT.exr, OUT.png and OUT.json.
     #[arg(long, default_value = "out/render")]
     pub out: PathBuf,
+    /// Where to render: auto (a hardware GPU if there is one, else the CPU), gpu (any
+    /// wgpu adapter, software ones such as lavapipe included) or cpu.
+    #[arg(long, value_enum, default_value_t = DeviceArg::Auto)]
+    pub device: DeviceArg,
     /// Exposure multiplier of the PNG preview (the EXR is always linear and unscaled).
     #[arg(long, default_value_t = 1.0)]
     pub exposure: f32,
@@ -78,6 +83,8 @@ struct Report<'a> {
     max_tau: Option<f64>,
     grid_resolution: u32,
     scene_hash: String,
+    /// Where it ran: "cpu (N threads)" or "gpu: adapter (backend, type)".
+    device: String,
     /// Mean of the image per channel (a quick comparison between renders).
     mean_rgb: [f64; 3],
     stats: &'a PathStats,
@@ -173,22 +180,26 @@ pub fn run(a: Args) -> Result<()> {
             "note: delta lights can only be reached by NEE; with --nee false they add nothing"
         );
     }
+    let engine = Engine::open(a.device)?;
     eprintln!(
-        "rendering {} ({}x{}, {} spp, {}{}) on the CPU with {} threads",
+        "rendering {} ({}x{}, {} spp, {}{}) on the {}",
         a.scene.display(),
         p.file.camera.width,
         p.file.camera.height,
         r.spp,
         r.integrator.name(),
         if r.nee { ", NEE" } else { "" },
-        rayon::current_num_threads()
+        match engine {
+            Engine::Cpu => "CPU",
+            Engine::Gpu(_) => "GPU",
+        }
     );
     let pb = progress::bar(
         p.file.camera.width as u64 * p.file.camera.height as u64 * r.spp as u64,
         "samples",
     );
     let cancel = interrupt::flag();
-    let out = render(
+    let out = engine.render(
         &p.data,
         &set,
         &RenderOptions {
@@ -198,7 +209,7 @@ pub fn run(a: Args) -> Result<()> {
         },
         &|done, _| pb.set_position(done),
         cancel,
-    );
+    )?;
     pb.finish_and_clear();
     if out.spp == 0 {
         bail!("interrupted before the first pass finished: nothing written");
@@ -238,6 +249,7 @@ pub fn run(a: Args) -> Result<()> {
         max_tau: p.model.as_ref().map(|_| p.max_tau as f64),
         grid_resolution: r.grid_resolution,
         scene_hash: format!("{:016x}", p.data.hash),
+        device: engine.describe(),
         mean_rgb: {
             let n = out.image.pixels.len().max(1) as f64;
             [0, 1, 2].map(|c| out.image.pixels.iter().map(|p| p[c] as f64).sum::<f64>() / n)

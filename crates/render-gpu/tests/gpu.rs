@@ -453,3 +453,61 @@ fn cpu_gpu_agree_bunny() {
         96,
     );
 }
+
+/// Long paths (τ = 500, albedo 0.999: ~180 events on average, heavy-tailed, many beyond
+/// the ~650 PT events one invocation could loop on lavapipe, whose shaders stop after
+/// 65,535 loop iterations in total) must resume across dispatches (16 bounces each on a
+/// software adapter), every sample must finish (the renderer errors otherwise), and the
+/// image mean must agree with the CPU's. The z-score of the difference of the two image
+/// means uses the spread of 4 seeds per device; |z| < 4.5 fails a truncated or lost path
+/// population (which darkens the object by far more) while noise passes.
+#[test]
+fn long_paths_resume_across_dispatches() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let text = sphere_scene("kind = \"index-matched\"")
+        .replace(
+            "sigma_t = [8.0, 15.0, 30.0]",
+            "sigma_t = [1000.0, 1000.0, 1000.0]",
+        )
+        .replace(
+            "albedo = [0.99, 0.95, 0.9]",
+            "albedo = [0.999, 0.999, 0.999]",
+        )
+        .replace("width = 24\nheight = 24", "width = 8\nheight = 8")
+        .replace("fov_deg = 22.0", "fov_deg = 12.0");
+    let s = scene(&text, false);
+    let set = settings(IntegratorKind::Pt, true);
+    let mean = |o: &RenderOutput| {
+        o.image
+            .pixels
+            .iter()
+            .map(|p| (p[0] + p[1] + p[2]) as f64)
+            .sum::<f64>()
+            / (3 * o.image.pixels.len()) as f64
+    };
+    let stats = |v: &[f64]| {
+        let m = v.iter().sum::<f64>() / v.len() as f64;
+        let var = v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (v.len() as f64 - 1.0);
+        (m, var / v.len() as f64)
+    };
+    let cpu: Vec<f64> = (1..=4)
+        .map(|k| mean(&on_cpu(&s, &set, &opts(24, k))))
+        .collect();
+    let mut gpu_means = Vec::new();
+    for k in 5..=8 {
+        let o = on_gpu(&ctx, &s, &set, &opts(24, k));
+        assert_eq!(o.stats.paths, 64 * 24);
+        assert!(
+            o.stats.events as f64 / o.stats.paths as f64 > 150.0,
+            "the scene must make long paths: {:?}",
+            o.stats
+        );
+        gpu_means.push(mean(&o));
+    }
+    let (mc, vc) = stats(&cpu);
+    let (mg, vg) = stats(&gpu_means);
+    let z = (mc - mg) / (vc + vg).sqrt();
+    eprintln!("long paths: image mean CPU {mc:.5} GPU {mg:.5}, z = {z:.2}");
+    assert!(z.abs() < 4.5, "CPU {mc} vs GPU {mg}: z = {z}");
+}

@@ -13,13 +13,30 @@ use crate::setup::SceneData;
 
 use super::context::GpuContext;
 use super::kernels::{self, Kernel, WORKGROUP};
+
+/// vec4s per path slot (`SLOT` in shaders/path.wgsl); the last holds the accumulated RGB
+/// and the count of finished samples.
+const SLOT_VEC4S: u64 = 5;
 use super::model_buffers::{ModelParams, model_buffers};
 use super::resources::{COUNTER_BYTES, Inputs, Resources, read_back, wait};
 use super::scene_buffers::{Params, env_buffer, geometry_buffers, scene_params};
 
-/// Wall time one dispatch aims at: long enough to amortise submission, well below the
-/// ~2 s watchdogs of desktop drivers.
-const TARGET_DISPATCH_SECONDS: f64 = 0.25;
+/// Wall time a chunk of samples aims at (progress, time budget and Ctrl-C are checked
+/// between chunks). A chunk takes several dispatches of bounded work each.
+const TARGET_CHUNK_SECONDS: f64 = 1.0;
+
+/// Bounces each invocation runs per dispatch. llvmpipe (lavapipe) stops a shader after
+/// 65,535 loop iterations in total (BVH traversal and decoder loops count); a bounce of
+/// ST-CVAE with NEE on the bunny takes ~1,000, so software adapters get a small budget.
+/// Hardware GPUs have no such limit; 256 keeps each dispatch far below watchdogs.
+/// `STCVAE_GPU_BOUNCES` overrides both.
+fn bounce_budget(ctx: &GpuContext) -> u32 {
+    std::env::var("STCVAE_GPU_BOUNCES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .filter(|&b: &u32| b > 0)
+        .unwrap_or(if ctx.adapter.software { 16 } else { 256 })
+}
 
 /// Invocations a dispatch aims to have in flight: a big GPU needs ~10⁶ to be busy; a
 /// software adapter gains nothing beyond a few per core.
@@ -65,7 +82,8 @@ pub fn render_gpu(
     let lanes = (target_threads(ctx) / pixels.max(1)).clamp(1, spp as u64) as u32;
     let mut params: Params = scene_params(scene, set, opts.seed);
     let threads = pixels * lanes as u64;
-    let accum_bytes = threads * 16;
+    // One path slot of 5 vec4s per invocation (shaders/path.wgsl).
+    let accum_bytes = threads * 16 * SLOT_VEC4S;
     let (nodes, tris) = geometry_buffers(scene);
     let env = env_buffer(scene);
     let grid: &[f32] = scene.grid.as_ref().map_or(&[], |g| &g.values);
@@ -96,6 +114,7 @@ pub fn render_gpu(
     } else {
         (65535, groups.div_ceil(65535) as u32)
     };
+    params.consts2[2] = bounce_budget(ctx) as f32;
     let start = Instant::now();
     let mut stats = PathStats::default();
     let mut s0 = 0u32;
@@ -107,38 +126,57 @@ pub fn render_gpu(
         params.image[3] = per_lane;
         params.sampling[0] = s0;
         params.sampling[1] = s1;
-        params.misc[3] = (s0 == 0) as u32;
-        ctx.queue
-            .write_buffer(&res.params, 0, bytemuck::bytes_of(&params));
-        ctx.queue
-            .write_buffer(&res.counters, 0, &[0u8; COUNTER_BYTES as usize]);
         let t0 = Instant::now();
-        let mut enc = ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-        {
-            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
-            pass.set_pipeline(&pipeline);
-            pass.set_bind_group(0, &res.bind_group, &[]);
-            pass.dispatch_workgroups(gx, gy, 1);
+        // Dispatch until no path of this chunk is pending (2: first dispatch of the
+        // render, 1: of a chunk, 0: resume).
+        params.misc[3] = if s0 == 0 { 2 } else { 1 };
+        loop {
+            ctx.queue
+                .write_buffer(&res.params, 0, bytemuck::bytes_of(&params));
+            ctx.queue
+                .write_buffer(&res.counters, 0, &[0u8; COUNTER_BYTES as usize]);
+            let mut enc = ctx
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+            {
+                let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+                pass.set_pipeline(&pipeline);
+                pass.set_bind_group(0, &res.bind_group, &[]);
+                pass.dispatch_workgroups(gx, gy, 1);
+            }
+            ctx.queue.submit([enc.finish()]);
+            let c = read_back(ctx, &res.counters, COUNTER_BYTES)?;
+            let word =
+                |i: usize| u32::from_le_bytes(c[4 * i..4 * i + 4].try_into().unwrap()) as u64;
+            let pair = |k: usize| word(2 * k) | (word(2 * k + 1) << 32);
+            stats.add(&PathStats {
+                paths: pair(0),
+                events: pair(1),
+                steps: pair(2),
+                leaks: pair(3),
+                capped: pair(4),
+                non_finite: pair(5),
+            });
+            if pair(7) > 0 {
+                return Err(RenderError::Gpu(format!(
+                    "{} invocations were stopped by {}'s loop limit (lavapipe stops a shader \
+                     after 65,535 loop iterations); set STCVAE_GPU_BOUNCES below {} or use \
+                     --device cpu",
+                    pair(7),
+                    ctx.adapter.name,
+                    params.consts2[2]
+                )));
+            }
+            params.misc[3] = 0;
+            if pair(6) == 0 {
+                break;
+            }
         }
-        ctx.queue.submit([enc.finish()]);
-        let c = read_back(ctx, &res.counters, COUNTER_BYTES)?;
-        let word = |i: usize| u32::from_le_bytes(c[4 * i..4 * i + 4].try_into().unwrap()) as u64;
-        let pair = |k: usize| word(2 * k) | (word(2 * k + 1) << 32);
-        stats.add(&PathStats {
-            paths: pair(0),
-            events: pair(1),
-            steps: pair(2),
-            leaks: pair(3),
-            capped: pair(4),
-            non_finite: pair(5),
-        });
         let dt = t0.elapsed().as_secs_f64();
         progress(pixels * s1 as u64, total);
         s0 = s1;
-        // Grow (or shrink) the next dispatch toward the target duration.
-        let scale = (TARGET_DISPATCH_SECONDS / dt.max(1e-4)).clamp(0.5, 4.0);
+        // Grow (or shrink) the next chunk toward the target duration.
+        let scale = (TARGET_CHUNK_SECONDS / dt.max(1e-4)).clamp(0.5, 4.0);
         per_lane = ((per_lane as f64 * scale) as u32).max(1);
         let out_of_time = opts
             .time_budget
@@ -152,22 +190,34 @@ pub fn render_gpu(
     let vals: &[f32] = bytemuck::cast_slice(&bytes);
     let mut image = RgbImage::new(cam.width as usize, cam.height as usize);
     let mut bad = 0usize;
+    let mut short = 0usize;
     for (p, px) in image.pixels.iter_mut().enumerate() {
         let mut sum = [0f64; 3];
+        let mut finished = 0f64;
         for l in 0..lanes as usize {
-            let q = &vals[(p * lanes as usize + l) * 4..][..3];
+            let slot = (p * lanes as usize + l) * SLOT_VEC4S as usize;
+            let q = &vals[(slot + SLOT_VEC4S as usize - 1) * 4..][..4];
             for c in 0..3 {
                 sum[c] += q[c] as f64;
             }
+            finished += q[3] as f64;
         }
         if !sum.iter().all(|v| v.is_finite()) {
             bad += 1;
+        } else if finished != s0 as f64 {
+            short += 1;
         }
         *px = sum.map(|v| (v / s0.max(1) as f64) as f32);
     }
     if bad > 0 {
         return Err(RenderError::Gpu(format!(
             "{bad} of {pixels} pixels came back unwritten or non-finite from {}",
+            ctx.adapter
+        )));
+    }
+    if short > 0 {
+        return Err(RenderError::Gpu(format!(
+            "{short} of {pixels} pixels came back with fewer than {s0} finished samples from {}",
             ctx.adapter
         )));
     }

@@ -52,7 +52,7 @@ impl Resources {
         layout: &wgpu::BindGroupLayout,
         i: &Inputs,
     ) -> Result<Self, RenderError> {
-        let max = ctx.limits.max_storage_buffer_binding_size as u64;
+        let max = ctx.limits.max_storage_buffer_binding_size;
         let biggest = [
             i.accum_bytes,
             std::mem::size_of_val(i.tris) as u64,
