@@ -3,6 +3,7 @@
 mod bench;
 mod bench_render;
 mod device;
+mod experiment;
 mod generate;
 mod interrupt;
 mod merge;
@@ -43,6 +44,8 @@ enum Command {
     Render(render::Args),
     /// Concatenate dataset shards (.bin or .csv), or average renders (.exr) of one scene.
     Merge(merge::Args),
+    /// Run an experiment that reproduces a result of the paper (configs/experiments/).
+    Experiment(experiment::Args),
     /// Measure the speed of parts of stcvae.
     Bench(bench::Args),
 }
@@ -56,6 +59,7 @@ fn main() {
         Command::Eval(a) => model_cmds::evaluate(a),
         Command::Render(a) => render::run(a),
         Command::Merge(a) => merge::run(a),
+        Command::Experiment(a) => experiment::run(a),
         Command::Bench(a) => bench::run(a),
     };
     if let Err(e) = result {

@@ -122,6 +122,29 @@ struct EvalJson<'a> {
 }
 
 pub fn evaluate(a: EvalArgs) -> Result<()> {
+    let md = evaluate_into(a.model.as_deref(), &a.out, a.samples, a.seed)?;
+    let _ = md;
+    print!(
+        "{}",
+        String::from_utf8_lossy(&std::fs::read(a.out.join("metrics.md"))?)
+    );
+    Ok(())
+}
+
+/// Evaluates the model into `out` (metrics.json, metrics.md, plots); returns the max KS
+/// per quantity over the grid.
+pub fn evaluate_into(
+    model: Option<&Path>,
+    out: &Path,
+    samples: usize,
+    seed: u64,
+) -> Result<std::collections::BTreeMap<&'static str, f64>> {
+    let a = EvalArgs {
+        model: model.map(Path::to_path_buf),
+        out: out.to_path_buf(),
+        samples,
+        seed,
+    };
     let m = load_model(a.model.as_deref())?;
     let model_name = a
         .model
@@ -197,6 +220,5 @@ pub fn evaluate(a: EvalArgs) -> Result<()> {
             .join(", ")
     )?;
     write_atomic(&a.out.join("metrics.md"), &md)?;
-    println!("{}", String::from_utf8_lossy(&md));
-    Ok(())
+    Ok(max_ks)
 }

@@ -243,3 +243,112 @@ pub fn write_all(dir: &Path, panels: &[Panel]) -> Result<Vec<String>> {
     written.push("fig12_cos_beta.png".to_string());
     Ok(written)
 }
+
+/// One named series of a line plot.
+pub struct Series {
+    pub name: String,
+    pub points: Vec<(f64, f64)>,
+}
+
+/// A line plot of a few series (markers at the points), optionally on log axes; used by
+/// the experiments for time / speed-up curves.
+pub fn line_plot(
+    path: &Path,
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    (log_x, log_y): (bool, bool),
+    series: &[Series],
+) -> Result<()> {
+    init_font();
+    let (w, h) = (900u32, 600u32);
+    let pts = || series.iter().flat_map(|s| s.points.iter().cloned());
+    let finite = |v: f64, log: bool| v.is_finite() && (!log || v > 0.0);
+    let xs: Vec<f64> = pts().map(|p| p.0).filter(|&v| finite(v, log_x)).collect();
+    let ys: Vec<f64> = pts().map(|p| p.1).filter(|&v| finite(v, log_y)).collect();
+    if xs.is_empty() || ys.is_empty() {
+        return Err(anyhow!("plot {}: no finite points", path.display()));
+    }
+    let span = |v: &[f64], log: bool| {
+        let lo = v.iter().cloned().fold(f64::INFINITY, f64::min);
+        let hi = v.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+        if log {
+            (lo / 1.3, hi * 1.3)
+        } else {
+            let pad = ((hi - lo) * 0.08).max(1e-9 + lo.abs() * 0.05);
+            (lo - pad, hi + pad)
+        }
+    };
+    let (x0, x1) = span(&xs, log_x);
+    let (y0, y1) = span(&ys, log_y);
+    let colours = [BLACK, RED, BLUE, GREEN, MAGENTA, CYAN];
+    let mut buf = vec![255u8; (w * h * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        let e = |e: &dyn std::fmt::Display| anyhow!("plot {}: {e}", path.display());
+        macro_rules! draw {
+            ($chart:expr) => {{
+                let mut chart = $chart;
+                chart
+                    .configure_mesh()
+                    .x_desc(x_label)
+                    .y_desc(y_label)
+                    .label_style(("sans-serif", 14))
+                    .draw()
+                    .map_err(|x| e(&x))?;
+                for (i, s) in series.iter().enumerate() {
+                    let c = colours[i % colours.len()];
+                    let p: Vec<(f64, f64)> = s
+                        .points
+                        .iter()
+                        .cloned()
+                        .filter(|&(x, y)| finite(x, log_x) && finite(y, log_y))
+                        .collect();
+                    chart
+                        .draw_series(LineSeries::new(p.clone(), c.stroke_width(2)))
+                        .map_err(|x| e(&x))?
+                        .label(s.name.clone())
+                        .legend(move |(x, y)| {
+                            PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2))
+                        });
+                    chart
+                        .draw_series(p.into_iter().map(|q| Circle::new(q, 4, c.filled())))
+                        .map_err(|x| e(&x))?;
+                }
+                chart
+                    .configure_series_labels()
+                    .background_style(WHITE.mix(0.8))
+                    .border_style(BLACK)
+                    .label_font(("sans-serif", 14))
+                    .draw()
+                    .map_err(|x| e(&x))?;
+            }};
+        }
+        let mut b = ChartBuilder::on(&root);
+        b.caption(title, ("sans-serif", 20))
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(60);
+        match (log_x, log_y) {
+            (false, false) => draw!(b.build_cartesian_2d(x0..x1, y0..y1).map_err(|x| e(&x))?),
+            (true, false) => {
+                draw!(
+                    b.build_cartesian_2d((x0..x1).log_scale(), y0..y1)
+                        .map_err(|x| e(&x))?
+                )
+            }
+            (false, true) => {
+                draw!(
+                    b.build_cartesian_2d(x0..x1, (y0..y1).log_scale())
+                        .map_err(|x| e(&x))?
+                )
+            }
+            (true, true) => draw!(
+                b.build_cartesian_2d((x0..x1).log_scale(), (y0..y1).log_scale())
+                    .map_err(|x| e(&x))?
+            ),
+        }
+        root.present().map_err(|x| e(&x))?;
+    }
+    to_png(path, &buf, w, h)
+}

@@ -376,3 +376,54 @@ pub fn cube(size: f32) -> TriMesh {
         triangles,
     }
 }
+
+/// A closed (2, 3) torus knot: a tube of radius 0.35 swept along the knot curve
+/// ((2 + cos 3t) cos 2t, (2 + cos 3t) sin 2t, −sin 3t), about 6.7 units wide; the scene's
+/// `height` rescales it. The tube's frame is transported along the curve (no twist but the
+/// closing one), and the faces are oriented outward.
+pub fn torus_knot() -> TriMesh {
+    const SEG: usize = 240;
+    const RING: usize = 12;
+    const TUBE: f32 = 0.35;
+    let curve = |t: f32| {
+        let r = 2.0 + (3.0 * t).cos();
+        Vec3::new(r * (2.0 * t).cos(), r * (2.0 * t).sin(), -(3.0 * t).sin())
+    };
+    let tau = std::f32::consts::TAU;
+    let mut positions = Vec::with_capacity(SEG * RING);
+    let tangent = |t: f32| (curve(t + 1e-3) - curve(t - 1e-3)).normalize();
+    let mut normal = tangent(0.0).any_orthonormal_vector();
+    for i in 0..SEG {
+        let t = tau * i as f32 / SEG as f32;
+        let tan = tangent(t);
+        // Parallel transport: remove the tangential part and renormalise.
+        normal = (normal - tan * normal.dot(tan)).normalize();
+        let binormal = tan.cross(normal);
+        let c = curve(t);
+        for k in 0..RING {
+            let a = tau * k as f32 / RING as f32;
+            positions.push(c + (normal * a.cos() + binormal * a.sin()) * TUBE);
+        }
+    }
+    let mut triangles = Vec::with_capacity(SEG * RING * 2);
+    for i in 0..SEG {
+        let i2 = (i + 1) % SEG;
+        for k in 0..RING {
+            let k2 = (k + 1) % RING;
+            let (a, b) = ((i * RING + k) as u32, (i * RING + k2) as u32);
+            let (c, d) = ((i2 * RING + k) as u32, (i2 * RING + k2) as u32);
+            triangles.push([a, c, d]);
+            triangles.push([a, d, b]);
+        }
+    }
+    let mut m = TriMesh {
+        positions,
+        triangles,
+    };
+    if m.signed_volume6() < 0.0 {
+        for t in &mut m.triangles {
+            t.swap(1, 2);
+        }
+    }
+    m
+}

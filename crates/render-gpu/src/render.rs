@@ -13,6 +13,9 @@ use crate::setup::SceneData;
 
 const TILE: usize = 16;
 
+/// A pixel's radiance sum over a pass and its count of events + sphere steps.
+type PixelSum = ([f64; 3], u64);
+
 pub struct RenderOptions {
     pub spp: u32,
     pub seed: u64,
@@ -26,6 +29,9 @@ pub struct RenderOutput {
     pub spp: u32,
     pub seconds: f64,
     pub stats: PathStats,
+    /// Per pixel, the mean number of PT scattering events plus sphere steps per path —
+    /// where the work goes (paper Fig. 8/9). The CPU path fills it; the GPU leaves it empty.
+    pub work: Vec<f32>,
 }
 
 /// Renders the scene. `progress(done, total)` counts pixel-samples; `cancel` stops after
@@ -43,16 +49,23 @@ pub fn render(
         .flat_map(|ty| (0..w.div_ceil(TILE)).map(move |tx| (tx * TILE, ty * TILE)))
         .collect();
     let mut sum = vec![[0f64; 3]; w * h];
+    let mut work = vec![0u64; w * h];
     let mut stats = PathStats::default();
     let start = Instant::now();
     // Passes let a time budget or Ctrl-C stop between complete sets of samples.
-    let pass = opts.spp.div_ceil(16).max(1);
+    // With a time budget spp is only a cap: passes of one sample per pixel keep the
+    // overshoot to one pass.
+    let pass = if opts.time_budget.is_some() {
+        1
+    } else {
+        opts.spp.div_ceil(16).max(1)
+    };
     let total = w as u64 * h as u64 * opts.spp as u64;
     let done = AtomicU64::new(0);
     let mut s0 = 0u32;
     while s0 < opts.spp {
         let s1 = (s0 + pass).min(opts.spp);
-        let results: Vec<(Vec<[f64; 3]>, PathStats)> = tiles
+        let results: Vec<(Vec<PixelSum>, PathStats)> = tiles
             .par_iter()
             .map(|&(x0, y0)| {
                 let mut st = PathStats::default();
@@ -63,6 +76,7 @@ pub fn render(
                         let pixel = (y * w + x) as u64;
                         let offset = (pixel.wrapping_mul(0x9e37_79b9_7f4a_7c15) >> 62) as u32 % 3;
                         let mut acc = [0f64; 3];
+                        let before = st.events + st.steps;
                         for s in s0..s1 {
                             let mut rng = WalkRng::for_walk(opts.seed, (pixel << 32) | s as u64);
                             let channel = ((s + offset) % 3) as usize;
@@ -72,7 +86,7 @@ pub fn render(
                             let l = trace(scene, set, cam.origin, dir, channel, &mut st, &mut rng);
                             acc[channel] += 3.0 * l as f64;
                         }
-                        out.push(acc);
+                        out.push((acc, st.events + st.steps - before));
                     }
                 }
                 let n = ((x1 - x0) * (y1 - y0)) as u64 * (s1 - s0) as u64;
@@ -83,12 +97,13 @@ pub fn render(
         for (&(x0, y0), (out, st)) in tiles.iter().zip(results) {
             stats.add(&st);
             let x1 = (x0 + TILE).min(w);
-            for (i, v) in out.into_iter().enumerate() {
+            for (i, (v, n)) in out.into_iter().enumerate() {
                 let (dx, dy) = (i % (x1 - x0), i / (x1 - x0));
-                let p = &mut sum[(y0 + dy) * w + x0 + dx];
+                let at = (y0 + dy) * w + x0 + dx;
                 for c in 0..3 {
-                    p[c] += v[c];
+                    sum[at][c] += v[c];
                 }
+                work[at] += n;
             }
         }
         s0 = s1;
@@ -109,5 +124,9 @@ pub fn render(
         spp,
         seconds: start.elapsed().as_secs_f64(),
         stats,
+        work: work
+            .iter()
+            .map(|&n| (n as f64 / spp.max(1) as f64) as f32)
+            .collect(),
     }
 }

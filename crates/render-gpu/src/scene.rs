@@ -50,6 +50,10 @@ fn default_up() -> [f64; 3] {
 pub enum Shape {
     Sphere,
     Cube,
+    /// A (2, 3) torus knot with a thin tube: the thin-featured test object (its tube is
+    /// ~1/9 of its width, so sphere steps stay small there).
+    #[serde(rename = "torus-knot")]
+    TorusKnot,
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize)]

@@ -40,6 +40,7 @@ pub fn object_mesh(scene: &SceneFile, scene_dir: &Path) -> Result<TriMesh, Rende
     let mut m = match (o.shape, &o.mesh) {
         (Some(Shape::Sphere), _) => mesh::sphere(o.radius.unwrap_or(0.5) as f32),
         (Some(Shape::Cube), _) => mesh::cube(o.size.unwrap_or(1.0) as f32),
+        (Some(Shape::TorusKnot), _) => mesh::torus_knot(),
         (None, Some(p)) => mesh::load_mesh(&scene_dir.join(p))?,
         (None, None) => unreachable!("validated: shape or mesh"),
     };

@@ -226,5 +226,6 @@ pub fn render_gpu(
         spp: s0,
         seconds: start.elapsed().as_secs_f64(),
         stats,
+        work: Vec::new(),
     })
 }

@@ -1,0 +1,155 @@
+//! The experiment config file; every field is checked, errors name the file and field.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Result, anyhow, bail};
+use serde::Deserialize;
+
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum Kind {
+    Teaser,
+    Quality,
+    Complexity,
+    Absorption,
+    Distributions,
+    Nee,
+    Fallback,
+}
+
+impl Kind {
+    pub fn name(self) -> &'static str {
+        match self {
+            Kind::Teaser => "teaser",
+            Kind::Quality => "quality",
+            Kind::Complexity => "complexity",
+            Kind::Absorption => "absorption",
+            Kind::Distributions => "distributions",
+            Kind::Nee => "nee",
+            Kind::Fallback => "fallback",
+        }
+    }
+}
+
+/// Image size, samples and times of one version (full or quick).
+#[derive(Clone, Copy, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Budget {
+    /// Image side in pixels.
+    pub size: u32,
+    /// Samples per pixel of each render (split over two seeds where noise is measured).
+    pub spp: u32,
+    /// Equal-time budget in seconds (nee).
+    pub seconds: Option<f64>,
+    /// Samples per pixel of the converged reference (nee).
+    pub reference_spp: Option<u32>,
+    /// Samples per eval setting (distributions).
+    pub samples: Option<usize>,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    pub kind: Kind,
+    pub title: String,
+    #[serde(default)]
+    pub description: String,
+    /// Scene the experiment varies (relative to the config file).
+    pub scene: Option<PathBuf>,
+    /// More scenes (complexity: the thin-featured object), relative to the config file.
+    #[serde(default)]
+    pub scenes: Vec<PathBuf>,
+    /// Multipliers of the scene's σ_t.
+    #[serde(default)]
+    pub densities: Vec<f64>,
+    /// Absorption 1 − φ values (absorption).
+    #[serde(default)]
+    pub absorptions: Vec<f64>,
+    /// Thin-region thresholds min_tau (fallback).
+    #[serde(default)]
+    pub thresholds: Vec<f64>,
+    /// The paper's figures to print beside ours (teaser: speed-ups per density).
+    #[serde(default)]
+    pub paper: Vec<f64>,
+    pub full: Budget,
+    pub quick: Budget,
+    #[serde(skip)]
+    pub dir: PathBuf,
+}
+
+impl Config {
+    pub fn load(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| anyhow!("{}: cannot read: {e}", path.display()))?;
+        let mut c: Config =
+            toml::from_str(&text).map_err(|e| anyhow!("{}: {}", path.display(), e.message()))?;
+        c.dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
+        c.validate()
+            .map_err(|e| anyhow!("{}: {e}", path.display()))?;
+        Ok(c)
+    }
+
+    fn validate(&self) -> Result<()> {
+        for (name, b) in [("full", &self.full), ("quick", &self.quick)] {
+            if !(1..=4096).contains(&b.size) {
+                bail!("{name}.size = {} is out of range (1..=4096)", b.size);
+            }
+            if b.spp < 2 {
+                bail!(
+                    "{name}.spp = {} must be at least 2 (noise is measured from two seeds)",
+                    b.spp
+                );
+            }
+            if let Some(s) = b.seconds
+                && !(s > 0.0)
+            {
+                bail!("{name}.seconds must be positive");
+            }
+        }
+        let positive = |what: &str, v: &[f64]| -> Result<()> {
+            if let Some(x) = v.iter().find(|x| !(**x > 0.0) || !x.is_finite()) {
+                bail!("{what} must be positive and finite (found {x})");
+            }
+            Ok(())
+        };
+        positive("densities", &self.densities)?;
+        positive("absorptions", &self.absorptions)?;
+        if self.absorptions.iter().any(|&a| a >= 1.0) {
+            bail!("absorptions are 1 − φ and must be below 1");
+        }
+        if self.thresholds.iter().any(|t| !(*t >= 0.0)) {
+            bail!("thresholds (min_tau) must be ≥ 0");
+        }
+        let needs_scene = self.kind != Kind::Distributions;
+        if needs_scene && self.scene.is_none() {
+            bail!("scene is required for kind = \"{}\"", self.kind.name());
+        }
+        let needs = |ok: bool, what: &str| -> Result<()> {
+            if !ok {
+                bail!("kind = \"{}\" needs {what}", self.kind.name());
+            }
+            Ok(())
+        };
+        match self.kind {
+            Kind::Teaser | Kind::Quality | Kind::Complexity => {
+                needs(!self.densities.is_empty(), "densities")?
+            }
+            Kind::Absorption => needs(!self.absorptions.is_empty(), "absorptions")?,
+            Kind::Fallback => needs(!self.thresholds.is_empty(), "thresholds")?,
+            Kind::Nee => needs(
+                self.full.seconds.is_some()
+                    && self.quick.seconds.is_some()
+                    && self.full.reference_spp.is_some()
+                    && self.quick.reference_spp.is_some(),
+                "full/quick seconds and reference_spp",
+            )?,
+            Kind::Distributions => {}
+        }
+        Ok(())
+    }
+
+    pub fn scene_path(&self) -> PathBuf {
+        self.dir
+            .join(self.scene.as_deref().unwrap_or(Path::new("")))
+    }
+}

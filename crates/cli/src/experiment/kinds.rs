@@ -1,0 +1,512 @@
+//! The seven experiments: what each renders and measures (see configs/experiments/).
+
+use anyhow::Result;
+use render_gpu::integrator::IntegratorKind::{Pt, Stcvae};
+use render_gpu::scene::{LightDesc, SceneFile};
+
+use super::measure::{
+    Pair, compare, difference, opts, render_once, render_pair, rmse, save, scale_of, side_by_side,
+    work_image,
+};
+use super::report::{Cell, Report};
+use super::{Ctx, Kind};
+use crate::plots::{Series, line_plot};
+
+pub fn run(ctx: &Ctx, rep: &mut Report) -> Result<()> {
+    match ctx.cfg.kind {
+        Kind::Teaser => teaser(ctx, rep),
+        Kind::Quality => quality(ctx, rep),
+        Kind::Complexity => complexity(ctx, rep),
+        Kind::Absorption => absorption(ctx, rep),
+        Kind::Distributions => distributions(ctx, rep),
+        Kind::Nee => nee(ctx, rep),
+        Kind::Fallback => fallback(ctx, rep),
+    }
+}
+
+fn scale_density(k: f64) -> impl Fn(&mut SceneFile) {
+    move |f: &mut SceneFile| f.medium.sigma_t = f.medium.sigma_t.map(|s| s * k)
+}
+
+fn plot(
+    ctx: &Ctx,
+    rep: &mut Report,
+    file: &str,
+    title: &str,
+    axes: (&str, &str),
+    log: (bool, bool),
+    series: &[Series],
+) -> Result<()> {
+    line_plot(&ctx.out.join(file), title, axes.0, axes.1, log, series)?;
+    rep.image(title, file);
+    Ok(())
+}
+
+fn series(name: &str, points: Vec<(f64, f64)>) -> Series {
+    Series {
+        name: name.into(),
+        points,
+    }
+}
+
+/// Fig. 1: PT vs ST-CVAE at equal spp along the density ladder.
+fn teaser(ctx: &Ctx, rep: &mut Report) -> Result<()> {
+    let scene = ctx.cfg.scene_path();
+    rep.columns(&[
+        "density",
+        "sigma_t_r",
+        "pt_seconds",
+        "st_seconds",
+        "speedup",
+        "var_ratio",
+        "equal_error_speedup",
+        "pt_events_per_path",
+        "st_steps_per_path",
+        "st_fallback_events_per_path",
+        "bias_rmse",
+        "noise_rmse",
+        "paper_speedup",
+        "pt_paths_per_second",
+        "st_paths_per_second",
+    ]);
+    let mut sp = Vec::new();
+    let mut paper = Vec::new();
+    let mut times = (Vec::new(), Vec::new());
+    let mut figs = Vec::new();
+    for (i, &k) in ctx.cfg.densities.iter().enumerate() {
+        let edit = scale_density(k);
+        let pt = render_pair(ctx, &scene, Pt, true, &edit)?;
+        let st = render_pair(ctx, &scene, Stcvae, true, &edit)?;
+        let c = compare(&pt, &st);
+        let exposure = scale_of(&pt.mean) as f32;
+        let sigma = SceneFile::load(&scene)?.medium.sigma_t[0] * k;
+        let p = ctx.cfg.paper.get(i).copied().unwrap_or(f64::NAN);
+        rep.row(vec![
+            k.into(),
+            sigma.into(),
+            pt.seconds.into(),
+            st.seconds.into(),
+            c.speedup.into(),
+            c.var_ratio.into(),
+            (c.speedup * c.var_ratio).into(),
+            pt.per_path(pt.stats.events).into(),
+            st.per_path(st.stats.steps).into(),
+            st.per_path(st.stats.events).into(),
+            c.bias.into(),
+            c.noise.into(),
+            p.into(),
+            pt.paths_per_second().into(),
+            st.paths_per_second().into(),
+        ]);
+        sp.push((k, c.speedup));
+        if p.is_finite() {
+            paper.push((k, p));
+        }
+        times.0.push((k, pt.seconds));
+        times.1.push((k, st.seconds));
+        save(
+            ctx,
+            &format!("pt_k{k}"),
+            &pt.mean,
+            pt.spp,
+            pt.hash,
+            exposure,
+        )?;
+        save(
+            ctx,
+            &format!("stcvae_k{k}"),
+            &st.mean,
+            st.spp,
+            st.hash,
+            exposure,
+        )?;
+        let both = side_by_side(&[&pt.mean, &st.mean]);
+        figs.push((
+            k,
+            save(
+                ctx,
+                &format!("teaser_k{k}"),
+                &both,
+                pt.spp,
+                pt.hash,
+                exposure,
+            )?,
+        ));
+    }
+    rep.text("Both integrators at equal spp; speed-up = PT time / ST-CVAE time; var ratio = PT's per-pixel variance / ST-CVAE's; bias RMSE is noise-corrected, images scaled so PT's brightest 1 % of object pixels is 1.\n");
+    rep.table();
+    for (k, f) in figs {
+        rep.image(
+            &format!("density ×{k}: PT (left) and ST-CVAE (right), equal spp"),
+            &f,
+        );
+    }
+    let mut s = vec![series("stcvae (this run)", sp)];
+    if !paper.is_empty() {
+        s.push(series("paper (teaser)", paper));
+    }
+    plot(
+        ctx,
+        rep,
+        "speedup.png",
+        "Speed-up over PT at equal spp",
+        ("density multiplier", "speed-up"),
+        (true, false),
+        &s,
+    )?;
+    plot(
+        ctx,
+        rep,
+        "time.png",
+        "Render time",
+        ("density multiplier", "seconds"),
+        (true, true),
+        &[series("PT", times.0), series("ST-CVAE", times.1)],
+    )
+}
+
+/// Fig. 6/7: PT vs ST-CVAE and their difference ×4, front and back lighting, low and high
+/// density.
+fn quality(ctx: &Ctx, rep: &mut Report) -> Result<()> {
+    let scene = ctx.cfg.scene_path();
+    rep.columns(&[
+        "lighting",
+        "density",
+        "bias_rmse",
+        "noise_rmse",
+        "speedup",
+        "var_ratio",
+    ]);
+    let mut figs = Vec::new();
+    for (name, dir) in [("front", [0.3, -0.3, -1.0]), ("back", [0.3, -0.3, 1.0])] {
+        for &k in &ctx.cfg.densities {
+            let edit = move |f: &mut SceneFile| {
+                scale_density(k)(f);
+                let irradiance = f.lights.first().map_or([3.0; 3], |l| l.irradiance);
+                f.lights = vec![LightDesc {
+                    direction: dir,
+                    irradiance,
+                    ..f.lights.first().cloned().unwrap_or_else(default_light)
+                }];
+            };
+            let pt = render_pair(ctx, &scene, Pt, true, &edit)?;
+            let st = render_pair(ctx, &scene, Stcvae, true, &edit)?;
+            let c = compare(&pt, &st);
+            rep.row(vec![
+                name.into(),
+                k.into(),
+                c.bias.into(),
+                c.noise.into(),
+                c.speedup.into(),
+                c.var_ratio.into(),
+            ]);
+            let exposure = scale_of(&pt.mean) as f32;
+            let diff = difference(&pt.mean, &st.mean, 4.0);
+            let all = side_by_side(&[&pt.mean, &st.mean, &diff]);
+            figs.push((
+                name,
+                k,
+                save(
+                    ctx,
+                    &format!("quality_{name}_k{k}"),
+                    &all,
+                    pt.spp,
+                    pt.hash,
+                    exposure,
+                )?,
+            ));
+        }
+    }
+    rep.text("Noise-corrected bias RMSE of ST-CVAE against PT at equal spp (images scaled so PT's brightest 1 % of object pixels is 1).\n");
+    rep.table();
+    for (name, k, f) in figs {
+        rep.image(
+            &format!("{name} lighting, density ×{k}: PT, ST-CVAE, |difference| ×4"),
+            &f,
+        );
+    }
+    Ok(())
+}
+
+fn default_light() -> LightDesc {
+    toml::from_str(
+        "kind = \"directional\"\ndirection = [0.0, 0.0, -1.0]\nirradiance = [3.0, 3.0, 3.0]",
+    )
+    .expect("a valid light")
+}
+
+/// Fig. 8/9: where the work goes (per-pixel PT events vs sphere steps) and time vs
+/// density, for the scene and for a thin-featured object.
+fn complexity(ctx: &Ctx, rep: &mut Report) -> Result<()> {
+    rep.columns(&[
+        "object",
+        "density",
+        "pt_seconds",
+        "st_seconds",
+        "speedup",
+        "pt_events_per_path",
+        "st_steps_per_path",
+        "st_fallback_events_per_path",
+    ]);
+    let mut scenes = vec![ctx.cfg.scene_path()];
+    scenes.extend(ctx.cfg.scenes.iter().map(|s| ctx.cfg.dir.join(s)));
+    let mut figs = Vec::new();
+    let mut curves = Vec::new();
+    for scene in &scenes {
+        let obj = scene
+            .file_stem()
+            .map_or("scene".into(), |s| s.to_string_lossy().into_owned());
+        let (mut tp, mut ts) = (Vec::new(), Vec::new());
+        for &k in &ctx.cfg.densities {
+            let edit = scale_density(k);
+            let pt: Pair = render_pair(ctx, scene, Pt, true, &edit)?;
+            let st: Pair = render_pair(ctx, scene, Stcvae, true, &edit)?;
+            rep.row(vec![
+                obj.clone().into(),
+                k.into(),
+                pt.seconds.into(),
+                st.seconds.into(),
+                (pt.seconds / st.seconds.max(1e-9)).into(),
+                pt.per_path(pt.stats.events).into(),
+                st.per_path(st.stats.steps).into(),
+                st.per_path(st.stats.events).into(),
+            ]);
+            tp.push((k, pt.seconds));
+            ts.push((k, st.seconds));
+            if !pt.work.is_empty() && !st.work.is_empty() {
+                let max = pt.work.iter().chain(&st.work).cloned().fold(0.0, f32::max);
+                let (w, h) = (pt.mean.width, pt.mean.height);
+                let maps = side_by_side(&[
+                    &work_image(&pt.work, w, h, max),
+                    &work_image(&st.work, w, h, max),
+                ]);
+                figs.push((
+                    obj.clone(),
+                    k,
+                    max,
+                    save(
+                        ctx,
+                        &format!("work_{obj}_k{k}"),
+                        &maps,
+                        pt.spp,
+                        pt.hash,
+                        1.0,
+                    )?,
+                ));
+            }
+        }
+        curves.push((obj, tp, ts));
+    }
+    rep.text("Events per path count real scattering events (PT) and sphere steps plus thin-region PT fallback events (ST-CVAE), over all pixels (background included).\n");
+    rep.table();
+    for (obj, k, max, f) in figs {
+        rep.image(&format!("{obj}, density ×{k}: PT events (left) vs ST-CVAE steps + events (right) per path, log scale, white = {max:.0}"), &f);
+    }
+    if ctx.engine_is_gpu() {
+        rep.text("(Per-pixel work maps come from the CPU integrators; this run used the GPU.)\n");
+    }
+    let mut s = Vec::new();
+    for (obj, tp, ts) in curves {
+        s.push(series(&format!("PT, {obj}"), tp));
+        s.push(series(&format!("ST-CVAE, {obj}"), ts));
+    }
+    plot(
+        ctx,
+        rep,
+        "time_vs_density.png",
+        "Render time vs density",
+        ("density multiplier", "seconds"),
+        (true, true),
+        &s,
+    )
+}
+
+/// Fig. 10: time of PT and ST-CVAE as the absorption 1 − φ doubles.
+fn absorption(ctx: &Ctx, rep: &mut Report) -> Result<()> {
+    let scene = ctx.cfg.scene_path();
+    rep.columns(&[
+        "absorption",
+        "pt_seconds",
+        "st_seconds",
+        "speedup",
+        "pt_events_per_path",
+        "st_steps_per_path",
+        "bias_rmse",
+    ]);
+    let (mut tp, mut ts) = (Vec::new(), Vec::new());
+    for &a in &ctx.cfg.absorptions {
+        let edit = move |f: &mut SceneFile| f.medium.albedo = [1.0 - a; 3];
+        let pt = render_pair(ctx, &scene, Pt, true, &edit)?;
+        let st = render_pair(ctx, &scene, Stcvae, true, &edit)?;
+        let c = compare(&pt, &st);
+        rep.row(vec![
+            a.into(),
+            pt.seconds.into(),
+            st.seconds.into(),
+            c.speedup.into(),
+            pt.per_path(pt.stats.events).into(),
+            st.per_path(st.stats.steps).into(),
+            c.bias.into(),
+        ]);
+        tp.push((a, pt.seconds));
+        ts.push((a, st.seconds));
+    }
+    rep.text("Albedo φ = 1 − absorption on all channels, equal spp.\n");
+    rep.table();
+    plot(
+        ctx,
+        rep,
+        "time_vs_absorption.png",
+        "Render time vs absorption",
+        ("1 − φ", "seconds"),
+        (true, true),
+        &[series("PT", tp), series("ST-CVAE", ts)],
+    )
+}
+
+/// Fig. 11/12: the eval plots and tables of the model.
+fn distributions(ctx: &Ctx, rep: &mut Report) -> Result<()> {
+    let samples = ctx.budget.samples.unwrap_or(10_000);
+    let max_ks = crate::model_cmds::evaluate_into(ctx.model.as_deref(), &ctx.out, samples, 1)?;
+    rep.columns(&["quantity", "max_ks"]);
+    for (q, v) in &max_ks {
+        rep.row(vec![(*q).into(), Cell::Num(*v)]);
+    }
+    rep.text(&format!("{samples} model samples vs {samples} simulator walks per setting (τ ∈ {{1, 5, 25, 125}} × g ∈ {{−0.7, 0, 0.4, 0.9}}, φ ∈ {{1, 0.9}}); the largest two-sample KS statistic over the grid. Full table: [metrics.md](metrics.md).\n"));
+    rep.table();
+    for f in [
+        "fig11_n.png",
+        "fig12_cos_theta.png",
+        "fig12_cos_alpha.png",
+        "fig12_cos_beta.png",
+    ] {
+        if ctx.out.join(f).exists() {
+            rep.image(f, f);
+        }
+    }
+    Ok(())
+}
+
+/// Fig. 13: equal-time comparison against a converged reference.
+fn nee(ctx: &Ctx, rep: &mut Report) -> Result<()> {
+    let scene = ctx.cfg.scene_path();
+    let none = |_: &mut SceneFile| {};
+    let seconds = ctx.budget.seconds.unwrap_or(1.0);
+    let ref_spp = ctx.budget.reference_spp.unwrap_or(256);
+    let (reference, hash) = render_once(ctx, &scene, (Pt, true), &none, &opts(ref_spp, 99, None))?;
+    let exposure = scale_of(&reference.image) as f32;
+    save(
+        ctx,
+        "reference",
+        &reference.image,
+        reference.spp,
+        hash,
+        exposure,
+    )?;
+    rep.columns(&["method", "budget_seconds", "seconds", "spp", "rmse"]);
+    let methods = [
+        ("PT, no NEE", Pt, false),
+        ("PT, NEE", Pt, true),
+        ("ST-CVAE, EventGen NEE", Stcvae, true),
+    ];
+    let mut curves = Vec::new();
+    let mut finals = Vec::new();
+    for (name, kind, with_nee) in methods {
+        let mut pts = Vec::new();
+        for frac in [0.25, 0.5, 1.0] {
+            let b = seconds * frac;
+            let (o, _) = render_once(
+                ctx,
+                &scene,
+                (kind, with_nee),
+                &none,
+                &opts(1 << 20, 7, Some(b)),
+            )?;
+            let e = rmse(&reference.image, &o.image);
+            rep.row(vec![
+                name.into(),
+                b.into(),
+                o.seconds.into(),
+                (o.spp as f64).into(),
+                e.into(),
+            ]);
+            pts.push((o.seconds, e));
+            if frac == 1.0 {
+                finals.push(o.image);
+            }
+        }
+        curves.push(series(name, pts));
+    }
+    rep.text(&format!("Each method renders for the same wall time (the budget; a render stops after the pass in which it ran out); RMSE against a PT + NEE reference of {ref_spp} spp, in units where the reference's brightest 1 % of object pixels is 1 (the reference's own noise is included).\n"));
+    rep.table();
+    let refs: Vec<&_> = std::iter::once(&reference.image)
+        .chain(finals.iter())
+        .collect();
+    let f = save(
+        ctx,
+        "equal_time",
+        &side_by_side(&refs),
+        reference.spp,
+        hash,
+        exposure,
+    )?;
+    rep.image(&format!("reference, then PT without NEE, PT with NEE, ST-CVAE with EventGen NEE at {seconds} s each"), &f);
+    plot(
+        ctx,
+        rep,
+        "rmse_vs_time.png",
+        "Error vs time",
+        ("seconds", "RMSE"),
+        (true, true),
+        &curves,
+    )
+}
+
+/// Beyond the paper: speed-up vs the thin-region threshold of the sphere step.
+fn fallback(ctx: &Ctx, rep: &mut Report) -> Result<()> {
+    let scene = ctx.cfg.scene_path();
+    let k = ctx.cfg.densities.first().copied().unwrap_or(1.0);
+    rep.columns(&[
+        "min_tau",
+        "density",
+        "st_seconds",
+        "speedup",
+        "var_ratio",
+        "st_steps_per_path",
+        "st_fallback_events_per_path",
+        "bias_rmse",
+    ]);
+    let pt = render_pair(ctx, &scene, Pt, true, &scale_density(k))?;
+    let mut sp = Vec::new();
+    for &t in &ctx.cfg.thresholds {
+        let edit = move |f: &mut SceneFile| {
+            scale_density(k)(f);
+            f.render.min_tau = t;
+        };
+        let st = render_pair(ctx, &scene, Stcvae, true, &edit)?;
+        let c = compare(&pt, &st);
+        rep.row(vec![
+            t.into(),
+            k.into(),
+            st.seconds.into(),
+            c.speedup.into(),
+            c.var_ratio.into(),
+            st.per_path(st.stats.steps).into(),
+            st.per_path(st.stats.events).into(),
+            c.bias.into(),
+        ]);
+        // A log axis cannot show 0 (the authors' behaviour): plot it at a small offset.
+        sp.push((t.max(0.01), c.speedup));
+    }
+    rep.text("min_tau = 0 is the authors' behaviour (a sphere step however thin the free region); above it, points where σ_t·r < min_tau take an ordinary PT event instead. Speed-up against PT at equal spp; min_tau = 0 is drawn at 0.01.\n");
+    rep.table();
+    plot(
+        ctx,
+        rep,
+        "speedup_vs_min_tau.png",
+        "Speed-up vs thin-region threshold",
+        ("min_tau", "speed-up over PT"),
+        (true, false),
+        &[series("ST-CVAE", sp)],
+    )
+}

@@ -1,0 +1,258 @@
+//! Renders for the experiments and the figures measured on them: time, paths/s, work per
+//! path, the per-pixel noise from two seeds and the noise-corrected bias between two
+//! integrators (the same estimator as `stcvae bench render`).
+
+use std::path::Path;
+use std::sync::atomic::AtomicBool;
+
+use anyhow::Result;
+use render_gpu::image_io::{RenderTag, RgbImage, write_exr, write_png};
+use render_gpu::integrator::{IntegratorKind, IntegratorSettings, PathStats};
+use render_gpu::render::RenderOptions;
+use render_gpu::scene::SceneFile;
+
+use super::Ctx;
+use crate::render::prepare;
+
+/// A render made of two seeds: their mean, the per-pixel variance of that mean
+/// ((A₁ − A₂)²/4 per channel), time and statistics summed, the work map averaged.
+pub struct Pair {
+    pub mean: RgbImage,
+    pub var: Vec<[f64; 3]>,
+    pub seconds: f64,
+    pub stats: PathStats,
+    pub work: Vec<f32>,
+    pub spp: u32,
+    pub hash: u64,
+}
+
+impl Pair {
+    pub fn per_path(&self, n: u64) -> f64 {
+        n as f64 / self.stats.paths.max(1) as f64
+    }
+    pub fn paths_per_second(&self) -> f64 {
+        self.stats.paths as f64 / self.seconds.max(1e-9)
+    }
+}
+
+/// Samples, seed and optional time budget (then spp is a cap) of one render.
+pub fn opts(spp: u32, seed: u64, time_budget: Option<f64>) -> RenderOptions {
+    RenderOptions {
+        spp,
+        seed,
+        time_budget,
+    }
+}
+
+/// One render of `scene` edited by `edit`.
+pub fn render_once(
+    ctx: &Ctx,
+    scene: &Path,
+    (kind, nee): (IntegratorKind, bool),
+    edit: &dyn Fn(&mut SceneFile),
+    o: &RenderOptions,
+) -> Result<(render_gpu::render::RenderOutput, u64)> {
+    let size = ctx.budget.size;
+    let p = prepare(scene, Some(kind), Some(nee), ctx.model.as_deref(), |f| {
+        let aspect = f.camera.height as f64 / f.camera.width as f64;
+        f.camera.width = size;
+        f.camera.height = ((size as f64 * aspect).round() as u32).max(1);
+        edit(f);
+    })?;
+    let set = IntegratorSettings {
+        kind,
+        nee,
+        model: p.model.as_ref(),
+        min_tau: p.file.render.min_tau as f32,
+        max_tau: p.max_tau,
+        nee_samples: p.file.render.nee_samples,
+    };
+    let out = ctx
+        .engine
+        .render(&p.data, &set, o, &|_, _| {}, &AtomicBool::new(false))?;
+    Ok((out, p.data.hash))
+}
+
+/// Two seeds of `spp / 2` samples each.
+pub fn render_pair(
+    ctx: &Ctx,
+    scene: &Path,
+    kind: IntegratorKind,
+    nee: bool,
+    edit: &dyn Fn(&mut SceneFile),
+) -> Result<Pair> {
+    let half = (ctx.budget.spp / 2).max(1);
+    let (a, hash) = render_once(ctx, scene, (kind, nee), edit, &opts(half, 11, None))?;
+    let (b, _) = render_once(ctx, scene, (kind, nee), edit, &opts(half, 12, None))?;
+    let mut mean = RgbImage::new(a.image.width, a.image.height);
+    let mut var = Vec::with_capacity(a.image.pixels.len());
+    for ((m, x), y) in mean
+        .pixels
+        .iter_mut()
+        .zip(&a.image.pixels)
+        .zip(&b.image.pixels)
+    {
+        let mut v = [0f64; 3];
+        for c in 0..3 {
+            m[c] = 0.5 * (x[c] + y[c]);
+            let d = (x[c] - y[c]) as f64;
+            v[c] = 0.25 * d * d;
+        }
+        var.push(v);
+    }
+    let mut stats = a.stats;
+    stats.add(&b.stats);
+    let work = a
+        .work
+        .iter()
+        .zip(b.work.iter().chain(std::iter::repeat(&0.0)))
+        .map(|(x, y)| 0.5 * (x + y))
+        .collect();
+    Ok(Pair {
+        mean,
+        var,
+        seconds: a.seconds + b.seconds,
+        stats,
+        work,
+        spp: 2 * half,
+        hash,
+    })
+}
+
+/// 1 / (the 99th percentile of the luminance of the reference's object pixels): images
+/// are compared in units where the brightest 1 % of the object is ≈ 1.
+pub fn scale_of(reference: &RgbImage) -> f64 {
+    let mut l: Vec<f64> = reference.pixels.iter().map(|p| lum(*p)).collect();
+    let max = l.iter().cloned().fold(0.0, f64::max);
+    l.retain(|&v| v > 1e-3 * max);
+    l.sort_by(f64::total_cmp);
+    if l.is_empty() {
+        1.0
+    } else {
+        1.0 / l[(l.len() * 99 / 100).min(l.len() - 1)].max(1e-12)
+    }
+}
+
+pub fn lum(p: [f32; 3]) -> f64 {
+    (p[0] + p[1] + p[2]) as f64 / 3.0
+}
+
+/// PT (reference) against another integrator at equal spp.
+pub struct Comparison {
+    /// Wall-time ratio reference / other.
+    pub speedup: f64,
+    /// Per-pixel variance ratio reference / other.
+    pub var_ratio: f64,
+    /// Noise-corrected RMSE: √max(0, mean (A − B)² − mean (Var_A + Var_B)), scaled.
+    pub bias: f64,
+    /// RMSE the two noises alone would give, scaled.
+    pub noise: f64,
+}
+
+pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
+    let scale = scale_of(&reference.mean);
+    let n = (reference.mean.pixels.len() * 3) as f64;
+    let mut mse = 0.0;
+    let mut noise = 0.0;
+    let (mut va, mut vb) = (0.0, 0.0);
+    for i in 0..reference.mean.pixels.len() {
+        for c in 0..3 {
+            let d = (reference.mean.pixels[i][c] - other.mean.pixels[i][c]) as f64;
+            mse += d * d;
+            noise += reference.var[i][c] + other.var[i][c];
+            va += reference.var[i][c];
+            vb += other.var[i][c];
+        }
+    }
+    Comparison {
+        speedup: reference.seconds / other.seconds.max(1e-9),
+        var_ratio: va / vb.max(1e-300),
+        bias: ((mse - noise) / n).max(0.0).sqrt() * scale,
+        noise: (noise / n).sqrt() * scale,
+    }
+}
+
+/// Plain RMSE of `img` against `reference`, in the reference's scaled units.
+pub fn rmse(reference: &RgbImage, img: &RgbImage) -> f64 {
+    let scale = scale_of(reference);
+    let n = (reference.pixels.len() * 3) as f64;
+    let s: f64 = reference
+        .pixels
+        .iter()
+        .zip(&img.pixels)
+        .map(|(a, b)| (0..3).map(|c| ((a[c] - b[c]) as f64).powi(2)).sum::<f64>())
+        .sum();
+    (s / n).sqrt() * scale
+}
+
+/// |A − B| × `gain`, per channel.
+pub fn difference(a: &RgbImage, b: &RgbImage, gain: f32) -> RgbImage {
+    let mut d = RgbImage::new(a.width, a.height);
+    for ((o, x), y) in d.pixels.iter_mut().zip(&a.pixels).zip(&b.pixels) {
+        for c in 0..3 {
+            o[c] = (x[c] - y[c]).abs() * gain;
+        }
+    }
+    d
+}
+
+/// Images side by side with a 2-pixel white gap (all the same height).
+pub fn side_by_side(images: &[&RgbImage]) -> RgbImage {
+    let gap = 2;
+    let h = images.iter().map(|i| i.height).max().unwrap_or(1);
+    let w: usize =
+        images.iter().map(|i| i.width).sum::<usize>() + gap * images.len().saturating_sub(1);
+    let mut out = RgbImage::new(w.max(1), h);
+    let white = images
+        .iter()
+        .flat_map(|i| i.pixels.iter().map(|p| lum(*p) as f32))
+        .fold(0.0f32, f32::max)
+        .max(1e-6);
+    for p in &mut out.pixels {
+        *p = [white; 3];
+    }
+    let mut x0 = 0;
+    for img in images {
+        for y in 0..img.height {
+            for x in 0..img.width {
+                out.pixels[y * out.width + x0 + x] = img.pixels[y * img.width + x];
+            }
+        }
+        x0 += img.width + gap;
+    }
+    out
+}
+
+/// A per-pixel work map as a grey image: log(1 + n) / log(1 + max), so maps drawn with
+/// the same `max` compare directly.
+pub fn work_image(work: &[f32], width: usize, height: usize, max: f32) -> RgbImage {
+    let mut img = RgbImage::new(width, height);
+    let denom = (1.0 + max.max(1e-6)).ln();
+    for (p, &n) in img.pixels.iter_mut().zip(work) {
+        let v = (1.0 + n.max(0.0)).ln() / denom;
+        *p = [v; 3];
+    }
+    img
+}
+
+/// Writes NAME.exr (linear) and NAME.png (preview with `exposure`).
+pub fn save(
+    ctx: &Ctx,
+    name: &str,
+    img: &RgbImage,
+    spp: u32,
+    hash: u64,
+    exposure: f32,
+) -> Result<String> {
+    let exr = ctx.out.join(format!("{name}.exr"));
+    write_exr(
+        &exr,
+        img,
+        &RenderTag {
+            spp: spp as u64,
+            scene_hash: hash,
+        },
+    )?;
+    write_png(&ctx.out.join(format!("{name}.png")), img, exposure)?;
+    Ok(format!("{name}.png"))
+}

@@ -1,0 +1,84 @@
+//! `stcvae experiment CONFIG [--quick]`: one TOML config per paper result, run end to end
+//! into `results/<name>/`: images (EXR + PNG), `figures.csv` with every measured figure,
+//! PNG plots and a `report.md` that embeds them.
+
+mod config;
+mod kinds;
+mod measure;
+mod report;
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+
+use crate::device::{DeviceArg, Engine};
+pub use config::{Budget, Config, Kind};
+pub use report::Report;
+
+#[derive(clap::Args)]
+#[command(
+    after_help = "Configs: configs/experiments/{teaser,quality,complexity,absorption,\
+    distributions,nee,fallback}.toml. Each writes OUT/<name>/report.md with its figures.\n\n\
+    Example:\n  stcvae experiment configs/experiments/teaser.toml --quick"
+)]
+pub struct Args {
+    /// Experiment config (TOML).
+    pub config: PathBuf,
+    /// The reduced version (small images, few samples): minutes, for checks.
+    #[arg(long)]
+    pub quick: bool,
+    /// Where renders run: auto (a hardware GPU if any, else the CPU), gpu or cpu.
+    #[arg(long, value_enum, default_value_t = DeviceArg::Auto)]
+    pub device: DeviceArg,
+    /// Results root; the experiment writes OUT/<config name>/.
+    #[arg(long, default_value = "results")]
+    pub out: PathBuf,
+    /// Model file (default: models/default.stcvae).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+}
+
+/// What every experiment kind gets.
+pub struct Ctx<'a> {
+    pub cfg: &'a Config,
+    pub budget: Budget,
+    pub engine: &'a Engine,
+    pub model: Option<PathBuf>,
+    pub out: PathBuf,
+}
+
+impl Ctx<'_> {
+    pub fn engine_is_gpu(&self) -> bool {
+        matches!(self.engine, Engine::Gpu(_))
+    }
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let cfg = Config::load(&a.config)?;
+    let name = a
+        .config
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "experiment".into());
+    let out = a.out.join(&name);
+    std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
+    let engine = Engine::open(a.device)?;
+    let ctx = Ctx {
+        cfg: &cfg,
+        budget: if a.quick { cfg.quick } else { cfg.full },
+        engine: &engine,
+        model: a.model.clone(),
+        out: out.clone(),
+    };
+    let mut rep = Report::new(&cfg, &a, &engine);
+    eprintln!(
+        "experiment {name} ({}{}) -> {}",
+        cfg.kind.name(),
+        if a.quick { ", quick" } else { "" },
+        out.display()
+    );
+    kinds::run(&ctx, &mut rep)?;
+    rep.write(&out)?;
+    eprintln!("wrote {}", out.join("report.md").display());
+    Ok(())
+}

@@ -1,0 +1,150 @@
+//! `report.md` and `figures.csv` of an experiment.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use anyhow::Result;
+use scatter_sim::output::write_atomic;
+
+use super::{Args, Config};
+use crate::device::Engine;
+
+/// A cell of the figures table: a number (written with full precision in the CSV) or text.
+pub enum Cell {
+    Num(f64),
+    Text(String),
+}
+
+impl From<f64> for Cell {
+    fn from(v: f64) -> Self {
+        Cell::Num(v)
+    }
+}
+impl From<&str> for Cell {
+    fn from(v: &str) -> Self {
+        Cell::Text(v.to_string())
+    }
+}
+impl From<String> for Cell {
+    fn from(v: String) -> Self {
+        Cell::Text(v)
+    }
+}
+
+pub struct Report {
+    pub md: String,
+    header: Vec<String>,
+    rows: Vec<Vec<Cell>>,
+}
+
+/// Days since 1970-01-01 to (y, m, d) (Howard Hinnant's civil_from_days).
+fn civil(days: i64) -> (i64, u32, u32) {
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = (doy - (153 * mp + 2) / 5 + 1) as u32;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 } as u32;
+    (yoe + era * 400 + i64::from(m <= 2), m, d)
+}
+
+pub fn today() -> String {
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs() as i64)
+        .unwrap_or(0);
+    let (y, m, d) = civil(secs.div_euclid(86_400));
+    format!("{y:04}-{m:02}-{d:02}")
+}
+
+impl Report {
+    pub fn new(cfg: &Config, a: &Args, engine: &Engine) -> Self {
+        let mut md = String::new();
+        let _ = writeln!(md, "# {}\n", cfg.title);
+        if !cfg.description.is_empty() {
+            let _ = writeln!(md, "{}\n", cfg.description.trim());
+        }
+        let _ = writeln!(
+            md,
+            "Regenerate: `stcvae experiment {}{}{}`  \nMachine: {} logical cores, {}; date {}.{}\n",
+            a.config.display(),
+            if a.quick { " --quick" } else { "" },
+            match a.device {
+                crate::device::DeviceArg::Auto => "",
+                crate::device::DeviceArg::Gpu => " --device gpu",
+                crate::device::DeviceArg::Cpu => " --device cpu",
+            },
+            std::thread::available_parallelism().map_or(0, |n| n.get()),
+            engine.describe(),
+            today(),
+            if a.quick {
+                " **Quick version** (small images, few samples): the numbers are noisy."
+            } else {
+                ""
+            }
+        );
+        Self {
+            md,
+            header: Vec::new(),
+            rows: Vec::new(),
+        }
+    }
+
+    pub fn columns(&mut self, names: &[&str]) {
+        self.header = names.iter().map(|s| s.to_string()).collect();
+    }
+
+    pub fn row(&mut self, cells: Vec<Cell>) {
+        self.rows.push(cells);
+    }
+
+    pub fn text(&mut self, s: &str) {
+        self.md.push_str(s);
+        self.md.push('\n');
+    }
+
+    pub fn image(&mut self, caption: &str, file: &str) {
+        let _ = writeln!(self.md, "![{caption}]({file})  \n*{caption}*\n");
+    }
+
+    /// The figures table as markdown (numbers to 4 significant digits).
+    pub fn table(&mut self) {
+        let _ = writeln!(self.md, "| {} |", self.header.join(" | "));
+        let _ = writeln!(self.md, "|{}|", vec!["---"; self.header.len()].join("|"));
+        for r in &self.rows {
+            let cells: Vec<String> = r
+                .iter()
+                .map(|c| match c {
+                    Cell::Num(v) if v.abs() >= 1e4 || (v.abs() < 1e-3 && *v != 0.0) => {
+                        format!("{v:.3e}")
+                    }
+                    Cell::Num(v) => format!("{}", (v * 1e4).round() / 1e4),
+                    Cell::Text(t) => t.clone(),
+                })
+                .collect();
+            let _ = writeln!(self.md, "| {} |", cells.join(" | "));
+        }
+        self.md.push('\n');
+    }
+
+    pub fn write(&self, dir: &Path) -> Result<()> {
+        let mut csv = self.header.join(",");
+        csv.push('\n');
+        for r in &self.rows {
+            let cells: Vec<String> = r
+                .iter()
+                .map(|c| match c {
+                    Cell::Num(v) => format!("{v}"),
+                    Cell::Text(t) => t.replace(',', ";"),
+                })
+                .collect();
+            csv.push_str(&cells.join(","));
+            csv.push('\n');
+        }
+        write_atomic(&dir.join("figures.csv"), csv.as_bytes())?;
+        write_atomic(&dir.join("report.md"), self.md.as_bytes())?;
+        Ok(())
+    }
+}

@@ -1,0 +1,116 @@
+//! Every experiment config parses and runs in `--quick` mode end to end, producing its CSV
+//! (every figure finite), its plots (valid PNGs) and a report whose images exist.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn configs() -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(root().join("configs/experiments"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "toml"))
+        .collect();
+    v.sort();
+    v
+}
+
+fn check_png(path: &Path) {
+    let f = std::fs::File::open(path).unwrap();
+    let mut dec = png::Decoder::new(std::io::BufReader::new(f))
+        .read_info()
+        .unwrap_or_else(|e| panic!("{}: not a PNG: {e}", path.display()));
+    let mut buf = vec![0; dec.output_buffer_size()];
+    let info = dec
+        .next_frame(&mut buf)
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    assert!(info.width > 0 && info.height > 0, "{}", path.display());
+}
+
+#[test]
+fn every_experiment_runs_quick() {
+    let names = [
+        "absorption",
+        "complexity",
+        "distributions",
+        "fallback",
+        "nee",
+        "quality",
+        "teaser",
+    ];
+    let found: Vec<String> = configs()
+        .iter()
+        .map(|p| p.file_stem().unwrap().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(found, names, "one config per paper result");
+    let tmp = tempfile::tempdir().unwrap();
+    for cfg in configs() {
+        let out = Command::new(env!("CARGO_BIN_EXE_stcvae"))
+            .args([
+                "experiment",
+                cfg.to_str().unwrap(),
+                "--quick",
+                "--device",
+                "cpu",
+                "--out",
+            ])
+            .arg(tmp.path())
+            .current_dir(root())
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{}: {err}", cfg.display());
+        let dir = tmp.path().join(cfg.file_stem().unwrap());
+        let csv = std::fs::read_to_string(dir.join("figures.csv")).unwrap();
+        let mut lines = csv.lines();
+        let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+        let mut rows = 0;
+        for line in lines {
+            let cells: Vec<&str> = line.split(',').collect();
+            assert_eq!(cells.len(), header.len(), "{}: {line}", cfg.display());
+            for (h, c) in header.iter().zip(&cells) {
+                if let Ok(v) = c.parse::<f64>() {
+                    assert!(v.is_finite(), "{}: {h} = {c}", cfg.display());
+                }
+            }
+            rows += 1;
+        }
+        assert!(rows > 0, "{}: no figures", cfg.display());
+        let report = std::fs::read_to_string(dir.join("report.md")).unwrap();
+        let mut images = 0;
+        for part in report.split("](").skip(1) {
+            let file = &part[..part.find(')').unwrap()];
+            if file.ends_with(".png") {
+                check_png(&dir.join(file));
+                images += 1;
+            }
+        }
+        assert!(images > 0, "{}: the report embeds no plot", cfg.display());
+    }
+}
+
+#[test]
+fn bad_experiment_config_is_a_clear_error() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cfg = tmp.path().join("bad.toml");
+    std::fs::write(
+        &cfg,
+        "kind = \"teaser\"\ntitle = \"t\"\nscene = \"x.toml\"\ndensities = [-1.0]\n\
+         [full]\nsize = 8\nspp = 2\n[quick]\nsize = 8\nspp = 2\n",
+    )
+    .unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args(["experiment", cfg.to_str().unwrap(), "--quick"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        err.contains("bad.toml") && err.contains("densities"),
+        "{err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
+}
