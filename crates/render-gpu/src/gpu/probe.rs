@@ -44,16 +44,11 @@ pub fn run_probe(
     )?;
     ctx.queue
         .write_buffer(&res.accum, 0, bytemuck::cast_slice(items));
-    let mut enc = ctx
-        .device
-        .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-    {
-        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
-        pass.set_pipeline(&pipeline);
-        pass.set_bind_group(0, &res.bind_group, &[]);
-        pass.dispatch_workgroups((items.len() as u32).div_ceil(WORKGROUP), 1, 1);
-    }
-    ctx.queue.submit([enc.finish()]);
+    res.dispatch(
+        ctx,
+        &pipeline,
+        ((items.len() as u32).div_ceil(WORKGROUP), 1),
+    );
     let out = read_back(ctx, &res.accum, bytes)?;
     Ok(bytemuck::cast_slice::<u8, f32>(&out)
         .chunks_exact(32)

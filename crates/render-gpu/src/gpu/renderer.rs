@@ -135,16 +135,7 @@ pub fn render_gpu(
                 .write_buffer(&res.params, 0, bytemuck::bytes_of(&params));
             ctx.queue
                 .write_buffer(&res.counters, 0, &[0u8; COUNTER_BYTES as usize]);
-            let mut enc = ctx
-                .device
-                .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-            {
-                let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
-                pass.set_pipeline(&pipeline);
-                pass.set_bind_group(0, &res.bind_group, &[]);
-                pass.dispatch_workgroups(gx, gy, 1);
-            }
-            ctx.queue.submit([enc.finish()]);
+            res.dispatch(ctx, &pipeline, (gx, gy));
             let c = read_back(ctx, &res.counters, COUNTER_BYTES)?;
             let word =
                 |i: usize| u32::from_le_bytes(c[4 * i..4 * i + 4].try_into().unwrap()) as u64;

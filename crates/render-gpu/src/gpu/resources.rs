@@ -121,6 +121,22 @@ impl Resources {
     }
 }
 
+impl Resources {
+    /// Submits one dispatch of `pipeline` over `groups` (x, y) workgroups on these buffers.
+    pub fn dispatch(&self, ctx: &GpuContext, pipeline: &wgpu::ComputePipeline, groups: (u32, u32)) {
+        let mut enc = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+        {
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+            pass.set_pipeline(pipeline);
+            pass.set_bind_group(0, &self.bind_group, &[]);
+            pass.dispatch_workgroups(groups.0, groups.1, 1);
+        }
+        ctx.queue.submit([enc.finish()]);
+    }
+}
+
 /// Copies `size` bytes of `buf` to the host (blocking).
 pub fn read_back(ctx: &GpuContext, buf: &wgpu::Buffer, size: u64) -> Result<Vec<u8>, RenderError> {
     let staging = ctx.device.create_buffer(&wgpu::BufferDescriptor {
