@@ -233,3 +233,39 @@ fn bad_scenes_are_one_line_errors() {
     );
     assert!(!out.with_extension("exr").exists());
 }
+
+/// Without a usable adapter (`WGPU_BACKEND=gl` names only a backend that is not compiled
+/// in), `--device gpu` is a one-line error naming the fix, and `--device auto` renders on
+/// the CPU and says so once.
+#[test]
+fn no_gpu_adapter_is_a_clear_error_or_a_cpu_fallback() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out_path = tmp.path().join("r");
+    let run = |device: &str| {
+        Command::new(env!("CARGO_BIN_EXE_stcvae"))
+            .args([
+                "render",
+                "--scene",
+                "configs/scenes/sphere.toml",
+                "--integrator",
+                "pt",
+                "--spp",
+                "2",
+                "--device",
+                device,
+                "--out",
+            ])
+            .arg(&out_path)
+            .env("WGPU_BACKEND", "gl")
+            .current_dir(root())
+            .output()
+            .unwrap()
+    };
+    let err = fails(&run("gpu"));
+    assert!(err.contains("no wgpu adapter found"), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    let err = ok(&run("auto"));
+    assert_eq!(err.matches("rendering on the CPU").count(), 1, "{err}");
+    let json = std::fs::read_to_string(tmp.path().join("r.json")).unwrap();
+    assert!(json.contains("\"device\": \"cpu"), "{json}");
+}
