@@ -456,7 +456,7 @@ fn cpu_gpu_agree_bunny() {
 
 /// Long paths (τ = 500, albedo 0.999: ~180 events on average, heavy-tailed, many beyond
 /// the ~650 PT events one invocation could loop on lavapipe, whose shaders stop after
-/// 65,535 loop iterations in total) must resume across dispatches (16 bounces each on a
+/// 65,535 loop iterations in total) must resume across dispatches (64 bounces each on a
 /// software adapter), every sample must finish (the renderer errors otherwise), and the
 /// image mean must agree with the CPU's. The z-score of the difference of the two image
 /// means uses the spread of 4 seeds per device; |z| < 4.5 fails a truncated or lost path

@@ -11,6 +11,7 @@ const COMMON: &str = include_str!("../../../../shaders/common.wgsl");
 const SCENE: &str = include_str!("../../../../shaders/scene.wgsl");
 const NEE: &str = include_str!("../../../../shaders/nee.wgsl");
 const DECODER: &str = include_str!("../../../../shaders/decoder.wgsl");
+const DECODER_LOOP: &str = include_str!("../../../../shaders/decoder_loop.wgsl");
 const PT: &str = include_str!("../../../../shaders/pt.wgsl");
 const STCVAE: &str = include_str!("../../../../shaders/stcvae.wgsl");
 const PATH: &str = include_str!("../../../../shaders/path.wgsl");
@@ -29,12 +30,15 @@ pub enum Kernel {
     Probe,
 }
 
-/// The full WGSL source of a kernel.
-pub fn source(kernel: Kernel) -> String {
+/// The full WGSL source of a kernel; with a model, its decoders are straight-line code
+/// generated for it, else the generic loops over the weight buffer.
+pub fn source(kernel: Kernel, model: Option<&cvae::ModelSet>) -> String {
+    let generated = model.map(super::decoder_gen::decoders_wgsl);
+    let decoders = generated.as_deref().unwrap_or(DECODER_LOOP);
     let parts: &[&str] = match kernel {
         Kernel::Pt => &[COMMON, SCENE, NEE, PT, PATH],
-        Kernel::Stcvae => &[COMMON, SCENE, NEE, DECODER, STCVAE, PATH],
-        Kernel::Probe => &[COMMON, SCENE, NEE, DECODER, PT, PATH, PROBE],
+        Kernel::Stcvae => &[COMMON, SCENE, NEE, DECODER, decoders, STCVAE, PATH],
+        Kernel::Probe => &[COMMON, SCENE, NEE, DECODER, decoders, PT, PATH, PROBE],
     };
     parts.join("\n")
 }
@@ -91,6 +95,7 @@ pub fn pipeline(
     ctx: &GpuContext,
     layout: &wgpu::BindGroupLayout,
     kernel: Kernel,
+    model: Option<&cvae::ModelSet>,
     entry: &str,
 ) -> Result<wgpu::ComputePipeline, RenderError> {
     let scope = ctx.device.push_error_scope(wgpu::ErrorFilter::Validation);
@@ -98,7 +103,7 @@ pub fn pipeline(
         .device
         .create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some(entry),
-            source: wgpu::ShaderSource::Wgsl(Cow::Owned(source(kernel))),
+            source: wgpu::ShaderSource::Wgsl(Cow::Owned(source(kernel, model))),
         });
     let pl = ctx
         .device

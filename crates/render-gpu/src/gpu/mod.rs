@@ -2,6 +2,7 @@
 //! (`shaders/`), progressive accumulation in short dispatches, the same outputs.
 
 pub mod context;
+pub mod decoder_gen;
 pub mod kernels;
 pub mod model_buffers;
 pub mod probe;

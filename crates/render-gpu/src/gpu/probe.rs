@@ -24,7 +24,7 @@ pub fn run_probe(
         None => (ModelParams::default(), Vec::new()),
     };
     let layout = kernels::bind_group_layout(ctx);
-    let pipeline = kernels::pipeline(ctx, &layout, Kernel::Probe, entry)?;
+    let pipeline = kernels::pipeline(ctx, &layout, Kernel::Probe, model, entry)?;
     let mut params = Params::default();
     params.image[0] = items.len() as u32;
     let bytes = std::mem::size_of_val(items) as u64;

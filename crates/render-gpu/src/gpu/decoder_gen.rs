@@ -1,0 +1,113 @@
+//! Straight-line WGSL for a model's three decoders, weights as constants.
+//!
+//! The generic decoder (`shaders/decoder_loop.wgsl`) loops over layers, rows and vec4s and
+//! reads every weight from a buffer. Generated for one model's architecture, the same
+//! arithmetic has no loops (lavapipe counts every loop iteration against its 65,535
+//! limit, and SIMD lanes never diverge in it) and its constants fold at compile time. The
+//! order of operations is the same row-by-row dot products of zero-padded vec4s, so the
+//! results equal the generic version's (checked against the Rust decoder in the tests).
+
+use std::fmt::Write;
+
+use cvae::ModelSet;
+use cvae::decoder::{Decoder, LOGVAR_CLAMP};
+
+/// An f32 as a WGSL literal that round-trips exactly.
+fn lit(v: f32) -> String {
+    let s = format!("{v:?}");
+    if s.contains('.') || s.contains('e') || s.contains("inf") || s.contains("NaN") {
+        s
+    } else {
+        format!("{s}.0")
+    }
+}
+
+fn vec4_lit(v: &[f32]) -> String {
+    let mut q = [0f32; 4];
+    q[..v.len()].copy_from_slice(v);
+    format!(
+        "vec4<f32>({}, {}, {}, {})",
+        lit(q[0]),
+        lit(q[1]),
+        lit(q[2]),
+        lit(q[3])
+    )
+}
+
+fn gen_decoder(out: &mut String, idx: usize, d: &Decoder) {
+    let _ = writeln!(out, "fn decoder_sample_{idx}() {{");
+    // Input: standardised conditions, then the latent normals, packed into vec4s.
+    let n_in = d.cond + d.latent;
+    let input: Vec<String> = (0..n_in.div_ceil(4) * 4)
+        .map(|i| {
+            if i < d.cond {
+                format!(
+                    "((dec_cond[{i}] - {}) / {})",
+                    lit(d.cond_shift[i]),
+                    lit(d.cond_scale[i])
+                )
+            } else if i < n_in {
+                format!("dec_noise[{}]", i - d.cond)
+            } else {
+                "0.0".into()
+            }
+        })
+        .collect();
+    for (k, c) in input.chunks(4).enumerate() {
+        let _ = writeln!(out, "    let a0_{k} = vec4<f32>({});", c.join(", "));
+    }
+    let last = d.layers.len() - 1;
+    for (l, layer) in d.layers.iter().enumerate() {
+        let in4 = layer.inputs.div_ceil(4);
+        let mut names = Vec::new();
+        for o in 0..layer.outputs {
+            let row = &layer.weight[o * layer.inputs..(o + 1) * layer.inputs];
+            let mut expr = lit(layer.bias[o]);
+            for k in 0..in4 {
+                let chunk = &row[4 * k..(4 * k + 4).min(layer.inputs)];
+                let _ = write!(expr, " + dot({}, a{l}_{k})", vec4_lit(chunk));
+            }
+            if l < last {
+                expr = format!("softplus({expr})");
+            }
+            let _ = writeln!(out, "    let h{l}_{o} = {expr};");
+            names.push(format!("h{l}_{o}"));
+        }
+        while names.len() % 4 != 0 {
+            names.push("0.0".into());
+        }
+        for (k, c) in names.chunks(4).enumerate() {
+            let _ = writeln!(out, "    let a{}_{k} = vec4<f32>({});", l + 1, c.join(", "));
+        }
+    }
+    let head = d.layers.len();
+    for j in 0..d.out {
+        let k = d.out + j;
+        let _ = writeln!(
+            out,
+            "    dec_out[{j}] = (a{head}_{}[{}] + exp(0.5 * clamp(a{head}_{}[{}], {}, {})) * dec_noise[{}]) * {} + {};",
+            j / 4,
+            j % 4,
+            k / 4,
+            k % 4,
+            lit(-LOGVAR_CLAMP),
+            lit(LOGVAR_CLAMP),
+            d.latent + j,
+            lit(d.out_scale[j]),
+            lit(d.out_shift[j])
+        );
+    }
+    let _ = writeln!(out, "}}\n");
+}
+
+/// `decoder_sample(d)` and its three straight-line variants for `m`.
+pub fn decoders_wgsl(m: &ModelSet) -> String {
+    let mut out = String::from("// Generated from the model file: do not edit.\n\n");
+    for (i, d) in m.decoders().iter().enumerate() {
+        gen_decoder(&mut out, i, d);
+    }
+    out.push_str(
+        "fn decoder_sample(d: u32) {\n    switch d {\n        case 0u: { decoder_sample_0(); }\n        case 1u: { decoder_sample_1(); }\n        default: { decoder_sample_2(); }\n    }\n}\n",
+    );
+    out
+}
