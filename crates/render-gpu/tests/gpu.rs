@@ -3,7 +3,9 @@
 //! converge to the same image. Without a Vulkan adapter these tests print why and pass,
 //! except under CI (CI=true), where a missing adapter is a failure.
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use std::path::Path;
 use std::sync::atomic::AtomicBool;
 use std::sync::{Mutex, OnceLock};
 
@@ -43,14 +45,7 @@ fn gpu() -> Option<&'static Mutex<GpuContext>> {
 
 fn model() -> &'static cvae::ModelSet {
     static M: OnceLock<cvae::ModelSet> = OnceLock::new();
-    M.get_or_init(|| {
-        let p = std::env::var_os("STCVAE_TEST_MODEL")
-            .map(PathBuf::from)
-            .unwrap_or_else(|| {
-                Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/default.stcvae")
-            });
-        cvae::ModelSet::load(&p).unwrap()
-    })
+    M.get_or_init(common::load_model)
 }
 
 /// The WGSL HG sampling, deflection and canonical-frame mapping equal the Rust (f64)
@@ -227,29 +222,7 @@ fn white_furnace_gpu() {
         "kind = \"dielectric\"\nior = 1.5",
     ] {
         for kind in [IntegratorKind::Pt, IntegratorKind::Stcvae] {
-            let text = format!(
-                r#"
-[camera]
-origin = [0.0, 0.0, 3.0]
-target = [0.0, 0.0, 0.0]
-fov_deg = 25.0
-width = 12
-height = 12
-[object]
-mesh = "../../assets/bunny.glb"
-height = 1.0
-[medium]
-sigma_t = [5.0, 20.0, 60.0]
-albedo = [1.0, 1.0, 1.0]
-g = 0.6
-[boundary]
-{boundary}
-[environment]
-radiance = [0.7, 0.7, 0.7]
-[render]
-grid_resolution = 64
-"#
-            );
+            let text = common::furnace_scene(boundary);
             let s = scene(&text, kind == IntegratorKind::Stcvae);
             let out = on_gpu(&ctx, &s, &settings(kind, true), &opts(12, 3));
             let st = out.stats;

@@ -1,7 +1,9 @@
 //! Integrator checks that need no external reference (design §5): white furnace, NEE on
 //! vs off, ST-CVAE vs PT. Fixed seeds, small images.
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use std::path::Path;
 use std::sync::atomic::AtomicBool;
 
 use glam::Vec3;
@@ -12,12 +14,7 @@ use render_gpu::setup::SceneData;
 use scatter_sim::WalkRng;
 
 fn model() -> cvae::ModelSet {
-    let p = std::env::var_os("STCVAE_TEST_MODEL")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| {
-            Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/default.stcvae")
-        });
-    cvae::ModelSet::load(&p).unwrap()
+    common::load_model()
 }
 
 fn scene(text: &str, grid: bool) -> (SceneFile, SceneData) {
@@ -42,31 +39,7 @@ fn settings<'a>(
     }
 }
 
-fn furnace_scene(boundary: &str) -> String {
-    format!(
-        r#"
-[camera]
-origin = [0.0, 0.0, 3.0]
-target = [0.0, 0.0, 0.0]
-fov_deg = 25.0
-width = 12
-height = 12
-[object]
-mesh = "../../assets/bunny.glb"
-height = 1.0
-[medium]
-sigma_t = [5.0, 20.0, 60.0]
-albedo = [1.0, 1.0, 1.0]
-g = 0.6
-[boundary]
-{boundary}
-[environment]
-radiance = [0.7, 0.7, 0.7]
-[render]
-grid_resolution = 64
-"#
-    )
-}
+use common::furnace_scene;
 
 /// With albedo 1 and a constant environment L every path's weight stays 1 and every
 /// path ends in the environment, so every pixel is L up to float rounding — not only

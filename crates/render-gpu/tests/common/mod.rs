@@ -1,0 +1,41 @@
+//! Scenes and the model shared by the renderer's test files.
+
+use std::path::{Path, PathBuf};
+
+/// The shipped model, or `$STCVAE_TEST_MODEL`.
+pub fn load_model() -> cvae::ModelSet {
+    let p = std::env::var_os("STCVAE_TEST_MODEL")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| {
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/default.stcvae")
+        });
+    cvae::ModelSet::load(&p).unwrap()
+}
+
+/// The white furnace: the bunny with albedo 1 in a constant environment of 0.7, no lights;
+/// `boundary` is the body of the [boundary] table.
+pub fn furnace_scene(boundary: &str) -> String {
+    format!(
+        r#"
+[camera]
+origin = [0.0, 0.0, 3.0]
+target = [0.0, 0.0, 0.0]
+fov_deg = 25.0
+width = 12
+height = 12
+[object]
+mesh = "../../assets/bunny.glb"
+height = 1.0
+[medium]
+sigma_t = [5.0, 20.0, 60.0]
+albedo = [1.0, 1.0, 1.0]
+g = 0.6
+[boundary]
+{boundary}
+[environment]
+radiance = [0.7, 0.7, 0.7]
+[render]
+grid_resolution = 64
+"#
+    )
+}
