@@ -5,8 +5,8 @@ use render_gpu::integrator::IntegratorKind::{Pt, Stcvae};
 use render_gpu::scene::{LightDesc, SceneFile};
 
 use super::measure::{
-    Pair, compare, difference, opts, render_once, render_pair, rmse, save, scale_of, side_by_side,
-    work_image,
+    Pair, compare, difference, mae, opts, render_once, render_pair, rmse, save, scale_of,
+    side_by_side, work_image,
 };
 use super::report::{Cell, Report};
 use super::{Ctx, Kind};
@@ -403,7 +403,7 @@ fn nee(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         hash,
         exposure,
     )?;
-    rep.columns(&["method", "budget_seconds", "seconds", "spp", "rmse"]);
+    rep.columns(&["method", "budget_seconds", "seconds", "spp", "rmse", "mae"]);
     let methods = [
         ("PT, no NEE", Pt, false),
         ("PT, NEE", Pt, true),
@@ -423,21 +423,23 @@ fn nee(ctx: &Ctx, rep: &mut Report) -> Result<()> {
                 &opts(1 << 20, 7, Some(b)),
             )?;
             let e = rmse(&reference.image, &o.image);
+            let m = mae(&reference.image, &o.image);
             rep.row(vec![
                 name.into(),
                 b.into(),
                 o.seconds.into(),
                 (o.spp as f64).into(),
                 e.into(),
+                m.into(),
             ]);
-            pts.push((o.seconds, e));
+            pts.push((o.seconds, m));
             if frac == 1.0 {
                 finals.push(o.image);
             }
         }
         curves.push(series(name, pts));
     }
-    rep.text(&format!("Each method renders for the same wall time (the budget; a render stops after the pass in which it ran out); RMSE against a PT + NEE reference of {ref_spp} spp, in units where the reference's brightest 1 % of object pixels is 1 (the reference's own noise is included).\n"));
+    rep.text(&format!("Each method renders for the same wall time (the budget; a render stops after the pass in which it ran out); RMSE and mean absolute error (MAE; the plot) against a PT + NEE reference of {ref_spp} spp, in units where the reference's brightest 1 % of object pixels is 1 (the reference's own noise is included). RMSE squares errors and is decided by a few firefly pixels; MAE measures the noise the eye sees.\n"));
     rep.table();
     let refs: Vec<&_> = std::iter::once(&reference.image)
         .chain(finals.iter())
@@ -454,9 +456,9 @@ fn nee(ctx: &Ctx, rep: &mut Report) -> Result<()> {
     plot(
         ctx,
         rep,
-        "rmse_vs_time.png",
+        "error_vs_time.png",
         "Error vs time",
-        ("seconds", "RMSE"),
+        ("seconds", "mean absolute error"),
         (true, true),
         &curves,
     )

@@ -185,6 +185,20 @@ pub fn rmse(reference: &RgbImage, img: &RgbImage) -> f64 {
     (s / n).sqrt() * scale
 }
 
+/// Mean absolute error of `img` against `reference`, in the reference's scaled units: unlike
+/// the RMSE it is not decided by a handful of firefly pixels.
+pub fn mae(reference: &RgbImage, img: &RgbImage) -> f64 {
+    let scale = scale_of(reference);
+    let n = (reference.pixels.len() * 3) as f64;
+    let s: f64 = reference
+        .pixels
+        .iter()
+        .zip(&img.pixels)
+        .map(|(a, b)| (0..3).map(|c| ((a[c] - b[c]) as f64).abs()).sum::<f64>())
+        .sum();
+    s / n * scale
+}
+
 /// |A − B| × `gain`, per channel.
 pub fn difference(a: &RgbImage, b: &RgbImage, gain: f32) -> RgbImage {
     let mut d = RgbImage::new(a.width, a.height);
