@@ -9,11 +9,11 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 
 use anyhow::Result;
-use render_gpu::image_io::RgbImage;
-use render_gpu::integrator::{IntegratorKind, IntegratorSettings, PathStats};
+use render_gpu::integrator::{IntegratorKind, IntegratorSettings};
 use render_gpu::render::RenderOptions;
 
 use crate::device::{DeviceArg, Engine};
+use crate::experiment::measure::{Pair, compare};
 use crate::render::prepare;
 
 #[derive(clap::Args)]
@@ -46,14 +46,7 @@ pub struct Args {
     device: DeviceArg,
 }
 
-struct Run {
-    a: RgbImage,
-    b: RgbImage,
-    seconds: f64,
-    stats: PathStats,
-}
-
-fn run_pair(a: &Args, engine: &Engine, kind: IntegratorKind, k: f64) -> Result<Run> {
+fn run_pair(a: &Args, engine: &Engine, kind: IntegratorKind, k: f64) -> Result<Pair> {
     let p = prepare(&a.scene, Some(kind), Some(true), a.model.as_deref(), |f| {
         f.medium.sigma_t = [150.0 * k, 187.5 * k, 125.0 * k];
         f.medium.albedo = [0.99999, 0.99995, 0.975];
@@ -80,9 +73,7 @@ fn run_pair(a: &Args, engine: &Engine, kind: IntegratorKind, k: f64) -> Result<R
     };
     let cancel = AtomicBool::new(false);
     let half = (a.spp / 2).max(1);
-    let mut stats = PathStats::default();
-    let mut seconds = 0.0;
-    let mut imgs = Vec::new();
+    let mut outs = Vec::new();
     if matches!(engine, Engine::Gpu(_)) {
         // Warm-up: the first dispatch compiles the kernel; keep it out of the timing.
         let tiny = RenderOptions {
@@ -104,36 +95,11 @@ fn run_pair(a: &Args, engine: &Engine, kind: IntegratorKind, k: f64) -> Result<R
             &|_, _| {},
             &cancel,
         )?;
-        seconds += o.seconds;
-        stats.add(&o.stats);
-        imgs.push(o.image);
+        outs.push(o);
     }
-    let b = imgs.pop().unwrap();
-    let a_img = imgs.pop().unwrap();
-    Ok(Run {
-        a: a_img,
-        b,
-        seconds,
-        stats,
-    })
-}
-
-fn lum(p: [f32; 3]) -> f64 {
-    (p[0] + p[1] + p[2]) as f64 / 3.0
-}
-
-/// Per-pixel mean of the two halves and variance of that mean, all channels.
-fn mean_var(r: &Run) -> (Vec<f64>, Vec<f64>) {
-    let mut m = Vec::new();
-    let mut v = Vec::new();
-    for (x, y) in r.a.pixels.iter().zip(&r.b.pixels) {
-        for c in 0..3 {
-            let (x, y) = (x[c] as f64, y[c] as f64);
-            m.push(0.5 * (x + y));
-            v.push(0.25 * (x - y) * (x - y));
-        }
-    }
-    (m, v)
+    let b = outs.pop().expect("two renders");
+    let a_out = outs.pop().expect("two renders");
+    Ok(Pair::from_halves(a_out, b, p.data.hash))
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -166,48 +132,21 @@ pub fn run(a: Args) -> Result<()> {
     for &k in &a.k {
         let pt = run_pair(&a, &engine, IntegratorKind::Pt, k)?;
         let st = run_pair(&a, &engine, IntegratorKind::Stcvae, k)?;
-        let (mp, vp) = mean_var(&pt);
-        let (ms, vs) = mean_var(&st);
-        // Scale: the 99th percentile of PT's object pixels (luminance above 1e-3 of max).
-        let mut l: Vec<f64> =
-            pt.a.pixels
-                .iter()
-                .zip(&pt.b.pixels)
-                .map(|(x, y)| 0.5 * (lum(*x) + lum(*y)))
-                .collect();
-        let max = l.iter().cloned().fold(0.0, f64::max);
-        l.retain(|&v| v > 1e-3 * max);
-        l.sort_by(f64::total_cmp);
-        let scale = if l.is_empty() {
-            1.0
-        } else {
-            1.0 / l[(l.len() * 99 / 100).min(l.len() - 1)].max(1e-12)
-        };
-        let n = mp.len() as f64;
-        let mse: f64 = mp
-            .iter()
-            .zip(&ms)
-            .map(|(x, y)| (x - y).powi(2))
-            .sum::<f64>()
-            / n;
-        let noise: f64 = vp.iter().zip(&vs).map(|(x, y)| x + y).sum::<f64>() / n;
-        let bias = (mse - noise).max(0.0).sqrt() * scale;
-        let var_ratio = vp.iter().sum::<f64>() / vs.iter().sum::<f64>().max(1e-300);
-        let speed = pt.seconds / st.seconds;
+        let c = compare(&pt, &st);
         println!(
             "{:>4} {:>20} {:>7.2} {:>7.2} {:>8.2}x {:>9.2} {:>10.2}x {:>10.1} {:>10.2} {:>10.2} {:>9.4} {:>9.4} {:>10} {:>10}",
             k,
             format!("({}, {}, {})", 150.0 * k, 187.5 * k, 125.0 * k),
             pt.seconds,
             st.seconds,
-            speed,
-            var_ratio,
-            speed * var_ratio,
+            c.speedup,
+            c.var_ratio,
+            c.speedup * c.var_ratio,
             pt.stats.events as f64 / pt.stats.paths.max(1) as f64,
             st.stats.steps as f64 / st.stats.paths.max(1) as f64,
             st.stats.events as f64 / st.stats.paths.max(1) as f64,
-            bias,
-            noise.sqrt() * scale,
+            c.bias,
+            c.noise,
             crate::progress::si(pt.stats.paths as f64 / pt.seconds.max(1e-9)),
             crate::progress::si(st.stats.paths as f64 / st.seconds.max(1e-9))
         );

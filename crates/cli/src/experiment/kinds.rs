@@ -5,7 +5,7 @@ use render_gpu::integrator::IntegratorKind::{Pt, Stcvae};
 use render_gpu::scene::{LightDesc, SceneFile};
 
 use super::measure::{
-    Pair, compare, difference, mae, opts, render_once, render_pair, rmse, save, scale_of,
+    Pair, compare, difference, errors, opts, render_once, render_pair, save, scale_of,
     side_by_side, work_image,
 };
 use super::report::{Cell, Report};
@@ -422,8 +422,7 @@ fn nee(ctx: &Ctx, rep: &mut Report) -> Result<()> {
                 &none,
                 &opts(1 << 20, 7, Some(b)),
             )?;
-            let e = rmse(&reference.image, &o.image);
-            let m = mae(&reference.image, &o.image);
+            let (e, m) = errors(&reference.image, &o.image);
             rep.row(vec![
                 name.into(),
                 b.into(),

@@ -8,7 +8,7 @@ use std::sync::atomic::AtomicBool;
 use anyhow::Result;
 use render_gpu::image_io::{RenderTag, RgbImage, write_exr, write_png};
 use render_gpu::integrator::{IntegratorKind, IntegratorSettings, PathStats};
-use render_gpu::render::RenderOptions;
+use render_gpu::render::{RenderOptions, RenderOutput};
 use render_gpu::scene::SceneFile;
 
 use super::Ctx;
@@ -27,6 +27,43 @@ pub struct Pair {
 }
 
 impl Pair {
+    /// The pair of two renders of the same scene with different seeds.
+    pub fn from_halves(a: RenderOutput, b: RenderOutput, hash: u64) -> Self {
+        let mut mean = RgbImage::new(a.image.width, a.image.height);
+        let mut var = Vec::with_capacity(a.image.pixels.len());
+        for ((m, x), y) in mean
+            .pixels
+            .iter_mut()
+            .zip(&a.image.pixels)
+            .zip(&b.image.pixels)
+        {
+            let mut v = [0f64; 3];
+            for c in 0..3 {
+                m[c] = 0.5 * (x[c] + y[c]);
+                let d = (x[c] - y[c]) as f64;
+                v[c] = 0.25 * d * d;
+            }
+            var.push(v);
+        }
+        let mut stats = a.stats;
+        stats.add(&b.stats);
+        let work = a
+            .work
+            .iter()
+            .zip(b.work.iter().chain(std::iter::repeat(&0.0)))
+            .map(|(x, y)| 0.5 * (x + y))
+            .collect();
+        Pair {
+            mean,
+            var,
+            seconds: a.seconds + b.seconds,
+            stats,
+            work,
+            spp: a.spp + b.spp,
+            hash,
+        }
+    }
+
     pub fn per_path(&self, n: u64) -> f64 {
         n as f64 / self.stats.paths.max(1) as f64
     }
@@ -84,39 +121,7 @@ pub fn render_pair(
     let half = (ctx.budget.spp / 2).max(1);
     let (a, hash) = render_once(ctx, scene, (kind, nee), edit, &opts(half, 11, None))?;
     let (b, _) = render_once(ctx, scene, (kind, nee), edit, &opts(half, 12, None))?;
-    let mut mean = RgbImage::new(a.image.width, a.image.height);
-    let mut var = Vec::with_capacity(a.image.pixels.len());
-    for ((m, x), y) in mean
-        .pixels
-        .iter_mut()
-        .zip(&a.image.pixels)
-        .zip(&b.image.pixels)
-    {
-        let mut v = [0f64; 3];
-        for c in 0..3 {
-            m[c] = 0.5 * (x[c] + y[c]);
-            let d = (x[c] - y[c]) as f64;
-            v[c] = 0.25 * d * d;
-        }
-        var.push(v);
-    }
-    let mut stats = a.stats;
-    stats.add(&b.stats);
-    let work = a
-        .work
-        .iter()
-        .zip(b.work.iter().chain(std::iter::repeat(&0.0)))
-        .map(|(x, y)| 0.5 * (x + y))
-        .collect();
-    Ok(Pair {
-        mean,
-        var,
-        seconds: a.seconds + b.seconds,
-        stats,
-        work,
-        spp: 2 * half,
-        hash,
-    })
+    Ok(Pair::from_halves(a, b, hash))
 }
 
 /// 1 / (the 99th percentile of the luminance of the reference's object pixels): images
@@ -172,31 +177,20 @@ pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
     }
 }
 
-/// Plain RMSE of `img` against `reference`, in the reference's scaled units.
-pub fn rmse(reference: &RgbImage, img: &RgbImage) -> f64 {
+/// RMSE and mean absolute error of `img` against `reference`, in the reference's scaled
+/// units. RMSE is decided by a handful of firefly pixels where there are any; MAE is not.
+pub fn errors(reference: &RgbImage, img: &RgbImage) -> (f64, f64) {
     let scale = scale_of(reference);
     let n = (reference.pixels.len() * 3) as f64;
-    let s: f64 = reference
-        .pixels
-        .iter()
-        .zip(&img.pixels)
-        .map(|(a, b)| (0..3).map(|c| ((a[c] - b[c]) as f64).powi(2)).sum::<f64>())
-        .sum();
-    (s / n).sqrt() * scale
-}
-
-/// Mean absolute error of `img` against `reference`, in the reference's scaled units: unlike
-/// the RMSE it is not decided by a handful of firefly pixels.
-pub fn mae(reference: &RgbImage, img: &RgbImage) -> f64 {
-    let scale = scale_of(reference);
-    let n = (reference.pixels.len() * 3) as f64;
-    let s: f64 = reference
-        .pixels
-        .iter()
-        .zip(&img.pixels)
-        .map(|(a, b)| (0..3).map(|c| ((a[c] - b[c]) as f64).abs()).sum::<f64>())
-        .sum();
-    s / n * scale
+    let (mut sq, mut abs) = (0.0, 0.0);
+    for (a, b) in reference.pixels.iter().zip(&img.pixels) {
+        for c in 0..3 {
+            let d = (a[c] - b[c]) as f64;
+            sq += d * d;
+            abs += d.abs();
+        }
+    }
+    ((sq / n).sqrt() * scale, abs / n * scale)
 }
 
 /// |A − B| × `gain`, per channel.

@@ -4,7 +4,7 @@
 
 mod config;
 mod kinds;
-mod measure;
+pub mod measure;
 mod report;
 
 use std::path::PathBuf;
