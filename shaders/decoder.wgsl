@@ -1,10 +1,8 @@
-// Shared include: burn-free CVAE decoders on the GPU (crates/cvae/src/decoder.rs) and
-// the model sampler (crates/cvae/src/sampler.rs, features.rs) in f32. Weights are rows
-// of vec4 (each row padded with zeros to a multiple of 4 inputs), so every output of a
-// layer is a short chain of dot(vec4, vec4): on lavapipe ~4.5× faster than scalar loops.
-// Host mirror: crates/render-gpu/src/gpu/model_buffers.rs.
+// Shared include: the model sampler (crates/cvae/src/sampler.rs, features.rs) in f32.
+// `decoder_sample(d)` is generated for the model's architecture with its weights as
+// constants (crates/render-gpu/src/gpu/decoder_gen.rs): rows of zero-padded vec4s, every
+// output a short chain of dot(vec4, vec4), no loops.
 
-const LOGVAR_CLAMP: f32 = 16.0;
 const D_LENGTH: u32 = 0u;
 const D_PATH: u32 = 1u;
 const D_EVENT: u32 = 2u;
@@ -14,9 +12,6 @@ const D_EVENT: u32 = 2u;
 var<private> dec_cond: array<f32, 16>;
 var<private> dec_noise: array<f32, 16>;
 var<private> dec_out: array<f32, 8>;
-
-// `decoder_sample(d)` comes from decoder_loop.wgsl, or is generated for the model's
-// architecture with its weights as constants (crates/render-gpu/src/gpu/decoder_gen.rs).
 
 /// Fills dec_noise[0..n] with standard normals (Box–Muller).
 fn fill_normals(n: u32) {
@@ -63,8 +58,7 @@ fn albedo_pow(channel: u32, n: f32) -> f32 {
 
 /// LengthGen: N ≥ n_min (as f32: N enters only through φ^N, Λ(N) and ln N).
 fn sample_multiple_n(tau: f32, g: f32) -> f32 {
-    let desc = model.decoders[D_LENGTH];
-    fill_normals(desc.dims.y + 1u);
+    fill_normals(DEC_LATENT_0 + 1u);
     dec_cond[0] = tau_feature(tau);
     dec_cond[1] = g;
     decoder_sample(D_LENGTH);
@@ -84,8 +78,7 @@ struct Exit {
 
 /// PathGen: the exit of a walk with N events; always a valid exit.
 fn sample_exit(tau: f32, g: f32, n: f32) -> Exit {
-    let desc = model.decoders[D_PATH];
-    fill_normals(desc.dims.y + desc.dims.z);
+    fill_normals(DEC_LATENT_1 + DEC_OUT_1);
     dec_cond[0] = tau_feature(tau);
     dec_cond[1] = g;
     dec_cond[2] = log(n) - log_n_prior(tau, g);
@@ -127,8 +120,7 @@ fn sample_event(tau: f32, g: f32, channel: u32, n: f32, e: Exit) -> Event {
     if model.flags.x != 0u && rand() * lambda_n(channel, n) < albedo {
         return Event(vec3<f32>(0.0), vec3<f32>(0.0, 0.0, 1.0));
     }
-    let desc = model.decoders[D_EVENT];
-    fill_normals(desc.dims.y + desc.dims.z);
+    fill_normals(DEC_LATENT_2 + DEC_OUT_2);
     dec_cond[0] = tau_feature(tau);
     dec_cond[1] = g;
     dec_cond[2] = params.albedo_feature[channel];

@@ -47,21 +47,7 @@ struct Tri {
     n: vec4<f32>,
 }
 
-struct Layer {
-    w_offset: u32,
-    b_offset: u32,
-    in4: u32,
-    outputs: u32,
-}
-
-struct DecoderDesc {
-    dims: vec4<u32>,  // cond, latent, out, layers
-    norm: vec4<u32>,  // vec4 offsets of cond shift, cond scale, out shift, out scale
-    layers: array<Layer, 8>,
-}
-
 struct ModelParams {
-    decoders: array<DecoderDesc, 3>,
     flags: vec4<u32>,  // single scattering exact, n_min, 0, 0
 }
 
@@ -72,8 +58,7 @@ struct ModelParams {
 @group(0) @binding(4) var<storage, read> nodes: array<Node>;
 @group(0) @binding(5) var<storage, read> env_map: array<vec4<f32>>;
 @group(0) @binding(6) var<storage, read> grid: array<f32>;
-@group(0) @binding(7) var<storage, read> weights: array<vec4<f32>>;
-@group(0) @binding(8) var<uniform> model: ModelParams;
+@group(0) @binding(7) var<uniform> model: ModelParams;
 
 fn channel_of(v: vec4<f32>, c: u32) -> f32 {
     return v[c];

@@ -5,11 +5,11 @@
 //! the bias RMSE can be corrected for noise: RMSE² = mean((A − B)²) − mean(Var_A + Var_B).
 //! Images are scaled so that the 99th percentile of PT's object pixels is 1.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
 
 use anyhow::Result;
-use render_gpu::integrator::{IntegratorKind, IntegratorSettings};
+use render_gpu::integrator::IntegratorKind;
 use render_gpu::render::RenderOptions;
 
 use crate::device::{DeviceArg, Engine};
@@ -63,14 +63,7 @@ fn run_pair(a: &Args, engine: &Engine, kind: IntegratorKind, k: f64) -> Result<P
             f.render.nee_samples = m;
         }
     })?;
-    let set = IntegratorSettings {
-        kind,
-        nee: true,
-        model: p.model.as_ref(),
-        min_tau: p.file.render.min_tau as f32,
-        max_tau: p.max_tau,
-        nee_samples: p.file.render.nee_samples,
-    };
+    let set = p.settings();
     let cancel = AtomicBool::new(false);
     let half = (a.spp / 2).max(1);
     let mut outs = Vec::new();
@@ -159,6 +152,5 @@ pub fn run(a: Args) -> Result<()> {
          equal-error = their product (time ratio to reach the same noise); bias RMSE is noise-corrected, \
          images scaled so PT's brightest 1% of object pixels is 1"
     );
-    let _ = Path::new("");
     Ok(())
 }

@@ -122,8 +122,7 @@ struct EvalJson<'a> {
 }
 
 pub fn evaluate(a: EvalArgs) -> Result<()> {
-    let md = evaluate_into(a.model.as_deref(), &a.out, a.samples, a.seed)?;
-    let _ = md;
+    evaluate_into(a.model.as_deref(), &a.out, a.samples, a.seed)?;
     print!(
         "{}",
         String::from_utf8_lossy(&std::fs::read(a.out.join("metrics.md"))?)

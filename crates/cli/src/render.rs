@@ -99,6 +99,22 @@ pub struct Prepared {
     pub max_tau: f32,
 }
 
+impl Prepared {
+    /// The integrator settings of this scene (its [render] table, with the overrides
+    /// `prepare` applied, and the model's τ limit).
+    pub fn settings(&self) -> IntegratorSettings<'_> {
+        let r = &self.file.render;
+        IntegratorSettings {
+            kind: r.integrator,
+            nee: r.nee,
+            model: self.model.as_ref(),
+            min_tau: r.min_tau as f32,
+            max_tau: self.max_tau,
+            nee_samples: r.nee_samples,
+        }
+    }
+}
+
 pub fn prepare(
     scene_path: &Path,
     integrator: Option<IntegratorKind>,
@@ -167,14 +183,7 @@ pub fn run(a: Args) -> Result<()> {
         }
     })?;
     let r = &p.file.render;
-    let set = IntegratorSettings {
-        kind: r.integrator,
-        nee: r.nee,
-        model: p.model.as_ref(),
-        min_tau: r.min_tau as f32,
-        max_tau: p.max_tau,
-        nee_samples: p.file.render.nee_samples,
-    };
+    let set = p.settings();
     if p.data.lights.iter().all(|l| l.is_delta()) && !r.nee && !p.data.lights.is_empty() {
         eprintln!(
             "note: delta lights can only be reached by NEE; with --nee false they add nothing"

@@ -97,7 +97,7 @@ fn wgsl_hg_and_frame_match_rust() {
         let (p, w) = from_canonical(exit);
         expect.push((hg, d, f.to_world(p), f.to_world(w), f.to_world(x)));
     }
-    let out = run_probe(&ctx, "probe_frame", None, &items).unwrap();
+    let out = run_probe(&ctx, "probe_frame", model(), &items).unwrap();
     let v = |o: &Item, k: usize| DVec3::new(o[k] as f64, o[k + 1] as f64, o[k + 2] as f64);
     for (i, (o, e)) in out.iter().zip(&expect).enumerate() {
         assert!(
@@ -157,7 +157,7 @@ fn wgsl_decoders_match_rust() {
         items.push(it);
         expect.push((d.out, res));
     }
-    let out = run_probe(&ctx, "probe_decoder", Some(m), &items).unwrap();
+    let out = run_probe(&ctx, "probe_decoder", m, &items).unwrap();
     for (i, (o, (n, e))) in out.iter().zip(&expect).enumerate() {
         for k in 0..*n {
             let tol = 1e-5 * (1.0 + e[k].abs());

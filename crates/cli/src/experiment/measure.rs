@@ -7,7 +7,7 @@ use std::sync::atomic::AtomicBool;
 
 use anyhow::Result;
 use render_gpu::image_io::{RenderTag, RgbImage, write_exr, write_png};
-use render_gpu::integrator::{IntegratorKind, IntegratorSettings, PathStats};
+use render_gpu::integrator::{IntegratorKind, PathStats};
 use render_gpu::render::{RenderOptions, RenderOutput};
 use render_gpu::scene::SceneFile;
 
@@ -96,14 +96,7 @@ pub fn render_once(
         f.camera.height = ((size as f64 * aspect).round() as u32).max(1);
         edit(f);
     })?;
-    let set = IntegratorSettings {
-        kind,
-        nee,
-        model: p.model.as_ref(),
-        min_tau: p.file.render.min_tau as f32,
-        max_tau: p.max_tau,
-        nee_samples: p.file.render.nee_samples,
-    };
+    let set = p.settings();
     let out = ctx
         .engine
         .render(&p.data, &set, o, &|_, _| {}, &AtomicBool::new(false))?;

@@ -11,7 +11,6 @@ const COMMON: &str = include_str!("../../../../shaders/common.wgsl");
 const SCENE: &str = include_str!("../../../../shaders/scene.wgsl");
 const NEE: &str = include_str!("../../../../shaders/nee.wgsl");
 const DECODER: &str = include_str!("../../../../shaders/decoder.wgsl");
-const DECODER_LOOP: &str = include_str!("../../../../shaders/decoder_loop.wgsl");
 const PT: &str = include_str!("../../../../shaders/pt.wgsl");
 const STCVAE: &str = include_str!("../../../../shaders/stcvae.wgsl");
 const PATH: &str = include_str!("../../../../shaders/path.wgsl");
@@ -30,17 +29,24 @@ pub enum Kernel {
     Probe,
 }
 
-/// The full WGSL source of a kernel; with a model, its decoders are straight-line code
-/// generated for it, else the generic loops over the weight buffer.
-pub fn source(kernel: Kernel, model: Option<&cvae::ModelSet>) -> String {
-    let generated = model.map(super::decoder_gen::decoders_wgsl);
-    let decoders = generated.as_deref().unwrap_or(DECODER_LOOP);
+/// The full WGSL source of a kernel; the ST-CVAE and probe kernels include the model's
+/// decoders, generated as straight-line code.
+pub fn source(kernel: Kernel, model: Option<&cvae::ModelSet>) -> Result<String, RenderError> {
+    let decoders = match (kernel, model) {
+        (Kernel::Pt, _) => String::new(),
+        (_, Some(m)) => super::decoder_gen::decoders_wgsl(m)?,
+        (_, None) => {
+            return Err(RenderError::Model(format!(
+                "the {kernel:?} kernel needs a model"
+            )));
+        }
+    };
     let parts: &[&str] = match kernel {
         Kernel::Pt => &[COMMON, SCENE, NEE, PT, PATH],
-        Kernel::Stcvae => &[COMMON, SCENE, NEE, DECODER, decoders, STCVAE, PATH],
-        Kernel::Probe => &[COMMON, SCENE, NEE, DECODER, decoders, PT, PATH, PROBE],
+        Kernel::Stcvae => &[COMMON, SCENE, NEE, DECODER, &decoders, STCVAE, PATH],
+        Kernel::Probe => &[COMMON, SCENE, NEE, DECODER, &decoders, PT, PATH, PROBE],
     };
-    parts.join("\n")
+    Ok(parts.join("\n"))
 }
 
 fn storage(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
@@ -70,7 +76,7 @@ fn uniform(binding: u32) -> wgpu::BindGroupLayoutEntry {
 }
 
 /// The bind-group layout of `shaders/scene.wgsl`: params, accum, counters, triangles,
-/// nodes, environment map, distance grid, decoder weights, model params.
+/// nodes, environment map, distance grid, model params.
 pub fn bind_group_layout(ctx: &GpuContext) -> wgpu::BindGroupLayout {
     ctx.device
         .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -83,8 +89,7 @@ pub fn bind_group_layout(ctx: &GpuContext) -> wgpu::BindGroupLayout {
                 storage(4, true),
                 storage(5, true),
                 storage(6, true),
-                storage(7, true),
-                uniform(8),
+                uniform(7),
             ],
         })
 }
@@ -98,12 +103,13 @@ pub fn pipeline(
     model: Option<&cvae::ModelSet>,
     entry: &str,
 ) -> Result<wgpu::ComputePipeline, RenderError> {
+    let src = source(kernel, model)?;
     let scope = ctx.device.push_error_scope(wgpu::ErrorFilter::Validation);
     let module = ctx
         .device
         .create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some(entry),
-            source: wgpu::ShaderSource::Wgsl(Cow::Owned(source(kernel, model))),
+            source: wgpu::ShaderSource::Wgsl(Cow::Owned(src)),
         });
     let pl = ctx
         .device

@@ -5,7 +5,7 @@ use crate::error::RenderError;
 
 use super::context::GpuContext;
 use super::kernels::{self, Kernel, WORKGROUP};
-use super::model_buffers::{ModelParams, model_buffers};
+use super::model_buffers::model_params;
 use super::resources::{Inputs, Resources, read_back};
 use super::scene_buffers::{GpuNode, GpuTri, Params};
 
@@ -16,15 +16,11 @@ pub type Item = [f32; 32];
 pub fn run_probe(
     ctx: &GpuContext,
     entry: &str,
-    model: Option<&cvae::ModelSet>,
+    model: &cvae::ModelSet,
     items: &[Item],
 ) -> Result<Vec<Item>, RenderError> {
-    let (model_params, weights) = match model {
-        Some(m) => model_buffers(m)?,
-        None => (ModelParams::default(), Vec::new()),
-    };
     let layout = kernels::bind_group_layout(ctx);
-    let pipeline = kernels::pipeline(ctx, &layout, Kernel::Probe, model, entry)?;
+    let pipeline = kernels::pipeline(ctx, &layout, Kernel::Probe, Some(model), entry)?;
     let mut params = Params::default();
     params.image[0] = items.len() as u32;
     let bytes = std::mem::size_of_val(items) as u64;
@@ -38,8 +34,7 @@ pub fn run_probe(
             tris: &[GpuTri::default()],
             env: &[[0.0; 4]],
             grid: &[0.0],
-            weights: &weights,
-            model: &model_params,
+            model: &model_params(model),
         },
     )?;
     ctx.queue

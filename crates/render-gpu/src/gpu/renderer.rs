@@ -17,7 +17,7 @@ use super::kernels::{self, Kernel, WORKGROUP};
 /// vec4s per path slot (`SLOT` in shaders/path.wgsl); the last holds the accumulated RGB
 /// and the count of finished samples.
 const SLOT_VEC4S: u64 = 5;
-use super::model_buffers::{ModelParams, model_buffers};
+use super::model_buffers::model_params;
 use super::resources::{COUNTER_BYTES, Inputs, Resources, read_back, wait};
 use super::scene_buffers::{Params, env_buffer, geometry_buffers, scene_params};
 
@@ -58,14 +58,9 @@ pub fn render_gpu(
     progress: &(dyn Fn(u64, u64) + Sync),
     cancel: &AtomicBool,
 ) -> Result<RenderOutput, RenderError> {
-    let (kernel, model) = match (set.kind, set.model) {
-        (IntegratorKind::Pt, _) => (Kernel::Pt, None),
-        (IntegratorKind::Stcvae, Some(m)) => (Kernel::Stcvae, Some(model_buffers(m)?)),
-        (IntegratorKind::Stcvae, None) => {
-            return Err(RenderError::Model(
-                "the stcvae integrator needs a model".into(),
-            ));
-        }
+    let kernel = match set.kind {
+        IntegratorKind::Pt => Kernel::Pt,
+        IntegratorKind::Stcvae => Kernel::Stcvae,
     };
     if scene.lights.len() > super::scene_buffers::MAX_GPU_LIGHTS {
         return Err(RenderError::Scene(format!(
@@ -74,7 +69,7 @@ pub fn render_gpu(
             scene.lights.len()
         )));
     }
-    let (model_params, weights) = model.unwrap_or((ModelParams::default(), Vec::new()));
+    let model = set.model.map(model_params).unwrap_or_default();
     let layout = kernels::bind_group_layout(ctx);
     let pipeline = kernels::pipeline(ctx, &layout, kernel, set.model, "render_main")?;
     let cam = &scene.camera;
@@ -98,8 +93,7 @@ pub fn render_gpu(
             tris: &tris,
             env: &env,
             grid,
-            weights: &weights,
-            model: &model_params,
+            model: &model,
         },
     )?;
     // Poison the accumulation buffer: a pixel the kernel never wrote stays NaN and is

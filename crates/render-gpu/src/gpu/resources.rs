@@ -31,7 +31,6 @@ pub struct Inputs<'a> {
     pub tris: &'a [GpuTri],
     pub env: &'a [[f32; 4]],
     pub grid: &'a [f32],
-    pub weights: &'a [[f32; 4]],
     pub model: &'a ModelParams,
 }
 
@@ -93,10 +92,9 @@ impl Resources {
         let nodes = init(ctx, "nodes", bytemuck::cast_slice(i.nodes), ro);
         let env = init(ctx, "env", bytemuck::cast_slice(i.env), ro);
         let grid = init(ctx, "grid", bytemuck::cast_slice(i.grid), ro);
-        let weights = init(ctx, "weights", bytemuck::cast_slice(i.weights), ro);
         let model = init(ctx, "model", bytemuck::bytes_of(i.model), uni);
         let buffers = [
-            &params, &accum, &counters, &tris, &nodes, &env, &grid, &weights, &model,
+            &params, &accum, &counters, &tris, &nodes, &env, &grid, &model,
         ];
         let entries: Vec<wgpu::BindGroupEntry> = buffers
             .iter()
@@ -116,7 +114,7 @@ impl Resources {
             accum,
             counters,
             bind_group,
-            _inputs: vec![tris, nodes, env, grid, weights, model],
+            _inputs: vec![tris, nodes, env, grid, model],
         })
     }
 }
