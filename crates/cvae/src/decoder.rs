@@ -6,51 +6,76 @@
 pub const LOGVAR_CLAMP: f32 = 16.0;
 
 /// One fully connected layer, y = W x + b with W stored row-major as [out][in] (each
-/// output is one dot product — the layout the WGSL kernels read).
+/// output is one dot product — the layout the model file and the WGSL kernels use).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Dense {
     pub inputs: usize,
     pub outputs: usize,
     pub weight: Vec<f32>,
     pub bias: Vec<f32>,
+    /// The same weights column by column, each column zero-padded to a multiple of 8
+    /// outputs: the CPU evaluates y += x_i · column_i, eight outputs per vector
+    /// operation, instead of one short dot product per output.
+    columns: Vec<f32>,
+    /// The bias zero-padded likewise.
+    bias_padded: Vec<f32>,
+}
+
+/// Outputs rounded up to whole 8-lane chunks.
+#[inline]
+fn padded(outputs: usize) -> usize {
+    outputs.div_ceil(8) * 8
 }
 
 impl Dense {
-    #[inline]
+    /// `weight` is row-major [outputs][inputs]; lengths must match.
+    pub fn new(inputs: usize, outputs: usize, weight: Vec<f32>, bias: Vec<f32>) -> Self {
+        assert_eq!(weight.len(), inputs * outputs, "weight shape");
+        assert_eq!(bias.len(), outputs, "bias shape");
+        let p = padded(outputs);
+        let mut columns = vec![0f32; inputs * p];
+        for o in 0..outputs {
+            for i in 0..inputs {
+                columns[i * p + o] = weight[o * inputs + i];
+            }
+        }
+        let mut bias_padded = vec![0f32; p];
+        bias_padded[..outputs].copy_from_slice(&bias);
+        Self {
+            inputs,
+            outputs,
+            weight,
+            bias,
+            columns,
+            bias_padded,
+        }
+    }
+
+    /// y[..padded] = W x + b (padding lanes come out 0 before the activation). Eight
+    /// outputs at a time are accumulated in a local array, which stays in registers.
+    #[inline(always)]
     fn apply(&self, x: &[f32], y: &mut [f32]) {
-        for (o, yo) in y.iter_mut().enumerate().take(self.outputs) {
-            let row = &self.weight[o * self.inputs..(o + 1) * self.inputs];
-            *yo = self.bias[o] + dot(row, &x[..self.inputs]);
+        let p = self.bias_padded.len();
+        let x = &x[..self.inputs];
+        for (c, yc) in y[..p].chunks_exact_mut(8).enumerate() {
+            let mut acc: [f32; 8] = self.bias_padded[c * 8..c * 8 + 8].try_into().unwrap();
+            for (i, xi) in x.iter().enumerate() {
+                let w: &[f32; 8] = self.columns[i * p + c * 8..i * p + c * 8 + 8]
+                    .try_into()
+                    .unwrap();
+                for k in 0..8 {
+                    acc[k] += xi * w[k];
+                }
+            }
+            yc.copy_from_slice(&acc);
         }
     }
 }
 
-/// Dot product with eight independent partial sums: a plain `sum()` is one serial chain
-/// of dependent adds (the compiler may not reorder float additions), which made the
-/// decoders the renderer's bottleneck.
-#[inline]
-fn dot(a: &[f32], b: &[f32]) -> f32 {
-    let mut acc = [0f32; 8];
-    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
-    let (ra, rb) = (ca.remainder(), cb.remainder());
-    for (x, y) in ca.zip(cb) {
-        for k in 0..8 {
-            acc[k] += x[k] * y[k];
-        }
-    }
-    let mut tail = 0f32;
-    for (x, y) in ra.iter().zip(rb) {
-        tail += x * y;
-    }
-    ((acc[0] + acc[4]) + (acc[1] + acc[5])) + ((acc[2] + acc[6]) + (acc[3] + acc[7])) + tail
-}
-
-/// softplus(x) = ln(1 + eˣ), computed without overflow. `ln(1 + t)` rather than
-/// `ln_1p(t)`: for t ≤ 1 its absolute error is below 1e-7, which is all that matters
-/// next to max(x, 0), and glibc's log1pf was a sixth of the renderer's time.
-#[inline]
+/// softplus(x) = ln(1 + eˣ) with libm, the reference the fast layer-wide version
+/// ([`crate::fastmath::softplus`]) is tested against.
 pub fn softplus(x: f32) -> f32 {
-    x.max(0.0) + (1.0 + (-x.abs()).exp()).ln()
+    x.max(0.0) + (-x.abs()).exp().ln_1p()
 }
 
 /// A decoder with its input/output standardisation.
@@ -75,21 +100,41 @@ pub const MAX_WIDTH: usize = 64;
 
 impl Decoder {
     /// Raw network: input [standardised cond | z] → [mean | logvar] in standardised units.
+    ///
+    /// On x86-64 CPUs with AVX2 (checked once at run time; std caches the answer) the
+    /// same code is compiled 8 lanes wide: the decoders are most of ST-CVAE's time and
+    /// the portable build only assumes SSE2.
     pub fn forward(&self, input: &[f32], out: &mut [f32]) {
-        let mut a = [0f32; MAX_WIDTH];
-        let mut b = [0f32; MAX_WIDTH];
-        a[..input.len()].copy_from_slice(input);
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2 (checked just above).
+            unsafe { self.forward_avx2(input, out) };
+            return;
+        }
+        self.forward_portable(input, out);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn forward_avx2(&self, input: &[f32], out: &mut [f32]) {
+        self.forward_portable(input, out);
+    }
+
+    #[inline(always)]
+    fn forward_portable(&self, input: &[f32], out: &mut [f32]) {
+        // Two activation buffers used in turn (swapping the arrays would copy them).
+        let mut buf = [[0f32; MAX_WIDTH]; 2];
+        buf[0][..input.len()].copy_from_slice(input);
         let last = self.layers.len() - 1;
         for (i, layer) in self.layers.iter().enumerate() {
-            layer.apply(&a[..layer.inputs], &mut b[..layer.outputs]);
+            let [a, b] = &mut buf;
+            let (src, dst) = if i % 2 == 0 { (&*a, b) } else { (&*b, a) };
+            layer.apply(src, dst);
             if i < last {
-                for v in &mut b[..layer.outputs] {
-                    *v = softplus(*v);
-                }
+                crate::fastmath::softplus_in_place(&mut dst[..padded(layer.outputs)]);
             }
-            std::mem::swap(&mut a, &mut b);
         }
-        out.copy_from_slice(&a[..2 * self.out]);
+        out.copy_from_slice(&buf[self.layers.len() % 2][..2 * self.out]);
     }
 
     /// Draws the outputs given raw conditioning features, latent normals `z` (len

@@ -6,6 +6,7 @@
 
 pub mod decoder;
 pub mod eval;
+pub mod fastmath;
 pub mod features;
 pub mod model_file;
 pub mod sampler;

@@ -287,12 +287,7 @@ impl ModelSet {
                 if !weight.iter().chain(&bias).all(|v| v.is_finite()) {
                     return Err(invalid(format!("{}: non-finite weight", spec.name)));
                 }
-                layers.push(Dense {
-                    inputs,
-                    outputs,
-                    weight,
-                    bias,
-                });
+                layers.push(Dense::new(inputs, outputs, weight, bias));
             }
             decoders.push(Decoder {
                 cond,

@@ -21,15 +21,17 @@ fn random_decoder(
         .collect();
     let layers = widths
         .windows(2)
-        .map(|w| Dense {
-            inputs: w[0],
-            outputs: w[1],
-            weight: (0..w[0] * w[1])
-                .map(|_| gain * (rng.uniform() as f32 - 0.5))
-                .collect(),
-            bias: (0..w[1])
-                .map(|_| gain * (rng.uniform() as f32 - 0.5))
-                .collect(),
+        .map(|w| {
+            Dense::new(
+                w[0],
+                w[1],
+                (0..w[0] * w[1])
+                    .map(|_| gain * (rng.uniform() as f32 - 0.5))
+                    .collect(),
+                (0..w[1])
+                    .map(|_| gain * (rng.uniform() as f32 - 0.5))
+                    .collect(),
+            )
         })
         .collect();
     Decoder {

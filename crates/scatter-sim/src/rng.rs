@@ -50,6 +50,13 @@ impl WalkRng {
         self.0.next_u64()
     }
 
+    /// A standard normal variate in f32 (rand_distr's ziggurat: one 64-bit draw and a
+    /// table lookup almost always, no logarithm): the models' latent noise.
+    #[inline]
+    pub fn standard_normal(&mut self) -> f32 {
+        rand_distr::Distribution::<f32>::sample(&rand_distr::StandardNormal, &mut self.0)
+    }
+
     /// Uniform in [0, 1) with 53 random bits.
     #[inline]
     pub fn uniform(&mut self) -> f64 {

@@ -74,12 +74,7 @@ impl Mlp {
                     Some(b) => b.val().try_into_vec_as::<f32>().expect("f32 bias"),
                     None => vec![0.0; o],
                 };
-                Dense {
-                    inputs: i,
-                    outputs: o,
-                    weight,
-                    bias,
-                }
+                Dense::new(i, o, weight, bias)
             })
             .collect()
     }

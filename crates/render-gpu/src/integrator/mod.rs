@@ -95,6 +95,10 @@ pub(crate) struct PathState {
     /// such a path must not also collect the sun disk when it escapes.
     pub scattered: bool,
     pub alive: bool,
+    /// A lower bound on the distance from `pos` to the surface (0: unknown). ST-CVAE
+    /// knows it from its free spheres; a free flight shorter than it cannot reach the
+    /// surface, so it needs no ray cast. PT never sets it.
+    pub free: f32,
 }
 
 /// An ordinary PT scattering event at `s.pos` (a real collision).
@@ -109,7 +113,7 @@ pub(crate) fn pt_event(
     stats.events += 1;
     let albedo = scene.albedo[channel];
     if set.nee {
-        s.radiance += s.beta * albedo * nee::direct(scene, s.pos, s.dir, channel, rng);
+        s.radiance += s.beta * albedo * nee::direct(scene, s.pos, s.dir, s.free, channel, rng);
     }
     s.beta *= albedo;
     if !roulette(&mut s.beta, rng) {
@@ -152,6 +156,7 @@ pub fn trace(
         radiance: 0.0,
         scattered: false,
         alive: true,
+        free: 0.0,
     };
     let mut inside = false;
     // True right after a sphere step: the next flight starts at a model-made exit point.
@@ -185,7 +190,13 @@ pub fn trace(
             continue;
         }
         let t = -(1.0 - uniform(rng)).ln() / sigma;
-        if let Some(h) = geo.intersect(s.pos, s.dir, t) {
+        let hit = if t < s.free {
+            None
+        } else {
+            geo.intersect(s.pos, s.dir, t)
+        };
+        if let Some(h) = hit {
+            s.free = 0.0;
             let p = s.pos + s.dir * h.t;
             if s.dir.dot(h.normal) < 0.0 {
                 // Met the surface from outside while believed inside. After a sphere step
@@ -215,6 +226,7 @@ pub fn trace(
             continue;
         }
         s.pos += s.dir * t;
+        s.free = (s.free - t).max(0.0);
         from_step = match set.kind {
             IntegratorKind::Pt => {
                 pt_event(scene, set, channel, &mut s, stats, rng);

@@ -19,17 +19,43 @@ const MAX_OPTICAL_DEPTH: f32 = 50.0;
 /// Most surface crossings followed along one shadow ray.
 const MAX_CROSSINGS: usize = 64;
 
+/// Below this bound on the transmittance a shadow ray is cast only with probability
+/// bound / ROULETTE_BOUND and its result divided by that probability: unbiased, and a
+/// surviving ray adds at most ROULETTE_BOUND·ρ·E, so the added variance is small next to
+/// what events near the surface contribute. Deep inside dense media most shadow rays
+/// (two BVH traversals each) are skipped.
+pub const ROULETTE_BOUND: f32 = 0.02;
+
 /// Σ over lights of ρ_g(W·ω_l) · T(x → light) · (E, or L/pdf for a sun disk).
-pub fn direct(scene: &SceneData, x: Vec3, w: Vec3, channel: usize, rng: &mut WalkRng) -> f32 {
+///
+/// `free` is a lower bound on the distance from `x` to the surface (0 if unknown): every
+/// shadow ray crosses at least that much medium, so T ≤ exp(−σ_t·free), which decides
+/// the shadow-ray roulette.
+pub fn direct(
+    scene: &SceneData,
+    x: Vec3,
+    w: Vec3,
+    free: f32,
+    channel: usize,
+    rng: &mut WalkRng,
+) -> f32 {
+    let bound = (-scene.sigma_t[channel] * free).exp();
     let mut sum = 0.0;
     for light in &scene.lights {
         let (wl, factor) = light.sample(uniform(rng), uniform(rng), channel);
         if factor <= 0.0 {
             continue;
         }
+        let mut weight = factor;
+        if bound < ROULETTE_BOUND {
+            if uniform(rng) * ROULETTE_BOUND >= bound {
+                continue;
+            }
+            weight *= ROULETTE_BOUND / bound;
+        }
         let phase = hg_pdf(scene.g as f64, w.dot(wl).clamp(-1.0, 1.0) as f64) as f32;
         let t = transmittance(scene, x, wl, channel);
-        sum += phase * t * factor;
+        sum += phase * t * weight;
     }
     sum
 }

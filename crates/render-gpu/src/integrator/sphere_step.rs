@@ -42,6 +42,7 @@ pub(crate) fn step(
     let r = (free * SHRINK).min(set.max_tau / sigma);
     let tau = sigma * r;
     if !(r > 0.0) || tau < set.min_tau {
+        s.free = free.max(0.0);
         pt_event(scene, set, channel, s, stats, rng);
         return false;
     }
@@ -72,7 +73,9 @@ pub(crate) fn step(
             };
             let x = centre + frame.to_world(ep) * r as f64;
             let w = frame.to_world(ed).normalize();
-            sum += nee::direct(scene, x.as_vec3(), w.as_vec3(), channel, rng);
+            // X lies |ep|·r from the centre, whose ball of radius `free` is surface-free.
+            let x_free = free - ep.length() as f32 * r;
+            sum += nee::direct(scene, x.as_vec3(), w.as_vec3(), x_free, channel, rng);
         }
         s.radiance += s.beta * lam as f32 * sum / m as f32;
     }
@@ -86,5 +89,7 @@ pub(crate) fn step(
     s.pos = exit.as_vec3();
     s.dir = frame.to_world(omega).as_vec3().normalize();
     s.scattered = true;
+    // The exit lies on the sphere of radius r inside the free ball of radius `free`.
+    s.free = (free - r).max(0.0);
     true
 }
