@@ -36,10 +36,16 @@ fn transmittance(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
     return 0.0;
 }
 
-/// Σ over lights of ρ_g(W·ω_l) · T(x → light) · (E, or L/pdf for a sun disk).
-fn nee_direct(x: vec3<f32>, w: vec3<f32>, channel: u32) -> f32 {
+// Shadow-ray roulette below this transmittance bound (nee.rs: ROULETTE_BOUND).
+const ROULETTE_BOUND: f32 = 0.02;
+
+/// Σ over lights of ρ_g(W·ω_l) · T(x → light) · (E, or L/pdf for a sun disk). `free` is
+/// a lower bound on the distance to the surface: T ≤ exp(−σ_t·free) drives an unbiased
+/// roulette on the shadow ray, as on the CPU.
+fn nee_direct(x: vec3<f32>, w: vec3<f32>, free: f32, channel: u32) -> f32 {
     var sum = 0.0;
     let g = params.consts.x;
+    let bound = exp(-params.sigma_t[channel] * free);
     for (var i = 0u; i < params.flags.x; i++) {
         let u1 = rand();
         let u2 = rand();
@@ -47,8 +53,15 @@ fn nee_direct(x: vec3<f32>, w: vec3<f32>, channel: u32) -> f32 {
         if ls.factor <= 0.0 {
             continue;
         }
+        var weight = ls.factor;
+        if bound < ROULETTE_BOUND {
+            if rand() * ROULETTE_BOUND >= bound {
+                continue;
+            }
+            weight *= ROULETTE_BOUND / bound;
+        }
         let phase = hg_pdf(g, clamp(dot(w, ls.dir), -1.0, 1.0));
-        sum += phase * transmittance(x, ls.dir, channel) * ls.factor;
+        sum += phase * transmittance(x, ls.dir, channel) * weight;
     }
     return sum;
 }

@@ -24,6 +24,9 @@ struct PathState {
     radiance: f32,
     scattered: bool,
     alive: bool,
+    // Lower bound on the distance to the surface (0: unknown); set by sphere steps, not
+    // saved between dispatches (0 is always safe). See PathState::free on the CPU.
+    free: f32,
 }
 
 var<private> ps: PathState;
@@ -47,7 +50,7 @@ fn pt_event(channel: u32) {
     stats[C_EVENTS] += 1u;
     let albedo = params.albedo[channel];
     if params.flags.y != 0u {
-        ps.radiance += ps.beta * albedo * nee_direct(ps.pos, ps.dir, channel);
+        ps.radiance += ps.beta * albedo * nee_direct(ps.pos, ps.dir, ps.free, channel);
     }
     ps.beta *= albedo;
     if !roulette() {
@@ -76,7 +79,7 @@ var<private> p_iterations: u32;
 
 fn start_path(origin: vec3<f32>, dir: vec3<f32>, channel: u32) {
     stats[C_PATHS] += 1u;
-    ps = PathState(origin, dir, 1.0, 0.0, false, true);
+    ps = PathState(origin, dir, 1.0, 0.0, false, true, 0.0);
     p_channel = channel;
     p_inside = false;
     p_from_step = false;
@@ -123,8 +126,13 @@ fn bounce() {
         return;
     }
     let t = -log(1.0 - rand()) / sigma;
-    let h = intersect(ps.pos, ps.dir, t);
+    // A flight shorter than the known free distance cannot reach the surface.
+    var h = Hit(0.0, 0u, false);
+    if t >= ps.free {
+        h = intersect(ps.pos, ps.dir, t);
+    }
     if h.found {
+        ps.free = 0.0;
         let p = ps.pos + ps.dir * h.t;
         let n = tri_normal(h.prim);
         if dot(ps.dir, n) < 0.0 {
@@ -154,6 +162,7 @@ fn bounce() {
         return;
     }
     ps.pos += ps.dir * t;
+    ps.free = max(ps.free - t, 0.0);
     p_from_step = scatter_at(channel);
 }
 
@@ -255,7 +264,7 @@ fn render_main(@builtin(global_invocation_id) gid: vec3<u32>) {
         if !done {
             let a = accum[base];
             let b = accum[base + 1u];
-            ps = PathState(a.xyz, b.xyz, a.w, b.w, (flags & F_SCATTERED) != 0u, (flags & F_ALIVE) != 0u);
+            ps = PathState(a.xyz, b.xyz, a.w, b.w, (flags & F_SCATTERED) != 0u, (flags & F_ALIVE) != 0u, 0.0);
             rng_s = bitcast<vec4<u32>>(accum[base + 2u]);
             p_channel = st.x & 0xffu;
             p_inside = (flags & F_INSIDE) != 0u;

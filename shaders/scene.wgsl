@@ -226,9 +226,10 @@ fn box_d2(p: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>) -> f32 {
     return dot(q, q);
 }
 
-/// Exact unsigned distance from p to the surface (nearest-triangle BVH search).
-fn surface_distance(p: vec3<f32>) -> f32 {
-    var best = 1e30;
+/// min(exact unsigned distance from p to the surface, limit): a nearest-triangle BVH
+/// search that skips every node beyond `limit` (Geometry::distance_within on the CPU).
+fn surface_distance(p: vec3<f32>, limit: f32) -> f32 {
+    var best = limit * limit;
     var stack: array<u32, 64>;
     var top = 1u;
     stack[0] = 0u;

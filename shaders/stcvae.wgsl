@@ -16,11 +16,12 @@ fn scatter_at(channel: u32) -> bool {
     if free < near && sigma * free < min_tau {
         // The grid's Lipschitz bound loses up to two cell diagonals near the surface; the
         // exact distance often still allows a sphere step there.
-        free = max(free, surface_distance(ps.pos) * (1.0 - 1e-5) - params.consts.z);
+        free = max(free, surface_distance(ps.pos, near) * (1.0 - 1e-5) - params.consts.z);
     }
     let r = min(free * SHRINK, max_tau / sigma);
     let tau = sigma * r;
     if !(r > 0.0) || tau < min_tau {
+        ps.free = max(free, 0.0);
         pt_event(channel);
         return false;
     }
@@ -60,7 +61,8 @@ fn scatter_at(channel: u32) -> bool {
             }
             let x = centre + to_world(frame, ev.x) * r;
             let w = normalize(to_world(frame, ev.w));
-            sum += nee_direct(x, w, channel);
+            // X lies |ev.x|·r from the centre, whose ball of radius `free` is surface-free.
+            sum += nee_direct(x, w, free - length(ev.x) * r, channel);
         }
         ps.radiance += ps.beta * lam * sum / f32(m);
     }
@@ -74,5 +76,6 @@ fn scatter_at(channel: u32) -> bool {
     ps.pos = centre + to_world(frame, xc) * r;
     ps.dir = normalize(to_world(frame, wc));
     ps.scattered = true;
+    ps.free = max(free - r, 0.0);
     return true;
 }

@@ -111,9 +111,15 @@ impl Geometry {
 
     /// Exact unsigned distance from `p` to the surface (nearest-triangle BVH search).
     pub fn distance(&self, p: Vec3) -> f32 {
+        self.distance_within(p, f32::INFINITY)
+    }
+
+    /// min(distance to the surface, `limit`): the search skips every node farther than
+    /// `limit`, which near the surface prunes most of the tree from the start.
+    pub fn distance_within(&self, p: Vec3, limit: f32) -> f32 {
         let nodes = &self.bvh.nodes;
         if nodes.is_empty() {
-            return f32::INFINITY;
+            return limit;
         }
         let pa = Vec3A::from(p);
         let box_d2 = |i: usize| {
@@ -121,7 +127,7 @@ impl Geometry {
             let q = pa.clamp(from_arr(b.min), from_arr(b.max));
             (q - pa).length_squared()
         };
-        let mut best = f32::INFINITY;
+        let mut best = limit * limit;
         // A BVH2 of up to 2^64 leaves needs at most 64 pending nodes (depth-first, one
         // sibling pushed per level); a fixed array keeps the query allocation-free.
         let mut stack = [0usize; 64];

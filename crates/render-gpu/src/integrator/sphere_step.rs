@@ -37,7 +37,9 @@ pub(crate) fn step(
         // which at high density is many mean free paths of PT fallback events. When the
         // grid alone would force a fallback, the exact nearest-triangle distance (about
         // the cost of one ray cast) often still allows a sphere step.
-        free = free.max(scene.geo.distance(s.pos) * (1.0 - 1e-5) - scene.geo.eps);
+        // Farther than near_surface the grid alone is good enough; the limit prunes.
+        let exact = scene.geo.distance_within(s.pos, grid.near_surface);
+        free = free.max(exact * (1.0 - 1e-5) - scene.geo.eps);
     }
     let r = (free * SHRINK).min(set.max_tau / sigma);
     let tau = sigma * r;
