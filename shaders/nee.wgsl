@@ -6,7 +6,75 @@
 const MAX_OPTICAL_DEPTH: f32 = 50.0;
 const MAX_CROSSINGS: u32 = 64u;
 
+/// Every surface crossing of x + t·dir in one BVH traversal, unordered
+/// (Geometry::inside_length on the CPU): for a closed mesh the length inside is
+/// Σ t(exits) − Σ t(entries); `balance` = exits − entries is 1 for an origin inside.
+struct Crossings {
+    length: f32,
+    fresnel_t: f32,
+    balance: i32,
+}
+
+fn crossings(o: vec3<f32>, d: vec3<f32>) -> Crossings {
+    var c = Crossings(0.0, 1.0, 0);
+    let dielectric = params.flags.z != 0u;
+    let ior = params.consts.y;
+    let inv_d = 1.0 / (d + select(vec3<f32>(0.0), vec3<f32>(1e-30), d == vec3<f32>(0.0)));
+    if box_entry(nodes[0].lo, nodes[0].hi, o, inv_d, 1e30) >= 1e29 {
+        return c;
+    }
+    var stack: array<u32, 64>;
+    var top = 1u;
+    stack[0] = 0u;
+    loop {
+        if top == 0u {
+            break;
+        }
+        top -= 1u;
+        let node = nodes[stack[top]];
+        if node.count > 0u {
+            for (var k = node.first; k < node.first + node.count; k++) {
+                let t = tri_intersect(tris[k], o, d, 1e30);
+                if t < 1e29 {
+                    let cosn = dot(d, tris[k].n.xyz);
+                    let exiting = cosn > 0.0;
+                    c.length += select(-t, t, exiting);
+                    c.balance += select(-1, 1, exiting);
+                    if dielectric {
+                        let a = abs(cosn);
+                        c.fresnel_t *= 1.0 - select(fresnel(a, 1.0, ior), fresnel(a, ior, 1.0), exiting);
+                    }
+                }
+            }
+        } else {
+            // No closest hit to prune by: every child the ray crosses is visited, in any
+            // order.
+            let a = node.first;
+            let b = node.first + 1u;
+            if box_entry(nodes[a].lo, nodes[a].hi, o, inv_d, 1e30) < 1e29 && top < 64u {
+                stack[top] = a;
+                top += 1u;
+            }
+            if box_entry(nodes[b].lo, nodes[b].hi, o, inv_d, 1e30) < 1e29 && top < 64u {
+                stack[top] = b;
+                top += 1u;
+            }
+        }
+    }
+    return c;
+}
+
 fn transmittance(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
+    let c = crossings(x, dir);
+    if c.balance == 1 && c.length >= 0.0 {
+        return exp(-params.sigma_t[channel] * c.length) * c.fresnel_t;
+    }
+    // Crossings that do not pair up (a crack between triangles, an origin not inside):
+    // walk them in order.
+    return transmittance_ordered(x, dir, channel);
+}
+
+fn transmittance_ordered(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
     let sigma = params.sigma_t[channel];
     let dielectric = params.flags.z != 0u;
     let ior = params.consts.y;

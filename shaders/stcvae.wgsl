@@ -12,11 +12,15 @@ fn scatter_at(channel: u32) -> bool {
     let min_tau = params.consts.w;
     let max_tau = params.consts2.x;
     let near = params.consts2.y;
-    var free = grid_radius(ps.pos);
+    let grid_free = grid_radius(ps.pos);
+    // The path's own bound (what is left of its last free ball) costs nothing.
+    var free = max(grid_free, ps.free);
     if free < near && sigma * free < min_tau {
         // The grid's Lipschitz bound loses up to two cell diagonals near the surface; the
-        // exact distance often still allows a sphere step there.
-        free = max(free, surface_distance(ps.pos, near) * (1.0 - 1e-5) - params.consts.z);
+        // exact distance often still allows a sphere step there. The search stops at the
+        // largest distance the grid allows (DistanceGrid::distance_upper_bound).
+        let limit = grid_free + 0.5 * near * 1.01;
+        free = max(free, surface_distance(ps.pos, limit) * (1.0 - 1e-5) - params.consts.z);
     }
     let r = min(free * SHRINK, max_tau / sigma);
     let tau = sigma * r;

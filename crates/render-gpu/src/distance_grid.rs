@@ -76,6 +76,16 @@ impl DistanceGrid {
         (self.values[i] - (p - centre).length()).max(0.0)
     }
 
+    /// An upper bound on the true distance at a point whose grid radius is `radius`:
+    /// d(p) ≤ d(c) + |p − c| = radius + 2|p − c| + margin ≤ radius + √3·cell + margin
+    /// (half of `near_surface`). The 1 % slack covers the rounding margin (eps/2, below
+    /// 1 % of √3·cell for any grid under 1,000 cells a side). An exact search limited to
+    /// this bound returns the exact distance while visiting only the nodes near p.
+    #[inline]
+    pub fn distance_upper_bound(&self, radius: f32) -> f32 {
+        radius + 0.5 * self.near_surface * 1.01
+    }
+
     /// Loads the grid from the cache or builds and caches it when building takes long.
     pub fn cached(geo: &Geometry, resolution: u32) -> Self {
         let key = cache_key(geo, resolution);

@@ -102,6 +102,48 @@ impl Geometry {
         })
     }
 
+    /// Every surface crossing of the ray `origin + t·dir` (t > 0) in one BVH traversal,
+    /// without the closest-hit ordering: the length inside a closed mesh is
+    /// Σ t(exits) − Σ t(entries) in whatever order the crossings are found, so a shadow
+    /// ray needs one traversal instead of one per crossing (plus the one that confirms
+    /// the escape). `factor(cos, exiting)` is multiplied over the crossings (Fresnel
+    /// transmittance). None when the crossings do not pair up as they must for an origin
+    /// inside (one more exit than entries, non-negative length): a ray through a crack
+    /// between triangles, or an origin that is not inside; callers then walk the
+    /// crossings one by one.
+    pub fn inside_length(
+        &self,
+        origin: Vec3,
+        dir: Vec3,
+        mut factor: impl FnMut(f32, bool) -> f32,
+    ) -> Option<(f32, f32)> {
+        let ray = Ray::new(arr(origin).into(), arr(dir).into(), 0.0, f32::INFINITY);
+        let mut hit = RayHit::none();
+        let mut length = 0.0f32;
+        let mut balance = 0i32;
+        let mut product = 1.0f32;
+        self.bvh.ray_traverse(ray, &mut hit, |r, id| {
+            let prim = self.bvh.primitive_indices[id] as usize;
+            let t = self.tris[prim].intersect(r);
+            if t.is_finite() {
+                let c = dir.dot(self.normals[prim]);
+                let exiting = c > 0.0;
+                if exiting {
+                    length += t;
+                    balance += 1;
+                } else {
+                    length -= t;
+                    balance -= 1;
+                }
+                product *= factor(c.abs(), exiting);
+            }
+            // Never a closest hit: the traversal keeps its full range and visits every
+            // node the ray crosses.
+            f32::INFINITY
+        });
+        (balance == 1 && length >= 0.0).then_some((length, product))
+    }
+
     /// A point just off the surface at `p`, on the side `dir` points to.
     #[inline]
     pub fn spawn(&self, p: Vec3, normal: Vec3, dir: Vec3) -> Vec3 {

@@ -62,6 +62,28 @@ pub fn direct(
 
 /// Transmittance from `x` (inside) along `dir` to infinity.
 pub fn transmittance(scene: &SceneData, x: Vec3, dir: Vec3, channel: usize) -> f32 {
+    let sigma = scene.sigma_t[channel];
+    let crossed = scene
+        .geo
+        .inside_length(x, dir, |c, exiting| match scene.boundary {
+            Boundary::IndexMatched => 1.0,
+            Boundary::Dielectric(ior) => {
+                1.0 - if exiting {
+                    fresnel(c, ior, 1.0)
+                } else {
+                    fresnel(c, 1.0, ior)
+                }
+            }
+        });
+    match crossed {
+        Some((length, fresnel_t)) => (-sigma * length).exp() * fresnel_t,
+        None => transmittance_ordered(scene, x, dir, channel),
+    }
+}
+
+/// Transmittance by walking the crossings in order (one closest-hit query each): the
+/// fallback for rays whose crossings do not pair up, and the reference in tests.
+pub fn transmittance_ordered(scene: &SceneData, x: Vec3, dir: Vec3, channel: usize) -> f32 {
     let geo = &scene.geo;
     let sigma = scene.sigma_t[channel];
     let mut o = x;

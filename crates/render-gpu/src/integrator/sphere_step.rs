@@ -31,14 +31,19 @@ pub(crate) fn step(
         return false;
     };
     let sigma = scene.sigma_t[channel];
-    let mut free = grid.radius(s.pos);
+    // The path's own bound (s.free: what is left of the last free ball after the flight)
+    // is often larger than the grid's near the surface, and costs nothing.
+    let grid_free = grid.radius(s.pos);
+    let mut free = grid_free.max(s.free);
     if free < grid.near_surface && sigma * free < set.min_tau {
         // Near the surface the grid's Lipschitz bound loses up to two cell half-diagonals,
         // which at high density is many mean free paths of PT fallback events. When the
         // grid alone would force a fallback, the exact nearest-triangle distance (about
         // the cost of one ray cast) often still allows a sphere step.
-        // Farther than near_surface the grid alone is good enough; the limit prunes.
-        let exact = scene.geo.distance_within(s.pos, grid.near_surface);
+        // The search never looks beyond what the grid says the distance can be at most.
+        let exact = scene
+            .geo
+            .distance_within(s.pos, grid.distance_upper_bound(grid_free));
         free = free.max(exact * (1.0 - 1e-5) - scene.geo.eps);
     }
     let r = (free * SHRINK).min(set.max_tau / sigma);
