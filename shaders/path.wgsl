@@ -102,8 +102,23 @@ fn bounce() {
         ps.alive = false;
         return;
     }
+    // One ray query for every lane, outside (unbounded) or inside (up to the sampled
+    // flight, skipped inside a known free ball): lanes in different phases share one
+    // traversal instead of running two in turn.
+    var tmax = 1e30;
+    var query = true;
+    var t = 0.0;
+    if p_inside {
+        t = -log(1.0 - rand()) / sigma;
+        tmax = t;
+        // A flight shorter than the known free distance cannot reach the surface.
+        query = t >= ps.free;
+    }
+    var h = Hit(0.0, 0u, false);
+    if query {
+        h = intersect(ps.pos, ps.dir, tmax);
+    }
     if !p_inside {
-        let h = intersect(ps.pos, ps.dir, 1e30);
         if !h.found {
             ps.radiance += ps.beta * escape_radiance(ps.dir, channel, !(nee && ps.scattered));
             ps.alive = false;
@@ -124,12 +139,6 @@ fn bounce() {
         }
         ps.pos = spawn(p, n, ps.dir);
         return;
-    }
-    let t = -log(1.0 - rand()) / sigma;
-    // A flight shorter than the known free distance cannot reach the surface.
-    var h = Hit(0.0, 0u, false);
-    if t >= ps.free {
-        h = intersect(ps.pos, ps.dir, t);
     }
     if h.found {
         ps.free = 0.0;

@@ -24,51 +24,77 @@ fn scatter_at(channel: u32) -> bool {
     }
     let r = min(free * SHRINK, max_tau / sigma);
     let tau = sigma * r;
-    if !(r > 0.0) || tau < min_tau {
-        ps.free = max(free, 0.0);
-        pt_event(channel);
-        return false;
-    }
-    stats[C_STEPS] += 1u;
+    let fallback = !(r > 0.0) || tau < min_tau;
+    let nee = params.flags.y != 0u;
     let g = params.consts.x;
-    let frame = walk_frame(ps.dir, unit_circle());
     let centre = ps.pos;
-
-    // The walk: exact N = 1 branch (probability e^−τ, no decoder), else the decoders.
+    // SIMD shape (lavapipe runs 8 invocations in lock-step, GPUs 32–64): the PT fallback
+    // and the sphere step share one NEE loop, one EventGen call and one shadow-ray query
+    // below, so lanes in different branches do not run each of them one after the other.
+    var frame = walk_frame(ps.dir, vec2<f32>(1.0, 0.0));
     var n = 1.0;
     var e = Exit(1.0, 0.0, 0.0);
-    var ev = Event(vec3<f32>(0.0), vec3<f32>(0.0, 0.0, 1.0));
     var single = false;
-    let nee = params.flags.y != 0u;
-    if model.flags.x != 0u && rand() < exp(-tau) {
-        single = true;
-        e = Exit(hg_sample_cos(g, rand()), 0.0, 0.0);
-    } else {
-        n = sample_multiple_n(tau, g);
-        e = sample_exit(tau, g, n);
+    var nee_count = 0u;
+    var nee_weight = 0.0;
+    if fallback {
+        // A real collision handled as in PT (pt_event): NEE here, then albedo and HG.
+        ps.free = max(free, 0.0);
+        stats[C_EVENTS] += 1u;
         if nee {
-            ev = sample_event(tau, g, channel, n, e);
+            nee_count = 1u;
+            nee_weight = ps.beta * params.albedo[channel];
+        }
+    } else {
+        stats[C_STEPS] += 1u;
+        frame = walk_frame(ps.dir, unit_circle());
+        // The walk: exact N = 1 branch (probability e^−τ, no decoder), else the decoders.
+        if model.flags.x != 0u && rand() < exp(-tau) {
+            single = true;
+            e = Exit(hg_sample_cos(g, rand()), 0.0, 0.0);
+        } else {
+            n = sample_multiple_n(tau, g);
+            e = sample_exit(tau, g, n);
+        }
+        if nee {
+            // Representative events given N and the exit, each weighted Λ(N)/M; the
+            // N = 1 walk has its one event at the centre (X = p, W = ω_in), Λ = φ.
+            var lam = params.albedo[channel];
+            nee_count = 1u;
+            if !single {
+                lam = lambda_n(channel, n);
+                nee_count = max(params.misc.z, 1u);
+            }
+            nee_weight = ps.beta * lam / f32(nee_count);
         }
     }
-    if nee {
-        var lam = params.albedo[channel];
-        var m = 1u;
-        if !single {
-            lam = lambda_n(channel, n);
-            m = max(params.misc.z, 1u);
-        }
-        // Extra representative events given the same N and exit, each weighted Λ(N)/M.
-        var sum = 0.0;
-        for (var k = 0u; k < m; k++) {
-            if k > 0u {
+    var sum = 0.0;
+    for (var k = 0u; k < nee_count; k++) {
+        var x = ps.pos;
+        var w = ps.dir;
+        var x_free = ps.free;
+        if !fallback {
+            var ev = Event(vec3<f32>(0.0), vec3<f32>(0.0, 0.0, 1.0));
+            if !single {
                 ev = sample_event(tau, g, channel, n, e);
             }
-            let x = centre + to_world(frame, ev.x) * r;
-            let w = normalize(to_world(frame, ev.w));
+            x = centre + to_world(frame, ev.x) * r;
+            w = normalize(to_world(frame, ev.w));
             // X lies |ev.x|·r from the centre, whose ball of radius `free` is surface-free.
-            sum += nee_direct(x, w, free - length(ev.x) * r, channel);
+            x_free = free - length(ev.x) * r;
         }
-        ps.radiance += ps.beta * lam * sum / f32(m);
+        sum += nee_direct(x, w, x_free, channel);
+    }
+    ps.radiance += nee_weight * sum;
+    if fallback {
+        ps.beta *= params.albedo[channel];
+        if !roulette() {
+            ps.alive = false;
+            return false;
+        }
+        ps.dir = hg_sample_direction(g, ps.dir);
+        ps.scattered = true;
+        return false;
     }
     ps.beta *= albedo_pow(channel, n);
     if !roulette() {
