@@ -20,6 +20,7 @@ fn crossings(o: vec3<f32>, d: vec3<f32>) -> Crossings {
     let dielectric = params.flags.z != 0u;
     let ior = params.consts.y;
     let inv_d = 1.0 / (d + select(vec3<f32>(0.0), vec3<f32>(1e-30), d == vec3<f32>(0.0)));
+    let sh = ray_shear(o, d);
     if box_entry(nodes[0].lo, nodes[0].hi, o, inv_d, 1e30) >= 1e29 {
         return c;
     }
@@ -34,7 +35,7 @@ fn crossings(o: vec3<f32>, d: vec3<f32>) -> Crossings {
         let node = nodes[stack[top]];
         if node.count > 0u {
             for (var k = node.first; k < node.first + node.count; k++) {
-                let t = tri_intersect(tris[k], o, d, 1e30);
+                let t = tri_intersect(sh, tris[k], 1e30);
                 if t < 1e29 {
                     let cosn = dot(d, tris[k].n.xyz);
                     let exiting = cosn > 0.0;

@@ -83,25 +83,57 @@ struct Hit {
     found: bool,
 }
 
-/// Möller–Trumbore as obvhs writes it (two-sided); t in [0, tmax], else +inf.
-fn tri_intersect(tri: Tri, o: vec3<f32>, d: vec3<f32>, tmax: f32) -> f32 {
-    let e1 = tri.v0.xyz - tri.v1.xyz;
-    let e2 = tri.v2.xyz - tri.v0.xyz;
-    let n = cross(e1, e2);
-    let c = tri.v0.xyz - o;
-    let r = cross(d, c);
-    let det = dot(n, d);
+// Watertight ray–triangle intersection (Woop, Benthin and Wald 2013; mirrors
+// crates/render-gpu/src/watertight.rs): one shear per ray, and edge functions computed
+// from the shared vertices, so a ray through an edge shared by two triangles hits one of
+// them instead of slipping through (Möller–Trumbore leaves such cracks, and a path that
+// leaves the medium unnoticed sphere-steps in the air and sees the light unoccluded).
+struct Shear {
+    o: vec3<f32>,
+    kx: u32,
+    s: vec3<f32>,
+    ky: u32,
+    kz: u32,
+}
+
+fn ray_shear(o: vec3<f32>, d: vec3<f32>) -> Shear {
+    let a = abs(d);
+    var kz = 2u;
+    if a.x >= a.y && a.x >= a.z {
+        kz = 0u;
+    } else if a.y >= a.z {
+        kz = 1u;
+    }
+    var kx = (kz + 1u) % 3u;
+    var ky = (kx + 1u) % 3u;
+    if d[kz] < 0.0 {
+        let t = kx;
+        kx = ky;
+        ky = t;
+    }
+    return Shear(o, kx, vec3<f32>(d[kx] / d[kz], d[ky] / d[kz], 1.0 / d[kz]), ky, kz);
+}
+
+fn sheared(sh: Shear, v: vec3<f32>) -> vec3<f32> {
+    let p = v - sh.o;
+    return vec3<f32>(p[sh.kx] - sh.s.x * p[sh.kz], p[sh.ky] - sh.s.y * p[sh.kz], sh.s.z * p[sh.kz]);
+}
+
+fn tri_intersect(sh: Shear, tri: Tri, tmax: f32) -> f32 {
+    let a = sheared(sh, tri.v0.xyz);
+    let b = sheared(sh, tri.v1.xyz);
+    let c = sheared(sh, tri.v2.xyz);
+    let u = c.x * b.y - c.y * b.x;
+    let v = a.x * c.y - a.y * c.x;
+    let w = b.x * a.y - b.y * a.x;
+    if (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0) {
+        return 1e30;
+    }
+    let det = u + v + w;
     if det == 0.0 {
         return 1e30;
     }
-    let inv_det = 1.0 / det;
-    let u = dot(r, e2) * inv_det;
-    let v = dot(r, e1) * inv_det;
-    let w = 1.0 - u - v;
-    if u < 0.0 || v < 0.0 || w < 0.0 {
-        return 1e30;
-    }
-    let t = dot(n, c) * inv_det;
+    let t = (u * a.z + v * b.z + w * c.z) / det;
     if t >= 0.0 && t <= tmax {
         return t;
     }
@@ -121,6 +153,7 @@ fn intersect(o: vec3<f32>, d: vec3<f32>, tmax0: f32) -> Hit {
     var best = Hit(tmax0, 0u, false);
     // Exact zeros would make 0·∞ = NaN in the slab test.
     let inv_d = 1.0 / (d + select(vec3<f32>(0.0), vec3<f32>(1e-30), d == vec3<f32>(0.0)));
+    let sh = ray_shear(o, d);
     var stack: array<u32, 64>;
     var top = 1u;
     stack[0] = 0u;
@@ -135,7 +168,7 @@ fn intersect(o: vec3<f32>, d: vec3<f32>, tmax0: f32) -> Hit {
         }
         if node.count > 0u {
             for (var k = node.first; k < node.first + node.count; k++) {
-                let t = tri_intersect(tris[k], o, d, best.t);
+                let t = tri_intersect(sh, tris[k], best.t);
                 if t < 1e29 {
                     best = Hit(t, k, true);
                 }

@@ -19,5 +19,6 @@ mod ply;
 pub mod render;
 pub mod scene;
 pub mod setup;
+pub mod watertight;
 
 pub use error::RenderError;
