@@ -88,12 +88,16 @@ struct Hit {
 // from the shared vertices, so a ray through an edge shared by two triangles hits one of
 // them instead of slipping through (Möller–Trumbore leaves such cracks, and a path that
 // leaves the medium unnoticed sphere-steps in the air and sees the light unoccluded).
+// The shear as three rows (watertight.rs: RayShear): sheared(v) = rows · (v − o).
 struct Shear {
     o: vec3<f32>,
-    kx: u32,
-    s: vec3<f32>,
-    ky: u32,
-    kz: u32,
+    mx: vec3<f32>,
+    my: vec3<f32>,
+    mz: vec3<f32>,
+}
+
+fn axis(k: u32) -> vec3<f32> {
+    return vec3<f32>(f32(k == 0u), f32(k == 1u), f32(k == 2u));
 }
 
 fn ray_shear(o: vec3<f32>, d: vec3<f32>) -> Shear {
@@ -111,12 +115,13 @@ fn ray_shear(o: vec3<f32>, d: vec3<f32>) -> Shear {
         kx = ky;
         ky = t;
     }
-    return Shear(o, kx, vec3<f32>(d[kx] / d[kz], d[ky] / d[kz], 1.0 / d[kz]), ky, kz);
+    let ez = axis(kz);
+    return Shear(o, axis(kx) - ez * (d[kx] / d[kz]), axis(ky) - ez * (d[ky] / d[kz]), ez * (1.0 / d[kz]));
 }
 
 fn sheared(sh: Shear, v: vec3<f32>) -> vec3<f32> {
     let p = v - sh.o;
-    return vec3<f32>(p[sh.kx] - sh.s.x * p[sh.kz], p[sh.ky] - sh.s.y * p[sh.kz], sh.s.z * p[sh.kz]);
+    return vec3<f32>(dot(sh.mx, p), dot(sh.my, p), dot(sh.mz, p));
 }
 
 fn tri_intersect(sh: Shear, tri: Tri, tmax: f32) -> f32 {

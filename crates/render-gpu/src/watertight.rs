@@ -13,16 +13,16 @@
 
 use glam::Vec3;
 
-/// Per-ray constants of the shear that maps the ray onto the +z axis.
+/// Per-ray constants of the shear that maps the ray onto the +z axis, as three rows:
+/// sheared(v) = (mx·(v − o), my·(v − o), mz·(v − o)). Each row has one or two non-zero
+/// entries, so the dot products round exactly like the textbook a[kx] − Sx·a[kz], with no
+/// indexing by a per-ray axis in the inner loop.
 #[derive(Clone, Copy, Debug)]
 pub struct RayShear {
     origin: Vec3,
-    kx: usize,
-    ky: usize,
-    kz: usize,
-    sx: f32,
-    sy: f32,
-    sz: f32,
+    mx: Vec3,
+    my: Vec3,
+    mz: Vec3,
 }
 
 impl RayShear {
@@ -41,36 +41,35 @@ impl RayShear {
         if dir[kz] < 0.0 {
             std::mem::swap(&mut kx, &mut ky);
         }
+        let e = |k: usize| Vec3::AXES[k];
         Self {
             origin,
-            kx,
-            ky,
-            kz,
-            sx: dir[kx] / dir[kz],
-            sy: dir[ky] / dir[kz],
-            sz: 1.0 / dir[kz],
+            mx: e(kx) - e(kz) * (dir[kx] / dir[kz]),
+            my: e(ky) - e(kz) * (dir[ky] / dir[kz]),
+            mz: e(kz) * (1.0 / dir[kz]),
         }
+    }
+
+    #[inline]
+    fn shear(&self, v: Vec3) -> Vec3 {
+        let p = v - self.origin;
+        Vec3::new(self.mx.dot(p), self.my.dot(p), self.mz.dot(p))
     }
 
     /// Distance t ∈ [tmin, tmax] to the triangle (either side), or +∞.
     #[inline]
     pub fn hit(&self, v0: Vec3, v1: Vec3, v2: Vec3, tmin: f32, tmax: f32) -> f32 {
-        let (a, b, c) = (v0 - self.origin, v1 - self.origin, v2 - self.origin);
-        let (kx, ky, kz) = (self.kx, self.ky, self.kz);
-        let ax = a[kx] - self.sx * a[kz];
-        let ay = a[ky] - self.sy * a[kz];
-        let bx = b[kx] - self.sx * b[kz];
-        let by = b[ky] - self.sy * b[kz];
-        let cx = c[kx] - self.sx * c[kz];
-        let cy = c[ky] - self.sy * c[kz];
-        let mut u = cx * by - cy * bx;
-        let mut v = ax * cy - ay * cx;
-        let mut w = bx * ay - by * ax;
+        let (a, b, c) = (self.shear(v0), self.shear(v1), self.shear(v2));
+        let mut u = c.x * b.y - c.y * b.x;
+        let mut v = a.x * c.y - a.y * c.x;
+        let mut w = b.x * a.y - b.y * a.x;
         // Exactly on an edge in f32: decide in f64 so both triangles agree.
         if u == 0.0 || v == 0.0 || w == 0.0 {
-            u = (cx as f64 * by as f64 - cy as f64 * bx as f64) as f32;
-            v = (ax as f64 * cy as f64 - ay as f64 * cx as f64) as f32;
-            w = (bx as f64 * ay as f64 - by as f64 * ax as f64) as f32;
+            let f =
+                |p: f32, q: f32, r: f32, s: f32| (p as f64 * q as f64 - r as f64 * s as f64) as f32;
+            u = f(c.x, b.y, c.y, b.x);
+            v = f(a.x, c.y, a.y, c.x);
+            w = f(b.x, a.y, b.y, a.x);
         }
         if (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0) {
             return f32::INFINITY;
@@ -79,10 +78,7 @@ impl RayShear {
         if det == 0.0 {
             return f32::INFINITY;
         }
-        let az = self.sz * a[kz];
-        let bz = self.sz * b[kz];
-        let cz = self.sz * c[kz];
-        let t = (u * az + v * bz + w * cz) / det;
+        let t = (u * a.z + v * b.z + w * c.z) / det;
         if t >= tmin && t <= tmax {
             t
         } else {
