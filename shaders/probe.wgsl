@@ -64,3 +64,24 @@ fn probe_frame(@builtin(global_invocation_id) gid: vec3<u32>) {
         set_f(i, 16u + k, xw[k]);
     }
 }
+
+/// In: origin at 0..3, direction at 4..7 (scene geometry bound). Out: closest hit found
+/// (1/0) and t at 0, 1; the unordered crossings' exits − entries and inside length at 2, 3.
+@compute @workgroup_size(64)
+fn probe_ray(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gid.x;
+    if i >= params.image.x {
+        return;
+    }
+    let o = vec3<f32>(item_f(i, 0u), item_f(i, 1u), item_f(i, 2u));
+    let d = vec3<f32>(item_f(i, 4u), item_f(i, 5u), item_f(i, 6u));
+    let h = intersect(o, d, 1e30);
+    let c = crossings(o, d);
+    for (var k = 0u; k < 32u; k++) {
+        set_f(i, k, 0.0);
+    }
+    set_f(i, 0u, select(0.0, 1.0, h.found));
+    set_f(i, 1u, h.t);
+    set_f(i, 2u, f32(c.balance));
+    set_f(i, 3u, c.length);
+}

@@ -10,6 +10,12 @@
 /// integer without SSE4.1's `roundps`.
 const ROUND_MAGIC: f32 = 12_582_912.0;
 
+/// ln 2 = LN2_HI + LN2_LO, the high part with its low 9 mantissa bits zero (so k·LN2_HI
+/// is exact for |k| < 2^9, all of f32's exponent range), given by their bits:
+/// 0.693145751953125 and 1.4286068e-6.
+const LN2_HI: f32 = f32::from_bits(0x3f31_7200);
+const LN2_LO: f32 = f32::from_bits(0x35bf_be8e);
+
 /// e^x for x ∈ [−87, 0] (callers clamp; below −80 the result nears the subnormal
 /// range and keeps fewer bits): 2^k · e^y with k = round(x·log₂e) and
 /// |y| ≤ ln2/2, where a degree-7 Taylor polynomial is exact to ~5e-9.
@@ -19,7 +25,7 @@ pub fn exp_neg(x: f32) -> f32 {
     let k = (t + ROUND_MAGIC) - ROUND_MAGIC;
     // Cody–Waite: ln 2 in two parts, the first exact in few bits, so y keeps the
     // precision of x instead of the ~|x|·6e-8 error of a one-step reduction.
-    let y = (x - k * 0.693_145_751_953_125) - k * 1.428_606_765_330_187e-6;
+    let y = (x - k * LN2_HI) - k * LN2_LO;
     let p = 1.0
         + y * (1.0
             + y * (0.5

@@ -484,3 +484,95 @@ fn long_paths_resume_across_dispatches() {
     eprintln!("long paths: image mean CPU {mc:.5} GPU {mg:.5}, z = {z:.2}");
     assert!(z.abs() < 4.5, "CPU {mc} vs GPU {mg}: z = {z}");
 }
+
+/// The WGSL ray queries are watertight like the Rust ones (render_gpu::watertight): no
+/// ray from inside the bunny aimed at one of its vertices or edge midpoints misses the
+/// surface, the closest hits agree with the CPU's, and so do the one-traversal inside
+/// lengths of the shadow rays.
+#[test]
+fn wgsl_rays_are_watertight_and_match_rust() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let text = common::furnace_scene(r#"kind = "index-matched""#);
+    let f = SceneFile::parse(Path::new("test.toml"), &text).unwrap();
+    let scene = SceneData::build(&f, Path::new(env!("CARGO_MANIFEST_DIR")), false, &[]).unwrap();
+    let geo = &scene.geo;
+    let mut rng = WalkRng::from_seed(23);
+    let mut items: Vec<Item> = Vec::new();
+    let mut rays = Vec::new();
+    while items.len() < 20_000 {
+        let u = glam::Vec3::new(
+            rng.uniform() as f32,
+            rng.uniform() as f32,
+            rng.uniform() as f32,
+        );
+        let p = geo.lo + (geo.hi - geo.lo) * u;
+        if !geo.inside(p) {
+            continue;
+        }
+        for _ in 0..50 {
+            let i = (rng.uniform() * geo.mesh.triangles.len() as f64) as usize;
+            let [a, b, c] = geo.mesh.triangle(i.min(geo.mesh.triangles.len() - 1));
+            let target = [a, b, c, (a + b) * 0.5, (b + c) * 0.5, (c + a) * 0.5]
+                [(rng.uniform() * 6.0) as usize % 6];
+            let d = (target - p).normalize();
+            let mut it = [0.0f32; 32];
+            it[..3].copy_from_slice(&p.to_array());
+            it[4..7].copy_from_slice(&d.to_array());
+            items.push(it);
+            rays.push((p, d));
+        }
+    }
+    let out =
+        render_gpu::gpu::probe::run_probe_on(&ctx, "probe_ray", model(), &items, Some(&scene))
+            .unwrap();
+    let (mut misses, mut t_off, mut len_off, mut paired) = (0, 0, 0, 0);
+    for ((p, d), o) in rays.iter().zip(&out) {
+        let cpu = geo.intersect(*p, *d, f32::INFINITY);
+        if o[0] != 1.0 {
+            misses += 1;
+            continue;
+        }
+        // Both tests are watertight but round differently (WGSL may fuse multiply-adds):
+        // at an edge they may pick different triangles at the same t.
+        if let Some(h) = cpu
+            && (h.t - o[1]).abs() > 1e-4 * h.t.max(1e-2)
+        {
+            t_off += 1;
+        }
+        if o[2] == 1.0 && o[3] >= 0.0 {
+            paired += 1;
+            if let Some((len, _)) = geo.inside_length(*p, *d, |_, _| 1.0)
+                && (len - o[3]).abs() > 1e-4 * len.max(1e-2)
+            {
+                len_off += 1;
+            }
+        }
+    }
+    eprintln!(
+        "{} rays: {misses} misses, {t_off} closest hits off, {paired} paired crossings, {len_off} lengths off",
+        rays.len()
+    );
+    assert_eq!(
+        misses,
+        0,
+        "{misses} of {} WGSL rays slipped through the mesh",
+        rays.len()
+    );
+    // Closest hits and lengths are the same quantities computed in f32 on both sides.
+    assert!(
+        t_off * 1000 <= rays.len(),
+        "{t_off} closest hits differ from the CPU's"
+    );
+    assert!(
+        len_off * 1000 <= paired,
+        "{len_off} inside lengths differ from the CPU's"
+    );
+    // Rays exactly through a vertex may hit every triangle around it (the sum then falls
+    // back to the ordered walk), but most must pair up or the test checks nothing.
+    assert!(
+        paired * 2 > rays.len(),
+        "only {paired} of {} rays paired up",
+        rays.len()
+    );
+}

@@ -1,5 +1,6 @@
 //! Runs the test entry points of `shaders/probe.wgsl` so tests can compare the WGSL
-//! building blocks (decoders, HG sampling, canonical frame) with the Rust ones.
+//! building blocks (decoders, HG sampling, canonical frame, ray queries) with the Rust
+//! ones.
 
 use crate::error::RenderError;
 
@@ -7,7 +8,7 @@ use super::context::GpuContext;
 use super::kernels::{self, Kernel, WORKGROUP};
 use super::model_buffers::model_params;
 use super::resources::{Inputs, Resources, read_back};
-use super::scene_buffers::{GpuNode, GpuTri, Params};
+use super::scene_buffers::{GpuNode, GpuTri, Params, geometry_buffers};
 
 /// One probe item: 32 floats in, 32 floats out (layouts in `shaders/probe.wgsl`).
 pub type Item = [f32; 32];
@@ -19,6 +20,21 @@ pub fn run_probe(
     model: &cvae::ModelSet,
     items: &[Item],
 ) -> Result<Vec<Item>, RenderError> {
+    run_probe_on(ctx, entry, model, items, None)
+}
+
+/// Runs `entry` over `items` with a scene's geometry uploaded ("probe_ray").
+pub fn run_probe_on(
+    ctx: &GpuContext,
+    entry: &str,
+    model: &cvae::ModelSet,
+    items: &[Item],
+    scene: Option<&crate::setup::SceneData>,
+) -> Result<Vec<Item>, RenderError> {
+    let (nodes, tris) = match scene {
+        Some(s) => geometry_buffers(s),
+        None => (vec![GpuNode::default()], vec![GpuTri::default()]),
+    };
     let layout = kernels::bind_group_layout(ctx);
     let pipeline = kernels::pipeline(ctx, &layout, Kernel::Probe, Some(model), entry)?;
     let mut params = Params::default();
@@ -30,8 +46,8 @@ pub fn run_probe(
         &Inputs {
             params: &params,
             accum_bytes: bytes,
-            nodes: &[GpuNode::default()],
-            tris: &[GpuTri::default()],
+            nodes: &nodes,
+            tris: &tris,
             env: &[[0.0; 4]],
             grid: &[0.0],
             model: &model_params(model),
