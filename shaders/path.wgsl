@@ -228,11 +228,49 @@ fn save_path(base: u32, j: u32, s: u32, done: bool) {
 /// 65,535 loop iterations have run in total (one shared counter, BVH traversal and
 /// decoder loops included), so the work of one dispatch must stay bounded; a bounce
 /// loop that ends early anyway is counted (C_TRUNCATED) and the host reports it.
+/// (a·b) mod n without overflow for a, b < n < 2^32 (double-and-add).
+fn u64_mul_mod(a: u32, b: u32, n: u32) -> u32 {
+    var r = 0u;
+    var x = a % n;
+    var y = b % n;
+    loop {
+        if y == 0u {
+            break;
+        }
+        if (y & 1u) != 0u {
+            r = add_mod(r, x, n);
+        }
+        x = add_mod(x, x, n);
+        y = y >> 1u;
+    }
+    return r;
+}
+
+/// (a + b) mod n for a, b < n.
+fn add_mod(a: u32, b: u32, n: u32) -> u32 {
+    let s = a + b;
+    if s < a || s >= n {
+        return s - n;
+    }
+    return s;
+}
+
 @compute @workgroup_size(64)
 fn render_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let width = params.image.x;
     let lanes = params.image.z;
-    let idx = gid.x + gid.y * 65535u * 64u;
+    // Workgroups take tiles of 64 consecutive slots in a scattered order (w·P mod n, P
+    // coprime with n: params.consts2.w), so that any contiguous range of workgroups — what
+    // a CPU driver such as lavapipe hands one thread — covers the whole image, not its
+    // cheap background rows or its expensive object rows alone. Within a workgroup the
+    // slots stay neighbouring pixels, whose paths run alike in SIMD.
+    let n_groups = (params.image.x * params.image.y * params.image.z + 63u) / 64u;
+    let w = gid.x / 64u + gid.y * 65535u;
+    if w >= n_groups {
+        return;
+    }
+    let tile = u32((u64_mul_mod(w, u32(params.consts2.w), n_groups)));
+    let idx = tile * 64u + gid.x % 64u;
     let pixel = idx / lanes;
     let lane = idx % lanes;
     if pixel >= width * params.image.y {

@@ -49,6 +49,23 @@ fn target_threads(ctx: &GpuContext) -> u64 {
     }
 }
 
+/// The stride of the workgroup → tile permutation (shaders/path.wgsl, render_main): near
+/// n·(√5 − 1)/2, so consecutive workgroups land far apart, and coprime with n, so the map
+/// w ↦ w·P mod n is a bijection. Kept below 2^24 to travel exactly as an f32.
+fn tile_stride(n: u64) -> u64 {
+    fn gcd(a: u64, b: u64) -> u64 {
+        if b == 0 { a } else { gcd(b, a % b) }
+    }
+    if n <= 2 {
+        return 1;
+    }
+    let mut p = ((n as f64 * 0.618_034) as u64).clamp(1, (1 << 24) - 1);
+    while gcd(p, n) != 1 {
+        p -= 1;
+    }
+    p
+}
+
 /// Renders on the GPU with the estimators of the CPU integrators.
 pub fn render_gpu(
     ctx: &GpuContext,
@@ -110,6 +127,7 @@ pub fn render_gpu(
         (65535, groups.div_ceil(65535) as u32)
     };
     params.consts2[2] = bounce_budget(ctx) as f32;
+    params.consts2[3] = tile_stride(groups) as f32;
     let start = Instant::now();
     let mut stats = PathStats::default();
     let mut s0 = 0u32;
