@@ -24,15 +24,14 @@ fn crossings(o: vec3<f32>, d: vec3<f32>) -> Crossings {
     if box_entry(nodes[0].lo, nodes[0].hi, o, inv_d, 1e30) >= 1e29 {
         return c;
     }
-    var stack: array<u32, 64>;
     var top = 1u;
-    stack[0] = 0u;
+    wg_stack[stack_base] = 0u;
     loop {
         if top == 0u {
             break;
         }
         top -= 1u;
-        let node = nodes[stack[top]];
+        let node = nodes[wg_stack[stack_base + top]];
         if node.count > 0u {
             for (var k = node.first; k < node.first + node.count; k++) {
                 let t = tri_intersect(sh, tris[k], 1e30);
@@ -52,12 +51,12 @@ fn crossings(o: vec3<f32>, d: vec3<f32>) -> Crossings {
             // order.
             let a = node.first;
             let b = node.first + 1u;
-            if box_entry(nodes[a].lo, nodes[a].hi, o, inv_d, 1e30) < 1e29 && top < 64u {
-                stack[top] = a;
+            if box_entry(nodes[a].lo, nodes[a].hi, o, inv_d, 1e30) < 1e29 && top < STACK_DEPTH {
+                wg_stack[stack_base + top] = a;
                 top += 1u;
             }
-            if box_entry(nodes[b].lo, nodes[b].hi, o, inv_d, 1e30) < 1e29 && top < 64u {
-                stack[top] = b;
+            if box_entry(nodes[b].lo, nodes[b].hi, o, inv_d, 1e30) < 1e29 && top < STACK_DEPTH {
+                wg_stack[stack_base + top] = b;
                 top += 1u;
             }
         }

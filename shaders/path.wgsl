@@ -256,7 +256,8 @@ fn add_mod(a: u32, b: u32, n: u32) -> u32 {
 }
 
 @compute @workgroup_size(64)
-fn render_main(@builtin(global_invocation_id) gid: vec3<u32>) {
+fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    stack_base = li * STACK_DEPTH;
     let width = params.image.x;
     let lanes = params.image.z;
     // Workgroups take tiles of 64 consecutive slots in a scattered order (w·P mod n, P

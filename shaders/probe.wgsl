@@ -68,7 +68,8 @@ fn probe_frame(@builtin(global_invocation_id) gid: vec3<u32>) {
 /// In: origin at 0..3, direction at 4..7 (scene geometry bound). Out: closest hit found
 /// (1/0) and t at 0, 1; the unordered crossings' exits − entries and inside length at 2, 3.
 @compute @workgroup_size(64)
-fn probe_ray(@builtin(global_invocation_id) gid: vec3<u32>) {
+fn probe_ray(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    stack_base = li * STACK_DEPTH;
     let i = gid.x;
     if i >= params.image.x {
         return;

@@ -153,21 +153,28 @@ fn box_entry(lo: vec3<f32>, hi: vec3<f32>, o: vec3<f32>, inv_d: vec3<f32>, tmax:
     return select(1e30, tn, tn <= tf);
 }
 
+// BVH traversal stacks live in workgroup memory (`wg_stack`, STACK_DEPTH entries per
+// invocation from stack_base, set by each entry point from its local invocation index;
+// both defined by gpu/kernels.rs): a private array indexed at run time cost llvmpipe ~25 %
+// of PT's time (apparently per-access branch ladders: a 64-entry private stack was that
+// much slower than a 16-entry one). The host refuses a BVH deeper than the stack. No
+// traversal runs inside another, so all share it.
+var<private> stack_base: u32;
+
 /// Closest hit along o + t·d, t ∈ [0, tmax].
 fn intersect(o: vec3<f32>, d: vec3<f32>, tmax0: f32) -> Hit {
     var best = Hit(tmax0, 0u, false);
     // Exact zeros would make 0·∞ = NaN in the slab test.
     let inv_d = 1.0 / (d + select(vec3<f32>(0.0), vec3<f32>(1e-30), d == vec3<f32>(0.0)));
     let sh = ray_shear(o, d);
-    var stack: array<u32, 64>;
     var top = 1u;
-    stack[0] = 0u;
+    wg_stack[stack_base] = 0u;
     loop {
         if top == 0u {
             break;
         }
         top -= 1u;
-        let node = nodes[stack[top]];
+        let node = nodes[wg_stack[stack_base + top]];
         if box_entry(node.lo, node.hi, o, inv_d, best.t) >= 1e29 {
             continue;
         }
@@ -186,20 +193,20 @@ fn intersect(o: vec3<f32>, d: vec3<f32>, tmax0: f32) -> Hit {
             let ta = box_entry(na.lo, na.hi, o, inv_d, best.t);
             let tb = box_entry(nb.lo, nb.hi, o, inv_d, best.t);
             // Push the farther child first so the nearer one is visited next.
-            if ta < 1e29 && tb < 1e29 && top + 2u <= 64u {
+            if ta < 1e29 && tb < 1e29 && top + 2u <= STACK_DEPTH {
                 if ta < tb {
-                    stack[top] = b;
-                    stack[top + 1u] = a;
+                    wg_stack[stack_base + top] = b;
+                    wg_stack[stack_base + top + 1u] = a;
                 } else {
-                    stack[top] = a;
-                    stack[top + 1u] = b;
+                    wg_stack[stack_base + top] = a;
+                    wg_stack[stack_base + top + 1u] = b;
                 }
                 top += 2u;
-            } else if ta < 1e29 && top < 64u {
-                stack[top] = a;
+            } else if ta < 1e29 && top < STACK_DEPTH {
+                wg_stack[stack_base + top] = a;
                 top += 1u;
-            } else if tb < 1e29 && top < 64u {
-                stack[top] = b;
+            } else if tb < 1e29 && top < STACK_DEPTH {
+                wg_stack[stack_base + top] = b;
                 top += 1u;
             }
         }
@@ -268,15 +275,14 @@ fn box_d2(p: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>) -> f32 {
 /// search that skips every node beyond `limit` (Geometry::distance_within on the CPU).
 fn surface_distance(p: vec3<f32>, limit: f32) -> f32 {
     var best = limit * limit;
-    var stack: array<u32, 64>;
     var top = 1u;
-    stack[0] = 0u;
+    wg_stack[stack_base] = 0u;
     loop {
         if top == 0u {
             break;
         }
         top -= 1u;
-        let node = nodes[stack[top]];
+        let node = nodes[wg_stack[stack_base + top]];
         if box_d2(p, node.lo, node.hi) >= best {
             continue;
         }
@@ -290,15 +296,15 @@ fn surface_distance(p: vec3<f32>, limit: f32) -> f32 {
             let b = node.first + 1u;
             let da = box_d2(p, nodes[a].lo, nodes[a].hi);
             let db = box_d2(p, nodes[b].lo, nodes[b].hi);
-            if top + 2u > 64u {
+            if top + 2u > STACK_DEPTH {
                 return sqrt(min(best, min(da, db)));
             }
             if da < db {
-                stack[top] = b;
-                stack[top + 1u] = a;
+                wg_stack[stack_base + top] = b;
+                wg_stack[stack_base + top + 1u] = a;
             } else {
-                stack[top] = a;
-                stack[top + 1u] = b;
+                wg_stack[stack_base + top] = a;
+                wg_stack[stack_base + top + 1u] = b;
             }
             top += 2u;
         }

@@ -19,6 +19,12 @@ const PROBE: &str = include_str!("../../../../shaders/probe.wgsl");
 /// Threads per workgroup of every kernel (`@workgroup_size(64)` in the WGSL).
 pub const WORKGROUP: u32 = 64;
 
+/// Entries of each invocation's BVH traversal stack (workgroup memory, shaders/scene.wgsl).
+/// A depth-first traversal of a BVH2 of depth D needs at most D + 1; the renderer refuses
+/// deeper trees. 48 × 64 invocations × 4 bytes = 12 KiB, under the 16 KiB of workgroup
+/// memory every adapter offers.
+pub const STACK_DEPTH: u32 = 48;
+
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Kernel {
     /// Volumetric path tracing (`render_main`).
@@ -41,10 +47,17 @@ pub fn source(kernel: Kernel, model: Option<&cvae::ModelSet>) -> Result<String, 
             )));
         }
     };
+    // The traversal stack's size, from its one definition here (scene.wgsl uses it).
+    let stack = format!(
+        "const STACK_DEPTH: u32 = {STACK_DEPTH}u;\nvar<workgroup> wg_stack: array<u32, {}>;\n",
+        STACK_DEPTH * WORKGROUP
+    );
     let parts: &[&str] = match kernel {
-        Kernel::Pt => &[COMMON, SCENE, NEE, PT, PATH],
-        Kernel::Stcvae => &[COMMON, SCENE, NEE, DECODER, &decoders, STCVAE, PATH],
-        Kernel::Probe => &[COMMON, SCENE, NEE, DECODER, &decoders, PT, PATH, PROBE],
+        Kernel::Pt => &[COMMON, &stack, SCENE, NEE, PT, PATH],
+        Kernel::Stcvae => &[COMMON, &stack, SCENE, NEE, DECODER, &decoders, STCVAE, PATH],
+        Kernel::Probe => &[
+            COMMON, &stack, SCENE, NEE, DECODER, &decoders, PT, PATH, PROBE,
+        ],
     };
     Ok(parts.join("\n"))
 }

@@ -19,7 +19,7 @@ use super::kernels::{self, Kernel, WORKGROUP};
 const SLOT_VEC4S: u64 = 5;
 use super::model_buffers::model_params;
 use super::resources::{COUNTER_BYTES, Inputs, Resources, read_back, wait};
-use super::scene_buffers::{Params, env_buffer, geometry_buffers, scene_params};
+use super::scene_buffers::{Params, bvh_depth, env_buffer, geometry_buffers, scene_params};
 
 /// Wall time a chunk of samples aims at (progress, time budget and Ctrl-C are checked
 /// between chunks). A chunk takes several dispatches of bounded work each.
@@ -97,6 +97,14 @@ pub fn render_gpu(
     let threads = pixels * lanes as u64;
     // One path slot of 5 vec4s per invocation (shaders/path.wgsl).
     let accum_bytes = threads * 16 * SLOT_VEC4S;
+    let depth = bvh_depth(&scene.geo.bvh);
+    if depth + 1 > kernels::STACK_DEPTH as usize {
+        return Err(RenderError::Scene(format!(
+            "the mesh's BVH is {depth} levels deep; the GPU kernels' traversal stack holds {} \
+             entries; use --device cpu",
+            kernels::STACK_DEPTH
+        )));
+    }
     let (nodes, tris) = geometry_buffers(scene);
     let env = env_buffer(scene);
     let grid: &[f32] = scene.grid.as_ref().map_or(&[], |g| &g.values);

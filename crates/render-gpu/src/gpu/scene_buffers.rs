@@ -78,6 +78,22 @@ fn c4(a: [f32; 3]) -> [f32; 4] {
     [a[0], a[1], a[2], 0.0]
 }
 
+/// Levels of the BVH2 below its root (0 for a root leaf).
+pub fn bvh_depth(bvh: &obvhs::bvh2::Bvh2) -> usize {
+    let mut deepest = 0;
+    let mut stack = vec![(0usize, 0usize)];
+    while let Some((i, d)) = stack.pop() {
+        let Some(n) = bvh.nodes.get(i) else { continue };
+        deepest = deepest.max(d);
+        if n.prim_count == 0 {
+            let f = n.first_index as usize;
+            stack.push((f, d + 1));
+            stack.push((f + 1, d + 1));
+        }
+    }
+    deepest
+}
+
 /// BVH nodes and triangles in leaf order.
 pub fn geometry_buffers(scene: &SceneData) -> (Vec<GpuNode>, Vec<GpuTri>) {
     let geo = &scene.geo;
