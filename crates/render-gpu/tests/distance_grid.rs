@@ -1,6 +1,8 @@
 //! The distance grid is conservative: for random interior points the ball of the
 //! returned radius never crosses the mesh (checked against exact BVH distance and rays).
 
+mod common;
+
 use std::path::Path;
 
 use glam::Vec3;
@@ -9,25 +11,11 @@ use render_gpu::geometry::Geometry;
 use render_gpu::mesh::{self, load_mesh};
 use scatter_sim::WalkRng;
 
-fn random_interior(geo: &Geometry, rng: &mut WalkRng) -> Vec3 {
-    loop {
-        let u = Vec3::new(
-            rng.uniform() as f32,
-            rng.uniform() as f32,
-            rng.uniform() as f32,
-        );
-        let p = geo.lo + (geo.hi - geo.lo) * u;
-        if geo.inside(p) {
-            return p;
-        }
-    }
-}
-
 fn check(geo: &Geometry, grid: &DistanceGrid, points: usize, seed: u64) -> f64 {
     let mut rng = WalkRng::for_walk(seed, 0);
     let (mut sum_r, mut sum_d) = (0.0, 0.0);
     for _ in 0..points {
-        let p = random_interior(geo, &mut rng);
+        let p = common::random_interior(geo, &mut rng);
         let r = grid.radius(p);
         let d = geo.distance(p);
         assert!(r <= d, "radius {r} exceeds the true distance {d} at {p}");

@@ -501,15 +501,7 @@ fn wgsl_rays_are_watertight_and_match_rust() {
     let mut items: Vec<Item> = Vec::new();
     let mut rays = Vec::new();
     while items.len() < 20_000 {
-        let u = glam::Vec3::new(
-            rng.uniform() as f32,
-            rng.uniform() as f32,
-            rng.uniform() as f32,
-        );
-        let p = geo.lo + (geo.hi - geo.lo) * u;
-        if !geo.inside(p) {
-            continue;
-        }
+        let p = common::random_interior(geo, &mut rng);
         for _ in 0..50 {
             let i = (rng.uniform() * geo.mesh.triangles.len() as f64) as usize;
             let [a, b, c] = geo.mesh.triangle(i.min(geo.mesh.triangles.len() - 1));

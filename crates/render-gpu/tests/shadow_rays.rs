@@ -2,10 +2,11 @@
 //! crossings) against the crossing-by-crossing walk it replaces, on the non-convex bunny
 //! where shadow rays leave and re-enter (ears, paws).
 
+mod common;
+
 use std::path::Path;
 
 use glam::Vec3;
-use render_gpu::geometry::Geometry;
 use render_gpu::integrator::nee::{transmittance, transmittance_ordered};
 use render_gpu::scene::SceneFile;
 use render_gpu::setup::SceneData;
@@ -44,26 +45,12 @@ fn random_dir(rng: &mut WalkRng) -> Vec3 {
     Vec3::new((q * c) as f32, (q * s) as f32, z as f32)
 }
 
-fn random_interior(geo: &Geometry, rng: &mut WalkRng) -> Vec3 {
-    loop {
-        let u = Vec3::new(
-            rng.uniform() as f32,
-            rng.uniform() as f32,
-            rng.uniform() as f32,
-        );
-        let p = geo.lo + (geo.hi - geo.lo) * u;
-        if geo.inside(p) {
-            return p;
-        }
-    }
-}
-
 fn compare(boundary: &str, seed: u64) {
     let scene = bunny(boundary);
     let mut rng = WalkRng::for_walk(seed, 0);
     let (mut rays, mut off, mut reentering) = (0usize, 0usize, 0usize);
     for _ in 0..2000 {
-        let x = random_interior(&scene.geo, &mut rng);
+        let x = common::random_interior(&scene.geo, &mut rng);
         for _ in 0..4 {
             let dir = random_dir(&mut rng);
             for channel in 0..3 {

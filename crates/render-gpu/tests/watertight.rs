@@ -5,6 +5,8 @@
 //! crack lets a path leave the medium unnoticed; it then sphere-steps in the air and
 //! sees the light unoccluded at every event (see `render_gpu::watertight`).
 
+mod common;
+
 use std::path::Path;
 
 use glam::Vec3;
@@ -12,20 +14,6 @@ use obvhs::ray::Ray;
 use render_gpu::geometry::Geometry;
 use render_gpu::mesh::load_mesh;
 use scatter_sim::WalkRng;
-
-fn random_interior(geo: &Geometry, rng: &mut WalkRng) -> Vec3 {
-    loop {
-        let u = Vec3::new(
-            rng.uniform() as f32,
-            rng.uniform() as f32,
-            rng.uniform() as f32,
-        );
-        let p = geo.lo + (geo.hi - geo.lo) * u;
-        if geo.inside(p) {
-            return p;
-        }
-    }
-}
 
 /// Crossings of the ray counted with obvhs's Möller–Trumbore test, for comparison only.
 fn moller_trumbore_crossings(geo: &Geometry, o: Vec3, d: Vec3) -> usize {
@@ -44,7 +32,7 @@ fn rays_through_vertices_and_edges_always_leave_the_bunny() {
     let n_tris = geo.mesh.triangles.len();
     let (mut rays, mut cracks, mut mt_cracks) = (0usize, 0usize, 0usize);
     for _ in 0..40 {
-        let p = random_interior(&geo, &mut rng);
+        let p = common::random_interior(&geo, &mut rng);
         // Every vertex and edge midpoint of a random tenth of the triangles.
         for i in 0..n_tris {
             if rng.uniform() > 0.1 {

@@ -1,4 +1,7 @@
-//! Scenes and the model shared by the renderer's test files.
+//! Scenes, the model and helpers shared by the renderer's test files.
+
+// Each test file uses a part of this module; the rest is compiled unused there.
+#![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
 
@@ -38,4 +41,22 @@ radiance = [0.7, 0.7, 0.7]
 grid_resolution = 64
 "#
     )
+}
+
+/// A uniformly random point inside the closed mesh (rejection from its bounds).
+pub fn random_interior(
+    geo: &render_gpu::geometry::Geometry,
+    rng: &mut scatter_sim::WalkRng,
+) -> glam::Vec3 {
+    loop {
+        let u = glam::Vec3::new(
+            rng.uniform() as f32,
+            rng.uniform() as f32,
+            rng.uniform() as f32,
+        );
+        let p = geo.lo + (geo.hi - geo.lo) * u;
+        if geo.inside(p) {
+            return p;
+        }
+    }
 }
