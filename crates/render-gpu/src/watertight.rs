@@ -11,18 +11,45 @@
 //! per-ray shear, so two triangles sharing an edge see exactly the same edge value and a
 //! ray through the edge hits at least one of them.
 
-use glam::Vec3;
+use glam::{Vec3, Vec3Swizzles};
 
-/// Per-ray constants of the shear that maps the ray onto the +z axis, as three rows:
-/// sheared(v) = (mx·(v − o), my·(v − o), mz·(v − o)). Each row has one or two non-zero
-/// entries, so the dot products round exactly like the textbook a[kx] − Sx·a[kz], with no
-/// indexing by a per-ray axis in the inner loop.
+/// Per-ray constants of the shear that maps the ray onto the +z axis: the axis
+/// permutation (kx, ky, kz), one of six, and the shear factors. Each vertex is permuted
+/// with a swizzle chosen once per ray (a perfectly predicted branch), then sheared with
+/// two multiplies: the textbook a[kx] − Sx·a[kz], rounded the same way for every
+/// triangle that shares the vertex.
 #[derive(Clone, Copy, Debug)]
 pub struct RayShear {
     origin: Vec3,
-    mx: Vec3,
-    my: Vec3,
-    mz: Vec3,
+    perm: Perm,
+    sx: f32,
+    sy: f32,
+    sz: f32,
+}
+
+/// (kx, ky, kz) as a swizzle.
+#[derive(Clone, Copy, Debug)]
+enum Perm {
+    Yzx,
+    Zyx,
+    Zxy,
+    Xzy,
+    Xyz,
+    Yxz,
+}
+
+impl Perm {
+    #[inline(always)]
+    fn apply(self, v: Vec3) -> Vec3 {
+        match self {
+            Perm::Yzx => v.yzx(),
+            Perm::Zyx => v.zyx(),
+            Perm::Zxy => v.zxy(),
+            Perm::Xzy => v.xzy(),
+            Perm::Xyz => v,
+            Perm::Yxz => v.yxz(),
+        }
+    }
 }
 
 impl RayShear {
@@ -35,25 +62,31 @@ impl RayShear {
         } else {
             2
         };
-        let mut kx = (kz + 1) % 3;
-        let mut ky = (kx + 1) % 3;
-        // Keep the winding: swapping x and y when the ray points down its major axis.
-        if dir[kz] < 0.0 {
-            std::mem::swap(&mut kx, &mut ky);
-        }
-        let e = |k: usize| Vec3::AXES[k];
+        // kx, ky follow kz cyclically; swapped when the ray points down its major axis
+        // to keep the winding.
+        let flip = dir[kz] < 0.0;
+        let perm = match (kz, flip) {
+            (0, false) => Perm::Yzx,
+            (0, true) => Perm::Zyx,
+            (1, false) => Perm::Zxy,
+            (1, true) => Perm::Xzy,
+            (_, false) => Perm::Xyz,
+            (_, true) => Perm::Yxz,
+        };
+        let d = perm.apply(dir);
         Self {
             origin,
-            mx: e(kx) - e(kz) * (dir[kx] / dir[kz]),
-            my: e(ky) - e(kz) * (dir[ky] / dir[kz]),
-            mz: e(kz) * (1.0 / dir[kz]),
+            perm,
+            sx: d.x / d.z,
+            sy: d.y / d.z,
+            sz: 1.0 / d.z,
         }
     }
 
     #[inline]
     fn shear(&self, v: Vec3) -> Vec3 {
-        let p = v - self.origin;
-        Vec3::new(self.mx.dot(p), self.my.dot(p), self.mz.dot(p))
+        let p = self.perm.apply(v - self.origin);
+        Vec3::new(p.x - self.sx * p.z, p.y - self.sy * p.z, self.sz * p.z)
     }
 
     /// Distance t ∈ [tmin, tmax] to the triangle (either side), or +∞.
