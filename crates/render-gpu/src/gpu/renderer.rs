@@ -26,9 +26,11 @@ use super::scene_buffers::{Params, bvh_depth, env_buffer, geometry_buffers, scen
 const TARGET_CHUNK_SECONDS: f64 = 1.0;
 
 /// Bounces each invocation runs per dispatch. llvmpipe (lavapipe) stops a shader after
-/// 65,535 loop iterations in total; the loops left in a bounce are BVH traversals (a dense
-/// PT path was cut off after ~650 events, so ~100 iterations a bounce), the decoders being
-/// straight-line code: 64 bounces use ~10–20 % of the budget on the shipped scenes.
+/// 65,535 loop iterations in total; the loops left in a bounce are BVH traversals, the
+/// decoders being straight-line code. The densest shipped case (the bunny at k = 8 of the
+/// teaser ladder, PT + NEE, ~118 events a path) ran with 256 bounces and was cut off with
+/// 512, so 128 keeps a factor 2–4 of margin (more bounces per dispatch: 64 → 128 gave
+/// ST-CVAE 88 k → 100 k paths/s on the default bunny); a cut-off is detected and reported.
 /// Hardware GPUs have no such limit; 256 keeps each dispatch far below watchdogs.
 /// `STCVAE_GPU_BOUNCES` overrides both.
 fn bounce_budget(ctx: &GpuContext) -> u32 {
@@ -36,7 +38,7 @@ fn bounce_budget(ctx: &GpuContext) -> u32 {
         .ok()
         .and_then(|v| v.parse().ok())
         .filter(|&b: &u32| b > 0)
-        .unwrap_or(if ctx.adapter.software { 64 } else { 256 })
+        .unwrap_or(if ctx.adapter.software { 128 } else { 256 })
 }
 
 /// Invocations a dispatch aims to have in flight: a big GPU needs ~10⁶ to be busy; a
