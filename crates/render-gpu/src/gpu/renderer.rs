@@ -26,19 +26,19 @@ use super::scene_buffers::{Params, bvh_depth, env_buffer, geometry_buffers, scen
 const TARGET_CHUNK_SECONDS: f64 = 1.0;
 
 /// Bounces each invocation runs per dispatch. llvmpipe (lavapipe) stops a shader after
-/// 65,535 loop iterations in total; the loops left in a bounce are BVH traversals, the
-/// decoders being straight-line code. The densest shipped case (the bunny at k = 8 of the
-/// teaser ladder, PT + NEE, ~118 events a path) ran with 256 bounces and was cut off with
-/// 512, so 128 keeps a factor 2–4 of margin (more bounces per dispatch: 64 → 128 gave
-/// ST-CVAE 88 k → 100 k paths/s on the default bunny); a cut-off is detected and reported.
-/// Hardware GPUs have no such limit; 256 keeps each dispatch far below watchdogs.
-/// `STCVAE_GPU_BOUNCES` overrides both.
+/// 65,535 loop iterations in total, counted per SIMD batch (a loop runs as long as its
+/// slowest lane); the loops left in a bounce are BVH traversals, the decoders being
+/// straight-line code. 64 is the measured safe value: 128 ran the test suite and the
+/// teaser ladder (~12 % faster) but was cut off on the default bunny once chunks grew to
+/// 3 s (more lanes busy in every bounce), so it is not the default; a cut-off is detected
+/// and reported, never returned as an image. Hardware GPUs have no such limit; 256 keeps
+/// each dispatch far below watchdogs. `STCVAE_GPU_BOUNCES` overrides both.
 fn bounce_budget(ctx: &GpuContext) -> u32 {
     std::env::var("STCVAE_GPU_BOUNCES")
         .ok()
         .and_then(|v| v.parse().ok())
         .filter(|&b: &u32| b > 0)
-        .unwrap_or(if ctx.adapter.software { 128 } else { 256 })
+        .unwrap_or(if ctx.adapter.software { 64 } else { 256 })
 }
 
 /// Invocations a dispatch aims to have in flight: a big GPU needs ~10⁶ to be busy; a
