@@ -229,7 +229,7 @@ fn save_path(base: u32, j: u32, s: u32, done: bool) {
 /// decoder loops included), so the work of one dispatch must stay bounded; a bounce
 /// loop that ends early anyway is counted (C_TRUNCATED) and the host reports it.
 /// (a·b) mod n without overflow for a, b < n < 2^32 (double-and-add).
-fn u64_mul_mod(a: u32, b: u32, n: u32) -> u32 {
+fn mul_mod(a: u32, b: u32, n: u32) -> u32 {
     var r = 0u;
     var x = a % n;
     var y = b % n;
@@ -270,7 +270,7 @@ fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_inv
     if w >= n_groups {
         return;
     }
-    let tile = u32((u64_mul_mod(w, u32(params.consts2.w), n_groups)));
+    let tile = mul_mod(w, u32(params.consts2.w), n_groups);
     let idx = tile * 64u + gid.x % 64u;
     let pixel = idx / lanes;
     let lane = idx % lanes;

@@ -192,3 +192,25 @@ pub fn env_buffer(scene: &SceneData) -> Vec<[f32; 4]> {
         None => vec![[0.0; 4]],
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Geometry;
+
+    /// The depth the GPU stack check relies on: at least log2 of the leaf count (no binary
+    /// tree is shallower), and within a small factor of it for obvhs's SAH builds (a depth
+    /// that counted wrongly, e.g. only one branch, would fall outside).
+    #[test]
+    fn bvh_depth_bounds_the_tree() {
+        let geo = Geometry::new(crate::mesh::sphere(0.5));
+        let depth = bvh_depth(&geo.bvh);
+        let leaves = geo.bvh.nodes.iter().filter(|n| n.prim_count > 0).count();
+        assert!(leaves > 1, "a sphere mesh needs more than one leaf");
+        let min_depth = (leaves as f64).log2().ceil() as usize;
+        assert!(
+            depth >= min_depth && depth < 4 * min_depth + 8,
+            "depth {depth} for {leaves} leaves"
+        );
+    }
+}
