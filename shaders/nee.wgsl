@@ -6,6 +6,16 @@
 const MAX_OPTICAL_DEPTH: f32 = 50.0;
 const MAX_CROSSINGS: u32 = 64u;
 
+/// Fresnel transmittance of one crossing of the straight shadow ray (1 when index-matched);
+/// `exiting`: from the medium to the outside (nee.rs: crossing_transmittance).
+fn crossing_transmittance(cos: f32, exiting: bool) -> f32 {
+    if params.flags.z == 0u {
+        return 1.0;
+    }
+    let ior = params.consts.y;
+    return 1.0 - select(fresnel(cos, 1.0, ior), fresnel(cos, ior, 1.0), exiting);
+}
+
 /// Every surface crossing of x + t·dir in one BVH traversal, unordered
 /// (Geometry::inside_length on the CPU): for a closed mesh the length inside is
 /// Σ t(exits) − Σ t(entries); `balance` = exits − entries is 1 for an origin inside.
@@ -17,8 +27,6 @@ struct Crossings {
 
 fn crossings(o: vec3<f32>, d: vec3<f32>) -> Crossings {
     var c = Crossings(0.0, 1.0, 0);
-    let dielectric = params.flags.z != 0u;
-    let ior = params.consts.y;
     let inv_d = 1.0 / (d + select(vec3<f32>(0.0), vec3<f32>(1e-30), d == vec3<f32>(0.0)));
     let sh = ray_shear(o, d);
     if box_entry(nodes[0].lo, nodes[0].hi, o, inv_d, 1e30) >= 1e29 {
@@ -40,10 +48,7 @@ fn crossings(o: vec3<f32>, d: vec3<f32>) -> Crossings {
                     let exiting = cosn > 0.0;
                     c.length += select(-t, t, exiting);
                     c.balance += select(-1, 1, exiting);
-                    if dielectric {
-                        let a = abs(cosn);
-                        c.fresnel_t *= 1.0 - select(fresnel(a, 1.0, ior), fresnel(a, ior, 1.0), exiting);
-                    }
+                    c.fresnel_t *= crossing_transmittance(abs(cosn), exiting);
                 }
             }
         } else {
@@ -76,8 +81,6 @@ fn transmittance(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
 
 fn transmittance_ordered(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
     let sigma = params.sigma_t[channel];
-    let dielectric = params.flags.z != 0u;
-    let ior = params.consts.y;
     var o = x;
     var inside = true;
     var depth = 0.0;
@@ -94,10 +97,7 @@ fn transmittance_ordered(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
             }
         }
         let n = tri_normal(h.prim);
-        if dielectric {
-            let c = abs(dot(dir, n));
-            fresnel_t *= 1.0 - select(fresnel(c, 1.0, ior), fresnel(c, ior, 1.0), inside);
-        }
+        fresnel_t *= crossing_transmittance(abs(dot(dir, n)), inside);
         inside = !inside;
         o = spawn(o + dir * h.t, n, dir);
     }

@@ -333,6 +333,12 @@ fn grid_radius(p: vec3<f32>) -> f32 {
     return max(grid[i] - length(p - centre), 0.0);
 }
 
+/// An upper bound on the true distance at a point of grid radius r: r + √3·cell plus
+/// slack (DistanceGrid::distance_upper_bound; consts2.y holds near_surface = 2√3·cell).
+fn grid_distance_upper_bound(r: f32) -> f32 {
+    return r + 0.5 * params.consts2.y * 1.01;
+}
+
 // ---- dielectric boundary ----
 
 fn fresnel(cos_i0: f32, n_i: f32, n_t: f32) -> f32 {

@@ -18,8 +18,8 @@ fn scatter_at(channel: u32) -> bool {
     if free < near && sigma * free < min_tau {
         // The grid's Lipschitz bound loses up to two cell diagonals near the surface; the
         // exact distance often still allows a sphere step there. The search stops at the
-        // largest distance the grid allows (DistanceGrid::distance_upper_bound).
-        let limit = grid_free + 0.5 * near * 1.01;
+        // largest distance the grid allows.
+        let limit = grid_distance_upper_bound(grid_free);
         free = max(free, surface_distance(ps.pos, limit) * (1.0 - 1e-5) - params.consts.z);
     }
     let r = min(free * SHRINK, max_tau / sigma);
@@ -31,7 +31,7 @@ fn scatter_at(channel: u32) -> bool {
     // SIMD shape (lavapipe runs 8 invocations in lock-step, GPUs 32–64): the PT fallback
     // and the sphere step share one NEE loop, one EventGen call and one shadow-ray query
     // below, so lanes in different branches do not run each of them one after the other.
-    var frame = walk_frame(ps.dir, vec2<f32>(1.0, 0.0));
+    var frame: WalkFrame; // set by the sphere step; unused by the fallback
     var n = 1.0;
     var e = Exit(1.0, 0.0, 0.0);
     var single = false;

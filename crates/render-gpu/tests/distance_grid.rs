@@ -20,10 +20,7 @@ fn check(geo: &Geometry, grid: &DistanceGrid, points: usize, seed: u64) -> f64 {
         let d = geo.distance(p);
         assert!(r <= d, "radius {r} exceeds the true distance {d} at {p}");
         for _ in 0..8 {
-            let (c, s) = rng.unit_circle();
-            let z = 2.0 * rng.uniform() - 1.0;
-            let q = (1.0 - z * z).sqrt();
-            let dir = Vec3::new((q * c) as f32, (q * s) as f32, z as f32);
+            let dir = common::uniform_direction(&mut rng);
             if let Some(h) = geo.intersect(p, dir, r) {
                 panic!(
                     "a ray from {p} meets the mesh at t = {} inside the radius {r}",

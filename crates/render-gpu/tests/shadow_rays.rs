@@ -38,11 +38,15 @@ g = 0.0
     SceneData::build(&f, Path::new(env!("CARGO_MANIFEST_DIR")), false, &[]).unwrap()
 }
 
-fn random_dir(rng: &mut WalkRng) -> Vec3 {
-    let (c, s) = rng.unit_circle();
-    let z = 2.0 * rng.uniform() - 1.0;
-    let q = (1.0 - z * z).sqrt();
-    Vec3::new((q * c) as f32, (q * s) as f32, z as f32)
+/// Surface crossings of the ray from `x`, walked in order.
+fn crossing_count(scene: &SceneData, x: Vec3, dir: Vec3) -> usize {
+    let mut o = x;
+    let mut n = 0;
+    while let Some(h) = scene.geo.intersect(o, dir, f32::INFINITY) {
+        n += 1;
+        o = scene.geo.spawn(o + dir * h.t, h.normal, dir);
+    }
+    n
 }
 
 fn compare(boundary: &str, seed: u64) {
@@ -52,7 +56,7 @@ fn compare(boundary: &str, seed: u64) {
     for _ in 0..2000 {
         let x = common::random_interior(&scene.geo, &mut rng);
         for _ in 0..4 {
-            let dir = random_dir(&mut rng);
+            let dir = common::uniform_direction(&mut rng);
             for channel in 0..3 {
                 let a = transmittance(&scene, x, dir, channel);
                 let b = transmittance_ordered(&scene, x, dir, channel);
@@ -64,21 +68,8 @@ fn compare(boundary: &str, seed: u64) {
                     off += 1;
                 }
             }
-            if scene
-                .geo
-                .inside_length(x, dir, |_, _| 1.0)
-                .is_some_and(|_| {
-                    // Count rays with more than one inside segment: the case the
-                    // unordered sum exists for.
-                    let mut o = x;
-                    let mut n = 0;
-                    while let Some(h) = scene.geo.intersect(o, dir, f32::INFINITY) {
-                        n += 1;
-                        o = scene.geo.spawn(o + dir * h.t, h.normal, dir);
-                    }
-                    n > 1
-                })
-            {
+            // Rays with more than one inside segment: the case the unordered sum is for.
+            if crossing_count(&scene, x, dir) > 1 {
                 reentering += 1;
             }
         }

@@ -63,21 +63,22 @@ pub fn direct(
 /// Transmittance from `x` (inside) along `dir` to infinity.
 pub fn transmittance(scene: &SceneData, x: Vec3, dir: Vec3, channel: usize) -> f32 {
     let sigma = scene.sigma_t[channel];
-    let crossed = scene
-        .geo
-        .inside_length(x, dir, |c, exiting| match scene.boundary {
-            Boundary::IndexMatched => 1.0,
-            Boundary::Dielectric(ior) => {
-                1.0 - if exiting {
-                    fresnel(c, ior, 1.0)
-                } else {
-                    fresnel(c, 1.0, ior)
-                }
-            }
-        });
+    let crossed = scene.geo.inside_length(x, dir, |c, exiting| {
+        crossing_transmittance(scene, c, exiting)
+    });
     match crossed {
         Some((length, fresnel_t)) => (-sigma * length).exp() * fresnel_t,
         None => transmittance_ordered(scene, x, dir, channel),
+    }
+}
+
+/// Fresnel transmittance of one boundary crossing of the straight shadow ray (1 for an
+/// index-matched boundary); `exiting`: from the medium to the outside.
+fn crossing_transmittance(scene: &SceneData, cos: f32, exiting: bool) -> f32 {
+    match scene.boundary {
+        Boundary::IndexMatched => 1.0,
+        Boundary::Dielectric(ior) if exiting => 1.0 - fresnel(cos, ior, 1.0),
+        Boundary::Dielectric(ior) => 1.0 - fresnel(cos, 1.0, ior),
     }
 }
 
@@ -100,15 +101,7 @@ pub fn transmittance_ordered(scene: &SceneData, x: Vec3, dir: Vec3, channel: usi
                 return 0.0;
             }
         }
-        if let Boundary::Dielectric(ior) = scene.boundary {
-            let c = dir.dot(h.normal).abs();
-            fresnel_t *= 1.0
-                - if inside {
-                    fresnel(c, ior, 1.0)
-                } else {
-                    fresnel(c, 1.0, ior)
-                };
-        }
+        fresnel_t *= crossing_transmittance(scene, dir.dot(h.normal).abs(), inside);
         inside = !inside;
         o = geo.spawn(o + dir * h.t, h.normal, dir);
     }

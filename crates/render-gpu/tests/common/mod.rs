@@ -60,3 +60,11 @@ pub fn random_interior(
         }
     }
 }
+
+/// A direction uniform on the unit sphere.
+pub fn uniform_direction(rng: &mut scatter_sim::WalkRng) -> glam::Vec3 {
+    let (c, s) = rng.unit_circle();
+    let z = 2.0 * rng.uniform() - 1.0;
+    let q = (1.0 - z * z).sqrt();
+    glam::Vec3::new((q * c) as f32, (q * s) as f32, z as f32)
+}
