@@ -104,16 +104,17 @@ fn transmittance_ordered(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
     return 0.0;
 }
 
-// Shadow-ray roulette below this transmittance bound (nee.rs: ROULETTE_BOUND).
-const ROULETTE_BOUND: f32 = 0.02;
+// Shadow-ray roulette on the bound ρ_g·exp(−σ_t·free) of ρ_g·T, below ROULETTE_BOUND
+// (prepended from nee.rs by kernels.rs) times the isotropic phase 1/4π.
 
 /// Σ over lights of ρ_g(W·ω_l) · T(x → light) · (E, or L/pdf for a sun disk). `free` is
-/// a lower bound on the distance to the surface: T ≤ exp(−σ_t·free) drives an unbiased
-/// roulette on the shadow ray, as on the CPU.
+/// a lower bound on the distance to the surface: T ≤ exp(−σ_t·free), and the bound on
+/// the phase-weighted term drives an unbiased roulette on the shadow ray, as on the CPU.
 fn nee_direct(x: vec3<f32>, w: vec3<f32>, free: f32, channel: u32) -> f32 {
     var sum = 0.0;
     let g = params.consts.x;
-    let bound = exp(-params.sigma_t[channel] * free);
+    let t_bound = exp(-params.sigma_t[channel] * free);
+    let threshold = ROULETTE_BOUND * INV_4PI;
     for (var i = 0u; i < params.flags.x; i++) {
         let u1 = rand();
         let u2 = rand();
@@ -121,15 +122,16 @@ fn nee_direct(x: vec3<f32>, w: vec3<f32>, free: f32, channel: u32) -> f32 {
         if ls.factor <= 0.0 {
             continue;
         }
-        var weight = ls.factor;
-        if bound < ROULETTE_BOUND {
-            if rand() * ROULETTE_BOUND >= bound {
+        let phase = hg_pdf(g, clamp(dot(w, ls.dir), -1.0, 1.0));
+        var weight = ls.factor * phase;
+        let bound = phase * t_bound;
+        if bound < threshold {
+            if rand() * threshold >= bound {
                 continue;
             }
-            weight *= ROULETTE_BOUND / bound;
+            weight *= threshold / bound;
         }
-        let phase = hg_pdf(g, clamp(dot(w, ls.dir), -1.0, 1.0));
-        sum += phase * transmittance(x, ls.dir, channel) * weight;
+        sum += transmittance(x, ls.dir, channel) * weight;
     }
     return sum;
 }

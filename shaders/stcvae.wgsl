@@ -80,8 +80,9 @@ fn scatter_at(channel: u32) -> bool {
             }
             x = centre + to_world(frame, ev.x) * r;
             w = normalize(to_world(frame, ev.w));
-            // X lies |ev.x|·r from the centre, whose ball of radius `free` is surface-free.
-            x_free = free - length(ev.x) * r;
+            // X lies |ev.x|·r from the centre, whose ball of radius `free` is surface-free;
+            // the grid at X is often the larger bound (sphere_step.rs).
+            x_free = max(free - length(ev.x) * r, grid_radius(x));
         }
         sum += nee_direct(x, w, x_free, channel);
     }

@@ -47,10 +47,13 @@ pub fn source(kernel: Kernel, model: Option<&cvae::ModelSet>) -> Result<String, 
             )));
         }
     };
-    // The traversal stack's size, from its one definition here (scene.wgsl uses it).
+    // The traversal stack's size, from its one definition here (scene.wgsl uses it), and
+    // the shadow-ray roulette threshold from the CPU integrator's (nee.wgsl uses it).
     let stack = format!(
-        "const STACK_DEPTH: u32 = {STACK_DEPTH}u;\nvar<workgroup> wg_stack: array<u32, {}>;\n",
-        STACK_DEPTH * WORKGROUP
+        "const STACK_DEPTH: u32 = {STACK_DEPTH}u;\nvar<workgroup> wg_stack: array<u32, {}>;\n\
+         const ROULETTE_BOUND: f32 = {:?};\n",
+        STACK_DEPTH * WORKGROUP,
+        crate::integrator::nee::ROULETTE_BOUND,
     );
     let parts: &[&str] = match kernel {
         Kernel::Pt => &[COMMON, &stack, SCENE, NEE, PT, PATH],

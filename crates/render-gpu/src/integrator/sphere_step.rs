@@ -80,9 +80,13 @@ pub(crate) fn step(
             };
             let x = centre + frame.to_world(ep) * r as f64;
             let w = frame.to_world(ed).normalize();
-            // X lies |ep|·r from the centre, whose ball of radius `free` is surface-free.
-            let x_free = free - ep.length() as f32 * r;
-            sum += nee::direct(scene, x.as_vec3(), w.as_vec3(), x_free, channel, rng);
+            // X lies |ep|·r from the centre, whose ball of radius `free` is surface-free;
+            // the grid at X (one lookup, against a shadow ray's two traversals) is often
+            // the larger bound for events away from the centre. A larger bound lets the
+            // shadow-ray roulette skip more rays.
+            let x = x.as_vec3();
+            let x_free = (free - ep.length() as f32 * r).max(grid.radius(x));
+            sum += nee::direct(scene, x, w.as_vec3(), x_free, channel, rng);
         }
         s.radiance += s.beta * lam as f32 * sum / m as f32;
     }
