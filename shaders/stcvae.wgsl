@@ -107,6 +107,7 @@ fn scatter_at(channel: u32) -> bool {
     ps.pos = centre + to_world(frame, xc) * r;
     ps.dir = normalize(to_world(frame, wc));
     ps.scattered = true;
-    ps.free = max(free - r, 0.0);
+    // The grid at the exit often knows more than the ball it left (sphere_step.rs).
+    ps.free = max(free - r, grid_radius(ps.pos));
     return true;
 }

@@ -9,6 +9,8 @@
 /// 1.5·2^23: adding and subtracting it rounds an f32 of magnitude < 2^22 to the nearest
 /// integer without SSE4.1's `roundps`.
 const ROUND_MAGIC: f32 = 12_582_912.0;
+/// The bits of ROUND_MAGIC (exponent 23, mantissa 0.5).
+const ROUND_MAGIC_BITS: u32 = 0x4b40_0000;
 
 /// ln 2 = LN2_HI + LN2_LO, the high part with its low 9 mantissa bits zero (so k·LN2_HI
 /// is exact for |k| < 2^9, all of f32's exponent range), given by their bits:
@@ -22,7 +24,8 @@ const LN2_LO: f32 = f32::from_bits(0x35bf_be8e);
 #[inline(always)]
 pub fn exp_neg(x: f32) -> f32 {
     let t = x * std::f32::consts::LOG2_E;
-    let k = (t + ROUND_MAGIC) - ROUND_MAGIC;
+    let rounded = t + ROUND_MAGIC;
+    let k = rounded - ROUND_MAGIC;
     // Cody–Waite: ln 2 in two parts, the first exact in few bits, so y keeps the
     // precision of x instead of the ~|x|·6e-8 error of a one-step reduction.
     let y = (x - k * LN2_HI) - k * LN2_LO;
@@ -32,7 +35,11 @@ pub fn exp_neg(x: f32) -> f32 {
                 + y * (1.0 / 6.0
                     + y * (1.0 / 24.0
                         + y * (1.0 / 120.0 + y * (1.0 / 720.0 + y * (1.0 / 5040.0)))))));
-    let scale = f32::from_bits(((k as i32 + 127) as u32) << 23);
+    // 2^k from the bits of `rounded` = 1.5·2^23 + k, whose mantissa holds k (two's
+    // complement in the low bits): integer adds and shifts only. `k as i32` would be a
+    // saturating conversion, which compiles to per-lane compares and keeps the layer's
+    // softplus loop from vectorising.
+    let scale = f32::from_bits(rounded.to_bits().wrapping_sub(ROUND_MAGIC_BITS - 127) << 23);
     p * scale
 }
 

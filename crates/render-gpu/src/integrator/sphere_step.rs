@@ -100,7 +100,9 @@ pub(crate) fn step(
     s.pos = exit.as_vec3();
     s.dir = frame.to_world(omega).as_vec3().normalize();
     s.scattered = true;
-    // The exit lies on the sphere of radius r inside the free ball of radius `free`.
-    s.free = (free - r).max(0.0);
+    // The exit lies on the sphere of radius r inside the free ball of radius `free`, which
+    // leaves it almost no known free distance; the grid at the exit often knows more, and
+    // a flight shorter than that needs no ray cast.
+    s.free = (free - r).max(grid.radius(s.pos));
     true
 }
