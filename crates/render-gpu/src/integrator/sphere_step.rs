@@ -9,8 +9,6 @@ use glam::DVec3;
 use scatter_sim::frame::{WalkFrame, from_canonical};
 use scatter_sim::rng::WalkRng;
 
-use cvae::sampler::lambda;
-
 use super::{IntegratorSettings, PathState, PathStats, nee, pt_event, roulette};
 use crate::setup::SceneData;
 
@@ -59,11 +57,7 @@ pub(crate) fn step(
     let walk = model.sample_walk(tau as f64, scene.g as f64, albedo, set.nee, rng);
     let centre = s.pos.as_dvec3();
     if set.nee {
-        let lam = if walk.single {
-            albedo
-        } else {
-            lambda(albedo, walk.n)
-        };
+        let lam = walk.lambda;
         // Extra representative events (EventGen draws given the same N and exit), each
         // weighted Λ(N)/M: the same expectation with less variance per sphere step.
         let m = if walk.single {
@@ -76,7 +70,15 @@ pub(crate) fn step(
             let (ep, ed) = if k == 0 {
                 (walk.event_pos, walk.event_dir)
             } else {
-                model.sample_event(tau as f64, scene.g as f64, albedo, walk.n, walk.exit, rng)
+                model.sample_event_given(
+                    tau as f64,
+                    scene.g as f64,
+                    albedo,
+                    walk.n,
+                    walk.lambda,
+                    walk.exit,
+                    rng,
+                )
             };
             let x = centre + frame.to_world(ep) * r as f64;
             let w = frame.to_world(ed).normalize();
@@ -90,7 +92,7 @@ pub(crate) fn step(
         }
         s.radiance += s.beta * lam as f32 * sum / m as f32;
     }
-    s.beta *= albedo.powf(walk.n as f64) as f32;
+    s.beta *= walk.survival as f32;
     if !roulette(&mut s.beta, rng) {
         s.alive = false;
         return true;
