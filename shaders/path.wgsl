@@ -110,7 +110,9 @@ fn bounce() {
     var t = 0.0;
     if p_inside {
         t = -log(1.0 - rand()) / sigma;
-        tmax = t;
+        // A surface just past the collision counts as reached (integrator/mod.rs: a
+        // collision rounded to the far side would leave the path outside).
+        tmax = t + params.consts.z * FLIGHT_MARGIN_OF_EPS;
         // A flight shorter than the known free distance cannot reach the surface.
         query = t >= ps.free;
     }
@@ -172,6 +174,15 @@ fn bounce() {
     }
     ps.pos += ps.dir * t;
     ps.free = max(ps.free - t, 0.0);
+    if any(ps.pos < nodes[0].lo) || any(ps.pos > nodes[0].hi) {
+        // Outside the mesh's (padded) bounding box: not inside after all (the CPU's
+        // safety net, integrator/mod.rs).
+        stats[C_LEAKS] += 1u;
+        p_inside = false;
+        ps.free = 0.0;
+        p_from_step = false;
+        return;
+    }
     p_from_step = scatter_at(channel);
 }
 

@@ -143,8 +143,11 @@ pub fn run(a: Args) -> Result<()> {
             crate::progress::si(pt.stats.paths as f64 / pt.seconds.max(1e-9)),
             crate::progress::si(st.stats.paths as f64 / st.seconds.max(1e-9))
         );
-        if st.stats.leaks > 0 {
-            println!("     ({} leaked sphere exits)", st.stats.leaks);
+        if st.stats.leaks + pt.stats.leaks > 0 {
+            println!(
+                "     (paths found outside while believed inside: PT {}, ST-CVAE {})",
+                pt.stats.leaks, st.stats.leaks
+            );
         }
     }
     println!(

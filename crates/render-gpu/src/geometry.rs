@@ -34,6 +34,9 @@ pub struct Hit {
     pub normal: Vec3,
 }
 
+/// [`Geometry::flight_margin`] in units of eps (the WGSL kernels take it from here).
+pub const FLIGHT_MARGIN_OF_EPS: f32 = 0.02;
+
 pub struct Geometry {
     pub mesh: TriMesh,
     pub tris: Vec<Triangle>,
@@ -163,6 +166,20 @@ impl Geometry {
         let t = &self.tris[prim];
         let v = |a: [f32; 3]| Vec3::from_array(a);
         shear.hit(v(t.v0.into()), v(t.v1.into()), v(t.v2.into()), 0.0, tmax)
+    }
+
+    /// How far past a flight's end a surface still counts as reached: a few f32 roundings
+    /// of positions at the scene's scale (eps is 2e-5 of it; this is 4e-7 of it).
+    #[inline]
+    pub fn flight_margin(&self) -> f32 {
+        self.eps * FLIGHT_MARGIN_OF_EPS
+    }
+
+    /// Whether `p` lies in the mesh's bounding box grown by eps: every point inside the
+    /// closed mesh does.
+    #[inline]
+    pub fn within_bounds(&self, p: Vec3) -> bool {
+        p.cmpge(self.lo - self.eps).all() && p.cmple(self.hi + self.eps).all()
     }
 
     /// A point just off the surface at `p`, on the side `dir` points to.

@@ -48,12 +48,14 @@ pub fn source(kernel: Kernel, model: Option<&cvae::ModelSet>) -> Result<String, 
         }
     };
     // The traversal stack's size, from its one definition here (scene.wgsl uses it), and
-    // the shadow-ray roulette threshold from the CPU integrator's (nee.wgsl uses it).
+    // the shadow-ray roulette threshold and flight margin from the CPU integrator's
+    // (nee.wgsl, path.wgsl).
     let stack = format!(
         "const STACK_DEPTH: u32 = {STACK_DEPTH}u;\nvar<workgroup> wg_stack: array<u32, {}>;\n\
-         const ROULETTE_BOUND: f32 = {:?};\n",
+         const ROULETTE_BOUND: f32 = {:?};\nconst FLIGHT_MARGIN_OF_EPS: f32 = {:?};\n",
         STACK_DEPTH * WORKGROUP,
         crate::integrator::nee::ROULETTE_BOUND,
+        crate::geometry::FLIGHT_MARGIN_OF_EPS,
     );
     let parts: &[&str] = match kernel {
         Kernel::Pt => &[COMMON, &stack, SCENE, NEE, PT, PATH],
@@ -141,7 +143,12 @@ pub fn pipeline(
             layout: Some(&pl),
             module: &module,
             entry_point: Some(entry),
-            compilation_options: Default::default(),
+            // The only workgroup memory is the traversal stacks, always written before
+            // they are read: zero-filling 12 KiB per workgroup would be wasted work.
+            compilation_options: wgpu::PipelineCompilationOptions {
+                zero_initialize_workgroup_memory: false,
+                ..Default::default()
+            },
             cache: None,
         });
     if let Some(e) = pollster::block_on(scope.pop()) {
