@@ -143,6 +143,10 @@ pub struct Comparison {
     pub var_ratio: f64,
     /// Noise-corrected RMSE: √max(0, mean (A − B)² − mean (Var_A + Var_B)), scaled.
     pub bias: f64,
+    /// One-sided 95 % upper bound on that RMSE: the per-pixel terms (A − B)² − Var_A −
+    /// Var_B are independent across pixels, so their mean has standard error s/√n and
+    /// bias² ≤ mean + 1.645·s/√n with 95 % confidence (normal approximation, n ≈ 10⁴).
+    pub bias_upper95: f64,
     /// RMSE the two noises alone would give, scaled.
     pub noise: f64,
 }
@@ -153,6 +157,8 @@ pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
     let mut mse = 0.0;
     let mut noise = 0.0;
     let (mut va, mut vb) = (0.0, 0.0);
+    // Σ of the squared per-pixel terms e = d² − Var_A − Var_B, for their spread.
+    let mut e2 = 0.0;
     for i in 0..reference.mean.pixels.len() {
         for c in 0..3 {
             let d = (reference.mean.pixels[i][c] - other.mean.pixels[i][c]) as f64;
@@ -160,12 +166,17 @@ pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
             noise += reference.var[i][c] + other.var[i][c];
             va += reference.var[i][c];
             vb += other.var[i][c];
+            let e = d * d - reference.var[i][c] - other.var[i][c];
+            e2 += e * e;
         }
     }
+    let mean_e = (mse - noise) / n;
+    let se = ((e2 / n - mean_e * mean_e).max(0.0) / (n - 1.0).max(1.0)).sqrt();
     Comparison {
         speedup: reference.seconds / other.seconds.max(1e-9),
         var_ratio: va / vb.max(1e-300),
-        bias: ((mse - noise) / n).max(0.0).sqrt() * scale,
+        bias: mean_e.max(0.0).sqrt() * scale,
+        bias_upper95: (mean_e + 1.645 * se).max(0.0).sqrt() * scale,
         noise: (noise / n).sqrt() * scale,
     }
 }
