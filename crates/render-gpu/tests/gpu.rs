@@ -485,6 +485,58 @@ fn long_paths_resume_across_dispatches() {
     assert!(z.abs() < 4.5, "CPU {mc} vs GPU {mg}: z = {z}");
 }
 
+/// A dispatch cut off by lavapipe's loop limit is undone and redone with the safe bounce
+/// budget (gpu/renderer.rs, bounce_budget), and the image is the one the safe budget gives
+/// from the start, bit for bit (PT resumes a path exactly where it stopped). The dense
+/// bunny (teaser ×8, 143 events per path) at 100,000 bounces per dispatch was cut off
+/// before the fallback existed ("12 invocations were stopped by llvmpipe's loop limit",
+/// same scene, size and spp); on a hardware GPU both budgets simply run.
+#[test]
+fn loop_limit_cut_off_is_redone_with_the_safe_budget() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let text = sphere_scene("kind = \"index-matched\"")
+        .replace(
+            "shape = \"sphere\"\nradius = 0.5",
+            "mesh = \"../../assets/bunny.glb\"\nheight = 1.0",
+        )
+        .replace(
+            "sigma_t = [8.0, 15.0, 30.0]",
+            "sigma_t = [1200.0, 1500.0, 1000.0]",
+        )
+        .replace(
+            "albedo = [0.99, 0.95, 0.9]",
+            "albedo = [0.99999, 0.99995, 0.975]",
+        )
+        .replace("g = 0.5", "g = 0.875")
+        .replace("width = 24\nheight = 24", "width = 12\nheight = 12");
+    let s = scene(&text, false);
+    let set = settings(IntegratorKind::Pt, true);
+    let mut images = Vec::new();
+    for bounces in ["100000", "64"] {
+        // SAFETY: every render of this binary holds `ctx`'s lock, so none reads the
+        // variable while it changes; nothing else here reads the environment meanwhile.
+        unsafe { std::env::set_var("STCVAE_GPU_BOUNCES", bounces) };
+        let out = render_gpu(
+            &ctx,
+            &s,
+            &set,
+            &opts(3, 9),
+            &|_, _| {},
+            &AtomicBool::new(false),
+        );
+        unsafe { std::env::remove_var("STCVAE_GPU_BOUNCES") };
+        images.push(
+            out.expect("a cut-off dispatch must be redone, not reported")
+                .image,
+        );
+    }
+    assert!(
+        images[0].pixels == images[1].pixels,
+        "the image depends on the bounce budget"
+    );
+}
+
 /// The WGSL ray queries are watertight like the Rust ones (render_gpu::watertight): no
 /// ray from inside the bunny aimed at one of its vertices or edge midpoints misses the
 /// surface, the closest hits agree with the CPU's, and so do the one-traversal inside

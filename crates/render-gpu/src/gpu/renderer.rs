@@ -25,21 +25,35 @@ use super::scene_buffers::{Params, bvh_depth, env_buffer, geometry_buffers, scen
 /// between chunks). A chunk takes several dispatches of bounded work each.
 const TARGET_CHUNK_SECONDS: f64 = 1.0;
 
-/// Bounces each invocation runs per dispatch. llvmpipe (lavapipe) stops a shader after
-/// 65,535 loop iterations in total, counted per SIMD batch (a loop runs as long as its
-/// slowest lane); the loops left in a bounce are BVH traversals, the decoders being
-/// straight-line code. 64 is the measured safe value: 128 ran the test suite and the
-/// teaser ladder (~12 % faster) but was cut off on the default bunny once chunks grew to
-/// 3 s (more lanes busy in every bounce), so it is not the default; a cut-off is detected
-/// and reported, never returned as an image. Hardware GPUs have no such limit; 256 keeps
-/// each dispatch far below watchdogs. `STCVAE_GPU_BOUNCES` overrides both.
-fn bounce_budget(ctx: &GpuContext) -> u32 {
-    std::env::var("STCVAE_GPU_BOUNCES")
+/// Bounces each invocation runs per dispatch, and on software adapters the safe value to
+/// fall back to. llvmpipe (lavapipe) stops a shader after 65,535 loop iterations in total,
+/// counted per SIMD batch (a loop runs as long as its slowest lane); the loops left in a
+/// bounce are BVH traversals, the decoders being straight-line code. 64 never ran into
+/// it; 128 is 8–12 % faster but was cut off on the default bunny once chunks grew to 3 s
+/// (more lanes busy in every bounce). So software adapters start at 128 with a snapshot of
+/// the path states before every dispatch: a dispatch that hits the limit (counted by the
+/// kernel) is undone from the snapshot and redone at 64, for the rest of the render. The
+/// image does not depend on the budget (paths resume exactly where they stopped).
+/// Hardware GPUs have no such limit; 256 keeps each dispatch far below watchdogs.
+/// `STCVAE_GPU_BOUNCES` sets the first value (the fallback stays).
+fn bounce_budget(ctx: &GpuContext) -> (u32, Option<u32>) {
+    let first = std::env::var("STCVAE_GPU_BOUNCES")
         .ok()
         .and_then(|v| v.parse().ok())
-        .filter(|&b: &u32| b > 0)
-        .unwrap_or(if ctx.adapter.software { 64 } else { 256 })
+        .filter(|&b: &u32| b > 0);
+    if ctx.adapter.software {
+        let b = first.unwrap_or(128);
+        (
+            b,
+            (b > SAFE_SOFTWARE_BOUNCES).then_some(SAFE_SOFTWARE_BOUNCES),
+        )
+    } else {
+        (first.unwrap_or(256), None)
+    }
 }
+
+/// Bounces per dispatch that never ran into lavapipe's loop limit (see `bounce_budget`).
+const SAFE_SOFTWARE_BOUNCES: u32 = 64;
 
 /// Invocations a dispatch aims to have in flight: a big GPU needs ~10⁶ to be busy; a
 /// software adapter gains nothing beyond a few per core.
@@ -136,7 +150,10 @@ pub fn render_gpu(
     } else {
         (65535, groups.div_ceil(65535) as u32)
     };
-    params.consts2[2] = bounce_budget(ctx) as f32;
+    let (budget, mut fallback) = bounce_budget(ctx);
+    params.consts2[2] = budget as f32;
+    // The path states before the dispatch in flight, while a fallback budget remains.
+    let snapshot = fallback.map(|_| res.snapshot_buffer(ctx, accum_bytes));
     params.consts2[3] = tile_stride(groups) as f32;
     let start = Instant::now();
     let mut stats = PathStats::default();
@@ -158,11 +175,22 @@ pub fn render_gpu(
                 .write_buffer(&res.params, 0, bytemuck::bytes_of(&params));
             ctx.queue
                 .write_buffer(&res.counters, 0, &[0u8; COUNTER_BYTES as usize]);
+            if let (Some(snap), Some(_)) = (&snapshot, fallback) {
+                res.copy(ctx, &res.accum, snap, accum_bytes);
+            }
             res.dispatch(ctx, &pipeline, (gx, gy));
             let c = read_back(ctx, &res.counters, COUNTER_BYTES)?;
             let word =
                 |i: usize| u32::from_le_bytes(c[4 * i..4 * i + 4].try_into().unwrap()) as u64;
             let pair = |k: usize| word(2 * k) | (word(2 * k + 1) << 32);
+            if pair(7) > 0
+                && let (Some(snap), Some(safe)) = (&snapshot, fallback.take())
+            {
+                // Undo the cut-off dispatch and redo it with the safe budget.
+                res.copy(ctx, snap, &res.accum, accum_bytes);
+                params.consts2[2] = safe as f32;
+                continue;
+            }
             stats.add(&PathStats {
                 paths: pair(0),
                 events: pair(1),

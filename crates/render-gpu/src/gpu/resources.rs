@@ -120,6 +120,25 @@ impl Resources {
 }
 
 impl Resources {
+    /// A buffer the size of `accum` to copy path states to and from.
+    pub fn snapshot_buffer(&self, ctx: &GpuContext, bytes: u64) -> wgpu::Buffer {
+        ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("accum snapshot"),
+            size: bytes.max(16),
+            usage: wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        })
+    }
+
+    /// Submits a copy of the first `bytes` of `src` to `dst` (ordered with dispatches).
+    pub fn copy(&self, ctx: &GpuContext, src: &wgpu::Buffer, dst: &wgpu::Buffer, bytes: u64) {
+        let mut enc = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+        enc.copy_buffer_to_buffer(src, 0, dst, 0, bytes.max(16));
+        ctx.queue.submit([enc.finish()]);
+    }
+
     /// Submits one dispatch of `pipeline` over `groups` (x, y) workgroups on these buffers.
     pub fn dispatch(&self, ctx: &GpuContext, pipeline: &wgpu::ComputePipeline, groups: (u32, u32)) {
         let mut enc = ctx
