@@ -366,6 +366,15 @@ grid_resolution = 64
     )
 }
 
+/// `text` (a `sphere_scene`) with another extinction and albedo.
+fn with_medium(text: String, sigma_t: &str, albedo: &str) -> String {
+    text.replace(
+        "sigma_t = [8.0, 15.0, 30.0]",
+        &format!("sigma_t = {sigma_t}"),
+    )
+    .replace("albedo = [0.99, 0.95, 0.9]", &format!("albedo = {albedo}"))
+}
+
 fn compare_devices(name: &str, text: &str, kind: IntegratorKind, nee: bool, spp: u32) {
     let Some(ctx) = gpu() else { return };
     let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
@@ -438,17 +447,13 @@ fn cpu_gpu_agree_bunny() {
 fn long_paths_resume_across_dispatches() {
     let Some(ctx) = gpu() else { return };
     let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
-    let text = sphere_scene("kind = \"index-matched\"")
-        .replace(
-            "sigma_t = [8.0, 15.0, 30.0]",
-            "sigma_t = [1000.0, 1000.0, 1000.0]",
-        )
-        .replace(
-            "albedo = [0.99, 0.95, 0.9]",
-            "albedo = [0.999, 0.999, 0.999]",
-        )
-        .replace("width = 24\nheight = 24", "width = 8\nheight = 8")
-        .replace("fov_deg = 22.0", "fov_deg = 12.0");
+    let text = with_medium(
+        sphere_scene("kind = \"index-matched\""),
+        "[1000.0, 1000.0, 1000.0]",
+        "[0.999, 0.999, 0.999]",
+    )
+    .replace("width = 24\nheight = 24", "width = 8\nheight = 8")
+    .replace("fov_deg = 22.0", "fov_deg = 12.0");
     let s = scene(&text, false);
     let set = settings(IntegratorKind::Pt, true);
     let mean = |o: &RenderOutput| {
@@ -495,21 +500,17 @@ fn long_paths_resume_across_dispatches() {
 fn loop_limit_cut_off_is_redone_with_the_safe_budget() {
     let Some(ctx) = gpu() else { return };
     let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
-    let text = sphere_scene("kind = \"index-matched\"")
-        .replace(
-            "shape = \"sphere\"\nradius = 0.5",
-            "mesh = \"../../assets/bunny.glb\"\nheight = 1.0",
-        )
-        .replace(
-            "sigma_t = [8.0, 15.0, 30.0]",
-            "sigma_t = [1200.0, 1500.0, 1000.0]",
-        )
-        .replace(
-            "albedo = [0.99, 0.95, 0.9]",
-            "albedo = [0.99999, 0.99995, 0.975]",
-        )
-        .replace("g = 0.5", "g = 0.875")
-        .replace("width = 24\nheight = 24", "width = 12\nheight = 12");
+    let text = with_medium(
+        sphere_scene("kind = \"index-matched\""),
+        "[1200.0, 1500.0, 1000.0]",
+        "[0.99999, 0.99995, 0.975]",
+    )
+    .replace(
+        "shape = \"sphere\"\nradius = 0.5",
+        "mesh = \"../../assets/bunny.glb\"\nheight = 1.0",
+    )
+    .replace("g = 0.5", "g = 0.875")
+    .replace("width = 24\nheight = 24", "width = 12\nheight = 12");
     let s = scene(&text, false);
     let set = settings(IntegratorKind::Pt, true);
     let mut images = Vec::new();
