@@ -273,10 +273,12 @@ pub fn run(a: Args) -> Result<()> {
         );
     }
     if out.stats.leaks > 0 {
-        // A flight from a sphere exit met the surface from outside (f32 precision at
-        // thin features); the path left there. Counted in the JSON as `leaks`.
+        // A path found outside the medium while it believed itself inside: a flight from a
+        // sphere exit met the surface from outside, or a collision fell outside the mesh's
+        // bounds (f32 precision at features thinner than the surface offset). The path
+        // continued from there as outside. Counted in the JSON as `leaks`.
         eprintln!(
-            "note: {} of {} paths had a sphere exit outside the mesh ({:.1e}); they left the medium there",
+            "note: {} of {} paths were found outside the mesh while inside ({:.1e}); they continued from there as outside",
             out.stats.leaks,
             out.stats.paths,
             out.stats.leaks as f64 / out.stats.paths.max(1) as f64
