@@ -104,12 +104,10 @@ fn transmittance_ordered(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
     return 0.0;
 }
 
-// Shadow-ray roulette on the bound ρ_g·exp(−σ_t·free) of ρ_g·T, below ROULETTE_BOUND
-// (prepended from nee.rs by kernels.rs) times the isotropic phase 1/4π.
-
 /// Σ over lights of ρ_g(W·ω_l) · T(x → light) · (E, or L/pdf for a sun disk). `free` is
-/// a lower bound on the distance to the surface: T ≤ exp(−σ_t·free), and the bound on
-/// the phase-weighted term drives an unbiased roulette on the shadow ray, as on the CPU.
+/// a lower bound on the distance to the surface: T ≤ exp(−σ_t·free), and a shadow ray
+/// whose bound ρ_g·exp(−σ_t·free) is below ROULETTE_BOUND/4π (ROULETTE_BOUND prepended
+/// from nee.rs by kernels.rs) goes through an unbiased roulette, as on the CPU.
 fn nee_direct(x: vec3<f32>, w: vec3<f32>, free: f32, channel: u32) -> f32 {
     var sum = 0.0;
     let g = params.consts.x;

@@ -30,20 +30,12 @@ pub struct ModelWalk {
 /// Λ(N) = Σ_{k=1..N} φ^k, the NEE weight of a walk's representative event (f64: φ is
 /// often within 1e-5 of 1).
 pub fn lambda(albedo: f64, n: u64) -> f64 {
-    if albedo >= 1.0 {
-        n as f64
-    } else if albedo <= 0.0 {
-        0.0
-    } else {
-        let ln = albedo.ln();
-        // φ (1 − φ^N) / (1 − φ), both differences through expm1.
-        albedo * (-(n as f64 * ln).exp_m1()) / (-ln.exp_m1())
-    }
+    walk_weights(albedo, n).0
 }
 
-/// (Λ(N), φ^N) from one logarithm and one exp_m1 per call (plus an exp when φ^N < 1/2): a renderer needs both for every
-/// sphere step and the exact-mode EventGen needs Λ(N) for every draw (computing them apart
-/// took three logarithms and five exponentials per step, ~5 % of ST-CVAE's time).
+/// (Λ(N), φ^N) from one logarithm and one exp_m1 (plus an exp when φ^N < 1/2): a renderer
+/// needs both for every sphere step and the exact-mode EventGen needs Λ(N) for every draw
+/// (computed apart they took three logarithms and five exponentials per step).
 pub fn walk_weights(albedo: f64, n: u64) -> (f64, f64) {
     if albedo >= 1.0 {
         (n as f64, 1.0)
@@ -53,7 +45,7 @@ pub fn walk_weights(albedo: f64, n: u64) -> (f64, f64) {
         let ln = albedo.ln();
         let x = n as f64 * ln;
         let e = x.exp_m1();
-        // 1 + e loses φ^N's relative precision once it is small: take exp there.
+        // Λ = φ (1 − φ^N) / (1 − φ), both differences through exp_m1. 1 + e loses φ^N's relative precision once it is small: take exp there.
         let survival = if e > -0.5 { 1.0 + e } else { x.exp() };
         (albedo * (-e) / (-ln.exp_m1()), survival)
     }
@@ -233,16 +225,24 @@ impl ModelSet {
 mod tests {
     use super::*;
 
-    /// The merged weights equal Λ(N) and φ^N computed separately (powf), to 1e-12
-    /// relative: both are a few correctly rounded f64 operations apart.
+    /// The weights equal Λ(N) summed term by term, Σ_{k=1..N} φ^k, and φ^N by powf. The
+    /// sum of N positive terms carries a relative rounding error below N·2.2e-16; the
+    /// closed forms are a few correctly rounded operations: 1e-12 + N·2.2e-16 relative.
     #[test]
     fn walk_weights_match_lambda_and_power() {
         for &albedo in &[0.0, 0.3, 0.975, 0.99995, 0.99999, 1.0] {
             for &n in &[1u64, 2, 7, 100, 10_000, 1_000_000] {
                 let (l, p) = walk_weights(albedo, n);
-                let (l0, p0) = (lambda(albedo, n), albedo.powf(n as f64));
+                let mut term = 1.0f64;
+                let mut l0 = 0.0f64;
+                for _ in 0..n {
+                    term *= albedo;
+                    l0 += term;
+                }
+                let p0 = albedo.powf(n as f64);
+                let tol = 1e-12 + n as f64 * 2.2e-16;
                 assert!(
-                    (l - l0).abs() <= 1e-12 * l0.abs().max(1e-300),
+                    (l - l0).abs() <= tol * l0.abs().max(1e-300),
                     "Λ({albedo}, {n})"
                 );
                 assert!(

@@ -5,7 +5,6 @@
 
 mod common;
 
-use std::path::Path;
 use std::sync::atomic::AtomicBool;
 use std::sync::{Mutex, OnceLock};
 
@@ -14,7 +13,6 @@ use render_gpu::gpu::probe::{Item, run_probe};
 use render_gpu::gpu::{AdapterChoice, GpuContext, render_gpu};
 use render_gpu::integrator::{IntegratorKind, IntegratorSettings};
 use render_gpu::render::{RenderOptions, RenderOutput, render};
-use render_gpu::scene::SceneFile;
 use render_gpu::setup::SceneData;
 use scatter_sim::WalkRng;
 use scatter_sim::frame::{CanonicalExit, WalkFrame, from_canonical};
@@ -171,11 +169,6 @@ fn wgsl_decoders_match_rust() {
     }
 }
 
-fn scene(text: &str, grid: bool) -> SceneData {
-    let f = SceneFile::parse(Path::new("test.toml"), text).unwrap();
-    SceneData::build(&f, Path::new(env!("CARGO_MANIFEST_DIR")), grid, &[]).unwrap()
-}
-
 fn settings(kind: IntegratorKind, nee: bool) -> IntegratorSettings<'static> {
     let m = (kind == IntegratorKind::Stcvae).then(model);
     IntegratorSettings {
@@ -223,7 +216,7 @@ fn white_furnace_gpu() {
     ] {
         for kind in [IntegratorKind::Pt, IntegratorKind::Stcvae] {
             let text = common::furnace_scene(boundary);
-            let s = scene(&text, kind == IntegratorKind::Stcvae);
+            let s = common::build_scene(&text, kind == IntegratorKind::Stcvae);
             let out = on_gpu(&ctx, &s, &settings(kind, true), &opts(12, 3));
             let st = out.stats;
             assert_eq!(st.capped + st.non_finite + st.leaks, 0, "{kind:?}: {st:?}");
@@ -378,7 +371,7 @@ fn with_medium(text: String, sigma_t: &str, albedo: &str) -> String {
 fn compare_devices(name: &str, text: &str, kind: IntegratorKind, nee: bool, spp: u32) {
     let Some(ctx) = gpu() else { return };
     let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
-    let s = scene(text, kind == IntegratorKind::Stcvae);
+    let s = common::build_scene(text, kind == IntegratorKind::Stcvae);
     let set = settings(kind, nee);
     let spp = std::env::var("STCVAE_GPU_TEST_SPP")
         .ok()
@@ -454,7 +447,7 @@ fn long_paths_resume_across_dispatches() {
     )
     .replace("width = 24\nheight = 24", "width = 8\nheight = 8")
     .replace("fov_deg = 22.0", "fov_deg = 12.0");
-    let s = scene(&text, false);
+    let s = common::build_scene(&text, false);
     let set = settings(IntegratorKind::Pt, true);
     let mean = |o: &RenderOutput| {
         o.image
@@ -511,7 +504,7 @@ fn loop_limit_cut_off_is_redone_with_the_safe_budget() {
     )
     .replace("g = 0.5", "g = 0.875")
     .replace("width = 24\nheight = 24", "width = 12\nheight = 12");
-    let s = scene(&text, false);
+    let s = common::build_scene(&text, false);
     let set = settings(IntegratorKind::Pt, true);
     let mut images = Vec::new();
     for bounces in ["100000", "64"] {
@@ -547,8 +540,7 @@ fn wgsl_rays_are_watertight_and_match_rust() {
     let Some(ctx) = gpu() else { return };
     let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
     let text = common::furnace_scene(r#"kind = "index-matched""#);
-    let f = SceneFile::parse(Path::new("test.toml"), &text).unwrap();
-    let scene = SceneData::build(&f, Path::new(env!("CARGO_MANIFEST_DIR")), false, &[]).unwrap();
+    let scene = common::build_scene(&text, false);
     let geo = &scene.geo;
     let mut rng = WalkRng::from_seed(23);
     let mut items: Vec<Item> = Vec::new();

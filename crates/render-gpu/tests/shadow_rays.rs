@@ -4,38 +4,17 @@
 
 mod common;
 
-use std::path::Path;
-
 use glam::Vec3;
 use render_gpu::integrator::nee::{transmittance, transmittance_ordered};
-use render_gpu::scene::SceneFile;
 use render_gpu::setup::SceneData;
 use scatter_sim::WalkRng;
 
 fn bunny(boundary: &str) -> SceneData {
-    // σ_t = (1, 3, 8) per unit height: transmittances across the bunny range from ~1 to
-    // ~1e-3, so lengths are compared where they matter.
-    let text = format!(
-        r#"
-[camera]
-origin = [0.0, 0.0, 3.0]
-target = [0.0, 0.0, 0.0]
-fov_deg = 25.0
-width = 4
-height = 4
-[object]
-mesh = "../../assets/bunny.glb"
-height = 1.0
-[medium]
-sigma_t = [1.0, 3.0, 8.0]
-albedo = [1.0, 1.0, 1.0]
-g = 0.0
-[boundary]
-{boundary}
-"#
-    );
-    let f = SceneFile::parse(Path::new("test.toml"), &text).unwrap();
-    SceneData::build(&f, Path::new(env!("CARGO_MANIFEST_DIR")), false, &[]).unwrap()
+    // The furnace bunny with σ_t = (1, 3, 8) per unit height: transmittances across the
+    // bunny range from ~1 to ~1e-3, so lengths are compared where they matter.
+    let text = common::furnace_scene(boundary)
+        .replace("sigma_t = [5.0, 20.0, 60.0]", "sigma_t = [1.0, 3.0, 8.0]");
+    common::build_scene(&text, false)
 }
 
 /// Surface crossings of the ray from `x`, walked in order.

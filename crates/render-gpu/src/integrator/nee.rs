@@ -32,8 +32,9 @@ const MAX_CROSSINGS: usize = 64;
 /// phase value alone is below the threshold: never for |g| ≤ 0.9, whose smallest HG value
 /// (1−|g|)/(4π(1+|g|)²) is above ρ_iso/50.
 pub const ROULETTE_BOUND: f32 = 0.02;
-/// The isotropic phase function 1/4π, the mean of every phase function over directions.
-const ISOTROPIC: f32 = 1.0 / (4.0 * std::f32::consts::PI);
+/// ROULETTE_BOUND times the isotropic phase function 1/4π (the mean of every phase
+/// function over directions): the bound on ρ_g·T below which shadow rays are rouletted.
+const ROULETTE_THRESHOLD: f32 = ROULETTE_BOUND / (4.0 * std::f32::consts::PI);
 
 /// Σ over lights of ρ_g(W·ω_l) · T(x → light) · (E, or L/pdf for a sun disk).
 ///
@@ -49,7 +50,6 @@ pub fn direct(
     rng: &mut WalkRng,
 ) -> f32 {
     let t_bound = (-scene.sigma_t[channel] * free).exp();
-    let threshold = ROULETTE_BOUND * ISOTROPIC;
     let mut sum = 0.0;
     for light in &scene.lights {
         let (wl, factor) = light.sample(uniform(rng), uniform(rng), channel);
@@ -59,11 +59,11 @@ pub fn direct(
         let phase = hg_pdf(scene.g as f64, w.dot(wl).clamp(-1.0, 1.0) as f64) as f32;
         let mut weight = factor * phase;
         let bound = phase * t_bound;
-        if bound < threshold {
-            if uniform(rng) * threshold >= bound {
+        if bound < ROULETTE_THRESHOLD {
+            if uniform(rng) * ROULETTE_THRESHOLD >= bound {
                 continue;
             }
-            weight *= threshold / bound;
+            weight *= ROULETTE_THRESHOLD / bound;
         }
         sum += transmittance(scene, x, wl, channel) * weight;
     }

@@ -57,7 +57,6 @@ pub(crate) fn step(
     let walk = model.sample_walk(tau as f64, scene.g as f64, albedo, set.nee, rng);
     let centre = s.pos.as_dvec3();
     if set.nee {
-        let lam = walk.lambda;
         // Extra representative events (EventGen draws given the same N and exit), each
         // weighted Λ(N)/M: the same expectation with less variance per sphere step.
         let m = if walk.single {
@@ -90,7 +89,7 @@ pub(crate) fn step(
             let x_free = (free - ep.length() as f32 * r).max(grid.radius(x));
             sum += nee::direct(scene, x, w.as_vec3(), x_free, channel, rng);
         }
-        s.radiance += s.beta * lam as f32 * sum / m as f32;
+        s.radiance += s.beta * walk.lambda as f32 * sum / m as f32;
     }
     s.beta *= walk.survival as f32;
     if !roulette(&mut s.beta, rng) {

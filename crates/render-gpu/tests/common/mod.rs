@@ -15,6 +15,19 @@ pub fn load_model() -> cvae::ModelSet {
     cvae::ModelSet::load(&p).unwrap()
 }
 
+/// Parses a test scene's TOML and builds it (meshes relative to this crate), with the
+/// distance grid if `grid`.
+pub fn build_scene(text: &str, grid: bool) -> render_gpu::setup::SceneData {
+    let f = render_gpu::scene::SceneFile::parse(std::path::Path::new("test.toml"), text).unwrap();
+    render_gpu::setup::SceneData::build(
+        &f,
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")),
+        grid,
+        &[],
+    )
+    .unwrap()
+}
+
 /// The white furnace: the bunny with albedo 1 in a constant environment of 0.7, no lights;
 /// `boundary` is the body of the [boundary] table.
 pub fn furnace_scene(boundary: &str) -> String {
