@@ -25,6 +25,11 @@ pub struct ModelWalk {
     /// weight (computed once per walk: see [`walk_weights`]).
     pub lambda: f64,
     pub survival: f64,
+    /// The walk's conditioning features and its relative log N, so further EventGen
+    /// draws for the same walk ([`ModelSet::sample_event_given`]) recompute nothing.
+    pub features: features::WalkFeatures,
+    pub relative_log_n: f64,
+    pub albedo: f64,
 }
 
 /// Λ(N) = Σ_{k=1..N} φ^k, the NEE weight of a walk's representative event (f64: φ is
@@ -111,25 +116,30 @@ impl ModelSet {
     }
 
     /// LengthGen: N for a walk known to have N ≥ n_min.
-    pub fn sample_multiple_n(&self, tau: f64, g: f64, rng: &mut WalkRng) -> u64 {
+    pub fn sample_multiple_n(&self, f: &features::WalkFeatures, rng: &mut WalkRng) -> u64 {
         let mut z = [0f32; 8];
         normals(rng, &mut z[..self.length.latent + 1]);
         let (z, eps) = z.split_at(self.length.latent);
         let mut y = [0f64; 1];
-        self.length
-            .sample(&features::length_cond(tau, g), z, eps, &mut y);
-        features::length_from_target(y[0], tau, g, self.n_min())
+        self.length.sample(&f.length_cond(), z, eps, &mut y);
+        f.n_from_target(y[0], self.n_min())
     }
 
-    /// PathGen: the exit of a walk with N events (N ≥ 2, or any N in learned mode).
-    pub fn sample_exit(&self, tau: f64, g: f64, n: u64, rng: &mut WalkRng) -> CanonicalExit {
+    /// PathGen: the exit of a walk with N events (N ≥ 2, or any N in learned mode), given
+    /// its relative log N.
+    pub fn sample_exit(
+        &self,
+        f: &features::WalkFeatures,
+        relative_log_n: f64,
+        rng: &mut WalkRng,
+    ) -> CanonicalExit {
         let mut noise = [0f32; 16];
         let k = self.path.latent + self.path.out;
         normals(rng, &mut noise[..k]);
         let (z, eps) = noise[..k].split_at(self.path.latent);
         let mut v = [0f64; 3];
         self.path
-            .sample(&features::path_cond(tau, g, n), z, eps, &mut v);
+            .sample(&f.path_cond(relative_log_n), z, eps, &mut v);
         let (cos_theta, beta, alpha) = features::path_from_target(v);
         repair_exit(cos_theta, beta, alpha)
     }
@@ -146,22 +156,29 @@ impl ModelSet {
         exit: CanonicalExit,
         rng: &mut WalkRng,
     ) -> (DVec3, DVec3) {
-        self.sample_event_given(tau, g, albedo, n, lambda(albedo, n), exit, rng)
+        let features = features::WalkFeatures::new(tau, g, albedo);
+        let (lambda, survival) = walk_weights(albedo, n);
+        let walk = ModelWalk {
+            n,
+            exit,
+            event_pos: DVec3::ZERO,
+            event_dir: DVec3::Z,
+            single: false,
+            lambda,
+            survival,
+            features,
+            relative_log_n: features.relative_log_n(n),
+            albedo,
+        };
+        self.sample_event_given(&walk, rng)
     }
 
-    /// [`Self::sample_event`] with Λ(N) already known (`lambda_n`).
-    #[allow(clippy::too_many_arguments)]
-    pub fn sample_event_given(
-        &self,
-        tau: f64,
-        g: f64,
-        albedo: f64,
-        n: u64,
-        lambda_n: f64,
-        exit: CanonicalExit,
-        rng: &mut WalkRng,
-    ) -> (DVec3, DVec3) {
-        if self.single_scattering == SingleScattering::Exact && rng.uniform() * lambda_n < albedo {
+    /// Another representative event of `walk` (its N and exit), independent of the one
+    /// it holds.
+    pub fn sample_event_given(&self, walk: &ModelWalk, rng: &mut WalkRng) -> (DVec3, DVec3) {
+        if self.single_scattering == SingleScattering::Exact
+            && rng.uniform() * walk.lambda < walk.albedo
+        {
             return (DVec3::ZERO, DVec3::Z);
         }
         let mut noise = [0f32; 16];
@@ -169,7 +186,10 @@ impl ModelSet {
         normals(rng, &mut noise[..k]);
         let (z, eps) = noise[..k].split_at(self.event.latent);
         let mut v = [0f64; 6];
-        let cond = features::event_cond(tau, g, albedo, n, exit.cos_theta, exit.beta, exit.alpha);
+        let e = walk.exit;
+        let cond = walk
+            .features
+            .event_cond(walk.relative_log_n, e.cos_theta, e.beta, e.alpha);
         self.event.sample(&cond, z, eps, &mut v);
         let (x, w) = features::event_from_target(v);
         repair_event(DVec3::from_array(x), DVec3::from_array(w))
@@ -185,6 +205,7 @@ impl ModelSet {
         with_event: bool,
         rng: &mut WalkRng,
     ) -> ModelWalk {
+        let features = features::WalkFeatures::new(tau, g, albedo);
         if self.single_scattering == SingleScattering::Exact && rng.uniform() < (-tau).exp() {
             // Exact branch: the photon left the centre in the HG direction, x = ω.
             return ModelWalk {
@@ -199,25 +220,31 @@ impl ModelSet {
                 single: true,
                 lambda: albedo,
                 survival: albedo,
+                features,
+                relative_log_n: -features.log_prior,
+                albedo,
             };
         }
-        let n = self.sample_multiple_n(tau, g, rng);
-        let exit = self.sample_exit(tau, g, n, rng);
+        let n = self.sample_multiple_n(&features, rng);
+        let relative_log_n = features.relative_log_n(n);
+        let exit = self.sample_exit(&features, relative_log_n, rng);
         let (lambda, survival) = walk_weights(albedo, n);
-        let (event_pos, event_dir) = if with_event {
-            self.sample_event_given(tau, g, albedo, n, lambda, exit, rng)
-        } else {
-            (DVec3::ZERO, DVec3::Z)
-        };
-        ModelWalk {
+        let mut walk = ModelWalk {
             n,
             exit,
-            event_pos,
-            event_dir,
+            event_pos: DVec3::ZERO,
+            event_dir: DVec3::Z,
             single: false,
             lambda,
             survival,
+            features,
+            relative_log_n,
+            albedo,
+        };
+        if with_event {
+            (walk.event_pos, walk.event_dir) = self.sample_event_given(&walk, rng);
         }
+        walk
     }
 }
 

@@ -69,15 +69,7 @@ pub(crate) fn step(
             let (ep, ed) = if k == 0 {
                 (walk.event_pos, walk.event_dir)
             } else {
-                model.sample_event_given(
-                    tau as f64,
-                    scene.g as f64,
-                    albedo,
-                    walk.n,
-                    walk.lambda,
-                    walk.exit,
-                    rng,
-                )
+                model.sample_event_given(&walk, rng)
             };
             let x = centre + frame.to_world(ep) * r as f64;
             let w = frame.to_world(ed).normalize();
