@@ -13,7 +13,7 @@ use render_gpu::integrator::IntegratorKind;
 use render_gpu::render::RenderOptions;
 
 use crate::device::{DeviceArg, Engine};
-use crate::experiment::measure::{Pair, compare};
+use crate::experiment::measure::{BLOCK, Pair, block_z, compare};
 use crate::render::prepare;
 
 #[derive(clap::Args)]
@@ -44,6 +44,39 @@ pub struct Args {
     /// Where both integrators run: auto, gpu (any wgpu adapter) or cpu.
     #[arg(long, value_enum, default_value_t = DeviceArg::Cpu)]
     device: DeviceArg,
+    /// Also write each density's images to this folder: kK_pt and kK_stcvae (EXR + PNG,
+    /// the two seeds' mean) and kK_z.png, where the bias lies: per channel and 4×4-pixel
+    /// block (measure::block_z), the z-score of ST-CVAE − PT against both noises, drawn as 0.5 + z/8 (grey:
+    /// agreement; brighter: ST-CVAE brighter; |z| > 3 is rarely noise).
+    #[arg(long)]
+    save: Option<PathBuf>,
+}
+
+/// Writes the ladder step's images into `dir` (see `Args::save`).
+fn save_images(dir: &std::path::Path, k: f64, pt: &Pair, st: &Pair) -> Result<()> {
+    use render_gpu::image_io::{RenderTag, RgbImage, write_exr, write_png};
+    std::fs::create_dir_all(dir)?;
+    let exposure = crate::experiment::measure::scale_of(&pt.mean) as f32;
+    for (name, p) in [("pt", pt), ("stcvae", st)] {
+        let base = dir.join(format!("k{k}_{name}"));
+        let tag = RenderTag {
+            spp: p.spp as u64,
+            scene_hash: p.hash,
+        };
+        write_exr(&base.with_extension("exr"), &p.mean, &tag)?;
+        write_png(&base.with_extension("png"), &p.mean, exposure)?;
+    }
+    let (w, h) = (pt.mean.width, pt.mean.height);
+    let mut z = RgbImage::new(w, h);
+    let blocks_x = w.div_ceil(BLOCK);
+    let zs = block_z(pt, st);
+    for (i, p) in z.pixels.iter_mut().enumerate() {
+        let (x, y) = (i % w, i / w);
+        let block = zs[(y / BLOCK) * blocks_x + x / BLOCK];
+        *p = block.map(|v| v.map_or(0.5, |v| (0.5 + v / 8.0).clamp(0.0, 1.0) as f32));
+    }
+    write_png(&dir.join(format!("k{k}_z.png")), &z, 1.0)?;
+    Ok(())
 }
 
 fn run_pair(a: &Args, engine: &Engine, kind: IntegratorKind, k: f64) -> Result<Pair> {
@@ -127,6 +160,9 @@ pub fn run(a: Args) -> Result<()> {
         let pt = run_pair(&a, &engine, IntegratorKind::Pt, k)?;
         let st = run_pair(&a, &engine, IntegratorKind::Stcvae, k)?;
         let c = compare(&pt, &st);
+        if let Some(dir) = &a.save {
+            save_images(dir, k, &pt, &st)?;
+        }
         println!(
             "{:>4} {:>20} {:>7.2} {:>7.2} {:>8.2}x {:>9.2} {:>10.2}x {:>10.1} {:>10.2} {:>10.2} {:>9.4} {:>9.4} {:>9.4} {:>10} {:>10}",
             k,
@@ -144,6 +180,19 @@ pub fn run(a: Args) -> Result<()> {
             c.noise,
             crate::progress::si(pt.stats.paths as f64 / pt.seconds.max(1e-9)),
             crate::progress::si(st.stats.paths as f64 / st.seconds.max(1e-9))
+        );
+        let [r, g, b] = c
+            .channel_offset
+            .map(|(o, se)| format!("{:+.2}% ± {:.2}%", 100.0 * o, 100.0 * se));
+        println!(
+            "     per channel (R, G, B): bias RMSE {:.4} {:.4} {:.4}; ST-CVAE/PT total − 1: {r}, {g}, {b}; \
+             {BLOCK}x{BLOCK}-block chi2/dof {:.2} over {} (~1 ± {:.2} if they differ by noise alone)",
+            c.channel_bias[0],
+            c.channel_bias[1],
+            c.channel_bias[2],
+            c.block_chi2,
+            c.blocks,
+            (2.0 / c.blocks.max(1) as f64).sqrt()
         );
         if st.stats.leaks + pt.stats.leaks > 0 {
             println!(

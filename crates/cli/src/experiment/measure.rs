@@ -149,6 +149,53 @@ pub struct Comparison {
     pub bias_upper95: f64,
     /// RMSE the two noises alone would give, scaled.
     pub noise: f64,
+    /// Per channel (R, G, B): the noise-corrected bias RMSE, scaled like `bias`; and the
+    /// other image's total over the reference's (over the pixels with noise: the object),
+    /// minus 1, with its standard error (delta method on the two sums' variances). A model that gets the number of events wrong
+    /// shows up as a brightness offset in the channel with the most absorption.
+    pub channel_bias: [f64; 3],
+    pub channel_offset: [(f64, f64); 3],
+    /// Mean of z² over the object's BLOCK×BLOCK-pixel blocks and channels ([`block_z`]),
+    /// and how many there are: ≈ 1 ± √(2/n) when the two images differ by noise alone
+    /// (a little above 1: each block's noise is itself estimated, from one-degree estimates
+    /// of its 16 pixels in both images — a t-variable with ~32 degrees of freedom has
+    /// E z² = 32/30).
+    /// A model error is smooth over a few pixels, so a block sees it with 16× less
+    /// noise than a pixel; a per-pixel bias RMSE is noisy in its own right (a single
+    /// heavy-tailed pixel moves it), this is not.
+    pub block_chi2: f64,
+    pub blocks: usize,
+}
+
+/// Side of the pixel blocks of [`block_z`].
+pub const BLOCK: usize = 4;
+
+/// Per BLOCK×BLOCK block (row-major, ⌈w/BLOCK⌉ per row) and channel: Σ(B − A) over
+/// its pixels divided by √Σ(Var_A + Var_B), the difference in units of its own noise;
+/// None where neither image has noise (the background).
+pub fn block_z(a: &Pair, b: &Pair) -> Vec<[Option<f64>; 3]> {
+    let (w, h) = (a.mean.width, a.mean.height);
+    let mut out = Vec::new();
+    for by in (0..h).step_by(BLOCK) {
+        for bx in (0..w).step_by(BLOCK) {
+            let mut z = [None; 3];
+            for (c, zc) in z.iter_mut().enumerate() {
+                let (mut d, mut var) = (0.0f64, 0.0f64);
+                for y in by..(by + BLOCK).min(h) {
+                    for x in bx..(bx + BLOCK).min(w) {
+                        let i = y * w + x;
+                        d += (b.mean.pixels[i][c] - a.mean.pixels[i][c]) as f64;
+                        var += a.var[i][c] + b.var[i][c];
+                    }
+                }
+                if var > 0.0 {
+                    *zc = Some(d / var.sqrt());
+                }
+            }
+            out.push(z);
+        }
+    }
+    out
 }
 
 pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
@@ -159,9 +206,21 @@ pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
     let (mut va, mut vb) = (0.0, 0.0);
     // Σ of the squared per-pixel terms e = d² − Var_A − Var_B, for their spread.
     let mut e2 = 0.0;
+    let mut ch_e = [0f64; 3];
+    // Σ reference, Σ other, Σ Var_reference, Σ Var_other per channel.
+    let mut sums = [[0f64; 4]; 3];
     for i in 0..reference.mean.pixels.len() {
         for c in 0..3 {
             let d = (reference.mean.pixels[i][c] - other.mean.pixels[i][c]) as f64;
+            ch_e[c] += d * d - reference.var[i][c] - other.var[i][c];
+            // Totals over the pixels with any noise: the object (a background pixel is the
+            // same constant in both and would only dilute the offset).
+            if reference.var[i][c] + other.var[i][c] > 0.0 {
+                sums[c][0] += reference.mean.pixels[i][c] as f64;
+                sums[c][1] += other.mean.pixels[i][c] as f64;
+                sums[c][2] += reference.var[i][c];
+                sums[c][3] += other.var[i][c];
+            }
             mse += d * d;
             noise += reference.var[i][c] + other.var[i][c];
             va += reference.var[i][c];
@@ -170,6 +229,11 @@ pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
             e2 += e * e;
         }
     }
+    let zs: Vec<f64> = block_z(reference, other)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .collect();
     let mean_e = (mse - noise) / n;
     let se = ((e2 / n - mean_e * mean_e).max(0.0) / (n - 1.0).max(1.0)).sqrt();
     Comparison {
@@ -178,6 +242,17 @@ pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
         bias: mean_e.max(0.0).sqrt() * scale,
         bias_upper95: (mean_e + 1.645 * se).max(0.0).sqrt() * scale,
         noise: (noise / n).sqrt() * scale,
+        block_chi2: zs.iter().map(|z| z * z).sum::<f64>() / zs.len().max(1) as f64,
+        blocks: zs.len(),
+        channel_bias: ch_e.map(|e| (e / (n / 3.0)).max(0.0).sqrt() * scale),
+        channel_offset: sums.map(|[r, o, vr, vo]| {
+            let r = r.max(1e-300);
+            let ratio = o / r;
+            (
+                ratio - 1.0,
+                (vo / (r * r) + ratio * ratio * vr / (r * r)).sqrt(),
+            )
+        }),
     }
 }
 
@@ -267,4 +342,102 @@ pub fn save(
     )?;
     write_png(&ctx.out.join(format!("{name}.png")), img, exposure)?;
     Ok(format!("{name}.png"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use render_gpu::integrator::PathStats;
+    use scatter_sim::rng::WalkRng;
+
+    const SIDE: usize = 64;
+
+    /// A pair of two seeds' renders of the image `truth`, each pixel's half drawn
+    /// N(truth, σ²) with σ = 0.1·truth (f64 normals from the walk RNG's f32 ones).
+    fn pair(truth: &[[f32; 3]], seed: u64) -> Pair {
+        let mut rng = WalkRng::for_walk(seed, 0);
+        let halves: Vec<RgbImage> = (0..2)
+            .map(|_| {
+                let mut img = RgbImage::new(SIDE, SIDE);
+                for (p, t) in img.pixels.iter_mut().zip(truth) {
+                    for c in 0..3 {
+                        p[c] = t[c] * (1.0 + 0.1 * rng.standard_normal());
+                    }
+                }
+                img
+            })
+            .collect();
+        let out = |image: RgbImage| RenderOutput {
+            image,
+            spp: 1,
+            seconds: 1.0,
+            stats: PathStats::default(),
+            work: Vec::new(),
+        };
+        let [a, b]: [RgbImage; 2] = halves.try_into().ok().unwrap();
+        Pair::from_halves(out(a), out(b), 0)
+    }
+
+    /// A smooth "object": brightness varying over the image, with a background of 0 in the
+    /// outer eighth (no noise there, so it is left out of the block statistics).
+    fn truth() -> Vec<[f32; 3]> {
+        (0..SIDE * SIDE)
+            .map(|i| {
+                let (x, y) = ((i % SIDE) as f32, (i / SIDE) as f32);
+                let edge = SIDE as f32 / 8.0;
+                if x < edge || y < edge || x >= SIDE as f32 - edge || y >= SIDE as f32 - edge {
+                    [0.0; 3]
+                } else {
+                    let v = 0.5 + 0.4 * (x / 9.0).sin() * (y / 13.0).cos();
+                    [v, 0.8 * v, 0.6 * v]
+                }
+            })
+            .collect()
+    }
+
+    /// Two unbiased renders: the block χ²/dof is a mean of n = 432 squared t-variables
+    /// with ν = 32 degrees of freedom (each block's noise is the sum of 32 one-degree
+    /// estimates, 16 pixels in two images, of nearly equal variance here): E t² = ν/(ν−2)
+    /// ≈ 1.07 and Var t² = 2ν²(ν−1)/((ν−2)²(ν−4)) ≈ 2.5, so the mean has sd ≈ 0.076 and 4
+    /// sd is 0.31. The per-channel offsets are z-scores of sums of independent normals:
+    /// each within 4 of its standard error.
+    #[test]
+    fn unbiased_renders_look_like_noise() {
+        let t = truth();
+        let c = compare(&pair(&t, 1), &pair(&t, 2));
+        assert_eq!(c.blocks, 3 * 12 * 12);
+        assert!(
+            (c.block_chi2 - 32.0 / 30.0).abs() < 0.31,
+            "chi2/dof {} over {}",
+            c.block_chi2,
+            c.blocks
+        );
+        for (o, se) in c.channel_offset {
+            assert!(o.abs() < 4.0 * se, "offset {o} ± {se}");
+        }
+        // The bias estimate is noise-corrected: its square is within a few standard
+        // errors of 0, and the 95 % bound is of the order of that error.
+        assert!(c.bias < c.bias_upper95 && c.bias_upper95 < 0.5 * c.noise);
+    }
+
+    /// A 5 % darker third channel: the offset is found within 4 standard errors, the other
+    /// channels stay within 4 of 0, and the blocks see it. A pixel's difference of means
+    /// has variance 2·(0.1v)²/2 = 0.01v², so a block of 16 has z ≈ −0.05·16v/(0.4v) = −2
+    /// and E z² ≈ 4 + 1.07 in that channel: χ²/dof ≈ (2·1.07 + 5.07)/3 ≈ 2.4 against
+    /// 1.07 ± 0.08 for noise alone; 1.6 lies 7 sd above noise and far below 2.4.
+    #[test]
+    fn a_channel_offset_is_measured() {
+        let t = truth();
+        let darker: Vec<[f32; 3]> = t.iter().map(|p| [p[0], p[1], 0.95 * p[2]]).collect();
+        let c = compare(&pair(&t, 1), &pair(&darker, 2));
+        let (o, se) = c.channel_offset[2];
+        assert!(
+            (o + 0.05).abs() < 4.0 * se,
+            "offset {o} ± {se}, expected -0.05"
+        );
+        for (o, se) in &c.channel_offset[..2] {
+            assert!(o.abs() < 4.0 * se, "offset {o} ± {se}");
+        }
+        assert!(c.block_chi2 > 1.6, "chi2/dof {}", c.block_chi2);
+    }
 }
