@@ -32,6 +32,31 @@ pub struct ModelWalk {
     pub albedo: f64,
 }
 
+impl ModelWalk {
+    /// A walk of N events (from the decoders) with its weights and features filled in and
+    /// the centre as a placeholder event.
+    fn multiple(
+        n: u64,
+        exit: CanonicalExit,
+        features: features::WalkFeatures,
+        albedo: f64,
+    ) -> Self {
+        let (lambda, survival) = walk_weights(albedo, n);
+        ModelWalk {
+            n,
+            exit,
+            event_pos: DVec3::ZERO,
+            event_dir: DVec3::Z,
+            single: false,
+            lambda,
+            survival,
+            features,
+            relative_log_n: features.relative_log_n(n),
+            albedo,
+        }
+    }
+}
+
 /// Λ(N) = Σ_{k=1..N} φ^k, the NEE weight of a walk's representative event (f64: φ is
 /// often within 1e-5 of 1).
 pub fn lambda(albedo: f64, n: u64) -> f64 {
@@ -156,20 +181,8 @@ impl ModelSet {
         exit: CanonicalExit,
         rng: &mut WalkRng,
     ) -> (DVec3, DVec3) {
-        let features = features::WalkFeatures::new(tau, g, albedo);
-        let (lambda, survival) = walk_weights(albedo, n);
-        let walk = ModelWalk {
-            n,
-            exit,
-            event_pos: DVec3::ZERO,
-            event_dir: DVec3::Z,
-            single: false,
-            lambda,
-            survival,
-            features,
-            relative_log_n: features.relative_log_n(n),
-            albedo,
-        };
+        let walk =
+            ModelWalk::multiple(n, exit, features::WalkFeatures::new(tau, g, albedo), albedo);
         self.sample_event_given(&walk, rng)
     }
 
@@ -226,21 +239,8 @@ impl ModelSet {
             };
         }
         let n = self.sample_multiple_n(&features, rng);
-        let relative_log_n = features.relative_log_n(n);
-        let exit = self.sample_exit(&features, relative_log_n, rng);
-        let (lambda, survival) = walk_weights(albedo, n);
-        let mut walk = ModelWalk {
-            n,
-            exit,
-            event_pos: DVec3::ZERO,
-            event_dir: DVec3::Z,
-            single: false,
-            lambda,
-            survival,
-            features,
-            relative_log_n,
-            albedo,
-        };
+        let exit = self.sample_exit(&features, features.relative_log_n(n), rng);
+        let mut walk = ModelWalk::multiple(n, exit, features, albedo);
         if with_event {
             (walk.event_pos, walk.event_dir) = self.sample_event_given(&walk, rng);
         }
