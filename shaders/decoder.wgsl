@@ -56,13 +56,27 @@ fn albedo_pow(channel: u32, n: f32) -> f32 {
     return exp(n * params.ln_albedo[channel]);
 }
 
+/// A walk's conditioning features, shared by its three models (WalkFeatures in
+/// features.rs): computed once per sphere step, not once per model. rel_log_n is set once
+/// N is known.
+struct WalkFeatures {
+    tau: f32,
+    g: f32,
+    log_prior: f32,
+    rel_log_n: f32,
+}
+
+fn walk_features(tau: f32, g: f32) -> WalkFeatures {
+    return WalkFeatures(tau_feature(tau), g, log_n_prior(tau, g), 0.0);
+}
+
 /// LengthGen: N ≥ n_min (as f32: N enters only through φ^N, Λ(N) and ln N).
-fn sample_multiple_n(tau: f32, g: f32) -> f32 {
+fn sample_multiple_n(wf: WalkFeatures) -> f32 {
     fill_normals(DEC_LATENT_0 + 1u);
-    dec_cond[0] = tau_feature(tau);
-    dec_cond[1] = g;
+    dec_cond[0] = wf.tau;
+    dec_cond[1] = wf.g;
     decoder_sample(D_LENGTH);
-    let v = floor(exp(dec_out[0] + log_n_prior(tau, g)));
+    let v = floor(exp(dec_out[0] + wf.log_prior));
     let n_min = f32(model.flags.y);
     if !is_finite(v) {
         return select(n_min, 1e15, v > 0.0);
@@ -76,12 +90,12 @@ struct Exit {
     beta: f32,
 }
 
-/// PathGen: the exit of a walk with N events; always a valid exit.
-fn sample_exit(tau: f32, g: f32, n: f32) -> Exit {
+/// PathGen: the exit of a walk with N events (wf.rel_log_n); always a valid exit.
+fn sample_exit(wf: WalkFeatures) -> Exit {
     fill_normals(DEC_LATENT_1 + DEC_OUT_1);
-    dec_cond[0] = tau_feature(tau);
-    dec_cond[1] = g;
-    dec_cond[2] = log(n) - log_n_prior(tau, g);
+    dec_cond[0] = wf.tau;
+    dec_cond[1] = wf.g;
+    dec_cond[2] = wf.rel_log_n;
     decoder_sample(D_PATH);
     let y = select(0.0, dec_out[0], is_finite(dec_out[0]));
     let cos_theta = clamp(2.0 / (1.0 + exp(-y)) - 1.0, -1.0, 1.0);
@@ -113,18 +127,18 @@ struct Event {
     w: vec3<f32>,
 }
 
-/// The representative event given N and the exit; event 1 (the centre, W = +z) exactly
-/// with probability φ/Λ(N) when single scattering is exact.
-fn sample_event(tau: f32, g: f32, channel: u32, n: f32, e: Exit) -> Event {
+/// The representative event given N (wf.rel_log_n, and lam = Λ(N)) and the exit; event 1
+/// (the centre, W = +z) exactly with probability φ/Λ(N) when single scattering is exact.
+fn sample_event(wf: WalkFeatures, channel: u32, lam: f32, e: Exit) -> Event {
     let albedo = params.albedo[channel];
-    if model.flags.x != 0u && rand() * lambda_n(channel, n) < albedo {
+    if model.flags.x != 0u && rand() * lam < albedo {
         return Event(vec3<f32>(0.0), vec3<f32>(0.0, 0.0, 1.0));
     }
     fill_normals(DEC_LATENT_2 + DEC_OUT_2);
-    dec_cond[0] = tau_feature(tau);
-    dec_cond[1] = g;
+    dec_cond[0] = wf.tau;
+    dec_cond[1] = wf.g;
     dec_cond[2] = params.albedo_feature[channel];
-    dec_cond[3] = log(n) - log_n_prior(tau, g);
+    dec_cond[3] = wf.rel_log_n;
     dec_cond[4] = e.cos_theta;
     dec_cond[5] = e.beta;
     dec_cond[6] = e.alpha;

@@ -35,6 +35,8 @@ fn scatter_at(channel: u32) -> bool {
     var n = 1.0;
     var e = Exit(1.0, 0.0, 0.0);
     var single = false;
+    var wf: WalkFeatures;
+    var lam = 0.0; // Λ(N) of the sphere step's walk
     var nee_count = 0u;
     var nee_weight = 0.0;
     if fallback {
@@ -53,13 +55,15 @@ fn scatter_at(channel: u32) -> bool {
             single = true;
             e = Exit(hg_sample_cos(g, rand()), 0.0, 0.0);
         } else {
-            n = sample_multiple_n(tau, g);
-            e = sample_exit(tau, g, n);
+            wf = walk_features(tau, g);
+            n = sample_multiple_n(wf);
+            wf.rel_log_n = log(n) - wf.log_prior;
+            e = sample_exit(wf);
         }
         if nee {
             // Representative events given N and the exit, each weighted Λ(N)/M; the
             // N = 1 walk has its one event at the centre (X = p, W = ω_in), Λ = φ.
-            var lam = params.albedo[channel];
+            lam = params.albedo[channel];
             nee_count = 1u;
             if !single {
                 lam = lambda_n(channel, n);
@@ -76,7 +80,7 @@ fn scatter_at(channel: u32) -> bool {
         if !fallback {
             var ev = Event(vec3<f32>(0.0), vec3<f32>(0.0, 0.0, 1.0));
             if !single {
-                ev = sample_event(tau, g, channel, n, e);
+                ev = sample_event(wf, channel, lam, e);
             }
             x = centre + to_world(frame, ev.x) * r;
             w = normalize(to_world(frame, ev.w));
