@@ -4,6 +4,11 @@
 //! marginal by marginal with the two-sample Kolmogorov–Smirnov statistic and the
 //! Wasserstein-1 distance. KS is invariant under monotone maps, so KS(N) = KS(log N);
 //! W1 is reported for both.
+//!
+//! Two expectations a renderer integrates are compared as well, model over simulator:
+//! the NEE weight E[Λ(N)], and the NEE a walk's representative event would collect if
+//! the sphere's own boundary were the surface (see [`sphere_nee`]). Small KS values can
+//! hide a few per cent in these, which is what an image shows (docs/BENCHMARKS.md).
 
 use rayon::prelude::*;
 use serde::Serialize;
@@ -14,6 +19,7 @@ use scatter_sim::stats::{ks_two_sample, wasserstein1};
 use scatter_sim::{WalkRng, simulate_walk};
 
 use crate::model_file::ModelSet;
+use crate::sampler::lambda;
 
 /// The paper's grid.
 pub const TAUS: [f64; 4] = [1.0, 5.0, 25.0, 125.0];
@@ -39,12 +45,73 @@ pub struct Metric {
     pub w1: f64,
 }
 
+/// model / simulator − 1 for a mean, with its standard error (delta method).
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct RatioError {
+    pub value: f64,
+    pub se: f64,
+    /// Whether the simulator's mean is known to 10 %: at large τ the sphere statistic
+    /// rests on the rare events within ~1/τ of the boundary, and 10⁴ walks see too few of
+    /// them for a ratio to mean anything.
+    pub resolved: bool,
+}
+
 #[derive(Clone, Debug, Serialize)]
 pub struct SettingReport {
     pub tau: f64,
     pub g: f64,
     pub albedo: f64,
     pub metrics: Vec<Metric>,
+    /// E[Λ(N)], model over simulator.
+    pub nee_weight: RatioError,
+    /// E[[`sphere_nee`]], model over simulator.
+    pub sphere_nee: RatioError,
+}
+
+/// Light directions of [`sphere_nee`]: a Fibonacci sphere (even, deterministic).
+const NEE_DIRECTIONS: usize = 48;
+
+fn fibonacci_direction(i: usize) -> DVec3 {
+    let z = 1.0 - (2.0 * i as f64 + 1.0) / NEE_DIRECTIONS as f64;
+    let r = (1.0 - z * z).max(0.0).sqrt();
+    let phi = i as f64 * std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    DVec3::new(r * phi.cos(), r * phi.sin(), z)
+}
+
+/// The NEE of a walk's representative event (X, W) if the walk's sphere were the medium
+/// and lights came from every direction alike: Λ(N) · mean_L ρ_g(W·L) e^{−τ·s(X, L)}, s
+/// the distance from X to the unit sphere along L. It weighs the events near the sphere's
+/// boundary — those whose shadow rays get out — the way a renderer does.
+pub fn sphere_nee(tau: f64, g: f64, albedo: f64, n: u64, x: DVec3, w: DVec3) -> f64 {
+    let x2 = x.length_squared();
+    let mut sum = 0.0;
+    for i in 0..NEE_DIRECTIONS {
+        let l = fibonacci_direction(i);
+        let xl = x.dot(l);
+        let s = -xl + (xl * xl + 1.0 - x2).max(0.0).sqrt();
+        sum += scatter_sim::phase::hg_pdf(g, w.dot(l).clamp(-1.0, 1.0)) * (-tau * s).exp();
+    }
+    lambda(albedo, n) * sum / NEE_DIRECTIONS as f64
+}
+
+/// Mean and standard error of the mean.
+fn mean_se(v: &[f64]) -> (f64, f64) {
+    let n = v.len().max(2) as f64;
+    let m = v.iter().sum::<f64>() / n;
+    let var = v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (n - 1.0);
+    (m, (var / n).sqrt())
+}
+
+/// model / simulator − 1 of two samples' means, with the delta method's standard error.
+pub fn ratio_error(model: &[f64], sim: &[f64]) -> RatioError {
+    let (mm, sm) = mean_se(model);
+    let (ms, ss) = mean_se(sim);
+    let ms = if ms == 0.0 { f64::MIN_POSITIVE } else { ms };
+    RatioError {
+        value: mm / ms - 1.0,
+        se: ((sm / ms).powi(2) + (ss * mm / (ms * ms)).powi(2)).sqrt(),
+        resolved: ss < 0.1 * ms.abs(),
+    }
 }
 
 impl SettingReport {
@@ -56,15 +123,23 @@ impl SettingReport {
     }
 }
 
-/// Samples of every quantity for one setting, one column per entry of [`QUANTITIES`].
+/// Samples of every quantity for one setting, one column per entry of [`QUANTITIES`],
+/// and per walk Λ(N) and [`sphere_nee`].
 #[derive(Clone, Debug, Default)]
-pub struct Columns(pub [Vec<f64>; 8]);
+pub struct Columns(pub [Vec<f64>; 8], pub Vec<f64>, pub Vec<f64>);
 
 impl Columns {
-    fn from_walks(walks: Vec<(u64, CanonicalExit, DVec3, DVec3)>) -> Self {
+    fn from_walks(
+        walks: Vec<(u64, CanonicalExit, DVec3, DVec3)>,
+        tau: f64,
+        g: f64,
+        albedo: f64,
+    ) -> Self {
         let mut c = Columns::default();
         for (n, e, x, w) in walks {
             c.push(n, e.cos_theta, e.alpha, e.beta, x, w);
+            c.1.push(lambda(albedo, n));
+            c.2.push(sphere_nee(tau, g, albedo, n, x, w));
         }
         c
     }
@@ -96,7 +171,7 @@ pub fn simulator_columns(tau: f64, g: f64, albedo: f64, count: usize, seed: u64)
         })
         .map(|w| (w.n, w.exit, w.event_pos, w.event_dir))
         .collect();
-    Columns::from_walks(walks)
+    Columns::from_walks(walks, tau, g, albedo)
 }
 
 /// `count` model walks at fixed conditions.
@@ -116,7 +191,7 @@ pub fn model_columns(
         })
         .map(|w| (w.n, w.exit, w.event_pos, w.event_dir))
         .collect();
-    Columns::from_walks(walks)
+    Columns::from_walks(walks, tau, g, albedo)
 }
 
 /// Compares the columns; `which` selects quantities by index into [`QUANTITIES`].
@@ -158,6 +233,8 @@ pub fn evaluate_setting(
         g,
         albedo,
         metrics: compare(&model, &sim, &which),
+        nee_weight: ratio_error(&model.1, &sim.1),
+        sphere_nee: ratio_error(&model.2, &sim.2),
     }
 }
 
@@ -201,11 +278,12 @@ pub fn markdown_table(reports: &[SettingReport]) -> String {
     for q in QUANTITIES {
         s += &format!(" {q} KS / W1 |");
     }
+    s += " E[Λ(N)] model/sim − 1 | sphere NEE model/sim − 1 |";
     s += "\n|---|---|---|";
     for _ in QUANTITIES {
         s += "---|";
     }
-    s += "\n";
+    s += "---|---|\n";
     for r in reports {
         s += &format!("| {} | {} | {} |", r.tau, r.g, r.albedo);
         for q in QUANTITIES {
@@ -214,7 +292,54 @@ pub fn markdown_table(reports: &[SettingReport]) -> String {
                 None => s += " – |",
             }
         }
+        for r in [r.nee_weight, r.sphere_nee] {
+            if r.resolved {
+                s += &format!(" {:+.1} % ± {:.1} % |", 100.0 * r.value, 100.0 * r.se);
+            } else {
+                s += " too rare to resolve |";
+            }
+        }
         s += "\n";
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// For an isotropic phase function and an event at the centre every direction sees
+    /// s = 1 and ρ = 1/4π: the statistic is Λ(N)·e^{−τ}/4π exactly, whatever W.
+    #[test]
+    fn sphere_nee_of_the_centre_is_analytic() {
+        let v = sphere_nee(2.0, 0.0, 0.9, 5, DVec3::ZERO, DVec3::X);
+        let expect = lambda(0.9, 5) * (-2.0f64).exp() / (4.0 * std::f64::consts::PI);
+        assert!((v - expect).abs() < 1e-12 * expect, "{v} vs {expect}");
+    }
+
+    /// The Fibonacci directions are unit vectors spread over the sphere: their mean is
+    /// ~0 (a quadrature of the odd function L: |mean| < 0.05 for 48 points) and the
+    /// mean of L_z² is 1/3 within 0.01.
+    #[test]
+    fn light_directions_cover_the_sphere() {
+        let dirs: Vec<DVec3> = (0..NEE_DIRECTIONS).map(fibonacci_direction).collect();
+        let mean = dirs.iter().sum::<DVec3>() / NEE_DIRECTIONS as f64;
+        let z2 = dirs.iter().map(|d| d.z * d.z).sum::<f64>() / NEE_DIRECTIONS as f64;
+        assert!(dirs.iter().all(|d| (d.length() - 1.0).abs() < 1e-12));
+        assert!(mean.length() < 0.05, "mean {mean}");
+        assert!((z2 - 1.0 / 3.0).abs() < 0.01, "E z² {z2}");
+    }
+
+    /// The simulator against itself (independent streams): the two ratios are z-scores of
+    /// a difference of independent means, so each lies within 4 of its standard error
+    /// (a 6e-5 chance to fail by noise), at a setting where both quantities vary a lot.
+    #[test]
+    fn simulator_against_itself_gives_ratios_within_noise() {
+        let (tau, g, albedo) = (5.0, 0.4, 0.95);
+        let a = simulator_columns(tau, g, albedo, 20_000, 1);
+        let b = simulator_columns(tau, g, albedo, 20_000, 2);
+        for r in [ratio_error(&a.1, &b.1), ratio_error(&a.2, &b.2)] {
+            assert!(r.se > 0.0 && r.value.abs() < 4.0 * r.se, "{r:?}");
+        }
+    }
 }
