@@ -174,8 +174,9 @@ fn bounce() {
     }
     ps.pos += ps.dir * t;
     ps.free = max(ps.free - t, 0.0);
-    if any(ps.pos < nodes[0].lo) || any(ps.pos > nodes[0].hi) {
-        // Outside the mesh's (padded) bounding box: not inside after all (the CPU's
+    let pad = params.consts.z; // eps, as in Geometry::within_bounds
+    if any(ps.pos < nodes[0].lo - pad) || any(ps.pos > nodes[0].hi + pad) {
+        // Outside the mesh's bounding box grown by eps: not inside after all (the CPU's
         // safety net, integrator/mod.rs).
         stats[C_LEAKS] += 1u;
         p_inside = false;

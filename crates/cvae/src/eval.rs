@@ -123,25 +123,34 @@ impl SettingReport {
     }
 }
 
+/// A walk's N, exit and representative event (X, W).
+pub type WalkSummary = (u64, CanonicalExit, DVec3, DVec3);
+
 /// Samples of every quantity for one setting, one column per entry of [`QUANTITIES`],
-/// and per walk Λ(N) and [`sphere_nee`].
+/// and the walks they came from.
 #[derive(Clone, Debug, Default)]
-pub struct Columns(pub [Vec<f64>; 8], pub Vec<f64>, pub Vec<f64>);
+pub struct Columns(pub [Vec<f64>; 8], pub Vec<WalkSummary>);
 
 impl Columns {
-    fn from_walks(
-        walks: Vec<(u64, CanonicalExit, DVec3, DVec3)>,
-        tau: f64,
-        g: f64,
-        albedo: f64,
-    ) -> Self {
+    fn from_walks(walks: Vec<WalkSummary>) -> Self {
         let mut c = Columns::default();
-        for (n, e, x, w) in walks {
+        for &(n, e, x, w) in &walks {
             c.push(n, e.cos_theta, e.alpha, e.beta, x, w);
-            c.1.push(lambda(albedo, n));
-            c.2.push(sphere_nee(tau, g, albedo, n, x, w));
         }
+        c.1 = walks;
         c
+    }
+
+    /// Per walk, the samples of the two expectations: Λ(N) and [`sphere_nee`]. Only the
+    /// grid's comparison needs them (not the plots), so they are not columns.
+    pub fn nee_samples(&self, tau: f64, g: f64, albedo: f64) -> [Vec<f64>; 2] {
+        let weight = self.1.iter().map(|&(n, ..)| lambda(albedo, n)).collect();
+        let sphere = self
+            .1
+            .iter()
+            .map(|&(n, _, x, w)| sphere_nee(tau, g, albedo, n, x, w))
+            .collect();
+        [weight, sphere]
     }
 
     fn push(&mut self, n: u64, cos: f64, alpha: f64, beta: f64, x: glam::DVec3, w: glam::DVec3) {
@@ -171,7 +180,7 @@ pub fn simulator_columns(tau: f64, g: f64, albedo: f64, count: usize, seed: u64)
         })
         .map(|w| (w.n, w.exit, w.event_pos, w.event_dir))
         .collect();
-    Columns::from_walks(walks, tau, g, albedo)
+    Columns::from_walks(walks)
 }
 
 /// `count` model walks at fixed conditions.
@@ -191,7 +200,7 @@ pub fn model_columns(
         })
         .map(|w| (w.n, w.exit, w.event_pos, w.event_dir))
         .collect();
-    Columns::from_walks(walks, tau, g, albedo)
+    Columns::from_walks(walks)
 }
 
 /// Compares the columns; `which` selects quantities by index into [`QUANTITIES`].
@@ -223,6 +232,10 @@ pub fn evaluate_setting(
 ) -> SettingReport {
     let sim = simulator_columns(tau, g, albedo, samples, seed);
     let model = model_columns(m, tau, g, albedo, samples, seed);
+    let (model_nee, sim_nee) = (
+        model.nee_samples(tau, g, albedo),
+        sim.nee_samples(tau, g, albedo),
+    );
     let which: Vec<usize> = if albedo == 1.0 {
         (0..QUANTITIES.len()).collect()
     } else {
@@ -233,8 +246,8 @@ pub fn evaluate_setting(
         g,
         albedo,
         metrics: compare(&model, &sim, &which),
-        nee_weight: ratio_error(&model.1, &sim.1),
-        sphere_nee: ratio_error(&model.2, &sim.2),
+        nee_weight: ratio_error(&model_nee[0], &sim_nee[0]),
+        sphere_nee: ratio_error(&model_nee[1], &sim_nee[1]),
     }
 }
 
@@ -336,9 +349,9 @@ mod tests {
     #[test]
     fn simulator_against_itself_gives_ratios_within_noise() {
         let (tau, g, albedo) = (5.0, 0.4, 0.95);
-        let a = simulator_columns(tau, g, albedo, 20_000, 1);
-        let b = simulator_columns(tau, g, albedo, 20_000, 2);
-        for r in [ratio_error(&a.1, &b.1), ratio_error(&a.2, &b.2)] {
+        let a = simulator_columns(tau, g, albedo, 20_000, 1).nee_samples(tau, g, albedo);
+        let b = simulator_columns(tau, g, albedo, 20_000, 2).nee_samples(tau, g, albedo);
+        for r in [ratio_error(&a[0], &b[0]), ratio_error(&a[1], &b[1])] {
             assert!(r.se > 0.0 && r.value.abs() < 4.0 * r.se, "{r:?}");
         }
     }
