@@ -76,8 +76,16 @@ fn expm1(x: f32) -> f32 {
     return exp(x) - 1.0;
 }
 
+/// softplus(x) = max(x, 0) + ln(1 + u), u = e^−|x| ∈ (0, 1], with ln(1 + u) = u·q(u)
+/// by the CPU decoders' polynomial (cvae::fastmath::LN1P_Q): no log, and no loss of
+/// ln(1 + u)'s relative precision for tiny u.
 fn softplus(x: f32) -> f32 {
-    return max(x, 0.0) + log(1.0 + exp(-abs(x)));
+    let u = exp(-abs(x));
+    let u2 = u * u;
+    let u4 = u2 * u2;
+    let q03 = fma(u, -0.49999445, 0.999999966) + u2 * fma(u, -0.24835399, 0.33318122);
+    let q47 = fma(u, -0.13602248, 0.19076881) + u2 * fma(u, -0.029074065, 0.077516086);
+    return max(x, 0.0) + u * (q03 + u4 * (q47 + u4 * 0.005126102));
 }
 
 // ---- Henyey–Greenstein (convention of scatter_sim::phase) ----
