@@ -22,10 +22,10 @@ enum What {
     /// and the projected time of the default 2^22-walk dataset.
     Sim {
         /// Walks per measurement (the authors' condition distribution, seed 1).
-        #[arg(long, default_value_t = 16384)]
+        #[arg(long, default_value_t = 16384, value_parser = clap::value_parser!(u64).range(1..))]
         walks: u64,
         /// Threads of the parallel measurement (default: all cores).
-        #[arg(long)]
+        #[arg(long, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=1024))]
         threads: Option<usize>,
     },
     /// PT vs ST-CVAE on the bunny at the teaser's density ladder σ_t = k·(150, 187.5, 125):

@@ -21,15 +21,16 @@ pub struct Args {
     /// Scene the ladder scales (its σ_t is replaced by k·(150, 187.5, 125)).
     #[arg(long, default_value = "configs/scenes/bunny.toml")]
     scene: PathBuf,
-    /// Density multipliers.
-    #[arg(long, value_delimiter = ',', default_value = "1,2,4,8")]
+    /// Density multipliers (each in (0, 1000]).
+    #[arg(long, value_delimiter = ',', default_value = "1,2,4,8", value_parser = parse_k)]
     k: Vec<f64>,
-    /// Samples per pixel of each integrator (split over two seeds).
-    #[arg(long, default_value_t = 16)]
+    /// Samples per pixel of each integrator (split over two seeds, so at least 2).
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(2..))]
     spp: u32,
     /// Image side in pixels.
-    #[arg(long, default_value_t = 64)]
+    #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u32).range(1..=4096))]
     size: u32,
+    /// Model file for ST-CVAE (default: models/default.stcvae).
     #[arg(long)]
     model: Option<PathBuf>,
     /// Thin-region threshold of ST-CVAE (overrides the scene's).
@@ -77,6 +78,18 @@ fn save_images(dir: &std::path::Path, k: f64, pt: &Pair, st: &Pair) -> Result<()
     }
     write_png(&dir.join(format!("k{k}_z.png")), &z, 1.0)?;
     Ok(())
+}
+
+fn parse_k(s: &str) -> Result<f64, String> {
+    let k: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{s}' is not a number"))?;
+    if k > 0.0 && k <= 1000.0 {
+        Ok(k)
+    } else {
+        Err(format!("{k} is out of range: allowed (0, 1000]"))
+    }
 }
 
 fn run_pair(a: &Args, engine: &Engine, kind: IntegratorKind, k: f64) -> Result<Pair> {

@@ -2,7 +2,7 @@
 
 use std::fs::File;
 use std::io::{BufRead, BufReader, Write};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use scatter_sim::dataset::{self, DatasetReader, Header, Piece};
@@ -20,25 +20,73 @@ use crate::progress;
     given. Binary inputs can be written as CSV (--out x.csv); CSV inputs are joined as text."
 )]
 pub struct Args {
-    /// Input files: all binary datasets, or all CSV files.
+    /// Input files: renders (.exr, from `stcvae render`), or binary datasets, or CSV files;
+    /// one kind per call.
     #[arg(required = true)]
     inputs: Vec<PathBuf>,
-    /// Output file (.csv for CSV, else binary).
+    /// Output: for renders the stem of OUT.exr and OUT.png; for datasets the file (.csv for
+    /// CSV, else binary).
     #[arg(long)]
     out: PathBuf,
 }
 
-pub fn run(a: Args) -> Result<()> {
-    if a.inputs.contains(&a.out) {
-        bail!("--out {} is also an input", a.out.display());
+/// The file a path names, for comparing paths written differently (`./a.exr`, `a.exr`);
+/// an output that does not exist yet is resolved through its parent directory.
+fn identity(p: &Path) -> PathBuf {
+    if let Ok(c) = p.canonicalize() {
+        return c;
     }
+    match (p.parent(), p.file_name()) {
+        (Some(dir), Some(name)) => {
+            let dir = if dir.as_os_str().is_empty() {
+                Path::new(".")
+            } else {
+                dir
+            };
+            dir.canonicalize()
+                .map_or_else(|_| p.to_path_buf(), |d| d.join(name))
+        }
+        _ => p.to_path_buf(),
+    }
+}
+
+/// Refuses an input given twice (it would count twice) and outputs that overwrite an input.
+fn check_paths(inputs: &[PathBuf], outputs: &[PathBuf]) -> Result<()> {
+    let ids: Vec<PathBuf> = inputs.iter().map(|p| identity(p)).collect();
+    for (i, id) in ids.iter().enumerate() {
+        if let Some(j) = ids[..i].iter().position(|x| x == id) {
+            bail!(
+                "{} and {} are the same file: each input may be given once",
+                inputs[j].display(),
+                inputs[i].display()
+            );
+        }
+    }
+    for o in outputs {
+        if let Some(i) = ids.iter().position(|x| *x == identity(o)) {
+            bail!(
+                "--out would overwrite the input {}: choose another output name",
+                inputs[i].display()
+            );
+        }
+    }
+    Ok(())
+}
+
+pub fn run(a: Args) -> Result<()> {
     let is_exr = |p: &PathBuf| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr"));
     let exr_inputs = a.inputs.iter().filter(|p| is_exr(p)).count();
     if exr_inputs == a.inputs.len() {
+        let stem = a.out.with_extension("");
+        check_paths(
+            &a.inputs,
+            &[stem.with_extension("exr"), stem.with_extension("png")],
+        )?;
         return merge_images(&a);
     } else if exr_inputs > 0 {
         bail!("mixed inputs: merge either renders (.exr) or datasets, not both");
     }
+    check_paths(&a.inputs, std::slice::from_ref(&a.out))?;
     let csv_inputs = a.inputs.iter().filter(|p| dataset::is_csv(p)).count();
     match csv_inputs {
         0 => merge_binary(&a),

@@ -47,8 +47,11 @@ pub struct SampleArgs {
     /// Single-scattering albedo φ (steers the representative event).
     #[arg(long, allow_hyphen_values = true)]
     albedo: f64,
+    /// Number of model walks to draw.
     #[arg(long, default_value_t = 10_000)]
     samples: u64,
+    /// Random seed: walk i uses the stream (seed, i), so a run is reproducible whatever
+    /// the thread count.
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// Output CSV file.
@@ -70,6 +73,7 @@ pub fn sample(a: SampleArgs) -> Result<()> {
         );
     }
     let m = load_model(a.model.as_deref())?;
+    warn_outside_training(&m, c);
     let walks: Vec<_> = (0..a.samples)
         .into_par_iter()
         .map(|i| {
@@ -108,8 +112,27 @@ pub struct EvalArgs {
     /// Samples per setting, for the model and for the simulator each.
     #[arg(long, default_value_t = 10_000)]
     samples: usize,
+    /// Random seed; setting i of the grid uses seed + i for the model and the simulator.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+}
+
+/// The models extrapolate outside the conditions they were trained on; say so once.
+fn warn_outside_training(m: &cvae::ModelSet, c: Conditions) {
+    let t = &m.training;
+    let outside = |v: f64, r: [f64; 2]| v < r[0] - 1e-6 || v > r[1] + 1e-6;
+    for (name, v, r) in [
+        ("tau", c.tau, t.tau_range),
+        ("g", c.g, t.g_range),
+        ("albedo", c.albedo, t.albedo_range),
+    ] {
+        if outside(v, r) {
+            eprintln!(
+                "warning: --{name} {v} lies outside the model's training range [{}, {}]: the samples are an extrapolation",
+                r[0], r[1]
+            );
+        }
+    }
 }
 
 #[derive(serde::Serialize)]
@@ -144,6 +167,17 @@ pub fn evaluate_into(
         samples,
         seed,
     };
+    if samples < 2 {
+        bail!(
+            "--samples {samples} is out of range: allowed [2, inf) (the KS and moment tests need two samples)"
+        );
+    }
+    if out.exists() && !out.is_dir() {
+        bail!(
+            "--out {}: exists and is not a directory (eval writes metrics.md, metrics.json and plots into a directory)",
+            out.display()
+        );
+    }
     let m = load_model(a.model.as_deref())?;
     let model_name = a
         .model

@@ -32,9 +32,11 @@ pub struct Args {
     /// Next-event estimation to the directional lights (true/false).
     #[arg(long)]
     pub nee: Option<bool>,
-    /// Samples per pixel.
-    #[arg(long)]
+    /// Samples per pixel (overrides render.spp).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     pub spp: Option<u32>,
+    /// Random seed (overrides render.seed): renders with different seeds are independent
+    /// and can be averaged with `stcvae merge`.
     #[arg(long)]
     pub seed: Option<u64>,
     /// Model file for stcvae (default: models/default.stcvae).
@@ -165,15 +167,49 @@ pub fn prepare(
     })
 }
 
+/// `--out` is a path stem (OUT.exr, OUT.png, OUT.json); checked before rendering so that a
+/// long render is not lost to an unwritable name.
+fn check_out_stem(out: &Path) -> Result<()> {
+    let text = out.as_os_str().to_string_lossy();
+    if out.file_name().is_none()
+        || text.ends_with('/')
+        || text.ends_with(std::path::MAIN_SEPARATOR)
+        || out.is_dir()
+    {
+        bail!(
+            "--out {}: names a directory; give a path stem such as {}/render (writes render.exr, .png, .json)",
+            out.display(),
+            text.trim_end_matches(['/', std::path::MAIN_SEPARATOR])
+        );
+    }
+    for dir in out.ancestors().skip(1) {
+        if dir.as_os_str().is_empty() {
+            break;
+        }
+        if dir.exists() {
+            if !dir.is_dir() {
+                bail!(
+                    "--out {}: {} exists and is not a directory",
+                    out.display(),
+                    dir.display()
+                );
+            }
+            break;
+        }
+    }
+    Ok(())
+}
+
 pub fn run(a: Args) -> Result<()> {
     if !(a.exposure > 0.0 && a.exposure.is_finite()) {
         bail!("--exposure must be a positive number");
     }
     if let Some(b) = a.time_budget
-        && !(b > 0.0)
+        && !(b > 0.0 && b.is_finite())
     {
-        bail!("--time-budget must be positive (seconds)");
+        bail!("--time-budget {b} is out of range: allowed (0, inf) seconds");
     }
+    check_out_stem(&a.out)?;
     let p = prepare(&a.scene, a.integrator, a.nee, a.model.as_deref(), |f| {
         if let Some(s) = a.spp {
             f.render.spp = s;

@@ -206,6 +206,106 @@ fn render_writes_exr_png_json_and_merge_averages_by_spp() {
         d.path().join("x").to_str().unwrap(),
     ]));
     assert!(e.contains("different scenes"), "{e}");
+    // The same render given twice (spelt two ways) would count twice: refused.
+    let a_exr = a.with_extension("exr");
+    let a_dot = d.path().join(".").join("a.exr");
+    let e = fails(&stcvae(&[
+        "merge",
+        a_exr.to_str().unwrap(),
+        a_dot.to_str().unwrap(),
+        "--out",
+        d.path().join("x").to_str().unwrap(),
+    ]));
+    assert!(e.contains("same file"), "{e}");
+    // `--out a` writes a.exr: it would overwrite the input, so it is refused and the
+    // input is untouched.
+    let before = std::fs::read(&a_exr).unwrap();
+    let e = fails(&stcvae(&[
+        "merge",
+        a_exr.to_str().unwrap(),
+        b.with_extension("exr").to_str().unwrap(),
+        "--out",
+        a.to_str().unwrap(),
+    ]));
+    assert!(e.contains("overwrite"), "{e}");
+    assert_eq!(std::fs::read(&a_exr).unwrap(), before);
+    // A render whose tag claims 0 spp cannot be weighted: refused, not a NaN image.
+    let z = d.path().join("z.exr");
+    render_gpu::image_io::write_exr(
+        &z,
+        &ia,
+        &render_gpu::image_io::RenderTag {
+            spp: 0,
+            scene_hash: tag_of(&a_exr),
+        },
+    )
+    .unwrap();
+    let e = fails(&stcvae(&[
+        "merge",
+        z.to_str().unwrap(),
+        "--out",
+        d.path().join("zm").to_str().unwrap(),
+    ]));
+    assert!(e.contains("0 spp"), "{e}");
+    assert!(!d.path().join("zm.exr").exists());
+}
+
+fn tag_of(p: &Path) -> u64 {
+    render_gpu::image_io::read_exr(p)
+        .unwrap()
+        .1
+        .unwrap()
+        .scene_hash
+}
+
+/// Arguments that cannot work are refused before any work, naming the argument.
+#[test]
+fn bad_arguments_name_the_argument() {
+    let d = tempfile::tempdir().unwrap();
+    let file = d.path().join("file");
+    std::fs::write(&file, b"x").unwrap();
+    let cases: [(Vec<String>, &str); 6] = [
+        (vec!["render".into(), "--spp".into(), "0".into()], "--spp"),
+        (
+            vec![
+                "render".into(),
+                "--out".into(),
+                format!("{}/", d.path().display()),
+            ],
+            "names a directory",
+        ),
+        (
+            vec![
+                "render".into(),
+                "--out".into(),
+                file.join("x").display().to_string(),
+            ],
+            "is not a directory",
+        ),
+        (
+            vec![
+                "eval".into(),
+                "--samples".into(),
+                "1".into(),
+                "--out".into(),
+                d.path().join("ev").display().to_string(),
+            ],
+            "--samples",
+        ),
+        (
+            vec!["bench".into(), "render".into(), "--k".into(), "0".into()],
+            "--k",
+        ),
+        (
+            vec!["bench".into(), "sim".into(), "--walks".into(), "0".into()],
+            "--walks",
+        ),
+    ];
+    for (args, want) in cases {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let e = fails(&stcvae(&args));
+        assert!(e.contains(want), "{args:?}: {e}");
+    }
 }
 
 #[test]

@@ -32,7 +32,9 @@ pub enum ModelError {
         found: u32,
         supported: u32,
     },
-    #[error("{path}: truncated model file ({found} bytes, {expected} expected)")]
+    #[error(
+        "{path}: the model file has {found} bytes where its header promises {expected}: truncated or padded"
+    )]
     Truncated {
         path: PathBuf,
         expected: usize,
@@ -224,6 +226,7 @@ impl ModelSet {
             return Err(ModelError::Checksum { path: p() });
         }
         let meta = meta.map_err(|e| invalid(format!("metadata: {e}")))?;
+        check_training(&meta.training).map_err(invalid)?;
         if meta.feature_version != features::FEATURE_VERSION {
             return Err(invalid(format!(
                 "feature version {} (this build uses {})",
@@ -284,8 +287,11 @@ impl ModelSet {
                 if weight.len() != inputs * outputs || bias.len() != outputs {
                     return Err(invalid("weights end early".into()));
                 }
-                if !weight.iter().chain(&bias).all(|v| v.is_finite()) {
-                    return Err(invalid(format!("{}: non-finite weight", spec.name)));
+                if !weight.iter().chain(&bias).all(|v| v.abs() <= MAX_WEIGHT) {
+                    return Err(invalid(format!(
+                        "{}: a weight is non-finite or beyond ±{MAX_WEIGHT:e}",
+                        spec.name
+                    )));
                 }
                 layers.push(Dense::new(inputs, outputs, weight, bias));
             }
@@ -311,6 +317,37 @@ impl ModelSet {
             event,
         })
     }
+}
+
+/// Largest weight magnitude accepted. Trained decoders' weights are O(1); far larger ones
+/// mean a corrupt file and would overflow f32 activations into NaN samples.
+pub const MAX_WEIGHT: f32 = 1e4;
+
+/// The training ranges steer the renderers' warnings and the sphere-step cap (τ_max), so
+/// they must be ordered and inside the project's parameter ranges.
+fn check_training(t: &TrainingInfo) -> Result<(), String> {
+    use scatter_sim::ranges::{G_MAX, TAU_LIMIT};
+    // The slack absorbs the f32 storage of the training rows (0.999f32 > 0.999).
+    let ok = |r: [f64; 2], lo: f64, hi: f64| lo - 1e-6 <= r[0] && r[0] <= r[1] && r[1] <= hi + 1e-6;
+    if !(ok(t.tau_range, 0.0, TAU_LIMIT) && t.tau_range[1] > 0.0) {
+        return Err(format!(
+            "training.tau_range = {:?}: expected 0 <= lo <= hi <= {TAU_LIMIT}, hi > 0",
+            t.tau_range
+        ));
+    }
+    if !ok(t.g_range, -G_MAX, G_MAX) {
+        return Err(format!(
+            "training.g_range = {:?}: expected -{G_MAX} <= lo <= hi <= {G_MAX}",
+            t.g_range
+        ));
+    }
+    if !ok(t.albedo_range, 0.0, 1.0) {
+        return Err(format!(
+            "training.albedo_range = {:?}: expected 0 <= lo <= hi <= 1",
+            t.albedo_range
+        ));
+    }
+    Ok(())
 }
 
 fn weight_count(m: &Metadata) -> usize {

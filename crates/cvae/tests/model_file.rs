@@ -121,6 +121,37 @@ fn non_finite_weights_are_refused() {
     m.path.layers[1].weight[3] = f32::NAN;
     let e = ModelSet::from_bytes(&m.to_bytes(), Path::new("nan.stcvae")).unwrap_err();
     assert!(e.to_string().contains("non-finite"), "{e}");
+    // Finite but absurd: overflows f32 activations.
+    let mut m = random_models(3, 1.0);
+    m.event.layers[0].bias[0] = 1e30;
+    let e = ModelSet::from_bytes(&m.to_bytes(), Path::new("big.stcvae")).unwrap_err();
+    assert!(e.to_string().contains("beyond"), "{e}");
+}
+
+/// The training ranges steer the renderers' τ cap and warnings: unordered or
+/// out-of-range ones are refused by name even with a valid checksum.
+#[test]
+fn bad_training_ranges_are_refused() {
+    let cases: [(fn(&mut TrainingInfo), &str); 4] = [
+        (|t| t.tau_range = [300.0, 0.0], "tau_range"),
+        (|t| t.tau_range = [0.0, 1e39], "tau_range"),
+        (|t| t.g_range = [-2.0, 0.5], "g_range"),
+        (|t| t.albedo_range = [0.5, 0.2], "albedo_range"),
+    ];
+    for (edit, field) in cases {
+        let mut m = random_models(5, 1.0);
+        edit(&mut m.training);
+        let e = ModelSet::from_bytes(&m.to_bytes(), Path::new("r.stcvae")).unwrap_err();
+        assert!(
+            matches!(e, ModelError::Invalid { .. }) && e.to_string().contains(field),
+            "{e}"
+        );
+    }
+    // One byte too many reads as a size mismatch, not as "truncated" alone.
+    let mut long = random_models(5, 1.0).to_bytes();
+    long.push(0);
+    let e = ModelSet::from_bytes(&long, Path::new("r.stcvae")).unwrap_err();
+    assert!(e.to_string().contains("truncated or padded"), "{e}");
 }
 
 /// Wild weights (gain 40) make the decoders return absurd values; the sampler must

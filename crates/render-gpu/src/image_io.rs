@@ -172,6 +172,24 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
                 p.display()
             ))
         })?;
+        if tag.spp == 0 {
+            return Err(RenderError::Image(format!(
+                "{}: the render tag says 0 spp: nothing to weight it by",
+                p.display()
+            )));
+        }
+        if let Some(i) = img
+            .pixels
+            .iter()
+            .position(|px| !px.iter().all(|v| v.is_finite()))
+        {
+            return Err(RenderError::Image(format!(
+                "{}: pixel ({}, {}) is not finite: refusing to spread it into the merge",
+                p.display(),
+                i % img.width,
+                i / img.width
+            )));
+        }
         match &mut acc {
             None => {
                 let sum = img
@@ -206,7 +224,9 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
                         s[c] += px[c] as f64 * tag.spp as f64;
                     }
                 }
-                t0.spp += tag.spp;
+                t0.spp = t0.spp.checked_add(tag.spp).ok_or_else(|| {
+                    RenderError::Image(format!("{}: the spp total overflows", p.display()))
+                })?;
             }
         }
     }

@@ -93,10 +93,35 @@ pub struct Environment {
     pub map: Option<RgbImage>,
 }
 
+/// Every pixel of an environment map must be a radiance the renderers can sum: finite,
+/// non-negative and within the scene file's radiance bound.
+fn check_radiance_map(m: &RgbImage) -> Result<(), String> {
+    let max = crate::scene::MAX_RADIANCE as f32;
+    for (i, px) in m.pixels.iter().enumerate() {
+        if let Some(v) = px.iter().find(|v| !(**v >= 0.0 && **v <= max)) {
+            return Err(format!(
+                "environment pixel ({}, {}) = {v} is out of range: allowed [0, {max:e}]",
+                i % m.width,
+                i / m.width
+            ));
+        }
+    }
+    if m.width == 0 || m.height == 0 {
+        return Err("the environment map is empty".into());
+    }
+    Ok(())
+}
+
 impl Environment {
     pub fn new(d: &EnvironmentDesc, scene_dir: &Path) -> Result<Self, RenderError> {
         let map = match &d.file {
-            Some(f) => Some(read_exr(&scene_dir.join(f))?.0),
+            Some(f) => {
+                let path = scene_dir.join(f);
+                let map = read_exr(&path)?.0;
+                check_radiance_map(&map)
+                    .map_err(|e| RenderError::Image(format!("{}: {e}", path.display())))?;
+                Some(map)
+            }
             None => None,
         };
         let radiance = match (d.radiance, &map) {

@@ -38,14 +38,49 @@ impl TriMesh {
     }
 
     /// Scales the mesh so that its bounding-box height (y extent) is `height` and centres
-    /// the bounding box at the origin.
-    pub fn normalise_height(&mut self, height: f32) {
+    /// the bounding box at the origin. A mesh with no extent along y cannot be scaled.
+    pub fn normalise_height(&mut self, height: f32) -> Result<(), String> {
         let (lo, hi) = self.bounds();
         let centre = (lo + hi) * 0.5;
-        let s = height / (hi.y - lo.y).max(f32::MIN_POSITIVE);
+        let extent = hi.y - lo.y;
+        if !(extent > 0.0) {
+            return Err(
+                "the mesh is flat along y (zero bounding-box height), so `height` cannot scale it"
+                    .into(),
+            );
+        }
+        let s = height / extent;
         for p in &mut self.positions {
             *p = (*p - centre) * s;
         }
+        Ok(())
+    }
+
+    /// The object must fit the renderers' single-precision arithmetic: every coordinate
+    /// within ±`max`, the bounding box's largest side at least `min_size`, and a volume
+    /// that is not negligible next to that box (a closed but flat surface has no inside).
+    pub fn check_scale(&self, min_size: f32, max: f32) -> Result<(), String> {
+        let (lo, hi) = self.bounds();
+        if !(lo.abs().max_element() <= max && hi.abs().max_element() <= max) {
+            return Err(format!(
+                "the mesh's bounding box [{lo}, {hi}] reaches beyond ±{max:e} scene units: \
+                 scale it down (object.height)"
+            ));
+        }
+        let side = (hi - lo).max_element();
+        if !(side >= min_size) {
+            return Err(format!(
+                "the mesh is {side:e} scene units across, below the smallest allowed {min_size:e}: \
+                 scale it up (object.height)"
+            ));
+        }
+        let volume = self.signed_volume6().abs() / 6.0;
+        if !(volume > 1e-9 * f64::from(side).powi(3)) {
+            return Err(format!(
+                "the mesh encloses no volume ({volume:e} for a box {side:e} across): it is flat or degenerate"
+            ));
+        }
+        Ok(())
     }
 
     pub fn triangle(&self, i: usize) -> [Vec3; 3] {
@@ -109,6 +144,12 @@ pub fn prepare(mut m: TriMesh) -> Result<TriMesh, String> {
         }
         triangles.push(t);
     }
+    if triangles.is_empty() {
+        return Err(format!(
+            "all {} triangles are degenerate (zero area)",
+            m.triangles.len()
+        ));
+    }
     m = TriMesh {
         positions,
         triangles,
@@ -161,8 +202,14 @@ fn check_closed(m: &TriMesh) -> Result<(), String> {
 
 fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
     let bytes = std::fs::read(path).map_err(|e| RenderError::io(path, e))?;
-    let gltf::Gltf { document, blob } =
-        gltf::Gltf::from_slice(&bytes).map_err(|e| RenderError::mesh(path, e))?;
+    let gltf::Gltf { document, blob } = gltf::Gltf::from_slice(&bytes).map_err(|e| {
+        let what = if bytes.is_empty() {
+            "the file is empty".to_string()
+        } else {
+            e.to_string()
+        };
+        RenderError::mesh(path, format!("not a valid glTF/GLB file: {what}"))
+    })?;
     let dir = path.parent().unwrap_or(Path::new("."));
     let mut buffers: Vec<Vec<u8>> = Vec::new();
     for b in document.buffers() {
@@ -196,7 +243,19 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
     };
     let mut stack: Vec<(gltf::Node, Mat4)> =
         roots.into_iter().map(|n| (n, Mat4::IDENTITY)).collect();
+    // glTF nodes form a tree: a node reached twice means a cycle (which would loop
+    // forever) or a node with two parents, both invalid.
+    let mut visited = vec![false; document.nodes().len()];
     while let Some((node, parent)) = stack.pop() {
+        if std::mem::replace(&mut visited[node.index()], true) {
+            return Err(RenderError::mesh(
+                path,
+                format!(
+                    "node {} is reached twice: the node hierarchy has a cycle or a node with two parents",
+                    node.index()
+                ),
+            ));
+        }
         let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
         if let Some(m) = node.mesh() {
             for prim in m.primitives() {
@@ -208,6 +267,28 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
                             prim.mode()
                         ),
                     ));
+                }
+                use gltf::accessor::{DataType, Dimensions};
+                let positions = prim
+                    .get(&gltf::Semantic::Positions)
+                    .ok_or_else(|| RenderError::mesh(path, "a primitive has no POSITION"))?;
+                check_accessor(
+                    &positions,
+                    "POSITION",
+                    &[DataType::F32],
+                    Dimensions::Vec3,
+                    &buffers,
+                )
+                .map_err(|e| RenderError::mesh(path, e))?;
+                if let Some(ind) = prim.indices() {
+                    check_accessor(
+                        &ind,
+                        "indices",
+                        &[DataType::U8, DataType::U16, DataType::U32],
+                        Dimensions::Scalar,
+                        &buffers,
+                    )
+                    .map_err(|e| RenderError::mesh(path, e))?;
                 }
                 let reader = prim.reader(|b| buffers.get(b.index()).map(|v| &v[..]));
                 let base = mesh.positions.len() as u32;
@@ -238,6 +319,57 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
     Ok(mesh)
 }
 
+/// What the `gltf` reader assumes without checking (it panics otherwise): the component
+/// type and shape, a dense accessor, a stride that fits the element, and data that lies
+/// inside its buffer view and buffer.
+fn check_accessor(
+    acc: &gltf::Accessor,
+    what: &str,
+    types: &[gltf::accessor::DataType],
+    dims: gltf::accessor::Dimensions,
+    buffers: &[Vec<u8>],
+) -> Result<(), String> {
+    let id = format!("{what} accessor {}", acc.index());
+    if acc.sparse().is_some() {
+        return Err(format!("{id} is sparse: not supported"));
+    }
+    if !types.contains(&acc.data_type()) || acc.dimensions() != dims {
+        return Err(format!(
+            "{id} has {:?} {:?} components: expected {dims:?} of {types:?}",
+            acc.dimensions(),
+            acc.data_type()
+        ));
+    }
+    let view = acc
+        .view()
+        .ok_or_else(|| format!("{id} has no bufferView"))?;
+    if acc.count() == 0 {
+        return Err(format!("{id} is empty (count 0)"));
+    }
+    let size = acc.size();
+    let stride = view.stride().unwrap_or(size);
+    if stride < size {
+        return Err(format!(
+            "{id}: byteStride {stride} is smaller than its {size}-byte elements"
+        ));
+    }
+    let view_end = view.offset().checked_add(view.length());
+    let end = (acc.count() - 1)
+        .checked_mul(stride)
+        .and_then(|x| x.checked_add(size))
+        .and_then(|x| x.checked_add(acc.offset()))
+        .and_then(|x| x.checked_add(view.offset()));
+    let buffer_len = buffers.get(view.buffer().index()).map_or(0, Vec::len);
+    match (end, view_end) {
+        (Some(end), Some(view_end)) if end <= view_end && view_end <= buffer_len => Ok(()),
+        _ => Err(format!(
+            "{id} reaches past the end of its bufferView {} or buffer {}",
+            view.index(),
+            view.buffer().index()
+        )),
+    }
+}
+
 fn load_obj(path: &Path) -> Result<TriMesh, RenderError> {
     let opts = tobj::LoadOptions {
         triangulate: true,
@@ -245,7 +377,8 @@ fn load_obj(path: &Path) -> Result<TriMesh, RenderError> {
         ignore_points: true,
         ignore_lines: true,
     };
-    let (models, _) = tobj::load_obj(path, &opts).map_err(|e| RenderError::mesh(path, e))?;
+    let (models, _) = tobj::load_obj(path, &opts)
+        .map_err(|e| RenderError::mesh(path, format!("not a valid OBJ file: {e}")))?;
     let mut mesh = TriMesh::default();
     for m in models {
         let base = mesh.positions.len() as u32;

@@ -211,6 +211,15 @@ fn default_min_tau() -> f64 {
 pub const MAX_IMAGE_SIDE: u32 = 16384;
 /// Largest grid resolution accepted (512³ floats = 512 MiB).
 pub const MAX_GRID: u32 = 512;
+/// Largest magnitude of a coordinate, length or extinction in scene units. The renderers
+/// work in f32 with offsets relative to the object's size; beyond this (or below its
+/// inverse for lengths) values collapse or overflow there although they are finite in the
+/// file's f64.
+pub const MAX_SCENE_VALUE: f64 = 1e6;
+/// Smallest object dimension (radius, size, height) accepted.
+pub const MIN_OBJECT_SIZE: f64 = 1e-6;
+/// Largest radiance or irradiance accepted: sums over millions of samples stay finite in f32.
+pub const MAX_RADIANCE: f64 = 1e12;
 
 impl SceneFile {
     /// Parses a scene file; errors name the file and the field.
@@ -239,25 +248,11 @@ impl SceneFile {
 
     /// Checks every range. The message names the field and the allowed range.
     pub fn validate(&self) -> Result<(), String> {
-        let finite3 = |name: &str, v: [f64; 3]| -> Result<(), String> {
-            for (i, x) in v.iter().enumerate() {
-                if !x.is_finite() {
-                    return Err(format!("{name}[{i}] = {x} must be finite"));
-                }
-            }
-            Ok(())
-        };
         let c = &self.camera;
-        finite3("camera.origin", c.origin)?;
-        finite3("camera.target", c.target)?;
-        finite3("camera.up", c.up)?;
-        let fwd = sub(c.target, c.origin);
-        if norm(fwd) < 1e-12 {
-            return Err("camera.target equals camera.origin".into());
-        }
-        if norm(cross(fwd, c.up)) < 1e-9 * norm(fwd) * norm(c.up).max(1e-300) {
-            return Err("camera.up is zero or parallel to the viewing direction".into());
-        }
+        bounded3("camera.origin", c.origin, MAX_SCENE_VALUE)?;
+        bounded3("camera.target", c.target, MAX_SCENE_VALUE)?;
+        bounded3("camera.up", c.up, MAX_SCENE_VALUE)?;
+        camera_basis_f32(c)?;
         if !(c.fov_deg > 0.0 && c.fov_deg < 180.0) {
             return Err(format!(
                 "camera.fov_deg = {} is out of range: allowed (0, 180)",
@@ -290,9 +285,12 @@ impl SceneFile {
             ("object.height", o.height),
         ] {
             if let Some(v) = v
-                && !(v > 0.0 && v.is_finite())
+                && !(MIN_OBJECT_SIZE..=MAX_SCENE_VALUE).contains(&v)
             {
-                return Err(format!("{name} = {v} is out of range: allowed (0, inf)"));
+                return Err(format!(
+                    "{name} = {} is out of range: allowed [{MIN_OBJECT_SIZE:e}, {MAX_SCENE_VALUE:e}]",
+                    num(v)
+                ));
             }
         }
         if o.radius.is_some() && o.shape != Some(Shape::Sphere) {
@@ -305,9 +303,10 @@ impl SceneFile {
         let m = &self.medium;
         for i in 0..3 {
             let s = m.sigma_t[i];
-            if !(s > 0.0 && s.is_finite()) {
+            if !(s > 0.0 && s <= MAX_SCENE_VALUE) {
                 return Err(format!(
-                    "medium.sigma_t[{i}] = {s} is out of range: allowed (0, inf)"
+                    "medium.sigma_t[{i}] = {} is out of range: allowed (0, {MAX_SCENE_VALUE:e}]",
+                    num(s)
                 ));
             }
             let a = m.albedo[i];
@@ -344,14 +343,22 @@ impl SceneFile {
         }
 
         for (i, l) in self.lights.iter().enumerate() {
-            finite3(&format!("light[{i}].direction"), l.direction)?;
-            if norm(l.direction) < 1e-12 {
-                return Err(format!("light[{i}].direction must not be zero"));
+            bounded3(
+                &format!("light[{i}].direction"),
+                l.direction,
+                MAX_SCENE_VALUE,
+            )?;
+            if unit_f32(l.direction).is_none() {
+                return Err(format!(
+                    "light[{i}].direction = {:?} is zero or too short to normalise",
+                    l.direction
+                ));
             }
             for (k, e) in l.irradiance.iter().enumerate() {
-                if !(*e >= 0.0 && e.is_finite()) {
+                if !(*e >= 0.0 && *e <= MAX_RADIANCE) {
                     return Err(format!(
-                        "light[{i}].irradiance[{k}] = {e} is out of range: allowed [0, inf)"
+                        "light[{i}].irradiance[{k}] = {} is out of range: allowed [0, {MAX_RADIANCE:e}]",
+                        num(*e)
                     ));
                 }
             }
@@ -364,9 +371,10 @@ impl SceneFile {
         }
         if let Some(r) = self.environment.radiance {
             for (k, e) in r.iter().enumerate() {
-                if !(*e >= 0.0 && e.is_finite()) {
+                if !(*e >= 0.0 && *e <= MAX_RADIANCE) {
                     return Err(format!(
-                        "environment.radiance[{k}] = {e} is out of range: allowed [0, inf)"
+                        "environment.radiance[{k}] = {} is out of range: allowed [0, {MAX_RADIANCE:e}]",
+                        num(*e)
                     ));
                 }
             }
@@ -382,7 +390,7 @@ impl SceneFile {
                 r.grid_resolution
             ));
         }
-        if !(r.min_tau >= 0.0 && r.min_tau.is_finite()) {
+        if !(r.min_tau >= 0.0 && r.min_tau <= MAX_SCENE_VALUE) {
             return Err(format!(
                 "render.min_tau = {} is out of range: allowed [0, inf)",
                 r.min_tau
@@ -405,16 +413,55 @@ impl SceneFile {
     }
 }
 
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+/// A value for a message: scientific notation when plain digits would run long.
+fn num(v: f64) -> String {
+    if v != 0.0 && v.is_finite() && !(1e-4..1e6).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
 }
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
+
+/// Every component finite and within ±`max`.
+fn bounded3(name: &str, v: [f64; 3], max: f64) -> Result<(), String> {
+    for (i, x) in v.iter().enumerate() {
+        if !(x.abs() <= max) {
+            return Err(format!(
+                "{name}[{i}] = {} is out of range: allowed [-{max:e}, {max:e}]",
+                num(*x)
+            ));
+        }
+    }
+    Ok(())
 }
-fn norm(a: [f64; 3]) -> f64 {
-    (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt()
+
+/// `v` normalised the way the renderers do it (in f32), or None when it collapses there.
+fn unit_f32(v: [f64; 3]) -> Option<glam::Vec3> {
+    let v = glam::DVec3::from_array(v).as_vec3();
+    let u = v.normalize_or_zero();
+    (u != glam::Vec3::ZERO && u.is_finite()).then_some(u)
+}
+
+/// The camera's basis as [`crate::camera::Camera`] builds it in f32 must be well defined:
+/// values that differ in f64 can coincide in f32.
+fn camera_basis_f32(c: &CameraDesc) -> Result<(), String> {
+    let fwd =
+        glam::DVec3::from_array(c.target).as_vec3() - glam::DVec3::from_array(c.origin).as_vec3();
+    let Some(fwd) = unit_f32(fwd.as_dvec3().to_array()) else {
+        return Err(format!(
+            "camera.target {:?} equals camera.origin {:?} (at single precision)",
+            c.target, c.origin
+        ));
+    };
+    let Some(up) = unit_f32(c.up) else {
+        return Err(format!(
+            "camera.up = {:?} is zero or too short to normalise",
+            c.up
+        ));
+    };
+    // sin of the angle between them: below 1e-3 (0.06°) the image's right axis is noise.
+    if fwd.cross(up).length() < 1e-3 {
+        return Err("camera.up is parallel to the viewing direction (target − origin)".into());
+    }
+    Ok(())
 }

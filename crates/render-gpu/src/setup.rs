@@ -10,7 +10,7 @@ use crate::geometry::Geometry;
 use crate::hash::Fnv64;
 use crate::light::{DirectionalLight, Environment};
 use crate::mesh::{self, TriMesh};
-use crate::scene::{BoundaryKind, SceneFile, Shape};
+use crate::scene::{BoundaryKind, MAX_SCENE_VALUE, MIN_OBJECT_SIZE, SceneFile, Shape};
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Boundary {
@@ -44,9 +44,16 @@ pub fn object_mesh(scene: &SceneFile, scene_dir: &Path) -> Result<TriMesh, Rende
         (None, Some(p)) => mesh::load_mesh(&scene_dir.join(p))?,
         (None, None) => unreachable!("validated: shape or mesh"),
     };
+    let name = match &o.mesh {
+        Some(p) => scene_dir.join(p).display().to_string(),
+        None => "object".to_string(),
+    };
     if let Some(h) = o.height {
-        m.normalise_height(h as f32);
+        m.normalise_height(h as f32)
+            .map_err(|e| RenderError::Mesh(format!("{name}: {e}")))?;
     }
+    m.check_scale(MIN_OBJECT_SIZE as f32, MAX_SCENE_VALUE as f32)
+        .map_err(|e| RenderError::Mesh(format!("{name}: {e}")))?;
     Ok(m)
 }
 

@@ -87,3 +87,153 @@ fn broken_files_give_clear_errors() {
         .to_string();
     assert!(e.contains("missing.obj"), "{e}");
 }
+
+/// A unit cube as glTF: `cube.bin` holds 8 f32 positions then 36 u16 indices; `json` gets
+/// the node list, the indices' componentType and the positions' bufferView stride.
+fn cube_gltf(
+    d: &tempfile::TempDir,
+    name: &str,
+    nodes: &str,
+    index_type: u32,
+    stride: u32,
+) -> PathBuf {
+    let mut bin = Vec::new();
+    for i in 0..8u32 {
+        for bit in [1, 2, 4] {
+            bin.extend_from_slice(&(if i & bit != 0 { 0.5f32 } else { -0.5 }).to_le_bytes());
+        }
+    }
+    let tris: [u16; 36] = [
+        0, 2, 3, 0, 3, 1, 4, 5, 7, 4, 7, 6, 0, 1, 5, 0, 5, 4, 2, 6, 7, 2, 7, 3, 0, 4, 6, 0, 6, 2,
+        1, 3, 7, 1, 7, 5,
+    ];
+    for t in tris {
+        bin.extend_from_slice(&t.to_le_bytes());
+    }
+    write(d, "cube.bin", &bin);
+    let json = format!(
+        r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],
+        "nodes":{nodes},"meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}},"indices":1}}]}}],
+        "buffers":[{{"uri":"cube.bin","byteLength":168}}],
+        "bufferViews":[{{"buffer":0,"byteOffset":0,"byteLength":96,"byteStride":{stride}}},
+                       {{"buffer":0,"byteOffset":96,"byteLength":72}}],
+        "accessors":[{{"bufferView":0,"componentType":5126,"count":8,"type":"VEC3",
+                       "min":[-0.5,-0.5,-0.5],"max":[0.5,0.5,0.5]}},
+                     {{"bufferView":1,"componentType":{index_type},"count":36,"type":"SCALAR"}}]}}"#
+    );
+    write(d, name, json.as_bytes())
+}
+
+/// Files the `gltf` reader would panic or loop on give one-line errors instead.
+#[test]
+fn malformed_gltf_is_an_error_not_a_panic_or_a_hang() {
+    let d = tempfile::tempdir().unwrap();
+    let good = load_mesh(&cube_gltf(&d, "good.gltf", r#"[{"mesh":0}]"#, 5123, 12)).unwrap();
+    assert_eq!(good.triangles.len(), 12);
+    let cases = [
+        // A node that is its own child: walking the hierarchy would never end.
+        (
+            cube_gltf(&d, "cycle.gltf", r#"[{"mesh":0,"children":[0]}]"#, 5123, 12),
+            "reached twice",
+        ),
+        // Float indices.
+        (
+            cube_gltf(&d, "float.gltf", r#"[{"mesh":0}]"#, 5126, 12),
+            "indices accessor",
+        ),
+        // A stride smaller than the 12-byte VEC3 element.
+        (
+            cube_gltf(&d, "stride.gltf", r#"[{"mesh":0}]"#, 5123, 4),
+            "byteStride 4",
+        ),
+        // A stride that runs the 8th element past the view's 96 bytes.
+        (
+            cube_gltf(&d, "long.gltf", r#"[{"mesh":0}]"#, 5123, 16),
+            "reaches past",
+        ),
+    ];
+    for (path, want) in cases {
+        let e = load_mesh(&path).unwrap_err().to_string();
+        assert!(
+            e.contains(path.file_name().unwrap().to_str().unwrap()) && e.contains(want),
+            "{e}"
+        );
+    }
+}
+
+/// A mesh with no inside is refused: every triangle degenerate, or a closed but flat
+/// surface (two faces of one triangle), or one that `height` cannot scale.
+#[test]
+fn meshes_without_volume_are_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let e = load_mesh(&write(
+        &d,
+        "line.obj",
+        b"v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\nf 1 3 2\n",
+    ))
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("line.obj") && e.contains("degenerate"), "{e}");
+    let flat = write(
+        &d,
+        "flat.obj",
+        b"v 0 0 0\nv 1 0 0\nv 0 0 1\nf 1 2 3\nf 1 3 2\n",
+    );
+    let scene = |extra: &str| {
+        render_gpu::scene::SceneFile::parse(
+            &d.path().join("s.toml"),
+            &format!(
+                "[camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 20.0\n\
+                 width = 8\nheight = 8\n[object]\nmesh = \"flat.obj\"\n{extra}\n\
+                 [medium]\nsigma_t = [1.0, 1.0, 1.0]\nalbedo = [1.0, 1.0, 1.0]\n"
+            ),
+        )
+        .unwrap()
+    };
+    assert!(flat.exists());
+    let e = render_gpu::setup::object_mesh(&scene(""), d.path())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("flat.obj") && e.contains("no volume"), "{e}");
+    let e = render_gpu::setup::object_mesh(&scene("height = 1.0"), d.path())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("flat.obj") && e.contains("height"), "{e}");
+    // The cube passes the same checks.
+    write(&d, "flat.obj", CUBE_OBJ.as_bytes());
+    let m = render_gpu::setup::object_mesh(&scene("height = 1.0"), d.path()).unwrap();
+    let (lo, hi) = m.bounds();
+    assert!((hi.y - lo.y - 1.0).abs() < 1e-6);
+}
+
+/// Environment maps with pixels the renderers cannot sum are refused by pixel.
+#[test]
+fn environment_maps_with_bad_pixels_are_refused() {
+    use render_gpu::image_io::{RenderTag, RgbImage, write_exr};
+    let d = tempfile::tempdir().unwrap();
+    let tag = RenderTag {
+        spp: 1,
+        scene_hash: 0,
+    };
+    let desc = |f: &str| render_gpu::scene::EnvironmentDesc {
+        radiance: None,
+        file: Some(f.into()),
+    };
+    let mut img = RgbImage::new(4, 2);
+    img.pixels.fill([0.5; 3]);
+    write_exr(&d.path().join("ok.exr"), &img, &tag).unwrap();
+    assert!(render_gpu::light::Environment::new(&desc("ok.exr"), d.path()).is_ok());
+    for (name, v) in [
+        ("nan.exr", f32::NAN),
+        ("neg.exr", -1.0),
+        ("inf.exr", f32::INFINITY),
+    ] {
+        img.pixels[5] = [0.5, v, 0.5];
+        write_exr(&d.path().join(name), &img, &tag).unwrap();
+        let e = render_gpu::light::Environment::new(&desc(name), d.path())
+            .err()
+            .expect("a bad pixel is refused")
+            .to_string();
+        assert!(e.contains(name) && e.contains("pixel (1, 1)"), "{e}");
+    }
+}
