@@ -128,7 +128,7 @@ fn warn_outside_training(m: &cvae::ModelSet, c: Conditions) {
     ] {
         if outside(v, r) {
             eprintln!(
-                "warning: --{name} {v} lies outside the model's training range [{}, {}]: the samples are an extrapolation",
+                "warning: --{name} {v} lies outside the model's training range [{:.3}, {:.3}]: the samples are an extrapolation",
                 r[0], r[1]
             );
         }
