@@ -108,6 +108,81 @@ impl Dense {
     }
 }
 
+impl Dense {
+    /// The layer for [`LANES`] draws at once, one per SIMD lane (`x[i][lane]`): every
+    /// multiply-add serves eight draws, and blocks of eight outputs keep eight independent
+    /// accumulation chains going (one draw alone is bound by the chains' latency).
+    #[inline(always)]
+    fn apply_lanes<M: Madd>(&self, x: &[[f32; LANES]], y: &mut [[f32; LANES]]) {
+        let x = &x[..self.inputs];
+        let mut o = 0;
+        while o + 8 <= self.outputs {
+            self.block::<M, 8>(x, y, o);
+            o += 8;
+        }
+        while o + 4 <= self.outputs {
+            self.block::<M, 4>(x, y, o);
+            o += 4;
+        }
+        while o < self.outputs {
+            self.block::<M, 1>(x, y, o);
+            o += 1;
+        }
+    }
+
+    /// Outputs o0..o0 + B of [`Dense::apply_lanes`].
+    #[inline(always)]
+    fn block<M: Madd, const B: usize>(
+        &self,
+        x: &[[f32; LANES]],
+        y: &mut [[f32; LANES]],
+        o0: usize,
+    ) {
+        let n = self.inputs;
+        let rows: [&[f32]; B] =
+            std::array::from_fn(|b| &self.weight[(o0 + b) * n..(o0 + b + 1) * n]);
+        let mut acc: [[f32; LANES]; B] = std::array::from_fn(|b| [self.bias[o0 + b]; LANES]);
+        for (i, xi) in x.iter().enumerate() {
+            for b in 0..B {
+                let w = rows[b][i];
+                for l in 0..LANES {
+                    acc[b][l] = M::madd(w, xi[l], acc[b][l]);
+                }
+            }
+        }
+        y[o0..o0 + B].copy_from_slice(&acc);
+    }
+}
+
+/// Draws a batched evaluation handles at once (one per lane of a 256-bit vector).
+pub const LANES: usize = 8;
+/// Most outputs of any decoder (EventGen's six); a head holds twice as many.
+pub const MAX_OUT: usize = 8;
+/// Most inputs (conditions + latent) of any decoder: EventGen's 7 conditions plus the
+/// training config's largest latent size, 16.
+pub const MAX_INPUT: usize = 24;
+
+/// One decoder draw set up but not yet evaluated: its standardised input row and its
+/// output noise. A draw in three parts (set up, evaluate, read out) lets a renderer
+/// evaluate the draws of many paths together ([`Decoder::heads`]).
+#[derive(Clone, Copy, Debug)]
+pub struct Draw {
+    pub input: [f32; MAX_INPUT],
+    pub eps: [f32; MAX_OUT],
+}
+
+impl Default for Draw {
+    fn default() -> Self {
+        Self {
+            input: [0.0; MAX_INPUT],
+            eps: [0.0; MAX_OUT],
+        }
+    }
+}
+
+/// A decoder's raw output for one draw: [mean | log-variance], standardised.
+pub type Head = [f32; 2 * MAX_OUT];
+
 /// softplus(x) = ln(1 + eˣ) with libm, the reference the fast layer-wide version
 /// ([`crate::fastmath::softplus`]) is tested against.
 pub fn softplus(x: f32) -> f32 {
@@ -178,19 +253,99 @@ impl Decoder {
     /// Draws the outputs given raw conditioning features, latent normals `z` (len
     /// `latent`) and output normals `eps` (len `out`); writes de-standardised values.
     pub fn sample(&self, cond: &[f64], z: &[f32], eps: &[f32], result: &mut [f64]) {
-        let mut input = [0f32; MAX_WIDTH];
-        for i in 0..self.cond {
-            input[i] = ((cond[i] as f32) - self.cond_shift[i]) / self.cond_scale[i];
+        let draw = self.draw(cond, z, eps);
+        self.read_out(&self.head(&draw), &draw, result);
+    }
+
+    /// The head of one draw.
+    pub fn head(&self, draw: &Draw) -> Head {
+        let mut head = [0f32; 2 * MAX_OUT];
+        self.forward(
+            &draw.input[..self.cond + self.latent],
+            &mut head[..2 * self.out],
+        );
+        head
+    }
+
+    /// Sets up a draw: standardised conditions, latent normals `z`, output normals `eps`.
+    pub fn draw(&self, cond: &[f64], z: &[f32], eps: &[f32]) -> Draw {
+        let mut d = Draw::default();
+        let standardised = cond[..self.cond]
+            .iter()
+            .zip(self.cond_shift.iter().zip(&self.cond_scale))
+            .map(|(&c, (shift, scale))| (c as f32 - shift) / scale);
+        for (x, v) in d.input.iter_mut().zip(standardised) {
+            *x = v;
         }
-        input[self.cond..self.cond + self.latent].copy_from_slice(&z[..self.latent]);
-        let mut head = [0f32; MAX_WIDTH];
-        self.forward(&input[..self.cond + self.latent], &mut head[..2 * self.out]);
+        d.input[self.cond..self.cond + self.latent].copy_from_slice(&z[..self.latent]);
+        d.eps[..self.out].copy_from_slice(&eps[..self.out]);
+        d
+    }
+
+    /// The de-standardised outputs of a draw from its head: mean + exp(½ logvar)·eps.
+    pub fn read_out(&self, head: &Head, draw: &Draw, result: &mut [f64]) {
         for j in 0..self.out {
             let logvar = head[self.out + j].clamp(-LOGVAR_CLAMP, LOGVAR_CLAMP);
             // The fast exp (within 2 f32 ulps; |½ logvar| ≤ 8): libm's expf for these
             // sixteen outputs per sphere step was 3 % of the renderer's time.
-            let v = head[j] + crate::fastmath::exp(0.5 * logvar) * eps[j];
+            let v = head[j] + crate::fastmath::exp(0.5 * logvar) * draw.eps[j];
             result[j] = (v * self.out_scale[j] + self.out_shift[j]) as f64;
+        }
+    }
+
+    /// The heads of many draws, [`LANES`] at a time with the draws in SIMD lanes (equal
+    /// to [`Decoder::forward`] draw by draw up to f32 rounding: the sums are taken in
+    /// another order). A renderer collects one draw from each of its paths between two
+    /// sphere steps; evaluated together they cost a fraction of one-by-one evaluation,
+    /// whose short dependent chains leave the arithmetic units mostly idle.
+    pub fn heads(&self, draws: &[Draw], heads: &mut [Head]) {
+        assert_eq!(draws.len(), heads.len(), "one head per draw");
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        {
+            // SAFETY: the CPU supports AVX2 and FMA (checked just above).
+            unsafe { self.heads_avx2(draws, heads) };
+            return;
+        }
+        self.heads_with::<Separate>(draws, heads);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    fn heads_avx2(&self, draws: &[Draw], heads: &mut [Head]) {
+        self.heads_with::<Fused>(draws, heads);
+    }
+
+    #[inline(always)]
+    fn heads_with<M: Madd>(&self, draws: &[Draw], heads: &mut [Head]) {
+        let inputs = self.cond + self.latent;
+        let outs = 2 * self.out;
+        let last = self.layers.len() - 1;
+        let mut buf = [[[0f32; LANES]; MAX_WIDTH]; 2];
+        for (group, out) in draws.chunks(LANES).zip(heads.chunks_mut(LANES)) {
+            // Lanes past the group's end keep whatever the previous group left: finite
+            // values whose results are never read.
+            for (l, d) in group.iter().enumerate() {
+                for (row, &x) in buf[0].iter_mut().zip(&d.input[..inputs]) {
+                    row[l] = x;
+                }
+            }
+            for (i, layer) in self.layers.iter().enumerate() {
+                let [a, b] = &mut buf;
+                let (src, dst) = if i % 2 == 0 { (&*a, b) } else { (&*b, a) };
+                layer.apply_lanes::<M>(src, dst);
+                if i < last {
+                    crate::fastmath::softplus_in_place::<M>(
+                        dst[..layer.outputs].as_flattened_mut(),
+                    );
+                }
+            }
+            let result = &buf[self.layers.len() % 2];
+            for (l, h) in out.iter_mut().enumerate() {
+                for j in 0..outs {
+                    h[j] = result[j][l];
+                }
+            }
         }
     }
 

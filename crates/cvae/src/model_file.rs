@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
-use crate::decoder::{Decoder, Dense, MAX_WIDTH};
+use crate::decoder::{Decoder, Dense, MAX_INPUT, MAX_WIDTH};
 use crate::features;
 
 pub const MAGIC: &[u8; 8] = b"STCVAEMD";
@@ -256,6 +256,12 @@ impl ModelSet {
                 .chain(spec.hidden.iter().copied())
                 .chain(std::iter::once(2 * spec.out))
                 .collect();
+            if spec.cond + spec.latent > MAX_INPUT {
+                return Err(invalid(format!(
+                    "{}: {} conditions + {} latent inputs; at most {MAX_INPUT} in all",
+                    spec.name, spec.cond, spec.latent
+                )));
+            }
             if widths.iter().any(|&w| w == 0 || w > MAX_WIDTH) {
                 return Err(invalid(format!(
                     "{}: layer widths {widths:?} outside 1..={MAX_WIDTH}",

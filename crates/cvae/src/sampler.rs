@@ -7,6 +7,7 @@ use scatter_sim::frame::CanonicalExit;
 use scatter_sim::phase::hg_sample_cos;
 use scatter_sim::rng::WalkRng;
 
+use crate::decoder::{Decoder, Draw, Head, MAX_INPUT, MAX_OUT};
 use crate::features;
 use crate::model_file::{ModelSet, SingleScattering};
 
@@ -35,7 +36,7 @@ pub struct ModelWalk {
 impl ModelWalk {
     /// A walk of N events (from the decoders) with its weights and features filled in and
     /// the centre as a placeholder event.
-    fn multiple(
+    pub fn multiple(
         n: u64,
         exit: CanonicalExit,
         features: features::WalkFeatures,
@@ -87,6 +88,18 @@ pub fn normals(rng: &mut WalkRng, out: &mut [f32]) {
     for v in out {
         *v = rng.standard_normal();
     }
+}
+
+/// Event 1 of every walk, in the canonical frame: the centre, arrived at along +z.
+pub const CENTRE_EVENT: (DVec3, DVec3) = (DVec3::ZERO, DVec3::Z);
+
+/// A decoder draw with its latent and output normals taken from `rng` (latent first).
+fn draw_with_noise(decoder: &Decoder, cond: &[f64], rng: &mut WalkRng) -> Draw {
+    let mut noise = [0f32; MAX_INPUT + MAX_OUT];
+    let k = decoder.latent + decoder.out;
+    normals(rng, &mut noise[..k]);
+    let (z, eps) = noise[..k].split_at(decoder.latent);
+    decoder.draw(cond, z, eps)
 }
 
 /// Repairs a model-made exit so that it is a valid canonical exit: cos θ ∈ [−1, 1],
@@ -142,11 +155,19 @@ impl ModelSet {
 
     /// LengthGen: N for a walk known to have N ≥ n_min.
     pub fn sample_multiple_n(&self, f: &features::WalkFeatures, rng: &mut WalkRng) -> u64 {
-        let mut z = [0f32; 8];
-        normals(rng, &mut z[..self.length.latent + 1]);
-        let (z, eps) = z.split_at(self.length.latent);
+        let d = self.length_draw(f, rng);
+        self.length_result(f, &self.length.head(&d), &d)
+    }
+
+    /// LengthGen's draw for a walk known to have N ≥ n_min (its noise from `rng`).
+    pub fn length_draw(&self, f: &features::WalkFeatures, rng: &mut WalkRng) -> Draw {
+        draw_with_noise(&self.length, &f.length_cond(), rng)
+    }
+
+    /// N from LengthGen's head for `draw`.
+    pub fn length_result(&self, f: &features::WalkFeatures, head: &Head, draw: &Draw) -> u64 {
         let mut y = [0f64; 1];
-        self.length.sample(&f.length_cond(), z, eps, &mut y);
+        self.length.read_out(head, draw, &mut y);
         f.n_from_target(y[0], self.n_min())
     }
 
@@ -158,13 +179,24 @@ impl ModelSet {
         relative_log_n: f64,
         rng: &mut WalkRng,
     ) -> CanonicalExit {
-        let mut noise = [0f32; 16];
-        let k = self.path.latent + self.path.out;
-        normals(rng, &mut noise[..k]);
-        let (z, eps) = noise[..k].split_at(self.path.latent);
+        let d = self.path_draw(f, relative_log_n, rng);
+        self.path_result(&self.path.head(&d), &d)
+    }
+
+    /// PathGen's draw for a walk of the given relative log N.
+    pub fn path_draw(
+        &self,
+        f: &features::WalkFeatures,
+        relative_log_n: f64,
+        rng: &mut WalkRng,
+    ) -> Draw {
+        draw_with_noise(&self.path, &f.path_cond(relative_log_n), rng)
+    }
+
+    /// The exit from PathGen's head for `draw`.
+    pub fn path_result(&self, head: &Head, draw: &Draw) -> CanonicalExit {
         let mut v = [0f64; 3];
-        self.path
-            .sample(&f.path_cond(relative_log_n), z, eps, &mut v);
+        self.path.read_out(head, draw, &mut v);
         let (cos_theta, beta, alpha) = features::path_from_target(v);
         repair_exit(cos_theta, beta, alpha)
     }
@@ -189,23 +221,65 @@ impl ModelSet {
     /// Another representative event of `walk` (its N and exit), independent of the one
     /// it holds.
     pub fn sample_event_given(&self, walk: &ModelWalk, rng: &mut WalkRng) -> (DVec3, DVec3) {
+        match self.event_draw(walk, rng) {
+            None => CENTRE_EVENT,
+            Some(d) => self.event_result(&self.event.head(&d), &d),
+        }
+    }
+
+    /// EventGen's draw for another representative event of `walk`, or None when the
+    /// exact-mode choice picks event 1 ([`CENTRE_EVENT`], no decoder needed).
+    pub fn event_draw(&self, walk: &ModelWalk, rng: &mut WalkRng) -> Option<Draw> {
         if self.single_scattering == SingleScattering::Exact
             && rng.uniform() * walk.lambda < walk.albedo
         {
-            return (DVec3::ZERO, DVec3::Z);
+            return None;
         }
-        let mut noise = [0f32; 16];
-        let k = self.event.latent + self.event.out;
-        normals(rng, &mut noise[..k]);
-        let (z, eps) = noise[..k].split_at(self.event.latent);
-        let mut v = [0f64; 6];
         let e = walk.exit;
         let cond = walk
             .features
             .event_cond(walk.relative_log_n, e.cos_theta, e.beta, e.alpha);
-        self.event.sample(&cond, z, eps, &mut v);
+        Some(draw_with_noise(&self.event, &cond, rng))
+    }
+
+    /// The event (X, W) from EventGen's head for `draw`.
+    pub fn event_result(&self, head: &Head, draw: &Draw) -> (DVec3, DVec3) {
+        let mut v = [0f64; 6];
+        self.event.read_out(head, draw, &mut v);
         let (x, w) = features::event_from_target(v);
         repair_event(DVec3::from_array(x), DVec3::from_array(w))
+    }
+
+    /// The exact single-scattering branch: with probability e^(−τ) (exact mode only) the
+    /// walk has N = 1 and leaves the centre in the HG direction (x = ω, event 1 at the
+    /// centre); None otherwise, and the decoders draw a walk with N ≥ 2.
+    pub fn single_walk(
+        &self,
+        features: features::WalkFeatures,
+        tau: f64,
+        g: f64,
+        albedo: f64,
+        rng: &mut WalkRng,
+    ) -> Option<ModelWalk> {
+        if self.single_scattering != SingleScattering::Exact || rng.uniform() >= (-tau).exp() {
+            return None;
+        }
+        Some(ModelWalk {
+            n: 1,
+            exit: CanonicalExit {
+                cos_theta: hg_sample_cos(g, rng.uniform()),
+                alpha: 0.0,
+                beta: 0.0,
+            },
+            event_pos: CENTRE_EVENT.0,
+            event_dir: CENTRE_EVENT.1,
+            single: true,
+            lambda: albedo,
+            survival: albedo,
+            features,
+            relative_log_n: -features.log_prior,
+            albedo,
+        })
     }
 
     /// A whole walk. With `with_event` false EventGen is not run (NEE off) and the
@@ -219,24 +293,8 @@ impl ModelSet {
         rng: &mut WalkRng,
     ) -> ModelWalk {
         let features = features::WalkFeatures::new(tau, g, albedo);
-        if self.single_scattering == SingleScattering::Exact && rng.uniform() < (-tau).exp() {
-            // Exact branch: the photon left the centre in the HG direction, x = ω.
-            return ModelWalk {
-                n: 1,
-                exit: CanonicalExit {
-                    cos_theta: hg_sample_cos(g, rng.uniform()),
-                    alpha: 0.0,
-                    beta: 0.0,
-                },
-                event_pos: DVec3::ZERO,
-                event_dir: DVec3::Z,
-                single: true,
-                lambda: albedo,
-                survival: albedo,
-                features,
-                relative_log_n: -features.log_prior,
-                albedo,
-            };
+        if let Some(walk) = self.single_walk(features, tau, g, albedo, rng) {
+            return walk;
         }
         let n = self.sample_multiple_n(&features, rng);
         let exit = self.sample_exit(&features, features.relative_log_n(n), rng);

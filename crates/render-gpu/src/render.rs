@@ -8,7 +8,8 @@ use rayon::prelude::*;
 use scatter_sim::rng::WalkRng;
 
 use crate::image_io::RgbImage;
-use crate::integrator::{IntegratorSettings, PathStats, trace};
+use crate::integrator::wavefront::{Sample, trace_many};
+use crate::integrator::{IntegratorSettings, PathStats};
 use crate::setup::SceneData;
 
 const TILE: usize = 16;
@@ -70,25 +71,34 @@ pub fn render(
             .map(|&(x0, y0)| {
                 let mut st = PathStats::default();
                 let (x1, y1) = ((x0 + TILE).min(w), (y0 + TILE).min(h));
-                let mut out = Vec::with_capacity((x1 - x0) * (y1 - y0));
-                for y in y0..y1 {
-                    for x in x0..x1 {
-                        let pixel = (y * w + x) as u64;
-                        let offset = (pixel.wrapping_mul(0x9e37_79b9_7f4a_7c15) >> 62) as u32 % 3;
-                        let mut acc = [0f64; 3];
-                        let before = st.events + st.steps;
-                        for s in s0..s1 {
-                            let mut rng = WalkRng::for_walk(opts.seed, (pixel << 32) | s as u64);
-                            let channel = ((s + offset) % 3) as usize;
-                            let jx = rng.uniform() as f32;
-                            let jy = rng.uniform() as f32;
-                            let dir = cam.ray_dir(x as f32 + jx, y as f32 + jy);
-                            let l = trace(scene, set, cam.origin, dir, channel, &mut st, &mut rng);
-                            acc[channel] += 3.0 * l as f64;
-                        }
-                        out.push((acc, st.events + st.steps - before));
-                    }
-                }
+                let tw = x1 - x0;
+                let mut out: Vec<PixelSum> = vec![([0f64; 3], 0); tw * (y1 - y0)];
+                // The tile's samples pixel by pixel, each with its own random stream; the
+                // wavefront traces 64 at a time and batches their decoder draws.
+                let mut samples = (y0..y1)
+                    .flat_map(|y| (x0..x1).map(move |x| (x, y)))
+                    .flat_map(|(x, y)| (s0..s1).map(move |s| (x, y, s)));
+                let next = || {
+                    let (x, y, s) = samples.next()?;
+                    let pixel = (y * w + x) as u64;
+                    let offset = (pixel.wrapping_mul(0x9e37_79b9_7f4a_7c15) >> 62) as u32 % 3;
+                    let mut rng = WalkRng::for_walk(opts.seed, (pixel << 32) | s as u64);
+                    let jx = rng.uniform() as f32;
+                    let jy = rng.uniform() as f32;
+                    Some(Sample {
+                        origin: cam.origin,
+                        dir: cam.ray_dir(x as f32 + jx, y as f32 + jy),
+                        channel: ((s + offset) % 3) as usize,
+                        rng,
+                        tag: ((y - y0) * tw + (x - x0)) as u64,
+                    })
+                };
+                trace_many(scene, set, next, |tag, channel, l, path| {
+                    let px = &mut out[tag as usize];
+                    px.0[channel] += 3.0 * l as f64;
+                    px.1 += path.events + path.steps;
+                    st.add(path);
+                });
                 let n = ((x1 - x0) * (y1 - y0)) as u64 * (s1 - s0) as u64;
                 progress(done.fetch_add(n, Ordering::Relaxed) + n, total);
                 (out, st)

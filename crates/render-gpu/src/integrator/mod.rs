@@ -7,6 +7,7 @@
 
 pub mod nee;
 pub mod sphere_step;
+pub mod wavefront;
 
 use glam::Vec3;
 use scatter_sim::phase::hg_sample_direction;
@@ -138,6 +139,8 @@ fn escape(scene: &SceneData, dir: Vec3, channel: usize, with_sun: bool) -> f32 {
 }
 
 /// Traces one camera path in `channel` and returns its radiance estimate for that channel.
+/// (The renderer traces many paths together with [`wavefront::trace_many`]; this is the
+/// same path, its sphere steps' decoder draws evaluated one at a time.)
 pub fn trace(
     scene: &SceneData,
     set: &IntegratorSettings,
@@ -147,116 +150,181 @@ pub fn trace(
     stats: &mut PathStats,
     rng: &mut WalkRng,
 ) -> f32 {
-    stats.paths += 1;
-    let geo = &scene.geo;
-    let sigma = scene.sigma_t[channel];
-    let mut s = PathState {
-        pos: origin,
-        dir,
-        beta: 1.0,
-        radiance: 0.0,
-        scattered: false,
-        alive: true,
-        free: 0.0,
-    };
-    let mut inside = false;
-    // True right after a sphere step: the next flight starts at a model-made exit point.
-    let mut from_step = false;
-    let mut iterations = 0u64;
-    while s.alive {
-        iterations += 1;
-        if iterations > MAX_ITERATIONS {
-            stats.capped += 1;
-            break;
+    let path = Path::new(origin, dir, channel, rng.clone());
+    let (radiance, path) = wavefront::trace_alone(scene, set, path);
+    *rng = path.rng;
+    stats.add(&path.stats);
+    radiance
+}
+
+/// A camera path and everything its loop carries, so that the loop can stop where a
+/// sphere step needs the decoders and resume once they have run.
+pub(crate) struct Path {
+    pub s: PathState,
+    pub channel: usize,
+    pub rng: WalkRng,
+    pub stats: PathStats,
+    inside: bool,
+    /// True right after a sphere step: the next flight starts at a model-made exit point.
+    from_step: bool,
+    iterations: u64,
+    /// The sphere step waiting for its decoder draws, after [`Advance::Step`].
+    pub step: Option<sphere_step::Pending>,
+}
+
+/// Where [`Path::advance`] stopped.
+pub(crate) enum Advance {
+    /// The path has ended with this radiance estimate.
+    Done(f32),
+    /// A sphere step waits for its decoder draws (in [`Path::step`]).
+    Step,
+}
+
+impl Path {
+    pub fn new(origin: Vec3, dir: Vec3, channel: usize, rng: WalkRng) -> Self {
+        Self {
+            s: PathState {
+                pos: origin,
+                dir,
+                beta: 1.0,
+                radiance: 0.0,
+                scattered: false,
+                alive: true,
+                free: 0.0,
+            },
+            channel,
+            rng,
+            stats: PathStats {
+                paths: 1,
+                ..PathStats::default()
+            },
+            inside: false,
+            from_step: false,
+            iterations: 0,
+            step: None,
         }
-        if !inside {
-            let Some(h) = geo.intersect(s.pos, s.dir, f32::INFINITY) else {
-                s.radiance += s.beta * escape(scene, s.dir, channel, !(set.nee && s.scattered));
+    }
+
+    /// Follows the path until it ends or a sphere step needs the decoders (then finish
+    /// that step and call this again).
+    pub fn advance(&mut self, scene: &SceneData, set: &IntegratorSettings) -> Advance {
+        let geo = &scene.geo;
+        let channel = self.channel;
+        let sigma = scene.sigma_t[channel];
+        let Self {
+            s,
+            rng,
+            stats,
+            inside,
+            from_step,
+            iterations,
+            step,
+            ..
+        } = self;
+        while s.alive {
+            *iterations += 1;
+            if *iterations > MAX_ITERATIONS {
+                stats.capped += 1;
                 break;
-            };
-            let p = s.pos + s.dir * h.t;
-            match scene.boundary {
-                Boundary::IndexMatched => inside = true,
-                Boundary::Dielectric(ior) => {
-                    let f = fresnel(s.dir.dot(h.normal).abs(), 1.0, ior);
-                    if uniform(rng) < f {
-                        s.dir = reflect(s.dir, h.normal);
-                    } else {
-                        s.dir = refract(s.dir, h.normal, 1.0, ior).unwrap_or(s.dir);
-                        inside = true;
+            }
+            if !*inside {
+                let Some(h) = geo.intersect(s.pos, s.dir, f32::INFINITY) else {
+                    s.radiance += s.beta * escape(scene, s.dir, channel, !(set.nee && s.scattered));
+                    break;
+                };
+                let p = s.pos + s.dir * h.t;
+                match scene.boundary {
+                    Boundary::IndexMatched => *inside = true,
+                    Boundary::Dielectric(ior) => {
+                        let f = fresnel(s.dir.dot(h.normal).abs(), 1.0, ior);
+                        if uniform(rng) < f {
+                            s.dir = reflect(s.dir, h.normal);
+                        } else {
+                            s.dir = refract(s.dir, h.normal, 1.0, ior).unwrap_or(s.dir);
+                            *inside = true;
+                        }
                     }
                 }
-            }
-            s.pos = geo.spawn(p, h.normal, s.dir);
-            continue;
-        }
-        let t = -(1.0 - uniform(rng)).ln() / sigma;
-        let hit = if t < s.free {
-            None
-        } else {
-            // A surface up to FLIGHT_MARGIN beyond the collision counts as reached: pos +
-            // t·dir is rounded, and a collision that rounds to the far side of a surface
-            // the ray test puts just beyond t would leave the path outside while it
-            // believes itself inside (seen ~1 in 10⁶ paths near the surface, each then
-            // a runaway firefly). The margin turns collisions within ~1e-7 of the surface
-            // into surface hits: a bias of σ_t·margin ≲ 1e-4 of the paths that get there.
-            geo.intersect(s.pos, s.dir, t + geo.flight_margin())
-        };
-        if let Some(h) = hit {
-            s.free = 0.0;
-            let p = s.pos + s.dir * h.t;
-            if s.dir.dot(h.normal) < 0.0 {
-                // Met the surface from outside while believed inside. After a sphere step
-                // the exit was not inside after all: count it and leave here, never enter.
-                if from_step {
-                    stats.leaks += 1;
-                }
-                inside = false;
                 s.pos = geo.spawn(p, h.normal, s.dir);
-                from_step = false;
                 continue;
             }
-            match scene.boundary {
-                Boundary::IndexMatched => inside = false,
-                Boundary::Dielectric(ior) => {
-                    let f = fresnel(s.dir.dot(h.normal).abs(), ior, 1.0);
-                    if uniform(rng) < f {
-                        s.dir = reflect(s.dir, h.normal);
-                    } else {
-                        s.dir = refract(s.dir, h.normal, ior, 1.0).unwrap_or(s.dir);
-                        inside = false;
+            let t = -(1.0 - uniform(rng)).ln() / sigma;
+            let hit = if t < s.free {
+                None
+            } else {
+                // A surface up to FLIGHT_MARGIN beyond the collision counts as reached: pos +
+                // t·dir is rounded, and a collision that rounds to the far side of a surface
+                // the ray test puts just beyond t would leave the path outside while it
+                // believes itself inside (seen ~1 in 10⁶ paths near the surface, each then
+                // a runaway firefly). The margin turns collisions within ~1e-7 of the surface
+                // into surface hits: a bias of σ_t·margin ≲ 1e-4 of the paths that get there.
+                geo.intersect(s.pos, s.dir, t + geo.flight_margin())
+            };
+            if let Some(h) = hit {
+                s.free = 0.0;
+                let p = s.pos + s.dir * h.t;
+                if s.dir.dot(h.normal) < 0.0 {
+                    // Met the surface from outside while believed inside. After a sphere step
+                    // the exit was not inside after all: count it and leave here, never enter.
+                    if *from_step {
+                        stats.leaks += 1;
+                    }
+                    *inside = false;
+                    s.pos = geo.spawn(p, h.normal, s.dir);
+                    *from_step = false;
+                    continue;
+                }
+                match scene.boundary {
+                    Boundary::IndexMatched => *inside = false,
+                    Boundary::Dielectric(ior) => {
+                        let f = fresnel(s.dir.dot(h.normal).abs(), ior, 1.0);
+                        if uniform(rng) < f {
+                            s.dir = reflect(s.dir, h.normal);
+                        } else {
+                            s.dir = refract(s.dir, h.normal, ior, 1.0).unwrap_or(s.dir);
+                            *inside = false;
+                        }
+                    }
+                }
+                s.pos = geo.spawn(p, h.normal, s.dir);
+                *from_step = false;
+                continue;
+            }
+            s.pos += s.dir * t;
+            s.free = (s.free - t).max(0.0);
+            if !geo.within_bounds(s.pos) {
+                // A collision outside the mesh's bounding box cannot be inside (a safety net:
+                // with the flight margin above none has been seen). A path left believing
+                // itself inside would scatter through the air for ~1/(1 − φ) events (10⁴–10⁵)
+                // with unshadowed NEE — radiance estimates in the thousands.
+                stats.leaks += 1;
+                *inside = false;
+                s.free = 0.0;
+                *from_step = false;
+                continue;
+            }
+            match set.kind {
+                IntegratorKind::Pt => {
+                    pt_event(scene, set, channel, s, stats, rng);
+                    *from_step = false;
+                }
+                IntegratorKind::Stcvae => {
+                    match sphere_step::begin(scene, set, channel, s, stats, rng, step) {
+                        sphere_step::Begun::Fallback => *from_step = false,
+                        sphere_step::Begun::Done => *from_step = true,
+                        sphere_step::Begun::Pending => {
+                            *from_step = true;
+                            return Advance::Step;
+                        }
                     }
                 }
             }
-            s.pos = geo.spawn(p, h.normal, s.dir);
-            from_step = false;
-            continue;
         }
-        s.pos += s.dir * t;
-        s.free = (s.free - t).max(0.0);
-        if !geo.within_bounds(s.pos) {
-            // A collision outside the mesh's bounding box cannot be inside (a safety net:
-            // with the flight margin above none has been seen). A path left believing
-            // itself inside would scatter through the air for ~1/(1 − φ) events (10⁴–10⁵)
-            // with unshadowed NEE — radiance estimates in the thousands.
-            stats.leaks += 1;
-            inside = false;
-            s.free = 0.0;
-            from_step = false;
-            continue;
-        }
-        from_step = match set.kind {
-            IntegratorKind::Pt => {
-                pt_event(scene, set, channel, &mut s, stats, rng);
-                false
-            }
-            IntegratorKind::Stcvae => sphere_step::step(scene, set, channel, &mut s, stats, rng),
-        };
-    }
-    if s.radiance.is_finite() {
-        s.radiance
-    } else {
-        stats.non_finite += 1;
-        0.0
+        Advance::Done(if s.radiance.is_finite() {
+            s.radiance
+        } else {
+            stats.non_finite += 1;
+            0.0
+        })
     }
 }

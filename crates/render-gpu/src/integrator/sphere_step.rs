@@ -4,7 +4,15 @@
 //! φ^N already contains the albedo of event 1 (the collision at p), so p gets no
 //! separate albedo weight and no separate NEE: EventGen's representative event, with
 //! weight Λ(N) = Σ_{k=1..N} φ^k, stands for NEE at all N events of the walk.
+//!
+//! A step that needs the decoders runs in stages ([`begin`], then [`Pending`]'s
+//! `after_length`, `after_path` and `finish`), so that [`super::wavefront`] can evaluate
+//! the decoder draws of many paths' steps together.
 
+use cvae::decoder::{Draw, Head};
+use cvae::features::WalkFeatures;
+use cvae::sampler::CENTRE_EVENT;
+use cvae::{ModelSet, ModelWalk};
 use glam::DVec3;
 use scatter_sim::frame::{WalkFrame, from_canonical};
 use scatter_sim::rng::WalkRng;
@@ -15,18 +23,46 @@ use crate::setup::SceneData;
 /// The sphere radius is shrunk by this factor so the exit point stays strictly inside.
 const SHRINK: f32 = 1.0 - 1e-4;
 
-/// One step at `s.pos`; returns true if a sphere step was taken (false: PT fallback).
-pub(crate) fn step(
+/// What [`begin`] did.
+pub(crate) enum Begun {
+    /// A PT event (thin region, or no model or grid).
+    Fallback,
+    /// A whole sphere step from the exact single-scattering branch (no decoder ran).
+    Done,
+    /// A sphere step waiting for its LengthGen draw (written to the caller's slot).
+    Pending,
+}
+
+/// A sphere step between its decoder draws.
+pub(crate) struct Pending {
+    centre: DVec3,
+    frame: WalkFrame,
+    r: f32,
+    /// The free radius around the centre (≥ r).
+    free: f32,
+    features: WalkFeatures,
+    albedo: f64,
+    /// The draw the step waits for: LengthGen's, then PathGen's.
+    pub draw: Draw,
+    n: u64,
+    walk: Option<ModelWalk>,
+}
+
+/// Starts a step at `s.pos`: a PT fallback event, a finished exact single-scattering step,
+/// or a step that needs the decoders, left in `pending` (a slot the caller owns, so the
+/// step's few hundred bytes are written once rather than moved along).
+pub(crate) fn begin(
     scene: &SceneData,
     set: &IntegratorSettings,
     channel: usize,
     s: &mut PathState,
     stats: &mut PathStats,
     rng: &mut WalkRng,
-) -> bool {
+    pending: &mut Option<Pending>,
+) -> Begun {
     let (Some(model), Some(grid)) = (set.model, scene.grid.as_ref()) else {
         pt_event(scene, set, channel, s, stats, rng);
-        return false;
+        return Begun::Fallback;
     };
     let sigma = scene.sigma_t[channel];
     // The path's own bound (s.free: what is left of the last free ball after the flight)
@@ -49,53 +85,104 @@ pub(crate) fn step(
     if !(r > 0.0) || tau < set.min_tau {
         s.free = free.max(0.0);
         pt_event(scene, set, channel, s, stats, rng);
-        return false;
+        return Begun::Fallback;
     }
     stats.steps += 1;
     let albedo = scene.albedo[channel] as f64;
     let frame = WalkFrame::new(s.dir.as_dvec3(), rng.unit_circle());
-    let walk = model.sample_walk(tau as f64, scene.g as f64, albedo, set.nee, rng);
-    let centre = s.pos.as_dvec3();
-    if set.nee {
-        // Extra representative events (EventGen draws given the same N and exit), each
-        // weighted Λ(N)/M: the same expectation with less variance per sphere step.
-        let m = if walk.single {
-            1
-        } else {
-            set.nee_samples.max(1)
-        };
-        let mut sum = 0.0f32;
-        for k in 0..m {
-            let (ep, ed) = if k == 0 {
-                (walk.event_pos, walk.event_dir)
-            } else {
-                model.sample_event_given(&walk, rng)
-            };
-            let x = centre + frame.to_world(ep) * r as f64;
-            let w = frame.to_world(ed).normalize();
-            // X lies |ep|·r from the centre, whose ball of radius `free` is surface-free;
-            // the grid at X (one lookup, against a shadow ray's two traversals) is often
-            // the larger bound for events away from the centre. A larger bound lets the
-            // shadow-ray roulette skip more rays.
-            let x = x.as_vec3();
-            let x_free = (free - ep.length() as f32 * r).max(grid.radius(x));
-            sum += nee::direct(scene, x, w.as_vec3(), x_free, channel, rng);
+    let features = WalkFeatures::new(tau as f64, scene.g as f64, albedo);
+    let single = model.single_walk(features, tau as f64, scene.g as f64, albedo, rng);
+    let step = pending.insert(Pending {
+        centre: s.pos.as_dvec3(),
+        frame,
+        r,
+        free,
+        features,
+        albedo,
+        draw: Draw::default(),
+        n: 1,
+        walk: single,
+    });
+    if single.is_some() {
+        step.finish(scene, set, channel, s, &[CENTRE_EVENT], rng);
+        *pending = None;
+        return Begun::Done;
+    }
+    step.draw = model.length_draw(&features, rng);
+    Begun::Pending
+}
+
+impl Pending {
+    /// Reads N from LengthGen's head and sets up the PathGen draw.
+    pub fn after_length(&mut self, model: &ModelSet, head: &Head, rng: &mut WalkRng) {
+        self.n = model.length_result(&self.features, head, &self.draw);
+        self.draw = model.path_draw(&self.features, self.features.relative_log_n(self.n), rng);
+    }
+
+    /// Reads the exit from PathGen's head; with NEE on, appends the step's representative
+    /// events to `events` (None: event 1, the centre, which needs no decoder).
+    pub fn after_path(
+        &mut self,
+        model: &ModelSet,
+        set: &IntegratorSettings,
+        head: &Head,
+        rng: &mut WalkRng,
+        events: &mut Vec<Option<Draw>>,
+    ) {
+        let exit = model.path_result(head, &self.draw);
+        let walk = ModelWalk::multiple(self.n, exit, self.features, self.albedo);
+        if set.nee {
+            // Extra representative events (EventGen draws given the same N and exit), each
+            // weighted Λ(N)/M: the same expectation with less variance per sphere step.
+            for _ in 0..set.nee_samples.max(1) {
+                events.push(model.event_draw(&walk, rng));
+            }
         }
-        s.radiance += s.beta * walk.lambda as f32 * sum / m as f32;
+        self.walk = Some(walk);
     }
-    s.beta *= walk.survival as f32;
-    if !roulette(&mut s.beta, rng) {
-        s.alive = false;
-        return true;
+
+    /// Completes the step given its representative events (canonical frame; none with NEE
+    /// off): NEE through them, the survival weight φ^N, roulette, and the jump to the exit.
+    pub fn finish(
+        &self,
+        scene: &SceneData,
+        set: &IntegratorSettings,
+        channel: usize,
+        s: &mut PathState,
+        events: &[(DVec3, DVec3)],
+        rng: &mut WalkRng,
+    ) {
+        let walk = self.walk.as_ref().expect("finish after the walk is drawn");
+        let grid = scene.grid.as_ref().expect("a sphere step has a grid");
+        let r = self.r;
+        if set.nee && !events.is_empty() {
+            let mut sum = 0.0f32;
+            for &(ep, ed) in events {
+                let x = self.centre + self.frame.to_world(ep) * r as f64;
+                let w = self.frame.to_world(ed).normalize();
+                // X lies |ep|·r from the centre, whose ball of radius `free` is
+                // surface-free; the grid at X (one lookup, against a shadow ray's two
+                // traversals) is often the larger bound for events away from the centre.
+                // A larger bound lets the shadow-ray roulette skip more rays.
+                let x = x.as_vec3();
+                let x_free = (self.free - ep.length() as f32 * r).max(grid.radius(x));
+                sum += nee::direct(scene, x, w.as_vec3(), x_free, channel, rng);
+            }
+            s.radiance += s.beta * walk.lambda as f32 * sum / events.len() as f32;
+        }
+        s.beta *= walk.survival as f32;
+        if !roulette(&mut s.beta, rng) {
+            s.alive = false;
+            return;
+        }
+        let (x, omega) = from_canonical(walk.exit);
+        let exit: DVec3 = self.centre + self.frame.to_world(x) * r as f64;
+        s.pos = exit.as_vec3();
+        s.dir = self.frame.to_world(omega).as_vec3().normalize();
+        s.scattered = true;
+        // The exit lies on the sphere of radius r inside the free ball of radius `free`,
+        // which leaves it almost no known free distance; the grid at the exit often knows
+        // more, and a flight shorter than that needs no ray cast.
+        s.free = (self.free - r).max(grid.radius(s.pos));
     }
-    let (x, omega) = from_canonical(walk.exit);
-    let exit: DVec3 = centre + frame.to_world(x) * r as f64;
-    s.pos = exit.as_vec3();
-    s.dir = frame.to_world(omega).as_vec3().normalize();
-    s.scattered = true;
-    // The exit lies on the sphere of radius r inside the free ball of radius `free`, which
-    // leaves it almost no known free distance; the grid at the exit often knows more, and
-    // a flight shorter than that needs no ray cast.
-    s.free = (free - r).max(grid.radius(s.pos));
-    true
 }

@@ -1,0 +1,176 @@
+//! Many paths traced together, so that the decoders run in batches.
+//!
+//! One path's sphere step evaluates three small decoders in a row (LengthGen, PathGen,
+//! EventGen), each a chain of short dependent dot products that leaves the CPU's vector
+//! units mostly idle. Here a thread keeps [`SLOTS`] paths in flight: each is followed until
+//! its next sphere step needs the decoders (or until it ends, when the next camera sample
+//! takes its slot), then every waiting step's LengthGen draw is evaluated in one batch
+//! with the draws in SIMD lanes ([`cvae::decoder::Decoder::heads`]), then their PathGen
+//! draws, then their EventGen draws, and the steps are finished. Each path keeps its own
+//! random stream and draws from it in the same order as when traced alone, so the result
+//! does not depend on which paths share a batch (only f32 rounding of the decoders'
+//! sums does).
+
+use cvae::decoder::{Decoder, Draw, Head, MAX_OUT};
+use glam::{DVec3, Vec3};
+use scatter_sim::rng::WalkRng;
+
+use super::sphere_step::Pending;
+use super::{Advance, IntegratorSettings, Path, PathStats};
+use crate::setup::SceneData;
+use cvae::sampler::CENTRE_EVENT;
+
+/// Paths in flight per thread: enough for full 8-lane batches while paths end and start at
+/// different times, few enough that their state stays in the core's caches.
+pub const SLOTS: usize = 64;
+
+/// One camera sample: its ray, hero channel, random stream and a tag the caller uses to
+/// place the result.
+pub struct Sample {
+    pub origin: Vec3,
+    pub dir: Vec3,
+    pub channel: usize,
+    pub rng: WalkRng,
+    pub tag: u64,
+}
+
+/// A path in flight.
+struct Slot {
+    path: Path,
+    tag: u64,
+}
+
+/// Reused buffers of one batch round.
+#[derive(Default)]
+struct Batch {
+    draws: Vec<Draw>,
+    heads: Vec<Head>,
+    /// Every waiting step's representative events in order (None: the centre event).
+    events: Vec<Option<Draw>>,
+    /// Where each waiting step's events start in `events`.
+    event_start: Vec<usize>,
+    event_results: Vec<(DVec3, DVec3)>,
+}
+
+/// Traces every sample `next` yields and reports each result to `done(tag, channel,
+/// radiance, stats)`. Results come in an order fixed by the samples alone, not by threads.
+pub fn trace_many(
+    scene: &SceneData,
+    set: &IntegratorSettings,
+    mut next: impl FnMut() -> Option<Sample>,
+    mut done: impl FnMut(u64, usize, f32, &PathStats),
+) {
+    let mut slots: Vec<Option<Slot>> = (0..SLOTS).map(|_| None).collect();
+    let mut batch = Batch::default();
+    let mut waiting: Vec<usize> = Vec::with_capacity(SLOTS);
+    loop {
+        waiting.clear();
+        for (i, cell) in slots.iter_mut().enumerate() {
+            loop {
+                if cell.is_none() {
+                    let Some(s) = next() else { break };
+                    *cell = Some(Slot {
+                        path: Path::new(s.origin, s.dir, s.channel, s.rng),
+                        tag: s.tag,
+                    });
+                }
+                let slot = cell.as_mut().expect("filled above");
+                match slot.path.advance(scene, set) {
+                    Advance::Done(l) => {
+                        done(slot.tag, slot.path.channel, l, &slot.path.stats);
+                        *cell = None;
+                    }
+                    Advance::Step => {
+                        waiting.push(i);
+                        break;
+                    }
+                }
+            }
+        }
+        if waiting.is_empty() {
+            return;
+        }
+        resolve_steps(scene, set, &mut slots, &waiting, &mut batch);
+    }
+}
+
+/// Traces one path to its end, its decoder draws one at a time.
+pub(crate) fn trace_alone(scene: &SceneData, set: &IntegratorSettings, path: Path) -> (f32, Path) {
+    let mut slots = [Some(Slot { path, tag: 0 })];
+    let mut batch = Batch::default();
+    loop {
+        let slot = slots[0].as_mut().expect("one slot");
+        match slot.path.advance(scene, set) {
+            Advance::Done(l) => {
+                let slot = slots[0].take().expect("one slot");
+                return (l, slot.path);
+            }
+            Advance::Step => {}
+        }
+        resolve_steps(scene, set, &mut slots, &[0], &mut batch);
+    }
+}
+
+/// Runs the decoder stages of the steps the slots `waiting` hold (all at LengthGen) and
+/// finishes the steps.
+fn resolve_steps(
+    scene: &SceneData,
+    set: &IntegratorSettings,
+    slots: &mut [Option<Slot>],
+    waiting: &[usize],
+    b: &mut Batch,
+) {
+    let model = set.model.expect("a waiting sphere step has a model");
+    // LengthGen, then PathGen: one batch each over all waiting steps.
+    stage_heads(&model.length, slots, waiting, b);
+    for (&i, head) in waiting.iter().zip(&b.heads) {
+        let (rng, step) = pending(slots, i);
+        step.after_length(model, head, rng);
+    }
+    stage_heads(&model.path, slots, waiting, b);
+    b.events.clear();
+    b.event_start.clear();
+    for (&i, head) in waiting.iter().zip(&b.heads) {
+        let (rng, step) = pending(slots, i);
+        b.event_start.push(b.events.len());
+        step.after_path(model, set, head, rng, &mut b.events);
+    }
+    b.event_start.push(b.events.len());
+    // EventGen: every drawn event of every step in one batch.
+    b.draws.clear();
+    b.draws.extend(b.events.iter().flatten().copied());
+    b.heads.resize(b.draws.len(), [0.0; 2 * MAX_OUT]);
+    model.event.heads(&b.draws, &mut b.heads);
+    b.event_results.clear();
+    let mut heads = b.heads.iter().zip(&b.draws);
+    for e in &b.events {
+        b.event_results.push(match e {
+            None => CENTRE_EVENT,
+            Some(_) => {
+                let (head, draw) = heads.next().expect("one head per drawn event");
+                model.event_result(head, draw)
+            }
+        });
+    }
+    for (k, &i) in waiting.iter().enumerate() {
+        let path = &mut slots[i].as_mut().expect("a waiting slot").path;
+        let events = &b.event_results[b.event_start[k]..b.event_start[k + 1]];
+        let step = path.step.take().expect("a waiting step");
+        step.finish(scene, set, path.channel, &mut path.s, events, &mut path.rng);
+    }
+}
+
+/// The heads of the waiting steps' current draws, into `b.heads`.
+fn stage_heads(decoder: &Decoder, slots: &mut [Option<Slot>], waiting: &[usize], b: &mut Batch) {
+    b.draws.clear();
+    b.draws
+        .extend(waiting.iter().map(|&i| pending(slots, i).1.draw));
+    b.heads.resize(b.draws.len(), [0.0; 2 * MAX_OUT]);
+    decoder.heads(&b.draws, &mut b.heads);
+}
+
+/// The random stream and the waiting step of slot `i`.
+fn pending(slots: &mut [Option<Slot>], i: usize) -> (&mut WalkRng, &mut Pending) {
+    let path = &mut slots[i].as_mut().expect("a waiting slot").path;
+    (&mut path.rng, path.step.as_mut().expect("a waiting step"))
+}
