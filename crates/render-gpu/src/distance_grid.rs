@@ -22,9 +22,16 @@ pub struct DistanceGrid {
     pub values: Vec<f32>,
     /// Radii below this (two cell diagonals) are worth refining with an exact query.
     pub near_surface: f32,
+    /// For each cell where that refinement can happen, the triangles that can be nearest
+    /// to a point in it: cell i's are `candidates[starts[i]..starts[i + 1]]` (none
+    /// elsewhere). The nearest of a dozen listed triangles is the exact distance at a
+    /// fraction of a nearest-triangle search through the BVH, which must also prove that
+    /// the neighbours, all about as near, are not nearer.
+    starts: Vec<u32>,
+    candidates: Vec<u32>,
 }
 
-const MAGIC: &[u8; 8] = b"STCVDG01";
+const MAGIC: &[u8; 8] = b"STCVDG02";
 
 impl DistanceGrid {
     /// Builds the grid with `resolution` cells along the longest side of the bounds.
@@ -36,20 +43,81 @@ impl DistanceGrid {
         let n = (dims.x * dims.y * dims.z) as usize;
         // Relative margin for f32 rounding in the distance computation.
         let margin = geo.eps * 0.5;
-        let values: Vec<f32> = (0..n)
+        let exact: Vec<f32> = (0..n)
             .into_par_iter()
-            .map(|i| {
-                let c = Self::centre_of(lo, cell, dims, i);
-                (geo.distance(c) * (1.0 - 1e-5) - margin).max(0.0)
+            .map(|i| geo.distance(Self::centre_of(lo, cell, dims, i)))
+            .collect();
+        let values = exact
+            .iter()
+            .map(|d| (d * (1.0 - 1e-5) - margin).max(0.0))
+            .collect();
+        let near_surface = 2.0 * 3f32.sqrt() * cell;
+        // A point p of cell c (|p − c| ≤ h, the half-diagonal) is refined when its radius
+        // value − |p − c| is below near_surface, so only cells with value < near_surface + h
+        // need lists. p's nearest triangle T lies within d(p) ≤ d(c) + h of p, hence within
+        // d(c) + 2h of c: listing every triangle that near c lists T. The padding covers
+        // f32 rounding of p's cell and of the distances (1e-4 of a cell, ~100 ulps).
+        let h = 0.5 * 3f32.sqrt() * cell;
+        let lists: Vec<Vec<u32>> = exact
+            .par_iter()
+            .enumerate()
+            .map(|(i, &d)| {
+                let mut list = Vec::new();
+                if d * (1.0 - 1e-5) - margin < near_surface + h {
+                    let c = Self::centre_of(lo, cell, dims, i);
+                    let reach = (d + 2.0 * h) * (1.0 + 1e-5) + 1e-4 * cell + geo.eps;
+                    geo.triangles_within(c, reach, &mut list);
+                    list.sort_unstable();
+                }
+                list
             })
             .collect();
+        let mut starts = Vec::with_capacity(n + 1);
+        let mut candidates = Vec::new();
+        starts.push(0);
+        for list in lists {
+            candidates.extend_from_slice(&list);
+            starts.push(candidates.len() as u32);
+        }
         Self {
             lo,
             cell,
             dims,
             values,
-            near_surface: 2.0 * 3f32.sqrt() * cell,
+            near_surface,
+            starts,
+            candidates,
         }
+    }
+
+    /// The index of the cell holding `p` (None outside the grid).
+    #[inline]
+    fn cell_of(&self, p: Vec3) -> Option<(usize, Vec3)> {
+        let q = (p - self.lo) / self.cell;
+        if !(q.x >= 0.0 && q.y >= 0.0 && q.z >= 0.0) {
+            return None;
+        }
+        let c = q.as_uvec3();
+        if c.x >= self.dims.x || c.y >= self.dims.y || c.z >= self.dims.z {
+            return None;
+        }
+        let i = (c.x + self.dims.x * (c.y + self.dims.y * c.z)) as usize;
+        Some((i, self.lo + (c.as_vec3() + 0.5) * self.cell))
+    }
+
+    /// The exact distance from `p` to the surface, from the candidate triangles of its
+    /// cell; None where the cell has no list (away from the surface, outside the grid).
+    #[inline]
+    pub fn exact_distance(&self, geo: &Geometry, p: Vec3) -> Option<f32> {
+        let (i, _) = self.cell_of(p)?;
+        let (a, b) = (self.starts[i] as usize, self.starts[i + 1] as usize);
+        (b > a).then(|| geo.nearest_of(p, &self.candidates[a..b]))
+    }
+
+    /// Cells with candidate lists and the lists' mean length (for reports and tests).
+    pub fn candidate_stats(&self) -> (usize, f64) {
+        let cells = self.starts.windows(2).filter(|w| w[1] > w[0]).count();
+        (cells, self.candidates.len() as f64 / cells.max(1) as f64)
     }
 
     fn centre_of(lo: Vec3, cell: f32, dims: UVec3, i: usize) -> Vec3 {
@@ -63,17 +131,10 @@ impl DistanceGrid {
     /// A radius r with the ball B(p, r) free of the surface (0 outside the grid).
     #[inline]
     pub fn radius(&self, p: Vec3) -> f32 {
-        let q = (p - self.lo) / self.cell;
-        if !(q.x >= 0.0 && q.y >= 0.0 && q.z >= 0.0) {
-            return 0.0;
+        match self.cell_of(p) {
+            Some((i, centre)) => (self.values[i] - (p - centre).length()).max(0.0),
+            None => 0.0,
         }
-        let c = q.as_uvec3();
-        if c.x >= self.dims.x || c.y >= self.dims.y || c.z >= self.dims.z {
-            return 0.0;
-        }
-        let i = (c.x + self.dims.x * (c.y + self.dims.y * c.z)) as usize;
-        let centre = self.lo + (c.as_vec3() + 0.5) * self.cell;
-        (self.values[i] - (p - centre).length()).max(0.0)
     }
 
     /// An upper bound on the true distance at a point whose grid radius is `radius`:
@@ -121,6 +182,10 @@ impl DistanceGrid {
         for v in &self.values {
             bytes.extend_from_slice(&v.to_le_bytes());
         }
+        bytes.extend_from_slice(&(self.candidates.len() as u32).to_le_bytes());
+        for v in self.starts.iter().chain(&self.candidates) {
+            bytes.extend_from_slice(&v.to_le_bytes());
+        }
         let crc = crc32fast::hash(&bytes);
         bytes.extend_from_slice(&crc.to_le_bytes());
         if let Some(dir) = path.parent() {
@@ -143,26 +208,41 @@ impl DistanceGrid {
         let u = |i: usize| u32::from_le_bytes(body[8 + 4 * i..12 + 4 * i].try_into().unwrap());
         let dims = UVec3::new(u(4), u(5), u(6));
         let n = dims.x as usize * dims.y as usize * dims.z as usize;
-        if body.len() != 36 + 4 * n {
+        let words = |from: usize, count: usize| {
+            body.get(from..from + 4 * count)
+                .map(|b| b.chunks_exact(4).map(|c| c.try_into().unwrap()))
+        };
+        let values = words(36, n)?.map(f32::from_le_bytes).collect();
+        let m = u32::from_le_bytes(words(36 + 4 * n, 1)?.next()?) as usize;
+        let from = 40 + 4 * n;
+        if body.len() != from + 4 * (n + 1 + m) {
             return None;
         }
-        let values = body[36..]
-            .chunks_exact(4)
-            .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
+        let starts: Vec<u32> = words(from, n + 1)?.map(u32::from_le_bytes).collect();
+        let candidates: Vec<u32> = words(from + 4 * (n + 1), m)?
+            .map(u32::from_le_bytes)
             .collect();
+        let ordered = starts.first() == Some(&0)
+            && starts.windows(2).all(|w| w[0] <= w[1])
+            && starts.last() == Some(&(m as u32));
+        if !ordered {
+            return None;
+        }
         Some(Self {
             lo: Vec3::new(f(0), f(1), f(2)),
             cell: f(3),
             dims,
             values,
             near_surface: 2.0 * 3f32.sqrt() * f(3),
+            starts,
+            candidates,
         })
     }
 }
 
 fn cache_key(geo: &Geometry, resolution: u32) -> u64 {
     let mut h = Fnv64::new();
-    h.write(b"distance-grid-v1");
+    h.write(b"distance-grid-v2");
     h.write(&resolution.to_le_bytes());
     for p in &geo.mesh.positions {
         for x in p.to_array() {

@@ -221,13 +221,7 @@ impl Geometry {
             let n = &nodes[i];
             if n.prim_count > 0 {
                 for k in n.first_index..n.first_index + n.prim_count {
-                    let t = &self.tris[self.bvh.primitive_indices[k as usize] as usize];
-                    best = best.min(point_triangle_d2(
-                        pa,
-                        from_arr(t.v0),
-                        from_arr(t.v1),
-                        from_arr(t.v2),
-                    ));
+                    best = best.min(self.triangle_d2(pa, self.bvh.primitive_indices[k as usize]));
                 }
             } else {
                 let (a, b) = (n.first_index as usize, n.first_index as usize + 1);
@@ -244,6 +238,52 @@ impl Geometry {
             }
         }
         best.sqrt()
+    }
+
+    /// Appends to `out` every triangle within `radius` of `p` (a BVH range query).
+    pub fn triangles_within(&self, p: Vec3, radius: f32, out: &mut Vec<u32>) {
+        let nodes = &self.bvh.nodes;
+        if nodes.is_empty() {
+            return;
+        }
+        let pa = Vec3A::from(p);
+        let r2 = radius * radius;
+        let mut stack = vec![0usize];
+        while let Some(i) = stack.pop() {
+            let n = &nodes[i];
+            let q = pa.clamp(from_arr(n.aabb.min), from_arr(n.aabb.max));
+            if (q - pa).length_squared() > r2 {
+                continue;
+            }
+            if n.prim_count > 0 {
+                for k in n.first_index..n.first_index + n.prim_count {
+                    let prim = self.bvh.primitive_indices[k as usize];
+                    if self.triangle_d2(pa, prim) <= r2 {
+                        out.push(prim);
+                    }
+                }
+            } else {
+                stack.extend([n.first_index as usize, n.first_index as usize + 1]);
+            }
+        }
+    }
+
+    /// Distance from `p` to the nearest of the triangles `prims`.
+    #[inline]
+    pub fn nearest_of(&self, p: Vec3, prims: &[u32]) -> f32 {
+        let pa = Vec3A::from(p);
+        prims
+            .iter()
+            .fold(f32::INFINITY, |best, &prim| {
+                best.min(self.triangle_d2(pa, prim))
+            })
+            .sqrt()
+    }
+
+    #[inline]
+    fn triangle_d2(&self, p: Vec3A, prim: u32) -> f32 {
+        let t = &self.tris[prim as usize];
+        point_triangle_d2(p, from_arr(t.v0), from_arr(t.v1), from_arr(t.v2))
     }
 
     /// Whether `p` is inside the closed mesh (parity of crossings along a fixed ray).

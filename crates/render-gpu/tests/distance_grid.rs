@@ -61,3 +61,65 @@ fn sphere_grid_matches_the_radius() {
     assert!(r > 0.5 - 2.0 * 0.0271 - 3e-4 && r <= 0.5, "r(0) = {r}");
     assert_eq!(grid.radius(Vec3::splat(2.0)), 0.0, "outside the grid");
 }
+
+/// The per-cell candidate triangles give the exact distance wherever the integrator asks
+/// for it: the same point–triangle function over a subset that holds the nearest triangle
+/// returns the same minimum, so equality is exact. Points are taken where refinement
+/// happens — within a few cells of the surface (random surface points pushed along random
+/// directions by up to three cell diagonals) — and anywhere inside; a cell without a list
+/// must be one whose radius never asks (≥ near_surface).
+#[test]
+fn candidate_lists_give_the_exact_distance() {
+    let m =
+        load_mesh(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/bunny.ply")).unwrap();
+    let geo = Geometry::new(m);
+    let grid = DistanceGrid::build(&geo, 64);
+    let (cells, mean) = grid.candidate_stats();
+    assert!(
+        cells > 1000 && mean < 64.0,
+        "{cells} cells, {mean:.1} candidates each"
+    );
+    let mut rng = WalkRng::for_walk(21, 0);
+    let (mut listed, mut near) = (0, 0);
+    for k in 0..20_000 {
+        let p = if k % 2 == 0 {
+            let t = (rng.uniform() * geo.tris.len() as f64) as usize;
+            let tri = &geo.tris[t.min(geo.tris.len() - 1)];
+            let (a, b, c): (Vec3, Vec3, Vec3) = (
+                Vec3::from_array(tri.v0.into()),
+                Vec3::from_array(tri.v1.into()),
+                Vec3::from_array(tri.v2.into()),
+            );
+            let (u, v) = (rng.uniform() as f32, rng.uniform() as f32);
+            let (u, v) = if u + v > 1.0 {
+                (1.0 - u, 1.0 - v)
+            } else {
+                (u, v)
+            };
+            let on = a + (b - a) * u + (c - a) * v;
+            on + common::uniform_direction(&mut rng)
+                * (rng.uniform() as f32 * 1.5 * grid.near_surface)
+        } else {
+            common::random_interior(&geo, &mut rng)
+        };
+        let r = grid.radius(p);
+        match grid.exact_distance(&geo, p) {
+            Some(d) => {
+                listed += 1;
+                assert_eq!(d, geo.distance(p), "at {p}");
+            }
+            None => assert!(
+                r >= grid.near_surface || r == 0.0,
+                "no list at {p}, radius {r}"
+            ),
+        }
+        if r < grid.near_surface {
+            near += 1;
+        }
+    }
+    // Most of the pushed surface points land where refinement happens.
+    assert!(
+        listed > 8_000 && near > 8_000,
+        "{listed} listed, {near} near"
+    );
+}

@@ -74,10 +74,13 @@ pub(crate) fn begin(
         // which at high density is many mean free paths of PT fallback events. When the
         // grid alone would force a fallback, the exact nearest-triangle distance (about
         // the cost of one ray cast) often still allows a sphere step.
-        // The search never looks beyond what the grid says the distance can be at most.
-        let exact = scene
-            .geo
-            .distance_within(s.pos, grid.distance_upper_bound(grid_free));
+        // The cell's candidate triangles give it directly; elsewhere a BVH search that
+        // never looks beyond what the grid says the distance can be at most.
+        let exact = grid.exact_distance(&scene.geo, s.pos).unwrap_or_else(|| {
+            scene
+                .geo
+                .distance_within(s.pos, grid.distance_upper_bound(grid_free))
+        });
         free = free.max(exact * (1.0 - 1e-5) - scene.geo.eps);
     }
     let r = (free * SHRINK).min(set.max_tau / sigma);
