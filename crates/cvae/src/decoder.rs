@@ -109,43 +109,43 @@ impl Dense {
 }
 
 impl Dense {
-    /// The layer for [`LANES`] draws at once, one per SIMD lane (`x[i][lane]`): every
-    /// multiply-add serves eight draws, and blocks of eight outputs keep eight independent
+    /// The layer for L draws at once, one per SIMD lane (`x[i][lane]`): every
+    /// multiply-add serves L draws, and blocks of eight outputs keep eight independent
     /// accumulation chains going (one draw alone is bound by the chains' latency).
     #[inline(always)]
-    fn apply_lanes<M: Madd>(&self, x: &[[f32; LANES]], y: &mut [[f32; LANES]]) {
+    fn apply_lanes<M: Madd, const L: usize>(&self, x: &[[f32; L]], y: &mut [[f32; L]]) {
         let x = &x[..self.inputs];
         let mut o = 0;
         while o + 8 <= self.outputs {
-            self.block::<M, 8>(x, y, o);
+            self.block::<M, L, 8>(x, y, o);
             o += 8;
         }
         while o + 4 <= self.outputs {
-            self.block::<M, 4>(x, y, o);
+            self.block::<M, L, 4>(x, y, o);
             o += 4;
         }
         while o < self.outputs {
-            self.block::<M, 1>(x, y, o);
+            self.block::<M, L, 1>(x, y, o);
             o += 1;
         }
     }
 
     /// Outputs o0..o0 + B of [`Dense::apply_lanes`].
     #[inline(always)]
-    fn block<M: Madd, const B: usize>(
+    fn block<M: Madd, const L: usize, const B: usize>(
         &self,
-        x: &[[f32; LANES]],
-        y: &mut [[f32; LANES]],
+        x: &[[f32; L]],
+        y: &mut [[f32; L]],
         o0: usize,
     ) {
         let n = self.inputs;
         let rows: [&[f32]; B] =
             std::array::from_fn(|b| &self.weight[(o0 + b) * n..(o0 + b + 1) * n]);
-        let mut acc: [[f32; LANES]; B] = std::array::from_fn(|b| [self.bias[o0 + b]; LANES]);
+        let mut acc: [[f32; L]; B] = std::array::from_fn(|b| [self.bias[o0 + b]; L]);
         for (i, xi) in x.iter().enumerate() {
             for b in 0..B {
                 let w = rows[b][i];
-                for l in 0..LANES {
+                for l in 0..L {
                     acc[b][l] = M::madd(w, xi[l], acc[b][l]);
                 }
             }
@@ -154,8 +154,6 @@ impl Dense {
     }
 }
 
-/// Draws a batched evaluation handles at once (one per lane of a 256-bit vector).
-pub const LANES: usize = 8;
 /// Most outputs of any decoder (EventGen's six); a head holds twice as many.
 pub const MAX_OUT: usize = 8;
 /// Most inputs (conditions + latent) of any decoder: EventGen's 7 conditions plus the
@@ -293,36 +291,52 @@ impl Decoder {
         }
     }
 
-    /// The heads of many draws, [`LANES`] at a time with the draws in SIMD lanes (equal
-    /// to [`Decoder::forward`] draw by draw up to f32 rounding: the sums are taken in
-    /// another order). A renderer collects one draw from each of its paths between two
-    /// sphere steps; evaluated together they cost a fraction of one-by-one evaluation,
-    /// whose short dependent chains leave the arithmetic units mostly idle.
+    /// The heads of many draws, evaluated with the draws in SIMD lanes: 16 at a time on
+    /// CPUs with AVX-512, 8 with AVX2 + FMA (both checked at run time), 8 in portable
+    /// code. Equal to [`Decoder::forward`] draw by draw up to f32 rounding (the sums are
+    /// taken in another order). A renderer collects one draw from each of its paths
+    /// between two sphere steps; evaluated together they cost a fraction of one-by-one
+    /// evaluation, whose short dependent chains leave the arithmetic units mostly idle.
     pub fn heads(&self, draws: &[Draw], heads: &mut [Head]) {
         assert_eq!(draws.len(), heads.len(), "one head per draw");
         #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
         {
-            // SAFETY: the CPU supports AVX2 and FMA (checked just above).
-            unsafe { self.heads_avx2(draws, heads) };
-            return;
+            if std::arch::is_x86_feature_detected!("avx512f") {
+                // SAFETY: the CPU supports AVX-512F (checked just above).
+                unsafe { self.heads_avx512(draws, heads) };
+                return;
+            }
+            if std::arch::is_x86_feature_detected!("avx2")
+                && std::arch::is_x86_feature_detected!("fma")
+            {
+                // SAFETY: the CPU supports AVX2 and FMA (checked just above).
+                unsafe { self.heads_avx2(draws, heads) };
+                return;
+            }
         }
-        self.heads_with::<Separate>(draws, heads);
+        self.heads_with::<Separate, 8>(draws, heads);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,avx2,fma")]
+    fn heads_avx512(&self, draws: &[Draw], heads: &mut [Head]) {
+        self.heads_with::<Fused, 16>(draws, heads);
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
     fn heads_avx2(&self, draws: &[Draw], heads: &mut [Head]) {
-        self.heads_with::<Fused>(draws, heads);
+        self.heads_with::<Fused, 8>(draws, heads);
     }
 
+    /// [`Decoder::heads`] with L lanes (a multiple of 8).
     #[inline(always)]
-    fn heads_with<M: Madd>(&self, draws: &[Draw], heads: &mut [Head]) {
+    fn heads_with<M: Madd, const L: usize>(&self, draws: &[Draw], heads: &mut [Head]) {
         let inputs = self.cond + self.latent;
         let outs = 2 * self.out;
         let last = self.layers.len() - 1;
-        let mut buf = [[[0f32; LANES]; MAX_WIDTH]; 2];
-        for (group, out) in draws.chunks(LANES).zip(heads.chunks_mut(LANES)) {
+        let mut buf = [[[0f32; L]; MAX_WIDTH]; 2];
+        for (group, out) in draws.chunks(L).zip(heads.chunks_mut(L)) {
             // Lanes past the group's end keep whatever the previous group left: finite
             // values whose results are never read.
             for (l, d) in group.iter().enumerate() {
@@ -333,9 +347,9 @@ impl Decoder {
             for (i, layer) in self.layers.iter().enumerate() {
                 let [a, b] = &mut buf;
                 let (src, dst) = if i % 2 == 0 { (&*a, b) } else { (&*b, a) };
-                layer.apply_lanes::<M>(src, dst);
+                layer.apply_lanes::<M, L>(src, dst);
                 if i < last {
-                    crate::fastmath::softplus_in_place::<M>(
+                    crate::fastmath::softplus_chunks::<M, L>(
                         dst[..layer.outputs].as_flattened_mut(),
                     );
                 }
@@ -355,5 +369,68 @@ impl Decoder {
             .iter()
             .map(|l| l.weight.len() + l.bias.len())
             .sum()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Both lane widths (8: AVX2 and portable builds; 16: AVX-512), with separate and
+    /// fused multiply-adds, equal one-by-one evaluation on batches that end mid-group.
+    /// Tolerance as in `tests/model_file.rs`: f32 rounding of sums taken in another order
+    /// is a few ulps of O(1–10) values; a wrong lane or weight is O(0.1–1).
+    #[test]
+    fn every_lane_width_equals_single_draws() {
+        let mut seed = 1u32;
+        let mut next = move || {
+            seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            (seed >> 8) as f32 / (1u32 << 24) as f32 - 0.5
+        };
+        let widths = [12usize, 12, 12, 12, 12];
+        let layers = widths
+            .windows(2)
+            .map(|w| {
+                let weight = (0..w[0] * w[1]).map(|_| 1.5 * next()).collect();
+                let bias = (0..w[1]).map(|_| next()).collect();
+                Dense::new(w[0], w[1], weight, bias)
+            })
+            .collect();
+        let d = Decoder {
+            cond: 7,
+            latent: 5,
+            out: 6,
+            layers,
+            cond_shift: vec![0.0; 7],
+            cond_scale: vec![1.0; 7],
+            out_shift: vec![0.0; 6],
+            out_scale: vec![1.0; 6],
+        };
+        let draws: Vec<Draw> = (0..37)
+            .map(|_| {
+                let cond: Vec<f64> = (0..7).map(|_| 4.0 * next() as f64).collect();
+                let z: Vec<f32> = (0..5).map(|_| 3.0 * next()).collect();
+                d.draw(&cond, &z, &[0.0; 6])
+            })
+            .collect();
+        let single: Vec<Head> = draws.iter().map(|x| d.head(x)).collect();
+        let mut heads = vec![[0f32; 2 * MAX_OUT]; draws.len()];
+        for width in 0..3 {
+            match width {
+                0 => d.heads_with::<Separate, 8>(&draws, &mut heads),
+                1 => d.heads_with::<Separate, 16>(&draws, &mut heads),
+                _ => d.heads_with::<Fused, 16>(&draws, &mut heads),
+            }
+            for (a, b) in single.iter().zip(&heads) {
+                for j in 0..12 {
+                    assert!(
+                        (a[j] - b[j]).abs() <= 1e-4 * a[j].abs().max(1.0),
+                        "variant {width}: {} vs {}",
+                        a[j],
+                        b[j]
+                    );
+                }
+            }
+        }
     }
 }

@@ -131,7 +131,14 @@ pub fn softplus_with<M: Madd>(x: f32) -> f32 {
 /// softplus over a slice whose length is a multiple of 8 (a padded layer).
 #[inline(always)]
 pub fn softplus_in_place<M: Madd>(v: &mut [f32]) {
-    for chunk in v.chunks_exact_mut(8) {
+    softplus_chunks::<M, 8>(v);
+}
+
+/// softplus over a slice whose length is a multiple of W, W values at a time (one
+/// vector of W lanes: 8 for AVX2, 16 for AVX-512).
+#[inline(always)]
+pub fn softplus_chunks<M: Madd, const W: usize>(v: &mut [f32]) {
+    for chunk in v.chunks_exact_mut(W) {
         for x in chunk {
             *x = softplus_with::<M>(*x);
         }
