@@ -76,9 +76,11 @@ pub fn walk_weights(albedo: f64, n: u64) -> (f64, f64) {
         let ln = albedo.ln();
         let x = n as f64 * ln;
         let e = x.exp_m1();
-        // Λ = φ (1 − φ^N) / (1 − φ), both differences through exp_m1. 1 + e loses φ^N's relative precision once it is small: take exp there.
+        // Λ = φ (1 − φ^N) / (1 − φ): 1 − φ^N through exp_m1; 1 − φ is exact in f64 for
+        // φ ≥ 1/2 (Sterbenz) and within an ulp below. 1 + e loses φ^N's relative precision
+        // once it is small: take exp there.
         let survival = if e > -0.5 { 1.0 + e } else { x.exp() };
-        (albedo * (-e) / (-ln.exp_m1()), survival)
+        (albedo * (-e) / (1.0 - albedo), survival)
     }
 }
 
