@@ -86,3 +86,25 @@ fn probe_ray(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invoc
     set_f(i, 2u, f32(c.balance));
     set_f(i, 3u, c.length);
 }
+
+/// In: a point at 0..3 (scene geometry and distance grid bound). Out: the grid radius,
+/// the candidate lists' exact distance (-1 without a list) and the BVH search's distance
+/// at 0, 1, 2.
+@compute @workgroup_size(64)
+fn probe_grid(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    stack_base = li * STACK_DEPTH;
+    let i = gid.x;
+    if i >= params.image.x {
+        return;
+    }
+    let p = vec3<f32>(item_f(i, 0u), item_f(i, 1u), item_f(i, 2u));
+    let r = grid_radius(p);
+    let exact = grid_exact_distance(p);
+    let searched = surface_distance(p, 1e30);
+    for (var k = 0u; k < 32u; k++) {
+        set_f(i, k, 0.0);
+    }
+    set_f(i, 0u, r);
+    set_f(i, 1u, exact);
+    set_f(i, 2u, searched);
+}

@@ -57,7 +57,9 @@ struct ModelParams {
 @group(0) @binding(3) var<storage, read> tris: array<Tri>;
 @group(0) @binding(4) var<storage, read> nodes: array<Node>;
 @group(0) @binding(5) var<storage, read> env_map: array<vec4<f32>>;
-@group(0) @binding(6) var<storage, read> grid: array<f32>;
+// The distance grid (scene_buffers::grid_buffer): per cell [d(c) bits, start of its
+// candidate list] for the n cells plus a closing entry, then the candidate lists.
+@group(0) @binding(6) var<storage, read> grid: array<u32>;
 @group(0) @binding(7) var<uniform> model: ModelParams;
 
 fn channel_of(v: vec4<f32>, c: u32) -> f32 {
@@ -314,23 +316,54 @@ fn surface_distance(p: vec3<f32>, limit: f32) -> f32 {
 
 // ---- the conservative distance grid (crates/render-gpu/src/distance_grid.rs) ----
 
-fn grid_radius(p: vec3<f32>) -> f32 {
+/// The index of the grid cell holding p, or -1 outside the grid (or without one).
+fn grid_cell(p: vec3<f32>) -> i32 {
     if params.grid_dims.w == 0u {
-        return 0.0;
+        return -1;
     }
-    let cell = params.grid_lo.w;
-    let q = (p - params.grid_lo.xyz) / cell;
+    let q = (p - params.grid_lo.xyz) / params.grid_lo.w;
     if !(q.x >= 0.0 && q.y >= 0.0 && q.z >= 0.0) {
-        return 0.0;
+        return -1;
     }
     let c = vec3<u32>(q);
     let dims = params.grid_dims.xyz;
     if c.x >= dims.x || c.y >= dims.y || c.z >= dims.z {
+        return -1;
+    }
+    return i32(c.x + dims.x * (c.y + dims.y * c.z));
+}
+
+fn grid_radius(p: vec3<f32>) -> f32 {
+    let i = grid_cell(p);
+    if i < 0 {
         return 0.0;
     }
-    let i = c.x + dims.x * (c.y + dims.y * c.z);
-    let centre = params.grid_lo.xyz + (vec3<f32>(c) + 0.5) * cell;
-    return max(grid[i] - length(p - centre), 0.0);
+    let cell = params.grid_lo.w;
+    let c = vec3<f32>(vec3<u32>((p - params.grid_lo.xyz) / cell));
+    let centre = params.grid_lo.xyz + (c + 0.5) * cell;
+    return max(bitcast<f32>(grid[2u * u32(i)]) - length(p - centre), 0.0);
+}
+
+/// The exact distance from p to the surface from its cell's candidate triangles
+/// (DistanceGrid::exact_distance), or -1 where the cell has none.
+fn grid_exact_distance(p: vec3<f32>) -> f32 {
+    let i = grid_cell(p);
+    if i < 0 {
+        return -1.0;
+    }
+    let a = grid[2u * u32(i) + 1u];
+    let b = grid[2u * u32(i) + 3u];
+    if b <= a {
+        return -1.0;
+    }
+    let dims = params.grid_dims.xyz;
+    let base = 2u * (dims.x * dims.y * dims.z + 1u);
+    var best = 3.4e38;
+    for (var k = a; k < b; k++) {
+        let t = tris[grid[base + k]];
+        best = min(best, point_triangle_d2(p, t.v0.xyz, t.v1.xyz, t.v2.xyz));
+    }
+    return sqrt(best);
 }
 
 /// An upper bound on the true distance at a point of grid radius r: r + √3·cell plus

@@ -17,10 +17,14 @@ fn scatter_at(channel: u32) -> bool {
     var free = max(grid_free, ps.free);
     if free < near && sigma * free < min_tau {
         // The grid's Lipschitz bound loses up to two cell diagonals near the surface; the
-        // exact distance often still allows a sphere step there. The search stops at the
-        // largest distance the grid allows.
-        let limit = grid_distance_upper_bound(grid_free);
-        free = max(free, surface_distance(ps.pos, limit) * (1.0 - 1e-5) - params.consts.z);
+        // exact distance often still allows a sphere step there. It comes from the cell's
+        // candidate triangles, or else from a search that stops at the largest distance
+        // the grid allows.
+        var exact = grid_exact_distance(ps.pos);
+        if exact < 0.0 {
+            exact = surface_distance(ps.pos, grid_distance_upper_bound(grid_free));
+        }
+        free = max(free, exact * (1.0 - 1e-5) - params.consts.z);
     }
     let r = min(free * SHRINK, max_tau / sigma);
     let tau = sigma * r;

@@ -18,20 +18,23 @@ pub struct DistanceGrid {
     pub lo: Vec3,
     pub cell: f32,
     pub dims: UVec3,
-    /// d(c) per cell, x fastest, already reduced by the rounding margin.
-    pub values: Vec<f32>,
     /// Radii below this (two cell diagonals) are worth refining with an exact query.
     pub near_surface: f32,
+    /// Per cell (x fastest) [d(c) as f32 bits, already reduced by the rounding margin;
+    /// where the cell's candidate list starts], plus one closing entry [0, end of the
+    /// last list]. The value and its list's bounds share a cache line: a sphere step
+    /// reads both, and the grid is too large for the caches. The WGSL kernels read the
+    /// same array.
+    pub cells: Vec<[u32; 2]>,
     /// For each cell where that refinement can happen, the triangles that can be nearest
-    /// to a point in it: cell i's are `candidates[starts[i]..starts[i + 1]]` (none
+    /// to a point in it: cell i's are `candidates[cells[i][1]..cells[i + 1][1]]` (none
     /// elsewhere). The nearest of a dozen listed triangles is the exact distance at a
     /// fraction of a nearest-triangle search through the BVH, which must also prove that
     /// the neighbours, all about as near, are not nearer.
-    starts: Vec<u32>,
-    candidates: Vec<u32>,
+    pub candidates: Vec<u32>,
 }
 
-const MAGIC: &[u8; 8] = b"STCVDG02";
+const MAGIC: &[u8; 8] = b"STCVDG03";
 
 impl DistanceGrid {
     /// Builds the grid with `resolution` cells along the longest side of the bounds.
@@ -46,10 +49,6 @@ impl DistanceGrid {
         let exact: Vec<f32> = (0..n)
             .into_par_iter()
             .map(|i| geo.distance(Self::centre_of(lo, cell, dims, i)))
-            .collect();
-        let values = exact
-            .iter()
-            .map(|d| (d * (1.0 - 1e-5) - margin).max(0.0))
             .collect();
         let near_surface = 2.0 * 3f32.sqrt() * cell;
         // A point p of cell c (|p − c| ≤ h, the half-diagonal) is refined when its radius
@@ -72,20 +71,20 @@ impl DistanceGrid {
                 list
             })
             .collect();
-        let mut starts = Vec::with_capacity(n + 1);
+        let mut cells = Vec::with_capacity(n + 1);
         let mut candidates = Vec::new();
-        starts.push(0);
-        for list in lists {
+        for (d, list) in exact.iter().zip(lists) {
+            let value = (d * (1.0 - 1e-5) - margin).max(0.0);
+            cells.push([value.to_bits(), candidates.len() as u32]);
             candidates.extend_from_slice(&list);
-            starts.push(candidates.len() as u32);
         }
+        cells.push([0, candidates.len() as u32]);
         Self {
             lo,
             cell,
             dims,
-            values,
             near_surface,
-            starts,
+            cells,
             candidates,
         }
     }
@@ -110,13 +109,13 @@ impl DistanceGrid {
     #[inline]
     pub fn exact_distance(&self, geo: &Geometry, p: Vec3) -> Option<f32> {
         let (i, _) = self.cell_of(p)?;
-        let (a, b) = (self.starts[i] as usize, self.starts[i + 1] as usize);
+        let (a, b) = (self.cells[i][1] as usize, self.cells[i + 1][1] as usize);
         (b > a).then(|| geo.nearest_of(p, &self.candidates[a..b]))
     }
 
     /// Cells with candidate lists and the lists' mean length (for reports and tests).
     pub fn candidate_stats(&self) -> (usize, f64) {
-        let cells = self.starts.windows(2).filter(|w| w[1] > w[0]).count();
+        let cells = self.cells.windows(2).filter(|w| w[1][1] > w[0][1]).count();
         (cells, self.candidates.len() as f64 / cells.max(1) as f64)
     }
 
@@ -132,7 +131,9 @@ impl DistanceGrid {
     #[inline]
     pub fn radius(&self, p: Vec3) -> f32 {
         match self.cell_of(p) {
-            Some((i, centre)) => (self.values[i] - (p - centre).length()).max(0.0),
+            Some((i, centre)) => {
+                (f32::from_bits(self.cells[i][0]) - (p - centre).length()).max(0.0)
+            }
             None => 0.0,
         }
     }
@@ -171,7 +172,7 @@ impl DistanceGrid {
     }
 
     fn write(&self, path: &Path) -> std::io::Result<()> {
-        let mut bytes = Vec::with_capacity(48 + self.values.len() * 4);
+        let mut bytes = Vec::with_capacity(48 + 8 * self.cells.len() + 4 * self.candidates.len());
         bytes.extend_from_slice(MAGIC);
         for v in [self.lo.x, self.lo.y, self.lo.z, self.cell] {
             bytes.extend_from_slice(&v.to_le_bytes());
@@ -179,11 +180,8 @@ impl DistanceGrid {
         for d in [self.dims.x, self.dims.y, self.dims.z] {
             bytes.extend_from_slice(&d.to_le_bytes());
         }
-        for v in &self.values {
-            bytes.extend_from_slice(&v.to_le_bytes());
-        }
         bytes.extend_from_slice(&(self.candidates.len() as u32).to_le_bytes());
-        for v in self.starts.iter().chain(&self.candidates) {
+        for v in self.cells.as_flattened().iter().chain(&self.candidates) {
             bytes.extend_from_slice(&v.to_le_bytes());
         }
         let crc = crc32fast::hash(&bytes);
@@ -212,19 +210,19 @@ impl DistanceGrid {
             body.get(from..from + 4 * count)
                 .map(|b| b.chunks_exact(4).map(|c| c.try_into().unwrap()))
         };
-        let values = words(36, n)?.map(f32::from_le_bytes).collect();
-        let m = u32::from_le_bytes(words(36 + 4 * n, 1)?.next()?) as usize;
-        let from = 40 + 4 * n;
-        if body.len() != from + 4 * (n + 1 + m) {
+        let m = u32::from_le_bytes(words(36, 1)?.next()?) as usize;
+        if body.len() != 40 + 4 * (2 * (n + 1) + m) {
             return None;
         }
-        let starts: Vec<u32> = words(from, n + 1)?.map(u32::from_le_bytes).collect();
-        let candidates: Vec<u32> = words(from + 4 * (n + 1), m)?
+        let flat: Vec<u32> = words(40, 2 * (n + 1))?.map(u32::from_le_bytes).collect();
+        let cells: Vec<[u32; 2]> = flat.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
+        let candidates: Vec<u32> = words(40 + 8 * (n + 1), m)?
             .map(u32::from_le_bytes)
             .collect();
-        let ordered = starts.first() == Some(&0)
-            && starts.windows(2).all(|w| w[0] <= w[1])
-            && starts.last() == Some(&(m as u32));
+        let ordered = cells[0][1] == 0
+            && cells.windows(2).all(|w| w[0][1] <= w[1][1])
+            && cells[n][1] == m as u32
+            && cells.iter().all(|c| f32::from_bits(c[0]).is_finite());
         if !ordered {
             return None;
         }
@@ -232,9 +230,8 @@ impl DistanceGrid {
             lo: Vec3::new(f(0), f(1), f(2)),
             cell: f(3),
             dims,
-            values,
             near_surface: 2.0 * 3f32.sqrt() * f(3),
-            starts,
+            cells,
             candidates,
         })
     }
@@ -242,7 +239,7 @@ impl DistanceGrid {
 
 fn cache_key(geo: &Geometry, resolution: u32) -> u64 {
     let mut h = Fnv64::new();
-    h.write(b"distance-grid-v2");
+    h.write(b"distance-grid-v3");
     h.write(&resolution.to_le_bytes());
     for p in &geo.mesh.positions {
         for x in p.to_array() {

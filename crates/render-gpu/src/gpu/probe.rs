@@ -8,7 +8,7 @@ use super::context::GpuContext;
 use super::kernels::{self, Kernel, WORKGROUP};
 use super::model_buffers::model_params;
 use super::resources::{Inputs, Resources, read_back};
-use super::scene_buffers::{GpuNode, GpuTri, Params, geometry_buffers};
+use super::scene_buffers::{GpuNode, GpuTri, Params, geometry_buffers, grid_buffer};
 
 /// One probe item: 32 floats in, 32 floats out (layouts in `shaders/probe.wgsl`).
 pub type Item = [f32; 32];
@@ -23,7 +23,8 @@ pub fn run_probe(
     run_probe_on(ctx, entry, model, items, None)
 }
 
-/// Runs `entry` over `items` with a scene's geometry uploaded ("probe_ray").
+/// Runs `entry` over `items` with a scene's geometry (and distance grid, if built)
+/// uploaded ("probe_ray", "probe_grid").
 pub fn run_probe_on(
     ctx: &GpuContext,
     entry: &str,
@@ -39,6 +40,14 @@ pub fn run_probe_on(
     let pipeline = kernels::pipeline(ctx, &layout, Kernel::Probe, Some(model), entry)?;
     let mut params = Params::default();
     params.image[0] = items.len() as u32;
+    let grid = match scene.and_then(|s| s.grid.as_ref().map(|g| (s, g))) {
+        Some((s, g)) => {
+            params.grid_lo = [g.lo.x, g.lo.y, g.lo.z, g.cell];
+            params.grid_dims = [g.dims.x, g.dims.y, g.dims.z, 1];
+            grid_buffer(g, &s.geo)
+        }
+        None => vec![0],
+    };
     let bytes = std::mem::size_of_val(items) as u64;
     let res = Resources::new(
         ctx,
@@ -49,7 +58,7 @@ pub fn run_probe_on(
             nodes: &nodes,
             tris: &tris,
             env: &[[0.0; 4]],
-            grid: &[0.0],
+            grid: &grid,
             model: &model_params(model),
         },
     )?;

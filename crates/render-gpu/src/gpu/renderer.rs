@@ -19,7 +19,9 @@ use super::kernels::{self, Kernel, WORKGROUP};
 const SLOT_VEC4S: u64 = 5;
 use super::model_buffers::model_params;
 use super::resources::{COUNTER_BYTES, Inputs, Resources, read_back, wait};
-use super::scene_buffers::{Params, bvh_depth, env_buffer, geometry_buffers, scene_params};
+use super::scene_buffers::{
+    Params, bvh_depth, env_buffer, geometry_buffers, grid_buffer, scene_params,
+};
 
 /// Wall time a chunk of samples aims at (progress, time budget and Ctrl-C are checked
 /// between chunks). A chunk takes several dispatches of bounded work each.
@@ -123,7 +125,10 @@ pub fn render_gpu(
     }
     let (nodes, tris) = geometry_buffers(scene);
     let env = env_buffer(scene);
-    let grid: &[f32] = scene.grid.as_ref().map_or(&[], |g| &g.values);
+    let grid = scene
+        .grid
+        .as_ref()
+        .map_or_else(Vec::new, |g| grid_buffer(g, &scene.geo));
     let res = Resources::new(
         ctx,
         &layout,
@@ -133,7 +138,7 @@ pub fn render_gpu(
             nodes: &nodes,
             tris: &tris,
             env: &env,
-            grid,
+            grid: &grid,
             model: &model,
         },
     )?;

@@ -30,7 +30,8 @@ pub struct Inputs<'a> {
     pub nodes: &'a [GpuNode],
     pub tris: &'a [GpuTri],
     pub env: &'a [[f32; 4]],
-    pub grid: &'a [f32],
+    /// The distance grid's cells, then its candidate lists ([`super::scene_buffers::grid_buffer`]).
+    pub grid: &'a [u32],
     pub model: &'a ModelParams,
 }
 

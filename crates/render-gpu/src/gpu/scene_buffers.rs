@@ -5,6 +5,8 @@
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 
+use crate::distance_grid::DistanceGrid;
+use crate::geometry::Geometry;
 use crate::integrator::{IntegratorKind, IntegratorSettings};
 use crate::setup::{Boundary, SceneData};
 
@@ -95,6 +97,20 @@ pub fn bvh_depth(bvh: &obvhs::bvh2::Bvh2) -> usize {
 }
 
 /// BVH nodes and triangles in leaf order.
+/// The distance grid as the kernels read it (`grid` in shaders/scene.wgsl): the cells
+/// ([`DistanceGrid::cells`], two words each, n + 1 of them), then the candidate lists
+/// with each triangle given by its place in the BVH-ordered triangle buffer.
+pub fn grid_buffer(grid: &DistanceGrid, geo: &Geometry) -> Vec<u32> {
+    let mut place = vec![0u32; geo.tris.len()];
+    for (k, &p) in geo.bvh.primitive_indices.iter().enumerate() {
+        place[p as usize] = k as u32;
+    }
+    let mut words = Vec::with_capacity(2 * grid.cells.len() + grid.candidates.len());
+    words.extend_from_slice(grid.cells.as_flattened());
+    words.extend(grid.candidates.iter().map(|&p| place[p as usize]));
+    words
+}
+
 pub fn geometry_buffers(scene: &SceneData) -> (Vec<GpuNode>, Vec<GpuTri>) {
     let geo = &scene.geo;
     let nodes = geo
