@@ -20,6 +20,15 @@ use scatter_sim::rng::WalkRng;
 use super::{IntegratorSettings, PathState, PathStats, nee, pt_event, roulette};
 use crate::setup::SceneData;
 
+/// Below this optical free distance at a sphere step's exit the flight that follows needs
+/// a ray cast more than e^(−3) = 5 % of the time. Where a grid cell is many free paths
+/// wide (σ_t·near_surface > 4·this), the grid's Lipschitz loss near the surface hides
+/// many free paths and the exact distance (the cell's candidate triangles) spares most of
+/// those casts; in thinner media it costs about what it saves. Measured on the bunny
+/// ladder (σ_t·near_surface ≈ 5, 10, 21, 42): k = 1 and 2 within noise to −3 % with the
+/// refinement, k = 4 +2 %, k = 8 +5–8 % paths/s.
+const EXIT_REFINE_TAU: f32 = 3.0;
+
 /// The sphere radius is shrunk by this factor so the exit point stays strictly inside.
 const SHRINK: f32 = 1.0 - 1e-4;
 
@@ -187,5 +196,12 @@ impl Pending {
         // which leaves it almost no known free distance; the grid at the exit often knows
         // more, and a flight shorter than that needs no ray cast.
         s.free = (self.free - r).max(grid.radius(s.pos));
+        let sigma = scene.sigma_t[channel];
+        if sigma * s.free < EXIT_REFINE_TAU
+            && sigma * grid.near_surface > 4.0 * EXIT_REFINE_TAU
+            && let Some(d) = grid.exact_distance(&scene.geo, s.pos)
+        {
+            s.free = s.free.max(d * (1.0 - 1e-5) - scene.geo.eps);
+        }
     }
 }
