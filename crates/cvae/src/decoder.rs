@@ -181,6 +181,9 @@ impl Default for Draw {
 /// A decoder's raw output for one draw: [mean | log-variance], standardised.
 pub type Head = [f32; 2 * MAX_OUT];
 
+/// A draw's result: the de-standardised outputs, mean + exp(½ logvar)·eps.
+pub type Output = [f32; MAX_OUT];
+
 /// softplus(x) = ln(1 + eˣ) with libm, the reference the fast layer-wide version
 /// ([`crate::fastmath::softplus`]) is tested against.
 pub fn softplus(x: f32) -> f32 {
@@ -251,8 +254,17 @@ impl Decoder {
     /// Draws the outputs given raw conditioning features, latent normals `z` (len
     /// `latent`) and output normals `eps` (len `out`); writes de-standardised values.
     pub fn sample(&self, cond: &[f64], z: &[f32], eps: &[f32], result: &mut [f64]) {
-        let draw = self.draw(cond, z, eps);
-        self.read_out(&self.head(&draw), &draw, result);
+        let out = self.output(&self.draw(cond, z, eps));
+        for (r, v) in result[..self.out].iter_mut().zip(out) {
+            *r = v as f64;
+        }
+    }
+
+    /// The result of one draw ([`Decoder::outputs`] for a batch of one).
+    pub fn output(&self, draw: &Draw) -> Output {
+        let mut out = [[0f32; MAX_OUT]];
+        self.outputs(std::slice::from_ref(draw), &mut out);
+        out[0]
     }
 
     /// The head of one draw.
@@ -280,14 +292,75 @@ impl Decoder {
         d
     }
 
-    /// The de-standardised outputs of a draw from its head: mean + exp(½ logvar)·eps.
-    pub fn read_out(&self, head: &Head, draw: &Draw, result: &mut [f64]) {
+    /// The de-standardised outputs of a draw from its head, one draw at a time: the
+    /// definition [`Decoder::outputs`] computes in SIMD lanes (tests compare the two).
+    pub fn read_out(&self, head: &Head, draw: &Draw) -> Output {
+        let mut out = [0f32; MAX_OUT];
         for j in 0..self.out {
             let logvar = head[self.out + j].clamp(-LOGVAR_CLAMP, LOGVAR_CLAMP);
-            // The fast exp (within 2 f32 ulps; |½ logvar| ≤ 8): libm's expf for these
-            // sixteen outputs per sphere step was 3 % of the renderer's time.
             let v = head[j] + crate::fastmath::exp(0.5 * logvar) * draw.eps[j];
-            result[j] = (v * self.out_scale[j] + self.out_shift[j]) as f64;
+            out[j] = v * self.out_scale[j] + self.out_shift[j];
+        }
+        out
+    }
+
+    /// The results of many draws ([`Decoder::heads`] and [`Decoder::read_out`] in one
+    /// pass, the read-out's exponentials in SIMD lanes too: libm's expf for these
+    /// outputs was 3 % of the renderer's time, scalar fast exps still 2–3 %).
+    pub fn outputs(&self, draws: &[Draw], out: &mut [Output]) {
+        assert_eq!(draws.len(), out.len(), "one output per draw");
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx512f") {
+                // SAFETY: the CPU supports AVX-512F (checked just above).
+                unsafe { self.outputs_avx512(draws, out) };
+                return;
+            }
+            if std::arch::is_x86_feature_detected!("avx2")
+                && std::arch::is_x86_feature_detected!("fma")
+            {
+                // SAFETY: the CPU supports AVX2 and FMA (checked just above).
+                unsafe { self.outputs_avx2(draws, out) };
+                return;
+            }
+        }
+        self.outputs_with::<Separate, 8>(draws, out);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,avx2,fma")]
+    fn outputs_avx512(&self, draws: &[Draw], out: &mut [Output]) {
+        self.outputs_with::<Fused, 16>(draws, out);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    fn outputs_avx2(&self, draws: &[Draw], out: &mut [Output]) {
+        self.outputs_with::<Fused, 8>(draws, out);
+    }
+
+    /// [`Decoder::outputs`] with L lanes (a multiple of 8).
+    #[inline(always)]
+    fn outputs_with<M: Madd, const L: usize>(&self, draws: &[Draw], out: &mut [Output]) {
+        let mut buf = [[[0f32; L]; MAX_WIDTH]; 2];
+        for (group, out) in draws.chunks(L).zip(out.chunks_mut(L)) {
+            let rows = self.group_heads::<M, L>(group, &mut buf);
+            for j in 0..self.out {
+                let mut eps = [0f32; L];
+                for (e, d) in eps.iter_mut().zip(group) {
+                    *e = d.eps[j];
+                }
+                let (scale, shift) = (self.out_scale[j], self.out_shift[j]);
+                let mut v = [0f32; L];
+                for l in 0..L {
+                    let logvar = rows[self.out + j][l].clamp(-LOGVAR_CLAMP, LOGVAR_CLAMP);
+                    let sd = crate::fastmath::exp_with::<M>(0.5 * logvar);
+                    v[l] = M::madd(M::madd(sd, eps[l], rows[j][l]), scale, shift);
+                }
+                for (o, x) in out.iter_mut().zip(v) {
+                    o[j] = x;
+                }
+            }
         }
     }
 
@@ -332,35 +405,42 @@ impl Decoder {
     /// [`Decoder::heads`] with L lanes (a multiple of 8).
     #[inline(always)]
     fn heads_with<M: Madd, const L: usize>(&self, draws: &[Draw], heads: &mut [Head]) {
-        let inputs = self.cond + self.latent;
-        let outs = 2 * self.out;
-        let last = self.layers.len() - 1;
         let mut buf = [[[0f32; L]; MAX_WIDTH]; 2];
         for (group, out) in draws.chunks(L).zip(heads.chunks_mut(L)) {
-            // Lanes past the group's end keep whatever the previous group left: finite
-            // values whose results are never read.
-            for (l, d) in group.iter().enumerate() {
-                for (row, &x) in buf[0].iter_mut().zip(&d.input[..inputs]) {
-                    row[l] = x;
-                }
-            }
-            for (i, layer) in self.layers.iter().enumerate() {
-                let [a, b] = &mut buf;
-                let (src, dst) = if i % 2 == 0 { (&*a, b) } else { (&*b, a) };
-                layer.apply_lanes::<M, L>(src, dst);
-                if i < last {
-                    crate::fastmath::softplus_chunks::<M, L>(
-                        dst[..layer.outputs].as_flattened_mut(),
-                    );
-                }
-            }
-            let result = &buf[self.layers.len() % 2];
+            let rows = self.group_heads::<M, L>(group, &mut buf);
             for (l, h) in out.iter_mut().enumerate() {
-                for j in 0..outs {
-                    h[j] = result[j][l];
+                for (hj, row) in h.iter_mut().zip(rows) {
+                    *hj = row[l];
                 }
             }
         }
+    }
+
+    /// Up to L draws through the network, one per lane; returns the head's rows (2·out
+    /// of them). Lanes past the group's end hold whatever `buf` held before: finite values
+    /// whose results are never read.
+    #[inline(always)]
+    fn group_heads<'b, M: Madd, const L: usize>(
+        &self,
+        group: &[Draw],
+        buf: &'b mut [[[f32; L]; MAX_WIDTH]; 2],
+    ) -> &'b [[f32; L]] {
+        let inputs = self.cond + self.latent;
+        let last = self.layers.len() - 1;
+        for (l, d) in group.iter().enumerate() {
+            for (row, &x) in buf[0].iter_mut().zip(&d.input[..inputs]) {
+                row[l] = x;
+            }
+        }
+        for (i, layer) in self.layers.iter().enumerate() {
+            let [a, b] = &mut *buf;
+            let (src, dst) = if i % 2 == 0 { (&*a, b) } else { (&*b, a) };
+            layer.apply_lanes::<M, L>(src, dst);
+            if i < last {
+                crate::fastmath::softplus_chunks::<M, L>(dst[..layer.outputs].as_flattened_mut());
+            }
+        }
+        &buf[self.layers.len() % 2][..2 * self.out]
     }
 
     /// Number of parameters.

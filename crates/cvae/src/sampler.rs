@@ -7,7 +7,7 @@ use scatter_sim::frame::CanonicalExit;
 use scatter_sim::phase::hg_sample_cos;
 use scatter_sim::rng::WalkRng;
 
-use crate::decoder::{Decoder, Draw, Head, MAX_INPUT, MAX_OUT};
+use crate::decoder::{Decoder, Draw, MAX_INPUT, MAX_OUT, Output};
 use crate::features;
 use crate::model_file::{ModelSet, SingleScattering};
 
@@ -158,7 +158,7 @@ impl ModelSet {
     /// LengthGen: N for a walk known to have N ≥ n_min.
     pub fn sample_multiple_n(&self, f: &features::WalkFeatures, rng: &mut WalkRng) -> u64 {
         let d = self.length_draw(f, rng);
-        self.length_result(f, &self.length.head(&d), &d)
+        self.length_result(f, &self.length.output(&d))
     }
 
     /// LengthGen's draw for a walk known to have N ≥ n_min (its noise from `rng`).
@@ -166,11 +166,9 @@ impl ModelSet {
         draw_with_noise(&self.length, &f.length_cond(), rng)
     }
 
-    /// N from LengthGen's head for `draw`.
-    pub fn length_result(&self, f: &features::WalkFeatures, head: &Head, draw: &Draw) -> u64 {
-        let mut y = [0f64; 1];
-        self.length.read_out(head, draw, &mut y);
-        f.n_from_target(y[0], self.n_min())
+    /// N from LengthGen's output.
+    pub fn length_result(&self, f: &features::WalkFeatures, out: &Output) -> u64 {
+        f.n_from_target(out[0] as f64, self.n_min())
     }
 
     /// PathGen: the exit of a walk with N events (N ≥ 2, or any N in learned mode), given
@@ -182,7 +180,7 @@ impl ModelSet {
         rng: &mut WalkRng,
     ) -> CanonicalExit {
         let d = self.path_draw(f, relative_log_n, rng);
-        self.path_result(&self.path.head(&d), &d)
+        self.path_result(&self.path.output(&d))
     }
 
     /// PathGen's draw for a walk of the given relative log N.
@@ -195,10 +193,9 @@ impl ModelSet {
         draw_with_noise(&self.path, &f.path_cond(relative_log_n), rng)
     }
 
-    /// The exit from PathGen's head for `draw`.
-    pub fn path_result(&self, head: &Head, draw: &Draw) -> CanonicalExit {
-        let mut v = [0f64; 3];
-        self.path.read_out(head, draw, &mut v);
+    /// The exit from PathGen's output.
+    pub fn path_result(&self, out: &Output) -> CanonicalExit {
+        let v = [out[0], out[1], out[2]].map(f64::from);
         let (cos_theta, beta, alpha) = features::path_from_target(v);
         repair_exit(cos_theta, beta, alpha)
     }
@@ -225,7 +222,7 @@ impl ModelSet {
     pub fn sample_event_given(&self, walk: &ModelWalk, rng: &mut WalkRng) -> (DVec3, DVec3) {
         match self.event_draw(walk, rng) {
             None => CENTRE_EVENT,
-            Some(d) => self.event_result(&self.event.head(&d), &d),
+            Some(d) => self.event_result(&self.event.output(&d)),
         }
     }
 
@@ -244,10 +241,9 @@ impl ModelSet {
         Some(draw_with_noise(&self.event, &cond, rng))
     }
 
-    /// The event (X, W) from EventGen's head for `draw`.
-    pub fn event_result(&self, head: &Head, draw: &Draw) -> (DVec3, DVec3) {
-        let mut v = [0f64; 6];
-        self.event.read_out(head, draw, &mut v);
+    /// The event (X, W) from EventGen's output.
+    pub fn event_result(&self, out: &Output) -> (DVec3, DVec3) {
+        let v = [out[0], out[1], out[2], out[3], out[4], out[5]].map(f64::from);
         let (x, w) = features::event_from_target(v);
         repair_event(DVec3::from_array(x), DVec3::from_array(w))
     }

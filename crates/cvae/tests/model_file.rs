@@ -241,7 +241,7 @@ fn albedo_pow(a: f64, k: u64) -> f64 {
     a.powi(k as i32)
 }
 
-/// Batched evaluation (draws in SIMD lanes) equals one-by-one evaluation. The two sum
+/// Batched evaluation (draws in SIMD lanes) equals one-by-one evaluation, heads and outputs. The two sum
 /// the same products in another order (and the batch may fuse multiply-adds where the
 /// single path does too, or not), so they differ by f32 rounding: a few ulps per layer of
 /// values of order 1–10, i.e. well under 1e-4 absolute for these O(1)-gain weights; a
@@ -273,6 +273,22 @@ fn batched_heads_equal_single_draws() {
                 }
             }
             assert!(worst < 1e-4, "batch of {n}: worst difference {worst}");
+            // The batched read-out (mean + exp(½ logvar)·eps, de-standardised) equals the
+            // one-draw definition on the single heads, to the same tolerance.
+            let mut outs = vec![[0f32; cvae::decoder::MAX_OUT]; n];
+            decoder.outputs(&draws, &mut outs);
+            for (d, o) in draws.iter().zip(&outs) {
+                let single = decoder.read_out(&decoder.head(d), d);
+                for j in 0..decoder.out {
+                    let e = (single[j] - o[j]).abs() / single[j].abs().max(1.0);
+                    assert!(
+                        e < 1e-4,
+                        "batch of {n}: output {j} {} vs {}",
+                        o[j],
+                        single[j]
+                    );
+                }
+            }
         }
     }
 }

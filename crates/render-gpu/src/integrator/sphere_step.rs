@@ -9,7 +9,7 @@
 //! `after_length`, `after_path` and `finish`), so that [`super::wavefront`] can evaluate
 //! the decoder draws of many paths' steps together.
 
-use cvae::decoder::{Draw, Head};
+use cvae::decoder::{Draw, Output};
 use cvae::features::WalkFeatures;
 use cvae::sampler::CENTRE_EVENT;
 use cvae::{ModelSet, ModelWalk};
@@ -125,23 +125,23 @@ pub(crate) fn begin(
 }
 
 impl Pending {
-    /// Reads N from LengthGen's head and sets up the PathGen draw.
-    pub fn after_length(&mut self, model: &ModelSet, head: &Head, rng: &mut WalkRng) {
-        self.n = model.length_result(&self.features, head, &self.draw);
+    /// Reads N from LengthGen's output and sets up the PathGen draw.
+    pub fn after_length(&mut self, model: &ModelSet, out: &Output, rng: &mut WalkRng) {
+        self.n = model.length_result(&self.features, out);
         self.draw = model.path_draw(&self.features, self.features.relative_log_n(self.n), rng);
     }
 
-    /// Reads the exit from PathGen's head; with NEE on, appends the step's representative
+    /// Reads the exit from PathGen's output; with NEE on, appends the step's representative
     /// events to `events` (None: event 1, the centre, which needs no decoder).
     pub fn after_path(
         &mut self,
         model: &ModelSet,
         set: &IntegratorSettings,
-        head: &Head,
+        out: &Output,
         rng: &mut WalkRng,
         events: &mut Vec<Option<Draw>>,
     ) {
-        let exit = model.path_result(head, &self.draw);
+        let exit = model.path_result(out);
         let walk = ModelWalk::multiple(self.n, exit, self.features, self.albedo);
         if set.nee {
             // Extra representative events (EventGen draws given the same N and exit), each

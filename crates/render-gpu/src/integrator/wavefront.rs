@@ -5,13 +5,13 @@
 //! units mostly idle. Here a thread keeps [`SLOTS`] paths in flight: each is followed until
 //! its next sphere step needs the decoders (or until it ends, when the next camera sample
 //! takes its slot), then every waiting step's LengthGen draw is evaluated in one batch
-//! with the draws in SIMD lanes ([`cvae::decoder::Decoder::heads`]), then their PathGen
+//! with the draws in SIMD lanes ([`cvae::decoder::Decoder::outputs`]), then their PathGen
 //! draws, then their EventGen draws, and the steps are finished. Each path keeps its own
 //! random stream and draws from it in the same order as when traced alone, so the result
 //! does not depend on which paths share a batch (only f32 rounding of the decoders'
 //! sums does).
 
-use cvae::decoder::{Decoder, Draw, Head, MAX_OUT};
+use cvae::decoder::{Decoder, Draw, MAX_OUT, Output};
 use glam::{DVec3, Vec3};
 use scatter_sim::rng::WalkRng;
 
@@ -44,7 +44,7 @@ struct Slot {
 #[derive(Default)]
 struct Batch {
     draws: Vec<Draw>,
-    heads: Vec<Head>,
+    outputs: Vec<Output>,
     /// Every waiting step's representative events in order (None: the centre event).
     events: Vec<Option<Draw>>,
     /// Where each waiting step's events start in `events`.
@@ -122,34 +122,31 @@ fn resolve_steps(
 ) {
     let model = set.model.expect("a waiting sphere step has a model");
     // LengthGen, then PathGen: one batch each over all waiting steps.
-    stage_heads(&model.length, slots, waiting, b);
-    for (&i, head) in waiting.iter().zip(&b.heads) {
+    stage_outputs(&model.length, slots, waiting, b);
+    for (&i, out) in waiting.iter().zip(&b.outputs) {
         let (rng, step) = pending(slots, i);
-        step.after_length(model, head, rng);
+        step.after_length(model, out, rng);
     }
-    stage_heads(&model.path, slots, waiting, b);
+    stage_outputs(&model.path, slots, waiting, b);
     b.events.clear();
     b.event_start.clear();
-    for (&i, head) in waiting.iter().zip(&b.heads) {
+    for (&i, out) in waiting.iter().zip(&b.outputs) {
         let (rng, step) = pending(slots, i);
         b.event_start.push(b.events.len());
-        step.after_path(model, set, head, rng, &mut b.events);
+        step.after_path(model, set, out, rng, &mut b.events);
     }
     b.event_start.push(b.events.len());
     // EventGen: every drawn event of every step in one batch.
     b.draws.clear();
     b.draws.extend(b.events.iter().flatten().copied());
-    b.heads.resize(b.draws.len(), [0.0; 2 * MAX_OUT]);
-    model.event.heads(&b.draws, &mut b.heads);
+    b.outputs.resize(b.draws.len(), [0.0; MAX_OUT]);
+    model.event.outputs(&b.draws, &mut b.outputs);
     b.event_results.clear();
-    let mut heads = b.heads.iter().zip(&b.draws);
+    let mut outputs = b.outputs.iter();
     for e in &b.events {
         b.event_results.push(match e {
             None => CENTRE_EVENT,
-            Some(_) => {
-                let (head, draw) = heads.next().expect("one head per drawn event");
-                model.event_result(head, draw)
-            }
+            Some(_) => model.event_result(outputs.next().expect("one output per drawn event")),
         });
     }
     for (k, &i) in waiting.iter().enumerate() {
@@ -160,13 +157,13 @@ fn resolve_steps(
     }
 }
 
-/// The heads of the waiting steps' current draws, into `b.heads`.
-fn stage_heads(decoder: &Decoder, slots: &mut [Option<Slot>], waiting: &[usize], b: &mut Batch) {
+/// The outputs of the waiting steps' current draws, into `b.outputs`.
+fn stage_outputs(decoder: &Decoder, slots: &mut [Option<Slot>], waiting: &[usize], b: &mut Batch) {
     b.draws.clear();
     b.draws
         .extend(waiting.iter().map(|&i| pending(slots, i).1.draw));
-    b.heads.resize(b.draws.len(), [0.0; 2 * MAX_OUT]);
-    decoder.heads(&b.draws, &mut b.heads);
+    b.outputs.resize(b.draws.len(), [0.0; MAX_OUT]);
+    decoder.outputs(&b.draws, &mut b.outputs);
 }
 
 /// The random stream and the waiting step of slot `i`.
