@@ -100,7 +100,7 @@ fn run_pair(a: &Args, engine: &Engine, kind: IntegratorKind, k: f64) -> Result<P
         f.camera.width = a.size;
         f.camera.height = a.size;
         if let Some(t) = a.min_tau {
-            f.render.min_tau = t;
+            f.render.min_tau = Some(t);
         }
         if a.max_tau.is_some() {
             f.render.max_tau = a.max_tau;
@@ -109,7 +109,7 @@ fn run_pair(a: &Args, engine: &Engine, kind: IntegratorKind, k: f64) -> Result<P
             f.render.nee_samples = m;
         }
     })?;
-    let set = p.settings();
+    let set = p.settings(engine);
     let cancel = AtomicBool::new(false);
     let half = (a.spp / 2).max(1);
     let mut outs = Vec::new();

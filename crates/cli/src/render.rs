@@ -102,15 +102,15 @@ pub struct Prepared {
 }
 
 impl Prepared {
-    /// The integrator settings of this scene (its [render] table, with the overrides
-    /// `prepare` applied, and the model's τ limit).
-    pub fn settings(&self) -> IntegratorSettings<'_> {
+    /// The integrator settings of this scene on `engine` (its [render] table, with the
+    /// overrides `prepare` applied, the device's defaults and the model's τ limit).
+    pub fn settings(&self, engine: &Engine) -> IntegratorSettings<'_> {
         let r = &self.file.render;
         IntegratorSettings {
             kind: r.integrator,
             nee: r.nee,
             model: self.model.as_ref(),
-            min_tau: r.min_tau as f32,
+            min_tau: r.min_tau_on(engine.is_gpu()) as f32,
             max_tau: self.max_tau,
             nee_samples: r.nee_samples,
         }
@@ -219,13 +219,13 @@ pub fn run(a: Args) -> Result<()> {
         }
     })?;
     let r = &p.file.render;
-    let set = p.settings();
     if p.data.lights.iter().all(|l| l.is_delta()) && !r.nee && !p.data.lights.is_empty() {
         eprintln!(
             "note: delta lights can only be reached by NEE; with --nee false they add nothing"
         );
     }
     let engine = Engine::open(a.device)?;
+    let set = p.settings(&engine);
     eprintln!(
         "rendering {} ({}x{}, {} spp, {}{}) on the {}",
         a.scene.display(),
@@ -290,7 +290,7 @@ pub fn run(a: Args) -> Result<()> {
         paths_per_second: out.stats.paths as f64 / out.seconds.max(1e-9),
         mean_pt_events_per_path: out.stats.events as f64 / paths,
         mean_sphere_steps_per_path: out.stats.steps as f64 / paths,
-        min_tau: r.min_tau,
+        min_tau: set.min_tau as f64,
         max_tau: p.model.as_ref().map(|_| p.max_tau as f64),
         grid_resolution: r.grid_resolution,
         scene_hash: format!("{:016x}", p.data.hash),

@@ -158,9 +158,10 @@ pub struct RenderDesc {
     #[serde(default = "default_grid")]
     pub grid_resolution: u32,
     /// Thin-region fallback: below this optical radius σ_t·r a sphere step is replaced
-    /// by an ordinary PT event (ST-CVAE).
-    #[serde(default = "default_min_tau")]
-    pub min_tau: f64,
+    /// by an ordinary PT event (ST-CVAE). Unset: the device's default
+    /// ([`RenderDesc::min_tau_on`]).
+    #[serde(default)]
+    pub min_tau: Option<f64>,
     /// Largest optical radius of a sphere step; default: the model's training maximum.
     pub max_tau: Option<f64>,
     /// Representative events per sphere step for NEE (ST-CVAE). 2 by measurement
@@ -178,7 +179,7 @@ impl Default for RenderDesc {
             spp: default_spp(),
             seed: 1,
             grid_resolution: default_grid(),
-            min_tau: default_min_tau(),
+            min_tau: None,
             max_tau: None,
             nee_samples: default_nee_samples(),
         }
@@ -200,11 +201,25 @@ fn default_spp() -> u32 {
 fn default_grid() -> u32 {
     128
 }
-/// Chosen by measurement (docs/BENCHMARKS.md, `stcvae bench render`): below τ ≈ 1 most
-/// walks are single scattering, so a model call costs more than the PT event it saves.
-pub const DEFAULT_MIN_TAU: f64 = 1.0;
-fn default_min_tau() -> f64 {
-    DEFAULT_MIN_TAU
+/// The default thin-region threshold on the CPU, chosen by measurement
+/// (docs/BENCHMARKS.md, eighth session): a sphere of optical radius below ~2 holds a walk
+/// of a few events, so its model draws and shadow rays cost more than the PT events they
+/// replace. On the bunny ladder 2 renders 1–5 % faster than 1 with equal or ~3 % lower
+/// variance; 3 is within noise of 2.
+pub const DEFAULT_MIN_TAU_CPU: f64 = 2.0;
+/// The default on a GPU: there the PT events that a higher threshold adds diverge from
+/// the sphere steps of neighbouring lanes (lavapipe: 2 is ~10 % slower than 1).
+pub const DEFAULT_MIN_TAU_GPU: f64 = 1.0;
+
+impl RenderDesc {
+    /// The thin-region threshold: the scene's, else the default of the device it runs on.
+    pub fn min_tau_on(&self, gpu: bool) -> f64 {
+        self.min_tau.unwrap_or(if gpu {
+            DEFAULT_MIN_TAU_GPU
+        } else {
+            DEFAULT_MIN_TAU_CPU
+        })
+    }
 }
 
 /// Largest image side accepted.
@@ -390,10 +405,11 @@ impl SceneFile {
                 r.grid_resolution
             ));
         }
-        if !(r.min_tau >= 0.0 && r.min_tau <= MAX_SCENE_VALUE) {
+        if let Some(t) = r.min_tau
+            && !(0.0..=MAX_SCENE_VALUE).contains(&t)
+        {
             return Err(format!(
-                "render.min_tau = {} is out of range: allowed [0, inf)",
-                r.min_tau
+                "render.min_tau = {t} is out of range: allowed [0, inf)"
             ));
         }
         if !(1..=64).contains(&r.nee_samples) {

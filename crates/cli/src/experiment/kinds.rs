@@ -482,7 +482,7 @@ fn fallback(ctx: &Ctx, rep: &mut Report) -> Result<()> {
     for &t in &ctx.cfg.thresholds {
         let edit = move |f: &mut SceneFile| {
             scale_density(k)(f);
-            f.render.min_tau = t;
+            f.render.min_tau = Some(t);
         };
         let st = render_pair(ctx, &scene, Stcvae, true, &edit)?;
         let c = compare(&pt, &st);
