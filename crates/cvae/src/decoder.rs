@@ -162,7 +162,7 @@ pub const MAX_INPUT: usize = 24;
 
 /// One decoder draw set up but not yet evaluated: its standardised input row and its
 /// output noise. A draw in three parts (set up, evaluate, read out) lets a renderer
-/// evaluate the draws of many paths together ([`Decoder::heads`]).
+/// evaluate the draws of many paths together ([`Decoder::outputs`]).
 #[derive(Clone, Copy, Debug)]
 pub struct Draw {
     pub input: [f32; MAX_INPUT],
@@ -304,9 +304,14 @@ impl Decoder {
         out
     }
 
-    /// The results of many draws ([`Decoder::heads`] and [`Decoder::read_out`] in one
-    /// pass, the read-out's exponentials in SIMD lanes too: libm's expf for these
-    /// outputs was 3 % of the renderer's time, scalar fast exps still 2–3 %).
+    /// The results of many draws, evaluated with the draws in SIMD lanes: 16 at a time on
+    /// CPUs with AVX-512, 8 with AVX2 + FMA (both checked at run time), 8 in portable
+    /// code. Equal to [`Decoder::read_out`] of [`Decoder::head`] draw by draw up to f32
+    /// rounding (sums taken in another order). A renderer collects one draw from each of
+    /// its paths between two sphere steps; evaluated together they cost a fraction of
+    /// one-by-one evaluation, whose short dependent chains leave the arithmetic units
+    /// mostly idle. The read-out's exponentials run in the lanes too (scalar, they were
+    /// 2–3 % of the renderer's time).
     pub fn outputs(&self, draws: &[Draw], out: &mut [Output]) {
         assert_eq!(draws.len(), out.len(), "one output per draw");
         #[cfg(target_arch = "x86_64")]
@@ -364,46 +369,9 @@ impl Decoder {
         }
     }
 
-    /// The heads of many draws, evaluated with the draws in SIMD lanes: 16 at a time on
-    /// CPUs with AVX-512, 8 with AVX2 + FMA (both checked at run time), 8 in portable
-    /// code. Equal to [`Decoder::forward`] draw by draw up to f32 rounding (the sums are
-    /// taken in another order). A renderer collects one draw from each of its paths
-    /// between two sphere steps; evaluated together they cost a fraction of one-by-one
-    /// evaluation, whose short dependent chains leave the arithmetic units mostly idle.
-    pub fn heads(&self, draws: &[Draw], heads: &mut [Head]) {
-        assert_eq!(draws.len(), heads.len(), "one head per draw");
-        #[cfg(target_arch = "x86_64")]
-        {
-            if std::arch::is_x86_feature_detected!("avx512f") {
-                // SAFETY: the CPU supports AVX-512F (checked just above).
-                unsafe { self.heads_avx512(draws, heads) };
-                return;
-            }
-            if std::arch::is_x86_feature_detected!("avx2")
-                && std::arch::is_x86_feature_detected!("fma")
-            {
-                // SAFETY: the CPU supports AVX2 and FMA (checked just above).
-                unsafe { self.heads_avx2(draws, heads) };
-                return;
-            }
-        }
-        self.heads_with::<Separate, 8>(draws, heads);
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx512f,avx2,fma")]
-    fn heads_avx512(&self, draws: &[Draw], heads: &mut [Head]) {
-        self.heads_with::<Fused, 16>(draws, heads);
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,fma")]
-    fn heads_avx2(&self, draws: &[Draw], heads: &mut [Head]) {
-        self.heads_with::<Fused, 8>(draws, heads);
-    }
-
-    /// [`Decoder::heads`] with L lanes (a multiple of 8).
-    #[inline(always)]
+    /// The heads of many draws with L lanes: what [`Decoder::outputs`] computes before
+    /// its read-out (tests compare every lane width with one-by-one evaluation).
+    #[cfg(test)]
     fn heads_with<M: Madd, const L: usize>(&self, draws: &[Draw], heads: &mut [Head]) {
         let mut buf = [[[0f32; L]; MAX_WIDTH]; 2];
         for (group, out) in draws.chunks(L).zip(heads.chunks_mut(L)) {

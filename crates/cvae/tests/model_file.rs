@@ -241,14 +241,14 @@ fn albedo_pow(a: f64, k: u64) -> f64 {
     a.powi(k as i32)
 }
 
-/// Batched evaluation (draws in SIMD lanes) equals one-by-one evaluation, heads and outputs. The two sum
+/// Batched evaluation (draws in SIMD lanes) equals one-by-one evaluation. The two sum
 /// the same products in another order (and the batch may fuse multiply-adds where the
 /// single path does too, or not), so they differ by f32 rounding: a few ulps per layer of
 /// values of order 1–10, i.e. well under 1e-4 absolute for these O(1)-gain weights; a
 /// wrong lane, a wrong weight index or a missing activation differs by O(0.1–1). Batches
 /// of 1, 7, 8, 9 and 37 draws cover a partial group, a full one and several.
 #[test]
-fn batched_heads_equal_single_draws() {
+fn batched_outputs_equal_single_draws() {
     let m = random_models(11, 1.5);
     let mut rng = WalkRng::from_seed(12);
     for decoder in [&m.length, &m.path, &m.event] {
@@ -263,18 +263,8 @@ fn batched_heads_equal_single_draws() {
                     decoder.draw(&cond, &z, &eps)
                 })
                 .collect();
-            let mut heads = vec![[0f32; 2 * cvae::decoder::MAX_OUT]; n];
-            decoder.heads(&draws, &mut heads);
-            let mut worst = 0f32;
-            for (d, h) in draws.iter().zip(&heads) {
-                let single = decoder.head(d);
-                for j in 0..2 * decoder.out {
-                    worst = worst.max((single[j] - h[j]).abs() / single[j].abs().max(1.0));
-                }
-            }
-            assert!(worst < 1e-4, "batch of {n}: worst difference {worst}");
-            // The batched read-out (mean + exp(½ logvar)·eps, de-standardised) equals the
-            // one-draw definition on the single heads, to the same tolerance.
+            // The batched outputs (mean + exp(½ logvar)·eps, de-standardised) equal the
+            // one-draw definition on the single heads.
             let mut outs = vec![[0f32; cvae::decoder::MAX_OUT]; n];
             decoder.outputs(&draws, &mut outs);
             for (d, o) in draws.iter().zip(&outs) {
