@@ -34,7 +34,7 @@ pub struct DistanceGrid {
     pub candidates: Vec<u32>,
 }
 
-const MAGIC: &[u8; 8] = b"STCVDG03";
+const MAGIC: &[u8; 8] = b"STCVDG04";
 
 impl DistanceGrid {
     /// Builds the grid with `resolution` cells along the longest side of the bounds.
@@ -66,7 +66,10 @@ impl DistanceGrid {
                     let c = Self::centre_of(lo, cell, dims, i);
                     let reach = (d + 2.0 * h) * (1.0 + 1e-5) + 1e-4 * cell + geo.eps;
                     geo.triangles_within(c, reach, &mut list);
-                    list.sort_unstable();
+                    // Nearest first (ties by index, for a deterministic file), so that a
+                    // query's first exact distance lets the cheap bounds skip most others.
+                    let d2 = |prim: &u32| geo.nearest_of(c, std::slice::from_ref(prim));
+                    list.sort_by(|a, b| d2(a).total_cmp(&d2(b)).then(a.cmp(b)));
                 }
                 list
             })
@@ -239,7 +242,7 @@ impl DistanceGrid {
 
 fn cache_key(geo: &Geometry, resolution: u32) -> u64 {
     let mut h = Fnv64::new();
-    h.write(b"distance-grid-v3");
+    h.write(b"distance-grid-v4");
     h.write(&resolution.to_le_bytes());
     for p in &geo.mesh.positions {
         for x in p.to_array() {

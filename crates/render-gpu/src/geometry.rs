@@ -46,6 +46,11 @@ pub struct Geometry {
     pub hi: Vec3,
     /// Offset used to leave a surface, relative to the scene's size.
     pub eps: f32,
+    /// Per triangle, two cheap lower bounds on a point's distance to it: its plane (unit
+    /// normal, offset n·a) and a bounding sphere (centre, radius) — [nx, ny, nz, n·a, cx,
+    /// cy, cz, r]. [`Geometry::nearest_of`] skips the exact point–triangle distance of
+    /// every candidate whose bound already exceeds the nearest found so far.
+    bounds: Vec<[f32; 8]>,
 }
 
 impl Geometry {
@@ -60,7 +65,7 @@ impl Geometry {
                 }
             })
             .collect();
-        let normals = (0..mesh.triangles.len())
+        let normals: Vec<Vec3> = (0..mesh.triangles.len())
             .map(|i| {
                 let [a, b, c] = mesh.triangle(i);
                 (b - a).cross(c - a).normalize()
@@ -87,6 +92,21 @@ impl Geometry {
             n.aabb.min -= pad;
             n.aabb.max += pad;
         }
+        let bounds = (0..mesh.triangles.len())
+            .map(|i| {
+                let [a, b, c] = mesh.triangle(i);
+                let n: Vec3 = normals[i];
+                let centre = (a + b + c) / 3.0;
+                let r = [a, b, c]
+                    .iter()
+                    .map(|v| v.distance(centre))
+                    .fold(0.0f32, f32::max);
+                // Rounded up by far more than f32 rounding: a bound must never exceed the
+                // true distance.
+                let r = r * (1.0 + 1e-5) + scale * 1e-7;
+                [n.x, n.y, n.z, n.dot(a), centre.x, centre.y, centre.z, r]
+            })
+            .collect();
         Self {
             mesh,
             tris,
@@ -95,6 +115,7 @@ impl Geometry {
             lo,
             hi,
             eps: scale * 2e-5,
+            bounds,
         }
     }
 
@@ -268,16 +289,27 @@ impl Geometry {
         }
     }
 
-    /// Distance from `p` to the nearest of the triangles `prims`.
+    /// Distance from `p` to the nearest of the triangles `prims`, best listed nearest
+    /// first: a candidate whose plane or bounding sphere is already farther than the
+    /// nearest found so far needs no exact distance (~9 candidates a cell near the
+    /// bunny's surface, of which the first is usually the nearest). The bounds skip a
+    /// triangle only when they exceed the best squared distance by 1e-5 relative, far
+    /// beyond their f32 rounding, so the result is the exact minimum over `prims`.
     #[inline]
     pub fn nearest_of(&self, p: Vec3, prims: &[u32]) -> f32 {
         let pa = Vec3A::from(p);
-        prims
-            .iter()
-            .fold(f32::INFINITY, |best, &prim| {
-                best.min(self.triangle_d2(pa, prim))
-            })
-            .sqrt()
+        let mut best = f32::INFINITY;
+        for &prim in prims {
+            let b = &self.bounds[prim as usize];
+            let plane = (b[0] * p.x + b[1] * p.y + b[2] * p.z - b[3]).abs();
+            let sphere = Vec3::new(b[4], b[5], b[6]).distance(p) - b[7];
+            let bound = plane.max(sphere);
+            if bound * bound > best * (1.0 + 1e-5) {
+                continue;
+            }
+            best = best.min(self.triangle_d2(pa, prim));
+        }
+        best.sqrt()
     }
 
     #[inline]
