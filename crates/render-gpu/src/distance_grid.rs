@@ -68,8 +68,8 @@ impl DistanceGrid {
                     geo.triangles_within(c, reach, &mut list);
                     // Nearest first (ties by index, for a deterministic file), so that a
                     // query's first exact distance lets the cheap bounds skip most others.
-                    let d2 = |prim: &u32| geo.nearest_of(c, std::slice::from_ref(prim));
-                    list.sort_by(|a, b| d2(a).total_cmp(&d2(b)).then(a.cmp(b)));
+                    // A non-negative f32's bits order as its value.
+                    list.sort_by_cached_key(|&prim| (geo.nearest_of(c, &[prim]).to_bits(), prim));
                 }
                 list
             })

@@ -34,11 +34,15 @@ fn check(geo: &Geometry, grid: &DistanceGrid, points: usize, seed: u64) -> f64 {
     sum_r / sum_d
 }
 
+/// The shipped bunny (height 1) as geometry.
+fn bunny() -> Geometry {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/bunny.ply");
+    Geometry::new(load_mesh(&path).unwrap())
+}
+
 #[test]
 fn bunny_grid_is_conservative_and_useful() {
-    let m =
-        load_mesh(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/bunny.ply")).unwrap();
-    let geo = Geometry::new(m);
+    let geo = bunny();
     let grid = DistanceGrid::build(&geo, 48);
     let efficiency = check(&geo, &grid, 3000, 11);
     // Not trivially conservative: at 48 cells the Lipschitz bound keeps most of the
@@ -70,9 +74,7 @@ fn sphere_grid_matches_the_radius() {
 /// must be one whose radius never asks (≥ near_surface).
 #[test]
 fn candidate_lists_give_the_exact_distance() {
-    let m =
-        load_mesh(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/bunny.ply")).unwrap();
-    let geo = Geometry::new(m);
+    let geo = bunny();
     let grid = DistanceGrid::build(&geo, 64);
     let (cells, mean) = grid.candidate_stats();
     assert!(

@@ -59,7 +59,7 @@ pub(crate) struct Pending {
 
 /// Starts a step at `s.pos`: a PT fallback event, a finished exact single-scattering step,
 /// or a step that needs the decoders, left in `pending` (a slot the caller owns, so the
-/// step's few hundred bytes are written once rather than moved along).
+/// step's few hundred bytes are not moved along through the return values).
 pub(crate) fn begin(
     scene: &SceneData,
     set: &IntegratorSettings,
@@ -104,7 +104,7 @@ pub(crate) fn begin(
     let frame = WalkFrame::new(s.dir.as_dvec3(), rng.unit_circle());
     let features = WalkFeatures::new(tau as f64, scene.g as f64, albedo);
     let single = model.single_walk(features, tau as f64, scene.g as f64, albedo, rng);
-    let step = pending.insert(Pending {
+    let step = Pending {
         centre: s.pos.as_dvec3(),
         frame,
         r,
@@ -114,13 +114,12 @@ pub(crate) fn begin(
         draw: Draw::default(),
         n: 1,
         walk: single,
-    });
+    };
     if single.is_some() {
         step.finish(scene, set, channel, s, &[CENTRE_EVENT], rng);
-        *pending = None;
         return Begun::Done;
     }
-    step.draw = model.length_draw(&features, rng);
+    pending.insert(step).draw = model.length_draw(&features, rng);
     Begun::Pending
 }
 
