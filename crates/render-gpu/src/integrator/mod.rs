@@ -115,7 +115,7 @@ pub(crate) fn pt_event(
     stats.events += 1;
     let albedo = scene.albedo[channel];
     if set.nee {
-        s.radiance += s.beta * albedo * nee::direct(scene, s.pos, s.dir, s.free, channel, rng);
+        s.radiance += s.beta * albedo * nee::direct(scene, s.pos, s.dir, |_| s.free, channel, rng);
     }
     s.beta *= albedo;
     if !roulette(&mut s.beta, rng) {

@@ -38,18 +38,19 @@ const ROULETTE_THRESHOLD: f32 = ROULETTE_BOUND / (4.0 * std::f32::consts::PI);
 
 /// Σ over lights of ρ_g(W·ω_l) · T(x → light) · (E, or L/pdf for a sun disk).
 ///
-/// `free` is a lower bound on the distance from `x` to the surface (0 if unknown): every
-/// shadow ray crosses at least that much medium, so T ≤ exp(−σ_t·free), which decides
-/// the shadow-ray roulette.
+/// `free(ω_l)` is a lower bound on the length of medium the shadow ray from `x` along
+/// ω_l crosses before it can meet the surface (0 if unknown), so T ≤ exp(−σ_t·free),
+/// which decides the shadow-ray roulette. Any value keeps the estimate unbiased; a larger
+/// true bound skips more rays whose contribution is negligible.
 pub fn direct(
     scene: &SceneData,
     x: Vec3,
     w: Vec3,
-    free: f32,
+    free: impl Fn(Vec3) -> f32,
     channel: usize,
     rng: &mut WalkRng,
 ) -> f32 {
-    let t_bound = (-scene.sigma_t[channel] * free).exp();
+    let sigma = scene.sigma_t[channel];
     let mut sum = 0.0;
     for light in &scene.lights {
         let (wl, factor) = light.sample(uniform(rng), uniform(rng), channel);
@@ -58,7 +59,7 @@ pub fn direct(
         }
         let phase = hg_pdf(scene.g as f64, w.dot(wl).clamp(-1.0, 1.0) as f64) as f32;
         let mut weight = factor * phase;
-        let bound = phase * t_bound;
+        let bound = phase * (-sigma * free(wl)).exp();
         if bound < ROULETTE_THRESHOLD {
             if uniform(rng) * ROULETTE_THRESHOLD >= bound {
                 continue;

@@ -13,7 +13,7 @@ use cvae::decoder::{Draw, Output};
 use cvae::features::WalkFeatures;
 use cvae::sampler::CENTRE_EVENT;
 use cvae::{ModelSet, ModelWalk};
-use glam::DVec3;
+use glam::{DVec3, Vec3};
 use scatter_sim::frame::{WalkFrame, from_canonical};
 use scatter_sim::rng::WalkRng;
 
@@ -166,17 +166,28 @@ impl Pending {
         let walk = self.walk.as_ref().expect("finish after the walk is drawn");
         let grid = scene.grid.as_ref().expect("a sphere step has a grid");
         let r = self.r;
+        let centre = self.centre;
         if set.nee && !events.is_empty() {
             let mut sum = 0.0f32;
             for &(ep, ed) in events {
                 let x = self.centre + self.frame.to_world(ep) * r as f64;
                 let w = self.frame.to_world(ed).normalize();
-                // X lies |ep|·r from the centre, whose ball of radius `free` is
-                // surface-free; the grid at X (one lookup, against a shadow ray's two
-                // traversals) is often the larger bound for events away from the centre.
-                // A larger bound lets the shadow-ray roulette skip more rays.
+                // Two bounds on the medium a shadow ray from X crosses before any surface,
+                // for the shadow-ray roulette: along ω_l it first crosses the free ball
+                // around the centre (radius `free`, X inside it), its chord from X being
+                // between free − |X − c| and 2·free; and the grid's ball around X (one
+                // lookup, against a shadow ray's two traversals), often the larger for
+                // events near the sphere's edge.
+                let d = (x - centre).as_vec3();
                 let x = x.as_vec3();
-                let x_free = (self.free - ep.length() as f32 * r).max(grid.radius(x));
+                let x_grid = grid.radius(x);
+                let dd = d.length_squared();
+                let (f2, free_ball) = (self.free * self.free, self.free);
+                let x_free = |wl: Vec3| {
+                    let b = d.dot(wl);
+                    let chord = -b + (b * b + (f2 - dd).max(0.0)).sqrt();
+                    (chord * (1.0 - 1e-4)).min(2.0 * free_ball).max(x_grid)
+                };
                 sum += nee::direct(scene, x, w.as_vec3(), x_free, channel, rng);
             }
             s.radiance += s.beta * walk.lambda as f32 * sum / events.len() as f32;
