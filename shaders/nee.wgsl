@@ -104,14 +104,24 @@ fn transmittance_ordered(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
     return 0.0;
 }
 
-/// Σ over lights of ρ_g(W·ω_l) · T(x → light) · (E, or L/pdf for a sun disk). `free` is
-/// a lower bound on the distance to the surface: T ≤ exp(−σ_t·free), and a shadow ray
-/// whose bound ρ_g·exp(−σ_t·free) is below ROULETTE_BOUND/4π (ROULETTE_BOUND prepended
-/// from nee.rs by kernels.rs) goes through an unbiased roulette, as on the CPU.
-fn nee_direct(x: vec3<f32>, w: vec3<f32>, free: f32, channel: u32) -> f32 {
+/// The chord from `x` along `dir` to the edge of the surface-free ball (centre `c`,
+/// radius `f`, x inside): medium a shadow ray crosses before it can meet the surface.
+fn ball_chord(x: vec3<f32>, dir: vec3<f32>, c: vec3<f32>, f: f32) -> f32 {
+    let d = x - c;
+    let b = dot(d, dir);
+    let chord = -b + sqrt(b * b + max(f * f - dot(d, d), 0.0));
+    return min(chord * (1.0 - 1e-4), 2.0 * f);
+}
+
+/// Σ over lights of ρ_g(W·ω_l) · T(x → light) · (E, or L/pdf for a sun disk). Every
+/// shadow ray crosses at least max(`free`, its chord through the free ball (`c`, `f`))
+/// of medium, so T ≤ exp(−σ_t·that), and a shadow ray whose bound ρ_g·T is below
+/// ROULETTE_BOUND/4π (ROULETTE_BOUND prepended from nee.rs by kernels.rs) goes through an
+/// unbiased roulette, as on the CPU (nee::direct's `free`).
+fn nee_direct(x: vec3<f32>, w: vec3<f32>, free: f32, c: vec3<f32>, f: f32, channel: u32) -> f32 {
     var sum = 0.0;
     let g = params.consts.x;
-    let t_bound = exp(-params.sigma_t[channel] * free);
+    let sigma = params.sigma_t[channel];
     let threshold = ROULETTE_BOUND * INV_4PI;
     for (var i = 0u; i < params.flags.x; i++) {
         let u1 = rand();
@@ -122,7 +132,7 @@ fn nee_direct(x: vec3<f32>, w: vec3<f32>, free: f32, channel: u32) -> f32 {
         }
         let phase = hg_pdf(g, clamp(dot(w, ls.dir), -1.0, 1.0));
         var weight = ls.factor * phase;
-        let bound = phase * t_bound;
+        let bound = phase * exp(-sigma * max(free, ball_chord(x, ls.dir, c, f)));
         if bound < threshold {
             if rand() * threshold >= bound {
                 continue;

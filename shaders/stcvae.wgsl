@@ -81,6 +81,10 @@ fn scatter_at(channel: u32) -> bool {
         var x = ps.pos;
         var w = ps.dir;
         var x_free = ps.free;
+        // The free ball the shadow ray starts in: the path's own for the fallback, the
+        // step's (centre, `free`) for its events (sphere_step.rs).
+        var ball_c = ps.pos;
+        var ball_f = ps.free;
         if !fallback {
             var ev = Event(vec3<f32>(0.0), vec3<f32>(0.0, 0.0, 1.0));
             if !single {
@@ -88,11 +92,12 @@ fn scatter_at(channel: u32) -> bool {
             }
             x = centre + to_world(frame, ev.x) * r;
             w = normalize(to_world(frame, ev.w));
-            // X lies |ev.x|·r from the centre, whose ball of radius `free` is surface-free;
-            // the grid at X is often the larger bound (sphere_step.rs).
-            x_free = max(free - length(ev.x) * r, grid_radius(x));
+            // The grid's ball around X, and the chord through the step's free ball.
+            x_free = grid_radius(x);
+            ball_c = centre;
+            ball_f = free;
         }
-        sum += nee_direct(x, w, x_free, channel);
+        sum += nee_direct(x, w, x_free, ball_c, ball_f, channel);
     }
     ps.radiance += nee_weight * sum;
     if fallback {
