@@ -81,10 +81,10 @@ fn scatter_at(channel: u32) -> bool {
         var x = ps.pos;
         var w = ps.dir;
         var x_free = ps.free;
-        // The free ball the shadow ray starts in: the path's own for the fallback, the
-        // step's (centre, `free`) for its events (sphere_step.rs).
+        // The free ball a step's event lies in (centre, `free`: sphere_step.rs); none for
+        // the fallback, whose own ball around ps.pos is x_free already.
         var ball_c = ps.pos;
-        var ball_f = ps.free;
+        var ball_f = 0.0;
         if !fallback {
             var ev = Event(vec3<f32>(0.0), vec3<f32>(0.0, 0.0, 1.0));
             if !single {

@@ -389,12 +389,18 @@ fn environment_map_is_read_and_oriented() {
 /// and channel choice repeated here), up to the f64 summation order of a pixel's
 /// samples: 1e-5 relative is ~100 f32 ulps, far below any real difference, where a
 /// mixed-up lane or a stage run on the wrong path changes whole paths (O(1) per pixel).
-/// Thin medium and a sun disk, so that paths run many sphere steps with NEE on and off.
+/// Thin medium and a sun disk, so that paths run many sphere steps with NEE on and off;
+/// 40×40 pixels (9 tiles of unequal cost) and 18 spp (two passes, the second with the
+/// tiles reordered by the first's timings), so that a tile put back in the wrong place
+/// shows too.
 #[test]
 fn batched_render_equals_paths_traced_alone() {
     let m = model();
-    let (_, s) = scene(SUN_SCENE, true);
-    let spp = 6u32;
+    let text = SUN_SCENE
+        .replace("width = 16", "width = 40")
+        .replace("height = 16", "height = 40");
+    let (_, s) = scene(&text, true);
+    let spp = 18u32;
     for nee in [true, false] {
         let set = settings(IntegratorKind::Stcvae, nee, Some(&m));
         let out = render(
@@ -475,7 +481,11 @@ fn render_is_the_same_on_any_thread_count() {
     };
     let (a, b) = (run(1), run(3));
     assert_eq!(a.spp, 40);
-    assert_eq!((a.stats.paths, a.stats.steps), (b.stats.paths, b.stats.steps));
+    assert_eq!(
+        (a.stats.paths, a.stats.steps),
+        (b.stats.paths, b.stats.steps)
+    );
+    assert_eq!(a.work, b.work);
     for (i, (pa, pb)) in a.image.pixels.iter().zip(&b.image.pixels).enumerate() {
         assert_eq!(pa.map(f32::to_bits), pb.map(f32::to_bits), "pixel {i}");
     }

@@ -19,8 +19,9 @@ const MAX_OPTICAL_DEPTH: f32 = 50.0;
 /// Most surface crossings followed along one shadow ray.
 const MAX_CROSSINGS: usize = 64;
 
-/// Shadow-ray roulette on a bound of the NEE term: with T ≤ exp(−σ_t·free) (every shadow
-/// ray crosses at least `free` of medium), c = ρ_g(cos)·exp(−σ_t·free) bounds ρ_g·T.
+/// Shadow-ray roulette on a bound of the NEE term: with T ≤ exp(−σ_t·free(ω_l)) (the
+/// shadow ray along ω_l crosses at least free(ω_l) of medium, [`direct`]),
+/// c = ρ_g(cos)·exp(−σ_t·free(ω_l)) bounds ρ_g·T.
 /// Below ROULETTE_BOUND·ρ_iso (ρ_iso = 1/4π, the phase function's mean) the ray is cast
 /// only with probability c / (ROULETTE_BOUND·ρ_iso) and its result divided by that
 /// probability: unbiased, and a surviving ray adds at most ROULETTE_BOUND·ρ_iso·E — a

@@ -170,12 +170,13 @@ impl Pending {
         if set.nee && !events.is_empty() {
             let mut sum = 0.0f32;
             for &(ep, ed) in events {
-                let x = self.centre + self.frame.to_world(ep) * r as f64;
+                let x = centre + self.frame.to_world(ep) * r as f64;
                 let w = self.frame.to_world(ed).normalize();
                 // Two bounds on the medium a shadow ray from X crosses before any surface,
                 // for the shadow-ray roulette: along ω_l it first crosses the free ball
-                // around the centre (radius `free`, X inside it), its chord from X being
-                // between free − |X − c| and 2·free; and the grid's ball around X (one
+                // around the centre (radius `free`; X is inside it, as |ep| ≤ 1 for a
+                // repaired event and r < free), its chord from X being between
+                // free − |X − c| and free + |X − c|; and the grid's ball around X (one
                 // lookup, against a shadow ray's two traversals), often the larger for
                 // events near the sphere's edge.
                 let d = (x - centre).as_vec3();
