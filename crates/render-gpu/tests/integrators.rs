@@ -382,6 +382,14 @@ fn environment_map_is_read_and_oriented() {
     assert_eq!((top, bottom), (2.0, 0.0));
 }
 
+/// The sun scene at 40×40 pixels: 9 render tiles of unequal cost, with the grid.
+fn tiled_sun_scene() -> (SceneFile, SceneData) {
+    let text = SUN_SCENE
+        .replace("width = 16", "width = 40")
+        .replace("height = 16", "height = 40");
+    scene(&text, true)
+}
+
 /// The renderer traces 64 paths at a time and evaluates their decoder draws in batches
 /// (`integrator::wavefront`); each path keeps its own random stream and draws from it in
 /// the order it would alone, and a batch's lanes do not mix. So every pixel must equal the
@@ -396,10 +404,7 @@ fn environment_map_is_read_and_oriented() {
 #[test]
 fn batched_render_equals_paths_traced_alone() {
     let m = model();
-    let text = SUN_SCENE
-        .replace("width = 16", "width = 40")
-        .replace("height = 16", "height = 40");
-    let (_, s) = scene(&text, true);
+    let (_, s) = tiled_sun_scene();
     let spp = 18u32;
     for nee in [true, false] {
         let set = settings(IntegratorKind::Stcvae, nee, Some(&m));
@@ -455,10 +460,7 @@ fn batched_render_equals_paths_traced_alone() {
 #[test]
 fn render_is_the_same_on_any_thread_count() {
     let m = model();
-    let text = SUN_SCENE
-        .replace("width = 16", "width = 40")
-        .replace("height = 16", "height = 40");
-    let (_, s) = scene(&text, true);
+    let (_, s) = tiled_sun_scene();
     let set = settings(IntegratorKind::Stcvae, true, Some(&m));
     let run = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new()
