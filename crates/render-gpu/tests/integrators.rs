@@ -8,10 +8,25 @@ use std::sync::atomic::AtomicBool;
 
 use glam::Vec3;
 use render_gpu::integrator::{IntegratorKind, IntegratorSettings, PathStats, trace};
-use render_gpu::render::{RenderOptions, render};
+use render_gpu::render::{RenderOptions, RenderOutput, render};
 use render_gpu::scene::SceneFile;
 use render_gpu::setup::SceneData;
 use scatter_sim::WalkRng;
+
+/// A render without progress output or cancellation.
+fn render_quiet(s: &SceneData, set: &IntegratorSettings, spp: u32, seed: u64) -> RenderOutput {
+    render(
+        s,
+        set,
+        &RenderOptions {
+            spp,
+            seed,
+            time_budget: None,
+        },
+        &|_, _| {},
+        &AtomicBool::new(false),
+    )
+}
 
 fn model() -> cvae::ModelSet {
     common::load_model()
@@ -51,17 +66,7 @@ fn assert_furnace(kind: IntegratorKind, boundary: &str, m: Option<&cvae::ModelSe
 fn assert_furnace_in(kind: IntegratorKind, text: &str, m: Option<&cvae::ModelSet>) {
     let (_, s) = scene(text, kind == IntegratorKind::Stcvae);
     let set = settings(kind, true, m);
-    let out = render(
-        &s,
-        &set,
-        &RenderOptions {
-            spp: 12,
-            seed: 3,
-            time_budget: None,
-        },
-        &|_, _| {},
-        &AtomicBool::new(false),
-    );
+    let out = render_quiet(&s, &set, 12, 3);
     assert_eq!(
         out.stats.capped + out.stats.non_finite + out.stats.leaks,
         0,
@@ -408,17 +413,7 @@ fn batched_render_equals_paths_traced_alone() {
     let spp = 18u32;
     for nee in [true, false] {
         let set = settings(IntegratorKind::Stcvae, nee, Some(&m));
-        let out = render(
-            &s,
-            &set,
-            &RenderOptions {
-                spp,
-                seed: 9,
-                time_budget: None,
-            },
-            &|_, _| {},
-            &AtomicBool::new(false),
-        );
+        let out = render_quiet(&s, &set, spp, 9);
         assert!(out.stats.steps > out.stats.paths / 2, "{:?}", out.stats);
         let cam = &s.camera;
         let w = cam.width as usize;
@@ -467,19 +462,7 @@ fn render_is_the_same_on_any_thread_count() {
             .num_threads(threads)
             .build()
             .unwrap();
-        pool.install(|| {
-            render(
-                &s,
-                &set,
-                &RenderOptions {
-                    spp: 40,
-                    seed: 5,
-                    time_budget: None,
-                },
-                &|_, _| {},
-                &AtomicBool::new(false),
-            )
-        })
+        pool.install(|| render_quiet(&s, &set, 40, 5))
     };
     let (a, b) = (run(1), run(3));
     assert_eq!(a.spp, 40);
