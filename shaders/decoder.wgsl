@@ -129,12 +129,25 @@ struct Event {
 
 /// The representative event given N (wf.rel_log_n, and lam = Λ(N)) and the exit; event 1
 /// (the centre, W = +z) exactly with probability φ/Λ(N) when single scattering is exact.
-fn sample_event(wf: WalkFeatures, channel: u32, lam: f32, e: Exit) -> Event {
+/// Whether the last sample_event returned the centre event (exact mode, no decoder).
+var<private> event_was_centre: bool;
+
+/// `mirror`: the antithetic partner of the previous (decoded) event draw, its latent and
+/// output normals negated (cvae::sampler::event_draws); dec_noise still holds them, as no
+/// other decoder runs between a step's event draws.
+fn sample_event(wf: WalkFeatures, channel: u32, lam: f32, e: Exit, mirror: bool) -> Event {
     let albedo = params.albedo[channel];
-    if model.flags.x != 0u && rand() * lam < albedo {
+    event_was_centre = model.flags.x != 0u && rand() * lam < albedo;
+    if event_was_centre {
         return Event(vec3<f32>(0.0), vec3<f32>(0.0, 0.0, 1.0));
     }
-    fill_normals(DEC_LATENT_2 + DEC_OUT_2);
+    if mirror {
+        for (var i = 0u; i < DEC_LATENT_2 + DEC_OUT_2; i++) {
+            dec_noise[i] = -dec_noise[i];
+        }
+    } else {
+        fill_normals(DEC_LATENT_2 + DEC_OUT_2);
+    }
     dec_cond[0] = wf.tau;
     dec_cond[1] = wf.g;
     dec_cond[2] = params.albedo_feature[channel];

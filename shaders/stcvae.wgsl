@@ -77,6 +77,9 @@ fn scatter_at(channel: u32) -> bool {
         }
     }
     var sum = 0.0;
+    // Event draws in antithetic pairs, as on the CPU (cvae::sampler::event_draws): the
+    // second of a pair mirrors the first's noise unless either is the centre event.
+    var partner = false;
     for (var k = 0u; k < nee_count; k++) {
         var x = ps.pos;
         var w = ps.dir;
@@ -88,7 +91,9 @@ fn scatter_at(channel: u32) -> bool {
         if !fallback {
             var ev = Event(vec3<f32>(0.0), vec3<f32>(0.0, 0.0, 1.0));
             if !single {
-                ev = sample_event(wf, channel, lam, e);
+                let mirror = partner;
+                ev = sample_event(wf, channel, lam, e, mirror);
+                partner = !mirror && !event_was_centre;
             }
             x = centre + to_world(frame, ev.x) * r;
             w = normalize(to_world(frame, ev.w));

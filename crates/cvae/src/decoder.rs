@@ -292,6 +292,20 @@ impl Decoder {
         d
     }
 
+    /// The antithetic partner of a draw: the same condition with its latent and output
+    /// normals negated, which are standard normal too. Two draws averaged this way keep
+    /// their mean and, where the output moves monotonically with the noise, lose variance.
+    pub fn mirrored(&self, d: &Draw) -> Draw {
+        let mut m = *d;
+        for v in &mut m.input[self.cond..self.cond + self.latent] {
+            *v = -*v;
+        }
+        for v in &mut m.eps[..self.out] {
+            *v = -*v;
+        }
+        m
+    }
+
     /// The de-standardised outputs of a draw from its head, one draw at a time: the
     /// definition [`Decoder::outputs`] computes in SIMD lanes (tests compare the two).
     pub fn read_out(&self, head: &Head, draw: &Draw) -> Output {

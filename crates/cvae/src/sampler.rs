@@ -229,9 +229,7 @@ impl ModelSet {
     /// EventGen's draw for another representative event of `walk`, or None when the
     /// exact-mode choice picks event 1 ([`CENTRE_EVENT`], no decoder needed).
     pub fn event_draw(&self, walk: &ModelWalk, rng: &mut WalkRng) -> Option<Draw> {
-        if self.single_scattering == SingleScattering::Exact
-            && rng.uniform() * walk.lambda < walk.albedo
-        {
+        if self.centre_event(walk, rng) {
             return None;
         }
         let e = walk.exit;
@@ -239,6 +237,39 @@ impl ModelSet {
             .features
             .event_cond(walk.relative_log_n, e.cos_theta, e.beta, e.alpha);
         Some(draw_with_noise(&self.event, &cond, rng))
+    }
+
+    /// `m` representative-event draws of one walk into `out`, in antithetic pairs: the
+    /// second of a pair mirrors the first's noise ([`Decoder::mirrored`]) unless either
+    /// is the centre event. Each draw alone has the distribution of [`Self::event_draw`];
+    /// only their correlation changes, so an average over them keeps its mean.
+    pub fn event_draws(
+        &self,
+        walk: &ModelWalk,
+        m: u32,
+        rng: &mut WalkRng,
+        out: &mut Vec<Option<Draw>>,
+    ) {
+        let mut partner: Option<Draw> = None;
+        for _ in 0..m {
+            let fresh = partner.is_none();
+            let d = match partner.take() {
+                Some(p) if !self.centre_event(walk, rng) => Some(self.event.mirrored(&p)),
+                Some(_) => None,
+                None => self.event_draw(walk, rng),
+            };
+            if fresh {
+                partner = d;
+            }
+            out.push(d);
+        }
+    }
+
+    /// Exact mode's choice of event 1 (the centre) as the representative event, with its
+    /// probability φ/Λ(N).
+    fn centre_event(&self, walk: &ModelWalk, rng: &mut WalkRng) -> bool {
+        self.single_scattering == SingleScattering::Exact
+            && rng.uniform() * walk.lambda < walk.albedo
     }
 
     /// The event (X, W) from EventGen's output.

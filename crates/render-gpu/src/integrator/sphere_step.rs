@@ -145,9 +145,7 @@ impl Pending {
         if set.nee {
             // Extra representative events (EventGen draws given the same N and exit), each
             // weighted Λ(N)/M: the same expectation with less variance per sphere step.
-            for _ in 0..set.nee_samples.max(1) {
-                events.push(model.event_draw(&walk, rng));
-            }
+            model.event_draws(&walk, set.nee_samples.max(1), rng, events);
         }
         self.walk = Some(walk);
     }
