@@ -13,7 +13,7 @@ use render_gpu::integrator::IntegratorKind;
 use render_gpu::render::RenderOptions;
 
 use crate::device::{DeviceArg, Engine};
-use crate::experiment::measure::{BLOCK, Pair, block_z, compare};
+use crate::experiment::measure::{BLOCK, MIN_BLOCK_DOF, Pair, block_z, compare};
 use crate::render::prepare;
 
 #[derive(clap::Args)]
@@ -199,7 +199,7 @@ pub fn run(a: Args) -> Result<()> {
             .map(|(o, se)| format!("{:+.2}% ± {:.2}%", 100.0 * o, 100.0 * se));
         println!(
             "     per channel (R, G, B): bias RMSE {:.4} {:.4} {:.4}; ST-CVAE/PT total − 1: {r}, {g}, {b}; \
-             {BLOCK}x{BLOCK}-block chi2/dof {:.2} over {} (~1 ± {:.2} if they differ by noise alone)",
+             {BLOCK}x{BLOCK}-block chi2/dof {:.2} over {} with ≥ {MIN_BLOCK_DOF} dof (~1 ± {:.2} if they differ by noise alone)",
             c.channel_bias[0],
             c.channel_bias[1],
             c.channel_bias[2],
