@@ -125,16 +125,12 @@ pub fn render(
         .into_iter()
         .flatten()
         .collect();
-        let mut results: Vec<Option<(Vec<PixelSum>, PathStats)>> =
-            tiles.iter().map(|_| None).collect();
+        // Each pixel gets one addition a pass, from its one tile, so the order in which
+        // the tiles finished does not matter.
         for (t, out, st, secs) in finished {
             cost[t] = secs;
-            results[t] = Some((out, st));
-        }
-        order.sort_by(|&a, &b| cost[b].total_cmp(&cost[a]).then(a.cmp(&b)));
-        let results = results.into_iter().map(|r| r.expect("every tile traced"));
-        for (&(x0, y0), (out, st)) in tiles.iter().zip(results) {
             stats.add(&st);
+            let (x0, y0) = tiles[t];
             let x1 = (x0 + TILE).min(w);
             for (i, (v, n)) in out.into_iter().enumerate() {
                 let (dx, dy) = (i % (x1 - x0), i / (x1 - x0));
@@ -145,6 +141,7 @@ pub fn render(
                 work[at] += n;
             }
         }
+        order.sort_by(|&a, &b| cost[b].total_cmp(&cost[a]).then(a.cmp(&b)));
         s0 = s1;
         let elapsed = start.elapsed().as_secs_f64();
         let out_of_time = opts.time_budget.is_some_and(|b| elapsed >= b);
