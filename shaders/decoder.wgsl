@@ -127,14 +127,14 @@ struct Event {
     w: vec3<f32>,
 }
 
-/// The representative event given N (wf.rel_log_n, and lam = Λ(N)) and the exit; event 1
-/// (the centre, W = +z) exactly with probability φ/Λ(N) when single scattering is exact.
 /// Whether the last sample_event returned the centre event (exact mode, no decoder).
 var<private> event_was_centre: bool;
 
+/// The representative event given N (wf.rel_log_n, and lam = Λ(N)) and the exit; event 1
+/// (the centre, W = +z) exactly with probability φ/Λ(N) when single scattering is exact.
 /// `mirror`: the antithetic partner of the previous (decoded) event draw, its latent and
 /// output normals negated (cvae::sampler::event_draws); dec_noise still holds them, as no
-/// other decoder runs between a step's event draws.
+/// other decoder runs between a step's event draws and the decoders only read it.
 fn sample_event(wf: WalkFeatures, channel: u32, lam: f32, e: Exit, mirror: bool) -> Event {
     let albedo = params.albedo[channel];
     event_was_centre = model.flags.x != 0u && rand() * lam < albedo;
