@@ -108,3 +108,35 @@ fn probe_grid(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
     set_f(i, 1u, exact);
     set_f(i, 2u, searched);
 }
+
+/// In: WalkFeatures (tau feature, g, log prior, relative log N) at 0..3; exit (cos θ, α,
+/// β) at 4..6; an RNG seed at 8 (params.albedo is 0, so the centre event never comes up).
+/// Out: the noise of a fresh EventGen draw at 0..10 and of its mirrored partner at 11..21
+/// (DEC_LATENT_2 + DEC_OUT_2 = 11 for the shipped model); the partner's event X at
+/// 22..24 and W at 25..27.
+@compute @workgroup_size(64)
+fn probe_event_pair(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gid.x;
+    if i >= params.image.x {
+        return;
+    }
+    let wf = WalkFeatures(item_f(i, 0u), item_f(i, 1u), item_f(i, 2u), item_f(i, 3u));
+    let e = Exit(item_f(i, 4u), item_f(i, 5u), item_f(i, 6u));
+    rng_seed(u32(item_f(i, 8u)), 0u, i, 0u);
+    let n = min(DEC_LATENT_2 + DEC_OUT_2, 11u);
+    for (var k = 0u; k < 32u; k++) {
+        set_f(i, k, 0.0);
+    }
+    let first = sample_event(wf, 0u, 2.0, e, false);
+    for (var k = 0u; k < n; k++) {
+        set_f(i, k, dec_noise[k]);
+    }
+    let second = sample_event(wf, 0u, 2.0, e, true);
+    for (var k = 0u; k < n; k++) {
+        set_f(i, 11u + k, dec_noise[k]);
+    }
+    for (var k = 0u; k < 3u; k++) {
+        set_f(i, 22u + k, second.x[k]);
+        set_f(i, 25u + k, second.w[k]);
+    }
+}

@@ -169,6 +169,73 @@ fn wgsl_decoders_match_rust() {
     }
 }
 
+/// The WGSL antithetic EventGen pair: the partner's latent and output normals are
+/// exactly the first draw's negated (the decoders only read the noise, so it survives the
+/// first draw), and its event equals the Rust decoder's for that mirrored noise within
+/// 1e-4 (f32 against f64 through the decoder and the event transforms).
+#[test]
+fn wgsl_event_pairs_are_mirrored() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let m = model();
+    let (latent, out_n) = (m.event.latent, m.event.out);
+    assert_eq!(latent + out_n, 11, "the probe's layout holds 11 normals");
+    let mut rng = WalkRng::from_seed(8);
+    let items: Vec<Item> = (0..500)
+        .map(|i| {
+            let mut it: Item = [0.0; 32];
+            let tau = 2.0 + 100.0 * rng.uniform();
+            let g = 1.6 * rng.uniform() - 0.8;
+            let f = cvae::features::WalkFeatures::new(tau, g, 1.0);
+            let rel = f.relative_log_n(2 + (50.0 * rng.uniform()) as u64);
+            it[..4].copy_from_slice(&[f.tau as f32, g as f32, f.log_prior as f32, rel as f32]);
+            let exit = [
+                2.0 * rng.uniform() - 1.0,
+                0.4 * rng.uniform() - 0.2,
+                0.4 * rng.uniform() - 0.2,
+            ];
+            it[4..7].copy_from_slice(&exit.map(|v| v as f32));
+            it[8] = i as f32;
+            it
+        })
+        .collect();
+    let out = run_probe(&ctx, "probe_event_pair", m, &items).unwrap();
+    for (i, (o, it)) in out.iter().zip(&items).enumerate() {
+        for k in 0..11 {
+            assert_eq!(o[11 + k], -o[k], "item {i} normal {k}");
+        }
+        // The Rust event of the mirrored draw: the WGSL condition (albedo feature 0: the
+        // probe's params hold φ = 0 and feature 0) with the partner's noise.
+        let cond: Vec<f64> = [it[0], it[1], 0.0, it[3], it[4], it[6], it[5]]
+            .iter()
+            .map(|&v| v as f64)
+            .collect();
+        let mut res = [0f64; 8];
+        m.event.sample(
+            &cond,
+            &o[11..11 + latent],
+            &o[11 + latent..22],
+            &mut res[..out_n],
+        );
+        let mut raw = [0f32; cvae::decoder::MAX_OUT];
+        for (r, v) in raw.iter_mut().zip(&res) {
+            *r = *v as f32;
+        }
+        let (x, w) = m.event_result(&raw);
+        let v = |k: usize| DVec3::new(o[k] as f64, o[k + 1] as f64, o[k + 2] as f64);
+        assert!(
+            (v(22) - x).length() < 1e-4,
+            "item {i}: X {:?} vs {x:?}",
+            v(22)
+        );
+        assert!(
+            (v(25) - w).length() < 1e-4,
+            "item {i}: W {:?} vs {w:?}",
+            v(25)
+        );
+    }
+}
+
 fn settings(kind: IntegratorKind, nee: bool) -> IntegratorSettings<'static> {
     let m = (kind == IntegratorKind::Stcvae).then(model);
     IntegratorSettings {
