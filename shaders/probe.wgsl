@@ -11,6 +11,13 @@ fn set_f(i: u32, k: u32, v: f32) {
     accum[i * 8u + k / 4u][k % 4u] = v;
 }
 
+/// Zeroes item i's 32 floats (outputs a probe does not write read back as 0).
+fn clear_item(i: u32) {
+    for (var k = 0u; k < 32u; k++) {
+        set_f(i, k, 0.0);
+    }
+}
+
 /// In: cond[0..12], noise[12..28], decoder id at 28. Out: outputs at 0..8.
 @compute @workgroup_size(64)
 fn probe_decoder(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -53,9 +60,7 @@ fn probe_frame(@builtin(global_invocation_id) gid: vec3<u32>) {
     let p = to_world(f, canonical_exit_point(ct));
     let w = to_world(f, canonical_exit_dir(ct, al, be));
     let xw = to_world(f, x);
-    for (var k = 0u; k < 32u; k++) {
-        set_f(i, k, 0.0);
-    }
+    clear_item(i);
     set_f(i, 0u, c);
     for (var k = 0u; k < 3u; k++) {
         set_f(i, 4u + k, d[k]);
@@ -78,9 +83,7 @@ fn probe_ray(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invoc
     let d = vec3<f32>(item_f(i, 4u), item_f(i, 5u), item_f(i, 6u));
     let h = intersect(o, d, 1e30);
     let c = crossings(o, d);
-    for (var k = 0u; k < 32u; k++) {
-        set_f(i, k, 0.0);
-    }
+    clear_item(i);
     set_f(i, 0u, select(0.0, 1.0, h.found));
     set_f(i, 1u, h.t);
     set_f(i, 2u, f32(c.balance));
@@ -101,9 +104,7 @@ fn probe_grid(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
     let r = grid_radius(p);
     let exact = grid_exact_distance(p);
     let searched = surface_distance(p, 1e30);
-    for (var k = 0u; k < 32u; k++) {
-        set_f(i, k, 0.0);
-    }
+    clear_item(i);
     set_f(i, 0u, r);
     set_f(i, 1u, exact);
     set_f(i, 2u, searched);
@@ -124,9 +125,7 @@ fn probe_event_pair(@builtin(global_invocation_id) gid: vec3<u32>) {
     let e = Exit(item_f(i, 4u), item_f(i, 5u), item_f(i, 6u));
     rng_seed(u32(item_f(i, 8u)), 0u, i, 0u);
     let n = min(DEC_LATENT_2 + DEC_OUT_2, 11u);
-    for (var k = 0u; k < 32u; k++) {
-        set_f(i, k, 0.0);
-    }
+    clear_item(i);
     let first = sample_event(wf, 0u, 2.0, e, false);
     for (var k = 0u; k < n; k++) {
         set_f(i, k, dec_noise[k]);

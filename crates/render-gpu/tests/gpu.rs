@@ -598,6 +598,13 @@ fn loop_limit_cut_off_is_redone_with_the_safe_budget() {
     );
 }
 
+/// The furnace scene's bunny (index-matched), with or without its distance grid: the
+/// geometry the probe tests of ray queries and of the grid run on.
+fn furnace_bunny(grid: bool) -> render_gpu::setup::SceneData {
+    let text = common::furnace_scene(r#"kind = "index-matched""#);
+    common::build_scene(&text, grid)
+}
+
 /// The WGSL ray queries are watertight like the Rust ones (render_gpu::watertight): no
 /// ray from inside the bunny aimed at one of its vertices or edge midpoints misses the
 /// surface, the closest hits agree with the CPU's, and so do the one-traversal inside
@@ -606,8 +613,7 @@ fn loop_limit_cut_off_is_redone_with_the_safe_budget() {
 fn wgsl_rays_are_watertight_and_match_rust() {
     let Some(ctx) = gpu() else { return };
     let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
-    let text = common::furnace_scene(r#"kind = "index-matched""#);
-    let scene = common::build_scene(&text, false);
+    let scene = furnace_bunny(false);
     let geo = &scene.geo;
     let mut rng = WalkRng::from_seed(23);
     let mut items: Vec<Item> = Vec::new();
@@ -691,8 +697,7 @@ fn wgsl_rays_are_watertight_and_match_rust() {
 fn wgsl_grid_and_candidate_lists_match_rust() {
     let Some(ctx) = gpu() else { return };
     let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
-    let text = common::furnace_scene(r#"kind = "index-matched""#);
-    let scene = common::build_scene(&text, true);
+    let scene = furnace_bunny(true);
     let geo = &scene.geo;
     let grid = scene.grid.as_ref().unwrap();
     let mut rng = WalkRng::from_seed(29);
