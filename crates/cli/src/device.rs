@@ -3,6 +3,7 @@
 use std::sync::atomic::AtomicBool;
 
 use anyhow::Result;
+use render_gpu::error::RenderError;
 use render_gpu::gpu::{AdapterChoice, GpuContext, render_gpu};
 use render_gpu::integrator::IntegratorSettings;
 use render_gpu::render::{RenderOptions, RenderOutput, render};
@@ -33,10 +34,17 @@ impl Engine {
             DeviceArg::Gpu => Engine::Gpu(Box::new(GpuContext::new(AdapterChoice::Any)?)),
             DeviceArg::Auto => match GpuContext::new(AdapterChoice::Hardware) {
                 Ok(c) => Engine::Gpu(Box::new(c)),
-                Err(_) => {
+                Err(RenderError::NoAdapter(_)) => {
                     eprintln!(
                         "no hardware GPU adapter: rendering on the CPU ({} threads); \
                          --device gpu accepts a software adapter",
+                        rayon::current_num_threads()
+                    );
+                    Engine::Cpu
+                }
+                Err(e) => {
+                    eprintln!(
+                        "the GPU could not be used ({e}): rendering on the CPU ({} threads)",
                         rayon::current_num_threads()
                     );
                     Engine::Cpu

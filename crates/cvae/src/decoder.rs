@@ -478,6 +478,9 @@ mod tests {
         let single: Vec<Head> = draws.iter().map(|x| d.head(x)).collect();
         let mut heads = vec![[0f32; 2 * MAX_OUT]; draws.len()];
         for width in 0..3 {
+            // Poisoned, so a lane a variant leaves unwritten fails the comparison below
+            // instead of showing the previous variant's value.
+            heads.fill([f32::NAN; 2 * MAX_OUT]);
             match width {
                 0 => d.heads_with::<Separate, 8>(&draws, &mut heads),
                 1 => d.heads_with::<Separate, 16>(&draws, &mut heads),

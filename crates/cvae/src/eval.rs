@@ -343,16 +343,35 @@ mod tests {
         assert!((z2 - 1.0 / 3.0).abs() < 0.01, "E z² {z2}");
     }
 
-    /// The simulator against itself (independent streams): the two ratios are z-scores of
-    /// a difference of independent means, so each lies within 4 of its standard error
-    /// (a 6e-5 chance to fail by noise), at a setting where both quantities vary a lot.
+    /// The simulator against itself (independent streams), at a setting where both
+    /// quantities vary a lot: each ratio is the z-score of a difference of independent
+    /// means, so over 8 independent pairs of runs Σ z² follows χ²₈ if the standard errors
+    /// are right. Both tails are tested, at probability 5e-4 each (a 0.2 % chance for
+    /// the two quantities to fail by noise): a standard error too small and one too
+    /// large both fail.
     #[test]
     fn simulator_against_itself_gives_ratios_within_noise() {
+        use scatter_sim::stats::chi_square_p_value;
         let (tau, g, albedo) = (5.0, 0.4, 0.95);
-        let a = simulator_columns(tau, g, albedo, 20_000, 1).nee_samples(tau, g, albedo);
-        let b = simulator_columns(tau, g, albedo, 20_000, 2).nee_samples(tau, g, albedo);
-        for r in [ratio_error(&a[0], &b[0]), ratio_error(&a[1], &b[1])] {
-            assert!(r.se > 0.0 && r.value.abs() < 4.0 * r.se, "{r:?}");
+        let mut chi2 = [0.0f64; 2];
+        for pair in 0..8u64 {
+            let run =
+                |seed| simulator_columns(tau, g, albedo, 20_000, seed).nee_samples(tau, g, albedo);
+            let (a, b) = (run(1 + 2 * pair), run(2 + 2 * pair));
+            for (k, r) in [ratio_error(&a[0], &b[0]), ratio_error(&a[1], &b[1])]
+                .iter()
+                .enumerate()
+            {
+                assert!(r.se > 0.0 && r.value.is_finite(), "{r:?}");
+                chi2[k] += (r.value / r.se).powi(2);
+            }
+        }
+        for (k, &c) in chi2.iter().enumerate() {
+            let p = chi_square_p_value(c, 8);
+            assert!(
+                (5e-4..=1.0 - 5e-4).contains(&p),
+                "quantity {k}: Σz² = {c:.2} over 8 pairs (p = {p:.2e})"
+            );
         }
     }
 }

@@ -150,18 +150,23 @@ fn short_training_improves_fit() {
                     &z[5..8],
                     &mut v,
                 );
-                v[0].clamp(-1.0, 1.0)
+                // The decoder's outputs are the mapped targets (cos θ through a logit):
+                // map them back, as the renderers do.
+                cvae::features::path_from_target(v).0
             })
             .collect();
         let mut sim_cos: Vec<f64> = sim.iter().map(|w| w.canonical().exit.cos_theta).collect();
         scatter_sim::stats::ks_two_sample(&mut model_cos, &mut sim_cos)
     };
     let (before, after) = (ks(&untrained.decoder), ks(&trained.decoder));
-    // The untrained decoder's outputs are noise around the data mean (KS ≳ 0.2); 600
-    // steps get well below that. 0.7× leaves room for seed-to-seed variation.
+    // ~4,000 walks a side: the two-sample KS exceeds 0.044 by noise alone with probability
+    // 0.1 %. The untrained decoder ignores its condition and must be far off (measured
+    // 0.29), or the check below could not tell learning from none; 600 steps must bring
+    // it within 0.10, the event tolerance of the shipped-model test (measured 0.04).
     eprintln!("KS before {before:.3}, after {after:.3}");
     assert!(
-        after < 0.7 * before,
-        "KS before {before:.3}, after {after:.3}"
+        before > 0.15,
+        "the untrained decoder already fits: KS {before:.3}"
     );
+    assert!(after < 0.10, "KS before {before:.3}, after {after:.3}");
 }

@@ -21,7 +21,12 @@ pub enum RenderError {
     /// Images that cannot be merged, or an unreadable image.
     #[error("{0}")]
     Image(String),
-    /// No usable wgpu adapter, or the GPU failed.
+    /// No wgpu adapter of the kind asked for exists (a machine without a GPU driver):
+    /// kept apart from [`RenderError::Gpu`] so that callers can fall back to the CPU, and
+    /// tests skip, for this reason alone.
+    #[error("{0}")]
+    NoAdapter(String),
+    /// An adapter could not be opened, or the GPU failed.
     #[error("{0}")]
     Gpu(String),
 }

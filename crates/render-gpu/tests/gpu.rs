@@ -9,6 +9,7 @@ use std::sync::atomic::AtomicBool;
 use std::sync::{Mutex, OnceLock};
 
 use glam::DVec3;
+use render_gpu::RenderError;
 use render_gpu::gpu::probe::{Item, run_probe};
 use render_gpu::gpu::{AdapterChoice, GpuContext, render_gpu};
 use render_gpu::integrator::{IntegratorKind, IntegratorSettings};
@@ -19,26 +20,38 @@ use scatter_sim::frame::{CanonicalExit, WalkFrame, from_canonical};
 use scatter_sim::phase::{deflect, hg_sample_cos};
 
 /// One device for all tests of this file; tests share it one at a time (lavapipe uses
-/// every core for one dispatch anyway).
+/// every core for one dispatch anyway). None, with the reason printed for each test that
+/// asks, only where no Vulkan adapter exists and not under CI; an adapter that exists but
+/// cannot be opened fails every test.
 fn gpu() -> Option<&'static Mutex<GpuContext>> {
-    static CTX: OnceLock<Option<Mutex<GpuContext>>> = OnceLock::new();
-    CTX.get_or_init(|| {
+    static CTX: OnceLock<Result<Mutex<GpuContext>, String>> = OnceLock::new();
+    let ctx = CTX.get_or_init(|| {
         match GpuContext::with_backends(AdapterChoice::Any, Some(wgpu::Backends::VULKAN)) {
             Ok(c) => {
                 eprintln!("GPU tests on {}", c.adapter);
-                Some(Mutex::new(c))
+                Ok(Mutex::new(c))
             }
-            Err(e) => {
+            Err(RenderError::NoAdapter(e)) => {
                 assert!(
                     std::env::var_os("CI").is_none(),
                     "CI must have a Vulkan adapter (mesa-vulkan-drivers): {e}"
                 );
-                eprintln!("skipping GPU tests: {e}");
-                None
+                Err(e)
             }
+            Err(e) => panic!("a Vulkan adapter exists but cannot be used: {e}"),
         }
-    })
-    .as_ref()
+    });
+    match ctx {
+        Ok(c) => Some(c),
+        Err(reason) => {
+            let test = std::thread::current()
+                .name()
+                .unwrap_or("a GPU test")
+                .to_owned();
+            eprintln!("skipping {test}: {reason}");
+            None
+        }
+    }
 }
 
 fn model() -> &'static cvae::ModelSet {

@@ -95,7 +95,7 @@ impl GpuContext {
         });
         adapters.sort_by_key(|a| rank(a.get_info().device_type));
         let Some(adapter) = adapters.into_iter().next() else {
-            return Err(RenderError::Gpu(match choice {
+            return Err(RenderError::NoAdapter(match choice {
                 AdapterChoice::Hardware => "no GPU adapter found (Vulkan, Metal or DX12); \
                     use --device cpu, or --device gpu to accept a software adapter such as \
                     Mesa's lavapipe (apt-get install mesa-vulkan-drivers)"
