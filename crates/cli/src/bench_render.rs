@@ -59,13 +59,15 @@ fn save_images(dir: &std::path::Path, k: f64, pt: &Pair, st: &Pair) -> Result<()
     std::fs::create_dir_all(dir)?;
     let exposure = crate::experiment::measure::scale_of(&pt.mean) as f32;
     for (name, p) in [("pt", pt), ("stcvae", st)] {
-        let base = dir.join(format!("k{k}_{name}"));
+        // Appended, not `with_extension`: a fractional k ("k0.5_pt") would lose its tail
+        // and the two integrators' images would overwrite each other.
+        let file = |ext: &str| dir.join(format!("k{k}_{name}.{ext}"));
         let tag = RenderTag {
             spp: p.spp as u64,
             scene_hash: p.hash,
         };
-        write_exr(&base.with_extension("exr"), &p.mean, &tag)?;
-        write_png(&base.with_extension("png"), &p.mean, exposure)?;
+        write_exr(&file("exr"), &p.mean, &tag)?;
+        write_png(&file("png"), &p.mean, exposure)?;
     }
     let (w, h) = (pt.mean.width, pt.mean.height);
     let mut z = RgbImage::new(w, h);
@@ -197,15 +199,21 @@ pub fn run(a: Args) -> Result<()> {
         let [r, g, b] = c
             .channel_offset
             .map(|(o, se)| format!("{:+.2}% ± {:.2}%", 100.0 * o, 100.0 * se));
+        let blocks = if c.blocks == 0 {
+            format!(
+                "no {BLOCK}x{BLOCK} block has ≥ {MIN_BLOCK_DOF} dof of noise estimate (image too small or too few spp)"
+            )
+        } else {
+            format!(
+                "{BLOCK}x{BLOCK}-block chi2/dof {:.2} over {} with ≥ {MIN_BLOCK_DOF} dof (~1 ± {:.2} if they differ by noise alone)",
+                c.block_chi2,
+                c.blocks,
+                (2.0 / c.blocks as f64).sqrt()
+            )
+        };
         println!(
-            "     per channel (R, G, B): bias RMSE {:.4} {:.4} {:.4}; ST-CVAE/PT total − 1: {r}, {g}, {b}; \
-             {BLOCK}x{BLOCK}-block chi2/dof {:.2} over {} with ≥ {MIN_BLOCK_DOF} dof (~1 ± {:.2} if they differ by noise alone)",
-            c.channel_bias[0],
-            c.channel_bias[1],
-            c.channel_bias[2],
-            c.block_chi2,
-            c.blocks,
-            (2.0 / c.blocks.max(1) as f64).sqrt()
+            "     per channel (R, G, B): bias RMSE {:.4} {:.4} {:.4}; ST-CVAE/PT total − 1: {r}, {g}, {b}; {blocks}",
+            c.channel_bias[0], c.channel_bias[1], c.channel_bias[2],
         );
         if st.stats.leaks + pt.stats.leaks > 0 {
             println!(

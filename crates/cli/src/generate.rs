@@ -221,7 +221,7 @@ pub fn run(a: Args) -> Result<()> {
         secs,
         summary.events,
         progress::si(summary.events as f64 / secs),
-        summary.events as f64 / summary.walks as f64,
+        summary.events as f64 / summary.walks.max(1) as f64,
         summary.max_events
     );
     Ok(())

@@ -77,10 +77,9 @@ pub fn run(a: Args) -> Result<()> {
     let is_exr = |p: &PathBuf| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr"));
     let exr_inputs = a.inputs.iter().filter(|p| is_exr(p)).count();
     if exr_inputs == a.inputs.len() {
-        let stem = a.out.with_extension("");
         check_paths(
             &a.inputs,
-            &[stem.with_extension("exr"), stem.with_extension("png")],
+            &[image_out(&a.out, "exr"), image_out(&a.out, "png")],
         )?;
         return merge_images(&a);
     } else if exr_inputs > 0 {
@@ -95,13 +94,29 @@ pub fn run(a: Args) -> Result<()> {
     }
 }
 
+/// OUT.ext for the merged image: an `.exr` or `.png` the user typed is replaced, anything
+/// else (`run.v2`) is kept whole, as `render --out` does.
+fn image_out(out: &std::path::Path, ext: &str) -> PathBuf {
+    let known = out
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("exr") || e.eq_ignore_ascii_case("png"));
+    let mut s = if known {
+        out.with_extension("")
+    } else {
+        out.to_path_buf()
+    }
+    .into_os_string();
+    s.push(".");
+    s.push(ext);
+    PathBuf::from(s)
+}
+
 /// Renders of one scene with different seeds, averaged by spp: writes OUT.exr and OUT.png.
 fn merge_images(a: &Args) -> Result<()> {
     let inputs: Vec<&std::path::Path> = a.inputs.iter().map(|p| p.as_path()).collect();
     let (img, tag) = render_gpu::image_io::merge_exrs(&inputs)?;
-    let stem = a.out.with_extension("");
-    let exr = stem.with_extension("exr");
-    let png = stem.with_extension("png");
+    let exr = image_out(&a.out, "exr");
+    let png = image_out(&a.out, "png");
     if let Some(dir) = exr.parent()
         && !dir.as_os_str().is_empty()
     {
@@ -126,10 +141,11 @@ fn merge_binary(a: &Args) -> Result<()> {
         .map(|p| DatasetReader::open(p))
         .collect::<Result<Vec<_>, _>>()?;
     let first = readers[0].header().pieces.first().cloned();
-    let one_run = readers
-        .iter()
-        .flat_map(|r| &r.header().pieces)
-        .all(|p| first.as_ref().is_some_and(|f| f.same_run(p)));
+    let one_run = first.is_some()
+        && readers
+            .iter()
+            .flat_map(|r| &r.header().pieces)
+            .all(|p| first.as_ref().is_some_and(|f| f.same_run(p)));
     if one_run {
         readers.sort_by_key(|r| r.header().pieces.first().map_or(0, |p| p.first_walk));
     }

@@ -74,23 +74,30 @@ pub fn sample(a: SampleArgs) -> Result<()> {
     }
     let m = load_model(a.model.as_deref())?;
     warn_outside_training(&m, c);
-    let walks: Vec<_> = (0..a.samples)
-        .into_par_iter()
-        .map(|i| {
-            let mut rng = WalkRng::for_walk(a.seed, i);
-            m.sample_walk(c.tau, c.g, c.albedo, true, &mut rng)
-        })
-        .collect();
     let mut sink = Box::new(CsvWriter::create(&a.out, a.samples)?);
-    for w in walks {
-        let cw = CanonicalWalk {
-            n: w.n,
-            exit: w.exit,
-            event_pos: w.event_pos,
-            event_dir: w.event_dir,
-        };
-        sink.push(&Row::new(c, &cw))?;
+    // Drawn in chunks so that memory stays bounded however many walks are asked for.
+    const CHUNK: u64 = 1 << 16;
+    let pb = progress::bar(a.samples, "walks");
+    for start in (0..a.samples).step_by(CHUNK as usize) {
+        let walks: Vec<_> = (start..(start + CHUNK).min(a.samples))
+            .into_par_iter()
+            .map(|i| {
+                let mut rng = WalkRng::for_walk(a.seed, i);
+                m.sample_walk(c.tau, c.g, c.albedo, true, &mut rng)
+            })
+            .collect();
+        for w in &walks {
+            let cw = CanonicalWalk {
+                n: w.n,
+                exit: w.exit,
+                event_pos: w.event_pos,
+                event_dir: w.event_dir,
+            };
+            sink.push(&Row::new(c, &cw))?;
+        }
+        pb.inc(walks.len() as u64);
     }
+    pb.finish_and_clear();
     sink.finish()?;
     eprintln!("wrote {} model walks to {}", a.samples, a.out.display());
     Ok(())
@@ -233,7 +240,7 @@ pub fn evaluate_into(
     let mut cols = Vec::new();
     for (i, &tau) in eval::TAUS.iter().enumerate() {
         for (j, &g) in eval::GS.iter().enumerate() {
-            let seed = a.seed + (i * eval::GS.len() + j) as u64;
+            let seed = a.seed.wrapping_add((i * eval::GS.len() + j) as u64);
             cols.push((
                 tau,
                 g,

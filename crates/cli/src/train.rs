@@ -142,11 +142,18 @@ fn range(rows: &[Row], f: impl Fn(&Row) -> f64) -> [f64; 2] {
         })
 }
 
+/// Below this many usable walks per model `train` warns: a CVAE's conditional
+/// distribution cannot be learned from fewer, though a test may still want to try.
+const MIN_ROWS: usize = 1000;
+
 pub fn run(a: Args) -> Result<()> {
     let cfg = load(&a.config)?;
     let device = device(&a.backend)?;
-    if !(a.steps_scale > 0.0) {
-        bail!("--steps-scale must be positive");
+    if !(a.steps_scale > 0.0 && a.steps_scale <= 1e3) {
+        bail!(
+            "--steps-scale = {} is out of range: allowed (0, 1000]",
+            a.steps_scale
+        );
     }
     let out = a.out.clone().unwrap_or_else(|| cfg.out.clone());
     ensure_dataset(&cfg)?;
@@ -161,6 +168,31 @@ pub fn run(a: Args) -> Result<()> {
         .iter()
         .map(|&k| Table::build(k, &rows, cfg.single_scattering))
         .collect();
+    for (k, t) in kinds.iter().zip(&tables) {
+        if t.rows == 0 {
+            bail!(
+                "{}: none of its {} walks is usable for {} ({}); generate a dataset with \
+                 larger tau or more samples",
+                cfg.dataset.display(),
+                rows.len(),
+                k.name(),
+                if cfg.single_scattering == SingleScattering::Exact {
+                    "it needs walks with N >= 2 and, for EventGen, events other than the centre"
+                } else {
+                    "the dataset is empty"
+                }
+            );
+        }
+        if t.rows < MIN_ROWS {
+            eprintln!(
+                "warning: {} has only {} usable walks for {}: too few to learn a distribution \
+                 (the shipped model used 2^22 walks)",
+                cfg.dataset.display(),
+                t.rows,
+                k.name()
+            );
+        }
+    }
     eprintln!(
         "{} walks ({} used: {}), read and prepared in {:.1} s",
         rows.len(),

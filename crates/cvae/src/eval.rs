@@ -270,7 +270,7 @@ pub fn evaluate_grid(
         .iter()
         .enumerate()
         .map(|(i, &(t, g, a))| {
-            let r = evaluate_setting(m, t, g, a, samples, seed + i as u64);
+            let r = evaluate_setting(m, t, g, a, samples, seed.wrapping_add(i as u64));
             progress(i + 1, total);
             r
         })

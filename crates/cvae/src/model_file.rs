@@ -212,15 +212,18 @@ impl ModelSet {
         let meta: Result<Metadata, _> = serde_json::from_slice(&bytes[16..16 + json_len]);
         // Size check first (a truncated file fails the checksum too, but "truncated" is
         // the more useful message), which needs the metadata.
-        if let Ok(m) = &meta {
-            let expected = 16 + json_len + 4 * weight_count(m) + 4;
-            if expected != bytes.len() && m.decoders.len() == 3 {
-                return Err(ModelError::Truncated {
-                    path: p(),
-                    expected,
-                    found: bytes.len(),
-                });
-            }
+        if let Ok(m) = &meta
+            && let Some(expected) = weight_count(m)
+                .and_then(|n| n.checked_mul(4))
+                .and_then(|n| n.checked_add(16 + json_len + 4))
+            && expected != bytes.len()
+            && m.decoders.len() == 3
+        {
+            return Err(ModelError::Truncated {
+                path: p(),
+                expected,
+                found: bytes.len(),
+            });
         }
         if crc32fast::hash(body) != stored {
             return Err(ModelError::Checksum { path: p() });
@@ -252,11 +255,11 @@ impl ModelSet {
                     spec.name, spec.cond, spec.out, NAMES[i]
                 )));
             }
-            let widths: Vec<usize> = std::iter::once(spec.cond + spec.latent)
+            let widths: Vec<usize> = std::iter::once(spec.cond.saturating_add(spec.latent))
                 .chain(spec.hidden.iter().copied())
-                .chain(std::iter::once(2 * spec.out))
+                .chain(std::iter::once(spec.out.saturating_mul(2)))
                 .collect();
-            if spec.cond + spec.latent > MAX_INPUT {
+            if spec.cond.saturating_add(spec.latent) > MAX_INPUT {
                 return Err(invalid(format!(
                     "{}: {} conditions + {} latent inputs; at most {MAX_INPUT} in all",
                     spec.name, spec.cond, spec.latent
@@ -356,15 +359,16 @@ fn check_training(t: &TrainingInfo) -> Result<(), String> {
     Ok(())
 }
 
-fn weight_count(m: &Metadata) -> usize {
-    m.decoders
-        .iter()
-        .map(|d| {
-            let widths: Vec<usize> = std::iter::once(d.cond + d.latent)
-                .chain(d.hidden.iter().copied())
-                .chain(std::iter::once(2 * d.out))
-                .collect();
-            widths.windows(2).map(|w| w[0] * w[1] + w[1]).sum::<usize>()
+/// The number of weights the metadata promises; None when it overflows (the metadata is
+/// not validated yet, and the width checks that follow give the better message).
+fn weight_count(m: &Metadata) -> Option<usize> {
+    m.decoders.iter().try_fold(0usize, |acc, d| {
+        let widths: Vec<usize> = std::iter::once(d.cond.checked_add(d.latent)?)
+            .chain(d.hidden.iter().copied())
+            .chain(std::iter::once(d.out.checked_mul(2)?))
+            .collect();
+        widths.windows(2).try_fold(acc, |acc, w| {
+            acc.checked_add(w[0].checked_mul(w[1])?.checked_add(w[1])?)
         })
-        .sum()
+    })
 }

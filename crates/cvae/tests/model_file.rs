@@ -114,6 +114,42 @@ fn damaged_files_are_rejected() {
     ));
 }
 
+/// Metadata whose sizes overflow (a hand-edited or foreign file with a valid checksum) is
+/// refused by name, not by an arithmetic overflow.
+#[test]
+fn overflowing_metadata_is_refused() {
+    let bytes = random_models(4, 1.0).to_bytes();
+    let json_len = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
+    let weights = &bytes[16 + json_len..bytes.len() - 4];
+    let edits: [(fn(&mut serde_json::Value), &str); 3] = [
+        (|m| m["decoders"][0]["latent"] = u64::MAX.into(), "inputs"),
+        (
+            |m| m["decoders"][1]["hidden"] = serde_json::json!([1u64 << 32, 1u64 << 32]),
+            "layer widths",
+        ),
+        (
+            |m| m["decoders"][2]["out"] = (u64::MAX / 2 + 1).into(),
+            "expected",
+        ),
+    ];
+    for (edit, msg) in edits {
+        let mut meta: serde_json::Value =
+            serde_json::from_slice(&bytes[16..16 + json_len]).unwrap();
+        edit(&mut meta);
+        let json = serde_json::to_vec(&meta).unwrap();
+        let mut b = bytes[..12].to_vec();
+        b.extend((json.len() as u32).to_le_bytes());
+        b.extend(&json);
+        b.extend(weights);
+        b.extend(crc32fast::hash(&b).to_le_bytes());
+        let e = ModelSet::from_bytes(&b, Path::new("edited.stcvae")).unwrap_err();
+        assert!(
+            matches!(e, ModelError::Invalid { .. }) && e.to_string().contains(msg),
+            "{e}"
+        );
+    }
+}
+
 /// Non-finite weights are refused even with a valid checksum.
 #[test]
 fn non_finite_weights_are_refused() {

@@ -77,7 +77,23 @@ pub fn write_exr(
 }
 
 /// Reads an RGB EXR and, if present, its render tag.
+/// Largest image `read_exr` accepts: 2^26 pixels (a 16,384 × 4,096 lat-long map, 800 MB
+/// as f32 RGB). The reader allocates the pixels from the header's size before it reads
+/// any data, so a corrupt or hostile header must be refused first.
+pub const MAX_EXR_PIXELS: usize = 1 << 26;
+
 pub fn read_exr(path: &Path) -> std::result::Result<(RgbImage, Option<RenderTag>), RenderError> {
+    let meta = exr::meta::MetaData::read_from_file(path, false)
+        .map_err(|e| RenderError::Image(format!("{}: cannot read EXR: {e}", path.display())))?;
+    for h in meta.headers.iter() {
+        let (w, ht) = (h.layer_size.width(), h.layer_size.height());
+        if w.checked_mul(ht).is_none_or(|n| n > MAX_EXR_PIXELS) {
+            return Err(RenderError::Image(format!(
+                "{}: the EXR header declares {w} x {ht} pixels: allowed at most {MAX_EXR_PIXELS}",
+                path.display()
+            )));
+        }
+    }
     let image = read()
         .no_deep_data()
         .largest_resolution_level()

@@ -172,7 +172,9 @@ pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
                     return Err(format!("the vertex element has no `{axis}` property"));
                 }
             }
-            mesh.positions.reserve(el.count);
+            // Each vertex takes at least 6 bytes ("0 0 0\n" in ASCII, 12 in binary), so a
+            // header that lies about the count cannot make this reserve more than the file.
+            mesh.positions.reserve(el.count.min(bytes.len() / 6));
         }
         for _ in 0..el.count {
             let mut p = [0f32; 3];
@@ -191,7 +193,7 @@ pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
                     }
                     Property::List(name, ct, it) => {
                         let n = body.next(*ct)?;
-                        if !(0.0..=1e6).contains(&n) {
+                        if !(0.0..=1e6).contains(&n) || n.fract() != 0.0 {
                             return Err(format!("bad list length {n} in element {}", el.name));
                         }
                         let mut idx = Vec::with_capacity(n as usize);

@@ -289,7 +289,7 @@ impl SceneFile {
             }
             (None, None) => {
                 return Err(
-                    "object: missing `shape = \"sphere\"|\"cube\"` or `mesh = \"file\"`".into(),
+                    "object: missing `shape = \"sphere\"|\"cube\"|\"torus-knot\"` or `mesh = \"file\"`".into(),
                 );
             }
             _ => {}
@@ -409,7 +409,7 @@ impl SceneFile {
             && !(0.0..=MAX_SCENE_VALUE).contains(&t)
         {
             return Err(format!(
-                "render.min_tau = {t} is out of range: allowed [0, inf)"
+                "render.min_tau = {t} is out of range: allowed [0, {MAX_SCENE_VALUE:e}]"
             ));
         }
         if !(1..=64).contains(&r.nee_samples) {

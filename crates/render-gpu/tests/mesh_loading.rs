@@ -74,6 +74,19 @@ fn broken_files_give_clear_errors() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("t.ply") && e.contains("truncated"), "{e}");
+    // A fractional list length would silently shift the rest of an ASCII body.
+    let tet = "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n\
+               property float z\nelement face 4\nproperty list uchar int vertex_indices\n\
+               end_header\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n";
+    assert!(load_mesh(&write(&d, "tet.ply", tet.as_bytes())).is_ok());
+    let frac = tet.replace("3 0 1 3\n", "3.7 0 1 3\n");
+    let e = load_mesh(&write(&d, "frac.ply", frac.as_bytes()))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("frac.ply") && e.contains("bad list length"),
+        "{e}"
+    );
     let e = load_mesh(&write(&d, "g.glb", b"glTF garbage"))
         .unwrap_err()
         .to_string();
@@ -236,4 +249,36 @@ fn environment_maps_with_bad_pixels_are_refused() {
             .to_string();
         assert!(e.contains(name) && e.contains("pixel (1, 1)"), "{e}");
     }
+}
+
+/// An EXR whose header promises a huge image is refused before its pixels are allocated
+/// (the reader allocates from the header's size alone; 10^9 × 10^9 would abort).
+#[test]
+fn exr_with_a_huge_declared_size_is_refused() {
+    use render_gpu::image_io::{RenderTag, RgbImage, read_exr, write_exr};
+    let d = tempfile::tempdir().unwrap();
+    let path = d.path().join("huge.exr");
+    let tag = RenderTag {
+        spp: 1,
+        scene_hash: 0,
+    };
+    write_exr(&path, &RgbImage::new(4, 2), &tag).unwrap();
+    assert!(read_exr(&path).is_ok());
+    // The dataWindow attribute: name, type, size 16, then xMin, yMin, xMax, yMax (i32 LE).
+    let mut bytes = std::fs::read(&path).unwrap();
+    let key = b"dataWindow\0box2i\0";
+    let at = bytes
+        .windows(key.len())
+        .position(|w| w == key)
+        .expect("a dataWindow attribute")
+        + key.len()
+        + 4;
+    bytes[at + 8..at + 12].copy_from_slice(&1_000_000_000i32.to_le_bytes());
+    bytes[at + 12..at + 16].copy_from_slice(&1_000_000_000i32.to_le_bytes());
+    std::fs::write(&path, bytes).unwrap();
+    let e = read_exr(&path).err().expect("refused").to_string();
+    assert!(
+        e.contains("huge.exr") && e.contains("allowed at most"),
+        "{e}"
+    );
 }

@@ -101,9 +101,12 @@ impl Config {
                 );
             }
             if let Some(s) = b.seconds
-                && !(s > 0.0)
+                && !(s > 0.0 && s <= 86_400.0)
             {
-                bail!("{name}.seconds must be positive");
+                bail!("{name}.seconds = {s} is out of range: allowed (0, 86400]");
+            }
+            if b.reference_spp == Some(0) {
+                bail!("{name}.reference_spp = 0 is out of range: allowed [1, 2^32)");
             }
         }
         let positive = |what: &str, v: &[f64]| -> Result<()> {

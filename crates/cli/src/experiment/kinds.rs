@@ -28,6 +28,35 @@ fn scale_density(k: f64) -> impl Fn(&mut SceneFile) {
     move |f: &mut SceneFile| f.medium.sigma_t = f.medium.sigma_t.map(|s| s * k)
 }
 
+/// Checks every scene edit the experiment will make before the first render, so that a
+/// density or threshold out of the scene file's ranges fails at once, not after the
+/// renders before it.
+pub(super) fn preflight(cfg: &super::config::Config) -> Result<()> {
+    let mut scenes = Vec::new();
+    if cfg.scene.is_some() {
+        scenes.push(cfg.scene_path());
+    }
+    scenes.extend(cfg.scenes.iter().map(|s| cfg.dir.join(s)));
+    for path in &scenes {
+        let base = SceneFile::load(path)?;
+        let check = |f: SceneFile, what: String| -> Result<()> {
+            f.validate()
+                .map_err(|e| anyhow::anyhow!("{}: {what}: {e}", path.display()))
+        };
+        for &k in &cfg.densities {
+            let mut f = base.clone();
+            scale_density(k)(&mut f);
+            check(f, format!("with density {k}"))?;
+        }
+        for &t in &cfg.thresholds {
+            let mut f = base.clone();
+            f.render.min_tau = Some(t);
+            check(f, format!("with threshold {t}"))?;
+        }
+    }
+    Ok(())
+}
+
 fn plot(
     ctx: &Ctx,
     rep: &mut Report,

@@ -60,6 +60,7 @@ pub fn run(a: Args) -> Result<()> {
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_else(|| "experiment".into());
+    kinds::preflight(&cfg).with_context(|| a.config.display().to_string())?;
     let out = a.out.join(&name);
     std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
     let engine = Engine::open(a.device)?;

@@ -72,8 +72,15 @@ impl ModelConfig {
         if self.hidden.is_empty() || self.hidden.iter().any(|&h| h == 0 || h > 64) {
             return bad("hidden", "1 to n layers of width 1..=64");
         }
-        if self.batch_size == 0 {
-            return bad("batch_size", "must be at least 1");
+        if let Some(e) = &self.encoder_hidden
+            && (e.is_empty() || e.iter().any(|&h| h == 0 || h > 1024))
+        {
+            return bad("encoder_hidden", "1 to n layers of width 1..=1024");
+        }
+        // A batch's activations are batch_size × widest layer floats per layer; beyond
+        // 2^20 rows the gradients average out anyway and the memory does not.
+        if self.batch_size == 0 || self.batch_size > 1 << 20 {
+            return bad("batch_size", "must be in 1..=1048576");
         }
         if !(self.lr > 0.0 && self.lr < 1.0 && self.lr_final >= 0.0 && self.lr_final <= self.lr) {
             return bad("lr", "need 0 < lr < 1 and 0 <= lr_final <= lr");

@@ -129,7 +129,26 @@ impl DatasetReader {
             path: path.into(),
             msg: e.to_string(),
         })?;
-        if header.pieces.iter().map(|p| p.count).sum::<u64>() != header.count {
+        // The checksum covers the rows only, so the header's numbers are checked here:
+        // merge adds and compares them.
+        if let Some(p) = header.pieces.iter().find(|p| {
+            p.first_walk
+                .checked_add(p.count)
+                .is_none_or(|end| end > p.total_walks)
+        }) {
+            return Err(DatasetError::Header {
+                path: path.into(),
+                msg: format!(
+                    "a piece holds walks {} + {} of a run of {}: beyond the run's end",
+                    p.first_walk, p.count, p.total_walks
+                ),
+            });
+        }
+        let sum = header
+            .pieces
+            .iter()
+            .try_fold(0u64, |acc, p| acc.checked_add(p.count));
+        if sum != Some(header.count) {
             return Err(DatasetError::Header {
                 path: path.into(),
                 msg: "piece counts do not add up to the row count".into(),
