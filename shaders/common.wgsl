@@ -25,6 +25,14 @@ fn rotl(x: u32, k: u32) -> u32 {
     return (x << k) | (x >> (32u - k));
 }
 
+// The colour channel of a pixel's sample 0 (sample s traces (offset + s) % 3): uniform
+// over pixels and seeds, so each sample's channel is uniform and the hero weight 3 is
+// unbiased per pixel for any spp. render.rs's channel_offset computes the same.
+fn channel_offset(seed_lo: u32, seed_hi: u32, pixel: u32) -> u32 {
+    let s = mix32(seed_lo ^ mix32(seed_hi ^ 0x43484e4cu));
+    return mix32((pixel * 0x9e3779b9u) ^ s) % 3u;
+}
+
 fn rng_seed(seed_lo: u32, seed_hi: u32, pixel: u32, sample: u32) {
     let a = mix32(seed_lo ^ 0x53544356u);
     let b = mix32(seed_hi ^ rotl(a, 7u) ^ 0x41450001u);

@@ -72,7 +72,7 @@ fn walk_features(tau: f32, g: f32) -> WalkFeatures {
 
 /// LengthGen: N ≥ n_min (as f32: N enters only through φ^N, Λ(N) and ln N).
 fn sample_multiple_n(wf: WalkFeatures) -> f32 {
-    fill_normals(DEC_LATENT_0 + 1u);
+    fill_normals(DEC_LATENT_0 + DEC_OUT_0);
     dec_cond[0] = wf.tau;
     dec_cond[1] = wf.g;
     decoder_sample(D_LENGTH);

@@ -234,12 +234,6 @@ fn save_path(base: u32, j: u32, s: u32, done: bool) {
     accum[base + 3u] = bitcast<vec4<f32>>(vec4<u32>(p_channel | (flags << 8u), p_iterations, j, s));
 }
 
-/// Renders samples first + lane + lanes·j (j < count) of a pixel, at most
-/// `params.consts2.z` bounces per dispatch, resuming where the
-/// previous dispatch stopped. llvmpipe (lavapipe) stops every loop of an invocation once
-/// 65,535 loop iterations have run in total (one shared counter, BVH traversal and
-/// decoder loops included), so the work of one dispatch must stay bounded; a bounce
-/// loop that ends early anyway is counted (C_TRUNCATED) and the host reports it.
 /// (a·b) mod n without overflow for a, b < n < 2^32 (double-and-add).
 fn mul_mod(a: u32, b: u32, n: u32) -> u32 {
     var r = 0u;
@@ -267,6 +261,12 @@ fn add_mod(a: u32, b: u32, n: u32) -> u32 {
     return s;
 }
 
+/// Renders samples first + lane + lanes·j (j < count) of a pixel, at most
+/// `params.consts2.z` bounces per dispatch, resuming where the
+/// previous dispatch stopped. llvmpipe (lavapipe) stops every loop of an invocation once
+/// 65,535 loop iterations have run in total (one shared counter, BVH traversal and
+/// decoder loops included), so the work of one dispatch must stay bounded; a bounce
+/// loop that ends early anyway is counted (C_TRUNCATED) and the host reports it.
 @compute @workgroup_size(64)
 fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
     stack_base = li * STACK_DEPTH;
@@ -295,7 +295,7 @@ fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_inv
     let base = idx * SLOT;
     let px = pixel % width;
     let py = pixel / width;
-    let offset = mix32(pixel * 0x9e3779b9u) % 3u;
+    let offset = channel_offset(params.sampling.z, params.sampling.w, pixel);
     let first = params.sampling.x + lane;
     var count = 0u;
     if first < params.sampling.y {

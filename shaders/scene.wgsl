@@ -28,9 +28,10 @@ struct Params {
     image: vec4<u32>,           // width, height, lanes, samples per lane
     sampling: vec4<u32>,        // first sample, end sample, seed lo, seed hi
     flags: vec4<u32>,           // light count, nee, dielectric, stcvae
-    misc: vec4<u32>,            // env map width, height, nee samples, first chunk
+    misc: vec4<u32>,            // env map width, height, nee samples, dispatch kind
+                                // (2: first of the render, 1: first of a chunk, 0: resume)
     consts: vec4<f32>,          // g, ior, eps, min_tau
-    consts2: vec4<f32>,         // max_tau, near_surface, 0, 0
+    consts2: vec4<f32>,         // max_tau, near_surface, bounces per dispatch, tile stride
 }
 
 struct Node {
@@ -61,10 +62,6 @@ struct ModelParams {
 // candidate list] for the n cells plus a closing entry, then the candidate lists.
 @group(0) @binding(6) var<storage, read> grid: array<u32>;
 @group(0) @binding(7) var<uniform> model: ModelParams;
-
-fn channel_of(v: vec4<f32>, c: u32) -> f32 {
-    return v[c];
-}
 
 // ---- camera (Mitsuba's orientation; row 0 at the top) ----
 

@@ -16,7 +16,7 @@ fn scatter_at(channel: u32) -> bool {
     // The path's own bound (what is left of its last free ball) costs nothing.
     var free = max(grid_free, ps.free);
     if free < near && sigma * free < min_tau {
-        // The grid's Lipschitz bound loses up to two cell diagonals near the surface; the
+        // The grid's Lipschitz bound loses up to two cell half-diagonals near the surface; the
         // exact distance often still allows a sphere step there. It comes from the cell's
         // candidate triangles, or else from a search that stops at the largest distance
         // the grid allows.
@@ -125,7 +125,15 @@ fn scatter_at(channel: u32) -> bool {
     ps.pos = centre + to_world(frame, xc) * r;
     ps.dir = normalize(to_world(frame, wc));
     ps.scattered = true;
-    // The grid at the exit often knows more than the ball it left (sphere_step.rs).
+    // The grid at the exit often knows more than the ball it left (sphere_step.rs); in
+    // dense media (cells many free paths wide) the exact distance spares most of the
+    // next flights' ray casts (EXIT_REFINE_TAU, prepended from sphere_step.rs).
     ps.free = max(free - r, grid_radius(ps.pos));
+    if sigma * ps.free < EXIT_REFINE_TAU && sigma * near > 4.0 * EXIT_REFINE_TAU {
+        let d = grid_exact_distance(ps.pos);
+        if d >= 0.0 {
+            ps.free = max(ps.free, d * (1.0 - 1e-5) - params.consts.z);
+        }
+    }
     return true;
 }

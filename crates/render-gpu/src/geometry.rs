@@ -138,7 +138,7 @@ impl Geometry {
         })
     }
 
-    /// Every surface crossing of the ray `origin + t·dir` (t > 0) in one BVH traversal,
+    /// Every surface crossing of the ray `origin + t·dir` (t ≥ 0) in one BVH traversal,
     /// without the closest-hit ordering: the length inside a closed mesh is
     /// Σ t(exits) − Σ t(entries) in whatever order the crossings are found, so a shadow
     /// ray needs one traversal instead of one per crossing (plus the one that confirms
@@ -181,7 +181,7 @@ impl Geometry {
         (balance == 1 && length >= 0.0).then_some((length, product))
     }
 
-    /// Watertight distance to triangle `prim` along the sheared ray, in (0, tmax].
+    /// Watertight distance to triangle `prim` along the sheared ray, in [0, tmax] (∞: no hit).
     #[inline]
     fn hit_tri(&self, shear: &RayShear, prim: usize, tmax: f32) -> f32 {
         let t = &self.tris[prim];

@@ -38,6 +38,38 @@ pub struct RenderOutput {
 
 /// Renders the scene. `progress(done, total)` counts pixel-samples; `cancel` stops after
 /// the current pass (the image then holds the completed passes).
+/// lowbias32 (Wellons): the kernels' `mix32` (shaders/common.wgsl).
+fn mix32(mut x: u32) -> u32 {
+    x ^= x >> 16;
+    x = x.wrapping_mul(0x7feb_352d);
+    x ^= x >> 15;
+    x = x.wrapping_mul(0x846c_a68b);
+    x ^= x >> 16;
+    x
+}
+
+/// The colour channel of a pixel's sample 0; sample s traces (offset + s) % 3 with weight
+/// 3. The offset is uniform over pixels and over seeds, so every sample's channel is
+/// uniform and the estimate is unbiased per pixel for any spp (a multiple of 3 also gives
+/// each channel exactly spp/3 samples). It once took two bits of a product, which made
+/// channel 0 twice as likely and tinted renders whose spp is not a multiple of 3 (a
+/// `--time-budget` render can stop at any spp). The kernels compute the same
+/// (`channel_offset` in shaders/common.wgsl).
+pub fn channel_offset(seed: u64, pixel: u32) -> u32 {
+    let s = mix32(seed as u32 ^ mix32((seed >> 32) as u32 ^ 0x4348_4e4c));
+    mix32(pixel.wrapping_mul(0x9e37_79b9) ^ s) % 3
+}
+
+/// Sample `s` of pixel `pixel`: its random stream (after the jitter), its jitter within the
+/// pixel and its hero channel.
+pub fn pixel_sample(seed: u64, pixel: u64, s: u32) -> (WalkRng, f32, f32, usize) {
+    let mut rng = WalkRng::for_walk(seed, (pixel << 32) | s as u64);
+    let jx = crate::integrator::uniform(&mut rng);
+    let jy = crate::integrator::uniform(&mut rng);
+    let channel = (s + channel_offset(seed, pixel as u32)) % 3;
+    (rng, jx, jy, channel as usize)
+}
+
 pub fn render(
     scene: &SceneData,
     set: &IntegratorSettings,
@@ -98,14 +130,11 @@ pub fn render(
                 let next = || {
                     let (x, y, s) = samples.next()?;
                     let pixel = (y * w + x) as u64;
-                    let offset = (pixel.wrapping_mul(0x9e37_79b9_7f4a_7c15) >> 62) as u32 % 3;
-                    let mut rng = WalkRng::for_walk(opts.seed, (pixel << 32) | s as u64);
-                    let jx = rng.uniform() as f32;
-                    let jy = rng.uniform() as f32;
+                    let (rng, jx, jy, channel) = pixel_sample(opts.seed, pixel, s);
                     Some(Sample {
                         origin: cam.origin,
                         dir: cam.ray_dir(x as f32 + jx, y as f32 + jy),
-                        channel: ((s + offset) % 3) as usize,
+                        channel,
                         rng,
                         tag: ((y - y0) * tw + (x - x0)) as u64,
                     })

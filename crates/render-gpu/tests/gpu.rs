@@ -317,6 +317,35 @@ fn white_furnace_gpu() {
     }
 }
 
+/// The kernels pick each sample's hero channel with the same function as the CPU
+/// (`channel_offset`): in a 1-spp furnace render every pixel is 3L in exactly the channel
+/// the CPU would have traced there, for two seeds.
+#[test]
+fn gpu_hero_channels_equal_the_cpu_ones() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let text = common::furnace_scene("kind = \"index-matched\"");
+    let s = common::build_scene(&text, false);
+    for seed in [5u64, 1 << 40 | 7] {
+        let out = on_gpu(
+            &ctx,
+            &s,
+            &settings(IntegratorKind::Pt, true),
+            &opts(1, seed),
+        );
+        for (i, p) in out.image.pixels.iter().enumerate() {
+            let c = render_gpu::render::channel_offset(seed, i as u32) as usize;
+            for k in 0..3 {
+                let want = if k == c { 2.1 } else { 0.0 };
+                assert!(
+                    (p[k] - want).abs() < 1e-4,
+                    "seed {seed} pixel {i}: {p:?}, the CPU traces channel {c}"
+                );
+            }
+        }
+    }
+}
+
 /// Per-channel block means over K renders with different seeds, and the variance of
 /// each block mean from the spread of the K renders (K − 1 degrees of freedom per pixel).
 fn blocks(r: &[RenderOutput], size: usize) -> Vec<(f64, f64)> {

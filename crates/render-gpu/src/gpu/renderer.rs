@@ -34,8 +34,10 @@ const TARGET_CHUNK_SECONDS: f64 = 1.0;
 /// it; 128 is 8–12 % faster but was cut off on the default bunny once chunks grew to 3 s
 /// (more lanes busy in every bounce). So software adapters start at 128 with a snapshot of
 /// the path states before every dispatch: a dispatch that hits the limit (counted by the
-/// kernel) is undone from the snapshot and redone at 64, for the rest of the render. The
-/// image does not depend on the budget (paths resume exactly where they stopped).
+/// kernel) is undone from the snapshot and redone at 64, for the rest of the render. PT's
+/// image does not depend on the budget (paths resume exactly where they stopped);
+/// ST-CVAE's expected image does not either, but a resumed path forgets what is left of
+/// its last free ball (its next step uses the grid's radius alone), so its samples differ.
 /// Hardware GPUs have no such limit; 256 keeps each dispatch far below watchdogs.
 /// `STCVAE_GPU_BOUNCES` sets the first value (the fallback stays).
 fn bounce_budget(ctx: &GpuContext) -> (u32, Option<u32>) {

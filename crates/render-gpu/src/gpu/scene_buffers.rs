@@ -43,11 +43,12 @@ pub struct Params {
     pub sampling: [u32; 4],
     /// light count, nee, dielectric, stcvae.
     pub flags: [u32; 4],
-    /// env map width, height, nee samples, first chunk.
+    /// env map width, height, nee samples, dispatch kind (2: the render's first dispatch,
+    /// 1: a chunk's first, 0: a resumed one).
     pub misc: [u32; 4],
     /// g, ior, eps, min_tau.
     pub consts: [f32; 4],
-    /// max_tau, near_surface, 0, 0.
+    /// max_tau, near_surface, bounces per dispatch, tile stride.
     pub consts2: [f32; 4],
 }
 
@@ -96,7 +97,6 @@ pub fn bvh_depth(bvh: &obvhs::bvh2::Bvh2) -> usize {
     deepest
 }
 
-/// BVH nodes and triangles in leaf order.
 /// The distance grid as the kernels read it (`grid` in shaders/scene.wgsl): the cells
 /// ([`DistanceGrid::cells`], two words each, n + 1 of them), then the candidate lists
 /// with each triangle given by its place in the BVH-ordered triangle buffer.
@@ -111,6 +111,7 @@ pub fn grid_buffer(grid: &DistanceGrid, geo: &Geometry) -> Vec<u32> {
     words
 }
 
+/// BVH nodes and triangles in leaf order.
 pub fn geometry_buffers(scene: &SceneData) -> (Vec<GpuNode>, Vec<GpuTri>) {
     let geo = &scene.geo;
     let nodes = geo
@@ -142,8 +143,8 @@ pub fn geometry_buffers(scene: &SceneData) -> (Vec<GpuNode>, Vec<GpuTri>) {
     (nodes, tris)
 }
 
-/// The scene constants of a render; the per-dispatch fields (`image.z..w`, `sampling`,
-/// `misc.w`) are filled by the renderer.
+/// The scene constants of a render; the per-dispatch fields (`image.z..w`,
+/// `sampling.xy`, `misc.w`, `consts2.zw`) are filled by the renderer.
 pub fn scene_params(scene: &SceneData, set: &IntegratorSettings, seed: u64) -> Params {
     let cam = &scene.camera;
     let albedo64 = scene.albedo.map(|a| a as f64);

@@ -1,6 +1,6 @@
 //! The CPU integrators: one path loop shared by volumetric PT and ST-CVAE; they differ
-//! only in what happens at a real scattering point ([`pt_event`] or
-//! [`sphere_step::step`]).
+//! only in what happens at a real scattering point ([`pt_event`] or a sphere step,
+//! `sphere_step::begin`).
 //!
 //! Each path traces one colour channel (the hero channel, chosen per sample and
 //! stratified over a pixel's samples) and its estimate is added, times 3, to that channel.
@@ -65,9 +65,12 @@ const MAX_ITERATIONS: u64 = 50_000_000;
 /// Russian roulette starts below this throughput; survivors are raised back to it.
 const RR_THRESHOLD: f32 = 0.25;
 
+/// Uniform in [0, 1) with 24 random bits, as the kernels' `rand()`: an f64 uniform cast
+/// to f32 rounds to exactly 1.0 about once in 2^25 draws, which sent a totally reflected
+/// path through the boundary (`u < F` false with F = 1) and made a flight infinite.
 #[inline]
 pub(crate) fn uniform(rng: &mut WalkRng) -> f32 {
-    rng.uniform() as f32
+    (rng.next_u64() >> 40) as f32 * (1.0 / (1u32 << 24) as f32)
 }
 
 /// Unbiased Russian roulette; false when the path is terminated.

@@ -27,7 +27,7 @@ use crate::setup::SceneData;
 /// those casts; in thinner media it costs about what it saves. Measured on the bunny
 /// ladder (σ_t·near_surface ≈ 5, 10, 21, 42): k = 1 and 2 within noise to −3 % with the
 /// refinement, k = 4 +2 %, k = 8 +5–8 % paths/s.
-const EXIT_REFINE_TAU: f32 = 3.0;
+pub(crate) const EXIT_REFINE_TAU: f32 = 3.0;
 
 /// The sphere radius is shrunk by this factor so the exit point stays strictly inside.
 const SHRINK: f32 = 1.0 - 1e-4;
