@@ -22,7 +22,7 @@ fn choose_counts(n: u64, albedo: f64, trials: u64, seed: u64) -> Vec<u64> {
 
 /// Chi-square of the chosen indices against φ^k/Λ(N), pooling indices whose expected
 /// count is below 20. Threshold p > 1e-4 per case: a correct reservoir fails one of the
-/// six cases with probability 6e-4; an off-by-one in the skip formula (choosing k+1
+/// five statistical cases (N = 1 is checked exactly) with probability 5e-4; an off-by-one in the skip formula (choosing k+1
 /// instead of k) or a wrong weight moves thousands of counts and gives p ≈ 0.
 #[test]
 fn chosen_index_follows_phi_k_over_lambda() {

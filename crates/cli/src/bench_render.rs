@@ -13,7 +13,9 @@ use render_gpu::integrator::IntegratorKind;
 use render_gpu::render::RenderOptions;
 
 use crate::device::{DeviceArg, Engine};
-use crate::experiment::measure::{BLOCK, MIN_BLOCK_DOF, Pair, block_z, compare};
+use crate::experiment::measure::{
+    BLOCK, MIN_BLOCK_DOF, Pair, block_z, compare, half_spp, pair_seeds,
+};
 use crate::render::prepare;
 
 #[derive(clap::Args)]
@@ -113,7 +115,7 @@ fn run_pair(a: &Args, engine: &Engine, kind: IntegratorKind, k: f64) -> Result<P
     })?;
     let set = p.settings(engine);
     let cancel = AtomicBool::new(false);
-    let half = (a.spp / 2).max(1);
+    let half = half_spp(a.spp);
     let mut outs = Vec::new();
     if matches!(engine, Engine::Gpu(_)) {
         // Warm-up: the first dispatch compiles the kernel; keep it out of the timing.
@@ -124,7 +126,7 @@ fn run_pair(a: &Args, engine: &Engine, kind: IntegratorKind, k: f64) -> Result<P
         };
         engine.render(&p.data, &set, &tiny, &|_, _| {}, &cancel)?;
     }
-    for seed in [11, 12] {
+    for seed in pair_seeds(kind) {
         let o = engine.render(
             &p.data,
             &set,
@@ -146,11 +148,12 @@ fn run_pair(a: &Args, engine: &Engine, kind: IntegratorKind, k: f64) -> Result<P
 pub fn run(a: Args) -> Result<()> {
     let engine = Engine::open(a.device)?;
     println!(
-        "stcvae bench render: {} ({}x{}), g = 0.875, albedo (0.99999, 0.99995, 0.975), NEE on, {} spp each (2 seeds), {}",
+        "stcvae bench render: {} ({}x{}), g = 0.875, albedo (0.99999, 0.99995, 0.975), NEE on, {} spp each (2 seeds of {}: a multiple of 3 per seed), {}",
         a.scene.display(),
         a.size,
         a.size,
-        a.spp,
+        2 * half_spp(a.spp),
+        half_spp(a.spp),
         engine.describe()
     );
     println!(
@@ -205,10 +208,8 @@ pub fn run(a: Args) -> Result<()> {
             )
         } else {
             format!(
-                "{BLOCK}x{BLOCK}-block chi2/dof {:.2} over {} with ≥ {MIN_BLOCK_DOF} dof (~1 ± {:.2} if they differ by noise alone)",
-                c.block_chi2,
-                c.blocks,
-                (2.0 / c.blocks as f64).sqrt()
+                "{BLOCK}x{BLOCK}-block chi2/dof {:.2} over {} with ≥ {MIN_BLOCK_DOF} dof ({:.2} ± {:.2} if they differ by noise alone)",
+                c.block_chi2, c.blocks, c.block_null.0, c.block_null.1
             )
         };
         println!(

@@ -258,11 +258,11 @@ fn stcvae_matches_pt_on_a_sphere_and_the_bunny() {
             .replace("fov_deg = 13.0", "fov_deg = 18.0")
             .replace("angular_diameter_deg = 40.0", "angular_diameter_deg = 0.0");
         let (_, s) = scene(&text, true);
-        let (pt, spt, _) = estimate(&s, &settings(IntegratorKind::Pt, true, None), 200_000, 5);
+        let (pt, spt, _) = estimate(&s, &settings(IntegratorKind::Pt, true, None), 2_000_000, 5);
         let (st, sst, stats) = estimate(
             &s,
             &settings(IntegratorKind::Stcvae, true, Some(&m)),
-            200_000,
+            2_000_000,
             6,
         );
         assert!(
@@ -270,9 +270,12 @@ fn stcvae_matches_pt_on_a_sphere_and_the_bunny() {
             "{label}: sphere steps must run: {stats:?}"
         );
         for c in 0..3 {
-            // The model's bias: eval keeps KS ≤ 0.05 on N and the exit; a bias of the
-            // image mean of 5 % of the value bounds what such marginals can do to it.
-            let tol = 4.0 * (spt[c].powi(2) + sst[c].powi(2)).sqrt() + 0.05 * pt[c];
+            // The shipped model's own error, measured: image-mean offsets of at most
+            // 1.9 % on the teaser ladder (docs/BENCHMARKS.md) and −0.8 % to −2.2 % here
+            // (2·10⁶ paths each, ± 0.5 %). 3 % of the value allows for it, 4 standard
+            // errors (~2 %) for the noise, so an integrator or model error beyond ~5 %
+            // fails (200,000 paths each, as before, let 11 % through).
+            let tol = 4.0 * (spt[c].powi(2) + sst[c].powi(2)).sqrt() + 0.03 * pt[c];
             assert!(
                 (pt[c] - st[c]).abs() < tol,
                 "{label} channel {c}: PT {} ± {}, ST-CVAE {} ± {}",

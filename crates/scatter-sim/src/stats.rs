@@ -2,8 +2,19 @@
 
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 
-/// Two-sample Kolmogorov–Smirnov statistic sup |F_a − F_b| (sorts its inputs).
+/// Whether the statistic of these samples is undefined: a NaN sample (which no merge loop
+/// can step past: `x <= NaN` is false) or an empty one. The statistic is then NaN, which
+/// fails every `d < bound` check.
+fn undefined(a: &[f64], b: &[f64]) -> bool {
+    a.is_empty() || b.is_empty() || a.iter().chain(b).any(|x| x.is_nan())
+}
+
+/// Two-sample Kolmogorov–Smirnov statistic sup |F_a − F_b| (sorts its inputs); NaN if
+/// either sample is empty or holds a NaN.
 pub fn ks_two_sample(a: &mut [f64], b: &mut [f64]) -> f64 {
+    if undefined(a, b) {
+        return f64::NAN;
+    }
     a.sort_by(f64::total_cmp);
     b.sort_by(f64::total_cmp);
     let (n, m) = (a.len() as f64, b.len() as f64);
@@ -67,8 +78,11 @@ pub fn ks_p_value(d: f64, n_eff: f64) -> f64 {
 }
 
 /// Wasserstein-1 distance between two empirical distributions: ∫ |F_a − F_b| dx
-/// (sorts its inputs).
+/// (sorts its inputs); NaN if either sample is empty or holds a NaN.
 pub fn wasserstein1(a: &mut [f64], b: &mut [f64]) -> f64 {
+    if undefined(a, b) {
+        return f64::NAN;
+    }
     a.sort_by(f64::total_cmp);
     b.sort_by(f64::total_cmp);
     let (n, m) = (a.len() as f64, b.len() as f64);
@@ -172,6 +186,20 @@ mod tests {
 
     /// χ² of counts, its tail (χ²₁ > 3.841 has probability 0.05), a proportion's z and
     /// a mean's standard error, each against a value worked by hand.
+    /// A NaN (a model that outputs NaN, in `stcvae eval`) or an empty sample makes both
+    /// two-sample statistics NaN; the merge loops used to spin forever on a NaN.
+    #[test]
+    fn two_sample_statistics_of_nan_and_empty_samples_are_nan() {
+        let nan = || vec![0.1, f64::NAN, 0.3];
+        let ok = || vec![0.2, 0.4];
+        assert!(ks_two_sample(&mut nan(), &mut ok()).is_nan());
+        assert!(ks_two_sample(&mut nan(), &mut nan()).is_nan());
+        assert!(wasserstein1(&mut ok(), &mut nan()).is_nan());
+        assert!(wasserstein1(&mut nan(), &mut nan()).is_nan());
+        assert!(wasserstein1(&mut [], &mut ok()).is_nan());
+        assert!(ks_two_sample(&mut ok(), &mut []).is_nan());
+    }
+
     #[test]
     fn chi_square_z_and_sem_of_worked_cases() {
         // (12 − 10)²/10 + (8 − 10)²/10 = 0.8.

@@ -103,7 +103,28 @@ pub fn render_once(
     Ok((out, p.data.hash))
 }
 
-/// Two seeds of `spp / 2` samples each.
+/// The two seeds of an integrator's pair. PT and ST-CVAE must not share them: a sample's
+/// random stream depends on (seed, pixel, sample) alone, so with equal seeds both draw the
+/// same jitter, hero channel and first flights (ST-CVAE's fallback events are PT events
+/// on the same stream), their noises correlate, and the noise correction of the bias
+/// subtracts noise that the difference does not contain (the bias and its bound read low).
+pub fn pair_seeds(kind: IntegratorKind) -> [u64; 2] {
+    match kind {
+        IntegratorKind::Pt => [11, 12],
+        IntegratorKind::Stcvae => [13, 14],
+    }
+}
+
+/// Samples of each of a pair's two renders for `spp` in all: half, rounded up to a
+/// multiple of 3 so that every pixel gives each hero channel the same number of samples
+/// in both renders (otherwise a pixel's channels carry ±0.6 % weights that differ between
+/// seeds: noise of its own that the two halves measure but the image comparison does not
+/// share, and background pixels that would look noisy).
+pub fn half_spp(spp: u32) -> u32 {
+    (spp / 2).max(1).div_ceil(3) * 3
+}
+
+/// Two seeds of [`half_spp`] samples each.
 pub fn render_pair(
     ctx: &Ctx,
     scene: &Path,
@@ -111,9 +132,10 @@ pub fn render_pair(
     nee: bool,
     edit: &dyn Fn(&mut SceneFile),
 ) -> Result<Pair> {
-    let half = (ctx.budget.spp / 2).max(1);
-    let (a, hash) = render_once(ctx, scene, (kind, nee), edit, &opts(half, 11, None))?;
-    let (b, _) = render_once(ctx, scene, (kind, nee), edit, &opts(half, 12, None))?;
+    let half = half_spp(ctx.budget.spp);
+    let [s1, s2] = pair_seeds(kind);
+    let (a, hash) = render_once(ctx, scene, (kind, nee), edit, &opts(half, s1, None))?;
+    let (b, _) = render_once(ctx, scene, (kind, nee), edit, &opts(half, s2, None))?;
     Ok(Pair::from_halves(a, b, hash))
 }
 
@@ -131,6 +153,26 @@ pub fn scale_of(reference: &RgbImage) -> f64 {
     }
 }
 
+/// [`scale_of`] over the pixels where either render of a comparison has noise: the object
+/// (the constant background would otherwise count as object pixels and lower the 99th
+/// percentile).
+fn object_scale(reference: &Pair, other: &Pair) -> f64 {
+    let mut l: Vec<f64> = (0..reference.mean.pixels.len())
+        .filter(|&i| noisy(reference, other, i))
+        .map(|i| lum(reference.mean.pixels[i]))
+        .collect();
+    l.sort_by(f64::total_cmp);
+    match l.get((l.len() * 99 / 100).min(l.len().saturating_sub(1))) {
+        Some(&v) if v > 0.0 => 1.0 / v,
+        _ => scale_of(&reference.mean),
+    }
+}
+
+/// Whether pixel `i` has noise in either render (in any channel): an object pixel.
+fn noisy(a: &Pair, b: &Pair, i: usize) -> bool {
+    (0..3).any(|c| a.var[i][c] + b.var[i][c] > 0.0)
+}
+
 pub fn lum(p: [f32; 3]) -> f64 {
     (p[0] + p[1] + p[2]) as f64 / 3.0
 }
@@ -141,13 +183,17 @@ pub struct Comparison {
     pub speedup: f64,
     /// Per-pixel variance ratio reference / other.
     pub var_ratio: f64,
-    /// Noise-corrected RMSE: √max(0, mean (A − B)² − mean (Var_A + Var_B)), scaled.
+    /// Noise-corrected RMSE over the object's pixels (those with noise in either
+    /// render): √max(0, mean (A − B)² − mean (Var_A + Var_B)), scaled. The two renders
+    /// must be independent ([`pair_seeds`]).
     pub bias: f64,
     /// One-sided 95 % upper bound on that RMSE: the per-pixel terms (A − B)² − Var_A −
     /// Var_B are independent across pixels, so their mean has standard error s/√n and
-    /// bias² ≤ mean + 1.645·s/√n with 95 % confidence (normal approximation, n ≈ 10⁴).
+    /// bias² ≤ mean + 1.645·s/√n with 95 % confidence (normal approximation over n ≈ 10⁴
+    /// object pixel-channels; heavy-tailed pixels make s itself noisy, so read bounds
+    /// near the target with a second seed pair).
     pub bias_upper95: f64,
-    /// RMSE the two noises alone would give, scaled.
+    /// RMSE the two noises alone would give over the object, scaled.
     pub noise: f64,
     /// Per channel (R, G, B): the noise-corrected bias RMSE, scaled like `bias`; and the
     /// other image's total over the reference's (over the pixels with noise: the object),
@@ -157,15 +203,19 @@ pub struct Comparison {
     pub channel_offset: [(f64, f64); 3],
     /// Mean of z² over the object's BLOCK×BLOCK-pixel blocks and channels ([`block_z`])
     /// whose noise estimate has at least [`MIN_BLOCK_DOF`] degrees of freedom, and how
-    /// many there are: ≈ 1 ± √(2/n) when the two images differ by noise alone (a little
-    /// above 1: each block's noise is itself estimated, from one-degree estimates of its
-    /// 16 pixels in both images — a t-variable with ~32 degrees of freedom has
-    /// E z² = 32/30).
+    /// many there are. Each block's noise is itself estimated, so under noise alone its z
+    /// is a t-variable with ν (Welch–Satterthwaite) degrees of freedom: E z² = ν/(ν−2)
+    /// (32/30 for 16 pixels in two images) and Var z² = 2ν²(ν−1)/((ν−2)²(ν−4)), which
+    /// `block_null` sums over the blocks counted.
     /// A model error is smooth over a few pixels, so a block sees it with 16× less
     /// noise than a pixel; a per-pixel bias RMSE is noisy in its own right (a single
     /// heavy-tailed pixel moves it), this is not.
     pub block_chi2: f64,
     pub blocks: usize,
+    /// What `block_chi2` would be under noise alone: mean and standard deviation, from
+    /// each block's estimated ν (a plug-in: ν̂ is itself noisy for blocks of few noisy
+    /// pixels, so the spread is a lower bound there).
+    pub block_null: (f64, f64),
 }
 
 /// Side of the pixel blocks of [`block_z`].
@@ -219,8 +269,13 @@ fn block_stats(a: &Pair, b: &Pair) -> Vec<[Option<(f64, f64)>; 3]> {
 }
 
 pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
-    let scale = scale_of(&reference.mean);
-    let n = (reference.mean.pixels.len() * 3) as f64;
+    let scale = object_scale(reference, other);
+    // Pixel-channels of the object: the background is the same constant in both renders
+    // and would only dilute the RMSEs by the fraction of the frame it covers.
+    let object = (0..reference.mean.pixels.len())
+        .filter(|&i| noisy(reference, other, i))
+        .count();
+    let n = (object.max(1) * 3) as f64;
     let mut mse = 0.0;
     let mut noise = 0.0;
     let (mut va, mut vb) = (0.0, 0.0);
@@ -249,13 +304,20 @@ pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
             e2 += e * e;
         }
     }
-    let zs: Vec<f64> = block_stats(reference, other)
+    let blocks: Vec<(f64, f64)> = block_stats(reference, other)
         .into_iter()
         .flatten()
         .flatten()
         .filter(|&(_, dof)| dof >= MIN_BLOCK_DOF)
-        .map(|(z, _)| z)
         .collect();
+    let zs: Vec<f64> = blocks.iter().map(|&(z, _)| z).collect();
+    let nb = blocks.len().max(1) as f64;
+    let null_mean = blocks.iter().map(|&(_, v)| v / (v - 2.0)).sum::<f64>() / nb;
+    let null_var = blocks
+        .iter()
+        .map(|&(_, v)| 2.0 * v * v * (v - 1.0) / ((v - 2.0) * (v - 2.0) * (v - 4.0)))
+        .sum::<f64>()
+        / (nb * nb);
     let mean_e = (mse - noise) / n;
     let se = ((e2 / n - mean_e * mean_e).max(0.0) / (n - 1.0).max(1.0)).sqrt();
     Comparison {
@@ -266,6 +328,7 @@ pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
         noise: (noise / n).sqrt() * scale,
         block_chi2: zs.iter().map(|z| z * z).sum::<f64>() / zs.len().max(1) as f64,
         blocks: zs.len(),
+        block_null: (null_mean, null_var.sqrt()),
         channel_bias: ch_e.map(|e| (e / (n / 3.0)).max(0.0).sqrt() * scale),
         channel_offset: sums.map(|[r, o, vr, vo]| {
             let r = r.max(1e-300);
