@@ -476,7 +476,7 @@ fn render_is_the_same_on_any_thread_count() {
 
 /// The channel of each pixel in a 1-spp furnace render (every pixel is exactly 3L in the
 /// one channel its sample traced; anything else fails).
-pub fn furnace_channels(image: &render_gpu::image_io::RgbImage) -> Vec<usize> {
+fn furnace_channels(image: &render_gpu::image_io::RgbImage) -> Vec<usize> {
     image
         .pixels
         .iter()

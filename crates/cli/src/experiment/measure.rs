@@ -145,27 +145,28 @@ pub fn scale_of(reference: &RgbImage) -> f64 {
     let mut l: Vec<f64> = reference.pixels.iter().map(|p| lum(*p)).collect();
     let max = l.iter().cloned().fold(0.0, f64::max);
     l.retain(|&v| v > 1e-3 * max);
+    inverse_p99(l).unwrap_or(1.0)
+}
+
+/// 1 / the 99th percentile of `l` (None when `l` is empty).
+fn inverse_p99(mut l: Vec<f64>) -> Option<f64> {
     l.sort_by(f64::total_cmp);
-    if l.is_empty() {
-        1.0
-    } else {
-        1.0 / l[(l.len() * 99 / 100).min(l.len() - 1)].max(1e-12)
-    }
+    let v = l.get((l.len() * 99 / 100).min(l.len().saturating_sub(1)))?;
+    Some(1.0 / v.max(1e-12))
 }
 
 /// [`scale_of`] over the pixels where either render of a comparison has noise: the object
 /// (the constant background would otherwise count as object pixels and lower the 99th
 /// percentile).
 fn object_scale(reference: &Pair, other: &Pair) -> f64 {
-    let mut l: Vec<f64> = (0..reference.mean.pixels.len())
+    let l: Vec<f64> = (0..reference.mean.pixels.len())
         .filter(|&i| noisy(reference, other, i))
         .map(|i| lum(reference.mean.pixels[i]))
         .collect();
-    l.sort_by(f64::total_cmp);
-    match l.get((l.len() * 99 / 100).min(l.len().saturating_sub(1))) {
-        Some(&v) if v > 0.0 => 1.0 / v,
-        _ => scale_of(&reference.mean),
-    }
+    // A 99th percentile of 0 (a black object) falls back to the whole frame's scale.
+    inverse_p99(l)
+        .filter(|&s| s < 1e12)
+        .unwrap_or_else(|| scale_of(&reference.mean))
 }
 
 /// Whether pixel `i` has noise in either render (in any channel): an object pixel.
