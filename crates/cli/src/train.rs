@@ -30,6 +30,10 @@ pub struct Args {
     /// the exported file come from their checkpoints.
     #[arg(long)]
     model: Option<ModelKind>,
+    /// With --model: take the other two decoders from this model file instead of their
+    /// checkpoints (e.g. retrain EventGen alone against the shipped models/default.stcvae).
+    #[arg(long, requires = "model")]
+    base: Option<PathBuf>,
     /// Continue from the checkpoints in the config's checkpoint_dir.
     #[arg(long)]
     resume: bool,
@@ -156,6 +160,22 @@ pub fn run(a: Args) -> Result<()> {
         );
     }
     let out = a.out.clone().unwrap_or_else(|| cfg.out.clone());
+    // Read before hours of training, so that a wrong path fails at once.
+    let base = match &a.base {
+        Some(p) => {
+            let set = ModelSet::load(p)?;
+            if set.single_scattering != cfg.single_scattering {
+                bail!(
+                    "--base {}: its single_scattering ({:?}) differs from the config's ({:?})",
+                    p.display(),
+                    set.single_scattering,
+                    cfg.single_scattering
+                );
+            }
+            Some(set)
+        }
+        None => None,
+    };
     ensure_dataset(&cfg)?;
     let t0 = Instant::now();
     eprintln!("reading {}", cfg.dataset.display());
@@ -280,6 +300,16 @@ pub fn run(a: Args) -> Result<()> {
     }
     for k in ModelKind::ALL {
         if let std::collections::hash_map::Entry::Vacant(slot) = decoders.entry(k) {
+            if let Some(b) = &base {
+                let d = match k {
+                    ModelKind::LengthGen => &b.length,
+                    ModelKind::PathGen => &b.path,
+                    ModelKind::EventGen => &b.event,
+                };
+                notes.push(format!("{}: from {}", k.name(), a.base.as_ref().unwrap().display()));
+                slot.insert(d.clone());
+                continue;
+            }
             let d = cvae::train::trainer::load_decoder(
                 &cfg.checkpoint_dir,
                 k,

@@ -1,0 +1,109 @@
+//! End-to-end check of `stcvae train --model K --base M`: retraining one model against an
+//! existing model file keeps the other two decoders bit for bit.
+
+use std::fs;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use cvae::model_file::ModelSet;
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn stcvae(args: &[&str], dir: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("run stcvae")
+}
+
+fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// A tiny dataset and a config whose EventGen is deliberately unlike the shipped one
+/// (hidden [4, 4]), so the output's EventGen can only have come from this run.
+fn setup(dir: &Path) {
+    let data = "walks = 3001\nseed = 5\n[conditions]\n\
+                tau = { kind = \"power\", max = 30.0, exponent = 3.0 }\n\
+                g = { kind = \"uniform\", min = -1.0, max = 1.0 }\n\
+                albedo = { kind = \"one-minus-power\", epsilon = 1e-6, exponent = 6.0 }\n";
+    fs::write(dir.join("data.toml"), data).unwrap();
+    let model = |hidden: &str| {
+        format!(
+            "latent = 2\nhidden = {hidden}\nencoder_hidden = [8]\nsteps = 30\n\
+             batch_size = 64\nlr = 3e-3\nlr_final = 3e-4\nwarmup = 5\n"
+        )
+    };
+    let cfg = format!(
+        "dataset = \"d.bin\"\ndataset_config = \"data.toml\"\nout = \"m.stcvae\"\n\
+         checkpoint_dir = \"ck\"\n[lengthgen]\n{}[pathgen]\n{}[eventgen]\n{}",
+        model("[4]"),
+        model("[4]"),
+        model("[4, 4]")
+    );
+    fs::write(dir.join("train.toml"), cfg).unwrap();
+}
+
+#[test]
+fn one_model_retrained_against_a_base_file_keeps_the_others() {
+    let dir = tempfile::tempdir().unwrap();
+    setup(dir.path());
+    let base = root().join("models/default.stcvae");
+    let base_s = base.to_str().unwrap();
+    let out = stcvae(
+        &[
+            "train",
+            "--config",
+            "train.toml",
+            "--model",
+            "eventgen",
+            "--base",
+            base_s,
+        ],
+        dir.path(),
+    );
+    assert!(out.status.success(), "train failed: {}", stderr(&out));
+    let shipped = ModelSet::load(&base).unwrap();
+    let got = ModelSet::load(&dir.path().join("m.stcvae")).unwrap();
+    assert_eq!(got.length, shipped.length, "LengthGen must come from --base");
+    assert_eq!(got.path, shipped.path, "PathGen must come from --base");
+    assert_ne!(got.event, shipped.event, "EventGen must be the one just trained");
+    // [4, 4] hidden: two hidden layers of width 4 ahead of the mean/log-variance head.
+    assert_eq!(got.event.layers.len(), 3);
+    assert!(got.training.notes.contains("from"), "{}", got.training.notes);
+}
+
+#[test]
+fn a_bad_base_fails_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    setup(dir.path());
+    let out = stcvae(
+        &[
+            "train",
+            "--config",
+            "train.toml",
+            "--model",
+            "eventgen",
+            "--base",
+            "missing.stcvae",
+        ],
+        dir.path(),
+    );
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    assert!(err.contains("missing.stcvae"), "{err}");
+    assert!(
+        !dir.path().join("d.bin").exists(),
+        "the dataset must not be generated before --base is read"
+    );
+    // --base needs --model: with all three trained it would replace nothing.
+    let out = stcvae(
+        &["train", "--config", "train.toml", "--base", "m0.stcvae"],
+        dir.path(),
+    );
+    assert!(!out.status.success());
+    assert!(stderr(&out).contains("--model"), "{}", stderr(&out));
+}
