@@ -53,6 +53,13 @@ pub struct Args {
     /// agreement; brighter: ST-CVAE brighter; |z| > 3 is rarely noise).
     #[arg(long)]
     save: Option<PathBuf>,
+    /// Reuse PT's renders: each density's PT pair (both seeds, time, statistics) is read
+    /// from this folder when an earlier run with the same scene, size, spp, settings and
+    /// device stored it there, and stored there otherwise. PT is most of the bench's time at
+    /// high density, and comparing ST-CVAE models or settings needs it once. Speed-ups
+    /// then use the stored PT time, from the run that measured it (the table says which).
+    #[arg(long)]
+    pt_cache: Option<PathBuf>,
 }
 
 /// Writes the ladder step's images into `dir` (see `Args::save`).
@@ -96,8 +103,36 @@ fn parse_k(s: &str) -> Result<f64, String> {
     }
 }
 
+/// PT's pair at density k: from `--pt-cache` when stored there, else rendered (and stored).
+/// The second value says when a stored pair was measured.
+fn pt_pair(a: &Args, engine: &Engine, k: f64) -> Result<(Pair, Option<u64>)> {
+    let Some(dir) = &a.pt_cache else {
+        return Ok((run_pair(a, engine, IntegratorKind::Pt, k)?, None));
+    };
+    let p = prepare_k(a, IntegratorKind::Pt, k)?;
+    let device = if matches!(engine, Engine::Gpu(_)) {
+        "gpu"
+    } else {
+        "cpu"
+    };
+    let spp = 2 * half_spp(a.spp);
+    let file = crate::pt_cache::path(dir, k, p.data.hash, spp, device);
+    if let Some((pair, when)) = crate::pt_cache::load(&file, p.data.hash, spp)? {
+        return Ok((pair, Some(when)));
+    }
+    let pair = render_pair(a, engine, &p, IntegratorKind::Pt)?;
+    crate::pt_cache::store(&file, &pair)?;
+    Ok((pair, None))
+}
+
 fn run_pair(a: &Args, engine: &Engine, kind: IntegratorKind, k: f64) -> Result<Pair> {
-    let p = prepare(&a.scene, Some(kind), Some(true), a.model.as_deref(), |f| {
+    let p = prepare_k(a, kind, k)?;
+    render_pair(a, engine, &p, kind)
+}
+
+/// The bench's scene at density k for one integrator.
+fn prepare_k(a: &Args, kind: IntegratorKind, k: f64) -> Result<crate::render::Prepared> {
+    prepare(&a.scene, Some(kind), Some(true), a.model.as_deref(), |f| {
         f.medium.sigma_t = [150.0 * k, 187.5 * k, 125.0 * k];
         f.medium.albedo = [0.99999, 0.99995, 0.975];
         f.medium.g = 0.875;
@@ -112,7 +147,16 @@ fn run_pair(a: &Args, engine: &Engine, kind: IntegratorKind, k: f64) -> Result<P
         if let Some(m) = a.nee_samples {
             f.render.nee_samples = m;
         }
-    })?;
+    })
+}
+
+/// Renders the two seeds of `kind` (half the spp each) and pairs them.
+fn render_pair(
+    a: &Args,
+    engine: &Engine,
+    p: &crate::render::Prepared,
+    kind: IntegratorKind,
+) -> Result<Pair> {
     let set = p.settings(engine);
     let cancel = AtomicBool::new(false);
     let half = half_spp(a.spp);
@@ -175,7 +219,7 @@ pub fn run(a: Args) -> Result<()> {
         "ST paths/s"
     );
     for &k in &a.k {
-        let pt = run_pair(&a, &engine, IntegratorKind::Pt, k)?;
+        let (pt, cached) = pt_pair(&a, &engine, k)?;
         let st = run_pair(&a, &engine, IntegratorKind::Stcvae, k)?;
         let c = compare(&pt, &st);
         if let Some(dir) = &a.save {
@@ -199,6 +243,15 @@ pub fn run(a: Args) -> Result<()> {
             crate::progress::si(pt.stats.paths as f64 / pt.seconds.max(1e-9)),
             crate::progress::si(st.stats.paths as f64 / st.seconds.max(1e-9))
         );
+        if let Some(when) = cached {
+            let now = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.as_secs());
+            println!(
+                "     (PT from --pt-cache, measured {:.1} h before this run: its time and so the speed-up are that run's)",
+                now.saturating_sub(when) as f64 / 3600.0
+            );
+        }
         let [r, g, b] = c
             .channel_offset
             .map(|(o, se)| format!("{:+.2}% ± {:.2}%", 100.0 * o, 100.0 * se));

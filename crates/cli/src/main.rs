@@ -10,6 +10,7 @@ mod merge;
 mod model_cmds;
 mod plots;
 mod progress;
+mod pt_cache;
 mod render;
 mod train;
 

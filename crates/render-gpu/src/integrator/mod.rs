@@ -19,7 +19,7 @@ use crate::setup::{Boundary, SceneData};
 pub use crate::scene::IntegratorKind;
 
 /// Per-path counters, summed over a render.
-#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct PathStats {
     pub paths: u64,
     /// Ordinary PT scattering events (ST-CVAE: the thin-region fallbacks).
