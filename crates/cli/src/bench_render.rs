@@ -138,14 +138,18 @@ fn prepare_k(a: &Args, kind: IntegratorKind, k: f64) -> Result<crate::render::Pr
         f.medium.g = 0.875;
         f.camera.width = a.size;
         f.camera.height = a.size;
-        if let Some(t) = a.min_tau {
-            f.render.min_tau = Some(t);
-        }
-        if a.max_tau.is_some() {
-            f.render.max_tau = a.max_tau;
-        }
-        if let Some(m) = a.nee_samples {
-            f.render.nee_samples = m;
+        // ST-CVAE's own settings: PT ignores them, and leaving them out of PT's scene
+        // keeps its hash, so `--pt-cache` serves runs that compare them.
+        if matches!(kind, IntegratorKind::Stcvae) {
+            if let Some(t) = a.min_tau {
+                f.render.min_tau = Some(t);
+            }
+            if a.max_tau.is_some() {
+                f.render.max_tau = a.max_tau;
+            }
+            if let Some(m) = a.nee_samples {
+                f.render.nee_samples = m;
+            }
         }
     })
 }

@@ -86,8 +86,7 @@ pub fn load(file: &Path, hash: u64, spp: u32) -> Result<Option<(Pair, u64)>> {
 /// Stores `pair` in `file` (written whole or not at all).
 pub fn store(file: &Path, pair: &Pair) -> Result<()> {
     if let Some(dir) = file.parent() {
-        std::fs::create_dir_all(dir)
-            .with_context(|| format!("cannot create {}", dir.display()))?;
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
     let s = Stored {
         version: VERSION,

@@ -306,7 +306,11 @@ pub fn run(a: Args) -> Result<()> {
                     ModelKind::PathGen => &b.path,
                     ModelKind::EventGen => &b.event,
                 };
-                notes.push(format!("{}: from {}", k.name(), a.base.as_ref().unwrap().display()));
+                notes.push(format!(
+                    "{}: from {}",
+                    k.name(),
+                    a.base.as_ref().unwrap().display()
+                ));
                 slot.insert(d.clone());
                 continue;
             }

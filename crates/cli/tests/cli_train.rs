@@ -68,12 +68,22 @@ fn one_model_retrained_against_a_base_file_keeps_the_others() {
     assert!(out.status.success(), "train failed: {}", stderr(&out));
     let shipped = ModelSet::load(&base).unwrap();
     let got = ModelSet::load(&dir.path().join("m.stcvae")).unwrap();
-    assert_eq!(got.length, shipped.length, "LengthGen must come from --base");
+    assert_eq!(
+        got.length, shipped.length,
+        "LengthGen must come from --base"
+    );
     assert_eq!(got.path, shipped.path, "PathGen must come from --base");
-    assert_ne!(got.event, shipped.event, "EventGen must be the one just trained");
+    assert_ne!(
+        got.event, shipped.event,
+        "EventGen must be the one just trained"
+    );
     // [4, 4] hidden: two hidden layers of width 4 ahead of the mean/log-variance head.
     assert_eq!(got.event.layers.len(), 3);
-    assert!(got.training.notes.contains("from"), "{}", got.training.notes);
+    assert!(
+        got.training.notes.contains("from"),
+        "{}",
+        got.training.notes
+    );
 }
 
 #[test]
