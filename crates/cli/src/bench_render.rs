@@ -110,13 +110,18 @@ fn pt_pair(a: &Args, engine: &Engine, k: f64) -> Result<(Pair, Option<u64>)> {
         return Ok((run_pair(a, engine, IntegratorKind::Pt, k)?, None));
     };
     let p = prepare_k(a, IntegratorKind::Pt, k)?;
-    let device = if matches!(engine, Engine::Gpu(_)) {
+    // The adapter or thread count is part of the key: the stored time is only comparable
+    // on the same one.
+    let mut h = render_gpu::hash::Fnv64::new();
+    h.write(engine.describe().as_bytes());
+    let kind = if matches!(engine, Engine::Gpu(_)) {
         "gpu"
     } else {
         "cpu"
     };
+    let device = format!("{kind}{:08x}", h.finish() as u32);
     let spp = 2 * half_spp(a.spp);
-    let file = crate::pt_cache::path(dir, k, p.data.hash, spp, device);
+    let file = crate::pt_cache::path(dir, k, p.data.hash, spp, &device);
     if let Some((pair, when)) = crate::pt_cache::load(&file, p.data.hash, spp)? {
         return Ok((pair, Some(when)));
     }

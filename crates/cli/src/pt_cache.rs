@@ -35,7 +35,8 @@ struct Stored {
     measured_unix: u64,
 }
 
-/// The file of the PT pair for a scene hash, spp and device.
+/// The file of the PT pair for a scene hash, spp and device (a short name: cpu or gpu
+/// and a hash of the adapter or thread count).
 pub fn path(dir: &Path, k: f64, hash: u64, spp: u32, device: &str) -> PathBuf {
     dir.join(format!("pt-k{k}-{spp}spp-{device}-{hash:016x}.json"))
 }
