@@ -104,29 +104,30 @@ fn parse_k(s: &str) -> Result<f64, String> {
 }
 
 /// PT's pair at density k: from `--pt-cache` when stored there, else rendered (and stored).
-/// The second value says when a stored pair was measured.
-fn pt_pair(a: &Args, engine: &Engine, k: f64) -> Result<(Pair, Option<u64>)> {
-    let Some(dir) = &a.pt_cache else {
+/// The second value says when a stored pair was measured. `identity`: the cache's
+/// [`crate::pt_cache::identity`] of this run.
+fn pt_pair(
+    a: &Args,
+    engine: &Engine,
+    k: f64,
+    identity: Option<&str>,
+) -> Result<(Pair, Option<u64>)> {
+    let (Some(dir), Some(id)) = (&a.pt_cache, identity) else {
         return Ok((run_pair(a, engine, IntegratorKind::Pt, k)?, None));
     };
     let p = prepare_k(a, IntegratorKind::Pt, k)?;
-    // The adapter or thread count is part of the key: the stored time is only comparable
-    // on the same one.
-    let mut h = render_gpu::hash::Fnv64::new();
-    h.write(engine.describe().as_bytes());
-    let kind = if matches!(engine, Engine::Gpu(_)) {
-        "gpu"
-    } else {
-        "cpu"
-    };
-    let device = format!("{kind}{:08x}", h.finish() as u32);
     let spp = 2 * half_spp(a.spp);
-    let file = crate::pt_cache::path(dir, k, p.data.hash, spp, &device);
-    if let Some((pair, when)) = crate::pt_cache::load(&file, p.data.hash, spp)? {
+    let file = crate::pt_cache::path(dir, k, p.data.hash, spp, id);
+    if let Some((pair, when)) = crate::pt_cache::load(&file, p.data.hash, spp, id)? {
         return Ok((pair, Some(when)));
     }
     let pair = render_pair(a, engine, &p, IntegratorKind::Pt)?;
-    crate::pt_cache::store(&file, &pair)?;
+    if !crate::pt_cache::store(&file, &pair, id)? {
+        eprintln!(
+            "warning: PT's render at k = {k} has a non-finite value; not stored in {}",
+            dir.display()
+        );
+    }
     Ok((pair, None))
 }
 
@@ -227,8 +228,17 @@ pub fn run(a: Args) -> Result<()> {
         "PT paths/s",
         "ST paths/s"
     );
+    // Every density's ST-CVAE scene is checked before the first render, so that a bad
+    // setting or model fails at once, not after PT's (possibly long) renders.
     for &k in &a.k {
-        let (pt, cached) = pt_pair(&a, &engine, k)?;
+        prepare_k(&a, IntegratorKind::Stcvae, k)?;
+    }
+    let identity = match &a.pt_cache {
+        Some(_) => Some(crate::pt_cache::identity(&engine.describe())?),
+        None => None,
+    };
+    for &k in &a.k {
+        let (pt, cached) = pt_pair(&a, &engine, k, identity.as_deref())?;
         let st = run_pair(&a, &engine, IntegratorKind::Stcvae, k)?;
         let c = compare(&pt, &st);
         if let Some(dir) = &a.save {

@@ -3,12 +3,14 @@
 //! At high density PT is almost all of the bench's time (k = 8, 16,386 spp: ~27 of 31
 //! minutes), while what changes between runs when models or ST-CVAE settings are compared
 //! is ST-CVAE alone. A PT pair depends only on the scene (its hash covers the ladder's
-//! σ_t, the size and every render setting), the spp and the device, which name the file;
-//! the stored hash and spp are checked again on reading.
+//! σ_t, the size and every render setting), the spp, the device and the binary (a
+//! rebuilt renderer may render PT differently), which name the file; they are checked
+//! again on reading.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
+use render_gpu::hash::Fnv64;
 use render_gpu::image_io::RgbImage;
 use render_gpu::integrator::PathStats;
 use serde::{Deserialize, Serialize};
@@ -31,18 +33,43 @@ struct Stored {
     spp: u32,
     /// Hex: JSON numbers lose u64 precision in some readers.
     hash: String,
+    /// [`identity`] of the run that stored it.
+    identity: String,
     /// Unix time of the run that measured it (its timing is that run's).
     measured_unix: u64,
 }
 
-/// The file of the PT pair for a scene hash, spp and device (a short name: cpu or gpu
-/// and a hash of the adapter or thread count).
-pub fn path(dir: &Path, k: f64, hash: u64, spp: u32, device: &str) -> PathBuf {
-    dir.join(format!("pt-k{k}-{spp}spp-{device}-{hash:016x}.json"))
+/// What a stored pair depends on beyond the scene and spp: the device (`device`: the
+/// adapter, or the CPU integrators' thread count), the CPU's model, and this binary, so
+/// that a rebuilt renderer (say, a fix to PT) never reuses an image it would not render.
+pub fn identity(device: &str) -> Result<String> {
+    let mut s = device.to_string();
+    if let Ok(info) = std::fs::read_to_string("/proc/cpuinfo")
+        && let Some(l) = info.lines().find(|l| l.starts_with("model name"))
+    {
+        s += " / ";
+        s += l.split(':').nth(1).unwrap_or("").trim();
+    }
+    let exe = std::env::current_exe().context("cannot locate this binary")?;
+    let bytes = std::fs::read(&exe).with_context(|| format!("cannot read {}", exe.display()))?;
+    let mut h = Fnv64::new();
+    h.write(&bytes);
+    Ok(format!("{s} / binary {:016x}", h.finish()))
+}
+
+/// The file of the PT pair for a scene hash, spp and [`identity`]. Another format
+/// version or identity is another name, so it is a miss, not an error.
+pub fn path(dir: &Path, k: f64, hash: u64, spp: u32, identity: &str) -> PathBuf {
+    let mut h = Fnv64::new();
+    h.write(identity.as_bytes());
+    dir.join(format!(
+        "pt-v{VERSION}-k{k}-{spp}spp-{:08x}-{hash:016x}.json",
+        h.finish() as u32
+    ))
 }
 
 /// The stored pair and the Unix time it was measured at, if `file` exists.
-pub fn load(file: &Path, hash: u64, spp: u32) -> Result<Option<(Pair, u64)>> {
+pub fn load(file: &Path, hash: u64, spp: u32, identity: &str) -> Result<Option<(Pair, u64)>> {
     let bytes = match std::fs::read(file) {
         Ok(b) => b,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
@@ -58,13 +85,14 @@ pub fn load(file: &Path, hash: u64, spp: u32) -> Result<Option<(Pair, u64)>> {
     if s.version != VERSION
         || s.hash != format!("{hash:016x}")
         || s.spp != spp
+        || s.identity != identity
         || n != Some(s.mean.len())
         || s.var.len() != s.mean.len()
         || !(s.seconds.is_finite() && s.seconds > 0.0)
     {
         bail!(
-            "{}: stored for another version, scene, spp or size, or damaged (delete it to \
-             render PT again)",
+            "{}: stored for another version, scene, spp, size, device or binary, or damaged \
+             (delete it to render PT again)",
             file.display()
         );
     }
@@ -84,8 +112,16 @@ pub fn load(file: &Path, hash: u64, spp: u32) -> Result<Option<(Pair, u64)>> {
     Ok(Some((pair, s.measured_unix)))
 }
 
-/// Stores `pair` in `file` (written whole or not at all).
-pub fn store(file: &Path, pair: &Pair) -> Result<()> {
+/// Stores `pair` in `file` (written whole or not at all). A pair with a non-finite value
+/// is not stored (JSON cannot hold it; it would be an unreadable file) and `false` says so.
+pub fn store(file: &Path, pair: &Pair, identity: &str) -> Result<bool> {
+    let finite = pair.mean.pixels.iter().flatten().all(|v| v.is_finite())
+        && pair.var.iter().flatten().all(|v| v.is_finite())
+        && pair.work.iter().all(|v| v.is_finite())
+        && pair.seconds.is_finite();
+    if !finite {
+        return Ok(false);
+    }
     if let Some(dir) = file.parent() {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
@@ -100,12 +136,14 @@ pub fn store(file: &Path, pair: &Pair) -> Result<()> {
         work: pair.work.clone(),
         spp: pair.spp,
         hash: format!("{:016x}", pair.hash),
+        identity: identity.to_string(),
         measured_unix: std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_secs()),
     };
     scatter_sim::output::write_atomic(file, &serde_json::to_vec(&s)?)
-        .with_context(|| format!("cannot write {}", file.display()))
+        .with_context(|| format!("cannot write {}", file.display()))?;
+    Ok(true)
 }
 
 #[cfg(test)]
@@ -134,22 +172,39 @@ mod tests {
     fn a_stored_pair_reads_back_and_only_for_its_scene_and_spp() {
         let dir = tempfile::tempdir().unwrap();
         let p = pair(0xdead_beef_0123_4567);
-        let f = path(dir.path(), 8.0, p.hash, p.spp, "cpu");
-        assert!(load(&f, p.hash, p.spp).unwrap().is_none());
-        store(&f, &p).unwrap();
-        let (q, when) = load(&f, p.hash, p.spp).unwrap().unwrap();
+        let id = identity("cpu (2 threads)").unwrap();
+        let f = path(dir.path(), 8.0, p.hash, p.spp, &id);
+        assert_ne!(f, path(dir.path(), 8.0, p.hash, p.spp, "gpu: other"));
+        assert!(load(&f, p.hash, p.spp, &id).unwrap().is_none());
+        assert!(store(&f, &p, &id).unwrap());
+        let (q, when) = load(&f, p.hash, p.spp, &id).unwrap().unwrap();
         assert!(when > 0);
         assert_eq!(q.mean, p.mean);
         assert_eq!(q.var, p.var);
         assert_eq!(q.stats, p.stats);
         assert_eq!((q.seconds, q.spp, q.hash), (p.seconds, p.spp, p.hash));
-        // Another scene or spp under the same name (a renamed file) is refused by name.
-        for (h, spp) in [(p.hash ^ 1, p.spp), (p.hash, p.spp + 3)] {
-            let err = load(&f, h, spp).err().expect("refused").to_string();
+        // Another scene, spp or identity under the same name (a renamed file) is refused
+        // by name.
+        for (h, spp, i) in [
+            (p.hash ^ 1, p.spp, id.as_str()),
+            (p.hash, p.spp + 3, id.as_str()),
+            (p.hash, p.spp, "gpu: other"),
+        ] {
+            let err = load(&f, h, spp, i).err().expect("refused").to_string();
             assert!(err.contains(f.to_str().unwrap()), "{err}");
         }
         std::fs::write(&f, b"{\"version\": 1").unwrap();
-        let err = format!("{:#}", load(&f, p.hash, p.spp).err().expect("refused"));
+        let err = format!("{:#}", load(&f, p.hash, p.spp, &id).err().expect("refused"));
         assert!(err.contains("delete it"), "{err}");
+    }
+
+    #[test]
+    fn a_pair_with_a_non_finite_value_is_not_stored() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut p = pair(7);
+        p.mean.pixels[1][2] = f32::NAN;
+        let f = path(dir.path(), 1.0, p.hash, p.spp, "cpu");
+        assert!(!store(&f, &p, "cpu").unwrap());
+        assert!(!f.exists());
     }
 }

@@ -163,6 +163,17 @@ pub fn run(a: Args) -> Result<()> {
     // Read before hours of training, so that a wrong path fails at once.
     let base = match &a.base {
         Some(p) => {
+            let same = |a: &Path, b: &Path| match (a.canonicalize(), b.canonicalize()) {
+                (Ok(x), Ok(y)) => x == y,
+                _ => false,
+            };
+            if same(p, &out) {
+                bail!(
+                    "--base {} is also the output: give --out another file, or the base would \
+                     be overwritten by the mix",
+                    p.display()
+                );
+            }
             let set = ModelSet::load(p)?;
             if set.single_scattering != cfg.single_scattering {
                 bail!(
@@ -224,12 +235,35 @@ pub fn run(a: Args) -> Result<()> {
         },
         t0.elapsed().as_secs_f64()
     );
-    let info = TrainingInfo {
+    let mut info = TrainingInfo {
         tau_range: range(&rows, |r| r.tau as f64),
         g_range: range(&rows, |r| r.g as f64),
         albedo_range: range(&rows, |r| r.albedo),
         notes: String::new(),
     };
+    if let Some(b) = &base {
+        // The file's ranges bound every decoder in it (the renderer's default max_tau is
+        // tau_range[1]): with decoders from two trainings, only what both saw.
+        let both = |x: [f64; 2], y: [f64; 2]| [x[0].max(y[0]), x[1].min(y[1])];
+        info.tau_range = both(info.tau_range, b.training.tau_range);
+        info.g_range = both(info.g_range, b.training.g_range);
+        info.albedo_range = both(info.albedo_range, b.training.albedo_range);
+        for (name, r) in [
+            ("tau", info.tau_range),
+            ("g", info.g_range),
+            ("albedo", info.albedo_range),
+        ] {
+            if !(r[0] <= r[1]) || (name == "tau" && r[1] <= 0.0) {
+                bail!(
+                    "--base {}: its {name} range and the dataset's do not overlap; the mixed \
+                     model would hold decoders trained on disjoint conditions",
+                    a.base
+                        .as_ref()
+                        .map_or(String::new(), |p| p.display().to_string())
+                );
+            }
+        }
+    }
     drop(rows);
 
     let cancel = interrupt::flag();

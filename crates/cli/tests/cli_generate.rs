@@ -1,18 +1,12 @@
 //! End-to-end checks of `stcvae generate` and `stcvae merge` through the binary.
 
+mod common;
+
 use std::fs;
-use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
+use common::{stcvae, stderr};
 use scatter_sim::dataset::read_dataset;
-
-fn stcvae(args: &[&str], dir: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_stcvae"))
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .expect("run stcvae")
-}
 
 fn ok(out: &Output) {
     assert!(
@@ -20,10 +14,6 @@ fn ok(out: &Output) {
         "stcvae failed: {}",
         String::from_utf8_lossy(&out.stderr)
     );
-}
-
-fn stderr(out: &Output) -> String {
-    String::from_utf8_lossy(&out.stderr).into_owned()
 }
 
 #[test]

@@ -374,3 +374,60 @@ fn no_gpu_adapter_is_a_clear_error_or_a_cpu_fallback() {
     let json = std::fs::read_to_string(tmp.path().join("r.json")).unwrap();
     assert!(json.contains("\"device\": \"cpu"), "{json}");
 }
+
+/// `bench render --pt-cache`: a second run reuses PT's pair, also when only ST-CVAE's own
+/// settings change; another spp is a miss; a bad ST-CVAE setting fails before any render.
+#[test]
+fn bench_render_reuses_stored_pt_pairs() {
+    let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().join("pt");
+    let cache_s = cache.to_str().unwrap();
+    let bench = |spp: &str, extra: &[&str]| {
+        let mut args = vec![
+            "bench",
+            "render",
+            "--k",
+            "0.25",
+            "--spp",
+            spp,
+            "--size",
+            "8",
+            "--pt-cache",
+            cache_s,
+        ];
+        args.extend_from_slice(extra);
+        let out = stcvae(&args);
+        ok(&out);
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    let hit = "PT from --pt-cache";
+    assert!(!bench("6", &[]).contains(hit));
+    assert_eq!(std::fs::read_dir(&cache).unwrap().count(), 1);
+    assert!(bench("6", &[]).contains(hit));
+    assert!(
+        bench(
+            "6",
+            &["--max-tau", "50", "--nee-samples", "1", "--min-tau", "1"]
+        )
+        .contains(hit)
+    );
+    assert!(!bench("12", &[]).contains(hit));
+    assert_eq!(std::fs::read_dir(&cache).unwrap().count(), 2);
+    // Refused before PT renders: no third file appears.
+    let err = fails(&stcvae(&[
+        "bench",
+        "render",
+        "--k",
+        "0.25",
+        "--spp",
+        "18",
+        "--size",
+        "8",
+        "--pt-cache",
+        cache_s,
+        "--nee-samples",
+        "0",
+    ]));
+    assert!(err.contains("nee_samples"), "{err}");
+    assert_eq!(std::fs::read_dir(&cache).unwrap().count(), 2);
+}

@@ -1,26 +1,33 @@
 //! End-to-end check of `stcvae train --model K --base M`: retraining one model against an
 //! existing model file keeps the other two decoders bit for bit.
 
+mod common;
+
 use std::fs;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
+use common::{stcvae, stderr};
 use cvae::model_file::ModelSet;
 
 fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
 }
 
-fn stcvae(args: &[&str], dir: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_stcvae"))
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .expect("run stcvae")
-}
-
-fn stderr(out: &Output) -> String {
-    String::from_utf8_lossy(&out.stderr).into_owned()
+/// `stcvae train --config train.toml --model eventgen --base BASE` in `dir`.
+fn train_eventgen(dir: &Path, base: &str) -> Output {
+    stcvae(
+        &[
+            "train",
+            "--config",
+            "train.toml",
+            "--model",
+            "eventgen",
+            "--base",
+            base,
+        ],
+        dir,
+    )
 }
 
 /// A tiny dataset and a config whose EventGen is deliberately unlike the shipped one
@@ -53,18 +60,7 @@ fn one_model_retrained_against_a_base_file_keeps_the_others() {
     setup(dir.path());
     let base = root().join("models/default.stcvae");
     let base_s = base.to_str().unwrap();
-    let out = stcvae(
-        &[
-            "train",
-            "--config",
-            "train.toml",
-            "--model",
-            "eventgen",
-            "--base",
-            base_s,
-        ],
-        dir.path(),
-    );
+    let out = train_eventgen(dir.path(), base_s);
     assert!(out.status.success(), "train failed: {}", stderr(&out));
     let shipped = ModelSet::load(&base).unwrap();
     let got = ModelSet::load(&dir.path().join("m.stcvae")).unwrap();
@@ -80,28 +76,26 @@ fn one_model_retrained_against_a_base_file_keeps_the_others() {
     // [4, 4] hidden: two hidden layers of width 4 ahead of the mean/log-variance head.
     assert_eq!(got.event.layers.len(), 3);
     assert!(
-        got.training.notes.contains("from"),
+        got.training
+            .notes
+            .contains(&format!("lengthgen: from {base_s}")),
         "{}",
         got.training.notes
     );
+    // Ranges: only what both trainings saw (this dataset's τ ≤ 30, the base's up to 300).
+    assert!(
+        got.training.tau_range[1] <= 30.0,
+        "{:?}",
+        got.training.tau_range
+    );
+    assert!(got.training.tau_range[0] >= shipped.training.tau_range[0]);
 }
 
 #[test]
 fn a_bad_base_fails_before_any_work() {
     let dir = tempfile::tempdir().unwrap();
     setup(dir.path());
-    let out = stcvae(
-        &[
-            "train",
-            "--config",
-            "train.toml",
-            "--model",
-            "eventgen",
-            "--base",
-            "missing.stcvae",
-        ],
-        dir.path(),
-    );
+    let out = train_eventgen(dir.path(), "missing.stcvae");
     assert!(!out.status.success());
     let err = stderr(&out);
     assert!(err.contains("missing.stcvae"), "{err}");
@@ -109,6 +103,15 @@ fn a_bad_base_fails_before_any_work() {
         !dir.path().join("d.bin").exists(),
         "the dataset must not be generated before --base is read"
     );
+    // The base as the output: refused before it could be overwritten.
+    fs::copy(
+        root().join("models/default.stcvae"),
+        dir.path().join("m.stcvae"),
+    )
+    .unwrap();
+    let out = train_eventgen(dir.path(), "m.stcvae");
+    assert!(!out.status.success());
+    assert!(stderr(&out).contains("also the output"), "{}", stderr(&out));
     // --base needs --model: with all three trained it would replace nothing.
     let out = stcvae(
         &["train", "--config", "train.toml", "--base", "m0.stcvae"],
