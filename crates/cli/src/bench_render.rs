@@ -54,8 +54,8 @@ pub struct Args {
     #[arg(long)]
     save: Option<PathBuf>,
     /// Reuse PT's renders: each density's PT pair (both seeds, time, statistics) is read
-    /// from this folder when an earlier run with the same scene, size, spp, settings and
-    /// device stored it there, and stored there otherwise. PT is most of the bench's time at
+    /// from this folder when an earlier run with the same scene, size, spp, PT settings,
+    /// device and binary stored it there, and stored there otherwise. PT is most of the bench's time at
     /// high density, and comparing ST-CVAE models or settings needs it once. Speed-ups
     /// then use the stored PT time, from the run that measured it (the table says which).
     #[arg(long)]

@@ -183,7 +183,7 @@ pub fn run(a: Args) -> Result<()> {
                     cfg.single_scattering
                 );
             }
-            Some(set)
+            Some((p.display().to_string(), set))
         }
         None => None,
     };
@@ -241,7 +241,7 @@ pub fn run(a: Args) -> Result<()> {
         albedo_range: range(&rows, |r| r.albedo),
         notes: String::new(),
     };
-    if let Some(b) = &base {
+    if let Some((base_name, b)) = &base {
         // The file's ranges bound every decoder in it (the renderer's default max_tau is
         // tau_range[1]): with decoders from two trainings, only what both saw.
         let both = |x: [f64; 2], y: [f64; 2]| [x[0].max(y[0]), x[1].min(y[1])];
@@ -255,11 +255,8 @@ pub fn run(a: Args) -> Result<()> {
         ] {
             if !(r[0] <= r[1]) || (name == "tau" && r[1] <= 0.0) {
                 bail!(
-                    "--base {}: its {name} range and the dataset's do not overlap; the mixed \
-                     model would hold decoders trained on disjoint conditions",
-                    a.base
-                        .as_ref()
-                        .map_or(String::new(), |p| p.display().to_string())
+                    "--base {base_name}: its {name} range and the dataset's do not overlap; the \
+                     mixed model would hold decoders trained on disjoint conditions"
                 );
             }
         }
@@ -334,17 +331,13 @@ pub fn run(a: Args) -> Result<()> {
     }
     for k in ModelKind::ALL {
         if let std::collections::hash_map::Entry::Vacant(slot) = decoders.entry(k) {
-            if let Some(b) = &base {
+            if let Some((base_name, b)) = &base {
                 let d = match k {
                     ModelKind::LengthGen => &b.length,
                     ModelKind::PathGen => &b.path,
                     ModelKind::EventGen => &b.event,
                 };
-                notes.push(format!(
-                    "{}: from {}",
-                    k.name(),
-                    a.base.as_ref().unwrap().display()
-                ));
+                notes.push(format!("{}: from {base_name}", k.name()));
                 slot.insert(d.clone());
                 continue;
             }
