@@ -229,7 +229,9 @@ pub fn run(a: Args) -> Result<()> {
         "ST paths/s"
     );
     // Every density's ST-CVAE scene is checked before the first render, so that a bad
-    // setting or model fails at once, not after PT's (possibly long) renders.
+    // setting or model fails at once, not after PT's (possibly long) renders. They are
+    // prepared again when rendered (well under a second each, the grid coming from its
+    // disk cache) rather than kept: each holds its own copy of the distance grid.
     for &k in &a.k {
         prepare_k(&a, IntegratorKind::Stcvae, k)?;
     }
@@ -263,12 +265,9 @@ pub fn run(a: Args) -> Result<()> {
             crate::progress::si(st.stats.paths as f64 / st.seconds.max(1e-9))
         );
         if let Some(when) = cached {
-            let now = std::time::SystemTime::now()
-                .duration_since(std::time::UNIX_EPOCH)
-                .map_or(0, |d| d.as_secs());
             println!(
                 "     (PT from --pt-cache, measured {:.1} h before this run: its time and so the speed-up are that run's)",
-                now.saturating_sub(when) as f64 / 3600.0
+                crate::pt_cache::age_hours(when)
             );
         }
         let [r, g, b] = c

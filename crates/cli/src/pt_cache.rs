@@ -112,6 +112,18 @@ pub fn load(file: &Path, hash: u64, spp: u32, identity: &str) -> Result<Option<(
     Ok(Some((pair, s.measured_unix)))
 }
 
+/// Seconds since the Unix epoch (0 if the clock is before it).
+fn unix_now() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs())
+}
+
+/// Hours from a stored pair's `measured_unix` to now.
+pub fn age_hours(measured_unix: u64) -> f64 {
+    unix_now().saturating_sub(measured_unix) as f64 / 3600.0
+}
+
 /// Stores `pair` in `file` (written whole or not at all). A pair with a non-finite value
 /// is not stored (JSON cannot hold it; it would be an unreadable file) and `false` says so.
 pub fn store(file: &Path, pair: &Pair, identity: &str) -> Result<bool> {
@@ -137,9 +149,7 @@ pub fn store(file: &Path, pair: &Pair, identity: &str) -> Result<bool> {
         spp: pair.spp,
         hash: format!("{:016x}", pair.hash),
         identity: identity.to_string(),
-        measured_unix: std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_secs()),
+        measured_unix: unix_now(),
     };
     scatter_sim::output::write_atomic(file, &serde_json::to_vec(&s)?)
         .with_context(|| format!("cannot write {}", file.display()))?;

@@ -396,38 +396,22 @@ fn bench_render_reuses_stored_pt_pairs() {
             cache_s,
         ];
         args.extend_from_slice(extra);
-        let out = stcvae(&args);
+        stcvae(&args)
+    };
+    let stdout = |out: Output| {
         ok(&out);
         String::from_utf8_lossy(&out.stdout).into_owned()
     };
     let hit = "PT from --pt-cache";
-    assert!(!bench("6", &[]).contains(hit));
+    assert!(!stdout(bench("6", &[])).contains(hit));
     assert_eq!(std::fs::read_dir(&cache).unwrap().count(), 1);
-    assert!(bench("6", &[]).contains(hit));
-    assert!(
-        bench(
-            "6",
-            &["--max-tau", "50", "--nee-samples", "1", "--min-tau", "1"]
-        )
-        .contains(hit)
-    );
-    assert!(!bench("12", &[]).contains(hit));
+    assert!(stdout(bench("6", &[])).contains(hit));
+    let st_only = ["--max-tau", "50", "--nee-samples", "1", "--min-tau", "1"];
+    assert!(stdout(bench("6", &st_only)).contains(hit));
+    assert!(!stdout(bench("12", &[])).contains(hit));
     assert_eq!(std::fs::read_dir(&cache).unwrap().count(), 2);
     // Refused before PT renders: no third file appears.
-    let err = fails(&stcvae(&[
-        "bench",
-        "render",
-        "--k",
-        "0.25",
-        "--spp",
-        "18",
-        "--size",
-        "8",
-        "--pt-cache",
-        cache_s,
-        "--nee-samples",
-        "0",
-    ]));
+    let err = fails(&bench("18", &["--nee-samples", "0"]));
     assert!(err.contains("nee_samples"), "{err}");
     assert_eq!(std::fs::read_dir(&cache).unwrap().count(), 2);
 }
