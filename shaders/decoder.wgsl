@@ -161,7 +161,18 @@ fn sample_event(wf: WalkFeatures, channel: u32, lam: f32, e: Exit, mirror: bool)
     if !is_finite(big) {
         x = vec3<f32>(0.0);
     } else if big > 1e-12 {
-        x *= tanh(big) / big;
+        if model.flags.z != 0u {
+            // Feature version 3: |X|² = 1 − exp(−u²/2) (cvae::features::EventRadial),
+            // with a series where exp's rounding would dominate.
+            let h = 0.5 * big * big;
+            var rho2 = 1.0 - exp(-h);
+            if h < 1e-3 {
+                rho2 = h * (1.0 - h * (0.5 - h / 6.0));
+            }
+            x *= sqrt(rho2) / big;
+        } else {
+            x *= tanh(big) / big;
+        }
     }
     if dot(x, x) > 1.0 {
         x = normalize(x);

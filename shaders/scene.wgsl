@@ -49,7 +49,7 @@ struct Tri {
 }
 
 struct ModelParams {
-    flags: vec4<u32>,  // single scattering exact, n_min, 0, 0
+    flags: vec4<u32>,  // single scattering exact, n_min, EventGen radial map (1: version 3), 0
 }
 
 @group(0) @binding(0) var<uniform> params: Params;

@@ -319,6 +319,9 @@ pub fn run(a: Args) -> Result<()> {
     }
     let mut decoders = std::collections::HashMap::new();
     let mut notes = Vec::new();
+    // A file's feature version says how to read its EventGen (versions 2 and 3 differ only
+    // there), so it is the version of wherever EventGen comes from.
+    let mut event_version = cvae::features::FEATURE_VERSION;
     for t in &trained {
         let last = t.info.history.last().map_or(f32::NAN, |h| h.1);
         notes.push(format!(
@@ -335,13 +338,16 @@ pub fn run(a: Args) -> Result<()> {
                 let d = match k {
                     ModelKind::LengthGen => &b.length,
                     ModelKind::PathGen => &b.path,
-                    ModelKind::EventGen => &b.event,
+                    ModelKind::EventGen => {
+                        event_version = b.feature_version;
+                        &b.event
+                    }
                 };
                 notes.push(format!("{}: from {base_name}", k.name()));
                 slot.insert(d.clone());
                 continue;
             }
-            let d = cvae::train::trainer::load_decoder(
+            let (d, version) = cvae::train::trainer::load_decoder(
                 &cfg.checkpoint_dir,
                 k,
                 &cfg.model(k).architecture(),
@@ -353,10 +359,20 @@ pub fn run(a: Args) -> Result<()> {
                 )
             })?;
             notes.push(format!("{}: from checkpoint", k.name()));
+            if cvae::features::EventRadial::of_version(version).is_none() {
+                bail!(
+                    "the {} checkpoint has feature version {version}, which this build does not read",
+                    k.name()
+                );
+            }
+            if k == ModelKind::EventGen {
+                event_version = version;
+            }
             slot.insert(d);
         }
     }
     let set = ModelSet {
+        feature_version: event_version,
         single_scattering: cfg.single_scattering,
         training: TrainingInfo {
             notes: format!(

@@ -1,4 +1,5 @@
-//! Input and output transforms of the three models (feature version 2).
+//! Input and output transforms of the three models (feature version 3; version 2 files
+//! are still read).
 //!
 //! Small decoders learn faster and better when the physics they would otherwise have to
 //! discover is built into their inputs and targets:
@@ -15,13 +16,18 @@
 //!   construction: cos θ ∈ (−1, 1) through a logit (a uniform cos θ becomes a logistic,
 //!   near-Gaussian variable); the exit direction's (β, α) in the unit disk through the
 //!   radial map r² ↦ −ln(1 − r²) (a uniform disk — a cosine-lobe exit — becomes an
-//!   exact 2-D Gaussian); the representative event X in the unit ball through ρ ↦ atanh ρ.
+//!   exact 2-D Gaussian); the representative event X in the unit ball through a radial
+//!   map that sends the sphere's surface to infinity ([`EventRadial`]).
 //!
 //! After these transforms every input and output is standardised with the shift and
 //! scale stored in the model file.
 
 /// Version of the transforms below; stored in the model file and checked on load.
-pub const FEATURE_VERSION: u32 = 2;
+/// Version 3 differs from 2 only in EventGen's radial map ([`EventRadial`]), so a file's
+/// version says how to read its EventGen; LengthGen and PathGen read the same in both.
+pub const FEATURE_VERSION: u32 = 3;
+/// The oldest version this build reads.
+pub const OLDEST_FEATURE_VERSION: u32 = 2;
 
 /// Number of conditioning inputs of each model.
 pub const LENGTH_COND: usize = 2;
@@ -180,25 +186,85 @@ pub fn path_from_target(v: [f64; 3]) -> (f64, f64, f64) {
     (cos_theta, b * f, a * f)
 }
 
+/// How EventGen's target holds the distance |X| = ρ of the representative event from the
+/// centre: ρ is mapped onto [0, ∞) and X scaled to that length.
+///
+/// Why version 3 changed it: near the sphere's surface the simulator's events have a
+/// density in ρ that stays finite up to ρ = 1 (a random walk scatters right up to the
+/// surface it escapes through). Under atanh that edge becomes an exponential tail,
+/// 1 − ρ ≈ 2e^(−2u), which a Gaussian decoder cannot follow: all three trained EventGens
+/// put 1.3–1.7× too many events 1–10 % of the radius from the surface and 2–10× too few in
+/// the last 0.2 % (docs/BENCHMARKS.md, thirteenth session), exactly where the NEE of a
+/// step that touches the object's surface is collected. With u = √(−2 ln(1 − ρ²)) the
+/// edge becomes 1 − ρ² = e^(−u²/2), a Gaussian tail (a flat density near ρ = 1 gives a
+/// Rayleigh-like u·e^(−u²/2)); on the simulator's walks at g = 0.875 the radial feature's
+/// kurtosis drops from ~7 to ~3.7 (3 for a Gaussian). Near the centre u ≈ √2·ρ, smooth.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EventRadial {
+    /// u = atanh ρ (feature version 2).
+    Atanh,
+    /// u = √(−2 ln(1 − ρ²)) (feature version 3).
+    GaussianEdge,
+}
+
+impl EventRadial {
+    /// The map of [`FEATURE_VERSION`], the one training uses.
+    pub const CURRENT: Self = Self::GaussianEdge;
+
+    /// The map a file of this feature version uses (None: a version this build cannot read).
+    pub fn of_version(version: u32) -> Option<Self> {
+        match version {
+            2 => Some(Self::Atanh),
+            3 => Some(Self::GaussianEdge),
+            _ => None,
+        }
+    }
+
+    /// u/ρ for ρ ∈ [0, 1): the factor that scales X to its feature.
+    fn scale_to(self, rho: f64) -> f64 {
+        if rho <= 1e-12 {
+            return match self {
+                Self::Atanh => 1.0,
+                Self::GaussianEdge => std::f64::consts::SQRT_2,
+            };
+        }
+        let rho = rho.min(1.0 - EDGE);
+        match self {
+            Self::Atanh => rho.atanh() / rho,
+            Self::GaussianEdge => (-2.0 * (-rho * rho).ln_1p()).sqrt() / rho,
+        }
+    }
+
+    /// ρ/u for u ≥ 0: the inverse's factor; ρ < 1 for every finite u (up to rounding).
+    fn scale_from(self, u: f64) -> f64 {
+        if u <= 1e-12 {
+            return match self {
+                Self::Atanh => 1.0,
+                Self::GaussianEdge => std::f64::consts::FRAC_1_SQRT_2,
+            };
+        }
+        match self {
+            Self::Atanh => u.tanh() / u,
+            Self::GaussianEdge => (-(-0.5 * u * u).exp_m1()).sqrt() / u,
+        }
+    }
+}
+
 /// EventGen's target from the representative event X (|X| ≤ 1) and W (|W| = 1).
-pub fn event_target(x: [f64; 3], w: [f64; 3]) -> [f64; 6] {
+pub fn event_target(radial: EventRadial, x: [f64; 3], w: [f64; 3]) -> [f64; 6] {
     let rho = (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt();
-    let f = if rho > 1e-12 {
-        rho.min(1.0 - EDGE).atanh() / rho
-    } else {
-        1.0
-    };
+    let f = radial.scale_to(rho);
     [x[0] * f, x[1] * f, x[2] * f, w[0], w[1], w[2]]
 }
 
 /// Inverse of [`event_target`]: X strictly inside the unit ball (W is normalised by the
 /// caller).
-pub fn event_from_target(v: [f64; 6]) -> ([f64; 3], [f64; 3]) {
+pub fn event_from_target(radial: EventRadial, v: [f64; 6]) -> ([f64; 3], [f64; 3]) {
     let big = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
     if !big.is_finite() {
         return ([0.0; 3], [v[3], v[4], v[5]]);
     }
-    let f = if big > 1e-12 { big.tanh() / big } else { 1.0 };
+    let f = radial.scale_from(big);
     ([v[0] * f, v[1] * f, v[2] * f], [v[3], v[4], v[5]])
 }
 
@@ -211,6 +277,31 @@ pub fn is_centre_event(x: [f32; 3]) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn current_radial_map_is_the_current_version() {
+        assert_eq!(
+            EventRadial::of_version(FEATURE_VERSION),
+            Some(EventRadial::CURRENT)
+        );
+        assert_eq!(
+            EventRadial::of_version(OLDEST_FEATURE_VERSION),
+            Some(EventRadial::Atanh)
+        );
+        assert_eq!(EventRadial::of_version(FEATURE_VERSION + 1), None);
+    }
+
+    /// The version-3 map's defining property: 1 − ρ² = e^(−u²/2), so events within a
+    /// band of the surface land in a Gaussian tail of u. Checked where that tail lies
+    /// (u = 3–4.5: the last 1 % to 0.004 % of ρ²).
+    #[test]
+    fn gaussian_edge_puts_the_surface_in_a_gaussian_tail() {
+        for t in [3.0f64, 3.5, 4.0, 4.5] {
+            let rho = (-(-0.5 * t * t).exp_m1()).sqrt();
+            let u = EventRadial::GaussianEdge.scale_to(rho) * rho;
+            assert!((u - t).abs() < 1e-9, "u({rho}) = {u}, expected {t}");
+        }
+    }
 
     /// The output transforms are bijections on the valid set: round trips agree to
     /// within f64 rounding amplified by the logit/atanh slopes near the edges.
@@ -226,17 +317,21 @@ mod tests {
                 (c - c2).abs() < 1e-9 && (b * r - b2).abs() < 1e-9 && (a * r - a2).abs() < 1e-9
             );
             let x = [b * r * 0.5, a * r * 0.5, c * 0.3];
-            let (x2, _) = event_from_target(event_target(x, [0.0, 0.0, 1.0]));
-            for k in 0..3 {
-                assert!((x[k] - x2[k]).abs() < 1e-9);
+            for radial in [EventRadial::Atanh, EventRadial::GaussianEdge] {
+                let (x2, _) = event_from_target(radial, event_target(radial, x, [0.0, 0.0, 1.0]));
+                for k in 0..3 {
+                    assert!((x[k] - x2[k]).abs() < 1e-9, "{radial:?}: {x:?} -> {x2:?}");
+                }
             }
         }
         // Anything a decoder returns maps to a valid exit and event.
         for v in [-1e9, -30.0, 0.0, 30.0, 1e9, f64::NAN] {
             let (c, b, a) = path_from_target([v, v, -v]);
             assert!(c.abs() <= 1.0 && b * b + a * a <= 1.0 + 1e-12);
-            let (x, _) = event_from_target([v, v, v, 0.0, 0.0, 1.0]);
-            assert!(x.iter().map(|q| q * q).sum::<f64>() <= 1.0 + 1e-12);
+            for radial in [EventRadial::Atanh, EventRadial::GaussianEdge] {
+                let (x, _) = event_from_target(radial, [v, v, v, 0.0, 0.0, 1.0]);
+                assert!(x.iter().map(|q| q * q).sum::<f64>() <= 1.0 + 1e-12);
+            }
         }
     }
 }

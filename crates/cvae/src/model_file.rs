@@ -95,6 +95,9 @@ pub struct Metadata {
 /// The three decoders, ready to evaluate.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ModelSet {
+    /// The feature version the decoders were trained with ([`features::FEATURE_VERSION`]
+    /// for a new file; an older file keeps its own, which says how to read its EventGen).
+    pub feature_version: u32,
     pub single_scattering: SingleScattering,
     pub training: TrainingInfo,
     pub length: Decoder,
@@ -127,6 +130,12 @@ fn spec_of(name: &str, d: &Decoder) -> DecoderSpec {
 }
 
 impl ModelSet {
+    /// How EventGen's output holds the event's distance from the centre.
+    pub fn event_radial(&self) -> features::EventRadial {
+        features::EventRadial::of_version(self.feature_version)
+            .expect("a ModelSet holds a feature version this build reads")
+    }
+
     pub fn decoders(&self) -> [&Decoder; 3] {
         [&self.length, &self.path, &self.event]
     }
@@ -134,7 +143,7 @@ impl ModelSet {
     /// Serialises to the file layout.
     pub fn to_bytes(&self) -> Vec<u8> {
         let meta = Metadata {
-            feature_version: features::FEATURE_VERSION,
+            feature_version: self.feature_version,
             single_scattering: self.single_scattering,
             training: self.training.clone(),
             decoders: NAMES
@@ -230,10 +239,11 @@ impl ModelSet {
         }
         let meta = meta.map_err(|e| invalid(format!("metadata: {e}")))?;
         check_training(&meta.training).map_err(invalid)?;
-        if meta.feature_version != features::FEATURE_VERSION {
+        if features::EventRadial::of_version(meta.feature_version).is_none() {
             return Err(invalid(format!(
-                "feature version {} (this build uses {})",
+                "feature version {} (this build reads {} to {})",
                 meta.feature_version,
+                features::OLDEST_FEATURE_VERSION,
                 features::FEATURE_VERSION
             )));
         }
@@ -319,6 +329,7 @@ impl ModelSet {
         let path_d = decoders.pop().unwrap();
         let length = decoders.pop().unwrap();
         Ok(Self {
+            feature_version: meta.feature_version,
             single_scattering: meta.single_scattering,
             training: meta.training,
             length,

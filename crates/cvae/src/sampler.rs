@@ -275,7 +275,7 @@ impl ModelSet {
     /// The event (X, W) from EventGen's output.
     pub fn event_result(&self, out: &Output) -> (DVec3, DVec3) {
         let v = [out[0], out[1], out[2], out[3], out[4], out[5]].map(f64::from);
-        let (x, w) = features::event_from_target(v);
+        let (x, w) = features::event_from_target(self.event_radial(), v);
         repair_event(DVec3::from_array(x), DVec3::from_array(w))
     }
 

@@ -49,6 +49,7 @@ fn random_decoder(
 pub fn random_models(seed: u64, gain: f32) -> ModelSet {
     let mut rng = WalkRng::from_seed(seed);
     ModelSet {
+        feature_version: cvae::features::FEATURE_VERSION,
         single_scattering: SingleScattering::Exact,
         training: TrainingInfo {
             tau_range: [0.0, 300.0],
@@ -145,6 +146,31 @@ fn overflowing_metadata_is_refused() {
         let e = ModelSet::from_bytes(&b, Path::new("edited.stcvae")).unwrap_err();
         assert!(
             matches!(e, ModelError::Invalid { .. }) && e.to_string().contains(msg),
+            "{e}"
+        );
+    }
+}
+
+/// Files of feature version 2 (EventGen's atanh radial map) and 3 load with their own
+/// version, which selects how EventGen's output is read; other versions are refused by
+/// name, with the range this build reads.
+#[test]
+fn feature_versions_are_kept_or_refused() {
+    use cvae::features::EventRadial;
+    for (v, radial) in [(2, EventRadial::Atanh), (3, EventRadial::GaussianEdge)] {
+        let mut m = random_models(6, 1.0);
+        m.feature_version = v;
+        let back = ModelSet::from_bytes(&m.to_bytes(), Path::new("v.stcvae")).unwrap();
+        assert_eq!(back.feature_version, v);
+        assert_eq!(back.event_radial(), radial);
+    }
+    for v in [1, 4] {
+        let mut m = random_models(6, 1.0);
+        m.feature_version = v;
+        let e = ModelSet::from_bytes(&m.to_bytes(), Path::new("v.stcvae")).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains(&format!("feature version {v} (this build reads 2 to 3)")),
             "{e}"
         );
     }

@@ -190,7 +190,16 @@ fn wgsl_decoders_match_rust() {
 fn wgsl_event_pairs_are_mirrored() {
     let Some(ctx) = gpu() else { return };
     let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
-    let m = model();
+    // Both radial maps of EventGen's output (feature versions 2 and 3): the shipped
+    // decoders read under each, which tests the transforms whatever the weights.
+    for version in [2, 3] {
+        let mut set = model().clone();
+        set.feature_version = version;
+        event_pairs_match(&ctx, &set);
+    }
+}
+
+fn event_pairs_match(ctx: &GpuContext, m: &cvae::ModelSet) {
     let (latent, out_n) = (m.event.latent, m.event.out);
     assert_eq!(latent + out_n, 11, "the probe's layout holds 11 normals");
     let mut rng = WalkRng::from_seed(8);
@@ -212,7 +221,7 @@ fn wgsl_event_pairs_are_mirrored() {
             it
         })
         .collect();
-    let out = run_probe(&ctx, "probe_event_pair", m, &items).unwrap();
+    let out = run_probe(ctx, "probe_event_pair", m, &items).unwrap();
     for (i, (o, it)) in out.iter().zip(&items).enumerate() {
         for k in 0..11 {
             assert_eq!(o[11 + k], -o[k], "item {i} normal {k}");
@@ -238,7 +247,8 @@ fn wgsl_event_pairs_are_mirrored() {
         let v = |k: usize| DVec3::new(o[k] as f64, o[k + 1] as f64, o[k + 2] as f64);
         assert!(
             (v(22) - x).length() < 1e-4,
-            "item {i}: X {:?} vs {x:?}",
+            "v{}: item {i}: X {:?} vs {x:?}",
+            m.feature_version,
             v(22)
         );
         assert!(

@@ -161,8 +161,12 @@ impl Table {
                         .map(|v| v as f32),
                     );
                     target.extend(
-                        features::event_target(r.ev_pos.map(f64::from), r.ev_dir.map(f64::from))
-                            .map(|v| v as f32),
+                        features::event_target(
+                            features::EventRadial::CURRENT,
+                            r.ev_pos.map(f64::from),
+                            r.ev_dir.map(f64::from),
+                        )
+                        .map(|v| v as f32),
                     );
                 }
             }

@@ -102,12 +102,20 @@ pub enum TrainError {
 /// Progress of a model, saved beside its weights.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct CheckpointInfo {
+    /// The feature version of the targets it was trained on (absent in checkpoints older
+    /// than version 3, which were all version 2).
+    #[serde(default = "feature_version_2")]
+    pub feature_version: u32,
     pub step: u64,
     pub seconds: f64,
     pub norm: Standardisation,
     /// (step, mean loss over the preceding reporting interval); the first entry (step 1)
     /// is the untrained model's loss.
     pub history: Vec<(u64, f32)>,
+}
+
+fn feature_version_2() -> u32 {
+    2
 }
 
 /// A finished model.
@@ -178,6 +186,7 @@ pub fn train_model(
     );
     let mut optim = Adamax::default().init();
     let mut info = CheckpointInfo {
+        feature_version: crate::features::FEATURE_VERSION,
         step: 0,
         seconds: 0.0,
         norm: table.norm.clone(),
@@ -191,6 +200,17 @@ pub fn train_model(
         };
         let text = std::fs::read(&jpath).map_err(|e| err(&jpath, e.to_string()))?;
         info = serde_json::from_slice(&text).map_err(|e| err(&jpath, e.to_string()))?;
+        if info.feature_version != crate::features::FEATURE_VERSION {
+            return Err(err(
+                &jpath,
+                format!(
+                    "checkpoint has feature version {} (this build trains {}): train without \
+                     resuming, or remove the checkpoint",
+                    info.feature_version,
+                    crate::features::FEATURE_VERSION
+                ),
+            ));
+        }
         if info.norm != table.norm {
             return Err(err(
                 &jpath,
@@ -263,11 +283,12 @@ pub fn train_model(
 
 /// The decoder of a model's last checkpoint (for exporting a set in which only some
 /// models were retrained).
+/// A checkpoint's decoder and the feature version it was trained with.
 pub fn load_decoder(
     dir: &Path,
     kind: ModelKind,
     arch: &Architecture,
-) -> Result<Decoder, TrainError> {
+) -> Result<(Decoder, u32), TrainError> {
     let (m, _, j) = paths(dir, kind);
     let err = |p: &Path, e: String| TrainError::Checkpoint {
         path: p.into(),
@@ -280,5 +301,5 @@ pub fn load_decoder(
     let model = Cvae::new(kind.cond(), kind.out(), arch, &mut rng, &device)
         .try_load_file(&m)
         .map_err(|e| err(&m, format!("{e:?}")))?;
-    Ok(model.export(&info.norm))
+    Ok((model.export(&info.norm), info.feature_version))
 }

@@ -8,7 +8,8 @@ use cvae::model_file::SingleScattering;
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
 pub struct ModelParams {
-    /// single scattering exact (1/0), n_min, 0, 0.
+    /// single scattering exact (1/0), n_min, EventGen's radial map (0: atanh, feature
+    /// version 2; 1: the Gaussian-edge map of version 3), 0.
     pub flags: [u32; 4],
 }
 
@@ -17,7 +18,7 @@ pub fn model_params(m: &ModelSet) -> ModelParams {
         flags: [
             (m.single_scattering == SingleScattering::Exact) as u32,
             m.n_min() as u32,
-            0,
+            (m.event_radial() == cvae::features::EventRadial::GaussianEdge) as u32,
             0,
         ],
     }
