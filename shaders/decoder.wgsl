@@ -162,14 +162,8 @@ fn sample_event(wf: WalkFeatures, channel: u32, lam: f32, e: Exit, mirror: bool)
         x = vec3<f32>(0.0);
     } else if big > 1e-12 {
         if model.flags.z != 0u {
-            // Feature version 3: |X|² = 1 − exp(−u²/2) (cvae::features::EventRadial),
-            // with a series where exp's rounding would dominate.
-            let h = 0.5 * big * big;
-            var rho2 = 1.0 - exp(-h);
-            if h < 1e-3 {
-                rho2 = h * (1.0 - h * (0.5 - h / 6.0));
-            }
-            x *= sqrt(rho2) / big;
+            // Feature version 3: |X|² = 1 − exp(−u²/2) (cvae::features::EventRadial).
+            x *= sqrt(-expm1(-0.5 * big * big)) / big;
         } else {
             x *= tanh(big) / big;
         }

@@ -44,6 +44,12 @@ pub struct Args {
     /// Representative events per sphere step for NEE (overrides the scene's).
     #[arg(long)]
     nee_samples: Option<u32>,
+    /// Next-event estimation in both integrators. `false` counts only paths that escape
+    /// into a light's disk or the environment, which takes EventGen out of ST-CVAE and
+    /// so tells its error from LengthGen's and PathGen's (give a scene whose light has an
+    /// angular diameter, e.g. configs/scenes/bunny_sun.toml).
+    #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
+    nee: bool,
     /// Where both integrators run: auto, gpu (any wgpu adapter) or cpu.
     #[arg(long, value_enum, default_value_t = DeviceArg::Cpu)]
     device: DeviceArg,
@@ -138,7 +144,7 @@ fn run_pair(a: &Args, engine: &Engine, kind: IntegratorKind, k: f64) -> Result<P
 
 /// The bench's scene at density k for one integrator.
 fn prepare_k(a: &Args, kind: IntegratorKind, k: f64) -> Result<crate::render::Prepared> {
-    prepare(&a.scene, Some(kind), Some(true), a.model.as_deref(), |f| {
+    prepare(&a.scene, Some(kind), Some(a.nee), a.model.as_deref(), |f| {
         f.medium.sigma_t = [150.0 * k, 187.5 * k, 125.0 * k];
         f.medium.albedo = [0.99999, 0.99995, 0.975];
         f.medium.g = 0.875;
@@ -202,10 +208,11 @@ fn render_pair(
 pub fn run(a: Args) -> Result<()> {
     let engine = Engine::open(a.device)?;
     println!(
-        "stcvae bench render: {} ({}x{}), g = 0.875, albedo (0.99999, 0.99995, 0.975), NEE on, {} spp each (2 seeds of {}: a multiple of 3 per seed), {}",
+        "stcvae bench render: {} ({}x{}), g = 0.875, albedo (0.99999, 0.99995, 0.975), NEE {}, {} spp each (2 seeds of {}: a multiple of 3 per seed), {}",
         a.scene.display(),
         a.size,
         a.size,
+        if a.nee { "on" } else { "off" },
         2 * half_spp(a.spp),
         half_spp(a.spp),
         engine.describe()

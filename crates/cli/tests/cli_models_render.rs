@@ -376,7 +376,8 @@ fn no_gpu_adapter_is_a_clear_error_or_a_cpu_fallback() {
 }
 
 /// `bench render --pt-cache`: a second run reuses PT's pair, also when only ST-CVAE's own
-/// settings change; another spp is a miss; a bad ST-CVAE setting fails before any render.
+/// settings change; another spp or NEE off is a miss; a bad ST-CVAE setting fails before
+/// any render.
 #[test]
 fn bench_render_reuses_stored_pt_pairs() {
     let dir = tempfile::tempdir().unwrap();
@@ -414,4 +415,9 @@ fn bench_render_reuses_stored_pt_pairs() {
     let err = fails(&bench("18", &["--nee-samples", "0"]));
     assert!(err.contains("nee_samples"), "{err}");
     assert_eq!(std::fs::read_dir(&cache).unwrap().count(), 2);
+    // NEE off is another PT scene (the flag enters the scene hash): a miss, and said so.
+    let off = stdout(bench("6", &["--nee", "false"]));
+    assert!(off.contains("NEE off") && !off.contains(hit), "{off}");
+    assert_eq!(std::fs::read_dir(&cache).unwrap().count(), 3);
+    assert!(stdout(bench("6", &[])).contains("NEE on"));
 }

@@ -16,13 +16,18 @@ fn root() -> PathBuf {
 
 /// `stcvae train --config train.toml --model eventgen --base BASE` in `dir`.
 fn train_eventgen(dir: &Path, base: &str) -> Output {
+    train_one(dir, "eventgen", base)
+}
+
+/// `stcvae train --config train.toml --model MODEL --base BASE` in `dir`.
+fn train_one(dir: &Path, model: &str, base: &str) -> Output {
     stcvae(
         &[
             "train",
             "--config",
             "train.toml",
             "--model",
-            "eventgen",
+            model,
             "--base",
             base,
         ],
@@ -75,6 +80,22 @@ fn one_model_retrained_against_a_base_file_keeps_the_others() {
     );
     // [4, 4] hidden: two hidden layers of width 4 ahead of the mean/log-variance head.
     assert_eq!(got.event.layers.len(), 3);
+    // A file's feature version says how its EventGen is read: this build's, for the
+    // EventGen just trained, whatever the base's.
+    assert_eq!(got.feature_version, cvae::features::FEATURE_VERSION);
+    // Retraining another model keeps the base's EventGen, and with it the base's version:
+    // here a version-2 copy of the file just written (the same decoders read the old way).
+    let mut old = got.clone();
+    old.feature_version = cvae::features::OLDEST_FEATURE_VERSION;
+    old.save(&dir.path().join("old.stcvae")).unwrap();
+    let out = train_one(dir.path(), "pathgen", "old.stcvae");
+    assert!(out.status.success(), "train failed: {}", stderr(&out));
+    let mixed = ModelSet::load(&dir.path().join("m.stcvae")).unwrap();
+    assert_eq!(mixed.event, old.event);
+    assert_eq!(
+        mixed.feature_version,
+        cvae::features::OLDEST_FEATURE_VERSION
+    );
     assert!(
         got.training
             .notes

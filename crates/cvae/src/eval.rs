@@ -5,10 +5,12 @@
 //! Wasserstein-1 distance. KS is invariant under monotone maps, so KS(N) = KS(log N);
 //! W1 is reported for both.
 //!
-//! Two expectations a renderer integrates are compared as well, model over simulator:
-//! the NEE weight E[Λ(N)], and the NEE a walk's representative event would collect if
-//! the sphere's own boundary were the surface (see [`sphere_nee`]). Small KS values can
-//! hide a few per cent in these, which is what an image shows (docs/BENCHMARKS.md).
+//! Expectations a renderer integrates are compared as well, model over simulator: the
+//! NEE weight E[Λ(N)]; the NEE a walk's representative event would collect if the
+//! sphere's own boundary were the surface ([`sphere_nee`]); the same for a flat surface
+//! touching the sphere behind, beside or ahead of the walk ([`half_space_nee`]), and the
+//! share of events near the sphere's surface ([`SHELLS`]). Small KS values can hide a
+//! few per cent in these, which is what an image shows (docs/BENCHMARKS.md).
 
 use rayon::prelude::*;
 use serde::Serialize;
@@ -66,6 +68,8 @@ pub struct SettingReport {
     pub nee_weight: RatioError,
     /// E[[`sphere_nee`]], model over simulator.
     pub sphere_nee: RatioError,
+    /// E[[`half_space_nee`]] per side ([`SURFACE_SIDES`]), model over simulator.
+    pub half_space: [RatioError; 3],
     /// The share of representative events 0.5–10 % of the radius from the sphere's
     /// surface, then within 0.5 % of it ([`SHELLS`]), model over simulator.
     pub shells: [RatioError; 2],
@@ -81,7 +85,12 @@ pub const SHELLS: [[f64; 2]; 2] = [[0.005, 0.1], [0.0, 0.005]];
 const NEE_DIRECTIONS: usize = 48;
 
 fn fibonacci_direction(i: usize) -> DVec3 {
-    let z = 1.0 - (2.0 * i as f64 + 1.0) / NEE_DIRECTIONS as f64;
+    fibonacci(i, NEE_DIRECTIONS)
+}
+
+/// Point i of a Fibonacci sphere of `count` points.
+fn fibonacci(i: usize, count: usize) -> DVec3 {
+    let z = 1.0 - (2.0 * i as f64 + 1.0) / count as f64;
     let r = (1.0 - z * z).max(0.0).sqrt();
     let phi = i as f64 * std::f64::consts::PI * (3.0 - 5f64.sqrt());
     DVec3::new(r * phi.cos(), r * phi.sin(), z)
@@ -101,6 +110,53 @@ pub fn sphere_nee(tau: f64, g: f64, albedo: f64, n: u64, x: DVec3, w: DVec3) -> 
         sum += scatter_sim::phase::hg_pdf(g, w.dot(l).clamp(-1.0, 1.0)) * (-tau * s).exp();
     }
     lambda(albedo, n) * sum / NEE_DIRECTIONS as f64
+}
+
+/// Where [`half_space_nee`]'s surface lies seen from the walk's centre, against the
+/// direction the walk arrived in (+z): behind it (normal n_z < −0.5, the side a path
+/// that just entered the object came through), beside it, or ahead (n_z > 0.5).
+pub const SURFACE_SIDES: [&str; 3] = ["behind", "beside", "ahead"];
+const PLANE_NORMALS: usize = 24;
+const PLANE_LIGHTS: usize = 16;
+
+/// The NEE of a walk's representative event (X, W) in a renderer's situation: the
+/// sphere step's ball is as large as the distance to the nearest surface, so it touches
+/// it; here the surface is the plane x·m = 1 tangent to the unit sphere, with the light
+/// beyond it. Λ(N) · mean ρ_g(W·L) e^{−τ·s}, s = (1 − X·m)/(L·m) the distance from X to
+/// the plane along L, over the Fibonacci normals m of one side ([`SURFACE_SIDES`]) and
+/// the light directions L with L·m > 0.2. Unlike [`sphere_nee`] it tells the sides
+/// apart: a model can be right on average and wrong behind, which is where the NEE of a
+/// path just entered through a lit surface comes from (docs/BENCHMARKS.md, thirteenth
+/// session).
+pub fn half_space_nee(tau: f64, g: f64, albedo: f64, n: u64, x: DVec3, w: DVec3) -> [f64; 3] {
+    let mut sum = [0.0f64; 3];
+    let mut count = [0usize; 3];
+    for i in 0..PLANE_NORMALS {
+        let m = fibonacci(i, PLANE_NORMALS);
+        let side = if m.z < -0.5 {
+            0
+        } else if m.z > 0.5 {
+            2
+        } else {
+            1
+        };
+        let depth = 1.0 - x.dot(m);
+        for j in 0..PLANE_LIGHTS {
+            let l = fibonacci(j, PLANE_LIGHTS);
+            let lm = l.dot(m);
+            if lm <= 0.2 {
+                continue;
+            }
+            count[side] += 1;
+            let optical = tau * depth.max(0.0) / lm;
+            if optical < 40.0 {
+                sum[side] +=
+                    scatter_sim::phase::hg_pdf(g, w.dot(l).clamp(-1.0, 1.0)) * (-optical).exp();
+            }
+        }
+    }
+    let weight = lambda(albedo, n);
+    [0, 1, 2].map(|k| weight * sum[k] / count[k].max(1) as f64)
 }
 
 /// Mean and standard error of the mean.
@@ -162,6 +218,16 @@ impl Columns {
         [weight, sphere]
     }
 
+    /// Per walk and per side of [`SURFACE_SIDES`]: the samples of [`half_space_nee`].
+    pub fn half_space_samples(&self, tau: f64, g: f64, albedo: f64) -> [Vec<f64>; 3] {
+        let per_walk: Vec<[f64; 3]> = self
+            .1
+            .iter()
+            .map(|&(n, _, x, w)| half_space_nee(tau, g, albedo, n, x, w))
+            .collect();
+        [0, 1, 2].map(|k| per_walk.iter().map(|v| v[k]).collect())
+    }
+
     /// Per walk and per band of [`SHELLS`]: 1 if its representative event lies in it,
     /// else 0. The centre event (X = 0) lies in none.
     pub fn shell_samples(&self) -> [Vec<f64>; 2] {
@@ -169,7 +235,8 @@ impl Columns {
             self.1
                 .iter()
                 .map(|&(_, _, x, _)| {
-                    let d = 1.0 - x.length();
+                    // An event repaired onto the surface may read |X| = 1 + ulp.
+                    let d = (1.0 - x.length()).max(0.0);
                     f64::from(u8::from(lo <= d && d < hi))
                 })
                 .collect()
@@ -255,11 +322,26 @@ pub fn evaluate_setting(
 ) -> SettingReport {
     let sim = simulator_columns(tau, g, albedo, samples, seed);
     let model = model_columns(m, tau, g, albedo, samples, seed);
+    compare_setting(&model, &sim, tau, g, albedo)
+}
+
+/// The report of one setting from its model and simulator samples.
+pub fn compare_setting(
+    model: &Columns,
+    sim: &Columns,
+    tau: f64,
+    g: f64,
+    albedo: f64,
+) -> SettingReport {
     let (model_nee, sim_nee) = (
         model.nee_samples(tau, g, albedo),
         sim.nee_samples(tau, g, albedo),
     );
     let (model_shells, sim_shells) = (model.shell_samples(), sim.shell_samples());
+    let (model_half, sim_half) = (
+        model.half_space_samples(tau, g, albedo),
+        sim.half_space_samples(tau, g, albedo),
+    );
     let which: Vec<usize> = if albedo == 1.0 {
         (0..QUANTITIES.len()).collect()
     } else {
@@ -269,9 +351,10 @@ pub fn evaluate_setting(
         tau,
         g,
         albedo,
-        metrics: compare(&model, &sim, &which),
+        metrics: compare(model, sim, &which),
         nee_weight: ratio_error(&model_nee[0], &sim_nee[0]),
         sphere_nee: ratio_error(&model_nee[1], &sim_nee[1]),
+        half_space: [0, 1, 2].map(|k| ratio_error(&model_half[k], &sim_half[k])),
         shells: [0, 1].map(|k| ratio_error(&model_shells[k], &sim_shells[k])),
     }
 }
@@ -310,6 +393,50 @@ pub fn max_ks(reports: &[SettingReport], quantity: &str) -> f64 {
         .fold(0.0, f64::max)
 }
 
+/// Thin bands of 1 − |X| for [`fine_shells_table`]: where the version-2 EventGens went
+/// from over- to under-filling.
+pub const FINE_SHELLS: [[f64; 2]; 7] = [
+    [0.05, 0.1],
+    [0.02, 0.05],
+    [0.01, 0.02],
+    [0.005, 0.01],
+    [0.002, 0.005],
+    [0.001, 0.002],
+    [0.0, 0.001],
+];
+
+/// A Markdown table of how many representative events fall in each band of
+/// [`FINE_SHELLS`], the simulator's count and the model's over it.
+pub fn fine_shells_table(model: &Columns, sim: &Columns, tau: f64, g: f64, albedo: f64) -> String {
+    let count = |c: &Columns, [lo, hi]: [f64; 2]| {
+        c.1.iter()
+            .filter(|&&(_, _, x, _)| {
+                let d = (1.0 - x.length()).max(0.0);
+                lo <= d && d < hi
+            })
+            .count()
+    };
+    let mut s = format!(
+        "\nEvents by distance 1 − |X| from the sphere's surface, τ = {tau}, g = {g}, φ = {albedo} \
+         (simulator's count; model / simulator):\n\n|"
+    );
+    for [lo, hi] in FINE_SHELLS {
+        s += &format!(" {lo}–{hi} |");
+    }
+    s += "\n|";
+    s += &"---|".repeat(FINE_SHELLS.len());
+    s += "\n|";
+    for band in FINE_SHELLS {
+        let (m, n) = (count(model, band), count(sim, band));
+        s += &if n > 0 {
+            format!(" {n}: {:.2} |", m as f64 / n as f64)
+        } else {
+            format!(" 0: {m} model events |")
+        };
+    }
+    s + "\n"
+}
+
 /// The Markdown table of a grid evaluation.
 pub fn markdown_table(reports: &[SettingReport]) -> String {
     let mut s = String::from("| τ | g | φ |");
@@ -317,6 +444,9 @@ pub fn markdown_table(reports: &[SettingReport]) -> String {
         s += &format!(" {q} KS / W1 |");
     }
     s += " E[Λ(N)] model/sim − 1 | sphere NEE model/sim − 1 |";
+    for side in SURFACE_SIDES {
+        s += &format!(" half-space NEE, surface {side}, model/sim − 1 |");
+    }
     for [lo, hi] in SHELLS {
         s += &format!(
             " events {}–{} % from the edge, model/sim − 1 |",
@@ -328,7 +458,7 @@ pub fn markdown_table(reports: &[SettingReport]) -> String {
     for _ in QUANTITIES {
         s += "---|";
     }
-    s += "---|---|---|---|\n";
+    s += "---|---|---|---|---|---|---|\n";
     for r in reports {
         s += &format!("| {} | {} | {} |", r.tau, r.g, r.albedo);
         for q in QUANTITIES {
@@ -337,7 +467,12 @@ pub fn markdown_table(reports: &[SettingReport]) -> String {
                 None => s += " – |",
             }
         }
-        for r in [r.nee_weight, r.sphere_nee, r.shells[0], r.shells[1]] {
+        let sides = r.half_space;
+        for r in [r.nee_weight, r.sphere_nee]
+            .into_iter()
+            .chain(sides)
+            .chain(r.shells)
+        {
             if r.resolved {
                 s += &format!(" {:+.1} % ± {:.1} % |", 100.0 * r.value, 100.0 * r.se);
             } else {
@@ -362,6 +497,23 @@ mod tests {
         assert!((v - expect).abs() < 1e-12 * expect, "{v} vs {expect}");
     }
 
+    /// An event near the sphere's edge ahead of the walk (+z) is close to a surface
+    /// ahead and a diameter away from one behind: at τ = 10 the first side must see
+    /// e^{−0.1·10/⟨L·m⟩}-order light and the second e^{−1.9·10/…}, so at least 10⁴ times
+    /// less; an event at the centre sees the three sides within a factor 2 of each other
+    /// (the same depth, different subsets of lights).
+    #[test]
+    fn half_space_nee_tells_the_sides_apart() {
+        let edge = half_space_nee(10.0, 0.0, 1.0, 7, DVec3::new(0.0, 0.0, 0.9), DVec3::Z);
+        assert!(edge[2] > 1e4 * edge[0], "{edge:?}");
+        let centre = half_space_nee(10.0, 0.0, 1.0, 7, DVec3::ZERO, DVec3::Z);
+        let (lo, hi) = (
+            centre.iter().copied().fold(f64::MAX, f64::min),
+            centre.iter().copied().fold(0.0, f64::max),
+        );
+        assert!(lo > 0.0 && hi < 2.0 * lo, "{centre:?}");
+    }
+
     /// The Fibonacci directions are unit vectors spread over the sphere: their mean is
     /// ~0 (a quadrature of the odd function L: |mean| < 0.05 for 48 points) and the
     /// mean of L_z² is 1/3 within 0.01.
@@ -378,25 +530,26 @@ mod tests {
     /// The simulator against itself (independent streams), at a setting where both
     /// quantities vary a lot: each ratio is the z-score of a difference of independent
     /// means, so over 8 independent pairs of runs Σ z² follows χ²₈ if the standard errors
-    /// are right. Both tails are tested, at probability 5e-4 each (a 0.4 % chance for
-    /// the four quantities to fail by noise): a standard error too small and one too
-    /// large both fail. The quantities: E[Λ(N)], the sphere NEE and the two shells'
+    /// are right. Both tails are tested, at probability 5e-4 each (a 0.7 % chance for
+    /// the seven quantities to fail by noise): a standard error too small and one too
+    /// large fail (grossly wrong ones: ~2× too small or ~3× too large). The quantities: E[Λ(N)], the sphere NEE, the half-space NEE's three sides and the two shells'
     /// shares (at τ = 5 several per cent and ~0.4 % of 20,000 events, ~80 in the thinner:
     /// enough for the normal approximation behind the z-scores).
     #[test]
     fn simulator_against_itself_gives_ratios_within_noise() {
         use scatter_sim::stats::chi_square_p_value;
         let (tau, g, albedo) = (5.0, 0.4, 0.95);
-        let mut chi2 = [0.0f64; 4];
+        let mut chi2 = [0.0f64; 7];
         for pair in 0..8u64 {
             let run = |seed| {
                 let c = simulator_columns(tau, g, albedo, 20_000, seed);
                 let [w, s] = c.nee_samples(tau, g, albedo);
                 let [near, edge] = c.shell_samples();
-                [w, s, near, edge]
+                let [behind, beside, ahead] = c.half_space_samples(tau, g, albedo);
+                [w, s, near, edge, behind, beside, ahead]
             };
             let (a, b) = (run(1 + 2 * pair), run(2 + 2 * pair));
-            for (k, r) in (0..4).map(|k| ratio_error(&a[k], &b[k])).enumerate() {
+            for (k, r) in (0..7).map(|k| ratio_error(&a[k], &b[k])).enumerate() {
                 assert!(r.se > 0.0 && r.value.is_finite(), "{r:?}");
                 chi2[k] += (r.value / r.se).powi(2);
             }

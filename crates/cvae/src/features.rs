@@ -152,7 +152,7 @@ impl WalkFeatures {
     }
 }
 
-/// Keeps logit/atanh arguments away from ±1 (f32 data holds values within 6e-8 of 1).
+/// Keeps logit/atanh/ln(1 − ρ²) arguments away from ±1 (f32 data holds values within 6e-8 of 1).
 const EDGE: f64 = 1e-7;
 
 /// PathGen's target from (cos θ, β, α), the dataset's column order.
@@ -192,9 +192,9 @@ pub fn path_from_target(v: [f64; 3]) -> (f64, f64, f64) {
 /// Why version 3 changed it: near the sphere's surface the simulator's events have a
 /// density in ρ that stays finite up to ρ = 1 (a random walk scatters right up to the
 /// surface it escapes through). Under atanh that edge becomes an exponential tail,
-/// 1 − ρ ≈ 2e^(−2u), which a Gaussian decoder cannot follow: all three trained EventGens
-/// put 1.3–1.7× too many events 1–10 % of the radius from the surface and 2–10× too few in
-/// the last 0.2 % (docs/BENCHMARKS.md, thirteenth session), exactly where the NEE of a
+/// 1 − ρ ≈ 2e^(−2u), which a Gaussian decoder cannot follow: the version-2 EventGens put
+/// 1.3–1.9× too many events 0.5–10 % of the radius from the surface and 2–10× too few in
+/// the last 0.1 % (docs/BENCHMARKS.md, thirteenth session), exactly where the NEE of a
 /// step that touches the object's surface is collected. With u = √(−2 ln(1 − ρ²)) the
 /// edge becomes 1 − ρ² = e^(−u²/2), a Gaussian tail (a flat density near ρ = 1 gives a
 /// Rayleigh-like u·e^(−u²/2)); on the simulator's walks at g = 0.875 the radial feature's
@@ -316,7 +316,14 @@ mod tests {
             assert!(
                 (c - c2).abs() < 1e-9 && (b * r - b2).abs() < 1e-9 && (a * r - a2).abs() < 1e-9
             );
-            let x = [b * r * 0.5, a * r * 0.5, c * 0.3];
+            // Events anywhere in the ball, up to 1e-5 of its surface.
+            let len = (1.0 - 1e-5) * rng.uniform().cbrt();
+            let (u, v) = (
+                2.0 * rng.uniform() - 1.0,
+                rng.uniform() * std::f64::consts::TAU,
+            );
+            let s = (1.0 - u * u).sqrt();
+            let x = [len * s * v.cos(), len * s * v.sin(), len * u];
             for radial in [EventRadial::Atanh, EventRadial::GaussianEdge] {
                 let (x2, _) = event_from_target(radial, event_target(radial, x, [0.0, 0.0, 1.0]));
                 for k in 0..3 {

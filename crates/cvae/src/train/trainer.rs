@@ -102,8 +102,9 @@ pub enum TrainError {
 /// Progress of a model, saved beside its weights.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct CheckpointInfo {
-    /// The feature version of the targets it was trained on (absent in checkpoints older
-    /// than version 3, which were all version 2).
+    /// The feature version of the targets it was trained on. Checkpoints written before
+    /// version 3 lack it and read as 2; those of version 1 (before commit fb07877) differ
+    /// in their standardisation, which a resume checks.
     #[serde(default = "feature_version_2")]
     pub feature_version: u32,
     pub step: u64,
@@ -200,6 +201,13 @@ pub fn train_model(
         };
         let text = std::fs::read(&jpath).map_err(|e| err(&jpath, e.to_string()))?;
         info = serde_json::from_slice(&text).map_err(|e| err(&jpath, e.to_string()))?;
+        // Versions 2 and 3 differ only in EventGen's targets (whose standardisation would
+        // differ too); LengthGen and PathGen go on as they were.
+        if kind != ModelKind::EventGen
+            && info.feature_version == crate::features::OLDEST_FEATURE_VERSION
+        {
+            info.feature_version = crate::features::FEATURE_VERSION;
+        }
         if info.feature_version != crate::features::FEATURE_VERSION {
             return Err(err(
                 &jpath,
@@ -282,8 +290,7 @@ pub fn train_model(
 }
 
 /// The decoder of a model's last checkpoint (for exporting a set in which only some
-/// models were retrained).
-/// A checkpoint's decoder and the feature version it was trained with.
+/// models were retrained), and the feature version it was trained with.
 pub fn load_decoder(
     dir: &Path,
     kind: ModelKind,
