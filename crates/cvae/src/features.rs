@@ -192,10 +192,10 @@ pub fn path_from_target(v: [f64; 3]) -> (f64, f64, f64) {
 /// Why version 3 changed it: near the sphere's surface the simulator's events have a
 /// density in ρ that stays finite up to ρ = 1 (a random walk scatters right up to the
 /// surface it escapes through). Under atanh that edge becomes an exponential tail,
-/// 1 − ρ ≈ 2e^(−2u), which a Gaussian decoder cannot follow: the version-2 EventGens put
-/// 1.3–1.9× too many events 0.5–10 % of the radius from the surface and 2–10× too few in
-/// the last 0.1 % (docs/BENCHMARKS.md, thirteenth session), exactly where the NEE of a
-/// step that touches the object's surface is collected. With u = √(−2 ln(1 − ρ²)) the
+/// 1 − ρ ≈ 2e^(−2u), which a Gaussian decoder cannot follow: the shipped version-2
+/// EventGen puts 1.3–1.9× too many events 0.5–10 % of the radius from the surface and up
+/// to 2.5× too few in the last 0.1 % (docs/BENCHMARKS.md, thirteenth session), where
+/// the NEE of a step that touches the object's surface is collected. With u = √(−2 ln(1 − ρ²)) the
 /// edge becomes 1 − ρ² = e^(−u²/2), a Gaussian tail (a flat density near ρ = 1 gives a
 /// Rayleigh-like u·e^(−u²/2)); on the simulator's walks at g = 0.875 the radial feature's
 /// kurtosis drops from ~7 to ~3.7 (3 for a Gaussian). Near the centre u ≈ √2·ρ, smooth.
