@@ -313,6 +313,45 @@ fn bad_arguments_name_the_argument() {
     }
 }
 
+/// `eval --at`: only the given settings, in metrics.md and on stdout, with the table of
+/// thin bands near the sphere's surface; a malformed or out-of-range setting is a one-line
+/// error naming what is wrong.
+#[test]
+fn eval_at_given_settings() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path().join("ev");
+    let dir_s = dir.to_str().unwrap();
+    let out = stcvae(&[
+        "eval",
+        "--samples",
+        "300",
+        "--at",
+        "5,0.875,1",
+        "--at",
+        "2,0.5,0.9",
+        "--out",
+        dir_s,
+    ]);
+    ok(&out);
+    let md = std::fs::read_to_string(dir.join("metrics.md")).unwrap();
+    assert_eq!(String::from_utf8_lossy(&out.stdout), md);
+    assert!(
+        md.contains("| 5 | 0.875 | 1 |") && md.contains("| 2 | 0.5 | 0.9 |"),
+        "{md}"
+    );
+    assert_eq!(md.matches("Events by distance").count(), 2, "{md}");
+    assert!(md.contains("half-space NEE, surface behind"), "{md}");
+    assert!(!dir.join("fig11_n.png").exists(), "--at draws no plots");
+    for (at, want) in [
+        ("5,0.875", "three numbers"),
+        ("5,0.875,1.5", "albedo"),
+        ("5,x,1", "TAU,G,ALBEDO"),
+    ] {
+        let e = fails(&stcvae(&["eval", "--at", at, "--out", dir_s]));
+        assert!(e.contains(want), "{at}: {e}");
+    }
+}
+
 #[test]
 fn bad_scenes_are_one_line_errors() {
     let d = tempfile::tempdir().unwrap();
