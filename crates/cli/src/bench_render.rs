@@ -47,7 +47,7 @@ pub struct Args {
     /// Next-event estimation in both integrators. `false` counts only paths that escape
     /// into a light's disk or the environment, which takes EventGen out of ST-CVAE and
     /// so tells its error from LengthGen's and PathGen's (give a scene whose light has an
-    /// angular diameter, e.g. configs/scenes/bunny_sun.toml).
+    /// angular diameter, e.g. configs/scenes/bunny_sun_wide.toml).
     #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
     nee: bool,
     /// Where both integrators run: auto, gpu (any wgpu adapter) or cpu.
@@ -239,8 +239,11 @@ pub fn run(a: Args) -> Result<()> {
     // setting or model fails at once, not after PT's (possibly long) renders. They are
     // prepared again when rendered (well under a second each, the grid coming from its
     // disk cache) rather than kept: each holds its own copy of the distance grid.
-    for &k in &a.k {
-        prepare_k(&a, IntegratorKind::Stcvae, k)?;
+    for (i, &k) in a.k.iter().enumerate() {
+        let p = prepare_k(&a, IntegratorKind::Stcvae, k)?;
+        if i == 0 {
+            crate::render::note_unreachable_lights(&p);
+        }
     }
     let identity = match &a.pt_cache {
         Some(_) => Some(crate::pt_cache::identity(&engine.describe())?),

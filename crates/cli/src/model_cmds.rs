@@ -73,7 +73,7 @@ pub fn sample(a: SampleArgs) -> Result<()> {
         );
     }
     let m = load_model(a.model.as_deref())?;
-    warn_outside_training(&m, c);
+    warn_outside_training(&m, c, "--");
     let mut sink = Box::new(CsvWriter::create(&a.out, a.samples)?);
     // Drawn in chunks so that memory stays bounded however many walks are asked for.
     const CHUNK: u64 = 1 << 16;
@@ -106,8 +106,9 @@ pub fn sample(a: SampleArgs) -> Result<()> {
 #[derive(clap::Args)]
 #[command(
     after_help = "Compares the model with fresh simulator walks on the paper's grid \
-    τ ∈ {1, 5, 25, 125} × g ∈ {-0.7, 0, 0.4, 0.9} (φ = 1, plus φ = 0.9 for EventGen) and writes \
-    metrics.md and metrics.json."
+    τ ∈ {1, 5, 25, 125} × g ∈ {-0.7, 0, 0.4, 0.9} (φ = 1, plus φ = 0.9 for EventGen), or on \
+    the settings given with --at, and writes metrics.md and metrics.json (and, for the grid, \
+    plots).\n\nExample:\n  stcvae eval --at 5,0.875,1 --at 5,0.875,0.975 --samples 40000 --out results/eval-bunny"
 )]
 pub struct EvalArgs {
     /// Model file (default: models/default.stcvae).
@@ -135,7 +136,7 @@ fn parse_setting(s: &str) -> Result<Conditions, String> {
         .split(',')
         .map(|x| x.trim().parse::<f64>())
         .collect::<Result<_, _>>()
-        .map_err(|e| format!("'{s}': {e} (expected TAU,G,ALBEDO, e.g. 5,0.875,1)"))?;
+        .map_err(|e| format!("'{s}': {e}: expected three numbers TAU,G,ALBEDO, e.g. 5,0.875,1"))?;
     let [tau, g, albedo] = v[..] else {
         return Err(format!(
             "'{s}': expected three numbers TAU,G,ALBEDO, e.g. 5,0.875,1"
@@ -147,7 +148,7 @@ fn parse_setting(s: &str) -> Result<Conditions, String> {
 }
 
 /// The models extrapolate outside the conditions they were trained on; say so once.
-fn warn_outside_training(m: &cvae::ModelSet, c: Conditions) {
+fn warn_outside_training(m: &cvae::ModelSet, c: Conditions, flag: &str) {
     let t = &m.training;
     let outside = |v: f64, r: [f64; 2]| v < r[0] - 1e-6 || v > r[1] + 1e-6;
     for (name, v, r) in [
@@ -157,7 +158,7 @@ fn warn_outside_training(m: &cvae::ModelSet, c: Conditions) {
     ] {
         if outside(v, r) {
             eprintln!(
-                "warning: --{name} {v} lies outside the model's training range [{:.3}, {:.3}]: the samples are an extrapolation",
+                "warning: {flag}{name} {v} lies outside the model's training range [{:.3}, {:.3}]: the samples are an extrapolation",
                 r[0], r[1]
             );
         }
@@ -185,72 +186,8 @@ pub fn evaluate(a: EvalArgs) -> Result<()> {
     Ok(())
 }
 
-/// `eval --at`: the given settings only (setting i with seed + i), no plots; the table and
-/// the fine shell bands go to stdout too.
-fn evaluate_settings(a: &EvalArgs) -> Result<()> {
-    if a.samples < 2 {
-        bail!("--samples {} is out of range: allowed [2, inf)", a.samples);
-    }
-    if a.out.exists() && !a.out.is_dir() {
-        bail!("--out {}: exists and is not a directory", a.out.display());
-    }
-    let m = load_model(a.model.as_deref())?;
-    let model_name = a
-        .model
-        .clone()
-        .unwrap_or_else(|| PathBuf::from(DEFAULT_MODEL))
-        .display()
-        .to_string();
-    let mut reports = Vec::new();
-    let mut bands = String::new();
-    for (i, c) in a.at.iter().enumerate() {
-        warn_outside_training(&m, *c);
-        let seed = a.seed.wrapping_add(i as u64);
-        let (model, sim) = (
-            eval::model_columns(&m, c.tau, c.g, c.albedo, a.samples, seed),
-            eval::simulator_columns(c.tau, c.g, c.albedo, a.samples, seed),
-        );
-        reports.push(eval::compare_setting(&model, &sim, c.tau, c.g, c.albedo));
-        bands += &eval::fine_shells_table(&model, &sim, c.tau, c.g, c.albedo);
-    }
-    std::fs::create_dir_all(&a.out)
-        .with_context(|| format!("cannot create {}", a.out.display()))?;
-    let json = serde_json::to_vec_pretty(&EvalJson {
-        model: model_name.clone(),
-        samples: a.samples,
-        seed: a.seed,
-        max_ks: Default::default(),
-        settings: &reports,
-    })?;
-    write_atomic(&a.out.join("metrics.json"), &json)?;
-    let md = format!(
-        "# Distribution fidelity of {model_name}\n\n{} model samples vs {} fresh simulator walks \
-         per setting (setting i: seed {} + i).\n\n{}\n{bands}",
-        a.samples,
-        a.samples,
-        a.seed,
-        eval::markdown_table(&reports)
-    );
-    write_atomic(&a.out.join("metrics.md"), md.as_bytes())?;
-    print!("{md}");
-    Ok(())
-}
-
-/// Evaluates the model into `out` (metrics.json, metrics.md, plots); returns the max KS
-/// per quantity over the grid.
-pub fn evaluate_into(
-    model: Option<&Path>,
-    out: &Path,
-    samples: usize,
-    seed: u64,
-) -> Result<std::collections::BTreeMap<&'static str, f64>> {
-    let a = EvalArgs {
-        model: model.map(Path::to_path_buf),
-        out: out.to_path_buf(),
-        samples,
-        seed,
-        at: Vec::new(),
-    };
+/// Checks shared by both modes of `eval`; the model and the name to print for it.
+fn open_eval(model: Option<&Path>, out: &Path, samples: usize) -> Result<(ModelSet, String)> {
     if samples < 2 {
         bail!(
             "--samples {samples} is out of range: allowed [2, inf) (the KS and moment tests need two samples)"
@@ -262,18 +199,18 @@ pub fn evaluate_into(
             out.display()
         );
     }
-    let m = load_model(a.model.as_deref())?;
-    let model_name = a
-        .model
-        .clone()
-        .unwrap_or_else(|| PathBuf::from(DEFAULT_MODEL))
+    let m = load_model(model)?;
+    let name = model
+        .unwrap_or(Path::new(DEFAULT_MODEL))
         .display()
         .to_string();
-    let pb = progress::bar(32, "settings");
-    let reports = eval::evaluate_grid(&m, a.samples, a.seed, |i, _| pb.set_position(i as u64));
-    pb.finish_and_clear();
-    let mut max_ks = std::collections::BTreeMap::new();
-    for q in [
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    Ok((m, name))
+}
+
+/// Largest KS per quantity over the reports.
+fn max_ks_of(reports: &[SettingReport]) -> std::collections::BTreeMap<&'static str, f64> {
+    [
         "n",
         "cos_theta",
         "alpha",
@@ -281,53 +218,102 @@ pub fn evaluate_into(
         "event_radius",
         "event_z",
         "event_wz",
-    ] {
-        max_ks.insert(q, eval::max_ks(&reports, q));
-    }
-    std::fs::create_dir_all(&a.out)
-        .with_context(|| format!("cannot create {}", a.out.display()))?;
+    ]
+    .into_iter()
+    .map(|q| (q, eval::max_ks(reports, q)))
+    .collect()
+}
+
+/// metrics.json, and the head of metrics.md (title, sample counts, max KS, the table).
+fn write_eval_json_and_head(
+    out: &Path,
+    name: &str,
+    samples: usize,
+    seed: u64,
+    reports: &[SettingReport],
+) -> Result<Vec<u8>> {
+    let max_ks = max_ks_of(reports);
     let json = serde_json::to_vec_pretty(&EvalJson {
-        model: model_name.clone(),
-        samples: a.samples,
-        seed: a.seed,
+        model: name.to_owned(),
+        samples,
+        seed,
         max_ks: max_ks.clone(),
-        settings: &reports,
+        settings: reports,
     })?;
-    write_atomic(&a.out.join("metrics.json"), &json)?;
+    write_atomic(&out.join("metrics.json"), &json)?;
     let mut md = Vec::new();
-    writeln!(md, "# Distribution fidelity of {model_name}\n")?;
+    writeln!(md, "# Distribution fidelity of {name}\n")?;
     writeln!(
         md,
-        "{} model samples vs {} fresh simulator walks per setting (seed {}). \
-         KS = two-sample Kolmogorov–Smirnov statistic, W1 = Wasserstein-1 distance. \
-         At φ = 0.9 only the representative event (EventGen) depends on φ.\n",
-        a.samples, a.samples, a.seed
+        "{samples} model samples vs {samples} fresh simulator walks per setting (setting i: \
+         seed {seed} + i). KS = two-sample Kolmogorov–Smirnov statistic, W1 = Wasserstein-1 \
+         distance. At φ = 0.9 only the representative event (EventGen) depends on φ.\n"
     )?;
     writeln!(
         md,
-        "Max KS over the grid: {}\n",
+        "Max KS over these settings: {}\n",
         max_ks
             .iter()
             .map(|(k, v)| format!("{k} {v:.3}"))
             .collect::<Vec<_>>()
             .join(", ")
     )?;
-    md.extend(eval::markdown_table(&reports).into_bytes());
+    md.extend(eval::markdown_table(reports).into_bytes());
+    Ok(md)
+}
+
+/// `eval --at`: the given settings only (setting i with seed + i), no plots; the table and
+/// the fine shell bands go to stdout too.
+fn evaluate_settings(a: &EvalArgs) -> Result<()> {
+    let (m, name) = open_eval(a.model.as_deref(), &a.out, a.samples)?;
+    let mut reports = Vec::new();
+    let mut bands = String::new();
+    for (i, c) in a.at.iter().enumerate() {
+        warn_outside_training(&m, *c, "--at ");
+        let seed = a.seed.wrapping_add(i as u64);
+        let (model, sim) = (
+            eval::model_columns(&m, c.tau, c.g, c.albedo, a.samples, seed),
+            eval::simulator_columns(c.tau, c.g, c.albedo, a.samples, seed),
+        );
+        reports.push(eval::compare_setting(&model, &sim, c.tau, c.g, c.albedo));
+        bands += &eval::fine_shells_table(&model, &sim, c.tau, c.g, c.albedo);
+    }
+    let mut md = write_eval_json_and_head(&a.out, &name, a.samples, a.seed, &reports)?;
+    md.extend(bands.into_bytes());
+    write_atomic(&a.out.join("metrics.md"), &md)?;
+    print!("{}", String::from_utf8_lossy(&md));
+    Ok(())
+}
+
+/// Evaluates the model into `out` (metrics.json, metrics.md, plots); returns the max KS
+/// per quantity over the grid.
+pub fn evaluate_into(
+    model: Option<&Path>,
+    out: &Path,
+    samples: usize,
+    seed: u64,
+) -> Result<std::collections::BTreeMap<&'static str, f64>> {
+    let (m, model_name) = open_eval(model, out, samples)?;
+    let pb = progress::bar(32, "settings");
+    let reports = eval::evaluate_grid(&m, samples, seed, |i, _| pb.set_position(i as u64));
+    pb.finish_and_clear();
+    let max_ks = max_ks_of(&reports);
+    let mut md = write_eval_json_and_head(out, &model_name, samples, seed, &reports)?;
     // The plots redraw the φ = 1 settings with the grid's seeds (same samples).
     let mut cols = Vec::new();
     for (i, &tau) in eval::TAUS.iter().enumerate() {
         for (j, &g) in eval::GS.iter().enumerate() {
-            let seed = a.seed.wrapping_add((i * eval::GS.len() + j) as u64);
+            let seed = seed.wrapping_add((i * eval::GS.len() + j) as u64);
             cols.push((
                 tau,
                 g,
-                eval::model_columns(&m, tau, g, 1.0, a.samples, seed),
-                eval::simulator_columns(tau, g, 1.0, a.samples, seed),
+                eval::model_columns(&m, tau, g, 1.0, samples, seed),
+                eval::simulator_columns(tau, g, 1.0, samples, seed),
             ));
         }
     }
     let panels: Vec<crate::plots::Panel> = cols.iter().map(|(t, g, m, s)| (*t, *g, m, s)).collect();
-    let figs = crate::plots::write_all(&a.out, &panels)?;
+    let figs = crate::plots::write_all(out, &panels)?;
     writeln!(
         md,
         "\nPlots: {}",
@@ -336,6 +322,6 @@ pub fn evaluate_into(
             .collect::<Vec<_>>()
             .join(", ")
     )?;
-    write_atomic(&a.out.join("metrics.md"), &md)?;
+    write_atomic(&out.join("metrics.md"), &md)?;
     Ok(max_ks)
 }

@@ -200,6 +200,16 @@ fn check_out_stem(out: &Path) -> Result<()> {
     Ok(())
 }
 
+/// Says once when the scene's lights cannot contribute: delta lights without NEE.
+pub fn note_unreachable_lights(p: &Prepared) {
+    if p.data.lights.iter().all(|l| l.is_delta()) && !p.file.render.nee && !p.data.lights.is_empty()
+    {
+        eprintln!(
+            "note: delta lights can only be reached by NEE; with --nee false they add nothing"
+        );
+    }
+}
+
 pub fn run(a: Args) -> Result<()> {
     if !(a.exposure > 0.0 && a.exposure.is_finite()) {
         bail!("--exposure must be a positive number");
@@ -219,11 +229,7 @@ pub fn run(a: Args) -> Result<()> {
         }
     })?;
     let r = &p.file.render;
-    if p.data.lights.iter().all(|l| l.is_delta()) && !r.nee && !p.data.lights.is_empty() {
-        eprintln!(
-            "note: delta lights can only be reached by NEE; with --nee false they add nothing"
-        );
-    }
+    note_unreachable_lights(&p);
     let engine = Engine::open(a.device)?;
     let set = p.settings(&engine);
     eprintln!(
