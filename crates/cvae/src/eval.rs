@@ -604,9 +604,10 @@ mod tests {
     /// means, so over 8 independent pairs of runs Σ z² follows χ²₈ if the standard errors
     /// are right. Both tails are tested, at probability 5e-4 each (a 0.7 % chance for
     /// the seven quantities to fail by noise): a standard error too small and one too
-    /// large fail (grossly wrong ones: ~2× too small or ~3× too large). The quantities: E[Λ(N)], the sphere NEE, the half-space NEE's three sides and the two shells'
-    /// shares (at τ = 5 several per cent and ~0.4 % of 20,000 events, ~80 in the thinner:
-    /// enough for the normal approximation behind the z-scores).
+    /// large fail (grossly wrong ones: ~2× too small or ~3× too large). The quantities:
+    /// E[Λ(N)], the sphere NEE, the half-space NEE's three sides and the two shells'
+    /// shares (at τ = 5 several per cent and ~0.4 % of 20,000 events, ~80 in the
+    /// thinner: enough for the normal approximation behind the z-scores).
     #[test]
     fn simulator_against_itself_gives_ratios_within_noise() {
         use scatter_sim::stats::chi_square_p_value;

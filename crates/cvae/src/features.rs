@@ -152,7 +152,8 @@ impl WalkFeatures {
     }
 }
 
-/// Keeps logit/atanh/ln(1 − ρ²) arguments away from ±1 (f32 data holds values within 6e-8 of 1).
+/// Keeps logit/atanh/ln(1 − ρ²) arguments away from ±1 (f32 data holds values within
+/// 6e-8 of 1).
 const EDGE: f64 = 1e-7;
 
 /// PathGen's target from (cos θ, β, α), the dataset's column order.
@@ -195,8 +196,8 @@ pub fn path_from_target(v: [f64; 3]) -> (f64, f64, f64) {
 /// 1 − ρ ≈ 2e^(−2u), which a Gaussian decoder cannot follow: the shipped version-2
 /// EventGen puts 1.3–1.9× too many events 0.5–10 % of the radius from the surface and up
 /// to 2.5× too few in the last 0.1 % (docs/BENCHMARKS.md, thirteenth session), where
-/// the NEE of a step that touches the object's surface is collected. With u = √(−2 ln(1 − ρ²)) the
-/// edge becomes 1 − ρ² = e^(−u²/2), a Gaussian tail (a flat density near ρ = 1 gives a
+/// the NEE of a step that touches the object's surface is collected. With
+/// u = √(−2 ln(1 − ρ²)) the edge becomes 1 − ρ² = e^(−u²/2), a Gaussian tail (a flat density near ρ = 1 gives a
 /// Rayleigh-like u·e^(−u²/2)); on the simulator's walks at g = 0.875 the radial feature's
 /// kurtosis drops from ~7 to ~3.7 (3 for a Gaussian). Near the centre u ≈ √2·ρ, smooth.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
