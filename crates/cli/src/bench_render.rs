@@ -44,6 +44,10 @@ pub struct Args {
     /// Representative events per sphere step for NEE (overrides the scene's).
     #[arg(long)]
     nee_samples: Option<u32>,
+    /// Below this optical radius ST-CVAE simulates a sphere step's walk exactly instead of
+    /// drawing it from the models (overrides the scene's; 0: always the models).
+    #[arg(long)]
+    exact_tau: Option<f64>,
     /// Next-event estimation in both integrators. `false` counts only paths that escape
     /// into a light's disk or the environment, which takes EventGen out of ST-CVAE and
     /// so tells its error from LengthGen's and PathGen's (give a scene whose light has an
@@ -161,6 +165,9 @@ fn prepare_k(a: &Args, kind: IntegratorKind, k: f64) -> Result<crate::render::Pr
             }
             if let Some(m) = a.nee_samples {
                 f.render.nee_samples = m;
+            }
+            if a.exact_tau.is_some() {
+                f.render.exact_tau = a.exact_tau;
             }
         }
     })

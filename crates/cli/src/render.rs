@@ -83,6 +83,8 @@ struct Report<'a> {
     mean_sphere_steps_per_path: f64,
     min_tau: f64,
     max_tau: Option<f64>,
+    /// Sphere steps below this optical radius simulate their walk exactly.
+    exact_tau: f64,
     grid_resolution: u32,
     scene_hash: String,
     /// Where it ran: "cpu (N threads)" or "gpu: adapter (backend, type)".
@@ -112,6 +114,7 @@ impl Prepared {
             model: self.model.as_ref(),
             min_tau: r.min_tau_on(engine.is_gpu()) as f32,
             max_tau: self.max_tau,
+            exact_tau: r.exact_tau_on(engine.is_gpu()) as f32,
             nee_samples: r.nee_samples,
         }
     }
@@ -298,6 +301,7 @@ pub fn run(a: Args) -> Result<()> {
         mean_sphere_steps_per_path: out.stats.steps as f64 / paths,
         min_tau: set.min_tau as f64,
         max_tau: p.model.as_ref().map(|_| p.max_tau as f64),
+        exact_tau: set.exact_tau as f64,
         grid_resolution: r.grid_resolution,
         scene_hash: format!("{:016x}", p.data.hash),
         device: engine.describe(),

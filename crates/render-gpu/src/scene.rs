@@ -164,6 +164,11 @@ pub struct RenderDesc {
     pub min_tau: Option<f64>,
     /// Largest optical radius of a sphere step; default: the model's training maximum.
     pub max_tau: Option<f64>,
+    /// Below this optical radius a sphere step simulates its walk event by event instead
+    /// of drawing it from the models: exact, and cheaper than the decoders for small
+    /// balls (ST-CVAE). Unset: the device's default ([`RenderDesc::exact_tau_on`]).
+    #[serde(default)]
+    pub exact_tau: Option<f64>,
     /// Representative events per sphere step for NEE (ST-CVAE). 2 by measurement
     /// (docs/BENCHMARKS.md): with one, rare paths near the lit surface dominate the
     /// variance; a second EventGen draw removed them at ~10–25 % more time.
@@ -181,6 +186,7 @@ impl Default for RenderDesc {
             grid_resolution: default_grid(),
             min_tau: None,
             max_tau: None,
+            exact_tau: None,
             nee_samples: default_nee_samples(),
         }
     }
@@ -211,7 +217,24 @@ pub const DEFAULT_MIN_TAU_CPU: f64 = 2.0;
 /// the sphere steps of neighbouring lanes (lavapipe: 2 is ~10 % slower than 1).
 pub const DEFAULT_MIN_TAU_GPU: f64 = 1.0;
 
+/// The default exact-walk threshold on the CPU, chosen by measurement
+/// (docs/BENCHMARKS.md, fourteenth session).
+pub const DEFAULT_EXACT_TAU_CPU: f64 = 4.0;
+/// Largest exact-walk threshold accepted: a walk in a ball of optical radius τ has
+/// ~(1 − g)τ²/2 events, and beyond this the models are far cheaper.
+pub const MAX_EXACT_TAU: f64 = 50.0;
+
 impl RenderDesc {
+    /// The exact-walk threshold: the scene's, else the device's default (0 on a GPU: the
+    /// kernels draw every sphere step from the models).
+    pub fn exact_tau_on(&self, gpu: bool) -> f64 {
+        if gpu {
+            0.0
+        } else {
+            self.exact_tau.unwrap_or(DEFAULT_EXACT_TAU_CPU)
+        }
+    }
+
     /// The thin-region threshold: the scene's, else the default of the device it runs on.
     pub fn min_tau_on(&self, gpu: bool) -> f64 {
         self.min_tau.unwrap_or(if gpu {
@@ -410,6 +433,13 @@ impl SceneFile {
         {
             return Err(format!(
                 "render.min_tau = {t} is out of range: allowed [0, {MAX_SCENE_VALUE:e}]"
+            ));
+        }
+        if let Some(t) = r.exact_tau
+            && !(0.0..=MAX_EXACT_TAU).contains(&t)
+        {
+            return Err(format!(
+                "render.exact_tau = {t} is out of range: allowed [0, {MAX_EXACT_TAU}]"
             ));
         }
         if !(1..=64).contains(&r.nee_samples) {

@@ -267,6 +267,7 @@ fn settings(kind: IntegratorKind, nee: bool) -> IntegratorSettings<'static> {
         model: m,
         min_tau: 1.0,
         max_tau: m.map_or(300.0, |m| m.training.tau_range[1] as f32),
+        exact_tau: 0.0,
         nee_samples: 2,
     }
 }

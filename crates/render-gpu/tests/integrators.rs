@@ -50,6 +50,7 @@ fn settings<'a>(
         model: m,
         min_tau: 1.0,
         max_tau: m.map_or(300.0, |m| m.training.tau_range[1] as f32),
+        exact_tau: 0.0,
         nee_samples: 2,
     }
 }
@@ -64,9 +65,12 @@ fn assert_furnace(kind: IntegratorKind, boundary: &str, m: Option<&cvae::ModelSe
 }
 
 fn assert_furnace_in(kind: IntegratorKind, text: &str, m: Option<&cvae::ModelSet>) {
+    assert_furnace_with(kind, text, &settings(kind, true, m));
+}
+
+fn assert_furnace_with(kind: IntegratorKind, text: &str, set: &IntegratorSettings) {
     let (_, s) = scene(text, kind == IntegratorKind::Stcvae);
-    let set = settings(kind, true, m);
-    let out = render_quiet(&s, &set, 12, 3);
+    let out = render_quiet(&s, set, 12, 3);
     assert_eq!(
         out.stats.capped + out.stats.non_finite + out.stats.leaks,
         0,
@@ -114,6 +118,15 @@ fn white_furnace_stcvae() {
         "sigma_t = [300.0, 600.0, 1000.0]",
     );
     assert_furnace_in(IntegratorKind::Stcvae, &dense, Some(&m));
+    // Sphere steps whose walks are simulated (every step below τ = 50): the same
+    // furnace, through the exact-walk branch instead of the models.
+    let exact = IntegratorSettings {
+        exact_tau: 50.0,
+        ..settings(IntegratorKind::Stcvae, true, Some(&m))
+    };
+    for text in [furnace_scene("kind = \"index-matched\""), dense] {
+        assert_furnace_with(IntegratorKind::Stcvae, &text, &exact);
+    }
 }
 
 /// Mean and standard error, per channel, of the hero-channel estimates of `n` camera
@@ -279,6 +292,69 @@ fn stcvae_matches_pt_on_a_sphere_and_the_bunny() {
             assert!(
                 (pt[c] - st[c]).abs() < tol,
                 "{label} channel {c}: PT {} ± {}, ST-CVAE {} ± {}",
+                pt[c],
+                spt[c],
+                st[c],
+                sst[c]
+            );
+        }
+    }
+}
+
+/// Sphere steps whose walks are simulated event by event (`exact_tau`) make ST-CVAE an
+/// unbiased estimator of the same image as PT: the ball is surface-free, the walk in it
+/// is the walk PT would make there, and its representative events (each event k with
+/// probability φ^k/Λ(N)) weighted Λ(N) give the NEE of all its events in expectation.
+/// So unlike the models' steps (`stcvae_matches_pt_on_a_sphere_and_the_bunny`, with a
+/// 3 % allowance for the models' error) there is no allowance: the image means must
+/// agree within noise alone. With max_tau = exact_tau every step is exact, and with
+/// min_tau = 0 every collision off the surface is one, so the steps carry all of the
+/// image. 2·10⁶ paths each (standard errors ~0.3 %); |z| < 4.5 per channel (9
+/// comparisons: a false alarm has probability ~6·10⁻⁵). Λ(N) made 5 % too large moved the
+/// means by 4.4 % (z = 9.9), so an error of ~1.5 % in the steps fails. Also with NEE off,
+/// where only the walks' exits matter.
+#[test]
+fn exact_sphere_steps_match_pt() {
+    let m = model();
+    for (label, obj, nee) in [
+        ("sphere", "shape = \"sphere\"\nradius = 0.5", true),
+        (
+            "bunny",
+            "mesh = \"../../assets/bunny.glb\"\nheight = 1.0",
+            true,
+        ),
+        ("sphere, NEE off", "shape = \"sphere\"\nradius = 0.5", false),
+    ] {
+        let text = SUN_SCENE
+            .replace("shape = \"sphere\"\nradius = 0.5", obj)
+            .replace(
+                "sigma_t = [4.0, 12.0, 40.0]",
+                "sigma_t = [20.0, 40.0, 80.0]",
+            )
+            .replace("fov_deg = 13.0", "fov_deg = 18.0");
+        let (_, s) = scene(&text, true);
+        let (pt, spt, _) = estimate(&s, &settings(IntegratorKind::Pt, nee, None), 2_000_000, 5);
+        let exact = IntegratorSettings {
+            exact_tau: 50.0,
+            max_tau: 50.0,
+            min_tau: 0.0,
+            ..settings(IntegratorKind::Stcvae, nee, Some(&m))
+        };
+        let (st, sst, stats) = estimate(&s, &exact, 2_000_000, 6);
+        assert!(
+            stats.steps > stats.paths / 2 && stats.exact_steps == stats.steps,
+            "{label}: every sphere step must be exact: {stats:?}"
+        );
+        assert_eq!(
+            stats.leaks + stats.capped + stats.non_finite,
+            0,
+            "{label}: {stats:?}"
+        );
+        for c in 0..3 {
+            let zc = z(st[c], sst[c], pt[c], spt[c]);
+            assert!(
+                zc.abs() < 4.5,
+                "{label} channel {c}: PT {} ± {}, exact steps {} ± {} (z = {zc:.2})",
                 pt[c],
                 spt[c],
                 st[c],

@@ -62,11 +62,42 @@ impl Walk {
 /// `albedo` only steers the choice of the representative event; the path itself is
 /// independent of it. Callers validate the parameters (see [`crate::ranges`]).
 pub fn simulate_walk(tau: f64, g: f64, albedo: f64, rng: &mut WalkRng) -> Walk {
-    let mut reservoir = Reservoir::new(albedo, rng);
+    let (end, [(k, event_pos, event_dir)]) = walk_events::<1>(tau, g, albedo, rng);
+    Walk {
+        n: end.n,
+        exit_pos: end.exit_pos,
+        exit_dir: end.exit_dir,
+        event_index: k,
+        event_pos,
+        event_dir,
+    }
+}
+
+/// How a walk ended: its event count and where and how it crossed the unit sphere.
+#[derive(Clone, Copy, Debug)]
+pub struct WalkEnd {
+    /// Number of scattering events, the centre included (N ≥ 1).
+    pub n: u64,
+    /// Exit point, |x| = 1.
+    pub exit_pos: DVec3,
+    /// Exit direction (unit, pointing outward).
+    pub exit_dir: DVec3,
+}
+
+/// Simulates one walk with `M` representative events chosen independently (each event
+/// k with probability φ^k/Λ(N), one reservoir each): (index k, X, W) per event. The
+/// renderer's exact sphere steps use several for next-event estimation; `M = 0` makes
+/// just the walk.
+pub fn walk_events<const M: usize>(
+    tau: f64,
+    g: f64,
+    albedo: f64,
+    rng: &mut WalkRng,
+) -> (WalkEnd, [(u64, DVec3, DVec3); M]) {
+    let mut reservoirs: [Reservoir; M] = std::array::from_fn(|_| Reservoir::new(albedo, rng));
     let mut pos = DVec3::ZERO;
     let mut arriving = DVec3::Z;
-    let mut event_pos = pos;
-    let mut event_dir = arriving;
+    let mut events = [(1u64, pos, arriving); M];
     let inv_tau = 1.0 / tau;
     let mut n = 1u64;
     loop {
@@ -81,21 +112,20 @@ pub fn simulate_walk(tau: f64, g: f64, albedo: f64, rng: &mut WalkRng) -> Walk {
             let c = pos.length_squared() - 1.0;
             let t = -b + (b * b - c).max(0.0).sqrt();
             let exit_pos = (pos + dir * t).normalize();
-            return Walk {
+            let end = WalkEnd {
                 n,
                 exit_pos,
                 exit_dir: dir,
-                event_index: reservoir.chosen(),
-                event_pos,
-                event_dir,
             };
+            return (end, events);
         }
         pos = next;
         arriving = dir;
         n += 1;
-        if reservoir.offer(n, rng) {
-            event_pos = pos;
-            event_dir = dir;
+        for (r, e) in reservoirs.iter_mut().zip(events.iter_mut()) {
+            if r.offer(n, rng) {
+                *e = (n, pos, dir);
+            }
         }
     }
 }

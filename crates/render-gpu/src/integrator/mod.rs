@@ -26,6 +26,9 @@ pub struct PathStats {
     pub events: u64,
     /// ST-CVAE sphere steps.
     pub steps: u64,
+    /// Of those, the steps whose walk was simulated exactly (below `exact_tau`).
+    #[serde(default)]
+    pub exact_steps: u64,
     /// Paths found outside the medium while believed inside: a flight from a sphere-step
     /// exit that met the surface from outside (the exit was not inside after all), or a
     /// collision outside the mesh's bounds. Should stay 0.
@@ -41,6 +44,7 @@ impl PathStats {
         self.paths += o.paths;
         self.events += o.events;
         self.steps += o.steps;
+        self.exact_steps += o.exact_steps;
         self.leaks += o.leaks;
         self.capped += o.capped;
         self.non_finite += o.non_finite;
@@ -56,6 +60,9 @@ pub struct IntegratorSettings<'a> {
     pub min_tau: f32,
     /// Largest σ_t·r of a sphere step.
     pub max_tau: f32,
+    /// Below this σ_t·r a sphere step simulates its walk instead of drawing it from the
+    /// models (0: always the models).
+    pub exact_tau: f32,
     /// Representative events (EventGen draws) per sphere step for NEE.
     pub nee_samples: u32,
 }

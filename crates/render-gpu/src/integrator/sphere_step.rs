@@ -101,6 +101,11 @@ pub(crate) fn begin(
     }
     stats.steps += 1;
     let albedo = scene.albedo[channel] as f64;
+    if tau < set.exact_tau {
+        stats.exact_steps += 1;
+        exact_step(scene, set, channel, s, rng, (r, free), tau as f64, albedo);
+        return Begun::Done;
+    }
     let frame = WalkFrame::new(s.dir.as_dvec3(), rng.unit_circle());
     let features = WalkFeatures::new(tau as f64, scene.g as f64, albedo);
     let single = model.single_walk(features, tau as f64, scene.g as f64, albedo, rng);
@@ -162,55 +167,172 @@ impl Pending {
         rng: &mut WalkRng,
     ) {
         let walk = self.walk.as_ref().expect("finish after the walk is drawn");
-        let grid = scene.grid.as_ref().expect("a sphere step has a grid");
-        let r = self.r;
-        let centre = self.centre;
-        if set.nee && !events.is_empty() {
-            let mut sum = 0.0f32;
-            for &(ep, ed) in events {
-                let x = centre + self.frame.to_world(ep) * r as f64;
-                let w = self.frame.to_world(ed).normalize();
-                // Two bounds on the medium a shadow ray from X crosses before any surface,
-                // for the shadow-ray roulette: along ω_l it first crosses the free ball
-                // around the centre (radius `free`; X is inside it, as |ep| ≤ 1 for a
-                // repaired event and r < free), its chord from X being between
-                // free − |X − c| and free + |X − c|; and the grid's ball around X (one
-                // lookup, against a shadow ray's two traversals), often the larger for
-                // events near the sphere's edge.
-                let d = (x - centre).as_vec3();
-                let x = x.as_vec3();
-                let x_grid = grid.radius(x);
-                let dd = d.length_squared();
-                let (f2, free_ball) = (self.free * self.free, self.free);
-                let x_free = |wl: Vec3| {
-                    let b = d.dot(wl);
-                    let chord = -b + (b * b + (f2 - dd).max(0.0)).sqrt();
-                    (chord * (1.0 - 1e-4)).min(2.0 * free_ball).max(x_grid)
-                };
-                sum += nee::direct(scene, x, w.as_vec3(), x_free, channel, rng);
-            }
-            s.radiance += s.beta * walk.lambda as f32 * sum / events.len() as f32;
+        let ball = Ball {
+            centre: self.centre,
+            frame: &self.frame,
+            r: self.r,
+            free: self.free,
+        };
+        let weights = (walk.lambda as f32, walk.survival as f32);
+        complete(
+            scene,
+            set,
+            channel,
+            s,
+            &ball,
+            weights,
+            from_canonical(walk.exit),
+            events,
+            rng,
+        );
+    }
+}
+
+/// Where a sphere step happens: the ball of radius `r` around `centre` that the walk
+/// fills (its frame turns the walk's +z arrival into the path's direction), inside the
+/// surface-free ball of radius `free`.
+struct Ball<'a> {
+    centre: DVec3,
+    frame: &'a WalkFrame,
+    r: f32,
+    free: f32,
+}
+
+/// A sphere step whose walk is simulated event by event instead of drawn from the models
+/// (below `exact_tau`, where a walk has a few events): inside the surface-free ball a
+/// free flight needs no ray cast, so the walk costs ~30 ns an event, less than the
+/// decoders' draws for a small ball, and its exit and representative events are exact —
+/// the models' error is largest relative to the NEE where small balls touch a lit surface.
+#[allow(clippy::too_many_arguments)]
+fn exact_step(
+    scene: &SceneData,
+    set: &IntegratorSettings,
+    channel: usize,
+    s: &mut PathState,
+    rng: &mut WalkRng,
+    (r, free): (f32, f32),
+    tau: f64,
+    albedo: f64,
+) {
+    let g = scene.g as f64;
+    // The simulated walk is already uniform in its azimuth about +z, so any frame about
+    // the arriving direction will do.
+    let frame = WalkFrame::new(s.dir.as_dvec3(), (1.0, 0.0));
+    let ball = Ball {
+        centre: s.pos.as_dvec3(),
+        frame: &frame,
+        r,
+        free,
+    };
+    let mut events = [CENTRE_EVENT; MAX_EXACT_EVENTS];
+    let m = if set.nee {
+        (set.nee_samples as usize).clamp(1, MAX_EXACT_EVENTS)
+    } else {
+        0
+    };
+    let end = match m {
+        0 => scatter_sim::walk_events::<0>(tau, g, albedo, rng).0,
+        1 => exact_events::<1>(tau, g, albedo, rng, &mut events),
+        2 => exact_events::<2>(tau, g, albedo, rng, &mut events),
+        3 => exact_events::<3>(tau, g, albedo, rng, &mut events),
+        _ => exact_events::<4>(tau, g, albedo, rng, &mut events),
+    };
+    let (lambda, survival) = cvae::sampler::walk_weights(albedo, end.n);
+    let weights = (lambda as f32, survival as f32);
+    let exit = (end.exit_pos, end.exit_dir);
+    complete(
+        scene,
+        set,
+        channel,
+        s,
+        &ball,
+        weights,
+        exit,
+        &events[..m],
+        rng,
+    );
+}
+
+/// Most representative events of an exact step (the reservoirs are fixed-size arrays).
+const MAX_EXACT_EVENTS: usize = 4;
+
+fn exact_events<const M: usize>(
+    tau: f64,
+    g: f64,
+    albedo: f64,
+    rng: &mut WalkRng,
+    out: &mut [(DVec3, DVec3); MAX_EXACT_EVENTS],
+) -> scatter_sim::WalkEnd {
+    let (end, events) = scatter_sim::walk_events::<M>(tau, g, albedo, rng);
+    for (o, (_, x, w)) in out.iter_mut().zip(events) {
+        *o = (x, w);
+    }
+    end
+}
+
+/// Completes a sphere step given its walk's weights (Λ(N), φ^N), its exit (x, ω) and its
+/// representative events (both in the walk's frame, arrival along +z, unit sphere; no
+/// events with NEE off): NEE through the events, the survival weight, roulette, and the
+/// jump to the exit.
+#[allow(clippy::too_many_arguments)]
+fn complete(
+    scene: &SceneData,
+    set: &IntegratorSettings,
+    channel: usize,
+    s: &mut PathState,
+    ball: &Ball,
+    (lambda, survival): (f32, f32),
+    (x, omega): (DVec3, DVec3),
+    events: &[(DVec3, DVec3)],
+    rng: &mut WalkRng,
+) {
+    let grid = scene.grid.as_ref().expect("a sphere step has a grid");
+    let r = ball.r;
+    let centre = ball.centre;
+    if set.nee && !events.is_empty() {
+        let mut sum = 0.0f32;
+        for &(ep, ed) in events {
+            let x = centre + ball.frame.to_world(ep) * r as f64;
+            let w = ball.frame.to_world(ed).normalize();
+            // Two bounds on the medium a shadow ray from X crosses before any surface,
+            // for the shadow-ray roulette: along ω_l it first crosses the free ball
+            // around the centre (radius `free`; X is inside it, as |ep| ≤ 1 for a
+            // repaired event and r < free), its chord from X being between
+            // free − |X − c| and free + |X − c|; and the grid's ball around X (one
+            // lookup, against a shadow ray's two traversals), often the larger for
+            // events near the sphere's edge.
+            let d = (x - centre).as_vec3();
+            let x = x.as_vec3();
+            let x_grid = grid.radius(x);
+            let dd = d.length_squared();
+            let (f2, free_ball) = (ball.free * ball.free, ball.free);
+            let x_free = |wl: Vec3| {
+                let b = d.dot(wl);
+                let chord = -b + (b * b + (f2 - dd).max(0.0)).sqrt();
+                (chord * (1.0 - 1e-4)).min(2.0 * free_ball).max(x_grid)
+            };
+            sum += nee::direct(scene, x, w.as_vec3(), x_free, channel, rng);
         }
-        s.beta *= walk.survival as f32;
-        if !roulette(&mut s.beta, rng) {
-            s.alive = false;
-            return;
-        }
-        let (x, omega) = from_canonical(walk.exit);
-        let exit: DVec3 = self.centre + self.frame.to_world(x) * r as f64;
-        s.pos = exit.as_vec3();
-        s.dir = self.frame.to_world(omega).as_vec3().normalize();
-        s.scattered = true;
-        // The exit lies on the sphere of radius r inside the free ball of radius `free`,
-        // which leaves it almost no known free distance; the grid at the exit often knows
-        // more, and a flight shorter than that needs no ray cast.
-        s.free = (self.free - r).max(grid.radius(s.pos));
-        let sigma = scene.sigma_t[channel];
-        if sigma * s.free < EXIT_REFINE_TAU
-            && sigma * grid.near_surface > 4.0 * EXIT_REFINE_TAU
-            && let Some(d) = grid.exact_distance(&scene.geo, s.pos)
-        {
-            s.free = s.free.max(d * (1.0 - 1e-5) - scene.geo.eps);
-        }
+        s.radiance += s.beta * lambda * sum / events.len() as f32;
+    }
+    s.beta *= survival;
+    if !roulette(&mut s.beta, rng) {
+        s.alive = false;
+        return;
+    }
+    let exit: DVec3 = centre + ball.frame.to_world(x) * r as f64;
+    s.pos = exit.as_vec3();
+    s.dir = ball.frame.to_world(omega).as_vec3().normalize();
+    s.scattered = true;
+    // The exit lies on the sphere of radius r inside the free ball of radius `free`,
+    // which leaves it almost no known free distance; the grid at the exit often knows
+    // more, and a flight shorter than that needs no ray cast.
+    s.free = (ball.free - r).max(grid.radius(s.pos));
+    let sigma = scene.sigma_t[channel];
+    if sigma * s.free < EXIT_REFINE_TAU
+        && sigma * grid.near_surface > 4.0 * EXIT_REFINE_TAU
+        && let Some(d) = grid.exact_distance(&scene.geo, s.pos)
+    {
+        s.free = s.free.max(d * (1.0 - 1e-5) - scene.geo.eps);
     }
 }
