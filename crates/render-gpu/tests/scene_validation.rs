@@ -82,6 +82,13 @@ fn other_fields_are_checked() {
     assert!(e.contains("light[0].direction"), "{e}");
     let e = err(&format!("{BASE}\n[render]\nspp = 0\n"));
     assert!(e.contains("render.spp"), "{e}");
+    for bad in ["-1.0", "51.0", "nan"] {
+        let e = err(&format!("{BASE}\n[render]\nexact_tau = {bad}\n"));
+        assert!(
+            e.contains("render.exact_tau") && e.contains("[0, 50]"),
+            "{e}"
+        );
+    }
     let e = err("[camera\n");
     assert!(e.starts_with("s.toml:1"), "{e}");
 }

@@ -21,4 +21,4 @@ pub mod walk;
 pub use conditions::{ConditionSampler, Conditions};
 pub use frame::{CanonicalExit, WalkFrame};
 pub use rng::WalkRng;
-pub use walk::{CanonicalWalk, Walk, WalkEnd, simulate_walk, walk_events};
+pub use walk::{CanonicalWalk, Walk, WalkEnd, simulate_walk, walk_with};

@@ -62,12 +62,19 @@ impl Walk {
 /// `albedo` only steers the choice of the representative event; the path itself is
 /// independent of it. Callers validate the parameters (see [`crate::ranges`]).
 pub fn simulate_walk(tau: f64, g: f64, albedo: f64, rng: &mut WalkRng) -> Walk {
-    let (end, [(k, event_pos, event_dir)]) = walk_events::<1>(tau, g, albedo, rng);
+    let mut reservoir = Reservoir::new(albedo, rng);
+    let (mut event_pos, mut event_dir) = (DVec3::ZERO, DVec3::Z);
+    let end = walk_with(tau, g, rng, |k, pos, dir, rng| {
+        if reservoir.offer(k, rng) {
+            event_pos = pos;
+            event_dir = dir;
+        }
+    });
     Walk {
         n: end.n,
         exit_pos: end.exit_pos,
         exit_dir: end.exit_dir,
-        event_index: k,
+        event_index: reservoir.chosen(),
         event_pos,
         event_dir,
     }
@@ -84,20 +91,19 @@ pub struct WalkEnd {
     pub exit_dir: DVec3,
 }
 
-/// Simulates one walk with `M` representative events chosen independently (each event
-/// k with probability φ^k/Λ(N), one reservoir each): (index k, X, W) per event. The
-/// renderer's exact sphere steps use several for next-event estimation; `M = 0` makes
-/// just the walk.
-pub fn walk_events<const M: usize>(
+/// Simulates one walk, calling `event(k, X_k, W_k, rng)` at each event after the first
+/// (k = 2, 3, …; event 1 is the centre, X = 0, W = +z). The simulator picks its
+/// representative event there; the renderer's exact sphere steps weigh every event for
+/// next-event estimation.
+#[inline]
+pub fn walk_with(
     tau: f64,
     g: f64,
-    albedo: f64,
     rng: &mut WalkRng,
-) -> (WalkEnd, [(u64, DVec3, DVec3); M]) {
-    let mut reservoirs: [Reservoir; M] = std::array::from_fn(|_| Reservoir::new(albedo, rng));
+    mut event: impl FnMut(u64, DVec3, DVec3, &mut WalkRng),
+) -> WalkEnd {
     let mut pos = DVec3::ZERO;
     let mut arriving = DVec3::Z;
-    let mut events = [(1u64, pos, arriving); M];
     let inv_tau = 1.0 / tau;
     let mut n = 1u64;
     loop {
@@ -112,20 +118,15 @@ pub fn walk_events<const M: usize>(
             let c = pos.length_squared() - 1.0;
             let t = -b + (b * b - c).max(0.0).sqrt();
             let exit_pos = (pos + dir * t).normalize();
-            let end = WalkEnd {
+            return WalkEnd {
                 n,
                 exit_pos,
                 exit_dir: dir,
             };
-            return (end, events);
         }
         pos = next;
         arriving = dir;
         n += 1;
-        for (r, e) in reservoirs.iter_mut().zip(events.iter_mut()) {
-            if r.offer(n, rng) {
-                *e = (n, pos, dir);
-            }
-        }
+        event(n, pos, dir, rng);
     }
 }

@@ -173,16 +173,22 @@ impl Pending {
             r: self.r,
             free: self.free,
         };
-        let weights = (walk.lambda as f32, walk.survival as f32);
+        // Each representative event stands for all N events with weight Λ(N).
+        let nee = Nee {
+            scale: walk.lambda as f32 / events.len().max(1) as f32,
+            events,
+            weights: None,
+        };
+        let exit = from_canonical(walk.exit);
         complete(
             scene,
             set,
             channel,
             s,
             &ball,
-            weights,
-            from_canonical(walk.exit),
-            events,
+            nee,
+            walk.survival as f32,
+            exit,
             rng,
         );
     }
@@ -201,8 +207,17 @@ struct Ball<'a> {
 /// A sphere step whose walk is simulated event by event instead of drawn from the models
 /// (below `exact_tau`, where a walk has a few events): inside the surface-free ball a
 /// free flight needs no ray cast, so the walk costs ~30 ns an event, less than the
-/// decoders' draws for a small ball, and its exit and representative events are exact —
-/// the models' error is largest relative to the NEE where small balls touch a lit surface.
+/// decoders' draws for a small ball, and its exit is exact — the models' error is
+/// largest relative to the NEE where small balls touch a lit surface.
+///
+/// NEE: the step's term Σ_k φ^k f(X_k, W_k) over all N events is estimated from M events
+/// each chosen with probability p_k = φ^k q_k / Q (Q = Σ_j φ^j q_j, one weighted reservoir
+/// per event slot), as f(X_K) · Q / q_K. The proxy q_k bounds f apart from the shadow
+/// ray's surfaces: the phase value toward each light times the transmittance across the
+/// free ball's chord from X_k toward it, times the light's irradiance. Any positive q
+/// keeps the estimate unbiased; this one picks the events near the ball's lit side, where
+/// almost all of the NEE is, instead of events uniformly along the walk (the models'
+/// Λ(N)-weighted representative event), and leaves f/q ≤ 1 for a delta light.
 #[allow(clippy::too_many_arguments)]
 fn exact_step(
     scene: &SceneData,
@@ -224,56 +239,122 @@ fn exact_step(
         r,
         free,
     };
-    let mut events = [CENTRE_EVENT; MAX_EXACT_EVENTS];
-    let m = if set.nee {
+    let m = if set.nee && !scene.lights.is_empty() {
         (set.nee_samples as usize).clamp(1, MAX_EXACT_EVENTS)
     } else {
         0
     };
-    let end = match m {
-        0 => scatter_sim::walk_events::<0>(tau, g, albedo, rng).0,
-        1 => exact_events::<1>(tau, g, albedo, rng, &mut events),
-        2 => exact_events::<2>(tau, g, albedo, rng, &mut events),
-        3 => exact_events::<3>(tau, g, albedo, rng, &mut events),
-        _ => exact_events::<4>(tau, g, albedo, rng, &mut events),
+    // The lights in the walk's frame, with their irradiance in this channel. The proxy
+    // must be positive wherever f can be: with a light dark in this channel, or more lights
+    // than it weighs, it falls back to q = 1 (events chosen by φ^k alone, as the models').
+    let mut lights = [(Vec3::Z, 0.0f32); MAX_PROXY_LIGHTS];
+    let n_lights = scene.lights.len().min(MAX_PROXY_LIGHTS);
+    for (l, light) in lights.iter_mut().zip(&scene.lights) {
+        let wl = frame.to_canonical(light.to_light.as_dvec3()).as_vec3();
+        *l = (wl, light.irradiance[channel]);
+    }
+    let lights = &lights[..n_lights];
+    let flat = scene.lights.len() > MAX_PROXY_LIGHTS || lights.iter().any(|l| !(l.1 > 0.0));
+    // The free ball's radius in units of the walk's sphere (≥ 1), and HG's constants.
+    let f2 = (free / r).max(1.0).powi(2);
+    let (tau32, g32) = (tau as f32, scene.g);
+    let (hg_num, hg_b) = (
+        (1.0 - g32 * g32) / (4.0 * std::f32::consts::PI),
+        1.0 + g32 * g32,
+    );
+    let proxy = |x: DVec3, w: DVec3| -> f64 {
+        if flat {
+            return 1.0;
+        }
+        let (x, w) = (x.as_vec3(), w.as_vec3());
+        let dd = x.length_squared();
+        let q: f32 = lights
+            .iter()
+            .map(|&(wl, e)| {
+                let b = x.dot(wl);
+                let chord = -b + (b * b + (f2 - dd).max(0.0)).sqrt();
+                let d = (hg_b - 2.0 * g32 * w.dot(wl)).max(1e-12);
+                e * hg_num / (d * d.sqrt()) * (-tau32 * chord).exp()
+            })
+            .sum();
+        q as f64
     };
-    let (lambda, survival) = cvae::sampler::walk_weights(albedo, end.n);
-    let weights = (lambda as f32, survival as f32);
+    // Event slots: (X, W, q) of the event each reservoir holds, and their total weight Q.
+    let mut slots = [(DVec3::ZERO, DVec3::Z, 0.0f64); MAX_EXACT_EVENTS];
+    let mut total = 0.0f64;
+    let mut offer = |x: DVec3, w: DVec3, phi_k: f64, rng: &mut WalkRng| {
+        let q = proxy(x, w);
+        let wk = phi_k * q;
+        total += wk;
+        for slot in &mut slots[..m] {
+            if rng.uniform() * total < wk {
+                *slot = (x, w, q);
+            }
+        }
+    };
+    let mut phi_k = albedo;
+    if m > 0 {
+        offer(CENTRE_EVENT.0, CENTRE_EVENT.1, phi_k, rng);
+    }
+    let end = scatter_sim::walk_with(tau, g, rng, |_, x, w, rng| {
+        if m > 0 {
+            phi_k *= albedo;
+            offer(x, w, phi_k, rng);
+        }
+    });
+    let survival = albedo.powf(end.n as f64);
+    // Events with their weights Q/q_K; two slots holding the same event share one shadow
+    // ray (the mean of equal estimates is the estimate itself).
+    let mut events = [CENTRE_EVENT; MAX_EXACT_EVENTS];
+    let mut weights = [0.0f32; MAX_EXACT_EVENTS];
+    let mut used = 0;
+    for &(x, w, q) in &slots[..m] {
+        if !(q > 0.0) {
+            continue;
+        }
+        let weight = (total / q) as f32;
+        match events[..used].iter().position(|e| *e == (x, w)) {
+            Some(i) => weights[i] += weight,
+            None => {
+                (events[used], weights[used]) = ((x, w), weight);
+                used += 1;
+            }
+        }
+    }
     let exit = (end.exit_pos, end.exit_dir);
+    let nee = Nee {
+        scale: 1.0 / m.max(1) as f32,
+        events: &events[..used],
+        weights: Some(&weights[..used]),
+    };
     complete(
         scene,
         set,
         channel,
         s,
         &ball,
-        weights,
+        nee,
+        survival as f32,
         exit,
-        &events[..m],
         rng,
     );
 }
 
-/// Most representative events of an exact step (the reservoirs are fixed-size arrays).
+/// Most representative events of an exact step, and most lights its proxy weighs.
 const MAX_EXACT_EVENTS: usize = 4;
+const MAX_PROXY_LIGHTS: usize = 8;
 
-fn exact_events<const M: usize>(
-    tau: f64,
-    g: f64,
-    albedo: f64,
-    rng: &mut WalkRng,
-    out: &mut [(DVec3, DVec3); MAX_EXACT_EVENTS],
-) -> scatter_sim::WalkEnd {
-    let (end, events) = scatter_sim::walk_events::<M>(tau, g, albedo, rng);
-    for (o, (_, x, w)) in out.iter_mut().zip(events) {
-        *o = (x, w);
-    }
-    end
+/// A step's NEE: events (X, W) in the walk's frame; `scale` · Σ weight·f(X, W) (weights 1
+/// when None) estimates the NEE of all the walk's events.
+struct Nee<'a> {
+    scale: f32,
+    events: &'a [(DVec3, DVec3)],
+    weights: Option<&'a [f32]>,
 }
 
-/// Completes a sphere step given its walk's weights (Λ(N), φ^N), its exit (x, ω) and its
-/// representative events (both in the walk's frame, arrival along +z, unit sphere; no
-/// events with NEE off): NEE through the events, the survival weight, roulette, and the
-/// jump to the exit.
+/// Completes a sphere step given its NEE events, its survival weight φ^N and its exit
+/// (x, ω) (in the walk's frame, arrival along +z, unit sphere; no events with NEE off):
+/// NEE through the events, the survival weight, roulette, and the jump to the exit.
 #[allow(clippy::too_many_arguments)]
 fn complete(
     scene: &SceneData,
@@ -281,17 +362,18 @@ fn complete(
     channel: usize,
     s: &mut PathState,
     ball: &Ball,
-    (lambda, survival): (f32, f32),
+    nee: Nee,
+    survival: f32,
     (x, omega): (DVec3, DVec3),
-    events: &[(DVec3, DVec3)],
     rng: &mut WalkRng,
 ) {
     let grid = scene.grid.as_ref().expect("a sphere step has a grid");
     let r = ball.r;
     let centre = ball.centre;
-    if set.nee && !events.is_empty() {
+    if set.nee && !nee.events.is_empty() {
         let mut sum = 0.0f32;
-        for &(ep, ed) in events {
+        for (i, &(ep, ed)) in nee.events.iter().enumerate() {
+            let weight = nee.weights.map_or(1.0, |w| w[i]);
             let x = centre + ball.frame.to_world(ep) * r as f64;
             let w = ball.frame.to_world(ed).normalize();
             // Two bounds on the medium a shadow ray from X crosses before any surface,
@@ -311,9 +393,9 @@ fn complete(
                 let chord = -b + (b * b + (f2 - dd).max(0.0)).sqrt();
                 (chord * (1.0 - 1e-4)).min(2.0 * free_ball).max(x_grid)
             };
-            sum += nee::direct(scene, x, w.as_vec3(), x_free, channel, rng);
+            sum += weight * nee::direct(scene, x, w.as_vec3(), x_free, channel, rng);
         }
-        s.radiance += s.beta * lambda * sum / events.len() as f32;
+        s.radiance += s.beta * nee.scale * sum;
     }
     s.beta *= survival;
     if !roulette(&mut s.beta, rng) {
