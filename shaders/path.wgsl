@@ -15,7 +15,7 @@ const C_LEAKS: u32 = 3u;
 const C_CAPPED: u32 = 4u;
 const C_NON_FINITE: u32 = 5u;
 
-var<private> stats: array<u32, 8>;
+var<private> stats: array<u32, 9>;
 
 struct PathState {
     pos: vec3<f32>,
@@ -210,6 +210,7 @@ fn add_counter(slot: u32, v: u32) {
 // invocations whose bounce loop ended early (a driver loop limit: see below).
 const C_PENDING: u32 = 6u;
 const C_TRUNCATED: u32 = 7u;
+const C_EXACT: u32 = 8u;
 
 /// A path between dispatches, one per (pixel, lane), in `accum` as 5 vec4s: position and
 /// β; direction and radiance; the RNG state; channel/flags, iterations, samples finished,
@@ -289,7 +290,7 @@ fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_inv
     if pixel >= width * params.image.y {
         return;
     }
-    for (var i = 0u; i < 8u; i++) {
+    for (var i = 0u; i < 9u; i++) {
         stats[i] = 0u;
     }
     let base = idx * SLOT;
@@ -364,7 +365,7 @@ fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_inv
         save_path(base, j, s, true);
     }
     accum[base + 4u] = acc;
-    for (var i = 0u; i < 8u; i++) {
+    for (var i = 0u; i < 9u; i++) {
         add_counter(i, stats[i]);
     }
 }

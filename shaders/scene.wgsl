@@ -32,6 +32,7 @@ struct Params {
                                 // (2: first of the render, 1: first of a chunk, 0: resume)
     consts: vec4<f32>,          // g, ior, eps, min_tau
     consts2: vec4<f32>,         // max_tau, near_surface, bounces per dispatch, tile stride
+    consts3: vec4<f32>,         // exact_tau, unused ×3
 }
 
 struct Node {
@@ -54,7 +55,7 @@ struct ModelParams {
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read_write> accum: array<vec4<f32>>;
-@group(0) @binding(2) var<storage, read_write> counters: array<atomic<u32>, 16>;
+@group(0) @binding(2) var<storage, read_write> counters: array<atomic<u32>, 18>;
 @group(0) @binding(3) var<storage, read> tris: array<Tri>;
 @group(0) @binding(4) var<storage, read> nodes: array<Node>;
 @group(0) @binding(5) var<storage, read> env_map: array<vec4<f32>>;

@@ -43,6 +43,9 @@ fn scatter_at(channel: u32) -> bool {
     var lam = 0.0; // Λ(N) of the sphere step's walk
     var nee_count = 0u;
     var nee_weight = 0.0;
+    var exact = false;
+    var ex_exit_x = vec3<f32>(0.0, 0.0, 1.0);
+    var ex_exit_w = vec3<f32>(0.0, 0.0, 1.0);
     if fallback {
         // A real collision handled as in PT (pt_event): NEE here, then albedo and HG.
         ps.free = max(free, 0.0);
@@ -51,6 +54,23 @@ fn scatter_at(channel: u32) -> bool {
             nee_count = 1u;
             nee_weight = ps.beta * params.albedo[channel];
         }
+    } else if tau < params.consts3.x {
+        // An exact step (sphere_step.rs, exact_step): the walk simulated in the ball, its
+        // NEE events chosen by importance with weights Q/q (ex_weight).
+        stats[C_STEPS] += 1u;
+        stats[C_EXACT] += 1u;
+        exact = true;
+        frame = walk_frame(ps.dir, vec2<f32>(1.0, 0.0));
+        var m = 0u;
+        if nee && params.flags.x > 0u {
+            m = clamp(params.misc.z, 1u, MAX_EXACT_EVENTS);
+        }
+        let walk = exact_walk(tau, g, channel, m, frame, max(free / r, 1.0));
+        n = walk.n;
+        ex_exit_x = walk.x;
+        ex_exit_w = walk.w;
+        nee_count = walk.used;
+        nee_weight = ps.beta / f32(max(m, 1u));
     } else {
         stats[C_STEPS] += 1u;
         frame = walk_frame(ps.dir, unit_circle());
@@ -88,9 +108,13 @@ fn scatter_at(channel: u32) -> bool {
         // the fallback, whose own ball around ps.pos is x_free already.
         var ball_c = ps.pos;
         var ball_f = 0.0;
+        var wk = 1.0;
         if !fallback {
             var ev = Event(vec3<f32>(0.0), vec3<f32>(0.0, 0.0, 1.0));
-            if !single {
+            if exact {
+                ev = Event(ex_x[k], ex_w[k]);
+                wk = ex_weight[k];
+            } else if !single {
                 let mirror = partner;
                 ev = sample_event(wf, channel, lam, e, mirror);
                 partner = !mirror && !event_was_centre;
@@ -102,7 +126,7 @@ fn scatter_at(channel: u32) -> bool {
             ball_c = centre;
             ball_f = free;
         }
-        sum += nee_direct(x, w, x_free, ball_c, ball_f, channel);
+        sum += wk * nee_direct(x, w, x_free, ball_c, ball_f, channel);
     }
     ps.radiance += nee_weight * sum;
     if fallback {
@@ -120,8 +144,12 @@ fn scatter_at(channel: u32) -> bool {
         ps.alive = false;
         return true;
     }
-    let xc = canonical_exit_point(e.cos_theta);
-    let wc = canonical_exit_dir(e.cos_theta, e.alpha, e.beta);
+    var xc = canonical_exit_point(e.cos_theta);
+    var wc = canonical_exit_dir(e.cos_theta, e.alpha, e.beta);
+    if exact {
+        xc = ex_exit_x;
+        wc = ex_exit_w;
+    }
     ps.pos = centre + to_world(frame, xc) * r;
     ps.dir = normalize(to_world(frame, wc));
     ps.scattered = true;
@@ -136,4 +164,131 @@ fn scatter_at(channel: u32) -> bool {
         }
     }
     return true;
+}
+
+// ---- exact sphere steps (crates/render-gpu/src/integrator/sphere_step.rs, exact_step) ----
+
+const MAX_EXACT_EVENTS: u32 = 4u;
+// The exact step's event slots: (X, W) in the walk's frame, the proxy q of the event a slot
+// holds, then (after exact_walk) the events' weights Q/q with equal slots merged.
+var<private> ex_x: array<vec3<f32>, 4>;
+var<private> ex_w: array<vec3<f32>, 4>;
+var<private> ex_q: array<f32, 4>;
+var<private> ex_weight: array<f32, 4>;
+var<private> ex_total: f32;
+// The lights in the walk's frame (xyz) with their irradiance in the path's channel (w).
+var<private> ex_lights: array<vec4<f32>, 4>;
+
+struct ExactWalk {
+    x: vec3<f32>,
+    w: vec3<f32>,
+    n: f32,
+    used: u32,
+}
+
+/// q: the phase value toward each light times the transmittance across the free ball's
+/// chord (radius² f2 in units of the walk's sphere), times the light's irradiance; 1 for
+/// every event when nl = 0 (a light dark in this channel: events by φ^k alone).
+fn exact_proxy(x: vec3<f32>, w: vec3<f32>, nl: u32, f2: f32, tau: f32, g: f32) -> f32 {
+    if nl == 0u {
+        return 1.0;
+    }
+    let dd = dot(x, x);
+    var q = 0.0;
+    for (var i = 0u; i < nl; i++) {
+        let wl = ex_lights[i].xyz;
+        let b = dot(x, wl);
+        let chord = -b + sqrt(b * b + max(f2 - dd, 0.0));
+        let d = max(1.0 + g * g - 2.0 * g * dot(w, wl), 1e-12);
+        q += ex_lights[i].w * (1.0 - g * g) * INV_4PI / (d * sqrt(d)) * exp(-tau * chord);
+    }
+    return q;
+}
+
+/// Offers event (X, W) with weight φ^k·q to each of the m weighted reservoirs.
+fn exact_offer(x: vec3<f32>, w: vec3<f32>, q: f32, phi_k: f32, m: u32) {
+    let wk = phi_k * q;
+    ex_total += wk;
+    for (var i = 0u; i < m; i++) {
+        if rand() * ex_total < wk {
+            ex_x[i] = x;
+            ex_w[i] = w;
+            ex_q[i] = q;
+        }
+    }
+}
+
+/// The walk in the unit sphere of optical radius tau (scatter_sim::walk_with), its m NEE
+/// events left in ex_x, ex_w, ex_weight (the first `used`).
+fn exact_walk(tau: f32, g: f32, channel: u32, m: u32, frame: WalkFrame, f_unit: f32) -> ExactWalk {
+    var nl = min(params.flags.x, 4u);
+    var flat = false;
+    for (var i = 0u; i < nl; i++) {
+        let l = params.lights[i];
+        let wl = l.to_light.xyz;
+        let e = l.irradiance[channel];
+        ex_lights[i] = vec4<f32>(dot(wl, frame.u), dot(wl, frame.v), dot(wl, frame.w), e);
+        flat = flat || !(e > 0.0);
+    }
+    if flat {
+        nl = 0u;
+    }
+    let f2 = f_unit * f_unit;
+    let albedo = params.albedo[channel];
+    ex_total = 0.0;
+    for (var i = 0u; i < MAX_EXACT_EVENTS; i++) {
+        ex_q[i] = 0.0;
+    }
+    var phi_k = albedo;
+    var pos = vec3<f32>(0.0);
+    var arriving = vec3<f32>(0.0, 0.0, 1.0);
+    if m > 0u {
+        exact_offer(pos, arriving, exact_proxy(pos, arriving, nl, f2, tau, g), phi_k, m);
+    }
+    var n = 1.0;
+    var exit_x = vec3<f32>(0.0, 0.0, 1.0);
+    var exit_w = vec3<f32>(0.0, 0.0, 1.0);
+    loop {
+        let dir = hg_sample_direction(g, arriving);
+        let flight = -log(rand_open0()) / tau;
+        let next = pos + dir * flight;
+        if !(flight < 2.0) || dot(next, next) >= 1.0 {
+            let b = dot(pos, dir);
+            let c = dot(pos, pos) - 1.0;
+            let t = -b + sqrt(max(b * b - c, 0.0));
+            exit_x = normalize(pos + dir * t);
+            exit_w = dir;
+            break;
+        }
+        pos = next;
+        arriving = dir;
+        n += 1.0;
+        if m > 0u {
+            phi_k *= albedo;
+            exact_offer(pos, dir, exact_proxy(pos, dir, nl, f2, tau, g), phi_k, m);
+        }
+    }
+    // Weights Q/q; slots holding the same event share one shadow ray.
+    var used = 0u;
+    for (var i = 0u; i < m; i++) {
+        if !(ex_q[i] > 0.0) {
+            continue;
+        }
+        let wgt = ex_total / ex_q[i];
+        var merged = false;
+        for (var j = 0u; j < used; j++) {
+            if all(ex_x[j] == ex_x[i]) && all(ex_w[j] == ex_w[i]) {
+                ex_weight[j] += wgt;
+                merged = true;
+                break;
+            }
+        }
+        if !merged {
+            ex_x[used] = ex_x[i];
+            ex_w[used] = ex_w[i];
+            ex_weight[used] = wgt;
+            used += 1u;
+        }
+    }
+    return ExactWalk(exit_x, exit_w, n, used);
 }

@@ -220,19 +220,20 @@ pub const DEFAULT_MIN_TAU_GPU: f64 = 1.0;
 /// The default exact-walk threshold on the CPU, chosen by measurement
 /// (docs/BENCHMARKS.md, fourteenth session).
 pub const DEFAULT_EXACT_TAU_CPU: f64 = 4.0;
+/// The default in the GPU kernels.
+pub const DEFAULT_EXACT_TAU_GPU: f64 = 4.0;
 /// Largest exact-walk threshold accepted: a walk in a ball of optical radius τ has
 /// ~(1 − g)τ²/2 events, and beyond this the models are far cheaper.
 pub const MAX_EXACT_TAU: f64 = 50.0;
 
 impl RenderDesc {
-    /// The exact-walk threshold: the scene's, else the device's default (0 on a GPU: the
-    /// kernels draw every sphere step from the models).
+    /// The exact-walk threshold: the scene's, else the device's default.
     pub fn exact_tau_on(&self, gpu: bool) -> f64 {
-        if gpu {
-            0.0
+        self.exact_tau.unwrap_or(if gpu {
+            DEFAULT_EXACT_TAU_GPU
         } else {
-            self.exact_tau.unwrap_or(DEFAULT_EXACT_TAU_CPU)
-        }
+            DEFAULT_EXACT_TAU_CPU
+        })
     }
 
     /// The thin-region threshold: the scene's, else the default of the device it runs on.

@@ -506,10 +506,14 @@ fn with_medium(text: String, sigma_t: &str, albedo: &str) -> String {
 }
 
 fn compare_devices(name: &str, text: &str, kind: IntegratorKind, nee: bool, spp: u32) {
+    compare_devices_with(name, text, &settings(kind, nee), spp);
+}
+
+fn compare_devices_with(name: &str, text: &str, set: &IntegratorSettings, spp: u32) {
     let Some(ctx) = gpu() else { return };
     let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
-    let s = common::build_scene(text, kind == IntegratorKind::Stcvae);
-    let set = settings(kind, nee);
+    let s = common::build_scene(text, set.kind == IntegratorKind::Stcvae);
+    let set = *set;
     let spp = std::env::var("STCVAE_GPU_TEST_SPP")
         .ok()
         .and_then(|v| v.parse().ok())
@@ -548,6 +552,25 @@ fn cpu_gpu_agree_stcvae_sphere() {
         false,
         96,
     );
+    // Exact sphere steps (the kernels' exact_walk against sphere_step::exact_step): below
+    // the default threshold, and every step (min_tau 0, exact_tau = max_tau = 50).
+    let exact = IntegratorSettings {
+        exact_tau: render_gpu::scene::DEFAULT_EXACT_TAU_GPU as f32,
+        ..settings(IntegratorKind::Stcvae, true)
+    };
+    compare_devices_with("ST-CVAE exact steps, NEE", &im, &exact, 96);
+    let all_exact = IntegratorSettings {
+        exact_tau: 50.0,
+        max_tau: 50.0,
+        min_tau: 0.0,
+        ..exact
+    };
+    compare_devices_with("ST-CVAE all steps exact, NEE", &im, &all_exact, 96);
+    let no_nee = IntegratorSettings {
+        nee: false,
+        ..all_exact
+    };
+    compare_devices_with("ST-CVAE all steps exact, no NEE", &im, &no_nee, 96);
 }
 
 #[test]
@@ -564,6 +587,11 @@ fn cpu_gpu_agree_bunny() {
         true,
         96,
     );
+    let exact = IntegratorSettings {
+        exact_tau: render_gpu::scene::DEFAULT_EXACT_TAU_GPU as f32,
+        ..settings(IntegratorKind::Stcvae, true)
+    };
+    compare_devices_with("bunny ST-CVAE exact steps, NEE", &text, &exact, 96);
 }
 
 /// Long paths (τ = 500, albedo 0.999: ~180 events on average, heavy-tailed, many beyond

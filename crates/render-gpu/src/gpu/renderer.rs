@@ -205,8 +205,7 @@ pub fn render_gpu(
                 leaks: pair(3),
                 capped: pair(4),
                 non_finite: pair(5),
-                // The kernels have no exact sphere steps (exact_tau is 0 on a GPU).
-                exact_steps: 0,
+                exact_steps: pair(8),
             });
             if pair(7) > 0 {
                 return Err(RenderError::Gpu(format!(

@@ -20,7 +20,7 @@ pub struct Resources {
 }
 
 /// Byte size of the counter buffer: 16 u32 (six lo/hi pairs and padding).
-pub const COUNTER_BYTES: u64 = 64;
+pub const COUNTER_BYTES: u64 = 72;
 
 /// Everything the kernels read; empty slices get a one-element dummy (wgpu forbids
 /// zero-sized bindings).

@@ -52,6 +52,7 @@ impl PathStats {
 }
 
 /// What the integrator needs beyond the scene.
+#[derive(Clone, Copy)]
 pub struct IntegratorSettings<'a> {
     pub kind: IntegratorKind,
     pub nee: bool,
