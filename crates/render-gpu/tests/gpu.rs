@@ -305,15 +305,33 @@ fn white_furnace_gpu() {
         "kind = \"index-matched\"",
         "kind = \"dielectric\"\nior = 1.5",
     ] {
-        for kind in [IntegratorKind::Pt, IntegratorKind::Stcvae] {
+        // ST-CVAE with the models for every step, and with exact steps below τ = 50.
+        let exact = IntegratorSettings {
+            exact_tau: 50.0,
+            ..settings(IntegratorKind::Stcvae, true)
+        };
+        for (kind, set) in [
+            (IntegratorKind::Pt, settings(IntegratorKind::Pt, true)),
+            (
+                IntegratorKind::Stcvae,
+                settings(IntegratorKind::Stcvae, true),
+            ),
+            (IntegratorKind::Stcvae, exact),
+        ] {
             let text = common::furnace_scene(boundary);
             let s = common::build_scene(&text, kind == IntegratorKind::Stcvae);
-            let out = on_gpu(&ctx, &s, &settings(kind, true), &opts(12, 3));
+            let out = on_gpu(&ctx, &s, &set, &opts(12, 3));
             let st = out.stats;
             assert_eq!(st.capped + st.non_finite + st.leaks, 0, "{kind:?}: {st:?}");
             assert_eq!(st.paths, 12 * 12 * 12, "every sample traced once: {st:?}");
             if kind == IntegratorKind::Stcvae {
                 assert!(st.steps > st.paths / 4, "sphere steps must run: {st:?}");
+                if set.exact_tau > 0.0 {
+                    assert!(
+                        st.exact_steps > st.steps / 2,
+                        "exact steps must run: {st:?}"
+                    );
+                }
             }
             for (i, p) in out.image.pixels.iter().enumerate() {
                 for c in 0..3 {
