@@ -179,18 +179,13 @@ impl Pending {
             events,
             weights: None,
         };
-        let exit = from_canonical(walk.exit);
-        complete(
-            scene,
-            set,
-            channel,
-            s,
-            &ball,
+        let walked = Walked {
+            ball,
             nee,
-            walk.survival as f32,
-            exit,
-            rng,
-        );
+            survival: walk.survival as f32,
+            exit: from_canonical(walk.exit),
+        };
+        complete(scene, set, channel, s, walked, rng);
     }
 }
 
@@ -321,23 +316,18 @@ fn exact_step(
             }
         }
     }
-    let exit = (end.exit_pos, end.exit_dir);
     let nee = Nee {
         scale: 1.0 / m.max(1) as f32,
         events: &events[..used],
         weights: Some(&weights[..used]),
     };
-    complete(
-        scene,
-        set,
-        channel,
-        s,
-        &ball,
+    let walked = Walked {
+        ball,
         nee,
-        survival as f32,
-        exit,
-        rng,
-    );
+        survival: survival as f32,
+        exit: (end.exit_pos, end.exit_dir),
+    };
+    complete(scene, set, channel, s, walked, rng);
 }
 
 /// Most representative events of an exact step, and most lights its proxy weighs.
@@ -352,21 +342,32 @@ struct Nee<'a> {
     weights: Option<&'a [f32]>,
 }
 
-/// Completes a sphere step given its NEE events, its survival weight φ^N and its exit
-/// (x, ω) (in the walk's frame, arrival along +z, unit sphere; no events with NEE off):
-/// NEE through the events, the survival weight, roulette, and the jump to the exit.
-#[allow(clippy::too_many_arguments)]
+/// A sphere step's walk, drawn or simulated: where it happened, its NEE events, its
+/// survival weight φ^N and its exit (x, ω) (in the walk's frame, arrival along +z, unit
+/// sphere; no events with NEE off).
+struct Walked<'a> {
+    ball: Ball<'a>,
+    nee: Nee<'a>,
+    survival: f32,
+    exit: (DVec3, DVec3),
+}
+
+/// Completes a sphere step: NEE through its events, the survival weight, roulette, and the
+/// jump to the exit.
 fn complete(
     scene: &SceneData,
     set: &IntegratorSettings,
     channel: usize,
     s: &mut PathState,
-    ball: &Ball,
-    nee: Nee,
-    survival: f32,
-    (x, omega): (DVec3, DVec3),
+    walked: Walked,
     rng: &mut WalkRng,
 ) {
+    let Walked {
+        ball,
+        nee,
+        survival,
+        exit: (x, omega),
+    } = walked;
     let grid = scene.grid.as_ref().expect("a sphere step has a grid");
     let r = ball.r;
     let centre = ball.centre;
