@@ -571,7 +571,7 @@ fn cpu_gpu_agree_stcvae_sphere() {
         96,
     );
     // Exact sphere steps (the kernels' exact_walk against sphere_step::exact_step): below
-    // the default threshold, and every step (min_tau 0, exact_tau = max_tau = 50).
+    // the default threshold, and every step (min_tau 0, max_tau 49 < exact_tau 50).
     let exact = IntegratorSettings {
         exact_tau: render_gpu::scene::DEFAULT_EXACT_TAU_GPU as f32,
         ..settings(IntegratorKind::Stcvae, true)
@@ -579,7 +579,7 @@ fn cpu_gpu_agree_stcvae_sphere() {
     compare_devices_with("ST-CVAE exact steps, NEE", &im, &exact, 96);
     let all_exact = IntegratorSettings {
         exact_tau: 50.0,
-        max_tau: 50.0,
+        max_tau: 49.0,
         min_tau: 0.0,
         ..exact
     };

@@ -315,16 +315,16 @@ fn stcvae_matches_pt_on_a_sphere_and_the_bunny() {
 
 /// Sphere steps whose walks are simulated event by event (`exact_tau`) make ST-CVAE an
 /// unbiased estimator of the same image as PT: the ball is surface-free, the walk in it
-/// is the walk PT would make there, and its representative events (each event k with
-/// probability φ^k/Λ(N)) weighted Λ(N) give the NEE of all its events in expectation.
-/// So unlike the models' steps (`stcvae_matches_pt_on_a_sphere_and_the_bunny`, with a
-/// 3 % allowance for the models' error) there is no allowance: the image means must
-/// agree within noise alone. With max_tau = exact_tau every step is exact, and with
-/// min_tau = 0 every collision off the surface is one, so the steps carry all of the
-/// image. 2·10⁶ paths each (standard errors ~0.3 %); |z| < 4.5 per channel (9
-/// comparisons: a false alarm has probability ~6·10⁻⁵). Λ(N) made 5 % too large moved the
-/// means by 4.4 % (z = 9.9), so an error of ~1.5 % in the steps fails. Also with NEE off,
-/// where only the walks' exits matter.
+/// is the walk PT would make there, and its NEE events (event k chosen with probability
+/// φ^k·q_k/Q, weighted Q/q_k) give the NEE of all its events in expectation. So unlike
+/// the models' steps (`stcvae_matches_pt_on_a_sphere_and_the_bunny`, with a 3 % allowance
+/// for the models' error) there is no allowance: the image means must agree within noise
+/// alone. With max_tau below exact_tau every step is exact (a step is exact when
+/// τ < exact_tau), and with min_tau = 0 every collision off the surface is one, so the
+/// steps carry all of the image. 2·10⁶ paths each (standard errors ~0.3 %); |z| < 4.5 per
+/// channel (9 comparisons: a false alarm has probability ~6·10⁻⁵). The NEE weights Q/q
+/// made 5 % too large moved the means by 4.4 % (z = 10.1), so an error of ~1.5 % in the
+/// steps fails. Also with NEE off, where only the walks' exits matter.
 #[test]
 fn exact_sphere_steps_match_pt() {
     let m = model();
@@ -348,7 +348,7 @@ fn exact_sphere_steps_match_pt() {
         let (pt, spt, _) = estimate(&s, &settings(IntegratorKind::Pt, nee, None), 2_000_000, 5);
         let exact = IntegratorSettings {
             exact_tau: 50.0,
-            max_tau: 50.0,
+            max_tau: 49.0,
             min_tau: 0.0,
             ..settings(IntegratorKind::Stcvae, nee, Some(&m))
         };

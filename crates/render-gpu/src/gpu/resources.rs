@@ -19,7 +19,7 @@ pub struct Resources {
     _inputs: Vec<wgpu::Buffer>,
 }
 
-/// Byte size of the counter buffer: 16 u32 (six lo/hi pairs and padding).
+/// Byte size of the counter buffer: 18 u32, nine lo/hi pairs (`C_*` in shaders/path.wgsl).
 pub const COUNTER_BYTES: u64 = 72;
 
 /// Everything the kernels read; empty slices get a one-element dummy (wgpu forbids

@@ -299,7 +299,8 @@ fn exact_step(
     });
     let survival = albedo.powf(end.n as f64);
     // Events with their weights Q/q_K; two slots holding the same event share one shadow
-    // ray (the mean of equal estimates is the estimate itself).
+    // ray with their weights summed (the estimate is linear in each event's NEE, so one
+    // evaluation serves both: unbiased, slightly noisier than two, one ray cheaper).
     let mut events = [CENTRE_EVENT; MAX_EXACT_EVENTS];
     let mut weights = [0.0f32; MAX_EXACT_EVENTS];
     let mut used = 0;
