@@ -207,23 +207,33 @@ fn z(a: f64, sa: f64, b: f64, sb: f64) -> f64 {
     (a - b) / (sa * sa + sb * sb).sqrt()
 }
 
+/// Per channel, |z| of two independent estimates (means, standard errors) below `limit`.
+fn assert_means_agree(what: &str, (a, sa): Means, (b, sb): Means, limit: f64) {
+    for c in 0..3 {
+        let zc = z(a[c], sa[c], b[c], sb[c]);
+        assert!(
+            zc.abs() < limit,
+            "{what}, channel {c}: {} ± {} vs {} ± {} (z = {zc:.2})",
+            a[c],
+            sa[c],
+            b[c],
+            sb[c]
+        );
+    }
+}
+
+/// Per-channel means and their standard errors, as [`estimate`] gives them.
+type Means = ([f64; 3], [f64; 3]);
+
 #[test]
 fn nee_on_equals_nee_off_pt() {
     let (_, s) = scene(SUN_SCENE, false);
     let (on, son, _) = estimate(&s, &settings(IntegratorKind::Pt, true, None), 300_000, 1);
     let (off, soff, _) = estimate(&s, &settings(IntegratorKind::Pt, false, None), 300_000, 2);
+    // PT with and without NEE are both unbiased: |z| < 4 (six such comparisons in
+    // this file; a false alarm has probability ~4e-4).
+    assert_means_agree("PT, NEE on vs off", (on, son), (off, soff), 4.0);
     for c in 0..3 {
-        // PT with and without NEE are both unbiased: |z| < 4 (six such comparisons in
-        // this file; a false alarm has probability ~4e-4).
-        let zc = z(on[c], son[c], off[c], soff[c]);
-        assert!(
-            zc.abs() < 4.0,
-            "channel {c}: NEE on {} ± {}, off {} ± {} (z = {zc:.2})",
-            on[c],
-            son[c],
-            off[c],
-            soff[c]
-        );
         assert!(on[c] > 0.01, "the sun must light the sphere");
     }
 }
@@ -363,17 +373,12 @@ fn exact_sphere_steps_match_pt() {
             stats.capped + stats.non_finite == 0 && stats.leaks * 100_000 <= stats.paths,
             "{label}: {stats:?}"
         );
-        for c in 0..3 {
-            let zc = z(st[c], sst[c], pt[c], spt[c]);
-            assert!(
-                zc.abs() < 4.5,
-                "{label} channel {c}: PT {} ± {}, exact steps {} ± {} (z = {zc:.2})",
-                pt[c],
-                spt[c],
-                st[c],
-                sst[c]
-            );
-        }
+        assert_means_agree(
+            &format!("{label}: exact steps vs PT"),
+            (st, sst),
+            (pt, spt),
+            4.5,
+        );
     }
 }
 

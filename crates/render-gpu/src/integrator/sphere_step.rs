@@ -103,7 +103,7 @@ pub(crate) fn begin(
     let albedo = scene.albedo[channel] as f64;
     if tau < set.exact_tau {
         stats.exact_steps += 1;
-        exact_step(scene, set, channel, s, rng, (r, free), tau as f64, albedo);
+        exact_step(scene, set, channel, s, rng, (r, free));
         return Begun::Done;
     }
     let frame = WalkFrame::new(s.dir.as_dvec3(), rng.unit_circle());
@@ -213,7 +213,6 @@ struct Ball<'a> {
 /// keeps the estimate unbiased; this one picks the events near the ball's lit side, where
 /// almost all of the NEE is, instead of events uniformly along the walk (the models'
 /// Λ(N)-weighted representative event), and leaves f/q ≤ 1 for a delta light.
-#[allow(clippy::too_many_arguments)]
 fn exact_step(
     scene: &SceneData,
     set: &IntegratorSettings,
@@ -221,10 +220,11 @@ fn exact_step(
     s: &mut PathState,
     rng: &mut WalkRng,
     (r, free): (f32, f32),
-    tau: f64,
-    albedo: f64,
 ) {
     let g = scene.g as f64;
+    let albedo = scene.albedo[channel] as f64;
+    let tau32 = scene.sigma_t[channel] * r;
+    let tau = tau32 as f64;
     // The simulated walk is already uniform in its azimuth about +z, so any frame about
     // the arriving direction will do.
     let frame = WalkFrame::new(s.dir.as_dvec3(), (1.0, 0.0));
@@ -243,7 +243,11 @@ fn exact_step(
     // must be positive wherever f can be: with a light dark in this channel, or more lights
     // than it weighs, it falls back to q = 1 (events chosen by φ^k alone, as the models').
     let mut lights = [(Vec3::Z, 0.0f32); MAX_PROXY_LIGHTS];
-    let n_lights = scene.lights.len().min(MAX_PROXY_LIGHTS);
+    let n_lights = if m > 0 {
+        scene.lights.len().min(MAX_PROXY_LIGHTS)
+    } else {
+        0
+    };
     for (l, light) in lights.iter_mut().zip(&scene.lights) {
         let wl = frame.to_canonical(light.to_light.as_dvec3()).as_vec3();
         *l = (wl, light.irradiance[channel]);
@@ -252,7 +256,7 @@ fn exact_step(
     let flat = scene.lights.len() > MAX_PROXY_LIGHTS || lights.iter().any(|l| !(l.1 > 0.0));
     // The free ball's radius in units of the walk's sphere (≥ 1), and HG's constants.
     let f2 = (free / r).max(1.0).powi(2);
-    let (tau32, g32) = (tau as f32, scene.g);
+    let g32 = scene.g;
     let (hg_num, hg_b) = (
         (1.0 - g32 * g32) / (4.0 * std::f32::consts::PI),
         1.0 + g32 * g32,
