@@ -28,11 +28,11 @@ struct Params {
     image: vec4<u32>,           // width, height, lanes, samples per lane
     sampling: vec4<u32>,        // first sample, end sample, seed lo, seed hi
     flags: vec4<u32>,           // light count, nee, dielectric, stcvae
-    misc: vec4<u32>,            // env map width, height, nee samples, dispatch kind
+    misc: vec4<u32>,            // env map width, height, nee samples (model steps), dispatch kind
                                 // (2: first of the render, 1: first of a chunk, 0: resume)
     consts: vec4<f32>,          // g, ior, eps, min_tau
     consts2: vec4<f32>,         // max_tau, near_surface, bounces per dispatch, tile stride
-    consts3: vec4<f32>,         // exact_tau, unused ×3
+    consts3: vec4<f32>,         // exact_tau, exact_nee_samples (integral), unused ×2
 }
 
 struct Node {

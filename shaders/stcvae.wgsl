@@ -63,7 +63,7 @@ fn scatter_at(channel: u32) -> bool {
         frame = walk_frame(ps.dir, vec2<f32>(1.0, 0.0));
         var m = 0u;
         if nee && params.flags.x > 0u {
-            m = clamp(params.misc.z, 1u, MAX_EXACT_EVENTS);
+            m = clamp(u32(params.consts3.y), 1u, MAX_EXACT_EVENTS);
         }
         let walk = exact_walk(tau, g, channel, m, frame, max(free / r, 1.0));
         n = walk.n;

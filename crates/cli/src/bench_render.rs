@@ -41,9 +41,13 @@ pub struct Args {
     /// Largest sphere step of ST-CVAE (overrides the scene's).
     #[arg(long)]
     max_tau: Option<f64>,
-    /// Representative events per sphere step for NEE (overrides the scene's).
+    /// Representative events (EventGen draws) per model-drawn sphere step for NEE
+    /// (overrides the scene's).
     #[arg(long)]
     nee_samples: Option<u32>,
+    /// NEE events per exactly simulated sphere step, 1 to 4 (overrides the scene's).
+    #[arg(long)]
+    exact_nee_samples: Option<u32>,
     /// Below this optical radius ST-CVAE simulates a sphere step's walk exactly instead of
     /// drawing it from the models (overrides the scene's; 0: always the models).
     #[arg(long)]
@@ -165,6 +169,9 @@ fn prepare_k(a: &Args, kind: IntegratorKind, k: f64) -> Result<crate::render::Pr
             }
             if let Some(m) = a.nee_samples {
                 f.render.nee_samples = m;
+            }
+            if let Some(m) = a.exact_nee_samples {
+                f.render.exact_nee_samples = m;
             }
             if a.exact_tau.is_some() {
                 f.render.exact_tau = a.exact_tau;

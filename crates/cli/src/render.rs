@@ -85,6 +85,9 @@ struct Report<'a> {
     max_tau: Option<f64>,
     /// Sphere steps below this optical radius simulate their walk exactly.
     exact_tau: f64,
+    /// NEE events per model-drawn and per exactly simulated sphere step.
+    nee_samples: u32,
+    exact_nee_samples: u32,
     grid_resolution: u32,
     scene_hash: String,
     /// Where it ran: "cpu (N threads)" or "gpu: adapter (backend, type)".
@@ -116,6 +119,7 @@ impl Prepared {
             max_tau: self.max_tau,
             exact_tau: r.exact_tau_on(engine.is_gpu()) as f32,
             nee_samples: r.nee_samples,
+            exact_nee_samples: r.exact_nee_samples,
         }
     }
 }
@@ -302,6 +306,8 @@ pub fn run(a: Args) -> Result<()> {
         min_tau: set.min_tau as f64,
         max_tau: p.model.as_ref().map(|_| p.max_tau as f64),
         exact_tau: set.exact_tau as f64,
+        nee_samples: set.nee_samples,
+        exact_nee_samples: set.exact_nee_samples,
         grid_resolution: r.grid_resolution,
         scene_hash: format!("{:016x}", p.data.hash),
         device: engine.describe(),

@@ -169,11 +169,18 @@ pub struct RenderDesc {
     /// balls (ST-CVAE). Unset: the device's default ([`RenderDesc::exact_tau_on`]).
     #[serde(default)]
     pub exact_tau: Option<f64>,
-    /// Representative events per sphere step for NEE (ST-CVAE). 2 by measurement
-    /// (docs/BENCHMARKS.md): with one, rare paths near the lit surface dominate the
-    /// variance; a second EventGen draw removed them at ~10–25 % more time.
+    /// Representative events (EventGen draws) per model-drawn sphere step for NEE
+    /// (ST-CVAE). 2 by measurement (docs/BENCHMARKS.md): with one, rare paths near the
+    /// lit surface dominate the variance; a second EventGen draw removed them at ~10–25 %
+    /// more time.
     #[serde(default = "default_nee_samples")]
     pub nee_samples: u32,
+    /// NEE events per exactly simulated sphere step (below `exact_tau`), chosen among
+    /// the walk's events by importance. 1 by measurement (docs/BENCHMARKS.md, fifteenth
+    /// session): the importance choice already puts the event near the lit side, so a
+    /// second one lowers the variance less than its shadow ray costs.
+    #[serde(default = "default_exact_nee_samples")]
+    pub exact_nee_samples: u32,
 }
 
 impl Default for RenderDesc {
@@ -188,6 +195,7 @@ impl Default for RenderDesc {
             max_tau: None,
             exact_tau: None,
             nee_samples: default_nee_samples(),
+            exact_nee_samples: default_exact_nee_samples(),
         }
     }
 }
@@ -200,6 +208,9 @@ fn one() -> u64 {
 }
 fn default_nee_samples() -> u32 {
     2
+}
+fn default_exact_nee_samples() -> u32 {
+    1
 }
 fn default_spp() -> u32 {
     64
@@ -227,6 +238,9 @@ pub const DEFAULT_EXACT_TAU_GPU: f64 = 8.0;
 /// Largest exact-walk threshold accepted: a walk in a ball of optical radius τ has
 /// ~(1 − g)τ²/2 events, and beyond this the models are far cheaper.
 pub const MAX_EXACT_TAU: f64 = 50.0;
+/// Most NEE events of one exactly simulated sphere step (the kernels keep one reservoir
+/// slot per event).
+pub const MAX_EXACT_NEE_SAMPLES: u32 = 4;
 
 impl RenderDesc {
     /// The exact-walk threshold: the scene's, else the device's default.
@@ -443,6 +457,12 @@ impl SceneFile {
         {
             return Err(format!(
                 "render.exact_tau = {t} is out of range: allowed [0, {MAX_EXACT_TAU}]"
+            ));
+        }
+        if !(1..=MAX_EXACT_NEE_SAMPLES).contains(&r.exact_nee_samples) {
+            return Err(format!(
+                "render.exact_nee_samples = {} is out of range: allowed [1, {MAX_EXACT_NEE_SAMPLES}]",
+                r.exact_nee_samples
             ));
         }
         if !(1..=64).contains(&r.nee_samples) {

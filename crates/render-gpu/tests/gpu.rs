@@ -269,6 +269,7 @@ fn settings(kind: IntegratorKind, nee: bool) -> IntegratorSettings<'static> {
         max_tau: m.map_or(300.0, |m| m.training.tau_range[1] as f32),
         exact_tau: 0.0,
         nee_samples: 2,
+        exact_nee_samples: 1,
     }
 }
 
@@ -571,7 +572,8 @@ fn cpu_gpu_agree_stcvae_sphere() {
         96,
     );
     // Exact sphere steps (the kernels' exact_walk against sphere_step::exact_step): below
-    // the default threshold, and every step (min_tau 0, max_tau 49 < exact_tau 50).
+    // the default threshold with one NEE event each, and every step (min_tau 0, max_tau
+    // 49 < exact_tau 50) with two (two reservoirs, merged when they hold one event).
     let exact = IntegratorSettings {
         exact_tau: render_gpu::scene::DEFAULT_EXACT_TAU_GPU as f32,
         ..settings(IntegratorKind::Stcvae, true)
@@ -581,6 +583,7 @@ fn cpu_gpu_agree_stcvae_sphere() {
         exact_tau: 50.0,
         max_tau: 49.0,
         min_tau: 0.0,
+        exact_nee_samples: 2,
         ..exact
     };
     compare_devices_with("ST-CVAE all steps exact, NEE", &im, &all_exact, 96);

@@ -89,6 +89,13 @@ fn other_fields_are_checked() {
             "{e}"
         );
     }
+    for bad in ["0", "5"] {
+        let e = err(&format!("{BASE}\n[render]\nexact_nee_samples = {bad}\n"));
+        assert!(
+            e.contains("render.exact_nee_samples") && e.contains("[1, 4]"),
+            "{e}"
+        );
+    }
     let e = err("[camera\n");
     assert!(e.starts_with("s.toml:1"), "{e}");
 }

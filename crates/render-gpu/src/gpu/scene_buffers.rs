@@ -50,7 +50,8 @@ pub struct Params {
     pub consts: [f32; 4],
     /// max_tau, near_surface, bounces per dispatch, tile stride.
     pub consts2: [f32; 4],
-    /// exact_tau (below it a sphere step simulates its walk), unused ×3.
+    /// exact_tau (below it a sphere step simulates its walk), exact_nee_samples (as f32),
+    /// unused ×2.
     pub consts3: [f32; 4],
 }
 
@@ -201,7 +202,7 @@ pub fn scene_params(scene: &SceneData, set: &IntegratorSettings, seed: u64) -> P
         misc: [env_w, env_h, set.nee_samples.max(1), 1],
         consts: [scene.g, ior, scene.geo.eps, set.min_tau],
         consts2: [set.max_tau, near, 0.0, 0.0],
-        consts3: [set.exact_tau, 0.0, 0.0, 0.0],
+        consts3: [set.exact_tau, set.exact_nee_samples as f32, 0.0, 0.0],
     }
 }
 

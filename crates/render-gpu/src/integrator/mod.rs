@@ -64,8 +64,10 @@ pub struct IntegratorSettings<'a> {
     /// Below this σ_t·r a sphere step simulates its walk instead of drawing it from the
     /// models (0: always the models).
     pub exact_tau: f32,
-    /// Representative events (EventGen draws) per sphere step for NEE.
+    /// Representative events (EventGen draws) per model-drawn sphere step for NEE.
     pub nee_samples: u32,
+    /// NEE events per exactly simulated sphere step (1..=`MAX_EXACT_NEE_SAMPLES`).
+    pub exact_nee_samples: u32,
 }
 
 /// Safety cap on loop iterations of one path; far beyond any physical path here.

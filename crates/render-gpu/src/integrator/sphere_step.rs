@@ -235,7 +235,7 @@ fn exact_step(
         free,
     };
     let m = if set.nee && !scene.lights.is_empty() {
-        (set.nee_samples as usize).clamp(1, MAX_EXACT_EVENTS)
+        (set.exact_nee_samples as usize).clamp(1, MAX_EXACT_EVENTS)
     } else {
         0
     };
@@ -336,7 +336,7 @@ fn exact_step(
 }
 
 /// Most representative events of an exact step, and most lights its proxy weighs.
-const MAX_EXACT_EVENTS: usize = 4;
+const MAX_EXACT_EVENTS: usize = crate::scene::MAX_EXACT_NEE_SAMPLES as usize;
 const MAX_PROXY_LIGHTS: usize = 8;
 
 /// A step's NEE: events (X, W) in the walk's frame; `scale` · Σ weight·f(X, W) (weights 1
