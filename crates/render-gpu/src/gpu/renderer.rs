@@ -27,37 +27,33 @@ use super::scene_buffers::{
 /// between chunks). A chunk takes several dispatches of bounded work each.
 const TARGET_CHUNK_SECONDS: f64 = 1.0;
 
-/// Bounces each invocation runs per dispatch, and on software adapters the safe value to
-/// fall back to. llvmpipe (lavapipe) stops a shader after 65,535 loop iterations in total,
-/// counted per SIMD batch (a loop runs as long as its slowest lane); the loops left in a
-/// bounce are BVH traversals, the decoders being straight-line code. 64 never ran into
-/// it; 128 is 8–12 % faster but was cut off on the default bunny once chunks grew to 3 s
-/// (more lanes busy in every bounce). So software adapters start at 128 with a snapshot of
-/// the path states before every dispatch: a dispatch that hits the limit (counted by the
-/// kernel) is undone from the snapshot and redone at 64, for the rest of the render. PT's
-/// image does not depend on the budget (paths resume exactly where they stopped);
-/// ST-CVAE's expected image does not either, but a resumed path forgets what is left of
-/// its last free ball (its next step uses the grid's radius alone), so its samples differ.
-/// Hardware GPUs have no such limit; 256 keeps each dispatch far below watchdogs.
-/// `STCVAE_GPU_BOUNCES` sets the first value (the fallback stays).
-fn bounce_budget(ctx: &GpuContext) -> (u32, Option<u32>) {
+/// Bounces each invocation runs per dispatch, and whether a dispatch cut off by a loop
+/// limit can be redone with fewer. llvmpipe (lavapipe) stops a shader after 65,535 loop
+/// iterations in total, counted per SIMD batch (a loop runs as long as its slowest lane);
+/// the loops left in a bounce are BVH traversals and exact sphere steps' walks (~6 an
+/// event), the decoders being straight-line code. 64 never ran into it on the bunny
+/// ladder; 128 is 8–12 % faster but was cut off on the default bunny once chunks grew to
+/// 3 s (more lanes busy in every bounce), and a scene whose exact walks are long (a large
+/// `exact_tau` with small g: ~(1 − g)τ²/2 events a walk) is cut off at any budget above a
+/// few bounces. So software adapters start at 128 with a snapshot of the path states before
+/// every dispatch: a dispatch that hits the limit (counted by the kernel) is undone from the
+/// snapshot and redone with half the budget, down to one bounce, which then stays for the
+/// rest of the render. PT's image does not depend on the budget (paths resume exactly
+/// where they stopped); ST-CVAE's expected image does not either, but a resumed path
+/// forgets what is left of its last free ball (its next step uses the grid's radius
+/// alone), so its samples differ. Hardware GPUs have no such limit; 256 keeps each dispatch
+/// far below watchdogs. `STCVAE_GPU_BOUNCES` sets the first value.
+fn bounce_budget(ctx: &GpuContext) -> (u32, bool) {
     let first = std::env::var("STCVAE_GPU_BOUNCES")
         .ok()
         .and_then(|v| v.parse().ok())
         .filter(|&b: &u32| b > 0);
     if ctx.adapter.software {
-        let b = first.unwrap_or(128);
-        (
-            b,
-            (b > SAFE_SOFTWARE_BOUNCES).then_some(SAFE_SOFTWARE_BOUNCES),
-        )
+        (first.unwrap_or(128), true)
     } else {
-        (first.unwrap_or(256), None)
+        (first.unwrap_or(256), false)
     }
 }
-
-/// Bounces per dispatch that never ran into lavapipe's loop limit (see `bounce_budget`).
-const SAFE_SOFTWARE_BOUNCES: u32 = 64;
 
 /// Invocations a dispatch aims to have in flight: a big GPU needs ~10⁶ to be busy; a
 /// software adapter gains nothing beyond a few per core.
@@ -157,10 +153,11 @@ pub fn render_gpu(
     } else {
         (65535, groups.div_ceil(65535) as u32)
     };
-    let (budget, mut fallback) = bounce_budget(ctx);
+    let (mut budget, redo) = bounce_budget(ctx);
     params.consts2[2] = budget as f32;
-    // The path states before the dispatch in flight, while a fallback budget remains.
-    let snapshot = fallback.map(|_| res.snapshot_buffer(ctx, accum_bytes));
+    // The path states before the dispatch in flight, kept while a cut-off dispatch can be
+    // redone with a smaller budget.
+    let snapshot = redo.then(|| res.snapshot_buffer(ctx, accum_bytes));
     params.consts2[3] = tile_stride(groups) as f32;
     let start = Instant::now();
     let mut stats = PathStats::default();
@@ -182,7 +179,7 @@ pub fn render_gpu(
                 .write_buffer(&res.params, 0, bytemuck::bytes_of(&params));
             ctx.queue
                 .write_buffer(&res.counters, 0, &[0u8; COUNTER_BYTES as usize]);
-            if let (Some(snap), Some(_)) = (&snapshot, fallback) {
+            if let Some(snap) = snapshot.as_ref().filter(|_| budget > 1) {
                 res.copy(ctx, &res.accum, snap, accum_bytes);
             }
             res.dispatch(ctx, &pipeline, (gx, gy));
@@ -191,11 +188,12 @@ pub fn render_gpu(
                 |i: usize| u32::from_le_bytes(c[4 * i..4 * i + 4].try_into().unwrap()) as u64;
             let pair = |k: usize| word(2 * k) | (word(2 * k + 1) << 32);
             if pair(7) > 0
-                && let (Some(snap), Some(safe)) = (&snapshot, fallback.take())
+                && let Some(snap) = snapshot.as_ref().filter(|_| budget > 1)
             {
-                // Undo the cut-off dispatch and redo it with the safe budget.
+                // Undo the cut-off dispatch and redo it with half the budget.
                 res.copy(ctx, snap, &res.accum, accum_bytes);
-                params.consts2[2] = safe as f32;
+                budget /= 2;
+                params.consts2[2] = budget as f32;
                 continue;
             }
             stats.add(&PathStats {
@@ -208,13 +206,16 @@ pub fn render_gpu(
                 exact_steps: pair(8),
             });
             if pair(7) > 0 {
+                let hint = if budget > 1 {
+                    format!("set STCVAE_GPU_BOUNCES below {budget}")
+                } else {
+                    "a single bounce exceeded it: lower render.exact_tau".to_string()
+                };
                 return Err(RenderError::Gpu(format!(
                     "{} invocations were stopped by {}'s loop limit (lavapipe stops a shader \
-                     after 65,535 loop iterations); set STCVAE_GPU_BOUNCES below {} or use \
-                     --device cpu",
+                     after 65,535 loop iterations); {hint} or use --device cpu",
                     pair(7),
                     ctx.adapter.name,
-                    params.consts2[2]
                 )));
             }
             params.misc[3] = 0;
