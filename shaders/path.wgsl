@@ -262,12 +262,30 @@ fn add_mod(a: u32, b: u32, n: u32) -> u32 {
     return s;
 }
 
+/// Whether llvmpipe's loop limit has run out in this invocation. Once it has, every loop
+/// stops after its first pass (Mesa's gallivm decrements one counter per invocation at
+/// each loop's end and continues only while it is positive), so a loop of `passes` ≥ 2
+/// passes runs only one. `passes` must come from a uniform or a buffer so that the
+/// compiler cannot unroll the loop away (params.consts3.z = LOOP_PROBE_PASSES). A limit
+/// that runs out exactly in this loop reads as cut off too: a harmless redo.
+fn loop_limit_ran_out(passes: u32) -> bool {
+    var probe = 0u;
+    loop {
+        probe += 1u;
+        if probe >= passes {
+            break;
+        }
+    }
+    return probe < passes;
+}
+
 /// Renders samples first + lane + lanes·j (j < count) of a pixel, at most
 /// `params.consts2.z` bounces per dispatch, resuming where the
 /// previous dispatch stopped. llvmpipe (lavapipe) stops every loop of an invocation once
 /// 65,535 loop iterations have run in total (one shared counter, BVH traversal and
-/// decoder loops included), so the work of one dispatch must stay bounded; a bounce
-/// loop that ends early anyway is counted (C_TRUNCATED) and the host reports it.
+/// decoder loops included), so the work of one dispatch must stay bounded; a dispatch in
+/// which the limit ran out is counted (C_TRUNCATED), and the host redoes it with fewer
+/// bounces (gpu/renderer.rs, bounce_budget) or reports it.
 @compute @workgroup_size(64)
 fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
     stack_base = li * STACK_DEPTH;
@@ -354,7 +372,10 @@ fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_inv
                 }
             }
         }
-        if b < budget && !done {
+        // A limit that runs out inside the last bounce ends that bounce's inner loops (BVH
+        // traversal, an exact walk) early without shortening the bounce loop: the probe
+        // sees that case too.
+        if (b < budget && !done) || loop_limit_ran_out(u32(params.consts3.z)) {
             stats[C_TRUNCATED] = 1u;
         }
         save_path(base, j, s, done);

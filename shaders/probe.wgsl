@@ -139,3 +139,29 @@ fn probe_event_pair(@builtin(global_invocation_id) gid: vec3<u32>) {
         set_f(i, 25u + k, second.w[k]);
     }
 }
+
+/// In: loop iterations n at 0, loop-limit probe passes at 1. Out: the iterations that ran
+/// at 0 (fewer than n where llvmpipe's loop limit cut the loop), 1 at 1 if the probe then
+/// saw the limit run out. No clear_item: after a cut-off its loop would run one pass.
+@compute @workgroup_size(64)
+fn probe_loop_limit(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gid.x;
+    if i >= params.image.x {
+        return;
+    }
+    let n = u32(item_f(i, 0u));
+    let passes = u32(item_f(i, 1u));
+    var k = 0u;
+    var x = item_f(i, 2u);
+    loop {
+        if k >= n {
+            break;
+        }
+        x = x * 0.5 + 1.0;
+        k += 1u;
+    }
+    let cut = loop_limit_ran_out(passes);
+    set_f(i, 0u, f32(k));
+    set_f(i, 1u, select(0.0, 1.0, cut));
+    set_f(i, 2u, x);
+}

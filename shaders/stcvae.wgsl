@@ -168,6 +168,7 @@ fn scatter_at(channel: u32) -> bool {
 
 // ---- exact sphere steps (crates/render-gpu/src/integrator/sphere_step.rs, exact_step) ----
 
+// = scene::MAX_EXACT_NEE_SAMPLES (asserted in gpu/scene_buffers.rs).
 const MAX_EXACT_EVENTS: u32 = 4u;
 // The exact step's event slots: (X, W) in the walk's frame, the proxy q of the event a slot
 // holds, then (after exact_walk) the events' weights Q/q with equal slots merged.

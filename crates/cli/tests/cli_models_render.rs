@@ -446,7 +446,16 @@ fn bench_render_reuses_stored_pt_pairs() {
     assert!(!stdout(bench("6", &[])).contains(hit));
     assert_eq!(std::fs::read_dir(&cache).unwrap().count(), 1);
     assert!(stdout(bench("6", &[])).contains(hit));
-    let st_only = ["--max-tau", "50", "--nee-samples", "1", "--min-tau", "1"];
+    let st_only = [
+        "--max-tau",
+        "50",
+        "--nee-samples",
+        "1",
+        "--min-tau",
+        "1",
+        "--exact-nee-samples",
+        "2",
+    ];
     assert!(stdout(bench("6", &st_only)).contains(hit));
     assert!(!stdout(bench("12", &[])).contains(hit));
     assert_eq!(std::fs::read_dir(&cache).unwrap().count(), 2);

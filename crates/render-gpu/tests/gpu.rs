@@ -182,6 +182,35 @@ fn wgsl_decoders_match_rust() {
     }
 }
 
+/// The kernel's loop-limit probe (path.wgsl, `loop_limit_ran_out`), on which the renderer's
+/// redo of cut-off dispatches rests: lavapipe stops an invocation's loops after 65,535
+/// iterations in total, so a loop of 70,000 stops short and the probe that follows must
+/// say so; after a loop of 1,000 it must not. Hardware GPUs have no limit: the long loop
+/// runs to its end and the probe says nothing. 64 identical items, so that every SIMD
+/// batch (which shares one counter) holds one kind of loop; each kind in its own dispatch.
+#[test]
+fn loop_limit_probe_sees_the_limit_run_out() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let software = ctx.adapter.software;
+    for (n, cut) in [(1_000u32, false), (70_000, software)] {
+        let mut item: Item = [0.0; 32];
+        item[0] = n as f32;
+        item[1] = render_gpu::gpu::scene_buffers::LOOP_PROBE_PASSES;
+        let out = run_probe(&ctx, "probe_loop_limit", model(), &vec![item; 64]).unwrap();
+        for o in &out {
+            let ran = o[0] as u32;
+            assert_eq!(
+                (ran < n, o[1] == 1.0),
+                (cut, cut),
+                "a loop of {n} ran {ran} iterations, probe {} ({})",
+                o[1],
+                ctx.adapter.name
+            );
+        }
+    }
+}
+
 /// The WGSL antithetic EventGen pair: the partner's latent and output normals are
 /// exactly the first draw's negated (the decoders only read the noise, so it survives the
 /// first draw), and its event equals the Rust decoder's for that mirrored noise within

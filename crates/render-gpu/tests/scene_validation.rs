@@ -89,6 +89,14 @@ fn other_fields_are_checked() {
             "{e}"
         );
     }
+    assert!(
+        SceneFile::parse(
+            Path::new("s.toml"),
+            &format!("{BASE}\n[render]\nexact_nee_samples = 4\n")
+        )
+        .is_ok(),
+        "exact_nee_samples = 4 is allowed"
+    );
     for bad in ["0", "5"] {
         let e = err(&format!("{BASE}\n[render]\nexact_nee_samples = {bad}\n"));
         assert!(

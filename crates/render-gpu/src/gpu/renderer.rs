@@ -37,11 +37,13 @@ const TARGET_CHUNK_SECONDS: f64 = 1.0;
 /// `exact_tau` with small g: ~(1 − g)τ²/2 events a walk) is cut off at any budget above a
 /// few bounces. So software adapters start at 128 with a snapshot of the path states before
 /// every dispatch: a dispatch that hits the limit (counted by the kernel) is undone from the
-/// snapshot and redone with half the budget, down to one bounce, which then stays for the
-/// rest of the render. PT's image does not depend on the budget (paths resume exactly
-/// where they stopped); ST-CVAE's expected image does not either, but a resumed path
-/// forgets what is left of its last free ball (its next step uses the grid's radius
-/// alone), so its samples differ. Hardware GPUs have no such limit; 256 keeps each dispatch
+/// snapshot and redone with half the budget, down to one bounce; the budget reached stays
+/// for the rest of the render. The kernel also sees a limit that ran out inside a
+/// dispatch's last bounce (path.wgsl, `loop_limit_ran_out`), so at one bounce a cut-off is
+/// an error, never a silently shortened path. PT's image does not depend on the budget
+/// (paths resume exactly where they stopped); ST-CVAE's expected image does not either,
+/// but a resumed path forgets what is left of its last free ball (its next step uses the
+/// grid's radius alone), so its samples differ. Hardware GPUs have no such limit; 256 keeps each dispatch
 /// far below watchdogs. `STCVAE_GPU_BOUNCES` sets the first value.
 fn bounce_budget(ctx: &GpuContext) -> (u32, bool) {
     let first = std::env::var("STCVAE_GPU_BOUNCES")
@@ -157,7 +159,7 @@ pub fn render_gpu(
     params.consts2[2] = budget as f32;
     // The path states before the dispatch in flight, kept while a cut-off dispatch can be
     // redone with a smaller budget.
-    let snapshot = redo.then(|| res.snapshot_buffer(ctx, accum_bytes));
+    let snapshot = (redo && budget > 1).then(|| res.snapshot_buffer(ctx, accum_bytes));
     params.consts2[3] = tile_stride(groups) as f32;
     let start = Instant::now();
     let mut stats = PathStats::default();

@@ -51,9 +51,20 @@ pub struct Params {
     /// max_tau, near_surface, bounces per dispatch, tile stride.
     pub consts2: [f32; 4],
     /// exact_tau (below it a sphere step simulates its walk), exact_nee_samples (as f32),
-    /// unused ×2.
+    /// the loop-limit probe's passes ([`LOOP_PROBE_PASSES`]), unused.
     pub consts3: [f32; 4],
 }
+
+/// Passes of the kernel's loop-limit probe (path.wgsl, after the bounce loop): where
+/// llvmpipe's loop limit has run out, every loop stops after one pass, so a probe that runs
+/// fewer than two tells a dispatch whose last bounce was cut short. A uniform rather than a
+/// constant so that the shader compiler cannot unroll the loop away.
+pub const LOOP_PROBE_PASSES: f32 = 2.0;
+
+// shaders/stcvae.wgsl sizes its exact steps' reservoir arrays with MAX_EXACT_EVENTS = 4:
+// the scene's limit on exact_nee_samples must match, or the GPU would clamp where the CPU
+// does not.
+const _: () = assert!(crate::scene::MAX_EXACT_NEE_SAMPLES == 4);
 
 /// A BVH2 node as obvhs lays it out (children of an inner node at `first`, `first + 1`;
 /// a leaf's triangles at `first..first + count` of the reordered triangle buffer).
@@ -202,7 +213,12 @@ pub fn scene_params(scene: &SceneData, set: &IntegratorSettings, seed: u64) -> P
         misc: [env_w, env_h, set.nee_samples.max(1), 1],
         consts: [scene.g, ior, scene.geo.eps, set.min_tau],
         consts2: [set.max_tau, near, 0.0, 0.0],
-        consts3: [set.exact_tau, set.exact_nee_samples as f32, 0.0, 0.0],
+        consts3: [
+            set.exact_tau,
+            set.exact_nee_samples as f32,
+            LOOP_PROBE_PASSES,
+            0.0,
+        ],
     }
 }
 
