@@ -52,6 +52,7 @@ enum Command {
 }
 
 fn main() {
+    quiet_wayland_probe();
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Generate(a) => generate::run(a),
@@ -66,5 +67,19 @@ fn main() {
     if let Err(e) = result {
         eprintln!("error: {e:#}");
         std::process::exit(if interrupt::requested() { 130 } else { 1 });
+    }
+}
+
+/// On a machine with no graphical session (a server, CI) the Vulkan driver's window-system
+/// code asks libwayland for a display while wgpu lists adapters, and libwayland prints
+/// "error: XDG_RUNTIME_DIR is invalid or not set in the environment." twice — on every
+/// `--device gpu|auto` run, even one that then renders on the CPU — though nothing here
+/// needs a display. With neither variable set there is no Wayland session to find, and
+/// pointing XDG_RUNTIME_DIR at the temp directory lets the same failed lookup stay silent.
+fn quiet_wayland_probe() {
+    let unset = |name| std::env::var_os(name).is_none_or(|v| v.is_empty());
+    if unset("XDG_RUNTIME_DIR") && unset("WAYLAND_DISPLAY") {
+        // SAFETY: the first statement of `main`, before any other thread exists.
+        unsafe { std::env::set_var("XDG_RUNTIME_DIR", std::env::temp_dir()) };
     }
 }

@@ -414,6 +414,38 @@ fn no_gpu_adapter_is_a_clear_error_or_a_cpu_fallback() {
     assert!(json.contains("\"device\": \"cpu"), "{json}");
 }
 
+/// On a machine without a graphical session, looking for an adapter must not print
+/// libwayland's "error: XDG_RUNTIME_DIR is invalid or not set in the environment." (the
+/// Vulkan driver's window-system code asks for a display; lavapipe in CI printed it twice
+/// per run before `stcvae` pointed the variable at the temp dir). Where the driver does not
+/// load libwayland the line cannot appear either way.
+#[test]
+fn adapter_search_prints_no_wayland_error() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args([
+            "render",
+            "--scene",
+            "configs/scenes/sphere.toml",
+            "--integrator",
+            "pt",
+            "--spp",
+            "1",
+            "--device",
+            "auto",
+            "--out",
+        ])
+        .arg(tmp.path().join("r"))
+        .env("WGPU_BACKEND", "vulkan")
+        .env_remove("XDG_RUNTIME_DIR")
+        .env_remove("WAYLAND_DISPLAY")
+        .current_dir(root())
+        .output()
+        .unwrap();
+    let err = ok(&out);
+    assert!(!err.contains("XDG_RUNTIME_DIR"), "{err}");
+}
+
 /// `bench render --pt-cache`: a second run reuses PT's pair, also when only ST-CVAE's own
 /// settings change; another spp or NEE off is a miss; a bad ST-CVAE setting fails before
 /// any render.
