@@ -378,6 +378,26 @@ fn bad_scenes_are_one_line_errors() {
     assert!(!out.with_extension("exr").exists());
 }
 
+/// `stcvae render` of the sphere scene with PT at 2 spp on `device`, writing `out`.{exr,png,json}.
+fn sphere_pt_render(device: &str, out: &Path) -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_stcvae"));
+    c.args([
+        "render",
+        "--scene",
+        "configs/scenes/sphere.toml",
+        "--integrator",
+        "pt",
+        "--spp",
+        "2",
+        "--device",
+        device,
+        "--out",
+    ])
+    .arg(out)
+    .current_dir(root());
+    c
+}
+
 /// Without a usable adapter (`WGPU_BACKEND=gl` names only a backend that is not compiled
 /// in), `--device gpu` is a one-line error naming the fix, and `--device auto` renders on
 /// the CPU and says so once.
@@ -386,22 +406,8 @@ fn no_gpu_adapter_is_a_clear_error_or_a_cpu_fallback() {
     let tmp = tempfile::tempdir().unwrap();
     let out_path = tmp.path().join("r");
     let run = |device: &str| {
-        Command::new(env!("CARGO_BIN_EXE_stcvae"))
-            .args([
-                "render",
-                "--scene",
-                "configs/scenes/sphere.toml",
-                "--integrator",
-                "pt",
-                "--spp",
-                "2",
-                "--device",
-                device,
-                "--out",
-            ])
-            .arg(&out_path)
+        sphere_pt_render(device, &out_path)
             .env("WGPU_BACKEND", "gl")
-            .current_dir(root())
             .output()
             .unwrap()
     };
@@ -422,24 +428,10 @@ fn no_gpu_adapter_is_a_clear_error_or_a_cpu_fallback() {
 #[test]
 fn adapter_search_prints_no_wayland_error() {
     let tmp = tempfile::tempdir().unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_stcvae"))
-        .args([
-            "render",
-            "--scene",
-            "configs/scenes/sphere.toml",
-            "--integrator",
-            "pt",
-            "--spp",
-            "1",
-            "--device",
-            "auto",
-            "--out",
-        ])
-        .arg(tmp.path().join("r"))
+    let out = sphere_pt_render("auto", &tmp.path().join("r"))
         .env("WGPU_BACKEND", "vulkan")
         .env_remove("XDG_RUNTIME_DIR")
         .env_remove("WAYLAND_DISPLAY")
-        .current_dir(root())
         .output()
         .unwrap();
     let err = ok(&out);
