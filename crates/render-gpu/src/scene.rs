@@ -219,11 +219,14 @@ fn default_grid() -> u32 {
     128
 }
 /// The default thin-region threshold on the CPU, chosen by measurement
-/// (docs/BENCHMARKS.md, eighth session): a sphere of optical radius below ~2 holds a walk
-/// of a few events, so its model draws and shadow rays cost more than the PT events they
-/// replace. On the bunny ladder 2 renders 1–5 % faster than 1 with equal or ~3 % lower
-/// variance; 3 is within noise of 2.
-pub const DEFAULT_MIN_TAU_CPU: f64 = 2.0;
+/// (docs/BENCHMARKS.md, fifteenth session). Balls this small are exact steps (below
+/// `exact_tau`): a walk of a few events with one importance-chosen NEE event, which since
+/// the fifteenth session costs less than the PT events it replaces. On the bunny ladder 1
+/// renders 5–7 % faster than 2 at k = 1 and the same at k = 2–8, with the same variance;
+/// 0.5 and 1.5 are within noise of 1. (When steps this small drew from the models, the
+/// eighth session found 2 faster.) Both thresholds simulate the walk exactly, so the
+/// choice does not move the image's expectation.
+pub const DEFAULT_MIN_TAU_CPU: f64 = 1.0;
 /// The default on a GPU: there the PT events that a higher threshold adds diverge from
 /// the sphere steps of neighbouring lanes (lavapipe: 2 is ~10 % slower than 1).
 pub const DEFAULT_MIN_TAU_GPU: f64 = 1.0;
