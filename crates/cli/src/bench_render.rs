@@ -187,7 +187,7 @@ fn render_pair(
     p: &crate::render::Prepared,
     kind: IntegratorKind,
 ) -> Result<Pair> {
-    let set = p.settings(engine);
+    let set = p.settings();
     let cancel = AtomicBool::new(false);
     let half = half_spp(a.spp);
     let mut outs = Vec::new();

@@ -57,10 +57,6 @@ impl Engine {
         Ok(e)
     }
 
-    pub fn is_gpu(&self) -> bool {
-        matches!(self, Engine::Gpu(_))
-    }
-
     /// A short name for reports: "cpu" or the adapter.
     pub fn describe(&self) -> String {
         match self {

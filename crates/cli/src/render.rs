@@ -107,17 +107,17 @@ pub struct Prepared {
 }
 
 impl Prepared {
-    /// The integrator settings of this scene on `engine` (its [render] table, with the
-    /// overrides `prepare` applied, the device's defaults and the model's τ limit).
-    pub fn settings(&self, engine: &Engine) -> IntegratorSettings<'_> {
+    /// The integrator settings of this scene (its [render] table, with the overrides
+    /// `prepare` applied, the defaults and the model's τ limit); the same on every device.
+    pub fn settings(&self) -> IntegratorSettings<'_> {
         let r = &self.file.render;
         IntegratorSettings {
             kind: r.integrator,
             nee: r.nee,
             model: self.model.as_ref(),
-            min_tau: r.min_tau_on(engine.is_gpu()) as f32,
+            min_tau: r.min_tau_or_default() as f32,
             max_tau: self.max_tau,
-            exact_tau: r.exact_tau_on(engine.is_gpu()) as f32,
+            exact_tau: r.exact_tau_or_default() as f32,
             nee_samples: r.nee_samples,
             exact_nee_samples: r.exact_nee_samples,
         }
@@ -238,7 +238,7 @@ pub fn run(a: Args) -> Result<()> {
     let r = &p.file.render;
     note_unreachable_lights(&p);
     let engine = Engine::open(a.device)?;
-    let set = p.settings(&engine);
+    let set = p.settings();
     eprintln!(
         "rendering {} ({}x{}, {} spp, {}{}) on the {}",
         a.scene.display(),

@@ -158,15 +158,14 @@ pub struct RenderDesc {
     #[serde(default = "default_grid")]
     pub grid_resolution: u32,
     /// Thin-region fallback: below this optical radius σ_t·r a sphere step is replaced
-    /// by an ordinary PT event (ST-CVAE). Unset: the device's default
-    /// ([`RenderDesc::min_tau_on`]).
+    /// by an ordinary PT event (ST-CVAE). Unset: [`DEFAULT_MIN_TAU`].
     #[serde(default)]
     pub min_tau: Option<f64>,
     /// Largest optical radius of a sphere step; default: the model's training maximum.
     pub max_tau: Option<f64>,
     /// Below this optical radius a sphere step simulates its walk event by event instead
     /// of drawing it from the models: exact, and cheaper than the decoders for small
-    /// balls (ST-CVAE). Unset: the device's default ([`RenderDesc::exact_tau_on`]).
+    /// balls (ST-CVAE). Unset: [`DEFAULT_EXACT_TAU`].
     #[serde(default)]
     pub exact_tau: Option<f64>,
     /// Representative events (EventGen draws) per model-drawn sphere step for NEE
@@ -218,26 +217,24 @@ fn default_spp() -> u32 {
 fn default_grid() -> u32 {
     128
 }
-/// The default thin-region threshold on the CPU, chosen by measurement
-/// (docs/BENCHMARKS.md, fifteenth session). Balls this small are exact steps (below
+/// The default thin-region threshold, chosen by measurement (docs/BENCHMARKS.md, fifteenth
+/// session), on the CPU and GPU alike. Balls this small are exact steps (below
 /// `exact_tau`): a walk of a few events with one importance-chosen NEE event, which since
-/// the fifteenth session costs less than the PT events it replaces. On the bunny ladder 1
-/// renders 5–7 % faster than 2 at k = 1 and the same at k = 2–8, with the same variance;
+/// the fifteenth session costs less than the PT events it replaces. On the CPU bunny ladder
+/// 1 renders 5–7 % faster than 2 at k = 1 and the same at k = 2–8, with the same variance;
 /// 0.5 and 1.5 are within noise of 1. (When steps this small drew from the models, the
-/// eighth session found 2 faster.) Both thresholds simulate the walk exactly, so the
-/// choice does not move the image's expectation.
-pub const DEFAULT_MIN_TAU_CPU: f64 = 1.0;
-/// The default on a GPU: there the PT events that a higher threshold adds diverge from
-/// the sphere steps of neighbouring lanes (lavapipe: 2 is ~10 % slower than 1).
-pub const DEFAULT_MIN_TAU_GPU: f64 = 1.0;
+/// eighth session found 2 faster on the CPU.) On a GPU the PT events that a higher
+/// threshold adds diverge from the sphere steps of neighbouring lanes (lavapipe: 2 is
+/// ~10 % slower than 1). Both thresholds simulate the walk exactly, so the choice does not
+/// move the image's expectation.
+pub const DEFAULT_MIN_TAU: f64 = 1.0;
 
-/// The default exact-walk threshold on the CPU, chosen by measurement
-/// (docs/BENCHMARKS.md, fourteenth session): on the bunny at k = 8 (16,384 spp) 8 took the
-/// bias RMSE against PT from 0.0112 to 0.0077 at the same speed; 4 left more of the models'
-/// error (0.0101), 16 and 24 were slower (−10 %, −18 %) and no more accurate.
-pub const DEFAULT_EXACT_TAU_CPU: f64 = 8.0;
-/// The default in the GPU kernels (the same estimator as the CPU's).
-pub const DEFAULT_EXACT_TAU_GPU: f64 = 8.0;
+/// The default exact-walk threshold, chosen by measurement (docs/BENCHMARKS.md, fourteenth
+/// session), the same in the GPU kernels so that both devices run one estimator: on the
+/// bunny at k = 8 (16,384 spp) 8 took the bias RMSE against PT from 0.0112 to 0.0077 at the
+/// same speed; 4 left more of the models' error (0.0101), 16 and 24 were slower (−10 %,
+/// −18 %) and no more accurate.
+pub const DEFAULT_EXACT_TAU: f64 = 8.0;
 /// Largest exact-walk threshold accepted: a walk in a ball of optical radius τ has
 /// ~(1 − g)τ²/2 events, and beyond this the models are far cheaper.
 pub const MAX_EXACT_TAU: f64 = 50.0;
@@ -246,22 +243,14 @@ pub const MAX_EXACT_TAU: f64 = 50.0;
 pub const MAX_EXACT_NEE_SAMPLES: u32 = 4;
 
 impl RenderDesc {
-    /// The exact-walk threshold: the scene's, else the device's default.
-    pub fn exact_tau_on(&self, gpu: bool) -> f64 {
-        self.exact_tau.unwrap_or(if gpu {
-            DEFAULT_EXACT_TAU_GPU
-        } else {
-            DEFAULT_EXACT_TAU_CPU
-        })
+    /// The exact-walk threshold: the scene's, else [`DEFAULT_EXACT_TAU`].
+    pub fn exact_tau_or_default(&self) -> f64 {
+        self.exact_tau.unwrap_or(DEFAULT_EXACT_TAU)
     }
 
-    /// The thin-region threshold: the scene's, else the default of the device it runs on.
-    pub fn min_tau_on(&self, gpu: bool) -> f64 {
-        self.min_tau.unwrap_or(if gpu {
-            DEFAULT_MIN_TAU_GPU
-        } else {
-            DEFAULT_MIN_TAU_CPU
-        })
+    /// The thin-region threshold: the scene's, else [`DEFAULT_MIN_TAU`].
+    pub fn min_tau_or_default(&self) -> f64 {
+        self.min_tau.unwrap_or(DEFAULT_MIN_TAU)
     }
 }
 

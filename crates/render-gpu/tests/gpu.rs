@@ -604,7 +604,7 @@ fn cpu_gpu_agree_stcvae_sphere() {
     // the default threshold with one NEE event each, and every step (min_tau 0, max_tau
     // 49 < exact_tau 50) with two (two reservoirs, merged when they hold one event).
     let exact = IntegratorSettings {
-        exact_tau: render_gpu::scene::DEFAULT_EXACT_TAU_GPU as f32,
+        exact_tau: render_gpu::scene::DEFAULT_EXACT_TAU as f32,
         ..settings(IntegratorKind::Stcvae, true)
     };
     compare_devices_with("ST-CVAE exact steps, NEE", &im, &exact, 96);
@@ -638,7 +638,7 @@ fn cpu_gpu_agree_bunny() {
         96,
     );
     let exact = IntegratorSettings {
-        exact_tau: render_gpu::scene::DEFAULT_EXACT_TAU_GPU as f32,
+        exact_tau: render_gpu::scene::DEFAULT_EXACT_TAU as f32,
         ..settings(IntegratorKind::Stcvae, true)
     };
     compare_devices_with("bunny ST-CVAE exact steps, NEE", &text, &exact, 96);

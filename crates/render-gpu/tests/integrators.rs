@@ -52,7 +52,7 @@ fn settings<'a>(
         max_tau: m.map_or(300.0, |m| m.training.tau_range[1] as f32),
         // The CPU renderer's default: steps below it simulate their walks, larger ones
         // use the models (white_furnace_stcvae also runs the models alone).
-        exact_tau: render_gpu::scene::DEFAULT_EXACT_TAU_CPU as f32,
+        exact_tau: render_gpu::scene::DEFAULT_EXACT_TAU as f32,
         nee_samples: 2,
         exact_nee_samples: 1,
     }

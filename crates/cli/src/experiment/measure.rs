@@ -96,7 +96,7 @@ pub fn render_once(
         f.camera.height = ((size as f64 * aspect).round() as u32).max(1);
         edit(f);
     })?;
-    let set = p.settings(ctx.engine);
+    let set = p.settings();
     let out = ctx
         .engine
         .render(&p.data, &set, o, &|_, _| {}, &AtomicBool::new(false))?;

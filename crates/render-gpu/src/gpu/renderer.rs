@@ -27,10 +27,9 @@ use super::scene_buffers::{
 /// between chunks). A chunk takes several dispatches of bounded work each.
 const TARGET_CHUNK_SECONDS: f64 = 1.0;
 
-/// Bounces each invocation runs per dispatch, and whether a dispatch cut off by a loop
-/// limit can be redone with fewer. llvmpipe (lavapipe) stops a shader after 65,535 loop
-/// iterations in total, counted per SIMD batch (a loop runs as long as its slowest lane);
-/// the loops left in a bounce are BVH traversals and exact sphere steps' walks (~6 an
+/// Bounces each invocation runs per dispatch at first. llvmpipe (lavapipe) stops a shader
+/// after 65,535 loop iterations in total, counted per SIMD batch (a loop runs as long as
+/// its slowest lane); the loops left in a bounce are BVH traversals and exact sphere steps' walks (~6 an
 /// event), the decoders being straight-line code. 64 never ran into it on the bunny
 /// ladder; 128 is 8–12 % faster but was cut off on the default bunny once chunks grew to
 /// 3 s (more lanes busy in every bounce), and a scene whose exact walks are long (a large
@@ -43,18 +42,14 @@ const TARGET_CHUNK_SECONDS: f64 = 1.0;
 /// an error, never a silently shortened path. PT's image does not depend on the budget
 /// (paths resume exactly where they stopped); ST-CVAE's expected image does not either,
 /// but a resumed path forgets what is left of its last free ball (its next step uses the
-/// grid's radius alone), so its samples differ. Hardware GPUs have no such limit; 256 keeps each dispatch
-/// far below watchdogs. `STCVAE_GPU_BOUNCES` sets the first value.
-fn bounce_budget(ctx: &GpuContext) -> (u32, bool) {
+/// grid's radius alone), so its samples differ. Hardware GPUs have no such limit; 256
+/// keeps each dispatch far below watchdogs. `STCVAE_GPU_BOUNCES` sets the first value.
+fn bounce_budget(ctx: &GpuContext) -> u32 {
     let first = std::env::var("STCVAE_GPU_BOUNCES")
         .ok()
         .and_then(|v| v.parse().ok())
         .filter(|&b: &u32| b > 0);
-    if ctx.adapter.software {
-        (first.unwrap_or(128), true)
-    } else {
-        (first.unwrap_or(256), false)
-    }
+    first.unwrap_or(if ctx.adapter.software { 128 } else { 256 })
 }
 
 /// Invocations a dispatch aims to have in flight: a big GPU needs ~10⁶ to be busy; a
@@ -155,11 +150,12 @@ pub fn render_gpu(
     } else {
         (65535, groups.div_ceil(65535) as u32)
     };
-    let (mut budget, redo) = bounce_budget(ctx);
+    let mut budget = bounce_budget(ctx);
     params.consts2[2] = budget as f32;
-    // The path states before the dispatch in flight, kept while a cut-off dispatch can be
-    // redone with a smaller budget.
-    let snapshot = (redo && budget > 1).then(|| res.snapshot_buffer(ctx, accum_bytes));
+    // The path states before the dispatch in flight, kept on software adapters while a
+    // cut-off dispatch can be redone with a smaller budget.
+    let snapshot =
+        (ctx.adapter.software && budget > 1).then(|| res.snapshot_buffer(ctx, accum_bytes));
     params.consts2[3] = tile_stride(groups) as f32;
     let start = Instant::now();
     let mut stats = PathStats::default();

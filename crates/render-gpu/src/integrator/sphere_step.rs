@@ -15,6 +15,7 @@ use cvae::sampler::CENTRE_EVENT;
 use cvae::{ModelSet, ModelWalk};
 use glam::{DVec3, Vec3};
 use scatter_sim::frame::{WalkFrame, from_canonical};
+use scatter_sim::phase::hg_pdf;
 use scatter_sim::rng::WalkRng;
 
 use super::{IntegratorSettings, PathState, PathStats, nee, pt_event, roulette};
@@ -248,35 +249,26 @@ fn exact_step(
     } else {
         0
     };
-    for (l, light) in lights.iter_mut().zip(&scene.lights) {
+    for (l, light) in lights.iter_mut().zip(&scene.lights).take(n_lights) {
         let wl = frame.to_canonical(light.to_light.as_dvec3()).as_vec3();
         *l = (wl, light.irradiance[channel]);
     }
     let lights = &lights[..n_lights];
     let flat = scene.lights.len() > MAX_PROXY_LIGHTS || lights.iter().any(|l| !(l.1 > 0.0));
-    // The free ball's radius in units of the walk's sphere (≥ 1), and HG's constants.
+    // The free ball's radius² in units of the walk's sphere (≥ 1).
     let f2 = (free / r).max(1.0).powi(2);
-    let g32 = scene.g;
-    let (hg_num, hg_b) = (
-        (1.0 - g32 * g32) / (4.0 * std::f32::consts::PI),
-        1.0 + g32 * g32,
-    );
     let proxy = |x: DVec3, w: DVec3| -> f64 {
         if flat {
             return 1.0;
         }
-        let (x, w) = (x.as_vec3(), w.as_vec3());
-        let dd = x.length_squared();
-        let q: f32 = lights
+        lights
             .iter()
             .map(|&(wl, e)| {
-                let b = x.dot(wl);
-                let chord = -b + (b * b + (f2 - dd).max(0.0)).sqrt();
-                let d = (hg_b - 2.0 * g32 * w.dot(wl)).max(1e-12);
-                e * hg_num / (d * d.sqrt()) * (-tau32 * chord).exp()
+                let chord = chord_to_sphere(x.as_vec3(), wl, f2);
+                let phase = hg_pdf(g, w.dot(wl.as_dvec3()).clamp(-1.0, 1.0));
+                e as f64 * phase * (-tau32 * chord).exp() as f64
             })
-            .sum();
-        q as f64
+            .sum()
     };
     // Event slots: (X, W, q) of the event each reservoir holds, and their total weight Q.
     let mut slots = [(DVec3::ZERO, DVec3::Z, 0.0f64); MAX_EXACT_EVENTS];
@@ -333,6 +325,14 @@ fn exact_step(
         exit: (end.exit_pos, end.exit_dir),
     };
     complete(scene, set, channel, s, walked, rng);
+}
+
+/// The distance from `x` (inside the sphere of radius² `r2` about the origin) along unit
+/// `dir` to that sphere.
+#[inline]
+fn chord_to_sphere(x: Vec3, dir: Vec3, r2: f32) -> f32 {
+    let b = x.dot(dir);
+    -b + (b * b + (r2 - x.length_squared()).max(0.0)).sqrt()
 }
 
 /// Most representative events of an exact step, and most lights its proxy weighs.
@@ -392,11 +392,9 @@ fn complete(
             let d = (x - centre).as_vec3();
             let x = x.as_vec3();
             let x_grid = grid.radius(x);
-            let dd = d.length_squared();
-            let (f2, free_ball) = (ball.free * ball.free, ball.free);
+            let free_ball = ball.free;
             let x_free = |wl: Vec3| {
-                let b = d.dot(wl);
-                let chord = -b + (b * b + (f2 - dd).max(0.0)).sqrt();
+                let chord = chord_to_sphere(d, wl, free_ball * free_ball);
                 (chord * (1.0 - 1e-4)).min(2.0 * free_ball).max(x_grid)
             };
             sum += weight * nee::direct(scene, x, w.as_vec3(), x_free, channel, rng);
