@@ -646,8 +646,8 @@ fn cpu_gpu_agree_bunny() {
 
 /// Long paths (τ = 500, albedo 0.999: ~180 events on average, heavy-tailed, many beyond
 /// the ~650 PT events one invocation could loop on lavapipe, whose shaders stop after
-/// 65,535 loop iterations in total) must resume across dispatches (64 bounces each on a
-/// software adapter), every sample must finish (the renderer errors otherwise), and the
+/// 65,535 loop iterations in total) must resume across dispatches (128 bounces each on a
+/// software adapter, fewer after a cut-off), every sample must finish (the renderer errors otherwise), and the
 /// image mean must agree with the CPU's. The z-score of the difference of the two image
 /// means uses the spread of 8 seeds per device, so it is Welch's t with at least 7 degrees
 /// of freedom: |t₇| > 5.4 has probability 1e-3. A truncated or lost path population
