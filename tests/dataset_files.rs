@@ -155,6 +155,19 @@ fn damaged_files_are_rejected_with_clear_errors() {
     bad_json[16] = b'#';
     let e = expect_err(&put("json.bin", &bad_json));
     assert!(matches!(e, DatasetError::Header { .. }), "{e}");
+    // A renamed column in the header (outside the rows' checksum): rows are read by
+    // position, so a header that names other columns is refused.
+    let at = bytes
+        .windows(6)
+        .position(|w| w == b"\"ev_y\"")
+        .expect("the header names ev_y");
+    let mut renamed = bytes.clone();
+    renamed[at + 4] = b'i';
+    let e = expect_err(&put("cols.bin", &renamed));
+    assert!(
+        matches!(e, DatasetError::Header { .. }) && e.to_string().contains("ev_i"),
+        "{e}"
+    );
 }
 
 #[test]

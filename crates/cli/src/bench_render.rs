@@ -8,7 +8,7 @@
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
 
-use anyhow::Result;
+use anyhow::{Context, Result, bail};
 use render_gpu::integrator::IntegratorKind;
 use render_gpu::render::RenderOptions;
 
@@ -20,7 +20,9 @@ use crate::render::prepare;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Scene the ladder scales (its σ_t is replaced by k·(150, 187.5, 125)).
+    /// Scene the ladder scales: its medium is replaced by the teaser's (σ_t = k·(150, 187.5,
+    /// 125), albedo (0.99999, 0.99995, 0.975), g = 0.875); camera, object, lights and
+    /// render settings are kept.
     #[arg(long, default_value = "configs/scenes/bunny.toml")]
     scene: PathBuf,
     /// Density multipliers (each in (0, 1000]).
@@ -79,7 +81,7 @@ pub struct Args {
 /// Writes the ladder step's images into `dir` (see `Args::save`).
 fn save_images(dir: &std::path::Path, k: f64, pt: &Pair, st: &Pair) -> Result<()> {
     use render_gpu::image_io::{RenderTag, RgbImage, write_exr, write_png};
-    std::fs::create_dir_all(dir)?;
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let exposure = crate::experiment::measure::scale_of(&pt.mean) as f32;
     for (name, p) in [("pt", pt), ("stcvae", st)] {
         // Appended, not `with_extension`: a fractional k ("k0.5_pt") would lose its tail
@@ -220,6 +222,14 @@ fn render_pair(
 }
 
 pub fn run(a: Args) -> Result<()> {
+    // Checked before any rendering, so that a long bench does not fail at its end.
+    if let Some(dir) = &a.save {
+        if dir.exists() && !dir.is_dir() {
+            bail!("--save {}: exists and is not a directory", dir.display());
+        }
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("--save: cannot create {}", dir.display()))?;
+    }
     let engine = Engine::open(a.device)?;
     println!(
         "stcvae bench render: {} ({}x{}), g = 0.875, albedo (0.99999, 0.99995, 0.975), NEE {}, {} spp each (2 seeds of {}: a multiple of 3 per seed), {}",

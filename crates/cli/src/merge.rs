@@ -4,7 +4,7 @@ use std::fs::File;
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result, anyhow, bail};
 use scatter_sim::dataset::{self, DatasetReader, Header, Piece};
 use scatter_sim::output::AtomicFile;
 
@@ -13,8 +13,8 @@ use crate::progress;
 #[derive(clap::Args)]
 #[command(
     after_help = "Renders: `stcvae merge a.exr b.exr --out m` averages renders of one scene \
-    (different seeds) weighted by the spp in their headers into m.exr and m.png, and refuses \
-    renders of different scenes.\n\nDatasets: shards of one run (same seed, sampler and size) are put in walk order \
+    (different seeds) weighted by the spp in their headers into m.exr, m.png and m.json, and \
+    refuses renders of different scenes and an image given twice.\n\nDatasets: shards of one run (same seed, sampler and size) are put in walk order \
     whatever order they are given in, so `stcvae merge data/train-*.bin --out data/train.bin` \
     reproduces the unsharded run row for row. Other inputs are concatenated in the order \
     given. Binary inputs can be written as CSV (--out x.csv); CSV inputs are joined as text."
@@ -24,8 +24,8 @@ pub struct Args {
     /// one kind per call.
     #[arg(required = true)]
     inputs: Vec<PathBuf>,
-    /// Output: for renders the stem of OUT.exr and OUT.png; for datasets the file (.csv for
-    /// CSV, else binary).
+    /// Output: for renders the stem of OUT.exr, OUT.png and OUT.json; for datasets the file
+    /// (.csv for CSV, else binary).
     #[arg(long)]
     out: PathBuf,
 }
@@ -79,7 +79,11 @@ pub fn run(a: Args) -> Result<()> {
     if exr_inputs == a.inputs.len() {
         check_paths(
             &a.inputs,
-            &[image_out(&a.out, "exr"), image_out(&a.out, "png")],
+            &[
+                image_out(&a.out, "exr"),
+                image_out(&a.out, "png"),
+                image_out(&a.out, "json"),
+            ],
         )?;
         return merge_images(&a);
     } else if exr_inputs > 0 {
@@ -94,12 +98,14 @@ pub fn run(a: Args) -> Result<()> {
     }
 }
 
-/// OUT.ext for the merged image: an `.exr` or `.png` the user typed is replaced, anything
-/// else (`run.v2`) is kept whole, as `render --out` does.
-fn image_out(out: &std::path::Path, ext: &str) -> PathBuf {
-    let known = out
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("exr") || e.eq_ignore_ascii_case("png"));
+/// OUT.ext for an image output (`render`, `merge`): an `.exr`, `.png` or `.json` the user
+/// typed is replaced, anything else (`run.v2`) is kept whole.
+pub(crate) fn image_out(out: &std::path::Path, ext: &str) -> PathBuf {
+    let known = out.extension().is_some_and(|e| {
+        ["exr", "png", "json"]
+            .iter()
+            .any(|k| e.eq_ignore_ascii_case(k))
+    });
     let mut s = if known {
         out.with_extension("")
     } else {
@@ -115,21 +121,47 @@ fn image_out(out: &std::path::Path, ext: &str) -> PathBuf {
 fn merge_images(a: &Args) -> Result<()> {
     let inputs: Vec<&std::path::Path> = a.inputs.iter().map(|p| p.as_path()).collect();
     let (img, tag) = render_gpu::image_io::merge_exrs(&inputs)?;
+    if a.out.is_dir() {
+        bail!(
+            "--out {} is a directory: give the output's name (OUT.exr, OUT.png and OUT.json are written)",
+            a.out.display()
+        );
+    }
     let exr = image_out(&a.out, "exr");
     let png = image_out(&a.out, "png");
+    let json = image_out(&a.out, "json");
     if let Some(dir) = exr.parent()
         && !dir.as_os_str().is_empty()
     {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
-    render_gpu::image_io::write_exr(&exr, &img, &tag)?;
-    render_gpu::image_io::write_png(&png, &img, 1.0)?;
+    let report = serde_json::json!({
+        "inputs": a.inputs.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
+        "spp": tag.spp,
+        "scene_hash": format!("{:016x}", tag.scene_hash),
+        "width": img.width,
+        "height": img.height,
+    });
+    let bytes = [
+        render_gpu::image_io::encode_exr(&img, &tag)
+            .map_err(|e| anyhow!("{}: {e}", exr.display()))?,
+        render_gpu::image_io::encode_png(&img, 1.0)
+            .map_err(|e| anyhow!("{}: {e}", png.display()))?,
+        serde_json::to_vec_pretty(&report)?,
+    ];
+    scatter_sim::output::write_atomic_set(&[
+        (&exr, &bytes[0]),
+        (&png, &bytes[1]),
+        (&json, &bytes[2]),
+    ])
+    .map_err(|(path, e)| anyhow!("cannot write {}: {e}", path.display()))?;
     eprintln!(
-        "merged {} renders ({} spp in all) -> {} and {}",
+        "merged {} renders ({} spp in all) -> {}, {} and {}",
         inputs.len(),
         tag.spp,
         exr.display(),
-        png.display()
+        png.display(),
+        json.display()
     );
     Ok(())
 }

@@ -66,6 +66,9 @@ pub fn sample(a: SampleArgs) -> Result<()> {
         albedo: a.albedo,
     };
     c.validate().map_err(|e| anyhow::anyhow!("--{e}"))?;
+    if a.samples == 0 {
+        bail!("--samples 0 is out of range: allowed [1, inf)");
+    }
     if !is_csv(&a.out) {
         bail!(
             "--out {}: sample writes CSV; name the file *.csv",
@@ -150,19 +153,38 @@ fn parse_setting(s: &str) -> Result<Conditions, String> {
 /// The models extrapolate outside the conditions they were trained on; say so once.
 fn warn_outside_training(m: &cvae::ModelSet, c: Conditions, flag: &str) {
     let t = &m.training;
-    let outside = |v: f64, r: [f64; 2]| v < r[0] - 1e-6 || v > r[1] + 1e-6;
     for (name, v, r) in [
         ("tau", c.tau, t.tau_range),
         ("g", c.g, t.g_range),
         ("albedo", c.albedo, t.albedo_range),
     ] {
-        if outside(v, r) {
+        if outside_training(v, r) {
             eprintln!(
-                "warning: {flag}{name} {v} lies outside the model's training range [{:.3}, {:.3}]: the samples are an extrapolation",
-                r[0], r[1]
+                "warning: {flag}{name} {v} lies outside the model's training range {}: the samples are an extrapolation",
+                training_range(r)
             );
         }
     }
+}
+
+/// Whether `v` lies outside a model's training range `r` (beyond rounding).
+pub(crate) fn outside_training(v: f64, r: [f64; 2]) -> bool {
+    v < r[0] - 1e-6 || v > r[1] + 1e-6
+}
+
+/// `[lo, hi]` with enough digits that a bound near 0 or 1 (albedo's 2.8e-6) does not
+/// print as the round number it is not.
+pub(crate) fn training_range(r: [f64; 2]) -> String {
+    let f = |v: f64| {
+        if v != 0.0 && v.abs() < 1e-3 {
+            format!("{v:.2e}")
+        } else {
+            let s = format!("{v:.6}");
+            let s = s.trim_end_matches('0');
+            s.strip_suffix('.').unwrap_or(s).to_string()
+        }
+    };
+    format!("[{}, {}]", f(r[0]), f(r[1]))
 }
 
 #[derive(serde::Serialize)]

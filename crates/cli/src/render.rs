@@ -2,8 +2,8 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result, bail};
-use render_gpu::image_io::{RenderTag, write_exr, write_png};
+use anyhow::{Context, Result, anyhow, bail};
+use render_gpu::image_io::{RenderTag, encode_exr, encode_png};
 use render_gpu::integrator::{IntegratorKind, IntegratorSettings, PathStats};
 use render_gpu::render::RenderOptions;
 use render_gpu::scene::SceneFile;
@@ -46,7 +46,8 @@ pub struct Args {
     /// EXR header record the spp actually rendered).
     #[arg(long)]
     pub time_budget: Option<f64>,
-    /// Output path without extension: writes OUT.exr, OUT.png and OUT.json.
+    /// Output path without extension: writes OUT.exr, OUT.png and OUT.json (a typed .exr,
+    /// .png or .json is dropped: `--out a.exr` writes a.exr, a.png, a.json).
     #[arg(long, default_value = "out/render")]
     pub out: PathBuf,
     /// Where to render: auto (a hardware GPU if there is one, else the CPU), gpu (any
@@ -140,7 +141,7 @@ pub fn prepare(
     }
     edit(&mut file);
     file.validate()
-        .map_err(|e| anyhow::anyhow!("{}: {e}", scene_path.display()))?;
+        .map_err(|e| anyhow!("{}: {e}", scene_path.display()))?;
     let stcvae = file.render.integrator == IntegratorKind::Stcvae;
     let (model, model_path, model_bytes) = if stcvae {
         let p = model
@@ -154,6 +155,37 @@ pub fn prepare(
     };
     let dir = scene_path.parent().unwrap_or(Path::new("."));
     let data = SceneData::build(&file, dir, stcvae, &model_bytes)?;
+    if let Some(m) = &model {
+        // The models extrapolate outside the media they were trained on (τ is kept inside
+        // by the sphere steps' max_tau; g and the albedo are the scene's).
+        let t = &m.training;
+        let med = &file.medium;
+        let mut outside = Vec::new();
+        if crate::model_cmds::outside_training(med.g, t.g_range) {
+            outside.push(format!(
+                "medium.g = {} (trained {})",
+                med.g,
+                crate::model_cmds::training_range(t.g_range)
+            ));
+        }
+        if let Some(a) = med
+            .albedo
+            .iter()
+            .find(|&&a| crate::model_cmds::outside_training(a, t.albedo_range))
+        {
+            outside.push(format!(
+                "medium.albedo {a} (trained {})",
+                crate::model_cmds::training_range(t.albedo_range)
+            ));
+        }
+        if !outside.is_empty() {
+            eprintln!(
+                "warning: {}: {} outside the model's training range: ST-CVAE extrapolates there",
+                scene_path.display(),
+                outside.join(", ")
+            );
+        }
+    }
     let trained_max = model
         .as_ref()
         .map_or(f64::INFINITY, |m| m.training.tau_range[1]);
@@ -236,6 +268,9 @@ pub fn run(a: Args) -> Result<()> {
         }
     })?;
     let r = &p.file.render;
+    if a.model.is_some() && p.model.is_none() {
+        eprintln!("note: --model is not used: the PT integrator needs no model");
+    }
     note_unreachable_lights(&p);
     let engine = Engine::open(a.device)?;
     let set = p.settings();
@@ -277,18 +312,14 @@ pub fn run(a: Args) -> Result<()> {
     {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
-    let with_ext = |e: &str| {
-        let mut s = a.out.clone().into_os_string();
-        s.push(".");
-        s.push(e);
-        PathBuf::from(s)
-    };
+    let with_ext = |e: &str| crate::merge::image_out(&a.out, e);
     let tag = RenderTag {
         spp: out.spp as u64,
         scene_hash: p.data.hash,
     };
-    write_exr(&with_ext("exr"), &out.image, &tag)?;
-    write_png(&with_ext("png"), &out.image, a.exposure)?;
+    let exr = encode_exr(&out.image, &tag).map_err(|e| anyhow!("{}: {e}", a.out.display()))?;
+    let png =
+        encode_png(&out.image, a.exposure).map_err(|e| anyhow!("{}: {e}", a.out.display()))?;
     let paths = out.stats.paths.max(1) as f64;
     let report = Report {
         scene: a.scene.display().to_string(),
@@ -317,7 +348,16 @@ pub fn run(a: Args) -> Result<()> {
         },
         stats: &out.stats,
     };
-    scatter_sim::output::write_atomic(&with_ext("json"), &serde_json::to_vec_pretty(&report)?)?;
+    let json = serde_json::to_vec_pretty(&report)?;
+    // The three files are one output: all are written before any replaces an earlier
+    // render's, so a failure never leaves a new image beside an old report.
+    let (exr_path, png_path, json_path) = (with_ext("exr"), with_ext("png"), with_ext("json"));
+    scatter_sim::output::write_atomic_set(&[
+        (&exr_path, &exr),
+        (&png_path, &png),
+        (&json_path, &json),
+    ])
+    .map_err(|(path, e)| anyhow!("cannot write {}: {e}", path.display()))?;
     if out.stats.capped > 0 || out.stats.non_finite > 0 {
         eprintln!(
             "warning: {} paths stopped by the iteration cap, {} non-finite estimates replaced by 0",
@@ -330,7 +370,7 @@ pub fn run(a: Args) -> Result<()> {
         // bounds (f32 precision at features thinner than the surface offset). The path
         // continued from there as outside. Counted in the JSON as `leaks`.
         eprintln!(
-            "note: {} of {} paths were found outside the mesh while inside ({:.1e}); they continued from there as outside",
+            "note: {} times (over {} paths, {:.1e} a path) a path was found outside the mesh while it believed itself inside; each continued from there as outside",
             out.stats.leaks,
             out.stats.paths,
             out.stats.leaks as f64 / out.stats.paths.max(1) as f64
@@ -343,7 +383,7 @@ pub fn run(a: Args) -> Result<()> {
         progress::si(report.paths_per_second),
         report.mean_pt_events_per_path,
         report.mean_sphere_steps_per_path,
-        a.out.display()
+        with_ext("").with_extension("").display()
     );
     Ok(())
 }

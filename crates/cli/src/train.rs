@@ -263,6 +263,33 @@ pub fn run(a: Args) -> Result<()> {
     }
     drop(rows);
 
+    if a.resume {
+        // Resuming from nothing used to start afresh without a word.
+        let missing: Vec<&str> = kinds
+            .iter()
+            .filter(|&&k| !cvae::train::trainer::has_checkpoint(&cfg.checkpoint_dir, k))
+            .map(|k| k.name())
+            .collect();
+        if missing.len() == kinds.len() {
+            bail!(
+                "--resume: {} holds no checkpoint to continue from; train without --resume to \
+                 start afresh",
+                cfg.checkpoint_dir.display()
+            );
+        }
+        if !missing.is_empty() {
+            eprintln!(
+                "note: --resume: no checkpoint of {} in {}: {} from the start",
+                missing.join(", "),
+                cfg.checkpoint_dir.display(),
+                if missing.len() == 1 {
+                    "it trains"
+                } else {
+                    "they train"
+                }
+            );
+        }
+    }
     let cancel = interrupt::flag();
     let multi = MultiProgress::new();
     let scaled = |k: ModelKind| {

@@ -253,6 +253,76 @@ fn render_writes_exr_png_json_and_merge_averages_by_spp() {
     ]));
     assert!(e.contains("0 spp"), "{e}");
     assert!(!d.path().join("zm.exr").exists());
+    // The merge's report, and a copy of an input (same pixels, another file) refused: it
+    // would count its samples twice.
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(m.with_extension("json")).unwrap()).unwrap();
+    assert_eq!(report["spp"], 12);
+    let copy = d.path().join("copy.exr");
+    std::fs::copy(&a_exr, &copy).unwrap();
+    let e = fails(&stcvae(&[
+        "merge",
+        a_exr.to_str().unwrap(),
+        copy.to_str().unwrap(),
+        "--out",
+        d.path().join("x").to_str().unwrap(),
+    ]));
+    assert!(e.contains("same image"), "{e}");
+    // `--out` naming a directory is refused, not written beside it as DIR.exr.
+    let e = fails(&stcvae(&[
+        "merge",
+        a_exr.to_str().unwrap(),
+        b.with_extension("exr").to_str().unwrap(),
+        "--out",
+        d.path().to_str().unwrap(),
+    ]));
+    assert!(e.contains("directory"), "{e}");
+    // A render that cannot write one of its three files writes none of them: the earlier
+    // render's EXR and JSON stay together (an 8-spp EXR beside a 4-spp JSON before).
+    let a_json = a.with_extension("json");
+    let (exr_before, json_before) = (
+        std::fs::read(&a_exr).unwrap(),
+        std::fs::read(&a_json).unwrap(),
+    );
+    std::fs::remove_file(a.with_extension("png")).unwrap();
+    std::fs::create_dir(a.with_extension("png")).unwrap();
+    let e = fails(&stcvae(&[
+        "render",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--spp",
+        "2",
+        "--seed",
+        "9",
+        "--out",
+        a.to_str().unwrap(),
+    ]));
+    assert!(e.contains("a.png"), "{e}");
+    assert_eq!(std::fs::read(&a_exr).unwrap(), exr_before);
+    assert_eq!(std::fs::read(&a_json).unwrap(), json_before);
+    assert!(
+        std::fs::read_dir(d.path()).unwrap().all(|f| !f
+            .unwrap()
+            .file_name()
+            .to_string_lossy()
+            .ends_with(".partial")),
+        "a temporary was left behind"
+    );
+    // `--out x.exr` writes x.exr, x.png, x.json (not x.exr.exr).
+    let x = d.path().join("x.exr");
+    ok(&stcvae(&[
+        "render",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--spp",
+        "1",
+        "--out",
+        x.to_str().unwrap(),
+    ]));
+    for ext in ["exr", "png", "json"] {
+        assert!(x.with_extension(ext).exists(), "missing x.{ext}");
+    }
+    assert!(!d.path().join("x.exr.exr").exists());
 }
 
 fn tag_of(p: &Path) -> u64 {

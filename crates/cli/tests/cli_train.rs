@@ -141,3 +141,72 @@ fn a_bad_base_fails_before_any_work() {
     assert!(!out.status.success());
     assert!(stderr(&out).contains("--model"), "{}", stderr(&out));
 }
+
+/// `--resume` from nothing, or from a damaged checkpoint, is refused (the first started
+/// afresh without a word, the second loaded the damaged weights); a run's final loss is
+/// its last step's (a run shorter than the logging interval reported its first step's);
+/// and `steps = 0` is refused rather than trained as one step.
+#[test]
+fn resume_needs_an_intact_checkpoint_and_the_last_loss_is_the_last_steps() {
+    let dir = tempfile::tempdir().unwrap();
+    setup(dir.path());
+    let cfg = fs::read_to_string(dir.path().join("train.toml")).unwrap();
+    fs::write(
+        dir.path().join("train.toml"),
+        cfg.replace("steps = 30", "steps = 5"),
+    )
+    .unwrap();
+    let base = root().join("models/default.stcvae");
+    let base_s = base.to_str().unwrap();
+    let resume = |d: &Path| {
+        stcvae(
+            &[
+                "train",
+                "--config",
+                "train.toml",
+                "--model",
+                "eventgen",
+                "--base",
+                base_s,
+                "--resume",
+            ],
+            d,
+        )
+    };
+    let out = resume(dir.path());
+    assert!(!out.status.success());
+    assert!(stderr(&out).contains("no checkpoint"), "{}", stderr(&out));
+
+    let out = train_eventgen(dir.path(), base_s);
+    assert!(out.status.success(), "train failed: {}", stderr(&out));
+    let info: serde_json::Value =
+        serde_json::from_slice(&fs::read(dir.path().join("ck/eventgen.json")).unwrap()).unwrap();
+    let history = info["history"].as_array().unwrap();
+    assert_eq!(history.last().unwrap()[0], 5, "{history:?}");
+    assert_eq!(history.len(), 2, "{history:?}");
+
+    // An intact checkpoint resumes (nothing left to train: it exports at once).
+    let out = resume(dir.path());
+    assert!(out.status.success(), "resume failed: {}", stderr(&out));
+    let weights = dir.path().join("ck/eventgen.bpk");
+    let mut bytes = fs::read(&weights).unwrap();
+    let i = bytes.len() / 2;
+    bytes[i] ^= 0x10;
+    fs::write(&weights, bytes).unwrap();
+    let out = resume(dir.path());
+    assert!(!out.status.success());
+    assert!(
+        stderr(&out).contains("eventgen.bpk") && stderr(&out).contains("checksum"),
+        "{}",
+        stderr(&out)
+    );
+
+    fs::write(
+        dir.path().join("train.toml"),
+        cfg.replace("steps = 30", "steps = 0"),
+    )
+    .unwrap();
+    let out = train_eventgen(dir.path(), base_s);
+    assert!(!out.status.success());
+    assert!(stderr(&out).contains("steps"), "{}", stderr(&out));
+}

@@ -47,6 +47,12 @@ pub fn write_exr(
     img: &RgbImage,
     tag: &RenderTag,
 ) -> std::result::Result<(), RenderError> {
+    let bytes = encode_exr(img, tag).map_err(|e| RenderError::io(path, e))?;
+    write_atomic(path, &bytes).map_err(|e| RenderError::io(path, e))
+}
+
+/// The bytes of [`write_exr`]'s file.
+pub fn encode_exr(img: &RgbImage, tag: &RenderTag) -> std::result::Result<Vec<u8>, String> {
     let w = img.width;
     let channels = SpecificChannels::rgb(|pos: Vec2<usize>| {
         let p = img.pixels[pos.y() * w + pos.x()];
@@ -72,8 +78,8 @@ pub fn write_exr(
     image
         .write()
         .to_buffered(&mut buf)
-        .map_err(|e| RenderError::io(path, format!("cannot encode EXR: {e}")))?;
-    write_atomic(path, buf.get_ref()).map_err(|e| RenderError::io(path, e))
+        .map_err(|e| format!("cannot encode EXR: {e}"))?;
+    Ok(buf.into_inner())
 }
 
 /// Reads an RGB EXR and, if present, its render tag.
@@ -152,6 +158,12 @@ pub fn write_png(
     img: &RgbImage,
     exposure: f32,
 ) -> std::result::Result<(), RenderError> {
+    let bytes = encode_png(img, exposure).map_err(|e| RenderError::io(path, e))?;
+    write_atomic(path, &bytes).map_err(|e| RenderError::io(path, e))
+}
+
+/// The bytes of [`write_png`]'s file.
+pub fn encode_png(img: &RgbImage, exposure: f32) -> std::result::Result<Vec<u8>, String> {
     let data: Vec<u8> = img
         .pixels
         .iter()
@@ -169,19 +181,39 @@ pub fn write_png(
         enc.set_depth(png::BitDepth::Eight);
         let mut wr = enc
             .write_header()
-            .map_err(|e| RenderError::io(path, format!("cannot encode PNG: {e}")))?;
+            .map_err(|e| format!("cannot encode PNG: {e}"))?;
         wr.write_image_data(&data)
-            .map_err(|e| RenderError::io(path, format!("cannot encode PNG: {e}")))?;
+            .map_err(|e| format!("cannot encode PNG: {e}"))?;
     }
-    write_atomic(path, &buf).map_err(|e| RenderError::io(path, e))
+    Ok(buf)
 }
 
 /// Averages renders of the same scene weighted by their spp. Refuses images of
 /// different scenes or sizes and images without a render tag.
 pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag), RenderError> {
     let mut acc: Option<(RgbImage, RenderTag, Vec<[f64; 3]>)> = None;
+    // Each input's pixels, hashed: two independent renders never agree bit for bit, so
+    // equal images are one render given twice (a copy, or the same seed rendered again),
+    // which would count its samples twice.
+    let mut seen: Vec<(u64, &Path)> = Vec::new();
     for &p in paths {
         let (img, tag) = read_exr(p)?;
+        let mut h = crate::hash::Fnv64::new();
+        for px in &img.pixels {
+            for v in px {
+                h.write(&v.to_bits().to_le_bytes());
+            }
+        }
+        let digest = h.finish();
+        if let Some((_, q)) = seen.iter().find(|(d, _)| *d == digest) {
+            return Err(RenderError::Image(format!(
+                "{}: the same image as {}: one render given twice (a copy, or the same seed \
+                 rendered again) would count twice; merge renders of different seeds",
+                p.display(),
+                q.display()
+            )));
+        }
+        seen.push((digest, p));
         let tag = tag.ok_or_else(|| {
             RenderError::Image(format!(
                 "{}: no stcvae render tag (spp, scene hash) in the EXR header: not an stcvae render",

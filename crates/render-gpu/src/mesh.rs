@@ -95,6 +95,20 @@ pub fn load_mesh(path: &Path) -> Result<TriMesh, RenderError> {
         .and_then(|e| e.to_str())
         .map(|e| e.to_ascii_lowercase())
         .unwrap_or_default();
+    // Said here, plainly: the OBJ loader's own words for a missing file were "open file
+    // failed".
+    match std::fs::metadata(path) {
+        Err(e) => {
+            return Err(RenderError::mesh(
+                path,
+                format!("cannot open the mesh: {e}"),
+            ));
+        }
+        Ok(m) if m.is_dir() => {
+            return Err(RenderError::mesh(path, "is a directory, not a mesh file"));
+        }
+        Ok(_) => {}
+    }
     let raw = match ext.as_str() {
         "glb" | "gltf" => load_gltf(path)?,
         "obj" => load_obj(path)?,

@@ -31,14 +31,30 @@ pub struct SceneFile {
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraDesc {
+    #[serde(deserialize_with = "triple")]
     pub origin: [f64; 3],
+    #[serde(deserialize_with = "triple")]
     pub target: [f64; 3],
-    #[serde(default = "default_up")]
+    #[serde(default = "default_up", deserialize_with = "triple")]
     pub up: [f64; 3],
     /// Horizontal field of view, degrees.
     pub fov_deg: f64,
     pub width: u32,
     pub height: u32,
+}
+
+/// Exactly three numbers. serde's own `[f64; 3]` reads the first three elements of a
+/// longer TOML array and ignores the rest, so `albedo = [0.5, 0.5, 0.5, 7.0]` would pass
+/// validation with its out-of-range fourth value unread.
+fn triple<'de, D: serde::Deserializer<'de>>(d: D) -> Result<[f64; 3], D::Error> {
+    let v = Vec::<f64>::deserialize(d)?;
+    <[f64; 3]>::try_from(v.as_slice()).map_err(|_| {
+        serde::de::Error::invalid_length(v.len(), &"an array of 3 numbers (R, G, B or x, y, z)")
+    })
+}
+
+fn optional_triple<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Option<[f64; 3]>, D::Error> {
+    triple(d).map(Some)
 }
 
 fn default_up() -> [f64; 3] {
@@ -74,8 +90,10 @@ pub struct ObjectDesc {
 #[serde(deny_unknown_fields)]
 pub struct MediumDesc {
     /// Extinction per RGB channel, 1/scene-unit.
+    #[serde(deserialize_with = "triple")]
     pub sigma_t: [f64; 3],
     /// Single-scattering albedo per RGB channel.
+    #[serde(deserialize_with = "triple")]
     pub albedo: [f64; 3],
     #[serde(default)]
     pub g: f64,
@@ -109,8 +127,10 @@ pub enum LightKind {
 pub struct LightDesc {
     pub kind: LightKind,
     /// The direction the light travels.
+    #[serde(deserialize_with = "triple")]
     pub direction: [f64; 3],
     /// Irradiance on a plane perpendicular to the light.
+    #[serde(deserialize_with = "triple")]
     pub irradiance: [f64; 3],
     /// Angular diameter of the sun disk; 0 = a delta light.
     #[serde(default)]
@@ -121,6 +141,7 @@ pub struct LightDesc {
 #[serde(deny_unknown_fields)]
 pub struct EnvironmentDesc {
     /// Constant radiance.
+    #[serde(default, deserialize_with = "optional_triple")]
     pub radiance: Option<[f64; 3]>,
     /// Lat-long EXR, relative to the scene file (multiplied by `radiance` if both given).
     pub file: Option<PathBuf>,
@@ -279,11 +300,20 @@ impl SceneFile {
     pub fn parse(path: &Path, text: &str) -> Result<Self, RenderError> {
         let scene: SceneFile = toml::from_str(text).map_err(|e| {
             let msg = e.message().to_string();
-            let line = e
-                .span()
-                .map(|s| text[..s.start.min(text.len())].lines().count().max(1));
-            RenderError::Scene(match line {
-                Some(l) => format!("{}:{l}: {msg}", path.display()),
+            // The line number and the line itself: a value's error (a wrong type, a
+            // triple of the wrong length) does not say which key it belongs to.
+            let at = e.span().map(|s| {
+                let start = s.start.min(text.len());
+                let line_start = text[..start].rfind('\n').map_or(0, |i| i + 1);
+                let line = text[line_start..].lines().next().unwrap_or("").trim();
+                let shown: String = line.chars().take(80).collect();
+                (text[..start].lines().count().max(1), shown)
+            });
+            RenderError::Scene(match at {
+                Some((l, line)) if !line.is_empty() => {
+                    format!("{}:{l}: {msg} (in `{line}`)", path.display())
+                }
+                Some((l, _)) => format!("{}:{l}: {msg}", path.display()),
                 None => format!("{}: {msg}", path.display()),
             })
         })?;

@@ -87,6 +87,17 @@ impl SceneData {
         }
         h.write(extra_hash);
         let geo = Geometry::new(mesh);
+        // Every path starts in air (the integrators trace camera rays from outside the
+        // object); from inside, a camera's paths would be taken for entering ones and lit
+        // as if in air, so the image would be wrong without any error.
+        let eye = scene.camera.origin.map(|v| v as f32);
+        if geo.inside(glam::Vec3::from_array(eye)) {
+            return Err(RenderError::Scene(format!(
+                "camera.origin = [{}, {}, {}] lies inside the object: the camera must be \
+                 outside it (in air)",
+                eye[0], eye[1], eye[2]
+            )));
+        }
         let grid = with_grid.then(|| DistanceGrid::cached(&geo, scene.render.grid_resolution));
         let m = &scene.medium;
         Ok(Self {

@@ -98,7 +98,15 @@ fn broken_files_give_clear_errors() {
     let e = load_mesh(&d.path().join("missing.obj"))
         .unwrap_err()
         .to_string();
-    assert!(e.contains("missing.obj"), "{e}");
+    assert!(
+        e.contains("missing.obj") && e.contains("cannot open") && e.contains("No such file"),
+        "{e}"
+    );
+    std::fs::create_dir(d.path().join("dir.ply")).unwrap();
+    let e = load_mesh(&d.path().join("dir.ply"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("dir.ply") && e.contains("directory"), "{e}");
 }
 
 /// A unit cube as glTF: `cube.bin` holds 8 f32 positions then 36 u16 indices; `json` gets

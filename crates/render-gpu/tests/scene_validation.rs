@@ -173,3 +173,62 @@ fn values_that_break_single_precision_are_refused() {
     ));
     assert!(e.contains("environment.radiance[1]"), "{e}");
 }
+
+/// serde's `[f64; 3]` reads three elements of a longer TOML array and drops the rest
+/// unseen (an out-of-range fourth albedo rendered); every triple must have exactly three.
+#[test]
+fn triples_must_have_exactly_three_numbers() {
+    let e = err(&BASE.replace(
+        "albedo = [0.99, 0.99, 0.99]",
+        "albedo = [0.5, 0.5, 0.5, 7.0]",
+    ));
+    assert!(e.contains("albedo") && e.contains("3 numbers"), "{e}");
+    let e = err(&BASE.replace("sigma_t = [10.0, 10.0, 10.0]", "sigma_t = [10.0, 10.0]"));
+    assert!(e.contains("sigma_t") && e.contains("3 numbers"), "{e}");
+    let e = err(&BASE.replace("origin = [0.0, 0.0, 4.0]", "origin = [0.0, 0.0, 4.0, 1.0]"));
+    assert!(e.contains("origin"), "{e}");
+    let e = err(&format!(
+        "{BASE}\n[environment]\nradiance = [1.0, 1.0, 1.0, 1.0]\n"
+    ));
+    assert!(e.contains("radiance") && e.contains("3 numbers"), "{e}");
+    let e = err(&format!(
+        "{BASE}\n[[light]]\nkind = \"directional\"\ndirection = [0.0, 0.0, -1.0, 0.0]\nirradiance = [1.0, 1.0, 1.0]\n"
+    ));
+    assert!(e.contains("direction"), "{e}");
+    // The environment's radiance stays optional.
+    let s = SceneFile::parse(
+        Path::new("s.toml"),
+        &format!("{BASE}\n[environment]\nradiance = [0.5, 0.5, 0.5]\n"),
+    )
+    .unwrap();
+    assert_eq!(s.environment.radiance, Some([0.5; 3]));
+    assert!(
+        SceneFile::parse(Path::new("s.toml"), &format!("{BASE}\n[environment]\n"))
+            .unwrap()
+            .environment
+            .radiance
+            .is_none()
+    );
+}
+
+/// A camera inside the object rendered a wrong image (paths taken for entering ones, lit
+/// as if in air) with exit 0; the scene is refused instead, outside it still renders.
+#[test]
+fn a_camera_inside_the_object_is_refused() {
+    let build = |text: &str| {
+        let f = SceneFile::parse(Path::new("s.toml"), text).unwrap();
+        render_gpu::setup::SceneData::build(&f, Path::new("."), false, &[])
+    };
+    for origin in ["[0.0, 0.0, 0.1]", "[0.2, -0.1, 0.0]", "[0.0, 0.0, 0.49]"] {
+        let text = BASE.replace("origin = [0.0, 0.0, 4.0]", &format!("origin = {origin}"));
+        let e = build(&text)
+            .err()
+            .expect("a camera inside was accepted")
+            .to_string();
+        assert!(e.contains("camera.origin") && e.contains("inside"), "{e}");
+    }
+    for origin in ["[0.0, 0.0, 0.51]", "[0.0, 0.0, 4.0]"] {
+        let text = BASE.replace("origin = [0.0, 0.0, 4.0]", &format!("origin = {origin}"));
+        assert!(build(&text).is_ok(), "camera at {origin} refused");
+    }
+}

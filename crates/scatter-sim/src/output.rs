@@ -78,3 +78,28 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> io::Result<()> {
     f.write_all(bytes)?;
     f.commit()
 }
+
+/// Writes several files as one output: every temporary is written first and only then
+/// are they renamed into place, so a failure while writing (a full disk, a path that is a
+/// directory) leaves the previous set untouched instead of a new image beside an old
+/// report. The error names the file it concerns.
+pub fn write_atomic_set(files: &[(&Path, &[u8])]) -> Result<(), (PathBuf, io::Error)> {
+    let mut ready = Vec::with_capacity(files.len());
+    for &(path, bytes) in files {
+        let fail = |e| (path.to_path_buf(), e);
+        if path.is_dir() {
+            return Err(fail(io::Error::new(
+                io::ErrorKind::IsADirectory,
+                "is a directory",
+            )));
+        }
+        let mut f = AtomicFile::create(path).map_err(fail)?;
+        f.write_all(bytes).map_err(fail)?;
+        ready.push(f);
+    }
+    for f in ready {
+        let path = f.path().to_path_buf();
+        f.commit().map_err(|e| (path, e))?;
+    }
+    Ok(())
+}

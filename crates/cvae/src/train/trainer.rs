@@ -66,6 +66,12 @@ impl ModelConfig {
 
     pub fn validate(&self, name: &str) -> Result<(), String> {
         let bad = |f: &str, why: &str| Err(format!("{name}.{f}: {why}"));
+        if self.steps == 0 || self.steps > 1 << 40 {
+            return bad(
+                "steps",
+                "must be in 1..=2^40 (0 would train nothing and export an untrained model)",
+            );
+        }
         if self.latent == 0 || self.latent > 16 {
             return bad("latent", "must be in 1..=16");
         }
@@ -113,6 +119,15 @@ pub struct CheckpointInfo {
     /// (step, mean loss over the preceding reporting interval); the first entry (step 1)
     /// is the untrained model's loss.
     pub history: Vec<(u64, f32)>,
+    /// CRC-32 of the weights file and of the optimiser state file as saved: burn's
+    /// record files carry none, and a damaged one loaded without complaint. Absent in
+    /// checkpoints written before it existed (then not checked).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub crc32: Option<[u32; 2]>,
+}
+
+fn crc_of(path: &Path) -> std::io::Result<u32> {
+    Ok(crc32fast::hash(&std::fs::read(path)?))
 }
 
 fn feature_version_2() -> u32 {
@@ -124,6 +139,11 @@ pub struct Trained {
     pub kind: ModelKind,
     pub decoder: Decoder,
     pub info: CheckpointInfo,
+}
+
+/// Whether `dir` holds a checkpoint of `kind` that `resume` would continue from.
+pub fn has_checkpoint(dir: &Path, kind: ModelKind) -> bool {
+    paths(dir, kind).2.exists()
 }
 
 fn paths(dir: &Path, kind: ModelKind) -> (PathBuf, PathBuf, PathBuf) {
@@ -151,9 +171,14 @@ fn save_checkpoint(
     model
         .clone()
         .save_file(&m)
-        .map_err(|e| err(&m, format!("{e:?}")))?;
-    optim.save(&o).map_err(|e| err(&o, format!("{e:?}")))?;
-    let json = serde_json::to_vec_pretty(info).expect("serialisable");
+        .map_err(|e| err(&m, e.to_string()))?;
+    optim.save(&o).map_err(|e| err(&o, e.to_string()))?;
+    let mut info = info.clone();
+    info.crc32 = Some([
+        crc_of(&m).map_err(|e| err(&m, e.to_string()))?,
+        crc_of(&o).map_err(|e| err(&o, e.to_string()))?,
+    ]);
+    let json = serde_json::to_vec_pretty(&info).expect("serialisable");
     scatter_sim::output::write_atomic(&j, &json).map_err(|e| err(&j, e.to_string()))
 }
 
@@ -192,6 +217,7 @@ pub fn train_model(
         seconds: 0.0,
         norm: table.norm.clone(),
         history: Vec::new(),
+        crc32: None,
     };
     let (mpath, opath, jpath) = paths(checkpoint_dir, kind);
     if resume && jpath.exists() {
@@ -225,12 +251,25 @@ pub fn train_model(
                 "checkpoint was trained on other data (standardisation differs)".into(),
             ));
         }
+        if let Some(crcs) = info.crc32 {
+            for (path, want) in [(&mpath, crcs[0]), (&opath, crcs[1])] {
+                let got = crc_of(path).map_err(|e| err(path, e.to_string()))?;
+                if got != want {
+                    return Err(err(
+                        path,
+                        format!(
+                            "checksum {got:08x} differs from the {want:08x} saved with the \
+                             checkpoint: the file is damaged or was replaced; train without \
+                             --resume"
+                        ),
+                    ));
+                }
+            }
+        }
         model = model
             .try_load_file(&mpath)
-            .map_err(|e| err(&mpath, format!("{e:?}")))?;
-        optim = optim
-            .load(&opath)
-            .map_err(|e| err(&opath, format!("{e:?}")))?;
+            .map_err(|e| err(&mpath, e.to_string()))?;
+        optim = optim.load(&opath).map_err(|e| err(&opath, e.to_string()))?;
         // A fresh stream for the rest of the run (the old one's position is not saved).
         rng = WalkRng::for_walk(seed ^ info.step.rotate_left(32), kind as u64);
     }
@@ -249,8 +288,10 @@ pub fn train_model(
         let tt = Tensor::<2>::from_data(TensorData::new(target.clone(), [b, p]), device);
         let te = Tensor::<2>::from_data(TensorData::new(eps.clone(), [b, l]), device);
         let terms = model.loss(tc, tt, te);
-        // Step 0 is always logged: it is the untrained model's loss.
-        let log_now = info.step % LOG_EVERY == 0;
+        // Step 0 is always logged: it is the untrained model's loss; so is the last step,
+        // whose report is the final loss (a run shorter than LOG_EVERY steps otherwise
+        // reported its first step's loss as the final one).
+        let log_now = info.step % LOG_EVERY == 0 || info.step + 1 == cfg.steps;
         if log_now {
             let v = terms.loss.clone().into_scalar::<f32>();
             if !v.is_finite() {
@@ -307,6 +348,6 @@ pub fn load_decoder(
     let mut rng = WalkRng::from_seed(0);
     let model = Cvae::new(kind.cond(), kind.out(), arch, &mut rng, &device)
         .try_load_file(&m)
-        .map_err(|e| err(&m, format!("{e:?}")))?;
+        .map_err(|e| err(&m, e.to_string()))?;
     Ok((model.export(&info.norm), info.feature_version))
 }

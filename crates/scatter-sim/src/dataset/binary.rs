@@ -129,8 +129,23 @@ impl DatasetReader {
             path: path.into(),
             msg: e.to_string(),
         })?;
-        // The checksum covers the rows only, so the header's numbers are checked here:
-        // merge adds and compares them.
+        // The checksum covers the rows only, so the header's columns and numbers are
+        // checked here: the rows are read by position, and merge adds and compares counts.
+        if header
+            .columns
+            .iter()
+            .map(String::as_str)
+            .ne(super::COLUMNS.iter().copied())
+        {
+            return Err(DatasetError::Header {
+                path: path.into(),
+                msg: format!(
+                    "columns [{}] differ from this build's [{}]",
+                    header.columns.join(", "),
+                    super::COLUMNS.join(", ")
+                ),
+            });
+        }
         if let Some(p) = header.pieces.iter().find(|p| {
             p.first_walk
                 .checked_add(p.count)

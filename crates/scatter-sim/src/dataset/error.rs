@@ -5,10 +5,12 @@ use thiserror::Error;
 /// Every way reading or writing a dataset can fail; each message names the file.
 #[derive(Debug, Error)]
 pub enum DatasetError {
-    #[error("{path}: {source}")]
+    /// The I/O error is part of the message, not a `source`: anyhow's report prints a
+    /// source after the message, which printed it twice.
+    #[error("{path}: {error}")]
     Io {
         path: PathBuf,
-        source: std::io::Error,
+        error: std::io::Error,
     },
     #[error("{path}: not an stcvae dataset (bad magic bytes)")]
     BadMagic { path: PathBuf },
@@ -46,7 +48,7 @@ impl DatasetError {
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
         Self::Io {
             path: path.into(),
-            source,
+            error: source,
         }
     }
 }
