@@ -80,7 +80,7 @@ pub struct Args {
 
 /// Writes the ladder step's images into `dir` (see `Args::save`).
 fn save_images(dir: &std::path::Path, k: f64, pt: &Pair, st: &Pair) -> Result<()> {
-    use render_gpu::image_io::{RenderTag, RgbImage, write_exr, write_png};
+    use render_gpu::image_io::{RenderTag, RgbImage, write_exr_png, write_png};
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let exposure = crate::experiment::measure::scale_of(&pt.mean) as f32;
     for (name, p) in [("pt", pt), ("stcvae", st)] {
@@ -90,9 +90,10 @@ fn save_images(dir: &std::path::Path, k: f64, pt: &Pair, st: &Pair) -> Result<()
         let tag = RenderTag {
             spp: p.spp as u64,
             scene_hash: p.hash,
+            // The mean of the pair's two seeds.
+            seed: None,
         };
-        write_exr(&file("exr"), &p.mean, &tag)?;
-        write_png(&file("png"), &p.mean, exposure)?;
+        write_exr_png(&file("exr"), &file("png"), &p.mean, &tag, exposure)?;
     }
     let (w, h) = (pt.mean.width, pt.mean.height);
     let mut z = RgbImage::new(w, h);

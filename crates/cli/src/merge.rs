@@ -117,16 +117,12 @@ pub(crate) fn image_out(out: &std::path::Path, ext: &str) -> PathBuf {
     PathBuf::from(s)
 }
 
-/// Renders of one scene with different seeds, averaged by spp: writes OUT.exr and OUT.png.
+/// Renders of one scene with different seeds, averaged by spp: writes OUT.exr, OUT.png and
+/// OUT.json.
 fn merge_images(a: &Args) -> Result<()> {
+    crate::render::check_out_stem(&a.out)?;
     let inputs: Vec<&std::path::Path> = a.inputs.iter().map(|p| p.as_path()).collect();
     let (img, tag) = render_gpu::image_io::merge_exrs(&inputs)?;
-    if a.out.is_dir() {
-        bail!(
-            "--out {} is a directory: give the output's name (OUT.exr, OUT.png and OUT.json are written)",
-            a.out.display()
-        );
-    }
     let exr = image_out(&a.out, "exr");
     let png = image_out(&a.out, "png");
     let json = image_out(&a.out, "json");

@@ -179,9 +179,8 @@ pub(crate) fn training_range(r: [f64; 2]) -> String {
         if v != 0.0 && v.abs() < 1e-3 {
             format!("{v:.2e}")
         } else {
-            let s = format!("{v:.6}");
-            let s = s.trim_end_matches('0');
-            s.strip_suffix('.').unwrap_or(s).to_string()
+            // Shortest round-trip digits: 0.9999995 stays itself, 1 is 1.
+            format!("{v}")
         }
     };
     format!("[{}, {}]", f(r[0]), f(r[1]))

@@ -155,37 +155,6 @@ pub fn prepare(
     };
     let dir = scene_path.parent().unwrap_or(Path::new("."));
     let data = SceneData::build(&file, dir, stcvae, &model_bytes)?;
-    if let Some(m) = &model {
-        // The models extrapolate outside the media they were trained on (τ is kept inside
-        // by the sphere steps' max_tau; g and the albedo are the scene's).
-        let t = &m.training;
-        let med = &file.medium;
-        let mut outside = Vec::new();
-        if crate::model_cmds::outside_training(med.g, t.g_range) {
-            outside.push(format!(
-                "medium.g = {} (trained {})",
-                med.g,
-                crate::model_cmds::training_range(t.g_range)
-            ));
-        }
-        if let Some(a) = med
-            .albedo
-            .iter()
-            .find(|&&a| crate::model_cmds::outside_training(a, t.albedo_range))
-        {
-            outside.push(format!(
-                "medium.albedo {a} (trained {})",
-                crate::model_cmds::training_range(t.albedo_range)
-            ));
-        }
-        if !outside.is_empty() {
-            eprintln!(
-                "warning: {}: {} outside the model's training range: ST-CVAE extrapolates there",
-                scene_path.display(),
-                outside.join(", ")
-            );
-        }
-    }
     let trained_max = model
         .as_ref()
         .map_or(f64::INFINITY, |m| m.training.tau_range[1]);
@@ -206,9 +175,43 @@ pub fn prepare(
     })
 }
 
+/// The models extrapolate outside the media they were trained on (τ is kept inside by the
+/// sphere steps' max_tau; g and the albedo are the scene's): said once, by `render` (the
+/// bench and the experiments render their own, known media).
+fn warn_outside_training(p: &Prepared, scene_path: &Path) {
+    let Some(m) = &p.model else { return };
+    let t = &m.training;
+    let med = &p.file.medium;
+    let mut outside = Vec::new();
+    if crate::model_cmds::outside_training(med.g, t.g_range) {
+        outside.push(format!(
+            "medium.g = {} (trained {})",
+            med.g,
+            crate::model_cmds::training_range(t.g_range)
+        ));
+    }
+    if let Some(a) = med
+        .albedo
+        .iter()
+        .find(|&&a| crate::model_cmds::outside_training(a, t.albedo_range))
+    {
+        outside.push(format!(
+            "medium.albedo {a} (trained {})",
+            crate::model_cmds::training_range(t.albedo_range)
+        ));
+    }
+    if !outside.is_empty() {
+        eprintln!(
+            "warning: {}: {} outside the model's training range: ST-CVAE extrapolates there",
+            scene_path.display(),
+            outside.join(", ")
+        );
+    }
+}
+
 /// `--out` is a path stem (OUT.exr, OUT.png, OUT.json); checked before rendering so that a
 /// long render is not lost to an unwritable name.
-fn check_out_stem(out: &Path) -> Result<()> {
+pub(crate) fn check_out_stem(out: &Path) -> Result<()> {
     let text = out.as_os_str().to_string_lossy();
     if out.file_name().is_none()
         || text.ends_with('/')
@@ -271,6 +274,7 @@ pub fn run(a: Args) -> Result<()> {
     if a.model.is_some() && p.model.is_none() {
         eprintln!("note: --model is not used: the PT integrator needs no model");
     }
+    warn_outside_training(&p, &a.scene);
     note_unreachable_lights(&p);
     let engine = Engine::open(a.device)?;
     let set = p.settings();
@@ -316,6 +320,7 @@ pub fn run(a: Args) -> Result<()> {
     let tag = RenderTag {
         spp: out.spp as u64,
         scene_hash: p.data.hash,
+        seed: Some(r.seed),
     };
     let exr = encode_exr(&out.image, &tag).map_err(|e| anyhow!("{}: {e}", a.out.display()))?;
     let png =

@@ -187,14 +187,41 @@ pub fn run(a: Args) -> Result<()> {
         }
         None => None,
     };
-    ensure_dataset(&cfg)?;
-    let t0 = Instant::now();
-    eprintln!("reading {}", cfg.dataset.display());
-    let (_, rows) = read_dataset(&cfg.dataset)?;
     let kinds: Vec<ModelKind> = match a.model {
         Some(k) => vec![k],
         None => ModelKind::ALL.to_vec(),
     };
+    if a.resume {
+        // Resuming from nothing used to start afresh without a word.
+        let missing: Vec<&str> = kinds
+            .iter()
+            .filter(|&&k| !cvae::train::trainer::has_checkpoint(&cfg.checkpoint_dir, k))
+            .map(|k| k.name())
+            .collect();
+        if missing.len() == kinds.len() {
+            bail!(
+                "--resume: {} holds no checkpoint to continue from; train without --resume to \
+                 start afresh",
+                cfg.checkpoint_dir.display()
+            );
+        }
+        if !missing.is_empty() {
+            eprintln!(
+                "note: --resume: no checkpoint of {} in {}: {} from the start",
+                missing.join(", "),
+                cfg.checkpoint_dir.display(),
+                if missing.len() == 1 {
+                    "it trains"
+                } else {
+                    "they train"
+                }
+            );
+        }
+    }
+    ensure_dataset(&cfg)?;
+    let t0 = Instant::now();
+    eprintln!("reading {}", cfg.dataset.display());
+    let (_, rows) = read_dataset(&cfg.dataset)?;
     let tables: Vec<Table> = kinds
         .iter()
         .map(|&k| Table::build(k, &rows, cfg.single_scattering))
@@ -263,33 +290,6 @@ pub fn run(a: Args) -> Result<()> {
     }
     drop(rows);
 
-    if a.resume {
-        // Resuming from nothing used to start afresh without a word.
-        let missing: Vec<&str> = kinds
-            .iter()
-            .filter(|&&k| !cvae::train::trainer::has_checkpoint(&cfg.checkpoint_dir, k))
-            .map(|k| k.name())
-            .collect();
-        if missing.len() == kinds.len() {
-            bail!(
-                "--resume: {} holds no checkpoint to continue from; train without --resume to \
-                 start afresh",
-                cfg.checkpoint_dir.display()
-            );
-        }
-        if !missing.is_empty() {
-            eprintln!(
-                "note: --resume: no checkpoint of {} in {}: {} from the start",
-                missing.join(", "),
-                cfg.checkpoint_dir.display(),
-                if missing.len() == 1 {
-                    "it trains"
-                } else {
-                    "they train"
-                }
-            );
-        }
-    }
     let cancel = interrupt::flag();
     let multi = MultiProgress::new();
     let scaled = |k: ModelKind| {

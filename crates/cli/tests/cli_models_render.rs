@@ -242,6 +242,7 @@ fn render_writes_exr_png_json_and_merge_averages_by_spp() {
         &render_gpu::image_io::RenderTag {
             spp: 0,
             scene_hash: tag_of(&a_exr),
+            seed: None,
         },
     )
     .unwrap();
@@ -267,7 +268,10 @@ fn render_writes_exr_png_json_and_merge_averages_by_spp() {
         "--out",
         d.path().join("x").to_str().unwrap(),
     ]));
-    assert!(e.contains("same image"), "{e}");
+    assert!(
+        e.contains("same render") && e.contains("same seed 1"),
+        "{e}"
+    );
     // `--out` naming a directory is refused, not written beside it as DIR.exr.
     let e = fails(&stcvae(&[
         "merge",

@@ -318,10 +318,23 @@ impl Geometry {
         point_triangle_d2(p, from_arr(t.v0), from_arr(t.v1), from_arr(t.v2))
     }
 
-    /// Whether `p` is inside the closed mesh (parity of crossings along a fixed ray).
+    /// Whether `p` is inside the closed mesh: the majority of the parities of crossings
+    /// along three rays, so that one ray grazing an edge or a vertex (and counting a
+    /// crossing too many or too few) does not decide.
     pub fn inside(&self, p: Vec3) -> bool {
-        // An irrational-ish direction avoids grazing edges of axis-aligned meshes.
-        let dir = Vec3::new(0.5773, 0.5774, 0.5775).normalize();
+        // Irrational-ish directions avoid grazing edges of axis-aligned meshes.
+        let dirs = [
+            Vec3::new(0.5773, 0.5774, 0.5775),
+            Vec3::new(-0.6133, 0.2871, -0.7358),
+            Vec3::new(0.1429, -0.9217, 0.3606),
+        ];
+        dirs.iter()
+            .filter(|d| self.odd_crossings(p, d.normalize()))
+            .count()
+            >= 2
+    }
+
+    fn odd_crossings(&self, p: Vec3, dir: Vec3) -> bool {
         let mut o = p;
         let mut crossings = 0;
         for _ in 0..10_000 {

@@ -15,6 +15,7 @@ use crate::error::RenderError;
 
 const ATTR_SPP: &str = "stcvaeSpp";
 const ATTR_SCENE: &str = "stcvaeSceneHash";
+const ATTR_SEED: &str = "stcvaeSeed";
 
 /// A linear RGB image, row 0 at the top.
 #[derive(Clone, Debug, PartialEq)]
@@ -40,6 +41,10 @@ pub struct RenderTag {
     pub spp: u64,
     /// Hash of everything that defines the image except spp and seed.
     pub scene_hash: u64,
+    /// The seed of a single render (none for a merge of several, or in files written
+    /// before it was recorded): renders with the same seed share their samples, so
+    /// `merge` refuses two of them.
+    pub seed: Option<u64>,
 }
 
 pub fn write_exr(
@@ -49,6 +54,21 @@ pub fn write_exr(
 ) -> std::result::Result<(), RenderError> {
     let bytes = encode_exr(img, tag).map_err(|e| RenderError::io(path, e))?;
     write_atomic(path, &bytes).map_err(|e| RenderError::io(path, e))
+}
+
+/// An image as EXR (linear, tagged) and PNG (preview at `exposure`), written as one set:
+/// both files or neither replace what was there.
+pub fn write_exr_png(
+    exr: &Path,
+    png: &Path,
+    img: &RgbImage,
+    tag: &RenderTag,
+    exposure: f32,
+) -> std::result::Result<(), RenderError> {
+    let e = encode_exr(img, tag).map_err(|e| RenderError::io(exr, e))?;
+    let p = encode_png(img, exposure).map_err(|e| RenderError::io(png, e))?;
+    scatter_sim::output::write_atomic_set(&[(exr, &e), (png, &p)])
+        .map_err(|(path, e)| RenderError::io(&path, e))
 }
 
 /// The bytes of [`write_exr`]'s file.
@@ -67,6 +87,12 @@ pub fn encode_exr(img: &RgbImage, tag: &RenderTag) -> std::result::Result<Vec<u8
         Text::from(ATTR_SCENE),
         AttributeValue::Text(Text::from(format!("{:016x}", tag.scene_hash).as_str())),
     );
+    if let Some(seed) = tag.seed {
+        attrs.other.insert(
+            Text::from(ATTR_SEED),
+            AttributeValue::Text(Text::from(seed.to_string().as_str())),
+        );
+    }
     let layer = Layer::new(
         Vec2(img.width, img.height),
         attrs,
@@ -137,6 +163,15 @@ pub fn read_exr(path: &Path) -> std::result::Result<(RgbImage, Option<RenderTag>
                     path.display()
                 ))
             })?,
+            seed: match text(ATTR_SEED) {
+                None => None,
+                Some(v) => Some(v.parse().map_err(|_| {
+                    RenderError::Image(format!(
+                        "{}: bad {ATTR_SEED} attribute `{v}`",
+                        path.display()
+                    ))
+                })?),
+            },
         }),
         _ => None,
     };
@@ -189,31 +224,46 @@ pub fn encode_png(img: &RgbImage, exposure: f32) -> std::result::Result<Vec<u8>,
 }
 
 /// Averages renders of the same scene weighted by their spp. Refuses images of
-/// different scenes or sizes and images without a render tag.
+/// different scenes or sizes, images without a render tag, and two renders of one seed.
 pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag), RenderError> {
     let mut acc: Option<(RgbImage, RenderTag, Vec<[f64; 3]>)> = None;
-    // Each input's pixels, hashed: two independent renders never agree bit for bit, so
-    // equal images are one render given twice (a copy, or the same seed rendered again),
-    // which would count its samples twice.
-    let mut seen: Vec<(u64, &Path)> = Vec::new();
+    // Renders with the same seed share their samples (a copy, or a seed rendered again at
+    // another spp), which would count twice. Files without a recorded seed (written
+    // before it was) are compared by their pixels instead, unless the image is constant
+    // (an object out of view or unlit: every seed gives the same pixels).
+    // (scene hash, seed, pixel digest, file); renders of other scenes are refused below
+    // with that reason.
+    let mut seen: Vec<(Option<u64>, Option<u64>, Option<u64>, &Path)> = Vec::new();
     for &p in paths {
         let (img, tag) = read_exr(p)?;
-        let mut h = crate::hash::Fnv64::new();
-        for px in &img.pixels {
-            for v in px {
-                h.write(&v.to_bits().to_le_bytes());
+        let digest = (img.pixels.iter().any(|px| *px != img.pixels[0])).then(|| {
+            let mut h = crate::hash::Fnv64::new();
+            for px in &img.pixels {
+                for v in px {
+                    h.write(&v.to_bits().to_le_bytes());
+                }
             }
-        }
-        let digest = h.finish();
-        if let Some((_, q)) = seen.iter().find(|(d, _)| *d == digest) {
+            h.finish()
+        });
+        let seed = tag.as_ref().and_then(|t| t.seed);
+        let scene = tag.as_ref().map(|t| t.scene_hash);
+        let twin = seen.iter().find(|(h, s, d, _)| {
+            *h == scene
+                && match (seed, *s) {
+                    (Some(a), Some(b)) => a == b,
+                    _ => digest.is_some() && *d == digest,
+                }
+        });
+        if let Some((_, _, _, q)) = twin {
             return Err(RenderError::Image(format!(
-                "{}: the same image as {}: one render given twice (a copy, or the same seed \
-                 rendered again) would count twice; merge renders of different seeds",
+                "{}: the same render as {} (the same seed{}): its samples would count twice; \
+                 merge renders of different seeds",
                 p.display(),
-                q.display()
+                q.display(),
+                seed.map_or(String::new(), |s| format!(" {s}"))
             )));
         }
-        seen.push((digest, p));
+        seen.push((scene, seed, digest, p));
         let tag = tag.ok_or_else(|| {
             RenderError::Image(format!(
                 "{}: no stcvae render tag (spp, scene hash) in the EXR header: not an stcvae render",
@@ -278,10 +328,13 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
             }
         }
     }
-    let (mut img, tag, sum) =
+    let (mut img, mut tag, sum) =
         acc.ok_or_else(|| RenderError::Image("merge: no input images".into()))?;
     for (px, s) in img.pixels.iter_mut().zip(sum) {
         *px = s.map(|v| (v / tag.spp as f64) as f32);
+    }
+    if paths.len() > 1 {
+        tag.seed = None;
     }
     Ok((img, tag))
 }

@@ -307,7 +307,7 @@ impl SceneFile {
                 let line_start = text[..start].rfind('\n').map_or(0, |i| i + 1);
                 let line = text[line_start..].lines().next().unwrap_or("").trim();
                 let shown: String = line.chars().take(80).collect();
-                (text[..start].lines().count().max(1), shown)
+                (text[..start].matches('\n').count() + 1, shown)
             });
             RenderError::Scene(match at {
                 Some((l, line)) if !line.is_empty() => {

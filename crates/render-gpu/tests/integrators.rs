@@ -419,6 +419,7 @@ fn environment_map_is_read_and_oriented() {
         &RenderTag {
             spp: 1,
             scene_hash: 0,
+            seed: None,
         },
     )
     .unwrap();
@@ -431,6 +432,7 @@ fn environment_map_is_read_and_oriented() {
         &RenderTag {
             spp: 1,
             scene_hash: 0,
+            seed: None,
         },
     )
     .unwrap();

@@ -44,6 +44,12 @@ impl AtomicFile {
 
     /// Flushes, syncs and renames the temporary over the target.
     pub fn commit(self) -> io::Result<()> {
+        self.finish()?.persist()
+    }
+
+    /// Flushes and syncs the temporary: everything but the rename, which can then no
+    /// longer fail for want of space.
+    fn finish(self) -> io::Result<Finished> {
         let tmp = self.writer.into_inner().map_err(|e| e.into_error())?;
         // Temporaries are created private (0600); the result is an ordinary file.
         #[cfg(unix)]
@@ -53,7 +59,22 @@ impl AtomicFile {
                 .set_permissions(std::fs::Permissions::from_mode(0o644))?;
         }
         tmp.as_file().sync_all()?;
-        tmp.persist(&self.path).map_err(|e| e.error)?;
+        Ok(Finished {
+            tmp,
+            path: self.path,
+        })
+    }
+}
+
+/// A complete, synced temporary waiting to be renamed over its target.
+struct Finished {
+    tmp: NamedTempFile,
+    path: PathBuf,
+}
+
+impl Finished {
+    fn persist(self) -> io::Result<()> {
+        self.tmp.persist(&self.path).map_err(|e| e.error)?;
         Ok(())
     }
 }
@@ -95,11 +116,13 @@ pub fn write_atomic_set(files: &[(&Path, &[u8])]) -> Result<(), (PathBuf, io::Er
         }
         let mut f = AtomicFile::create(path).map_err(fail)?;
         f.write_all(bytes).map_err(fail)?;
-        ready.push(f);
+        // Written out and synced now, not at the rename: a full disk must fail here,
+        // before any file of the set has replaced its predecessor.
+        ready.push(f.finish().map_err(fail)?);
     }
     for f in ready {
-        let path = f.path().to_path_buf();
-        f.commit().map_err(|e| (path, e))?;
+        let path = f.path.clone();
+        f.persist().map_err(|e| (path, e))?;
     }
     Ok(())
 }

@@ -6,7 +6,7 @@ use std::path::Path;
 use std::sync::atomic::AtomicBool;
 
 use anyhow::Result;
-use render_gpu::image_io::{RenderTag, RgbImage, write_exr, write_png};
+use render_gpu::image_io::{RenderTag, RgbImage, write_exr_png};
 use render_gpu::integrator::{IntegratorKind, PathStats};
 use render_gpu::render::{RenderOptions, RenderOutput};
 use render_gpu::scene::SceneFile;
@@ -417,16 +417,17 @@ pub fn save(
     hash: u64,
     exposure: f32,
 ) -> Result<String> {
-    let exr = ctx.out.join(format!("{name}.exr"));
-    write_exr(
-        &exr,
+    write_exr_png(
+        &ctx.out.join(format!("{name}.exr")),
+        &ctx.out.join(format!("{name}.png")),
         img,
         &RenderTag {
             spp: spp as u64,
             scene_hash: hash,
+            seed: None,
         },
+        exposure,
     )?;
-    write_png(&ctx.out.join(format!("{name}.png")), img, exposure)?;
     Ok(format!("{name}.png"))
 }
 

@@ -130,6 +130,31 @@ fn crc_of(path: &Path) -> std::io::Result<u32> {
     Ok(crc32fast::hash(&std::fs::read(path)?))
 }
 
+/// Compares the weights (and, when given, the optimiser state) with the CRC-32s saved in
+/// `info` (not checked for checkpoints saved without them).
+fn check_crcs(info: &CheckpointInfo, files: &[&Path]) -> Result<(), TrainError> {
+    let Some(crcs) = info.crc32 else {
+        return Ok(());
+    };
+    for (&path, want) in files.iter().zip(crcs) {
+        let got = crc_of(path).map_err(|e| TrainError::Checkpoint {
+            path: path.into(),
+            msg: e.to_string(),
+        })?;
+        if got != want {
+            return Err(TrainError::Checkpoint {
+                path: path.into(),
+                msg: format!(
+                    "checksum {got:08x} differs from the {want:08x} saved with the checkpoint: \
+                     the file is damaged or was replaced, or its save was cut short; train \
+                     without --resume"
+                ),
+            });
+        }
+    }
+    Ok(())
+}
+
 fn feature_version_2() -> u32 {
     2
 }
@@ -251,21 +276,7 @@ pub fn train_model(
                 "checkpoint was trained on other data (standardisation differs)".into(),
             ));
         }
-        if let Some(crcs) = info.crc32 {
-            for (path, want) in [(&mpath, crcs[0]), (&opath, crcs[1])] {
-                let got = crc_of(path).map_err(|e| err(path, e.to_string()))?;
-                if got != want {
-                    return Err(err(
-                        path,
-                        format!(
-                            "checksum {got:08x} differs from the {want:08x} saved with the \
-                             checkpoint: the file is damaged or was replaced; train without \
-                             --resume"
-                        ),
-                    ));
-                }
-            }
-        }
+        check_crcs(&info, &[&mpath, &opath])?;
         model = model
             .try_load_file(&mpath)
             .map_err(|e| err(&mpath, e.to_string()))?;
@@ -344,6 +355,7 @@ pub fn load_decoder(
     };
     let text = std::fs::read(&j).map_err(|e| err(&j, e.to_string()))?;
     let info: CheckpointInfo = serde_json::from_slice(&text).map_err(|e| err(&j, e.to_string()))?;
+    check_crcs(&info, &[&m])?;
     let device = Device::flex();
     let mut rng = WalkRng::from_seed(0);
     let model = Cvae::new(kind.cond(), kind.out(), arch, &mut rng, &device)

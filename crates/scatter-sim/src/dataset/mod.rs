@@ -64,7 +64,8 @@ impl Piece {
 pub struct Header {
     /// Number of rows.
     pub count: u64,
-    /// Column names, in row order (informative; the layout is fixed by the version).
+    /// Column names, in row order (the layout is fixed by the version; a reader refuses a
+    /// header that names other columns).
     pub columns: Vec<String>,
     pub pieces: Vec<Piece>,
     /// The program that wrote the file.
