@@ -154,7 +154,11 @@ pub fn prepare(
         (None, None, Vec::new())
     };
     let dir = scene_path.parent().unwrap_or(Path::new("."));
-    let data = SceneData::build(&file, dir, stcvae, &model_bytes)?;
+    let data = SceneData::build(&file, dir, stcvae, &model_bytes).map_err(|e| match e {
+        // Scene-level refusals name a field; the file is the scene's.
+        render_gpu::error::RenderError::Scene(m) => anyhow!("{}: {m}", scene_path.display()),
+        other => other.into(),
+    })?;
     let trained_max = model
         .as_ref()
         .map_or(f64::INFINITY, |m| m.training.tau_range[1]);
