@@ -315,6 +315,7 @@ pub fn run(a: Args) -> Result<()> {
     if out.spp == 0 {
         bail!("interrupted before the first pass finished: nothing written");
     }
+    let interrupted = interrupt::requested();
     if let Some(dir) = a.out.parent()
         && !dir.as_os_str().is_empty()
     {
@@ -394,5 +395,14 @@ pub fn run(a: Args) -> Result<()> {
         report.mean_sphere_steps_per_path,
         with_ext("").with_extension("").display()
     );
+    if interrupted {
+        // Written, but cut short: exit 130 as `generate` and `train` do, so that scripts
+        // can tell it from a complete render.
+        bail!(
+            "interrupted: the files hold the {} of {} spp finished before the stop",
+            out.spp,
+            r.spp
+        );
+    }
     Ok(())
 }

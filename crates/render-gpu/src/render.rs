@@ -14,6 +14,9 @@ use crate::setup::SceneData;
 const TILE: usize = 16;
 /// Fewest samples a pixel per pass (unless spp is smaller): see `render`.
 const MIN_PASS: u32 = 16;
+/// Most samples a pixel per pass: a stop request waits for the tiles being traced, one
+/// pass's worth of samples each (at 1/16 of 100,000 spp, Ctrl-C took 14 s to answer).
+const MAX_PASS: u32 = 256;
 
 /// A pixel's radiance sum over a pass and its count of events + sphere steps.
 type PixelSum = ([f64; 3], u64);
@@ -36,8 +39,6 @@ pub struct RenderOutput {
     pub work: Vec<f32>,
 }
 
-/// Renders the scene. `progress(done, total)` counts pixel-samples; `cancel` stops after
-/// the current pass (the image then holds the completed passes).
 /// lowbias32 (Wellons): the kernels' `mix32` (shaders/common.wgsl).
 fn mix32(mut x: u32) -> u32 {
     x ^= x >> 16;
@@ -70,6 +71,8 @@ pub fn pixel_sample(seed: u64, pixel: u64, s: u32) -> (WalkRng, f32, f32, usize)
     (rng, jx, jy, channel as usize)
 }
 
+/// Renders the scene. `progress(done, total)` counts pixel-samples; `cancel` stops within
+/// the tiles being traced (the image then holds the passes completed before).
 pub fn render(
     scene: &SceneData,
     set: &IntegratorSettings,
@@ -90,13 +93,13 @@ pub fn render(
     // must not be small either: each tile's pass ends with its wavefront draining (the
     // last paths' sphere steps in ever smaller batches), which cost ~17 % at 4 samples a
     // pixel per pass against 32 (default scene). So at least MIN_PASS samples a pass, at
-    // most 16 passes; with a time budget (spp only a cap) the first pass takes one sample
+    // most 16 passes unless that would exceed MAX_PASS samples a pass; with a time budget (spp only a cap) the first pass takes one sample
     // and later ones as many as fit in a twentieth of the budget (at most twice the last),
     // keeping the overshoot near 5 %.
     let mut pass = if opts.time_budget.is_some() {
         1
     } else {
-        opts.spp.div_ceil(16).max(MIN_PASS)
+        opts.spp.div_ceil(16).clamp(MIN_PASS, MAX_PASS)
     };
     let total = w as u64 * h as u64 * opts.spp as u64;
     let done = AtomicU64::new(0);
@@ -114,6 +117,11 @@ pub fn render(
         let finished: Vec<(usize, Vec<PixelSum>, PathStats, f64)> = rayon::broadcast(|_| {
             let mut mine = Vec::new();
             loop {
+                // A stop request ends the pass early; its tiles are then discarded below,
+                // so a render of many samples a pass stops within a tile, not a pass.
+                if cancel.load(Ordering::Relaxed) {
+                    break;
+                }
                 let k = cursor.fetch_add(1, Ordering::Relaxed);
                 let Some(&t) = order.get(k) else { break };
                 let (x0, y0) = tiles[t];
@@ -154,6 +162,11 @@ pub fn render(
         .into_iter()
         .flatten()
         .collect();
+        if finished.len() < tiles.len() {
+            // Stopped mid-pass: every pixel must have the same samples, so the pass's
+            // finished tiles are dropped and the image is that of the passes before.
+            break;
+        }
         // Each pixel gets one addition a pass, from its one tile, so the order in which
         // the tiles finished does not matter.
         for (t, out, st, secs) in finished {

@@ -628,3 +628,51 @@ fn hero_channels_are_uniform_for_any_spp() {
         "pixel 17's channel over seeds: chi2 = {chi2:.1}"
     );
 }
+
+/// A stop request is answered within the tiles being traced, not at the end of a pass
+/// (a pass of 1/16 of 100,000 spp took 14 s to answer Ctrl-C): the unfinished pass is
+/// dropped, so the image holds whole passes only and equals a render of that many spp.
+#[test]
+fn a_stop_request_ends_the_render_within_a_pass() {
+    use std::sync::atomic::Ordering;
+    // 48 × 48: nine 16 × 16 tiles a pass. Stop once the third pass has finished a tile.
+    let text = common::furnace_scene("kind = \"index-matched\"")
+        .replace("width = 12", "width = 48")
+        .replace("height = 12", "height = 48");
+    let (_, s) = scene(&text, false);
+    let set = settings(IntegratorKind::Pt, true, None);
+    let stop = AtomicBool::new(false);
+    let pixels = (s.camera.width * s.camera.height) as u64;
+    let out = render(
+        &s,
+        &set,
+        &RenderOptions {
+            spp: 1600,
+            seed: 3,
+            time_budget: None,
+        },
+        &|done, _| {
+            if done > 2 * 100 * pixels {
+                stop.store(true, Ordering::Relaxed);
+            }
+        },
+        &stop,
+    );
+    // Passes of 1,600 / 16 = 100 spp: the third is dropped, two remain.
+    assert_eq!(out.spp, 200);
+    let whole = render_quiet(&s, &set, 200, 3);
+    assert_eq!(out.image.pixels, whole.image.pixels);
+    // A request before the start: nothing rendered.
+    let out = render(
+        &s,
+        &set,
+        &RenderOptions {
+            spp: 100_000,
+            seed: 3,
+            time_budget: None,
+        },
+        &|_, _| {},
+        &AtomicBool::new(true),
+    );
+    assert_eq!(out.spp, 0);
+}

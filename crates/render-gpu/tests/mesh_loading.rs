@@ -319,7 +319,10 @@ fn merge_refuses_one_seed_twice_but_not_equal_constant_images() {
     let a = put("a.exr", 1.0, true, Some(1), 4);
     let a8 = put("a8.exr", 2.0, true, Some(1), 8);
     let b = put("b.exr", 3.0, true, Some(2), 4);
-    let e = merge_exrs(&[&a, &a8]).err().expect("one seed twice").to_string();
+    let e = merge_exrs(&[&a, &a8])
+        .err()
+        .expect("one seed twice")
+        .to_string();
     assert!(e.contains("same seed 1") && e.contains("a8.exr"), "{e}");
     let (img, tag) = merge_exrs(&[&a, &b]).unwrap();
     assert_eq!((tag.spp, tag.seed), (8, None));
@@ -327,7 +330,10 @@ fn merge_refuses_one_seed_twice_but_not_equal_constant_images() {
     // Seedless: equal varying pixels are one render; equal constant pixels are not.
     let old1 = put("old1.exr", 1.0, true, None, 4);
     let old2 = put("old2.exr", 1.0, true, None, 4);
-    let e = merge_exrs(&[&old1, &old2]).err().expect("a copy").to_string();
+    let e = merge_exrs(&[&old1, &old2])
+        .err()
+        .expect("a copy")
+        .to_string();
     assert!(e.contains("same render"), "{e}");
     let c1 = put("c1.exr", 0.5, false, None, 4);
     let c2 = put("c2.exr", 0.5, false, None, 4);
