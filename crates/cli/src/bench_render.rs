@@ -156,31 +156,37 @@ fn run_pair(a: &Args, engine: &Engine, kind: IntegratorKind, k: f64) -> Result<P
 /// The bench's scene at density k for one integrator.
 fn prepare_k(a: &Args, kind: IntegratorKind, k: f64) -> Result<crate::render::Prepared> {
     prepare(&a.scene, Some(kind), Some(a.nee), a.model.as_deref(), |f| {
-        f.medium.sigma_t = [150.0 * k, 187.5 * k, 125.0 * k];
-        f.medium.albedo = [0.99999, 0.99995, 0.975];
-        f.medium.g = 0.875;
-        f.camera.width = a.size;
-        f.camera.height = a.size;
-        // ST-CVAE's own settings: PT ignores them, and leaving them out of PT's scene
-        // keeps its hash, so `--pt-cache` serves runs that compare them.
-        if matches!(kind, IntegratorKind::Stcvae) {
-            if let Some(t) = a.min_tau {
-                f.render.min_tau = Some(t);
-            }
-            if a.max_tau.is_some() {
-                f.render.max_tau = a.max_tau;
-            }
-            if let Some(m) = a.nee_samples {
-                f.render.nee_samples = m;
-            }
-            if let Some(m) = a.exact_nee_samples {
-                f.render.exact_nee_samples = m;
-            }
-            if a.exact_tau.is_some() {
-                f.render.exact_tau = a.exact_tau;
-            }
-        }
+        ladder_scene(a, kind, k, f)
     })
+}
+
+/// The ladder's medium at density k, the bench's size and (ST-CVAE only) the command's
+/// overrides of its settings.
+fn ladder_scene(a: &Args, kind: IntegratorKind, k: f64, f: &mut render_gpu::scene::SceneFile) {
+    f.medium.sigma_t = [150.0 * k, 187.5 * k, 125.0 * k];
+    f.medium.albedo = [0.99999, 0.99995, 0.975];
+    f.medium.g = 0.875;
+    f.camera.width = a.size;
+    f.camera.height = a.size;
+    // ST-CVAE's own settings: PT ignores them, and leaving them out of PT's scene
+    // keeps its hash, so `--pt-cache` serves runs that compare them.
+    if matches!(kind, IntegratorKind::Stcvae) {
+        if let Some(t) = a.min_tau {
+            f.render.min_tau = Some(t);
+        }
+        if a.max_tau.is_some() {
+            f.render.max_tau = a.max_tau;
+        }
+        if let Some(m) = a.nee_samples {
+            f.render.nee_samples = m;
+        }
+        if let Some(m) = a.exact_nee_samples {
+            f.render.exact_nee_samples = m;
+        }
+        if a.exact_tau.is_some() {
+            f.render.exact_tau = a.exact_tau;
+        }
+    }
 }
 
 /// Renders the two seeds of `kind` (half the spp each) and pairs them.
@@ -222,7 +228,28 @@ fn render_pair(
     Ok(Pair::from_halves(a_out, b, p.data.hash))
 }
 
+/// Most samples a pixel the bench takes (the header's pair arithmetic is u32).
+const MAX_BENCH_SPP: u32 = 1 << 30;
+
 pub fn run(a: Args) -> Result<()> {
+    if !(2..=MAX_BENCH_SPP).contains(&a.spp) {
+        bail!(
+            "--spp {} is out of range: allowed [2, {MAX_BENCH_SPP}] (split over two seeds)",
+            a.spp
+        );
+    }
+    // The overrides checked before anything runs, and blamed on the command line rather
+    // than on the scene file they are applied to.
+    for &k in &a.k {
+        let mut f = render_gpu::scene::SceneFile::load(&a.scene)?;
+        ladder_scene(&a, IntegratorKind::Stcvae, k, &mut f);
+        if let Err(e) = f.validate() {
+            bail!(
+                "{e} (set by this command's options, applied to {})",
+                a.scene.display()
+            );
+        }
+    }
     // Checked before any rendering, so that a long bench does not fail at its end.
     if let Some(dir) = &a.save {
         if dir.exists() && !dir.is_dir() {

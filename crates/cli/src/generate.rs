@@ -80,20 +80,8 @@ pub fn load_config(path: &Path) -> Result<DatasetConfig> {
 /// Parses a TOML config into `T`, with a one-line error naming the file, line and
 /// column (toml's own message spans several lines).
 pub fn parse_toml<T: serde::de::DeserializeOwned>(path: &Path, text: &str) -> Result<T> {
-    toml::from_str(text).map_err(|e| {
-        let at = e.span().map(|s| {
-            let before = &text[..s.start.min(text.len())];
-            let line = before.matches('\n').count() + 1;
-            let col = before.len() - before.rfind('\n').map_or(0, |i| i + 1) + 1;
-            format!(" line {line}, column {col}:")
-        });
-        anyhow::anyhow!(
-            "{}:{} {}",
-            path.display(),
-            at.unwrap_or_default(),
-            e.message().trim().replace('\n', " ")
-        )
-    })
+    toml::from_str(text)
+        .map_err(|e| anyhow::anyhow!(render_gpu::scene::describe_toml_error(path, text, &e)))
 }
 
 /// A rayon pool with `threads` workers (all cores when `None`).

@@ -53,6 +53,7 @@ enum Command {
 
 fn main() {
     quiet_wayland_probe();
+    default_sigpipe();
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Generate(a) => generate::run(a),
@@ -81,5 +82,17 @@ fn quiet_wayland_probe() {
     if unset("XDG_RUNTIME_DIR") && unset("WAYLAND_DISPLAY") {
         // SAFETY: the first statement of `main`, before any other thread exists.
         unsafe { std::env::set_var("XDG_RUNTIME_DIR", std::env::temp_dir()) };
+    }
+}
+
+/// Rust ignores SIGPIPE, so `stcvae bench render | head -1` made `println!` panic ("failed
+/// printing to stdout: Broken pipe", exit 101) once `head` had closed the pipe. With the
+/// default disposition the process ends quietly, as command-line tools do.
+fn default_sigpipe() {
+    #[cfg(unix)]
+    // SAFETY: called first thing in main, before any thread exists; restoring a signal's
+    // default disposition has no other effect on this program.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
 }

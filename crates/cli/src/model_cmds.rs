@@ -186,6 +186,10 @@ pub(crate) fn training_range(r: [f64; 2]) -> String {
     format!("[{}, {}]", f(r[0]), f(r[1]))
 }
 
+/// Most walks a setting `eval` compares: it keeps every sample of both sides in memory
+/// (a few hundred bytes a walk), and 10⁹ asked for 80 GB and aborted.
+const MAX_EVAL_SAMPLES: usize = 4_000_000;
+
 #[derive(serde::Serialize)]
 struct EvalJson<'a> {
     model: String,
@@ -209,9 +213,10 @@ pub fn evaluate(a: EvalArgs) -> Result<()> {
 
 /// Checks shared by both modes of `eval`; the model and the name to print for it.
 fn open_eval(model: Option<&Path>, out: &Path, samples: usize) -> Result<(ModelSet, String)> {
-    if samples < 2 {
+    if !(2..=MAX_EVAL_SAMPLES).contains(&samples) {
         bail!(
-            "--samples {samples} is out of range: allowed [2, inf) (the KS and moment tests need two samples)"
+            "--samples {samples} is out of range: allowed [2, {MAX_EVAL_SAMPLES}] (the KS and \
+             moment tests need two samples; eval holds every sample in memory)"
         );
     }
     if out.exists() && !out.is_dir() {

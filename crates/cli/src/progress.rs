@@ -15,6 +15,18 @@ pub fn bar(len: u64, unit: &str) -> ProgressBar {
     pb
 }
 
+/// A spinner with elapsed time for work of unknown length (e.g. building a distance grid,
+/// 15 s for a fine one, which showed nothing at all); drawn only on a terminal.
+pub fn spinner(msg: &str) -> ProgressBar {
+    let pb = ProgressBar::new_spinner();
+    pb.set_style(
+        ProgressStyle::with_template("{spinner} {msg} ({elapsed})").expect("valid template"),
+    );
+    pb.set_message(msg.to_string());
+    pb.enable_steady_tick(std::time::Duration::from_millis(120));
+    pb
+}
+
 /// Human-readable rate, e.g. "12.3 M".
 pub fn si(x: f64) -> String {
     let (v, p) = if x >= 1e9 {

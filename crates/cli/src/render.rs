@@ -154,11 +154,18 @@ pub fn prepare(
         (None, None, Vec::new())
     };
     let dir = scene_path.parent().unwrap_or(Path::new("."));
+    let spin = crate::progress::spinner(&format!(
+        "preparing {} (mesh, BVH{})",
+        scene_path.display(),
+        if stcvae { ", distance grid" } else { "" }
+    ));
     let data = SceneData::build(&file, dir, stcvae, &model_bytes).map_err(|e| match e {
         // Scene-level refusals name a field; the file is the scene's.
         render_gpu::error::RenderError::Scene(m) => anyhow!("{}: {m}", scene_path.display()),
         other => other.into(),
-    })?;
+    });
+    spin.finish_and_clear();
+    let data = data?;
     let trained_max = model
         .as_ref()
         .map_or(f64::INFINITY, |m| m.training.tau_range[1]);

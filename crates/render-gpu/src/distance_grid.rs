@@ -259,11 +259,14 @@ fn cache_key(geo: &Geometry, resolution: u32) -> u64 {
 
 /// `$STCVAE_CACHE`, else `$XDG_CACHE_HOME/stcvae`, else `~/.cache/stcvae`.
 fn cache_dir() -> Option<PathBuf> {
-    if let Some(d) = std::env::var_os("STCVAE_CACHE") {
+    // An empty variable counts as unset (STCVAE_CACHE="" cached grids in the current
+    // directory).
+    let var = |k: &str| std::env::var_os(k).filter(|v| !v.is_empty());
+    if let Some(d) = var("STCVAE_CACHE") {
         return Some(PathBuf::from(d));
     }
-    if let Some(d) = std::env::var_os("XDG_CACHE_HOME") {
+    if let Some(d) = var("XDG_CACHE_HOME") {
         return Some(PathBuf::from(d).join("stcvae"));
     }
-    std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".cache").join("stcvae"))
+    var("HOME").map(|h| PathBuf::from(h).join(".cache").join("stcvae"))
 }

@@ -43,6 +43,27 @@ pub struct CameraDesc {
     pub height: u32,
 }
 
+/// A TOML error as `FILE:LINE: message (in `the line`)`, one line: a value's error (a
+/// wrong type, a triple of the wrong length) does not say which key it belongs to, the
+/// quoted line does. Every TOML file stcvae reads reports its errors this way.
+pub fn describe_toml_error(path: &Path, text: &str, e: &toml::de::Error) -> String {
+    let msg = e.message().trim().replace('\n', " ");
+    let at = e.span().map(|s| {
+        let start = s.start.min(text.len());
+        let line_start = text[..start].rfind('\n').map_or(0, |i| i + 1);
+        let line = text[line_start..].lines().next().unwrap_or("").trim();
+        let shown: String = line.chars().take(80).collect();
+        (text[..start].matches('\n').count() + 1, shown)
+    });
+    match at {
+        Some((l, line)) if !line.is_empty() => {
+            format!("{}:{l}: {msg} (in `{line}`)", path.display())
+        }
+        Some((l, _)) => format!("{}:{l}: {msg}", path.display()),
+        None => format!("{}: {msg}", path.display()),
+    }
+}
+
 /// Exactly three numbers. serde's own `[f64; 3]` reads the first three elements of a
 /// longer TOML array and ignores the rest, so `albedo = [0.5, 0.5, 0.5, 7.0]` would pass
 /// validation with its out-of-range fourth value unread.
@@ -298,25 +319,8 @@ impl SceneFile {
     }
 
     pub fn parse(path: &Path, text: &str) -> Result<Self, RenderError> {
-        let scene: SceneFile = toml::from_str(text).map_err(|e| {
-            let msg = e.message().to_string();
-            // The line number and the line itself: a value's error (a wrong type, a
-            // triple of the wrong length) does not say which key it belongs to.
-            let at = e.span().map(|s| {
-                let start = s.start.min(text.len());
-                let line_start = text[..start].rfind('\n').map_or(0, |i| i + 1);
-                let line = text[line_start..].lines().next().unwrap_or("").trim();
-                let shown: String = line.chars().take(80).collect();
-                (text[..start].matches('\n').count() + 1, shown)
-            });
-            RenderError::Scene(match at {
-                Some((l, line)) if !line.is_empty() => {
-                    format!("{}:{l}: {msg} (in `{line}`)", path.display())
-                }
-                Some((l, _)) => format!("{}:{l}: {msg}", path.display()),
-                None => format!("{}: {msg}", path.display()),
-            })
-        })?;
+        let scene: SceneFile = toml::from_str(text)
+            .map_err(|e| RenderError::Scene(describe_toml_error(path, text, &e)))?;
         scene
             .validate()
             .map_err(|m| RenderError::Scene(format!("{}: {m}", path.display())))?;

@@ -81,8 +81,7 @@ impl Config {
     pub fn load(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path)
             .map_err(|e| anyhow!("{}: cannot read: {e}", path.display()))?;
-        let mut c: Config =
-            toml::from_str(&text).map_err(|e| anyhow!("{}: {}", path.display(), e.message()))?;
+        let mut c: Config = crate::generate::parse_toml(path, &text)?;
         c.dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
         c.validate()
             .map_err(|e| anyhow!("{}: {e}", path.display()))?;

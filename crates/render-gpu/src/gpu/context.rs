@@ -95,6 +95,18 @@ impl GpuContext {
         });
         adapters.sort_by_key(|a| rank(a.get_info().device_type));
         let Some(adapter) = adapters.into_iter().next() else {
+            // WGPU_BACKEND narrows the search (or, set to gl or to a name wgpu does not
+            // know, leaves no native backend at all): say so, or the hint to install
+            // lavapipe misleads on a machine that has it.
+            if backends.is_none()
+                && let Some(v) = std::env::var_os("WGPU_BACKEND")
+            {
+                return Err(RenderError::NoAdapter(format!(
+                    "no wgpu adapter found with WGPU_BACKEND={} (this build uses vulkan, \
+                     metal or dx12; gl is not compiled in); unset it or name one of those",
+                    v.to_string_lossy()
+                )));
+            }
             return Err(RenderError::NoAdapter(match choice {
                 AdapterChoice::Hardware => "no GPU adapter found (Vulkan, Metal or DX12); \
                     use --device cpu, or --device gpu to accept a software adapter such as \
