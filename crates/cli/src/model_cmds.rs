@@ -188,7 +188,7 @@ pub(crate) fn training_range(r: [f64; 2]) -> String {
 
 /// Most walks a setting `eval` compares: it keeps every sample of both sides in memory
 /// (a few hundred bytes a walk), and 10⁹ asked for 80 GB and aborted.
-const MAX_EVAL_SAMPLES: usize = 4_000_000;
+pub(crate) const MAX_EVAL_SAMPLES: usize = 4_000_000;
 
 #[derive(serde::Serialize)]
 struct EvalJson<'a> {

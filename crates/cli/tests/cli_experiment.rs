@@ -114,3 +114,56 @@ fn bad_experiment_config_is_a_clear_error() {
     );
     assert!(!err.contains("panicked"), "{err}");
 }
+
+/// Mistakes that used to surface only after rendering (a missing mesh in the second
+/// scene) or never (a density listed twice overwrote its images; a wrong type named no
+/// field) are refused before any work, naming the file and the field or line, and leave
+/// no output folder.
+#[test]
+fn experiment_configs_are_checked_before_any_rendering() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scenes = root().join("configs/scenes");
+    let bunny = std::fs::read_to_string(scenes.join("bunny.toml"))
+        .unwrap()
+        .replace("../../assets", &root().join("assets").display().to_string());
+    std::fs::write(tmp.path().join("ok.toml"), &bunny).unwrap();
+    std::fs::write(
+        tmp.path().join("broken.toml"),
+        bunny.replace("bunny.glb", "no-such-mesh.glb"),
+    )
+    .unwrap();
+    let run = |body: &str| {
+        let cfg = tmp.path().join("exp.toml");
+        std::fs::write(
+            &cfg,
+            format!(
+                "kind = \"complexity\"\ntitle = \"t\"\n{body}\n\
+                 [full]\nsize = 8\nspp = 2\n[quick]\nsize = 8\nspp = 2\n"
+            ),
+        )
+        .unwrap();
+        let out = Command::new(env!("CARGO_BIN_EXE_stcvae"))
+            .args([
+                "experiment",
+                cfg.to_str().unwrap(),
+                "--quick",
+                "--device",
+                "cpu",
+            ])
+            .arg("--out")
+            .arg(tmp.path().join("results"))
+            .output()
+            .unwrap();
+        assert!(!out.status.success());
+        let err = String::from_utf8_lossy(&out.stderr).into_owned();
+        assert!(!err.contains("panicked"), "{err}");
+        assert!(!tmp.path().join("results/exp").exists(), "{err}");
+        err
+    };
+    let e = run("scene = \"ok.toml\"\nscenes = [\"broken.toml\"]\ndensities = [1.0]");
+    assert!(e.contains("no-such-mesh.glb"), "{e}");
+    let e = run("scene = \"ok.toml\"\ndensities = [1.0, 2.0, 1.0]");
+    assert!(e.contains("densities") && e.contains("twice"), "{e}");
+    let e = run("scene = \"ok.toml\"\ndensities = \"1.0\"");
+    assert!(e.contains("exp.toml:4") && e.contains("densities"), "{e}");
+}

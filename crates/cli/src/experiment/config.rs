@@ -104,6 +104,14 @@ impl Config {
             {
                 bail!("{name}.seconds = {s} is out of range: allowed (0, 86400]");
             }
+            if let Some(n) = b.samples
+                && !(2..=crate::model_cmds::MAX_EVAL_SAMPLES).contains(&n)
+            {
+                bail!(
+                    "{name}.samples = {n} is out of range: allowed [2, {}]",
+                    crate::model_cmds::MAX_EVAL_SAMPLES
+                );
+            }
             if b.reference_spp == Some(0) {
                 bail!("{name}.reference_spp = 0 is out of range: allowed [1, 2^32)");
             }

@@ -37,8 +37,31 @@ pub(super) fn preflight(cfg: &super::config::Config) -> Result<()> {
         scenes.push(cfg.scene_path());
     }
     scenes.extend(cfg.scenes.iter().map(|s| cfg.dir.join(s)));
+    // Images are named after their scene file's stem and the varied value: two scenes
+    // of one stem, or a value listed twice, would overwrite each other's images.
+    let mut stems: Vec<_> = scenes
+        .iter()
+        .map(|p| p.file_stem().map(|s| s.to_owned()))
+        .collect();
+    stems.sort();
+    if stems.windows(2).any(|w| w[0] == w[1]) {
+        anyhow::bail!("two scenes share a file name; their images would overwrite each other");
+    }
+    for (what, v) in [
+        ("densities", &cfg.densities),
+        ("absorptions", &cfg.absorptions),
+        ("thresholds", &cfg.thresholds),
+    ] {
+        if let Some(x) = v.iter().enumerate().find(|(i, x)| v[..*i].contains(x)) {
+            anyhow::bail!("{what} lists {} twice", x.1);
+        }
+    }
     for path in &scenes {
         let base = SceneFile::load(path)?;
+        // The mesh too, before hours of rendering: a missing one failed the run after its
+        // first scene (with the previous run's report left beside the new images).
+        let dir = path.parent().unwrap_or(std::path::Path::new("."));
+        render_gpu::setup::object_mesh(&base, dir)?;
         let check = |f: SceneFile, what: String| -> Result<()> {
             f.validate()
                 .map_err(|e| anyhow::anyhow!("{}: {what}: {e}", path.display()))

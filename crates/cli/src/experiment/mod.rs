@@ -62,8 +62,17 @@ pub fn run(a: Args) -> Result<()> {
         .unwrap_or_else(|| "experiment".into());
     kinds::preflight(&cfg).with_context(|| a.config.display().to_string())?;
     let out = a.out.join(&name);
-    std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
+    // The device first: a run that cannot start leaves no empty folder behind.
     let engine = Engine::open(a.device)?;
+    std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
+    // The previous run's report goes now, not when this run's is written: a run that
+    // fails part way must not leave a report that no longer matches its images.
+    for stale in ["report.md", "figures.csv"] {
+        let p = out.join(stale);
+        if p.is_file() {
+            std::fs::remove_file(&p).with_context(|| format!("cannot remove {}", p.display()))?;
+        }
+    }
     let ctx = Ctx {
         cfg: &cfg,
         budget: if a.quick { cfg.quick } else { cfg.full },

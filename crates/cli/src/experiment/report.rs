@@ -4,7 +4,6 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use anyhow::Result;
-use scatter_sim::output::write_atomic;
 
 use super::{Args, Config};
 use crate::device::Engine;
@@ -143,8 +142,12 @@ impl Report {
             csv.push_str(&cells.join(","));
             csv.push('\n');
         }
-        write_atomic(&dir.join("figures.csv"), csv.as_bytes())?;
-        write_atomic(&dir.join("report.md"), self.md.as_bytes())?;
+        let (csv_path, md_path) = (dir.join("figures.csv"), dir.join("report.md"));
+        scatter_sim::output::write_atomic_set(&[
+            (&csv_path, csv.as_bytes()),
+            (&md_path, self.md.as_bytes()),
+        ])
+        .map_err(|(path, e)| anyhow::anyhow!("cannot write {}: {e}", path.display()))?;
         Ok(())
     }
 }
