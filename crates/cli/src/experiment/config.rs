@@ -130,6 +130,13 @@ impl Config {
         if self.thresholds.iter().any(|t| !(*t >= 0.0)) {
             bail!("thresholds (min_tau) must be ≥ 0");
         }
+        if self.paper.len() > self.densities.len() {
+            bail!(
+                "paper lists {} figures for {} densities: one per density at most",
+                self.paper.len(),
+                self.densities.len()
+            );
+        }
         let needs_scene = self.kind != Kind::Distributions;
         if needs_scene && self.scene.is_none() {
             bail!("scene is required for kind = \"{}\"", self.kind.name());
@@ -145,7 +152,17 @@ impl Config {
                 needs(!self.densities.is_empty(), "densities")?
             }
             Kind::Absorption => needs(!self.absorptions.is_empty(), "absorptions")?,
-            Kind::Fallback => needs(!self.thresholds.is_empty(), "thresholds")?,
+            Kind::Fallback => {
+                needs(!self.thresholds.is_empty(), "thresholds")?;
+                // It varies min_tau at one density (the first was used, the rest ignored).
+                if self.densities.len() > 1 {
+                    bail!(
+                        "kind = \"fallback\" takes at most one density (the default is 1), \
+                         found {}",
+                        self.densities.len()
+                    );
+                }
+            }
             Kind::Nee => needs(
                 self.full.seconds.is_some()
                     && self.quick.seconds.is_some()
