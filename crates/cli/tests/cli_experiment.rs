@@ -30,6 +30,23 @@ fn check_png(path: &Path) {
     assert!(info.width > 0 && info.height > 0, "{}", path.display());
 }
 
+/// `stcvae experiment CFG --quick --device cpu --out OUT`, run from the repository root.
+fn quick_experiment(cfg: &Path, out: &Path) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args([
+            "experiment",
+            cfg.to_str().unwrap(),
+            "--quick",
+            "--device",
+            "cpu",
+            "--out",
+        ])
+        .arg(out)
+        .current_dir(root())
+        .output()
+        .unwrap()
+}
+
 #[test]
 fn every_experiment_runs_quick() {
     let names = [
@@ -48,19 +65,7 @@ fn every_experiment_runs_quick() {
     assert_eq!(found, names, "one config per paper result");
     let tmp = tempfile::tempdir().unwrap();
     for cfg in configs() {
-        let out = Command::new(env!("CARGO_BIN_EXE_stcvae"))
-            .args([
-                "experiment",
-                cfg.to_str().unwrap(),
-                "--quick",
-                "--device",
-                "cpu",
-                "--out",
-            ])
-            .arg(tmp.path())
-            .current_dir(root())
-            .output()
-            .unwrap();
+        let out = quick_experiment(&cfg, tmp.path());
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(out.status.success(), "{}: {err}", cfg.display());
         let dir = tmp.path().join(cfg.file_stem().unwrap());
@@ -142,18 +147,7 @@ fn experiment_configs_are_checked_before_any_rendering() {
             ),
         )
         .unwrap();
-        let out = Command::new(env!("CARGO_BIN_EXE_stcvae"))
-            .args([
-                "experiment",
-                cfg.to_str().unwrap(),
-                "--quick",
-                "--device",
-                "cpu",
-            ])
-            .arg("--out")
-            .arg(tmp.path().join("results"))
-            .output()
-            .unwrap();
+        let out = quick_experiment(&cfg, &tmp.path().join("results"));
         assert!(!out.status.success());
         let err = String::from_utf8_lossy(&out.stderr).into_owned();
         assert!(!err.contains("panicked"), "{err}");

@@ -231,9 +231,14 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
     // another spp), which would count twice. Files without a recorded seed (written
     // before it was) are compared by their pixels instead, unless the image is constant
     // (an object out of view or unlit: every seed gives the same pixels).
-    // (scene hash, seed, pixel digest, file); renders of other scenes are refused below
-    // with that reason.
-    let mut seen: Vec<(Option<u64>, Option<u64>, Option<u64>, &Path)> = Vec::new();
+    // Renders of other scenes are refused below with that reason.
+    struct Seen<'a> {
+        scene: Option<u64>,
+        seed: Option<u64>,
+        digest: Option<u64>,
+        path: &'a Path,
+    }
+    let mut seen: Vec<Seen> = Vec::new();
     for &p in paths {
         let (img, tag) = read_exr(p)?;
         let digest = (img.pixels.iter().any(|px| *px != img.pixels[0])).then(|| {
@@ -247,14 +252,14 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
         });
         let seed = tag.as_ref().and_then(|t| t.seed);
         let scene = tag.as_ref().map(|t| t.scene_hash);
-        let twin = seen.iter().find(|(h, s, d, _)| {
-            *h == scene
-                && match (seed, *s) {
+        let twin = seen.iter().find(|o| {
+            o.scene == scene
+                && match (seed, o.seed) {
                     (Some(a), Some(b)) => a == b,
-                    _ => digest.is_some() && *d == digest,
+                    _ => digest.is_some() && o.digest == digest,
                 }
         });
-        if let Some((_, _, _, q)) = twin {
+        if let Some(Seen { path: q, .. }) = twin {
             return Err(RenderError::Image(format!(
                 "{}: the same render as {} (the same seed{}): its samples would count twice; \
                  merge renders of different seeds",
@@ -263,7 +268,12 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
                 seed.map_or(String::new(), |s| format!(" {s}"))
             )));
         }
-        seen.push((scene, seed, digest, p));
+        seen.push(Seen {
+            scene,
+            seed,
+            digest,
+            path: p,
+        });
         let tag = tag.ok_or_else(|| {
             RenderError::Image(format!(
                 "{}: no stcvae render tag (spp, scene hash) in the EXR header: not an stcvae render",
