@@ -29,10 +29,11 @@ pub struct Args {
     #[arg(long, value_delimiter = ',', default_value = "1,2,4,8", value_parser = parse_k)]
     k: Vec<f64>,
     /// Samples per pixel of each integrator (split over two seeds, so at least 2).
-    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(2..))]
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(2..=1 << 30))]
     spp: u32,
-    /// Image side in pixels.
-    #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u32).range(1..=4096))]
+    /// Image side in pixels (at least 8: the bias is measured over 4×4-pixel blocks and
+    /// the object's pixels, which a smaller image hardly has).
+    #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u32).range(8..=4096))]
     size: u32,
     /// Model file for ST-CVAE (default: models/default.stcvae).
     #[arg(long)]
