@@ -643,21 +643,29 @@ fn a_stop_request_ends_the_render_within_a_pass() {
     let set = settings(IntegratorKind::Pt, true, None);
     let stop = AtomicBool::new(false);
     let pixels = (s.camera.width * s.camera.height) as u64;
-    let out = render(
-        &s,
-        &set,
-        &RenderOptions {
-            spp: 1600,
-            seed: 3,
-            time_budget: None,
-        },
-        &|done, _| {
-            if done > 2 * 100 * pixels {
-                stop.store(true, Ordering::Relaxed);
-            }
-        },
-        &stop,
-    );
+    // Two threads: with nine or more, all nine tiles could be in flight when the request
+    // comes, and the third pass would (rightly) complete.
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .unwrap();
+    let out = pool.install(|| {
+        render(
+            &s,
+            &set,
+            &RenderOptions {
+                spp: 1600,
+                seed: 3,
+                time_budget: None,
+            },
+            &|done, _| {
+                if done > 2 * 100 * pixels {
+                    stop.store(true, Ordering::Relaxed);
+                }
+            },
+            &stop,
+        )
+    });
     // Passes of 1,600 / 16 = 100 spp: the third is dropped, two remain.
     assert_eq!(out.spp, 200);
     let whole = render_quiet(&s, &set, 200, 3);
