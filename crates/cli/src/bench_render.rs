@@ -29,7 +29,7 @@ pub struct Args {
     #[arg(long, value_delimiter = ',', default_value = "1,2,4,8", value_parser = parse_k)]
     k: Vec<f64>,
     /// Samples per pixel of each integrator (split over two seeds, so at least 2).
-    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(2..=1 << 30))]
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(2..=MAX_BENCH_SPP as i64))]
     spp: u32,
     /// Image side in pixels (at least 8: the bias is measured over 4×4-pixel blocks and
     /// the object's pixels, which a smaller image hardly has).
@@ -81,20 +81,20 @@ pub struct Args {
 
 /// Writes the ladder step's images into `dir` (see `Args::save`).
 fn save_images(dir: &std::path::Path, k: f64, pt: &Pair, st: &Pair) -> Result<()> {
-    use render_gpu::image_io::{RenderTag, RgbImage, write_exr_png, write_png};
-    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    use render_gpu::image_io::{RenderTag, RgbImage, write_png};
+    // `run` created `dir` before rendering.
     let exposure = crate::experiment::measure::scale_of(&pt.mean) as f32;
     for (name, p) in [("pt", pt), ("stcvae", st)] {
-        // Appended, not `with_extension`: a fractional k ("k0.5_pt") would lose its tail
-        // and the two integrators' images would overwrite each other.
-        let file = |ext: &str| dir.join(format!("k{k}_{name}.{ext}"));
+        // A fractional k ("k0.5_pt") keeps its tail: `image_out` only replaces a typed
+        // .exr, .png or .json, so the two integrators' images cannot overwrite each other.
         let tag = RenderTag {
             spp: p.spp as u64,
             scene_hash: p.hash,
             // The mean of the pair's two seeds.
             seed: None,
         };
-        write_exr_png(&file("exr"), &file("png"), &p.mean, &tag, exposure)?;
+        let stem = dir.join(format!("k{k}_{name}"));
+        crate::merge::write_image_set(&stem, &p.mean, &tag, exposure, None)?;
     }
     let (w, h) = (pt.mean.width, pt.mean.height);
     let mut z = RgbImage::new(w, h);
@@ -233,16 +233,11 @@ fn render_pair(
 const MAX_BENCH_SPP: u32 = 1 << 30;
 
 pub fn run(a: Args) -> Result<()> {
-    if !(2..=MAX_BENCH_SPP).contains(&a.spp) {
-        bail!(
-            "--spp {} is out of range: allowed [2, {MAX_BENCH_SPP}] (split over two seeds)",
-            a.spp
-        );
-    }
     // The overrides checked before anything runs, and blamed on the command line rather
     // than on the scene file they are applied to.
+    let scene = render_gpu::scene::SceneFile::load(&a.scene)?;
     for &k in &a.k {
-        let mut f = render_gpu::scene::SceneFile::load(&a.scene)?;
+        let mut f = scene.clone();
         ladder_scene(&a, IntegratorKind::Stcvae, k, &mut f);
         if let Err(e) = f.validate() {
             bail!(

@@ -98,23 +98,58 @@ pub fn run(a: Args) -> Result<()> {
     }
 }
 
-/// OUT.ext for an image output (`render`, `merge`): an `.exr`, `.png` or `.json` the user
-/// typed is replaced, anything else (`run.v2`) is kept whole.
-pub(crate) fn image_out(out: &std::path::Path, ext: &str) -> PathBuf {
+/// The stem of an image output (`render`, `merge`): an `.exr`, `.png` or `.json` the user
+/// typed is dropped, anything else (`run.v2`) is kept whole.
+pub(crate) fn out_stem(out: &Path) -> PathBuf {
     let known = out.extension().is_some_and(|e| {
         ["exr", "png", "json"]
             .iter()
             .any(|k| e.eq_ignore_ascii_case(k))
     });
-    let mut s = if known {
+    if known {
         out.with_extension("")
     } else {
         out.to_path_buf()
     }
-    .into_os_string();
+}
+
+/// OUT.ext for an image output: [`out_stem`] plus the extension.
+pub(crate) fn image_out(out: &Path, ext: &str) -> PathBuf {
+    let mut s = out_stem(out).into_os_string();
     s.push(".");
     s.push(ext);
     PathBuf::from(s)
+}
+
+/// Writes OUT.exr (linear, tagged), OUT.png (preview at `exposure`) and, given `json`,
+/// OUT.json as one set ([`scatter_sim::output::write_atomic_set`]): a failure never leaves
+/// a new image beside an old report. Creates OUT's folder. Every image stcvae writes goes
+/// through here (render, merge, experiments, `bench render --save`).
+pub(crate) fn write_image_set(
+    out: &Path,
+    img: &render_gpu::image_io::RgbImage,
+    tag: &render_gpu::image_io::RenderTag,
+    exposure: f32,
+    json: Option<&[u8]>,
+) -> Result<()> {
+    let (exr, png, js) = (
+        image_out(out, "exr"),
+        image_out(out, "png"),
+        image_out(out, "json"),
+    );
+    if let Some(dir) = exr.parent()
+        && !dir.as_os_str().is_empty()
+    {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    }
+    let exr_bytes = render_gpu::image_io::encode_exr(img, tag)
+        .map_err(|e| anyhow!("{}: {e}", exr.display()))?;
+    let png_bytes = render_gpu::image_io::encode_png(img, exposure)
+        .map_err(|e| anyhow!("{}: {e}", png.display()))?;
+    let mut files = vec![(exr.as_path(), exr_bytes.as_slice()), (&png, &png_bytes)];
+    files.extend(json.map(|j| (js.as_path(), j)));
+    scatter_sim::output::write_atomic_set(&files)
+        .map_err(|(path, e)| anyhow!("cannot write {}: {e}", path.display()))
 }
 
 /// Renders of one scene with different seeds, averaged by spp: writes OUT.exr, OUT.png and
@@ -123,14 +158,6 @@ fn merge_images(a: &Args) -> Result<()> {
     crate::render::check_out_stem(&a.out)?;
     let inputs: Vec<&std::path::Path> = a.inputs.iter().map(|p| p.as_path()).collect();
     let (img, tag) = render_gpu::image_io::merge_exrs(&inputs)?;
-    let exr = image_out(&a.out, "exr");
-    let png = image_out(&a.out, "png");
-    let json = image_out(&a.out, "json");
-    if let Some(dir) = exr.parent()
-        && !dir.as_os_str().is_empty()
-    {
-        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    }
     let report = serde_json::json!({
         "inputs": a.inputs.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
         "spp": tag.spp,
@@ -138,26 +165,18 @@ fn merge_images(a: &Args) -> Result<()> {
         "width": img.width,
         "height": img.height,
     });
-    let bytes = [
-        render_gpu::image_io::encode_exr(&img, &tag)
-            .map_err(|e| anyhow!("{}: {e}", exr.display()))?,
-        render_gpu::image_io::encode_png(&img, 1.0)
-            .map_err(|e| anyhow!("{}: {e}", png.display()))?,
-        serde_json::to_vec_pretty(&report)?,
-    ];
-    scatter_sim::output::write_atomic_set(&[
-        (&exr, &bytes[0]),
-        (&png, &bytes[1]),
-        (&json, &bytes[2]),
-    ])
-    .map_err(|(path, e)| anyhow!("cannot write {}: {e}", path.display()))?;
+    write_image_set(
+        &a.out,
+        &img,
+        &tag,
+        1.0,
+        Some(&serde_json::to_vec_pretty(&report)?),
+    )?;
     eprintln!(
-        "merged {} renders ({} spp in all) -> {}, {} and {}",
+        "merged {} renders ({} spp in all) -> {}.{{exr,png,json}}",
         inputs.len(),
         tag.spp,
-        exr.display(),
-        png.display(),
-        json.display()
+        out_stem(&a.out).display()
     );
     Ok(())
 }

@@ -2,8 +2,8 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result, anyhow, bail};
-use render_gpu::image_io::{RenderTag, encode_exr, encode_png};
+use anyhow::{Result, anyhow, bail};
+use render_gpu::image_io::RenderTag;
 use render_gpu::integrator::{IntegratorKind, IntegratorSettings, PathStats};
 use render_gpu::render::RenderOptions;
 use render_gpu::scene::SceneFile;
@@ -323,20 +323,11 @@ pub fn run(a: Args) -> Result<()> {
         bail!("interrupted before the first pass finished: nothing written");
     }
     let interrupted = interrupt::requested();
-    if let Some(dir) = a.out.parent()
-        && !dir.as_os_str().is_empty()
-    {
-        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    }
-    let with_ext = |e: &str| crate::merge::image_out(&a.out, e);
     let tag = RenderTag {
         spp: out.spp as u64,
         scene_hash: p.data.hash,
         seed: Some(r.seed),
     };
-    let exr = encode_exr(&out.image, &tag).map_err(|e| anyhow!("{}: {e}", a.out.display()))?;
-    let png =
-        encode_png(&out.image, a.exposure).map_err(|e| anyhow!("{}: {e}", a.out.display()))?;
     let paths = out.stats.paths.max(1) as f64;
     let report = Report {
         scene: a.scene.display().to_string(),
@@ -365,16 +356,13 @@ pub fn run(a: Args) -> Result<()> {
         },
         stats: &out.stats,
     };
-    let json = serde_json::to_vec_pretty(&report)?;
-    // The three files are one output: all are written before any replaces an earlier
-    // render's, so a failure never leaves a new image beside an old report.
-    let (exr_path, png_path, json_path) = (with_ext("exr"), with_ext("png"), with_ext("json"));
-    scatter_sim::output::write_atomic_set(&[
-        (&exr_path, &exr),
-        (&png_path, &png),
-        (&json_path, &json),
-    ])
-    .map_err(|(path, e)| anyhow!("cannot write {}: {e}", path.display()))?;
+    crate::merge::write_image_set(
+        &a.out,
+        &out.image,
+        &tag,
+        a.exposure,
+        Some(&serde_json::to_vec_pretty(&report)?),
+    )?;
     if out.stats.capped > 0 || out.stats.non_finite > 0 {
         eprintln!(
             "warning: {} paths stopped by the iteration cap, {} non-finite estimates replaced by 0",
@@ -400,7 +388,7 @@ pub fn run(a: Args) -> Result<()> {
         progress::si(report.paths_per_second),
         report.mean_pt_events_per_path,
         report.mean_sphere_steps_per_path,
-        with_ext("").with_extension("").display()
+        crate::merge::out_stem(&a.out).display()
     );
     if interrupted {
         // Written, but cut short: exit 130 as `generate` and `train` do, so that scripts

@@ -56,21 +56,6 @@ pub fn write_exr(
     write_atomic(path, &bytes).map_err(|e| RenderError::io(path, e))
 }
 
-/// An image as EXR (linear, tagged) and PNG (preview at `exposure`), written as one set:
-/// both files or neither replace what was there.
-pub fn write_exr_png(
-    exr: &Path,
-    png: &Path,
-    img: &RgbImage,
-    tag: &RenderTag,
-    exposure: f32,
-) -> std::result::Result<(), RenderError> {
-    let e = encode_exr(img, tag).map_err(|e| RenderError::io(exr, e))?;
-    let p = encode_png(img, exposure).map_err(|e| RenderError::io(png, e))?;
-    scatter_sim::output::write_atomic_set(&[(exr, &e), (png, &p)])
-        .map_err(|(path, e)| RenderError::io(&path, e))
-}
-
 /// The bytes of [`write_exr`]'s file.
 pub fn encode_exr(img: &RgbImage, tag: &RenderTag) -> std::result::Result<Vec<u8>, String> {
     let w = img.width;

@@ -6,7 +6,7 @@ use std::path::Path;
 use std::sync::atomic::AtomicBool;
 
 use anyhow::Result;
-use render_gpu::image_io::{RenderTag, RgbImage, write_exr_png};
+use render_gpu::image_io::{RenderTag, RgbImage};
 use render_gpu::integrator::{IntegratorKind, PathStats};
 use render_gpu::render::{RenderOptions, RenderOutput};
 use render_gpu::scene::SceneFile;
@@ -417,9 +417,8 @@ pub fn save(
     hash: u64,
     exposure: f32,
 ) -> Result<String> {
-    write_exr_png(
-        &ctx.out.join(format!("{name}.exr")),
-        &ctx.out.join(format!("{name}.png")),
+    crate::merge::write_image_set(
+        &ctx.out.join(name),
         img,
         &RenderTag {
             spp: spp as u64,
@@ -427,6 +426,7 @@ pub fn save(
             seed: None,
         },
         exposure,
+        None,
     )?;
     Ok(format!("{name}.png"))
 }
