@@ -124,13 +124,27 @@ fn sheared(sh: Shear, v: vec3<f32>) -> vec3<f32> {
     return vec3<f32>(dot(sh.mx, p), dot(sh.my, p), dot(sh.mz, p));
 }
 
+// The edge function p.x·q.y − p.y·q.x of two sheared vertices. Watertightness needs
+// edge(q, p) = −edge(p, q) exactly, so that two triangles sharing an edge see one value
+// with opposite signs. Evaluated as written that holds only without fused multiply-adds:
+// a driver that fuses one product rounds the other (NVIDIA's does: 81 of 20,000 rays aimed
+// at the bunny's vertices and edges slipped through on an H200). So the pair is put in one
+// canonical order first, and both triangles evaluate the very same expression.
+fn edge(p: vec3<f32>, q: vec3<f32>) -> f32 {
+    let swap = p.x > q.x || (p.x == q.x && p.y > q.y);
+    let lo = select(p, q, swap);
+    let hi = select(q, p, swap);
+    let e = lo.x * hi.y - lo.y * hi.x;
+    return select(e, -e, swap);
+}
+
 fn tri_intersect(sh: Shear, tri: Tri, tmax: f32) -> f32 {
     let a = sheared(sh, tri.v0.xyz);
     let b = sheared(sh, tri.v1.xyz);
     let c = sheared(sh, tri.v2.xyz);
-    let u = c.x * b.y - c.y * b.x;
-    let v = a.x * c.y - a.y * c.x;
-    let w = b.x * a.y - b.y * a.x;
+    let u = edge(c, b);
+    let v = edge(a, c);
+    let w = edge(b, a);
     if (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0) {
         return 1e30;
     }

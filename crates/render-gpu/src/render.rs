@@ -11,7 +11,20 @@ use crate::integrator::wavefront::{Sample, trace_many};
 use crate::integrator::{IntegratorSettings, PathStats};
 use crate::setup::SceneData;
 
-const TILE: usize = 16;
+/// Tile side: 16 pixels, or 8 where 16 leaves fewer than `MIN_TILES` tiles. A pass ends
+/// when its dearest tile does, and the object's tiles cost ~100× the background's: at
+/// 64×64 (16 tiles, a handful on the object) 16 threads rendered no faster than 4
+/// (H200 machine's Xeon, docs/BENCHMARKS.md). Smaller tiles everywhere would cost on few
+/// cores instead (each tile's pass ends with its wavefront draining). The side depends on
+/// the image alone, never on the thread count, so a render stays the same on any.
+fn tile_side(w: usize, h: usize) -> usize {
+    if w.div_ceil(16) * h.div_ceil(16) >= MIN_TILES {
+        16
+    } else {
+        8
+    }
+}
+const MIN_TILES: usize = 64;
 /// Fewest samples a pixel per pass (unless spp is smaller): see `render`.
 const MIN_PASS: u32 = 16;
 /// Most samples a pixel per pass: a stop request waits for the tiles being traced, one
@@ -82,8 +95,9 @@ pub fn render(
 ) -> RenderOutput {
     let cam = &scene.camera;
     let (w, h) = (cam.width as usize, cam.height as usize);
-    let tiles: Vec<(usize, usize)> = (0..h.div_ceil(TILE))
-        .flat_map(|ty| (0..w.div_ceil(TILE)).map(move |tx| (tx * TILE, ty * TILE)))
+    let tile = tile_side(w, h);
+    let tiles: Vec<(usize, usize)> = (0..h.div_ceil(tile))
+        .flat_map(|ty| (0..w.div_ceil(tile)).map(move |tx| (tx * tile, ty * tile)))
         .collect();
     let mut sum = vec![[0f64; 3]; w * h];
     let mut work = vec![0u64; w * h];
@@ -127,7 +141,7 @@ pub fn render(
                 let (x0, y0) = tiles[t];
                 let t0 = Instant::now();
                 let mut st = PathStats::default();
-                let (x1, y1) = ((x0 + TILE).min(w), (y0 + TILE).min(h));
+                let (x1, y1) = ((x0 + tile).min(w), (y0 + tile).min(h));
                 let tw = x1 - x0;
                 let mut out: Vec<PixelSum> = vec![([0f64; 3], 0); tw * (y1 - y0)];
                 // The tile's samples pixel by pixel, each with its own random stream; the
@@ -173,7 +187,7 @@ pub fn render(
             cost[t] = secs;
             stats.add(&st);
             let (x0, y0) = tiles[t];
-            let x1 = (x0 + TILE).min(w);
+            let x1 = (x0 + tile).min(w);
             for (i, (v, n)) in out.into_iter().enumerate() {
                 let (dx, dy) = (i % (x1 - x0), i / (x1 - x0));
                 let at = (y0 + dy) * w + x0 + dx;

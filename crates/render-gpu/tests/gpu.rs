@@ -804,25 +804,37 @@ fn wgsl_rays_are_watertight_and_match_rust() {
             it[..3].copy_from_slice(&p.to_array());
             it[4..7].copy_from_slice(&d.to_array());
             items.push(it);
-            rays.push((p, d));
+            rays.push((p, d, (target - p).length()));
         }
     }
     let out =
         render_gpu::gpu::probe::run_probe_on(&ctx, "probe_ray", model(), &items, Some(&scene))
             .unwrap();
     let (mut misses, mut t_off, mut len_off, mut paired) = (0, 0, 0, 0);
-    for ((p, d), o) in rays.iter().zip(&out) {
+    let mut touch = 0;
+    for ((p, d, aim), o) in rays.iter().zip(&out) {
         let cpu = geo.intersect(*p, *d, f32::INFINITY);
         if o[0] != 1.0 {
             misses += 1;
             continue;
         }
         // Both tests are watertight but round differently (WGSL may fuse multiply-adds):
-        // at an edge they may pick different triangles at the same t.
+        // at an edge they may pick different triangles at the same t. And where the ray
+        // only touches the surface at the aimed vertex or edge (a silhouette seen from
+        // inside), f32 rounding decides whether it counts: NVIDIA's fused shear counted
+        // 65 of 20,000 such touches differently from the CPU (H200, 2026-11-26). A touch
+        // leaves the ray inside, so the point halfway to the farther hit is inside; had
+        // one side slipped through a crossing there, that point would be outside.
         if let Some(h) = cpu
             && (h.t - o[1]).abs() > 1e-4 * h.t.max(1e-2)
         {
-            t_off += 1;
+            let (near, far) = (h.t.min(o[1]), h.t.max(o[1]));
+            let at_aim = (near - aim).abs() <= 1e-4 * aim.max(1e-2);
+            if at_aim && geo.inside(*p + *d * (0.5 * (near + far))) {
+                touch += 1;
+            } else {
+                t_off += 1;
+            }
         }
         if o[2] == 1.0 && o[3] >= 0.0 {
             paired += 1;
@@ -834,7 +846,7 @@ fn wgsl_rays_are_watertight_and_match_rust() {
         }
     }
     eprintln!(
-        "{} rays: {misses} misses, {t_off} closest hits off, {paired} paired crossings, {len_off} lengths off",
+        "{} rays: {misses} misses, {t_off} closest hits off ({touch} more where one side counts a touch at the aimed point), {paired} paired crossings, {len_off} lengths off",
         rays.len()
     );
     assert_eq!(
