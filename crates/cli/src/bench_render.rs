@@ -67,7 +67,8 @@ pub struct Args {
     /// Also write each density's images to this folder: kK_pt and kK_stcvae (EXR + PNG,
     /// the two seeds' mean) and kK_z.png, where the bias lies: per channel and 4×4-pixel
     /// block (measure::block_z), the z-score of ST-CVAE − PT against both noises, drawn as 0.5 + z/8 (grey:
-    /// agreement; brighter: ST-CVAE brighter; |z| > 3 is rarely noise).
+    /// agreement; brighter: ST-CVAE brighter; |z| > 3 is rarely noise), and kK_pixels.csv:
+    /// per pixel and channel both means and the variances of those means.
     #[arg(long)]
     save: Option<PathBuf>,
     /// Reuse PT's renders: each density's PT pair (both seeds, time, statistics) is read
@@ -106,6 +107,26 @@ fn save_images(dir: &std::path::Path, k: f64, pt: &Pair, st: &Pair) -> Result<()
         *p = block.map(|v| v.map_or(0.5, |v| (0.5 + v / 8.0).clamp(0.0, 1.0) as f32));
     }
     write_png(&dir.join(format!("k{k}_z.png")), &z, 1.0)?;
+    // Per pixel and channel, both pairs' means and the variances of those means (from
+    // their two seeds): what the bias columns are computed from, for analyses the table
+    // does not make (where in the image a bias lies, other pixel classes or metrics).
+    let mut csv = String::from("x,y,channel,pt_mean,pt_var,stcvae_mean,stcvae_var\n");
+    for i in 0..w * h {
+        for c in 0..3 {
+            csv += &format!(
+                "{},{},{c},{:e},{:e},{:e},{:e}\n",
+                i % w,
+                i / w,
+                pt.mean.pixels[i][c],
+                pt.var[i][c],
+                st.mean.pixels[i][c],
+                st.var[i][c]
+            );
+        }
+    }
+    let path = dir.join(format!("k{k}_pixels.csv"));
+    scatter_sim::output::write_atomic(&path, csv.as_bytes())
+        .with_context(|| format!("cannot write {}", path.display()))?;
     Ok(())
 }
 

@@ -584,3 +584,59 @@ fn bench_render_reuses_stored_pt_pairs() {
     assert_eq!(std::fs::read_dir(&cache).unwrap().count(), 3);
     assert!(stdout(bench("6", &[])).contains("NEE on"));
 }
+
+/// `bench render --save`: both images, the z map and the pixel table, whose means are the
+/// images' pixels (the same f32 values, printed exactly) and whose variances are those of
+/// two-seed means: non-negative, and zero on the constant background in both integrators.
+#[test]
+fn bench_render_save_writes_images_and_the_pixel_table() {
+    let dir = tempfile::tempdir().unwrap();
+    let save = dir.path().join("b");
+    ok(&stcvae(&[
+        "bench",
+        "render",
+        "--k",
+        "0.25",
+        "--spp",
+        "6",
+        "--size",
+        "8",
+        "--save",
+        save.to_str().unwrap(),
+    ]));
+    for f in [
+        "k0.25_pt.exr",
+        "k0.25_pt.png",
+        "k0.25_stcvae.exr",
+        "k0.25_stcvae.png",
+        "k0.25_z.png",
+    ] {
+        assert!(save.join(f).is_file(), "{f} missing");
+    }
+    let (pt, _) = render_gpu::image_io::read_exr(&save.join("k0.25_pt.exr")).unwrap();
+    let (st, _) = render_gpu::image_io::read_exr(&save.join("k0.25_stcvae.exr")).unwrap();
+    let csv = std::fs::read_to_string(save.join("k0.25_pixels.csv")).unwrap();
+    let mut lines = csv.lines();
+    assert_eq!(
+        lines.next(),
+        Some("x,y,channel,pt_mean,pt_var,stcvae_mean,stcvae_var")
+    );
+    let rows: Vec<Vec<f64>> = lines
+        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
+        .collect();
+    assert_eq!(rows.len(), 8 * 8 * 3);
+    let (mut object, mut background) = (0, 0);
+    for r in &rows {
+        let (i, c) = (r[1] as usize * 8 + r[0] as usize, r[2] as usize);
+        assert_eq!(r[3] as f32, pt.pixels[i][c], "pixel {i} channel {c}");
+        assert_eq!(r[5] as f32, st.pixels[i][c], "pixel {i} channel {c}");
+        assert!(r[4] >= 0.0 && r[6] >= 0.0, "{r:?}");
+        if r[4] == 0.0 && r[6] == 0.0 {
+            background += 1;
+        } else {
+            object += 1;
+        }
+    }
+    // The bunny covers part of the 8×8 image: both kinds of pixel occur.
+    assert!(object > 0 && background > 0, "{object} / {background}");
+}
