@@ -140,6 +140,14 @@ fn bounce() {
             p_inside = true;
         }
         ps.pos = spawn(p, n, ps.dir);
+        // Beyond a sliver of medium thinner than the offset, the point is outside: the
+        // way back meets another surface from outside first (Geometry::beyond_sliver).
+        if p_inside {
+            let back = intersect(ps.pos, n, params.consts.z * SLIVER_REACH_OF_EPS);
+            if back.found && dot(tri_normal(back.prim), n) < 0.0 {
+                p_inside = false;
+            }
+        }
         return;
     }
     if h.found {

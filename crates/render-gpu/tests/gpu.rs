@@ -929,3 +929,28 @@ fn wgsl_grid_and_candidate_lists_match_rust() {
     }
     assert!(listed > 1_000, "only {listed} points near the surface");
 }
+
+/// The kernels' first flight after an entry checks that the next surface leaves the
+/// medium, as the CPU's does (integrators.rs, paths_pass_slivers_thinner_than_the_spawn_offset,
+/// which gives the scene and the bound): no path scatters, every pixel is exactly 1.
+#[test]
+fn gpu_paths_pass_slivers_thinner_than_the_spawn_offset() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = tempfile::tempdir().unwrap();
+    let s = common::build_scene(&common::sliver_scene(dir.path()), true);
+    for kind in [IntegratorKind::Pt, IntegratorKind::Stcvae] {
+        let out = on_gpu(&ctx, &s, &settings(kind, false), &opts(12, 3));
+        assert_eq!(
+            (out.stats.events, out.stats.steps, out.stats.leaks),
+            (0, 0, 0),
+            "{kind:?}: paths scattered in the air"
+        );
+        for (i, p) in out.image.pixels.iter().enumerate() {
+            assert!(
+                p.iter().all(|v| (v - 1.0).abs() < 1e-6),
+                "{kind:?} pixel {i}: {p:?}"
+            );
+        }
+    }
+}

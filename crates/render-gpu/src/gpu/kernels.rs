@@ -53,11 +53,12 @@ pub fn source(kernel: Kernel, model: Option<&cvae::ModelSet>) -> Result<String, 
     let stack = format!(
         "const STACK_DEPTH: u32 = {STACK_DEPTH}u;\nvar<workgroup> wg_stack: array<u32, {}>;\n\
          const ROULETTE_BOUND: f32 = {:?};\nconst FLIGHT_MARGIN_OF_EPS: f32 = {:?};\n\
-         const EXIT_REFINE_TAU: f32 = {:?};\n",
+         const EXIT_REFINE_TAU: f32 = {:?};\nconst SLIVER_REACH_OF_EPS: f32 = {:?};\n",
         STACK_DEPTH * WORKGROUP,
         crate::integrator::nee::ROULETTE_BOUND,
         crate::geometry::FLIGHT_MARGIN_OF_EPS,
         crate::integrator::sphere_step::EXIT_REFINE_TAU,
+        crate::geometry::SLIVER_REACH_OF_EPS,
     );
     let parts: &[&str] = match kernel {
         Kernel::Pt => &[COMMON, &stack, SCENE, NEE, PT, PATH],

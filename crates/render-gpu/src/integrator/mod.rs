@@ -259,6 +259,10 @@ impl Path {
                     }
                 }
                 s.pos = geo.spawn(p, h.normal, s.dir);
+                if *inside && geo.beyond_sliver(s.pos, h.normal) {
+                    // The medium along the ray is thinner than the spawn offset: pass it.
+                    *inside = false;
+                }
                 continue;
             }
             let t = -(1.0 - uniform(rng)).ln() / sigma;

@@ -81,3 +81,44 @@ pub fn uniform_direction(rng: &mut scatter_sim::WalkRng) -> glam::Vec3 {
     let q = (1.0 - z * z).sqrt();
     glam::Vec3::new((q * c) as f32, (q * s) as f32, z as f32)
 }
+
+/// A scene whose every camera ray crosses a sliver of medium thinner than the geometry's
+/// spawn offset: a prism whose cross-section is a wedge of slope 10⁻³ (1 × 10⁻³ at its
+/// thick end), seen from above 3 × 10⁻³ from its sharp edge, where it is ~3 × 10⁻⁶ thick
+/// against an offset of 2 × 10⁻⁵ of the scene's size (~9 × 10⁻⁵). A cube 3 units away makes
+/// the mesh's bounding box large, so a path left outside beyond the sliver while believing
+/// itself inside scatters through the air instead of leaving the box at once. Albedo 1 in
+/// a constant environment of 1 and no lights: every path that passes is exactly 1.
+/// The OBJ is written into `dir`.
+pub fn sliver_scene(dir: &Path) -> String {
+    let obj = "\
+v 0 0 -0.5\nv 1 0 -0.5\nv 1 0.001 -0.5\nv 0 0 0.5\nv 1 0 0.5\nv 1 0.001 0.5\n\
+f 1 3 2\nf 4 5 6\nf 1 2 5 4\nf 2 3 6 5\nf 1 4 6 3\n\
+v -3.5 -3.5 -0.5\nv -2.5 -3.5 -0.5\nv -3.5 -2.5 -0.5\nv -2.5 -2.5 -0.5\n\
+v -3.5 -3.5 0.5\nv -2.5 -3.5 0.5\nv -3.5 -2.5 0.5\nv -2.5 -2.5 0.5\n\
+f 7 9 10 8\nf 11 12 14 13\nf 7 8 12 11\nf 9 13 14 10\nf 7 11 13 9\nf 8 10 14 12\n";
+    let mesh = dir.join("sliver.obj");
+    std::fs::write(&mesh, obj).unwrap();
+    format!(
+        r#"
+[camera]
+origin = [0.003, 1.0, 0.0]
+target = [0.003, 0.0, 0.0]
+up = [0.0, 0.0, 1.0]
+fov_deg = 0.1
+width = 16
+height = 16
+[object]
+mesh = "{}"
+[medium]
+sigma_t = [1.0, 1.0, 1.0]
+albedo = [1.0, 1.0, 1.0]
+g = 0.0
+[environment]
+radiance = [1.0, 1.0, 1.0]
+[render]
+grid_resolution = 32
+"#,
+        mesh.display()
+    )
+}
