@@ -701,17 +701,6 @@ fn paths_pass_slivers_thinner_than_the_spawn_offset() {
     let m = model();
     for kind in [IntegratorKind::Pt, IntegratorKind::Stcvae] {
         let set = settings(kind, false, (kind == IntegratorKind::Stcvae).then_some(&m));
-        let out = render_quiet(&s, &set, 12, 3);
-        assert_eq!(
-            (out.stats.events, out.stats.steps, out.stats.leaks),
-            (0, 0, 0),
-            "{kind:?}: paths scattered in the air"
-        );
-        for (i, p) in out.image.pixels.iter().enumerate() {
-            assert!(
-                p.iter().all(|v| (v - 1.0).abs() < 1e-6),
-                "{kind:?} pixel {i}: {p:?}"
-            );
-        }
+        common::assert_sliver_passed(kind, &render_quiet(&s, &set, 12, 3));
     }
 }

@@ -122,3 +122,22 @@ grid_resolution = 32
         mesh.display()
     )
 }
+
+/// What a render of [`sliver_scene`] must be: no path scattered (nor was found outside
+/// while believed inside), and every pixel is the environment's 1.
+pub fn assert_sliver_passed(
+    kind: render_gpu::integrator::IntegratorKind,
+    out: &render_gpu::render::RenderOutput,
+) {
+    assert_eq!(
+        (out.stats.events, out.stats.steps, out.stats.leaks),
+        (0, 0, 0),
+        "{kind:?}: paths scattered in the air"
+    );
+    for (i, p) in out.image.pixels.iter().enumerate() {
+        assert!(
+            p.iter().all(|v| (v - 1.0).abs() < 1e-6),
+            "{kind:?} pixel {i}: {p:?}"
+        );
+    }
+}
