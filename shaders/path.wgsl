@@ -86,6 +86,14 @@ fn start_path(origin: vec3<f32>, dir: vec3<f32>, channel: u32) {
     p_iterations = 0u;
 }
 
+/// Whether `q`, spawned eps inside the surface at a hit whose outward normal is `n`, lies
+/// beyond a sliver of medium thinner than eps, i.e. outside (Geometry::beyond_sliver):
+/// the way back toward the hit meets a surface from outside first.
+fn beyond_sliver(q: vec3<f32>, n: vec3<f32>) -> bool {
+    let back = intersect(q, n, params.consts.z * SLIVER_REACH_OF_EPS);
+    return back.found && dot(tri_normal(back.prim), n) < 0.0;
+}
+
 /// One iteration of the CPU path loop; sets ps.alive = false when the path ends. The
 /// kernel interleaves paths through this (path regeneration): an invocation whose path
 /// ended starts its next sample instead of idling until the longest path of its SIMD
@@ -128,6 +136,7 @@ fn bounce() {
         }
         let p = ps.pos + ps.dir * h.t;
         let n = tri_normal(h.prim);
+        let incoming = ps.dir;
         if dielectric {
             let f = fresnel(abs(dot(ps.dir, n)), 1.0, ior);
             if rand() < f {
@@ -140,13 +149,10 @@ fn bounce() {
             p_inside = true;
         }
         ps.pos = spawn(p, n, ps.dir);
-        // Beyond a sliver of medium thinner than the offset, the point is outside: the
-        // way back meets another surface from outside first (Geometry::beyond_sliver).
-        if p_inside {
-            let back = intersect(ps.pos, n, params.consts.z * SLIVER_REACH_OF_EPS);
-            if back.found && dot(tri_normal(back.prim), n) < 0.0 {
-                p_inside = false;
-            }
+        if p_inside && beyond_sliver(ps.pos, n) {
+            // Pass the sliver in the direction the path came (integrator/mod.rs).
+            p_inside = false;
+            ps.dir = incoming;
         }
         return;
     }
@@ -177,6 +183,10 @@ fn bounce() {
             p_inside = false;
         }
         ps.pos = spawn(p, n, ps.dir);
+        if p_inside && beyond_sliver(ps.pos, n) {
+            // Reflected back inside where the medium is thinner than the offset.
+            p_inside = false;
+        }
         p_from_step = false;
         return;
     }

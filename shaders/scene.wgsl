@@ -129,8 +129,15 @@ fn sheared(sh: Shear, v: vec3<f32>) -> vec3<f32> {
 // with opposite signs. Evaluated as written that holds only without fused multiply-adds:
 // a driver that fuses one product rounds the other (NVIDIA's does: 81 of 20,000 rays aimed
 // at the bunny's vertices and edges slipped through on an H200). So the pair is put in one
-// canonical order first, and both triangles evaluate the very same expression.
+// canonical order first, and both triangles evaluate the very same expression. (This
+// assumes the compiler treats the expression, and `sheared` before it, alike at all three
+// call sites; it did on NVIDIA's driver and lavapipe.) Two vertices that coincide in
+// projection (an edge along the ray) give 0 exactly: p.x·p.y − p.y·p.x with one product
+// fused is the other's rounding error, of one sign for both triangles.
 fn edge(p: vec3<f32>, q: vec3<f32>) -> f32 {
+    if p.x == q.x && p.y == q.y {
+        return 0.0;
+    }
     let swap = p.x > q.x || (p.x == q.x && p.y > q.y);
     let lo = select(p, q, swap);
     let hi = select(q, p, swap);

@@ -36,9 +36,11 @@ pub struct Hit {
 
 /// [`Geometry::flight_margin`] in units of eps (the WGSL kernels take it from here).
 pub const FLIGHT_MARGIN_OF_EPS: f32 = 0.02;
-/// How far [`Geometry::beyond_sliver`] looks, in units of eps: past the hit point by more
-/// than the rounding of the spawned point (an ulp of the coordinates, ~1 % of eps at
-/// the scene's scale), so the surface it came through is always met (the WGSL kernels
+/// How far [`Geometry::beyond_sliver`] looks, in units of eps. What it must see is a far
+/// face between the spawned point and the hit point, at t < eps; looking a little past the
+/// hit point (by more than the spawned point's rounding, an ulp of the coordinates, ~1 %
+/// of eps at the scene's scale) keeps a far face right at the hit point in view, and the
+/// surface the path came through, met there, reads as inside either way (the WGSL kernels
 /// take it from here).
 pub const SLIVER_REACH_OF_EPS: f32 = 1.05;
 
@@ -216,13 +218,15 @@ impl Geometry {
     }
 
     /// Whether `q`, spawned eps inside the surface at a hit whose outward normal is
-    /// `normal`, lies outside after all: beyond a sliver of medium thinner than eps (at a
-    /// sharp edge, or where a ray enters near a silhouette edge). The way back to the hit
-    /// point then meets another surface from outside before the one it came through. A
-    /// path spawned there believed itself inside and scattered through the air with
-    /// unshadowed NEE until it left the bounding box: the fireflies that made PT look 3–4 %
-    /// brighter than ST-CVAE in a close-up of the bunny's silhouette at k = 8 (~4 in 10⁶
-    /// of its paths). The check is a ray of length ~eps, so it costs a fraction of a cast.
+    /// `normal`, lies outside after all: beyond a sliver of medium thinner than eps along
+    /// the normal (a sharp edge or a thin feature, such as the low-resolution bunny has at
+    /// the top of its head). The way back to the hit point then meets another surface from outside
+    /// before the one it came through. A path spawned there believed itself inside and
+    /// scattered through the air with unshadowed NEE until it left the bounding box: the
+    /// fireflies that made PT look 3–4 % brighter than ST-CVAE in a close-up of the top of
+    /// the bunny at k = 8 (~4 in 10⁶ of its paths). On a closed, consistently oriented mesh
+    /// the first surface met from a point truly inside is an exit, so the check never fires
+    /// at ordinary entries. It is a ray of length ~eps: a fraction of a cast.
     pub fn beyond_sliver(&self, q: Vec3, normal: Vec3) -> bool {
         self.intersect(q, normal, self.eps * SLIVER_REACH_OF_EPS)
             .is_some_and(|h| h.normal.dot(normal) < 0.0)

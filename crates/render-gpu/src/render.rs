@@ -226,3 +226,18 @@ pub fn render(
             .collect(),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::tile_side;
+
+    /// 16-pixel tiles wherever they make at least 64 tiles, else 8.
+    #[test]
+    fn small_images_get_smaller_tiles() {
+        assert_eq!(tile_side(128, 128), 16); // 64 tiles
+        assert_eq!(tile_side(127, 127), 16); // 8 × 8 tiles, the last ones partial
+        assert_eq!(tile_side(112, 128), 8); // 7 × 8 = 56 tiles
+        assert_eq!(tile_side(64, 64), 8);
+        assert_eq!(tile_side(1024, 16), 16); // 64 × 1
+    }
+}

@@ -930,19 +930,25 @@ fn wgsl_grid_and_candidate_lists_match_rust() {
     assert!(listed > 1_000, "only {listed} points near the surface");
 }
 
-/// The kernels' first flight after an entry checks that the next surface leaves the
-/// medium, as the CPU's does (integrators.rs, paths_pass_slivers_thinner_than_the_spawn_offset,
-/// which gives the scene and the bound): no path scatters, every pixel is exactly 1.
+/// The kernels check each entry for a sliver as the CPU does (integrators.rs,
+/// paths_pass_slivers_thinner_than_the_spawn_offset, which gives the scene and the
+/// bounds): at the sliver no path scatters and every pixel is exactly 1; where the wedge
+/// is thicker than the offset, paths enter and scatter.
 #[test]
 fn gpu_paths_pass_slivers_thinner_than_the_spawn_offset() {
     let Some(ctx) = gpu() else { return };
     let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
     let dir = tempfile::tempdir().unwrap();
-    let s = common::build_scene(&common::sliver_scene(dir.path()), true);
+    let sliver = common::build_scene(&common::sliver_scene(dir.path(), 0.003, 1.0), true);
+    let thick = common::build_scene(&common::sliver_scene(dir.path(), 0.5, 1000.0), true);
     for kind in [IntegratorKind::Pt, IntegratorKind::Stcvae] {
-        common::assert_sliver_passed(
-            kind,
-            &on_gpu(&ctx, &s, &settings(kind, false), &opts(12, 3)),
+        let set = settings(kind, true);
+        common::assert_sliver_passed(kind, &on_gpu(&ctx, &sliver, &set, &opts(12, 3)));
+        let out = on_gpu(&ctx, &thick, &set, &opts(12, 3));
+        assert!(
+            out.stats.events + out.stats.steps > 100,
+            "{kind:?}: {:?}",
+            out.stats
         );
     }
 }

@@ -496,11 +496,12 @@ fn environment_map_is_read_and_oriented() {
     assert_eq!((top, bottom), (2.0, 0.0));
 }
 
-/// The sun scene at 40×40 pixels: 9 render tiles of unequal cost, with the grid.
+/// The sun scene at 44×44 pixels, with the grid: 36 render tiles of 8×8 (an image this
+/// small gets 8-pixel tiles), the last row and column of them partial, of unequal cost.
 fn tiled_sun_scene() -> (SceneFile, SceneData) {
     let text = SUN_SCENE
-        .replace("width = 16", "width = 40")
-        .replace("height = 16", "height = 40");
+        .replace("width = 16", "width = 44")
+        .replace("height = 16", "height = 44");
     scene(&text, true)
 }
 
@@ -512,7 +513,7 @@ fn tiled_sun_scene() -> (SceneFile, SceneData) {
 /// samples: 1e-5 relative is ~100 f32 ulps, far below any real difference, where a
 /// mixed-up lane or a stage run on the wrong path changes whole paths (O(1) per pixel).
 /// Thin medium and a sun disk, so that paths run many sphere steps with NEE on and off;
-/// 40×40 pixels (9 tiles of unequal cost) and 18 spp (two passes, the second with the
+/// 44×44 pixels (36 tiles of unequal cost, some partial) and 18 spp (two passes, the second with the
 /// tiles reordered by the first's timings), so that a tile put back in the wrong place
 /// shows too.
 #[test]
@@ -555,7 +556,7 @@ fn batched_render_equals_paths_traced_alone() {
 /// which tile (tiles are handed out from a queue in an order set by the last pass's
 /// timings): every pixel's samples are traced and summed in one fixed order. So one
 /// thread and three must give the same image bit for bit; several passes (spp > 16)
-/// exercise the reordering, and 40×40 pixels make 9 tiles of unequal cost.
+/// exercise the reordering, and 44×44 pixels make 36 tiles of unequal cost, some partial.
 #[test]
 fn render_is_the_same_on_any_thread_count() {
     let m = model();
@@ -635,7 +636,7 @@ fn hero_channels_are_uniform_for_any_spp() {
 #[test]
 fn a_stop_request_ends_the_render_within_a_pass() {
     use std::sync::atomic::Ordering;
-    // 48 × 48: nine 16 × 16 tiles a pass. Stop once the third pass has finished a tile.
+    // 48 × 48: 36 tiles of 8 × 8 a pass. Stop once the third pass has finished a tile.
     let text = common::furnace_scene("kind = \"index-matched\"")
         .replace("width = 12", "width = 48")
         .replace("height = 12", "height = 48");
@@ -643,7 +644,7 @@ fn a_stop_request_ends_the_render_within_a_pass() {
     let set = settings(IntegratorKind::Pt, true, None);
     let stop = AtomicBool::new(false);
     let pixels = (s.camera.width * s.camera.height) as u64;
-    // Two threads: with nine or more, all nine tiles could be in flight when the request
+    // Two threads: with 36 or more, all 36 tiles could be in flight when the request
     // comes, and the third pass would (rightly) complete.
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(2)
@@ -685,22 +686,31 @@ fn a_stop_request_ends_the_render_within_a_pass() {
     assert_eq!(out.spp, 0);
 }
 
-/// A camera ray entering the medium where it is thinner than the spawn offset (a sharp
-/// edge, or a grazing entry at a silhouette) leaves its offset point outside, beyond the
-/// sliver. Such paths used to believe themselves inside and scatter through the air (with
-/// unshadowed NEE, under a light: at k = 8 these made PT 3–4 % brighter than ST-CVAE in
-/// a close-up of the bunny's silhouette). Now the first flight after an entry checks that
-/// the next surface leaves the medium, and a path that is outside passes the sliver.
-/// The sliver holds σ_t·ℓ ≈ 3 × 10⁻⁶ optical depth along each ray, so over these 3,072
-/// paths a true collision inside it has probability ~1 %: no path may scatter, and every
-/// pixel is the environment's 1 exactly.
+/// A camera ray entering the medium where it is thinner than the spawn offset (along the
+/// normal: a sharp edge or a thin feature) leaves its offset point outside, beyond the
+/// sliver. Such paths used to believe themselves inside and scatter through the air with
+/// unshadowed NEE (at k = 8 these made PT 3–4 % brighter than ST-CVAE in a close-up of the
+/// top of the bunny). Now each entry checks the way back to the hit point
+/// (`Geometry::beyond_sliver`) and a path beyond a sliver passes it. The sliver holds an
+/// optical depth of ~3 × 10⁻⁶ along each ray, so even a renderer that resolved it would
+/// scatter in it with probability ~1 % over these 3,072 paths; this one skips it, so no
+/// path may scatter and every pixel is exactly the environment's 1 (a path scattered in
+/// the air would add unshadowed sunlight). Where the wedge is thicker than the offset
+/// (optical depth 0.5), paths do enter and scatter: the check does not pass everything.
 #[test]
 fn paths_pass_slivers_thinner_than_the_spawn_offset() {
     let dir = tempfile::tempdir().unwrap();
-    let s = common::build_scene(&common::sliver_scene(dir.path()), true);
+    let sliver = common::build_scene(&common::sliver_scene(dir.path(), 0.003, 1.0), true);
+    let thick = common::build_scene(&common::sliver_scene(dir.path(), 0.5, 1000.0), true);
     let m = model();
     for kind in [IntegratorKind::Pt, IntegratorKind::Stcvae] {
-        let set = settings(kind, false, (kind == IntegratorKind::Stcvae).then_some(&m));
-        common::assert_sliver_passed(kind, &render_quiet(&s, &set, 12, 3));
+        let set = settings(kind, true, (kind == IntegratorKind::Stcvae).then_some(&m));
+        common::assert_sliver_passed(kind, &render_quiet(&sliver, &set, 12, 3));
+        let out = render_quiet(&thick, &set, 12, 3);
+        assert!(
+            out.stats.events + out.stats.steps > 100,
+            "{kind:?}: {:?}",
+            out.stats
+        );
     }
 }

@@ -246,6 +246,7 @@ impl Path {
                     break;
                 };
                 let p = s.pos + s.dir * h.t;
+                let incoming = s.dir;
                 match scene.boundary {
                     Boundary::IndexMatched => *inside = true,
                     Boundary::Dielectric(ior) => {
@@ -260,8 +261,10 @@ impl Path {
                 }
                 s.pos = geo.spawn(p, h.normal, s.dir);
                 if *inside && geo.beyond_sliver(s.pos, h.normal) {
-                    // The medium along the ray is thinner than the spawn offset: pass it.
+                    // The medium under the entry is thinner than the spawn offset: pass it,
+                    // in (as through a slab of no thickness) the direction the path came.
                     *inside = false;
+                    s.dir = incoming;
                 }
                 continue;
             }
@@ -304,6 +307,10 @@ impl Path {
                     }
                 }
                 s.pos = geo.spawn(p, h.normal, s.dir);
+                if *inside && geo.beyond_sliver(s.pos, h.normal) {
+                    // Reflected back inside where the medium is thinner than the offset.
+                    *inside = false;
+                }
                 *from_step = false;
                 continue;
             }

@@ -82,15 +82,16 @@ pub fn uniform_direction(rng: &mut scatter_sim::WalkRng) -> glam::Vec3 {
     glam::Vec3::new((q * c) as f32, (q * s) as f32, z as f32)
 }
 
-/// A scene whose every camera ray crosses a sliver of medium thinner than the geometry's
-/// spawn offset: a prism whose cross-section is a wedge of slope 10⁻³ (1 × 10⁻³ at its
-/// thick end), seen from above 3 × 10⁻³ from its sharp edge, where it is ~3 × 10⁻⁶ thick
-/// against an offset of 2 × 10⁻⁵ of the scene's size (~9 × 10⁻⁵). A cube 3 units away makes
-/// the mesh's bounding box large, so a path left outside beyond the sliver while believing
-/// itself inside scatters through the air instead of leaving the box at once. Albedo 1 in
-/// a constant environment of 1 and no lights: every path that passes is exactly 1.
-/// The OBJ is written into `dir`.
-pub fn sliver_scene(dir: &Path) -> String {
+/// A prism whose cross-section is a wedge of slope 10⁻³ (1 × 10⁻³ thick at its thick
+/// end), seen from above at `x` from its sharp edge, where it is x · 10⁻³ thick: at
+/// x = 3 × 10⁻³ that is 3 × 10⁻⁶, a sliver below the geometry's spawn offset (2 × 10⁻⁵ of
+/// the scene's size, ~9 × 10⁻⁵); at x = 0.5 it is 5 × 10⁻⁴, well above it. A cube 3 units
+/// away makes the mesh's bounding box large, so a path left outside beyond the sliver while
+/// believing itself inside scatters through the air instead of leaving the box at once.
+/// Albedo 1, a constant environment of 1 and a sun (NEE on): a path that passes unscattered
+/// is exactly 1, one that scatters in the air adds unshadowed sunlight. The OBJ is written
+/// into `dir`.
+pub fn sliver_scene(dir: &Path, x: f64, sigma_t: f64) -> String {
     let obj = "\
 v 0 0 -0.5\nv 1 0 -0.5\nv 1 0.001 -0.5\nv 0 0 0.5\nv 1 0 0.5\nv 1 0.001 0.5\n\
 f 1 3 2\nf 4 5 6\nf 1 2 5 4\nf 2 3 6 5\nf 1 4 6 3\n\
@@ -102,8 +103,8 @@ f 7 9 10 8\nf 11 12 14 13\nf 7 8 12 11\nf 9 13 14 10\nf 7 11 13 9\nf 8 10 14 12\
     format!(
         r#"
 [camera]
-origin = [0.003, 1.0, 0.0]
-target = [0.003, 0.0, 0.0]
+origin = [{x}, 1.0, 0.0]
+target = [{x}, 0.0, 0.0]
 up = [0.0, 0.0, 1.0]
 fov_deg = 0.1
 width = 16
@@ -111,9 +112,13 @@ height = 16
 [object]
 mesh = "{}"
 [medium]
-sigma_t = [1.0, 1.0, 1.0]
+sigma_t = [{sigma_t}, {sigma_t}, {sigma_t}]
 albedo = [1.0, 1.0, 1.0]
 g = 0.0
+[[light]]
+kind = "directional"
+direction = [0.3, -1.0, 0.2]
+irradiance = [1.0, 1.0, 1.0]
 [environment]
 radiance = [1.0, 1.0, 1.0]
 [render]
@@ -123,8 +128,8 @@ grid_resolution = 32
     )
 }
 
-/// What a render of [`sliver_scene`] must be: no path scattered (nor was found outside
-/// while believed inside), and every pixel is the environment's 1.
+/// What a render of [`sliver_scene`] at a sliver must be: no path scattered (nor was
+/// found outside while believed inside), and every pixel is the environment's 1.
 pub fn assert_sliver_passed(
     kind: render_gpu::integrator::IntegratorKind,
     out: &render_gpu::render::RenderOutput,
