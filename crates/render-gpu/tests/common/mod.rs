@@ -128,6 +128,10 @@ grid_resolution = 32
     )
 }
 
+/// A dielectric boundary, to append to a scene without one: at a sliver, a path either
+/// reflects off the surface or refracts in and passes the sliver, and goes on unscattered.
+pub const DIELECTRIC: &str = "[boundary]\nkind = \"dielectric\"\nior = 1.5\n";
+
 /// What a render of [`sliver_scene`] at a sliver must be: no path scattered (nor was
 /// found outside while believed inside), and every pixel is the environment's 1.
 pub fn assert_sliver_passed(
