@@ -110,11 +110,14 @@ fn save_images(dir: &std::path::Path, k: f64, pt: &Pair, st: &Pair) -> Result<()
     // Per pixel and channel, both pairs' means and the variances of those means (from
     // their two seeds): what the bias columns are computed from, for analyses the table
     // does not make (where in the image a bias lies, other pixel classes or metrics).
+    use std::fmt::Write as _;
     let mut csv = String::from("x,y,channel,pt_mean,pt_var,stcvae_mean,stcvae_var\n");
     for i in 0..w * h {
         for c in 0..3 {
-            csv += &format!(
-                "{},{},{c},{:e},{:e},{:e},{:e}\n",
+            // Writing to a String cannot fail.
+            let _ = writeln!(
+                csv,
+                "{},{},{c},{:e},{:e},{:e},{:e}",
                 i % w,
                 i / w,
                 pt.mean.pixels[i][c],

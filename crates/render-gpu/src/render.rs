@@ -11,6 +11,8 @@ use crate::integrator::wavefront::{Sample, trace_many};
 use crate::integrator::{IntegratorSettings, PathStats};
 use crate::setup::SceneData;
 
+/// Fewest tiles of 16 pixels an image must make to be rendered in them (see [`tile_side`]).
+const MIN_TILES: usize = 64;
 /// Tile side: 16 pixels, or 8 where 16 leaves fewer than `MIN_TILES` tiles. A pass ends
 /// when its dearest tile does, and the object's tiles cost ~100× the background's: at
 /// 64×64 (16 tiles, a handful on the object) 16 threads rendered no faster than 4
@@ -24,7 +26,6 @@ fn tile_side(w: usize, h: usize) -> usize {
         8
     }
 }
-const MIN_TILES: usize = 64;
 /// Fewest samples a pixel per pass (unless spp is smaller): see `render`.
 const MIN_PASS: u32 = 16;
 /// Most samples a pixel per pass: a stop request waits for the tiles being traced, one

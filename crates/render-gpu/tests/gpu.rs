@@ -938,20 +938,5 @@ fn wgsl_grid_and_candidate_lists_match_rust() {
 fn gpu_paths_pass_slivers_thinner_than_the_spawn_offset() {
     let Some(ctx) = gpu() else { return };
     let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
-    let dir = tempfile::tempdir().unwrap();
-    let text = common::sliver_scene(dir.path(), 0.003, 1.0);
-    let sliver = common::build_scene(&text, true);
-    let dielectric = common::build_scene(&(text + common::DIELECTRIC), true);
-    let thick = common::build_scene(&common::sliver_scene(dir.path(), 0.5, 1000.0), true);
-    for kind in [IntegratorKind::Pt, IntegratorKind::Stcvae] {
-        let set = settings(kind, true);
-        common::assert_sliver_passed(kind, &on_gpu(&ctx, &sliver, &set, &opts(12, 3)));
-        common::assert_sliver_passed(kind, &on_gpu(&ctx, &dielectric, &set, &opts(12, 3)));
-        let out = on_gpu(&ctx, &thick, &set, &opts(12, 3));
-        assert!(
-            out.stats.events + out.stats.steps > 100,
-            "{kind:?}: {:?}",
-            out.stats
-        );
-    }
+    common::check_slivers(|s, kind| on_gpu(&ctx, s, &settings(kind, true), &opts(12, 3)));
 }

@@ -130,11 +130,39 @@ grid_resolution = 32
 
 /// A dielectric boundary, to append to a scene without one: at a sliver, a path either
 /// reflects off the surface or refracts in and passes the sliver, and goes on unscattered.
-pub const DIELECTRIC: &str = "[boundary]\nkind = \"dielectric\"\nior = 1.5\n";
+const DIELECTRIC: &str = "[boundary]\nkind = \"dielectric\"\nior = 1.5\n";
+
+/// The sliver checks of one device, `render(scene, kind)` rendering 12 spp of PT or
+/// ST-CVAE with NEE: at the sliver (index-matched and dielectric) every path passes
+/// ([`assert_sliver_passed`]); where the wedge is thicker than the offset, paths enter
+/// and scatter.
+pub fn check_slivers(
+    render: impl Fn(
+        &render_gpu::setup::SceneData,
+        render_gpu::integrator::IntegratorKind,
+    ) -> render_gpu::render::RenderOutput,
+) {
+    use render_gpu::integrator::IntegratorKind;
+    let dir = tempfile::tempdir().unwrap();
+    let text = sliver_scene(dir.path(), 0.003, 1.0);
+    let sliver = build_scene(&text, true);
+    let dielectric = build_scene(&(text + DIELECTRIC), true);
+    let thick = build_scene(&sliver_scene(dir.path(), 0.5, 1000.0), true);
+    for kind in [IntegratorKind::Pt, IntegratorKind::Stcvae] {
+        assert_sliver_passed(kind, &render(&sliver, kind));
+        assert_sliver_passed(kind, &render(&dielectric, kind));
+        let out = render(&thick, kind);
+        assert!(
+            out.stats.events + out.stats.steps > 100,
+            "{kind:?}: {:?}",
+            out.stats
+        );
+    }
+}
 
 /// What a render of [`sliver_scene`] at a sliver must be: no path scattered (nor was
 /// found outside while believed inside), and every pixel is the environment's 1.
-pub fn assert_sliver_passed(
+fn assert_sliver_passed(
     kind: render_gpu::integrator::IntegratorKind,
     out: &render_gpu::render::RenderOutput,
 ) {
