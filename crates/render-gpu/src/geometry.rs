@@ -58,6 +58,8 @@ pub struct Geometry {
     /// cy, cz, r]. [`Geometry::nearest_of`] skips the exact point–triangle distance of
     /// every candidate whose bound already exceeds the nearest found so far.
     bounds: Vec<[f32; 8]>,
+    /// Per triangle, cos θ of its escape cone ([`crate::escape_cone`]).
+    pub(crate) escape_cos: Vec<f32>,
 }
 
 impl Geometry {
@@ -114,7 +116,7 @@ impl Geometry {
                 [n.x, n.y, n.z, n.dot(a), centre.x, centre.y, centre.z, r]
             })
             .collect();
-        Self {
+        let mut geo = Self {
             mesh,
             tris,
             normals,
@@ -123,7 +125,32 @@ impl Geometry {
             hi,
             eps: scale * 2e-5,
             bounds,
+            escape_cos: Vec::new(),
+        };
+        geo.escape_cos = crate::escape_cone::escape_cosines(&geo);
+        geo
+    }
+
+    /// Whether a ray spawned on the outer side of triangle `prim` along unit `dir` meets
+    /// the mesh nowhere, known without a cast: `dir` lies in the triangle's escape cone.
+    #[inline]
+    pub fn escapes_from(&self, prim: u32, dir: Vec3) -> bool {
+        dir.dot(self.normals[prim as usize]) >= self.escape_cos[prim as usize]
+    }
+
+    /// The fraction of the surface's area whose triangles have an escape cone of at least
+    /// `cos` (a report of how much the cones can spare).
+    pub fn escape_cone_area(&self, cos: f32) -> f64 {
+        let (mut all, mut with) = (0.0f64, 0.0f64);
+        for (i, &c) in self.escape_cos.iter().enumerate() {
+            let [a, b, cc] = self.mesh.triangle(i);
+            let area = (b - a).cross(cc - a).length() as f64;
+            all += area;
+            if c <= cos {
+                with += area;
+            }
         }
+        with / all.max(f64::MIN_POSITIVE)
     }
 
     /// Closest hit along `origin + t·dir`, t ∈ (0, tmax].

@@ -7,6 +7,7 @@
 pub mod camera;
 pub mod distance_grid;
 pub mod error;
+pub mod escape_cone;
 pub mod geometry;
 pub mod gpu;
 pub mod hash;

@@ -180,6 +180,9 @@ pub(crate) struct Path {
     inside: bool,
     /// True right after a sphere step: the next flight starts at a model-made exit point.
     from_step: bool,
+    /// The triangle the path has just left the surface through (outward), if it has: a
+    /// direction in that triangle's escape cone escapes without a ray cast.
+    left_through: Option<u32>,
     iterations: u64,
     /// The sphere step waiting for its decoder draws, after [`Advance::Step`].
     pub step: Option<sphere_step::Pending>,
@@ -213,6 +216,7 @@ impl Path {
             },
             inside: false,
             from_step: false,
+            left_through: None,
             iterations: 0,
             step: None,
         }
@@ -230,6 +234,7 @@ impl Path {
             stats,
             inside,
             from_step,
+            left_through,
             iterations,
             step,
             ..
@@ -241,7 +246,11 @@ impl Path {
                 break;
             }
             if !*inside {
-                let Some(h) = geo.intersect(s.pos, s.dir, f32::INFINITY) else {
+                let hit = match left_through.take() {
+                    Some(prim) if geo.escapes_from(prim, s.dir) => None,
+                    _ => geo.intersect(s.pos, s.dir, f32::INFINITY),
+                };
+                let Some(h) = hit else {
                     s.radiance += s.beta * escape(scene, s.dir, channel, !(set.nee && s.scattered));
                     break;
                 };
@@ -253,6 +262,7 @@ impl Path {
                         let f = fresnel(s.dir.dot(h.normal).abs(), 1.0, ior);
                         if uniform(rng) < f {
                             s.dir = reflect(s.dir, h.normal);
+                            *left_through = Some(h.prim);
                         } else {
                             s.dir = refract(s.dir, h.normal, 1.0, ior).unwrap_or(s.dir);
                             *inside = true;
@@ -305,6 +315,9 @@ impl Path {
                             *inside = false;
                         }
                     }
+                }
+                if !*inside {
+                    *left_through = Some(h.prim);
                 }
                 s.pos = geo.spawn(p, h.normal, s.dir);
                 if *inside && geo.beyond_sliver(s.pos, h.normal) {
