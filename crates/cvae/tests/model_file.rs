@@ -122,7 +122,8 @@ fn overflowing_metadata_is_refused() {
     let bytes = random_models(4, 1.0).to_bytes();
     let json_len = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
     let weights = &bytes[16 + json_len..bytes.len() - 4];
-    let edits: [(fn(&mut serde_json::Value), &str); 3] = [
+    type Edit = (fn(&mut serde_json::Value), &'static str);
+    let edits: [Edit; 3] = [
         (|m| m["decoders"][0]["latent"] = u64::MAX.into(), "inputs"),
         (
             |m| m["decoders"][1]["hidden"] = serde_json::json!([1u64 << 32, 1u64 << 32]),
@@ -194,7 +195,8 @@ fn non_finite_weights_are_refused() {
 /// out-of-range ones are refused by name even with a valid checksum.
 #[test]
 fn bad_training_ranges_are_refused() {
-    let cases: [(fn(&mut TrainingInfo), &str); 4] = [
+    type Edit = (fn(&mut TrainingInfo), &'static str);
+    let cases: [Edit; 4] = [
         (|t| t.tau_range = [300.0, 0.0], "tau_range"),
         (|t| t.tau_range = [0.0, 1e39], "tau_range"),
         (|t| t.g_range = [-2.0, 0.5], "g_range"),

@@ -364,11 +364,10 @@ fn white_furnace_gpu() {
                 }
             }
             for (i, p) in out.image.pixels.iter().enumerate() {
-                for c in 0..3 {
+                for (c, v) in p.iter().enumerate() {
                     assert!(
-                        (p[c] - 0.7).abs() < 1e-4,
-                        "{kind:?} {boundary}: pixel {i} channel {c} = {}",
-                        p[c]
+                        (v - 0.7).abs() < 1e-4,
+                        "{kind:?} {boundary}: pixel {i} channel {c} = {v}",
                     );
                 }
             }

@@ -88,11 +88,10 @@ fn assert_furnace_with(kind: IntegratorKind, text: &str, set: &IntegratorSetting
         );
     }
     for (i, p) in out.image.pixels.iter().enumerate() {
-        for c in 0..3 {
+        for (c, v) in p.iter().enumerate() {
             assert!(
-                (p[c] - 0.7).abs() < 1e-4,
-                "{kind:?}: pixel {i} channel {c} = {} in the scene\n{text}",
-                p[c]
+                (v - 0.7).abs() < 1e-4,
+                "{kind:?}: pixel {i} channel {c} = {v} in the scene\n{text}",
             );
         }
     }
@@ -234,8 +233,8 @@ fn nee_on_equals_nee_off_pt() {
     // PT with and without NEE are both unbiased: |z| < 4 (six such comparisons in
     // this file; a false alarm has probability ~4e-4).
     assert_means_agree("PT, NEE on vs off", (on, son), (off, soff), 4.0);
-    for c in 0..3 {
-        assert!(on[c] > 0.01, "the sun must light the sphere");
+    for v in on {
+        assert!(v > 0.01, "the sun must light the sphere");
     }
 }
 

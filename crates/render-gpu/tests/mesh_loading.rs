@@ -286,7 +286,10 @@ fn exr_with_a_huge_declared_size_is_refused() {
     bytes[at + 8..at + 12].copy_from_slice(&1_000_000_000i32.to_le_bytes());
     bytes[at + 12..at + 16].copy_from_slice(&1_000_000_000i32.to_le_bytes());
     std::fs::write(&path, bytes).unwrap();
-    let e = read_exr(&path).err().expect("refused").to_string();
+    let Err(e) = read_exr(&path) else {
+        panic!("refused")
+    };
+    let e = e.to_string();
     assert!(
         e.contains("huge.exr") && e.contains("allowed at most"),
         "{e}"
@@ -319,10 +322,10 @@ fn merge_refuses_one_seed_twice_but_not_equal_constant_images() {
     let a = put("a.exr", 1.0, true, Some(1), 4);
     let a8 = put("a8.exr", 2.0, true, Some(1), 8);
     let b = put("b.exr", 3.0, true, Some(2), 4);
-    let e = merge_exrs(&[&a, &a8])
-        .err()
-        .expect("one seed twice")
-        .to_string();
+    let Err(e) = merge_exrs(&[&a, &a8]) else {
+        panic!("one seed twice")
+    };
+    let e = e.to_string();
     assert!(e.contains("same seed 1") && e.contains("a8.exr"), "{e}");
     let (img, tag) = merge_exrs(&[&a, &b]).unwrap();
     assert_eq!((tag.spp, tag.seed), (8, None));
@@ -330,10 +333,10 @@ fn merge_refuses_one_seed_twice_but_not_equal_constant_images() {
     // Seedless: equal varying pixels are one render; equal constant pixels are not.
     let old1 = put("old1.exr", 1.0, true, None, 4);
     let old2 = put("old2.exr", 1.0, true, None, 4);
-    let e = merge_exrs(&[&old1, &old2])
-        .err()
-        .expect("a copy")
-        .to_string();
+    let Err(e) = merge_exrs(&[&old1, &old2]) else {
+        panic!("a copy")
+    };
+    let e = e.to_string();
     assert!(e.contains("same render"), "{e}");
     let c1 = put("c1.exr", 0.5, false, None, 4);
     let c2 = put("c2.exr", 0.5, false, None, 4);
