@@ -30,6 +30,11 @@ struct PathState {
 }
 
 var<private> ps: PathState;
+/// The triangle the path has just left the surface through, outward (NO_TRI: none); a
+/// direction in its escape cone (cos θ in the triangle's n.w) escapes without a cast
+/// (escape_cone.rs). Not saved between dispatches: NO_TRI is always safe.
+const NO_TRI: u32 = 0xffffffffu;
+var<private> p_left_through: u32;
 
 fn roulette() -> bool {
     if ps.beta >= RR_THRESHOLD {
@@ -83,6 +88,7 @@ fn start_path(origin: vec3<f32>, dir: vec3<f32>, channel: u32) {
     p_channel = channel;
     p_inside = false;
     p_from_step = false;
+    p_left_through = NO_TRI;
     p_iterations = 0u;
 }
 
@@ -124,6 +130,11 @@ fn bounce() {
         // A flight shorter than the known free distance cannot reach the surface.
         query = t >= ps.free;
     }
+    if !p_inside && p_left_through != NO_TRI {
+        let left = tris[p_left_through].n;
+        query = dot(ps.dir, left.xyz) < left.w;
+    }
+    p_left_through = NO_TRI;
     var h = Hit(0.0, 0u, false);
     if query {
         h = intersect(ps.pos, ps.dir, tmax);
@@ -136,11 +147,18 @@ fn bounce() {
         }
         let p = ps.pos + ps.dir * h.t;
         let n = tri_normal(h.prim);
+        if dot(ps.dir, n) > 0.0 {
+            // Met a surface from inside while believed outside: spawned across a gap
+            // thinner than eps into a touching part; enter it here (integrator/mod.rs).
+            p_inside = true;
+            return;
+        }
         let incoming = ps.dir;
         if dielectric {
             let f = fresnel(abs(dot(ps.dir, n)), 1.0, ior);
             if rand() < f {
                 ps.dir = reflect_dir(ps.dir, n);
+                p_left_through = h.prim;
             } else {
                 ps.dir = refract_dir(ps.dir, n, 1.0, ior);
                 p_inside = true;
@@ -181,6 +199,9 @@ fn bounce() {
             }
         } else {
             p_inside = false;
+        }
+        if !p_inside {
+            p_left_through = h.prim;
         }
         ps.pos = spawn(p, n, ps.dir);
         if p_inside && beyond_sliver(ps.pos, n) {
@@ -366,6 +387,7 @@ fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_inv
             p_channel = st.x & 0xffu;
             p_inside = (flags & F_INSIDE) != 0u;
             p_from_step = (flags & F_FROM_STEP) != 0u;
+            p_left_through = NO_TRI;
             p_iterations = st.y;
             j = st.z;
             s = st.w;

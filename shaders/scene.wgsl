@@ -46,7 +46,7 @@ struct Tri {
     v0: vec4<f32>,
     v1: vec4<f32>,
     v2: vec4<f32>,
-    n: vec4<f32>,
+    n: vec4<f32>,  // outward unit normal; w: cos θ of its escape cone (escape_cone.rs)
 }
 
 struct ModelParams {

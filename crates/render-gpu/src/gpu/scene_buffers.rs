@@ -150,7 +150,8 @@ pub fn geometry_buffers(scene: &SceneData) -> (Vec<GpuNode>, Vec<GpuTri>) {
                 v0: c4(t.v0.into()),
                 v1: c4(t.v1.into()),
                 v2: c4(t.v2.into()),
-                n: v4(n, 0.0),
+                // w: cos θ of the triangle's escape cone (path.wgsl).
+                n: v4(n, geo.escape_cos[p as usize]),
             }
         })
         .collect();

@@ -15,7 +15,6 @@ use cvae::sampler::CENTRE_EVENT;
 use cvae::{ModelSet, ModelWalk};
 use glam::{DVec3, Vec3};
 use scatter_sim::frame::{WalkFrame, from_canonical};
-use scatter_sim::phase::hg_pdf;
 use scatter_sim::rng::WalkRng;
 
 use super::{IntegratorSettings, PathState, PathStats, nee, pt_event, roulette};
@@ -257,18 +256,26 @@ fn exact_step(
     let flat = scene.lights.len() > MAX_PROXY_LIGHTS || lights.iter().any(|l| !(l.1 > 0.0));
     // The free ball's radius² in units of the walk's sphere (≥ 1).
     let f2 = (free / r).max(1.0).powi(2);
+    // In f32, HG as (1 − g²)/4π · d^(−3/2) with d = 1 + g² − 2g·cos: the proxy is
+    // evaluated at every event of the walk, and any positive value keeps the estimate
+    // unbiased as long as the same value selects and weights the event.
+    let g32 = scene.g;
+    let (hg_a, hg_b) = (1.0 + g32 * g32, 2.0 * g32);
+    let hg_c = (1.0 - g32 * g32) / (4.0 * std::f32::consts::PI);
     let proxy = |x: DVec3, w: DVec3| -> f64 {
         if flat {
             return 1.0;
         }
-        lights
+        let (x, w) = (x.as_vec3(), w.as_vec3());
+        let q: f32 = lights
             .iter()
             .map(|&(wl, e)| {
-                let chord = chord_to_sphere(x.as_vec3(), wl, f2);
-                let phase = hg_pdf(g, w.dot(wl.as_dvec3()).clamp(-1.0, 1.0));
-                e as f64 * phase * (-tau32 * chord).exp() as f64
+                let chord = chord_to_sphere(x, wl, f2);
+                let d = (hg_a - hg_b * w.dot(wl).clamp(-1.0, 1.0)).max(f32::MIN_POSITIVE);
+                e * (hg_c / (d * d.sqrt())) * (-tau32 * chord).exp()
             })
-            .sum()
+            .sum();
+        q as f64
     };
     // Event slots: (X, W, q) of the event each reservoir holds, and their total weight Q.
     let mut slots = [(DVec3::ZERO, DVec3::Z, 0.0f64); MAX_EXACT_EVENTS];
@@ -293,7 +300,7 @@ fn exact_step(
             offer(x, w, phi_k, rng);
         }
     });
-    let survival = albedo.powf(end.n as f64);
+    let survival = albedo.powi(end.n.min(i32::MAX as u64) as i32);
     // Events with their weights Q/q_K; two slots holding the same event share one shadow
     // ray with their weights summed (the estimate is linear in each event's NEE, so one
     // evaluation serves both: unbiased, slightly noisier than two, one ray cheaper).

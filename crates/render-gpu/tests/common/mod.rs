@@ -178,3 +178,70 @@ fn assert_sliver_passed(
         );
     }
 }
+
+/// OBJ text of axis-aligned boxes (each closed, outward-facing quads).
+fn boxes_obj(boxes: &[([f32; 3], [f32; 3])]) -> String {
+    let mut s = String::new();
+    for (lo, hi) in boxes {
+        for k in 0..8 {
+            let c = |bit: usize, i: usize| if k >> bit & 1 == 1 { hi[i] } else { lo[i] };
+            s += &format!("v {} {} {}\n", c(0, 0), c(1, 1), c(2, 2));
+        }
+    }
+    // Vertex k of a box has bits (x, y, z); faces counter-clockwise seen from outside.
+    let faces = [
+        [0, 4, 6, 2],
+        [1, 3, 7, 5],
+        [0, 1, 5, 4],
+        [2, 6, 7, 3],
+        [0, 2, 3, 1],
+        [4, 5, 7, 6],
+    ];
+    for b in 0..boxes.len() {
+        for f in faces {
+            let v = f.map(|k| 1 + 8 * b + k);
+            s += &format!("f {} {} {} {}\n", v[0], v[1], v[2], v[3]);
+        }
+    }
+    s
+}
+
+/// A box of medium lit by a sun (NEE), as one part and as two parts stacked with a gap of
+/// air of 10⁻⁶ between them — a tenth of the spawn offset (2 × 10⁻⁵ of the scene's size
+/// 0.5), which is how touching parts of a mesh usually look. With an index-matched boundary
+/// the two scenes are the same medium but for the gap, so they must render alike. The OBJ
+/// files are written into `dir`; returns (one part, two parts).
+pub fn touching_parts_scenes(dir: &Path) -> (String, String) {
+    let one = dir.join("one.obj");
+    let two = dir.join("two.obj");
+    std::fs::write(&one, boxes_obj(&[([-0.5; 3], [0.5; 3])])).unwrap();
+    let lower = ([-0.5, -0.5, -0.5], [0.5, 0.0, 0.5]);
+    let upper = ([-0.5, 1e-6, -0.5], [0.5, 0.5, 0.5]);
+    std::fs::write(&two, boxes_obj(&[lower, upper])).unwrap();
+    let scene = |mesh: &Path| {
+        format!(
+            r#"
+[camera]
+origin = [1.5, 2.0, 3.0]
+target = [0.0, 0.0, 0.0]
+fov_deg = 30.0
+width = 16
+height = 16
+[object]
+mesh = "{}"
+[medium]
+sigma_t = [4.0, 12.0, 40.0]
+albedo = [0.99, 0.95, 0.8]
+g = 0.5
+[[light]]
+kind = "directional"
+direction = [0.3, -1.0, -0.2]
+irradiance = [1.0, 1.0, 1.0]
+[render]
+grid_resolution = 64
+"#,
+            mesh.display()
+        )
+    };
+    (scene(&one), scene(&two))
+}
