@@ -241,9 +241,16 @@ impl DistanceGrid {
 }
 
 fn cache_key(geo: &Geometry, resolution: u32) -> u64 {
-    let mut h = Fnv64::new();
-    h.write(b"distance-grid-v4");
+    let mut h = mesh_hasher(geo, b"distance-grid-v4");
     h.write(&resolution.to_le_bytes());
+    h.finish()
+}
+
+/// A hasher fed with `tag` and the mesh (vertex positions and triangles): the key of what
+/// is cached for a mesh.
+pub(crate) fn mesh_hasher(geo: &Geometry, tag: &[u8]) -> Fnv64 {
+    let mut h = Fnv64::new();
+    h.write(tag);
     for p in &geo.mesh.positions {
         for x in p.to_array() {
             h.write(&x.to_le_bytes());
@@ -254,11 +261,11 @@ fn cache_key(geo: &Geometry, resolution: u32) -> u64 {
             h.write(&i.to_le_bytes());
         }
     }
-    h.finish()
+    h
 }
 
 /// `$STCVAE_CACHE`, else `$XDG_CACHE_HOME/stcvae`, else `~/.cache/stcvae`.
-fn cache_dir() -> Option<PathBuf> {
+pub(crate) fn cache_dir() -> Option<PathBuf> {
     // An empty variable counts as unset (STCVAE_CACHE="" cached grids in the current
     // directory).
     let var = |k: &str| std::env::var_os(k).filter(|v| !v.is_empty());

@@ -127,7 +127,7 @@ impl Geometry {
             bounds,
             escape_cos: Vec::new(),
         };
-        geo.escape_cos = crate::escape_cone::escape_cosines(&geo);
+        geo.escape_cos = crate::escape_cone::cached(&geo);
         geo
     }
 
