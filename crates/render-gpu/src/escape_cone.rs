@@ -36,6 +36,7 @@ const MAGIC: &[u8; 8] = b"STCVEC01";
 /// has computed them for the same mesh. They cost ~17 µs a triangle on 2 cores (55 ms for
 /// the bunny, ~1 s for 60,000 triangles), so results that took over 0.1 s are cached.
 pub fn cached(geo: &Geometry) -> Vec<f32> {
+    // The tag names the algorithm: change it with TANS, the margins or the region.
     let key = crate::distance_grid::mesh_hasher(geo, b"escape-cones-v1").finish();
     let path = crate::distance_grid::cache_dir().map(|d| d.join(format!("cones-{key:016x}.bin")));
     if let Some(cos) = path.as_deref().and_then(|p| read(p, geo.tris.len())) {
