@@ -37,7 +37,7 @@ const MAGIC: &[u8; 8] = b"STCVEC01";
 /// the bunny, ~1 s for 60,000 triangles), so results that took over 0.1 s are cached.
 pub fn cached(geo: &Geometry) -> Vec<f32> {
     // The tag names the algorithm: change it with TANS, the margins or the region.
-    let key = crate::distance_grid::mesh_hasher(geo, b"escape-cones-v1").finish();
+    let key = crate::distance_grid::mesh_hasher(geo, b"escape-cones-v2").finish();
     let path = crate::distance_grid::cache_dir().map(|d| d.join(format!("cones-{key:016x}.bin")));
     if let Some(cos) = path.as_deref().and_then(|p| read(p, geo.tris.len())) {
         return cos;
@@ -88,11 +88,10 @@ fn read(path: &std::path::Path, n: usize) -> Option<Vec<f32>> {
 /// cos θ of every triangle's escape cone ([`NO_CONE`] for none), made a little larger
 /// than the cone tested so that rounding of w·n never lets a direction outside it in.
 pub fn escape_cosines(geo: &Geometry) -> Vec<f32> {
-    let scale = (geo.hi - geo.lo).max_element() as f64;
     (0..geo.tris.len())
         .into_par_iter()
         .map(|t| {
-            let free = |k: usize| !blocked(geo, &region(geo, t, TANS[k], scale));
+            let free = |k: usize| !blocked(geo, &region(geo, t, TANS[k]));
             if !free(0) {
                 return NO_CONE;
             }
@@ -109,7 +108,7 @@ pub fn escape_cosines(geo: &Geometry) -> Vec<f32> {
 }
 
 /// The 12 half-spaces of R(tan θ = `tan`) for triangle `t` (module docs).
-fn region(geo: &Geometry, t: usize, tan: f64, scale: f64) -> [Plane; 12] {
+fn region(geo: &Geometry, t: usize, tan: f64) -> [Plane; 12] {
     let [a, b, c] = geo.mesh.triangle(t).map(|v| v.as_dvec3());
     let n = (b - a).cross(c - a).normalize();
     let e1 = (b - a).normalize();
@@ -117,10 +116,11 @@ fn region(geo: &Geometry, t: usize, tan: f64, scale: f64) -> [Plane; 12] {
     let centre = (a + b + c) / 3.0;
     let flat = |v: DVec3| DVec2::new((v - centre).dot(e1), (v - centre).dot(e2));
     let tri = [flat(a), flat(b), flat(c)];
-    // The exit point is T's point rounded (a few ulps of the coordinates): T is grown by
-    // δ, ten times more. Spawned points sit eps above the plane and rise from there, so
-    // nothing below half of eps can be met.
-    let delta = 2e-6 * scale;
+    // The exit point is T's point rounded (a few ulps of the coordinates, ~1e-7 of the
+    // scene's scale, which eps is 2e-5 of and which counts the distance from the origin
+    // too): T is grown by δ = eps/10, ten times more. Spawned points sit eps above the
+    // plane and rise from there, so nothing below half of eps can be met.
+    let delta = 0.1 * geo.eps as f64;
     let h0 = 0.5 * geo.eps as f64;
     // Octagon circumscribing the unit disk: face normals at kπ/4 (support 1), vertices
     // at radius 1/cos(π/8) between them.
@@ -242,12 +242,22 @@ mod tests {
     /// them on the cone's rim (where a cone too wide would first show): none may meet the
     /// mesh. The cones are a proof, not an estimate, so a single hit is a failure; 40,000
     /// rays a mesh look at every triangle ~5–10 times. On the torus knot most directions
-    /// re-enter the mesh, so wrong cones would not go unnoticed there.
+    /// re-enter the mesh, so wrong cones would not go unnoticed there. The bunny far from
+    /// the origin (coarser coordinates: an ulp of 100 is 8e-6) is checked too. (The rays
+    /// here do not come close enough to a neighbour to tell the δ margin from none; a
+    /// region 2 % too small fails.)
     #[test]
     fn rays_in_escape_cones_meet_nothing() {
         for (name, geo) in [
             ("bunny", bunny()),
             ("torus knot", Geometry::new(crate::mesh::torus_knot())),
+            ("bunny at (100, 50, 0)", {
+                let mut m = bunny().mesh;
+                for p in &mut m.positions {
+                    *p += glam::Vec3::new(100.0, 50.0, 0.0);
+                }
+                Geometry::new(m)
+            }),
         ] {
             let mut rng = WalkRng::from_seed(7);
             let with: Vec<usize> = (0..geo.tris.len())
