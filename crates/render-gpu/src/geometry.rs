@@ -138,21 +138,6 @@ impl Geometry {
         dir.dot(self.normals[prim as usize]) >= self.escape_cos[prim as usize]
     }
 
-    /// The fraction of the surface's area whose triangles have an escape cone of at least
-    /// `cos` (a report of how much the cones can spare).
-    pub fn escape_cone_area(&self, cos: f32) -> f64 {
-        let (mut all, mut with) = (0.0f64, 0.0f64);
-        for (i, &c) in self.escape_cos.iter().enumerate() {
-            let [a, b, cc] = self.mesh.triangle(i);
-            let area = (b - a).cross(cc - a).length() as f64;
-            all += area;
-            if c <= cos {
-                with += area;
-            }
-        }
-        with / all.max(f64::MIN_POSITIVE)
-    }
-
     /// Closest hit along `origin + t·dir`, t ∈ (0, tmax].
     pub fn intersect(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<Hit> {
         let ray = Ray::new(arr(origin).into(), arr(dir).into(), 0.0, tmax);

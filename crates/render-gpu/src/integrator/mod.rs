@@ -470,14 +470,11 @@ mod tests {
         let set = pt();
         let mut total = 0.0;
         let n = 256;
+        // The camera's ray (origin → target above).
+        let origin = Vec3::new(-0.7, 0.705, 0.0);
+        let d = (Vec3::new(0.005, 0.0, 0.0) - origin).normalize();
         for seed in 0..n {
-            let d = (Vec3::new(0.005, 0.0, 0.0) - Vec3::new(-0.7, 0.705, 0.0)).normalize();
-            let mut path = Path::new(
-                Vec3::new(-0.7, 0.705, 0.0),
-                d,
-                0,
-                WalkRng::for_walk(5, seed),
-            );
+            let mut path = Path::new(origin, d, 0, WalkRng::for_walk(5, seed));
             let Advance::Done(l) = path.advance(&scene, &set) else {
                 panic!("PT has no sphere steps")
             };
