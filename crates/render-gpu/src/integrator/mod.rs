@@ -5,6 +5,7 @@
 //! Each path traces one colour channel (the hero channel, chosen per sample and
 //! stratified over a pixel's samples) and its estimate is added, times 3, to that channel.
 
+mod event_choice;
 pub mod nee;
 pub mod sphere_step;
 pub mod wavefront;

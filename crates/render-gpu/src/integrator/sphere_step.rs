@@ -17,6 +17,7 @@ use glam::{DVec3, Vec3};
 use scatter_sim::frame::{WalkFrame, from_canonical};
 use scatter_sim::rng::WalkRng;
 
+use super::event_choice::{self, EventChoice, Proxy};
 use super::{IntegratorSettings, PathState, PathStats, nee, pt_event, roulette};
 use crate::setup::SceneData;
 
@@ -239,87 +240,32 @@ fn exact_step(
     } else {
         0
     };
-    // The lights in the walk's frame, with their irradiance in this channel. The proxy
-    // must be positive wherever f can be: with a light dark in this channel, or more lights
-    // than it weighs, it falls back to q = 1 (events chosen by φ^k alone, as the models').
-    let mut lights = [(Vec3::Z, 0.0f32); MAX_PROXY_LIGHTS];
-    let n_lights = if m > 0 {
-        scene.lights.len().min(MAX_PROXY_LIGHTS)
-    } else {
-        0
-    };
-    for (l, light) in lights.iter_mut().zip(&scene.lights).take(n_lights) {
-        let wl = frame.to_canonical(light.to_light.as_dvec3()).as_vec3();
-        *l = (wl, light.irradiance[channel]);
-    }
-    let lights = &lights[..n_lights];
-    let flat = scene.lights.len() > MAX_PROXY_LIGHTS || lights.iter().any(|l| !(l.1 > 0.0));
-    // The free ball's radius² in units of the walk's sphere (≥ 1).
-    let f2 = (free / r).max(1.0).powi(2);
-    // In f32, HG as (1 − g²)/4π · d^(−3/2) with d = 1 + g² − 2g·cos: the proxy is
-    // evaluated at every event of the walk, and any positive value keeps the estimate
-    // unbiased as long as the same value selects and weights the event.
-    let g32 = scene.g;
-    let (hg_a, hg_b) = (1.0 + g32 * g32, 2.0 * g32);
-    let hg_c = (1.0 - g32 * g32) / (4.0 * std::f32::consts::PI);
-    let proxy = |x: DVec3, w: DVec3| -> f64 {
-        if flat {
-            return 1.0;
-        }
-        let (x, w) = (x.as_vec3(), w.as_vec3());
-        let q: f32 = lights
-            .iter()
-            .map(|&(wl, e)| {
-                let chord = chord_to_sphere(x, wl, f2);
-                let d = (hg_a - hg_b * w.dot(wl).clamp(-1.0, 1.0)).max(f32::MIN_POSITIVE);
-                e * (hg_c / (d * d.sqrt())) * (-tau32 * chord).exp()
-            })
-            .sum();
-        q as f64
-    };
-    // Event slots: (X, W, q) of the event each reservoir holds, and their total weight Q.
-    let mut slots = [(DVec3::ZERO, DVec3::Z, 0.0f64); MAX_EXACT_EVENTS];
-    let mut total = 0.0f64;
-    let mut offer = |x: DVec3, w: DVec3, phi_k: f64, rng: &mut WalkRng| {
-        let q = proxy(x, w);
-        let wk = phi_k * q;
-        total += wk;
-        for slot in &mut slots[..m] {
-            if rng.uniform() * total < wk {
-                *slot = (x, w, q);
-            }
-        }
-    };
+    // The lights in the walk's frame, with their irradiance in this channel.
+    let lights = scene.lights.iter().take(if m > 0 { usize::MAX } else { 0 });
+    let proxy = Proxy::new(
+        lights.map(|l| {
+            let wl = frame.to_canonical(l.to_light.as_dvec3()).as_vec3();
+            (wl, l.irradiance[channel])
+        }),
+        tau32,
+        (free / r).powi(2),
+        scene.g,
+    );
+    let mut choice = EventChoice::new(m);
     let mut phi_k = albedo;
     if m > 0 {
-        offer(CENTRE_EVENT.0, CENTRE_EVENT.1, phi_k, rng);
+        choice.offer(CENTRE_EVENT.0, CENTRE_EVENT.1, phi_k, &proxy, rng);
     }
     let end = scatter_sim::walk_with(tau, g, rng, |_, x, w, rng| {
         if m > 0 {
             phi_k *= albedo;
-            offer(x, w, phi_k, rng);
+            choice.offer(x, w, phi_k, &proxy, rng);
         }
     });
     let survival = albedo.powi(end.n.min(i32::MAX as u64) as i32);
-    // Events with their weights Q/q_K; two slots holding the same event share one shadow
-    // ray with their weights summed (the estimate is linear in each event's NEE, so one
-    // evaluation serves both: unbiased, slightly noisier than two, one ray cheaper).
     let mut events = [CENTRE_EVENT; MAX_EXACT_EVENTS];
     let mut weights = [0.0f32; MAX_EXACT_EVENTS];
-    let mut used = 0;
-    for &(x, w, q) in &slots[..m] {
-        if !(q > 0.0) {
-            continue;
-        }
-        let weight = (total / q) as f32;
-        match events[..used].iter().position(|e| *e == (x, w)) {
-            Some(i) => weights[i] += weight,
-            None => {
-                (events[used], weights[used]) = ((x, w), weight);
-                used += 1;
-            }
-        }
-    }
+    let used = choice.finish(&proxy, rng, &mut events, &mut weights);
     let nee = Nee {
         scale: 1.0 / m.max(1) as f32,
         events: &events[..used],
@@ -342,9 +288,8 @@ fn chord_to_sphere(x: Vec3, dir: Vec3, r2: f32) -> f32 {
     -b + (b * b + (r2 - x.length_squared()).max(0.0)).sqrt()
 }
 
-/// Most representative events of an exact step, and most lights its proxy weighs.
-const MAX_EXACT_EVENTS: usize = crate::scene::MAX_EXACT_NEE_SAMPLES as usize;
-const MAX_PROXY_LIGHTS: usize = 8;
+/// Most representative events of an exact step.
+const MAX_EXACT_EVENTS: usize = event_choice::MAX_EVENTS;
 
 /// A step's NEE: events (X, W) in the walk's frame; `scale` · Σ weight·f(X, W) (weights 1
 /// when None) estimates the NEE of all the walk's events.
