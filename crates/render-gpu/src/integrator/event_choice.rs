@@ -83,13 +83,13 @@ impl Proxy {
         *q = [0.0; BATCH];
         for &(wl, e) in &self.lights[..self.n_lights] {
             let scale = e * self.hg_c;
-            for i in 0..BATCH {
+            for (i, qi) in q.iter_mut().enumerate() {
                 let bx = b.x[0][i] * wl.x + b.x[1][i] * wl.y + b.x[2][i] * wl.z;
                 let x2 = b.x[0][i] * b.x[0][i] + b.x[1][i] * b.x[1][i] + b.x[2][i] * b.x[2][i];
                 let chord = -bx + (bx * bx + (self.f2 - x2).max(0.0)).sqrt();
                 let cos = (b.w[0][i] * wl.x + b.w[1][i] * wl.y + b.w[2][i] * wl.z).clamp(-1.0, 1.0);
                 let d = (self.hg_a - self.hg_b * cos).max(f32::MIN_POSITIVE);
-                q[i] += scale * exp2(-self.tau_log2e * chord - 1.5 * log2(d));
+                *qi += scale * exp2(-self.tau_log2e * chord - 1.5 * log2(d));
             }
         }
     }
@@ -117,7 +117,7 @@ fn log2(x: f32) -> f32 {
     let e = ((bits >> 23) & 0xff) as i32 - 127;
     let m = f32::from_bits((bits & 0x007f_ffff) | 0x3f80_0000) - 1.0;
     let p = m
-        * (1.441_880
+        * (1.441_88
             + m * (-0.708_865_2 + m * (0.415_245_6 + m * (-0.193_516_5 + m * 0.045_268_29))));
     e as f32 + p
 }
