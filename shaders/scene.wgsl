@@ -335,12 +335,18 @@ fn surface_distance(p: vec3<f32>, limit: f32) -> f32 {
 
 // ---- the conservative distance grid (crates/render-gpu/src/distance_grid.rs) ----
 
-/// The index of the grid cell holding p, or -1 outside the grid (or without one).
-fn grid_cell(p: vec3<f32>) -> i32 {
+/// p in units of grid cells from the grid's corner (a multiplication by 1/cell, as
+/// DistanceGrid::cell_of does: a point that rounding puts into the neighbouring cell
+/// still gets a valid bound from that cell).
+fn grid_q(p: vec3<f32>) -> vec3<f32> {
+    return (p - params.grid_lo.xyz) * (1.0 / params.grid_lo.w);
+}
+
+/// The index of the grid cell at q (grid_q), or -1 outside the grid (or without one).
+fn grid_cell_at(q: vec3<f32>) -> i32 {
     if params.grid_dims.w == 0u {
         return -1;
     }
-    let q = (p - params.grid_lo.xyz) / params.grid_lo.w;
     if !(q.x >= 0.0 && q.y >= 0.0 && q.z >= 0.0) {
         return -1;
     }
@@ -353,12 +359,13 @@ fn grid_cell(p: vec3<f32>) -> i32 {
 }
 
 fn grid_radius(p: vec3<f32>) -> f32 {
-    let i = grid_cell(p);
+    let q = grid_q(p);
+    let i = grid_cell_at(q);
     if i < 0 {
         return 0.0;
     }
     let cell = params.grid_lo.w;
-    let c = vec3<f32>(vec3<u32>((p - params.grid_lo.xyz) / cell));
+    let c = vec3<f32>(vec3<u32>(q));
     let centre = params.grid_lo.xyz + (c + 0.5) * cell;
     return max(bitcast<f32>(grid[2u * u32(i)]) - length(p - centre), 0.0);
 }
@@ -366,7 +373,7 @@ fn grid_radius(p: vec3<f32>) -> f32 {
 /// The exact distance from p to the surface from its cell's candidate triangles
 /// (DistanceGrid::exact_distance), or -1 where the cell has none.
 fn grid_exact_distance(p: vec3<f32>) -> f32 {
-    let i = grid_cell(p);
+    let i = grid_cell_at(grid_q(p));
     if i < 0 {
         return -1.0;
     }
