@@ -14,6 +14,7 @@ use glam::Vec3;
 use scatter_sim::phase::hg_sample_direction;
 use scatter_sim::rng::WalkRng;
 
+use crate::geometry::Hit;
 use crate::optics::{fresnel, reflect, refract};
 use crate::setup::{Boundary, SceneData};
 
@@ -184,6 +185,9 @@ pub(crate) struct Path {
     /// The triangle the path has just left the surface through (outward), if it has: a
     /// direction in that triangle's escape cone escapes without a ray cast.
     left_through: Option<u32>,
+    /// The result of the path's first cast (from the camera), when it was cast for several
+    /// paths at once.
+    pub first_hit: Option<Option<Hit>>,
     iterations: u64,
     /// The sphere step waiting for its decoder draws, after [`Advance::Step`].
     pub step: Option<sphere_step::Pending>,
@@ -218,6 +222,7 @@ impl Path {
             inside: false,
             from_step: false,
             left_through: None,
+            first_hit: None,
             iterations: 0,
             step: None,
         }
@@ -236,6 +241,7 @@ impl Path {
             inside,
             from_step,
             left_through,
+            first_hit,
             iterations,
             step,
             ..
@@ -247,8 +253,9 @@ impl Path {
                 break;
             }
             if !*inside {
-                let hit = match left_through.take() {
-                    Some(prim) if geo.escapes_from(prim, s.dir) => None,
+                let hit = match (first_hit.take(), left_through.take()) {
+                    (Some(hit), _) => hit,
+                    (None, Some(prim)) if geo.escapes_from(prim, s.dir) => None,
                     _ => geo.intersect(s.pos, s.dir, f32::INFINITY),
                 };
                 let Some(h) = hit else {

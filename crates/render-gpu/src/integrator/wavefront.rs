@@ -17,6 +17,7 @@ use scatter_sim::rng::WalkRng;
 
 use super::sphere_step::Pending;
 use super::{Advance, IntegratorSettings, Path, PathStats};
+use crate::geometry::Hit;
 use crate::setup::SceneData;
 use cvae::sampler::CENTRE_EVENT;
 
@@ -29,6 +30,9 @@ pub const SLOTS: usize = 64;
 pub struct Sample {
     pub origin: Vec3,
     pub dir: Vec3,
+    /// The camera ray's first hit when the caller has cast it already (samples that share
+    /// a ray); None: the path casts it.
+    pub first_hit: Option<Option<Hit>>,
     pub channel: usize,
     pub rng: WalkRng,
     pub tag: u64,
@@ -69,10 +73,9 @@ pub fn trace_many(
             loop {
                 if cell.is_none() {
                     let Some(s) = next() else { break };
-                    *cell = Some(Slot {
-                        path: Path::new(s.origin, s.dir, s.channel, s.rng),
-                        tag: s.tag,
-                    });
+                    let mut path = Path::new(s.origin, s.dir, s.channel, s.rng);
+                    path.first_hit = s.first_hit;
+                    *cell = Some(Slot { path, tag: s.tag });
                 }
                 let slot = cell.as_mut().expect("filled above");
                 match slot.path.advance(scene, set) {
