@@ -366,8 +366,8 @@ pub fn run(a: Args) -> Result<()> {
             )
         };
         println!(
-            "     per channel (R, G, B): bias RMSE {:.4} {:.4} {:.4}; ST-CVAE/PT total − 1: {r}, {g}, {b}; {blocks}",
-            c.channel_bias[0], c.channel_bias[1], c.channel_bias[2],
+            "     var ratio {:.2} ± {:.2}; per channel (R, G, B): bias RMSE {:.4} {:.4} {:.4}; ST-CVAE/PT total − 1: {r}, {g}, {b}; {blocks}",
+            c.var_ratio, c.var_ratio_se, c.channel_bias[0], c.channel_bias[1], c.channel_bias[2],
         );
         if st.stats.leaks + pt.stats.leaks > 0 {
             println!(

@@ -182,8 +182,13 @@ pub fn lum(p: [f32; 3]) -> f64 {
 pub struct Comparison {
     /// Wall-time ratio reference / other.
     pub speedup: f64,
-    /// Per-pixel variance ratio reference / other.
+    /// Per-pixel variance ratio reference / other (Σ Var_ref / Σ Var_other over the pixels).
     pub var_ratio: f64,
+    /// Its standard error by the delta method over pixel-channels, whose two-seed variance
+    /// estimates are independent: se(A/B) = √Σ(a_i − R·b_i)² / B. Heavy-tailed pixels (rare
+    /// paths of large weight) make the ratio swing by more than the speed-ups differ
+    /// between settings, so it is printed with the ratio.
+    pub var_ratio_se: f64,
     /// Noise-corrected RMSE over the object's pixels (those with noise in either
     /// render): √max(0, mean (A − B)² − mean (Var_A + Var_B)), scaled. The two renders
     /// must be independent ([`pair_seeds`]).
@@ -280,6 +285,7 @@ pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
     let mut mse = 0.0;
     let mut noise = 0.0;
     let (mut va, mut vb) = (0.0, 0.0);
+    let mut var_pairs = Vec::with_capacity(3 * reference.var.len());
     // Σ of the squared per-pixel terms e = d² − Var_A − Var_B, for their spread.
     let mut e2 = 0.0;
     let mut ch_e = [0f64; 3];
@@ -301,6 +307,7 @@ pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
             noise += reference.var[i][c] + other.var[i][c];
             va += reference.var[i][c];
             vb += other.var[i][c];
+            var_pairs.push((reference.var[i][c], other.var[i][c]));
             let e = d * d - reference.var[i][c] - other.var[i][c];
             e2 += e * e;
         }
@@ -321,9 +328,17 @@ pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
         / (nb * nb);
     let mean_e = (mse - noise) / n;
     let se = ((e2 / n - mean_e * mean_e).max(0.0) / (n - 1.0).max(1.0)).sqrt();
+    let var_ratio = va / vb.max(1e-300);
+    let var_ratio_se = var_pairs
+        .iter()
+        .map(|&(a, b)| (a - var_ratio * b).powi(2))
+        .sum::<f64>()
+        .sqrt()
+        / vb.max(1e-300);
     Comparison {
         speedup: reference.seconds / other.seconds.max(1e-9),
-        var_ratio: va / vb.max(1e-300),
+        var_ratio,
+        var_ratio_se,
         bias: mean_e.max(0.0).sqrt() * scale,
         bias_upper95: (mean_e + 1.645 * se).max(0.0).sqrt() * scale,
         noise: (noise / n).sqrt() * scale,
@@ -442,13 +457,18 @@ mod tests {
     /// A pair of two seeds' renders of the image `truth`, each pixel's half drawn
     /// N(truth, σ²) with σ = 0.1·truth (f64 normals from the walk RNG's f32 ones).
     fn pair(truth: &[[f32; 3]], seed: u64) -> Pair {
+        pair_with(truth, seed, 0.1)
+    }
+
+    /// As [`pair`] with σ = `rel`·truth.
+    fn pair_with(truth: &[[f32; 3]], seed: u64, rel: f32) -> Pair {
         let mut rng = WalkRng::for_walk(seed, 0);
         let halves: Vec<RgbImage> = (0..2)
             .map(|_| {
                 let mut img = RgbImage::new(SIDE, SIDE);
                 for (p, t) in img.pixels.iter_mut().zip(truth) {
                     for c in 0..3 {
-                        p[c] = t[c] * (1.0 + 0.1 * rng.standard_normal());
+                        p[c] = t[c] * (1.0 + rel * rng.standard_normal());
                     }
                 }
                 img
@@ -535,6 +555,28 @@ mod tests {
         );
         let c = compare(&a, &b);
         assert_noise_chi2(&c);
+    }
+
+    /// Renders with twice the noise: the variance ratio is 1/4, found within 4 of its
+    /// standard error, and that error is about what 9,216 noisy pixel-channels give: each
+    /// two-seed variance is a one-degree χ² (relative sd √2), so the ratio's relative se is
+    /// about √(2·2/n) = 2 % (the test allows 1–4 %). Five seed pairs, so a wrong formula
+    /// (e.g. without the square root, or over n instead of the sum of b) cannot pass by
+    /// luck.
+    #[test]
+    fn the_variance_ratio_comes_with_its_standard_error() {
+        let t = truth();
+        for seed in 0..5 {
+            let c = compare(&pair(&t, 10 + seed), &pair_with(&t, 20 + seed, 0.2));
+            let rel = c.var_ratio_se / c.var_ratio;
+            assert!((0.01..0.04).contains(&rel), "relative se {rel}");
+            assert!(
+                (c.var_ratio - 0.25).abs() < 4.0 * c.var_ratio_se,
+                "var ratio {} ± {}",
+                c.var_ratio,
+                c.var_ratio_se
+            );
+        }
     }
 
     /// A 5 % darker third channel: the offset is found within 4 standard errors, the other
