@@ -240,7 +240,8 @@ fn exact_step(
     } else {
         0
     };
-    // The lights in the walk's frame, with their irradiance in this channel.
+    // The lights in the walk's frame, with their irradiance in this channel (none when no
+    // event is chosen, which spares their transforms).
     let lights = scene.lights.iter().take(if m > 0 { usize::MAX } else { 0 });
     let proxy = Proxy::new(
         lights.map(|l| {
