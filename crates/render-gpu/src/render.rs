@@ -82,7 +82,7 @@ pub fn channel_offset(seed: u64, pixel: u32) -> u32 {
 /// three colours), so they share one camera ray, which the renderer casts once for them
 /// ([`CameraRays`]). Per channel the jitters stay independent and uniform, so each
 /// channel's estimate is as before; only the channels of a pixel become correlated. (The
-/// GPU kernels jitter every sample on its own: they gain nothing from sharing.)
+/// GPU kernels jitter each sample on its own.)
 pub fn pixel_sample(seed: u64, pixel: u64, s: u32) -> (WalkRng, f32, f32, usize) {
     let rng = WalkRng::for_walk(seed, (pixel << 32) | s as u64);
     let h = splitmix64(splitmix64(seed ^ JITTER_STREAM) ^ ((pixel << 32) | (s / 3) as u64));
