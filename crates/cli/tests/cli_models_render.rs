@@ -530,8 +530,8 @@ fn adapter_search_prints_no_wayland_error() {
 }
 
 /// `bench render --pt-cache`: a second run reuses PT's pair, also when only ST-CVAE's own
-/// settings change; another spp or NEE off is a miss; a bad ST-CVAE setting fails before
-/// any render.
+/// settings change; another spp, NEE off or another set of seeds is a miss; a bad ST-CVAE
+/// setting fails before any render.
 #[test]
 fn bench_render_reuses_stored_pt_pairs() {
     let dir = tempfile::tempdir().unwrap();
@@ -583,6 +583,16 @@ fn bench_render_reuses_stored_pt_pairs() {
     assert!(off.contains("NEE off") && !off.contains(hit), "{off}");
     assert_eq!(std::fs::read_dir(&cache).unwrap().count(), 3);
     assert!(stdout(bench("6", &[])).contains("NEE on"));
+    // Another set of seeds is another realisation: a miss the first time, stored apart.
+    let set1 = stdout(bench("6", &["--seeds", "1"]));
+    assert!(
+        set1.contains("seeds PT [15, 16], ST-CVAE [17, 18]"),
+        "{set1}"
+    );
+    assert!(!set1.contains(hit), "{set1}");
+    assert_eq!(std::fs::read_dir(&cache).unwrap().count(), 4);
+    assert!(stdout(bench("6", &["--seeds", "1"])).contains(hit));
+    assert!(stdout(bench("6", &[])).contains("seeds PT [11, 12], ST-CVAE [13, 14]"));
 }
 
 /// `bench render --save`: both images, the z map and the pixel table, whose means are the
