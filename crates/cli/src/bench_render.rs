@@ -91,16 +91,6 @@ impl Args {
     fn seeds_of(&self, kind: IntegratorKind) -> [u64; 2] {
         pair_seeds(kind).map(|s| s.wrapping_add(self.seeds.wrapping_mul(4)))
     }
-
-    /// The scene hash under which PT's pair is cached: the scene's own for set 0 (so that
-    /// earlier caches stay valid), mixed with the set otherwise.
-    fn cache_hash(&self, scene_hash: u64) -> u64 {
-        if self.seeds == 0 {
-            scene_hash
-        } else {
-            scene_hash ^ scatter_sim::rng::splitmix64(self.seeds)
-        }
-    }
 }
 
 /// Writes the ladder step's images into `dir` (see `Args::save`).
@@ -182,19 +172,12 @@ fn pt_pair(
     };
     let p = prepare_k(a, IntegratorKind::Pt, k)?;
     let spp = 2 * half_spp(a.spp);
-    let hash = a.cache_hash(p.data.hash);
-    let file = crate::pt_cache::path(dir, k, hash, spp, id);
-    // The pair carries the scene's hash (its saved images are tagged with it); the cache
-    // file the set's.
-    if let Some((mut pair, when)) = crate::pt_cache::load(&file, hash, spp, id)? {
-        pair.hash = p.data.hash;
+    let file = crate::pt_cache::path(dir, k, p.data.hash, spp, id);
+    if let Some((pair, when)) = crate::pt_cache::load(&file, p.data.hash, spp, id)? {
         return Ok((pair, Some(when)));
     }
-    let mut pair = render_pair(a, engine, &p, IntegratorKind::Pt)?;
-    pair.hash = hash;
-    let stored = crate::pt_cache::store(&file, &pair, id)?;
-    pair.hash = p.data.hash;
-    if !stored {
+    let pair = render_pair(a, engine, &p, IntegratorKind::Pt)?;
+    if !crate::pt_cache::store(&file, &pair, id)? {
         eprintln!(
             "warning: PT's render at k = {k} has a non-finite value; not stored in {}",
             dir.display()
@@ -350,7 +333,12 @@ pub fn run(a: Args) -> Result<()> {
         }
     }
     let identity = match &a.pt_cache {
-        Some(_) => Some(crate::pt_cache::identity(&engine.describe())?),
+        // The set of seeds is part of what a stored pair depends on.
+        Some(_) => Some(format!(
+            "{} / seed set {}",
+            crate::pt_cache::identity(&engine.describe())?,
+            a.seeds
+        )),
         None => None,
     };
     for &k in &a.k {

@@ -296,13 +296,8 @@ mod tests {
                 }
             }
             for v in [&mut xs, &mut ys] {
-                v.sort_by(f64::total_cmp);
                 let n = v.len() as f64;
-                let d = v
-                    .iter()
-                    .enumerate()
-                    .map(|(i, &x)| (x - i as f64 / n).abs().max(((i + 1) as f64 / n - x).abs()))
-                    .fold(0.0, f64::max);
+                let d = scatter_sim::stats::ks_one_sample(v, |x| x);
                 assert!(
                     n.sqrt() * d < 1.95,
                     "channel {channel}: KS √n·D = {}",

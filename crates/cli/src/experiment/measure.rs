@@ -285,7 +285,6 @@ pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
     let mut mse = 0.0;
     let mut noise = 0.0;
     let (mut va, mut vb) = (0.0, 0.0);
-    let mut var_pairs = Vec::with_capacity(3 * reference.var.len());
     // Σ of the squared per-pixel terms e = d² − Var_A − Var_B, for their spread.
     let mut e2 = 0.0;
     let mut ch_e = [0f64; 3];
@@ -307,7 +306,6 @@ pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
             noise += reference.var[i][c] + other.var[i][c];
             va += reference.var[i][c];
             vb += other.var[i][c];
-            var_pairs.push((reference.var[i][c], other.var[i][c]));
             let e = d * d - reference.var[i][c] - other.var[i][c];
             e2 += e * e;
         }
@@ -329,9 +327,11 @@ pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
     let mean_e = (mse - noise) / n;
     let se = ((e2 / n - mean_e * mean_e).max(0.0) / (n - 1.0).max(1.0)).sqrt();
     let var_ratio = va / vb.max(1e-300);
-    let var_ratio_se = var_pairs
+    let var_ratio_se = reference
+        .var
         .iter()
-        .map(|&(a, b)| (a - var_ratio * b).powi(2))
+        .zip(&other.var)
+        .flat_map(|(a, b)| (0..3).map(move |c| (a[c] - var_ratio * b[c]).powi(2)))
         .sum::<f64>()
         .sqrt()
         / vb.max(1e-300);

@@ -356,15 +356,16 @@ mod tests {
             assert!((wts[0] as f64 / (total / q_k) - 1.0).abs() < 1e-5);
             counts[k] += 1;
         }
-        let mut chi2 = 0.0;
+        let (mut observed, mut expected) = (Vec::new(), Vec::new());
         for (k, &c) in counts.iter().enumerate() {
-            let expected = n as f64 * weights[k] / total;
             if weights[k] == 0.0 {
                 assert_eq!(c, 0, "event {k} has weight 0 but was chosen");
                 continue;
             }
-            chi2 += (c as f64 - expected).powi(2) / expected;
+            observed.push(c);
+            expected.push(n as f64 * weights[k] / total);
         }
+        let chi2 = scatter_sim::stats::chi_square(&observed, &expected);
         assert!(chi2 < 40.8, "chi-square {chi2} with 17 degrees of freedom");
     }
 }
