@@ -51,6 +51,10 @@ pub struct Args {
     /// NEE events per exactly simulated sphere step, 1 to 4 (overrides the scene's).
     #[arg(long)]
     exact_nee_samples: Option<u32>,
+    /// ST-CVAE's shadow rays per path, 0 to 2 (overrides the scene's; 0: one at every NEE
+    /// event, as PT).
+    #[arg(long)]
+    path_nee_rays: Option<u32>,
     /// Below this optical radius ST-CVAE simulates a sphere step's walk exactly instead of
     /// drawing it from the models (overrides the scene's; 0: always the models).
     #[arg(long)]
@@ -220,6 +224,9 @@ fn ladder_scene(a: &Args, kind: IntegratorKind, k: f64, f: &mut render_gpu::scen
         }
         if let Some(m) = a.exact_nee_samples {
             f.render.exact_nee_samples = m;
+        }
+        if let Some(m) = a.path_nee_rays {
+            f.render.path_nee_rays = m;
         }
         if a.exact_tau.is_some() {
             f.render.exact_tau = a.exact_tau;

@@ -89,6 +89,8 @@ struct Report<'a> {
     /// NEE events per model-drawn and per exactly simulated sphere step.
     nee_samples: u32,
     exact_nee_samples: u32,
+    /// ST-CVAE's shadow rays per path (0: one at every NEE event).
+    path_nee_rays: u32,
     grid_resolution: u32,
     scene_hash: String,
     /// Where it ran: "cpu (N threads)" or "gpu: adapter (backend, type)".
@@ -121,6 +123,7 @@ impl Prepared {
             exact_tau: r.exact_tau_or_default() as f32,
             nee_samples: r.nee_samples,
             exact_nee_samples: r.exact_nee_samples,
+            path_nee_rays: r.path_nee_rays,
         }
     }
 }
@@ -347,6 +350,11 @@ pub fn run(a: Args) -> Result<()> {
         exact_tau: set.exact_tau as f64,
         nee_samples: set.nee_samples,
         exact_nee_samples: set.exact_nee_samples,
+        // The GPU kernels cast a shadow ray at every NEE event (path-level NEE is CPU-only).
+        path_nee_rays: match engine {
+            Engine::Gpu(_) => 0,
+            Engine::Cpu => set.path_nee_rays,
+        },
         grid_resolution: r.grid_resolution,
         scene_hash: format!("{:016x}", p.data.hash),
         device: engine.describe(),

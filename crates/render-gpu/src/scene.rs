@@ -222,6 +222,14 @@ pub struct RenderDesc {
     /// second one lowers the variance less than its shadow ray costs.
     #[serde(default = "default_exact_nee_samples")]
     pub exact_nee_samples: u32,
+    /// Shadow rays per path (ST-CVAE): each chooses one of the path's NEE events by a
+    /// proxy of its contribution (`integrator::nee::PathNee`); 0 casts one at every NEE
+    /// event instead. 1 by measurement (docs/BENCHMARKS.md, twentieth session): 17–26 %
+    /// faster than 0 at ~9 % more variance, ahead at equal error at every density of the
+    /// bench ladder; PT always casts one at every event. CPU only: the GPU kernels cast
+    /// one at every event whatever this says.
+    #[serde(default = "default_path_nee_rays")]
+    pub path_nee_rays: u32,
 }
 
 impl Default for RenderDesc {
@@ -237,6 +245,7 @@ impl Default for RenderDesc {
             exact_tau: None,
             nee_samples: default_nee_samples(),
             exact_nee_samples: default_exact_nee_samples(),
+            path_nee_rays: default_path_nee_rays(),
         }
     }
 }
@@ -251,6 +260,9 @@ fn default_nee_samples() -> u32 {
     2
 }
 fn default_exact_nee_samples() -> u32 {
+    1
+}
+fn default_path_nee_rays() -> u32 {
     1
 }
 fn default_spp() -> u32 {
@@ -283,6 +295,8 @@ pub const MAX_EXACT_TAU: f64 = 50.0;
 /// Most NEE events of one exactly simulated sphere step (the kernels keep one reservoir
 /// slot per event).
 pub const MAX_EXACT_NEE_SAMPLES: u32 = 4;
+/// Largest `render.path_nee_rays` (the GPU kernel saves each reservoir between dispatches).
+pub const MAX_PATH_NEE_RAYS: u32 = 2;
 
 impl RenderDesc {
     /// The exact-walk threshold: the scene's, else [`DEFAULT_EXACT_TAU`].
@@ -489,6 +503,12 @@ impl SceneFile {
             return Err(format!(
                 "render.exact_nee_samples = {} is out of range: allowed [1, {MAX_EXACT_NEE_SAMPLES}]",
                 r.exact_nee_samples
+            ));
+        }
+        if r.path_nee_rays > MAX_PATH_NEE_RAYS {
+            return Err(format!(
+                "render.path_nee_rays = {} is out of range: allowed [0, {MAX_PATH_NEE_RAYS}]",
+                r.path_nee_rays
             ));
         }
         if !(1..=64).contains(&r.nee_samples) {

@@ -299,6 +299,7 @@ fn settings(kind: IntegratorKind, nee: bool) -> IntegratorSettings<'static> {
         exact_tau: 0.0,
         nee_samples: 2,
         exact_nee_samples: 1,
+        path_nee_rays: 1,
     }
 }
 
@@ -612,6 +613,7 @@ fn cpu_gpu_agree_stcvae_sphere() {
         max_tau: 49.0,
         min_tau: 0.0,
         exact_nee_samples: 2,
+        path_nee_rays: 1,
         ..exact
     };
     compare_devices_with("ST-CVAE all steps exact, NEE", &im, &all_exact, 96);

@@ -70,6 +70,21 @@ pub struct IntegratorSettings<'a> {
     pub nee_samples: u32,
     /// NEE events per exactly simulated sphere step (1..=`MAX_EXACT_NEE_SAMPLES`).
     pub exact_nee_samples: u32,
+    /// ST-CVAE's shadow rays per path ([`nee::PathNee`]); 0: one at every NEE event.
+    pub path_nee_rays: u32,
+}
+
+impl IntegratorSettings<'_> {
+    /// The reservoirs of path-level NEE: `path_nee_rays` for ST-CVAE with NEE, else 0
+    /// (PT always casts a shadow ray at every event; see [`nee::PathNee`]).
+    #[inline]
+    pub(crate) fn path_nee(&self) -> usize {
+        if self.nee && self.kind == IntegratorKind::Stcvae {
+            (self.path_nee_rays as usize).min(nee::MAX_PATH_NEE_RAYS)
+        } else {
+            0
+        }
+    }
 }
 
 /// Safety cap on loop iterations of one path; far beyond any physical path here.
@@ -116,6 +131,8 @@ pub(crate) struct PathState {
     /// knows it from its free spheres; a free flight shorter than it cannot reach the
     /// surface, so it needs no ray cast. PT never sets it.
     pub free: f32,
+    /// The path's NEE events so far, with path-level NEE.
+    pub nee: nee::PathNee,
 }
 
 /// An ordinary PT scattering event at `s.pos` (a real collision).
@@ -129,7 +146,11 @@ pub(crate) fn pt_event(
 ) {
     stats.events += 1;
     let albedo = scene.albedo[channel];
-    if set.nee {
+    let m = set.path_nee();
+    if m > 0 {
+        let q = nee::proxy(scene, s.dir, |_| s.free, channel);
+        s.nee.offer(m, (s.pos, s.dir), s.beta * albedo, q, rng);
+    } else if set.nee {
         s.radiance += s.beta * albedo * nee::direct(scene, s.pos, s.dir, |_| s.free, channel, rng);
     }
     s.beta *= albedo;
@@ -212,6 +233,7 @@ impl Path {
                 scattered: false,
                 alive: true,
                 free: 0.0,
+                nee: nee::PathNee::new(),
             },
             channel,
             rng,
@@ -377,6 +399,10 @@ impl Path {
                 }
             }
         }
+        let m = set.path_nee();
+        if m > 0 {
+            s.radiance += s.nee.finish(scene, m, channel, rng);
+        }
         Advance::Done(if s.radiance.is_finite() {
             s.radiance
         } else {
@@ -427,6 +453,7 @@ mod tests {
             exact_tau: 0.0,
             nee_samples: 1,
             exact_nee_samples: 1,
+            path_nee_rays: 1,
         }
     }
 

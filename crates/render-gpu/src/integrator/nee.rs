@@ -72,6 +72,105 @@ pub fn direct(
     sum
 }
 
+/// A positive proxy of [`direct`]'s value at an event (X, W) whose shadow ray along ω_l
+/// crosses at least `free(ω_l)` of medium: Σ_l E_l · ρ_g(W·ω_l) · exp(−σ_t·free(ω_l)),
+/// the bound its roulette uses (with the light's central direction for a sun disk).
+pub fn proxy(scene: &SceneData, w: Vec3, free: impl Fn(Vec3) -> f32, channel: usize) -> f32 {
+    let sigma = scene.sigma_t[channel];
+    let mut q = 0.0;
+    for light in &scene.lights {
+        let wl = light.to_light;
+        let phase = hg_pdf(scene.g as f64, w.dot(wl).clamp(-1.0, 1.0) as f64) as f32;
+        q += light.irradiance[channel] * phase * (-sigma * free(wl)).exp();
+    }
+    q
+}
+
+/// [`direct`] without the shadow-ray roulette (the path-level choice has already spent
+/// the ray on an event worth it).
+fn direct_unrouletted(
+    scene: &SceneData,
+    x: Vec3,
+    w: Vec3,
+    channel: usize,
+    rng: &mut WalkRng,
+) -> f32 {
+    let mut sum = 0.0;
+    for light in &scene.lights {
+        let (wl, factor) = light.sample(uniform(rng), uniform(rng), channel);
+        if factor > 0.0 {
+            let phase = hg_pdf(scene.g as f64, w.dot(wl).clamp(-1.0, 1.0) as f64) as f32;
+            sum += transmittance(scene, x, wl, channel) * factor * phase;
+        }
+    }
+    sum
+}
+
+/// Most shadow rays per path with path-level NEE (the scene's limit on
+/// `render.path_nee_rays`).
+pub const MAX_PATH_NEE_RAYS: usize = crate::scene::MAX_PATH_NEE_RAYS as usize;
+
+/// Path-level NEE (ST-CVAE): instead of a shadow ray at every NEE event (each PT
+/// fallback event, each sphere step's representative events), the path offers every
+/// event to M weighted reservoirs and casts M shadow rays when it ends.
+///
+/// An event i whose NEE term is c_i·f_i (c_i: throughput × albedo or Λ(N)/M weights, f_i:
+/// [`direct`]'s value) is offered with weight a_i = c_i·q_i, q_i its [`proxy`]; a
+/// reservoir holds event K with probability a_K/A (A = Σ a_i) and A·f_K/q_K estimates
+/// Σ c_i f_i without bias for any positive proxy. f ≤ q for a delta light (the proxy's
+/// transmittance is a bound), so a chosen event adds at most A.
+///
+/// Why it pays for ST-CVAE and not for PT: the proxy's transmittance comes from the
+/// free distance an event knows. ST-CVAE's events lie in free balls whose chords bound
+/// the way out, so deep events get small proxies and the choice lands near the lit side,
+/// where the NEE is; a path of ~10 events casts one ray instead of ~5 at ~9 % more
+/// variance. PT's events know no free distance, the proxy is the phase value alone, and
+/// one ray chosen among ~100 events multiplied PT's variance by 2.4 (k = 1) to 11 (k = 8)
+/// (docs/BENCHMARKS.md, twentieth session).
+#[derive(Clone, Copy)]
+pub(crate) struct PathNee {
+    /// A so far (0: nothing offered).
+    total: f32,
+    /// (X, W, q) of each reservoir's event.
+    slots: [(Vec3, Vec3, f32); MAX_PATH_NEE_RAYS],
+}
+
+impl PathNee {
+    pub fn new() -> Self {
+        Self {
+            total: 0.0,
+            slots: [(Vec3::ZERO, Vec3::Z, 0.0); MAX_PATH_NEE_RAYS],
+        }
+    }
+
+    /// Offers event (x, w) with NEE coefficient `c` and proxy `q` to `m` reservoirs.
+    #[inline]
+    pub fn offer(&mut self, m: usize, (x, w): (Vec3, Vec3), c: f32, q: f32, rng: &mut WalkRng) {
+        let a = c * q;
+        if !(a > 0.0) {
+            return;
+        }
+        self.total += a;
+        for slot in &mut self.slots[..m] {
+            if uniform(rng) * self.total < a {
+                *slot = (x, w, q);
+            }
+        }
+    }
+
+    /// Casts the `m` reservoirs' shadow rays: the path's NEE.
+    pub fn finish(&self, scene: &SceneData, m: usize, channel: usize, rng: &mut WalkRng) -> f32 {
+        if !(self.total > 0.0) {
+            return 0.0;
+        }
+        let mut sum = 0.0;
+        for &(x, w, q) in &self.slots[..m] {
+            sum += direct_unrouletted(scene, x, w, channel, rng) / q;
+        }
+        sum * self.total / m as f32
+    }
+}
+
 /// Transmittance from `x` (inside) along `dir` to infinity.
 pub fn transmittance(scene: &SceneData, x: Vec3, dir: Vec3, channel: usize) -> f32 {
     let sigma = scene.sigma_t[channel];
@@ -118,4 +217,73 @@ pub fn transmittance_ordered(scene: &SceneData, x: Vec3, dir: Vec3, channel: usi
         o = geo.spawn(o + dir * h.t, h.normal, dir);
     }
     0.0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use scatter_sim::stats::{chi_square, chi_square_p_value};
+
+    /// Each reservoir must hold event i with probability c_i·q_i / Σ c_j·q_j, whatever
+    /// the order of the offers, and the two reservoirs independently. 200,000 paths of
+    /// seven events (one with weight 0, never to be held) give a chi-square over the six
+    /// others per reservoir (5 dof) and over the pairs the two hold (35 dof); p > 10⁻⁴
+    /// each (a false alarm ~3·10⁻⁴ over the three). Taking an event with probability c/A
+    /// instead of c·q/A gives χ² ≈ 10⁴.
+    #[test]
+    fn path_reservoirs_hold_events_in_proportion_to_c_times_q() {
+        let cq = [
+            (0.5f32, 2.0f32),
+            (1.0, 0.1),
+            (0.0, 3.0),
+            (2.0, 0.4),
+            (0.3, 0.3),
+            (1.0, 1.0),
+            (0.05, 4.0),
+        ];
+        let a: Vec<f64> = cq.iter().map(|&(c, q)| (c * q) as f64).collect();
+        let total: f64 = a.iter().sum();
+        let live: Vec<usize> = (0..cq.len()).filter(|&i| a[i] > 0.0).collect();
+        let mut single = [[0u64; 7]; 2];
+        let mut pairs = vec![0u64; 49];
+        let n = 200_000u64;
+        let mut rng = WalkRng::for_walk(17, 0);
+        for _ in 0..n {
+            let mut r = PathNee::new();
+            for (i, &(c, q)) in cq.iter().enumerate() {
+                r.offer(2, (Vec3::splat(i as f32), Vec3::Z), c, q, &mut rng);
+            }
+            assert!((r.total as f64 / total - 1.0).abs() < 1e-5);
+            let held = r.slots.map(|(x, _, _)| x.x as usize);
+            single[0][held[0]] += 1;
+            single[1][held[1]] += 1;
+            pairs[held[0] * 7 + held[1]] += 1;
+        }
+        for (k, counts) in single.iter().enumerate() {
+            assert_eq!(counts[2], 0, "an event of weight 0 was held");
+            let obs: Vec<u64> = live.iter().map(|&i| counts[i]).collect();
+            let exp: Vec<f64> = live.iter().map(|&i| n as f64 * a[i] / total).collect();
+            let chi2 = chi_square(&obs, &exp);
+            let p = chi_square_p_value(chi2, live.len() - 1);
+            assert!(
+                p > 1e-4,
+                "reservoir {k}: chi2 {chi2:.1} over {} dof (p = {p:.1e})",
+                live.len() - 1
+            );
+        }
+        let (mut obs, mut exp) = (Vec::new(), Vec::new());
+        for &i in &live {
+            for &j in &live {
+                obs.push(pairs[i * 7 + j]);
+                exp.push(n as f64 * a[i] * a[j] / (total * total));
+            }
+        }
+        let chi2 = chi_square(&obs, &exp);
+        let p = chi_square_p_value(chi2, obs.len() - 1);
+        assert!(
+            p > 1e-4,
+            "pairs: chi2 {chi2:.1} over {} dof (p = {p:.1e})",
+            obs.len() - 1
+        );
+    }
 }

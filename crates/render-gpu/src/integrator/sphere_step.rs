@@ -350,7 +350,14 @@ fn complete(
                 let chord = chord_to_sphere(d, wl, free_ball * free_ball);
                 (chord * (1.0 - 1e-4)).min(2.0 * free_ball).max(x_grid)
             };
-            sum += weight * nee::direct(scene, x, w.as_vec3(), x_free, channel, rng);
+            let m = set.path_nee();
+            if m > 0 {
+                let q = nee::proxy(scene, w.as_vec3(), x_free, channel);
+                let c = s.beta * nee.scale * weight;
+                s.nee.offer(m, (x, w.as_vec3()), c, q, rng);
+            } else {
+                sum += weight * nee::direct(scene, x, w.as_vec3(), x_free, channel, rng);
+            }
         }
         s.radiance += s.beta * nee.scale * sum;
     }
