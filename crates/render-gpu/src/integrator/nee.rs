@@ -259,17 +259,19 @@ mod tests {
             single[1][held[1]] += 1;
             pairs[held[0] * 7 + held[1]] += 1;
         }
+        let fits = |what: &str, obs: &[u64], exp: &[f64]| {
+            let (chi2, dof) = (chi_square(obs, exp), obs.len() - 1);
+            let p = chi_square_p_value(chi2, dof);
+            assert!(
+                p > 1e-4,
+                "{what}: chi2 {chi2:.1} over {dof} dof (p = {p:.1e})"
+            );
+        };
         for (k, counts) in single.iter().enumerate() {
             assert_eq!(counts[2], 0, "an event of weight 0 was held");
             let obs: Vec<u64> = live.iter().map(|&i| counts[i]).collect();
             let exp: Vec<f64> = live.iter().map(|&i| n as f64 * a[i] / total).collect();
-            let chi2 = chi_square(&obs, &exp);
-            let p = chi_square_p_value(chi2, live.len() - 1);
-            assert!(
-                p > 1e-4,
-                "reservoir {k}: chi2 {chi2:.1} over {} dof (p = {p:.1e})",
-                live.len() - 1
-            );
+            fits(&format!("reservoir {k}"), &obs, &exp);
         }
         let (mut obs, mut exp) = (Vec::new(), Vec::new());
         for &i in &live {
@@ -278,12 +280,6 @@ mod tests {
                 exp.push(n as f64 * a[i] * a[j] / (total * total));
             }
         }
-        let chi2 = chi_square(&obs, &exp);
-        let p = chi_square_p_value(chi2, obs.len() - 1);
-        assert!(
-            p > 1e-4,
-            "pairs: chi2 {chi2:.1} over {} dof (p = {p:.1e})",
-            obs.len() - 1
-        );
+        fits("pairs", &obs, &exp);
     }
 }
