@@ -54,11 +54,9 @@ pub fn direct(
     let sigma = scene.sigma_t[channel];
     let mut sum = 0.0;
     for light in &scene.lights {
-        let (wl, factor) = light.sample(uniform(rng), uniform(rng), channel);
-        if factor <= 0.0 {
+        let Some((wl, factor, phase)) = light_sample(scene, light, w, channel, rng) else {
             continue;
-        }
-        let phase = hg_pdf(scene.g as f64, w.dot(wl).clamp(-1.0, 1.0) as f64) as f32;
+        };
         let mut weight = factor * phase;
         let bound = phase * (-sigma * free(wl)).exp();
         if bound < ROULETTE_THRESHOLD {
@@ -97,13 +95,28 @@ fn direct_unrouletted(
 ) -> f32 {
     let mut sum = 0.0;
     for light in &scene.lights {
-        let (wl, factor) = light.sample(uniform(rng), uniform(rng), channel);
-        if factor > 0.0 {
-            let phase = hg_pdf(scene.g as f64, w.dot(wl).clamp(-1.0, 1.0) as f64) as f32;
+        if let Some((wl, factor, phase)) = light_sample(scene, light, w, channel, rng) {
             sum += transmittance(scene, x, wl, channel) * factor * phase;
         }
     }
     sum
+}
+
+/// A direction toward `light`, its factor (see `DirectionalLight::sample`) and the phase
+/// value toward it from an event scattering along `w`; None when the light is dark here.
+#[inline]
+fn light_sample(
+    scene: &SceneData,
+    light: &crate::light::DirectionalLight,
+    w: Vec3,
+    channel: usize,
+    rng: &mut WalkRng,
+) -> Option<(Vec3, f32, f32)> {
+    let (wl, factor) = light.sample(uniform(rng), uniform(rng), channel);
+    (factor > 0.0).then(|| {
+        let phase = hg_pdf(scene.g as f64, w.dot(wl).clamp(-1.0, 1.0) as f64) as f32;
+        (wl, factor, phase)
+    })
 }
 
 /// Most shadow rays per path with path-level NEE (the scene's limit on

@@ -331,6 +331,7 @@ fn complete(
     let centre = ball.centre;
     if set.nee && !nee.events.is_empty() {
         let mut sum = 0.0f32;
+        let m = set.path_nee();
         for (i, &(ep, ed)) in nee.events.iter().enumerate() {
             let weight = nee.weights.map_or(1.0, |w| w[i]);
             let x = centre + ball.frame.to_world(ep) * r as f64;
@@ -350,7 +351,6 @@ fn complete(
                 let chord = chord_to_sphere(d, wl, free_ball * free_ball);
                 (chord * (1.0 - 1e-4)).min(2.0 * free_ball).max(x_grid)
             };
-            let m = set.path_nee();
             if m > 0 {
                 let q = nee::proxy(scene, w.as_vec3(), x_free, channel);
                 let c = s.beta * nee.scale * weight;
