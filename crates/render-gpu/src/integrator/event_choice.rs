@@ -122,13 +122,13 @@ fn log2(x: f32) -> f32 {
     e as f32 + p
 }
 
-/// Events waiting for their proxies: positions and directions as f32 lanes for the
-/// proxy, and as the walk's f64 values for the chosen ones.
+/// Events waiting for their proxies: positions and directions as lanes for the proxy,
+/// and as vectors for the chosen ones.
 struct Batch {
     x: [[f32; BATCH]; 3],
     w: [[f32; BATCH]; 3],
     phi: [f64; BATCH],
-    events: [(DVec3, DVec3); BATCH],
+    events: [(Vec3, Vec3); BATCH],
     len: usize,
 }
 
@@ -138,7 +138,7 @@ impl Batch {
             x: [[0.0; BATCH]; 3],
             w: [[0.0; BATCH]; 3],
             phi: [0.0; BATCH],
-            events: [(DVec3::ZERO, DVec3::ZERO); BATCH],
+            events: [(Vec3::ZERO, Vec3::ZERO); BATCH],
             len: 0,
         }
     }
@@ -151,7 +151,7 @@ pub(crate) struct EventChoice {
     /// Q so far.
     total: f64,
     /// (X, W, q) of the event each reservoir holds (q = 0: none yet).
-    slots: [(DVec3, DVec3, f32); MAX_EVENTS],
+    slots: [(Vec3, Vec3, f32); MAX_EVENTS],
 }
 
 impl EventChoice {
@@ -162,20 +162,19 @@ impl EventChoice {
             m: m.min(MAX_EVENTS),
             batch: Batch::empty(),
             total: 0.0,
-            slots: [(DVec3::ZERO, DVec3::Z, 0.0); MAX_EVENTS],
+            slots: [(Vec3::ZERO, Vec3::Z, 0.0); MAX_EVENTS],
         }
     }
 
     /// Offers event (x, w) with survival weight φ^k.
     #[inline]
-    pub fn offer(&mut self, x: DVec3, w: DVec3, phi_k: f64, proxy: &Proxy, rng: &mut WalkRng) {
+    pub fn offer(&mut self, x: Vec3, w: Vec3, phi_k: f64, proxy: &Proxy, rng: &mut WalkRng) {
         let b = &mut self.batch;
         let i = b.len;
-        let (xf, wf) = (x.as_vec3(), w.as_vec3());
-        for (lane, v) in b.x.iter_mut().zip(xf.to_array()) {
+        for (lane, v) in b.x.iter_mut().zip(x.to_array()) {
             lane[i] = v;
         }
-        for (lane, v) in b.w.iter_mut().zip(wf.to_array()) {
+        for (lane, v) in b.w.iter_mut().zip(w.to_array()) {
             lane[i] = v;
         }
         b.phi[i] = phi_k;
@@ -241,6 +240,7 @@ impl EventChoice {
                 continue;
             }
             let weight = (self.total / q as f64) as f32;
+            let (x, w) = (x.as_dvec3(), w.as_dvec3());
             match events[..used].iter().position(|e| *e == (x, w)) {
                 Some(i) => weights[i] += weight,
                 None => {
@@ -283,13 +283,12 @@ mod tests {
         for _ in 0..BATCH {
             let x = DVec3::new(rng.uniform(), rng.uniform(), rng.uniform()) * 0.5;
             let w = DVec3::new(rng.uniform() - 0.5, rng.uniform() - 0.5, rng.uniform()).normalize();
-            choice.offer(x, w, 1.0, &proxy, &mut rng);
+            choice.offer(x.as_vec3(), w.as_vec3(), 1.0, &proxy, &mut rng);
             // offer flushes on the last one; evaluate the lanes before that.
             if choice.batch.len == BATCH - 1 {
                 let mut q = [0.0; BATCH];
                 proxy.eval(&choice.batch, &mut q);
                 for (i, &(x, w)) in choice.batch.events[..BATCH - 1].iter().enumerate() {
-                    let (x, w) = (x.as_vec3(), w.as_vec3());
                     let b = x.dot(wl);
                     let chord = -b + (b * b + f2 - x.length_squared()).max(0.0).sqrt();
                     let hg = scatter_sim::phase::hg_pdf(g as f64, w.dot(wl) as f64) as f32;
@@ -344,13 +343,16 @@ mod tests {
         for _ in 0..n {
             let mut choice = EventChoice::new(1);
             for &(x, w, phi) in &events {
-                choice.offer(x, w, phi, &proxy, &mut rng);
+                choice.offer(x.as_vec3(), w.as_vec3(), phi, &proxy, &mut rng);
             }
             let mut out = [(DVec3::ZERO, DVec3::Z); MAX_EVENTS];
             let mut wts = [0.0; MAX_EVENTS];
             let used = choice.finish(&proxy, &mut rng, &mut out, &mut wts);
             assert_eq!(used, 1);
-            let k = events.iter().position(|e| (e.0, e.1) == out[0]).unwrap();
+            let k = events
+                .iter()
+                .position(|e| (e.0.as_vec3().as_dvec3(), e.1.as_vec3().as_dvec3()) == out[0])
+                .unwrap();
             // The weight is Q/q_K, so f·weight has expectation Σ φ^k f_k.
             let q_k = weights[k] / events[k].2;
             assert!((wts[0] as f64 / (total / q_k) - 1.0).abs() < 1e-5);

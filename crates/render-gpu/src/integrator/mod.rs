@@ -6,6 +6,7 @@
 //! stratified over a pixel's samples) and its estimate is added, times 3, to that channel.
 
 mod event_choice;
+mod exact_walk;
 pub mod nee;
 pub mod sphere_step;
 pub mod wavefront;

@@ -18,6 +18,7 @@ use scatter_sim::frame::{WalkFrame, from_canonical};
 use scatter_sim::rng::WalkRng;
 
 use super::event_choice::{self, EventChoice, Proxy};
+use super::exact_walk;
 use super::{IntegratorSettings, PathState, PathStats, nee, pt_event, roulette};
 use crate::setup::SceneData;
 
@@ -222,10 +223,8 @@ fn exact_step(
     rng: &mut WalkRng,
     (r, free): (f32, f32),
 ) {
-    let g = scene.g as f64;
     let albedo = scene.albedo[channel] as f64;
     let tau32 = scene.sigma_t[channel] * r;
-    let tau = tau32 as f64;
     // The simulated walk is already uniform in its azimuth about +z, so any frame about
     // the arriving direction will do.
     let frame = WalkFrame::new(s.dir.as_dvec3(), (1.0, 0.0));
@@ -255,15 +254,16 @@ fn exact_step(
     let mut choice = EventChoice::new(m);
     let mut phi_k = albedo;
     if m > 0 {
-        choice.offer(CENTRE_EVENT.0, CENTRE_EVENT.1, phi_k, &proxy, rng);
+        let (x, w) = CENTRE_EVENT;
+        choice.offer(x.as_vec3(), w.as_vec3(), phi_k, &proxy, rng);
     }
-    let end = scatter_sim::walk_with(tau, g, rng, |_, x, w, rng| {
+    let end = exact_walk::walk(tau32, scene.g, rng, |x, w, rng| {
         if m > 0 {
             phi_k *= albedo;
             choice.offer(x, w, phi_k, &proxy, rng);
         }
     });
-    let survival = albedo.powi(end.n.min(i32::MAX as u64) as i32);
+    let survival = albedo.powi(end.n.min(i32::MAX as u32) as i32);
     let mut events = [CENTRE_EVENT; MAX_EXACT_EVENTS];
     let mut weights = [0.0f32; MAX_EXACT_EVENTS];
     let used = choice.finish(&proxy, rng, &mut events, &mut weights);
@@ -276,7 +276,7 @@ fn exact_step(
         ball,
         nee,
         survival: survival as f32,
-        exit: (end.exit_pos, end.exit_dir),
+        exit: (end.exit_pos.as_dvec3(), end.exit_dir.as_dvec3()),
     };
     complete(scene, set, channel, s, walked, rng);
 }
