@@ -113,7 +113,7 @@ mod tests {
     /// 40,000 walks each. The chi-square with 11 degrees of freedom (two samples: the
     /// statistic Σ (a − b)²/(a + b)) exceeds 31.3 with probability 0.1 %; the KS distance
     /// of two samples of n exceeds 1.95·√(2/n) = 0.0138 with probability 0.1 %. Flights 5 % too long
-    /// or azimuths over half a turn only fail the N test by far (χ² 187 and 432).
+    /// or azimuths over half a turn each fail the N test by far (χ² 187 and 432).
     #[test]
     fn f32_walk_matches_the_simulator() {
         let n = 40_000;
