@@ -143,3 +143,80 @@ fn nee_direct(x: vec3<f32>, w: vec3<f32>, free: f32, c: vec3<f32>, f: f32, chann
     }
     return sum;
 }
+
+// ---- path-level NEE (integrator/nee.rs, PathNee) ----
+// PATH_NEE_M (prepended by kernels.rs; at most 2, scene::MAX_PATH_NEE_RAYS) weighted
+// reservoirs over a path's NEE events, whose shadow rays are cast when the path ends
+// (path.wgsl); 0: a shadow ray at every event (PT, and ST-CVAE with path_nee_rays = 0).
+// Saved between dispatches with the path (path.wgsl, save_path).
+var<private> pn_x: array<vec3<f32>, 2>;
+var<private> pn_w: array<vec3<f32>, 2>;
+var<private> pn_q: array<f32, 2>;
+// A = Σ c·q of the events offered so far (0: none).
+var<private> pn_total: f32;
+
+fn path_nee_reset() {
+    pn_total = 0.0;
+    for (var i = 0u; i < 2u; i++) {
+        pn_q[i] = 0.0;
+    }
+}
+
+/// nee::proxy: Σ_l E_l · ρ_g(W·ω_l) · exp(−σ_t·free(ω_l)) with the light's central
+/// direction, free(ω_l) = max(`free`, the chord through the free ball (`c`, `f`)): the bound
+/// nee_direct's roulette uses.
+fn nee_proxy(x: vec3<f32>, w: vec3<f32>, free: f32, c: vec3<f32>, f: f32, channel: u32) -> f32 {
+    let g = params.consts.x;
+    let sigma = params.sigma_t[channel];
+    var q = 0.0;
+    for (var i = 0u; i < params.flags.x; i++) {
+        let l = params.lights[i];
+        let wl = l.to_light.xyz;
+        let phase = hg_pdf(g, clamp(dot(w, wl), -1.0, 1.0));
+        q += l.irradiance[channel] * phase * exp(-sigma * max(free, ball_chord(x, wl, c, f)));
+    }
+    return q;
+}
+
+/// Offers event (x, w) with NEE coefficient `c` and proxy `q` to the reservoirs: each
+/// holds it with probability c·q / A (PathNee::offer).
+fn path_nee_offer(x: vec3<f32>, w: vec3<f32>, c: f32, q: f32) {
+    let a = c * q;
+    if !(a > 0.0) {
+        return;
+    }
+    pn_total += a;
+    for (var i = 0u; i < PATH_NEE_M; i++) {
+        if rand() * pn_total < a {
+            pn_x[i] = x;
+            pn_w[i] = w;
+            pn_q[i] = q;
+        }
+    }
+}
+
+/// The path's NEE: one shadow ray per reservoir, A·f/q averaged (PathNee::finish).
+fn path_nee_finish(channel: u32) -> f32 {
+    if PATH_NEE_M == 0u || !(pn_total > 0.0) {
+        return 0.0;
+    }
+    let g = params.consts.x;
+    var sum = 0.0;
+    for (var k = 0u; k < PATH_NEE_M; k++) {
+        // nee_direct without its roulette (the choice has spent the ray on an event
+        // worth it): nee::direct_unrouletted.
+        var f = 0.0;
+        for (var i = 0u; i < params.flags.x; i++) {
+            let u1 = rand();
+            let u2 = rand();
+            let ls = light_sample(i, u1, u2, channel);
+            if ls.factor <= 0.0 {
+                continue;
+            }
+            let phase = hg_pdf(g, clamp(dot(pn_w[k], ls.dir), -1.0, 1.0));
+            f += transmittance(pn_x[k], ls.dir, channel) * ls.factor * phase;
+        }
+        sum += f / pn_q[k];
+    }
+    return sum * pn_total / f32(PATH_NEE_M);
+}

@@ -90,6 +90,7 @@ fn start_path(origin: vec3<f32>, dir: vec3<f32>, channel: u32) {
     p_from_step = false;
     p_left_through = NO_TRI;
     p_iterations = 0u;
+    path_nee_reset();
 }
 
 /// Whether `q`, spawned eps inside the surface at a hit whose outward normal is `n`, lies
@@ -251,10 +252,12 @@ const C_PENDING: u32 = 6u;
 const C_TRUNCATED: u32 = 7u;
 const C_EXACT: u32 = 8u;
 
-/// A path between dispatches, one per (pixel, lane), in `accum` as 5 vec4s: position and
-/// β; direction and radiance; the RNG state; channel/flags, iterations, samples finished,
-/// current sample; and the accumulated RGB + finished-sample count of the whole render.
-const SLOT: u32 = 5u;
+/// A path between dispatches, one per (pixel, lane), in `accum` as SLOT = 5 + 2·PATH_NEE_M
+/// vec4s (prepended by kernels.rs): position and β; direction and radiance; the RNG state;
+/// channel/flags, iterations, samples finished, current sample; the accumulated RGB +
+/// finished-sample count of the whole render (ACC); then per path-level NEE reservoir its
+/// event's (X, q) and (W, A).
+const ACC: u32 = 4u;
 const F_ALIVE: u32 = 1u;
 const F_SCATTERED: u32 = 2u;
 const F_INSIDE: u32 = 4u;
@@ -272,6 +275,23 @@ fn save_path(base: u32, j: u32, s: u32, done: bool) {
     accum[base + 1u] = vec4<f32>(ps.dir, ps.radiance);
     accum[base + 2u] = bitcast<vec4<f32>>(rng_s);
     accum[base + 3u] = bitcast<vec4<f32>>(vec4<u32>(p_channel | (flags << 8u), p_iterations, j, s));
+    for (var i = 0u; i < PATH_NEE_M; i++) {
+        accum[base + 5u + 2u * i] = vec4<f32>(pn_x[i], pn_q[i]);
+        accum[base + 6u + 2u * i] = vec4<f32>(pn_w[i], pn_total);
+    }
+}
+
+/// The path-level NEE reservoirs saved by save_path.
+fn load_path_nee(base: u32) {
+    path_nee_reset();
+    for (var i = 0u; i < PATH_NEE_M; i++) {
+        let a = accum[base + 5u + 2u * i];
+        let b = accum[base + 6u + 2u * i];
+        pn_x[i] = a.xyz;
+        pn_q[i] = a.w;
+        pn_w[i] = b.xyz;
+        pn_total = b.w;
+    }
 }
 
 /// (a·b) mod n without overflow for a, b < n < 2^32 (double-and-add).
@@ -359,7 +379,7 @@ fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_inv
     if first < params.sampling.y {
         count = min(params.image.w, (params.sampling.y - first + lanes - 1u) / lanes);
     }
-    var acc = accum[base + 4u];
+    var acc = accum[base + ACC];
     if params.misc.w == 2u {
         // First dispatch of the render: clear the accumulator (it was poisoned with NaN,
         // so a slot never reached shows on the host).
@@ -391,6 +411,7 @@ fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_inv
             p_iterations = st.y;
             j = st.z;
             s = st.w;
+            load_path_nee(base);
         }
     }
     if !done {
@@ -399,6 +420,7 @@ fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_inv
         for (; b < budget && !done; b++) {
             bounce();
             if !ps.alive {
+                ps.radiance += path_nee_finish(p_channel);
                 acc[p_channel] += 3.0 * path_result();
                 acc.w += 1.0;
                 j += 1u;
@@ -425,7 +447,7 @@ fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_inv
     } else if params.misc.w != 0u {
         save_path(base, j, s, true);
     }
-    accum[base + 4u] = acc;
+    accum[base + ACC] = acc;
     for (var i = 0u; i < 9u; i++) {
         add_counter(i, stats[i]);
     }

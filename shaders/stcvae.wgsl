@@ -126,7 +126,14 @@ fn scatter_at(channel: u32) -> bool {
             ball_c = centre;
             ball_f = free;
         }
-        sum += wk * nee_direct(x, w, x_free, ball_c, ball_f, channel);
+        if PATH_NEE_M > 0u {
+            // Path-level NEE: the event joins the path's reservoirs (sphere_step.rs,
+            // complete; integrator/mod.rs, pt_event).
+            let q = nee_proxy(x, w, x_free, ball_c, ball_f, channel);
+            path_nee_offer(x, w, nee_weight * wk, q);
+        } else {
+            sum += wk * nee_direct(x, w, x_free, ball_c, ball_f, channel);
+        }
     }
     ps.radiance += nee_weight * sum;
     if fallback {

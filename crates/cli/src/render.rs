@@ -350,11 +350,7 @@ pub fn run(a: Args) -> Result<()> {
         exact_tau: set.exact_tau as f64,
         nee_samples: set.nee_samples,
         exact_nee_samples: set.exact_nee_samples,
-        // The GPU kernels cast a shadow ray at every NEE event (path-level NEE is CPU-only).
-        path_nee_rays: match engine {
-            Engine::Gpu(_) => 0,
-            Engine::Cpu => set.path_nee_rays,
-        },
+        path_nee_rays: set.path_nee_rays,
         grid_resolution: r.grid_resolution,
         scene_hash: format!("{:016x}", p.data.hash),
         device: engine.describe(),

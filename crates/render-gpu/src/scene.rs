@@ -226,8 +226,8 @@ pub struct RenderDesc {
     /// proxy of its contribution (`integrator::nee::PathNee`); 0 casts one at every NEE
     /// event instead. 1 by measurement (docs/BENCHMARKS.md, twentieth session): 17–26 %
     /// faster than 0 at ~9 % more variance, ahead at equal error at every density of the
-    /// bench ladder; PT always casts one at every event. CPU only: the GPU kernels cast
-    /// one at every event whatever this says.
+    /// bench ladder; PT always casts one at every event. The GPU kernels run the same
+    /// estimator (shaders/nee.wgsl; on lavapipe 1 is ~28 % faster than 0).
     #[serde(default = "default_path_nee_rays")]
     pub path_nee_rays: u32,
 }
@@ -295,7 +295,8 @@ pub const MAX_EXACT_TAU: f64 = 50.0;
 /// Most NEE events of one exactly simulated sphere step (the kernels keep one reservoir
 /// slot per event).
 pub const MAX_EXACT_NEE_SAMPLES: u32 = 4;
-/// Largest `render.path_nee_rays` (the GPU kernel saves each reservoir between dispatches).
+/// Largest `render.path_nee_rays` (the GPU kernel saves each reservoir with its path
+/// between dispatches, two vec4s each: shaders/path.wgsl).
 pub const MAX_PATH_NEE_RAYS: u32 = 2;
 
 impl RenderDesc {

@@ -592,6 +592,15 @@ fn cpu_gpu_agree_stcvae_sphere() {
     let im = sphere_scene("kind = \"index-matched\"");
     compare_devices("ST-CVAE, NEE", &im, IntegratorKind::Stcvae, true, 96);
     compare_devices("ST-CVAE, no NEE", &im, IntegratorKind::Stcvae, false, 96);
+    // Path-level NEE (integrator::nee::PathNee; shaders/nee.wgsl) with two reservoirs, and
+    // a shadow ray at every event (0), on both devices.
+    for rays in [0, 2] {
+        let set = IntegratorSettings {
+            path_nee_rays: rays,
+            ..settings(IntegratorKind::Stcvae, true)
+        };
+        compare_devices_with(&format!("ST-CVAE, NEE, {rays} path rays"), &im, &set, 96);
+    }
     let di = sphere_scene("kind = \"dielectric\"\nior = 1.5");
     compare_devices(
         "ST-CVAE dielectric, no NEE",
@@ -653,8 +662,23 @@ fn cpu_gpu_agree_bunny() {
 /// means uses the spread of 8 seeds per device, so it is Welch's t with at least 7 degrees
 /// of freedom: |t₇| > 5.4 has probability 1e-3. A truncated or lost path population
 /// darkens the object by far more.
+///
+/// The same for ST-CVAE with every collision a PT fallback (min_tau beyond any ball) and
+/// path-level NEE: its reservoirs must travel with the path between dispatches (path.wgsl,
+/// save_path / load_path_nee). Reservoirs reset at each dispatch instead lose the NEE of
+/// every event before a path's last dispatch: z = 7.0 when checked.
 #[test]
 fn long_paths_resume_across_dispatches() {
+    let pt = settings(IntegratorKind::Pt, true);
+    long_paths_agree("PT", &pt);
+    let st = IntegratorSettings {
+        min_tau: 1e30,
+        ..settings(IntegratorKind::Stcvae, true)
+    };
+    long_paths_agree("ST-CVAE fallbacks, path-level NEE", &st);
+}
+
+fn long_paths_agree(name: &str, set: &IntegratorSettings) {
     let Some(ctx) = gpu() else { return };
     let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
     let text = with_medium(
@@ -664,8 +688,7 @@ fn long_paths_resume_across_dispatches() {
     )
     .replace("width = 24\nheight = 24", "width = 8\nheight = 8")
     .replace("fov_deg = 22.0", "fov_deg = 12.0");
-    let s = common::build_scene(&text, false);
-    let set = settings(IntegratorKind::Pt, true);
+    let s = common::build_scene(&text, set.kind == IntegratorKind::Stcvae);
     let mean = |o: &RenderOutput| {
         o.image
             .pixels
@@ -680,15 +703,15 @@ fn long_paths_resume_across_dispatches() {
         (m, var / v.len() as f64)
     };
     let cpu: Vec<f64> = (1..=8)
-        .map(|k| mean(&on_cpu(&s, &set, &opts(24, k))))
+        .map(|k| mean(&on_cpu(&s, set, &opts(24, k))))
         .collect();
     let mut gpu_means = Vec::new();
     for k in 9..=16 {
-        let o = on_gpu(&ctx, &s, &set, &opts(24, k));
+        let o = on_gpu(&ctx, &s, set, &opts(24, k));
         assert_eq!(o.stats.paths, 64 * 24);
         assert!(
             o.stats.events as f64 / o.stats.paths as f64 > 150.0,
-            "the scene must make long paths: {:?}",
+            "{name}: the scene must make long paths: {:?}",
             o.stats
         );
         gpu_means.push(mean(&o));
@@ -696,8 +719,8 @@ fn long_paths_resume_across_dispatches() {
     let (mc, vc) = stats(&cpu);
     let (mg, vg) = stats(&gpu_means);
     let z = (mc - mg) / (vc + vg).sqrt();
-    eprintln!("long paths: image mean CPU {mc:.5} GPU {mg:.5}, z = {z:.2}");
-    assert!(z.abs() < 5.4, "CPU {mc} vs GPU {mg}: z = {z}");
+    eprintln!("long paths, {name}: image mean CPU {mc:.5} GPU {mg:.5}, z = {z:.2}");
+    assert!(z.abs() < 5.4, "{name}: CPU {mc} vs GPU {mg}: z = {z}");
 }
 
 /// A dispatch cut off by lavapipe's loop limit is undone and redone with half the bounce

@@ -35,9 +35,31 @@ pub enum Kernel {
     Probe,
 }
 
-/// The full WGSL source of a kernel; the ST-CVAE and probe kernels include the model's
-/// decoders, generated as straight-line code.
-pub fn source(kernel: Kernel, model: Option<&cvae::ModelSet>) -> Result<String, RenderError> {
+/// vec4s of one path slot in the accumulation buffer (`SLOT` in shaders/path.wgsl): the
+/// path's state, the render's accumulated RGB (vec4 [`ACC_VEC4`]), and two per path-level
+/// NEE reservoir.
+pub fn slot_vec4s(path_nee_m: u32) -> u64 {
+    5 + 2 * path_nee_m as u64
+}
+
+/// Which vec4 of a path slot holds the accumulated RGB and finished-sample count (`ACC`
+/// in shaders/path.wgsl).
+pub const ACC_VEC4: u64 = 4;
+
+/// The full WGSL source of a kernel with `path_nee_m` path-level NEE reservoirs (0: a
+/// shadow ray at every NEE event; at most [`crate::scene::MAX_PATH_NEE_RAYS`]); the ST-CVAE
+/// and probe kernels include the model's decoders, generated as straight-line code.
+pub fn source(
+    kernel: Kernel,
+    model: Option<&cvae::ModelSet>,
+    path_nee_m: u32,
+) -> Result<String, RenderError> {
+    if path_nee_m > crate::scene::MAX_PATH_NEE_RAYS {
+        return Err(RenderError::Scene(format!(
+            "render.path_nee_rays = {path_nee_m} is out of range: allowed [0, {}]",
+            crate::scene::MAX_PATH_NEE_RAYS
+        )));
+    }
     let decoders = match (kernel, model) {
         (Kernel::Pt, _) => String::new(),
         (_, Some(m)) => super::decoder_gen::decoders_wgsl(m)?,
@@ -53,12 +75,14 @@ pub fn source(kernel: Kernel, model: Option<&cvae::ModelSet>) -> Result<String, 
     let stack = format!(
         "const STACK_DEPTH: u32 = {STACK_DEPTH}u;\nvar<workgroup> wg_stack: array<u32, {}>;\n\
          const ROULETTE_BOUND: f32 = {:?};\nconst FLIGHT_MARGIN_OF_EPS: f32 = {:?};\n\
-         const EXIT_REFINE_TAU: f32 = {:?};\nconst SLIVER_REACH_OF_EPS: f32 = {:?};\n",
+         const EXIT_REFINE_TAU: f32 = {:?};\nconst SLIVER_REACH_OF_EPS: f32 = {:?};\n\
+         const PATH_NEE_M: u32 = {path_nee_m}u;\nconst SLOT: u32 = {}u;\n",
         STACK_DEPTH * WORKGROUP,
         crate::integrator::nee::ROULETTE_BOUND,
         crate::geometry::FLIGHT_MARGIN_OF_EPS,
         crate::integrator::sphere_step::EXIT_REFINE_TAU,
         crate::geometry::SLIVER_REACH_OF_EPS,
+        slot_vec4s(path_nee_m),
     );
     let parts: &[&str] = match kernel {
         Kernel::Pt => &[COMMON, &stack, SCENE, NEE, PT, PATH],
@@ -115,16 +139,18 @@ pub fn bind_group_layout(ctx: &GpuContext) -> wgpu::BindGroupLayout {
         })
 }
 
-/// Compiles `entry` of `kernel`; shader or pipeline errors come back as errors, not
-/// panics (wgpu's default handler would abort).
+/// Compiles `entry` of `kernel` (with `path_nee_m` path-level NEE reservoirs, see
+/// [`source`]); shader or pipeline errors come back as errors, not panics (wgpu's default
+/// handler would abort).
 pub fn pipeline(
     ctx: &GpuContext,
     layout: &wgpu::BindGroupLayout,
     kernel: Kernel,
     model: Option<&cvae::ModelSet>,
+    path_nee_m: u32,
     entry: &str,
 ) -> Result<wgpu::ComputePipeline, RenderError> {
-    let src = source(kernel, model)?;
+    let src = source(kernel, model, path_nee_m)?;
     let scope = ctx.device.push_error_scope(wgpu::ErrorFilter::Validation);
     let module = ctx
         .device

@@ -37,7 +37,7 @@ pub fn run_probe_on(
         None => (vec![GpuNode::default()], vec![GpuTri::default()]),
     };
     let layout = kernels::bind_group_layout(ctx);
-    let pipeline = kernels::pipeline(ctx, &layout, Kernel::Probe, Some(model), entry)?;
+    let pipeline = kernels::pipeline(ctx, &layout, Kernel::Probe, Some(model), 0, entry)?;
     let mut params = Params::default();
     params.image[0] = items.len() as u32;
     let grid = match scene.and_then(|s| s.grid.as_ref().map(|g| (s, g))) {

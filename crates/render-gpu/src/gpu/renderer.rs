@@ -14,9 +14,6 @@ use crate::setup::SceneData;
 use super::context::GpuContext;
 use super::kernels::{self, Kernel, WORKGROUP};
 
-/// vec4s per path slot (`SLOT` in shaders/path.wgsl); the last holds the accumulated RGB
-/// and the count of finished samples.
-const SLOT_VEC4S: u64 = 5;
 use super::model_buffers::model_params;
 use super::resources::{COUNTER_BYTES, Inputs, Resources, read_back, wait};
 use super::scene_buffers::{
@@ -101,15 +98,18 @@ pub fn render_gpu(
     }
     let model = set.model.map(model_params).unwrap_or_default();
     let layout = kernels::bind_group_layout(ctx);
-    let pipeline = kernels::pipeline(ctx, &layout, kernel, set.model, "render_main")?;
+    // Path-level NEE (ST-CVAE only, as on the CPU): its reservoirs travel with each path.
+    let path_nee_m = set.path_nee() as u32;
+    let slot_vec4s = kernels::slot_vec4s(path_nee_m);
+    let pipeline = kernels::pipeline(ctx, &layout, kernel, set.model, path_nee_m, "render_main")?;
     let cam = &scene.camera;
     let pixels = cam.width as u64 * cam.height as u64;
     let spp = opts.spp.max(1);
     let lanes = (target_threads(ctx) / pixels.max(1)).clamp(1, spp as u64) as u32;
     let mut params: Params = scene_params(scene, set, opts.seed);
     let threads = pixels * lanes as u64;
-    // One path slot of 5 vec4s per invocation (shaders/path.wgsl).
-    let accum_bytes = threads * 16 * SLOT_VEC4S;
+    // One path slot per invocation (shaders/path.wgsl).
+    let accum_bytes = threads * 16 * slot_vec4s;
     let depth = bvh_depth(&scene.geo.bvh);
     if depth + 1 > kernels::STACK_DEPTH as usize {
         return Err(RenderError::Scene(format!(
@@ -244,8 +244,8 @@ pub fn render_gpu(
         let mut sum = [0f64; 3];
         let mut finished = 0f64;
         for l in 0..lanes as usize {
-            let slot = (p * lanes as usize + l) * SLOT_VEC4S as usize;
-            let q = &vals[(slot + SLOT_VEC4S as usize - 1) * 4..][..4];
+            let slot = (p * lanes as usize + l) * slot_vec4s as usize;
+            let q = &vals[(slot + kernels::ACC_VEC4 as usize) * 4..][..4];
             for c in 0..3 {
                 sum[c] += q[c] as f64;
             }
