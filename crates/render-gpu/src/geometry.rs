@@ -1,4 +1,5 @@
-//! Ray and distance queries against the closed mesh, through an obvhs BVH2.
+//! Ray and distance queries against the closed mesh: ray casts through an obvhs 8-wide BVH
+//! (CwBvh), distance searches through the binary BVH2 the GPU kernels also read.
 //!
 //! Rays that start on the surface are offset along the geometric normal to the side they
 //! are meant to be on ([`Geometry::spawn`]), so a ray never re-hits the triangle it left.
