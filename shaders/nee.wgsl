@@ -117,8 +117,10 @@ fn ball_chord(x: vec3<f32>, dir: vec3<f32>, c: vec3<f32>, f: f32) -> f32 {
 /// shadow ray crosses at least max(`free`, its chord through the free ball (`c`, `f`))
 /// of medium, so T ≤ exp(−σ_t·that), and a shadow ray whose bound ρ_g·T is below
 /// ROULETTE_BOUND/4π (ROULETTE_BOUND prepended from nee.rs by kernels.rs) goes through an
-/// unbiased roulette, as on the CPU (nee::direct's `free`).
-fn nee_direct(x: vec3<f32>, w: vec3<f32>, free: f32, c: vec3<f32>, f: f32, channel: u32) -> f32 {
+/// unbiased roulette, as on the CPU (nee::direct's `free`); none when `rouletted` is false
+/// (nee::direct_unrouletted: path-level NEE has already spent the ray on an event worth
+/// it).
+fn nee_direct(x: vec3<f32>, w: vec3<f32>, free: f32, c: vec3<f32>, f: f32, channel: u32, rouletted: bool) -> f32 {
     var sum = 0.0;
     let g = params.consts.x;
     let sigma = params.sigma_t[channel];
@@ -133,7 +135,7 @@ fn nee_direct(x: vec3<f32>, w: vec3<f32>, free: f32, c: vec3<f32>, f: f32, chann
         let phase = hg_pdf(g, clamp(dot(w, ls.dir), -1.0, 1.0));
         var weight = ls.factor * phase;
         let bound = phase * exp(-sigma * max(free, ball_chord(x, ls.dir, c, f)));
-        if bound < threshold {
+        if rouletted && bound < threshold {
             if rand() * threshold >= bound {
                 continue;
             }
@@ -200,23 +202,10 @@ fn path_nee_finish(channel: u32) -> f32 {
     if PATH_NEE_M == 0u || !(pn_total > 0.0) {
         return 0.0;
     }
-    let g = params.consts.x;
     var sum = 0.0;
     for (var k = 0u; k < PATH_NEE_M; k++) {
-        // nee_direct without its roulette (the choice has spent the ray on an event
-        // worth it): nee::direct_unrouletted.
-        var f = 0.0;
-        for (var i = 0u; i < params.flags.x; i++) {
-            let u1 = rand();
-            let u2 = rand();
-            let ls = light_sample(i, u1, u2, channel);
-            if ls.factor <= 0.0 {
-                continue;
-            }
-            let phase = hg_pdf(g, clamp(dot(pn_w[k], ls.dir), -1.0, 1.0));
-            f += transmittance(pn_x[k], ls.dir, channel) * ls.factor * phase;
-        }
-        sum += f / pn_q[k];
+        let x = pn_x[k];
+        sum += nee_direct(x, pn_w[k], 0.0, x, 0.0, channel, false) / pn_q[k];
     }
     return sum * pn_total / f32(PATH_NEE_M);
 }

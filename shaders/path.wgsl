@@ -55,7 +55,7 @@ fn pt_event(channel: u32) {
     stats[C_EVENTS] += 1u;
     let albedo = params.albedo[channel];
     if params.flags.y != 0u {
-        ps.radiance += ps.beta * albedo * nee_direct(ps.pos, ps.dir, ps.free, ps.pos, 0.0, channel);
+        ps.radiance += ps.beta * albedo * nee_direct(ps.pos, ps.dir, ps.free, ps.pos, 0.0, channel, true);
     }
     ps.beta *= albedo;
     if !roulette() {

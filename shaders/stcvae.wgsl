@@ -132,7 +132,7 @@ fn scatter_at(channel: u32) -> bool {
             let q = nee_proxy(x, w, x_free, ball_c, ball_f, channel);
             path_nee_offer(x, w, nee_weight * wk, q);
         } else {
-            sum += wk * nee_direct(x, w, x_free, ball_c, ball_f, channel);
+            sum += wk * nee_direct(x, w, x_free, ball_c, ball_f, channel, true);
         }
     }
     ps.radiance += nee_weight * sum;
