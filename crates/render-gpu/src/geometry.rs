@@ -55,8 +55,10 @@ pub struct Geometry {
     /// The binary BVH: the GPU kernels' node layout and the distance searches.
     pub bvh: Bvh2,
     /// The same triangles in a compressed 8-wide BVH for the CPU's ray casts, whose
-    /// SIMD node tests traverse it faster than the binary tree.
-    cwbvh: CwBvh,
+    /// SIMD node tests traverse it faster than the binary tree; None (casts through the
+    /// binary tree) when it is deeper than obvhs's traversal stack holds
+    /// ([`MAX_WIDE_DEPTH`]).
+    cwbvh: Option<CwBvh>,
     /// How far behind their origin rays enter `cwbvh` ([`Geometry::cw_ray`]): twice
     /// obvhs's node-test cut-off plus far more than the rounding of a shifted origin.
     cw_back: f32,
@@ -71,6 +73,33 @@ pub struct Geometry {
     bounds: Vec<[f32; 8]>,
     /// Per triangle, cos θ of its escape cone ([`crate::escape_cone`]).
     pub(crate) escape_cos: Vec<f32>,
+}
+
+/// Deepest 8-wide tree the CPU's casts use: obvhs's traversal stack holds 32 node groups
+/// and, past that, silently overwrites its top (losing triangles); a traversal needs at
+/// most one entry per level below the root. A deeper tree (only from pathological
+/// meshes; the bunny's is 4 levels deep (`wide_and_binary_trees_cast_alike`)) leaves the
+/// casts to the binary tree, whose stack grows.
+const MAX_WIDE_DEPTH: u32 = 30;
+
+/// Levels below the root of an 8-wide tree.
+fn wide_depth(t: &CwBvh) -> u32 {
+    let mut deepest = 0;
+    let mut stack = if t.nodes.is_empty() {
+        vec![]
+    } else {
+        vec![(0usize, 0u32)]
+    };
+    while let Some((i, depth)) = stack.pop() {
+        deepest = deepest.max(depth);
+        let node = &t.nodes[i];
+        for child in 0..8 {
+            if !node.is_leaf(child) {
+                stack.push((node.child_node_index(child) as usize, depth + 1));
+            }
+        }
+    }
+    deepest
 }
 
 /// A triangle whose bounding box is grown by a margin (see the padding in
@@ -124,11 +153,12 @@ impl Geometry {
             n.aabb.max += pad;
         }
         let padded: Vec<PaddedTri> = tris.iter().map(|&t| PaddedTri(t, pad)).collect();
-        let cwbvh = build_cwbvh(
+        let cwbvh = Some(build_cwbvh(
             &padded,
             BvhBuildParams::medium_build(),
             &mut Duration::default(),
-        );
+        ))
+        .filter(|t| wide_depth(t) <= MAX_WIDE_DEPTH);
         let bounds = (0..mesh.triangles.len())
             .map(|i| {
                 let [a, b, c] = mesh.triangle(i);
@@ -168,24 +198,34 @@ impl Geometry {
         dir.dot(self.normals[prim as usize]) >= self.escape_cos[prim as usize]
     }
 
-    /// Closest hit along `origin + t·dir`, t ∈ (0, tmax].
+    /// Closest hit along `origin + t·dir`, t ∈ [0, tmax].
     pub fn intersect(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<Hit> {
-        let back = self.cw_back;
         let shear = RayShear::new(origin, dir);
         let mut hit = RayHit::none();
+        // hit_tri returns a finite t only within best.0; a tie keeps the first.
         let mut best = (tmax, u32::MAX);
-        self.cwbvh
-            .ray_traverse(self.cw_ray(origin, dir, tmax), &mut hit, |_, id| {
-                let prim = self.cwbvh.primitive_indices[id];
-                let t = self.hit_tri(&shear, prim as usize, best.0);
-                // hit_tri returns a finite t only within best.0; a tie keeps the first.
-                if t.is_finite() && (best.1 == u32::MAX || t < best.0) {
-                    best = (t, prim);
-                    t + back
-                } else {
-                    f32::INFINITY
-                }
-            });
+        let mut visit = |prim: u32| {
+            let t = self.hit_tri(&shear, prim as usize, best.0);
+            let closer = t.is_finite() && (best.1 == u32::MAX || t < best.0);
+            if closer {
+                best = (t, prim);
+            }
+            closer.then_some(t)
+        };
+        match &self.cwbvh {
+            Some(cw) => {
+                let back = self.cw_back;
+                cw.ray_traverse(self.cw_ray(origin, dir, tmax), &mut hit, |_, id| {
+                    visit(cw.primitive_indices[id]).map_or(f32::INFINITY, |t| t + back)
+                });
+            }
+            None => {
+                let ray = Ray::new(arr(origin).into(), arr(dir).into(), 0.0, tmax);
+                self.bvh.ray_traverse(ray, &mut hit, |_, id| {
+                    visit(self.bvh.primitive_indices[id]).unwrap_or(f32::INFINITY)
+                });
+            }
+        }
         let (t, prim) = best;
         (prim != u32::MAX).then(|| Hit {
             t,
@@ -200,12 +240,17 @@ impl Geometry {
     /// density loses the surface that most flights near it meet (seen as ~6·10⁻⁵ of the
     /// bunny's paths found outside at k = 2). The callers test the triangles along the
     /// true ray from t = 0 and report their distances along the shifted one.
+    ///
+    /// Its direction's zero components are made +0: obvhs inverts a −0 to −1/ε but picks
+    /// each slab's near side by `direction < 0`, false for −0, so a ray along an axis
+    /// with a −0 component (a light shining straight down: to_light = (−0, 1, −0)) met no
+    /// box at all. (−0 + 0 = +0; every other value is unchanged.)
     #[inline]
     fn cw_ray(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Ray {
         let back = self.cw_back;
         Ray::new(
             arr(origin - dir * back).into(),
-            arr(dir).into(),
+            arr(dir + Vec3::ZERO).into(),
             0.0,
             tmax + back,
         )
@@ -226,13 +271,12 @@ impl Geometry {
         dir: Vec3,
         mut factor: impl FnMut(f32, bool) -> f32,
     ) -> Option<(f32, f32)> {
-        let ray = self.cw_ray(origin, dir, f32::INFINITY);
         let shear = RayShear::new(origin, dir);
         let mut length = 0.0f32;
         let mut balance = 0i32;
         let mut product = 1.0f32;
-        self.cwbvh.ray_traverse_anyhit(ray, |_, id| {
-            let prim = self.cwbvh.primitive_indices[id] as usize;
+        let mut visit = |prim: u32| {
+            let prim = prim as usize;
             let t = self.hit_tri(&shear, prim, f32::INFINITY);
             if t.is_finite() {
                 let c = dir.dot(self.normals[prim]);
@@ -246,7 +290,23 @@ impl Geometry {
                 }
                 product *= factor(c.abs(), exiting);
             }
-        });
+        };
+        match &self.cwbvh {
+            Some(cw) => {
+                let ray = self.cw_ray(origin, dir, f32::INFINITY);
+                cw.ray_traverse_anyhit(ray, |_, id| visit(cw.primitive_indices[id]));
+            }
+            None => {
+                let ray = Ray::new(arr(origin).into(), arr(dir).into(), 0.0, f32::INFINITY);
+                let mut hit = RayHit::none();
+                self.bvh.ray_traverse(ray, &mut hit, |_, id| {
+                    visit(self.bvh.primitive_indices[id]);
+                    // Never a closest hit: the traversal keeps its full range and visits
+                    // every node the ray crosses.
+                    f32::INFINITY
+                });
+            }
+        }
         (balance == 1 && length >= 0.0).then_some((length, product))
     }
 
@@ -476,4 +536,124 @@ pub fn point_triangle_d2(p: Vec3A, a: Vec3A, b: Vec3A, c: Vec3A) -> f32 {
     let v = vb * denom;
     let w = vc * denom;
     (p - (a + ab * v + ac * w)).length_squared()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use scatter_sim::rng::WalkRng;
+
+    fn bunny() -> Geometry {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/bunny.glb");
+        let mut m = crate::mesh::load_mesh(&path).expect("the shipped bunny");
+        m.normalise_height(1.0).expect("a bunny of some height");
+        Geometry::new(m)
+    }
+
+    /// The 8-wide tree (the CPU's casts) against the binary one (the fallback for deep
+    /// trees; the tree the GPU kernels traverse), an independent traversal of the same
+    /// triangles: the same closest hit and the same crossing sums for 20,000 random rays
+    /// from inside and around the bunny and 20,000 leaving or about to meet its surface,
+    /// short and unbounded, and for rays along the six
+    /// axes with every sign of zero in their other components (−0 made obvhs's wide node
+    /// test miss every box: a light shining straight down went unshadowed).
+    #[test]
+    fn wide_and_binary_trees_cast_alike() {
+        let wide = bunny();
+        let depth = wide_depth(wide.cwbvh.as_ref().expect("the bunny's wide tree is used"));
+        assert!(depth <= MAX_WIDE_DEPTH, "depth {depth}");
+        let mut binary = bunny();
+        binary.cwbvh = None;
+        let mut rng = WalkRng::for_walk(3, 0);
+        let mut u = || rng.uniform() as f32;
+        let mut rays = Vec::new();
+        for _ in 0..20_000 {
+            let o = wide.lo + (wide.hi - wide.lo) * Vec3::new(u(), u(), u()) * 1.2
+                - (wide.hi - wide.lo) * 0.1;
+            let d = Vec3::new(u() - 0.5, u() - 0.5, u() - 0.5).normalize_or(Vec3::Z);
+            let tmax = if u() < 0.5 { f32::INFINITY } else { 0.05 * u() };
+            rays.push((o, d, tmax));
+        }
+        // Rays spawned on the surface and rays that meet it within 10⁻⁴, as flights and
+        // shadow rays near it do: the wide tree's node test skips boxes entered that
+        // close to the origin (`cw_back`).
+        for k in 0..20_000 {
+            let prim = ((u() * wide.tris.len() as f32) as usize).min(wide.tris.len() - 1);
+            let t = &wide.tris[prim];
+            let (a, b, c) = (
+                Vec3::from_array(t.v0.into()),
+                Vec3::from_array(t.v1.into()),
+                Vec3::from_array(t.v2.into()),
+            );
+            let (x, y) = (u(), u());
+            let (x, y) = if x + y > 1.0 {
+                (1.0 - x, 1.0 - y)
+            } else {
+                (x, y)
+            };
+            let p = a + (b - a) * x + (c - a) * y;
+            let d = Vec3::new(u() - 0.5, u() - 0.5, u() - 0.5).normalize_or(Vec3::Z);
+            let tmax = if k % 2 == 0 {
+                f32::INFINITY
+            } else {
+                1e-3 * u()
+            };
+            // Leaving the surface, or meeting it within 10⁻⁴.
+            let o = if k % 4 < 2 {
+                wide.spawn(p, wide.normals[prim], d)
+            } else {
+                p - d * (1e-4 * u())
+            };
+            rays.push((o, d, tmax));
+        }
+        let centre = (wide.lo + wide.hi) * 0.5;
+        for axis in 0..3 {
+            for sign in [1.0f32, -1.0] {
+                for zeros in [0.0f32, -0.0] {
+                    let mut d = Vec3::splat(zeros);
+                    d[axis] = sign;
+                    rays.push((centre, d, f32::INFINITY));
+                }
+            }
+        }
+        let mut hits = 0;
+        for &(o, d, tmax) in &rays {
+            let (a, b) = (wide.intersect(o, d, tmax), binary.intersect(o, d, tmax));
+            match (a, b) {
+                (Some(a), Some(b)) => {
+                    assert_eq!(a.t, b.t, "ray {o} {d}: {a:?} vs {b:?}");
+                    hits += 1;
+                }
+                (None, None) => {}
+                _ => panic!("ray {o} {d} (tmax {tmax}): {a:?} vs {b:?}"),
+            }
+            let (a, b) = (
+                wide.inside_length(o, d, |_, _| 1.0),
+                binary.inside_length(o, d, |_, _| 1.0),
+            );
+            match (a, b) {
+                (Some((la, _)), Some((lb, _))) => {
+                    assert!(
+                        (la - lb).abs() <= 1e-5 * la.max(1e-3),
+                        "ray {o} {d}: {la} vs {lb}"
+                    )
+                }
+                (None, None) => {}
+                _ => panic!("ray {o} {d}: crossings {a:?} vs {b:?}"),
+            }
+        }
+        assert!(hits > 2_000, "{hits} hits");
+        // The axis rays from the centre are inside the bunny and all leave it.
+        for &(o, d, _) in &rays[rays.len() - 12..] {
+            assert!(
+                wide.intersect(o, d, f32::INFINITY).is_some(),
+                "axis ray {d} missed"
+            );
+            assert!(
+                wide.inside_length(o, d, |_, _| 1.0).is_some(),
+                "axis ray {d}"
+            );
+        }
+        eprintln!("wide tree depth {depth}, {hits} hits of {}", rays.len());
+    }
 }

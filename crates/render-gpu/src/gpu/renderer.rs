@@ -105,7 +105,14 @@ pub fn render_gpu(
     let cam = &scene.camera;
     let pixels = cam.width as u64 * cam.height as u64;
     let spp = opts.spp.max(1);
-    let lanes = (target_threads(ctx) / pixels.max(1)).clamp(1, spp as u64) as u32;
+    // Every path slot lives in one storage binding: adapters offer 128 MiB to several GiB,
+    // and a 1024² image at 2²⁰ invocations with two path-level NEE reservoirs needs 151 MB.
+    let limits = &ctx.limits;
+    let fit = limits
+        .max_storage_buffer_binding_size
+        .min(limits.max_buffer_size)
+        / (16 * slot_vec4s);
+    let lanes = (target_threads(ctx).min(fit) / pixels.max(1)).clamp(1, spp as u64) as u32;
     let mut params: Params = scene_params(scene, set, opts.seed);
     let threads = pixels * lanes as u64;
     // One path slot per invocation (shaders/path.wgsl).
