@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use glam::{UVec3, Vec3};
 use rayon::prelude::*;
 
-use crate::geometry::Geometry;
+use crate::geometry::{Geometry, Hit};
 use crate::hash::Fnv64;
 
 pub struct DistanceGrid {
@@ -120,6 +120,40 @@ impl DistanceGrid {
         let (i, _) = self.cell_of(p)?;
         let (a, b) = (self.cells[i][1] as usize, self.cells[i + 1][1] as usize);
         (b > a).then(|| geo.nearest_of(p, &self.candidates[a..b]))
+    }
+
+    /// The closest hit along `origin + t·dir`, t ∈ [0, tmax], from the candidate list of
+    /// `origin`'s cell instead of a BVH traversal; None when the list cannot be trusted
+    /// to hold every triangle the segment can meet (no list, or a segment reaching
+    /// beyond it), and the caller casts through the BVH.
+    ///
+    /// A cell's list holds every triangle within d(c) + 2h of its centre c (h: the
+    /// half-diagonal; `build`), and the cell's value is at most d(c), so a segment
+    /// within value + 2h of c — |origin − c| + tmax below that — can meet no triangle
+    /// outside the list. Flights near the surface (where they need a cast at all) are
+    /// ~1/σ_t long against lists that reach a cell or more, so nearly all qualify, and a
+    /// dozen watertight triangle tests cost a fraction of a traversal from the root. The
+    /// same test as the BVH's, over a superset of what the segment can meet: the same
+    /// hit.
+    #[inline]
+    pub fn local_hit(
+        &self,
+        geo: &Geometry,
+        origin: Vec3,
+        dir: Vec3,
+        tmax: f32,
+    ) -> Option<Option<Hit>> {
+        let (i, centre) = self.cell_of(origin)?;
+        let (a, b) = (self.cells[i][1] as usize, self.cells[i + 1][1] as usize);
+        if b == a {
+            return None;
+        }
+        // The coverage in f32, shrunk by far more than its rounding.
+        let reach = (f32::from_bits(self.cells[i][0]) + self.near_surface * 0.5) * (1.0 - 1e-5);
+        if (origin - centre).length() + tmax > reach {
+            return None;
+        }
+        Some(geo.closest_of(origin, dir, tmax, &self.candidates[a..b]))
     }
 
     /// Cells with candidate lists and the lists' mean length (for reports and tests).

@@ -234,6 +234,35 @@ impl Geometry {
         })
     }
 
+    /// The closest hit along `origin + t·dir`, t ∈ [0, tmax], among the triangles
+    /// `prims` (the same watertight test as [`Geometry::intersect`]; a tie keeps the
+    /// first). A triangle whose plane the segment does not reach is skipped before the
+    /// watertight test: both ends on one side of it, farther than 10⁻⁷ of the scene's
+    /// size (a few roundings of the plane distances), which a hit cannot be.
+    pub fn closest_of(&self, origin: Vec3, dir: Vec3, tmax: f32, prims: &[u32]) -> Option<Hit> {
+        let shear = RayShear::new(origin, dir);
+        let slack = self.eps * 0.005;
+        let mut best = (tmax, u32::MAX);
+        for &prim in prims {
+            let b = &self.bounds[prim as usize];
+            let s0 = b[0] * origin.x + b[1] * origin.y + b[2] * origin.z - b[3];
+            let s1 = s0 + best.0 * (b[0] * dir.x + b[1] * dir.y + b[2] * dir.z);
+            if (s0 > slack && s1 > slack) || (s0 < -slack && s1 < -slack) {
+                continue;
+            }
+            let t = self.hit_tri(&shear, prim as usize, best.0);
+            if t.is_finite() && (best.1 == u32::MAX || t < best.0) {
+                best = (t, prim);
+            }
+        }
+        let (t, prim) = best;
+        (prim != u32::MAX).then(|| Hit {
+            t,
+            prim,
+            normal: self.normals[prim as usize],
+        })
+    }
+
     /// The ray `origin + t·dir` (t ≤ tmax) for the 8-wide BVH, started `cw_back` behind
     /// its origin: obvhs's node test skips every box that the ray enters beyond 10⁻⁴ only
     /// (its `EPSILON`, an absolute distance that ignores the ray's tmin), which at high

@@ -331,7 +331,15 @@ impl Path {
                 // believes itself inside (seen ~1 in 10⁶ paths near the surface, each then
                 // a runaway firefly). The margin turns collisions within ~1e-7 of the surface
                 // into surface hits: a bias of σ_t·margin ≲ 1e-4 of the paths that get there.
-                geo.intersect(s.pos, s.dir, t + geo.flight_margin())
+                let tmax = t + geo.flight_margin();
+                // ST-CVAE's distance grid lists the triangles near each cell by the
+                // surface: a short flight there needs only those (DistanceGrid::local_hit).
+                // PT renders have no grid, as standard volumetric path tracers have none.
+                scene
+                    .grid
+                    .as_ref()
+                    .and_then(|g| g.local_hit(geo, s.pos, s.dir, tmax))
+                    .unwrap_or_else(|| geo.intersect(s.pos, s.dir, tmax))
             };
             if let Some(h) = hit {
                 s.free = 0.0;
