@@ -118,6 +118,23 @@ pub(crate) fn roulette(beta: &mut f32, rng: &mut WalkRng) -> bool {
     }
 }
 
+/// [`Geometry::beyond_sliver`](crate::geometry::Geometry::beyond_sliver), its ray of
+/// length ~eps cast against the grid cell's candidate list where ST-CVAE has one
+/// (`DistanceGrid::local_hit`; the same hit as the BVH's).
+#[inline]
+fn beyond_sliver(scene: &SceneData, q: Vec3, normal: Vec3) -> bool {
+    let geo = &scene.geo;
+    let reach = geo.eps * crate::geometry::SLIVER_REACH_OF_EPS;
+    match scene
+        .grid
+        .as_ref()
+        .and_then(|g| g.local_hit(geo, q, normal, reach))
+    {
+        Some(hit) => hit.is_some_and(|h| h.normal.dot(normal) < 0.0),
+        None => geo.beyond_sliver(q, normal),
+    }
+}
+
 /// State carried along a path.
 pub(crate) struct PathState {
     pub pos: Vec3,
@@ -313,7 +330,7 @@ impl Path {
                     }
                 }
                 s.pos = geo.spawn(p, h.normal, s.dir);
-                if *inside && geo.beyond_sliver(s.pos, h.normal) {
+                if *inside && beyond_sliver(scene, s.pos, h.normal) {
                     // The medium under the entry is thinner than the spawn offset: pass it,
                     // in (as through a slab of no thickness) the direction the path came.
                     *inside = false;
@@ -371,7 +388,7 @@ impl Path {
                     *left_through = Some(h.prim);
                 }
                 s.pos = geo.spawn(p, h.normal, s.dir);
-                if *inside && geo.beyond_sliver(s.pos, h.normal) {
+                if *inside && beyond_sliver(scene, s.pos, h.normal) {
                     // Reflected back inside where the medium is thinner than the offset.
                     *inside = false;
                 }
