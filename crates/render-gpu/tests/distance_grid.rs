@@ -34,6 +34,24 @@ fn check(geo: &Geometry, grid: &DistanceGrid, points: usize, seed: u64) -> f64 {
     sum_r / sum_d
 }
 
+/// A point uniform over a uniformly chosen triangle of `geo`.
+fn surface_point(geo: &Geometry, rng: &mut WalkRng) -> Vec3 {
+    let t = (rng.uniform() * geo.tris.len() as f64) as usize;
+    let tri = &geo.tris[t.min(geo.tris.len() - 1)];
+    let (a, b, c): (Vec3, Vec3, Vec3) = (
+        Vec3::from_array(tri.v0.into()),
+        Vec3::from_array(tri.v1.into()),
+        Vec3::from_array(tri.v2.into()),
+    );
+    let (u, v) = (rng.uniform() as f32, rng.uniform() as f32);
+    let (u, v) = if u + v > 1.0 {
+        (1.0 - u, 1.0 - v)
+    } else {
+        (u, v)
+    };
+    a + (b - a) * u + (c - a) * v
+}
+
 /// The shipped bunny (height 1) as geometry.
 fn bunny() -> Geometry {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/bunny.ply");
@@ -85,20 +103,7 @@ fn candidate_lists_give_the_exact_distance() {
     let (mut listed, mut near) = (0, 0);
     for k in 0..20_000 {
         let p = if k % 2 == 0 {
-            let t = (rng.uniform() * geo.tris.len() as f64) as usize;
-            let tri = &geo.tris[t.min(geo.tris.len() - 1)];
-            let (a, b, c): (Vec3, Vec3, Vec3) = (
-                Vec3::from_array(tri.v0.into()),
-                Vec3::from_array(tri.v1.into()),
-                Vec3::from_array(tri.v2.into()),
-            );
-            let (u, v) = (rng.uniform() as f32, rng.uniform() as f32);
-            let (u, v) = if u + v > 1.0 {
-                (1.0 - u, 1.0 - v)
-            } else {
-                (u, v)
-            };
-            let on = a + (b - a) * u + (c - a) * v;
+            let on = surface_point(&geo, &mut rng);
             on + common::uniform_direction(&mut rng)
                 * (rng.uniform() as f32 * 1.5 * grid.near_surface)
         } else {
@@ -141,20 +146,7 @@ fn local_hits_equal_bvh_casts() {
         let (mut answered, mut hits) = (0, 0);
         let n = 100_000;
         for _ in 0..n {
-            let t = (rng.uniform() * geo.tris.len() as f64) as usize;
-            let tri = &geo.tris[t.min(geo.tris.len() - 1)];
-            let (a, b, c): (Vec3, Vec3, Vec3) = (
-                Vec3::from_array(tri.v0.into()),
-                Vec3::from_array(tri.v1.into()),
-                Vec3::from_array(tri.v2.into()),
-            );
-            let (u, v) = (rng.uniform() as f32, rng.uniform() as f32);
-            let (u, v) = if u + v > 1.0 {
-                (1.0 - u, 1.0 - v)
-            } else {
-                (u, v)
-            };
-            let on = a + (b - a) * u + (c - a) * v;
+            let on = surface_point(&geo, &mut rng);
             let p = on
                 + common::uniform_direction(&mut rng)
                     * (rng.uniform() as f32 * 2.0 * grid.near_surface);
