@@ -69,7 +69,9 @@ pub struct Geometry {
     /// Per triangle, two cheap lower bounds on a point's distance to it: its plane (unit
     /// normal, offset n·a) and a bounding sphere (centre, radius) — [nx, ny, nz, n·a, cx,
     /// cy, cz, r]. [`Geometry::nearest_of`] skips the exact point–triangle distance of
-    /// every candidate whose bound already exceeds the nearest found so far.
+    /// every candidate whose bound already exceeds the nearest found so far;
+    /// [`Geometry::closest_of`] skips the ray test of a triangle whose plane a segment
+    /// does not reach.
     bounds: Vec<[f32; 8]>,
     /// Per triangle, cos θ of its escape cone ([`crate::escape_cone`]).
     pub(crate) escape_cos: Vec<f32>,
@@ -100,6 +102,43 @@ fn wide_depth(t: &CwBvh) -> u32 {
         }
     }
     deepest
+}
+
+/// The closest of the triangle hits found so far along one ray, within its tmax (a tie
+/// keeps the first): what every closest-hit query collects.
+struct Closest {
+    t: f32,
+    /// u32::MAX: none yet.
+    prim: u32,
+}
+
+impl Closest {
+    fn new(tmax: f32) -> Self {
+        Self {
+            t: tmax,
+            prim: u32::MAX,
+        }
+    }
+
+    /// Tests triangle `prim` along the sheared ray; its distance when it is the closest
+    /// so far (hit_tri returns a finite t only within the current best).
+    #[inline]
+    fn offer(&mut self, geo: &Geometry, shear: &RayShear, prim: u32) -> Option<f32> {
+        let t = geo.hit_tri(shear, prim as usize, self.t);
+        let closer = t.is_finite() && (self.prim == u32::MAX || t < self.t);
+        if closer {
+            (self.t, self.prim) = (t, prim);
+        }
+        closer.then_some(t)
+    }
+
+    fn hit(&self, geo: &Geometry) -> Option<Hit> {
+        (self.prim != u32::MAX).then(|| Hit {
+            t: self.t,
+            prim: self.prim,
+            normal: geo.normals[self.prim as usize],
+        })
+    }
 }
 
 /// A triangle whose bounding box is grown by a margin (see the padding in
@@ -202,16 +241,8 @@ impl Geometry {
     pub fn intersect(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<Hit> {
         let shear = RayShear::new(origin, dir);
         let mut hit = RayHit::none();
-        // hit_tri returns a finite t only within best.0; a tie keeps the first.
-        let mut best = (tmax, u32::MAX);
-        let mut visit = |prim: u32| {
-            let t = self.hit_tri(&shear, prim as usize, best.0);
-            let closer = t.is_finite() && (best.1 == u32::MAX || t < best.0);
-            if closer {
-                best = (t, prim);
-            }
-            closer.then_some(t)
-        };
+        let mut best = Closest::new(tmax);
+        let mut visit = |prim: u32| best.offer(self, &shear, prim);
         match &self.cwbvh {
             Some(cw) => {
                 let back = self.cw_back;
@@ -226,12 +257,7 @@ impl Geometry {
                 });
             }
         }
-        let (t, prim) = best;
-        (prim != u32::MAX).then(|| Hit {
-            t,
-            prim,
-            normal: self.normals[prim as usize],
-        })
+        best.hit(self)
     }
 
     /// The closest hit along `origin + t·dir`, t ∈ [0, tmax], among the triangles
@@ -242,25 +268,17 @@ impl Geometry {
     pub fn closest_of(&self, origin: Vec3, dir: Vec3, tmax: f32, prims: &[u32]) -> Option<Hit> {
         let shear = RayShear::new(origin, dir);
         let slack = self.eps * 0.005;
-        let mut best = (tmax, u32::MAX);
+        let mut best = Closest::new(tmax);
         for &prim in prims {
             let b = &self.bounds[prim as usize];
             let s0 = b[0] * origin.x + b[1] * origin.y + b[2] * origin.z - b[3];
-            let s1 = s0 + best.0 * (b[0] * dir.x + b[1] * dir.y + b[2] * dir.z);
+            let s1 = s0 + best.t * (b[0] * dir.x + b[1] * dir.y + b[2] * dir.z);
             if (s0 > slack && s1 > slack) || (s0 < -slack && s1 < -slack) {
                 continue;
             }
-            let t = self.hit_tri(&shear, prim as usize, best.0);
-            if t.is_finite() && (best.1 == u32::MAX || t < best.0) {
-                best = (t, prim);
-            }
+            best.offer(self, &shear, prim);
         }
-        let (t, prim) = best;
-        (prim != u32::MAX).then(|| Hit {
-            t,
-            prim,
-            normal: self.normals[prim as usize],
-        })
+        best.hit(self)
     }
 
     /// The ray `origin + t·dir` (t ≤ tmax) for the 8-wide BVH, started `cw_back` behind
@@ -378,9 +396,15 @@ impl Geometry {
     /// the bunny at k = 8 (~4 in 10⁶ of its paths). On a closed, consistently oriented mesh
     /// the first surface met from a point truly inside is an exit, so the check never fires
     /// at ordinary entries. It is a ray of length ~eps: a fraction of a cast.
-    pub fn beyond_sliver(&self, q: Vec3, normal: Vec3) -> bool {
-        self.intersect(q, normal, self.eps * SLIVER_REACH_OF_EPS)
-            .is_some_and(|h| h.normal.dot(normal) < 0.0)
+    /// `cast(origin, dir, tmax)` is the closest-hit query to use ([`Geometry::intersect`]
+    /// or a cheaper one that finds the same hit).
+    pub fn beyond_sliver(
+        &self,
+        q: Vec3,
+        normal: Vec3,
+        cast: impl FnOnce(Vec3, Vec3, f32) -> Option<Hit>,
+    ) -> bool {
+        cast(q, normal, self.eps * SLIVER_REACH_OF_EPS).is_some_and(|h| h.normal.dot(normal) < 0.0)
     }
 
     /// Exact unsigned distance from `p` to the surface (nearest-triangle BVH search).

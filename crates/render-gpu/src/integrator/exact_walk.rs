@@ -45,7 +45,9 @@ fn deflect(dir: Vec3, cos_theta: f32, rng: &mut WalkRng) -> Vec3 {
         }
     };
     let sin_theta = (1.0 - cos_theta * cos_theta).max(0.0).sqrt();
-    // Duff et al. (2017)'s branchless orthonormal basis about `dir`.
+    // Duff et al. (2017)'s branchless orthonormal basis about `dir`. (glam's
+    // `any_orthonormal_pair` is the same construction, but with it the k = 1 and k = 8
+    // bunny rendered 3–4 % slower: its sign goes through `f32::signum`.)
     let sign = 1.0f32.copysign(dir.z);
     let a = -1.0 / (sign + dir.z);
     let b = dir.x * dir.y * a;

@@ -118,21 +118,18 @@ pub(crate) fn roulette(beta: &mut f32, rng: &mut WalkRng) -> bool {
     }
 }
 
-/// [`Geometry::beyond_sliver`](crate::geometry::Geometry::beyond_sliver), its ray of
-/// length ~eps cast against the grid cell's candidate list where ST-CVAE has one
-/// (`DistanceGrid::local_hit`; the same hit as the BVH's).
+/// A closest-hit cast of a short segment from a point near the surface: against the grid
+/// cell's candidate list where ST-CVAE's grid has one that covers the segment
+/// (`DistanceGrid::local_hit`, the same hit), else through the BVH. PT renders have no
+/// grid, as standard volumetric path tracers have none.
 #[inline]
-fn beyond_sliver(scene: &SceneData, q: Vec3, normal: Vec3) -> bool {
+fn short_cast(scene: &SceneData, origin: Vec3, dir: Vec3, tmax: f32) -> Option<Hit> {
     let geo = &scene.geo;
-    let reach = geo.eps * crate::geometry::SLIVER_REACH_OF_EPS;
-    match scene
+    scene
         .grid
         .as_ref()
-        .and_then(|g| g.local_hit(geo, q, normal, reach))
-    {
-        Some(hit) => hit.is_some_and(|h| h.normal.dot(normal) < 0.0),
-        None => geo.beyond_sliver(q, normal),
-    }
+        .and_then(|g| g.local_hit(geo, origin, dir, tmax))
+        .unwrap_or_else(|| geo.intersect(origin, dir, tmax))
 }
 
 /// State carried along a path.
@@ -153,6 +150,31 @@ pub(crate) struct PathState {
     pub nee: nee::PathNee,
 }
 
+impl PathState {
+    /// The NEE of one event (x, w) whose term is c·f (f: [`nee::direct`]'s value, `free`
+    /// its bound on the medium toward each light): offered to the path's `m` reservoirs
+    /// with path-level NEE, else a shadow ray now.
+    #[allow(clippy::too_many_arguments)]
+    #[inline]
+    pub fn add_nee(
+        &mut self,
+        scene: &SceneData,
+        m: usize,
+        (x, w): (Vec3, Vec3),
+        c: f32,
+        free: impl Fn(Vec3) -> f32,
+        channel: usize,
+        rng: &mut WalkRng,
+    ) {
+        if m > 0 {
+            let q = nee::proxy(scene, w, free, channel);
+            self.nee.offer(m, (x, w), c, q, rng);
+        } else {
+            self.radiance += c * nee::direct(scene, x, w, free, channel, rng);
+        }
+    }
+}
+
 /// An ordinary PT scattering event at `s.pos` (a real collision).
 pub(crate) fn pt_event(
     scene: &SceneData,
@@ -164,12 +186,9 @@ pub(crate) fn pt_event(
 ) {
     stats.events += 1;
     let albedo = scene.albedo[channel];
-    let m = set.path_nee();
-    if m > 0 {
-        let q = nee::proxy(scene, s.dir, |_| s.free, channel);
-        s.nee.offer(m, (s.pos, s.dir), s.beta * albedo, q, rng);
-    } else if set.nee {
-        s.radiance += s.beta * albedo * nee::direct(scene, s.pos, s.dir, |_| s.free, channel, rng);
+    if set.nee {
+        let (event, c, free) = ((s.pos, s.dir), s.beta * albedo, s.free);
+        s.add_nee(scene, set.path_nee(), event, c, |_| free, channel, rng);
     }
     s.beta *= albedo;
     if !roulette(&mut s.beta, rng) {
@@ -330,7 +349,9 @@ impl Path {
                     }
                 }
                 s.pos = geo.spawn(p, h.normal, s.dir);
-                if *inside && beyond_sliver(scene, s.pos, h.normal) {
+                if *inside
+                    && geo.beyond_sliver(s.pos, h.normal, |o, d, t| short_cast(scene, o, d, t))
+                {
                     // The medium under the entry is thinner than the spawn offset: pass it,
                     // in (as through a slab of no thickness) the direction the path came.
                     *inside = false;
@@ -348,15 +369,7 @@ impl Path {
                 // believes itself inside (seen ~1 in 10⁶ paths near the surface, each then
                 // a runaway firefly). The margin turns collisions within ~1e-7 of the surface
                 // into surface hits: a bias of σ_t·margin ≲ 1e-4 of the paths that get there.
-                let tmax = t + geo.flight_margin();
-                // ST-CVAE's distance grid lists the triangles near each cell by the
-                // surface: a short flight there needs only those (DistanceGrid::local_hit).
-                // PT renders have no grid, as standard volumetric path tracers have none.
-                scene
-                    .grid
-                    .as_ref()
-                    .and_then(|g| g.local_hit(geo, s.pos, s.dir, tmax))
-                    .unwrap_or_else(|| geo.intersect(s.pos, s.dir, tmax))
+                short_cast(scene, s.pos, s.dir, t + geo.flight_margin())
             };
             if let Some(h) = hit {
                 s.free = 0.0;
@@ -388,7 +401,9 @@ impl Path {
                     *left_through = Some(h.prim);
                 }
                 s.pos = geo.spawn(p, h.normal, s.dir);
-                if *inside && beyond_sliver(scene, s.pos, h.normal) {
+                if *inside
+                    && geo.beyond_sliver(s.pos, h.normal, |o, d, t| short_cast(scene, o, d, t))
+                {
                     // Reflected back inside where the medium is thinner than the offset.
                     *inside = false;
                 }

@@ -19,7 +19,7 @@ use scatter_sim::rng::WalkRng;
 
 use super::event_choice::{self, EventChoice, Proxy};
 use super::exact_walk;
-use super::{IntegratorSettings, PathState, PathStats, nee, pt_event, roulette};
+use super::{IntegratorSettings, PathState, PathStats, pt_event, roulette};
 use crate::setup::SceneData;
 
 /// Below this optical free distance at a sphere step's exit the flight that follows needs
@@ -330,7 +330,6 @@ fn complete(
     let r = ball.r;
     let centre = ball.centre;
     if set.nee && !nee.events.is_empty() {
-        let mut sum = 0.0f32;
         let m = set.path_nee();
         for (i, &(ep, ed)) in nee.events.iter().enumerate() {
             let weight = nee.weights.map_or(1.0, |w| w[i]);
@@ -351,15 +350,9 @@ fn complete(
                 let chord = chord_to_sphere(d, wl, free_ball * free_ball);
                 (chord * (1.0 - 1e-4)).min(2.0 * free_ball).max(x_grid)
             };
-            if m > 0 {
-                let q = nee::proxy(scene, w.as_vec3(), x_free, channel);
-                let c = s.beta * nee.scale * weight;
-                s.nee.offer(m, (x, w.as_vec3()), c, q, rng);
-            } else {
-                sum += weight * nee::direct(scene, x, w.as_vec3(), x_free, channel, rng);
-            }
+            let c = s.beta * nee.scale * weight;
+            s.add_nee(scene, m, (x, w.as_vec3()), c, x_free, channel, rng);
         }
-        s.radiance += s.beta * nee.scale * sum;
     }
     s.beta *= survival;
     if !roulette(&mut s.beta, rng) {
