@@ -226,7 +226,7 @@ fn exact_offer(x: vec3<f32>, w: vec3<f32>, q: f32, phi_k: f32, m: u32) {
     }
 }
 
-/// The walk in the unit sphere of optical radius tau (integrator/exact_walk.rs), its m NEE
+/// The walk in the unit sphere of optical radius tau (integrator/walk_lanes.rs), its m NEE
 /// events left in ex_x, ex_w, ex_weight (the first `used`).
 fn exact_walk(tau: f32, g: f32, channel: u32, m: u32, frame: WalkFrame, f_unit: f32) -> ExactWalk {
     var nl = min(params.flags.x, 4u);

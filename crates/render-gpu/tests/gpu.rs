@@ -609,7 +609,7 @@ fn cpu_gpu_agree_stcvae_sphere() {
         false,
         96,
     );
-    // Exact sphere steps (the kernels' exact_walk against sphere_step::exact_step): below
+    // Exact sphere steps (the kernels' exact_walk against sphere_step::ExactStep): below
     // the default threshold with one NEE event each, and every step (min_tau 0, max_tau
     // 49 < exact_tau 50) with two (two reservoirs, merged when they hold one event).
     let exact = IntegratorSettings {

@@ -94,7 +94,7 @@ pub struct WalkEnd {
 /// Simulates one walk, calling `event(k, X_k, W_k, rng)` at each event after the first
 /// (k = 2, 3, …; event 1 is the centre, X = 0, W = +z). The simulator picks its
 /// representative event there. The renderer's exact sphere steps run an f32 copy of this
-/// walk (render-gpu's `integrator::exact_walk`, tested against this one) and weigh every
+/// walk (render-gpu's `integrator::walk_lanes`, tested against this one) and weigh every
 /// event for next-event estimation.
 #[inline]
 pub fn walk_with(

@@ -6,9 +6,9 @@
 //! stratified over a pixel's samples) and its estimate is added, times 3, to that channel.
 
 mod event_choice;
-mod exact_walk;
 pub mod nee;
 pub mod sphere_step;
+mod walk_lanes;
 pub mod wavefront;
 
 use glam::Vec3;
@@ -247,15 +247,15 @@ pub(crate) struct Path {
     /// paths at once.
     pub first_hit: Option<Option<Hit>>,
     iterations: u64,
-    /// The sphere step waiting for its decoder draws, after [`Advance::Step`].
-    pub step: Option<sphere_step::Pending>,
+    /// The sphere step waiting for its decoder draws or its walk, after [`Advance::Step`].
+    pub step: Option<sphere_step::Waiting>,
 }
 
 /// Where [`Path::advance`] stopped.
 pub(crate) enum Advance {
     /// The path has ended with this radiance estimate.
     Done(f32),
-    /// A sphere step waits for its decoder draws (in [`Path::step`]).
+    /// A sphere step waits for its decoder draws or its exact walk (in [`Path::step`]).
     Step,
 }
 

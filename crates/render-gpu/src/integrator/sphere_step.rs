@@ -17,8 +17,8 @@ use glam::{DVec3, Vec3};
 use scatter_sim::frame::{WalkFrame, from_canonical};
 use scatter_sim::rng::WalkRng;
 
-use super::event_choice::{self, EventChoice, Proxy};
-use super::exact_walk;
+use super::event_choice::{self, Proxy};
+use super::walk_lanes::{WalkJob, WalkOutcome, WalkShared};
 use super::{IntegratorSettings, PathState, PathStats, pt_event, roulette};
 use crate::setup::SceneData;
 
@@ -40,7 +40,7 @@ pub(crate) enum Begun {
     Fallback,
     /// A whole sphere step from the exact single-scattering branch (no decoder ran).
     Done,
-    /// A sphere step waiting for its LengthGen draw (written to the caller's slot).
+    /// A sphere step waiting for its LengthGen draw or its walk (in the caller's slot).
     Pending,
 }
 
@@ -59,9 +59,19 @@ pub(crate) struct Pending {
     walk: Option<ModelWalk>,
 }
 
+/// A sphere step waiting in its path for the wavefront: for its decoder draws, or for its
+/// simulated walk. (Unboxed: each path has one slot, which a box would only move to the
+/// heap and back at every step.)
+#[allow(clippy::large_enum_variant)]
+pub(crate) enum Waiting {
+    Model(Pending),
+    Exact(ExactStep),
+}
+
 /// Starts a step at `s.pos`: a PT fallback event, a finished exact single-scattering step,
-/// or a step that needs the decoders, left in `pending` (a slot the caller owns, so the
-/// step's few hundred bytes are not moved along through the return values).
+/// or a step that needs the decoders or a simulated walk, left in `waiting` (a slot the
+/// caller owns, so the step's few hundred bytes are not moved along through the return
+/// values).
 pub(crate) fn begin(
     scene: &SceneData,
     set: &IntegratorSettings,
@@ -69,7 +79,7 @@ pub(crate) fn begin(
     s: &mut PathState,
     stats: &mut PathStats,
     rng: &mut WalkRng,
-    pending: &mut Option<Pending>,
+    waiting: &mut Option<Waiting>,
 ) -> Begun {
     let (Some(model), Some(grid)) = (set.model, scene.grid.as_ref()) else {
         pt_event(scene, set, channel, s, stats, rng);
@@ -105,8 +115,15 @@ pub(crate) fn begin(
     let albedo = scene.albedo[channel] as f64;
     if tau < set.exact_tau {
         stats.exact_steps += 1;
-        exact_step(scene, set, channel, s, rng, (r, free));
-        return Begun::Done;
+        *waiting = Some(Waiting::Exact(ExactStep::new(
+            scene,
+            set,
+            channel,
+            s,
+            rng,
+            (r, free),
+        )));
+        return Begun::Pending;
     }
     let frame = WalkFrame::new(s.dir.as_dvec3(), rng.unit_circle());
     let features = WalkFeatures::new(tau as f64, scene.g as f64, albedo);
@@ -126,7 +143,8 @@ pub(crate) fn begin(
         step.finish(scene, set, channel, s, &[CENTRE_EVENT], rng);
         return Begun::Done;
     }
-    pending.insert(step).draw = model.length_draw(&features, rng);
+    let draw = model.length_draw(&features, rng);
+    *waiting = Some(Waiting::Model(Pending { draw, ..step }));
     Begun::Pending
 }
 
@@ -203,9 +221,11 @@ struct Ball<'a> {
 
 /// A sphere step whose walk is simulated event by event instead of drawn from the models
 /// (below `exact_tau`, where a walk has a few events): inside the surface-free ball a
-/// free flight needs no ray cast, so the walk costs ~30 ns an event, less than the
-/// decoders' draws for a small ball, and its exit is exact — the models' error is
-/// largest relative to the NEE where small balls touch a lit surface.
+/// free flight needs no ray cast, so the walk costs a few ns an event in
+/// [`walk_lanes`]' SIMD lanes, less than the decoders' draws for a small ball, and its
+/// exit is exact — the models' error is largest relative to the NEE where small balls
+/// touch a lit surface. The step waits in its path until the wavefront simulates the
+/// walks of many paths' steps together.
 ///
 /// NEE: the step's term Σ_k φ^k f(X_k, W_k) over all N events is estimated from M events
 /// each chosen with probability p_k = φ^k q_k / Q (Q = Σ_j φ^j q_j, one weighted reservoir
@@ -215,70 +235,120 @@ struct Ball<'a> {
 /// keeps the estimate unbiased; this one picks the events near the ball's lit side, where
 /// almost all of the NEE is, instead of events uniformly along the walk (the models'
 /// Λ(N)-weighted representative event), and leaves f/q ≤ 1 for a delta light.
-fn exact_step(
-    scene: &SceneData,
-    set: &IntegratorSettings,
-    channel: usize,
-    s: &mut PathState,
-    rng: &mut WalkRng,
-    (r, free): (f32, f32),
-) {
-    let albedo = scene.albedo[channel] as f64;
-    let tau32 = scene.sigma_t[channel] * r;
-    // The simulated walk is already uniform in its azimuth about +z, so any frame about
-    // the arriving direction will do.
-    let frame = WalkFrame::new(s.dir.as_dvec3(), (1.0, 0.0));
-    let ball = Ball {
-        centre: s.pos.as_dvec3(),
-        frame: &frame,
-        r,
-        free,
-    };
+pub(crate) struct ExactStep {
+    centre: DVec3,
+    frame: WalkFrame,
+    r: f32,
+    free: f32,
+    pub job: WalkJob,
+}
+
+/// What all exact steps' walks of a render share (see [`WalkShared`]).
+pub(crate) fn exact_shared(scene: &SceneData, set: &IntegratorSettings) -> WalkShared {
     let m = if set.nee && !scene.lights.is_empty() {
         (set.exact_nee_samples as usize).clamp(1, MAX_EXACT_EVENTS)
     } else {
         0
     };
-    // The lights in the walk's frame, with their irradiance in this channel (none when no
-    // event is chosen, which spares their transforms).
-    let lights = scene.lights.iter().take(if m > 0 { usize::MAX } else { 0 });
-    let proxy = Proxy::new(
-        lights.map(|l| {
-            let wl = frame.to_canonical(l.to_light.as_dvec3()).as_vec3();
-            (wl, l.irradiance[channel])
-        }),
-        tau32,
-        (free / r).powi(2),
-        scene.g,
-    );
-    let mut choice = EventChoice::new(m);
-    let mut phi_k = albedo;
-    if m > 0 {
-        let (x, w) = CENTRE_EVENT;
-        choice.offer(x.as_vec3(), w.as_vec3(), phi_k, &proxy, rng);
+    WalkShared {
+        g: scene.g,
+        m,
+        n_lights: scene.lights.len().min(event_choice::MAX_PROXY_LIGHTS),
     }
-    let end = exact_walk::walk(tau32, scene.g, rng, |x, w, rng| {
-        if m > 0 {
-            phi_k *= albedo;
-            choice.offer(x, w, phi_k, &proxy, rng);
+}
+
+impl ExactStep {
+    fn new(
+        scene: &SceneData,
+        set: &IntegratorSettings,
+        channel: usize,
+        s: &PathState,
+        rng: &mut WalkRng,
+        (r, free): (f32, f32),
+    ) -> Self {
+        let tau = scene.sigma_t[channel] * r;
+        // The simulated walk is already uniform in its azimuth about +z, so any frame
+        // about the arriving direction will do.
+        let frame = WalkFrame::new(s.dir.as_dvec3(), (1.0, 0.0));
+        let m = exact_shared(scene, set).m;
+        // The lights in the walk's frame, with their irradiance in this channel (none
+        // when no event is chosen, which spares their transforms).
+        let lights = scene.lights.iter().take(if m > 0 { usize::MAX } else { 0 });
+        let proxy = Proxy::new(
+            lights.map(|l| {
+                let wl = frame.to_canonical(l.to_light.as_dvec3()).as_vec3();
+                (wl, l.irradiance[channel])
+            }),
+            tau,
+            (free / r).powi(2),
+            scene.g,
+        );
+        Self {
+            centre: s.pos.as_dvec3(),
+            frame,
+            r,
+            free,
+            job: WalkJob {
+                tau,
+                albedo: scene.albedo[channel],
+                seed: rng.next_u64(),
+                proxy,
+            },
         }
-    });
-    let survival = albedo.powi(end.n.min(i32::MAX as u32) as i32);
-    let mut events = [CENTRE_EVENT; MAX_EXACT_EVENTS];
-    let mut weights = [0.0f32; MAX_EXACT_EVENTS];
-    let used = choice.finish(&proxy, rng, &mut events, &mut weights);
-    let nee = Nee {
-        scale: 1.0 / m.max(1) as f32,
-        events: &events[..used],
-        weights: Some(&weights[..used]),
-    };
-    let walked = Walked {
-        ball,
-        nee,
-        survival: survival as f32,
-        exit: (end.exit_pos.as_dvec3(), end.exit_dir.as_dvec3()),
-    };
-    complete(scene, set, channel, s, walked, rng);
+    }
+
+    /// Completes the step from its simulated walk.
+    pub fn finish(
+        &self,
+        scene: &SceneData,
+        set: &IntegratorSettings,
+        channel: usize,
+        s: &mut PathState,
+        walk: &WalkOutcome,
+        rng: &mut WalkRng,
+    ) {
+        let m = exact_shared(scene, set).m;
+        let albedo = scene.albedo[channel] as f64;
+        let survival = albedo.powi(walk.n.min(i32::MAX as u32) as i32);
+        // Each reservoir's estimate of the walk's NEE is f(X_K)·Q/q_K; two holding the
+        // same event share one entry with their weights summed (the estimate is linear in
+        // each event's NEE, so one shadow ray serves both).
+        let mut events = [CENTRE_EVENT; MAX_EXACT_EVENTS];
+        let mut weights = [0.0f32; MAX_EXACT_EVENTS];
+        let mut used = 0;
+        for &(x, w, q) in &walk.slots[..m] {
+            if !(q > 0.0) {
+                continue;
+            }
+            let weight = walk.total / q;
+            let (x, w) = (x.as_dvec3(), w.as_dvec3());
+            match events[..used].iter().position(|e| *e == (x, w)) {
+                Some(i) => weights[i] += weight,
+                None => {
+                    (events[used], weights[used]) = ((x, w), weight);
+                    used += 1;
+                }
+            }
+        }
+        let ball = Ball {
+            centre: self.centre,
+            frame: &self.frame,
+            r: self.r,
+            free: self.free,
+        };
+        let nee = Nee {
+            scale: 1.0 / m.max(1) as f32,
+            events: &events[..used],
+            weights: Some(&weights[..used]),
+        };
+        let walked = Walked {
+            ball,
+            nee,
+            survival: survival as f32,
+            exit: (walk.exit_pos.as_dvec3(), walk.exit_dir.as_dvec3()),
+        };
+        complete(scene, set, channel, s, walked, rng);
+    }
 }
 
 /// The distance from `x` (inside the sphere of radius² `r2` about the origin) along unit

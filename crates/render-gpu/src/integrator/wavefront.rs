@@ -15,7 +15,8 @@ use cvae::decoder::{Decoder, Draw, MAX_OUT, Output};
 use glam::{DVec3, Vec3};
 use scatter_sim::rng::WalkRng;
 
-use super::sphere_step::Pending;
+use super::sphere_step::{Pending, Waiting, exact_shared};
+use super::walk_lanes::{self, WalkJob, WalkOutcome};
 use super::{Advance, IntegratorSettings, Path, PathStats};
 use crate::geometry::Hit;
 use crate::setup::SceneData;
@@ -54,6 +55,11 @@ struct Batch {
     /// Where each waiting step's events start in `events`.
     event_start: Vec<usize>,
     event_results: Vec<(DVec3, DVec3)>,
+    /// The waiting slots whose step is exact, and those whose step needs the decoders.
+    exact: Vec<usize>,
+    model: Vec<usize>,
+    walks: Vec<WalkJob>,
+    outcomes: Vec<WalkOutcome>,
 }
 
 /// Traces every sample `next` yields and reports each result to `done(tag, channel,
@@ -114,9 +120,65 @@ pub(crate) fn trace_alone(scene: &SceneData, set: &IntegratorSettings, path: Pat
     }
 }
 
+/// Finishes the sphere steps the slots `waiting` hold: the exact ones' walks simulated
+/// together, and the decoder stages of the others run in batches.
+fn resolve_steps(
+    scene: &SceneData,
+    set: &IntegratorSettings,
+    slots: &mut [Option<Slot>],
+    waiting: &[usize],
+    b: &mut Batch,
+) {
+    let (mut exact, mut model) = (std::mem::take(&mut b.exact), std::mem::take(&mut b.model));
+    exact.clear();
+    model.clear();
+    for &i in waiting {
+        let path = &slots[i].as_ref().expect("a waiting slot").path;
+        if let Some(Waiting::Exact(_)) = path.step {
+            exact.push(i);
+        } else {
+            model.push(i);
+        }
+    }
+    if !exact.is_empty() {
+        resolve_exact(scene, set, slots, &exact, b);
+    }
+    if !model.is_empty() {
+        resolve_model(scene, set, slots, &model, b);
+    }
+    (b.exact, b.model) = (exact, model);
+}
+
+/// Simulates the walks of the exact steps the slots `waiting` hold and finishes the steps.
+fn resolve_exact(
+    scene: &SceneData,
+    set: &IntegratorSettings,
+    slots: &mut [Option<Slot>],
+    waiting: &[usize],
+    b: &mut Batch,
+) {
+    b.walks.clear();
+    b.walks.extend(waiting.iter().map(|&i| {
+        let path = &slots[i].as_ref().expect("a waiting slot").path;
+        match &path.step {
+            Some(Waiting::Exact(step)) => step.job,
+            _ => unreachable!("an exact step waits in slot {i}"),
+        }
+    }));
+    b.outcomes.resize(b.walks.len(), WalkOutcome::default());
+    walk_lanes::simulate(&b.walks, &exact_shared(scene, set), &mut b.outcomes);
+    for (&i, walk) in waiting.iter().zip(&b.outcomes) {
+        let path = &mut slots[i].as_mut().expect("a waiting slot").path;
+        let Some(Waiting::Exact(step)) = path.step.take() else {
+            unreachable!("an exact step waits in slot {i}")
+        };
+        step.finish(scene, set, path.channel, &mut path.s, walk, &mut path.rng);
+    }
+}
+
 /// Runs the decoder stages of the steps the slots `waiting` hold (all at LengthGen) and
 /// finishes the steps.
-fn resolve_steps(
+fn resolve_model(
     scene: &SceneData,
     set: &IntegratorSettings,
     slots: &mut [Option<Slot>],
@@ -155,7 +217,9 @@ fn resolve_steps(
     for (k, &i) in waiting.iter().enumerate() {
         let path = &mut slots[i].as_mut().expect("a waiting slot").path;
         let events = &b.event_results[b.event_start[k]..b.event_start[k + 1]];
-        let step = path.step.take().expect("a waiting step");
+        let Some(Waiting::Model(step)) = path.step.take() else {
+            unreachable!("a model step waits in slot {i}")
+        };
         step.finish(scene, set, path.channel, &mut path.s, events, &mut path.rng);
     }
 }
@@ -172,5 +236,8 @@ fn stage_outputs(decoder: &Decoder, slots: &mut [Option<Slot>], waiting: &[usize
 /// The random stream and the waiting step of slot `i`.
 fn pending(slots: &mut [Option<Slot>], i: usize) -> (&mut WalkRng, &mut Pending) {
     let path = &mut slots[i].as_mut().expect("a waiting slot").path;
-    (&mut path.rng, path.step.as_mut().expect("a waiting step"))
+    match &mut path.step {
+        Some(Waiting::Model(step)) => (&mut path.rng, step),
+        _ => unreachable!("a model step waits in slot {i}"),
+    }
 }
