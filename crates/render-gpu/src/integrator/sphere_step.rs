@@ -22,13 +22,15 @@ use super::walk_lanes::{WalkJob, WalkOutcome, WalkShared};
 use super::{IntegratorSettings, PathState, PathStats, pt_event, roulette};
 use crate::setup::SceneData;
 
-/// Below this optical free distance at a sphere step's exit the flight that follows needs
-/// a ray cast more than e^(−3) = 5 % of the time. Where a grid cell is many free paths
-/// wide (σ_t·near_surface > 4·this), the grid's Lipschitz loss near the surface hides
-/// many free paths and the exact distance (the cell's candidate triangles) spares most of
-/// those casts; in thinner media it costs about what it saves. Measured on the bunny
-/// ladder (σ_t·near_surface ≈ 5, 10, 21, 42): k = 1 and 2 within noise to −3 % with the
-/// refinement, k = 4 +2 %, k = 8 +5–8 % paths/s.
+/// The WGSL kernels' refinement of a sphere step's exit (`stcvae.wgsl`): below this
+/// optical free distance at the exit, the flight that follows needs a ray cast more than
+/// e^(−3) = 5 % of the time. Where a grid cell is many free paths wide (σ_t·near_surface
+/// > 4·this), the grid's Lipschitz loss near the surface hides many free paths and the
+/// exact distance (the cell's candidate triangles) spares most of those casts through
+/// the BVH. The CPU integrator does not refine: its short casts go against the same
+/// candidate lists (`DistanceGrid::local_hit`), which made refining cost about what it
+/// spared (bunny ladder, SIMD exact walks: k = 2 and 4 +4 % paths/s without it, k = 8
+/// within noise).
 pub(crate) const EXIT_REFINE_TAU: f32 = 3.0;
 
 /// The sphere radius is shrunk by this factor so the exit point stays strictly inside.
@@ -437,11 +439,4 @@ fn complete(
     // which leaves it almost no known free distance; the grid at the exit often knows
     // more, and a flight shorter than that needs no ray cast.
     s.free = (ball.free - r).max(grid.radius(s.pos));
-    let sigma = scene.sigma_t[channel];
-    if sigma * s.free < EXIT_REFINE_TAU
-        && sigma * grid.near_surface > 4.0 * EXIT_REFINE_TAU
-        && let Some(d) = grid.exact_distance(&scene.geo, s.pos)
-    {
-        s.free = s.free.max(d * (1.0 - 1e-5) - scene.geo.eps);
-    }
 }
