@@ -25,7 +25,7 @@ use crate::setup::SceneData;
 /// The WGSL kernels' refinement of a sphere step's exit (`stcvae.wgsl`): below this
 /// optical free distance at the exit, the flight that follows needs a ray cast more than
 /// e^(−3) = 5 % of the time. Where a grid cell is many free paths wide (σ_t·near_surface
-/// > 4·this), the grid's Lipschitz loss near the surface hides many free paths and the
+/// above 4·this), the grid's Lipschitz loss near the surface hides many free paths and the
 /// exact distance (the cell's candidate triangles) spares most of those casts through
 /// the BVH. The CPU integrator does not refine: its short casts go against the same
 /// candidate lists (`DistanceGrid::local_hit`), which made refining cost about what it
