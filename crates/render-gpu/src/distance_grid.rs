@@ -181,6 +181,21 @@ impl DistanceGrid {
         }
     }
 
+    /// Asks the CPU to bring `p`'s cell into the cache, for a [`Self::radius`] a while
+    /// later: the grid is larger than the caches, and its lookups at sphere-step exits
+    /// were cache misses.
+    #[inline]
+    pub fn prefetch(&self, p: Vec3) {
+        #[cfg(target_arch = "x86_64")]
+        if let Some((i, _)) = self.cell_of(p) {
+            use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+            // SAFETY: a prefetch never faults, and the address is inside `cells` anyway.
+            unsafe { _mm_prefetch::<_MM_HINT_T0>(self.cells.as_ptr().add(i).cast()) };
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        let _ = p;
+    }
+
     /// An upper bound on the true distance at a point whose grid radius is `radius`:
     /// d(p) ≤ d(c) + |p − c| = radius + 2|p − c| + margin ≤ radius + √3·cell + margin
     /// (half of `near_surface`). The 1 % slack covers the rounding margin (eps/2, below

@@ -146,6 +146,9 @@ pub(crate) struct PathState {
     /// knows it from its free spheres; a free flight shorter than it cannot reach the
     /// surface, so it needs no ray cast. PT never sets it.
     pub free: f32,
+    /// `free` may grow by the grid's radius at `pos`, which is not looked up yet (it was
+    /// prefetched; see `sphere_step::complete`).
+    pub grid_pending: bool,
     /// The path's NEE events so far, with path-level NEE.
     pub nee: nee::PathNee,
 }
@@ -270,6 +273,7 @@ impl Path {
                 scattered: false,
                 alive: true,
                 free: 0.0,
+                grid_pending: false,
                 nee: nee::PathNee::new(),
             },
             channel,
@@ -358,6 +362,12 @@ impl Path {
                     s.dir = incoming;
                 }
                 continue;
+            }
+            if s.grid_pending {
+                s.grid_pending = false;
+                if let Some(grid) = &scene.grid {
+                    s.free = s.free.max(grid.radius(s.pos));
+                }
             }
             let t = -(1.0 - uniform(rng)).ln() / sigma;
             let hit = if t < s.free {

@@ -437,6 +437,10 @@ fn complete(
     s.scattered = true;
     // The exit lies on the sphere of radius r inside the free ball of radius `free`,
     // which leaves it almost no known free distance; the grid at the exit often knows
-    // more, and a flight shorter than that needs no ray cast.
-    s.free = (ball.free - r).max(grid.radius(s.pos));
+    // more, and a flight shorter than that needs no ray cast. The wavefront completes
+    // many paths' steps before it moves any of them on, so the cell is fetched now and
+    // read when the path flies on.
+    s.free = ball.free - r;
+    grid.prefetch(s.pos);
+    s.grid_pending = true;
 }
