@@ -283,12 +283,16 @@ fn default_grid() -> u32 {
 /// move the image's expectation.
 pub const DEFAULT_MIN_TAU: f64 = 1.0;
 
-/// The default exact-walk threshold, chosen by measurement (docs/BENCHMARKS.md, fourteenth
-/// session), the same in the GPU kernels so that both devices run one estimator: on the
-/// bunny at k = 8 (16,384 spp) 8 took the bias RMSE against PT from 0.0112 to 0.0077 at the
-/// same speed; 4 left more of the models' error (0.0101), 16 and 24 were slower (−10 %,
-/// −18 %) and no more accurate.
-pub const DEFAULT_EXACT_TAU: f64 = 8.0;
+/// The default exact-walk threshold, chosen by measurement (docs/BENCHMARKS.md), the same
+/// in the GPU kernels so that both devices run one estimator. The fourteenth session chose
+/// 8 (bunny, k = 8, 16,384 spp: bias RMSE against PT 0.0077 against 0.0112 with the
+/// models alone at 4; 16 and 24 were then 10–18 % slower). Since the exact walks run in
+/// SIMD lanes (twenty-second session) a walk of τ ≈ 20 (~25 events) costs less than the
+/// decoders' three draws: on the CPU ladder at 1,024 spp, 20 against 8 renders k = 1, 2,
+/// 4, 8 6–11 % faster with the same or lower variance, and at k = 2 and 8,192 spp its bias
+/// RMSE is 0 (95 % bound 0.0100; 8: 0.0038, bound 0.0149). On lavapipe the kernels' scalar
+/// walks make 20 ~3 % slower than 8.
+pub const DEFAULT_EXACT_TAU: f64 = 20.0;
 /// Largest exact-walk threshold accepted: a walk in a ball of optical radius τ has
 /// ~(1 − g)τ²/2 events, and beyond this the models are far cheaper.
 pub const MAX_EXACT_TAU: f64 = 50.0;

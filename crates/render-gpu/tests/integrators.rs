@@ -50,9 +50,11 @@ fn settings<'a>(
         model: m,
         min_tau: 1.0,
         max_tau: m.map_or(300.0, |m| m.training.tau_range[1] as f32),
-        // The CPU renderer's default: steps below it simulate their walks, larger ones
-        // use the models (white_furnace_stcvae also runs the models alone).
-        exact_tau: render_gpu::scene::DEFAULT_EXACT_TAU as f32,
+        // Steps below it simulate their walks, larger ones use the models (the renderer's
+        // default until the walks ran in SIMD lanes; white_furnace_stcvae also runs the
+        // models alone). Below today's default (20): on the test sphere (σ_t ≤ 40,
+        // radius 0.5, so τ ≤ 20) every step would be exact and the models untested.
+        exact_tau: 8.0,
         nee_samples: 2,
         exact_nee_samples: 1,
         path_nee_rays: 1,
