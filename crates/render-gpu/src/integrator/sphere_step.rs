@@ -222,9 +222,9 @@ struct Ball<'a> {
 }
 
 /// A sphere step whose walk is simulated event by event instead of drawn from the models
-/// (below `exact_tau`, where a walk has a few events): inside the surface-free ball a
+/// (below `exact_tau`, where a walk has at most a few dozen events): inside the free ball a
 /// free flight needs no ray cast, so the walk costs a few ns an event in
-/// [`walk_lanes`]' SIMD lanes, less than the decoders' draws for a small ball, and its
+/// [`super::walk_lanes`]' SIMD lanes, less than the decoders' draws for a small ball, and its
 /// exit is exact — the models' error is largest relative to the NEE where small balls
 /// touch a lit surface. The step waits in its path until the wavefront simulates the
 /// walks of many paths' steps together.

@@ -2,10 +2,11 @@
 //! each lane simulates one walk, and a lane whose walk has left its sphere takes the next
 //! waiting walk, so the lanes stay busy until the last few walks.
 //!
-//! One walk is a serial chain (each direction depends on the last) of ~5 events, whose
-//! latencies — a division in the basis, a logarithm, the rejection loop of the azimuth and
-//! its mispredicted branches — left a core mostly idle: at k = 8 on the bunny the walks
-//! and their NEE event choice were a quarter of ST-CVAE's time. Here every operation of
+//! One walk is a serial chain (each direction depends on the last) of a few to a few
+//! dozen events, whose latencies — a division in the basis, a logarithm, the rejection
+//! loop of the azimuth and its mispredicted branches — left a core mostly idle: at k = 8 on
+//! the bunny the walks (then ~5 events each) and their NEE event choice were a quarter of
+//! ST-CVAE's time, done one walk at a time. Here every operation of
 //! an event is written branch-free over the lanes (the azimuth from a polynomial sine
 //! instead of rejection, the logarithm from a polynomial), so that the compiler turns
 //! each into vector instructions, and the lanes' chains hide each other's latencies.
