@@ -48,11 +48,7 @@ pub(crate) enum Begun {
 
 /// A sphere step between its decoder draws.
 pub(crate) struct Pending {
-    centre: DVec3,
-    frame: WalkFrame,
-    r: f32,
-    /// The free radius around the centre (≥ r).
-    free: f32,
+    ball: Ball,
     features: WalkFeatures,
     albedo: f64,
     /// The draw the step waits for: LengthGen's, then PathGen's.
@@ -131,10 +127,12 @@ pub(crate) fn begin(
     let features = WalkFeatures::new(tau as f64, scene.g as f64, albedo);
     let single = model.single_walk(features, tau as f64, scene.g as f64, albedo, rng);
     let step = Pending {
-        centre: s.pos.as_dvec3(),
-        frame,
-        r,
-        free,
+        ball: Ball {
+            centre: s.pos.as_dvec3(),
+            frame,
+            r,
+            free,
+        },
         features,
         albedo,
         draw: Draw::default(),
@@ -189,12 +187,6 @@ impl Pending {
         rng: &mut WalkRng,
     ) {
         let walk = self.walk.as_ref().expect("finish after the walk is drawn");
-        let ball = Ball {
-            centre: self.centre,
-            frame: &self.frame,
-            r: self.r,
-            free: self.free,
-        };
         // Each representative event stands for all N events with weight Λ(N).
         let nee = Nee {
             scale: walk.lambda as f32 / events.len().max(1) as f32,
@@ -202,7 +194,7 @@ impl Pending {
             weights: None,
         };
         let walked = Walked {
-            ball,
+            ball: &self.ball,
             nee,
             survival: walk.survival as f32,
             exit: from_canonical(walk.exit),
@@ -214,10 +206,11 @@ impl Pending {
 /// Where a sphere step happens: the ball of radius `r` around `centre` that the walk
 /// fills (its frame turns the walk's +z arrival into the path's direction), inside the
 /// surface-free ball of radius `free`.
-struct Ball<'a> {
+struct Ball {
     centre: DVec3,
-    frame: &'a WalkFrame,
+    frame: WalkFrame,
     r: f32,
+    /// The free radius around the centre (≥ r).
     free: f32,
 }
 
@@ -238,10 +231,7 @@ struct Ball<'a> {
 /// almost all of the NEE is, instead of events uniformly along the walk (the models'
 /// Λ(N)-weighted representative event), and leaves f/q ≤ 1 for a delta light.
 pub(crate) struct ExactStep {
-    centre: DVec3,
-    frame: WalkFrame,
-    r: f32,
-    free: f32,
+    ball: Ball,
     pub job: WalkJob,
 }
 
@@ -286,10 +276,12 @@ impl ExactStep {
             scene.g,
         );
         Self {
-            centre: s.pos.as_dvec3(),
-            frame,
-            r,
-            free,
+            ball: Ball {
+                centre: s.pos.as_dvec3(),
+                frame,
+                r,
+                free,
+            },
             job: WalkJob {
                 tau,
                 albedo: scene.albedo[channel],
@@ -332,19 +324,13 @@ impl ExactStep {
                 }
             }
         }
-        let ball = Ball {
-            centre: self.centre,
-            frame: &self.frame,
-            r: self.r,
-            free: self.free,
-        };
         let nee = Nee {
             scale: 1.0 / m.max(1) as f32,
             events: &events[..used],
             weights: Some(&weights[..used]),
         };
         let walked = Walked {
-            ball,
+            ball: &self.ball,
             nee,
             survival: survival as f32,
             exit: (walk.exit_pos.as_dvec3(), walk.exit_dir.as_dvec3()),
@@ -376,7 +362,7 @@ struct Nee<'a> {
 /// survival weight φ^N and its exit (x, ω) (in the walk's frame, arrival along +z, unit
 /// sphere; no events with NEE off).
 struct Walked<'a> {
-    ball: Ball<'a>,
+    ball: &'a Ball,
     nee: Nee<'a>,
     survival: f32,
     exit: (DVec3, DVec3),

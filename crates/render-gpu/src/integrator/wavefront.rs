@@ -1,15 +1,18 @@
-//! Many paths traced together, so that the decoders run in batches.
+//! Many paths traced together, so that the decoders and the exact steps' walks run in
+//! batches.
 //!
 //! One path's sphere step evaluates three small decoders in a row (LengthGen, PathGen,
 //! EventGen), each a chain of short dependent dot products that leaves the CPU's vector
-//! units mostly idle. Here a thread keeps [`SLOTS`] paths in flight: each is followed until
-//! its next sphere step needs the decoders (or until it ends, when the next camera sample
-//! takes its slot), then every waiting step's LengthGen draw is evaluated in one batch
-//! with the draws in SIMD lanes ([`cvae::decoder::Decoder::outputs`]), then their PathGen
-//! draws, then their EventGen draws, and the steps are finished. Each path keeps its own
-//! random stream and draws from it in the same order as when traced alone, so the result
-//! does not depend on which paths share a batch (only f32 rounding of the decoders'
-//! sums does).
+//! units mostly idle; an exact step's walk is a serial chain too. Here a thread keeps
+//! [`SLOTS`] paths in flight: each is followed until its next sphere step needs the
+//! decoders or a simulated walk (or until it ends, when the next camera sample takes its
+//! slot). Then the waiting walks are simulated together in SIMD lanes
+//! ([`walk_lanes::simulate`]), every waiting model step's LengthGen draw is evaluated in
+//! one batch with the draws in SIMD lanes ([`cvae::decoder::Decoder::outputs`]), then
+//! their PathGen draws, then their EventGen draws, and the steps are finished. Each path
+//! keeps its own random stream and draws from it in the same order as when traced alone
+//! (a walk from its own stream, seeded from the path's), so the result does not depend on
+//! which paths share a batch (only f32 rounding of the decoders' sums does).
 
 use cvae::decoder::{Decoder, Draw, MAX_OUT, Output};
 use glam::{DVec3, Vec3};
