@@ -10,7 +10,7 @@ use crate::rng::WalkRng;
 
 /// Below this |g| the sampling formula loses precision to cancellation; HG is then
 /// isotropic to within 1e-8 relative, so sample it as isotropic.
-pub const G_ISOTROPIC: f64 = 1e-8;
+const G_ISOTROPIC: f64 = 1e-8;
 
 /// HG density per steradian: ρ_g(cos) = (1 − g²) / (4π (1 + g² − 2g·cos)^{3/2}).
 #[inline]

@@ -93,6 +93,8 @@ pub(crate) fn simulate(jobs: &[WalkJob], shared: &WalkShared, out: &mut [WalkOut
         if std::arch::is_x86_feature_detected!("avx512f")
             && std::arch::is_x86_feature_detected!("avx512dq")
             && std::arch::is_x86_feature_detected!("avx512vl")
+            && std::arch::is_x86_feature_detected!("avx2")
+            && std::arch::is_x86_feature_detected!("fma")
         {
             // SAFETY: the CPU supports these features (checked just above).
             unsafe { simulate_avx512(jobs, shared, out) };
@@ -384,21 +386,6 @@ fn cos_sin_turn(v: f32) -> (f32, f32) {
     if quarter & 2 != 0 { (-c, -s) } else { (c, s) }
 }
 
-/// HG's cos θ given ξ ∈ [0, 1), in f64: the inverse CDF cancels for small |g| (see
-/// `scatter_sim::phase::hg_sample_cos`, the same formula).
-#[inline(always)]
-fn hg_cos(g: f64, xi: f32) -> f32 {
-    let xi = xi as f64;
-    let iso = 2.0 * xi - 1.0;
-    let s = (1.0 - g * g) / (1.0 - g + 2.0 * g * xi);
-    let c = ((1.0 + g * g - s * s) / (2.0 * g)).clamp(-1.0, 1.0);
-    (if g.abs() < scatter_sim::phase::G_ISOTROPIC {
-        iso
-    } else {
-        c
-    }) as f32
-}
-
 /// One event of every lane's walk: a deflection and a flight. A lane whose flight leaves
 /// its sphere is marked in the result, with its exit point in `pos` and its direction in
 /// `dir`; the others move to their next event, which is offered to their reservoirs.
@@ -419,7 +406,8 @@ fn event(st: &mut Lanes, g: f64, hg: &Hg, n_lights: usize, m: usize) -> [bool; L
         let xi = (b1[i] >> 40) as i32 as f32 * INV_2_24;
         let u = (((b1[i] as u32) >> 1) as i32 as f32 + 1.0) * INV_2_31;
         let v = (b2[i] >> 40) as i32 as f32 * INV_2_24;
-        cos_theta[i] = hg_cos(g, xi);
+        // In f64: the inverse CDF cancels for small |g|.
+        cos_theta[i] = scatter_sim::phase::hg_sample_cos(g, xi as f64) as f32;
         (cos_psi[i], sin_psi[i]) = cos_sin_turn(v);
         flight[i] = -ln(u) * st.inv_tau[i];
     }
