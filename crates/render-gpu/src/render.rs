@@ -48,7 +48,12 @@ pub struct RenderOutput {
     pub image: RgbImage,
     /// Samples per pixel actually rendered (fewer than asked if the budget ran out).
     pub spp: u32,
+    /// Rendering time; excludes `compile_seconds`.
     pub seconds: f64,
+    /// Time the GPU driver took to compile the kernel before the clock of `seconds` started
+    /// (0 on the CPU). llvmpipe compiles at the first dispatch: 2–11 s for ST-CVAE on a cold
+    /// shader cache, which would otherwise count as rendering.
+    pub compile_seconds: f64,
     pub stats: PathStats,
     /// Per pixel, the mean number of PT scattering events plus sphere steps per path —
     /// where the work goes (paper Fig. 8/9). The CPU path fills it; the GPU leaves it empty.
@@ -255,6 +260,7 @@ pub fn render(
         image,
         spp,
         seconds: start.elapsed().as_secs_f64(),
+        compile_seconds: 0.0,
         stats,
         work: work
             .iter()

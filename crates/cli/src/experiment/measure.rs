@@ -478,6 +478,7 @@ mod tests {
             image,
             spp: 1,
             seconds: 1.0,
+            compile_seconds: 0.0,
             stats: PathStats::default(),
             work: Vec::new(),
         };

@@ -76,6 +76,28 @@ fn tile_stride(n: u64) -> u64 {
     p
 }
 
+/// Has the driver compile `pipeline` now, outside the render's clock, and returns how long
+/// that took. llvmpipe (lavapipe) compiles a pipeline at its first dispatch, not when it is
+/// created: on a cold shader cache 2.4 s (Mesa 22) to 10.7 s (Mesa 25) for the default
+/// ST-CVAE kernel, which the first chunk's time, the paths/s and a `--time-budget` would
+/// otherwise count. The dispatch is empty: with a zero image height no workgroup has a tile
+/// (`render_main` returns at once), so no buffer is touched.
+fn compile(
+    ctx: &GpuContext,
+    res: &Resources,
+    pipeline: &wgpu::ComputePipeline,
+    params: &Params,
+) -> Result<f64, RenderError> {
+    let t0 = Instant::now();
+    let mut empty = *params;
+    empty.image[1] = 0;
+    ctx.queue
+        .write_buffer(&res.params, 0, bytemuck::bytes_of(&empty));
+    res.dispatch(ctx, pipeline, (1, 1));
+    wait(ctx)?;
+    Ok(t0.elapsed().as_secs_f64())
+}
+
 /// Renders on the GPU with the estimators of the CPU integrators.
 pub fn render_gpu(
     ctx: &GpuContext,
@@ -164,6 +186,7 @@ pub fn render_gpu(
     let snapshot =
         (ctx.adapter.software && budget > 1).then(|| res.snapshot_buffer(ctx, accum_bytes));
     params.consts2[3] = tile_stride(groups) as f32;
+    let compile_seconds = compile(ctx, &res, &pipeline, &params)?;
     let start = Instant::now();
     let mut stats = PathStats::default();
     let mut s0 = 0u32;
@@ -281,6 +304,7 @@ pub fn render_gpu(
         image,
         spp: s0,
         seconds: start.elapsed().as_secs_f64(),
+        compile_seconds,
         stats,
         work: Vec::new(),
     })
