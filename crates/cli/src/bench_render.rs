@@ -245,7 +245,7 @@ fn render_pair(
     let cancel = AtomicBool::new(false);
     let half = half_spp(a.spp);
     let mut outs = Vec::new();
-    if matches!(engine, Engine::Gpu(_)) {
+    if engine.is_gpu() {
         // Warm-up: the first dispatch compiles the kernel; keep it out of the timing.
         let tiny = RenderOptions {
             spp: 1,

@@ -1,5 +1,6 @@
 //! `--device auto|gpu|cpu`: where a render runs, chosen once and said once.
 
+use std::cell::Cell;
 use std::sync::atomic::AtomicBool;
 
 use anyhow::Result;
@@ -21,47 +22,63 @@ pub enum DeviceArg {
     Cpu,
 }
 
-pub enum Engine {
-    Cpu,
-    Gpu(Box<GpuContext>),
+/// Where renders run. A GPU chosen by `auto` gives way to the CPU, for good, when a scene is
+/// beyond it ([`RenderError::GpuLimit`]); one chosen with `--device gpu` reports that as
+/// the error.
+pub struct Engine {
+    gpu: Option<Box<GpuContext>>,
+    auto: bool,
+    fell_back: Cell<bool>,
 }
 
 impl Engine {
     /// Opens the device and prints one line saying which it is.
     pub fn open(arg: DeviceArg) -> Result<Self> {
-        let e = match arg {
-            DeviceArg::Cpu => Engine::Cpu,
-            DeviceArg::Gpu => Engine::Gpu(Box::new(GpuContext::new(AdapterChoice::Any)?)),
+        let gpu = match arg {
+            DeviceArg::Cpu => None,
+            DeviceArg::Gpu => Some(Box::new(GpuContext::new(AdapterChoice::Any)?)),
             DeviceArg::Auto => match GpuContext::new(AdapterChoice::Hardware) {
-                Ok(c) => Engine::Gpu(Box::new(c)),
-                Err(RenderError::NoAdapter(_)) => {
+                Ok(c) => Some(Box::new(c)),
+                Err(RenderError::NoAdapter(why)) => {
                     eprintln!(
-                        "no hardware GPU adapter: rendering on the CPU ({} threads); \
-                         --device gpu accepts a software adapter",
+                        "{why}: rendering on the CPU ({} threads)",
                         rayon::current_num_threads()
                     );
-                    Engine::Cpu
+                    None
                 }
                 Err(e) => {
                     eprintln!(
                         "the GPU could not be used ({e}): rendering on the CPU ({} threads)",
                         rayon::current_num_threads()
                     );
-                    Engine::Cpu
+                    None
                 }
             },
         };
-        if let Engine::Gpu(c) = &e {
+        if let Some(c) = &gpu {
             eprintln!("GPU: {}", c.adapter);
         }
-        Ok(e)
+        Ok(Self {
+            gpu,
+            auto: arg == DeviceArg::Auto,
+            fell_back: Cell::new(false),
+        })
+    }
+
+    fn active_gpu(&self) -> Option<&GpuContext> {
+        self.gpu.as_deref().filter(|_| !self.fell_back.get())
+    }
+
+    /// Whether renders now run on the GPU.
+    pub fn is_gpu(&self) -> bool {
+        self.active_gpu().is_some()
     }
 
     /// A short name for reports: "cpu" or the adapter.
     pub fn describe(&self) -> String {
-        match self {
-            Engine::Cpu => format!("cpu ({} threads)", rayon::current_num_threads()),
-            Engine::Gpu(c) => format!("gpu: {}", c.adapter),
+        match self.active_gpu() {
+            None => format!("cpu ({} threads)", rayon::current_num_threads()),
+            Some(c) => format!("gpu: {}", c.adapter),
         }
     }
 
@@ -73,9 +90,19 @@ impl Engine {
         progress: &(dyn Fn(u64, u64) + Sync),
         cancel: &AtomicBool,
     ) -> Result<RenderOutput> {
-        Ok(match self {
-            Engine::Cpu => render(scene, set, opts, progress, cancel),
-            Engine::Gpu(c) => render_gpu(c, scene, set, opts, progress, cancel)?,
-        })
+        let Some(c) = self.active_gpu() else {
+            return Ok(render(scene, set, opts, progress, cancel));
+        };
+        match render_gpu(c, scene, set, opts, progress, cancel) {
+            Err(RenderError::GpuLimit(why)) if self.auto => {
+                eprintln!(
+                    "{why}: rendering on the CPU ({} threads) instead",
+                    rayon::current_num_threads()
+                );
+                self.fell_back.set(true);
+                Ok(render(scene, set, opts, progress, cancel))
+            }
+            r => Ok(r?),
+        }
     }
 }

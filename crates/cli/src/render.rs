@@ -78,8 +78,9 @@ struct Report<'a> {
     width: u32,
     height: u32,
     seconds: f64,
-    /// The GPU driver's compilation of the kernel, before `seconds` started (0 on the CPU).
-    kernel_compile_seconds: f64,
+    /// The GPU driver's compilation of the kernel, before `seconds` started (null on the
+    /// CPU).
+    kernel_compile_seconds: Option<f64>,
     paths_per_second: f64,
     /// PT: scattering events per path. ST-CVAE: the thin-region PT fallbacks per path.
     mean_pt_events_per_path: f64,
@@ -302,10 +303,7 @@ pub fn run(a: Args) -> Result<()> {
         r.spp,
         r.integrator.name(),
         if r.nee { ", NEE" } else { "" },
-        match engine {
-            Engine::Cpu => "CPU",
-            Engine::Gpu(_) => "GPU",
-        }
+        if engine.is_gpu() { "GPU" } else { "CPU" }
     );
     let pb = progress::bar(
         p.file.camera.width as u64 * p.file.camera.height as u64 * r.spp as u64,
@@ -344,7 +342,7 @@ pub fn run(a: Args) -> Result<()> {
         width: p.file.camera.width,
         height: p.file.camera.height,
         seconds: out.seconds,
-        kernel_compile_seconds: out.compile_seconds,
+        kernel_compile_seconds: engine.is_gpu().then_some(out.compile_seconds),
         paths_per_second: out.stats.paths as f64 / out.seconds.max(1e-9),
         mean_pt_events_per_path: out.stats.events as f64 / paths,
         mean_sphere_steps_per_path: out.stats.steps as f64 / paths,
@@ -389,19 +387,22 @@ pub fn run(a: Args) -> Result<()> {
         );
     }
     eprintln!(
-        "{} spp in {:.1} s{} ({} paths/s; {:.1} PT events, {:.1} sphere steps per path) -> {}.{{exr,png,json}}",
+        "{} spp in {:.1} s ({} paths/s; {:.1} PT events, {:.1} sphere steps per path{}) -> {}.{{exr,png,json}}",
         out.spp,
         out.seconds,
-        // A driver that compiles at the first dispatch (lavapipe: seconds on a cold cache)
-        // is timed apart, so that paths/s measure rendering.
-        if out.compile_seconds >= 0.1 {
-            format!(", after {:.1} s compiling the kernel,", out.compile_seconds)
-        } else {
-            String::new()
-        },
         progress::si(report.paths_per_second),
         report.mean_pt_events_per_path,
         report.mean_sphere_steps_per_path,
+        // A driver that compiles at the first dispatch (lavapipe: seconds on a cold cache)
+        // is timed apart, so that paths/s measure rendering.
+        if out.compile_seconds >= 0.1 {
+            format!(
+                "; plus {:.1} s compiling the kernel first",
+                out.compile_seconds
+            )
+        } else {
+            String::new()
+        },
         crate::merge::out_stem(&a.out).display()
     );
     if interrupted {

@@ -26,6 +26,11 @@ pub enum RenderError {
     /// tests skip, for this reason alone.
     #[error("{0}")]
     NoAdapter(String),
+    /// The scene is beyond what the GPU kernels or the adapter hold (lights, BVH depth, a
+    /// buffer over the adapter's binding limit), while the CPU integrators render it:
+    /// `--device auto` falls back to the CPU for this reason.
+    #[error("{0}")]
+    GpuLimit(String),
     /// An adapter could not be opened, or the GPU failed.
     #[error("{0}")]
     Gpu(String),

@@ -49,7 +49,7 @@ pub struct Ctx<'a> {
 
 impl Ctx<'_> {
     pub fn engine_is_gpu(&self) -> bool {
-        matches!(self.engine, Engine::Gpu(_))
+        self.engine.is_gpu()
     }
 }
 
@@ -62,8 +62,11 @@ pub fn run(a: Args) -> Result<()> {
         .unwrap_or_else(|| "experiment".into());
     kinds::preflight(&cfg).with_context(|| a.config.display().to_string())?;
     let out = a.out.join(&name);
-    // The device first: a run that cannot start leaves no empty folder behind.
+    // The device and the model first: a run that cannot start leaves no empty folder behind.
     let engine = Engine::open(a.device)?;
+    if a.model.is_some() {
+        crate::model_cmds::load_model(a.model.as_deref())?;
+    }
     std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
     // The previous run's report goes now, not when this run's is written: a run that
     // fails part way must not leave a report that no longer matches its images.

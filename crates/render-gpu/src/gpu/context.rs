@@ -61,6 +61,39 @@ fn summary(info: &wgpu::AdapterInfo) -> AdapterSummary {
     }
 }
 
+/// Why no adapter was found, in words that name the fix. The messages read as a clause, so
+/// that `--device auto` can append "rendering on the CPU".
+fn no_adapter(
+    choice: AdapterChoice,
+    backends: Option<wgpu::Backends>,
+    software: &[String],
+) -> String {
+    // WGPU_BACKEND set to gl or to a name wgpu does not know leaves no native backend to
+    // search: that is the fault to name, or the hint to install lavapipe misleads on a
+    // machine that has it. A valid value (vulkan, say) is not at fault.
+    if backends.is_none()
+        && let Some(v) = std::env::var_os("WGPU_BACKEND")
+        && wgpu::Backends::from_env().is_none_or(|b| (b & wgpu::Backends::PRIMARY).is_empty())
+    {
+        return format!(
+            "no wgpu adapter found with WGPU_BACKEND={:?} (this build uses vulkan, metal or \
+             dx12; gl is not compiled in); unset it or name one of those",
+            v.to_string_lossy()
+        );
+    }
+    match (choice, software.first()) {
+        (AdapterChoice::Hardware, Some(name)) => format!(
+            "no hardware GPU adapter (--device gpu would use the software adapter {name}, \
+             slower than the CPU path)"
+        ),
+        (AdapterChoice::Hardware, None) => "no GPU adapter (Vulkan, Metal or DX12) found".into(),
+        (AdapterChoice::Any, _) => "no wgpu adapter found (Vulkan, Metal or DX12): on Linux \
+            without a GPU driver install Mesa's lavapipe (apt-get install \
+            mesa-vulkan-drivers), or use --device cpu"
+            .into(),
+    }
+}
+
 fn rank(t: wgpu::DeviceType) -> u32 {
     match t {
         wgpu::DeviceType::DiscreteGpu => 0,
@@ -90,33 +123,20 @@ impl GpuContext {
             & wgpu::Backends::PRIMARY;
         let instance = wgpu::Instance::new(desc);
         let mut adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()));
+        let software: Vec<String> = adapters
+            .iter()
+            .map(|a| a.get_info())
+            .filter(|i| i.device_type == wgpu::DeviceType::Cpu)
+            .map(|i| i.name)
+            .collect();
         adapters.retain(|a| {
             choice == AdapterChoice::Any || a.get_info().device_type != wgpu::DeviceType::Cpu
         });
         adapters.sort_by_key(|a| rank(a.get_info().device_type));
         let Some(adapter) = adapters.into_iter().next() else {
-            // WGPU_BACKEND narrows the search (or, set to gl or to a name wgpu does not
-            // know, leaves no native backend at all): say so, or the hint to install
-            // lavapipe misleads on a machine that has it.
-            if backends.is_none()
-                && let Some(v) = std::env::var_os("WGPU_BACKEND")
-            {
-                return Err(RenderError::NoAdapter(format!(
-                    "no wgpu adapter found with WGPU_BACKEND={} (this build uses vulkan, \
-                     metal or dx12; gl is not compiled in); unset it or name one of those",
-                    v.to_string_lossy()
-                )));
-            }
-            return Err(RenderError::NoAdapter(match choice {
-                AdapterChoice::Hardware => "no GPU adapter found (Vulkan, Metal or DX12); \
-                    use --device cpu, or --device gpu to accept a software adapter such as \
-                    Mesa's lavapipe (apt-get install mesa-vulkan-drivers)"
-                    .into(),
-                AdapterChoice::Any => "no wgpu adapter found (Vulkan, Metal or DX12); on \
-                    Linux without a GPU driver install Mesa's lavapipe \
-                    (apt-get install mesa-vulkan-drivers), or use --device cpu"
-                    .into(),
-            }));
+            return Err(RenderError::NoAdapter(no_adapter(
+                choice, backends, &software,
+            )));
         };
         let info = adapter.get_info();
         let limits = adapter.limits();
@@ -133,5 +153,32 @@ impl GpuContext {
             adapter: summary(&info),
             limits,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The reason names the fix that applies: `--device gpu` where a software adapter
+    /// exists, installing lavapipe where none does. (Backends are given, so that
+    /// `WGPU_BACKEND` in the environment plays no part.)
+    #[test]
+    fn no_adapter_names_the_fix_that_applies() {
+        let vk = Some(wgpu::Backends::VULKAN);
+        let lvp = ["llvmpipe (LLVM 15.0.6, 256 bits)".to_string()];
+        let m = no_adapter(AdapterChoice::Hardware, vk, &lvp);
+        assert!(
+            m.contains("--device gpu would use the software adapter llvmpipe"),
+            "{m}"
+        );
+        let m = no_adapter(AdapterChoice::Hardware, vk, &[]);
+        assert!(
+            m.starts_with("no GPU adapter") && !m.contains("--device gpu"),
+            "{m}"
+        );
+        let m = no_adapter(AdapterChoice::Any, vk, &[]);
+        assert!(m.contains("apt-get install mesa-vulkan-drivers"), "{m}");
+        assert!(m.contains("--device cpu"), "{m}");
     }
 }

@@ -64,7 +64,7 @@ impl Resources {
         .max()
         .unwrap_or(0);
         if biggest > max {
-            return Err(RenderError::Gpu(format!(
+            return Err(RenderError::GpuLimit(format!(
                 "a buffer of {biggest} bytes exceeds {}'s storage binding limit of {max} bytes \
                  (lower the image size, grid_resolution or mesh size, or use --device cpu)",
                 ctx.adapter.name
