@@ -73,7 +73,10 @@ struct Report<'a> {
     integrator: &'static str,
     nee: bool,
     model: Option<String>,
+    /// Samples per pixel rendered: fewer than `spp_requested` when a time budget or Ctrl-C
+    /// stopped the render.
     spp: u32,
+    spp_requested: u32,
     seed: u64,
     width: u32,
     height: u32,
@@ -138,6 +141,12 @@ pub fn prepare(
     model: Option<&Path>,
     edit: impl FnOnce(&mut SceneFile),
 ) -> Result<Prepared> {
+    if scene_path == Path::new(DEFAULT_SCENE) && !scene_path.exists() {
+        bail!(
+            "{DEFAULT_SCENE} not found: run from the repository root (the default scene lives \
+             there) or pass --scene FILE"
+        );
+    }
     let mut file = SceneFile::load(scene_path)?;
     if let Some(i) = integrator {
         file.render.integrator = i;
@@ -256,6 +265,13 @@ pub(crate) fn check_out_stem(out: &Path) -> Result<()> {
             break;
         }
     }
+    // An output name taken by a folder would fail only after the render.
+    for ext in ["exr", "png", "json"] {
+        let f = crate::merge::image_out(out, ext);
+        if f.is_dir() {
+            bail!("--out {}: {} is a directory", out.display(), f.display());
+        }
+    }
     Ok(())
 }
 
@@ -338,6 +354,7 @@ pub fn run(a: Args) -> Result<()> {
         nee: r.nee,
         model: p.model_path.as_ref().map(|m| m.display().to_string()),
         spp: out.spp,
+        spp_requested: r.spp,
         seed: r.seed,
         width: p.file.camera.width,
         height: p.file.camera.height,

@@ -391,8 +391,20 @@ fn load_obj(path: &Path) -> Result<TriMesh, RenderError> {
         ignore_points: true,
         ignore_lines: true,
     };
-    let (models, _) = tobj::load_obj(path, &opts)
-        .map_err(|e| RenderError::mesh(path, format!("not a valid OBJ file: {e}")))?;
+    let (models, _) = tobj::load_obj(path, &opts).map_err(|e| {
+        RenderError::mesh(
+            path,
+            match e {
+                // tobj reads line by line: bytes that are not UTF-8 text stop it.
+                tobj::LoadError::ReadError => {
+                    "not a valid OBJ file: it is not text (an OBJ mesh is a text file of \
+                         'v' and 'f' lines)"
+                        .to_string()
+                }
+                e => format!("not a valid OBJ file: {e}"),
+            },
+        )
+    })?;
     let mut mesh = TriMesh::default();
     for m in models {
         let base = mesh.positions.len() as u32;
