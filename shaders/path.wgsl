@@ -371,9 +371,13 @@ fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_inv
         stats[i] = 0u;
     }
     let base = idx * SLOT;
+    // An image too large for one accumulation binding is rendered in bands of rows
+    // (gpu/renderer.rs); `pixel` counts within the band, the seeds use the image's index.
+    let row0 = u32(params.cam_right.w);
     let px = pixel % width;
-    let py = pixel / width;
-    let offset = channel_offset(params.sampling.z, params.sampling.w, pixel);
+    let py = pixel / width + row0;
+    let pixel_id = pixel + row0 * width;
+    let offset = channel_offset(params.sampling.z, params.sampling.w, pixel_id);
     let first = params.sampling.x + lane;
     var count = 0u;
     if first < params.sampling.y {
@@ -391,7 +395,7 @@ fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_inv
     if params.misc.w != 0u {
         // First dispatch of a chunk of samples: start this invocation's first path.
         if !done {
-            rng_seed(params.sampling.z, params.sampling.w, pixel, s);
+            rng_seed(params.sampling.z, params.sampling.w, pixel_id, s);
             let dir = camera_dir(f32(px) + rand(), f32(py) + rand());
             start_path(params.cam_origin.xyz, dir, (s + offset) % 3u);
         }
@@ -428,7 +432,7 @@ fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_inv
                     done = true;
                 } else {
                     s = first + lanes * j;
-                    rng_seed(params.sampling.z, params.sampling.w, pixel, s);
+                    rng_seed(params.sampling.z, params.sampling.w, pixel_id, s);
                     let dir = camera_dir(f32(px) + rand(), f32(py) + rand());
                     start_path(params.cam_origin.xyz, dir, (s + offset) % 3u);
                 }

@@ -13,8 +13,8 @@ struct Light {
 
 struct Params {
     cam_origin: vec4<f32>,      // w: tan(fov/2)
-    cam_forward: vec4<f32>,
-    cam_right: vec4<f32>,
+    cam_forward: vec4<f32>,     // w: the image's height in pixels
+    cam_right: vec4<f32>,       // w: the first row of the band being rendered
     cam_up: vec4<f32>,
     sigma_t: vec4<f32>,
     albedo: vec4<f32>,
@@ -68,7 +68,7 @@ struct ModelParams {
 
 fn camera_dir(x: f32, y: f32) -> vec3<f32> {
     let w = f32(params.image.x);
-    let h = f32(params.image.y);
+    let h = params.cam_forward.w;
     let th = params.cam_origin.w;
     let u = (2.0 * x / w - 1.0) * th;
     let v = (1.0 - 2.0 * y / h) * th * h / w;

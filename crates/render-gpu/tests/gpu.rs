@@ -748,7 +748,8 @@ fn loop_limit_cut_off_is_redone_with_fewer_bounces() {
     let s = common::build_scene(&text, false);
     let set = settings(IntegratorKind::Pt, true);
     let mut images = Vec::new();
-    for bounces in ["100000", "64"] {
+    // 65,535 is the most STCVAE_GPU_BOUNCES allows; far more than a dispatch fits.
+    for bounces in ["65535", "64"] {
         // SAFETY: every render of this binary holds `ctx`'s lock, so none reads the
         // variable while it changes; nothing else here reads the environment meanwhile.
         unsafe { std::env::set_var("STCVAE_GPU_BOUNCES", bounces) };
@@ -993,4 +994,55 @@ fn gpu_touching_parts_render_as_on_the_cpu() {
         true,
         64,
     );
+}
+
+/// An image whose path slots exceed the adapter's storage binding limit renders in bands of
+/// rows (gpu/renderer.rs), and the bands give the image one binding gives, bit for bit: PT
+/// resumes a path exactly, and the seeds follow a pixel's index in the image, not in its
+/// band. The limit is lowered so that the same 256² image takes one band, then three of 80
+/// rows and one of 16, with one lane a pixel both times (a lane count that differed would
+/// draw other samples), over several chunks of samples. (A band must stay above the
+/// sphere's 1.3 MB of triangles, which the lowered limit binds too.)
+#[test]
+fn images_beyond_the_binding_limit_render_in_bands() {
+    let Some(ctx) = gpu() else { return };
+    let mut ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let text = sphere_scene("kind = \"index-matched\"")
+        .replace("width = 24\nheight = 24", "width = 256\nheight = 256");
+    let s = common::build_scene(&text, false);
+    let set = settings(IntegratorKind::Pt, true);
+    // PT carries no path-level NEE reservoirs.
+    let slot = 16 * render_gpu::gpu::kernels::slot_vec4s(0);
+    let saved = ctx.limits.clone();
+    let mut run = |slots: u64| {
+        ctx.limits.max_storage_buffer_binding_size = slots * slot;
+        ctx.limits.max_buffer_size = slots * slot;
+        let out = render_gpu(
+            &ctx,
+            &s,
+            &set,
+            &opts(6, 3),
+            &|_, _| {},
+            &AtomicBool::new(false),
+        );
+        ctx.limits = saved.clone();
+        out.unwrap()
+    };
+    let whole = run(256 * 256);
+    let banded = run(256 * 80);
+    assert_eq!(whole.stats.paths, 256 * 256 * 6);
+    assert_eq!(banded.stats.paths, whole.stats.paths);
+    assert_eq!(banded.stats.events, whole.stats.events);
+    let differ = whole
+        .image
+        .pixels
+        .iter()
+        .zip(&banded.image.pixels)
+        .filter(|(a, b)| a != b)
+        .count();
+    assert_eq!(
+        differ, 0,
+        "{differ} of 65536 pixels differ between bands and one binding"
+    );
+    assert!(whole.image.pixels.iter().any(|p| p[0] > 0.0));
 }

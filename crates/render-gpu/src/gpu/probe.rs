@@ -54,7 +54,7 @@ pub fn run_probe_on(
         &layout,
         &Inputs {
             params: &params,
-            accum_bytes: bytes,
+            accum_bytes: &[bytes],
             nodes: &nodes,
             tris: &tris,
             env: &[[0.0; 4]],
@@ -63,13 +63,14 @@ pub fn run_probe_on(
         },
     )?;
     ctx.queue
-        .write_buffer(&res.accum, 0, bytemuck::cast_slice(items));
+        .write_buffer(&res.accums[0], 0, bytemuck::cast_slice(items));
     res.dispatch(
         ctx,
         &pipeline,
         ((items.len() as u32).div_ceil(WORKGROUP), 1),
+        0,
     );
-    let out = read_back(ctx, &res.accum, bytes)?;
+    let out = read_back(ctx, &res.accums[0], bytes)?;
     Ok(bytemuck::cast_slice::<u8, f32>(&out)
         .chunks_exact(32)
         .map(|c| c.try_into().unwrap())

@@ -110,7 +110,7 @@ fn compile(
     empty.image[1] = 0;
     ctx.queue
         .write_buffer(&res.params, 0, bytemuck::bytes_of(&empty));
-    res.dispatch(ctx, pipeline, (1, 1));
+    res.dispatch(ctx, pipeline, (1, 1), 0);
     wait(ctx)?;
     Ok(t0.elapsed().as_secs_f64())
 }
@@ -144,18 +144,41 @@ pub fn render_gpu(
     let cam = &scene.camera;
     let pixels = cam.width as u64 * cam.height as u64;
     let spp = opts.spp.max(1);
-    // Every path slot lives in one storage binding: adapters offer 128 MiB to several GiB,
-    // and a 1024² image at 2²⁰ invocations with two path-level NEE reservoirs needs 151 MB.
+    // Every path slot of a band lives in one storage binding: adapters offer 128 MiB to
+    // several GiB, and a 1024² image at 2²⁰ invocations with two path-level NEE
+    // reservoirs needs 151 MB.
     let limits = &ctx.limits;
+    let slot_bytes = 16 * slot_vec4s;
     let fit = limits
         .max_storage_buffer_binding_size
         .min(limits.max_buffer_size)
-        / (16 * slot_vec4s);
+        / slot_bytes;
     let lanes = (target_threads(ctx).min(fit) / pixels.max(1)).clamp(1, spp as u64) as u32;
+    // An image whose slots exceed one binding (lavapipe's 128 MiB holds 1.2–1.6 M pixels)
+    // is rendered in bands of rows, each with its own accumulation buffer, one after
+    // another within every chunk of samples. Seeds follow the pixel's index in the image,
+    // so a band renders what the whole image would.
+    let band_rows = (fit / (cam.width as u64 * lanes as u64)).min(cam.height as u64) as u32;
+    if band_rows == 0 {
+        return Err(RenderError::GpuLimit(format!(
+            "one row of {} pixels needs {} bytes of path state, over {}'s storage binding \
+             limit of {} bytes; use --device cpu",
+            cam.width,
+            cam.width as u64 * slot_bytes,
+            ctx.adapter.name,
+            limits.max_storage_buffer_binding_size
+        )));
+    }
+    let bands: Vec<(u32, u32)> = (0..cam.height)
+        .step_by(band_rows as usize)
+        .map(|r0| (r0, band_rows.min(cam.height - r0)))
+        .collect();
+    let band_threads = |rows: u32| cam.width as u64 * rows as u64 * lanes as u64;
+    let accum_bytes: Vec<u64> = bands
+        .iter()
+        .map(|&(_, rows)| band_threads(rows) * slot_bytes)
+        .collect();
     let mut params: Params = scene_params(scene, set, opts.seed);
-    let threads = pixels * lanes as u64;
-    // One path slot per invocation (shaders/path.wgsl).
-    let accum_bytes = threads * 16 * slot_vec4s;
     let depth = bvh_depth(&scene.geo.bvh);
     if depth + 1 > kernels::STACK_DEPTH as usize {
         return Err(RenderError::GpuLimit(format!(
@@ -175,7 +198,7 @@ pub fn render_gpu(
         &layout,
         &Inputs {
             params: &params,
-            accum_bytes,
+            accum_bytes: &accum_bytes,
             nodes: &nodes,
             tris: &tris,
             env: &env,
@@ -183,26 +206,34 @@ pub fn render_gpu(
             model: &model,
         },
     )?;
-    // Poison the accumulation buffer: a pixel the kernel never wrote stays NaN and is
+    // Poison the accumulation buffers: a pixel the kernel never wrote stays NaN and is
     // reported below instead of passing as black.
-    ctx.queue.write_buffer(
-        &res.accum,
-        0,
-        &vec![0xffu8; accum_bytes as usize], // all-ones f32 bits = NaN
-    );
-    let groups = threads.div_ceil(WORKGROUP as u64);
-    let (gx, gy) = if groups <= 65535 {
-        (groups as u32, 1)
-    } else {
-        (65535, groups.div_ceil(65535) as u32)
+    for (buf, &bytes) in res.accums.iter().zip(&accum_bytes) {
+        ctx.queue.write_buffer(
+            buf,
+            0,
+            &vec![0xffu8; bytes as usize], // all-ones f32 bits = NaN
+        );
+    }
+    // Workgroups of each band, as (x, y) within the 65,535 a dimension allows, and the
+    // stride of their scattered order.
+    let shape = |rows: u32| {
+        let groups = band_threads(rows).div_ceil(WORKGROUP as u64);
+        let xy = if groups <= 65535 {
+            (groups as u32, 1)
+        } else {
+            (65535, groups.div_ceil(65535) as u32)
+        };
+        (xy, tile_stride(groups) as f32)
     };
     let mut budget = bounce_budget(ctx)?;
     params.consts2[2] = budget as f32;
     // The path states before the dispatch in flight, kept on software adapters while a
     // cut-off dispatch can be redone with a smaller budget.
-    let snapshot =
-        (ctx.adapter.software && budget > 1).then(|| res.snapshot_buffer(ctx, accum_bytes));
-    params.consts2[3] = tile_stride(groups) as f32;
+    let largest = accum_bytes.iter().copied().max().unwrap_or(0);
+    let snapshot = (ctx.adapter.software && budget > 1).then(|| res.snapshot_buffer(ctx, largest));
+    params.image[1] = bands[0].1;
+    params.consts2[3] = shape(bands[0].1).1;
     let compile_seconds = compile(ctx, &res, &pipeline, &params)?;
     let start = Instant::now();
     let mut stats = PathStats::default();
@@ -216,60 +247,72 @@ pub fn render_gpu(
         params.sampling[0] = s0;
         params.sampling[1] = s1;
         let t0 = Instant::now();
-        // Dispatch until no path of this chunk is pending (2: first dispatch of the
-        // render, 1: of a chunk, 0: resume).
-        params.misc[3] = if s0 == 0 { 2 } else { 1 };
-        loop {
-            ctx.queue
-                .write_buffer(&res.params, 0, bytemuck::bytes_of(&params));
-            ctx.queue
-                .write_buffer(&res.counters, 0, &[0u8; COUNTER_BYTES as usize]);
-            if let Some(snap) = snapshot.as_ref().filter(|_| budget > 1) {
-                res.copy(ctx, &res.accum, snap, accum_bytes);
+        for (band, &(row0, rows)) in bands.iter().enumerate() {
+            let (groups, stride) = shape(rows);
+            params.image[1] = rows;
+            params.cam_right[3] = row0 as f32;
+            params.consts2[3] = stride;
+            let accum = &res.accums[band];
+            let bytes = accum_bytes[band];
+            // Dispatch until no path of this chunk is pending (2: first dispatch of the
+            // render, 1: of a chunk, 0: resume).
+            params.misc[3] = if s0 == 0 { 2 } else { 1 };
+            loop {
+                ctx.queue
+                    .write_buffer(&res.params, 0, bytemuck::bytes_of(&params));
+                ctx.queue
+                    .write_buffer(&res.counters, 0, &[0u8; COUNTER_BYTES as usize]);
+                if let Some(snap) = snapshot.as_ref().filter(|_| budget > 1) {
+                    res.copy(ctx, accum, snap, bytes);
+                }
+                res.dispatch(ctx, &pipeline, groups, band);
+                let c = read_back(ctx, &res.counters, COUNTER_BYTES)?;
+                let word =
+                    |i: usize| u32::from_le_bytes(c[4 * i..4 * i + 4].try_into().unwrap()) as u64;
+                let pair = |k: usize| word(2 * k) | (word(2 * k + 1) << 32);
+                if pair(7) > 0
+                    && let Some(snap) = snapshot.as_ref().filter(|_| budget > 1)
+                {
+                    // Undo the cut-off dispatch and redo it with half the budget.
+                    res.copy(ctx, snap, accum, bytes);
+                    budget /= 2;
+                    params.consts2[2] = budget as f32;
+                    continue;
+                }
+                stats.add(&PathStats {
+                    paths: pair(0),
+                    events: pair(1),
+                    steps: pair(2),
+                    leaks: pair(3),
+                    capped: pair(4),
+                    non_finite: pair(5),
+                    exact_steps: pair(8),
+                });
+                if pair(7) > 0 {
+                    let hint = if budget > 1 {
+                        format!("set STCVAE_GPU_BOUNCES below {budget}")
+                    } else {
+                        "a single bounce exceeded it: lower render.exact_tau".to_string()
+                    };
+                    return Err(RenderError::Gpu(format!(
+                        "{} invocations were stopped by {}'s loop limit (lavapipe stops a \
+                         shader after 65,535 loop iterations); {hint} or use --device cpu",
+                        pair(7),
+                        ctx.adapter.name,
+                    )));
+                }
+                params.misc[3] = 0;
+                if pair(6) == 0 {
+                    break;
+                }
             }
-            res.dispatch(ctx, &pipeline, (gx, gy));
-            let c = read_back(ctx, &res.counters, COUNTER_BYTES)?;
-            let word =
-                |i: usize| u32::from_le_bytes(c[4 * i..4 * i + 4].try_into().unwrap()) as u64;
-            let pair = |k: usize| word(2 * k) | (word(2 * k + 1) << 32);
-            if pair(7) > 0
-                && let Some(snap) = snapshot.as_ref().filter(|_| budget > 1)
-            {
-                // Undo the cut-off dispatch and redo it with half the budget.
-                res.copy(ctx, snap, &res.accum, accum_bytes);
-                budget /= 2;
-                params.consts2[2] = budget as f32;
-                continue;
-            }
-            stats.add(&PathStats {
-                paths: pair(0),
-                events: pair(1),
-                steps: pair(2),
-                leaks: pair(3),
-                capped: pair(4),
-                non_finite: pair(5),
-                exact_steps: pair(8),
-            });
-            if pair(7) > 0 {
-                let hint = if budget > 1 {
-                    format!("set STCVAE_GPU_BOUNCES below {budget}")
-                } else {
-                    "a single bounce exceeded it: lower render.exact_tau".to_string()
-                };
-                return Err(RenderError::Gpu(format!(
-                    "{} invocations were stopped by {}'s loop limit (lavapipe stops a shader \
-                     after 65,535 loop iterations); {hint} or use --device cpu",
-                    pair(7),
-                    ctx.adapter.name,
-                )));
-            }
-            params.misc[3] = 0;
-            if pair(6) == 0 {
-                break;
-            }
+            let done_rows = row0 as u64 + rows as u64;
+            progress(
+                pixels * s0 as u64 + cam.width as u64 * done_rows * (s1 - s0) as u64,
+                total,
+            );
         }
         let dt = t0.elapsed().as_secs_f64();
-        progress(pixels * s1 as u64, total);
         s0 = s1;
         // Grow (or shrink) the next chunk toward the target duration.
         let scale = (TARGET_CHUNK_SECONDS / dt.max(1e-4)).clamp(0.5, 4.0);
@@ -282,28 +325,32 @@ pub fn render_gpu(
         }
     }
     wait(ctx)?;
-    let bytes = read_back(ctx, &res.accum, accum_bytes)?;
-    let vals: &[f32] = bytemuck::cast_slice(&bytes);
     let mut image = RgbImage::new(cam.width as usize, cam.height as usize);
     let mut bad = 0usize;
     let mut short = 0usize;
-    for (p, px) in image.pixels.iter_mut().enumerate() {
-        let mut sum = [0f64; 3];
-        let mut finished = 0f64;
-        for l in 0..lanes as usize {
-            let slot = (p * lanes as usize + l) * slot_vec4s as usize;
-            let q = &vals[(slot + kernels::ACC_VEC4 as usize) * 4..][..4];
-            for c in 0..3 {
-                sum[c] += q[c] as f64;
+    for (band, &(row0, rows)) in bands.iter().enumerate() {
+        let bytes = read_back(ctx, &res.accums[band], accum_bytes[band])?;
+        let vals: &[f32] = bytemuck::cast_slice(&bytes);
+        let first = row0 as usize * cam.width as usize;
+        let count = rows as usize * cam.width as usize;
+        for (p, px) in image.pixels[first..first + count].iter_mut().enumerate() {
+            let mut sum = [0f64; 3];
+            let mut finished = 0f64;
+            for l in 0..lanes as usize {
+                let slot = (p * lanes as usize + l) * slot_vec4s as usize;
+                let q = &vals[(slot + kernels::ACC_VEC4 as usize) * 4..][..4];
+                for c in 0..3 {
+                    sum[c] += q[c] as f64;
+                }
+                finished += q[3] as f64;
             }
-            finished += q[3] as f64;
+            if !sum.iter().all(|v| v.is_finite()) {
+                bad += 1;
+            } else if finished != s0 as f64 {
+                short += 1;
+            }
+            *px = sum.map(|v| (v / s0.max(1) as f64) as f32);
         }
-        if !sum.iter().all(|v| v.is_finite()) {
-            bad += 1;
-        } else if finished != s0 as f64 {
-            short += 1;
-        }
-        *px = sum.map(|v| (v / s0.max(1) as f64) as f32);
     }
     if bad > 0 {
         return Err(RenderError::Gpu(format!(

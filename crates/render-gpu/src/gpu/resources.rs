@@ -12,9 +12,11 @@ use super::scene_buffers::{GpuNode, GpuTri, Params};
 
 pub struct Resources {
     pub params: wgpu::Buffer,
-    pub accum: wgpu::Buffer,
+    /// One accumulation buffer per band of the image, each within the binding limit.
+    pub accums: Vec<wgpu::Buffer>,
     pub counters: wgpu::Buffer,
-    pub bind_group: wgpu::BindGroup,
+    /// One bind group per band: the same inputs, that band's accumulation buffer.
+    bind_groups: Vec<wgpu::BindGroup>,
     /// Kept alive for the bind group.
     _inputs: Vec<wgpu::Buffer>,
 }
@@ -26,7 +28,8 @@ pub const COUNTER_BYTES: u64 = 72;
 /// zero-sized bindings).
 pub struct Inputs<'a> {
     pub params: &'a Params,
-    pub accum_bytes: u64,
+    /// The size of each band's accumulation buffer.
+    pub accum_bytes: &'a [u64],
     pub nodes: &'a [GpuNode],
     pub tris: &'a [GpuTri],
     pub env: &'a [[f32; 4]],
@@ -54,7 +57,7 @@ impl Resources {
     ) -> Result<Self, RenderError> {
         let max = ctx.limits.max_storage_buffer_binding_size;
         let biggest = [
-            i.accum_bytes,
+            i.accum_bytes.iter().copied().max().unwrap_or(0),
             std::mem::size_of_val(i.tris) as u64,
             std::mem::size_of_val(i.nodes) as u64,
             std::mem::size_of_val(i.grid) as u64,
@@ -73,14 +76,20 @@ impl Resources {
         let ro = wgpu::BufferUsages::STORAGE;
         let uni = wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST;
         let params = init(ctx, "params", bytemuck::bytes_of(i.params), uni);
-        let accum = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("accum"),
-            size: i.accum_bytes.max(16),
-            usage: wgpu::BufferUsages::STORAGE
-                | wgpu::BufferUsages::COPY_SRC
-                | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        let accums: Vec<wgpu::Buffer> = i
+            .accum_bytes
+            .iter()
+            .map(|&bytes| {
+                ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("accum"),
+                    size: bytes.max(16),
+                    usage: wgpu::BufferUsages::STORAGE
+                        | wgpu::BufferUsages::COPY_SRC
+                        | wgpu::BufferUsages::COPY_DST,
+                    mapped_at_creation: false,
+                })
+            })
+            .collect();
         let counters = ctx.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("counters"),
             size: COUNTER_BYTES,
@@ -94,34 +103,39 @@ impl Resources {
         let env = init(ctx, "env", bytemuck::cast_slice(i.env), ro);
         let grid = init(ctx, "grid", bytemuck::cast_slice(i.grid), ro);
         let model = init(ctx, "model", bytemuck::bytes_of(i.model), uni);
-        let buffers = [
-            &params, &accum, &counters, &tris, &nodes, &env, &grid, &model,
-        ];
-        let entries: Vec<wgpu::BindGroupEntry> = buffers
+        let bind_groups = accums
             .iter()
-            .enumerate()
-            .map(|(k, b)| wgpu::BindGroupEntry {
-                binding: k as u32,
-                resource: b.as_entire_binding(),
+            .map(|accum| {
+                let buffers = [
+                    &params, accum, &counters, &tris, &nodes, &env, &grid, &model,
+                ];
+                let entries: Vec<wgpu::BindGroupEntry> = buffers
+                    .iter()
+                    .enumerate()
+                    .map(|(k, b)| wgpu::BindGroupEntry {
+                        binding: k as u32,
+                        resource: b.as_entire_binding(),
+                    })
+                    .collect();
+                ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("stcvae scene"),
+                    layout,
+                    entries: &entries,
+                })
             })
             .collect();
-        let bind_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("stcvae scene"),
-            layout,
-            entries: &entries,
-        });
         Ok(Self {
             params,
-            accum,
+            accums,
             counters,
-            bind_group,
+            bind_groups,
             _inputs: vec![tris, nodes, env, grid, model],
         })
     }
 }
 
 impl Resources {
-    /// A buffer the size of `accum` to copy path states to and from.
+    /// A buffer of `bytes` to copy a band's path states to and from.
     pub fn snapshot_buffer(&self, ctx: &GpuContext, bytes: u64) -> wgpu::Buffer {
         ctx.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("accum snapshot"),
@@ -140,15 +154,22 @@ impl Resources {
         ctx.queue.submit([enc.finish()]);
     }
 
-    /// Submits one dispatch of `pipeline` over `groups` (x, y) workgroups on these buffers.
-    pub fn dispatch(&self, ctx: &GpuContext, pipeline: &wgpu::ComputePipeline, groups: (u32, u32)) {
+    /// Submits one dispatch of `pipeline` over `groups` (x, y) workgroups on these buffers,
+    /// with band `band`'s accumulation buffer bound.
+    pub fn dispatch(
+        &self,
+        ctx: &GpuContext,
+        pipeline: &wgpu::ComputePipeline,
+        groups: (u32, u32),
+        band: usize,
+    ) {
         let mut enc = ctx
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
         {
             let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
             pass.set_pipeline(pipeline);
-            pass.set_bind_group(0, &self.bind_group, &[]);
+            pass.set_bind_group(0, &self.bind_groups[band], &[]);
             pass.dispatch_workgroups(groups.0, groups.1, 1);
         }
         ctx.queue.submit([enc.finish()]);

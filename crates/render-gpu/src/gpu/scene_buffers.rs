@@ -191,7 +191,9 @@ pub fn scene_params(scene: &SceneData, set: &IntegratorSettings, seed: u64) -> P
     };
     Params {
         cam_origin: v4(cam.origin, cam.tan_half()),
-        cam_forward: v4(cam.forward(), 0.0),
+        // w: the image's height (camera_dir); cam_right.w, a band's first row, is set per
+        // band by the renderer.
+        cam_forward: v4(cam.forward(), cam.height as f32),
         cam_right: v4(cam.right(), 0.0),
         cam_up: v4(cam.up(), 0.0),
         sigma_t: c4(scene.sigma_t),
