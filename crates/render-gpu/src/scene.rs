@@ -48,7 +48,10 @@ pub struct CameraDesc {
 /// quoted line does. Every TOML file stcvae reads reports its errors this way.
 pub fn describe_toml_error(path: &Path, text: &str, e: &toml::de::Error) -> String {
     let msg = e.message().trim().replace('\n', " ");
-    let at = e.span().map(|s| {
+    // A field missing from the top level is reported at the document's start, whose first
+    // line (often a comment) says nothing: name the field alone.
+    let top_level = e.span().is_some_and(|s| s.start == 0) && msg.starts_with("missing field");
+    let at = e.span().filter(|_| !top_level).map(|s| {
         let start = s.start.min(text.len());
         let line_start = text[..start].rfind('\n').map_or(0, |i| i + 1);
         let line = text[line_start..].lines().next().unwrap_or("").trim();

@@ -232,3 +232,17 @@ fn a_camera_inside_the_object_is_refused() {
         assert!(build(&text).is_ok(), "camera at {origin} refused");
     }
 }
+
+/// A missing table is named alone: toml reports it at the document's start, and quoting
+/// the first line (here a comment) would point at the wrong place.
+#[test]
+fn a_missing_table_is_named_without_the_first_line() {
+    let text = format!("# a sphere\n{}", BASE);
+    let medium_at = text.find("[medium]").unwrap();
+    let e = err(&text[..medium_at]);
+    assert!(e.contains("missing field `medium`"), "{e}");
+    assert!(!e.contains("a sphere"), "{e}");
+    // A field missing inside a table still points at that table.
+    let e = err(&text.replace("sigma_t = [10.0, 10.0, 10.0]\n", ""));
+    assert!(e.contains("missing field `sigma_t`"), "{e}");
+}
