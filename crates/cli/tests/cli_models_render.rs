@@ -511,6 +511,30 @@ fn no_gpu_adapter_is_a_clear_error_or_a_cpu_fallback() {
     assert!(json.contains("\"device\": \"cpu"), "{json}");
 }
 
+/// With a valid `WGPU_BACKEND` but no driver behind it (the Vulkan loader pointed at an ICD
+/// file that does not exist), the error names the missing driver and its fix, not the
+/// variable; `--device auto` says there is no GPU adapter and renders on the CPU.
+#[test]
+fn no_driver_behind_a_valid_backend_names_the_driver() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out_path = tmp.path().join("r");
+    let run = |device: &str| {
+        sphere_pt_render(device, &out_path)
+            .env("WGPU_BACKEND", "vulkan")
+            .env("VK_DRIVER_FILES", tmp.path().join("none.json"))
+            .env("VK_ICD_FILENAMES", tmp.path().join("none.json"))
+            .output()
+            .unwrap()
+    };
+    let err = fails(&run("gpu"));
+    assert!(err.contains("apt-get install mesa-vulkan-drivers"), "{err}");
+    assert!(!err.contains("unset it"), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    let err = ok(&run("auto"));
+    assert!(err.contains("no GPU adapter"), "{err}");
+    assert_eq!(err.matches("rendering on the CPU").count(), 1, "{err}");
+}
+
 /// On a machine without a graphical session, looking for an adapter must not print
 /// libwayland's "error: XDG_RUNTIME_DIR is invalid or not set in the environment." (the
 /// Vulkan driver's window-system code asks for a display; lavapipe in CI printed it twice

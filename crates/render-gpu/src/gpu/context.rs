@@ -76,7 +76,7 @@ fn no_adapter(
         && wgpu::Backends::from_env().is_none_or(|b| (b & wgpu::Backends::PRIMARY).is_empty())
     {
         return format!(
-            "no wgpu adapter found with WGPU_BACKEND={:?} (this build uses vulkan, metal or \
+            "no wgpu adapter found with WGPU_BACKEND={} (this build uses vulkan, metal or \
              dx12; gl is not compiled in); unset it or name one of those",
             v.to_string_lossy()
         );
