@@ -17,7 +17,7 @@ pub struct Resources {
     pub counters: wgpu::Buffer,
     /// One bind group per band: the same inputs, that band's accumulation buffer.
     bind_groups: Vec<wgpu::BindGroup>,
-    /// Kept alive for the bind group.
+    /// Kept alive for the bind groups.
     _inputs: Vec<wgpu::Buffer>,
 }
 
@@ -69,7 +69,7 @@ impl Resources {
         if biggest > max {
             return Err(RenderError::GpuLimit(format!(
                 "a buffer of {biggest} bytes exceeds {}'s storage binding limit of {max} bytes \
-                 (lower the image size, grid_resolution or mesh size, or use --device cpu)",
+                 (lower grid_resolution or the mesh size, or use --device cpu)",
                 ctx.adapter.name
             )));
         }
