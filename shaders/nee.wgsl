@@ -29,7 +29,8 @@ fn crossings(o: vec3<f32>, d: vec3<f32>) -> Crossings {
     var c = Crossings(0.0, 1.0, 0);
     let inv_d = 1.0 / (d + select(vec3<f32>(0.0), vec3<f32>(1e-30), d == vec3<f32>(0.0)));
     let sh = ray_shear(o, d);
-    if box_entry(nodes[0].lo, nodes[0].hi, o, inv_d, 1e30) >= 1e29 {
+    let root = node_at(0u);
+    if box_entry(root.lo, root.hi, o, inv_d, 1e30) >= 1e29 {
         return c;
     }
     var top = 1u;
@@ -39,7 +40,7 @@ fn crossings(o: vec3<f32>, d: vec3<f32>) -> Crossings {
             break;
         }
         top -= 1u;
-        let node = nodes[wg_stack[stack_base + top]];
+        let node = node_at(wg_stack[stack_base + top]);
         if node.count > 0u {
             for (var k = node.first; k < node.first + node.count; k++) {
                 let t = tri_intersect(sh, tris[k], 1e30);
@@ -56,11 +57,13 @@ fn crossings(o: vec3<f32>, d: vec3<f32>) -> Crossings {
             // order.
             let a = node.first;
             let b = node.first + 1u;
-            if box_entry(nodes[a].lo, nodes[a].hi, o, inv_d, 1e30) < 1e29 && top < STACK_DEPTH {
+            let na = node_at(a);
+            if box_entry(na.lo, na.hi, o, inv_d, 1e30) < 1e29 && top < STACK_DEPTH {
                 wg_stack[stack_base + top] = a;
                 top += 1u;
             }
-            if box_entry(nodes[b].lo, nodes[b].hi, o, inv_d, 1e30) < 1e29 && top < STACK_DEPTH {
+            let nb = node_at(b);
+            if box_entry(nb.lo, nb.hi, o, inv_d, 1e30) < 1e29 && top < STACK_DEPTH {
                 wg_stack[stack_base + top] = b;
                 top += 1u;
             }

@@ -215,7 +215,7 @@ fn bounce() {
     ps.pos += ps.dir * t;
     ps.free = max(ps.free - t, 0.0);
     let pad = params.consts.z; // eps, as in Geometry::within_bounds
-    if any(ps.pos < nodes[0].lo - pad) || any(ps.pos > nodes[0].hi + pad) {
+    if any(ps.pos < mesh_bounds(false) - pad) || any(ps.pos > mesh_bounds(true) + pad) {
         // Outside the mesh's bounding box grown by eps: not inside after all (the CPU's
         // safety net, integrator/mod.rs).
         stats[C_LEAKS] += 1u;

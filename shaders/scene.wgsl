@@ -35,11 +35,29 @@ struct Params {
     consts3: vec4<f32>,         // exact_tau, exact_nee_samples (integral), loop-probe passes, unused
 }
 
+// A BVH node as the traversals use it. `nodes` holds it packed in 16 bytes
+// (scene_buffers::GpuNode: the box as six f16 rounded outward, then first << 4 | count),
+// half the 32 of f32 boxes: lavapipe loads every word lane by lane, and PT ran 19 % faster
+// on Mesa 22 for it (docs/BENCHMARKS.md); `node_at` unpacks it.
 struct Node {
     lo: vec3<f32>,
     first: u32,
     hi: vec3<f32>,
     count: u32,
+}
+
+// The mesh's exact bounds, stored after the nodes as f32 bits: the inside-the-bounds check
+// uses them as the CPU does (Geometry::within_bounds), not the f16 root box.
+fn mesh_bounds(hi: bool) -> vec3<f32> {
+    return bitcast<vec3<f32>>(nodes[arrayLength(&nodes) - select(2u, 1u, hi)].xyz);
+}
+
+fn node_at(i: u32) -> Node {
+    let q = nodes[i];
+    let a = unpack2x16float(q.x);
+    let b = unpack2x16float(q.y);
+    let c = unpack2x16float(q.z);
+    return Node(vec3<f32>(a, b.x), q.w >> 4u, vec3<f32>(b.y, c), q.w & 15u);
 }
 
 struct Tri {
@@ -57,7 +75,7 @@ struct ModelParams {
 @group(0) @binding(1) var<storage, read_write> accum: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read_write> counters: array<atomic<u32>, 18>;
 @group(0) @binding(3) var<storage, read> tris: array<Tri>;
-@group(0) @binding(4) var<storage, read> nodes: array<Node>;
+@group(0) @binding(4) var<storage, read> nodes: array<vec4<u32>>;
 @group(0) @binding(5) var<storage, read> env_map: array<vec4<f32>>;
 // The distance grid (scene_buffers::grid_buffer): per cell [d(c) bits, start of its
 // candidate list] for the n cells plus a closing entry, then the candidate lists.
@@ -195,7 +213,7 @@ fn intersect(o: vec3<f32>, d: vec3<f32>, tmax0: f32) -> Hit {
             break;
         }
         top -= 1u;
-        let node = nodes[wg_stack[stack_base + top]];
+        let node = node_at(wg_stack[stack_base + top]);
         if box_entry(node.lo, node.hi, o, inv_d, best.t) >= 1e29 {
             continue;
         }
@@ -209,8 +227,8 @@ fn intersect(o: vec3<f32>, d: vec3<f32>, tmax0: f32) -> Hit {
         } else {
             let a = node.first;
             let b = node.first + 1u;
-            let na = nodes[a];
-            let nb = nodes[b];
+            let na = node_at(a);
+            let nb = node_at(b);
             let ta = box_entry(na.lo, na.hi, o, inv_d, best.t);
             let tb = box_entry(nb.lo, nb.hi, o, inv_d, best.t);
             // Push the farther child first so the nearer one is visited next.
@@ -303,7 +321,7 @@ fn surface_distance(p: vec3<f32>, limit: f32) -> f32 {
             break;
         }
         top -= 1u;
-        let node = nodes[wg_stack[stack_base + top]];
+        let node = node_at(wg_stack[stack_base + top]);
         if box_d2(p, node.lo, node.hi) >= best {
             continue;
         }
@@ -315,8 +333,10 @@ fn surface_distance(p: vec3<f32>, limit: f32) -> f32 {
         } else {
             let a = node.first;
             let b = node.first + 1u;
-            let da = box_d2(p, nodes[a].lo, nodes[a].hi);
-            let db = box_d2(p, nodes[b].lo, nodes[b].hi);
+            let na = node_at(a);
+            let da = box_d2(p, na.lo, na.hi);
+            let nb = node_at(b);
+            let db = box_d2(p, nb.lo, nb.hi);
             if top + 2u > STACK_DEPTH {
                 return sqrt(min(best, min(da, db)));
             }

@@ -33,8 +33,9 @@ pub fn run_probe_on(
     scene: Option<&crate::setup::SceneData>,
 ) -> Result<Vec<Item>, RenderError> {
     let (nodes, tris) = match scene {
-        Some(s) => geometry_buffers(s),
-        None => (vec![GpuNode::default()], vec![GpuTri::default()]),
+        Some(s) => geometry_buffers(s)?,
+        // A root and the two bounds entries (scene.wgsl, `mesh_bounds`).
+        None => (vec![GpuNode::default(); 3], vec![GpuTri::default()]),
     };
     let layout = kernels::bind_group_layout(ctx);
     let pipeline = kernels::pipeline(ctx, &layout, Kernel::Probe, Some(model), 0, entry)?;

@@ -187,7 +187,7 @@ pub fn render_gpu(
             kernels::STACK_DEPTH
         )));
     }
-    let (nodes, tris) = geometry_buffers(scene);
+    let (nodes, tris) = geometry_buffers(scene)?;
     let env = env_buffer(scene);
     let grid = scene
         .grid

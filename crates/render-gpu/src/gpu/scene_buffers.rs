@@ -6,6 +6,7 @@ use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 
 use crate::distance_grid::DistanceGrid;
+use crate::error::RenderError;
 use crate::geometry::Geometry;
 use crate::integrator::{IntegratorKind, IntegratorSettings};
 use crate::setup::{Boundary, SceneData};
@@ -71,10 +72,69 @@ const _: () = assert!(crate::scene::MAX_EXACT_NEE_SAMPLES == 4);
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
 pub struct GpuNode {
-    pub lo: [f32; 3],
-    pub first: u32,
-    pub hi: [f32; 3],
-    pub count: u32,
+    /// The box as six f16 (lo.xy, lo.z hi.x, hi.yz; `unpack2x16float`), each rounded
+    /// outward so that the decoded box contains the exact one; then `first << 4 | count`.
+    pub packed: [u32; 4],
+}
+
+impl GpuNode {
+    /// The largest leaf size and first index the packing holds.
+    pub const MAX_COUNT: u32 = 15;
+    pub const MAX_FIRST: u32 = (1 << 28) - 1;
+
+    pub fn new(lo: [f32; 3], hi: [f32; 3], first: u32, count: u32) -> Self {
+        let l = lo.map(|v| f16_outward(v, false));
+        let h = hi.map(|v| f16_outward(v, true));
+        let pair = |a: u16, b: u16| a as u32 | (b as u32) << 16;
+        Self {
+            packed: [
+                pair(l[0], l[1]),
+                pair(l[2], h[0]),
+                pair(h[1], h[2]),
+                first << 4 | count,
+            ],
+        }
+    }
+}
+
+/// f16 bits to f32 (exact).
+pub fn f16_to_f32(h: u16) -> f32 {
+    let sign = if h & 0x8000 != 0 { -1.0 } else { 1.0 };
+    let e = ((h >> 10) & 0x1f) as i32;
+    let m = (h & 0x3ff) as f32;
+    match e {
+        0 => sign * m * 2f32.powi(-24),
+        31 if m == 0.0 => sign * f32::INFINITY,
+        31 => f32::NAN,
+        _ => sign * (1.0 + m / 1024.0) * 2f32.powi(e - 15),
+    }
+}
+
+/// The f16 (bits) nearest `v` on the side of +∞ (`up`) or of −∞: its value bounds `v`, so
+/// a box rounded outward this way contains the exact box. Beyond f16's range the bound is
+/// infinite, which culls nothing but stays correct.
+pub fn f16_outward(v: f32, up: bool) -> u16 {
+    let a = v.abs();
+    // The largest f16 magnitude ≤ |v|: an estimate, corrected by a step or two.
+    let mut mag: u16 = if !(a < 65504.0) {
+        0x7bff
+    } else if a < 2f32.powi(-14) {
+        (a * 2f32.powi(24)) as u16
+    } else {
+        let e = (a.log2().floor() as i32).clamp(-14, 15);
+        let m = (((a / 2f32.powi(e) - 1.0) * 1024.0) as u16).min(1023);
+        (((e + 15) as u16) << 10) | m
+    };
+    while mag < 0x7c00 && f16_to_f32(mag + 1) <= a {
+        mag += 1;
+    }
+    while mag > 0 && f16_to_f32(mag) > a {
+        mag -= 1;
+    }
+    // Between two f16 magnitudes: the bound on the far side of zero's needs the larger.
+    let larger = f16_to_f32(mag) != a && up != v.is_sign_negative();
+    let sign = if v.is_sign_negative() { 0x8000 } else { 0 };
+    sign | (mag + larger as u16)
 }
 
 /// A triangle in BVH leaf order, with its outward unit normal.
@@ -126,19 +186,34 @@ pub fn grid_buffer(grid: &DistanceGrid, geo: &Geometry) -> Vec<u32> {
 }
 
 /// BVH nodes and triangles in leaf order.
-pub fn geometry_buffers(scene: &SceneData) -> (Vec<GpuNode>, Vec<GpuTri>) {
+pub fn geometry_buffers(scene: &SceneData) -> Result<(Vec<GpuNode>, Vec<GpuTri>), RenderError> {
     let geo = &scene.geo;
-    let nodes = geo
-        .bvh
-        .nodes
-        .iter()
-        .map(|n| GpuNode {
-            lo: n.aabb.min.into(),
-            first: n.first_index,
-            hi: n.aabb.max.into(),
-            count: n.prim_count,
-        })
-        .collect();
+    let mut nodes = Vec::with_capacity(geo.bvh.nodes.len() + 2);
+    for n in &geo.bvh.nodes {
+        if n.prim_count > GpuNode::MAX_COUNT || n.first_index > GpuNode::MAX_FIRST {
+            return Err(RenderError::GpuLimit(format!(
+                "the mesh's BVH has a node the GPU kernels cannot hold (first {}, count {}; \
+                 at most {} and {}); use --device cpu",
+                n.first_index,
+                n.prim_count,
+                GpuNode::MAX_FIRST,
+                GpuNode::MAX_COUNT
+            )));
+        }
+        nodes.push(GpuNode::new(
+            n.aabb.min.into(),
+            n.aabb.max.into(),
+            n.first_index,
+            n.prim_count,
+        ));
+    }
+    // The mesh's exact bounds after the nodes, for the inside-the-bounds check that the
+    // CPU makes with them (shaders/scene.wgsl, `mesh_bounds`).
+    let bits = |v: Vec3| GpuNode {
+        packed: [v.x.to_bits(), v.y.to_bits(), v.z.to_bits(), 0],
+    };
+    nodes.push(bits(geo.lo));
+    nodes.push(bits(geo.hi));
     let tris = geo
         .bvh
         .primitive_indices
@@ -155,7 +230,7 @@ pub fn geometry_buffers(scene: &SceneData) -> (Vec<GpuNode>, Vec<GpuTri>) {
             }
         })
         .collect();
-    (nodes, tris)
+    Ok((nodes, tris))
 }
 
 /// The scene constants of a render; the per-dispatch fields (`image.z..w`,
@@ -252,5 +327,61 @@ mod tests {
             depth >= min_depth && depth < 4 * min_depth + 8,
             "depth {depth} for {leaves} leaves"
         );
+    }
+
+    /// Every f16 bit pattern decodes as IEEE binary16 does (checked at the values whose
+    /// meaning is fixed: zero, the smallest subnormal, one, the largest finite, infinity).
+    #[test]
+    fn f16_decodes_binary16() {
+        assert_eq!(f16_to_f32(0x0000), 0.0);
+        assert_eq!(f16_to_f32(0x0001), 2f32.powi(-24));
+        assert_eq!(f16_to_f32(0x3c00), 1.0);
+        assert_eq!(f16_to_f32(0xc000), -2.0);
+        assert_eq!(f16_to_f32(0x7bff), 65504.0);
+        assert_eq!(f16_to_f32(0x7c00), f32::INFINITY);
+        assert_eq!(f16_to_f32(0x3555), 0.333_251_95);
+    }
+
+    /// A box rounded outward contains the exact one, and no tighter f16 would: for values
+    /// across f16's range (subnormal, normal, beyond it), both signs and exact f16 values,
+    /// the lower bound is ≤ v and the next f16 above it is > v (mirrored for the upper).
+    #[test]
+    fn f16_outward_bounds_tightly() {
+        let mut rng = scatter_sim::rng::WalkRng::from_seed(5);
+        let mut values: Vec<f32> = vec![0.0, -0.0, 1.0, -1.0, 0.5, 65504.0, 7e4, -7e4, 1e-9];
+        for _ in 0..20_000 {
+            let e = rng.uniform() * 40.0 - 26.0;
+            let sign = if rng.uniform() < 0.5 { -1.0 } else { 1.0 };
+            values.push((sign * 2f64.powf(e)) as f32);
+        }
+        // The f16 values next to a bound, by exhaustive search.
+        let all: Vec<f32> = (0..=u16::MAX)
+            .map(f16_to_f32)
+            .filter(|w| !w.is_nan())
+            .collect();
+        let above = |x: f32| {
+            all.iter()
+                .copied()
+                .filter(|&w| w > x)
+                .fold(f32::INFINITY, f32::min)
+        };
+        let below = |x: f32| {
+            all.iter()
+                .copied()
+                .filter(|&w| w < x)
+                .fold(f32::NEG_INFINITY, f32::max)
+        };
+        for (k, &v) in values.iter().enumerate() {
+            let (lo, hi) = (
+                f16_to_f32(f16_outward(v, false)),
+                f16_to_f32(f16_outward(v, true)),
+            );
+            assert!(lo <= v && v <= hi, "{v}: [{lo}, {hi}]");
+            // Tightness, on a sample (the search is slow).
+            if k < 300 {
+                assert!(above(lo) > v, "{v}: lower bound {lo} not tight");
+                assert!(below(hi) < v, "{v}: upper bound {hi} not tight");
+            }
+        }
     }
 }
