@@ -37,7 +37,7 @@ struct Params {
 
 // A BVH node as the traversals use it. `nodes` holds it packed in 16 bytes
 // (scene_buffers::GpuNode: the box as six f16 rounded outward, then first << 4 | count),
-// half the 32 of f32 boxes: lavapipe loads every word lane by lane, and PT ran 19 % faster
+// half the 32 of f32 boxes: lavapipe loads every word lane by lane, and PT ran 18 % faster
 // on Mesa 22 for it (docs/BENCHMARKS.md); `node_at` unpacks it.
 struct Node {
     lo: vec3<f32>,
