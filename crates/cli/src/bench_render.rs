@@ -298,7 +298,7 @@ pub fn run(a: Args) -> Result<()> {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("--save: cannot create {}", dir.display()))?;
     }
-    let engine = Engine::open(a.device)?;
+    let engine = Engine::open(a.device)?.without_fallback();
     println!(
         "stcvae bench render: {} ({}x{}), g = 0.875, albedo (0.99999, 0.99995, 0.975), NEE {}, {} spp each (2 seeds of {}: a multiple of 3 per seed; seeds PT {:?}, ST-CVAE {:?}), {}",
         a.scene.display(),

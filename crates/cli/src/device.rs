@@ -65,6 +65,13 @@ impl Engine {
         })
     }
 
+    /// No fall-back to the CPU after the device is chosen: a measurement (`bench`,
+    /// `experiment`) must not change device part way, under a report that names the first.
+    pub fn without_fallback(mut self) -> Self {
+        self.auto = false;
+        self
+    }
+
     fn active_gpu(&self) -> Option<&GpuContext> {
         self.gpu.as_deref().filter(|_| !self.fell_back.get())
     }

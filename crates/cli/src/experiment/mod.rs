@@ -63,7 +63,7 @@ pub fn run(a: Args) -> Result<()> {
     kinds::preflight(&cfg).with_context(|| a.config.display().to_string())?;
     let out = a.out.join(&name);
     // The device and the model first: a run that cannot start leaves no empty folder behind.
-    let engine = Engine::open(a.device)?;
+    let engine = Engine::open(a.device)?.without_fallback();
     if a.model.is_some() {
         crate::model_cmds::load_model(a.model.as_deref())?;
     }

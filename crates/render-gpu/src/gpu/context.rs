@@ -63,23 +63,34 @@ fn summary(info: &wgpu::AdapterInfo) -> AdapterSummary {
 
 /// Why no adapter was found, in words that name the fix. The messages read as a clause, so
 /// that `--device auto` can append "rendering on the CPU".
+///
+/// `elsewhere`: adapters that the backends `WGPU_BACKEND` leaves out would have offered.
 fn no_adapter(
     choice: AdapterChoice,
     backends: Option<wgpu::Backends>,
     software: &[String],
+    elsewhere: &[String],
 ) -> String {
     // WGPU_BACKEND set to gl or to a name wgpu does not know leaves no native backend to
-    // search: that is the fault to name, or the hint to install lavapipe misleads on a
-    // machine that has it. A valid value (vulkan, say) is not at fault.
+    // search, and one set to a backend this machine lacks (dx12 on Linux) hides the
+    // adapters it has: that is the fault to name, or the hint to install lavapipe misleads
+    // on a machine that has it. A value whose backend just lacks a driver is not at fault.
     if backends.is_none()
         && let Some(v) = std::env::var_os("WGPU_BACKEND")
-        && wgpu::Backends::from_env().is_none_or(|b| (b & wgpu::Backends::PRIMARY).is_empty())
     {
-        return format!(
-            "no wgpu adapter found with WGPU_BACKEND={} (this build uses vulkan, metal or \
-             dx12; gl is not compiled in); unset it or name one of those",
-            v.to_string_lossy()
-        );
+        let v = v.to_string_lossy();
+        if wgpu::Backends::from_env().is_none_or(|b| (b & wgpu::Backends::PRIMARY).is_empty()) {
+            return format!(
+                "no wgpu adapter found with WGPU_BACKEND={v} (this build uses vulkan, metal \
+                 or dx12; gl is not compiled in); unset it or name one of those"
+            );
+        }
+        if let Some(name) = elsewhere.first() {
+            return format!(
+                "no wgpu adapter found with WGPU_BACKEND={v}, while {name} is there on \
+                 another backend; unset it or name that backend"
+            );
+        }
     }
     match (choice, software.first()) {
         (AdapterChoice::Hardware, Some(name)) => format!(
@@ -121,6 +132,7 @@ impl GpuContext {
         desc.backends = backends
             .unwrap_or_else(|| wgpu::Backends::from_env().unwrap_or(wgpu::Backends::PRIMARY))
             & wgpu::Backends::PRIMARY;
+        let desc_backends = desc.backends;
         let instance = wgpu::Instance::new(desc);
         let mut adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()));
         let software: Vec<String> = adapters
@@ -134,8 +146,24 @@ impl GpuContext {
         });
         adapters.sort_by_key(|a| rank(a.get_info().device_type));
         let Some(adapter) = adapters.into_iter().next() else {
+            // Only on this error path: what the backends WGPU_BACKEND left out would offer.
+            let primary = wgpu::Backends::PRIMARY;
+            let elsewhere: Vec<String> = if backends.is_none() && desc_backends != primary {
+                let mut all = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+                all.backends = primary;
+                pollster::block_on(wgpu::Instance::new(all).enumerate_adapters(primary))
+                    .iter()
+                    .map(|a| a.get_info())
+                    .filter(|i| {
+                        choice == AdapterChoice::Any || i.device_type != wgpu::DeviceType::Cpu
+                    })
+                    .map(|i| i.name)
+                    .collect()
+            } else {
+                Vec::new()
+            };
             return Err(RenderError::NoAdapter(no_adapter(
-                choice, backends, &software,
+                choice, backends, &software, &elsewhere,
             )));
         };
         let info = adapter.get_info();
@@ -167,17 +195,17 @@ mod tests {
     fn no_adapter_names_the_fix_that_applies() {
         let vk = Some(wgpu::Backends::VULKAN);
         let lvp = ["llvmpipe (LLVM 15.0.6, 256 bits)".to_string()];
-        let m = no_adapter(AdapterChoice::Hardware, vk, &lvp);
+        let m = no_adapter(AdapterChoice::Hardware, vk, &lvp, &[]);
         assert!(
             m.contains("--device gpu would use the software adapter llvmpipe"),
             "{m}"
         );
-        let m = no_adapter(AdapterChoice::Hardware, vk, &[]);
+        let m = no_adapter(AdapterChoice::Hardware, vk, &[], &[]);
         assert!(
             m.starts_with("no GPU adapter") && !m.contains("--device gpu"),
             "{m}"
         );
-        let m = no_adapter(AdapterChoice::Any, vk, &[]);
+        let m = no_adapter(AdapterChoice::Any, vk, &[], &[]);
         assert!(m.contains("apt-get install mesa-vulkan-drivers"), "{m}");
         assert!(m.contains("--device cpu"), "{m}");
     }

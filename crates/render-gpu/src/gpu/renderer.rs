@@ -43,7 +43,8 @@ const TARGET_CHUNK_SECONDS: f64 = 1.0;
 /// keeps each dispatch far below watchdogs. `STCVAE_GPU_BOUNCES` sets the first value.
 fn bounce_budget(ctx: &GpuContext) -> Result<u32, RenderError> {
     match std::env::var("STCVAE_GPU_BOUNCES") {
-        Err(_) => Ok(if ctx.adapter.software { 128 } else { 256 }),
+        Err(std::env::VarError::NotPresent) => Ok(if ctx.adapter.software { 128 } else { 256 }),
+        Err(std::env::VarError::NotUnicode(v)) => parse_bounces(&v.to_string_lossy()),
         Ok(v) => parse_bounces(&v),
     }
 }
@@ -193,6 +194,10 @@ pub fn render_gpu(
         .grid
         .as_ref()
         .map_or_else(Vec::new, |g| grid_buffer(g, &scene.geo));
+    // Bands keep each binding within its limit, not the whole within the GPU's memory: an
+    // allocation that fails is a limit of this device (the CPU may render the scene), not
+    // a panic in wgpu's default error handler.
+    let scope = ctx.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
     let res = Resources::new(
         ctx,
         &layout,
@@ -232,6 +237,16 @@ pub fn render_gpu(
     // cut-off dispatch can be redone with a smaller budget.
     let largest = accum_bytes.iter().copied().max().unwrap_or(0);
     let snapshot = (ctx.adapter.software && budget > 1).then(|| res.snapshot_buffer(ctx, largest));
+    if let Some(e) = pollster::block_on(scope.pop()) {
+        let total: u64 = accum_bytes.iter().sum();
+        return Err(RenderError::GpuLimit(format!(
+            "{} is out of memory for this render's buffers ({} MB of path state for {} \
+             pixels): {e}; lower the image size or use --device cpu",
+            ctx.adapter.name,
+            total / 1_000_000,
+            pixels
+        )));
+    }
     params.image[1] = bands[0].1;
     params.consts2[3] = shape(bands[0].1).1;
     let compile_seconds = compile(ctx, &res, &pipeline, &params)?;
