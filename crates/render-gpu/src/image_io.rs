@@ -13,6 +13,11 @@ use scatter_sim::output::write_atomic;
 
 use crate::error::RenderError;
 
+/// The render tag as one text attribute, `spp=N scene=HEX [seed=S]`. One attribute, not
+/// three: the exr crate keeps custom attributes in a HashMap, whose order (and so the
+/// file's bytes) changed from run to run with three.
+const ATTR_TAG: &str = "stcvaeTag";
+/// The three attributes that files written before `ATTR_TAG` carry (still read).
 const ATTR_SPP: &str = "stcvaeSpp";
 const ATTR_SCENE: &str = "stcvaeSceneHash";
 const ATTR_SEED: &str = "stcvaeSeed";
@@ -64,20 +69,14 @@ pub fn encode_exr(img: &RgbImage, tag: &RenderTag) -> std::result::Result<Vec<u8
         (p[0], p[1], p[2])
     });
     let mut attrs = LayerAttributes::default();
-    attrs.other.insert(
-        Text::from(ATTR_SPP),
-        AttributeValue::Text(Text::from(tag.spp.to_string().as_str())),
-    );
-    attrs.other.insert(
-        Text::from(ATTR_SCENE),
-        AttributeValue::Text(Text::from(format!("{:016x}", tag.scene_hash).as_str())),
-    );
+    let mut text = format!("spp={} scene={:016x}", tag.spp, tag.scene_hash);
     if let Some(seed) = tag.seed {
-        attrs.other.insert(
-            Text::from(ATTR_SEED),
-            AttributeValue::Text(Text::from(seed.to_string().as_str())),
-        );
+        text += &format!(" seed={seed}");
     }
+    attrs.other.insert(
+        Text::from(ATTR_TAG),
+        AttributeValue::Text(Text::from(text.as_str())),
+    );
     let layer = Layer::new(
         Vec2(img.width, img.height),
         attrs,
@@ -134,30 +133,43 @@ pub fn read_exr(path: &Path) -> std::result::Result<(RgbImage, Option<RenderTag>
         Some(AttributeValue::Text(t)) => Some(t.to_string()),
         _ => None,
     };
-    let tag = match (text(ATTR_SPP), text(ATTR_SCENE)) {
-        (Some(s), Some(h)) => Some(RenderTag {
-            spp: s.parse().map_err(|_| {
-                RenderError::Image(format!(
-                    "{}: bad {ATTR_SPP} attribute `{s}`",
-                    path.display()
-                ))
-            })?,
-            scene_hash: u64::from_str_radix(&h, 16).map_err(|_| {
-                RenderError::Image(format!(
-                    "{}: bad {ATTR_SCENE} attribute `{h}`",
-                    path.display()
-                ))
-            })?,
-            seed: match text(ATTR_SEED) {
+    // The tag's fields: from `ATTR_TAG`, or from the three attributes of older files.
+    let fields: Option<[(&str, Option<String>); 3]> = match text(ATTR_TAG) {
+        Some(t) => {
+            let field = |k: &str| {
+                t.split(' ')
+                    .find_map(|kv| kv.strip_prefix(k)?.strip_prefix('='))
+                    .map(str::to_string)
+            };
+            Some([
+                (ATTR_TAG, field("spp")),
+                (ATTR_TAG, field("scene")),
+                (ATTR_TAG, field("seed")),
+            ])
+        }
+        None => text(ATTR_SPP).map(|_| {
+            [
+                (ATTR_SPP, text(ATTR_SPP)),
+                (ATTR_SCENE, text(ATTR_SCENE)),
+                (ATTR_SEED, text(ATTR_SEED)),
+            ]
+        }),
+    };
+    let bad = |attr: &str, v: &str| {
+        RenderError::Image(format!("{}: bad {attr} attribute `{v}`", path.display()))
+    };
+    let tag = match fields {
+        Some([(a_spp, Some(s)), (a_scene, Some(h)), (a_seed, seed)]) => Some(RenderTag {
+            spp: s.parse().map_err(|_| bad(a_spp, &s))?,
+            scene_hash: u64::from_str_radix(&h, 16).map_err(|_| bad(a_scene, &h))?,
+            seed: match seed {
                 None => None,
-                Some(v) => Some(v.parse().map_err(|_| {
-                    RenderError::Image(format!(
-                        "{}: bad {ATTR_SEED} attribute `{v}`",
-                        path.display()
-                    ))
-                })?),
+                Some(v) => Some(v.parse().map_err(|_| bad(a_seed, &v))?),
             },
         }),
+        Some([(a, _), ..]) if a == ATTR_TAG => {
+            return Err(bad(ATTR_TAG, &text(ATTR_TAG).unwrap_or_default()));
+        }
         _ => None,
     };
     Ok((image.layer_data.channel_data.pixels, tag))
@@ -332,4 +344,73 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
         tag.seed = None;
     }
     Ok((img, tag))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn image() -> RgbImage {
+        let mut img = RgbImage::new(5, 3);
+        for (k, p) in img.pixels.iter_mut().enumerate() {
+            *p = [k as f32, 0.5 * k as f32, 1.0 / (1.0 + k as f32)];
+        }
+        img
+    }
+
+    /// The same image and tag encode to the same bytes every time (with the tag as three
+    /// attributes, the exr crate's HashMap wrote them in a different order in most of
+    /// these ten encodings), and the tag reads back.
+    #[test]
+    fn exr_files_are_reproducible_and_keep_their_tag() {
+        let img = image();
+        let tag = RenderTag {
+            spp: 96,
+            scene_hash: 0x00ab_cdef_0123_4567,
+            seed: Some(7),
+        };
+        let first = encode_exr(&img, &tag).unwrap();
+        for _ in 0..10 {
+            assert!(encode_exr(&img, &tag).unwrap() == first, "EXR bytes differ");
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("a.exr");
+        std::fs::write(&path, &first).unwrap();
+        let (back, read) = read_exr(&path).unwrap();
+        assert_eq!(back, img);
+        let read = read.unwrap();
+        assert_eq!(
+            (read.spp, read.scene_hash, read.seed),
+            (96, tag.scene_hash, Some(7))
+        );
+    }
+
+    /// Files written with the three attributes of earlier versions still give their tag.
+    #[test]
+    fn exr_files_of_earlier_versions_keep_their_tag() {
+        let img = image();
+        let w = img.width;
+        let channels = SpecificChannels::rgb(|pos: Vec2<usize>| {
+            let p = img.pixels[pos.y() * w + pos.x()];
+            (p[0], p[1], p[2])
+        });
+        let mut attrs = LayerAttributes::default();
+        for (k, v) in [(ATTR_SPP, "12"), (ATTR_SCENE, "00000000000000ff")] {
+            attrs
+                .other
+                .insert(Text::from(k), AttributeValue::Text(Text::from(v)));
+        }
+        let layer = Layer::new(
+            Vec2(img.width, img.height),
+            attrs,
+            Encoding::SMALL_LOSSLESS,
+            channels,
+        );
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("old.exr");
+        Image::from_layer(layer).write().to_file(&path).unwrap();
+        let (_, tag) = read_exr(&path).unwrap();
+        let tag = tag.unwrap();
+        assert_eq!((tag.spp, tag.scene_hash, tag.seed), (12, 255, None));
+    }
 }
