@@ -36,9 +36,10 @@ struct Params {
 }
 
 // A BVH node as the traversals use it. `nodes` holds it packed in 16 bytes
-// (scene_buffers::GpuNode: the box as six f16 rounded outward, then first << 4 | count),
-// half the 32 of f32 boxes: lavapipe loads every word lane by lane, and PT ran 18 % faster
-// on Mesa 22 for it (docs/BENCHMARKS.md); `node_at` unpacks it.
+// (scene_buffers::GpuNode: the box as six f16 rounded outward, then first <<
+// NODE_COUNT_BITS | count), half the 32 of f32 boxes: lavapipe loads every word lane by
+// lane, and PT ran 18 % faster on Mesa 22 for it (docs/BENCHMARKS.md); `node_at` unpacks
+// it.
 struct Node {
     lo: vec3<f32>,
     first: u32,
@@ -57,7 +58,8 @@ fn node_at(i: u32) -> Node {
     let a = unpack2x16float(q.x);
     let b = unpack2x16float(q.y);
     let c = unpack2x16float(q.z);
-    return Node(vec3<f32>(a, b.x), q.w >> 4u, vec3<f32>(b.y, c), q.w & 15u);
+    let count = q.w & ((1u << NODE_COUNT_BITS) - 1u);
+    return Node(vec3<f32>(a, b.x), q.w >> NODE_COUNT_BITS, vec3<f32>(b.y, c), count);
 }
 
 struct Tri {

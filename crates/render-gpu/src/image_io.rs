@@ -133,44 +133,41 @@ pub fn read_exr(path: &Path) -> std::result::Result<(RgbImage, Option<RenderTag>
         Some(AttributeValue::Text(t)) => Some(t.to_string()),
         _ => None,
     };
-    // The tag's fields: from `ATTR_TAG`, or from the three attributes of older files.
-    let fields: Option<[(&str, Option<String>); 3]> = match text(ATTR_TAG) {
+    // The tag's fields and the attribute each came from: `ATTR_TAG`, or the three
+    // attributes of older files.
+    let tagged = text(ATTR_TAG);
+    let (names, [spp, scene, seed]) = match &tagged {
         Some(t) => {
             let field = |k: &str| {
                 t.split(' ')
                     .find_map(|kv| kv.strip_prefix(k)?.strip_prefix('='))
                     .map(str::to_string)
             };
-            Some([
-                (ATTR_TAG, field("spp")),
-                (ATTR_TAG, field("scene")),
-                (ATTR_TAG, field("seed")),
-            ])
+            ([ATTR_TAG; 3], [field("spp"), field("scene"), field("seed")])
         }
-        None => text(ATTR_SPP).map(|_| {
-            [
-                (ATTR_SPP, text(ATTR_SPP)),
-                (ATTR_SCENE, text(ATTR_SCENE)),
-                (ATTR_SEED, text(ATTR_SEED)),
-            ]
-        }),
+        None => (
+            [ATTR_SPP, ATTR_SCENE, ATTR_SEED],
+            [text(ATTR_SPP), text(ATTR_SCENE), text(ATTR_SEED)],
+        ),
     };
     let bad = |attr: &str, v: &str| {
         RenderError::Image(format!("{}: bad {attr} attribute `{v}`", path.display()))
     };
-    let tag = match fields {
-        Some([(a_spp, Some(s)), (a_scene, Some(h)), (a_seed, seed)]) => Some(RenderTag {
-            spp: s.parse().map_err(|_| bad(a_spp, &s))?,
-            scene_hash: u64::from_str_radix(&h, 16).map_err(|_| bad(a_scene, &h))?,
+    let tag = match (spp, scene) {
+        (Some(s), Some(h)) => Some(RenderTag {
+            spp: s.parse().map_err(|_| bad(names[0], &s))?,
+            scene_hash: u64::from_str_radix(&h, 16).map_err(|_| bad(names[1], &h))?,
             seed: match seed {
                 None => None,
-                Some(v) => Some(v.parse().map_err(|_| bad(a_seed, &v))?),
+                Some(v) => Some(v.parse().map_err(|_| bad(names[2], &v))?),
             },
         }),
-        Some([(a, _), ..]) if a == ATTR_TAG => {
-            return Err(bad(ATTR_TAG, &text(ATTR_TAG).unwrap_or_default()));
-        }
-        _ => None,
+        // A tag attribute without its spp and scene is damaged; an old file without the
+        // pair simply has no tag.
+        _ => match tagged {
+            Some(t) => return Err(bad(ATTR_TAG, &t)),
+            None => None,
+        },
     };
     Ok((image.layer_data.channel_data.pixels, tag))
 }

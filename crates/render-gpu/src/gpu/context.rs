@@ -14,6 +14,20 @@ pub enum AdapterChoice {
     Any,
 }
 
+impl AdapterChoice {
+    fn admits(self, info: &wgpu::AdapterInfo) -> bool {
+        self == AdapterChoice::Any || info.device_type != wgpu::DeviceType::Cpu
+    }
+}
+
+/// The adapters wgpu finds on `backends`; the instance's other settings come from the
+/// environment.
+fn adapters_on(backends: wgpu::Backends) -> Vec<wgpu::Adapter> {
+    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+    desc.backends = backends;
+    pollster::block_on(wgpu::Instance::new(desc).enumerate_adapters(backends))
+}
+
 /// Name, backend and type of the adapter in use, as reported once per run.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct AdapterSummary {
@@ -128,35 +142,25 @@ impl GpuContext {
         choice: AdapterChoice,
         backends: Option<wgpu::Backends>,
     ) -> Result<Self, RenderError> {
-        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
-        desc.backends = backends
-            .unwrap_or_else(|| wgpu::Backends::from_env().unwrap_or(wgpu::Backends::PRIMARY))
-            & wgpu::Backends::PRIMARY;
-        let desc_backends = desc.backends;
-        let instance = wgpu::Instance::new(desc);
-        let mut adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()));
+        let primary = wgpu::Backends::PRIMARY;
+        let searched =
+            backends.unwrap_or_else(|| wgpu::Backends::from_env().unwrap_or(primary)) & primary;
+        let mut adapters = adapters_on(searched);
         let software: Vec<String> = adapters
             .iter()
             .map(|a| a.get_info())
             .filter(|i| i.device_type == wgpu::DeviceType::Cpu)
             .map(|i| i.name)
             .collect();
-        adapters.retain(|a| {
-            choice == AdapterChoice::Any || a.get_info().device_type != wgpu::DeviceType::Cpu
-        });
+        adapters.retain(|a| choice.admits(&a.get_info()));
         adapters.sort_by_key(|a| rank(a.get_info().device_type));
         let Some(adapter) = adapters.into_iter().next() else {
             // Only on this error path: what the backends WGPU_BACKEND left out would offer.
-            let primary = wgpu::Backends::PRIMARY;
-            let elsewhere: Vec<String> = if backends.is_none() && desc_backends != primary {
-                let mut all = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
-                all.backends = primary;
-                pollster::block_on(wgpu::Instance::new(all).enumerate_adapters(primary))
+            let elsewhere: Vec<String> = if backends.is_none() && searched != primary {
+                adapters_on(primary)
                     .iter()
                     .map(|a| a.get_info())
-                    .filter(|i| {
-                        choice == AdapterChoice::Any || i.device_type != wgpu::DeviceType::Cpu
-                    })
+                    .filter(|i| choice.admits(i))
                     .map(|i| i.name)
                     .collect()
             } else {

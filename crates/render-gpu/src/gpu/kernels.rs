@@ -69,20 +69,22 @@ pub fn source(
             )));
         }
     };
-    // The traversal stack's size, from its one definition here (scene.wgsl uses it), and
-    // the shadow-ray roulette threshold and flight margin from the CPU integrator's
-    // (nee.wgsl, path.wgsl).
+    // The traversal stack's size, from its one definition here (scene.wgsl uses it), the
+    // shadow-ray roulette threshold and flight margin from the CPU integrator's (nee.wgsl,
+    // path.wgsl), and the node packing's count bits from GpuNode's.
     let stack = format!(
         "const STACK_DEPTH: u32 = {STACK_DEPTH}u;\nvar<workgroup> wg_stack: array<u32, {}>;\n\
          const ROULETTE_BOUND: f32 = {:?};\nconst FLIGHT_MARGIN_OF_EPS: f32 = {:?};\n\
          const EXIT_REFINE_TAU: f32 = {:?};\nconst SLIVER_REACH_OF_EPS: f32 = {:?};\n\
-         const PATH_NEE_M: u32 = {path_nee_m}u;\nconst SLOT: u32 = {}u;\n",
+         const PATH_NEE_M: u32 = {path_nee_m}u;\nconst SLOT: u32 = {}u;\n\
+         const NODE_COUNT_BITS: u32 = {}u;\n",
         STACK_DEPTH * WORKGROUP,
         crate::integrator::nee::ROULETTE_BOUND,
         crate::geometry::FLIGHT_MARGIN_OF_EPS,
         crate::integrator::sphere_step::EXIT_REFINE_TAU,
         crate::geometry::SLIVER_REACH_OF_EPS,
         slot_vec4s(path_nee_m),
+        super::scene_buffers::GpuNode::COUNT_BITS,
     );
     let parts: &[&str] = match kernel {
         Kernel::Pt => &[COMMON, &stack, SCENE, NEE, PT, PATH],

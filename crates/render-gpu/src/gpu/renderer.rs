@@ -116,6 +116,105 @@ fn compile(
     Ok(t0.elapsed().as_secs_f64())
 }
 
+/// One band of rows of the image: its first row and count, its workgroups and the stride
+/// of their scattered order, and its accumulation buffer (index and size).
+struct Band {
+    index: usize,
+    row0: u32,
+    rows: u32,
+    groups: (u32, u32),
+    stride: f32,
+    bytes: u64,
+}
+
+/// What every dispatch of a render uses.
+struct Dispatcher<'a> {
+    ctx: &'a GpuContext,
+    res: &'a Resources,
+    pipeline: &'a wgpu::ComputePipeline,
+    /// The path states before the dispatch in flight (software adapters).
+    snapshot: Option<&'a wgpu::Buffer>,
+}
+
+impl Dispatcher<'_> {
+    /// Dispatches the chunk of samples in `params` over `band` until no path of it is
+    /// pending (`first`: the render's first chunk, whose first dispatch clears the
+    /// accumulator). A dispatch cut off by a software adapter's loop limit is undone from
+    /// the snapshot and redone with half the `budget`, which stays halved for the rest of
+    /// the render.
+    fn run_band(
+        &self,
+        band: &Band,
+        first: bool,
+        params: &mut Params,
+        budget: &mut u32,
+        stats: &mut PathStats,
+    ) -> Result<(), RenderError> {
+        let Self {
+            ctx,
+            res,
+            pipeline,
+            snapshot,
+        } = *self;
+        params.image[1] = band.rows;
+        params.cam_right[3] = band.row0 as f32;
+        params.consts2[3] = band.stride;
+        let accum = &res.accums[band.index];
+        // Dispatch kind: 2: first dispatch of the render, 1: of a chunk, 0: resume.
+        params.misc[3] = if first { 2 } else { 1 };
+        loop {
+            ctx.queue
+                .write_buffer(&res.params, 0, bytemuck::bytes_of(params));
+            ctx.queue
+                .write_buffer(&res.counters, 0, &[0u8; COUNTER_BYTES as usize]);
+            let snap = snapshot.filter(|_| *budget > 1);
+            if let Some(snap) = snap {
+                res.copy(ctx, accum, snap, band.bytes);
+            }
+            res.dispatch(ctx, pipeline, band.groups, band.index);
+            let c = read_back(ctx, &res.counters, COUNTER_BYTES)?;
+            let word =
+                |i: usize| u32::from_le_bytes(c[4 * i..4 * i + 4].try_into().unwrap()) as u64;
+            let pair = |k: usize| word(2 * k) | (word(2 * k + 1) << 32);
+            if pair(7) > 0
+                && let Some(snap) = snap
+            {
+                // Undo the cut-off dispatch and redo it with half the budget.
+                res.copy(ctx, snap, accum, band.bytes);
+                *budget /= 2;
+                params.consts2[2] = *budget as f32;
+                continue;
+            }
+            stats.add(&PathStats {
+                paths: pair(0),
+                events: pair(1),
+                steps: pair(2),
+                leaks: pair(3),
+                capped: pair(4),
+                non_finite: pair(5),
+                exact_steps: pair(8),
+            });
+            if pair(7) > 0 {
+                let hint = if *budget > 1 {
+                    format!("set STCVAE_GPU_BOUNCES below {budget}")
+                } else {
+                    "a single bounce exceeded it: lower render.exact_tau".to_string()
+                };
+                return Err(RenderError::Gpu(format!(
+                    "{} invocations were stopped by {}'s loop limit (lavapipe stops a shader \
+                     after 65,535 loop iterations); {hint} or use --device cpu",
+                    pair(7),
+                    ctx.adapter.name,
+                )));
+            }
+            params.misc[3] = 0;
+            if pair(6) == 0 {
+                return Ok(());
+            }
+        }
+    }
+}
+
 /// Renders on the GPU with the estimators of the CPU integrators.
 pub fn render_gpu(
     ctx: &GpuContext,
@@ -170,15 +269,29 @@ pub fn render_gpu(
             limits.max_storage_buffer_binding_size
         )));
     }
-    let bands: Vec<(u32, u32)> = (0..cam.height)
+    let bands: Vec<Band> = (0..cam.height)
         .step_by(band_rows as usize)
-        .map(|r0| (r0, band_rows.min(cam.height - r0)))
+        .enumerate()
+        .map(|(index, row0)| {
+            let rows = band_rows.min(cam.height - row0);
+            let threads = cam.width as u64 * rows as u64 * lanes as u64;
+            // Workgroups as (x, y) within the 65,535 a dimension allows.
+            let groups = threads.div_ceil(WORKGROUP as u64);
+            Band {
+                index,
+                row0,
+                rows,
+                groups: if groups <= 65535 {
+                    (groups as u32, 1)
+                } else {
+                    (65535, groups.div_ceil(65535) as u32)
+                },
+                stride: tile_stride(groups) as f32,
+                bytes: threads * slot_bytes,
+            }
+        })
         .collect();
-    let band_threads = |rows: u32| cam.width as u64 * rows as u64 * lanes as u64;
-    let accum_bytes: Vec<u64> = bands
-        .iter()
-        .map(|&(_, rows)| band_threads(rows) * slot_bytes)
-        .collect();
+    let accum_bytes: Vec<u64> = bands.iter().map(|b| b.bytes).collect();
     let mut params: Params = scene_params(scene, set, opts.seed);
     let depth = bvh_depth(&scene.geo.bvh);
     if depth + 1 > kernels::STACK_DEPTH as usize {
@@ -220,17 +333,6 @@ pub fn render_gpu(
             &vec![0xffu8; bytes as usize], // all-ones f32 bits = NaN
         );
     }
-    // Workgroups of each band, as (x, y) within the 65,535 a dimension allows, and the
-    // stride of their scattered order.
-    let shape = |rows: u32| {
-        let groups = band_threads(rows).div_ceil(WORKGROUP as u64);
-        let xy = if groups <= 65535 {
-            (groups as u32, 1)
-        } else {
-            (65535, groups.div_ceil(65535) as u32)
-        };
-        (xy, tile_stride(groups) as f32)
-    };
     let mut budget = bounce_budget(ctx)?;
     params.consts2[2] = budget as f32;
     // The path states before the dispatch in flight, kept on software adapters while a
@@ -247,9 +349,13 @@ pub fn render_gpu(
             pixels
         )));
     }
-    params.image[1] = bands[0].1;
-    params.consts2[3] = shape(bands[0].1).1;
     let compile_seconds = compile(ctx, &res, &pipeline, &params)?;
+    let gpu = Dispatcher {
+        ctx,
+        res: &res,
+        pipeline: &pipeline,
+        snapshot: snapshot.as_ref(),
+    };
     let start = Instant::now();
     let mut stats = PathStats::default();
     let mut s0 = 0u32;
@@ -262,66 +368,9 @@ pub fn render_gpu(
         params.sampling[0] = s0;
         params.sampling[1] = s1;
         let t0 = Instant::now();
-        for (band, &(row0, rows)) in bands.iter().enumerate() {
-            let (groups, stride) = shape(rows);
-            params.image[1] = rows;
-            params.cam_right[3] = row0 as f32;
-            params.consts2[3] = stride;
-            let accum = &res.accums[band];
-            let bytes = accum_bytes[band];
-            // Dispatch until no path of this chunk is pending (2: first dispatch of the
-            // render, 1: of a chunk, 0: resume).
-            params.misc[3] = if s0 == 0 { 2 } else { 1 };
-            loop {
-                ctx.queue
-                    .write_buffer(&res.params, 0, bytemuck::bytes_of(&params));
-                ctx.queue
-                    .write_buffer(&res.counters, 0, &[0u8; COUNTER_BYTES as usize]);
-                if let Some(snap) = snapshot.as_ref().filter(|_| budget > 1) {
-                    res.copy(ctx, accum, snap, bytes);
-                }
-                res.dispatch(ctx, &pipeline, groups, band);
-                let c = read_back(ctx, &res.counters, COUNTER_BYTES)?;
-                let word =
-                    |i: usize| u32::from_le_bytes(c[4 * i..4 * i + 4].try_into().unwrap()) as u64;
-                let pair = |k: usize| word(2 * k) | (word(2 * k + 1) << 32);
-                if pair(7) > 0
-                    && let Some(snap) = snapshot.as_ref().filter(|_| budget > 1)
-                {
-                    // Undo the cut-off dispatch and redo it with half the budget.
-                    res.copy(ctx, snap, accum, bytes);
-                    budget /= 2;
-                    params.consts2[2] = budget as f32;
-                    continue;
-                }
-                stats.add(&PathStats {
-                    paths: pair(0),
-                    events: pair(1),
-                    steps: pair(2),
-                    leaks: pair(3),
-                    capped: pair(4),
-                    non_finite: pair(5),
-                    exact_steps: pair(8),
-                });
-                if pair(7) > 0 {
-                    let hint = if budget > 1 {
-                        format!("set STCVAE_GPU_BOUNCES below {budget}")
-                    } else {
-                        "a single bounce exceeded it: lower render.exact_tau".to_string()
-                    };
-                    return Err(RenderError::Gpu(format!(
-                        "{} invocations were stopped by {}'s loop limit (lavapipe stops a \
-                         shader after 65,535 loop iterations); {hint} or use --device cpu",
-                        pair(7),
-                        ctx.adapter.name,
-                    )));
-                }
-                params.misc[3] = 0;
-                if pair(6) == 0 {
-                    break;
-                }
-            }
-            let done_rows = row0 as u64 + rows as u64;
+        for band in &bands {
+            gpu.run_band(band, s0 == 0, &mut params, &mut budget, &mut stats)?;
+            let done_rows = (band.row0 + band.rows) as u64;
             progress(
                 pixels * s0 as u64 + cam.width as u64 * done_rows * (s1 - s0) as u64,
                 total,
@@ -343,11 +392,11 @@ pub fn render_gpu(
     let mut image = RgbImage::new(cam.width as usize, cam.height as usize);
     let mut bad = 0usize;
     let mut short = 0usize;
-    for (band, &(row0, rows)) in bands.iter().enumerate() {
-        let bytes = read_back(ctx, &res.accums[band], accum_bytes[band])?;
+    for band in &bands {
+        let bytes = read_back(ctx, &res.accums[band.index], band.bytes)?;
         let vals: &[f32] = bytemuck::cast_slice(&bytes);
-        let first = row0 as usize * cam.width as usize;
-        let count = rows as usize * cam.width as usize;
+        let first = band.row0 as usize * cam.width as usize;
+        let count = band.rows as usize * cam.width as usize;
         for (p, px) in image.pixels[first..first + count].iter_mut().enumerate() {
             let mut sum = [0f64; 3];
             let mut finished = 0f64;

@@ -73,14 +73,18 @@ const _: () = assert!(crate::scene::MAX_EXACT_NEE_SAMPLES == 4);
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
 pub struct GpuNode {
     /// The box as six f16 (lo.xy, lo.z hi.x, hi.yz; `unpack2x16float`), each rounded
-    /// outward so that the decoded box contains the exact one; then `first << 4 | count`.
+    /// outward so that the decoded box contains the exact one; then
+    /// `first << COUNT_BITS | count` (`node_at` in shaders/scene.wgsl).
     pub packed: [u32; 4],
 }
 
 impl GpuNode {
     /// The largest leaf size and first index the packing holds.
-    pub const MAX_COUNT: u32 = 15;
-    pub const MAX_FIRST: u32 = (1 << 28) - 1;
+    /// Bits of the fourth word that hold the leaf's triangle count (the kernels get it
+    /// as `NODE_COUNT_BITS` from gpu/kernels.rs).
+    pub const COUNT_BITS: u32 = 4;
+    pub const MAX_COUNT: u32 = (1 << Self::COUNT_BITS) - 1;
+    pub const MAX_FIRST: u32 = (1 << (32 - Self::COUNT_BITS)) - 1;
 
     pub fn new(lo: [f32; 3], hi: [f32; 3], first: u32, count: u32) -> Self {
         let l = lo.map(|v| f16_outward(v, false));
@@ -91,7 +95,7 @@ impl GpuNode {
                 pair(l[0], l[1]),
                 pair(l[2], h[0]),
                 pair(h[1], h[2]),
-                first << 4 | count,
+                first << Self::COUNT_BITS | count,
             ],
         }
     }
