@@ -10,6 +10,20 @@ use render_gpu::integrator::IntegratorSettings;
 use render_gpu::render::{RenderOptions, RenderOutput, render};
 use render_gpu::setup::SceneData;
 
+/// The CPU's model name where the OS reports one (Linux): CPU timings differ by 2× and
+/// more between machines of one core count, and PT and ST-CVAE do not scale alike, so
+/// reports, benches and the PT cache name it.
+pub fn cpu_model() -> Option<String> {
+    let info = std::fs::read_to_string("/proc/cpuinfo").ok()?;
+    let line = info.lines().find(|l| l.starts_with("model name"))?;
+    let name = line
+        .split_once(':')?
+        .1
+        .split_whitespace()
+        .collect::<Vec<_>>();
+    (!name.is_empty()).then(|| name.join(" "))
+}
+
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum DeviceArg {
     /// A hardware GPU if there is one, else the CPU integrators (a software adapter such
@@ -82,10 +96,15 @@ impl Engine {
     }
 
     /// A short name for reports: "cpu" or the adapter.
+    /// Where renders run, for reports and JSON: the CPU's model for the CPU integrators
+    /// and for a software adapter (whose speed is that CPU's).
     pub fn describe(&self) -> String {
-        match self.active_gpu() {
-            None => format!("cpu ({} threads)", rayon::current_num_threads()),
-            Some(c) => format!("gpu: {}", c.adapter),
+        let model = cpu_model();
+        match (self.active_gpu(), model) {
+            (None, Some(m)) => format!("cpu ({} threads, {m})", rayon::current_num_threads()),
+            (None, None) => format!("cpu ({} threads)", rayon::current_num_threads()),
+            (Some(c), Some(m)) if c.adapter.software => format!("gpu: {} on {m}", c.adapter),
+            (Some(c), _) => format!("gpu: {}", c.adapter),
         }
     }
 

@@ -44,11 +44,9 @@ struct Stored {
 /// that a rebuilt renderer (say, a fix to PT) never reuses an image it would not render.
 pub fn identity(device: &str) -> Result<String> {
     let mut s = device.to_string();
-    if let Ok(info) = std::fs::read_to_string("/proc/cpuinfo")
-        && let Some(l) = info.lines().find(|l| l.starts_with("model name"))
-    {
+    if let Some(m) = crate::device::cpu_model() {
         s += " / ";
-        s += l.split(':').nth(1).unwrap_or("").trim();
+        s += &m;
     }
     let exe = std::env::current_exe().context("cannot locate this binary")?;
     let bytes = std::fs::read(&exe).with_context(|| format!("cannot read {}", exe.display()))?;

@@ -165,6 +165,25 @@ fn render_writes_exr_png_json_and_merge_averages_by_spp() {
         serde_json::from_str(&std::fs::read_to_string(a.with_extension("json")).unwrap()).unwrap();
     assert_eq!(json["spp"], 4);
     assert!(json["mean_sphere_steps_per_path"].as_f64().unwrap() > 0.0);
+    // A CPU device names the CPU's model where the OS reports one (timings depend on it;
+    // `auto` renders on a hardware GPU where there is one).
+    let device = json["device"].as_str().unwrap();
+    if device.starts_with("cpu")
+        && let Some(line) = std::fs::read_to_string("/proc/cpuinfo").ok().and_then(|i| {
+            i.lines()
+                .find(|l| l.starts_with("model name"))
+                .map(String::from)
+        })
+    {
+        let model = line
+            .split_once(':')
+            .unwrap()
+            .1
+            .split_whitespace()
+            .next()
+            .unwrap();
+        assert!(device.contains(model), "{device} lacks {model}");
+    }
     let m = d.path().join("m");
     ok(&stcvae(&[
         "merge",

@@ -274,6 +274,19 @@ fn block_stats(a: &Pair, b: &Pair) -> Vec<[Option<(f64, f64)>; 3]> {
     out
 }
 
+impl Comparison {
+    /// The other image's total over the reference's, minus 1, averaged over the channels,
+    /// with the mean of the channels' standard errors: an upper bound on the mean's
+    /// whatever the channels' correlation (they share paths, so they are correlated).
+    pub fn offset(&self) -> (f64, f64) {
+        let o = &self.channel_offset;
+        (
+            o.iter().map(|c| c.0).sum::<f64>() / 3.0,
+            o.iter().map(|c| c.1).sum::<f64>() / 3.0,
+        )
+    }
+}
+
 pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
     let scale = object_scale(reference, other);
     // Pixel-channels of the object: the background is the same constant in both renders
