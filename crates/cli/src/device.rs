@@ -95,7 +95,6 @@ impl Engine {
         self.active_gpu().is_some()
     }
 
-    /// A short name for reports: "cpu" or the adapter.
     /// Where renders run, for reports and JSON: the CPU's model for the CPU integrators
     /// and for a software adapter (whose speed is that CPU's).
     pub fn describe(&self) -> String {

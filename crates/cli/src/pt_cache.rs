@@ -44,7 +44,10 @@ struct Stored {
 /// that a rebuilt renderer (say, a fix to PT) never reuses an image it would not render.
 pub fn identity(device: &str) -> Result<String> {
     let mut s = device.to_string();
-    if let Some(m) = crate::device::cpu_model() {
+    // The CPU's model is the host's too when a GPU renders; a CPU device names it already.
+    if let Some(m) = crate::device::cpu_model()
+        && !s.contains(&m)
+    {
         s += " / ";
         s += &m;
     }

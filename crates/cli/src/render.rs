@@ -99,7 +99,8 @@ struct Report<'a> {
     path_nee_rays: u32,
     grid_resolution: u32,
     scene_hash: String,
-    /// Where it ran: "cpu (N threads, CPU model)" or "gpu: adapter (backend, type)".
+    /// Where it ran: "cpu (N threads, CPU model)" or "gpu: adapter (backend, type)", with
+    /// "on CPU model" after a software adapter.
     device: String,
     /// Mean of the image per channel (a quick comparison between renders).
     mean_rgb: [f64; 3],
