@@ -33,12 +33,16 @@ enum What {
     /// PT vs ST-CVAE on the bunny at the teaser's density ladder σ_t = k·(150, 187.5, 125):
     /// speed-up at equal spp, variance ratio, events/steps per path and the bias.
     Render(crate::bench_render::Args),
+    /// The same renders (PT and ST-CVAE) on the GPU and on the CPU, side by side: paths/s
+    /// of each and their ratio.
+    Devices(crate::bench_devices::Args),
 }
 
 pub fn run(a: Args) -> Result<()> {
     match a.what {
         What::Sim { walks, threads } => bench_sim(walks, threads),
         What::Render(r) => crate::bench_render::run(r),
+        What::Devices(d) => crate::bench_devices::run(d),
     }
 }
 

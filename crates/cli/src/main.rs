@@ -1,6 +1,7 @@
 //! `stcvae`: learned multiple scattering for fast subsurface-scattering rendering.
 
 mod bench;
+mod bench_devices;
 mod bench_render;
 mod device;
 mod experiment;

@@ -688,3 +688,61 @@ fn bench_render_save_writes_images_and_the_pixel_table() {
     // The bunny covers part of the 8×8 image: both kinds of pixel occur.
     assert!(object > 0 && background > 0, "{object} / {background}");
 }
+
+/// `bench devices`: PT and ST-CVAE rendered on the GPU (lavapipe in CI) and on the CPU,
+/// a row per density and integrator with the GPU/CPU ratio of paths/s. Skipped, with the
+/// reason, only where no Vulkan adapter exists and not under CI.
+#[test]
+fn bench_devices_prints_both_devices_and_their_ratio() {
+    let out = Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args([
+            "bench",
+            "devices",
+            "--scene",
+            "configs/scenes/sphere.toml",
+            "--size",
+            "16",
+            "--spp",
+            "2",
+            "--k",
+            "1,2",
+        ])
+        .env("WGPU_BACKEND", "vulkan")
+        .current_dir(root())
+        .output()
+        .expect("run stcvae");
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    if !out.status.success() && err.contains("no wgpu adapter") && std::env::var_os("CI").is_none()
+    {
+        eprintln!("skipping bench_devices_prints_both_devices_and_their_ratio: {err}");
+        return;
+    }
+    ok(&out);
+    let text = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(
+        text.contains("GPU: gpu: ") && text.contains("CPU: cpu ("),
+        "{text}"
+    );
+    let rows: Vec<Vec<&str>> = text
+        .lines()
+        .map(|l| l.split_whitespace().collect::<Vec<_>>())
+        .filter(|w| w.len() > 2 && (w[1] == "PT" || w[1] == "ST-CVAE"))
+        .collect();
+    let labels: Vec<(&str, &str)> = rows.iter().map(|w| (w[0], w[1])).collect();
+    assert_eq!(
+        labels,
+        [("1", "PT"), ("1", "ST-CVAE"), ("2", "PT"), ("2", "ST-CVAE")],
+        "{text}"
+    );
+    for w in &rows {
+        // The ratio is the one field ending in "x".
+        let ratio: Vec<f64> = w
+            .iter()
+            .filter_map(|f| f.strip_suffix('x')?.parse().ok())
+            .collect();
+        assert!(
+            ratio.len() == 1 && ratio[0].is_finite() && ratio[0] > 0.0,
+            "{text}"
+        );
+    }
+}

@@ -1,0 +1,126 @@
+//! `stcvae bench devices`: the same renders on the GPU and on the CPU, side by side, and
+//! their ratio (issue 5's figure: a software adapter against the CPU integrators, or a
+//! hardware GPU's multiple of them).
+
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+
+use anyhow::{Result, bail};
+use render_gpu::integrator::IntegratorKind;
+use render_gpu::render::{RenderOptions, RenderOutput};
+
+use crate::device::{DeviceArg, Engine};
+use crate::progress::si;
+use crate::render::prepare;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Scene to render; its medium is scaled by each --k (σ_t × k), everything else kept.
+    #[arg(long, default_value = "configs/scenes/bunny.toml")]
+    scene: PathBuf,
+    /// Density multipliers of the scene's σ_t (each in (0, 1000]). PT's time grows with k;
+    /// on a software adapter k = 8 takes minutes.
+    #[arg(long, value_delimiter = ',', default_value = "1", value_parser = parse_k)]
+    k: Vec<f64>,
+    /// Samples per pixel of every render.
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..=1 << 20))]
+    spp: u32,
+    /// Image side in pixels. A large GPU needs ~256² or more to be full.
+    #[arg(long, default_value_t = 128, value_parser = clap::value_parser!(u32).range(8..=8192))]
+    size: u32,
+    /// Model file for ST-CVAE (default: models/default.stcvae).
+    #[arg(long)]
+    model: Option<PathBuf>,
+    /// Random seed of every render.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+}
+
+fn parse_k(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(k) if k > 0.0 && k <= 1000.0 => Ok(k),
+        _ => Err(format!("{s}: a density multiplier in (0, 1000]")),
+    }
+}
+
+fn render(
+    engine: &Engine,
+    p: &crate::render::Prepared,
+    spp: u32,
+    seed: u64,
+) -> Result<RenderOutput> {
+    let cancel = AtomicBool::new(false);
+    let opts = RenderOptions {
+        spp,
+        seed,
+        time_budget: None,
+    };
+    engine.render(&p.data, &p.settings(), &opts, &|_, _| {}, &cancel)
+}
+
+fn paths_per_second(o: &RenderOutput) -> f64 {
+    o.stats.paths as f64 / o.seconds.max(1e-9)
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let scene = render_gpu::scene::SceneFile::load(&a.scene)?;
+    for &k in &a.k {
+        let mut f = scene.clone();
+        f.medium.sigma_t = f.medium.sigma_t.map(|s| s * k);
+        if let Err(e) = f.validate() {
+            bail!(
+                "{e} (σ_t × {k}, set by --k, applied to {})",
+                a.scene.display()
+            );
+        }
+    }
+    // Both engines first, so that a missing adapter fails before any rendering; neither
+    // may fall back to the other part way.
+    let gpu = Engine::open(DeviceArg::Gpu)?.without_fallback();
+    let cpu = Engine::open(DeviceArg::Cpu)?;
+    println!(
+        "stcvae bench devices: {} ({}x{}), σ_t × k, {} spp, seed {}\n  GPU: {}\n  CPU: {}",
+        a.scene.display(),
+        a.size,
+        a.size,
+        a.spp,
+        a.seed,
+        gpu.describe(),
+        cpu.describe()
+    );
+    println!(
+        "{:>6} {:>8} {:>8} {:>8} {:>12} {:>12} {:>8} {:>10}",
+        "k", "", "CPU s", "GPU s", "CPU paths/s", "GPU paths/s", "GPU/CPU", "compile s"
+    );
+    for &k in &a.k {
+        for (kind, name) in [
+            (IntegratorKind::Pt, "PT"),
+            (IntegratorKind::Stcvae, "ST-CVAE"),
+        ] {
+            let p = prepare(&a.scene, Some(kind), None, a.model.as_deref(), |f| {
+                f.medium.sigma_t = f.medium.sigma_t.map(|s| s * k);
+                f.camera.width = a.size;
+                f.camera.height = a.size;
+            })?;
+            let on_cpu = render(&cpu, &p, a.spp, a.seed)?;
+            let on_gpu = render(&gpu, &p, a.spp, a.seed)?;
+            let (c, g) = (paths_per_second(&on_cpu), paths_per_second(&on_gpu));
+            println!(
+                "{:>6} {:>8} {:>8.2} {:>8.2} {:>12} {:>12} {:>7.2}x {:>10.2}",
+                k,
+                name,
+                on_cpu.seconds,
+                on_gpu.seconds,
+                si(c),
+                si(g),
+                g / c.max(1e-9),
+                on_gpu.compile_seconds
+            );
+        }
+    }
+    println!(
+        "GPU/CPU: GPU paths/s over CPU paths/s, rendering time only (the kernel's compilation, \
+         once per render on a cold driver cache, is the last column)"
+    );
+    Ok(())
+}
