@@ -9,6 +9,7 @@ use anyhow::{Result, bail};
 use render_gpu::integrator::IntegratorKind;
 use render_gpu::render::{RenderOptions, RenderOutput};
 
+use crate::bench_render::parse_k;
 use crate::device::{DeviceArg, Engine};
 use crate::progress::si;
 use crate::render::prepare;
@@ -34,13 +35,6 @@ pub struct Args {
     /// Random seed of every render.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-}
-
-fn parse_k(s: &str) -> Result<f64, String> {
-    match s.trim().parse::<f64>() {
-        Ok(k) if k > 0.0 && k <= 1000.0 => Ok(k),
-        _ => Err(format!("{s}: a density multiplier in (0, 1000]")),
-    }
 }
 
 fn render(

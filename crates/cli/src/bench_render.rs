@@ -150,7 +150,8 @@ fn save_images(dir: &std::path::Path, k: f64, pt: &Pair, st: &Pair) -> Result<()
     Ok(())
 }
 
-fn parse_k(s: &str) -> Result<f64, String> {
+/// A density multiplier of `--k`: a number in (0, 1000].
+pub(crate) fn parse_k(s: &str) -> Result<f64, String> {
     let k: f64 = s
         .trim()
         .parse()
