@@ -245,16 +245,8 @@ fn render_pair(
     let set = p.settings();
     let cancel = AtomicBool::new(false);
     let half = half_spp(a.spp);
+    // No warm-up render on a GPU: the renderer compiles its kernel before its clock starts.
     let mut outs = Vec::new();
-    if engine.is_gpu() {
-        // Warm-up: the first dispatch compiles the kernel; keep it out of the timing.
-        let tiny = RenderOptions {
-            spp: 1,
-            seed: 1,
-            time_budget: None,
-        };
-        engine.render(&p.data, &set, &tiny, &|_, _| {}, &cancel)?;
-    }
     for seed in a.seeds_of(kind) {
         let o = engine.render(
             &p.data,

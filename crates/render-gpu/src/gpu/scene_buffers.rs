@@ -79,10 +79,10 @@ pub struct GpuNode {
 }
 
 impl GpuNode {
-    /// The largest leaf size and first index the packing holds.
     /// Bits of the fourth word that hold the leaf's triangle count (the kernels get it
     /// as `NODE_COUNT_BITS` from gpu/kernels.rs).
     pub const COUNT_BITS: u32 = 4;
+    /// The largest leaf size and first index the packing holds.
     pub const MAX_COUNT: u32 = (1 << Self::COUNT_BITS) - 1;
     pub const MAX_FIRST: u32 = (1 << (32 - Self::COUNT_BITS)) - 1;
 
