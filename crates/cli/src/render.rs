@@ -84,6 +84,9 @@ struct Report<'a> {
     /// The GPU driver's compilation of the kernel, before `seconds` started (null on the
     /// CPU).
     kernel_compile_seconds: Option<f64>,
+    /// Kernel dispatches, those redone after a software adapter's loop limit cut them off,
+    /// the bands of rows and the final bounces per dispatch (null on the CPU).
+    gpu_dispatch: Option<render_gpu::render::DispatchStats>,
     paths_per_second: f64,
     /// PT: scattering events per path. ST-CVAE: the thin-region PT fallbacks per path.
     mean_pt_events_per_path: f64,
@@ -361,6 +364,7 @@ pub fn run(a: Args) -> Result<()> {
         height: p.file.camera.height,
         seconds: out.seconds,
         kernel_compile_seconds: engine.is_gpu().then_some(out.compile_seconds),
+        gpu_dispatch: engine.is_gpu().then_some(out.dispatch),
         paths_per_second: out.stats.paths as f64 / out.seconds.max(1e-9),
         mean_pt_events_per_path: out.stats.events as f64 / paths,
         mean_sphere_steps_per_path: out.stats.steps as f64 / paths,

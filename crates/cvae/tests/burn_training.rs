@@ -93,8 +93,14 @@ fn short_training_improves_fit() {
     let dir = tempfile::tempdir().unwrap();
     let losses = std::sync::Mutex::new(Vec::new());
     let report = |_: ModelKind, step: u64, loss: f32| losses.lock().unwrap().push((step, loss));
-    // The loss is a noisy minibatch estimate (batch 256); the untrained loss is ~1.5 per
-    // sample above the fitted one, so a drop of 0.3 is far outside the noise.
+    // The loss is a noisy minibatch estimate (batch 256): the first report is one batch's
+    // loss, the last a mean of 11. Untrained losses also vary with the initialisation:
+    // six more untrained models (other seeds) gave first-batch losses of 2.21–2.98 (sd
+    // 0.34) around this one's 2.13, and training reached 1.50. The loss must end 0.3 below
+    // the lowest of the seven untrained losses. This is a sanity check, not the proof of
+    // learning: a final loss drawn from the untrained spread would pass with probability
+    // ~2 % (the bar, 1.83, is 2.0 sd below their mean of 2.51); the KS test below is the
+    // strong check.
     let dev = Device::flex().autodiff();
     let untrained = train_model(
         ModelKind::PathGen,
@@ -124,8 +130,35 @@ fn short_training_improves_fit() {
     .unwrap();
     let l = losses.lock().unwrap().clone();
     let (first, last) = (l.first().unwrap().1, l.last().unwrap().1);
-    eprintln!("loss {first} -> {last}");
-    assert!(last < first - 0.3, "loss {first} -> {last}");
+    let starts: Vec<f64> = (100..106)
+        .map(|seed| {
+            let one = std::sync::Mutex::new(None);
+            let report = |_: ModelKind, _: u64, loss: f32| {
+                one.lock().unwrap().get_or_insert(f64::from(loss));
+            };
+            let cancel = AtomicBool::new(false);
+            train_model(
+                ModelKind::PathGen,
+                &table,
+                &cfg(1),
+                seed,
+                &dev,
+                dir.path(),
+                0,
+                false,
+                &cancel,
+                &report,
+            )
+            .unwrap();
+            one.into_inner().unwrap().expect("step 0 is reported")
+        })
+        .collect();
+    let lowest = starts.iter().copied().fold(f64::from(first), f64::min);
+    eprintln!("loss {first} -> {last}; untrained first-batch losses {starts:?}");
+    assert!(
+        f64::from(last) < lowest - 0.3,
+        "loss {first} -> {last}; untrained first-batch losses {starts:?}"
+    );
 
     // KS of cos θ at τ = 10, g = 0.5 for walks with N ≥ 2, using the simulator's N so
     // that only PathGen is tested.

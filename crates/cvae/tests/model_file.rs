@@ -385,9 +385,22 @@ fn antithetic_event_draws_keep_the_marginal() {
         draws.clear();
         m.event_draws(&walk, 2, &mut rng, &mut draws);
         if let [Some(a), Some(b)] = draws[..] {
-            let mirrored = m.event.mirrored(&a);
-            assert_eq!(b.input, mirrored.input);
-            assert_eq!(b.eps, mirrored.eps);
+            // Checked element by element, not through `Decoder::mirrored` (which built
+            // `b`): the conditions are shared, the latent and output normals negated.
+            let (cond, latent, out) = (m.event.cond, m.event.latent, m.event.out);
+            for (i, (&x, &y)) in a.input.iter().zip(&b.input).enumerate() {
+                let want = if (cond..cond + latent).contains(&i) {
+                    -x
+                } else {
+                    x
+                };
+                assert_eq!(y, want, "input {i} of the second draw");
+            }
+            for (j, (&x, &y)) in a.eps.iter().zip(&b.eps).enumerate() {
+                let want = if j < out { -x } else { x };
+                assert_eq!(y, want, "output normal {j} of the second draw");
+            }
+            assert!(latent > 0 && a.input[cond..cond + latent].iter().any(|&v| v != 0.0));
         }
         let (x, w) = event(&draws[1]);
         centres += u64::from(draws[1].is_none());

@@ -58,6 +58,23 @@ pub struct RenderOutput {
     /// Per pixel, the mean number of PT scattering events plus sphere steps per path —
     /// where the work goes (paper Fig. 8/9). The CPU path fills it; the GPU leaves it empty.
     pub work: Vec<f32>,
+    /// How the GPU ran the render (all zero on the CPU).
+    pub dispatch: DispatchStats,
+}
+
+/// How a GPU render was dispatched. The fallbacks it counts (dispatches redone after a
+/// software adapter's loop limit cut them off, images split into bands) leave the image
+/// unchanged, so only these counts show that they ran.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct DispatchStats {
+    /// Kernel dispatches, redone ones included.
+    pub dispatches: u64,
+    /// Dispatches cut off by the loop limit, undone and redone with half the bounce budget.
+    pub redone: u64,
+    /// Bands of rows the image was rendered in (1: one storage binding held it all).
+    pub bands: u32,
+    /// Bounces a dispatch advanced each path by, at the end of the render.
+    pub bounce_budget: u32,
 }
 
 /// lowbias32 (Wellons): the kernels' `mix32` (shaders/common.wgsl).
@@ -266,6 +283,7 @@ pub fn render(
             .iter()
             .map(|&n| (n as f64 / spp.max(1) as f64) as f32)
             .collect(),
+        dispatch: DispatchStats::default(),
     }
 }
 

@@ -184,8 +184,6 @@ mod tests {
         assert!((wasserstein1(&mut [0.0, 1.0], &mut [3.0, 0.0]) - 1.0).abs() < 1e-15);
     }
 
-    /// χ² of counts, its tail (χ²₁ > 3.841 has probability 0.05), a proportion's z and
-    /// a mean's standard error, each against a value worked by hand.
     /// A NaN (a model that outputs NaN, in `stcvae eval`) or an empty sample makes both
     /// two-sample statistics NaN; the merge loops used to spin forever on a NaN.
     #[test]
@@ -200,6 +198,8 @@ mod tests {
         assert!(ks_two_sample(&mut ok(), &mut []).is_nan());
     }
 
+    /// χ² of counts, its tail (χ²₁ > 3.841 has probability 0.05), a proportion's z and
+    /// a mean's standard error, each against a value worked by hand.
     #[test]
     fn chi_square_z_and_sem_of_worked_cases() {
         // (12 − 10)²/10 + (8 − 10)²/10 = 0.8.

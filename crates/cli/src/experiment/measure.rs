@@ -494,6 +494,7 @@ mod tests {
             compile_seconds: 0.0,
             stats: PathStats::default(),
             work: Vec::new(),
+            dispatch: Default::default(),
         };
         let [a, b]: [RgbImage; 2] = halves.try_into().ok().unwrap();
         Pair::from_halves(out(a), out(b), 0)
@@ -531,7 +532,12 @@ mod tests {
             assert!(o.abs() < 4.0 * se, "offset {o} ± {se}");
         }
         // The bias estimate is noise-corrected: its square is within a few standard
-        // errors of 0, and the 95 % bound is of the order of that error.
+        // errors of 0, and the 95 % bound is of the order of that error. Per
+        // pixel-channel e = d² − Var_A − Var_B has sd ≈ √3·σ² (d² is 2σ⁴ in variance,
+        // each half-split variance estimate σ⁴/2), so over n = 6,912 object
+        // pixel-channels the bound is noise·√((z + 1.645)·√3/√n) with z the estimate's
+        // own z-score: ≈ 0.19·noise at z = 0, and 0.5·noise only at z ≈ 10. A bound
+        // without the 1/√n in its standard error would be ~1.7·noise.
         assert!(c.bias < c.bias_upper95 && c.bias_upper95 < 0.5 * c.noise);
     }
 
@@ -572,9 +578,9 @@ mod tests {
     }
 
     /// Renders with twice the noise: the variance ratio is 1/4, found within 4 of its
-    /// standard error, and that error is about what 9,216 noisy pixel-channels give: each
-    /// two-seed variance is a one-degree χ² (relative sd √2), so the ratio's relative se is
-    /// about √(2·2/n) = 2 % (the test allows 1–4 %). Five seed pairs, so a wrong formula
+    /// standard error, and that error is about what 6,912 noisy pixel-channels (48×48
+    /// object pixels × 3) give: each two-seed variance is a one-degree χ² (relative sd
+    /// √2), so the ratio's relative se is about √(2·2/n) = 2.4 % (the test allows 1–4 %). Five seed pairs, so a wrong formula
     /// (e.g. without the square root, or over n instead of the sum of b) cannot pass by
     /// luck.
     #[test]

@@ -8,7 +8,7 @@ use std::time::Instant;
 use crate::error::RenderError;
 use crate::image_io::RgbImage;
 use crate::integrator::{IntegratorKind, IntegratorSettings, PathStats};
-use crate::render::{RenderOptions, RenderOutput};
+use crate::render::{DispatchStats, RenderOptions, RenderOutput};
 use crate::setup::SceneData;
 
 use super::context::GpuContext;
@@ -149,6 +149,7 @@ impl Dispatcher<'_> {
         params: &mut Params,
         budget: &mut u32,
         stats: &mut PathStats,
+        dispatch: &mut DispatchStats,
     ) -> Result<(), RenderError> {
         let Self {
             ctx,
@@ -172,6 +173,7 @@ impl Dispatcher<'_> {
                 res.copy(ctx, accum, snap, band.bytes);
             }
             res.dispatch(ctx, pipeline, band.groups, band.index);
+            dispatch.dispatches += 1;
             let c = read_back(ctx, &res.counters, COUNTER_BYTES)?;
             let word =
                 |i: usize| u32::from_le_bytes(c[4 * i..4 * i + 4].try_into().unwrap()) as u64;
@@ -181,6 +183,7 @@ impl Dispatcher<'_> {
             {
                 // Undo the cut-off dispatch and redo it with half the budget.
                 res.copy(ctx, snap, accum, band.bytes);
+                dispatch.redone += 1;
                 *budget /= 2;
                 params.consts2[2] = *budget as f32;
                 continue;
@@ -358,6 +361,10 @@ pub fn render_gpu(
     };
     let start = Instant::now();
     let mut stats = PathStats::default();
+    let mut dispatch = DispatchStats {
+        bands: bands.len() as u32,
+        ..Default::default()
+    };
     let mut s0 = 0u32;
     let mut per_lane = 1u32;
     let total = pixels * spp as u64;
@@ -369,7 +376,14 @@ pub fn render_gpu(
         params.sampling[1] = s1;
         let t0 = Instant::now();
         for band in &bands {
-            gpu.run_band(band, s0 == 0, &mut params, &mut budget, &mut stats)?;
+            gpu.run_band(
+                band,
+                s0 == 0,
+                &mut params,
+                &mut budget,
+                &mut stats,
+                &mut dispatch,
+            )?;
             let done_rows = (band.row0 + band.rows) as u64;
             progress(
                 pixels * s0 as u64 + cam.width as u64 * done_rows * (s1 - s0) as u64,
@@ -435,6 +449,10 @@ pub fn render_gpu(
         compile_seconds,
         stats,
         work: Vec::new(),
+        dispatch: DispatchStats {
+            bounce_budget: budget,
+            ..dispatch
+        },
     })
 }
 

@@ -567,9 +567,16 @@ mod tests {
             assert_eq!((path.stats.events, path.stats.leaks), (0, 0), "seed {seed}");
             total += l;
         }
-        // 0.95 of the disk's radiance expected: 256 paths put the mean within ±0.05 of that
-        // (4σ, σ = √(0.95·0.05/256) = 0.014); with the direction lost it would be 0.
+        // 1 − F(45°, 1 → 1.5) = 0.950 of the disk's radiance expected (each path brings the
+        // disk's radiance or 0): 256 paths put the mean within 4σ = 0.055 of it (σ =
+        // √(0.95·0.05/256) = 0.014); with the direction lost it would be 0, and a path
+        // that counted the disk twice would give ~1.9.
+        let transmitted = 1.0 - crate::optics::fresnel(std::f32::consts::FRAC_1_SQRT_2, 1.0, 1.5);
+        let sigma = (transmitted * (1.0 - transmitted) / n as f32).sqrt();
         let mean = total / n as f32 / disk;
-        assert!(mean > 0.8, "{mean}");
+        assert!(
+            (mean - transmitted).abs() < 4.0 * sigma,
+            "mean {mean}, expected {transmitted} ± {sigma}"
+        );
     }
 }
