@@ -33,7 +33,7 @@ pub struct Args {
     #[arg(long)]
     model: Option<PathBuf>,
     /// Random seed of every render.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1)]
     seed: u64,
 }
 
@@ -70,7 +70,17 @@ pub fn run(a: Args) -> Result<()> {
     }
     // Both engines first, so that a missing adapter fails before any rendering; neither
     // may fall back to the other part way.
-    let gpu = Engine::open(DeviceArg::Gpu)?.without_fallback();
+    // The adapter error's advice to use --device cpu is render's; this bench has no such
+    // option, since a GPU is what it measures.
+    let gpu = Engine::open(DeviceArg::Gpu)
+        .map_err(|e| {
+            let e = format!("{e:#}");
+            anyhow::anyhow!(
+                "bench devices needs a GPU adapter: {}",
+                e.trim_end_matches(", or use --device cpu")
+            )
+        })?
+        .without_fallback();
     let cpu = Engine::open(DeviceArg::Cpu)?;
     println!(
         "stcvae bench devices: {} ({}x{}), σ_t × k, {} spp, seed {}\n  GPU: {}\n  CPU: {}",

@@ -39,10 +39,10 @@ pub struct Args {
     #[arg(long)]
     model: Option<PathBuf>,
     /// Thin-region threshold of ST-CVAE (overrides the scene's).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     min_tau: Option<f64>,
     /// Largest sphere step of ST-CVAE (overrides the scene's).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     max_tau: Option<f64>,
     /// Representative events (EventGen draws) per model-drawn sphere step for NEE
     /// (overrides the scene's).
@@ -57,7 +57,7 @@ pub struct Args {
     path_nee_rays: Option<u32>,
     /// Below this optical radius ST-CVAE simulates a sphere step's walk exactly instead of
     /// drawing it from the models (overrides the scene's; 0: always the models).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     exact_tau: Option<f64>,
     /// Next-event estimation in both integrators. `false` counts only paths that escape
     /// into a light's disk or the environment, which takes EventGen out of ST-CVAE and
@@ -86,7 +86,7 @@ pub struct Args {
     /// 13 + 4N and 14 + 4N (always four different ones). Another set is another
     /// realisation of the same comparison: at 1,024 spp the variance ratio moves by
     /// ±0.05–0.1 between sets (rare heavy paths), the bias estimate by its noise.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0)]
     seeds: u64,
 }
 
@@ -281,6 +281,13 @@ pub fn run(a: Args) -> Result<()> {
                 "{e} (set by this command's options, applied to {})",
                 a.scene.display()
             );
+        }
+    }
+    if let Some(t) = a.max_tau {
+        let m = crate::model_cmds::load_model(a.model.as_deref())?;
+        let trained = m.training.tau_range[1];
+        if t > trained {
+            bail!("--max-tau {t} is beyond the model's training range (τ ≤ {trained:.1})");
         }
     }
     // Checked before any rendering, so that a long bench does not fail at its end.

@@ -3,9 +3,9 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result, anyhow, bail};
 use scatter_sim::conditions::{ConditionSampler, Conditions};
-use scatter_sim::dataset::{self, GenerateSpec, Header, Shard};
+use scatter_sim::dataset::{self, DatasetError, GenerateSpec, Header, Shard};
 use serde::Deserialize;
 
 use crate::{interrupt, progress};
@@ -31,7 +31,8 @@ pub struct Args {
     /// Number of walks of the whole run (overrides the config).
     #[arg(long)]
     samples: Option<u64>,
-    /// Fixed-condition mode: optical radius τ of every walk (needs --g and --albedo).
+    /// Fixed-condition mode: optical radius τ of every walk, in [0, 1000] (needs --g and
+    /// --albedo).
     #[arg(long, requires_all = ["g", "albedo"], allow_hyphen_values = true)]
     tau: Option<f64>,
     /// Fixed-condition mode: Henyey–Greenstein g in [-0.999, 0.999].
@@ -161,6 +162,7 @@ pub fn run(a: Args) -> Result<()> {
     if spec.total_walks == 0 {
         bail!("the number of walks must be at least 1");
     }
+    crate::check_out("--out", &a.out)?;
     let piece = spec.piece();
     let cancel = interrupt::flag();
     let pool = pool(a.threads)?;
@@ -199,7 +201,10 @@ pub fn run(a: Args) -> Result<()> {
         })
     });
     pb.finish_and_clear();
-    let summary = summary?;
+    let summary = summary.map_err(|e| match e {
+        DatasetError::Interrupted => anyhow!("interrupted: nothing written to {}", a.out.display()),
+        e => e.into(),
+    })?;
     sink.finish()?;
     let secs = start.elapsed().as_secs_f64();
     eprintln!(

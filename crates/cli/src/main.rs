@@ -52,6 +52,13 @@ enum Command {
     Bench(bench::Args),
 }
 
+/// Fails at once, naming `flag` and the part of `path` at fault, when the output could not
+/// be written after the work (scatter_sim::output::check_output_path).
+pub(crate) fn check_out(flag: &str, path: &std::path::Path) -> anyhow::Result<()> {
+    scatter_sim::output::check_output_path(path)
+        .map_err(|e| anyhow::anyhow!("{flag} {}: {e}", path.display()))
+}
+
 fn main() {
     quiet_wayland_probe();
     default_sigpipe();

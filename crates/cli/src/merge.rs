@@ -261,6 +261,26 @@ fn coalesce(pieces: impl Iterator<Item = Piece>) -> Vec<Piece> {
     out
 }
 
+/// A walk CSV row must hold one finite number per column: a truncated or edited file is
+/// refused rather than joined (binary inputs are checked by their CRC instead).
+fn check_csv_row(line: &str) -> Result<(), String> {
+    let fields: Vec<&str> = line.split(',').collect();
+    if fields.len() != dataset::COLUMNS.len() {
+        return Err(format!(
+            "expected {} comma-separated numbers ({}), found {} fields (truncated or not a walk row)",
+            dataset::COLUMNS.len(),
+            dataset::COLUMNS.join(","),
+            fields.len()
+        ));
+    }
+    for (name, v) in dataset::COLUMNS.iter().zip(&fields) {
+        if !v.trim().parse::<f64>().is_ok_and(f64::is_finite) {
+            return Err(format!("{name} = {v:?} is not a finite number"));
+        }
+    }
+    Ok(())
+}
+
 fn merge_csv(a: &Args) -> Result<()> {
     if !dataset::is_csv(&a.out) {
         bail!("CSV inputs can only be merged into a .csv output");
@@ -284,8 +304,11 @@ fn merge_csv(a: &Args) -> Result<()> {
         if i == 0 {
             writeln!(out, "{head}")?;
         }
-        for line in lines {
-            writeln!(out, "{}", line?)?;
+        for (n, line) in lines.enumerate() {
+            let line = line?;
+            // Line numbers count from 1, with the header as line 1.
+            check_csv_row(&line).map_err(|e| anyhow!("{}: line {}: {e}", path.display(), n + 2))?;
+            writeln!(out, "{line}")?;
             rows += 1;
         }
     }

@@ -37,14 +37,14 @@ pub struct Args {
     pub spp: Option<u32>,
     /// Random seed (overrides render.seed): renders with different seeds are independent
     /// and can be averaged with `stcvae merge`.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub seed: Option<u64>,
     /// Model file for stcvae (default: models/default.stcvae).
     #[arg(long)]
     pub model: Option<PathBuf>,
     /// Stop after the pass during which this many seconds have passed (the JSON and the
     /// EXR header record the spp actually rendered).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub time_budget: Option<f64>,
     /// Output path without extension: writes OUT.exr, OUT.png and OUT.json (a typed .exr,
     /// .png or .json is dropped: `--out a.exr` writes a.exr, a.png, a.json).
@@ -55,7 +55,7 @@ pub struct Args {
     #[arg(long, value_enum, default_value_t = DeviceArg::Auto)]
     pub device: DeviceArg,
     /// Exposure multiplier of the PNG preview (the EXR is always linear and unscaled).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1.0)]
     pub exposure: f32,
 }
 
@@ -276,7 +276,8 @@ pub(crate) fn check_out_stem(out: &Path) -> Result<()> {
             bail!("--out {}: {} is a directory", out.display(), f.display());
         }
     }
-    Ok(())
+    // And so would a directory without write permission.
+    crate::check_out("--out", out)
 }
 
 /// Says once when the scene's lights cannot contribute: delta lights without NEE.
@@ -291,7 +292,11 @@ pub fn note_unreachable_lights(p: &Prepared) {
 
 pub fn run(a: Args) -> Result<()> {
     if !(a.exposure > 0.0 && a.exposure.is_finite()) {
-        bail!("--exposure must be a positive number");
+        bail!(
+            "--exposure {} is out of range: allowed (0, {:e}] (a finite positive f32)",
+            a.exposure,
+            f32::MAX
+        );
     }
     if let Some(b) = a.time_budget
         && !(b > 0.0 && b.is_finite())

@@ -41,7 +41,7 @@ pub struct Args {
     #[arg(long)]
     out: Option<PathBuf>,
     /// Scale every model's step count (e.g. 0.01 for a smoke test).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1.0)]
     steps_scale: f64,
     /// burn backend: flex (pure-Rust CPU, the default) or wgpu (GPU through wgpu; needs a
     /// build with `--features wgpu-train`).
@@ -160,6 +160,12 @@ pub fn run(a: Args) -> Result<()> {
         );
     }
     let out = a.out.clone().unwrap_or_else(|| cfg.out.clone());
+    // Checked before hours of training, not when the model is saved.
+    if a.out.is_some() {
+        crate::check_out("--out", &out)?;
+    } else {
+        crate::check_out(&format!("{}: out =", a.config.display()), &out)?;
+    }
     // Read before hours of training, so that a wrong path fails at once.
     let base = match &a.base {
         Some(p) => {

@@ -183,7 +183,52 @@ fn bad_input_gives_one_line_errors() {
             "shard",
         ),
         (&["merge", "garbage.bin", "--out", "y.bin"], "garbage.bin"),
+        // A CSV cut short mid-row: refused, naming the file and line.
+        (
+            &["merge", "cut.csv", "whole.csv", "--out", "x.csv"],
+            "cut.csv: line 2: expected 13",
+        ),
+        // An output below a file: refused before the walks, naming the culprit.
+        (
+            &[
+                "generate",
+                "--samples",
+                "10",
+                "--tau",
+                "5",
+                "--g",
+                "0",
+                "--albedo",
+                "1",
+                "--out",
+                "afile/x.bin",
+            ],
+            "afile exists and is not a directory",
+        ),
     ];
+    ok(&stcvae(
+        &[
+            "generate",
+            "--samples",
+            "10",
+            "--tau",
+            "5",
+            "--g",
+            "0",
+            "--albedo",
+            "1",
+            "--out",
+            "whole.csv",
+        ],
+        dir.path(),
+    ));
+    let whole = fs::read_to_string(dir.path().join("whole.csv")).unwrap();
+    fs::write(
+        dir.path().join("cut.csv"),
+        &whole[..whole.find('\n').unwrap() + 30],
+    )
+    .unwrap();
+    fs::write(dir.path().join("afile"), b"").unwrap();
     fs::write(dir.path().join("typo.toml"), "walkz = 10\n").unwrap();
     fs::write(
         dir.path().join("range.toml"),
@@ -202,5 +247,79 @@ fn bad_input_gives_one_line_errors() {
         );
         assert!(!err.contains("panicked"), "{args:?} panicked: {err}");
         assert!(!dir.path().join("x.bin").exists() && !dir.path().join("x.csv").exists());
+    }
+}
+
+/// Ctrl-C (SIGINT) stops `generate` and `sample` after their current chunk: exit status
+/// 130, a one-line message, and no file left behind, neither the output nor its hidden
+/// temporary (`sample` used to be killed outright and leave a `.partial` of any size).
+#[cfg(unix)]
+#[test]
+fn interrupted_runs_leave_no_files() {
+    use std::process::{Command, Stdio};
+    use std::time::{Duration, Instant};
+    let model = concat!(env!("CARGO_MANIFEST_DIR"), "/../../models/default.stcvae");
+    let runs: [&[&str]; 2] = [
+        &[
+            "generate",
+            "--samples",
+            "1000000000",
+            "--tau",
+            "5",
+            "--g",
+            "0",
+            "--albedo",
+            "1",
+            "--out",
+            "big.bin",
+        ],
+        &[
+            "sample",
+            "--model",
+            model,
+            "--tau",
+            "5",
+            "--g",
+            "0.4",
+            "--albedo",
+            "0.9",
+            "--samples",
+            "100000000000",
+            "--out",
+            "big.csv",
+        ],
+    ];
+    for args in runs {
+        let dir = tempfile::tempdir().unwrap();
+        let child = Command::new(env!("CARGO_BIN_EXE_stcvae"))
+            .args(args)
+            .current_dir(dir.path())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        // Interrupted once its temporary file exists, i.e. mid-work.
+        let start = Instant::now();
+        while fs::read_dir(dir.path()).unwrap().next().is_none() {
+            assert!(
+                start.elapsed() < Duration::from_secs(60),
+                "{args:?}: no output started"
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        std::thread::sleep(Duration::from_millis(300));
+        let kill = Command::new("kill")
+            .args(["-INT", &child.id().to_string()])
+            .status()
+            .unwrap();
+        assert!(kill.success());
+        let out = child.wait_with_output().unwrap();
+        let err = stderr(&out);
+        assert_eq!(out.status.code(), Some(130), "{args:?}: {err}");
+        assert!(
+            err.contains("interrupted: nothing written"),
+            "{args:?}: {err}"
+        );
+        let left: Vec<_> = fs::read_dir(dir.path()).unwrap().collect();
+        assert!(left.is_empty(), "{args:?} left {left:?}");
     }
 }

@@ -199,16 +199,28 @@ fn mean_se(v: &[f64]) -> (f64, f64) {
 
 /// model / simulator − 1 of two samples' means, with the delta method's standard error.
 pub fn ratio_error(model: &[f64], sim: &[f64]) -> RatioError {
-    let (mm, sm) = mean_se(model);
-    let (ms, ss) = mean_se(sim);
+    // Both samples in units of the simulator's largest value: values of 1e-200 (light
+    // through hundreds of free paths) have squared deviations that underflow to 0, which
+    // made the standard error 0 or NaN. The ratio does not depend on the unit.
+    let unit = sim.iter().fold(0f64, |a, &x| a.max(x.abs()));
+    let unit = if unit > 0.0 && unit.is_finite() {
+        unit
+    } else {
+        1.0
+    };
+    let scaled = |v: &[f64]| v.iter().map(|x| x / unit).collect::<Vec<f64>>();
+    let (mm, sm) = mean_se(&scaled(model));
+    let (ms, ss) = mean_se(&scaled(sim));
     // A simulator mean of 0 (no event in a thin shell; light that never gets out) says
     // nothing a ratio could use: unresolved, whatever its standard error.
     let resolved = ms > 0.0 && ss < 0.1 * ms;
     let ms = if ms == 0.0 { f64::MIN_POSITIVE } else { ms };
+    let ratio = mm / ms;
+    let se = ((sm / ms).powi(2) + ((ss / ms) * ratio).powi(2)).sqrt();
     RatioError {
-        value: mm / ms - 1.0,
-        se: ((sm / ms).powi(2) + (ss * mm / (ms * ms)).powi(2)).sqrt(),
-        resolved,
+        value: ratio - 1.0,
+        se,
+        resolved: resolved && se.is_finite() && ratio.is_finite(),
     }
 }
 
@@ -584,6 +596,22 @@ mod tests {
         let r = ratio_error(&[0.0, 1.0, 0.0], &[0.0; 3]);
         assert!(!r.resolved, "{r:?}");
         assert!(!ratio_error(&[0.0; 3], &[0.0; 3]).resolved);
+    }
+
+    /// Tiny means (τ = 500: the simulator's sphere NEE ~1e-200) keep a finite error: model
+    /// values at 0.8 of the simulator's give −20 % with the same standard error as the same
+    /// values scaled to order 1 (the ratio does not depend on the scale).
+    #[test]
+    fn tiny_means_keep_a_finite_error() {
+        let scale = |k: f64| [0.9 * k, 1.0 * k, 1.1 * k];
+        let big = ratio_error(&scale(0.8), &scale(1.0));
+        let tiny = ratio_error(&scale(0.8e-200), &scale(1e-200));
+        assert!(tiny.resolved && tiny.se.is_finite(), "{tiny:?}");
+        assert!((tiny.value + 0.2).abs() < 1e-12, "{tiny:?}");
+        assert!(
+            (tiny.se - big.se).abs() < 1e-12 * big.se,
+            "{tiny:?} vs {big:?}"
+        );
     }
 
     /// The Fibonacci directions are unit vectors spread over the sphere: their mean is

@@ -10,6 +10,50 @@ use std::path::{Path, PathBuf};
 
 use tempfile::NamedTempFile;
 
+/// Checks, before long work starts, that [`AtomicFile::create`] will be able to write `path`:
+/// the nearest existing ancestor of its directory is a directory in which files can be
+/// created (probed with a temporary file, removed at once), and `path` is not a directory.
+/// Otherwise the message says which part of the path is at fault, e.g. "x exists and is not
+/// a directory" instead of the "File exists" that creating the directories would report
+/// after the work.
+pub fn check_output_path(path: &Path) -> Result<(), String> {
+    if path.is_dir() {
+        return Err(format!("{} is a directory", path.display()));
+    }
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    let Some(existing) = dir
+        .ancestors()
+        .find(|a| a.as_os_str().is_empty() || a.exists())
+    else {
+        return Ok(());
+    };
+    let existing = if existing.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        existing
+    };
+    if !existing.is_dir() {
+        return Err(format!(
+            "{} exists and is not a directory",
+            existing.display()
+        ));
+    }
+    tempfile::Builder::new()
+        .prefix(".stcvae-write-check.")
+        .tempfile_in(existing)
+        .map(drop)
+        .map_err(|e| {
+            format!(
+                "cannot create files in {}: {}",
+                existing.display(),
+                e.kind()
+            )
+        })
+}
+
 /// A buffered writer to a temporary file that becomes `path` on [`AtomicFile::commit`].
 pub struct AtomicFile {
     path: PathBuf,
@@ -125,4 +169,43 @@ pub fn write_atomic_set(files: &[(&Path, &[u8])]) -> Result<(), (PathBuf, io::Er
         f.persist().map_err(|e| (path, e))?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn output_paths_are_checked_before_the_work() {
+        let d = tempfile::tempdir().unwrap();
+        let file = d.path().join("afile");
+        fs::write(&file, b"x").unwrap();
+        // A file where a directory should be, however deep the path goes on below it.
+        for p in [file.join("out.bin"), file.join("a/b/out.bin")] {
+            let e = check_output_path(&p).unwrap_err();
+            assert!(e.contains("afile exists and is not a directory"), "{e}");
+        }
+        let e = check_output_path(d.path()).unwrap_err();
+        assert!(e.ends_with("is a directory"), "{e}");
+        // Directories still to be made are fine, and the probe leaves nothing behind.
+        check_output_path(&d.path().join("new/deeper/out.bin")).unwrap();
+        check_output_path(Path::new("relative-name.bin")).unwrap();
+        let left: Vec<_> = fs::read_dir(d.path()).unwrap().collect();
+        assert_eq!(left.len(), 1, "{left:?}");
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            let ro = d.path().join("ro");
+            fs::create_dir(&ro).unwrap();
+            fs::set_permissions(&ro, fs::Permissions::from_mode(0o555)).unwrap();
+            // root may write anywhere: the check is only meaningful for other users.
+            let root = tempfile::tempfile_in(&ro).is_ok();
+            let r = check_output_path(&ro.join("out.bin"));
+            fs::set_permissions(&ro, fs::Permissions::from_mode(0o755)).unwrap();
+            if !root {
+                let e = r.unwrap_err();
+                assert!(e.contains("cannot create files in"), "{e}");
+            }
+        }
+    }
 }

@@ -76,12 +76,15 @@ impl ModelConfig {
             return bad("latent", "must be in 1..=16");
         }
         if self.hidden.is_empty() || self.hidden.iter().any(|&h| h == 0 || h > 64) {
-            return bad("hidden", "1 to n layers of width 1..=64");
+            return bad("hidden", "one or more layers, each of width 1..=64");
         }
         if let Some(e) = &self.encoder_hidden
             && (e.is_empty() || e.iter().any(|&h| h == 0 || h > 1024))
         {
-            return bad("encoder_hidden", "1 to n layers of width 1..=1024");
+            return bad(
+                "encoder_hidden",
+                "one or more layers, each of width 1..=1024",
+            );
         }
         // A batch's activations are batch_size × widest layer floats per layer; beyond
         // 2^20 rows the gradients average out anyway and the memory does not.

@@ -42,6 +42,9 @@ pub enum DatasetError {
     },
     #[error("{path}: {msg}")]
     Other { path: PathBuf, msg: String },
+    /// The caller's cancel flag stopped the work; its output is discarded.
+    #[error("interrupted")]
+    Interrupted,
 }
 
 impl DatasetError {

@@ -111,10 +111,7 @@ pub fn generate(
     let mut chunk: Vec<(Row, u64)> = Vec::with_capacity(CHUNK as usize);
     while start < range.end {
         if cancel.load(Ordering::Relaxed) {
-            return Err(DatasetError::Other {
-                path: "<generate>".into(),
-                msg: "interrupted".into(),
-            });
+            return Err(DatasetError::Interrupted);
         }
         let end = (start + CHUNK).min(range.end);
         (0..(end - start) as usize)
