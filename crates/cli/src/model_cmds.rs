@@ -4,7 +4,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 use cvae::ModelSet;
 use cvae::eval::{self, SettingReport};
 use rayon::prelude::*;
@@ -243,7 +243,9 @@ fn open_eval(model: Option<&Path>, out: &Path, samples: usize) -> Result<(ModelS
         .unwrap_or(Path::new(DEFAULT_MODEL))
         .display()
         .to_string();
-    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    // Checked now, created when the results are written: an eval stopped part way (Ctrl-C
+    // kills it) leaves no empty directory behind.
+    crate::check_out("--out", &out.join("metrics.json"))?;
     Ok((m, name))
 }
 
