@@ -63,8 +63,8 @@ pub struct RenderOutput {
 }
 
 /// How a GPU render was dispatched. The fallbacks it counts (dispatches redone after a
-/// software adapter's loop limit cut them off, images split into bands) leave the image
-/// unchanged, so only these counts show that they ran.
+/// software adapter's loop limit cut them off, images split into bands) leave the expected
+/// image unchanged, so only these counts show that they ran.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct DispatchStats {
     /// Kernel dispatches, redone ones included.
