@@ -285,9 +285,11 @@ pub fn run(a: Args) -> Result<()> {
     }
     if let Some(t) = a.max_tau {
         let m = crate::model_cmds::load_model(a.model.as_deref())?;
-        let trained = m.training.tau_range[1];
-        if t > trained {
-            bail!("--max-tau {t} is beyond the model's training range (τ ≤ {trained:.1})");
+        if crate::model_cmds::beyond_trained_tau(t, &m) {
+            bail!(
+                "--max-tau {t} is beyond the model's training range {}",
+                crate::model_cmds::training_range(m.training.tau_range)
+            );
         }
     }
     // Checked before any rendering, so that a long bench does not fail at its end.

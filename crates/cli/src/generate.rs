@@ -162,9 +162,10 @@ pub fn run(a: Args) -> Result<()> {
     if spec.total_walks == 0 {
         bail!("the number of walks must be at least 1");
     }
+    // First, so that a Ctrl-C from here on stops cleanly.
+    let cancel = interrupt::flag();
     crate::check_out("--out", &a.out)?;
     let piece = spec.piece();
-    let cancel = interrupt::flag();
     let pool = pool(a.threads)?;
     eprintln!(
         "generating {} walks{} ({} mode, seed {}, {} threads) -> {}",

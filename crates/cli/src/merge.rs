@@ -306,6 +306,10 @@ fn merge_csv(a: &Args) -> Result<()> {
         }
         for (n, line) in lines.enumerate() {
             let line = line?;
+            // Blank lines (an editor's trailing newline) carry no row; CSV readers skip them.
+            if line.trim().is_empty() {
+                continue;
+            }
             // Line numbers count from 1, with the header as line 1.
             check_csv_row(&line).map_err(|e| anyhow!("{}: line {}: {e}", path.display(), n + 2))?;
             writeln!(out, "{line}")?;

@@ -77,10 +77,11 @@ pub fn sample(a: SampleArgs) -> Result<()> {
             a.out.display()
         );
     }
+    // First, so that a Ctrl-C from here on stops cleanly.
+    let cancel = interrupt::flag();
     crate::check_out("--out", &a.out)?;
     let m = load_model(a.model.as_deref())?;
     warn_outside_training(&m, c, "--");
-    let cancel = interrupt::flag();
     let mut sink = Box::new(CsvWriter::create(&a.out, a.samples)?);
     // Drawn in chunks so that memory stays bounded however many walks are asked for.
     const CHUNK: u64 = 1 << 16;
@@ -185,6 +186,14 @@ pub(crate) fn outside_training(v: f64, r: [f64; 2]) -> bool {
     v < r[0] - tol || v > r[1] + tol
 }
 
+/// Whether a largest sphere step `t` (render.max_tau, --max-tau) goes beyond the model's
+/// training range, with [`outside_training`]'s tolerance: the shipped model's 299.9996
+/// admits the max_tau = 300 of the README's example.
+pub(crate) fn beyond_trained_tau(t: f64, m: &ModelSet) -> bool {
+    let r = m.training.tau_range;
+    t > r[1] && outside_training(t, r)
+}
+
 /// `[lo, hi]` with enough digits that a bound near 0 or 1 (albedo's 2.8e-6) does not
 /// print as the round number it is not.
 pub(crate) fn training_range(r: [f64; 2]) -> String {
@@ -245,7 +254,8 @@ fn open_eval(model: Option<&Path>, out: &Path, samples: usize) -> Result<(ModelS
         .to_string();
     // Checked now, created when the results are written: an eval stopped part way (Ctrl-C
     // kills it) leaves no empty directory behind.
-    crate::check_out("--out", &out.join("metrics.json"))?;
+    scatter_sim::output::check_output_path(&out.join("metrics.json"))
+        .map_err(|e| anyhow::anyhow!("--out {}: {e}", out.display()))?;
     Ok((m, name))
 }
 

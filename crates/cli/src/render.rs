@@ -188,13 +188,14 @@ pub fn prepare(
     let trained_max = model
         .as_ref()
         .map_or(f64::INFINITY, |m| m.training.tau_range[1]);
-    let max_tau = match file.render.max_tau {
-        Some(t) if t > trained_max => bail!(
-            "{}: render.max_tau = {t} is beyond the model's training range (τ ≤ {trained_max:.1})",
-            scene_path.display()
+    let max_tau = match (file.render.max_tau, &model) {
+        (Some(t), Some(m)) if crate::model_cmds::beyond_trained_tau(t, m) => bail!(
+            "{}: render.max_tau = {t} is beyond the model's training range {}",
+            scene_path.display(),
+            crate::model_cmds::training_range(m.training.tau_range)
         ),
-        Some(t) => t,
-        None => trained_max,
+        (Some(t), _) => t,
+        (None, _) => trained_max,
     } as f32;
     Ok(Prepared {
         file,

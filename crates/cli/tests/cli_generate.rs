@@ -297,9 +297,16 @@ fn interrupted_runs_leave_no_files() {
             .stderr(Stdio::piped())
             .spawn()
             .unwrap();
-        // Interrupted once its temporary file exists, i.e. mid-work.
+        // Interrupted once its temporary output exists, i.e. mid-work (not at the output
+        // check's short-lived probe file).
+        let started = || {
+            fs::read_dir(dir.path())
+                .unwrap()
+                .flatten()
+                .any(|e| e.file_name().to_string_lossy().ends_with(".partial"))
+        };
         let start = Instant::now();
-        while fs::read_dir(dir.path()).unwrap().next().is_none() {
+        while !started() {
             assert!(
                 start.elapsed() < Duration::from_secs(60),
                 "{args:?}: no output started"

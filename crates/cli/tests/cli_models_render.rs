@@ -488,6 +488,48 @@ fn bad_scenes_are_one_line_errors() {
     assert!(!out.with_extension("exr").exists());
 }
 
+/// render.max_tau up to the model's training range is taken, the README's max_tau = 300
+/// included (the shipped model's range ends at 299.9996); beyond it, a one-line error
+/// names the field and the range.
+#[test]
+fn max_tau_is_checked_against_the_training_range() {
+    let d = tempfile::tempdir().unwrap();
+    let scene = d.path().join("s.toml");
+    let out = d.path().join("r");
+    for (max_tau, accepted) in [("300.0", true), ("301.0", false)] {
+        let text = std::fs::read_to_string(root().join("configs/scenes/sphere.toml"))
+            .unwrap()
+            .replace("width = 128", "width = 8")
+            .replace("height = 128", "height = 8")
+            .replace("[render]\n", &format!("[render]\nmax_tau = {max_tau}\n"));
+        std::fs::write(&scene, text).unwrap();
+        let args = [
+            "render",
+            "--scene",
+            scene.to_str().unwrap(),
+            "--integrator",
+            "stcvae",
+            "--device",
+            "cpu",
+            "--spp",
+            "1",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        if accepted {
+            ok(&stcvae(&args));
+        } else {
+            let e = fails(&stcvae(&args));
+            assert!(
+                e.contains("render.max_tau = 301")
+                    && e.contains("[")
+                    && e.trim().lines().count() == 1,
+                "{e}"
+            );
+        }
+    }
+}
+
 /// `stcvae render` of the sphere scene with PT at 2 spp on `device`, writing `out`.{exr,png,json}.
 fn sphere_pt_render(device: &str, out: &Path) -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_stcvae"));

@@ -816,17 +816,22 @@ fn long_exact_walks_shrink_the_bounce_budget() {
         return;
     };
     // At the default budget these walks are cut off only now and then (lavapipe, Mesa 22:
-    // by chance, as chunks grow). So that the halving surely runs on exact walks, one more
-    // GPU render starts at 65,535 bounces a dispatch with 48 spp (chunks of several paths
-    // an invocation): measured with `stcvae render`, seeds 5–7, it was cut off and redone
-    // 10–11 times, down to 31–63 bounces. It must finish every path (the renderer refuses
-    // a pixel short of samples) with a finite image. (ST-CVAE's image depends on where the
-    // dispatches end, so it is not compared with the first render's.)
+    // when the chunks, grown toward a second of work, give an invocation several paths).
+    // So that the halving surely runs on exact walks, one more GPU render starts at 65,535
+    // bounces a dispatch with 8 paths an invocation in every chunk, whatever the machine's
+    // speed: each path's walks take ~10⁴ loop iterations, so a dispatch that runs all 8
+    // must be cut off (`stcvae render` with STCVAE_GPU_LANE_SAMPLES=8, seeds 5–7: redone 11
+    // times each, down to 31 bounces, ~10 s on lavapipe). It must finish every path (the renderer refuses a pixel short of
+    // samples) with a finite image. (ST-CVAE's image depends on where the dispatches end,
+    // so it is not compared with the first render's.)
     let ctx = gpu().unwrap().lock().unwrap_or_else(|e| e.into_inner());
     let s = common::build_scene(&text, true);
     // SAFETY: every render of this binary holds `ctx`'s lock, so none reads the variable
     // while it changes; nothing else here reads the environment meanwhile.
-    unsafe { std::env::set_var("STCVAE_GPU_BOUNCES", "65535") };
+    unsafe {
+        std::env::set_var("STCVAE_GPU_BOUNCES", "65535");
+        std::env::set_var("STCVAE_GPU_LANE_SAMPLES", "8");
+    }
     let out = render_gpu(
         &ctx,
         &s,
@@ -835,7 +840,10 @@ fn long_exact_walks_shrink_the_bounce_budget() {
         &|_, _| {},
         &AtomicBool::new(false),
     );
-    unsafe { std::env::remove_var("STCVAE_GPU_BOUNCES") };
+    unsafe {
+        std::env::remove_var("STCVAE_GPU_BOUNCES");
+        std::env::remove_var("STCVAE_GPU_LANE_SAMPLES");
+    }
     let out = out.expect("a cut-off dispatch must be redone, not reported");
     assert_eq!(out.stats.paths, out.image.pixels.len() as u64 * 48);
     assert!(out.image.pixels.iter().flatten().all(|v| v.is_finite()));

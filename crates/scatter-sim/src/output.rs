@@ -20,16 +20,29 @@ pub fn check_output_path(path: &Path) -> Result<(), String> {
     if path.is_dir() {
         return Err(format!("{} is a directory", path.display()));
     }
+    let text = path.as_os_str().to_string_lossy();
+    if text.ends_with('/') || text.ends_with(std::path::MAIN_SEPARATOR) {
+        return Err(format!("{text} ends with a path separator: name a file"));
+    }
     let dir = match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),
     };
+    // The nearest ancestor that is there at all: a symbolic link counts even when it
+    // points nowhere (exists() would step over it, and creating the directories would
+    // then fail after the work).
     let Some(existing) = dir
         .ancestors()
-        .find(|a| a.as_os_str().is_empty() || a.exists())
+        .find(|a| a.as_os_str().is_empty() || fs::symlink_metadata(a).is_ok())
     else {
         return Ok(());
     };
+    if !existing.as_os_str().is_empty() && !existing.exists() {
+        return Err(format!(
+            "{} is a symbolic link to nothing",
+            existing.display()
+        ));
+    }
     let existing = if existing.as_os_str().is_empty() {
         Path::new(".")
     } else {
@@ -187,11 +200,23 @@ mod tests {
         }
         let e = check_output_path(d.path()).unwrap_err();
         assert!(e.ends_with("is a directory"), "{e}");
+        let e = check_output_path(&d.path().join("new/")).unwrap_err();
+        assert!(
+            e.ends_with("ends with a path separator: name a file"),
+            "{e}"
+        );
         // Directories still to be made are fine, and the probe leaves nothing behind.
         check_output_path(&d.path().join("new/deeper/out.bin")).unwrap();
-        check_output_path(Path::new("relative-name.bin")).unwrap();
         let left: Vec<_> = fs::read_dir(d.path()).unwrap().collect();
         assert_eq!(left.len(), 1, "{left:?}");
+        #[cfg(unix)]
+        {
+            let link = d.path().join("gone");
+            std::os::unix::fs::symlink(d.path().join("nowhere"), &link).unwrap();
+            let e = check_output_path(&link.join("out.bin")).unwrap_err();
+            assert!(e.contains("gone is a symbolic link to nothing"), "{e}");
+            fs::remove_file(&link).unwrap();
+        }
         #[cfg(unix)]
         {
             use std::os::unix::fs::PermissionsExt;

@@ -63,6 +63,35 @@ fn parse_bounces(v: &str) -> Result<u32, RenderError> {
         })
 }
 
+/// `STCVAE_GPU_LANE_SAMPLES`: the samples every invocation takes per chunk, fixed. Unset,
+/// they start at 1 and grow toward [`TARGET_CHUNK_SECONDS`] of work a chunk, so how much a
+/// dispatch holds depends on the machine's speed; tests that must reach a software
+/// adapter's loop limit fix it instead.
+fn fixed_lane_samples() -> Result<Option<u32>, RenderError> {
+    match std::env::var("STCVAE_GPU_LANE_SAMPLES") {
+        Err(std::env::VarError::NotPresent) => Ok(None),
+        Err(std::env::VarError::NotUnicode(v)) => parse_lane_samples(&v.to_string_lossy()),
+        Ok(v) => parse_lane_samples(&v),
+    }
+}
+
+fn parse_lane_samples(v: &str) -> Result<Option<u32>, RenderError> {
+    v.trim()
+        .parse::<u32>()
+        .ok()
+        .filter(|n| (1..=MAX_LANE_SAMPLES).contains(n))
+        .map(Some)
+        .ok_or_else(|| {
+            RenderError::Gpu(format!(
+                "STCVAE_GPU_LANE_SAMPLES={v:?} is out of range: allowed 1 to {MAX_LANE_SAMPLES} \
+                 samples per invocation and chunk (unset it for the default)"
+            ))
+        })
+}
+
+/// The most samples an invocation may take in one chunk (a chunk's sample range is u32).
+const MAX_LANE_SAMPLES: u32 = 65_536;
+
 /// The most bounces a dispatch may be given: lavapipe's loop limit, which every bounce
 /// takes at least one iteration of. Hardware GPUs gained < 6 % from 256 to 1024.
 const MAX_BOUNCES: u32 = 65_535;
@@ -366,7 +395,8 @@ pub fn render_gpu(
         ..Default::default()
     };
     let mut s0 = 0u32;
-    let mut per_lane = 1u32;
+    let fixed_per_lane = fixed_lane_samples()?;
+    let mut per_lane = fixed_per_lane.unwrap_or(1);
     let total = pixels * spp as u64;
     while s0 < spp {
         let s1 = (s0 as u64 + lanes as u64 * per_lane as u64).min(spp as u64) as u32;
@@ -394,7 +424,7 @@ pub fn render_gpu(
         s0 = s1;
         // Grow (or shrink) the next chunk toward the target duration.
         let scale = (TARGET_CHUNK_SECONDS / dt.max(1e-4)).clamp(0.5, 4.0);
-        per_lane = ((per_lane as f64 * scale) as u32).max(1);
+        per_lane = fixed_per_lane.unwrap_or(((per_lane as f64 * scale) as u32).max(1));
         let out_of_time = opts
             .time_budget
             .is_some_and(|b| start.elapsed().as_secs_f64() >= b);
@@ -459,6 +489,18 @@ pub fn render_gpu(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn lane_samples_take_only_counts_in_range() {
+        assert_eq!(parse_lane_samples("8").unwrap(), Some(8));
+        for bad in ["0", "-1", "65537", "x", ""] {
+            let e = parse_lane_samples(bad).unwrap_err().to_string();
+            assert!(
+                e.contains("STCVAE_GPU_LANE_SAMPLES") && e.contains("1 to 65536"),
+                "{e}"
+            );
+        }
+    }
 
     #[test]
     fn bounce_budget_takes_only_counts_in_range() {
