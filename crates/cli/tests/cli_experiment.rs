@@ -161,3 +161,46 @@ fn experiment_configs_are_checked_before_any_rendering() {
     let e = run("scene = \"ok.toml\"\ndensities = \"1.0\"");
     assert!(e.contains("exp.toml:4") && e.contains("densities"), "{e}");
 }
+
+/// Ctrl-C (SIGINT) during an experiment stops it after the current render pass: exit status
+/// 130, a one-line message, and no report (a cut-short render must not be measured).
+#[cfg(unix)]
+#[test]
+fn an_interrupted_experiment_writes_no_report() {
+    use std::time::{Duration, Instant};
+    let d = tempfile::tempdir().unwrap();
+    let child = Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args([
+            "experiment",
+            "configs/experiments/teaser.toml",
+            "--device",
+            "cpu",
+            "--out",
+        ])
+        .arg(d.path())
+        .current_dir(root())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The full teaser renders for minutes: interrupted two seconds after it has started.
+    let out = d.path().join("teaser");
+    let start = Instant::now();
+    while !out.exists() {
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "the experiment never started"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    std::thread::sleep(Duration::from_secs(2));
+    let kill = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(kill.success());
+    let done = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&done.stderr);
+    assert_eq!(done.status.code(), Some(130), "{err}");
+    assert!(err.contains("interrupted: no report written"), "{err}");
+    assert!(!out.join("report.md").exists());
+}

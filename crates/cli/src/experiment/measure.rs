@@ -3,9 +3,8 @@
 //! integrators (the same estimator as `stcvae bench render`).
 
 use std::path::Path;
-use std::sync::atomic::AtomicBool;
 
-use anyhow::Result;
+use anyhow::{Result, bail};
 use render_gpu::image_io::{RenderTag, RgbImage};
 use render_gpu::integrator::{IntegratorKind, PathStats};
 use render_gpu::render::{RenderOptions, RenderOutput};
@@ -97,9 +96,17 @@ pub fn render_once(
         edit(f);
     })?;
     let set = p.settings();
+    // Ctrl-C stops the render after its current pass; a cut-short render must not be
+    // measured, so the experiment ends here without a report.
     let out = ctx
         .engine
-        .render(&p.data, &set, o, &|_, _| {}, &AtomicBool::new(false))?;
+        .render(&p.data, &set, o, &|_, _| {}, crate::interrupt::flag())?;
+    if crate::interrupt::requested() {
+        bail!(
+            "interrupted: no report written (images saved so far stay in {})",
+            ctx.out.display()
+        );
+    }
     Ok((out, p.data.hash))
 }
 

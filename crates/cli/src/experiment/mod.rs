@@ -90,7 +90,14 @@ pub fn run(a: Args) -> Result<()> {
         if a.quick { ", quick" } else { "" },
         out.display()
     );
-    kinds::run(&ctx, &mut rep)?;
+    // Ctrl-C is a request to stop after the current render pass (measure::render_once).
+    crate::interrupt::flag();
+    if let Err(e) = kinds::run(&ctx, &mut rep) {
+        // A run stopped before it saved anything leaves no empty folder (remove_dir
+        // removes only an empty one).
+        let _ = std::fs::remove_dir(&out);
+        return Err(e);
+    }
     rep.write(&out)?;
     eprintln!("wrote {}", out.join("report.md").display());
     Ok(())
