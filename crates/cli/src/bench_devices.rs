@@ -52,15 +52,17 @@ fn render(
     engine.render(&p.data, &p.settings(), &opts, &|_, _| {}, &cancel)
 }
 
-fn paths_per_second(o: &RenderOutput) -> f64 {
-    o.stats.paths as f64 / o.seconds.max(1e-9)
-}
-
 pub fn run(a: Args) -> Result<()> {
+    // The scene as each density renders it: σ_t × k at the bench's image size.
+    let edit = |f: &mut render_gpu::scene::SceneFile, k: f64| {
+        f.medium.sigma_t = f.medium.sigma_t.map(|s| s * k);
+        f.camera.width = a.size;
+        f.camera.height = a.size;
+    };
     let scene = render_gpu::scene::SceneFile::load(&a.scene)?;
     for &k in &a.k {
         let mut f = scene.clone();
-        f.medium.sigma_t = f.medium.sigma_t.map(|s| s * k);
+        edit(&mut f, k);
         if let Err(e) = f.validate() {
             bail!(
                 "{e} (σ_t × {k}, set by --k, applied to {})",
@@ -102,13 +104,11 @@ pub fn run(a: Args) -> Result<()> {
             (IntegratorKind::Stcvae, "ST-CVAE"),
         ] {
             let p = prepare(&a.scene, Some(kind), None, a.model.as_deref(), |f| {
-                f.medium.sigma_t = f.medium.sigma_t.map(|s| s * k);
-                f.camera.width = a.size;
-                f.camera.height = a.size;
+                edit(f, k)
             })?;
             let on_cpu = render(&cpu, &p, a.spp, a.seed)?;
             let on_gpu = render(&gpu, &p, a.spp, a.seed)?;
-            let (c, g) = (paths_per_second(&on_cpu), paths_per_second(&on_gpu));
+            let (c, g) = (on_cpu.paths_per_second(), on_gpu.paths_per_second());
             println!(
                 "{:>6} {:>8} {:>8.2} {:>8.2} {:>12} {:>12} {:>7.2}x {:>10.2}",
                 k,

@@ -366,14 +366,14 @@ pub fn run(a: Args) -> Result<()> {
             c.speedup,
             c.var_ratio,
             c.speedup * c.var_ratio,
-            pt.stats.events as f64 / pt.stats.paths.max(1) as f64,
-            st.stats.steps as f64 / st.stats.paths.max(1) as f64,
-            st.stats.events as f64 / st.stats.paths.max(1) as f64,
+            pt.per_path(pt.stats.events),
+            st.per_path(st.stats.steps),
+            st.per_path(st.stats.events),
             c.bias,
             c.bias_upper95,
             c.noise,
-            crate::progress::si(pt.stats.paths as f64 / pt.seconds.max(1e-9)),
-            crate::progress::si(st.stats.paths as f64 / st.seconds.max(1e-9))
+            crate::progress::si(pt.paths_per_second()),
+            crate::progress::si(st.paths_per_second())
         );
         if let Some(when) = cached {
             println!(

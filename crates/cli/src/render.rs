@@ -371,7 +371,7 @@ pub fn run(a: Args) -> Result<()> {
         seconds: out.seconds,
         kernel_compile_seconds: engine.is_gpu().then_some(out.compile_seconds),
         gpu_dispatch: engine.is_gpu().then_some(out.dispatch),
-        paths_per_second: out.stats.paths as f64 / out.seconds.max(1e-9),
+        paths_per_second: out.paths_per_second(),
         mean_pt_events_per_path: out.stats.events as f64 / paths,
         mean_sphere_steps_per_path: out.stats.steps as f64 / paths,
         min_tau: set.min_tau as f64,

@@ -62,6 +62,13 @@ pub struct RenderOutput {
     pub dispatch: DispatchStats,
 }
 
+impl RenderOutput {
+    /// Paths traced per second of rendering (the kernel's compilation left out).
+    pub fn paths_per_second(&self) -> f64 {
+        self.stats.paths as f64 / self.seconds.max(1e-9)
+    }
+}
+
 /// How a GPU render was dispatched. The fallbacks it counts (dispatches redone after a
 /// software adapter's loop limit cut them off, images split into bands) leave the expected
 /// image unchanged, so only these counts show that they ran.

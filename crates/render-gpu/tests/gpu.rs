@@ -311,6 +311,27 @@ fn opts(spp: u32, seed: u64) -> RenderOptions {
     }
 }
 
+/// `render_gpu` with the environment variables `vars` set for this render only. The caller
+/// holds `ctx`'s lock, as every render of this binary does, so no render reads them while
+/// they change.
+fn render_gpu_with_env(
+    ctx: &GpuContext,
+    s: &SceneData,
+    set: &IntegratorSettings,
+    o: &RenderOptions,
+    vars: &[(&str, &str)],
+) -> Result<RenderOutput, RenderError> {
+    // SAFETY: as above; nothing else in this binary reads the environment meanwhile.
+    for (name, value) in vars {
+        unsafe { std::env::set_var(name, value) };
+    }
+    let out = render_gpu(ctx, s, set, o, &|_, _| {}, &AtomicBool::new(false));
+    for (name, _) in vars {
+        unsafe { std::env::remove_var(name) };
+    }
+    out
+}
+
 fn on_gpu(
     ctx: &GpuContext,
     s: &SceneData,
@@ -760,19 +781,14 @@ fn loop_limit_cut_off_is_redone_with_fewer_bounces() {
     let mut dispatches = Vec::new();
     // 65,535 is the most STCVAE_GPU_BOUNCES allows; far more than a dispatch fits.
     for bounces in ["65535", "64"] {
-        // SAFETY: every render of this binary holds `ctx`'s lock, so none reads the
-        // variable while it changes; nothing else here reads the environment meanwhile.
-        unsafe { std::env::set_var("STCVAE_GPU_BOUNCES", bounces) };
-        let out = render_gpu(
+        let out = render_gpu_with_env(
             &ctx,
             &s,
             &set,
             &opts(3, 9),
-            &|_, _| {},
-            &AtomicBool::new(false),
-        );
-        unsafe { std::env::remove_var("STCVAE_GPU_BOUNCES") };
-        let out = out.expect("a cut-off dispatch must be redone, not reported");
+            &[("STCVAE_GPU_BOUNCES", bounces)],
+        )
+        .expect("a cut-off dispatch must be redone, not reported");
         images.push(out.image);
         dispatches.push(out.dispatch);
     }
@@ -821,30 +837,17 @@ fn long_exact_walks_shrink_the_bounce_budget() {
     // bounces a dispatch with 8 paths an invocation in every chunk, whatever the machine's
     // speed: each path's walks take ~10⁴ loop iterations, so a dispatch that runs all 8
     // must be cut off (`stcvae render` with STCVAE_GPU_LANE_SAMPLES=8, seeds 5–7: redone 11
-    // times each, down to 31 bounces, ~10 s on lavapipe). It must finish every path (the renderer refuses a pixel short of
-    // samples) with a finite image. (ST-CVAE's image depends on where the dispatches end,
-    // so it is not compared with the first render's.)
+    // times each, down to 31 bounces, ~10 s on lavapipe). It must finish every path (the
+    // renderer refuses a pixel short of samples) with a finite image. (ST-CVAE's image
+    // depends on where the dispatches end, so it is not compared with the first render's.)
     let ctx = gpu().unwrap().lock().unwrap_or_else(|e| e.into_inner());
     let s = common::build_scene(&text, true);
-    // SAFETY: every render of this binary holds `ctx`'s lock, so none reads the variable
-    // while it changes; nothing else here reads the environment meanwhile.
-    unsafe {
-        std::env::set_var("STCVAE_GPU_BOUNCES", "65535");
-        std::env::set_var("STCVAE_GPU_LANE_SAMPLES", "8");
-    }
-    let out = render_gpu(
-        &ctx,
-        &s,
-        &set,
-        &opts(48, 5),
-        &|_, _| {},
-        &AtomicBool::new(false),
-    );
-    unsafe {
-        std::env::remove_var("STCVAE_GPU_BOUNCES");
-        std::env::remove_var("STCVAE_GPU_LANE_SAMPLES");
-    }
-    let out = out.expect("a cut-off dispatch must be redone, not reported");
+    let vars = [
+        ("STCVAE_GPU_BOUNCES", "65535"),
+        ("STCVAE_GPU_LANE_SAMPLES", "8"),
+    ];
+    let out = render_gpu_with_env(&ctx, &s, &set, &opts(48, 5), &vars)
+        .expect("a cut-off dispatch must be redone, not reported");
     assert_eq!(out.stats.paths, out.image.pixels.len() as u64 * 48);
     assert!(out.image.pixels.iter().flatten().all(|v| v.is_finite()));
     if ctx.adapter.software {

@@ -42,25 +42,15 @@ const TARGET_CHUNK_SECONDS: f64 = 1.0;
 /// grid's radius alone), so its samples differ. Hardware GPUs have no such limit; 256
 /// keeps each dispatch far below watchdogs. `STCVAE_GPU_BOUNCES` sets the first value.
 fn bounce_budget(ctx: &GpuContext) -> Result<u32, RenderError> {
-    match std::env::var("STCVAE_GPU_BOUNCES") {
-        Err(std::env::VarError::NotPresent) => Ok(if ctx.adapter.software { 128 } else { 256 }),
-        Err(std::env::VarError::NotUnicode(v)) => parse_bounces(&v.to_string_lossy()),
-        Ok(v) => parse_bounces(&v),
+    match env_value("STCVAE_GPU_BOUNCES") {
+        None => Ok(if ctx.adapter.software { 128 } else { 256 }),
+        Some(v) => parse_bounces(&v),
     }
 }
 
 /// `STCVAE_GPU_BOUNCES`' value, or the error that names its range.
 fn parse_bounces(v: &str) -> Result<u32, RenderError> {
-    v.trim()
-        .parse::<u32>()
-        .ok()
-        .filter(|b| (1..=MAX_BOUNCES).contains(b))
-        .ok_or_else(|| {
-            RenderError::Gpu(format!(
-                "STCVAE_GPU_BOUNCES={v:?} is out of range: allowed 1 to {MAX_BOUNCES} bounces \
-                 per dispatch (unset it for the default)"
-            ))
-        })
+    parse_count("STCVAE_GPU_BOUNCES", v, MAX_BOUNCES, "bounces per dispatch")
 }
 
 /// `STCVAE_GPU_LANE_SAMPLES`: the samples every invocation takes per chunk, fixed. Unset,
@@ -68,23 +58,39 @@ fn parse_bounces(v: &str) -> Result<u32, RenderError> {
 /// dispatch holds depends on the machine's speed; tests that must reach a software
 /// adapter's loop limit fix it instead.
 fn fixed_lane_samples() -> Result<Option<u32>, RenderError> {
-    match std::env::var("STCVAE_GPU_LANE_SAMPLES") {
-        Err(std::env::VarError::NotPresent) => Ok(None),
-        Err(std::env::VarError::NotUnicode(v)) => parse_lane_samples(&v.to_string_lossy()),
-        Ok(v) => parse_lane_samples(&v),
-    }
+    env_value("STCVAE_GPU_LANE_SAMPLES").map_or(Ok(None), |v| parse_lane_samples(&v))
 }
 
 fn parse_lane_samples(v: &str) -> Result<Option<u32>, RenderError> {
+    parse_count(
+        "STCVAE_GPU_LANE_SAMPLES",
+        v,
+        MAX_LANE_SAMPLES,
+        "samples per invocation and chunk",
+    )
+    .map(Some)
+}
+
+/// The environment variable `name`, None when unset (a value that is not Unicode is passed
+/// on lossily, so that the range error shows it).
+fn env_value(name: &str) -> Option<String> {
+    match std::env::var(name) {
+        Ok(v) => Some(v),
+        Err(std::env::VarError::NotPresent) => None,
+        Err(std::env::VarError::NotUnicode(v)) => Some(v.to_string_lossy().into_owned()),
+    }
+}
+
+/// A whole number in 1..=`max` from the variable `name`, or the error that names it, its
+/// range and its `unit`.
+fn parse_count(name: &str, v: &str, max: u32, unit: &str) -> Result<u32, RenderError> {
     v.trim()
         .parse::<u32>()
         .ok()
-        .filter(|n| (1..=MAX_LANE_SAMPLES).contains(n))
-        .map(Some)
+        .filter(|n| (1..=max).contains(n))
         .ok_or_else(|| {
             RenderError::Gpu(format!(
-                "STCVAE_GPU_LANE_SAMPLES={v:?} is out of range: allowed 1 to {MAX_LANE_SAMPLES} \
-                 samples per invocation and chunk (unset it for the default)"
+                "{name}={v:?} is out of range: allowed 1 to {max} {unit} (unset it for the default)"
             ))
         })
 }
