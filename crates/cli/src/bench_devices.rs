@@ -17,7 +17,8 @@ use crate::render::prepare;
 #[derive(clap::Args)]
 pub struct Args {
     /// Scene to render; its medium is scaled by each --k (σ_t × k), everything else kept.
-    #[arg(long, default_value = "configs/scenes/bunny.toml")]
+    #[arg(long, default_value = crate::render::DEFAULT_SCENE,
+          value_parser = crate::shipped::scene_arg(crate::render::DEFAULT_SCENE))]
     scene: PathBuf,
     /// Density multipliers of the scene's σ_t (each in (0, 1000]). PT's time grows with k;
     /// on a software adapter k = 8 takes minutes.

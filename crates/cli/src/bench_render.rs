@@ -23,7 +23,8 @@ pub struct Args {
     /// Scene the ladder scales: its medium is replaced by the teaser's (σ_t = k·(150, 187.5,
     /// 125), albedo (0.99999, 0.99995, 0.975), g = 0.875); camera, object, lights and
     /// render settings are kept.
-    #[arg(long, default_value = "configs/scenes/bunny.toml")]
+    #[arg(long, default_value = crate::render::DEFAULT_SCENE,
+          value_parser = crate::shipped::scene_arg(crate::render::DEFAULT_SCENE))]
     scene: PathBuf,
     /// Density multipliers (each in (0, 1000]).
     #[arg(long, value_delimiter = ',', default_value = "1,2,4,8", value_parser = parse_k)]

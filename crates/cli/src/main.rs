@@ -13,6 +13,7 @@ mod plots;
 mod progress;
 mod pt_cache;
 mod render;
+mod shipped;
 mod train;
 
 use clap::{Parser, Subcommand};

@@ -18,15 +18,21 @@ use crate::{interrupt, progress};
 /// The model shipped in the repository, used when no --model is given.
 pub const DEFAULT_MODEL: &str = "models/default.stcvae";
 
+/// The model file a missing `--model` stands for: the shipped one, found from any working
+/// directory while the checkout the binary was built from exists (shipped.rs).
+pub fn model_path(path: Option<&Path>) -> PathBuf {
+    path.map_or_else(|| crate::shipped::locate(DEFAULT_MODEL), Path::to_path_buf)
+}
+
 pub fn load_model(path: Option<&Path>) -> Result<ModelSet> {
-    let p = path.unwrap_or(Path::new(DEFAULT_MODEL));
+    let p = model_path(path);
     if path.is_none() && !p.exists() {
         bail!(
-            "{DEFAULT_MODEL} not found: run from the repository root (the shipped model lives \
-             there) or pass --model FILE"
+            "{DEFAULT_MODEL} not found here or in the checkout this binary was built from: run \
+             from the repository root (the shipped model lives there) or pass --model FILE"
         );
     }
-    Ok(ModelSet::load(p)?)
+    Ok(ModelSet::load(&p)?)
 }
 
 #[derive(clap::Args)]
@@ -248,10 +254,7 @@ fn open_eval(model: Option<&Path>, out: &Path, samples: usize) -> Result<(ModelS
         );
     }
     let m = load_model(model)?;
-    let name = model
-        .unwrap_or(Path::new(DEFAULT_MODEL))
-        .display()
-        .to_string();
+    let name = model_path(model).display().to_string();
     // Checked now, created when the results are written: an eval stopped part way (Ctrl-C
     // kills it) leaves no empty directory behind.
     scatter_sim::output::check_output_path(&out.join("metrics.json"))

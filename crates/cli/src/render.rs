@@ -11,7 +11,7 @@ use render_gpu::setup::SceneData;
 use serde::Serialize;
 
 use crate::device::{DeviceArg, Engine};
-use crate::model_cmds::{DEFAULT_MODEL, load_model};
+use crate::model_cmds::{load_model, model_path};
 use crate::{interrupt, progress};
 
 pub const DEFAULT_SCENE: &str = "configs/scenes/bunny.toml";
@@ -24,7 +24,7 @@ pub const DEFAULT_SCENE: &str = "configs/scenes/bunny.toml";
 )]
 pub struct Args {
     /// Scene file (TOML; the format is in the README).
-    #[arg(long, default_value = DEFAULT_SCENE)]
+    #[arg(long, default_value = DEFAULT_SCENE, value_parser = crate::shipped::scene_arg(DEFAULT_SCENE))]
     pub scene: PathBuf,
     /// pt (volumetric path tracing, the reference) or stcvae (sphere tracing with the CVAEs).
     #[arg(long, value_parser = parse_integrator)]
@@ -147,8 +147,8 @@ pub fn prepare(
 ) -> Result<Prepared> {
     if scene_path == Path::new(DEFAULT_SCENE) && !scene_path.exists() {
         bail!(
-            "{DEFAULT_SCENE} not found: run from the repository root (the default scene lives \
-             there) or pass --scene FILE"
+            "{DEFAULT_SCENE} not found here or in the checkout this binary was built from: run \
+             from the repository root (the default scene lives there) or pass --scene FILE"
         );
     }
     let mut file = SceneFile::load(scene_path)?;
@@ -163,9 +163,7 @@ pub fn prepare(
         .map_err(|e| anyhow!("{}: {e}", scene_path.display()))?;
     let stcvae = file.render.integrator == IntegratorKind::Stcvae;
     let (model, model_path, model_bytes) = if stcvae {
-        let p = model
-            .map(Path::to_path_buf)
-            .unwrap_or_else(|| PathBuf::from(DEFAULT_MODEL));
+        let p = model_path(model);
         let m = load_model(model)?;
         let bytes = m.to_bytes();
         (Some(m), Some(p), bytes)

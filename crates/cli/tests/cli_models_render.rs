@@ -797,3 +797,58 @@ fn bench_devices_prints_both_devices_and_their_ratio() {
         );
     }
 }
+
+/// The defaults (scene, model) are relative to the repository root; from another working
+/// directory the binary finds them in the checkout it was built from, and writes its
+/// outputs where it was started.
+#[test]
+fn shipped_defaults_are_found_from_another_directory() {
+    let d = tempfile::tempdir().unwrap();
+    let run = |args: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_stcvae"))
+            .args(args)
+            .current_dir(d.path())
+            .output()
+            .expect("run stcvae")
+    };
+    ok(&run(&[
+        "render", "--device", "cpu", "--spp", "1", "--out", "r",
+    ]));
+    let json = std::fs::read_to_string(d.path().join("r.json")).unwrap();
+    let model = root().join("models/default.stcvae").canonicalize().unwrap();
+    let scene = root()
+        .join("configs/scenes/bunny.toml")
+        .canonicalize()
+        .unwrap();
+    for (what, p) in [("model", &model), ("scene", &scene)] {
+        assert!(
+            json.contains(&format!("{:?}", p.display().to_string())),
+            "the render's JSON does not name the shipped {what} {}: {json}",
+            p.display()
+        );
+    }
+    for ext in ["exr", "png"] {
+        assert!(
+            d.path().join(format!("r.{ext}")).is_file(),
+            "r.{ext} missing"
+        );
+    }
+    ok(&run(&[
+        "sample",
+        "--tau",
+        "5",
+        "--g",
+        "0.4",
+        "--albedo",
+        "0.9",
+        "--samples",
+        "10",
+        "--out",
+        "s.csv",
+    ]));
+    let rows = std::fs::read_to_string(d.path().join("s.csv")).unwrap();
+    assert_eq!(rows.lines().count(), 11, "header and 10 walks: {rows}");
+    // A scene the user names is taken as given, relative to where the binary runs.
+    let err = fails(&run(&["render", "--scene", "configs/scenes/sphere.toml"]));
+    assert!(err.contains("configs/scenes/sphere.toml"), "{err}");
+}

@@ -207,7 +207,7 @@ pub fn render(
                 let tw = x1 - x0;
                 let mut out: Vec<PixelSum> = vec![([0f64; 3], 0); tw * (y1 - y0)];
                 // The tile's samples pixel by pixel, each with its own random stream; the
-                // wavefront traces 64 at a time and batches their decoder draws.
+                // wavefront traces wavefront::SLOTS (256) at a time and batches their decoder draws.
                 let mut samples = (y0..y1)
                     .flat_map(|y| (x0..x1).map(move |x| (x, y)))
                     .flat_map(|(x, y)| (s0..s1).map(move |s| (x, y, s)));

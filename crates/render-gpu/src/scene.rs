@@ -227,7 +227,7 @@ pub struct RenderDesc {
     pub exact_nee_samples: u32,
     /// Shadow rays per path (ST-CVAE): each chooses one of the path's NEE events by a
     /// proxy of its contribution (`integrator::nee::PathNee`); 0 casts one at every NEE
-    /// event instead. 1 by measurement (docs/BENCHMARKS.md, twentieth session): 17–26 %
+    /// event instead. 1 by measurement (docs/BENCHMARKS.md, twentieth session): 18–26 %
     /// faster than 0 at ~9 % more variance, ahead at equal error at every density of the
     /// bench ladder; PT always casts one at every event. The GPU kernels run the same
     /// estimator (shaders/nee.wgsl; on lavapipe 1 is ~28 % faster than 0).

@@ -1,0 +1,38 @@
+//! The repository's shipped inputs (the default scene and model) found from any working
+//! directory.
+//!
+//! The defaults (`configs/scenes/bunny.toml`, `models/default.stcvae`) are relative to the
+//! repository root, which is where `cargo run` runs. A binary started elsewhere (a script in
+//! another folder, `target/release/stcvae` called by its path, `cargo install --path
+//! crates/cli`) falls back to the checkout it was built from while that still exists,
+//! instead of failing. Outputs stay relative to the working directory.
+
+use std::path::{Path, PathBuf};
+
+/// `rel` in the working directory, else in the checkout this binary was built from, else
+/// `rel` itself (the caller's "not found" names it).
+pub fn locate(rel: &str) -> PathBuf {
+    let here = Path::new(rel);
+    if here.exists() {
+        return here.to_path_buf();
+    }
+    let there = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../..")
+        .join(rel);
+    match there.canonicalize() {
+        Ok(p) => p,
+        Err(_) => here.to_path_buf(),
+    }
+}
+
+/// clap's parser for a `--scene` whose default is `default`: the default is located as
+/// above, a path the user gave is taken as given.
+pub fn scene_arg(default: &'static str) -> impl Fn(&str) -> Result<PathBuf, String> + Clone {
+    move |s: &str| {
+        Ok(if s == default {
+            locate(s)
+        } else {
+            PathBuf::from(s)
+        })
+    }
+}
