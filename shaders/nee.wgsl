@@ -34,13 +34,13 @@ fn crossings(o: vec3<f32>, d: vec3<f32>) -> Crossings {
         return c;
     }
     var top = 1u;
-    wg_stack[stack_base] = 0u;
+    trav_stack[stack_base] = 0u;
     loop {
         if top == 0u {
             break;
         }
         top -= 1u;
-        let node = node_at(wg_stack[stack_base + top]);
+        let node = node_at(trav_stack[stack_base + top]);
         if node.count > 0u {
             for (var k = node.first; k < node.first + node.count; k++) {
                 let t = tri_intersect(sh, tris[k], 1e30);
@@ -59,12 +59,12 @@ fn crossings(o: vec3<f32>, d: vec3<f32>) -> Crossings {
             let b = node.first + 1u;
             let na = node_at(a);
             if box_entry(na.lo, na.hi, o, inv_d, 1e30) < 1e29 && top < STACK_DEPTH {
-                wg_stack[stack_base + top] = a;
+                trav_stack[stack_base + top] = a;
                 top += 1u;
             }
             let nb = node_at(b);
             if box_entry(nb.lo, nb.hi, o, inv_d, 1e30) < 1e29 && top < STACK_DEPTH {
-                wg_stack[stack_base + top] = b;
+                trav_stack[stack_base + top] = b;
                 top += 1u;
             }
         }

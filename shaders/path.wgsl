@@ -345,23 +345,23 @@ fn loop_limit_ran_out(passes: u32) -> bool {
 /// decoder loops included), so the work of one dispatch must stay bounded; a dispatch in
 /// which the limit ran out is counted (C_TRUNCATED), and the host redoes it with fewer
 /// bounces (gpu/renderer.rs, bounce_budget) or reports it.
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP)
 fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
-    stack_base = li * STACK_DEPTH;
+    stack_base = li * STACK_STRIDE;
     let width = params.image.x;
     let lanes = params.image.z;
-    // Workgroups take tiles of 64 consecutive slots in a scattered order (w·P mod n, P
+    // Workgroups take tiles of WORKGROUP consecutive slots in a scattered order (w·P mod n, P
     // coprime with n: params.consts2.w), so that any contiguous range of workgroups — what
     // a CPU driver such as lavapipe hands one thread — covers the whole image, not its
     // cheap background rows or its expensive object rows alone. Within a workgroup the
     // slots stay neighbouring pixels, whose paths run alike in SIMD.
-    let n_groups = (params.image.x * params.image.y * params.image.z + 63u) / 64u;
-    let w = gid.x / 64u + gid.y * 65535u;
+    let n_groups = (params.image.x * params.image.y * params.image.z + WORKGROUP - 1u) / WORKGROUP;
+    let w = gid.x / WORKGROUP + gid.y * 65535u;
     if w >= n_groups {
         return;
     }
     let tile = mul_mod(w, u32(params.consts2.w), n_groups);
-    let idx = tile * 64u + gid.x % 64u;
+    let idx = tile * WORKGROUP + gid.x % WORKGROUP;
     let pixel = idx / lanes;
     let lane = idx % lanes;
     if pixel >= width * params.image.y {

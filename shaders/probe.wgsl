@@ -19,7 +19,7 @@ fn clear_item(i: u32) {
 }
 
 /// In: cond[0..12], noise[12..28], decoder id at 28. Out: outputs at 0..8.
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP)
 fn probe_decoder(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = gid.x;
     if i >= params.image.x {
@@ -40,7 +40,7 @@ fn probe_decoder(@builtin(global_invocation_id) gid: vec3<u32>) {
 /// In: g, ξ at 0, 1; dir at 4..7; (cos ψ, sin ψ) at 8, 9; exit (cos θ, α, β) at 12..15;
 /// X at 16..19. Out: HG cos at 0; deflect(dir, cos, ψ) at 4..7; world exit point at
 /// 8..11; world exit direction at 12..15; world X at 16..19.
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP)
 fn probe_frame(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = gid.x;
     if i >= params.image.x {
@@ -72,9 +72,9 @@ fn probe_frame(@builtin(global_invocation_id) gid: vec3<u32>) {
 
 /// In: origin at 0..3, direction at 4..7 (scene geometry bound). Out: closest hit found
 /// (1/0) and t at 0, 1; the unordered crossings' exits − entries and inside length at 2, 3.
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP)
 fn probe_ray(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
-    stack_base = li * STACK_DEPTH;
+    stack_base = li * STACK_STRIDE;
     let i = gid.x;
     if i >= params.image.x {
         return;
@@ -93,9 +93,9 @@ fn probe_ray(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invoc
 /// In: a point at 0..3 (scene geometry and distance grid bound). Out: the grid radius,
 /// the candidate lists' exact distance (-1 without a list) and the BVH search's distance
 /// at 0, 1, 2.
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP)
 fn probe_grid(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
-    stack_base = li * STACK_DEPTH;
+    stack_base = li * STACK_STRIDE;
     let i = gid.x;
     if i >= params.image.x {
         return;
@@ -115,7 +115,7 @@ fn probe_grid(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
 /// Out: the noise of a fresh EventGen draw at 0..10 and of its mirrored partner at 11..21
 /// (DEC_LATENT_2 + DEC_OUT_2 = 11 for the shipped model); the partner's event X at
 /// 22..24 and W at 25..27.
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP)
 fn probe_event_pair(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = gid.x;
     if i >= params.image.x {
@@ -143,7 +143,7 @@ fn probe_event_pair(@builtin(global_invocation_id) gid: vec3<u32>) {
 /// In: loop iterations n at 0, loop-limit probe passes at 1. Out: the iterations that ran
 /// at 0 (fewer than n where llvmpipe's loop limit cut the loop), 1 at 1 if the probe then
 /// saw the limit run out. No clear_item: after a cut-off its loop would run one pass.
-@compute @workgroup_size(64)
+@compute @workgroup_size(WORKGROUP)
 fn probe_loop_limit(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = gid.x;
     if i >= params.image.x {

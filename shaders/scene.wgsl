@@ -194,12 +194,13 @@ fn box_entry(lo: vec3<f32>, hi: vec3<f32>, o: vec3<f32>, inv_d: vec3<f32>, tmax:
     return select(1e30, tn, tn <= tf);
 }
 
-// BVH traversal stacks live in workgroup memory (`wg_stack`, STACK_DEPTH entries per
-// invocation from stack_base, set by each entry point from its local invocation index;
-// both defined by gpu/kernels.rs): a private array indexed at run time cost llvmpipe ~25 %
-// of PT's time (apparently per-access branch ladders: a 64-entry private stack was that
-// much slower than a 16-entry one). The host refuses a BVH deeper than the stack. No
-// traversal runs inside another, so all share it.
+// BVH traversal stacks (`trav_stack`, STACK_DEPTH entries per invocation from stack_base,
+// which each entry point sets to its local invocation index × STACK_STRIDE; both defined
+// by gpu/kernels.rs, KernelShape). By default they live in workgroup memory: a private
+// array indexed at run time cost llvmpipe ~25 % of PT's time (apparently per-access branch
+// ladders: a 64-entry private stack was that much slower than a 16-entry one). With
+// STCVAE_GPU_STACK=private the array is private and the stride 0. The host refuses a BVH
+// deeper than the stack. No traversal runs inside another, so all share it.
 var<private> stack_base: u32;
 
 /// Closest hit along o + t·d, t ∈ [0, tmax].
@@ -209,13 +210,13 @@ fn intersect(o: vec3<f32>, d: vec3<f32>, tmax0: f32) -> Hit {
     let inv_d = 1.0 / (d + select(vec3<f32>(0.0), vec3<f32>(1e-30), d == vec3<f32>(0.0)));
     let sh = ray_shear(o, d);
     var top = 1u;
-    wg_stack[stack_base] = 0u;
+    trav_stack[stack_base] = 0u;
     loop {
         if top == 0u {
             break;
         }
         top -= 1u;
-        let node = node_at(wg_stack[stack_base + top]);
+        let node = node_at(trav_stack[stack_base + top]);
         if box_entry(node.lo, node.hi, o, inv_d, best.t) >= 1e29 {
             continue;
         }
@@ -236,18 +237,18 @@ fn intersect(o: vec3<f32>, d: vec3<f32>, tmax0: f32) -> Hit {
             // Push the farther child first so the nearer one is visited next.
             if ta < 1e29 && tb < 1e29 && top + 2u <= STACK_DEPTH {
                 if ta < tb {
-                    wg_stack[stack_base + top] = b;
-                    wg_stack[stack_base + top + 1u] = a;
+                    trav_stack[stack_base + top] = b;
+                    trav_stack[stack_base + top + 1u] = a;
                 } else {
-                    wg_stack[stack_base + top] = a;
-                    wg_stack[stack_base + top + 1u] = b;
+                    trav_stack[stack_base + top] = a;
+                    trav_stack[stack_base + top + 1u] = b;
                 }
                 top += 2u;
             } else if ta < 1e29 && top < STACK_DEPTH {
-                wg_stack[stack_base + top] = a;
+                trav_stack[stack_base + top] = a;
                 top += 1u;
             } else if tb < 1e29 && top < STACK_DEPTH {
-                wg_stack[stack_base + top] = b;
+                trav_stack[stack_base + top] = b;
                 top += 1u;
             }
         }
@@ -317,13 +318,13 @@ fn box_d2(p: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>) -> f32 {
 fn surface_distance(p: vec3<f32>, limit: f32) -> f32 {
     var best = limit * limit;
     var top = 1u;
-    wg_stack[stack_base] = 0u;
+    trav_stack[stack_base] = 0u;
     loop {
         if top == 0u {
             break;
         }
         top -= 1u;
-        let node = node_at(wg_stack[stack_base + top]);
+        let node = node_at(trav_stack[stack_base + top]);
         if box_d2(p, node.lo, node.hi) >= best {
             continue;
         }
@@ -343,11 +344,11 @@ fn surface_distance(p: vec3<f32>, limit: f32) -> f32 {
                 return sqrt(min(best, min(da, db)));
             }
             if da < db {
-                wg_stack[stack_base + top] = b;
-                wg_stack[stack_base + top + 1u] = a;
+                trav_stack[stack_base + top] = b;
+                trav_stack[stack_base + top + 1u] = a;
             } else {
-                wg_stack[stack_base + top] = a;
-                wg_stack[stack_base + top + 1u] = b;
+                trav_stack[stack_base + top] = a;
+                trav_stack[stack_base + top + 1u] = b;
             }
             top += 2u;
         }

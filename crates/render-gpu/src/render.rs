@@ -82,6 +82,10 @@ pub struct DispatchStats {
     pub bands: u32,
     /// Bounces a dispatch advanced each path by, at the end of the render.
     pub bounce_budget: u32,
+    /// Threads per workgroup of the kernel (`STCVAE_GPU_WORKGROUP`).
+    pub workgroup: u32,
+    /// Where its traversal stacks lived (`STCVAE_GPU_STACK`); None on the CPU.
+    pub stack: Option<crate::gpu::kernels::StackMemory>,
 }
 
 /// lowbias32 (Wellons): the kernels' `mix32` (shaders/common.wgsl).

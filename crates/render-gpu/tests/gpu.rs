@@ -10,6 +10,7 @@ use std::sync::{Mutex, OnceLock};
 
 use glam::DVec3;
 use render_gpu::RenderError;
+use render_gpu::gpu::kernels::StackMemory;
 use render_gpu::gpu::probe::{Item, run_probe};
 use render_gpu::gpu::{AdapterChoice, GpuContext, render_gpu};
 use render_gpu::integrator::{IntegratorKind, IntegratorSettings};
@@ -1113,4 +1114,96 @@ fn images_beyond_the_binding_limit_render_in_bands() {
         "{differ} of 65536 pixels differ between bands and one binding"
     );
     assert!(whole.image.pixels.iter().any(|p| p[0] > 0.0));
+}
+
+/// The kernels' shape (threads per workgroup, traversal stacks in workgroup or private
+/// memory: `STCVAE_GPU_WORKGROUP`, `STCVAE_GPU_STACK`) changes which thread runs a path,
+/// never what the path computes: seeds follow the pixel and the sample. So every shape
+/// renders the same image bit for bit, for PT and for ST-CVAE (model steps and exact
+/// walks). The samples per chunk are fixed (`STCVAE_GPU_LANE_SAMPLES`) so that the dispatch
+/// schedule, on which ST-CVAE's resumed paths depend, does not follow the machine's speed.
+#[test]
+fn kernel_shapes_render_the_same_image() {
+    let Some(ctx) = gpu() else { return };
+    let mut ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let s = common::build_scene(&sphere_scene("kind = \"index-matched\""), true);
+    let exact = IntegratorSettings {
+        exact_tau: 8.0,
+        ..settings(IntegratorKind::Stcvae, true)
+    };
+    let shapes: [&[(&str, &str)]; 4] = [
+        &[],
+        &[("STCVAE_GPU_WORKGROUP", "8")],
+        &[
+            ("STCVAE_GPU_WORKGROUP", "32"),
+            ("STCVAE_GPU_STACK", "private"),
+        ],
+        &[
+            ("STCVAE_GPU_WORKGROUP", "128"),
+            ("STCVAE_GPU_STACK", "private"),
+        ],
+    ];
+    for set in [
+        settings(IntegratorKind::Pt, true),
+        settings(IntegratorKind::Stcvae, true),
+        exact,
+    ] {
+        let run = |vars: &[(&str, &str)]| {
+            let mut all = vec![("STCVAE_GPU_LANE_SAMPLES", "2")];
+            all.extend_from_slice(vars);
+            render_gpu_with_env(&ctx, &s, &set, &opts(6, 9), &all).unwrap()
+        };
+        let base = run(shapes[0]);
+        assert_eq!(base.dispatch.workgroup, 64);
+        assert!(base.image.pixels.iter().any(|p| p[0] > 0.0));
+        for vars in &shapes[1..] {
+            let out = run(vars);
+            let workgroup: u32 = vars[0].1.parse().unwrap();
+            let private = vars.len() == 2;
+            assert_eq!(out.dispatch.workgroup, workgroup);
+            assert_eq!(
+                out.dispatch.stack,
+                Some(if private {
+                    StackMemory::Private
+                } else {
+                    StackMemory::Workgroup
+                })
+            );
+            assert_eq!(
+                (out.stats.paths, out.stats.events),
+                (base.stats.paths, base.stats.events)
+            );
+            let differ = base
+                .image
+                .pixels
+                .iter()
+                .zip(&out.image.pixels)
+                .filter(|(a, b)| a != b)
+                .count();
+            assert_eq!(
+                differ, 0,
+                "{:?} {vars:?}: {differ} pixels differ from the default shape",
+                set.kind
+            );
+        }
+    }
+    // A shape beyond the adapter's workgroup memory is refused, naming the way out.
+    let saved = ctx.limits.clone();
+    ctx.limits.max_compute_workgroup_storage_size = 1024;
+    let refused = render_gpu_with_env(
+        &ctx,
+        &s,
+        &settings(IntegratorKind::Pt, true),
+        &opts(1, 1),
+        &[],
+    );
+    ctx.limits = saved;
+    let Err(e) = refused else {
+        panic!("a kernel over the workgroup memory limit rendered")
+    };
+    let e = e.to_string();
+    assert!(
+        e.contains("workgroup memory") && e.contains("STCVAE_GPU_STACK=private"),
+        "{e}"
+    );
 }

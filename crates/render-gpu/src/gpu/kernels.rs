@@ -16,14 +16,105 @@ const STCVAE: &str = include_str!("../../../../shaders/stcvae.wgsl");
 const PATH: &str = include_str!("../../../../shaders/path.wgsl");
 const PROBE: &str = include_str!("../../../../shaders/probe.wgsl");
 
-/// Threads per workgroup of every kernel (`@workgroup_size(64)` in the WGSL).
-pub const WORKGROUP: u32 = 64;
-
-/// Entries of each invocation's BVH traversal stack (workgroup memory, shaders/scene.wgsl).
-/// A depth-first traversal of a BVH2 of depth D needs at most D + 1; the renderer refuses
-/// deeper trees. 48 × 64 invocations × 4 bytes = 12 KiB, under the 16 KiB of workgroup
-/// memory every adapter offers.
+/// Entries of each invocation's BVH traversal stack (shaders/scene.wgsl). A depth-first
+/// traversal of a BVH2 of depth D needs at most D + 1; the renderer refuses deeper trees.
+/// In workgroup memory, 48 × 64 invocations × 4 bytes = 12 KiB, under the 16 KiB every
+/// adapter offers.
 pub const STACK_DEPTH: u32 = 48;
+
+/// Where each invocation's BVH traversal stack lives.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum StackMemory {
+    /// A slice of one workgroup array (the default: on llvmpipe a private array indexed at
+    /// run time cost ~25 % of PT's time, shaders/scene.wgsl).
+    Workgroup,
+    /// A private array: on hardware GPUs thread-local memory, cached, leaving the workgroup
+    /// memory that may limit how many workgroups share a multiprocessor free.
+    Private,
+}
+
+/// How the kernels sit on the hardware: threads per workgroup and where the traversal
+/// stacks live. Neither changes what any path computes (seeds follow the pixel and the
+/// sample, not the thread), so the image is the same bit for bit whatever the shape
+/// (tested); they differ in speed only, which hardware GPUs decide (occupancy, divergence
+/// per warp) and which `STCVAE_GPU_WORKGROUP` / `STCVAE_GPU_STACK` let a device session
+/// measure without a rebuild (scripts/device/check).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct KernelShape {
+    /// Threads per workgroup (`@workgroup_size(WORKGROUP)` in the WGSL).
+    pub workgroup: u32,
+    pub stack: StackMemory,
+}
+
+impl Default for KernelShape {
+    fn default() -> Self {
+        Self {
+            workgroup: 64,
+            stack: StackMemory::Workgroup,
+        }
+    }
+}
+
+impl KernelShape {
+    /// The workgroup sizes offered: powers of two from lavapipe's SIMD width (8) to the
+    /// 256 invocations every adapter allows.
+    pub const WORKGROUPS: [u32; 6] = [8, 16, 32, 64, 128, 256];
+
+    /// Bytes of workgroup memory a workgroup of this shape takes.
+    pub fn workgroup_bytes(&self) -> u32 {
+        match self.stack {
+            StackMemory::Workgroup => 4 * STACK_DEPTH * self.workgroup,
+            StackMemory::Private => 0,
+        }
+    }
+
+    /// Refuses a shape beyond the adapter's limits, naming the limit.
+    pub fn check(&self, ctx: &GpuContext) -> Result<(), RenderError> {
+        let l = &ctx.limits;
+        let most = l
+            .max_compute_invocations_per_workgroup
+            .min(l.max_compute_workgroup_size_x);
+        if self.workgroup > most {
+            return Err(RenderError::GpuLimit(format!(
+                "a workgroup of {} threads exceeds {}'s limit of {most}",
+                self.workgroup, ctx.adapter.name
+            )));
+        }
+        if self.workgroup_bytes() > l.max_compute_workgroup_storage_size {
+            return Err(RenderError::GpuLimit(format!(
+                "{} threads' traversal stacks take {} bytes of workgroup memory, over {}'s {} \
+                 (a private stack takes none: STCVAE_GPU_STACK=private)",
+                self.workgroup,
+                self.workgroup_bytes(),
+                ctx.adapter.name,
+                l.max_compute_workgroup_storage_size
+            )));
+        }
+        Ok(())
+    }
+
+    /// The WGSL that fixes the shape (prepended to every kernel).
+    fn wgsl(&self) -> String {
+        let (stride, stack) = match self.stack {
+            StackMemory::Workgroup => (
+                STACK_DEPTH,
+                format!(
+                    "var<workgroup> trav_stack: array<u32, {}>;",
+                    STACK_DEPTH * self.workgroup
+                ),
+            ),
+            StackMemory::Private => (
+                0,
+                format!("var<private> trav_stack: array<u32, {STACK_DEPTH}>;"),
+            ),
+        };
+        format!(
+            "const WORKGROUP: u32 = {}u;\nconst STACK_STRIDE: u32 = {stride}u;\n{stack}\n",
+            self.workgroup
+        )
+    }
+}
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Kernel {
@@ -53,6 +144,7 @@ pub fn source(
     kernel: Kernel,
     model: Option<&cvae::ModelSet>,
     path_nee_m: u32,
+    shape: KernelShape,
 ) -> Result<String, RenderError> {
     if path_nee_m > crate::scene::MAX_PATH_NEE_RAYS {
         return Err(RenderError::Scene(format!(
@@ -73,12 +165,12 @@ pub fn source(
     // shadow-ray roulette threshold and flight margin from the CPU integrator's (nee.wgsl,
     // path.wgsl), and the node packing's count bits from GpuNode's.
     let stack = format!(
-        "const STACK_DEPTH: u32 = {STACK_DEPTH}u;\nvar<workgroup> wg_stack: array<u32, {}>;\n\
+        "const STACK_DEPTH: u32 = {STACK_DEPTH}u;\n{}\
          const ROULETTE_BOUND: f32 = {:?};\nconst FLIGHT_MARGIN_OF_EPS: f32 = {:?};\n\
          const EXIT_REFINE_TAU: f32 = {:?};\nconst SLIVER_REACH_OF_EPS: f32 = {:?};\n\
          const PATH_NEE_M: u32 = {path_nee_m}u;\nconst SLOT: u32 = {}u;\n\
          const NODE_COUNT_BITS: u32 = {}u;\n",
-        STACK_DEPTH * WORKGROUP,
+        shape.wgsl(),
         crate::integrator::nee::ROULETTE_BOUND,
         crate::geometry::FLIGHT_MARGIN_OF_EPS,
         crate::integrator::sphere_step::EXIT_REFINE_TAU,
@@ -141,8 +233,8 @@ pub fn bind_group_layout(ctx: &GpuContext) -> wgpu::BindGroupLayout {
         })
 }
 
-/// Compiles `entry` of `kernel` (with `path_nee_m` path-level NEE reservoirs, see
-/// [`source`]); shader or pipeline errors come back as errors, not panics (wgpu's default
+/// Compiles `entry` of `kernel` (with `path_nee_m` path-level NEE reservoirs, in `shape`,
+/// see [`source`]); shader or pipeline errors come back as errors, not panics (wgpu's default
 /// handler would abort).
 pub fn pipeline(
     ctx: &GpuContext,
@@ -150,9 +242,11 @@ pub fn pipeline(
     kernel: Kernel,
     model: Option<&cvae::ModelSet>,
     path_nee_m: u32,
+    shape: KernelShape,
     entry: &str,
 ) -> Result<wgpu::ComputePipeline, RenderError> {
-    let src = source(kernel, model, path_nee_m)?;
+    shape.check(ctx)?;
+    let src = source(kernel, model, path_nee_m, shape)?;
     let scope = ctx.device.push_error_scope(wgpu::ErrorFilter::Validation);
     let module = ctx
         .device
@@ -175,7 +269,7 @@ pub fn pipeline(
             module: &module,
             entry_point: Some(entry),
             // The only workgroup memory is the traversal stacks, always written before
-            // they are read: zero-filling 12 KiB per workgroup would be wasted work.
+            // they are read: zero-filling them (12 KiB a workgroup of 64) would be wasted.
             compilation_options: wgpu::PipelineCompilationOptions {
                 zero_initialize_workgroup_memory: false,
                 ..Default::default()

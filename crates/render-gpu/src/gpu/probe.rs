@@ -5,7 +5,7 @@
 use crate::error::RenderError;
 
 use super::context::GpuContext;
-use super::kernels::{self, Kernel, WORKGROUP};
+use super::kernels::{self, Kernel, KernelShape};
 use super::model_buffers::model_params;
 use super::resources::{Inputs, Resources, read_back};
 use super::scene_buffers::{GpuNode, GpuTri, Params, geometry_buffers, grid_buffer};
@@ -38,7 +38,8 @@ pub fn run_probe_on(
         None => (vec![GpuNode::default(); 3], vec![GpuTri::default()]),
     };
     let layout = kernels::bind_group_layout(ctx);
-    let pipeline = kernels::pipeline(ctx, &layout, Kernel::Probe, Some(model), 0, entry)?;
+    let shape = KernelShape::default();
+    let pipeline = kernels::pipeline(ctx, &layout, Kernel::Probe, Some(model), 0, shape, entry)?;
     let mut params = Params::default();
     params.image[0] = items.len() as u32;
     let grid = match scene.and_then(|s| s.grid.as_ref().map(|g| (s, g))) {
@@ -68,7 +69,7 @@ pub fn run_probe_on(
     res.dispatch(
         ctx,
         &pipeline,
-        ((items.len() as u32).div_ceil(WORKGROUP), 1),
+        ((items.len() as u32).div_ceil(shape.workgroup), 1),
         0,
     );
     let out = read_back(ctx, &res.accums[0], bytes)?;

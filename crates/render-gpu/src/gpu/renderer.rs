@@ -12,7 +12,7 @@ use crate::render::{DispatchStats, RenderOptions, RenderOutput};
 use crate::setup::SceneData;
 
 use super::context::GpuContext;
-use super::kernels::{self, Kernel, WORKGROUP};
+use super::kernels::{self, Kernel, KernelShape, StackMemory};
 
 use super::model_buffers::model_params;
 use super::resources::{COUNTER_BYTES, Inputs, Resources, read_back, wait};
@@ -69,6 +69,41 @@ fn parse_lane_samples(v: &str) -> Result<Option<u32>, RenderError> {
         "samples per invocation and chunk",
     )
     .map(Some)
+}
+
+/// The kernels' shape from `STCVAE_GPU_WORKGROUP` (threads per workgroup) and
+/// `STCVAE_GPU_STACK` (`workgroup` or `private`), each [`KernelShape::default`]'s when
+/// unset. For measuring on hardware GPUs: the image does not depend on it.
+pub fn kernel_shape() -> Result<KernelShape, RenderError> {
+    let mut shape = KernelShape::default();
+    if let Some(v) = env_value("STCVAE_GPU_WORKGROUP") {
+        shape.workgroup = v
+            .trim()
+            .parse::<u32>()
+            .ok()
+            .filter(|n| KernelShape::WORKGROUPS.contains(n))
+            .ok_or_else(|| {
+                RenderError::Gpu(format!(
+                    "STCVAE_GPU_WORKGROUP={v:?} is out of range: allowed {:?} threads per \
+                     workgroup (unset it for the default, {})",
+                    KernelShape::WORKGROUPS,
+                    shape.workgroup
+                ))
+            })?;
+    }
+    if let Some(v) = env_value("STCVAE_GPU_STACK") {
+        shape.stack = match v.trim() {
+            "workgroup" => StackMemory::Workgroup,
+            "private" => StackMemory::Private,
+            _ => {
+                return Err(RenderError::Gpu(format!(
+                    "STCVAE_GPU_STACK={v:?} is not a stack memory: allowed workgroup or \
+                     private (unset it for the default, workgroup)"
+                )));
+            }
+        };
+    }
+    Ok(shape)
 }
 
 /// The environment variable `name`, None when unset (a value that is not Unicode is passed
@@ -278,7 +313,16 @@ pub fn render_gpu(
     // Path-level NEE (ST-CVAE only, as on the CPU): its reservoirs travel with each path.
     let path_nee_m = set.path_nee() as u32;
     let slot_vec4s = kernels::slot_vec4s(path_nee_m);
-    let pipeline = kernels::pipeline(ctx, &layout, kernel, set.model, path_nee_m, "render_main")?;
+    let shape = kernel_shape()?;
+    let pipeline = kernels::pipeline(
+        ctx,
+        &layout,
+        kernel,
+        set.model,
+        path_nee_m,
+        shape,
+        "render_main",
+    )?;
     let cam = &scene.camera;
     let pixels = cam.width as u64 * cam.height as u64;
     let spp = opts.spp.max(1);
@@ -314,7 +358,7 @@ pub fn render_gpu(
             let rows = band_rows.min(cam.height - row0);
             let threads = cam.width as u64 * rows as u64 * lanes as u64;
             // Workgroups as (x, y) within the 65,535 a dimension allows.
-            let groups = threads.div_ceil(WORKGROUP as u64);
+            let groups = threads.div_ceil(shape.workgroup as u64);
             Band {
                 index,
                 row0,
@@ -398,6 +442,8 @@ pub fn render_gpu(
     let mut stats = PathStats::default();
     let mut dispatch = DispatchStats {
         bands: bands.len() as u32,
+        workgroup: shape.workgroup,
+        stack: Some(shape.stack),
         ..Default::default()
     };
     let mut s0 = 0u32;
@@ -495,6 +541,39 @@ pub fn render_gpu(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn kernel_shape_takes_only_the_offered_values() {
+        // SAFETY: no other test of this binary reads these two variables.
+        let with = |wg: &str, stack: &str| {
+            unsafe {
+                std::env::set_var("STCVAE_GPU_WORKGROUP", wg);
+                std::env::set_var("STCVAE_GPU_STACK", stack);
+            }
+            let r = kernel_shape();
+            unsafe {
+                std::env::remove_var("STCVAE_GPU_WORKGROUP");
+                std::env::remove_var("STCVAE_GPU_STACK");
+            }
+            r
+        };
+        assert_eq!(kernel_shape().unwrap(), KernelShape::default());
+        let s = with("128", "private").unwrap();
+        assert_eq!((s.workgroup, s.stack), (128, StackMemory::Private));
+        assert_eq!(with(" 8 ", "workgroup").unwrap().workgroup, 8);
+        for bad in ["0", "48", "512", "-64", "", "sixty-four"] {
+            let e = with(bad, "workgroup").unwrap_err().to_string();
+            assert!(
+                e.contains("STCVAE_GPU_WORKGROUP") && e.contains("[8, 16, 32, 64, 128, 256]"),
+                "{e}"
+            );
+        }
+        let e = with("64", "shared").unwrap_err().to_string();
+        assert!(
+            e.contains("STCVAE_GPU_STACK") && e.contains("workgroup or private"),
+            "{e}"
+        );
+    }
 
     #[test]
     fn lane_samples_take_only_counts_in_range() {
