@@ -9,9 +9,14 @@ fn root() -> PathBuf {
 }
 
 fn stcvae(args: &[&str]) -> Output {
+    stcvae_in(&root(), args)
+}
+
+/// `stcvae args` run in `dir`.
+fn stcvae_in(dir: &Path, args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_stcvae"))
         .args(args)
-        .current_dir(root())
+        .current_dir(dir)
         .output()
         .expect("run stcvae")
 }
@@ -804,13 +809,7 @@ fn bench_devices_prints_both_devices_and_their_ratio() {
 #[test]
 fn shipped_defaults_are_found_from_another_directory() {
     let d = tempfile::tempdir().unwrap();
-    let run = |args: &[&str]| {
-        Command::new(env!("CARGO_BIN_EXE_stcvae"))
-            .args(args)
-            .current_dir(d.path())
-            .output()
-            .expect("run stcvae")
-    };
+    let run = |args: &[&str]| stcvae_in(d.path(), args);
     ok(&run(&[
         "render", "--device", "cpu", "--spp", "1", "--out", "r",
     ]));
@@ -833,19 +832,8 @@ fn shipped_defaults_are_found_from_another_directory() {
             "r.{ext} missing"
         );
     }
-    ok(&run(&[
-        "sample",
-        "--tau",
-        "5",
-        "--g",
-        "0.4",
-        "--albedo",
-        "0.9",
-        "--samples",
-        "10",
-        "--out",
-        "s.csv",
-    ]));
+    let sample = "sample --tau 5 --g 0.4 --albedo 0.9 --samples 10 --out s.csv";
+    ok(&run(&sample.split(' ').collect::<Vec<_>>()));
     let rows = std::fs::read_to_string(d.path().join("s.csv")).unwrap();
     assert_eq!(rows.lines().count(), 11, "header and 10 walks: {rows}");
     // A scene the user names is taken as given, relative to where the binary runs.
