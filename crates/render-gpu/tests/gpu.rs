@@ -333,6 +333,13 @@ fn render_gpu_with_env(
     out
 }
 
+/// Pixels whose values differ at all between two renders of one size.
+fn differing_pixels(a: &RenderOutput, b: &RenderOutput) -> usize {
+    assert_eq!(a.image.pixels.len(), b.image.pixels.len());
+    let pairs = a.image.pixels.iter().zip(&b.image.pixels);
+    pairs.filter(|(p, q)| p != q).count()
+}
+
 fn on_gpu(
     ctx: &GpuContext,
     s: &SceneData,
@@ -1102,13 +1109,7 @@ fn images_beyond_the_binding_limit_render_in_bands() {
     assert_eq!(whole.stats.paths, 256 * 256 * 6);
     assert_eq!(banded.stats.paths, whole.stats.paths);
     assert_eq!(banded.stats.events, whole.stats.events);
-    let differ = whole
-        .image
-        .pixels
-        .iter()
-        .zip(&banded.image.pixels)
-        .filter(|(a, b)| a != b)
-        .count();
+    let differ = differing_pixels(&whole, &banded);
     assert_eq!(
         differ, 0,
         "{differ} of 65536 pixels differ between bands and one binding"
@@ -1173,13 +1174,7 @@ fn kernel_shapes_render_the_same_image() {
                 (out.stats.paths, out.stats.events),
                 (base.stats.paths, base.stats.events)
             );
-            let differ = base
-                .image
-                .pixels
-                .iter()
-                .zip(&out.image.pixels)
-                .filter(|(a, b)| a != b)
-                .count();
+            let differ = differing_pixels(&base, &out);
             assert_eq!(
                 differ, 0,
                 "{:?} {vars:?}: {differ} pixels differ from the default shape",
