@@ -197,9 +197,10 @@ fn box_entry(lo: vec3<f32>, hi: vec3<f32>, o: vec3<f32>, inv_d: vec3<f32>, tmax:
 // BVH traversal stacks (`trav_stack`, STACK_DEPTH entries per invocation from stack_base,
 // which each entry point sets to its local invocation index × STACK_STRIDE; both defined
 // by gpu/kernels.rs, KernelShape). By default they live in workgroup memory: a private
-// array indexed at run time cost llvmpipe ~25 % of PT's time (apparently per-access branch
-// ladders: a 64-entry private stack was that much slower than a 16-entry one). With
-// STCVAE_GPU_STACK=private the array is private and the stride 0. The host refuses a BVH
+// array indexed at run time once cost llvmpipe ~25 % of PT's time (apparently per-access
+// branch ladders: a 64-entry private stack was that much slower than a 16-entry one); on
+// today's kernels the two are within lavapipe's noise. With STCVAE_GPU_STACK=private the
+// array is private and the stride 0. The host refuses a BVH
 // deeper than the stack. No traversal runs inside another, so all share it.
 var<private> stack_base: u32;
 

@@ -25,8 +25,8 @@ pub fn locate(rel: &str) -> PathBuf {
     }
 }
 
-/// clap's parser for a `--scene` whose default is `default`: the default is located as
-/// above, a path the user gave is taken as given.
+/// clap's parser for a `--scene` whose default is `default`: that very string (given or
+/// defaulted) is located as above, any other path taken as given.
 pub fn scene_arg(default: &'static str) -> impl Fn(&str) -> Result<PathBuf, String> + Clone {
     move |s: &str| {
         Ok(if s == default {

@@ -26,8 +26,9 @@ pub const STACK_DEPTH: u32 = 48;
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum StackMemory {
-    /// A slice of one workgroup array (the default: on llvmpipe a private array indexed at
-    /// run time cost ~25 % of PT's time, shaders/scene.wgsl).
+    /// A slice of one workgroup array (the default, chosen when a private array indexed at
+    /// run time cost llvmpipe ~25 % of PT's time; on today's kernels the two are within
+    /// lavapipe's noise: docs/BENCHMARKS.md, twenty-seventh session).
     Workgroup,
     /// A private array: on hardware GPUs thread-local memory, cached, leaving the workgroup
     /// memory that may limit how many workgroups share a multiprocessor free.

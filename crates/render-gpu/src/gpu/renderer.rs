@@ -557,9 +557,10 @@ mod tests {
             }
             r
         };
-        assert_eq!(kernel_shape().unwrap(), KernelShape::default());
         let s = with("128", "private").unwrap();
         assert_eq!((s.workgroup, s.stack), (128, StackMemory::Private));
+        // `with` leaves both unset: the defaults.
+        assert_eq!(kernel_shape().unwrap(), KernelShape::default());
         assert_eq!(with(" 8 ", "workgroup").unwrap().workgroup, 8);
         for bad in ["0", "48", "512", "-64", "", "sixty-four"] {
             let e = with(bad, "workgroup").unwrap_err().to_string();
