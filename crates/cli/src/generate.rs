@@ -21,7 +21,7 @@ const DEFAULT_FIXED_WALKS: u64 = 10_000;
     stcvae generate --samples 10000 --tau 5 --g 0.4 --albedo 1.0 --seed 7 --out walks.csv\n  \
     stcvae generate --config configs/dataset/default.toml --shard 3/8 --out data/train-3.bin")]
 pub struct Args {
-    /// Dataset config (TOML: walks, seed, [conditions]); default: the authors' distribution
+    /// Dataset config (TOML: walks, seed, `[conditions]`); default: the authors' distribution
     /// with 2^22 walks.
     #[arg(long)]
     config: Option<PathBuf>,

@@ -120,7 +120,7 @@ pub struct Prepared {
 }
 
 impl Prepared {
-    /// The integrator settings of this scene (its [render] table, with the overrides
+    /// The integrator settings of this scene (its `[render]` table, with the overrides
     /// `prepare` applied, the defaults and the model's τ limit); the same on every device.
     pub fn settings(&self) -> IntegratorSettings<'_> {
         let r = &self.file.render;

@@ -7,7 +7,7 @@ use crate::fastmath::{Fused, Madd, Separate};
 /// predicts a huge variance for an input it never saw cannot blow up a renderer.
 pub const LOGVAR_CLAMP: f32 = 16.0;
 
-/// One fully connected layer, y = W x + b with W stored row-major as [out][in] (each
+/// One fully connected layer, y = W x + b with W stored row-major as `[out][in]` (each
 /// output is one dot product — the layout the model file and the WGSL kernels use).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Dense {
@@ -30,7 +30,7 @@ fn padded(outputs: usize) -> usize {
 }
 
 impl Dense {
-    /// `weight` is row-major [outputs][inputs]; lengths must match.
+    /// `weight` is row-major `[outputs][inputs]`; lengths must match.
     pub fn new(inputs: usize, outputs: usize, weight: Vec<f32>, bias: Vec<f32>) -> Self {
         assert_eq!(weight.len(), inputs * outputs, "weight shape");
         assert_eq!(bias.len(), outputs, "bias shape");

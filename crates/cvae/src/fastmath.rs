@@ -146,7 +146,7 @@ pub fn softplus_chunks<M: Madd, const W: usize>(v: &mut [f32]) {
 }
 
 /// ln(x) for a positive, finite, normal f32: exponent from the bits, mantissa by
-/// [`ln_1p_unit`] (m − 1 is exact for m ∈ [1, 2)).
+/// `ln_1p_unit` (m − 1 is exact for m ∈ [1, 2)).
 #[inline(always)]
 pub fn ln(x: f32) -> f32 {
     let bits = x.to_bits();

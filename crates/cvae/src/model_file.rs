@@ -3,7 +3,7 @@
 //!
 //! Layout (little endian): magic `STCVAEMD` (8) | version u32 | metadata length u32 |
 //! metadata (JSON, [`Metadata`]) | weights (f32; per model, per layer: W row-major
-//! [out][in], then b) | CRC-32 of all preceding bytes (u32).
+//! `[out][in]`, then b) | CRC-32 of all preceding bytes (u32).
 
 use std::path::{Path, PathBuf};
 

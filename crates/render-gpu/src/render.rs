@@ -113,7 +113,7 @@ pub fn channel_offset(seed: u64, pixel: u32) -> u32 {
 /// Sample `s` of pixel `pixel`: its random stream, its jitter within the pixel and its hero
 /// channel. The three samples 3j, 3j + 1, 3j + 2 share one jitter (their channels are the
 /// three colours), so they share one camera ray, which the renderer casts once for them
-/// ([`CameraRays`]). Per channel the jitters stay independent and uniform, so each
+/// (`CameraRays`). Per channel the jitters stay independent and uniform, so each
 /// channel's estimate is as before; only the channels of a pixel become correlated. (The
 /// GPU kernels jitter each sample on its own.)
 pub fn pixel_sample(seed: u64, pixel: u64, s: u32) -> (WalkRng, f32, f32, usize) {

@@ -16,7 +16,7 @@ use glam::{Vec3, Vec3Swizzles};
 /// Per-ray constants of the shear that maps the ray onto the +z axis: the axis
 /// permutation (kx, ky, kz), one of six, and the shear factors. Each vertex is permuted
 /// with a swizzle chosen once per ray (a perfectly predicted branch), then sheared with
-/// two multiplies: the textbook a[kx] − Sx·a[kz], rounded the same way for every
+/// two multiplies: the textbook `a[kx] − Sx·a[kz]`, rounded the same way for every
 /// triangle that shares the vertex.
 #[derive(Clone, Copy, Debug)]
 pub struct RayShear {

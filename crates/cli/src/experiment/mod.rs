@@ -30,7 +30,7 @@ pub struct Args {
     /// Where renders run: auto (a hardware GPU if any, else the CPU), gpu or cpu.
     #[arg(long, value_enum, default_value_t = DeviceArg::Auto)]
     pub device: DeviceArg,
-    /// Results root; the experiment writes OUT/<config name>/.
+    /// Results root; the experiment writes `OUT/<config name>/`.
     #[arg(long, default_value = "results")]
     pub out: PathBuf,
     /// Model file (default: models/default.stcvae).

@@ -53,7 +53,7 @@ impl Mlp {
     }
 
     /// The layers as plain-Rust dense layers (burn stores W as [in, out]; the model file
-    /// stores it row-major [out][in]).
+    /// stores it row-major `[out][in]`).
     pub fn to_dense(&self) -> Vec<Dense> {
         self.layers
             .iter()

@@ -1,5 +1,5 @@
 //! The CPU integrators: one path loop shared by volumetric PT and ST-CVAE; they differ
-//! only in what happens at a real scattering point ([`pt_event`] or a sphere step,
+//! only in what happens at a real scattering point (`pt_event` or a sphere step,
 //! `sphere_step::begin`).
 //!
 //! Each path traces one colour channel (the hero channel, chosen per sample and
@@ -71,7 +71,7 @@ pub struct IntegratorSettings<'a> {
     pub nee_samples: u32,
     /// NEE events per exactly simulated sphere step (1..=`MAX_EXACT_NEE_SAMPLES`).
     pub exact_nee_samples: u32,
-    /// ST-CVAE's shadow rays per path ([`nee::PathNee`]); 0: one at every NEE event.
+    /// ST-CVAE's shadow rays per path (`nee::PathNee`); 0: one at every NEE event.
     pub path_nee_rays: u32,
 }
 

@@ -5,7 +5,7 @@
 //! separate albedo weight and no separate NEE: EventGen's representative event, with
 //! weight Λ(N) = Σ_{k=1..N} φ^k, stands for NEE at all N events of the walk.
 //!
-//! A step that needs the decoders runs in stages ([`begin`], then [`Pending`]'s
+//! A step that needs the decoders runs in stages (`begin`, then `Pending`'s
 //! `after_length`, `after_path` and `finish`), so that [`super::wavefront`] can evaluate
 //! the decoder draws of many paths' steps together.
 

@@ -7,7 +7,7 @@
 //! [`SLOTS`] paths in flight: each is followed until its next sphere step needs the
 //! decoders or a simulated walk (or until it ends, when the next camera sample takes its
 //! slot). Then the waiting walks are simulated together in SIMD lanes
-//! ([`walk_lanes::simulate`]), every waiting model step's LengthGen draw is evaluated in
+//! (`walk_lanes::simulate`), every waiting model step's LengthGen draw is evaluated in
 //! one batch with the draws in SIMD lanes ([`cvae::decoder::Decoder::outputs`]), then
 //! their PathGen draws, then their EventGen draws, and the steps are finished. Each path
 //! keeps its own random stream and draws from it in the same order as when traced alone
