@@ -40,6 +40,7 @@ fn crossings(o: vec3<f32>, d: vec3<f32>) -> Crossings {
             break;
         }
         top -= 1u;
+        prof(2u);
         let node = node_at(trav_stack[stack_base + top]);
         if node.count > 0u {
             for (var k = node.first; k < node.first + node.count; k++) {

@@ -106,6 +106,7 @@ fn beyond_sliver(q: vec3<f32>, n: vec3<f32>) -> bool {
 /// ended starts its next sample instead of idling until the longest path of its SIMD
 /// group is done — path lengths are heavy-tailed, so this is most of the speed.
 fn bounce() {
+    prof(0u);
     let channel = p_channel;
     let sigma = params.sigma_t[channel];
     let dielectric = params.flags.z != 0u;
@@ -224,6 +225,7 @@ fn bounce() {
         p_from_step = false;
         return;
     }
+    prof(6u);
     p_from_step = scatter_at(channel);
 }
 
@@ -347,6 +349,7 @@ fn loop_limit_ran_out(passes: u32) -> bool {
 /// bounces (gpu/renderer.rs, bounce_budget) or reports it.
 @compute @workgroup_size(WORKGROUP)
 fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    prof_begin(li);
     stack_base = li * STACK_STRIDE;
     let width = params.image.x;
     let lanes = params.image.z;
@@ -455,4 +458,5 @@ fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_inv
     for (var i = 0u; i < 9u; i++) {
         add_counter(i, stats[i]);
     }
+    prof_end();
 }

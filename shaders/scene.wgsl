@@ -75,7 +75,7 @@ struct ModelParams {
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read_write> accum: array<vec4<f32>>;
-@group(0) @binding(2) var<storage, read_write> counters: array<atomic<u32>, 18>;
+@group(0) @binding(2) var<storage, read_write> counters: array<atomic<u32>, COUNTER_WORDS>;
 @group(0) @binding(3) var<storage, read> tris: array<Tri>;
 @group(0) @binding(4) var<storage, read> nodes: array<vec4<u32>>;
 @group(0) @binding(5) var<storage, read> env_map: array<vec4<f32>>;
@@ -217,6 +217,7 @@ fn intersect(o: vec3<f32>, d: vec3<f32>, tmax0: f32) -> Hit {
             break;
         }
         top -= 1u;
+        prof(1u);
         let node = node_at(trav_stack[stack_base + top]);
         if box_entry(node.lo, node.hi, o, inv_d, best.t) >= 1e29 {
             continue;
@@ -325,6 +326,7 @@ fn surface_distance(p: vec3<f32>, limit: f32) -> f32 {
             break;
         }
         top -= 1u;
+        prof(3u);
         let node = node_at(trav_stack[stack_base + top]);
         if box_d2(p, node.lo, node.hi) >= best {
             continue;

@@ -257,6 +257,7 @@ fn exact_walk(tau: f32, g: f32, channel: u32, m: u32, frame: WalkFrame, f_unit: 
     var exit_x = vec3<f32>(0.0, 0.0, 1.0);
     var exit_w = vec3<f32>(0.0, 0.0, 1.0);
     loop {
+        prof(4u);
         let dir = hg_sample_direction(g, arriving);
         let flight = -log(rand_open0()) / tau;
         let next = pos + dir * flight;

@@ -431,6 +431,9 @@ pub fn run(a: Args) -> Result<()> {
         },
         crate::merge::out_stem(&a.out).display()
     );
+    if let Some(lanes) = &out.dispatch.lanes {
+        print_lanes(lanes);
+    }
     if interrupted {
         // Written, but cut short: exit 130 as `generate` and `train` do, so that scripts
         // can tell it from a complete render.
@@ -441,4 +444,25 @@ pub fn run(a: Args) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// The lane profile (`STCVAE_GPU_PROFILE=1`): per phase, its share of all subgroup passes
+/// and the share of its SIMD lanes that did work.
+fn print_lanes(lanes: &render_gpu::render::LaneProfile) {
+    let passes: u64 = lanes.phases.iter().map(|p| p.capacity).sum();
+    let size = lanes.phases[0].capacity / lanes.phases[0].passes.max(1);
+    eprintln!(
+        "SIMD lanes busy per phase of the kernel (subgroups of {size} lanes; STCVAE_GPU_PROFILE):"
+    );
+    eprintln!(
+        "  {:<38} {:>14} {:>12}",
+        "phase", "lane share", "lanes busy"
+    );
+    for p in &lanes.phases {
+        let busy = p
+            .efficiency()
+            .map_or("-".to_string(), |e| format!("{:.1} %", 100.0 * e));
+        let share = 100.0 * p.capacity as f64 / passes.max(1) as f64;
+        eprintln!("  {:<38} {:>12.1} % {:>12}", p.phase, share, busy);
+    }
 }

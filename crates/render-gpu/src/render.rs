@@ -86,6 +86,33 @@ pub struct DispatchStats {
     pub workgroup: u32,
     /// Where its traversal stacks lived (`STCVAE_GPU_STACK`); None on the CPU.
     pub stack: Option<crate::gpu::kernels::StackMemory>,
+    /// The SIMD lanes busy in each phase of the kernel (`STCVAE_GPU_PROFILE`).
+    pub lanes: Option<LaneProfile>,
+}
+
+/// Per phase of the kernel ([`crate::gpu::kernels::PROFILE_PHASES`]), the subgroup lanes
+/// active at its passes and the lanes those subgroups had.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct LaneProfile {
+    pub phases: [PhaseLanes; crate::gpu::kernels::PROFILE_PHASES.len()],
+}
+
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct PhaseLanes {
+    pub phase: &'static str,
+    /// Σ over the subgroups' passes of their active lanes.
+    pub active: u64,
+    /// Σ over the same passes of the subgroup's size.
+    pub capacity: u64,
+    /// The subgroups' passes through the phase.
+    pub passes: u64,
+}
+
+impl PhaseLanes {
+    /// The share of the phase's SIMD lanes doing work (None: never reached).
+    pub fn efficiency(&self) -> Option<f64> {
+        (self.capacity > 0).then(|| self.active as f64 / self.capacity as f64)
+    }
 }
 
 /// lowbias32 (Wellons): the kernels' `mix32` (shaders/common.wgsl).

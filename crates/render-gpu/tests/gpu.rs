@@ -1202,3 +1202,58 @@ fn kernel_shapes_render_the_same_image() {
         "{e}"
     );
 }
+
+/// The lane profile (`STCVAE_GPU_PROFILE=1`) counts, per phase of the kernel, its subgroup
+/// passes, their active lanes and their lanes in all. Each pass has at least its counting
+/// lane active and at most the whole subgroup, so passes ≤ active ≤ capacity, and every
+/// pass adds the subgroup's size, one size for all phases (a power of two from 4 to 128,
+/// Vulkan's range). The phases each integrator must run are reached, those it cannot are
+/// not, and counting changes no path: the image is the same bit for bit.
+#[test]
+fn lane_profile_counts_and_changes_nothing() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    if !ctx.features.contains(wgpu::Features::SUBGROUP) {
+        eprintln!("skipping: {} offers no subgroup operations", ctx.adapter);
+        assert!(std::env::var_os("CI").is_none(), "lavapipe offers them");
+        return;
+    }
+    let s = common::build_scene(&sphere_scene("kind = \"index-matched\""), true);
+    let exact = IntegratorSettings {
+        exact_tau: 8.0,
+        ..settings(IntegratorKind::Stcvae, true)
+    };
+    // Phases (kernels::PROFILE_PHASES): bounce, closest hit, shadow ray, surface
+    // distance, exact walk, decoder, collision.
+    for (set, reached) in [
+        (
+            settings(IntegratorKind::Pt, true),
+            [true, true, true, false, false, false, true],
+        ),
+        (exact, [true, true, true, false, true, true, true]),
+    ] {
+        let fixed = ("STCVAE_GPU_LANE_SAMPLES", "2");
+        let plain = render_gpu_with_env(&ctx, &s, &set, &opts(6, 4), &[fixed]).unwrap();
+        let counted = render_gpu_with_env(
+            &ctx,
+            &s,
+            &set,
+            &opts(6, 4),
+            &[fixed, ("STCVAE_GPU_PROFILE", "1")],
+        )
+        .unwrap();
+        assert!(plain.dispatch.lanes.is_none());
+        assert_eq!(differing_pixels(&plain, &counted), 0, "{:?}", set.kind);
+        let lanes = counted.dispatch.lanes.expect("a lane profile");
+        let size = lanes.phases[0].capacity / lanes.phases[0].passes.max(1);
+        assert!(
+            size.is_power_of_two() && (4..=128).contains(&size),
+            "subgroup size {size}"
+        );
+        for (p, must) in lanes.phases.iter().zip(reached) {
+            assert_eq!(p.passes > 0, must, "{:?}: {p:?}", set.kind);
+            assert!(p.passes <= p.active && p.active <= p.capacity, "{p:?}");
+            assert_eq!(p.capacity, size * p.passes, "{p:?}");
+        }
+    }
+}

@@ -61,6 +61,9 @@ pub struct GpuContext {
     pub queue: wgpu::Queue,
     pub adapter: AdapterSummary,
     pub limits: wgpu::Limits,
+    /// The optional features opened with the device: subgroup operations where the adapter
+    /// offers them (only the lane profile, `STCVAE_GPU_PROFILE`, uses them).
+    pub features: wgpu::Features,
 }
 
 fn summary(info: &wgpu::AdapterInfo) -> AdapterSummary {
@@ -172,9 +175,10 @@ impl GpuContext {
         };
         let info = adapter.get_info();
         let limits = adapter.limits();
+        let features = adapter.features() & wgpu::Features::SUBGROUP;
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("stcvae"),
-            required_features: wgpu::Features::empty(),
+            required_features: features,
             required_limits: limits.clone(),
             ..Default::default()
         }))
@@ -184,6 +188,7 @@ impl GpuContext {
             queue,
             adapter: summary(&info),
             limits,
+            features,
         })
     }
 }

@@ -130,7 +130,7 @@ pub fn decoders_wgsl(m: &ModelSet) -> Result<String, RenderError> {
         gen_decoder(&mut out, i, d);
     }
     out.push_str(
-        "fn decoder_sample(d: u32) {\n    switch d {\n        case 0u: { decoder_sample_0(); }\n        case 1u: { decoder_sample_1(); }\n        default: { decoder_sample_2(); }\n    }\n}\n",
+        "fn decoder_sample(d: u32) {\n    prof(5u);\n    switch d {\n        case 0u: { decoder_sample_0(); }\n        case 1u: { decoder_sample_1(); }\n        default: { decoder_sample_2(); }\n    }\n}\n",
     );
     Ok(out)
 }

@@ -46,6 +46,9 @@ pub struct KernelShape {
     /// Threads per workgroup (`@workgroup_size(WORKGROUP)` in the WGSL).
     pub workgroup: u32,
     pub stack: StackMemory,
+    /// Count the SIMD lanes busy in each phase of the kernel ([`PROFILE_PHASES`];
+    /// `STCVAE_GPU_PROFILE`): needs subgroup operations; changes no path either.
+    pub profile: bool,
 }
 
 impl Default for KernelShape {
@@ -53,8 +56,67 @@ impl Default for KernelShape {
         Self {
             workgroup: 64,
             stack: StackMemory::Workgroup,
+            profile: false,
         }
     }
+}
+
+/// The phases of the lane profile, in counter order: at each pass through one, the
+/// subgroup's active lanes are counted against its size. A phase's lanes that are idle
+/// (finished paths, lanes on another branch, loops whose other lanes run longer) are the
+/// SIMD work a hardware GPU wastes there: what a split of the kernel into coherent stages
+/// could win back.
+pub const PROFILE_PHASES: [&str; 7] = [
+    "bounce",
+    "closest-hit traversal step",
+    "shadow-ray traversal step",
+    "surface-distance search step",
+    "exact walk event",
+    "decoder evaluation",
+    "collision (PT event or sphere step)",
+];
+
+/// The lane profile's WGSL: counting functions (with subgroup operations; naga takes them
+/// without WGSL's `enable subgroups`, which it does not parse yet, once the device has the
+/// feature) or empty ones that compile away.
+fn profile_wgsl(on: bool) -> String {
+    let n = PROFILE_PHASES.len();
+    if !on {
+        return "fn prof_begin(li: u32) {}\nfn prof(phase: u32) {}\nfn prof_end() {}\n".to_string();
+    }
+    format!(
+        "var<private> prof_active: array<u32, {n}>;\n\
+         var<private> prof_capacity: array<u32, {n}>;\n\
+         var<private> prof_passes: array<u32, {n}>;\n\
+         var<private> prof_size: u32;\n\
+         var<private> prof_lane: u32;\n\
+         fn lanes_active() -> u32 {{\n\
+         \x20   let b = subgroupBallot(true);\n\
+         \x20   return countOneBits(b.x) + countOneBits(b.y) + countOneBits(b.z) + countOneBits(b.w);\n\
+         }}\n\
+         // At the entry point's start every lane of a subgroup is active: its size.\n\
+         fn prof_begin(li: u32) {{\n\
+         \x20   prof_size = lanes_active();\n\
+         \x20   prof_lane = li;\n\
+         }}\n\
+         // One lane counts for its subgroup: the first active one (naga has no\n\
+         // subgroupElect; local indices are distinct within a workgroup).\n\
+         fn prof(phase: u32) {{\n\
+         \x20   let n = lanes_active();\n\
+         \x20   if subgroupBroadcastFirst(prof_lane) == prof_lane {{\n\
+         \x20       prof_active[phase] += n;\n\
+         \x20       prof_capacity[phase] += prof_size;\n\
+         \x20       prof_passes[phase] += 1u;\n\
+         \x20   }}\n\
+         }}\n\
+         fn prof_end() {{\n\
+         \x20   for (var i = 0u; i < {n}u; i++) {{\n\
+         \x20       add_counter(9u + 3u * i, prof_active[i]);\n\
+         \x20       add_counter(10u + 3u * i, prof_capacity[i]);\n\
+         \x20       add_counter(11u + 3u * i, prof_passes[i]);\n\
+         \x20   }}\n\
+         }}\n"
+    )
 }
 
 impl KernelShape {
@@ -80,6 +142,12 @@ impl KernelShape {
             return Err(RenderError::GpuLimit(format!(
                 "a workgroup of {} threads exceeds {}'s limit of {most}",
                 self.workgroup, ctx.adapter.name
+            )));
+        }
+        if self.profile && !ctx.features.contains(wgpu::Features::SUBGROUP) {
+            return Err(RenderError::GpuLimit(format!(
+                "STCVAE_GPU_PROFILE needs subgroup operations, which {} does not offer",
+                ctx.adapter.name
             )));
         }
         if self.workgroup_bytes() > l.max_compute_workgroup_storage_size {
@@ -170,7 +238,7 @@ pub fn source(
          const ROULETTE_BOUND: f32 = {:?};\nconst FLIGHT_MARGIN_OF_EPS: f32 = {:?};\n\
          const EXIT_REFINE_TAU: f32 = {:?};\nconst SLIVER_REACH_OF_EPS: f32 = {:?};\n\
          const PATH_NEE_M: u32 = {path_nee_m}u;\nconst SLOT: u32 = {}u;\n\
-         const NODE_COUNT_BITS: u32 = {}u;\n",
+         const NODE_COUNT_BITS: u32 = {}u;\nconst COUNTER_WORDS: u32 = {}u;\n{}",
         shape.wgsl(),
         crate::integrator::nee::ROULETTE_BOUND,
         crate::geometry::FLIGHT_MARGIN_OF_EPS,
@@ -178,7 +246,10 @@ pub fn source(
         crate::geometry::SLIVER_REACH_OF_EPS,
         slot_vec4s(path_nee_m),
         super::scene_buffers::GpuNode::COUNT_BITS,
+        2 * super::resources::COUNTER_SLOTS,
+        profile_wgsl(shape.profile),
     );
+
     let parts: &[&str] = match kernel {
         Kernel::Pt => &[COMMON, &stack, SCENE, NEE, PT, PATH],
         Kernel::Stcvae => &[COMMON, &stack, SCENE, NEE, DECODER, &decoders, STCVAE, PATH],

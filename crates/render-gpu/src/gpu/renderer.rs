@@ -8,7 +8,7 @@ use std::time::Instant;
 use crate::error::RenderError;
 use crate::image_io::RgbImage;
 use crate::integrator::{IntegratorKind, IntegratorSettings, PathStats};
-use crate::render::{DispatchStats, RenderOptions, RenderOutput};
+use crate::render::{DispatchStats, LaneProfile, RenderOptions, RenderOutput};
 use crate::setup::SceneData;
 
 use super::context::GpuContext;
@@ -90,6 +90,18 @@ pub fn kernel_shape() -> Result<KernelShape, RenderError> {
                     shape.workgroup
                 ))
             })?;
+    }
+    if let Some(v) = env_value("STCVAE_GPU_PROFILE") {
+        shape.profile = match v.trim() {
+            "1" | "true" => true,
+            "0" | "false" | "" => false,
+            _ => {
+                return Err(RenderError::Gpu(format!(
+                    "STCVAE_GPU_PROFILE={v:?} is not a switch: allowed 1 or true (count the \
+                     SIMD lanes busy in each phase of the kernel), 0, false or empty"
+                )));
+            }
+        };
     }
     if let Some(v) = env_value("STCVAE_GPU_STACK") {
         shape.stack = match v.trim() {
@@ -248,6 +260,13 @@ impl Dispatcher<'_> {
             let word =
                 |i: usize| u32::from_le_bytes(c[4 * i..4 * i + 4].try_into().unwrap()) as u64;
             let pair = |k: usize| word(2 * k) | (word(2 * k + 1) << 32);
+            if let Some(lanes) = &mut dispatch.lanes {
+                for (i, p) in lanes.phases.iter_mut().enumerate() {
+                    p.active += pair(9 + 3 * i);
+                    p.capacity += pair(10 + 3 * i);
+                    p.passes += pair(11 + 3 * i);
+                }
+            }
             if pair(7) > 0
                 && let Some(snap) = snap
             {
@@ -444,6 +463,13 @@ pub fn render_gpu(
         bands: bands.len() as u32,
         workgroup: shape.workgroup,
         stack: Some(shape.stack),
+        lanes: shape.profile.then(|| {
+            let mut p = LaneProfile::default();
+            for (lanes, name) in p.phases.iter_mut().zip(kernels::PROFILE_PHASES) {
+                lanes.phase = name;
+            }
+            p
+        }),
         ..Default::default()
     };
     let mut s0 = 0u32;
@@ -544,7 +570,7 @@ mod tests {
 
     #[test]
     fn kernel_shape_takes_only_the_offered_values() {
-        // SAFETY: no other test of this binary reads these two variables.
+        // SAFETY: no other test of this binary reads these variables.
         let with = |wg: &str, stack: &str| {
             unsafe {
                 std::env::set_var("STCVAE_GPU_WORKGROUP", wg);
@@ -569,6 +595,19 @@ mod tests {
                 "{e}"
             );
         }
+        for (v, on) in [("1", true), ("true", true), ("0", false), ("", false)] {
+            unsafe { std::env::set_var("STCVAE_GPU_PROFILE", v) };
+            let r = kernel_shape();
+            unsafe { std::env::remove_var("STCVAE_GPU_PROFILE") };
+            assert_eq!(r.unwrap().profile, on, "{v:?}");
+        }
+        unsafe { std::env::set_var("STCVAE_GPU_PROFILE", "yes") };
+        let e = kernel_shape().unwrap_err().to_string();
+        unsafe { std::env::remove_var("STCVAE_GPU_PROFILE") };
+        assert!(
+            e.contains("STCVAE_GPU_PROFILE") && e.contains("1 or true"),
+            "{e}"
+        );
         let e = with("64", "shared").unwrap_err().to_string();
         assert!(
             e.contains("STCVAE_GPU_STACK") && e.contains("workgroup or private"),

@@ -21,8 +21,13 @@ pub struct Resources {
     _inputs: Vec<wgpu::Buffer>,
 }
 
-/// Byte size of the counter buffer: 18 u32, nine lo/hi pairs (`C_*` in shaders/path.wgsl).
-pub const COUNTER_BYTES: u64 = 72;
+/// Counter slots (lo/hi u32 pairs): nine path counters (`C_*` in shaders/path.wgsl), then
+/// per lane-profile phase its active lanes, its lane capacity and its subgroup passes
+/// ([`super::kernels::PROFILE_PHASES`]).
+pub const COUNTER_SLOTS: u64 = 9 + 3 * super::kernels::PROFILE_PHASES.len() as u64;
+
+/// Byte size of the counter buffer.
+pub const COUNTER_BYTES: u64 = 8 * COUNTER_SLOTS;
 
 /// Everything the kernels read; empty slices get a one-element dummy (wgpu forbids
 /// zero-sized bindings).
