@@ -7,7 +7,8 @@ const RR_THRESHOLD: f32 = 0.25;
 const MAX_ITERATIONS: u32 = 50000000u;
 
 // Counter slots (pairs lo/hi): paths, events, steps, leaks, capped, non-finite,
-// pending, truncated.
+// pending, truncated, exact steps; then, from slot 9, three per lane-profile phase (active
+// lanes, capacity, passes: gpu/kernels.rs, profile_wgsl).
 const C_PATHS: u32 = 0u;
 const C_EVENTS: u32 = 1u;
 const C_STEPS: u32 = 2u;

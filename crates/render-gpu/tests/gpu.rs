@@ -1132,9 +1132,11 @@ fn kernel_shapes_render_the_same_image() {
         exact_tau: 8.0,
         ..settings(IntegratorKind::Stcvae, true)
     };
-    let shapes: [&[(&str, &str)]; 4] = [
+    // 128 threads with workgroup stacks: the largest array lavapipe's 32 KiB holds.
+    let shapes: [&[(&str, &str)]; 5] = [
         &[],
         &[("STCVAE_GPU_WORKGROUP", "8")],
+        &[("STCVAE_GPU_WORKGROUP", "128")],
         &[
             ("STCVAE_GPU_WORKGROUP", "32"),
             ("STCVAE_GPU_STACK", "private"),
@@ -1212,7 +1214,7 @@ fn kernel_shapes_render_the_same_image() {
 #[test]
 fn lane_profile_counts_and_changes_nothing() {
     let Some(ctx) = gpu() else { return };
-    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let mut ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
     if !ctx.features.contains(wgpu::Features::SUBGROUP) {
         eprintln!("skipping: {} offers no subgroup operations", ctx.adapter);
         assert!(std::env::var_os("CI").is_none(), "lavapipe offers them");
@@ -1224,7 +1226,8 @@ fn lane_profile_counts_and_changes_nothing() {
         ..settings(IntegratorKind::Stcvae, true)
     };
     // Phases (kernels::PROFILE_PHASES): bounce, closest hit, shadow ray, surface
-    // distance, exact walk, decoder, collision.
+    // distance, exact walk, decoder, collision. The surface-distance search is a fallback
+    // for grid cells without candidate lists, which this sphere's grid does not need.
     for (set, reached) in [
         (
             settings(IntegratorKind::Pt, true),
@@ -1256,4 +1259,24 @@ fn lane_profile_counts_and_changes_nothing() {
             assert_eq!(p.capacity, size * p.passes, "{p:?}");
         }
     }
+    // A workgroup narrower than the adapter's subgroups would understate their size: such a
+    // profile is refused (an adapter with 64-lane subgroups is pretended here).
+    let saved = ctx.subgroup_max_size;
+    ctx.subgroup_max_size = 64;
+    let narrow = render_gpu_with_env(
+        &ctx,
+        &s,
+        &settings(IntegratorKind::Pt, true),
+        &opts(1, 1),
+        &[("STCVAE_GPU_PROFILE", "1"), ("STCVAE_GPU_WORKGROUP", "32")],
+    );
+    ctx.subgroup_max_size = saved;
+    let Err(e) = narrow else {
+        panic!("a profile with workgroups narrower than a subgroup rendered")
+    };
+    let e = e.to_string();
+    assert!(
+        e.contains("subgroup size, 64") && e.contains("is 32"),
+        "{e}"
+    );
 }

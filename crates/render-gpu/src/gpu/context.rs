@@ -64,6 +64,8 @@ pub struct GpuContext {
     /// The optional features opened with the device: subgroup operations where the adapter
     /// offers them (only the lane profile, `STCVAE_GPU_PROFILE`, uses them).
     pub features: wgpu::Features,
+    /// The largest subgroup (SIMD group) the adapter may run: 8 on lavapipe, 32 on NVIDIA.
+    pub subgroup_max_size: u32,
 }
 
 fn summary(info: &wgpu::AdapterInfo) -> AdapterSummary {
@@ -189,6 +191,7 @@ impl GpuContext {
             adapter: summary(&info),
             limits,
             features,
+            subgroup_max_size: info.subgroup_max_size,
         })
     }
 }

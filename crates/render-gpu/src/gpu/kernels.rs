@@ -18,8 +18,9 @@ const PROBE: &str = include_str!("../../../../shaders/probe.wgsl");
 
 /// Entries of each invocation's BVH traversal stack (shaders/scene.wgsl). A depth-first
 /// traversal of a BVH2 of depth D needs at most D + 1; the renderer refuses deeper trees.
-/// In workgroup memory, 48 × 64 invocations × 4 bytes = 12 KiB, under the 16 KiB every
-/// adapter offers.
+/// In workgroup memory, 48 × 64 invocations (the default workgroup) × 4 bytes = 12 KiB,
+/// under the 16 KiB every adapter offers; larger workgroups are checked against the
+/// adapter's limit ([`KernelShape::check`]).
 pub const STACK_DEPTH: u32 = 48;
 
 /// Where each invocation's BVH traversal stack lives.
@@ -65,7 +66,9 @@ impl Default for KernelShape {
 /// subgroup's active lanes are counted against its size. A phase's lanes that are idle
 /// (finished paths, lanes on another branch, loops whose other lanes run longer) are the
 /// SIMD work a hardware GPU wastes there: what a split of the kernel into coherent stages
-/// could win back.
+/// could win back. Shadow rays whose crossings do not pair up are walked in order by
+/// closest-hit queries (nee.wgsl, `transmittance_ordered`) and count as closest-hit steps;
+/// a decoder evaluation is counted before its model is chosen.
 pub const PROFILE_PHASES: [&str; 7] = [
     "bounce",
     "closest-hit traversal step",
@@ -148,6 +151,15 @@ impl KernelShape {
             return Err(RenderError::GpuLimit(format!(
                 "STCVAE_GPU_PROFILE needs subgroup operations, which {} does not offer",
                 ctx.adapter.name
+            )));
+        }
+        // The profile takes a subgroup's size from its lanes active at the kernel's start,
+        // which a workgroup narrower than the subgroup would understate.
+        if self.profile && self.workgroup < ctx.subgroup_max_size {
+            return Err(RenderError::GpuLimit(format!(
+                "STCVAE_GPU_PROFILE needs workgroups of at least {}'s subgroup size, {} \
+                 threads (STCVAE_GPU_WORKGROUP is {})",
+                ctx.adapter.name, ctx.subgroup_max_size, self.workgroup
             )));
         }
         if self.workgroup_bytes() > l.max_compute_workgroup_storage_size {

@@ -260,13 +260,6 @@ impl Dispatcher<'_> {
             let word =
                 |i: usize| u32::from_le_bytes(c[4 * i..4 * i + 4].try_into().unwrap()) as u64;
             let pair = |k: usize| word(2 * k) | (word(2 * k + 1) << 32);
-            if let Some(lanes) = &mut dispatch.lanes {
-                for (i, p) in lanes.phases.iter_mut().enumerate() {
-                    p.active += pair(9 + 3 * i);
-                    p.capacity += pair(10 + 3 * i);
-                    p.passes += pair(11 + 3 * i);
-                }
-            }
             if pair(7) > 0
                 && let Some(snap) = snap
             {
@@ -276,6 +269,14 @@ impl Dispatcher<'_> {
                 *budget /= 2;
                 params.consts2[2] = *budget as f32;
                 continue;
+            }
+            // Counted once a dispatch stands (an undone one is not).
+            if let Some(lanes) = &mut dispatch.lanes {
+                for (i, p) in lanes.phases.iter_mut().enumerate() {
+                    p.active += pair(9 + 3 * i);
+                    p.capacity += pair(10 + 3 * i);
+                    p.passes += pair(11 + 3 * i);
+                }
             }
             stats.add(&PathStats {
                 paths: pair(0),
