@@ -333,6 +333,14 @@ fn render_gpu_with_env(
     out
 }
 
+/// The message of a render that must have been refused (`what` names it otherwise).
+fn refusal(r: Result<RenderOutput, RenderError>, what: &str) -> String {
+    match r {
+        Ok(_) => panic!("{what} rendered"),
+        Err(e) => e.to_string(),
+    }
+}
+
 /// Pixels whose values differ at all between two renders of one size.
 fn differing_pixels(a: &RenderOutput, b: &RenderOutput) -> usize {
     assert_eq!(a.image.pixels.len(), b.image.pixels.len());
@@ -1195,10 +1203,7 @@ fn kernel_shapes_render_the_same_image() {
         &[],
     );
     ctx.limits = saved;
-    let Err(e) = refused else {
-        panic!("a kernel over the workgroup memory limit rendered")
-    };
-    let e = e.to_string();
+    let e = refusal(refused, "a kernel over the workgroup memory limit");
     assert!(
         e.contains("workgroup memory") && e.contains("STCVAE_GPU_STACK=private"),
         "{e}"
@@ -1271,10 +1276,7 @@ fn lane_profile_counts_and_changes_nothing() {
         &[("STCVAE_GPU_PROFILE", "1"), ("STCVAE_GPU_WORKGROUP", "32")],
     );
     ctx.subgroup_max_size = saved;
-    let Err(e) = narrow else {
-        panic!("a profile with workgroups narrower than a subgroup rendered")
-    };
-    let e = e.to_string();
+    let e = refusal(narrow, "a profile with workgroups narrower than a subgroup");
     assert!(
         e.contains("subgroup size, 64") && e.contains("is 32"),
         "{e}"
