@@ -1,6 +1,8 @@
 //! Every experiment config parses and runs in `--quick` mode end to end, producing its CSV
 //! (every figure finite), its plots (valid PNGs) and a report whose images exist.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -167,7 +169,7 @@ fn experiment_configs_are_checked_before_any_rendering() {
 #[cfg(unix)]
 #[test]
 fn an_interrupted_experiment_writes_no_report() {
-    use std::time::{Duration, Instant};
+    use std::time::Duration;
     let d = tempfile::tempdir().unwrap();
     let child = Command::new(env!("CARGO_BIN_EXE_stcvae"))
         .args([
@@ -184,20 +186,12 @@ fn an_interrupted_experiment_writes_no_report() {
         .unwrap();
     // The full teaser renders for minutes: interrupted two seconds after it has started.
     let out = d.path().join("teaser");
-    let start = Instant::now();
-    while !out.exists() {
-        assert!(
-            start.elapsed() < Duration::from_secs(60),
-            "the experiment never started"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    std::thread::sleep(Duration::from_secs(2));
-    let kill = Command::new("kill")
-        .args(["-INT", &child.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(kill.success());
+    common::interrupt_when(
+        &child,
+        || out.exists(),
+        Duration::from_secs(2),
+        "the experiment",
+    );
     let done = child.wait_with_output().unwrap();
     let err = String::from_utf8_lossy(&done.stderr);
     assert_eq!(done.status.code(), Some(130), "{err}");

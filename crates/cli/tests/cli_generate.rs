@@ -5,7 +5,7 @@ mod common;
 use std::fs;
 use std::process::Output;
 
-use common::{stcvae, stderr};
+use common::{interrupt_when, stcvae, stderr, words};
 use scatter_sim::dataset::read_dataset;
 
 fn ok(out: &Output) {
@@ -139,87 +139,28 @@ fn shards_merge_into_the_unsharded_run() {
 #[test]
 fn bad_input_gives_one_line_errors() {
     let dir = tempfile::tempdir().unwrap();
-    let cases: &[(&[&str], &str)] = &[
-        (
-            &[
-                "generate", "--tau", "5", "--g", "1.2", "--albedo", "1", "--out", "x.csv",
-            ],
-            "g = 1.2",
-        ),
-        (
-            &[
-                "generate", "--tau", "-1", "--g", "0", "--albedo", "1", "--out", "x.csv",
-            ],
-            "tau",
-        ),
-        (
-            &[
-                "generate", "--tau", "5", "--g", "0", "--albedo", "1.5", "--out", "x.csv",
-            ],
-            "albedo",
-        ),
-        (
-            &["generate", "--config", "missing.toml", "--out", "x.bin"],
-            "missing.toml",
-        ),
-        (
-            &["generate", "--config", "typo.toml", "--out", "x.bin"],
-            "walkz",
-        ),
-        (
-            &["generate", "--config", "range.toml", "--out", "x.bin"],
-            "tau.max",
-        ),
-        (
-            &[
-                "generate",
-                "--samples",
-                "10",
-                "--shard",
-                "4/4",
-                "--out",
-                "x.bin",
-            ],
-            "shard",
-        ),
-        (&["merge", "garbage.bin", "--out", "y.bin"], "garbage.bin"),
+    let cases: &[(&str, &str)] = &[
+        ("generate --tau 5 --g 1.2 --albedo 1 --out x.csv", "g = 1.2"),
+        ("generate --tau -1 --g 0 --albedo 1 --out x.csv", "tau"),
+        ("generate --tau 5 --g 0 --albedo 1.5 --out x.csv", "albedo"),
+        ("generate --config missing.toml --out x.bin", "missing.toml"),
+        ("generate --config typo.toml --out x.bin", "walkz"),
+        ("generate --config range.toml --out x.bin", "tau.max"),
+        ("generate --samples 10 --shard 4/4 --out x.bin", "shard"),
+        ("merge garbage.bin --out y.bin", "garbage.bin"),
         // A CSV cut short mid-row: refused, naming the file and line.
         (
-            &["merge", "cut.csv", "whole.csv", "--out", "x.csv"],
+            "merge cut.csv whole.csv --out x.csv",
             "cut.csv: line 2: expected 13",
         ),
         // An output below a file: refused before the walks, naming the culprit.
         (
-            &[
-                "generate",
-                "--samples",
-                "10",
-                "--tau",
-                "5",
-                "--g",
-                "0",
-                "--albedo",
-                "1",
-                "--out",
-                "afile/x.bin",
-            ],
+            "generate --samples 10 --tau 5 --g 0 --albedo 1 --out afile/x.bin",
             "afile exists and is not a directory",
         ),
     ];
     ok(&stcvae(
-        &[
-            "generate",
-            "--samples",
-            "10",
-            "--tau",
-            "5",
-            "--g",
-            "0",
-            "--albedo",
-            "1",
-            "--out",
-            "whole.csv",
-        ],
+        &words("generate --samples 10 --tau 5 --g 0 --albedo 1 --out whole.csv"),
         dir.path(),
     ));
     let whole = fs::read_to_string(dir.path().join("whole.csv")).unwrap();
@@ -237,8 +178,9 @@ fn bad_input_gives_one_line_errors() {
     )
     .unwrap();
     fs::write(dir.path().join("garbage.bin"), b"not a dataset").unwrap();
-    for (args, needle) in cases {
-        let out = stcvae(args, dir.path());
+    for &(line, needle) in cases {
+        let args = words(line);
+        let out = stcvae(&args, dir.path());
         let err = stderr(&out);
         assert!(!out.status.success(), "{args:?} succeeded");
         assert!(
@@ -257,39 +199,15 @@ fn bad_input_gives_one_line_errors() {
 #[test]
 fn interrupted_runs_leave_no_files() {
     use std::process::{Command, Stdio};
-    use std::time::{Duration, Instant};
+    use std::time::Duration;
     let model = concat!(env!("CARGO_MANIFEST_DIR"), "/../../models/default.stcvae");
-    let runs: [&[&str]; 2] = [
-        &[
-            "generate",
-            "--samples",
-            "1000000000",
-            "--tau",
-            "5",
-            "--g",
-            "0",
-            "--albedo",
-            "1",
-            "--out",
-            "big.bin",
-        ],
-        &[
-            "sample",
-            "--model",
-            model,
-            "--tau",
-            "5",
-            "--g",
-            "0.4",
-            "--albedo",
-            "0.9",
-            "--samples",
-            "100000000000",
-            "--out",
-            "big.csv",
-        ],
+    // The model path is the one argument that could hold a space: kept whole.
+    let sample_tail = words("--tau 5 --g 0.4 --albedo 0.9 --samples 100000000000 --out big.csv");
+    let runs: [Vec<&str>; 2] = [
+        words("generate --samples 1000000000 --tau 5 --g 0 --albedo 1 --out big.bin"),
+        [&["sample", "--model", model][..], &sample_tail].concat(),
     ];
-    for args in runs {
+    for args in &runs {
         let dir = tempfile::tempdir().unwrap();
         let child = Command::new(env!("CARGO_BIN_EXE_stcvae"))
             .args(args)
@@ -305,20 +223,12 @@ fn interrupted_runs_leave_no_files() {
                 .flatten()
                 .any(|e| e.file_name().to_string_lossy().ends_with(".partial"))
         };
-        let start = Instant::now();
-        while !started() {
-            assert!(
-                start.elapsed() < Duration::from_secs(60),
-                "{args:?}: no output started"
-            );
-            std::thread::sleep(Duration::from_millis(50));
-        }
-        std::thread::sleep(Duration::from_millis(300));
-        let kill = Command::new("kill")
-            .args(["-INT", &child.id().to_string()])
-            .status()
-            .unwrap();
-        assert!(kill.success());
+        interrupt_when(
+            &child,
+            started,
+            Duration::from_millis(300),
+            &format!("{args:?}"),
+        );
         let out = child.wait_with_output().unwrap();
         let err = stderr(&out);
         assert_eq!(out.status.code(), Some(130), "{args:?}: {err}");

@@ -1,6 +1,8 @@
 //! End-to-end checks of `sample`, `eval`, `render` and image `merge` through the binary,
 //! with the shipped model and scenes (run from the repository root).
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -9,16 +11,7 @@ fn root() -> PathBuf {
 }
 
 fn stcvae(args: &[&str]) -> Output {
-    stcvae_in(&root(), args)
-}
-
-/// `stcvae args` run in `dir`.
-fn stcvae_in(dir: &Path, args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_stcvae"))
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .expect("run stcvae")
+    common::stcvae(args, &root())
 }
 
 fn ok(out: &Output) -> String {
@@ -809,7 +802,7 @@ fn bench_devices_prints_both_devices_and_their_ratio() {
 #[test]
 fn shipped_defaults_are_found_from_another_directory() {
     let d = tempfile::tempdir().unwrap();
-    let run = |args: &[&str]| stcvae_in(d.path(), args);
+    let run = |args: &[&str]| common::stcvae(args, d.path());
     ok(&run(&[
         "render", "--device", "cpu", "--spp", "1", "--out", "r",
     ]));
@@ -833,7 +826,7 @@ fn shipped_defaults_are_found_from_another_directory() {
         );
     }
     let sample = "sample --tau 5 --g 0.4 --albedo 0.9 --samples 10 --out s.csv";
-    ok(&run(&sample.split(' ').collect::<Vec<_>>()));
+    ok(&run(&common::words(sample)));
     let rows = std::fs::read_to_string(d.path().join("s.csv")).unwrap();
     assert_eq!(rows.lines().count(), 11, "header and 10 walks: {rows}");
     // A scene the user names is taken as given, relative to where the binary runs.

@@ -108,6 +108,17 @@ pub struct PhaseLanes {
     pub passes: u64,
 }
 
+impl LaneProfile {
+    /// No passes yet, each phase named (the names travel into the JSON).
+    pub fn new() -> Self {
+        let mut p = Self::default();
+        for (lanes, name) in p.phases.iter_mut().zip(crate::gpu::kernels::PROFILE_PHASES) {
+            lanes.phase = name;
+        }
+        p
+    }
+}
+
 impl PhaseLanes {
     /// The share of the phase's SIMD lanes doing work (None: never reached).
     pub fn efficiency(&self) -> Option<f64> {

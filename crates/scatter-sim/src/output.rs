@@ -31,23 +31,26 @@ pub fn check_output_path(path: &Path) -> Result<(), String> {
     // The nearest ancestor that is there at all: a symbolic link counts even when it
     // points nowhere (exists() would step over it, and creating the directories would
     // then fail after the work).
+    // (A relative path's last ancestor is the empty path: the working directory.)
     let Some(existing) = dir
         .ancestors()
-        .find(|a| a.as_os_str().is_empty() || fs::symlink_metadata(a).is_ok())
+        .map(|a| {
+            if a.as_os_str().is_empty() {
+                Path::new(".")
+            } else {
+                a
+            }
+        })
+        .find(|a| fs::symlink_metadata(a).is_ok())
     else {
         return Ok(());
     };
-    if !existing.as_os_str().is_empty() && !existing.exists() {
+    if !existing.exists() {
         return Err(format!(
             "{} is a symbolic link to nothing",
             existing.display()
         ));
     }
-    let existing = if existing.as_os_str().is_empty() {
-        Path::new(".")
-    } else {
-        existing
-    };
     if !existing.is_dir() {
         return Err(format!(
             "{} exists and is not a directory",

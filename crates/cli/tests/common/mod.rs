@@ -1,7 +1,11 @@
 //! Helpers shared by the CLI tests that run the binary in a scratch directory.
 
+// Each test file uses a part of this module; the rest is compiled unused there.
+#![allow(dead_code)]
+
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::{Child, Command, Output};
+use std::time::{Duration, Instant};
 
 /// Runs `stcvae args…` with `dir` as the current directory.
 pub fn stcvae(args: &[&str], dir: &Path) -> Output {
@@ -14,4 +18,28 @@ pub fn stcvae(args: &[&str], dir: &Path) -> Output {
 
 pub fn stderr(out: &Output) -> String {
     String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// The words of a command line (for argument lists without quoted spaces).
+pub fn words(line: &str) -> Vec<&str> {
+    line.split_whitespace().collect()
+}
+
+/// Ctrl-C for `child` once `started()` holds (within a minute) and `settle` more has passed:
+/// mid-work, not before the command has begun.
+pub fn interrupt_when(child: &Child, started: impl Fn() -> bool, settle: Duration, what: &str) {
+    let start = Instant::now();
+    while !started() {
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "{what}: never started"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    std::thread::sleep(settle);
+    let kill = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(kill.success());
 }

@@ -92,30 +92,47 @@ pub fn kernel_shape() -> Result<KernelShape, RenderError> {
             })?;
     }
     if let Some(v) = env_value("STCVAE_GPU_PROFILE") {
-        shape.profile = match v.trim() {
-            "1" | "true" => true,
-            "0" | "false" | "" => false,
-            _ => {
-                return Err(RenderError::Gpu(format!(
-                    "STCVAE_GPU_PROFILE={v:?} is not a switch: allowed 1 or true (count the \
-                     SIMD lanes busy in each phase of the kernel), 0, false or empty"
-                )));
-            }
-        };
+        shape.profile = parse_choice(
+            "STCVAE_GPU_PROFILE",
+            &v,
+            &[
+                ("1", true),
+                ("true", true),
+                ("0", false),
+                ("false", false),
+                ("", false),
+            ],
+            "a switch: allowed 1 or true (count the SIMD lanes busy in each phase of the \
+             kernel), 0, false or empty",
+        )?;
     }
     if let Some(v) = env_value("STCVAE_GPU_STACK") {
-        shape.stack = match v.trim() {
-            "workgroup" => StackMemory::Workgroup,
-            "private" => StackMemory::Private,
-            _ => {
-                return Err(RenderError::Gpu(format!(
-                    "STCVAE_GPU_STACK={v:?} is not a stack memory: allowed workgroup or \
-                     private (unset it for the default, workgroup)"
-                )));
-            }
-        };
+        shape.stack = parse_choice(
+            "STCVAE_GPU_STACK",
+            &v,
+            &[
+                ("workgroup", StackMemory::Workgroup),
+                ("private", StackMemory::Private),
+            ],
+            "a stack memory: allowed workgroup or private (unset it for the default, workgroup)",
+        )?;
     }
     Ok(shape)
+}
+
+/// The value `v` of the variable `name` among the named `choices`, or the error that says
+/// it is not `what`.
+fn parse_choice<T: Copy>(
+    name: &str,
+    v: &str,
+    choices: &[(&str, T)],
+    what: &str,
+) -> Result<T, RenderError> {
+    choices
+        .iter()
+        .find(|(word, _)| *word == v.trim())
+        .map(|&(_, value)| value)
+        .ok_or_else(|| RenderError::Gpu(format!("{name}={v:?} is not {what}")))
 }
 
 /// The environment variable `name`, None when unset (a value that is not Unicode is passed
@@ -464,13 +481,7 @@ pub fn render_gpu(
         bands: bands.len() as u32,
         workgroup: shape.workgroup,
         stack: Some(shape.stack),
-        lanes: shape.profile.then(|| {
-            let mut p = LaneProfile::default();
-            for (lanes, name) in p.phases.iter_mut().zip(kernels::PROFILE_PHASES) {
-                lanes.phase = name;
-            }
-            p
-        }),
+        lanes: shape.profile.then(LaneProfile::new),
         ..Default::default()
     };
     let mut s0 = 0u32;
