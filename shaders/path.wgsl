@@ -98,7 +98,11 @@ fn start_path(origin: vec3<f32>, dir: vec3<f32>, channel: u32) {
 /// beyond a sliver of medium thinner than eps, i.e. outside (Geometry::beyond_sliver):
 /// the way back toward the hit meets a surface from outside first.
 fn beyond_sliver(q: vec3<f32>, n: vec3<f32>) -> bool {
-    let back = intersect(q, n, params.consts.z * SLIVER_REACH_OF_EPS);
+    let reach = params.consts.z * SLIVER_REACH_OF_EPS;
+    var back: Hit;
+    if !grid_local_hit(q, n, reach, &back) {
+        back = intersect(q, n, reach);
+    }
     return back.found && dot(tri_normal(back.prim), n) < 0.0;
 }
 
@@ -139,7 +143,9 @@ fn bounce() {
     }
     p_left_through = NO_TRI;
     var h = Hit(0.0, 0u, false);
-    if query {
+    // A flight inside near the surface is answered from its grid cell's list (ST-CVAE;
+    // PT renders have no grid), as on the CPU (integrator/mod.rs, short_cast).
+    if query && !(p_inside && grid_local_hit(ps.pos, ps.dir, tmax, &h)) {
         h = intersect(ps.pos, ps.dir, tmax);
     }
     if !p_inside {

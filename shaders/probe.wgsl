@@ -110,6 +110,32 @@ fn probe_grid(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
     set_f(i, 2u, searched);
 }
 
+/// In: a segment's origin at 0..3, direction at 4..7, length at 8 (scene geometry and
+/// distance grid bound). Out: whether the origin's cell list answered it (1/0) at 0; its
+/// hit found (1/0), t and triangle at 1, 2, 3; the BVH's at 4, 5, 6.
+@compute @workgroup_size(WORKGROUP)
+fn probe_local_hit(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    stack_base = li * STACK_STRIDE;
+    let i = gid.x;
+    if i >= params.image.x {
+        return;
+    }
+    let o = vec3<f32>(item_f(i, 0u), item_f(i, 1u), item_f(i, 2u));
+    let d = vec3<f32>(item_f(i, 4u), item_f(i, 5u), item_f(i, 6u));
+    let tmax = item_f(i, 8u);
+    var local = Hit(0.0, 0u, false);
+    let answered = grid_local_hit(o, d, tmax, &local);
+    let full = intersect(o, d, tmax);
+    clear_item(i);
+    set_f(i, 0u, select(0.0, 1.0, answered));
+    set_f(i, 1u, select(0.0, 1.0, local.found));
+    set_f(i, 2u, local.t);
+    set_f(i, 3u, f32(local.prim));
+    set_f(i, 4u, select(0.0, 1.0, full.found));
+    set_f(i, 5u, full.t);
+    set_f(i, 6u, f32(full.prim));
+}
+
 /// In: WalkFeatures (tau feature, g, log prior, relative log N) at 0..3; exit (cos θ, α,
 /// β) at 4..6; an RNG seed at 8 (params.albedo is 0, so the centre event never comes up).
 /// Out: the noise of a fresh EventGen draw at 0..10 and of its mirrored partner at 11..21

@@ -418,6 +418,55 @@ fn grid_exact_distance(p: vec3<f32>) -> f32 {
     return sqrt(best);
 }
 
+/// The closest hit along o + t·d, t ∈ [0, tmax], from the candidate list of o's grid cell
+/// instead of a BVH traversal (DistanceGrid::local_hit, which says why it is the same
+/// hit), written to *hit; false where the list cannot be trusted to hold every triangle
+/// the segment can meet (no grid, no list, a segment reaching beyond it), and the caller
+/// traverses the BVH. Flights near the surface are short, and a dozen triangle tests
+/// after a plane cull cost far less than a traversal from the root, whose lanes also
+/// diverge more.
+fn grid_local_hit(o: vec3<f32>, d: vec3<f32>, tmax: f32, hit: ptr<function, Hit>) -> bool {
+    let q = grid_q(o);
+    let i = grid_cell_at(q);
+    if i < 0 {
+        return false;
+    }
+    let a = grid[2u * u32(i) + 1u];
+    let b = grid[2u * u32(i) + 3u];
+    if b <= a {
+        return false;
+    }
+    let centre = params.grid_lo.xyz + (vec3<f32>(vec3<u32>(q)) + 0.5) * params.grid_lo.w;
+    // The coverage in f32, shrunk by far more than its rounding (consts2.y: near_surface).
+    let reach = (bitcast<f32>(grid[2u * u32(i)]) + params.consts2.y * 0.5) * (1.0 - 1e-5);
+    if length(o - centre) + tmax > reach {
+        return false;
+    }
+    let dims = params.grid_dims.xyz;
+    let base = 2u * (dims.x * dims.y * dims.z + 1u);
+    let sh = ray_shear(o, d);
+    // A segment with both ends beyond this distance on one side of a triangle's plane
+    // cannot meet it (Geometry::closest_of's cull; consts.z: eps).
+    let slack = params.consts.z * 0.005;
+    var best = Hit(tmax, 0u, false);
+    for (var k = a; k < b; k++) {
+        prof(7u);
+        let prim = grid[base + k];
+        let tri = tris[prim];
+        let s0 = dot(tri.n.xyz, o) - dot(tri.n.xyz, tri.v0.xyz);
+        let s1 = s0 + best.t * dot(tri.n.xyz, d);
+        if (s0 > slack && s1 > slack) || (s0 < -slack && s1 < -slack) {
+            continue;
+        }
+        let t = tri_intersect(sh, tri, best.t);
+        if t < 1e29 {
+            best = Hit(t, prim, true);
+        }
+    }
+    *hit = best;
+    return true;
+}
+
 /// An upper bound on the true distance at a point of grid radius r: r + √3·cell plus
 /// slack (DistanceGrid::distance_upper_bound; consts2.y holds near_surface = 2√3·cell).
 fn grid_distance_upper_bound(r: f32) -> f32 {

@@ -1037,6 +1037,75 @@ fn wgsl_grid_and_candidate_lists_match_rust() {
     assert!(listed > 1_000, "only {listed} points near the surface");
 }
 
+/// The WGSL cell-list hit (scene.wgsl, `grid_local_hit`: ST-CVAE's flights near the
+/// surface and its sliver checks) is the BVH's hit: the same watertight test over a
+/// superset of the triangles the segment can meet, so the same distance to the bit
+/// wherever a list answers (DistanceGrid::local_hit's argument; tests/distance_grid.rs
+/// checks the CPU's). A list whose coverage were too generous (a triangle missing from it
+/// that the segment meets), a wrong offset into the lists or a wrong triangle remapping
+/// gives other hits. Segments as the renderer casts them: from points near the surface,
+/// up to a near-surface distance long, in random directions. Most must be answered (the
+/// point of the lists; 66 % at this seed) and over 1,000 must hit, so that the equality is
+/// tested on hits and not only on misses (~10 % of the answered segments cross the
+/// surface: 1,310 at this seed).
+#[test]
+fn wgsl_cell_list_hits_equal_bvh_casts() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let scene = furnace_bunny(true);
+    let geo = &scene.geo;
+    let near_surface = scene.grid.as_ref().unwrap().near_surface;
+    let mut rng = WalkRng::from_seed(37);
+    let mut items = Vec::new();
+    while items.len() < 20_000 {
+        let p = common::random_interior(geo, &mut rng);
+        let d = common::uniform_direction(&mut rng);
+        let Some(h) = geo.intersect(p, d, f32::INFINITY) else {
+            continue;
+        };
+        // Within a near-surface distance of the surface, on either side.
+        let q = p + d * (h.t + (2.0 * rng.uniform() as f32 - 1.0) * near_surface);
+        let dir = common::uniform_direction(&mut rng);
+        let mut it = [0.0f32; 32];
+        it[..3].copy_from_slice(&q.to_array());
+        it[4..7].copy_from_slice(&dir.to_array());
+        it[8] = rng.uniform() as f32 * near_surface;
+        items.push(it);
+    }
+    let out = render_gpu::gpu::probe::run_probe_on(
+        &ctx,
+        "probe_local_hit",
+        model(),
+        &items,
+        Some(&scene),
+    )
+    .unwrap();
+    let (mut answered, mut hits) = (0, 0);
+    for (it, o) in items.iter().zip(&out) {
+        if o[0] == 0.0 {
+            continue;
+        }
+        answered += 1;
+        hits += (o[4] == 1.0) as u32;
+        assert_eq!(
+            (o[1], o[1] * o[2]),
+            (o[4], o[4] * o[5]),
+            "segment from {:?} along {:?}, length {}: list {:?}, BVH {:?}",
+            &it[..3],
+            &it[4..7],
+            it[8],
+            &o[1..4],
+            &o[4..7]
+        );
+    }
+    let n = items.len();
+    assert!(
+        answered > n / 2 && hits > 1_000,
+        "{answered} of {n} answered by lists, {hits} hits"
+    );
+    eprintln!("{answered} of {n} answered by lists, {hits} hits");
+}
+
 /// The kernels check each entry for a sliver as the CPU does (integrators.rs,
 /// paths_pass_slivers_thinner_than_the_spawn_offset, which gives the scene and the
 /// bounds): at the sliver no path scatters and every pixel is exactly 1; where the wedge
@@ -1231,14 +1300,16 @@ fn lane_profile_counts_and_changes_nothing() {
         ..settings(IntegratorKind::Stcvae, true)
     };
     // Phases (kernels::PROFILE_PHASES): bounce, closest hit, shadow ray, surface
-    // distance, exact walk, decoder, collision. The surface-distance search is a fallback
-    // for grid cells without candidate lists, which this sphere's grid does not need.
+    // distance, exact walk, decoder, collision, cell-list hit test. The surface-distance
+    // search is a fallback for grid cells without candidate lists, which this sphere's
+    // grid does not need. This scene carries a grid for both integrators, so PT's flights
+    // near the surface test cell lists too (as on the CPU; PT renders build none).
     for (set, reached) in [
         (
             settings(IntegratorKind::Pt, true),
-            [true, true, true, false, false, false, true],
+            [true, true, true, false, false, false, true, true],
         ),
-        (exact, [true, true, true, false, true, true, true]),
+        (exact, [true, true, true, false, true, true, true, true]),
     ] {
         let fixed = ("STCVAE_GPU_LANE_SAMPLES", "2");
         let plain = render_gpu_with_env(&ctx, &s, &set, &opts(6, 4), &[fixed]).unwrap();

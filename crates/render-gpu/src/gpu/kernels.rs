@@ -69,7 +69,7 @@ impl Default for KernelShape {
 /// could win back. Shadow rays whose crossings do not pair up are walked in order by
 /// closest-hit queries (nee.wgsl, `transmittance_ordered`) and count as closest-hit steps;
 /// a decoder evaluation is counted before its model is chosen.
-pub const PROFILE_PHASES: [&str; 7] = [
+pub const PROFILE_PHASES: [&str; 8] = [
     "bounce",
     "closest-hit traversal step",
     "shadow-ray traversal step",
@@ -77,6 +77,7 @@ pub const PROFILE_PHASES: [&str; 7] = [
     "exact walk event",
     "decoder evaluation",
     "collision (PT event or sphere step)",
+    "cell-list hit test",
 ];
 
 /// The lane profile's WGSL: counting functions (with subgroup operations; naga takes them

@@ -24,7 +24,7 @@ pub fn run_probe(
 }
 
 /// Runs `entry` over `items` with a scene's geometry (and distance grid, if built)
-/// uploaded ("probe_ray", "probe_grid").
+/// uploaded ("probe_ray", "probe_grid", "probe_local_hit").
 pub fn run_probe_on(
     ctx: &GpuContext,
     entry: &str,
@@ -46,6 +46,9 @@ pub fn run_probe_on(
         Some((s, g)) => {
             params.grid_lo = [g.lo.x, g.lo.y, g.lo.z, g.cell];
             params.grid_dims = [g.dims.x, g.dims.y, g.dims.z, 1];
+            // What the lists' coverage and plane cull read (scene.wgsl, grid_local_hit).
+            params.consts[2] = s.geo.eps;
+            params.consts2[1] = g.near_surface;
             grid_buffer(g, &s.geo)
         }
         None => vec![0],
