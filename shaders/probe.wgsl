@@ -7,6 +7,11 @@ fn item_f(i: u32, k: u32) -> f32 {
     return accum[i * 8u + k / 4u][k % 4u];
 }
 
+/// Floats 4q..4q + 3 of item i as a vector (q = 0: floats 0..3, q = 1: floats 4..7).
+fn item_v3(i: u32, q: u32) -> vec3<f32> {
+    return accum[i * 8u + q].xyz;
+}
+
 fn set_f(i: u32, k: u32, v: f32) {
     accum[i * 8u + k / 4u][k % 4u] = v;
 }
@@ -48,7 +53,7 @@ fn probe_frame(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let g = item_f(i, 0u);
     let xi = item_f(i, 1u);
-    let dir = vec3<f32>(item_f(i, 4u), item_f(i, 5u), item_f(i, 6u));
+    let dir = item_v3(i, 1u);
     let cs = vec2<f32>(item_f(i, 8u), item_f(i, 9u));
     let ct = item_f(i, 12u);
     let al = item_f(i, 13u);
@@ -79,8 +84,8 @@ fn probe_ray(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invoc
     if i >= params.image.x {
         return;
     }
-    let o = vec3<f32>(item_f(i, 0u), item_f(i, 1u), item_f(i, 2u));
-    let d = vec3<f32>(item_f(i, 4u), item_f(i, 5u), item_f(i, 6u));
+    let o = item_v3(i, 0u);
+    let d = item_v3(i, 1u);
     let h = intersect(o, d, 1e30);
     let c = crossings(o, d);
     clear_item(i);
@@ -100,7 +105,7 @@ fn probe_grid(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
     if i >= params.image.x {
         return;
     }
-    let p = vec3<f32>(item_f(i, 0u), item_f(i, 1u), item_f(i, 2u));
+    let p = item_v3(i, 0u);
     let r = grid_radius(p);
     let exact = grid_exact_distance(p);
     let searched = surface_distance(p, 1e30);
@@ -120,8 +125,8 @@ fn probe_local_hit(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local
     if i >= params.image.x {
         return;
     }
-    let o = vec3<f32>(item_f(i, 0u), item_f(i, 1u), item_f(i, 2u));
-    let d = vec3<f32>(item_f(i, 4u), item_f(i, 5u), item_f(i, 6u));
+    let o = item_v3(i, 0u);
+    let d = item_v3(i, 1u);
     let tmax = item_f(i, 8u);
     var local = Hit(0.0, 0u, false);
     let answered = grid_local_hit(o, d, tmax, &local);
