@@ -27,7 +27,7 @@ enum What {
         #[arg(long, default_value_t = 16384, value_parser = clap::value_parser!(u64).range(1024..))]
         walks: u64,
         /// Threads of the parallel measurement (default: all cores).
-        #[arg(long, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=1024))]
+        #[arg(long, value_parser = crate::generate::threads_parser())]
         threads: Option<usize>,
     },
     /// PT vs ST-CVAE on the bunny at the teaser's density ladder σ_t = k·(150, 187.5, 125):

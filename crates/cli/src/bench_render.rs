@@ -110,7 +110,7 @@ fn save_images(dir: &std::path::Path, k: f64, pt: &Pair, st: &Pair) -> Result<()
             spp: p.spp as u64,
             scene_hash: p.hash,
             // The mean of the pair's two seeds.
-            seed: None,
+            seeds: Vec::new(),
         };
         let stem = dir.join(format!("k{k}_{name}"));
         crate::merge::write_image_set(&stem, &p.mean, &tag, exposure, None)?;

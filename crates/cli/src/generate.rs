@@ -48,8 +48,8 @@ pub struct Args {
     /// exactly the unsharded run.
     #[arg(long)]
     shard: Option<Shard>,
-    /// Worker threads (default: all cores). The output does not depend on it.
-    #[arg(long)]
+    /// Worker threads, 1 to 1,024 (default: all cores). The output does not depend on it.
+    #[arg(long, value_parser = crate::generate::threads_parser())]
     threads: Option<usize>,
 }
 
@@ -85,16 +85,27 @@ pub fn parse_toml<T: serde::de::DeserializeOwned>(path: &Path, text: &str) -> Re
         .map_err(|e| anyhow::anyhow!(render_gpu::scene::describe_toml_error(path, text, &e)))
 }
 
+/// The range of `--threads` wherever it is offered: beyond ~1,000 threads the OS runs out
+/// of processes or stack memory long before the work speeds up.
+pub fn threads_parser() -> clap::builder::RangedU64ValueParser<usize> {
+    clap::builder::RangedU64ValueParser::new().range(1..=1024)
+}
+
 /// A rayon pool with `threads` workers (all cores when `None`).
 pub fn pool(threads: Option<usize>) -> Result<rayon::ThreadPool> {
     let mut b = rayon::ThreadPoolBuilder::new();
     if let Some(t) = threads {
-        if t == 0 {
-            bail!("--threads must be at least 1");
+        if !(1..=1024).contains(&t) {
+            bail!("--threads {t} is out of range: allowed 1 to 1024");
         }
         b = b.num_threads(t);
     }
-    Ok(b.build()?)
+    b.build().map_err(|e| {
+        anyhow::anyhow!(
+            "could not start {} worker threads: {e}",
+            threads.map_or("the".to_string(), |t| t.to_string())
+        )
+    })
 }
 
 /// Generates the dataset of a config file (used by `train` when its dataset is missing).

@@ -16,7 +16,7 @@ mod render;
 mod shipped;
 mod train;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 #[derive(Parser)]
 #[command(
@@ -60,10 +60,20 @@ pub(crate) fn check_out(flag: &str, path: &std::path::Path) -> anyhow::Result<()
         .map_err(|e| anyhow::anyhow!("{flag} {}: {e}", path.display()))
 }
 
+/// The command line, with negative numbers taken as values in every command (`--spp -1`
+/// then meets the option's range error, not "unexpected argument '-1'").
+fn parse_cli() -> Cli {
+    fn negatives(c: clap::Command) -> clap::Command {
+        c.allow_negative_numbers(true).mut_subcommands(negatives)
+    }
+    let matches = negatives(Cli::command()).get_matches();
+    Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit())
+}
+
 fn main() {
     quiet_wayland_probe();
     default_sigpipe();
-    let cli = Cli::parse();
+    let cli = parse_cli();
     let result = match cli.command {
         Command::Generate(a) => generate::run(a),
         Command::Train(a) => train::run(a),

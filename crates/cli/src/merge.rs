@@ -14,10 +14,12 @@ use crate::progress;
 #[command(
     after_help = "Renders: `stcvae merge a.exr b.exr --out m` averages renders of one scene \
     (different seeds) weighted by the spp in their headers into m.exr, m.png and m.json, and \
-    refuses renders of different scenes and an image given twice.\n\nDatasets: shards of one run (same seed, sampler and size) are put in walk order \
+    refuses renders of different scenes and samples given twice (one seed in two inputs, a merged \
+    image's included).\n\nDatasets: shards of one run (same seed, sampler and size) are put in walk order \
     whatever order they are given in, so `stcvae merge data/train-*.bin --out data/train.bin` \
     reproduces the unsharded run row for row. Other inputs are concatenated in the order \
-    given. Binary inputs can be written as CSV (--out x.csv); CSV inputs are joined as text."
+    given. Binary inputs can be written as CSV (--out x.csv); CSV inputs are joined as text, \
+    each row checked as a binary row is."
 )]
 pub struct Args {
     /// Input files: renders (.exr, from `stcvae render`), or binary datasets, or CSV files;
@@ -90,6 +92,7 @@ pub fn run(a: Args) -> Result<()> {
         bail!("mixed inputs: merge either renders (.exr) or datasets, not both");
     }
     check_paths(&a.inputs, std::slice::from_ref(&a.out))?;
+    crate::check_out("--out", &a.out)?;
     let csv_inputs = a.inputs.iter().filter(|p| dataset::is_csv(p)).count();
     match csv_inputs {
         0 => merge_binary(&a),
@@ -261,26 +264,6 @@ fn coalesce(pieces: impl Iterator<Item = Piece>) -> Vec<Piece> {
     out
 }
 
-/// A walk CSV row must hold one finite number per column: a truncated or edited file is
-/// refused rather than joined (binary inputs are checked by their CRC instead).
-fn check_csv_row(line: &str) -> Result<(), String> {
-    let fields: Vec<&str> = line.split(',').collect();
-    if fields.len() != dataset::COLUMNS.len() {
-        return Err(format!(
-            "expected {} comma-separated numbers ({}), found {} fields (truncated or not a walk row)",
-            dataset::COLUMNS.len(),
-            dataset::COLUMNS.join(","),
-            fields.len()
-        ));
-    }
-    for (name, v) in dataset::COLUMNS.iter().zip(&fields) {
-        if !v.trim().parse::<f64>().is_ok_and(f64::is_finite) {
-            return Err(format!("{name} = {v:?} is not a finite number"));
-        }
-    }
-    Ok(())
-}
-
 fn merge_csv(a: &Args) -> Result<()> {
     if !dataset::is_csv(&a.out) {
         bail!("CSV inputs can only be merged into a .csv output");
@@ -293,7 +276,8 @@ fn merge_csv(a: &Args) -> Result<()> {
         let mut lines = BufReader::new(f).lines();
         let head = lines
             .next()
-            .transpose()?
+            .transpose()
+            .with_context(|| format!("{}: line 1", path.display()))?
             .with_context(|| format!("{}: empty file", path.display()))?;
         if head != dataset::COLUMNS.join(",") {
             bail!(
@@ -305,13 +289,15 @@ fn merge_csv(a: &Args) -> Result<()> {
             writeln!(out, "{head}")?;
         }
         for (n, line) in lines.enumerate() {
-            let line = line?;
+            // Line numbers count from 1, with the header as line 1.
+            let line = line.with_context(|| format!("{}: line {}", path.display(), n + 2))?;
             // Blank lines (an editor's trailing newline) carry no row; CSV readers skip them.
             if line.trim().is_empty() {
                 continue;
             }
-            // Line numbers count from 1, with the header as line 1.
-            check_csv_row(&line).map_err(|e| anyhow!("{}: line {}: {e}", path.display(), n + 2))?;
+            // Checked as a binary row is: a truncated, edited or foreign row is refused.
+            dataset::Row::parse_csv(&line)
+                .map_err(|e| anyhow!("{}: line {}: {e}", path.display(), n + 2))?;
             writeln!(out, "{line}")?;
             rows += 1;
         }

@@ -146,7 +146,7 @@ pub struct EvalArgs {
     /// (repeatable): a scene's own g and albedos, for instance. Writes metrics.md and
     /// metrics.json without plots, and prints beside the table how the representative
     /// events fill thin bands near the sphere's surface.
-    #[arg(long, value_parser = parse_setting)]
+    #[arg(long, value_parser = parse_setting, allow_hyphen_values = true)]
     at: Vec<Conditions>,
 }
 

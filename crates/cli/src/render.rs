@@ -353,7 +353,7 @@ pub fn run(a: Args) -> Result<()> {
     let tag = RenderTag {
         spp: out.spp as u64,
         scene_hash: p.data.hash,
-        seed: Some(r.seed),
+        seeds: vec![r.seed],
     };
     let paths = out.stats.paths.max(1) as f64;
     let report = Report {

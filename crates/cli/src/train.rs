@@ -150,6 +150,19 @@ fn range(rows: &[Row], f: impl Fn(&Row) -> f64) -> [f64; 2] {
 /// distribution cannot be learned from fewer, though a test may still want to try.
 const MIN_ROWS: usize = 1000;
 
+/// The decoder of `k` from the config's checkpoint folder, for a model file whose other
+/// decoders are trained now.
+fn checkpoint_decoder(cfg: &TrainConfig, k: ModelKind) -> Result<(cvae::decoder::Decoder, u32)> {
+    cvae::train::trainer::load_decoder(&cfg.checkpoint_dir, k, &cfg.model(k).architecture())
+        .with_context(|| {
+            format!(
+                "the model file needs {}: train it first (or all three at once), or take it \
+                 from a model file with --base",
+                k.name()
+            )
+        })
+}
+
 pub fn run(a: Args) -> Result<()> {
     let cfg = load(&a.config)?;
     let device = device(&a.backend)?;
@@ -222,6 +235,13 @@ pub fn run(a: Args) -> Result<()> {
                     "they train"
                 }
             );
+        }
+    }
+    if base.is_none() {
+        // The decoders not trained now come from the checkpoints: check them before the
+        // training rather than after it.
+        for k in ModelKind::ALL.into_iter().filter(|k| !kinds.contains(k)) {
+            checkpoint_decoder(&cfg, k)?;
         }
     }
     ensure_dataset(&cfg)?;
@@ -380,17 +400,7 @@ pub fn run(a: Args) -> Result<()> {
                 slot.insert(d.clone());
                 continue;
             }
-            let (d, version) = cvae::train::trainer::load_decoder(
-                &cfg.checkpoint_dir,
-                k,
-                &cfg.model(k).architecture(),
-            )
-            .with_context(|| {
-                format!(
-                    "the model file needs {}: train it first (or all three at once)",
-                    k.name()
-                )
-            })?;
+            let (d, version) = checkpoint_decoder(&cfg, k)?;
             notes.push(format!("{}: from checkpoint", k.name()));
             if cvae::features::EventRadial::of_version(version).is_none() {
                 bail!(

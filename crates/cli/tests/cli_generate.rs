@@ -153,6 +153,24 @@ fn bad_input_gives_one_line_errors() {
             "merge cut.csv whole.csv --out x.csv",
             "cut.csv: line 2: expected 13",
         ),
+        // A row out of its column's range, as a binary row is checked.
+        (
+            "merge whole.csv edited.csv --out x.csv",
+            "edited.csv: line 3: g = 7.5 outside [-0.999, 0.999]",
+        ),
+        (
+            "merge whole.csv nonutf8.csv --out x.csv",
+            "nonutf8.csv: line 1",
+        ),
+        // Thread counts the OS cannot start (14,715 threads and a stack overflow once).
+        (
+            "generate --samples 10 --tau 5 --g 0 --albedo 1 --threads 100000 --out x.csv",
+            "100000 is not in 1..=1024",
+        ),
+        (
+            "merge whole.csv --out afile/x.csv",
+            "afile exists and is not a directory",
+        ),
         // An output below a file: refused before the walks, naming the culprit.
         (
             "generate --samples 10 --tau 5 --g 0 --albedo 1 --out afile/x.bin",
@@ -169,6 +187,15 @@ fn bad_input_gives_one_line_errors() {
         &whole[..whole.find('\n').unwrap() + 30],
     )
     .unwrap();
+    // Row 2 (line 3) with g = 7.5: every field a finite number, the row impossible.
+    let mut lines: Vec<String> = whole.lines().map(str::to_string).collect();
+    let mut fields: Vec<&str> = lines[2].split(',').collect();
+    fields[1] = "7.5";
+    lines[2] = fields.join(",");
+    fs::write(dir.path().join("edited.csv"), lines.join("\n")).unwrap();
+    let mut bytes = whole.as_bytes().to_vec();
+    bytes[0] = 0xff;
+    fs::write(dir.path().join("nonutf8.csv"), bytes).unwrap();
     fs::write(dir.path().join("afile"), b"").unwrap();
     fs::write(dir.path().join("typo.toml"), "walkz = 10\n").unwrap();
     fs::write(

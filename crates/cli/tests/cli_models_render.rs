@@ -263,7 +263,7 @@ fn render_writes_exr_png_json_and_merge_averages_by_spp() {
         &render_gpu::image_io::RenderTag {
             spp: 0,
             scene_hash: tag_of(&a_exr),
-            seed: None,
+            seeds: Vec::new(),
         },
     )
     .unwrap();
@@ -364,8 +364,17 @@ fn bad_arguments_name_the_argument() {
     let d = tempfile::tempdir().unwrap();
     let file = d.path().join("file");
     std::fs::write(&file, b"x").unwrap();
-    let cases: [(Vec<String>, &str); 7] = [
+    let cases: [(Vec<String>, &str); 9] = [
         (vec!["render".into(), "--spp".into(), "0".into()], "--spp"),
+        // Negative values meet the option's range, not "unexpected argument '-1'".
+        (
+            vec!["render".into(), "--spp".into(), "-1".into()],
+            "'-1' for '--spp <SPP>'",
+        ),
+        (
+            vec!["bench".into(), "render".into(), "--k".into(), "-1".into()],
+            "allowed (0, 1000]",
+        ),
         (
             vec![
                 "render".into(),
@@ -454,6 +463,7 @@ fn eval_at_given_settings() {
         ("5,0.875", "three numbers"),
         ("5,0.875,1.5", "albedo"),
         ("5,x,1", "TAU,G,ALBEDO"),
+        ("-1,0.4,0.9", "tau"),
     ] {
         let e = fails(&stcvae(&["eval", "--at", at, "--out", dir_s]));
         assert!(e.contains(want), "{at}: {e}");

@@ -140,6 +140,17 @@ fn a_bad_base_fails_before_any_work() {
     );
     assert!(!out.status.success());
     assert!(stderr(&out).contains("--model"), "{}", stderr(&out));
+    // One model without --base takes the others from checkpoints: none there is refused
+    // before the dataset and the training (it used to fail after them).
+    let out = stcvae(
+        &["train", "--config", "train.toml", "--model", "pathgen"],
+        dir.path(),
+    );
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    assert!(err.contains("needs lengthgen") && err.contains("--base"), "{err}");
+    assert!(!dir.path().join("d.bin").exists(), "no dataset before the check");
+    assert!(!dir.path().join("ck").exists(), "no checkpoint before the check");
 }
 
 /// `--resume` from nothing, or from a damaged checkpoint, is refused (the first started

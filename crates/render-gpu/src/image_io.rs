@@ -13,7 +13,7 @@ use scatter_sim::output::write_atomic;
 
 use crate::error::RenderError;
 
-/// The render tag as one text attribute, `spp=N scene=HEX [seed=S]`. One attribute, not
+/// The render tag as one text attribute, `spp=N scene=HEX [seed=S | seeds=S,S,…]`. One attribute, not
 /// three: the exr crate keeps custom attributes in a HashMap, whose order (and so the
 /// file's bytes) changed from run to run with three.
 const ATTR_TAG: &str = "stcvaeTag";
@@ -46,10 +46,11 @@ pub struct RenderTag {
     pub spp: u64,
     /// Hash of everything that defines the image except spp and seed.
     pub scene_hash: u64,
-    /// The seed of a single render (none for a merge of several, or in files written
-    /// before it was recorded): renders with the same seed share their samples, so
-    /// `merge` refuses two of them.
-    pub seed: Option<u64>,
+    /// The seeds of the renders the image holds: one for a render, each input's for a
+    /// merge (empty where unknown: files written before seeds were recorded, averages of
+    /// paired renders). Renders with a seed in common share its samples, so `merge`
+    /// refuses two such images, a merge and one of its own inputs included.
+    pub seeds: Vec<u64>,
 }
 
 pub fn write_exr(
@@ -70,8 +71,13 @@ pub fn encode_exr(img: &RgbImage, tag: &RenderTag) -> std::result::Result<Vec<u8
     });
     let mut attrs = LayerAttributes::default();
     let mut text = format!("spp={} scene={:016x}", tag.spp, tag.scene_hash);
-    if let Some(seed) = tag.seed {
-        text += &format!(" seed={seed}");
+    match tag.seeds.as_slice() {
+        [] => {}
+        [seed] => text += &format!(" seed={seed}"),
+        many => {
+            let list: Vec<String> = many.iter().map(u64::to_string).collect();
+            text += &format!(" seeds={}", list.join(","));
+        }
     }
     attrs.other.insert(
         Text::from(ATTR_TAG),
@@ -143,7 +149,15 @@ pub fn read_exr(path: &Path) -> std::result::Result<(RgbImage, Option<RenderTag>
                     .find_map(|kv| kv.strip_prefix(k)?.strip_prefix('='))
                     .map(str::to_string)
             };
-            ([ATTR_TAG; 3], [field("spp"), field("scene"), field("seed")])
+            // One render's `seed`, or a merge's `seeds` (a comma-separated list).
+            (
+                [ATTR_TAG; 3],
+                [
+                    field("spp"),
+                    field("scene"),
+                    field("seed").or_else(|| field("seeds")),
+                ],
+            )
         }
         None => (
             [ATTR_SPP, ATTR_SCENE, ATTR_SEED],
@@ -157,9 +171,12 @@ pub fn read_exr(path: &Path) -> std::result::Result<(RgbImage, Option<RenderTag>
         (Some(s), Some(h)) => Some(RenderTag {
             spp: s.parse().map_err(|_| bad(names[0], &s))?,
             scene_hash: u64::from_str_radix(&h, 16).map_err(|_| bad(names[1], &h))?,
-            seed: match seed {
-                None => None,
-                Some(v) => Some(v.parse().map_err(|_| bad(names[2], &v))?),
+            seeds: match seed {
+                None => Vec::new(),
+                Some(v) => v
+                    .split(',')
+                    .map(|x| x.parse().map_err(|_| bad(names[2], &v)))
+                    .collect::<std::result::Result<_, _>>()?,
             },
         }),
         // A tag attribute without its spp and scene is damaged; an old file without the
@@ -228,7 +245,7 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
     // Renders of other scenes are refused below with that reason.
     struct Seen<'a> {
         scene: Option<u64>,
-        seed: Option<u64>,
+        seeds: Vec<u64>,
         digest: Option<u64>,
         path: &'a Path,
     }
@@ -244,27 +261,29 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
             }
             h.finish()
         });
-        let seed = tag.as_ref().and_then(|t| t.seed);
+        let seeds = tag.as_ref().map_or_else(Vec::new, |t| t.seeds.clone());
         let scene = tag.as_ref().map(|t| t.scene_hash);
+        let shared = |o: &Seen| seeds.iter().copied().find(|s| o.seeds.contains(s));
         let twin = seen.iter().find(|o| {
             o.scene == scene
-                && match (seed, o.seed) {
-                    (Some(a), Some(b)) => a == b,
-                    _ => digest.is_some() && o.digest == digest,
+                && if seeds.is_empty() || o.seeds.is_empty() {
+                    digest.is_some() && o.digest == digest
+                } else {
+                    shared(o).is_some()
                 }
         });
-        if let Some(Seen { path: q, .. }) = twin {
+        if let Some(o) = twin {
             return Err(RenderError::Image(format!(
-                "{}: the same render as {} (the same seed{}): its samples would count twice; \
-                 merge renders of different seeds",
+                "{}: holds the same render as {} (the same seed{}): its samples would count \
+                 twice; merge renders of different seeds",
                 p.display(),
-                q.display(),
-                seed.map_or(String::new(), |s| format!(" {s}"))
+                o.path.display(),
+                shared(o).map_or(String::new(), |s| format!(" {s}"))
             )));
         }
         seen.push(Seen {
             scene,
-            seed,
+            seeds,
             digest,
             path: p,
         });
@@ -329,16 +348,14 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
                 t0.spp = t0.spp.checked_add(tag.spp).ok_or_else(|| {
                     RenderError::Image(format!("{}: the spp total overflows", p.display()))
                 })?;
+                t0.seeds.extend(&tag.seeds);
             }
         }
     }
-    let (mut img, mut tag, sum) =
+    let (mut img, tag, sum) =
         acc.ok_or_else(|| RenderError::Image("merge: no input images".into()))?;
     for (px, s) in img.pixels.iter_mut().zip(sum) {
         *px = s.map(|v| (v / tag.spp as f64) as f32);
-    }
-    if paths.len() > 1 {
-        tag.seed = None;
     }
     Ok((img, tag))
 }
@@ -361,25 +378,24 @@ mod tests {
     #[test]
     fn exr_files_are_reproducible_and_keep_their_tag() {
         let img = image();
-        let tag = RenderTag {
-            spp: 96,
-            scene_hash: 0x00ab_cdef_0123_4567,
-            seed: Some(7),
-        };
-        let first = encode_exr(&img, &tag).unwrap();
-        for _ in 0..10 {
-            assert!(encode_exr(&img, &tag).unwrap() == first, "EXR bytes differ");
-        }
         let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("a.exr");
-        std::fs::write(&path, &first).unwrap();
-        let (back, read) = read_exr(&path).unwrap();
-        assert_eq!(back, img);
-        let read = read.unwrap();
-        assert_eq!(
-            (read.spp, read.scene_hash, read.seed),
-            (96, tag.scene_hash, Some(7))
-        );
+        // One render's seed, a merge's seeds, none.
+        for seeds in [vec![7], vec![7, 9, 12], vec![]] {
+            let tag = RenderTag {
+                spp: 96,
+                scene_hash: 0x00ab_cdef_0123_4567,
+                seeds,
+            };
+            let first = encode_exr(&img, &tag).unwrap();
+            for _ in 0..10 {
+                assert!(encode_exr(&img, &tag).unwrap() == first, "EXR bytes differ");
+            }
+            let path = dir.path().join("a.exr");
+            std::fs::write(&path, &first).unwrap();
+            let (back, read) = read_exr(&path).unwrap();
+            assert_eq!(back, img);
+            assert_eq!(read.unwrap(), tag);
+        }
     }
 
     /// Files written with the three attributes of earlier versions still give their tag.
@@ -408,6 +424,6 @@ mod tests {
         Image::from_layer(layer).write().to_file(&path).unwrap();
         let (_, tag) = read_exr(&path).unwrap();
         let tag = tag.unwrap();
-        assert_eq!((tag.spp, tag.scene_hash, tag.seed), (12, 255, None));
+        assert_eq!((tag.spp, tag.scene_hash, tag.seeds), (12, 255, vec![]));
     }
 }

@@ -484,7 +484,7 @@ fn environment_map_is_read_and_oriented() {
         &RenderTag {
             spp: 1,
             scene_hash: 0,
-            seed: None,
+            seeds: Vec::new(),
         },
     )
     .unwrap();
@@ -497,7 +497,7 @@ fn environment_map_is_read_and_oriented() {
         &RenderTag {
             spp: 1,
             scene_hash: 0,
-            seed: None,
+            seeds: Vec::new(),
         },
     )
     .unwrap();

@@ -235,7 +235,7 @@ fn environment_maps_with_bad_pixels_are_refused() {
     let tag = RenderTag {
         spp: 1,
         scene_hash: 0,
-        seed: None,
+        seeds: Vec::new(),
     };
     let desc = |f: &str| render_gpu::scene::EnvironmentDesc {
         radiance: None,
@@ -270,7 +270,7 @@ fn exr_with_a_huge_declared_size_is_refused() {
     let tag = RenderTag {
         spp: 1,
         scene_hash: 0,
-        seed: None,
+        seeds: Vec::new(),
     };
     write_exr(&path, &RgbImage::new(4, 2), &tag).unwrap();
     assert!(read_exr(&path).is_ok());
@@ -299,12 +299,14 @@ fn exr_with_a_huge_declared_size_is_refused() {
 /// `merge_exrs` refuses two renders of one seed (they share their samples: a copy, or the
 /// seed rendered again at another spp), recognises seedless older files by their pixels,
 /// but merges constant images (an unlit or out-of-view object gives the same pixels for
-/// every seed) and renders of different seeds; the merged tag has no seed.
+/// every seed) and renders of different seeds. The merged tag lists its inputs' seeds, so
+/// a merge and one of its own inputs are refused too (they were once merged as 3 spp of
+/// 2).
 #[test]
 fn merge_refuses_one_seed_twice_but_not_equal_constant_images() {
     use render_gpu::image_io::{RenderTag, RgbImage, merge_exrs, read_exr, write_exr};
     let d = tempfile::tempdir().unwrap();
-    let put = |name: &str, v: f32, vary: bool, seed: Option<u64>, spp: u64| {
+    let put = |name: &str, v: f32, vary: bool, seeds: &[u64], spp: u64| {
         let mut img = RgbImage::new(4, 2);
         for (i, p) in img.pixels.iter_mut().enumerate() {
             *p = [v + if vary { i as f32 } else { 0.0 }; 3];
@@ -313,32 +315,43 @@ fn merge_refuses_one_seed_twice_but_not_equal_constant_images() {
         let tag = RenderTag {
             spp,
             scene_hash: 7,
-            seed,
+            seeds: seeds.to_vec(),
         };
         write_exr(&path, &img, &tag).unwrap();
         assert_eq!(read_exr(&path).unwrap().1, Some(tag));
         path
     };
-    let a = put("a.exr", 1.0, true, Some(1), 4);
-    let a8 = put("a8.exr", 2.0, true, Some(1), 8);
-    let b = put("b.exr", 3.0, true, Some(2), 4);
+    let a = put("a.exr", 1.0, true, &[1], 4);
+    let a8 = put("a8.exr", 2.0, true, &[1], 8);
+    let b = put("b.exr", 3.0, true, &[2], 4);
     let Err(e) = merge_exrs(&[&a, &a8]) else {
         panic!("one seed twice")
     };
     let e = e.to_string();
     assert!(e.contains("same seed 1") && e.contains("a8.exr"), "{e}");
     let (img, tag) = merge_exrs(&[&a, &b]).unwrap();
-    assert_eq!((tag.spp, tag.seed), (8, None));
+    assert_eq!((tag.spp, &tag.seeds), (8, &vec![1, 2]));
     assert_eq!(img.pixels[0], [2.0; 3]);
+    let ab = d.path().join("ab.exr");
+    write_exr(&ab, &img, &tag).unwrap();
+    let Err(e) = merge_exrs(&[&ab, &b]) else {
+        panic!("a merge and its own input")
+    };
+    let e = e.to_string();
+    assert!(e.contains("same seed 2") && e.contains("ab.exr"), "{e}");
+    let c = put("c.exr", 5.0, true, &[3], 8);
+    let (img, tag) = merge_exrs(&[&ab, &c]).unwrap();
+    assert_eq!((tag.spp, tag.seeds), (16, vec![1, 2, 3]));
+    assert_eq!(img.pixels[0], [3.5; 3]);
     // Seedless: equal varying pixels are one render; equal constant pixels are not.
-    let old1 = put("old1.exr", 1.0, true, None, 4);
-    let old2 = put("old2.exr", 1.0, true, None, 4);
+    let old1 = put("old1.exr", 1.0, true, &[], 4);
+    let old2 = put("old2.exr", 1.0, true, &[], 4);
     let Err(e) = merge_exrs(&[&old1, &old2]) else {
         panic!("a copy")
     };
     let e = e.to_string();
     assert!(e.contains("same render"), "{e}");
-    let c1 = put("c1.exr", 0.5, false, None, 4);
-    let c2 = put("c2.exr", 0.5, false, None, 4);
+    let c1 = put("c1.exr", 0.5, false, &[], 4);
+    let c2 = put("c2.exr", 0.5, false, &[], 4);
     assert!(merge_exrs(&[&c1, &c2]).is_ok());
 }

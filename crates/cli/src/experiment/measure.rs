@@ -458,7 +458,7 @@ pub fn save(
         &RenderTag {
             spp: spp as u64,
             scene_hash: hash,
-            seed: None,
+            seeds: Vec::new(),
         },
         exposure,
         None,
