@@ -496,6 +496,44 @@ fn bad_scenes_are_one_line_errors() {
     assert!(!out.with_extension("exr").exists());
 }
 
+/// An image larger than the memory the process may allocate is refused before any work,
+/// with one line naming the size (Rust aborts on a failed allocation: the 6 GB of a
+/// 16,384² image's sums ended in "memory allocation of 6442450944 bytes failed" and a
+/// core dump under a 3 GB limit).
+#[cfg(unix)]
+#[test]
+fn images_beyond_the_memory_limit_are_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let scene = d.path().join("huge.toml");
+    let text = std::fs::read_to_string(root().join("configs/scenes/sphere.toml"))
+        .unwrap()
+        .replace("width = 128", "width = 16384")
+        .replace("height = 128", "height = 16384");
+    assert!(
+        text.contains("width = 16384"),
+        "the sphere scene's size changed"
+    );
+    std::fs::write(&scene, text).unwrap();
+    let out = d.path().join("r");
+    // 3 GB of address space: the binary runs, the image's ~16 GB cannot be had.
+    let shell = std::process::Command::new("sh")
+        .arg("-c")
+        .arg(format!(
+            "ulimit -v 3000000 && exec '{}' render --device cpu --spp 1 --scene '{}' --out '{}'",
+            env!("CARGO_BIN_EXE_stcvae"),
+            scene.display(),
+            out.display()
+        ))
+        .output()
+        .unwrap();
+    let e = fails(&shell);
+    assert!(
+        e.contains("huge.toml") && e.contains("16384 x 16384") && e.trim().lines().count() == 1,
+        "{e}"
+    );
+    assert!(!out.with_extension("exr").exists());
+}
+
 /// render.max_tau up to the model's training range is taken, the README's max_tau = 300
 /// included (the shipped model's range ends at 299.9996); beyond it, a one-line error
 /// names the field and the range.

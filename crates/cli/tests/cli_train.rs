@@ -148,9 +148,18 @@ fn a_bad_base_fails_before_any_work() {
     );
     assert!(!out.status.success());
     let err = stderr(&out);
-    assert!(err.contains("needs lengthgen") && err.contains("--base"), "{err}");
-    assert!(!dir.path().join("d.bin").exists(), "no dataset before the check");
-    assert!(!dir.path().join("ck").exists(), "no checkpoint before the check");
+    assert!(
+        err.contains("needs lengthgen") && err.contains("--base"),
+        "{err}"
+    );
+    assert!(
+        !dir.path().join("d.bin").exists(),
+        "no dataset before the check"
+    );
+    assert!(
+        !dir.path().join("ck").exists(),
+        "no checkpoint before the check"
+    );
 }
 
 /// `--resume` from nothing, or from a damaged checkpoint, is refused (the first started

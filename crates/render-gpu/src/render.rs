@@ -188,6 +188,27 @@ impl CameraRays {
     }
 }
 
+/// Bytes a render of a `width` × `height` image holds at once, per pixel: the CPU's sums
+/// (24) and work counts (8), the image (12) and its encoded EXR and PNG (~16).
+pub const BYTES_PER_PIXEL: u64 = 60;
+
+/// Refuses an image whose buffers the process cannot allocate (a memory limit, a small
+/// machine), naming the size, before any work: Rust aborts on a failed allocation, so a
+/// 16,384² image (~16 GB) under a limit would otherwise end in "memory allocation of
+/// 6442450944 bytes failed" halfway. The space is reserved and given back at once, not
+/// touched.
+pub fn check_image_memory(width: u32, height: u32) -> Result<(), crate::error::RenderError> {
+    let bytes = width as u64 * height as u64 * BYTES_PER_PIXEL;
+    let mut probe: Vec<u8> = Vec::new();
+    probe.try_reserve_exact(bytes as usize).map_err(|_| {
+        crate::error::RenderError::Scene(format!(
+            "a {width} x {height} image needs about {:.1} GB of memory, which could not be \
+             allocated: render a smaller camera.width/height",
+            bytes as f64 / 1e9
+        ))
+    })
+}
+
 /// Renders the scene. `progress(done, total)` counts pixel-samples; `cancel` stops within
 /// the tiles being traced (the image then holds the passes completed before).
 pub fn render(
