@@ -302,6 +302,26 @@ pub fn run(a: Args) -> Result<()> {
             .with_context(|| format!("--save: cannot create {}", dir.display()))?;
     }
     let engine = Engine::open(a.device)?.without_fallback();
+    // Every density's ST-CVAE scene is checked before the table's head and the first
+    // render, so that a bad setting or model fails at once, not after PT's (possibly long)
+    // renders. They are prepared again when rendered (well under a second each, the grid
+    // coming from its disk cache) rather than kept: each holds its own copy of the
+    // distance grid.
+    for (i, &k) in a.k.iter().enumerate() {
+        let p = prepare_k(&a, IntegratorKind::Stcvae, k)?;
+        if i == 0 {
+            crate::render::note_unreachable_lights(&p);
+        }
+    }
+    let identity = match &a.pt_cache {
+        // The set of seeds is part of what a stored pair depends on.
+        Some(_) => Some(format!(
+            "{} / seed set {}",
+            crate::pt_cache::identity(&engine.describe())?,
+            a.seeds
+        )),
+        None => None,
+    };
     println!(
         "stcvae bench render: {} ({}x{}), g = 0.875, albedo (0.99999, 0.99995, 0.975), NEE {}, {} spp each (2 seeds of {}: a multiple of 3 per seed; seeds PT {:?}, ST-CVAE {:?}), {}",
         a.scene.display(),
@@ -332,25 +352,6 @@ pub fn run(a: Args) -> Result<()> {
         "PT paths/s",
         "ST paths/s"
     );
-    // Every density's ST-CVAE scene is checked before the first render, so that a bad
-    // setting or model fails at once, not after PT's (possibly long) renders. They are
-    // prepared again when rendered (well under a second each, the grid coming from its
-    // disk cache) rather than kept: each holds its own copy of the distance grid.
-    for (i, &k) in a.k.iter().enumerate() {
-        let p = prepare_k(&a, IntegratorKind::Stcvae, k)?;
-        if i == 0 {
-            crate::render::note_unreachable_lights(&p);
-        }
-    }
-    let identity = match &a.pt_cache {
-        // The set of seeds is part of what a stored pair depends on.
-        Some(_) => Some(format!(
-            "{} / seed set {}",
-            crate::pt_cache::identity(&engine.describe())?,
-            a.seeds
-        )),
-        None => None,
-    };
     for &k in &a.k {
         let (pt, cached) = pt_pair(&a, &engine, k, identity.as_deref())?;
         let st = run_pair(&a, &engine, IntegratorKind::Stcvae, k)?;
