@@ -27,7 +27,7 @@ pub struct Args {
     /// Samples per pixel of every render.
     #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..=1 << 20))]
     spp: u32,
-    /// Image side in pixels. A large GPU needs ~256² or more to be full.
+    /// Image side in pixels, 8 to 8,192. A large GPU needs ~256² or more to be full.
     #[arg(long, default_value_t = 128, value_parser = clap::value_parser!(u32).range(8..=8192))]
     size: u32,
     /// Model file for ST-CVAE (default: models/default.stcvae).

@@ -28,7 +28,8 @@ pub struct Args {
     /// Output file: `.csv` writes CSV, anything else the binary dataset format.
     #[arg(long, default_value = "data/train.bin")]
     out: PathBuf,
-    /// Number of walks of the whole run (overrides the config).
+    /// Number of walks of the whole run (overrides the config; in fixed-condition mode,
+    /// default 10,000).
     #[arg(long)]
     samples: Option<u64>,
     /// Fixed-condition mode: optical radius τ of every walk, in [0, 1000] (needs --g and
