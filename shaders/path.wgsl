@@ -124,8 +124,9 @@ fn bounce() {
         return;
     }
     // One ray query for every lane, outside (unbounded) or inside (up to the sampled
-    // flight, skipped inside a known free ball): lanes in different phases share one
-    // traversal instead of running two in turn.
+    // flight, skipped inside a known free ball, answered from the grid cell's list near
+    // the surface): lanes in different phases share one traversal instead of running two
+    // in turn.
     var tmax = 1e30;
     var query = true;
     var t = 0.0;

@@ -204,6 +204,14 @@ fn box_entry(lo: vec3<f32>, hi: vec3<f32>, o: vec3<f32>, inv_d: vec3<f32>, tmax:
 // deeper than the stack. No traversal runs inside another, so all share it.
 var<private> stack_base: u32;
 
+/// Whether a triangle hit at t (≤ best.t, tri_intersect's bound) replaces `best`: the
+/// nearer, and of two at the same distance (a ray through a shared edge) the lower index,
+/// so the hit does not depend on the order the triangles are tested in (the BVH's or a
+/// grid cell's list: `grid_local_hit`).
+fn closer(t: f32, prim: u32, best: Hit) -> bool {
+    return !best.found || t < best.t || prim < best.prim;
+}
+
 /// Closest hit along o + t·d, t ∈ [0, tmax].
 fn intersect(o: vec3<f32>, d: vec3<f32>, tmax0: f32) -> Hit {
     var best = Hit(tmax0, 0u, false);
@@ -225,7 +233,7 @@ fn intersect(o: vec3<f32>, d: vec3<f32>, tmax0: f32) -> Hit {
         if node.count > 0u {
             for (var k = node.first; k < node.first + node.count; k++) {
                 let t = tri_intersect(sh, tris[k], best.t);
-                if t < 1e29 {
+                if t < 1e29 && closer(t, k, best) {
                     best = Hit(t, k, true);
                 }
             }
@@ -459,7 +467,7 @@ fn grid_local_hit(o: vec3<f32>, d: vec3<f32>, tmax: f32, hit: ptr<function, Hit>
             continue;
         }
         let t = tri_intersect(sh, tri, best.t);
-        if t < 1e29 {
+        if t < 1e29 && closer(t, prim, best) {
             best = Hit(t, prim, true);
         }
     }

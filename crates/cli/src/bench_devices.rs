@@ -54,6 +54,8 @@ fn render(
 }
 
 pub fn run(a: Args) -> Result<()> {
+    render_gpu::render::check_image_memory(a.size, a.size)
+        .map_err(|e| anyhow::anyhow!("--size {}: {e}", a.size))?;
     // The scene as each density renders it: σ_t × k at the bench's image size.
     let edit = |f: &mut render_gpu::scene::SceneFile, k: f64| {
         f.medium.sigma_t = f.medium.sigma_t.map(|s| s * k);

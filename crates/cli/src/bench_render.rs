@@ -29,8 +29,9 @@ pub struct Args {
     /// Density multipliers (each in (0, 1000]).
     #[arg(long, value_delimiter = ',', default_value = "1,2,4,8", value_parser = parse_k)]
     k: Vec<f64>,
-    /// Samples per pixel of each integrator, at least 2: split over two seeds, each rounded
-    /// up to a multiple of 3 (one per hero channel), so 2 renders 6.
+    /// Samples per pixel of each integrator, at least 2: each of two seeds renders half
+    /// (rounded down), rounded up to a multiple of 3 (one per hero channel), so 2 renders 6
+    /// and 13 renders 12.
     #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(2..=MAX_BENCH_SPP as i64))]
     spp: u32,
     /// Image side in pixels (at least 8: the bias is measured over 4×4-pixel blocks and

@@ -89,15 +89,17 @@ pub fn parse_toml<T: serde::de::DeserializeOwned>(path: &Path, text: &str) -> Re
 /// The range of `--threads` wherever it is offered: beyond ~1,000 threads the OS runs out
 /// of processes or stack memory long before the work speeds up.
 pub fn threads_parser() -> clap::builder::RangedU64ValueParser<usize> {
-    clap::builder::RangedU64ValueParser::new().range(1..=1024)
+    clap::builder::RangedU64ValueParser::new().range(1..=MAX_THREADS as u64)
 }
+
+const MAX_THREADS: usize = 1024;
 
 /// A rayon pool with `threads` workers (all cores when `None`).
 pub fn pool(threads: Option<usize>) -> Result<rayon::ThreadPool> {
     let mut b = rayon::ThreadPoolBuilder::new();
     if let Some(t) = threads {
-        if !(1..=1024).contains(&t) {
-            bail!("--threads {t} is out of range: allowed 1 to 1024");
+        if !(1..=MAX_THREADS).contains(&t) {
+            bail!("--threads {t} is out of range: allowed 1 to {MAX_THREADS}");
         }
         b = b.num_threads(t);
     }

@@ -67,7 +67,8 @@ fn parse_cli() -> Cli {
         c.allow_negative_numbers(true).mut_subcommands(negatives)
     }
     let matches = negatives(Cli::command()).get_matches();
-    Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit())
+    Cli::from_arg_matches(&matches)
+        .unwrap_or_else(|e| e.format(&mut negatives(Cli::command())).exit())
 }
 
 fn main() {

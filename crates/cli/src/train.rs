@@ -153,14 +153,22 @@ const MIN_ROWS: usize = 1000;
 /// The decoder of `k` from the config's checkpoint folder, for a model file whose other
 /// decoders are trained now.
 fn checkpoint_decoder(cfg: &TrainConfig, k: ModelKind) -> Result<(cvae::decoder::Decoder, u32)> {
-    cvae::train::trainer::load_decoder(&cfg.checkpoint_dir, k, &cfg.model(k).architecture())
-        .with_context(|| {
-            format!(
-                "the model file needs {}: train it first (or all three at once), or take it \
-                 from a model file with --base",
-                k.name()
-            )
-        })
+    let (d, version) =
+        cvae::train::trainer::load_decoder(&cfg.checkpoint_dir, k, &cfg.model(k).architecture())
+            .with_context(|| {
+                format!(
+                    "the model file needs {}: train it first (or all three at once), or take \
+                     it from a model file with --base",
+                    k.name()
+                )
+            })?;
+    if cvae::features::EventRadial::of_version(version).is_none() {
+        bail!(
+            "the {} checkpoint has feature version {version}, which this build does not read",
+            k.name()
+        );
+    }
+    Ok((d, version))
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -402,12 +410,6 @@ pub fn run(a: Args) -> Result<()> {
             }
             let (d, version) = checkpoint_decoder(&cfg, k)?;
             notes.push(format!("{}: from checkpoint", k.name()));
-            if cvae::features::EventRadial::of_version(version).is_none() {
-                bail!(
-                    "the {} checkpoint has feature version {version}, which this build does not read",
-                    k.name()
-                );
-            }
             if k == ModelKind::EventGen {
                 event_version = version;
             }

@@ -348,7 +348,12 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
                 t0.spp = t0.spp.checked_add(tag.spp).ok_or_else(|| {
                     RenderError::Image(format!("{}: the spp total overflows", p.display()))
                 })?;
-                t0.seeds.extend(&tag.seeds);
+                // A list with an unknown input's seeds missing would read as complete.
+                if t0.seeds.is_empty() || tag.seeds.is_empty() {
+                    t0.seeds.clear();
+                } else {
+                    t0.seeds.extend(&tag.seeds);
+                }
             }
         }
     }

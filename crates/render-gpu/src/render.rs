@@ -188,13 +188,15 @@ impl CameraRays {
     }
 }
 
-/// Bytes a render of a `width` × `height` image holds at once, per pixel: the CPU's sums
-/// (24) and work counts (8), the image (12) and its encoded EXR and PNG (~16).
-pub const BYTES_PER_PIXEL: u64 = 60;
+/// Bytes a CPU render of a `width` × `height` image holds at once, per pixel: its sums (24)
+/// and work counts (8), a pass's tile results (32), the image (12) and its encoded EXR and
+/// PNG (~16), rounded up. (A GPU render's path slots live on the device; a software
+/// adapter's in host memory as well, which this does not count.)
+pub const BYTES_PER_PIXEL: u64 = 100;
 
 /// Refuses an image whose buffers the process cannot allocate (a memory limit, a small
 /// machine), naming the size, before any work: Rust aborts on a failed allocation, so a
-/// 16,384² image (~16 GB) under a limit would otherwise end in "memory allocation of
+/// 16,384² image (~27 GB) under a limit would otherwise end in "memory allocation of
 /// 6442450944 bytes failed" halfway. The space is reserved and given back at once, not
 /// touched.
 pub fn check_image_memory(width: u32, height: u32) -> Result<(), crate::error::RenderError> {

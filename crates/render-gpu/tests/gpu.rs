@@ -1039,8 +1039,8 @@ fn wgsl_grid_and_candidate_lists_match_rust() {
 
 /// The WGSL cell-list hit (scene.wgsl, `grid_local_hit`: ST-CVAE's flights near the
 /// surface and its sliver checks) is the BVH's hit: the same watertight test over a
-/// superset of the triangles the segment can meet, so the same distance to the bit
-/// wherever a list answers (DistanceGrid::local_hit's argument; tests/distance_grid.rs
+/// superset of the triangles the segment can meet, so the same distance to the bit and the
+/// same triangle (`closer`: ties to the lower index) wherever a list answers (DistanceGrid::local_hit's argument; tests/distance_grid.rs
 /// checks the CPU's). A list whose coverage were too generous (a triangle missing from it
 /// that the segment meets), a wrong offset into the lists or a wrong triangle remapping
 /// gives other hits. Segments as the renderer casts them: from points near the surface,
@@ -1087,9 +1087,10 @@ fn wgsl_cell_list_hits_equal_bvh_casts() {
         }
         answered += 1;
         hits += (o[4] == 1.0) as u32;
+        // Found, distance and triangle (ties go to the lower index on both sides).
         assert_eq!(
-            (o[1], o[1] * o[2]),
-            (o[4], o[4] * o[5]),
+            (o[1], o[1] * o[2], o[1] * o[3]),
+            (o[4], o[4] * o[5], o[4] * o[6]),
             "segment from {:?} along {:?}, length {}: list {:?}, BVH {:?}",
             &it[..3],
             &it[4..7],

@@ -153,14 +153,24 @@ impl Row {
                 fields.len()
             ));
         }
-        let num = |i: usize| -> Result<f64, String> {
+        // Each column parsed in its own type (as `decode` reads it), so that a value beyond
+        // f32 (1e39) is named here rather than turning into infinity.
+        let not_finite =
+            |i: usize| format!("{} = {:?} is not a finite number", COLUMNS[i], fields[i]);
+        let num = |i: usize| {
             fields[i]
                 .parse::<f64>()
                 .ok()
                 .filter(|v| v.is_finite())
-                .ok_or_else(|| format!("{} = {:?} is not a finite number", COLUMNS[i], fields[i]))
+                .ok_or_else(|| not_finite(i))
         };
-        let f = |i: usize| num(i).map(|v| v as f32);
+        let f = |i: usize| {
+            fields[i]
+                .parse::<f32>()
+                .ok()
+                .filter(|v| v.is_finite())
+                .ok_or_else(|| not_finite(i))
+        };
         let n = fields[3].parse::<u32>().map_err(|_| {
             format!(
                 "n = {:?} is not a whole number of events in [1, {}]",
@@ -255,6 +265,7 @@ mod tests {
             (3, "0", "n = 0"),
             (4, "7", "exit"),
             (7, "1e30", "event"),
+            (7, "1e39", "ev_x = \"1e39\" is not a finite number"),
             (10, "nan", "ev_wx"),
         ] {
             let mut fields = good.clone();
