@@ -392,16 +392,30 @@ fn grid_cell_at(q: vec3<f32>) -> i32 {
     return i32(c.x + dims.x * (c.y + dims.y * c.z));
 }
 
+/// The centre of the cell at q (grid_q).
+fn grid_cell_centre(q: vec3<f32>) -> vec3<f32> {
+    return params.grid_lo.xyz + (vec3<f32>(vec3<u32>(q)) + 0.5) * params.grid_lo.w;
+}
+
+/// Cell i's candidate list as a range [x, y) of the lists' entries (empty: no list).
+fn grid_list(i: i32) -> vec2<u32> {
+    return vec2<u32>(grid[2u * u32(i) + 1u], grid[2u * u32(i) + 3u]);
+}
+
+/// Entry k of the candidate lists: a triangle's index (in BVH leaf order), after the n
+/// cells' pairs and the closing one.
+fn grid_candidate(k: u32) -> u32 {
+    let dims = params.grid_dims.xyz;
+    return grid[2u * (dims.x * dims.y * dims.z + 1u) + k];
+}
+
 fn grid_radius(p: vec3<f32>) -> f32 {
     let q = grid_q(p);
     let i = grid_cell_at(q);
     if i < 0 {
         return 0.0;
     }
-    let cell = params.grid_lo.w;
-    let c = vec3<f32>(vec3<u32>(q));
-    let centre = params.grid_lo.xyz + (c + 0.5) * cell;
-    return max(bitcast<f32>(grid[2u * u32(i)]) - length(p - centre), 0.0);
+    return max(bitcast<f32>(grid[2u * u32(i)]) - length(p - grid_cell_centre(q)), 0.0);
 }
 
 /// The exact distance from p to the surface from its cell's candidate triangles
@@ -411,16 +425,13 @@ fn grid_exact_distance(p: vec3<f32>) -> f32 {
     if i < 0 {
         return -1.0;
     }
-    let a = grid[2u * u32(i) + 1u];
-    let b = grid[2u * u32(i) + 3u];
-    if b <= a {
+    let list = grid_list(i);
+    if list.y <= list.x {
         return -1.0;
     }
-    let dims = params.grid_dims.xyz;
-    let base = 2u * (dims.x * dims.y * dims.z + 1u);
     var best = 3.4e38;
-    for (var k = a; k < b; k++) {
-        let t = tris[grid[base + k]];
+    for (var k = list.x; k < list.y; k++) {
+        let t = tris[grid_candidate(k)];
         best = min(best, point_triangle_d2(p, t.v0.xyz, t.v1.xyz, t.v2.xyz));
     }
     return sqrt(best);
@@ -439,27 +450,23 @@ fn grid_local_hit(o: vec3<f32>, d: vec3<f32>, tmax: f32, hit: ptr<function, Hit>
     if i < 0 {
         return false;
     }
-    let a = grid[2u * u32(i) + 1u];
-    let b = grid[2u * u32(i) + 3u];
-    if b <= a {
+    let list = grid_list(i);
+    if list.y <= list.x {
         return false;
     }
-    let centre = params.grid_lo.xyz + (vec3<f32>(vec3<u32>(q)) + 0.5) * params.grid_lo.w;
     // The coverage in f32, shrunk by far more than its rounding (consts2.y: near_surface).
     let reach = (bitcast<f32>(grid[2u * u32(i)]) + params.consts2.y * 0.5) * (1.0 - 1e-5);
-    if length(o - centre) + tmax > reach {
+    if length(o - grid_cell_centre(q)) + tmax > reach {
         return false;
     }
-    let dims = params.grid_dims.xyz;
-    let base = 2u * (dims.x * dims.y * dims.z + 1u);
     let sh = ray_shear(o, d);
     // A segment with both ends beyond this distance on one side of a triangle's plane
     // cannot meet it (Geometry::closest_of's cull; consts.z: eps).
     let slack = params.consts.z * 0.005;
     var best = Hit(tmax, 0u, false);
-    for (var k = a; k < b; k++) {
+    for (var k = list.x; k < list.y; k++) {
         prof(7u);
-        let prim = grid[base + k];
+        let prim = grid_candidate(k);
         let tri = tris[prim];
         let s0 = dot(tri.n.xyz, o) - dot(tri.n.xyz, tri.v0.xyz);
         let s1 = s0 + best.t * dot(tri.n.xyz, d);

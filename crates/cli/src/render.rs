@@ -318,7 +318,7 @@ pub fn run(a: Args) -> Result<()> {
     warn_outside_training(&p, &a.scene);
     note_unreachable_lights(&p);
     render_gpu::render::check_image_memory(p.file.camera.width, p.file.camera.height)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", a.scene.display()))?;
+        .map_err(|e| anyhow::anyhow!("{}: camera.width/height: {e}", a.scene.display()))?;
     let engine = Engine::open(a.device)?;
     let set = p.settings();
     eprintln!(

@@ -205,7 +205,7 @@ pub fn check_image_memory(width: u32, height: u32) -> Result<(), crate::error::R
     probe.try_reserve_exact(bytes as usize).map_err(|_| {
         crate::error::RenderError::Scene(format!(
             "a {width} x {height} image needs about {:.1} GB of memory, which could not be \
-             allocated: render a smaller camera.width/height",
+             allocated: render a smaller one",
             bytes as f64 / 1e9
         ))
     })

@@ -155,22 +155,8 @@ impl Row {
         }
         // Each column parsed in its own type (as `decode` reads it), so that a value beyond
         // f32 (1e39) is named here rather than turning into infinity.
-        let not_finite =
-            |i: usize| format!("{} = {:?} is not a finite number", COLUMNS[i], fields[i]);
-        let num = |i: usize| {
-            fields[i]
-                .parse::<f64>()
-                .ok()
-                .filter(|v| v.is_finite())
-                .ok_or_else(|| not_finite(i))
-        };
-        let f = |i: usize| {
-            fields[i]
-                .parse::<f32>()
-                .ok()
-                .filter(|v| v.is_finite())
-                .ok_or_else(|| not_finite(i))
-        };
+        let num = |i: usize| finite_field::<f64>(&fields, i);
+        let f = |i: usize| finite_field::<f32>(&fields, i);
         let n = fields[3].parse::<u32>().map_err(|_| {
             format!(
                 "n = {:?} is not a whole number of events in [1, {}]",
@@ -215,6 +201,18 @@ impl Row {
             wz
         )
     }
+}
+
+/// Field i of a CSV row as a finite T, or the error naming its column.
+fn finite_field<T: std::str::FromStr + Copy + Into<f64>>(
+    fields: &[&str],
+    i: usize,
+) -> Result<T, String> {
+    fields[i]
+        .parse::<T>()
+        .ok()
+        .filter(|v| (*v).into().is_finite())
+        .ok_or_else(|| format!("{} = {:?} is not a finite number", COLUMNS[i], fields[i]))
 }
 
 #[cfg(test)]
