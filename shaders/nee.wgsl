@@ -6,75 +6,12 @@
 const MAX_OPTICAL_DEPTH: f32 = 50.0;
 const MAX_CROSSINGS: u32 = 64u;
 
-/// Fresnel transmittance of one crossing of the straight shadow ray (1 when index-matched);
-/// `exiting`: from the medium to the outside (nee.rs: crossing_transmittance).
-fn crossing_transmittance(cos: f32, exiting: bool) -> f32 {
-    if params.flags.z == 0u {
-        return 1.0;
-    }
-    let ior = params.consts.y;
-    return 1.0 - select(fresnel(cos, 1.0, ior), fresnel(cos, ior, 1.0), exiting);
-}
-
-/// Every surface crossing of x + t·dir in one BVH traversal, unordered
-/// (Geometry::inside_length on the CPU): for a closed mesh the length inside is
-/// Σ t(exits) − Σ t(entries); `balance` = exits − entries is 1 for an origin inside.
-struct Crossings {
-    length: f32,
-    fresnel_t: f32,
-    balance: i32,
-}
-
-fn crossings(o: vec3<f32>, d: vec3<f32>) -> Crossings {
-    var c = Crossings(0.0, 1.0, 0);
-    let inv_d = 1.0 / (d + select(vec3<f32>(0.0), vec3<f32>(1e-30), d == vec3<f32>(0.0)));
-    let sh = ray_shear(o, d);
-    let root = node_at(0u);
-    if box_entry(root.lo, root.hi, o, inv_d, 1e30) >= 1e29 {
-        return c;
-    }
-    var top = 1u;
-    trav_stack[stack_base] = 0u;
-    loop {
-        if top == 0u {
-            break;
-        }
-        top -= 1u;
-        prof(2u);
-        let node = node_at(trav_stack[stack_base + top]);
-        if node.count > 0u {
-            for (var k = node.first; k < node.first + node.count; k++) {
-                let t = tri_intersect(sh, tris[k], 1e30);
-                if t < 1e29 {
-                    let cosn = dot(d, tris[k].n.xyz);
-                    let exiting = cosn > 0.0;
-                    c.length += select(-t, t, exiting);
-                    c.balance += select(-1, 1, exiting);
-                    c.fresnel_t *= crossing_transmittance(abs(cosn), exiting);
-                }
-            }
-        } else {
-            // No closest hit to prune by: every child the ray crosses is visited, in any
-            // order.
-            let a = node.first;
-            let b = node.first + 1u;
-            let na = node_at(a);
-            if box_entry(na.lo, na.hi, o, inv_d, 1e30) < 1e29 && top < STACK_DEPTH {
-                trav_stack[stack_base + top] = a;
-                top += 1u;
-            }
-            let nb = node_at(b);
-            if box_entry(nb.lo, nb.hi, o, inv_d, 1e30) < 1e29 && top < STACK_DEPTH {
-                trav_stack[stack_base + top] = b;
-                top += 1u;
-            }
-        }
-    }
-    return c;
-}
-
 fn transmittance(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
-    let c = crossings(x, dir);
+    return transmittance_of(crossings(x, dir), x, dir, channel);
+}
+
+/// The transmittance of the shadow ray x + t·dir from its crossings.
+fn transmittance_of(c: Crossings, x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
     if c.balance == 1 && c.length >= 0.0 {
         return exp(-params.sigma_t[channel] * c.length) * c.fresnel_t;
     }
@@ -201,15 +138,11 @@ fn path_nee_offer(x: vec3<f32>, w: vec3<f32>, c: f32, q: f32) {
     }
 }
 
-/// The path's NEE: one shadow ray per reservoir, A·f/q averaged (PathNee::finish).
-fn path_nee_finish(channel: u32) -> f32 {
+/// The shadow rays of the path's NEE, cast one per bounce after the path's last
+/// (path.wgsl, bounce): one per reservoir and light; none without an event offered.
+fn path_nee_rays() -> u32 {
     if PATH_NEE_M == 0u || !(pn_total > 0.0) {
-        return 0.0;
+        return 0u;
     }
-    var sum = 0.0;
-    for (var k = 0u; k < PATH_NEE_M; k++) {
-        let x = pn_x[k];
-        sum += nee_direct(x, pn_w[k], 0.0, x, 0.0, channel, false) / pn_q[k];
-    }
-    return sum * pn_total / f32(PATH_NEE_M);
+    return PATH_NEE_M * params.flags.x;
 }

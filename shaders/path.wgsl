@@ -82,6 +82,14 @@ var<private> p_channel: u32;
 var<private> p_inside: bool;
 var<private> p_from_step: bool;
 var<private> p_iterations: u32;
+// Path-level NEE after the path's last bounce: whether its shadow rays have begun, how
+// many are left (ray r = PATH_NEE_M·lights − left is reservoir r / lights toward light
+// r % lights), Σ_k (Σ_i T·f)/q_k over the reservoirs done and Σ_i T·f of the one under way
+// (PathNee::finish, summed in its order).
+var<private> p_nee_cast: bool;
+var<private> p_nee_left: u32;
+var<private> p_nee_sum: f32;
+var<private> p_nee_light: f32;
 
 fn start_path(origin: vec3<f32>, dir: vec3<f32>, channel: u32) {
     stats[C_PATHS] += 1u;
@@ -92,6 +100,8 @@ fn start_path(origin: vec3<f32>, dir: vec3<f32>, channel: u32) {
     p_left_through = NO_TRI;
     p_iterations = 0u;
     path_nee_reset();
+    p_nee_cast = false;
+    p_nee_left = 0u;
 }
 
 /// Whether `q`, spawned eps inside the surface at a hit whose outward normal is `n`, lies
@@ -109,7 +119,9 @@ fn beyond_sliver(q: vec3<f32>, n: vec3<f32>) -> bool {
 /// One iteration of the CPU path loop; sets ps.alive = false when the path ends. The
 /// kernel interleaves paths through this (path regeneration): an invocation whose path
 /// ended starts its next sample instead of idling until the longest path of its SIMD
-/// group is done — path lengths are heavy-tailed, so this is most of the speed.
+/// group is done — path lengths are heavy-tailed, so this is most of the speed. After the
+/// path's end, each call casts one of its path-level NEE shadow rays instead
+/// (p_nee_left > 0).
 fn bounce() {
     prof(0u);
     let channel = p_channel;
@@ -117,37 +129,70 @@ fn bounce() {
     let dielectric = params.flags.z != 0u;
     let ior = params.consts.y;
     let nee = params.flags.y != 0u;
-    p_iterations += 1u;
-    if p_iterations > MAX_ITERATIONS {
-        stats[C_CAPPED] += 1u;
-        ps.alive = false;
-        return;
-    }
     // One ray query for every lane, outside (unbounded) or inside (up to the sampled
     // flight, skipped inside a known free ball, answered from the grid cell's list near
-    // the surface): lanes in different phases share one traversal instead of running two
-    // in turn.
+    // the surface), or a finished path's shadow ray: lanes in different phases share one
+    // traversal instead of running two or three in turn.
+    let shadow = p_nee_left > 0u;
+    var o = ps.pos;
+    var d = ps.dir;
     var tmax = 1e30;
     var query = true;
     var t = 0.0;
-    if p_inside {
-        t = -log(1.0 - rand()) / sigma;
-        // A surface just past the collision counts as reached (integrator/mod.rs: a
-        // collision rounded to the far side would leave the path outside).
-        tmax = t + params.consts.z * FLIGHT_MARGIN_OF_EPS;
-        // A flight shorter than the known free distance cannot reach the surface.
-        query = t >= ps.free;
+    var light = LightSample(vec3<f32>(0.0, 0.0, 1.0), 0.0);
+    var k = 0u;
+    var last_light = false;
+    if shadow {
+        // nee_direct(x, w, 0, x, 0, channel, false) of reservoir k toward one light, its
+        // random numbers drawn in the same order.
+        let nl = params.flags.x;
+        let r = PATH_NEE_M * nl - p_nee_left;
+        k = r / nl;
+        last_light = r % nl == nl - 1u;
+        let u1 = rand();
+        let u2 = rand();
+        light = light_sample(r % nl, u1, u2, channel);
+        o = pn_x[k];
+        d = light.dir;
+        query = light.factor > 0.0;
+    } else {
+        p_iterations += 1u;
+        if p_iterations > MAX_ITERATIONS {
+            stats[C_CAPPED] += 1u;
+            ps.alive = false;
+            return;
+        }
+        if p_inside {
+            t = -log(1.0 - rand()) / sigma;
+            // A surface just past the collision counts as reached (integrator/mod.rs: a
+            // collision rounded to the far side would leave the path outside).
+            tmax = t + params.consts.z * FLIGHT_MARGIN_OF_EPS;
+            // A flight shorter than the known free distance cannot reach the surface.
+            query = t >= ps.free;
+        }
+        if !p_inside && p_left_through != NO_TRI {
+            let left = tris[p_left_through].n;
+            query = dot(ps.dir, left.xyz) < left.w;
+        }
+        p_left_through = NO_TRI;
     }
-    if !p_inside && p_left_through != NO_TRI {
-        let left = tris[p_left_through].n;
-        query = dot(ps.dir, left.xyz) < left.w;
-    }
-    p_left_through = NO_TRI;
     var h = Hit(0.0, 0u, false);
     // A flight inside near the surface is answered from its grid cell's list (ST-CVAE;
     // PT renders have no grid), as on the CPU (integrator/mod.rs, short_cast).
-    if query && !(p_inside && grid_local_hit(ps.pos, ps.dir, tmax, &h)) {
-        h = intersect(ps.pos, ps.dir, tmax);
+    if query && !(!shadow && p_inside && grid_local_hit(o, d, tmax, &h)) {
+        h = trace(o, d, tmax, shadow);
+    }
+    if shadow {
+        if query {
+            let phase = hg_pdf(params.consts.x, clamp(dot(pn_w[k], d), -1.0, 1.0));
+            p_nee_light += transmittance_of(tr_cross, o, d, channel) * (light.factor * phase);
+        }
+        if last_light {
+            p_nee_sum += p_nee_light / pn_q[k];
+            p_nee_light = 0.0;
+        }
+        p_nee_left -= 1u;
+        return;
     }
     if !p_inside {
         if !h.found {
@@ -273,6 +318,7 @@ const F_SCATTERED: u32 = 2u;
 const F_INSIDE: u32 = 4u;
 const F_FROM_STEP: u32 = 8u;
 const F_DONE: u32 = 16u;
+const F_NEE_CAST: u32 = 32u;
 
 fn save_path(base: u32, j: u32, s: u32, done: bool) {
     var flags = 0u;
@@ -281,10 +327,12 @@ fn save_path(base: u32, j: u32, s: u32, done: bool) {
     if p_inside { flags |= F_INSIDE; }
     if p_from_step { flags |= F_FROM_STEP; }
     if done { flags |= F_DONE; }
-    accum[base] = vec4<f32>(ps.pos, ps.beta);
+    if p_nee_cast { flags |= F_NEE_CAST; }
+    // An ended path's position and β are not needed again: its NEE sums take their place.
+    accum[base] = select(vec4<f32>(ps.pos, ps.beta), vec4<f32>(p_nee_sum, p_nee_light, 0.0, 0.0), p_nee_cast);
     accum[base + 1u] = vec4<f32>(ps.dir, ps.radiance);
     accum[base + 2u] = bitcast<vec4<f32>>(rng_s);
-    accum[base + 3u] = bitcast<vec4<f32>>(vec4<u32>(p_channel | (flags << 8u), p_iterations, j, s));
+    accum[base + 3u] = bitcast<vec4<f32>>(vec4<u32>(p_channel | (flags << 8u) | (p_nee_left << 16u), p_iterations, j, s));
     for (var i = 0u; i < PATH_NEE_M; i++) {
         accum[base + 5u + 2u * i] = vec4<f32>(pn_x[i], pn_q[i]);
         accum[base + 6u + 2u * i] = vec4<f32>(pn_w[i], pn_total);
@@ -412,7 +460,7 @@ fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_inv
         }
     } else {
         let st = bitcast<vec4<u32>>(accum[base + 3u]);
-        let flags = st.x >> 8u;
+        let flags = (st.x >> 8u) & 0xffu;
         done = (flags & F_DONE) != 0u;
         if !done {
             let a = accum[base];
@@ -424,6 +472,10 @@ fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_inv
             p_from_step = (flags & F_FROM_STEP) != 0u;
             p_left_through = NO_TRI;
             p_iterations = st.y;
+            p_nee_cast = (flags & F_NEE_CAST) != 0u;
+            p_nee_left = st.x >> 16u;
+            p_nee_sum = a.x;
+            p_nee_light = a.y;
             j = st.z;
             s = st.w;
             load_path_nee(base);
@@ -434,8 +486,17 @@ fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_inv
         var b = 0u;
         for (; b < budget && !done; b++) {
             bounce();
-            if !ps.alive {
-                ps.radiance += path_nee_finish(p_channel);
+            if !ps.alive && !p_nee_cast {
+                // The path's last bounce: its path-level NEE rays follow, one per bounce.
+                p_nee_cast = true;
+                p_nee_left = path_nee_rays();
+                p_nee_sum = 0.0;
+                p_nee_light = 0.0;
+            }
+            if !ps.alive && p_nee_left == 0u {
+                if PATH_NEE_M > 0u && pn_total > 0.0 {
+                    ps.radiance += p_nee_sum * pn_total / f32(PATH_NEE_M);
+                }
                 acc[p_channel] += 3.0 * path_result();
                 acc.w += 1.0;
                 j += 1u;

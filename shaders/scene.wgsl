@@ -212,12 +212,43 @@ fn closer(t: f32, prim: u32, best: Hit) -> bool {
     return !best.found || t < best.t || prim < best.prim;
 }
 
-/// Closest hit along o + t·d, t ∈ [0, tmax].
-fn intersect(o: vec3<f32>, d: vec3<f32>, tmax0: f32) -> Hit {
+/// Fresnel transmittance of one crossing of a straight shadow ray (1 when index-matched);
+/// `exiting`: from the medium to the outside (nee.rs: crossing_transmittance).
+fn crossing_transmittance(cos: f32, exiting: bool) -> f32 {
+    if params.flags.z == 0u {
+        return 1.0;
+    }
+    let ior = params.consts.y;
+    return 1.0 - select(fresnel(cos, 1.0, ior), fresnel(cos, ior, 1.0), exiting);
+}
+
+/// Every surface crossing of a ray, unordered (Geometry::inside_length on the CPU): for a
+/// closed mesh the length inside is Σ t(exits) − Σ t(entries); `balance` = exits −
+/// entries is 1 for an origin inside.
+struct Crossings {
+    length: f32,
+    fresnel_t: f32,
+    balance: i32,
+}
+
+/// The crossings of the last `trace` with `all` set.
+var<private> tr_cross: Crossings;
+
+/// One BVH traversal for both kinds of query: the closest hit along o + t·d, t ∈ [0,
+/// tmax0], or with `all` every crossing of the whole line (into tr_cross; the returned
+/// hit is then none). One function, so that a kernel can give the lanes of a subgroup that
+/// need either kind one loop to step through together (path.wgsl, bounce): their passes
+/// are shared instead of run one loop after the other. In `all` mode the children are
+/// visited in crossings' old order (b before a) whatever their distances, so that the
+/// sums come out the same bit for bit.
+fn trace(o: vec3<f32>, d: vec3<f32>, tmax0: f32, all: bool) -> Hit {
     var best = Hit(tmax0, 0u, false);
+    tr_cross = Crossings(0.0, 1.0, 0);
     // Exact zeros would make 0·∞ = NaN in the slab test.
     let inv_d = 1.0 / (d + select(vec3<f32>(0.0), vec3<f32>(1e-30), d == vec3<f32>(0.0)));
     let sh = ray_shear(o, d);
+    // A pass shared by both kinds counts under the kind of the subgroup's first active lane.
+    let phase = select(1u, 2u, all);
     var top = 1u;
     trav_stack[stack_base] = 0u;
     loop {
@@ -225,7 +256,7 @@ fn intersect(o: vec3<f32>, d: vec3<f32>, tmax0: f32) -> Hit {
             break;
         }
         top -= 1u;
-        prof(1u);
+        prof(phase);
         let node = node_at(trav_stack[stack_base + top]);
         if box_entry(node.lo, node.hi, o, inv_d, best.t) >= 1e29 {
             continue;
@@ -233,8 +264,16 @@ fn intersect(o: vec3<f32>, d: vec3<f32>, tmax0: f32) -> Hit {
         if node.count > 0u {
             for (var k = node.first; k < node.first + node.count; k++) {
                 let t = tri_intersect(sh, tris[k], best.t);
-                if t < 1e29 && closer(t, k, best) {
-                    best = Hit(t, k, true);
+                if t < 1e29 {
+                    if all {
+                        let cosn = dot(d, tris[k].n.xyz);
+                        let exiting = cosn > 0.0;
+                        tr_cross.length += select(-t, t, exiting);
+                        tr_cross.balance += select(-1, 1, exiting);
+                        tr_cross.fresnel_t *= crossing_transmittance(abs(cosn), exiting);
+                    } else if closer(t, k, best) {
+                        best = Hit(t, k, true);
+                    }
                 }
             }
         } else {
@@ -244,9 +283,10 @@ fn intersect(o: vec3<f32>, d: vec3<f32>, tmax0: f32) -> Hit {
             let nb = node_at(b);
             let ta = box_entry(na.lo, na.hi, o, inv_d, best.t);
             let tb = box_entry(nb.lo, nb.hi, o, inv_d, best.t);
-            // Push the farther child first so the nearer one is visited next.
+            // Push the farther child first so the nearer one is visited next (closest hit
+            // only: `all` has no distance to prune by).
             if ta < 1e29 && tb < 1e29 && top + 2u <= STACK_DEPTH {
-                if ta < tb {
+                if ta < tb && !all {
                     trav_stack[stack_base + top] = b;
                     trav_stack[stack_base + top + 1u] = a;
                 } else {
@@ -263,7 +303,21 @@ fn intersect(o: vec3<f32>, d: vec3<f32>, tmax0: f32) -> Hit {
             }
         }
     }
+    if all {
+        best.found = false;
+    }
     return best;
+}
+
+/// Closest hit along o + t·d, t ∈ [0, tmax].
+fn intersect(o: vec3<f32>, d: vec3<f32>, tmax0: f32) -> Hit {
+    return trace(o, d, tmax0, false);
+}
+
+/// Every surface crossing of the line x + t·d, t ≥ 0, in one BVH traversal.
+fn crossings(o: vec3<f32>, d: vec3<f32>) -> Crossings {
+    _ = trace(o, d, 1e30, true);
+    return tr_cross;
 }
 
 fn tri_normal(prim: u32) -> vec3<f32> {

@@ -95,6 +95,12 @@ impl Engine {
         self.active_gpu().is_some()
     }
 
+    /// Whether renders run on a hardware GPU (not the CPU integrators, not a software
+    /// adapter).
+    pub fn is_hardware_gpu(&self) -> bool {
+        self.active_gpu().is_some_and(|c| !c.adapter.software)
+    }
+
     /// Where renders run, for reports and JSON: the CPU's model for the CPU integrators
     /// and for a software adapter (whose speed is that CPU's).
     pub fn describe(&self) -> String {

@@ -68,7 +68,9 @@ impl Default for KernelShape {
 /// SIMD work a hardware GPU wastes there: what a split of the kernel into coherent stages
 /// could win back. Shadow rays whose crossings do not pair up are walked in order by
 /// closest-hit queries (nee.wgsl, `transmittance_ordered`) and count as closest-hit steps;
-/// a decoder evaluation is counted before its model is chosen.
+/// a traversal pass that a path's closest-hit query and another path's shadow ray share
+/// (path.wgsl, bounce: path-level NEE) counts under the kind of the subgroup's first
+/// active lane; a decoder evaluation is counted before its model is chosen.
 pub const PROFILE_PHASES: [&str; 8] = [
     "bounce",
     "closest-hit traversal step",
