@@ -133,7 +133,9 @@ fn bounce() {
     // flight, skipped inside a known free ball, answered from the grid cell's list near
     // the surface), or a finished path's shadow ray: lanes in different phases share one
     // traversal instead of running two or three in turn.
-    let shadow = p_nee_left > 0u;
+    // (PATH_NEE_M is a constant: without path-level NEE, PT's kernel among them, the
+    // compiler is left a closest-hit query here, as fast as before this was shared.)
+    let shadow = PATH_NEE_M > 0u && p_nee_left > 0u;
     var o = ps.pos;
     var d = ps.dir;
     var tmax = 1e30;
@@ -180,7 +182,11 @@ fn bounce() {
     // A flight inside near the surface is answered from its grid cell's list (ST-CVAE;
     // PT renders have no grid), as on the CPU (integrator/mod.rs, short_cast).
     if query && !(!shadow && p_inside && grid_local_hit(o, d, tmax, &h)) {
-        h = trace(o, d, tmax, shadow);
+        if PATH_NEE_M > 0u {
+            h = trace(o, d, tmax, shadow);
+        } else {
+            h = intersect(o, d, tmax);
+        }
     }
     if shadow {
         if query {

@@ -76,7 +76,10 @@ fn probe_frame(@builtin(global_invocation_id) gid: vec3<u32>) {
 }
 
 /// In: origin at 0..3, direction at 4..7 (scene geometry bound). Out: closest hit found
-/// (1/0) and t at 0, 1; the unordered crossings' exits − entries and inside length at 2, 3.
+/// (1/0) and t at 0, 1; the unordered crossings' exits − entries and inside length at 2, 3;
+/// `trace`'s closest hit (found, t, triangle) at 4..6 and `intersect`'s triangle at 7;
+/// `trace`'s crossings (exits − entries, length, Fresnel) at 8..10 and `crossings`' Fresnel
+/// at 11.
 @compute @workgroup_size(WORKGROUP)
 fn probe_ray(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
     stack_base = li * STACK_STRIDE;
@@ -88,11 +91,23 @@ fn probe_ray(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invoc
     let d = item_v3(i, 1u);
     let h = intersect(o, d, 1e30);
     let c = crossings(o, d);
+    // The path loop's shared traversal in both modes (scene.wgsl, trace).
+    let th = trace(o, d, 1e30, false);
+    _ = trace(o, d, 1e30, true);
+    let tc = tr_cross;
     clear_item(i);
     set_f(i, 0u, select(0.0, 1.0, h.found));
     set_f(i, 1u, h.t);
     set_f(i, 2u, f32(c.balance));
     set_f(i, 3u, c.length);
+    set_f(i, 4u, select(0.0, 1.0, th.found));
+    set_f(i, 5u, th.t);
+    set_f(i, 6u, f32(th.prim));
+    set_f(i, 7u, f32(h.prim));
+    set_f(i, 8u, f32(tc.balance));
+    set_f(i, 9u, tc.length);
+    set_f(i, 10u, tc.fresnel_t);
+    set_f(i, 11u, c.fresnel_t);
 }
 
 /// In: a point at 0..3 (scene geometry and distance grid bound). Out: the grid radius,

@@ -889,7 +889,7 @@ fn furnace_bunny(grid: bool) -> render_gpu::setup::SceneData {
 /// The WGSL ray queries are watertight like the Rust ones (render_gpu::watertight): no
 /// ray from inside the bunny aimed at one of its vertices or edge midpoints misses the
 /// surface, the closest hits agree with the CPU's, and so do the one-traversal inside
-/// lengths of the shadow rays.
+/// lengths of the shadow rays; the path loop's shared traversal equals both.
 #[test]
 fn wgsl_rays_are_watertight_and_match_rust() {
     let Some(ctx) = gpu() else { return };
@@ -920,6 +920,13 @@ fn wgsl_rays_are_watertight_and_match_rust() {
     let (mut misses, mut t_off, mut len_off, mut paired) = (0, 0, 0, 0);
     let mut touch = 0;
     for ((p, d, aim), o) in rays.iter().zip(&out) {
+        // The path loop's shared traversal (scene.wgsl, trace) runs the same arithmetic in
+        // the same order as the specialised loops, in both modes: equal to the bit.
+        assert!(
+            o[4..7] == [o[0], o[1], o[7]] && o[8..11] == [o[2], o[3], o[11]],
+            "trace differs from intersect/crossings for the ray from {p} along {d}: {:?}",
+            &o[..12]
+        );
         let cpu = geo.intersect(*p, *d, f32::INFINITY);
         if o[0] != 1.0 {
             misses += 1;
