@@ -156,7 +156,8 @@ fn bounce() {
         light = light_sample(r % nl, u1, u2, channel);
         o = pn_x[k];
         d = light.dir;
-        query = light.factor > 0.0;
+        // As nee_direct's `continue`: a NaN factor is cast (and counted as non-finite).
+        query = !(light.factor <= 0.0);
     } else {
         p_iterations += 1u;
         if p_iterations > MAX_ITERATIONS {
@@ -314,10 +315,11 @@ const C_TRUNCATED: u32 = 7u;
 const C_EXACT: u32 = 8u;
 
 /// A path between dispatches, one per (pixel, lane), in `accum` as SLOT = 5 + 2·PATH_NEE_M
-/// vec4s (prepended by kernels.rs): position and β; direction and radiance; the RNG state;
-/// channel/flags, iterations, samples finished, current sample; the accumulated RGB +
-/// finished-sample count of the whole render (ACC); then per path-level NEE reservoir its
-/// event's (X, q) and (W, A).
+/// vec4s (prepended by kernels.rs): position and β (once the path has ended and its NEE
+/// rays are under way, p_nee_sum and p_nee_light instead); direction and radiance; the RNG
+/// state; channel (bits 0–7) | flags (8–15) | NEE rays left (16–), iterations, samples
+/// finished, current sample; the accumulated RGB + finished-sample count of the whole
+/// render (ACC); then per path-level NEE reservoir its event's (X, q) and (W, A).
 const ACC: u32 = 4u;
 const F_ALIVE: u32 = 1u;
 const F_SCATTERED: u32 = 2u;
@@ -403,7 +405,8 @@ fn loop_limit_ran_out(passes: u32) -> bool {
 }
 
 /// Renders samples first + lane + lanes·j (j < count) of a pixel, at most
-/// `params.consts2.z` bounces per dispatch, resuming where the
+/// `params.consts2.z` bounces per dispatch (a path-level NEE ray after a path's end counts
+/// as one), resuming where the
 /// previous dispatch stopped. llvmpipe (lavapipe) stops every loop of an invocation once
 /// 65,535 loop iterations have run in total (one shared counter, BVH traversal and
 /// decoder loops included), so the work of one dispatch must stay bounded; a dispatch in

@@ -235,8 +235,8 @@ struct Crossings {
 var<private> tr_cross: Crossings;
 
 /// One BVH traversal for both kinds of query: the closest hit along o + t·d, t ∈ [0,
-/// tmax0] (`intersect`), or with `all` every crossing of the whole line (`crossings`,
-/// into tr_cross; the returned hit is then none). The path loop's one query site uses it
+/// tmax0] (`intersect`), or with `all` every crossing for t ∈ [0, tmax0] (`crossings`
+/// with tmax0 = 1e30, into tr_cross; the returned hit is then none). The path loop's one query site uses it
 /// (path.wgsl, bounce) so that lanes of a subgroup needing either kind step through one
 /// loop together instead of one loop after the other (ST-CVAE on an H100, 2026-11-27:
 /// +10 % paths/s at k = 1). The other call sites keep their specialised loops: with all
