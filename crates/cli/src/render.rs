@@ -351,7 +351,8 @@ pub fn run(a: Args) -> Result<()> {
     if out.spp == 0 {
         bail!("interrupted before the first pass finished: nothing written");
     }
-    let interrupted = interrupt::requested();
+    // A stop that came after the last pass cut nothing short: the files are complete.
+    let interrupted = interrupt::requested() && out.spp < r.spp;
     let tag = RenderTag {
         spp: out.spp as u64,
         scene_hash: p.data.hash,
