@@ -63,28 +63,44 @@ fn ball_chord(x: vec3<f32>, dir: vec3<f32>, c: vec3<f32>, f: f32) -> f32 {
 /// it).
 fn nee_direct(x: vec3<f32>, w: vec3<f32>, free: f32, c: vec3<f32>, f: f32, channel: u32, rouletted: bool) -> f32 {
     var sum = 0.0;
-    let g = params.consts.x;
-    let sigma = params.sigma_t[channel];
-    let threshold = ROULETTE_BOUND * INV_4PI;
     for (var i = 0u; i < params.flags.x; i++) {
-        let u1 = rand();
-        let u2 = rand();
-        let ls = light_sample(i, u1, u2, channel);
-        if ls.factor <= 0.0 {
-            continue;
+        let ray = nee_light_ray(i, x, w, free, c, f, channel, rouletted);
+        if ray.casts {
+            sum += transmittance(x, ray.dir, channel) * ray.weight;
         }
-        let phase = hg_pdf(g, clamp(dot(w, ls.dir), -1.0, 1.0));
-        var weight = ls.factor * phase;
-        let bound = phase * exp(-sigma * max(free, ball_chord(x, ls.dir, c, f)));
-        if rouletted && bound < threshold {
-            if rand() * threshold >= bound {
-                continue;
-            }
-            weight *= threshold / bound;
-        }
-        sum += transmittance(x, ls.dir, channel) * weight;
     }
     return sum;
+}
+
+/// One light's shadow ray of nee_direct before its cast: the direction, the weight its
+/// transmittance is multiplied by, and whether it is cast at all (a dark light, or lost
+/// in the roulette: not). Kernels that defer the cast (path.wgsl, bounce) draw the same
+/// random numbers in the same order.
+struct LightRay {
+    dir: vec3<f32>,
+    weight: f32,
+    casts: bool,
+}
+
+fn nee_light_ray(i: u32, x: vec3<f32>, w: vec3<f32>, free: f32, c: vec3<f32>, f: f32, channel: u32, rouletted: bool) -> LightRay {
+    let u1 = rand();
+    let u2 = rand();
+    let ls = light_sample(i, u1, u2, channel);
+    if ls.factor <= 0.0 {
+        return LightRay(ls.dir, 0.0, false);
+    }
+    let g = params.consts.x;
+    let threshold = ROULETTE_BOUND * INV_4PI;
+    let phase = hg_pdf(g, clamp(dot(w, ls.dir), -1.0, 1.0));
+    var weight = ls.factor * phase;
+    let bound = phase * exp(-params.sigma_t[channel] * max(free, ball_chord(x, ls.dir, c, f)));
+    if rouletted && bound < threshold {
+        if rand() * threshold >= bound {
+            return LightRay(ls.dir, 0.0, false);
+        }
+        weight *= threshold / bound;
+    }
+    return LightRay(ls.dir, weight, true);
 }
 
 // ---- path-level NEE (integrator/nee.rs, PathNee) ----

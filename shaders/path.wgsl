@@ -141,7 +141,7 @@ fn bounce() {
     var tmax = 1e30;
     var query = true;
     var t = 0.0;
-    var light = LightSample(vec3<f32>(0.0, 0.0, 1.0), 0.0);
+    var ray = LightRay(vec3<f32>(0.0, 0.0, 1.0), 0.0, false);
     var k = 0u;
     var last_light = false;
     if shadow {
@@ -151,13 +151,10 @@ fn bounce() {
         let r = PATH_NEE_M * nl - p_nee_left;
         k = r / nl;
         last_light = r % nl == nl - 1u;
-        let u1 = rand();
-        let u2 = rand();
-        light = light_sample(r % nl, u1, u2, channel);
         o = pn_x[k];
-        d = light.dir;
-        // As nee_direct's `continue`: a NaN factor is cast (and counted as non-finite).
-        query = !(light.factor <= 0.0);
+        ray = nee_light_ray(r % nl, o, pn_w[k], 0.0, o, 0.0, channel, false);
+        d = ray.dir;
+        query = ray.casts;
     } else {
         p_iterations += 1u;
         if p_iterations > MAX_ITERATIONS {
@@ -191,8 +188,7 @@ fn bounce() {
     }
     if shadow {
         if query {
-            let phase = hg_pdf(params.consts.x, clamp(dot(pn_w[k], d), -1.0, 1.0));
-            p_nee_light += transmittance_of(tr_cross, o, d, channel) * (light.factor * phase);
+            p_nee_light += transmittance_of(tr_cross, o, d, channel) * ray.weight;
         }
         if last_light {
             p_nee_sum += p_nee_light / pn_q[k];
