@@ -82,11 +82,10 @@ var<private> p_channel: u32;
 var<private> p_inside: bool;
 var<private> p_from_step: bool;
 var<private> p_iterations: u32;
-// Path-level NEE after the path's last bounce: whether its shadow rays have begun, how
-// many are left (ray r = PATH_NEE_M·lights − left is reservoir r / lights toward light
-// r % lights), Σ_k (Σ_i T·f)/q_k over the reservoirs done and Σ_i T·f of the one under way
-// (PathNee::finish, summed in its order).
-var<private> p_nee_cast: bool;
+// Path-level NEE after the path's last bounce: how many shadow rays are left (ray r =
+// PATH_NEE_M·lights − left is reservoir r / lights toward light r % lights; > 0 only for
+// an ended path), Σ_k (Σ_i T·f)/q_k over the reservoirs done and Σ_i T·f of the one under
+// way (PathNee::finish, summed in its order).
 var<private> p_nee_left: u32;
 var<private> p_nee_sum: f32;
 var<private> p_nee_light: f32;
@@ -100,7 +99,6 @@ fn start_path(origin: vec3<f32>, dir: vec3<f32>, channel: u32) {
     p_left_through = NO_TRI;
     p_iterations = 0u;
     path_nee_reset();
-    p_nee_cast = false;
     p_nee_left = 0u;
 }
 
@@ -322,7 +320,6 @@ const F_SCATTERED: u32 = 2u;
 const F_INSIDE: u32 = 4u;
 const F_FROM_STEP: u32 = 8u;
 const F_DONE: u32 = 16u;
-const F_NEE_CAST: u32 = 32u;
 
 fn save_path(base: u32, j: u32, s: u32, done: bool) {
     var flags = 0u;
@@ -331,9 +328,9 @@ fn save_path(base: u32, j: u32, s: u32, done: bool) {
     if p_inside { flags |= F_INSIDE; }
     if p_from_step { flags |= F_FROM_STEP; }
     if done { flags |= F_DONE; }
-    if p_nee_cast { flags |= F_NEE_CAST; }
-    // An ended path's position and β are not needed again: its NEE sums take their place.
-    accum[base] = select(vec4<f32>(ps.pos, ps.beta), vec4<f32>(p_nee_sum, p_nee_light, 0.0, 0.0), p_nee_cast);
+    // An ended path's position and β are not needed again: its NEE sums take their place
+    // while its rays are under way (an ended path is saved only then, or done).
+    accum[base] = select(vec4<f32>(ps.pos, ps.beta), vec4<f32>(p_nee_sum, p_nee_light, 0.0, 0.0), p_nee_left > 0u);
     accum[base + 1u] = vec4<f32>(ps.dir, ps.radiance);
     accum[base + 2u] = bitcast<vec4<f32>>(rng_s);
     accum[base + 3u] = bitcast<vec4<f32>>(vec4<u32>(p_channel | (flags << 8u) | (p_nee_left << 16u), p_iterations, j, s));
@@ -477,7 +474,6 @@ fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_inv
             p_from_step = (flags & F_FROM_STEP) != 0u;
             p_left_through = NO_TRI;
             p_iterations = st.y;
-            p_nee_cast = (flags & F_NEE_CAST) != 0u;
             p_nee_left = st.x >> 16u;
             p_nee_sum = a.x;
             p_nee_light = a.y;
@@ -490,10 +486,11 @@ fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_inv
         let budget = u32(params.consts2.z);
         var b = 0u;
         for (; b < budget && !done; b++) {
+            // A bounce with rays left casts one; any other that leaves the path ended was
+            // its last, and its path-level NEE rays follow, one per bounce.
+            let casting = p_nee_left > 0u;
             bounce();
-            if !ps.alive && !p_nee_cast {
-                // The path's last bounce: its path-level NEE rays follow, one per bounce.
-                p_nee_cast = true;
+            if !ps.alive && !casting {
                 p_nee_left = path_nee_rays();
                 p_nee_sum = 0.0;
                 p_nee_light = 0.0;

@@ -10,6 +10,19 @@ fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
 }
 
+/// The shipped sphere scene at `side`² pixels.
+fn sphere_scene_text(side: u32) -> String {
+    let text = std::fs::read_to_string(root().join("configs/scenes/sphere.toml"))
+        .unwrap()
+        .replace("width = 128", &format!("width = {side}"))
+        .replace("height = 128", &format!("height = {side}"));
+    assert!(
+        text.contains(&format!("width = {side}")),
+        "the sphere scene's size changed"
+    );
+    text
+}
+
 fn stcvae(args: &[&str]) -> Output {
     common::stcvae(args, &root())
 }
@@ -134,11 +147,7 @@ fn model_errors_are_one_line() {
 fn render_writes_exr_png_json_and_merge_averages_by_spp() {
     let d = tempfile::tempdir().unwrap();
     let scene = d.path().join("s.toml");
-    let text = std::fs::read_to_string(root().join("configs/scenes/sphere.toml"))
-        .unwrap()
-        .replace("width = 128", "width = 16")
-        .replace("height = 128", "height = 16");
-    std::fs::write(&scene, text).unwrap();
+    std::fs::write(&scene, sphere_scene_text(16)).unwrap();
     let a = d.path().join("a");
     let b = d.path().join("b");
     for (out, seed, spp) in [(&a, "1", "4"), (&b, "2", "8")] {
@@ -505,15 +514,7 @@ fn bad_scenes_are_one_line_errors() {
 fn images_beyond_the_memory_limit_are_refused() {
     let d = tempfile::tempdir().unwrap();
     let scene = d.path().join("huge.toml");
-    let text = std::fs::read_to_string(root().join("configs/scenes/sphere.toml"))
-        .unwrap()
-        .replace("width = 128", "width = 16384")
-        .replace("height = 128", "height = 16384");
-    assert!(
-        text.contains("width = 16384"),
-        "the sphere scene's size changed"
-    );
-    std::fs::write(&scene, text).unwrap();
+    std::fs::write(&scene, sphere_scene_text(16384)).unwrap();
     let out = d.path().join("r");
     // 3 GB of address space: the binary runs, the image's ~16 GB cannot be had.
     let shell = std::process::Command::new("sh")
@@ -543,11 +544,8 @@ fn max_tau_is_checked_against_the_training_range() {
     let scene = d.path().join("s.toml");
     let out = d.path().join("r");
     for (max_tau, accepted) in [("300.0", true), ("301.0", false)] {
-        let text = std::fs::read_to_string(root().join("configs/scenes/sphere.toml"))
-            .unwrap()
-            .replace("width = 128", "width = 8")
-            .replace("height = 128", "height = 8")
-            .replace("[render]\n", &format!("[render]\nmax_tau = {max_tau}\n"));
+        let text =
+            sphere_scene_text(8).replace("[render]\n", &format!("[render]\nmax_tau = {max_tau}\n"));
         std::fs::write(&scene, text).unwrap();
         let args = [
             "render",
