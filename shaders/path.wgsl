@@ -114,6 +114,30 @@ fn beyond_sliver(q: vec3<f32>, n: vec3<f32>) -> bool {
     return back.found && dot(tri_normal(back.prim), n) < 0.0;
 }
 
+/// A bounce's one ray query, between its start (bounce_begin) and its end (bounce_end):
+/// in the one-kernel render the two run back to back; in the staged render (stage_main,
+/// trace_main) a queue of these is traced by its own dispatch in between.
+struct Query {
+    o: vec3<f32>,
+    tmax: f32,
+    d: vec3<f32>,
+    // The flight's sampled length (inside).
+    t: f32,
+    // A shadow ray's light weight, its reservoir, and whether it is the last light's.
+    weight: f32,
+    k: u32,
+    last_light: bool,
+    // A finished path's shadow ray (every crossing), else a closest-hit query.
+    shadow: bool,
+    // Whether a ray is traced at all (a flight inside a known free ball, a direction in
+    // the escape cone, or a dark light's shadow ray: not).
+    query: bool,
+    // A flight inside: its grid cell's list may answer it.
+    local: bool,
+    // The bounce has already ended (the path hit the iteration cap).
+    ended: bool,
+}
+
 /// One iteration of the CPU path loop; sets ps.alive = false when the path ends. The
 /// kernel interleaves paths through this (path regeneration): an invocation whose path
 /// ended starts its next sample instead of idling until the longest path of its SIMD
@@ -121,80 +145,99 @@ fn beyond_sliver(q: vec3<f32>, n: vec3<f32>) -> bool {
 /// path's end, each call casts one of its path-level NEE shadow rays instead
 /// (p_nee_left > 0).
 fn bounce() {
+    let q = bounce_begin();
+    if q.ended {
+        return;
+    }
+    let h = answer_query(q, p_channel);
+    var tr = 0.0;
+    if q.shadow && q.query {
+        tr = transmittance_of(tr_cross, q.o, q.d, p_channel);
+    }
+    bounce_end(q, h, tr);
+}
+
+/// The bounce up to its ray query. One ray query for every lane, outside (unbounded) or
+/// inside (up to the sampled flight, skipped inside a known free ball, answered from the
+/// grid cell's list near the surface), or a finished path's shadow ray: lanes in
+/// different phases share one traversal instead of running two or three in turn.
+/// (PATH_NEE_M is a constant: without path-level NEE, PT's kernel among them, the
+/// compiler is left a closest-hit query, as fast as before this was shared.)
+fn bounce_begin() -> Query {
     prof(0u);
-    let channel = p_channel;
-    let sigma = params.sigma_t[channel];
-    let dielectric = params.flags.z != 0u;
-    let ior = params.consts.y;
-    let nee = params.flags.y != 0u;
-    // One ray query for every lane, outside (unbounded) or inside (up to the sampled
-    // flight, skipped inside a known free ball, answered from the grid cell's list near
-    // the surface), or a finished path's shadow ray: lanes in different phases share one
-    // traversal instead of running two or three in turn.
-    // (PATH_NEE_M is a constant: without path-level NEE, PT's kernel among them, the
-    // compiler is left a closest-hit query here, as fast as before this was shared.)
     let shadow = PATH_NEE_M > 0u && p_nee_left > 0u;
-    var o = ps.pos;
-    var d = ps.dir;
-    var tmax = 1e30;
-    var query = true;
-    var t = 0.0;
-    var ray = LightRay(vec3<f32>(0.0, 0.0, 1.0), 0.0, false);
-    var k = 0u;
-    var last_light = false;
+    var q = Query(ps.pos, 1e30, ps.dir, 0.0, 0.0, 0u, false, shadow, true, false, false);
     if shadow {
         // nee_direct(x, w, 0, x, 0, channel, false) of reservoir k toward one light, its
         // random numbers drawn in the same order.
         let nl = params.flags.x;
         let r = PATH_NEE_M * nl - p_nee_left;
-        k = r / nl;
-        last_light = r % nl == nl - 1u;
-        o = pn_x[k];
-        ray = nee_light_ray(r % nl, o, pn_w[k], 0.0, o, 0.0, channel, false);
-        d = ray.dir;
-        query = ray.casts;
-    } else {
-        p_iterations += 1u;
-        if p_iterations > MAX_ITERATIONS {
-            stats[C_CAPPED] += 1u;
-            ps.alive = false;
-            return;
-        }
-        if p_inside {
-            t = -log(1.0 - rand()) / sigma;
-            // A surface just past the collision counts as reached (integrator/mod.rs: a
-            // collision rounded to the far side would leave the path outside).
-            tmax = t + params.consts.z * FLIGHT_MARGIN_OF_EPS;
-            // A flight shorter than the known free distance cannot reach the surface.
-            query = t >= ps.free;
-        }
-        if !p_inside && p_left_through != NO_TRI {
-            let left = tris[p_left_through].n;
-            query = dot(ps.dir, left.xyz) < left.w;
-        }
-        p_left_through = NO_TRI;
+        q.k = r / nl;
+        q.last_light = r % nl == nl - 1u;
+        q.o = pn_x[q.k];
+        let ray = nee_light_ray(r % nl, q.o, pn_w[q.k], 0.0, q.o, 0.0, p_channel, false);
+        q.d = ray.dir;
+        q.weight = ray.weight;
+        q.query = ray.casts;
+        return q;
     }
+    p_iterations += 1u;
+    if p_iterations > MAX_ITERATIONS {
+        stats[C_CAPPED] += 1u;
+        ps.alive = false;
+        q.ended = true;
+        return q;
+    }
+    if p_inside {
+        q.t = -log(1.0 - rand()) / params.sigma_t[p_channel];
+        // A surface just past the collision counts as reached (integrator/mod.rs: a
+        // collision rounded to the far side would leave the path outside).
+        q.tmax = q.t + params.consts.z * FLIGHT_MARGIN_OF_EPS;
+        // A flight shorter than the known free distance cannot reach the surface.
+        q.query = q.t >= ps.free;
+        q.local = true;
+    }
+    if !p_inside && p_left_through != NO_TRI {
+        let left = tris[p_left_through].n;
+        q.query = dot(ps.dir, left.xyz) < left.w;
+    }
+    p_left_through = NO_TRI;
+    return q;
+}
+
+/// The query's answer: the closest hit, or (a shadow ray) none, with every crossing left
+/// in tr_cross. A flight inside near the surface is answered from its grid cell's list
+/// (ST-CVAE; PT renders have no grid), as on the CPU (integrator/mod.rs, short_cast).
+fn answer_query(q: Query, channel: u32) -> Hit {
     var h = Hit(0.0, 0u, false);
-    // A flight inside near the surface is answered from its grid cell's list (ST-CVAE;
-    // PT renders have no grid), as on the CPU (integrator/mod.rs, short_cast).
-    if query && !(!shadow && p_inside && grid_local_hit(o, d, tmax, &h)) {
+    if q.query && !(q.local && grid_local_hit(q.o, q.d, q.tmax, &h)) {
         if PATH_NEE_M > 0u {
-            h = trace(o, d, tmax, shadow);
+            h = trace(q.o, q.d, q.tmax, q.shadow);
         } else {
-            h = intersect(o, d, tmax);
+            h = intersect(q.o, q.d, q.tmax);
         }
     }
-    if shadow {
-        if query {
-            p_nee_light += transmittance_of(tr_cross, o, d, channel) * ray.weight;
+    return h;
+}
+
+/// The bounce after its ray query: `h` its hit, `tr` a shadow ray's transmittance.
+fn bounce_end(q: Query, h: Hit, tr: f32) {
+    let channel = p_channel;
+    let dielectric = params.flags.z != 0u;
+    let ior = params.consts.y;
+    let nee = params.flags.y != 0u;
+    if q.shadow {
+        if q.query {
+            p_nee_light += tr * q.weight;
         }
-        if last_light {
-            p_nee_sum += p_nee_light / pn_q[k];
+        if q.last_light {
+            p_nee_sum += p_nee_light / pn_q[q.k];
             p_nee_light = 0.0;
         }
         p_nee_left -= 1u;
         return;
     }
+    let t = q.t;
     if !p_inside {
         if !h.found {
             ps.radiance += ps.beta * escape_radiance(ps.dir, channel, !(nee && ps.scattered));
@@ -397,20 +440,26 @@ fn loop_limit_ran_out(passes: u32) -> bool {
     return probe < passes;
 }
 
-/// Renders samples first + lane + lanes·j (j < count) of a pixel, at most
-/// `params.consts2.z` bounces per dispatch (a path-level NEE ray after a path's end counts
-/// as one), resuming where the
-/// previous dispatch stopped. llvmpipe (lavapipe) stops every loop of an invocation once
-/// 65,535 loop iterations have run in total (one shared counter, BVH traversal and
-/// decoder loops included), so the work of one dispatch must stay bounded; a dispatch in
-/// which the limit ran out is counted (C_TRUNCATED), and the host redoes it with fewer
-/// bounces (gpu/renderer.rs, bounce_budget) or reports it.
-@compute @workgroup_size(WORKGROUP)
-fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
-    prof_begin(li);
-    stack_base = li * STACK_STRIDE;
-    let width = params.image.x;
-    let lanes = params.image.z;
+// The invocation's path slot and the samples it renders this chunk (slot_begin), shared
+// by the one-kernel render (render_main) and the staged one (stage_main).
+var<private> sl_base: u32;
+var<private> sl_pixel_id: u32;
+var<private> sl_px: u32;
+var<private> sl_py: u32;
+var<private> sl_offset: u32;
+var<private> sl_first: u32;
+var<private> sl_lanes: u32;
+var<private> sl_count: u32;
+// Samples finished this chunk, the current sample, whether all are, and the slot's
+// accumulated RGB + finished-sample count.
+var<private> sl_j: u32;
+var<private> sl_s: u32;
+var<private> sl_done: bool;
+var<private> sl_acc: vec4<f32>;
+
+/// The path slot of invocation `gid`, or NO_SLOT.
+const NO_SLOT: u32 = 0xffffffffu;
+fn slot_of(gid: vec3<u32>) -> u32 {
     // Workgroups take tiles of WORKGROUP consecutive slots in a scattered order (w·P mod n, P
     // coprime with n: params.consts2.w), so that any contiguous range of workgroups — what
     // a CPU driver such as lavapipe hands one thread — covers the whole image, not its
@@ -419,52 +468,59 @@ fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_inv
     let n_groups = (params.image.x * params.image.y * params.image.z + WORKGROUP - 1u) / WORKGROUP;
     let w = gid.x / WORKGROUP + gid.y * 65535u;
     if w >= n_groups {
-        return;
+        return NO_SLOT;
     }
     let tile = mul_mod(w, u32(params.consts2.w), n_groups);
-    let idx = tile * WORKGROUP + gid.x % WORKGROUP;
+    return tile * WORKGROUP + gid.x % WORKGROUP;
+}
+
+/// Slot `idx` and its state: a chunk's first dispatch starts its first path, a later one
+/// resumes the saved path. False when the slot is outside the image.
+fn slot_begin(idx: u32) -> bool {
+    let width = params.image.x;
+    let lanes = params.image.z;
     let pixel = idx / lanes;
     let lane = idx % lanes;
     if pixel >= width * params.image.y {
-        return;
+        return false;
     }
     for (var i = 0u; i < 9u; i++) {
         stats[i] = 0u;
     }
-    let base = idx * SLOT;
+    sl_base = idx * SLOT;
     // An image too large for one accumulation binding is rendered in bands of rows
     // (gpu/renderer.rs); `pixel` counts within the band, the seeds use the image's index.
     let row0 = u32(params.cam_right.w);
-    let px = pixel % width;
-    let py = pixel / width + row0;
-    let pixel_id = pixel + row0 * width;
-    let offset = channel_offset(params.sampling.z, params.sampling.w, pixel_id);
-    let first = params.sampling.x + lane;
-    var count = 0u;
-    if first < params.sampling.y {
-        count = min(params.image.w, (params.sampling.y - first + lanes - 1u) / lanes);
+    sl_px = pixel % width;
+    sl_py = pixel / width + row0;
+    sl_pixel_id = pixel + row0 * width;
+    sl_offset = channel_offset(params.sampling.z, params.sampling.w, sl_pixel_id);
+    sl_first = params.sampling.x + lane;
+    sl_lanes = lanes;
+    sl_count = 0u;
+    if sl_first < params.sampling.y {
+        sl_count = min(params.image.w, (params.sampling.y - sl_first + lanes - 1u) / lanes);
     }
-    var acc = accum[base + ACC];
+    sl_acc = accum[sl_base + ACC];
     if params.misc.w == 2u {
         // First dispatch of the render: clear the accumulator (it was poisoned with NaN,
         // so a slot never reached shows on the host).
-        acc = vec4<f32>(0.0);
+        sl_acc = vec4<f32>(0.0);
     }
-    var j = 0u;
-    var s = first;
-    var done = count == 0u;
+    sl_j = 0u;
+    sl_s = sl_first;
+    sl_done = sl_count == 0u;
     if params.misc.w != 0u {
         // First dispatch of a chunk of samples: start this invocation's first path.
-        if !done {
-            rng_seed(params.sampling.z, params.sampling.w, pixel_id, s);
-            let dir = camera_dir(f32(px) + rand(), f32(py) + rand());
-            start_path(params.cam_origin.xyz, dir, (s + offset) % 3u);
+        if !sl_done {
+            start_sample();
         }
     } else {
+        let base = sl_base;
         let st = bitcast<vec4<u32>>(accum[base + 3u]);
         let flags = (st.x >> 8u) & 0xffu;
-        done = (flags & F_DONE) != 0u;
-        if !done {
+        sl_done = (flags & F_DONE) != 0u;
+        if !sl_done {
             let a = accum[base];
             let b = accum[base + 1u];
             ps = PathState(a.xyz, b.xyz, a.w, b.w, (flags & F_SCATTERED) != 0u, (flags & F_ALIVE) != 0u, 0.0);
@@ -477,57 +533,259 @@ fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_inv
             p_nee_left = st.x >> 16u;
             p_nee_sum = a.x;
             p_nee_light = a.y;
-            j = st.z;
-            s = st.w;
+            sl_j = st.z;
+            sl_s = st.w;
             load_path_nee(base);
         }
     }
-    if !done {
+    return true;
+}
+
+/// Starts sample sl_s of the slot's pixel: its seed, camera ray and channel.
+fn start_sample() {
+    rng_seed(params.sampling.z, params.sampling.w, sl_pixel_id, sl_s);
+    let dir = camera_dir(f32(sl_px) + rand(), f32(sl_py) + rand());
+    start_path(params.cam_origin.xyz, dir, (sl_s + sl_offset) % 3u);
+}
+
+/// After a bounce (`casting`: it cast one of an ended path's NEE rays): a bounce that
+/// leaves the path ended was its last, and its path-level NEE rays follow, one per bounce;
+/// after the last of them the sample is added and the next one started.
+fn bounce_done(casting: bool) {
+    if !ps.alive && !casting {
+        p_nee_left = path_nee_rays();
+        p_nee_sum = 0.0;
+        p_nee_light = 0.0;
+    }
+    if !ps.alive && p_nee_left == 0u {
+        if PATH_NEE_M > 0u && pn_total > 0.0 {
+            ps.radiance += p_nee_sum * pn_total / f32(PATH_NEE_M);
+        }
+        sl_acc[p_channel] += 3.0 * path_result();
+        sl_acc.w += 1.0;
+        sl_j += 1u;
+        if sl_j >= sl_count {
+            sl_done = true;
+        } else {
+            sl_s = sl_first + sl_lanes * sl_j;
+            start_sample();
+        }
+    }
+}
+
+/// The slot's state saved (`was_done`: it was done when the dispatch began; then only a
+/// chunk's first dispatch marks it so), its accumulator written and the counters added.
+fn slot_end(was_done: bool) {
+    if !was_done || params.misc.w != 0u {
+        save_path(sl_base, sl_j, sl_s, sl_done);
+    }
+    if !sl_done {
+        stats[C_PENDING] = 1u;
+    }
+    accum[sl_base + ACC] = sl_acc;
+    for (var i = 0u; i < 9u; i++) {
+        add_counter(i, stats[i]);
+    }
+    prof_end();
+}
+
+/// Renders samples first + lane + lanes·j (j < count) of a pixel, at most
+/// `params.consts2.z` bounces per dispatch (a path-level NEE ray after a path's end counts
+/// as one), resuming where the
+/// previous dispatch stopped. llvmpipe (lavapipe) stops every loop of an invocation once
+/// 65,535 loop iterations have run in total (one shared counter, BVH traversal and
+/// decoder loops included), so the work of one dispatch must stay bounded; a dispatch in
+/// which the limit ran out is counted (C_TRUNCATED), and the host redoes it with fewer
+/// bounces (gpu/renderer.rs, bounce_budget) or reports it.
+@compute @workgroup_size(WORKGROUP)
+fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    prof_begin(li);
+    stack_base = li * STACK_STRIDE;
+    let idx = slot_of(gid);
+    if idx == NO_SLOT || !slot_begin(idx) {
+        return;
+    }
+    let was_done = sl_done;
+    if !sl_done {
         let budget = u32(params.consts2.z);
         var b = 0u;
-        for (; b < budget && !done; b++) {
-            // A bounce with rays left casts one; any other that leaves the path ended was
-            // its last, and its path-level NEE rays follow, one per bounce.
+        for (; b < budget && !sl_done; b++) {
             let casting = p_nee_left > 0u;
             bounce();
-            if !ps.alive && !casting {
-                p_nee_left = path_nee_rays();
-                p_nee_sum = 0.0;
-                p_nee_light = 0.0;
-            }
-            if !ps.alive && p_nee_left == 0u {
-                if PATH_NEE_M > 0u && pn_total > 0.0 {
-                    ps.radiance += p_nee_sum * pn_total / f32(PATH_NEE_M);
-                }
-                acc[p_channel] += 3.0 * path_result();
-                acc.w += 1.0;
-                j += 1u;
-                if j >= count {
-                    done = true;
-                } else {
-                    s = first + lanes * j;
-                    rng_seed(params.sampling.z, params.sampling.w, pixel_id, s);
-                    let dir = camera_dir(f32(px) + rand(), f32(py) + rand());
-                    start_path(params.cam_origin.xyz, dir, (s + offset) % 3u);
-                }
-            }
+            bounce_done(casting);
         }
         // A limit that runs out inside the last bounce ends that bounce's inner loops (BVH
         // traversal, an exact walk) early without shortening the bounce loop: the probe
         // sees that case too.
-        if (b < budget && !done) || loop_limit_ran_out(u32(params.consts3.z)) {
+        if (b < budget && !sl_done) || loop_limit_ran_out(u32(params.consts3.z)) {
             stats[C_TRUNCATED] = 1u;
         }
-        save_path(base, j, s, done);
-        if !done {
-            stats[C_PENDING] = 1u;
-        }
-    } else if params.misc.w != 0u {
-        save_path(base, j, s, true);
     }
-    accum[base + ACC] = acc;
-    for (var i = 0u; i < 9u; i++) {
-        add_counter(i, stats[i]);
+    slot_end(was_done);
+}
+
+// ---- the staged render (STCVAE_GPU_STAGED; gpu/renderer.rs) ----
+// Two kernels take turns: stage_main runs each running path up to its next ray query and
+// appends its slot to a queue; trace_main traces the queue's queries, one per invocation,
+// so that the traversal loops run with every lane on the same kind of work instead of
+// waiting on lanes in a sphere step or an exact walk. After each turn the host copies the
+// queue into `stage` (its list), and the next stage_main visits those slots alone: a
+// chunk's first stage_main starts every slot, later ones see only paths still running.
+// The paths, their random numbers and the image are the one-kernel render's.
+//
+// `stage` holds per slot STAGE_VEC4S vec4s: the query's origin and tmax; its direction
+// and flight length; the path's free distance and the triangle it left through (saved
+// here, unlike the one-kernel render's resume, which forgets them), the shadow ray's
+// weight and the query's flags; then the path's channel, replaced by the answer (hit t,
+// triangle, found, transmittance). After the records, the list: a copy of the queue
+// (its length and dispatch arguments, then slot indices) as u32 bits.
+const STAGE_VEC4S: u32 = 4u;
+const Q_PENDING: u32 = 1u;
+const Q_SHADOW: u32 = 2u;
+const Q_QUERY: u32 = 4u;
+const Q_LOCAL: u32 = 8u;
+const Q_LAST_LIGHT: u32 = 16u;
+
+/// A slot's saved query read back.
+fn load_query(rec: u32) -> Query {
+    let a = stage[rec];
+    let b = stage[rec + 1u];
+    let c = stage[rec + 2u];
+    let f = bitcast<u32>(c.w);
+    return Query(a.xyz, a.w, b.xyz, b.w, c.z, f >> 8u, (f & Q_LAST_LIGHT) != 0u,
+        (f & Q_SHADOW) != 0u, (f & Q_QUERY) != 0u, (f & Q_LOCAL) != 0u, false);
+}
+
+/// The list's length (after `slots` records).
+fn stage_list_len(slots: u32) -> u32 {
+    return bitcast<u32>(stage[slots * STAGE_VEC4S].x);
+}
+
+/// Slot `i` of the list.
+fn stage_list(slots: u32, i: u32) -> u32 {
+    return bitcast<u32>(stage[slots * STAGE_VEC4S + 1u + i / 4u][i % 4u]);
+}
+
+/// The queue's dispatch arguments for `n` invocations: WORKGROUP-sized groups as (x, y)
+/// within the 65,535 a dimension allows, as the host lays out direct dispatches.
+fn queue_args(n: u32) {
+    let groups = (n + WORKGROUP - 1u) / WORKGROUP;
+    let y = max((groups + 65534u) / 65535u, 1u);
+    queue.args[0] = select(groups, 65535u, y > 1u);
+    queue.args[1] = y;
+    queue.args[2] = 1u;
+}
+
+/// Dispatch arguments for the queue just filled (trace_main's, and the next stage_main's,
+/// whose list is a copy of it); the host copies them to its indirect buffer.
+@compute @workgroup_size(1)
+fn args_main() {
+    queue_args(atomicLoad(&queue.len));
+}
+
+/// Dispatch arguments for the list (the first stage_main of a submission: the buffer of
+/// arguments may be from an undone one).
+@compute @workgroup_size(1)
+fn list_args_main() {
+    queue_args(stage_list_len(arrayLength(&queue.items)));
+}
+
+/// The linear index of invocation `gid` (dispatched as in render_main).
+fn invocation(gid: vec3<u32>) -> u32 {
+    return (gid.x / WORKGROUP + gid.y * 65535u) * WORKGROUP + gid.x % WORKGROUP;
+}
+
+@compute @workgroup_size(WORKGROUP)
+fn stage_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    prof_begin(li);
+    stack_base = li * STACK_STRIDE;
+    var idx = NO_SLOT;
+    if params.misc.w != 0u {
+        idx = slot_of(gid);
+    } else {
+        let slots = arrayLength(&queue.items);
+        let i = invocation(gid);
+        if i < stage_list_len(slots) {
+            idx = stage_list(slots, i);
+        }
+    }
+    if idx == NO_SLOT || !slot_begin(idx) {
+        return;
+    }
+    let was_done = sl_done;
+    let rec = idx * STAGE_VEC4S;
+    // Whether the query queued last turn has been answered (one call site each for
+    // bounce_begin and bounce_end: llvmpipe inlines everything, and a second copy of the
+    // bounce's end, sphere step and decoders included, makes the kernel slower still).
+    var answered = false;
+    if !sl_done && params.misc.w == 0u {
+        let c = stage[rec + 2u];
+        ps.free = c.x;
+        p_left_through = bitcast<u32>(c.y);
+        answered = (bitcast<u32>(c.w) & Q_PENDING) != 0u;
+    }
+    var flags = 0u;
+    var weight = 0.0;
+    let budget = u32(params.consts2.z);
+    for (var b = 0u; b < budget && !sl_done; b++) {
+        var q: Query;
+        var h = Hit(0.0, 0u, false);
+        var tr = 0.0;
+        if answered {
+            answered = false;
+            q = load_query(rec);
+            let ans = stage[rec + 3u];
+            h = Hit(ans.x, bitcast<u32>(ans.y), bitcast<u32>(ans.z) != 0u);
+            tr = ans.w;
+        } else {
+            q = bounce_begin();
+            if q.query && !q.ended {
+                flags = Q_PENDING | Q_QUERY | (q.k << 8u);
+                if q.shadow { flags |= Q_SHADOW; }
+                if q.local { flags |= Q_LOCAL; }
+                if q.last_light { flags |= Q_LAST_LIGHT; }
+                weight = q.weight;
+                stage[rec] = vec4<f32>(q.o, q.tmax);
+                stage[rec + 1u] = vec4<f32>(q.d, q.t);
+                stage[rec + 3u] = vec4<f32>(bitcast<f32>(p_channel), 0.0, 0.0, 0.0);
+                break;
+            }
+        }
+        if !q.ended {
+            bounce_end(q, h, tr);
+        }
+        bounce_done(q.shadow);
+    }
+    if !sl_done {
+        // Queued with its query, or without one when its bounces ran out (trace_main
+        // skips it): every running path is in the next turn's list.
+        stage[rec + 2u] = vec4<f32>(ps.free, bitcast<f32>(p_left_through), weight, bitcast<f32>(flags));
+        let at = atomicAdd(&queue.len, 1u);
+        queue.items[at] = idx;
+    }
+    if loop_limit_ran_out(u32(params.consts3.z)) {
+        stats[C_TRUNCATED] = 1u;
+    }
+    slot_end(was_done);
+}
+
+@compute @workgroup_size(WORKGROUP)
+fn trace_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    prof_begin(li);
+    stack_base = li * STACK_STRIDE;
+    let i = invocation(gid);
+    if i < atomicLoad(&queue.len) {
+        let rec = queue.items[i] * STAGE_VEC4S;
+        let q = load_query(rec);
+        if (bitcast<u32>(stage[rec + 2u].w) & Q_PENDING) != 0u {
+            let channel = bitcast<u32>(stage[rec + 3u].x);
+            let h = answer_query(q, channel);
+            var tr = 0.0;
+            if q.shadow {
+                tr = transmittance_of(tr_cross, q.o, q.d, channel);
+            }
+            stage[rec + 3u] = vec4<f32>(h.t, bitcast<f32>(h.prim), bitcast<f32>(select(0u, 1u, h.found)), tr);
+        }
     }
     prof_end();
 }

@@ -73,7 +73,7 @@ struct ModelParams {
     flags: vec4<u32>,  // single scattering exact, n_min, EventGen radial map (1: version 3), 0
 }
 
-@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(0) var<storage, read> params: Params;
 @group(0) @binding(1) var<storage, read_write> accum: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read_write> counters: array<atomic<u32>, COUNTER_WORDS>;
 @group(0) @binding(3) var<storage, read> tris: array<Tri>;
@@ -83,6 +83,16 @@ struct ModelParams {
 // candidate list] for the n cells plus a closing entry, then the candidate lists.
 @group(0) @binding(6) var<storage, read> grid: array<u32>;
 @group(0) @binding(7) var<uniform> model: ModelParams;
+// The staged render's per-slot query records and its queue of slots to trace
+// (path.wgsl, stage_main and trace_main); one-element dummies otherwise.
+struct Queue {
+    len: atomic<u32>,
+    // Workgroups (x, y, z) for an indirect dispatch over the queue (args_main).
+    args: array<u32, 3>,
+    items: array<u32>,
+}
+@group(0) @binding(8) var<storage, read_write> stage: array<vec4<f32>>;
+@group(0) @binding(9) var<storage, read_write> queue: Queue;
 
 // ---- camera (Mitsuba's orientation; row 0 at the top) ----
 

@@ -86,6 +86,8 @@ pub struct DispatchStats {
     pub workgroup: u32,
     /// Where its traversal stacks lived (`STCVAE_GPU_STACK`); None on the CPU.
     pub stack: Option<crate::gpu::kernels::StackMemory>,
+    /// Whether it ran as the staged render (`STCVAE_GPU_STAGED`).
+    pub staged: bool,
     /// The SIMD lanes busy in each phase of the kernel (`STCVAE_GPU_PROFILE`).
     pub lanes: Option<LaneProfile>,
 }

@@ -50,6 +50,11 @@ pub struct KernelShape {
     /// Count the SIMD lanes busy in each phase of the kernel ([`PROFILE_PHASES`];
     /// `STCVAE_GPU_PROFILE`): needs subgroup operations; changes no path either.
     pub profile: bool,
+    /// Render in two kernels taking turns (`STCVAE_GPU_STAGED`): `stage_main` runs every
+    /// path to its next ray query and queues it, `trace_main` traces the queue. The same
+    /// paths as the one kernel `render_main` (tested bit for bit), with the traversals
+    /// compacted so that their SIMD lanes all work.
+    pub staged: bool,
 }
 
 impl Default for KernelShape {
@@ -58,6 +63,7 @@ impl Default for KernelShape {
             workgroup: 64,
             stack: StackMemory::Workgroup,
             profile: false,
+            staged: false,
         }
     }
 }
@@ -210,6 +216,10 @@ pub enum Kernel {
     Probe,
 }
 
+/// vec4s of one path slot's query record in the staged render (`STAGE_VEC4S` in
+/// shaders/path.wgsl).
+pub const STAGE_VEC4S: u64 = 4;
+
 /// vec4s of one path slot in the accumulation buffer (`SLOT` in shaders/path.wgsl): the
 /// path's state, the render's accumulated RGB (vec4 [`ACC_VEC4`]), and two per path-level
 /// NEE reservoir.
@@ -302,13 +312,14 @@ fn uniform(binding: u32) -> wgpu::BindGroupLayoutEntry {
 }
 
 /// The bind-group layout of `shaders/scene.wgsl`: params, accum, counters, triangles,
-/// nodes, environment map, distance grid, model params.
+/// nodes, environment map, distance grid, model params, the staged render's query records
+/// and queue.
 pub fn bind_group_layout(ctx: &GpuContext) -> wgpu::BindGroupLayout {
     ctx.device
         .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("stcvae scene"),
             entries: &[
-                uniform(0),
+                storage(0, true),
                 storage(1, false),
                 storage(2, false),
                 storage(3, true),
@@ -316,6 +327,8 @@ pub fn bind_group_layout(ctx: &GpuContext) -> wgpu::BindGroupLayout {
                 storage(5, true),
                 storage(6, true),
                 uniform(7),
+                storage(8, false),
+                storage(9, false),
             ],
         })
 }

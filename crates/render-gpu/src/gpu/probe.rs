@@ -65,6 +65,7 @@ pub fn run_probe_on(
             env: &[[0.0; 4]],
             grid: &grid,
             model: &model_params(model),
+            stage_slots: 0,
         },
     )?;
     ctx.queue

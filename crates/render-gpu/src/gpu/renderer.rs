@@ -15,7 +15,10 @@ use super::context::GpuContext;
 use super::kernels::{self, Kernel, KernelShape, StackMemory};
 
 use super::model_buffers::model_params;
-use super::resources::{COUNTER_BYTES, Inputs, Resources, read_back, wait};
+use super::resources::{
+    self, COUNTER_BYTES, Inputs, PENDING_SLOT, Resources, StagedKernels, read_back, stage_bytes,
+    wait,
+};
 use super::scene_buffers::{
     Params, bvh_depth, env_buffer, geometry_buffers, grid_buffer, scene_params,
 };
@@ -92,18 +95,18 @@ pub fn kernel_shape() -> Result<KernelShape, RenderError> {
             })?;
     }
     if let Some(v) = env_value("STCVAE_GPU_PROFILE") {
-        shape.profile = parse_choice(
+        shape.profile = parse_switch(
             "STCVAE_GPU_PROFILE",
             &v,
-            &[
-                ("1", true),
-                ("true", true),
-                ("0", false),
-                ("false", false),
-                ("", false),
-            ],
-            "a switch: allowed 1 or true (count the SIMD lanes busy in each phase of the \
-             kernel), 0, false or empty",
+            "count the SIMD lanes busy in each phase of the kernel",
+        )?;
+    }
+    if let Some(v) = env_value("STCVAE_GPU_STAGED") {
+        shape.staged = parse_switch(
+            "STCVAE_GPU_STAGED",
+            &v,
+            "render in two kernels taking turns: paths to their next ray query, then the \
+             queue of queries traced",
         )?;
     }
     if let Some(v) = env_value("STCVAE_GPU_STACK") {
@@ -118,6 +121,22 @@ pub fn kernel_shape() -> Result<KernelShape, RenderError> {
         )?;
     }
     Ok(shape)
+}
+
+/// The switch `name` = `v`: 1 or true (`what`), 0, false or empty.
+fn parse_switch(name: &str, v: &str, what: &str) -> Result<bool, RenderError> {
+    parse_choice(
+        name,
+        v,
+        &[
+            ("1", true),
+            ("true", true),
+            ("0", false),
+            ("false", false),
+            ("", false),
+        ],
+        &format!("a switch: allowed 1 or true ({what}), 0, false or empty"),
+    )
 }
 
 /// The value `v` of the variable `name` among the named `choices`, or the error that says
@@ -226,13 +245,24 @@ struct Band {
     bytes: u64,
 }
 
+/// Turns of the staged render per submission: the pending count is read back after each
+/// submission, and a few turns too many at a chunk's end cost only slots that load their
+/// state and stop.
+const STAGED_ROUNDS: u32 = 8;
+
 /// What every dispatch of a render uses.
 struct Dispatcher<'a> {
     ctx: &'a GpuContext,
     res: &'a Resources,
     pipeline: &'a wgpu::ComputePipeline,
-    /// The path states before the dispatch in flight (software adapters).
+    /// The staged render's kernels, taking the place of `pipeline`.
+    staged: Option<&'a StagedKernels>,
+    /// The path states before the dispatch in flight (software adapters), followed by
+    /// the query records of a staged render (`stage_bytes`).
     snapshot: Option<&'a wgpu::Buffer>,
+    stage_bytes: u64,
+    /// Path slots with a query record (those of the largest band).
+    stage_slots: u64,
 }
 
 impl Dispatcher<'_> {
@@ -254,7 +284,10 @@ impl Dispatcher<'_> {
             ctx,
             res,
             pipeline,
+            staged,
             snapshot,
+            stage_bytes,
+            stage_slots,
         } = *self;
         params.image[1] = band.rows;
         params.cam_right[3] = band.row0 as f32;
@@ -269,10 +302,33 @@ impl Dispatcher<'_> {
                 .write_buffer(&res.counters, 0, &[0u8; COUNTER_BYTES as usize]);
             let snap = snapshot.filter(|_| *budget > 1);
             if let Some(snap) = snap {
-                res.copy(ctx, accum, snap, band.bytes);
+                res.copy(ctx, (accum, 0), (snap, 0), band.bytes);
+                if staged.is_some() {
+                    res.copy(ctx, (&res.stage, 0), (snap, band.bytes), stage_bytes);
+                }
             }
-            res.dispatch(ctx, pipeline, band.groups, band.index);
-            dispatch.dispatches += 1;
+            match staged {
+                Some(kernels) => {
+                    // A chunk's first turn alone: the dispatch kind in params is for it.
+                    let rounds = if params.misc[3] != 0 {
+                        1
+                    } else {
+                        STAGED_ROUNDS
+                    };
+                    let turn = resources::Band {
+                        index: band.index,
+                        groups: band.groups,
+                        slots: stage_slots,
+                        first: params.misc[3] != 0,
+                    };
+                    res.staged_rounds(ctx, kernels, turn, rounds);
+                    dispatch.dispatches += 2 * rounds as u64;
+                }
+                None => {
+                    res.dispatch(ctx, pipeline, band.groups, band.index);
+                    dispatch.dispatches += 1;
+                }
+            }
             let c = read_back(ctx, &res.counters, COUNTER_BYTES)?;
             let word =
                 |i: usize| u32::from_le_bytes(c[4 * i..4 * i + 4].try_into().unwrap()) as u64;
@@ -281,7 +337,10 @@ impl Dispatcher<'_> {
                 && let Some(snap) = snap
             {
                 // Undo the cut-off dispatch and redo it with half the budget.
-                res.copy(ctx, snap, accum, band.bytes);
+                res.copy(ctx, (snap, 0), (accum, 0), band.bytes);
+                if staged.is_some() {
+                    res.copy(ctx, (snap, band.bytes), (&res.stage, 0), stage_bytes);
+                }
                 dispatch.redone += 1;
                 *budget /= 2;
                 params.consts2[2] = *budget as f32;
@@ -318,7 +377,7 @@ impl Dispatcher<'_> {
                 )));
             }
             params.misc[3] = 0;
-            if pair(6) == 0 {
+            if pair(PENDING_SLOT as usize) == 0 {
                 return Ok(());
             }
         }
@@ -351,15 +410,19 @@ pub fn render_gpu(
     let path_nee_m = set.path_nee() as u32;
     let slot_vec4s = kernels::slot_vec4s(path_nee_m);
     let shape = kernel_shape()?;
-    let pipeline = kernels::pipeline(
-        ctx,
-        &layout,
-        kernel,
-        set.model,
-        path_nee_m,
-        shape,
-        "render_main",
-    )?;
+    let build =
+        |entry| kernels::pipeline(ctx, &layout, kernel, set.model, path_nee_m, shape, entry);
+    let pipeline = build("render_main")?;
+    let staged = if shape.staged {
+        Some(StagedKernels {
+            stage: build("stage_main")?,
+            trace: build("trace_main")?,
+            args: build("args_main")?,
+            list_args: build("list_args_main")?,
+        })
+    } else {
+        None
+    };
     let cam = &scene.camera;
     let pixels = cam.width as u64 * cam.height as u64;
     let spp = opts.spp.max(1);
@@ -411,6 +474,13 @@ pub fn render_gpu(
         })
         .collect();
     let accum_bytes: Vec<u64> = bands.iter().map(|b| b.bytes).collect();
+    // The staged render's query records serve every band in turn.
+    let largest_slots = accum_bytes.iter().copied().max().unwrap_or(0) / slot_bytes;
+    let stage_bytes = if shape.staged {
+        stage_bytes(largest_slots)
+    } else {
+        0
+    };
     let mut params: Params = scene_params(scene, set, opts.seed);
     let depth = bvh_depth(&scene.geo.bvh);
     if depth + 1 > kernels::STACK_DEPTH as usize {
@@ -441,6 +511,7 @@ pub fn render_gpu(
             env: &env,
             grid: &grid,
             model: &model,
+            stage_slots: if shape.staged { largest_slots } else { 0 },
         },
     )?;
     // Poison the accumulation buffers: a pixel the kernel never wrote stays NaN and is
@@ -457,7 +528,8 @@ pub fn render_gpu(
     // The path states before the dispatch in flight, kept on software adapters while a
     // cut-off dispatch can be redone with a smaller budget.
     let largest = accum_bytes.iter().copied().max().unwrap_or(0);
-    let snapshot = (ctx.adapter.software && budget > 1).then(|| res.snapshot_buffer(ctx, largest));
+    let snapshot = (ctx.adapter.software && budget > 1)
+        .then(|| res.snapshot_buffer(ctx, largest + stage_bytes));
     if let Some(e) = pollster::block_on(scope.pop()) {
         let total: u64 = accum_bytes.iter().sum();
         return Err(RenderError::GpuLimit(format!(
@@ -468,12 +540,24 @@ pub fn render_gpu(
             pixels
         )));
     }
-    let compile_seconds = compile(ctx, &res, &pipeline, &params)?;
+    let mut compile_seconds = 0.0;
+    match &staged {
+        // trace_main finds the queue empty (buffers start zeroed): nothing is touched.
+        Some(k) => {
+            for p in [&k.stage, &k.trace] {
+                compile_seconds += compile(ctx, &res, p, &params)?;
+            }
+        }
+        None => compile_seconds = compile(ctx, &res, &pipeline, &params)?,
+    }
     let gpu = Dispatcher {
         ctx,
         res: &res,
         pipeline: &pipeline,
+        staged: staged.as_ref(),
         snapshot: snapshot.as_ref(),
+        stage_bytes,
+        stage_slots: largest_slots,
     };
     let start = Instant::now();
     let mut stats = PathStats::default();
@@ -481,6 +565,7 @@ pub fn render_gpu(
         bands: bands.len() as u32,
         workgroup: shape.workgroup,
         stack: Some(shape.stack),
+        staged: shape.staged,
         lanes: shape.profile.then(LaneProfile::new),
         ..Default::default()
     };

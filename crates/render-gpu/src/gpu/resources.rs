@@ -15,6 +15,13 @@ pub struct Resources {
     /// One accumulation buffer per band of the image, each within the binding limit.
     pub accums: Vec<wgpu::Buffer>,
     pub counters: wgpu::Buffer,
+    /// The staged render's query records (one per path slot of the largest band) and its
+    /// queue: a length, then slot indices. 16-byte dummies for the one-kernel render.
+    pub stage: wgpu::Buffer,
+    pub queue: wgpu::Buffer,
+    /// The indirect dispatch arguments of the staged render's kernels, copied from the
+    /// queue's (not bound: a buffer may not be both).
+    args: wgpu::Buffer,
     /// One bind group per band: the same inputs, that band's accumulation buffer.
     bind_groups: Vec<wgpu::BindGroup>,
     /// Kept alive for the bind groups.
@@ -25,6 +32,21 @@ pub struct Resources {
 /// per lane-profile phase its active lanes, its lane capacity and its subgroup passes
 /// ([`super::kernels::PROFILE_PHASES`]).
 pub const COUNTER_SLOTS: u64 = 9 + 3 * super::kernels::PROFILE_PHASES.len() as u64;
+
+/// The counter slot of the invocations still pending after a dispatch (`C_PENDING` in
+/// shaders/path.wgsl).
+pub const PENDING_SLOT: u64 = 6;
+
+/// Byte size of the staged render's `stage` buffer for `slots` path slots: their query
+/// records, then the list of slots to advance (a copy of the queue: length, then slot
+/// indices), rounded up to whole vec4s.
+pub fn stage_bytes(slots: u64) -> u64 {
+    (16 * super::kernels::STAGE_VEC4S * slots + QUEUE_HEAD + 4 * slots).next_multiple_of(16)
+}
+
+/// Bytes before the queue's slot indices: its length and dispatch arguments (`Queue` in
+/// shaders/scene.wgsl).
+const QUEUE_HEAD: u64 = 16;
 
 /// Byte size of the counter buffer.
 pub const COUNTER_BYTES: u64 = 8 * COUNTER_SLOTS;
@@ -41,6 +63,8 @@ pub struct Inputs<'a> {
     /// The distance grid's cells, then its candidate lists ([`super::scene_buffers::grid_buffer`]).
     pub grid: &'a [u32],
     pub model: &'a ModelParams,
+    /// Path slots of the largest band with a query record (0: not a staged render).
+    pub stage_slots: u64,
 }
 
 fn init(ctx: &GpuContext, label: &str, bytes: &[u8], usage: wgpu::BufferUsages) -> wgpu::Buffer {
@@ -80,7 +104,12 @@ impl Resources {
         }
         let ro = wgpu::BufferUsages::STORAGE;
         let uni = wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST;
-        let params = init(ctx, "params", bytemuck::bytes_of(i.params), uni);
+        let params = init(
+            ctx,
+            "params",
+            bytemuck::bytes_of(i.params),
+            wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+        );
         let accums: Vec<wgpu::Buffer> = i
             .accum_bytes
             .iter()
@@ -103,6 +132,24 @@ impl Resources {
                 | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
+        let rw = |label, size: u64| {
+            ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: size.max(16),
+                usage: wgpu::BufferUsages::STORAGE
+                    | wgpu::BufferUsages::COPY_SRC
+                    | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
+        };
+        let stage = rw("stage", stage_bytes(i.stage_slots));
+        let queue = rw("queue", QUEUE_HEAD + 4 * i.stage_slots);
+        let args = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("dispatch args"),
+            size: 16,
+            usage: wgpu::BufferUsages::INDIRECT | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
         let tris = init(ctx, "tris", bytemuck::cast_slice(i.tris), ro);
         let nodes = init(ctx, "nodes", bytemuck::cast_slice(i.nodes), ro);
         let env = init(ctx, "env", bytemuck::cast_slice(i.env), ro);
@@ -112,7 +159,7 @@ impl Resources {
             .iter()
             .map(|accum| {
                 let buffers = [
-                    &params, accum, &counters, &tris, &nodes, &env, &grid, &model,
+                    &params, accum, &counters, &tris, &nodes, &env, &grid, &model, &stage, &queue,
                 ];
                 let entries: Vec<wgpu::BindGroupEntry> = buffers
                     .iter()
@@ -133,6 +180,9 @@ impl Resources {
             params,
             accums,
             counters,
+            stage,
+            queue,
+            args,
             bind_groups,
             _inputs: vec![tris, nodes, env, grid, model],
         })
@@ -150,12 +200,74 @@ impl Resources {
         })
     }
 
-    /// Submits a copy of the first `bytes` of `src` to `dst` (ordered with dispatches).
-    pub fn copy(&self, ctx: &GpuContext, src: &wgpu::Buffer, dst: &wgpu::Buffer, bytes: u64) {
+    /// Submits a copy of `bytes` of `src` from `src_at` to `dst` at `dst_at` (ordered with
+    /// dispatches).
+    pub fn copy(
+        &self,
+        ctx: &GpuContext,
+        (src, src_at): (&wgpu::Buffer, u64),
+        (dst, dst_at): (&wgpu::Buffer, u64),
+        bytes: u64,
+    ) {
         let mut enc = ctx
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-        enc.copy_buffer_to_buffer(src, 0, dst, 0, bytes.max(16));
+        enc.copy_buffer_to_buffer(src, src_at, dst, dst_at, bytes.max(16));
+        ctx.queue.submit([enc.finish()]);
+    }
+
+    /// Submits `rounds` turns of the staged render over band `band` with `slots` path
+    /// slots: `stage` (the listed slots to their next ray query, queued; in a chunk's first
+    /// turn, `first`, every slot of the band), then `trace` (the queue), then the queue
+    /// copied into the list of the next turn. Both kernels are dispatched indirectly over
+    /// the slots they have (`args`, `list_args`: the arguments' kernels). The queue is
+    /// emptied and the pending counter cleared before each turn, so that after the last it
+    /// counts the slots still pending.
+    pub fn staged_rounds(&self, ctx: &GpuContext, k: &StagedKernels, band: Band, rounds: u32) {
+        let mut enc = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+        let bind = &self.bind_groups[band.index];
+        let args = |enc: &mut wgpu::CommandEncoder, p: &wgpu::ComputePipeline| {
+            {
+                let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+                pass.set_pipeline(p);
+                pass.set_bind_group(0, bind, &[]);
+                pass.dispatch_workgroups(1, 1, 1);
+            }
+            enc.copy_buffer_to_buffer(&self.queue, 4, &self.args, 0, 12);
+        };
+        let indirect = |enc: &mut wgpu::CommandEncoder, p: &wgpu::ComputePipeline| {
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+            pass.set_pipeline(p);
+            pass.set_bind_group(0, bind, &[]);
+            pass.dispatch_workgroups_indirect(&self.args, 0);
+        };
+        for r in 0..rounds {
+            enc.clear_buffer(&self.queue, 0, Some(4));
+            enc.clear_buffer(&self.counters, 8 * PENDING_SLOT, Some(8));
+            if r == 0 && band.first {
+                let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+                pass.set_pipeline(&k.stage);
+                pass.set_bind_group(0, bind, &[]);
+                pass.dispatch_workgroups(band.groups.0, band.groups.1, 1);
+            } else {
+                if r == 0 {
+                    args(&mut enc, &k.list_args);
+                }
+                indirect(&mut enc, &k.stage);
+            }
+            args(&mut enc, &k.args);
+            indirect(&mut enc, &k.trace);
+            let list_at = 16 * super::kernels::STAGE_VEC4S * band.slots;
+            enc.copy_buffer_to_buffer(
+                &self.queue,
+                0,
+                &self.stage,
+                list_at,
+                QUEUE_HEAD + 4 * band.slots,
+            );
+        }
         ctx.queue.submit([enc.finish()]);
     }
 
@@ -179,6 +291,25 @@ impl Resources {
         }
         ctx.queue.submit([enc.finish()]);
     }
+}
+
+/// The staged render's kernels (gpu/renderer.rs; shaders/path.wgsl).
+pub struct StagedKernels {
+    pub stage: wgpu::ComputePipeline,
+    pub trace: wgpu::ComputePipeline,
+    pub args: wgpu::ComputePipeline,
+    pub list_args: wgpu::ComputePipeline,
+}
+
+/// What one submission of the staged render covers: the band's bind group (`index`), its
+/// workgroups for a direct dispatch over all its slots, the slots with a query record,
+/// and whether it is a chunk's first turn.
+#[derive(Clone, Copy)]
+pub struct Band {
+    pub index: usize,
+    pub groups: (u32, u32),
+    pub slots: u64,
+    pub first: bool,
 }
 
 /// Copies `size` bytes of `buf` to the host (blocking).
