@@ -237,90 +237,94 @@ fn bounce_end(q: Query, h: Hit, tr: f32) {
         p_nee_left -= 1u;
         return;
     }
-    let t = q.t;
-    if !p_inside {
-        if !h.found {
-            ps.radiance += ps.beta * escape_radiance(ps.dir, channel, !(nee && ps.scattered));
-            ps.alive = false;
-            return;
-        }
-        let p = ps.pos + ps.dir * h.t;
-        let n = tri_normal(h.prim);
-        if dot(ps.dir, n) > 0.0 {
-            // Met a surface from inside while believed outside: spawned across a gap
-            // thinner than eps into a touching part; enter it here (integrator/mod.rs).
-            p_inside = true;
-            return;
-        }
-        let incoming = ps.dir;
-        if dielectric {
-            let f = fresnel(abs(dot(ps.dir, n)), 1.0, ior);
-            if rand() < f {
-                ps.dir = reflect_dir(ps.dir, n);
-                p_left_through = h.prim;
+    // A staged render's parked exact step comes back straight to its sphere step (the
+    // flight that led to it is done: one call site of scatter_at either way).
+    if !walk_resume {
+        let t = q.t;
+        if !p_inside {
+            if !h.found {
+                ps.radiance += ps.beta * escape_radiance(ps.dir, channel, !(nee && ps.scattered));
+                ps.alive = false;
+                return;
+            }
+            let p = ps.pos + ps.dir * h.t;
+            let n = tri_normal(h.prim);
+            if dot(ps.dir, n) > 0.0 {
+                // Met a surface from inside while believed outside: spawned across a gap
+                // thinner than eps into a touching part; enter it here (integrator/mod.rs).
+                p_inside = true;
+                return;
+            }
+            let incoming = ps.dir;
+            if dielectric {
+                let f = fresnel(abs(dot(ps.dir, n)), 1.0, ior);
+                if rand() < f {
+                    ps.dir = reflect_dir(ps.dir, n);
+                    p_left_through = h.prim;
+                } else {
+                    ps.dir = refract_dir(ps.dir, n, 1.0, ior);
+                    p_inside = true;
+                }
             } else {
-                ps.dir = refract_dir(ps.dir, n, 1.0, ior);
                 p_inside = true;
             }
-        } else {
-            p_inside = true;
-        }
-        ps.pos = spawn(p, n, ps.dir);
-        if p_inside && beyond_sliver(ps.pos, n) {
-            // Pass the sliver in the direction the path came (integrator/mod.rs).
-            p_inside = false;
-            ps.dir = incoming;
-        }
-        return;
-    }
-    if h.found {
-        ps.free = 0.0;
-        let p = ps.pos + ps.dir * h.t;
-        let n = tri_normal(h.prim);
-        if dot(ps.dir, n) < 0.0 {
-            // Met the surface from outside while believed inside: after a sphere step
-            // the exit was not inside after all. Count it and leave, never enter.
-            if p_from_step {
-                stats[C_LEAKS] += 1u;
-            }
-            p_inside = false;
             ps.pos = spawn(p, n, ps.dir);
+            if p_inside && beyond_sliver(ps.pos, n) {
+                // Pass the sliver in the direction the path came (integrator/mod.rs).
+                p_inside = false;
+                ps.dir = incoming;
+            }
+            return;
+        }
+        if h.found {
+            ps.free = 0.0;
+            let p = ps.pos + ps.dir * h.t;
+            let n = tri_normal(h.prim);
+            if dot(ps.dir, n) < 0.0 {
+                // Met the surface from outside while believed inside: after a sphere step
+                // the exit was not inside after all. Count it and leave, never enter.
+                if p_from_step {
+                    stats[C_LEAKS] += 1u;
+                }
+                p_inside = false;
+                ps.pos = spawn(p, n, ps.dir);
+                p_from_step = false;
+                return;
+            }
+            if dielectric {
+                let f = fresnel(abs(dot(ps.dir, n)), ior, 1.0);
+                if rand() < f {
+                    ps.dir = reflect_dir(ps.dir, n);
+                } else {
+                    ps.dir = refract_dir(ps.dir, n, ior, 1.0);
+                    p_inside = false;
+                }
+            } else {
+                p_inside = false;
+            }
+            if !p_inside {
+                p_left_through = h.prim;
+            }
+            ps.pos = spawn(p, n, ps.dir);
+            if p_inside && beyond_sliver(ps.pos, n) {
+                // Reflected back inside where the medium is thinner than the offset.
+                p_inside = false;
+            }
             p_from_step = false;
             return;
         }
-        if dielectric {
-            let f = fresnel(abs(dot(ps.dir, n)), ior, 1.0);
-            if rand() < f {
-                ps.dir = reflect_dir(ps.dir, n);
-            } else {
-                ps.dir = refract_dir(ps.dir, n, ior, 1.0);
-                p_inside = false;
-            }
-        } else {
+        ps.pos += ps.dir * t;
+        ps.free = max(ps.free - t, 0.0);
+        let pad = params.consts.z; // eps, as in Geometry::within_bounds
+        if any(ps.pos < mesh_bounds(false) - pad) || any(ps.pos > mesh_bounds(true) + pad) {
+            // Outside the mesh's bounding box grown by eps: not inside after all (the CPU's
+            // safety net, integrator/mod.rs).
+            stats[C_LEAKS] += 1u;
             p_inside = false;
+            ps.free = 0.0;
+            p_from_step = false;
+            return;
         }
-        if !p_inside {
-            p_left_through = h.prim;
-        }
-        ps.pos = spawn(p, n, ps.dir);
-        if p_inside && beyond_sliver(ps.pos, n) {
-            // Reflected back inside where the medium is thinner than the offset.
-            p_inside = false;
-        }
-        p_from_step = false;
-        return;
-    }
-    ps.pos += ps.dir * t;
-    ps.free = max(ps.free - t, 0.0);
-    let pad = params.consts.z; // eps, as in Geometry::within_bounds
-    if any(ps.pos < mesh_bounds(false) - pad) || any(ps.pos > mesh_bounds(true) + pad) {
-        // Outside the mesh's bounding box grown by eps: not inside after all (the CPU's
-        // safety net, integrator/mod.rs).
-        stats[C_LEAKS] += 1u;
-        p_inside = false;
-        ps.free = 0.0;
-        p_from_step = false;
-        return;
     }
     prof(6u);
     p_from_step = scatter_at(channel);
@@ -456,6 +460,14 @@ var<private> sl_j: u32;
 var<private> sl_s: u32;
 var<private> sl_done: bool;
 var<private> sl_acc: vec4<f32>;
+
+// The staged render's exact steps (stcvae.wgsl, scatter_at): whether stage_main parks
+// them for walk_main, whether this one was parked, whether it resumes one with its walk
+// done, and the slot's record.
+var<private> park_walks: bool;
+var<private> walk_parked: bool;
+var<private> walk_resume: bool;
+var<private> sv_rec: u32;
 
 /// The path slot of invocation `gid`, or NO_SLOT.
 const NO_SLOT: u32 = 0xffffffffu;
@@ -637,14 +649,15 @@ fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_inv
 // and flight length; the path's free distance and the triangle it left through (saved
 // here, unlike the one-kernel render's resume, which forgets them), the shadow ray's
 // weight and the query's flags; then the path's channel, replaced by the answer (hit t,
-// triangle, found, transmittance). After the records, the list: a copy of the queue
-// (its length and dispatch arguments, then slot indices) as u32 bits.
-const STAGE_VEC4S: u32 = 4u;
+// triangle, found, transmittance); then a parked exact step's walk (stcvae.wgsl,
+// WALK_AT). After the records, the list: a copy of the queue (its length and dispatch
+// arguments, then slot indices) as u32 bits.
 const Q_PENDING: u32 = 1u;
 const Q_SHADOW: u32 = 2u;
 const Q_QUERY: u32 = 4u;
 const Q_LOCAL: u32 = 8u;
 const Q_LAST_LIGHT: u32 = 16u;
+const Q_WALK: u32 = 32u;
 
 /// A slot's saved query read back.
 fn load_query(rec: u32) -> Query {
@@ -666,28 +679,28 @@ fn stage_list(slots: u32, i: u32) -> u32 {
     return bitcast<u32>(stage[slots * STAGE_VEC4S + 1u + i / 4u][i % 4u]);
 }
 
-/// The queue's dispatch arguments for `n` invocations: WORKGROUP-sized groups as (x, y)
-/// within the 65,535 a dimension allows, as the host lays out direct dispatches.
-fn queue_args(n: u32) {
+/// Dispatch arguments for `n` invocations: WORKGROUP-sized groups as (x, y) within the
+/// 65,535 a dimension allows, as the host lays out direct dispatches.
+fn dispatch_args(n: u32) -> array<u32, 3> {
     let groups = (n + WORKGROUP - 1u) / WORKGROUP;
     let y = max((groups + 65534u) / 65535u, 1u);
-    queue.args[0] = select(groups, 65535u, y > 1u);
-    queue.args[1] = y;
-    queue.args[2] = 1u;
+    return array<u32, 3>(select(groups, 65535u, y > 1u), y, 1u);
 }
 
-/// Dispatch arguments for the queue just filled (trace_main's, and the next stage_main's,
-/// whose list is a copy of it); the host copies them to its indirect buffer.
+/// Dispatch arguments for the queues just filled (trace_main's, and the next stage_main's,
+/// whose list is a copy of it; walk_main's); the host copies them to its indirect buffer.
 @compute @workgroup_size(1)
 fn args_main() {
-    queue_args(atomicLoad(&queue.len));
+    queue.args = dispatch_args(atomicLoad(&queue.len));
+    queue.walk_args = dispatch_args(atomicLoad(&queue.walk_len));
+    queue.query_args = dispatch_args(atomicLoad(&queue.query_len));
 }
 
 /// Dispatch arguments for the list (the first stage_main of a submission: the buffer of
 /// arguments may be from an undone one).
 @compute @workgroup_size(1)
 fn list_args_main() {
-    queue_args(stage_list_len(arrayLength(&queue.items)));
+    queue.args = dispatch_args(stage_list_len(arrayLength(&queue.items) / 3u));
 }
 
 /// The linear index of invocation `gid` (dispatched as in render_main).
@@ -703,7 +716,7 @@ fn stage_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
     if params.misc.w != 0u {
         idx = slot_of(gid);
     } else {
-        let slots = arrayLength(&queue.items);
+        let slots = arrayLength(&queue.items) / 3u;
         let i = invocation(gid);
         if i < stage_list_len(slots) {
             idx = stage_list(slots, i);
@@ -714,29 +727,33 @@ fn stage_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
     }
     let was_done = sl_done;
     let rec = idx * STAGE_VEC4S;
-    // Whether the query queued last turn has been answered (one call site each for
-    // bounce_begin and bounce_end: llvmpipe inlines everything, and a second copy of the
-    // bounce's end, sphere step and decoders included, makes the kernel slower still).
-    var answered = false;
+    sv_rec = rec;
+    park_walks = true;
+    // What the path left off at: a query answered since (Q_PENDING) or an exact step whose
+    // walk is done (Q_WALK). One call site each for bounce_begin and bounce_end: llvmpipe
+    // inlines everything, and a second copy of the bounce's end, sphere step and decoders
+    // included, makes the kernel slower still.
+    var resume = 0u;
     if !sl_done && params.misc.w == 0u {
         let c = stage[rec + 2u];
         ps.free = c.x;
         p_left_through = bitcast<u32>(c.y);
-        answered = (bitcast<u32>(c.w) & Q_PENDING) != 0u;
+        resume = bitcast<u32>(c.w) & (Q_PENDING | Q_WALK);
     }
     var flags = 0u;
     var weight = 0.0;
     let budget = u32(params.consts2.z);
     for (var b = 0u; b < budget && !sl_done; b++) {
-        var q: Query;
+        var q = Query(ps.pos, 0.0, ps.dir, 0.0, 0.0, 0u, false, false, false, false, false);
         var h = Hit(0.0, 0u, false);
         var tr = 0.0;
-        if answered {
-            answered = false;
+        if resume == Q_PENDING {
             q = load_query(rec);
             let ans = stage[rec + 3u];
             h = Hit(ans.x, bitcast<u32>(ans.y), bitcast<u32>(ans.z) != 0u);
             tr = ans.w;
+        } else if resume == Q_WALK {
+            walk_resume = true;
         } else {
             q = bounce_begin();
             if q.query && !q.ended {
@@ -748,17 +765,28 @@ fn stage_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
                 stage[rec] = vec4<f32>(q.o, q.tmax);
                 stage[rec + 1u] = vec4<f32>(q.d, q.t);
                 stage[rec + 3u] = vec4<f32>(bitcast<f32>(p_channel), 0.0, 0.0, 0.0);
+                let at = atomicAdd(&queue.query_len, 1u);
+                queue.items[2u * (arrayLength(&queue.items) / 3u) + at] = idx;
                 break;
             }
         }
+        resume = 0u;
         if !q.ended {
             bounce_end(q, h, tr);
+        }
+        walk_resume = false;
+        if walk_parked {
+            // The step waits for walk_main, its bounce unfinished.
+            flags = Q_WALK;
+            let at = atomicAdd(&queue.walk_len, 1u);
+            queue.items[arrayLength(&queue.items) / 3u + at] = idx;
+            break;
         }
         bounce_done(q.shadow);
     }
     if !sl_done {
-        // Queued with its query, or without one when its bounces ran out (trace_main
-        // skips it): every running path is in the next turn's list.
+        // Every running path is in the next turn's list; those with a query or a parked
+        // step are in that queue too.
         stage[rec + 2u] = vec4<f32>(ps.free, bitcast<f32>(p_left_through), weight, bitcast<f32>(flags));
         let at = atomicAdd(&queue.len, 1u);
         queue.items[at] = idx;
@@ -774,18 +802,16 @@ fn trace_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
     prof_begin(li);
     stack_base = li * STACK_STRIDE;
     let i = invocation(gid);
-    if i < atomicLoad(&queue.len) {
-        let rec = queue.items[i] * STAGE_VEC4S;
+    if i < atomicLoad(&queue.query_len) {
+        let rec = queue.items[2u * (arrayLength(&queue.items) / 3u) + i] * STAGE_VEC4S;
         let q = load_query(rec);
-        if (bitcast<u32>(stage[rec + 2u].w) & Q_PENDING) != 0u {
-            let channel = bitcast<u32>(stage[rec + 3u].x);
-            let h = answer_query(q, channel);
-            var tr = 0.0;
-            if q.shadow {
-                tr = transmittance_of(tr_cross, q.o, q.d, channel);
-            }
-            stage[rec + 3u] = vec4<f32>(h.t, bitcast<f32>(h.prim), bitcast<f32>(select(0u, 1u, h.found)), tr);
+        let channel = bitcast<u32>(stage[rec + 3u].x);
+        let h = answer_query(q, channel);
+        var tr = 0.0;
+        if q.shadow {
+            tr = transmittance_of(tr_cross, q.o, q.d, channel);
         }
+        stage[rec + 3u] = vec4<f32>(h.t, bitcast<f32>(h.prim), bitcast<f32>(select(0u, 1u, h.found)), tr);
     }
     prof_end();
 }

@@ -89,6 +89,14 @@ struct Queue {
     len: atomic<u32>,
     // Workgroups (x, y, z) for an indirect dispatch over the queue (args_main).
     args: array<u32, 3>,
+    // The parked exact steps' queue (ST-CVAE) and its dispatch's workgroups.
+    walk_len: atomic<u32>,
+    walk_args: array<u32, 3>,
+    // The ray queries' queue and its dispatch's workgroups.
+    query_len: atomic<u32>,
+    query_args: array<u32, 3>,
+    // The running paths' slots, then from index `slots` the parked steps', then from
+    // 2·`slots` the queries'.
     items: array<u32>,
 }
 @group(0) @binding(8) var<storage, read_write> stage: array<vec4<f32>>;

@@ -57,15 +57,27 @@ fn scatter_at(channel: u32) -> bool {
     } else if tau < params.consts3.x {
         // An exact step (sphere_step.rs, exact_step): the walk simulated in the ball, its
         // NEE events chosen by importance with weights Q/q (ex_weight).
-        stats[C_STEPS] += 1u;
-        stats[C_EXACT] += 1u;
         exact = true;
         frame = walk_frame(ps.dir, vec2<f32>(1.0, 0.0));
         var m = 0u;
         if nee && params.flags.x > 0u {
             m = clamp(u32(params.consts3.y), 1u, MAX_EXACT_EVENTS);
         }
-        let walk = exact_walk(tau, g, channel, m, frame, max(free / r, 1.0));
+        // The staged render parks the step here for walk_main and comes back to it with
+        // the walk done: everything above is computed again from the same state (it draws
+        // no random numbers), the walk's outcome read from its record.
+        var walk: ExactWalk;
+        if walk_resume {
+            walk = load_walk();
+        } else if park_walks {
+            walk_parked = true;
+            save_walk_inputs(tau, channel, m, max(free / r, 1.0));
+            return false;
+        } else {
+            walk = exact_walk(tau, g, channel, m, frame, max(free / r, 1.0));
+        }
+        stats[C_STEPS] += 1u;
+        stats[C_EXACT] += 1u;
         n = walk.n;
         ex_exit_x = walk.x;
         ex_exit_w = walk.w;
@@ -300,4 +312,58 @@ fn exact_walk(tau: f32, g: f32, channel: u32, m: u32, frame: WalkFrame, f_unit: 
         }
     }
     return ExactWalk(exit_x, exit_w, n, used);
+}
+
+// ---- the staged render's walk stage (path.wgsl, stage_main; gpu/renderer.rs) ----
+// A parked exact step's record (after the query record, WALK_VEC4S vec4s): first the
+// walk's inputs (optical radius, radius of the free ball in units of the step's, NEE
+// events, channel), then its outcome: exit point and N, exit direction and the events
+// used, and per event (X, weight) and (W, 0).
+const WALK_AT: u32 = 4u;
+
+fn save_walk_inputs(tau: f32, channel: u32, m: u32, f_unit: f32) {
+    stage[sv_rec + WALK_AT] = vec4<f32>(tau, f_unit, bitcast<f32>(m), bitcast<f32>(channel));
+}
+
+fn load_walk() -> ExactWalk {
+    let a = stage[sv_rec + WALK_AT];
+    let b = stage[sv_rec + WALK_AT + 1u];
+    let used = bitcast<u32>(b.w);
+    for (var k = 0u; k < used; k++) {
+        let x = stage[sv_rec + WALK_AT + 2u + 2u * k];
+        ex_x[k] = x.xyz;
+        ex_weight[k] = x.w;
+        ex_w[k] = stage[sv_rec + WALK_AT + 3u + 2u * k].xyz;
+    }
+    return ExactWalk(a.xyz, b.xyz, a.w, used);
+}
+
+/// The parked exact steps' walks, one per invocation: each runs on its path's random
+/// number stream (saved back with the path) in the frame its step computed from the
+/// path's direction, exactly as scatter_at would have run it.
+@compute @workgroup_size(WORKGROUP)
+fn walk_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    prof_begin(li);
+    let i = invocation(gid);
+    let slots = arrayLength(&queue.items) / 3u;
+    if i < atomicLoad(&queue.walk_len) {
+        let idx = queue.items[slots + i];
+        let base = idx * SLOT;
+        let rec = idx * STAGE_VEC4S + WALK_AT;
+        let inp = stage[rec];
+        rng_s = bitcast<vec4<u32>>(accum[base + 2u]);
+        let frame = walk_frame(accum[base + 1u].xyz, vec2<f32>(1.0, 0.0));
+        let walk = exact_walk(inp.x, params.consts.x, bitcast<u32>(inp.w), bitcast<u32>(inp.z), frame, inp.y);
+        accum[base + 2u] = bitcast<vec4<f32>>(rng_s);
+        stage[rec] = vec4<f32>(walk.x, walk.n);
+        stage[rec + 1u] = vec4<f32>(walk.w, bitcast<f32>(walk.used));
+        for (var k = 0u; k < walk.used; k++) {
+            stage[rec + 2u + 2u * k] = vec4<f32>(ex_x[k], ex_weight[k]);
+            stage[rec + 3u + 2u * k] = vec4<f32>(ex_w[k], 0.0);
+        }
+        if loop_limit_ran_out(u32(params.consts3.z)) {
+            add_counter(C_TRUNCATED, 1u);
+        }
+    }
+    prof_end();
 }

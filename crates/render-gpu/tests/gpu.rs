@@ -1241,9 +1241,9 @@ fn images_beyond_the_binding_limit_render_in_bands() {
     assert!(whole.image.pixels.iter().any(|p| p[0] > 0.0));
 }
 
-/// The staged render (`STCVAE_GPU_STAGED`: paths advanced to their next ray query by one
-/// kernel, the queue of queries traced by another, each dispatched over the queue) runs
-/// the one-kernel render's paths: the same random numbers in the same order, the same
+/// The staged render (`STCVAE_GPU_STAGED`: paths advanced to their next ray query or exact
+/// step by one kernel, the queued queries traced by another and the exact steps' walks run
+/// by a third, each dispatched over its queue) runs the one-kernel render's paths: the same random numbers in the same order, the same
 /// hits. So its image equals the one kernel's bit for bit wherever the one kernel
 /// finishes each path in one dispatch: it forgets a path's free distance when it resumes
 /// one, the staged render keeps it. Hence one sample per invocation and chunk and a
@@ -1300,6 +1300,8 @@ fn staged_render_equals_one_kernel() {
         .unwrap();
         assert!(staged.dispatch.staged);
         assert!(base.image.pixels.iter().any(|p| p[0] > 0.0), "{name}");
+        // Exact steps are where the staged render parks a walk for its own kernel.
+        assert_eq!(base.stats.exact_steps > 0, set.exact_tau > 0.0, "{name}");
         assert_eq!(staged.stats, base.stats, "{name}");
         let differ = differing_pixels(&base, &staged);
         assert_eq!(

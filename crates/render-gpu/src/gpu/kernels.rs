@@ -216,9 +216,10 @@ pub enum Kernel {
     Probe,
 }
 
-/// vec4s of one path slot's query record in the staged render (`STAGE_VEC4S` in
-/// shaders/path.wgsl).
-pub const STAGE_VEC4S: u64 = 4;
+/// vec4s of one path slot's record in the staged render (`STAGE_VEC4S`, prepended to the
+/// WGSL): its ray query (4, shaders/path.wgsl), then a parked exact step's walk (inputs,
+/// exit and count, two per NEE event: shaders/stcvae.wgsl, `WALK_AT`).
+pub const STAGE_VEC4S: u64 = 4 + 2 + 2 * crate::scene::MAX_EXACT_NEE_SAMPLES as u64;
 
 /// vec4s of one path slot in the accumulation buffer (`SLOT` in shaders/path.wgsl): the
 /// path's state, the render's accumulated RGB (vec4 [`ACC_VEC4`]), and two per path-level
@@ -263,6 +264,7 @@ pub fn source(
          const ROULETTE_BOUND: f32 = {:?};\nconst FLIGHT_MARGIN_OF_EPS: f32 = {:?};\n\
          const EXIT_REFINE_TAU: f32 = {:?};\nconst SLIVER_REACH_OF_EPS: f32 = {:?};\n\
          const PATH_NEE_M: u32 = {path_nee_m}u;\nconst SLOT: u32 = {}u;\n\
+         const STAGE_VEC4S: u32 = {STAGE_VEC4S}u;\n\
          const NODE_COUNT_BITS: u32 = {}u;\nconst COUNTER_WORDS: u32 = {}u;\n{}",
         shape.wgsl(),
         crate::integrator::nee::ROULETTE_BOUND,

@@ -419,6 +419,10 @@ pub fn render_gpu(
             trace: build("trace_main")?,
             args: build("args_main")?,
             list_args: build("list_args_main")?,
+            walk: match kernel {
+                Kernel::Stcvae => Some(build("walk_main")?),
+                _ => None,
+            },
         })
     } else {
         None
@@ -431,10 +435,17 @@ pub fn render_gpu(
     // reservoirs needs 151 MB.
     let limits = &ctx.limits;
     let slot_bytes = 16 * slot_vec4s;
+    // The staged render's records (and list entry) per slot are larger still, and take
+    // one binding too.
+    let binding_bytes = if shape.staged {
+        slot_bytes.max(stage_bytes(1) - stage_bytes(0))
+    } else {
+        slot_bytes
+    };
     let fit = limits
         .max_storage_buffer_binding_size
         .min(limits.max_buffer_size)
-        / slot_bytes;
+        / binding_bytes;
     let lanes = (target_threads(ctx).min(fit) / pixels.max(1)).clamp(1, spp as u64) as u32;
     // An image whose slots exceed one binding (lavapipe's 128 MiB holds 1.2–1.6 M pixels)
     // is rendered in bands of rows, each with its own accumulation buffer, one after

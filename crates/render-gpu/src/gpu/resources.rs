@@ -41,12 +41,15 @@ pub const PENDING_SLOT: u64 = 6;
 /// records, then the list of slots to advance (a copy of the queue: length, then slot
 /// indices), rounded up to whole vec4s.
 pub fn stage_bytes(slots: u64) -> u64 {
-    (16 * super::kernels::STAGE_VEC4S * slots + QUEUE_HEAD + 4 * slots).next_multiple_of(16)
+    (16 * super::kernels::STAGE_VEC4S * slots + LIST_HEAD + 4 * slots).next_multiple_of(16)
 }
 
-/// Bytes before the queue's slot indices: its length and dispatch arguments (`Queue` in
-/// shaders/scene.wgsl).
-const QUEUE_HEAD: u64 = 16;
+/// Bytes before the queues' slot indices: the running paths' queue's length and dispatch
+/// arguments, then the parked walks', then the queries' (`Queue` in shaders/scene.wgsl).
+const QUEUE_HEAD: u64 = 48;
+
+/// Bytes before the list's slot indices: the running paths' queue's length and arguments.
+const LIST_HEAD: u64 = 16;
 
 /// Byte size of the counter buffer.
 pub const COUNTER_BYTES: u64 = 8 * COUNTER_SLOTS;
@@ -143,10 +146,10 @@ impl Resources {
             })
         };
         let stage = rw("stage", stage_bytes(i.stage_slots));
-        let queue = rw("queue", QUEUE_HEAD + 4 * i.stage_slots);
+        let queue = rw("queue", QUEUE_HEAD + 12 * i.stage_slots);
         let args = ctx.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("dispatch args"),
-            size: 16,
+            size: QUEUE_HEAD,
             usage: wgpu::BufferUsages::INDIRECT | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
@@ -217,12 +220,13 @@ impl Resources {
     }
 
     /// Submits `rounds` turns of the staged render over band `band` with `slots` path
-    /// slots: `stage` (the listed slots to their next ray query, queued; in a chunk's first
-    /// turn, `first`, every slot of the band), then `trace` (the queue), then the queue
-    /// copied into the list of the next turn. Both kernels are dispatched indirectly over
-    /// the slots they have (`args`, `list_args`: the arguments' kernels). The queue is
-    /// emptied and the pending counter cleared before each turn, so that after the last it
-    /// counts the slots still pending.
+    /// slots: `stage` (the listed slots to their next ray query or exact step, queued; in a
+    /// chunk's first turn, `first`, every slot of the band), then `trace` (the queries) and
+    /// `walk` (the exact steps' walks, ST-CVAE), then the queue of running paths copied into
+    /// the list of the next turn. The kernels are dispatched indirectly over the slots they
+    /// have (`args`, `list_args`: the arguments' kernels). The queues are emptied and the
+    /// pending counter cleared before each turn, so that after the last it counts the
+    /// slots still pending.
     pub fn staged_rounds(&self, ctx: &GpuContext, k: &StagedKernels, band: Band, rounds: u32) {
         let mut enc = ctx
             .device
@@ -235,16 +239,18 @@ impl Resources {
                 pass.set_bind_group(0, bind, &[]);
                 pass.dispatch_workgroups(1, 1, 1);
             }
-            enc.copy_buffer_to_buffer(&self.queue, 4, &self.args, 0, 12);
+            // The queues' arguments, at the queue's offsets (after list_args only the
+            // running paths' are fresh, and only they are used).
+            enc.copy_buffer_to_buffer(&self.queue, 0, &self.args, 0, QUEUE_HEAD);
         };
-        let indirect = |enc: &mut wgpu::CommandEncoder, p: &wgpu::ComputePipeline| {
+        let indirect = |enc: &mut wgpu::CommandEncoder, p: &wgpu::ComputePipeline, at: u64| {
             let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
             pass.set_pipeline(p);
             pass.set_bind_group(0, bind, &[]);
-            pass.dispatch_workgroups_indirect(&self.args, 0);
+            pass.dispatch_workgroups_indirect(&self.args, at);
         };
         for r in 0..rounds {
-            enc.clear_buffer(&self.queue, 0, Some(4));
+            enc.clear_buffer(&self.queue, 0, Some(QUEUE_HEAD));
             enc.clear_buffer(&self.counters, 8 * PENDING_SLOT, Some(8));
             if r == 0 && band.first {
                 let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
@@ -255,17 +261,21 @@ impl Resources {
                 if r == 0 {
                     args(&mut enc, &k.list_args);
                 }
-                indirect(&mut enc, &k.stage);
+                indirect(&mut enc, &k.stage, 4);
             }
             args(&mut enc, &k.args);
-            indirect(&mut enc, &k.trace);
+            indirect(&mut enc, &k.trace, 36);
+            if let Some(walk) = &k.walk {
+                indirect(&mut enc, walk, 20);
+            }
             let list_at = 16 * super::kernels::STAGE_VEC4S * band.slots;
+            enc.copy_buffer_to_buffer(&self.queue, 0, &self.stage, list_at, LIST_HEAD);
             enc.copy_buffer_to_buffer(
                 &self.queue,
-                0,
+                QUEUE_HEAD,
                 &self.stage,
-                list_at,
-                QUEUE_HEAD + 4 * band.slots,
+                list_at + LIST_HEAD,
+                4 * band.slots,
             );
         }
         ctx.queue.submit([enc.finish()]);
@@ -299,6 +309,8 @@ pub struct StagedKernels {
     pub trace: wgpu::ComputePipeline,
     pub args: wgpu::ComputePipeline,
     pub list_args: wgpu::ComputePipeline,
+    /// The parked exact steps' walks (ST-CVAE's kernel only).
+    pub walk: Option<wgpu::ComputePipeline>,
 }
 
 /// What one submission of the staged render covers: the band's bind group (`index`), its
