@@ -26,14 +26,16 @@ struct PathState {
     scattered: bool,
     alive: bool,
     // Lower bound on the distance to the surface (0: unknown); set by sphere steps, not
-    // saved between dispatches (0 is always safe). See PathState::free on the CPU.
+    // saved between the single kernel's dispatches (0 is always safe; the staged render
+    // keeps it). See PathState::free on the CPU.
     free: f32,
 }
 
 var<private> ps: PathState;
 /// The triangle the path has just left the surface through, outward (NO_TRI: none); a
 /// direction in its escape cone (cos θ in the triangle's n.w) escapes without a cast
-/// (escape_cone.rs). Not saved between dispatches: NO_TRI is always safe.
+/// (escape_cone.rs). Not saved between the single kernel's dispatches: NO_TRI is always
+/// safe (the staged render keeps it).
 const NO_TRI: u32 = 0xffffffffu;
 var<private> p_left_through: u32;
 
@@ -461,9 +463,9 @@ var<private> sl_s: u32;
 var<private> sl_done: bool;
 var<private> sl_acc: vec4<f32>;
 
-// The staged render's exact steps (stcvae.wgsl, scatter_at): whether stage_main parks
-// them for walk_main, whether this one was parked, whether it resumes one with its walk
-// done, and the slot's record.
+// The staged render's exact steps (stcvae.wgsl, scatter_at; staged.wgsl): whether
+// stage_main parks them for walk_main, whether this one was parked, whether it resumes
+// one with its walk done, and the slot's record. All stay false in the single kernel.
 var<private> park_walks: bool;
 var<private> walk_parked: bool;
 var<private> walk_resume: bool;
@@ -634,184 +636,4 @@ fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_inv
         }
     }
     slot_end(was_done);
-}
-
-// ---- the staged render (STCVAE_GPU_STAGED; gpu/renderer.rs) ----
-// Two kernels take turns: stage_main runs each running path up to its next ray query and
-// appends its slot to a queue; trace_main traces the queue's queries, one per invocation,
-// so that the traversal loops run with every lane on the same kind of work instead of
-// waiting on lanes in a sphere step or an exact walk. After each turn the host copies the
-// queue into `stage` (its list), and the next stage_main visits those slots alone: a
-// chunk's first stage_main starts every slot, later ones see only paths still running.
-// The paths, their random numbers and the image are the one-kernel render's.
-//
-// `stage` holds per slot STAGE_VEC4S vec4s: the query's origin and tmax; its direction
-// and flight length; the path's free distance and the triangle it left through (saved
-// here, unlike the one-kernel render's resume, which forgets them), the shadow ray's
-// weight and the query's flags; then the path's channel, replaced by the answer (hit t,
-// triangle, found, transmittance); then a parked exact step's walk (stcvae.wgsl,
-// WALK_AT). After the records, the list: a copy of the queue (its length and dispatch
-// arguments, then slot indices) as u32 bits.
-const Q_PENDING: u32 = 1u;
-const Q_SHADOW: u32 = 2u;
-const Q_QUERY: u32 = 4u;
-const Q_LOCAL: u32 = 8u;
-const Q_LAST_LIGHT: u32 = 16u;
-const Q_WALK: u32 = 32u;
-
-/// A slot's saved query read back.
-fn load_query(rec: u32) -> Query {
-    let a = stage[rec];
-    let b = stage[rec + 1u];
-    let c = stage[rec + 2u];
-    let f = bitcast<u32>(c.w);
-    return Query(a.xyz, a.w, b.xyz, b.w, c.z, f >> 8u, (f & Q_LAST_LIGHT) != 0u,
-        (f & Q_SHADOW) != 0u, (f & Q_QUERY) != 0u, (f & Q_LOCAL) != 0u, false);
-}
-
-/// The list's length (after `slots` records).
-fn stage_list_len(slots: u32) -> u32 {
-    return bitcast<u32>(stage[slots * STAGE_VEC4S].x);
-}
-
-/// Slot `i` of the list.
-fn stage_list(slots: u32, i: u32) -> u32 {
-    return bitcast<u32>(stage[slots * STAGE_VEC4S + 1u + i / 4u][i % 4u]);
-}
-
-/// Dispatch arguments for `n` invocations: WORKGROUP-sized groups as (x, y) within the
-/// 65,535 a dimension allows, as the host lays out direct dispatches.
-fn dispatch_args(n: u32) -> array<u32, 3> {
-    let groups = (n + WORKGROUP - 1u) / WORKGROUP;
-    let y = max((groups + 65534u) / 65535u, 1u);
-    return array<u32, 3>(select(groups, 65535u, y > 1u), y, 1u);
-}
-
-/// Dispatch arguments for the queues just filled (trace_main's, and the next stage_main's,
-/// whose list is a copy of it; walk_main's); the host copies them to its indirect buffer.
-@compute @workgroup_size(1)
-fn args_main() {
-    queue.args = dispatch_args(atomicLoad(&queue.len));
-    queue.walk_args = dispatch_args(atomicLoad(&queue.walk_len));
-    queue.query_args = dispatch_args(atomicLoad(&queue.query_len));
-}
-
-/// Dispatch arguments for the list (the first stage_main of a submission: the buffer of
-/// arguments may be from an undone one).
-@compute @workgroup_size(1)
-fn list_args_main() {
-    queue.args = dispatch_args(stage_list_len(arrayLength(&queue.items) / 3u));
-}
-
-/// The linear index of invocation `gid` (dispatched as in render_main).
-fn invocation(gid: vec3<u32>) -> u32 {
-    return (gid.x / WORKGROUP + gid.y * 65535u) * WORKGROUP + gid.x % WORKGROUP;
-}
-
-@compute @workgroup_size(WORKGROUP)
-fn stage_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
-    prof_begin(li);
-    stack_base = li * STACK_STRIDE;
-    var idx = NO_SLOT;
-    if params.misc.w != 0u {
-        idx = slot_of(gid);
-    } else {
-        let slots = arrayLength(&queue.items) / 3u;
-        let i = invocation(gid);
-        if i < stage_list_len(slots) {
-            idx = stage_list(slots, i);
-        }
-    }
-    if idx == NO_SLOT || !slot_begin(idx) {
-        return;
-    }
-    let was_done = sl_done;
-    let rec = idx * STAGE_VEC4S;
-    sv_rec = rec;
-    park_walks = true;
-    // What the path left off at: a query answered since (Q_PENDING) or an exact step whose
-    // walk is done (Q_WALK). One call site each for bounce_begin and bounce_end: llvmpipe
-    // inlines everything, and a second copy of the bounce's end, sphere step and decoders
-    // included, makes the kernel slower still.
-    var resume = 0u;
-    if !sl_done && params.misc.w == 0u {
-        let c = stage[rec + 2u];
-        ps.free = c.x;
-        p_left_through = bitcast<u32>(c.y);
-        resume = bitcast<u32>(c.w) & (Q_PENDING | Q_WALK);
-    }
-    var flags = 0u;
-    var weight = 0.0;
-    let budget = u32(params.consts2.z);
-    for (var b = 0u; b < budget && !sl_done; b++) {
-        var q = Query(ps.pos, 0.0, ps.dir, 0.0, 0.0, 0u, false, false, false, false, false);
-        var h = Hit(0.0, 0u, false);
-        var tr = 0.0;
-        if resume == Q_PENDING {
-            q = load_query(rec);
-            let ans = stage[rec + 3u];
-            h = Hit(ans.x, bitcast<u32>(ans.y), bitcast<u32>(ans.z) != 0u);
-            tr = ans.w;
-        } else if resume == Q_WALK {
-            walk_resume = true;
-        } else {
-            q = bounce_begin();
-            if q.query && !q.ended {
-                flags = Q_PENDING | Q_QUERY | (q.k << 8u);
-                if q.shadow { flags |= Q_SHADOW; }
-                if q.local { flags |= Q_LOCAL; }
-                if q.last_light { flags |= Q_LAST_LIGHT; }
-                weight = q.weight;
-                stage[rec] = vec4<f32>(q.o, q.tmax);
-                stage[rec + 1u] = vec4<f32>(q.d, q.t);
-                stage[rec + 3u] = vec4<f32>(bitcast<f32>(p_channel), 0.0, 0.0, 0.0);
-                let at = atomicAdd(&queue.query_len, 1u);
-                queue.items[2u * (arrayLength(&queue.items) / 3u) + at] = idx;
-                break;
-            }
-        }
-        resume = 0u;
-        if !q.ended {
-            bounce_end(q, h, tr);
-        }
-        walk_resume = false;
-        if walk_parked {
-            // The step waits for walk_main, its bounce unfinished.
-            flags = Q_WALK;
-            let at = atomicAdd(&queue.walk_len, 1u);
-            queue.items[arrayLength(&queue.items) / 3u + at] = idx;
-            break;
-        }
-        bounce_done(q.shadow);
-    }
-    if !sl_done {
-        // Every running path is in the next turn's list; those with a query or a parked
-        // step are in that queue too.
-        stage[rec + 2u] = vec4<f32>(ps.free, bitcast<f32>(p_left_through), weight, bitcast<f32>(flags));
-        let at = atomicAdd(&queue.len, 1u);
-        queue.items[at] = idx;
-    }
-    if loop_limit_ran_out(u32(params.consts3.z)) {
-        stats[C_TRUNCATED] = 1u;
-    }
-    slot_end(was_done);
-}
-
-@compute @workgroup_size(WORKGROUP)
-fn trace_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
-    prof_begin(li);
-    stack_base = li * STACK_STRIDE;
-    let i = invocation(gid);
-    if i < atomicLoad(&queue.query_len) {
-        let rec = queue.items[2u * (arrayLength(&queue.items) / 3u) + i] * STAGE_VEC4S;
-        let q = load_query(rec);
-        let channel = bitcast<u32>(stage[rec + 3u].x);
-        let h = answer_query(q, channel);
-        var tr = 0.0;
-        if q.shadow {
-            tr = transmittance_of(tr_cross, q.o, q.d, channel);
-        }
-        stage[rec + 3u] = vec4<f32>(h.t, bitcast<f32>(h.prim), bitcast<f32>(select(0u, 1u, h.found)), tr);
-    }
-    prof_end();
 }

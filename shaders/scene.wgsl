@@ -83,24 +83,6 @@ struct ModelParams {
 // candidate list] for the n cells plus a closing entry, then the candidate lists.
 @group(0) @binding(6) var<storage, read> grid: array<u32>;
 @group(0) @binding(7) var<uniform> model: ModelParams;
-// The staged render's per-slot query records and its queue of slots to trace
-// (path.wgsl, stage_main and trace_main); one-element dummies otherwise.
-struct Queue {
-    len: atomic<u32>,
-    // Workgroups (x, y, z) for an indirect dispatch over the queue (args_main).
-    args: array<u32, 3>,
-    // The parked exact steps' queue (ST-CVAE) and its dispatch's workgroups.
-    walk_len: atomic<u32>,
-    walk_args: array<u32, 3>,
-    // The ray queries' queue and its dispatch's workgroups.
-    query_len: atomic<u32>,
-    query_args: array<u32, 3>,
-    // The running paths' slots, then from index `slots` the parked steps', then from
-    // 2·`slots` the queries'.
-    items: array<u32>,
-}
-@group(0) @binding(8) var<storage, read_write> stage: array<vec4<f32>>;
-@group(0) @binding(9) var<storage, read_write> queue: Queue;
 
 // ---- camera (Mitsuba's orientation; row 0 at the top) ----
 

@@ -1243,11 +1243,13 @@ fn images_beyond_the_binding_limit_render_in_bands() {
 
 /// The staged render (`STCVAE_GPU_STAGED`: paths advanced to their next ray query or exact
 /// step by one kernel, the queued queries traced by another and the exact steps' walks run
-/// by a third, each dispatched over its queue) runs the one-kernel render's paths: the same random numbers in the same order, the same
-/// hits. So its image equals the one kernel's bit for bit wherever the one kernel
-/// finishes each path in one dispatch: it forgets a path's free distance when it resumes
-/// one, the staged render keeps it. Hence one sample per invocation and chunk and a
-/// budget of bounces that no path here reaches, checked (no dispatch redone). Covered:
+/// by a third, each dispatched over its queue) runs the single kernel's paths: the same
+/// random numbers in the same order, the same hits. So its image equals the single
+/// kernel's bit for bit wherever the single kernel finishes each path in one dispatch: it
+/// forgets a path's free distance when it resumes one, the staged render keeps it. Hence
+/// a budget of bounces that no path here reaches, checked: one dispatch per chunk of
+/// samples. Most runs take 2 samples per slot (a slot starts its second path inside a
+/// turn); the first takes 1 at 12 spp, two chunks (a later chunk's first turn). Covered:
 /// PT (a shadow ray at every event), ST-CVAE with one and two path-level NEE reservoirs,
 /// exact walks, without NEE, and a dielectric boundary.
 #[test]
@@ -1257,13 +1259,15 @@ fn staged_render_equals_one_kernel() {
     let matched = common::build_scene(&sphere_scene("kind = \"index-matched\""), true);
     let dielectric = common::build_scene(&sphere_scene("kind = \"dielectric\"\nior = 1.5"), true);
     let st = settings(IntegratorKind::Stcvae, true);
+    // (name, scene, settings, samples per slot and chunk)
     let cases = [
-        ("PT", &matched, settings(IntegratorKind::Pt, true)),
-        ("ST-CVAE", &matched, st),
+        ("PT", &matched, settings(IntegratorKind::Pt, true), 2),
+        ("ST-CVAE", &matched, st, 1),
         (
             "ST-CVAE, no NEE",
             &matched,
             settings(IntegratorKind::Stcvae, false),
+            2,
         ),
         (
             "ST-CVAE, exact walks",
@@ -1272,6 +1276,7 @@ fn staged_render_equals_one_kernel() {
                 exact_tau: 8.0,
                 ..st
             },
+            2,
         ),
         (
             "ST-CVAE dielectric, 2 reservoirs",
@@ -1280,24 +1285,30 @@ fn staged_render_equals_one_kernel() {
                 path_nee_rays: 2,
                 ..st
             },
+            2,
         ),
     ];
-    for (name, s, set) in cases {
-        let one = [
-            ("STCVAE_GPU_LANE_SAMPLES", "1"),
-            ("STCVAE_GPU_BOUNCES", "4096"),
-        ];
-        let base = render_gpu_with_env(&ctx, s, &set, &opts(6, 5), &one).unwrap();
-        assert_eq!(base.dispatch.redone, 0, "{name}: a path was resumed");
+    // 24² pixels, 12 spp: 7 slots a pixel on a software adapter (4,096 threads), so one
+    // sample per slot takes two chunks; a hardware GPU's 2²⁰ threads are capped at 12.
+    let slots_per_pixel: u64 = if ctx.adapter.software { 4096 / 576 } else { 12 };
+    for (name, s, set, per_slot) in cases {
+        let chunks = 12u64.div_ceil(slots_per_pixel * per_slot);
+        let per_slot = per_slot.to_string();
+        let vars = |staged| {
+            [
+                ("STCVAE_GPU_LANE_SAMPLES", per_slot.as_str()),
+                ("STCVAE_GPU_BOUNCES", "4096"),
+                ("STCVAE_GPU_STAGED", staged),
+            ]
+        };
+        let base = render_gpu_with_env(&ctx, s, &set, &opts(12, 5), &vars("0")).unwrap();
+        assert_eq!(
+            (base.dispatch.dispatches, base.dispatch.redone),
+            (chunks, 0),
+            "{name}: a path was resumed"
+        );
         assert!(!base.dispatch.staged);
-        let staged = render_gpu_with_env(
-            &ctx,
-            s,
-            &set,
-            &opts(6, 5),
-            &[("STCVAE_GPU_LANE_SAMPLES", "1"), ("STCVAE_GPU_STAGED", "1")],
-        )
-        .unwrap();
+        let staged = render_gpu_with_env(&ctx, s, &set, &opts(12, 5), &vars("1")).unwrap();
         assert!(staged.dispatch.staged);
         assert!(base.image.pixels.iter().any(|p| p[0] > 0.0), "{name}");
         // Exact steps are where the staged render parks a walk for its own kernel.
@@ -1394,6 +1405,25 @@ fn kernel_shapes_render_the_same_image() {
         e.contains("workgroup memory") && e.contains("STCVAE_GPU_STACK=private"),
         "{e}"
     );
+    // So is an adapter with fewer storage buffers per shader stage than the kernels bind:
+    // 7 (WebGPU's default of 8 allows it), 9 for the staged render.
+    for (offered, staged, needed) in [(6, "0", "bind 7"), (8, "1", "binds 9")] {
+        let saved = ctx.limits.clone();
+        ctx.limits.max_storage_buffers_per_shader_stage = offered;
+        let refused = render_gpu_with_env(
+            &ctx,
+            &s,
+            &settings(IntegratorKind::Pt, true),
+            &opts(1, 1),
+            &[("STCVAE_GPU_STAGED", staged)],
+        );
+        ctx.limits = saved;
+        let e = refusal(refused, "an adapter short of storage buffers");
+        assert!(
+            e.contains(needed) && e.contains(&format!("offers {offered}")),
+            "{e}"
+        );
+    }
 }
 
 /// The lane profile (`STCVAE_GPU_PROFILE=1`) counts, per phase of the kernel, its subgroup

@@ -15,6 +15,16 @@ const PT: &str = include_str!("../../../../shaders/pt.wgsl");
 const STCVAE: &str = include_str!("../../../../shaders/stcvae.wgsl");
 const PATH: &str = include_str!("../../../../shaders/path.wgsl");
 const PROBE: &str = include_str!("../../../../shaders/probe.wgsl");
+const STAGED: &str = include_str!("../../../../shaders/staged.wgsl");
+const STAGED_WALK: &str = include_str!("../../../../shaders/staged_walk.wgsl");
+
+/// The single ST-CVAE kernel parks no exact step (`park_walks` stays false): `scatter_at`'s
+/// calls into the staged walk stage (shaders/staged_walk.wgsl) land here, and the kernel
+/// binds none of the staged buffers.
+const WALK_STUBS: &str = "fn save_walk_inputs(tau: f32, channel: u32, m: u32, f_unit: f32) {}\n\
+     fn load_walk() -> ExactWalk {\n\
+     \x20   return ExactWalk(vec3<f32>(0.0, 0.0, 1.0), vec3<f32>(0.0, 0.0, 1.0), 1.0, 0u);\n\
+     }\n";
 
 /// Entries of each invocation's BVH traversal stack (shaders/scene.wgsl). A depth-first
 /// traversal of a BVH2 of depth D needs at most D + 1; the renderer refuses deeper trees.
@@ -50,10 +60,12 @@ pub struct KernelShape {
     /// Count the SIMD lanes busy in each phase of the kernel ([`PROFILE_PHASES`];
     /// `STCVAE_GPU_PROFILE`): needs subgroup operations; changes no path either.
     pub profile: bool,
-    /// Render in two kernels taking turns (`STCVAE_GPU_STAGED`): `stage_main` runs every
-    /// path to its next ray query and queues it, `trace_main` traces the queue. The same
-    /// paths as the one kernel `render_main` (tested bit for bit), with the traversals
-    /// compacted so that their SIMD lanes all work.
+    /// Render in kernels taking turns (`STCVAE_GPU_STAGED`, shaders/staged.wgsl):
+    /// `stage_main` runs every path to its next ray query or exact step and queues it,
+    /// `trace_main` traces the queued queries and `walk_main` runs the queued walks. The
+    /// single kernel's paths, random numbers and all, with the traversals and walks
+    /// compacted so that their SIMD lanes work together; the image is the single kernel's
+    /// bit for bit wherever that finishes each path in one dispatch (tested).
     pub staged: bool,
 }
 
@@ -277,10 +289,25 @@ pub fn source(
         profile_wgsl(shape.profile),
     );
 
-    let parts: &[&str] = match kernel {
-        Kernel::Pt => &[COMMON, &stack, SCENE, NEE, PT, PATH],
-        Kernel::Stcvae => &[COMMON, &stack, SCENE, NEE, DECODER, &decoders, STCVAE, PATH],
-        Kernel::Probe => &[
+    let parts: &[&str] = match (kernel, shape.staged) {
+        (Kernel::Pt, false) => &[COMMON, &stack, SCENE, NEE, PT, PATH],
+        (Kernel::Pt, true) => &[COMMON, &stack, SCENE, NEE, PT, PATH, STAGED],
+        (Kernel::Stcvae, false) => &[
+            COMMON, &stack, SCENE, NEE, DECODER, &decoders, STCVAE, PATH, WALK_STUBS,
+        ],
+        (Kernel::Stcvae, true) => &[
+            COMMON,
+            &stack,
+            SCENE,
+            NEE,
+            DECODER,
+            &decoders,
+            STCVAE,
+            PATH,
+            STAGED,
+            STAGED_WALK,
+        ],
+        (Kernel::Probe, _) => &[
             COMMON, &stack, SCENE, NEE, DECODER, &decoders, PT, PATH, PROBE,
         ],
     };
@@ -313,26 +340,55 @@ fn uniform(binding: u32) -> wgpu::BindGroupLayoutEntry {
     }
 }
 
+/// Storage buffers the kernels bind (all but the model's uniform): 7 for the single kernels,
+/// within WebGPU's default of 8; the staged render's two more exceed it, which the adapters
+/// seen here allow (lavapipe 32, NVIDIA far more).
+pub fn storage_buffers(staged: bool) -> u32 {
+    if staged { 9 } else { 7 }
+}
+
 /// The bind-group layout of `shaders/scene.wgsl`: params, accum, counters, triangles,
-/// nodes, environment map, distance grid, model params, the staged render's query records
-/// and queue.
-pub fn bind_group_layout(ctx: &GpuContext) -> wgpu::BindGroupLayout {
-    ctx.device
+/// nodes, environment map, distance grid, model params, and for the staged render
+/// (`staged`) its records and queues (shaders/staged.wgsl). An adapter with fewer storage
+/// buffers per shader stage than [`storage_buffers`] is refused with a clear error instead
+/// of wgpu's validation panic.
+pub fn bind_group_layout(
+    ctx: &GpuContext,
+    staged: bool,
+) -> Result<wgpu::BindGroupLayout, RenderError> {
+    let needed = storage_buffers(staged);
+    let offered = ctx.limits.max_storage_buffers_per_shader_stage;
+    if offered < needed {
+        let what = if staged {
+            "the staged GPU render (STCVAE_GPU_STAGED) binds"
+        } else {
+            "the GPU kernels bind"
+        };
+        return Err(RenderError::GpuLimit(format!(
+            "{what} {needed} storage buffers; {} offers {offered} per shader stage; use \
+             --device cpu",
+            ctx.adapter.name
+        )));
+    }
+    let mut entries = vec![
+        storage(0, true),
+        storage(1, false),
+        storage(2, false),
+        storage(3, true),
+        storage(4, true),
+        storage(5, true),
+        storage(6, true),
+        uniform(7),
+    ];
+    if staged {
+        entries.extend([storage(8, false), storage(9, false)]);
+    }
+    Ok(ctx
+        .device
         .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("stcvae scene"),
-            entries: &[
-                storage(0, true),
-                storage(1, false),
-                storage(2, false),
-                storage(3, true),
-                storage(4, true),
-                storage(5, true),
-                storage(6, true),
-                uniform(7),
-                storage(8, false),
-                storage(9, false),
-            ],
-        })
+            entries: &entries,
+        }))
 }
 
 /// Compiles `entry` of `kernel` (with `path_nee_m` path-level NEE reservoirs, in `shape`,

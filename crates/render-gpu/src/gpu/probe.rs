@@ -37,7 +37,7 @@ pub fn run_probe_on(
         // A root and the two bounds entries (scene.wgsl, `mesh_bounds`).
         None => (vec![GpuNode::default(); 3], vec![GpuTri::default()]),
     };
-    let layout = kernels::bind_group_layout(ctx);
+    let layout = kernels::bind_group_layout(ctx, false)?;
     let shape = KernelShape::default();
     let pipeline = kernels::pipeline(ctx, &layout, Kernel::Probe, Some(model), 0, shape, entry)?;
     let mut params = Params::default();

@@ -105,8 +105,8 @@ pub fn kernel_shape() -> Result<KernelShape, RenderError> {
         shape.staged = parse_switch(
             "STCVAE_GPU_STAGED",
             &v,
-            "render in two kernels taking turns: paths to their next ray query, then the \
-             queue of queries traced",
+            "render in kernels taking turns: paths to their next ray query or exact step, \
+             then the queued queries traced and walks run",
         )?;
     }
     if let Some(v) = env_value("STCVAE_GPU_STACK") {
@@ -246,22 +246,31 @@ struct Band {
 }
 
 /// Turns of the staged render per submission: the pending count is read back after each
-/// submission, and a few turns too many at a chunk's end cost only slots that load their
-/// state and stop.
+/// submission; turns after the chunk's last path ended dispatch nothing (their queues are
+/// empty).
 const STAGED_ROUNDS: u32 = 8;
+
+/// A render's kernels: the single kernel (`render_main`), or the staged render's.
+enum Kernels {
+    Single(wgpu::ComputePipeline),
+    Staged(StagedKernels),
+}
+
+/// The path states before the dispatch in flight (software adapters): the accumulation
+/// slots, and a staged render's records (`stage_bytes` of them).
+struct Snapshot {
+    accum: wgpu::Buffer,
+    stage: Option<(wgpu::Buffer, u64)>,
+}
 
 /// What every dispatch of a render uses.
 struct Dispatcher<'a> {
     ctx: &'a GpuContext,
     res: &'a Resources,
-    pipeline: &'a wgpu::ComputePipeline,
-    /// The staged render's kernels, taking the place of `pipeline`.
-    staged: Option<&'a StagedKernels>,
-    /// The path states before the dispatch in flight (software adapters), followed by
-    /// the query records of a staged render (`stage_bytes`).
-    snapshot: Option<&'a wgpu::Buffer>,
-    stage_bytes: u64,
-    /// Path slots with a query record (those of the largest band).
+    kernels: &'a Kernels,
+    snapshot: Option<&'a Snapshot>,
+    /// Path slots with a staged record: the largest band's (the WGSL finds the list after
+    /// that many records).
     stage_slots: u64,
 }
 
@@ -283,10 +292,8 @@ impl Dispatcher<'_> {
         let Self {
             ctx,
             res,
-            pipeline,
-            staged,
+            kernels,
             snapshot,
-            stage_bytes,
             stage_slots,
         } = *self;
         params.image[1] = band.rows;
@@ -302,13 +309,13 @@ impl Dispatcher<'_> {
                 .write_buffer(&res.counters, 0, &[0u8; COUNTER_BYTES as usize]);
             let snap = snapshot.filter(|_| *budget > 1);
             if let Some(snap) = snap {
-                res.copy(ctx, (accum, 0), (snap, 0), band.bytes);
-                if staged.is_some() {
-                    res.copy(ctx, (&res.stage, 0), (snap, band.bytes), stage_bytes);
+                res.copy(ctx, (accum, 0), (&snap.accum, 0), band.bytes);
+                if let Some((stage, bytes)) = &snap.stage {
+                    res.copy(ctx, (&res.stage, 0), (stage, 0), *bytes);
                 }
             }
-            match staged {
-                Some(kernels) => {
+            match kernels {
+                Kernels::Staged(staged) => {
                     // A chunk's first turn alone: the dispatch kind in params is for it.
                     let rounds = if params.misc[3] != 0 {
                         1
@@ -321,10 +328,9 @@ impl Dispatcher<'_> {
                         slots: stage_slots,
                         first: params.misc[3] != 0,
                     };
-                    res.staged_rounds(ctx, kernels, turn, rounds);
-                    dispatch.dispatches += 2 * rounds as u64;
+                    dispatch.dispatches += res.staged_rounds(ctx, staged, turn, rounds);
                 }
-                None => {
+                Kernels::Single(pipeline) => {
                     res.dispatch(ctx, pipeline, band.groups, band.index);
                     dispatch.dispatches += 1;
                 }
@@ -337,9 +343,9 @@ impl Dispatcher<'_> {
                 && let Some(snap) = snap
             {
                 // Undo the cut-off dispatch and redo it with half the budget.
-                res.copy(ctx, (snap, 0), (accum, 0), band.bytes);
-                if staged.is_some() {
-                    res.copy(ctx, (snap, band.bytes), (&res.stage, 0), stage_bytes);
+                res.copy(ctx, (&snap.accum, 0), (accum, 0), band.bytes);
+                if let Some((stage, bytes)) = &snap.stage {
+                    res.copy(ctx, (stage, 0), (&res.stage, 0), *bytes);
                 }
                 dispatch.redone += 1;
                 *budget /= 2;
@@ -405,16 +411,15 @@ pub fn render_gpu(
         )));
     }
     let model = set.model.map(model_params).unwrap_or_default();
-    let layout = kernels::bind_group_layout(ctx);
+    let shape = kernel_shape()?;
+    let layout = kernels::bind_group_layout(ctx, shape.staged)?;
     // Path-level NEE (ST-CVAE only, as on the CPU): its reservoirs travel with each path.
     let path_nee_m = set.path_nee() as u32;
     let slot_vec4s = kernels::slot_vec4s(path_nee_m);
-    let shape = kernel_shape()?;
     let build =
         |entry| kernels::pipeline(ctx, &layout, kernel, set.model, path_nee_m, shape, entry);
-    let pipeline = build("render_main")?;
-    let staged = if shape.staged {
-        Some(StagedKernels {
+    let kernels = if shape.staged {
+        Kernels::Staged(StagedKernels {
             stage: build("stage_main")?,
             trace: build("trace_main")?,
             args: build("args_main")?,
@@ -425,7 +430,7 @@ pub fn render_gpu(
             },
         })
     } else {
-        None
+        Kernels::Single(build("render_main")?)
     };
     let cam = &scene.camera;
     let pixels = cam.width as u64 * cam.height as u64;
@@ -457,7 +462,7 @@ pub fn render_gpu(
             "one row of {} pixels needs {} bytes of path state, over {}'s storage binding \
              limit of {} bytes; use --device cpu",
             cam.width,
-            cam.width as u64 * slot_bytes,
+            cam.width as u64 * binding_bytes,
             ctx.adapter.name,
             limits.max_storage_buffer_binding_size
         )));
@@ -539,8 +544,12 @@ pub fn render_gpu(
     // The path states before the dispatch in flight, kept on software adapters while a
     // cut-off dispatch can be redone with a smaller budget.
     let largest = accum_bytes.iter().copied().max().unwrap_or(0);
-    let snapshot = (ctx.adapter.software && budget > 1)
-        .then(|| res.snapshot_buffer(ctx, largest + stage_bytes));
+    let snapshot = (ctx.adapter.software && budget > 1).then(|| Snapshot {
+        accum: res.snapshot_buffer(ctx, largest),
+        stage: shape
+            .staged
+            .then(|| (res.snapshot_buffer(ctx, stage_bytes), stage_bytes)),
+    });
     if let Some(e) = pollster::block_on(scope.pop()) {
         let total: u64 = accum_bytes.iter().sum();
         return Err(RenderError::GpuLimit(format!(
@@ -552,22 +561,25 @@ pub fn render_gpu(
         )));
     }
     let mut compile_seconds = 0.0;
-    match &staged {
-        // trace_main finds the queue empty (buffers start zeroed): nothing is touched.
-        Some(k) => {
-            for p in [&k.stage, &k.trace] {
+    match &kernels {
+        // The queues and the list start zeroed: trace_main and walk_main find nothing to
+        // do, and the arguments' kernels write arguments the first turn overwrites.
+        Kernels::Staged(k) => {
+            let walk = k.walk.iter();
+            for p in [&k.stage, &k.trace, &k.args, &k.list_args]
+                .into_iter()
+                .chain(walk)
+            {
                 compile_seconds += compile(ctx, &res, p, &params)?;
             }
         }
-        None => compile_seconds = compile(ctx, &res, &pipeline, &params)?,
+        Kernels::Single(p) => compile_seconds = compile(ctx, &res, p, &params)?,
     }
     let gpu = Dispatcher {
         ctx,
         res: &res,
-        pipeline: &pipeline,
-        staged: staged.as_ref(),
+        kernels: &kernels,
         snapshot: snapshot.as_ref(),
-        stage_bytes,
         stage_slots: largest_slots,
     };
     let start = Instant::now();

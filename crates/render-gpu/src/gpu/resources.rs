@@ -15,8 +15,9 @@ pub struct Resources {
     /// One accumulation buffer per band of the image, each within the binding limit.
     pub accums: Vec<wgpu::Buffer>,
     pub counters: wgpu::Buffer,
-    /// The staged render's query records (one per path slot of the largest band) and its
-    /// queue: a length, then slot indices. 16-byte dummies for the one-kernel render.
+    /// The staged render's records (one per path slot of the largest band, then the list)
+    /// and its three queues (running paths, parked walks, queries: shaders/staged.wgsl),
+    /// bound for the staged kernels alone; 16- and 48-byte dummies otherwise.
     pub stage: wgpu::Buffer,
     pub queue: wgpu::Buffer,
     /// The indirect dispatch arguments of the staged render's kernels, copied from the
@@ -164,8 +165,11 @@ impl Resources {
                 let buffers = [
                     &params, accum, &counters, &tris, &nodes, &env, &grid, &model, &stage, &queue,
                 ];
+                // The staged buffers are bound for the staged kernels alone (their layout).
+                let bound = if i.stage_slots > 0 { 10 } else { 8 };
                 let entries: Vec<wgpu::BindGroupEntry> = buffers
                     .iter()
+                    .take(bound)
                     .enumerate()
                     .map(|(k, b)| wgpu::BindGroupEntry {
                         binding: k as u32,
@@ -227,7 +231,15 @@ impl Resources {
     /// have (`args`, `list_args`: the arguments' kernels). The queues are emptied and the
     /// pending counter cleared before each turn, so that after the last it counts the
     /// slots still pending.
-    pub fn staged_rounds(&self, ctx: &GpuContext, k: &StagedKernels, band: Band, rounds: u32) {
+    /// Returns the dispatches submitted.
+    pub fn staged_rounds(
+        &self,
+        ctx: &GpuContext,
+        k: &StagedKernels,
+        band: Band,
+        rounds: u32,
+    ) -> u64 {
+        let mut dispatches = 0;
         let mut enc = ctx
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
@@ -257,16 +269,20 @@ impl Resources {
                 pass.set_pipeline(&k.stage);
                 pass.set_bind_group(0, bind, &[]);
                 pass.dispatch_workgroups(band.groups.0, band.groups.1, 1);
+                dispatches += 1;
             } else {
                 if r == 0 {
                     args(&mut enc, &k.list_args);
                 }
                 indirect(&mut enc, &k.stage, 4);
+                dispatches += 1 + u64::from(r == 0);
             }
             args(&mut enc, &k.args);
             indirect(&mut enc, &k.trace, 36);
+            dispatches += 3;
             if let Some(walk) = &k.walk {
                 indirect(&mut enc, walk, 20);
+                dispatches += 1;
             }
             let list_at = 16 * super::kernels::STAGE_VEC4S * band.slots;
             enc.copy_buffer_to_buffer(&self.queue, 0, &self.stage, list_at, LIST_HEAD);
@@ -279,6 +295,7 @@ impl Resources {
             );
         }
         ctx.queue.submit([enc.finish()]);
+        dispatches
     }
 
     /// Submits one dispatch of `pipeline` over `groups` (x, y) workgroups on these buffers,
