@@ -588,12 +588,14 @@ fn bounce_done(casting: bool) {
 }
 
 /// The slot's state saved (`was_done`: it was done when the dispatch began; then only a
-/// chunk's first dispatch marks it so), its accumulator written and the counters added.
-fn slot_end(was_done: bool) {
+/// chunk's first dispatch marks it so), its accumulator written and the counters added,
+/// with the slot counted as pending if it is and `count_pending` (the staged render counts
+/// its running queue instead).
+fn slot_end(was_done: bool, count_pending: bool) {
     if !was_done || params.misc.w != 0u {
         save_path(sl_base, sl_j, sl_s, sl_done);
     }
-    if !sl_done {
+    if !sl_done && count_pending {
         stats[C_PENDING] = 1u;
     }
     accum[sl_base + ACC] = sl_acc;
@@ -635,5 +637,5 @@ fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_inv
             stats[C_TRUNCATED] = 1u;
         }
     }
-    slot_end(was_done);
+    slot_end(was_done, true);
 }

@@ -74,9 +74,13 @@ fn dispatch_args(n: u32) -> array<u32, 3> {
 /// whose list is a copy of it; walk_main's); the host copies them to its indirect buffer.
 @compute @workgroup_size(1)
 fn args_main() {
-    queue.args = dispatch_args(atomicLoad(&queue.len));
+    let running = atomicLoad(&queue.len);
+    queue.args = dispatch_args(running);
     queue.walk_args = dispatch_args(atomicLoad(&queue.walk_len));
     queue.query_args = dispatch_args(atomicLoad(&queue.query_len));
+    // The invocations still pending are the running paths: counted once here rather than
+    // by an atomic add in every stage_main invocation.
+    atomicStore(&counters[2u * C_PENDING], running);
 }
 
 /// Dispatch arguments for the list (the first stage_main of a submission: the buffer of
@@ -177,7 +181,9 @@ fn stage_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
     if loop_limit_ran_out(u32(params.consts3.z)) {
         stats[C_TRUNCATED] = 1u;
     }
-    slot_end(was_done);
+    // The pending count is args_main's (the running queue's length): not one atomic add
+    // per invocation.
+    slot_end(was_done, false);
 }
 
 @compute @workgroup_size(WORKGROUP)
