@@ -25,9 +25,8 @@ struct PathState {
     radiance: f32,
     scattered: bool,
     alive: bool,
-    // Lower bound on the distance to the surface (0: unknown); set by sphere steps, not
-    // saved between the single kernel's dispatches (0 is always safe; the staged render
-    // keeps it). See PathState::free on the CPU.
+    // Lower bound on the distance to the surface (0: unknown); set by sphere steps, saved
+    // with the path between dispatches. See PathState::free on the CPU.
     free: f32,
 }
 
@@ -361,7 +360,8 @@ const C_EXACT: u32 = 8u;
 /// vec4s (prepended by kernels.rs): position and β (once the path has ended and its NEE
 /// rays are under way, p_nee_sum and p_nee_light instead); direction and radiance; the RNG
 /// state; channel (bits 0–7) | flags (8–15) | NEE rays left (16–), iterations, samples
-/// finished, current sample; the accumulated RGB + finished-sample count of the whole
+/// finished, the free distance (f32 bits; the current sample follows from the samples
+/// finished); the accumulated RGB + finished-sample count of the whole
 /// render (ACC); then per path-level NEE reservoir its event's (X, q) and (W, A).
 const ACC: u32 = 4u;
 const F_ALIVE: u32 = 1u;
@@ -370,7 +370,7 @@ const F_INSIDE: u32 = 4u;
 const F_FROM_STEP: u32 = 8u;
 const F_DONE: u32 = 16u;
 
-fn save_path(base: u32, j: u32, s: u32, done: bool) {
+fn save_path(base: u32, j: u32, done: bool) {
     var flags = 0u;
     if ps.alive { flags |= F_ALIVE; }
     if ps.scattered { flags |= F_SCATTERED; }
@@ -382,7 +382,7 @@ fn save_path(base: u32, j: u32, s: u32, done: bool) {
     accum[base] = select(vec4<f32>(ps.pos, ps.beta), vec4<f32>(p_nee_sum, p_nee_light, 0.0, 0.0), p_nee_left > 0u);
     accum[base + 1u] = vec4<f32>(ps.dir, ps.radiance);
     accum[base + 2u] = bitcast<vec4<f32>>(rng_s);
-    accum[base + 3u] = bitcast<vec4<f32>>(vec4<u32>(p_channel | (flags << 8u) | (p_nee_left << 16u), p_iterations, j, s));
+    accum[base + 3u] = bitcast<vec4<f32>>(vec4<u32>(p_channel | (flags << 8u) | (p_nee_left << 16u), p_iterations, j, bitcast<u32>(ps.free)));
     for (var i = 0u; i < PATH_NEE_M; i++) {
         accum[base + 5u + 2u * i] = vec4<f32>(pn_x[i], pn_q[i]);
         accum[base + 6u + 2u * i] = vec4<f32>(pn_w[i], pn_total);
@@ -537,7 +537,7 @@ fn slot_begin(idx: u32) -> bool {
         if !sl_done {
             let a = accum[base];
             let b = accum[base + 1u];
-            ps = PathState(a.xyz, b.xyz, a.w, b.w, (flags & F_SCATTERED) != 0u, (flags & F_ALIVE) != 0u, 0.0);
+            ps = PathState(a.xyz, b.xyz, a.w, b.w, (flags & F_SCATTERED) != 0u, (flags & F_ALIVE) != 0u, bitcast<f32>(st.w));
             rng_s = bitcast<vec4<u32>>(accum[base + 2u]);
             p_channel = st.x & 0xffu;
             p_inside = (flags & F_INSIDE) != 0u;
@@ -548,7 +548,7 @@ fn slot_begin(idx: u32) -> bool {
             p_nee_sum = a.x;
             p_nee_light = a.y;
             sl_j = st.z;
-            sl_s = st.w;
+            sl_s = sl_first + sl_lanes * sl_j;
             load_path_nee(base);
         }
     }
@@ -593,7 +593,7 @@ fn bounce_done(casting: bool) {
 /// its running queue instead).
 fn slot_end(was_done: bool, count_pending: bool) {
     if !was_done || params.misc.w != 0u {
-        save_path(sl_base, sl_j, sl_s, sl_done);
+        save_path(sl_base, sl_j, sl_done);
     }
     if !sl_done && count_pending {
         stats[C_PENDING] = 1u;

@@ -7,14 +7,13 @@
 // waiting on lanes elsewhere in the bounce. After each turn the host copies the queue of
 // running paths into `stage` (the list), and the next stage_main visits those slots
 // alone: a chunk's first stage_main starts every slot, later ones see only paths still
-// running. The paths and their random numbers are the single kernel's; its image is the
-// same bit for bit wherever the single kernel finishes each path in one dispatch (it
-// forgets a resumed path's free distance and the triangle it left through, which the
-// records below keep).
+// running. The paths and their random numbers are the single kernel's, and so is the
+// image, bit for bit.
 //
 // `stage` holds per slot STAGE_VEC4S vec4s (prepended by kernels.rs): the query's origin
-// and tmax; its direction and flight length; the path's free distance and the triangle it
-// left through, the shadow ray's weight and the query's flags; then the path's channel,
+// and tmax; its direction and flight length; (unused: the free distance is saved with the
+// path), the triangle the path left through (the single kernel forgets it on resuming,
+// which only costs a cast), the shadow ray's weight and the query's flags; then the path's channel,
 // replaced by the answer (hit t, triangle, found, transmittance); then a parked exact
 // step's walk (staged_walk.wgsl, WALK_AT). After the records, the list: a copy of the
 // running paths' queue (its length and dispatch arguments, then slot indices) as u32 bits.
@@ -123,7 +122,6 @@ fn stage_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
     var resume = 0u;
     if !sl_done && params.misc.w == 0u {
         let c = stage[rec + 2u];
-        ps.free = c.x;
         p_left_through = bitcast<u32>(c.y);
         resume = bitcast<u32>(c.w) & (Q_PENDING | Q_WALK);
     }
@@ -174,7 +172,7 @@ fn stage_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
     if !sl_done {
         // Every running path is in the next turn's list; those with a query or a parked
         // step are in that queue too.
-        stage[rec + 2u] = vec4<f32>(ps.free, bitcast<f32>(p_left_through), weight, bitcast<f32>(flags));
+        stage[rec + 2u] = vec4<f32>(0.0, bitcast<f32>(p_left_through), weight, bitcast<f32>(flags));
         let at = atomicAdd(&queue.len, 1u);
         queue.items[at] = idx;
     }

@@ -65,7 +65,7 @@ pub struct KernelShape {
     /// `trace_main` traces the queued queries and `walk_main` runs the queued walks. The
     /// single kernel's paths, random numbers and all, with the traversals and walks
     /// compacted so that their SIMD lanes work together; the image is the single kernel's
-    /// bit for bit wherever that finishes each path in one dispatch (tested).
+    /// bit for bit (tested).
     pub staged: bool,
 }
 

@@ -39,10 +39,10 @@ const TARGET_CHUNK_SECONDS: f64 = 1.0;
 /// snapshot and redone with half the budget, down to one bounce; the budget reached stays
 /// for the rest of the render. The kernel also sees a limit that ran out inside a
 /// dispatch's last bounce (path.wgsl, `loop_limit_ran_out`), so at one bounce a cut-off is
-/// an error, never a silently shortened path. PT's image does not depend on the budget
-/// (paths resume exactly where they stopped); ST-CVAE's expected image does not either,
-/// but a resumed path forgets what is left of its last free ball (its next step uses the
-/// grid's radius alone), so its samples differ. Hardware GPUs have no such limit; 256
+/// an error, never a silently shortened path. The image does not depend on the budget, bit
+/// for bit: paths resume exactly where they stopped, the free distance of an ST-CVAE path
+/// included (tested; until the thirtieth session a resumed path forgot it, and its samples
+/// differed). Hardware GPUs have no such limit; 256
 /// keeps each dispatch far below watchdogs. `STCVAE_GPU_BOUNCES` sets the first value.
 fn bounce_budget(ctx: &GpuContext) -> Result<u32, RenderError> {
     match env_value("STCVAE_GPU_BOUNCES") {
