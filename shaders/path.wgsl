@@ -223,10 +223,6 @@ fn answer_query(q: Query, channel: u32) -> Hit {
 
 /// The bounce after its ray query: `h` its hit, `tr` a shadow ray's transmittance.
 fn bounce_end(q: Query, h: Hit, tr: f32) {
-    let channel = p_channel;
-    let dielectric = params.flags.z != 0u;
-    let ior = params.consts.y;
-    let nee = params.flags.y != 0u;
     if q.shadow {
         if q.query {
             p_nee_light += tr * q.weight;
@@ -240,95 +236,105 @@ fn bounce_end(q: Query, h: Hit, tr: f32) {
     }
     // A staged render's parked exact step comes back straight to its sphere step (the
     // flight that led to it is done: one call site of scatter_at either way).
-    if !walk_resume {
-        let t = q.t;
-        if !p_inside {
-            if !h.found {
-                ps.radiance += ps.beta * escape_radiance(ps.dir, channel, !(nee && ps.scattered));
-                ps.alive = false;
-                return;
-            }
-            let p = ps.pos + ps.dir * h.t;
-            let n = tri_normal(h.prim);
-            if dot(ps.dir, n) > 0.0 {
-                // Met a surface from inside while believed outside: spawned across a gap
-                // thinner than eps into a touching part; enter it here (integrator/mod.rs).
-                p_inside = true;
-                return;
-            }
-            let incoming = ps.dir;
-            if dielectric {
-                let f = fresnel(abs(dot(ps.dir, n)), 1.0, ior);
-                if rand() < f {
-                    ps.dir = reflect_dir(ps.dir, n);
-                    p_left_through = h.prim;
-                } else {
-                    ps.dir = refract_dir(ps.dir, n, 1.0, ior);
-                    p_inside = true;
-                }
-            } else {
-                p_inside = true;
-            }
-            ps.pos = spawn(p, n, ps.dir);
-            if p_inside && beyond_sliver(ps.pos, n) {
-                // Pass the sliver in the direction the path came (integrator/mod.rs).
-                p_inside = false;
-                ps.dir = incoming;
-            }
-            return;
-        }
-        if h.found {
-            ps.free = 0.0;
-            let p = ps.pos + ps.dir * h.t;
-            let n = tri_normal(h.prim);
-            if dot(ps.dir, n) < 0.0 {
-                // Met the surface from outside while believed inside: after a sphere step
-                // the exit was not inside after all. Count it and leave, never enter.
-                if p_from_step {
-                    stats[C_LEAKS] += 1u;
-                }
-                p_inside = false;
-                ps.pos = spawn(p, n, ps.dir);
-                p_from_step = false;
-                return;
-            }
-            if dielectric {
-                let f = fresnel(abs(dot(ps.dir, n)), ior, 1.0);
-                if rand() < f {
-                    ps.dir = reflect_dir(ps.dir, n);
-                } else {
-                    ps.dir = refract_dir(ps.dir, n, ior, 1.0);
-                    p_inside = false;
-                }
-            } else {
-                p_inside = false;
-            }
-            if !p_inside {
-                p_left_through = h.prim;
-            }
-            ps.pos = spawn(p, n, ps.dir);
-            if p_inside && beyond_sliver(ps.pos, n) {
-                // Reflected back inside where the medium is thinner than the offset.
-                p_inside = false;
-            }
-            p_from_step = false;
-            return;
-        }
-        ps.pos += ps.dir * t;
-        ps.free = max(ps.free - t, 0.0);
-        let pad = params.consts.z; // eps, as in Geometry::within_bounds
-        if any(ps.pos < mesh_bounds(false) - pad) || any(ps.pos > mesh_bounds(true) + pad) {
-            // Outside the mesh's bounding box grown by eps: not inside after all (the CPU's
-            // safety net, integrator/mod.rs).
-            stats[C_LEAKS] += 1u;
-            p_inside = false;
-            ps.free = 0.0;
-            p_from_step = false;
-            return;
-        }
+    if walk_resume || flight_end(q.t, h) {
+        prof(6u);
+        p_from_step = scatter_at(p_channel);
     }
-    prof(6u);
-    p_from_step = scatter_at(channel);
+}
+
+/// A flight of length `t` (inside) or to the surface (outside) that met `h`: the surface
+/// crossed, reflected or refracted, or the collision reached. True when the path is at a
+/// collision inside, for its sphere step or PT event.
+fn flight_end(t: f32, h: Hit) -> bool {
+    let channel = p_channel;
+    let dielectric = params.flags.z != 0u;
+    let ior = params.consts.y;
+    let nee = params.flags.y != 0u;
+    if !p_inside {
+        if !h.found {
+            ps.radiance += ps.beta * escape_radiance(ps.dir, channel, !(nee && ps.scattered));
+            ps.alive = false;
+            return false;
+        }
+        let p = ps.pos + ps.dir * h.t;
+        let n = tri_normal(h.prim);
+        if dot(ps.dir, n) > 0.0 {
+            // Met a surface from inside while believed outside: spawned across a gap
+            // thinner than eps into a touching part; enter it here (integrator/mod.rs).
+            p_inside = true;
+            return false;
+        }
+        let incoming = ps.dir;
+        if dielectric {
+            let f = fresnel(abs(dot(ps.dir, n)), 1.0, ior);
+            if rand() < f {
+                ps.dir = reflect_dir(ps.dir, n);
+                p_left_through = h.prim;
+            } else {
+                ps.dir = refract_dir(ps.dir, n, 1.0, ior);
+                p_inside = true;
+            }
+        } else {
+            p_inside = true;
+        }
+        ps.pos = spawn(p, n, ps.dir);
+        if p_inside && beyond_sliver(ps.pos, n) {
+            // Pass the sliver in the direction the path came (integrator/mod.rs).
+            p_inside = false;
+            ps.dir = incoming;
+        }
+        return false;
+    }
+    if h.found {
+        ps.free = 0.0;
+        let p = ps.pos + ps.dir * h.t;
+        let n = tri_normal(h.prim);
+        if dot(ps.dir, n) < 0.0 {
+            // Met the surface from outside while believed inside: after a sphere step
+            // the exit was not inside after all. Count it and leave, never enter.
+            if p_from_step {
+                stats[C_LEAKS] += 1u;
+            }
+            p_inside = false;
+            ps.pos = spawn(p, n, ps.dir);
+            p_from_step = false;
+            return false;
+        }
+        if dielectric {
+            let f = fresnel(abs(dot(ps.dir, n)), ior, 1.0);
+            if rand() < f {
+                ps.dir = reflect_dir(ps.dir, n);
+            } else {
+                ps.dir = refract_dir(ps.dir, n, ior, 1.0);
+                p_inside = false;
+            }
+        } else {
+            p_inside = false;
+        }
+        if !p_inside {
+            p_left_through = h.prim;
+        }
+        ps.pos = spawn(p, n, ps.dir);
+        if p_inside && beyond_sliver(ps.pos, n) {
+            // Reflected back inside where the medium is thinner than the offset.
+            p_inside = false;
+        }
+        p_from_step = false;
+        return false;
+    }
+    ps.pos += ps.dir * t;
+    ps.free = max(ps.free - t, 0.0);
+    let pad = params.consts.z; // eps, as in Geometry::within_bounds
+    if any(ps.pos < mesh_bounds(false) - pad) || any(ps.pos > mesh_bounds(true) + pad) {
+        // Outside the mesh's bounding box grown by eps: not inside after all (the CPU's
+        // safety net, integrator/mod.rs).
+        stats[C_LEAKS] += 1u;
+        p_inside = false;
+        ps.free = 0.0;
+        p_from_step = false;
+        return false;
+    }
+    return true;
 }
 
 /// The finished path's estimate (non-finite ones counted and dropped).
@@ -454,12 +460,10 @@ var<private> sl_px: u32;
 var<private> sl_py: u32;
 var<private> sl_offset: u32;
 var<private> sl_first: u32;
-var<private> sl_lanes: u32;
 var<private> sl_count: u32;
-// Samples finished this chunk, the current sample, whether all are, and the slot's
-// accumulated RGB + finished-sample count.
+// Samples finished this chunk (the current one is sl_first + lanes · sl_j), whether all
+// are, and the slot's accumulated RGB + finished-sample count.
 var<private> sl_j: u32;
-var<private> sl_s: u32;
 var<private> sl_done: bool;
 var<private> sl_acc: vec4<f32>;
 
@@ -510,7 +514,6 @@ fn slot_begin(idx: u32) -> bool {
     sl_pixel_id = pixel + row0 * width;
     sl_offset = channel_offset(params.sampling.z, params.sampling.w, sl_pixel_id);
     sl_first = params.sampling.x + lane;
-    sl_lanes = lanes;
     sl_count = 0u;
     if sl_first < params.sampling.y {
         sl_count = min(params.image.w, (params.sampling.y - sl_first + lanes - 1u) / lanes);
@@ -522,7 +525,6 @@ fn slot_begin(idx: u32) -> bool {
         sl_acc = vec4<f32>(0.0);
     }
     sl_j = 0u;
-    sl_s = sl_first;
     sl_done = sl_count == 0u;
     if params.misc.w != 0u {
         // First dispatch of a chunk of samples: start this invocation's first path.
@@ -548,18 +550,18 @@ fn slot_begin(idx: u32) -> bool {
             p_nee_sum = a.x;
             p_nee_light = a.y;
             sl_j = st.z;
-            sl_s = sl_first + sl_lanes * sl_j;
             load_path_nee(base);
         }
     }
     return true;
 }
 
-/// Starts sample sl_s of the slot's pixel: its seed, camera ray and channel.
+/// Starts the slot's current sample (sl_j of this chunk): its seed, camera ray and channel.
 fn start_sample() {
-    rng_seed(params.sampling.z, params.sampling.w, sl_pixel_id, sl_s);
+    let s = sl_first + params.image.z * sl_j;
+    rng_seed(params.sampling.z, params.sampling.w, sl_pixel_id, s);
     let dir = camera_dir(f32(sl_px) + rand(), f32(sl_py) + rand());
-    start_path(params.cam_origin.xyz, dir, (sl_s + sl_offset) % 3u);
+    start_path(params.cam_origin.xyz, dir, (s + sl_offset) % 3u);
 }
 
 /// After a bounce (`casting`: it cast one of an ended path's NEE rays): a bounce that
@@ -581,7 +583,6 @@ fn bounce_done(casting: bool) {
         if sl_j >= sl_count {
             sl_done = true;
         } else {
-            sl_s = sl_first + sl_lanes * sl_j;
             start_sample();
         }
     }

@@ -16,8 +16,8 @@ use super::kernels::{self, Kernel, KernelShape, StackMemory};
 
 use super::model_buffers::model_params;
 use super::resources::{
-    self, COUNTER_BYTES, Inputs, PENDING_SLOT, Resources, StagedKernels, read_back, stage_bytes,
-    wait,
+    COUNTER_BYTES, Inputs, PENDING_SLOT, Resources, STAGE_SLOT_BYTES, StagedKernels, Turn,
+    read_back, wait,
 };
 use super::scene_buffers::{
     Params, bvh_depth, env_buffer, geometry_buffers, grid_buffer, scene_params,
@@ -257,10 +257,10 @@ enum Kernels {
 }
 
 /// The path states before the dispatch in flight (software adapters): the accumulation
-/// slots, and a staged render's records (`stage_bytes` of them).
+/// slots, and a staged render's records.
 struct Snapshot {
     accum: wgpu::Buffer,
-    stage: Option<(wgpu::Buffer, u64)>,
+    stage: Option<wgpu::Buffer>,
 }
 
 /// What every dispatch of a render uses.
@@ -269,9 +269,6 @@ struct Dispatcher<'a> {
     res: &'a Resources,
     kernels: &'a Kernels,
     snapshot: Option<&'a Snapshot>,
-    /// Path slots with a staged record: the largest band's (the WGSL finds the list after
-    /// that many records).
-    stage_slots: u64,
 }
 
 impl Dispatcher<'_> {
@@ -294,7 +291,6 @@ impl Dispatcher<'_> {
             res,
             kernels,
             snapshot,
-            stage_slots,
         } = *self;
         params.image[1] = band.rows;
         params.cam_right[3] = band.row0 as f32;
@@ -310,8 +306,8 @@ impl Dispatcher<'_> {
             let snap = snapshot.filter(|_| *budget > 1);
             if let Some(snap) = snap {
                 res.copy(ctx, (accum, 0), (&snap.accum, 0), band.bytes);
-                if let Some((stage, bytes)) = &snap.stage {
-                    res.copy(ctx, (&res.stage, 0), (stage, 0), *bytes);
+                if let Some(stage) = &snap.stage {
+                    res.copy(ctx, (&res.stage, 0), (stage, 0), stage.size());
                 }
             }
             match kernels {
@@ -322,10 +318,9 @@ impl Dispatcher<'_> {
                     } else {
                         STAGED_ROUNDS
                     };
-                    let turn = resources::Band {
+                    let turn = Turn {
                         index: band.index,
                         groups: band.groups,
-                        slots: stage_slots,
                         first: params.misc[3] != 0,
                     };
                     dispatch.dispatches += res.staged_rounds(ctx, staged, turn, rounds);
@@ -344,8 +339,8 @@ impl Dispatcher<'_> {
             {
                 // Undo the cut-off dispatch and redo it with half the budget.
                 res.copy(ctx, (&snap.accum, 0), (accum, 0), band.bytes);
-                if let Some((stage, bytes)) = &snap.stage {
-                    res.copy(ctx, (stage, 0), (&res.stage, 0), *bytes);
+                if let Some(stage) = &snap.stage {
+                    res.copy(ctx, (stage, 0), (&res.stage, 0), stage.size());
                 }
                 dispatch.redone += 1;
                 *budget /= 2;
@@ -443,7 +438,7 @@ pub fn render_gpu(
     // The staged render's records (and list entry) per slot are larger still, and take
     // one binding too.
     let binding_bytes = if shape.staged {
-        slot_bytes.max(stage_bytes(1) - stage_bytes(0))
+        slot_bytes.max(STAGE_SLOT_BYTES)
     } else {
         slot_bytes
     };
@@ -490,13 +485,8 @@ pub fn render_gpu(
         })
         .collect();
     let accum_bytes: Vec<u64> = bands.iter().map(|b| b.bytes).collect();
-    // The staged render's query records serve every band in turn.
+    // The staged render's records serve every band in turn.
     let largest_slots = accum_bytes.iter().copied().max().unwrap_or(0) / slot_bytes;
-    let stage_bytes = if shape.staged {
-        stage_bytes(largest_slots)
-    } else {
-        0
-    };
     let mut params: Params = scene_params(scene, set, opts.seed);
     let depth = bvh_depth(&scene.geo.bvh);
     if depth + 1 > kernels::STACK_DEPTH as usize {
@@ -548,7 +538,7 @@ pub fn render_gpu(
         accum: res.snapshot_buffer(ctx, largest),
         stage: shape
             .staged
-            .then(|| (res.snapshot_buffer(ctx, stage_bytes), stage_bytes)),
+            .then(|| res.snapshot_buffer(ctx, res.stage.size())),
     });
     if let Some(e) = pollster::block_on(scope.pop()) {
         let total: u64 = accum_bytes.iter().sum();
@@ -580,7 +570,6 @@ pub fn render_gpu(
         res: &res,
         kernels: &kernels,
         snapshot: snapshot.as_ref(),
-        stage_slots: largest_slots,
     };
     let start = Instant::now();
     let mut stats = PathStats::default();

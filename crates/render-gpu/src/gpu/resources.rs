@@ -23,6 +23,9 @@ pub struct Resources {
     /// The indirect dispatch arguments of the staged render's kernels, copied from the
     /// queue's (not bound: a buffer may not be both).
     args: wgpu::Buffer,
+    /// Path slots with a staged record: the largest band's (the WGSL finds the list after
+    /// that many records); 0 for the single kernel.
+    stage_slots: u64,
     /// One bind group per band: the same inputs, that band's accumulation buffer.
     bind_groups: Vec<wgpu::BindGroup>,
     /// Kept alive for the bind groups.
@@ -42,8 +45,11 @@ pub const PENDING_SLOT: u64 = 6;
 /// records, then the list of slots to advance (a copy of the queue: length, then slot
 /// indices), rounded up to whole vec4s.
 pub fn stage_bytes(slots: u64) -> u64 {
-    (16 * super::kernels::STAGE_VEC4S * slots + LIST_HEAD + 4 * slots).next_multiple_of(16)
+    (STAGE_SLOT_BYTES * slots + LIST_HEAD).next_multiple_of(16)
 }
+
+/// Bytes of the `stage` buffer per path slot: its record and its list entry.
+pub const STAGE_SLOT_BYTES: u64 = 16 * super::kernels::STAGE_VEC4S + 4;
 
 /// Bytes before the queues' slot indices: the running paths' queue's length and dispatch
 /// arguments, then the parked walks', then the queries' (`Queue` in shaders/scene.wgsl).
@@ -190,6 +196,7 @@ impl Resources {
             stage,
             queue,
             args,
+            stage_slots: i.stage_slots,
             bind_groups,
             _inputs: vec![tris, nodes, env, grid, model],
         })
@@ -223,79 +230,68 @@ impl Resources {
         ctx.queue.submit([enc.finish()]);
     }
 
-    /// Submits `rounds` turns of the staged render over band `band` with `slots` path
-    /// slots: `stage` (the listed slots to their next ray query or exact step, queued; in a
-    /// chunk's first turn, `first`, every slot of the band), then `trace` (the queries) and
-    /// `walk` (the exact steps' walks, ST-CVAE), then the queue of running paths copied into
-    /// the list of the next turn. The kernels are dispatched indirectly over the slots they
-    /// have (`args`, `list_args`: the arguments' kernels). The queues are emptied and the
-    /// pending counter cleared before each turn, so that after the last it counts the
-    /// slots still pending.
-    /// Returns the dispatches submitted.
+    /// Submits `rounds` turns of the staged render over band `turn.index`: `stage` (the
+    /// listed slots to their next ray query or exact step, queued; in a chunk's first turn,
+    /// `turn.first`, every slot of the band, over `turn.groups`), then `trace` (the
+    /// queries) and `walk` (the exact steps' walks, ST-CVAE), then the queue of running
+    /// paths copied into the list of the next turn. The kernels are dispatched indirectly
+    /// over the slots they have (`args`, `list_args`: the arguments' kernels). The queues
+    /// are emptied and the pending counter cleared before each turn, so that after the
+    /// last it counts the slots still pending. Returns the dispatches submitted.
     pub fn staged_rounds(
         &self,
         ctx: &GpuContext,
         k: &StagedKernels,
-        band: Band,
+        turn: Turn,
         rounds: u32,
     ) -> u64 {
-        let mut dispatches = 0;
+        let dispatches = std::cell::Cell::new(0);
         let mut enc = ctx
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-        let bind = &self.bind_groups[band.index];
-        let args = |enc: &mut wgpu::CommandEncoder, p: &wgpu::ComputePipeline| {
-            {
-                let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
-                pass.set_pipeline(p);
-                pass.set_bind_group(0, bind, &[]);
-                pass.dispatch_workgroups(1, 1, 1);
-            }
-            // The queues' arguments, at the queue's offsets (after list_args only the
-            // running paths' are fresh, and only they are used).
+        let pass = |enc: &mut wgpu::CommandEncoder, p, groups| {
+            self.encode(enc, p, groups, turn.index);
+            dispatches.set(dispatches.get() + 1);
+        };
+        // The arguments' kernel `p`, then the queues' arguments copied at the queue's
+        // offsets (after list_args only the running paths' are fresh, and only they are
+        // used).
+        let args = |enc: &mut wgpu::CommandEncoder, p| {
+            pass(enc, p, Groups::Direct(1, 1));
             enc.copy_buffer_to_buffer(&self.queue, 0, &self.args, 0, QUEUE_HEAD);
         };
-        let indirect = |enc: &mut wgpu::CommandEncoder, p: &wgpu::ComputePipeline, at: u64| {
-            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
-            pass.set_pipeline(p);
-            pass.set_bind_group(0, bind, &[]);
-            pass.dispatch_workgroups_indirect(&self.args, at);
-        };
+        let list_at = 16 * super::kernels::STAGE_VEC4S * self.stage_slots;
         for r in 0..rounds {
             enc.clear_buffer(&self.queue, 0, Some(QUEUE_HEAD));
             enc.clear_buffer(&self.counters, 8 * PENDING_SLOT, Some(8));
-            if r == 0 && band.first {
-                let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
-                pass.set_pipeline(&k.stage);
-                pass.set_bind_group(0, bind, &[]);
-                pass.dispatch_workgroups(band.groups.0, band.groups.1, 1);
-                dispatches += 1;
+            if r == 0 && turn.first {
+                pass(
+                    &mut enc,
+                    &k.stage,
+                    Groups::Direct(turn.groups.0, turn.groups.1),
+                );
             } else {
                 if r == 0 {
                     args(&mut enc, &k.list_args);
                 }
-                indirect(&mut enc, &k.stage, 4);
-                dispatches += 1 + u64::from(r == 0);
+                pass(&mut enc, &k.stage, Groups::Indirect(4));
             }
             args(&mut enc, &k.args);
-            indirect(&mut enc, &k.trace, 36);
-            dispatches += 3;
+            pass(&mut enc, &k.trace, Groups::Indirect(36));
             if let Some(walk) = &k.walk {
-                indirect(&mut enc, walk, 20);
-                dispatches += 1;
+                pass(&mut enc, walk, Groups::Indirect(20));
             }
-            let list_at = 16 * super::kernels::STAGE_VEC4S * band.slots;
             enc.copy_buffer_to_buffer(&self.queue, 0, &self.stage, list_at, LIST_HEAD);
             enc.copy_buffer_to_buffer(
                 &self.queue,
                 QUEUE_HEAD,
                 &self.stage,
                 list_at + LIST_HEAD,
-                4 * band.slots,
+                4 * self.stage_slots,
             );
         }
         ctx.queue.submit([enc.finish()]);
-        dispatches
+        dispatches.get()
     }
 
     /// Submits one dispatch of `pipeline` over `groups` (x, y) workgroups on these buffers,
@@ -310,14 +306,34 @@ impl Resources {
         let mut enc = ctx
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-        {
-            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
-            pass.set_pipeline(pipeline);
-            pass.set_bind_group(0, &self.bind_groups[band], &[]);
-            pass.dispatch_workgroups(groups.0, groups.1, 1);
-        }
+        self.encode(&mut enc, pipeline, Groups::Direct(groups.0, groups.1), band);
         ctx.queue.submit([enc.finish()]);
     }
+
+    /// Encodes a compute pass of `pipeline` with band `band`'s bind group.
+    fn encode(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        pipeline: &wgpu::ComputePipeline,
+        groups: Groups,
+        band: usize,
+    ) {
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+        pass.set_pipeline(pipeline);
+        pass.set_bind_group(0, &self.bind_groups[band], &[]);
+        match groups {
+            Groups::Direct(x, y) => pass.dispatch_workgroups(x, y, 1),
+            Groups::Indirect(at) => pass.dispatch_workgroups_indirect(&self.args, at),
+        }
+    }
+}
+
+/// A dispatch's workgroups: (x, y), or read from the staged render's argument buffer at a
+/// byte offset.
+#[derive(Clone, Copy)]
+enum Groups {
+    Direct(u32, u32),
+    Indirect(u64),
 }
 
 /// The staged render's kernels (gpu/renderer.rs; shaders/path.wgsl).
@@ -331,13 +347,11 @@ pub struct StagedKernels {
 }
 
 /// What one submission of the staged render covers: the band's bind group (`index`), its
-/// workgroups for a direct dispatch over all its slots, the slots with a query record,
-/// and whether it is a chunk's first turn.
+/// workgroups for a direct dispatch over all its slots, and whether it starts a chunk.
 #[derive(Clone, Copy)]
-pub struct Band {
+pub struct Turn {
     pub index: usize,
     pub groups: (u32, u32),
-    pub slots: u64,
     pub first: bool,
 }
 

@@ -1,4 +1,4 @@
-//! Host mirrors of the structs in `shaders/scene.wgsl` (uniform `Params`, storage `Node`
+//! Host mirrors of the structs in `shaders/scene.wgsl` (storage `Params`, storage `Node`
 //! and `Tri`): `#[repr(C)]` + bytemuck, every field a 16-byte group so the WGSL uniform
 //! and storage layouts match without hidden padding.
 
