@@ -600,10 +600,43 @@ fn slot_end(was_done: bool, count_pending: bool) {
         stats[C_PENDING] = 1u;
     }
     accum[sl_base + ACC] = sl_acc;
-    for (var i = 0u; i < 9u; i++) {
-        add_counter(i, stats[i]);
-    }
+    add_stats();
     prof_end();
+}
+
+/// The invocation's counts added to the counters: once per subgroup, by its first active
+/// lane, where the kernel aggregates (gpu/kernels.rs, aggregate_wgsl). The staged render
+/// adds them at every turn, and every invocation adding to the same nine words would
+/// queue up on them. A sum is taken in 16-bit halves, which no subgroup of up to 2^16
+/// lanes can overflow.
+fn add_stats() {
+    let leader = sg_rank() == 0u;
+    for (var i = 0u; i < 9u; i++) {
+        let lo = sg_sum(stats[i] & 0xffffu);
+        let hi = sg_sum(stats[i] >> 16u);
+        if leader {
+            add_counter_wide(i, lo, hi);
+        }
+    }
+}
+
+/// Adds lo + hi·2^16 to counter pair `slot`.
+fn add_counter_wide(slot: u32, lo: u32, hi: u32) {
+    let shifted = hi << 16u;
+    let v = lo + shifted;
+    var carry = hi >> 16u;
+    if v < shifted {
+        carry += 1u;
+    }
+    if v != 0u {
+        let old = atomicAdd(&counters[2u * slot], v);
+        if old + v < old {
+            carry += 1u;
+        }
+    }
+    if carry != 0u {
+        atomicAdd(&counters[2u * slot + 1u], carry);
+    }
 }
 
 /// Renders samples first + lane + lanes·j (j < count) of a pixel, at most

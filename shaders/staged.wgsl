@@ -41,6 +41,28 @@ const Q_LOCAL: u32 = 8u;
 const Q_LAST_LIGHT: u32 = 16u;
 const Q_WALK: u32 = 32u;
 
+// The queues, in the order of their items: running paths, parked exact steps, queries.
+const QUEUE_RUNNING: u32 = 0u;
+const QUEUE_WALKS: u32 = 1u;
+const QUEUE_QUERIES: u32 = 2u;
+
+/// Appends slot `idx` to queue `which`: one atomic add per subgroup (its first active
+/// lane's, for all), the lanes' places following in rank order, where the kernel
+/// aggregates (gpu/kernels.rs, aggregate_wgsl); otherwise one add per invocation.
+fn enqueue(which: u32, idx: u32) {
+    let rank = sg_rank();
+    let n = sg_count();
+    var at = 0u;
+    if rank == 0u {
+        switch which {
+            case QUEUE_RUNNING: { at = atomicAdd(&queue.len, n); }
+            case QUEUE_WALKS: { at = atomicAdd(&queue.walk_len, n); }
+            default: { at = atomicAdd(&queue.query_len, n); }
+        }
+    }
+    queue.items[which * (arrayLength(&queue.items) / 3u) + sg_first(at) + rank] = idx;
+}
+
 /// A slot's saved query read back.
 fn load_query(rec: u32) -> Query {
     let a = stage[rec];
@@ -150,8 +172,7 @@ fn stage_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
                 stage[rec] = vec4<f32>(q.o, q.tmax);
                 stage[rec + 1u] = vec4<f32>(q.d, q.t);
                 stage[rec + 3u] = vec4<f32>(bitcast<f32>(p_channel), 0.0, 0.0, 0.0);
-                let at = atomicAdd(&queue.query_len, 1u);
-                queue.items[2u * (arrayLength(&queue.items) / 3u) + at] = idx;
+                enqueue(QUEUE_QUERIES, idx);
                 break;
             }
         }
@@ -163,8 +184,7 @@ fn stage_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
         if walk_parked {
             // The step waits for walk_main, its bounce unfinished.
             flags = Q_WALK;
-            let at = atomicAdd(&queue.walk_len, 1u);
-            queue.items[arrayLength(&queue.items) / 3u + at] = idx;
+            enqueue(QUEUE_WALKS, idx);
             break;
         }
         bounce_done(q.shadow);
@@ -173,8 +193,7 @@ fn stage_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
         // Every running path is in the next turn's list; those with a query or a parked
         // step are in that queue too.
         stage[rec + 2u] = vec4<f32>(0.0, bitcast<f32>(p_left_through), weight, bitcast<f32>(flags));
-        let at = atomicAdd(&queue.len, 1u);
-        queue.items[at] = idx;
+        enqueue(QUEUE_RUNNING, idx);
     }
     if loop_limit_ran_out(u32(params.consts3.z)) {
         stats[C_TRUNCATED] = 1u;

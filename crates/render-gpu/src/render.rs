@@ -88,6 +88,9 @@ pub struct DispatchStats {
     pub stack: Option<crate::gpu::kernels::StackMemory>,
     /// Whether it ran as the staged render (`STCVAE_GPU_STAGED`).
     pub staged: bool,
+    /// Whether its counters and queues were added to once per subgroup
+    /// (`STCVAE_GPU_AGGREGATE` and the adapter's subgroup operations).
+    pub aggregate: bool,
     /// The SIMD lanes busy in each phase of the kernel (`STCVAE_GPU_PROFILE`).
     pub lanes: Option<LaneProfile>,
 }

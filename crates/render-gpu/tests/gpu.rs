@@ -212,6 +212,41 @@ fn loop_limit_probe_sees_the_limit_run_out() {
     }
 }
 
+/// The path counters the kernels add to (shaders/path.wgsl, add_stats), once per subgroup
+/// (its lanes' sum, in 16-bit halves) or once per invocation: both give the exact 64-bit
+/// totals. 203 items, so the last subgroup of each workgroup is partly empty; counts of 0,
+/// small ones, and ones near 2^32, so that the counters' low words carry; the first 64
+/// alternate 2^32 − 1 and 2^16 − 1, so that a subgroup's sum of halves carries too (8
+/// lanes: low halves 0x7fff8, high halves 0x3fffc, 0x7fff8 + 0xfffc·2^16 ≥ 2^32; 32
+/// lanes: 0x1fffe0 + 0xfff0·2^16). Integer sums, compared exactly.
+#[test]
+fn path_counters_add_up_per_subgroup_and_per_invocation() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let mut rng = WalkRng::from_seed(41);
+    let counts: Vec<[u32; 9]> = (0..203)
+        .map(|i| {
+            std::array::from_fn(|k| match (i + k) % 4 {
+                _ if i < 64 => [u32::MAX, 0xffff][i % 2],
+                0 => 0,
+                1 => (rng.uniform() * 100.0) as u32,
+                2 => u32::MAX - (rng.uniform() * 1000.0) as u32,
+                _ => rng.next_u64() as u32,
+            })
+        })
+        .collect();
+    let want: [u64; 9] = std::array::from_fn(|k| counts.iter().map(|c| c[k] as u64).sum());
+    assert!(
+        want.iter().all(|&w| w > u32::MAX as u64),
+        "every total carries"
+    );
+    for aggregate in [true, false] {
+        let got =
+            render_gpu::gpu::probe::run_counter_probe(&ctx, model(), &counts, aggregate).unwrap();
+        assert_eq!(got, want, "aggregate {aggregate} on {}", ctx.adapter.name);
+    }
+}
+
 /// The WGSL antithetic EventGen pair: the partner's latent and output normals are
 /// exactly the first draw's negated (the decoders only read the noise, so it survives the
 /// first draw), and its event equals the Rust decoder's for that mirrored noise within
@@ -1297,13 +1332,27 @@ fn staged_render_equals_one_kernel() {
         let one_bounce = render(&[lanes, ("STCVAE_GPU_BOUNCES", "1")]);
         let default = render(&[lanes]);
         let staged = render(&[lanes, ("STCVAE_GPU_STAGED", "1")]);
+        // Each invocation adding to the queues and counters itself: another order of the
+        // queues' entries, the same paths.
+        let staged_plain = render(&[
+            lanes,
+            ("STCVAE_GPU_STAGED", "1"),
+            ("STCVAE_GPU_AGGREGATE", "0"),
+        ]);
         // Every bounce was a dispatch of its own: more dispatches than samples per slot.
         assert!(one_bounce.dispatch.dispatches > 12, "{name}");
         assert!(!default.dispatch.staged && staged.dispatch.staged);
+        let subgroups = ctx.features.contains(wgpu::Features::SUBGROUP);
+        assert_eq!(staged.dispatch.aggregate, subgroups);
+        assert!(!staged_plain.dispatch.aggregate);
         assert!(default.image.pixels.iter().any(|p| p[0] > 0.0), "{name}");
         // Exact steps are where the staged render parks a walk for its own kernel.
         assert_eq!(default.stats.exact_steps > 0, set.exact_tau > 0.0, "{name}");
-        for (what, out) in [("one bounce a dispatch", &one_bounce), ("staged", &staged)] {
+        for (what, out) in [
+            ("one bounce a dispatch", &one_bounce),
+            ("staged", &staged),
+            ("staged, not aggregated", &staged_plain),
+        ] {
             assert_eq!(out.stats, default.stats, "{name}, {what}");
             let differ = differing_pixels(&default, out);
             assert_eq!(

@@ -67,6 +67,12 @@ pub struct KernelShape {
     /// compacted so that their SIMD lanes work together; the image is the single kernel's
     /// bit for bit (tested).
     pub staged: bool,
+    /// Add to the counters and queues once per subgroup instead of once per invocation
+    /// (`STCVAE_GPU_AGGREGATE`; on by default, built only where the adapter offers subgroup
+    /// operations): the staged render appends every running path to a queue at every turn,
+    /// and a queue's length is one word that every invocation would otherwise add to
+    /// atomically. Changes no path: only the order of a queue's entries.
+    pub aggregate: bool,
 }
 
 impl Default for KernelShape {
@@ -76,6 +82,7 @@ impl Default for KernelShape {
             stack: StackMemory::Workgroup,
             profile: false,
             staged: false,
+            aggregate: true,
         }
     }
 }
@@ -143,7 +150,46 @@ fn profile_wgsl(on: bool) -> String {
     )
 }
 
+/// The subgroup primitives of the counters and queues ([`KernelShape::aggregate`]): with
+/// subgroup operations, the active lanes' rank and count, a sum over them and the first
+/// one's value; without, each invocation is its own group of one.
+fn aggregate_wgsl(on: bool) -> &'static str {
+    if on {
+        "fn sg_rank() -> u32 {\n\
+         \x20   return subgroupExclusiveAdd(1u);\n\
+         }\n\
+         fn sg_count() -> u32 {\n\
+         \x20   return subgroupAdd(1u);\n\
+         }\n\
+         fn sg_sum(v: u32) -> u32 {\n\
+         \x20   return subgroupAdd(v);\n\
+         }\n\
+         fn sg_first(v: u32) -> u32 {\n\
+         \x20   return subgroupBroadcastFirst(v);\n\
+         }\n"
+    } else {
+        "fn sg_rank() -> u32 {\n\
+         \x20   return 0u;\n\
+         }\n\
+         fn sg_count() -> u32 {\n\
+         \x20   return 1u;\n\
+         }\n\
+         fn sg_sum(v: u32) -> u32 {\n\
+         \x20   return v;\n\
+         }\n\
+         fn sg_first(v: u32) -> u32 {\n\
+         \x20   return v;\n\
+         }\n"
+    }
+}
+
 impl KernelShape {
+    /// The shape as built on `ctx`: aggregation only where its subgroup operations exist.
+    pub fn on(mut self, ctx: &GpuContext) -> Self {
+        self.aggregate &= ctx.features.contains(wgpu::Features::SUBGROUP);
+        self
+    }
+
     /// The workgroup sizes offered: powers of two from lavapipe's SIMD width (8) to the
     /// 256 invocations every adapter allows.
     pub const WORKGROUPS: [u32; 6] = [8, 16, 32, 64, 128, 256];
@@ -277,7 +323,7 @@ pub fn source(
          const EXIT_REFINE_TAU: f32 = {:?};\nconst SLIVER_REACH_OF_EPS: f32 = {:?};\n\
          const PATH_NEE_M: u32 = {path_nee_m}u;\nconst SLOT: u32 = {}u;\n\
          const STAGE_VEC4S: u32 = {STAGE_VEC4S}u;\n\
-         const NODE_COUNT_BITS: u32 = {}u;\nconst COUNTER_WORDS: u32 = {}u;\n{}",
+         const NODE_COUNT_BITS: u32 = {}u;\nconst COUNTER_WORDS: u32 = {}u;\n{}{}",
         shape.wgsl(),
         crate::integrator::nee::ROULETTE_BOUND,
         crate::geometry::FLIGHT_MARGIN_OF_EPS,
@@ -287,6 +333,7 @@ pub fn source(
         super::scene_buffers::GpuNode::COUNT_BITS,
         2 * super::resources::COUNTER_SLOTS,
         profile_wgsl(shape.profile),
+        aggregate_wgsl(shape.aggregate),
     );
 
     let parts: &[&str] = match (kernel, shape.staged) {
@@ -404,7 +451,7 @@ pub fn pipeline(
     entry: &str,
 ) -> Result<wgpu::ComputePipeline, RenderError> {
     shape.check(ctx)?;
-    let src = source(kernel, model, path_nee_m, shape)?;
+    let src = source(kernel, model, path_nee_m, shape.on(ctx))?;
     let scope = ctx.device.push_error_scope(wgpu::ErrorFilter::Validation);
     let module = ctx
         .device

@@ -7,7 +7,7 @@ use crate::error::RenderError;
 use super::context::GpuContext;
 use super::kernels::{self, Kernel, KernelShape};
 use super::model_buffers::model_params;
-use super::resources::{Inputs, Resources, read_back};
+use super::resources::{COUNTER_BYTES, Inputs, Resources, read_back};
 use super::scene_buffers::{GpuNode, GpuTri, Params, geometry_buffers, grid_buffer};
 
 /// One probe item: 32 floats in, 32 floats out (layouts in `shaders/probe.wgsl`).
@@ -32,13 +32,49 @@ pub fn run_probe_on(
     items: &[Item],
     scene: Option<&crate::setup::SceneData>,
 ) -> Result<Vec<Item>, RenderError> {
+    probe(ctx, entry, model, items, scene, KernelShape::default()).map(|(items, _)| items)
+}
+
+/// Runs "probe_counters": item i's nine counts are added to the path counters as a
+/// path slot adds its own (shaders/path.wgsl, add_stats), once per subgroup if
+/// `aggregate` (and the adapter has subgroup operations), else once per item. Returns
+/// the counters' totals.
+pub fn run_counter_probe(
+    ctx: &GpuContext,
+    model: &cvae::ModelSet,
+    counts: &[[u32; 9]],
+    aggregate: bool,
+) -> Result<[u64; 9], RenderError> {
+    let items: Vec<Item> = counts
+        .iter()
+        .map(|c| std::array::from_fn(|k| f32::from_bits(c.get(k).copied().unwrap_or(0))))
+        .collect();
+    let shape = KernelShape {
+        aggregate,
+        ..KernelShape::default()
+    };
+    let (_, counters) = probe(ctx, "probe_counters", model, &items, None, shape)?;
+    let word = |i: usize| u32::from_le_bytes(counters[4 * i..4 * i + 4].try_into().unwrap());
+    Ok(std::array::from_fn(|k| {
+        word(2 * k) as u64 | ((word(2 * k + 1) as u64) << 32)
+    }))
+}
+
+/// Runs `entry` over `items` in kernels of `shape`: the items and the counter buffer after.
+fn probe(
+    ctx: &GpuContext,
+    entry: &str,
+    model: &cvae::ModelSet,
+    items: &[Item],
+    scene: Option<&crate::setup::SceneData>,
+    shape: KernelShape,
+) -> Result<(Vec<Item>, Vec<u8>), RenderError> {
     let (nodes, tris) = match scene {
         Some(s) => geometry_buffers(s)?,
         // A root and the two bounds entries (scene.wgsl, `mesh_bounds`).
         None => (vec![GpuNode::default(); 3], vec![GpuTri::default()]),
     };
     let layout = kernels::bind_group_layout(ctx, false)?;
-    let shape = KernelShape::default();
     let pipeline = kernels::pipeline(ctx, &layout, Kernel::Probe, Some(model), 0, shape, entry)?;
     let mut params = Params::default();
     params.image[0] = items.len() as u32;
@@ -77,8 +113,10 @@ pub fn run_probe_on(
         0,
     );
     let out = read_back(ctx, &res.accums[0], bytes)?;
-    Ok(bytemuck::cast_slice::<u8, f32>(&out)
+    let counters = read_back(ctx, &res.counters, COUNTER_BYTES)?;
+    let items = bytemuck::cast_slice::<u8, f32>(&out)
         .chunks_exact(32)
         .map(|c| c.try_into().unwrap())
-        .collect())
+        .collect();
+    Ok((items, counters))
 }

@@ -109,6 +109,14 @@ pub fn kernel_shape() -> Result<KernelShape, RenderError> {
              then the queued queries traced and walks run",
         )?;
     }
+    if let Some(v) = env_value("STCVAE_GPU_AGGREGATE") {
+        shape.aggregate = parse_switch(
+            "STCVAE_GPU_AGGREGATE",
+            &v,
+            "add to counters and queues once per subgroup where the adapter has subgroup \
+             operations (the default)",
+        )?;
+    }
     if let Some(v) = env_value("STCVAE_GPU_STACK") {
         shape.stack = parse_choice(
             "STCVAE_GPU_STACK",
@@ -406,7 +414,7 @@ pub fn render_gpu(
         )));
     }
     let model = set.model.map(model_params).unwrap_or_default();
-    let shape = kernel_shape()?;
+    let shape = kernel_shape()?.on(ctx);
     let layout = kernels::bind_group_layout(ctx, shape.staged)?;
     // Path-level NEE (ST-CVAE only, as on the CPU): its reservoirs travel with each path.
     let path_nee_m = set.path_nee() as u32;
@@ -578,6 +586,7 @@ pub fn render_gpu(
         workgroup: shape.workgroup,
         stack: Some(shape.stack),
         staged: shape.staged,
+        aggregate: shape.aggregate,
         lanes: shape.profile.then(LaneProfile::new),
         ..Default::default()
     };
