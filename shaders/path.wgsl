@@ -474,6 +474,8 @@ var<private> park_walks: bool;
 var<private> walk_parked: bool;
 var<private> walk_resume: bool;
 var<private> sv_rec: u32;
+// The parked step's optical radius (its walk's queue).
+var<private> walk_tau: f32;
 
 /// The path slot of invocation `gid`, or NO_SLOT.
 const NO_SLOT: u32 = 0xffffffffu;

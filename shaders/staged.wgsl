@@ -24,11 +24,17 @@ struct Queue {
     // The parked exact steps' queue (ST-CVAE) and its dispatch's workgroups.
     walk_len: atomic<u32>,
     walk_args: array<u32, 3>,
-    // The ray queries' queue and its dispatch's workgroups.
+    // The ray queries' queue (its three kinds' together) and its dispatch's workgroups.
     query_len: atomic<u32>,
     query_args: array<u32, 3>,
-    // The running paths' slots, then from index `slots` the parked steps', then from
-    // 2·`slots` the queries'.
+    // The ray queries by kind: local (a grid cell's list first), closest-hit, shadow ray
+    // (the fourth word unused). Queued apart so that trace_main's subgroups run one kind.
+    kinds: array<atomic<u32>, 4>,
+    // The parked steps by optical radius (WALK_BUCKETS), whose square their walks' lengths
+    // follow: walk_main's subgroups run walks of like lengths.
+    walk_kinds: array<atomic<u32>, 4>,
+    // QUEUES regions of `slots` entries: the running paths' slots, the parked steps' of
+    // each optical radius, and the queries' of each kind.
     items: array<u32>,
 }
 @group(0) @binding(8) var<storage, read_write> stage: array<vec4<f32>>;
@@ -41,14 +47,37 @@ const Q_LOCAL: u32 = 8u;
 const Q_LAST_LIGHT: u32 = 16u;
 const Q_WALK: u32 = 32u;
 
-// The queues, in the order of their items: running paths, parked exact steps, queries.
+// The queues, in the order of their items: running paths, parked exact steps, and ray
+// queries of three kinds (Queue.kinds).
 const QUEUE_RUNNING: u32 = 0u;
 const QUEUE_WALKS: u32 = 1u;
-const QUEUE_QUERIES: u32 = 2u;
+const QUEUE_LOCAL: u32 = 5u;
+const QUEUE_CLOSEST: u32 = 6u;
+const QUEUE_SHADOW: u32 = 7u;
+const QUEUES: u32 = 8u;
+// The optical radii that divide the parked steps' four queues.
+const WALK_BUCKETS: vec3<f32> = vec3<f32>(2.0, 5.0, 10.0);
+
+/// The entry of invocation `i` in the queues from `first` on (`count` of them, whose
+/// lengths are `lens`), taken one after another.
+fn queue_entry(first: u32, count: u32, lens: vec4<u32>, i: u32) -> u32 {
+    var k = 0u;
+    var j = i;
+    for (; k + 1u < count && j >= lens[k]; k++) {
+        j -= lens[k];
+    }
+    return queue.items[(first + k) * queue_slots() + j];
+}
+
+/// Path slots per queue region (the largest band's).
+fn queue_slots() -> u32 {
+    return arrayLength(&queue.items) / QUEUES;
+}
 
 /// Appends slot `idx` to queue `which`: one atomic add per subgroup (its first active
 /// lane's, for all), the lanes' places following in rank order, where the kernel
-/// aggregates (gpu/kernels.rs, aggregate_wgsl); otherwise one add per invocation.
+/// aggregates (gpu/kernels.rs, aggregate_wgsl); otherwise one add per invocation. The
+/// active lanes of a call must all pass the same `which` (one call site per queue).
 fn enqueue(which: u32, idx: u32) {
     let rank = sg_rank();
     let n = sg_count();
@@ -56,11 +85,11 @@ fn enqueue(which: u32, idx: u32) {
     if rank == 0u {
         switch which {
             case QUEUE_RUNNING: { at = atomicAdd(&queue.len, n); }
-            case QUEUE_WALKS: { at = atomicAdd(&queue.walk_len, n); }
-            default: { at = atomicAdd(&queue.query_len, n); }
+            case QUEUE_LOCAL, QUEUE_CLOSEST, QUEUE_SHADOW: { at = atomicAdd(&queue.kinds[which - QUEUE_LOCAL], n); }
+            default: { at = atomicAdd(&queue.walk_kinds[which - QUEUE_WALKS], n); }
         }
     }
-    queue.items[which * (arrayLength(&queue.items) / 3u) + sg_first(at) + rank] = idx;
+    queue.items[which * queue_slots() + sg_first(at) + rank] = idx;
 }
 
 /// A slot's saved query read back.
@@ -97,8 +126,15 @@ fn dispatch_args(n: u32) -> array<u32, 3> {
 fn args_main() {
     let running = atomicLoad(&queue.len);
     queue.args = dispatch_args(running);
-    queue.walk_args = dispatch_args(atomicLoad(&queue.walk_len));
-    queue.query_args = dispatch_args(atomicLoad(&queue.query_len));
+    var walks = 0u;
+    for (var k = 0u; k < 4u; k++) {
+        walks += atomicLoad(&queue.walk_kinds[k]);
+    }
+    atomicStore(&queue.walk_len, walks);
+    queue.walk_args = dispatch_args(walks);
+    let queries = atomicLoad(&queue.kinds[0]) + atomicLoad(&queue.kinds[1]) + atomicLoad(&queue.kinds[2]);
+    atomicStore(&queue.query_len, queries);
+    queue.query_args = dispatch_args(queries);
     // The invocations still pending are the running paths: counted once here rather than
     // by an atomic add in every stage_main invocation.
     atomicStore(&counters[2u * C_PENDING], running);
@@ -108,7 +144,7 @@ fn args_main() {
 /// arguments may be from an undone one).
 @compute @workgroup_size(1)
 fn list_args_main() {
-    queue.args = dispatch_args(stage_list_len(arrayLength(&queue.items) / 3u));
+    queue.args = dispatch_args(stage_list_len(queue_slots()));
 }
 
 /// The linear index of invocation `gid` (dispatched as in render_main).
@@ -124,7 +160,7 @@ fn stage_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
     if params.misc.w != 0u {
         idx = slot_of(gid);
     } else {
-        let slots = arrayLength(&queue.items) / 3u;
+        let slots = queue_slots();
         let i = invocation(gid);
         if i < stage_list_len(slots) {
             idx = stage_list(slots, i);
@@ -172,7 +208,14 @@ fn stage_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
                 stage[rec] = vec4<f32>(q.o, q.tmax);
                 stage[rec + 1u] = vec4<f32>(q.d, q.t);
                 stage[rec + 3u] = vec4<f32>(bitcast<f32>(p_channel), 0.0, 0.0, 0.0);
-                enqueue(QUEUE_QUERIES, idx);
+                // One call per kind: enqueue's lanes must share their queue.
+                if q.local {
+                    enqueue(QUEUE_LOCAL, idx);
+                } else if q.shadow {
+                    enqueue(QUEUE_SHADOW, idx);
+                } else {
+                    enqueue(QUEUE_CLOSEST, idx);
+                }
                 break;
             }
         }
@@ -184,7 +227,16 @@ fn stage_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
         if walk_parked {
             // The step waits for walk_main, its bounce unfinished.
             flags = Q_WALK;
-            enqueue(QUEUE_WALKS, idx);
+            // One call per queue: enqueue's lanes must share theirs.
+            if walk_tau < WALK_BUCKETS.x {
+                enqueue(QUEUE_WALKS, idx);
+            } else if walk_tau < WALK_BUCKETS.y {
+                enqueue(QUEUE_WALKS + 1u, idx);
+            } else if walk_tau < WALK_BUCKETS.z {
+                enqueue(QUEUE_WALKS + 2u, idx);
+            } else {
+                enqueue(QUEUE_WALKS + 3u, idx);
+            }
             break;
         }
         bounce_done(q.shadow);
@@ -209,7 +261,8 @@ fn trace_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
     stack_base = li * STACK_STRIDE;
     let i = invocation(gid);
     if i < atomicLoad(&queue.query_len) {
-        let rec = queue.items[2u * (arrayLength(&queue.items) / 3u) + i] * STAGE_VEC4S;
+        let lens = vec4<u32>(atomicLoad(&queue.kinds[0]), atomicLoad(&queue.kinds[1]), atomicLoad(&queue.kinds[2]), 0u);
+        let rec = queue_entry(QUEUE_LOCAL, 3u, lens, i) * STAGE_VEC4S;
         let q = load_query(rec);
         let channel = bitcast<u32>(stage[rec + 3u].x);
         let h = answer_query(q, channel);

@@ -30,9 +30,9 @@ fn load_walk() -> ExactWalk {
 fn walk_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
     prof_begin(li);
     let i = invocation(gid);
-    let slots = arrayLength(&queue.items) / 3u;
     if i < atomicLoad(&queue.walk_len) {
-        let idx = queue.items[slots + i];
+        let lens = vec4<u32>(atomicLoad(&queue.walk_kinds[0]), atomicLoad(&queue.walk_kinds[1]), atomicLoad(&queue.walk_kinds[2]), atomicLoad(&queue.walk_kinds[3]));
+        let idx = queue_entry(QUEUE_WALKS, 4u, lens, i);
         let base = idx * SLOT;
         let rec = idx * STAGE_VEC4S + WALK_AT;
         let inp = stage[rec];

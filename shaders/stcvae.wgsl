@@ -71,6 +71,7 @@ fn scatter_at(channel: u32) -> bool {
             walk = load_walk();
         } else if park_walks {
             walk_parked = true;
+            walk_tau = tau;
             save_walk_inputs(tau, channel, m, max(free / r, 1.0));
             return false;
         } else {

@@ -16,8 +16,8 @@ pub struct Resources {
     pub accums: Vec<wgpu::Buffer>,
     pub counters: wgpu::Buffer,
     /// The staged render's records (one per path slot of the largest band, then the list)
-    /// and its three queues (running paths, parked walks, queries: shaders/staged.wgsl),
-    /// bound for the staged kernels alone; 16- and 48-byte dummies otherwise.
+    /// and its queues (running paths, parked walks, queries by kind: shaders/staged.wgsl),
+    /// bound for the staged kernels alone; 16- and 80-byte dummies otherwise.
     pub stage: wgpu::Buffer,
     pub queue: wgpu::Buffer,
     /// The indirect dispatch arguments of the staged render's kernels, copied from the
@@ -52,8 +52,13 @@ pub fn stage_bytes(slots: u64) -> u64 {
 pub const STAGE_SLOT_BYTES: u64 = 16 * super::kernels::STAGE_VEC4S + 4;
 
 /// Bytes before the queues' slot indices: the running paths' queue's length and dispatch
-/// arguments, then the parked walks', then the queries' (`Queue` in shaders/scene.wgsl).
-const QUEUE_HEAD: u64 = 48;
+/// arguments, then the parked walks', then the queries', then the queries' counts by kind
+/// and the walks' by optical radius (`Queue` in shaders/staged.wgsl).
+const QUEUE_HEAD: u64 = 80;
+
+/// The queues' regions of slot indices (`QUEUES` in shaders/staged.wgsl): running paths,
+/// parked walks by optical radius (four), and ray queries by kind (three).
+const QUEUES: u64 = 8;
 
 /// Bytes before the list's slot indices: the running paths' queue's length and arguments.
 const LIST_HEAD: u64 = 16;
@@ -153,7 +158,7 @@ impl Resources {
             })
         };
         let stage = rw("stage", stage_bytes(i.stage_slots));
-        let queue = rw("queue", QUEUE_HEAD + 12 * i.stage_slots);
+        let queue = rw("queue", QUEUE_HEAD + 4 * QUEUES * i.stage_slots);
         let args = ctx.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("dispatch args"),
             size: QUEUE_HEAD,
