@@ -474,6 +474,10 @@ var<private> park_walks: bool;
 var<private> walk_parked: bool;
 var<private> walk_resume: bool;
 var<private> sv_rec: u32;
+// Likewise for the model's sphere steps (STAGED_STEPS): whether stage_main parks them for
+// step_main, which runs the whole step, and whether this one was parked.
+var<private> park_steps: bool;
+var<private> step_parked: bool;
 // The parked step's optical radius (its walk's queue).
 var<private> walk_tau: f32;
 
@@ -494,9 +498,10 @@ fn slot_of(gid: vec3<u32>) -> u32 {
     return tile * WORKGROUP + gid.x % WORKGROUP;
 }
 
-/// Slot `idx` and its state: a chunk's first dispatch starts its first path, a later one
+/// Slot `idx` and its state: a chunk's first dispatch (`kind` 1; 2: also the render's
+/// first, which clears the accumulator) starts its first path, a later one (`kind` 0)
 /// resumes the saved path. False when the slot is outside the image.
-fn slot_begin(idx: u32) -> bool {
+fn slot_begin(idx: u32, kind: u32) -> bool {
     let width = params.image.x;
     let lanes = params.image.z;
     let pixel = idx / lanes;
@@ -521,14 +526,14 @@ fn slot_begin(idx: u32) -> bool {
         sl_count = min(params.image.w, (params.sampling.y - sl_first + lanes - 1u) / lanes);
     }
     sl_acc = accum[sl_base + ACC];
-    if params.misc.w == 2u {
+    if kind == 2u {
         // First dispatch of the render: clear the accumulator (it was poisoned with NaN,
         // so a slot never reached shows on the host).
         sl_acc = vec4<f32>(0.0);
     }
     sl_j = 0u;
     sl_done = sl_count == 0u;
-    if params.misc.w != 0u {
+    if kind != 0u {
         // First dispatch of a chunk of samples: start this invocation's first path.
         if !sl_done {
             start_sample();
@@ -654,7 +659,7 @@ fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_inv
     prof_begin(li);
     stack_base = li * STACK_STRIDE;
     let idx = slot_of(gid);
-    if idx == NO_SLOT || !slot_begin(idx) {
+    if idx == NO_SLOT || !slot_begin(idx, params.misc.w) {
         return;
     }
     let was_done = sl_done;

@@ -24,6 +24,9 @@ struct Queue {
     // The parked exact steps' queue (ST-CVAE) and its dispatch's workgroups.
     walk_len: atomic<u32>,
     walk_args: array<u32, 3>,
+    // The parked model steps' queue (STAGED_STEPS) and its dispatch's workgroups.
+    step_len: atomic<u32>,
+    step_args: array<u32, 3>,
     // The ray queries' queue (its three kinds' together) and its dispatch's workgroups.
     query_len: atomic<u32>,
     query_args: array<u32, 3>,
@@ -33,8 +36,9 @@ struct Queue {
     // The parked steps by optical radius (WALK_BUCKETS), whose square their walks' lengths
     // follow: walk_main's subgroups run walks of like lengths.
     walk_kinds: array<atomic<u32>, 4>,
-    // QUEUES regions of `slots` entries: the running paths' slots, the parked steps' of
-    // each optical radius, and the queries' of each kind.
+    // QUEUES regions of `slots` entries: the running paths' slots, the parked exact
+    // steps' of each optical radius, the parked model steps', and the queries' of each
+    // kind.
     items: array<u32>,
 }
 @group(0) @binding(8) var<storage, read_write> stage: array<vec4<f32>>;
@@ -46,15 +50,17 @@ const Q_QUERY: u32 = 4u;
 const Q_LOCAL: u32 = 8u;
 const Q_LAST_LIGHT: u32 = 16u;
 const Q_WALK: u32 = 32u;
+const Q_STEP: u32 = 64u;
 
 // The queues, in the order of their items: running paths, parked exact steps, and ray
 // queries of three kinds (Queue.kinds).
 const QUEUE_RUNNING: u32 = 0u;
 const QUEUE_WALKS: u32 = 1u;
-const QUEUE_LOCAL: u32 = 5u;
-const QUEUE_CLOSEST: u32 = 6u;
-const QUEUE_SHADOW: u32 = 7u;
-const QUEUES: u32 = 8u;
+const QUEUE_STEPS: u32 = 5u;
+const QUEUE_LOCAL: u32 = 6u;
+const QUEUE_CLOSEST: u32 = 7u;
+const QUEUE_SHADOW: u32 = 8u;
+const QUEUES: u32 = 9u;
 // The optical radii that divide the parked steps' four queues.
 const WALK_BUCKETS: vec3<f32> = vec3<f32>(2.0, 5.0, 10.0);
 
@@ -85,6 +91,7 @@ fn enqueue(which: u32, idx: u32) {
     if rank == 0u {
         switch which {
             case QUEUE_RUNNING: { at = atomicAdd(&queue.len, n); }
+            case QUEUE_STEPS: { at = atomicAdd(&queue.step_len, n); }
             case QUEUE_LOCAL, QUEUE_CLOSEST, QUEUE_SHADOW: { at = atomicAdd(&queue.kinds[which - QUEUE_LOCAL], n); }
             default: { at = atomicAdd(&queue.walk_kinds[which - QUEUE_WALKS], n); }
         }
@@ -132,6 +139,7 @@ fn args_main() {
     }
     atomicStore(&queue.walk_len, walks);
     queue.walk_args = dispatch_args(walks);
+    queue.step_args = dispatch_args(atomicLoad(&queue.step_len));
     let queries = atomicLoad(&queue.kinds[0]) + atomicLoad(&queue.kinds[1]) + atomicLoad(&queue.kinds[2]);
     atomicStore(&queue.query_len, queries);
     queue.query_args = dispatch_args(queries);
@@ -166,13 +174,14 @@ fn stage_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
             idx = stage_list(slots, i);
         }
     }
-    if idx == NO_SLOT || !slot_begin(idx) {
+    if idx == NO_SLOT || !slot_begin(idx, params.misc.w) {
         return;
     }
     let was_done = sl_done;
     let rec = idx * STAGE_VEC4S;
     sv_rec = rec;
     park_walks = true;
+    park_steps = STAGED_STEPS;
     // What the path left off at: a query answered since (Q_PENDING) or an exact step whose
     // walk is done (Q_WALK). One call site each for bounce_begin and bounce_end: llvmpipe
     // inlines everything, and a second copy of the bounce's end, sphere step and decoders
@@ -181,7 +190,7 @@ fn stage_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
     if !sl_done && params.misc.w == 0u {
         let c = stage[rec + 2u];
         p_left_through = bitcast<u32>(c.y);
-        resume = bitcast<u32>(c.w) & (Q_PENDING | Q_WALK);
+        resume = bitcast<u32>(c.w) & (Q_PENDING | Q_WALK | Q_STEP);
     }
     var flags = 0u;
     var weight = 0.0;
@@ -197,6 +206,9 @@ fn stage_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
             tr = ans.w;
         } else if resume == Q_WALK {
             walk_resume = true;
+        } else if resume == Q_STEP {
+            // step_main ran the sphere step: the bounce is over.
+            q.ended = true;
         } else {
             q = bounce_begin();
             if q.query && !q.ended {
@@ -237,6 +249,12 @@ fn stage_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
             } else {
                 enqueue(QUEUE_WALKS + 3u, idx);
             }
+            break;
+        }
+        if step_parked {
+            // The model's step waits for step_main, which ends its bounce.
+            flags = Q_STEP;
+            enqueue(QUEUE_STEPS, idx);
             break;
         }
         bounce_done(q.shadow);

@@ -52,3 +52,22 @@ fn walk_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invoc
     }
     prof_end();
 }
+
+/// The parked model steps (STAGED_STEPS), one per invocation: each path is loaded at its
+/// collision and its whole sphere step run, decoders and NEE events included, as
+/// scatter_at would have run it in stage_main, so that the decoders run with every lane
+/// on a step rather than waiting on lanes tracing or walking. stage_main then ends the
+/// bounce.
+@compute @workgroup_size(WORKGROUP)
+fn step_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    prof_begin(li);
+    stack_base = li * STACK_STRIDE;
+    let i = invocation(gid);
+    if i < atomicLoad(&queue.step_len) && slot_begin(queue.items[QUEUE_STEPS * queue_slots() + i], 0u) {
+        p_from_step = scatter_at(p_channel);
+        if loop_limit_ran_out(u32(params.consts3.z)) {
+            stats[C_TRUNCATED] = 1u;
+        }
+        slot_end(false, false);
+    }
+}

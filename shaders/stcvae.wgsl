@@ -85,6 +85,13 @@ fn scatter_at(channel: u32) -> bool {
         nee_count = walk.used;
         nee_weight = ps.beta / f32(max(m, 1u));
     } else {
+        if park_steps {
+            // The staged render runs the model's steps in their own kernel (step_main,
+            // staged_walk.wgsl): nothing above changed the path, and step_main computes
+            // it again from the same state.
+            step_parked = true;
+            return false;
+        }
         stats[C_STEPS] += 1u;
         frame = walk_frame(ps.dir, unit_circle());
         // The walk: exact N = 1 branch (probability e^−τ, no decoder), else the decoders.

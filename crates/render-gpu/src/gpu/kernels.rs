@@ -73,6 +73,10 @@ pub struct KernelShape {
     /// and a queue's length is one word that every invocation would otherwise add to
     /// atomically. Changes no path: only the order of a queue's entries.
     pub aggregate: bool,
+    /// In the staged render, run ST-CVAE's model sphere steps (decoders and NEE events)
+    /// in a kernel of their own (`step_main`; `STCVAE_GPU_STAGED_STEPS`, on by default), so
+    /// that the decoders run with every lane on a step. Changes no path.
+    pub steps: bool,
 }
 
 impl Default for KernelShape {
@@ -83,6 +87,7 @@ impl Default for KernelShape {
             profile: false,
             staged: false,
             aggregate: true,
+            steps: true,
         }
     }
 }
@@ -323,7 +328,8 @@ pub fn source(
          const EXIT_REFINE_TAU: f32 = {:?};\nconst SLIVER_REACH_OF_EPS: f32 = {:?};\n\
          const PATH_NEE_M: u32 = {path_nee_m}u;\nconst SLOT: u32 = {}u;\n\
          const STAGE_VEC4S: u32 = {STAGE_VEC4S}u;\n\
-         const NODE_COUNT_BITS: u32 = {}u;\nconst COUNTER_WORDS: u32 = {}u;\n{}{}",
+         const NODE_COUNT_BITS: u32 = {}u;\nconst COUNTER_WORDS: u32 = {}u;\n\
+         const STAGED_STEPS: bool = {};\n{}{}",
         shape.wgsl(),
         crate::integrator::nee::ROULETTE_BOUND,
         crate::geometry::FLIGHT_MARGIN_OF_EPS,
@@ -332,6 +338,7 @@ pub fn source(
         slot_vec4s(path_nee_m),
         super::scene_buffers::GpuNode::COUNT_BITS,
         2 * super::resources::COUNTER_SLOTS,
+        shape.staged && shape.steps,
         profile_wgsl(shape.profile),
         aggregate_wgsl(shape.aggregate),
     );

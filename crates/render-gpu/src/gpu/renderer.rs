@@ -109,6 +109,14 @@ pub fn kernel_shape() -> Result<KernelShape, RenderError> {
              then the queued queries traced and walks run",
         )?;
     }
+    if let Some(v) = env_value("STCVAE_GPU_STAGED_STEPS") {
+        shape.steps = parse_switch(
+            "STCVAE_GPU_STAGED_STEPS",
+            &v,
+            "the staged render runs the model's sphere steps in their own kernel (the \
+             default)",
+        )?;
+    }
     if let Some(v) = env_value("STCVAE_GPU_AGGREGATE") {
         shape.aggregate = parse_switch(
             "STCVAE_GPU_AGGREGATE",
@@ -431,6 +439,10 @@ pub fn render_gpu(
                 Kernel::Stcvae => Some(build("walk_main")?),
                 _ => None,
             },
+            step: match kernel {
+                Kernel::Stcvae if shape.steps => Some(build("step_main")?),
+                _ => None,
+            },
         })
     } else {
         Kernels::Single(build("render_main")?)
@@ -563,10 +575,10 @@ pub fn render_gpu(
         // The queues and the list start zeroed: trace_main and walk_main find nothing to
         // do, and the arguments' kernels write arguments the first turn overwrites.
         Kernels::Staged(k) => {
-            let walk = k.walk.iter();
             for p in [&k.stage, &k.trace, &k.args, &k.list_args]
                 .into_iter()
-                .chain(walk)
+                .chain(&k.walk)
+                .chain(&k.step)
             {
                 compile_seconds += compile(ctx, &res, p, &params)?;
             }
@@ -587,6 +599,7 @@ pub fn render_gpu(
         stack: Some(shape.stack),
         staged: shape.staged,
         aggregate: shape.aggregate,
+        staged_steps: shape.staged && shape.steps && kernel == Kernel::Stcvae,
         lanes: shape.profile.then(LaneProfile::new),
         ..Default::default()
     };

@@ -17,7 +17,7 @@ pub struct Resources {
     pub counters: wgpu::Buffer,
     /// The staged render's records (one per path slot of the largest band, then the list)
     /// and its queues (running paths, parked walks, queries by kind: shaders/staged.wgsl),
-    /// bound for the staged kernels alone; 16- and 80-byte dummies otherwise.
+    /// bound for the staged kernels alone; 16- and 96-byte dummies otherwise.
     pub stage: wgpu::Buffer,
     pub queue: wgpu::Buffer,
     /// The indirect dispatch arguments of the staged render's kernels, copied from the
@@ -52,13 +52,15 @@ pub fn stage_bytes(slots: u64) -> u64 {
 pub const STAGE_SLOT_BYTES: u64 = 16 * super::kernels::STAGE_VEC4S + 4;
 
 /// Bytes before the queues' slot indices: the running paths' queue's length and dispatch
-/// arguments, then the parked walks', then the queries', then the queries' counts by kind
-/// and the walks' by optical radius (`Queue` in shaders/staged.wgsl).
-const QUEUE_HEAD: u64 = 80;
+/// arguments, then the parked walks', the parked model steps', the queries', then the
+/// queries' counts by kind and the walks' by optical radius (`Queue` in
+/// shaders/staged.wgsl).
+const QUEUE_HEAD: u64 = 96;
 
 /// The queues' regions of slot indices (`QUEUES` in shaders/staged.wgsl): running paths,
-/// parked walks by optical radius (four), and ray queries by kind (three).
-const QUEUES: u64 = 8;
+/// parked walks by optical radius (four), parked model steps, and ray queries by kind
+/// (three).
+const QUEUES: u64 = 9;
 
 /// Bytes before the list's slot indices: the running paths' queue's length and arguments.
 const LIST_HEAD: u64 = 16;
@@ -282,9 +284,12 @@ impl Resources {
                 pass(&mut enc, &k.stage, Groups::Indirect(4));
             }
             args(&mut enc, &k.args);
-            pass(&mut enc, &k.trace, Groups::Indirect(36));
+            pass(&mut enc, &k.trace, Groups::Indirect(52));
             if let Some(walk) = &k.walk {
                 pass(&mut enc, walk, Groups::Indirect(20));
+            }
+            if let Some(step) = &k.step {
+                pass(&mut enc, step, Groups::Indirect(36));
             }
             enc.copy_buffer_to_buffer(&self.queue, 0, &self.stage, list_at, LIST_HEAD);
             enc.copy_buffer_to_buffer(
@@ -349,6 +354,8 @@ pub struct StagedKernels {
     pub list_args: wgpu::ComputePipeline,
     /// The parked exact steps' walks (ST-CVAE's kernel only).
     pub walk: Option<wgpu::ComputePipeline>,
+    /// The parked model steps (ST-CVAE's kernel, [`super::kernels::KernelShape::steps`]).
+    pub step: Option<wgpu::ComputePipeline>,
 }
 
 /// What one submission of the staged render covers: the band's bind group (`index`), its
