@@ -234,9 +234,7 @@ fn bounce_end(q: Query, h: Hit, tr: f32) {
         p_nee_left -= 1u;
         return;
     }
-    // A staged render's parked exact step comes back straight to its sphere step (the
-    // flight that led to it is done: one call site of scatter_at either way).
-    if walk_resume || flight_end(q.t, h) {
+    if flight_end(q.t, h) {
         prof(6u);
         p_from_step = scatter_at(p_channel);
     }
@@ -467,19 +465,13 @@ var<private> sl_j: u32;
 var<private> sl_done: bool;
 var<private> sl_acc: vec4<f32>;
 
-// The staged render's exact steps (stcvae.wgsl, scatter_at; staged.wgsl): whether
-// stage_main parks them for walk_main, whether this one was parked, whether it resumes
-// one with its walk done, and the slot's record. All stay false in the single kernel.
-var<private> park_walks: bool;
-var<private> walk_parked: bool;
-var<private> walk_resume: bool;
-var<private> sv_rec: u32;
-// Likewise for the model's sphere steps (STAGED_STEPS): whether stage_main parks them for
-// step_main, which runs the whole step, and whether this one was parked.
+// The staged render's sphere steps (stcvae.wgsl, scatter_at; staged.wgsl, STAGED_STEPS):
+// whether stage_main parks them for step_main, which runs each whole, whether this one was
+// parked, and its optical radius if exact (its queue; −1 for a model step). Both flags stay
+// false in the single kernel and in step_main.
 var<private> park_steps: bool;
 var<private> step_parked: bool;
-// The parked step's optical radius (its walk's queue).
-var<private> walk_tau: f32;
+var<private> step_tau: f32;
 
 /// The path slot of invocation `gid`, or NO_SLOT.
 const NO_SLOT: u32 = 0xffffffffu;

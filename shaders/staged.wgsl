@@ -1,44 +1,35 @@
 // Shared include of the staged render (STCVAE_GPU_STAGED; gpu/renderer.rs), after
 // path.wgsl: its bindings, queues and kernels. The single kernel (render_main) is built
 // without it. Kernels take turns (a wavefront): stage_main runs each running path up to
-// its next ray query or exact step and queues it; trace_main traces the queued queries
-// and walk_main (staged_walk.wgsl, ST-CVAE) runs the queued steps' walks, one per
-// invocation, so that their loops run with every lane on the same kind of work instead of
-// waiting on lanes elsewhere in the bounce. After each turn the host copies the queue of
-// running paths into `stage` (the list), and the next stage_main visits those slots
-// alone: a chunk's first stage_main starts every slot, later ones see only paths still
-// running. The paths and their random numbers are the single kernel's, and so is the
-// image, bit for bit.
+// its next ray query or sphere step and queues it; trace_main traces the queued queries
+// and step_main (staged_steps.wgsl, ST-CVAE) runs the queued sphere steps, one per
+// invocation, so that their loops and decoders run with every lane on the same kind of
+// work instead of waiting on lanes elsewhere in the bounce. After each turn the host
+// copies the queue of running paths into `stage` (the list), and the next stage_main
+// visits those slots alone: a chunk's first stage_main starts every slot, later ones see
+// only paths still running. The paths and their random numbers are the single kernel's,
+// and so is the image, bit for bit.
 //
 // `stage` holds per slot STAGE_VEC4S vec4s (prepended by kernels.rs): the query's origin
 // and tmax; its direction and flight length; (unused: the free distance is saved with the
 // path), the triangle the path left through (the single kernel forgets it on resuming,
-// which only costs a cast), the shadow ray's weight and the query's flags; then the path's channel,
-// replaced by the answer (hit t, triangle, found, transmittance); then a parked exact
-// step's walk (staged_walk.wgsl, WALK_AT). After the records, the list: a copy of the
-// running paths' queue (its length and dispatch arguments, then slot indices) as u32 bits.
+// which only costs a cast), the shadow ray's weight and the query's flags; then the path's
+// channel, replaced by the answer (hit t, triangle, found, transmittance). After the
+// records, the list: a copy of the running paths' queue (its length and dispatch
+// arguments, then slot indices) as u32 bits.
 struct Queue {
     len: atomic<u32>,
     // Workgroups (x, y, z) for an indirect dispatch over the queue (args_main).
     args: array<u32, 3>,
-    // The parked exact steps' queue (ST-CVAE) and its dispatch's workgroups.
-    walk_len: atomic<u32>,
-    walk_args: array<u32, 3>,
-    // The parked model steps' queue (STAGED_STEPS) and its dispatch's workgroups.
+    // The parked sphere steps (their five queues together) and their dispatch's workgroups.
     step_len: atomic<u32>,
     step_args: array<u32, 3>,
-    // The ray queries' queue (its three kinds' together) and its dispatch's workgroups.
+    // The ray queries (their three queues together) and their dispatch's workgroups.
     query_len: atomic<u32>,
     query_args: array<u32, 3>,
-    // The ray queries by kind: local (a grid cell's list first), closest-hit, shadow ray
-    // (the fourth word unused). Queued apart so that trace_main's subgroups run one kind.
-    kinds: array<atomic<u32>, 4>,
-    // The parked steps by optical radius (WALK_BUCKETS), whose square their walks' lengths
-    // follow: walk_main's subgroups run walks of like lengths.
-    walk_kinds: array<atomic<u32>, 4>,
-    // QUEUES regions of `slots` entries: the running paths' slots, the parked exact
-    // steps' of each optical radius, the parked model steps', and the queries' of each
-    // kind.
+    // Each queue's length, by its number (QUEUE_*; the running paths' is `len`).
+    counts: array<atomic<u32>, 12>,
+    // QUEUES regions of `slots` entries, one per queue.
     items: array<u32>,
 }
 @group(0) @binding(8) var<storage, read_write> stage: array<vec4<f32>>;
@@ -49,11 +40,13 @@ const Q_SHADOW: u32 = 2u;
 const Q_QUERY: u32 = 4u;
 const Q_LOCAL: u32 = 8u;
 const Q_LAST_LIGHT: u32 = 16u;
-const Q_WALK: u32 = 32u;
-const Q_STEP: u32 = 64u;
+const Q_STEP: u32 = 32u;
 
-// The queues, in the order of their items: running paths, parked exact steps, and ray
-// queries of three kinds (Queue.kinds).
+// The queues, in the order of their items, each in a region of its own so that a
+// kernel's subgroups run one kind of work: the running paths; the parked exact steps by
+// optical radius (WALK_BUCKETS: a walk's length follows τ²), then the model's steps
+// (step_main); the ray queries by kind: local (a grid cell's list first), closest-hit,
+// shadow ray (trace_main).
 const QUEUE_RUNNING: u32 = 0u;
 const QUEUE_WALKS: u32 = 1u;
 const QUEUE_STEPS: u32 = 5u;
@@ -61,16 +54,21 @@ const QUEUE_LOCAL: u32 = 6u;
 const QUEUE_CLOSEST: u32 = 7u;
 const QUEUE_SHADOW: u32 = 8u;
 const QUEUES: u32 = 9u;
-// The optical radii that divide the parked steps' four queues.
+// The optical radii that divide the exact steps' four queues.
 const WALK_BUCKETS: vec3<f32> = vec3<f32>(2.0, 5.0, 10.0);
 
-/// The entry of invocation `i` in the queues from `first` on (`count` of them, whose
-/// lengths are `lens`), taken one after another.
-fn queue_entry(first: u32, count: u32, lens: vec4<u32>, i: u32) -> u32 {
+/// The entry of invocation `i` in the `count` queues from `first` on, taken one after
+/// another.
+fn queue_entry(first: u32, count: u32, i: u32) -> u32 {
     var k = 0u;
     var j = i;
-    for (; k + 1u < count && j >= lens[k]; k++) {
-        j -= lens[k];
+    loop {
+        let len = atomicLoad(&queue.counts[first + k]);
+        if k + 1u >= count || j < len {
+            break;
+        }
+        j -= len;
+        k++;
     }
     return queue.items[(first + k) * queue_slots() + j];
 }
@@ -89,11 +87,10 @@ fn enqueue(which: u32, idx: u32) {
     let n = sg_count();
     var at = 0u;
     if rank == 0u {
-        switch which {
-            case QUEUE_RUNNING: { at = atomicAdd(&queue.len, n); }
-            case QUEUE_STEPS: { at = atomicAdd(&queue.step_len, n); }
-            case QUEUE_LOCAL, QUEUE_CLOSEST, QUEUE_SHADOW: { at = atomicAdd(&queue.kinds[which - QUEUE_LOCAL], n); }
-            default: { at = atomicAdd(&queue.walk_kinds[which - QUEUE_WALKS], n); }
+        if which == QUEUE_RUNNING {
+            at = atomicAdd(&queue.len, n);
+        } else {
+            at = atomicAdd(&queue.counts[which], n);
         }
     }
     queue.items[which * queue_slots() + sg_first(at) + rank] = idx;
@@ -128,19 +125,21 @@ fn dispatch_args(n: u32) -> array<u32, 3> {
 }
 
 /// Dispatch arguments for the queues just filled (trace_main's, and the next stage_main's,
-/// whose list is a copy of it; walk_main's); the host copies them to its indirect buffer.
+/// whose list is a copy of it; step_main's); the host copies them to its indirect buffer.
 @compute @workgroup_size(1)
 fn args_main() {
     let running = atomicLoad(&queue.len);
     queue.args = dispatch_args(running);
-    var walks = 0u;
-    for (var k = 0u; k < 4u; k++) {
-        walks += atomicLoad(&queue.walk_kinds[k]);
+    var steps = 0u;
+    for (var k = QUEUE_WALKS; k <= QUEUE_STEPS; k++) {
+        steps += atomicLoad(&queue.counts[k]);
     }
-    atomicStore(&queue.walk_len, walks);
-    queue.walk_args = dispatch_args(walks);
-    queue.step_args = dispatch_args(atomicLoad(&queue.step_len));
-    let queries = atomicLoad(&queue.kinds[0]) + atomicLoad(&queue.kinds[1]) + atomicLoad(&queue.kinds[2]);
+    atomicStore(&queue.step_len, steps);
+    queue.step_args = dispatch_args(steps);
+    var queries = 0u;
+    for (var k = QUEUE_LOCAL; k <= QUEUE_SHADOW; k++) {
+        queries += atomicLoad(&queue.counts[k]);
+    }
     atomicStore(&queue.query_len, queries);
     queue.query_args = dispatch_args(queries);
     // The invocations still pending are the running paths: counted once here rather than
@@ -179,18 +178,16 @@ fn stage_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
     }
     let was_done = sl_done;
     let rec = idx * STAGE_VEC4S;
-    sv_rec = rec;
-    park_walks = true;
     park_steps = STAGED_STEPS;
-    // What the path left off at: a query answered since (Q_PENDING) or an exact step whose
-    // walk is done (Q_WALK). One call site each for bounce_begin and bounce_end: llvmpipe
-    // inlines everything, and a second copy of the bounce's end, sphere step and decoders
-    // included, makes the kernel slower still.
+    // What the path left off at: a query answered since (Q_PENDING) or a sphere step that
+    // step_main has run (Q_STEP). One call site each for bounce_begin and bounce_end:
+    // llvmpipe inlines everything, and a second copy of the bounce's end makes the kernel
+    // slower still.
     var resume = 0u;
     if !sl_done && params.misc.w == 0u {
         let c = stage[rec + 2u];
         p_left_through = bitcast<u32>(c.y);
-        resume = bitcast<u32>(c.w) & (Q_PENDING | Q_WALK | Q_STEP);
+        resume = bitcast<u32>(c.w) & (Q_PENDING | Q_STEP);
     }
     var flags = 0u;
     var weight = 0.0;
@@ -204,8 +201,6 @@ fn stage_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
             let ans = stage[rec + 3u];
             h = Hit(ans.x, bitcast<u32>(ans.y), bitcast<u32>(ans.z) != 0u);
             tr = ans.w;
-        } else if resume == Q_WALK {
-            walk_resume = true;
         } else if resume == Q_STEP {
             // step_main ran the sphere step: the bounce is over.
             q.ended = true;
@@ -235,26 +230,21 @@ fn stage_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
         if !q.ended {
             bounce_end(q, h, tr);
         }
-        walk_resume = false;
-        if walk_parked {
-            // The step waits for walk_main, its bounce unfinished.
-            flags = Q_WALK;
-            // One call per queue: enqueue's lanes must share theirs.
-            if walk_tau < WALK_BUCKETS.x {
+        if step_parked {
+            // The step waits for step_main; the next visit ends its bounce. One call per
+            // queue: enqueue's lanes must share theirs.
+            flags = Q_STEP;
+            if step_tau < 0.0 {
+                enqueue(QUEUE_STEPS, idx);
+            } else if step_tau < WALK_BUCKETS.x {
                 enqueue(QUEUE_WALKS, idx);
-            } else if walk_tau < WALK_BUCKETS.y {
+            } else if step_tau < WALK_BUCKETS.y {
                 enqueue(QUEUE_WALKS + 1u, idx);
-            } else if walk_tau < WALK_BUCKETS.z {
+            } else if step_tau < WALK_BUCKETS.z {
                 enqueue(QUEUE_WALKS + 2u, idx);
             } else {
                 enqueue(QUEUE_WALKS + 3u, idx);
             }
-            break;
-        }
-        if step_parked {
-            // The model's step waits for step_main, which ends its bounce.
-            flags = Q_STEP;
-            enqueue(QUEUE_STEPS, idx);
             break;
         }
         bounce_done(q.shadow);
@@ -279,8 +269,7 @@ fn trace_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
     stack_base = li * STACK_STRIDE;
     let i = invocation(gid);
     if i < atomicLoad(&queue.query_len) {
-        let lens = vec4<u32>(atomicLoad(&queue.kinds[0]), atomicLoad(&queue.kinds[1]), atomicLoad(&queue.kinds[2]), 0u);
-        let rec = queue_entry(QUEUE_LOCAL, 3u, lens, i) * STAGE_VEC4S;
+        let rec = queue_entry(QUEUE_LOCAL, 3u, i) * STAGE_VEC4S;
         let q = load_query(rec);
         let channel = bitcast<u32>(stage[rec + 3u].x);
         let h = answer_query(q, channel);

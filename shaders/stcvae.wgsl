@@ -54,6 +54,13 @@ fn scatter_at(channel: u32) -> bool {
             nee_count = 1u;
             nee_weight = ps.beta * params.albedo[channel];
         }
+    } else if park_steps {
+        // The staged render runs sphere steps, exact and model, in a kernel of their own
+        // (step_main, staged_steps.wgsl): nothing above changed the path, and step_main
+        // computes it again from the same state. Exact steps are queued by optical radius.
+        step_parked = true;
+        step_tau = select(-1.0, tau, tau < params.consts3.x);
+        return false;
     } else if tau < params.consts3.x {
         // An exact step (sphere_step.rs, exact_step): the walk simulated in the ball, its
         // NEE events chosen by importance with weights Q/q (ex_weight).
@@ -63,20 +70,7 @@ fn scatter_at(channel: u32) -> bool {
         if nee && params.flags.x > 0u {
             m = clamp(u32(params.consts3.y), 1u, MAX_EXACT_EVENTS);
         }
-        // The staged render parks the step here for walk_main and comes back to it with
-        // the walk done: everything above is computed again from the same state (it draws
-        // no random numbers), the walk's outcome read from its record.
-        var walk: ExactWalk;
-        if walk_resume {
-            walk = load_walk();
-        } else if park_walks {
-            walk_parked = true;
-            walk_tau = tau;
-            save_walk_inputs(tau, channel, m, max(free / r, 1.0));
-            return false;
-        } else {
-            walk = exact_walk(tau, g, channel, m, frame, max(free / r, 1.0));
-        }
+        let walk = exact_walk(tau, g, channel, m, frame, max(free / r, 1.0));
         stats[C_STEPS] += 1u;
         stats[C_EXACT] += 1u;
         n = walk.n;
@@ -85,13 +79,6 @@ fn scatter_at(channel: u32) -> bool {
         nee_count = walk.used;
         nee_weight = ps.beta / f32(max(m, 1u));
     } else {
-        if park_steps {
-            // The staged render runs the model's steps in their own kernel (step_main,
-            // staged_walk.wgsl): nothing above changed the path, and step_main computes
-            // it again from the same state.
-            step_parked = true;
-            return false;
-        }
         stats[C_STEPS] += 1u;
         frame = walk_frame(ps.dir, unit_circle());
         // The walk: exact N = 1 branch (probability e^−τ, no decoder), else the decoders.

@@ -16,15 +16,7 @@ const STCVAE: &str = include_str!("../../../../shaders/stcvae.wgsl");
 const PATH: &str = include_str!("../../../../shaders/path.wgsl");
 const PROBE: &str = include_str!("../../../../shaders/probe.wgsl");
 const STAGED: &str = include_str!("../../../../shaders/staged.wgsl");
-const STAGED_WALK: &str = include_str!("../../../../shaders/staged_walk.wgsl");
-
-/// The single ST-CVAE kernel parks no exact step (`park_walks` stays false): `scatter_at`'s
-/// calls into the staged walk stage (shaders/staged_walk.wgsl) land here, and the kernel
-/// binds none of the staged buffers.
-const WALK_STUBS: &str = "fn save_walk_inputs(tau: f32, channel: u32, m: u32, f_unit: f32) {}\n\
-     fn load_walk() -> ExactWalk {\n\
-     \x20   return ExactWalk(vec3<f32>(0.0, 0.0, 1.0), vec3<f32>(0.0, 0.0, 1.0), 1.0, 0u);\n\
-     }\n";
+const STAGED_STEP_KERNEL: &str = include_str!("../../../../shaders/staged_steps.wgsl");
 
 /// Entries of each invocation's BVH traversal stack (shaders/scene.wgsl). A depth-first
 /// traversal of a BVH2 of depth D needs at most D + 1; the renderer refuses deeper trees.
@@ -61,11 +53,11 @@ pub struct KernelShape {
     /// `STCVAE_GPU_PROFILE`): needs subgroup operations; changes no path either.
     pub profile: bool,
     /// Render in kernels taking turns (`STCVAE_GPU_STAGED`, shaders/staged.wgsl):
-    /// `stage_main` runs every path to its next ray query or exact step and queues it,
-    /// `trace_main` traces the queued queries and `walk_main` runs the queued walks. The
-    /// single kernel's paths, random numbers and all, with the traversals and walks
-    /// compacted so that their SIMD lanes work together; the image is the single kernel's
-    /// bit for bit (tested).
+    /// `stage_main` runs every path to its next ray query or sphere step and queues it,
+    /// `trace_main` traces the queued queries and `step_main` runs the queued steps. The
+    /// single kernel's paths, random numbers and all, with the traversals, walks and
+    /// decoders compacted so that their SIMD lanes work together; the image is the single
+    /// kernel's bit for bit (tested).
     pub staged: bool,
     /// Add to the counters and queues once per subgroup instead of once per invocation
     /// (`STCVAE_GPU_AGGREGATE`; on by default, built only where the adapter offers subgroup
@@ -73,9 +65,10 @@ pub struct KernelShape {
     /// and a queue's length is one word that every invocation would otherwise add to
     /// atomically. Changes no path: only the order of a queue's entries.
     pub aggregate: bool,
-    /// In the staged render, run ST-CVAE's model sphere steps (decoders and NEE events)
-    /// in a kernel of their own (`step_main`; `STCVAE_GPU_STAGED_STEPS`, on by default), so
-    /// that the decoders run with every lane on a step. Changes no path.
+    /// In the staged render, run ST-CVAE's sphere steps (exact walks, or decoders, and NEE
+    /// events) in a kernel of their own (`step_main`; `STCVAE_GPU_STAGED_STEPS`, on by
+    /// default), so that walks and decoders run with every lane on a step; off, they run
+    /// in `stage_main`. Changes no path.
     pub steps: bool,
 }
 
@@ -280,9 +273,9 @@ pub enum Kernel {
 }
 
 /// vec4s of one path slot's record in the staged render (`STAGE_VEC4S`, prepended to the
-/// WGSL): its ray query (4, shaders/path.wgsl), then a parked exact step's walk (inputs,
-/// exit and count, two per NEE event: shaders/stcvae.wgsl, `WALK_AT`).
-pub const STAGE_VEC4S: u64 = 4 + 2 + 2 * crate::scene::MAX_EXACT_NEE_SAMPLES as u64;
+/// WGSL): its ray query and answer (shaders/staged.wgsl). A parked sphere step needs none:
+/// its path is saved at the collision.
+pub const STAGE_VEC4S: u64 = 4;
 
 /// vec4s of one path slot in the accumulation buffer (`SLOT` in shaders/path.wgsl): the
 /// path's state, the render's accumulated RGB (vec4 [`ACC_VEC4`]), and two per path-level
@@ -346,9 +339,7 @@ pub fn source(
     let parts: &[&str] = match (kernel, shape.staged) {
         (Kernel::Pt, false) => &[COMMON, &stack, SCENE, NEE, PT, PATH],
         (Kernel::Pt, true) => &[COMMON, &stack, SCENE, NEE, PT, PATH, STAGED],
-        (Kernel::Stcvae, false) => &[
-            COMMON, &stack, SCENE, NEE, DECODER, &decoders, STCVAE, PATH, WALK_STUBS,
-        ],
+        (Kernel::Stcvae, false) => &[COMMON, &stack, SCENE, NEE, DECODER, &decoders, STCVAE, PATH],
         (Kernel::Stcvae, true) => &[
             COMMON,
             &stack,
@@ -359,7 +350,7 @@ pub fn source(
             STCVAE,
             PATH,
             STAGED,
-            STAGED_WALK,
+            STAGED_STEP_KERNEL,
         ],
         (Kernel::Probe, _) => &[
             COMMON, &stack, SCENE, NEE, DECODER, &decoders, PT, PATH, PROBE,

@@ -105,16 +105,15 @@ pub fn kernel_shape() -> Result<KernelShape, RenderError> {
         shape.staged = parse_switch(
             "STCVAE_GPU_STAGED",
             &v,
-            "render in kernels taking turns: paths to their next ray query or exact step, \
-             then the queued queries traced and walks run",
+            "render in kernels taking turns: paths to their next ray query or sphere step, \
+             then the queued queries traced and steps run",
         )?;
     }
     if let Some(v) = env_value("STCVAE_GPU_STAGED_STEPS") {
         shape.steps = parse_switch(
             "STCVAE_GPU_STAGED_STEPS",
             &v,
-            "the staged render runs the model's sphere steps in their own kernel (the \
-             default)",
+            "the staged render runs the sphere steps in their own kernel (the default)",
         )?;
     }
     if let Some(v) = env_value("STCVAE_GPU_AGGREGATE") {
@@ -435,10 +434,6 @@ pub fn render_gpu(
             trace: build("trace_main")?,
             args: build("args_main")?,
             list_args: build("list_args_main")?,
-            walk: match kernel {
-                Kernel::Stcvae => Some(build("walk_main")?),
-                _ => None,
-            },
             step: match kernel {
                 Kernel::Stcvae if shape.steps => Some(build("step_main")?),
                 _ => None,
@@ -572,12 +567,11 @@ pub fn render_gpu(
     }
     let mut compile_seconds = 0.0;
     match &kernels {
-        // The queues and the list start zeroed: trace_main and walk_main find nothing to
+        // The queues and the list start zeroed: trace_main and step_main find nothing to
         // do, and the arguments' kernels write arguments the first turn overwrites.
         Kernels::Staged(k) => {
             for p in [&k.stage, &k.trace, &k.args, &k.list_args]
                 .into_iter()
-                .chain(&k.walk)
                 .chain(&k.step)
             {
                 compile_seconds += compile(ctx, &res, p, &params)?;

@@ -16,7 +16,7 @@ pub struct Resources {
     pub accums: Vec<wgpu::Buffer>,
     pub counters: wgpu::Buffer,
     /// The staged render's records (one per path slot of the largest band, then the list)
-    /// and its queues (running paths, parked walks, queries by kind: shaders/staged.wgsl),
+    /// and its queues (running paths, parked steps and queries by kind: shaders/staged.wgsl),
     /// bound for the staged kernels alone; 16- and 96-byte dummies otherwise.
     pub stage: wgpu::Buffer,
     pub queue: wgpu::Buffer,
@@ -52,13 +52,12 @@ pub fn stage_bytes(slots: u64) -> u64 {
 pub const STAGE_SLOT_BYTES: u64 = 16 * super::kernels::STAGE_VEC4S + 4;
 
 /// Bytes before the queues' slot indices: the running paths' queue's length and dispatch
-/// arguments, then the parked walks', the parked model steps', the queries', then the
-/// queries' counts by kind and the walks' by optical radius (`Queue` in
-/// shaders/staged.wgsl).
+/// arguments, then the parked sphere steps' and the ray queries' (each kind's together),
+/// then every queue's own length (`Queue` in shaders/staged.wgsl).
 const QUEUE_HEAD: u64 = 96;
 
 /// The queues' regions of slot indices (`QUEUES` in shaders/staged.wgsl): running paths,
-/// parked walks by optical radius (four), parked model steps, and ray queries by kind
+/// parked exact steps by optical radius (four), parked model steps, and ray queries by kind
 /// (three).
 const QUEUES: u64 = 9;
 
@@ -238,9 +237,9 @@ impl Resources {
     }
 
     /// Submits `rounds` turns of the staged render over band `turn.index`: `stage` (the
-    /// listed slots to their next ray query or exact step, queued; in a chunk's first turn,
+    /// listed slots to their next ray query or sphere step, queued; in a chunk's first turn,
     /// `turn.first`, every slot of the band, over `turn.groups`), then `trace` (the
-    /// queries) and `walk` (the exact steps' walks, ST-CVAE), then the queue of running
+    /// queries) and `step` (the sphere steps, ST-CVAE), then the queue of running
     /// paths copied into the list of the next turn. The kernels are dispatched indirectly
     /// over the slots they have (`args`, `list_args`: the arguments' kernels). The queues
     /// are emptied and the pending counter cleared before each turn, so that after the
@@ -284,12 +283,9 @@ impl Resources {
                 pass(&mut enc, &k.stage, Groups::Indirect(4));
             }
             args(&mut enc, &k.args);
-            pass(&mut enc, &k.trace, Groups::Indirect(52));
-            if let Some(walk) = &k.walk {
-                pass(&mut enc, walk, Groups::Indirect(20));
-            }
+            pass(&mut enc, &k.trace, Groups::Indirect(36));
             if let Some(step) = &k.step {
-                pass(&mut enc, step, Groups::Indirect(36));
+                pass(&mut enc, step, Groups::Indirect(20));
             }
             enc.copy_buffer_to_buffer(&self.queue, 0, &self.stage, list_at, LIST_HEAD);
             enc.copy_buffer_to_buffer(
@@ -352,9 +348,7 @@ pub struct StagedKernels {
     pub trace: wgpu::ComputePipeline,
     pub args: wgpu::ComputePipeline,
     pub list_args: wgpu::ComputePipeline,
-    /// The parked exact steps' walks (ST-CVAE's kernel only).
-    pub walk: Option<wgpu::ComputePipeline>,
-    /// The parked model steps (ST-CVAE's kernel, [`super::kernels::KernelShape::steps`]).
+    /// The parked sphere steps (ST-CVAE's kernel, [`super::kernels::KernelShape::steps`]).
     pub step: Option<wgpu::ComputePipeline>,
 }
 
