@@ -94,35 +94,35 @@ pub fn kernel_shape() -> Result<KernelShape, RenderError> {
                 ))
             })?;
     }
-    if let Some(v) = env_value("STCVAE_GPU_PROFILE") {
-        shape.profile = parse_switch(
+    // The switches: (variable, field, what 1 means).
+    let switches = [
+        (
             "STCVAE_GPU_PROFILE",
-            &v,
+            &mut shape.profile,
             "count the SIMD lanes busy in each phase of the kernel",
-        )?;
-    }
-    if let Some(v) = env_value("STCVAE_GPU_STAGED") {
-        shape.staged = parse_switch(
+        ),
+        (
             "STCVAE_GPU_STAGED",
-            &v,
+            &mut shape.staged,
             "render in kernels taking turns: paths to their next ray query or sphere step, \
              then the queued queries traced and steps run",
-        )?;
-    }
-    if let Some(v) = env_value("STCVAE_GPU_STAGED_STEPS") {
-        shape.steps = parse_switch(
+        ),
+        (
             "STCVAE_GPU_STAGED_STEPS",
-            &v,
+            &mut shape.steps,
             "the staged render runs the sphere steps in their own kernel (the default)",
-        )?;
-    }
-    if let Some(v) = env_value("STCVAE_GPU_AGGREGATE") {
-        shape.aggregate = parse_switch(
+        ),
+        (
             "STCVAE_GPU_AGGREGATE",
-            &v,
+            &mut shape.aggregate,
             "add to counters and queues once per subgroup where the adapter has subgroup \
              operations (the default)",
-        )?;
+        ),
+    ];
+    for (name, field, what) in switches {
+        if let Some(v) = env_value(name) {
+            *field = parse_switch(name, &v, what)?;
+        }
     }
     if let Some(v) = env_value("STCVAE_GPU_STACK") {
         shape.stack = parse_choice(
