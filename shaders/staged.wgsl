@@ -27,7 +27,8 @@ struct Queue {
     // The ray queries (their three queues together) and their dispatch's workgroups.
     query_len: atomic<u32>,
     query_args: array<u32, 3>,
-    // Each queue's length, by its number (QUEUE_*; the running paths' is `len`).
+    // Each queue's length, by its number (QUEUE_*; the running paths' is `len`); room for
+    // QUEUES ≤ 12 (asserted with QUEUE_HEAD in gpu/resources.rs).
     counts: array<atomic<u32>, 12>,
     // QUEUES regions of `slots` entries, one per queue.
     items: array<u32>,

@@ -91,8 +91,8 @@ pub struct DispatchStats {
     /// Whether its counters and queues were added to once per subgroup
     /// (`STCVAE_GPU_AGGREGATE` and the adapter's subgroup operations).
     pub aggregate: bool,
-    /// Whether the staged render ran ST-CVAE's model steps in their own kernel
-    /// (`STCVAE_GPU_STAGED_STEPS`).
+    /// Whether the staged render ran ST-CVAE's sphere steps, exact and the model's, in
+    /// their own kernel (`STCVAE_GPU_STAGED_STEPS`).
     pub staged_steps: bool,
     /// The SIMD lanes busy in each phase of the kernel (`STCVAE_GPU_PROFILE`).
     pub lanes: Option<LaneProfile>,

@@ -1278,13 +1278,13 @@ fn images_beyond_the_binding_limit_render_in_bands() {
 
 /// A path resumes exactly where it stopped, so the image does not depend on the dispatch
 /// schedule, and the staged render (`STCVAE_GPU_STAGED`: paths advanced to their next ray
-/// query or sphere step by one kernel, the queued queries traced by another, the exact
-/// steps' walks run by a third and the model's steps by a fourth, each dispatched over its
-/// queue) runs the single kernel's paths: the same random numbers in the same order, the
+/// query or sphere step by one kernel, the queued queries traced by another and the queued
+/// sphere steps, exact and the model's, run whole by a third, each dispatched over its
+/// queues) runs the single kernel's paths: the same random numbers in the same order, the
 /// same hits. Four renders must therefore agree bit for bit: the single kernel at one
 /// bounce per dispatch (every bounce resumes a path), the single kernel at its default
 /// schedule, the staged render, and the staged render with per-invocation queue adds and
-/// the model's steps run in place (`STCVAE_GPU_AGGREGATE=0`, `STCVAE_GPU_STAGED_STEPS=0`).
+/// the sphere steps run in place (`STCVAE_GPU_AGGREGATE=0`, `STCVAE_GPU_STAGED_STEPS=0`).
 /// Most take 2 samples per slot and chunk (a slot starts its second path inside a
 /// dispatch or turn); ST-CVAE takes 1 at 12 spp, two chunks on a software adapter (a later
 /// chunk's first turn). Covered: PT (a shadow ray at every event), ST-CVAE with one and two
@@ -1335,7 +1335,7 @@ fn staged_render_equals_one_kernel() {
         let default = render(&[lanes]);
         let staged = render(&[lanes, ("STCVAE_GPU_STAGED", "1")]);
         // Each invocation adding to the queues and counters itself (another order of the
-        // queues' entries), and the model's sphere steps run in stage_main rather than in
+        // queues' entries), and the sphere steps run in stage_main rather than in
         // their own kernel: the same paths.
         let staged_plain = render(&[
             lanes,
@@ -1359,7 +1359,7 @@ fn staged_render_equals_one_kernel() {
             "{name}: model steps"
         );
         assert!(default.image.pixels.iter().any(|p| p[0] > 0.0), "{name}");
-        // Exact steps are where the staged render parks a walk for its own kernel.
+        // Exact steps are parked too (queued by optical radius).
         assert_eq!(default.stats.exact_steps > 0, set.exact_tau > 0.0, "{name}");
         for (what, out) in [
             ("one bounce a dispatch", &one_bounce),

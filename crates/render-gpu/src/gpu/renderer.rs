@@ -16,8 +16,8 @@ use super::kernels::{self, Kernel, KernelShape, StackMemory};
 
 use super::model_buffers::model_params;
 use super::resources::{
-    COUNTER_BYTES, Inputs, PENDING_SLOT, Resources, STAGE_SLOT_BYTES, StagedKernels, Turn,
-    read_back, wait,
+    COUNTER_BYTES, Inputs, PENDING_SLOT, QUEUE_SLOT_BYTES, Resources, STAGE_SLOT_BYTES,
+    StagedKernels, Turn, read_back, wait,
 };
 use super::scene_buffers::{
     Params, bvh_depth, env_buffer, geometry_buffers, grid_buffer, scene_params,
@@ -450,10 +450,10 @@ pub fn render_gpu(
     // reservoirs needs 151 MB.
     let limits = &ctx.limits;
     let slot_bytes = 16 * slot_vec4s;
-    // The staged render's records (and list entry) per slot are larger still, and take
-    // one binding too.
+    // The staged render's records (with the list's entries) and its queues take one
+    // binding each too, at fewer bytes a slot than the path state today.
     let binding_bytes = if shape.staged {
-        slot_bytes.max(STAGE_SLOT_BYTES)
+        slot_bytes.max(STAGE_SLOT_BYTES).max(QUEUE_SLOT_BYTES)
     } else {
         slot_bytes
     };

@@ -53,13 +53,17 @@ pub const STAGE_SLOT_BYTES: u64 = 16 * super::kernels::STAGE_VEC4S + 4;
 
 /// Bytes before the queues' slot indices: the running paths' queue's length and dispatch
 /// arguments, then the parked sphere steps' and the ray queries' (each kind's together),
-/// then every queue's own length (`Queue` in shaders/staged.wgsl).
-const QUEUE_HEAD: u64 = 96;
+/// then every queue's own length, 12 words (`Queue` in shaders/staged.wgsl).
+const QUEUE_HEAD: u64 = 48 + 4 * 12;
 
 /// The queues' regions of slot indices (`QUEUES` in shaders/staged.wgsl): running paths,
 /// parked exact steps by optical radius (four), parked model steps, and ray queries by kind
 /// (three).
 const QUEUES: u64 = 9;
+const _: () = assert!(QUEUES <= 12, "Queue.counts holds 12 lengths");
+
+/// Bytes of the staged render's queues per path slot (one entry in each).
+pub const QUEUE_SLOT_BYTES: u64 = 4 * QUEUES;
 
 /// Bytes before the list's slot indices: the running paths' queue's length and arguments.
 const LIST_HEAD: u64 = 16;
@@ -159,7 +163,7 @@ impl Resources {
             })
         };
         let stage = rw("stage", stage_bytes(i.stage_slots));
-        let queue = rw("queue", QUEUE_HEAD + 4 * QUEUES * i.stage_slots);
+        let queue = rw("queue", QUEUE_HEAD + QUEUE_SLOT_BYTES * i.stage_slots);
         let args = ctx.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("dispatch args"),
             size: QUEUE_HEAD,
