@@ -619,20 +619,13 @@ fn add_stats() {
     }
 }
 
-/// Adds lo + hi·2^16 to counter pair `slot`.
+/// Adds lo + hi·2^16 to counter pair `slot`: its low 32 bits through add_counter, the
+/// rest straight to the high word.
 fn add_counter_wide(slot: u32, lo: u32, hi: u32) {
     let shifted = hi << 16u;
     let v = lo + shifted;
-    var carry = hi >> 16u;
-    if v < shifted {
-        carry += 1u;
-    }
-    if v != 0u {
-        let old = atomicAdd(&counters[2u * slot], v);
-        if old + v < old {
-            carry += 1u;
-        }
-    }
+    add_counter(slot, v);
+    let carry = (hi >> 16u) + select(0u, 1u, v < shifted);
     if carry != 0u {
         atomicAdd(&counters[2u * slot + 1u], carry);
     }

@@ -55,6 +55,9 @@ const QUEUE_LOCAL: u32 = 6u;
 const QUEUE_CLOSEST: u32 = 7u;
 const QUEUE_SHADOW: u32 = 8u;
 const QUEUES: u32 = 9u;
+// step_main's queues (from QUEUE_WALKS) and trace_main's (from QUEUE_LOCAL).
+const STEP_QUEUES: u32 = 5u;
+const QUERY_QUEUES: u32 = 3u;
 // The optical radii that divide the exact steps' four queues.
 const WALK_BUCKETS: vec3<f32> = vec3<f32>(2.0, 5.0, 10.0);
 
@@ -72,6 +75,15 @@ fn queue_entry(first: u32, count: u32, i: u32) -> u32 {
         k++;
     }
     return queue.items[(first + k) * queue_slots() + j];
+}
+
+/// The entries in the `count` queues from `first` on.
+fn queued(first: u32, count: u32) -> u32 {
+    var n = 0u;
+    for (var k = 0u; k < count; k++) {
+        n += atomicLoad(&queue.counts[first + k]);
+    }
+    return n;
 }
 
 /// Path slots per queue region (the largest band's).
@@ -131,16 +143,10 @@ fn dispatch_args(n: u32) -> array<u32, 3> {
 fn args_main() {
     let running = atomicLoad(&queue.len);
     queue.args = dispatch_args(running);
-    var steps = 0u;
-    for (var k = QUEUE_WALKS; k <= QUEUE_STEPS; k++) {
-        steps += atomicLoad(&queue.counts[k]);
-    }
+    let steps = queued(QUEUE_WALKS, STEP_QUEUES);
     atomicStore(&queue.step_len, steps);
     queue.step_args = dispatch_args(steps);
-    var queries = 0u;
-    for (var k = QUEUE_LOCAL; k <= QUEUE_SHADOW; k++) {
-        queries += atomicLoad(&queue.counts[k]);
-    }
+    let queries = queued(QUEUE_LOCAL, QUERY_QUEUES);
     atomicStore(&queue.query_len, queries);
     queue.query_args = dispatch_args(queries);
     // The invocations still pending are the running paths: counted once here rather than
@@ -270,7 +276,7 @@ fn trace_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
     stack_base = li * STACK_STRIDE;
     let i = invocation(gid);
     if i < atomicLoad(&queue.query_len) {
-        let rec = queue_entry(QUEUE_LOCAL, 3u, i) * STAGE_VEC4S;
+        let rec = queue_entry(QUEUE_LOCAL, QUERY_QUEUES, i) * STAGE_VEC4S;
         let q = load_query(rec);
         let channel = bitcast<u32>(stage[rec + 3u].x);
         let h = answer_query(q, channel);

@@ -593,7 +593,7 @@ pub fn render_gpu(
         stack: Some(shape.stack),
         staged: shape.staged,
         aggregate: shape.aggregate,
-        staged_steps: shape.staged && shape.steps && kernel == Kernel::Stcvae,
+        staged_steps: matches!(&kernels, Kernels::Staged(k) if k.step.is_some()),
         lanes: shape.profile.then(LaneProfile::new),
         ..Default::default()
     };

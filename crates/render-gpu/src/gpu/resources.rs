@@ -62,6 +62,12 @@ const QUEUE_HEAD: u64 = 48 + 4 * 12;
 const QUEUES: u64 = 9;
 const _: () = assert!(QUEUES <= 12, "Queue.counts holds 12 lengths");
 
+/// Where in the queue header (and its copy, the indirect buffer) each kernel's dispatch
+/// arguments lie: after the running paths', the sphere steps' and the queries' totals.
+const STAGE_ARGS_AT: u64 = 4;
+const STEP_ARGS_AT: u64 = 20;
+const QUERY_ARGS_AT: u64 = 36;
+
 /// Bytes of the staged render's queues per path slot (one entry in each).
 pub const QUEUE_SLOT_BYTES: u64 = 4 * QUEUES;
 
@@ -284,12 +290,12 @@ impl Resources {
                 if r == 0 {
                     args(&mut enc, &k.list_args);
                 }
-                pass(&mut enc, &k.stage, Groups::Indirect(4));
+                pass(&mut enc, &k.stage, Groups::Indirect(STAGE_ARGS_AT));
             }
             args(&mut enc, &k.args);
-            pass(&mut enc, &k.trace, Groups::Indirect(36));
+            pass(&mut enc, &k.trace, Groups::Indirect(QUERY_ARGS_AT));
             if let Some(step) = &k.step {
-                pass(&mut enc, step, Groups::Indirect(20));
+                pass(&mut enc, step, Groups::Indirect(STEP_ARGS_AT));
             }
             enc.copy_buffer_to_buffer(&self.queue, 0, &self.stage, list_at, LIST_HEAD);
             enc.copy_buffer_to_buffer(
