@@ -383,6 +383,24 @@ fn differing_pixels(a: &RenderOutput, b: &RenderOutput) -> usize {
     pairs.filter(|(p, q)| p != q).count()
 }
 
+/// The largest difference between two images' channels relative to the larger of the two
+/// values (0 where both are 0): how far apart two renders that should agree are, for the
+/// failure message.
+fn largest_relative_difference(a: &RenderOutput, b: &RenderOutput) -> f32 {
+    let channels = a
+        .image
+        .pixels
+        .iter()
+        .flatten()
+        .zip(b.image.pixels.iter().flatten());
+    channels
+        .map(|(&x, &y)| {
+            let scale = x.abs().max(y.abs());
+            if x == y { 0.0 } else { (x - y).abs() / scale }
+        })
+        .fold(0.0, f32::max)
+}
+
 fn on_gpu(
     ctx: &GpuContext,
     s: &SceneData,
@@ -1327,6 +1345,7 @@ fn staged_render_equals_one_kernel() {
             "2",
         ),
     ];
+    let mut mismatches = Vec::new();
     for (name, s, set, per_slot) in cases {
         let lanes = ("STCVAE_GPU_LANE_SAMPLES", per_slot);
         let render =
@@ -1368,12 +1387,19 @@ fn staged_render_equals_one_kernel() {
         ] {
             assert_eq!(out.stats, default.stats, "{name}, {what}");
             let differ = differing_pixels(&default, out);
-            assert_eq!(
-                differ, 0,
-                "{name}: {differ} pixels differ between the {what} render and the default"
-            );
+            if differ > 0 {
+                mismatches.push(format!(
+                    "{name}: {differ} of {} pixels differ between the {what} render and the \
+                     default, by up to {:.2e} relative",
+                    default.image.pixels.len(),
+                    largest_relative_difference(&default, out)
+                ));
+            }
         }
     }
+    // Every case and render is compared before failing, so that a failure on a new adapter
+    // says which kernels disagree and by how much.
+    assert!(mismatches.is_empty(), "{}", mismatches.join("\n"));
 }
 
 /// The kernels' shape (threads per workgroup, traversal stacks in workgroup or private
