@@ -1299,16 +1299,28 @@ fn images_beyond_the_binding_limit_render_in_bands() {
 /// query or sphere step by one kernel, the queued queries traced by another and the queued
 /// sphere steps, exact and the model's, run whole by a third, each dispatched over its
 /// queues) runs the single kernel's paths: the same random numbers in the same order, the
-/// same hits. Four renders must therefore agree bit for bit: the single kernel at one
-/// bounce per dispatch (every bounce resumes a path), the single kernel at its default
-/// schedule, the staged render, and the staged render with per-invocation queue adds and
-/// the sphere steps run in place (`STCVAE_GPU_AGGREGATE=0`, `STCVAE_GPU_STAGED_STEPS=0`).
+/// same hits. Four renders must therefore take the same paths (equal counters) and agree
+/// bit for bit: the single kernel at one bounce per dispatch (every bounce resumes a path),
+/// the single kernel at its default schedule, the staged render, and the staged render
+/// with queue adds once per subgroup and the sphere steps run in place
+/// (`STCVAE_GPU_AGGREGATE=1`, `STCVAE_GPU_STAGED_STEPS=0`). One exception: the staged
+/// render's sphere steps run in a pipeline of their own (`step_main`), which a hardware
+/// driver may compile into other float instructions (most likely multiply-adds fused
+/// elsewhere) than the same WGSL in the single kernel; on the H100 (2026-11-27) 31–47 of
+/// 576 pixels differed, by at most 1.7e-7 relative (1–2 ulp), where lavapipe agreed bit
+/// for bit. That render may differ by up to [`STEP_KERNEL_RELATIVE`].
 /// Most take 2 samples per slot and chunk (a slot starts its second path inside a
 /// dispatch or turn); ST-CVAE takes 1 at 12 spp, two chunks on a software adapter (a later
 /// chunk's first turn). Covered: PT (a shadow ray at every event), ST-CVAE with one and two
 /// path-level NEE reservoirs, exact walks, without NEE, and a dielectric boundary.
 /// (Before the thirtieth session a resumed ST-CVAE path forgot its free distance, and the
 /// one-bounce render differed.)
+/// The relative difference allowed between the staged render with its step kernel and
+/// the single kernel: 1e-6, ~6× the H100's 1.7e-7. A path that went wrong (another random
+/// number, a lost NEE contribution, a state not restored) moves a pixel of 12 samples by
+/// a good part of one sample's ~8 %, and the counters must still be equal.
+const STEP_KERNEL_RELATIVE: f32 = 1e-6;
+
 #[test]
 fn staged_render_equals_one_kernel() {
     let Some(ctx) = gpu() else { return };
@@ -1353,21 +1365,21 @@ fn staged_render_equals_one_kernel() {
         let one_bounce = render(&[lanes, ("STCVAE_GPU_BOUNCES", "1")]);
         let default = render(&[lanes]);
         let staged = render(&[lanes, ("STCVAE_GPU_STAGED", "1")]);
-        // Each invocation adding to the queues and counters itself (another order of the
-        // queues' entries), and the sphere steps run in stage_main rather than in
+        // One lane per subgroup adding to the queues and counters for all (another order
+        // of the queues' entries), and the sphere steps run in stage_main rather than in
         // their own kernel: the same paths.
         let staged_plain = render(&[
             lanes,
             ("STCVAE_GPU_STAGED", "1"),
-            ("STCVAE_GPU_AGGREGATE", "0"),
+            ("STCVAE_GPU_AGGREGATE", "1"),
             ("STCVAE_GPU_STAGED_STEPS", "0"),
         ]);
         // Every bounce was a dispatch of its own: more dispatches than samples per slot.
         assert!(one_bounce.dispatch.dispatches > 12, "{name}");
         assert!(!default.dispatch.staged && staged.dispatch.staged);
         let subgroups = ctx.features.contains(wgpu::Features::SUBGROUP);
-        assert_eq!(staged.dispatch.aggregate, subgroups);
-        assert!(!staged_plain.dispatch.aggregate);
+        assert!(!staged.dispatch.aggregate);
+        assert_eq!(staged_plain.dispatch.aggregate, subgroups);
         // ST-CVAE's model steps (steps that are not exact) are what step_main runs.
         let stcvae = set.kind == IntegratorKind::Stcvae;
         assert_eq!(staged.dispatch.staged_steps, stcvae, "{name}");
@@ -1380,19 +1392,20 @@ fn staged_render_equals_one_kernel() {
         assert!(default.image.pixels.iter().any(|p| p[0] > 0.0), "{name}");
         // Exact steps are parked too (queued by optical radius).
         assert_eq!(default.stats.exact_steps > 0, set.exact_tau > 0.0, "{name}");
-        for (what, out) in [
-            ("one bounce a dispatch", &one_bounce),
-            ("staged", &staged),
-            ("staged, not aggregated, steps in place", &staged_plain),
+        // (what, render, the relative difference allowed)
+        for (what, out, allowed) in [
+            ("one bounce a dispatch", &one_bounce, 0.0),
+            ("staged", &staged, STEP_KERNEL_RELATIVE),
+            ("staged, aggregated, steps in place", &staged_plain, 0.0),
         ] {
             assert_eq!(out.stats, default.stats, "{name}, {what}");
             let differ = differing_pixels(&default, out);
-            if differ > 0 {
+            let largest = largest_relative_difference(&default, out);
+            if largest > allowed {
                 mismatches.push(format!(
                     "{name}: {differ} of {} pixels differ between the {what} render and the \
-                     default, by up to {:.2e} relative",
+                     default, by up to {largest:.2e} relative (allowed {allowed:.0e})",
                     default.image.pixels.len(),
-                    largest_relative_difference(&default, out)
                 ));
             }
         }

@@ -60,10 +60,13 @@ pub struct KernelShape {
     /// kernel's bit for bit (tested).
     pub staged: bool,
     /// Add to the counters and queues once per subgroup instead of once per invocation
-    /// (`STCVAE_GPU_AGGREGATE`; on by default, built only where the adapter offers subgroup
-    /// operations): the staged render appends every running path to a queue at every turn,
-    /// and a queue's length is one word that every invocation would otherwise add to
-    /// atomically. Changes no path: only the order of a queue's entries.
+    /// (`STCVAE_GPU_AGGREGATE`, built only where the adapter offers subgroup operations):
+    /// the staged render appends every running path to a queue at every turn, and a
+    /// queue's length is one word that every invocation would otherwise add to atomically.
+    /// Off by default: on the H100 (2026-11-27) the staged render ran 6–12 % faster
+    /// without it (NVIDIA's atomics keep up; the subgroup sums cost more) and the single
+    /// kernel the same within noise, as did both on lavapipe. Changes no path: only the
+    /// order of a queue's entries.
     pub aggregate: bool,
     /// In the staged render, run ST-CVAE's sphere steps (exact walks, or decoders, and NEE
     /// events) in a kernel of their own (`step_main`; `STCVAE_GPU_STAGED_STEPS`, on by
@@ -79,7 +82,7 @@ impl Default for KernelShape {
             stack: StackMemory::Workgroup,
             profile: false,
             staged: false,
-            aggregate: true,
+            aggregate: false,
             steps: true,
         }
     }
