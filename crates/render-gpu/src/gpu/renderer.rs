@@ -116,7 +116,7 @@ pub fn kernel_shape() -> Result<KernelShape, RenderError> {
             "STCVAE_GPU_AGGREGATE",
             &mut shape.aggregate,
             "add to counters and queues once per subgroup where the adapter has subgroup \
-             operations (the default)",
+             operations",
         ),
     ];
     for (name, field, what) in switches {
@@ -262,8 +262,21 @@ struct Band {
 
 /// Turns of the staged render per submission: the pending count is read back after each
 /// submission; turns after the chunk's last path ended dispatch nothing (their queues are
-/// empty).
+/// empty). `STCVAE_GPU_STAGED_ROUNDS` sets it (1 to [`MAX_STAGED_ROUNDS`]), for measuring
+/// what the readbacks cost on hardware.
 const STAGED_ROUNDS: u32 = 8;
+const MAX_STAGED_ROUNDS: u32 = 4096;
+
+fn staged_rounds() -> Result<u32, RenderError> {
+    env_value("STCVAE_GPU_STAGED_ROUNDS").map_or(Ok(STAGED_ROUNDS), |v| {
+        parse_count(
+            "STCVAE_GPU_STAGED_ROUNDS",
+            &v,
+            MAX_STAGED_ROUNDS,
+            "turns of the staged render per submission",
+        )
+    })
+}
 
 /// A render's kernels: the single kernel (`render_main`), or the staged render's.
 enum Kernels {
@@ -284,6 +297,8 @@ struct Dispatcher<'a> {
     res: &'a Resources,
     kernels: &'a Kernels,
     snapshot: Option<&'a Snapshot>,
+    /// The staged render's turns per submission after a chunk's first.
+    rounds: u32,
 }
 
 impl Dispatcher<'_> {
@@ -306,6 +321,7 @@ impl Dispatcher<'_> {
             res,
             kernels,
             snapshot,
+            rounds,
         } = *self;
         params.image[1] = band.rows;
         params.cam_right[3] = band.row0 as f32;
@@ -328,11 +344,7 @@ impl Dispatcher<'_> {
             match kernels {
                 Kernels::Staged(staged) => {
                     // A chunk's first turn alone: the dispatch kind in params is for it.
-                    let rounds = if params.misc[3] != 0 {
-                        1
-                    } else {
-                        STAGED_ROUNDS
-                    };
+                    let rounds = if params.misc[3] != 0 { 1 } else { rounds };
                     let turn = Turn {
                         index: band.index,
                         groups: band.groups,
@@ -584,6 +596,7 @@ pub fn render_gpu(
         res: &res,
         kernels: &kernels,
         snapshot: snapshot.as_ref(),
+        rounds: staged_rounds()?,
     };
     let start = Instant::now();
     let mut stats = PathStats::default();
