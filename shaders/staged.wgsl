@@ -4,33 +4,43 @@
 // its next ray query or sphere step and queues it; trace_main traces the queued queries
 // and step_main (staged_steps.wgsl, ST-CVAE) runs the queued sphere steps, one per
 // invocation, so that their loops and decoders run with every lane on the same kind of
-// work instead of waiting on lanes elsewhere in the bounce. After each turn the host
-// copies the queue of running paths into `stage` (the list), and the next stage_main
-// visits those slots alone: a chunk's first stage_main starts every slot, later ones see
-// only paths still running. The paths and their random numbers are the single kernel's,
-// and so is the image, bit for bit.
+// work instead of waiting on lanes elsewhere in the bounce. The next stage_main visits
+// the slots of this turn's queue of running paths alone (its list): a chunk's first
+// stage_main starts every slot, later ones see only paths still running. The paths and
+// their random numbers are the single kernel's, and so is the image, bit for bit.
+//
+// The queues' lengths and the running paths' queue come in two copies that alternate by
+// turn (`Queue.turn`), so that a turn is its four dispatches and one copy of the dispatch
+// arguments: stage_main reads the last turn's running paths while it queues this turn's,
+// and args_main empties the other copy for the next turn once stage_main has read it. A
+// hardware GPU pays for every dispatch and copy in a turn, full or empty (~90 µs each on
+// the H100 with the queues emptied and copied by the host, 2026-11-27).
 //
 // `stage` holds per slot STAGE_VEC4S vec4s (prepended by kernels.rs): the query's origin
 // and tmax; its direction and flight length; (unused: the free distance is saved with the
 // path), the triangle the path left through (the single kernel forgets it on resuming,
 // which only costs a cast), the shadow ray's weight and the query's flags; then the path's
-// channel, replaced by the answer (hit t, triangle, found, transmittance). After the
-// records, the list: a copy of the running paths' queue (its length and dispatch
-// arguments, then slot indices) as u32 bits.
+// channel, replaced by the answer (hit t, triangle, found, transmittance).
 struct Queue {
-    len: atomic<u32>,
-    // Workgroups (x, y, z) for an indirect dispatch over the queue (args_main).
+    // Turns that args_main has closed: stage_main queues into copy `turn % 2` and reads
+    // its list from the other; trace_main and step_main, after args_main, read copy
+    // `(turn + 1) % 2`, the one stage_main just filled.
+    turn: u32,
+    // Workgroups (x, y, z) for an indirect dispatch over the running paths (the next
+    // stage_main's), the parked sphere steps (their five queues together) and the ray
+    // queries (their three together): args_main's, which the host copies to its indirect
+    // buffer.
     args: array<u32, 3>,
-    // The parked sphere steps (their five queues together) and their dispatch's workgroups.
-    step_len: atomic<u32>,
     step_args: array<u32, 3>,
-    // The ray queries (their three queues together) and their dispatch's workgroups.
-    query_len: atomic<u32>,
     query_args: array<u32, 3>,
-    // Each queue's length, by its number (QUEUE_*; the running paths' is `len`); room for
-    // QUEUES ≤ 12 (asserted with QUEUE_HEAD in gpu/resources.rs).
-    counts: array<atomic<u32>, 12>,
-    // QUEUES regions of `slots` entries, one per queue.
+    // The sphere steps and the queries queued in this turn.
+    step_len: u32,
+    query_len: u32,
+    // Each queue's length by its number (QUEUE_*), in the two copies; room for QUEUES ≤ 12
+    // (asserted with QUEUE_HEAD in gpu/resources.rs).
+    counts: array<array<atomic<u32>, 12>, 2>,
+    // QUEUES + 1 regions of `slots` entries, one per queue, and the running paths' second
+    // copy last.
     items: array<u32>,
 }
 @group(0) @binding(8) var<storage, read_write> stage: array<vec4<f32>>;
@@ -61,34 +71,52 @@ const QUERY_QUEUES: u32 = 3u;
 // The optical radii that divide the exact steps' four queues.
 const WALK_BUCKETS: vec3<f32> = vec3<f32>(2.0, 5.0, 10.0);
 
+/// The copy of the queues that stage_main fills in this turn (`Queue.turn`).
+fn filling() -> u32 {
+    return queue.turn % 2u;
+}
+
+/// The copy that stage_main filled before args_main closed the turn: what trace_main and
+/// step_main read, and the next stage_main's list.
+fn filled() -> u32 {
+    return 1u - queue.turn % 2u;
+}
+
+/// The region of queue `which` in copy `copy`: the running paths' queue has two, the
+/// others one each.
+fn queue_region(which: u32, copy: u32) -> u32 {
+    return select(which, QUEUES, which == QUEUE_RUNNING && copy == 1u);
+}
+
 /// The entry of invocation `i` in the `count` queues from `first` on, taken one after
-/// another.
+/// another, in the copy just filled.
 fn queue_entry(first: u32, count: u32, i: u32) -> u32 {
+    let copy = filled();
     var k = 0u;
     var j = i;
     loop {
-        let len = atomicLoad(&queue.counts[first + k]);
+        let len = atomicLoad(&queue.counts[copy][first + k]);
         if k + 1u >= count || j < len {
             break;
         }
         j -= len;
         k++;
     }
-    return queue.items[(first + k) * queue_slots() + j];
+    return queue.items[queue_region(first + k, copy) * queue_slots() + j];
 }
 
-/// The entries in the `count` queues from `first` on.
-fn queued(first: u32, count: u32) -> u32 {
+/// The entries in the `count` queues from `first` on, in copy `copy`.
+fn queued(first: u32, count: u32, copy: u32) -> u32 {
     var n = 0u;
     for (var k = 0u; k < count; k++) {
-        n += atomicLoad(&queue.counts[first + k]);
+        n += atomicLoad(&queue.counts[copy][first + k]);
     }
     return n;
 }
 
 /// Path slots per queue region (the largest band's).
 fn queue_slots() -> u32 {
-    return arrayLength(&queue.items) / QUEUES;
+    return arrayLength(&queue.items) / (QUEUES + 1u);
 }
 
 /// Appends slot `idx` to queue `which`: one atomic add per subgroup (its first active
@@ -96,17 +124,14 @@ fn queue_slots() -> u32 {
 /// aggregates (gpu/kernels.rs, aggregate_wgsl); otherwise one add per invocation. The
 /// active lanes of a call must all pass the same `which` (one call site per queue).
 fn enqueue(which: u32, idx: u32) {
+    let copy = filling();
     let rank = sg_rank();
     let n = sg_count();
     var at = 0u;
     if rank == 0u {
-        if which == QUEUE_RUNNING {
-            at = atomicAdd(&queue.len, n);
-        } else {
-            at = atomicAdd(&queue.counts[which], n);
-        }
+        at = atomicAdd(&queue.counts[copy][which], n);
     }
-    queue.items[which * queue_slots() + sg_first(at) + rank] = idx;
+    queue.items[queue_region(which, copy) * queue_slots() + sg_first(at) + rank] = idx;
 }
 
 /// A slot's saved query read back.
@@ -119,14 +144,14 @@ fn load_query(rec: u32) -> Query {
         (f & Q_SHADOW) != 0u, (f & Q_QUERY) != 0u, (f & Q_LOCAL) != 0u, false);
 }
 
-/// The list's length (after `slots` records).
-fn stage_list_len(slots: u32) -> u32 {
-    return bitcast<u32>(stage[slots * STAGE_VEC4S].x);
+/// The list's length: the paths the last turn left running.
+fn list_len() -> u32 {
+    return atomicLoad(&queue.counts[filled()][QUEUE_RUNNING]);
 }
 
 /// Slot `i` of the list.
-fn stage_list(slots: u32, i: u32) -> u32 {
-    return bitcast<u32>(stage[slots * STAGE_VEC4S + 1u + i / 4u][i % 4u]);
+fn list_entry(i: u32) -> u32 {
+    return queue.items[queue_region(QUEUE_RUNNING, filled()) * queue_slots() + i];
 }
 
 /// Dispatch arguments for `n` invocations: WORKGROUP-sized groups as (x, y) within the
@@ -137,28 +162,37 @@ fn dispatch_args(n: u32) -> array<u32, 3> {
     return array<u32, 3>(select(groups, 65535u, y > 1u), y, 1u);
 }
 
-/// Dispatch arguments for the queues just filled (trace_main's, and the next stage_main's,
-/// whose list is a copy of it; step_main's); the host copies them to its indirect buffer.
+/// Closes the turn: dispatch arguments for the queues stage_main just filled
+/// (trace_main's, step_main's, and the next stage_main's over the running paths), which
+/// the host copies to its indirect buffer; then the other copy of the queues, which
+/// stage_main has read its list from, emptied for the next turn.
 @compute @workgroup_size(1)
 fn args_main() {
-    let running = atomicLoad(&queue.len);
+    let copy = filling();
+    let running = atomicLoad(&queue.counts[copy][QUEUE_RUNNING]);
     queue.args = dispatch_args(running);
-    let steps = queued(QUEUE_WALKS, STEP_QUEUES);
-    atomicStore(&queue.step_len, steps);
+    let steps = queued(QUEUE_WALKS, STEP_QUEUES, copy);
+    queue.step_len = steps;
     queue.step_args = dispatch_args(steps);
-    let queries = queued(QUEUE_LOCAL, QUERY_QUEUES);
-    atomicStore(&queue.query_len, queries);
+    let queries = queued(QUEUE_LOCAL, QUERY_QUEUES, copy);
+    queue.query_len = queries;
     queue.query_args = dispatch_args(queries);
+    for (var k = 0u; k < QUEUES; k++) {
+        atomicStore(&queue.counts[1u - copy][k], 0u);
+    }
+    queue.turn += 1u;
     // The invocations still pending are the running paths: counted once here rather than
-    // by an atomic add in every stage_main invocation.
+    // by an atomic add in every stage_main invocation (both words of the 64-bit counter,
+    // so that the host need not clear it before each turn).
     atomicStore(&counters[2u * C_PENDING], running);
+    atomicStore(&counters[2u * C_PENDING + 1u], 0u);
 }
 
 /// Dispatch arguments for the list (the first stage_main of a submission: the buffer of
 /// arguments may be from an undone one).
 @compute @workgroup_size(1)
 fn list_args_main() {
-    queue.args = dispatch_args(stage_list_len(queue_slots()));
+    queue.args = dispatch_args(list_len());
 }
 
 /// The linear index of invocation `gid` (dispatched as in render_main).
@@ -174,10 +208,9 @@ fn stage_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
     if params.misc.w != 0u {
         idx = slot_of(gid);
     } else {
-        let slots = queue_slots();
         let i = invocation(gid);
-        if i < stage_list_len(slots) {
-            idx = stage_list(slots, i);
+        if i < list_len() {
+            idx = list_entry(i);
         }
     }
     if idx == NO_SLOT || !slot_begin(idx, params.misc.w) {
@@ -275,7 +308,7 @@ fn trace_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
     prof_begin(li);
     stack_base = li * STACK_STRIDE;
     let i = invocation(gid);
-    if i < atomicLoad(&queue.query_len) {
+    if i < queue.query_len {
         let rec = queue_entry(QUEUE_LOCAL, QUERY_QUEUES, i) * STAGE_VEC4S;
         let q = load_query(rec);
         let channel = bitcast<u32>(stage[rec + 3u].x);

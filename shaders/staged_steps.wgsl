@@ -13,7 +13,7 @@ fn step_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invoc
     prof_begin(li);
     stack_base = li * STACK_STRIDE;
     let i = invocation(gid);
-    if i < atomicLoad(&queue.step_len) && slot_begin(queue_entry(QUEUE_WALKS, STEP_QUEUES, i), 0u) {
+    if i < queue.step_len && slot_begin(queue_entry(QUEUE_WALKS, STEP_QUEUES, i), 0u) {
         p_from_step = scatter_at(p_channel);
         if loop_limit_ran_out(u32(params.consts3.z)) {
             stats[C_TRUNCATED] = 1u;

@@ -25,6 +25,15 @@ impl AdapterChoice {
 fn adapters_on(backends: wgpu::Backends) -> Vec<wgpu::Adapter> {
     let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
     desc.backends = backends;
+    // wgpu guards every indirect dispatch with a dispatch of its own that zeroes arguments
+    // beyond the adapter's limit: the staged render's three a turn would become six, each
+    // a pause on a hardware GPU. Its arguments come from `dispatch_args`
+    // (shaders/staged.wgsl), which keeps each within 65,535 (WebGPU's minimum limit), so
+    // the guard is off unless WGPU_VALIDATION_INDIRECT_CALL asks for it.
+    if std::env::var_os("WGPU_VALIDATION_INDIRECT_CALL").is_none() {
+        desc.flags
+            .remove(wgpu::InstanceFlags::VALIDATION_INDIRECT_CALL);
+    }
     pollster::block_on(wgpu::Instance::new(desc).enumerate_adapters(backends))
 }
 

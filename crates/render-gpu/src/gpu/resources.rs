@@ -15,17 +15,15 @@ pub struct Resources {
     /// One accumulation buffer per band of the image, each within the binding limit.
     pub accums: Vec<wgpu::Buffer>,
     pub counters: wgpu::Buffer,
-    /// The staged render's records (one per path slot of the largest band, then the list)
-    /// and its queues (running paths, parked steps and queries by kind: shaders/staged.wgsl),
-    /// bound for the staged kernels alone; 16- and 96-byte dummies otherwise.
+    /// The staged render's records (one per path slot of the largest band) and its queues
+    /// (running paths, parked steps and queries by kind, their lengths in two copies that
+    /// alternate by turn: shaders/staged.wgsl), bound for the staged kernels alone; 16- and
+    /// 144-byte dummies otherwise.
     pub stage: wgpu::Buffer,
     pub queue: wgpu::Buffer,
     /// The indirect dispatch arguments of the staged render's kernels, copied from the
     /// queue's (not bound: a buffer may not be both).
     args: wgpu::Buffer,
-    /// Path slots with a staged record: the largest band's (the WGSL finds the list after
-    /// that many records); 0 for the single kernel.
-    stage_slots: u64,
     /// One bind group per band: the same inputs, that band's accumulation buffer.
     bind_groups: Vec<wgpu::BindGroup>,
     /// Kept alive for the bind groups.
@@ -41,38 +39,30 @@ pub const COUNTER_SLOTS: u64 = 9 + 3 * super::kernels::PROFILE_PHASES.len() as u
 /// shaders/path.wgsl).
 pub const PENDING_SLOT: u64 = 6;
 
-/// Byte size of the staged render's `stage` buffer for `slots` path slots: their query
-/// records, then the list of slots to advance (a copy of the queue: length, then slot
-/// indices), rounded up to whole vec4s.
-pub fn stage_bytes(slots: u64) -> u64 {
-    (STAGE_SLOT_BYTES * slots + LIST_HEAD).next_multiple_of(16)
-}
+/// Bytes of the staged render's `stage` buffer per path slot: its query record.
+pub const STAGE_SLOT_BYTES: u64 = 16 * super::kernels::STAGE_VEC4S;
 
-/// Bytes of the `stage` buffer per path slot: its record and its list entry.
-pub const STAGE_SLOT_BYTES: u64 = 16 * super::kernels::STAGE_VEC4S + 4;
+/// Bytes before the queues' slot indices (`Queue` in shaders/staged.wgsl): the turn, the
+/// dispatch arguments of the running paths, the parked sphere steps and the ray queries,
+/// the last two's totals, then every queue's length in two copies of 12 words.
+const QUEUE_HEAD: u64 = 4 * (1 + 3 * 3 + 2 + 2 * 12);
 
-/// Bytes before the queues' slot indices: the running paths' queue's length and dispatch
-/// arguments, then the parked sphere steps' and the ray queries' (each kind's together),
-/// then every queue's own length, 12 words (`Queue` in shaders/staged.wgsl).
-const QUEUE_HEAD: u64 = 48 + 4 * 12;
-
-/// The queues' regions of slot indices (`QUEUES` in shaders/staged.wgsl): running paths,
-/// parked exact steps by optical radius (four), parked model steps, and ray queries by kind
-/// (three).
+/// The queues (`QUEUES` in shaders/staged.wgsl): running paths, parked exact steps by
+/// optical radius (four), parked model steps, and ray queries by kind (three).
 const QUEUES: u64 = 9;
 const _: () = assert!(QUEUES <= 12, "Queue.counts holds 12 lengths");
 
 /// Where in the queue header (and its copy, the indirect buffer) each kernel's dispatch
-/// arguments lie: after the running paths', the sphere steps' and the queries' totals.
+/// arguments lie: after the turn, then one after another.
 const STAGE_ARGS_AT: u64 = 4;
-const STEP_ARGS_AT: u64 = 20;
-const QUERY_ARGS_AT: u64 = 36;
+const STEP_ARGS_AT: u64 = 16;
+const QUERY_ARGS_AT: u64 = 28;
+/// The bytes of the header copied to the indirect buffer: up to the last arguments.
+const ARGS_BYTES: u64 = QUERY_ARGS_AT + 12;
 
-/// Bytes of the staged render's queues per path slot (one entry in each).
-pub const QUEUE_SLOT_BYTES: u64 = 4 * QUEUES;
-
-/// Bytes before the list's slot indices: the running paths' queue's length and arguments.
-const LIST_HEAD: u64 = 16;
+/// Bytes of the staged render's queues per path slot: one entry in each queue, two in the
+/// running paths' (its copies alternate by turn).
+pub const QUEUE_SLOT_BYTES: u64 = 4 * (QUEUES + 1);
 
 /// Byte size of the counter buffer.
 pub const COUNTER_BYTES: u64 = 8 * COUNTER_SLOTS;
@@ -168,11 +158,11 @@ impl Resources {
                 mapped_at_creation: false,
             })
         };
-        let stage = rw("stage", stage_bytes(i.stage_slots));
+        let stage = rw("stage", STAGE_SLOT_BYTES * i.stage_slots);
         let queue = rw("queue", QUEUE_HEAD + QUEUE_SLOT_BYTES * i.stage_slots);
         let args = ctx.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("dispatch args"),
-            size: QUEUE_HEAD,
+            size: ARGS_BYTES,
             usage: wgpu::BufferUsages::INDIRECT | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
@@ -212,7 +202,6 @@ impl Resources {
             stage,
             queue,
             args,
-            stage_slots: i.stage_slots,
             bind_groups,
             _inputs: vec![tris, nodes, env, grid, model],
         })
@@ -249,11 +238,13 @@ impl Resources {
     /// Submits `rounds` turns of the staged render over band `turn.index`: `stage` (the
     /// listed slots to their next ray query or sphere step, queued; in a chunk's first turn,
     /// `turn.first`, every slot of the band, over `turn.groups`), then `trace` (the
-    /// queries) and `step` (the sphere steps, ST-CVAE), then the queue of running
-    /// paths copied into the list of the next turn. The kernels are dispatched indirectly
-    /// over the slots they have (`args`, `list_args`: the arguments' kernels). The queues
-    /// are emptied and the pending counter cleared before each turn, so that after the
-    /// last it counts the slots still pending. Returns the dispatches submitted.
+    /// queries) and `step` (the sphere steps, ST-CVAE); the next turn's stage lists the
+    /// running paths this one queued. The kernels are dispatched indirectly over the slots
+    /// they have (`args`, `list_args`: the arguments' kernels, whose results are copied to
+    /// the indirect buffer). `args` also closes the turn: it empties the queues' other copy
+    /// for the next and sets the pending counter, so that after the last turn it counts the
+    /// slots still pending. Four dispatches and one copy a turn: each costs a hardware GPU
+    /// time whether it has work or not. Returns the dispatches submitted.
     pub fn staged_rounds(
         &self,
         ctx: &GpuContext,
@@ -274,12 +265,9 @@ impl Resources {
         // used).
         let args = |enc: &mut wgpu::CommandEncoder, p| {
             pass(enc, p, Groups::Direct(1, 1));
-            enc.copy_buffer_to_buffer(&self.queue, 0, &self.args, 0, QUEUE_HEAD);
+            enc.copy_buffer_to_buffer(&self.queue, 0, &self.args, 0, ARGS_BYTES);
         };
-        let list_at = 16 * super::kernels::STAGE_VEC4S * self.stage_slots;
         for r in 0..rounds {
-            enc.clear_buffer(&self.queue, 0, Some(QUEUE_HEAD));
-            enc.clear_buffer(&self.counters, 8 * PENDING_SLOT, Some(8));
             if r == 0 && turn.first {
                 pass(
                     &mut enc,
@@ -297,14 +285,6 @@ impl Resources {
             if let Some(step) = &k.step {
                 pass(&mut enc, step, Groups::Indirect(STEP_ARGS_AT));
             }
-            enc.copy_buffer_to_buffer(&self.queue, 0, &self.stage, list_at, LIST_HEAD);
-            enc.copy_buffer_to_buffer(
-                &self.queue,
-                QUEUE_HEAD,
-                &self.stage,
-                list_at + LIST_HEAD,
-                4 * self.stage_slots,
-            );
         }
         ctx.queue.submit([enc.finish()]);
         dispatches.get()
