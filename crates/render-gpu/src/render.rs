@@ -96,6 +96,11 @@ pub struct DispatchStats {
     pub staged_steps: bool,
     /// The SIMD lanes busy in each phase of the kernel (`STCVAE_GPU_PROFILE`).
     pub lanes: Option<LaneProfile>,
+    /// Microseconds the host spent encoding and submitting the dispatches, and waiting for
+    /// their counters: a GPU that finishes a submission before the host has sent the next
+    /// idles in between (the staged render submits a turn's four dispatches at a time).
+    pub host_encode_us: u64,
+    pub host_wait_us: u64,
 }
 
 /// Per phase of the kernel ([`crate::gpu::kernels::PROFILE_PHASES`]), the subgroup lanes

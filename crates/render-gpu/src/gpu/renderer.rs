@@ -285,10 +285,21 @@ enum Kernels {
 }
 
 /// The path states before the dispatch in flight (software adapters): the accumulation
-/// slots, and a staged render's records.
+/// slots, and a staged render's records and queues.
 struct Snapshot {
     accum: wgpu::Buffer,
-    stage: Option<wgpu::Buffer>,
+    staged: Option<[wgpu::Buffer; 2]>,
+}
+
+impl Snapshot {
+    /// The staged render's buffers paired with their copies here.
+    fn staged_pairs<'a>(
+        &'a self,
+        res: &'a Resources,
+    ) -> impl Iterator<Item = (&'a wgpu::Buffer, &'a wgpu::Buffer)> {
+        let live = [&res.stage, &res.queue];
+        self.staged.iter().flatten().zip(live)
+    }
 }
 
 /// What every dispatch of a render uses.
@@ -337,10 +348,11 @@ impl Dispatcher<'_> {
             let snap = snapshot.filter(|_| *budget > 1);
             if let Some(snap) = snap {
                 res.copy(ctx, (accum, 0), (&snap.accum, 0), band.bytes);
-                if let Some(stage) = &snap.stage {
-                    res.copy(ctx, (&res.stage, 0), (stage, 0), stage.size());
+                for (copy, live) in snap.staged_pairs(res) {
+                    res.copy(ctx, (live, 0), (copy, 0), copy.size());
                 }
             }
+            let encoding = Instant::now();
             match kernels {
                 Kernels::Staged(staged) => {
                     // A chunk's first turn alone: the dispatch kind in params is for it.
@@ -357,7 +369,10 @@ impl Dispatcher<'_> {
                     dispatch.dispatches += 1;
                 }
             }
+            let waiting = Instant::now();
+            dispatch.host_encode_us += waiting.duration_since(encoding).as_micros() as u64;
             let c = read_back(ctx, &res.counters, COUNTER_BYTES)?;
+            dispatch.host_wait_us += waiting.elapsed().as_micros() as u64;
             let word =
                 |i: usize| u32::from_le_bytes(c[4 * i..4 * i + 4].try_into().unwrap()) as u64;
             let pair = |k: usize| word(2 * k) | (word(2 * k + 1) << 32);
@@ -366,8 +381,8 @@ impl Dispatcher<'_> {
             {
                 // Undo the cut-off dispatch and redo it with half the budget.
                 res.copy(ctx, (&snap.accum, 0), (accum, 0), band.bytes);
-                if let Some(stage) = &snap.stage {
-                    res.copy(ctx, (stage, 0), (&res.stage, 0), stage.size());
+                for (copy, live) in snap.staged_pairs(res) {
+                    res.copy(ctx, (copy, 0), (live, 0), copy.size());
                 }
                 dispatch.redone += 1;
                 *budget /= 2;
@@ -462,8 +477,8 @@ pub fn render_gpu(
     // reservoirs needs 151 MB.
     let limits = &ctx.limits;
     let slot_bytes = 16 * slot_vec4s;
-    // The staged render's records (with the list's entries) and its queues take one
-    // binding each too, at fewer bytes a slot than the path state today.
+    // The staged render's records and its queues take one binding each too, at fewer bytes
+    // a slot than the path state today.
     let binding_bytes = if shape.staged {
         slot_bytes.max(STAGE_SLOT_BYTES).max(QUEUE_SLOT_BYTES)
     } else {
@@ -563,9 +578,9 @@ pub fn render_gpu(
     let largest = accum_bytes.iter().copied().max().unwrap_or(0);
     let snapshot = (ctx.adapter.software && budget > 1).then(|| Snapshot {
         accum: res.snapshot_buffer(ctx, largest),
-        stage: shape
+        staged: shape
             .staged
-            .then(|| res.snapshot_buffer(ctx, res.stage.size())),
+            .then(|| [&res.stage, &res.queue].map(|b| res.snapshot_buffer(ctx, b.size()))),
     });
     if let Some(e) = pollster::block_on(scope.pop()) {
         let total: u64 = accum_bytes.iter().sum();
