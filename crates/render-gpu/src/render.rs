@@ -96,6 +96,10 @@ pub struct DispatchStats {
     pub staged_steps: bool,
     /// The SIMD lanes busy in each phase of the kernel (`STCVAE_GPU_PROFILE`).
     pub lanes: Option<LaneProfile>,
+    /// Whether each submission of the staged render was sent before the host waited for the
+    /// counters of the one before (where no snapshot is kept to undo from: hardware GPUs,
+    /// or a software adapter at one bounce a dispatch).
+    pub ahead: bool,
     /// Microseconds the host spent encoding and submitting the dispatches, and waiting for
     /// their counters: a GPU that finishes a submission before the host has sent the next
     /// idles in between (the staged render submits a turn's four dispatches at a time).

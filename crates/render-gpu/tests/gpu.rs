@@ -1302,8 +1302,9 @@ fn images_beyond_the_binding_limit_render_in_bands() {
 /// same hits. Four renders must therefore take the same paths (equal counters) and agree
 /// bit for bit: the single kernel at one bounce per dispatch (every bounce resumes a path),
 /// the single kernel at its default schedule, the staged render, and the staged render
-/// with queue adds once per subgroup and the sphere steps run in place
-/// (`STCVAE_GPU_AGGREGATE=1`, `STCVAE_GPU_STAGED_STEPS=0`). One exception: the staged
+/// with queue adds once per subgroup, the sphere steps run in place and one bounce a
+/// visit, its submissions sent ahead of their readbacks (`STCVAE_GPU_AGGREGATE=1`,
+/// `STCVAE_GPU_STAGED_STEPS=0`, `STCVAE_GPU_BOUNCES=1`). One exception: the staged
 /// render's sphere steps run in a pipeline of their own (`step_main`), which a hardware
 /// driver may compile into other float instructions (most likely multiply-adds fused
 /// elsewhere) than the same WGSL in the single kernel; on the H100 (2026-11-27) 31–47 of
@@ -1366,13 +1367,16 @@ fn staged_render_equals_one_kernel() {
         let default = render(&[lanes]);
         let staged = render(&[lanes, ("STCVAE_GPU_STAGED", "1")]);
         // One lane per subgroup adding to the queues and counters for all (another order
-        // of the queues' entries), and the sphere steps run in stage_main rather than in
-        // their own kernel: the same paths.
+        // of the queues' entries), the sphere steps run in stage_main rather than in
+        // their own kernel, and one bounce a visit, which on a software adapter keeps no
+        // snapshot, so each submission is sent ahead of the last one's readback as on
+        // hardware: the same paths.
         let staged_plain = render(&[
             lanes,
             ("STCVAE_GPU_STAGED", "1"),
             ("STCVAE_GPU_AGGREGATE", "1"),
             ("STCVAE_GPU_STAGED_STEPS", "0"),
+            ("STCVAE_GPU_BOUNCES", "1"),
         ]);
         // Every bounce was a dispatch of its own: more dispatches than samples per slot.
         assert!(one_bounce.dispatch.dispatches > 12, "{name}");
@@ -1380,6 +1384,8 @@ fn staged_render_equals_one_kernel() {
         let subgroups = ctx.features.contains(wgpu::Features::SUBGROUP);
         assert!(!staged.dispatch.aggregate);
         assert_eq!(staged_plain.dispatch.aggregate, subgroups);
+        assert!(staged_plain.dispatch.ahead && !default.dispatch.ahead);
+        assert_eq!(staged.dispatch.ahead, !ctx.adapter.software);
         // ST-CVAE's model steps (steps that are not exact) are what step_main runs.
         let stcvae = set.kind == IntegratorKind::Stcvae;
         assert_eq!(staged.dispatch.staged_steps, stcvae, "{name}");
@@ -1396,7 +1402,11 @@ fn staged_render_equals_one_kernel() {
         for (what, out, allowed) in [
             ("one bounce a dispatch", &one_bounce, 0.0),
             ("staged", &staged, STEP_KERNEL_RELATIVE),
-            ("staged, aggregated, steps in place", &staged_plain, 0.0),
+            (
+                "staged, aggregated, steps in place, sent ahead",
+                &staged_plain,
+                0.0,
+            ),
         ] {
             assert_eq!(out.stats, default.stats, "{name}, {what}");
             let differ = differing_pixels(&default, out);

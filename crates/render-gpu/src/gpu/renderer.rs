@@ -16,8 +16,8 @@ use super::kernels::{self, Kernel, KernelShape, StackMemory};
 
 use super::model_buffers::model_params;
 use super::resources::{
-    COUNTER_BYTES, Inputs, PENDING_SLOT, QUEUE_SLOT_BYTES, Resources, STAGE_SLOT_BYTES,
-    StagedKernels, Turn, read_back, wait,
+    COUNTER_BYTES, Inputs, PENDING_SLOT, QUEUE_SLOT_BYTES, Readback, Resources, STAGE_SLOT_BYTES,
+    StagedKernels, Turn, read_back, start_read_back, wait,
 };
 use super::scene_buffers::{
     Params, bvh_depth, env_buffer, geometry_buffers, grid_buffer, scene_params,
@@ -267,6 +267,18 @@ struct Band {
 const STAGED_ROUNDS: u32 = 8;
 const MAX_STAGED_ROUNDS: u32 = 4096;
 
+/// Whether the staged render may send a submission before it waits for the counters of
+/// the one before (`STCVAE_GPU_STAGED_AHEAD`, on by default; for measuring on hardware).
+fn staged_ahead() -> Result<bool, RenderError> {
+    env_value("STCVAE_GPU_STAGED_AHEAD").map_or(Ok(true), |v| {
+        parse_switch(
+            "STCVAE_GPU_STAGED_AHEAD",
+            &v,
+            "send each submission of turns before waiting for the last one's counters",
+        )
+    })
+}
+
 fn staged_rounds() -> Result<u32, RenderError> {
     env_value("STCVAE_GPU_STAGED_ROUNDS").map_or(Ok(STAGED_ROUNDS), |v| {
         parse_count(
@@ -310,6 +322,8 @@ struct Dispatcher<'a> {
     snapshot: Option<&'a Snapshot>,
     /// The staged render's turns per submission after a chunk's first.
     rounds: u32,
+    /// Whether the staged render sends submissions ahead where it keeps no snapshot.
+    ahead: bool,
 }
 
 impl Dispatcher<'_> {
@@ -333,6 +347,7 @@ impl Dispatcher<'_> {
             kernels,
             snapshot,
             rounds,
+            ahead,
         } = *self;
         params.image[1] = band.rows;
         params.cam_right[3] = band.row0 as f32;
@@ -340,6 +355,12 @@ impl Dispatcher<'_> {
         let accum = &res.accums[band.index];
         // Dispatch kind: 2: first dispatch of the render, 1: of a chunk, 0: resume.
         params.misc[3] = if first { 2 } else { 1 };
+        // A staged render without a snapshot to undo from sends each submission before it
+        // waits for the counters of the one before (one in flight ahead), so that the GPU
+        // need not idle while the host encodes the next turns and reads the pending count.
+        let ahead = ahead && matches!(kernels, Kernels::Staged(_)) && snapshot.is_none();
+        let mut in_flight: Option<Readback> = None;
+        dispatch.ahead |= ahead;
         loop {
             ctx.queue
                 .write_buffer(&res.params, 0, bytemuck::bytes_of(params));
@@ -371,11 +392,21 @@ impl Dispatcher<'_> {
             }
             let waiting = Instant::now();
             dispatch.host_encode_us += waiting.duration_since(encoding).as_micros() as u64;
-            let c = read_back(ctx, &res.counters, COUNTER_BYTES)?;
+            let mut read = start_read_back(ctx, &res.counters, COUNTER_BYTES);
+            if ahead {
+                // The counters of the submission before this one, if any: this one is
+                // already on its way.
+                match in_flight.replace(read) {
+                    Some(before) => read = before,
+                    None => {
+                        params.misc[3] = 0;
+                        continue;
+                    }
+                }
+            }
+            let c = read.finish(ctx)?;
             dispatch.host_wait_us += waiting.elapsed().as_micros() as u64;
-            let word =
-                |i: usize| u32::from_le_bytes(c[4 * i..4 * i + 4].try_into().unwrap()) as u64;
-            let pair = |k: usize| word(2 * k) | (word(2 * k + 1) << 32);
+            let pair = |k: usize| counter(&c, k);
             if pair(7) > 0
                 && let Some(snap) = snap
             {
@@ -390,41 +421,68 @@ impl Dispatcher<'_> {
                 continue;
             }
             // Counted once a dispatch stands (an undone one is not).
-            if let Some(lanes) = &mut dispatch.lanes {
-                for (i, p) in lanes.phases.iter_mut().enumerate() {
-                    p.active += pair(9 + 3 * i);
-                    p.capacity += pair(10 + 3 * i);
-                    p.passes += pair(11 + 3 * i);
-                }
-            }
-            stats.add(&PathStats {
-                paths: pair(0),
-                events: pair(1),
-                steps: pair(2),
-                leaks: pair(3),
-                capped: pair(4),
-                non_finite: pair(5),
-                exact_steps: pair(8),
-            });
-            if pair(7) > 0 {
-                let hint = if *budget > 1 {
-                    format!("set STCVAE_GPU_BOUNCES below {budget}")
-                } else {
-                    "a single bounce exceeded it: lower render.exact_tau".to_string()
-                };
-                return Err(RenderError::Gpu(format!(
-                    "{} invocations were stopped by {}'s loop limit (lavapipe stops a shader \
-                     after 65,535 loop iterations); {hint} or use --device cpu",
-                    pair(7),
-                    ctx.adapter.name,
-                )));
-            }
+            tally(ctx, &c, *budget, stats, dispatch)?;
             params.misc[3] = 0;
             if pair(PENDING_SLOT as usize) == 0 {
+                // The submission sent ahead ran its turns over empty queues; its counters
+                // are read all the same, so that nothing it did goes uncounted.
+                if let Some(last) = in_flight.take() {
+                    let c = last.finish(ctx)?;
+                    tally(ctx, &c, *budget, stats, dispatch)?;
+                }
                 return Ok(());
             }
         }
     }
+}
+
+/// Counter slot `k` (a lo/hi pair of u32 words) of the counters `c` read back.
+fn counter(c: &[u8], k: usize) -> u64 {
+    let word = |i: usize| u32::from_le_bytes(c[4 * i..4 * i + 4].try_into().unwrap()) as u64;
+    word(2 * k) | (word(2 * k + 1) << 32)
+}
+
+/// Adds the counters `c` of a submission that stands to the render's path statistics and
+/// lane profile; invocations stopped by the adapter's loop limit (at `budget` bounces a
+/// dispatch) are an error.
+fn tally(
+    ctx: &GpuContext,
+    c: &[u8],
+    budget: u32,
+    stats: &mut PathStats,
+    dispatch: &mut DispatchStats,
+) -> Result<(), RenderError> {
+    let pair = |k: usize| counter(c, k);
+    if let Some(lanes) = &mut dispatch.lanes {
+        for (i, p) in lanes.phases.iter_mut().enumerate() {
+            p.active += pair(9 + 3 * i);
+            p.capacity += pair(10 + 3 * i);
+            p.passes += pair(11 + 3 * i);
+        }
+    }
+    stats.add(&PathStats {
+        paths: pair(0),
+        events: pair(1),
+        steps: pair(2),
+        leaks: pair(3),
+        capped: pair(4),
+        non_finite: pair(5),
+        exact_steps: pair(8),
+    });
+    if pair(7) > 0 {
+        let hint = if budget > 1 {
+            format!("set STCVAE_GPU_BOUNCES below {budget}")
+        } else {
+            "a single bounce exceeded it: lower render.exact_tau".to_string()
+        };
+        return Err(RenderError::Gpu(format!(
+            "{} invocations were stopped by {}'s loop limit (lavapipe stops a shader \
+             after 65,535 loop iterations); {hint} or use --device cpu",
+            pair(7),
+            ctx.adapter.name,
+        )));
+    }
+    Ok(())
 }
 
 /// Renders on the GPU with the estimators of the CPU integrators.
@@ -612,6 +670,7 @@ pub fn render_gpu(
         kernels: &kernels,
         snapshot: snapshot.as_ref(),
         rounds: staged_rounds()?,
+        ahead: staged_ahead()?,
     };
     let start = Instant::now();
     let mut stats = PathStats::default();

@@ -353,6 +353,19 @@ pub struct Turn {
 
 /// Copies `size` bytes of `buf` to the host (blocking).
 pub fn read_back(ctx: &GpuContext, buf: &wgpu::Buffer, size: u64) -> Result<Vec<u8>, RenderError> {
+    start_read_back(ctx, buf, size).finish(ctx)
+}
+
+/// A copy of a buffer on its way to the host: submitted after everything submitted before
+/// it, not yet waited for.
+pub struct Readback {
+    staging: wgpu::Buffer,
+    submission: wgpu::SubmissionIndex,
+    mapped: mpsc::Receiver<Result<(), wgpu::BufferAsyncError>>,
+}
+
+/// Submits a copy of `size` bytes of `buf` for the host to read once the GPU gets there.
+pub fn start_read_back(ctx: &GpuContext, buf: &wgpu::Buffer, size: u64) -> Readback {
     let staging = ctx.device.create_buffer(&wgpu::BufferDescriptor {
         label: Some("readback"),
         size,
@@ -363,24 +376,42 @@ pub fn read_back(ctx: &GpuContext, buf: &wgpu::Buffer, size: u64) -> Result<Vec<
         .device
         .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
     enc.copy_buffer_to_buffer(buf, 0, &staging, 0, size);
-    ctx.queue.submit([enc.finish()]);
-    let (tx, rx) = mpsc::channel();
+    let submission = ctx.queue.submit([enc.finish()]);
+    let (tx, mapped) = mpsc::channel();
     staging.map_async(wgpu::MapMode::Read, .., move |r| {
         let _ = tx.send(r);
     });
-    wait(ctx)?;
-    match rx.recv() {
-        Ok(Ok(())) => {}
-        Ok(Err(e)) => return Err(RenderError::Gpu(format!("reading GPU results failed: {e}"))),
-        Err(_) => return Err(RenderError::Gpu("reading GPU results failed".into())),
+    Readback {
+        staging,
+        submission,
+        mapped,
     }
-    let view = staging
-        .get_mapped_range(..)
-        .map_err(|e| RenderError::Gpu(format!("reading GPU results failed: {e}")))?;
-    let data = view.to_vec();
-    drop(view);
-    staging.unmap();
-    Ok(data)
+}
+
+impl Readback {
+    /// Waits for the copy (and what was submitted before it, not after) and returns the
+    /// bytes.
+    pub fn finish(self, ctx: &GpuContext) -> Result<Vec<u8>, RenderError> {
+        let failed = |e: &dyn std::fmt::Display| {
+            RenderError::Gpu(format!("reading GPU results failed: {e}"))
+        };
+        ctx.device
+            .poll(wgpu::PollType::Wait {
+                submission_index: Some(self.submission),
+                timeout: None,
+            })
+            .map_err(|e| RenderError::Gpu(format!("the GPU did not finish: {e}")))?;
+        match self.mapped.recv() {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => return Err(failed(&e)),
+            Err(e) => return Err(failed(&e)),
+        }
+        let view = self.staging.get_mapped_range(..).map_err(|e| failed(&e))?;
+        let data = view.to_vec();
+        drop(view);
+        self.staging.unmap();
+        Ok(data)
+    }
 }
 
 /// Blocks until the queue is idle.
