@@ -10,11 +10,12 @@
 // their random numbers are the single kernel's, and so is the image, bit for bit.
 //
 // The queues' lengths and the running paths' queue come in two copies that alternate by
-// turn (`Queue.turn`), so that a turn is its four dispatches and one copy of the dispatch
-// arguments: stage_main reads the last turn's running paths while it queues this turn's,
-// and args_main empties the other copy for the next turn once stage_main has read it. A
-// hardware GPU pays for every dispatch and copy in a turn, full or empty (~90 µs each on
-// the H100 with the queues emptied and copied by the host, 2026-11-27).
+// turn (`Queue.turn`), and args_main writes the dispatch arguments straight into the
+// indirect buffer, so that a turn is its four dispatches and nothing else: stage_main
+// reads the last turn's running paths while it queues this turn's, and args_main empties
+// the other copy for the next turn once stage_main has read it. A hardware GPU pays for
+// every dispatch and copy in a turn, full or empty (~90 µs each on the H100 with the
+// queues emptied and copied by the host, 2026-11-27).
 //
 // `stage` holds per slot STAGE_VEC4S vec4s (prepended by kernels.rs): the query's origin
 // and tmax; its direction and flight length; (unused: the free distance is saved with the
@@ -26,14 +27,8 @@ struct Queue {
     // its list from the other; trace_main and step_main, after args_main, read copy
     // `(turn + 1) % 2`, the one stage_main just filled.
     turn: u32,
-    // Workgroups (x, y, z) for an indirect dispatch over the running paths (the next
-    // stage_main's), the parked sphere steps (their five queues together) and the ray
-    // queries (their three together): args_main's, which the host copies to its indirect
-    // buffer.
-    args: array<u32, 3>,
-    step_args: array<u32, 3>,
-    query_args: array<u32, 3>,
-    // The sphere steps and the queries queued in this turn.
+    // The sphere steps (their five queues together) and the queries (their three) queued
+    // in this turn.
     step_len: u32,
     query_len: u32,
     // Each queue's length by its number (QUEUE_*), in the two copies; room for QUEUES ≤ 12
@@ -45,6 +40,10 @@ struct Queue {
 }
 @group(0) @binding(8) var<storage, read_write> stage: array<vec4<f32>>;
 @group(0) @binding(9) var<storage, read_write> queue: Queue;
+// Workgroups (x, y, z) for the indirect dispatches over the running paths (the next
+// stage_main's), the parked sphere steps and the ray queries: written by the arguments'
+// kernels alone, which have a layout of their own (gpu/kernels.rs, args_layout).
+@group(0) @binding(10) var<storage, read_write> indirect: array<u32, 9>;
 
 const Q_PENDING: u32 = 1u;
 const Q_SHADOW: u32 = 2u;
@@ -154,29 +153,37 @@ fn list_entry(i: u32) -> u32 {
     return queue.items[queue_region(QUEUE_RUNNING, filled()) * queue_slots() + i];
 }
 
-/// Dispatch arguments for `n` invocations: WORKGROUP-sized groups as (x, y) within the
-/// 65,535 a dimension allows, as the host lays out direct dispatches.
-fn dispatch_args(n: u32) -> array<u32, 3> {
+/// Writes the dispatch arguments for `n` invocations at word `at` of the indirect buffer:
+/// WORKGROUP-sized groups as (x, y) within the 65,535 a dimension allows, as the host lays
+/// out direct dispatches.
+fn dispatch_args(at: u32, n: u32) {
     let groups = (n + WORKGROUP - 1u) / WORKGROUP;
     let y = max((groups + 65534u) / 65535u, 1u);
-    return array<u32, 3>(select(groups, 65535u, y > 1u), y, 1u);
+    indirect[at] = select(groups, 65535u, y > 1u);
+    indirect[at + 1u] = y;
+    indirect[at + 2u] = 1u;
 }
 
+// Where each kernel's arguments lie in the indirect buffer (words; gpu/resources.rs).
+const STAGE_ARGS: u32 = 0u;
+const STEP_ARGS: u32 = 3u;
+const QUERY_ARGS: u32 = 6u;
+
 /// Closes the turn: dispatch arguments for the queues stage_main just filled
-/// (trace_main's, step_main's, and the next stage_main's over the running paths), which
-/// the host copies to its indirect buffer; then the other copy of the queues, which
-/// stage_main has read its list from, emptied for the next turn.
+/// (trace_main's, step_main's, and the next stage_main's over the running paths), then the
+/// other copy of the queues, which stage_main has read its list from, emptied for the next
+/// turn.
 @compute @workgroup_size(1)
 fn args_main() {
     let copy = filling();
     let running = atomicLoad(&queue.counts[copy][QUEUE_RUNNING]);
-    queue.args = dispatch_args(running);
+    dispatch_args(STAGE_ARGS, running);
     let steps = queued(QUEUE_WALKS, STEP_QUEUES, copy);
     queue.step_len = steps;
-    queue.step_args = dispatch_args(steps);
+    dispatch_args(STEP_ARGS, steps);
     let queries = queued(QUEUE_LOCAL, QUERY_QUEUES, copy);
     queue.query_len = queries;
-    queue.query_args = dispatch_args(queries);
+    dispatch_args(QUERY_ARGS, queries);
     for (var k = 0u; k < QUEUES; k++) {
         atomicStore(&queue.counts[1u - copy][k], 0u);
     }
@@ -192,7 +199,7 @@ fn args_main() {
 /// arguments may be from an undone one).
 @compute @workgroup_size(1)
 fn list_args_main() {
-    queue.args = dispatch_args(list_len());
+    dispatch_args(STAGE_ARGS, list_len());
 }
 
 /// The linear index of invocation `gid` (dispatched as in render_main).

@@ -439,6 +439,18 @@ pub fn bind_group_layout(
         }))
 }
 
+/// The bind-group layout of the staged render's arguments' kernels (`args_main`,
+/// `list_args_main`): the counters, the queues and the indirect buffer they write the
+/// dispatch arguments into. A buffer may not be bound as storage in a dispatch that reads
+/// it as indirect arguments, so the other kernels' layout leaves it out.
+pub fn args_layout(ctx: &GpuContext) -> wgpu::BindGroupLayout {
+    ctx.device
+        .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("stcvae dispatch arguments"),
+            entries: &[storage(2, false), storage(9, false), storage(10, false)],
+        })
+}
+
 /// Compiles `entry` of `kernel` (with `path_nee_m` path-level NEE reservoirs, in `shape`,
 /// see [`source`]); shader or pipeline errors come back as errors, not panics (wgpu's default
 /// handler would abort).

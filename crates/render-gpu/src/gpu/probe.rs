@@ -93,6 +93,7 @@ fn probe(
     let res = Resources::new(
         ctx,
         &layout,
+        None,
         &Inputs {
             params: &params,
             accum_bytes: &[bytes],

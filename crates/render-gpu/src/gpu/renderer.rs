@@ -238,13 +238,18 @@ fn compile(
     res: &Resources,
     pipeline: &wgpu::ComputePipeline,
     params: &Params,
+    args_kernel: bool,
 ) -> Result<f64, RenderError> {
     let t0 = Instant::now();
     let mut empty = *params;
     empty.image[1] = 0;
     ctx.queue
         .write_buffer(&res.params, 0, bytemuck::bytes_of(&empty));
-    res.dispatch(ctx, pipeline, (1, 1), 0);
+    if args_kernel {
+        res.dispatch_args_kernel(ctx, pipeline);
+    } else {
+        res.dispatch(ctx, pipeline, (1, 1), 0);
+    }
     wait(ctx)?;
     Ok(t0.elapsed().as_secs_f64())
 }
@@ -511,14 +516,16 @@ pub fn render_gpu(
     // Path-level NEE (ST-CVAE only, as on the CPU): its reservoirs travel with each path.
     let path_nee_m = set.path_nee() as u32;
     let slot_vec4s = kernels::slot_vec4s(path_nee_m);
-    let build =
-        |entry| kernels::pipeline(ctx, &layout, kernel, set.model, path_nee_m, shape, entry);
-    let kernels = if shape.staged {
+    let args_layout = shape.staged.then(|| kernels::args_layout(ctx));
+    let build_in =
+        |layout, entry| kernels::pipeline(ctx, layout, kernel, set.model, path_nee_m, shape, entry);
+    let build = |entry| build_in(&layout, entry);
+    let kernels = if let Some(args_layout) = &args_layout {
         Kernels::Staged(StagedKernels {
             stage: build("stage_main")?,
             trace: build("trace_main")?,
-            args: build("args_main")?,
-            list_args: build("list_args_main")?,
+            args: build_in(args_layout, "args_main")?,
+            list_args: build_in(args_layout, "list_args_main")?,
             step: match kernel {
                 Kernel::Stcvae if shape.steps => Some(build("step_main")?),
                 _ => None,
@@ -609,6 +616,7 @@ pub fn render_gpu(
     let res = Resources::new(
         ctx,
         &layout,
+        args_layout.as_ref(),
         &Inputs {
             params: &params,
             accum_bytes: &accum_bytes,
@@ -652,17 +660,18 @@ pub fn render_gpu(
     }
     let mut compile_seconds = 0.0;
     match &kernels {
-        // The queues and the list start zeroed: trace_main and step_main find nothing to
-        // do, and the arguments' kernels write arguments the first turn overwrites.
+        // The queues start zeroed: trace_main and step_main find nothing to do, and the
+        // arguments' kernels write arguments the first turn overwrites (args_main also
+        // closes a turn of empty queues, which only changes which copy comes next).
         Kernels::Staged(k) => {
-            for p in [&k.stage, &k.trace, &k.args, &k.list_args]
-                .into_iter()
-                .chain(&k.step)
-            {
-                compile_seconds += compile(ctx, &res, p, &params)?;
+            for p in [&k.stage, &k.trace].into_iter().chain(&k.step) {
+                compile_seconds += compile(ctx, &res, p, &params, false)?;
+            }
+            for p in [&k.args, &k.list_args] {
+                compile_seconds += compile(ctx, &res, p, &params, true)?;
             }
         }
-        Kernels::Single(p) => compile_seconds = compile(ctx, &res, p, &params)?,
+        Kernels::Single(p) => compile_seconds = compile(ctx, &res, p, &params, false)?,
     }
     let gpu = Dispatcher {
         ctx,

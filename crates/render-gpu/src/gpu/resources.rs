@@ -21,9 +21,11 @@ pub struct Resources {
     /// 144-byte dummies otherwise.
     pub stage: wgpu::Buffer,
     pub queue: wgpu::Buffer,
-    /// The indirect dispatch arguments of the staged render's kernels, copied from the
-    /// queue's (not bound: a buffer may not be both).
+    /// The indirect dispatch arguments of the staged render's kernels, written by its
+    /// arguments' kernels, which alone bind it (a dispatch may not both bind a buffer as
+    /// storage and read it as arguments), with the counters and queues.
     args: wgpu::Buffer,
+    args_bind_group: Option<wgpu::BindGroup>,
     /// One bind group per band: the same inputs, that band's accumulation buffer.
     bind_groups: Vec<wgpu::BindGroup>,
     /// Kept alive for the bind groups.
@@ -43,21 +45,20 @@ pub const PENDING_SLOT: u64 = 6;
 pub const STAGE_SLOT_BYTES: u64 = 16 * super::kernels::STAGE_VEC4S;
 
 /// Bytes before the queues' slot indices (`Queue` in shaders/staged.wgsl): the turn, the
-/// dispatch arguments of the running paths, the parked sphere steps and the ray queries,
-/// the last two's totals, then every queue's length in two copies of 12 words.
-const QUEUE_HEAD: u64 = 4 * (1 + 3 * 3 + 2 + 2 * 12);
+/// parked sphere steps' and the ray queries' totals, then every queue's length in two
+/// copies of 12 words.
+const QUEUE_HEAD: u64 = 4 * (1 + 2 + 2 * 12);
 
 /// The queues (`QUEUES` in shaders/staged.wgsl): running paths, parked exact steps by
 /// optical radius (four), parked model steps, and ray queries by kind (three).
 const QUEUES: u64 = 9;
 const _: () = assert!(QUEUES <= 12, "Queue.counts holds 12 lengths");
 
-/// Where in the queue header (and its copy, the indirect buffer) each kernel's dispatch
-/// arguments lie: after the turn, then one after another.
-const STAGE_ARGS_AT: u64 = 4;
-const STEP_ARGS_AT: u64 = 16;
-const QUERY_ARGS_AT: u64 = 28;
-/// The bytes of the header copied to the indirect buffer: up to the last arguments.
+/// Where in the indirect buffer each kernel's dispatch arguments lie (`STAGE_ARGS` etc. in
+/// shaders/staged.wgsl, in words), and its size.
+const STAGE_ARGS_AT: u64 = 0;
+const STEP_ARGS_AT: u64 = 12;
+const QUERY_ARGS_AT: u64 = 24;
 const ARGS_BYTES: u64 = QUERY_ARGS_AT + 12;
 
 /// Bytes of the staged render's queues per path slot: one entry in each queue, two in the
@@ -95,9 +96,12 @@ fn init(ctx: &GpuContext, label: &str, bytes: &[u8], usage: wgpu::BufferUsages) 
 }
 
 impl Resources {
+    /// The buffers of `i` and their bind groups: one per band in `layout`, and, for the
+    /// staged render, one in `args_layout` ([`super::kernels::args_layout`]).
     pub fn new(
         ctx: &GpuContext,
         layout: &wgpu::BindGroupLayout,
+        args_layout: Option<&wgpu::BindGroupLayout>,
         i: &Inputs,
     ) -> Result<Self, RenderError> {
         let max = ctx.limits.max_storage_buffer_binding_size;
@@ -163,8 +167,21 @@ impl Resources {
         let args = ctx.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("dispatch args"),
             size: ARGS_BYTES,
-            usage: wgpu::BufferUsages::INDIRECT | wgpu::BufferUsages::COPY_DST,
+            usage: wgpu::BufferUsages::INDIRECT | wgpu::BufferUsages::STORAGE,
             mapped_at_creation: false,
+        });
+        let args_bind_group = args_layout.map(|layout| {
+            let entries = [(2, &counters), (9, &queue), (10, &args)].map(|(binding, b)| {
+                wgpu::BindGroupEntry {
+                    binding,
+                    resource: b.as_entire_binding(),
+                }
+            });
+            ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("stcvae dispatch arguments"),
+                layout,
+                entries: &entries,
+            })
         });
         let tris = init(ctx, "tris", bytemuck::cast_slice(i.tris), ro);
         let nodes = init(ctx, "nodes", bytemuck::cast_slice(i.nodes), ro);
@@ -202,6 +219,7 @@ impl Resources {
             stage,
             queue,
             args,
+            args_bind_group,
             bind_groups,
             _inputs: vec![tris, nodes, env, grid, model],
         })
@@ -257,15 +275,15 @@ impl Resources {
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
         let pass = |enc: &mut wgpu::CommandEncoder, p, groups| {
-            self.encode(enc, p, groups, turn.index);
+            self.encode(enc, p, groups, &self.bind_groups[turn.index]);
             dispatches.set(dispatches.get() + 1);
         };
-        // The arguments' kernel `p`, then the queues' arguments copied at the queue's
-        // offsets (after list_args only the running paths' are fresh, and only they are
-        // used).
+        // An arguments' kernel, in its own bind group (after list_args only the running
+        // paths' arguments are fresh, and only they are used).
+        let args_group = self.args_group();
         let args = |enc: &mut wgpu::CommandEncoder, p| {
-            pass(enc, p, Groups::Direct(1, 1));
-            enc.copy_buffer_to_buffer(&self.queue, 0, &self.args, 0, ARGS_BYTES);
+            self.encode(enc, p, Groups::Direct(1, 1), args_group);
+            dispatches.set(dispatches.get() + 1);
         };
         for r in 0..rounds {
             if r == 0 && turn.first {
@@ -302,21 +320,39 @@ impl Resources {
         let mut enc = ctx
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-        self.encode(&mut enc, pipeline, Groups::Direct(groups.0, groups.1), band);
+        let direct = Groups::Direct(groups.0, groups.1);
+        self.encode(&mut enc, pipeline, direct, &self.bind_groups[band]);
         ctx.queue.submit([enc.finish()]);
     }
 
-    /// Encodes a compute pass of `pipeline` with band `band`'s bind group.
+    /// The staged render's arguments' bind group.
+    fn args_group(&self) -> &wgpu::BindGroup {
+        self.args_bind_group
+            .as_ref()
+            .expect("a staged render's resources have the arguments' bind group")
+    }
+
+    /// Submits one dispatch of one workgroup of the staged render's arguments' kernel
+    /// `pipeline` (in its own bind group).
+    pub fn dispatch_args_kernel(&self, ctx: &GpuContext, pipeline: &wgpu::ComputePipeline) {
+        let mut enc = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+        self.encode(&mut enc, pipeline, Groups::Direct(1, 1), self.args_group());
+        ctx.queue.submit([enc.finish()]);
+    }
+
+    /// Encodes a compute pass of `pipeline` with `bind_group`.
     fn encode(
         &self,
         enc: &mut wgpu::CommandEncoder,
         pipeline: &wgpu::ComputePipeline,
         groups: Groups,
-        band: usize,
+        bind_group: &wgpu::BindGroup,
     ) {
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
         pass.set_pipeline(pipeline);
-        pass.set_bind_group(0, &self.bind_groups[band], &[]);
+        pass.set_bind_group(0, bind_group, &[]);
         match groups {
             Groups::Direct(x, y) => pass.dispatch_workgroups(x, y, 1),
             Groups::Indirect(at) => pass.dispatch_workgroups_indirect(&self.args, at),
