@@ -195,8 +195,8 @@ fn args_main() {
     atomicStore(&counters[2u * C_PENDING + 1u], 0u);
 }
 
-/// Dispatch arguments for the list (the first stage_main of a submission: the buffer of
-/// arguments may be from an undone one).
+/// Dispatch arguments for the list (the first stage_main of a submission where a snapshot
+/// may have restored the queues: the arguments may be from an undone turn).
 @compute @workgroup_size(1)
 fn list_args_main() {
     dispatch_args(STAGE_ARGS, list_len());

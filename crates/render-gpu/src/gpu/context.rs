@@ -29,7 +29,8 @@ fn adapters_on(backends: wgpu::Backends) -> Vec<wgpu::Adapter> {
     // beyond the adapter's limit: the staged render's three a turn would become six, each
     // a pause on a hardware GPU. Its arguments come from `dispatch_args`
     // (shaders/staged.wgsl), which keeps each within 65,535 (WebGPU's minimum limit), so
-    // the guard is off unless WGPU_VALIDATION_INDIRECT_CALL asks for it.
+    // the guard is off unless WGPU_VALIDATION_INDIRECT_CALL is set (wgpu reads "0" as off
+    // and any other value as on).
     if std::env::var_os("WGPU_VALIDATION_INDIRECT_CALL").is_none() {
         desc.flags
             .remove(wgpu::InstanceFlags::VALIDATION_INDIRECT_CALL);

@@ -232,7 +232,8 @@ fn tile_stride(n: u64) -> u64 {
 /// created: on a cold shader cache about 2 s (Mesa 22) to 10 s (Mesa 25) for the default
 /// ST-CVAE kernel, which the first chunk's time, the paths/s and a `--time-budget` would
 /// otherwise count. The dispatch is empty: with a zero image height no workgroup has a tile
-/// (`render_main` returns at once), so no buffer is touched.
+/// (`render_main` returns at once), so no buffer is touched, but for the staged render's
+/// arguments' kernels (`args_kernel`), which close a turn over empty queues.
 fn compile(
     ctx: &GpuContext,
     res: &Resources,
@@ -387,6 +388,7 @@ impl Dispatcher<'_> {
                         index: band.index,
                         groups: band.groups,
                         first: params.misc[3] != 0,
+                        relist: snapshot.is_some(),
                     };
                     dispatch.dispatches += res.staged_rounds(ctx, staged, turn, rounds);
                 }
@@ -432,7 +434,9 @@ impl Dispatcher<'_> {
                 // The submission sent ahead ran its turns over empty queues; its counters
                 // are read all the same, so that nothing it did goes uncounted.
                 if let Some(last) = in_flight.take() {
+                    let waiting = Instant::now();
                     let c = last.finish(ctx)?;
+                    dispatch.host_wait_us += waiting.elapsed().as_micros() as u64;
                     tally(ctx, &c, *budget, stats, dispatch)?;
                 }
                 return Ok(());

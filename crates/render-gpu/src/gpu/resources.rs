@@ -18,7 +18,7 @@ pub struct Resources {
     /// The staged render's records (one per path slot of the largest band) and its queues
     /// (running paths, parked steps and queries by kind, their lengths in two copies that
     /// alternate by turn: shaders/staged.wgsl), bound for the staged kernels alone; 16- and
-    /// 144-byte dummies otherwise.
+    /// 108-byte dummies otherwise.
     pub stage: wgpu::Buffer,
     pub queue: wgpu::Buffer,
     /// The indirect dispatch arguments of the staged render's kernels, written by its
@@ -258,11 +258,12 @@ impl Resources {
     /// `turn.first`, every slot of the band, over `turn.groups`), then `trace` (the
     /// queries) and `step` (the sphere steps, ST-CVAE); the next turn's stage lists the
     /// running paths this one queued. The kernels are dispatched indirectly over the slots
-    /// they have (`args`, `list_args`: the arguments' kernels, whose results are copied to
-    /// the indirect buffer). `args` also closes the turn: it empties the queues' other copy
-    /// for the next and sets the pending counter, so that after the last turn it counts the
-    /// slots still pending. Four dispatches and one copy a turn: each costs a hardware GPU
-    /// time whether it has work or not. Returns the dispatches submitted.
+    /// they have, from the arguments that `args` writes into the indirect buffer (and
+    /// `list_args` before a submission's first turn where `turn.relist`). `args` also
+    /// closes the turn: it empties the queues' other copy for the next and sets the pending
+    /// counter, so that after the last turn it counts the slots still pending. Four
+    /// dispatches a turn: each costs a hardware GPU time whether it has work or not.
+    /// Returns the dispatches submitted.
     pub fn staged_rounds(
         &self,
         ctx: &GpuContext,
@@ -278,8 +279,8 @@ impl Resources {
             self.encode(enc, p, groups, &self.bind_groups[turn.index]);
             dispatches.set(dispatches.get() + 1);
         };
-        // An arguments' kernel, in its own bind group (after list_args only the running
-        // paths' arguments are fresh, and only they are used).
+        // An arguments' kernel, in its own bind group (list_args writes only the running
+        // paths' arguments, the only ones used before args runs).
         let args_group = self.args_group();
         let args = |enc: &mut wgpu::CommandEncoder, p| {
             self.encode(enc, p, Groups::Direct(1, 1), args_group);
@@ -293,7 +294,7 @@ impl Resources {
                     Groups::Direct(turn.groups.0, turn.groups.1),
                 );
             } else {
-                if r == 0 {
+                if r == 0 && turn.relist {
                     args(&mut enc, &k.list_args);
                 }
                 pass(&mut enc, &k.stage, Groups::Indirect(STAGE_ARGS_AT));
@@ -379,12 +380,15 @@ pub struct StagedKernels {
 }
 
 /// What one submission of the staged render covers: the band's bind group (`index`), its
-/// workgroups for a direct dispatch over all its slots, and whether it starts a chunk.
+/// workgroups for a direct dispatch over all its slots, whether it starts a chunk, and
+/// whether its first turn recomputes the running paths' arguments from the list
+/// (`relist`: where a snapshot may have restored the queues since `args` wrote them).
 #[derive(Clone, Copy)]
 pub struct Turn {
     pub index: usize,
     pub groups: (u32, u32),
     pub first: bool,
+    pub relist: bool,
 }
 
 /// Copies `size` bytes of `buf` to the host (blocking).
