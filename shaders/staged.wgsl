@@ -14,8 +14,8 @@
 // indirect buffer, so that a turn is its four dispatches and nothing else: stage_main
 // reads the last turn's running paths while it queues this turn's, and args_main empties
 // the other copy for the next turn once stage_main has read it. A hardware GPU pays for
-// every dispatch and copy in a turn, full or empty (~90 µs each on the H100 with the
-// queues emptied and copied by the host, 2026-11-27).
+// every pass in a turn, full or empty (~85 µs each on the H100 when a turn also held the
+// host's clears and copies and wgpu's argument checks, 2026-11-27).
 //
 // `stage` holds per slot STAGE_VEC4S vec4s (prepended by kernels.rs): the query's origin
 // and tmax; its direction and flight length; (unused: the free distance is saved with the
