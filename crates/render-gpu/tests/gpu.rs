@@ -384,8 +384,8 @@ fn differing_pixels(a: &RenderOutput, b: &RenderOutput) -> usize {
 }
 
 /// The largest difference between two images' channels relative to the larger of the two
-/// values (0 where both are 0): how far apart two renders that should agree are, for the
-/// failure message.
+/// values (0 where both are equal, infinite where either is NaN and they differ): how far
+/// apart two renders that should agree are.
 fn largest_relative_difference(a: &RenderOutput, b: &RenderOutput) -> f32 {
     let channels = a
         .image
@@ -395,8 +395,14 @@ fn largest_relative_difference(a: &RenderOutput, b: &RenderOutput) -> f32 {
         .zip(b.image.pixels.iter().flatten());
     channels
         .map(|(&x, &y)| {
-            let scale = x.abs().max(y.abs());
-            if x == y { 0.0 } else { (x - y).abs() / scale }
+            let relative = (x - y).abs() / x.abs().max(y.abs());
+            if x == y {
+                0.0
+            } else if relative.is_nan() {
+                f32::INFINITY
+            } else {
+                relative
+            }
         })
         .fold(0.0, f32::max)
 }

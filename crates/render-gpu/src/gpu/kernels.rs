@@ -56,8 +56,9 @@ pub struct KernelShape {
     /// `stage_main` runs every path to its next ray query or sphere step and queues it,
     /// `trace_main` traces the queued queries and `step_main` runs the queued steps. The
     /// single kernel's paths, random numbers and all, with the traversals, walks and
-    /// decoders compacted so that their SIMD lanes work together; the image is the single
-    /// kernel's bit for bit (tested).
+    /// decoders compacted so that their SIMD lanes work together; the counters are the
+    /// single kernel's, and so is the image, bit for bit on lavapipe and within 1–2 ulp on
+    /// the H100, whose compiler treats step_main's float arithmetic differently (tested).
     pub staged: bool,
     /// Add to the counters and queues once per subgroup instead of once per invocation
     /// (`STCVAE_GPU_AGGREGATE`, built only where the adapter offers subgroup operations):
@@ -73,6 +74,10 @@ pub struct KernelShape {
     /// default), so that walks and decoders run with every lane on a step; off, they run
     /// in `stage_main`. Changes no path.
     pub steps: bool,
+    /// In the staged render, send each submission of turns before waiting for the counters
+    /// of the one before, where no snapshot is kept to undo from (`STCVAE_GPU_STAGED_AHEAD`,
+    /// on by default; the host's dispatching only, no kernel changes).
+    pub ahead: bool,
 }
 
 impl Default for KernelShape {
@@ -84,6 +89,7 @@ impl Default for KernelShape {
             staged: false,
             aggregate: false,
             steps: true,
+            ahead: true,
         }
     }
 }

@@ -118,6 +118,12 @@ pub fn kernel_shape() -> Result<KernelShape, RenderError> {
             "add to counters and queues once per subgroup where the adapter has subgroup \
              operations",
         ),
+        (
+            "STCVAE_GPU_STAGED_AHEAD",
+            &mut shape.ahead,
+            "the staged render sends each submission of turns before waiting for the last \
+             one's counters (the default)",
+        ),
     ];
     for (name, field, what) in switches {
         if let Some(v) = env_value(name) {
@@ -273,18 +279,6 @@ struct Band {
 const STAGED_ROUNDS: u32 = 8;
 const MAX_STAGED_ROUNDS: u32 = 4096;
 
-/// Whether the staged render may send a submission before it waits for the counters of
-/// the one before (`STCVAE_GPU_STAGED_AHEAD`, on by default; for measuring on hardware).
-fn staged_ahead() -> Result<bool, RenderError> {
-    env_value("STCVAE_GPU_STAGED_AHEAD").map_or(Ok(true), |v| {
-        parse_switch(
-            "STCVAE_GPU_STAGED_AHEAD",
-            &v,
-            "send each submission of turns before waiting for the last one's counters",
-        )
-    })
-}
-
 fn staged_rounds() -> Result<u32, RenderError> {
     env_value("STCVAE_GPU_STAGED_ROUNDS").map_or(Ok(STAGED_ROUNDS), |v| {
         parse_count(
@@ -328,7 +322,8 @@ struct Dispatcher<'a> {
     snapshot: Option<&'a Snapshot>,
     /// The staged render's turns per submission after a chunk's first.
     rounds: u32,
-    /// Whether the staged render sends submissions ahead where it keeps no snapshot.
+    /// Whether the staged render sends submissions ahead where it keeps no snapshot
+    /// ([`KernelShape::ahead`]).
     ahead: bool,
 }
 
@@ -683,7 +678,7 @@ pub fn render_gpu(
         kernels: &kernels,
         snapshot: snapshot.as_ref(),
         rounds: staged_rounds()?,
-        ahead: staged_ahead()?,
+        ahead: shape.ahead,
     };
     let start = Instant::now();
     let mut stats = PathStats::default();

@@ -275,16 +275,17 @@ impl Resources {
         let mut enc = ctx
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-        let pass = |enc: &mut wgpu::CommandEncoder, p, groups| {
-            self.encode(enc, p, groups, &self.bind_groups[turn.index]);
+        let counted = |enc: &mut wgpu::CommandEncoder, p, groups, bind_group| {
+            self.encode(enc, p, groups, bind_group);
             dispatches.set(dispatches.get() + 1);
+        };
+        let pass = |enc: &mut wgpu::CommandEncoder, p, groups| {
+            counted(enc, p, groups, &self.bind_groups[turn.index]);
         };
         // An arguments' kernel, in its own bind group (list_args writes only the running
         // paths' arguments, the only ones used before args runs).
-        let args_group = self.args_group();
         let args = |enc: &mut wgpu::CommandEncoder, p| {
-            self.encode(enc, p, Groups::Direct(1, 1), args_group);
-            dispatches.set(dispatches.get() + 1);
+            counted(enc, p, Groups::Direct(1, 1), self.args_group());
         };
         for r in 0..rounds {
             if r == 0 && turn.first {
@@ -318,12 +319,8 @@ impl Resources {
         groups: (u32, u32),
         band: usize,
     ) {
-        let mut enc = ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
         let direct = Groups::Direct(groups.0, groups.1);
-        self.encode(&mut enc, pipeline, direct, &self.bind_groups[band]);
-        ctx.queue.submit([enc.finish()]);
+        self.submit_pass(ctx, pipeline, direct, &self.bind_groups[band]);
     }
 
     /// The staged render's arguments' bind group.
@@ -336,10 +333,21 @@ impl Resources {
     /// Submits one dispatch of one workgroup of the staged render's arguments' kernel
     /// `pipeline` (in its own bind group).
     pub fn dispatch_args_kernel(&self, ctx: &GpuContext, pipeline: &wgpu::ComputePipeline) {
+        self.submit_pass(ctx, pipeline, Groups::Direct(1, 1), self.args_group());
+    }
+
+    /// Submits one compute pass of `pipeline` with `bind_group`.
+    fn submit_pass(
+        &self,
+        ctx: &GpuContext,
+        pipeline: &wgpu::ComputePipeline,
+        groups: Groups,
+        bind_group: &wgpu::BindGroup,
+    ) {
         let mut enc = ctx
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-        self.encode(&mut enc, pipeline, Groups::Direct(1, 1), self.args_group());
+        self.encode(&mut enc, pipeline, groups, bind_group);
         ctx.queue.submit([enc.finish()]);
     }
 
