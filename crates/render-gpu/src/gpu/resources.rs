@@ -271,43 +271,42 @@ impl Resources {
         turn: Turn,
         rounds: u32,
     ) -> u64 {
-        let dispatches = std::cell::Cell::new(0);
         let mut enc = ctx
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-        let counted = |enc: &mut wgpu::CommandEncoder, p, groups, bind_group| {
-            self.encode(enc, p, groups, bind_group);
-            dispatches.set(dispatches.get() + 1);
+        // One compute pass for the whole submission: wgpu orders its dispatches as it would
+        // separate passes (each dispatch is a usage scope of its own, so the indirect
+        // arguments written by `args` are visible to the next dispatch), and the host pays
+        // for beginning and ending a pass once instead of per dispatch.
+        let mut cpass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+        let mut dispatches = 0;
+        let mut counted = |p, groups, bind_group| {
+            self.encode(&mut cpass, p, groups, bind_group);
+            dispatches += 1;
         };
-        let pass = |enc: &mut wgpu::CommandEncoder, p, groups| {
-            counted(enc, p, groups, &self.bind_groups[turn.index]);
-        };
-        // An arguments' kernel, in its own bind group (list_args writes only the running
+        let band = &self.bind_groups[turn.index];
+        // An arguments' kernel runs in its own bind group (list_args writes only the running
         // paths' arguments, the only ones used before args runs).
-        let args = |enc: &mut wgpu::CommandEncoder, p| {
-            counted(enc, p, Groups::Direct(1, 1), self.args_group());
-        };
+        let args = self.args_group();
         for r in 0..rounds {
             if r == 0 && turn.first {
-                pass(
-                    &mut enc,
-                    &k.stage,
-                    Groups::Direct(turn.groups.0, turn.groups.1),
-                );
+                let groups = Groups::Direct(turn.groups.0, turn.groups.1);
+                counted(&k.stage, groups, band);
             } else {
                 if r == 0 && turn.relist {
-                    args(&mut enc, &k.list_args);
+                    counted(&k.list_args, Groups::Direct(1, 1), args);
                 }
-                pass(&mut enc, &k.stage, Groups::Indirect(STAGE_ARGS_AT));
+                counted(&k.stage, Groups::Indirect(STAGE_ARGS_AT), band);
             }
-            args(&mut enc, &k.args);
-            pass(&mut enc, &k.trace, Groups::Indirect(QUERY_ARGS_AT));
+            counted(&k.args, Groups::Direct(1, 1), args);
+            counted(&k.trace, Groups::Indirect(QUERY_ARGS_AT), band);
             if let Some(step) = &k.step {
-                pass(&mut enc, step, Groups::Indirect(STEP_ARGS_AT));
+                counted(step, Groups::Indirect(STEP_ARGS_AT), band);
             }
         }
+        drop(cpass);
         ctx.queue.submit([enc.finish()]);
-        dispatches.get()
+        dispatches
     }
 
     /// Submits one dispatch of `pipeline` over `groups` (x, y) workgroups on these buffers,
@@ -347,19 +346,20 @@ impl Resources {
         let mut enc = ctx
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-        self.encode(&mut enc, pipeline, groups, bind_group);
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
+        self.encode(&mut pass, pipeline, groups, bind_group);
+        drop(pass);
         ctx.queue.submit([enc.finish()]);
     }
 
-    /// Encodes a compute pass of `pipeline` with `bind_group`.
+    /// Encodes a dispatch of `pipeline` with `bind_group` into `pass`.
     fn encode(
         &self,
-        enc: &mut wgpu::CommandEncoder,
+        pass: &mut wgpu::ComputePass,
         pipeline: &wgpu::ComputePipeline,
         groups: Groups,
         bind_group: &wgpu::BindGroup,
     ) {
-        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor::default());
         pass.set_pipeline(pipeline);
         pass.set_bind_group(0, bind_group, &[]);
         match groups {
