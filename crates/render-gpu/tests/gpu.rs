@@ -49,7 +49,7 @@ fn gpu() -> Option<&'static Mutex<GpuContext>> {
                 .name()
                 .unwrap_or("a GPU test")
                 .to_owned();
-            eprintln!("skipping {test}: {reason}");
+            common::skip(&format!("{test}: {reason}"));
             None
         }
     }
@@ -1552,7 +1552,10 @@ fn lane_profile_counts_and_changes_nothing() {
     let Some(ctx) = gpu() else { return };
     let mut ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
     if !ctx.features.contains(wgpu::Features::SUBGROUP) {
-        eprintln!("skipping: {} offers no subgroup operations", ctx.adapter);
+        common::skip(&format!(
+            "lane_profile_counts_and_changes_nothing: {} offers no subgroup operations",
+            ctx.adapter
+        ));
         assert!(std::env::var_os("CI").is_none(), "lavapipe offers them");
         return;
     }

@@ -245,3 +245,11 @@ grid_resolution = 64
     };
     (scene(&one), scene(&two))
 }
+
+/// Says on the terminal why a test is skipped. Written to stderr directly rather than with
+/// `eprintln!`, which libtest captures and shows only for failing tests: a skipped test
+/// passes, so its reason would otherwise never be seen without `--nocapture`.
+pub fn skip(reason: &str) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stderr(), "skipping {reason}");
+}
