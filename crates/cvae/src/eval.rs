@@ -629,10 +629,12 @@ mod tests {
 
     /// The simulator against itself (independent streams), at a setting where both
     /// quantities vary a lot: each ratio is the z-score of a difference of independent
-    /// means, so over 8 independent pairs of runs Σ z² follows χ²₈ if the standard errors
-    /// are right. Both tails are tested, at probability 5e-4 each (a 0.7 % chance for
-    /// the seven quantities to fail by noise): a standard error too small and one too
-    /// large fail (grossly wrong ones: ~2× too small or ~3× too large). The quantities:
+    /// means, so over 32 independent pairs of runs Σ z² follows χ²₃₂ if the standard
+    /// errors are right. Both tails are tested, at probability 5e-4 each (a 0.7 % chance
+    /// for the seven quantities to fail by noise; bounds 11.98 and 65.0). The power, from
+    /// χ²₃₂'s quantiles: standard errors 2× too small fail with probability 0.99 (Σz² ~
+    /// 4χ²₃₂), 1.5× too small 0.63, 2× too large 0.97 and 3× too large 1.00 (with 8 pairs,
+    /// as before, only 0.54 and 0.40 for 2× too small and 3× too large). The quantities:
     /// E[Λ(N)], the sphere NEE, the half-space NEE's three sides and the two shells'
     /// shares (at τ = 5 several per cent and ~0.4 % of 20,000 events, ~80 in the
     /// thinner: enough for the normal approximation behind the z-scores).
@@ -640,8 +642,9 @@ mod tests {
     fn simulator_against_itself_gives_ratios_within_noise() {
         use scatter_sim::stats::chi_square_p_value;
         let (tau, g, albedo) = (5.0, 0.4, 0.95);
+        const PAIRS: u64 = 32;
         let mut chi2 = [0.0f64; 7];
-        for pair in 0..8u64 {
+        for pair in 0..PAIRS {
             let run = |seed| {
                 let c = simulator_columns(tau, g, albedo, 20_000, seed);
                 let [w, s] = c.nee_samples(tau, g, albedo);
@@ -656,10 +659,10 @@ mod tests {
             }
         }
         for (k, &c) in chi2.iter().enumerate() {
-            let p = chi_square_p_value(c, 8);
+            let p = chi_square_p_value(c, PAIRS as usize);
             assert!(
                 (5e-4..=1.0 - 5e-4).contains(&p),
-                "quantity {k}: Σz² = {c:.2} over 8 pairs (p = {p:.2e})"
+                "quantity {k}: Σz² = {c:.2} over {PAIRS} pairs (p = {p:.2e})"
             );
         }
     }
