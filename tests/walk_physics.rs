@@ -198,12 +198,12 @@ fn from_canonical_repairs_out_of_range_values() {
 /// extrapolated-boundary length of radiative transfer (Milne problem), so the ratio
 /// mean N(100)/mean N(50) at g = 0 is (100.71/50.71)² = 3.944 from this formula; an
 /// independent simulation gave 3.967 ± 0.025. The ratio checks the τ² growth: mean N
-/// growing like τ (a walk without diffusion) gives ~2, like τ³ ~8, far outside the ±3%
-/// of [3.85, 4.05]. It is blind to an error that scales every flight alike (the ratio
-/// stays 4); the absolute 2% band below catches those, since mean N goes with the flight
-/// rate squared (a rate 5% off moves it ~10%). With 20,000 walks per τ each mean has a
-/// relative standard error of ≈ 0.45%, the ratio ≈ 0.65% (±0.026). The 2% band on the
-/// formula covers its O(1/τ²) error plus 3 standard errors.
+/// growing like τ (a walk without diffusion) gives ~2, like τ³ ~8, far outside
+/// [3.85, 4.05] (−2.4 % / +2.7 % around 3.944). It is blind to an error that scales every
+/// flight alike (the ratio stays 4); the absolute 2% band below catches those, since mean
+/// N goes with the flight rate squared (a rate 5% off moves it ~10%). With 20,000 walks
+/// per τ each mean has a relative standard error of ≈ 0.45%, the ratio ≈ 0.65% (±0.026).
+/// The 2% band on the formula covers its O(1/τ²) error plus 3 standard errors.
 #[test]
 fn mean_events_grow_like_tau_squared() {
     let mean_n = |tau: f64, g: f64, seed: u64| {

@@ -729,8 +729,9 @@ fn bench_render_reuses_stored_pt_pairs() {
 }
 
 /// `bench render --save`: both images, the z map and the pixel table, whose means are the
-/// images' pixels (the same f32 values, printed exactly) and whose variances are those of
-/// two-seed means: non-negative, and zero on the constant background in both integrators.
+/// images' pixels (the same f32 values, printed exactly) and whose variances (of the
+/// two-seed means; their values are not recomputed here) are non-negative, and zero on
+/// the constant background in both integrators.
 #[test]
 fn bench_render_save_writes_images_and_the_pixel_table() {
     let dir = tempfile::tempdir().unwrap();

@@ -544,7 +544,9 @@ mod tests {
     #[test]
     fn sphere_nee_of_the_centre_is_analytic() {
         let v = sphere_nee(2.0, 0.0, 0.9, 5, DVec3::ZERO, DVec3::X);
-        let expect = lambda(0.9, 5) * (-2.0f64).exp() / (4.0 * std::f64::consts::PI);
+        // Λ(5) = Σ_{k=1..5} 0.9^k summed here, not by the `lambda` under test.
+        let lambda5: f64 = (1..=5).map(|k| 0.9f64.powi(k)).sum();
+        let expect = lambda5 * (-2.0f64).exp() / (4.0 * std::f64::consts::PI);
         assert!((v - expect).abs() < 1e-12 * expect, "{v} vs {expect}");
     }
 

@@ -195,11 +195,12 @@ fn short_training_improves_fit() {
     // ~4,000 walks a side: the two-sample KS exceeds 0.044 by noise alone with probability
     // 0.1 %. The untrained decoder ignores its condition and must be far off (measured
     // 0.29), or the check below could not tell learning from none; 600 steps must bring
-    // it within 0.10, the event tolerance of the shipped-model test (measured 0.04).
+    // it within 0.07 (measured 0.04): noise alone stays under 0.044, so a decoder that
+    // learned only part of the way (KS ~0.1 and up) fails.
     eprintln!("KS before {before:.3}, after {after:.3}");
     assert!(
         before > 0.15,
         "the untrained decoder already fits: KS {before:.3}"
     );
-    assert!(after < 0.10, "KS before {before:.3}, after {after:.3}");
+    assert!(after < 0.07, "KS before {before:.3}, after {after:.3}");
 }

@@ -277,7 +277,9 @@ fn centre_event_probability() {
                 m.sample_event(5.0, 0.3, albedo, n_events, exit, &mut rng).0 == glam::DVec3::ZERO
             })
             .count() as u64;
-        let p = albedo / cvae::sampler::lambda(albedo, n_events);
+        // Λ(N) = Σ_{k=1..N} φ^k summed here, not by the sampler's own `lambda`.
+        let lambda: f64 = (1..=n_events).map(|k| albedo_pow(albedo, k)).sum();
+        let p = albedo / lambda;
         let z = scatter_sim::stats::proportion_z(hits, n, p);
         assert!(
             z.abs() < 4.0,

@@ -89,7 +89,10 @@ pub(super) fn log2(x: f32) -> f32 {
 mod tests {
     use super::*;
 
-    /// The fast 2^x and log₂ x against the standard library over their ranges.
+    /// The fast 2^x and log₂ x against the standard library over their ranges. Bounds: the
+    /// polynomials' own errors (fitted: < 4·10⁻⁶ relative, < 2·10⁻⁵ absolute) plus f32
+    /// rounding of the few operations around them, with ~1.5–2.5× to spare; a wrong
+    /// coefficient or exponent shift gives errors of 10⁻³ and more.
     #[test]
     fn fast_exp2_and_log2_are_accurate() {
         for i in 0..=20_000 {
