@@ -360,13 +360,14 @@ const C_PENDING: u32 = 6u;
 const C_TRUNCATED: u32 = 7u;
 const C_EXACT: u32 = 8u;
 
-/// A path between dispatches, one per (pixel, lane), in `accum` as SLOT = 5 + 2·PATH_NEE_M
+/// A path between dispatches, one per (pixel, lane), in `accum` as SLOT = 6 + 2·PATH_NEE_M
 /// vec4s (prepended by kernels.rs): position and β (once the path has ended and its NEE
 /// rays are under way, p_nee_sum and p_nee_light instead); direction and radiance; the RNG
 /// state; channel (bits 0–7) | flags (8–15) | NEE rays left (16–), iterations, samples
 /// finished, the free distance (f32 bits; the current sample follows from the samples
 /// finished); the accumulated RGB + finished-sample count of the whole
-/// render (ACC); then per path-level NEE reservoir its event's (X, q) and (W, A).
+/// render (ACC); then per path-level NEE reservoir its event's (X, q) and (W, A); last ACC
+/// as the chunk began (SLOT − 1: what a render stopped mid-chunk keeps, gpu/renderer.rs).
 const ACC: u32 = 4u;
 const F_ALIVE: u32 = 1u;
 const F_SCATTERED: u32 = 2u;
@@ -522,6 +523,11 @@ fn slot_begin(idx: u32, kind: u32) -> bool {
         // First dispatch of the render: clear the accumulator (it was poisoned with NaN,
         // so a slot never reached shows on the host).
         sl_acc = vec4<f32>(0.0);
+    }
+    if kind != 0u {
+        // The whole chunks so far, kept apart while this one adds to ACC: a render stopped
+        // mid-chunk returns them (as the CPU drops an unfinished pass).
+        accum[sl_base + SLOT - 1u] = sl_acc;
     }
     sl_j = 0u;
     sl_done = sl_count == 0u;

@@ -15,9 +15,7 @@ pub fn flag() -> &'static AtomicBool {
                 // Second Ctrl-C: the user means it.
                 std::process::exit(130);
             }
-            eprintln!(
-                "\ninterrupt: finishing the current chunk, then stopping (Ctrl-C again to abort)"
-            );
+            eprintln!("\ninterrupt: stopping at the next safe point (Ctrl-C again to abort)");
         });
     });
     &FLAG

@@ -5,7 +5,7 @@
 
 mod common;
 
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Mutex, OnceLock};
 
 use glam::DVec3;
@@ -1305,6 +1305,81 @@ fn images_beyond_the_binding_limit_render_in_bands() {
         "{differ} of 65536 pixels differ between bands and one binding"
     );
     assert!(whole.image.pixels.iter().any(|p| p[0] > 0.0));
+}
+
+/// A stop request mid-chunk drops the chunk, as the CPU drops an unfinished pass: the
+/// image holds the whole chunks before it, bit for bit a render of that many spp, and so
+/// do the counters. On a software adapter the 256×544 image renders in three bands (of at
+/// most 65,536 slots, so that a dispatch stays short: gpu/renderer.rs), with one lane a
+/// pixel, so with one sample a slot a chunk is one spp. The stop comes from the progress
+/// report after the second chunk's first band, so in that chunk one band has finished
+/// (its slots give back the accumulators committed at the chunk's start), one has begun
+/// (a stop is looked at after each submission: four bounces a dispatch here, fewer than
+/// many paths take) and one has not (its accumulators already hold the first chunk
+/// alone); it leaves 1 of 4 spp. A hardware adapter renders one band whose lanes take all
+/// 4 spp in one chunk, which is then not stopped. A stop before the first chunk ends
+/// leaves no image (0 spp). ST-CVAE with a path-level NEE reservoir (the committed vec4
+/// comes after the reservoirs) and PT (in a thinner medium, for speed on lavapipe).
+#[test]
+fn a_stop_mid_chunk_keeps_the_whole_chunks() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let text = sphere_scene("kind = \"index-matched\"")
+        .replace("width = 24\nheight = 24", "width = 256\nheight = 544");
+    let thin = with_medium(text.clone(), "[1.0, 2.0, 3.0]", "[0.9, 0.9, 0.9]");
+    for (text, set) in [
+        (&text, settings(IntegratorKind::Stcvae, true)),
+        (&thin, settings(IntegratorKind::Pt, true)),
+    ] {
+        let s = common::build_scene(text, true);
+        let vars = [
+            ("STCVAE_GPU_LANE_SAMPLES", "1"),
+            ("STCVAE_GPU_BOUNCES", "4"),
+        ];
+        for (name, value) in vars {
+            // SAFETY: this test holds the context's lock, as every render of this binary.
+            unsafe { std::env::set_var(name, value) };
+        }
+        let bands = if ctx.adapter.software { 3 } else { 1 };
+        let stopped_after = |reports: usize, spp: u32| {
+            let cancel = AtomicBool::new(false);
+            let seen = std::sync::atomic::AtomicUsize::new(0);
+            let progress = |_: u64, _: u64| {
+                if seen.fetch_add(1, Ordering::Relaxed) + 1 == reports {
+                    cancel.store(true, Ordering::Relaxed);
+                }
+            };
+            render_gpu(&ctx, &s, &set, &opts(spp, 8), &progress, &cancel).unwrap()
+        };
+        // A report a band: the one after the first chunk's is the second chunk's first.
+        let stopped = stopped_after(bands + 1, 4);
+        let none = stopped_after(1, 4);
+        let whole = stopped_after(0, stopped.spp.max(1));
+        for (name, _) in vars {
+            unsafe { std::env::remove_var(name) };
+        }
+        assert_eq!(stopped.dispatch.bands as usize, bands);
+        if ctx.adapter.software {
+            assert_eq!((stopped.spp, none.spp), (1, 0), "{:?}", set.kind);
+        }
+        assert_eq!(whole.spp, stopped.spp.max(1));
+        if stopped.spp == 0 {
+            continue;
+        }
+        assert_eq!(
+            (stopped.stats.paths, stopped.stats.events),
+            (whole.stats.paths, whole.stats.events),
+            "{:?}",
+            set.kind
+        );
+        let differ = differing_pixels(&stopped, &whole);
+        assert_eq!(
+            differ, 0,
+            "{:?}: {differ} pixels differ from a render of the whole chunks",
+            set.kind
+        );
+        assert!(whole.image.pixels.iter().any(|p| p[0] > 0.0));
+    }
 }
 
 /// A path resumes exactly where it stopped, so the image does not depend on the dispatch

@@ -287,10 +287,17 @@ pub enum Kernel {
 pub const STAGE_VEC4S: u64 = 4;
 
 /// vec4s of one path slot in the accumulation buffer (`SLOT` in shaders/path.wgsl): the
-/// path's state, the render's accumulated RGB (vec4 [`ACC_VEC4`]), and two per path-level
-/// NEE reservoir.
+/// path's state, the render's accumulated RGB (vec4 [`ACC_VEC4`]), two per path-level
+/// NEE reservoir, and last the accumulated RGB as the chunk began ([`committed_vec4`]).
 pub fn slot_vec4s(path_nee_m: u32) -> u64 {
-    5 + 2 * path_nee_m as u64
+    6 + 2 * path_nee_m as u64
+}
+
+/// Which vec4 of a path slot holds its accumulated RGB and finished-sample count as they
+/// were when the current chunk of samples began (`SLOT − 1` in shaders/path.wgsl): the
+/// image of the whole chunks, which a render stopped mid-chunk returns.
+pub fn committed_vec4(path_nee_m: u32) -> u64 {
+    slot_vec4s(path_nee_m) - 1
 }
 
 /// Which vec4 of a path slot holds the accumulated RGB and finished-sample count (`ACC`

@@ -202,6 +202,11 @@ fn parse_count(name: &str, v: &str, max: u32, unit: &str) -> Result<u32, RenderE
 /// The most samples an invocation may take in one chunk (a chunk's sample range is u32).
 const MAX_LANE_SAMPLES: u32 = 65_536;
 
+/// The most path slots a software adapter's dispatch covers (more render in bands): lavapipe
+/// on 2 cores runs 65,536 ST-CVAE paths in ~1 s, PT's in ~5 s (k = 1, 2026-11-27). A
+/// dispatch cannot be interrupted, so this bounds how long a stop request waits.
+const SOFTWARE_BAND_SLOTS: u64 = 1 << 16;
+
 /// The most bounces a dispatch may be given: lavapipe's loop limit, which every bounce
 /// takes at least one iteration of. Hardware GPUs gained < 6 % from 256 to 1024.
 const MAX_BOUNCES: u32 = 65_535;
@@ -332,7 +337,9 @@ impl Dispatcher<'_> {
     /// pending (`first`: the render's first chunk, whose first dispatch clears the
     /// accumulator). A dispatch cut off by a software adapter's loop limit is undone from
     /// the snapshot and redone with half the `budget`, which stays halved for the rest of
-    /// the render.
+    /// the render. Returns false, with nothing left in flight, when `cancel` was set
+    /// before the chunk finished: the band's paths are then left where they were.
+    #[allow(clippy::too_many_arguments)]
     fn run_band(
         &self,
         band: &Band,
@@ -341,7 +348,8 @@ impl Dispatcher<'_> {
         budget: &mut u32,
         stats: &mut PathStats,
         dispatch: &mut DispatchStats,
-    ) -> Result<(), RenderError> {
+        cancel: &AtomicBool,
+    ) -> Result<bool, RenderError> {
         let Self {
             ctx,
             res,
@@ -434,7 +442,14 @@ impl Dispatcher<'_> {
                     dispatch.host_wait_us += waiting.elapsed().as_micros() as u64;
                     tally(ctx, &c, *budget, stats, dispatch)?;
                 }
-                return Ok(());
+                return Ok(true);
+            }
+            if cancel.load(Ordering::Relaxed) {
+                // The chunk is dropped; what was sent ahead only runs on into ACC.
+                if let Some(last) = in_flight.take() {
+                    last.finish(ctx)?;
+                }
+                return Ok(false);
             }
         }
     }
@@ -556,8 +571,15 @@ pub fn render_gpu(
     // An image whose slots exceed one binding (lavapipe's 128 MiB holds 1.2–1.6 M pixels)
     // is rendered in bands of rows, each with its own accumulation buffer, one after
     // another within every chunk of samples. Seeds follow the pixel's index in the image,
-    // so a band renders what the whole image would.
-    let band_rows = (fit / (cam.width as u64 * lanes as u64)).min(cam.height as u64) as u32;
+    // so a band renders what the whole image would. A software adapter also bands an image
+    // of more than SOFTWARE_BAND_SLOTS slots, so that a dispatch stays short enough for a
+    // stop request, answered between dispatches, to be answered within seconds.
+    let row_slots = cam.width as u64 * lanes as u64;
+    let mut band_rows = fit / row_slots;
+    if ctx.adapter.software {
+        band_rows = band_rows.min((SOFTWARE_BAND_SLOTS / row_slots).max(1));
+    }
+    let band_rows = band_rows.min(cam.height as u64) as u32;
     if band_rows == 0 {
         return Err(RenderError::GpuLimit(format!(
             "one row of {} pixels needs {} bytes of path state, over {}'s storage binding \
@@ -696,6 +718,11 @@ pub fn render_gpu(
     let fixed_per_lane = fixed_lane_samples()?;
     let mut per_lane = fixed_per_lane.unwrap_or(1);
     let total = pixels * spp as u64;
+    // Set when a stop request drops the chunk under way, to the number of bands that had
+    // begun it: their image is then the slots' committed accumulators
+    // (kernels::committed_vec4), the whole chunks before it; the bands after them have not
+    // begun the chunk, and their accumulators hold exactly those chunks.
+    let mut dropped: Option<usize> = None;
     while s0 < spp {
         let s1 = (s0 as u64 + lanes as u64 * per_lane as u64).min(spp as u64) as u32;
         params.image[2] = lanes;
@@ -703,20 +730,33 @@ pub fn render_gpu(
         params.sampling[0] = s0;
         params.sampling[1] = s1;
         let t0 = Instant::now();
+        let stats_before = stats;
         for band in &bands {
-            gpu.run_band(
+            // A stop request is looked at after each submission (in run_band), so a band
+            // reached after one has begun the chunk all the same.
+            let finished = gpu.run_band(
                 band,
                 s0 == 0,
                 &mut params,
                 &mut budget,
                 &mut stats,
                 &mut dispatch,
+                cancel,
             )?;
+            if !finished {
+                dropped = Some(band.index + 1);
+                break;
+            }
             let done_rows = (band.row0 + band.rows) as u64;
             progress(
                 pixels * s0 as u64 + cam.width as u64 * done_rows * (s1 - s0) as u64,
                 total,
             );
+        }
+        if dropped.is_some() {
+            // Its paths are not counted either, as the CPU does not count a dropped pass's.
+            stats = stats_before;
+            break;
         }
         let dt = t0.elapsed().as_secs_f64();
         s0 = s1;
@@ -732,11 +772,19 @@ pub fn render_gpu(
     }
     wait(ctx)?;
     let mut image = RgbImage::new(cam.width as usize, cam.height as usize);
+    // Stopped in the first chunk: no sample is whole (slots of bands not yet reached still
+    // hold the poison), so there is no image, as on the CPU.
+    let bands = if s0 == 0 { &[][..] } else { &bands[..] };
     let mut bad = 0usize;
     let mut short = 0usize;
-    for band in &bands {
+    for band in bands {
         let bytes = read_back(ctx, &res.accums[band.index], band.bytes)?;
         let vals: &[f32] = bytemuck::cast_slice(&bytes);
+        let acc_vec4 = if dropped.is_some_and(|started| band.index < started) {
+            kernels::committed_vec4(path_nee_m)
+        } else {
+            kernels::ACC_VEC4
+        } as usize;
         let first = band.row0 as usize * cam.width as usize;
         let count = band.rows as usize * cam.width as usize;
         for (p, px) in image.pixels[first..first + count].iter_mut().enumerate() {
@@ -744,7 +792,7 @@ pub fn render_gpu(
             let mut finished = 0f64;
             for l in 0..lanes as usize {
                 let slot = (p * lanes as usize + l) * slot_vec4s as usize;
-                let q = &vals[(slot + kernels::ACC_VEC4 as usize) * 4..][..4];
+                let q = &vals[(slot + acc_vec4) * 4..][..4];
                 for c in 0..3 {
                     sum[c] += q[c] as f64;
                 }
