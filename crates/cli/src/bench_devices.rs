@@ -24,7 +24,7 @@ pub struct Args {
     /// on a software adapter k = 8 takes minutes.
     #[arg(long, value_delimiter = ',', default_value = "1", value_parser = parse_k)]
     k: Vec<f64>,
-    /// Samples per pixel of every render.
+    /// Samples per pixel of every render, 1 to 1,048,576.
     #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..=1 << 20))]
     spp: u32,
     /// Image side in pixels, 8 to 8,192. A large GPU needs ~256² or more to be full.

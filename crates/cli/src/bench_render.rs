@@ -29,13 +29,13 @@ pub struct Args {
     /// Density multipliers (each in (0, 1000]).
     #[arg(long, value_delimiter = ',', default_value = "1,2,4,8", value_parser = parse_k)]
     k: Vec<f64>,
-    /// Samples per pixel of each integrator, at least 2: each of two seeds renders half
+    /// Samples per pixel of each integrator, 2 to 2^30: each of two seeds renders half
     /// (rounded down), rounded up to a multiple of 3 (one per hero channel), so 2 renders 6
     /// and 13 renders 12.
     #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(2..=MAX_BENCH_SPP as i64))]
     spp: u32,
-    /// Image side in pixels (at least 8: the bias is measured over 4×4-pixel blocks and
-    /// the object's pixels, which a smaller image hardly has).
+    /// Image side in pixels, 8 to 4,096 (at least 8: the bias is measured over 4×4-pixel
+    /// blocks and the object's pixels, which a smaller image hardly has).
     #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u32).range(8..=4096))]
     size: u32,
     /// Model file for ST-CVAE (default: models/default.stcvae).
@@ -88,15 +88,20 @@ pub struct Args {
     /// Which set of seeds: set N renders PT with seeds 11 + 4N and 12 + 4N and ST-CVAE with
     /// 13 + 4N and 14 + 4N (always four different ones). Another set is another
     /// realisation of the same comparison: at 1,024 spp the variance ratio moves by
-    /// ±0.05–0.1 between sets (rare heavy paths), the bias estimate by its noise.
-    #[arg(long, allow_negative_numbers = true, default_value_t = 0)]
+    /// ±0.05–0.1 between sets (rare heavy paths), the bias estimate by its noise. At most
+    /// 4,611,686,018,427,387,900, where 14 + 4N still fits a 64-bit seed.
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0,
+          value_parser = clap::value_parser!(u64).range(..=MAX_SEED_SET))]
     seeds: u64,
 }
+
+/// The largest set of seeds whose four seeds (up to 14 + 4N) do not wrap around.
+const MAX_SEED_SET: u64 = (u64::MAX - 14) / 4;
 
 impl Args {
     /// The two seeds of `kind` in this run's set.
     fn seeds_of(&self, kind: IntegratorKind) -> [u64; 2] {
-        pair_seeds(kind).map(|s| s.wrapping_add(self.seeds.wrapping_mul(4)))
+        pair_seeds(kind).map(|s| s + 4 * self.seeds)
     }
 }
 
@@ -185,11 +190,17 @@ fn pt_pair(
         return Ok((pair, Some(when)));
     }
     let pair = render_pair(a, engine, &p, IntegratorKind::Pt)?;
-    if !crate::pt_cache::store(&file, &pair, id)? {
-        eprintln!(
+    // The render stands whether or not it can be kept for the next run.
+    match crate::pt_cache::store(&file, &pair, id) {
+        Ok(true) => {}
+        Ok(false) => eprintln!(
             "warning: PT's render at k = {k} has a non-finite value; not stored in {}",
             dir.display()
-        );
+        ),
+        Err(e) => eprintln!(
+            "warning: PT's render at k = {k} not stored in {}: {e:#}",
+            dir.display()
+        ),
     }
     Ok((pair, None))
 }
@@ -302,6 +313,18 @@ pub fn run(a: Args) -> Result<()> {
         }
         std::fs::create_dir_all(dir)
             .with_context(|| format!("--save: cannot create {}", dir.display()))?;
+    }
+    // So is the PT cache's directory: PT's renders are the long part of a bench, and a
+    // cache that cannot take them should say so before they run.
+    if let Some(dir) = &a.pt_cache {
+        if dir.exists() && !dir.is_dir() {
+            bail!(
+                "--pt-cache {}: exists and is not a directory",
+                dir.display()
+            );
+        }
+        scatter_sim::output::check_output_path(&dir.join("pt.json"))
+            .map_err(|e| anyhow::anyhow!("--pt-cache {}: {e}", dir.display()))?;
     }
     let engine = Engine::open(a.device)?.without_fallback();
     // Every density's ST-CVAE scene is checked before the table's head and the first

@@ -29,8 +29,8 @@ pub struct Args {
     #[arg(long, default_value = "data/train.bin")]
     out: PathBuf,
     /// Number of walks of the whole run (overrides the config; in fixed-condition mode,
-    /// default 10,000).
-    #[arg(long)]
+    /// default 10,000; at least 1).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=u64::MAX))]
     samples: Option<u64>,
     /// Fixed-condition mode: optical radius τ of every walk, in [0, 1000] (needs --g and
     /// --albedo).
@@ -73,6 +73,9 @@ pub fn load_config(path: &Path) -> Result<DatasetConfig> {
     let text = std::fs::read_to_string(path)
         .with_context(|| format!("cannot read dataset config {}", path.display()))?;
     let cfg: DatasetConfig = parse_toml(path, &text)?;
+    if cfg.walks == 0 {
+        bail!("{}: walks = 0 is out of range: at least 1", path.display());
+    }
     cfg.conditions
         .validate()
         .map_err(|e| anyhow::anyhow!("{}: conditions.{e}", path.display()))?;

@@ -66,9 +66,41 @@ fn parse_cli() -> Cli {
     fn negatives(c: clap::Command) -> clap::Command {
         c.allow_negative_numbers(true).mut_subcommands(negatives)
     }
-    let matches = negatives(Cli::command()).get_matches();
-    Cli::from_arg_matches(&matches)
-        .unwrap_or_else(|e| e.format(&mut negatives(Cli::command())).exit())
+    negatives(Cli::command())
+        .try_get_matches()
+        .and_then(|m| Cli::from_arg_matches(&m))
+        .unwrap_or_else(|e| exit_on_usage(e.format(&mut negatives(Cli::command()))))
+}
+
+/// Help and version go out as clap writes them; a usage error becomes one line, as every
+/// other error here (clap's own spans three to five: the error, a list of the arguments it
+/// concerns, a tip, the usage, a pointer to --help), with clap's exit status 2.
+fn exit_on_usage(e: clap::Error) -> ! {
+    use clap::error::ErrorKind;
+    if matches!(
+        e.kind(),
+        ErrorKind::DisplayHelp
+            | ErrorKind::DisplayVersion
+            | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand
+    ) {
+        e.exit()
+    }
+    eprintln!("{}", one_line(&e.render().to_string()));
+    std::process::exit(2)
+}
+
+/// clap's error text up to its usage lines, joined into one line (a tip in brackets).
+fn one_line(text: &str) -> String {
+    text.lines()
+        .map(str::trim)
+        .take_while(|l| !l.starts_with("Usage:") && !l.starts_with("For more information"))
+        .filter(|l| !l.is_empty())
+        .map(|l| match l.strip_prefix("tip: ") {
+            Some(tip) => format!("(tip: {tip})"),
+            None => l.to_owned(),
+        })
+        .collect::<Vec<_>>()
+        .join(" ")
 }
 
 fn main() {

@@ -91,6 +91,18 @@ pub fn run(a: Args) -> Result<()> {
     } else if exr_inputs > 0 {
         bail!("mixed inputs: merge either renders (.exr) or datasets, not both");
     }
+    // A dataset written over a render's file (say `--out run.exr` by a slip) would replace
+    // the image with binary rows.
+    if let Some(ext) = a.out.extension().and_then(|e| e.to_str())
+        && ["exr", "png", "json"]
+            .iter()
+            .any(|x| ext.eq_ignore_ascii_case(x))
+    {
+        bail!(
+            "--out {}: the inputs are datasets, which merge into a .bin or .csv file, not .{ext}",
+            a.out.display()
+        );
+    }
     check_paths(&a.inputs, std::slice::from_ref(&a.out))?;
     crate::check_out("--out", &a.out)?;
     let csv_inputs = a.inputs.iter().filter(|p| dataset::is_csv(p)).count();
@@ -228,6 +240,8 @@ fn merge_binary(a: &Args) -> Result<()> {
         if covered != total {
             eprintln!("note: the inputs hold {covered} of the run's {total} walks");
         }
+    } else if let Some(note) = runs_note(&header.pieces) {
+        eprintln!("{note}");
     }
     let pb = progress::bar(header.count, "rows");
     let mut sink = dataset::create_sink(&a.out, header.clone())?;
@@ -246,6 +260,31 @@ fn merge_binary(a: &Args) -> Result<()> {
         a.out.display()
     );
     Ok(())
+}
+
+/// Where the pieces come from more than one run (`generate` with other seeds, sizes or
+/// condition samplers), a note naming each run and how much of it the merge holds: a
+/// merge of shards is usually meant to rebuild one run, so mixing runs should not pass
+/// unsaid, though merging several runs on purpose is allowed.
+fn runs_note(pieces: &[Piece]) -> Option<String> {
+    let mut runs: Vec<(&Piece, u64)> = Vec::new();
+    for p in pieces {
+        match runs.iter_mut().find(|(r, _)| r.same_run(p)) {
+            Some((_, count)) => *count += p.count,
+            None => runs.push((p, p.count)),
+        }
+    }
+    (runs.len() > 1).then(|| {
+        let each: Vec<String> = runs
+            .iter()
+            .map(|(r, count)| format!("seed {} ({count} of its {} walks)", r.seed, r.total_walks))
+            .collect();
+        format!(
+            "note: the inputs come from {} different runs: {}",
+            runs.len(),
+            each.join(", ")
+        )
+    })
 }
 
 /// Joins adjacent pieces of one run that continue each other.

@@ -262,20 +262,23 @@ fn open_eval(model: Option<&Path>, out: &Path, samples: usize) -> Result<(ModelS
     Ok((m, name))
 }
 
-/// Largest KS per quantity over the reports.
+/// The quantities `eval` compares by KS.
+const QUANTITIES: [&str; 7] = [
+    "n",
+    "cos_theta",
+    "alpha",
+    "beta",
+    "event_radius",
+    "event_z",
+    "event_wz",
+];
+
+/// Largest KS per quantity over the reports, for the quantities they measured.
 fn max_ks_of(reports: &[SettingReport]) -> std::collections::BTreeMap<&'static str, f64> {
-    [
-        "n",
-        "cos_theta",
-        "alpha",
-        "beta",
-        "event_radius",
-        "event_z",
-        "event_wz",
-    ]
-    .into_iter()
-    .map(|q| (q, eval::max_ks(reports, q)))
-    .collect()
+    QUANTITIES
+        .into_iter()
+        .filter_map(|q| Some((q, eval::max_ks(reports, q)?)))
+        .collect()
 }
 
 /// metrics.json, and the head of metrics.md (title, sample counts, max KS, the table).
@@ -303,15 +306,19 @@ fn write_eval_json_and_head(
          seed {seed} + i). KS = two-sample Kolmogorov–Smirnov statistic, W1 = Wasserstein-1 \
          distance. At φ = 0.9 only the representative event (EventGen) depends on φ.\n"
     )?;
-    writeln!(
-        md,
-        "Max KS over these settings: {}\n",
-        max_ks
-            .iter()
-            .map(|(k, v)| format!("{k} {v:.3}"))
-            .collect::<Vec<_>>()
-            .join(", ")
-    )?;
+    let mut line = max_ks
+        .iter()
+        .map(|(k, v)| format!("{k} {v:.3}"))
+        .collect::<Vec<_>>()
+        .join(", ");
+    if max_ks.len() < QUANTITIES.len() {
+        let missing: Vec<&str> = QUANTITIES
+            .into_iter()
+            .filter(|q| !max_ks.contains_key(q))
+            .collect();
+        line += &format!(" (not measured at these settings: {})", missing.join(", "));
+    }
+    writeln!(md, "Max KS over these settings: {line}\n")?;
     md.extend(eval::markdown_table(reports).into_bytes());
     Ok(md)
 }

@@ -134,6 +134,35 @@ fn shards_merge_into_the_unsharded_run() {
         stderr(&out)
     );
     assert!(!dir.path().join("dup.bin").exists());
+    // A shard of another run (another seed) merges, with a note naming both runs and how
+    // much of each the output holds.
+    fs::write(
+        dir.path().join("other.toml"),
+        cfg.replace("seed = 5", "seed = 6"),
+    )
+    .unwrap();
+    let other = [
+        "generate",
+        "--config",
+        "other.toml",
+        "--shard",
+        "1/4",
+        "--out",
+        "other-1.bin",
+    ];
+    ok(&stcvae(&other, dir.path()));
+    let out = stcvae(
+        &["merge", "part-0.bin", "other-1.bin", "--out", "mixed.bin"],
+        dir.path(),
+    );
+    ok(&out);
+    let (header, _) = read_dataset(&dir.path().join("part-0.bin")).unwrap();
+    let (other, _) = read_dataset(&dir.path().join("other-1.bin")).unwrap();
+    let want = format!(
+        "note: the inputs come from 2 different runs: seed 5 ({} of its 3001 walks), seed 6 ({} of its 3001 walks)",
+        header.count, other.count
+    );
+    assert!(stderr(&out).contains(&want), "{}", stderr(&out));
 }
 
 #[test]
@@ -148,6 +177,16 @@ fn bad_input_gives_one_line_errors() {
         ("generate --config range.toml --out x.bin", "tau.max"),
         ("generate --samples 10 --shard 4/4 --out x.bin", "shard"),
         ("merge garbage.bin --out y.bin", "garbage.bin"),
+        (
+            "generate --config zero.toml --out x.bin",
+            "zero.toml: walks = 0",
+        ),
+        ("generate --samples 0 --out x.bin", "--samples"),
+        // Datasets merged over a render's file would replace the image.
+        (
+            "merge whole.csv --out render.exr",
+            "merge into a .bin or .csv file, not .exr",
+        ),
         // A CSV cut short mid-row: refused, naming the file and line.
         (
             "merge cut.csv whole.csv --out x.csv",
@@ -198,6 +237,7 @@ fn bad_input_gives_one_line_errors() {
     fs::write(dir.path().join("nonutf8.csv"), bytes).unwrap();
     fs::write(dir.path().join("afile"), b"").unwrap();
     fs::write(dir.path().join("typo.toml"), "walkz = 10\n").unwrap();
+    fs::write(dir.path().join("zero.toml"), "walks = 0\n").unwrap();
     fs::write(
         dir.path().join("range.toml"),
         "walks = 10\n[conditions]\ntau = { kind = \"power\", max = 5000.0, exponent = 3.0 }\n\
@@ -216,6 +256,7 @@ fn bad_input_gives_one_line_errors() {
         );
         assert!(!err.contains("panicked"), "{args:?} panicked: {err}");
         assert!(!dir.path().join("x.bin").exists() && !dir.path().join("x.csv").exists());
+        assert!(!dir.path().join("render.exr").exists());
     }
 }
 

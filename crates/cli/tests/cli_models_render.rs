@@ -367,7 +367,8 @@ fn tag_of(p: &Path) -> u64 {
         .scene_hash
 }
 
-/// Arguments that cannot work are refused before any work, naming the argument.
+/// Arguments that cannot work are refused before any work, in one line naming the
+/// argument (clap's usage errors included).
 #[test]
 fn bad_arguments_name_the_argument() {
     let d = tempfile::tempdir().unwrap();
@@ -436,7 +437,21 @@ fn bad_arguments_name_the_argument() {
         let args: Vec<&str> = args.iter().map(String::as_str).collect();
         let e = fails(&stcvae(&args));
         assert!(e.contains(want), "{args:?}: {e}");
+        assert_eq!(e.trim_end().lines().count(), 1, "{args:?}: {e}");
     }
+    // A missing required argument and an unknown one keep what clap says about them.
+    let e = fails(&stcvae(&["merge", "a.bin"]));
+    assert!(
+        e.contains("required arguments were not provided: --out <OUT>"),
+        "{e}"
+    );
+    assert_eq!(e.trim_end().lines().count(), 1, "{e}");
+    let e = fails(&stcvae(&["render", "--sp", "2"]));
+    assert!(
+        e.contains("unexpected argument '--sp'") && e.contains("'--spp'"),
+        "{e}"
+    );
+    assert_eq!(e.trim_end().lines().count(), 1, "{e}");
 }
 
 /// `eval --at`: only the given settings, in metrics.md and on stdout, with the table of
@@ -468,6 +483,30 @@ fn eval_at_given_settings() {
     assert_eq!(md.matches("Events by distance").count(), 2, "{md}");
     assert!(md.contains("half-space NEE, surface behind"), "{md}");
     assert!(!dir.join("fig11_n.png").exists(), "--at draws no plots");
+    // At φ < 1 alone only the event marginals are measured: the others have no maximum
+    // (not a perfect-looking 0), and the summary says so.
+    let only = d.path().join("ev_phi");
+    ok(&stcvae(&[
+        "eval",
+        "--samples",
+        "300",
+        "--at",
+        "2,0.5,0.9",
+        "--out",
+        only.to_str().unwrap(),
+    ]));
+    let md = std::fs::read_to_string(only.join("metrics.md")).unwrap();
+    assert!(
+        md.contains("(not measured at these settings: n, cos_theta, alpha, beta)"),
+        "{md}"
+    );
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(only.join("metrics.json")).unwrap()).unwrap();
+    let max_ks = json["max_ks"].as_object().unwrap();
+    assert!(
+        !max_ks.contains_key("n") && max_ks.contains_key("event_z"),
+        "{max_ks:?}"
+    );
     for (at, want) in [
         ("5,0.875", "three numbers"),
         ("5,0.875,1.5", "albedo"),

@@ -429,12 +429,13 @@ pub fn evaluate_grid(
         .collect()
 }
 
-/// Largest KS of `quantity` over the reports that have it.
-pub fn max_ks(reports: &[SettingReport], quantity: &str) -> f64 {
+/// Largest KS of `quantity` over the reports that have it; None where none has (at φ < 1
+/// only the event marginals are measured), rather than a perfect-looking 0.
+pub fn max_ks(reports: &[SettingReport], quantity: &str) -> Option<f64> {
     reports
         .iter()
         .filter_map(|r| r.ks(quantity))
-        .fold(0.0, f64::max)
+        .reduce(f64::max)
 }
 
 /// 1 − |X|: an event's distance from the sphere's surface (0 for one repaired onto the

@@ -47,7 +47,7 @@ pub struct CameraDesc {
 /// wrong type, a triple of the wrong length) does not say which key it belongs to, the
 /// quoted line does. Every TOML file stcvae reads reports its errors this way.
 pub fn describe_toml_error(path: &Path, text: &str, e: &toml::de::Error) -> String {
-    let msg = e.message().trim().replace('\n', " ");
+    let msg = printable(&e.message().trim().replace('\n', " "));
     // A field missing from the top level is reported at the document's start, whose first
     // line (often a comment) says nothing: name the field alone.
     let top_level = e.span().is_some_and(|s| s.start == 0) && msg.starts_with("missing field");
@@ -55,7 +55,7 @@ pub fn describe_toml_error(path: &Path, text: &str, e: &toml::de::Error) -> Stri
         let start = s.start.min(text.len());
         let line_start = text[..start].rfind('\n').map_or(0, |i| i + 1);
         let line = text[line_start..].lines().next().unwrap_or("").trim();
-        let shown: String = line.chars().take(80).collect();
+        let shown: String = printable(&line.chars().take(80).collect::<String>());
         (text[..start].matches('\n').count() + 1, shown)
     });
     match at {
@@ -65,6 +65,20 @@ pub fn describe_toml_error(path: &Path, text: &str, e: &toml::de::Error) -> Stri
         Some((l, _)) => format!("{}:{l}: {msg}", path.display()),
         None => format!("{}: {msg}", path.display()),
     }
+}
+
+/// `s` with control characters escaped (`\u{0}`, `\t`): a binary file given as a config is
+/// valid UTF-8 often enough, and its NULs and escapes must not reach the terminal raw.
+fn printable(s: &str) -> String {
+    s.chars()
+        .flat_map(|c| {
+            let escaped = c.is_control().then(|| c.escape_default());
+            escaped
+                .into_iter()
+                .flatten()
+                .chain((!c.is_control()).then_some(c))
+        })
+        .collect()
 }
 
 /// Exactly three numbers. serde's own `[f64; 3]` reads the first three elements of a

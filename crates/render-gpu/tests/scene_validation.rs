@@ -246,3 +246,14 @@ fn a_missing_table_is_named_without_the_first_line() {
     let e = err(&text.replace("sigma_t = [10.0, 10.0, 10.0]\n", ""));
     assert!(e.contains("missing field `sigma_t`"), "{e}");
 }
+
+/// A binary file given as a scene (valid UTF-8 with NULs and escape bytes, as the head of
+/// a model file often is) gets one line naming the file and line, with its control
+/// characters escaped rather than sent to the terminal.
+#[test]
+fn binary_input_is_quoted_printably() {
+    let e = err("STCVAEMD\u{1}\u{0}\u{0}\u{0} 6\u{5}\u{1b}[2J{");
+    assert!(e.starts_with("s.toml:1:"), "{e}");
+    assert!(!e.chars().any(char::is_control), "{e:?}");
+    assert!(e.contains("\\u{0}") && e.contains("\\u{1b}"), "{e}");
+}
