@@ -319,6 +319,25 @@ pub fn run(a: Args) -> Result<()> {
         albedo_range: range(&rows, |r| r.albedo),
         notes: String::new(),
     };
+    // A condition the dataset never varies (a `generate --tau/--g/--albedo` dataset) gives
+    // decoders that know one value of it: anywhere else they extrapolate blindly.
+    let fixed: Vec<String> = [
+        ("tau", info.tau_range),
+        ("g", info.g_range),
+        ("albedo", info.albedo_range),
+    ]
+    .iter()
+    .filter(|(_, r)| r[0] == r[1])
+    .map(|(name, r)| format!("{name} = {}", r[0]))
+    .collect();
+    if !fixed.is_empty() {
+        eprintln!(
+            "warning: {}: every walk has {}; the model will know only that value, and renders \
+             or samples at any other are extrapolation",
+            cfg.dataset.display(),
+            fixed.join(", ")
+        );
+    }
     if let Some((base_name, b)) = &base {
         // The file's ranges bound every decoder in it (the renderer's default max_tau is
         // tau_range[1]): with decoders from two trainings, only what both saw.

@@ -67,6 +67,7 @@ fn one_model_retrained_against_a_base_file_keeps_the_others() {
     let base_s = base.to_str().unwrap();
     let out = train_eventgen(dir.path(), base_s);
     assert!(out.status.success(), "train failed: {}", stderr(&out));
+    assert!(!stderr(&out).contains("every walk has"), "{}", stderr(&out));
     let shipped = ModelSet::load(&base).unwrap();
     let got = ModelSet::load(&dir.path().join("m.stcvae")).unwrap();
     assert_eq!(
@@ -110,6 +111,52 @@ fn one_model_retrained_against_a_base_file_keeps_the_others() {
         got.training.tau_range
     );
     assert!(got.training.tau_range[0] >= shipped.training.tau_range[0]);
+}
+
+/// A dataset whose walks all share one g trains, with a warning that the model knows only
+/// that g; and a checkpoint_dir that cannot be created fails before the dataset is even
+/// generated, naming the config and the field.
+#[test]
+fn a_fixed_condition_warns_and_a_bad_checkpoint_dir_fails_first() {
+    let dir = tempfile::tempdir().unwrap();
+    setup(dir.path());
+    let data = fs::read_to_string(dir.path().join("data.toml")).unwrap();
+    fs::write(
+        dir.path().join("data.toml"),
+        data.replace(
+            "g = { kind = \"uniform\", min = -1.0, max = 1.0 }",
+            "g = { kind = \"fixed\", value = 0.25 }",
+        ),
+    )
+    .unwrap();
+    let base = root().join("models/default.stcvae");
+    let out = train_eventgen(dir.path(), base.to_str().unwrap());
+    assert!(out.status.success(), "train failed: {}", stderr(&out));
+    assert!(
+        stderr(&out).contains("every walk has g = 0.25; the model will know only that value"),
+        "{}",
+        stderr(&out)
+    );
+    fs::remove_file(dir.path().join("d.bin")).unwrap();
+    fs::write(dir.path().join("afile"), b"").unwrap();
+    let cfg = fs::read_to_string(dir.path().join("train.toml")).unwrap();
+    fs::write(
+        dir.path().join("train.toml"),
+        cfg.replace("checkpoint_dir = \"ck\"", "checkpoint_dir = \"afile/ck\""),
+    )
+    .unwrap();
+    let out = train_eventgen(dir.path(), base.to_str().unwrap());
+    assert!(!out.status.success());
+    assert!(
+        stderr(&out)
+            .contains("train.toml: checkpoint_dir = afile/ck: afile exists and is not a directory"),
+        "{}",
+        stderr(&out)
+    );
+    assert!(
+        !dir.path().join("d.bin").exists(),
+        "the dataset was generated first"
+    );
 }
 
 #[test]
