@@ -504,7 +504,10 @@ fn tally(
     Ok(())
 }
 
-/// Renders on the GPU with the estimators of the CPU integrators.
+/// Renders on the GPU with the estimators of the CPU integrators. `progress(done, total)`
+/// counts pixel-samples after each band of each chunk; `cancel` stops after the submission
+/// under way, dropping the unfinished chunk (the image then holds the chunks completed
+/// before, and 0 spp when none was).
 pub fn render_gpu(
     ctx: &GpuContext,
     scene: &SceneData,
