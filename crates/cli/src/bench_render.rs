@@ -317,14 +317,7 @@ pub fn run(a: Args) -> Result<()> {
     // So is the PT cache's directory: PT's renders are the long part of a bench, and a
     // cache that cannot take them should say so before they run.
     if let Some(dir) = &a.pt_cache {
-        if dir.exists() && !dir.is_dir() {
-            bail!(
-                "--pt-cache {}: exists and is not a directory",
-                dir.display()
-            );
-        }
-        scatter_sim::output::check_output_path(&dir.join("pt.json"))
-            .map_err(|e| anyhow::anyhow!("--pt-cache {}: {e}", dir.display()))?;
+        crate::check_out_dir("--pt-cache", dir)?;
     }
     let engine = Engine::open(a.device)?.without_fallback();
     // Every density's ST-CVAE scene is checked before the table's head and the first

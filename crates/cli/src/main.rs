@@ -60,6 +60,13 @@ pub(crate) fn check_out(flag: &str, path: &std::path::Path) -> anyhow::Result<()
         .map_err(|e| anyhow::anyhow!("{flag} {}: {e}", path.display()))
 }
 
+/// As [`check_out`] for a directory that the work will create files in (`label` names the
+/// flag or config field): a file in the way or an unwritable ancestor fails at once.
+pub(crate) fn check_out_dir(label: &str, dir: &std::path::Path) -> anyhow::Result<()> {
+    scatter_sim::output::check_output_path(&dir.join("file"))
+        .map_err(|e| anyhow::anyhow!("{label} {}: {e}", dir.display()))
+}
+
 /// The command line, with negative numbers taken as values in every command (`--spp -1`
 /// then meets the option's range error, not "unexpected argument '-1'").
 fn parse_cli() -> Cli {

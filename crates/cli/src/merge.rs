@@ -99,7 +99,8 @@ pub fn run(a: Args) -> Result<()> {
             .any(|x| ext.eq_ignore_ascii_case(x))
     {
         bail!(
-            "--out {}: the inputs are datasets, which merge into a .bin or .csv file, not .{ext}",
+            "--out {}: the inputs are datasets, which merge into a dataset file (.csv for \
+             text, any other name binary, e.g. .bin), not .{ext}",
             a.out.display()
         );
     }

@@ -262,21 +262,15 @@ fn open_eval(model: Option<&Path>, out: &Path, samples: usize) -> Result<(ModelS
     Ok((m, name))
 }
 
-/// The quantities `eval` compares by KS.
-const QUANTITIES: [&str; 7] = [
-    "n",
-    "cos_theta",
-    "alpha",
-    "beta",
-    "event_radius",
-    "event_z",
-    "event_wz",
-];
+/// The quantities whose largest KS the summary gives: all that `eval` compares but log N,
+/// whose KS is N's (the statistic does not change under a monotone map).
+fn summarised() -> impl Iterator<Item = &'static str> {
+    eval::QUANTITIES.into_iter().filter(|&q| q != "log_n")
+}
 
 /// Largest KS per quantity over the reports, for the quantities they measured.
 fn max_ks_of(reports: &[SettingReport]) -> std::collections::BTreeMap<&'static str, f64> {
-    QUANTITIES
-        .into_iter()
+    summarised()
         .filter_map(|q| Some((q, eval::max_ks(reports, q)?)))
         .collect()
 }
@@ -311,11 +305,8 @@ fn write_eval_json_and_head(
         .map(|(k, v)| format!("{k} {v:.3}"))
         .collect::<Vec<_>>()
         .join(", ");
-    if max_ks.len() < QUANTITIES.len() {
-        let missing: Vec<&str> = QUANTITIES
-            .into_iter()
-            .filter(|q| !max_ks.contains_key(q))
-            .collect();
+    let missing: Vec<&str> = summarised().filter(|q| !max_ks.contains_key(q)).collect();
+    if !missing.is_empty() {
         line += &format!(" (not measured at these settings: {})", missing.join(", "));
     }
     writeln!(md, "Max KS over these settings: {line}\n")?;

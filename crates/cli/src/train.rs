@@ -188,21 +188,9 @@ pub fn run(a: Args) -> Result<()> {
         crate::check_out(&format!("{}: out =", a.config.display()), &out)?;
     }
     // So is the checkpoint directory, which the first checkpoint writes into minutes in.
-    if cfg.checkpoint_dir.exists() && !cfg.checkpoint_dir.is_dir() {
-        bail!(
-            "{}: checkpoint_dir = {}: exists and is not a directory",
-            a.config.display(),
-            cfg.checkpoint_dir.display()
-        );
-    }
-    scatter_sim::output::check_output_path(&cfg.checkpoint_dir.join("checkpoint")).map_err(
-        |e| {
-            anyhow::anyhow!(
-                "{}: checkpoint_dir = {}: {e}",
-                a.config.display(),
-                cfg.checkpoint_dir.display()
-            )
-        },
+    crate::check_out_dir(
+        &format!("{}: checkpoint_dir =", a.config.display()),
+        &cfg.checkpoint_dir,
     )?;
     // Read before hours of training, so that a wrong path fails at once.
     let base = match &a.base {

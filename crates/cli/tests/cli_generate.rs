@@ -185,7 +185,7 @@ fn bad_input_gives_one_line_errors() {
         // Datasets merged over a render's file would replace the image.
         (
             "merge whole.csv --out render.exr",
-            "merge into a .bin or .csv file, not .exr",
+            "merge into a dataset file (.csv for text, any other name binary, e.g. .bin), not .exr",
         ),
         // A CSV cut short mid-row: refused, naming the file and line.
         (

@@ -70,15 +70,15 @@ pub fn describe_toml_error(path: &Path, text: &str, e: &toml::de::Error) -> Stri
 /// `s` with control characters escaped (`\u{0}`, `\t`): a binary file given as a config is
 /// valid UTF-8 often enough, and its NULs and escapes must not reach the terminal raw.
 fn printable(s: &str) -> String {
-    s.chars()
-        .flat_map(|c| {
-            let escaped = c.is_control().then(|| c.escape_default());
-            escaped
-                .into_iter()
-                .flatten()
-                .chain((!c.is_control()).then_some(c))
-        })
-        .collect()
+    let mut out = String::with_capacity(s.len());
+    for c in s.chars() {
+        if c.is_control() {
+            out.extend(c.escape_default());
+        } else {
+            out.push(c);
+        }
+    }
+    out
 }
 
 /// Exactly three numbers. serde's own `[f64; 3]` reads the first three elements of a

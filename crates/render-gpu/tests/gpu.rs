@@ -378,6 +378,17 @@ fn refusal(r: Result<RenderOutput, RenderError>, what: &str) -> String {
     }
 }
 
+/// Two renders that must have taken the same paths: equal counters, equal pixels.
+fn assert_same_render(base: &RenderOutput, out: &RenderOutput, what: &str) {
+    assert_eq!(
+        (out.stats.paths, out.stats.events),
+        (base.stats.paths, base.stats.events),
+        "{what}: other paths"
+    );
+    let differ = differing_pixels(base, out);
+    assert_eq!(differ, 0, "{what}: {differ} pixels differ");
+}
+
 /// Pixels whose values differ at all between two renders of one size.
 fn differing_pixels(a: &RenderOutput, b: &RenderOutput) -> usize {
     assert_eq!(a.image.pixels.len(), b.image.pixels.len());
@@ -1316,10 +1327,13 @@ fn images_beyond_the_binding_limit_render_in_bands() {
 /// (its slots give back the accumulators committed at the chunk's start), one has begun
 /// (a stop is looked at after each submission: four bounces a dispatch here, fewer than
 /// many paths take) and one has not (its accumulators already hold the first chunk
-/// alone); it leaves 1 of 4 spp. A hardware adapter renders one band whose lanes take all
-/// 4 spp in one chunk, which is then not stopped. A stop before the first chunk ends
-/// leaves no image (0 spp). ST-CVAE with a path-level NEE reservoir (the committed vec4
-/// comes after the reservoirs) and PT (in a thinner medium, for speed on lavapipe).
+/// alone); it leaves 1 of 4 spp. A stop before the first chunk ends leaves no image
+/// (0 spp). Covered: ST-CVAE with a path-level NEE reservoir (the committed vec4 comes
+/// after the reservoirs), PT (in a thinner medium, for speed on lavapipe), and the staged
+/// ST-CVAE render, whose first turn commits, with a snapshot and sent ahead (one bounce a
+/// visit keeps no snapshot; the stop then also waits for the submission sent ahead). A
+/// hardware adapter renders one band whose lanes take all 4 spp in one chunk, which is
+/// then not stopped: there the test checks only that a render stopped late is whole.
 #[test]
 fn a_stop_mid_chunk_keeps_the_whole_chunks() {
     let Some(ctx) = gpu() else { return };
@@ -1327,16 +1341,23 @@ fn a_stop_mid_chunk_keeps_the_whole_chunks() {
     let text = sphere_scene("kind = \"index-matched\"")
         .replace("width = 24\nheight = 24", "width = 256\nheight = 544");
     let thin = with_medium(text.clone(), "[1.0, 2.0, 3.0]", "[0.9, 0.9, 0.9]");
-    for (text, set) in [
-        (&text, settings(IntegratorKind::Stcvae, true)),
-        (&thin, settings(IntegratorKind::Pt, true)),
-    ] {
+    let stcvae = settings(IntegratorKind::Stcvae, true);
+    let staged = ("STCVAE_GPU_STAGED", "1");
+    type Vars<'a> = &'a [(&'a str, &'a str)];
+    let cases: [(&String, IntegratorSettings, Vars); 4] = [
+        (&text, stcvae, &[]),
+        (&thin, settings(IntegratorKind::Pt, true), &[]),
+        (&text, stcvae, &[staged]),
+        (&text, stcvae, &[staged, ("STCVAE_GPU_BOUNCES", "1")]),
+    ];
+    for (text, set, extra) in cases {
         let s = common::build_scene(text, true);
-        let vars = [
+        let mut vars = vec![
             ("STCVAE_GPU_LANE_SAMPLES", "1"),
             ("STCVAE_GPU_BOUNCES", "4"),
         ];
-        for (name, value) in vars {
+        vars.extend_from_slice(extra);
+        for &(name, value) in &vars {
             // SAFETY: this test holds the context's lock, as every render of this binary.
             unsafe { std::env::set_var(name, value) };
         }
@@ -1355,29 +1376,21 @@ fn a_stop_mid_chunk_keeps_the_whole_chunks() {
         let stopped = stopped_after(bands + 1, 4);
         let none = stopped_after(1, 4);
         let whole = stopped_after(0, stopped.spp.max(1));
-        for (name, _) in vars {
+        for &(name, _) in &vars {
             unsafe { std::env::remove_var(name) };
         }
-        assert_eq!(stopped.dispatch.bands as usize, bands);
+        let what = format!("{:?} {extra:?}", set.kind);
+        assert_eq!(stopped.dispatch.bands as usize, bands, "{what}");
+        assert_eq!(stopped.dispatch.staged, !extra.is_empty(), "{what}");
         if ctx.adapter.software {
-            assert_eq!((stopped.spp, none.spp), (1, 0), "{:?}", set.kind);
+            assert_eq!((stopped.spp, none.spp), (1, 0), "{what}");
+            assert_eq!(stopped.dispatch.ahead, extra.len() == 2, "{what}");
         }
         assert_eq!(whole.spp, stopped.spp.max(1));
         if stopped.spp == 0 {
             continue;
         }
-        assert_eq!(
-            (stopped.stats.paths, stopped.stats.events),
-            (whole.stats.paths, whole.stats.events),
-            "{:?}",
-            set.kind
-        );
-        let differ = differing_pixels(&stopped, &whole);
-        assert_eq!(
-            differ, 0,
-            "{:?}: {differ} pixels differ from a render of the whole chunks",
-            set.kind
-        );
+        assert_same_render(&whole, &stopped, &format!("{what}, the whole chunks"));
         assert!(whole.image.pixels.iter().any(|p| p[0] > 0.0));
     }
 }
@@ -1557,19 +1570,8 @@ fn samples_per_chunk_change_no_pixel() {
             &[("STCVAE_GPU_LANE_SAMPLES", "3")],
             &[],
         ] {
-            let out = run(vars);
-            assert_eq!(
-                (out.stats.paths, out.stats.events),
-                (base.stats.paths, base.stats.events),
-                "{:?} {vars:?}",
-                set.kind
-            );
-            let differ = differing_pixels(&base, &out);
-            assert_eq!(
-                differ, 0,
-                "{:?} {vars:?}: {differ} pixels differ from one sample a chunk",
-                set.kind
-            );
+            let what = format!("{:?} {vars:?} against one sample a chunk", set.kind);
+            assert_same_render(&base, &run(vars), &what);
         }
     }
 }

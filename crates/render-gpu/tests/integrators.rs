@@ -702,9 +702,9 @@ fn chi2_uniform3(channels: impl Iterator<Item = usize>) -> f64 {
 /// the pixels, a 1-spp image 1.5× too red (χ² ≈ 290 here). Bound: χ²₂ > 13.8 has
 /// probability 0.001 for uniform channels. At 2, 4 and 5 spp each pixel's channels hold
 /// ⌊spp/3⌋ or ⌈spp/3⌉ of its samples (the furnace gives 3 × 0.7 a sample to its hero
-/// channel, so a channel's value says how many it had), and the odd channel out, the one
-/// whose count differs from the other two, is uniform over pixels by the same χ² bound
-/// (five χ² tests in all: a false alarm ~0.5 %).
+/// channel, so a channel's value says how many it had): the channels take turns, so
+/// the odd one out follows from the pixel's first channel, and its uniformity over
+/// pixels is that of the 1-spp χ² above.
 #[test]
 fn hero_channels_are_uniform_for_any_spp() {
     let text = furnace_scene("kind = \"index-matched\"")
@@ -715,7 +715,7 @@ fn hero_channels_are_uniform_for_any_spp() {
     assert!(chi2 < 13.8, "channels over 48x48 pixels: chi2 = {chi2:.1}");
     for spp in [2u32, 4, 5] {
         let out = render_quiet(&s, &settings(IntegratorKind::Pt, true, None), spp, 5);
-        let odd = out.image.pixels.iter().enumerate().map(|(i, p)| {
+        for (i, p) in out.image.pixels.iter().enumerate() {
             let counts = p.map(|v| v * spp as f32 / 2.1);
             let n = counts.map(|c| c.round() as u32);
             assert!(
@@ -727,12 +727,7 @@ fn hero_channels_are_uniform_for_any_spp() {
                     && n.iter().all(|&k| k == spp / 3 || k == spp.div_ceil(3)),
                 "{spp} spp, pixel {i} = {p:?}: channel counts {counts:?}"
             );
-            (0..3)
-                .find(|&c| n[c] != n[(c + 1) % 3] && n[c] != n[(c + 2) % 3])
-                .unwrap()
-        });
-        let chi2 = chi2_uniform3(odd);
-        assert!(chi2 < 13.8, "{spp} spp, odd channel: chi2 = {chi2:.1}");
+        }
     }
     // One pixel over 3,000 seeds: merged renders with different seeds average the channels.
     let chi2 = chi2_uniform3(

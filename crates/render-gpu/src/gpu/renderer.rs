@@ -506,8 +506,9 @@ fn tally(
 
 /// Renders on the GPU with the estimators of the CPU integrators. `progress(done, total)`
 /// counts pixel-samples after each band of each chunk; `cancel` stops after the submission
-/// under way, dropping the unfinished chunk (the image then holds the chunks completed
-/// before, and 0 spp when none was).
+/// under way (and, where the staged render sent one ahead, that one too), dropping the
+/// unfinished chunk (the image then holds the chunks completed before, and 0 spp when
+/// none was).
 pub fn render_gpu(
     ctx: &GpuContext,
     scene: &SceneData,
@@ -556,7 +557,7 @@ pub fn render_gpu(
     let spp = opts.spp.max(1);
     // Every path slot of a band lives in one storage binding: adapters offer 128 MiB to
     // several GiB, and a 1024² image at 2²⁰ invocations with two path-level NEE
-    // reservoirs needs 151 MB.
+    // reservoirs needs 168 MB.
     let limits = &ctx.limits;
     let slot_bytes = 16 * slot_vec4s;
     // The staged render's records and its queues take one binding each too, at fewer bytes
@@ -571,7 +572,7 @@ pub fn render_gpu(
         .min(limits.max_buffer_size)
         / binding_bytes;
     let lanes = (target_threads(ctx).min(fit) / pixels.max(1)).clamp(1, spp as u64) as u32;
-    // An image whose slots exceed one binding (lavapipe's 128 MiB holds 1.2–1.6 M pixels)
+    // An image whose slots exceed one binding (lavapipe's 128 MiB holds 0.84–1.4 M pixels)
     // is rendered in bands of rows, each with its own accumulation buffer, one after
     // another within every chunk of samples. Seeds follow the pixel's index in the image,
     // so a band renders what the whole image would. A software adapter also bands an image
@@ -735,8 +736,9 @@ pub fn render_gpu(
         let t0 = Instant::now();
         let stats_before = stats;
         for band in &bands {
-            // A stop request is looked at after each submission (in run_band), so a band
-            // reached after one has begun the chunk all the same.
+            // A stop request is looked at after each submission (in run_band) only: a band
+            // reached after one still begins the chunk (one submission more to wait for),
+            // so that which bands had begun it follows from their submissions alone.
             let finished = gpu.run_band(
                 band,
                 s0 == 0,
@@ -757,7 +759,8 @@ pub fn render_gpu(
             );
         }
         if dropped.is_some() {
-            // Its paths are not counted either, as the CPU does not count a dropped pass's.
+            // Its paths are not counted either, as the CPU does not count a dropped pass's
+            // (its dispatches, which ran, stay in `dispatch`).
             stats = stats_before;
             break;
         }
