@@ -35,6 +35,14 @@ fn train_one(dir: &Path, model: &str, base: &str) -> Output {
     )
 }
 
+/// `file` with `from` replaced by `to`, which it must hold (a setup that no longer matches
+/// would otherwise test the unchanged config).
+fn replace_in(file: &Path, from: &str, to: &str) {
+    let text = fs::read_to_string(file).unwrap();
+    assert!(text.contains(from), "{} holds no {from}", file.display());
+    fs::write(file, text.replace(from, to)).unwrap();
+}
+
 /// A tiny dataset and a config whose EventGen is deliberately unlike the shipped one
 /// (hidden [4, 4]), so the output's EventGen can only have come from this run.
 fn setup(dir: &Path) {
@@ -120,15 +128,11 @@ fn one_model_retrained_against_a_base_file_keeps_the_others() {
 fn a_fixed_condition_warns_and_a_bad_checkpoint_dir_fails_first() {
     let dir = tempfile::tempdir().unwrap();
     setup(dir.path());
-    let data = fs::read_to_string(dir.path().join("data.toml")).unwrap();
-    fs::write(
-        dir.path().join("data.toml"),
-        data.replace(
-            "g = { kind = \"uniform\", min = -1.0, max = 1.0 }",
-            "g = { kind = \"fixed\", value = 0.25 }",
-        ),
-    )
-    .unwrap();
+    replace_in(
+        &dir.path().join("data.toml"),
+        "g = { kind = \"uniform\", min = -1.0, max = 1.0 }",
+        "g = { kind = \"fixed\", value = 0.25 }",
+    );
     let base = root().join("models/default.stcvae");
     let out = train_eventgen(dir.path(), base.to_str().unwrap());
     assert!(out.status.success(), "train failed: {}", stderr(&out));
@@ -139,12 +143,11 @@ fn a_fixed_condition_warns_and_a_bad_checkpoint_dir_fails_first() {
     );
     fs::remove_file(dir.path().join("d.bin")).unwrap();
     fs::write(dir.path().join("afile"), b"").unwrap();
-    let cfg = fs::read_to_string(dir.path().join("train.toml")).unwrap();
-    fs::write(
-        dir.path().join("train.toml"),
-        cfg.replace("checkpoint_dir = \"ck\"", "checkpoint_dir = \"afile/ck\""),
-    )
-    .unwrap();
+    replace_in(
+        &dir.path().join("train.toml"),
+        "checkpoint_dir = \"ck\"",
+        "checkpoint_dir = \"afile/ck\"",
+    );
     let out = train_eventgen(dir.path(), base.to_str().unwrap());
     assert!(!out.status.success());
     assert!(
@@ -217,12 +220,7 @@ fn a_bad_base_fails_before_any_work() {
 fn resume_needs_an_intact_checkpoint_and_the_last_loss_is_the_last_steps() {
     let dir = tempfile::tempdir().unwrap();
     setup(dir.path());
-    let cfg = fs::read_to_string(dir.path().join("train.toml")).unwrap();
-    fs::write(
-        dir.path().join("train.toml"),
-        cfg.replace("steps = 30", "steps = 5"),
-    )
-    .unwrap();
+    replace_in(&dir.path().join("train.toml"), "steps = 30", "steps = 5");
     let base = root().join("models/default.stcvae");
     let base_s = base.to_str().unwrap();
     let resume = |d: &Path| {
@@ -268,11 +266,7 @@ fn resume_needs_an_intact_checkpoint_and_the_last_loss_is_the_last_steps() {
         stderr(&out)
     );
 
-    fs::write(
-        dir.path().join("train.toml"),
-        cfg.replace("steps = 30", "steps = 0"),
-    )
-    .unwrap();
+    replace_in(&dir.path().join("train.toml"), "steps = 5", "steps = 0");
     let out = train_eventgen(dir.path(), base_s);
     assert!(!out.status.success());
     assert!(stderr(&out).contains("steps"), "{}", stderr(&out));

@@ -327,9 +327,13 @@ struct Dispatcher<'a> {
     snapshot: Option<&'a Snapshot>,
     /// The staged render's turns per submission after a chunk's first.
     rounds: u32,
-    /// Whether the staged render sends submissions ahead where it keeps no snapshot
-    /// ([`KernelShape::ahead`]).
+    /// Whether each submission goes out before the host waits for the counters of the one
+    /// before (one in flight ahead), so that the GPU need not idle while the host encodes
+    /// the next turns and reads the pending count: a staged render ([`KernelShape::ahead`])
+    /// without a snapshot to undo from.
     ahead: bool,
+    /// A stop request, looked at after each submission.
+    cancel: &'a AtomicBool,
 }
 
 impl Dispatcher<'_> {
@@ -339,7 +343,6 @@ impl Dispatcher<'_> {
     /// the snapshot and redone with half the `budget`, which stays halved for the rest of
     /// the render. Returns false, with nothing left in flight, when `cancel` was set
     /// before the chunk finished: the band's paths are then left where they were.
-    #[allow(clippy::too_many_arguments)]
     fn run_band(
         &self,
         band: &Band,
@@ -348,7 +351,6 @@ impl Dispatcher<'_> {
         budget: &mut u32,
         stats: &mut PathStats,
         dispatch: &mut DispatchStats,
-        cancel: &AtomicBool,
     ) -> Result<bool, RenderError> {
         let Self {
             ctx,
@@ -357,6 +359,7 @@ impl Dispatcher<'_> {
             snapshot,
             rounds,
             ahead,
+            cancel,
         } = *self;
         params.image[1] = band.rows;
         params.cam_right[3] = band.row0 as f32;
@@ -364,12 +367,7 @@ impl Dispatcher<'_> {
         let accum = &res.accums[band.index];
         // Dispatch kind: 2: first dispatch of the render, 1: of a chunk, 0: resume.
         params.misc[3] = if first { 2 } else { 1 };
-        // A staged render without a snapshot to undo from sends each submission before it
-        // waits for the counters of the one before (one in flight ahead), so that the GPU
-        // need not idle while the host encodes the next turns and reads the pending count.
-        let ahead = ahead && matches!(kernels, Kernels::Staged(_)) && snapshot.is_none();
         let mut in_flight: Option<Readback> = None;
-        dispatch.ahead |= ahead;
         loop {
             ctx.queue
                 .write_buffer(&res.params, 0, bytemuck::bytes_of(params));
@@ -400,8 +398,7 @@ impl Dispatcher<'_> {
                     dispatch.dispatches += 1;
                 }
             }
-            let waiting = Instant::now();
-            dispatch.host_encode_us += waiting.duration_since(encoding).as_micros() as u64;
+            dispatch.host_encode_us += encoding.elapsed().as_micros() as u64;
             let mut read = start_read_back(ctx, &res.counters, COUNTER_BYTES);
             if ahead {
                 // The counters of the submission before this one, if any: this one is
@@ -414,8 +411,7 @@ impl Dispatcher<'_> {
                     }
                 }
             }
-            let c = read.finish(ctx)?;
-            dispatch.host_wait_us += waiting.elapsed().as_micros() as u64;
+            let c = wait_for(ctx, read, dispatch)?;
             let pair = |k: usize| counter(&c, k);
             if pair(7) > 0
                 && let Some(snap) = snap
@@ -437,9 +433,7 @@ impl Dispatcher<'_> {
                 // The submission sent ahead ran its turns over empty queues; its counters
                 // are read all the same, so that nothing it did goes uncounted.
                 if let Some(last) = in_flight.take() {
-                    let waiting = Instant::now();
-                    let c = last.finish(ctx)?;
-                    dispatch.host_wait_us += waiting.elapsed().as_micros() as u64;
+                    let c = wait_for(ctx, last, dispatch)?;
                     tally(ctx, &c, *budget, stats, dispatch)?;
                 }
                 return Ok(true);
@@ -447,12 +441,24 @@ impl Dispatcher<'_> {
             if cancel.load(Ordering::Relaxed) {
                 // The chunk is dropped; what was sent ahead only runs on into ACC.
                 if let Some(last) = in_flight.take() {
-                    last.finish(ctx)?;
+                    wait_for(ctx, last, dispatch)?;
                 }
                 return Ok(false);
             }
         }
     }
+}
+
+/// The bytes of `read`, the host's wait for them counted in `dispatch.host_wait_us`.
+fn wait_for(
+    ctx: &GpuContext,
+    read: Readback,
+    dispatch: &mut DispatchStats,
+) -> Result<Vec<u8>, RenderError> {
+    let waiting = Instant::now();
+    let bytes = read.finish(ctx)?;
+    dispatch.host_wait_us += waiting.elapsed().as_micros() as u64;
+    Ok(bytes)
 }
 
 /// Counter slot `k` (a lo/hi pair of u32 words) of the counters `c` read back.
@@ -704,7 +710,8 @@ pub fn render_gpu(
         kernels: &kernels,
         snapshot: snapshot.as_ref(),
         rounds: staged_rounds()?,
-        ahead: shape.ahead,
+        ahead: shape.ahead && shape.staged && snapshot.is_none(),
+        cancel,
     };
     let start = Instant::now();
     let mut stats = PathStats::default();
@@ -716,6 +723,7 @@ pub fn render_gpu(
         aggregate: shape.aggregate,
         staged_steps: matches!(&kernels, Kernels::Staged(k) if k.step.is_some()),
         lanes: shape.profile.then(LaneProfile::new),
+        ahead: gpu.ahead,
         ..Default::default()
     };
     let mut s0 = 0u32;
@@ -746,7 +754,6 @@ pub fn render_gpu(
                 &mut budget,
                 &mut stats,
                 &mut dispatch,
-                cancel,
             )?;
             if !finished {
                 dropped = Some(band.index + 1);
