@@ -2,6 +2,7 @@
 
 mod bench;
 mod bench_devices;
+mod bench_error;
 mod bench_render;
 mod device;
 mod experiment;

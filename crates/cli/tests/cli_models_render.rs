@@ -921,3 +921,107 @@ fn shipped_defaults_are_found_from_another_directory() {
     let err = fails(&run(&["render", "--scene", "configs/scenes/sphere.toml"]));
     assert!(err.contains("configs/scenes/sphere.toml"), "{err}");
 }
+
+/// `bench error` on renders of the sphere: a 2-spp image has a larger error than a 32-spp
+/// one against a reference of three 32-spp renders (the MSE falls as 1/spp, so the RMSEs
+/// should differ by ~4×; asserting 2× leaves room for the noise of an MSE estimated from
+/// 16²·3 = 768 heavy-tailed terms, ~15 % relative), the `vs first` column is the ratio of
+/// the MSE·s column, and bad arguments are one-line errors naming the file or value.
+#[test]
+fn bench_error_ranks_renders_by_error_and_names_bad_inputs() {
+    let d = tempfile::tempdir().unwrap();
+    let scene = d.path().join("s.toml");
+    std::fs::write(&scene, sphere_scene_text(16)).unwrap();
+    let render = |name: &str, spp: &str, seed: &str, scene: &Path| {
+        let out = d.path().join(name);
+        ok(&stcvae(&[
+            "render",
+            "--device",
+            "cpu",
+            "--scene",
+            scene.to_str().unwrap(),
+            "--integrator",
+            "pt",
+            "--spp",
+            spp,
+            "--seed",
+            seed,
+            "--out",
+            out.to_str().unwrap(),
+        ]));
+        out.with_extension("exr").to_str().unwrap().to_string()
+    };
+    let refs: Vec<String> = ["1", "2", "3"]
+        .iter()
+        .map(|s| render(&format!("ref{s}"), "32", s, &scene))
+        .collect();
+    let low = render("low", "2", "10", &scene);
+    let high = render("high", "32", "11", &scene);
+    let reference = refs.join(",");
+    let out = stcvae(&[
+        "bench",
+        "error",
+        "--reference",
+        &reference,
+        &format!("{high}:2"),
+        &format!("{low}:0.5"),
+    ]);
+    ok(&out);
+    let text = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(text.contains("mean of 3 render(s), 16x16"), "{text}");
+    let row = |path: &str| -> Vec<f64> {
+        let line = text
+            .lines()
+            .find(|l| l.starts_with(path))
+            .unwrap_or_else(|| panic!("no row for {path}: {text}"));
+        line[path.len()..]
+            .split([' ', ','])
+            .filter_map(|w| w.parse().ok())
+            .collect()
+    };
+    // seconds, RMSE, MSE·s, vs first, then the three object ratios.
+    let (h, l) = (row(&high), row(&low));
+    assert_eq!(h.len(), 7, "{text}");
+    assert_eq!(l.len(), 7, "{text}");
+    assert!(
+        l[1] > 2.0 * h[1],
+        "RMSE at 2 spp {} vs 32 spp {}",
+        l[1],
+        h[1]
+    );
+    assert_eq!(h[3], 1.0);
+    assert!((l[3] - l[2] / h[2]).abs() <= 0.01 * l[3] + 0.01, "{text}");
+
+    let small_scene = d.path().join("small.toml");
+    std::fs::write(&small_scene, sphere_scene_text(8)).unwrap();
+    let small = render("small", "1", "1", &small_scene);
+    let e = fails(&stcvae(&[
+        "bench",
+        "error",
+        "--reference",
+        &reference,
+        &small,
+    ]));
+    assert!(
+        e.contains(&small) && e.contains("8x8") && e.contains("16x16"),
+        "{e}"
+    );
+    assert_eq!(e.trim().lines().count(), 1, "{e}");
+    let missing = d.path().join("none.exr");
+    let e = fails(&stcvae(&[
+        "bench",
+        "error",
+        "--reference",
+        &reference,
+        missing.to_str().unwrap(),
+    ]));
+    assert!(e.contains("none.exr"), "{e}");
+    let e = fails(&stcvae(&[
+        "bench",
+        "error",
+        "--reference",
+        &reference,
+        &format!("{low},{high}"),
+    ]));
+    assert!(e.contains("three (R,G,B"), "{e}");
+}

@@ -1,0 +1,348 @@
+//! `stcvae bench error`: any renderer's images (stcvae's, Mitsuba's, pbrt's, Cycles') against
+//! a reference, so that renderers can be compared at equal error rather than at equal
+//! samples. The reference is the mean of independent renders, and its own noise, estimated
+//! from their spread, is subtracted from every image's MSE: with a reference of a few
+//! thousand spp that noise is of the order of the error being measured.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Result, anyhow, bail};
+use render_gpu::image_io::{RgbImage, read_exr};
+
+#[derive(clap::Args)]
+#[command(
+    after_help = "Example (docs/compare/README.md: stcvae against Mitsuba 3):\n  \
+    stcvae bench error --reference ref_1.exr,ref_2.exr,ref_3.exr,ref_4.exr \\\n    \
+    pt_256.exr:27.1 stcvae_256.exr:5.5 mitsuba_r.exr,mitsuba_g.exr,mitsuba_b.exr:88.1\n\n\
+    RMSE is noise-corrected: sqrt(mean((image − reference)²) − mean(Var(reference))), 0 where \
+    the difference is below the reference's own noise. MSE·s is the MSE times the render's \
+    seconds, inversely proportional to a renderer's efficiency; `vs first` divides it by the \
+    first image's, i.e. how much longer that renderer takes to reach the same error."
+)]
+pub struct Args {
+    /// Independent renders of the scene (different seeds), EXR: their mean is the reference,
+    /// and their spread its noise (give two or more, comma-separated or the option
+    /// repeated; with one, no correction is made).
+    #[arg(long, value_delimiter = ',', required = true)]
+    reference: Vec<PathBuf>,
+    /// Images to measure: FILE.exr, or R.exr,G.exr,B.exr (a renderer run once per colour
+    /// channel: channel c is taken from the c-th file), each optionally followed by
+    /// :SECONDS, its render time, for the MSE·s and equal-error columns.
+    #[arg(required = true)]
+    images: Vec<String>,
+    /// Pixels whose reference R + G + B exceeds this are the object's: the image's mean
+    /// over them, over the reference's, is printed per channel (a brightness offset shows
+    /// there first).
+    #[arg(long, default_value_t = 0.2)]
+    object_threshold: f64,
+}
+
+/// The mean of the reference renders and the variance of that mean, per pixel and channel.
+pub struct Reference {
+    pub width: usize,
+    pub height: usize,
+    pub mean: Vec<[f64; 3]>,
+    /// Var of `mean` (the renders' sample variance over their count); zeros for one render.
+    pub var_of_mean: Vec<[f64; 3]>,
+}
+
+impl Reference {
+    /// `images` must share one size and hold finite pixels (checked by [`load`]).
+    pub fn new(images: &[RgbImage]) -> Self {
+        let n = images.len() as f64;
+        let (width, height) = (images[0].width, images[0].height);
+        let pixels = width * height;
+        let mut mean = vec![[0.0; 3]; pixels];
+        let mut var_of_mean = vec![[0.0; 3]; pixels];
+        for i in 0..pixels {
+            for c in 0..3 {
+                let m = images.iter().map(|im| im.pixels[i][c] as f64).sum::<f64>() / n;
+                mean[i][c] = m;
+                if images.len() > 1 {
+                    let ss: f64 = images
+                        .iter()
+                        .map(|im| (im.pixels[i][c] as f64 - m).powi(2))
+                        .sum();
+                    var_of_mean[i][c] = ss / (n - 1.0) / n;
+                }
+            }
+        }
+        Self {
+            width,
+            height,
+            mean,
+            var_of_mean,
+        }
+    }
+}
+
+/// One image against the reference.
+#[derive(Debug)]
+pub struct Measure {
+    /// mean((image − reference)²) − mean(Var(reference)): an unbiased estimate of the
+    /// image's own MSE (noise + bias²) when the two are independent; may come out < 0.
+    pub mse: f64,
+    /// The image's mean over the object's pixels over the reference's, per channel.
+    pub object_ratio: [f64; 3],
+}
+
+pub fn measure(r: &Reference, image: &RgbImage, object_threshold: f64) -> Measure {
+    let mut sum = 0.0;
+    let mut noise = 0.0;
+    let mut obj = [[0.0f64; 2]; 3];
+    for (i, p) in image.pixels.iter().enumerate() {
+        let m = r.mean[i];
+        let is_object = m.iter().sum::<f64>() > object_threshold;
+        for c in 0..3 {
+            sum += (p[c] as f64 - m[c]).powi(2);
+            noise += r.var_of_mean[i][c];
+            if is_object {
+                obj[c][0] += p[c] as f64;
+                obj[c][1] += m[c];
+            }
+        }
+    }
+    let n = (3 * image.pixels.len()) as f64;
+    Measure {
+        mse: (sum - noise) / n,
+        object_ratio: obj.map(|[a, b]| if b > 0.0 { a / b } else { f64::NAN }),
+    }
+}
+
+/// Reads an EXR and refuses non-finite pixels (an image with a NaN would make every figure
+/// NaN without saying where it came from).
+fn load(path: &Path) -> Result<RgbImage> {
+    let (img, _) = read_exr(path)?;
+    if let Some(i) = img
+        .pixels
+        .iter()
+        .position(|p| p.iter().any(|v| !v.is_finite()))
+    {
+        bail!(
+            "{}: pixel ({}, {}) is not finite: {:?}",
+            path.display(),
+            i % img.width,
+            i / img.width,
+            img.pixels[i]
+        );
+    }
+    Ok(img)
+}
+
+fn same_size(path: &str, img: &RgbImage, w: usize, h: usize) -> Result<()> {
+    if (img.width, img.height) != (w, h) {
+        bail!(
+            "{path}: {}x{} pixels, the reference has {w}x{h}",
+            img.width,
+            img.height
+        );
+    }
+    Ok(())
+}
+
+/// An image argument: its files (one, or one per channel) and its seconds.
+fn parse_spec(spec: &str) -> Result<(Vec<&str>, Option<f64>)> {
+    let (files, seconds) = match spec.rsplit_once(':') {
+        Some((f, s)) => {
+            let t: f64 = s.parse().map_err(|_| {
+                anyhow!("image `{spec}`: `{s}` after the last ':' is not a number of seconds")
+            })?;
+            if !(t.is_finite() && t > 0.0) {
+                bail!("image `{spec}`: the seconds must be > 0, got {s}");
+            }
+            (f, Some(t))
+        }
+        None => (spec, None),
+    };
+    let files: Vec<&str> = files.split(',').collect();
+    if files.len() != 1 && files.len() != 3 {
+        bail!(
+            "image `{spec}`: give one EXR or three (R,G,B: one render per channel), not {}",
+            files.len()
+        );
+    }
+    Ok((files, seconds))
+}
+
+/// The image an argument names, checked against the reference's size.
+fn load_spec(files: &[&str], w: usize, h: usize) -> Result<RgbImage> {
+    let mut images = Vec::with_capacity(files.len());
+    for f in files {
+        let img = load(Path::new(f))?;
+        same_size(f, &img, w, h)?;
+        images.push(img);
+    }
+    if images.len() == 1 {
+        return Ok(images.pop().expect("one image"));
+    }
+    let mut out = RgbImage::new(w, h);
+    for (i, p) in out.pixels.iter_mut().enumerate() {
+        for (c, v) in p.iter_mut().enumerate() {
+            *v = images[c].pixels[i][c];
+        }
+    }
+    Ok(out)
+}
+
+pub fn run(a: Args) -> Result<()> {
+    if !(a.object_threshold.is_finite() && a.object_threshold >= 0.0) {
+        bail!(
+            "--object-threshold {}: must be a finite number ≥ 0",
+            a.object_threshold
+        );
+    }
+    let specs: Vec<(Vec<&str>, Option<f64>)> = a
+        .images
+        .iter()
+        .map(|s| parse_spec(s))
+        .collect::<Result<_>>()?;
+    let mut refs = Vec::with_capacity(a.reference.len());
+    for p in &a.reference {
+        let img = load(p)?;
+        if let Some(first) = refs.first() {
+            let first: &RgbImage = first;
+            same_size(&p.display().to_string(), &img, first.width, first.height)?;
+        }
+        refs.push(img);
+    }
+    let r = Reference::new(&refs);
+    let ref_noise =
+        (r.var_of_mean.iter().flatten().sum::<f64>() / (3 * r.mean.len()) as f64).sqrt();
+    let objects = r
+        .mean
+        .iter()
+        .filter(|m| m.iter().sum::<f64>() > a.object_threshold)
+        .count();
+    println!(
+        "stcvae bench error: reference = mean of {} render(s), {}x{}, {}; {objects} object pixels (R+G+B > {})",
+        refs.len(),
+        r.width,
+        r.height,
+        if refs.len() > 1 {
+            format!("its own noise RMSE {ref_noise:.4} (subtracted)")
+        } else {
+            "no noise estimate with one render (nothing subtracted)".into()
+        },
+        a.object_threshold
+    );
+    println!(
+        "{:<40} {:>9} {:>9} {:>10} {:>9}  object mean / reference (R, G, B)",
+        "image", "seconds", "RMSE", "MSE·s", "vs first"
+    );
+    let mut first: Option<f64> = None;
+    for (files, seconds) in &specs {
+        let img = load_spec(files, r.width, r.height)?;
+        let m = measure(&r, &img, a.object_threshold);
+        let cost = seconds.map(|s| m.mse * s);
+        let vs = match (cost, first) {
+            (Some(c), Some(f)) => format!("{:.2}", c / f),
+            (Some(_), None) => "1".into(),
+            _ => String::new(),
+        };
+        if first.is_none() {
+            first = cost;
+        }
+        // A per-channel triple is named by its first file (the others differ by channel).
+        let name = match files.as_slice() {
+            [one] => one.to_string(),
+            [r, ..] => format!("{r} (+G, B)"),
+            [] => unreachable!("parse_spec gives one or three files"),
+        };
+        let [or, og, ob] = m.object_ratio;
+        println!(
+            "{name:<40} {:>9} {:>9.4} {:>10} {:>9}  {or:.3}, {og:.3}, {ob:.3}",
+            seconds.map_or(String::new(), |s| format!("{s:.2}")),
+            m.mse.max(0.0).sqrt(),
+            cost.map_or(String::new(), |c| format!("{c:.4}")),
+            vs,
+        );
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use scatter_sim::rng::WalkRng;
+
+    fn image(w: usize, h: usize, mut f: impl FnMut(usize, usize) -> f32) -> RgbImage {
+        let mut img = RgbImage::new(w, h);
+        for (i, p) in img.pixels.iter_mut().enumerate() {
+            for (c, v) in p.iter_mut().enumerate() {
+                *v = f(i, c);
+            }
+        }
+        img
+    }
+
+    /// The noise-corrected MSE of a test image with known bias b and noise σ_t against a
+    /// reference of four renders with noise σ_r = 2σ_t (more noise in the reference than
+    /// in the image, as with a short reference) estimates b² + σ_t², not b² + σ_t² + σ_r²/4.
+    /// Threshold: the estimate is a mean over 3·96² terms, whose standard error is computed
+    /// from the same terms; 4 standard errors leave a 6e-5 false-failure chance, and the
+    /// uncorrected MSE lies ~50 standard errors away, so the test can fail.
+    #[test]
+    fn the_reference_noise_is_subtracted() {
+        let (w, h) = (96, 96);
+        let truth = |i: usize, c: usize| 0.2 + 0.5 * ((i * 7 + c * 13) % 29) as f32 / 29.0;
+        let mut rng = WalkRng::from_seed(5);
+        let (sr, st, b) = (0.2f32, 0.1f32, 0.05f32);
+        let refs: Vec<RgbImage> = (0..4)
+            .map(|_| image(w, h, |i, c| truth(i, c) + sr * rng.standard_normal()))
+            .collect();
+        let test = image(w, h, |i, c| truth(i, c) + b + st * rng.standard_normal());
+        let r = Reference::new(&refs);
+        let m = measure(&r, &test, 0.0);
+        // Per-term values of the estimator, for its standard error.
+        let terms: Vec<f64> = test
+            .pixels
+            .iter()
+            .enumerate()
+            .flat_map(|(i, p)| {
+                let r = &r;
+                (0..3).map(move |c| (p[c] as f64 - r.mean[i][c]).powi(2) - r.var_of_mean[i][c])
+            })
+            .collect();
+        let n = terms.len() as f64;
+        let mean = terms.iter().sum::<f64>() / n;
+        let se = (terms.iter().map(|t| (t - mean).powi(2)).sum::<f64>() / (n - 1.0) / n).sqrt();
+        assert!((mean - m.mse).abs() < 1e-12);
+        let expected = (b * b + st * st) as f64;
+        let uncorrected = expected + (sr * sr) as f64 / 4.0;
+        assert!(
+            (m.mse - expected).abs() < 4.0 * se,
+            "MSE {} against {expected} (SE {se})",
+            m.mse
+        );
+        assert!(
+            (uncorrected - expected) > 10.0 * se,
+            "the test must tell the corrected MSE from the uncorrected one (SE {se})"
+        );
+        // The object's brightness ratio sees the bias: (mean truth + b) / mean truth.
+        let truth_mean = (0..w * h).map(|i| truth(i, 0) as f64).sum::<f64>() / (w * h) as f64;
+        let want = (truth_mean + b as f64) / truth_mean;
+        // The ratio's noise: the image's mean has σ_t/96 = 0.0010 and the reference's
+        // (σ_r/2)/96 = 0.0010, over a mean of ~0.45: a standard error of ~0.0033, so 0.015
+        // is ~4.5 of them, and the bias moves the ratio by ~0.11.
+        assert!(
+            (m.object_ratio[0] - want).abs() < 0.015,
+            "{:?} against {want}",
+            m.object_ratio
+        );
+    }
+
+    #[test]
+    fn image_arguments_parse_or_say_why_not() {
+        assert_eq!(parse_spec("a.exr").unwrap(), (vec!["a.exr"], None));
+        assert_eq!(
+            parse_spec("r.exr,g.exr,b.exr:12.5").unwrap(),
+            (vec!["r.exr", "g.exr", "b.exr"], Some(12.5))
+        );
+        let e = parse_spec("a.exr,b.exr").unwrap_err().to_string();
+        assert!(e.contains("three (R,G,B"), "{e}");
+        let e = parse_spec("a.exr:fast").unwrap_err().to_string();
+        assert!(e.contains("not a number of seconds"), "{e}");
+        let e = parse_spec("a.exr:0").unwrap_err().to_string();
+        assert!(e.contains("must be > 0"), "{e}");
+    }
+}
