@@ -6,7 +6,7 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Result, anyhow, bail};
+use anyhow::{Result, bail};
 use render_gpu::image_io::{RgbImage, read_exr};
 
 #[derive(clap::Args)]
@@ -14,17 +14,21 @@ use render_gpu::image_io::{RgbImage, read_exr};
     after_help = "Example (docs/compare/README.md: stcvae against Mitsuba 3):\n  \
     stcvae bench error --reference ref_1.exr,ref_2.exr,ref_3.exr,ref_4.exr \\\n    \
     pt_256.exr:27.1 stcvae_256.exr:5.5 mitsuba_r.exr,mitsuba_g.exr,mitsuba_b.exr:88.1\n\n\
-    RMSE is noise-corrected: sqrt(mean((image − reference)²) − mean(Var(reference))), 0 where \
-    the difference is below the reference's own noise. MSE·s is the MSE times the render's \
-    seconds, inversely proportional to a renderer's efficiency; `vs first` divides it by the \
-    first image's, i.e. how much longer that renderer takes to reach the same error."
+    RMSE is noise-corrected: sqrt(mean((image − reference)²) − mean(Var(reference mean))), \
+    Var(reference mean) being the renders' sample variance over their count; 0 where the \
+    difference is below the reference's own noise. The images must be independent of the \
+    references (other seeds); a file given twice is refused. MSE·s is the MSE times the \
+    render's seconds; `vs first` divides it by the first timed image's: how much longer that \
+    renderer takes to reach the same error, as long as its MSE falls as 1/time (a biased \
+    renderer's does not at errors near its bias, so compare at the errors measured).\n\n\
+    A name that is an existing file is taken whole, even with ',' or ':' in it."
 )]
 pub struct Args {
     /// Independent renders of the scene (different seeds), EXR: their mean is the reference,
     /// and their spread its noise (give two or more, comma-separated or the option
     /// repeated; with one, no correction is made).
-    #[arg(long, value_delimiter = ',', required = true)]
-    reference: Vec<PathBuf>,
+    #[arg(long, required = true)]
+    reference: Vec<String>,
     /// Images to measure: FILE.exr, or R.exr,G.exr,B.exr (a renderer run once per colour
     /// channel: channel c is taken from the c-th file), each optionally followed by
     /// :SECONDS, its render time, for the MSE·s and equal-error columns.
@@ -140,21 +144,33 @@ fn same_size(path: &str, img: &RgbImage, w: usize, h: usize) -> Result<()> {
     Ok(())
 }
 
-/// An image argument: its files (one, or one per channel) and its seconds.
-fn parse_spec(spec: &str) -> Result<(Vec<&str>, Option<f64>)> {
+/// The files a comma-separated list names: the whole text where it is an existing file
+/// (a name with a comma in it), else its parts, none of them empty.
+fn file_list(what: &str, text: &str) -> Result<Vec<String>> {
+    if Path::new(text).is_file() {
+        return Ok(vec![text.to_string()]);
+    }
+    let parts: Vec<String> = text.split(',').map(str::to_string).collect();
+    if parts.iter().any(|p| p.is_empty()) {
+        bail!("{what} `{text}`: empty file name");
+    }
+    Ok(parts)
+}
+
+/// An image argument: its files (one, or one per channel) and its seconds. The text after
+/// the last ':' is the seconds where it is a number; a name with a ':' in it (a Windows
+/// drive) is taken whole.
+fn parse_spec(spec: &str) -> Result<(Vec<String>, Option<f64>)> {
     let (files, seconds) = match spec.rsplit_once(':') {
-        Some((f, s)) => {
-            let t: f64 = s.parse().map_err(|_| {
-                anyhow!("image `{spec}`: `{s}` after the last ':' is not a number of seconds")
-            })?;
-            if !(t.is_finite() && t > 0.0) {
-                bail!("image `{spec}`: the seconds must be > 0, got {s}");
-            }
-            (f, Some(t))
-        }
-        None => (spec, None),
+        Some((f, s)) if !Path::new(spec).is_file() => match s.parse::<f64>() {
+            Ok(t) if t.is_finite() && t > 0.0 => (f, Some(t)),
+            Ok(_) => bail!("image `{spec}`: the seconds must be > 0, got {s}"),
+            Err(_) if s.is_empty() => bail!("image `{spec}`: no seconds after the ':'"),
+            Err(_) => (spec, None),
+        },
+        _ => (spec, None),
     };
-    let files: Vec<&str> = files.split(',').collect();
+    let files = file_list("image", files)?;
     if files.len() != 1 && files.len() != 3 {
         bail!(
             "image `{spec}`: give one EXR or three (R,G,B: one render per channel), not {}",
@@ -164,8 +180,32 @@ fn parse_spec(spec: &str) -> Result<(Vec<&str>, Option<f64>)> {
     Ok((files, seconds))
 }
 
+/// Refuses a file named twice among the references and images: a repeated reference would
+/// hide its noise, and an image that is also a reference is not independent of it.
+fn check_distinct(names: &[&str]) -> Result<()> {
+    let ids: Vec<PathBuf> = names
+        .iter()
+        .map(|n| {
+            Path::new(n)
+                .canonicalize()
+                .unwrap_or_else(|_| PathBuf::from(n))
+        })
+        .collect();
+    for (i, id) in ids.iter().enumerate() {
+        if let Some(j) = ids[..i].iter().position(|x| x == id) {
+            bail!(
+                "{} and {} are the same file: the references and images must be independent \
+                 renders (other seeds)",
+                names[j],
+                names[i]
+            );
+        }
+    }
+    Ok(())
+}
+
 /// The image an argument names, checked against the reference's size.
-fn load_spec(files: &[&str], w: usize, h: usize) -> Result<RgbImage> {
+fn load_spec(files: &[String], w: usize, h: usize) -> Result<RgbImage> {
     let mut images = Vec::with_capacity(files.len());
     for f in files {
         let img = load(Path::new(f))?;
@@ -191,21 +231,35 @@ pub fn run(a: Args) -> Result<()> {
             a.object_threshold
         );
     }
-    let specs: Vec<(Vec<&str>, Option<f64>)> = a
+    let specs: Vec<(Vec<String>, Option<f64>)> = a
         .images
         .iter()
         .map(|s| parse_spec(s))
         .collect::<Result<_>>()?;
-    let mut refs = Vec::with_capacity(a.reference.len());
-    for p in &a.reference {
-        let img = load(p)?;
+    let mut references = Vec::new();
+    for r in &a.reference {
+        references.extend(file_list("--reference", r)?);
+    }
+    let names: Vec<&str> = references
+        .iter()
+        .chain(specs.iter().flat_map(|(f, _)| f.iter()))
+        .map(String::as_str)
+        .collect();
+    check_distinct(&names)?;
+    let mut refs: Vec<RgbImage> = Vec::with_capacity(references.len());
+    for p in &references {
+        let img = load(Path::new(p))?;
         if let Some(first) = refs.first() {
-            let first: &RgbImage = first;
-            same_size(&p.display().to_string(), &img, first.width, first.height)?;
+            same_size(p, &img, first.width, first.height)?;
         }
         refs.push(img);
     }
     let r = Reference::new(&refs);
+    // Every image is read before anything is printed, so a bad one leaves no half table.
+    let images: Vec<RgbImage> = specs
+        .iter()
+        .map(|(files, _)| load_spec(files, r.width, r.height))
+        .collect::<Result<_>>()?;
     let ref_noise =
         (r.var_of_mean.iter().flatten().sum::<f64>() / (3 * r.mean.len()) as f64).sqrt();
     let objects = r
@@ -229,30 +283,39 @@ pub fn run(a: Args) -> Result<()> {
         "{:<40} {:>9} {:>9} {:>10} {:>9}  object mean / reference (R, G, B)",
         "image", "seconds", "RMSE", "MSE·s", "vs first"
     );
+    // The first timed image's MSE·s; equal-error ratios need it > 0.
     let mut first: Option<f64> = None;
-    for (files, seconds) in &specs {
-        let img = load_spec(files, r.width, r.height)?;
-        let m = measure(&r, &img, a.object_threshold);
-        let cost = seconds.map(|s| m.mse * s);
+    for ((files, seconds), img) in specs.iter().zip(&images) {
+        let m = measure(&r, img, a.object_threshold);
+        // Below the reference's noise the MSE estimate may be ≤ 0: shown as 0, and no
+        // ratio is formed with it.
+        let mse = m.mse.max(0.0);
+        let cost = seconds.map(|s| mse * s);
         let vs = match (cost, first) {
-            (Some(c), Some(f)) => format!("{:.2}", c / f),
-            (Some(_), None) => "1".into(),
-            _ => String::new(),
+            (Some(c), Some(f)) if f > 0.0 => format!("{:.2}", c / f),
+            (Some(_), None) if mse > 0.0 => "1".into(),
+            (Some(_), _) => "n/a".into(),
+            (None, _) => String::new(),
         };
         if first.is_none() {
             first = cost;
         }
         // A per-channel triple is named by its first file (the others differ by channel).
         let name = match files.as_slice() {
-            [one] => one.to_string(),
+            [one] => one.clone(),
             [r, ..] => format!("{r} (+G, B)"),
             [] => unreachable!("parse_spec gives one or three files"),
         };
-        let [or, og, ob] = m.object_ratio;
+        let ratios = if objects == 0 {
+            "(no object pixels)".to_string()
+        } else {
+            let [or, og, ob] = m.object_ratio;
+            format!("{or:.3}, {og:.3}, {ob:.3}")
+        };
         println!(
-            "{name:<40} {:>9} {:>9.4} {:>10} {:>9}  {or:.3}, {og:.3}, {ob:.3}",
+            "{name:<40} {:>9} {:>9.4} {:>10} {:>9}  {ratios}",
             seconds.map_or(String::new(), |s| format!("{s:.2}")),
-            m.mse.max(0.0).sqrt(),
+            mse.sqrt(),
             cost.map_or(String::new(), |c| format!("{c:.4}")),
             vs,
         );
@@ -333,16 +396,36 @@ mod tests {
 
     #[test]
     fn image_arguments_parse_or_say_why_not() {
-        assert_eq!(parse_spec("a.exr").unwrap(), (vec!["a.exr"], None));
+        let v = |names: &[&str]| names.iter().map(|n| n.to_string()).collect::<Vec<_>>();
+        assert_eq!(parse_spec("a.exr").unwrap(), (v(&["a.exr"]), None));
         assert_eq!(
             parse_spec("r.exr,g.exr,b.exr:12.5").unwrap(),
-            (vec!["r.exr", "g.exr", "b.exr"], Some(12.5))
+            (v(&["r.exr", "g.exr", "b.exr"]), Some(12.5))
         );
+        // A ':' not followed by a number belongs to the name (C:\x.exr).
+        assert_eq!(parse_spec("C:\\x.exr").unwrap(), (v(&["C:\\x.exr"]), None));
         let e = parse_spec("a.exr,b.exr").unwrap_err().to_string();
         assert!(e.contains("three (R,G,B"), "{e}");
-        let e = parse_spec("a.exr:fast").unwrap_err().to_string();
-        assert!(e.contains("not a number of seconds"), "{e}");
+        let e = parse_spec("a.exr:").unwrap_err().to_string();
+        assert!(e.contains("no seconds"), "{e}");
         let e = parse_spec("a.exr:0").unwrap_err().to_string();
         assert!(e.contains("must be > 0"), "{e}");
+        let e = parse_spec("a.exr,,b.exr").unwrap_err().to_string();
+        assert!(e.contains("empty file name"), "{e}");
+        // An existing file's name is taken whole, commas and all.
+        let d = tempfile::tempdir().unwrap();
+        let odd = d.path().join("a,b:3");
+        std::fs::write(&odd, b"").unwrap();
+        let odd = odd.to_str().unwrap();
+        assert_eq!(parse_spec(odd).unwrap(), (v(&[odd]), None));
+        let x = d.path().join("x.exr");
+        std::fs::write(&x, b"").unwrap();
+        let again = d.path().join(".").join("x.exr");
+        let (x, again) = (x.to_str().unwrap(), again.to_str().unwrap());
+        let e = check_distinct(&[x, "y.exr", again])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("same file"), "{e}");
+        check_distinct(&[x, "y.exr"]).unwrap();
     }
 }

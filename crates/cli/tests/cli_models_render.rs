@@ -995,18 +995,28 @@ fn bench_error_ranks_renders_by_error_and_names_bad_inputs() {
     let small_scene = d.path().join("small.toml");
     std::fs::write(&small_scene, sphere_scene_text(8)).unwrap();
     let small = render("small", "1", "1", &small_scene);
-    let e = fails(&stcvae(&[
-        "bench",
-        "error",
-        "--reference",
-        &reference,
-        &small,
-    ]));
+    // A bad image after a good one: refused before any row is printed.
+    let out = stcvae(&["bench", "error", "--reference", &reference, &high, &small]);
+    let e = fails(&out);
     assert!(
         e.contains(&small) && e.contains("8x8") && e.contains("16x16"),
         "{e}"
     );
     assert_eq!(e.trim().lines().count(), 1, "{e}");
+    assert!(out.stdout.is_empty(), "half a table printed");
+    // The same render twice (as two references, or as a reference and an image) is not
+    // independent of itself.
+    let twice = format!("{},{}", refs[0], refs[0]);
+    let e = fails(&stcvae(&["bench", "error", "--reference", &twice, &high]));
+    assert!(e.contains("same file"), "{e}");
+    let e = fails(&stcvae(&[
+        "bench",
+        "error",
+        "--reference",
+        &reference,
+        &refs[1],
+    ]));
+    assert!(e.contains("same file"), "{e}");
     let missing = d.path().join("none.exr");
     let e = fails(&stcvae(&[
         "bench",
