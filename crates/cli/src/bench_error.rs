@@ -83,7 +83,7 @@ impl Reference {
 /// One image against the reference.
 #[derive(Debug)]
 pub struct Measure {
-    /// mean((image − reference)²) − mean(Var(reference)): an unbiased estimate of the
+    /// mean((image − reference)²) − mean(Var(reference mean)): an unbiased estimate of the
     /// image's own MSE (noise + bias²) when the two are independent; may come out < 0.
     pub mse: f64,
     /// The image's mean over the object's pixels over the reference's, per channel.
