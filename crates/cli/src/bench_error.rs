@@ -41,41 +41,50 @@ pub struct Args {
     object_threshold: f64,
 }
 
-/// The mean of the reference renders and the variance of that mean, per pixel and channel.
+/// The mean of the reference renders, the mean variance of that mean (its noise), and which
+/// pixels are the object's.
 pub struct Reference {
     pub width: usize,
     pub height: usize,
     pub mean: Vec<[f64; 3]>,
-    /// Var of `mean` (the renders' sample variance over their count); zeros for one render.
-    pub var_of_mean: Vec<[f64; 3]>,
+    /// The mean over pixels and channels of Var(`mean`) (the renders' sample variance over
+    /// their count; 0 for one render): what the reference's noise adds to every image's
+    /// mean squared difference from it.
+    pub noise_mse: f64,
+    /// Pixels whose mean R + G + B exceeds the object threshold.
+    pub object: Vec<bool>,
 }
 
 impl Reference {
     /// `images` must share one size and hold finite pixels (checked by [`load`]).
-    pub fn new(images: &[RgbImage]) -> Self {
+    pub fn new(images: &[RgbImage], object_threshold: f64) -> Self {
         let n = images.len() as f64;
         let (width, height) = (images[0].width, images[0].height);
         let pixels = width * height;
-        let mut mean = vec![[0.0; 3]; pixels];
-        let mut var_of_mean = vec![[0.0; 3]; pixels];
-        for i in 0..pixels {
-            for c in 0..3 {
-                let m = images.iter().map(|im| im.pixels[i][c] as f64).sum::<f64>() / n;
-                mean[i][c] = m;
-                if images.len() > 1 {
-                    let ss: f64 = images
-                        .iter()
-                        .map(|im| (im.pixels[i][c] as f64 - m).powi(2))
-                        .sum();
-                    var_of_mean[i][c] = ss / (n - 1.0) / n;
-                }
-            }
-        }
+        let mut var_sum = 0.0;
+        let mean: Vec<[f64; 3]> = (0..pixels)
+            .map(|i| {
+                std::array::from_fn(|c| {
+                    let v = || images.iter().map(|im| im.pixels[i][c] as f64);
+                    let m = v().sum::<f64>() / n;
+                    if images.len() > 1 {
+                        var_sum += v().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0) / n;
+                    }
+                    m
+                })
+            })
+            .collect();
+        let noise_mse = var_sum / (3 * pixels) as f64;
+        let object = mean
+            .iter()
+            .map(|m| m.iter().sum::<f64>() > object_threshold)
+            .collect();
         Self {
             width,
             height,
             mean,
-            var_of_mean,
+            noise_mse,
+            object,
         }
     }
 }
@@ -90,25 +99,20 @@ pub struct Measure {
     pub object_ratio: [f64; 3],
 }
 
-pub fn measure(r: &Reference, image: &RgbImage, object_threshold: f64) -> Measure {
+pub fn measure(r: &Reference, image: &RgbImage) -> Measure {
     let mut sum = 0.0;
-    let mut noise = 0.0;
     let mut obj = [[0.0f64; 2]; 3];
-    for (i, p) in image.pixels.iter().enumerate() {
-        let m = r.mean[i];
-        let is_object = m.iter().sum::<f64>() > object_threshold;
+    for ((p, m), &is_object) in image.pixels.iter().zip(&r.mean).zip(&r.object) {
         for c in 0..3 {
             sum += (p[c] as f64 - m[c]).powi(2);
-            noise += r.var_of_mean[i][c];
             if is_object {
                 obj[c][0] += p[c] as f64;
                 obj[c][1] += m[c];
             }
         }
     }
-    let n = (3 * image.pixels.len()) as f64;
     Measure {
-        mse: (sum - noise) / n,
+        mse: sum / (3 * image.pixels.len()) as f64 - r.noise_mse,
         object_ratio: obj.map(|[a, b]| if b > 0.0 { a / b } else { f64::NAN }),
     }
 }
@@ -117,17 +121,11 @@ pub fn measure(r: &Reference, image: &RgbImage, object_threshold: f64) -> Measur
 /// NaN without saying where it came from).
 fn load(path: &Path) -> Result<RgbImage> {
     let (img, _) = read_exr(path)?;
-    if let Some(i) = img
-        .pixels
-        .iter()
-        .position(|p| p.iter().any(|v| !v.is_finite()))
-    {
+    if let Some((x, y)) = img.first_non_finite() {
         bail!(
-            "{}: pixel ({}, {}) is not finite: {:?}",
+            "{}: pixel ({x}, {y}) is not finite: {:?}",
             path.display(),
-            i % img.width,
-            i / img.width,
-            img.pixels[i]
+            img.pixels[y * img.width + x]
         );
     }
     Ok(img)
@@ -185,11 +183,7 @@ fn parse_spec(spec: &str) -> Result<(Vec<String>, Option<f64>)> {
 fn check_distinct(names: &[&str]) -> Result<()> {
     let ids: Vec<PathBuf> = names
         .iter()
-        .map(|n| {
-            Path::new(n)
-                .canonicalize()
-                .unwrap_or_else(|_| PathBuf::from(n))
-        })
+        .map(|n| crate::merge::identity(Path::new(n)))
         .collect();
     for (i, id) in ids.iter().enumerate() {
         if let Some(j) = ids[..i].iter().position(|x| x == id) {
@@ -254,19 +248,14 @@ pub fn run(a: Args) -> Result<()> {
         }
         refs.push(img);
     }
-    let r = Reference::new(&refs);
+    let r = Reference::new(&refs, a.object_threshold);
     // Every image is read before anything is printed, so a bad one leaves no half table.
     let images: Vec<RgbImage> = specs
         .iter()
         .map(|(files, _)| load_spec(files, r.width, r.height))
         .collect::<Result<_>>()?;
-    let ref_noise =
-        (r.var_of_mean.iter().flatten().sum::<f64>() / (3 * r.mean.len()) as f64).sqrt();
-    let objects = r
-        .mean
-        .iter()
-        .filter(|m| m.iter().sum::<f64>() > a.object_threshold)
-        .count();
+    let ref_noise = r.noise_mse.sqrt();
+    let objects = r.object.iter().filter(|&&o| o).count();
     println!(
         "stcvae bench error: reference = mean of {} render(s), {}x{}, {}; {objects} object pixels (R+G+B > {})",
         refs.len(),
@@ -286,7 +275,7 @@ pub fn run(a: Args) -> Result<()> {
     // The first timed image's MSE·s; equal-error ratios need it > 0.
     let mut first: Option<f64> = None;
     for ((files, seconds), img) in specs.iter().zip(&images) {
-        let m = measure(&r, img, a.object_threshold);
+        let m = measure(&r, img);
         // Below the reference's noise the MSE estimate may be ≤ 0: shown as 0, and no
         // ratio is formed with it.
         let mse = m.mse.max(0.0);
@@ -354,22 +343,28 @@ mod tests {
             .map(|_| image(w, h, |i, c| truth(i, c) + sr * rng.standard_normal()))
             .collect();
         let test = image(w, h, |i, c| truth(i, c) + b + st * rng.standard_normal());
-        let r = Reference::new(&refs);
-        let m = measure(&r, &test, 0.0);
-        // Per-term values of the estimator, for its standard error.
+        let r = Reference::new(&refs, 0.0);
+        let m = measure(&r, &test);
+        // Per-term values of the estimator, for its standard error: each squared difference
+        // less the variance of the reference's mean, computed here from the renders.
+        let var_of_mean = |i: usize, c: usize| {
+            let v: Vec<f64> = refs.iter().map(|im| im.pixels[i][c] as f64).collect();
+            let m = v.iter().sum::<f64>() / 4.0;
+            v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / 3.0 / 4.0
+        };
         let terms: Vec<f64> = test
             .pixels
             .iter()
             .enumerate()
             .flat_map(|(i, p)| {
                 let r = &r;
-                (0..3).map(move |c| (p[c] as f64 - r.mean[i][c]).powi(2) - r.var_of_mean[i][c])
+                (0..3).map(move |c| (p[c] as f64 - r.mean[i][c]).powi(2) - var_of_mean(i, c))
             })
             .collect();
         let n = terms.len() as f64;
         let mean = terms.iter().sum::<f64>() / n;
         let se = (terms.iter().map(|t| (t - mean).powi(2)).sum::<f64>() / (n - 1.0) / n).sqrt();
-        assert!((mean - m.mse).abs() < 1e-12);
+        assert!((mean - m.mse).abs() < 1e-12, "{mean} against {}", m.mse);
         let expected = (b * b + st * st) as f64;
         let uncorrected = expected + (sr * sr) as f64 / 4.0;
         assert!(

@@ -34,7 +34,7 @@ pub struct Args {
 
 /// The file a path names, for comparing paths written differently (`./a.exr`, `a.exr`);
 /// an output that does not exist yet is resolved through its parent directory.
-fn identity(p: &Path) -> PathBuf {
+pub(crate) fn identity(p: &Path) -> PathBuf {
     if let Ok(c) = p.canonicalize() {
         return c;
     }

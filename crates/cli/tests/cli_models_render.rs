@@ -27,6 +27,32 @@ fn stcvae(args: &[&str]) -> Output {
     common::stcvae(args, &root())
 }
 
+/// `stcvae render` of `scene` with `integrator`, `spp` and `seed` into `out`, plus `extra`.
+fn render_scene(
+    scene: &Path,
+    integrator: &str,
+    spp: &str,
+    seed: &str,
+    out: &Path,
+    extra: &[&str],
+) -> Output {
+    let mut args = vec![
+        "render",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--integrator",
+        integrator,
+        "--spp",
+        spp,
+        "--seed",
+        seed,
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    stcvae(&args)
+}
+
 fn ok(out: &Output) -> String {
     let err = String::from_utf8_lossy(&out.stderr).into_owned();
     assert!(out.status.success(), "stcvae failed: {err}");
@@ -151,19 +177,7 @@ fn render_writes_exr_png_json_and_merge_averages_by_spp() {
     let a = d.path().join("a");
     let b = d.path().join("b");
     for (out, seed, spp) in [(&a, "1", "4"), (&b, "2", "8")] {
-        ok(&stcvae(&[
-            "render",
-            "--scene",
-            scene.to_str().unwrap(),
-            "--integrator",
-            "stcvae",
-            "--spp",
-            spp,
-            "--seed",
-            seed,
-            "--out",
-            out.to_str().unwrap(),
-        ]));
+        ok(&render_scene(&scene, "stcvae", spp, seed, out, &[]));
     }
     for ext in ["exr", "png", "json"] {
         assert!(a.with_extension(ext).exists(), "missing .{ext}");
@@ -934,21 +948,14 @@ fn bench_error_ranks_renders_by_error_and_names_bad_inputs() {
     std::fs::write(&scene, sphere_scene_text(16)).unwrap();
     let render = |name: &str, spp: &str, seed: &str, scene: &Path| {
         let out = d.path().join(name);
-        ok(&stcvae(&[
-            "render",
-            "--device",
-            "cpu",
-            "--scene",
-            scene.to_str().unwrap(),
-            "--integrator",
+        ok(&render_scene(
+            scene,
             "pt",
-            "--spp",
             spp,
-            "--seed",
             seed,
-            "--out",
-            out.to_str().unwrap(),
-        ]));
+            &out,
+            &["--device", "cpu"],
+        ));
         out.with_extension("exr").to_str().unwrap().to_string()
     };
     let refs: Vec<String> = ["1", "2", "3"]

@@ -38,6 +38,16 @@ impl RgbImage {
             pixels: vec![[0.0; 3]; width * height],
         }
     }
+
+    /// The first pixel (x, y) with a NaN or infinite channel: a reader that averages or
+    /// compares images refuses it by name rather than spread it through every figure.
+    pub fn first_non_finite(&self) -> Option<(usize, usize)> {
+        let i = self
+            .pixels
+            .iter()
+            .position(|p| p.iter().any(|v| !v.is_finite()))?;
+        Some((i % self.width, i / self.width))
+    }
 }
 
 /// What an EXR header records about the render it holds.
@@ -299,16 +309,10 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
                 p.display()
             )));
         }
-        if let Some(i) = img
-            .pixels
-            .iter()
-            .position(|px| !px.iter().all(|v| v.is_finite()))
-        {
+        if let Some((x, y)) = img.first_non_finite() {
             return Err(RenderError::Image(format!(
-                "{}: pixel ({}, {}) is not finite: refusing to spread it into the merge",
+                "{}: pixel ({x}, {y}) is not finite: refusing to spread it into the merge",
                 p.display(),
-                i % img.width,
-                i / img.width
             )));
         }
         match &mut acc {
@@ -400,6 +404,35 @@ mod tests {
             let (back, read) = read_exr(&path).unwrap();
             assert_eq!(back, img);
             assert_eq!(read.unwrap(), tag);
+        }
+    }
+
+    /// A render with a NaN or infinite pixel is refused by name and position, not averaged
+    /// into the merge.
+    #[test]
+    fn merges_refuse_non_finite_pixels_by_position() {
+        let dir = tempfile::tempdir().unwrap();
+        let good = image();
+        assert_eq!(good.first_non_finite(), None);
+        for bad_value in [f32::NAN, f32::INFINITY] {
+            let mut bad = image();
+            bad.pixels[5 + 3][1] = bad_value; // (x, y) = (3, 1) in a 5-wide image
+            assert_eq!(bad.first_non_finite(), Some((3, 1)));
+            let paths = [("good.exr", &good, 1), ("bad.exr", &bad, 2)].map(|(name, img, seed)| {
+                let tag = RenderTag {
+                    spp: 4,
+                    scene_hash: 1,
+                    seeds: vec![seed],
+                };
+                let path = dir.path().join(name);
+                std::fs::write(&path, encode_exr(img, &tag).unwrap()).unwrap();
+                path
+            });
+            let e = merge_exrs(&[&paths[0], &paths[1]]).unwrap_err().to_string();
+            assert!(
+                e.contains("bad.exr") && e.contains("pixel (3, 1) is not finite"),
+                "{e}"
+            );
         }
     }
 
