@@ -9,6 +9,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{Result, bail};
 use render_gpu::image_io::{RgbImage, read_exr};
 
+use crate::plots::{Series, line_plot};
+
 #[derive(clap::Args)]
 #[command(
     after_help = "Example (docs/compare/README.md: stcvae against Mitsuba 3):\n  \
@@ -21,7 +23,7 @@ use render_gpu::image_io::{RgbImage, read_exr};
     render's seconds; `vs first` divides it by the first timed image's: how much longer that \
     renderer takes to reach the same error, as long as its MSE falls as 1/time (a biased \
     renderer's does not at errors near its bias, so compare at the errors measured).\n\n\
-    A name that is an existing file is taken whole, even with ',' or ':' in it."
+    A name that is an existing file is taken whole, even with '=', ',' or ':' in it."
 )]
 pub struct Args {
     /// Independent renders of the scene (different seeds), EXR: their mean is the reference,
@@ -31,7 +33,8 @@ pub struct Args {
     reference: Vec<String>,
     /// Images to measure: FILE.exr, or R.exr,G.exr,B.exr (a renderer run once per colour
     /// channel: channel c is taken from the c-th file), each optionally followed by
-    /// :SECONDS, its render time, for the MSE·s and equal-error columns.
+    /// :SECONDS, its render time, for the MSE·s and equal-error columns, and optionally
+    /// preceded by LABEL=, the line it belongs to in --plot.
     #[arg(required = true)]
     images: Vec<String>,
     /// Pixels whose reference R + G + B exceeds this are the object's: the image's mean
@@ -39,6 +42,12 @@ pub struct Args {
     /// there first).
     #[arg(long, default_value_t = 0.2)]
     object_threshold: f64,
+    /// Also draw RMSE against seconds (log-log) into this PNG, one line per label: give the
+    /// images as LABEL=FILE:SECONDS (e.g. `Cycles=c_64.exr:2.7 Cycles=c_256.exr:10.6`); an
+    /// unlabelled image is a line of its own. An unbiased renderer's line falls with slope
+    /// −1/2; a biased one levels off at its bias.
+    #[arg(long, value_name = "FILE.png")]
+    plot: Option<PathBuf>,
 }
 
 /// The mean of the reference renders, the mean variance of that mean (its noise), and which
@@ -155,10 +164,20 @@ fn file_list(what: &str, text: &str) -> Result<Vec<String>> {
     Ok(parts)
 }
 
-/// An image argument: its files (one, or one per channel) and its seconds. The text after
-/// the last ':' is the seconds where it is a number; a name with a ':' in it (a Windows
-/// drive) is taken whole.
-fn parse_spec(spec: &str) -> Result<(Vec<String>, Option<f64>)> {
+/// An image argument: its plot label, its files (one, or one per channel) and its seconds.
+/// The text before the first '=' is the label, the text after the last ':' the seconds
+/// where it is a number; a name with a ':' in it (a Windows drive) is taken whole, and so
+/// is an existing file's whole name.
+fn parse_spec(arg: &str) -> Result<Spec> {
+    let (label, spec) = match arg.split_once('=') {
+        Some((l, rest)) if !Path::new(arg).is_file() => {
+            if l.is_empty() || rest.is_empty() {
+                bail!("image `{arg}`: give LABEL=FILE, neither of them empty");
+            }
+            (Some(l.to_string()), rest)
+        }
+        _ => (None, arg),
+    };
     let (files, seconds) = match spec.rsplit_once(':') {
         Some((f, s)) if !Path::new(spec).is_file() => match s.parse::<f64>() {
             Ok(t) if t.is_finite() && t > 0.0 => (f, Some(t)),
@@ -175,7 +194,19 @@ fn parse_spec(spec: &str) -> Result<(Vec<String>, Option<f64>)> {
             files.len()
         );
     }
-    Ok((files, seconds))
+    Ok(Spec {
+        label,
+        files,
+        seconds,
+    })
+}
+
+/// One image argument, parsed.
+#[derive(Debug, PartialEq)]
+struct Spec {
+    label: Option<String>,
+    files: Vec<String>,
+    seconds: Option<f64>,
 }
 
 /// Refuses a file named twice among the references and images: a repeated reference would
@@ -225,7 +256,7 @@ pub fn run(a: Args) -> Result<()> {
             a.object_threshold
         );
     }
-    let specs: Vec<(Vec<String>, Option<f64>)> = a
+    let specs: Vec<Spec> = a
         .images
         .iter()
         .map(|s| parse_spec(s))
@@ -236,7 +267,7 @@ pub fn run(a: Args) -> Result<()> {
     }
     let names: Vec<&str> = references
         .iter()
-        .chain(specs.iter().flat_map(|(f, _)| f.iter()))
+        .chain(specs.iter().flat_map(|s| s.files.iter()))
         .map(String::as_str)
         .collect();
     check_distinct(&names)?;
@@ -252,7 +283,7 @@ pub fn run(a: Args) -> Result<()> {
     // Every image is read before anything is printed, so a bad one leaves no half table.
     let images: Vec<RgbImage> = specs
         .iter()
-        .map(|(files, _)| load_spec(files, r.width, r.height))
+        .map(|s| load_spec(&s.files, r.width, r.height))
         .collect::<Result<_>>()?;
     let ref_noise = r.noise_mse.sqrt();
     let objects = r.object.iter().filter(|&&o| o).count();
@@ -274,7 +305,12 @@ pub fn run(a: Args) -> Result<()> {
     );
     // The first timed image's MSE·s; equal-error ratios need it > 0.
     let mut first: Option<f64> = None;
-    for ((files, seconds), img) in specs.iter().zip(&images) {
+    if a.plot.is_some() && specs.iter().all(|s| s.seconds.is_none()) {
+        bail!("--plot: no image has :SECONDS, its render time (the plot's x axis)");
+    }
+    let mut lines: Vec<Series> = Vec::new();
+    for (spec, img) in specs.iter().zip(&images) {
+        let (files, seconds) = (&spec.files, spec.seconds);
         let m = measure(&r, img);
         // Below the reference's noise the MSE estimate may be ≤ 0: shown as 0, and no
         // ratio is formed with it.
@@ -308,6 +344,33 @@ pub fn run(a: Args) -> Result<()> {
             cost.map_or(String::new(), |c| format!("{c:.4}")),
             vs,
         );
+        if let Some(t) = seconds {
+            let line = spec.label.clone().unwrap_or(name);
+            match lines.iter_mut().find(|s| s.name == line) {
+                Some(s) => s.points.push((t, mse.sqrt())),
+                None => lines.push(Series {
+                    name: line,
+                    points: vec![(t, mse.sqrt())],
+                }),
+            }
+        }
+    }
+    if let Some(path) = &a.plot {
+        for s in &mut lines {
+            s.points.sort_by(|p, q| p.0.total_cmp(&q.0));
+        }
+        // An RMSE of 0 (below the reference's noise) has no place on a log axis: the plot
+        // leaves it out, and the table above shows it.
+        line_plot(
+            path,
+            "RMSE against render time (noise-corrected)",
+            "seconds",
+            "RMSE",
+            (true, true),
+            &lines,
+            None,
+        )?;
+        println!("plot: {}", path.display());
     }
     Ok(())
 }
@@ -391,14 +454,39 @@ mod tests {
 
     #[test]
     fn image_arguments_parse_or_say_why_not() {
-        let v = |names: &[&str]| names.iter().map(|n| n.to_string()).collect::<Vec<_>>();
-        assert_eq!(parse_spec("a.exr").unwrap(), (v(&["a.exr"]), None));
+        let v = |label: Option<&str>, names: &[&str], seconds| Spec {
+            label: label.map(str::to_string),
+            files: names.iter().map(|n| n.to_string()).collect(),
+            seconds,
+        };
+        assert_eq!(parse_spec("a.exr").unwrap(), v(None, &["a.exr"], None));
         assert_eq!(
             parse_spec("r.exr,g.exr,b.exr:12.5").unwrap(),
-            (v(&["r.exr", "g.exr", "b.exr"]), Some(12.5))
+            v(None, &["r.exr", "g.exr", "b.exr"], Some(12.5))
+        );
+        assert_eq!(
+            parse_spec("Mitsuba grey=r.exr,g.exr,b.exr:12.5").unwrap(),
+            v(
+                Some("Mitsuba grey"),
+                &["r.exr", "g.exr", "b.exr"],
+                Some(12.5)
+            )
         );
         // A ':' not followed by a number belongs to the name (C:\x.exr).
-        assert_eq!(parse_spec("C:\\x.exr").unwrap(), (v(&["C:\\x.exr"]), None));
+        assert_eq!(
+            parse_spec("C:\\x.exr").unwrap(),
+            v(None, &["C:\\x.exr"], None)
+        );
+        assert_eq!(
+            parse_spec("PT=C:\\x.exr:3").unwrap(),
+            v(Some("PT"), &["C:\\x.exr"], Some(3.0))
+        );
+        for bad in ["=a.exr", "PT="] {
+            let e = parse_spec(bad).unwrap_err().to_string();
+            assert!(e.contains("neither of them empty"), "{bad}: {e}");
+        }
+        let e = parse_spec("PT=:3").unwrap_err().to_string();
+        assert!(e.contains("empty file name"), "{e}");
         let e = parse_spec("a.exr,b.exr").unwrap_err().to_string();
         assert!(e.contains("three (R,G,B"), "{e}");
         let e = parse_spec("a.exr:").unwrap_err().to_string();
@@ -409,10 +497,10 @@ mod tests {
         assert!(e.contains("empty file name"), "{e}");
         // An existing file's name is taken whole, commas and all.
         let d = tempfile::tempdir().unwrap();
-        let odd = d.path().join("a,b:3");
+        let odd = d.path().join("a=b,c:3");
         std::fs::write(&odd, b"").unwrap();
         let odd = odd.to_str().unwrap();
-        assert_eq!(parse_spec(odd).unwrap(), (v(&[odd]), None));
+        assert_eq!(parse_spec(odd).unwrap(), v(None, &[odd], None));
         let x = d.path().join("x.exr");
         std::fs::write(&x, b"").unwrap();
         let again = d.path().join(".").join("x.exr");

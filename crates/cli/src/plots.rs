@@ -7,6 +7,7 @@ use std::path::Path;
 
 use anyhow::{Result, anyhow};
 use cvae::eval::{Columns, GS, TAUS};
+pub use plotters::chart::SeriesLabelPosition;
 use plotters::prelude::*;
 use plotters::style::{FontStyle, register_font};
 
@@ -244,6 +245,27 @@ pub fn write_all(dir: &Path, panels: &[Panel]) -> Result<Vec<String>> {
     Ok(written)
 }
 
+/// A log axis's tick label: 1, 2 and 5 times a power of ten (printed without float noise),
+/// nothing for the other ticks.
+fn log_tick(v: &f64) -> String {
+    if !(v.is_finite() && *v > 0.0) {
+        return String::new();
+    }
+    let e = v.log10().floor();
+    let m = v / 10f64.powf(e);
+    let near = |t: f64| (m - t).abs() < 1e-6 * t;
+    let (m, e): (f64, f64) = if near(1.0) || near(10.0) {
+        (1.0, if near(10.0) { e + 1.0 } else { e })
+    } else if near(2.0) {
+        (2.0, e)
+    } else if near(5.0) {
+        (5.0, e)
+    } else {
+        return String::new();
+    };
+    format!("{:.*}", (-e).max(0.0) as usize, m * 10f64.powf(e))
+}
+
 /// One named series of a line plot.
 pub struct Series {
     pub name: String,
@@ -251,7 +273,8 @@ pub struct Series {
 }
 
 /// A line plot of a few series (markers at the points), optionally on log axes; used by
-/// the experiments for time / speed-up curves.
+/// the experiments for time / speed-up curves and by `bench error` for error against time.
+/// `legend`: where the legend goes; `None` puts it in the upper right, above the lines.
 pub fn line_plot(
     path: &Path,
     title: &str,
@@ -259,6 +282,7 @@ pub fn line_plot(
     y_label: &str,
     (log_x, log_y): (bool, bool),
     series: &[Series],
+    legend: Option<SeriesLabelPosition>,
 ) -> Result<()> {
     init_font();
     let (w, h) = (900u32, 600u32);
@@ -281,6 +305,20 @@ pub fn line_plot(
     };
     let (x0, x1) = span(&xs, log_x);
     let (y0, y1) = span(&ys, log_y);
+    // No legend position given: the y axis grows by the legend's height (20 px a series on
+    // a ~480 px plot), so the legend sits above every line in the upper right.
+    let (y1, legend) = match legend {
+        Some(l) => (y1, l),
+        None => {
+            let f = ((series.len() as f64 * 20.0 + 24.0) / 480.0).min(0.6);
+            let y1 = if log_y {
+                y1 * (y1 / y0).powf(f / (1.0 - f))
+            } else {
+                y1 + (y1 - y0) * f / (1.0 - f)
+            };
+            (y1, SeriesLabelPosition::UpperRight)
+        }
+    };
     let colours = [BLACK, RED, BLUE, GREEN, MAGENTA, CYAN];
     let mut buf = vec![255u8; (w * h * 3) as usize];
     {
@@ -289,13 +327,19 @@ pub fn line_plot(
         macro_rules! draw {
             ($chart:expr) => {{
                 let mut chart = $chart;
-                chart
-                    .configure_mesh()
-                    .x_desc(x_label)
+                let mut mesh = chart.configure_mesh();
+                mesh.x_desc(x_label)
                     .y_desc(y_label)
-                    .label_style(("sans-serif", 14))
-                    .draw()
-                    .map_err(|x| e(&x))?;
+                    .label_style(("sans-serif", 14));
+                // plotters labels every multiple on a log axis, which overlap within a
+                // decade: 1, 2 and 5 of each decade are enough.
+                if log_x {
+                    mesh.x_label_formatter(&log_tick);
+                }
+                if log_y {
+                    mesh.y_label_formatter(&log_tick);
+                }
+                mesh.draw().map_err(|x| e(&x))?;
                 for (i, s) in series.iter().enumerate() {
                     let c = colours[i % colours.len()];
                     let p: Vec<(f64, f64)> = s
@@ -317,6 +361,7 @@ pub fn line_plot(
                 }
                 chart
                     .configure_series_labels()
+                    .position(legend.clone())
                     .background_style(WHITE.mix(0.8))
                     .border_style(BLACK)
                     .label_font(("sans-serif", 14))
@@ -351,4 +396,27 @@ pub fn line_plot(
         root.present().map_err(|x| e(&x))?;
     }
     to_png(path, &buf, w, h)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::log_tick;
+
+    #[test]
+    fn log_ticks_name_one_two_and_five_per_decade() {
+        // plotters hands over ticks with float noise (0.1 × 0.5 = 0.05000000000000001).
+        for (v, want) in [
+            (0.1 * 0.5, "0.05"),
+            (0.2, "0.2"),
+            (1.0, "1"),
+            (20.0, "20"),
+            (99.99999999, "100"),
+            (5e-4, "0.0005"),
+        ] {
+            assert_eq!(log_tick(&v), want, "{v}");
+        }
+        for v in [0.3, 0.04, 70.0, 0.0, -1.0, f64::NAN] {
+            assert_eq!(log_tick(&v), "", "{v}");
+        }
+    }
 }

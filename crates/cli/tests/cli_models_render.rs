@@ -999,6 +999,53 @@ fn bench_error_ranks_renders_by_error_and_names_bad_inputs() {
     assert_eq!(h[3], 1.0);
     assert!((l[3] - l[2] / h[2]).abs() <= 0.01 * l[3] + 0.01, "{text}");
 
+    // --plot: labelled images share a line. "PT" (the first line, black) joins two points;
+    // "other" (the second, red) has one. Both colours must be drawn.
+    let other = render("other", "4", "12", &scene);
+    let plot = d.path().join("error.png");
+    let out = stcvae(&[
+        "bench",
+        "error",
+        "--reference",
+        &reference,
+        "--plot",
+        plot.to_str().unwrap(),
+        &format!("PT={low}:0.5"),
+        &format!("PT={high}:2"),
+        &format!("other={other}:1"),
+    ]);
+    ok(&out);
+    let text = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(text.contains("plot: "), "{text}");
+    // The table names each image by its file, not its label.
+    assert!(text.lines().any(|l| l.starts_with(&other)), "{text}");
+    let f = std::fs::File::open(&plot).unwrap();
+    let mut dec = png::Decoder::new(std::io::BufReader::new(f))
+        .read_info()
+        .unwrap();
+    let mut buf = vec![0; dec.output_buffer_size()];
+    let info = dec.next_frame(&mut buf).unwrap();
+    assert_eq!((info.width, info.height), (900, 600));
+    let count = |rgb: [u8; 3]| buf.chunks(3).filter(|p| *p == rgb).count();
+    assert!(count([255, 0, 0]) > 20, "no red line or marker drawn");
+    assert!(count([0, 0, 0]) > 20, "no black line drawn");
+    assert_eq!(
+        count([0, 0, 255]),
+        0,
+        "a third (blue) line: the labels were not shared"
+    );
+    // Without any seconds there is no x axis.
+    let e = fails(&stcvae(&[
+        "bench",
+        "error",
+        "--reference",
+        &reference,
+        "--plot",
+        plot.to_str().unwrap(),
+        &high,
+    ]));
+    assert!(e.contains("no image has :SECONDS"), "{e}");
+
     let small_scene = d.path().join("small.toml");
     std::fs::write(&small_scene, sphere_scene_text(8)).unwrap();
     let small = render("small", "1", "1", &small_scene);

@@ -10,7 +10,7 @@ use super::measure::{
 };
 use super::report::{Cell, Report};
 use super::{Ctx, Kind};
-use crate::plots::{Series, line_plot};
+use crate::plots::{Series, SeriesLabelPosition, line_plot};
 
 pub fn run(ctx: &Ctx, rep: &mut Report) -> Result<()> {
     match ctx.cfg.kind {
@@ -89,7 +89,15 @@ fn plot(
     log: (bool, bool),
     series: &[Series],
 ) -> Result<()> {
-    line_plot(&ctx.out.join(file), title, axes.0, axes.1, log, series)?;
+    line_plot(
+        &ctx.out.join(file),
+        title,
+        axes.0,
+        axes.1,
+        log,
+        series,
+        Some(SeriesLabelPosition::MiddleRight),
+    )?;
     rep.image(title, file);
     Ok(())
 }
