@@ -6,7 +6,7 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Result, bail};
+use anyhow::{Result, anyhow, bail};
 use render_gpu::image_io::{RgbImage, read_exr};
 
 use crate::plots::{Series, line_plot};
@@ -165,32 +165,43 @@ fn file_list(what: &str, text: &str) -> Result<Vec<String>> {
 }
 
 /// An image argument: its plot label, its files (one, or one per channel) and its seconds.
-/// The text before the first '=' is the label, the text after the last ':' the seconds
-/// where it is a number; a name with a ':' in it (a Windows drive) is taken whole, and so
-/// is an existing file's whole name.
+/// An existing file's whole name is the image, whatever it holds. Otherwise the text after
+/// the last ':' is the seconds where it is a number (a ':' in a name, a Windows drive,
+/// stays), and the text before the first '=' is the label, unless what remains names
+/// existing files without it (`out/k=8/st.exr:1.5` has no label).
 fn parse_spec(arg: &str) -> Result<Spec> {
-    let (label, spec) = match arg.split_once('=') {
-        Some((l, rest)) if !Path::new(arg).is_file() => {
+    if Path::new(arg).is_file() {
+        return Ok(Spec {
+            label: None,
+            files: vec![arg.to_string()],
+            seconds: None,
+        });
+    }
+    let (body, seconds) = match arg.rsplit_once(':') {
+        Some((f, s)) => match s.parse::<f64>() {
+            Ok(t) if t.is_finite() && t > 0.0 => (f, Some(t)),
+            Ok(_) => bail!("image `{arg}`: the seconds must be > 0, got {s}"),
+            Err(_) if s.is_empty() => bail!("image `{arg}`: no seconds after the ':'"),
+            Err(_) => (arg, None),
+        },
+        None => (arg, None),
+    };
+    let names_files = |text: &str| {
+        file_list("image", text).is_ok_and(|f| f.iter().all(|p| Path::new(p).is_file()))
+    };
+    let (label, text) = match body.split_once('=') {
+        Some((l, rest)) if !names_files(body) => {
             if l.is_empty() || rest.is_empty() {
                 bail!("image `{arg}`: give LABEL=FILE, neither of them empty");
             }
             (Some(l.to_string()), rest)
         }
-        _ => (None, arg),
+        _ => (None, body),
     };
-    let (files, seconds) = match spec.rsplit_once(':') {
-        Some((f, s)) if !Path::new(spec).is_file() => match s.parse::<f64>() {
-            Ok(t) if t.is_finite() && t > 0.0 => (f, Some(t)),
-            Ok(_) => bail!("image `{spec}`: the seconds must be > 0, got {s}"),
-            Err(_) if s.is_empty() => bail!("image `{spec}`: no seconds after the ':'"),
-            Err(_) => (spec, None),
-        },
-        _ => (spec, None),
-    };
-    let files = file_list("image", files)?;
+    let files = file_list("image", text).map_err(|_| anyhow!("image `{arg}`: empty file name"))?;
     if files.len() != 1 && files.len() != 3 {
         bail!(
-            "image `{spec}`: give one EXR or three (R,G,B: one render per channel), not {}",
+            "image `{arg}`: give one EXR or three (R,G,B: one render per channel), not {}",
             files.len()
         );
     }
@@ -261,6 +272,9 @@ pub fn run(a: Args) -> Result<()> {
         .iter()
         .map(|s| parse_spec(s))
         .collect::<Result<_>>()?;
+    if a.plot.is_some() && specs.iter().all(|s| s.seconds.is_none()) {
+        bail!("--plot: no image has :SECONDS, its render time (the plot's x axis)");
+    }
     let mut references = Vec::new();
     for r in &a.reference {
         references.extend(file_list("--reference", r)?);
@@ -305,9 +319,6 @@ pub fn run(a: Args) -> Result<()> {
     );
     // The first timed image's MSE·s; equal-error ratios need it > 0.
     let mut first: Option<f64> = None;
-    if a.plot.is_some() && specs.iter().all(|s| s.seconds.is_none()) {
-        bail!("--plot: no image has :SECONDS, its render time (the plot's x axis)");
-    }
     let mut lines: Vec<Series> = Vec::new();
     for (spec, img) in specs.iter().zip(&images) {
         let (files, seconds) = (&spec.files, spec.seconds);
@@ -356,6 +367,12 @@ pub fn run(a: Args) -> Result<()> {
         }
     }
     if let Some(path) = &a.plot {
+        if lines.iter().flat_map(|s| &s.points).all(|p| p.1 <= 0.0) {
+            bail!(
+                "--plot: every timed image's RMSE is 0 (below the reference's own noise): \
+                 nothing to draw on a log axis"
+            );
+        }
         for s in &mut lines {
             s.points.sort_by(|p, q| p.0.total_cmp(&q.0));
         }
@@ -481,12 +498,17 @@ mod tests {
             parse_spec("PT=C:\\x.exr:3").unwrap(),
             v(Some("PT"), &["C:\\x.exr"], Some(3.0))
         );
-        for bad in ["=a.exr", "PT="] {
+        for bad in ["=a.exr", "PT=", "PT=:3"] {
             let e = parse_spec(bad).unwrap_err().to_string();
-            assert!(e.contains("neither of them empty"), "{bad}: {e}");
+            assert!(
+                e.contains(&format!("`{bad}`: give LABEL=FILE")),
+                "{bad}: {e}"
+            );
         }
-        let e = parse_spec("PT=:3").unwrap_err().to_string();
-        assert!(e.contains("empty file name"), "{e}");
+        let e = parse_spec("PT=a.exr,,b.exr:3").unwrap_err().to_string();
+        assert!(e.contains("`PT=a.exr,,b.exr:3`: empty file name"), "{e}");
+        let e = parse_spec("ST=a.exr:").unwrap_err().to_string();
+        assert!(e.contains("`ST=a.exr:`"), "{e}");
         let e = parse_spec("a.exr,b.exr").unwrap_err().to_string();
         assert!(e.contains("three (R,G,B"), "{e}");
         let e = parse_spec("a.exr:").unwrap_err().to_string();
@@ -501,6 +523,26 @@ mod tests {
         std::fs::write(&odd, b"").unwrap();
         let odd = odd.to_str().unwrap();
         assert_eq!(parse_spec(odd).unwrap(), v(None, &[odd], None));
+        // ... and so is one with '=' in it before the seconds, or in a folder's name.
+        let eq = d.path().join("a=b.exr");
+        std::fs::write(&eq, b"").unwrap();
+        let eq = eq.to_str().unwrap();
+        assert_eq!(
+            parse_spec(&format!("{eq}:6.5")).unwrap(),
+            v(None, &[eq], Some(6.5))
+        );
+        std::fs::create_dir(d.path().join("k=8")).unwrap();
+        let deep = d.path().join("k=8").join("st.exr");
+        std::fs::write(&deep, b"").unwrap();
+        let deep = deep.to_str().unwrap();
+        assert_eq!(
+            parse_spec(&format!("{deep}:1.5")).unwrap(),
+            v(None, &[deep], Some(1.5))
+        );
+        assert_eq!(
+            parse_spec(&format!("ST={deep}:1.5")).unwrap(),
+            v(Some("ST"), &[deep], Some(1.5))
+        );
         let x = d.path().join("x.exr");
         std::fs::write(&x, b"").unwrap();
         let again = d.path().join(".").join("x.exr");

@@ -245,25 +245,45 @@ pub fn write_all(dir: &Path, panels: &[Panel]) -> Result<Vec<String>> {
     Ok(written)
 }
 
-/// A log axis's tick label: 1, 2 and 5 times a power of ten (printed without float noise),
-/// nothing for the other ticks.
-fn log_tick(v: &f64) -> String {
-    if !(v.is_finite() && *v > 0.0) {
-        return String::new();
+/// A log axis's ticks between `lo` and `hi` > 0: labelled ones (1, 2 and 5 times a power
+/// of ten) and grid lines (every integer multiple). plotters' own log ticks start at the
+/// first power of ten inside the axis and label every multiple, so a short axis got no
+/// label and a long one overlapping labels. With fewer than two 1-2-5 ticks inside, every
+/// multiple is labelled, and failing that the two ends.
+fn log_ticks(lo: f64, hi: f64) -> (Vec<f64>, Vec<f64>) {
+    let (mut bold, mut light) = (Vec::new(), Vec::new());
+    for k in (lo.log10().floor() as i32)..=(hi.log10().ceil() as i32) {
+        for m in 1..=9 {
+            let v = m as f64 * 10f64.powi(k);
+            if (lo..=hi).contains(&v) {
+                light.push(v);
+                if matches!(m, 1 | 2 | 5) {
+                    bold.push(v);
+                }
+            }
+        }
     }
-    let e = v.log10().floor();
-    let m = v / 10f64.powf(e);
-    let near = |t: f64| (m - t).abs() < 1e-6 * t;
-    let (m, e): (f64, f64) = if near(1.0) || near(10.0) {
-        (1.0, if near(10.0) { e + 1.0 } else { e })
-    } else if near(2.0) {
-        (2.0, e)
-    } else if near(5.0) {
-        (5.0, e)
+    if bold.len() < 2 {
+        bold.clone_from(&light);
+    }
+    if bold.len() < 2 {
+        bold = vec![lo, hi];
+    }
+    (bold, light)
+}
+
+/// A tick label with three significant digits at most and no trailing zeros (0.05, 20, 0.037).
+fn compact(v: &f64) -> String {
+    if !(v.is_finite() && *v != 0.0) {
+        return format!("{v}");
+    }
+    let decimals = (2 - v.abs().log10().floor() as i32).max(0) as usize;
+    let s = format!("{v:.decimals$}");
+    if s.contains('.') {
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
     } else {
-        return String::new();
-    };
-    format!("{:.*}", (-e).max(0.0) as usize, m * 10f64.powf(e))
+        s
+    }
 }
 
 /// One named series of a line plot.
@@ -319,7 +339,18 @@ pub fn line_plot(
             (y1, SeriesLabelPosition::UpperRight)
         }
     };
-    let colours = [BLACK, RED, BLUE, GREEN, MAGENTA, CYAN];
+    let colours = [
+        BLACK,
+        RED,
+        BLUE,
+        GREEN,
+        MAGENTA,
+        CYAN,
+        RGBColor(255, 140, 0),
+        RGBColor(128, 128, 128),
+        RGBColor(128, 64, 0),
+        RGBColor(0, 110, 0),
+    ];
     let mut buf = vec![255u8; (w * h * 3) as usize];
     {
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
@@ -331,13 +362,11 @@ pub fn line_plot(
                 mesh.x_desc(x_label)
                     .y_desc(y_label)
                     .label_style(("sans-serif", 14));
-                // plotters labels every multiple on a log axis, which overlap within a
-                // decade: 1, 2 and 5 of each decade are enough.
                 if log_x {
-                    mesh.x_label_formatter(&log_tick);
+                    mesh.x_label_formatter(&compact);
                 }
                 if log_y {
-                    mesh.y_label_formatter(&log_tick);
+                    mesh.y_label_formatter(&compact);
                 }
                 mesh.draw().map_err(|x| e(&x))?;
                 for (i, s) in series.iter().enumerate() {
@@ -369,6 +398,13 @@ pub fn line_plot(
                     .map_err(|x| e(&x))?;
             }};
         }
+        let log_axis = |lo: f64, hi: f64| {
+            let (bold, light) = log_ticks(lo, hi);
+            (lo..hi)
+                .log_scale()
+                .with_key_points(bold)
+                .with_light_points(light)
+        };
         let mut b = ChartBuilder::on(&root);
         b.caption(title, ("sans-serif", 20))
             .margin(12)
@@ -378,18 +414,18 @@ pub fn line_plot(
             (false, false) => draw!(b.build_cartesian_2d(x0..x1, y0..y1).map_err(|x| e(&x))?),
             (true, false) => {
                 draw!(
-                    b.build_cartesian_2d((x0..x1).log_scale(), y0..y1)
+                    b.build_cartesian_2d(log_axis(x0, x1), y0..y1)
                         .map_err(|x| e(&x))?
                 )
             }
             (false, true) => {
                 draw!(
-                    b.build_cartesian_2d(x0..x1, (y0..y1).log_scale())
+                    b.build_cartesian_2d(x0..x1, log_axis(y0, y1))
                         .map_err(|x| e(&x))?
                 )
             }
             (true, true) => draw!(
-                b.build_cartesian_2d((x0..x1).log_scale(), (y0..y1).log_scale())
+                b.build_cartesian_2d(log_axis(x0, x1), log_axis(y0, y1))
                     .map_err(|x| e(&x))?
             ),
         }
@@ -400,23 +436,36 @@ pub fn line_plot(
 
 #[cfg(test)]
 mod tests {
-    use super::log_tick;
+    use super::{compact, log_ticks};
 
     #[test]
-    fn log_ticks_name_one_two_and_five_per_decade() {
-        // plotters hands over ticks with float noise (0.1 × 0.5 = 0.05000000000000001).
+    fn log_axes_label_one_two_and_five_per_decade_or_enough_to_read() {
+        let near = |got: &[f64], want: &[f64]| {
+            got.len() == want.len() && got.iter().zip(want).all(|(g, w)| (g - w).abs() <= 1e-9 * w)
+        };
+        // An error axis from 0.03 to 0.26: 0.05 is labelled (plotters started at 0.1).
+        let (bold, light) = log_ticks(0.03, 0.26);
+        assert!(near(&bold, &[0.05, 0.1, 0.2]), "{bold:?}");
+        assert_eq!(light.len(), 9, "{light:?}"); // 0.03 … 0.09, 0.1, 0.2
+        // Within a decade without two 1-2-5 ticks: every multiple.
+        let (bold, _) = log_ticks(2.5, 9.5);
+        assert!(
+            near(&bold, &[3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0]),
+            "{bold:?}"
+        );
+        // One image's point (the axis spans ×1.69 around it) with no multiple inside: the ends.
+        let (bold, _) = log_ticks(1.1, 1.86);
+        assert!(near(&bold, &[1.1, 1.86]), "{bold:?}");
         for (v, want) in [
             (0.1 * 0.5, "0.05"),
             (0.2, "0.2"),
-            (1.0, "1"),
             (20.0, "20"),
-            (99.99999999, "100"),
-            (5e-4, "0.0005"),
+            (2.0 * 10f64.powi(2), "200"),
+            (0.0372, "0.0372"),
+            (1.86, "1.86"),
+            (1234.6, "1235"),
         ] {
-            assert_eq!(log_tick(&v), want, "{v}");
-        }
-        for v in [0.3, 0.04, 70.0, 0.0, -1.0, f64::NAN] {
-            assert_eq!(log_tick(&v), "", "{v}");
+            assert_eq!(compact(&v), want, "{v}");
         }
     }
 }

@@ -96,6 +96,7 @@ fn plot(
         axes.1,
         log,
         series,
+        // plotters' own default place, where the experiments' legends have always been.
         Some(SeriesLabelPosition::MiddleRight),
     )?;
     rep.image(title, file);
