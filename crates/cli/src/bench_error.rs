@@ -16,6 +16,9 @@ use crate::plots::{Series, line_plot};
     after_help = "Example (docs/compare/README.md: stcvae against Mitsuba 3):\n  \
     stcvae bench error --reference ref_1.exr,ref_2.exr,ref_3.exr,ref_4.exr \\\n    \
     pt_256.exr:27.1 stcvae_256.exr:5.5 mitsuba_r.exr,mitsuba_g.exr,mitsuba_b.exr:88.1\n\n\
+    The same with lines drawn (RMSE against seconds; one line per label):\n  \
+    stcvae bench error --reference ref_1.exr,ref_2.exr,ref_3.exr,ref_4.exr --plot error.png \\\n    \
+    ST-CVAE=st_64.exr:1.4 ST-CVAE=st_256.exr:5.5 PT=pt_256.exr:27.1\n\n\
     RMSE is noise-corrected: sqrt(mean((image − reference)²) − mean(Var(reference mean))), \
     Var(reference mean) being the renders' sample variance over their count; 0 where the \
     difference is below the reference's own noise. The images must be independent of the \
