@@ -965,14 +965,13 @@ fn bench_error_ranks_renders_by_error_and_names_bad_inputs() {
     let low = render("low", "2", "10", &scene);
     let high = render("high", "32", "11", &scene);
     let reference = refs.join(",");
-    let out = stcvae(&[
-        "bench",
-        "error",
-        "--reference",
-        &reference,
-        &format!("{high}:2"),
-        &format!("{low}:0.5"),
-    ]);
+    // `stcvae bench error --reference <the three refs> ARGS...`
+    let bench_error = |args: &[&str]| {
+        let mut all = vec!["bench", "error", "--reference", &reference];
+        all.extend_from_slice(args);
+        stcvae(&all)
+    };
+    let out = bench_error(&[&format!("{high}:2"), &format!("{low}:0.5")]);
     ok(&out);
     let text = String::from_utf8_lossy(&out.stdout).into_owned();
     assert!(text.contains("mean of 3 render(s), 16x16"), "{text}");
@@ -1004,16 +1003,9 @@ fn bench_error_ranks_renders_by_error_and_names_bad_inputs() {
     let other = render("other", "4", "12", &scene);
     let plot = d.path().join("error.png");
     let plot_of = |images: &[&str]| {
-        let mut args = vec![
-            "bench",
-            "error",
-            "--reference",
-            &reference,
-            "--plot",
-            plot.to_str().unwrap(),
-        ];
+        let mut args = vec!["--plot", plot.to_str().unwrap()];
         args.extend_from_slice(images);
-        stcvae(&args)
+        bench_error(&args)
     };
     let out = plot_of(&[
         &format!("PT={low}:0.5"),
@@ -1050,7 +1042,7 @@ fn bench_error_ranks_renders_by_error_and_names_bad_inputs() {
     std::fs::write(&small_scene, sphere_scene_text(8)).unwrap();
     let small = render("small", "1", "1", &small_scene);
     // A bad image after a good one: refused before any row is printed.
-    let out = stcvae(&["bench", "error", "--reference", &reference, &high, &small]);
+    let out = bench_error(&[&high, &small]);
     let e = fails(&out);
     assert!(
         e.contains(&small) && e.contains("8x8") && e.contains("16x16"),
@@ -1063,29 +1055,11 @@ fn bench_error_ranks_renders_by_error_and_names_bad_inputs() {
     let twice = format!("{},{}", refs[0], refs[0]);
     let e = fails(&stcvae(&["bench", "error", "--reference", &twice, &high]));
     assert!(e.contains("same file"), "{e}");
-    let e = fails(&stcvae(&[
-        "bench",
-        "error",
-        "--reference",
-        &reference,
-        &refs[1],
-    ]));
+    let e = fails(&bench_error(&[&refs[1]]));
     assert!(e.contains("same file"), "{e}");
     let missing = d.path().join("none.exr");
-    let e = fails(&stcvae(&[
-        "bench",
-        "error",
-        "--reference",
-        &reference,
-        missing.to_str().unwrap(),
-    ]));
+    let e = fails(&bench_error(&[missing.to_str().unwrap()]));
     assert!(e.contains("none.exr"), "{e}");
-    let e = fails(&stcvae(&[
-        "bench",
-        "error",
-        "--reference",
-        &reference,
-        &format!("{low},{high}"),
-    ]));
+    let e = fails(&bench_error(&[&format!("{low},{high}")]));
     assert!(e.contains("three (R,G,B"), "{e}");
 }
