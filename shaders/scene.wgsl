@@ -32,7 +32,8 @@ struct Params {
                                 // (2: first of the render, 1: first of a chunk, 0: resume)
     consts: vec4<f32>,          // g, ior, eps, min_tau
     consts2: vec4<f32>,         // max_tau, near_surface, bounces per dispatch, tile stride
-    consts3: vec4<f32>,         // exact_tau, exact_nee_samples (integral), loop-probe passes, unused
+    consts3: vec4<f32>,         // exact_tau, exact_nee_samples (integral), loop-probe passes,
+                                // camera rays' start (Camera::start)
 }
 
 // A BVH node as the traversals use it. `nodes` holds it packed in 16 bytes

@@ -183,7 +183,7 @@ fn parse_spec(arg: &str) -> Result<Spec> {
     let (body, seconds) = match arg.rsplit_once(':') {
         Some((f, s)) => match s.parse::<f64>() {
             Ok(t) if t.is_finite() && t > 0.0 => (f, Some(t)),
-            Ok(_) => bail!("image `{arg}`: the seconds must be > 0, got {s}"),
+            Ok(_) => bail!("image `{arg}`: the seconds must be finite and > 0, got {s}"),
             Err(_) if s.is_empty() => bail!("image `{arg}`: no seconds after the ':'"),
             Err(_) => (arg, None),
         },
@@ -277,6 +277,10 @@ pub fn run(a: Args) -> Result<()> {
         .collect::<Result<_>>()?;
     if a.plot.is_some() && specs.iter().all(|s| s.seconds.is_none()) {
         bail!("--plot: no image has :SECONDS, its render time (the plot's x axis)");
+    }
+    // A folder, a file in the way or an unwritable place fails now, not after the table.
+    if let Some(path) = &a.plot {
+        crate::check_out("--plot", path)?;
     }
     let mut references = Vec::new();
     for r in &a.reference {
@@ -510,7 +514,7 @@ mod tests {
             ("ST=a.exr:", "`ST=a.exr:`"),
             ("a.exr,b.exr", "three (R,G,B"),
             ("a.exr:", "no seconds"),
-            ("a.exr:0", "must be > 0"),
+            ("a.exr:0", "must be finite and > 0"),
             ("a.exr,,b.exr", "empty file name"),
         ] {
             let e = parse_spec(bad).unwrap_err().to_string();

@@ -65,9 +65,10 @@ pub struct Args {
     /// Next-event estimation in both integrators. `false` counts only paths that escape
     /// into a light's disk or the environment, which takes EventGen out of ST-CVAE and
     /// so tells its error from LengthGen's and PathGen's (give a scene whose light has an
-    /// angular diameter, e.g. configs/scenes/bunny_sun_wide.toml).
-    #[arg(long, default_value_t = true, action = clap::ArgAction::Set)]
-    nee: bool,
+    /// angular diameter, e.g. configs/scenes/bunny_sun_wide.toml). Default: the scene's
+    /// (on in every shipped scene).
+    #[arg(long, action = clap::ArgAction::Set)]
+    nee: Option<bool>,
     /// Where both integrators run: auto, gpu (any wgpu adapter) or cpu.
     #[arg(long, value_enum, default_value_t = DeviceArg::Cpu)]
     device: DeviceArg,
@@ -212,7 +213,7 @@ fn run_pair(a: &Args, engine: &Engine, kind: IntegratorKind, k: f64) -> Result<P
 
 /// The bench's scene at density k for one integrator.
 fn prepare_k(a: &Args, kind: IntegratorKind, k: f64) -> Result<crate::render::Prepared> {
-    prepare(&a.scene, Some(kind), Some(a.nee), a.model.as_deref(), |f| {
+    prepare(&a.scene, Some(kind), a.nee, a.model.as_deref(), |f| {
         ladder_scene(a, kind, k, f)
     })
 }
@@ -261,7 +262,15 @@ fn render_pair(
     let half = half_spp(a.spp);
     // No warm-up render on a GPU: the renderer compiles its kernel before its clock starts.
     let mut outs = Vec::new();
+    let cam = &p.file.camera;
     for seed in a.seeds_of(kind) {
+        let label = format!(
+            "σ_t {:?}, {}, seed {seed}",
+            p.file.medium.sigma_t,
+            kind.name()
+        );
+        let pb =
+            crate::progress::render_bar(&label, cam.width as u64 * cam.height as u64 * half as u64);
         let o = engine.render(
             &p.data,
             &set,
@@ -270,10 +279,11 @@ fn render_pair(
                 seed,
                 time_budget: None,
             },
-            &|_, _| {},
+            &|done, _| pb.set_position(done),
             &cancel,
-        )?;
-        outs.push(o);
+        );
+        pb.finish_and_clear();
+        outs.push(o?);
     }
     let b = outs.pop().expect("two renders");
     let a_out = outs.pop().expect("two renders");
@@ -340,12 +350,17 @@ pub fn run(a: Args) -> Result<()> {
         )),
         None => None,
     };
+    // The scene's own setting unless --nee gives one (a scene that cannot be read is
+    // reported by name when the renders prepare it).
+    let nee = a.nee.unwrap_or_else(|| {
+        render_gpu::scene::SceneFile::load(&a.scene).map_or(true, |f| f.render.nee)
+    });
     println!(
         "stcvae bench render: {} ({}x{}), g = 0.875, albedo (0.99999, 0.99995, 0.975), NEE {}, {} spp each (2 seeds of {}: a multiple of 3 per seed; seeds PT {:?}, ST-CVAE {:?}), {}",
         a.scene.display(),
         a.size,
         a.size,
-        if a.nee { "on" } else { "off" },
+        if nee { "on" } else { "off" },
         2 * half_spp(a.spp),
         half_spp(a.spp),
         a.seeds_of(IntegratorKind::Pt),

@@ -183,8 +183,8 @@ pub fn run(a: Args) -> Result<()> {
     let piece = spec.piece();
     let pool = pool(a.threads)?;
     eprintln!(
-        "generating {} walks{} ({} mode, seed {}, {} threads) -> {}",
-        piece.count,
+        "generating {}{} ({} mode, seed {}, {} threads) -> {}",
+        progress::count(piece.count, "walk"),
         if spec.shard == Shard::WHOLE {
             String::new()
         } else {
@@ -213,7 +213,7 @@ pub fn run(a: Args) -> Result<()> {
         dataset::generate(&spec, sink.as_mut(), cancel, &mut |s| {
             pb.set_position(s.walks);
             let secs = start.elapsed().as_secs_f64().max(1e-9);
-            pb.set_message(format!("{}events/s", progress::si(s.events as f64 / secs)));
+            pb.set_message(format!("{} events/s", progress::si(s.events as f64 / secs)));
         })
     });
     pb.finish_and_clear();
@@ -224,8 +224,8 @@ pub fn run(a: Args) -> Result<()> {
     sink.finish()?;
     let secs = start.elapsed().as_secs_f64();
     eprintln!(
-        "wrote {} walks to {} in {:.1} s: {} events ({}events/s, {:.1} per walk, max {})",
-        summary.walks,
+        "wrote {} to {} in {:.1} s: {} events ({} events/s, {:.1} per walk, max {})",
+        progress::count(summary.walks as u64, "walk"),
         a.out.display(),
         secs,
         summary.events,

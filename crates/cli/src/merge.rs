@@ -189,8 +189,8 @@ fn merge_images(a: &Args) -> Result<()> {
         Some(&serde_json::to_vec_pretty(&report)?),
     )?;
     eprintln!(
-        "merged {} renders ({} spp in all) -> {}.{{exr,png,json}}",
-        inputs.len(),
+        "merged {} ({} spp in all) -> {}.{{exr,png,json}}",
+        progress::count(inputs.len() as u64, "render"),
         tag.spp,
         out_stem(&a.out).display()
     );
@@ -255,8 +255,8 @@ fn merge_binary(a: &Args) -> Result<()> {
     sink.finish()?;
     pb.finish_and_clear();
     eprintln!(
-        "merged {} files, {} rows -> {}",
-        a.inputs.len(),
+        "merged {}, {} rows -> {}",
+        progress::count(a.inputs.len() as u64, "file"),
         header.count,
         a.out.display()
     );
@@ -345,8 +345,8 @@ fn merge_csv(a: &Args) -> Result<()> {
     out.commit()
         .with_context(|| format!("cannot write {}", a.out.display()))?;
     eprintln!(
-        "merged {} files, {rows} rows -> {}",
-        a.inputs.len(),
+        "merged {}, {rows} rows -> {}",
+        progress::count(a.inputs.len() as u64, "file"),
         a.out.display()
     );
     Ok(())

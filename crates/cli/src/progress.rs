@@ -1,17 +1,31 @@
 //! Progress bars in one style.
 
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::{ProgressBar, ProgressState, ProgressStyle};
 
 /// A bar over `len` items of `unit`, with rate, ETA and a free message (e.g. events/s).
 pub fn bar(len: u64, unit: &str) -> ProgressBar {
     let pb = ProgressBar::new(len);
     pb.set_style(
         ProgressStyle::with_template(&format!(
-            "{{elapsed_precise}} [{{wide_bar}}] {{human_pos}}/{{human_len}} {unit} ({{per_sec}}, ETA {{eta}}) {{msg}}"
+            "{{elapsed_precise}} [{{wide_bar}}] {{human_pos}}/{{human_len}} {unit} ({{rate}}, ETA {{eta}}) {{msg}}"
         ))
         .expect("valid template")
+        // indicatif's own {per_sec} prints four decimals ("695,561.7692/s").
+        .with_key("rate", |s: &ProgressState, w: &mut dyn std::fmt::Write| {
+            let _ = write!(w, "{}/s", si(s.per_sec()));
+        })
         .progress_chars("=> "),
     );
+    pb
+}
+
+/// A bar over one render's samples, named by `label` (e.g. "k = 8, ST-CVAE, seed 2"), for
+/// the commands that render many images: a bench row at high density runs for half an
+/// hour, and showed nothing until its row was printed. Cleared when the render is done, so
+/// only the tables stay; drawn only on a terminal.
+pub fn render_bar(label: &str, samples: u64) -> ProgressBar {
+    let pb = bar(samples, "samples");
+    pb.set_message(label.to_string());
     pb
 }
 
@@ -27,7 +41,7 @@ pub fn spinner(msg: &str) -> ProgressBar {
     pb
 }
 
-/// Human-readable rate, e.g. "12.3 M".
+/// Human-readable rate, e.g. "12.30 M" or "553.50"; the caller adds a space and the unit.
 pub fn si(x: f64) -> String {
     let (v, p) = if x >= 1e9 {
         (x / 1e9, "G")
@@ -38,5 +52,19 @@ pub fn si(x: f64) -> String {
     } else {
         (x, "")
     };
-    format!("{v:.2} {p}")
+    // No space left dangling after a plain number ("553.50 paths/s", not "553.50  paths/s").
+    if p.is_empty() {
+        format!("{v:.2}")
+    } else {
+        format!("{v:.2} {p}")
+    }
+}
+
+/// "1 walk", "2 walks": a count with its noun.
+pub fn count(n: u64, noun: &str) -> String {
+    if n == 1 {
+        format!("1 {noun}")
+    } else {
+        format!("{n} {noun}s")
+    }
 }

@@ -268,11 +268,12 @@ pub(crate) fn check_out_stem(out: &Path) -> Result<()> {
             break;
         }
     }
-    // An output name taken by a folder would fail only after the render.
+    // An output name taken by a folder (or a FIFO, a device) would fail only after the
+    // render.
     for ext in ["exr", "png", "json"] {
         let f = crate::merge::image_out(out, ext);
-        if f.is_dir() {
-            bail!("--out {}: {} is a directory", out.display(), f.display());
+        if let Err(e) = scatter_sim::output::output_target(&f) {
+            bail!("--out {}: {} {e}", out.display(), f.display());
         }
     }
     // And so would a directory without write permission.

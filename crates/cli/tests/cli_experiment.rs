@@ -162,6 +162,12 @@ fn experiment_configs_are_checked_before_any_rendering() {
     assert!(e.contains("densities") && e.contains("twice"), "{e}");
     let e = run("scene = \"ok.toml\"\ndensities = \"1.0\"");
     assert!(e.contains("exp.toml:4") && e.contains("densities"), "{e}");
+    // A field of another kind would be ignored: refused, naming it.
+    let e = run("scene = \"ok.toml\"\ndensities = [1.0]\nthresholds = [1.0]");
+    assert!(
+        e.contains("exp.toml") && e.contains("thresholds does not apply to kind = \"complexity\""),
+        "{e}"
+    );
 }
 
 /// Ctrl-C (SIGINT) during an experiment stops it after the current render pass: exit status

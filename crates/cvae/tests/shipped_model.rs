@@ -1,5 +1,5 @@
-//! The shipped model stays within the KS bounds documented in docs/TRAINING.md at three
-//! settings of the paper's grid, so a regression in the sampling code (transforms,
+//! The shipped model keeps its KS statistics (docs/TRAINING.md) at three settings of the
+//! paper's grid, so a regression in the sampling code (transforms,
 //! frames, the exact branches) is caught without retraining.
 
 use std::path::Path;
@@ -7,25 +7,54 @@ use std::path::Path;
 use cvae::ModelSet;
 use cvae::eval::evaluate_setting;
 
+/// The quantities compared, in the order of [`MEASURED`]'s rows.
+const QUANTITIES: [&str; 7] = [
+    "n",
+    "cos_theta",
+    "alpha",
+    "beta",
+    "event_radius",
+    "event_z",
+    "event_wz",
+];
+
+/// The shipped model's KS statistics at this test's seed (2026-11-28), per setting (τ, g,
+/// φ) and quantity. The seed is fixed, so they are deterministic.
+const MEASURED: [((f64, f64, f64), [f64; 7]); 3] = [
+    (
+        (5.0, 0.4, 1.0),
+        [0.0192, 0.0319, 0.0198, 0.0153, 0.0267, 0.0335, 0.0194],
+    ),
+    (
+        (25.0, 0.0, 1.0),
+        [0.0200, 0.0294, 0.0228, 0.0150, 0.0506, 0.0204, 0.0149],
+    ),
+    (
+        (125.0, -0.7, 1.0),
+        [0.0177, 0.0370, 0.0131, 0.0144, 0.0435, 0.0484, 0.0150],
+    ),
+];
+
+/// 10,000 vs 10,000 samples, as `stcvae eval`. Each KS statistic may exceed its value at
+/// this seed by 0.02. A change that only redraws the random numbers (another order of
+/// draws, another seed) moves a statistic by about the spread of the two-sample KS under
+/// the null, ~0.004 at this size (its mean is ~0.0125), so 0.02 is 5 of those. A sampling
+/// regression (a wrong transform, frame or exact branch) that doubled a misfit, or added a
+/// misfit of 0.02 anywhere, fails; the earlier flat bounds (0.05, 0.07 for the events)
+/// let α's statistic grow 5× unnoticed.
 #[test]
 fn shipped_model_quick_eval() {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/default.stcvae");
     let m = ModelSet::load(&path).unwrap();
-    // 10,000 vs 10,000 samples, as `stcvae eval`. Under the null the KS statistic
-    // exceeds 0.027 with probability < 0.2 %, so a bound of 0.05 fails only on a real
-    // misfit; the shipped model's values at these settings are in docs/TRAINING.md. The
-    // event marginals fit less well: at this seed their KS is at most 0.051 (event radius,
-    // τ = 25; 2026-11-27), so their bound is 0.07, which an EventGen sampling regression
-    // that doubled the misfit would exceed (it was 0.10, twice the measured values).
-    for (tau, g, albedo) in [(5.0, 0.4, 1.0), (25.0, 0.0, 1.0), (125.0, -0.7, 1.0)] {
+    for ((tau, g, albedo), measured) in MEASURED {
         let r = evaluate_setting(&m, tau, g, albedo, 10_000, 1);
-        for q in ["n", "cos_theta", "alpha", "beta"] {
+        for (q, at_seed) in QUANTITIES.iter().zip(measured) {
             let ks = r.ks(q).unwrap();
-            assert!(ks <= 0.05, "τ = {tau}, g = {g}: KS({q}) = {ks:.3} > 0.05");
-        }
-        for q in ["event_radius", "event_z", "event_wz"] {
-            let ks = r.ks(q).unwrap();
-            assert!(ks <= 0.07, "τ = {tau}, g = {g}: KS({q}) = {ks:.3} > 0.07");
+            let bound = at_seed + 0.02;
+            assert!(
+                ks <= bound,
+                "τ = {tau}, g = {g}: KS({q}) = {ks:.4} > {bound:.4} (it was {at_seed} at this seed)"
+            );
         }
     }
 }

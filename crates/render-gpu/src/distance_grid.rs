@@ -209,7 +209,7 @@ impl DistanceGrid {
     /// Loads the grid from the cache or builds and caches it when building takes long.
     pub fn cached(geo: &Geometry, resolution: u32) -> Self {
         let key = cache_key(geo, resolution);
-        let path = cache_dir().map(|d| d.join(format!("grid-{key:016x}-{resolution}.bin")));
+        let path = cache_file(&format!("grid-{key:016x}-{resolution}"));
         if let Some(p) = &path
             && let Some(g) = Self::read(p)
         {
@@ -225,6 +225,7 @@ impl DistanceGrid {
         {
             // A cache that cannot be written only costs time next run.
             let _ = g.write(p);
+            prune_stale(p);
         }
         g
     }
@@ -302,6 +303,43 @@ fn cache_key(geo: &Geometry, resolution: u32) -> u64 {
     h.finish()
 }
 
+/// The code that computes what is cached (a hash of its sources, build.rs): the last part
+/// of every cache file's name.
+const CODE: &str = env!("STCVAE_CACHE_CODE");
+
+/// The cache file of `stem` (what is cached, of which mesh) as this code computes it.
+pub(crate) fn cache_file(stem: &str) -> Option<PathBuf> {
+    cache_dir().map(|d| d.join(format!("{stem}-{CODE}.bin")))
+}
+
+/// Removes the files of `path`'s stem that other code wrote: no build of this code can
+/// read them, and a grid is up to tens of MB.
+pub(crate) fn prune_stale(path: &Path) {
+    let (Some(dir), Some(name)) = (path.parent(), path.file_name()) else {
+        return;
+    };
+    let name = name.to_string_lossy();
+    let Some(stem) = name.strip_suffix(&format!("-{CODE}.bin")) else {
+        return;
+    };
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let other = e.file_name();
+        let other = other.to_string_lossy();
+        let code = other
+            .strip_prefix(stem)
+            .and_then(|r| r.strip_prefix('-'))
+            .and_then(|r| r.strip_suffix(".bin"));
+        if code
+            .is_some_and(|c| c != CODE && c.len() == 16 && c.bytes().all(|b| b.is_ascii_hexdigit()))
+        {
+            let _ = std::fs::remove_file(e.path());
+        }
+    }
+}
+
 /// A hasher fed with `tag` and the mesh (vertex positions and triangles): the key of what
 /// is cached for a mesh.
 pub(crate) fn mesh_hasher(geo: &Geometry, tag: &[u8]) -> Fnv64 {
@@ -332,4 +370,43 @@ pub(crate) fn cache_dir() -> Option<PathBuf> {
         return Some(PathBuf::from(d).join("stcvae"));
     }
     var("HOME").map(|h| PathBuf::from(h).join(".cache").join("stcvae"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{CODE, prune_stale};
+
+    /// Writing this code's cache file of a stem removes that stem's files written by other
+    /// code, and nothing else: not another mesh's or resolution's (one that only extends
+    /// the stem, 640 after 64), nor files that merely look alike.
+    #[test]
+    fn stale_cache_files_of_the_stem_are_removed() {
+        let d = tempfile::tempdir().unwrap();
+        let other_code = if CODE == "0123456789abcdef" {
+            "fedcba9876543210"
+        } else {
+            "0123456789abcdef"
+        };
+        let mine = format!("grid-00ab-64-{CODE}.bin");
+        let stale = format!("grid-00ab-64-{other_code}.bin");
+        let kept = [
+            format!("grid-00ab-640-{other_code}.bin"),
+            format!("grid-00cd-64-{other_code}.bin"),
+            format!("cones-00ab-{other_code}.bin"),
+            "grid-00ab-64.bin".to_string(),
+            "grid-00ab-64-notes.bin".to_string(),
+        ];
+        for n in kept.iter().chain([&mine, &stale]) {
+            std::fs::write(d.path().join(n), b"x").unwrap();
+        }
+        prune_stale(&d.path().join(&mine));
+        let mut left: Vec<String> = std::fs::read_dir(d.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        left.sort();
+        let mut want: Vec<String> = kept.iter().chain([&mine]).cloned().collect();
+        want.sort();
+        assert_eq!(left, want);
+    }
 }

@@ -36,9 +36,10 @@ const MAGIC: &[u8; 8] = b"STCVEC01";
 /// has computed them for the same mesh. They cost ~17 µs a triangle on 2 cores (55 ms for
 /// the bunny, ~1 s for 60,000 triangles), so results that took over 0.1 s are cached.
 pub fn cached(geo: &Geometry) -> Vec<f32> {
-    // The tag names the algorithm: change it with TANS, the margins or the region.
+    // The tag keeps cones apart from grids; the file's name also holds a hash of the code
+    // (`cache_file`), so a change to TANS, the margins or the region is never read stale.
     let key = crate::distance_grid::mesh_hasher(geo, b"escape-cones-v2").finish();
-    let path = crate::distance_grid::cache_dir().map(|d| d.join(format!("cones-{key:016x}.bin")));
+    let path = crate::distance_grid::cache_file(&format!("cones-{key:016x}"));
     if let Some(cos) = path.as_deref().and_then(|p| read(p, geo.tris.len())) {
         return cos;
     }
@@ -49,6 +50,7 @@ pub fn cached(geo: &Geometry) -> Vec<f32> {
     {
         // A cache that cannot be written only costs time next run.
         let _ = write(p, &cos);
+        crate::distance_grid::prune_stale(p);
     }
     cos
 }

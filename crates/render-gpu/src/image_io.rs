@@ -126,6 +126,29 @@ pub fn read_exr(path: &Path) -> std::result::Result<(RgbImage, Option<RenderTag>
             )));
         }
     }
+    // exr's own error for a grey (Y) or single-channel image names no channel ("no layer
+    // in the image matched your specified requirements").
+    let rgb = |h: &exr::meta::header::Header| {
+        ["R", "G", "B"]
+            .iter()
+            .all(|c| h.channels.list.iter().any(|ch| ch.name == **c))
+    };
+    if !meta.headers.iter().any(rgb) {
+        let found: Vec<String> = meta
+            .headers
+            .iter()
+            .flat_map(|h| h.channels.list.iter().map(|ch| ch.name.to_string()))
+            .collect();
+        return Err(RenderError::Image(format!(
+            "{}: no layer has R, G and B channels (found {}): stcvae reads RGB images",
+            path.display(),
+            if found.is_empty() {
+                "none".to_string()
+            } else {
+                found.join(", ")
+            }
+        )));
+    }
     let image = read()
         .no_deep_data()
         .largest_resolution_level()
@@ -379,6 +402,26 @@ mod tests {
             *p = [k as f32, 0.5 * k as f32, 1.0 / (1.0 + k as f32)];
         }
         img
+    }
+
+    /// A grey (Y) or red-only EXR is refused naming the channels it has, instead of exr's
+    /// "no layer in the image matched your specified requirements".
+    #[test]
+    fn an_exr_without_rgb_names_its_channels() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("grey.exr");
+        let channels = SpecificChannels::build()
+            .with_channel("Y")
+            .with_pixel_fn(|_| (0.5f32,));
+        Image::from_channels((2, 2), channels)
+            .write()
+            .to_file(&p)
+            .unwrap();
+        let e = read_exr(&p).unwrap_err().to_string();
+        assert!(
+            e.contains("grey.exr: no layer has R, G and B channels (found Y)"),
+            "{e}"
+        );
     }
 
     /// The same image and tag encode to the same bytes every time (with the tag as three

@@ -239,7 +239,12 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
             }
             gltf::buffer::Source::Uri(uri) => {
                 let p = dir.join(uri);
-                std::fs::read(&p).map_err(|e| RenderError::io(&p, e))?
+                std::fs::read(&p).map_err(|e| {
+                    RenderError::mesh(
+                        path,
+                        format!("its buffer {} cannot be read: {e}", p.display()),
+                    )
+                })?
             }
         };
         if data.len() < b.length() {
@@ -401,6 +406,13 @@ fn load_obj(path: &Path) -> Result<TriMesh, RenderError> {
                          'v' and 'f' lines)"
                         .to_string()
                 }
+                // tobj names neither the line nor the index.
+                e @ (tobj::LoadError::FaceVertexOutOfBounds | tobj::LoadError::FaceParseError) => {
+                    std::fs::read_to_string(path)
+                        .ok()
+                        .and_then(|text| bad_face_index(&text))
+                        .unwrap_or_else(|| format!("not a valid OBJ file: {e}"))
+                }
                 e => format!("not a valid OBJ file: {e}"),
             },
         )
@@ -426,6 +438,36 @@ fn load_obj(path: &Path) -> Result<TriMesh, RenderError> {
         );
     }
     Ok(mesh)
+}
+
+/// The first face index of an OBJ text that names no vertex defined before it, as "line N:
+/// ..." with the allowed range (1..=n, or −n..=−1 counting back); None if there is none.
+fn bad_face_index(text: &str) -> Option<String> {
+    let mut vertices: i64 = 0;
+    for (n, line) in text.lines().enumerate() {
+        let mut words = line.split_whitespace();
+        match words.next() {
+            Some("v") => vertices += 1,
+            Some("f") => {
+                for w in words {
+                    let first = w.split('/').next().unwrap_or("");
+                    let ok = first.parse::<i64>().is_ok_and(|i| {
+                        (1..=vertices).contains(&i) || (-vertices..=-1).contains(&i)
+                    });
+                    if !ok {
+                        return Some(format!(
+                            "line {}: face index `{first}` names no vertex: allowed 1..={vertices} \
+                             (or -{vertices}..=-1, counting back) for the {vertices} vertices \
+                             defined before it",
+                            n + 1
+                        ));
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+    None
 }
 
 /// PLY, ASCII or binary little-endian: `vertex` with float/double x, y, z (other

@@ -100,10 +100,12 @@ impl SceneData {
         }
         let grid = with_grid.then(|| DistanceGrid::cached(&geo, scene.render.grid_resolution));
         let m = &scene.medium;
+        let mut camera = Camera::new(&scene.camera);
+        camera.start_before(geo.lo, geo.hi);
         Ok(Self {
             geo,
             grid,
-            camera: Camera::new(&scene.camera),
+            camera,
             sigma_t: m.sigma_t.map(|v| v as f32),
             albedo: m.albedo.map(|v| v as f32),
             g: m.g as f32,

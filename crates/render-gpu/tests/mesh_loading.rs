@@ -87,6 +87,23 @@ fn broken_files_give_clear_errors() {
         e.contains("frac.ply") && e.contains("bad list length"),
         "{e}"
     );
+    // A face index beyond the vertices, or one that is no integer, is named with its line
+    // and the allowed range (tobj says only "out of bounds" or "face parse error").
+    let tet_obj = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n";
+    assert!(load_mesh(&write(&d, "tet.obj", tet_obj.as_bytes())).is_ok());
+    for (bad, name) in [
+        ("f 2 3 9\n", "oob.obj"),
+        ("f 2 3 99999999999999999999\n", "huge.obj"),
+    ] {
+        let text = tet_obj.replace("f 2 3 4\n", bad);
+        let e = load_mesh(&write(&d, name, text.as_bytes()))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains(name) && e.contains("line 8: face index") && e.contains("allowed 1..=4"),
+            "{e}"
+        );
+    }
     let e = load_mesh(&write(&d, "g.glb", b"glTF garbage"))
         .unwrap_err()
         .to_string();
@@ -180,6 +197,14 @@ fn malformed_gltf_is_an_error_not_a_panic_or_a_hang() {
             "{e}"
         );
     }
+    // A buffer file that is not there: the error names the .gltf that refers to it too.
+    let gone = cube_gltf(&d, "gone.gltf", r#"[{"mesh":0}]"#, 5123, 12);
+    std::fs::remove_file(d.path().join("cube.bin")).unwrap();
+    let e = load_mesh(&gone).unwrap_err().to_string();
+    assert!(
+        e.contains("gone.gltf") && e.contains("cube.bin cannot be read"),
+        "{e}"
+    );
 }
 
 /// A mesh with no inside is refused: every triangle degenerate, or a closed but flat

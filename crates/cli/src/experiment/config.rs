@@ -90,8 +90,15 @@ impl Config {
 
     fn validate(&self) -> Result<()> {
         for (name, b) in [("full", &self.full), ("quick", &self.quick)] {
-            if !(1..=4096).contains(&b.size) {
-                bail!("{name}.size = {} is out of range (1..=4096)", b.size);
+            // As `bench render --size`: the figures are measured over 4×4-pixel blocks and
+            // the object's pixels, which a smaller image hardly has (size 1 reported a
+            // variance ratio of 7e297).
+            if !(8..=4096).contains(&b.size) {
+                bail!(
+                    "{name}.size = {} is out of range (8..=4096: the figures are measured over \
+                     4×4-pixel blocks)",
+                    b.size
+                );
             }
             if b.spp < 2 {
                 bail!(
@@ -171,6 +178,40 @@ impl Config {
                 "full/quick seconds and reference_spp",
             )?,
             Kind::Distributions => {}
+        }
+        // A field the kind does not read would be ignored without a word (thresholds in a
+        // teaser, seconds under [quick] of a quality run): refused, naming what it reads.
+        let reads: &[&str] = match self.kind {
+            Kind::Teaser => &["scene", "densities", "paper"],
+            Kind::Quality => &["scene", "densities"],
+            Kind::Complexity => &["scene", "scenes", "densities"],
+            Kind::Absorption => &["scene", "absorptions"],
+            Kind::Distributions => &["samples"],
+            Kind::Nee => &["scene", "seconds", "reference_spp"],
+            Kind::Fallback => &["scene", "densities", "thresholds"],
+        };
+        let budgets = [&self.full, &self.quick];
+        let given = [
+            ("scene", self.scene.is_some()),
+            ("scenes", !self.scenes.is_empty()),
+            ("densities", !self.densities.is_empty()),
+            ("absorptions", !self.absorptions.is_empty()),
+            ("thresholds", !self.thresholds.is_empty()),
+            ("paper", !self.paper.is_empty()),
+            ("seconds", budgets.iter().any(|b| b.seconds.is_some())),
+            (
+                "reference_spp",
+                budgets.iter().any(|b| b.reference_spp.is_some()),
+            ),
+            ("samples", budgets.iter().any(|b| b.samples.is_some())),
+        ];
+        if let Some((field, _)) = given.iter().find(|(f, set)| *set && !reads.contains(f)) {
+            bail!(
+                "{field} does not apply to kind = \"{}\", which reads {} (besides title, \
+                 description and the [full]/[quick] size and spp): remove it",
+                self.kind.name(),
+                reads.join(", ")
+            );
         }
         Ok(())
     }

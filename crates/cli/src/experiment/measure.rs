@@ -98,9 +98,24 @@ pub fn render_once(
     let set = p.settings();
     // Ctrl-C stops the render after its current pass; a cut-short render must not be
     // measured, so the experiment ends here without a report.
-    let out = ctx
-        .engine
-        .render(&p.data, &set, o, &|_, _| {}, crate::interrupt::flag())?;
+    let cam = &p.file.camera;
+    let label = format!("{}, seed {}", kind.name(), o.seed);
+    // A render against the clock has no known length: a spinner with its budget.
+    let pb = match o.time_budget {
+        Some(b) => crate::progress::spinner(&format!("{label}, {b} s")),
+        None => {
+            crate::progress::render_bar(&label, cam.width as u64 * cam.height as u64 * o.spp as u64)
+        }
+    };
+    let out = ctx.engine.render(
+        &p.data,
+        &set,
+        o,
+        &|done, _| pb.set_position(done),
+        crate::interrupt::flag(),
+    );
+    pb.finish_and_clear();
+    let out = out?;
     if crate::interrupt::requested() {
         bail!(
             "interrupted: no report written (images saved so far stay in {})",

@@ -15,6 +15,9 @@ use crate::device::{DeviceArg, Engine};
 pub use config::{Budget, Config, Kind};
 pub use report::Report;
 
+/// `--out`'s default: the results root.
+pub const DEFAULT_OUT: &str = "results";
+
 #[derive(clap::Args)]
 #[command(
     after_help = "Configs: configs/experiments/{teaser,quality,complexity,absorption,\
@@ -31,7 +34,7 @@ pub struct Args {
     #[arg(long, value_enum, default_value_t = DeviceArg::Auto)]
     pub device: DeviceArg,
     /// Results root; the experiment writes `OUT/<config name>/`.
-    #[arg(long, default_value = "results")]
+    #[arg(long, default_value = DEFAULT_OUT)]
     pub out: PathBuf,
     /// Model file (default: models/default.stcvae).
     #[arg(long)]
@@ -62,6 +65,12 @@ pub fn run(a: Args) -> Result<()> {
         .unwrap_or_else(|| "experiment".into());
     kinds::preflight(&cfg).with_context(|| a.config.display().to_string())?;
     let out = a.out.join(&name);
+    // A file where the folder or a report goes, or an unwritable place, fails now rather
+    // than after the renders.
+    crate::check_out_dir("--out", &out)?;
+    for f in ["report.md", "figures.csv"] {
+        crate::check_out("--out", &out.join(f))?;
+    }
     // The device and the model first: a run that cannot start leaves no empty folder behind.
     let engine = Engine::open(a.device)?.without_fallback();
     if a.model.is_some() {

@@ -67,13 +67,22 @@ impl Report {
         }
         let _ = writeln!(
             md,
-            "Regenerate: `stcvae experiment {}{}{}`  \nMachine: {} logical cores, {}; date {}.{}\n",
+            "Regenerate: `stcvae experiment {}{}{}{}{}`  \nMachine: {} logical cores, {}; date {}.{}\n",
             a.config.display(),
             if a.quick { " --quick" } else { "" },
             match a.device {
                 crate::device::DeviceArg::Auto => "",
                 crate::device::DeviceArg::Gpu => " --device gpu",
                 crate::device::DeviceArg::Cpu => " --device cpu",
+            },
+            // The model is part of what was measured, and the folder of where it went.
+            a.model
+                .as_ref()
+                .map_or(String::new(), |m| format!(" --model {}", m.display())),
+            if a.out == std::path::Path::new(super::DEFAULT_OUT) {
+                String::new()
+            } else {
+                format!(" --out {}", a.out.display())
             },
             std::thread::available_parallelism().map_or(0, |n| n.get()),
             engine.describe(),

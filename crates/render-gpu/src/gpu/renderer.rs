@@ -816,7 +816,7 @@ pub fn render_gpu(
             } else if finished != s0 as f64 {
                 short += 1;
             }
-            *px = sum.map(|v| (v / s0.max(1) as f64) as f32);
+            *px = crate::render::resolve_pixel(sum, s0, opts.seed, (first + p) as u32);
         }
     }
     if bad > 0 {

@@ -52,7 +52,8 @@ pub struct Params {
     /// max_tau, near_surface, bounces per dispatch, tile stride.
     pub consts2: [f32; 4],
     /// exact_tau (below it a sphere step simulates its walk), exact_nee_samples (as f32),
-    /// the loop-limit probe's passes ([`LOOP_PROBE_PASSES`]), unused.
+    /// the loop-limit probe's passes ([`LOOP_PROBE_PASSES`]), the camera rays' start
+    /// ([`crate::camera::Camera::start`]).
     pub consts3: [f32; 4],
 }
 
@@ -306,7 +307,7 @@ pub fn scene_params(scene: &SceneData, set: &IntegratorSettings, seed: u64) -> P
             set.exact_tau,
             set.exact_nee_samples as f32,
             LOOP_PROBE_PASSES,
-            0.0,
+            cam.start,
         ],
     }
 }

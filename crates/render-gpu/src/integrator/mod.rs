@@ -3,7 +3,8 @@
 //! `sphere_step::begin`).
 //!
 //! Each path traces one colour channel (the hero channel, chosen per sample and
-//! stratified over a pixel's samples) and its estimate is added, times 3, to that channel.
+//! stratified over a pixel's samples) and its estimate is added, times 3, to that channel;
+//! `render::resolve_pixel` turns the sums into each channel's mean over its own samples.
 
 mod event_choice;
 pub mod nee;
