@@ -90,6 +90,10 @@ pub fn load(file: &Path, hash: u64, spp: u32, identity: &str) -> Result<Option<(
         || n != Some(s.mean.len())
         || s.var.len() != s.mean.len()
         || !(s.seconds.is_finite() && s.seconds > 0.0)
+        // Pixel means and variances are finite and ≥ 0 in any render (an edited file with a
+        // negative variance gave a negative variance ratio, a mean of 1e39 an infinite bias).
+        || s.mean.iter().flatten().any(|v| !(v.is_finite() && *v >= 0.0))
+        || s.var.iter().flatten().any(|v| !(v.is_finite() && *v >= 0.0))
     {
         bail!(
             "{}: stored for another version, scene, spp, size, device or binary, or damaged \

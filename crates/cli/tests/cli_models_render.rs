@@ -779,6 +779,16 @@ fn bench_render_reuses_stored_pt_pairs() {
     assert_eq!(std::fs::read_dir(&cache).unwrap().count(), 4);
     assert!(stdout(bench("6", &["--seeds", "1"])).contains(hit));
     assert!(stdout(bench("6", &[])).contains("seeds PT [11, 12], ST-CVAE [13, 14]"));
+    // A stored pair edited to hold a negative pixel mean is refused, naming the file.
+    for f in std::fs::read_dir(&cache).unwrap() {
+        let f = f.unwrap().path();
+        let text = std::fs::read_to_string(&f).unwrap();
+        assert!(text.contains("\"mean\":[["), "{}", f.display());
+        // The first pixel's red mean gets a leading "-1": negative, same length.
+        std::fs::write(&f, text.replace("\"mean\":[[", "\"mean\":[[-1")).unwrap();
+    }
+    let err = fails(&bench("6", &[]));
+    assert!(err.contains("pt-v") && err.contains("damaged"), "{err}");
 }
 
 /// `bench render --save`: both images, the z map and the pixel table, whose means are the

@@ -338,6 +338,16 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
                 p.display(),
             )));
         }
+        // Radiance estimates are never negative; such a pixel means a damaged or foreign
+        // file (the environment loader refuses them too).
+        if let Some(i) = img.pixels.iter().position(|px| px.iter().any(|v| *v < 0.0)) {
+            return Err(RenderError::Image(format!(
+                "{}: pixel ({}, {}) is negative: a render's pixels are ≥ 0",
+                p.display(),
+                i % img.width,
+                i / img.width
+            )));
+        }
         match &mut acc {
             None => {
                 let sum = img
@@ -450,17 +460,25 @@ mod tests {
         }
     }
 
-    /// A render with a NaN or infinite pixel is refused by name and position, not averaged
-    /// into the merge.
+    /// A render with a NaN, infinite or negative pixel is refused by name and position, not
+    /// averaged into the merge.
     #[test]
     fn merges_refuse_non_finite_pixels_by_position() {
         let dir = tempfile::tempdir().unwrap();
         let good = image();
         assert_eq!(good.first_non_finite(), None);
-        for bad_value in [f32::NAN, f32::INFINITY] {
+        for (bad_value, why) in [
+            (f32::NAN, "is not finite"),
+            (f32::INFINITY, "is not finite"),
+            (-1.0, "is negative"),
+        ] {
             let mut bad = image();
             bad.pixels[5 + 3][1] = bad_value; // (x, y) = (3, 1) in a 5-wide image
-            assert_eq!(bad.first_non_finite(), Some((3, 1)));
+            if bad_value.is_finite() {
+                assert_eq!(bad.first_non_finite(), None);
+            } else {
+                assert_eq!(bad.first_non_finite(), Some((3, 1)));
+            }
             let paths = [("good.exr", &good, 1), ("bad.exr", &bad, 2)].map(|(name, img, seed)| {
                 let tag = RenderTag {
                     spp: 4,
@@ -473,7 +491,7 @@ mod tests {
             });
             let e = merge_exrs(&[&paths[0], &paths[1]]).unwrap_err().to_string();
             assert!(
-                e.contains("bad.exr") && e.contains("pixel (3, 1) is not finite"),
+                e.contains("bad.exr") && e.contains(&format!("pixel (3, 1) {why}")),
                 "{e}"
             );
         }
