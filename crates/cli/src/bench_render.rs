@@ -66,7 +66,7 @@ pub struct Args {
     /// into a light's disk or the environment, which takes EventGen out of ST-CVAE and
     /// so tells its error from LengthGen's and PathGen's (give a scene whose light has an
     /// angular diameter, e.g. configs/scenes/bunny_sun_wide.toml). Default: the scene's
-    /// (on in every shipped scene).
+    /// `nee` (on in the shipped scenes but bunny_sun_wide.toml).
     #[arg(long, action = clap::ArgAction::Set)]
     nee: Option<bool>,
     /// Where both integrators run: auto, gpu (any wgpu adapter) or cpu.

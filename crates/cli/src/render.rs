@@ -268,16 +268,14 @@ pub(crate) fn check_out_stem(out: &Path) -> Result<()> {
             break;
         }
     }
-    // An output name taken by a folder (or a FIFO, a device) would fail only after the
-    // render.
+    // An output name taken by a folder (or a FIFO, a device), or a place without write
+    // permission, would fail only after the render.
     for ext in ["exr", "png", "json"] {
         let f = crate::merge::image_out(out, ext);
-        if let Err(e) = scatter_sim::output::output_target(&f) {
-            bail!("--out {}: {} {e}", out.display(), f.display());
-        }
+        scatter_sim::output::check_output_path(&f)
+            .map_err(|e| anyhow::anyhow!("--out {}: {e}", out.display()))?;
     }
-    // And so would a directory without write permission.
-    crate::check_out("--out", out)
+    Ok(())
 }
 
 /// Says once when the scene's lights cannot contribute: delta lights without NEE.

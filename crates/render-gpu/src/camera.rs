@@ -42,16 +42,21 @@ impl Camera {
     /// object's bounds), where nothing lies before them. From a camera far away (the scene
     /// allows ±10⁶) a hit computed as origin + t·dir carries the rounding of the large
     /// origin and t: from 10³ object sizes on it fell beyond the surface's offset, paths
-    /// entered believing themselves outside or the reverse, and the image showed
-    /// background crosses through the object. From the new start the hit is as precise as
-    /// from a near camera; the start itself is off the ray by the origin's rounding (a
-    /// sub-pixel shift). The margin (1 % of the radius, and a millionth of the origin's
-    /// distance from 0 against that rounding) keeps it outside the sphere.
+    /// entered believing themselves outside or the reverse (1.5 million leaks in 1,872
+    /// paths at 10⁵), and the image showed background crosses through the object. From the
+    /// start the hit is as precise as from a near camera. The start itself carries the
+    /// rounding of origin + start·dir, ~6·10⁻⁸ of the larger of the camera's and the
+    /// object's distances from 0, and the directions of neighbouring pixels round alike:
+    /// the image shifts by a fraction of a pixel up to ~10⁴ object sizes away and by
+    /// pixels at 10⁶. The margin (1 % of the radius, and 10⁻⁶ of those distances, 16× the
+    /// rounding) keeps the start outside the sphere.
     pub fn start_before(&mut self, lo: Vec3, hi: Vec3) {
         let (lo, hi, origin) = (lo.as_dvec3(), hi.as_dvec3(), self.origin.as_dvec3());
+        let centre = 0.5 * (lo + hi);
         let radius = 0.5 * (hi - lo).length();
-        let distance = (origin - 0.5 * (lo + hi)).length();
-        let start = distance - 1.01 * radius - 1e-6 * origin.length();
+        let distance = (origin - centre).length();
+        let scale = origin.length() + centre.length() + distance;
+        let start = distance - 1.01 * radius - 1e-6 * scale;
         self.start = start.max(0.0) as f32;
     }
 

@@ -579,7 +579,8 @@ const MIN_BLOCK_DOF: f64 = 20.0;
 /// Those two see a difference's size, not its sign, so a small bias of the same sign in
 /// every block (δ block-σ) raises mean z² only by δ² and passes them up to δ ≈ 1.0–1.2.
 /// The signed sum catches it: the blocks are disjoint and a path adds to one channel, so
-/// the z are independent; CPU and GPU run the same estimator, so each z is symmetric
+/// the z are independent (nearly: on the CPU a pixel's three channels share their jitters,
+/// which correlates them where the image changes within a pixel, at silhouettes); CPU and GPU run the same estimator, so each z is symmetric
 /// about 0 (swapping the devices flips its sign). S = Σz / √(k·s²), with s² the z's
 /// spread about their mean floored at the t-variance bound 1.11, is then about N(0, 1)
 /// for k ≥ 30, and |S| < 4.5 is a false alarm with probability ~7·10⁻⁶; a shift δ makes

@@ -638,8 +638,9 @@ fn batched_render_equals_paths_traced_alone() {
                 let origin = cam.ray_origin(dir);
                 acc[c] += 3.0 * trace(&s, &set, origin, dir, c, &mut stats, &mut rng) as f64;
             }
+            let alone = render_gpu::render::resolve_pixel(acc, spp, 9, i as u32);
             for c in 0..3 {
-                let alone = (acc[c] / spp as f64) as f32;
+                let alone = alone[c];
                 assert!(
                     (px[c] - alone).abs() <= 1e-5 * alone.abs().max(1e-3),
                     "nee {nee}: pixel ({x}, {y}) channel {c}: batched {} vs alone {alone}",

@@ -17,12 +17,11 @@ use tempfile::NamedTempFile;
 /// a directory" instead of the "File exists" that creating the directories would report
 /// after the work.
 pub fn check_output_path(path: &Path) -> Result<(), String> {
-    let target = output_target(path).map_err(|e| format!("{} {e}", path.display()))?;
+    check_replaceable(path).map_err(|e| format!("{} {e}", path.display()))?;
     let text = path.as_os_str().to_string_lossy();
     if text.ends_with('/') || text.ends_with(std::path::MAIN_SEPARATOR) {
         return Err(format!("{text} ends with a path separator: name a file"));
     }
-    let path = target.as_path();
     let dir = match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),
@@ -69,12 +68,13 @@ pub fn check_output_path(path: &Path) -> Result<(), String> {
         })
 }
 
-/// The file an output named `path` replaces: `path` itself, or the file a symbolic link
-/// there points to (the link stays, as a shell's `>` would leave it). Anything else already
-/// there is refused: an output is a finished file renamed over its target, which would
-/// destroy a FIFO or a device node (`/dev/null` written as root), and a directory cannot be
-/// replaced. The error's message follows the path, e.g. "x is a directory".
-pub fn output_target(path: &Path) -> io::Result<PathBuf> {
+/// Refuses an output `path` that must not be replaced: an output is a finished file
+/// renamed over whatever is there, which would destroy a FIFO or a device node
+/// (`/dev/null` written as root), and cannot replace a directory. A symbolic link is
+/// replaced like a file (its target is left as it is): following it would let another
+/// user's link in a shared folder such as /tmp aim an output at the writer's own files.
+/// The error's message follows the path, e.g. "x is a directory".
+pub fn check_replaceable(path: &Path) -> io::Result<()> {
     let meta = match fs::symlink_metadata(path) {
         // Not there (or a file on the way, which the caller's directory checks name).
         Err(e)
@@ -83,34 +83,26 @@ pub fn output_target(path: &Path) -> io::Result<PathBuf> {
                 io::ErrorKind::NotFound | io::ErrorKind::NotADirectory
             ) =>
         {
-            return Ok(path.to_path_buf());
+            return Ok(());
         }
         Err(e) => return Err(e),
         Ok(m) => m,
     };
-    let (target, meta) = if meta.file_type().is_symlink() {
-        let target = fs::canonicalize(path).map_err(|_| {
-            io::Error::new(io::ErrorKind::NotFound, "is a symbolic link to nothing")
-        })?;
-        let meta = fs::metadata(&target)?;
-        (target, meta)
-    } else {
-        (path.to_path_buf(), meta)
-    };
-    if meta.is_dir() {
+    let kind = meta.file_type();
+    if kind.is_dir() {
         return Err(io::Error::new(
             io::ErrorKind::IsADirectory,
             "is a directory",
         ));
     }
-    if !meta.is_file() {
+    if !(kind.is_file() || kind.is_symlink()) {
         return Err(io::Error::new(
             io::ErrorKind::InvalidInput,
             "exists and is not a regular file (a FIFO, device or socket): outputs are written \
              to a new file renamed over the old, so name a regular file or a new path",
         ));
     }
-    Ok(target)
+    Ok(())
 }
 
 /// A buffered writer to a temporary file that becomes `path` on [`AtomicFile::commit`].
@@ -121,11 +113,9 @@ pub struct AtomicFile {
 
 impl AtomicFile {
     /// Creates the temporary file in `path`'s directory (creating the directory); refuses a
-    /// `path` that is neither a regular file nor new ([`output_target`]).
+    /// `path` that cannot be replaced ([`check_replaceable`]; callers name the path).
     pub fn create(path: &Path) -> io::Result<Self> {
-        let target = output_target(path)
-            .map_err(|e| io::Error::new(e.kind(), format!("{} {e}", path.display())))?;
-        let path = target.as_path();
+        check_replaceable(path)?;
         let dir = match path.parent() {
             Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
             _ => PathBuf::from("."),
@@ -232,12 +222,12 @@ pub fn write_atomic_set(files: &[(&Path, &[u8])]) -> Result<(), (PathBuf, io::Er
 mod tests {
     use super::*;
 
-    /// Outputs never replace what is not a regular file: a FIFO stays a FIFO (as root a
-    /// device node would have become a file), a link keeps pointing at the file it names,
-    /// whose content is replaced, and a link to nothing is refused.
+    /// Outputs never replace what is not a regular file or a link: a FIFO stays a FIFO (as
+    /// root a device node would have become a file); a link, dangling or not, is replaced
+    /// by the output and its target is left as it was.
     #[cfg(unix)]
     #[test]
-    fn outputs_replace_only_regular_files() {
+    fn outputs_replace_only_files_and_links() {
         use std::os::unix::fs::FileTypeExt;
         let d = tempfile::tempdir().unwrap();
         let fifo = d.path().join("pipe.csv");
@@ -256,25 +246,17 @@ mod tests {
         }
         let file = d.path().join("real.bin");
         fs::write(&file, b"old").unwrap();
-        let link = d.path().join("link.bin");
-        std::os::unix::fs::symlink(&file, &link).unwrap();
-        check_output_path(&link).unwrap();
-        write_atomic(&link, b"new").unwrap();
-        assert!(
-            fs::symlink_metadata(&link)
-                .unwrap()
-                .file_type()
-                .is_symlink()
-        );
-        assert_eq!(fs::read(&file).unwrap(), b"new");
-        let dangling = d.path().join("dangling.bin");
-        std::os::unix::fs::symlink(d.path().join("nowhere"), &dangling).unwrap();
-        let e = check_output_path(&dangling).unwrap_err();
-        assert!(
-            e.contains("dangling.bin is a symbolic link to nothing"),
-            "{e}"
-        );
-        assert!(AtomicFile::create(&dangling).is_err());
+        let nowhere = d.path().join("nowhere");
+        for (name, to) in [("link.bin", &file), ("dangling.bin", &nowhere)] {
+            let link = d.path().join(name);
+            std::os::unix::fs::symlink(to, &link).unwrap();
+            check_output_path(&link).unwrap();
+            write_atomic(&link, b"new").unwrap();
+            assert!(fs::symlink_metadata(&link).unwrap().file_type().is_file());
+            assert_eq!(fs::read(&link).unwrap(), b"new");
+        }
+        assert_eq!(fs::read(&file).unwrap(), b"old");
+        assert!(!nowhere.exists());
     }
 
     #[test]

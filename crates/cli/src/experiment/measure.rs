@@ -139,9 +139,9 @@ pub fn pair_seeds(kind: IntegratorKind) -> [u64; 2] {
 
 /// Samples of each of a pair's two renders for `spp` in all: half, rounded up to a
 /// multiple of 3 so that every pixel gives each hero channel the same number of samples
-/// in both renders (otherwise a pixel's channels carry ±0.6 % weights that differ between
-/// seeds: noise of its own that the two halves measure but the image comparison does not
-/// share, and background pixels that would look noisy).
+/// in both renders. (Each channel is the mean of its own samples at any spp, see
+/// `render::resolve_pixel`; with equal counts a channel's noise is also the same in every
+/// pixel and both seeds, which the noise estimates assume.)
 pub fn half_spp(spp: u32) -> u32 {
     (spp / 2).max(1).div_ceil(3) * 3
 }

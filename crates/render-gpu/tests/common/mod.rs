@@ -56,7 +56,7 @@ grid_resolution = 64
     )
 }
 
-/// The furnace seen from 10⁵ away through a lens 4,000× narrower: the same view, from
+/// The furnace seen from 10⁵ away through a lens 33,000× narrower: the same view, from
 /// where a camera ray's hit computed from the camera carried rounding far beyond the
 /// surface's offset (1.5 million leaks in 1,872 paths before the rays started near the
 /// object, `Camera::start_before`).
