@@ -290,10 +290,16 @@ pub fn run(a: Args) -> Result<()> {
             );
         }
     }
+    // Each model's count: EventGen's also leaves out walks whose only event is the centre.
+    let used: Vec<String> = kinds
+        .iter()
+        .zip(&tables)
+        .map(|(k, t)| format!("{} {}", k.name(), t.rows))
+        .collect();
     eprintln!(
-        "{} walks ({} used: {}), read and prepared in {:.1} s",
+        "{} walks (used: {}; {}), read and prepared in {:.1} s",
         rows.len(),
-        tables[0].rows,
+        used.join(", "),
         if cfg.single_scattering == SingleScattering::Exact {
             "N >= 2; N = 1 is exact"
         } else {
@@ -409,11 +415,13 @@ pub fn run(a: Args) -> Result<()> {
     let mut event_version = cvae::features::FEATURE_VERSION;
     for t in &trained {
         let last = t.info.history.last().map_or(f32::NAN, |h| h.1);
+        // A resumed model's seconds include the runs before this one.
         notes.push(format!(
-            "{}: {} steps, final loss {last:.4}, {:.0} s",
+            "{}: {} steps, final loss {last:.4}, {:.0} s{}",
             t.kind.name(),
             t.info.step,
-            t.info.seconds
+            t.info.seconds,
+            if a.resume { " over all its runs" } else { "" }
         ));
         decoders.insert(t.kind, t.decoder.clone());
     }
@@ -459,7 +467,8 @@ pub fn run(a: Args) -> Result<()> {
     };
     set.save(&out)?;
     eprintln!(
-        "trained in {seconds:.0} s ({}); wrote {} ({} bytes)",
+        "trained in {seconds:.0} s{} ({}); wrote {} ({} bytes)",
+        if a.resume { " this run" } else { "" },
         notes.join("; "),
         out.display(),
         set.to_bytes().len()

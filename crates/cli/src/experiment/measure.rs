@@ -117,10 +117,8 @@ pub fn render_once(
     pb.finish_and_clear();
     let out = out?;
     if crate::interrupt::requested() {
-        bail!(
-            "interrupted: no report written (images saved so far stay in {})",
-            ctx.out.display()
-        );
+        // (experiment::run says where the images saved so far are, if any were.)
+        bail!("interrupted: no report written");
     }
     Ok((out, p.data.hash))
 }

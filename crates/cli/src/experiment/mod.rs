@@ -103,8 +103,14 @@ pub fn run(a: Args) -> Result<()> {
     crate::interrupt::flag();
     if let Err(e) = kinds::run(&ctx, &mut rep) {
         // A run stopped before it saved anything leaves no empty folder (remove_dir
-        // removes only an empty one).
+        // removes only an empty one); one that saved images says where they are.
         let _ = std::fs::remove_dir(&out);
+        if out.exists() {
+            return Err(anyhow::anyhow!(
+                "{e:#} (images saved so far stay in {})",
+                out.display()
+            ));
+        }
         return Err(e);
     }
     rep.write(&out)?;
