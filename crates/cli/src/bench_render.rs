@@ -269,16 +269,16 @@ fn render_pair(
             p.file.medium.sigma_t,
             kind.name()
         );
-        let pb =
-            crate::progress::render_bar(&label, cam.width as u64 * cam.height as u64 * half as u64);
+        let opts = RenderOptions {
+            spp: half,
+            seed,
+            time_budget: None,
+        };
+        let pb = crate::progress::render_bar(&label, cam.width as u64 * cam.height as u64, &opts);
         let o = engine.render(
             &p.data,
             &set,
-            &RenderOptions {
-                spp: half,
-                seed,
-                time_budget: None,
-            },
+            &opts,
             &|done, _| pb.set_position(done),
             &cancel,
         );
@@ -350,11 +350,8 @@ pub fn run(a: Args) -> Result<()> {
         )),
         None => None,
     };
-    // The scene's own setting unless --nee gives one (a scene that cannot be read is
-    // reported by name when the renders prepare it).
-    let nee = a.nee.unwrap_or_else(|| {
-        render_gpu::scene::SceneFile::load(&a.scene).map_or(true, |f| f.render.nee)
-    });
+    // The scene's own setting unless --nee gives one.
+    let nee = a.nee.unwrap_or(scene.render.nee);
     println!(
         "stcvae bench render: {} ({}x{}), g = 0.875, albedo (0.99999, 0.99995, 0.975), NEE {}, {} spp each (2 seeds of {}: a multiple of 3 per seed; seeds PT {:?}, ST-CVAE {:?}), {}",
         a.scene.display(),

@@ -19,12 +19,16 @@ pub fn bar(len: u64, unit: &str) -> ProgressBar {
     pb
 }
 
-/// A bar over one render's samples, named by `label` (e.g. "k = 8, ST-CVAE, seed 2"), for
-/// the commands that render many images: a bench row at high density runs for half an
-/// hour, and showed nothing until its row was printed. Cleared when the render is done, so
-/// only the tables stay; drawn only on a terminal.
-pub fn render_bar(label: &str, samples: u64) -> ProgressBar {
-    let pb = bar(samples, "samples");
+/// The progress of one render of `pixels` pixels, named by `label` (e.g. "stcvae, seed
+/// 2"), for the commands that render many images: a bench row at high density runs for half
+/// an hour, and showed nothing until its row was printed. A bar over its samples, or a
+/// spinner with its budget for a render against the clock (no known length). The caller
+/// clears it when the render is done, so only the tables stay; drawn only on a terminal.
+pub fn render_bar(label: &str, pixels: u64, o: &render_gpu::render::RenderOptions) -> ProgressBar {
+    if let Some(b) = o.time_budget {
+        return spinner(&format!("{label}, {b} s"));
+    }
+    let pb = bar(pixels * o.spp as u64, "samples");
     pb.set_message(label.to_string());
     pb
 }

@@ -42,11 +42,16 @@ impl RgbImage {
     /// The first pixel (x, y) with a NaN or infinite channel: a reader that averages or
     /// compares images refuses it by name rather than spread it through every figure.
     pub fn first_non_finite(&self) -> Option<(usize, usize)> {
-        let i = self
-            .pixels
-            .iter()
-            .position(|p| p.iter().any(|v| !v.is_finite()))?;
-        Some((i % self.width, i / self.width))
+        self.first_value(|v| !v.is_finite()).map(|(x, y, _)| (x, y))
+    }
+
+    /// The first pixel (x, y) with a channel value v for which `bad(v)`, and that value:
+    /// the readers' checks of what an image may hold name the pixel they refuse.
+    pub fn first_value(&self, bad: impl Fn(f32) -> bool) -> Option<(usize, usize, f32)> {
+        self.pixels.iter().enumerate().find_map(|(i, p)| {
+            let v = p.iter().copied().find(|v| bad(*v))?;
+            Some((i % self.width, i / self.width, v))
+        })
     }
 }
 
@@ -340,12 +345,10 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
         }
         // Radiance estimates are never negative; such a pixel means a damaged or foreign
         // file (the environment loader refuses them too).
-        if let Some(i) = img.pixels.iter().position(|px| px.iter().any(|v| *v < 0.0)) {
+        if let Some((x, y, _)) = img.first_value(|v| v < 0.0) {
             return Err(RenderError::Image(format!(
-                "{}: pixel ({}, {}) is negative: a render's pixels are ≥ 0",
-                p.display(),
-                i % img.width,
-                i / img.width
+                "{}: pixel ({x}, {y}) is negative: a render's pixels are ≥ 0",
+                p.display()
             )));
         }
         match &mut acc {

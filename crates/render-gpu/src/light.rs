@@ -97,14 +97,10 @@ pub struct Environment {
 /// non-negative and within the scene file's radiance bound.
 fn check_radiance_map(m: &RgbImage) -> Result<(), String> {
     let max = crate::scene::MAX_RADIANCE as f32;
-    for (i, px) in m.pixels.iter().enumerate() {
-        if let Some(v) = px.iter().find(|v| !(**v >= 0.0 && **v <= max)) {
-            return Err(format!(
-                "environment pixel ({}, {}) = {v} is out of range: allowed [0, {max:e}]",
-                i % m.width,
-                i / m.width
-            ));
-        }
+    if let Some((x, y, v)) = m.first_value(|v| !(v >= 0.0 && v <= max)) {
+        return Err(format!(
+            "environment pixel ({x}, {y}) = {v} is out of range: allowed [0, {max:e}]"
+        ));
     }
     if m.width == 0 || m.height == 0 {
         return Err("the environment map is empty".into());

@@ -99,14 +99,11 @@ pub fn render_once(
     // Ctrl-C stops the render after its current pass; a cut-short render must not be
     // measured, so the experiment ends here without a report.
     let cam = &p.file.camera;
-    let label = format!("{}, seed {}", kind.name(), o.seed);
-    // A render against the clock has no known length: a spinner with its budget.
-    let pb = match o.time_budget {
-        Some(b) => crate::progress::spinner(&format!("{label}, {b} s")),
-        None => {
-            crate::progress::render_bar(&label, cam.width as u64 * cam.height as u64 * o.spp as u64)
-        }
-    };
+    let pb = crate::progress::render_bar(
+        &format!("{}, seed {}", kind.name(), o.seed),
+        cam.width as u64 * cam.height as u64,
+        o,
+    );
     let out = ctx.engine.render(
         &p.data,
         &set,

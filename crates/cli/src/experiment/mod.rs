@@ -66,8 +66,7 @@ pub fn run(a: Args) -> Result<()> {
     kinds::preflight(&cfg).with_context(|| a.config.display().to_string())?;
     let out = a.out.join(&name);
     // A file where the folder or a report goes, or an unwritable place, fails now rather
-    // than after the renders.
-    crate::check_out_dir("--out", &out)?;
+    // than after the renders (the reports' checks cover their folder's).
     for f in ["report.md", "figures.csv"] {
         crate::check_out("--out", &out.join(f))?;
     }
