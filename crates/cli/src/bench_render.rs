@@ -41,14 +41,16 @@ pub struct Args {
     /// Model file for ST-CVAE (default: models/default.stcvae).
     #[arg(long)]
     model: Option<PathBuf>,
-    /// Thin-region threshold of ST-CVAE (overrides the scene's).
+    /// Thin-region threshold of ST-CVAE, an optical radius in [0, 1e6] (overrides the
+    /// scene's).
     #[arg(long, allow_negative_numbers = true)]
     min_tau: Option<f64>,
-    /// Largest sphere step of ST-CVAE (overrides the scene's).
+    /// Largest sphere step of ST-CVAE, an optical radius in (0, the model's training
+    /// maximum] (overrides the scene's).
     #[arg(long, allow_negative_numbers = true)]
     max_tau: Option<f64>,
     /// Representative events (EventGen draws) per model-drawn sphere step for NEE
-    /// (overrides the scene's).
+    /// 1 to 64 (overrides the scene's).
     #[arg(long)]
     nee_samples: Option<u32>,
     /// NEE events per exactly simulated sphere step, 1 to 4 (overrides the scene's).

@@ -26,10 +26,12 @@ pub struct Args {
     /// Scene file (TOML; the format is in the README).
     #[arg(long, default_value = DEFAULT_SCENE, value_parser = crate::shipped::scene_arg(DEFAULT_SCENE))]
     pub scene: PathBuf,
-    /// pt (volumetric path tracing, the reference) or stcvae (sphere tracing with the CVAEs).
+    /// pt (volumetric path tracing, the reference) or stcvae (sphere tracing with the CVAEs)
+    /// (overrides render.integrator).
     #[arg(long, value_parser = parse_integrator)]
     pub integrator: Option<IntegratorKind>,
-    /// Next-event estimation to the directional lights (true/false).
+    /// Next-event estimation to the directional lights, true or false (overrides
+    /// render.nee).
     #[arg(long)]
     pub nee: Option<bool>,
     /// Samples per pixel (overrides render.spp).

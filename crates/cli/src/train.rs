@@ -18,6 +18,8 @@ use crate::{interrupt, progress};
 #[derive(clap::Args)]
 #[command(
     after_help = "Example:\n  stcvae train --config configs/train/default.toml\n\n\
+    The default config writes models/trained.stcvae; the shipped models/default.stcvae, \
+    which `render` reads by default, is left as it is.\n\n\
     The three models train concurrently, one thread each. If the dataset named in the config \
     does not exist it is generated first from `dataset_config`. Ctrl-C saves a checkpoint; \
     --resume continues from it."
@@ -473,5 +475,8 @@ pub fn run(a: Args) -> Result<()> {
         out.display(),
         set.to_bytes().len()
     );
+    // `render` reads the shipped models/default.stcvae unless told otherwise, and the
+    // default training config no longer overwrites it: say how to use what was written.
+    eprintln!("render with it: stcvae render --model {}", out.display());
     Ok(())
 }

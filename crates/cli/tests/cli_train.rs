@@ -76,6 +76,11 @@ fn one_model_retrained_against_a_base_file_keeps_the_others() {
     let out = train_eventgen(dir.path(), base_s);
     assert!(out.status.success(), "train failed: {}", stderr(&out));
     assert!(!stderr(&out).contains("every walk has"), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("render with it: stcvae render --model m.stcvae"),
+        "{}",
+        stderr(&out)
+    );
     let shipped = ModelSet::load(&base).unwrap();
     let got = ModelSet::load(&dir.path().join("m.stcvae")).unwrap();
     assert_eq!(
@@ -119,6 +124,23 @@ fn one_model_retrained_against_a_base_file_keeps_the_others() {
         got.training.tau_range
     );
     assert!(got.training.tau_range[0] >= shipped.training.tau_range[0]);
+}
+
+/// The shipped training config must not write over the shipped model: `train` writes
+/// feature version 3 and the shipped file is version 2, validated for its image.
+#[test]
+fn the_shipped_config_leaves_the_shipped_model_alone() {
+    let cfg: toml::Value =
+        toml::from_str(&fs::read_to_string(root().join("configs/train/default.toml")).unwrap())
+            .unwrap();
+    let out = cfg["out"].as_str().unwrap();
+    assert_ne!(Path::new(out), Path::new("models/default.stcvae"));
+    assert!(out.starts_with("models/"), "{out}");
+    let ignore = fs::read_to_string(root().join(".gitignore")).unwrap();
+    assert!(
+        ignore.lines().any(|l| l == format!("/{out}")),
+        "{out} should be ignored by git, like every other output"
+    );
 }
 
 /// A dataset whose walks all share one g trains, with a warning that the model knows only
