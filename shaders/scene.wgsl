@@ -34,6 +34,7 @@ struct Params {
     consts2: vec4<f32>,         // max_tau, near_surface, bounces per dispatch, tile stride
     consts3: vec4<f32>,         // exact_tau, exact_nee_samples (integral), loop-probe passes,
                                 // camera rays' start (Camera::start)
+    consts4: vec4<f32>,         // NEE's radiance factor (Boundary::nee_scale: 1/ior² or 1), 0, 0, 0
 }
 
 // A BVH node as the traversals use it. `nodes` holds it packed in 16 bytes
@@ -680,11 +681,14 @@ struct LightSample {
     factor: f32,
 }
 
+/// A direction toward light i for NEE and its factor: E, or L·Ω of a disk, times NEE's
+/// radiance factor (params.consts4.x; nee.rs, light_sample).
 fn light_sample(i: u32, u1: f32, u2: f32, channel: u32) -> LightSample {
     let l = params.lights[i];
     let cos_max = l.to_light.w;
+    let scale = params.consts4.x;
     if cos_max >= 1.0 {
-        return LightSample(l.to_light.xyz, l.irradiance[channel]);
+        return LightSample(l.to_light.xyz, l.irradiance[channel] * scale);
     }
     let c = 1.0 - u1 * (1.0 - cos_max);
     let s = sqrt(max(1.0 - c * c, 0.0));
@@ -692,7 +696,7 @@ fn light_sample(i: u32, u1: f32, u2: f32, channel: u32) -> LightSample {
     let n = l.to_light.xyz;
     let dir = normalize(basis_t(n) * (s * cos(phi)) + basis_b(n) * (s * sin(phi)) + n * c);
     let solid_angle = TWO_PI * (1.0 - cos_max);
-    return LightSample(dir, l.radiance[channel] * solid_angle);
+    return LightSample(dir, l.radiance[channel] * solid_angle * scale);
 }
 
 fn light_radiance_toward(i: u32, dir: vec3<f32>, channel: u32) -> f32 {

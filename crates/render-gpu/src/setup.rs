@@ -19,6 +19,28 @@ pub enum Boundary {
     Dielectric(f32),
 }
 
+impl Boundary {
+    /// The factor on every NEE term of light scattered in the medium: 1/ior² with a
+    /// dielectric boundary, 1 when index-matched. The one source of this convention for the
+    /// CPU integrators and the WGSL kernels (`params.consts4.x`).
+    ///
+    /// Radiance that crosses into the medium is scaled by ior² (its cone narrows), and by
+    /// 1/ior² on the way out. Paths refract with weight 1 (Fresnel picks reflection or
+    /// refraction by probability), which is right for light that reaches a path through the
+    /// surface, since every inside stretch of a camera path is paired with its way in and
+    /// out. NEE brings a light in along its shadow ray instead: the Fresnel product along
+    /// that ray carries the light's irradiance into the medium with no ior² (a beam's power
+    /// is conserved), so the camera side's 1/ior² is left over. Without it a dielectric
+    /// object's NEE was ior² too bright (2.25× at ior 1.5); camera paths start outside
+    /// the object, so a path inside has always entered once more than it has left.
+    pub fn nee_scale(self) -> f32 {
+        match self {
+            Boundary::IndexMatched => 1.0,
+            Boundary::Dielectric(ior) => 1.0 / (ior * ior),
+        }
+    }
+}
+
 pub struct SceneData {
     pub geo: Geometry,
     /// The distance grid; built only for ST-CVAE.

@@ -55,6 +55,8 @@ pub struct Params {
     /// the loop-limit probe's passes ([`LOOP_PROBE_PASSES`]), the camera rays' start
     /// ([`crate::camera::Camera::start`]).
     pub consts3: [f32; 4],
+    /// NEE's radiance factor ([`Boundary::nee_scale`]), then unused.
+    pub consts4: [f32; 4],
 }
 
 /// Passes of the kernel's loop-limit probe (path.wgsl, after the bounce loop): where
@@ -309,6 +311,7 @@ pub fn scene_params(scene: &SceneData, set: &IntegratorSettings, seed: u64) -> P
             LOOP_PROBE_PASSES,
             cam.start,
         ],
+        consts4: [scene.boundary.nee_scale(), 0.0, 0.0, 0.0],
     }
 }
 

@@ -4,7 +4,8 @@
 //! −(the direction the light travels). Transmittance sums every inside segment of the
 //! straight shadow ray (non-convex meshes re-enter). With a dielectric boundary the ray
 //! is not refracted (the paper's straight shadow ray) but multiplied by the Fresnel
-//! transmittance at each crossing: a documented bias, excluded from equality tests.
+//! transmittance at each crossing: a documented bias, excluded from equality tests. The
+//! term then takes the camera side's radiance factor 1/ior² ([`Boundary::nee_scale`]).
 
 use glam::Vec3;
 use scatter_sim::phase::hg_pdf;
@@ -113,6 +114,7 @@ fn light_sample(
     rng: &mut WalkRng,
 ) -> Option<(Vec3, f32, f32)> {
     let (wl, factor) = light.sample(uniform(rng), uniform(rng), channel);
+    let factor = factor * scene.boundary.nee_scale();
     (factor > 0.0).then(|| {
         let phase = hg_pdf(scene.g as f64, w.dot(wl).clamp(-1.0, 1.0) as f64) as f32;
         (wl, factor, phase)
