@@ -228,7 +228,7 @@ struct Spec {
 fn check_distinct(names: &[&str]) -> Result<()> {
     let ids: Vec<PathBuf> = names
         .iter()
-        .map(|n| crate::merge::identity(Path::new(n)))
+        .map(|n| crate::paths::identity(Path::new(n)))
         .collect();
     for (i, id) in ids.iter().enumerate() {
         if let Some(j) = ids[..i].iter().position(|x| x == id) {
@@ -292,6 +292,22 @@ pub fn run(a: Args) -> Result<()> {
         .map(String::as_str)
         .collect();
     check_distinct(&names)?;
+    if let Some(path) = &a.plot {
+        if !path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("png"))
+        {
+            bail!(
+                "--plot {}: the plot is a PNG; name the file *.png",
+                path.display()
+            );
+        }
+        let inputs: Vec<(String, PathBuf)> = names
+            .iter()
+            .map(|n| (format!("an input image ({n})"), PathBuf::from(n)))
+            .collect();
+        crate::paths::check_not_input("--plot", path, &inputs)?;
+    }
     let mut refs: Vec<RgbImage> = Vec::with_capacity(references.len());
     for p in &references {
         let img = load(Path::new(p))?;

@@ -180,6 +180,12 @@ pub fn run(a: Args) -> Result<()> {
     // First, so that a Ctrl-C from here on stops cleanly.
     let cancel = interrupt::flag();
     crate::check_out("--out", &a.out)?;
+    let inputs: Vec<(String, PathBuf)> = a
+        .config
+        .iter()
+        .map(|c| ("--config".to_string(), c.clone()))
+        .collect();
+    crate::paths::check_not_input("--out", &a.out, &inputs)?;
     let piece = spec.piece();
     let pool = pool(a.threads)?;
     eprintln!(

@@ -10,6 +10,7 @@ mod generate;
 mod interrupt;
 mod merge;
 mod model_cmds;
+mod paths;
 mod plots;
 mod progress;
 mod pt_cache;

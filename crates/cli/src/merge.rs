@@ -32,29 +32,9 @@ pub struct Args {
     out: PathBuf,
 }
 
-/// The file a path names, for comparing paths written differently (`./a.exr`, `a.exr`);
-/// an output that does not exist yet is resolved through its parent directory.
-pub(crate) fn identity(p: &Path) -> PathBuf {
-    if let Ok(c) = p.canonicalize() {
-        return c;
-    }
-    match (p.parent(), p.file_name()) {
-        (Some(dir), Some(name)) => {
-            let dir = if dir.as_os_str().is_empty() {
-                Path::new(".")
-            } else {
-                dir
-            };
-            dir.canonicalize()
-                .map_or_else(|_| p.to_path_buf(), |d| d.join(name))
-        }
-        _ => p.to_path_buf(),
-    }
-}
-
 /// Refuses an input given twice (it would count twice) and outputs that overwrite an input.
 fn check_paths(inputs: &[PathBuf], outputs: &[PathBuf]) -> Result<()> {
-    let ids: Vec<PathBuf> = inputs.iter().map(|p| identity(p)).collect();
+    let ids: Vec<PathBuf> = inputs.iter().map(|p| crate::paths::identity(p)).collect();
     for (i, id) in ids.iter().enumerate() {
         if let Some(j) = ids[..i].iter().position(|x| x == id) {
             bail!(
@@ -65,7 +45,7 @@ fn check_paths(inputs: &[PathBuf], outputs: &[PathBuf]) -> Result<()> {
         }
     }
     for o in outputs {
-        if let Some(i) = ids.iter().position(|x| *x == identity(o)) {
+        if let Some(i) = ids.iter().position(|x| *x == crate::paths::identity(o)) {
             bail!(
                 "--out would overwrite the input {}: choose another output name",
                 inputs[i].display()

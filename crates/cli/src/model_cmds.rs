@@ -86,6 +86,11 @@ pub fn sample(a: SampleArgs) -> Result<()> {
     // First, so that a Ctrl-C from here on stops cleanly.
     let cancel = interrupt::flag();
     crate::check_out("--out", &a.out)?;
+    crate::paths::check_not_input(
+        "--out",
+        &a.out,
+        &[("the model".to_string(), model_path(a.model.as_deref()))],
+    )?;
     let m = load_model(a.model.as_deref())?;
     warn_outside_training(&m, c, "--");
     let mut sink = Box::new(CsvWriter::create(&a.out, a.samples)?);

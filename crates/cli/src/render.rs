@@ -280,6 +280,35 @@ pub(crate) fn check_out_stem(out: &Path) -> Result<()> {
     Ok(())
 }
 
+/// The files a render reads (and `--model`, even when PT leaves it unread): none may be
+/// one of its outputs.
+fn render_inputs(a: &Args, p: &Prepared) -> Vec<(String, PathBuf)> {
+    let dir = a.scene.parent().unwrap_or(Path::new("."));
+    let field = |f: &str| format!("the scene's {f}");
+    let mut v = vec![("--scene".to_string(), a.scene.clone())];
+    v.extend(
+        p.file
+            .object
+            .mesh
+            .iter()
+            .map(|m| (field("object.mesh"), dir.join(m))),
+    );
+    v.extend(
+        p.file
+            .environment
+            .file
+            .iter()
+            .map(|f| (field("environment.file"), dir.join(f))),
+    );
+    v.extend(
+        p.model_path
+            .iter()
+            .chain(&a.model)
+            .map(|m| ("the model".to_string(), m.clone())),
+    );
+    v
+}
+
 /// Says once when the scene's lights cannot contribute: delta lights without NEE.
 pub fn note_unreachable_lights(p: &Prepared) {
     if p.data.lights.iter().all(|l| l.is_delta()) && !p.file.render.nee && !p.data.lights.is_empty()
@@ -318,6 +347,10 @@ pub fn run(a: Args) -> Result<()> {
     }
     warn_outside_training(&p, &a.scene);
     note_unreachable_lights(&p);
+    for ext in ["exr", "png", "json"] {
+        let f = crate::merge::image_out(&a.out, ext);
+        crate::paths::check_not_input("--out", &f, &render_inputs(&a, &p))?;
+    }
     render_gpu::render::check_image_memory(p.file.camera.width, p.file.camera.height)
         .map_err(|e| anyhow::anyhow!("{}: camera.width/height: {e}", a.scene.display()))?;
     let engine = Engine::open(a.device)?;

@@ -184,11 +184,22 @@ pub fn run(a: Args) -> Result<()> {
     }
     let out = a.out.clone().unwrap_or_else(|| cfg.out.clone());
     // Checked before hours of training, not when the model is saved.
-    if a.out.is_some() {
-        crate::check_out("--out", &out)?;
-    } else {
-        crate::check_out(&format!("{}: out =", a.config.display()), &out)?;
-    }
+    let out_flag = match a.out {
+        Some(_) => "--out".to_string(),
+        None => format!("{}: out =", a.config.display()),
+    };
+    crate::check_out(&out_flag, &out)?;
+    let field = |f: &str| format!("the config's {f}");
+    let mut inputs = vec![
+        ("--config".to_string(), a.config.clone()),
+        (field("dataset"), cfg.dataset.clone()),
+    ];
+    inputs.extend(
+        cfg.dataset_config
+            .iter()
+            .map(|p| (field("dataset_config"), p.clone())),
+    );
+    crate::paths::check_not_input(&out_flag, &out, &inputs)?;
     // So is the checkpoint directory, which the first checkpoint writes into minutes in.
     crate::check_out_dir(
         &format!("{}: checkpoint_dir =", a.config.display()),
@@ -197,11 +208,7 @@ pub fn run(a: Args) -> Result<()> {
     // Read before hours of training, so that a wrong path fails at once.
     let base = match &a.base {
         Some(p) => {
-            let same = |a: &Path, b: &Path| match (a.canonicalize(), b.canonicalize()) {
-                (Ok(x), Ok(y)) => x == y,
-                _ => false,
-            };
-            if same(p, &out) {
+            if crate::paths::identity(p) == crate::paths::identity(&out) {
                 bail!(
                     "--base {} is also the output: give --out another file, or the base would \
                      be overwritten by the mix",

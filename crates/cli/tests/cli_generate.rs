@@ -210,6 +210,11 @@ fn bad_input_gives_one_line_errors() {
             "merge whole.csv --out afile/x.csv",
             "afile exists and is not a directory",
         ),
+        // An output that is the command's own input: the config would be replaced.
+        (
+            "generate --config ok.toml --out ok.toml",
+            "--out ok.toml is also --config, which the output would replace",
+        ),
         // An output below a file: refused before the walks, naming the culprit.
         (
             "generate --samples 10 --tau 5 --g 0 --albedo 1 --out afile/x.bin",
@@ -238,6 +243,7 @@ fn bad_input_gives_one_line_errors() {
     fs::write(dir.path().join("afile"), b"").unwrap();
     fs::write(dir.path().join("typo.toml"), "walkz = 10\n").unwrap();
     fs::write(dir.path().join("zero.toml"), "walks = 0\n").unwrap();
+    fs::write(dir.path().join("ok.toml"), "walks = 10\n").unwrap();
     fs::write(
         dir.path().join("range.toml"),
         "walks = 10\n[conditions]\ntau = { kind = \"power\", max = 5000.0, exponent = 3.0 }\n\
@@ -258,6 +264,10 @@ fn bad_input_gives_one_line_errors() {
         assert!(!dir.path().join("x.bin").exists() && !dir.path().join("x.csv").exists());
         assert!(!dir.path().join("render.exr").exists());
     }
+    assert_eq!(
+        fs::read_to_string(dir.path().join("ok.toml")).unwrap(),
+        "walks = 10\n"
+    );
 }
 
 /// Ctrl-C (SIGINT) stops `generate` and `sample` after their current chunk: exit status

@@ -281,23 +281,8 @@ impl ModelSet {
                     spec.name
                 )));
             }
-            let norm_ok = spec.cond_shift.len() == cond
-                && spec.cond_scale.len() == cond
-                && spec.out_shift.len() == out
-                && spec.out_scale.len() == out
-                && spec
-                    .cond_scale
-                    .iter()
-                    .chain(&spec.out_scale)
-                    .all(|s| s.is_finite() && *s > 0.0)
-                && spec
-                    .cond_shift
-                    .iter()
-                    .chain(&spec.out_shift)
-                    .all(|s| s.is_finite());
-            if !norm_ok {
-                return Err(invalid(format!("{}: bad standardisation", spec.name)));
-            }
+            check_standardisation(spec, cond, out)
+                .map_err(|e| invalid(format!("{}: {e}", spec.name)))?;
             let mut layers = Vec::new();
             for w in widths.windows(2) {
                 let (inputs, outputs) = (w[0], w[1]);
@@ -337,6 +322,53 @@ impl ModelSet {
             event,
         })
     }
+}
+
+/// Bounds on a decoder's standardisation: every feature it reads or writes is O(1) to
+/// O(10) (ln(1 + τ) ≤ 6, g and the albedo feature in [−1, 1], log N relative to the
+/// diffusion scale, the output maps' real lines: docs/TRAINING.md), so a shift beyond
+/// ±MAX_NORM or a scale above it is a damaged or hand-edited file, which would decode
+/// absurd walks (N = 2^32 − 1) into a bright image without an error. MIN_SCALE is the
+/// floor training gives a column with no spread (a fixed condition).
+pub const MAX_NORM: f32 = 100.0;
+pub const MIN_SCALE: f32 = 1e-6;
+
+/// Checks the shifts and scales of a decoder with `cond` inputs and `out` outputs, naming
+/// the first field out of its range.
+fn check_standardisation(spec: &DecoderSpec, cond: usize, out: usize) -> Result<(), String> {
+    for (name, v, n, is_scale) in [
+        ("cond_shift", &spec.cond_shift, cond, false),
+        ("cond_scale", &spec.cond_scale, cond, true),
+        ("out_shift", &spec.out_shift, out, false),
+        ("out_scale", &spec.out_scale, out, true),
+    ] {
+        if v.len() != n {
+            return Err(format!("{name} has {} values, expected {n}", v.len()));
+        }
+        for (i, x) in v.iter().enumerate() {
+            let ok = if is_scale {
+                (MIN_SCALE..=MAX_NORM).contains(x)
+            } else {
+                x.abs() <= MAX_NORM
+            };
+            if !ok {
+                let range = if is_scale {
+                    format!("[{MIN_SCALE:e}, {MAX_NORM}]")
+                } else {
+                    format!("[-{MAX_NORM}, {MAX_NORM}]")
+                };
+                let x = if x.abs() >= 1e6 {
+                    format!("{x:e}")
+                } else {
+                    x.to_string()
+                };
+                return Err(format!(
+                    "{name}[{i}] = {x} is out of range: allowed {range}"
+                ));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Largest weight magnitude accepted. Trained decoders' weights are O(1); far larger ones

@@ -191,6 +191,47 @@ fn non_finite_weights_are_refused() {
     assert!(e.to_string().contains("beyond"), "{e}");
 }
 
+/// Standardisation far outside what any feature needs (a hand-edited file whose checksum
+/// was recomputed) is refused by field and index: an out_scale of 1e38 rendered a
+/// too-bright image from walks with N = 2^32 − 1 without a word.
+#[test]
+fn absurd_standardisation_is_refused() {
+    type Edit = (fn(&mut ModelSet), &'static str);
+    let cases: [Edit; 5] = [
+        (
+            |m| m.length.out_scale[0] = 1e38,
+            "lengthgen: out_scale[0] = 1e38 is out of range: allowed [1e-6, 100]",
+        ),
+        (
+            |m| m.path.cond_scale[2] = 0.0,
+            "pathgen: cond_scale[2] = 0 is out of range",
+        ),
+        (
+            |m| m.event.out_shift[5] = -1e3,
+            "eventgen: out_shift[5] = -1000 is out of range: allowed [-100, 100]",
+        ),
+        // (A NaN cannot be stored: the metadata is JSON, which writes it as null.)
+        (
+            |m| m.event.cond_shift[1] = 1e30,
+            "eventgen: cond_shift[1] = 1e30 is out of range",
+        ),
+        (
+            |m| m.path.out_scale.push(1.0),
+            "pathgen: out_scale has 4 values, expected 3",
+        ),
+    ];
+    for (edit, msg) in cases {
+        let mut m = random_models(5, 1.0);
+        edit(&mut m);
+        let e = ModelSet::from_bytes(&m.to_bytes(), Path::new("n.stcvae")).unwrap_err();
+        assert!(e.to_string().contains(msg), "{e}");
+    }
+    // Training's floor for a column without spread is accepted.
+    let mut m = random_models(5, 1.0);
+    m.path.cond_scale[1] = 1e-6f64 as f32;
+    ModelSet::from_bytes(&m.to_bytes(), Path::new("n.stcvae")).unwrap();
+}
+
 /// The training ranges steer the renderers' τ cap and warnings: unordered or
 /// out-of-range ones are refused by name even with a valid checksum.
 #[test]

@@ -1,0 +1,68 @@
+//! Which file a path names, and outputs that would replace a command's own inputs.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Result, bail};
+
+/// The file a path names, for comparing paths written differently (`./a.exr`, `a.exr`);
+/// an output that does not exist yet is resolved through its parent directory.
+pub(crate) fn identity(p: &Path) -> PathBuf {
+    if let Ok(c) = p.canonicalize() {
+        return c;
+    }
+    match (p.parent(), p.file_name()) {
+        (Some(dir), Some(name)) => {
+            let dir = if dir.as_os_str().is_empty() {
+                Path::new(".")
+            } else {
+                dir
+            };
+            dir.canonicalize()
+                .map_or_else(|_| p.to_path_buf(), |d| d.join(name))
+        }
+        _ => p.to_path_buf(),
+    }
+}
+
+/// Refuses an output that is one of the command's inputs (`inputs`: what each one is, a
+/// flag or a config field, and its path). Outputs are written whole and renamed over their
+/// target, so the input would be gone, and only after the work: checked before it.
+pub(crate) fn check_not_input(flag: &str, out: &Path, inputs: &[(String, PathBuf)]) -> Result<()> {
+    let o = identity(out);
+    for (what, p) in inputs {
+        if identity(p) == o {
+            bail!(
+                "{flag} {} is also {what}, which the output would replace: choose another name",
+                out.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_output_naming_an_input_another_way_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let input = dir.path().join("in.exr");
+        std::fs::write(&input, b"x").unwrap();
+        let inputs = [("--reference".to_string(), input.clone())];
+        // The same file through a `.` component and through a link to its folder.
+        let dotted = dir.path().join(".").join("in.exr");
+        let e = check_not_input("--plot", &dotted, &inputs).unwrap_err();
+        assert!(e.to_string().contains("is also --reference"), "{e}");
+        #[cfg(unix)]
+        {
+            let link = dir.path().join("link");
+            std::os::unix::fs::symlink(dir.path(), &link).unwrap();
+            assert!(check_not_input("--plot", &link.join("in.exr"), &inputs).is_err());
+        }
+        // Another name, existing or not, passes; so does an input that does not exist.
+        assert!(check_not_input("--plot", &dir.path().join("plot.png"), &inputs).is_ok());
+        let missing = [("--config".to_string(), dir.path().join("nope.toml"))];
+        assert!(check_not_input("--out", &input, &missing).is_ok());
+    }
+}
