@@ -82,6 +82,8 @@ pub fn run(a: Args) -> Result<()> {
             );
         }
     }
+    // The model too: ST-CVAE's rows come after PT's, minutes in on lavapipe.
+    crate::model_cmds::load_model(a.model.as_deref())?;
     // Both engines first, so that a missing adapter fails before any rendering; neither
     // may fall back to the other part way.
     // The adapter error's advice to use --device cpu is render's; this bench has no such

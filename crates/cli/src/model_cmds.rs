@@ -77,6 +77,8 @@ pub fn sample(a: SampleArgs) -> Result<()> {
     if a.samples == 0 {
         bail!("--samples 0 is out of range: allowed [1, inf)");
     }
+    // A folder first: "name the file *.csv" would not say what is wrong with /tmp.
+    crate::check_out("--out", &a.out)?;
     if !is_csv(&a.out) {
         bail!(
             "--out {}: sample writes CSV; name the file *.csv",
@@ -85,7 +87,6 @@ pub fn sample(a: SampleArgs) -> Result<()> {
     }
     // First, so that a Ctrl-C from here on stops cleanly.
     let cancel = interrupt::flag();
-    crate::check_out("--out", &a.out)?;
     crate::paths::check_not_input(
         "--out",
         &a.out,

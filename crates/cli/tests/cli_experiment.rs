@@ -139,12 +139,12 @@ fn experiment_configs_are_checked_before_any_rendering() {
         bunny.replace("bunny.glb", "no-such-mesh.glb"),
     )
     .unwrap();
-    let run = |body: &str| {
+    let run_kind = |kind: &str, body: &str| {
         let cfg = tmp.path().join("exp.toml");
         std::fs::write(
             &cfg,
             format!(
-                "kind = \"complexity\"\ntitle = \"t\"\n{body}\n\
+                "kind = \"{kind}\"\ntitle = \"t\"\n{body}\n\
                  [full]\nsize = 8\nspp = 2\n[quick]\nsize = 8\nspp = 2\n"
             ),
         )
@@ -156,12 +156,19 @@ fn experiment_configs_are_checked_before_any_rendering() {
         assert!(!tmp.path().join("results/exp").exists(), "{err}");
         err
     };
+    let run = |body: &str| run_kind("complexity", body);
     let e = run("scene = \"ok.toml\"\nscenes = [\"broken.toml\"]\ndensities = [1.0]");
     assert!(e.contains("no-such-mesh.glb"), "{e}");
     let e = run("scene = \"ok.toml\"\ndensities = [1.0, 2.0, 1.0]");
     assert!(e.contains("densities") && e.contains("twice"), "{e}");
     let e = run("scene = \"ok.toml\"\ndensities = \"1.0\"");
     assert!(e.contains("exp.toml:4") && e.contains("densities"), "{e}");
+    // An empty list is reported as missing, not as a mismatch with `paper`.
+    let e = run_kind(
+        "teaser",
+        "scene = \"ok.toml\"\ndensities = []\npaper = [2.2]",
+    );
+    assert!(e.contains("kind = \"teaser\" needs densities"), "{e}");
     // A field of another kind would be ignored: refused, naming it.
     let e = run("scene = \"ok.toml\"\ndensities = [1.0]\nthresholds = [1.0]");
     assert!(

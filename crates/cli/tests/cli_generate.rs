@@ -210,6 +210,12 @@ fn bad_input_gives_one_line_errors() {
             "merge whole.csv --out afile/x.csv",
             "afile exists and is not a directory",
         ),
+        // A sampler given as a number: the form it takes, not serde's enum name.
+        (
+            "generate --config tauf.toml --out x.bin",
+            "tauf.toml:3: invalid type: floating point `5.0`, expected a table such as \
+             { kind = \"power\", max = 300.0, exponent = 3.0 } (kind: power, uniform or fixed)",
+        ),
         // An output that is the command's own input: the config would be replaced.
         (
             "generate --config ok.toml --out ok.toml",
@@ -244,6 +250,11 @@ fn bad_input_gives_one_line_errors() {
     fs::write(dir.path().join("typo.toml"), "walkz = 10\n").unwrap();
     fs::write(dir.path().join("zero.toml"), "walks = 0\n").unwrap();
     fs::write(dir.path().join("ok.toml"), "walks = 10\n").unwrap();
+    fs::write(
+        dir.path().join("tauf.toml"),
+        "walks = 10\n[conditions]\ntau = 5.0\n",
+    )
+    .unwrap();
     fs::write(
         dir.path().join("range.toml"),
         "walks = 10\n[conditions]\ntau = { kind = \"power\", max = 5000.0, exponent = 3.0 }\n\

@@ -590,13 +590,14 @@ fn images_beyond_the_memory_limit_are_refused() {
 
 /// render.max_tau up to the model's training range is taken, the README's max_tau = 300
 /// included (the shipped model's range ends at 299.9996); beyond it, a one-line error
-/// names the field and the range.
+/// names the field and the range. Below min_tau (default 1) no sphere step could be
+/// taken, and ST-CVAE would be PT under its name: refused too.
 #[test]
 fn max_tau_is_checked_against_the_training_range() {
     let d = tempfile::tempdir().unwrap();
     let scene = d.path().join("s.toml");
     let out = d.path().join("r");
-    for (max_tau, accepted) in [("300.0", true), ("301.0", false)] {
+    for (max_tau, accepted) in [("300.0", true), ("301.0", false), ("0.5", false)] {
         let text =
             sphere_scene_text(8).replace("[render]\n", &format!("[render]\nmax_tau = {max_tau}\n"));
         std::fs::write(&scene, text).unwrap();
@@ -617,9 +618,14 @@ fn max_tau_is_checked_against_the_training_range() {
             ok(&stcvae(&args));
         } else {
             let e = fails(&stcvae(&args));
+            let needle = if max_tau == "0.5" {
+                "render.max_tau = 0.5 is below render.min_tau = 1: no sphere step could be taken"
+            } else {
+                "render.max_tau = 301"
+            };
             assert!(
-                e.contains("render.max_tau = 301")
-                    && e.contains("[")
+                e.contains(needle)
+                    && e.contains("[") == (max_tau != "0.5")
                     && e.trim().lines().count() == 1,
                 "{e}"
             );

@@ -182,6 +182,19 @@ fn a_fixed_condition_warns_and_a_bad_checkpoint_dir_fails_first() {
         !dir.path().join("d.bin").exists(),
         "the dataset was generated first"
     );
+    // A warm-up longer than the run would never reach lr: refused by model and field.
+    replace_in(
+        &dir.path().join("train.toml"),
+        "warmup = 5\n[pathgen]",
+        "warmup = 31\n[pathgen]",
+    );
+    let out = train_eventgen(dir.path(), base.to_str().unwrap());
+    assert!(!out.status.success());
+    assert!(
+        stderr(&out).contains("train.toml: lengthgen.warmup: 31 exceeds steps = 30"),
+        "{}",
+        stderr(&out)
+    );
 }
 
 #[test]
@@ -275,6 +288,21 @@ fn resume_needs_an_intact_checkpoint_and_the_last_loss_is_the_last_steps() {
     // An intact checkpoint resumes (nothing left to train: it exports at once).
     let out = resume(dir.path());
     assert!(out.status.success(), "resume failed: {}", stderr(&out));
+    // A config whose architecture changed since the checkpoint: one line that says so,
+    // not burn's list of every mismatched tensor.
+    let cfg = dir.path().join("train.toml");
+    replace_in(&cfg, "hidden = [4, 4]", "hidden = [4, 6]");
+    let out = resume(dir.path());
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    let line = err.lines().find(|l| l.starts_with("error:")).unwrap_or("");
+    assert!(
+        line.contains("eventgen.bpk: ")
+            && line.contains("layer shapes differ from the config's [eventgen]")
+            && line.len() < 300,
+        "{err}"
+    );
+    replace_in(&cfg, "hidden = [4, 6]", "hidden = [4, 4]");
     let weights = dir.path().join("ck/eventgen.bpk");
     let mut bytes = fs::read(&weights).unwrap();
     let i = bytes.len() / 2;

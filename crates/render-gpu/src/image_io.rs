@@ -120,8 +120,14 @@ pub fn encode_exr(img: &RgbImage, tag: &RenderTag) -> std::result::Result<Vec<u8
 pub const MAX_EXR_PIXELS: usize = 1 << 26;
 
 pub fn read_exr(path: &Path) -> std::result::Result<(RgbImage, Option<RenderTag>), RenderError> {
-    let meta = exr::meta::MetaData::read_from_file(path, false)
-        .map_err(|e| RenderError::Image(format!("{}: cannot read EXR: {e}", path.display())))?;
+    let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| {
+        // exr's word for an empty file is "reference to missing bytes".
+        let what = match std::fs::metadata(path) {
+            Ok(m) if m.len() == 0 => "the file is empty".to_string(),
+            _ => e.to_string(),
+        };
+        RenderError::Image(format!("{}: cannot read EXR: {what}", path.display()))
+    })?;
     for h in meta.headers.iter() {
         let (w, ht) = (h.layer_size.width(), h.layer_size.height());
         if w.checked_mul(ht).is_none_or(|n| n > MAX_EXR_PIXELS) {

@@ -216,6 +216,17 @@ fn check_closed(m: &TriMesh) -> Result<(), String> {
 
 fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
     let bytes = std::fs::read(path).map_err(|e| RenderError::io(path, e))?;
+    // A .glb is binary and starts with the magic "glTF"; without it gltf would parse the
+    // bytes as JSON and say "expected value at line 1 column 1".
+    let glb = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("glb"));
+    if glb && !bytes.is_empty() && !bytes.starts_with(b"glTF") {
+        return Err(RenderError::mesh(
+            path,
+            "not a valid GLB file: it does not start with the GLB magic `glTF`",
+        ));
+    }
     let gltf::Gltf { document, blob } = gltf::Gltf::from_slice(&bytes).map_err(|e| {
         let what = if bytes.is_empty() {
             "the file is empty".to_string()
@@ -396,27 +407,25 @@ fn load_obj(path: &Path) -> Result<TriMesh, RenderError> {
         ignore_points: true,
         ignore_lines: true,
     };
-    let (models, _) = tobj::load_obj(path, &opts).map_err(|e| {
+    let bytes = std::fs::read(path).map_err(|e| RenderError::io(path, e))?;
+    // tobj reads line by line: bytes that are not UTF-8 text stop it.
+    let text = String::from_utf8(bytes).map_err(|_| {
         RenderError::mesh(
             path,
-            match e {
-                // tobj reads line by line: bytes that are not UTF-8 text stop it.
-                tobj::LoadError::ReadError => {
-                    "not a valid OBJ file: it is not text (an OBJ mesh is a text file of \
-                         'v' and 'f' lines)"
-                        .to_string()
-                }
-                // tobj names neither the line nor the index.
-                e @ (tobj::LoadError::FaceVertexOutOfBounds | tobj::LoadError::FaceParseError) => {
-                    std::fs::read_to_string(path)
-                        .ok()
-                        .and_then(|text| bad_face_index(&text))
-                        .unwrap_or_else(|| format!("not a valid OBJ file: {e}"))
-                }
-                e => format!("not a valid OBJ file: {e}"),
-            },
+            "not a valid OBJ file: it is not text (an OBJ mesh is a text file of 'v' and 'f' \
+             lines)",
         )
     })?;
+    // tobj names neither the line nor the value at fault, and drops faces of fewer than
+    // three vertices without a word (the mesh is then reported open): checked here first.
+    if let Some(problem) = obj_problem(&text) {
+        return Err(RenderError::mesh(path, problem));
+    }
+    // Materials are not used: the medium comes from the scene file.
+    let (models, _) = tobj::load_obj_buf(&mut text.as_bytes(), &opts, |_| {
+        Err(tobj::LoadError::OpenFileFailed)
+    })
+    .map_err(|e| RenderError::mesh(path, format!("not a valid OBJ file: {e}")))?;
     let mut mesh = TriMesh::default();
     for m in models {
         let base = mesh.positions.len() as u32;
@@ -440,26 +449,45 @@ fn load_obj(path: &Path) -> Result<TriMesh, RenderError> {
     Ok(mesh)
 }
 
-/// The first face index of an OBJ text that names no vertex defined before it, as "line N:
-/// ..." with the allowed range (1..=n, or −n..=−1 counting back); None if there is none.
-fn bad_face_index(text: &str) -> Option<String> {
+/// The first line of an OBJ text that tobj would refuse without saying where, or read
+/// wrongly, as "line N: ...": a vertex without three numbers, a face of fewer than three
+/// vertices, or a face index that names no vertex defined before it (allowed 1..=n, or
+/// −n..=−1 counting back). None if there is none.
+fn obj_problem(text: &str) -> Option<String> {
     let mut vertices: i64 = 0;
     for (n, line) in text.lines().enumerate() {
+        let at = n + 1;
         let mut words = line.split_whitespace();
         match words.next() {
-            Some("v") => vertices += 1,
+            Some("v") => {
+                let coords: Vec<&str> = words.collect();
+                if coords.len() < 3 || coords[..3].iter().any(|w| w.parse::<f32>().is_err()) {
+                    return Some(format!(
+                        "line {at}: vertex `{}` needs three numbers x y z",
+                        line.trim()
+                    ));
+                }
+                vertices += 1;
+            }
             Some("f") => {
-                for w in words {
+                let refs: Vec<&str> = words.collect();
+                if refs.len() < 3 {
+                    return Some(format!(
+                        "line {at}: face `{}` has {} vertices: a face needs at least 3",
+                        line.trim(),
+                        refs.len()
+                    ));
+                }
+                for w in refs {
                     let first = w.split('/').next().unwrap_or("");
                     let ok = first.parse::<i64>().is_ok_and(|i| {
                         (1..=vertices).contains(&i) || (-vertices..=-1).contains(&i)
                     });
                     if !ok {
                         return Some(format!(
-                            "line {}: face index `{first}` names no vertex: allowed 1..={vertices} \
+                            "line {at}: face index `{first}` names no vertex: allowed 1..={vertices} \
                              (or -{vertices}..=-1, counting back) for the {vertices} vertices \
-                             defined before it",
-                            n + 1
+                             defined before it"
                         ));
                     }
                 }

@@ -396,6 +396,15 @@ impl SceneFile {
             }
             _ => {}
         }
+        // An empty name would be reported as the scene's folder, or as ": cannot open".
+        for (field, p) in [
+            ("object.mesh", &o.mesh),
+            ("environment.file", &self.environment.file),
+        ] {
+            if p.as_ref().is_some_and(|p| p.as_os_str().is_empty()) {
+                return Err(format!("{field} = \"\" names no file: give a file name"));
+            }
+        }
         for (name, v) in [
             ("object.radius", o.radius),
             ("object.size", o.size),

@@ -104,10 +104,42 @@ fn broken_files_give_clear_errors() {
             "{e}"
         );
     }
+    // A vertex that is not three numbers, and a face of two vertices (which tobj dropped
+    // without a word, leaving the mesh to be reported open), by line.
+    let cases = [
+        (
+            "v 0 0 1\n",
+            "v 0 0 abc\n",
+            "line 4: vertex `v 0 0 abc` needs three numbers",
+        ),
+        (
+            "v 0 0 1\n",
+            "v 0 0\n",
+            "line 4: vertex `v 0 0` needs three numbers",
+        ),
+        (
+            "f 2 3 4\n",
+            "f 2 3\n",
+            "line 8: face `f 2 3` has 2 vertices: a face needs at least 3",
+        ),
+    ];
+    for (i, (from, to, needle)) in cases.into_iter().enumerate() {
+        let name = format!("bad{i}.obj");
+        let text = tet_obj.replace(from, to);
+        let e = load_mesh(&write(&d, &name, text.as_bytes()))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(&name) && e.contains(needle), "{e}");
+    }
     let e = load_mesh(&write(&d, "g.glb", b"glTF garbage"))
         .unwrap_err()
         .to_string();
     assert!(e.contains("g.glb"), "{e}");
+    // A .glb without the binary magic: said so, not a JSON parser's complaint.
+    let e = load_mesh(&write(&d, "m.glb", b"gltF\x02\0\0\0 flipped"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("m.glb") && e.contains("GLB magic"), "{e}");
     let e = load_mesh(&write(&d, "x.stl", b"solid"))
         .unwrap_err()
         .to_string();
@@ -317,6 +349,16 @@ fn exr_with_a_huge_declared_size_is_refused() {
     let e = e.to_string();
     assert!(
         e.contains("huge.exr") && e.contains("allowed at most"),
+        "{e}"
+    );
+    // An empty file is said to be one (exr: "reference to missing bytes").
+    std::fs::write(d.path().join("empty.exr"), b"").unwrap();
+    let Err(e) = read_exr(&d.path().join("empty.exr")) else {
+        panic!("refused")
+    };
+    assert!(
+        e.to_string()
+            .ends_with("empty.exr: cannot read EXR: the file is empty"),
         "{e}"
     );
 }

@@ -70,6 +70,10 @@ fn other_fields_are_checked() {
     assert!(e.contains("camera.width"), "{e}");
     let e = err(&BASE.replace("shape = \"sphere\"", "shape = \"sphere\"\nmesh = \"a.glb\""));
     assert!(e.contains("shape") && e.contains("mesh"), "{e}");
+    let e = err(&BASE.replace("shape = \"sphere\"", "mesh = \"\""));
+    assert!(e.contains("object.mesh = \"\" names no file"), "{e}");
+    let e = err(&format!("{BASE}\n[environment]\nfile = \"\"\n"));
+    assert!(e.contains("environment.file = \"\" names no file"), "{e}");
     let e = err(&BASE.replace("shape = \"sphere\"", "shape = \"torus\""));
     assert!(e.contains("torus"), "{e}");
     let e = err(&format!(

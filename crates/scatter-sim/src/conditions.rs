@@ -30,7 +30,12 @@ impl Conditions {
 
 /// How τ is drawn.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+#[serde(
+    tag = "kind",
+    rename_all = "kebab-case",
+    deny_unknown_fields,
+    expecting = "a table such as { kind = \"power\", max = 300.0, exponent = 3.0 } (kind: power, uniform or fixed)"
+)]
 pub enum TauSampler {
     /// τ = max·u^exponent.
     Power {
@@ -49,7 +54,12 @@ pub enum TauSampler {
 
 /// How g is drawn; the result is clamped to ±0.999.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+#[serde(
+    tag = "kind",
+    rename_all = "kebab-case",
+    deny_unknown_fields,
+    expecting = "a table such as { kind = \"uniform\", min = -1.0, max = 1.0 } (kind: uniform or fixed)"
+)]
 pub enum GSampler {
     /// g uniform in [min, max], then clamped to ±0.999.
     Uniform {
@@ -63,7 +73,12 @@ pub enum GSampler {
 
 /// How φ is drawn.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+#[serde(
+    tag = "kind",
+    rename_all = "kebab-case",
+    deny_unknown_fields,
+    expecting = "a table such as { kind = \"one-minus-power\", epsilon = 1e-6, exponent = 6.0 } (kind: one-minus-power, uniform or fixed)"
+)]
 pub enum AlbedoSampler {
     /// φ = min(1, 1 + epsilon − u^exponent).
     OneMinusPower {

@@ -137,13 +137,6 @@ impl Config {
         if self.thresholds.iter().any(|t| !(*t >= 0.0)) {
             bail!("thresholds (min_tau) must be ≥ 0");
         }
-        if self.paper.len() > self.densities.len() {
-            bail!(
-                "paper lists {} figures for {} densities: one per density at most",
-                self.paper.len(),
-                self.densities.len()
-            );
-        }
         let needs_scene = self.kind != Kind::Distributions;
         if needs_scene && self.scene.is_none() {
             bail!("scene is required for kind = \"{}\"", self.kind.name());
@@ -178,6 +171,20 @@ impl Config {
                 "full/quick seconds and reference_spp",
             )?,
             Kind::Distributions => {}
+        }
+        // After the kind's own needs: an empty list is reported as missing, not as a
+        // mismatch with `paper`.
+        if self.paper.len() > self.densities.len() {
+            bail!(
+                "paper lists {} figures for {} densit{}: one per density at most",
+                self.paper.len(),
+                self.densities.len(),
+                if self.densities.len() == 1 {
+                    "y"
+                } else {
+                    "ies"
+                }
+            );
         }
         // A field the kind does not read would be ignored without a word (thresholds in a
         // teaser, seconds under [quick] of a quality run): refused, naming what it reads.

@@ -94,6 +94,16 @@ impl ModelConfig {
         if !(self.lr > 0.0 && self.lr < 1.0 && self.lr_final >= 0.0 && self.lr_final <= self.lr) {
             return bad("lr", "need 0 < lr < 1 and 0 <= lr_final <= lr");
         }
+        // A warm-up longer than the run never reaches lr, nor decays to lr_final.
+        if self.warmup > self.steps {
+            return bad(
+                "warmup",
+                &format!(
+                    "{} exceeds steps = {}: allowed 0..=steps",
+                    self.warmup, self.steps
+                ),
+            );
+        }
         Ok(())
     }
 }
@@ -282,7 +292,7 @@ pub fn train_model(
         check_crcs(&info, &[&mpath, &opath])?;
         model = model
             .try_load_file(&mpath)
-            .map_err(|e| err(&mpath, e.to_string()))?;
+            .map_err(|e| err(&mpath, record_error(kind, e.to_string())))?;
         optim = optim.load(&opath).map_err(|e| err(&opath, e.to_string()))?;
         // A fresh stream for the rest of the run (the old one's position is not saved).
         rng = WalkRng::for_walk(seed ^ info.step.rotate_left(32), kind as u64);
@@ -363,6 +373,21 @@ pub fn load_decoder(
     let mut rng = WalkRng::from_seed(0);
     let model = Cvae::new(kind.cond(), kind.out(), arch, &mut rng, &device)
         .try_load_file(&m)
-        .map_err(|e| err(&m, e.to_string()))?;
+        .map_err(|e| err(&m, record_error(kind, e.to_string())))?;
     Ok((model.export(&info.norm), info.feature_version))
+}
+
+/// burn's error for a checkpoint whose tensors do not fit the network lists every
+/// mismatched shape (a thousand characters and more); a changed architecture is the usual
+/// cause, so say that in one line.
+fn record_error(kind: ModelKind, msg: String) -> String {
+    if msg.contains("shape mismatch") {
+        format!(
+            "its layer shapes differ from the config's [{}] (latent, hidden, encoder_hidden \
+             changed since it was written?): train without --resume, or restore the config",
+            kind.name()
+        )
+    } else {
+        msg
+    }
 }
