@@ -167,6 +167,36 @@ fn model_errors_are_one_line() {
     ]));
     assert!(e.contains("g") && e.contains("0.999"), "{e}");
     assert!(!csv.exists());
+    // A folder as --out is named as one (it used to be told to end in .csv), and the model
+    // as --out is refused before it is replaced by walks.
+    let model = d.path().join("m.csv");
+    std::fs::copy(root().join("models/default.stcvae"), &model).unwrap();
+    for (out, needle) in [
+        (d.path().to_path_buf(), "is a directory".to_string()),
+        (
+            model.clone(),
+            "is also the model, which the output would replace".to_string(),
+        ),
+    ] {
+        let e = fails(&stcvae(&[
+            "sample",
+            "--model",
+            model.to_str().unwrap(),
+            "--tau",
+            "5",
+            "--g",
+            "0",
+            "--albedo",
+            "1",
+            "--out",
+            out.to_str().unwrap(),
+        ]));
+        assert!(e.contains(&needle) && e.trim().lines().count() == 1, "{e}");
+    }
+    assert_eq!(
+        std::fs::read(&model).unwrap(),
+        std::fs::read(root().join("models/default.stcvae")).unwrap()
+    );
 }
 
 #[test]
