@@ -289,7 +289,9 @@ fn flight_end(t: f32, h: Hit) -> bool {
         let n = tri_normal(h.prim);
         if dot(ps.dir, n) < 0.0 {
             // Met the surface from outside while believed inside: after a sphere step
-            // the exit was not inside after all. Count it and leave, never enter.
+            // the exit was not inside after all. Count it; as on the CPU (integrator/mod.rs)
+            // the path goes on past the surface believed outside, and the touching-parts
+            // rule takes it in at the next cast.
             if p_from_step {
                 stats[C_LEAKS] += 1u;
             }

@@ -387,7 +387,11 @@ impl Path {
                 let p = s.pos + s.dir * h.t;
                 if s.dir.dot(h.normal) < 0.0 {
                     // Met the surface from outside while believed inside. After a sphere step
-                    // the exit was not inside after all: count it and leave here, never enter.
+                    // the exit was not inside after all: count it. The path is placed past
+                    // the surface, believed outside; the next cast meets the far side from
+                    // within and the touching-parts rule above takes it in there, without a
+                    // Fresnel choice (no difference index-matched; leaks are 0 in every
+                    // measured render, so it was left so).
                     if *from_step {
                         stats.leaks += 1;
                     }
