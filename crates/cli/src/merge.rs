@@ -215,15 +215,16 @@ fn merge_binary(a: &Args) -> Result<()> {
     }
     let pieces = coalesce(readers.iter().flat_map(|r| r.header().pieces.clone()));
     let header = Header::new(pieces);
-    if one_run {
+    // Said after the rows, which may still be refused: a note above an error reads as
+    // part of it.
+    let note = if one_run {
         let covered: u64 = header.count;
         let total = header.pieces[0].total_walks;
-        if covered != total {
-            eprintln!("note: the inputs hold {covered} of the run's {total} walks");
-        }
-    } else if let Some(note) = runs_note(&header.pieces) {
-        eprintln!("{note}");
-    }
+        (covered != total)
+            .then(|| format!("note: the inputs hold {covered} of the run's {total} walks"))
+    } else {
+        runs_note(&header.pieces)
+    };
     let pb = progress::bar(header.count, "rows");
     let mut sink = dataset::create_sink(&a.out, header.clone())?;
     for r in &mut readers {
@@ -234,6 +235,9 @@ fn merge_binary(a: &Args) -> Result<()> {
     }
     sink.finish()?;
     pb.finish_and_clear();
+    if let Some(note) = note {
+        eprintln!("{note}");
+    }
     eprintln!(
         "merged {}, {} rows -> {}",
         progress::count(a.inputs.len() as u64, "file"),
