@@ -714,7 +714,9 @@ fn env_lookup(dir: vec3<f32>, channel: u32) -> f32 {
     if w == 0u {
         return base;
     }
-    let u = 0.5 + atan2(dir.x, -dir.z) / TWO_PI;
+    // light.rs, Environment::lookup: Mitsuba 3's u = atan2(x, −z)/2π mod 1.
+    let a = atan2(dir.x, -dir.z) / TWO_PI;
+    let u = a - floor(a);
     let v = acos(clamp(dir.y, -1.0, 1.0)) / PI;
     let x = min(u32(max(u * f32(w), 0.0)), w - 1u);
     let y = min(u32(max(v * f32(h), 0.0)), h - 1u);

@@ -86,8 +86,10 @@ pub fn basis(n: Vec3) -> (Vec3, Vec3) {
     )
 }
 
-/// Constant radiance, optionally times a lat-long map (y up; u = 0.5 + atan2(x, −z)/2π,
-/// v = acos(y)/π, row 0 at the top).
+/// Constant radiance, optionally times a lat-long map (y up; u = atan2(x, −z)/2π mod 1,
+/// v = acos(y)/π, row 0 at the top): Mitsuba 3's `envmap` convention, with −z at the left
+/// edge and +x a quarter across, so that a map lights a scene as it does there (nearest
+/// texel, where Mitsuba interpolates).
 pub struct Environment {
     pub radiance: [f32; 3],
     pub map: Option<RgbImage>,
@@ -137,12 +139,49 @@ impl Environment {
         match &self.map {
             None => base,
             Some(m) => {
-                let u = 0.5 + dir.x.atan2(-dir.z) / (2.0 * PI);
+                let a = dir.x.atan2(-dir.z) / (2.0 * PI);
+                let u = a - a.floor();
                 let v = dir.y.clamp(-1.0, 1.0).acos() / PI;
                 let x = ((u * m.width as f32) as usize).min(m.width - 1);
                 let y = ((v * m.height as f32) as usize).min(m.height - 1);
                 base * m.pixels[y * m.width + x][channel]
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The map's azimuth is Mitsuba 3's (envmap.cpp: u = atan2(x, −z)/2π, wrapped): −z
+    /// reads column 0, +x a quarter across, +z the middle, −x three quarters (so a mirrored
+    /// or half-turned map fails), and up/down the top/bottom rows.
+    #[test]
+    fn map_directions_follow_mitsuba() {
+        let mut m = RgbImage::new(16, 8);
+        for (col, v) in [(0, 1.0), (4, 2.0), (8, 3.0), (12, 4.0)] {
+            for row in 2..6 {
+                m.pixels[row * 16 + col] = [v; 3];
+            }
+        }
+        for col in 0..16 {
+            m.pixels[col] = [5.0; 3];
+            m.pixels[7 * 16 + col] = [6.0; 3];
+        }
+        let env = Environment {
+            radiance: [1.0; 3],
+            map: Some(m),
+        };
+        // Just inside each column, on the horizon (rows 2..6).
+        let at = |x: f32, z: f32| env.lookup(Vec3::new(x, 0.0, z).normalize(), 0);
+        assert_eq!(at(0.01, -1.0), 1.0, "−z: column 0");
+        assert_eq!(at(1.0, 0.01), 2.0, "+x: column 4");
+        assert_eq!(at(-0.01, 1.0), 3.0, "+z: column 8");
+        assert_eq!(at(-1.0, -0.01), 4.0, "−x: column 12");
+        // The seam: just left of −z wraps to the last column.
+        assert_eq!(at(-0.01, -1.0), 0.0, "−z from the other side: column 15");
+        assert_eq!(env.lookup(Vec3::new(0.01, 1.0, -0.01).normalize(), 0), 5.0);
+        assert_eq!(env.lookup(Vec3::new(0.01, -1.0, -0.01).normalize(), 0), 6.0);
     }
 }
