@@ -355,9 +355,10 @@ pub fn run(a: Args) -> Result<()> {
     }
     warn_outside_training(&p, &a.scene);
     note_unreachable_lights(&p);
+    let inputs = render_inputs(&a, &p);
     for ext in ["exr", "png", "json"] {
         let f = crate::merge::image_out(&a.out, ext);
-        crate::paths::check_not_input("--out", &f, &render_inputs(&a, &p))?;
+        crate::paths::check_not_input("--out", &f, &inputs)?;
     }
     render_gpu::render::check_image_memory(p.file.camera.width, p.file.camera.height)
         .map_err(|e| anyhow::anyhow!("{}: camera.width/height: {e}", a.scene.display()))?;
