@@ -137,19 +137,23 @@ fn model_errors_are_one_line() {
     let bad = d.path().join("bad.stcvae");
     std::fs::write(&bad, b"STCVAEMD garbage").unwrap();
     let csv = d.path().join("s.csv");
-    let e = fails(&stcvae(&[
-        "sample",
-        "--model",
-        bad.to_str().unwrap(),
-        "--tau",
-        "5",
-        "--g",
-        "0",
-        "--albedo",
-        "1",
-        "--out",
-        csv.to_str().unwrap(),
-    ]));
+    // `sample` at τ = 5, g = 0, φ = 1 from `model` into `out`; its error.
+    let sample_fails = |model: &Path, out: &Path| {
+        fails(&stcvae(&[
+            "sample",
+            "--model",
+            model.to_str().unwrap(),
+            "--tau",
+            "5",
+            "--g",
+            "0",
+            "--albedo",
+            "1",
+            "--out",
+            out.to_str().unwrap(),
+        ]))
+    };
+    let e = sample_fails(&bad, &csv);
     assert!(
         e.contains("bad.stcvae") && e.trim().lines().count() == 1,
         "{e}"
@@ -178,19 +182,7 @@ fn model_errors_are_one_line() {
             "is also the model, which the output would replace".to_string(),
         ),
     ] {
-        let e = fails(&stcvae(&[
-            "sample",
-            "--model",
-            model.to_str().unwrap(),
-            "--tau",
-            "5",
-            "--g",
-            "0",
-            "--albedo",
-            "1",
-            "--out",
-            out.to_str().unwrap(),
-        ]));
+        let e = sample_fails(&model, &out);
         assert!(e.contains(&needle) && e.trim().lines().count() == 1, "{e}");
     }
     assert_eq!(

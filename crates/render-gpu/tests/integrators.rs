@@ -301,25 +301,12 @@ fn nee_on_equals_nee_off_through_a_dielectric_pt() {
     let set = |nee| settings(IntegratorKind::Pt, nee, None);
     let (on, son, _) = estimate(&s, &set(true), 600_000, 1);
     let (off, soff, _) = estimate(&s, &set(false), 6_000_000, 2);
-    for c in 0..3 {
-        // 4 standard errors (see nee_on_equals_nee_off_pt) plus 1 % of the value for the
-        // straight shadow ray's approximation, bounded above to < 0.5 %.
-        let tol = 4.0 * (son[c].powi(2) + soff[c].powi(2)).sqrt() + 0.01 * off[c];
-        eprintln!(
-            "channel {c}: NEE on / off − 1 = {:+.2} % ± {:.2} %",
-            100.0 * (on[c] / off[c] - 1.0),
-            100.0 * (son[c].powi(2) + soff[c].powi(2)).sqrt() / off[c]
-        );
-        assert!(off[c] > 1e-3, "the sun must light the cube: {off:?}");
-        assert!(
-            (on[c] - off[c]).abs() < tol,
-            "channel {c}: NEE on {} ± {}, off {} ± {}",
-            on[c],
-            son[c],
-            off[c],
-            soff[c]
-        );
-    }
+    assert!(
+        off.iter().all(|&v| v > 1e-3),
+        "the sun must light the cube: {off:?}"
+    );
+    // 1 % of the value for the straight shadow ray's approximation, bounded above to < 0.5 %.
+    assert_nee_on_matches_off((on, son), (off, soff), 0.01);
 }
 
 #[test]
@@ -339,22 +326,29 @@ fn nee_on_equals_nee_off_stcvae() {
         2,
     );
     assert!(st.steps > st.paths / 4, "sphere steps must run: {st:?}");
+    // NEE on uses EventGen's representative event; NEE off uses PathGen's exits that reach
+    // the disk. They agree only as far as the two models agree with each other, which no
+    // statistic of the models bounds: measured here with 2·10⁶ paths each, NEE on / off − 1
+    // = +0.23 ± 0.88 %, +0.39 ± 0.77 %, +0.50 ± 1.06 % (R, G, B), so the models'
+    // disagreement is below the noise. Allow 1.5 % of the value for it on top of 4 standard
+    // errors: an NEE error beyond ~5.5 % fails (with 300,000 paths and 3 %, as before,
+    // ~13 % passed).
+    assert_nee_on_matches_off((on, son), (off, soff), 0.015);
+}
+
+/// Per channel, NEE on and off agree within 4 standard errors of their difference (see
+/// nee_on_equals_nee_off_pt) plus `slack` of the value, for what the two estimators may
+/// differ in beyond noise; prints each ratio.
+fn assert_nee_on_matches_off((on, son): Means, (off, soff): Means, slack: f64) {
     for c in 0..3 {
-        // NEE on uses EventGen's representative event; NEE off uses PathGen's exits that
-        // reach the disk. They agree only as far as the two models agree with each other,
-        // which no statistic of the models bounds: measured here with 2·10⁶ paths each,
-        // NEE on / off − 1 = +0.23 ± 0.88 %, +0.39 ± 0.77 %, +0.50 ± 1.06 % (R, G, B), so
-        // the models' disagreement is below the noise. Allow 1.5 % of the value for it on
-        // top of 4 standard errors: an NEE error beyond ~5.5 % fails (with 300,000 paths
-        // and 3 %, as before, ~13 % passed).
-        let tol = 4.0 * (son[c].powi(2) + soff[c].powi(2)).sqrt() + 0.015 * off[c];
+        let se = (son[c].powi(2) + soff[c].powi(2)).sqrt();
         eprintln!(
             "channel {c}: NEE on / off − 1 = {:+.2} % ± {:.2} %",
             100.0 * (on[c] / off[c] - 1.0),
-            100.0 * (son[c].powi(2) + soff[c].powi(2)).sqrt() / off[c]
+            100.0 * se / off[c]
         );
         assert!(
-            (on[c] - off[c]).abs() < tol,
+            (on[c] - off[c]).abs() < 4.0 * se + slack * off[c],
             "channel {c}: NEE on {} ± {}, off {} ± {}",
             on[c],
             son[c],
