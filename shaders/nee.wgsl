@@ -38,7 +38,7 @@ fn transmittance_ordered(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
             }
         }
         let n = tri_normal(h.prim);
-        fresnel_t *= crossing_transmittance(abs(dot(dir, n)), inside);
+        fresnel_t *= crossing_transmittance(abs(dot(dir, n)));
         inside = !inside;
         o = spawn(o + dir * h.t, n, dir);
     }

@@ -214,14 +214,14 @@ fn closer(t: f32, prim: u32, best: Hit) -> bool {
     return !best.found || t < best.t || prim < best.prim;
 }
 
-/// Fresnel transmittance of one crossing of a straight shadow ray (1 when index-matched);
-/// `exiting`: from the medium to the outside (nee.rs: crossing_transmittance).
-fn crossing_transmittance(cos: f32, exiting: bool) -> f32 {
+/// Fresnel transmittance of one crossing of a straight shadow ray (1 when index-matched),
+/// `cos` being the ray's angle, the light's in air, at either crossing (nee.rs:
+/// crossing_transmittance).
+fn crossing_transmittance(cos: f32) -> f32 {
     if params.flags.z == 0u {
         return 1.0;
     }
-    let ior = params.consts.y;
-    return 1.0 - select(fresnel(cos, 1.0, ior), fresnel(cos, ior, 1.0), exiting);
+    return 1.0 - fresnel(cos, 1.0, params.consts.y);
 }
 
 /// Every surface crossing of a ray, unordered (Geometry::inside_length on the CPU): for a
@@ -277,7 +277,7 @@ fn trace(o: vec3<f32>, d: vec3<f32>, tmax0: f32, all: bool) -> Hit {
                         let exiting = cosn > 0.0;
                         tr_cross.length += select(-t, t, exiting);
                         tr_cross.balance += select(-1, 1, exiting);
-                        tr_cross.fresnel_t *= crossing_transmittance(abs(cosn), exiting);
+                        tr_cross.fresnel_t *= crossing_transmittance(abs(cosn));
                     } else if closer(t, k, best) {
                         best = Hit(t, k, true);
                     }
@@ -396,7 +396,7 @@ fn crossings(o: vec3<f32>, d: vec3<f32>) -> Crossings {
                     let exiting = cosn > 0.0;
                     c.length += select(-t, t, exiting);
                     c.balance += select(-1, 1, exiting);
-                    c.fresnel_t *= crossing_transmittance(abs(cosn), exiting);
+                    c.fresnel_t *= crossing_transmittance(abs(cosn));
                 }
             }
         } else {

@@ -451,10 +451,14 @@ fn load_obj(path: &Path) -> Result<TriMesh, RenderError> {
 
 /// The first line of an OBJ text that tobj would refuse without saying where, or read
 /// wrongly, as "line N: ...": a vertex without three numbers, a face of fewer than three
-/// vertices, or a face index that names no vertex defined before it (allowed 1..=n, or
-/// −n..=−1 counting back). None if there is none.
+/// vertices, or a face index that names no vertex: a positive one is allowed up to the
+/// file's vertex count (tobj, like the format, lets a face name vertices defined after
+/// it), a negative one counts back from the vertices defined before its line. None if
+/// there is none.
 fn obj_problem(text: &str) -> Option<String> {
-    let mut vertices: i64 = 0;
+    let is_vertex = |line: &str| line.split_whitespace().next() == Some("v");
+    let total = text.lines().filter(|l| is_vertex(l)).count() as i64;
+    let mut before: i64 = 0;
     for (n, line) in text.lines().enumerate() {
         let at = n + 1;
         let mut words = line.split_whitespace();
@@ -467,7 +471,7 @@ fn obj_problem(text: &str) -> Option<String> {
                         line.trim()
                     ));
                 }
-                vertices += 1;
+                before += 1;
             }
             Some("f") => {
                 let refs: Vec<&str> = words.collect();
@@ -480,14 +484,14 @@ fn obj_problem(text: &str) -> Option<String> {
                 }
                 for w in refs {
                     let first = w.split('/').next().unwrap_or("");
-                    let ok = first.parse::<i64>().is_ok_and(|i| {
-                        (1..=vertices).contains(&i) || (-vertices..=-1).contains(&i)
-                    });
+                    let ok = first
+                        .parse::<i64>()
+                        .is_ok_and(|i| (1..=total).contains(&i) || (-before..=-1).contains(&i));
                     if !ok {
                         return Some(format!(
-                            "line {at}: face index `{first}` names no vertex: allowed 1..={vertices} \
-                             (or -{vertices}..=-1, counting back) for the {vertices} vertices \
-                             defined before it"
+                            "line {at}: face index `{first}` names no vertex: allowed 1..={total} \
+                             for the file's {total} vertices, or -{before}..=-1 counting back \
+                             over the {before} defined before it"
                         ));
                     }
                 }

@@ -100,12 +100,26 @@ fn broken_files_give_clear_errors() {
             .unwrap_err()
             .to_string();
         assert!(
-            e.contains(name) && e.contains("line 8: face index") && e.contains("allowed 1..=4"),
+            e.contains(name) && e.contains("line 8: face index") && e.contains("allowed 1..=4 "),
             "{e}"
         );
     }
     // A vertex that is not three numbers, and a face of two vertices (which tobj dropped
     // without a word, leaving the mesh to be reported open), by line.
+    // Valid variants still load: faces naming vertices defined after them (tobj allows it),
+    // negative indices, v/vt/vn references, a w coordinate, CRLF.
+    let variants = [
+        "f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n",
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf -4 -2 -3\nf -4 -3 -1\nf -4 -1 -2\nf -3 -2 -1\n",
+        "v 0 0 0 1\nv 1 0 0 1\nv 0 1 0 1\nv 0 0 1 1\nvt 0 0\nvn 0 0 1\n\
+         f 1/1/1 3/1/1 2/1/1\nf 1//1 2//1 4//1\nf 1 4 3\nf 2 3 4\n",
+        "v 0 0 0\r\nv 1 0 0\r\nv 0 1 0\r\nv 0 0 1\r\nf 1 3 2\r\nf 1 2 4\r\nf 1 4 3\r\nf 2 3 4\r\n",
+    ];
+    for (i, text) in variants.iter().enumerate() {
+        let name = format!("ok{i}.obj");
+        let m = load_mesh(&write(&d, &name, text.as_bytes()));
+        assert!(m.is_ok_and(|m| m.triangles.len() == 4), "{name}");
+    }
     let cases = [
         (
             "v 0 0 1\n",

@@ -189,9 +189,9 @@ impl PathNee {
 /// Transmittance from `x` (inside) along `dir` to infinity.
 pub fn transmittance(scene: &SceneData, x: Vec3, dir: Vec3, channel: usize) -> f32 {
     let sigma = scene.sigma_t[channel];
-    let crossed = scene.geo.inside_length(x, dir, |c, exiting| {
-        crossing_transmittance(scene, c, exiting)
-    });
+    let crossed = scene
+        .geo
+        .inside_length(x, dir, |c, _| crossing_transmittance(scene, c));
     match crossed {
         Some((length, fresnel_t)) => (-sigma * length).exp() * fresnel_t,
         None => transmittance_ordered(scene, x, dir, channel),
@@ -199,11 +199,15 @@ pub fn transmittance(scene: &SceneData, x: Vec3, dir: Vec3, channel: usize) -> f
 }
 
 /// Fresnel transmittance of one boundary crossing of the straight shadow ray (1 for an
-/// index-matched boundary); `exiting`: from the medium to the outside.
-fn crossing_transmittance(scene: &SceneData, cos: f32, exiting: bool) -> f32 {
+/// index-matched boundary). The straight ray runs along the light's direction in air, so
+/// `cos` is the air-side angle at either crossing, and the transmittance is that of light
+/// from air into the medium at it (the same both ways by reciprocity, for the pair of
+/// angles refraction joins). Read as the medium-side angle of an exit, as it was until
+/// 2026-11-28, it put every light beyond the critical angle (41.8° from the normal at
+/// ior 1.5) in total internal reflection: no NEE at all there.
+fn crossing_transmittance(scene: &SceneData, cos: f32) -> f32 {
     match scene.boundary {
         Boundary::IndexMatched => 1.0,
-        Boundary::Dielectric(ior) if exiting => 1.0 - fresnel(cos, ior, 1.0),
         Boundary::Dielectric(ior) => 1.0 - fresnel(cos, 1.0, ior),
     }
 }
@@ -227,7 +231,7 @@ pub fn transmittance_ordered(scene: &SceneData, x: Vec3, dir: Vec3, channel: usi
                 return 0.0;
             }
         }
-        fresnel_t *= crossing_transmittance(scene, dir.dot(h.normal).abs(), inside);
+        fresnel_t *= crossing_transmittance(scene, dir.dot(h.normal).abs());
         inside = !inside;
         o = geo.spawn(o + dir * h.t, h.normal, dir);
     }
