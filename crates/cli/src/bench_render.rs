@@ -49,8 +49,8 @@ pub struct Args {
     /// maximum] (overrides the scene's).
     #[arg(long, allow_negative_numbers = true)]
     max_tau: Option<f64>,
-    /// Representative events (EventGen draws) per model-drawn sphere step for NEE
-    /// 1 to 64 (overrides the scene's).
+    /// Representative events (EventGen draws) per model-drawn sphere step for NEE, 1 to
+    /// 64 (overrides the scene's).
     #[arg(long)]
     nee_samples: Option<u32>,
     /// NEE events per exactly simulated sphere step, 1 to 4 (overrides the scene's).

@@ -197,14 +197,6 @@ pub fn prepare(
         (Some(t), _) => t,
         (None, _) => trained_max,
     } as f32;
-    // A cap below the threshold leaves no step to take: ST-CVAE would silently be PT.
-    let min_tau = file.render.min_tau_or_default();
-    if stcvae && (max_tau as f64) < min_tau {
-        bail!(
-            "{}: render.max_tau = {max_tau} is below render.min_tau = {min_tau}: no sphere step could be taken (allowed: max_tau >= min_tau)",
-            scene_path.display()
-        );
-    }
     Ok(Prepared {
         file,
         data,

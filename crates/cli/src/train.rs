@@ -367,8 +367,9 @@ pub fn run(a: Args) -> Result<()> {
     let multi = MultiProgress::new();
     let scaled = |k: ModelKind| {
         let mut m = cfg.model(k).clone();
+        let warmup = m.warmup();
         m.steps = ((m.steps as f64 * a.steps_scale).round() as u64).max(1);
-        m.warmup = m.warmup.min(m.steps / 4);
+        m.warmup = Some(warmup.min(m.steps / 4));
         m
     };
     let bars: Vec<ProgressBar> = kinds

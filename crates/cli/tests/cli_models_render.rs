@@ -641,7 +641,7 @@ fn max_tau_is_checked_against_the_training_range() {
         } else {
             let e = fails(&stcvae(&args));
             let needle = if max_tau == "0.5" {
-                "render.max_tau = 0.5 is below render.min_tau = 1: no sphere step could be taken"
+                "render.max_tau = 0.5 is below render.min_tau = 1 (its default): no sphere step could be taken"
             } else {
                 "render.max_tau = 301"
             };

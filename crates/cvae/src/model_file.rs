@@ -325,7 +325,7 @@ impl ModelSet {
 }
 
 /// Bounds on a decoder's standardisation: every feature it reads or writes is O(1) to
-/// O(10) (ln(1 + τ) ≤ 6, g and the albedo feature in [−1, 1], log N relative to the
+/// O(10) (ln(1 + τ) ≤ 7, g and the albedo feature in [−1, 1], log N relative to the
 /// diffusion scale, the output maps' real lines: docs/TRAINING.md), so a shift beyond
 /// ±MAX_NORM or a scale above it is a damaged or hand-edited file, which would decode
 /// absurd walks (N = 2^32 − 1) into a bright image without an error. MIN_SCALE is the

@@ -88,7 +88,7 @@ fn short_training_improves_fit() {
         batch_size: 256,
         lr: 5e-3,
         lr_final: 1e-3,
-        warmup: 20,
+        warmup: Some(20),
     };
     let dir = tempfile::tempdir().unwrap();
     let losses = std::sync::Mutex::new(Vec::new());

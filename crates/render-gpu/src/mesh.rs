@@ -221,7 +221,12 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
     let glb = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("glb"));
-    if glb && !bytes.is_empty() && !bytes.starts_with(b"glTF") {
+    // (A JSON glTF under a .glb name, which gltf reads, is let through.)
+    if glb
+        && !bytes.is_empty()
+        && !bytes.starts_with(b"glTF")
+        && !bytes.trim_ascii_start().starts_with(b"{")
+    {
         return Err(RenderError::mesh(
             path,
             "not a valid GLB file: it does not start with the GLB magic `glTF`",

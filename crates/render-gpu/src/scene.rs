@@ -555,6 +555,23 @@ impl SceneFile {
                 "render.max_tau = {t} is out of range: allowed (0, the model's training maximum]"
             ));
         }
+        // A cap below the threshold leaves ST-CVAE no step to take: it would be PT under
+        // its name. (Without max_tau the cap is the model's training maximum, 300.)
+        if let Some(t) = r.max_tau
+            && r.integrator == IntegratorKind::Stcvae
+            && t < r.min_tau_or_default()
+        {
+            return Err(format!(
+                "render.max_tau = {t} is below render.min_tau = {}{}: no sphere step could be \
+                 taken (allowed: max_tau >= min_tau)",
+                r.min_tau_or_default(),
+                if r.min_tau.is_none() {
+                    " (its default)"
+                } else {
+                    ""
+                }
+            ));
+        }
         Ok(())
     }
 }

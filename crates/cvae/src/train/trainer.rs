@@ -34,16 +34,15 @@ pub struct ModelConfig {
     pub lr: f64,
     /// Learning rate at the last step (cosine decay from `lr`).
     pub lr_final: f64,
-    #[serde(default = "default_warmup")]
-    pub warmup: u64,
+    /// Linear warm-up steps; default: 500, or a quarter of `steps` when that is fewer.
+    #[serde(default)]
+    pub warmup: Option<u64>,
 }
 
 fn default_batch() -> usize {
     1024
 }
-fn default_warmup() -> u64 {
-    500
-}
+const DEFAULT_WARMUP: u64 = 500;
 
 impl ModelConfig {
     pub fn architecture(&self) -> Architecture {
@@ -54,13 +53,20 @@ impl ModelConfig {
         }
     }
 
+    /// The warm-up's length: as given, else the default (at most a quarter of the run, so
+    /// that a short run without a `warmup` line still reaches `lr` and decays).
+    pub fn warmup(&self) -> u64 {
+        self.warmup.unwrap_or(DEFAULT_WARMUP.min(self.steps / 4))
+    }
+
     /// Linear warm-up to `lr`, then cosine decay to `lr_final` at the last step.
     pub fn learning_rate(&self, step: u64) -> f64 {
-        if step < self.warmup {
-            return self.lr * (step + 1) as f64 / self.warmup as f64;
+        let warmup = self.warmup();
+        if step < warmup {
+            return self.lr * (step + 1) as f64 / warmup as f64;
         }
-        let span = (self.steps.saturating_sub(self.warmup)).max(1) as f64;
-        let t = ((step - self.warmup) as f64 / span).min(1.0);
+        let span = (self.steps.saturating_sub(warmup)).max(1) as f64;
+        let t = ((step - warmup) as f64 / span).min(1.0);
         self.lr_final + 0.5 * (self.lr - self.lr_final) * (1.0 + (std::f64::consts::PI * t).cos())
     }
 
@@ -95,13 +101,12 @@ impl ModelConfig {
             return bad("lr", "need 0 < lr < 1 and 0 <= lr_final <= lr");
         }
         // A warm-up longer than the run never reaches lr, nor decays to lr_final.
-        if self.warmup > self.steps {
+        if let Some(w) = self.warmup
+            && w > self.steps
+        {
             return bad(
                 "warmup",
-                &format!(
-                    "{} exceeds steps = {}: allowed 0..=steps",
-                    self.warmup, self.steps
-                ),
+                &format!("{w} exceeds steps = {}: allowed 0..=steps", self.steps),
             );
         }
         Ok(())
@@ -389,5 +394,42 @@ fn record_error(kind: ModelKind, msg: String) -> String {
         )
     } else {
         msg
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn config(steps: u64, warmup: Option<u64>) -> ModelConfig {
+        ModelConfig {
+            latent: 2,
+            hidden: vec![4],
+            encoder_hidden: None,
+            steps,
+            batch_size: 8,
+            lr: 1e-2,
+            lr_final: 1e-4,
+            warmup,
+        }
+    }
+
+    /// Without a `warmup` line a short run warms up over a quarter of its steps (the
+    /// default 500 would outlast it: lr never reached, never decayed); a given warm-up
+    /// longer than the run is refused, naming the model and the field.
+    #[test]
+    fn the_warm_up_fits_the_run() {
+        let short = config(100, None);
+        assert_eq!(short.warmup(), 25);
+        assert!(short.validate("m").is_ok());
+        assert_eq!(short.learning_rate(24), 1e-2);
+        assert!((short.learning_rate(100) - 1e-4).abs() < 1e-12);
+        assert!(short.learning_rate(60) < 1e-2 && short.learning_rate(60) > 1e-4);
+        assert_eq!(config(100_000, None).warmup(), 500);
+        let e = config(100, Some(101)).validate("pathgen").unwrap_err();
+        assert_eq!(
+            e,
+            "pathgen.warmup: 101 exceeds steps = 100: allowed 0..=steps"
+        );
     }
 }
