@@ -3,6 +3,13 @@
 //! a hash of these sources, so that a changed algorithm never reads a cache its old
 //! version wrote (a hand-bumped tag was all that stood in the way before, and tests
 //! rendered with whatever a warm cache held).
+//!
+//! A second hash, of the sources that decide what a render converges to (the integrators,
+//! optics, lights, camera, scene set-up, the GPU host code and every WGSL kernel, and the
+//! model sampling and simulator pieces they call), goes into each scene's
+//! identity hash: `merge` refuses to average renders made by builds that estimate
+//! differently (a render from before a bug fix with one from after), and the bench's PT
+//! cache misses.
 
 // The crate's own FNV-1a, the hash of every other cache key.
 #[path = "src/hash.rs"]
@@ -14,6 +21,31 @@ const SOURCES: [&str; 3] = [
     "src/geometry.rs",
 ];
 
+/// Beyond SOURCES: single files and whole folders (their files in name order).
+/// (The model's sampling and the simulator's phase function, frames and random numbers live
+/// in the sibling crates.)
+const RENDER_FILES: [&str; 12] = [
+    "src/light.rs",
+    "src/optics.rs",
+    "src/camera.rs",
+    "src/setup.rs",
+    "src/render.rs",
+    "../cvae/src/sampler.rs",
+    "../cvae/src/decoder.rs",
+    "../cvae/src/features.rs",
+    "../cvae/src/fastmath.rs",
+    "../scatter-sim/src/phase.rs",
+    "../scatter-sim/src/frame.rs",
+    "../scatter-sim/src/rng.rs",
+];
+const RENDER_DIRS: [&str; 3] = ["src/integrator", "src/gpu", "../../shaders"];
+
+fn hash_file(h: &mut hash::Fnv64, path: &str) {
+    println!("cargo:rerun-if-changed={path}");
+    h.write(path.as_bytes());
+    h.write(&std::fs::read(path).unwrap_or_else(|e| panic!("{path}: {e}")));
+}
+
 fn main() {
     let mut h = hash::Fnv64::new();
     for s in SOURCES {
@@ -21,4 +53,22 @@ fn main() {
         h.write(&std::fs::read(s).unwrap_or_else(|e| panic!("{s}: {e}")));
     }
     println!("cargo:rustc-env=STCVAE_CACHE_CODE={:016x}", h.finish());
+
+    let mut r = hash::Fnv64::new();
+    for s in SOURCES.iter().chain(&RENDER_FILES) {
+        hash_file(&mut r, s);
+    }
+    for dir in RENDER_DIRS {
+        println!("cargo:rerun-if-changed={dir}");
+        let mut files: Vec<String> = std::fs::read_dir(dir)
+            .unwrap_or_else(|e| panic!("{dir}: {e}"))
+            .map(|e| e.expect("a folder entry").path().display().to_string())
+            .filter(|p| p.ends_with(".rs") || p.ends_with(".wgsl"))
+            .collect();
+        files.sort();
+        for f in &files {
+            hash_file(&mut r, f);
+        }
+    }
+    println!("cargo:rustc-env=STCVAE_RENDER_CODE={:016x}", r.finish());
 }

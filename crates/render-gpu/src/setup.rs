@@ -108,6 +108,9 @@ impl SceneData {
             }
         }
         h.write(extra_hash);
+        // The renderer's own estimating code (build.rs): renders by builds that converge
+        // to different images must not pass for renders of one scene.
+        h.write(env!("STCVAE_RENDER_CODE").as_bytes());
         let geo = Geometry::new(mesh);
         // Every path starts in air (the integrators trace camera rays from outside the
         // object); from inside, a camera's paths would be taken for entering ones and lit
