@@ -357,13 +357,9 @@ fn check_standardisation(spec: &DecoderSpec, cond: usize, out: usize) -> Result<
                 } else {
                     format!("[-{MAX_NORM}, {MAX_NORM}]")
                 };
-                let x = if x.abs() >= 1e6 {
-                    format!("{x:e}")
-                } else {
-                    x.to_string()
-                };
                 return Err(format!(
-                    "{name}[{i}] = {x} is out of range: allowed {range}"
+                    "{name}[{i}] = {} is out of range: allowed {range}",
+                    scatter_sim::ranges::num(*x)
                 ));
             }
         }

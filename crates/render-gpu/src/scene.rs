@@ -5,7 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
-use scatter_sim::ranges::G_MAX;
+use scatter_sim::ranges::{G_MAX, num};
 use serde::{Deserialize, Serialize};
 
 use crate::error::RenderError;
@@ -573,15 +573,6 @@ impl SceneFile {
             ));
         }
         Ok(())
-    }
-}
-
-/// A value for a message: scientific notation when plain digits would run long.
-fn num(v: f64) -> String {
-    if v != 0.0 && v.is_finite() && !(1e-4..1e6).contains(&v.abs()) {
-        format!("{v:e}")
-    } else {
-        format!("{v}")
     }
 }
 

@@ -13,6 +13,21 @@ pub const TAU_LIMIT: f64 = 1000.0;
 /// Upper end of the authors' training distribution τ = 300·u³.
 pub const AUTHORS_TAU_MAX: f64 = 300.0;
 
+/// A value for a range message: scientific notation when plain digits would run long
+/// (1e38 rather than 39 digits, 1e-7 rather than 0.0000001). Written in the value's own
+/// type, so an f32 reads as its shortest f32 digits.
+pub fn num<T>(v: T) -> String
+where
+    T: Copy + Into<f64> + std::fmt::Display + std::fmt::LowerExp,
+{
+    let x: f64 = v.into();
+    if x != 0.0 && x.is_finite() && !(1e-4..1e6).contains(&x.abs()) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
+}
+
 /// A parameter outside its allowed range; the message names the field and the range.
 #[derive(Debug, Error, Clone, PartialEq)]
 #[error("{field} = {value} is out of range: allowed {allowed}")]
