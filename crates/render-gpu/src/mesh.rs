@@ -164,17 +164,209 @@ pub fn prepare(mut m: TriMesh) -> Result<TriMesh, String> {
             m.triangles.len()
         ));
     }
+    let dropped = m.triangles.len() - triangles.len();
     m = TriMesh {
         positions,
         triangles,
     };
-    check_closed(&m)?;
-    if m.signed_volume6() < 0.0 {
-        for t in &mut m.triangles {
-            t.swap(1, 2);
+    check_closed(&m).map_err(|e| {
+        if dropped > 0 && e.contains("boundary edges") {
+            // A file may close its surface only through zero-area triangles (e.g. slivers
+            // filling T-junctions); without them it is open, which the count alone would
+            // not explain.
+            format!(
+                "{e}; {dropped} zero-area triangles were dropped before this check, so the \
+                 file may close its surface only through them (e.g. at T-junctions)"
+            )
+        } else {
+            e
+        }
+    })?;
+    orient_pieces(&mut m);
+    Ok(m)
+}
+
+/// Winds each closed piece of the mesh so that its faces point away from the medium.
+///
+/// The medium fills what lies inside an odd number of the pieces: a hollow shell's inner
+/// wall bounds it from inside (faces toward the cavity), a ball in that cavity is solid
+/// again. So a piece nested in an odd number of others faces inward, the rest outward.
+/// Files wind each piece as they like (a mirrored glTF instance, or a shell exported with
+/// one wall reversed), and `check_closed` only sees that each piece agrees with itself;
+/// orienting the whole mesh by its total volume left such a piece inside out, rendered
+/// with leaks and too bright. Pieces that merely overlap are not nested: each faces
+/// outward, as before.
+fn orient_pieces(m: &mut TriMesh) {
+    let pieces = pieces(m);
+    let volume6 = |tris: &[usize]| -> f64 {
+        tris.iter()
+            .map(|&t| {
+                let [a, b, c] = m.triangles[t].map(|i| m.positions[i as usize].as_dvec3());
+                a.dot(b.cross(c))
+            })
+            .sum()
+    };
+    let depths: Vec<usize> = if pieces.len() == 1 {
+        vec![0]
+    } else {
+        let bounds: Vec<(Vec3, Vec3)> = pieces
+            .iter()
+            .map(|tris| {
+                tris.iter()
+                    .flat_map(|&t| m.triangles[t])
+                    .map(|i| m.positions[i as usize])
+                    .fold(
+                        (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+                        |(lo, hi), p| (lo.min(p), hi.max(p)),
+                    )
+            })
+            .collect();
+        (0..pieces.len())
+            .map(|i| {
+                // Points on piece i: up to 8 triangle centroids spread over it. It lies in
+                // piece j's inside when all of them do; one outside means the two overlap
+                // or are apart, and overlapping pieces are not nested.
+                let step = pieces[i].len().div_ceil(8);
+                let probes: Vec<glam::DVec3> = pieces[i]
+                    .iter()
+                    .step_by(step)
+                    .map(|&t| {
+                        let [a, b, c] = m.triangles[t].map(|k| m.positions[k as usize].as_dvec3());
+                        (a + b + c) / 3.0
+                    })
+                    .collect();
+                (0..pieces.len())
+                    .filter(|&j| {
+                        j != i
+                            && bounds[j].0.cmple(bounds[i].0).all()
+                            && bounds[i].1.cmple(bounds[j].1).all()
+                            && probes
+                                .iter()
+                                .all(|&p| winding_number(m, &pieces[j], p).abs() > 0.5)
+                    })
+                    .count()
+            })
+            .collect()
+    };
+    let flip: Vec<bool> = pieces
+        .iter()
+        .zip(depths)
+        .map(|(tris, depth)| (volume6(tris) > 0.0) != (depth % 2 == 0))
+        .collect();
+    for (tris, flip) in pieces.iter().zip(flip) {
+        if flip {
+            for &t in tris {
+                m.triangles[t].swap(1, 2);
+            }
         }
     }
-    Ok(m)
+}
+
+/// The triangles of each connected piece (joined through shared vertices).
+fn pieces(m: &TriMesh) -> Vec<Vec<usize>> {
+    fn root(parent: &mut [u32], mut x: u32) -> u32 {
+        while parent[x as usize] != x {
+            parent[x as usize] = parent[parent[x as usize] as usize];
+            x = parent[x as usize];
+        }
+        x
+    }
+    let mut parent: Vec<u32> = (0..m.positions.len() as u32).collect();
+    for t in &m.triangles {
+        let r0 = root(&mut parent, t[0]);
+        for &v in &t[1..] {
+            let r = root(&mut parent, v);
+            if r != r0 {
+                parent[r as usize] = r0;
+            }
+        }
+    }
+    let mut piece_of: HashMap<u32, usize> = HashMap::new();
+    let mut pieces: Vec<Vec<usize>> = Vec::new();
+    for (k, t) in m.triangles.iter().enumerate() {
+        let r = root(&mut parent, t[0]);
+        let p = *piece_of.entry(r).or_insert_with(|| {
+            pieces.push(Vec::new());
+            pieces.len() - 1
+        });
+        pieces[p].push(k);
+    }
+    pieces
+}
+
+/// The winding number of a closed piece around `p`: ±1 inside, 0 outside (the solid
+/// angles of its triangles seen from `p`, over 4π; Van Oosterom and Strackee's formula).
+fn winding_number(m: &TriMesh, tris: &[usize], p: glam::DVec3) -> f64 {
+    let total: f64 = tris
+        .iter()
+        .map(|&t| {
+            let [a, b, c] = m.triangles[t].map(|i| m.positions[i as usize].as_dvec3() - p);
+            let (la, lb, lc) = (a.length(), b.length(), c.length());
+            let num = a.dot(b.cross(c));
+            let den = la * lb * lc + a.dot(b) * lc + b.dot(c) * la + c.dot(a) * lb;
+            2.0 * num.atan2(den)
+        })
+        .sum();
+    total / (4.0 * std::f64::consts::PI)
+}
+
+/// Splits a file's polygons into triangles of the same winding.
+///
+/// A fan from the first vertex covers area outside a concave polygon (an L-shaped cap
+/// came out with its notch partly filled), and the extra faces still pair up edge for
+/// edge, so the closedness check cannot catch it. Polygons beyond triangles are therefore
+/// cut by ear clipping (earcut) in their own plane; one that earcut cannot cut whole
+/// (self-intersecting, or with no area) falls back to the fan.
+#[derive(Default)]
+pub(crate) struct Triangulator {
+    earcut: earcut::Earcut<f64>,
+    flat: Vec<[f64; 2]>,
+    cut: Vec<u32>,
+}
+
+impl Triangulator {
+    /// Appends the triangles of `poly` (indices into `positions`, all valid) to `out`.
+    pub(crate) fn polygon(&mut self, positions: &[Vec3], poly: &[u32], out: &mut Vec<[u32; 3]>) {
+        let n = poly.len();
+        if n < 4 {
+            if n == 3 {
+                out.push([poly[0], poly[1], poly[2]]);
+            }
+            return;
+        }
+        let at = |k: usize| positions[poly[k] as usize].as_dvec3();
+        // Newell's normal: the polygon's area vector, whatever its shape.
+        let normal: glam::DVec3 = (0..n).map(|k| at(k).cross(at((k + 1) % n))).sum();
+        let fan = |out: &mut Vec<[u32; 3]>| {
+            out.extend((1..n - 1).map(|k| [poly[0], poly[k], poly[k + 1]]));
+        };
+        let Some(normal) = normal.try_normalize() else {
+            return fan(out);
+        };
+        let (u, v) = normal.any_orthonormal_pair();
+        self.flat.clear();
+        self.flat
+            .extend((0..n).map(|k| [at(k).dot(u), at(k).dot(v)]));
+        self.earcut
+            .earcut(self.flat.iter().copied(), &[] as &[u32], &mut self.cut);
+        if self.cut.len() != 3 * (n - 2) {
+            return fan(out);
+        }
+        out.extend(self.cut.chunks(3).map(|c| {
+            let t = [
+                poly[c[0] as usize],
+                poly[c[1] as usize],
+                poly[c[2] as usize],
+            ];
+            let [a, b, c] = t.map(|i| positions[i as usize].as_dvec3());
+            // Keep the file's winding: earcut's own depends on the projection.
+            if (b - a).cross(c - a).dot(normal) < 0.0 {
+                [t[0], t[2], t[1]]
+            } else {
+                t
+            }
+        }));
+    }
 }
 
 /// Every edge must be shared by exactly two triangles that traverse it in opposite
@@ -254,7 +446,9 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
                 ));
             }
             gltf::buffer::Source::Uri(uri) => {
-                let p = dir.join(uri);
+                // URIs are percent-encoded (RFC 3986): exporters write a space as %20.
+                let name = percent_encoding::percent_decode_str(uri).decode_utf8_lossy();
+                let p = dir.join(&*name);
                 std::fs::read(&p).map_err(|e| {
                     RenderError::mesh(
                         path,
@@ -274,7 +468,15 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
         .or_else(|| document.scenes().next());
     let roots: Vec<gltf::Node> = match scene {
         Some(s) => s.nodes().collect(),
-        None => document.nodes().collect(),
+        // No scene: every node that is no other's child (the children come through their
+        // parents; started from too, they would be reached twice).
+        None => {
+            let mut child = vec![false; document.nodes().len()];
+            for c in document.nodes().flat_map(|n| n.children()) {
+                child[c.index()] = true;
+            }
+            document.nodes().filter(|n| !child[n.index()]).collect()
+        }
     };
     let mut stack: Vec<(gltf::Node, Mat4)> =
         roots.into_iter().map(|n| (n, Mat4::IDENTITY)).collect();
@@ -292,7 +494,12 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
             ));
         }
         let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
+        // A mirroring transform reverses the winding; glTF asks loaders to undo that.
+        let mirrored = world.determinant() < 0.0;
         if let Some(m) = node.mesh() {
+            // The morph targets' default weights (the node's, else the mesh's) shape the
+            // mesh as the file shows it at rest.
+            let weights = node.weights().or(m.weights()).unwrap_or(&[]);
             for prim in m.primitives() {
                 if prim.mode() != gltf::mesh::Mode::Triangles {
                     return Err(RenderError::mesh(
@@ -325,12 +532,48 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
                     )
                     .map_err(|e| RenderError::mesh(path, e))?;
                 }
+                let targets: Vec<_> = prim.morph_targets().collect();
+                let in_use = |k: usize| weights.get(k).is_some_and(|&w| w != 0.0);
+                for (k, t) in targets.iter().enumerate().filter(|&(k, _)| in_use(k)) {
+                    if let Some(acc) = t.positions() {
+                        check_accessor(
+                            &acc,
+                            "morph target POSITION",
+                            &[DataType::F32],
+                            Dimensions::Vec3,
+                            &buffers,
+                        )
+                        .map_err(|e| RenderError::mesh(path, e))?;
+                        if acc.count() != positions.count() {
+                            return Err(RenderError::mesh(
+                                path,
+                                format!(
+                                    "morph target {k} has {} positions for the primitive's {}",
+                                    acc.count(),
+                                    positions.count()
+                                ),
+                            ));
+                        }
+                    }
+                }
                 let reader = prim.reader(|b| buffers.get(b.index()).map(|v| &v[..]));
                 let base = mesh.positions.len() as u32;
-                let pos: Vec<Vec3> = reader
+                let mut local: Vec<Vec3> = reader
                     .read_positions()
                     .ok_or_else(|| RenderError::mesh(path, "a primitive has no POSITION"))?
-                    .map(|p| world.transform_point3(Vec3::from_array(p)))
+                    .map(Vec3::from_array)
+                    .collect();
+                for (k, (displaced, _, _)) in reader.read_morph_targets().enumerate() {
+                    if let (true, Some(d)) = (in_use(k), displaced) {
+                        let w = weights[k];
+                        for (p, d) in local.iter_mut().zip(d) {
+                            *p += w * Vec3::from_array(d);
+                        }
+                    }
+                }
+                let pos: Vec<Vec3> = local
+                    .into_iter()
+                    .map(|p| world.transform_point3(p))
                     .collect();
                 let n = pos.len() as u32;
                 mesh.positions.extend(pos);
@@ -341,10 +584,10 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
                 if idx.len() % 3 != 0 || idx.iter().any(|&i| i >= n) {
                     return Err(RenderError::mesh(path, "invalid triangle indices"));
                 }
-                mesh.triangles.extend(
-                    idx.chunks(3)
-                        .map(|c| [c[0] + base, c[1] + base, c[2] + base]),
-                );
+                mesh.triangles.extend(idx.chunks(3).map(|c| {
+                    let t = [c[0] + base, c[1] + base, c[2] + base];
+                    if mirrored { [t[0], t[2], t[1]] } else { t }
+                }));
             }
         }
         for c in node.children() {
@@ -406,8 +649,10 @@ fn check_accessor(
 }
 
 fn load_obj(path: &Path) -> Result<TriMesh, RenderError> {
+    // tobj's own triangulation is a fan, wrong for concave faces: faces come whole and
+    // are cut here (Triangulator).
     let opts = tobj::LoadOptions {
-        triangulate: true,
+        triangulate: false,
         single_index: false,
         ignore_points: true,
         ignore_lines: true,
@@ -432,6 +677,7 @@ fn load_obj(path: &Path) -> Result<TriMesh, RenderError> {
     })
     .map_err(|e| RenderError::mesh(path, format!("not a valid OBJ file: {e}")))?;
     let mut mesh = TriMesh::default();
+    let mut cut = Triangulator::default();
     for m in models {
         let base = mesh.positions.len() as u32;
         let n = (m.mesh.positions.len() / 3) as u32;
@@ -444,12 +690,25 @@ fn load_obj(path: &Path) -> Result<TriMesh, RenderError> {
         if m.mesh.indices.iter().any(|&i| i >= n) {
             return Err(RenderError::mesh(path, "a face refers to a missing vertex"));
         }
-        mesh.triangles.extend(
-            m.mesh
-                .indices
-                .chunks(3)
-                .map(|c| [c[0] + base, c[1] + base, c[2] + base]),
-        );
+        let indices: Vec<u32> = m.mesh.indices.iter().map(|&i| i + base).collect();
+        // No arities means every face is a triangle.
+        let arities = if m.mesh.face_arities.is_empty() {
+            vec![3; indices.len() / 3]
+        } else {
+            m.mesh.face_arities.clone()
+        };
+        if arities.iter().map(|&a| a as usize).sum::<usize>() != indices.len() {
+            return Err(RenderError::mesh(
+                path,
+                "not a valid OBJ file: its faces do not add up",
+            ));
+        }
+        let mut at = 0;
+        for a in arities {
+            let a = a as usize;
+            cut.polygon(&mesh.positions, &indices[at..at + a], &mut mesh.triangles);
+            at += a;
+        }
     }
     Ok(mesh)
 }
@@ -508,7 +767,7 @@ fn obj_problem(text: &str) -> Option<String> {
 }
 
 /// PLY, ASCII or binary little-endian: `vertex` with float/double x, y, z (other
-/// properties skipped) and `face` with a list of vertex indices (polygons fan-triangulated).
+/// properties skipped) and `face` with a list of vertex indices (polygons cut in their plane).
 fn load_ply(path: &Path) -> Result<TriMesh, RenderError> {
     let bytes = std::fs::read(path).map_err(|e| RenderError::io(path, e))?;
     crate::ply::parse(&bytes).map_err(|e| RenderError::mesh(path, e))

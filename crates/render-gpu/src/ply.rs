@@ -2,8 +2,8 @@
 //!
 //! Supports `format ascii 1.0` and `format binary_little_endian 1.0`, a `vertex` element
 //! with x, y, z of any scalar type (other properties skipped), and a `face` element with
-//! a `vertex_indices`/`vertex_index` list (polygons fan-triangulated). Other elements are
-//! skipped when their layout allows it.
+//! a `vertex_indices`/`vertex_index` list (polygons cut into triangles in their plane, see
+//! `mesh::Triangulator`). Other elements are skipped when their layout allows it.
 
 use glam::Vec3;
 
@@ -98,15 +98,8 @@ impl Body<'_> {
 }
 
 pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
-    let end = find(bytes, b"end_header").ok_or("not a PLY file: no end_header")?;
+    let (end, body_start) = header_end(bytes).ok_or("not a PLY file: no end_header line")?;
     let header = std::str::from_utf8(&bytes[..end]).map_err(|_| "the PLY header is not text")?;
-    let mut body_start = end + b"end_header".len();
-    while body_start < bytes.len() && (bytes[body_start] == b'\r' || bytes[body_start] == b'\n') {
-        body_start += 1;
-        if bytes[body_start - 1] == b'\n' {
-            break;
-        }
-    }
     let mut lines = header.lines();
     if lines.next().map(str::trim) != Some("ply") {
         return Err("not a PLY file: the first line is not `ply`".into());
@@ -152,6 +145,9 @@ pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
         Body::Ascii(text.split_ascii_whitespace())
     };
     let mut mesh = TriMesh::default();
+    // Faces as read (flat indices, and each face's vertex count): cut into triangles once
+    // every vertex is known, since a face's shape decides its cut.
+    let (mut face_indices, mut face_sizes) = (Vec::<u32>::new(), Vec::<usize>::new());
     for el in &elements {
         // Guard against absurd counts before allocating.
         if el.count > bytes.len() {
@@ -204,13 +200,11 @@ pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
                             if idx.len() < 3 {
                                 return Err("a face has fewer than 3 vertices".into());
                             }
-                            for k in 1..idx.len() - 1 {
-                                mesh.triangles
-                                    .push([idx[0], idx[k], idx[k + 1]].map(|v| v as u32));
-                            }
                             if idx.iter().any(|&v| v < 0.0 || v.fract() != 0.0) {
                                 return Err("a face has a negative or fractional index".into());
                             }
+                            face_indices.extend(idx.iter().map(|&v| v as u32));
+                            face_sizes.push(idx.len());
                         }
                     }
                 }
@@ -221,14 +215,41 @@ pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
         }
     }
     let nv = mesh.positions.len() as u32;
-    if mesh.triangles.iter().flatten().any(|&i| i >= nv) {
+    if face_indices.iter().any(|&i| i >= nv) {
         return Err(format!(
             "a face refers to a vertex beyond the {nv} vertices"
         ));
     }
+    let mut cut = crate::mesh::Triangulator::default();
+    let mut at = 0;
+    for n in face_sizes {
+        cut.polygon(
+            &mesh.positions,
+            &face_indices[at..at + n],
+            &mut mesh.triangles,
+        );
+        at += n;
+    }
     Ok(mesh)
 }
 
-fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
-    hay.windows(needle.len()).position(|w| w == needle)
+/// Where the header ends (the start of its `end_header` line) and the body begins (after
+/// that line's end). The keyword counts only as a line of its own, trailing blanks allowed:
+/// a comment that mentions it must not cut the header short, and a binary body starts
+/// exactly after the line break.
+fn header_end(bytes: &[u8]) -> Option<(usize, usize)> {
+    let mut start = 0;
+    while start < bytes.len() {
+        let len = bytes[start..]
+            .iter()
+            .position(|&b| b == b'\n')
+            .unwrap_or(bytes.len() - start);
+        let line = &bytes[start..start + len];
+        let next = (start + len + 1).min(bytes.len());
+        if line.trim_ascii() == b"end_header" {
+            return Some((start, next));
+        }
+        start = next;
+    }
+    None
 }

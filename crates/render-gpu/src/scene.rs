@@ -425,6 +425,16 @@ impl SceneFile {
         if o.size.is_some() && o.shape != Some(Shape::Cube) {
             return Err("object.size applies to shape = \"cube\" only".into());
         }
+        // `height` rescales whatever the shape's own size made: given together, the size
+        // would be read and then have no effect.
+        for (name, v) in [("object.radius", o.radius), ("object.size", o.size)] {
+            if v.is_some() && o.height.is_some() {
+                return Err(format!(
+                    "{name} and object.height are both given: height rescales the object to \
+                     its bounding-box height, so {name} would have no effect; give one of them"
+                ));
+            }
+        }
 
         let m = &self.medium;
         for i in 0..3 {
@@ -615,7 +625,12 @@ fn camera_basis_f32(c: &CameraDesc) -> Result<(), String> {
     };
     // sin of the angle between them: below 1e-3 (0.06°) the image's right axis is noise.
     if fwd.cross(up).length() < 1e-3 {
-        return Err("camera.up is parallel to the viewing direction (target − origin)".into());
+        // Said with its value: it may be the default, which the file does not show.
+        return Err(format!(
+            "camera.up = {:?} is parallel to the viewing direction (target − origin): \
+             set camera.up to a direction across the view (its default is [0, 1, 0])",
+            c.up
+        ));
     }
     Ok(())
 }

@@ -100,6 +100,13 @@ impl SceneData {
                 h.write(&x.to_le_bytes());
             }
         }
+        // Which vertices form each face, too: one vertex set cut into different triangles
+        // is a different object.
+        for t in &mesh.triangles {
+            for i in t {
+                h.write(&i.to_le_bytes());
+            }
+        }
         if let Some(m) = &env.map {
             for px in &m.pixels {
                 for v in px {

@@ -436,3 +436,347 @@ fn merge_refuses_one_seed_twice_but_not_equal_constant_images() {
     let c2 = put("c2.exr", 0.5, false, &[], 4);
     assert!(merge_exrs(&[&c1, &c2]).is_ok());
 }
+
+/// The signed volume and the surface area of a mesh, summed over its triangles here
+/// (not with the crate's own helpers), to compare with a shape's closed-form values.
+fn volume_and_area(m: &mesh::TriMesh) -> (f64, f64) {
+    m.triangles.iter().fold((0.0, 0.0), |(v, a), t| {
+        let [p, q, r] = t.map(|i| m.positions[i as usize].as_dvec3());
+        (
+            v + p.dot(q.cross(r)) / 6.0,
+            a + (q - p).cross(r - p).length() / 2.0,
+        )
+    })
+}
+
+/// Pieces joined into one mesh, each optionally wound inward (reversed).
+fn pieces(parts: &[(mesh::TriMesh, bool)]) -> mesh::TriMesh {
+    let mut m = mesh::TriMesh::default();
+    for (p, reversed) in parts {
+        let base = m.positions.len() as u32;
+        m.positions.extend(&p.positions);
+        m.triangles.extend(p.triangles.iter().map(|t| {
+            let t = t.map(|i| i + base);
+            if *reversed { [t[0], t[2], t[1]] } else { t }
+        }));
+    }
+    m
+}
+
+fn moved(mut m: mesh::TriMesh, by: glam::Vec3) -> mesh::TriMesh {
+    m.positions.iter_mut().for_each(|p| *p += by);
+    m
+}
+
+/// Each piece is wound by how deeply it is nested, whatever the file's winding: the
+/// medium's volume comes out as the shape's (a piece left inside out rendered leaks and a
+/// brighter image). The expected volumes are the boxes' closed-form ones.
+#[test]
+fn pieces_are_wound_by_their_nesting() {
+    let c = mesh::cube;
+    let cases: [(&str, Vec<(mesh::TriMesh, bool)>, f64); 6] = [
+        // A hollow box: the inner wall bounds the medium from inside (8 − 1).
+        (
+            "shell, walls wound alike",
+            vec![(c(2.0), false), (c(1.0), false)],
+            7.0,
+        ),
+        (
+            "shell, walls opposite",
+            vec![(c(2.0), false), (c(1.0), true)],
+            7.0,
+        ),
+        (
+            "shell, both reversed",
+            vec![(c(2.0), true), (c(1.0), true)],
+            7.0,
+        ),
+        // A solid cube in the hollow box's cavity: 27 − 8 + 1.
+        (
+            "ball in a shell",
+            vec![(c(3.0), true), (c(2.0), false), (c(1.0), true)],
+            20.0,
+        ),
+        // Apart, one reversed (a mirrored instance): both solid.
+        (
+            "apart",
+            vec![
+                (moved(c(1.0), glam::Vec3::X * 2.0), false),
+                (moved(c(1.0), -glam::Vec3::X * 2.0), true),
+            ],
+            2.0,
+        ),
+        // Overlapping is not nesting: each solid on its own (as the integrators see it).
+        (
+            "overlapping",
+            vec![
+                (c(1.0), true),
+                (moved(c(1.0), glam::Vec3::splat(0.5)), true),
+            ],
+            2.0,
+        ),
+    ];
+    for (what, parts, want) in cases {
+        let m = mesh::prepare(pieces(&parts)).unwrap();
+        let (v, _) = volume_and_area(&m);
+        assert!((v - want).abs() < 1e-9, "{what}: volume {v}, want {want}");
+    }
+}
+
+/// An L-shaped prism (a 2×2 square less a 1×1 corner, 1 deep) whose end caps are
+/// hexagons listed from each of their six vertices in turn: every listing must cut into
+/// the same area, 2·3 + 8·1 = 14, and volume 3. A fan from the first vertex covers the
+/// notch from some starts (15 instead of 14 from the first), and its extra faces still
+/// pair up, so the mesh passes as closed.
+#[test]
+fn concave_faces_are_cut_inside_their_outline() {
+    let outline = [(0, 0), (2, 0), (2, 1), (1, 1), (1, 2), (0, 2)];
+    let d = tempfile::tempdir().unwrap();
+    for start in 0..6 {
+        // Vertices 1..=6 at z = 0, 7..=12 at z = 1 (OBJ numbering).
+        let mut verts = Vec::new();
+        for z in [0, 1] {
+            for (x, y) in outline {
+                verts.push(format!("{x} {y} {z}"));
+            }
+        }
+        let rot = |k: usize, z: usize| (k + start) % 6 + 1 + 6 * z;
+        // Bottom cap seen from below (clockwise from above), top cap counter-clockwise.
+        let bottom: Vec<usize> = (0..6).rev().map(|k| rot(k, 0)).collect();
+        let top: Vec<usize> = (0..6).map(|k| rot(k, 1)).collect();
+        let mut faces = vec![bottom, top];
+        for k in 0..6 {
+            let k2 = (k + 1) % 6;
+            faces.push(vec![k + 1, k2 + 1, k2 + 7, k + 7]);
+        }
+        let obj: String = verts.iter().map(|v| format!("v {v}\n")).collect::<String>()
+            + &faces
+                .iter()
+                .map(|f| {
+                    format!(
+                        "f {}\n",
+                        f.iter()
+                            .map(|i| i.to_string())
+                            .collect::<Vec<_>>()
+                            .join(" ")
+                    )
+                })
+                .collect::<String>();
+        let ply = format!(
+            "ply\nformat ascii 1.0\nelement vertex 12\nproperty float x\nproperty float y\n\
+             property float z\nelement face {}\nproperty list uchar int vertex_indices\n\
+             end_header\n{}\n{}\n",
+            faces.len(),
+            verts.join("\n"),
+            faces
+                .iter()
+                .map(|f| format!(
+                    "{} {}",
+                    f.len(),
+                    f.iter()
+                        .map(|i| (i - 1).to_string())
+                        .collect::<Vec<_>>()
+                        .join(" ")
+                ))
+                .collect::<Vec<_>>()
+                .join("\n")
+        );
+        for (name, text) in [("l.obj", obj), ("l.ply", ply)] {
+            let m = load_mesh(&write(&d, name, text.as_bytes())).unwrap();
+            let (v, a) = volume_and_area(&m);
+            assert!(
+                (v - 3.0).abs() < 1e-5 && (a - 14.0).abs() < 1e-5,
+                "{name} listed from vertex {start}: volume {v} (want 3), area {a} (want 14)"
+            );
+            assert_eq!(m.triangles.len(), 2 * 4 + 6 * 2, "{name}");
+        }
+    }
+}
+
+/// A glTF of one unit cube (positions, u16 indices, then a morph target moving every
+/// vertex +1 along x) in the buffer file `file`, referred to as `uri`; `doc` gives the
+/// document's nodes, scenes and mesh weights.
+fn cube_doc(d: &tempfile::TempDir, name: &str, file: &str, uri: &str, doc: &str) -> PathBuf {
+    let mut bin = Vec::new();
+    for i in 0..8u32 {
+        for bit in [1, 2, 4] {
+            bin.extend_from_slice(&(if i & bit != 0 { 0.5f32 } else { -0.5 }).to_le_bytes());
+        }
+    }
+    let tris: [u16; 36] = [
+        0, 2, 3, 0, 3, 1, 4, 5, 7, 4, 7, 6, 0, 1, 5, 0, 5, 4, 2, 6, 7, 2, 7, 3, 0, 4, 6, 0, 6, 2,
+        1, 3, 7, 1, 7, 5,
+    ];
+    for t in tris {
+        bin.extend_from_slice(&t.to_le_bytes());
+    }
+    for _ in 0..8 {
+        for x in [1.0f32, 0.0, 0.0] {
+            bin.extend_from_slice(&x.to_le_bytes());
+        }
+    }
+    write(d, file, &bin);
+    let json = format!(
+        r#"{{"asset":{{"version":"2.0"}},{doc},
+        "buffers":[{{"uri":"{uri}","byteLength":264}}],
+        "bufferViews":[{{"buffer":0,"byteOffset":0,"byteLength":96}},
+                       {{"buffer":0,"byteOffset":96,"byteLength":72}},
+                       {{"buffer":0,"byteOffset":168,"byteLength":96}}],
+        "accessors":[{{"bufferView":0,"componentType":5126,"count":8,"type":"VEC3",
+                       "min":[-0.5,-0.5,-0.5],"max":[0.5,0.5,0.5]}},
+                     {{"bufferView":1,"componentType":5123,"count":36,"type":"SCALAR"}},
+                     {{"bufferView":2,"componentType":5126,"count":8,"type":"VEC3",
+                       "min":[1,0,0],"max":[1,0,0]}}]}}"#
+    );
+    write(d, name, json.as_bytes())
+}
+
+/// glTF files as exporters write them: mirrored instances, no scene list, percent-encoded
+/// buffer names and morph targets with default weights. The expected boxes follow from
+/// the transforms by hand.
+#[test]
+fn gltf_instances_scenes_uris_and_morph_weights() {
+    let d = tempfile::tempdir().unwrap();
+    let mesh = |weights: &str| {
+        format!(
+            r#""meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}},"indices":1,"targets":[{{"POSITION":2}}]}}]{weights}}}]"#
+        )
+    };
+    let load = |doc: &str| load_mesh(&cube_doc(&d, "c.gltf", "c.bin", "c.bin", doc)).unwrap();
+    // Two instances, the second mirrored in x: two solid unit cubes (the mirror reverses
+    // its winding, which the loader undoes).
+    let m = load(&format!(
+        r#""scene":0,"scenes":[{{"nodes":[0,1]}}],"nodes":[{{"mesh":0,"translation":[-2,0,0]}},
+        {{"mesh":0,"translation":[2,0,0],"scale":[-1,1,1]}}],{}"#,
+        mesh("")
+    ));
+    let (v, _) = volume_and_area(&m);
+    assert!((v - 2.0).abs() < 1e-9, "mirrored instances: volume {v}");
+    // No scenes: the roots are the nodes without a parent; the child comes through it
+    // (before, it was also started from and refused as "reached twice").
+    let m = load(&format!(
+        r#""nodes":[{{"children":[1],"translation":[0,1,0]}},{{"mesh":0,"translation":[0,0,3]}}],{}"#,
+        mesh("")
+    ));
+    let (lo, hi) = m.bounds();
+    assert_eq!(
+        (lo.to_array(), hi.to_array()),
+        ([-0.5, 0.5, 2.5], [0.5, 1.5, 3.5])
+    );
+    // Default morph weights: the mesh's, overridden by the node's.
+    for (node_w, mesh_w, dx) in [
+        ("", "", 0.0),
+        ("", r#","weights":[0.5]"#, 0.5),
+        (r#","weights":[0.25]"#, r#","weights":[0.5]"#, 0.25),
+    ] {
+        let m = load(&format!(
+            r#""scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0{node_w}}}],{}"#,
+            mesh(mesh_w)
+        ));
+        let (lo, hi) = m.bounds();
+        assert_eq!(
+            (lo.x, hi.x),
+            (-0.5 + dx, 0.5 + dx),
+            "weights {node_w} {mesh_w}"
+        );
+    }
+    // A buffer named with a space, written %20 as URIs require.
+    let p = cube_doc(
+        &d,
+        "pct.gltf",
+        "my cube.bin",
+        "my%20cube.bin",
+        &format!(r#""nodes":[{{"mesh":0}}],{}"#, mesh("")),
+    );
+    assert_eq!(load_mesh(&p).unwrap().triangles.len(), 12);
+}
+
+/// The header ends only at an `end_header` line of its own (trailing blanks allowed): not
+/// at a comment that mentions it, and a binary body starts right after the line.
+#[test]
+fn ply_header_ends_at_its_own_line() {
+    let d = tempfile::tempdir().unwrap();
+    let tetra = |header_tail: &str, end: &str| {
+        let mut b = format!(
+            "ply\nformat binary_little_endian 1.0\n{header_tail}element vertex 4\n\
+             property float x\nproperty float y\nproperty float z\nelement face 4\n\
+             property list uchar int vertex_indices\n{end}\n"
+        )
+        .into_bytes();
+        for p in [[0f32, 0., 0.], [1., 0., 0.], [0., 1., 0.], [0., 0., 1.]] {
+            p.iter().for_each(|x| b.extend_from_slice(&x.to_le_bytes()));
+        }
+        for f in [[0i32, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]] {
+            b.push(3);
+            f.iter().for_each(|i| b.extend_from_slice(&i.to_le_bytes()));
+        }
+        b
+    };
+    for (name, text) in [
+        ("plain.ply", tetra("", "end_header")),
+        (
+            "comment.ply",
+            tetra(
+                "comment written before end_header by a tool\n",
+                "end_header",
+            ),
+        ),
+        ("blank.ply", tetra("", "end_header \r")),
+    ] {
+        let m = load_mesh(&write(&d, name, &text)).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let (v, _) = volume_and_area(&m);
+        assert!((v - 1.0 / 6.0).abs() < 1e-7, "{name}: volume {v}");
+    }
+}
+
+/// A surface closed only through a zero-area triangle (a T-junction's filler) is open
+/// once that triangle is dropped, and the message says why.
+#[test]
+fn a_surface_closed_by_zero_area_triangles_is_explained() {
+    let mut m = mesh::cube(1.0);
+    // Split the edge a→b of the first triangle at its midpoint on the other side only.
+    let [a, b, _] = m.triangles[0];
+    let k = m
+        .triangles
+        .iter()
+        .position(|t| (0..3).any(|i| t[i] == b && t[(i + 1) % 3] == a))
+        .unwrap();
+    let t = m.triangles[k];
+    let i = (0..3).find(|&i| t[i] == b).unwrap();
+    let other = t[(i + 2) % 3];
+    let mid = m.positions.len() as u32;
+    m.positions
+        .push((m.positions[a as usize] + m.positions[b as usize]) / 2.0);
+    m.triangles[k] = [b, mid, other];
+    m.triangles.push([mid, a, other]);
+    m.triangles.push([b, a, mid]); // the filler: edges b→a, a→mid, mid→b
+    let e = mesh::prepare(m).unwrap_err();
+    assert!(
+        e.contains("3 boundary edges") && e.contains("1 zero-area triangles were dropped"),
+        "{e}"
+    );
+}
+
+/// The scene hash (what `merge` compares) tells apart two meshes of the same vertices cut
+/// into different triangles: here a cube whose top face is split along either diagonal.
+#[test]
+fn the_scene_hash_sees_how_faces_are_cut() {
+    let d = tempfile::tempdir().unwrap();
+    let split = |top: &str| CUBE_OBJ.replace("f 3 7 8 4\n", top);
+    let hash = |obj: String| {
+        write(&d, "m.obj", obj.as_bytes());
+        let f = render_gpu::scene::SceneFile::parse(
+            &d.path().join("s.toml"),
+            "[camera]\norigin = [0.0, 0.0, 6.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 30.0\n\
+             width = 8\nheight = 8\n[object]\nmesh = \"m.obj\"\n\
+             [medium]\nsigma_t = [1.0, 1.0, 1.0]\nalbedo = [0.5, 0.5, 0.5]\n",
+        )
+        .unwrap();
+        render_gpu::setup::SceneData::build(&f, d.path(), false, &[])
+            .unwrap()
+            .hash
+    };
+    let one = hash(split("f 3 7 8\nf 3 8 4\n"));
+    assert_eq!(one, hash(split("f 3 7 8\nf 3 8 4\n")), "one mesh, one hash");
+    assert_ne!(one, hash(split("f 3 7 4\nf 7 8 4\n")), "the other diagonal");
+}

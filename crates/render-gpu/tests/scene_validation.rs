@@ -74,6 +74,21 @@ fn other_fields_are_checked() {
     assert!(e.contains("object.mesh = \"\" names no file"), "{e}");
     let e = err(&format!("{BASE}\n[environment]\nfile = \"\"\n"));
     assert!(e.contains("environment.file = \"\" names no file"), "{e}");
+    let e = err(&BASE.replace(
+        "shape = \"sphere\"",
+        "shape = \"sphere\"\nradius = 0.5\nheight = 1.0",
+    ));
+    assert!(
+        e.contains("object.radius and object.height") && e.contains("no effect"),
+        "{e}"
+    );
+    // Looking straight down with the default up: the message shows the value the file
+    // does not.
+    let e = err(&BASE.replace("origin = [0.0, 0.0, 4.0]", "origin = [0.0, 4.0, 0.0]"));
+    assert!(
+        e.contains("camera.up = [0.0, 1.0, 0.0] is parallel") && e.contains("default"),
+        "{e}"
+    );
     let e = err(&BASE.replace("shape = \"sphere\"", "shape = \"torus\""));
     assert!(e.contains("torus"), "{e}");
     let e = err(&format!(
