@@ -3,11 +3,13 @@
 // environment). Host mirror: crates/render-gpu/src/gpu/scene_buffers.rs.
 
 struct Light {
-    // xyz: unit vector toward the light; w: cosine of the disk's angular radius (1: delta).
+    // xyz: unit vector toward the light; w: 1 − cos of the disk's angular radius, computed
+    // accurately on the host (0: delta; light.rs, DirectionalLight::one_minus_cos).
     to_light: vec4<f32>,
     // Irradiance per channel (rgb).
     irradiance: vec4<f32>,
-    // Radiance of the disk per channel (rgb); 0 for a delta light.
+    // Radiance of the disk per channel (rgb); 0 for a delta light. w: sin² of the disk's
+    // angular radius, its edge for light_radiance_toward.
     radiance: vec4<f32>,
 }
 
@@ -685,23 +687,27 @@ struct LightSample {
 /// radiance factor (params.consts4.x; nee.rs, light_sample).
 fn light_sample(i: u32, u1: f32, u2: f32, channel: u32) -> LightSample {
     let l = params.lights[i];
-    let cos_max = l.to_light.w;
+    let one_minus_cos = l.to_light.w;
     let scale = params.consts4.x;
-    if cos_max >= 1.0 {
+    if one_minus_cos <= 0.0 {
         return LightSample(l.to_light.xyz, l.irradiance[channel] * scale);
     }
-    let c = 1.0 - u1 * (1.0 - cos_max);
-    let s = sqrt(max(1.0 - c * c, 0.0));
+    // As light.rs: 1 − cos θ uniform, sin θ = √(v(2 − v)) without 1 − cos² cancelling.
+    let v = u1 * one_minus_cos;
+    let c = 1.0 - v;
+    let s = sqrt(max(v * (2.0 - v), 0.0));
     let phi = TWO_PI * u2;
     let n = l.to_light.xyz;
     let dir = normalize(basis_t(n) * (s * cos(phi)) + basis_b(n) * (s * sin(phi)) + n * c);
-    let solid_angle = TWO_PI * (1.0 - cos_max);
+    let solid_angle = TWO_PI * one_minus_cos;
     return LightSample(dir, l.radiance[channel] * solid_angle * scale);
 }
 
 fn light_radiance_toward(i: u32, dir: vec3<f32>, channel: u32) -> f32 {
     let l = params.lights[i];
-    if l.to_light.w < 1.0 && dot(dir, l.to_light.xyz) >= l.to_light.w {
+    // light.rs, radiance_toward: in front and sin²θ = |dir × to_light|² ≤ sin²θ_max.
+    let x = cross(dir, l.to_light.xyz);
+    if l.to_light.w > 0.0 && dot(dir, l.to_light.xyz) > 0.0 && dot(x, x) <= l.radiance.w {
         return l.radiance[channel];
     }
     return 0.0;

@@ -256,9 +256,12 @@ pub fn scene_params(scene: &SceneData, set: &IntegratorSettings, seed: u64) -> P
     let mut lights = [GpuLight::default(); MAX_GPU_LIGHTS];
     for (g, l) in lights.iter_mut().zip(&scene.lights) {
         *g = GpuLight {
-            to_light: v4(l.to_light, l.cos_max),
+            to_light: v4(l.to_light, l.one_minus_cos),
             irradiance: c4(l.irradiance),
-            radiance: c4(l.radiance),
+            radiance: {
+                let [r, g, b] = l.radiance;
+                [r, g, b, l.sin2_max]
+            },
         };
     }
     let (grid_lo, grid_dims, near) = match &scene.grid {

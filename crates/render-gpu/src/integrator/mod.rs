@@ -560,7 +560,7 @@ mod tests {
         assert!(disk > 0.0);
         let set = pt();
         let mut total = 0.0;
-        let n = 256;
+        let n = 4096;
         // The camera's ray (origin → target above).
         let origin = Vec3::new(-0.7, 0.705, 0.0);
         let d = (Vec3::new(0.005, 0.0, 0.0) - origin).normalize();
@@ -573,9 +573,10 @@ mod tests {
             total += l;
         }
         // 1 − F(45°, 1 → 1.5) = 0.950 of the disk's radiance expected (each path brings the
-        // disk's radiance or 0): 256 paths put the mean within 4σ = 0.055 of it (σ =
-        // √(0.95·0.05/256) = 0.014); with the direction lost it would be 0, and a path
-        // that counted the disk twice would give ~1.9.
+        // disk's radiance or 0): 4,096 paths put the mean within 4σ = 0.014 of it (σ =
+        // √(0.95·0.05/4096) = 0.0034); with the direction lost it would be 0, a path that
+        // counted the disk twice would give ~1.9, and one without the Fresnel choice 1.0,
+        // 14.7σ off (with 256 paths, as before, 1.0 was inside 4σ).
         // Fresnel's textbook value, not `optics::fresnel` (which the integrator itself uses):
         // R_s = 0.0920, R_p = 0.0085 at 45° into n = 1.5.
         let transmitted = 1.0 - 0.5 * (0.092_02 + 0.008_47f32);
