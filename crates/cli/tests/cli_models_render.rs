@@ -1101,3 +1101,39 @@ fn bench_error_ranks_renders_by_error_and_names_bad_inputs() {
     let e = fails(&bench_error(&[&format!("{low},{high}")]));
     assert!(e.contains("three (R,G,B"), "{e}");
 }
+
+/// A time budget shorter than any pass stops after the first pass, which renders one
+/// sample per pixel (render.rs): the JSON and the EXR's tag say 1 of the 64 asked, the
+/// image is finite, and `merge` weighs two such renders as 2 spp. Nothing here depends on
+/// how fast the machine is: every pass outlasts 10⁻⁹ s.
+#[test]
+fn a_time_budget_stops_after_a_pass_and_records_its_spp() {
+    let d = tempfile::tempdir().unwrap();
+    let scene = d.path().join("s.toml");
+    std::fs::write(&scene, sphere_scene_text(16)).unwrap();
+    let (a, b) = (d.path().join("a"), d.path().join("b"));
+    for (out, seed) in [(&a, "1"), (&b, "2")] {
+        let budget = ["--time-budget", "1e-9", "--device", "cpu"];
+        ok(&render_scene(&scene, "pt", "64", seed, out, &budget));
+        let json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.with_extension("json")).unwrap())
+                .unwrap();
+        assert_eq!(
+            (json["spp"].as_u64(), json["spp_requested"].as_u64()),
+            (Some(1), Some(64))
+        );
+        let (image, tag) = render_gpu::image_io::read_exr(&out.with_extension("exr")).unwrap();
+        assert_eq!(tag.unwrap().spp, 1);
+        assert!(image.pixels.iter().flatten().all(|v| v.is_finite()));
+    }
+    let m = d.path().join("m");
+    ok(&stcvae(&[
+        "merge",
+        a.with_extension("exr").to_str().unwrap(),
+        b.with_extension("exr").to_str().unwrap(),
+        "--out",
+        m.to_str().unwrap(),
+    ]));
+    let (_, tag) = render_gpu::image_io::read_exr(&m.with_extension("exr")).unwrap();
+    assert_eq!(tag.unwrap().spp, 2);
+}
