@@ -105,10 +105,47 @@ pub fn check_replaceable(path: &Path) -> io::Result<()> {
     Ok(())
 }
 
+/// The temporaries being written now, so that an abort that skips destructors (a second
+/// Ctrl-C calls `exit`) can still remove them: each is registered while its guard lives.
+static LIVE: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+
+/// Keeps a temporary's path in [`LIVE`] until dropped (after its rename or removal).
+struct Live(PathBuf);
+
+impl Live {
+    fn new(path: &Path) -> Self {
+        LIVE.lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .push(path.to_path_buf());
+        Self(path.to_path_buf())
+    }
+}
+
+impl Drop for Live {
+    fn drop(&mut self) {
+        let mut live = LIVE.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(i) = live.iter().position(|p| *p == self.0) {
+            live.swap_remove(i);
+        }
+    }
+}
+
+/// Removes every temporary still being written: for an exit that skips destructors.
+/// Never blocks on the lock (the exit may interrupt a thread holding it), so in that rare
+/// case nothing is removed.
+pub fn remove_live_temporaries() {
+    if let Ok(live) = LIVE.try_lock() {
+        for p in live.iter() {
+            let _ = fs::remove_file(p);
+        }
+    }
+}
+
 /// A buffered writer to a temporary file that becomes `path` on [`AtomicFile::commit`].
 pub struct AtomicFile {
     path: PathBuf,
     writer: BufWriter<NamedTempFile>,
+    live: Live,
 }
 
 impl AtomicFile {
@@ -131,6 +168,7 @@ impl AtomicFile {
             .tempfile_in(&dir)?;
         Ok(Self {
             path: path.to_path_buf(),
+            live: Live::new(tmp.path()),
             writer: BufWriter::with_capacity(1 << 20, tmp),
         })
     }
@@ -159,6 +197,7 @@ impl AtomicFile {
         Ok(Finished {
             tmp,
             path: self.path,
+            _live: self.live,
         })
     }
 }
@@ -167,6 +206,7 @@ impl AtomicFile {
 struct Finished {
     tmp: NamedTempFile,
     path: PathBuf,
+    _live: Live,
 }
 
 impl Finished {
