@@ -7,7 +7,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Result, anyhow, bail};
-use render_gpu::image_io::{RgbImage, read_exr};
+use render_gpu::image_io::{RenderTag, RgbImage, read_exr};
 
 use crate::plots::{Series, line_plot};
 
@@ -131,8 +131,11 @@ pub fn measure(r: &Reference, image: &RgbImage) -> Measure {
 
 /// Reads an EXR and refuses non-finite pixels (an image with a NaN would make every figure
 /// NaN without saying where it came from).
-fn load(path: &Path) -> Result<RgbImage> {
-    let (img, _) = read_exr(path)?;
+fn load(path: &Path, tags: &mut Vec<(PathBuf, RenderTag)>) -> Result<RgbImage> {
+    let (img, tag) = read_exr(path)?;
+    if let Some(t) = tag {
+        tags.push((path.to_path_buf(), t));
+    }
     if let Some((x, y)) = img.first_non_finite() {
         bail!(
             "{}: pixel ({x}, {y}) is not finite: {:?}",
@@ -243,11 +246,43 @@ fn check_distinct(names: &[&str]) -> Result<()> {
     Ok(())
 }
 
+/// Refuses two stcvae renders of one scene and estimator (equal scene hashes) that share a
+/// seed: they share samples, so an image would match a reference by more than the image's
+/// accuracy (an image rendered with a reference's seed read RMSE 0). `merge` refuses the
+/// same pairs. Files without stcvae's tag (other renderers' EXRs) are not checked.
+/// Images may share seeds with each other: each is measured against the references only.
+fn check_shared_seeds(
+    references: &[(PathBuf, RenderTag)],
+    images: &[(PathBuf, RenderTag)],
+) -> Result<()> {
+    for (i, (pa, a)) in references.iter().chain(images).enumerate() {
+        for (pb, b) in &references[..i.min(references.len())] {
+            if a.scene_hash != b.scene_hash {
+                continue;
+            }
+            if let Some(seed) = a.seeds.iter().find(|s| b.seeds.contains(s)) {
+                bail!(
+                    "{} and {} are renders of one scene with seed {seed} in common: they share \
+                     samples, so the error would read low; render them with other seeds",
+                    pb.display(),
+                    pa.display()
+                );
+            }
+        }
+    }
+    Ok(())
+}
+
 /// The image an argument names, checked against the reference's size.
-fn load_spec(files: &[String], w: usize, h: usize) -> Result<RgbImage> {
+fn load_spec(
+    files: &[String],
+    w: usize,
+    h: usize,
+    tags: &mut Vec<(PathBuf, RenderTag)>,
+) -> Result<RgbImage> {
     let mut images = Vec::with_capacity(files.len());
     for f in files {
-        let img = load(Path::new(f))?;
+        let img = load(Path::new(f), tags)?;
         same_size(f, &img, w, h)?;
         images.push(img);
     }
@@ -308,9 +343,10 @@ pub fn run(a: Args) -> Result<()> {
             .collect();
         crate::paths::check_not_input("--plot", path, &inputs)?;
     }
+    let mut ref_tags = Vec::new();
     let mut refs: Vec<RgbImage> = Vec::with_capacity(references.len());
     for p in &references {
-        let img = load(Path::new(p))?;
+        let img = load(Path::new(p), &mut ref_tags)?;
         if let Some(first) = refs.first() {
             same_size(p, &img, first.width, first.height)?;
         }
@@ -318,10 +354,12 @@ pub fn run(a: Args) -> Result<()> {
     }
     let r = Reference::new(&refs, a.object_threshold);
     // Every image is read before anything is printed, so a bad one leaves no half table.
+    let mut image_tags = Vec::new();
     let images: Vec<RgbImage> = specs
         .iter()
-        .map(|s| load_spec(&s.files, r.width, r.height))
+        .map(|s| load_spec(&s.files, r.width, r.height, &mut image_tags))
         .collect::<Result<_>>()?;
+    check_shared_seeds(&ref_tags, &image_tags)?;
     let ref_noise = r.noise_mse.sqrt();
     let objects = r.object.iter().filter(|&&o| o).count();
     println!(

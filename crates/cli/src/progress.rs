@@ -1,10 +1,96 @@
-//! Progress bars in one style.
+//! Progress bars in one style: drawn on a terminal, and written as plain lines now and
+//! then where stderr is a file or a pipe (a batch job's log).
 
-use indicatif::{ProgressBar, ProgressState, ProgressStyle};
+use std::io::IsTerminal;
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressState, ProgressStyle, TermLike};
+
+/// Where bars draw. On a terminal, as usual; otherwise indicatif draws nothing at all, and
+/// an hour of training under a scheduler logged nothing between its first and last lines,
+/// so the bars' lines are written plainly every `STCVAE_LOG_PROGRESS_EVERY` seconds
+/// (default 30; none in the first interval, so short commands stay quiet).
+pub fn target() -> ProgressDrawTarget {
+    if std::io::stderr().is_terminal() {
+        return ProgressDrawTarget::stderr();
+    }
+    let every = std::env::var("STCVAE_LOG_PROGRESS_EVERY")
+        .ok()
+        .and_then(|v| v.parse::<f64>().ok())
+        .filter(|s| s.is_finite() && *s >= 0.0)
+        .unwrap_or(30.0);
+    ProgressDrawTarget::term_like_with_hz(
+        Box::new(LogLines {
+            every: Duration::from_secs_f64(every),
+            state: Mutex::new(LogState {
+                last: Instant::now(),
+                lines: Vec::new(),
+            }),
+        }),
+        1,
+    )
+}
+
+/// A "terminal" that keeps each draw's lines and writes them, one per line, when the
+/// interval since the last written draw (or the start) has passed.
+#[derive(Debug)]
+struct LogLines {
+    every: Duration,
+    state: Mutex<LogState>,
+}
+
+#[derive(Debug)]
+struct LogState {
+    last: Instant,
+    lines: Vec<String>,
+}
+
+impl TermLike for LogLines {
+    fn width(&self) -> u16 {
+        100
+    }
+    fn move_cursor_up(&self, _: usize) -> std::io::Result<()> {
+        Ok(())
+    }
+    fn move_cursor_down(&self, _: usize) -> std::io::Result<()> {
+        Ok(())
+    }
+    fn move_cursor_right(&self, _: usize) -> std::io::Result<()> {
+        Ok(())
+    }
+    fn move_cursor_left(&self, _: usize) -> std::io::Result<()> {
+        Ok(())
+    }
+    fn write_line(&self, s: &str) -> std::io::Result<()> {
+        self.write_str(s)
+    }
+    /// indicatif writes each line, then spaces to the line's end: only text is kept.
+    fn write_str(&self, s: &str) -> std::io::Result<()> {
+        let text = s.trim();
+        if !text.is_empty() {
+            let mut st = self.state.lock().unwrap_or_else(|e| e.into_inner());
+            st.lines.push(text.to_string());
+        }
+        Ok(())
+    }
+    fn clear_line(&self) -> std::io::Result<()> {
+        Ok(())
+    }
+    fn flush(&self) -> std::io::Result<()> {
+        let mut st = self.state.lock().unwrap_or_else(|e| e.into_inner());
+        let lines = std::mem::take(&mut st.lines);
+        if !lines.is_empty() && st.last.elapsed() >= self.every {
+            st.last = Instant::now();
+            eprintln!("{}", lines.join("\n"));
+        }
+        Ok(())
+    }
+}
 
 /// A bar over `len` items of `unit`, with rate, ETA and a free message (e.g. events/s).
 pub fn bar(len: u64, unit: &str) -> ProgressBar {
-    let pb = ProgressBar::new(len);
+    let pb = ProgressBar::with_draw_target(Some(len), target());
     pb.set_style(
         ProgressStyle::with_template(&format!(
             "{{elapsed_precise}} [{{wide_bar}}] {{human_pos}}/{{human_len}} {unit} ({{rate}}, ETA {{eta}}) {{msg}}"
@@ -36,7 +122,7 @@ pub fn render_bar(label: &str, pixels: u64, o: &render_gpu::render::RenderOption
 /// A spinner with elapsed time for work of unknown length (e.g. building a distance grid,
 /// 15 s for a fine one, which showed nothing at all); drawn only on a terminal.
 pub fn spinner(msg: &str) -> ProgressBar {
-    let pb = ProgressBar::new_spinner();
+    let pb = ProgressBar::with_draw_target(None, target());
     pb.set_style(
         ProgressStyle::with_template("{spinner} {msg} ({elapsed})").expect("valid template"),
     );

@@ -22,7 +22,8 @@ use crate::{interrupt, progress};
     which `render` reads by default, is left as it is.\n\n\
     The three models train concurrently, one thread each. If the dataset named in the config \
     does not exist it is generated first from `dataset_config`. Ctrl-C saves a checkpoint; \
-    --resume continues from it."
+    --resume continues from it. Checkpoints already in checkpoint_dir stop a new run unless \
+    --resume or --fresh says what to do with them."
 )]
 pub struct Args {
     /// Training config (TOML).
@@ -39,6 +40,11 @@ pub struct Args {
     /// Continue from the checkpoints in the config's checkpoint_dir.
     #[arg(long)]
     resume: bool,
+    /// Start over although the config's checkpoint_dir holds checkpoints of the models to
+    /// train: they are replaced as the new run saves its own. Without --resume or --fresh,
+    /// such checkpoints make `train` stop before any work.
+    #[arg(long, conflicts_with = "resume")]
+    fresh: bool,
     /// Output model file (overrides the config).
     #[arg(long)]
     out: Option<PathBuf>,
@@ -259,6 +265,24 @@ pub fn run(a: Args) -> Result<()> {
             );
         }
     }
+    if !a.resume && !a.fresh {
+        // A new run replaces the checkpoints as it saves its own: a smoke test (e.g.
+        // --steps-scale 0.01) would silently end an hour-long run's chance to --resume.
+        let held: Vec<&str> = kinds
+            .iter()
+            .filter(|&&k| cvae::train::trainer::has_checkpoint(&cfg.checkpoint_dir, k))
+            .map(|k| k.name())
+            .collect();
+        if !held.is_empty() {
+            bail!(
+                "{} holds checkpoints of {} (checkpoint_dir in {}): pass --resume to continue \
+                 them, or --fresh to start over and replace them",
+                cfg.checkpoint_dir.display(),
+                held.join(", "),
+                a.config.display()
+            );
+        }
+    }
     if base.is_none() {
         // The decoders not trained now come from the checkpoints: check them before the
         // training rather than after it.
@@ -364,7 +388,7 @@ pub fn run(a: Args) -> Result<()> {
     drop(rows);
 
     let cancel = interrupt::flag();
-    let multi = MultiProgress::new();
+    let multi = MultiProgress::with_draw_target(crate::progress::target());
     let scaled = |k: ModelKind| {
         let mut m = cfg.model(k).clone();
         let warmup = m.warmup();

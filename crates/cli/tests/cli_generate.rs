@@ -329,3 +329,31 @@ fn interrupted_runs_leave_no_files() {
         assert!(left.is_empty(), "{args:?} left {left:?}");
     }
 }
+
+/// Where stderr is not a terminal (a batch job's log), the progress bar is written as
+/// plain lines every STCVAE_LOG_PROGRESS_EVERY seconds; at 0, at every draw. The bar must
+/// show in the captured stderr with its count and unit, one bar state per line.
+#[test]
+fn progress_reaches_a_log_as_plain_lines() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args(words(
+            "generate --samples 20000 --tau 20 --g 0.4 --albedo 0.99 --seed 7 --out w.csv",
+        ))
+        .env("STCVAE_LOG_PROGRESS_EVERY", "0")
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    ok(&out);
+    let err = stderr(&out);
+    let bars: Vec<&str> = err
+        .lines()
+        .filter(|l| l.contains("/20,000 walks ("))
+        .collect();
+    assert!(!bars.is_empty(), "no progress line in:\n{err}");
+    assert!(
+        bars.iter()
+            .all(|l| l.starts_with("00:") && !l.contains('\r')),
+        "{err}"
+    );
+}

@@ -1035,6 +1035,14 @@ fn bench_error_ranks_renders_by_error_and_names_bad_inputs() {
     );
     assert_eq!(h[3], 1.0);
     assert!((l[3] - l[2] / h[2]).abs() <= 0.01 * l[3] + 0.01, "{text}");
+    // An image rendered with a reference's seed shares its samples (it read RMSE 0): refused
+    // by the EXRs' tags, naming both files and the seed.
+    let twin = render("twin", "64", "1", &scene);
+    let e = fails(&bench_error(&[&format!("{twin}:1")]));
+    assert!(
+        e.contains("seed 1 in common") && e.contains("ref1.exr") && e.contains("twin.exr"),
+        "{e}"
+    );
 
     // --plot: labelled images share a line. "PT" (the first line, black like the axes)
     // joins two points; "other" (the second, red) has one; a third line would be blue.

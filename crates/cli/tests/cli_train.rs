@@ -288,6 +288,29 @@ fn resume_needs_an_intact_checkpoint_and_the_last_loss_is_the_last_steps() {
     // An intact checkpoint resumes (nothing left to train: it exports at once).
     let out = resume(dir.path());
     assert!(out.status.success(), "resume failed: {}", stderr(&out));
+    // A new run over it must say what becomes of it: refused before any work without
+    // --resume or --fresh (it would replace the checkpoint), and --fresh starts over.
+    let out = train_eventgen(dir.path(), base_s);
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    assert!(
+        err.contains("holds checkpoints of eventgen") && err.contains("--fresh"),
+        "{err}"
+    );
+    let fresh = stcvae(
+        &[
+            "train",
+            "--config",
+            "train.toml",
+            "--model",
+            "eventgen",
+            "--base",
+            base_s,
+            "--fresh",
+        ],
+        dir.path(),
+    );
+    assert!(fresh.status.success(), "--fresh failed: {}", stderr(&fresh));
     // A config whose architecture changed since the checkpoint: one line that says so,
     // not burn's list of every mismatched tensor.
     let cfg = dir.path().join("train.toml");
@@ -317,6 +340,7 @@ fn resume_needs_an_intact_checkpoint_and_the_last_loss_is_the_last_steps() {
     );
 
     replace_in(&dir.path().join("train.toml"), "steps = 5", "steps = 0");
+    fs::remove_dir_all(dir.path().join("ck")).unwrap();
     let out = train_eventgen(dir.path(), base_s);
     assert!(!out.status.success());
     assert!(stderr(&out).contains("steps"), "{}", stderr(&out));
