@@ -296,7 +296,12 @@ fn interrupted_runs_leave_no_files() {
         words("generate --samples 1000000000 --tau 5 --g 0 --albedo 1 --out big.bin"),
         [&["sample", "--model", model][..], &sample_tail].concat(),
     ];
-    for args in &runs {
+    // The generate run once more with the signal sent twice back to back, as `timeout`
+    // does (to the process and its group): the same request, not "Ctrl-C again" (which
+    // aborted without the clean stop's message). The second `kill` follows within the
+    // few milliseconds a process start takes, far inside the 300 ms that make one request.
+    let runs = [(&runs[0], false), (&runs[1], false), (&runs[0], true)];
+    for (args, twice) in runs {
         let dir = tempfile::tempdir().unwrap();
         let child = Command::new(env!("CARGO_BIN_EXE_stcvae"))
             .args(args)
@@ -318,6 +323,13 @@ fn interrupted_runs_leave_no_files() {
             Duration::from_millis(300),
             &format!("{args:?}"),
         );
+        if twice {
+            let kill = Command::new("kill")
+                .args(["-INT", &child.id().to_string()])
+                .status()
+                .unwrap();
+            assert!(kill.success());
+        }
         let out = child.wait_with_output().unwrap();
         let err = stderr(&out);
         assert_eq!(out.status.code(), Some(130), "{args:?}: {err}");
