@@ -188,6 +188,14 @@ fn parse_spec(arg: &str) -> Result<Spec> {
             Ok(t) if t.is_finite() && t > 0.0 => (f, Some(t)),
             Ok(_) => bail!("image `{arg}`: the seconds must be finite and > 0, got {s}"),
             Err(_) if s.is_empty() => bail!("image `{arg}`: no seconds after the ':'"),
+            // `img.exr:abc` read as a file name said "No such file": the file is there.
+            Err(_)
+                if f.rsplit(['=', ','])
+                    .next()
+                    .is_some_and(|n| Path::new(n).is_file()) =>
+            {
+                bail!("image `{arg}`: `{s}` after the ':' is not a number of seconds")
+            }
             Err(_) => (arg, None),
         },
         None => (arg, None),

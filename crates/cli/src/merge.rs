@@ -71,10 +71,10 @@ pub fn run(a: Args) -> Result<()> {
     } else if exr_inputs > 0 {
         bail!("mixed inputs: merge either renders (.exr) or datasets, not both");
     }
-    // A dataset written over a render's file (say `--out run.exr` by a slip) would replace
-    // the image with binary rows.
+    // A dataset written over a render's file (say `--out run.exr` by a slip), a config or
+    // a model would replace it with binary rows.
     if let Some(ext) = a.out.extension().and_then(|e| e.to_str())
-        && ["exr", "png", "json"]
+        && ["exr", "png", "json", "toml", "stcvae", "md"]
             .iter()
             .any(|x| ext.eq_ignore_ascii_case(x))
     {

@@ -55,7 +55,7 @@ pub struct SampleArgs {
     /// Single-scattering albedo φ in [0, 1] (steers the representative event).
     #[arg(long, allow_hyphen_values = true)]
     albedo: f64,
-    /// Number of model walks to draw.
+    /// Number of model walks to draw, at least 1.
     #[arg(long, default_value_t = 10_000)]
     samples: u64,
     /// Random seed: walk i uses the stream (seed, i), so a run is reproducible whatever
@@ -212,6 +212,10 @@ pub(crate) fn training_range(r: [f64; 2]) -> String {
     let f = |v: f64| {
         if v != 0.0 && v.abs() < 1e-3 {
             format!("{v:.2e}")
+        } else if f64::from(v as f32) == v {
+            // Ranges recorded from f32 data: their shortest f32 digits (299.99963, not
+            // 299.9996337890625).
+            format!("{}", v as f32)
         } else {
             // Shortest round-trip digits: 0.9999995 stays itself, 1 is 1.
             format!("{v}")

@@ -34,18 +34,18 @@ pub struct Args {
     /// render.nee).
     #[arg(long)]
     pub nee: Option<bool>,
-    /// Samples per pixel (overrides render.spp).
+    /// Samples per pixel, at least 1 (overrides render.spp).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     pub spp: Option<u32>,
-    /// Random seed (overrides render.seed): renders with different seeds are independent
-    /// and can be averaged with `stcvae merge`.
+    /// Random seed, an integer in [0, 2⁶⁴) (overrides render.seed): renders with different
+    /// seeds are independent and can be averaged with `stcvae merge`.
     #[arg(long, allow_negative_numbers = true)]
     pub seed: Option<u64>,
     /// Model file for stcvae (default: models/default.stcvae).
     #[arg(long)]
     pub model: Option<PathBuf>,
-    /// Stop after the pass during which this many seconds have passed (the JSON and the
-    /// EXR header record the spp actually rendered).
+    /// Stop after the pass during which this many seconds have passed, any number > 0 (the
+    /// JSON and the EXR header record the spp actually rendered; at least one pass runs).
     #[arg(long, allow_negative_numbers = true)]
     pub time_budget: Option<f64>,
     /// Output path without extension: writes OUT.exr, OUT.png and OUT.json (a typed .exr,
@@ -56,7 +56,8 @@ pub struct Args {
     /// wgpu adapter, software ones such as lavapipe included) or cpu.
     #[arg(long, value_enum, default_value_t = DeviceArg::Auto)]
     pub device: DeviceArg,
-    /// Exposure multiplier of the PNG preview (the EXR is always linear and unscaled).
+    /// Exposure multiplier of the PNG preview, > 0 (the EXR is always linear and
+    /// unscaled).
     #[arg(long, allow_negative_numbers = true, default_value_t = 1.0)]
     pub exposure: f32,
 }
@@ -438,18 +439,7 @@ pub fn run(a: Args) -> Result<()> {
             out.stats.capped, out.stats.non_finite
         );
     }
-    if out.stats.leaks > 0 {
-        // A path found outside the medium while it believed itself inside: a flight from a
-        // sphere exit met the surface from outside, or a collision fell outside the mesh's
-        // bounds (f32 precision at features thinner than the surface offset). The path
-        // continued from there as outside. Counted in the JSON as `leaks`.
-        eprintln!(
-            "note: {} times (over {} paths, {:.1e} a path) a path was found outside the mesh while it believed itself inside; each continued from there as outside",
-            out.stats.leaks,
-            out.stats.paths,
-            out.stats.leaks as f64 / out.stats.paths.max(1) as f64
-        );
-    }
+    leak_note(&out.stats, "");
     eprintln!(
         "{} spp in {:.1} s ({} paths/s; {:.1} PT events, {:.1} sphere steps per path{}) -> {}.{{exr,png,json}}",
         out.spp,
@@ -502,5 +492,21 @@ fn print_lanes(lanes: &render_gpu::render::LaneProfile) {
             .map_or("-".to_string(), |e| format!("{:.1} %", 100.0 * e));
         let share = 100.0 * p.capacity as f64 / passes.max(1) as f64;
         eprintln!("  {:<38} {:>12.1} % {:>12}", p.phase, share, busy);
+    }
+}
+
+/// Says how often paths were found outside the medium while believing themselves inside:
+/// a flight from a sphere exit met the surface from outside, or a collision fell outside
+/// the mesh (f32 precision at features thinner than the surface offset, or a mesh folded
+/// through itself). The path continued from there as outside. Counted in the JSON as
+/// `leaks`; `what` names the render where a command renders several.
+pub(crate) fn leak_note(stats: &render_gpu::integrator::PathStats, what: &str) {
+    if stats.leaks > 0 {
+        eprintln!(
+            "note: {what}{} times (over {} paths, {:.1e} a path) a path was found outside the mesh while it believed itself inside; each continued from there as outside",
+            stats.leaks,
+            stats.paths,
+            stats.leaks as f64 / stats.paths.max(1) as f64
+        );
     }
 }

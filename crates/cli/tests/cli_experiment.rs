@@ -120,6 +120,20 @@ fn bad_experiment_config_is_a_clear_error() {
         "{err}"
     );
     assert!(!err.contains("panicked"), "{err}");
+    // A scene or a training config given instead says what it is, not "unknown field".
+    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../../configs");
+    for (file, what) in [
+        ("scenes/sphere.toml", "a scene file"),
+        ("train/default.toml", "not an experiment config"),
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_stcvae"))
+            .args(["experiment", &format!("{root}/{file}")])
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success());
+        assert!(err.contains(file) && err.contains(what), "{err}");
+    }
 }
 
 /// Mistakes that used to surface only after rendering (a missing mesh in the second

@@ -187,6 +187,8 @@ fn bad_input_gives_one_line_errors() {
             "merge whole.csv --out render.exr",
             "merge into a dataset file (.csv for text, any other name binary, e.g. .bin), not .exr",
         ),
+        // ... and over a config.
+        ("merge whole.csv --out data.toml", "not .toml"),
         // A CSV cut short mid-row: refused, naming the file and line.
         (
             "merge cut.csv whole.csv --out x.csv",

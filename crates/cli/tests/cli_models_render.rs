@@ -1043,6 +1043,11 @@ fn bench_error_ranks_renders_by_error_and_names_bad_inputs() {
         e.contains("seed 1 in common") && e.contains("ref1.exr") && e.contains("twin.exr"),
         "{e}"
     );
+    let e = fails(&bench_error(&[&format!("{high}:abc")]));
+    assert!(
+        e.contains("`abc` after the ':' is not a number of seconds"),
+        "{e}"
+    );
 
     // --plot: labelled images share a line. "PT" (the first line, black like the axes)
     // joins two points; "other" (the second, red) has one; a third line would be blue.

@@ -81,6 +81,22 @@ impl Config {
     pub fn load(path: &Path) -> Result<Self> {
         let text = std::fs::read_to_string(path)
             .map_err(|e| anyhow!("{}: cannot read: {e}", path.display()))?;
+        // A scene or another command's config given by mistake reads as "unknown field
+        // camera" otherwise: say what the file is.
+        if let Ok(t) = text.parse::<toml::Table>()
+            && !t.contains_key("kind")
+        {
+            let what = if t.contains_key("camera") {
+                "a scene file (it has [camera])"
+            } else {
+                "not an experiment config (it has no `kind`)"
+            };
+            bail!(
+                "{}: {what}: `experiment` takes an experiment config such as \
+                 configs/experiments/teaser.toml",
+                path.display()
+            );
+        }
         let mut c: Config = crate::generate::parse_toml(path, &text)?;
         c.dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
         c.validate()
