@@ -990,13 +990,12 @@ fn a_dielectric_reflects_fresnels_share_of_the_sky() {
         ("ST-CVAE", settings(IntegratorKind::Stcvae, true, Some(&m))),
     ] {
         let (mean, _, _) = estimate(&s, &set, 100_000, 11);
-        for c in 0..3 {
+        for (c, m) in mean.iter().enumerate() {
             let se = (want * (1.0 - want) / (100_000.0 / 3.0)).sqrt();
-            let zc = (mean[c] - want) / se;
+            let zc = (m - want) / se;
             assert!(
                 zc.abs() < 4.0,
-                "{label}, channel {c}: {} against Fresnel's {want} (z = {zc:.2})",
-                mean[c]
+                "{label}, channel {c}: {m} against Fresnel's {want} (z = {zc:.2})"
             );
         }
     }

@@ -449,8 +449,11 @@ fn volume_and_area(m: &mesh::TriMesh) -> (f64, f64) {
     })
 }
 
-/// Pieces joined into one mesh, each optionally wound inward (reversed).
-fn pieces(parts: &[(mesh::TriMesh, bool)]) -> mesh::TriMesh {
+/// A mesh piece and whether it is wound inward (reversed).
+type Piece = (mesh::TriMesh, bool);
+
+/// Pieces joined into one mesh.
+fn pieces(parts: &[Piece]) -> mesh::TriMesh {
     let mut m = mesh::TriMesh::default();
     for (p, reversed) in parts {
         let base = m.positions.len() as u32;
@@ -474,7 +477,7 @@ fn moved(mut m: mesh::TriMesh, by: glam::Vec3) -> mesh::TriMesh {
 #[test]
 fn pieces_are_wound_by_their_nesting() {
     let c = mesh::cube;
-    let cases: [(&str, Vec<(mesh::TriMesh, bool)>, f64); 6] = [
+    let cases: [(&str, Vec<Piece>, f64); 6] = [
         // A hollow box: the inner wall bounds the medium from inside (8 − 1).
         (
             "shell, walls wound alike",
