@@ -190,9 +190,10 @@ fn parse_spec(arg: &str) -> Result<Spec> {
             Err(_) if s.is_empty() => bail!("image `{arg}`: no seconds after the ':'"),
             // `img.exr:abc` read as a file name said "No such file": the file is there.
             Err(_)
-                if f.rsplit(['=', ','])
-                    .next()
-                    .is_some_and(|n| Path::new(n).is_file()) =>
+                if Path::new(f).is_file()
+                    || f.rsplit(['=', ','])
+                        .next()
+                        .is_some_and(|n| Path::new(n).is_file()) =>
             {
                 bail!("image `{arg}`: `{s}` after the ':' is not a number of seconds")
             }

@@ -15,14 +15,17 @@ pub fn target() -> ProgressDrawTarget {
     if std::io::stderr().is_terminal() {
         return ProgressDrawTarget::stderr();
     }
+    // Unreadable or negative: the default; beyond any Duration: never.
     let every = std::env::var("STCVAE_LOG_PROGRESS_EVERY")
         .ok()
         .and_then(|v| v.parse::<f64>().ok())
-        .filter(|s| s.is_finite() && *s >= 0.0)
-        .unwrap_or(30.0);
+        .filter(|s| *s >= 0.0)
+        .map_or(Duration::from_secs(30), |s| {
+            Duration::try_from_secs_f64(s).unwrap_or(Duration::MAX)
+        });
     ProgressDrawTarget::term_like_with_hz(
         Box::new(LogLines {
-            every: Duration::from_secs_f64(every),
+            every,
             state: Mutex::new(LogState {
                 last: Instant::now(),
                 lines: Vec::new(),
@@ -109,7 +112,8 @@ pub fn bar(len: u64, unit: &str) -> ProgressBar {
 /// 2"), for the commands that render many images: a bench row at high density runs for half
 /// an hour, and showed nothing until its row was printed. A bar over its samples, or a
 /// spinner with its budget for a render against the clock (no known length). The caller
-/// clears it when the render is done, so only the tables stay; drawn only on a terminal.
+/// clears it when the render is done, so only the tables stay; drawn on a terminal, written
+/// now and then to a log ([`target`]).
 pub fn render_bar(label: &str, pixels: u64, o: &render_gpu::render::RenderOptions) -> ProgressBar {
     if let Some(b) = o.time_budget {
         return spinner(&format!("{label}, {b} s"));
@@ -120,7 +124,8 @@ pub fn render_bar(label: &str, pixels: u64, o: &render_gpu::render::RenderOption
 }
 
 /// A spinner with elapsed time for work of unknown length (e.g. building a distance grid,
-/// 15 s for a fine one, which showed nothing at all); drawn only on a terminal.
+/// 15 s for a fine one, which showed nothing at all); drawn on a terminal, written now and
+/// then to a log ([`target`]).
 pub fn spinner(msg: &str) -> ProgressBar {
     let pb = ProgressBar::with_draw_target(None, target());
     pb.set_style(

@@ -37,7 +37,9 @@ impl DirectionalLight {
         .normalize();
         let half = (d.angular_diameter_deg * 0.5).to_radians();
         let irradiance = d.irradiance.map(|v| v as f32);
-        let (one_minus_cos, sin2_max, radiance) = if half > 0.0 {
+        // Below a micro-radian (0.2″) the disk is a delta light: its radiance E/(π sin²θ)
+        // would overflow f32 (a 1e-18° disk rendered NaN), and no image could tell.
+        let (one_minus_cos, sin2_max, radiance) = if half >= 1e-6 {
             // Irradiance on a plane facing the disk: E = ∫ L cos θ dω = L π sin²θ_max.
             let s2 = half.sin().powi(2);
             (
@@ -214,6 +216,15 @@ mod tests {
     /// NEE's draws (`sample`) must average to E too: L/pdf·cos, checked by the same sum.
     #[test]
     fn a_sun_disk_gives_its_irradiance() {
+        // A disk too small for f32 (E/(π sin²θ) would overflow: NaN images) is a delta
+        // light, with finite factors.
+        let tiny = DirectionalLight::new(&LightDesc {
+            kind: crate::scene::LightKind::Directional,
+            direction: [0.0, -1.0, 0.0],
+            irradiance: [1.0; 3],
+            angular_diameter_deg: 1e-18,
+        });
+        assert!(tiny.is_delta() && tiny.sample(0.5, 0.5, 0).1 == 1.0);
         for diameter in [0.53, 10.0, 40.0, 90.0] {
             let light = DirectionalLight::new(&LightDesc {
                 kind: crate::scene::LightKind::Directional,

@@ -20,21 +20,18 @@ pub struct TriMesh {
 
 impl TriMesh {
     pub fn bounds(&self) -> (Vec3, Vec3) {
-        self.positions.iter().fold(
-            (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
-            |(lo, hi), &p| (lo.min(p), hi.max(p)),
-        )
+        bounds_of(self.positions.iter().copied())
     }
 
     /// Six times the signed volume (positive for an outward-oriented closed mesh).
     fn signed_volume6(&self) -> f64 {
-        self.triangles
-            .iter()
-            .map(|t| {
-                let [a, b, c] = t.map(|i| self.positions[i as usize].as_dvec3());
-                a.dot(b.cross(c))
-            })
-            .sum()
+        (0..self.triangles.len()).map(|t| self.volume6_of(t)).sum()
+    }
+
+    /// Triangle `t`'s share of [`Self::signed_volume6`] (its tetrahedron with the origin).
+    fn volume6_of(&self, t: usize) -> f64 {
+        let [a, b, c] = self.triangles[t].map(|i| self.positions[i as usize].as_dvec3());
+        a.dot(b.cross(c))
     }
 
     /// Scales the mesh so that its bounding-box height (y extent) is `height` and centres
@@ -86,6 +83,14 @@ impl TriMesh {
     pub fn triangle(&self, i: usize) -> [Vec3; 3] {
         self.triangles[i].map(|k| self.positions[k as usize])
     }
+}
+
+/// The bounding box of `points` (lowest and highest corner).
+fn bounds_of(points: impl Iterator<Item = Vec3>) -> (Vec3, Vec3) {
+    points.fold(
+        (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+        |(lo, hi), p| (lo.min(p), hi.max(p)),
+    )
 }
 
 /// Loads a mesh file by extension and returns it welded, checked and outward-oriented.
@@ -188,9 +193,10 @@ pub fn prepare(mut m: TriMesh) -> Result<TriMesh, String> {
 
 /// Winds each closed piece of the mesh so that its faces point away from the medium.
 ///
-/// The medium fills what lies inside an odd number of the pieces: a hollow shell's inner
-/// wall bounds it from inside (faces toward the cavity), a ball in that cavity is solid
-/// again. So a piece nested in an odd number of others faces inward, the rest outward.
+/// Nested pieces alternate: a hollow shell's inner wall bounds the medium from inside
+/// (faces toward the cavity), a ball in that cavity is solid again. A piece's depth is one
+/// more than that of the deepest piece enclosing it (0 for none); odd depths face inward,
+/// even ones outward.
 /// Files wind each piece as they like (a mirrored glTF instance, or a shell exported with
 /// one wall reversed), and `check_closed` only sees that each piece agrees with itself;
 /// orienting the whole mesh by its total volume left such a piece inside out, rendered
@@ -198,63 +204,54 @@ pub fn prepare(mut m: TriMesh) -> Result<TriMesh, String> {
 /// outward, as before.
 fn orient_pieces(m: &mut TriMesh) {
     let pieces = pieces(m);
-    let volume6 = |tris: &[usize]| -> f64 {
-        tris.iter()
-            .map(|&t| {
-                let [a, b, c] = m.triangles[t].map(|i| m.positions[i as usize].as_dvec3());
-                a.dot(b.cross(c))
-            })
-            .sum()
-    };
-    let depths: Vec<usize> = if pieces.len() == 1 {
-        vec![0]
-    } else {
+    let volume6 = |tris: &[usize]| -> f64 { tris.iter().map(|&t| m.volume6_of(t)).sum() };
+    let volumes: Vec<f64> = pieces.iter().map(|t| volume6(t)).collect();
+    let mut depths = vec![0usize; pieces.len()];
+    if pieces.len() > 1 {
         let bounds: Vec<(Vec3, Vec3)> = pieces
             .iter()
             .map(|tris| {
-                tris.iter()
-                    .flat_map(|&t| m.triangles[t])
-                    .map(|i| m.positions[i as usize])
-                    .fold(
-                        (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
-                        |(lo, hi), p| (lo.min(p), hi.max(p)),
-                    )
+                bounds_of(
+                    tris.iter()
+                        .flat_map(|&t| m.triangles[t])
+                        .map(|i| m.positions[i as usize]),
+                )
             })
             .collect();
-        (0..pieces.len())
-            .map(|i| {
-                // Points on piece i: up to 8 triangle centroids spread over it. It lies in
-                // piece j's inside when all of them do; one outside means the two overlap
-                // or are apart, and overlapping pieces are not nested.
-                let step = pieces[i].len().div_ceil(8);
-                let probes: Vec<glam::DVec3> = pieces[i]
-                    .iter()
-                    .step_by(step)
-                    .map(|&t| {
-                        let [a, b, c] = m.triangles[t].map(|k| m.positions[k as usize].as_dvec3());
-                        (a + b + c) / 3.0
-                    })
-                    .collect();
-                (0..pieces.len())
-                    .filter(|&j| {
-                        j != i
-                            && bounds[j].0.cmple(bounds[i].0).all()
-                            && bounds[i].1.cmple(bounds[j].1).all()
-                            && probes
-                                .iter()
-                                .all(|&p| winding_number(m, &pieces[j], p).abs() > 0.5)
-                    })
-                    .count()
-            })
-            .collect()
-    };
-    let flip: Vec<bool> = pieces
-        .iter()
-        .zip(depths)
-        .map(|(tris, depth)| (volume6(tris) > 0.0) != (depth % 2 == 0))
-        .collect();
-    for (tris, flip) in pieces.iter().zip(flip) {
-        if flip {
+        // Largest first: a piece's containers enclose more volume, so their depths are
+        // known when it is reached. Its depth is one more than its deepest container's:
+        // a cavity inside two overlapping pieces (each solid) is one hole, not depth 2.
+        let mut order: Vec<usize> = (0..pieces.len()).collect();
+        order.sort_by(|&a, &b| volumes[b].abs().total_cmp(&volumes[a].abs()));
+        for (k, &i) in order.iter().enumerate() {
+            // Points on piece i: up to 4 triangle centroids spread over it. It lies in
+            // piece j's inside when all of them do; one outside means the two overlap or
+            // are apart, and overlapping pieces are not nested.
+            let step = pieces[i].len().div_ceil(4);
+            let probes: Vec<glam::DVec3> = pieces[i]
+                .iter()
+                .step_by(step)
+                .map(|&t| {
+                    let [a, b, c] = m.triangles[t].map(|k| m.positions[k as usize].as_dvec3());
+                    (a + b + c) / 3.0
+                })
+                .collect();
+            depths[i] = order[..k]
+                .iter()
+                .filter(|&&j| {
+                    bounds[j].0.cmple(bounds[i].0).all()
+                        && bounds[i].1.cmple(bounds[j].1).all()
+                        && probes
+                            .iter()
+                            .all(|&p| winding_number(m, &pieces[j], p).abs() > 0.5)
+                })
+                .map(|&j| depths[j] + 1)
+                .max()
+                .unwrap_or(0);
+        }
+    }
+    for ((tris, volume), depth) in pieces.iter().zip(volumes).zip(depths) {
+        if (volume > 0.0) != (depth % 2 == 0) {
             for &t in tris {
                 m.triangles[t].swap(1, 2);
             }
@@ -262,7 +259,10 @@ fn orient_pieces(m: &mut TriMesh) {
     }
 }
 
-/// The triangles of each connected piece (joined through shared vertices).
+/// The triangles of each connected piece, joined through shared edges: two closed parts
+/// that only touch at a vertex are separate pieces (the closedness check only ties the
+/// winding of triangles across edges, so one flip decision for both could leave one
+/// inside out).
 fn pieces(m: &TriMesh) -> Vec<Vec<usize>> {
     fn root(parent: &mut [u32], mut x: u32) -> u32 {
         while parent[x as usize] != x {
@@ -271,20 +271,22 @@ fn pieces(m: &TriMesh) -> Vec<Vec<usize>> {
         }
         x
     }
-    let mut parent: Vec<u32> = (0..m.positions.len() as u32).collect();
-    for t in &m.triangles {
-        let r0 = root(&mut parent, t[0]);
-        for &v in &t[1..] {
-            let r = root(&mut parent, v);
-            if r != r0 {
-                parent[r as usize] = r0;
+    let mut parent: Vec<u32> = (0..m.triangles.len() as u32).collect();
+    let mut first: HashMap<(u32, u32), u32> = HashMap::new();
+    for (k, t) in m.triangles.iter().enumerate() {
+        for e in 0..3 {
+            let (a, b) = (t[e], t[(e + 1) % 3]);
+            let other = *first.entry((a.min(b), a.max(b))).or_insert(k as u32);
+            let (r1, r2) = (root(&mut parent, other), root(&mut parent, k as u32));
+            if r1 != r2 {
+                parent[r2 as usize] = r1;
             }
         }
     }
     let mut piece_of: HashMap<u32, usize> = HashMap::new();
     let mut pieces: Vec<Vec<usize>> = Vec::new();
-    for (k, t) in m.triangles.iter().enumerate() {
-        let r = root(&mut parent, t[0]);
+    for k in 0..m.triangles.len() {
+        let r = root(&mut parent, k as u32);
         let p = *piece_of.entry(r).or_insert_with(|| {
             pieces.push(Vec::new());
             pieces.len() - 1
@@ -322,23 +324,59 @@ pub(crate) struct Triangulator {
     earcut: earcut::Earcut<f64>,
     flat: Vec<[f64; 2]>,
     cut: Vec<u32>,
+    ring: Vec<u32>,
 }
 
 impl Triangulator {
+    /// [`Self::polygon`] for each polygon of `indices`, listed one after another with
+    /// their vertex counts in `sizes` (which add up to `indices.len()`).
+    pub(crate) fn polygons(
+        &mut self,
+        positions: &[Vec3],
+        indices: &[u32],
+        sizes: impl IntoIterator<Item = usize>,
+        out: &mut Vec<[u32; 3]>,
+    ) {
+        let mut at = 0;
+        for n in sizes {
+            self.polygon(positions, &indices[at..at + n], out);
+            at += n;
+        }
+    }
+
     /// Appends the triangles of `poly` (indices into `positions`, all valid) to `out`.
     pub(crate) fn polygon(&mut self, positions: &[Vec3], poly: &[u32], out: &mut Vec<[u32; 3]>) {
-        let n = poly.len();
+        // A vertex listed twice in a row (by index or by position; welding merges the
+        // latter) adds no edge and no area, but earcut drops such points and then cuts
+        // fewer triangles than the fallback test expects.
+        self.ring.clear();
+        for &i in poly {
+            if self
+                .ring
+                .last()
+                .is_none_or(|&j| positions[j as usize] != positions[i as usize])
+            {
+                self.ring.push(i);
+            }
+        }
+        while self.ring.len() > 1
+            && positions[self.ring[0] as usize] == positions[*self.ring.last().unwrap() as usize]
+        {
+            self.ring.pop();
+        }
+        let ring = &self.ring;
+        let n = ring.len();
         if n < 4 {
             if n == 3 {
-                out.push([poly[0], poly[1], poly[2]]);
+                out.push([ring[0], ring[1], ring[2]]);
             }
             return;
         }
-        let at = |k: usize| positions[poly[k] as usize].as_dvec3();
+        let at = |k: usize| positions[ring[k] as usize].as_dvec3();
         // Newell's normal: the polygon's area vector, whatever its shape.
         let normal: glam::DVec3 = (0..n).map(|k| at(k).cross(at((k + 1) % n))).sum();
         let fan = |out: &mut Vec<[u32; 3]>| {
-            out.extend((1..n - 1).map(|k| [poly[0], poly[k], poly[k + 1]]));
+            out.extend((1..n - 1).map(|k| [ring[0], ring[k], ring[k + 1]]));
         };
         let Some(normal) = normal.try_normalize() else {
             return fan(out);
@@ -354,9 +392,9 @@ impl Triangulator {
         }
         out.extend(self.cut.chunks(3).map(|c| {
             let t = [
-                poly[c[0] as usize],
-                poly[c[1] as usize],
-                poly[c[2] as usize],
+                ring[c[0] as usize],
+                ring[c[1] as usize],
+                ring[c[2] as usize],
             ];
             let [a, b, c] = t.map(|i| positions[i as usize].as_dvec3());
             // Keep the file's winding: earcut's own depends on the projection.
@@ -703,12 +741,12 @@ fn load_obj(path: &Path) -> Result<TriMesh, RenderError> {
                 "not a valid OBJ file: its faces do not add up",
             ));
         }
-        let mut at = 0;
-        for a in arities {
-            let a = a as usize;
-            cut.polygon(&mesh.positions, &indices[at..at + a], &mut mesh.triangles);
-            at += a;
-        }
+        cut.polygons(
+            &mesh.positions,
+            &indices,
+            arities.iter().map(|&a| a as usize),
+            &mut mesh.triangles,
+        );
     }
     Ok(mesh)
 }

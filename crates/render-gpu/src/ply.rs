@@ -220,16 +220,12 @@ pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
             "a face refers to a vertex beyond the {nv} vertices"
         ));
     }
-    let mut cut = crate::mesh::Triangulator::default();
-    let mut at = 0;
-    for n in face_sizes {
-        cut.polygon(
-            &mesh.positions,
-            &face_indices[at..at + n],
-            &mut mesh.triangles,
-        );
-        at += n;
-    }
+    crate::mesh::Triangulator::default().polygons(
+        &mesh.positions,
+        &face_indices,
+        face_sizes,
+        &mut mesh.triangles,
+    );
     Ok(mesh)
 }
 

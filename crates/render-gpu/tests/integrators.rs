@@ -245,10 +245,10 @@ fn nee_on_equals_nee_off_pt() {
     let (_, s) = scene(SUN_SCENE, false);
     let (on, son, _) = estimate(&s, &settings(IntegratorKind::Pt, true, None), 300_000, 1);
     let (off, soff, _) = estimate(&s, &settings(IntegratorKind::Pt, false, None), 300_000, 2);
-    // PT with and without NEE are both unbiased: |z| < 4 (27 such comparisons in this
+    // PT with and without NEE are both unbiased: |z| < 4 (36 such comparisons in this
     // file: 3 here, 3 through a dielectric (with a slack on top), 3 for ST-CVAE's NEE (with
-    // a slack), 12 in the path-level NEE test, 6 in the touching-parts test; at
-    // P(|z| > 4) = 6.3e-5 each, a false alarm has probability ~1.7e-3).
+    // a slack), 12 in the path-level NEE test, 6 in the touching-parts test, 9 in the
+    // Fresnel test; at P(|z| > 4) = 6.3e-5 each, a false alarm has probability ~2.3e-3).
     assert_means_agree("PT, NEE on vs off", (on, son), (off, soff), 4.0);
     for v in on {
         assert!(v > 0.01, "the sun must light the sphere");
@@ -391,7 +391,7 @@ fn assert_nee_on_matches_off((on, son): Means, (off, soff): Means, slack: f64) {
 /// Path-level NEE (one or two shadow rays per path, each choosing among all the path's NEE
 /// events) against a shadow ray at every event: the same expectation for any positive
 /// proxy, so the means must agree to |z| < 4 (two comparisons per scene, three channels
-/// each: a false alarm has probability ~1.7e-3 over the file's 27 such checks). On the sphere
+/// each: a false alarm has probability ~2.3e-3 over the file's 36 such checks). On the sphere
 /// with a 40° sun disk (light directions sampled at the chosen events) and on the bunny
 /// under a delta light at a density where PT fallbacks, exact steps and model steps all
 /// offer events. Dropping the 1/q of the estimate, or offering with weight c instead of

@@ -130,14 +130,13 @@ impl Drop for Live {
     }
 }
 
-/// Removes every temporary still being written: for an exit that skips destructors.
-/// Never blocks on the lock (the exit may interrupt a thread holding it), so in that rare
-/// case nothing is removed.
+/// Removes every temporary still being written: for an exit that skips destructors. The
+/// caller is a signal handler's own thread (ctrlc runs it on an ordinary thread), and the
+/// lock's holders only push or remove a path, so waiting for it is brief.
 pub fn remove_live_temporaries() {
-    if let Ok(live) = LIVE.try_lock() {
-        for p in live.iter() {
-            let _ = fs::remove_file(p);
-        }
+    let live = LIVE.lock().unwrap_or_else(|e| e.into_inner());
+    for p in live.iter() {
+        let _ = fs::remove_file(p);
     }
 }
 
