@@ -53,6 +53,17 @@ fn render_scene(
     stcvae(&args)
 }
 
+/// `stcvae merge A.exr B.exr --out M` for render stems A, B and M.
+fn merge_renders(a: &Path, b: &Path, m: &Path) -> Output {
+    stcvae(&[
+        "merge",
+        a.with_extension("exr").to_str().unwrap(),
+        b.with_extension("exr").to_str().unwrap(),
+        "--out",
+        m.to_str().unwrap(),
+    ])
+}
+
 fn ok(out: &Output) -> String {
     let err = String::from_utf8_lossy(&out.stderr).into_owned();
     assert!(out.status.success(), "stcvae failed: {err}");
@@ -232,13 +243,7 @@ fn render_writes_exr_png_json_and_merge_averages_by_spp() {
         assert!(dispatch["dispatches"].as_u64().unwrap() >= 1, "{dispatch}");
     }
     let m = d.path().join("m");
-    ok(&stcvae(&[
-        "merge",
-        a.with_extension("exr").to_str().unwrap(),
-        b.with_extension("exr").to_str().unwrap(),
-        "--out",
-        m.to_str().unwrap(),
-    ]));
+    ok(&merge_renders(&a, &b, &m));
     let (ia, _) = render_gpu::image_io::read_exr(&a.with_extension("exr")).unwrap();
     let (ib, _) = render_gpu::image_io::read_exr(&b.with_extension("exr")).unwrap();
     let (im, tag) = render_gpu::image_io::read_exr(&m.with_extension("exr")).unwrap();
@@ -1140,13 +1145,7 @@ fn a_time_budget_stops_after_a_pass_and_records_its_spp() {
         assert!(image.pixels.iter().flatten().all(|v| v.is_finite()));
     }
     let m = d.path().join("m");
-    ok(&stcvae(&[
-        "merge",
-        a.with_extension("exr").to_str().unwrap(),
-        b.with_extension("exr").to_str().unwrap(),
-        "--out",
-        m.to_str().unwrap(),
-    ]));
+    ok(&merge_renders(&a, &b, &m));
     let (_, tag) = render_gpu::image_io::read_exr(&m.with_extension("exr")).unwrap();
     assert_eq!(tag.unwrap().spp, 2);
 }

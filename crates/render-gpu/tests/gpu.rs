@@ -737,18 +737,12 @@ fn cpu_gpu_agree_pt_sphere() {
 /// channel, seen directly around −z (where u wraps from the last column to the first) and
 /// through the sphere. PT without NEE: the map, and the sun disk that escaping paths find,
 /// are the light.
-#[test]
-fn cpu_gpu_agree_under_an_environment_map() {
+/// A 16×8 environment map with pixel (x, y) = `f(x, y)`, written as `sky.exr` in `d`.
+fn sky(d: &tempfile::TempDir, f: impl Fn(usize, usize) -> [f32; 3]) -> std::path::PathBuf {
     use render_gpu::image_io::{RenderTag, RgbImage, write_exr};
-    let d = tempfile::tempdir().unwrap();
     let mut map = RgbImage::new(16, 8);
     for (i, p) in map.pixels.iter_mut().enumerate() {
-        let (x, y) = (i % 16, i / 16);
-        *p = [
-            (x + 1) as f32 / 8.0,
-            if y < 4 { 1.0 } else { 0.2 },
-            if x < 8 { 1.5 } else { 0.1 },
-        ];
+        *p = f(i % 16, i / 16);
     }
     let path = d.path().join("sky.exr");
     let tag = RenderTag {
@@ -757,6 +751,19 @@ fn cpu_gpu_agree_under_an_environment_map() {
         seeds: Vec::new(),
     };
     write_exr(&path, &map, &tag).unwrap();
+    path
+}
+
+#[test]
+fn cpu_gpu_agree_under_an_environment_map() {
+    let d = tempfile::tempdir().unwrap();
+    let path = sky(&d, |x, y| {
+        [
+            (x + 1) as f32 / 8.0,
+            if y < 4 { 1.0 } else { 0.2 },
+            if x < 8 { 1.5 } else { 0.1 },
+        ]
+    });
     let text = sphere_scene("kind = \"index-matched\"").replace(
         "radiance = [0.1, 0.1, 0.1]",
         &format!("file = {:?}", path.to_str().unwrap()),
@@ -827,7 +834,6 @@ fn cpu_gpu_agree_stcvae_sphere() {
 /// an exact step and a shadow ray at every event.
 #[test]
 fn cpu_gpu_agree_in_less_common_settings() {
-    use render_gpu::image_io::{RenderTag, RgbImage, write_exr};
     let lights = "[[light]]\nkind = \"directional\"\ndirection = [-0.5, -0.6, -0.62]\n\
                   irradiance = [2.0, 2.0, 2.0]\n";
     let base = sphere_scene("kind = \"index-matched\"");
@@ -862,18 +868,9 @@ fn cpu_gpu_agree_in_less_common_settings() {
     );
 
     let d = tempfile::tempdir().unwrap();
-    let mut map = RgbImage::new(16, 8);
-    for (i, p) in map.pixels.iter_mut().enumerate() {
-        let (x, y) = (i % 16, i / 16);
-        *p = [(x + 1) as f32 / 8.0, if y < 4 { 1.0 } else { 0.2 }, 0.5];
-    }
-    let path = d.path().join("sky.exr");
-    let tag = RenderTag {
-        spp: 1,
-        scene_hash: 0,
-        seeds: Vec::new(),
-    };
-    write_exr(&path, &map, &tag).unwrap();
+    let path = sky(&d, |x, y| {
+        [(x + 1) as f32 / 8.0, if y < 4 { 1.0 } else { 0.2 }, 0.5]
+    });
     let dielectric = with_medium(
         sphere_scene("kind = \"dielectric\"\nior = 1.33"),
         "[20.0, 40.0, 80.0]",

@@ -172,15 +172,8 @@ fn broken_files_give_clear_errors() {
     assert!(e.contains("dir.ply") && e.contains("directory"), "{e}");
 }
 
-/// A unit cube as glTF: `cube.bin` holds 8 f32 positions then 36 u16 indices; `json` gets
-/// the node list, the indices' componentType and the positions' bufferView stride.
-fn cube_gltf(
-    d: &tempfile::TempDir,
-    name: &str,
-    nodes: &str,
-    index_type: u32,
-    stride: u32,
-) -> PathBuf {
+/// A unit cube's buffer: 8 f32 positions (96 bytes), then 36 u16 indices (72 bytes).
+fn cube_bin() -> Vec<u8> {
     let mut bin = Vec::new();
     for i in 0..8u32 {
         for bit in [1, 2, 4] {
@@ -194,7 +187,19 @@ fn cube_gltf(
     for t in tris {
         bin.extend_from_slice(&t.to_le_bytes());
     }
-    write(d, "cube.bin", &bin);
+    bin
+}
+
+/// A unit cube as glTF: `cube.bin` holds 8 f32 positions then 36 u16 indices; `json` gets
+/// the node list, the indices' componentType and the positions' bufferView stride.
+fn cube_gltf(
+    d: &tempfile::TempDir,
+    name: &str,
+    nodes: &str,
+    index_type: u32,
+    stride: u32,
+) -> PathBuf {
+    write(d, "cube.bin", &cube_bin());
     let json = format!(
         r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],
         "nodes":{nodes},"meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}},"indices":1}}]}}],
@@ -544,7 +549,10 @@ fn pieces_are_wound_by_their_nesting() {
         let (v, _) = volume_and_area(&m);
         // f32 corners (0.9 + 0.4) round at 1e-7; a piece left inside out is off by its
         // whole volume.
-        assert!((v - want).abs() < 1e-6 * want, "{what}: volume {v}, want {want}");
+        assert!(
+            (v - want).abs() < 1e-6 * want,
+            "{what}: volume {v}, want {want}"
+        );
     }
 }
 
@@ -625,19 +633,7 @@ fn concave_faces_are_cut_inside_their_outline() {
 /// vertex +1 along x) in the buffer file `file`, referred to as `uri`; `doc` gives the
 /// document's nodes, scenes and mesh weights.
 fn cube_doc(d: &tempfile::TempDir, name: &str, file: &str, uri: &str, doc: &str) -> PathBuf {
-    let mut bin = Vec::new();
-    for i in 0..8u32 {
-        for bit in [1, 2, 4] {
-            bin.extend_from_slice(&(if i & bit != 0 { 0.5f32 } else { -0.5 }).to_le_bytes());
-        }
-    }
-    let tris: [u16; 36] = [
-        0, 2, 3, 0, 3, 1, 4, 5, 7, 4, 7, 6, 0, 1, 5, 0, 5, 4, 2, 6, 7, 2, 7, 3, 0, 4, 6, 0, 6, 2,
-        1, 3, 7, 1, 7, 5,
-    ];
-    for t in tris {
-        bin.extend_from_slice(&t.to_le_bytes());
-    }
+    let mut bin = cube_bin();
     for _ in 0..8 {
         for x in [1.0f32, 0.0, 0.0] {
             bin.extend_from_slice(&x.to_le_bytes());
