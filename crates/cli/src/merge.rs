@@ -158,8 +158,10 @@ fn merge_images(a: &Args) -> Result<()> {
         "inputs": a.inputs.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
         "spp": tag.spp,
         "scene_hash": format!("{:016x}", tag.scene_hash),
+        "seeds": tag.seeds,
         "width": img.width,
         "height": img.height,
+        "mean_rgb": crate::render::mean_rgb(&img),
     });
     write_image_set(
         &a.out,

@@ -420,10 +420,7 @@ pub fn run(a: Args) -> Result<()> {
         grid_resolution: r.grid_resolution,
         scene_hash: format!("{:016x}", p.data.hash),
         device: engine.describe(),
-        mean_rgb: {
-            let n = out.image.pixels.len().max(1) as f64;
-            [0, 1, 2].map(|c| out.image.pixels.iter().map(|p| p[c] as f64).sum::<f64>() / n)
-        },
+        mean_rgb: mean_rgb(&out.image),
         stats: &out.stats,
     };
     crate::merge::write_image_set(
@@ -493,6 +490,12 @@ fn print_lanes(lanes: &render_gpu::render::LaneProfile) {
         let share = 100.0 * p.capacity as f64 / passes.max(1) as f64;
         eprintln!("  {:<38} {:>12.1} % {:>12}", p.phase, share, busy);
     }
+}
+
+/// The image's mean per channel (the JSON's `mean_rgb`).
+pub(crate) fn mean_rgb(image: &render_gpu::image_io::RgbImage) -> [f64; 3] {
+    let n = image.pixels.len().max(1) as f64;
+    [0, 1, 2].map(|c| image.pixels.iter().map(|p| p[c] as f64).sum::<f64>() / n)
 }
 
 /// Says how often paths were found outside the medium while believing themselves inside:

@@ -330,6 +330,22 @@ fn render_writes_exr_png_json_and_merge_averages_by_spp() {
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(m.with_extension("json")).unwrap()).unwrap();
     assert_eq!(report["spp"], 12);
+    assert_eq!(report["seeds"], serde_json::json!([1, 2]));
+    // The merged mean is the spp-weighted mean of the inputs' (4 and 8 spp).
+    let mean = |p: &Path| -> Vec<f64> {
+        let j: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(p.with_extension("json")).unwrap())
+                .unwrap();
+        (0..3).map(|c| j["mean_rgb"][c].as_f64().unwrap()).collect()
+    };
+    let (ma, mb, mm) = (mean(&a), mean(&b), mean(&m));
+    for c in 0..3 {
+        let want = (4.0 * ma[c] + 8.0 * mb[c]) / 12.0;
+        assert!(
+            (mm[c] - want).abs() <= 1e-6 * want.abs().max(1e-6),
+            "{mm:?}"
+        );
+    }
     let copy = d.path().join("copy.exr");
     std::fs::copy(&a_exr, &copy).unwrap();
     let e = fails(&stcvae(&[

@@ -71,7 +71,14 @@ pub fn run(a: Args) -> Result<()> {
         crate::check_out("--out", &out.join(f))?;
     }
     // The device and the model first: a run that cannot start leaves no empty folder behind.
-    let engine = Engine::open(a.device)?.without_fallback();
+    // `distributions` samples the models and the simulator and renders nothing: no device
+    // to look for (it said "rendering on the CPU").
+    let device = if cfg.kind == config::Kind::Distributions {
+        DeviceArg::Cpu
+    } else {
+        a.device
+    };
+    let engine = Engine::open(device)?.without_fallback();
     if a.model.is_some() {
         crate::model_cmds::load_model(a.model.as_deref())?;
     }
