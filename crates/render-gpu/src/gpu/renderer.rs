@@ -498,7 +498,11 @@ fn tally(
         let hint = if budget > 1 {
             format!("set STCVAE_GPU_BOUNCES below {budget}")
         } else {
-            "a single bounce exceeded it: lower render.exact_tau".to_string()
+            // One bounce's loops: exact walks (exact_tau), or hit tests over a coarse
+            // grid cell's long triangle list (a fine mesh under a low grid_resolution).
+            "a single bounce exceeded it: lower render.exact_tau, raise \
+             render.grid_resolution"
+                .to_string()
         };
         return Err(RenderError::Gpu(format!(
             "{} invocations were stopped by {}'s loop limit (lavapipe stops a shader \
@@ -744,9 +748,10 @@ pub fn render_gpu(
         let t0 = Instant::now();
         let stats_before = stats;
         for band in &bands {
-            // A stop request is looked at after each submission (in run_band) only: a band
-            // reached after one still begins the chunk (one submission more to wait for),
-            // so that which bands had begun it follows from their submissions alone.
+            // A stop request is looked at after each submission (in run_band) and after
+            // each band: a band reached after one still begins the chunk (one submission
+            // more to wait for), so that which bands had begun it follows from their
+            // submissions alone.
             let finished = gpu.run_band(
                 band,
                 s0 == 0,
@@ -756,6 +761,14 @@ pub fn render_gpu(
                 &mut dispatch,
             )?;
             if !finished {
+                dropped = Some(band.index + 1);
+                break;
+            }
+            // A band that finished in one submission never looked at the stop request
+            // (run_band returns when its paths are done): without this, a stop waited for
+            // every band of the chunk, ~15 s at 1024² on lavapipe. The next band has not
+            // begun the chunk, which `dropped` says as for a band cut short.
+            if cancel.load(Ordering::Relaxed) && band.index + 1 < bands.len() {
                 dropped = Some(band.index + 1);
                 break;
             }

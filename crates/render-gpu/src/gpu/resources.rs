@@ -2,8 +2,6 @@
 
 use std::sync::mpsc;
 
-use wgpu::util::DeviceExt;
-
 use crate::error::RenderError;
 
 use super::context::GpuContext;
@@ -84,15 +82,30 @@ pub struct Inputs<'a> {
     pub stage_slots: u64,
 }
 
+/// A buffer holding `bytes`, created unmapped and filled through the queue. wgpu's
+/// `create_buffer_init` maps the new buffer at creation and panics when the allocation
+/// failed (out of memory), before the renderer's error scope can turn that into its
+/// one-line "out of memory" error; a failed unmapped buffer is only invalid, and the
+/// scope reports it.
 fn init(ctx: &GpuContext, label: &str, bytes: &[u8], usage: wgpu::BufferUsages) -> wgpu::Buffer {
     let dummy = [0u8; 64];
     let contents = if bytes.is_empty() { &dummy[..] } else { bytes };
-    ctx.device
-        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some(label),
-            contents,
-            usage,
-        })
+    // write_buffer needs a multiple of 4 bytes (COPY_BUFFER_ALIGNMENT).
+    let size = (contents.len() as u64).next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT);
+    let buffer = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size,
+        usage: usage | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    if size == contents.len() as u64 {
+        ctx.queue.write_buffer(&buffer, 0, contents);
+    } else {
+        let mut padded = contents.to_vec();
+        padded.resize(size as usize, 0);
+        ctx.queue.write_buffer(&buffer, 0, &padded);
+    }
+    buffer
 }
 
 impl Resources {
@@ -105,20 +118,34 @@ impl Resources {
         i: &Inputs,
     ) -> Result<Self, RenderError> {
         let max = ctx.limits.max_storage_buffer_binding_size;
-        let biggest = [
-            i.accum_bytes.iter().copied().max().unwrap_or(0),
-            std::mem::size_of_val(i.tris) as u64,
-            std::mem::size_of_val(i.nodes) as u64,
-            std::mem::size_of_val(i.grid) as u64,
-            std::mem::size_of_val(i.env) as u64,
-        ]
-        .into_iter()
-        .max()
-        .unwrap_or(0);
-        if biggest > max {
+        // Named with what would make it smaller: the message blamed the grid and mesh for
+        // an environment map too large.
+        let sizes = [
+            (
+                i.accum_bytes.iter().copied().max().unwrap_or(0),
+                "the image's band of samples (a smaller image)",
+            ),
+            (
+                std::mem::size_of_val(i.tris) as u64,
+                "the mesh's triangles (fewer triangles)",
+            ),
+            (
+                std::mem::size_of_val(i.nodes) as u64,
+                "the mesh's BVH (fewer triangles)",
+            ),
+            (
+                std::mem::size_of_val(i.grid) as u64,
+                "the distance grid (a lower render.grid_resolution or fewer triangles)",
+            ),
+            (
+                std::mem::size_of_val(i.env) as u64,
+                "the environment map (a smaller map)",
+            ),
+        ];
+        if let Some((biggest, what)) = sizes.into_iter().filter(|s| s.0 > max).max_by_key(|s| s.0) {
             return Err(RenderError::GpuLimit(format!(
-                "a buffer of {biggest} bytes exceeds {}'s storage binding limit of {max} bytes \
-                 (lower grid_resolution or the mesh size, or use --device cpu)",
+                "a buffer of {biggest} bytes exceeds {}'s storage binding limit of {max} bytes: \
+                 {what}, or use --device cpu",
                 ctx.adapter.name
             )));
         }
