@@ -647,6 +647,10 @@ pub fn render_gpu(
     // Bands keep each binding within its limit, not the whole within the GPU's memory: an
     // allocation that fails is a limit of this device (the CPU may render the scene), not
     // a panic in wgpu's default error handler.
+    // A buffer whose allocation failed is invalid, and filling it through the queue is a
+    // validation error: caught by the outer scope, so the out-of-memory error (inner) is
+    // what is reported, not wgpu's panic on the validation error it causes.
+    let follow_on = ctx.device.push_error_scope(wgpu::ErrorFilter::Validation);
     let scope = ctx.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
     let res = Resources::new(
         ctx,
@@ -683,7 +687,9 @@ pub fn render_gpu(
             .staged
             .then(|| [&res.stage, &res.queue].map(|b| res.snapshot_buffer(ctx, b.size()))),
     });
-    if let Some(e) = pollster::block_on(scope.pop()) {
+    let out_of_memory = pollster::block_on(scope.pop());
+    let invalid = pollster::block_on(follow_on.pop());
+    if let Some(e) = out_of_memory {
         let total: u64 = accum_bytes.iter().sum();
         return Err(RenderError::GpuLimit(format!(
             "{} is out of memory for this render's buffers ({} MB of path state for {} \
@@ -691,6 +697,12 @@ pub fn render_gpu(
             ctx.adapter.name,
             total / 1_000_000,
             pixels
+        )));
+    }
+    if let Some(e) = invalid {
+        return Err(RenderError::Gpu(format!(
+            "setting up the render's buffers on {} failed: {e}",
+            ctx.adapter.name
         )));
     }
     let mut compile_seconds = 0.0;
