@@ -258,7 +258,8 @@ fn resume_needs_an_intact_checkpoint_and_the_last_loss_is_the_last_steps() {
     replace_in(&dir.path().join("train.toml"), "steps = 30", "steps = 5");
     let base = root().join("models/default.stcvae");
     let base_s = base.to_str().unwrap();
-    let resume = |d: &Path| {
+    // `train_eventgen` with one more flag (--resume or --fresh).
+    let eventgen_with = |d: &Path, flag: &str| {
         stcvae(
             &[
                 "train",
@@ -268,11 +269,12 @@ fn resume_needs_an_intact_checkpoint_and_the_last_loss_is_the_last_steps() {
                 "eventgen",
                 "--base",
                 base_s,
-                "--resume",
+                flag,
             ],
             d,
         )
     };
+    let resume = |d: &Path| eventgen_with(d, "--resume");
     let out = resume(dir.path());
     assert!(!out.status.success());
     assert!(stderr(&out).contains("no checkpoint"), "{}", stderr(&out));
@@ -297,19 +299,7 @@ fn resume_needs_an_intact_checkpoint_and_the_last_loss_is_the_last_steps() {
         err.contains("holds checkpoints of eventgen") && err.contains("--fresh"),
         "{err}"
     );
-    let fresh = stcvae(
-        &[
-            "train",
-            "--config",
-            "train.toml",
-            "--model",
-            "eventgen",
-            "--base",
-            base_s,
-            "--fresh",
-        ],
-        dir.path(),
-    );
+    let fresh = eventgen_with(dir.path(), "--fresh");
     assert!(fresh.status.success(), "--fresh failed: {}", stderr(&fresh));
     // A config whose architecture changed since the checkpoint: one line that says so,
     // not burn's list of every mismatched tensor.
