@@ -131,11 +131,21 @@ pub fn measure(r: &Reference, image: &RgbImage) -> Measure {
 
 /// Reads an EXR and refuses non-finite pixels (an image with a NaN would make every figure
 /// NaN without saying where it came from).
-fn load(path: &Path, tags: &mut Vec<(PathBuf, RenderTag)>) -> Result<RgbImage> {
+/// What the inputs record about their renders, for [`check_shared_seeds`].
+#[derive(Default)]
+struct Seen {
+    /// stcvae's render tags (scene hash, seeds).
+    tags: Vec<(PathBuf, RenderTag)>,
+    /// Every input's pixel digest (None for a constant image), tagged or not.
+    digests: Vec<(PathBuf, Option<u64>)>,
+}
+
+fn load(path: &Path, seen: &mut Seen) -> Result<RgbImage> {
     let (img, tag) = read_exr(path)?;
     if let Some(t) = tag {
-        tags.push((path.to_path_buf(), t));
+        seen.tags.push((path.to_path_buf(), t));
     }
+    seen.digests.push((path.to_path_buf(), img.pixel_digest()));
     if let Some((x, y)) = img.first_non_finite() {
         bail!(
             "{}: pixel ({x}, {y}) is not finite: {:?}",
@@ -258,14 +268,13 @@ fn check_distinct(names: &[&str]) -> Result<()> {
 /// Refuses two stcvae renders of one scene and estimator (equal scene hashes) that share a
 /// seed: they share samples, so an image would match a reference by more than the image's
 /// accuracy (an image rendered with a reference's seed read RMSE 0). `merge` refuses the
-/// same pairs. Files without stcvae's tag (other renderers' EXRs) are not checked.
+/// same pairs. Files without stcvae's tag (other renderers' EXRs) are compared by their
+/// pixels, as `merge` compares seedless files: a copy of a reference reads RMSE 0 too.
 /// Images may share seeds with each other: each is measured against the references only.
-fn check_shared_seeds(
-    references: &[(PathBuf, RenderTag)],
-    images: &[(PathBuf, RenderTag)],
-) -> Result<()> {
-    for (i, (pa, a)) in references.iter().chain(images).enumerate() {
-        for (pb, b) in &references[..i.min(references.len())] {
+fn check_shared_seeds(references: &Seen, images: &Seen) -> Result<()> {
+    let tags = &references.tags;
+    for (i, (pa, a)) in tags.iter().chain(&images.tags).enumerate() {
+        for (pb, b) in &tags[..i.min(tags.len())] {
             if a.scene_hash != b.scene_hash {
                 continue;
             }
@@ -279,19 +288,26 @@ fn check_shared_seeds(
             }
         }
     }
+    let all = references.digests.iter().chain(&images.digests);
+    for (i, (pa, a)) in all.enumerate() {
+        let earlier = &references.digests[..i.min(references.digests.len())];
+        if let Some((pb, _)) = earlier.iter().find(|(_, b)| a.is_some() && a == b) {
+            bail!(
+                "{} and {} hold the same pixels: the same render (a copy, or the same seed), \
+                 so the error would read low; compare independent renders",
+                pb.display(),
+                pa.display()
+            );
+        }
+    }
     Ok(())
 }
 
 /// The image an argument names, checked against the reference's size.
-fn load_spec(
-    files: &[String],
-    w: usize,
-    h: usize,
-    tags: &mut Vec<(PathBuf, RenderTag)>,
-) -> Result<RgbImage> {
+fn load_spec(files: &[String], w: usize, h: usize, seen: &mut Seen) -> Result<RgbImage> {
     let mut images = Vec::with_capacity(files.len());
     for f in files {
-        let img = load(Path::new(f), tags)?;
+        let img = load(Path::new(f), seen)?;
         same_size(f, &img, w, h)?;
         images.push(img);
     }
@@ -352,10 +368,10 @@ pub fn run(a: Args) -> Result<()> {
             .collect();
         crate::paths::check_not_input("--plot", path, &inputs)?;
     }
-    let mut ref_tags = Vec::new();
+    let mut ref_seen = Seen::default();
     let mut refs: Vec<RgbImage> = Vec::with_capacity(references.len());
     for p in &references {
-        let img = load(Path::new(p), &mut ref_tags)?;
+        let img = load(Path::new(p), &mut ref_seen)?;
         if let Some(first) = refs.first() {
             same_size(p, &img, first.width, first.height)?;
         }
@@ -363,12 +379,12 @@ pub fn run(a: Args) -> Result<()> {
     }
     let r = Reference::new(&refs, a.object_threshold);
     // Every image is read before anything is printed, so a bad one leaves no half table.
-    let mut image_tags = Vec::new();
+    let mut image_seen = Seen::default();
     let images: Vec<RgbImage> = specs
         .iter()
-        .map(|s| load_spec(&s.files, r.width, r.height, &mut image_tags))
+        .map(|s| load_spec(&s.files, r.width, r.height, &mut image_seen))
         .collect::<Result<_>>()?;
-    check_shared_seeds(&ref_tags, &image_tags)?;
+    check_shared_seeds(&ref_seen, &image_seen)?;
     let ref_noise = r.noise_mse.sqrt();
     let objects = r.object.iter().filter(|&&o| o).count();
     println!(

@@ -192,7 +192,8 @@ fn experiment_configs_are_checked_before_any_rendering() {
 }
 
 /// Ctrl-C (SIGINT) during an experiment stops it after the current render pass: exit status
-/// 130, a one-line message, and no report (a cut-short render must not be measured).
+/// 130, a one-line message, no report (a cut-short render must not be measured) and no
+/// empty folders.
 #[cfg(unix)]
 #[test]
 fn an_interrupted_experiment_writes_no_report() {
@@ -206,13 +207,13 @@ fn an_interrupted_experiment_writes_no_report() {
             "cpu",
             "--out",
         ])
-        .arg(d.path())
+        .arg(d.path().join("fresh"))
         .current_dir(root())
         .stderr(std::process::Stdio::piped())
         .spawn()
         .unwrap();
     // The full teaser renders for minutes: interrupted two seconds after it has started.
-    let out = d.path().join("teaser");
+    let out = d.path().join("fresh/teaser");
     common::interrupt_when(
         &child,
         || out.exists(),
@@ -224,4 +225,7 @@ fn an_interrupted_experiment_writes_no_report() {
     assert_eq!(done.status.code(), Some(130), "{err}");
     assert!(err.contains("interrupted: no report written"), "{err}");
     assert!(!out.join("report.md").exists());
+    // Its first render was cut short, so nothing was saved: the folders the run made, the
+    // results root among them, are gone again.
+    assert!(!d.path().join("fresh").exists(), "{err}");
 }

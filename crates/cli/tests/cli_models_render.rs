@@ -1064,6 +1064,21 @@ fn bench_error_ranks_renders_by_error_and_names_bad_inputs() {
         e.contains("seed 1 in common") && e.contains("ref1.exr") && e.contains("twin.exr"),
         "{e}"
     );
+    // A copy of a reference without its tag (as another renderer's EXR would be) is told
+    // apart by its pixels instead.
+    let (pixels, tag) = render_gpu::image_io::read_exr(Path::new(&refs[1])).unwrap();
+    let copy = d.path().join("copy.exr");
+    let foreign = render_gpu::image_io::RenderTag {
+        scene_hash: tag.unwrap().scene_hash ^ 1,
+        seeds: Vec::new(),
+        spp: 32,
+    };
+    render_gpu::image_io::write_exr(&copy, &pixels, &foreign).unwrap();
+    let e = fails(&bench_error(&[&format!("{}:1", copy.display())]));
+    assert!(
+        e.contains("same pixels") && e.contains("ref2.exr") && e.contains("copy.exr"),
+        "{e}"
+    );
     let e = fails(&bench_error(&[&format!("{high}:abc")]));
     assert!(
         e.contains("`abc` after the ':' is not a number of seconds"),

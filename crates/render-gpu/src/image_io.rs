@@ -45,6 +45,22 @@ impl RgbImage {
         self.first_value(|v| !v.is_finite()).map(|(x, y, _)| (x, y))
     }
 
+    /// A hash of the pixels' bits, or None for a constant image. Two renders whose pixels
+    /// are the same share their samples (a copy, or the same seed); a constant image (an
+    /// object out of view or unlit) is what every seed gives, so it proves nothing.
+    pub fn pixel_digest(&self) -> Option<u64> {
+        let first = self.pixels.first()?;
+        self.pixels.iter().any(|px| px != first).then(|| {
+            let mut h = crate::hash::Fnv64::new();
+            for px in &self.pixels {
+                for v in px {
+                    h.write(&v.to_bits().to_le_bytes());
+                }
+            }
+            h.finish()
+        })
+    }
+
     /// The first pixel (x, y) with a channel value v for which `bad(v)`, and that value:
     /// the readers' checks of what an image may hold name the pixel they refuse.
     pub fn first_value(&self, bad: impl Fn(f32) -> bool) -> Option<(usize, usize, f32)> {
@@ -296,15 +312,7 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
     let mut seen: Vec<Seen> = Vec::new();
     for &p in paths {
         let (img, tag) = read_exr(p)?;
-        let digest = (img.pixels.iter().any(|px| *px != img.pixels[0])).then(|| {
-            let mut h = crate::hash::Fnv64::new();
-            for px in &img.pixels {
-                for v in px {
-                    h.write(&v.to_bits().to_le_bytes());
-                }
-            }
-            h.finish()
-        });
+        let digest = img.pixel_digest();
         let seeds = tag.as_ref().map_or_else(Vec::new, |t| t.seeds.clone());
         let scene = tag.as_ref().map(|t| t.scene_hash);
         let shared = |o: &Seen| seeds.iter().copied().find(|s| o.seeds.contains(s));

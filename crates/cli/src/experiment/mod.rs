@@ -82,6 +82,13 @@ pub fn run(a: Args) -> Result<()> {
     if a.model.is_some() {
         crate::model_cmds::load_model(a.model.as_deref())?;
     }
+    // The folders this run makes, innermost first, so that a run that saves nothing can
+    // take them all away again (the results root too, when this run made it).
+    let made: Vec<PathBuf> = out
+        .ancestors()
+        .take_while(|p| !p.as_os_str().is_empty() && !p.exists())
+        .map(PathBuf::from)
+        .collect();
     std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
     // The previous run's report goes now, not when this run's is written: a run that
     // fails part way must not leave a report that no longer matches its images.
@@ -111,6 +118,13 @@ pub fn run(a: Args) -> Result<()> {
         // A run stopped before it saved anything leaves no empty folder (remove_dir
         // removes only an empty one); one that saved images says where they are.
         let _ = std::fs::remove_dir(&out);
+        if !out.exists() {
+            for dir in made.iter().skip(1) {
+                if std::fs::remove_dir(dir).is_err() {
+                    break;
+                }
+            }
+        }
         if out.exists() {
             return Err(anyhow::anyhow!(
                 "{e:#} (images saved so far stay in {})",
