@@ -6,7 +6,8 @@
 //! W1 is reported for both.
 //!
 //! Expectations a renderer integrates are compared as well, model over simulator: the
-//! NEE weight E[Λ(N)]; the NEE a walk's representative event would collect if the
+//! NEE weight E[Λ(N)]; the survival weight E[φ^N] a sphere step leaves a path with, at
+//! [`SURVIVAL_ALBEDOS`]; the NEE a walk's representative event would collect if the
 //! sphere's own boundary were the surface ([`sphere_nee`]); the same for a flat surface
 //! touching the sphere behind, beside or ahead of the walk ([`half_space_nee`]), and the
 //! share of events near the sphere's surface ([`SHELLS`]). Small KS values can hide a
@@ -66,6 +67,8 @@ pub struct SettingReport {
     pub metrics: Vec<Metric>,
     /// E[Λ(N)], model over simulator.
     pub nee_weight: RatioError,
+    /// E[φ^N] at each of [`SURVIVAL_ALBEDOS`], model over simulator.
+    pub survival: [RatioError; 2],
     /// E[[`sphere_nee`]], model over simulator.
     pub sphere_nee: RatioError,
     /// E[[`half_space_nee`]] per side ([`SURFACE_SIDES`]), model over simulator.
@@ -74,6 +77,14 @@ pub struct SettingReport {
     /// surface, then within 0.5 % of it ([`SHELLS`]), model over simulator.
     pub shells: [RatioError; 2],
 }
+
+/// Albedos of the survival weight E[φ^N] compared at every setting. N does not depend on
+/// the setting's φ (only EventGen is conditioned on it), so these come from LengthGen's N
+/// at (τ, g). They weigh long walks: at φ = 0.99, τ = 80, the shipped LengthGen's N a few
+/// per cent short in the mean gave E[φ^N] 6 % high (a review; the renders' bias stays
+/// below 1 % since such paths carry little light), which KS on N and E[Λ(N)] at φ = 0.9
+/// (saturated near 9) do not show.
+pub const SURVIVAL_ALBEDOS: [f64; 2] = [0.99, 0.95];
 
 /// Distances 1 − |X| of the representative event from the sphere's surface, as
 /// half-open bands [lo, hi): where EventGen's fit matters for an image and has been worst
@@ -263,6 +274,16 @@ impl Columns {
         [weight, sphere]
     }
 
+    /// Per walk and per albedo of [`SURVIVAL_ALBEDOS`]: the samples of φ^N.
+    pub fn survival_samples(&self) -> [Vec<f64>; 2] {
+        SURVIVAL_ALBEDOS.map(|a| {
+            self.1
+                .iter()
+                .map(|&(n, ..)| crate::sampler::walk_weights(a, n).1)
+                .collect()
+        })
+    }
+
     /// Per walk and per side of [`SURFACE_SIDES`]: the samples of [`half_space_nee`].
     pub fn half_space_samples(&self, tau: f64, g: f64, albedo: f64) -> [Vec<f64>; 3] {
         let per_walk: Vec<[f64; 3]> = self
@@ -382,6 +403,7 @@ pub fn compare_setting(
         sim.nee_samples(tau, g, albedo),
     );
     let (model_shells, sim_shells) = (model.shell_samples(), sim.shell_samples());
+    let (model_survival, sim_survival) = (model.survival_samples(), sim.survival_samples());
     let (model_half, sim_half) = (
         model.half_space_samples(tau, g, albedo),
         sim.half_space_samples(tau, g, albedo),
@@ -397,6 +419,7 @@ pub fn compare_setting(
         albedo,
         metrics: compare(model, sim, &which),
         nee_weight: ratio_error(&model_nee[0], &sim_nee[0]),
+        survival: [0, 1].map(|k| ratio_error(&model_survival[k], &sim_survival[k])),
         sphere_nee: ratio_error(&model_nee[1], &sim_nee[1]),
         half_space: [0, 1, 2].map(|k| ratio_error(&model_half[k], &sim_half[k])),
         shells: [0, 1].map(|k| ratio_error(&model_shells[k], &sim_shells[k])),
@@ -494,7 +517,11 @@ pub fn markdown_table(reports: &[SettingReport]) -> String {
     for q in QUANTITIES {
         s += &format!(" {q} KS / W1 |");
     }
-    s += " E[Λ(N)] model/sim − 1 | sphere NEE model/sim − 1 |";
+    s += " E[Λ(N)] model/sim − 1 |";
+    for a in SURVIVAL_ALBEDOS {
+        s += &format!(" E[{a}^N] model/sim − 1 |");
+    }
+    s += " sphere NEE model/sim − 1 |";
     for side in SURFACE_SIDES {
         s += &format!(" half-space NEE, surface {side}, model/sim − 1 |");
     }
@@ -509,7 +536,7 @@ pub fn markdown_table(reports: &[SettingReport]) -> String {
     for _ in QUANTITIES {
         s += "---|";
     }
-    s += &"---|".repeat(2 + SURFACE_SIDES.len() + SHELLS.len());
+    s += &"---|".repeat(2 + SURVIVAL_ALBEDOS.len() + SURFACE_SIDES.len() + SHELLS.len());
     s += "\n";
     for r in reports {
         s += &format!("| {} | {} | {} |", r.tau, r.g, r.albedo);
@@ -520,8 +547,10 @@ pub fn markdown_table(reports: &[SettingReport]) -> String {
             }
         }
         let sides = r.half_space;
-        for r in [r.nee_weight, r.sphere_nee]
+        for r in [r.nee_weight]
             .into_iter()
+            .chain(r.survival)
+            .chain([r.sphere_nee])
             .chain(sides)
             .chain(r.shells)
         {
@@ -633,30 +662,32 @@ mod tests {
     /// The simulator against itself (independent streams), at a setting where both
     /// quantities vary a lot: each ratio is the z-score of a difference of independent
     /// means, so over 32 independent pairs of runs Σ z² follows χ²₃₂ if the standard
-    /// errors are right. Both tails are tested, at probability 5e-4 each (a 0.7 % chance
-    /// for the seven quantities to fail by noise; bounds 11.98 and 65.0). The power, from
+    /// errors are right. Both tails are tested, at probability 5e-4 each (a 0.9 % chance
+    /// for the nine quantities to fail by noise; bounds 11.98 and 65.0). The power, from
     /// χ²₃₂'s quantiles: standard errors 2× too small fail with probability 0.99 (Σz² ~
     /// 4χ²₃₂), 1.5× too small 0.63, 2× too large 0.97 and 3× too large 1.00 (with 8 pairs,
     /// as before, only 0.54 and 0.40 for 2× too small and 3× too large). The quantities:
-    /// E[Λ(N)], the sphere NEE, the half-space NEE's three sides and the two shells'
+    /// E[Λ(N)], the sphere NEE, the half-space NEE's three sides, the two shells'
     /// shares (at τ = 5 several per cent and ~0.4 % of 20,000 events, ~80 in the
-    /// thinner: enough for the normal approximation behind the z-scores).
+    /// thinner: enough for the normal approximation behind the z-scores) and the
+    /// survival weights E[0.99^N], E[0.95^N].
     #[test]
     fn simulator_against_itself_gives_ratios_within_noise() {
         use scatter_sim::stats::chi_square_p_value;
         let (tau, g, albedo) = (5.0, 0.4, 0.95);
         const PAIRS: u64 = 32;
-        let mut chi2 = [0.0f64; 7];
+        let mut chi2 = [0.0f64; 9];
         for pair in 0..PAIRS {
             let run = |seed| {
                 let c = simulator_columns(tau, g, albedo, 20_000, seed);
                 let [w, s] = c.nee_samples(tau, g, albedo);
                 let [near, edge] = c.shell_samples();
                 let [behind, beside, ahead] = c.half_space_samples(tau, g, albedo);
-                [w, s, near, edge, behind, beside, ahead]
+                let [s99, s95] = c.survival_samples();
+                [w, s, near, edge, behind, beside, ahead, s99, s95]
             };
             let (a, b) = (run(1 + 2 * pair), run(2 + 2 * pair));
-            for (k, r) in (0..7).map(|k| ratio_error(&a[k], &b[k])).enumerate() {
+            for (k, r) in (0..9).map(|k| ratio_error(&a[k], &b[k])).enumerate() {
                 assert!(r.se > 0.0 && r.value.is_finite(), "{r:?}");
                 chi2[k] += (r.value / r.se).powi(2);
             }
