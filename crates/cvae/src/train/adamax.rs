@@ -2,8 +2,10 @@
 //!
 //! m_t = β₁ m_{t−1} + (1 − β₁) g_t;  u_t = max(β₂ u_{t−1}, |g_t|);
 //! θ_t = θ_{t−1} − (α / (1 − β₁ᵗ)) · m_t / u_t.
-//! `epsilon` is added to u_t only to avoid 0/0 for parameters whose gradient has always
-//! been exactly zero (PyTorch does the same).
+//! `epsilon` is added to u_t in the denominator only to avoid 0/0 for parameters whose
+//! gradient has always been exactly zero. PyTorch puts it inside the max instead
+//! (u_t = max(β₂ u_{t−1}, |g_t| + ε)); with ε = 1e-8 against gradients many orders larger
+//! the two steps differ by a relative ~ε/u_t.
 
 use burn::optim::{LearningRate, ModuleOptimizer, Optimizer, RecordState, StateSink, StateSource};
 use burn::prelude::*;
