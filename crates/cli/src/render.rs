@@ -46,6 +46,7 @@ pub struct Args {
     pub model: Option<PathBuf>,
     /// Stop after the pass during which this many seconds have passed, any number > 0 (the
     /// JSON and the EXR header record the spp actually rendered; at least one pass runs).
+    /// The scene's spp is then no limit; --spp given too stops at that many first.
     #[arg(long, allow_negative_numbers = true)]
     pub time_budget: Option<f64>,
     /// Output path without extension: writes OUT.exr, OUT.png and OUT.json (a typed .exr,
@@ -79,7 +80,8 @@ struct Report<'a> {
     /// Samples per pixel rendered: fewer than `spp_requested` when a time budget or Ctrl-C
     /// stopped the render.
     spp: u32,
-    spp_requested: u32,
+    /// None under a time budget without --spp: the budget alone ends the render.
+    spp_requested: Option<u32>,
     seed: u64,
     width: u32,
     height: u32,
@@ -343,6 +345,9 @@ pub fn run(a: Args) -> Result<()> {
         }
     })?;
     let r = &p.file.render;
+    // A budget alone renders until it is spent: the scene's spp (64 in bunny_sun.toml)
+    // stopped "30 s of PT" after a few seconds.
+    let spp_cap = (a.time_budget.is_none() || a.spp.is_some()).then_some(r.spp);
     if a.model.is_some() && p.model.is_none() {
         eprintln!("note: --model is not used: the PT integrator needs no model");
     }
@@ -358,28 +363,36 @@ pub fn run(a: Args) -> Result<()> {
     let engine = Engine::open(a.device)?;
     let set = p.settings();
     eprintln!(
-        "rendering {} ({}x{}, {} spp, {}{}) on the {}",
+        "rendering {} ({}x{}, {}, {}{}) on the {}",
         a.scene.display(),
         p.file.camera.width,
         p.file.camera.height,
-        r.spp,
+        match (spp_cap, a.time_budget) {
+            (Some(n), None) => format!("{n} spp"),
+            (Some(n), Some(b)) => format!("{b} s, at most {n} spp"),
+            (None, Some(b)) => format!("{b} s, no spp limit"),
+            (None, None) => unreachable!("an spp cap is lifted only by a time budget"),
+        },
         r.integrator.name(),
         if r.nee { ", NEE" } else { "" },
         if engine.is_gpu() { "GPU" } else { "CPU" }
     );
-    let pb = progress::bar(
-        p.file.camera.width as u64 * p.file.camera.height as u64 * r.spp as u64,
-        "samples",
-    );
+    let opts = RenderOptions {
+        spp: spp_cap.unwrap_or(u32::MAX),
+        seed: r.seed,
+        time_budget: a.time_budget,
+    };
+    let pixels = p.file.camera.width as u64 * p.file.camera.height as u64;
+    let pb = if spp_cap.is_some() {
+        progress::bar(pixels * opts.spp as u64, "samples")
+    } else {
+        progress::render_bar("rendering", pixels, &opts)
+    };
     let cancel = interrupt::flag();
     let out = engine.render(
         &p.data,
         &set,
-        &RenderOptions {
-            spp: r.spp,
-            seed: r.seed,
-            time_budget: a.time_budget,
-        },
+        &opts,
         &|done, _| pb.set_position(done),
         cancel,
     )?;
@@ -388,10 +401,11 @@ pub fn run(a: Args) -> Result<()> {
         bail!("interrupted before the first pass finished: nothing written");
     }
     // A stop that came after the last pass cut nothing short: the files are complete.
-    let interrupted = interrupt::requested() && out.spp < r.spp;
+    let interrupted = interrupt::requested() && out.spp < opts.spp;
+    let hash = render_gpu::setup::render_hash(p.data.hash, r.integrator, engine.is_gpu());
     let tag = RenderTag {
         spp: out.spp as u64,
-        scene_hash: p.data.hash,
+        scene_hash: hash,
         seeds: vec![r.seed],
     };
     let paths = out.stats.paths.max(1) as f64;
@@ -401,7 +415,7 @@ pub fn run(a: Args) -> Result<()> {
         nee: r.nee,
         model: p.model_path.as_ref().map(|m| m.display().to_string()),
         spp: out.spp,
-        spp_requested: r.spp,
+        spp_requested: spp_cap,
         seed: r.seed,
         width: p.file.camera.width,
         height: p.file.camera.height,
@@ -418,7 +432,7 @@ pub fn run(a: Args) -> Result<()> {
         exact_nee_samples: set.exact_nee_samples,
         path_nee_rays: set.path_nee_rays,
         grid_resolution: r.grid_resolution,
-        scene_hash: format!("{:016x}", p.data.hash),
+        scene_hash: format!("{hash:016x}"),
         device: engine.describe(),
         mean_rgb: mean_rgb(&out.image),
         stats: &out.stats,
@@ -463,9 +477,9 @@ pub fn run(a: Args) -> Result<()> {
         // Written, but cut short: exit 130 as `generate` and `train` do, so that scripts
         // can tell it from a complete render.
         bail!(
-            "interrupted: the files hold the {} of {} spp finished before the stop",
+            "interrupted: the files hold the {} spp finished before the stop{}",
             out.spp,
-            r.spp
+            spp_cap.map_or(String::new(), |n| format!(" ({n} asked)"))
         );
     }
     Ok(())

@@ -1153,7 +1153,8 @@ fn bench_error_ranks_renders_by_error_and_names_bad_inputs() {
 
 /// A time budget shorter than any pass stops after the first pass, which renders one
 /// sample per pixel (render.rs): the JSON and the EXR's tag say 1 of the 64 asked, the
-/// image is finite, and `merge` weighs two such renders as 2 spp. Nothing here depends on
+/// image is finite, and `merge` weighs two such renders as 2 spp; without --spp the
+/// scene's spp is no limit. Nothing here depends on
 /// how fast the machine is: every pass outlasts 10⁻⁹ s.
 #[test]
 fn a_time_budget_stops_after_a_pass_and_records_its_spp() {
@@ -1179,4 +1180,30 @@ fn a_time_budget_stops_after_a_pass_and_records_its_spp() {
     ok(&merge_renders(&a, &b, &m));
     let (_, tag) = render_gpu::image_io::read_exr(&m.with_extension("exr")).unwrap();
     assert_eq!(tag.unwrap().spp, 2);
+    // A budget without --spp is not stopped by the scene's spp (64): no limit is recorded
+    // and the start line says so (the spp a budget reaches depends on the machine).
+    let c = d.path().join("c");
+    let out = stcvae(&[
+        "render",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--time-budget",
+        "1e-9",
+        "--device",
+        "cpu",
+        "--out",
+        c.to_str().unwrap(),
+    ]);
+    ok(&out);
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains(" s, no spp limit"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(c.with_extension("json")).unwrap()).unwrap();
+    assert_eq!(
+        (json["spp"].as_u64(), json["spp_requested"].is_null()),
+        (Some(1), true)
+    );
 }

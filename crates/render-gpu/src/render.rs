@@ -286,8 +286,12 @@ pub fn render(
     let mut s0 = 0u32;
     let mut order: Vec<usize> = (0..tiles.len()).collect();
     let mut cost = vec![0f64; tiles.len()];
+    // Until the end of the last whole pass: a pass cut short by a stop request is
+    // dropped, and its time must not count against the samples kept (paths/s read up to
+    // 18 % low after Ctrl-C).
+    let mut seconds = 0.0;
     while s0 < opts.spp {
-        let s1 = (s0 + pass).min(opts.spp);
+        let s1 = s0.saturating_add(pass).min(opts.spp);
         // Tiles are handed out one at a time from a queue, dearest first (by the last
         // pass's times): a thread that finishes early takes the next tile, and the pass
         // ends with cheap tiles. Splitting the tiles evenly among the threads instead left
@@ -369,6 +373,7 @@ pub fn render(
         order.sort_by(|&a, &b| cost[b].total_cmp(&cost[a]).then(a.cmp(&b)));
         s0 = s1;
         let elapsed = start.elapsed().as_secs_f64();
+        seconds = elapsed;
         let out_of_time = opts.time_budget.is_some_and(|b| elapsed >= b);
         if out_of_time || cancel.load(Ordering::Relaxed) {
             break;
@@ -387,7 +392,11 @@ pub fn render(
     RenderOutput {
         image,
         spp,
-        seconds: start.elapsed().as_secs_f64(),
+        seconds: if spp == 0 {
+            start.elapsed().as_secs_f64()
+        } else {
+            seconds
+        },
         compile_seconds: 0.0,
         stats,
         work: work

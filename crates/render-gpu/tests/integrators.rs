@@ -869,6 +869,8 @@ fn hero_channels_are_uniform_for_any_spp() {
 /// A stop request is answered within the tiles being traced, not at the end of a pass
 /// (a pass of 1/16 of 100,000 spp took 14 s to answer Ctrl-C): the unfinished pass is
 /// dropped, so the image holds whole passes only and equals a render of that many spp.
+/// Its time is dropped too: the render's seconds end with the last whole pass, before the
+/// dropped pass's first tile finished (they included it, so paths/s read up to 18 % low).
 #[test]
 fn a_stop_request_ends_the_render_within_a_pass() {
     use std::sync::atomic::Ordering;
@@ -886,6 +888,8 @@ fn a_stop_request_ends_the_render_within_a_pass() {
         .num_threads(2)
         .build()
         .unwrap();
+    let before = std::time::Instant::now();
+    let stopped_at = std::sync::OnceLock::new();
     let out = pool.install(|| {
         render(
             &s,
@@ -897,6 +901,7 @@ fn a_stop_request_ends_the_render_within_a_pass() {
             },
             &|done, _| {
                 if done > 2 * 100 * pixels {
+                    stopped_at.get_or_init(|| before.elapsed().as_secs_f64());
                     stop.store(true, Ordering::Relaxed);
                 }
             },
@@ -905,6 +910,12 @@ fn a_stop_request_ends_the_render_within_a_pass() {
     });
     // Passes of 1,600 / 16 = 100 spp: the third is dropped, two remain.
     assert_eq!(out.spp, 200);
+    let stopped_at = *stopped_at.get().expect("the third pass began");
+    assert!(
+        out.seconds > 0.0 && out.seconds <= stopped_at,
+        "{} s recorded, the dropped pass's first tile done at {stopped_at} s",
+        out.seconds
+    );
     let whole = render_quiet(&s, &set, 200, 3);
     assert_eq!(out.image.pixels, whole.image.pixels);
     // A request before the start: nothing rendered.

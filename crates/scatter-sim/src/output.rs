@@ -239,8 +239,18 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> io::Result<()> {
 /// Writes several files as one output: every temporary is written first and only then
 /// are they renamed into place, so a failure while writing (a full disk, a path that is a
 /// directory) leaves the previous set untouched instead of a new image beside an old
-/// report. The error names the file it concerns.
+/// report. A rename that fails (a file another user owns in a sticky folder such as /tmp,
+/// an immutable file) puts back the files of the set already renamed: their predecessors
+/// are kept as hard links until the set is in place. The error names the file it concerns.
 pub fn write_atomic_set(files: &[(&Path, &[u8])]) -> Result<(), (PathBuf, io::Error)> {
+    write_set_with(files, Finished::persist)
+}
+
+/// [`write_atomic_set`] with the rename given, so that tests can make one fail.
+fn write_set_with(
+    files: &[(&Path, &[u8])],
+    mut persist: impl FnMut(Finished) -> io::Result<()>,
+) -> Result<(), (PathBuf, io::Error)> {
     let mut ready = Vec::with_capacity(files.len());
     for &(path, bytes) in files {
         let fail = |e| (path.to_path_buf(), e);
@@ -250,16 +260,109 @@ pub fn write_atomic_set(files: &[(&Path, &[u8])]) -> Result<(), (PathBuf, io::Er
         // before any file of the set has replaced its predecessor.
         ready.push(f.finish().map_err(fail)?);
     }
+    let mut placed: Vec<(PathBuf, Option<Previous>)> = Vec::with_capacity(ready.len());
     for f in ready {
         let path = f.path.clone();
-        f.persist().map_err(|e| (path, e))?;
+        let previous = Previous::keep(&path);
+        if let Err(e) = persist(f) {
+            // Newest first, so each file gets back what it held before this call.
+            for (done, previous) in placed.into_iter().rev() {
+                match previous {
+                    Some(p) => {
+                        let _ = p.restore(&done);
+                    }
+                    None => {
+                        let _ = fs::remove_file(&done);
+                    }
+                }
+            }
+            return Err((path, e));
+        }
+        placed.push((path, previous));
     }
     Ok(())
+}
+
+/// A hard link to the file an output replaces, removed when dropped: the set's renames can
+/// then be undone. None where there was nothing, or where the link cannot be made (a
+/// file system without hard links, another user's file under protected_hardlinks): that
+/// file's replacement then cannot be undone, as before.
+struct Previous {
+    link: tempfile::TempPath,
+    _live: Live,
+}
+
+impl Previous {
+    fn keep(path: &Path) -> Option<Self> {
+        fs::symlink_metadata(path).ok()?;
+        let dir = match path.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p,
+            _ => Path::new("."),
+        };
+        let name = path.file_name()?.to_string_lossy().into_owned();
+        let link = tempfile::Builder::new()
+            .prefix(&format!(".{name}."))
+            .suffix(".previous")
+            .make_in(dir, |p| fs::hard_link(path, p))
+            .ok()?
+            .into_temp_path();
+        let live = Live::new(&link);
+        Some(Self { link, _live: live })
+    }
+
+    fn restore(self, path: &Path) -> io::Result<()> {
+        self.link.persist(path).map_err(|e| e.error)
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A rename that fails part way through a set puts back what the set's earlier renames
+    /// replaced: an old file its old bytes, a new name nothing. Nothing else is left in
+    /// the folder (no temporaries, no kept predecessors), and a set that succeeds leaves
+    /// only its files.
+    #[test]
+    fn a_failed_rename_puts_the_set_back() {
+        let d = tempfile::tempdir().unwrap();
+        let (a, b, c) = (d.path().join("a"), d.path().join("b"), d.path().join("c"));
+        fs::write(&a, b"old a").unwrap();
+        fs::write(&c, b"old c").unwrap();
+        let set: [(&Path, &[u8]); 3] = [(&a, b"new a"), (&b, b"new b"), (&c, b"new c")];
+        let names = || {
+            let mut v: Vec<String> = fs::read_dir(d.path())
+                .unwrap()
+                .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+                .collect();
+            v.sort();
+            v
+        };
+        for fail_at in 0..3 {
+            let mut k = 0;
+            let (path, e) = write_set_with(&set, |f| {
+                k += 1;
+                if k == fail_at + 1 {
+                    return Err(io::Error::new(io::ErrorKind::PermissionDenied, "refused"));
+                }
+                f.persist()
+            })
+            .unwrap_err();
+            assert_eq!(
+                (path.as_path(), e.kind()),
+                (set[fail_at].0, io::ErrorKind::PermissionDenied)
+            );
+            assert_eq!(fs::read(&a).unwrap(), b"old a", "failed at {fail_at}");
+            assert!(!b.exists(), "failed at {fail_at}");
+            assert_eq!(fs::read(&c).unwrap(), b"old c", "failed at {fail_at}");
+            assert_eq!(names(), ["a", "c"], "failed at {fail_at}");
+        }
+        write_atomic_set(&set).unwrap();
+        for (p, bytes) in set {
+            assert_eq!(fs::read(p).unwrap(), bytes);
+        }
+        assert_eq!(names(), ["a", "b", "c"]);
+    }
 
     /// Outputs never replace what is not a regular file or a link: a FIFO stays a FIFO (as
     /// root a device node would have become a file); a link, dangling or not, is replaced
