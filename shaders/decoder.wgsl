@@ -25,7 +25,8 @@ fn fill_normals(n: u32) {
     }
 }
 
-// ---- features (feature version 2, crates/cvae/src/features.rs) ----
+// ---- features (feature versions 2 and 3, crates/cvae/src/features.rs; model.flags.z
+// says which radial map EventGen's X uses) ----
 
 fn tau_feature(tau: f32) -> f32 {
     return log(1.0 + max(tau, 0.0));
@@ -160,13 +161,12 @@ fn sample_event(wf: WalkFeatures, channel: u32, lam: f32, e: Exit, mirror: bool)
     let big = length(x);
     if !is_finite(big) {
         x = vec3<f32>(0.0);
+    } else if model.flags.z != 0u {
+        // Feature version 3: |X|² = 1 − exp(−u²/2) (cvae::features::EventRadial); ρ/u →
+        // 1/√2 at the centre, as on the CPU.
+        x *= select(0.70710678, sqrt(-expm1(-0.5 * big * big)) / big, big > 1e-12);
     } else if big > 1e-12 {
-        if model.flags.z != 0u {
-            // Feature version 3: |X|² = 1 − exp(−u²/2) (cvae::features::EventRadial).
-            x *= sqrt(-expm1(-0.5 * big * big)) / big;
-        } else {
-            x *= tanh(big) / big;
-        }
+        x *= tanh(big) / big;
     }
     if dot(x, x) > 1.0 {
         x = normalize(x);
