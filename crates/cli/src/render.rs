@@ -98,8 +98,9 @@ struct Report<'a> {
     mean_sphere_steps_per_path: f64,
     min_tau: f64,
     max_tau: Option<f64>,
-    /// Sphere steps below this optical radius simulate their walk exactly.
-    exact_tau: f64,
+    /// Sphere steps below this optical radius simulate their walk exactly; null when all
+    /// do (g above render_gpu::scene::MODEL_MAX_G).
+    exact_tau: Option<f64>,
     /// NEE events per model-drawn and per exactly simulated sphere step.
     nee_samples: u32,
     exact_nee_samples: u32,
@@ -125,6 +126,12 @@ pub struct Prepared {
 }
 
 impl Prepared {
+    /// Whether ST-CVAE may draw sphere steps from the models in this medium: not above
+    /// [`render_gpu::scene::MODEL_MAX_G`], where they were measured biased.
+    pub fn models_trusted(&self) -> bool {
+        self.file.medium.g <= render_gpu::scene::MODEL_MAX_G
+    }
+
     /// The integrator settings of this scene (its `[render]` table, with the overrides
     /// `prepare` applied, the defaults and the model's τ limit); the same on every device.
     pub fn settings(&self) -> IntegratorSettings<'_> {
@@ -135,7 +142,11 @@ impl Prepared {
             model: self.model.as_ref(),
             min_tau: r.min_tau_or_default() as f32,
             max_tau: self.max_tau,
-            exact_tau: r.exact_tau_or_default() as f32,
+            exact_tau: if self.models_trusted() {
+                r.exact_tau_or_default() as f32
+            } else {
+                f32::INFINITY
+            },
             nee_samples: r.nee_samples,
             exact_nee_samples: r.exact_nee_samples,
             path_nee_rays: r.path_nee_rays,
@@ -352,6 +363,15 @@ pub fn run(a: Args) -> Result<()> {
         eprintln!("note: --model is not used: the PT integrator needs no model");
     }
     warn_outside_training(&p, &a.scene);
+    if p.model.is_some() && !p.models_trusted() {
+        eprintln!(
+            "note: medium.g = {} is above {}, where the models' sphere steps were measured \
+             biased: every step's walk is simulated exactly (the same image as PT's, at \
+             about its cost)",
+            p.file.medium.g,
+            render_gpu::scene::MODEL_MAX_G
+        );
+    }
     note_unreachable_lights(&p);
     let inputs = render_inputs(&a, &p);
     for ext in ["exr", "png", "json"] {
@@ -427,7 +447,7 @@ pub fn run(a: Args) -> Result<()> {
         mean_sphere_steps_per_path: out.stats.steps as f64 / paths,
         min_tau: set.min_tau as f64,
         max_tau: p.model.as_ref().map(|_| p.max_tau as f64),
-        exact_tau: set.exact_tau as f64,
+        exact_tau: set.exact_tau.is_finite().then_some(set.exact_tau as f64),
         nee_samples: set.nee_samples,
         exact_nee_samples: set.exact_nee_samples,
         path_nee_rays: set.path_nee_rays,

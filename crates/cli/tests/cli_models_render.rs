@@ -676,6 +676,51 @@ fn max_tau_is_checked_against_the_training_range() {
     }
 }
 
+/// Above render_gpu::scene::MODEL_MAX_G (0.98) ST-CVAE takes no step from the models, where
+/// they were measured biased: every sphere step's walk is simulated, even with
+/// exact_tau = 0 (the models alone), the JSON's exact_tau is null and a note says why. At
+/// 0.98 the models still draw the steps.
+#[test]
+fn strongly_forward_media_take_no_model_steps() {
+    let d = tempfile::tempdir().unwrap();
+    let scene = d.path().join("s.toml");
+    let out = d.path().join("r");
+    for (g, trusted) in [("0.98", true), ("0.99", false)] {
+        let text = sphere_scene_text(8)
+            .replace("g = 0.4", &format!("g = {g}"))
+            .replace("[render]\n", "[render]\nexact_tau = 0.0\n");
+        assert!(
+            text.contains(&format!("g = {g}")),
+            "the sphere scene's g changed"
+        );
+        std::fs::write(&scene, text).unwrap();
+        let err = ok(&render_scene(
+            &scene,
+            "stcvae",
+            "3",
+            "1",
+            &out,
+            &["--device", "cpu"],
+        ));
+        let json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.with_extension("json")).unwrap())
+                .unwrap();
+        let (steps, exact) = (
+            json["stats"]["steps"].as_u64().unwrap(),
+            json["stats"]["exact_steps"].as_u64().unwrap(),
+        );
+        assert!(steps > 0, "g {g}: {json}");
+        assert_eq!(
+            exact == steps,
+            !trusted,
+            "g {g}: {steps} steps, {exact} exact"
+        );
+        assert_eq!(exact == 0, trusted, "g {g}: {steps} steps, {exact} exact");
+        assert_eq!(json["exact_tau"].is_null(), !trusted, "g {g}: {json}");
+        assert_eq!(err.contains("simulated exactly"), !trusted, "g {g}: {err}");
+    }
+}
+
 /// `stcvae render` of the sphere scene with PT at 2 spp on `device`, writing `out`.{exr,png,json}.
 fn sphere_pt_render(device: &str, out: &Path) -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_stcvae"));

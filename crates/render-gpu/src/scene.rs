@@ -310,6 +310,14 @@ pub const DEFAULT_MIN_TAU: f64 = 1.0;
 /// RMSE is 0 (95 % bound 0.0100; 8: 0.0038, bound 0.0149). On lavapipe the kernels' scalar
 /// walks make 20 ~3 % slower than 8.
 pub const DEFAULT_EXACT_TAU: f64 = 20.0;
+/// Largest g at which ST-CVAE draws sphere steps from the models; above it every step's
+/// walk is simulated exactly. The shipped models were trained for g up to 0.999, but their
+/// steps were measured biased against PT at g ≥ 0.99 (thirty-ninth session, NEE off, σ_t
+/// 600, radius 0.5: −11 % at g = 0.99, +34–69 % at 0.999; +1.3 % at 0.95, within noise;
+/// docs/BENCHMARKS.md). The exact walks cost little there: a ball of optical radius τ
+/// holds ~(1 − g)τ²/2 events, ≤ 900 at g ≥ 0.98 and τ ≤ 300. Strongly backward media
+/// (g → −1) were measured right and keep the models (their exact walks would be long).
+pub const MODEL_MAX_G: f64 = 0.98;
 /// Largest exact-walk threshold accepted: a walk in a ball of optical radius τ has
 /// ~(1 − g)τ²/2 events, and beyond this the models are far cheaper.
 pub const MAX_EXACT_TAU: f64 = 50.0;
