@@ -312,9 +312,10 @@ pub const DEFAULT_MIN_TAU: f64 = 1.0;
 pub const DEFAULT_EXACT_TAU: f64 = 20.0;
 /// Largest g at which ST-CVAE draws sphere steps from the models; above it every step's
 /// walk is simulated exactly. The shipped models were trained for g up to 0.999, but their
-/// steps were measured biased against PT at g ≥ 0.99 (thirty-ninth session, NEE off, σ_t
-/// 600, radius 0.5: −11 % at g = 0.99, +34–69 % at 0.999; +1.3 % at 0.95, within noise;
-/// docs/BENCHMARKS.md). The exact walks cost little there: a ball of optical radius τ
+/// steps were measured biased against PT beyond 0.98 (thirty-ninth session, NEE off, σ_t
+/// 600, radius 0.5, 8 seeds of 128 spp each; docs/BENCHMARKS.md): within 1–3.5 % and
+/// |z| < 3 at g = 0.95–0.98, then −6 % (z −4.5) at 0.985, −11 % at 0.99 and +34–69 % at
+/// 0.999. The exact walks cost little there: a ball of optical radius τ
 /// holds ~(1 − g)τ²/2 events, ≤ 900 at g ≥ 0.98 and τ ≤ 300. Strongly backward media
 /// (g → −1) were measured right and keep the models (their exact walks would be long).
 pub const MODEL_MAX_G: f64 = 0.98;
