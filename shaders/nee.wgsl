@@ -85,11 +85,24 @@ struct LightRay {
 fn nee_light_ray(i: u32, x: vec3<f32>, w: vec3<f32>, free: f32, c: vec3<f32>, f: f32, channel: u32, rouletted: bool) -> LightRay {
     let u1 = rand();
     let u2 = rand();
-    let ls = light_sample(i, u1, u2, channel);
+    let g = params.consts.x;
+    var ls = light_sample(i, u1, u2, channel);
+    let share = light_phase_share(i, g);
+    if share > 0.0 {
+        // nee.rs, light_sample: a third uniform picks the strategy of the mixture; either
+        // direction is weighed by L over the mixture's density.
+        if rand() < share {
+            let c = hg_sample_cos(g, u1);
+            let phi = TWO_PI * u2;
+            ls.dir = normalize(deflect(w, c, vec2<f32>(cos(phi), sin(phi))));
+        }
+        let density = share * hg_pdf(g, clamp(dot(w, ls.dir), -1.0, 1.0))
+            + (1.0 - share) / (TWO_PI * params.lights[i].to_light.w);
+        ls.factor = light_radiance_toward(i, ls.dir, channel) * params.consts4.x / density;
+    }
     if ls.factor <= 0.0 {
         return LightRay(ls.dir, 0.0, false);
     }
-    let g = params.consts.x;
     let threshold = ROULETTE_BOUND * INV_4PI;
     let phase = hg_pdf(g, clamp(dot(w, ls.dir), -1.0, 1.0));
     var weight = ls.factor * phase;
@@ -122,7 +135,7 @@ fn path_nee_reset() {
 }
 
 /// nee::proxy: Σ_l E_l · ρ_g(W·ω_l) · exp(−σ_t·free(ω_l)) with the light's central
-/// direction, free(ω_l) = max(`free`, the chord through the free ball (`c`, `f`)): the bound
+/// direction (or the disk's where ρ_g is largest, for a disk wider than its lobe), free(ω_l) = max(`free`, the chord through the free ball (`c`, `f`)): the bound
 /// nee_direct's roulette uses.
 fn nee_proxy(x: vec3<f32>, w: vec3<f32>, free: f32, c: vec3<f32>, f: f32, channel: u32) -> f32 {
     let g = params.consts.x;
@@ -131,7 +144,12 @@ fn nee_proxy(x: vec3<f32>, w: vec3<f32>, free: f32, c: vec3<f32>, f: f32, channe
     for (var i = 0u; i < params.flags.x; i++) {
         let l = params.lights[i];
         let wl = l.to_light.xyz;
-        let phase = hg_pdf(g, clamp(dot(w, wl), -1.0, 1.0));
+        // nee::proxy: the phase function's largest value over a disk wider than its lobe.
+        var cos_l = clamp(dot(w, wl), -1.0, 1.0);
+        if light_phase_share(i, g) > 0.0 {
+            cos_l = light_extreme_cos(i, w, g);
+        }
+        let phase = hg_pdf(g, cos_l);
         q += l.irradiance[channel] * phase * exp(-sigma * max(free, ball_chord(x, wl, c, f)));
     }
     return q;

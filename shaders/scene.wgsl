@@ -703,6 +703,24 @@ fn light_sample(i: u32, u1: f32, u2: f32, channel: u32) -> LightSample {
     return LightSample(dir, l.radiance[channel] * solid_angle * scale);
 }
 
+/// light.rs, DirectionalLight::phase_share: the share of NEE's directions drawn from the
+/// phase function where its lobe is narrower than the disk (0 for a delta light).
+fn light_phase_share(i: u32, g: f32) -> f32 {
+    let one_minus_g = 1.0 - abs(g);
+    let lobe = PI * one_minus_g * one_minus_g;
+    return select(0.0, 0.5, TWO_PI * params.lights[i].to_light.w > lobe);
+}
+
+/// light.rs, DirectionalLight::extreme_cos: the cosine with `w` of the disk's direction
+/// where the phase function of `g` is largest.
+fn light_extreme_cos(i: u32, w: vec3<f32>, g: f32) -> f32 {
+    let l = params.lights[i];
+    let centre = acos(clamp(dot(w, l.to_light.xyz), -1.0, 1.0));
+    let radius = 2.0 * asin(sqrt(0.5 * l.to_light.w));
+    let angle = select(min(centre + radius, PI), max(centre - radius, 0.0), g >= 0.0);
+    return cos(angle);
+}
+
 fn light_radiance_toward(i: u32, dir: vec3<f32>, channel: u32) -> f32 {
     let l = params.lights[i];
     // light.rs, radiance_toward: in front and sin²θ = |dir × to_light|² ≤ sin²θ_max.

@@ -83,6 +83,69 @@ impl DirectionalLight {
         (dir, self.radiance[channel] * solid_angle)
     }
 
+    /// Solid angle of the disk (0 for a delta light).
+    pub fn solid_angle(&self) -> f32 {
+        2.0 * PI * self.one_minus_cos
+    }
+
+    /// The share of NEE's directions toward this light drawn from the phase function
+    /// around the scattering direction instead of uniformly in the disk (one-sample
+    /// mixture; the estimate divides by the mixture's density, so it stays unbiased).
+    /// Where the phase lobe (~π(1 − |g|)² sr) is narrower than the disk, the disk's
+    /// uniform samples find it rarely and with huge weights (a physics review: renders of
+    /// 16,384 spp 5–18 % off at |g| = 0.999 under a 30° disk); phase samples then carry
+    /// it. Elsewhere 0, so the common scenes (the sun under |g| ≤ 0.99) draw exactly
+    /// what they did.
+    pub fn phase_share(&self, g: f32) -> f32 {
+        let lobe = PI * (1.0 - g.abs()).powi(2);
+        if self.solid_angle() > lobe { 0.5 } else { 0.0 }
+    }
+
+    /// NEE's direction toward this light from an event scattering along `w` in a medium
+    /// of phase function `g`, and its factor (see [`Self::sample`]): [`Self::sample`]'s
+    /// where [`Self::phase_share`] is 0; else the mixture, whose third uniform `u0` picks
+    /// the strategy, and either direction is weighed by L over the mixture's density.
+    pub fn sample_from(
+        &self,
+        w: Vec3,
+        g: f32,
+        (u1, u2): (f32, f32),
+        u0: impl FnOnce() -> f32,
+        channel: usize,
+    ) -> (Vec3, f32) {
+        let share = self.phase_share(g);
+        if share <= 0.0 {
+            return self.sample(u1, u2, channel);
+        }
+        let dir = if u0() < share {
+            let cos = scatter_sim::phase::hg_sample_cos(g as f64, u1 as f64) as f32;
+            let sin = (1.0 - cos * cos).max(0.0).sqrt();
+            let phi = 2.0 * PI * u2;
+            let (t, b) = basis(w);
+            (t * (sin * phi.cos()) + b * (sin * phi.sin()) + w * cos).normalize()
+        } else {
+            self.sample(u1, u2, channel).0
+        };
+        let phase = scatter_sim::phase::hg_pdf(g as f64, w.dot(dir).clamp(-1.0, 1.0) as f64) as f32;
+        let density = share * phase + (1.0 - share) / self.solid_angle();
+        (dir, self.radiance_toward(dir, channel) / density)
+    }
+
+    /// The cosine, with the direction `w`, of the disk's direction that maximises the HG
+    /// phase function of `g` (the nearest to `w` for g ≥ 0, the farthest for g < 0): the
+    /// phase function's largest value over the disk, for a proxy that bounds NEE's
+    /// estimate over the whole disk.
+    pub fn extreme_cos(&self, w: Vec3, g: f32) -> f32 {
+        let centre = w.dot(self.to_light).clamp(-1.0, 1.0).acos();
+        let radius = 2.0 * (0.5 * self.one_minus_cos).sqrt().asin();
+        let angle = if g >= 0.0 {
+            (centre - radius).max(0.0)
+        } else {
+            (centre + radius).min(PI)
+        };
+        angle.cos()
+    }
+
     /// Radiance seen along `dir` (the disk; a delta light cannot be seen).
     pub fn radiance_toward(&self, dir: Vec3, channel: usize) -> f32 {
         // θ ≤ θ_max ≤ 45° (the diameter is at most 90°): in front, and sin²θ ≤ sin²θ_max.
@@ -205,6 +268,97 @@ mod tests {
         assert_eq!(at(-0.01, -1.0), 0.0, "−z from the other side: column 15");
         assert_eq!(env.lookup(Vec3::new(0.01, 1.0, -0.01).normalize(), 0), 5.0);
         assert_eq!(env.lookup(Vec3::new(0.01, -1.0, -0.01).normalize(), 0), 6.0);
+    }
+
+    /// NEE's mixture (`sample_from`) estimates ∫_disk L ρ_g(w·ω) dω without bias, with
+    /// bounded weights where the phase lobe is narrower than the disk. Concentric cases
+    /// have closed forms through HG's cosine CDF: w = ω_c (the disk's centre) gives
+    /// L·(1 − F(cos θ_max)) and w = −ω_c gives L·F(−cos θ_max), for g = ±0.999 and 0.99
+    /// under a 30° disk (the lobe on the disk or away from it; a g < 0 lobe points
+    /// against w). An off-centre case (g 0.9, 60° disk, w 20° off the centre) is
+    /// compared with the disk's uniform draws, whose weights are moderate there. 10⁶ draws
+    /// each; |z| < 4.5 over the 7 comparisons (a false alarm ~1e-4). Where the lobe is on
+    /// the disk, the mixture's weights are at most 2L (relative sd < 2); the uniform draws'
+    /// relative sd is ~√(Ω·ρ_peak) ≈ 190 at g = 0.999, which is what made such renders
+    /// converge so slowly. Where the disk is narrower than the lobe (the sun at g = 0.9)
+    /// the draws are `sample`'s, bit for bit.
+    #[test]
+    fn nee_mixture_is_unbiased_and_tames_narrow_lobes() {
+        use scatter_sim::phase::{hg_cos_cdf, hg_pdf};
+        let light = |diameter: f64| {
+            DirectionalLight::new(&LightDesc {
+                kind: crate::scene::LightKind::Directional,
+                direction: [0.3, -1.0, -0.2],
+                irradiance: [2.0, 1.0, 0.5],
+                angular_diameter_deg: diameter,
+            })
+        };
+        let mut rng = scatter_sim::WalkRng::from_seed(17);
+        let mut u = move || crate::integrator::uniform(&mut rng);
+        // Mean, standard error and relative sd of the NEE estimate factor · ρ_g.
+        let mut estimate = |l: &DirectionalLight, w: Vec3, g: f32, mixture: bool| {
+            let n = 1_000_000;
+            let (mut s, mut s2) = (0f64, 0f64);
+            for _ in 0..n {
+                let (u1, u2) = (u(), u());
+                let (dir, factor) = if mixture {
+                    l.sample_from(w, g, (u1, u2), &mut u, 0)
+                } else {
+                    l.sample(u1, u2, 0)
+                };
+                let f = factor as f64 * hg_pdf(g as f64, w.dot(dir).clamp(-1.0, 1.0) as f64);
+                s += f;
+                s2 += f * f;
+            }
+            let mean = s / n as f64;
+            let var = (s2 / n as f64 - mean * mean).max(0.0);
+            (mean, (var / n as f64).sqrt(), var.sqrt() / mean)
+        };
+        let disk = light(30.0);
+        let cos_max = (15.0f64).to_radians().cos();
+        let radiance = disk.radiance[0] as f64;
+        for g in [0.999f32, -0.999, 0.99] {
+            assert_eq!(disk.phase_share(g), 0.5);
+            // The lobe on the disk: along w for g > 0, against it for g < 0.
+            let toward = if g > 0.0 {
+                disk.to_light
+            } else {
+                -disk.to_light
+            };
+            for (w, expect) in [
+                (disk.to_light, radiance * (1.0 - hg_cos_cdf(g as f64, cos_max))),
+                (-disk.to_light, radiance * hg_cos_cdf(g as f64, -cos_max)),
+            ] {
+                let (mean, se, rel) = estimate(&disk, w, g, true);
+                let z = (mean - expect) / se;
+                assert!(
+                    z.abs() < 4.5,
+                    "g {g}, w {w}: {mean} ± {se} against {expect}"
+                );
+                if w == toward {
+                    assert!(rel < 2.0, "g {g}: relative sd {rel}");
+                }
+            }
+        }
+        let (_, _, rel) = estimate(&disk, disk.to_light, 0.999, false);
+        assert!(rel > 20.0, "the disk's uniform draws: relative sd {rel}");
+        // Off the centre, against the uniform draws.
+        let wide = light(60.0);
+        let (t, _) = basis(wide.to_light);
+        let off =
+            (wide.to_light * 20f32.to_radians().cos() + t * 20f32.to_radians().sin()).normalize();
+        let (a, sa, _) = estimate(&wide, off, 0.9, true);
+        let (b, sb, _) = estimate(&wide, off, 0.9, false);
+        let z = (a - b) / (sa * sa + sb * sb).sqrt();
+        assert!(z.abs() < 4.5, "mixture {a} ± {sa}, uniform {b} ± {sb}");
+        // The sun under g = 0.9: no mixture, the same draw as `sample`.
+        let sun = light(0.53);
+        assert_eq!(sun.phase_share(0.9), 0.0);
+        let w = Vec3::new(0.0, 1.0, 0.0);
+        assert_eq!(
+            sun.sample_from(w, 0.9, (0.3, 0.7), || unreachable!(), 1),
+            sun.sample(0.3, 0.7, 1)
+        );
     }
 
     /// A sun disk's irradiance on a plane facing it is the scene's E: ∫ L cos θ dω over the

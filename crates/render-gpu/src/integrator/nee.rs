@@ -73,13 +73,23 @@ pub fn direct(
 
 /// A positive proxy of [`direct`]'s value at an event (X, W) whose shadow ray along ω_l
 /// crosses at least `free(ω_l)` of medium: Σ_l E_l · ρ_g(W·ω_l) · exp(−σ_t·free(ω_l)),
-/// the bound its roulette uses (with the light's central direction for a sun disk).
+/// the bound its roulette uses (with the light's central direction for a sun disk; where
+/// the phase lobe is narrower than the disk, with the phase function's largest value over
+/// it, [`crate::light::DirectionalLight::extreme_cos`]).
 pub fn proxy(scene: &SceneData, w: Vec3, free: impl Fn(Vec3) -> f32, channel: usize) -> f32 {
     let sigma = scene.sigma_t[channel];
     let mut q = 0.0;
     for light in &scene.lights {
         let wl = light.to_light;
-        let phase = hg_pdf(scene.g as f64, w.dot(wl).clamp(-1.0, 1.0) as f64) as f32;
+        // Where the lobe is narrower than the disk, the phase function's largest value
+        // over the disk: its centre's would nearly vanish for an event whose lobe points
+        // at the disk's edge, and that event's NEE would come with a huge weight.
+        let cos = if light.phase_share(scene.g) > 0.0 {
+            light.extreme_cos(w, scene.g)
+        } else {
+            w.dot(wl).clamp(-1.0, 1.0)
+        };
+        let phase = hg_pdf(scene.g as f64, cos as f64) as f32;
         q += light.irradiance[channel] * phase * (-sigma * free(wl)).exp();
     }
     q
@@ -113,7 +123,8 @@ fn light_sample(
     channel: usize,
     rng: &mut WalkRng,
 ) -> Option<(Vec3, f32, f32)> {
-    let (wl, factor) = light.sample(uniform(rng), uniform(rng), channel);
+    let (u1, u2) = (uniform(rng), uniform(rng));
+    let (wl, factor) = light.sample_from(w, scene.g, (u1, u2), || uniform(rng), channel);
     let factor = factor * scene.boundary.nee_scale();
     (factor > 0.0).then(|| {
         let phase = hg_pdf(scene.g as f64, w.dot(wl).clamp(-1.0, 1.0) as f64) as f32;
