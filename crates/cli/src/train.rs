@@ -120,6 +120,20 @@ fn load(path: &Path) -> Result<TrainConfig> {
     let text = std::fs::read_to_string(path)
         .with_context(|| format!("cannot read training config {}", path.display()))?;
     let cfg: TrainConfig = parse_toml(path, &text)?;
+    // An empty path is the current directory (nine checkpoint files landed there) or no
+    // file at all ("error: : No such file or directory" after the dataset was made).
+    let paths = [
+        ("dataset", Some(&cfg.dataset)),
+        ("dataset_config", cfg.dataset_config.as_ref()),
+        ("out", Some(&cfg.out)),
+        ("checkpoint_dir", Some(&cfg.checkpoint_dir)),
+    ];
+    if let Some((field, _)) = paths
+        .iter()
+        .find(|(_, p)| p.is_some_and(|p| p.as_os_str().is_empty()))
+    {
+        bail!("{}: {field} = \"\" names no path", path.display());
+    }
     for k in ModelKind::ALL {
         cfg.model(k)
             .validate(k.name())

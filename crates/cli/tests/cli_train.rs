@@ -195,6 +195,35 @@ fn a_fixed_condition_warns_and_a_bad_checkpoint_dir_fails_first() {
         "{}",
         stderr(&out)
     );
+    // An empty path names the field (checkpoint_dir = "" wrote into the working directory),
+    // and so do too many hidden layers (the GPU kernels unroll each one).
+    replace_in(
+        &dir.path().join("train.toml"),
+        "warmup = 31\n",
+        "warmup = 5\n",
+    );
+    replace_in(&dir.path().join("train.toml"), "afile/ck", "");
+    let out = train_eventgen(dir.path(), base.to_str().unwrap());
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    assert!(
+        err.contains("train.toml: checkpoint_dir = \"\" names no path"),
+        "{err}"
+    );
+    replace_in(
+        &dir.path().join("train.toml"),
+        "checkpoint_dir = \"\"",
+        "checkpoint_dir = \"ck\"",
+    );
+    replace_in(
+        &dir.path().join("train.toml"),
+        "hidden = [4, 4]",
+        "hidden = [4, 4, 4, 4, 4, 4, 4, 4, 4]",
+    );
+    let out = train_eventgen(dir.path(), base.to_str().unwrap());
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    assert!(err.contains("eventgen.hidden: 1..=8 layers"), "{err}");
 }
 
 #[test]

@@ -209,6 +209,10 @@ pub struct Decoder {
 
 /// Widest layer any shipped decoder may have (fixed-size stack buffers, no allocation).
 pub const MAX_WIDTH: usize = 64;
+/// Most hidden layers of a decoder. The paper's have 2–3 (the shipped ones too); the GPU
+/// kernels unroll every layer into straight-line WGSL, and a model file claiming 1,000
+/// layers took 31 s and 690 MB to compile on lavapipe (100,000 did not finish).
+pub const MAX_HIDDEN_LAYERS: usize = 8;
 
 impl Decoder {
     /// Raw network: input [standardised cond | z] → [mean | logvar] in standardised units.

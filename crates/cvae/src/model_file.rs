@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
-use crate::decoder::{Decoder, Dense, MAX_INPUT, MAX_WIDTH};
+use crate::decoder::{Decoder, Dense, MAX_HIDDEN_LAYERS, MAX_INPUT, MAX_WIDTH};
 use crate::features;
 
 pub const MAGIC: &[u8; 8] = b"STCVAEMD";
@@ -273,6 +273,13 @@ impl ModelSet {
                 return Err(invalid(format!(
                     "{}: {} conditions + {} latent inputs; at most {MAX_INPUT} in all",
                     spec.name, spec.cond, spec.latent
+                )));
+            }
+            if spec.hidden.len() > MAX_HIDDEN_LAYERS {
+                return Err(invalid(format!(
+                    "{}: {} hidden layers; at most {MAX_HIDDEN_LAYERS}",
+                    spec.name,
+                    spec.hidden.len()
                 )));
             }
             if widths.iter().any(|&w| w == 0 || w > MAX_WIDTH) {

@@ -115,16 +115,22 @@ fn damaged_files_are_rejected() {
     ));
 }
 
-/// Metadata whose sizes overflow (a hand-edited or foreign file with a valid checksum) is
-/// refused by name, not by an arithmetic overflow.
+/// Metadata whose sizes overflow (a hand-edited or foreign file with a valid checksum) or
+/// whose decoders are deeper than any kernel should unroll is refused by name, not by an
+/// arithmetic overflow or a compile that never ends.
 #[test]
 fn overflowing_metadata_is_refused() {
     let bytes = random_models(4, 1.0).to_bytes();
     let json_len = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
     let weights = &bytes[16 + json_len..bytes.len() - 4];
     type Edit = (fn(&mut serde_json::Value), &'static str);
-    let edits: [Edit; 3] = [
+    let edits: [Edit; 4] = [
         (|m| m["decoders"][0]["latent"] = u64::MAX.into(), "inputs"),
+        // Deep decoders are unrolled into the GPU kernels: 1,000 layers compiled for 31 s.
+        (
+            |m| m["decoders"][0]["hidden"] = serde_json::json!([1; 1000]),
+            "1000 hidden layers; at most 8",
+        ),
         (
             |m| m["decoders"][1]["hidden"] = serde_json::json!([1u64 << 32, 1u64 << 32]),
             "layer widths",

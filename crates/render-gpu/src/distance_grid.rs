@@ -211,7 +211,7 @@ impl DistanceGrid {
         let key = cache_key(geo, resolution);
         let path = cache_file(&format!("grid-{key:016x}-{resolution}"));
         if let Some(p) = &path
-            && let Some(g) = Self::read(p)
+            && let Some(g) = Self::read(p, geo.tris.len())
         {
             return g;
         }
@@ -251,8 +251,11 @@ impl DistanceGrid {
         scatter_sim::output::write_atomic(path, &bytes)
     }
 
-    /// Reads a cached grid; anything unexpected means "rebuild" (None).
-    fn read(path: &Path) -> Option<Self> {
+    /// Reads a cached grid of a mesh of `triangles` triangles; anything unexpected means
+    /// "rebuild" (None). A file with a valid checksum is still checked for what would
+    /// break a render: a candidate beyond the mesh (an index out of bounds) or a cell size
+    /// or distance that is not finite and ≥ 0.
+    fn read(path: &Path, triangles: usize) -> Option<Self> {
         let b = std::fs::read(path).ok()?;
         if b.len() < 40 + 4 || &b[..8] != MAGIC {
             return None;
@@ -281,7 +284,12 @@ impl DistanceGrid {
         let ordered = cells[0][1] == 0
             && cells.windows(2).all(|w| w[0][1] <= w[1][1])
             && cells[n][1] == m as u32
-            && cells.iter().all(|c| f32::from_bits(c[0]).is_finite());
+            && cells
+                .iter()
+                .all(|c| f32::from_bits(c[0]) >= 0.0 && f32::from_bits(c[0]).is_finite())
+            && candidates.iter().all(|&t| (t as usize) < triangles)
+            && (0..4).all(|i| f(i).is_finite())
+            && f(3) > 0.0;
         if !ordered {
             return None;
         }
@@ -374,7 +382,34 @@ pub(crate) fn cache_dir() -> Option<PathBuf> {
 
 #[cfg(test)]
 mod tests {
-    use super::{CODE, prune_stale};
+    use super::{CODE, DistanceGrid, prune_stale};
+
+    /// A cached grid with a valid checksum is still refused (rebuilt) where its contents
+    /// would break a render: a candidate index beyond the mesh (it panicked with an index
+    /// out of bounds) or a negative distance. The file as written reads back as it was.
+    #[test]
+    fn forged_cache_contents_are_rebuilt() {
+        let geo = crate::geometry::Geometry::new(crate::mesh::cube(1.0));
+        let grid = DistanceGrid::build(&geo, 8);
+        let d = tempfile::tempdir().unwrap();
+        let path = d.path().join("grid.bin");
+        grid.write(&path).unwrap();
+        let back = DistanceGrid::read(&path, geo.tris.len()).expect("its own file");
+        assert_eq!(
+            (back.cells, back.candidates),
+            (grid.cells.clone(), grid.candidates.clone())
+        );
+        let forge = |edit: &dyn Fn(&mut DistanceGrid)| {
+            let mut g = DistanceGrid::build(&geo, 8);
+            edit(&mut g);
+            g.write(&path).unwrap();
+            DistanceGrid::read(&path, geo.tris.len())
+        };
+        assert!(!grid.candidates.is_empty());
+        assert!(forge(&|g| g.candidates[0] = 1_000_000_000).is_none());
+        assert!(forge(&|g| g.cells[0][0] = (-1.0f32).to_bits()).is_none());
+        assert!(forge(&|g| g.cells[0][0] = f32::NAN.to_bits()).is_none());
+    }
 
     /// Writing this code's cache file of a stem removes that stem's files written by other
     /// code, and nothing else: not another mesh's or resolution's (one that only extends

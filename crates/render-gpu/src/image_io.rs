@@ -184,10 +184,20 @@ pub fn read_exr(path: &Path) -> std::result::Result<(RgbImage, Option<RenderTag>
         .required("G")
         .required("B")
         .collect_pixels(
-            |size: Vec2<usize>, _| RgbImage::new(size.width(), size.height()),
-            |img: &mut RgbImage, pos: Vec2<usize>, (r, g, b): (f32, f32, f32)| {
-                let w = img.width;
-                img.pixels[pos.y() * w + pos.x()] = [r, g, b];
+            // With each pixel, whether the file wrote it: exr fills in nothing for a
+            // block that a damaged offset table or a repeated block position skips, and
+            // such rows read as 0 (a merge took them for black pixels).
+            |size: Vec2<usize>, _| {
+                let img = RgbImage::new(size.width(), size.height());
+                let written = vec![false; img.pixels.len()];
+                (img, written)
+            },
+            |(img, written): &mut (RgbImage, Vec<bool>),
+             pos: Vec2<usize>,
+             (r, g, b): (f32, f32, f32)| {
+                let i = pos.y() * img.width + pos.x();
+                img.pixels[i] = [r, g, b];
+                written[i] = true;
             },
         )
         .first_valid_layer()
@@ -246,7 +256,15 @@ pub fn read_exr(path: &Path) -> std::result::Result<(RgbImage, Option<RenderTag>
             None => None,
         },
     };
-    Ok((image.layer_data.channel_data.pixels, tag))
+    let (pixels, written) = image.layer_data.channel_data.pixels;
+    if let Some(i) = written.iter().position(|&w| !w) {
+        return Err(RenderError::Image(format!(
+            "{}: damaged EXR: row {} holds no pixels (a block is missing)",
+            path.display(),
+            i / pixels.width.max(1)
+        )));
+    }
+    Ok((pixels, tag))
 }
 
 /// sRGB transfer function of a linear value in [0, 1].
@@ -475,6 +493,38 @@ mod tests {
             assert_eq!(back, img);
             assert_eq!(read.unwrap(), tag);
         }
+    }
+
+    /// A file whose second block claims the first block's rows (a damaged offset table or
+    /// block header) leaves rows unwritten: refused, naming the first of them, instead of
+    /// reading them as 0. 8 × 40 pixels in ZIP blocks of 16 rows: three blocks, whose
+    /// offsets follow the header (the table is where a u64 equals its own position + 24).
+    #[test]
+    fn an_exr_with_a_missing_block_is_refused() {
+        let mut img = RgbImage::new(8, 40);
+        for (i, p) in img.pixels.iter_mut().enumerate() {
+            *p = [1.0 + i as f32, 2.0, 3.0];
+        }
+        let tag = RenderTag {
+            spp: 3,
+            scene_hash: 1,
+            seeds: vec![1],
+        };
+        let bytes = encode_exr(&img, &tag).unwrap();
+        let u64_at = |p: usize| u64::from_le_bytes(bytes[p..p + 8].try_into().unwrap());
+        let table = (0..bytes.len() - 24)
+            .find(|&p| u64_at(p) == p as u64 + 24)
+            .expect("an offset table of three blocks");
+        let second = u64_at(table + 8) as usize;
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("a.exr");
+        std::fs::write(&path, &bytes).unwrap();
+        assert_eq!(read_exr(&path).unwrap().0, img);
+        let mut damaged = bytes.clone();
+        damaged[second..second + 4].copy_from_slice(&0i32.to_le_bytes());
+        std::fs::write(&path, &damaged).unwrap();
+        let e = read_exr(&path).unwrap_err().to_string();
+        assert!(e.contains("damaged EXR: row 16 holds no pixels"), "{e}");
     }
 
     /// A render with a NaN, infinite or negative pixel is refused by name and position, not

@@ -326,7 +326,10 @@ mod tests {
                 -disk.to_light
             };
             for (w, expect) in [
-                (disk.to_light, radiance * (1.0 - hg_cos_cdf(g as f64, cos_max))),
+                (
+                    disk.to_light,
+                    radiance * (1.0 - hg_cos_cdf(g as f64, cos_max)),
+                ),
                 (-disk.to_light, radiance * hg_cos_cdf(g as f64, -cos_max)),
             ] {
                 let (mean, se, rel) = estimate(&disk, w, g, true);

@@ -487,12 +487,28 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
                 // URIs are percent-encoded (RFC 3986): exporters write a space as %20.
                 let name = percent_encoding::percent_decode_str(uri).decode_utf8_lossy();
                 let p = dir.join(&*name);
-                std::fs::read(&p).map_err(|e| {
+                let cannot = |e: std::io::Error| {
                     RenderError::mesh(
                         path,
                         format!("its buffer {} cannot be read: {e}", p.display()),
                     )
-                })?
+                };
+                // Only what the buffer declares, from a regular file: a URI naming
+                // /dev/zero read until memory ran out.
+                let file = std::fs::File::open(&p).map_err(cannot)?;
+                if !file.metadata().map_err(cannot)?.is_file() {
+                    return Err(RenderError::mesh(
+                        path,
+                        format!("its buffer {} is not a regular file", p.display()),
+                    ));
+                }
+                let mut data = Vec::new();
+                std::io::Read::read_to_end(
+                    &mut std::io::Read::take(file, b.length() as u64),
+                    &mut data,
+                )
+                .map_err(cannot)?;
+                data
             }
         };
         if data.len() < b.length() {

@@ -103,6 +103,17 @@ fn plot(
     Ok(())
 }
 
+/// A density as file names write it: as typed where that is short (k0.5, k8), else in
+/// exponent form (a density of 1e-300 made a name of 300 digits, too long to write).
+fn k_name(k: f64) -> String {
+    let plain = k.to_string();
+    if plain.len() <= 12 {
+        plain
+    } else {
+        format!("{k:e}")
+    }
+}
+
 fn series(name: &str, points: Vec<(f64, f64)>) -> Series {
     Series {
         name: name.into(),
@@ -169,7 +180,7 @@ fn teaser(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         times.1.push((k, st.seconds));
         save(
             ctx,
-            &format!("pt_k{k}"),
+            &format!("pt_k{}", k_name(k)),
             &pt.mean,
             pt.spp,
             pt.hash,
@@ -177,7 +188,7 @@ fn teaser(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         )?;
         save(
             ctx,
-            &format!("stcvae_k{k}"),
+            &format!("stcvae_k{}", k_name(k)),
             &st.mean,
             st.spp,
             st.hash,
@@ -188,7 +199,7 @@ fn teaser(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             k,
             save(
                 ctx,
-                &format!("teaser_k{k}"),
+                &format!("teaser_k{}", k_name(k)),
                 &both,
                 pt.spp,
                 pt.hash,
@@ -273,7 +284,7 @@ fn quality(ctx: &Ctx, rep: &mut Report) -> Result<()> {
                 k,
                 save(
                     ctx,
-                    &format!("quality_{name}_k{k}"),
+                    &format!("quality_{name}_k{}", k_name(k)),
                     &all,
                     pt.spp,
                     pt.hash,
@@ -351,7 +362,7 @@ fn complexity(ctx: &Ctx, rep: &mut Report) -> Result<()> {
                     max,
                     save(
                         ctx,
-                        &format!("work_{obj}_k{k}"),
+                        &format!("work_{obj}_k{}", k_name(k)),
                         &maps,
                         pt.spp,
                         pt.hash,
@@ -587,4 +598,16 @@ fn fallback(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         (true, false),
         &[series("ST-CVAE", sp)],
     )
+}
+
+#[cfg(test)]
+mod tests {
+    /// The shipped configs' densities keep their names; extreme ones get short names.
+    #[test]
+    fn density_names_stay_short() {
+        for (k, name) in [(1.0, "1"), (8.0, "8"), (0.5, "0.5"), (1.0e-300, "1e-300")] {
+            assert_eq!(super::k_name(k), name);
+        }
+        assert!(super::k_name(1e300).len() <= 12);
+    }
 }

@@ -81,8 +81,21 @@ impl ModelConfig {
         if self.latent == 0 || self.latent > 16 {
             return bad("latent", "must be in 1..=16");
         }
-        if self.hidden.is_empty() || self.hidden.iter().any(|&h| h == 0 || h > 64) {
-            return bad("hidden", "one or more layers, each of width 1..=64");
+        if self.hidden.is_empty()
+            || self.hidden.len() > crate::decoder::MAX_HIDDEN_LAYERS
+            || self
+                .hidden
+                .iter()
+                .any(|&h| h == 0 || h > crate::decoder::MAX_WIDTH)
+        {
+            return bad(
+                "hidden",
+                &format!(
+                    "1..={} layers, each of width 1..={}",
+                    crate::decoder::MAX_HIDDEN_LAYERS,
+                    crate::decoder::MAX_WIDTH
+                ),
+            );
         }
         if let Some(e) = &self.encoder_hidden
             && (e.is_empty() || e.iter().any(|&h| h == 0 || h > 1024))
