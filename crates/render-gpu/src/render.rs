@@ -334,12 +334,22 @@ pub fn render(
                         tag: ((y - y0) * tw + (x - x0)) as u64,
                     })
                 };
-                trace_many(scene, set, next, |tag, channel, l, path| {
-                    let px = &mut out[tag as usize];
-                    px.0[channel] += 3.0 * l as f64;
-                    px.1 += path.events + path.steps;
-                    st.add(path);
-                });
+                let whole = trace_many(
+                    scene,
+                    set,
+                    next,
+                    |tag, channel, l, path| {
+                        let px = &mut out[tag as usize];
+                        px.0[channel] += 3.0 * l as f64;
+                        px.1 += path.events + path.steps;
+                        st.add(path);
+                    },
+                    cancel,
+                );
+                if !whole {
+                    // Stopped inside a long path: the tile is incomplete, so the pass is.
+                    break;
+                }
                 let n = ((x1 - x0) * (y1 - y0)) as u64 * (s1 - s0) as u64;
                 progress(done.fetch_add(n, Ordering::Relaxed) + n, total);
                 mine.push((t, out, st, t0.elapsed().as_secs_f64()));

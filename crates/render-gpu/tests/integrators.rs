@@ -933,6 +933,44 @@ fn a_stop_request_ends_the_render_within_a_pass() {
     assert_eq!(out.spp, 0);
 }
 
+/// A stop request is also answered inside one long path: in a cube 2·10⁵ across with
+/// σ_t = 1000, albedo 1 (τ ~ 10⁸), a PT path runs to the 5·10⁷-iteration cap, which took
+/// ~23 s and kept SIGTERM waiting. The request comes 0.3 s in, while the first pass's
+/// paths are running; it must drop that pass (0 spp). Without the in-path check the render
+/// finished its 3 spp (96 s on 2 cores, 10 of its 12 paths capped).
+#[test]
+fn a_stop_request_ends_a_long_path() {
+    use std::sync::atomic::Ordering;
+    let text = "[camera]\norigin = [0, 0, 600000.0]\ntarget = [0.0, 0.0, 0.0]\n\
+                fov_deg = 0.001\nwidth = 2\nheight = 2\n\
+                [object]\nshape = \"cube\"\nheight = 200000.0\n\
+                [medium]\nsigma_t = [1000.0, 1000.0, 1000.0]\nalbedo = [1.0, 1.0, 1.0]\ng = 0.0\n\
+                [boundary]\nkind = \"index-matched\"\n\
+                [environment]\nradiance = [0.05, 0.05, 0.05]\n\
+                [render]\nintegrator = \"pt\"\nspp = 3\n";
+    let (_, s) = scene(text, false);
+    let set = settings(IntegratorKind::Pt, false, None);
+    let stop = AtomicBool::new(false);
+    let out = std::thread::scope(|t| {
+        t.spawn(|| {
+            std::thread::sleep(std::time::Duration::from_millis(300));
+            stop.store(true, Ordering::Relaxed);
+        });
+        render(
+            &s,
+            &set,
+            &RenderOptions {
+                spp: 3,
+                seed: 1,
+                time_budget: None,
+            },
+            &|_, _| {},
+            &stop,
+        )
+    });
+    assert_eq!(out.spp, 0, "{:?}", out.stats);
+}
+
 /// A camera ray entering the medium where it is thinner than the spawn offset (along the
 /// normal: a sharp edge or a thin feature) leaves its offset point outside, beyond the
 /// sliver. Such paths used to believe themselves inside and scatter through the air with

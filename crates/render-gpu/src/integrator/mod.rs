@@ -261,7 +261,17 @@ pub(crate) enum Advance {
     Done(f32),
     /// A sphere step waits for its decoder draws or its exact walk (in [`Path::step`]).
     Step,
+    /// A stop request came while the path went on: it is abandoned.
+    Stopped,
 }
+
+/// Iterations of one path between looks at the stop request: a path can run to
+/// [`MAX_ITERATIONS`] (a huge optically thick object: 23 s for one PT path, which kept
+/// SIGTERM waiting), and 65,536 of them take some tens of milliseconds.
+const STOP_CHECK_EVERY: u64 = 1 << 16;
+
+/// A stop request that never comes, for paths traced outside a render.
+pub(crate) static NEVER: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
 
 impl Path {
     pub fn new(origin: Vec3, dir: Vec3, channel: usize, rng: WalkRng) -> Self {
@@ -293,8 +303,13 @@ impl Path {
     }
 
     /// Follows the path until it ends or a sphere step needs the decoders (then finish
-    /// that step and call this again).
-    pub fn advance(&mut self, scene: &SceneData, set: &IntegratorSettings) -> Advance {
+    /// that step and call this again), or `stop` is set ([`STOP_CHECK_EVERY`]).
+    pub fn advance(
+        &mut self,
+        scene: &SceneData,
+        set: &IntegratorSettings,
+        stop: &std::sync::atomic::AtomicBool,
+    ) -> Advance {
         let geo = &scene.geo;
         let channel = self.channel;
         let sigma = scene.sigma_t[channel];
@@ -315,6 +330,11 @@ impl Path {
             if *iterations > MAX_ITERATIONS {
                 stats.capped += 1;
                 break;
+            }
+            if *iterations % STOP_CHECK_EVERY == 0
+                && stop.load(std::sync::atomic::Ordering::Relaxed)
+            {
+                return Advance::Stopped;
             }
             if !*inside {
                 let hit = match (first_hit.take(), left_through.take()) {
@@ -536,7 +556,7 @@ mod tests {
                 WalkRng::for_walk(3, seed),
             );
             path.inside = true;
-            let Advance::Done(l) = path.advance(&scene, &set) else {
+            let Advance::Done(l) = path.advance(&scene, &set, &NEVER) else {
                 panic!("PT has no sphere steps")
             };
             assert_eq!((path.stats.events, path.stats.leaks), (0, 0), "seed {seed}");
@@ -566,7 +586,7 @@ mod tests {
         let d = (Vec3::new(0.005, 0.0, 0.0) - origin).normalize();
         for seed in 0..n {
             let mut path = Path::new(origin, d, 0, WalkRng::for_walk(5, seed));
-            let Advance::Done(l) = path.advance(&scene, &set) else {
+            let Advance::Done(l) = path.advance(&scene, &set, &NEVER) else {
                 panic!("PT has no sphere steps")
             };
             assert_eq!((path.stats.events, path.stats.leaks), (0, 0), "seed {seed}");

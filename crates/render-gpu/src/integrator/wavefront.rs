@@ -70,12 +70,15 @@ struct Batch {
 
 /// Traces every sample `next` yields and reports each result to `done(tag, channel,
 /// radiance, stats)`. Results come in an order fixed by the samples alone, not by threads.
+/// False when `stop` ended it with paths unfinished (their results are not reported; the
+/// caller drops the batch).
 pub fn trace_many(
     scene: &SceneData,
     set: &IntegratorSettings,
     mut next: impl FnMut() -> Option<Sample>,
     mut done: impl FnMut(u64, usize, f32, &PathStats),
-) {
+    stop: &std::sync::atomic::AtomicBool,
+) -> bool {
     let mut slots: Vec<Option<Slot>> = (0..SLOTS).map(|_| None).collect();
     let mut batch = Batch::default();
     let mut waiting: Vec<usize> = Vec::with_capacity(SLOTS);
@@ -90,11 +93,12 @@ pub fn trace_many(
                     *cell = Some(Slot { path, tag: s.tag });
                 }
                 let slot = cell.as_mut().expect("filled above");
-                match slot.path.advance(scene, set) {
+                match slot.path.advance(scene, set, stop) {
                     Advance::Done(l) => {
                         done(slot.tag, slot.path.channel, l, &slot.path.stats);
                         *cell = None;
                     }
+                    Advance::Stopped => return false,
                     Advance::Step => {
                         waiting.push(i);
                         break;
@@ -103,7 +107,7 @@ pub fn trace_many(
             }
         }
         if waiting.is_empty() {
-            return;
+            return true;
         }
         resolve_steps(scene, set, &mut slots, &waiting, &mut batch);
     }
@@ -115,12 +119,13 @@ pub(crate) fn trace_alone(scene: &SceneData, set: &IntegratorSettings, path: Pat
     let mut batch = Batch::default();
     loop {
         let slot = slots[0].as_mut().expect("one slot");
-        match slot.path.advance(scene, set) {
+        match slot.path.advance(scene, set, &super::NEVER) {
             Advance::Done(l) => {
                 let slot = slots[0].take().expect("one slot");
                 return (l, slot.path);
             }
             Advance::Step => {}
+            Advance::Stopped => unreachable!("NEVER is never set"),
         }
         resolve_steps(scene, set, &mut slots, &[0], &mut batch);
     }
