@@ -720,6 +720,14 @@ fn load_obj(path: &Path) -> Result<TriMesh, RenderError> {
              lines)",
         )
     })?;
+    // A UTF-8 byte-order mark hid the first line ("face index 8 names no vertex"), and
+    // tobj splits lines at '\n' only (old Mac files end them with '\r').
+    let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
+    let text = if text.contains('\r') {
+        text.replace("\r\n", "\n").replace('\r', "\n")
+    } else {
+        text.to_string()
+    };
     // tobj names neither the line nor the value at fault, and drops faces of fewer than
     // three vertices without a word (the mesh is then reported open): checked here first.
     if let Some(problem) = obj_problem(&text) {

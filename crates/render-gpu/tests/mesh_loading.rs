@@ -49,6 +49,15 @@ fn obj_quads_load_and_an_open_mesh_is_refused() {
     let d = tempfile::tempdir().unwrap();
     let m = load_mesh(&write(&d, "cube.obj", CUBE_OBJ.as_bytes())).unwrap();
     assert_eq!(m.triangles.len(), 12);
+    // The same file with a byte-order mark, with Windows and with old-Mac line ends.
+    for (name, text) in [
+        ("bom.obj", format!("\u{feff}{CUBE_OBJ}")),
+        ("crlf.obj", CUBE_OBJ.replace('\n', "\r\n")),
+        ("cr.obj", CUBE_OBJ.replace('\n', "\r")),
+    ] {
+        let other = load_mesh(&write(&d, name, text.as_bytes())).unwrap();
+        assert_eq!(other.triangles, m.triangles, "{name}");
+    }
     // Remove one quad: four boundary edges.
     let open = CUBE_OBJ.replace("f 2 4 8 6\n", "");
     let e = load_mesh(&write(&d, "open.obj", open.as_bytes()))

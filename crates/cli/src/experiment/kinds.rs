@@ -153,7 +153,8 @@ fn teaser(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         let c = compare(&pt, &st);
         let exposure = scale_of(&pt.mean) as f32;
         let sigma = SceneFile::load(&scene)?.medium.sigma_t[0] * k;
-        let p = ctx.cfg.paper.get(i).copied().unwrap_or(f64::NAN);
+        // A config without the paper's figure leaves the cell empty (it read NaN).
+        let p = ctx.cfg.paper.get(i).copied();
         rep.row(vec![
             k.into(),
             sigma.into(),
@@ -168,12 +169,12 @@ fn teaser(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             c.bias.into(),
             c.bias_upper95.into(),
             c.noise.into(),
-            p.into(),
+            p.map_or_else(|| "".into(), Into::into),
             pt.paths_per_second().into(),
             st.paths_per_second().into(),
         ]);
         sp.push((k, c.speedup));
-        if p.is_finite() {
+        if let Some(p) = p.filter(|p| p.is_finite()) {
             paper.push((k, p));
         }
         times.0.push((k, pt.seconds));
