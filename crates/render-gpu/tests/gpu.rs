@@ -831,7 +831,9 @@ fn cpu_gpu_agree_stcvae_sphere() {
 /// N), three EventGen draws a step (one unpaired), four events an exact step, two path
 /// reservoirs and a max_tau below the model's; then a dielectric of ior 1.33 under an
 /// environment map with two delta lights, g = −0.4, one EventGen draw a step, three events
-/// an exact step and a shadow ray at every event.
+/// an exact step and a shadow ray at every event; then g = 0.99 under a 30° disk (NEE's
+/// mixture of disk and phase directions), PT and ST-CVAE with exact steps. The first
+/// case's 20° disk under g = 0.9 takes the mixture too.
 #[test]
 fn cpu_gpu_agree_in_less_common_settings() {
     let lights = "[[light]]\nkind = \"directional\"\ndirection = [-0.5, -0.6, -0.62]\n\
@@ -901,6 +903,34 @@ fn cpu_gpu_agree_in_less_common_settings() {
     compare_devices_with(
         "ST-CVAE dielectric 1.33, environment map, two delta lights",
         &dielectric,
+        &set,
+        96,
+    );
+
+    // A phase lobe far narrower than a 30° disk: NEE's directions come from the mixture
+    // of the disk and the phase function (light.rs, sample_from), and path-level NEE's
+    // proxy takes the phase function's largest value over the disk.
+    let narrow = base
+        .replace("g = 0.5", "g = 0.99")
+        .replace("angular_diameter_deg = 40.0", "angular_diameter_deg = 30.0")
+        .replace("width = 24\nheight = 24", "width = 32\nheight = 32");
+    assert!(narrow.contains("g = 0.99"));
+    compare_devices(
+        "PT, g 0.99 under a 30° disk",
+        &narrow,
+        IntegratorKind::Pt,
+        true,
+        96,
+    );
+    let set = IntegratorSettings {
+        exact_tau: 50.0,
+        max_tau: 49.0,
+        min_tau: 0.0,
+        ..settings(IntegratorKind::Stcvae, true)
+    };
+    compare_devices_with(
+        "ST-CVAE exact steps, g 0.99 under a 30° disk",
+        &narrow,
         &set,
         96,
     );
