@@ -324,34 +324,6 @@ fn render_inputs(a: &Args, p: &Prepared) -> Vec<(String, PathBuf)> {
 }
 
 /// Says once when the scene's lights cannot contribute: delta lights without NEE.
-/// NEE picks a direction uniformly within a disk light and weighs it by the phase
-/// function. A lobe much narrower than the disk (|g| near 1) is then found by a tiny share
-/// of the samples with huge weights: unbiased, but a physics review saw renders of 16,384
-/// spp 5–18 % off at |g| = 0.999 with a 30° disk (many σ by the seeds' scatter, which
-/// understates such a tail). Without NEE the escaping paths find the disk themselves.
-/// Said where the disk's solid angle exceeds 100 times the lobe's, ~π(1 − |g|)².
-pub fn warn_narrow_lobe(p: &Prepared) {
-    if !p.file.render.nee {
-        return;
-    }
-    let g = p.file.medium.g.abs();
-    let lobe = std::f64::consts::PI * (1.0 - g).powi(2);
-    let widest = p
-        .data
-        .lights
-        .iter()
-        .map(|l| 2.0 * std::f64::consts::PI * l.one_minus_cos as f64)
-        .fold(0.0, f64::max);
-    if widest > 100.0 * lobe {
-        eprintln!(
-            "warning: medium.g = {} scatters into a cone far narrower than a light's disk: \
-             NEE to that disk converges very slowly (heavy-tailed weights); render with \
-             --nee false, which finds the disk by the escaping paths",
-            p.file.medium.g
-        );
-    }
-}
-
 pub fn note_unreachable_lights(p: &Prepared) {
     if p.data.lights.iter().all(|l| l.is_delta()) && !p.file.render.nee && !p.data.lights.is_empty()
     {
@@ -391,7 +363,6 @@ pub fn run(a: Args) -> Result<()> {
         eprintln!("note: --model is not used: the PT integrator needs no model");
     }
     warn_outside_training(&p, &a.scene);
-    warn_narrow_lobe(&p);
     if p.model.is_some() && !p.models_trusted() {
         eprintln!(
             "note: medium.g = {} is above {}, where the models' sphere steps were measured \
