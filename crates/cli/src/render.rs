@@ -142,10 +142,12 @@ impl Prepared {
             model: self.model.as_ref(),
             min_tau: r.min_tau_or_default() as f32,
             max_tau: self.max_tau,
+            // f32::MAX rather than infinity: shading languages may assume no infinities
+            // (Metal's fast math), and every step's τ ≤ max_tau is below it.
             exact_tau: if self.models_trusted() {
                 r.exact_tau_or_default() as f32
             } else {
-                f32::INFINITY
+                f32::MAX
             },
             nee_samples: r.nee_samples,
             exact_nee_samples: r.exact_nee_samples,
@@ -447,7 +449,7 @@ pub fn run(a: Args) -> Result<()> {
         mean_sphere_steps_per_path: out.stats.steps as f64 / paths,
         min_tau: set.min_tau as f64,
         max_tau: p.model.as_ref().map(|_| p.max_tau as f64),
-        exact_tau: set.exact_tau.is_finite().then_some(set.exact_tau as f64),
+        exact_tau: (set.exact_tau < f32::MAX).then_some(set.exact_tau as f64),
         nee_samples: set.nee_samples,
         exact_nee_samples: set.exact_nee_samples,
         path_nee_rays: set.path_nee_rays,

@@ -253,8 +253,8 @@ impl DistanceGrid {
 
     /// Reads a cached grid of a mesh of `triangles` triangles; anything unexpected means
     /// "rebuild" (None). A file with a valid checksum is still checked for what would
-    /// break a render: a candidate beyond the mesh (an index out of bounds) or a cell size
-    /// or distance that is not finite and ≥ 0.
+    /// break a render: dimensions whose cell count overflows or is 0, a candidate beyond the
+    /// mesh (an index out of bounds), or a cell size or distance that is not finite and ≥ 0.
     fn read(path: &Path, triangles: usize) -> Option<Self> {
         let b = std::fs::read(path).ok()?;
         if b.len() < 40 + 4 || &b[..8] != MAGIC {
@@ -267,7 +267,14 @@ impl DistanceGrid {
         let f = |i: usize| f32::from_le_bytes(body[8 + 4 * i..12 + 4 * i].try_into().unwrap());
         let u = |i: usize| u32::from_le_bytes(body[8 + 4 * i..12 + 4 * i].try_into().unwrap());
         let dims = UVec3::new(u(4), u(5), u(6));
-        let n = dims.x as usize * dims.y as usize * dims.z as usize;
+        // Cells are indexed in u32 (`cell_of`): a product that overflows it, or wraps in
+        // usize, would pass the length check below and index out of bounds.
+        let n = (dims.x as usize)
+            .checked_mul(dims.y as usize)?
+            .checked_mul(dims.z as usize)?;
+        if dims.min_element() == 0 || n >= u32::MAX as usize {
+            return None;
+        }
         let words = |from: usize, count: usize| {
             body.get(from..from + 4 * count)
                 .map(|b| b.chunks_exact(4).map(|c| c.try_into().unwrap()))
@@ -409,6 +416,14 @@ mod tests {
         assert!(forge(&|g| g.candidates[0] = 1_000_000_000).is_none());
         assert!(forge(&|g| g.cells[0][0] = (-1.0f32).to_bits()).is_none());
         assert!(forge(&|g| g.cells[0][0] = f32::NAN.to_bits()).is_none());
+        // Dimensions whose product wraps to the file's cell count (2^64 → 0 in usize).
+        let wrapped = forge(&|g| {
+            g.dims = glam::UVec3::new(1 << 22, 1 << 22, 1 << 20);
+            g.cells.truncate(1);
+            g.cells[0][1] = 0;
+            g.candidates.clear();
+        });
+        assert!(wrapped.is_none());
     }
 
     /// Writing this code's cache file of a stem removes that stem's files written by other

@@ -494,14 +494,15 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
                     )
                 };
                 // Only what the buffer declares, from a regular file: a URI naming
-                // /dev/zero read until memory ran out.
-                let file = std::fs::File::open(&p).map_err(cannot)?;
-                if !file.metadata().map_err(cannot)?.is_file() {
+                // /dev/zero read until memory ran out (and opening a FIFO waits for a
+                // writer, so the kind is looked at first).
+                if !std::fs::metadata(&p).map_err(cannot)?.is_file() {
                     return Err(RenderError::mesh(
                         path,
                         format!("its buffer {} is not a regular file", p.display()),
                     ));
                 }
+                let file = std::fs::File::open(&p).map_err(cannot)?;
                 let mut data = Vec::new();
                 std::io::Read::read_to_end(
                     &mut std::io::Read::take(file, b.length() as u64),

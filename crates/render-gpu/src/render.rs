@@ -391,7 +391,7 @@ pub fn render(
         if let Some(b) = opts.time_budget {
             let per_sample = elapsed / s0 as f64;
             // At most doubling from pass to pass, against a misestimate.
-            pass = ((0.05 * b / per_sample) as u32).clamp(1, 2 * pass);
+            pass = ((0.05 * b / per_sample) as u32).clamp(1, pass.saturating_mul(2));
         }
     }
     let spp = s0;

@@ -243,13 +243,15 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> io::Result<()> {
 /// an immutable file) puts back the files of the set already renamed: their predecessors
 /// are kept as hard links until the set is in place. The error names the file it concerns.
 pub fn write_atomic_set(files: &[(&Path, &[u8])]) -> Result<(), (PathBuf, io::Error)> {
-    write_set_with(files, Finished::persist)
+    write_set_with(files, Finished::persist, Previous::keep)
 }
 
-/// [`write_atomic_set`] with the rename given, so that tests can make one fail.
+/// [`write_atomic_set`] with the rename and the keeping of predecessors given, so that
+/// tests can make either fail.
 fn write_set_with(
     files: &[(&Path, &[u8])],
     mut persist: impl FnMut(Finished) -> io::Result<()>,
+    keep: impl Fn(&Path) -> Before,
 ) -> Result<(), (PathBuf, io::Error)> {
     let mut ready = Vec::with_capacity(files.len());
     for &(path, bytes) in files {
@@ -260,54 +262,75 @@ fn write_set_with(
         // before any file of the set has replaced its predecessor.
         ready.push(f.finish().map_err(fail)?);
     }
-    let mut placed: Vec<(PathBuf, Option<Previous>)> = Vec::with_capacity(ready.len());
+    let mut placed: Vec<(PathBuf, Before)> = Vec::with_capacity(ready.len());
     for f in ready {
         let path = f.path.clone();
-        let previous = Previous::keep(&path);
+        let before = keep(&path);
         if let Err(e) = persist(f) {
             // Newest first, so each file gets back what it held before this call.
-            for (done, previous) in placed.into_iter().rev() {
-                match previous {
-                    Some(p) => {
+            for (done, before) in placed.into_iter().rev() {
+                match before {
+                    Before::Kept(p) => {
                         let _ = p.restore(&done);
                     }
-                    None => {
+                    Before::Absent => {
                         let _ = fs::remove_file(&done);
                     }
+                    // Replaced for good: the new file stays rather than nothing.
+                    Before::Unkept => {}
                 }
             }
             return Err((path, e));
         }
-        placed.push((path, previous));
+        placed.push((path, before));
     }
     Ok(())
 }
 
+/// What a set's file had before its rename.
+enum Before {
+    /// Nothing: undoing the rename removes the new file.
+    Absent,
+    /// A file, kept as a hard link: undoing the rename puts it back.
+    Kept(Previous),
+    /// A file that could not be linked (a file system without hard links, another user's
+    /// file under protected_hardlinks): its replacement cannot be undone, and the new file
+    /// is left in its place.
+    Unkept,
+}
+
 /// A hard link to the file an output replaces, removed when dropped: the set's renames can
-/// then be undone. None where there was nothing, or where the link cannot be made (a
-/// file system without hard links, another user's file under protected_hardlinks): that
-/// file's replacement then cannot be undone, as before.
+/// then be undone.
 struct Previous {
     link: tempfile::TempPath,
     _live: Live,
 }
 
 impl Previous {
-    fn keep(path: &Path) -> Option<Self> {
-        fs::symlink_metadata(path).ok()?;
+    fn keep(path: &Path) -> Before {
+        if fs::symlink_metadata(path).is_err() {
+            return Before::Absent;
+        }
         let dir = match path.parent() {
             Some(p) if !p.as_os_str().is_empty() => p,
             _ => Path::new("."),
         };
-        let name = path.file_name()?.to_string_lossy().into_owned();
-        let link = tempfile::Builder::new()
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        match tempfile::Builder::new()
             .prefix(&format!(".{name}."))
             .suffix(".previous")
             .make_in(dir, |p| fs::hard_link(path, p))
-            .ok()?
-            .into_temp_path();
-        let live = Live::new(&link);
-        Some(Self { link, _live: live })
+        {
+            Ok(link) => {
+                let link = link.into_temp_path();
+                let live = Live::new(&link);
+                Before::Kept(Self { link, _live: live })
+            }
+            Err(_) => Before::Unkept,
+        }
     }
 
     fn restore(self, path: &Path) -> io::Result<()> {
@@ -322,7 +345,8 @@ mod tests {
     /// A rename that fails part way through a set puts back what the set's earlier renames
     /// replaced: an old file its old bytes, a new name nothing. Nothing else is left in
     /// the folder (no temporaries, no kept predecessors), and a set that succeeds leaves
-    /// only its files.
+    /// only its files. A predecessor that could not be linked is not removed on the way
+    /// back (its new file stays: the old is gone either way).
     #[test]
     fn a_failed_rename_puts_the_set_back() {
         let d = tempfile::tempdir().unwrap();
@@ -340,13 +364,17 @@ mod tests {
         };
         for fail_at in 0..3 {
             let mut k = 0;
-            let (path, e) = write_set_with(&set, |f| {
-                k += 1;
-                if k == fail_at + 1 {
-                    return Err(io::Error::new(io::ErrorKind::PermissionDenied, "refused"));
-                }
-                f.persist()
-            })
+            let (path, e) = write_set_with(
+                &set,
+                |f| {
+                    k += 1;
+                    if k == fail_at + 1 {
+                        return Err(io::Error::new(io::ErrorKind::PermissionDenied, "refused"));
+                    }
+                    f.persist()
+                },
+                Previous::keep,
+            )
             .unwrap_err();
             assert_eq!(
                 (path.as_path(), e.kind()),
@@ -357,6 +385,30 @@ mod tests {
             assert_eq!(fs::read(&c).unwrap(), b"old c", "failed at {fail_at}");
             assert_eq!(names(), ["a", "c"], "failed at {fail_at}");
         }
+        // A predecessor that could not be kept (no hard links there): its replacement
+        // stays, rather than removing the file (a, replaced, then c refused).
+        let mut k = 0;
+        write_set_with(
+            &set,
+            |f| {
+                k += 1;
+                if k == 3 {
+                    return Err(io::Error::new(io::ErrorKind::PermissionDenied, "refused"));
+                }
+                f.persist()
+            },
+            |p| {
+                if p == a.as_path() {
+                    Before::Unkept
+                } else {
+                    Previous::keep(p)
+                }
+            },
+        )
+        .unwrap_err();
+        assert_eq!(fs::read(&a).unwrap(), b"new a");
+        assert!(!b.exists());
+        assert_eq!(fs::read(&c).unwrap(), b"old c");
         write_atomic_set(&set).unwrap();
         for (p, bytes) in set {
             assert_eq!(fs::read(p).unwrap(), bytes);

@@ -556,7 +556,7 @@ mod tests {
                 WalkRng::for_walk(3, seed),
             );
             path.inside = true;
-            let Advance::Done(l) = path.advance(&scene, &set, &NEVER) else {
+            let Advance::Done(l) = path.advance(&scene, &set, &super::NEVER) else {
                 panic!("PT has no sphere steps")
             };
             assert_eq!((path.stats.events, path.stats.leaks), (0, 0), "seed {seed}");
@@ -586,7 +586,7 @@ mod tests {
         let d = (Vec3::new(0.005, 0.0, 0.0) - origin).normalize();
         for seed in 0..n {
             let mut path = Path::new(origin, d, 0, WalkRng::for_walk(5, seed));
-            let Advance::Done(l) = path.advance(&scene, &set, &NEVER) else {
+            let Advance::Done(l) = path.advance(&scene, &set, &super::NEVER) else {
                 panic!("PT has no sphere steps")
             };
             assert_eq!((path.stats.events, path.stats.leaks), (0, 0), "seed {seed}");
