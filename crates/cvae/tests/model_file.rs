@@ -128,7 +128,7 @@ fn overflowing_metadata_is_refused() {
         (|m| m["decoders"][0]["latent"] = u64::MAX.into(), "inputs"),
         // Deep decoders are unrolled into the GPU kernels: 1,000 layers compiled for 31 s.
         (
-            |m| m["decoders"][0]["hidden"] = serde_json::json!([1; 1000]),
+            |m| m["decoders"][0]["hidden"] = serde_json::json!(vec![1; 1000]),
             "1000 hidden layers; at most 8",
         ),
         (
