@@ -279,7 +279,7 @@ mod tests {
     /// compared with the disk's uniform draws, whose weights are moderate there. 10⁶ draws
     /// each; |z| < 4.5 over the 7 comparisons (a false alarm ~1e-4). Where the lobe is on
     /// the disk, the mixture's weights are at most 2L (relative sd < 2); the uniform draws'
-    /// relative sd is ~√(Ω·ρ_peak) ≈ 190 at g = 0.999, which is what made such renders
+    /// relative sd is of order √(Ω·ρ_peak) ~ 10² at g = 0.999, which is what made such renders
     /// converge so slowly. Where the disk is narrower than the lobe (the sun at g = 0.9)
     /// the draws are `sample`'s, bit for bit.
     #[test]

@@ -98,6 +98,8 @@ impl Body<'_> {
 }
 
 pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
+    // A UTF-8 byte-order mark before `ply` (some editors write one) is no part of it.
+    let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
     let (end, body_start) = header_end(bytes).ok_or("not a PLY file: no end_header line")?;
     let header = std::str::from_utf8(&bytes[..end]).map_err(|_| "the PLY header is not text")?;
     let mut lines = header.lines();

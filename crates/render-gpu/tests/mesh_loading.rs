@@ -88,6 +88,14 @@ fn broken_files_give_clear_errors() {
                property float z\nelement face 4\nproperty list uchar int vertex_indices\n\
                end_header\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n";
     assert!(load_mesh(&write(&d, "tet.ply", tet.as_bytes())).is_ok());
+    // With a UTF-8 byte-order mark, the same tetrahedron.
+    let bom = load_mesh(&write(&d, "bom.ply", format!("\u{feff}{tet}").as_bytes())).unwrap();
+    assert_eq!(
+        bom.triangles,
+        load_mesh(&write(&d, "t2.ply", tet.as_bytes()))
+            .unwrap()
+            .triangles
+    );
     let frac = tet.replace("3 0 1 3\n", "3.7 0 1 3\n");
     let e = load_mesh(&write(&d, "frac.ply", frac.as_bytes()))
         .unwrap_err()
