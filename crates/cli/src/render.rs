@@ -449,7 +449,7 @@ pub fn run(a: Args) -> Result<()> {
         mean_sphere_steps_per_path: out.stats.steps as f64 / paths,
         min_tau: set.min_tau as f64,
         max_tau: p.model.as_ref().map(|_| p.max_tau as f64),
-        exact_tau: (set.exact_tau < f32::MAX).then_some(set.exact_tau as f64),
+        exact_tau: p.models_trusted().then_some(set.exact_tau as f64),
         nee_samples: set.nee_samples,
         exact_nee_samples: set.exact_nee_samples,
         path_nee_rays: set.path_nee_rays,
