@@ -92,11 +92,10 @@ fn nee_light_ray(i: u32, x: vec3<f32>, w: vec3<f32>, free: f32, c: vec3<f32>, f:
         // nee.rs, light_sample: a third uniform picks the strategy of the mixture; either
         // direction is weighed by L over the mixture's density.
         if rand() < share {
-            let c = hg_sample_cos(g, u1);
             let phi = TWO_PI * u2;
-            ls.dir = normalize(deflect(w, c, vec2<f32>(cos(phi), sin(phi))));
+            ls.dir = normalize(deflect(w, hg_sample(g, u1), vec2<f32>(cos(phi), sin(phi))));
         }
-        let density = share * hg_pdf(g, clamp(dot(w, ls.dir), -1.0, 1.0))
+        let density = share * hg_pdf_between(g, w, ls.dir)
             + (1.0 - share) / (TWO_PI * params.lights[i].to_light.w);
         ls.factor = light_radiance_toward(i, ls.dir, channel) * params.consts4.x / density;
     }
@@ -104,7 +103,7 @@ fn nee_light_ray(i: u32, x: vec3<f32>, w: vec3<f32>, free: f32, c: vec3<f32>, f:
         return LightRay(ls.dir, 0.0, false);
     }
     let threshold = ROULETTE_BOUND * INV_4PI;
-    let phase = hg_pdf(g, clamp(dot(w, ls.dir), -1.0, 1.0));
+    let phase = hg_pdf_between(g, w, ls.dir);
     var weight = ls.factor * phase;
     let bound = phase * exp(-params.sigma_t[channel] * max(free, ball_chord(x, ls.dir, c, f)));
     if rouletted && bound < threshold {

@@ -43,8 +43,9 @@ fn probe_decoder(@builtin(global_invocation_id) gid: vec3<u32>) {
 }
 
 /// In: g, ξ at 0, 1; dir at 4..7; (cos ψ, sin ψ) at 8, 9; exit (cos θ, α, β) at 12..15;
-/// X at 16..19. Out: HG cos at 0; deflect(dir, cos, ψ) at 4..7; world exit point at
-/// 8..11; world exit direction at 12..15; world X at 16..19.
+/// X at 16..19. Out: HG (cos θ, sin θ) at 0, 1; deflect(dir, θ, ψ) at 4..7, normalised at
+/// 20..23, and HG's density from dir to it at 2; world exit point at 8..11; world exit
+/// direction at 12..15; world X at 16..19.
 @compute @workgroup_size(WORKGROUP)
 fn probe_frame(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = gid.x;
@@ -59,16 +60,20 @@ fn probe_frame(@builtin(global_invocation_id) gid: vec3<u32>) {
     let al = item_f(i, 13u);
     let be = item_f(i, 14u);
     let x = vec3<f32>(item_f(i, 16u), item_f(i, 17u), item_f(i, 18u));
-    let c = hg_sample_cos(g, xi);
+    let c = hg_sample(g, xi);
     let d = deflect(dir, c, cs);
+    let l = normalize(d);
     let f = walk_frame(dir, cs);
     let p = to_world(f, canonical_exit_point(ct));
     let w = to_world(f, canonical_exit_dir(ct, al, be));
     let xw = to_world(f, x);
     clear_item(i);
-    set_f(i, 0u, c);
+    set_f(i, 0u, c.x);
+    set_f(i, 1u, c.y);
+    set_f(i, 2u, hg_pdf_between(g, dir, l));
     for (var k = 0u; k < 3u; k++) {
         set_f(i, 4u + k, d[k]);
+        set_f(i, 20u + k, l[k]);
         set_f(i, 8u + k, p[k]);
         set_f(i, 12u + k, w[k]);
         set_f(i, 16u + k, xw[k]);

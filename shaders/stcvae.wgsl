@@ -84,7 +84,7 @@ fn scatter_at(channel: u32) -> bool {
         // The walk: exact N = 1 branch (probability e^−τ, no decoder), else the decoders.
         if model.flags.x != 0u && rand() < exp(-tau) {
             single = true;
-            e = Exit(hg_sample_cos(g, rand()), 0.0, 0.0);
+            e = Exit(hg_sample(g, rand()).x, 0.0, 0.0);
         } else {
             wf = walk_features(tau, g);
             n = sample_multiple_n(wf);
@@ -167,16 +167,10 @@ fn scatter_at(channel: u32) -> bool {
     ps.pos = centre + to_world(frame, xc) * r;
     ps.dir = normalize(to_world(frame, wc));
     ps.scattered = true;
-    // The grid at the exit often knows more than the ball it left (sphere_step.rs); in
-    // dense media (cells many free paths wide) the exact distance spares most of the
-    // next flights' ray casts (EXIT_REFINE_TAU, prepended from sphere_step.rs).
+    // The grid at the exit often knows more than the ball it left (sphere_step.rs,
+    // complete). Only the grid: an exact distance here (as the kernel once took in dense
+    // media) makes the next step's ball larger than the CPU's, a different estimator.
     ps.free = max(free - r, grid_radius(ps.pos));
-    if sigma * ps.free < EXIT_REFINE_TAU && sigma * near > 4.0 * EXIT_REFINE_TAU {
-        let d = grid_exact_distance(ps.pos);
-        if d >= 0.0 {
-            ps.free = max(ps.free, d * (1.0 - 1e-5) - params.consts.z);
-        }
-    }
     return true;
 }
 

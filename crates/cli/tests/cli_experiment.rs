@@ -218,6 +218,7 @@ fn an_interrupted_experiment_writes_no_report() {
         &child,
         || out.exists(),
         Duration::from_secs(2),
+        1,
         "the experiment",
     );
     let done = child.wait_with_output().unwrap();

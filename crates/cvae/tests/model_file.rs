@@ -465,7 +465,9 @@ fn antithetic_event_draws_keep_the_marginal() {
         ks_r < 0.0195 && ks_w < 0.0195,
         "KS |X| {ks_r:.4}, W_z {ks_w:.4}"
     );
-    let p = albedo / walk.lambda;
+    // Λ(6) = Σ_{k=1..6} φ^k summed here, not taken from the sampler's own `walk.lambda`.
+    let lambda: f64 = (1..=6).map(|k| albedo_pow(albedo, k)).sum();
+    let p = albedo / lambda;
     let z = scatter_sim::stats::proportion_z(centres, n as u64, p);
     assert!(z.abs() < 4.0, "centre share: p = {p:.4}, z = {z:.2}");
 }

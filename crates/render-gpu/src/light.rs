@@ -134,7 +134,8 @@ impl DirectionalLight {
         } else {
             self.sample(u1, u2, channel).0
         };
-        let phase = scatter_sim::phase::hg_pdf(g as f64, w.dot(dir).clamp(-1.0, 1.0) as f64) as f32;
+        let phase =
+            scatter_sim::phase::hg_pdf_between(g as f64, w.as_dvec3(), dir.as_dvec3()) as f32;
         let density = share * phase + (1.0 - share) / self.solid_angle();
         (dir, self.radiance_toward(dir, channel) / density)
     }
@@ -291,7 +292,7 @@ mod tests {
     /// the draws are `sample`'s, bit for bit.
     #[test]
     fn nee_mixture_is_unbiased_and_tames_narrow_lobes() {
-        use scatter_sim::phase::{hg_cos_cdf, hg_pdf};
+        use scatter_sim::phase::{hg_cos_cdf, hg_pdf_between};
         let light = |diameter: f64| {
             DirectionalLight::new(&LightDesc {
                 kind: crate::scene::LightKind::Directional,
@@ -313,7 +314,8 @@ mod tests {
                 } else {
                     l.sample(u1, u2, 0)
                 };
-                let f = factor as f64 * hg_pdf(g as f64, w.dot(dir).clamp(-1.0, 1.0) as f64);
+                // The phase value as NEE takes it (integrator/nee.rs, light_sample).
+                let f = factor as f64 * hg_pdf_between(g as f64, w.as_dvec3(), dir.as_dvec3());
                 s += f;
                 s2 += f * f;
             }

@@ -935,11 +935,14 @@ fn a_stop_request_ends_the_render_within_a_pass() {
 
 /// A stop request is also answered inside one long path: in a cube 2·10⁵ across with
 /// σ_t = 1000, albedo 1 (τ ~ 10⁸), a PT path runs to the 5·10⁷-iteration cap, which took
-/// ~23 s and kept SIGTERM waiting. The request comes 0.3 s in, while the first pass's
-/// paths are running; it must drop that pass (0 spp). Without the in-path check the render
-/// finished its 3 spp (96 s on 2 cores, 10 of its 12 paths capped).
+/// ~23 s and kept SIGTERM waiting. Here the request is made as the first path is handed
+/// out (no clock involved), so only a check inside the path, which comes every 65,536 of
+/// its iterations, can see it: the wavefront must give up (false) without reporting it. Without the in-path check the path ran to
+/// its cap, was reported, and the wavefront then returned true, having no other place to
+/// look at the flag.
 #[test]
 fn a_stop_request_ends_a_long_path() {
+    use render_gpu::integrator::wavefront::{Sample, trace_many};
     use std::sync::atomic::Ordering;
     let text = "[camera]\norigin = [0, 0, 600000.0]\ntarget = [0.0, 0.0, 0.0]\n\
                 fov_deg = 0.001\nwidth = 2\nheight = 2\n\
@@ -951,24 +954,33 @@ fn a_stop_request_ends_a_long_path() {
     let (_, s) = scene(text, false);
     let set = settings(IntegratorKind::Pt, false, None);
     let stop = AtomicBool::new(false);
-    let out = std::thread::scope(|t| {
-        t.spawn(|| {
-            std::thread::sleep(std::time::Duration::from_millis(300));
+    let mut handed = 0;
+    let mut reported = 0;
+    let whole = trace_many(
+        &s,
+        &set,
+        || {
+            handed += 1;
             stop.store(true, Ordering::Relaxed);
-        });
-        render(
-            &s,
-            &set,
-            &RenderOptions {
-                spp: 3,
-                seed: 1,
-                time_budget: None,
-            },
-            &|_, _| {},
-            &stop,
-        )
-    });
-    assert_eq!(out.spp, 0, "{:?}", out.stats);
+            let dir = s.camera.ray_dir(1.0, 1.0);
+            Some(Sample {
+                origin: s.camera.ray_origin(dir),
+                dir,
+                first_hit: None,
+                channel: 0,
+                rng: WalkRng::for_walk(1, handed),
+                tag: handed,
+            })
+        },
+        |_, _, _, _| reported += 1,
+        &stop,
+    );
+    assert!(
+        !whole,
+        "the wavefront finished its paths despite the stop request"
+    );
+    assert_eq!(reported, 0, "a path ran to its end after the stop request");
+    assert_eq!(handed, 1, "paths were handed out after the stop request");
 }
 
 /// A camera ray entering the medium where it is thinner than the spawn offset (along the

@@ -19,6 +19,21 @@ pub fn hg_pdf(g: f64, cos: f64) -> f64 {
     (1.0 - g * g) / (4.0 * PI * denom * denom.sqrt())
 }
 
+/// HG per steradian from the arriving direction `w` to the departing `l`, both unit
+/// vectors to f32 precision. 1 − cos θ (1 + cos θ for g < 0, the axis of its lobe) is half
+/// the squared distance between them, which keeps its relative precision where 1 − w·l
+/// is rounding: f32 directions hold w·l to ~1e-7, and the lobe of g = 0.999 is
+/// 1 − cos θ ~ 5e-7 wide. The density is then written in non-negative terms of a = |g|,
+/// as the WGSL kernels' `hg_pdf_between` computes it in f32.
+#[inline]
+pub fn hg_pdf_between(g: f64, w: DVec3, l: DVec3) -> f64 {
+    let e = if g < 0.0 { w + l } else { w - l };
+    let m = (0.5 * e.length_squared()).min(2.0);
+    let a = g.abs();
+    let d = (1.0 - a) * (1.0 - a) + 2.0 * a * m;
+    (1.0 - a) * (1.0 + a) / (4.0 * PI * d * d.sqrt())
+}
+
 /// Density of cos θ on [−1, 1] (the per-steradian density times 2π).
 #[inline]
 pub fn hg_cos_pdf(g: f64, cos: f64) -> f64 {

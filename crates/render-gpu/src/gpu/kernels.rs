@@ -334,7 +334,7 @@ pub fn source(
     let stack = format!(
         "const STACK_DEPTH: u32 = {STACK_DEPTH}u;\n{}\
          const ROULETTE_BOUND: f32 = {:?};\nconst FLIGHT_MARGIN_OF_EPS: f32 = {:?};\n\
-         const EXIT_REFINE_TAU: f32 = {:?};\nconst SLIVER_REACH_OF_EPS: f32 = {:?};\n\
+         const SLIVER_REACH_OF_EPS: f32 = {:?};\n\
          const PATH_NEE_M: u32 = {path_nee_m}u;\nconst SLOT: u32 = {}u;\n\
          const STAGE_VEC4S: u32 = {STAGE_VEC4S}u;\n\
          const NODE_COUNT_BITS: u32 = {}u;\nconst COUNTER_WORDS: u32 = {}u;\n\
@@ -342,7 +342,6 @@ pub fn source(
         shape.wgsl(),
         crate::integrator::nee::ROULETTE_BOUND,
         crate::geometry::FLIGHT_MARGIN_OF_EPS,
-        crate::integrator::sphere_step::EXIT_REFINE_TAU,
         crate::geometry::SLIVER_REACH_OF_EPS,
         slot_vec4s(path_nee_m),
         super::scene_buffers::GpuNode::COUNT_BITS,

@@ -8,7 +8,7 @@
 //! term then takes the camera side's radiance factor 1/ior² ([`Boundary::nee_scale`]).
 
 use glam::Vec3;
-use scatter_sim::phase::hg_pdf;
+use scatter_sim::phase::{hg_pdf, hg_pdf_between};
 use scatter_sim::rng::WalkRng;
 
 use super::uniform;
@@ -127,7 +127,7 @@ fn light_sample(
     let (wl, factor) = light.sample_from(w, scene.g, (u1, u2), || uniform(rng), channel);
     let factor = factor * scene.boundary.nee_scale();
     (factor > 0.0).then(|| {
-        let phase = hg_pdf(scene.g as f64, w.dot(wl).clamp(-1.0, 1.0) as f64) as f32;
+        let phase = hg_pdf_between(scene.g as f64, w.as_dvec3(), wl.as_dvec3()) as f32;
         (wl, factor, phase)
     })
 }

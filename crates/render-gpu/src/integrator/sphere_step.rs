@@ -22,17 +22,6 @@ use super::walk_lanes::{WalkJob, WalkOutcome, WalkShared};
 use super::{IntegratorSettings, PathState, PathStats, pt_event, roulette};
 use crate::setup::SceneData;
 
-/// The WGSL kernels' refinement of a sphere step's exit (`stcvae.wgsl`): below this
-/// optical free distance at the exit, the flight that follows needs a ray cast more than
-/// e^(−3) = 5 % of the time. Where a grid cell is many free paths wide (σ_t·near_surface
-/// above 4·this), the grid's Lipschitz loss near the surface hides many free paths and the
-/// exact distance (the cell's candidate triangles) spares most of those casts through
-/// the BVH. The CPU integrator does not refine: its short casts go against the same
-/// candidate lists (`DistanceGrid::local_hit`), which made refining cost about what it
-/// spared (bunny ladder, SIMD exact walks: k = 2 and 4 +4 % paths/s without it, k = 8
-/// within noise).
-pub(crate) const EXIT_REFINE_TAU: f32 = 3.0;
-
 /// The sphere radius is shrunk by this factor so the exit point stays strictly inside.
 const SHRINK: f32 = 1.0 - 1e-4;
 
