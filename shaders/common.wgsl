@@ -172,17 +172,23 @@ fn hg_sample_direction(g: f32, dir: vec3<f32>) -> vec3<f32> {
 
 // ---- canonical frame (scatter_sim::frame) ----
 
-/// The exit point of a canonical exit: (0, sin θ, cos θ).
-fn canonical_exit_point(cos_theta: f32) -> vec3<f32> {
+/// sin θ of a cos θ that comes alone (PathGen's). An exit drawn from HG brings its own,
+/// which f32 keeps where this would be rounding (hg_sample).
+fn sin_of_cos(cos_theta: f32) -> f32 {
     let c = clamp(cos_theta, -1.0, 1.0);
-    return vec3<f32>(0.0, sqrt(max(1.0 - c * c, 0.0)), c);
+    return sqrt(max(1.0 - c * c, 0.0));
+}
+
+/// The exit point of a canonical exit: (0, sin θ, cos θ).
+fn canonical_exit_point(cos_theta: f32, sin_theta: f32) -> vec3<f32> {
+    return vec3<f32>(0.0, sin_theta, clamp(cos_theta, -1.0, 1.0));
 }
 
 /// The exit direction α e_b + β e_t + √(1−α²−β²) e_n with e_b = (−1, 0, 0) and
 /// e_t = (0, cos θ, −sin θ); (α, β) is rescaled onto the unit disk if needed.
-fn canonical_exit_dir(cos_theta: f32, alpha0: f32, beta0: f32) -> vec3<f32> {
+fn canonical_exit_dir(cos_theta: f32, sin_theta: f32, alpha0: f32, beta0: f32) -> vec3<f32> {
     let c = clamp(cos_theta, -1.0, 1.0);
-    let s = sqrt(max(1.0 - c * c, 0.0));
+    let s = sin_theta;
     var a = alpha0;
     var b = beta0;
     if !(is_finite(a) && is_finite(b)) {

@@ -64,8 +64,8 @@ fn probe_frame(@builtin(global_invocation_id) gid: vec3<u32>) {
     let d = deflect(dir, c, cs);
     let l = normalize(d);
     let f = walk_frame(dir, cs);
-    let p = to_world(f, canonical_exit_point(ct));
-    let w = to_world(f, canonical_exit_dir(ct, al, be));
+    let p = to_world(f, canonical_exit_point(ct, sin_of_cos(ct)));
+    let w = to_world(f, canonical_exit_dir(ct, sin_of_cos(ct), al, be));
     let xw = to_world(f, x);
     clear_item(i);
     set_f(i, 0u, c.x);

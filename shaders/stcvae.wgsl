@@ -38,6 +38,7 @@ fn scatter_at(channel: u32) -> bool {
     var frame: WalkFrame; // set by the sphere step; unused by the fallback
     var n = 1.0;
     var e = Exit(1.0, 0.0, 0.0);
+    var e_sin = 0.0; // the exit's sin θ
     var single = false;
     var wf: WalkFeatures;
     var lam = 0.0; // Λ(N) of the sphere step's walk
@@ -84,12 +85,15 @@ fn scatter_at(channel: u32) -> bool {
         // The walk: exact N = 1 branch (probability e^−τ, no decoder), else the decoders.
         if model.flags.x != 0u && rand() < exp(-tau) {
             single = true;
-            e = Exit(hg_sample(g, rand()).x, 0.0, 0.0);
+            let theta = hg_sample(g, rand());
+            e = Exit(theta.x, 0.0, 0.0);
+            e_sin = theta.y;
         } else {
             wf = walk_features(tau, g);
             n = sample_multiple_n(wf);
             wf.rel_log_n = log(n) - wf.log_prior;
             e = sample_exit(wf);
+            e_sin = sin_of_cos(e.cos_theta);
         }
         if nee {
             // Representative events given N and the exit, each weighted Λ(N)/M; the
@@ -158,8 +162,8 @@ fn scatter_at(channel: u32) -> bool {
         ps.alive = false;
         return true;
     }
-    var xc = canonical_exit_point(e.cos_theta);
-    var wc = canonical_exit_dir(e.cos_theta, e.alpha, e.beta);
+    var xc = canonical_exit_point(e.cos_theta, e_sin);
+    var wc = canonical_exit_dir(e.cos_theta, e_sin, e.alpha, e.beta);
     if exact {
         xc = ex_exit_x;
         wc = ex_exit_w;

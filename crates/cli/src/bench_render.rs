@@ -289,9 +289,7 @@ fn render_pair(
     }
     let b = outs.pop().expect("two renders");
     let a_out = outs.pop().expect("two renders");
-    // The files' hash tells the devices' ST-CVAE apart, as `render`'s does.
-    let hash = render_gpu::setup::render_hash(p.data.hash, kind, engine.is_gpu());
-    Ok(Pair::from_halves(a_out, b, hash))
+    Ok(Pair::from_halves(a_out, b, p.data.hash))
 }
 
 /// Most samples a pixel the bench takes (the header's pair arithmetic is u32).

@@ -424,7 +424,7 @@ pub fn run(a: Args) -> Result<()> {
     }
     // A stop that came after the last pass cut nothing short: the files are complete.
     let interrupted = interrupt::requested() && out.spp < opts.spp;
-    let hash = render_gpu::setup::render_hash(p.data.hash, r.integrator, engine.is_gpu());
+    let hash = p.data.hash;
     let tag = RenderTag {
         spp: out.spp as u64,
         scene_hash: hash,

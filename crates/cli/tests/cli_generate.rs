@@ -5,7 +5,7 @@ mod common;
 use std::fs;
 use std::process::Output;
 
-use common::{interrupt_when, stcvae, stderr, words};
+use common::{stcvae, stderr, words};
 use scatter_sim::dataset::read_dataset;
 
 fn ok(out: &Output) {
@@ -289,6 +289,7 @@ fn bad_input_gives_one_line_errors() {
 #[cfg(unix)]
 #[test]
 fn interrupted_runs_leave_no_files() {
+    use common::interrupt_when;
     use std::process::{Command, Stdio};
     use std::time::Duration;
     let model = concat!(env!("CARGO_MANIFEST_DIR"), "/../../models/default.stcvae");
@@ -300,8 +301,8 @@ fn interrupted_runs_leave_no_files() {
     ];
     // The generate run once more with the signal sent twice back to back, as `timeout`
     // does (to the process and its group): the same request, not "Ctrl-C again" (which
-    // aborted without the clean stop's message). Both signals leave one `kill` process
-    // microseconds apart, far inside the 300 ms that make one request, however loaded
+    // aborted without the clean stop's message). Both signals leave the test
+    // microseconds apart (common::interrupt_when), far inside the 300 ms that make one request, however loaded
     // the machine (two `kill` processes could be more than 300 ms apart there).
     let runs = [(&runs[0], false), (&runs[1], false), (&runs[0], true)];
     for (args, twice) in runs {

@@ -1254,3 +1254,58 @@ fn a_time_budget_stops_after_a_pass_and_records_its_spp() {
         (Some(1), true)
     );
 }
+
+/// The two devices run one estimator (tested image against image in render-gpu's gpu.rs),
+/// so an ST-CVAE render of the CPU and one of the GPU (lavapipe in CI) of the same scene,
+/// with different seeds, carry one scene hash and `merge` averages them. Skipped, with the
+/// reason, only where no Vulkan adapter exists and not under CI.
+#[test]
+fn merge_averages_stcvae_renders_of_both_devices() {
+    let d = tempfile::tempdir().unwrap();
+    let scene = d.path().join("s.toml");
+    std::fs::write(&scene, sphere_scene_text(8)).unwrap();
+    let (a, b) = (d.path().join("cpu"), d.path().join("gpu"));
+    ok(&render_scene(
+        &scene,
+        "stcvae",
+        "2",
+        "1",
+        &a,
+        &["--device", "cpu"],
+    ));
+    let args = [
+        "render",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--integrator",
+        "stcvae",
+        "--spp",
+        "3",
+        "--seed",
+        "2",
+        "--device",
+        "gpu",
+        "--out",
+        b.to_str().unwrap(),
+    ];
+    let out = Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args(args)
+        .env("WGPU_BACKEND", "vulkan")
+        .current_dir(root())
+        .output()
+        .expect("run stcvae");
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    if !out.status.success() && err.contains("no wgpu adapter") && std::env::var_os("CI").is_none()
+    {
+        common::skip(&format!(
+            "merge_averages_stcvae_renders_of_both_devices: {err}"
+        ));
+        return;
+    }
+    ok(&out);
+    let m = d.path().join("m");
+    ok(&merge_renders(&a, &b, &m));
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(m.with_extension("json")).unwrap()).unwrap();
+    assert_eq!(json["spp"], 5, "{json}");
+}

@@ -395,7 +395,7 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
             Some((first, t0, sum)) => {
                 if tag.scene_hash != t0.scene_hash {
                     return Err(RenderError::Image(format!(
-                        "{}: scene hash {:016x} differs from {:016x} of {}: renders of different scenes (or of one scene with another integrator, model or render settings, ST-CVAE on another device, or by a build of stcvae whose renderer differs) cannot be merged",
+                        "{}: scene hash {:016x} differs from {:016x} of {}: renders of different scenes (or of one scene with another integrator, model or render settings, or by a build of stcvae whose renderer differs) cannot be merged",
                         p.display(),
                         tag.scene_hash,
                         t0.scene_hash,

@@ -56,25 +56,6 @@ pub struct SceneData {
     pub hash: u64,
 }
 
-/// The hash a render's files record ([`SceneData::hash`]), told apart by device where the
-/// estimators differ by design: ST-CVAE on the GPU refines a dense medium's sphere-step
-/// exits, which the CPU does not (README), so `merge` must not average a CPU render with
-/// a GPU one. PT renders of both devices converge to one image and keep one hash.
-pub fn render_hash(
-    scene_hash: u64,
-    integrator: crate::integrator::IntegratorKind,
-    gpu: bool,
-) -> u64 {
-    if gpu && integrator == crate::integrator::IntegratorKind::Stcvae {
-        let mut h = Fnv64::new();
-        h.write(&scene_hash.to_le_bytes());
-        h.write(b"stcvae on a GPU: exits refined in dense media");
-        h.finish()
-    } else {
-        scene_hash
-    }
-}
-
 /// The object's mesh as the scene file describes it.
 pub fn object_mesh(scene: &SceneFile, scene_dir: &Path) -> Result<TriMesh, RenderError> {
     let o = &scene.object;
@@ -170,23 +151,5 @@ impl SceneData {
             env,
             hash: h.finish(),
         })
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::render_hash;
-    use crate::integrator::IntegratorKind::{Pt, Stcvae};
-
-    /// ST-CVAE renders of the two devices get different hashes (merge refuses to average
-    /// them), PT renders and CPU renders keep the scene's.
-    #[test]
-    fn only_gpu_stcvae_renders_are_told_apart() {
-        for h in [0u64, 0x533e_1797_e4a0_ef88] {
-            assert_eq!(render_hash(h, Pt, false), h);
-            assert_eq!(render_hash(h, Pt, true), h);
-            assert_eq!(render_hash(h, Stcvae, false), h);
-            assert_ne!(render_hash(h, Stcvae, true), h);
-        }
     }
 }

@@ -138,8 +138,7 @@ fn white_furnace_stcvae() {
         &models,
     );
     // A dense medium (a grid cell is 20–70 free paths wide): many sphere steps per path,
-    // and the exits' exact-distance refinement (σ_t·near_surface > 12) decides which
-    // flights skip their ray cast.
+    // and the exact-distance refinement near the surface decides how large they are.
     let dense = furnace_scene("kind = \"index-matched\"").replace(
         "sigma_t = [5.0, 20.0, 60.0]",
         "sigma_t = [300.0, 600.0, 1000.0]",
@@ -960,6 +959,10 @@ fn a_stop_request_ends_a_long_path() {
         &s,
         &set,
         || {
+            if handed > 0 {
+                // One path only: a wavefront that ran it to its end then returns true.
+                return None;
+            }
             handed += 1;
             stop.store(true, Ordering::Relaxed);
             let dir = s.camera.ray_dir(1.0, 1.0);

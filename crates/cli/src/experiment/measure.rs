@@ -122,9 +122,7 @@ pub fn render_once(
         &out.stats,
         &format!("{} ({}, seed {}): ", scene.display(), kind.name(), o.seed),
     );
-    // The files' hash tells the devices' ST-CVAE apart, as `render`'s does.
-    let hash = render_gpu::setup::render_hash(p.data.hash, kind, ctx.engine.is_gpu());
-    Ok((out, hash))
+    Ok((out, p.data.hash))
 }
 
 /// The two seeds of an integrator's pair. PT and ST-CVAE must not share them: a sample's

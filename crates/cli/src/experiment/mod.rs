@@ -27,7 +27,7 @@ pub const DEFAULT_OUT: &str = "results";
 pub struct Args {
     /// Experiment config (TOML).
     pub config: PathBuf,
-    /// The reduced version (small images, few samples): minutes, for checks.
+    /// The reduced version (small images, few samples): seconds, for checks.
     #[arg(long)]
     pub quick: bool,
     /// Where renders run: auto (a hardware GPU if any, else the CPU), gpu or cpu.

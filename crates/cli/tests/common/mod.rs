@@ -34,7 +34,9 @@ pub fn words(line: &str) -> Vec<&str> {
 /// sends one to a process and one to its group. It is sent to the main thread (tgkill), so
 /// the kernel keeps it pending apart from the first (process-directed) one instead of
 /// merging the two, and the handler sees two signals; a second `kill` process could start
-/// more than the CLI's 300 ms same-request window later on a loaded machine.
+/// more than the CLI's 300 ms same-request window later on a loaded machine. (Other Unix
+/// systems get two process-directed signals, which the kernel may merge into one.)
+#[cfg(unix)]
 pub fn interrupt_when(
     child: &Child,
     started: impl Fn() -> bool,
