@@ -20,7 +20,7 @@ pub struct Args {
     #[arg(long, default_value = crate::render::DEFAULT_SCENE,
           value_parser = crate::shipped::scene_arg(crate::render::DEFAULT_SCENE))]
     scene: PathBuf,
-    /// Density multipliers of the scene's σ_t (each in (0, 1000]). PT's time grows with k;
+    /// Density multipliers of the scene's σ_t (each in [0.001, 1000]). PT's time grows with k;
     /// on a software adapter k = 8 takes minutes.
     #[arg(long, value_delimiter = ',', default_value = "1", value_parser = parse_k)]
     k: Vec<f64>,

@@ -433,7 +433,7 @@ fn bad_arguments_name_the_argument() {
     let d = tempfile::tempdir().unwrap();
     let file = d.path().join("file");
     std::fs::write(&file, b"x").unwrap();
-    let cases: [(Vec<String>, &str); 9] = [
+    let cases: [(Vec<String>, &str); 10] = [
         (vec!["render".into(), "--spp".into(), "0".into()], "--spp"),
         // Negative values meet the option's range, not "unexpected argument '-1'".
         (
@@ -442,7 +442,16 @@ fn bad_arguments_name_the_argument() {
         ),
         (
             vec!["bench".into(), "render".into(), "--k".into(), "-1".into()],
-            "allowed (0, 1000]",
+            "allowed [0.001, 1000]",
+        ),
+        (
+            vec![
+                "bench".into(),
+                "render".into(),
+                "--k".into(),
+                "1e-300".into(),
+            ],
+            "1e-300 is out of range: allowed [0.001, 1000]",
         ),
         (
             vec![
