@@ -45,7 +45,8 @@ fn probe_decoder(@builtin(global_invocation_id) gid: vec3<u32>) {
 /// In: g, ξ at 0, 1; dir at 4..7; (cos ψ, sin ψ) at 8, 9; exit (cos θ, α, β) at 12..15;
 /// X at 16..19. Out: HG (cos θ, sin θ) at 0, 1; deflect(dir, θ, ψ) at 4..7, normalised at
 /// 20..23, and HG's density from dir to it at 2; world exit point at 8..11; world exit
-/// direction at 12..15; world X at 16..19.
+/// direction at 12..15; world X at 16..19; the canonical exit point of HG's (cos θ, sin θ)
+/// (the single-scattering branch's exit) at 24..27.
 @compute @workgroup_size(WORKGROUP)
 fn probe_frame(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = gid.x;
@@ -63,6 +64,7 @@ fn probe_frame(@builtin(global_invocation_id) gid: vec3<u32>) {
     let c = hg_sample(g, xi);
     let d = deflect(dir, c, cs);
     let l = normalize(d);
+    let single_exit = canonical_exit_point(c.x, c.y);
     let f = walk_frame(dir, cs);
     let p = to_world(f, canonical_exit_point(ct, sin_of_cos(ct)));
     let w = to_world(f, canonical_exit_dir(ct, sin_of_cos(ct), al, be));
@@ -74,6 +76,7 @@ fn probe_frame(@builtin(global_invocation_id) gid: vec3<u32>) {
     for (var k = 0u; k < 3u; k++) {
         set_f(i, 4u + k, d[k]);
         set_f(i, 20u + k, l[k]);
+        set_f(i, 24u + k, single_exit[k]);
         set_f(i, 8u + k, p[k]);
         set_f(i, 12u + k, w[k]);
         set_f(i, 16u + k, xw[k]);

@@ -213,7 +213,11 @@ fn exact_proxy(x: vec3<f32>, w: vec3<f32>, nl: u32, f2: f32, tau: f32, g: f32) -
         let b = dot(x, wl);
         let chord = -b + sqrt(b * b + max(f2 - dd, 0.0));
         let d = max(1.0 + g * g - 2.0 * g * dot(w, wl), 1e-12);
-        q += ex_lights[i].w * (1.0 - g * g) * INV_4PI / (d * sqrt(d)) * exp(-tau * chord);
+        // The attenuation no smaller than 2^−126, as the CPU's (event_choice::exp2): the
+        // proxy must be positive wherever the NEE can be, and exp flushes to 0 past τ·chord
+        // ≈ 87 (reached where exact_tau > 43).
+        let atten = exp2(max(-tau * chord * 1.4426950408889634, -126.0));
+        q += ex_lights[i].w * (1.0 - g * g) * INV_4PI / (d * sqrt(d)) * atten;
     }
     return q;
 }

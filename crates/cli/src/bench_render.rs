@@ -425,7 +425,7 @@ pub fn run(a: Args) -> Result<()> {
             if o.is_finite() && se.is_finite() {
                 format!("{:+.2}% ± {:.2}%", 100.0 * o, 100.0 * se)
             } else {
-                "n/a (PT's total is 0)".to_owned()
+                "n/a (PT's total is ~0)".to_owned()
             }
         });
         let blocks = if c.blocks == 0 {
@@ -456,4 +456,19 @@ pub fn run(a: Args) -> Result<()> {
          object pixels is 1"
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::parse_k;
+
+    #[test]
+    fn k_takes_its_range_and_nothing_else() {
+        for ok in ["0.001", "1e-3", " 1 ", "1000", "8"] {
+            assert!(parse_k(ok).is_ok(), "{ok}");
+        }
+        for bad in ["0.0009", "1001", "0", "-1", "NaN", "inf", "1e-300", "x"] {
+            assert!(parse_k(bad).is_err(), "{bad}");
+        }
+    }
 }

@@ -344,8 +344,8 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
         });
         if let Some(o) = twin {
             return Err(RenderError::Image(format!(
-                "{}: holds the same render as {} (the same seed{}): its samples would count \
-                 twice; merge renders of different seeds",
+                "{}: holds the same render as {} (the same seed{}, perhaps on the other \
+                 device): its samples would count twice; merge renders of different seeds",
                 p.display(),
                 o.path.display(),
                 shared(o).map_or(String::new(), |s| format!(" {s}"))

@@ -143,6 +143,15 @@ fn wgsl_hg_and_frame_match_rust() {
         let (t, b) = orthonormal_basis(dir);
         let d = dir * o[0] as f64 + (t * items[i][8] as f64 + b * items[i][9] as f64) * o[1] as f64;
         assert!((v(o, 4) - d).length() < 2e-5, "item {i}: deflect");
+        // The single-scattering branch's exit point (0, sin θ, cos θ) keeps hg_sample's
+        // sin θ (from the cosine alone it would be f32 rounding near the poles).
+        let x = v(o, 24);
+        assert!(
+            x.x == 0.0 && x.y == o[1] as f64 && x.z == o[0] as f64,
+            "item {i}: single-scattering exit {x} from ({}, {})",
+            o[0],
+            o[1]
+        );
         let l = v(o, 20);
         let pdf = hg_pdf(g, dir.dot(l) / (dir.length() * l.length()));
         assert!(

@@ -954,11 +954,13 @@ fn a_stop_request_ends_a_long_path() {
     let set = settings(IntegratorKind::Pt, false, None);
     let stop = AtomicBool::new(false);
     let mut handed = 0;
+    let mut asked = 0;
     let mut reported = 0;
     let whole = trace_many(
         &s,
         &set,
         || {
+            asked += 1;
             if handed > 0 {
                 // One path only: a wavefront that ran it to its end then returns true.
                 return None;
@@ -983,7 +985,10 @@ fn a_stop_request_ends_a_long_path() {
         "the wavefront finished its paths despite the stop request"
     );
     assert_eq!(reported, 0, "a path ran to its end after the stop request");
-    assert_eq!(handed, 1, "paths were handed out after the stop request");
+    assert_eq!(
+        asked, 1,
+        "the wavefront asked for paths after the stop request"
+    );
 }
 
 /// A camera ray entering the medium where it is thinner than the spawn offset (along the
