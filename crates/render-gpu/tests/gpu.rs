@@ -865,7 +865,8 @@ fn cpu_gpu_agree_stcvae_sphere() {
 /// environment map with two delta lights, g = −0.4, one EventGen draw a step, three events
 /// an exact step and a shadow ray at every event; then g = 0.999 under a 30° disk (NEE's
 /// mixture of disk and phase directions, and a lobe ~1e-3 rad wide, in which the kernels'
-/// f32 textbook HG lost 3.5 % of its integral), PT and ST-CVAE with exact steps. The first
+/// f32 textbook HG lost 3.5 % of its integral), PT and ST-CVAE with exact steps; and
+/// g = −0.99 with every step from the models, NEE off. The first
 /// case's 20° disk under g = 0.9 takes the mixture too.
 #[test]
 fn cpu_gpu_agree_in_less_common_settings() {
@@ -964,6 +965,22 @@ fn cpu_gpu_agree_in_less_common_settings() {
     compare_devices_with(
         "ST-CVAE exact steps, g 0.999 under a 30° disk",
         &narrow,
+        &set,
+        96,
+    );
+    // g = −0.99 is within the models' trusted range (MODEL_MAX_G bounds g > 0 only): every
+    // step from the models (exact_tau 0), so their single-scattering branch, whose exit
+    // keeps HG's own sin θ, runs at a lobe ~0.01 rad wide. NEE off: with it, the backward
+    // lobe's shadow-ray weights left only 11 blocks with noise estimates of 10 dof here.
+    let backward = narrow.replace("g = 0.999", "g = -0.99");
+    assert!(backward.contains("g = -0.99"));
+    let set = IntegratorSettings {
+        exact_tau: 0.0,
+        ..settings(IntegratorKind::Stcvae, false)
+    };
+    compare_devices_with(
+        "ST-CVAE model steps, no NEE, g −0.99 under a 30° disk",
+        &backward,
         &set,
         96,
     );
