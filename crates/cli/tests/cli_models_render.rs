@@ -64,6 +64,25 @@ fn merge_renders(a: &Path, b: &Path, m: &Path) -> Output {
     ])
 }
 
+/// `stcvae ARGS` with wgpu narrowed to Vulkan (lavapipe in CI), which must succeed; None,
+/// with the reason printed, only where no Vulkan adapter exists and not under CI.
+fn on_vulkan(args: &[&str], test: &str) -> Option<Output> {
+    let out = Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args(args)
+        .env("WGPU_BACKEND", "vulkan")
+        .current_dir(root())
+        .output()
+        .expect("run stcvae");
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    if !out.status.success() && err.contains("no wgpu adapter") && std::env::var_os("CI").is_none()
+    {
+        common::skip(&format!("{test}: {err}"));
+        return None;
+    }
+    ok(&out);
+    Some(out)
+}
+
 fn ok(out: &Output) -> String {
     let err = String::from_utf8_lossy(&out.stderr).into_owned();
     assert!(out.status.success(), "stcvae failed: {err}");
@@ -958,8 +977,8 @@ fn bench_render_save_writes_images_and_the_pixel_table() {
 /// reason, only where no Vulkan adapter exists and not under CI.
 #[test]
 fn bench_devices_prints_both_devices_and_their_ratio() {
-    let out = Command::new(env!("CARGO_BIN_EXE_stcvae"))
-        .args([
+    let Some(out) = on_vulkan(
+        &[
             "bench",
             "devices",
             "--scene",
@@ -970,20 +989,11 @@ fn bench_devices_prints_both_devices_and_their_ratio() {
             "2",
             "--k",
             "1,2",
-        ])
-        .env("WGPU_BACKEND", "vulkan")
-        .current_dir(root())
-        .output()
-        .expect("run stcvae");
-    let err = String::from_utf8_lossy(&out.stderr).into_owned();
-    if !out.status.success() && err.contains("no wgpu adapter") && std::env::var_os("CI").is_none()
-    {
-        common::skip(&format!(
-            "bench_devices_prints_both_devices_and_their_ratio: {err}"
-        ));
+        ],
+        "bench_devices_prints_both_devices_and_their_ratio",
+    ) else {
         return;
-    }
-    ok(&out);
+    };
     let text = String::from_utf8_lossy(&out.stdout).into_owned();
     assert!(
         text.contains("GPU: gpu: ") && text.contains("CPU: cpu ("),
@@ -1297,21 +1307,9 @@ fn merge_averages_stcvae_renders_of_both_devices() {
         "--out",
         b.to_str().unwrap(),
     ];
-    let out = Command::new(env!("CARGO_BIN_EXE_stcvae"))
-        .args(args)
-        .env("WGPU_BACKEND", "vulkan")
-        .current_dir(root())
-        .output()
-        .expect("run stcvae");
-    let err = String::from_utf8_lossy(&out.stderr).into_owned();
-    if !out.status.success() && err.contains("no wgpu adapter") && std::env::var_os("CI").is_none()
-    {
-        common::skip(&format!(
-            "merge_averages_stcvae_renders_of_both_devices: {err}"
-        ));
+    if on_vulkan(&args, "merge_averages_stcvae_renders_of_both_devices").is_none() {
         return;
     }
-    ok(&out);
     let m = d.path().join("m");
     ok(&merge_renders(&a, &b, &m));
     let json: serde_json::Value =
