@@ -568,7 +568,7 @@ fn start_sample() {
     let s = sl_first + params.image.z * sl_j;
     rng_seed(params.sampling.z, params.sampling.w, sl_pixel_id, s);
     let dir = camera_dir(f32(sl_px) + rand(), f32(sl_py) + rand());
-    start_path(params.cam_origin.xyz + dir * params.consts3.w, dir, (s + sl_offset) % 3u);
+    start_path(params.cam_origin.xyz + dir * params.consts3.w, dir, (s % 3u + sl_offset) % 3u);
 }
 
 /// After a bounce (`casting`: it cast one of an ended path's NEE rays): a bounce that

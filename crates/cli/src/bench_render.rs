@@ -299,7 +299,7 @@ fn render_pair(
 }
 
 /// Most samples a pixel the bench takes (the header's pair arithmetic is u32).
-const MAX_BENCH_SPP: u32 = 1 << 30;
+pub(crate) const MAX_BENCH_SPP: u32 = 1 << 30;
 
 pub fn run(a: Args) -> Result<()> {
     // The overrides checked before anything runs, and blamed on the command line rather

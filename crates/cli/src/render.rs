@@ -213,6 +213,18 @@ pub fn prepare(
         (Some(t), _) => t,
         (None, _) => trained_max,
     } as f32;
+    // The scene check refuses max_tau < min_tau when both are written; without max_tau
+    // the cap is the model's, known only now.
+    if file.render.max_tau.is_none()
+        && model.is_some()
+        && (max_tau as f64) < file.render.min_tau_or_default()
+    {
+        bail!(
+            "{}: render.min_tau = {} is above the model's training maximum {max_tau} (the              default max_tau): no sphere step could be taken (allowed: min_tau <= max_tau)",
+            scene_path.display(),
+            file.render.min_tau_or_default()
+        );
+    }
     Ok(Prepared {
         file,
         data,
@@ -384,6 +396,20 @@ pub fn run(a: Args) -> Result<()> {
         .map_err(|e| anyhow::anyhow!("{}: camera.width/height: {e}", a.scene.display()))?;
     let engine = Engine::open(a.device)?;
     let set = p.settings();
+    if engine.is_gpu() && !engine.is_hardware_gpu() {
+        let slot = 16 * render_gpu::gpu::kernels::slot_vec4s(set.path_nee_rays);
+        render_gpu::render::check_image_memory_with(
+            p.file.camera.width,
+            p.file.camera.height,
+            slot,
+        )
+        .map_err(|e| {
+            anyhow::anyhow!(
+                "{}: camera.width/height: {e} (with the software GPU's path state)",
+                a.scene.display()
+            )
+        })?;
+    }
     eprintln!(
         "rendering {} ({}x{}, {}, {}{}) on the {}",
         a.scene.display(),

@@ -120,6 +120,22 @@ fn bad_experiment_config_is_a_clear_error() {
         "{err}"
     );
     assert!(!err.contains("panicked"), "{err}");
+    // spp near u32::MAX: a pair's halves added up in u32 and wrapped to 2 in the tag.
+    std::fs::write(
+        &cfg,
+        "kind = \"teaser\"\ntitle = \"t\"\nscene = \"x.toml\"\ndensities = [1.0]\n\
+         [full]\nsize = 8\nspp = 4294967295\n[quick]\nsize = 8\nspp = 2\n",
+    )
+    .unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args(["experiment", cfg.to_str().unwrap(), "--quick"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("full.spp = 4294967295 is out of range"),
+        "{err}"
+    );
     // A scene or a training config given instead says what it is, not "unknown field".
     let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../../configs");
     for (file, what) in [

@@ -58,6 +58,57 @@ fn fixed_condition_csv() {
     }
 }
 
+/// The last shard of a run of u64::MAX walks holds one walk, the one at index u64::MAX − 1:
+/// its chunk's end must not wrap (start + 4,096 did, and the run never ended, filling the
+/// disk). The shard's walk index is the run's, so this is a run of one walk.
+#[test]
+fn the_last_shard_of_the_largest_run_ends() {
+    let dir = tempfile::tempdir().unwrap();
+    let max = u64::MAX.to_string();
+    let shard = format!("{}/{max}", u64::MAX - 1);
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args([
+            "generate",
+            "--tau",
+            "1",
+            "--g",
+            "0",
+            "--albedo",
+            "1",
+            "--samples",
+            &max,
+            "--shard",
+            &shard,
+            "--out",
+            "last.csv",
+        ])
+        .current_dir(dir.path())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    // A regression would write walks until the disk is full: stopped and failed once the
+    // folder holds over a megabyte (one walk's row is ~100 bytes), whatever the time.
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        let bytes: u64 = fs::read_dir(dir.path())
+            .unwrap()
+            .flatten()
+            .filter_map(|e| e.metadata().ok())
+            .map(|m| m.len())
+            .sum();
+        if bytes > 1 << 20 {
+            child.kill().unwrap();
+            panic!("the last shard wrote {bytes} bytes and went on");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    };
+    assert!(status.success(), "{status}");
+    let text = fs::read_to_string(dir.path().join("last.csv")).unwrap();
+    assert_eq!(text.lines().count(), 2, "a header and one walk: {text}");
+}
+
 #[test]
 fn shards_merge_into_the_unsharded_run() {
     let dir = tempfile::tempdir().unwrap();

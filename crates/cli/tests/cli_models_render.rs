@@ -704,6 +704,27 @@ fn max_tau_is_checked_against_the_training_range() {
             );
         }
     }
+    // Without max_tau the cap is the model's: a min_tau above it is refused as well.
+    let text = sphere_scene_text(8).replace("[render]\n", "[render]\nmin_tau = 400.0\n");
+    std::fs::write(&scene, text).unwrap();
+    let e = fails(&stcvae(&[
+        "render",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--integrator",
+        "stcvae",
+        "--device",
+        "cpu",
+        "--spp",
+        "1",
+        "--out",
+        out.to_str().unwrap(),
+    ]));
+    assert!(
+        e.contains("render.min_tau = 400 is above the model's training maximum")
+            && e.trim().lines().count() == 1,
+        "{e}"
+    );
 }
 
 /// Above render_gpu::scene::MODEL_MAX_G (0.98) ST-CVAE takes no step from the models, where

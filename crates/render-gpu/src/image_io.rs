@@ -129,13 +129,26 @@ pub fn encode_exr(img: &RgbImage, tag: &RenderTag) -> std::result::Result<Vec<u8
     Ok(buf.into_inner())
 }
 
-/// Reads an RGB EXR and, if present, its render tag.
-/// Largest image `read_exr` accepts: 2^26 pixels (a 16,384 × 4,096 lat-long map, 800 MB
-/// as f32 RGB). The reader allocates the pixels from the header's size before it reads
-/// any data, so a corrupt or hostile header must be refused first.
-pub const MAX_EXR_PIXELS: usize = 1 << 26;
+/// Largest image `read_exr` accepts: the largest render a scene may ask for (16,384², 2^28
+/// pixels, 3.2 GB as f32 RGB), which `merge` and `bench error` must read back. The reader
+/// allocates the pixels from the header's size before it reads any data, so a corrupt or
+/// hostile header must be refused first.
+pub const MAX_EXR_PIXELS: usize =
+    crate::scene::MAX_IMAGE_SIDE as usize * crate::scene::MAX_IMAGE_SIDE as usize;
 
+/// Largest environment map (`read_exr_at_most`): 2^26 pixels, a 16,384 × 4,096 lat-long map.
+pub const MAX_ENV_PIXELS: usize = 1 << 26;
+
+/// Reads an RGB EXR and, if present, its render tag.
 pub fn read_exr(path: &Path) -> std::result::Result<(RgbImage, Option<RenderTag>), RenderError> {
+    read_exr_at_most(path, MAX_EXR_PIXELS)
+}
+
+/// [`read_exr`] of an image of at most `max_pixels`.
+pub fn read_exr_at_most(
+    path: &Path,
+    max_pixels: usize,
+) -> std::result::Result<(RgbImage, Option<RenderTag>), RenderError> {
     let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| {
         // exr's word for an empty file is "reference to missing bytes".
         let what = match std::fs::metadata(path) {
@@ -146,9 +159,9 @@ pub fn read_exr(path: &Path) -> std::result::Result<(RgbImage, Option<RenderTag>
     })?;
     for h in meta.headers.iter() {
         let (w, ht) = (h.layer_size.width(), h.layer_size.height());
-        if w.checked_mul(ht).is_none_or(|n| n > MAX_EXR_PIXELS) {
+        if w.checked_mul(ht).is_none_or(|n| n > max_pixels) {
             return Err(RenderError::Image(format!(
-                "{}: the EXR header declares {w} x {ht} pixels: allowed at most {MAX_EXR_PIXELS}",
+                "{}: the EXR header declares {w} x {ht} pixels: allowed at most {max_pixels}",
                 path.display()
             )));
         }

@@ -6,7 +6,7 @@ use std::path::Path;
 use glam::Vec3;
 
 use crate::error::RenderError;
-use crate::image_io::{RgbImage, read_exr};
+use crate::image_io::{MAX_ENV_PIXELS, RgbImage, read_exr_at_most};
 use crate::scene::{EnvironmentDesc, LightDesc};
 
 #[derive(Clone, Copy, Debug)]
@@ -208,7 +208,7 @@ impl Environment {
         let map = match &d.file {
             Some(f) => {
                 let path = scene_dir.join(f);
-                let map = read_exr(&path)?.0;
+                let map = read_exr_at_most(&path, MAX_ENV_PIXELS)?.0;
                 check_radiance_map(&map)
                     .map_err(|e| RenderError::Image(format!("{}: {e}", path.display())))?;
                 Some(map)

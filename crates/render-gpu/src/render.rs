@@ -197,7 +197,8 @@ pub fn pixel_sample(seed: u64, pixel: u64, s: u32) -> (WalkRng, f32, f32, usize)
     let h = splitmix64(splitmix64(seed ^ JITTER_STREAM) ^ ((pixel << 32) | (s / 3) as u64));
     let unit = |bits: u64| (bits >> 40) as f32 * (1.0 / (1u32 << 24) as f32);
     let (jx, jy) = (unit(h), unit(h << 24));
-    let channel = (s + channel_offset(seed, pixel as u32)) % 3;
+    // s % 3 first: s + offset wraps for the last samples of 2^32 − 1.
+    let channel = (s % 3 + channel_offset(seed, pixel as u32)) % 3;
     (rng, jx, jy, channel as usize)
 }
 
@@ -239,7 +240,17 @@ pub const BYTES_PER_PIXEL: u64 = 100;
 /// 6442450944 bytes failed" halfway. The space is reserved and given back at once, not
 /// touched.
 pub fn check_image_memory(width: u32, height: u32) -> Result<(), crate::error::RenderError> {
-    let bytes = width as u64 * height as u64 * BYTES_PER_PIXEL;
+    check_image_memory_with(width, height, 0)
+}
+
+/// [`check_image_memory`] with `extra` more bytes a pixel: a software adapter's path
+/// slots, which live in host memory (`gpu::kernels::slot_vec4s`, 16 bytes each).
+pub fn check_image_memory_with(
+    width: u32,
+    height: u32,
+    extra: u64,
+) -> Result<(), crate::error::RenderError> {
+    let bytes = width as u64 * height as u64 * (BYTES_PER_PIXEL + extra);
     let mut probe: Vec<u8> = Vec::new();
     probe.try_reserve_exact(bytes as usize).map_err(|_| {
         crate::error::RenderError::Scene(format!(

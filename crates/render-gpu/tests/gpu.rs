@@ -1992,3 +1992,32 @@ fn lane_profile_counts_and_changes_nothing() {
         "{e}"
     );
 }
+
+/// A path slot sums its samples in f32, which holds 2^22 of them well: more samples a
+/// pixel than the image's slots can hold is a clear error before any work, not pixels
+/// "with fewer finished samples" at the end. A 64² image has at most 2^20 / 4096 = 256
+/// slots a pixel on any adapter, so 2^32 − 1 spp (what a time budget asks when nothing
+/// caps it) is over 256 · 2^22 = 2^30.
+#[test]
+fn more_samples_than_the_slots_hold_are_refused() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let text = common::furnace_scene("kind = \"index-matched\"")
+        .replace("width = 12", "width = 64")
+        .replace("height = 12", "height = 64");
+    let s = common::build_scene(&text, false);
+    let Err(e) = render_gpu(
+        &ctx,
+        &s,
+        &settings(IntegratorKind::Pt, true),
+        &opts(u32::MAX, 1),
+        &|_, _| {},
+        &AtomicBool::new(false),
+    ) else {
+        panic!("rendered 2^32 − 1 spp");
+    };
+    assert!(
+        matches!(e, RenderError::GpuLimit(_)) && e.to_string().contains("2^22 per path slot"),
+        "{e}"
+    );
+}

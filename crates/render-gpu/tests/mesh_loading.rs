@@ -357,7 +357,9 @@ fn environment_maps_with_bad_pixels_are_refused() {
 /// (the reader allocates from the header's size alone; 10^9 × 10^9 would abort).
 #[test]
 fn exr_with_a_huge_declared_size_is_refused() {
-    use render_gpu::image_io::{RenderTag, RgbImage, read_exr, write_exr};
+    use render_gpu::image_io::{
+        MAX_ENV_PIXELS, MAX_EXR_PIXELS, RenderTag, RgbImage, read_exr, read_exr_at_most, write_exr,
+    };
     let d = tempfile::tempdir().unwrap();
     let path = d.path().join("huge.exr");
     let tag = RenderTag {
@@ -376,6 +378,23 @@ fn exr_with_a_huge_declared_size_is_refused() {
         .expect("a dataWindow attribute")
         + key.len()
         + 4;
+    // An environment map may be at most 2^26 pixels, less than a render (16,384², which
+    // merge reads back): 16,384 × 4,097 is refused as a map, before allocation.
+    let mut map = bytes.clone();
+    map[at + 8..at + 12].copy_from_slice(&16_383i32.to_le_bytes());
+    map[at + 12..at + 16].copy_from_slice(&4_096i32.to_le_bytes());
+    std::fs::write(&path, map).unwrap();
+    let Err(e) = read_exr_at_most(&path, MAX_ENV_PIXELS) else {
+        panic!("refused")
+    };
+    let e = e.to_string();
+    assert!(
+        e.contains("16384 x 4097 pixels: allowed at most 67108864"),
+        "{e}"
+    );
+    // What merge must read back: the largest render a scene may ask for.
+    let side = render_gpu::scene::MAX_IMAGE_SIDE as usize;
+    assert!(MAX_EXR_PIXELS >= side * side);
     bytes[at + 8..at + 12].copy_from_slice(&1_000_000_000i32.to_le_bytes());
     bytes[at + 12..at + 16].copy_from_slice(&1_000_000_000i32.to_le_bytes());
     std::fs::write(&path, bytes).unwrap();

@@ -116,9 +116,12 @@ impl Config {
                     b.size
                 );
             }
-            if b.spp < 2 {
+            // At most bench render's 2^30: a pair's two halves add up in u32.
+            let most = crate::bench_render::MAX_BENCH_SPP;
+            if !(2..=most).contains(&b.spp) {
                 bail!(
-                    "{name}.spp = {} must be at least 2 (noise is measured from two seeds)",
+                    "{name}.spp = {} is out of range: allowed [2, {most}] (noise is measured \
+                     from two seeds)",
                     b.spp
                 );
             }

@@ -27,6 +27,9 @@ use super::scene_buffers::{
 /// between chunks). A chunk takes several dispatches of bounded work each.
 const TARGET_CHUNK_SECONDS: f64 = 1.0;
 
+/// Most samples one path slot accumulates (f32 sums; see where `lanes` is chosen).
+pub const MAX_SLOT_SAMPLES: u64 = 1 << 22;
+
 /// Bounces each invocation runs per dispatch at first. llvmpipe (lavapipe) stops a shader
 /// after 65,535 loop iterations in total, counted per SIMD batch (a loop runs as long as
 /// its slowest lane); the loops left in a bounce are BVH traversals and exact sphere steps' walks (~6 an
@@ -582,6 +585,20 @@ pub fn render_gpu(
         .min(limits.max_buffer_size)
         / binding_bytes;
     let lanes = (target_threads(ctx).min(fit) / pixels.max(1)).clamp(1, spp as u64) as u32;
+    // A slot sums its samples and counts them in f32: past 2^22 a sample is a quarter of an
+    // ulp of the sum, and at 2^24 the count stops. A time budget's render stops there
+    // (it would take days on today's GPUs); asking for more is refused.
+    let most = lanes as u64 * MAX_SLOT_SAMPLES;
+    let spp = if (spp as u64) <= most {
+        spp
+    } else if opts.time_budget.is_some() {
+        most as u32
+    } else {
+        return Err(RenderError::GpuLimit(format!(
+            "{spp} samples per pixel exceed the {most} the GPU's f32 sums hold for a              {}x{} image on {} (2^22 per path slot); render several seeds and merge              them, or use --device cpu",
+            cam.width, cam.height, ctx.adapter.name
+        )));
+    };
     // An image whose slots exceed one binding (lavapipe's 128 MiB holds 0.84–1.4 M pixels)
     // is rendered in bands of rows, each with its own accumulation buffer, one after
     // another within every chunk of samples. Seeds follow the pixel's index in the image,
@@ -668,19 +685,27 @@ pub fn render_gpu(
         },
     )?;
     // Poison the accumulation buffers: a pixel the kernel never wrote stays NaN and is
-    // reported below instead of passing as black.
+    // reported below instead of passing as black. A piece at a time, each submitted and
+    // waited for: wgpu keeps every write's staging copy until a submission completes, and
+    // written whole those copies doubled the host memory of the largest images (on
+    // lavapipe, where the buffers are host memory too, ~190 bytes a pixel instead of ~95).
+    const POISON_PIECE: u64 = 64 << 20;
+    let largest = accum_bytes.iter().copied().max().unwrap_or(0);
+    let nan = vec![0xffu8; POISON_PIECE.min(largest) as usize]; // all-ones f32 bits = NaN
     for (buf, &bytes) in res.accums.iter().zip(&accum_bytes) {
-        ctx.queue.write_buffer(
-            buf,
-            0,
-            &vec![0xffu8; bytes as usize], // all-ones f32 bits = NaN
-        );
+        let mut at = 0;
+        while at < bytes {
+            let n = (bytes - at).min(POISON_PIECE);
+            ctx.queue.write_buffer(buf, at, &nan[..n as usize]);
+            ctx.queue.submit([]);
+            super::resources::wait(ctx)?;
+            at += n;
+        }
     }
     let mut budget = bounce_budget(ctx)?;
     params.consts2[2] = budget as f32;
     // The path states before the dispatch in flight, kept on software adapters while a
     // cut-off dispatch can be redone with a smaller budget.
-    let largest = accum_bytes.iter().copied().max().unwrap_or(0);
     let snapshot = (ctx.adapter.software && budget > 1).then(|| Snapshot {
         accum: res.snapshot_buffer(ctx, largest),
         staged: shape

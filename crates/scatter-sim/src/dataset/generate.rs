@@ -113,7 +113,8 @@ pub fn generate(
         if cancel.load(Ordering::Relaxed) {
             return Err(DatasetError::Interrupted);
         }
-        let end = (start + CHUNK).min(range.end);
+        // Not start + CHUNK: a shard ending at walk u64::MAX would wrap it and never end.
+        let end = start + (range.end - start).min(CHUNK);
         (0..(end - start) as usize)
             .into_par_iter()
             .map(|j| walk_row(spec.seed, &spec.sampler, start + j as u64))
