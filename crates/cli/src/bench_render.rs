@@ -323,6 +323,16 @@ pub fn run(a: Args) -> Result<()> {
                 crate::model_cmds::training_range(m.training.tau_range)
             );
         }
+    } else if let Some(t) = a.min_tau {
+        // Without --max-tau the cap is the model's: a threshold above it leaves no step.
+        let m = crate::model_cmds::load_model(a.model.as_deref())?;
+        let most = m.training.tau_range[1] as f32 as f64;
+        if t > most {
+            bail!(
+                "--min-tau {t} is above the model's training maximum {most} (the default \
+                 --max-tau): no sphere step could be taken"
+            );
+        }
     }
     // Checked before any rendering, so that a long bench does not fail at its end.
     if let Some(dir) = &a.save {

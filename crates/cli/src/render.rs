@@ -220,7 +220,8 @@ pub fn prepare(
         && (max_tau as f64) < file.render.min_tau_or_default()
     {
         bail!(
-            "{}: render.min_tau = {} is above the model's training maximum {max_tau} (the              default max_tau): no sphere step could be taken (allowed: min_tau <= max_tau)",
+            "{}: render.min_tau = {} is above the model's training maximum {max_tau} (the \
+             default max_tau): no sphere step could be taken (allowed: min_tau <= max_tau)",
             scene_path.display(),
             file.render.min_tau_or_default()
         );
@@ -397,7 +398,7 @@ pub fn run(a: Args) -> Result<()> {
     let engine = Engine::open(a.device)?;
     let set = p.settings();
     if engine.is_gpu() && !engine.is_hardware_gpu() {
-        let slot = 16 * render_gpu::gpu::kernels::slot_vec4s(set.path_nee_rays);
+        let slot = 16 * render_gpu::gpu::kernels::slot_vec4s(set.path_nee() as u32);
         render_gpu::render::check_image_memory_with(
             p.file.camera.width,
             p.file.camera.height,

@@ -722,6 +722,7 @@ fn max_tau_is_checked_against_the_training_range() {
     ]));
     assert!(
         e.contains("render.min_tau = 400 is above the model's training maximum")
+            && e.contains("(the default max_tau)")
             && e.trim().lines().count() == 1,
         "{e}"
     );

@@ -165,6 +165,18 @@ pub fn read_exr_at_most(
                 path.display()
             )));
         }
+        // The pixels and the written-or-not flags are allocated from the header before
+        // any data is read (up to 3.5 GB at 16,384²): a failed allocation would abort,
+        // so the space is reserved and given back first, as for a render's buffers.
+        let mut probe: Vec<u8> = Vec::new();
+        if probe.try_reserve_exact(w * ht * 14).is_err() {
+            return Err(RenderError::Image(format!(
+                "{}: a {w} x {ht} image needs about {:.1} GB of memory, which could not be \
+                 allocated",
+                path.display(),
+                (w * ht * 14) as f64 / 1e9
+            )));
+        }
     }
     // exr's own error for a grey (Y) or single-channel image names no channel ("no layer
     // in the image matched your specified requirements").

@@ -585,9 +585,10 @@ pub fn render_gpu(
         .min(limits.max_buffer_size)
         / binding_bytes;
     let lanes = (target_threads(ctx).min(fit) / pixels.max(1)).clamp(1, spp as u64) as u32;
-    // A slot sums its samples and counts them in f32: past 2^22 a sample is a quarter of an
-    // ulp of the sum, and at 2^24 the count stops. A time budget's render stops there
-    // (it would take days on today's GPUs); asking for more is refused.
+    // A slot sums its samples and counts them in f32: at 2^22 samples the sum's ulp is
+    // half a sample's size (a rounding of up to a quarter sample each), and at 2^24 the
+    // count stops. A time budget's render stops at 2^22 a slot (days on today's GPUs);
+    // asking for more is refused before any dispatch.
     let most = lanes as u64 * MAX_SLOT_SAMPLES;
     let spp = if (spp as u64) <= most {
         spp
@@ -595,7 +596,9 @@ pub fn render_gpu(
         most as u32
     } else {
         return Err(RenderError::GpuLimit(format!(
-            "{spp} samples per pixel exceed the {most} the GPU's f32 sums hold for a              {}x{} image on {} (2^22 per path slot); render several seeds and merge              them, or use --device cpu",
+            "{spp} samples per pixel exceed the {most} the GPU's f32 sums hold for a \
+             {}x{} image on {} (2^22 per path slot); render several seeds and merge \
+             them, or use --device cpu",
             cam.width, cam.height, ctx.adapter.name
         )));
     };
@@ -692,13 +695,19 @@ pub fn render_gpu(
     const POISON_PIECE: u64 = 64 << 20;
     let largest = accum_bytes.iter().copied().max().unwrap_or(0);
     let nan = vec![0xffu8; POISON_PIECE.min(largest) as usize]; // all-ones f32 bits = NaN
-    for (buf, &bytes) in res.accums.iter().zip(&accum_bytes) {
+    // A failed wait is reported after the error scopes: an out-of-memory error they hold
+    // says more than "the GPU did not finish".
+    let mut poisoned = Ok(());
+    'bands: for (buf, &bytes) in res.accums.iter().zip(&accum_bytes) {
         let mut at = 0;
         while at < bytes {
             let n = (bytes - at).min(POISON_PIECE);
             ctx.queue.write_buffer(buf, at, &nan[..n as usize]);
             ctx.queue.submit([]);
-            super::resources::wait(ctx)?;
+            poisoned = super::resources::wait(ctx);
+            if poisoned.is_err() {
+                break 'bands;
+            }
             at += n;
         }
     }
@@ -730,6 +739,7 @@ pub fn render_gpu(
             ctx.adapter.name
         )));
     }
+    poisoned?;
     let mut compile_seconds = 0.0;
     match &kernels {
         // The queues start zeroed: trace_main and step_main find nothing to do, and the

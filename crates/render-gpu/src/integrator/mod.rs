@@ -80,7 +80,7 @@ impl IntegratorSettings<'_> {
     /// The reservoirs of path-level NEE: `path_nee_rays` for ST-CVAE with NEE, else 0
     /// (PT always casts a shadow ray at every event; see [`nee::PathNee`]).
     #[inline]
-    pub(crate) fn path_nee(&self) -> usize {
+    pub fn path_nee(&self) -> usize {
         if self.nee && self.kind == IntegratorKind::Stcvae {
             (self.path_nee_rays as usize).min(nee::MAX_PATH_NEE_RAYS)
         } else {
