@@ -103,37 +103,36 @@ fn every_experiment_runs_quick() {
 fn bad_experiment_config_is_a_clear_error() {
     let tmp = tempfile::tempdir().unwrap();
     let cfg = tmp.path().join("bad.toml");
-    std::fs::write(
-        &cfg,
-        "kind = \"teaser\"\ntitle = \"t\"\nscene = \"x.toml\"\ndensities = [-1.0]\n\
-         [full]\nsize = 8\nspp = 2\n[quick]\nsize = 8\nspp = 2\n",
-    )
-    .unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_stcvae"))
-        .args(["experiment", cfg.to_str().unwrap(), "--quick"])
-        .output()
+    // The config with `densities` and `full.spp` as given: its error (stderr) and success.
+    let run = |densities: &str, spp: &str| {
+        std::fs::write(
+            &cfg,
+            format!(
+                "kind = \"teaser\"\ntitle = \"t\"\nscene = \"x.toml\"\ndensities = [{densities}]\n\
+                 [full]\nsize = 8\nspp = {spp}\n[quick]\nsize = 8\nspp = 2\n"
+            ),
+        )
         .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success());
+        let out = Command::new(env!("CARGO_BIN_EXE_stcvae"))
+            .args(["experiment", cfg.to_str().unwrap(), "--quick"])
+            .output()
+            .unwrap();
+        (
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+            out.status.success(),
+        )
+    };
+    let (err, success) = run("-1.0", "2");
+    assert!(!success);
     assert!(
         err.contains("bad.toml") && err.contains("densities"),
         "{err}"
     );
     assert!(!err.contains("panicked"), "{err}");
     // spp near u32::MAX: a pair's halves added up in u32 and wrapped to 2 in the tag.
-    std::fs::write(
-        &cfg,
-        "kind = \"teaser\"\ntitle = \"t\"\nscene = \"x.toml\"\ndensities = [1.0]\n\
-         [full]\nsize = 8\nspp = 4294967295\n[quick]\nsize = 8\nspp = 2\n",
-    )
-    .unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_stcvae"))
-        .args(["experiment", cfg.to_str().unwrap(), "--quick"])
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
+    let (err, success) = run("1.0", "4294967295");
     assert!(
-        !out.status.success() && err.contains("full.spp = 4294967295 is out of range"),
+        !success && err.contains("full.spp = 4294967295 is out of range"),
         "{err}"
     );
     // A scene or a training config given instead says what it is, not "unknown field".

@@ -670,23 +670,23 @@ fn max_tau_is_checked_against_the_training_range() {
     let d = tempfile::tempdir().unwrap();
     let scene = d.path().join("s.toml");
     let out = d.path().join("r");
+    let args = [
+        "render",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--integrator",
+        "stcvae",
+        "--device",
+        "cpu",
+        "--spp",
+        "1",
+        "--out",
+        out.to_str().unwrap(),
+    ];
     for (max_tau, accepted) in [("300.0", true), ("301.0", false), ("0.5", false)] {
         let text =
             sphere_scene_text(8).replace("[render]\n", &format!("[render]\nmax_tau = {max_tau}\n"));
         std::fs::write(&scene, text).unwrap();
-        let args = [
-            "render",
-            "--scene",
-            scene.to_str().unwrap(),
-            "--integrator",
-            "stcvae",
-            "--device",
-            "cpu",
-            "--spp",
-            "1",
-            "--out",
-            out.to_str().unwrap(),
-        ];
         if accepted {
             ok(&stcvae(&args));
         } else {
@@ -707,19 +707,7 @@ fn max_tau_is_checked_against_the_training_range() {
     // Without max_tau the cap is the model's: a min_tau above it is refused as well.
     let text = sphere_scene_text(8).replace("[render]\n", "[render]\nmin_tau = 400.0\n");
     std::fs::write(&scene, text).unwrap();
-    let e = fails(&stcvae(&[
-        "render",
-        "--scene",
-        scene.to_str().unwrap(),
-        "--integrator",
-        "stcvae",
-        "--device",
-        "cpu",
-        "--spp",
-        "1",
-        "--out",
-        out.to_str().unwrap(),
-    ]));
+    let e = fails(&stcvae(&args));
     assert!(
         e.contains("render.min_tau = 400 is above the model's training maximum")
             && e.contains("(the default max_tau)")
