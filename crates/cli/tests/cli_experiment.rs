@@ -135,6 +135,43 @@ fn bad_experiment_config_is_a_clear_error() {
         !success && err.contains("full.spp = 4294967295 is out of range"),
         "{err}"
     );
+    // A fallback threshold above the model's range (no max_tau in the scene) fails before
+    // any render, not after PT's pair and the thresholds before it.
+    let scene = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../configs/scenes/sphere.toml"
+    );
+    std::fs::write(
+        &cfg,
+        format!(
+            "kind = \"fallback\"\ntitle = \"t\"\nscene = {scene:?}\ndensities = [1.0]\n\
+             thresholds = [0.0, 400.0]\n[full]\nsize = 8\nspp = 2\n[quick]\nsize = 8\nspp = 2\n"
+        ),
+    )
+    .unwrap();
+    let d = tempfile::tempdir().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args([
+            "experiment",
+            cfg.to_str().unwrap(),
+            "--quick",
+            "--device",
+            "cpu",
+            "--out",
+        ])
+        .arg(d.path())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success()
+            && err.contains("threshold 400 is above the model's training maximum"),
+        "{err}"
+    );
+    assert!(
+        std::fs::read_dir(d.path()).unwrap().next().is_none(),
+        "a folder or file was made before the error"
+    );
     // A scene or a training config given instead says what it is, not "unknown field".
     let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../../configs");
     for (file, what) in [

@@ -1,6 +1,6 @@
 //! The seven experiments: what each renders and measures (see configs/experiments/).
 
-use anyhow::Result;
+use anyhow::{Result, bail};
 use render_gpu::integrator::IntegratorKind::{Pt, Stcvae};
 use render_gpu::scene::{LightDesc, SceneFile};
 
@@ -31,7 +31,10 @@ fn scale_density(k: f64) -> impl Fn(&mut SceneFile) {
 /// Checks every scene edit the experiment will make before the first render, so that a
 /// density or threshold out of the scene file's ranges fails at once, not after the
 /// renders before it.
-pub(super) fn preflight(cfg: &super::config::Config) -> Result<()> {
+pub(super) fn preflight(
+    cfg: &super::config::Config,
+    model: Option<&std::path::Path>,
+) -> Result<()> {
     let mut scenes = Vec::new();
     if cfg.scene.is_some() {
         scenes.push(cfg.scene_path());
@@ -75,6 +78,19 @@ pub(super) fn preflight(cfg: &super::config::Config) -> Result<()> {
             let mut f = base.clone();
             f.render.min_tau = Some(t);
             check(f, format!("with threshold {t}"))?;
+        }
+        // Without max_tau the cap is the model's (render::prepare refuses the rest, but
+        // only when that threshold's turn comes, after the renders before it).
+        if !cfg.thresholds.is_empty() && base.render.max_tau.is_none() {
+            let m = crate::model_cmds::load_model(model)?;
+            let most = m.training.tau_range[1] as f32 as f64;
+            if let Some(t) = cfg.thresholds.iter().find(|&&t| t > most) {
+                bail!(
+                    "{}: threshold {t} is above the model's training maximum {most} (the \
+                     default max_tau): no sphere step could be taken",
+                    path.display()
+                );
+            }
         }
     }
     Ok(())

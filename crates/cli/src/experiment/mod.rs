@@ -63,7 +63,7 @@ pub fn run(a: Args) -> Result<()> {
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_else(|| "experiment".into());
-    kinds::preflight(&cfg).with_context(|| a.config.display().to_string())?;
+    kinds::preflight(&cfg, a.model.as_deref()).with_context(|| a.config.display().to_string())?;
     let out = a.out.join(&name);
     // A file where the folder or a report goes, or an unwritable place, fails now rather
     // than after the renders (the reports' checks cover their folder's).
