@@ -326,7 +326,7 @@ pub fn run(a: Args) -> Result<()> {
     } else if let Some(t) = a.min_tau {
         // Without --max-tau the cap is the model's: a threshold above it leaves no step.
         let m = crate::model_cmds::load_model(a.model.as_deref())?;
-        let most = m.training.tau_range[1] as f32 as f64;
+        let most = crate::model_cmds::default_max_tau(&m);
         if t > most {
             bail!(
                 "--min-tau {t} is above the model's training maximum {most} (the default \

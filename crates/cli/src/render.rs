@@ -203,7 +203,7 @@ pub fn prepare(
     let data = data?;
     let trained_max = model
         .as_ref()
-        .map_or(f64::INFINITY, |m| m.training.tau_range[1]);
+        .map_or(f64::INFINITY, crate::model_cmds::default_max_tau);
     let max_tau = match (file.render.max_tau, &model) {
         (Some(t), Some(m)) if crate::model_cmds::beyond_trained_tau(t, m) => bail!(
             "{}: render.max_tau = {t} is beyond the model's training range {}",

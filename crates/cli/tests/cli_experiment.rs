@@ -150,18 +150,7 @@ fn bad_experiment_config_is_a_clear_error() {
     )
     .unwrap();
     let d = tempfile::tempdir().unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_stcvae"))
-        .args([
-            "experiment",
-            cfg.to_str().unwrap(),
-            "--quick",
-            "--device",
-            "cpu",
-            "--out",
-        ])
-        .arg(d.path())
-        .output()
-        .unwrap();
+    let out = quick_experiment(&cfg, d.path());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
         !out.status.success()

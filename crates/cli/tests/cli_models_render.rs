@@ -23,6 +23,13 @@ fn sphere_scene_text(side: u32) -> String {
     text
 }
 
+/// The shipped sphere scene at `side`² pixels, written to `dir`/s.toml.
+fn sphere_scene_file(dir: &Path, side: u32) -> PathBuf {
+    let scene = dir.join("s.toml");
+    std::fs::write(&scene, sphere_scene_text(side)).unwrap();
+    scene
+}
+
 fn stcvae(args: &[&str]) -> Output {
     common::stcvae(args, &root())
 }
@@ -226,8 +233,7 @@ fn model_errors_are_one_line() {
 #[test]
 fn render_writes_exr_png_json_and_merge_averages_by_spp() {
     let d = tempfile::tempdir().unwrap();
-    let scene = d.path().join("s.toml");
-    std::fs::write(&scene, sphere_scene_text(16)).unwrap();
+    let scene = sphere_scene_file(d.path(), 16);
     let a = d.path().join("a");
     let b = d.path().join("b");
     for (out, seed, spp) in [(&a, "1", "4"), (&b, "2", "8")] {
@@ -1079,8 +1085,7 @@ fn shipped_defaults_are_found_from_another_directory() {
 #[test]
 fn bench_error_ranks_renders_by_error_and_names_bad_inputs() {
     let d = tempfile::tempdir().unwrap();
-    let scene = d.path().join("s.toml");
-    std::fs::write(&scene, sphere_scene_text(16)).unwrap();
+    let scene = sphere_scene_file(d.path(), 16);
     let render = |name: &str, spp: &str, seed: &str, scene: &Path| {
         let out = d.path().join(name);
         ok(&render_scene(
@@ -1235,8 +1240,7 @@ fn bench_error_ranks_renders_by_error_and_names_bad_inputs() {
 #[test]
 fn a_time_budget_stops_after_a_pass_and_records_its_spp() {
     let d = tempfile::tempdir().unwrap();
-    let scene = d.path().join("s.toml");
-    std::fs::write(&scene, sphere_scene_text(16)).unwrap();
+    let scene = sphere_scene_file(d.path(), 16);
     let (a, b) = (d.path().join("a"), d.path().join("b"));
     for (out, seed) in [(&a, "1"), (&b, "2")] {
         let budget = ["--time-budget", "1e-9", "--device", "cpu"];
@@ -1291,8 +1295,7 @@ fn a_time_budget_stops_after_a_pass_and_records_its_spp() {
 #[test]
 fn merge_averages_stcvae_renders_of_both_devices() {
     let d = tempfile::tempdir().unwrap();
-    let scene = d.path().join("s.toml");
-    std::fs::write(&scene, sphere_scene_text(8)).unwrap();
+    let scene = sphere_scene_file(d.path(), 8);
     let (a, b) = (d.path().join("cpu"), d.path().join("gpu"));
     ok(&render_scene(
         &scene,

@@ -168,8 +168,7 @@ pub fn read_exr_at_most(
         // The pixels and the written-or-not flags are allocated from the header before
         // any data is read (up to 3.5 GB at 16,384²): a failed allocation would abort,
         // so the space is reserved and given back first, as for a render's buffers.
-        let mut probe: Vec<u8> = Vec::new();
-        if probe.try_reserve_exact(w * ht * 14).is_err() {
+        if !crate::render::reservable((w * ht * 14) as u64) {
             return Err(RenderError::Image(format!(
                 "{}: a {w} x {ht} image needs about {:.1} GB of memory, which could not be \
                  allocated",

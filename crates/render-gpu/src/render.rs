@@ -251,14 +251,21 @@ pub fn check_image_memory_with(
     extra: u64,
 ) -> Result<(), crate::error::RenderError> {
     let bytes = width as u64 * height as u64 * (BYTES_PER_PIXEL + extra);
-    let mut probe: Vec<u8> = Vec::new();
-    probe.try_reserve_exact(bytes as usize).map_err(|_| {
-        crate::error::RenderError::Scene(format!(
+    if reservable(bytes) {
+        Ok(())
+    } else {
+        Err(crate::error::RenderError::Scene(format!(
             "a {width} x {height} image needs about {:.1} GB of memory, which could not be \
              allocated: render a smaller one",
             bytes as f64 / 1e9
-        ))
-    })
+        )))
+    }
+}
+
+/// Whether `bytes` can be allocated now: reserved and given back at once, not touched
+/// (Rust aborts on a failed allocation, so sizes taken from input are tried first).
+pub fn reservable(bytes: u64) -> bool {
+    usize::try_from(bytes).is_ok_and(|n| Vec::<u8>::new().try_reserve_exact(n).is_ok())
 }
 
 /// Renders the scene. `progress(done, total)` counts pixel-samples; `cancel` stops within

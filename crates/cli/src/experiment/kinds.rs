@@ -82,8 +82,7 @@ pub(super) fn preflight(
         // Without max_tau the cap is the model's (render::prepare refuses the rest, but
         // only when that threshold's turn comes, after the renders before it).
         if !cfg.thresholds.is_empty() && base.render.max_tau.is_none() {
-            let m = crate::model_cmds::load_model(model)?;
-            let most = m.training.tau_range[1] as f32 as f64;
+            let most = crate::model_cmds::default_max_tau(&crate::model_cmds::load_model(model)?);
             if let Some(t) = cfg.thresholds.iter().find(|&&t| t > most) {
                 bail!(
                     "{}: threshold {t} is above the model's training maximum {most} (the \
