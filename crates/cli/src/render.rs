@@ -59,8 +59,29 @@ pub struct Args {
     pub device: DeviceArg,
     /// Exposure multiplier of the PNG preview, > 0 (the EXR is always linear and
     /// unscaled).
-    #[arg(long, allow_negative_numbers = true, default_value_t = 1.0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1.0, value_parser = parse_exposure)]
     pub exposure: f32,
+}
+
+/// `--exposure`: a positive number that stays positive and finite as the f32 the PNG
+/// encoder scales by. Parsed as f64 first so that the message quotes what was typed
+/// (clap's own f32 parser turned 1e-300 into 0 and the message said "--exposure 0").
+fn parse_exposure(s: &str) -> Result<f32, String> {
+    let x: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{s}' is not a number"))?;
+    let e = x as f32;
+    if x > 0.0 && e > 0.0 && e.is_finite() {
+        Ok(e)
+    } else {
+        Err(format!(
+            "{} is out of range: allowed [{:e}, {:e}] (a positive, finite f32)",
+            s.trim(),
+            f32::from_bits(1),
+            f32::MAX
+        ))
+    }
 }
 
 fn parse_integrator(s: &str) -> Result<IntegratorKind, String> {
@@ -349,13 +370,6 @@ pub fn note_unreachable_lights(p: &Prepared) {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    if !(a.exposure > 0.0 && a.exposure.is_finite()) {
-        bail!(
-            "--exposure {} is out of range: allowed (0, {:e}] (a finite positive f32)",
-            a.exposure,
-            f32::MAX
-        );
-    }
     if let Some(b) = a.time_budget
         && !(b > 0.0 && b.is_finite())
     {
@@ -574,5 +588,28 @@ pub(crate) fn leak_note(stats: &render_gpu::integrator::PathStats, what: &str) {
             stats.paths,
             stats.leaks as f64 / stats.paths.max(1) as f64
         );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::parse_exposure;
+
+    #[test]
+    fn exposure_takes_positive_finite_f32s_and_quotes_what_was_typed() {
+        for (ok, want) in [
+            ("1", 1.0f32),
+            (" 0.25 ", 0.25),
+            ("3e38", 3e38),
+            ("1e-45", 1e-45),
+        ] {
+            assert_eq!(parse_exposure(ok), Ok(want), "{ok}");
+        }
+        for bad in ["0", "-1", "NaN", "inf", "1e39", "x"] {
+            assert!(parse_exposure(bad).is_err(), "{bad}");
+        }
+        // Below f32's smallest subnormal the f32 would be 0: refused, naming the input.
+        let e = parse_exposure("1e-300").unwrap_err();
+        assert!(e.starts_with("1e-300 is out of range"), "{e}");
     }
 }

@@ -102,7 +102,8 @@ pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
     let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
     let (end, body_start) = header_end(bytes).ok_or("not a PLY file: no end_header line")?;
     let header = std::str::from_utf8(&bytes[..end]).map_err(|_| "the PLY header is not text")?;
-    let mut lines = header.lines();
+    // Split at CR as well as LF: see `header_end` (the blank pieces of CRLF are skipped).
+    let mut lines = header.split(['\r', '\n']);
     if lines.next().map(str::trim) != Some("ply") {
         return Err("not a PLY file: the first line is not `ply`".into());
     }
@@ -234,16 +235,19 @@ pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
 /// Where the header ends (the start of its `end_header` line) and the body begins (after
 /// that line's end). The keyword counts only as a line of its own, trailing blanks allowed:
 /// a comment that mentions it must not cut the header short, and a binary body starts
-/// exactly after the line break.
+/// exactly after the line break. Lines end with LF, CRLF or a lone CR (old Mac tools):
+/// a CR followed by LF is one line end, so a CR-only header before a binary body whose
+/// first byte is 0x0A would lose that byte (and fail as truncated, not misread).
 fn header_end(bytes: &[u8]) -> Option<(usize, usize)> {
     let mut start = 0;
     while start < bytes.len() {
         let len = bytes[start..]
             .iter()
-            .position(|&b| b == b'\n')
+            .position(|&b| b == b'\n' || b == b'\r')
             .unwrap_or(bytes.len() - start);
         let line = &bytes[start..start + len];
-        let next = (start + len + 1).min(bytes.len());
+        let crlf = bytes.get(start + len..start + len + 2) == Some(b"\r\n");
+        let next = (start + len + 1 + usize::from(crlf)).min(bytes.len());
         if line.trim_ascii() == b"end_header" {
             return Some((start, next));
         }

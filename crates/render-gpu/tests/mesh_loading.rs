@@ -753,12 +753,14 @@ fn gltf_instances_scenes_uris_and_morph_weights() {
 #[test]
 fn ply_header_ends_at_its_own_line() {
     let d = tempfile::tempdir().unwrap();
-    let tetra = |header_tail: &str, end: &str| {
+    // `eol` ends each header line: LF, CRLF or a lone CR (all three are in use).
+    let tetra = |header_tail: &str, end: &str, eol: &str| {
         let mut b = format!(
             "ply\nformat binary_little_endian 1.0\n{header_tail}element vertex 4\n\
              property float x\nproperty float y\nproperty float z\nelement face 4\n\
              property list uchar int vertex_indices\n{end}\n"
         )
+        .replace('\n', eol)
         .into_bytes();
         for p in [[0f32, 0., 0.], [1., 0., 0.], [0., 1., 0.], [0., 0., 1.]] {
             p.iter().for_each(|x| b.extend_from_slice(&x.to_le_bytes()));
@@ -769,16 +771,29 @@ fn ply_header_ends_at_its_own_line() {
         }
         b
     };
+    let ascii = |eol: &str| {
+        "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n\
+         property float z\nelement face 4\nproperty list uchar int vertex_indices\n\
+         end_header\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n"
+            .replace('\n', eol)
+            .into_bytes()
+    };
     for (name, text) in [
-        ("plain.ply", tetra("", "end_header")),
+        ("plain.ply", tetra("", "end_header", "\n")),
         (
             "comment.ply",
             tetra(
                 "comment written before end_header by a tool\n",
                 "end_header",
+                "\n",
             ),
         ),
-        ("blank.ply", tetra("", "end_header \r")),
+        ("blank.ply", tetra("", "end_header \r", "\n")),
+        ("crlf.ply", tetra("", "end_header", "\r\n")),
+        // A lone CR ends a line too (it was read as one long line: "no end_header").
+        ("cr.ply", tetra("", "end_header", "\r")),
+        ("ascii_crlf.ply", ascii("\r\n")),
+        ("ascii_cr.ply", ascii("\r")),
     ] {
         let m = load_mesh(&write(&d, name, &text)).unwrap_or_else(|e| panic!("{name}: {e}"));
         let (v, _) = volume_and_area(&m);
