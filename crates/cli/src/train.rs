@@ -7,9 +7,10 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use burn::prelude::Device;
 use cvae::model_file::{ModelSet, SingleScattering, TrainingInfo};
+use cvae::train::data::ConditionRanges;
 use cvae::train::{ModelConfig, ModelKind, Table, TrainError, train_model};
 use indicatif::{MultiProgress, ProgressBar};
-use scatter_sim::dataset::{Row, read_dataset};
+use scatter_sim::dataset::read_dataset;
 use serde::Deserialize;
 
 use crate::generate::parse_toml;
@@ -160,22 +161,18 @@ fn ensure_dataset(cfg: &TrainConfig) -> Result<()> {
     crate::generate::generate_from_config(dc, &cfg.dataset)
 }
 
-fn range(rows: &[Row], f: impl Fn(&Row) -> f64) -> [f64; 2] {
-    rows.iter()
-        .map(f)
-        .fold([f64::INFINITY, f64::NEG_INFINITY], |[lo, hi], v| {
-            [lo.min(v), hi.max(v)]
-        })
-}
-
 /// Below this many usable walks per model `train` warns: a CVAE's conditional
 /// distribution cannot be learned from fewer, though a test may still want to try.
 const MIN_ROWS: usize = 1000;
 
 /// The decoder of `k` from the config's checkpoint folder, for a model file whose other
-/// decoders are trained now.
-fn checkpoint_decoder(cfg: &TrainConfig, k: ModelKind) -> Result<(cvae::decoder::Decoder, u32)> {
-    let (d, version) =
+/// decoders are trained now, with its feature version and the condition ranges it was
+/// trained on (None for checkpoints that predate recording them).
+fn checkpoint_decoder(
+    cfg: &TrainConfig,
+    k: ModelKind,
+) -> Result<(cvae::decoder::Decoder, u32, Option<ConditionRanges>)> {
+    let (d, info) =
         cvae::train::trainer::load_decoder(&cfg.checkpoint_dir, k, &cfg.model(k).architecture())
             .with_context(|| {
                 format!(
@@ -184,13 +181,53 @@ fn checkpoint_decoder(cfg: &TrainConfig, k: ModelKind) -> Result<(cvae::decoder:
                     k.name()
                 )
             })?;
+    let version = info.feature_version;
     if cvae::features::EventRadial::of_version(version).is_none() {
         bail!(
             "the {} checkpoint has feature version {version}, which this build does not read",
             k.name()
         );
     }
-    Ok((d, version))
+    // A decoder trained the other way would be read wrongly by the file's sampler: a
+    // learned-mode EventGen in an exact-mode file counts the centre event twice, an
+    // exact-mode LengthGen in a learned-mode file loses every N = 1 walk.
+    if let Some(m) = info.single_scattering
+        && m != cfg.single_scattering
+    {
+        bail!(
+            "the {} checkpoint in {} was trained with single_scattering = {} and the config \
+             says {}: retrain it too (train without --model), or take it from a model file \
+             with --base",
+            k.name(),
+            cfg.checkpoint_dir.display(),
+            m.name(),
+            cfg.single_scattering.name()
+        );
+    }
+    Ok((d, version, info.ranges))
+}
+
+/// Narrows the file's ranges to what a decoder from elsewhere (`source`) was trained on:
+/// the file's ranges bound every decoder in it (the renderer's default max_tau is
+/// tau_range[1]), so with decoders from two trainings, only what both saw.
+fn narrow(info: &mut TrainingInfo, other: ConditionRanges, source: &str) -> Result<()> {
+    let both = |x: [f64; 2], y: [f64; 2]| [x[0].max(y[0]), x[1].min(y[1])];
+    info.tau_range = both(info.tau_range, other.tau);
+    info.g_range = both(info.g_range, other.g);
+    info.albedo_range = both(info.albedo_range, other.albedo);
+    for (name, r) in [
+        ("tau", info.tau_range),
+        ("g", info.g_range),
+        ("albedo", info.albedo_range),
+    ] {
+        if !(r[0] <= r[1]) || (name == "tau" && r[1] <= 0.0) {
+            bail!(
+                "{source}: its {name} range and the dataset's do not overlap; the mixed model \
+                 would hold decoders trained on disjoint conditions"
+            );
+        }
+    }
+    Ok(())
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -238,10 +275,10 @@ pub fn run(a: Args) -> Result<()> {
             let set = ModelSet::load(p)?;
             if set.single_scattering != cfg.single_scattering {
                 bail!(
-                    "--base {}: its single_scattering ({:?}) differs from the config's ({:?})",
+                    "--base {}: its single_scattering ({}) differs from the config's ({})",
                     p.display(),
-                    set.single_scattering,
-                    cfg.single_scattering
+                    set.single_scattering.name(),
+                    cfg.single_scattering.name()
                 );
             }
             Some((p.display().to_string(), set))
@@ -252,6 +289,19 @@ pub fn run(a: Args) -> Result<()> {
         Some(k) => vec![k],
         None => ModelKind::ALL.to_vec(),
     };
+    // The CPU renders any model the config allows; the GPU kernels a smaller one.
+    for &k in &kinds {
+        if let Err(e) =
+            render_gpu::gpu::decoder_gen::fits_kernels(k.cond(), cfg.model(k).latent, k.out())
+        {
+            eprintln!(
+                "warning: {}: {}.latent = {}: the model {e}; it will render on the CPU only",
+                a.config.display(),
+                k.name(),
+                cfg.model(k).latent
+            );
+        }
+    }
     if a.resume {
         // Resuming from nothing used to start afresh without a word.
         let missing: Vec<&str> = kinds
@@ -354,10 +404,11 @@ pub fn run(a: Args) -> Result<()> {
         },
         t0.elapsed().as_secs_f64()
     );
+    let ranges = ConditionRanges::of(&rows);
     let mut info = TrainingInfo {
-        tau_range: range(&rows, |r| r.tau as f64),
-        g_range: range(&rows, |r| r.g as f64),
-        albedo_range: range(&rows, |r| r.albedo),
+        tau_range: ranges.tau,
+        g_range: ranges.g,
+        albedo_range: ranges.albedo,
         notes: String::new(),
     };
     // A condition the dataset never varies (a `generate --tau/--g/--albedo` dataset) gives
@@ -380,22 +431,18 @@ pub fn run(a: Args) -> Result<()> {
         );
     }
     if let Some((base_name, b)) = &base {
-        // The file's ranges bound every decoder in it (the renderer's default max_tau is
-        // tau_range[1]): with decoders from two trainings, only what both saw.
-        let both = |x: [f64; 2], y: [f64; 2]| [x[0].max(y[0]), x[1].min(y[1])];
-        info.tau_range = both(info.tau_range, b.training.tau_range);
-        info.g_range = both(info.g_range, b.training.g_range);
-        info.albedo_range = both(info.albedo_range, b.training.albedo_range);
-        for (name, r) in [
-            ("tau", info.tau_range),
-            ("g", info.g_range),
-            ("albedo", info.albedo_range),
-        ] {
-            if !(r[0] <= r[1]) || (name == "tau" && r[1] <= 0.0) {
-                bail!(
-                    "--base {base_name}: its {name} range and the dataset's do not overlap; the \
-                     mixed model would hold decoders trained on disjoint conditions"
-                );
+        let t = &b.training;
+        let theirs = ConditionRanges {
+            tau: t.tau_range,
+            g: t.g_range,
+            albedo: t.albedo_range,
+        };
+        narrow(&mut info, theirs, &format!("--base {base_name}"))?;
+    } else {
+        // Checked before the training, as the modes are above.
+        for k in ModelKind::ALL.into_iter().filter(|k| !kinds.contains(k)) {
+            if let (_, _, Some(r)) = checkpoint_decoder(&cfg, k)? {
+                narrow(&mut info, r, &format!("the {} checkpoint", k.name()))?;
             }
         }
     }
@@ -488,7 +535,7 @@ pub fn run(a: Args) -> Result<()> {
                 slot.insert(d.clone());
                 continue;
             }
-            let (d, version) = checkpoint_decoder(&cfg, k)?;
+            let (d, version, _) = checkpoint_decoder(&cfg, k)?;
             notes.push(format!("{}: from checkpoint", k.name()));
             if k == ModelKind::EventGen {
                 event_version = version;
@@ -513,6 +560,10 @@ pub fn run(a: Args) -> Result<()> {
         path: decoders.remove(&ModelKind::PathGen).unwrap(),
         event: decoders.remove(&ModelKind::EventGen).unwrap(),
     };
+    // What every reader will check, checked before writing: a file they would all refuse
+    // is not written (a decoder from an old checkpoint is not otherwise validated).
+    ModelSet::from_bytes(&set.to_bytes(), &out)
+        .context("the trained model fails the model file's checks; nothing written")?;
     set.save(&out)?;
     eprintln!(
         "trained in {seconds:.0} s{} ({}); wrote {} ({} bytes)",

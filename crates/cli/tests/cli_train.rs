@@ -364,3 +364,82 @@ fn resume_needs_an_intact_checkpoint_and_the_last_loss_is_the_last_steps() {
     assert!(!out.status.success());
     assert!(stderr(&out).contains("steps"), "{}", stderr(&out));
 }
+
+/// Decoders taken from checkpoints into a model file must have been trained the file's
+/// way and bound its ranges: a checkpoint's mode is checked before any training, and the
+/// file's ranges are narrowed to what the checkpoints saw (they were the new dataset's
+/// alone: a LengthGen retrained on τ ≤ 30 beside PathGen and EventGen of τ ≤ 10 gave a file
+/// whose default max_tau was 30).
+#[test]
+fn checkpoint_decoders_keep_their_mode_and_ranges() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    setup(d);
+    let cfg = d.join("train.toml");
+    replace_in(&cfg, "steps = 30", "steps = 5");
+    replace_in(&d.join("data.toml"), "max = 30.0", "max = 10.0");
+    let train = |extra: &[&str]| {
+        let mut args = vec!["train", "--config", "train.toml"];
+        args.extend_from_slice(extra);
+        stcvae(&args, d)
+    };
+    // EventGen with a latent the GPU kernels cannot hold (latent + 6 outputs > 16): it
+    // trains, with a warning that says so first.
+    replace_in(
+        &cfg,
+        "latent = 2\nhidden = [4, 4]",
+        "latent = 11\nhidden = [4, 4]",
+    );
+    let out = train(&[]);
+    assert!(out.status.success(), "train failed: {}", stderr(&out));
+    let err = stderr(&out);
+    let warning = err
+        .lines()
+        .find(|l| l.contains("eventgen.latent"))
+        .unwrap_or("");
+    assert!(
+        warning.starts_with(
+            "warning: train.toml: eventgen.latent = 11: the model is too large \
+             for the GPU kernels"
+        ) && warning.ends_with("it will render on the CPU only")
+            && !err.contains("lengthgen.latent"),
+        "{err}"
+    );
+    let narrow_tau = ModelSet::load(&d.join("m.stcvae"))
+        .unwrap()
+        .training
+        .tau_range;
+    assert!(narrow_tau[1] <= 10.0, "{narrow_tau:?}");
+
+    // The same checkpoints under a learned-mode config: refused, naming the mode, before
+    // the dataset is even read (its file is gone and would be generated first).
+    fs::remove_file(d.join("d.bin")).unwrap();
+    let text = fs::read_to_string(&cfg).unwrap();
+    fs::write(&cfg, format!("single_scattering = \"learned\"\n{text}")).unwrap();
+    let out = train(&["--model", "lengthgen", "--fresh"]);
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    assert!(
+        err.contains("the pathgen checkpoint")
+            && err.contains("trained with single_scattering = exact and the config says learned"),
+        "{err}"
+    );
+    assert!(!d.join("d.bin").exists(), "the dataset was generated first");
+
+    // Back to exact, LengthGen retrained on τ up to 30: the file keeps PathGen's and
+    // EventGen's τ ≤ 10.
+    fs::write(&cfg, text).unwrap();
+    replace_in(&d.join("data.toml"), "max = 10.0", "max = 30.0");
+    let out = train(&["--model", "lengthgen", "--fresh"]);
+    assert!(out.status.success(), "train failed: {}", stderr(&out));
+    let (_, rows) = scatter_sim::dataset::read_dataset(&d.join("d.bin")).unwrap();
+    let wide = rows.iter().map(|r| r.tau as f64).fold(0.0, f64::max);
+    assert!(wide > 20.0, "the new dataset's tau reaches {wide}");
+    let set = ModelSet::load(&d.join("m.stcvae")).unwrap();
+    assert_eq!(
+        set.training.tau_range[1], narrow_tau[1],
+        "{:?}",
+        set.training
+    );
+    assert!(set.training.notes.contains("pathgen: from checkpoint"));
+}

@@ -124,8 +124,13 @@ pub fn softplus(x: f32) -> f32 {
 /// [`softplus`] with a chosen multiply-add.
 #[inline(always)]
 pub fn softplus_with<M: Madd>(x: f32) -> f32 {
-    let u = exp_with::<M>((-x.abs()).max(-87.0));
-    x.max(0.0) + ln_1p_unit::<M>(u)
+    // Comparisons rather than f32::max, which returns the other operand for a NaN: a NaN
+    // activation (an overflowed layer, a NaN condition) came out as ~1.6e-38 and passed
+    // as a plausible sample. `if a < b { b } else { a }` keeps a NaN `a` and is one
+    // maxps (b, a) on x86.
+    let a = -x.abs();
+    let u = exp_with::<M>(if a < -87.0 { -87.0 } else { a });
+    (if x < 0.0 { 0.0 } else { x }) + ln_1p_unit::<M>(u)
 }
 
 /// softplus over a slice whose length is a multiple of 8 (a padded layer).
@@ -194,5 +199,31 @@ mod tests {
             worst[4] = worse(worst[4], (ef - x.exp()).abs() / x.exp());
         }
         assert!(worst.iter().all(|w| *w < 4e-7), "relative errors {worst:?}");
+    }
+
+    /// A NaN activation stays NaN through softplus (f32::max dropped it: ~1.6e-38 came
+    /// out), in the scalar form and in the chunked form the decoders run; far out in
+    /// either tail softplus is still max(x, 0) to within f32's rounding.
+    #[test]
+    fn softplus_keeps_nan_and_its_tails() {
+        assert!(softplus(f32::NAN).is_nan());
+        assert!(softplus_with::<Fused>(-f32::NAN).is_nan());
+        let mut v = [
+            f32::NAN,
+            1.0,
+            -1.0,
+            100.0,
+            -100.0,
+            0.0,
+            f32::INFINITY,
+            -f32::INFINITY,
+        ];
+        softplus_in_place::<Separate>(&mut v);
+        assert!(v[0].is_nan());
+        assert!(v[1..].iter().all(|x| !x.is_nan()), "{v:?}");
+        assert_eq!(v[3], 100.0);
+        assert!(v[4] >= 0.0 && v[4] < 1e-37, "{}", v[4]);
+        assert_eq!(v[6], f32::INFINITY);
+        assert!(v[7] >= 0.0 && v[7] < 1e-37, "{}", v[7]);
     }
 }

@@ -56,6 +56,16 @@ pub enum SingleScattering {
     Learned,
 }
 
+impl SingleScattering {
+    /// The name a training config and a model file's metadata use.
+    pub fn name(self) -> &'static str {
+        match self {
+            SingleScattering::Exact => "exact",
+            SingleScattering::Learned => "learned",
+        }
+    }
+}
+
 /// Architecture and standardisation of one decoder.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -178,11 +188,33 @@ impl ModelSet {
         })
     }
 
+    /// Reads and validates a model file. The magic bytes and the size are looked at before
+    /// the rest is read: `--model data/train.bin` (a dataset, hundreds of MB) used to be
+    /// read whole only to be refused for its first eight bytes.
     pub fn load(path: &Path) -> Result<Self, ModelError> {
-        let bytes = std::fs::read(path).map_err(|e| ModelError::Io {
+        use std::io::Read;
+        let io = |e| ModelError::Io {
             path: path.into(),
             err: e,
-        })?;
+        };
+        let mut file = std::fs::File::open(path).map_err(io)?;
+        let len = file.metadata().map_err(io)?.len();
+        let mut magic = [0u8; 8];
+        if len < 8 || file.read_exact(&mut magic).is_err() || &magic != MAGIC {
+            return Err(ModelError::BadMagic { path: path.into() });
+        }
+        if len > MAX_FILE_BYTES {
+            return Err(ModelError::Invalid {
+                path: path.into(),
+                msg: format!(
+                    "the file has {len} bytes, more than any model file this build writes \
+                     (at most {MAX_FILE_BYTES}: three decoders of at most {MAX_HIDDEN_LAYERS} \
+                     layers of width {MAX_WIDTH})"
+                ),
+            });
+        }
+        let mut bytes = magic.to_vec();
+        file.read_to_end(&mut bytes).map_err(io)?;
         Self::from_bytes(&bytes, path)
     }
 
@@ -380,6 +412,10 @@ fn check_standardisation(spec: &DecoderSpec, cond: usize, out: usize) -> Result<
 /// Largest weight magnitude accepted. Trained decoders' weights are O(1); far larger ones
 /// mean a corrupt file and would overflow f32 activations into NaN samples.
 pub const MAX_WEIGHT: f32 = 1e4;
+
+/// A bound on a model file's size: the weights of three decoders at the largest allowed
+/// shape (~0.5 MB) and metadata, with room to spare. Anything larger is not a model file.
+pub const MAX_FILE_BYTES: u64 = 16 << 20;
 
 /// The training ranges steer the renderers' warnings and the sphere-step cap (τ_max), so
 /// they must be ordered and inside the project's parameter ranges.

@@ -115,6 +115,62 @@ fn damaged_files_are_rejected() {
     ));
 }
 
+/// `load` looks at the magic bytes and the size before reading the rest: a dataset given
+/// as `--model` (hundreds of MB) was read whole to be refused for its first 8 bytes. The
+/// largest model a config may describe stays well inside the bound.
+#[test]
+fn load_refuses_foreign_and_oversized_files_before_reading_them() {
+    use cvae::decoder::{MAX_HIDDEN_LAYERS, MAX_WIDTH};
+    use cvae::features::{EVENT_COND, EVENT_OUT, LENGTH_COND, LENGTH_OUT, PATH_COND, PATH_OUT};
+    use cvae::model_file::MAX_FILE_BYTES;
+    let dir = tempfile::tempdir().unwrap();
+    // Sparse files: their size costs no disk, and reading one whole would take seconds
+    // and a GiB of memory.
+    let sparse = |name: &str, head: &[u8], len: u64| {
+        let p = dir.path().join(name);
+        std::fs::write(&p, head).unwrap();
+        std::fs::OpenOptions::new()
+            .write(true)
+            .open(&p)
+            .unwrap()
+            .set_len(len)
+            .unwrap();
+        p
+    };
+    let foreign = sparse("train.bin", b"STCVAEDS", 1 << 30);
+    let e = ModelSet::load(&foreign).unwrap_err();
+    assert!(matches!(e, ModelError::BadMagic { .. }), "{e}");
+    let big = sparse(
+        "big.stcvae",
+        &random_models(4, 1.0).to_bytes()[..8],
+        MAX_FILE_BYTES + 1,
+    );
+    let e = ModelSet::load(&big).unwrap_err().to_string();
+    assert!(
+        e.contains("big.stcvae") && e.contains("more than any model file"),
+        "{e}"
+    );
+    let empty = sparse("empty.stcvae", b"", 0);
+    let e = ModelSet::load(&empty).unwrap_err();
+    assert!(matches!(e, ModelError::BadMagic { .. }), "{e}");
+
+    let mut rng = WalkRng::from_seed(5);
+    let hidden = vec![MAX_WIDTH; MAX_HIDDEN_LAYERS];
+    let mut m = random_models(5, 1.0);
+    m.length = random_decoder(&mut rng, LENGTH_COND, 16, &hidden, LENGTH_OUT, 1.0);
+    m.path = random_decoder(&mut rng, PATH_COND, 16, &hidden, PATH_OUT, 1.0);
+    m.event = random_decoder(&mut rng, EVENT_COND, 16, &hidden, EVENT_OUT, 1.0);
+    let bytes = m.to_bytes();
+    assert!(
+        (bytes.len() as u64) < MAX_FILE_BYTES / 8,
+        "{} bytes",
+        bytes.len()
+    );
+    let p = dir.path().join("largest.stcvae");
+    std::fs::write(&p, &bytes).unwrap();
+    assert_eq!(ModelSet::load(&p).unwrap(), m);
+}
+
 /// Metadata whose sizes overflow (a hand-edited or foreign file with a valid checksum) or
 /// whose decoders are deeper than any kernel should unroll is refused by name, not by an
 /// arithmetic overflow or a compile that never ends.

@@ -33,9 +33,14 @@ pub fn ks_two_sample(a: &mut [f64], b: &mut [f64]) -> f64 {
 }
 
 /// One-sample KS statistic of `samples` against a continuous `cdf` (sorts its input).
-/// A NaN sample or CDF value makes the statistic NaN, which fails every `d < bound`
+/// No samples, a NaN sample or a NaN CDF value make the statistic NaN, which fails every `d < bound`
 /// check: `f64::max` would silently drop it.
 pub fn ks_one_sample(samples: &mut [f64], cdf: impl Fn(f64) -> f64) -> f64 {
+    // No samples, no statistic: 0 would pass every `d < bound` check (the two-sample
+    // forms give NaN too).
+    if samples.is_empty() {
+        return f64::NAN;
+    }
     samples.sort_by(f64::total_cmp);
     let n = samples.len() as f64;
     samples
@@ -160,6 +165,8 @@ mod tests {
         let d = ks_one_sample(&mut [0.5, f64::NAN, 0.25], |x| x.clamp(0.0, 1.0));
         assert!(d.is_nan(), "{d}");
         assert!(ks_one_sample(&mut [0.5], |_| f64::NAN).is_nan());
+        // An empty sample has no statistic (0 passed every bound).
+        assert!(ks_one_sample(&mut [], |x| x).is_nan());
     }
 
     /// Kolmogorov's distribution: P(√n·D > 1.358) = 0.05 and P(√n·D > 1.628) = 0.01

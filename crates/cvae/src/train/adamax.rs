@@ -83,7 +83,9 @@ impl Optimizer for Adamax {
             // m₀ = u₀ = 0.
             None => (grad.clone().mul_scalar(1.0 - self.beta_1), grad.abs(), 1),
         };
-        let step = lr / (1.0 - (self.beta_1 as f64).powi(time as i32));
+        // powf, not powi: `time as i32` wraps past 2^31 steps (configs allow 2^40), and
+        // at 2^32 it became powi(0) = 1, a step of lr / 0.
+        let step = lr / (1.0 - (self.beta_1 as f64).powf(time as f64));
         let delta = m
             .clone()
             .div(u.clone().add_scalar(self.epsilon))

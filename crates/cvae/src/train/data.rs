@@ -108,6 +108,38 @@ pub struct Table {
     n: Vec<u32>,
     prior: Vec<f32>,
     pub norm: Standardisation,
+    /// How N = 1 is treated (it decides which walks are in the table).
+    pub mode: SingleScattering,
+    /// The conditions' ranges over all the dataset's walks, kept or not.
+    pub ranges: ConditionRanges,
+}
+
+/// The range of each condition over a dataset's walks (all of them, as the model file's
+/// [`crate::model_file::TrainingInfo`] records).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ConditionRanges {
+    pub tau: [f64; 2],
+    pub g: [f64; 2],
+    pub albedo: [f64; 2],
+}
+
+/// Smallest and largest of `f` over the rows ([∞, −∞] for none).
+pub fn range_of(rows: &[Row], f: impl Fn(&Row) -> f64) -> [f64; 2] {
+    rows.iter()
+        .map(f)
+        .fold([f64::INFINITY, f64::NEG_INFINITY], |[lo, hi], v| {
+            [lo.min(v), hi.max(v)]
+        })
+}
+
+impl ConditionRanges {
+    pub fn of(rows: &[Row]) -> Self {
+        ConditionRanges {
+            tau: range_of(rows, |r| r.tau as f64),
+            g: range_of(rows, |r| r.g as f64),
+            albedo: range_of(rows, |r| r.albedo),
+        }
+    }
 }
 
 impl Table {
@@ -190,6 +222,8 @@ impl Table {
                 out_shift,
                 out_scale,
             },
+            mode,
+            ranges: ConditionRanges::of(rows),
         }
     }
 

@@ -13,7 +13,7 @@ use thiserror::Error;
 use scatter_sim::WalkRng;
 
 use super::adamax::Adamax;
-use super::data::{ModelKind, Standardisation, Table};
+use super::data::{ConditionRanges, ModelKind, Standardisation, Table};
 use super::network::{Architecture, Cvae};
 use crate::decoder::Decoder;
 use crate::sampler::normals;
@@ -132,7 +132,10 @@ pub enum TrainError {
     Interrupted(PathBuf),
     #[error("{path}: {msg}")]
     Checkpoint { path: PathBuf, msg: String },
-    #[error("{0}: the loss became non-finite at step {1}; lower the learning rate")]
+    #[error(
+        "{0}: the loss or the weights became non-finite (or beyond the model file's bound) \
+         at step {1}; lower the learning rate (the last checkpoint is from before)"
+    )]
     Diverged(&'static str, u64),
 }
 
@@ -155,6 +158,14 @@ pub struct CheckpointInfo {
     /// checkpoints written before it existed (then not checked).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub crc32: Option<[u32; 2]>,
+    /// How N = 1 was treated in training, and the conditions of the dataset trained on:
+    /// a decoder taken from a checkpoint into a model file must have been trained the
+    /// way the file says and within its ranges. Absent in checkpoints written before
+    /// they existed (then taken on trust).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub single_scattering: Option<crate::model_file::SingleScattering>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ranges: Option<ConditionRanges>,
 }
 
 fn crc_of(path: &Path) -> std::io::Result<u32> {
@@ -274,6 +285,8 @@ pub fn train_model(
         norm: table.norm.clone(),
         history: Vec::new(),
         crc32: None,
+        single_scattering: Some(table.mode),
+        ranges: Some(table.ranges),
     };
     let (mpath, opath, jpath) = paths(checkpoint_dir, kind);
     if resume && jpath.exists() {
@@ -301,6 +314,19 @@ pub fn train_model(
                 ),
             ));
         }
+        if let Some(m) = info.single_scattering
+            && m != table.mode
+        {
+            return Err(err(
+                &jpath,
+                format!(
+                    "checkpoint was trained with single_scattering = {} and the config says {}: \
+                     train without resuming, or restore the config",
+                    m.name(),
+                    table.mode.name()
+                ),
+            ));
+        }
         if info.norm != table.norm {
             return Err(err(
                 &jpath,
@@ -312,6 +338,9 @@ pub fn train_model(
             .try_load_file(&mpath)
             .map_err(|e| err(&mpath, record_error(kind, e.to_string())))?;
         optim = optim.load(&opath).map_err(|e| err(&opath, e.to_string()))?;
+        // Same mode (checked above) and same data (the standardisation matched).
+        info.single_scattering = Some(table.mode);
+        info.ranges = Some(table.ranges);
         // A fresh stream for the rest of the run (the old one's position is not saved).
         rng = WalkRng::for_walk(seed ^ info.step.rotate_left(32), kind as u64);
     }
@@ -356,6 +385,11 @@ pub fn train_model(
         }
         let stop = cancel.load(Ordering::Relaxed);
         if stop || (checkpoint_every > 0 && info.step % checkpoint_every == 0) {
+            // The loss is read every LOG_EVERY steps only: a checkpoint must not replace
+            // the last good one with weights that have gone non-finite since.
+            if !exportable(&model, &table.norm) {
+                return Err(TrainError::Diverged(kind.name(), info.step));
+            }
             info.seconds = base_seconds + start.elapsed().as_secs_f64();
             save_checkpoint(checkpoint_dir, kind, &model, &optim, &info)?;
             if stop {
@@ -363,22 +397,42 @@ pub fn train_model(
             }
         }
     }
+    let decoder = model.valid().export(&table.norm);
+    if !within_bounds(&decoder) {
+        return Err(TrainError::Diverged(kind.name(), info.step));
+    }
     info.seconds = base_seconds + start.elapsed().as_secs_f64();
     save_checkpoint(checkpoint_dir, kind, &model, &optim, &info)?;
     Ok(Trained {
         kind,
-        decoder: model.valid().export(&table.norm),
+        decoder,
         info,
     })
 }
 
+/// Whether a decoder's weights are all finite and within what a model file may hold
+/// ([`crate::model_file::MAX_WEIGHT`]): beyond it `train` would write a file that every
+/// reader refuses.
+fn within_bounds(d: &Decoder) -> bool {
+    d.layers.iter().all(|l| {
+        l.weight
+            .iter()
+            .chain(&l.bias)
+            .all(|v| v.abs() <= crate::model_file::MAX_WEIGHT)
+    })
+}
+
+fn exportable(model: &Cvae, norm: &Standardisation) -> bool {
+    within_bounds(&model.valid().export(norm))
+}
+
 /// The decoder of a model's last checkpoint (for exporting a set in which only some
-/// models were retrained), and the feature version it was trained with.
+/// models were retrained), and the checkpoint's record (feature version, mode, ranges).
 pub fn load_decoder(
     dir: &Path,
     kind: ModelKind,
     arch: &Architecture,
-) -> Result<(Decoder, u32), TrainError> {
+) -> Result<(Decoder, CheckpointInfo), TrainError> {
     let (m, _, j) = paths(dir, kind);
     let err = |p: &Path, e: String| TrainError::Checkpoint {
         path: p.into(),
@@ -392,7 +446,7 @@ pub fn load_decoder(
     let model = Cvae::new(kind.cond(), kind.out(), arch, &mut rng, &device)
         .try_load_file(&m)
         .map_err(|e| err(&m, record_error(kind, e.to_string())))?;
-    Ok((model.export(&info.norm), info.feature_version))
+    Ok((model.export(&info.norm), info))
 }
 
 /// burn's error for a checkpoint whose tensors do not fit the network lists every
@@ -444,5 +498,38 @@ mod tests {
             e,
             "pathgen.warmup: 101 exceeds steps = 100: allowed 0..=steps"
         );
+    }
+
+    /// A checkpoint or model is written only with weights a model file can hold: a fresh
+    /// network's pass; one NaN weight, or one beyond MAX_WEIGHT, fails (a checkpoint of
+    /// such weights replaced the last good one; a final one gave a file every reader
+    /// refuses).
+    #[test]
+    fn only_finite_bounded_weights_are_saved() {
+        let mut rng = WalkRng::from_seed(3);
+        let kind = ModelKind::PathGen;
+        let arch = config(10, None).architecture();
+        let model = Cvae::new(kind.cond(), kind.out(), &arch, &mut rng, &Device::flex());
+        let norm = Standardisation {
+            cond_shift: vec![0.0; kind.cond()],
+            cond_scale: vec![1.0; kind.cond()],
+            out_shift: vec![0.0; kind.out()],
+            out_scale: vec![1.0; kind.out()],
+        };
+        assert!(exportable(&model, &norm));
+        let good = model.valid().export(&norm);
+        for bad in [
+            f32::NAN,
+            f32::INFINITY,
+            -2.0 * crate::model_file::MAX_WEIGHT,
+        ] {
+            let mut d = good.clone();
+            let last = d.layers.len() - 1;
+            let l = &d.layers[last];
+            let mut w = l.weight.clone();
+            w[0] = bad;
+            d.layers[last] = crate::decoder::Dense::new(l.inputs, l.outputs, w, l.bias.clone());
+            assert!(!within_bounds(&d), "{bad}");
+        }
     }
 }

@@ -108,6 +108,20 @@ fn gen_decoder(out: &mut String, idx: usize, d: &Decoder) {
     let _ = writeln!(out, "}}\n");
 }
 
+/// Whether a decoder of these sizes fits the kernels' scratch; the error completes a
+/// sentence that starts with the decoder's name. `train` asks it before training, so
+/// that a model too large for the GPU is known as such before hours of work.
+pub fn fits_kernels(cond: usize, latent: usize, out: usize) -> Result<(), String> {
+    if cond > MAX_COND || latent + out > MAX_NOISE || out > MAX_OUT {
+        return Err(format!(
+            "is too large for the GPU kernels ({cond} conditions, {latent} latent, {out} \
+             outputs; at most {MAX_COND} conditions, {MAX_OUT} outputs, {MAX_NOISE} latent + \
+             outputs)"
+        ));
+    }
+    Ok(())
+}
+
 /// `decoder_sample(d)`, its three straight-line variants for `m` and their sizes
 /// (`DEC_LATENT_i`, `DEC_OUT_i`).
 pub fn decoders_wgsl(m: &ModelSet) -> Result<String, RenderError> {
@@ -118,13 +132,8 @@ pub fn decoders_wgsl(m: &ModelSet) -> Result<String, RenderError> {
         .zip(["LengthGen", "PathGen", "EventGen"])
         .enumerate()
     {
-        if d.cond > MAX_COND || d.latent + d.out > MAX_NOISE || d.out > MAX_OUT {
-            return Err(RenderError::Model(format!(
-                "{name} is too large for the GPU kernels ({} conditions, {} latent, {} outputs; \
-                 at most {MAX_COND} conditions, {MAX_OUT} outputs, {MAX_NOISE} latent + outputs)",
-                d.cond, d.latent, d.out
-            )));
-        }
+        fits_kernels(d.cond, d.latent, d.out)
+            .map_err(|e| RenderError::Model(format!("{name} {e}")))?;
         let _ = writeln!(out, "const DEC_LATENT_{i}: u32 = {}u;", d.latent);
         let _ = writeln!(out, "const DEC_OUT_{i}: u32 = {}u;\n", d.out);
         gen_decoder(&mut out, i, d);
