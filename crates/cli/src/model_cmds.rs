@@ -281,7 +281,10 @@ fn open_eval(model: Option<&Path>, out: &Path, samples: usize) -> Result<(ModelS
 /// The quantities whose largest KS the summary gives: all that `eval` compares but log N,
 /// whose KS is N's (the statistic does not change under a monotone map).
 fn summarised() -> impl Iterator<Item = &'static str> {
-    eval::QUANTITIES.into_iter().filter(|&q| q != "log_n")
+    eval::QUANTITIES
+        .into_iter()
+        .filter(|&q| q != "log_n")
+        .chain(eval::PAIRS.map(|p| p.0))
 }
 
 /// Largest KS per quantity over the reports, for the quantities they measured.
@@ -314,7 +317,11 @@ fn write_eval_json_and_head(
         md,
         "{samples} model samples vs {samples} fresh simulator walks per setting (setting i: \
          seed {seed} + i). KS = two-sample Kolmogorov–Smirnov statistic, W1 = Wasserstein-1 \
-         distance. At φ = 0.9 only the representative event (EventGen) depends on φ.\n"
+         distance; for the pairs (cos θ, α) and (cos θ, β) the 2-D KS statistic (the largest \
+         difference of the samples' shares in a quadrant about any sample point, Fasano–\
+         Franceschini) and the sliced W1 (mean 1-D W1 of {} projections). At φ = 0.9 only the \
+         representative event (EventGen) depends on φ.\n",
+        eval::SLICES
     )?;
     let mut line = max_ks
         .iter()

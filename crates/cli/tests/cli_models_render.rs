@@ -575,6 +575,12 @@ fn eval_at_given_settings() {
     );
     assert_eq!(md.matches("Events by distance").count(), 2, "{md}");
     assert!(md.contains("half-space NEE, surface behind"), "{md}");
+    // The joint (cos θ, α) and (cos θ, β) are compared at φ = 1, in the table and the JSON.
+    assert!(md.contains("cos_theta_alpha 2-D KS / sliced W1"), "{md}");
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("metrics.json")).unwrap()).unwrap();
+    let pair = json["max_ks"]["cos_theta_beta"].as_f64().unwrap();
+    assert!(pair > 0.0 && pair < 0.5, "{pair}");
     assert!(!dir.join("fig11_n.png").exists(), "--at draws no plots");
     // At φ < 1 alone only the event marginals are measured: the others have no maximum
     // (not a perfect-looking 0), and the summary says so.
@@ -590,7 +596,10 @@ fn eval_at_given_settings() {
     ]));
     let md = std::fs::read_to_string(only.join("metrics.md")).unwrap();
     assert!(
-        md.contains("(not measured at these settings: n, cos_theta, alpha, beta)"),
+        md.contains(
+            "(not measured at these settings: n, cos_theta, alpha, beta, cos_theta_alpha, \
+             cos_theta_beta)"
+        ),
         "{md}"
     );
     let json: serde_json::Value =
