@@ -98,6 +98,9 @@ pub fn sample(a: SampleArgs) -> Result<()> {
     // Drawn in chunks so that memory stays bounded however many walks are asked for.
     const CHUNK: u64 = 1 << 16;
     let pb = progress::bar(a.samples, "walks");
+    // N is a u32 column (as in `generate`'s files); a model asked far outside its training
+    // can draw more, written as u32::MAX and counted here.
+    let mut saturated = 0u64;
     for start in (0..a.samples).step_by(CHUNK as usize) {
         if cancel.load(Ordering::Relaxed) {
             // Dropping the sink removes its temporary file.
@@ -112,6 +115,7 @@ pub fn sample(a: SampleArgs) -> Result<()> {
             })
             .collect();
         for w in &walks {
+            saturated += u64::from(w.n > u64::from(u32::MAX));
             let cw = CanonicalWalk {
                 n: w.n,
                 exit: w.exit,
@@ -124,6 +128,14 @@ pub fn sample(a: SampleArgs) -> Result<()> {
     }
     pb.finish_and_clear();
     sink.finish()?;
+    if saturated > 0 {
+        eprintln!(
+            "note: {saturated} of the walks drew N above {} (the N column's largest value), \
+             written as {}",
+            u32::MAX,
+            u32::MAX
+        );
+    }
     eprintln!("wrote {} model walks to {}", a.samples, a.out.display());
     Ok(())
 }
