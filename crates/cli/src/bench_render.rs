@@ -121,6 +121,7 @@ fn save_images(dir: &std::path::Path, k: f64, pt: &Pair, st: &Pair) -> Result<()
             scene_hash: p.hash,
             // The mean of the pair's two seeds.
             seeds: Vec::new(),
+            partial: false,
         };
         let stem = dir.join(format!("k{k}_{name}"));
         crate::merge::write_image_set(&stem, &p.mean, &tag, exposure, None)?;

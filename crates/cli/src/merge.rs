@@ -159,6 +159,8 @@ fn merge_images(a: &Args) -> Result<()> {
         "spp": tag.spp,
         "scene_hash": format!("{:016x}", tag.scene_hash),
         "seeds": tag.seeds,
+        // Whether inputs of unknown seed (older files, paired averages) are in it too.
+        "unknown_seeds": tag.some_unknown(),
         "width": img.width,
         "height": img.height,
         "mean_rgb": crate::render::mean_rgb(&img),

@@ -470,6 +470,7 @@ pub fn run(a: Args) -> Result<()> {
         spp: out.spp as u64,
         scene_hash: hash,
         seeds: vec![r.seed],
+        partial: false,
     };
     let paths = out.stats.paths.max(1) as f64;
     let report = Report {

@@ -341,6 +341,7 @@ fn render_writes_exr_png_json_and_merge_averages_by_spp() {
             spp: 0,
             scene_hash: tag_of(&a_exr),
             seeds: Vec::new(),
+            partial: false,
         },
     )
     .unwrap();
@@ -1161,6 +1162,7 @@ fn bench_error_ranks_renders_by_error_and_names_bad_inputs() {
     let foreign = render_gpu::image_io::RenderTag {
         scene_hash: tag.unwrap().scene_hash ^ 1,
         seeds: Vec::new(),
+        partial: false,
         spp: 32,
     };
     render_gpu::image_io::write_exr(&copy, &pixels, &foreign).unwrap();

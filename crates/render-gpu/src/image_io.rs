@@ -13,7 +13,9 @@ use scatter_sim::output::write_atomic;
 
 use crate::error::RenderError;
 
-/// The render tag as one text attribute, `spp=N scene=HEX [seed=S | seeds=S,S,…]`. One attribute, not
+/// The render tag as one text attribute, `spp=N scene=HEX [seed=S | seeds=S,S,…]`, where
+/// a `?` in the list stands for inputs of unknown seed (see [`RenderTag::partial`]). One
+/// attribute, not
 /// three: the exr crate keeps custom attributes in a HashMap, whose order (and so the
 /// file's bytes) changed from run to run with three.
 const ATTR_TAG: &str = "stcvaeTag";
@@ -82,6 +84,39 @@ pub struct RenderTag {
     /// paired renders). Renders with a seed in common share its samples, so `merge`
     /// refuses two such images, a merge and one of its own inputs included.
     pub seeds: Vec<u64>,
+    /// Whether the image also holds renders of unknown seed besides `seeds` (a merge with
+    /// such an input). The known seeds are kept all the same: dropping them (as merges
+    /// once did) let the merge take one of its own inputs again, counting its samples
+    /// twice. An empty `seeds` is unknown whatever this says.
+    pub partial: bool,
+}
+
+impl RenderTag {
+    /// Whether some of the image's renders have no known seed.
+    pub fn some_unknown(&self) -> bool {
+        self.partial || self.seeds.is_empty()
+    }
+}
+
+/// The fields of a tag text, each once: `spp`, `scene` and one of `seed` / `seeds`.
+/// Anything else (an unknown or repeated key, both seed forms, a repeated seed) means a
+/// damaged or hand-edited file, which `merge` must not trust with its seed bookkeeping.
+fn parse_tag_text(t: &str) -> Option<[Option<String>; 3]> {
+    let mut fields: [Option<String>; 4] = Default::default();
+    for kv in t.split(' ').filter(|kv| !kv.is_empty()) {
+        let (k, v) = kv.split_once('=')?;
+        let i = ["spp", "scene", "seed", "seeds"]
+            .iter()
+            .position(|&n| n == k)?;
+        if fields[i].replace(v.to_string()).is_some() {
+            return None;
+        }
+    }
+    let [spp, scene, seed, seeds] = fields;
+    if seed.is_some() && seeds.is_some() {
+        return None;
+    }
+    Some([spp, scene, seed.or(seeds)])
 }
 
 pub fn write_exr(
@@ -102,11 +137,14 @@ pub fn encode_exr(img: &RgbImage, tag: &RenderTag) -> std::result::Result<Vec<u8
     });
     let mut attrs = LayerAttributes::default();
     let mut text = format!("spp={} scene={:016x}", tag.spp, tag.scene_hash);
-    match tag.seeds.as_slice() {
-        [] => {}
-        [seed] => text += &format!(" seed={seed}"),
-        many => {
-            let list: Vec<String> = many.iter().map(u64::to_string).collect();
+    match (tag.seeds.as_slice(), tag.partial) {
+        ([], _) => {}
+        ([seed], false) => text += &format!(" seed={seed}"),
+        (many, partial) => {
+            let mut list: Vec<String> = many.iter().map(u64::to_string).collect();
+            if partial {
+                list.push("?".into());
+            }
             text += &format!(" seeds={}", list.join(","));
         }
     }
@@ -236,43 +274,42 @@ pub fn read_exr_at_most(
     // The tag's fields and the attribute each came from: `ATTR_TAG`, or the three
     // attributes of older files.
     let tagged = text(ATTR_TAG);
+    let bad = |attr: &str, v: &str| {
+        RenderError::Image(format!("{}: bad {attr} attribute `{v}`", path.display()))
+    };
     let (names, [spp, scene, seed]) = match &tagged {
-        Some(t) => {
-            let field = |k: &str| {
-                t.split(' ')
-                    .find_map(|kv| kv.strip_prefix(k)?.strip_prefix('='))
-                    .map(str::to_string)
-            };
-            // One render's `seed`, or a merge's `seeds` (a comma-separated list).
-            (
-                [ATTR_TAG; 3],
-                [
-                    field("spp"),
-                    field("scene"),
-                    field("seed").or_else(|| field("seeds")),
-                ],
-            )
-        }
+        // One render's `seed`, or a merge's `seeds` (a comma-separated list).
+        Some(t) => (
+            [ATTR_TAG; 3],
+            parse_tag_text(t).ok_or_else(|| bad(ATTR_TAG, t))?,
+        ),
         None => (
             [ATTR_SPP, ATTR_SCENE, ATTR_SEED],
             [text(ATTR_SPP), text(ATTR_SCENE), text(ATTR_SEED)],
         ),
     };
-    let bad = |attr: &str, v: &str| {
-        RenderError::Image(format!("{}: bad {attr} attribute `{v}`", path.display()))
-    };
     let tag = match (spp, scene) {
-        (Some(s), Some(h)) => Some(RenderTag {
-            spp: s.parse().map_err(|_| bad(names[0], &s))?,
-            scene_hash: u64::from_str_radix(&h, 16).map_err(|_| bad(names[1], &h))?,
-            seeds: match seed {
-                None => Vec::new(),
-                Some(v) => v
-                    .split(',')
-                    .map(|x| x.parse().map_err(|_| bad(names[2], &v)))
-                    .collect::<std::result::Result<_, _>>()?,
-            },
-        }),
+        (Some(s), Some(h)) => {
+            let (mut seeds, mut partial) = (Vec::new(), false);
+            for x in seed.as_deref().map(|v| v.split(',')).into_iter().flatten() {
+                let v = seed.as_deref().unwrap_or_default();
+                if x == "?" && !partial {
+                    partial = true;
+                } else {
+                    let s: u64 = x.parse().map_err(|_| bad(names[2], v))?;
+                    if seeds.contains(&s) {
+                        return Err(bad(names[2], v));
+                    }
+                    seeds.push(s);
+                }
+            }
+            Some(RenderTag {
+                spp: s.parse().map_err(|_| bad(names[0], &s))?,
+                scene_hash: u64::from_str_radix(&h, 16).map_err(|_| bad(names[1], &h))?,
+                seeds,
+                partial,
+            })
+        }
         // A tag attribute without its spp and scene is damaged; an old file without the
         // pair simply has no tag.
         _ => match tagged {
@@ -348,6 +385,7 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
     struct Seen<'a> {
         scene: Option<u64>,
         seeds: Vec<u64>,
+        unknown: bool,
         digest: Option<u64>,
         path: &'a Path,
     }
@@ -356,15 +394,15 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
         let (img, tag) = read_exr(p)?;
         let digest = img.pixel_digest();
         let seeds = tag.as_ref().map_or_else(Vec::new, |t| t.seeds.clone());
+        let unknown = tag.as_ref().is_none_or(RenderTag::some_unknown);
         let scene = tag.as_ref().map(|t| t.scene_hash);
         let shared = |o: &Seen| seeds.iter().copied().find(|s| o.seeds.contains(s));
+        // A seed in common shares samples; where either holds renders of unknown seed,
+        // equal pixels are the only sign left.
         let twin = seen.iter().find(|o| {
             o.scene == scene
-                && if seeds.is_empty() || o.seeds.is_empty() {
-                    digest.is_some() && o.digest == digest
-                } else {
-                    shared(o).is_some()
-                }
+                && (shared(o).is_some()
+                    || ((unknown || o.unknown) && digest.is_some() && o.digest == digest))
         });
         if let Some(o) = twin {
             return Err(RenderError::Image(format!(
@@ -378,6 +416,7 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
         seen.push(Seen {
             scene,
             seeds,
+            unknown,
             digest,
             path: p,
         });
@@ -414,6 +453,8 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
                     .iter()
                     .map(|px| px.map(|v| v as f64 * tag.spp as f64))
                     .collect();
+                let mut tag = tag;
+                tag.partial = tag.some_unknown();
                 acc = Some((img, tag, sum));
             }
             Some((first, t0, sum)) => {
@@ -444,12 +485,10 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
                 t0.spp = t0.spp.checked_add(tag.spp).ok_or_else(|| {
                     RenderError::Image(format!("{}: the spp total overflows", p.display()))
                 })?;
-                // A list with an unknown input's seeds missing would read as complete.
-                if t0.seeds.is_empty() || tag.seeds.is_empty() {
-                    t0.seeds.clear();
-                } else {
-                    t0.seeds.extend(&tag.seeds);
-                }
+                // Known seeds are kept whatever else comes in; an input of unknown seed
+                // marks the list as partial (a list with it missing would read as whole).
+                t0.partial |= tag.some_unknown();
+                t0.seeds.extend(&tag.seeds);
             }
         }
     }
@@ -500,12 +539,18 @@ mod tests {
     fn exr_files_are_reproducible_and_keep_their_tag() {
         let img = image();
         let dir = tempfile::tempdir().unwrap();
-        // One render's seed, a merge's seeds, none.
-        for seeds in [vec![7], vec![7, 9, 12], vec![]] {
+        // One render's seed, a merge's seeds, none, a merge with an input of unknown seed.
+        for (seeds, partial) in [
+            (vec![7], false),
+            (vec![7, 9, 12], false),
+            (vec![], false),
+            (vec![7], true),
+        ] {
             let tag = RenderTag {
                 spp: 96,
                 scene_hash: 0x00ab_cdef_0123_4567,
                 seeds,
+                partial,
             };
             let first = encode_exr(&img, &tag).unwrap();
             for _ in 0..10 {
@@ -516,6 +561,42 @@ mod tests {
             let (back, read) = read_exr(&path).unwrap();
             assert_eq!(back, img);
             assert_eq!(read.unwrap(), tag);
+        }
+    }
+
+    /// Tags a render never writes are refused, naming the file: an unknown or repeated key,
+    /// both seed forms, a repeated seed (merge's bookkeeping of seeds would trust them).
+    #[test]
+    fn damaged_tags_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let good = RenderTag {
+            spp: 4,
+            scene_hash: 0xab,
+            seeds: vec![2],
+            partial: false,
+        };
+        let bytes = encode_exr(&image(), &good).unwrap();
+        let from = b"spp=4 scene=00000000000000ab seed=2";
+        let at = bytes
+            .windows(from.len())
+            .position(|w| w == from)
+            .expect("the tag text is in the header");
+        // Same length as the original, so the header's sizes stay right.
+        for bad in [
+            "spp=4 scene=00000000000000ab segd=2",
+            "spp=4 scene=00000000000000ab spp=22",
+            "spp=4 scene=00000000000000ab ??????",
+            "spp=4 scene=00000000000000ab foo=b1",
+            "spp=4 scene=000000000ab seeds=22,22",
+            "spp=4 scene=0000ab seed=1 seeds=2,3",
+        ] {
+            assert_eq!(bad.len(), from.len(), "{bad}");
+            let mut b = bytes.clone();
+            b[at..at + from.len()].copy_from_slice(bad.as_bytes());
+            let path = dir.path().join("bad.exr");
+            std::fs::write(&path, &b).unwrap();
+            let e = read_exr(&path).unwrap_err().to_string();
+            assert!(e.contains("bad.exr: bad stcvaeTag attribute"), "{bad}: {e}");
         }
     }
 
@@ -533,6 +614,7 @@ mod tests {
             spp: 3,
             scene_hash: 1,
             seeds: vec![1],
+            partial: false,
         };
         let bytes = encode_exr(&img, &tag).unwrap();
         let u64_at = |p: usize| u64::from_le_bytes(bytes[p..p + 8].try_into().unwrap());
@@ -575,6 +657,7 @@ mod tests {
                     spp: 4,
                     scene_hash: 1,
                     seeds: vec![seed],
+                    partial: false,
                 };
                 let path = dir.path().join(name);
                 std::fs::write(&path, encode_exr(img, &tag).unwrap()).unwrap();

@@ -781,6 +781,7 @@ fn sky(d: &tempfile::TempDir, f: impl Fn(usize, usize) -> [f32; 3]) -> std::path
         spp: 1,
         scene_hash: 0,
         seeds: Vec::new(),
+        partial: false,
     };
     write_exr(&path, &map, &tag).unwrap();
     path

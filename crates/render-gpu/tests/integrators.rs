@@ -599,6 +599,7 @@ fn environment_map_is_read_and_oriented() {
             spp: 1,
             scene_hash: 0,
             seeds: Vec::new(),
+            partial: false,
         },
     )
     .unwrap();
@@ -612,6 +613,7 @@ fn environment_map_is_read_and_oriented() {
             spp: 1,
             scene_hash: 0,
             seeds: Vec::new(),
+            partial: false,
         },
     )
     .unwrap();

@@ -329,6 +329,7 @@ fn environment_maps_with_bad_pixels_are_refused() {
         spp: 1,
         scene_hash: 0,
         seeds: Vec::new(),
+        partial: false,
     };
     let desc = |f: &str| render_gpu::scene::EnvironmentDesc {
         radiance: None,
@@ -366,6 +367,7 @@ fn exr_with_a_huge_declared_size_is_refused() {
         spp: 1,
         scene_hash: 0,
         seeds: Vec::new(),
+        partial: false,
     };
     write_exr(&path, &RgbImage::new(4, 2), &tag).unwrap();
     assert!(read_exr(&path).is_ok());
@@ -435,6 +437,7 @@ fn merge_refuses_one_seed_twice_but_not_equal_constant_images() {
             spp,
             scene_hash: 7,
             seeds: seeds.to_vec(),
+            partial: false,
         };
         write_exr(&path, &img, &tag).unwrap();
         assert_eq!(read_exr(&path).unwrap().1, Some(tag));
@@ -473,6 +476,19 @@ fn merge_refuses_one_seed_twice_but_not_equal_constant_images() {
     let c1 = put("c1.exr", 0.5, false, &[], 4);
     let c2 = put("c2.exr", 0.5, false, &[], 4);
     assert!(merge_exrs(&[&c1, &c2]).is_ok());
+    // A seedless input keeps the others' seeds (it cleared them: the merge of a and old3
+    // could then take a again, and again, each time counting its samples once more).
+    let old3 = put("old3.exr", 4.0, true, &[], 4);
+    let (img, tag) = merge_exrs(&[&a, &old3]).unwrap();
+    assert_eq!((&tag.seeds, tag.partial), (&vec![1], true));
+    let mixed = d.path().join("mixed.exr");
+    write_exr(&mixed, &img, &tag).unwrap();
+    assert_eq!(read_exr(&mixed).unwrap().1, Some(tag));
+    let Err(e) = merge_exrs(&[&mixed, &a]) else {
+        panic!("a merge with an unknown seed and its own known input")
+    };
+    assert!(e.to_string().contains("same seed 1"), "{e}");
+    assert_eq!(merge_exrs(&[&mixed, &b]).unwrap().1.seeds, vec![1, 2]);
 }
 
 /// The signed volume and the surface area of a mesh, summed over its triangles here

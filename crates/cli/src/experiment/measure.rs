@@ -474,6 +474,7 @@ pub fn save(
             spp: spp as u64,
             scene_hash: hash,
             seeds: Vec::new(),
+            partial: false,
         },
         exposure,
         None,
