@@ -8,10 +8,10 @@ use anyhow::{Result, bail};
 use cvae::ModelSet;
 use cvae::eval::{self, SettingReport};
 use rayon::prelude::*;
+use scatter_sim::WalkRng;
 use scatter_sim::conditions::Conditions;
 use scatter_sim::dataset::{CsvWriter, Row, RowSink, is_csv};
 use scatter_sim::walk::CanonicalWalk;
-use scatter_sim::{WalkRng, output::write_atomic};
 
 use crate::{interrupt, progress};
 
@@ -306,14 +306,21 @@ fn max_ks_of(reports: &[SettingReport]) -> std::collections::BTreeMap<&'static s
         .collect()
 }
 
+/// metrics.json and metrics.md as one set (neither is left beside the other's previous
+/// version by a failure, e.g. a full disk), errors naming the file.
+fn write_metrics(out: &Path, json: &[u8], md: &[u8]) -> Result<()> {
+    let (j, m) = (out.join("metrics.json"), out.join("metrics.md"));
+    scatter_sim::output::write_atomic_set(&[(&j, json), (&m, md)])
+        .map_err(|(path, e)| anyhow::anyhow!("cannot write {}: {e}", path.display()))
+}
+
 /// metrics.json, and the head of metrics.md (title, sample counts, max KS, the table).
-fn write_eval_json_and_head(
-    out: &Path,
+fn eval_json_and_head(
     name: &str,
     samples: usize,
     seed: u64,
     reports: &[SettingReport],
-) -> Result<Vec<u8>> {
+) -> Result<(Vec<u8>, Vec<u8>)> {
     let max_ks = max_ks_of(reports);
     let json = serde_json::to_vec_pretty(&EvalJson {
         model: name.to_owned(),
@@ -322,7 +329,6 @@ fn write_eval_json_and_head(
         max_ks: max_ks.clone(),
         settings: reports,
     })?;
-    write_atomic(&out.join("metrics.json"), &json)?;
     let mut md = Vec::new();
     writeln!(md, "# Distribution fidelity of {name}\n")?;
     writeln!(
@@ -346,7 +352,7 @@ fn write_eval_json_and_head(
     }
     writeln!(md, "Max KS over these settings: {line}\n")?;
     md.extend(eval::markdown_table(reports).into_bytes());
-    Ok(md)
+    Ok((json, md))
 }
 
 /// `eval --at`: the given settings only (setting i with seed + i), no plots; the table and
@@ -365,9 +371,9 @@ fn evaluate_settings(a: &EvalArgs) -> Result<()> {
         reports.push(eval::compare_setting(&model, &sim, c.tau, c.g, c.albedo));
         bands += &eval::fine_shells_table(&model, &sim, c.tau, c.g, c.albedo);
     }
-    let mut md = write_eval_json_and_head(&a.out, &name, a.samples, a.seed, &reports)?;
+    let (json, mut md) = eval_json_and_head(&name, a.samples, a.seed, &reports)?;
     md.extend(bands.into_bytes());
-    write_atomic(&a.out.join("metrics.md"), &md)?;
+    write_metrics(&a.out, &json, &md)?;
     print!("{}", String::from_utf8_lossy(&md));
     Ok(())
 }
@@ -385,7 +391,7 @@ pub fn evaluate_into(
     let reports = eval::evaluate_grid(&m, samples, seed, |i, _| pb.set_position(i as u64));
     pb.finish_and_clear();
     let max_ks = max_ks_of(&reports);
-    let mut md = write_eval_json_and_head(out, &model_name, samples, seed, &reports)?;
+    let (json, mut md) = eval_json_and_head(&model_name, samples, seed, &reports)?;
     // The plots redraw the φ = 1 settings with the grid's seeds (same samples).
     let mut cols = Vec::new();
     for (i, &tau) in eval::TAUS.iter().enumerate() {
@@ -409,6 +415,6 @@ pub fn evaluate_into(
             .collect::<Vec<_>>()
             .join(", ")
     )?;
-    write_atomic(&out.join("metrics.md"), &md)?;
+    write_metrics(out, &json, &md)?;
     Ok(max_ks)
 }

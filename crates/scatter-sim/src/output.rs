@@ -161,8 +161,16 @@ impl AtomicFile {
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_default();
+        // The temporary's name holds at most 64 bytes of the target's, so that it stays
+        // within a file system's 255-byte names whenever the target's name does (the
+        // whole name plus ".", ".XXXXXX.partial" failed for names of 236–255 bytes,
+        // after the work was done).
+        let mut cut = name.len().min(64);
+        while !name.is_char_boundary(cut) {
+            cut -= 1;
+        }
         let tmp = tempfile::Builder::new()
-            .prefix(&format!(".{name}."))
+            .prefix(&format!(".{}.", &name[..cut]))
             .suffix(".partial")
             .tempfile_in(&dir)?;
         Ok(Self {
@@ -451,6 +459,22 @@ mod tests {
         }
         assert_eq!(fs::read(&file).unwrap(), b"old");
         assert!(!nowhere.exists());
+    }
+
+    /// A target whose name is as long as names get (255 bytes, multi-byte characters
+    /// across the temporary's cut) is written: the temporary's name is shorter than it.
+    #[test]
+    fn the_longest_names_are_written() {
+        let d = tempfile::tempdir().unwrap();
+        for name in ["a".repeat(255), format!("a{}.ex", "é".repeat(125))] {
+            assert!(name.len() >= 253, "{}", name.len());
+            let p = d.path().join(&name);
+            write_atomic(&p, b"x").unwrap();
+            assert_eq!(fs::read(&p).unwrap(), b"x");
+        }
+        write_atomic_set(&[(&d.path().join("b".repeat(250)), b"y")]).unwrap();
+        let left = fs::read_dir(d.path()).unwrap().count();
+        assert_eq!(left, 3, "temporaries left behind");
     }
 
     #[test]
