@@ -224,6 +224,17 @@ fn experiment_configs_are_checked_before_any_rendering() {
         "scene = \"ok.toml\"\ndensities = []\npaper = [2.2]",
     );
     assert!(e.contains("kind = \"teaser\" needs densities"), "{e}");
+    // Densities as `bench render --k` takes them; the paper's figures positive.
+    let e = run("scene = \"ok.toml\"\ndensities = [1e-300]");
+    assert!(
+        e.contains("densities: 1e-300 is out of range: allowed [0.001, 1000]"),
+        "{e}"
+    );
+    let e = run_kind(
+        "teaser",
+        "scene = \"ok.toml\"\ndensities = [1.0]\npaper = [nan]",
+    );
+    assert!(e.contains("paper must be positive and finite"), "{e}");
     // A field of another kind would be ignored: refused, naming it.
     let e = run("scene = \"ok.toml\"\ndensities = [1.0]\nthresholds = [1.0]");
     assert!(

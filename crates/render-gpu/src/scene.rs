@@ -350,6 +350,9 @@ pub const MAX_GRID: u32 = 512;
 /// inverse for lengths) values collapse or overflow there although they are finite in the
 /// file's f64.
 pub const MAX_SCENE_VALUE: f64 = 1e6;
+/// Narrowest field of view (degrees): below it neighbouring pixels' directions differ by
+/// less than f32 resolves.
+pub const MIN_FOV_DEG: f64 = 1e-3;
 /// Smallest object dimension (radius, size, height) accepted.
 pub const MIN_OBJECT_SIZE: f64 = 1e-6;
 /// Largest radiance or irradiance accepted: sums over millions of samples stay finite in f32.
@@ -379,10 +382,12 @@ impl SceneFile {
         bounded3("camera.target", c.target, MAX_SCENE_VALUE)?;
         bounded3("camera.up", c.up, MAX_SCENE_VALUE)?;
         camera_basis_f32(c)?;
-        if !(c.fov_deg > 0.0 && c.fov_deg < 180.0) {
+        // Below a thousandth of a degree the pixels' directions differ by less than an
+        // f32 resolves (1e-300 was taken, and every pixel got the same ray).
+        if !(c.fov_deg >= MIN_FOV_DEG && c.fov_deg < 180.0) {
             return Err(format!(
-                "camera.fov_deg = {} is out of range: allowed (0, 180)",
-                c.fov_deg
+                "camera.fov_deg = {} is out of range: allowed [{MIN_FOV_DEG}, 180)",
+                num(c.fov_deg)
             ));
         }
         for (name, v) in [("camera.width", c.width), ("camera.height", c.height)] {
@@ -448,10 +453,13 @@ impl SceneFile {
         let m = &self.medium;
         for i in 0..3 {
             let s = m.sigma_t[i];
-            if !(s > 0.0 && s <= MAX_SCENE_VALUE) {
+            // Positive as the renderers' f32 too (1e-300 became 0: a channel silently
+            // transparent).
+            if !(s as f32 >= f32::MIN_POSITIVE && s <= MAX_SCENE_VALUE) {
                 return Err(format!(
-                    "medium.sigma_t[{i}] = {} is out of range: allowed (0, {MAX_SCENE_VALUE:e}]",
-                    num(s)
+                    "medium.sigma_t[{i}] = {} is out of range: allowed [{:e}, {MAX_SCENE_VALUE:e}]",
+                    num(s),
+                    f32::MIN_POSITIVE
                 ));
             }
             let a = m.albedo[i];
@@ -464,7 +472,7 @@ impl SceneFile {
         if !(m.g.abs() <= G_MAX) {
             return Err(format!(
                 "medium.g = {} is out of range: allowed [-{G_MAX}, {G_MAX}]",
-                m.g
+                num(m.g)
             ));
         }
 
@@ -478,9 +486,12 @@ impl SceneFile {
             }
             BoundaryKind::Dielectric => {
                 let ior = b.ior.unwrap_or(1.5);
-                if !(ior > 1.0 && ior <= 4.0) {
+                // Above 1 as the renderers' f32 too (1.0000000000000002 is 1 there).
+                if !(ior as f32 > 1.0 && ior <= 4.0) {
                     return Err(format!(
-                        "boundary.ior = {ior} is out of range: allowed (1, 4]"
+                        "boundary.ior = {ior} is out of range: allowed (1, 4] (as an f32: at \
+                         least {})",
+                        1.0f32.next_up()
                     ));
                 }
             }

@@ -48,7 +48,16 @@ fn out_of_range_medium_names_the_field() {
         "sigma_t = [10.0, -1.0, 10.0]",
     ));
     assert!(
-        e.contains("medium.sigma_t[1]") && e.contains("(0, 1e6]"),
+        e.contains("medium.sigma_t[1]") && e.contains("[1.1754944e-38, 1e6]"),
+        "{e}"
+    );
+    // Positive in f64 but 0 as the renderers' f32: refused, not a transparent channel.
+    let e = err(&BASE.replace(
+        "sigma_t = [10.0, 10.0, 10.0]",
+        "sigma_t = [10.0, 1e-300, 10.0]",
+    ));
+    assert!(
+        e.contains("medium.sigma_t[1] = 1e-300 is out of range"),
         "{e}"
     );
     let e = err(&BASE.replace("albedo = [0.99, 0.99, 0.99]", "albedo = [0.99, 0.99, 1.2]"));
@@ -66,6 +75,12 @@ fn out_of_range_medium_names_the_field() {
 fn other_fields_are_checked() {
     let e = err(&BASE.replace("fov_deg = 20.0", "fov_deg = 200.0"));
     assert!(e.contains("camera.fov_deg"), "{e}");
+    // Every pixel would get the same ray: refused, the value printed short.
+    let e = err(&BASE.replace("fov_deg = 20.0", "fov_deg = 1e-300"));
+    assert!(
+        e.contains("camera.fov_deg = 1e-300 is out of range: allowed [0.001, 180)"),
+        "{e}"
+    );
     let e = err(&BASE.replace("width = 8", "width = 0"));
     assert!(e.contains("camera.width"), "{e}");
     let e = err(&BASE.replace("shape = \"sphere\"", "shape = \"sphere\"\nmesh = \"a.glb\""));
@@ -95,6 +110,11 @@ fn other_fields_are_checked() {
         "{BASE}\n[boundary]\nkind = \"dielectric\"\nior = 0.5\n"
     ));
     assert!(e.contains("boundary.ior"), "{e}");
+    // Above 1 in f64, 1 as an f32: no refraction at all, refused.
+    let e = err(&format!(
+        "{BASE}\n[boundary]\nkind = \"dielectric\"\nior = 1.0000000000000002\n"
+    ));
+    assert!(e.contains("boundary.ior") && e.contains("1.0000001"), "{e}");
     let e = err(&format!(
         "{BASE}\n[[light]]\nkind = \"directional\"\ndirection = [0.0, 0.0, 0.0]\nirradiance = [1.0, 1.0, 1.0]\n"
     ));

@@ -148,13 +148,30 @@ impl Config {
             }
             Ok(())
         };
-        positive("densities", &self.densities)?;
+        // The range `bench render --k` takes (bench_render::parse_k): a density of 1e-300
+        // rendered an empty object and printed 300-digit figures.
+        if let Some(k) = self
+            .densities
+            .iter()
+            .find(|k| !(0.001..=1000.0).contains(*k))
+        {
+            bail!(
+                "densities: {} is out of range: allowed [0.001, 1000] (multipliers of the \
+                 scene's sigma_t)",
+                scatter_sim::ranges::num(*k)
+            );
+        }
+        positive("paper", &self.paper)?;
         positive("absorptions", &self.absorptions)?;
         if self.absorptions.iter().any(|&a| a >= 1.0) {
             bail!("absorptions are 1 − φ and must be below 1");
         }
-        if self.thresholds.iter().any(|t| !(*t >= 0.0)) {
-            bail!("thresholds (min_tau) must be ≥ 0");
+        let most = render_gpu::scene::MAX_SCENE_VALUE;
+        if let Some(t) = self.thresholds.iter().find(|t| !(0.0..=most).contains(*t)) {
+            bail!(
+                "thresholds: {} is out of range: allowed [0, {most:e}] (min_tau, as in a scene)",
+                scatter_sim::ranges::num(*t)
+            );
         }
         let needs_scene = self.kind != Kind::Distributions;
         if needs_scene && self.scene.is_none() {
