@@ -9,7 +9,7 @@ use anyhow::{Result, bail};
 use render_gpu::integrator::IntegratorKind;
 use render_gpu::render::{RenderOptions, RenderOutput};
 
-use crate::bench_render::parse_k;
+use crate::bench_render::{parse_k, reject_repeats};
 use crate::device::{DeviceArg, Engine};
 use crate::progress::si;
 use crate::render::prepare;
@@ -72,6 +72,17 @@ pub fn run(a: Args) -> Result<()> {
         f.camera.height = a.size;
     };
     let scene = render_gpu::scene::SceneFile::load(&a.scene)?;
+    // The render's own refusal says "use --device cpu", which this bench does not take.
+    let most = render_gpu::gpu::scene_buffers::MAX_GPU_LIGHTS;
+    if scene.lights.len() > most {
+        bail!(
+            "{}: {} lights; the GPU kernels take at most {most}, so the devices cannot be \
+             compared on this scene",
+            a.scene.display(),
+            scene.lights.len()
+        );
+    }
+    reject_repeats(&a.k)?;
     for &k in &a.k {
         let mut f = scene.clone();
         edit(&mut f, k);

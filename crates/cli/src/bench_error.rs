@@ -195,8 +195,10 @@ fn parse_spec(arg: &str) -> Result<Spec> {
     }
     let (body, seconds) = match arg.rsplit_once(':') {
         Some((f, s)) => match s.parse::<f64>() {
-            Ok(t) if t.is_finite() && t > 0.0 => (f, Some(t)),
-            Ok(_) => bail!("image `{arg}`: the seconds must be finite and > 0, got {s}"),
+            // A microsecond to 30 years: 1e-300 and 1e300 printed `inf` ratios and a plot
+            // axis 600 decades long.
+            Ok(t) if (1e-6..=1e9).contains(&t) => (f, Some(t)),
+            Ok(_) => bail!("image `{arg}`: the seconds must be in [1e-6, 1e9], got {s}"),
             Err(_) if s.is_empty() => bail!("image `{arg}`: no seconds after the ':'"),
             // `img.exr:abc` read as a file name said "No such file": the file is there.
             Err(_)

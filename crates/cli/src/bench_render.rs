@@ -166,6 +166,17 @@ fn save_images(dir: &std::path::Path, k: f64, pt: &Pair, st: &Pair) -> Result<()
 /// the scene's medium, the object is all but transparent (the default bunny's optical
 /// size falls below 0.2) and the table's ratios are of nothing: a k of 1e-300 printed
 /// 300-digit densities and "± NaN %".
+/// A density given twice in `--k` would be measured twice and tabled as two rows (an
+/// experiment's `densities` refuses it too).
+pub(crate) fn reject_repeats(k: &[f64]) -> Result<()> {
+    for (i, x) in k.iter().enumerate() {
+        if k[..i].contains(x) {
+            anyhow::bail!("--k lists {x} twice: give each density once");
+        }
+    }
+    Ok(())
+}
+
 pub(crate) fn parse_k(s: &str) -> Result<f64, String> {
     let k: f64 = s
         .trim()
@@ -305,6 +316,7 @@ pub(crate) const MAX_BENCH_SPP: u32 = 1 << 30;
 pub fn run(a: Args) -> Result<()> {
     // The overrides checked before anything runs, and blamed on the command line rather
     // than on the scene file they are applied to.
+    reject_repeats(&a.k)?;
     let scene = render_gpu::scene::SceneFile::load(&a.scene)?;
     for &k in &a.k {
         let mut f = scene.clone();

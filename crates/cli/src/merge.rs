@@ -69,7 +69,16 @@ pub fn run(a: Args) -> Result<()> {
         )?;
         return merge_images(&a);
     } else if exr_inputs > 0 {
-        bail!("mixed inputs: merge either renders (.exr) or datasets, not both");
+        let other = a
+            .inputs
+            .iter()
+            .find(|p| !is_exr(p))
+            .expect("a non-.exr input");
+        bail!(
+            "mixed inputs: {} is not a render (.exr); merge either renders or datasets \
+             (.bin, .csv), not both",
+            other.display()
+        );
     }
     // A dataset written over a render's file (say `--out run.exr` by a slip), a config or
     // a model would replace it with binary rows.
@@ -294,7 +303,10 @@ fn coalesce(pieces: impl Iterator<Item = Piece>) -> Vec<Piece> {
 
 fn merge_csv(a: &Args) -> Result<()> {
     if !dataset::is_csv(&a.out) {
-        bail!("CSV inputs can only be merged into a .csv output");
+        bail!(
+            "--out {}: CSV inputs can only be merged into a .csv output",
+            a.out.display()
+        );
     }
     let mut out =
         AtomicFile::create(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;

@@ -44,8 +44,9 @@ pub struct Args {
     /// Model file for stcvae (default: models/default.stcvae).
     #[arg(long)]
     pub model: Option<PathBuf>,
-    /// Stop after the pass during which this many seconds have passed, any number > 0 (the
-    /// JSON and the EXR header record the spp actually rendered; at least one pass runs).
+    /// Stop after the pass during which this many seconds have passed, in (0, 1e8] (over
+    /// three years; the JSON and the EXR header record the spp actually rendered; at least
+    /// one pass runs).
     /// The scene's spp is then no limit; --spp given too stops at that many first.
     #[arg(long, allow_negative_numbers = true)]
     pub time_budget: Option<f64>,
@@ -369,11 +370,18 @@ pub fn note_unreachable_lights(p: &Prepared) {
     }
 }
 
+/// Longest `--time-budget`, in seconds (over three years).
+const MAX_TIME_BUDGET: f64 = 1e8;
+
 pub fn run(a: Args) -> Result<()> {
+    // 1e300 was taken (a render without end, announced with 300 digits).
     if let Some(b) = a.time_budget
-        && !(b > 0.0 && b.is_finite())
+        && !(b > 0.0 && b <= MAX_TIME_BUDGET)
     {
-        bail!("--time-budget {b} is out of range: allowed (0, inf) seconds");
+        bail!(
+            "--time-budget {} is out of range: allowed (0, {MAX_TIME_BUDGET:e}] seconds",
+            scatter_sim::ranges::num(b)
+        );
     }
     check_out_stem(&a.out)?;
     let p = prepare(&a.scene, a.integrator, a.nee, a.model.as_deref(), |f| {

@@ -459,8 +459,17 @@ fn bad_arguments_name_the_argument() {
     let d = tempfile::tempdir().unwrap();
     let file = d.path().join("file");
     std::fs::write(&file, b"x").unwrap();
-    let cases: [(Vec<String>, &str); 10] = [
+    let cases: [(Vec<String>, &str); 15] = [
         (vec!["render".into(), "--spp".into(), "0".into()], "--spp"),
+        // A budget without end, or an exposure that is 0 as an f32: refused, quoted short.
+        (
+            vec!["render".into(), "--time-budget".into(), "1e300".into()],
+            "--time-budget 1e300 is out of range: allowed (0, 1e8] seconds",
+        ),
+        (
+            vec!["render".into(), "--exposure".into(), "1e-300".into()],
+            "1e-300 is out of range",
+        ),
         // Negative values meet the option's range, not "unexpected argument '-1'".
         (
             vec!["render".into(), "--spp".into(), "-1".into()],
@@ -525,6 +534,35 @@ fn bad_arguments_name_the_argument() {
         (
             vec!["bench".into(), "sim".into(), "--walks".into(), "0".into()],
             "--walks",
+        ),
+        (
+            vec![
+                "bench".into(),
+                "render".into(),
+                "--k".into(),
+                "1,2,1".into(),
+            ],
+            "--k lists 1 twice",
+        ),
+        // A .json is neither a render nor a dataset: named.
+        (
+            vec![
+                "merge".into(),
+                "a.exr".into(),
+                "b.json".into(),
+                "--out".into(),
+                d.path().join("m").display().to_string(),
+            ],
+            "mixed inputs: b.json is not a render (.exr)",
+        ),
+        (
+            vec![
+                "merge".into(),
+                "a.csv".into(),
+                "--out".into(),
+                d.path().join("m.bin").display().to_string(),
+            ],
+            "m.bin: CSV inputs can only be merged into a .csv output",
         ),
     ];
     for (args, want) in cases {

@@ -353,7 +353,10 @@ fn resume_needs_an_intact_checkpoint_and_the_last_loss_is_the_last_steps() {
     let out = resume(dir.path());
     assert!(!out.status.success());
     assert!(
-        stderr(&out).contains("eventgen.bpk") && stderr(&out).contains("checksum"),
+        stderr(&out).contains("eventgen.bpk")
+            && stderr(&out).contains("checksum")
+            // The advice leads somewhere: a run without --resume would be refused too.
+            && stderr(&out).contains("start over with --fresh"),
         "{}",
         stderr(&out)
     );

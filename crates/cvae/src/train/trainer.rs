@@ -188,8 +188,8 @@ fn check_crcs(info: &CheckpointInfo, files: &[&Path]) -> Result<(), TrainError> 
                 path: path.into(),
                 msg: format!(
                     "checksum {got:08x} differs from the {want:08x} saved with the checkpoint: \
-                     the file is damaged or was replaced, or its save was cut short; train \
-                     without --resume"
+                     the file is damaged or was replaced, or its save was cut short; start \
+                     over with --fresh"
                 ),
             });
         }
@@ -307,8 +307,8 @@ pub fn train_model(
             return Err(err(
                 &jpath,
                 format!(
-                    "checkpoint has feature version {} (this build trains {}): train without \
-                     resuming, or remove the checkpoint",
+                    "checkpoint has feature version {} (this build trains {}): start over \
+                     with --fresh",
                     info.feature_version,
                     crate::features::FEATURE_VERSION
                 ),
@@ -321,7 +321,7 @@ pub fn train_model(
                 &jpath,
                 format!(
                     "checkpoint was trained with single_scattering = {} and the config says {}: \
-                     train without resuming, or restore the config",
+                     start over with --fresh, or restore the config",
                     m.name(),
                     table.mode.name()
                 ),
@@ -330,7 +330,9 @@ pub fn train_model(
         if info.norm != table.norm {
             return Err(err(
                 &jpath,
-                "checkpoint was trained on other data (standardisation differs)".into(),
+                "checkpoint was trained on other data (standardisation differs): start over \
+                 with --fresh, or train on its dataset"
+                    .into(),
             ));
         }
         check_crcs(&info, &[&mpath, &opath])?;
@@ -456,7 +458,7 @@ fn record_error(kind: ModelKind, msg: String) -> String {
     if msg.contains("shape mismatch") {
         format!(
             "its layer shapes differ from the config's [{}] (latent, hidden, encoder_hidden \
-             changed since it was written?): train without --resume, or restore the config",
+             changed since it was written?): start over with --fresh, or restore the config",
             kind.name()
         )
     } else {
