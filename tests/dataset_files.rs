@@ -142,11 +142,30 @@ fn damaged_files_are_rejected_with_clear_errors() {
         "{e}"
     );
     // Wrong version.
-    let mut v2 = bytes.clone();
-    v2[8] = 2;
-    let e = expect_err(&put("v2.bin", &v2));
-    assert!(matches!(e, DatasetError::Version { found: 2, .. }), "{e}");
-    assert!(e.to_string().contains("version 2"));
+    let mut v3 = bytes.clone();
+    v3[8] = 3;
+    let e = expect_err(&put("v3.bin", &v3));
+    assert!(matches!(e, DatasetError::Version { found: 3, .. }), "{e}");
+    assert!(e.to_string().contains("version 3"));
+    // The header is under the checksum (version 2): a seed's digit changed into another
+    // valid header is refused (it passed, and merge took the file for another run).
+    let seed_at = bytes
+        .windows(8)
+        .position(|w| w == b"\"seed\":7")
+        .expect("the header holds the seed");
+    let mut reseeded = bytes.clone();
+    reseeded[seed_at + 7] = b'8';
+    let e = expect_err(&put("reseeded.bin", &reseeded));
+    assert!(matches!(e, DatasetError::Checksum { .. }), "{e}");
+    // Version 1 files, whose checksum covers the rows alone, are still read.
+    let mut v1 = bytes.clone();
+    v1[8] = 1;
+    let json_len = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
+    let rows = &bytes[16 + json_len..bytes.len() - 12];
+    let crc_at = bytes.len() - 12;
+    v1[crc_at..crc_at + 4].copy_from_slice(&crc32fast::hash(rows).to_le_bytes());
+    let (_, back) = read_dataset(&put("v1.bin", &v1)).unwrap();
+    assert_eq!(back.len(), rows.len() / 56);
     // Not a dataset at all.
     let e = expect_err(&put("text.bin", b"tau,g,albedo\n1,2,3\n"));
     assert!(matches!(e, DatasetError::BadMagic { .. }), "{e}");

@@ -4,7 +4,10 @@ use std::fs::File;
 use std::io::{BufReader, Read, Write};
 use std::path::{Path, PathBuf};
 
-use super::{DatasetError, END_MARKER, FORMAT_VERSION, Header, MAGIC, ROW_BYTES, Row, RowSink};
+use super::{
+    DatasetError, END_MARKER, FORMAT_VERSION, Header, MAGIC, OLDEST_FORMAT_VERSION, ROW_BYTES, Row,
+    RowSink,
+};
 use crate::output::AtomicFile;
 
 /// Bytes before the rows that do not depend on the header: magic, version, header length.
@@ -32,9 +35,11 @@ impl DatasetWriter {
         file.write_all(&(json.len() as u32).to_le_bytes())
             .map_err(io)?;
         file.write_all(&json).map_err(io)?;
+        let mut crc = crc32fast::Hasher::new();
+        crc.update(&json);
         Ok(Self {
             file,
-            crc: crc32fast::Hasher::new(),
+            crc,
             expected: header.count,
             written: 0,
         })
@@ -112,7 +117,7 @@ impl DatasetReader {
             return Err(DatasetError::BadMagic { path: path.into() });
         }
         let version = u32::from_le_bytes(pre[8..12].try_into().unwrap());
-        if version != FORMAT_VERSION {
+        if !(OLDEST_FORMAT_VERSION..=FORMAT_VERSION).contains(&version) {
             return Err(DatasetError::Version {
                 path: path.into(),
                 found: version,
@@ -180,11 +185,15 @@ impl DatasetReader {
         if expected != size {
             return Err(too_short(expected));
         }
+        let mut crc = crc32fast::Hasher::new();
+        if version >= 2 {
+            crc.update(&json);
+        }
         Ok(Self {
             path: path.into(),
             header,
             reader,
-            crc: crc32fast::Hasher::new(),
+            crc,
             next_row: 0,
             done: false,
         })

@@ -15,7 +15,7 @@ pub enum DatasetError {
     #[error("{path}: not an stcvae dataset (bad magic bytes)")]
     BadMagic { path: PathBuf },
     #[error(
-        "{path}: dataset format version {found} is not supported (this build reads version {supported})"
+        "{path}: dataset format version {found} is not supported (this build reads versions 1 to {supported})"
     )]
     Version {
         path: PathBuf,

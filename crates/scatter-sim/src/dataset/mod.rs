@@ -10,11 +10,13 @@
 //! | 4 | header length H (u32) |
 //! | H | header, JSON ([`Header`]: row count, columns, provenance pieces) |
 //! | count × 56 | rows ([`Row::encode`]) |
-//! | 4 | CRC-32 of the row bytes |
+//! | 4 | CRC-32 of the header and row bytes (version 1: of the row bytes only) |
 //! | 8 | end marker `STCVEND!` |
 //!
 //! The size is known from the header, so truncation is detected before any row is read,
-//! and the CRC catches corruption once the rows have streamed past.
+//! and the CRC catches corruption once the rows have streamed past. Version 2 added the
+//! header to the CRC: a header damaged into other valid JSON (a seed's digit) passed, and
+//! `merge` then took one run's walks twice as "two runs". Version 1 files are still read.
 
 mod binary;
 mod csv;
@@ -35,7 +37,9 @@ use crate::conditions::ConditionSampler;
 
 pub const MAGIC: &[u8; 8] = b"STCVAEDS";
 pub const END_MARKER: &[u8; 8] = b"STCVEND!";
-pub const FORMAT_VERSION: u32 = 1;
+pub const FORMAT_VERSION: u32 = 2;
+/// The oldest format version still read (its CRC leaves the header out).
+pub const OLDEST_FORMAT_VERSION: u32 = 1;
 
 /// Where a run of rows came from: walks `first_walk .. first_walk + count` of the run
 /// with this seed, sampler and total size. A generated file has one piece; a merged
