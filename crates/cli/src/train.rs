@@ -236,7 +236,7 @@ pub fn run(a: Args) -> Result<()> {
     if !(a.steps_scale > 0.0 && a.steps_scale <= 1e3) {
         bail!(
             "--steps-scale = {} is out of range: allowed (0, 1000]",
-            a.steps_scale
+            scatter_sim::ranges::num(a.steps_scale)
         );
     }
     let out = a.out.clone().unwrap_or_else(|| cfg.out.clone());
@@ -509,6 +509,15 @@ pub fn run(a: Args) -> Result<()> {
     // there), so it is the version of wherever EventGen comes from.
     let mut event_version = cvae::features::FEATURE_VERSION;
     for t in &trained {
+        let steps = scaled(t.kind).steps;
+        if t.info.step > steps {
+            eprintln!(
+                "note: {}'s checkpoint was already at step {}, past the {steps} steps asked: \
+                 exported as it was (no step undone)",
+                t.kind.name(),
+                t.info.step
+            );
+        }
         let last = t.info.history.last().map_or(f32::NAN, |h| h.1);
         // A resumed model's seconds include the runs before this one.
         notes.push(format!(

@@ -319,6 +319,29 @@ fn resume_needs_an_intact_checkpoint_and_the_last_loss_is_the_last_steps() {
     // An intact checkpoint resumes (nothing left to train: it exports at once).
     let out = resume(dir.path());
     assert!(out.status.success(), "resume failed: {}", stderr(&out));
+    assert!(!stderr(&out).contains("past the"), "{}", stderr(&out));
+    // Fewer steps than the checkpoint has done (5 × 0.6): exported as it is, and said so.
+    let out = stcvae(
+        &[
+            "train",
+            "--config",
+            "train.toml",
+            "--model",
+            "eventgen",
+            "--base",
+            base_s,
+            "--resume",
+            "--steps-scale",
+            "0.6",
+        ],
+        dir.path(),
+    );
+    assert!(out.status.success(), "resume failed: {}", stderr(&out));
+    assert!(
+        stderr(&out).contains("eventgen's checkpoint was already at step 5, past the 3 steps"),
+        "{}",
+        stderr(&out)
+    );
     // A new run over it must say what becomes of it: refused before any work without
     // --resume or --fresh (it would replace the checkpoint), and --fresh starts over.
     let out = train_eventgen(dir.path(), base_s);

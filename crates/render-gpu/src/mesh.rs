@@ -814,11 +814,24 @@ fn obj_problem(text: &str) -> Option<String> {
                     let ok = first
                         .parse::<i64>()
                         .is_ok_and(|i| (1..=total).contains(&i) || (-before..=-1).contains(&i));
+                    if !ok && total == 0 {
+                        return Some(format!(
+                            "line {at}: face `{}` but the file defines no vertex (`v x y z` lines)",
+                            line.trim()
+                        ));
+                    }
                     if !ok {
+                        let back = if before > 0 {
+                            format!(
+                                ", or -{before}..=-1 counting back over the {before} defined \
+                                 before it"
+                            )
+                        } else {
+                            String::new()
+                        };
                         return Some(format!(
                             "line {at}: face index `{first}` names no vertex: allowed 1..={total} \
-                             for the file's {total} vertices, or -{before}..=-1 counting back \
-                             over the {before} defined before it"
+                             for the file's {total} vertices{back}"
                         ));
                     }
                 }

@@ -465,7 +465,8 @@ impl SceneFile {
             let a = m.albedo[i];
             if !(0.0..=1.0).contains(&a) {
                 return Err(format!(
-                    "medium.albedo[{i}] = {a} is out of range: allowed [0, 1]"
+                    "medium.albedo[{i}] = {} is out of range: allowed [0, 1]",
+                    num(a)
                 ));
             }
         }
@@ -521,7 +522,7 @@ impl SceneFile {
             if !(0.0..=90.0).contains(&l.angular_diameter_deg) {
                 return Err(format!(
                     "light[{i}].angular_diameter_deg = {} is out of range: allowed [0, 90]",
-                    l.angular_diameter_deg
+                    num(l.angular_diameter_deg)
                 ));
             }
         }
@@ -550,14 +551,16 @@ impl SceneFile {
             && !(0.0..=MAX_SCENE_VALUE).contains(&t)
         {
             return Err(format!(
-                "render.min_tau = {t} is out of range: allowed [0, {MAX_SCENE_VALUE:e}]"
+                "render.min_tau = {} is out of range: allowed [0, {MAX_SCENE_VALUE:e}]",
+                num(t)
             ));
         }
         if let Some(t) = r.exact_tau
             && !(0.0..=MAX_EXACT_TAU).contains(&t)
         {
             return Err(format!(
-                "render.exact_tau = {t} is out of range: allowed [0, {MAX_EXACT_TAU}]"
+                "render.exact_tau = {} is out of range: allowed [0, {MAX_EXACT_TAU}]",
+                num(t)
             ));
         }
         if !(1..=MAX_EXACT_NEE_SAMPLES).contains(&r.exact_nee_samples) {
@@ -582,7 +585,8 @@ impl SceneFile {
             && !(t > 0.0 && t.is_finite())
         {
             return Err(format!(
-                "render.max_tau = {t} is out of range: allowed (0, the model's training maximum]"
+                "render.max_tau = {} is out of range: allowed (0, the model's training maximum]",
+                num(t)
             ));
         }
         // A cap below the threshold leaves ST-CVAE no step to take: it would be PT under

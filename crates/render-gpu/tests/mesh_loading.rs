@@ -121,6 +121,14 @@ fn broken_files_give_clear_errors() {
             "{e}"
         );
     }
+    // Faces without any vertex in the file: said so (it read "allowed 1..=0").
+    let e = load_mesh(&write(&d, "nov.obj", b"f 1 2 3\n"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("nov.obj") && e.contains("the file defines no vertex"),
+        "{e}"
+    );
     // A vertex that is not three numbers, and a face of two vertices (which tobj dropped
     // without a word, leaving the mesh to be reported open), by line.
     // Valid variants still load: faces naming vertices defined after them (tobj allows it),

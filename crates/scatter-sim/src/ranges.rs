@@ -30,7 +30,7 @@ where
 
 /// A parameter outside its allowed range; the message names the field and the range.
 #[derive(Debug, Error, Clone, PartialEq)]
-#[error("{field} = {value} is out of range: allowed {allowed}")]
+#[error("{field} = {} is out of range: allowed {allowed}", num(*value))]
 pub struct RangeError {
     pub field: String,
     pub value: f64,

@@ -128,7 +128,10 @@ impl Config {
             if let Some(s) = b.seconds
                 && !(s > 0.0 && s <= 86_400.0)
             {
-                bail!("{name}.seconds = {s} is out of range: allowed (0, 86400]");
+                bail!(
+                    "{name}.seconds = {} is out of range: allowed (0, 86400]",
+                    scatter_sim::ranges::num(s)
+                );
             }
             if let Some(n) = b.samples
                 && !(2..=crate::model_cmds::MAX_EVAL_SAMPLES).contains(&n)
