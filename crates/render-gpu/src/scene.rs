@@ -492,7 +492,7 @@ impl SceneFile {
                     return Err(format!(
                         "boundary.ior = {ior} is out of range: allowed (1, 4] (as an f32: at \
                          least {})",
-                        1.0f32.next_up()
+                        f32::from_bits(1.0f32.to_bits() + 1)
                     ));
                 }
             }
