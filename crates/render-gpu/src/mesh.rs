@@ -462,6 +462,21 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
             "not a valid GLB file: it does not start with the GLB magic `glTF`",
         ));
     }
+    // A file shorter than its GLB header's length (bytes 8..12) is cut short: said so, where
+    // gltf says "could not completely read the object". Bytes after the declared end are
+    // left to gltf, which ignores them (harmless, and some tools may pad).
+    if bytes.starts_with(b"glTF") && bytes.len() >= 12 {
+        let declared = u32::from_le_bytes(bytes[8..12].try_into().unwrap()) as usize;
+        if declared > bytes.len() {
+            return Err(RenderError::mesh(
+                path,
+                format!(
+                    "truncated GLB file: its header gives {declared} bytes, the file has {}",
+                    bytes.len()
+                ),
+            ));
+        }
+    }
     let gltf::Gltf { document, blob } = gltf::Gltf::from_slice(&bytes).map_err(|e| {
         let what = if bytes.is_empty() {
             "the file is empty".to_string()

@@ -179,6 +179,16 @@ fn broken_files_give_clear_errors() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("m.glb") && e.contains("GLB magic"), "{e}");
+    // The shipped bunny cut short: the GLB header's length says so (gltf said "could not
+    // completely read the object"); bytes after its end are ignored, as gltf does.
+    let glb = std::fs::read(asset("bunny.glb")).unwrap();
+    let e = load_mesh(&write(&d, "cut.glb", &glb[..glb.len() - 1000]))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("cut.glb") && e.contains("truncated"), "{e}");
+    let mut long = glb.clone();
+    long.extend_from_slice(&[0; 16]);
+    assert!(load_mesh(&write(&d, "long.glb", &long)).is_ok());
     let e = load_mesh(&write(&d, "x.stl", b"solid"))
         .unwrap_err()
         .to_string();
