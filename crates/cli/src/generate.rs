@@ -70,7 +70,7 @@ fn default_seed() -> u64 {
 }
 
 pub fn load_config(path: &Path) -> Result<DatasetConfig> {
-    let text = std::fs::read_to_string(path)
+    let text = scatter_sim::output::read_input_to_string(path)
         .with_context(|| format!("cannot read dataset config {}", path.display()))?;
     let cfg: DatasetConfig = parse_toml(path, &text)?;
     if cfg.walks == 0 {

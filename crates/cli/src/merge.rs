@@ -312,6 +312,8 @@ fn merge_csv(a: &Args) -> Result<()> {
         AtomicFile::create(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
     let mut rows = 0u64;
     for (i, path) in a.inputs.iter().enumerate() {
+        scatter_sim::output::check_input(path)
+            .with_context(|| format!("cannot open {}", path.display()))?;
         let f = File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
         let mut lines = BufReader::new(f).lines();
         let head = lines

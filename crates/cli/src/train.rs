@@ -118,7 +118,7 @@ impl TrainConfig {
 /// Paths in a config are relative to the current directory (the repository root for
 /// the shipped configs), like every other path on the command line.
 fn load(path: &Path) -> Result<TrainConfig> {
-    let text = std::fs::read_to_string(path)
+    let text = scatter_sim::output::read_input_to_string(path)
         .with_context(|| format!("cannot read training config {}", path.display()))?;
     let cfg: TrainConfig = parse_toml(path, &text)?;
     // An empty path is the current directory (nine checkpoint files landed there) or no

@@ -1378,3 +1378,96 @@ fn merge_averages_stcvae_renders_of_both_devices() {
         serde_json::from_str(&std::fs::read_to_string(m.with_extension("json")).unwrap()).unwrap();
     assert_eq!(json["spp"], 5, "{json}");
 }
+
+/// An input that is a named pipe is refused at once by every reader, naming it: opening
+/// a FIFO without a writer blocked for ever (a scene, mesh, model, image or dataset given
+/// as one hung the command). Each command gets 60 s before the test kills it and fails.
+#[cfg(unix)]
+#[test]
+fn named_pipes_as_inputs_are_refused_not_waited_on() {
+    let d = tempfile::tempdir().unwrap();
+    let fifo = |name: &str| {
+        let p = d.path().join(name);
+        let ok = Command::new("mkfifo").arg(&p).status().unwrap().success();
+        assert!(ok, "mkfifo {}", p.display());
+        p.display().to_string()
+    };
+    let out = |name: &str| d.path().join(name).display().to_string();
+    let scene = d.path().join("s.toml");
+    let sphere = std::fs::read_to_string(root().join("configs/scenes/sphere.toml")).unwrap();
+    std::fs::write(
+        &scene,
+        sphere.replace(
+            "shape = \"sphere\"\nradius = 0.5",
+            &format!("mesh = {:?}", fifo("m.ply")),
+        ),
+    )
+    .unwrap();
+    let cases: Vec<Vec<String>> = vec![
+        vec![
+            "render".into(),
+            "--scene".into(),
+            fifo("f.toml"),
+            "--out".into(),
+            out("r"),
+        ],
+        vec![
+            "render".into(),
+            "--scene".into(),
+            scene.display().to_string(),
+            "--device".into(),
+            "cpu".into(),
+            "--out".into(),
+            out("r2"),
+        ],
+        vec![
+            "sample".into(),
+            "--model".into(),
+            fifo("f.stcvae"),
+            "--tau".into(),
+            "5".into(),
+            "--g".into(),
+            "0".into(),
+            "--albedo".into(),
+            "1".into(),
+            "--out".into(),
+            out("s.csv"),
+        ],
+        vec![
+            "merge".into(),
+            fifo("a.exr"),
+            fifo("b.exr"),
+            "--out".into(),
+            out("m"),
+        ],
+        vec!["merge".into(), fifo("a.bin"), "--out".into(), out("m.bin")],
+        vec!["train".into(), "--config".into(), fifo("t.toml")],
+    ];
+    for args in cases {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_stcvae"))
+            .args(&args)
+            .current_dir(root())
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let start = std::time::Instant::now();
+        let status = loop {
+            if let Some(s) = child.try_wait().unwrap() {
+                break s;
+            }
+            if start.elapsed().as_secs() > 60 {
+                child.kill().unwrap();
+                panic!("{args:?} waited on a named pipe");
+            }
+            std::thread::sleep(std::time::Duration::from_millis(50));
+        };
+        let mut err = String::new();
+        std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut err).unwrap();
+        assert!(!status.success(), "{args:?}");
+        assert!(
+            err.contains("is a named pipe (FIFO), not a file") && !err.contains("panicked"),
+            "{args:?}: {err}"
+        );
+    }
+}

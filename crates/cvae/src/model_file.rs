@@ -197,6 +197,7 @@ impl ModelSet {
             path: path.into(),
             err: e,
         };
+        scatter_sim::output::check_input(path).map_err(io)?;
         let mut file = std::fs::File::open(path).map_err(io)?;
         let len = file.metadata().map_err(io)?.len();
         let mut magic = [0u8; 8];

@@ -187,6 +187,8 @@ pub fn read_exr_at_most(
     path: &Path,
     max_pixels: usize,
 ) -> std::result::Result<(RgbImage, Option<RenderTag>), RenderError> {
+    scatter_sim::output::check_input(path)
+        .map_err(|e| RenderError::Image(format!("{}: cannot read EXR: {e}", path.display())))?;
     let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| {
         // exr's word for an empty file is "reference to missing bytes".
         let what = match std::fs::metadata(path) {

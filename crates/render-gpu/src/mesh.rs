@@ -112,7 +112,7 @@ pub fn load_mesh(path: &Path) -> Result<TriMesh, RenderError> {
         Ok(m) if m.is_dir() => {
             return Err(RenderError::mesh(path, "is a directory, not a mesh file"));
         }
-        Ok(_) => {}
+        Ok(_) => scatter_sim::output::check_input(path).map_err(|e| RenderError::mesh(path, e))?,
     }
     let raw = match ext.as_str() {
         "glb" | "gltf" => load_gltf(path)?,

@@ -361,7 +361,7 @@ pub const MAX_RADIANCE: f64 = 1e12;
 impl SceneFile {
     /// Parses a scene file; errors name the file and the field.
     pub fn load(path: &Path) -> Result<Self, RenderError> {
-        let text = std::fs::read_to_string(path)
+        let text = scatter_sim::output::read_input_to_string(path)
             .map_err(|e| RenderError::io(path, format!("cannot read scene file: {e}")))?;
         Self::parse(path, &text)
     }

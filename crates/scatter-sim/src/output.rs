@@ -140,6 +140,42 @@ pub fn remove_live_temporaries() {
     }
 }
 
+/// Refuses an input path that is a named pipe, a socket or a device: opening a FIFO with
+/// no writer blocks for ever (a scene, mesh, model or image given as one hung the command,
+/// deaf to a first Ctrl-C), and stcvae reads its inputs whole, with their size known.
+/// Only the file's metadata is read, which does not block.
+pub fn check_input(path: &Path) -> io::Result<()> {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        let t = fs::metadata(path)?.file_type();
+        let what = if t.is_fifo() {
+            Some("a named pipe (FIFO)")
+        } else if t.is_socket() {
+            Some("a socket")
+        } else if t.is_char_device() || t.is_block_device() {
+            Some("a device")
+        } else {
+            None
+        };
+        if let Some(what) = what {
+            return Err(io::Error::new(
+                io::ErrorKind::InvalidInput,
+                format!("is {what}, not a file: give a regular file"),
+            ));
+        }
+    }
+    #[cfg(not(unix))]
+    let _ = path;
+    Ok(())
+}
+
+/// [`fs::read_to_string`] of an input, after [`check_input`].
+pub fn read_input_to_string(path: &Path) -> io::Result<String> {
+    check_input(path)?;
+    fs::read_to_string(path)
+}
+
 /// A buffered writer to a temporary file that becomes `path` on [`AtomicFile::commit`].
 pub struct AtomicFile {
     path: PathBuf,

@@ -79,7 +79,7 @@ pub struct Config {
 
 impl Config {
     pub fn load(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path)
+        let text = scatter_sim::output::read_input_to_string(path)
             .map_err(|e| anyhow!("{}: cannot read: {e}", path.display()))?;
         // A scene or another command's config given by mistake reads as "unknown field
         // camera" otherwise: say what the file is.

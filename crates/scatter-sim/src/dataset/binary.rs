@@ -90,6 +90,7 @@ pub struct DatasetReader {
 impl DatasetReader {
     pub fn open(path: &Path) -> Result<Self, DatasetError> {
         let io = |e| DatasetError::io(path, e);
+        crate::output::check_input(path).map_err(io)?;
         let file = File::open(path).map_err(io)?;
         let size = file.metadata().map_err(io)?.len();
         let mut reader = BufReader::with_capacity(1 << 20, file);
