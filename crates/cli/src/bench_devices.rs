@@ -50,6 +50,7 @@ fn render(
         spp,
         seed,
         time_budget,
+        variance: false,
     };
     engine.render(&p.data, &p.settings(), &opts, &|_, _| {}, &cancel)
 }

@@ -122,6 +122,7 @@ fn save_images(dir: &std::path::Path, k: f64, pt: &Pair, st: &Pair) -> Result<()
             // The mean of the pair's two seeds.
             seeds: Vec::new(),
             partial: false,
+            unknown_digests: Vec::new(),
         };
         let stem = dir.join(format!("k{k}_{name}"));
         crate::merge::write_image_set(&stem, &p.mean, &tag, exposure, None)?;
@@ -162,10 +163,6 @@ fn save_images(dir: &std::path::Path, k: f64, pt: &Pair, st: &Pair) -> Result<()
     Ok(())
 }
 
-/// A density multiplier of `--k`: a number in [0.001, 1000]. Thinner than a thousandth of
-/// the scene's medium, the object is all but transparent (the default bunny's optical
-/// size falls below 0.2) and the table's ratios are of nothing: a k of 1e-300 printed
-/// 300-digit densities and "± NaN %".
 /// A density given twice in `--k` would be measured twice and tabled as two rows (an
 /// experiment's `densities` refuses it too).
 pub(crate) fn reject_repeats(k: &[f64]) -> Result<()> {
@@ -177,6 +174,10 @@ pub(crate) fn reject_repeats(k: &[f64]) -> Result<()> {
     Ok(())
 }
 
+/// A density multiplier of `--k`: a number in [0.001, 1000]. Thinner than a thousandth of
+/// the scene's medium, the object is all but transparent (the default bunny's optical
+/// size falls below 0.2) and the table's ratios are of nothing: a k of 1e-300 printed
+/// 300-digit densities and "± NaN %".
 pub(crate) fn parse_k(s: &str) -> Result<f64, String> {
     let k: f64 = s
         .trim()
@@ -293,6 +294,7 @@ fn render_pair(
             spp: half,
             seed,
             time_budget: None,
+            variance: false,
         };
         let pb = crate::progress::render_bar(&label, cam.width as u64 * cam.height as u64, &opts);
         let o = engine.render(

@@ -452,6 +452,7 @@ pub fn run(a: Args) -> Result<()> {
         spp: spp_cap.unwrap_or(u32::MAX),
         seed: r.seed,
         time_budget: a.time_budget,
+        variance: false,
     };
     let pixels = p.file.camera.width as u64 * p.file.camera.height as u64;
     let pb = if spp_cap.is_some() {
@@ -479,6 +480,7 @@ pub fn run(a: Args) -> Result<()> {
         scene_hash: hash,
         seeds: vec![r.seed],
         partial: false,
+        unknown_digests: Vec::new(),
     };
     let paths = out.stats.paths.max(1) as f64;
     let report = Report {

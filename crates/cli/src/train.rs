@@ -196,8 +196,8 @@ fn checkpoint_decoder(
     {
         bail!(
             "the {} checkpoint in {} was trained with single_scattering = {} and the config \
-             says {}: retrain it too (train without --model), or take it from a model file \
-             with --base",
+             says {}: retrain it too (train without --model, with --fresh), or take it from a \
+             model file with --base",
             k.name(),
             cfg.checkpoint_dir.display(),
             m.name(),

@@ -342,6 +342,7 @@ fn render_writes_exr_png_json_and_merge_averages_by_spp() {
             scene_hash: tag_of(&a_exr),
             seeds: Vec::new(),
             partial: false,
+            unknown_digests: Vec::new(),
         },
     )
     .unwrap();
@@ -1201,6 +1202,7 @@ fn bench_error_ranks_renders_by_error_and_names_bad_inputs() {
         scene_hash: tag.unwrap().scene_hash ^ 1,
         seeds: Vec::new(),
         partial: false,
+        unknown_digests: Vec::new(),
         spp: 32,
     };
     render_gpu::image_io::write_exr(&copy, &pixels, &foreign).unwrap();

@@ -198,10 +198,21 @@ impl ModelSet {
             err: e,
         };
         scatter_sim::output::check_input(path).map_err(io)?;
+        let meta = std::fs::metadata(path).map_err(io)?;
+        if meta.is_dir() {
+            return Err(ModelError::Invalid {
+                path: path.into(),
+                msg: "is a directory, not a model file".into(),
+            });
+        }
+        let len = meta.len();
+        if len < 8 {
+            return Err(ModelError::BadMagic { path: path.into() });
+        }
         let mut file = std::fs::File::open(path).map_err(io)?;
-        let len = file.metadata().map_err(io)?.len();
         let mut magic = [0u8; 8];
-        if len < 8 || file.read_exact(&mut magic).is_err() || &magic != MAGIC {
+        file.read_exact(&mut magic).map_err(io)?;
+        if &magic != MAGIC {
             return Err(ModelError::BadMagic { path: path.into() });
         }
         if len > MAX_FILE_BYTES {

@@ -153,6 +153,9 @@ fn load_refuses_foreign_and_oversized_files_before_reading_them() {
     let empty = sparse("empty.stcvae", b"", 0);
     let e = ModelSet::load(&empty).unwrap_err();
     assert!(matches!(e, ModelError::BadMagic { .. }), "{e}");
+    // A directory is named as one (it read as "bad magic bytes").
+    let e = ModelSet::load(dir.path()).unwrap_err().to_string();
+    assert!(e.contains("is a directory, not a model file"), "{e}");
 
     let mut rng = WalkRng::from_seed(5);
     let hidden = vec![MAX_WIDTH; MAX_HIDDEN_LAYERS];

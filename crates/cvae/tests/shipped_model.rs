@@ -41,8 +41,8 @@ const MEASURED: [((f64, f64, f64), [f64; 9]); 3] = [
 /// statistic grow 2.2–3.8× unnoticed. (A misfit the size of the noise adds less than
 /// itself to a statistic, so a small new misfit can still pass.) The 2-D statistics
 /// spread more under the null: simulator against simulator, 12 seed pairs at (5, 0.4) and
-/// (25, 0), their mean was 0.019–0.021 and their spread 0.003–0.005, so they get 0.025
-/// (5 of the larger spread). They catch what the marginals cannot: exit directions right
+/// (25, 0) (two of the three settings), their mean was 0.019–0.021 and their spread
+/// 0.003–0.005, so they get 0.025 (5 of the larger spread). They catch what the marginals cannot: exit directions right
 /// overall but paired with the wrong exit points.
 #[test]
 fn shipped_model_quick_eval() {

@@ -14,7 +14,8 @@ use scatter_sim::output::write_atomic;
 use crate::error::RenderError;
 
 /// The render tag as one text attribute, `spp=N scene=HEX [seed=S | seeds=S,S,…]`, where
-/// a `?` in the list stands for inputs of unknown seed (see [`RenderTag::partial`]). One
+/// a `?` in the list stands for inputs of unknown seed, `?HEX` for one whose pixel digest
+/// is HEX (see [`RenderTag::partial`] and [`RenderTag::unknown_digests`]). One
 /// attribute, not
 /// three: the exr crate keeps custom attributes in a HashMap, whose order (and so the
 /// file's bytes) changed from run to run with three.
@@ -89,6 +90,10 @@ pub struct RenderTag {
     /// once did) let the merge take one of its own inputs again, counting its samples
     /// twice. An empty `seeds` is unknown whatever this says.
     pub partial: bool,
+    /// The pixel digests ([`RgbImage::pixel_digest`]) of the renders of unknown seed in a
+    /// merge, where their pixels vary: the only way to know one of them again (without
+    /// them a merge M of a and u accepted u once more, and again).
+    pub unknown_digests: Vec<u64>,
 }
 
 impl RenderTag {
@@ -137,12 +142,14 @@ pub fn encode_exr(img: &RgbImage, tag: &RenderTag) -> std::result::Result<Vec<u8
     });
     let mut attrs = LayerAttributes::default();
     let mut text = format!("spp={} scene={:016x}", tag.spp, tag.scene_hash);
+    let digests = &tag.unknown_digests;
     match (tag.seeds.as_slice(), tag.partial) {
-        ([], _) => {}
-        ([seed], false) => text += &format!(" seed={seed}"),
+        ([], false) if digests.is_empty() => {}
+        ([seed], false) if digests.is_empty() => text += &format!(" seed={seed}"),
         (many, partial) => {
             let mut list: Vec<String> = many.iter().map(u64::to_string).collect();
-            if partial {
+            list.extend(digests.iter().map(|d| format!("?{d:016x}")));
+            if partial && digests.is_empty() {
                 list.push("?".into());
             }
             text += &format!(" seeds={}", list.join(","));
@@ -292,17 +299,27 @@ pub fn read_exr_at_most(
     };
     let tag = match (spp, scene) {
         (Some(s), Some(h)) => {
-            let (mut seeds, mut partial) = (Vec::new(), false);
+            let (mut seeds, mut partial, mut digests) = (Vec::new(), false, Vec::new());
+            let v = seed.as_deref().unwrap_or_default();
             for x in seed.as_deref().map(|v| v.split(',')).into_iter().flatten() {
-                let v = seed.as_deref().unwrap_or_default();
-                if x == "?" && !partial {
-                    partial = true;
-                } else {
-                    let s: u64 = x.parse().map_err(|_| bad(names[2], v))?;
-                    if seeds.contains(&s) {
-                        return Err(bad(names[2], v));
+                match x.strip_prefix('?') {
+                    Some("") if !partial => partial = true,
+                    Some(hex) if hex.len() == 16 => {
+                        let d = u64::from_str_radix(hex, 16).map_err(|_| bad(names[2], v))?;
+                        if digests.contains(&d) {
+                            return Err(bad(names[2], v));
+                        }
+                        digests.push(d);
+                        partial = true;
                     }
-                    seeds.push(s);
+                    Some(_) => return Err(bad(names[2], v)),
+                    None => {
+                        let s: u64 = x.parse().map_err(|_| bad(names[2], v))?;
+                        if seeds.contains(&s) {
+                            return Err(bad(names[2], v));
+                        }
+                        seeds.push(s);
+                    }
                 }
             }
             Some(RenderTag {
@@ -310,6 +327,7 @@ pub fn read_exr_at_most(
                 scene_hash: u64::from_str_radix(&h, 16).map_err(|_| bad(names[1], &h))?,
                 seeds,
                 partial,
+                unknown_digests: digests,
             })
         }
         // A tag attribute without its spp and scene is damaged; an old file without the
@@ -389,6 +407,9 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
         seeds: Vec<u64>,
         unknown: bool,
         digest: Option<u64>,
+        /// The digests of the renders of unknown seed it holds: its own where it is one
+        /// (no seed at all), those its tag records where it is a merge of some.
+        unknown_digests: Vec<u64>,
         path: &'a Path,
     }
     let mut seen: Vec<Seen> = Vec::new();
@@ -398,13 +419,26 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
         let seeds = tag.as_ref().map_or_else(Vec::new, |t| t.seeds.clone());
         let unknown = tag.as_ref().is_none_or(RenderTag::some_unknown);
         let scene = tag.as_ref().map(|t| t.scene_hash);
+        let mut unknown_digests = tag
+            .as_ref()
+            .map_or_else(Vec::new, |t| t.unknown_digests.clone());
+        if seeds.is_empty()
+            && let Some(d) = digest
+            && !unknown_digests.contains(&d)
+        {
+            unknown_digests.push(d);
+        }
         let shared = |o: &Seen| seeds.iter().copied().find(|s| o.seeds.contains(s));
         // A seed in common shares samples; where either holds renders of unknown seed,
-        // equal pixels are the only sign left.
+        // equal pixels are the only sign left: the images' own, or those recorded of the
+        // renders of unknown seed a merge holds.
         let twin = seen.iter().find(|o| {
             o.scene == scene
                 && (shared(o).is_some()
-                    || ((unknown || o.unknown) && digest.is_some() && o.digest == digest))
+                    || ((unknown || o.unknown) && digest.is_some() && o.digest == digest)
+                    || unknown_digests
+                        .iter()
+                        .any(|d| o.unknown_digests.contains(d)))
         });
         if let Some(o) = twin {
             return Err(RenderError::Image(format!(
@@ -420,6 +454,7 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
             seeds,
             unknown,
             digest,
+            unknown_digests: unknown_digests.clone(),
             path: p,
         });
         let tag = tag.ok_or_else(|| {
@@ -457,6 +492,7 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
                     .collect();
                 let mut tag = tag;
                 tag.partial = tag.some_unknown();
+                tag.unknown_digests = unknown_digests;
                 acc = Some((img, tag, sum));
             }
             Some((first, t0, sum)) => {
@@ -491,6 +527,7 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
                 // marks the list as partial (a list with it missing would read as whole).
                 t0.partial |= tag.some_unknown();
                 t0.seeds.extend(&tag.seeds);
+                t0.unknown_digests.extend(unknown_digests);
             }
         }
     }
@@ -541,18 +578,23 @@ mod tests {
     fn exr_files_are_reproducible_and_keep_their_tag() {
         let img = image();
         let dir = tempfile::tempdir().unwrap();
-        // One render's seed, a merge's seeds, none, a merge with an input of unknown seed.
-        for (seeds, partial) in [
-            (vec![7], false),
-            (vec![7, 9, 12], false),
-            (vec![], false),
-            (vec![7], true),
+        // One render's seed, a merge's seeds, none, merges with inputs of unknown seed
+        // (constant, or known by their pixels' digests).
+        for (seeds, partial, unknown_digests) in [
+            (vec![7], false, vec![]),
+            (vec![7, 9, 12], false, vec![]),
+            (vec![], false, vec![]),
+            (vec![7], true, vec![]),
+            (vec![], true, vec![]),
+            (vec![7], true, vec![0x0123_4567_89ab_cdef, 5]),
+            (vec![], true, vec![u64::MAX]),
         ] {
             let tag = RenderTag {
                 spp: 96,
                 scene_hash: 0x00ab_cdef_0123_4567,
                 seeds,
                 partial,
+                unknown_digests,
             };
             let first = encode_exr(&img, &tag).unwrap();
             for _ in 0..10 {
@@ -576,6 +618,7 @@ mod tests {
             scene_hash: 0xab,
             seeds: vec![2],
             partial: false,
+            unknown_digests: Vec::new(),
         };
         let bytes = encode_exr(&image(), &good).unwrap();
         let from = b"spp=4 scene=00000000000000ab seed=2";
@@ -617,6 +660,7 @@ mod tests {
             scene_hash: 1,
             seeds: vec![1],
             partial: false,
+            unknown_digests: Vec::new(),
         };
         let bytes = encode_exr(&img, &tag).unwrap();
         let u64_at = |p: usize| u64::from_le_bytes(bytes[p..p + 8].try_into().unwrap());
@@ -660,6 +704,7 @@ mod tests {
                     scene_hash: 1,
                     seeds: vec![seed],
                     partial: false,
+                    unknown_digests: Vec::new(),
                 };
                 let path = dir.path().join(name);
                 std::fs::write(&path, encode_exr(img, &tag).unwrap()).unwrap();

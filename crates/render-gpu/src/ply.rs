@@ -237,7 +237,7 @@ pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
 /// a comment that mentions it must not cut the header short, and a binary body starts
 /// exactly after the line break. Lines end with LF, CRLF or a lone CR (old Mac tools):
 /// a CR followed by LF is one line end, so a CR-only header before a binary body whose
-/// first byte is 0x0A would lose that byte (and fail as truncated, not misread).
+/// first byte is 0x0A would lose that byte (an ambiguity of such files; none seen).
 fn header_end(bytes: &[u8]) -> Option<(usize, usize)> {
     let mut start = 0;
     while start < bytes.len() {

@@ -34,15 +34,23 @@ const MIN_PASS: u32 = 16;
 /// pass's worth of samples each (at 1/16 of 100,000 spp, Ctrl-C took 14 s to answer).
 const MAX_PASS: u32 = 256;
 
-/// A pixel's radiance sum over a pass and its count of events + sphere steps.
-type PixelSum = ([f64; 3], u64);
+/// A pixel's radiance sum over a pass, its count of events + sphere steps, and (for
+/// [`RenderOptions::variance`]) the sum of its samples' squared estimates per channel.
+type PixelSum = ([f64; 3], u64, [f64; 3]);
 
 pub struct RenderOptions {
     pub spp: u32,
     pub seed: u64,
     /// Stop after the pass during which this many seconds have passed.
     pub time_budget: Option<f64>,
+    /// Also estimate each pixel's variance ([`RenderOutput::variance`]; CPU only: the GPU
+    /// kernels keep no squared sums).
+    pub variance: bool,
 }
+
+/// Bytes a pixel more that [`RenderOptions::variance`] takes (squared sums in f64, the
+/// variance image and its encoded file), for [`check_image_memory_with`].
+pub const VARIANCE_BYTES_PER_PIXEL: u64 = 48;
 
 pub struct RenderOutput {
     pub image: RgbImage,
@@ -60,6 +68,11 @@ pub struct RenderOutput {
     pub work: Vec<f32>,
     /// How the GPU ran the render (all zero on the CPU).
     pub dispatch: DispatchStats,
+    /// With [`RenderOptions::variance`], per pixel and channel the estimated variance of
+    /// the pixel's value (the squared standard error of its mean over the samples that
+    /// traced that channel). None without the option, or below 6 spp, where some channel
+    /// has fewer than 2 samples.
+    pub variance: Option<RgbImage>,
 }
 
 impl RenderOutput {
@@ -177,13 +190,8 @@ pub fn resolve_pixel(sum: [f64; 3], spp: u32, seed: u64, pixel: u32) -> [f32; 3]
     if spp < 3 {
         return sum.map(|v| (v / spp.max(1) as f64) as f32);
     }
-    let offset = channel_offset(seed, pixel);
-    std::array::from_fn(|c| {
-        // Samples s < spp with (s + offset) % 3 == c: the first is (c − offset) mod 3.
-        let first = (c as u32 + 3 - offset) % 3;
-        let n = (spp - 1 - first) / 3 + 1;
-        (sum[c] / (3.0 * n as f64)) as f32
-    })
+    let counts = channel_counts(spp, seed, pixel);
+    std::array::from_fn(|c| (sum[c] / (3.0 * counts[c] as f64)) as f32)
 }
 
 /// Sample `s` of pixel `pixel`: its random stream, its jitter within the pixel and its hero
@@ -284,6 +292,11 @@ pub fn render(
         .flat_map(|ty| (0..w.div_ceil(tile)).map(move |tx| (tx * tile, ty * tile)))
         .collect();
     let mut sum = vec![[0f64; 3]; w * h];
+    let mut squares = if opts.variance {
+        vec![[0f64; 3]; w * h]
+    } else {
+        Vec::new()
+    };
     let mut work = vec![0u64; w * h];
     let mut stats = PathStats::default();
     let start = Instant::now();
@@ -331,7 +344,7 @@ pub fn render(
                 let mut st = PathStats::default();
                 let (x1, y1) = ((x0 + tile).min(w), (y0 + tile).min(h));
                 let tw = x1 - x0;
-                let mut out: Vec<PixelSum> = vec![([0f64; 3], 0); tw * (y1 - y0)];
+                let mut out: Vec<PixelSum> = vec![([0f64; 3], 0, [0f64; 3]); tw * (y1 - y0)];
                 // The tile's samples pixel by pixel, each with its own random stream; the
                 // wavefront traces wavefront::SLOTS (256) at a time and batches their decoder draws.
                 let mut samples = (y0..y1)
@@ -360,6 +373,7 @@ pub fn render(
                         let px = &mut out[tag as usize];
                         px.0[channel] += 3.0 * l as f64;
                         px.1 += path.events + path.steps;
+                        px.2[channel] += (l as f64) * (l as f64);
                         st.add(path);
                     },
                     cancel,
@@ -389,11 +403,16 @@ pub fn render(
             stats.add(&st);
             let (x0, y0) = tiles[t];
             let x1 = (x0 + tile).min(w);
-            for (i, (v, n)) in out.into_iter().enumerate() {
+            for (i, (v, n, q)) in out.into_iter().enumerate() {
                 let (dx, dy) = (i % (x1 - x0), i / (x1 - x0));
                 let at = (y0 + dy) * w + x0 + dx;
                 for c in 0..3 {
                     sum[at][c] += v[c];
+                }
+                if let Some(sq) = squares.get_mut(at) {
+                    for c in 0..3 {
+                        sq[c] += q[c];
+                    }
                 }
                 work[at] += n;
             }
@@ -417,6 +436,13 @@ pub fn render(
     for (i, (px, s)) in image.pixels.iter_mut().zip(&sum).enumerate() {
         *px = resolve_pixel(*s, spp, opts.seed, i as u32);
     }
+    let variance = (opts.variance && spp >= MIN_VARIANCE_SPP).then(|| {
+        let mut v = RgbImage::new(w, h);
+        for (i, px) in v.pixels.iter_mut().enumerate() {
+            *px = pixel_variance(sum[i], squares[i], spp, opts.seed, i as u32);
+        }
+        v
+    });
     RenderOutput {
         image,
         spp,
@@ -432,7 +458,45 @@ pub fn render(
             .map(|&n| (n as f64 / spp.max(1) as f64) as f32)
             .collect(),
         dispatch: DispatchStats::default(),
+        variance,
     }
+}
+
+/// Fewest spp for a variance image: every channel then has at least 2 samples.
+pub const MIN_VARIANCE_SPP: u32 = 6;
+
+/// How many of `spp` samples of a pixel traced each channel (the hero channel of sample s
+/// is `(s % 3 + offset) % 3`; see [`resolve_pixel`]).
+fn channel_counts(spp: u32, seed: u64, pixel: u32) -> [u32; 3] {
+    let offset = channel_offset(seed, pixel);
+    std::array::from_fn(|c| {
+        // Samples s < spp with (s + offset) % 3 == c: the first is (c − offset) mod 3.
+        let first = (c as u32 + 3 - offset) % 3;
+        if spp > first {
+            (spp - 1 - first) / 3 + 1
+        } else {
+            0
+        }
+    })
+}
+
+/// The variance of a pixel's value per channel from its sums (each sample's estimate
+/// added ×3 to `sum`, squared to `squares`): the unbiased sample variance of the channel's
+/// n estimates over n. Needs n ≥ 2 in every channel ([`MIN_VARIANCE_SPP`]).
+pub fn pixel_variance(
+    sum: [f64; 3],
+    squares: [f64; 3],
+    spp: u32,
+    seed: u64,
+    pixel: u32,
+) -> [f32; 3] {
+    let counts = channel_counts(spp, seed, pixel);
+    std::array::from_fn(|c| {
+        let n = counts[c] as f64;
+        let mean = sum[c] / (3.0 * n);
+        let s2 = ((squares[c] - n * mean * mean) / (n - 1.0)).max(0.0);
+        (s2 / n) as f32
+    })
 }
 
 #[cfg(test)]

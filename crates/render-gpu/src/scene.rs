@@ -350,9 +350,10 @@ pub const MAX_GRID: u32 = 512;
 /// inverse for lengths) values collapse or overflow there although they are finite in the
 /// file's f64.
 pub const MAX_SCENE_VALUE: f64 = 1e6;
-/// Narrowest field of view (degrees): below it neighbouring pixels' directions differ by
-/// less than f32 resolves.
-pub const MIN_FOV_DEG: f64 = 1e-3;
+/// Narrowest field of view (degrees): at 8 pixels across, neighbouring pixels' directions
+/// then differ by ~3 f32 ulps (2e-7 rad); narrower, or 0 as an f32 (1e-300 was taken),
+/// pixels share rays. The far-away furnace test looks through 7.5e-4°.
+pub const MIN_FOV_DEG: f64 = 1e-4;
 /// Smallest object dimension (radius, size, height) accepted.
 pub const MIN_OBJECT_SIZE: f64 = 1e-6;
 /// Largest radiance or irradiance accepted: sums over millions of samples stay finite in f32.
@@ -382,8 +383,7 @@ impl SceneFile {
         bounded3("camera.target", c.target, MAX_SCENE_VALUE)?;
         bounded3("camera.up", c.up, MAX_SCENE_VALUE)?;
         camera_basis_f32(c)?;
-        // Below a thousandth of a degree the pixels' directions differ by less than an
-        // f32 resolves (1e-300 was taken, and every pixel got the same ray).
+        // See MIN_FOV_DEG (1e-300 was taken, and every pixel got the same ray).
         if !(c.fov_deg >= MIN_FOV_DEG && c.fov_deg < 180.0) {
             return Err(format!(
                 "camera.fov_deg = {} is out of range: allowed [{MIN_FOV_DEG}, 180)",

@@ -378,6 +378,7 @@ fn opts(spp: u32, seed: u64) -> RenderOptions {
         spp,
         seed,
         time_budget: None,
+        variance: false,
     }
 }
 
@@ -782,6 +783,7 @@ fn sky(d: &tempfile::TempDir, f: impl Fn(usize, usize) -> [f32; 3]) -> std::path
         scene_hash: 0,
         seeds: Vec::new(),
         partial: false,
+        unknown_digests: Vec::new(),
     };
     write_exr(&path, &map, &tag).unwrap();
     path

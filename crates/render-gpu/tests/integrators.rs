@@ -22,6 +22,7 @@ fn render_quiet(s: &SceneData, set: &IntegratorSettings, spp: u32, seed: u64) ->
             spp,
             seed,
             time_budget: None,
+            variance: false,
         },
         &|_, _| {},
         &AtomicBool::new(false),
@@ -600,6 +601,7 @@ fn environment_map_is_read_and_oriented() {
             scene_hash: 0,
             seeds: Vec::new(),
             partial: false,
+            unknown_digests: Vec::new(),
         },
     )
     .unwrap();
@@ -614,6 +616,7 @@ fn environment_map_is_read_and_oriented() {
             scene_hash: 0,
             seeds: Vec::new(),
             partial: false,
+            unknown_digests: Vec::new(),
         },
     )
     .unwrap();
@@ -633,6 +636,7 @@ fn environment_map_is_read_and_oriented() {
             spp: 6,
             seed: 1,
             time_budget: None,
+            variance: false,
         },
         &|_, _| {},
         &AtomicBool::new(false),
@@ -899,6 +903,7 @@ fn a_stop_request_ends_the_render_within_a_pass() {
                 spp: 1600,
                 seed: 3,
                 time_budget: None,
+                variance: false,
             },
             &|done, _| {
                 if done > 2 * 100 * pixels {
@@ -927,6 +932,7 @@ fn a_stop_request_ends_the_render_within_a_pass() {
             spp: 100_000,
             seed: 3,
             time_budget: None,
+            variance: false,
         },
         &|_, _| {},
         &AtomicBool::new(true),

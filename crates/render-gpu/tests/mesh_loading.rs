@@ -348,6 +348,7 @@ fn environment_maps_with_bad_pixels_are_refused() {
         scene_hash: 0,
         seeds: Vec::new(),
         partial: false,
+        unknown_digests: Vec::new(),
     };
     let desc = |f: &str| render_gpu::scene::EnvironmentDesc {
         radiance: None,
@@ -386,6 +387,7 @@ fn exr_with_a_huge_declared_size_is_refused() {
         scene_hash: 0,
         seeds: Vec::new(),
         partial: false,
+        unknown_digests: Vec::new(),
     };
     write_exr(&path, &RgbImage::new(4, 2), &tag).unwrap();
     assert!(read_exr(&path).is_ok());
@@ -456,6 +458,7 @@ fn merge_refuses_one_seed_twice_but_not_equal_constant_images() {
             scene_hash: 7,
             seeds: seeds.to_vec(),
             partial: false,
+            unknown_digests: Vec::new(),
         };
         write_exr(&path, &img, &tag).unwrap();
         assert_eq!(read_exr(&path).unwrap().1, Some(tag));
@@ -499,6 +502,7 @@ fn merge_refuses_one_seed_twice_but_not_equal_constant_images() {
     let old3 = put("old3.exr", 4.0, true, &[], 4);
     let (img, tag) = merge_exrs(&[&a, &old3]).unwrap();
     assert_eq!((&tag.seeds, tag.partial), (&vec![1], true));
+    assert_eq!(tag.unknown_digests.len(), 1, "old3's pixels are recorded");
     let mixed = d.path().join("mixed.exr");
     write_exr(&mixed, &img, &tag).unwrap();
     assert_eq!(read_exr(&mixed).unwrap().1, Some(tag));
@@ -506,6 +510,19 @@ fn merge_refuses_one_seed_twice_but_not_equal_constant_images() {
         panic!("a merge with an unknown seed and its own known input")
     };
     assert!(e.to_string().contains("same seed 1"), "{e}");
+    // Nor its input of unknown seed, known again by its pixels, directly or inside
+    // another merge.
+    let Err(e) = merge_exrs(&[&mixed, &old3]) else {
+        panic!("a merge and its own input of unknown seed")
+    };
+    assert!(e.to_string().contains("same render"), "{e}");
+    let (img_b3, tag_b3) = merge_exrs(&[&b, &old3]).unwrap();
+    let b3 = d.path().join("b3.exr");
+    write_exr(&b3, &img_b3, &tag_b3).unwrap();
+    assert!(
+        merge_exrs(&[&mixed, &b3]).is_err(),
+        "old3 inside both merges"
+    );
     assert_eq!(merge_exrs(&[&mixed, &b]).unwrap().1.seeds, vec![1, 2]);
 }
 

@@ -78,7 +78,7 @@ fn other_fields_are_checked() {
     // Every pixel would get the same ray: refused, the value printed short.
     let e = err(&BASE.replace("fov_deg = 20.0", "fov_deg = 1e-300"));
     assert!(
-        e.contains("camera.fov_deg = 1e-300 is out of range: allowed [0.001, 180)"),
+        e.contains("camera.fov_deg = 1e-300 is out of range: allowed [0.0001, 180)"),
         "{e}"
     );
     let e = err(&BASE.replace("width = 8", "width = 0"));

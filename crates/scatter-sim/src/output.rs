@@ -176,6 +176,22 @@ pub fn read_input_to_string(path: &Path) -> io::Result<String> {
     fs::read_to_string(path)
 }
 
+/// The start of a temporary's name beside `path` (".NAME."): at most 64 bytes of the
+/// target's name, so that the temporary stays within a file system's 255-byte names
+/// whenever the target's name does (the whole name plus ".XXXXXX.partial" failed for names
+/// of 236–255 bytes, after the work was done).
+fn temp_prefix(path: &Path) -> String {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let mut cut = name.len().min(64);
+    while !name.is_char_boundary(cut) {
+        cut -= 1;
+    }
+    format!(".{}.", &name[..cut])
+}
+
 /// A buffered writer to a temporary file that becomes `path` on [`AtomicFile::commit`].
 pub struct AtomicFile {
     path: PathBuf,
@@ -193,20 +209,8 @@ impl AtomicFile {
             _ => PathBuf::from("."),
         };
         fs::create_dir_all(&dir)?;
-        let name = path
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        // The temporary's name holds at most 64 bytes of the target's, so that it stays
-        // within a file system's 255-byte names whenever the target's name does (the
-        // whole name plus ".", ".XXXXXX.partial" failed for names of 236–255 bytes,
-        // after the work was done).
-        let mut cut = name.len().min(64);
-        while !name.is_char_boundary(cut) {
-            cut -= 1;
-        }
         let tmp = tempfile::Builder::new()
-            .prefix(&format!(".{}.", &name[..cut]))
+            .prefix(&temp_prefix(path))
             .suffix(".partial")
             .tempfile_in(&dir)?;
         Ok(Self {
@@ -359,12 +363,8 @@ impl Previous {
             Some(p) if !p.as_os_str().is_empty() => p,
             _ => Path::new("."),
         };
-        let name = path
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
         match tempfile::Builder::new()
-            .prefix(&format!(".{name}."))
+            .prefix(&temp_prefix(path))
             .suffix(".previous")
             .make_in(dir, |p| fs::hard_link(path, p))
         {
@@ -511,6 +511,26 @@ mod tests {
         write_atomic_set(&[(&d.path().join("b".repeat(250)), b"y")]).unwrap();
         let left = fs::read_dir(d.path()).unwrap().count();
         assert_eq!(left, 3, "temporaries left behind");
+        // Replacing a long name in a set keeps its predecessor as a link until the set is
+        // in place (the link's name had the same limit): a failed second rename puts the
+        // first file back.
+        let long = d.path().join("c".repeat(250));
+        fs::write(&long, b"old").unwrap();
+        let mut renames = 0;
+        let e = write_set_with(
+            &[(&long, b"new"), (&d.path().join("second"), b"z")],
+            |f| {
+                renames += 1;
+                if renames == 2 {
+                    Err(io::Error::other("the second rename fails"))
+                } else {
+                    f.persist()
+                }
+            },
+            Previous::keep,
+        );
+        assert!(e.is_err());
+        assert_eq!(fs::read(&long).unwrap(), b"old");
     }
 
     #[test]

@@ -77,6 +77,7 @@ pub fn opts(spp: u32, seed: u64, time_budget: Option<f64>) -> RenderOptions {
         spp,
         seed,
         time_budget,
+        variance: false,
     }
 }
 
@@ -475,6 +476,7 @@ pub fn save(
             scene_hash: hash,
             seeds: Vec::new(),
             partial: false,
+            unknown_digests: Vec::new(),
         },
         exposure,
         None,
@@ -518,6 +520,7 @@ mod tests {
             stats: PathStats::default(),
             work: Vec::new(),
             dispatch: Default::default(),
+            variance: None,
         };
         let [a, b]: [RgbImage; 2] = halves.try_into().ok().unwrap();
         Pair::from_halves(out(a), out(b), 0)

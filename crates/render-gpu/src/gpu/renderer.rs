@@ -910,6 +910,7 @@ pub fn render_gpu(
             bounce_budget: budget,
             ..dispatch
         },
+        variance: None,
     })
 }
 

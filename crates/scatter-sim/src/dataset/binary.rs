@@ -135,8 +135,9 @@ impl DatasetReader {
             path: path.into(),
             msg: e.to_string(),
         })?;
-        // The checksum covers the rows only, so the header's columns and numbers are
-        // checked here: the rows are read by position, and merge adds and compares counts.
+        // The checksum (over the header too since version 2) is known only after the rows
+        // have streamed past, so the header's columns and numbers are checked here: the
+        // rows are read by position, and merge adds and compares counts.
         if header
             .columns
             .iter()

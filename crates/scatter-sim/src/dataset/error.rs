@@ -15,7 +15,8 @@ pub enum DatasetError {
     #[error("{path}: not an stcvae dataset (bad magic bytes)")]
     BadMagic { path: PathBuf },
     #[error(
-        "{path}: dataset format version {found} is not supported (this build reads versions 1 to {supported})"
+        "{path}: dataset format version {found} is not supported (this build reads versions {} to {supported})",
+        super::OLDEST_FORMAT_VERSION
     )]
     Version {
         path: PathBuf,
