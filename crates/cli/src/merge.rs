@@ -137,6 +137,19 @@ pub(crate) fn write_image_set(
     exposure: f32,
     json: Option<&[u8]>,
 ) -> Result<()> {
+    write_image_set_with(out, img, tag, exposure, json, None)
+}
+
+/// [`write_image_set`] with, given `variance`, OUT.var.exr in the same set (untagged:
+/// `merge` refuses it as a render).
+pub(crate) fn write_image_set_with(
+    out: &Path,
+    img: &render_gpu::image_io::RgbImage,
+    tag: &render_gpu::image_io::RenderTag,
+    exposure: f32,
+    json: Option<&[u8]>,
+    variance: Option<&render_gpu::image_io::RgbImage>,
+) -> Result<()> {
     let (exr, png, js) = (
         image_out(out, "exr"),
         image_out(out, "png"),
@@ -151,8 +164,14 @@ pub(crate) fn write_image_set(
         .map_err(|e| anyhow!("{}: {e}", exr.display()))?;
     let png_bytes = render_gpu::image_io::encode_png(img, exposure)
         .map_err(|e| anyhow!("{}: {e}", png.display()))?;
+    let var = image_out(out, "var.exr");
+    let var_bytes = variance
+        .map(render_gpu::image_io::encode_untagged_exr)
+        .transpose()
+        .map_err(|e| anyhow!("{}: {e}", var.display()))?;
     let mut files = vec![(exr.as_path(), exr_bytes.as_slice()), (&png, &png_bytes)];
     files.extend(json.map(|j| (js.as_path(), j)));
+    files.extend(var_bytes.as_deref().map(|v| (var.as_path(), v)));
     scatter_sim::output::write_atomic_set(&files)
         .map_err(|(path, e)| anyhow!("cannot write {}: {e}", path.display()))
 }

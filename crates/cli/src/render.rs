@@ -62,6 +62,12 @@ pub struct Args {
     /// unscaled).
     #[arg(long, allow_negative_numbers = true, default_value_t = 1.0, value_parser = parse_exposure)]
     pub exposure: f32,
+    /// Also write OUT.var.exr: per pixel and channel the estimated variance of the
+    /// pixel's value (its squared standard error, from the samples' own spread). Computed
+    /// by the CPU renderer (--device auto picks it; the GPU kernels keep no squared sums)
+    /// from 6 spp on.
+    #[arg(long)]
+    pub variance: bool,
 }
 
 /// `--exposure`: a positive number that stays positive and finite as the f32 the PNG
@@ -135,6 +141,10 @@ struct Report<'a> {
     device: String,
     /// Mean of the image per channel (a quick comparison between renders).
     mean_rgb: [f64; 3],
+    /// With --variance: the variance image's file, and the square root of its mean per
+    /// channel (a typical pixel's standard error).
+    variance_file: Option<String>,
+    rms_standard_error_rgb: Option<[f64; 3]>,
     stats: &'a PathStats,
 }
 
@@ -411,13 +421,36 @@ pub fn run(a: Args) -> Result<()> {
     }
     note_unreachable_lights(&p);
     let inputs = render_inputs(&a, &p);
-    for ext in ["exr", "png", "json"] {
+    let exts: &[&str] = if a.variance {
+        &["exr", "png", "json", "var.exr"]
+    } else {
+        &["exr", "png", "json"]
+    };
+    for ext in exts {
         let f = crate::merge::image_out(&a.out, ext);
         crate::paths::check_not_input("--out", &f, &inputs)?;
+        if *ext == "var.exr" {
+            scatter_sim::output::check_output_path(&f)
+                .map_err(|e| anyhow::anyhow!("--out {}: {e}", a.out.display()))?;
+        }
     }
-    render_gpu::render::check_image_memory(p.file.camera.width, p.file.camera.height)
+    let extra = if a.variance {
+        render_gpu::render::VARIANCE_BYTES_PER_PIXEL
+    } else {
+        0
+    };
+    render_gpu::render::check_image_memory_with(p.file.camera.width, p.file.camera.height, extra)
         .map_err(|e| anyhow::anyhow!("{}: camera.width/height: {e}", a.scene.display()))?;
-    let engine = Engine::open(a.device)?;
+    // The variance needs the CPU renderer's squared sums.
+    let device = match (a.variance, a.device) {
+        (true, DeviceArg::Gpu) => bail!(
+            "--variance is computed by the CPU renderer only (the GPU kernels keep no squared \
+             sums): use --device cpu or auto"
+        ),
+        (true, _) => DeviceArg::Cpu,
+        (false, d) => d,
+    };
+    let engine = Engine::open(device)?;
     let set = p.settings();
     if engine.is_gpu() && !engine.is_hardware_gpu() {
         let slot = 16 * render_gpu::gpu::kernels::slot_vec4s(set.path_nee() as u32);
@@ -452,7 +485,7 @@ pub fn run(a: Args) -> Result<()> {
         spp: spp_cap.unwrap_or(u32::MAX),
         seed: r.seed,
         time_budget: a.time_budget,
-        variance: false,
+        variance: a.variance,
     };
     let pixels = p.file.camera.width as u64 * p.file.camera.height as u64;
     let pb = if spp_cap.is_some() {
@@ -509,14 +542,28 @@ pub fn run(a: Args) -> Result<()> {
         scene_hash: format!("{hash:016x}"),
         device: engine.describe(),
         mean_rgb: mean_rgb(&out.image),
+        variance_file: out.variance.as_ref().map(|_| {
+            crate::merge::image_out(&a.out, "var.exr")
+                .display()
+                .to_string()
+        }),
+        rms_standard_error_rgb: out.variance.as_ref().map(|v| mean_rgb(v).map(f64::sqrt)),
         stats: &out.stats,
     };
-    crate::merge::write_image_set(
+    if a.variance && out.variance.is_none() {
+        eprintln!(
+            "note: no variance image: {} spp is below the {} it needs (2 samples a channel)",
+            out.spp,
+            render_gpu::render::MIN_VARIANCE_SPP
+        );
+    }
+    crate::merge::write_image_set_with(
         &a.out,
         &out.image,
         &tag,
         a.exposure,
         Some(&serde_json::to_vec_pretty(&report)?),
+        out.variance.as_ref(),
     )?;
     if out.stats.capped > 0 || out.stats.non_finite > 0 {
         eprintln!(
@@ -526,7 +573,7 @@ pub fn run(a: Args) -> Result<()> {
     }
     leak_note(&out.stats, "");
     eprintln!(
-        "{} spp in {:.1} s ({} paths/s; {:.1} PT events, {:.1} sphere steps per path{}) -> {}.{{exr,png,json}}",
+        "{} spp in {:.1} s ({} paths/s; {:.1} PT events, {:.1} sphere steps per path{}) -> {}.{{exr,png,json{}}}",
         out.spp,
         out.seconds,
         progress::si(report.paths_per_second),
@@ -542,7 +589,12 @@ pub fn run(a: Args) -> Result<()> {
         } else {
             String::new()
         },
-        crate::merge::out_stem(&a.out).display()
+        crate::merge::out_stem(&a.out).display(),
+        if out.variance.is_some() {
+            ",var.exr"
+        } else {
+            ""
+        }
     );
     if let Some(lanes) = &out.dispatch.lanes {
         print_lanes(lanes);

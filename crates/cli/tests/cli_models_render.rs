@@ -1473,3 +1473,83 @@ fn named_pipes_as_inputs_are_refused_not_waited_on() {
         );
     }
 }
+
+/// `render --variance` writes OUT.var.exr beside the image in the same set (its statistics
+/// are tested in render-gpu's integrators.rs): finite, ≥ 0, zero on the constant sky and
+/// positive on the object; the JSON names it; `merge` refuses it as a render; too few spp
+/// write none and say so; the GPU is refused for it.
+#[test]
+fn render_variance_writes_a_variance_image() {
+    let d = tempfile::tempdir().unwrap();
+    let scene = sphere_scene_file(d.path(), 16);
+    let s = scene.to_str().unwrap();
+    let out = d.path().join("v");
+    let o = out.to_str().unwrap();
+    ok(&stcvae(&[
+        "render",
+        "--scene",
+        s,
+        "--spp",
+        "12",
+        "--variance",
+        "--out",
+        o,
+    ]));
+    let var = d.path().join("v.var.exr");
+    let (v, tag) = render_gpu::image_io::read_exr(&var).unwrap();
+    assert!(tag.is_none(), "the variance image carries no render tag");
+    assert!(
+        v.pixels
+            .iter()
+            .flatten()
+            .all(|x| x.is_finite() && *x >= 0.0)
+    );
+    assert_eq!(v.pixels[0], [0.0; 3], "the corner sees the constant sky");
+    assert!(
+        v.pixels[8 * 16 + 8].iter().all(|x| *x > 0.0),
+        "{:?}",
+        v.pixels[8 * 16 + 8]
+    );
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.path().join("v.json")).unwrap()).unwrap();
+    assert!(
+        json["variance_file"]
+            .as_str()
+            .unwrap()
+            .ends_with("v.var.exr")
+    );
+    assert_eq!(json["rms_standard_error_rgb"].as_array().unwrap().len(), 3);
+    let m = d.path().join("m");
+    let e = stcvae(&["merge", var.to_str().unwrap(), "--out", m.to_str().unwrap()]);
+    assert!(!e.status.success());
+    assert!(common::stderr(&e).contains("no stcvae render tag"));
+    let few = d.path().join("few");
+    let e = stcvae(&[
+        "render",
+        "--scene",
+        s,
+        "--spp",
+        "5",
+        "--variance",
+        "--out",
+        few.to_str().unwrap(),
+    ]);
+    assert!(
+        common::stderr(&e).contains("no variance image: 5 spp"),
+        "{}",
+        common::stderr(&e)
+    );
+    assert!(!d.path().join("few.var.exr").exists());
+    let e = stcvae(&[
+        "render",
+        "--scene",
+        s,
+        "--variance",
+        "--device",
+        "gpu",
+        "--out",
+        o,
+    ]);
+    assert!(!e.status.success());
+    assert!(common::stderr(&e).contains("--variance is computed by the CPU renderer only"));
+}

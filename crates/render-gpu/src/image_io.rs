@@ -135,30 +135,41 @@ pub fn write_exr(
 
 /// The bytes of [`write_exr`]'s file.
 pub fn encode_exr(img: &RgbImage, tag: &RenderTag) -> std::result::Result<Vec<u8>, String> {
+    encode(img, Some(tag))
+}
+
+/// An EXR without a render tag: not a render, so `merge` refuses it (a variance image).
+pub fn encode_untagged_exr(img: &RgbImage) -> std::result::Result<Vec<u8>, String> {
+    encode(img, None)
+}
+
+fn encode(img: &RgbImage, tag: Option<&RenderTag>) -> std::result::Result<Vec<u8>, String> {
     let w = img.width;
     let channels = SpecificChannels::rgb(|pos: Vec2<usize>| {
         let p = img.pixels[pos.y() * w + pos.x()];
         (p[0], p[1], p[2])
     });
     let mut attrs = LayerAttributes::default();
-    let mut text = format!("spp={} scene={:016x}", tag.spp, tag.scene_hash);
-    let digests = &tag.unknown_digests;
-    match (tag.seeds.as_slice(), tag.partial) {
-        ([], false) if digests.is_empty() => {}
-        ([seed], false) if digests.is_empty() => text += &format!(" seed={seed}"),
-        (many, partial) => {
-            let mut list: Vec<String> = many.iter().map(u64::to_string).collect();
-            list.extend(digests.iter().map(|d| format!("?{d:016x}")));
-            if partial && digests.is_empty() {
-                list.push("?".into());
+    if let Some(tag) = tag {
+        let mut text = format!("spp={} scene={:016x}", tag.spp, tag.scene_hash);
+        let digests = &tag.unknown_digests;
+        match (tag.seeds.as_slice(), tag.partial) {
+            ([], false) if digests.is_empty() => {}
+            ([seed], false) if digests.is_empty() => text += &format!(" seed={seed}"),
+            (many, partial) => {
+                let mut list: Vec<String> = many.iter().map(u64::to_string).collect();
+                list.extend(digests.iter().map(|d| format!("?{d:016x}")));
+                if partial && digests.is_empty() {
+                    list.push("?".into());
+                }
+                text += &format!(" seeds={}", list.join(","));
             }
-            text += &format!(" seeds={}", list.join(","));
         }
+        attrs.other.insert(
+            Text::from(ATTR_TAG),
+            AttributeValue::Text(Text::from(text.as_str())),
+        );
     }
-    attrs.other.insert(
-        Text::from(ATTR_TAG),
-        AttributeValue::Text(Text::from(text.as_str())),
-    );
     let layer = Layer::new(
         Vec2(img.width, img.height),
         attrs,

@@ -1077,3 +1077,73 @@ fn a_dielectric_reflects_fresnels_share_of_the_sky() {
         }
     }
 }
+
+/// `RenderOptions::variance`: in a white furnace every sample is L, so the variance is 0
+/// (to rounding); on the lit sphere (configs/scenes/sphere.toml at 12², PT + NEE, 24 spp,
+/// 8 samples a channel) the reported variance of each pixel's value, summed over the
+/// object's pixels, matches the spread of that value over K = 12 independent seeds. The
+/// pooled ratio Σ spread / Σ reported estimates 1: each pixel's spread over 12 seeds has
+/// a relative standard error of √(2/11) = 0.43, and the ~60 object pixels × 3 channels
+/// pool that to ~0.05 if they were independent and Gaussian; the reported variances from 8
+/// samples each are noisier and heavy-tailed (a few bright NEE samples), so the band is
+/// [0.6, 1.6]: a variance off by the spp (a mean's variance against a sample's, 24×) or
+/// by the hero channel's factor 3² = 9 lands far outside it. Measured 2026-12-01: 1.025
+/// (printed with --nocapture).
+#[test]
+fn the_variance_image_matches_the_spread_between_seeds() {
+    let quiet = |s: &SceneData, spp: u32, seed: u64| {
+        let set = settings(IntegratorKind::Pt, true, None);
+        let opts = RenderOptions {
+            spp,
+            seed,
+            time_budget: None,
+            variance: true,
+        };
+        render(s, &set, &opts, &|_, _| {}, &AtomicBool::new(false))
+    };
+    let (_, furnace) = scene(&furnace_scene("kind = \"index-matched\""), false);
+    let out = quiet(&furnace, 13, 3);
+    let v = out.variance.expect("a variance image at 13 spp");
+    assert!(
+        v.pixels
+            .iter()
+            .flatten()
+            .all(|&x| (0.0..1e-10).contains(&x)),
+        "furnace variances {:?}",
+        &v.pixels[..4]
+    );
+    // Below 6 spp some channel has one sample: no variance image.
+    assert!(quiet(&furnace, 5, 3).variance.is_none());
+
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/scenes/sphere.toml"),
+    )
+    .unwrap()
+    .replace("width = 128", "width = 12")
+    .replace("height = 128", "height = 12");
+    let (_, s) = scene(&text, false);
+    let k = 12;
+    let outs: Vec<RenderOutput> = (0..k).map(|seed| quiet(&s, 24, 100 + seed)).collect();
+    let (mut spread, mut reported) = (0f64, 0f64);
+    for p in 0..outs[0].image.pixels.len() {
+        for c in 0..3 {
+            let vals: Vec<f64> = outs.iter().map(|o| o.image.pixels[p][c] as f64).collect();
+            let mean = vals.iter().sum::<f64>() / k as f64;
+            let var = vals.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (k - 1) as f64;
+            let rep: f64 = outs
+                .iter()
+                .map(|o| o.variance.as_ref().unwrap().pixels[p][c] as f64)
+                .sum::<f64>()
+                / k as f64;
+            // Background pixels (the constant sky) add 0 to both sums.
+            spread += var;
+            reported += rep;
+        }
+    }
+    let ratio = spread / reported;
+    eprintln!("variance: spread over seeds / reported = {ratio:.3} (Σ reported {reported:.3e})");
+    assert!(
+        reported > 0.0 && (0.6..1.6).contains(&ratio),
+        "ratio {ratio}"
+    );
+}
