@@ -72,6 +72,7 @@ fn default_seed() -> u64 {
 pub fn load_config(path: &Path) -> Result<DatasetConfig> {
     let text = scatter_sim::output::read_input_to_string(path)
         .with_context(|| format!("cannot read dataset config {}", path.display()))?;
+    wrong_kind(path, &text, render_gpu::scene::ConfigKind::Dataset)?;
     let cfg: DatasetConfig = parse_toml(path, &text)?;
     if cfg.walks == 0 {
         bail!("{}: walks = 0 is out of range: at least 1", path.display());
@@ -80,6 +81,20 @@ pub fn load_config(path: &Path) -> Result<DatasetConfig> {
         .validate()
         .map_err(|e| anyhow::anyhow!("{}: conditions.{e}", path.display()))?;
     Ok(cfg)
+}
+
+/// Refuses another command's file (a scene given to `generate --config`, say), naming what
+/// it is, where the parser would name its first unknown key.
+pub fn wrong_kind(path: &Path, text: &str, want: render_gpu::scene::ConfigKind) -> Result<()> {
+    if let Some(k) = render_gpu::scene::config_kind(text).filter(|k| *k != want) {
+        bail!(
+            "{}: {}, not {}",
+            path.display(),
+            k.describe(),
+            want.describe()
+        );
+    }
+    Ok(())
 }
 
 /// Parses a TOML config into `T`, with a one-line error naming the file, line and

@@ -120,6 +120,7 @@ impl TrainConfig {
 fn load(path: &Path) -> Result<TrainConfig> {
     let text = scatter_sim::output::read_input_to_string(path)
         .with_context(|| format!("cannot read training config {}", path.display()))?;
+    crate::generate::wrong_kind(path, &text, render_gpu::scene::ConfigKind::Training)?;
     let cfg: TrainConfig = parse_toml(path, &text)?;
     // An empty path is the current directory (nine checkpoint files landed there) or no
     // file at all ("error: : No such file or directory" after the dataset was made).

@@ -460,7 +460,26 @@ fn bad_arguments_name_the_argument() {
     let d = tempfile::tempdir().unwrap();
     let file = d.path().join("file");
     std::fs::write(&file, b"x").unwrap();
-    let cases: [(Vec<String>, &str); 15] = [
+    let cases: [(Vec<String>, &str); 17] = [
+        // A file of another command: named for what it is.
+        (
+            vec![
+                "generate".into(),
+                "--config".into(),
+                "configs/scenes/sphere.toml".into(),
+                "--out".into(),
+                d.path().join("x.bin").display().to_string(),
+            ],
+            "sphere.toml: a scene file (for `stcvae render --scene`), not a dataset config",
+        ),
+        (
+            vec![
+                "train".into(),
+                "--config".into(),
+                "configs/dataset/default.toml".into(),
+            ],
+            "default.toml: a dataset config (for `stcvae generate --config`), not a training config",
+        ),
         (vec!["render".into(), "--spp".into(), "0".into()], "--spp"),
         // A budget without end, or an exposure that is 0 as an f32: refused, quoted short.
         (

@@ -359,6 +359,44 @@ pub const MIN_OBJECT_SIZE: f64 = 1e-6;
 /// Largest radiance or irradiance accepted: sums over millions of samples stay finite in f32.
 pub const MAX_RADIANCE: f64 = 1e12;
 
+/// Which of stcvae's TOML files a text is, by its top-level keys (None: none of them, or
+/// not TOML). Each command's loader uses it to name a file given to the wrong command,
+/// where the parser would report the first unknown key.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ConfigKind {
+    Scene,
+    Experiment,
+    Training,
+    Dataset,
+}
+
+impl ConfigKind {
+    /// "a scene file (for `stcvae render --scene`)" and so on.
+    pub fn describe(self) -> &'static str {
+        match self {
+            ConfigKind::Scene => "a scene file (for `stcvae render --scene`)",
+            ConfigKind::Experiment => "an experiment config (for `stcvae experiment`)",
+            ConfigKind::Training => "a training config (for `stcvae train --config`)",
+            ConfigKind::Dataset => "a dataset config (for `stcvae generate --config`)",
+        }
+    }
+}
+
+pub fn config_kind(text: &str) -> Option<ConfigKind> {
+    let t = text.parse::<toml::Table>().ok()?;
+    if t.contains_key("camera") {
+        Some(ConfigKind::Scene)
+    } else if t.contains_key("kind") && t.contains_key("full") {
+        Some(ConfigKind::Experiment)
+    } else if t.contains_key("lengthgen") {
+        Some(ConfigKind::Training)
+    } else if t.contains_key("walks") && t.contains_key("conditions") {
+        Some(ConfigKind::Dataset)
+    } else {
+        None
+    }
+}
+
 impl SceneFile {
     /// Parses a scene file; errors name the file and the field.
     pub fn load(path: &Path) -> Result<Self, RenderError> {
@@ -368,6 +406,15 @@ impl SceneFile {
     }
 
     pub fn parse(path: &Path, text: &str) -> Result<Self, RenderError> {
+        // Another command's config given as a scene read as "unknown field `densities`" (or
+        // whichever unknown key came first): say what the file is.
+        if let Some(what) = config_kind(text).filter(|k| *k != ConfigKind::Scene) {
+            return Err(RenderError::Scene(format!(
+                "{}: {}, not a scene file (a scene has [camera], [object], [medium])",
+                path.display(),
+                what.describe()
+            )));
+        }
         let scene: SceneFile = toml::from_str(text)
             .map_err(|e| RenderError::Scene(describe_toml_error(path, text, &e)))?;
         scene

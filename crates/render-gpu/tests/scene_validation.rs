@@ -296,3 +296,27 @@ fn binary_input_is_quoted_printably() {
     assert!(!e.chars().any(char::is_control), "{e:?}");
     assert!(e.contains("\\u{0}") && e.contains("\\u{1b}"), "{e}");
 }
+
+/// Another command's file given as a scene is named for what it is (the parser named its
+/// first unknown key, `densities` or `[boundary]`), and each shipped file is recognised.
+#[test]
+fn other_configs_are_named_not_parsed() {
+    use render_gpu::scene::{ConfigKind, config_kind};
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs");
+    for (dir, kind) in [
+        ("scenes", ConfigKind::Scene),
+        ("experiments", ConfigKind::Experiment),
+        ("train", ConfigKind::Training),
+        ("dataset", ConfigKind::Dataset),
+    ] {
+        for f in std::fs::read_dir(root.join(dir)).unwrap() {
+            let p = f.unwrap().path();
+            let text = std::fs::read_to_string(&p).unwrap();
+            assert_eq!(config_kind(&text), Some(kind), "{}", p.display());
+            if kind != ConfigKind::Scene {
+                let e = SceneFile::parse(&p, &text).unwrap_err().to_string();
+                assert!(e.contains("not a scene file"), "{e}");
+            }
+        }
+    }
+}
