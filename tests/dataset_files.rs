@@ -174,8 +174,9 @@ fn damaged_files_are_rejected_with_clear_errors() {
     bad_json[16] = b'#';
     let e = expect_err(&put("json.bin", &bad_json));
     assert!(matches!(e, DatasetError::Header { .. }), "{e}");
-    // A renamed column in the header (outside the rows' checksum): rows are read by
-    // position, so a header that names other columns is refused.
+    // A renamed column in the header: rows are read by position, so a header that names
+    // other columns is refused when the file is opened (the checksum is known only at its
+    // end).
     let at = bytes
         .windows(6)
         .position(|w| w == b"\"ev_y\"")

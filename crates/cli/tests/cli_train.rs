@@ -287,22 +287,21 @@ fn resume_needs_an_intact_checkpoint_and_the_last_loss_is_the_last_steps() {
     replace_in(&dir.path().join("train.toml"), "steps = 30", "steps = 5");
     let base = root().join("models/default.stcvae");
     let base_s = base.to_str().unwrap();
-    // `train_eventgen` with one more flag (--resume or --fresh).
-    let eventgen_with = |d: &Path, flag: &str| {
-        stcvae(
-            &[
-                "train",
-                "--config",
-                "train.toml",
-                "--model",
-                "eventgen",
-                "--base",
-                base_s,
-                flag,
-            ],
-            d,
-        )
+    // `train_eventgen` with more flags (--resume or --fresh, --steps-scale).
+    let eventgen_with_all = |d: &Path, flags: &[&str]| {
+        let mut args = vec![
+            "train",
+            "--config",
+            "train.toml",
+            "--model",
+            "eventgen",
+            "--base",
+            base_s,
+        ];
+        args.extend_from_slice(flags);
+        stcvae(&args, d)
     };
+    let eventgen_with = |d: &Path, flag: &str| eventgen_with_all(d, &[flag]);
     let resume = |d: &Path| eventgen_with(d, "--resume");
     let out = resume(dir.path());
     assert!(!out.status.success());
@@ -321,21 +320,7 @@ fn resume_needs_an_intact_checkpoint_and_the_last_loss_is_the_last_steps() {
     assert!(out.status.success(), "resume failed: {}", stderr(&out));
     assert!(!stderr(&out).contains("past the"), "{}", stderr(&out));
     // Fewer steps than the checkpoint has done (5 × 0.6): exported as it is, and said so.
-    let out = stcvae(
-        &[
-            "train",
-            "--config",
-            "train.toml",
-            "--model",
-            "eventgen",
-            "--base",
-            base_s,
-            "--resume",
-            "--steps-scale",
-            "0.6",
-        ],
-        dir.path(),
-    );
+    let out = eventgen_with_all(dir.path(), &["--resume", "--steps-scale", "0.6"]);
     assert!(out.status.success(), "resume failed: {}", stderr(&out));
     assert!(
         stderr(&out).contains("eventgen's checkpoint was already at step 5, past the 3 steps"),
