@@ -172,8 +172,25 @@ pub(crate) fn write_image_set_with(
     let mut files = vec![(exr.as_path(), exr_bytes.as_slice()), (&png, &png_bytes)];
     files.extend(json.map(|j| (js.as_path(), j)));
     files.extend(var_bytes.as_deref().map(|v| (var.as_path(), v)));
+    // An OUT.var.exr of an earlier render would sit beside the new image as if it were
+    // its own (it carries no tag to tell): removed once the set is in place.
+    let stale = variance.is_none() && var.is_file();
     scatter_sim::output::write_atomic_set(&files)
-        .map_err(|(path, e)| anyhow!("cannot write {}: {e}", path.display()))
+        .map_err(|(path, e)| anyhow!("cannot write {}: {e}", path.display()))?;
+    if stale {
+        match std::fs::remove_file(&var) {
+            Ok(()) => eprintln!(
+                "note: removed {}, the variance image of an earlier render under this name",
+                var.display()
+            ),
+            Err(e) => eprintln!(
+                "warning: {} is the variance image of an earlier render and could not be \
+                 removed ({e}): it does not belong to the new image",
+                var.display()
+            ),
+        }
+    }
+    Ok(())
 }
 
 /// Renders of one scene with different seeds, averaged by spp: writes OUT.exr, OUT.png and

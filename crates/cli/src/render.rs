@@ -65,7 +65,8 @@ pub struct Args {
     /// Also write OUT.var.exr: per pixel and channel the estimated variance of the
     /// pixel's value (its squared standard error, from the samples' own spread). Computed
     /// by the CPU renderer (--device auto picks it; the GPU kernels keep no squared sums)
-    /// from 6 spp on.
+    /// from 6 spp on. A render without it removes an older OUT.var.exr, which would no
+    /// longer belong to OUT.exr.
     #[arg(long)]
     pub variance: bool,
 }
@@ -142,7 +143,7 @@ struct Report<'a> {
     /// Mean of the image per channel (a quick comparison between renders).
     mean_rgb: [f64; 3],
     /// With --variance: the variance image's file, and the square root of its mean per
-    /// channel (a typical pixel's standard error).
+    /// channel over all pixels (a constant background, whose variance is 0, included).
     variance_file: Option<String>,
     rms_standard_error_rgb: Option<[f64; 3]>,
     stats: &'a PathStats,
@@ -394,6 +395,12 @@ pub fn run(a: Args) -> Result<()> {
         );
     }
     check_out_stem(&a.out)?;
+    if a.variance && a.device == DeviceArg::Gpu {
+        bail!(
+            "--variance is computed by the CPU renderer only (the GPU kernels keep no squared \
+             sums): use --device cpu or auto"
+        );
+    }
     let p = prepare(&a.scene, a.integrator, a.nee, a.model.as_deref(), |f| {
         if let Some(s) = a.spp {
             f.render.spp = s;
@@ -441,14 +448,14 @@ pub fn run(a: Args) -> Result<()> {
     };
     render_gpu::render::check_image_memory_with(p.file.camera.width, p.file.camera.height, extra)
         .map_err(|e| anyhow::anyhow!("{}: camera.width/height: {e}", a.scene.display()))?;
-    // The variance needs the CPU renderer's squared sums.
-    let device = match (a.variance, a.device) {
-        (true, DeviceArg::Gpu) => bail!(
-            "--variance is computed by the CPU renderer only (the GPU kernels keep no squared \
-             sums): use --device cpu or auto"
-        ),
-        (true, _) => DeviceArg::Cpu,
-        (false, d) => d,
+    // The variance needs the CPU renderer's squared sums (a GPU was refused above).
+    let device = if a.variance {
+        if a.device == DeviceArg::Auto {
+            eprintln!("note: --variance renders on the CPU (the GPU kernels keep no squared sums)");
+        }
+        DeviceArg::Cpu
+    } else {
+        a.device
     };
     let engine = Engine::open(device)?;
     let set = p.settings();

@@ -1541,7 +1541,21 @@ fn render_variance_writes_a_variance_image() {
     let m = d.path().join("m");
     let e = stcvae(&["merge", var.to_str().unwrap(), "--out", m.to_str().unwrap()]);
     assert!(!e.status.success());
-    assert!(common::stderr(&e).contains("no stcvae render tag"));
+    assert!(
+        common::stderr(&e).contains("no stcvae render tag")
+            && common::stderr(&e).contains("a variance image of `render --variance`?"),
+        "{}",
+        common::stderr(&e)
+    );
+    // A render under the same name without --variance removes the old variance image
+    // (it would pass for the new image's), and says so.
+    let e = stcvae(&["render", "--scene", s, "--spp", "2", "--out", o]);
+    assert!(
+        e.status.success() && common::stderr(&e).contains("note: removed"),
+        "{}",
+        common::stderr(&e)
+    );
+    assert!(!var.exists());
     let few = d.path().join("few");
     let e = stcvae(&[
         "render",
@@ -1570,5 +1584,17 @@ fn render_variance_writes_a_variance_image() {
         o,
     ]);
     assert!(!e.status.success());
+    assert!(common::stderr(&e).contains("--variance is computed by the CPU renderer only"));
+    // Refused before the scene is even read.
+    let e = stcvae(&[
+        "render",
+        "--scene",
+        "no-such-scene.toml",
+        "--variance",
+        "--device",
+        "gpu",
+        "--out",
+        o,
+    ]);
     assert!(common::stderr(&e).contains("--variance is computed by the CPU renderer only"));
 }

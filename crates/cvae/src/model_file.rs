@@ -200,10 +200,9 @@ impl ModelSet {
         scatter_sim::output::check_input(path).map_err(io)?;
         let meta = std::fs::metadata(path).map_err(io)?;
         if meta.is_dir() {
-            return Err(ModelError::Invalid {
-                path: path.into(),
-                msg: "is a directory, not a model file".into(),
-            });
+            return Err(io(std::io::Error::other(
+                "is a directory, not a model file",
+            )));
         }
         let len = meta.len();
         if len < 8 {

@@ -452,13 +452,28 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
                         .any(|d| o.unknown_digests.contains(d)))
         });
         if let Some(o) = twin {
-            return Err(RenderError::Image(format!(
-                "{}: holds the same render as {} (the same seed{}, perhaps on the other \
-                 device): its samples would count twice; merge renders of different seeds",
-                p.display(),
-                o.path.display(),
-                shared(o).map_or(String::new(), |s| format!(" {s}"))
-            )));
+            // Known by a seed, by equal pixels, or by a recorded render of unknown seed
+            // that both hold (two merges sharing an input).
+            let common = unknown_digests
+                .iter()
+                .find(|d| o.unknown_digests.contains(d));
+            let same_pixels = digest.is_some() && o.digest == digest;
+            return Err(RenderError::Image(match (shared(o), common) {
+                (None, Some(d)) if !same_pixels => format!(
+                    "{}: holds a render of unknown seed that {} holds too (pixels with digest \
+                     {d:016x}): its samples would count twice; merge images with no render in \
+                     common",
+                    p.display(),
+                    o.path.display()
+                ),
+                (s, _) => format!(
+                    "{}: holds the same render as {} (the same seed{}, perhaps on the other \
+                     device): its samples would count twice; merge renders of different seeds",
+                    p.display(),
+                    o.path.display(),
+                    s.map_or(String::new(), |s| format!(" {s}"))
+                ),
+            }));
         }
         seen.push(Seen {
             scene,
@@ -469,8 +484,15 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
             path: p,
         });
         let tag = tag.ok_or_else(|| {
+            // `merge *.exr` picks up `render --variance`'s images too.
+            let hint = if p.to_string_lossy().ends_with(".var.exr") {
+                " (a variance image of `render --variance`? leave it out)"
+            } else {
+                ""
+            };
             RenderError::Image(format!(
-                "{}: no stcvae render tag (spp, scene hash) in the EXR header: not an stcvae render",
+                "{}: no stcvae render tag (spp, scene hash) in the EXR header: not an stcvae \
+                 render{hint}",
                 p.display()
             ))
         })?;

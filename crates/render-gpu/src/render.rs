@@ -49,7 +49,8 @@ pub struct RenderOptions {
 }
 
 /// Bytes a pixel more that [`RenderOptions::variance`] takes (squared sums in f64, the
-/// variance image and its encoded file), for [`check_image_memory_with`].
+/// variance image and its encoded file; the tile results' squares are always counted in
+/// [`BYTES_PER_PIXEL`]), for [`check_image_memory_with`].
 pub const VARIANCE_BYTES_PER_PIXEL: u64 = 48;
 
 pub struct RenderOutput {
@@ -237,14 +238,14 @@ impl CameraRays {
 }
 
 /// Bytes a CPU render of a `width` × `height` image holds at once, per pixel: its sums (24)
-/// and work counts (8), a pass's tile results (32), the image (12) and its encoded EXR and
-/// PNG (~16), rounded up. (A GPU render's path slots live on the device; a software
-/// adapter's in host memory as well, which this does not count.)
-pub const BYTES_PER_PIXEL: u64 = 100;
+/// and work counts (8), a pass's tile results (56: sums, count, squared sums), the image
+/// (12) and its encoded EXR and PNG (~16), rounded up. (A GPU render's path slots live on
+/// the device; a software adapter's in host memory as well, which this does not count.)
+pub const BYTES_PER_PIXEL: u64 = 124;
 
 /// Refuses an image whose buffers the process cannot allocate (a memory limit, a small
 /// machine), naming the size, before any work: Rust aborts on a failed allocation, so a
-/// 16,384² image (~27 GB) under a limit would otherwise end in "memory allocation of
+/// 16,384² image (~33 GB) under a limit would otherwise end in "memory allocation of
 /// 6442450944 bytes failed" halfway. The space is reserved and given back at once, not
 /// touched.
 pub fn check_image_memory(width: u32, height: u32) -> Result<(), crate::error::RenderError> {
@@ -252,7 +253,8 @@ pub fn check_image_memory(width: u32, height: u32) -> Result<(), crate::error::R
 }
 
 /// [`check_image_memory`] with `extra` more bytes a pixel: a software adapter's path
-/// slots, which live in host memory (`gpu::kernels::slot_vec4s`, 16 bytes each).
+/// slots, which live in host memory (`gpu::kernels::slot_vec4s`, 16 bytes each), or a
+/// variance image's buffers ([`VARIANCE_BYTES_PER_PIXEL`]).
 pub fn check_image_memory_with(
     width: u32,
     height: u32,

@@ -169,7 +169,14 @@ pub struct CheckpointInfo {
 }
 
 fn crc_of(path: &Path) -> std::io::Result<u32> {
-    Ok(crc32fast::hash(&std::fs::read(path)?))
+    Ok(crc32fast::hash(&read_checkpoint_file(path)?))
+}
+
+/// A checkpoint file's bytes, refused first if it is a named pipe or device (reading one
+/// without a writer blocks for ever; `scatter_sim::output::check_input`).
+fn read_checkpoint_file(path: &Path) -> std::io::Result<Vec<u8>> {
+    scatter_sim::output::check_input(path)?;
+    std::fs::read(path)
 }
 
 /// Compares the weights (and, when given, the optimiser state) with the CRC-32s saved in
@@ -294,7 +301,7 @@ pub fn train_model(
             path: p.into(),
             msg: e,
         };
-        let text = std::fs::read(&jpath).map_err(|e| err(&jpath, e.to_string()))?;
+        let text = read_checkpoint_file(&jpath).map_err(|e| err(&jpath, e.to_string()))?;
         info = serde_json::from_slice(&text).map_err(|e| err(&jpath, e.to_string()))?;
         // Versions 2 and 3 differ only in EventGen's targets (whose standardisation would
         // differ too); LengthGen and PathGen go on as they were.
@@ -336,6 +343,9 @@ pub fn train_model(
             ));
         }
         check_crcs(&info, &[&mpath, &opath])?;
+        for p in [&mpath, &opath] {
+            scatter_sim::output::check_input(p).map_err(|e| err(p, e.to_string()))?;
+        }
         model = model
             .try_load_file(&mpath)
             .map_err(|e| err(&mpath, record_error(kind, e.to_string())))?;
@@ -440,9 +450,10 @@ pub fn load_decoder(
         path: p.into(),
         msg: e,
     };
-    let text = std::fs::read(&j).map_err(|e| err(&j, e.to_string()))?;
+    let text = read_checkpoint_file(&j).map_err(|e| err(&j, e.to_string()))?;
     let info: CheckpointInfo = serde_json::from_slice(&text).map_err(|e| err(&j, e.to_string()))?;
     check_crcs(&info, &[&m])?;
+    scatter_sim::output::check_input(&m).map_err(|e| err(&m, e.to_string()))?;
     let device = Device::flex();
     let mut rng = WalkRng::from_seed(0);
     let model = Cvae::new(kind.cond(), kind.out(), arch, &mut rng, &device)
