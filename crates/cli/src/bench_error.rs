@@ -595,7 +595,8 @@ mod tests {
             ("ST=a.exr:", "`ST=a.exr:`"),
             ("a.exr,b.exr", "three (R,G,B"),
             ("a.exr:", "no seconds"),
-            ("a.exr:0", "must be finite and > 0"),
+            ("a.exr:0", "must be in [1e-6, 1e9], got 0"),
+            ("a.exr:1e300", "must be in [1e-6, 1e9], got 1e300"),
             ("a.exr,,b.exr", "empty file name"),
         ] {
             let e = parse_spec(bad).unwrap_err().to_string();
