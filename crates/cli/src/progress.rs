@@ -15,14 +15,27 @@ pub fn target() -> ProgressDrawTarget {
     if std::io::stderr().is_terminal() {
         return ProgressDrawTarget::stderr();
     }
-    // Unreadable or negative: the default; beyond any Duration: never.
-    let every = std::env::var("STCVAE_LOG_PROGRESS_EVERY")
-        .ok()
-        .and_then(|v| v.parse::<f64>().ok())
-        .filter(|s| *s >= 0.0)
-        .map_or(Duration::from_secs(30), |s| {
-            Duration::try_from_secs_f64(s).unwrap_or(Duration::MAX)
+    // Unreadable or negative: the default, said once (it was ignored without a word);
+    // beyond any Duration: never.
+    let raw = std::env::var("STCVAE_LOG_PROGRESS_EVERY").ok();
+    let parsed = raw
+        .as_deref()
+        .and_then(|v| v.trim().parse::<f64>().ok())
+        .filter(|s| *s >= 0.0);
+    if let Some(v) = raw.as_deref().filter(|v| !v.is_empty())
+        && parsed.is_none()
+    {
+        static WARNED: std::sync::Once = std::sync::Once::new();
+        WARNED.call_once(|| {
+            eprintln!(
+                "warning: STCVAE_LOG_PROGRESS_EVERY = {v:?} is not a number of seconds >= 0: \
+                 progress is logged every 30 s"
+            )
         });
+    }
+    let every = parsed.map_or(Duration::from_secs(30), |s| {
+        Duration::try_from_secs_f64(s).unwrap_or(Duration::MAX)
+    });
     ProgressDrawTarget::term_like_with_hz(
         Box::new(LogLines {
             every,

@@ -417,4 +417,22 @@ fn progress_reaches_a_log_as_plain_lines() {
             .all(|l| l.starts_with("00:") && !l.contains('\r')),
         "{err}"
     );
+    // A value that is no number of seconds is said once (it was ignored without a word).
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args(words(
+            "generate --samples 2000 --tau 2 --g 0.4 --albedo 0.99 --seed 7 --out v.csv",
+        ))
+        .env("STCVAE_LOG_PROGRESS_EVERY", "-1")
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    ok(&out);
+    assert_eq!(
+        stderr(&out)
+            .matches("warning: STCVAE_LOG_PROGRESS_EVERY = \"-1\" is not a number")
+            .count(),
+        1,
+        "{}",
+        stderr(&out)
+    );
 }
