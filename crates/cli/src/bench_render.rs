@@ -109,18 +109,22 @@ impl Args {
 }
 
 /// Writes the ladder step's images into `dir` (see `Args::save`).
-fn save_images(dir: &std::path::Path, k: f64, pt: &Pair, st: &Pair) -> Result<()> {
+fn save_images(a: &Args, dir: &std::path::Path, k: f64, pt: &Pair, st: &Pair) -> Result<()> {
     use render_gpu::image_io::{RenderTag, RgbImage, write_png};
     // `run` created `dir` before rendering.
     let exposure = crate::experiment::measure::scale_of(&pt.mean) as f32;
-    for (name, p) in [("pt", pt), ("stcvae", st)] {
+    for (name, p, kind) in [
+        ("pt", pt, IntegratorKind::Pt),
+        ("stcvae", st, IntegratorKind::Stcvae),
+    ] {
         // A fractional k ("k0.5_pt") keeps its tail: `image_out` only replaces a typed
         // .exr, .png or .json, so the two integrators' images cannot overwrite each other.
         let tag = RenderTag {
             spp: p.spp as u64,
             scene_hash: p.hash,
-            // The mean of the pair's two seeds.
-            seeds: Vec::new(),
+            // The mean of the pair's two seeds (a cached PT pair was rendered with the
+            // same ones): merge then knows them, where it compared pixels only.
+            seeds: a.seeds_of(kind).to_vec(),
             partial: false,
             unknown_digests: Vec::new(),
         };
@@ -420,7 +424,7 @@ pub fn run(a: Args) -> Result<()> {
         let st = run_pair(&a, &engine, IntegratorKind::Stcvae, k)?;
         let c = compare(&pt, &st);
         if let Some(dir) = &a.save {
-            save_images(dir, k, &pt, &st)?;
+            save_images(&a, dir, k, &pt, &st)?;
         }
         println!(
             "{:>4} {:>20} {:>7.2} {:>7.2} {:>8.2}x {:>9.2} {:>10.2}x {:>10.1} {:>10.2} {:>10.2} {:>9.4} {:>9.4} {:>9.4} {:>10} {:>10}",

@@ -1028,8 +1028,12 @@ fn bench_render_save_writes_images_and_the_pixel_table() {
     ] {
         assert!(save.join(f).is_file(), "{f} missing");
     }
-    let (pt, _) = render_gpu::image_io::read_exr(&save.join("k0.25_pt.exr")).unwrap();
-    let (st, _) = render_gpu::image_io::read_exr(&save.join("k0.25_stcvae.exr")).unwrap();
+    let (pt, pt_tag) = render_gpu::image_io::read_exr(&save.join("k0.25_pt.exr")).unwrap();
+    let (st, st_tag) = render_gpu::image_io::read_exr(&save.join("k0.25_stcvae.exr")).unwrap();
+    // Each image is the mean of its pair's two seeds (set 0: PT 11 and 12, ST-CVAE 13 and
+    // 14), and its tag says so, so that merge knows them (it compared pixels only).
+    assert_eq!(pt_tag.unwrap().seeds, vec![11, 12]);
+    assert_eq!(st_tag.unwrap().seeds, vec![13, 14]);
     let csv = std::fs::read_to_string(save.join("k0.25_pixels.csv")).unwrap();
     let mut lines = csv.lines();
     assert_eq!(
