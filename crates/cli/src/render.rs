@@ -234,6 +234,9 @@ pub fn prepare(
     });
     spin.finish_and_clear();
     let data = data?;
+    for n in &data.notes {
+        eprintln!("warning: {}: {n}", scene_path.display());
+    }
     let trained_max = model
         .as_ref()
         .map_or(f64::INFINITY, crate::model_cmds::default_max_tau);

@@ -1602,3 +1602,56 @@ fn render_variance_writes_a_variance_image() {
     ]);
     assert!(common::stderr(&e).contains("--variance is computed by the CPU renderer only"));
 }
+
+/// Two closed boxes that overlap in one OBJ are not rendered as their union (README):
+/// `render` says so, naming the scene and the pieces, and still renders.
+#[test]
+fn overlapping_mesh_pieces_are_warned_about() {
+    let d = tempfile::tempdir().unwrap();
+    let boxed = |x0: f32, x1: f32, base: usize| {
+        let v: Vec<String> = [(x0, -0.3), (x1, -0.3), (x1, 0.3), (x0, 0.3)]
+            .iter()
+            .flat_map(|&(x, y)| [-0.3f32, 0.3].map(|z| format!("v {x} {y} {z}\n")))
+            .collect();
+        // Vertices: (x, y) corners in order, each at z = -0.3 then 0.3: index 2k + zi.
+        let quad = |a: usize, b: usize, c: usize, e: usize| {
+            format!("f {} {} {} {}\n", a + base, b + base, c + base, e + base)
+        };
+        let faces = [
+            quad(1, 3, 5, 7),
+            quad(2, 8, 6, 4),
+            quad(1, 2, 4, 3),
+            quad(3, 4, 6, 5),
+            quad(5, 6, 8, 7),
+            quad(7, 8, 2, 1),
+        ]
+        .concat();
+        (v.concat(), faces)
+    };
+    let (v1, f1) = boxed(-0.5, 0.2, 0);
+    let (v2, f2) = boxed(-0.2, 0.5, 8);
+    std::fs::write(d.path().join("two.obj"), format!("{v1}{v2}{f1}{f2}")).unwrap();
+    let scene = d.path().join("two.toml");
+    std::fs::write(
+        &scene,
+        sphere_scene_text(8).replace("shape = \"sphere\"\nradius = 0.5", "mesh = \"two.obj\""),
+    )
+    .unwrap();
+    let out = stcvae(&[
+        "render",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--spp",
+        "1",
+        "--device",
+        "cpu",
+        "--out",
+        d.path().join("r").to_str().unwrap(),
+    ]);
+    let err = common::stderr(&out);
+    assert!(out.status.success(), "{err}");
+    assert!(
+        err.contains("two.toml: pieces 1 and 2 of the mesh overlap"),
+        "{err}"
+    );
+}

@@ -296,6 +296,90 @@ fn pieces(m: &TriMesh) -> Vec<Vec<usize>> {
     pieces
 }
 
+/// Pairs of closed pieces (numbered in the order of their first triangle) that overlap
+/// without one enclosing the other: the renderers keep an inside/outside state, not a
+/// count of the pieces around a point, so such an overlap is not rendered as the union
+/// (README, scene reference: two overlapping boxes came out 4 % brighter than the one box
+/// they make). Found where some of a piece's probes (vertices and face centroids) lie
+/// clearly inside the other (winding number > 0.75) and some clearly outside (< 0.25);
+/// probes on the other's surface (touching parts) count as neither. Checked for meshes
+/// of at most 16 pieces and 200,000 triangles (the cost is probes × triangles per pair);
+/// larger ones are not checked.
+pub fn overlapping_pieces(m: &TriMesh) -> Vec<(usize, usize)> {
+    let pieces = pieces(m);
+    if pieces.len() < 2 || pieces.len() > 16 || m.triangles.len() > 200_000 {
+        return Vec::new();
+    }
+    // Probes: up to 64 of each piece's vertices and 64 of its triangles' centroids (two
+    // boxes whose faces lie in one plane overlap with every vertex on the other's
+    // surface, but some face centroids inside it).
+    let probes: Vec<Vec<Vec3>> = pieces
+        .iter()
+        .map(|tris| {
+            let mut v: Vec<u32> = tris.iter().flat_map(|&t| m.triangles[t]).collect();
+            v.sort_unstable();
+            v.dedup();
+            let every = |n: usize| n.div_ceil(64).max(1);
+            let vertices = v
+                .iter()
+                .step_by(every(v.len()))
+                .map(|&i| m.positions[i as usize]);
+            let centroids = tris.iter().step_by(every(tris.len())).map(|&t| {
+                let [a, b, c] = m.triangles[t].map(|i| m.positions[i as usize]);
+                (a + b + c) / 3.0
+            });
+            vertices.chain(centroids).collect()
+        })
+        .collect();
+    let bounds: Vec<(Vec3, Vec3)> = pieces
+        .iter()
+        .map(|tris| {
+            bounds_of(
+                tris.iter()
+                    .flat_map(|&t| m.triangles[t])
+                    .map(|i| m.positions[i as usize]),
+            )
+        })
+        .collect();
+    // A millionth of the mesh's size: far above f32 rounding, far below any real overlap.
+    let (lo, hi) = m.bounds();
+    let touch = 1e-6 * (hi - lo).max_element().max(f32::MIN_POSITIVE);
+    // Some of `a`'s probes clearly inside `b` and some clearly outside. A probe within
+    // `touch` of b's surface (a shared vertex, parts that touch with corners 3e-8 apart)
+    // is on it, where the winding number is undefined: neither.
+    let straddles = |a: usize, b: usize| {
+        let (mut inside, mut outside) = (false, false);
+        for &p in &probes[a] {
+            let q = glam::Vec3A::from(p);
+            let near = pieces[b].iter().any(|&t| {
+                let [x, y, z] = m.triangles[t].map(|k| glam::Vec3A::from(m.positions[k as usize]));
+                crate::geometry::point_triangle_d2(q, x, y, z) < touch * touch
+            });
+            if near {
+                continue;
+            }
+            let w = winding_number(m, &pieces[b], p.as_dvec3()).abs();
+            inside |= w > 0.75;
+            outside |= w < 0.25;
+            if inside && outside {
+                return true;
+            }
+        }
+        false
+    };
+    let mut found = Vec::new();
+    for i in 0..pieces.len() {
+        for j in i + 1..pieces.len() {
+            let apart =
+                bounds[i].1.cmplt(bounds[j].0).any() || bounds[j].1.cmplt(bounds[i].0).any();
+            if !apart && (straddles(i, j) || straddles(j, i)) {
+                found.push((i, j));
+            }
+        }
+    }
+    found
+}
+
 /// The winding number of a closed piece around `p`: ±1 inside, 0 outside (the solid
 /// angles of its triangles seen from `p`, over 4π; Van Oosterom and Strackee's formula).
 fn winding_number(m: &TriMesh, tris: &[usize], p: glam::DVec3) -> f64 {

@@ -54,6 +54,9 @@ pub struct SceneData {
     pub env: Environment,
     /// Hash of everything that defines the converged image, except spp and seed.
     pub hash: u64,
+    /// Warnings about the scene that do not stop a render (overlapping mesh pieces), one
+    /// line each, for the command to print.
+    pub notes: Vec<String>,
 }
 
 /// The object's mesh as the scene file describes it.
@@ -89,6 +92,18 @@ impl SceneData {
         extra_hash: &[u8],
     ) -> Result<Self, RenderError> {
         let mesh = object_mesh(scene, scene_dir)?;
+        let notes: Vec<String> = crate::mesh::overlapping_pieces(&mesh)
+            .into_iter()
+            .map(|(i, j)| {
+                format!(
+                    "pieces {} and {} of the mesh overlap: the overlap is not rendered as \
+                     their union (it comes out partly as air); join them into one closed \
+                     surface",
+                    i + 1,
+                    j + 1
+                )
+            })
+            .collect();
         let env = crate::light::Environment::new(&scene.environment, scene_dir)?;
         let mut h = Fnv64::new();
         let mut ident = scene.clone();
@@ -150,6 +165,7 @@ impl SceneData {
             lights: scene.lights.iter().map(DirectionalLight::new).collect(),
             env,
             hash: h.finish(),
+            notes,
         })
     }
 }

@@ -642,6 +642,15 @@ fn pieces_are_wound_by_their_nesting() {
             (v - want).abs() < 1e-6 * want,
             "{what}: volume {v}, want {want}"
         );
+        // Overlaps (not rendered as the union) are found and named; nesting, pieces
+        // apart and pieces touching at a corner are not overlaps.
+        let overlaps = mesh::overlapping_pieces(&m);
+        let want_overlaps: &[(usize, usize)] = match what {
+            "overlapping" => &[(0, 1)],
+            "cavity in an overlapping pair" => &[(0, 1)],
+            _ => &[],
+        };
+        assert_eq!(overlaps, want_overlaps, "{what}");
     }
 }
 
