@@ -348,11 +348,12 @@ pub fn run(a: Args) -> Result<()> {
             );
         }
     }
+    // Without a base, the decoders not trained now come from the checkpoints: read (and
+    // checked) once, before the training rather than after it.
+    let mut from_checkpoints = Vec::new();
     if base.is_none() {
-        // The decoders not trained now come from the checkpoints: check them before the
-        // training rather than after it.
         for k in ModelKind::ALL.into_iter().filter(|k| !kinds.contains(k)) {
-            checkpoint_decoder(&cfg, k)?;
+            from_checkpoints.push((k, checkpoint_decoder(&cfg, k)?));
         }
     }
     ensure_dataset(&cfg)?;
@@ -439,12 +440,11 @@ pub fn run(a: Args) -> Result<()> {
             albedo: t.albedo_range,
         };
         narrow(&mut info, theirs, &format!("--base {base_name}"))?;
-    } else {
-        // Checked before the training, as the modes are above.
-        for k in ModelKind::ALL.into_iter().filter(|k| !kinds.contains(k)) {
-            if let (_, _, Some(r)) = checkpoint_decoder(&cfg, k)? {
-                narrow(&mut info, r, &format!("the {} checkpoint", k.name()))?;
-            }
+    }
+    // Checked before the training, as the modes are above.
+    for (k, (_, _, ranges)) in &from_checkpoints {
+        if let Some(r) = ranges {
+            narrow(&mut info, *r, &format!("the {} checkpoint", k.name()))?;
         }
     }
     drop(rows);
@@ -545,7 +545,11 @@ pub fn run(a: Args) -> Result<()> {
                 slot.insert(d.clone());
                 continue;
             }
-            let (d, version, _) = checkpoint_decoder(&cfg, k)?;
+            let at = from_checkpoints
+                .iter()
+                .position(|(c, _)| *c == k)
+                .expect("read before the training: no base, not trained now");
+            let (_, (d, version, _)) = from_checkpoints.swap_remove(at);
             notes.push(format!("{}: from checkpoint", k.name()));
             if k == ModelKind::EventGen {
                 event_version = version;

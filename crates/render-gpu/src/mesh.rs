@@ -208,16 +208,7 @@ fn orient_pieces(m: &mut TriMesh) {
     let volumes: Vec<f64> = pieces.iter().map(|t| volume6(t)).collect();
     let mut depths = vec![0usize; pieces.len()];
     if pieces.len() > 1 {
-        let bounds: Vec<(Vec3, Vec3)> = pieces
-            .iter()
-            .map(|tris| {
-                bounds_of(
-                    tris.iter()
-                        .flat_map(|&t| m.triangles[t])
-                        .map(|i| m.positions[i as usize]),
-                )
-            })
-            .collect();
+        let bounds = piece_bounds(m, &pieces);
         // Largest first: a piece's containers enclose more volume, so their depths are
         // known when it is reached. Its depth is one more than its deepest container's:
         // a cavity inside two overlapping pieces (each solid) is one hole, not depth 2.
@@ -331,16 +322,7 @@ pub fn overlapping_pieces(m: &TriMesh) -> Vec<(usize, usize)> {
             vertices.chain(centroids).collect()
         })
         .collect();
-    let bounds: Vec<(Vec3, Vec3)> = pieces
-        .iter()
-        .map(|tris| {
-            bounds_of(
-                tris.iter()
-                    .flat_map(|&t| m.triangles[t])
-                    .map(|i| m.positions[i as usize]),
-            )
-        })
-        .collect();
+    let bounds = piece_bounds(m, &pieces);
     // A millionth of the mesh's size: far above f32 rounding, far below any real overlap.
     let (lo, hi) = m.bounds();
     let touch = 1e-6 * (hi - lo).max_element().max(f32::MIN_POSITIVE);
@@ -378,6 +360,20 @@ pub fn overlapping_pieces(m: &TriMesh) -> Vec<(usize, usize)> {
         }
     }
     found
+}
+
+/// Each piece's bounding box.
+fn piece_bounds(m: &TriMesh, pieces: &[Vec<usize>]) -> Vec<(Vec3, Vec3)> {
+    pieces
+        .iter()
+        .map(|tris| {
+            bounds_of(
+                tris.iter()
+                    .flat_map(|&t| m.triangles[t])
+                    .map(|i| m.positions[i as usize]),
+            )
+        })
+        .collect()
 }
 
 /// The winding number of a closed piece around `p`: ±1 inside, 0 outside (the solid

@@ -83,17 +83,13 @@ impl Config {
             .map_err(|e| anyhow!("{}: cannot read: {e}", path.display()))?;
         // A scene or another command's config given by mistake reads as "unknown field
         // camera" otherwise: say what the file is.
+        crate::generate::wrong_kind(path, &text, render_gpu::scene::ConfigKind::Experiment)?;
         if let Ok(t) = text.parse::<toml::Table>()
             && !t.contains_key("kind")
         {
-            let what = if t.contains_key("camera") {
-                "a scene file (it has [camera])"
-            } else {
-                "not an experiment config (it has no `kind`)"
-            };
             bail!(
-                "{}: {what}: `experiment` takes an experiment config such as \
-                 configs/experiments/teaser.toml",
+                "{}: not an experiment config (it has no `kind`): `experiment` takes an \
+                 experiment config such as configs/experiments/teaser.toml",
                 path.display()
             );
         }
