@@ -75,7 +75,81 @@ pub struct Geometry {
     bounds: Vec<[f32; 8]>,
     /// Per triangle, cos θ of its escape cone ([`crate::escape_cone`]).
     pub(crate) escape_cos: Vec<f32>,
+    /// The pairs of closed pieces that overlap ([`crate::mesh::overlapping_pieces`]).
+    pub overlaps: Vec<(usize, usize)>,
+    /// Where pieces overlap, which piece each triangle belongs to: paths then follow the
+    /// set of pieces they are in and cross the faces within the union without meeting
+    /// a boundary. None without overlaps: the integrators' inside/outside flag suffices,
+    /// and its leak checks (a face met from the wrong side) stay.
+    pub pieces: Option<Pieces>,
 }
+
+/// The pieces of a mesh whose pieces overlap, for following which of them a point is
+/// in: a set of pieces as the bits of a u32 ([`crate::mesh::MAX_OVERLAP_PIECES`]), one
+/// bit flipped at each crossing of a piece's face (crossing a closed surface always
+/// enters or leaves it, whatever its winding). A point is in the medium when the most
+/// deeply nested piece around it is a solid (even depth: [`crate::mesh`]'s nesting
+/// rule): in the union of overlapping solids, not in a cavity within them.
+pub struct Pieces {
+    /// Per triangle, its piece's bit.
+    pub bit_of: Vec<u32>,
+    /// Per nesting depth, the bits of the pieces at that depth.
+    pub at_depth: Vec<u32>,
+}
+
+impl Pieces {
+    fn new(of_tri: &[u8], depths: &[usize]) -> Self {
+        let mut at_depth = vec![0u32; depths.iter().max().map_or(0, |d| d + 1)];
+        for (k, &d) in depths.iter().enumerate() {
+            at_depth[d] |= 1 << k;
+        }
+        Self {
+            bit_of: of_tri.iter().map(|&k| 1u32 << k).collect(),
+            at_depth,
+        }
+    }
+
+    /// Whether a point inside exactly the pieces of `set` is in the medium.
+    #[inline]
+    pub fn medium(&self, set: u32) -> bool {
+        for (d, &bits) in self.at_depth.iter().enumerate().rev() {
+            if set & bits != 0 {
+                return d % 2 == 0;
+            }
+        }
+        false
+    }
+}
+
+/// The length in the medium and the product of `factor` over the medium's boundary
+/// along crossings (t, piece bit, dir·normal) in order of t, starting from the pieces
+/// crossed an odd number of times ([`Geometry::union_inside_length`]).
+pub fn union_walk(
+    pieces: &Pieces,
+    crossings: &[(f32, u32, f32)],
+    factor: &mut impl FnMut(f32, bool) -> f32,
+) -> (f32, f32) {
+    let mut set = crossings.iter().fold(0u32, |s, c| s ^ c.1);
+    let mut medium = pieces.medium(set);
+    let (mut length, mut product, mut last) = (0.0f32, 1.0f32, 0.0f32);
+    for &(t, bit, c) in crossings {
+        if medium {
+            length += t - last;
+        }
+        last = t;
+        set ^= bit;
+        let now = pieces.medium(set);
+        if now != medium {
+            product *= factor(c.abs(), medium);
+            medium = now;
+        }
+    }
+    (length, product)
+}
+
+/// Most crossings [`Geometry::union_inside_length`] sorts (on the stack); a shadow ray
+/// with more is walked crossing by crossing.
+pub const MAX_UNION_CROSSINGS: usize = 64;
 
 /// Deepest 8-wide tree the CPU's casts use: obvhs's traversal stack holds 32 node groups
 /// and, past that, silently overwrites its top (losing triangles); a traversal needs at
@@ -154,6 +228,12 @@ impl Boundable for PaddedTri {
 
 impl Geometry {
     pub fn new(mesh: TriMesh) -> Self {
+        let overlaps = crate::mesh::overlapping_pieces(&mesh);
+        let pieces = if overlaps.is_empty() {
+            None
+        } else {
+            crate::mesh::piece_table(&mesh).map(|(of, depths)| Pieces::new(&of, &depths))
+        };
         let tris: Vec<Triangle> = (0..mesh.triangles.len())
             .map(|i| {
                 let [a, b, c] = mesh.triangle(i);
@@ -225,6 +305,8 @@ impl Geometry {
             eps: scale * 2e-5,
             bounds,
             escape_cos: Vec::new(),
+            overlaps,
+            pieces,
         };
         geo.escape_cos = crate::escape_cone::cached(&geo);
         geo
@@ -357,7 +439,93 @@ impl Geometry {
         (balance == 1 && length >= 0.0).then_some((length, product))
     }
 
-    /// Watertight distance to triangle `prim` along the sheared ray, in [0, tmax] (∞: no hit).
+    /// Whether `p` is in the medium of a mesh whose pieces overlap: the pieces whose
+    /// faces the ray from `p` along `dir` crosses an odd number of times are those
+    /// around `p` ([`Pieces::medium`]). Asked at a point spawned past a face, this holds
+    /// where the path has got to even when another piece's face lies in the same plane
+    /// (overlapping boxes often share face planes), which flipping one piece at each
+    /// crossing would miss: the second face lies behind the spawned point.
+    pub fn in_union(&self, pieces: &Pieces, p: Vec3, dir: Vec3) -> bool {
+        let shear = RayShear::new(p, dir);
+        let mut set = 0u32;
+        let mut visit = |prim: u32| {
+            if self
+                .hit_tri(&shear, prim as usize, f32::INFINITY)
+                .is_finite()
+            {
+                set ^= pieces.bit_of[prim as usize];
+            }
+        };
+        match &self.cwbvh {
+            Some(cw) => {
+                let ray = self.cw_ray(p, dir, f32::INFINITY);
+                cw.ray_traverse_anyhit(ray, |_, id| visit(cw.primitive_indices[id]));
+            }
+            None => {
+                let ray = Ray::new(arr(p).into(), arr(dir).into(), 0.0, f32::INFINITY);
+                let mut hit = RayHit::none();
+                self.bvh.ray_traverse(ray, &mut hit, |_, id| {
+                    visit(self.bvh.primitive_indices[id]);
+                    f32::INFINITY
+                });
+            }
+        }
+        pieces.medium(set)
+    }
+
+    /// [`Geometry::inside_length`] for a mesh whose pieces overlap ([`Pieces`]): the
+    /// crossings, gathered in one traversal, are sorted and walked with the set of
+    /// pieces around the ray, which starts as the pieces crossed an odd number of times
+    /// (those around the origin). Length counts where that set is in the medium and
+    /// `factor(cos, exiting)` only where that changes (the union's own boundary). The
+    /// plain sum Σ t(exits) − Σ t(entries) would count an overlap once per piece. None
+    /// beyond [`MAX_UNION_CROSSINGS`] crossings (callers then walk them in order).
+    pub fn union_inside_length(
+        &self,
+        pieces: &Pieces,
+        origin: Vec3,
+        dir: Vec3,
+        mut factor: impl FnMut(f32, bool) -> f32,
+    ) -> Option<(f32, f32)> {
+        let shear = RayShear::new(origin, dir);
+        let mut crossings = [(0.0f32, 0u32, 0.0f32); MAX_UNION_CROSSINGS];
+        let mut n = 0usize;
+        let mut overflow = false;
+        let mut visit = |prim: u32| {
+            let prim = prim as usize;
+            let t = self.hit_tri(&shear, prim, f32::INFINITY);
+            if t.is_finite() {
+                if n == MAX_UNION_CROSSINGS {
+                    overflow = true;
+                } else {
+                    crossings[n] = (t, pieces.bit_of[prim], dir.dot(self.normals[prim]));
+                    n += 1;
+                }
+            }
+        };
+        match &self.cwbvh {
+            Some(cw) => {
+                let ray = self.cw_ray(origin, dir, f32::INFINITY);
+                cw.ray_traverse_anyhit(ray, |_, id| visit(cw.primitive_indices[id]));
+            }
+            None => {
+                let ray = Ray::new(arr(origin).into(), arr(dir).into(), 0.0, f32::INFINITY);
+                let mut hit = RayHit::none();
+                self.bvh.ray_traverse(ray, &mut hit, |_, id| {
+                    visit(self.bvh.primitive_indices[id]);
+                    f32::INFINITY
+                });
+            }
+        }
+        if overflow {
+            return None;
+        }
+        let crossings = &mut crossings[..n];
+        crossings.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        Some(union_walk(pieces, crossings, &mut factor))
+    }
+
+    /// Watertight distance to triangle `prim` along the sheared ray    /// Watertight distance to triangle `prim` along the sheared ray, in [0, tmax] (∞: no hit).
     #[inline]
     fn hit_tri(&self, shear: &RayShear, prim: usize, tmax: f32) -> f32 {
         let t = &self.tris[prim];
@@ -526,24 +694,34 @@ impl Geometry {
             Vec3::new(0.1429, -0.9217, 0.3606),
         ];
         dirs.iter()
-            .filter(|d| self.odd_crossings(p, d.normalize()))
+            .filter(|d| self.inside_along(p, d.normalize()))
             .count()
             >= 2
     }
 
-    fn odd_crossings(&self, p: Vec3, dir: Vec3) -> bool {
+    /// Whether the crossings of the ray from `p` along `dir` put `p` inside: an odd
+    /// number of them, or where pieces overlap, the pieces crossed an odd number of
+    /// times ([`Pieces::medium`]).
+    fn inside_along(&self, p: Vec3, dir: Vec3) -> bool {
         let mut o = p;
-        let mut crossings = 0;
+        let mut crossings = 0u32;
+        let mut set = 0u32;
         for _ in 0..10_000 {
             match self.intersect(o, dir, f32::INFINITY) {
                 Some(h) => {
                     crossings += 1;
+                    if let Some(pieces) = &self.pieces {
+                        set ^= pieces.bit_of[h.prim as usize];
+                    }
                     o = self.spawn(o + dir * h.t, h.normal, dir);
                 }
                 None => break,
             }
         }
-        crossings % 2 == 1
+        match &self.pieces {
+            Some(pieces) => pieces.medium(set),
+            None => crossings % 2 == 1,
+        }
     }
 }
 

@@ -206,9 +206,21 @@ fn orient_pieces(m: &mut TriMesh) {
     let pieces = pieces(m);
     let volume6 = |tris: &[usize]| -> f64 { tris.iter().map(|&t| m.volume6_of(t)).sum() };
     let volumes: Vec<f64> = pieces.iter().map(|t| volume6(t)).collect();
+    let depths = nesting_depths(m, &pieces, &volumes);
+    for ((tris, volume), depth) in pieces.iter().zip(volumes).zip(depths) {
+        if (volume > 0.0) != (depth % 2 == 0) {
+            for &t in tris {
+                m.triangles[t].swap(1, 2);
+            }
+        }
+    }
+}
+
+/// Each piece's nesting depth (see [`orient_pieces`]), whatever the pieces' winding.
+fn nesting_depths(m: &TriMesh, pieces: &[Vec<usize>], volumes: &[f64]) -> Vec<usize> {
     let mut depths = vec![0usize; pieces.len()];
     if pieces.len() > 1 {
-        let bounds = piece_bounds(m, &pieces);
+        let bounds = piece_bounds(m, pieces);
         // Largest first: a piece's containers enclose more volume, so their depths are
         // known when it is reached. Its depth is one more than its deepest container's:
         // a cavity inside two overlapping pieces (each solid) is one hole, not depth 2.
@@ -241,14 +253,33 @@ fn orient_pieces(m: &mut TriMesh) {
                 .unwrap_or(0);
         }
     }
-    for ((tris, volume), depth) in pieces.iter().zip(volumes).zip(depths) {
-        if (volume > 0.0) != (depth % 2 == 0) {
-            for &t in tris {
-                m.triangles[t].swap(1, 2);
-            }
+    depths
+}
+
+/// Which piece each triangle belongs to and how deep each piece is nested, for meshes
+/// whose pieces overlap ([`crate::geometry::Pieces`]): at most [`MAX_OVERLAP_PIECES`]
+/// pieces, so that the set of pieces around a point fits in a u32's bits.
+pub fn piece_table(m: &TriMesh) -> Option<(Vec<u8>, Vec<usize>)> {
+    let pieces = pieces(m);
+    if pieces.len() > MAX_OVERLAP_PIECES {
+        return None;
+    }
+    let volumes: Vec<f64> = pieces
+        .iter()
+        .map(|tris| tris.iter().map(|&t| m.volume6_of(t)).sum())
+        .collect();
+    let depths = nesting_depths(m, &pieces, &volumes);
+    let mut of_tri = vec![0u8; m.triangles.len()];
+    for (k, tris) in pieces.iter().enumerate() {
+        for &t in tris {
+            of_tri[t] = k as u8;
         }
     }
+    Some((of_tri, depths))
 }
+
+/// Most pieces [`overlapping_pieces`] checks (and [`piece_table`] numbers).
+pub const MAX_OVERLAP_PIECES: usize = 16;
 
 /// The triangles of each connected piece, joined through shared edges: two closed parts
 /// that only touch at a vertex are separate pieces (the closedness check only ties the
@@ -288,17 +319,17 @@ fn pieces(m: &TriMesh) -> Vec<Vec<usize>> {
 }
 
 /// Pairs of closed pieces (numbered in the order of their first triangle) that overlap
-/// without one enclosing the other: the renderers keep an inside/outside state, not a
-/// count of the pieces around a point, so such an overlap is not rendered as the union
-/// (README, scene reference: two overlapping boxes came out 4 % brighter than the one box
-/// they make). Found where some of a piece's probes (vertices and face centroids) lie
+/// without one enclosing the other. The renderers then follow which pieces a path is in
+/// ([`crate::geometry::Pieces`]) to render their union, which an inside/outside flag
+/// does not (two overlapping boxes came out 4 % brighter than the one box they make).
+/// Found where some of a piece's probes (vertices and face centroids) lie
 /// clearly inside the other (winding number > 0.75) and some clearly outside (< 0.25);
 /// probes on the other's surface (touching parts) count as neither. Checked for meshes
 /// of at most 16 pieces and 200,000 triangles (the cost is probes × triangles per pair);
 /// larger ones are not checked.
 pub fn overlapping_pieces(m: &TriMesh) -> Vec<(usize, usize)> {
     let pieces = pieces(m);
-    if pieces.len() < 2 || pieces.len() > 16 || m.triangles.len() > 200_000 {
+    if pieces.len() < 2 || pieces.len() > MAX_OVERLAP_PIECES || m.triangles.len() > 200_000 {
         return Vec::new();
     }
     // Probes: up to 64 of each piece's vertices and 64 of its triangles' centroids (two

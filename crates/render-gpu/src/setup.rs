@@ -92,18 +92,6 @@ impl SceneData {
         extra_hash: &[u8],
     ) -> Result<Self, RenderError> {
         let mesh = object_mesh(scene, scene_dir)?;
-        let notes: Vec<String> = crate::mesh::overlapping_pieces(&mesh)
-            .into_iter()
-            .map(|(i, j)| {
-                format!(
-                    "pieces {} and {} of the mesh overlap: the overlap is not rendered as \
-                     their union (it comes out partly as air); join them into one closed \
-                     surface",
-                    i + 1,
-                    j + 1
-                )
-            })
-            .collect();
         let env = crate::light::Environment::new(&scene.environment, scene_dir)?;
         let mut h = Fnv64::new();
         let mut ident = scene.clone();
@@ -134,6 +122,19 @@ impl SceneData {
         // to different images must not pass for renders of one scene.
         h.write(env!("STCVAE_RENDER_CODE").as_bytes());
         let geo = Geometry::new(mesh);
+        let notes: Vec<String> = geo
+            .overlaps
+            .iter()
+            .map(|(i, j)| {
+                format!(
+                    "pieces {} and {} of the mesh overlap: they are rendered as their union \
+                     (paths cross the faces inside it), with sphere steps kept clear of \
+                     those faces; one closed surface renders faster",
+                    i + 1,
+                    j + 1
+                )
+            })
+            .collect();
         // Every path starts in air (the integrators trace camera rays from outside the
         // object); from inside, a camera's paths would be taken for entering ones and lit
         // as if in air, so the image would be wrong without any error.

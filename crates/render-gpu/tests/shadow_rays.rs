@@ -164,3 +164,114 @@ fn transmittance_out_of_a_sphere_has_its_closed_form() {
         }
     }
 }
+
+/// Closed form through overlapping pieces (common::overlapping_parts_scenes): the cube
+/// made of two boxes overlapping in x ∈ [−0.2, 0.2], without and with a cubic cavity
+/// [−0.15, 0.15]³ inside both. From 500 uniform points of the medium along uniform
+/// directions, the shadow ray runs (distance to the cube's face) − (chord through the
+/// cavity) in the medium, and crosses the medium's boundary where it leaves the cube
+/// and, through the cavity, where it enters and leaves that: each crossing multiplies
+/// 1 − F(cos) with a dielectric boundary (F written out as above). The one traversal
+/// (sorted crossings, exact distances from the origin) must give it to 0.1 % (f32 lengths
+/// are good to ~1e-6). The ordered walk loses a spawn offset eps = 2e-5 of the scene's
+/// size (1 here) along the normal at each of its at most 6 crossings, eps/cos along the
+/// ray: directions with every |d_i| ≥ 0.2 keep that to 6e-4 of length, so its bound is
+/// σ_t·6e-4 + 0.1 % (0.34 % at σ_t = 4, 2.5 % at 40). A face inside the union taken for
+/// a boundary counts the overlap (≥ 0.1 in length) or a Fresnel factor (≥ 4 %) twice.
+#[test]
+fn transmittance_through_overlapping_pieces_has_its_closed_form() {
+    let fresnel = |cos_i: f64, n: f64| {
+        let sin_t = (1.0 - cos_i * cos_i).sqrt() / n;
+        let cos_t = (1.0 - sin_t * sin_t).sqrt();
+        let rs = ((cos_i - n * cos_t) / (cos_i + n * cos_t)).powi(2);
+        let rp = ((n * cos_i - cos_t) / (n * cos_i + cos_t)).powi(2);
+        (rs + rp) / 2.0
+    };
+    let dir = tempfile::tempdir().unwrap();
+    for (boundary, ior) in [
+        ("kind = \"index-matched\"", None),
+        ("kind = \"dielectric\"\nior = 1.5", Some(1.5)),
+    ] {
+        let scenes = common::overlapping_parts_scenes(dir.path(), boundary);
+        for (what, _, text) in scenes.iter().filter(|s| s.0 != "step") {
+            let scene = common::build_scene(text, false);
+            assert!(scene.geo.pieces.is_some(), "{what}");
+            let hollow = what.contains("cavity");
+            let mut rng = WalkRng::for_walk(7, 0);
+            let mut rays = 0;
+            let mut through_cavity = 0;
+            while rays < 500 {
+                let x = [(); 3].map(|_| rng.uniform() - 0.5);
+                // Points clear of every face by 1e-3 (their spawn offsets are 2e-5).
+                let clear = |lo: f64, hi: f64| x.iter().all(|&v| v > lo && v < hi);
+                if !clear(-0.499, 0.499) || (hollow && clear(-0.151, 0.151)) {
+                    continue;
+                }
+                let d = common::uniform_direction(&mut rng).as_dvec3();
+                if d.abs().min_element() < 0.2 {
+                    continue;
+                }
+                rays += 1;
+                // Leaving the cube: the nearest face ahead.
+                let (t_exit, cos_exit) = (0..3)
+                    .map(|i| ((0.5 * d[i].signum() - x[i]) / d[i], d[i].abs()))
+                    .fold((f64::INFINITY, 0.0), |a, b| if b.0 < a.0 { b } else { a });
+                let mut length = t_exit;
+                let mut cosines = vec![cos_exit];
+                if hollow {
+                    // The chord through the cavity, by slabs: entered at the last slab
+                    // entry, left at the first slab exit.
+                    let slab = |i: usize| {
+                        let (a, b) = ((-0.15 - x[i]) / d[i], (0.15 - x[i]) / d[i]);
+                        (a.min(b), a.max(b))
+                    };
+                    let (t_in, cos_in) = (0..3).map(|i| (slab(i).0, d[i].abs())).fold(
+                        (f64::NEG_INFINITY, 0.0),
+                        |a, b| if b.0 > a.0 { b } else { a },
+                    );
+                    let (t_out, cos_out) = (0..3)
+                        .map(|i| (slab(i).1, d[i].abs()))
+                        .fold((f64::INFINITY, 0.0), |a, b| if b.0 < a.0 { b } else { a });
+                    if t_in > 0.0 && t_in < t_out {
+                        length -= t_out - t_in;
+                        cosines.extend([cos_in, cos_out]);
+                        through_cavity += 1;
+                    }
+                }
+                let t_fresnel: f64 = cosines
+                    .iter()
+                    .map(|&c| ior.map_or(1.0, |n| 1.0 - fresnel(c, n)))
+                    .product();
+                let xf = glam::DVec3::from_array(x).as_vec3();
+                let df = d.as_vec3();
+                for channel in 0..3 {
+                    let sigma = [4.0, 12.0, 40.0][channel];
+                    let want = (-sigma * length).exp() * t_fresnel;
+                    for (how, got, bound) in [
+                        (
+                            "one traversal",
+                            transmittance(&scene, xf, df, channel),
+                            1e-3,
+                        ),
+                        (
+                            "ordered",
+                            transmittance_ordered(&scene, xf, df, channel),
+                            sigma * 6e-4 + 1e-3,
+                        ),
+                    ] {
+                        let got = f64::from(got);
+                        assert!(
+                            (got - want).abs() <= bound * want + 1e-12,
+                            "{what}, {boundary}, x = {x:?}, dir = {d:?}, channel {channel}, \
+                             {how}: {got}, want {want}"
+                        );
+                    }
+                }
+            }
+            if hollow {
+                // Enough rays through the cavity that its crossings are tested.
+                assert!(through_cavity > 20, "{what}: {through_cavity} rays");
+            }
+        }
+    }
+}

@@ -342,10 +342,24 @@ impl Path {
                     (None, Some(prim)) if geo.escapes_from(prim, s.dir) => None,
                     _ => geo.intersect(s.pos, s.dir, f32::INFINITY),
                 };
-                let Some(h) = hit else {
+                let Some(mut h) = hit else {
                     s.radiance += s.beta * escape(scene, s.dir, channel, !(set.nee && s.scattered));
                     break;
                 };
+                let mut turned = false;
+                if let Some(pieces) = &geo.pieces {
+                    let past = geo.spawn(s.pos + s.dir * h.t, h.normal, s.dir);
+                    if !geo.in_union(pieces, past, s.dir) {
+                        // A face crossed in air (within a cavity's piece): no boundary.
+                        s.pos = past;
+                        continue;
+                    }
+                    // Into the medium: its boundary's normal faces the air the path is in.
+                    if s.dir.dot(h.normal) > 0.0 {
+                        h.normal = -h.normal;
+                        turned = true;
+                    }
+                }
                 if s.dir.dot(h.normal) > 0.0 {
                     // Met a surface from inside while believed outside: the path left one
                     // part of the mesh into another across a gap of air thinner than eps
@@ -366,7 +380,9 @@ impl Path {
                         let f = fresnel(s.dir.dot(h.normal).abs(), 1.0, ior);
                         if uniform(rng) < f {
                             s.dir = reflect(s.dir, h.normal);
-                            *left_through = Some(h.prim);
+                            // (A turned normal is not the one the triangle's escape
+                            // cone is about.)
+                            *left_through = (!turned).then_some(h.prim);
                         } else {
                             s.dir = refract(s.dir, h.normal, 1.0, ior).unwrap_or(s.dir);
                             *inside = true;
@@ -402,9 +418,26 @@ impl Path {
                 // into surface hits: a bias of σ_t·margin ≲ 1e-4 of the paths that get there.
                 short_cast(scene, s.pos, s.dir, t + geo.flight_margin())
             };
-            if let Some(h) = hit {
+            if let Some(mut h) = hit {
                 s.free = 0.0;
                 let p = s.pos + s.dir * h.t;
+                let mut turned = false;
+                if let Some(pieces) = &geo.pieces {
+                    let past = geo.spawn(p, h.normal, s.dir);
+                    if geo.in_union(pieces, past, s.dir) {
+                        // A face within the union of overlapping pieces: into one more
+                        // of them, or out of one of several. No boundary; the flight goes
+                        // on, its rest redrawn past the face (flights have no memory).
+                        s.pos = past;
+                        *from_step = false;
+                        continue;
+                    }
+                    // Out of the medium: its boundary's normal faces the air ahead.
+                    if s.dir.dot(h.normal) < 0.0 {
+                        h.normal = -h.normal;
+                        turned = true;
+                    }
+                }
                 if s.dir.dot(h.normal) < 0.0 {
                     // Met the surface from outside while believed inside. After a sphere step
                     // the exit was not inside after all: count it. The path is placed past
@@ -432,7 +465,8 @@ impl Path {
                         }
                     }
                 }
-                if !*inside {
+                if !*inside && !turned {
+                    // (A turned normal is not the one the triangle's escape cone is about.)
                     *left_through = Some(h.prim);
                 }
                 s.pos = geo.spawn(p, h.normal, s.dir);

@@ -200,9 +200,13 @@ impl PathNee {
 /// Transmittance from `x` (inside) along `dir` to infinity.
 pub fn transmittance(scene: &SceneData, x: Vec3, dir: Vec3, channel: usize) -> f32 {
     let sigma = scene.sigma_t[channel];
-    let crossed = scene
-        .geo
-        .inside_length(x, dir, |c, _| crossing_transmittance(scene, c));
+    let geo = &scene.geo;
+    let factor = |c, _| crossing_transmittance(scene, c);
+    let crossed = if let Some(pieces) = &geo.pieces {
+        geo.union_inside_length(pieces, x, dir, factor)
+    } else {
+        geo.inside_length(x, dir, factor)
+    };
     match crossed {
         Some((length, fresnel_t)) => (-sigma * length).exp() * fresnel_t,
         None => transmittance_ordered(scene, x, dir, channel),
@@ -224,11 +228,38 @@ fn crossing_transmittance(scene: &SceneData, cos: f32) -> f32 {
 }
 
 /// Transmittance by walking the crossings in order (one closest-hit query each): the
-/// fallback for rays whose crossings do not pair up, and the reference in tests.
+/// fallback for rays whose crossings do not pair up (or, where pieces overlap, that
+/// cross more than [`crate::geometry::MAX_UNION_CROSSINGS`] faces), and the reference in
+/// tests.
 pub fn transmittance_ordered(scene: &SceneData, x: Vec3, dir: Vec3, channel: usize) -> f32 {
     let geo = &scene.geo;
     let sigma = scene.sigma_t[channel];
     let mut o = x;
+    if let Some(pieces) = &geo.pieces {
+        // Overlapping pieces: whether the ray is in the medium is asked anew past each
+        // crossing (Geometry::in_union), since a closest-hit walk sees one of two faces
+        // in one plane and steps past the other.
+        let mut medium = geo.in_union(pieces, x, dir);
+        let (mut depth, mut fresnel_t) = (0.0f32, 1.0f32);
+        for _ in 0..MAX_CROSSINGS {
+            let Some(h) = geo.intersect(o, dir, f32::INFINITY) else {
+                return (-depth).exp() * fresnel_t;
+            };
+            if medium {
+                depth += sigma * h.t;
+                if depth > MAX_OPTICAL_DEPTH {
+                    return 0.0;
+                }
+            }
+            o = geo.spawn(o + dir * h.t, h.normal, dir);
+            let now = geo.in_union(pieces, o, dir);
+            if now != medium {
+                fresnel_t *= crossing_transmittance(scene, dir.dot(h.normal).abs());
+                medium = now;
+            }
+        }
+        return 0.0;
+    }
     let mut inside = true;
     let mut depth = 0.0f32;
     let mut fresnel_t = 1.0f32;

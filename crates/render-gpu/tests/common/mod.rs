@@ -258,6 +258,96 @@ grid_resolution = 64
     (scene(&one), scene(&two))
 }
 
+/// Objects made of overlapping closed pieces, each beside the same object made without
+/// overlaps, lit as in [`touching_parts_scenes`] (index-matched, or with `boundary` as
+/// the [boundary] table's body). Returns (what, without overlaps, with them):
+/// - the cube [−0.5, 0.5]³ as one box, and as two boxes overlapping in x ∈ [−0.2, 0.2],
+///   whose y and z faces share planes;
+/// - a step (two boxes overlapping in a corner, z faces in shared planes), and the same
+///   step as three boxes touching across gaps of 10⁻⁶ (rendered as one medium:
+///   `touching_parts_render_as_one_medium`);
+/// - the cube with a cubic cavity in it, as one box around a cavity and as the two
+///   overlapping boxes around it (a cavity within two solids is air, not medium).
+pub fn overlapping_parts_scenes(dir: &Path, boundary: &str) -> Vec<(String, String, String)> {
+    let cube = ([-0.5; 3], [0.5; 3]);
+    let left = ([-0.5, -0.5, -0.5], [0.2, 0.5, 0.5]);
+    let right = ([-0.2, -0.5, -0.5], [0.5, 0.5, 0.5]);
+    let cavity = ([-0.15; 3], [0.15; 3]);
+    let low = ([-0.5, -0.5, -0.5], [0.2, 0.2, 0.5]);
+    let high = ([-0.2, -0.2, -0.5], [0.5, 0.5, 0.5]);
+    let g = 1e-6;
+    let step_parts = [
+        low,
+        ([-0.2, 0.2 + g, -0.5], [0.5, 0.5, 0.5]),
+        ([0.2 + g, -0.2, -0.5], [0.5, 0.2, 0.5]),
+    ];
+    let write = |name: &str, boxes: &[([f32; 3], [f32; 3])], cavities: &[([f32; 3], [f32; 3])]| {
+        let mut text = boxes_obj(boxes);
+        // The cavities are written as boxes of their own; the mesh loader finds them
+        // nested and turns them inward.
+        let offset = 8 * boxes.len();
+        for line in boxes_obj(cavities).lines() {
+            text += &match line.strip_prefix("f ") {
+                Some(f) => {
+                    let v: Vec<usize> = f.split(' ').map(|k| k.parse().unwrap()).collect();
+                    let v: Vec<String> = v.iter().map(|k| (k + offset).to_string()).collect();
+                    format!("f {}\n", v.join(" "))
+                }
+                None => format!("{line}\n"),
+            };
+        }
+        let path = dir.join(name);
+        std::fs::write(&path, text).unwrap();
+        path
+    };
+    let scene = |mesh: &Path| {
+        format!(
+            r#"
+[camera]
+origin = [1.5, 2.0, 3.0]
+target = [0.0, 0.0, 0.0]
+fov_deg = 30.0
+width = 16
+height = 16
+[object]
+mesh = "{}"
+[medium]
+sigma_t = [4.0, 12.0, 40.0]
+albedo = [0.99, 0.95, 0.8]
+g = 0.5
+[boundary]
+{boundary}
+[[light]]
+kind = "directional"
+direction = [0.3, -1.0, -0.2]
+irradiance = [1.0, 1.0, 1.0]
+[environment]
+radiance = [0.1, 0.2, 0.3]
+[render]
+grid_resolution = 64
+"#,
+            mesh.display()
+        )
+    };
+    vec![
+        (
+            "cube".to_string(),
+            scene(&write("cube.obj", &[cube], &[])),
+            scene(&write("cube2.obj", &[left, right], &[])),
+        ),
+        (
+            "step".to_string(),
+            scene(&write("step3.obj", &step_parts, &[])),
+            scene(&write("step2.obj", &[low, high], &[])),
+        ),
+        (
+            "cube with a cavity".to_string(),
+            scene(&write("hollow.obj", &[cube], &[cavity])),
+            scene(&write("hollow2.obj", &[left, right], &[cavity])),
+        ),
+    ]
+}
+
 /// Says on the terminal why a test is skipped. Written to stderr directly rather than with
 /// `eprintln!`, which libtest captures and shows only for failing tests: a skipped test
 /// passes, so its reason would otherwise never be seen without `--nocapture`.
