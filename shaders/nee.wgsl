@@ -12,6 +12,9 @@ fn transmittance(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
 
 /// The transmittance of the shadow ray x + t·dir from its crossings.
 fn transmittance_of(c: Crossings, x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
+    if overlapping() {
+        return transmittance_union(x, dir, channel);
+    }
     if c.balance == 1 && c.length >= 0.0 {
         return exp(-params.sigma_t[channel] * c.length) * c.fresnel_t;
     }
@@ -41,6 +44,37 @@ fn transmittance_ordered(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
         fresnel_t *= crossing_transmittance(abs(dot(dir, n)));
         inside = !inside;
         o = spawn(o + dir * h.t, n, dir);
+    }
+    return 0.0;
+}
+
+/// The ordered walk where pieces overlap (nee.rs, transmittance_ordered): whether the ray
+/// is in the medium is asked anew past each crossing (in_union), and the length counts
+/// where it is, Fresnel's factor where that changes.
+fn transmittance_union(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
+    let sigma = params.sigma_t[channel];
+    var o = x;
+    var medium = in_union(x, dir);
+    var depth = 0.0;
+    var fresnel_t = 1.0;
+    for (var i = 0u; i < MAX_CROSSINGS; i++) {
+        let h = intersect(o, dir, 1e30);
+        if !h.found {
+            return exp(-depth) * fresnel_t;
+        }
+        if medium {
+            depth += sigma * h.t;
+            if depth > MAX_OPTICAL_DEPTH {
+                return 0.0;
+            }
+        }
+        let n = tri_normal(h.prim);
+        o = spawn(o + dir * h.t, n, dir);
+        let now = in_union(o, dir);
+        if now != medium {
+            fresnel_t *= crossing_transmittance(abs(dot(dir, n)));
+            medium = now;
+        }
     }
     return 0.0;
 }

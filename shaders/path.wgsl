@@ -255,7 +255,22 @@ fn flight_end(t: f32, h: Hit) -> bool {
             return false;
         }
         let p = ps.pos + ps.dir * h.t;
-        let n = tri_normal(h.prim);
+        var n = tri_normal(h.prim);
+        var turned = false;
+        if overlapping() {
+            let past = spawn(p, n, ps.dir);
+            if !in_union(past, ps.dir) {
+                // A face crossed in air (within a cavity's piece): no boundary
+                // (integrator/mod.rs).
+                ps.pos = past;
+                return false;
+            }
+            // Into the medium: its boundary's normal faces the air the path is in.
+            if dot(ps.dir, n) > 0.0 {
+                n = -n;
+                turned = true;
+            }
+        }
         if dot(ps.dir, n) > 0.0 {
             // Met a surface from inside while believed outside: spawned across a gap
             // thinner than eps into a touching part; enter it here (integrator/mod.rs).
@@ -267,7 +282,8 @@ fn flight_end(t: f32, h: Hit) -> bool {
             let f = fresnel(abs(dot(ps.dir, n)), 1.0, ior);
             if rand() < f {
                 ps.dir = reflect_dir(ps.dir, n);
-                p_left_through = h.prim;
+                // (A turned normal is not the one the triangle's escape cone is about.)
+                p_left_through = select(h.prim, NO_TRI, turned);
             } else {
                 ps.dir = refract_dir(ps.dir, n, 1.0, ior);
                 p_inside = true;
@@ -286,7 +302,23 @@ fn flight_end(t: f32, h: Hit) -> bool {
     if h.found {
         ps.free = 0.0;
         let p = ps.pos + ps.dir * h.t;
-        let n = tri_normal(h.prim);
+        var n = tri_normal(h.prim);
+        var turned = false;
+        if overlapping() {
+            let past = spawn(p, n, ps.dir);
+            if in_union(past, ps.dir) {
+                // A face within the union of overlapping pieces: no boundary; the flight
+                // goes on, its rest redrawn past the face (integrator/mod.rs).
+                ps.pos = past;
+                p_from_step = false;
+                return false;
+            }
+            // Out of the medium: its boundary's normal faces the air ahead.
+            if dot(ps.dir, n) < 0.0 {
+                n = -n;
+                turned = true;
+            }
+        }
         if dot(ps.dir, n) < 0.0 {
             // Met the surface from outside while believed inside: after a sphere step
             // the exit was not inside after all. Count it; as on the CPU (integrator/mod.rs)
@@ -311,7 +343,7 @@ fn flight_end(t: f32, h: Hit) -> bool {
         } else {
             p_inside = false;
         }
-        if !p_inside {
+        if !p_inside && !turned {
             p_left_through = h.prim;
         }
         ps.pos = spawn(p, n, ps.dir);

@@ -37,6 +37,9 @@ struct Params {
     consts3: vec4<f32>,         // exact_tau, exact_nee_samples (integral), loop-probe passes,
                                 // camera rays' start (Camera::start)
     consts4: vec4<f32>,         // NEE's radiance factor (Boundary::nee_scale: 1/ior² or 1), 0, 0, 0
+    // Where the mesh's pieces overlap, per nesting depth d (entry d / 4, component d % 4)
+    // the bits of the pieces at it (geometry.rs, Pieces); all 0 without overlaps.
+    pieces: array<vec4<u32>, 4>,
 }
 
 // A BVH node as the traversals use it. `nodes` holds it packed in 16 bytes
@@ -67,7 +70,7 @@ fn node_at(i: u32) -> Node {
 }
 
 struct Tri {
-    v0: vec4<f32>,
+    v0: vec4<f32>, // w: 1 + its piece's number where pieces overlap, else 0 (piece_bit)
     v1: vec4<f32>,
     v2: vec4<f32>,
     n: vec4<f32>,  // outward unit normal; w: cos θ of its escape cone (escape_cone.rs)
@@ -233,6 +236,38 @@ struct Crossings {
     length: f32,
     fresnel_t: f32,
     balance: i32,
+    // The pieces crossed an odd number of times (those around the origin) where pieces
+    // overlap (union_medium).
+    pieces: u32,
+}
+
+/// Whether the mesh's pieces overlap (geometry.rs, Geometry::pieces): the object is their
+/// union, and paths ask past each face whether they are in it (in_union).
+fn overlapping() -> bool {
+    return params.pieces[0].x != 0u;
+}
+
+/// Triangle k's piece as a bit (0 without overlaps).
+fn piece_bit(k: u32) -> u32 {
+    let w = u32(tris[k].v0.w);
+    return select(0u, 1u << (w - 1u), w > 0u);
+}
+
+/// Whether a point inside exactly the pieces of `around` is in the medium: the most deeply
+/// nested of them is a solid (even depth; geometry.rs, Pieces::medium).
+fn union_medium(around: u32) -> bool {
+    for (var d = 15i; d >= 0; d--) {
+        if (around & params.pieces[d / 4][d % 4]) != 0u {
+            return (d & 1) == 0;
+        }
+    }
+    return false;
+}
+
+/// Whether `p` is in the medium where pieces overlap, from the pieces crossed an odd
+/// number of times along p + t·d (Geometry::in_union: robust to faces in shared planes).
+fn in_union(p: vec3<f32>, d: vec3<f32>) -> bool {
+    return union_medium(crossings(p, d).pieces);
 }
 
 /// The crossings of the last `trace` with `all` set.
@@ -249,7 +284,7 @@ var<private> tr_cross: Crossings;
 /// the sums come out the same bit for bit.
 fn trace(o: vec3<f32>, d: vec3<f32>, tmax0: f32, all: bool) -> Hit {
     var best = Hit(tmax0, 0u, false);
-    tr_cross = Crossings(0.0, 1.0, 0);
+    tr_cross = Crossings(0.0, 1.0, 0, 0u);
     // Exact zeros would make 0·∞ = NaN in the slab test.
     let inv_d = 1.0 / (d + select(vec3<f32>(0.0), vec3<f32>(1e-30), d == vec3<f32>(0.0)));
     let sh = ray_shear(o, d);
@@ -280,6 +315,7 @@ fn trace(o: vec3<f32>, d: vec3<f32>, tmax0: f32, all: bool) -> Hit {
                         tr_cross.length += select(-t, t, exiting);
                         tr_cross.balance += select(-1, 1, exiting);
                         tr_cross.fresnel_t *= crossing_transmittance(abs(cosn));
+                        tr_cross.pieces ^= piece_bit(k);
                     } else if closer(t, k, best) {
                         best = Hit(t, k, true);
                     }
@@ -374,7 +410,7 @@ fn intersect(o: vec3<f32>, d: vec3<f32>, tmax0: f32) -> Hit {
 
 /// Every surface crossing of the line o + t·d, t ≥ 0, in one BVH traversal.
 fn crossings(o: vec3<f32>, d: vec3<f32>) -> Crossings {
-    var c = Crossings(0.0, 1.0, 0);
+    var c = Crossings(0.0, 1.0, 0, 0u);
     let inv_d = 1.0 / (d + select(vec3<f32>(0.0), vec3<f32>(1e-30), d == vec3<f32>(0.0)));
     let sh = ray_shear(o, d);
     let root = node_at(0u);
@@ -399,6 +435,7 @@ fn crossings(o: vec3<f32>, d: vec3<f32>) -> Crossings {
                     c.length += select(-t, t, exiting);
                     c.balance += select(-1, 1, exiting);
                     c.fresnel_t *= crossing_transmittance(abs(cosn));
+                    c.pieces ^= piece_bit(k);
                 }
             }
         } else {

@@ -235,7 +235,7 @@ pub fn prepare(
     spin.finish_and_clear();
     let data = data?;
     for n in &data.notes {
-        eprintln!("warning: {}: {n}", scene_path.display());
+        eprintln!("note: {}: {n}", scene_path.display());
     }
     let trained_max = model
         .as_ref()

@@ -54,8 +54,8 @@ pub struct SceneData {
     pub env: Environment,
     /// Hash of everything that defines the converged image, except spp and seed.
     pub hash: u64,
-    /// Warnings about the scene that do not stop a render (overlapping mesh pieces), one
-    /// line each, for the command to print.
+    /// Notes about the scene for the command to print, one line each (overlapping mesh
+    /// pieces, rendered as their union but slower than one closed surface).
     pub notes: Vec<String>,
 }
 

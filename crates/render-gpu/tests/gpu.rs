@@ -1509,6 +1509,48 @@ fn gpu_touching_parts_render_as_on_the_cpu() {
     );
 }
 
+/// Overlapping pieces of a mesh (integrators.rs, overlapping_pieces_render_as_their_union,
+/// which checks the CPU against the same objects made without overlaps) render as their
+/// union on the GPU too: the same image as the CPU's, no leaks. The two boxes making the
+/// cube (faces in shared planes) with PT and ST-CVAE; the two around a cavity with PT
+/// behind a dielectric boundary (the Fresnel choice only at the union's own boundary,
+/// the cavity's walls included).
+#[test]
+fn gpu_overlapping_pieces_render_as_on_the_cpu() {
+    let dir = tempfile::tempdir().unwrap();
+    let grow = |t: &str| t.replace("width = 16\nheight = 16", "width = 32\nheight = 32");
+    let matched = common::overlapping_parts_scenes(dir.path(), "kind = \"index-matched\"");
+    let cube = grow(&matched[0].2);
+    let dielectric =
+        common::overlapping_parts_scenes(dir.path(), "kind = \"dielectric\"\nior = 1.5");
+    let hollow = grow(&dielectric[2].2);
+    {
+        let Some(ctx) = gpu() else { return };
+        let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+        let s = common::build_scene(&cube, true);
+        assert!(s.geo.pieces.is_some());
+        for kind in [IntegratorKind::Pt, IntegratorKind::Stcvae] {
+            let out = on_gpu(&ctx, &s, &settings(kind, true), &opts(32, 1));
+            assert_eq!(out.stats.leaks, 0, "{kind:?}: {:?}", out.stats);
+        }
+    }
+    compare_devices("PT, overlapping boxes", &cube, IntegratorKind::Pt, true, 64);
+    compare_devices(
+        "ST-CVAE, overlapping boxes",
+        &cube,
+        IntegratorKind::Stcvae,
+        true,
+        64,
+    );
+    compare_devices(
+        "PT dielectric, overlapping boxes around a cavity",
+        &hollow,
+        IntegratorKind::Pt,
+        true,
+        64,
+    );
+}
+
 /// An image whose path slots exceed the adapter's storage binding limit renders in bands of
 /// rows (gpu/renderer.rs), and the bands give the image one binding gives, bit for bit: PT
 /// resumes a path exactly, and the seeds follow a pixel's index in the image, not in its

@@ -642,8 +642,9 @@ fn pieces_are_wound_by_their_nesting() {
             (v - want).abs() < 1e-6 * want,
             "{what}: volume {v}, want {want}"
         );
-        // Overlaps (not rendered as the union) are found and named; nesting, pieces
-        // apart and pieces touching at a corner are not overlaps.
+        // Overlaps (rendered as the union by following the pieces around a path) are
+        // found and named; nesting, pieces apart and pieces touching at a corner are not
+        // overlaps.
         let overlaps = mesh::overlapping_pieces(&m);
         let want_overlaps: &[(usize, usize)] = match what {
             "overlapping" => &[(0, 1)],

@@ -57,6 +57,10 @@ pub struct Params {
     pub consts3: [f32; 4],
     /// NEE's radiance factor ([`Boundary::nee_scale`]), then unused.
     pub consts4: [f32; 4],
+    /// Where the mesh's pieces overlap, per nesting depth (16 at most, 4 to an entry) the
+    /// bits of the pieces at it ([`crate::geometry::Pieces::at_depth`]; each triangle's
+    /// piece is in its `v0.w`); all 0 without overlaps.
+    pub pieces: [[u32; 4]; 4],
 }
 
 /// Passes of the kernel's loop-limit probe (path.wgsl, after the bounce loop): where
@@ -236,7 +240,14 @@ pub fn geometry_buffers(scene: &SceneData) -> Result<(Vec<GpuNode>, Vec<GpuTri>)
             let t = &geo.tris[p as usize];
             let n = geo.normals[p as usize];
             GpuTri {
-                v0: c4(t.v0.into()),
+                // w: 1 + the number of its piece where pieces overlap, else 0 (scene.wgsl,
+                // piece_bit; a number, as bits would be subnormal floats).
+                v0: v4(
+                    Vec3::from_array(t.v0.into()),
+                    geo.pieces
+                        .as_ref()
+                        .map_or(0.0, |q| (q.bit_of[p as usize].trailing_zeros() + 1) as f32),
+                ),
                 v1: c4(t.v1.into()),
                 v2: c4(t.v2.into()),
                 // w: cos θ of the triangle's escape cone (path.wgsl).
@@ -315,6 +326,15 @@ pub fn scene_params(scene: &SceneData, set: &IntegratorSettings, seed: u64) -> P
             cam.start,
         ],
         consts4: [scene.boundary.nee_scale(), 0.0, 0.0, 0.0],
+        pieces: {
+            let mut a = [[0u32; 4]; 4];
+            if let Some(p) = &scene.geo.pieces {
+                for (d, &bits) in p.at_depth.iter().enumerate() {
+                    a[d / 4][d % 4] = bits;
+                }
+            }
+            a
+        },
     }
 }
 
