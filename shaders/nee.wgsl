@@ -48,10 +48,42 @@ fn transmittance_ordered(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
     return 0.0;
 }
 
+/// The transmittance where pieces overlap (nee.rs, transmittance): the crossings of one
+/// traversal, sorted (scene.wgsl, union_keep), walked from the pieces around the origin
+/// (those crossed an odd number of times); the length counts where the pieces around
+/// the ray make medium, Fresnel's factor where that changes (geometry.rs, union_walk).
+/// Beyond UNION_CROSSINGS crossings, the ordered walk.
+fn transmittance_union(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
+    let c = crossings(x, dir);
+    if u_more {
+        return transmittance_union_ordered(x, dir, channel);
+    }
+    var around = c.pieces;
+    var medium = union_medium(around);
+    var length = 0.0;
+    var last = 0.0;
+    var fresnel_t = 1.0;
+    for (var i = 0u; i < u_count; i++) {
+        let t = u_t[i];
+        if medium {
+            length += t - last;
+        }
+        last = t;
+        around ^= piece_bit(u_tri[i]);
+        let now = union_medium(around);
+        if now != medium {
+            fresnel_t *= crossing_transmittance(abs(dot(dir, tri_normal(u_tri[i]))));
+            medium = now;
+        }
+    }
+    let depth = params.sigma_t[channel] * length;
+    return select(exp(-depth) * fresnel_t, 0.0, depth > MAX_OPTICAL_DEPTH);
+}
+
 /// The ordered walk where pieces overlap (nee.rs, transmittance_ordered): whether the ray
 /// is in the medium is asked anew past each crossing (in_union), and the length counts
 /// where it is, Fresnel's factor where that changes.
-fn transmittance_union(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
+fn transmittance_union_ordered(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
     let sigma = params.sigma_t[channel];
     var o = x;
     var medium = in_union(x, dir);

@@ -211,6 +211,10 @@ fn bounce_begin() -> Query {
 /// (ST-CVAE; PT renders have no grid), as on the CPU (integrator/mod.rs, short_cast).
 fn answer_query(q: Query, channel: u32) -> Hit {
     var h = Hit(0.0, 0u, false);
+    if q.shadow && overlapping() {
+        // Its crossings are gathered by transmittance_union (nee.wgsl).
+        return h;
+    }
     if q.query && !(q.local && grid_local_hit(q.o, q.d, q.tmax, &h)) {
         if PATH_NEE_M > 0u {
             h = trace(q.o, q.d, q.tmax, q.shadow);

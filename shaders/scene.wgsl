@@ -237,14 +237,16 @@ struct Crossings {
     fresnel_t: f32,
     balance: i32,
     // The pieces crossed an odd number of times (those around the origin) where pieces
-    // overlap (union_medium).
+    // overlap (union_medium); `crossings` only (trace's shadow rays have no use for it:
+    // with overlaps NEE walks its crossings in order).
     pieces: u32,
 }
 
 /// Whether the mesh's pieces overlap (geometry.rs, Geometry::pieces): the object is their
 /// union, and paths ask past each face whether they are in it (in_union).
 fn overlapping() -> bool {
-    return params.pieces[0].x != 0u;
+    // A constant (kernels.rs, source): kernels for other meshes carry none of that code.
+    return OVERLAPS;
 }
 
 /// Triangle k's piece as a bit (0 without overlaps).
@@ -272,6 +274,35 @@ fn in_union(p: vec3<f32>, d: vec3<f32>) -> bool {
 
 /// The crossings of the last `trace` with `all` set.
 var<private> tr_cross: Crossings;
+
+/// Where pieces overlap, `crossings` also keeps up to UNION_CROSSINGS crossings sorted by
+/// t (distance, triangle), for the shadow rays' walk (nee.wgsl, transmittance_union; the
+/// CPU's Geometry::union_inside_length): u_count of them, or more than that (u_more).
+const UNION_CROSSINGS: u32 = 16u;
+var<private> u_t: array<f32, UNION_CROSSINGS>;
+var<private> u_tri: array<u32, UNION_CROSSINGS>;
+var<private> u_count: u32;
+var<private> u_more: bool;
+
+/// Inserts a crossing into the sorted list (overlapping pieces only).
+fn union_keep(t: f32, k: u32) {
+    if u_count == UNION_CROSSINGS {
+        u_more = true;
+        return;
+    }
+    var i = u_count;
+    loop {
+        if i == 0u || u_t[i - 1u] <= t {
+            break;
+        }
+        u_t[i] = u_t[i - 1u];
+        u_tri[i] = u_tri[i - 1u];
+        i -= 1u;
+    }
+    u_t[i] = t;
+    u_tri[i] = k;
+    u_count += 1u;
+}
 
 /// One BVH traversal for both kinds of query: the closest hit along o + t·d, t ∈ [0,
 /// tmax0] (`intersect`), or with `all` every crossing for t ∈ [0, tmax0] (`crossings`
@@ -315,7 +346,6 @@ fn trace(o: vec3<f32>, d: vec3<f32>, tmax0: f32, all: bool) -> Hit {
                         tr_cross.length += select(-t, t, exiting);
                         tr_cross.balance += select(-1, 1, exiting);
                         tr_cross.fresnel_t *= crossing_transmittance(abs(cosn));
-                        tr_cross.pieces ^= piece_bit(k);
                     } else if closer(t, k, best) {
                         best = Hit(t, k, true);
                     }
@@ -411,6 +441,10 @@ fn intersect(o: vec3<f32>, d: vec3<f32>, tmax0: f32) -> Hit {
 /// Every surface crossing of the line o + t·d, t ≥ 0, in one BVH traversal.
 fn crossings(o: vec3<f32>, d: vec3<f32>) -> Crossings {
     var c = Crossings(0.0, 1.0, 0, 0u);
+    if overlapping() {
+        u_count = 0u;
+        u_more = false;
+    }
     let inv_d = 1.0 / (d + select(vec3<f32>(0.0), vec3<f32>(1e-30), d == vec3<f32>(0.0)));
     let sh = ray_shear(o, d);
     let root = node_at(0u);
@@ -435,7 +469,10 @@ fn crossings(o: vec3<f32>, d: vec3<f32>) -> Crossings {
                     c.length += select(-t, t, exiting);
                     c.balance += select(-1, 1, exiting);
                     c.fresnel_t *= crossing_transmittance(abs(cosn));
-                    c.pieces ^= piece_bit(k);
+                    if overlapping() {
+                        c.pieces ^= piece_bit(k);
+                        union_keep(t, k);
+                    }
                 }
             }
         } else {

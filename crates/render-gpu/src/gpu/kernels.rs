@@ -307,10 +307,15 @@ pub const ACC_VEC4: u64 = 4;
 /// The full WGSL source of a kernel with `path_nee_m` path-level NEE reservoirs (0: a
 /// shadow ray at every NEE event; at most [`crate::scene::MAX_PATH_NEE_RAYS`]); the ST-CVAE
 /// and probe kernels include the model's decoders, generated as straight-line code.
+/// `overlaps`: the scene's mesh has overlapping pieces (`OVERLAPS` in the WGSL,
+/// [`crate::geometry::Geometry::pieces`]); a constant, so that kernels for other meshes
+/// carry none of that code (as a run-time flag it cost PT 13 % on lavapipe, the extra
+/// traversals inlined into the path loop).
 pub fn source(
     kernel: Kernel,
     model: Option<&cvae::ModelSet>,
     path_nee_m: u32,
+    overlaps: bool,
     shape: KernelShape,
 ) -> Result<String, RenderError> {
     if path_nee_m > crate::scene::MAX_PATH_NEE_RAYS {
@@ -338,7 +343,7 @@ pub fn source(
          const PATH_NEE_M: u32 = {path_nee_m}u;\nconst SLOT: u32 = {}u;\n\
          const STAGE_VEC4S: u32 = {STAGE_VEC4S}u;\n\
          const NODE_COUNT_BITS: u32 = {}u;\nconst COUNTER_WORDS: u32 = {}u;\n\
-         const STAGED_STEPS: bool = {};\n{}{}",
+         const STAGED_STEPS: bool = {};\nconst OVERLAPS: bool = {overlaps};\n{}{}",
         shape.wgsl(),
         crate::integrator::nee::ROULETTE_BOUND,
         crate::geometry::FLIGHT_MARGIN_OF_EPS,
@@ -463,20 +468,22 @@ pub fn args_layout(ctx: &GpuContext) -> wgpu::BindGroupLayout {
         })
 }
 
-/// Compiles `entry` of `kernel` (with `path_nee_m` path-level NEE reservoirs, in `shape`,
-/// see [`source`]); shader or pipeline errors come back as errors, not panics (wgpu's default
-/// handler would abort).
+/// Compiles `entry` of `kernel` (with `path_nee_m` path-level NEE reservoirs, for a mesh
+/// with overlapping pieces or not, in `shape`, see [`source`]); shader or pipeline errors
+/// come back as errors, not panics (wgpu's default handler would abort).
+#[allow(clippy::too_many_arguments)]
 pub fn pipeline(
     ctx: &GpuContext,
     layout: &wgpu::BindGroupLayout,
     kernel: Kernel,
     model: Option<&cvae::ModelSet>,
     path_nee_m: u32,
+    overlaps: bool,
     shape: KernelShape,
     entry: &str,
 ) -> Result<wgpu::ComputePipeline, RenderError> {
     shape.check(ctx)?;
-    let src = source(kernel, model, path_nee_m, shape.on(ctx))?;
+    let src = source(kernel, model, path_nee_m, overlaps, shape.on(ctx))?;
     let scope = ctx.device.push_error_scope(wgpu::ErrorFilter::Validation);
     let module = ctx
         .device

@@ -75,7 +75,16 @@ fn probe(
         None => (vec![GpuNode::default(); 3], vec![GpuTri::default()]),
     };
     let layout = kernels::bind_group_layout(ctx, false)?;
-    let pipeline = kernels::pipeline(ctx, &layout, Kernel::Probe, Some(model), 0, shape, entry)?;
+    let pipeline = kernels::pipeline(
+        ctx,
+        &layout,
+        Kernel::Probe,
+        Some(model),
+        0,
+        scene.is_some_and(|s| s.geo.pieces.is_some()),
+        shape,
+        entry,
+    )?;
     let mut params = Params::default();
     params.image[0] = items.len() as u32;
     let grid = match scene.and_then(|s| s.grid.as_ref().map(|g| (s, g))) {
