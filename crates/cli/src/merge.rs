@@ -137,15 +137,16 @@ pub(crate) fn write_image_set(
     exposure: f32,
     json: Option<&[u8]>,
 ) -> Result<()> {
-    write_image_set_with(out, img, tag, exposure, json, None)
+    write_image_set_with(out, img, Some(tag), exposure, json, None)
 }
 
 /// [`write_image_set`] with, given `variance`, OUT.var.exr in the same set (untagged:
-/// `merge` refuses it as a render).
+/// `merge` refuses it as a render). Without `tag` OUT.exr is untagged too: a picture
+/// made from renders (a montage, a map), not a render that `merge` could average.
 pub(crate) fn write_image_set_with(
     out: &Path,
     img: &render_gpu::image_io::RgbImage,
-    tag: &render_gpu::image_io::RenderTag,
+    tag: Option<&render_gpu::image_io::RenderTag>,
     exposure: f32,
     json: Option<&[u8]>,
     variance: Option<&render_gpu::image_io::RgbImage>,
@@ -160,8 +161,11 @@ pub(crate) fn write_image_set_with(
     {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
-    let exr_bytes = render_gpu::image_io::encode_exr(img, tag)
-        .map_err(|e| anyhow!("{}: {e}", exr.display()))?;
+    let exr_bytes = match tag {
+        Some(tag) => render_gpu::image_io::encode_exr(img, tag),
+        None => render_gpu::image_io::encode_untagged_exr(img),
+    }
+    .map_err(|e| anyhow!("{}: {e}", exr.display()))?;
     let png_bytes = render_gpu::image_io::encode_png(img, exposure)
         .map_err(|e| anyhow!("{}: {e}", png.display()))?;
     let var = image_out(out, "var.exr");

@@ -157,7 +157,8 @@ pub struct EvalArgs {
     /// Samples per setting, for the model and for the simulator each: 2 to 4,000,000.
     #[arg(long, default_value_t = 10_000)]
     samples: usize,
-    /// Random seed; setting i of the grid uses seed + i for the model and the simulator.
+    /// Random seed; setting i of the grid uses seed + i (mod 2^64) for the model and the
+    /// simulator.
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// Evaluate these settings instead of the paper's grid, each given as TAU,G,ALBEDO
@@ -334,7 +335,7 @@ fn eval_json_and_head(
     writeln!(
         md,
         "{samples} model samples vs {samples} fresh simulator walks per setting (setting i: \
-         seed {seed} + i). KS = two-sample Kolmogorov–Smirnov statistic, W1 = Wasserstein-1 \
+         seed {seed} + i, mod 2^64). KS = two-sample Kolmogorov–Smirnov statistic, W1 = Wasserstein-1 \
          distance; for the pairs (cos θ, α) and (cos θ, β) the 2-D KS statistic (the largest \
          difference of the samples' shares in a quadrant about any sample point, Fasano–\
          Franceschini) and the sliced W1 (mean 1-D W1 of {} projections). At φ = 0.9 only the \

@@ -570,7 +570,7 @@ pub fn run(a: Args) -> Result<()> {
     crate::merge::write_image_set_with(
         &a.out,
         &out.image,
-        &tag,
+        Some(&tag),
         a.exposure,
         Some(&serde_json::to_vec_pretty(&report)?),
         out.variance.as_ref(),

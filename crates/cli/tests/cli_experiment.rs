@@ -97,6 +97,25 @@ fn every_experiment_runs_quick() {
         }
         assert!(images > 0, "{}: the report embeds no plot", cfg.display());
     }
+    // The teaser's renders carry their pair's seeds, so `merge` knows a copy by its seed
+    // (it compared pixels only before); its montages are no renders and are refused.
+    let teaser = tmp.path().join("teaser");
+    std::fs::copy(teaser.join("pt_k1.exr"), teaser.join("copy.exr")).unwrap();
+    let merge = |inputs: &[&str]| {
+        let out = Command::new(env!("CARGO_BIN_EXE_stcvae"))
+            .arg("merge")
+            .args(inputs.iter().map(|i| teaser.join(i)))
+            .arg("--out")
+            .arg(tmp.path().join("merged"))
+            .output()
+            .unwrap();
+        assert!(!out.status.success());
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    let err = merge(&["pt_k1.exr", "copy.exr"]);
+    assert!(err.contains("the same seed 11"), "{err}");
+    let err = merge(&["pt_k1.exr", "teaser_k1.exr"]);
+    assert!(err.contains("teaser_k1.exr: no stcvae render tag"), "{err}");
 }
 
 #[test]

@@ -5,8 +5,8 @@ use render_gpu::integrator::IntegratorKind::{Pt, Stcvae};
 use render_gpu::scene::{LightDesc, SceneFile};
 
 use super::measure::{
-    Pair, compare, difference, errors, opts, render_once, render_pair, save, scale_of,
-    side_by_side, work_image,
+    Pair, compare, difference, errors, opts, pair_seeds, render_once, render_pair, save,
+    save_picture, scale_of, side_by_side, work_image,
 };
 use super::report::{Cell, Report};
 use super::{Ctx, Kind};
@@ -198,29 +198,20 @@ fn teaser(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             ctx,
             &format!("pt_k{}", k_name(k)),
             &pt.mean,
-            pt.spp,
-            pt.hash,
+            (pt.spp, pt.hash, &pair_seeds(Pt)),
             exposure,
         )?;
         save(
             ctx,
             &format!("stcvae_k{}", k_name(k)),
             &st.mean,
-            st.spp,
-            st.hash,
+            (st.spp, st.hash, &pair_seeds(Stcvae)),
             exposure,
         )?;
         let both = side_by_side(&[&pt.mean, &st.mean]);
         figs.push((
             k,
-            save(
-                ctx,
-                &format!("teaser_k{}", k_name(k)),
-                &both,
-                pt.spp,
-                pt.hash,
-                exposure,
-            )?,
+            save_picture(ctx, &format!("teaser_k{}", k_name(k)), &both, exposure)?,
         ));
     }
     rep.text("Both integrators at equal spp; speed-up = PT time / ST-CVAE time; var ratio = PT's per-pixel variance / ST-CVAE's; bias RMSE is noise-corrected (bias_upper95: its one-sided 95 % bound), images scaled so PT's brightest 1 % of object pixels is 1.\n");
@@ -298,12 +289,10 @@ fn quality(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             figs.push((
                 name,
                 k,
-                save(
+                save_picture(
                     ctx,
                     &format!("quality_{name}_k{}", k_name(k)),
                     &all,
-                    pt.spp,
-                    pt.hash,
                     exposure,
                 )?,
             ));
@@ -376,14 +365,7 @@ fn complexity(ctx: &Ctx, rep: &mut Report) -> Result<()> {
                     obj.clone(),
                     k,
                     max,
-                    save(
-                        ctx,
-                        &format!("work_{obj}_k{}", k_name(k)),
-                        &maps,
-                        pt.spp,
-                        pt.hash,
-                        1.0,
-                    )?,
+                    save_picture(ctx, &format!("work_{obj}_k{}", k_name(k)), &maps, 1.0)?,
                 ));
             }
         }
@@ -493,14 +475,20 @@ fn nee(ctx: &Ctx, rep: &mut Report) -> Result<()> {
     let none = |_: &mut SceneFile| {};
     let seconds = ctx.budget.seconds.unwrap_or(1.0);
     let ref_spp = ctx.budget.reference_spp.unwrap_or(256);
-    let (reference, hash) = render_once(ctx, &scene, (Pt, true), &none, &opts(ref_spp, 99, None))?;
+    let ref_seed = 99;
+    let (reference, hash) = render_once(
+        ctx,
+        &scene,
+        (Pt, true),
+        &none,
+        &opts(ref_spp, ref_seed, None),
+    )?;
     let exposure = scale_of(&reference.image) as f32;
     save(
         ctx,
         "reference",
         &reference.image,
-        reference.spp,
-        hash,
+        (reference.spp, hash, &[ref_seed]),
         exposure,
     )?;
     rep.columns(&["method", "budget_seconds", "seconds", "spp", "rmse", "mae"]);
@@ -543,14 +531,7 @@ fn nee(ctx: &Ctx, rep: &mut Report) -> Result<()> {
     let refs: Vec<&_> = std::iter::once(&reference.image)
         .chain(finals.iter())
         .collect();
-    let f = save(
-        ctx,
-        "equal_time",
-        &side_by_side(&refs),
-        reference.spp,
-        hash,
-        exposure,
-    )?;
+    let f = save_picture(ctx, "equal_time", &side_by_side(&refs), exposure)?;
     rep.image(&format!("reference, then PT without NEE, PT with NEE, ST-CVAE with EventGen NEE at {seconds} s each"), &f);
     plot(
         ctx,

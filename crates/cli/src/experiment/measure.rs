@@ -460,12 +460,14 @@ pub fn work_image(work: &[f32], width: usize, height: usize, max: f32) -> RgbIma
 }
 
 /// Writes NAME.exr (linear) and NAME.png (preview with `exposure`).
+/// Writes a render (OUT.exr tagged with its spp, scene and seeds, so that `merge` can
+/// average it with other renders of the scene and knows its samples) and its PNG; returns
+/// the PNG's name for the report.
 pub fn save(
     ctx: &Ctx,
     name: &str,
     img: &RgbImage,
-    spp: u32,
-    hash: u64,
+    (spp, hash, seeds): (u32, u64, &[u64]),
     exposure: f32,
 ) -> Result<String> {
     crate::merge::write_image_set(
@@ -474,13 +476,21 @@ pub fn save(
         &RenderTag {
             spp: spp as u64,
             scene_hash: hash,
-            seeds: Vec::new(),
+            seeds: seeds.to_vec(),
             partial: false,
             unknown_digests: Vec::new(),
         },
         exposure,
         None,
     )?;
+    Ok(format!("{name}.png"))
+}
+
+/// Writes a picture made from renders (renders side by side, a difference or a work map)
+/// with an untagged EXR: it is no render of the scene, and `merge` refuses it (tagged as
+/// one, as it was until 2026-12-02, two work maps of a scene could be averaged as renders).
+pub fn save_picture(ctx: &Ctx, name: &str, img: &RgbImage, exposure: f32) -> Result<String> {
+    crate::merge::write_image_set_with(&ctx.out.join(name), img, None, exposure, None, None)?;
     Ok(format!("{name}.png"))
 }
 
