@@ -1605,7 +1605,7 @@ fn render_variance_writes_a_variance_image() {
 
 /// Two closed boxes that overlap in one OBJ are rendered as their union (README; tested in
 /// render-gpu's integrators.rs and gpu.rs): `render` notes it, naming the scene and the
-/// pieces, and renders.
+/// pieces, and renders. A mesh of more pieces than are checked gets a note that says so.
 #[test]
 fn overlapping_mesh_pieces_are_noted() {
     let d = tempfile::tempdir().unwrap();
@@ -1653,6 +1653,41 @@ fn overlapping_mesh_pieces_are_noted() {
     assert!(out.status.success(), "{err}");
     assert!(
         err.contains("note: ") && err.contains("two.toml: pieces 1 and 2 of the mesh overlap"),
+        "{err}"
+    );
+    // Beyond 16 pieces they are not checked, and the render says so: 17 boxes apart.
+    let (mut v, mut f) = (String::new(), String::new());
+    for k in 0..17 {
+        let x0 = -0.5 + k as f32 * 0.06;
+        let (vk, fk) = boxed(x0, x0 + 0.04, 8 * k);
+        v += &vk;
+        f += &fk;
+    }
+    std::fs::write(d.path().join("many.obj"), format!("{v}{f}")).unwrap();
+    let many = d.path().join("many.toml");
+    std::fs::write(
+        &many,
+        sphere_scene_text(8).replace("shape = \"sphere\"\nradius = 0.5", "mesh = \"many.obj\""),
+    )
+    .unwrap();
+    let out = stcvae(&[
+        "render",
+        "--scene",
+        many.to_str().unwrap(),
+        "--spp",
+        "1",
+        "--device",
+        "cpu",
+        "--out",
+        d.path().join("m").to_str().unwrap(),
+    ]);
+    let err = common::stderr(&out);
+    assert!(out.status.success(), "{err}");
+    assert!(
+        err.contains(
+            "many.toml: the mesh has 17 closed pieces and 204 triangles: beyond 16 \
+                      pieces or 200000 triangles they are not checked for overlaps"
+        ),
         "{err}"
     );
 }

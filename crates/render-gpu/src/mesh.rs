@@ -280,6 +280,17 @@ pub fn piece_table(m: &TriMesh) -> Option<(Vec<u8>, Vec<usize>)> {
 
 /// Most pieces [`overlapping_pieces`] checks (and [`piece_table`] numbers).
 pub const MAX_OVERLAP_PIECES: usize = 16;
+/// Most triangles of a mesh of several pieces that [`overlapping_pieces`] checks.
+pub const MAX_OVERLAP_CHECK_TRIANGLES: usize = 200_000;
+
+/// The number of closed pieces of a mesh of several that [`overlapping_pieces`] does not
+/// check (beyond its limits), so that the user hears that overlaps there would render
+/// partly as air; None for one piece or a checked mesh.
+pub fn unchecked_pieces(m: &TriMesh) -> Option<usize> {
+    let n = pieces(m).len();
+    (n > 1 && (n > MAX_OVERLAP_PIECES || m.triangles.len() > MAX_OVERLAP_CHECK_TRIANGLES))
+        .then_some(n)
+}
 
 /// The triangles of each connected piece, joined through shared edges: two closed parts
 /// that only touch at a vertex are separate pieces (the closedness check only ties the
@@ -329,7 +340,10 @@ fn pieces(m: &TriMesh) -> Vec<Vec<usize>> {
 /// larger ones are not checked.
 pub fn overlapping_pieces(m: &TriMesh) -> Vec<(usize, usize)> {
     let pieces = pieces(m);
-    if pieces.len() < 2 || pieces.len() > MAX_OVERLAP_PIECES || m.triangles.len() > 200_000 {
+    if pieces.len() < 2
+        || pieces.len() > MAX_OVERLAP_PIECES
+        || m.triangles.len() > MAX_OVERLAP_CHECK_TRIANGLES
+    {
         return Vec::new();
     }
     // Probes: up to 64 of each piece's vertices and 64 of its triangles' centroids (two

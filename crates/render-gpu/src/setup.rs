@@ -121,8 +121,18 @@ impl SceneData {
         // The renderer's own estimating code (build.rs): renders by builds that converge
         // to different images must not pass for renders of one scene.
         h.write(env!("STCVAE_RENDER_CODE").as_bytes());
+        let unchecked = crate::mesh::unchecked_pieces(&mesh).map(|n| {
+            format!(
+                "the mesh has {n} closed pieces and {} triangles: beyond {} pieces or {} \
+                 triangles they are not checked for overlaps, and an overlap would render \
+                 partly as air; join overlapping pieces into one closed surface",
+                mesh.triangles.len(),
+                crate::mesh::MAX_OVERLAP_PIECES,
+                crate::mesh::MAX_OVERLAP_CHECK_TRIANGLES
+            )
+        });
         let geo = Geometry::new(mesh);
-        let notes: Vec<String> = geo
+        let mut notes: Vec<String> = geo
             .overlaps
             .iter()
             .map(|(i, j)| {
@@ -135,6 +145,7 @@ impl SceneData {
                 )
             })
             .collect();
+        notes.extend(unchecked);
         // Every path starts in air (the integrators trace camera rays from outside the
         // object); from inside, a camera's paths would be taken for entering ones and lit
         // as if in air, so the image would be wrong without any error.
