@@ -7,6 +7,10 @@ const MAX_OPTICAL_DEPTH: f32 = 50.0;
 const MAX_CROSSINGS: u32 = 64u;
 
 fn transmittance(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
+    if overlapping() {
+        // One traversal, its own (transmittance_of would discard this one's).
+        return transmittance_union(x, dir, channel);
+    }
     return transmittance_of(crossings(x, dir), x, dir, channel);
 }
 
@@ -63,16 +67,30 @@ fn transmittance_union(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
     var length = 0.0;
     var last = 0.0;
     var fresnel_t = 1.0;
-    for (var i = 0u; i < u_count; i++) {
+    var i = 0u;
+    loop {
+        if i >= u_count {
+            break;
+        }
         let t = u_t[i];
+        let cos = abs(dot(dir, tri_normal(u_tri[i])));
         if medium {
             length += t - last;
         }
         last = t;
-        around ^= piece_bit(u_tri[i]);
+        // The faces within the spawn offset of this one are crossed with it (geometry.rs,
+        // union_walk: touching pieces make no boundary).
+        let reach = t + params.consts.z / max(cos, 1e-3);
+        loop {
+            if i >= u_count || u_t[i] > reach {
+                break;
+            }
+            around ^= piece_bit(u_tri[i]);
+            i += 1u;
+        }
         let now = union_medium(around);
         if now != medium {
-            fresnel_t *= crossing_transmittance(abs(dot(dir, tri_normal(u_tri[i]))));
+            fresnel_t *= crossing_transmittance(cos);
             medium = now;
         }
     }

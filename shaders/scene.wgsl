@@ -276,13 +276,50 @@ fn in_union(p: vec3<f32>, d: vec3<f32>) -> bool {
 var<private> tr_cross: Crossings;
 
 /// Where pieces overlap, `crossings` also keeps up to UNION_CROSSINGS crossings sorted by
-/// t (distance, triangle), for the shadow rays' walk (nee.wgsl, transmittance_union; the
+/// t (their triangles with them), for the shadow rays' walk (nee.wgsl, transmittance_union; the
 /// CPU's Geometry::union_inside_length): u_count of them, or more than that (u_more).
 const UNION_CROSSINGS: u32 = 16u;
 var<private> u_t: array<f32, UNION_CROSSINGS>;
 var<private> u_tri: array<u32, UNION_CROSSINGS>;
 var<private> u_count: u32;
 var<private> u_more: bool;
+
+/// Drops each face met twice at one point from the sorted list and returns the pieces
+/// crossed an odd number of times (geometry.rs, union_crossings: a ray through the edge
+/// two triangles of one face share hits both; twice = the same piece, the same side and
+/// t within a hundredth of the spawn offset).
+fn union_dedupe(d: vec3<f32>) -> u32 {
+    let tol = params.consts.z * 0.01;
+    var kept = 0u;
+    var around = 0u;
+    for (var i = 0u; i < u_count; i++) {
+        let t = u_t[i];
+        let k = u_tri[i];
+        let bit = piece_bit(k);
+        let exiting = dot(d, tri_normal(k)) > 0.0;
+        var twice = false;
+        var j = kept;
+        loop {
+            if j == 0u || t - u_t[j - 1u] > tol {
+                break;
+            }
+            j -= 1u;
+            let o = u_tri[j];
+            if piece_bit(o) == bit && (dot(d, tri_normal(o)) > 0.0) == exiting {
+                twice = true;
+                break;
+            }
+        }
+        if !twice {
+            u_t[kept] = t;
+            u_tri[kept] = k;
+            kept += 1u;
+            around ^= bit;
+        }
+    }
+    u_count = kept;
+    return around;
+}
 
 /// Inserts a crossing into the sorted list (overlapping pieces only).
 fn union_keep(t: f32, k: u32) {
@@ -491,6 +528,9 @@ fn crossings(o: vec3<f32>, d: vec3<f32>) -> Crossings {
                 top += 1u;
             }
         }
+    }
+    if overlapping() && !u_more {
+        c.pieces = union_dedupe(d);
     }
     return c;
 }

@@ -123,21 +123,32 @@ impl Pieces {
 
 /// The length in the medium and the product of `factor` over the medium's boundary
 /// along crossings (t, piece bit, dir·normal) in order of t, starting from the pieces
-/// crossed an odd number of times ([`Geometry::union_inside_length`]).
+/// crossed an odd number of times ([`Geometry::union_inside_length`]). The faces within
+/// `gap` (the spawn offset) of a crossing along its normal are crossed with it, as the
+/// path loop's point spawned past a face is past them too: pieces touching across a gap
+/// thinner than that make no boundary there (crossed one by one, an exit sorted before
+/// the entry passed through air, and a dielectric's Fresnel factor came twice).
 pub fn union_walk(
     pieces: &Pieces,
     crossings: &[(f32, u32, f32)],
+    gap: f32,
     factor: &mut impl FnMut(f32, bool) -> f32,
 ) -> (f32, f32) {
     let mut set = crossings.iter().fold(0u32, |s, c| s ^ c.1);
     let mut medium = pieces.medium(set);
     let (mut length, mut product, mut last) = (0.0f32, 1.0f32, 0.0f32);
-    for &(t, bit, c) in crossings {
+    let mut i = 0;
+    while i < crossings.len() {
+        let (t, _, c) = crossings[i];
         if medium {
             length += t - last;
         }
         last = t;
-        set ^= bit;
+        let reach = t + gap / c.abs().max(1e-3);
+        while i < crossings.len() && crossings[i].0 <= reach {
+            set ^= crossings[i].1;
+            i += 1;
+        }
         let now = pieces.medium(set);
         if now != medium {
             product *= factor(c.abs(), medium);
@@ -446,31 +457,92 @@ impl Geometry {
     /// (overlapping boxes often share face planes), which flipping one piece at each
     /// crossing would miss: the second face lies behind the spawned point.
     pub fn in_union(&self, pieces: &Pieces, p: Vec3, dir: Vec3) -> bool {
-        let shear = RayShear::new(p, dir);
-        let mut set = 0u32;
-        let mut visit = |prim: u32| {
-            if self
-                .hit_tri(&shear, prim as usize, f32::INFINITY)
-                .is_finite()
-            {
-                set ^= pieces.bit_of[prim as usize];
+        let mut crossings = [(0.0f32, 0u32, 0.0f32); MAX_UNION_CROSSINGS];
+        let set = match self.union_crossings(pieces, p, dir, &mut crossings) {
+            Some(n) => crossings[..n].iter().fold(0, |s, c| s ^ c.1),
+            // More than the list holds: every hit flips its piece, a face met twice
+            // through an edge included (rare: an exact edge among so many crossings).
+            None => {
+                let shear = RayShear::new(p, dir);
+                let mut set = 0u32;
+                self.each_hit(p, dir, |prim| {
+                    if self.hit_tri(&shear, prim, f32::INFINITY).is_finite() {
+                        set ^= pieces.bit_of[prim];
+                    }
+                });
+                set
             }
         };
+        pieces.medium(set)
+    }
+
+    /// Every triangle whose box the ray from `origin` along `dir` meets, in one traversal.
+    fn each_hit(&self, origin: Vec3, dir: Vec3, mut visit: impl FnMut(usize)) {
         match &self.cwbvh {
             Some(cw) => {
-                let ray = self.cw_ray(p, dir, f32::INFINITY);
-                cw.ray_traverse_anyhit(ray, |_, id| visit(cw.primitive_indices[id]));
+                let ray = self.cw_ray(origin, dir, f32::INFINITY);
+                cw.ray_traverse_anyhit(ray, |_, id| visit(cw.primitive_indices[id] as usize));
             }
             None => {
-                let ray = Ray::new(arr(p).into(), arr(dir).into(), 0.0, f32::INFINITY);
+                let ray = Ray::new(arr(origin).into(), arr(dir).into(), 0.0, f32::INFINITY);
                 let mut hit = RayHit::none();
                 self.bvh.ray_traverse(ray, &mut hit, |_, id| {
-                    visit(self.bvh.primitive_indices[id]);
+                    visit(self.bvh.primitive_indices[id] as usize);
+                    // Never a closest hit: the traversal keeps its full range.
                     f32::INFINITY
                 });
             }
         }
-        pieces.medium(set)
+    }
+
+    /// The crossings (t, piece bit, dir·normal) of the ray from `origin` along `dir`,
+    /// sorted by t, into `out`: how many, or None beyond its [`MAX_UNION_CROSSINGS`].
+    /// A face met twice at one point is kept once: a ray through the edge (or vertex)
+    /// that triangles of one face share hits each of them (the watertight test has no
+    /// tie rule), and counted twice its piece's parity came out wrong, e.g. for a ray
+    /// aimed at a box face's centre, on its diagonal. Twice means the same piece, the
+    /// same side (both entries or both exits) and t within a hundredth of the spawn
+    /// offset; an entry and an exit at one point (a ray grazing an edge) stay both.
+    fn union_crossings(
+        &self,
+        pieces: &Pieces,
+        origin: Vec3,
+        dir: Vec3,
+        out: &mut [(f32, u32, f32); MAX_UNION_CROSSINGS],
+    ) -> Option<usize> {
+        let shear = RayShear::new(origin, dir);
+        let mut n = 0usize;
+        let mut overflow = false;
+        self.each_hit(origin, dir, |prim| {
+            let t = self.hit_tri(&shear, prim, f32::INFINITY);
+            if t.is_finite() {
+                if n == MAX_UNION_CROSSINGS {
+                    overflow = true;
+                } else {
+                    out[n] = (t, pieces.bit_of[prim], dir.dot(self.normals[prim]));
+                    n += 1;
+                }
+            }
+        });
+        if overflow {
+            return None;
+        }
+        out[..n].sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        let tol = self.eps * 0.01;
+        let mut kept = 0usize;
+        for i in 0..n {
+            let c = out[i];
+            let twice = out[..kept]
+                .iter()
+                .rev()
+                .take_while(|k| c.0 - k.0 <= tol)
+                .any(|k| k.1 == c.1 && (k.2 > 0.0) == (c.2 > 0.0));
+            if !twice {
+                out[kept] = c;
+                kept += 1;
+            }
+        }
+        Some(kept)
     }
 
     /// [`Geometry::inside_length`] for a mesh whose pieces overlap ([`Pieces`]): the
@@ -487,45 +559,12 @@ impl Geometry {
         dir: Vec3,
         mut factor: impl FnMut(f32, bool) -> f32,
     ) -> Option<(f32, f32)> {
-        let shear = RayShear::new(origin, dir);
         let mut crossings = [(0.0f32, 0u32, 0.0f32); MAX_UNION_CROSSINGS];
-        let mut n = 0usize;
-        let mut overflow = false;
-        let mut visit = |prim: u32| {
-            let prim = prim as usize;
-            let t = self.hit_tri(&shear, prim, f32::INFINITY);
-            if t.is_finite() {
-                if n == MAX_UNION_CROSSINGS {
-                    overflow = true;
-                } else {
-                    crossings[n] = (t, pieces.bit_of[prim], dir.dot(self.normals[prim]));
-                    n += 1;
-                }
-            }
-        };
-        match &self.cwbvh {
-            Some(cw) => {
-                let ray = self.cw_ray(origin, dir, f32::INFINITY);
-                cw.ray_traverse_anyhit(ray, |_, id| visit(cw.primitive_indices[id]));
-            }
-            None => {
-                let ray = Ray::new(arr(origin).into(), arr(dir).into(), 0.0, f32::INFINITY);
-                let mut hit = RayHit::none();
-                self.bvh.ray_traverse(ray, &mut hit, |_, id| {
-                    visit(self.bvh.primitive_indices[id]);
-                    f32::INFINITY
-                });
-            }
-        }
-        if overflow {
-            return None;
-        }
-        let crossings = &mut crossings[..n];
-        crossings.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
-        Some(union_walk(pieces, crossings, &mut factor))
+        let n = self.union_crossings(pieces, origin, dir, &mut crossings)?;
+        Some(union_walk(pieces, &crossings[..n], self.eps, &mut factor))
     }
 
-    /// Watertight distance to triangle `prim` along the sheared ray    /// Watertight distance to triangle `prim` along the sheared ray, in [0, tmax] (∞: no hit).
+    /// Watertight distance to triangle `prim` along the sheared ray, in [0, tmax] (∞: no hit).
     #[inline]
     fn hit_tri(&self, shear: &RayShear, prim: usize, tmax: f32) -> f32 {
         let t = &self.tris[prim];
@@ -700,28 +739,25 @@ impl Geometry {
     }
 
     /// Whether the crossings of the ray from `p` along `dir` put `p` inside: an odd
-    /// number of them, or where pieces overlap, the pieces crossed an odd number of
-    /// times ([`Pieces::medium`]).
+    /// number of them, or where pieces overlap, [`Geometry::in_union`] (one traversal: a
+    /// closest-hit walk steps past the second of two faces in one plane, and took a camera
+    /// outside two boxes whose faces share planes for one inside).
     fn inside_along(&self, p: Vec3, dir: Vec3) -> bool {
+        if let Some(pieces) = &self.pieces {
+            return self.in_union(pieces, p, dir);
+        }
         let mut o = p;
         let mut crossings = 0u32;
-        let mut set = 0u32;
         for _ in 0..10_000 {
             match self.intersect(o, dir, f32::INFINITY) {
                 Some(h) => {
                     crossings += 1;
-                    if let Some(pieces) = &self.pieces {
-                        set ^= pieces.bit_of[h.prim as usize];
-                    }
                     o = self.spawn(o + dir * h.t, h.normal, dir);
                 }
                 None => break,
             }
         }
-        match &self.pieces {
-            Some(pieces) => pieces.medium(set),
-            None => crossings % 2 == 1,
-        }
+        crossings % 2 == 1
     }
 }
 

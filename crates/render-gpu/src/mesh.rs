@@ -217,19 +217,22 @@ fn orient_pieces(m: &mut TriMesh) {
 }
 
 /// Each piece's nesting depth (see [`orient_pieces`]), whatever the pieces' winding.
+/// Largest first: a piece's containers enclose more volume, so their depths are known
+/// when it is reached. At each of up to 4 points spread over piece i (triangle
+/// centroids) the deepest of the pieces around it is found; i's depth is one more than
+/// the shallowest of those, −1 for a point outside every piece. So a piece within
+/// another is one deeper (a cavity inside two overlapping pieces, each solid, is one
+/// hole, not depth 2), and so is one within the union of overlapping pieces but in none
+/// of them alone (a cavity across their seam: taken for solid when containment was asked
+/// of one piece at a time); a piece partly outside everything is solid (depth 0), one
+/// that overlaps another.
 fn nesting_depths(m: &TriMesh, pieces: &[Vec<usize>], volumes: &[f64]) -> Vec<usize> {
     let mut depths = vec![0usize; pieces.len()];
     if pieces.len() > 1 {
         let bounds = piece_bounds(m, pieces);
-        // Largest first: a piece's containers enclose more volume, so their depths are
-        // known when it is reached. Its depth is one more than its deepest container's:
-        // a cavity inside two overlapping pieces (each solid) is one hole, not depth 2.
         let mut order: Vec<usize> = (0..pieces.len()).collect();
         order.sort_by(|&a, &b| volumes[b].abs().total_cmp(&volumes[a].abs()));
         for (k, &i) in order.iter().enumerate() {
-            // Points on piece i: up to 4 triangle centroids spread over it. It lies in
-            // piece j's inside when all of them do; one outside means the two overlap or
-            // are apart, and overlapping pieces are not nested.
             let step = pieces[i].len().div_ceil(4);
             let probes: Vec<glam::DVec3> = pieces[i]
                 .iter()
@@ -239,18 +242,22 @@ fn nesting_depths(m: &TriMesh, pieces: &[Vec<usize>], volumes: &[f64]) -> Vec<us
                     (a + b + c) / 3.0
                 })
                 .collect();
-            depths[i] = order[..k]
-                .iter()
-                .filter(|&&j| {
-                    bounds[j].0.cmple(bounds[i].0).all()
-                        && bounds[i].1.cmple(bounds[j].1).all()
-                        && probes
-                            .iter()
-                            .all(|&p| winding_number(m, &pieces[j], p).abs() > 0.5)
-                })
-                .map(|&j| depths[j] + 1)
-                .max()
-                .unwrap_or(0);
+            let deepest_around = |p: glam::DVec3| -> i64 {
+                order[..k]
+                    .iter()
+                    .filter(|&&j| {
+                        let (lo, hi) = bounds[j];
+                        let p32 = p.as_vec3();
+                        lo.cmple(p32).all()
+                            && p32.cmple(hi).all()
+                            && winding_number(m, &pieces[j], p).abs() > 0.5
+                    })
+                    .map(|&j| depths[j] as i64)
+                    .max()
+                    .unwrap_or(-1)
+            };
+            let shallowest = probes.iter().map(|&p| deepest_around(p)).min();
+            depths[i] = shallowest.map_or(0, |d| (d + 1) as usize);
         }
     }
     depths
@@ -346,9 +353,12 @@ pub fn overlapping_pieces(m: &TriMesh) -> Vec<(usize, usize)> {
     {
         return Vec::new();
     }
-    // Probes: up to 64 of each piece's vertices and 64 of its triangles' centroids (two
-    // boxes whose faces lie in one plane overlap with every vertex on the other's
-    // surface, but some face centroids inside it).
+    // Probes: up to 64 of each piece's vertices, and on 64 of its triangles the centroid
+    // and three points halfway from it to the edges' midpoints. Two boxes whose faces
+    // lie in one plane overlap with every vertex on the other's surface, but some face
+    // points inside it; two bars crossing in a plus sign have every vertex and centroid
+    // outside the other (each long face's middle is inside the other bar: the points at
+    // barycentric (½, ¼, ¼) reach it).
     let probes: Vec<Vec<Vec3>> = pieces
         .iter()
         .map(|tris| {
@@ -360,11 +370,16 @@ pub fn overlapping_pieces(m: &TriMesh) -> Vec<(usize, usize)> {
                 .iter()
                 .step_by(every(v.len()))
                 .map(|&i| m.positions[i as usize]);
-            let centroids = tris.iter().step_by(every(tris.len())).map(|&t| {
+            let faces = tris.iter().step_by(every(tris.len())).flat_map(|&t| {
                 let [a, b, c] = m.triangles[t].map(|i| m.positions[i as usize]);
-                (a + b + c) / 3.0
+                [
+                    (a + b + c) / 3.0,
+                    0.5 * a + 0.25 * (b + c),
+                    0.5 * b + 0.25 * (c + a),
+                    0.5 * c + 0.25 * (a + b),
+                ]
             });
-            vertices.chain(centroids).collect()
+            vertices.chain(faces).collect()
         })
         .collect();
     let bounds = piece_bounds(m, &pieces);
@@ -374,25 +389,26 @@ pub fn overlapping_pieces(m: &TriMesh) -> Vec<(usize, usize)> {
     // Some of `a`'s probes clearly inside `b` and some clearly outside. A probe within
     // `touch` of b's surface (a shared vertex, parts that touch with corners 3e-8 apart)
     // is on it, where the winding number is undefined: neither.
+    // The probes are classified in parallel (each costs two passes over b's triangles).
     let straddles = |a: usize, b: usize| {
-        let (mut inside, mut outside) = (false, false);
-        for &p in &probes[a] {
-            let q = glam::Vec3A::from(p);
-            let near = pieces[b].iter().any(|&t| {
-                let [x, y, z] = m.triangles[t].map(|k| glam::Vec3A::from(m.positions[k as usize]));
-                crate::geometry::point_triangle_d2(q, x, y, z) < touch * touch
-            });
-            if near {
-                continue;
-            }
-            let w = winding_number(m, &pieces[b], p.as_dvec3()).abs();
-            inside |= w > 0.75;
-            outside |= w < 0.25;
-            if inside && outside {
-                return true;
-            }
-        }
-        false
+        use rayon::prelude::*;
+        let (inside, outside) = probes[a]
+            .par_iter()
+            .map(|&p| {
+                let q = glam::Vec3A::from(p);
+                let near = pieces[b].iter().any(|&t| {
+                    let [x, y, z] =
+                        m.triangles[t].map(|k| glam::Vec3A::from(m.positions[k as usize]));
+                    crate::geometry::point_triangle_d2(q, x, y, z) < touch * touch
+                });
+                if near {
+                    return (false, false);
+                }
+                let w = winding_number(m, &pieces[b], p.as_dvec3()).abs();
+                (w > 0.75, w < 0.25)
+            })
+            .reduce(|| (false, false), |x, y| (x.0 || y.0, x.1 || y.1));
+        inside && outside
     };
     let mut found = Vec::new();
     for i in 0..pieces.len() {

@@ -137,9 +137,10 @@ impl SceneData {
             .iter()
             .map(|(i, j)| {
                 format!(
-                    "pieces {} and {} of the mesh overlap: they are rendered as their union \
-                     (paths cross the faces inside it), with sphere steps kept clear of \
-                     those faces; one closed surface renders faster",
+                    "pieces {} and {} of the mesh overlap: rendered by their nesting, solids \
+                     as their union and cavities as air (paths cross the faces within the \
+                     medium, ST-CVAE's sphere steps stay clear of them); one closed surface \
+                     renders faster",
                     i + 1,
                     j + 1
                 )

@@ -565,13 +565,19 @@ fn moved(mut m: mesh::TriMesh, by: glam::Vec3) -> mesh::TriMesh {
     m
 }
 
+fn scaled(mut m: mesh::TriMesh, by: glam::Vec3) -> mesh::TriMesh {
+    m.positions.iter_mut().for_each(|p| *p *= by);
+    m
+}
+
 /// Each piece is wound by how deeply it is nested, whatever the file's winding: the
 /// medium's volume comes out as the shape's (a piece left inside out rendered leaks and a
 /// brighter image). The expected volumes are the boxes' closed-form ones.
 #[test]
 fn pieces_are_wound_by_their_nesting() {
     let c = mesh::cube;
-    let cases: [(&str, Vec<Piece>, f64); 8] = [
+    let bar = |along: glam::Vec3| scaled(c(1.0), glam::Vec3::splat(0.6) + 1.4 * along);
+    let cases: [(&str, Vec<Piece>, f64); 10] = [
         // A hollow box: the inner wall bounds the medium from inside (8 − 1).
         (
             "shell, walls wound alike",
@@ -632,6 +638,31 @@ fn pieces_are_wound_by_their_nesting() {
             ],
             16.0 - 0.125,
         ),
+        // A cavity inside the union of two overlapping solids but in neither alone (it
+        // crosses their seam) is a hole too; asked of one container at a time it was
+        // taken for solid.
+        (
+            "cavity across the seam of an overlapping pair",
+            vec![
+                (c(2.0), false),
+                (moved(c(2.0), glam::Vec3::X), false),
+                (
+                    moved(
+                        scaled(c(1.0), glam::Vec3::new(2.0, 0.5, 0.5)),
+                        glam::Vec3::X * 0.5,
+                    ),
+                    false,
+                ),
+            ],
+            16.0 - 0.5,
+        ),
+        // Two bars crossing in a plus sign: each solid; every vertex and centroid of each
+        // lies outside the other, yet they overlap.
+        (
+            "crossing bars",
+            vec![(bar(glam::Vec3::X), false), (bar(glam::Vec3::Y), true)],
+            2.0 * 2.0 * 0.36,
+        ),
     ];
     for (what, parts, want) in cases {
         let m = mesh::prepare(pieces(&parts)).unwrap();
@@ -649,6 +680,8 @@ fn pieces_are_wound_by_their_nesting() {
         let want_overlaps: &[(usize, usize)] = match what {
             "overlapping" => &[(0, 1)],
             "cavity in an overlapping pair" => &[(0, 1)],
+            "cavity across the seam of an overlapping pair" => &[(0, 1), (0, 2), (1, 2)],
+            "crossing bars" => &[(0, 1)],
             _ => &[],
         };
         assert_eq!(overlaps, want_overlaps, "{what}");

@@ -167,7 +167,7 @@ fn transmittance_out_of_a_sphere_has_its_closed_form() {
 
 /// Closed form through overlapping pieces (common::overlapping_parts_scenes): the cube
 /// made of two boxes overlapping in x ∈ [−0.2, 0.2], without and with a cubic cavity
-/// [−0.15, 0.15]³ inside both. From 500 uniform points of the medium along uniform
+/// [−0.15, 0.15]³ inside both, or one across their seam ([−0.35, 0.35] in x). From 500 uniform points of the medium along uniform
 /// directions, the shadow ray runs (distance to the cube's face) − (chord through the
 /// cavity) in the medium, and crosses the medium's boundary where it leaves the cube
 /// and, through the cavity, where it enters and leaves that: each crossing multiplies
@@ -197,6 +197,12 @@ fn transmittance_through_overlapping_pieces_has_its_closed_form() {
             let scene = common::build_scene(text, false);
             assert!(scene.geo.pieces.is_some(), "{what}");
             let hollow = what.contains("cavity");
+            // The cavity's half extents (common::overlapping_parts_scenes).
+            let half = if what.contains("seam") {
+                [0.35, 0.15, 0.15]
+            } else {
+                [0.15; 3]
+            };
             let mut rng = WalkRng::for_walk(7, 0);
             let mut rays = 0;
             let mut through_cavity = 0;
@@ -204,7 +210,8 @@ fn transmittance_through_overlapping_pieces_has_its_closed_form() {
                 let x = [(); 3].map(|_| rng.uniform() - 0.5);
                 // Points clear of every face by 1e-3 (their spawn offsets are 2e-5).
                 let clear = |lo: f64, hi: f64| x.iter().all(|&v| v > lo && v < hi);
-                if !clear(-0.499, 0.499) || (hollow && clear(-0.151, 0.151)) {
+                let in_cavity = (0..3).all(|i| x[i].abs() < half[i] + 1e-3);
+                if !clear(-0.499, 0.499) || (hollow && in_cavity) {
                     continue;
                 }
                 let d = common::uniform_direction(&mut rng).as_dvec3();
@@ -222,7 +229,7 @@ fn transmittance_through_overlapping_pieces_has_its_closed_form() {
                     // The chord through the cavity, by slabs: entered at the last slab
                     // entry, left at the first slab exit.
                     let slab = |i: usize| {
-                        let (a, b) = ((-0.15 - x[i]) / d[i], (0.15 - x[i]) / d[i]);
+                        let (a, b) = ((-half[i] - x[i]) / d[i], (half[i] - x[i]) / d[i]);
                         (a.min(b), a.max(b))
                     };
                     let (t_in, cos_in) = (0..3).map(|i| (slab(i).0, d[i].abs())).fold(
@@ -273,5 +280,77 @@ fn transmittance_through_overlapping_pieces_has_its_closed_form() {
                 assert!(through_cavity > 20, "{what}: {through_cavity} rays");
             }
         }
+    }
+}
+
+/// Where pieces overlap, two of them that touch across a gap thinner than the spawn offset
+/// (10⁻⁶ here, against 2e-5) make no boundary: paths pass the gap as the inside they were
+/// in, and so must shadow rays. A = [−0.5, 0] and B = [10⁻⁶, 0.5] in x (both [−0.5, 0.5]
+/// in y and z) touch; C, a bar sticking out of the top across them, makes the mesh one of
+/// overlapping pieces. From (−0.3, 0, 0) along d the ray leaves at x = 0.5 after
+/// 0.8/d_x less the gap, with one Fresnel factor 1 − F(d_x) (F written out as above); the
+/// bound is that of the ordered walk above. Crossed one by one, the exit from A sorted
+/// before the entry into B and the walk passed through air: two factors more (−8 % at
+/// the normal), and the path loop never sees that boundary.
+/// The same mesh's two boxes whose faces share planes (common::overlapping_parts_scenes)
+/// also check `Geometry::inside` (the camera check): a point below the shared bottom
+/// faces is outside, though a closest-hit walk from it steps past one of the two faces.
+#[test]
+fn touching_pieces_in_a_union_make_no_boundary() {
+    let fresnel = |cos_i: f64, n: f64| {
+        let sin_t = (1.0 - cos_i * cos_i).sqrt() / n;
+        let cos_t = (1.0 - sin_t * sin_t).sqrt();
+        let rs = ((cos_i - n * cos_t) / (cos_i + n * cos_t)).powi(2);
+        let rp = ((n * cos_i - cos_t) / (n * cos_i + cos_t)).powi(2);
+        (rs + rp) / 2.0
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let scenes = common::overlapping_parts_scenes(dir.path(), "kind = \"dielectric\"\nior = 1.5");
+    let gap = 1e-6f32;
+    let obj = dir.path().join("touching.obj");
+    std::fs::write(
+        &obj,
+        common::boxes_obj(&[
+            ([-0.5, -0.5, -0.5], [0.0, 0.5, 0.5]),
+            ([gap, -0.5, -0.5], [0.5, 0.5, 0.5]),
+            ([-0.2, -0.1, 0.4], [0.2, 0.1, 0.7]),
+        ]),
+    )
+    .unwrap();
+    let text = scenes[0].2.replace(
+        &dir.path().join("cube2.obj").display().to_string(),
+        &obj.display().to_string(),
+    );
+    let scene = common::build_scene(&text, false);
+    assert!(scene.geo.pieces.is_some());
+    let x = Vec3::new(-0.3, 0.0, 0.0);
+    for d in [Vec3::X, Vec3::new(1.0, 0.2, 0.1).normalize()] {
+        let dx = f64::from(d.x);
+        let length = 0.8 / dx - f64::from(gap) / dx;
+        for channel in 0..3 {
+            let sigma = [4.0, 12.0, 40.0][channel];
+            let want = (-sigma * length).exp() * (1.0 - fresnel(dx, 1.5));
+            for (how, got) in [
+                ("one traversal", transmittance(&scene, x, d, channel)),
+                ("ordered", transmittance_ordered(&scene, x, d, channel)),
+            ] {
+                let got = f64::from(got);
+                assert!(
+                    (got - want).abs() <= (sigma * 6e-4 + 1e-3) * want,
+                    "dir {d}, channel {channel}, {how}: {got}, want {want}"
+                );
+            }
+        }
+    }
+    let cube = common::build_scene(&scenes[0].2, false);
+    assert!(cube.geo.pieces.is_some());
+    for (p, inside) in [
+        (Vec3::new(0.0, -0.6, 0.0), false),
+        (Vec3::new(0.1, -0.6, 0.1), false),
+        (Vec3::new(0.0, 0.0, 0.0), true),
+        (Vec3::new(0.4, 0.3, -0.2), true),
+        (Vec3::new(0.0, 0.6, 0.0), false),
+    ] {
+        assert_eq!(cube.geo.inside(p), inside, "{p}");
     }
 }

@@ -459,8 +459,7 @@ pub fn work_image(work: &[f32], width: usize, height: usize, max: f32) -> RgbIma
     img
 }
 
-/// Writes NAME.exr (linear) and NAME.png (preview with `exposure`).
-/// Writes a render (OUT.exr tagged with its spp, scene and seeds, so that `merge` can
+/// Writes a render (NAME.exr, linear, tagged with its spp, scene and seeds, so that `merge` can
 /// average it with other renders of the scene and knows its samples) and its PNG; returns
 /// the PNG's name for the report.
 pub fn save(

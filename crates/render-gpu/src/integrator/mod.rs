@@ -428,6 +428,9 @@ impl Path {
                         // A face within the union of overlapping pieces: into one more
                         // of them, or out of one of several. No boundary; the flight goes
                         // on, its rest redrawn past the face (flights have no memory).
+                        // (A leak, met from outside while believed inside, is taken in
+                        // here too: with overlaps only the bounding-box net below counts
+                        // leaks.)
                         s.pos = past;
                         *from_step = false;
                         continue;

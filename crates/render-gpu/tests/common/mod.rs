@@ -192,7 +192,7 @@ fn assert_sliver_passed(
 }
 
 /// OBJ text of axis-aligned boxes (each closed, outward-facing quads).
-fn boxes_obj(boxes: &[([f32; 3], [f32; 3])]) -> String {
+pub fn boxes_obj(boxes: &[([f32; 3], [f32; 3])]) -> String {
     let mut s = String::new();
     for (lo, hi) in boxes {
         for k in 0..8 {
@@ -267,12 +267,14 @@ grid_resolution = 64
 ///   step as three boxes touching across gaps of 10⁻⁶ (rendered as one medium:
 ///   `touching_parts_render_as_one_medium`);
 /// - the cube with a cubic cavity in it, as one box around a cavity and as the two
-///   overlapping boxes around it (a cavity within two solids is air, not medium).
+///   overlapping boxes around it (a cavity within two solids is air, not medium);
+/// - the cube with a cavity across the two boxes' seam (in their union, in neither alone).
 pub fn overlapping_parts_scenes(dir: &Path, boundary: &str) -> Vec<(String, String, String)> {
     let cube = ([-0.5; 3], [0.5; 3]);
     let left = ([-0.5, -0.5, -0.5], [0.2, 0.5, 0.5]);
     let right = ([-0.2, -0.5, -0.5], [0.5, 0.5, 0.5]);
     let cavity = ([-0.15; 3], [0.15; 3]);
+    let seam = ([-0.35, -0.15, -0.15], [0.35, 0.15, 0.15]);
     let low = ([-0.5, -0.5, -0.5], [0.2, 0.2, 0.5]);
     let high = ([-0.2, -0.2, -0.5], [0.5, 0.5, 0.5]);
     let g = 1e-6;
@@ -344,6 +346,11 @@ grid_resolution = 64
             "cube with a cavity".to_string(),
             scene(&write("hollow.obj", &[cube], &[cavity])),
             scene(&write("hollow2.obj", &[left, right], &[cavity])),
+        ),
+        (
+            "cube with a cavity across the seam".to_string(),
+            scene(&write("seam.obj", &[cube], &[seam])),
+            scene(&write("seam2.obj", &[left, right], &[seam])),
         ),
     ]
 }
