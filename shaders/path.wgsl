@@ -249,7 +249,7 @@ fn bounce_end(q: Query, h: Hit, tr: f32) {
 /// collision inside, for its sphere step or PT event.
 fn flight_end(t: f32, h: Hit) -> bool {
     let channel = p_channel;
-    let dielectric = params.flags.z != 0u;
+    let dielectric = DIELECTRIC; // a constant (kernels.rs, SceneSwitches)
     let ior = params.consts.y;
     let nee = params.flags.y != 0u;
     if !p_inside {

@@ -29,7 +29,7 @@ struct Params {
     lights: array<Light, 4>,
     image: vec4<u32>,           // width, height, lanes, samples per lane
     sampling: vec4<u32>,        // first sample, end sample, seed lo, seed hi
-    flags: vec4<u32>,           // light count, nee, dielectric, stcvae
+    flags: vec4<u32>,           // light count, nee, dielectric (the kernels read DIELECTRIC), stcvae
     misc: vec4<u32>,            // env map width, height, nee samples (model steps), dispatch kind
                                 // (2: first of the render, 1: first of a chunk, 0: resume)
     consts: vec4<f32>,          // g, ior, eps, min_tau
@@ -223,7 +223,7 @@ fn closer(t: f32, prim: u32, best: Hit) -> bool {
 /// `cos` being the ray's angle, the light's in air, at either crossing (nee.rs:
 /// crossing_transmittance).
 fn crossing_transmittance(cos: f32) -> f32 {
-    if params.flags.z == 0u {
+    if !DIELECTRIC {
         return 1.0;
     }
     return 1.0 - fresnel(cos, 1.0, params.consts.y);
@@ -245,7 +245,8 @@ struct Crossings {
 /// Whether the mesh's pieces overlap (geometry.rs, Geometry::pieces): the object is their
 /// union, and paths ask past each face whether they are in it (in_union).
 fn overlapping() -> bool {
-    // A constant (kernels.rs, source): kernels for other meshes carry none of that code.
+    // A constant (kernels.rs, SceneSwitches): kernels for other meshes carry none of
+    // that code.
     return OVERLAPS;
 }
 
@@ -849,7 +850,8 @@ fn env_lookup(dir: vec3<f32>, channel: u32) -> f32 {
     let base = params.env_radiance[channel];
     let w = params.misc.x;
     let h = params.misc.y;
-    if w == 0u {
+    // ENV_MAP: a constant (kernels.rs, SceneSwitches); w = 0 would be no map too.
+    if !ENV_MAP || w == 0u {
         return base;
     }
     // light.rs, Environment::lookup: Mitsuba 3's u = atan2(x, −z)/2π mod 1.

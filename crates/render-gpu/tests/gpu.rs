@@ -1514,7 +1514,9 @@ fn gpu_touching_parts_render_as_on_the_cpu() {
 /// union on the GPU too: the same image as the CPU's, no leaks. The two boxes making the
 /// cube (faces in shared planes) with PT and ST-CVAE; the two around a cavity with PT
 /// behind a dielectric boundary (the Fresnel choice only at the union's own boundary,
-/// the cavity's walls included).
+/// the cavity's walls included); and with PT behind a dielectric boundary, two boxes
+/// touching across a gap of 10⁻⁶ with a bar overlapping both (shadow-ray crossings within
+/// the spawn offset walked together: shadow_rays.rs, touching_pieces_in_a_union_make_no_boundary).
 #[test]
 fn gpu_overlapping_pieces_render_as_on_the_cpu() {
     let dir = tempfile::tempdir().unwrap();
@@ -1524,6 +1526,20 @@ fn gpu_overlapping_pieces_render_as_on_the_cpu() {
     let dielectric =
         common::overlapping_parts_scenes(dir.path(), "kind = \"dielectric\"\nior = 1.5");
     let hollow = grow(&dielectric[2].2);
+    let obj = dir.path().join("touching.obj");
+    std::fs::write(
+        &obj,
+        common::boxes_obj(&[
+            ([-0.5, -0.5, -0.5], [0.0, 0.5, 0.5]),
+            ([1e-6, -0.5, -0.5], [0.5, 0.5, 0.5]),
+            ([-0.2, -0.1, 0.4], [0.2, 0.1, 0.7]),
+        ]),
+    )
+    .unwrap();
+    let touching = grow(&dielectric[0].2).replace(
+        &dir.path().join("cube2.obj").display().to_string(),
+        &obj.display().to_string(),
+    );
     {
         let Some(ctx) = gpu() else { return };
         let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
@@ -1545,6 +1561,13 @@ fn gpu_overlapping_pieces_render_as_on_the_cpu() {
     compare_devices(
         "PT dielectric, overlapping boxes around a cavity",
         &hollow,
+        IntegratorKind::Pt,
+        true,
+        64,
+    );
+    compare_devices(
+        "PT dielectric, touching boxes in a union",
+        &touching,
         IntegratorKind::Pt,
         true,
         64,

@@ -17,6 +17,16 @@ fn bunny(boundary: &str) -> SceneData {
     common::build_scene(&text, false)
 }
 
+/// Fresnel's unpolarised reflectance from air into index `n` at incidence cosine `cos_i`,
+/// written out here rather than taken from `optics::fresnel`, the code under test.
+fn fresnel(cos_i: f64, n: f64) -> f64 {
+    let sin_t = (1.0 - cos_i * cos_i).sqrt() / n;
+    let cos_t = (1.0 - sin_t * sin_t).sqrt();
+    let rs = ((cos_i - n * cos_t) / (cos_i + n * cos_t)).powi(2);
+    let rp = ((n * cos_i - cos_t) / (n * cos_i + cos_t)).powi(2);
+    (rs + rp) / 2.0
+}
+
 /// Surface crossings of the ray from `x`, walked in order.
 fn crossing_count(scene: &SceneData, x: Vec3, dir: Vec3) -> usize {
     let mut o = x;
@@ -123,13 +133,6 @@ fn crossings_that_do_not_pair_up_are_refused() {
 /// 0.2 %, so a dropped or doubled Fresnel factor (≥ 4 %) or a wrong length fails.
 #[test]
 fn transmittance_out_of_a_sphere_has_its_closed_form() {
-    let fresnel = |cos_i: f64, n: f64| {
-        let sin_t = (1.0 - cos_i * cos_i).sqrt() / n;
-        let cos_t = (1.0 - sin_t * sin_t).sqrt();
-        let rs = ((cos_i - n * cos_t) / (cos_i + n * cos_t)).powi(2);
-        let rp = ((n * cos_i - cos_t) / (n * cos_i + cos_t)).powi(2);
-        (rs + rp) / 2.0
-    };
     for (boundary, ior) in [
         ("kind = \"index-matched\"", None),
         ("kind = \"dielectric\"\nior = 1.5", Some(1.5)),
@@ -180,13 +183,6 @@ fn transmittance_out_of_a_sphere_has_its_closed_form() {
 /// a boundary counts the overlap (≥ 0.1 in length) or a Fresnel factor (≥ 4 %) twice.
 #[test]
 fn transmittance_through_overlapping_pieces_has_its_closed_form() {
-    let fresnel = |cos_i: f64, n: f64| {
-        let sin_t = (1.0 - cos_i * cos_i).sqrt() / n;
-        let cos_t = (1.0 - sin_t * sin_t).sqrt();
-        let rs = ((cos_i - n * cos_t) / (cos_i + n * cos_t)).powi(2);
-        let rp = ((n * cos_i - cos_t) / (n * cos_i + cos_t)).powi(2);
-        (rs + rp) / 2.0
-    };
     let dir = tempfile::tempdir().unwrap();
     for (boundary, ior) in [
         ("kind = \"index-matched\"", None),
@@ -297,13 +293,6 @@ fn transmittance_through_overlapping_pieces_has_its_closed_form() {
 /// faces is outside, though a closest-hit walk from it steps past one of the two faces.
 #[test]
 fn touching_pieces_in_a_union_make_no_boundary() {
-    let fresnel = |cos_i: f64, n: f64| {
-        let sin_t = (1.0 - cos_i * cos_i).sqrt() / n;
-        let cos_t = (1.0 - sin_t * sin_t).sqrt();
-        let rs = ((cos_i - n * cos_t) / (cos_i + n * cos_t)).powi(2);
-        let rp = ((n * cos_i - cos_t) / (n * cos_i + cos_t)).powi(2);
-        (rs + rp) / 2.0
-    };
     let dir = tempfile::tempdir().unwrap();
     let scenes = common::overlapping_parts_scenes(dir.path(), "kind = \"dielectric\"\nior = 1.5");
     let gap = 1e-6f32;

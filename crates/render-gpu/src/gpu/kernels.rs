@@ -271,6 +271,33 @@ impl KernelShape {
     }
 }
 
+/// What a scene needs of the kernels, fixed when they are compiled (WGSL constants)
+/// rather than read from the scene parameters: lavapipe's JIT keeps the code of a branch
+/// that a run-time flag switches off, and code that never runs still slowed the path loop
+/// (register pressure in the inlined kernel). Measured on lavapipe (2026-12-02,
+/// docs/BENCHMARKS.md): the overlap code as a run-time flag cost PT 13 % on every mesh;
+/// the dielectric and environment-map branches as constants gained 8 % on an
+/// index-matched scene without a map. A kernel is compiled per render anyway.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SceneSwitches {
+    /// The mesh's pieces overlap (`OVERLAPS`; [`crate::geometry::Geometry::pieces`]).
+    pub overlaps: bool,
+    /// A dielectric boundary (`DIELECTRIC`; Fresnel choices and shadow-ray factors).
+    pub dielectric: bool,
+    /// An environment map (`ENV_MAP`; else the constant environment only).
+    pub env_map: bool,
+}
+
+impl SceneSwitches {
+    pub fn of(scene: &crate::setup::SceneData) -> Self {
+        Self {
+            overlaps: scene.geo.pieces.is_some(),
+            dielectric: matches!(scene.boundary, crate::setup::Boundary::Dielectric(_)),
+            env_map: scene.env.map.is_some(),
+        }
+    }
+}
+
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Kernel {
     /// Volumetric path tracing (`render_main`).
@@ -307,15 +334,12 @@ pub const ACC_VEC4: u64 = 4;
 /// The full WGSL source of a kernel with `path_nee_m` path-level NEE reservoirs (0: a
 /// shadow ray at every NEE event; at most [`crate::scene::MAX_PATH_NEE_RAYS`]); the ST-CVAE
 /// and probe kernels include the model's decoders, generated as straight-line code.
-/// `overlaps`: the scene's mesh has overlapping pieces (`OVERLAPS` in the WGSL,
-/// [`crate::geometry::Geometry::pieces`]); a constant, so that kernels for other meshes
-/// carry none of that code (as a run-time flag it cost PT 13 % on lavapipe, the extra
-/// traversals inlined into the path loop).
+/// `switches` fixes what the scene needs at compile time ([`SceneSwitches`]).
 pub fn source(
     kernel: Kernel,
     model: Option<&cvae::ModelSet>,
     path_nee_m: u32,
-    overlaps: bool,
+    switches: SceneSwitches,
     shape: KernelShape,
 ) -> Result<String, RenderError> {
     if path_nee_m > crate::scene::MAX_PATH_NEE_RAYS {
@@ -343,7 +367,8 @@ pub fn source(
          const PATH_NEE_M: u32 = {path_nee_m}u;\nconst SLOT: u32 = {}u;\n\
          const STAGE_VEC4S: u32 = {STAGE_VEC4S}u;\n\
          const NODE_COUNT_BITS: u32 = {}u;\nconst COUNTER_WORDS: u32 = {}u;\n\
-         const STAGED_STEPS: bool = {};\nconst OVERLAPS: bool = {overlaps};\n{}{}",
+         const STAGED_STEPS: bool = {};\nconst OVERLAPS: bool = {};\n\
+         const DIELECTRIC: bool = {};\nconst ENV_MAP: bool = {};\n{}{}",
         shape.wgsl(),
         crate::integrator::nee::ROULETTE_BOUND,
         crate::geometry::FLIGHT_MARGIN_OF_EPS,
@@ -352,6 +377,9 @@ pub fn source(
         super::scene_buffers::GpuNode::COUNT_BITS,
         2 * super::resources::COUNTER_SLOTS,
         shape.staged && shape.steps,
+        switches.overlaps,
+        switches.dielectric,
+        switches.env_map,
         profile_wgsl(shape.profile),
         aggregate_wgsl(shape.aggregate),
     );
@@ -478,12 +506,12 @@ pub fn pipeline(
     kernel: Kernel,
     model: Option<&cvae::ModelSet>,
     path_nee_m: u32,
-    overlaps: bool,
+    switches: SceneSwitches,
     shape: KernelShape,
     entry: &str,
 ) -> Result<wgpu::ComputePipeline, RenderError> {
     shape.check(ctx)?;
-    let src = source(kernel, model, path_nee_m, overlaps, shape.on(ctx))?;
+    let src = source(kernel, model, path_nee_m, switches, shape.on(ctx))?;
     let scope = ctx.device.push_error_scope(wgpu::ErrorFilter::Validation);
     let module = ctx
         .device

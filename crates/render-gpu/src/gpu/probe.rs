@@ -81,7 +81,7 @@ fn probe(
         Kernel::Probe,
         Some(model),
         0,
-        scene.is_some_and(|s| s.geo.pieces.is_some()),
+        scene.map(kernels::SceneSwitches::of).unwrap_or_default(),
         shape,
         entry,
     )?;

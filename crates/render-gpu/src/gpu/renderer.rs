@@ -548,10 +548,10 @@ pub fn render_gpu(
     let path_nee_m = set.path_nee() as u32;
     let slot_vec4s = kernels::slot_vec4s(path_nee_m);
     let args_layout = shape.staged.then(|| kernels::args_layout(ctx));
-    let overlaps = scene.geo.pieces.is_some();
+    let switches = kernels::SceneSwitches::of(scene);
     let build_in = |layout, entry| {
         kernels::pipeline(
-            ctx, layout, kernel, set.model, path_nee_m, overlaps, shape, entry,
+            ctx, layout, kernel, set.model, path_nee_m, switches, shape, entry,
         )
     };
     let build = |entry| build_in(&layout, entry);

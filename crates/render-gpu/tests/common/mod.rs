@@ -218,21 +218,11 @@ pub fn boxes_obj(boxes: &[([f32; 3], [f32; 3])]) -> String {
     s
 }
 
-/// A box of medium lit by a sun (NEE), as one part and as two parts stacked with a gap of
-/// air of 10⁻⁶ between them — a tenth of the spawn offset (2 × 10⁻⁵ of the scene's size
-/// 0.5), which is how touching parts of a mesh usually look. With an index-matched boundary
-/// the two scenes are the same medium but for the gap, so they must render alike. The OBJ
-/// files are written into `dir`; returns (one part, two parts).
-pub fn touching_parts_scenes(dir: &Path) -> (String, String) {
-    let one = dir.join("one.obj");
-    let two = dir.join("two.obj");
-    std::fs::write(&one, boxes_obj(&[([-0.5; 3], [0.5; 3])])).unwrap();
-    let lower = ([-0.5, -0.5, -0.5], [0.5, 0.0, 0.5]);
-    let upper = ([-0.5, 1e-6, -0.5], [0.5, 0.5, 0.5]);
-    std::fs::write(&two, boxes_obj(&[lower, upper])).unwrap();
-    let scene = |mesh: &Path| {
-        format!(
-            r#"
+/// The scene of [`touching_parts_scenes`] and [`overlapping_parts_scenes`]: `mesh` seen
+/// from above and aside under a sun, with `tables` (TOML) added.
+fn lit_mesh_scene(mesh: &Path, tables: &str) -> String {
+    format!(
+        r#"
 [camera]
 origin = [1.5, 2.0, 3.0]
 target = [0.0, 0.0, 0.0]
@@ -249,12 +239,26 @@ g = 0.5
 kind = "directional"
 direction = [0.3, -1.0, -0.2]
 irradiance = [1.0, 1.0, 1.0]
-[render]
+{tables}[render]
 grid_resolution = 64
 "#,
-            mesh.display()
-        )
-    };
+        mesh.display()
+    )
+}
+
+/// A box of medium lit by a sun (NEE), as one part and as two parts stacked with a gap of
+/// air of 10⁻⁶ between them — a tenth of the spawn offset (2 × 10⁻⁵ of the scene's size
+/// 0.5), which is how touching parts of a mesh usually look. With an index-matched boundary
+/// the two scenes are the same medium but for the gap, so they must render alike. The OBJ
+/// files are written into `dir`; returns (one part, two parts).
+pub fn touching_parts_scenes(dir: &Path) -> (String, String) {
+    let one = dir.join("one.obj");
+    let two = dir.join("two.obj");
+    std::fs::write(&one, boxes_obj(&[([-0.5; 3], [0.5; 3])])).unwrap();
+    let lower = ([-0.5, -0.5, -0.5], [0.5, 0.0, 0.5]);
+    let upper = ([-0.5, 1e-6, -0.5], [0.5, 0.5, 0.5]);
+    std::fs::write(&two, boxes_obj(&[lower, upper])).unwrap();
+    let scene = |mesh: &Path| lit_mesh_scene(mesh, "");
     (scene(&one), scene(&two))
 }
 
@@ -302,35 +306,8 @@ pub fn overlapping_parts_scenes(dir: &Path, boundary: &str) -> Vec<(String, Stri
         std::fs::write(&path, text).unwrap();
         path
     };
-    let scene = |mesh: &Path| {
-        format!(
-            r#"
-[camera]
-origin = [1.5, 2.0, 3.0]
-target = [0.0, 0.0, 0.0]
-fov_deg = 30.0
-width = 16
-height = 16
-[object]
-mesh = "{}"
-[medium]
-sigma_t = [4.0, 12.0, 40.0]
-albedo = [0.99, 0.95, 0.8]
-g = 0.5
-[boundary]
-{boundary}
-[[light]]
-kind = "directional"
-direction = [0.3, -1.0, -0.2]
-irradiance = [1.0, 1.0, 1.0]
-[environment]
-radiance = [0.1, 0.2, 0.3]
-[render]
-grid_resolution = 64
-"#,
-            mesh.display()
-        )
-    };
+    let tables = format!("[boundary]\n{boundary}\n[environment]\nradiance = [0.1, 0.2, 0.3]\n");
+    let scene = |mesh: &Path| lit_mesh_scene(mesh, &tables);
     vec![
         (
             "cube".to_string(),
