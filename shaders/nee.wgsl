@@ -147,7 +147,7 @@ fn ball_chord(x: vec3<f32>, dir: vec3<f32>, c: vec3<f32>, f: f32) -> f32 {
 /// it).
 fn nee_direct(x: vec3<f32>, w: vec3<f32>, free: f32, c: vec3<f32>, f: f32, channel: u32, rouletted: bool) -> f32 {
     var sum = 0.0;
-    for (var i = 0u; i < params.flags.x; i++) {
+    for (var i = 0u; i < LIGHTS; i++) {
         let ray = nee_light_ray(i, x, w, free, c, f, channel, rouletted);
         if ray.casts {
             sum += transmittance(x, ray.dir, channel) * ray.weight;
@@ -224,7 +224,7 @@ fn nee_proxy(x: vec3<f32>, w: vec3<f32>, free: f32, c: vec3<f32>, f: f32, channe
     let g = params.consts.x;
     let sigma = params.sigma_t[channel];
     var q = 0.0;
-    for (var i = 0u; i < params.flags.x; i++) {
+    for (var i = 0u; i < LIGHTS; i++) {
         let l = params.lights[i];
         let wl = l.to_light.xyz;
         // nee::proxy: the phase function's largest value over a disk wider than its lobe.
@@ -261,5 +261,5 @@ fn path_nee_rays() -> u32 {
     if PATH_NEE_M == 0u || !(pn_total > 0.0) {
         return 0u;
     }
-    return PATH_NEE_M * params.flags.x;
+    return PATH_NEE_M * LIGHTS;
 }

@@ -56,7 +56,7 @@ fn roulette() -> bool {
 fn pt_event(channel: u32) {
     stats[C_EVENTS] += 1u;
     let albedo = params.albedo[channel];
-    if params.flags.y != 0u {
+    if NEE {
         ps.radiance += ps.beta * albedo * nee_direct(ps.pos, ps.dir, ps.free, ps.pos, 0.0, channel, true);
     }
     ps.beta *= albedo;
@@ -71,7 +71,7 @@ fn pt_event(channel: u32) {
 fn escape_radiance(dir: vec3<f32>, channel: u32, with_sun: bool) -> f32 {
     var l = env_lookup(dir, channel);
     if with_sun {
-        for (var i = 0u; i < params.flags.x; i++) {
+        for (var i = 0u; i < LIGHTS; i++) {
             l += light_radiance_toward(i, dir, channel);
         }
     }
@@ -171,7 +171,7 @@ fn bounce_begin() -> Query {
     if shadow {
         // nee_direct(x, w, 0, x, 0, channel, false) of reservoir k toward one light, its
         // random numbers drawn in the same order.
-        let nl = params.flags.x;
+        let nl = max(LIGHTS, 1u);
         let r = PATH_NEE_M * nl - p_nee_left;
         q.k = r / nl;
         q.last_light = r % nl == nl - 1u;
@@ -251,7 +251,7 @@ fn flight_end(t: f32, h: Hit) -> bool {
     let channel = p_channel;
     let dielectric = DIELECTRIC; // a constant (kernels.rs, SceneSwitches)
     let ior = params.consts.y;
-    let nee = params.flags.y != 0u;
+    let nee = NEE;
     if !p_inside {
         if !h.found {
             ps.radiance += ps.beta * escape_radiance(ps.dir, channel, !(nee && ps.scattered));

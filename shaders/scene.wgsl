@@ -29,7 +29,8 @@ struct Params {
     lights: array<Light, 4>,
     image: vec4<u32>,           // width, height, lanes, samples per lane
     sampling: vec4<u32>,        // first sample, end sample, seed lo, seed hi
-    flags: vec4<u32>,           // light count, nee, dielectric (the kernels read DIELECTRIC), stcvae
+    flags: vec4<u32>,           // light count, nee, dielectric, stcvae (the kernels read the
+                                // constants LIGHTS, NEE and DIELECTRIC instead: kernels.rs)
     misc: vec4<u32>,            // env map width, height, nee samples (model steps), dispatch kind
                                 // (2: first of the render, 1: first of a chunk, 0: resume)
     consts: vec4<f32>,          // g, ior, eps, min_tau

@@ -29,7 +29,7 @@ fn scatter_at(channel: u32) -> bool {
     let r = min(free * SHRINK, max_tau / sigma);
     let tau = sigma * r;
     let fallback = !(r > 0.0) || tau < min_tau;
-    let nee = params.flags.y != 0u;
+    let nee = NEE;
     let g = params.consts.x;
     let centre = ps.pos;
     // SIMD shape (lavapipe runs 8 invocations in lock-step, GPUs 32–64): the PT fallback
@@ -68,7 +68,7 @@ fn scatter_at(channel: u32) -> bool {
         exact = true;
         frame = walk_frame(ps.dir, vec2<f32>(1.0, 0.0));
         var m = 0u;
-        if nee && params.flags.x > 0u {
+        if nee && LIGHTS > 0u {
             m = clamp(u32(params.consts3.y), 1u, MAX_EXACT_EVENTS);
         }
         let walk = exact_walk(tau, g, channel, m, frame, max(free / r, 1.0));
@@ -238,7 +238,7 @@ fn exact_offer(x: vec3<f32>, w: vec3<f32>, q: f32, phi_k: f32, m: u32) {
 /// The walk in the unit sphere of optical radius tau (integrator/walk_lanes.rs), its m NEE
 /// events left in ex_x, ex_w, ex_weight (the first `used`).
 fn exact_walk(tau: f32, g: f32, channel: u32, m: u32, frame: WalkFrame, f_unit: f32) -> ExactWalk {
-    var nl = min(params.flags.x, 4u);
+    var nl = min(LIGHTS, 4u);
     var flat = false;
     for (var i = 0u; i < nl; i++) {
         let l = params.lights[i];

@@ -1199,10 +1199,12 @@ fn long_exact_walks_shrink_the_bounce_budget() {
     // At the default budget these walks are cut off only now and then (lavapipe, Mesa 22:
     // when the chunks, grown toward a second of work, give an invocation several paths).
     // So that the halving surely runs on exact walks, one more GPU render starts at 65,535
-    // bounces a dispatch with 8 paths an invocation in every chunk, whatever the machine's
-    // speed: each path's walks take ~10⁴ loop iterations, so a dispatch that runs all 8
-    // must be cut off (`stcvae render` with STCVAE_GPU_LANE_SAMPLES=8, seeds 5–7: redone 11
-    // times each, down to 31 bounces, ~10 s on lavapipe). It must finish every path (the
+    // bounces a dispatch with 64 paths an invocation in every chunk, whatever the machine's
+    // speed. llvmpipe's limit is one budget of 65,535 loop passes an invocation, shared by
+    // all its loops: each path's walks take thousands of passes, so a dispatch that runs
+    // all 64 must be cut off (redone 10 times, down to 63 bounces, ~10 s on lavapipe).
+    // With 8 paths an invocation it was cut off until the light count became a kernel
+    // constant (2026-12-02): the loops over the lights, unrolled, no longer spend passes. It must finish every path (the
     // renderer refuses a pixel short of samples) with a finite image. (It is not compared
     // with the first render's, which ran on other seeds; that a schedule changes no pixel
     // is `samples_per_chunk_change_no_pixel`'s and `staged_render_equals_one_kernel`'s.)
@@ -1210,11 +1212,11 @@ fn long_exact_walks_shrink_the_bounce_budget() {
     let s = common::build_scene(&text, true);
     let vars = [
         ("STCVAE_GPU_BOUNCES", "65535"),
-        ("STCVAE_GPU_LANE_SAMPLES", "8"),
+        ("STCVAE_GPU_LANE_SAMPLES", "64"),
     ];
-    let out = render_gpu_with_env(&ctx, &s, &set, &opts(48, 5), &vars)
+    let out = render_gpu_with_env(&ctx, &s, &set, &opts(192, 5), &vars)
         .expect("a cut-off dispatch must be redone, not reported");
-    assert_eq!(out.stats.paths, out.image.pixels.len() as u64 * 48);
+    assert_eq!(out.stats.paths, out.image.pixels.len() as u64 * 192);
     assert!(out.image.pixels.iter().flatten().all(|v| v.is_finite()));
     if ctx.adapter.software {
         let d = out.dispatch;

@@ -277,7 +277,8 @@ impl KernelShape {
 /// (register pressure in the inlined kernel). Measured on lavapipe (2026-12-02,
 /// docs/BENCHMARKS.md): the overlap code as a run-time flag cost PT 13 % on every mesh;
 /// the dielectric and environment-map branches as constants gained 8 % on an
-/// index-matched scene without a map. A kernel is compiled per render anyway.
+/// index-matched scene without a map, and the light count and NEE another 5–9 % for
+/// ST-CVAE. A kernel is compiled per render anyway.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct SceneSwitches {
     /// The mesh's pieces overlap (`OVERLAPS`; [`crate::geometry::Geometry::pieces`]).
@@ -286,14 +287,22 @@ pub struct SceneSwitches {
     pub dielectric: bool,
     /// An environment map (`ENV_MAP`; else the constant environment only).
     pub env_map: bool,
+    /// The directional lights the kernels see (`LIGHTS`, at most
+    /// [`super::scene_buffers::MAX_GPU_LIGHTS`]): loops over them of known length.
+    pub lights: u32,
+    /// Next-event estimation on (`NEE`; the render's setting).
+    pub nee: bool,
 }
 
 impl SceneSwitches {
-    pub fn of(scene: &crate::setup::SceneData) -> Self {
+    /// The switches of `scene` rendered with NEE on or off.
+    pub fn of(scene: &crate::setup::SceneData, nee: bool) -> Self {
         Self {
             overlaps: scene.geo.pieces.is_some(),
             dielectric: matches!(scene.boundary, crate::setup::Boundary::Dielectric(_)),
             env_map: scene.env.map.is_some(),
+            lights: scene.lights.len().min(super::scene_buffers::MAX_GPU_LIGHTS) as u32,
+            nee,
         }
     }
 }
@@ -368,7 +377,8 @@ pub fn source(
          const STAGE_VEC4S: u32 = {STAGE_VEC4S}u;\n\
          const NODE_COUNT_BITS: u32 = {}u;\nconst COUNTER_WORDS: u32 = {}u;\n\
          const STAGED_STEPS: bool = {};\nconst OVERLAPS: bool = {};\n\
-         const DIELECTRIC: bool = {};\nconst ENV_MAP: bool = {};\n{}{}",
+         const DIELECTRIC: bool = {};\nconst ENV_MAP: bool = {};\n\
+         const LIGHTS: u32 = {}u;\nconst NEE: bool = {};\n{}{}",
         shape.wgsl(),
         crate::integrator::nee::ROULETTE_BOUND,
         crate::geometry::FLIGHT_MARGIN_OF_EPS,
@@ -380,6 +390,8 @@ pub fn source(
         switches.overlaps,
         switches.dielectric,
         switches.env_map,
+        switches.lights,
+        switches.nee,
         profile_wgsl(shape.profile),
         aggregate_wgsl(shape.aggregate),
     );

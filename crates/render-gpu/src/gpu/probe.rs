@@ -81,7 +81,9 @@ fn probe(
         Kernel::Probe,
         Some(model),
         0,
-        scene.map(kernels::SceneSwitches::of).unwrap_or_default(),
+        scene
+            .map(|s| kernels::SceneSwitches::of(s, true))
+            .unwrap_or_default(),
         shape,
         entry,
     )?;

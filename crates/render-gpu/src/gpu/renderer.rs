@@ -548,7 +548,7 @@ pub fn render_gpu(
     let path_nee_m = set.path_nee() as u32;
     let slot_vec4s = kernels::slot_vec4s(path_nee_m);
     let args_layout = shape.staged.then(|| kernels::args_layout(ctx));
-    let switches = kernels::SceneSwitches::of(scene);
+    let switches = kernels::SceneSwitches::of(scene, set.nee);
     let build_in = |layout, entry| {
         kernels::pipeline(
             ctx, layout, kernel, set.model, path_nee_m, switches, shape, entry,
