@@ -27,10 +27,14 @@ fn transmittance_of(c: Crossings, x: vec3<f32>, dir: vec3<f32>, channel: u32) ->
     return transmittance_ordered(x, dir, channel);
 }
 
+/// The crossings walked in order. Past each, the ray is in the medium by turns, or where
+/// pieces overlap as in_union says (a closest-hit walk steps past the second of two faces
+/// in one plane); Fresnel's factor applies where that changes (nee.rs,
+/// transmittance_ordered).
 fn transmittance_ordered(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
     let sigma = params.sigma_t[channel];
     var o = x;
-    var inside = true;
+    var inside = !overlapping() || in_union(x, dir);
     var depth = 0.0;
     var fresnel_t = 1.0;
     for (var i = 0u; i < MAX_CROSSINGS; i++) {
@@ -45,9 +49,15 @@ fn transmittance_ordered(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
             }
         }
         let n = tri_normal(h.prim);
-        fresnel_t *= crossing_transmittance(abs(dot(dir, n)));
-        inside = !inside;
         o = spawn(o + dir * h.t, n, dir);
+        var now = !inside;
+        if overlapping() {
+            now = in_union(o, dir);
+        }
+        if now != inside {
+            fresnel_t *= crossing_transmittance(abs(dot(dir, n)));
+            inside = now;
+        }
     }
     return 0.0;
 }
@@ -60,7 +70,7 @@ fn transmittance_ordered(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
 fn transmittance_union(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
     let c = crossings(x, dir);
     if u_more {
-        return transmittance_union_ordered(x, dir, channel);
+        return transmittance_ordered(x, dir, channel);
     }
     var around = c.pieces;
     var medium = union_medium(around);
@@ -96,37 +106,6 @@ fn transmittance_union(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
     }
     let depth = params.sigma_t[channel] * length;
     return select(exp(-depth) * fresnel_t, 0.0, depth > MAX_OPTICAL_DEPTH);
-}
-
-/// The ordered walk where pieces overlap (nee.rs, transmittance_ordered): whether the ray
-/// is in the medium is asked anew past each crossing (in_union), and the length counts
-/// where it is, Fresnel's factor where that changes.
-fn transmittance_union_ordered(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
-    let sigma = params.sigma_t[channel];
-    var o = x;
-    var medium = in_union(x, dir);
-    var depth = 0.0;
-    var fresnel_t = 1.0;
-    for (var i = 0u; i < MAX_CROSSINGS; i++) {
-        let h = intersect(o, dir, 1e30);
-        if !h.found {
-            return exp(-depth) * fresnel_t;
-        }
-        if medium {
-            depth += sigma * h.t;
-            if depth > MAX_OPTICAL_DEPTH {
-                return 0.0;
-            }
-        }
-        let n = tri_normal(h.prim);
-        o = spawn(o + dir * h.t, n, dir);
-        let now = in_union(o, dir);
-        if now != medium {
-            fresnel_t *= crossing_transmittance(abs(dot(dir, n)));
-            medium = now;
-        }
-    }
-    return 0.0;
 }
 
 /// The chord from `x` along `dir` to the edge of the surface-free ball (centre `c`,

@@ -235,32 +235,14 @@ pub fn transmittance_ordered(scene: &SceneData, x: Vec3, dir: Vec3, channel: usi
     let geo = &scene.geo;
     let sigma = scene.sigma_t[channel];
     let mut o = x;
-    if let Some(pieces) = &geo.pieces {
-        // Overlapping pieces: whether the ray is in the medium is asked anew past each
-        // crossing (Geometry::in_union), since a closest-hit walk sees one of two faces
-        // in one plane and steps past the other.
-        let mut medium = geo.in_union(pieces, x, dir);
-        let (mut depth, mut fresnel_t) = (0.0f32, 1.0f32);
-        for _ in 0..MAX_CROSSINGS {
-            let Some(h) = geo.intersect(o, dir, f32::INFINITY) else {
-                return (-depth).exp() * fresnel_t;
-            };
-            if medium {
-                depth += sigma * h.t;
-                if depth > MAX_OPTICAL_DEPTH {
-                    return 0.0;
-                }
-            }
-            o = geo.spawn(o + dir * h.t, h.normal, dir);
-            let now = geo.in_union(pieces, o, dir);
-            if now != medium {
-                fresnel_t *= crossing_transmittance(scene, dir.dot(h.normal).abs());
-                medium = now;
-            }
-        }
-        return 0.0;
-    }
-    let mut inside = true;
+    // Past each crossing the ray is in the medium by turns or, where pieces overlap, as
+    // Geometry::in_union says (a closest-hit walk steps past the second of two faces in
+    // one plane); Fresnel's factor applies where that changes.
+    let in_medium = |o: Vec3, was: bool| match &geo.pieces {
+        Some(pieces) => geo.in_union(pieces, o, dir),
+        None => !was,
+    };
+    let mut inside = geo.pieces.is_none() || in_medium(x, false);
     let mut depth = 0.0f32;
     let mut fresnel_t = 1.0f32;
     for _ in 0..MAX_CROSSINGS {
@@ -273,9 +255,12 @@ pub fn transmittance_ordered(scene: &SceneData, x: Vec3, dir: Vec3, channel: usi
                 return 0.0;
             }
         }
-        fresnel_t *= crossing_transmittance(scene, dir.dot(h.normal).abs());
-        inside = !inside;
         o = geo.spawn(o + dir * h.t, h.normal, dir);
+        let now = in_medium(o, inside);
+        if now != inside {
+            fresnel_t *= crossing_transmittance(scene, dir.dot(h.normal).abs());
+            inside = now;
+        }
     }
     0.0
 }
