@@ -342,9 +342,11 @@ fn pieces(m: &TriMesh) -> Vec<Vec<usize>> {
 /// does not (two overlapping boxes came out 4 % brighter than the one box they make).
 /// Found where some of a piece's probes (vertices and face centroids) lie
 /// clearly inside the other (winding number > 0.75) and some clearly outside (< 0.25);
-/// probes on the other's surface (touching parts) count as neither. Checked for meshes
-/// of at most 16 pieces and 200,000 triangles (the cost is probes × triangles per pair);
-/// larger ones are not checked.
+/// probes on the other's surface (touching parts) count as neither, or where an edge of
+/// one passes through a face of the other ([`crossing_surfaces`]; a rod through a plate
+/// has no probe inside the other). Checked for meshes of at most 16 pieces and 200,000
+/// triangles (the probes' cost is probes × triangles per pair); larger ones are not
+/// checked.
 pub fn overlapping_pieces(m: &TriMesh) -> Vec<(usize, usize)> {
     let pieces = pieces(m);
     if pieces.len() < 2
@@ -410,17 +412,111 @@ pub fn overlapping_pieces(m: &TriMesh) -> Vec<(usize, usize)> {
             .reduce(|| (false, false), |x, y| (x.0 || y.0, x.1 || y.1));
         inside && outside
     };
+    let crossed = crossing_surfaces(m, &pieces, touch);
     let mut found = Vec::new();
     for i in 0..pieces.len() {
         for j in i + 1..pieces.len() {
             let apart =
                 bounds[i].1.cmplt(bounds[j].0).any() || bounds[j].1.cmplt(bounds[i].0).any();
-            if !apart && (straddles(i, j) || straddles(j, i)) {
+            if !apart && (crossed[i] & 1 << j != 0 || straddles(i, j) || straddles(j, i)) {
                 found.push((i, j));
             }
         }
     }
     found
+}
+
+/// For each piece, the set (bit j for piece j) of the other pieces whose surface an edge
+/// of it passes through, or that pass through it: surfaces that cross overlap, whatever
+/// the probes saw. A thin piece through another (a rod through a plate) can have every
+/// probe outside the other; in general position the two surfaces' meeting segment ends
+/// on an edge of one of them inside a triangle of the other, which this finds for every
+/// such edge along a tree over the triangles. Only strict crossings count: both ends of
+/// the edge and the crossing point more than `touch` from the triangle's plane and edges.
+/// Faces in shared planes (overlapping boxes) meet at no such point; the probes find those.
+fn crossing_surfaces(m: &TriMesh, pieces: &[Vec<usize>], touch: f32) -> Vec<u32> {
+    use obvhs::bvh2::builder::build_bvh2_from_tris;
+    use obvhs::ray::Ray;
+    use obvhs::triangle::Triangle;
+    use rayon::prelude::*;
+    let mut piece_of = vec![0u8; m.triangles.len()];
+    for (k, tris) in pieces.iter().enumerate() {
+        for &t in tris {
+            piece_of[t] = k as u8;
+        }
+    }
+    let tris: Vec<Triangle> = (0..m.triangles.len())
+        .map(|i| {
+            let [a, b, c] = m.triangle(i).map(|v| v.to_array().into());
+            Triangle {
+                v0: a,
+                v1: b,
+                v2: c,
+            }
+        })
+        .collect();
+    let mut bvh = build_bvh2_from_tris(
+        &tris,
+        obvhs::BvhBuildParams::fast_build(),
+        &mut std::time::Duration::default(),
+    );
+    // A face in an axis plane has a flat box, which the slab test can miss by rounding.
+    for n in &mut bvh.nodes {
+        n.aabb.min -= touch;
+        n.aabb.max += touch;
+    }
+    let mut edges: Vec<(u32, u32, u8)> = m
+        .triangles
+        .iter()
+        .zip(&piece_of)
+        .flat_map(|(t, &k)| {
+            (0..3).map(move |e| (t[e].min(t[(e + 1) % 3]), t[e].max(t[(e + 1) % 3]), k))
+        })
+        .collect();
+    edges.sort_unstable();
+    edges.dedup();
+    let at = |i: u32| m.positions[i as usize].as_dvec3();
+    let touch = touch as f64;
+    let crosses = |p: glam::DVec3, q: glam::DVec3, t: usize| {
+        let [x, y, z] = m.triangles[t].map(at);
+        let n = (y - x).cross(z - x);
+        let len = n.length();
+        if len == 0.0 {
+            return false;
+        }
+        let (dp, dq) = (n.dot(p - x) / len, n.dot(q - x) / len);
+        if dp.abs() <= touch || dq.abs() <= touch || (dp > 0.0) == (dq > 0.0) {
+            return false;
+        }
+        let c = p + (q - p) * (dp / (dp - dq));
+        [(x, y), (y, z), (z, x)].iter().all(|&(u, v)| {
+            let side = (v - u).cross(c - u).dot(n) / len;
+            side > touch * (v - u).length()
+        })
+    };
+    edges
+        .par_iter()
+        .fold(
+            || vec![0u32; pieces.len()],
+            |mut sets, &(a, b, k)| {
+                let (p, q) = (at(a), at(b));
+                let (pa, pb) = (m.positions[a as usize], m.positions[b as usize]);
+                let ray = Ray::new(pa.to_array().into(), (pb - pa).to_array().into(), 0.0, 1.0);
+                bvh.ray_traverse_anyhit(ray, |_, id| {
+                    let t = bvh.primitive_indices[id] as usize;
+                    let j = piece_of[t];
+                    if j != k && sets[k as usize] & 1 << j == 0 && crosses(p, q, t) {
+                        sets[k as usize] |= 1 << j;
+                        sets[j as usize] |= 1 << k;
+                    }
+                });
+                sets
+            },
+        )
+        .reduce(
+            || vec![0u32; pieces.len()],
+            |a, b| a.iter().zip(&b).map(|(x, y)| x | y).collect(),
+        )
 }
 
 /// Each piece's bounding box.

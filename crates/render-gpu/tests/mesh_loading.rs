@@ -577,7 +577,7 @@ fn scaled(mut m: mesh::TriMesh, by: glam::Vec3) -> mesh::TriMesh {
 fn pieces_are_wound_by_their_nesting() {
     let c = mesh::cube;
     let bar = |along: glam::Vec3| scaled(c(1.0), glam::Vec3::splat(0.6) + 1.4 * along);
-    let cases: [(&str, Vec<Piece>, f64); 10] = [
+    let cases: [(&str, Vec<Piece>, f64); 11] = [
         // A hollow box: the inner wall bounds the medium from inside (8 − 1).
         (
             "shell, walls wound alike",
@@ -663,6 +663,24 @@ fn pieces_are_wound_by_their_nesting() {
             vec![(bar(glam::Vec3::X), false), (bar(glam::Vec3::Y), true)],
             2.0 * 2.0 * 0.36,
         ),
+        // A thin rod through a plate, off its middle: none of either's probes (vertices,
+        // centroids, points halfway to the edges' midpoints; the rod's at heights −1,
+        // −0.425, −0.233, 0.15, 0.533, 0.725, 1.3, the plate 0.1 thick about 0) lies
+        // inside the other, but the rod's edges pass through the plate's faces.
+        (
+            "rod through a plate",
+            vec![
+                (scaled(c(1.0), glam::Vec3::new(10.0, 10.0, 0.1)), false),
+                (
+                    moved(
+                        scaled(c(1.0), glam::Vec3::new(0.1, 0.1, 2.3)),
+                        glam::Vec3::new(3.1, 2.7, 0.15),
+                    ),
+                    false,
+                ),
+            ],
+            10.0 + 0.1 * 0.1 * 2.3,
+        ),
     ];
     for (what, parts, want) in cases {
         let m = mesh::prepare(pieces(&parts)).unwrap();
@@ -682,9 +700,25 @@ fn pieces_are_wound_by_their_nesting() {
             "cavity in an overlapping pair" => &[(0, 1)],
             "cavity across the seam of an overlapping pair" => &[(0, 1), (0, 2), (1, 2)],
             "crossing bars" => &[(0, 1)],
+            "rod through a plate" => &[(0, 1)],
             _ => &[],
         };
         assert_eq!(overlaps, want_overlaps, "{what}");
+        if what == "rod through a plate" {
+            // Where the rod is within the plate the point is in the medium: by crossing
+            // parity (the overlap missed) it was air, two faces ahead of it.
+            let geo = render_gpu::geometry::Geometry::new(m.clone());
+            let p = glam::Vec3::new;
+            for (at, inside) in [
+                (p(3.1, 2.7, 0.0), true),
+                (p(3.1, 2.7, 0.5), true),
+                (p(0.0, 0.0, 0.0), true),
+                (p(3.1, 2.7, 1.4), false),
+                (p(3.3, 2.7, 0.5), false),
+            ] {
+                assert_eq!(geo.inside(at), inside, "{what}: at {at}");
+            }
+        }
     }
 }
 
