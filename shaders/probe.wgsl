@@ -164,6 +164,36 @@ fn probe_local_hit(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local
     set_f(i, 6u, f32(full.prim));
 }
 
+/// In: a shadow ray's origin at 0..3 and direction at 4..7 (scene bound, its medium and
+/// boundary in params). Out: nee.wgsl's transmittance in channels 0, 1, 2 at 0..2;
+/// whether the origin is in the medium (scene.wgsl, in_union, for meshes whose pieces
+/// overlap) at 3; whether the ray crossed more faces than the sorted list holds (u_more)
+/// at 4.
+@compute @workgroup_size(WORKGROUP)
+fn probe_shadow(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
+    stack_base = li * STACK_STRIDE;
+    let i = gid.x;
+    if i >= params.image.x {
+        return;
+    }
+    let o = item_v3(i, 0u);
+    let d = item_v3(i, 1u);
+    // (Read before transmittance: its ordered walk's in_union traversals reset u_more.)
+    _ = crossings(o, d);
+    let more = u_more;
+    var t = vec3<f32>(0.0);
+    for (var c = 0u; c < 3u; c++) {
+        t[c] = transmittance(o, d, c);
+    }
+    let inside = overlapping() && in_union(o, d);
+    clear_item(i);
+    set_f(i, 0u, t.x);
+    set_f(i, 1u, t.y);
+    set_f(i, 2u, t.z);
+    set_f(i, 3u, select(0.0, 1.0, inside));
+    set_f(i, 4u, select(0.0, 1.0, more));
+}
+
 /// In: WalkFeatures (tau feature, g, log prior, relative log N) at 0..3; exit (cos θ, α,
 /// β) at 4..6; an RNG seed at 8 (params.albedo is 0, so the centre event never comes up).
 /// Out: the noise of a fresh EventGen draw at 0..10 and of its mirrored partner at 11..21

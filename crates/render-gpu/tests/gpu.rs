@@ -1574,6 +1574,125 @@ fn gpu_overlapping_pieces_render_as_on_the_cpu() {
         true,
         64,
     );
+    let (slabs_matched, slabs_dielectric) = (
+        grow(&slabs_scene(dir.path(), "kind = \"index-matched\"")),
+        grow(&slabs_scene(dir.path(), "kind = \"dielectric\"\nior = 1.5")),
+    );
+    let pieces = common::build_scene(&slabs_matched, false).geo.pieces;
+    let count = pieces.map(|p| p.at_depth.iter().map(|b| b.count_ones()).sum::<u32>());
+    assert_eq!(count, Some(11));
+    compare_devices(
+        "ST-CVAE, eleven overlapping slabs",
+        &slabs_matched,
+        IntegratorKind::Stcvae,
+        true,
+        64,
+    );
+    compare_devices(
+        "PT dielectric, eleven overlapping slabs",
+        &slabs_dielectric,
+        IntegratorKind::Pt,
+        true,
+        64,
+    );
+}
+
+/// Eleven slabs stacked up a cube, each overlapping the next by half, lit from above: a
+/// shadow ray toward the sun from low in the cube crosses up to 22 faces, beyond the 16
+/// crossings the GPU sorts (scene.wgsl, union_keep), so its answers there come from the
+/// walk past each crossing (and in_union's every-hit-flips fallback); the CPU's list
+/// holds 64. The medium is thinner than the other scenes', so that the deep shadow rays
+/// carry weight (with σ_t = 4 to 40 a halved answer beyond 16 crossings went unseen).
+/// The OBJ is written into `dir`.
+fn slabs_scene(dir: &std::path::Path, boundary: &str) -> String {
+    let slabs: Vec<([f32; 3], [f32; 3])> = (0..11)
+        .map(|k| {
+            let y = -0.5 + k as f32 / 12.0;
+            // (0.17 tall, not 2/12: a slab's top corners on the next but one's bottom
+            // corners would weld into edges of four faces.)
+            ([-0.5, y, -0.5], [0.5, y + 0.17, 0.5])
+        })
+        .collect();
+    let obj = dir.join("slabs.obj");
+    std::fs::write(&obj, common::boxes_obj(&slabs)).unwrap();
+    common::overlapping_parts_scenes(dir, boundary)[0]
+        .2
+        .replace(
+            &dir.join("cube2.obj").display().to_string(),
+            &obj.display().to_string(),
+        )
+        .replace("sigma_t = [4.0, 12.0, 40.0]", "sigma_t = [1.0, 2.0, 3.0]")
+}
+
+/// The GPU's shadow rays where pieces overlap (nee.wgsl, transmittance: the sorted walk of
+/// up to 16 crossings, the ordered walk beyond) equal the CPU's (nee.rs: transmittance,
+/// whose list holds 64, and transmittance_ordered for the rays the GPU walked in order),
+/// and in_union equals Geometry::in_union, for random rays from inside the eleven slabs
+/// (dielectric: Fresnel's factor only where the union's medium changes).
+#[test]
+fn wgsl_shadow_rays_through_overlaps_match_rust() {
+    use render_gpu::integrator::nee::{transmittance, transmittance_ordered};
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = tempfile::tempdir().unwrap();
+    let scene = common::build_scene(
+        &slabs_scene(dir.path(), "kind = \"dielectric\"\nior = 1.5"),
+        false,
+    );
+    let geo = &scene.geo;
+    let pieces = geo.pieces.as_ref().expect("the slabs overlap");
+    let mut rng = WalkRng::from_seed(31);
+    let rays: Vec<(glam::Vec3, glam::Vec3)> = (0..4000)
+        .map(|_| {
+            let x = common::random_interior(geo, &mut rng);
+            (x, common::uniform_direction(&mut rng))
+        })
+        .collect();
+    let items: Vec<Item> = rays
+        .iter()
+        .map(|(x, d)| {
+            let mut it = [0.0f32; 32];
+            it[..3].copy_from_slice(&x.to_array());
+            it[4..7].copy_from_slice(&d.to_array());
+            it
+        })
+        .collect();
+    let out =
+        render_gpu::gpu::probe::run_probe_on(&ctx, "probe_shadow", model(), &items, Some(&scene))
+            .unwrap();
+    let (mut off, mut more, mut inside_off) = (0, 0, 0);
+    for ((x, d), o) in rays.iter().zip(&out) {
+        let walked = o[4] == 1.0;
+        more += walked as usize;
+        for c in 0..3 {
+            let cpu = if walked {
+                transmittance_ordered(&scene, *x, *d, c)
+            } else {
+                transmittance(&scene, *x, *d, c)
+            };
+            // The two devices round differently (WGSL may fuse multiply-adds); the bound
+            // is shadow_rays.rs's for the sorted against the ordered walk, which differ
+            // by eps/cos per crossing. Written so that a NaN counts as off.
+            if !((o[c] - cpu).abs() <= 2e-3 * cpu.max(1e-3) + 1e-6) {
+                off += 1;
+            }
+        }
+        inside_off += ((o[3] == 1.0) != geo.in_union(pieces, *x, *d)) as usize;
+    }
+    // Grazing crossings may differ by more (rare for uniform directions): allow 0.1 %.
+    assert!(
+        off * 1000 <= 3 * rays.len(),
+        "{off} of {} shadow-ray answers differ from the CPU's ({more} rays walked in order)",
+        3 * rays.len()
+    );
+    assert!(
+        inside_off * 1000 <= rays.len(),
+        "in_union differs for {inside_off} of {} origins",
+        rays.len()
+    );
+    // The rays beyond the sorted list must be tested: those from low in the slabs
+    // toward the top (254 of the 4,000; at least 100 asked).
+    assert!(more >= 100, "only {more} rays crossed more than 16 faces");
 }
 
 /// An image whose path slots exceed the adapter's storage binding limit renders in bands of

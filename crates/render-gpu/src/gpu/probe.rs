@@ -24,7 +24,7 @@ pub fn run_probe(
 }
 
 /// Runs `entry` over `items` with a scene's geometry (and distance grid, if built)
-/// uploaded ("probe_ray", "probe_grid", "probe_local_hit").
+/// uploaded ("probe_ray", "probe_grid", "probe_local_hit", "probe_shadow").
 pub fn run_probe_on(
     ctx: &GpuContext,
     entry: &str,
@@ -87,17 +87,29 @@ fn probe(
         shape,
         entry,
     )?;
-    let mut params = Params::default();
-    params.image[0] = items.len() as u32;
-    let grid = match scene.and_then(|s| s.grid.as_ref().map(|g| (s, g))) {
-        Some((s, g)) => {
-            params.grid_lo = [g.lo.x, g.lo.y, g.lo.z, g.cell];
-            params.grid_dims = [g.dims.x, g.dims.y, g.dims.z, 1];
-            // What the lists' coverage and plane cull read (scene.wgsl, grid_local_hit).
-            params.consts[2] = s.geo.eps;
-            params.consts2[1] = g.near_surface;
-            grid_buffer(g, &s.geo)
+    // A scene's constants as a render has them (its medium, boundary and pieces, which
+    // the shadow-ray probe reads), or none.
+    let mut params = match scene {
+        Some(s) => {
+            let set = crate::integrator::IntegratorSettings {
+                kind: crate::integrator::IntegratorKind::Pt,
+                nee: true,
+                model: None,
+                min_tau: 0.0,
+                max_tau: 0.0,
+                exact_tau: 0.0,
+                nee_samples: 1,
+                exact_nee_samples: 1,
+                path_nee_rays: 0,
+            };
+            super::scene_buffers::scene_params(s, &set, 0)
         }
+        None => Params::default(),
+    };
+    params.image[0] = items.len() as u32;
+    // (scene_params above set the grid's placement, eps and near_surface.)
+    let grid = match scene.and_then(|s| s.grid.as_ref().map(|g| (s, g))) {
+        Some((s, g)) => grid_buffer(g, &s.geo),
         None => vec![0],
     };
     let bytes = std::mem::size_of_val(items) as u64;
