@@ -239,12 +239,8 @@ impl Boundable for PaddedTri {
 
 impl Geometry {
     pub fn new(mesh: TriMesh) -> Self {
-        let overlaps = crate::mesh::overlapping_pieces(&mesh);
-        let pieces = if overlaps.is_empty() {
-            None
-        } else {
-            crate::mesh::piece_table(&mesh).map(|(of, depths)| Pieces::new(&of, &depths))
-        };
+        let (overlaps, table) = crate::mesh::overlaps_and_pieces(&mesh);
+        let pieces = table.map(|(of, depths)| Pieces::new(&of, &depths));
         let tris: Vec<Triangle> = (0..mesh.triangles.len())
             .map(|i| {
                 let [a, b, c] = mesh.triangle(i);

@@ -206,7 +206,8 @@ fn orient_pieces(m: &mut TriMesh) {
     let pieces = pieces(m);
     let volume6 = |tris: &[usize]| -> f64 { tris.iter().map(|&t| m.volume6_of(t)).sum() };
     let volumes: Vec<f64> = pieces.iter().map(|t| volume6(t)).collect();
-    let depths = nesting_depths(m, &pieces, &volumes);
+    let crossing = crossing_probes(m, &pieces, touch_distance(m));
+    let depths = nesting_depths(m, &pieces, &volumes, &crossing);
     for ((tris, volume), depth) in pieces.iter().zip(volumes).zip(depths) {
         if (volume > 0.0) != (depth % 2 == 0) {
             for &t in tris {
@@ -217,75 +218,144 @@ fn orient_pieces(m: &mut TriMesh) {
 }
 
 /// Each piece's nesting depth (see [`orient_pieces`]), whatever the pieces' winding.
-/// Largest first: a piece's containers enclose more volume, so their depths are known
-/// when it is reached. At each of up to 4 points spread over piece i (triangle
-/// centroids) the deepest of the pieces around it is found; i's depth is one more than
-/// the shallowest of those, −1 for a point outside every piece. So a piece within
-/// another is one deeper (a cavity inside two overlapping pieces, each solid, is one
-/// hole, not depth 2), and so is one within the union of overlapping pieces but in none
-/// of them alone (a cavity across their seam: taken for solid when containment was asked
-/// of one piece at a time); a piece partly outside everything is solid (depth 0), one
-/// that overlaps another.
-fn nesting_depths(m: &TriMesh, pieces: &[Vec<usize>], volumes: &[f64]) -> Vec<usize> {
-    let mut depths = vec![0usize; pieces.len()];
-    if pieces.len() > 1 {
-        let bounds = piece_bounds(m, pieces);
-        let mut order: Vec<usize> = (0..pieces.len()).collect();
-        order.sort_by(|&a, &b| volumes[b].abs().total_cmp(&volumes[a].abs()));
-        for (k, &i) in order.iter().enumerate() {
-            let step = pieces[i].len().div_ceil(4);
-            let probes: Vec<glam::DVec3> = pieces[i]
-                .iter()
-                .step_by(step)
-                .map(|&t| {
-                    let [a, b, c] = m.triangles[t].map(|k| m.positions[k as usize].as_dvec3());
-                    (a + b + c) / 3.0
-                })
+/// At points spread over piece i (up to 8 triangle centroids, and where i's edges pass
+/// in and out of other pieces: [`crossing_probes`]) the deepest of the pieces around it
+/// is found; i's depth is one more than the shallowest of those, −1 for a point outside
+/// every piece. So a piece within another is one deeper (a cavity inside two overlapping
+/// pieces, each solid, is one hole, not depth 2), and so is one within the union of
+/// overlapping pieces but in none of them alone (a cavity across their seam: taken for
+/// solid when containment was asked of one piece at a time); a piece partly outside
+/// everything is solid (depth 0), one that overlaps another. A point on another piece's
+/// surface says nothing about that piece (its winding number there is 0 or 1 by the
+/// faces' rounding): a box overlapping another with faces in shared planes was taken for
+/// a cavity. The depths are settled by repeating the rule until none changes, not in
+/// one pass largest piece first: a cavity across a seam can be larger than either solid.
+fn nesting_depths(
+    m: &TriMesh,
+    pieces: &[Vec<usize>],
+    volumes: &[f64],
+    crossing: &[Vec<Vec<glam::DVec3>>],
+) -> Vec<usize> {
+    let n = pieces.len();
+    let mut depths = vec![0usize; n];
+    if n < 2 {
+        return depths;
+    }
+    use rayon::prelude::*;
+    let bounds = piece_bounds(m, pieces);
+    let touch = touch_distance(m);
+    // For each probe of each piece, the other pieces clearly around it.
+    let around: Vec<Vec<Vec<usize>>> = (0..n)
+        .map(|i| {
+            let step = pieces[i].len().div_ceil(8);
+            let centroids = pieces[i].iter().step_by(step).map(|&t| {
+                let [a, b, c] = m.triangles[t].map(|k| m.positions[k as usize].as_dvec3());
+                (a + b + c) / 3.0
+            });
+            let probes: Vec<glam::DVec3> = centroids
+                .chain(crossing.iter().flat_map(|c| c[i].iter().copied()))
                 .collect();
-            let deepest_around = |p: glam::DVec3| -> i64 {
-                order[..k]
-                    .iter()
-                    .filter(|&&j| {
-                        let (lo, hi) = bounds[j];
-                        let p32 = p.as_vec3();
-                        lo.cmple(p32).all()
-                            && p32.cmple(hi).all()
-                            && winding_number(m, &pieces[j], p).abs() > 0.5
-                    })
-                    .map(|&j| depths[j] as i64)
-                    .max()
-                    .unwrap_or(-1)
-            };
-            let shallowest = probes.iter().map(|&p| deepest_around(p)).min();
-            depths[i] = shallowest.map_or(0, |d| (d + 1) as usize);
+            probes
+                .par_iter()
+                .map(|&p| {
+                    (0..n)
+                        .filter(|&j| {
+                            let (lo, hi) = bounds[j];
+                            let p32 = p.as_vec3();
+                            j != i
+                                && lo.cmple(p32).all()
+                                && p32.cmple(hi).all()
+                                && side_of(m, &pieces[j], p, touch) == Some(true)
+                        })
+                        .collect()
+                })
+                .collect()
+        })
+        .collect();
+    let mut order: Vec<usize> = (0..n).collect();
+    order.sort_by(|&a, &b| volumes[b].abs().total_cmp(&volumes[a].abs()));
+    // Largest first settles plain nesting in one round; each further round carries a
+    // change one level deeper, so n + 1 rounds reach the fixed point of any nesting.
+    for _ in 0..=n {
+        let mut changed = false;
+        for &i in &order {
+            let shallowest = around[i]
+                .iter()
+                .map(|js| js.iter().map(|&j| depths[j] as i64).max().unwrap_or(-1))
+                .min();
+            let d = shallowest.map_or(0, |d| (d + 1) as usize);
+            changed |= d != depths[i];
+            depths[i] = d;
+        }
+        if !changed {
+            break;
         }
     }
     depths
 }
 
-/// Which piece each triangle belongs to and how deep each piece is nested, for meshes
-/// whose pieces overlap ([`crate::geometry::Pieces`]): at most [`MAX_OVERLAP_PIECES`]
-/// pieces, so that the set of pieces around a point fits in a u32's bits.
-pub fn piece_table(m: &TriMesh) -> Option<(Vec<u8>, Vec<usize>)> {
-    let pieces = pieces(m);
-    if pieces.len() > MAX_OVERLAP_PIECES {
+/// Where `p` is against a closed piece: Some(true) inside (|winding number| > 0.75),
+/// Some(false) outside (< 0.25), None on its surface (within `touch` of a face, where the
+/// winding number is whatever the faces' rounding makes it) or in between.
+fn side_of(m: &TriMesh, tris: &[usize], p: glam::DVec3, touch: f32) -> Option<bool> {
+    let q = glam::Vec3A::from(p.as_vec3());
+    let near = tris.iter().any(|&t| {
+        let [x, y, z] = m.triangles[t].map(|k| glam::Vec3A::from(m.positions[k as usize]));
+        crate::geometry::point_triangle_d2(q, x, y, z) < touch * touch
+    });
+    if near {
         return None;
+    }
+    let w = winding_number(m, tris, p).abs();
+    if w > 0.75 {
+        Some(true)
+    } else if w < 0.25 {
+        Some(false)
+    } else {
+        None
+    }
+}
+
+/// A millionth of the mesh's size: far above f32 rounding, far below any real overlap;
+/// points closer than this to a surface are on it.
+fn touch_distance(m: &TriMesh) -> f32 {
+    let (lo, hi) = m.bounds();
+    1e-6 * (hi - lo).max_element().max(f32::MIN_POSITIVE)
+}
+
+/// The pairs of closed pieces that overlap ([`overlapping_pieces`]) and, where there are
+/// any, which piece each triangle belongs to and how deep each piece is nested
+/// ([`crate::geometry::Pieces`]; at most [`MAX_OVERLAP_PIECES`] pieces, so that the set
+/// of pieces around a point fits in a u32's bits). Both read one survey of where the
+/// pieces' edges cross ([`crossing_probes`]).
+pub fn overlaps_and_pieces(m: &TriMesh) -> (Vec<(usize, usize)>, Option<(Vec<u8>, Vec<usize>)>) {
+    let pieces = pieces(m);
+    if pieces.len() < 2
+        || pieces.len() > MAX_OVERLAP_PIECES
+        || m.triangles.len() > MAX_OVERLAP_CHECK_TRIANGLES
+    {
+        return (Vec::new(), None);
+    }
+    let crossing = crossing_probes(m, &pieces, touch_distance(m));
+    let overlaps = overlapping(m, &pieces, &crossing);
+    if overlaps.is_empty() {
+        return (overlaps, None);
     }
     let volumes: Vec<f64> = pieces
         .iter()
         .map(|tris| tris.iter().map(|&t| m.volume6_of(t)).sum())
         .collect();
-    let depths = nesting_depths(m, &pieces, &volumes);
+    let depths = nesting_depths(m, &pieces, &volumes, &crossing);
     let mut of_tri = vec![0u8; m.triangles.len()];
     for (k, tris) in pieces.iter().enumerate() {
         for &t in tris {
             of_tri[t] = k as u8;
         }
     }
-    Some((of_tri, depths))
+    (overlaps, Some((of_tri, depths)))
 }
 
-/// Most pieces [`overlapping_pieces`] checks (and [`piece_table`] numbers).
+/// Most pieces [`overlapping_pieces`] checks (and [`overlaps_and_pieces`] numbers).
 pub const MAX_OVERLAP_PIECES: usize = 16;
 /// Most triangles of a mesh of several pieces that [`overlapping_pieces`] checks.
 pub const MAX_OVERLAP_CHECK_TRIANGLES: usize = 200_000;
@@ -342,19 +412,22 @@ fn pieces(m: &TriMesh) -> Vec<Vec<usize>> {
 /// does not (two overlapping boxes came out 4 % brighter than the one box they make).
 /// Found where some of a piece's probes (vertices and face centroids) lie
 /// clearly inside the other (winding number > 0.75) and some clearly outside (< 0.25);
-/// probes on the other's surface (touching parts) count as neither, or where an edge of
-/// one passes through a face of the other ([`crossing_surfaces`]; a rod through a plate
-/// has no probe inside the other). Checked for meshes of at most 16 pieces and 200,000
-/// triangles (the probes' cost is probes × triangles per pair); larger ones are not
-/// checked.
+/// probes on the other's surface (touching parts) count as neither. Besides sampled
+/// probes, the points where a piece's edges pass in and out of the other
+/// ([`crossing_probes`]; a rod through a plate has no sampled probe inside it). Checked
+/// for meshes of at most 16 pieces and 200,000 triangles (the probes' cost is probes ×
+/// triangles per pair); larger ones are not checked.
 pub fn overlapping_pieces(m: &TriMesh) -> Vec<(usize, usize)> {
-    let pieces = pieces(m);
-    if pieces.len() < 2
-        || pieces.len() > MAX_OVERLAP_PIECES
-        || m.triangles.len() > MAX_OVERLAP_CHECK_TRIANGLES
-    {
-        return Vec::new();
-    }
+    overlaps_and_pieces(m).0
+}
+
+/// [`overlapping_pieces`] of a mesh within the limits, given its pieces and their
+/// crossing probes.
+fn overlapping(
+    m: &TriMesh,
+    pieces: &[Vec<usize>],
+    crossing: &[Vec<Vec<glam::DVec3>>],
+) -> Vec<(usize, usize)> {
     // Probes: up to 64 of each piece's vertices, and on 64 of its triangles the centroid
     // and three points halfway from it to the edges' midpoints. Two boxes whose faces
     // lie in one plane overlap with every vertex on the other's surface, but some face
@@ -384,41 +457,31 @@ pub fn overlapping_pieces(m: &TriMesh) -> Vec<(usize, usize)> {
             vertices.chain(faces).collect()
         })
         .collect();
-    let bounds = piece_bounds(m, &pieces);
-    // A millionth of the mesh's size: far above f32 rounding, far below any real overlap.
-    let (lo, hi) = m.bounds();
-    let touch = 1e-6 * (hi - lo).max_element().max(f32::MIN_POSITIVE);
-    // Some of `a`'s probes clearly inside `b` and some clearly outside. A probe within
-    // `touch` of b's surface (a shared vertex, parts that touch with corners 3e-8 apart)
-    // is on it, where the winding number is undefined: neither.
+    let bounds = piece_bounds(m, pieces);
+    let touch = touch_distance(m);
+    // Some of `a`'s probes clearly inside `b` and some clearly outside; a probe on b's
+    // surface (a shared vertex, parts that touch with corners 3e-8 apart) is neither.
     // The probes are classified in parallel (each costs two passes over b's triangles).
     let straddles = |a: usize, b: usize| {
         use rayon::prelude::*;
         let (inside, outside) = probes[a]
             .par_iter()
-            .map(|&p| {
-                let q = glam::Vec3A::from(p);
-                let near = pieces[b].iter().any(|&t| {
-                    let [x, y, z] =
-                        m.triangles[t].map(|k| glam::Vec3A::from(m.positions[k as usize]));
-                    crate::geometry::point_triangle_d2(q, x, y, z) < touch * touch
-                });
-                if near {
-                    return (false, false);
-                }
-                let w = winding_number(m, &pieces[b], p.as_dvec3()).abs();
-                (w > 0.75, w < 0.25)
+            .map(|p| p.as_dvec3())
+            .chain(crossing[b][a].par_iter().copied())
+            .map(|p| match side_of(m, &pieces[b], p, touch) {
+                Some(true) => (true, false),
+                Some(false) => (false, true),
+                None => (false, false),
             })
             .reduce(|| (false, false), |x, y| (x.0 || y.0, x.1 || y.1));
         inside && outside
     };
-    let crossed = crossing_surfaces(m, &pieces, touch);
     let mut found = Vec::new();
     for i in 0..pieces.len() {
         for j in i + 1..pieces.len() {
             let apart =
                 bounds[i].1.cmplt(bounds[j].0).any() || bounds[j].1.cmplt(bounds[i].0).any();
-            if !apart && (crossed[i] & 1 << j != 0 || straddles(i, j) || straddles(j, i)) {
+            if !apart && (straddles(i, j) || straddles(j, i)) {
                 found.push((i, j));
             }
         }
@@ -426,19 +489,25 @@ pub fn overlapping_pieces(m: &TriMesh) -> Vec<(usize, usize)> {
     found
 }
 
-/// For each piece, the set (bit j for piece j) of the other pieces whose surface an edge
-/// of it passes through, or that pass through it: surfaces that cross overlap, whatever
-/// the probes saw. A thin piece through another (a rod through a plate) can have every
-/// probe outside the other; in general position the two surfaces' meeting segment ends
-/// on an edge of one of them inside a triangle of the other, which this finds for every
-/// such edge along a tree over the triangles. Only strict crossings count: both ends of
-/// the edge and the crossing point more than `touch` from the triangle's plane and edges.
-/// Faces in shared planes (overlapping boxes) meet at no such point; the probes find those.
-fn crossing_surfaces(m: &TriMesh, pieces: &[Vec<usize>], touch: f32) -> Vec<u32> {
+/// Points on the edges of each piece where they pass through other pieces' surfaces:
+/// `[j][i]` holds, for piece i's edges that meet piece j's faces, the midpoints between
+/// consecutive meeting points (the edge's ends included), up to 16. Each is inside j or
+/// outside it, away from its surface (unless two meetings nearly coincide), so they show
+/// how i lies against j where sampled probes may all miss: a thin rod through a plate has
+/// every vertex and face probe outside it, and where the rod lies on the plate's grid its
+/// edges meet the plate only at the plate's own edges and vertices. Empty beyond 16
+/// pieces or 200,000 triangles (the overlap checks' limits).
+fn crossing_probes(m: &TriMesh, pieces: &[Vec<usize>], touch: f32) -> Vec<Vec<Vec<glam::DVec3>>> {
     use obvhs::bvh2::builder::build_bvh2_from_tris;
     use obvhs::ray::Ray;
     use obvhs::triangle::Triangle;
     use rayon::prelude::*;
+    const KEEP: usize = 16;
+    let n = pieces.len();
+    let mut out = vec![vec![Vec::new(); n]; n];
+    if n < 2 || n > MAX_OVERLAP_PIECES || m.triangles.len() > MAX_OVERLAP_CHECK_TRIANGLES {
+        return out;
+    }
     let mut piece_of = vec![0u8; m.triangles.len()];
     for (k, tris) in pieces.iter().enumerate() {
         for &t in tris {
@@ -461,62 +530,84 @@ fn crossing_surfaces(m: &TriMesh, pieces: &[Vec<usize>], touch: f32) -> Vec<u32>
         &mut std::time::Duration::default(),
     );
     // A face in an axis plane has a flat box, which the slab test can miss by rounding.
-    for n in &mut bvh.nodes {
-        n.aabb.min -= touch;
-        n.aabb.max += touch;
+    for node in &mut bvh.nodes {
+        node.aabb.min -= touch;
+        node.aabb.max += touch;
     }
     let mut edges: Vec<(u32, u32, u8)> = m
         .triangles
         .iter()
         .zip(&piece_of)
         .flat_map(|(t, &k)| {
-            (0..3).map(move |e| (t[e].min(t[(e + 1) % 3]), t[e].max(t[(e + 1) % 3]), k))
+            (0..3).map(move |e| {
+                let (a, b) = (t[e], t[(e + 1) % 3]);
+                (a.min(b), a.max(b), k)
+            })
         })
         .collect();
     edges.sort_unstable();
     edges.dedup();
     let at = |i: u32| m.positions[i as usize].as_dvec3();
-    let touch = touch as f64;
-    let crosses = |p: glam::DVec3, q: glam::DVec3, t: usize| {
+    // Where the segment p→q meets triangle t, as a fraction of the way (Möller and
+    // Trumbore's test in f64, edges and vertices of t included).
+    let meets = |p: glam::DVec3, q: glam::DVec3, t: usize| -> Option<f64> {
         let [x, y, z] = m.triangles[t].map(at);
-        let n = (y - x).cross(z - x);
-        let len = n.length();
-        if len == 0.0 {
-            return false;
+        let (e1, e2, d) = (y - x, z - x, q - p);
+        let pv = d.cross(e2);
+        let det = e1.dot(pv);
+        if det == 0.0 {
+            return None;
         }
-        let (dp, dq) = (n.dot(p - x) / len, n.dot(q - x) / len);
-        if dp.abs() <= touch || dq.abs() <= touch || (dp > 0.0) == (dq > 0.0) {
-            return false;
-        }
-        let c = p + (q - p) * (dp / (dp - dq));
-        [(x, y), (y, z), (z, x)].iter().all(|&(u, v)| {
-            let side = (v - u).cross(c - u).dot(n) / len;
-            side > touch * (v - u).length()
-        })
+        let tv = p - x;
+        let u = tv.dot(pv) / det;
+        let qv = tv.cross(e1);
+        let v = d.dot(qv) / det;
+        let s = e2.dot(qv) / det;
+        let slack = 1e-9;
+        (u >= -slack && v >= -slack && u + v <= 1.0 + slack && (0.0..=1.0).contains(&s))
+            .then_some(s)
     };
-    edges
+    let found: Vec<(u8, u8, glam::DVec3)> = edges
         .par_iter()
-        .fold(
-            || vec![0u32; pieces.len()],
-            |mut sets, &(a, b, k)| {
-                let (p, q) = (at(a), at(b));
-                let (pa, pb) = (m.positions[a as usize], m.positions[b as usize]);
-                let ray = Ray::new(pa.to_array().into(), (pb - pa).to_array().into(), 0.0, 1.0);
-                bvh.ray_traverse_anyhit(ray, |_, id| {
-                    let t = bvh.primitive_indices[id] as usize;
-                    let j = piece_of[t];
-                    if j != k && sets[k as usize] & 1 << j == 0 && crosses(p, q, t) {
-                        sets[k as usize] |= 1 << j;
-                        sets[j as usize] |= 1 << k;
+        .flat_map_iter(|&(a, b, k)| {
+            let (p, q) = (at(a), at(b));
+            let (pa, pb) = (m.positions[a as usize], m.positions[b as usize]);
+            let ray = Ray::new(pa.to_array().into(), (pb - pa).to_array().into(), 0.0, 1.0);
+            let mut hits: Vec<(u8, f64)> = Vec::new();
+            bvh.ray_traverse_anyhit(ray, |_, id| {
+                let t = bvh.primitive_indices[id] as usize;
+                if piece_of[t] != k
+                    && let Some(s) = meets(p, q, t)
+                {
+                    hits.push((piece_of[t], s));
+                }
+            });
+            hits.sort_by(|x, y| x.0.cmp(&y.0).then(x.1.total_cmp(&y.1)));
+            // Midpoints between consecutive meetings with each piece, the ends included;
+            // meetings closer than 2·touch along the edge (one point met through a
+            // shared edge, or a graze) leave no midpoint between them.
+            let gap = 2.0 * touch as f64 / (q - p).length().max(f64::MIN_POSITIVE);
+            let mut mids = Vec::new();
+            for group in hits.chunk_by(|x, y| x.0 == y.0) {
+                let j = group[0].0;
+                let mut last = 0.0;
+                for s in group.iter().map(|h| h.1).chain([1.0]) {
+                    if s - last > gap {
+                        mids.push((k, j, p + (q - p) * (0.5 * (last + s))));
+                        last = s;
                     }
-                });
-                sets
-            },
-        )
-        .reduce(
-            || vec![0u32; pieces.len()],
-            |a, b| a.iter().zip(&b).map(|(x, y)| x | y).collect(),
-        )
+                }
+            }
+            mids
+        })
+        .collect();
+    for (k, j, x) in found {
+        let list = &mut out[j as usize][k as usize];
+        if list.len() < KEEP {
+            list.push(x);
+        }
+    }
+    out
 }
 
 /// Each piece's bounding box.

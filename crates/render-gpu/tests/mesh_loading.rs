@@ -565,6 +565,12 @@ fn moved(mut m: mesh::TriMesh, by: glam::Vec3) -> mesh::TriMesh {
     m
 }
 
+/// The mesh with its triangles listed in `order` (a file may list them in any order).
+fn listed(mut m: mesh::TriMesh, order: &[usize]) -> mesh::TriMesh {
+    m.triangles = order.iter().map(|&k| m.triangles[k]).collect();
+    m
+}
+
 fn scaled(mut m: mesh::TriMesh, by: glam::Vec3) -> mesh::TriMesh {
     m.positions.iter_mut().for_each(|p| *p *= by);
     m
@@ -577,7 +583,7 @@ fn scaled(mut m: mesh::TriMesh, by: glam::Vec3) -> mesh::TriMesh {
 fn pieces_are_wound_by_their_nesting() {
     let c = mesh::cube;
     let bar = |along: glam::Vec3| scaled(c(1.0), glam::Vec3::splat(0.6) + 1.4 * along);
-    let cases: [(&str, Vec<Piece>, f64); 11] = [
+    let cases: [(&str, Vec<Piece>, f64); 13] = [
         // A hollow box: the inner wall bounds the medium from inside (8 − 1).
         (
             "shell, walls wound alike",
@@ -663,6 +669,59 @@ fn pieces_are_wound_by_their_nesting() {
             vec![(bar(glam::Vec3::X), false), (bar(glam::Vec3::Y), true)],
             2.0 * 2.0 * 0.36,
         ),
+        // Boxes overlapping with four faces in shared planes: every probe of the smaller
+        // one that is not outside the larger lies on its faces, where the winding number
+        // is 0 or 1 by rounding; read as inside, the smaller box was taken for a cavity.
+        // (Its triangles are listed so that the first, fourth, seventh and tenth, where
+        // the depth used to be judged, are on its +z and +y faces, in A's planes.)
+        (
+            "overlapping, faces in shared planes",
+            vec![
+                (scaled(c(1.0), glam::Vec3::new(2.0, 1.0, 1.0)), false),
+                (
+                    listed(
+                        moved(c(1.0), glam::Vec3::X * 0.7),
+                        &[2, 0, 1, 3, 4, 5, 6, 8, 9, 7, 10, 11],
+                    ),
+                    false,
+                ),
+            ],
+            2.0 + 1.0,
+        ),
+        // A cavity across the seam of two solids, larger than one of them (1.472 against
+        // 2.0 and 0.7): settled largest first, it was reached before the smaller solid
+        // around part of it and taken for solid.
+        (
+            "cavity across the seam, larger than a solid",
+            vec![
+                (
+                    moved(
+                        scaled(c(1.0), glam::Vec3::new(2.0, 1.0, 1.0)),
+                        -glam::Vec3::X * 0.5,
+                    ),
+                    false,
+                ),
+                (
+                    moved(
+                        scaled(c(1.0), glam::Vec3::new(0.7, 1.0, 1.0)),
+                        glam::Vec3::X * 0.65,
+                    ),
+                    false,
+                ),
+                // (Listed from its +x face, inside the smaller solid only.)
+                (
+                    listed(
+                        moved(
+                            scaled(c(1.0), glam::Vec3::new(2.3, 0.8, 0.8)),
+                            -glam::Vec3::X * 0.25,
+                        ),
+                        &[10, 11, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9],
+                    ),
+                    false,
+                ),
+            ],
+            2.0 + 0.7 - 2.3 * 0.8 * 0.8,
+        ),
         // A thin rod through a plate, off its middle: none of either's probes (vertices,
         // centroids, points halfway to the edges' midpoints; the rod's at heights −1,
         // −0.425, −0.233, 0.15, 0.533, 0.725, 1.3, the plate 0.1 thick about 0) lies
@@ -701,6 +760,8 @@ fn pieces_are_wound_by_their_nesting() {
             "cavity across the seam of an overlapping pair" => &[(0, 1), (0, 2), (1, 2)],
             "crossing bars" => &[(0, 1)],
             "rod through a plate" => &[(0, 1)],
+            "overlapping, faces in shared planes" => &[(0, 1)],
+            "cavity across the seam, larger than a solid" => &[(0, 1), (0, 2), (1, 2)],
             _ => &[],
         };
         assert_eq!(overlaps, want_overlaps, "{what}");
@@ -719,6 +780,96 @@ fn pieces_are_wound_by_their_nesting() {
                 assert_eq!(geo.inside(at), inside, "{what}: at {at}");
             }
         }
+    }
+}
+
+/// A box over `lo..hi` whose faces are grids of `n` cells along each axis (welded on
+/// loading): its vertices are at lo + (hi − lo)·k/n, computed by one formula so that
+/// faces meet exactly and other meshes can be placed on the grid.
+fn gridded_box(lo: glam::Vec3, hi: glam::Vec3, n: [u32; 3]) -> mesh::TriMesh {
+    let at = |k: [u32; 3]| {
+        glam::Vec3::from_array(std::array::from_fn(|a| {
+            lo[a] + (hi[a] - lo[a]) * (k[a] as f32 / n[a] as f32)
+        }))
+    };
+    let mut m = mesh::TriMesh::default();
+    // Each face: the fixed axis and side, and the two axes it runs along, in the order
+    // that makes their cross product point outward.
+    for (fixed, side, u, v) in [
+        (2, 1, 0, 1),
+        (2, 0, 1, 0),
+        (0, 1, 1, 2),
+        (0, 0, 2, 1),
+        (1, 1, 2, 0),
+        (1, 0, 0, 2),
+    ] {
+        for i in 0..n[u] {
+            for j in 0..n[v] {
+                let base = m.positions.len() as u32;
+                for (di, dj) in [(0, 0), (1, 0), (1, 1), (0, 1)] {
+                    let mut k = [0; 3];
+                    k[fixed] = side * n[fixed];
+                    k[u] = i + di;
+                    k[v] = j + dj;
+                    m.positions.push(at(k));
+                }
+                m.triangles.push([base, base + 1, base + 2]);
+                m.triangles.push([base, base + 2, base + 3]);
+            }
+        }
+    }
+    m
+}
+
+/// Overlaps that sampled probes miss are found where the pieces' edges pass in and out
+/// of each other, and an overlapping piece is never taken for a cavity.
+#[test]
+fn overlaps_are_found_where_edges_cross() {
+    // A rod through a 20 × 20-cell plate on the plate's grid: its edges meet the plate
+    // only at the plate's vertices, where no edge passes strictly through a face, and
+    // none of either's sampled probes lies inside the other (the rod's are at heights
+    // −1, −0.425, −0.233, 0.15, 0.533, 0.725, 1.3; the plate's cells inside the rod are
+    // 4 of its 1,760 triangles).
+    let (lo, hi) = (
+        glam::Vec3::new(-1.0, -1.0, -0.05),
+        glam::Vec3::new(1.0, 1.0, 0.05),
+    );
+    let plate = gridded_box(lo, hi, [20, 20, 1]);
+    let grid = |k: f32| -1.0 + 2.0 * (k / 20.0);
+    let rod = gridded_box(
+        glam::Vec3::new(grid(13.0), grid(7.0), -1.0),
+        glam::Vec3::new(grid(14.0), grid(8.0), 1.3),
+        [1, 1, 1],
+    );
+    let m = mesh::prepare(pieces(&[(plate, false), (rod, false)])).unwrap();
+    let (v, _) = volume_and_area(&m);
+    let want = 2.0 * 2.0 * 0.1 + 0.1 * 0.1 * 2.3;
+    assert!(
+        (v - want).abs() < 1e-5,
+        "rod on the grid: volume {v}, want {want}"
+    );
+    assert_eq!(mesh::overlapping_pieces(&m), [(0, 1)], "rod on the grid");
+    // A ball poking out of a box by a cap 0.3 deep, its triangles listed from several
+    // starts: the ball was taken for a cavity whenever the 4 centroids that judged its
+    // depth all lay inside the box (air where it pokes out, the rest of the box carved).
+    let ball = mesh::sphere(0.5);
+    let ball_volume = volume_and_area(&ball).0;
+    let b = moved(
+        scaled(mesh::cube(1.0), glam::Vec3::new(1.2, 1.6, 1.6)),
+        glam::Vec3::X * 0.4,
+    );
+    let n = ball.triangles.len();
+    for start in (0..n).step_by(n / 12) {
+        let mut turned = ball.clone();
+        turned.triangles.rotate_left(start);
+        let m = mesh::prepare(pieces(&[(b.clone(), false), (turned, false)])).unwrap();
+        let (v, _) = volume_and_area(&m);
+        let want = 1.2 * 1.6 * 1.6 + ball_volume;
+        assert!(
+            (v - want).abs() < 1e-5,
+            "ball listed from triangle {start}: volume {v}, want {want}"
+        );
+        assert_eq!(mesh::overlapping_pieces(&m), [(0, 1)], "ball from {start}");
     }
 }
 
