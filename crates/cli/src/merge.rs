@@ -177,8 +177,14 @@ pub(crate) fn write_image_set_with(
     files.extend(json.map(|j| (js.as_path(), j)));
     files.extend(var_bytes.as_deref().map(|v| (var.as_path(), v)));
     // An OUT.var.exr of an earlier render would sit beside the new image as if it were
-    // its own (it carries no tag to tell): removed once the set is in place.
-    let stale = variance.is_none() && var.is_file();
+    // its own (it carries no tag to tell): removed once the set is in place. Only an
+    // untagged image with no PNG beside it, as variance images are written: a render,
+    // montage or map the user named OUT.var (its EXR is OUT.var.exr) has OUT.var.png, and
+    // a render its tag; one was deleted as a stale variance image.
+    let stale = variance.is_none()
+        && var.is_file()
+        && !image_out(out, "var.png").exists()
+        && matches!(render_gpu::image_io::read_exr(&var), Ok((_, None)));
     scatter_sim::output::write_atomic_set(&files)
         .map_err(|(path, e)| anyhow!("cannot write {}: {e}", path.display()))?;
     if stale {
@@ -278,12 +284,17 @@ fn merge_binary(a: &Args) -> Result<()> {
     } else {
         runs_note(&header.pieces)
     };
+    let cancel = crate::interrupt::flag();
     let pb = progress::bar(header.count, "rows");
     let mut sink = dataset::create_sink(&a.out, header.clone())?;
     for r in &mut readers {
         while let Some(row) = r.next_row()? {
             sink.push(&row)?;
             pb.inc(1);
+            // (The sink's temporary file is removed as it is dropped.)
+            if cancel.load(std::sync::atomic::Ordering::Relaxed) {
+                bail!("interrupted: nothing written to {}", a.out.display());
+            }
         }
     }
     sink.finish()?;
@@ -348,6 +359,7 @@ fn merge_csv(a: &Args) -> Result<()> {
             a.out.display()
         );
     }
+    let cancel = crate::interrupt::flag();
     let mut out =
         AtomicFile::create(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
     let mut rows = 0u64;
@@ -382,6 +394,10 @@ fn merge_csv(a: &Args) -> Result<()> {
                 .map_err(|e| anyhow!("{}: line {}: {e}", path.display(), n + 2))?;
             writeln!(out, "{line}")?;
             rows += 1;
+            // (The temporary file is removed as `out` is dropped.)
+            if cancel.load(std::sync::atomic::Ordering::Relaxed) {
+                bail!("interrupted: nothing written to {}", a.out.display());
+            }
         }
     }
     out.commit()

@@ -391,6 +391,52 @@ fn interrupted_runs_leave_no_files() {
     }
 }
 
+/// Ctrl-C stops `merge` too, into CSV and binary: it was killed outright and left its
+/// hidden temporary (224 MB for a 4-million-walk dataset) beside the output.
+#[cfg(unix)]
+#[test]
+fn an_interrupted_merge_leaves_no_files() {
+    use common::interrupt_when;
+    use std::process::{Command, Stdio};
+    use std::time::Duration;
+    let dir = tempfile::tempdir().unwrap();
+    // 0.3-0.4 s to merge into binary on the development VM (longer into CSV), many times
+    // the 20 ms the signal waits after the temporary appears.
+    ok(&stcvae(
+        &words("generate --samples 4000000 --tau 5 --g 0 --albedo 1 --seed 3 --out big.bin"),
+        dir.path(),
+    ));
+    for out_name in ["merged.csv", "merged.bin"] {
+        let child = Command::new(env!("CARGO_BIN_EXE_stcvae"))
+            .args(["merge", "big.bin", "--out", out_name])
+            .current_dir(dir.path())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let started = || {
+            fs::read_dir(dir.path())
+                .unwrap()
+                .flatten()
+                .any(|e| e.file_name().to_string_lossy().ends_with(".partial"))
+        };
+        interrupt_when(&child, started, Duration::from_millis(20), 1, out_name);
+        let out = child.wait_with_output().unwrap();
+        let err = stderr(&out);
+        assert_eq!(out.status.code(), Some(130), "{out_name}: {err}");
+        assert!(
+            err.contains("interrupted: nothing written"),
+            "{out_name}: {err}"
+        );
+        let left: Vec<_> = fs::read_dir(dir.path())
+            .unwrap()
+            .flatten()
+            .map(|e| e.file_name())
+            .filter(|n| n != "big.bin")
+            .collect();
+        assert!(left.is_empty(), "{out_name}: left {left:?}");
+    }
+}
+
 /// Where stderr is not a terminal (a batch job's log), the progress bar is written as
 /// plain lines every STCVAE_LOG_PROGRESS_EVERY seconds; at 0, at every draw. The bar must
 /// show in the captured stderr with its count and unit, one bar state per line.

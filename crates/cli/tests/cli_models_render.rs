@@ -1560,6 +1560,25 @@ fn render_variance_writes_a_variance_image() {
         common::stderr(&e)
     );
     assert!(!var.exists());
+    // But a render the user named v.var (its files v.var.exr, .png, .json) is no variance
+    // image of v, and stays.
+    let named = d.path().join("v.var");
+    ok(&stcvae(&[
+        "render",
+        "--scene",
+        s,
+        "--spp",
+        "2",
+        "--out",
+        named.to_str().unwrap(),
+    ]));
+    let e = stcvae(&["render", "--scene", s, "--spp", "2", "--out", o]);
+    assert!(
+        e.status.success() && !common::stderr(&e).contains("removed"),
+        "{}",
+        common::stderr(&e)
+    );
+    assert!(var.exists(), "the render v.var.exr was removed");
     let few = d.path().join("few");
     let e = stcvae(&[
         "render",

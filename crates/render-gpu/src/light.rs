@@ -220,6 +220,21 @@ impl Environment {
             (None, Some(_)) => [1.0; 3],
             (None, None) => [0.0; 3],
         };
+        // The radiance seen is the scale times the pixel, each within the bound alone; a
+        // product beyond it (1e12 × 1e12) overflowed f32 in `--variance`'s squared sums.
+        if let (Some(m), Some(f)) = (&map, &d.file) {
+            for (k, &r) in radiance.iter().enumerate() {
+                let top = m.pixels.iter().map(|p| p[k]).fold(0.0f32, f32::max);
+                let seen = r as f64 * top as f64;
+                if seen > crate::scene::MAX_RADIANCE {
+                    return Err(RenderError::Image(format!(
+                        "{}: environment.radiance[{k}] = {r} times the map's largest value                          {top} there is {seen:e}, beyond the radiance bound: the product must                          be at most {:e}",
+                        scene_dir.join(f).display(),
+                        crate::scene::MAX_RADIANCE
+                    )));
+                }
+            }
+        }
         Ok(Self { radiance, map })
     }
 

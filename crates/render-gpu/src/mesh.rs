@@ -757,6 +757,14 @@ fn check_closed(m: &TriMesh) -> Result<(), String> {
         .values()
         .filter(|&&(f, b)| f + b == 2 && f != b)
         .count();
+    if boundary == 0 && non_manifold > 0 {
+        // Closed, but parts meet along edges: welding made one edge of their two.
+        return Err(format!(
+            "the mesh is not a manifold surface: more than two faces share {non_manifold} of \
+             its edges, where parts of it touch or overlap along a common edge (welded into \
+             one there); move such parts apart or join them into one closed surface"
+        ));
+    }
     if boundary > 0 || non_manifold > 0 {
         return Err(format!(
             "the mesh is not closed: {boundary} boundary edges and {non_manifold} non-manifold edges \

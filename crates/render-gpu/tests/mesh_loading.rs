@@ -371,6 +371,24 @@ fn environment_maps_with_bad_pixels_are_refused() {
             .to_string();
         assert!(e.contains(name) && e.contains("pixel (1, 1)"), "{e}");
     }
+    // Pixels and scale each within the bound, their product beyond it (the variance's
+    // squared sums overflowed f32 to inf): refused, naming the field and the file.
+    img.pixels.fill([0.5; 3]);
+    img.pixels[3] = [0.5, 1e12, 0.5];
+    write_exr(&d.path().join("bright.exr"), &img, &tag).unwrap();
+    let scaled = |r: f64| render_gpu::scene::EnvironmentDesc {
+        radiance: Some([1.0, r, 1.0]),
+        file: Some("bright.exr".into()),
+    };
+    assert!(render_gpu::light::Environment::new(&scaled(1.0), d.path()).is_ok());
+    let e = render_gpu::light::Environment::new(&scaled(1e12), d.path())
+        .err()
+        .expect("a product beyond the bound is refused")
+        .to_string();
+    assert!(
+        e.contains("bright.exr") && e.contains("environment.radiance[1]") && e.contains("1e12"),
+        "{e}"
+    );
 }
 
 /// An EXR whose header promises a huge image is refused before its pixels are allocated
@@ -765,6 +783,31 @@ fn pieces_are_wound_by_their_nesting() {
             _ => &[],
         };
         assert_eq!(overlaps, want_overlaps, "{what}");
+        if what == "overlapping" {
+            // Two boxes in an L, overlapping from one corner edge (one edge of four faces
+            // once welded), are refused with the reason, not as "not closed".
+            let e = mesh::prepare(pieces(&[
+                (
+                    moved(
+                        scaled(c(1.0), glam::Vec3::new(2.0, 1.0, 1.0)),
+                        -glam::Vec3::Y * 0.5,
+                    ),
+                    false,
+                ),
+                (
+                    moved(
+                        scaled(c(1.0), glam::Vec3::new(1.0, 2.0, 1.0)),
+                        -glam::Vec3::X * 0.5,
+                    ),
+                    false,
+                ),
+            ]))
+            .unwrap_err();
+            assert!(
+                e.contains("more than two faces share 1 of its edges"),
+                "{e}"
+            );
+        }
         if what == "rod through a plate" {
             // Where the rod is within the plate the point is in the medium: by crossing
             // parity (the overlap missed) it was air, two faces ahead of it.
