@@ -8,6 +8,7 @@ mod device;
 mod experiment;
 mod generate;
 mod interrupt;
+mod left_over;
 mod merge;
 mod model_cmds;
 mod paths;

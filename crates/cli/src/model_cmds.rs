@@ -257,14 +257,17 @@ struct EvalJson<'a> {
 }
 
 pub fn evaluate(a: EvalArgs) -> Result<()> {
+    let before = crate::left_over::Snapshot::take(&a.out);
     if !a.at.is_empty() {
-        return evaluate_settings(&a);
+        evaluate_settings(&a)?;
+    } else {
+        evaluate_into(a.model.as_deref(), &a.out, a.samples, a.seed)?;
+        print!(
+            "{}",
+            String::from_utf8_lossy(&std::fs::read(a.out.join("metrics.md"))?)
+        );
     }
-    evaluate_into(a.model.as_deref(), &a.out, a.samples, a.seed)?;
-    print!(
-        "{}",
-        String::from_utf8_lossy(&std::fs::read(a.out.join("metrics.md"))?)
-    );
+    before.note_left_over("metrics.md");
     Ok(())
 }
 

@@ -118,6 +118,84 @@ fn every_experiment_runs_quick() {
     assert!(err.contains("teaser_k1.exr: no stcvae render tag"), "{err}");
 }
 
+/// A second run into the same folder with fewer densities names the first run's images
+/// it did not write again (they stayed beside the new report unsaid), and deletes none;
+/// a run that rewrites them all says nothing.
+#[test]
+fn files_of_an_earlier_run_are_named() {
+    let d = tempfile::tempdir().unwrap();
+    let scene = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../configs/scenes/sphere.toml"
+    );
+    let cfg = d.path().join("tiny.toml");
+    let write = |densities: &str| {
+        std::fs::write(
+            &cfg,
+            format!(
+                "kind = \"teaser\"\ntitle = \"t\"\nscene = {scene:?}\ndensities = [{densities}]\n\
+                 [full]\nsize = 8\nspp = 2\n[quick]\nsize = 8\nspp = 2\n"
+            ),
+        )
+        .unwrap()
+    };
+    let out = d.path().join("results");
+    let run = || {
+        let o = quick_experiment(&cfg, &out);
+        let err = String::from_utf8_lossy(&o.stderr).into_owned();
+        assert!(o.status.success(), "{err}");
+        err
+    };
+    write("1.0, 2.0");
+    assert!(!run().contains("earlier run"));
+    assert!(!run().contains("earlier run"), "all rewritten");
+    write("1.0");
+    let err = run();
+    let note = err
+        .lines()
+        .find(|l| l.contains("of an earlier run that this one did not write"))
+        .unwrap_or_else(|| panic!("no note in {err}"));
+    let files = note.split("): ").nth(1).unwrap();
+    assert!(
+        files.contains("pt_k2.exr")
+            && files.contains("teaser_k2.png")
+            && !files.contains("k1")
+            && !files.contains("report.md")
+            && !files.contains("figures.csv"),
+        "{note}"
+    );
+    assert!(
+        out.join("tiny").join("pt_k2.exr").exists(),
+        "named, not deleted"
+    );
+    // A scene whose camera looks away from the object has nothing to measure: an error
+    // naming it, not offsets of 0/0 in figures.csv.
+    let away = d.path().join("away.toml");
+    std::fs::write(
+        &away,
+        std::fs::read_to_string(scene)
+            .unwrap()
+            .replace("target = [0.0, 0.0, 0.0]", "target = [0.0, 0.0, 10.0]"),
+    )
+    .unwrap();
+    std::fs::write(
+        &cfg,
+        format!(
+            "kind = \"absorption\"\ntitle = \"t\"\nscene = {away:?}\nabsorptions = [0.01]\n\
+             [full]\nsize = 8\nspp = 2\n[quick]\nsize = 8\nspp = 2\n"
+        ),
+    )
+    .unwrap();
+    let o = quick_experiment(&cfg, &out);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success()
+            && err.contains("away.toml: no pixel differs between the renders")
+            && err.contains("out of view, unlit or black"),
+        "{err}"
+    );
+}
+
 #[test]
 fn bad_experiment_config_is_a_clear_error() {
     let tmp = tempfile::tempdir().unwrap();

@@ -323,12 +323,15 @@ fn touch_distance(m: &TriMesh) -> f32 {
     1e-6 * (hi - lo).max_element().max(f32::MIN_POSITIVE)
 }
 
+/// Per triangle its piece's number, and per piece its nesting depth.
+pub type PieceTable = (Vec<u8>, Vec<usize>);
+
 /// The pairs of closed pieces that overlap ([`overlapping_pieces`]) and, where there are
 /// any, which piece each triangle belongs to and how deep each piece is nested
 /// ([`crate::geometry::Pieces`]; at most [`MAX_OVERLAP_PIECES`] pieces, so that the set
 /// of pieces around a point fits in a u32's bits). Both read one survey of where the
 /// pieces' edges cross ([`crossing_probes`]).
-pub fn overlaps_and_pieces(m: &TriMesh) -> (Vec<(usize, usize)>, Option<(Vec<u8>, Vec<usize>)>) {
+pub fn overlaps_and_pieces(m: &TriMesh) -> (Vec<(usize, usize)>, Option<PieceTable>) {
     let pieces = pieces(m);
     if pieces.len() < 2
         || pieces.len() > MAX_OVERLAP_PIECES
@@ -505,7 +508,7 @@ fn crossing_probes(m: &TriMesh, pieces: &[Vec<usize>], touch: f32) -> Vec<Vec<Ve
     const KEEP: usize = 16;
     let n = pieces.len();
     let mut out = vec![vec![Vec::new(); n]; n];
-    if n < 2 || n > MAX_OVERLAP_PIECES || m.triangles.len() > MAX_OVERLAP_CHECK_TRIANGLES {
+    if !(2..=MAX_OVERLAP_PIECES).contains(&n) || m.triangles.len() > MAX_OVERLAP_CHECK_TRIANGLES {
         return out;
     }
     let mut piece_of = vec![0u8; m.triangles.len()];

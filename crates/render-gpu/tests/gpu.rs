@@ -1664,7 +1664,7 @@ fn wgsl_shadow_rays_through_overlaps_match_rust() {
     for ((x, d), o) in rays.iter().zip(&out) {
         let walked = o[4] == 1.0;
         more += walked as usize;
-        for c in 0..3 {
+        for (c, &gpu) in o[..3].iter().enumerate() {
             let cpu = if walked {
                 transmittance_ordered(&scene, *x, *d, c)
             } else {
@@ -1673,7 +1673,7 @@ fn wgsl_shadow_rays_through_overlaps_match_rust() {
             // The two devices round differently (WGSL may fuse multiply-adds); the bound
             // is shadow_rays.rs's for the sorted against the ordered walk, which differ
             // by eps/cos per crossing. Written so that a NaN counts as off.
-            if !((o[c] - cpu).abs() <= 2e-3 * cpu.max(1e-3) + 1e-6) {
+            if !((gpu - cpu).abs() <= 2e-3 * cpu.max(1e-3) + 1e-6) {
                 off += 1;
             }
         }

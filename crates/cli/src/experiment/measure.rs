@@ -159,7 +159,18 @@ pub fn render_pair(
     let [s1, s2] = pair_seeds(kind);
     let (a, hash) = render_once(ctx, scene, (kind, nee), edit, &opts(half, s1, None))?;
     let (b, _) = render_once(ctx, scene, (kind, nee), edit, &opts(half, s2, None))?;
-    Ok(Pair::from_halves(a, b, hash))
+    let pair = Pair::from_halves(a, b, hash);
+    // Every figure compares the object's pixels, found by their noise: with none (the
+    // object out of view, unlit or black) the offsets came out 0/0 in figures.csv.
+    if pair.var.iter().flatten().all(|&v| v <= 0.0) {
+        bail!(
+            "{}: no pixel differs between the renders of seeds {s1} and {s2}: the object is \
+             out of view, unlit or black, so there is nothing to measure (check the scene's \
+             camera, lights and medium)",
+            scene.display()
+        );
+    }
+    Ok(pair)
 }
 
 /// 1 / (the 99th percentile of the luminance of the reference's object pixels): images

@@ -90,6 +90,8 @@ pub fn run(a: Args) -> Result<()> {
         .map(PathBuf::from)
         .collect();
     std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
+    // (The reports below are removed now and written anew: never named as left over.)
+    let before = crate::left_over::Snapshot::take(&out);
     // The previous run's report goes now, not when this run's is written: a run that
     // fails part way must not leave a report that no longer matches its images.
     for stale in ["report.md", "figures.csv"] {
@@ -134,6 +136,7 @@ pub fn run(a: Args) -> Result<()> {
         return Err(e);
     }
     rep.write(&out)?;
+    before.note_left_over("report.md");
     eprintln!("wrote {}", out.join("report.md").display());
     Ok(())
 }
