@@ -1705,7 +1705,7 @@ fn overlapping_mesh_pieces_are_noted() {
     assert!(
         err.contains(
             "many.toml: the mesh has 17 closed pieces and 204 triangles: beyond 16 \
-                      pieces or 200000 triangles they are not checked for overlaps"
+                      pieces or 2000000 triangles they are not checked for overlaps"
         ),
         "{err}"
     );

@@ -16,6 +16,7 @@ pub mod integrator;
 pub mod light;
 pub mod mesh;
 pub mod optics;
+mod piece_survey;
 mod ply;
 pub mod render;
 pub mod scene;

@@ -10,6 +10,7 @@ use std::path::Path;
 use glam::{Mat4, Vec3};
 
 use crate::error::RenderError;
+use crate::piece_survey::{Sides, Survey};
 
 /// An indexed triangle mesh, outward-oriented (counter-clockwise seen from outside).
 #[derive(Clone, Debug, Default)]
@@ -204,10 +205,13 @@ pub fn prepare(mut m: TriMesh) -> Result<TriMesh, String> {
 /// outward, as before.
 fn orient_pieces(m: &mut TriMesh) {
     let pieces = pieces(m);
-    let volume6 = |tris: &[usize]| -> f64 { tris.iter().map(|&t| m.volume6_of(t)).sum() };
-    let volumes: Vec<f64> = pieces.iter().map(|t| volume6(t)).collect();
-    let crossing = crossing_probes(m, &pieces, touch_distance(m));
-    let depths = nesting_depths(m, &pieces, &volumes, &crossing);
+    let volumes = piece_volumes(m, &pieces);
+    let depths = if pieces.len() < 2 {
+        vec![0; pieces.len()]
+    } else {
+        let survey = Survey::new(m, &pieces);
+        nesting_depths(&survey.classified_probes(), &volumes)
+    };
     for ((tris, volume), depth) in pieces.iter().zip(volumes).zip(depths) {
         if (volume > 0.0) != (depth % 2 == 0) {
             for &t in tris {
@@ -217,110 +221,79 @@ fn orient_pieces(m: &mut TriMesh) {
     }
 }
 
-/// Each piece's nesting depth (see [`orient_pieces`]), whatever the pieces' winding.
-/// At points spread over piece i (up to 8 triangle centroids, and where i's edges pass
-/// in and out of other pieces: [`crossing_probes`]) the deepest of the pieces around it
-/// is found; i's depth is one more than the shallowest of those, −1 for a point outside
-/// every piece. So a piece within another is one deeper (a cavity inside two overlapping
-/// pieces, each solid, is one hole, not depth 2), and so is one within the union of
-/// overlapping pieces but in none of them alone (a cavity across their seam: taken for
-/// solid when containment was asked of one piece at a time); a piece partly outside
-/// everything is solid (depth 0), one that overlaps another. A point on another piece's
-/// surface says nothing about that piece (its winding number there is 0 or 1 by the
-/// faces' rounding): a box overlapping another with faces in shared planes was taken for
-/// a cavity. The depths are settled by repeating the rule until none changes, not in
-/// one pass largest piece first: a cavity across a seam can be larger than either solid.
-fn nesting_depths(
-    m: &TriMesh,
-    pieces: &[Vec<usize>],
-    volumes: &[f64],
-    crossing: &[Vec<Vec<glam::DVec3>>],
-) -> Vec<usize> {
-    let n = pieces.len();
-    let mut depths = vec![0usize; n];
-    if n < 2 {
-        return depths;
-    }
-    use rayon::prelude::*;
-    let bounds = piece_bounds(m, pieces);
-    let touch = touch_distance(m);
-    // For each probe of each piece, the other pieces clearly around it.
-    let around: Vec<Vec<Vec<usize>>> = (0..n)
-        .map(|i| {
-            let step = pieces[i].len().div_ceil(8);
-            let centroids = pieces[i].iter().step_by(step).map(|&t| {
-                let [a, b, c] = m.triangles[t].map(|k| m.positions[k as usize].as_dvec3());
-                (a + b + c) / 3.0
-            });
-            let probes: Vec<glam::DVec3> = centroids
-                .chain(crossing.iter().flat_map(|c| c[i].iter().copied()))
-                .collect();
-            probes
-                .par_iter()
-                .map(|&p| {
-                    (0..n)
-                        .filter(|&j| {
-                            let (lo, hi) = bounds[j];
-                            let p32 = p.as_vec3();
-                            j != i
-                                && lo.cmple(p32).all()
-                                && p32.cmple(hi).all()
-                                && side_of(m, &pieces[j], p, touch) == Some(true)
-                        })
-                        .collect()
-                })
-                .collect()
-        })
-        .collect();
+/// Six times each piece's signed volume.
+fn piece_volumes(m: &TriMesh, pieces: &[Vec<usize>]) -> Vec<f64> {
+    pieces
+        .iter()
+        .map(|tris| tris.iter().map(|&t| m.volume6_of(t)).sum())
+        .collect()
+}
+
+/// Each piece's nesting depth (see [`orient_pieces`]), whatever the pieces' winding, from
+/// its probes' sides of the other pieces ([`Survey::classified_probes`]: points spread
+/// over the piece and where other pieces' surfaces cross it). At each probe the deepest
+/// of the pieces around it is found; the piece's depth is one more than the shallowest
+/// of those, −1 for a point outside every piece. So a piece within another is one deeper
+/// (a cavity inside two overlapping pieces, each solid, is one hole, not depth 2), and so
+/// is one within the union of overlapping pieces but in none of them alone (a cavity
+/// across their seam); a piece partly outside everything is solid (depth 0), one that
+/// overlaps another.
+/// - A probe on another piece's surface counts as inside it where the piece's other
+///   probes say it encloses this one (a block resting on a cavity's floor, counted as
+///   outside the cavity there, was taken for air), and as outside it otherwise (boxes
+///   overlapping with faces in shared planes, whose side faces bound the union).
+/// - The depths are settled by repeating the rule until none changes, largest piece
+///   first (one round for plain nesting): a cavity across a seam can be larger than
+///   either solid. Should they not settle (pieces each around the other's probes, which
+///   no nesting makes), only larger pieces count as around a smaller one, which settles.
+fn nesting_depths(classified: &[Vec<Sides>], volumes: &[f64]) -> Vec<usize> {
+    let n = classified.len();
+    let around = |i: usize, larger_only: bool| -> Vec<Vec<usize>> {
+        // Pieces that enclose i: every probe of i that is off their surface is inside.
+        let encloses: Vec<bool> = (0..n)
+            .map(|j| {
+                let mut decided = classified[i].iter().filter_map(|s| s[j]).peekable();
+                j != i && decided.peek().is_some() && decided.all(|x| x)
+            })
+            .collect();
+        classified[i]
+            .iter()
+            .map(|s| {
+                (0..n)
+                    .filter(|&j| j != i && (s[j] == Some(true) || s[j].is_none() && encloses[j]))
+                    .filter(|&j| !larger_only || volumes[j].abs() > volumes[i].abs())
+                    .collect()
+            })
+            .collect()
+    };
     let mut order: Vec<usize> = (0..n).collect();
     order.sort_by(|&a, &b| volumes[b].abs().total_cmp(&volumes[a].abs()));
-    // Largest first settles plain nesting in one round; each further round carries a
-    // change one level deeper, so n + 1 rounds reach the fixed point of any nesting.
-    for _ in 0..=n {
-        let mut changed = false;
-        for &i in &order {
-            let shallowest = around[i]
-                .iter()
-                .map(|js| js.iter().map(|&j| depths[j] as i64).max().unwrap_or(-1))
-                .min();
-            let d = shallowest.map_or(0, |d| (d + 1) as usize);
-            changed |= d != depths[i];
-            depths[i] = d;
+    let settle = |around: &[Vec<Vec<usize>>]| -> Option<Vec<usize>> {
+        // Depths only grow from 0, one nesting level a round at most: n + 1 rounds
+        // settle any nesting of n pieces.
+        let mut depths = vec![0usize; n];
+        for _ in 0..=n {
+            let mut changed = false;
+            for &i in &order {
+                let shallowest = around[i]
+                    .iter()
+                    .map(|js| js.iter().map(|&j| depths[j] as i64).max().unwrap_or(-1))
+                    .min();
+                let d = shallowest.map_or(0, |d| (d + 1) as usize);
+                changed |= d != depths[i];
+                depths[i] = d;
+            }
+            if !changed {
+                return Some(depths);
+            }
         }
-        if !changed {
-            break;
-        }
-    }
-    depths
-}
-
-/// Where `p` is against a closed piece: Some(true) inside (|winding number| > 0.75),
-/// Some(false) outside (< 0.25), None on its surface (within `touch` of a face, where the
-/// winding number is whatever the faces' rounding makes it) or in between.
-fn side_of(m: &TriMesh, tris: &[usize], p: glam::DVec3, touch: f32) -> Option<bool> {
-    let q = glam::Vec3A::from(p.as_vec3());
-    let near = tris.iter().any(|&t| {
-        let [x, y, z] = m.triangles[t].map(|k| glam::Vec3A::from(m.positions[k as usize]));
-        crate::geometry::point_triangle_d2(q, x, y, z) < touch * touch
-    });
-    if near {
-        return None;
-    }
-    let w = winding_number(m, tris, p).abs();
-    if w > 0.75 {
-        Some(true)
-    } else if w < 0.25 {
-        Some(false)
-    } else {
         None
-    }
-}
-
-/// A millionth of the mesh's size: far above f32 rounding, far below any real overlap;
-/// points closer than this to a surface are on it.
-fn touch_distance(m: &TriMesh) -> f32 {
-    let (lo, hi) = m.bounds();
-    1e-6 * (hi - lo).max_element().max(f32::MIN_POSITIVE)
+    };
+    let all: Vec<_> = (0..n).map(|i| around(i, false)).collect();
+    settle(&all).unwrap_or_else(|| {
+        let larger: Vec<_> = (0..n).map(|i| around(i, true)).collect();
+        settle(&larger).unwrap_or_else(|| vec![0; n])
+    })
 }
 
 /// Per triangle its piece's number, and per piece its nesting depth.
@@ -329,8 +302,8 @@ pub type PieceTable = (Vec<u8>, Vec<usize>);
 /// The pairs of closed pieces that overlap ([`overlapping_pieces`]) and, where there are
 /// any, which piece each triangle belongs to and how deep each piece is nested
 /// ([`crate::geometry::Pieces`]; at most [`MAX_OVERLAP_PIECES`] pieces, so that the set
-/// of pieces around a point fits in a u32's bits). Both read one survey of where the
-/// pieces' edges cross ([`crossing_probes`]).
+/// of pieces around a point fits in a u32's bits). Both read one survey of the pieces
+/// ([`Survey`]).
 pub fn overlaps_and_pieces(m: &TriMesh) -> (Vec<(usize, usize)>, Option<PieceTable>) {
     let pieces = pieces(m);
     if pieces.len() < 2
@@ -339,16 +312,12 @@ pub fn overlaps_and_pieces(m: &TriMesh) -> (Vec<(usize, usize)>, Option<PieceTab
     {
         return (Vec::new(), None);
     }
-    let crossing = crossing_probes(m, &pieces, touch_distance(m));
-    let overlaps = overlapping(m, &pieces, &crossing);
+    let classified = Survey::new(m, &pieces).classified_probes();
+    let overlaps = overlapping(&classified);
     if overlaps.is_empty() {
         return (overlaps, None);
     }
-    let volumes: Vec<f64> = pieces
-        .iter()
-        .map(|tris| tris.iter().map(|&t| m.volume6_of(t)).sum())
-        .collect();
-    let depths = nesting_depths(m, &pieces, &volumes, &crossing);
+    let depths = nesting_depths(&classified, &piece_volumes(m, &pieces));
     let mut of_tri = vec![0u8; m.triangles.len()];
     for (k, tris) in pieces.iter().enumerate() {
         for &t in tris {
@@ -361,7 +330,7 @@ pub fn overlaps_and_pieces(m: &TriMesh) -> (Vec<(usize, usize)>, Option<PieceTab
 /// Most pieces [`overlapping_pieces`] checks (and [`overlaps_and_pieces`] numbers).
 pub const MAX_OVERLAP_PIECES: usize = 16;
 /// Most triangles of a mesh of several pieces that [`overlapping_pieces`] checks.
-pub const MAX_OVERLAP_CHECK_TRIANGLES: usize = 200_000;
+pub const MAX_OVERLAP_CHECK_TRIANGLES: usize = 2_000_000;
 
 /// The number of closed pieces of a mesh of several that [`overlapping_pieces`] does not
 /// check (beyond its limits), so that the user hears that overlaps there would render
@@ -413,234 +382,34 @@ fn pieces(m: &TriMesh) -> Vec<Vec<usize>> {
 /// without one enclosing the other. The renderers then follow which pieces a path is in
 /// ([`crate::geometry::Pieces`]) to render their union, which an inside/outside flag
 /// does not (two overlapping boxes came out 4 % brighter than the one box they make).
-/// Found where some of a piece's probes (vertices and face centroids) lie
-/// clearly inside the other (winding number > 0.75) and some clearly outside (< 0.25);
-/// probes on the other's surface (touching parts) count as neither. Besides sampled
-/// probes, the points where a piece's edges pass in and out of the other
-/// ([`crossing_probes`]; a rod through a plate has no sampled probe inside it). Checked
-/// for meshes of at most 16 pieces and 200,000 triangles (the probes' cost is probes ×
-/// triangles per pair); larger ones are not checked.
+/// Found where some of a piece's probes ([`Survey::classified_probes`]: sampled ones,
+/// and where other pieces' surfaces cross it) lie clearly inside the other and some
+/// clearly outside; probes on the other's surface (touching parts) count as neither.
+/// Checked for meshes of at most 16 pieces (the pieces around a point are a u32's bits)
+/// and 2,000,000 triangles (the survey of 1,000,000 took ~0.5 s on 2 cores); larger ones
+/// are not checked.
 pub fn overlapping_pieces(m: &TriMesh) -> Vec<(usize, usize)> {
     overlaps_and_pieces(m).0
 }
 
-/// [`overlapping_pieces`] of a mesh within the limits, given its pieces and their
-/// crossing probes.
-fn overlapping(
-    m: &TriMesh,
-    pieces: &[Vec<usize>],
-    crossing: &[Vec<Vec<glam::DVec3>>],
-) -> Vec<(usize, usize)> {
-    // Probes: up to 64 of each piece's vertices, and on 64 of its triangles the centroid
-    // and three points halfway from it to the edges' midpoints. Two boxes whose faces
-    // lie in one plane overlap with every vertex on the other's surface, but some face
-    // points inside it; two bars crossing in a plus sign have every vertex and centroid
-    // outside the other (each long face's middle is inside the other bar: the points at
-    // barycentric (½, ¼, ¼) reach it).
-    let probes: Vec<Vec<Vec3>> = pieces
-        .iter()
-        .map(|tris| {
-            let mut v: Vec<u32> = tris.iter().flat_map(|&t| m.triangles[t]).collect();
-            v.sort_unstable();
-            v.dedup();
-            let every = |n: usize| n.div_ceil(64).max(1);
-            let vertices = v
-                .iter()
-                .step_by(every(v.len()))
-                .map(|&i| m.positions[i as usize]);
-            let faces = tris.iter().step_by(every(tris.len())).flat_map(|&t| {
-                let [a, b, c] = m.triangles[t].map(|i| m.positions[i as usize]);
-                [
-                    (a + b + c) / 3.0,
-                    0.5 * a + 0.25 * (b + c),
-                    0.5 * b + 0.25 * (c + a),
-                    0.5 * c + 0.25 * (a + b),
-                ]
-            });
-            vertices.chain(faces).collect()
-        })
-        .collect();
-    let bounds = piece_bounds(m, pieces);
-    let touch = touch_distance(m);
-    // Some of `a`'s probes clearly inside `b` and some clearly outside; a probe on b's
-    // surface (a shared vertex, parts that touch with corners 3e-8 apart) is neither.
-    // The probes are classified in parallel (each costs two passes over b's triangles).
+/// [`overlapping_pieces`] from each piece's probes' sides of the others: a pair overlaps
+/// where some probes of one lie clearly inside the other and some clearly outside
+/// (probes on the other's surface, as where parts touch, count as neither).
+fn overlapping(classified: &[Vec<Sides>]) -> Vec<(usize, usize)> {
+    let n = classified.len();
     let straddles = |a: usize, b: usize| {
-        use rayon::prelude::*;
-        let (inside, outside) = probes[a]
-            .par_iter()
-            .map(|p| p.as_dvec3())
-            .chain(crossing[b][a].par_iter().copied())
-            .map(|p| match side_of(m, &pieces[b], p, touch) {
-                Some(true) => (true, false),
-                Some(false) => (false, true),
-                None => (false, false),
-            })
-            .reduce(|| (false, false), |x, y| (x.0 || y.0, x.1 || y.1));
-        inside && outside
+        let seen = |side: bool| classified[a].iter().any(|s| s[b] == Some(side));
+        seen(true) && seen(false)
     };
     let mut found = Vec::new();
-    for i in 0..pieces.len() {
-        for j in i + 1..pieces.len() {
-            let apart =
-                bounds[i].1.cmplt(bounds[j].0).any() || bounds[j].1.cmplt(bounds[i].0).any();
-            if !apart && (straddles(i, j) || straddles(j, i)) {
+    for i in 0..n {
+        for j in i + 1..n {
+            if straddles(i, j) || straddles(j, i) {
                 found.push((i, j));
             }
         }
     }
     found
-}
-
-/// Points on the edges of each piece where they pass through other pieces' surfaces:
-/// `[j][i]` holds, for piece i's edges that meet piece j's faces, the midpoints between
-/// consecutive meeting points (the edge's ends included), up to 16. Each is inside j or
-/// outside it, away from its surface (unless two meetings nearly coincide), so they show
-/// how i lies against j where sampled probes may all miss: a thin rod through a plate has
-/// every vertex and face probe outside it, and where the rod lies on the plate's grid its
-/// edges meet the plate only at the plate's own edges and vertices. Empty beyond 16
-/// pieces or 200,000 triangles (the overlap checks' limits).
-fn crossing_probes(m: &TriMesh, pieces: &[Vec<usize>], touch: f32) -> Vec<Vec<Vec<glam::DVec3>>> {
-    use obvhs::bvh2::builder::build_bvh2_from_tris;
-    use obvhs::ray::Ray;
-    use obvhs::triangle::Triangle;
-    use rayon::prelude::*;
-    const KEEP: usize = 16;
-    let n = pieces.len();
-    let mut out = vec![vec![Vec::new(); n]; n];
-    if !(2..=MAX_OVERLAP_PIECES).contains(&n) || m.triangles.len() > MAX_OVERLAP_CHECK_TRIANGLES {
-        return out;
-    }
-    let mut piece_of = vec![0u8; m.triangles.len()];
-    for (k, tris) in pieces.iter().enumerate() {
-        for &t in tris {
-            piece_of[t] = k as u8;
-        }
-    }
-    let tris: Vec<Triangle> = (0..m.triangles.len())
-        .map(|i| {
-            let [a, b, c] = m.triangle(i).map(|v| v.to_array().into());
-            Triangle {
-                v0: a,
-                v1: b,
-                v2: c,
-            }
-        })
-        .collect();
-    let mut bvh = build_bvh2_from_tris(
-        &tris,
-        obvhs::BvhBuildParams::fast_build(),
-        &mut std::time::Duration::default(),
-    );
-    // A face in an axis plane has a flat box, which the slab test can miss by rounding.
-    for node in &mut bvh.nodes {
-        node.aabb.min -= touch;
-        node.aabb.max += touch;
-    }
-    let mut edges: Vec<(u32, u32, u8)> = m
-        .triangles
-        .iter()
-        .zip(&piece_of)
-        .flat_map(|(t, &k)| {
-            (0..3).map(move |e| {
-                let (a, b) = (t[e], t[(e + 1) % 3]);
-                (a.min(b), a.max(b), k)
-            })
-        })
-        .collect();
-    edges.sort_unstable();
-    edges.dedup();
-    let at = |i: u32| m.positions[i as usize].as_dvec3();
-    // Where the segment p→q meets triangle t, as a fraction of the way (Möller and
-    // Trumbore's test in f64, edges and vertices of t included).
-    let meets = |p: glam::DVec3, q: glam::DVec3, t: usize| -> Option<f64> {
-        let [x, y, z] = m.triangles[t].map(at);
-        let (e1, e2, d) = (y - x, z - x, q - p);
-        let pv = d.cross(e2);
-        let det = e1.dot(pv);
-        if det == 0.0 {
-            return None;
-        }
-        let tv = p - x;
-        let u = tv.dot(pv) / det;
-        let qv = tv.cross(e1);
-        let v = d.dot(qv) / det;
-        let s = e2.dot(qv) / det;
-        let slack = 1e-9;
-        (u >= -slack && v >= -slack && u + v <= 1.0 + slack && (0.0..=1.0).contains(&s))
-            .then_some(s)
-    };
-    let found: Vec<(u8, u8, glam::DVec3)> = edges
-        .par_iter()
-        .flat_map_iter(|&(a, b, k)| {
-            let (p, q) = (at(a), at(b));
-            let (pa, pb) = (m.positions[a as usize], m.positions[b as usize]);
-            let ray = Ray::new(pa.to_array().into(), (pb - pa).to_array().into(), 0.0, 1.0);
-            let mut hits: Vec<(u8, f64)> = Vec::new();
-            bvh.ray_traverse_anyhit(ray, |_, id| {
-                let t = bvh.primitive_indices[id] as usize;
-                if piece_of[t] != k
-                    && let Some(s) = meets(p, q, t)
-                {
-                    hits.push((piece_of[t], s));
-                }
-            });
-            hits.sort_by(|x, y| x.0.cmp(&y.0).then(x.1.total_cmp(&y.1)));
-            // Midpoints between consecutive meetings with each piece, the ends included;
-            // meetings closer than 2·touch along the edge (one point met through a
-            // shared edge, or a graze) leave no midpoint between them.
-            let gap = 2.0 * touch as f64 / (q - p).length().max(f64::MIN_POSITIVE);
-            let mut mids = Vec::new();
-            for group in hits.chunk_by(|x, y| x.0 == y.0) {
-                let j = group[0].0;
-                let mut last = 0.0;
-                for s in group.iter().map(|h| h.1).chain([1.0]) {
-                    if s - last > gap {
-                        mids.push((k, j, p + (q - p) * (0.5 * (last + s))));
-                        last = s;
-                    }
-                }
-            }
-            mids
-        })
-        .collect();
-    for (k, j, x) in found {
-        let list = &mut out[j as usize][k as usize];
-        if list.len() < KEEP {
-            list.push(x);
-        }
-    }
-    out
-}
-
-/// Each piece's bounding box.
-fn piece_bounds(m: &TriMesh, pieces: &[Vec<usize>]) -> Vec<(Vec3, Vec3)> {
-    pieces
-        .iter()
-        .map(|tris| {
-            bounds_of(
-                tris.iter()
-                    .flat_map(|&t| m.triangles[t])
-                    .map(|i| m.positions[i as usize]),
-            )
-        })
-        .collect()
-}
-
-/// The winding number of a closed piece around `p`: ±1 inside, 0 outside (the solid
-/// angles of its triangles seen from `p`, over 4π; Van Oosterom and Strackee's formula).
-fn winding_number(m: &TriMesh, tris: &[usize], p: glam::DVec3) -> f64 {
-    let total: f64 = tris
-        .iter()
-        .map(|&t| {
-            let [a, b, c] = m.triangles[t].map(|i| m.positions[i as usize].as_dvec3() - p);
-            let (la, lb, lc) = (a.length(), b.length(), c.length());
-            let num = a.dot(b.cross(c));
-            let den = la * lb * lc + a.dot(b) * lc + b.dot(c) * la + c.dot(a) * lb;
-            2.0 * num.atan2(den)
-        })
-        .sum();
-    total / (4.0 * std::f64::consts::PI)
 }
 
 /// Splits a file's polygons into triangles of the same winding.
@@ -765,7 +534,8 @@ fn check_closed(m: &TriMesh) -> Result<(), String> {
         return Err(format!(
             "the mesh is not a manifold surface: more than two faces share {non_manifold} of \
              its edges, where parts of it touch or overlap along a common edge (welded into \
-             one there); move such parts apart or join them into one closed surface"
+             one there) or faces are listed twice (a two-sided export); move such parts \
+             apart or join them into one closed surface, and list each face once"
         ));
     }
     if boundary > 0 || non_manifold > 0 {

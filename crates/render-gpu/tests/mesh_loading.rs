@@ -601,7 +601,7 @@ fn scaled(mut m: mesh::TriMesh, by: glam::Vec3) -> mesh::TriMesh {
 fn pieces_are_wound_by_their_nesting() {
     let c = mesh::cube;
     let bar = |along: glam::Vec3| scaled(c(1.0), glam::Vec3::splat(0.6) + 1.4 * along);
-    let cases: [(&str, Vec<Piece>, f64); 13] = [
+    let cases: [(&str, Vec<Piece>, f64); 16] = [
         // A hollow box: the inner wall bounds the medium from inside (8 − 1).
         (
             "shell, walls wound alike",
@@ -740,6 +740,58 @@ fn pieces_are_wound_by_their_nesting() {
             ],
             2.0 + 0.7 - 2.3 * 0.8 * 0.8,
         ),
+        // Three slabs stacked up, each overlapping the next, their side faces in shared
+        // planes: the middle one's probes are in a neighbour or on the neighbours' side
+        // faces, which bound the union (counted as inside them it was a cavity).
+        (
+            "stacked slabs, side faces in shared planes",
+            (0..3)
+                .map(|k| {
+                    let slab = scaled(c(1.0), glam::Vec3::new(1.0, 0.5, 1.0));
+                    (moved(slab, glam::Vec3::Y * (0.3 * k as f32)), false)
+                })
+                .collect(),
+            1.5,
+        ),
+        // A rod whose ends lie in two boxes and whose middle is bare: every point where
+        // its edges leave one box is followed by a point in the other, and midpoints
+        // taken between meetings with one box at a time all lay in a box: the rod was
+        // taken for a cavity, its bare middle air.
+        (
+            "rod between two boxes",
+            vec![
+                (scaled(c(1.0), glam::Vec3::new(2.0, 0.1, 0.1)), false),
+                (moved(c(1.0), -glam::Vec3::X * 0.7), false),
+                (moved(c(1.0), glam::Vec3::X * 0.7), false),
+            ],
+            2.0 * 0.1 * 0.1 + 2.0,
+        ),
+        // A block resting on the floor of a box's cavity (its bottom face on the floor),
+        // with an overlapping pair elsewhere: the probes on the floor, taken as outside
+        // the cavity, made the block a cavity itself.
+        (
+            "block on a cavity's floor",
+            vec![
+                (c(2.0), false),
+                (c(1.6), false),
+                (
+                    moved(
+                        scaled(c(1.0), glam::Vec3::new(0.6, 0.6, 0.6)),
+                        -glam::Vec3::Y * 0.5,
+                    ),
+                    false,
+                ),
+                (moved(c(1.0), glam::Vec3::X * 3.5), false),
+                (
+                    moved(
+                        scaled(c(1.0), glam::Vec3::new(1.0, 1.0, 0.8)),
+                        glam::Vec3::new(4.0, 0.2, 0.0),
+                    ),
+                    false,
+                ),
+            ],
+            8.0 - 1.6 * 1.6 * 1.6 + 0.216 + 1.0 + 0.8,
+        ),
         // A thin rod through a plate, off its middle: none of either's probes (vertices,
         // centroids, points halfway to the edges' midpoints; the rod's at heights −1,
         // −0.425, −0.233, 0.15, 0.533, 0.725, 1.3, the plate 0.1 thick about 0) lies
@@ -778,6 +830,9 @@ fn pieces_are_wound_by_their_nesting() {
             "cavity across the seam of an overlapping pair" => &[(0, 1), (0, 2), (1, 2)],
             "crossing bars" => &[(0, 1)],
             "rod through a plate" => &[(0, 1)],
+            "rod between two boxes" => &[(0, 1), (0, 2)],
+            "stacked slabs, side faces in shared planes" => &[(0, 1), (1, 2)],
+            "block on a cavity's floor" => &[(3, 4)],
             "overlapping, faces in shared planes" => &[(0, 1)],
             "cavity across the seam, larger than a solid" => &[(0, 1), (0, 2), (1, 2)],
             _ => &[],
@@ -864,6 +919,62 @@ fn gridded_box(lo: glam::Vec3, hi: glam::Vec3, n: [u32; 3]) -> mesh::TriMesh {
     m
 }
 
+/// A solid made of the cells of a grid (cell (i, j, k) spans xs[i]..xs[i + 1] and so on)
+/// that `filled` says are in it: the faces between a filled cell and an empty one (or the
+/// outside), each a quad of two triangles facing out of the solid.
+fn grid_solid(axes: [&[f32]; 3], filled: impl Fn([usize; 3]) -> bool) -> mesh::TriMesh {
+    let n = axes.map(|a| a.len() - 1);
+    let inside = |c: [i64; 3]| {
+        (0..3).all(|a| c[a] >= 0 && (c[a] as usize) < n[a]) && filled(c.map(|x| x as usize))
+    };
+    let mut m = mesh::TriMesh::default();
+    for i in 0..n[0] {
+        for j in 0..n[1] {
+            for k in 0..n[2] {
+                let cell = [i, j, k];
+                if !filled(cell) {
+                    continue;
+                }
+                for axis in 0..3 {
+                    for dir in [-1i64, 1] {
+                        let mut next = cell.map(|x| x as i64);
+                        next[axis] += dir;
+                        if inside(next) {
+                            continue;
+                        }
+                        // The face's plane, and its two other axes in the order whose
+                        // cross product is +axis.
+                        let at = if dir > 0 { cell[axis] + 1 } else { cell[axis] };
+                        let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+                        let corner = |du: usize, dv: usize| {
+                            let mut p = [0.0f32; 3];
+                            p[axis] = axes[axis][at];
+                            p[u] = axes[u][cell[u] + du];
+                            p[v] = axes[v][cell[v] + dv];
+                            glam::Vec3::from_array(p)
+                        };
+                        let base = m.positions.len() as u32;
+                        m.positions.extend([
+                            corner(0, 0),
+                            corner(1, 0),
+                            corner(1, 1),
+                            corner(0, 1),
+                        ]);
+                        if dir > 0 {
+                            m.triangles.push([base, base + 1, base + 2]);
+                            m.triangles.push([base, base + 2, base + 3]);
+                        } else {
+                            m.triangles.push([base, base + 2, base + 1]);
+                            m.triangles.push([base, base + 3, base + 2]);
+                        }
+                    }
+                }
+            }
+        }
+    }
+    m
+}
+
 /// Overlaps that sampled probes miss are found where the pieces' edges pass in and out
 /// of each other, and an overlapping piece is never taken for a cavity.
 #[test]
@@ -914,6 +1025,28 @@ fn overlaps_are_found_where_edges_cross() {
         );
         assert_eq!(mesh::overlapping_pieces(&m), [(0, 1)], "ball from {start}");
     }
+    // A 12-triangle cube inside a larger box but for a blind well of the box that dips
+    // through one of the cube's top triangles: none of the cube's edges meets the box,
+    // and every sampled probe of the cube is inside it, so only points on the cube's face
+    // around where the well's edges meet it show the cube partly outside the box. The
+    // cube was taken for a cavity (the medium a shell 0.2 thick).
+    let cube = mesh::cube(2.0);
+    let well = grid_solid(
+        [
+            &[-1.2, -0.8, -0.6, 1.2],
+            &[-1.2, 0.8, 1.2],
+            &[-1.2, 0.0, 0.2, 1.2],
+        ],
+        |c| c != [1, 1, 1],
+    );
+    let m = mesh::prepare(pieces(&[(cube, false), (well, false)])).unwrap();
+    let (v, _) = volume_and_area(&m);
+    let want = 8.0 + 2.4f64.powi(3) - 0.2 * 0.4 * 0.2;
+    assert!(
+        (v - want).abs() < 1e-5,
+        "cube and well: volume {v}, want {want}"
+    );
+    assert_eq!(mesh::overlapping_pieces(&m), [(0, 1)], "cube and well");
 }
 
 /// An L-shaped prism (a 2×2 square less a 1×1 corner, 1 deep) whose end caps are

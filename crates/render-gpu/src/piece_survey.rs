@@ -1,0 +1,319 @@
+//! How the closed pieces of a mesh lie against each other: which pieces are around a
+//! point, asked along a tree over all triangles, at probe points spread over each piece
+//! and placed where pieces' surfaces cross. [`crate::mesh`] reads from it which pieces
+//! overlap and how deeply each is nested.
+//!
+//! A point's side of a piece is counted along rays (the parity of the piece's faces
+//! crossed), four of them; they must agree, and a point within `touch` of one of the
+//! piece's faces along any of them is on its surface, where no side is defined. Asked of
+//! every triangle by winding numbers (the first version), the cost was probes × triangles:
+//! 14 s to set up 16 overlapping spheres of 189,000 triangles in all.
+
+use glam::{DVec3, Vec3};
+use obvhs::BvhBuildParams;
+use obvhs::bvh2::Bvh2;
+use obvhs::bvh2::builder::build_bvh2_from_tris;
+use obvhs::ray::Ray;
+use obvhs::triangle::Triangle;
+use rayon::prelude::*;
+
+use crate::mesh::TriMesh;
+
+/// Most probes kept per piece from the points along its edges between meetings with other
+/// pieces' faces, and most meetings of other pieces' edges with its faces (six probes
+/// around each): spread evenly over those found.
+const EDGE_PROBES: usize = 128;
+const FACE_MEETINGS: usize = 32;
+/// Sampled probes per piece: this many of its vertices, and on this many of its triangles
+/// the centroid and three points halfway from it to the edges' midpoints.
+const SAMPLED: usize = 64;
+
+/// The rays' directions: two lines, both ways (irrational-ish, so that they rarely pass
+/// through an axis-aligned mesh's edges; a ray that does counts a face twice and
+/// disagrees with the others).
+fn directions() -> [DVec3; 4] {
+    let a = DVec3::new(0.2677, 0.5345, 0.8018).normalize();
+    let b = DVec3::new(-0.6133, 0.2871, -0.7358).normalize();
+    [a, -a, b, -b]
+}
+
+/// What one edge's traversal found: its piece, the midpoints along it between meetings
+/// with other pieces' faces, and the meetings (triangle, point).
+struct EdgeFindings {
+    piece: u32,
+    mids: Vec<DVec3>,
+    meetings: Vec<(usize, DVec3)>,
+}
+
+pub(crate) struct Survey<'a> {
+    m: &'a TriMesh,
+    pieces: &'a [Vec<usize>],
+    piece_of: Vec<u32>,
+    bvh: Bvh2,
+    /// A millionth of the mesh's size: far above f32 rounding, far below any real
+    /// overlap; points closer than this to a surface are on it.
+    touch: f64,
+}
+
+/// What is known of a probe against each piece: Some(true) inside, Some(false) outside,
+/// None on its surface or undecided.
+pub(crate) type Sides = Vec<Option<bool>>;
+
+impl<'a> Survey<'a> {
+    pub(crate) fn new(m: &'a TriMesh, pieces: &'a [Vec<usize>]) -> Self {
+        let mut piece_of = vec![0u32; m.triangles.len()];
+        for (k, tris) in pieces.iter().enumerate() {
+            for &t in tris {
+                piece_of[t] = k as u32;
+            }
+        }
+        let (lo, hi) = m.bounds();
+        let touch = 1e-6 * (hi - lo).max_element().max(f32::MIN_POSITIVE);
+        let tris: Vec<Triangle> = (0..m.triangles.len())
+            .map(|i| {
+                let [a, b, c] = m.triangle(i).map(|v| v.to_array().into());
+                Triangle {
+                    v0: a,
+                    v1: b,
+                    v2: c,
+                }
+            })
+            .collect();
+        let mut bvh = build_bvh2_from_tris(
+            &tris,
+            BvhBuildParams::fast_build(),
+            &mut std::time::Duration::default(),
+        );
+        // A face in an axis plane has a flat box, which the slab test can miss by
+        // rounding; the padding also keeps faces just behind a ray's origin in reach.
+        for node in &mut bvh.nodes {
+            node.aabb.min -= touch;
+            node.aabb.max += touch;
+        }
+        Self {
+            m,
+            pieces,
+            piece_of,
+            bvh,
+            touch: touch as f64,
+        }
+    }
+
+    fn corners(&self, t: usize) -> [DVec3; 3] {
+        self.m.triangles[t].map(|k| self.m.positions[k as usize].as_dvec3())
+    }
+
+    /// Where the line p + s·d meets triangle t (Möller and Trumbore's test in f64, its
+    /// edges included), if it does.
+    fn meets(&self, p: DVec3, d: DVec3, t: usize) -> Option<f64> {
+        let [x, y, z] = self.corners(t);
+        let (e1, e2) = (y - x, z - x);
+        let pv = d.cross(e2);
+        let det = e1.dot(pv);
+        if det == 0.0 {
+            return None;
+        }
+        let tv = p - x;
+        let u = tv.dot(pv) / det;
+        let qv = tv.cross(e1);
+        let v = d.dot(qv) / det;
+        (u >= 0.0 && v >= 0.0 && u + v <= 1.0).then(|| e2.dot(qv) / det)
+    }
+
+    /// Each piece's side of `p` (see the module's doc).
+    pub(crate) fn sides(&self, p: DVec3) -> Sides {
+        let n = self.pieces.len();
+        let mut parity = vec![[false; 4]; n];
+        let mut on = vec![false; n];
+        let origin = p.as_vec3();
+        for (r, d) in directions().into_iter().enumerate() {
+            let ray = Ray::new(
+                origin.to_array().into(),
+                d.as_vec3().to_array().into(),
+                0.0,
+                f32::INFINITY,
+            );
+            self.bvh.ray_traverse_anyhit(ray, |_, id| {
+                let t = self.bvh.primitive_indices[id] as usize;
+                let j = self.piece_of[t] as usize;
+                match self.meets(p, d, t) {
+                    Some(s) if s.abs() < self.touch => on[j] = true,
+                    Some(s) if s > 0.0 => parity[j][r] ^= true,
+                    _ => {}
+                }
+            });
+        }
+        (0..n)
+            .map(|j| {
+                let agree = parity[j].iter().all(|&x| x == parity[j][0]);
+                (!on[j] && agree).then_some(parity[j][0])
+            })
+            .collect()
+    }
+
+    /// Each piece's probes with their sides of every piece: sampled ones, and those where
+    /// pieces' surfaces cross ([`Self::crossing_probes`]).
+    pub(crate) fn classified_probes(&self) -> Vec<Vec<Sides>> {
+        let crossing = self.crossing_probes();
+        self.pieces
+            .iter()
+            .zip(crossing)
+            .map(|(tris, extra)| {
+                let probes: Vec<DVec3> = self.sampled(tris).into_iter().chain(extra).collect();
+                probes.par_iter().map(|&p| self.sides(p)).collect()
+            })
+            .collect()
+    }
+
+    /// Up to [`SAMPLED`] of a piece's vertices, and on as many of its triangles the
+    /// centroid and three points halfway from it to the edges' midpoints. Two boxes whose
+    /// faces lie in one plane overlap with every vertex on the other's surface, but some
+    /// face points inside it; two bars crossing in a plus sign have every vertex and
+    /// centroid outside the other (each long face's middle is inside the other bar: the
+    /// points at barycentric (½, ¼, ¼) reach it).
+    fn sampled(&self, tris: &[usize]) -> Vec<DVec3> {
+        let m = self.m;
+        let mut v: Vec<u32> = tris.iter().flat_map(|&t| m.triangles[t]).collect();
+        v.sort_unstable();
+        v.dedup();
+        let every = |n: usize| n.div_ceil(SAMPLED).max(1);
+        let vertices = v
+            .iter()
+            .step_by(every(v.len()))
+            .map(|&i| m.positions[i as usize].as_dvec3());
+        let faces = tris.iter().step_by(every(tris.len())).flat_map(|&t| {
+            let [a, b, c] = self.corners(t);
+            [
+                (a + b + c) / 3.0,
+                0.5 * a + 0.25 * (b + c),
+                0.5 * b + 0.25 * (c + a),
+                0.5 * c + 0.25 * (a + b),
+            ]
+        });
+        vertices.chain(faces).collect()
+    }
+
+    /// Probes on each piece where other pieces' surfaces cross it, which sampled probes
+    /// can all miss (a thin rod through a plate; a ball whose cap pokes out of a box; a
+    /// pocket of one piece dipping through a face of another):
+    /// - along each of its edges, the midpoints between consecutive meetings with other
+    ///   pieces' faces (the edge's ends included; meetings closer than 2·touch leave
+    ///   none between them), which lie off every surface: on a plate's grid a rod's
+    ///   edges meet the plate only at its vertices, yet the midpoint between is inside;
+    /// - around each point where another piece's edge meets one of its faces, six points
+    ///   on that face (at half the distance to its nearest edge), some on each side of
+    ///   the other piece's surface.
+    fn crossing_probes(&self) -> Vec<Vec<DVec3>> {
+        let m = self.m;
+        let n = self.pieces.len();
+        let mut edges: Vec<(u32, u32, u32)> = m
+            .triangles
+            .iter()
+            .zip(&self.piece_of)
+            .flat_map(|(t, &k)| {
+                (0..3).map(move |e| {
+                    let (a, b) = (t[e], t[(e + 1) % 3]);
+                    (a.min(b), a.max(b), k)
+                })
+            })
+            .collect();
+        edges.sort_unstable();
+        edges.dedup();
+        let at = |i: u32| m.positions[i as usize].as_dvec3();
+        let found: Vec<EdgeFindings> = edges
+            .par_iter()
+            .filter_map(|&(a, b, k)| {
+                let (p, q) = (at(a), at(b));
+                let (pa, pb): (Vec3, Vec3) = (m.positions[a as usize], m.positions[b as usize]);
+                let ray = Ray::new(pa.to_array().into(), (pb - pa).to_array().into(), 0.0, 1.0);
+                let mut hits: Vec<(f64, usize)> = Vec::new();
+                self.bvh.ray_traverse_anyhit(ray, |_, id| {
+                    let t = self.bvh.primitive_indices[id] as usize;
+                    if self.piece_of[t] != k
+                        && let Some(s) = self.meets(p, q - p, t)
+                        && (0.0..=1.0).contains(&s)
+                    {
+                        hits.push((s, t));
+                    }
+                });
+                if hits.is_empty() {
+                    return None;
+                }
+                hits.sort_by(|x, y| x.0.total_cmp(&y.0));
+                let gap = 2.0 * self.touch / (q - p).length().max(f64::MIN_POSITIVE);
+                let mut mids = Vec::new();
+                let mut last = 0.0;
+                for s in hits.iter().map(|h| h.0).chain([1.0]) {
+                    if s - last > gap {
+                        mids.push(p + (q - p) * (0.5 * (last + s)));
+                        last = s;
+                    }
+                }
+                let meetings = hits.iter().map(|&(s, t)| (t, p + (q - p) * s)).collect();
+                Some(EdgeFindings {
+                    piece: k,
+                    mids,
+                    meetings,
+                })
+            })
+            .collect();
+        let mut along: Vec<Vec<DVec3>> = vec![Vec::new(); n];
+        let mut met: Vec<Vec<(usize, DVec3)>> = vec![Vec::new(); n];
+        for EdgeFindings {
+            piece,
+            mids,
+            meetings,
+        } in found
+        {
+            along[piece as usize].extend(mids);
+            for (t, x) in meetings {
+                met[self.piece_of[t] as usize].push((t, x));
+            }
+        }
+        along
+            .into_iter()
+            .zip(met)
+            .map(|(mids, meetings)| {
+                let mut probes: Vec<DVec3> = mids
+                    .iter()
+                    .step_by(mids.len().div_ceil(EDGE_PROBES).max(1))
+                    .copied()
+                    .collect();
+                for &(t, x) in meetings
+                    .iter()
+                    .step_by(meetings.len().div_ceil(FACE_MEETINGS).max(1))
+                {
+                    probes.extend(self.around_on_face(t, x));
+                }
+                probes
+            })
+            .collect()
+    }
+
+    /// Six points on triangle t around x (a point of t), at half the distance from x to
+    /// t's nearest edge; none where x is within 4·touch of an edge.
+    fn around_on_face(&self, t: usize, x: DVec3) -> Vec<DVec3> {
+        let [a, b, c] = self.corners(t);
+        let normal = (b - a).cross(c - a);
+        if normal.length_squared() == 0.0 {
+            return Vec::new();
+        }
+        let normal = normal.normalize();
+        let to_edge = [(a, b), (b, c), (c, a)]
+            .iter()
+            .map(|&(u, v)| (v - u).cross(x - u).dot(normal) / (v - u).length())
+            .fold(f64::INFINITY, f64::min);
+        if !(to_edge > 4.0 * self.touch) {
+            return Vec::new();
+        }
+        let r = 0.5 * to_edge;
+        let u = (b - a).normalize();
+        let v = normal.cross(u);
+        (0..6)
+            .map(|k| {
+                let phi = std::f64::consts::PI / 3.0 * k as f64;
+                x + r * (phi.cos() * u + phi.sin() * v)
+            })
+            .collect()
+    }
+}
