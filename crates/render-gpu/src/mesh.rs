@@ -249,18 +249,32 @@ fn piece_volumes(m: &TriMesh, pieces: &[Vec<usize>]) -> Vec<f64> {
 fn nesting_depths(classified: &[Vec<Sides>], volumes: &[f64]) -> Vec<usize> {
     let n = classified.len();
     let around = |i: usize, larger_only: bool| -> Vec<Vec<usize>> {
-        // Pieces that enclose i: every probe of i that is off their surface is inside.
-        let encloses: Vec<bool> = (0..n)
-            .map(|j| {
-                let mut decided = classified[i].iter().filter_map(|s| s[j]).peekable();
-                j != i && decided.peek().is_some() && decided.all(|x| x)
-            })
-            .collect();
-        classified[i]
+        let probes = &classified[i];
+        // Per piece listed by some probe: probes inside it, probes on its surface. It
+        // encloses i where every probe is one or the other, and some inside.
+        let mut counts: HashMap<usize, (usize, usize)> = HashMap::new();
+        for s in probes {
+            for (j, v) in s.listed() {
+                let c = counts.entry(j).or_default();
+                if v == Some(true) {
+                    c.0 += 1;
+                } else {
+                    c.1 += 1;
+                }
+            }
+        }
+        let encloses = |j: usize| {
+            j != i
+                && counts
+                    .get(&j)
+                    .is_some_and(|&(a, u)| a > 0 && a + u == probes.len())
+        };
+        probes
             .iter()
             .map(|s| {
-                (0..n)
-                    .filter(|&j| j != i && (s[j] == Some(true) || s[j].is_none() && encloses[j]))
+                s.listed()
+                    .filter(|&(j, v)| j != i && (v == Some(true) || v.is_none() && encloses(j)))
+                    .map(|(j, _)| j)
                     .filter(|&j| !larger_only || volumes[j].abs() > volumes[i].abs())
                     .collect()
             })
@@ -398,7 +412,7 @@ pub fn overlapping_pieces(m: &TriMesh) -> Vec<(usize, usize)> {
 fn overlapping(classified: &[Vec<Sides>]) -> Vec<(usize, usize)> {
     let n = classified.len();
     let straddles = |a: usize, b: usize| {
-        let seen = |side: bool| classified[a].iter().any(|s| s[b] == Some(side));
+        let seen = |side: bool| classified[a].iter().any(|s| s.of(b) == Some(side));
         seen(true) && seen(false)
     };
     let mut found = Vec::new();

@@ -4,15 +4,16 @@
 //! overlap and how deeply each is nested.
 //!
 //! A point's side of a piece is counted along rays (the parity of the piece's faces
-//! crossed), four of them; they must agree, and a point within `touch` of one of the
+//! crossed), six of them; they must agree, and a point within `touch` of one of the
 //! piece's faces along any of them is on its surface, where no side is defined. Asked of
 //! every triangle by winding numbers (the first version), the cost was probes × triangles:
 //! 14 s to set up 16 overlapping spheres of 189,000 triangles in all.
 
 use glam::{DVec3, Vec3};
 use obvhs::BvhBuildParams;
+use obvhs::aabb::Aabb;
 use obvhs::bvh2::Bvh2;
-use obvhs::bvh2::builder::build_bvh2_from_tris;
+use obvhs::bvh2::builder::{build_bvh2, build_bvh2_from_tris};
 use obvhs::ray::Ray;
 use obvhs::triangle::Triangle;
 use rayon::prelude::*;
@@ -28,13 +29,17 @@ const FACE_MEETINGS: usize = 32;
 /// the centroid and three points halfway from it to the edges' midpoints.
 const SAMPLED: usize = 64;
 
-/// The rays' directions: two lines, both ways (irrational-ish, so that they rarely pass
-/// through an axis-aligned mesh's edges; a ray that does counts a face twice and
-/// disagrees with the others).
-fn directions() -> [DVec3; 4] {
+/// The rays' directions: three lines, both ways, about at right angles to each other, so
+/// that every plane is crossed by one of them at |cos| ≥ 0.5: a point on a face is met by
+/// that line's rays within touch along them (with two lines, a floor whose plane held
+/// both was only grazed, its contact ~1e-7 off taken as a crossing far along the rays).
+/// Irrational-ish, so that they rarely pass through an axis-aligned mesh's edges; a ray
+/// that does counts a face twice and disagrees with the others.
+fn directions() -> [DVec3; 6] {
     let a = DVec3::new(0.2677, 0.5345, 0.8018).normalize();
-    let b = DVec3::new(-0.6133, 0.2871, -0.7358).normalize();
-    [a, -a, b, -b]
+    let b = a.cross(DVec3::new(0.9134, -0.2233, 0.3402)).normalize();
+    let c = a.cross(b);
+    [a, -a, b, -b, c, -c]
 }
 
 /// What one edge's traversal found: its piece, the midpoints along it between meetings
@@ -50,14 +55,38 @@ pub(crate) struct Survey<'a> {
     pieces: &'a [Vec<usize>],
     piece_of: Vec<u32>,
     bvh: Bvh2,
-    /// A millionth of the mesh's size: far above f32 rounding, far below any real
-    /// overlap; points closer than this to a surface are on it.
+    /// Each piece's bounding box (grown by touch), and a tree over them: only pieces
+    /// whose box holds a point can be around it, and its rays need go no farther than
+    /// those boxes. Rays run to infinity through every piece met took 9 s for a grid of
+    /// 10,000 cubes.
+    bounds: Vec<Aabb>,
+    boxes: Bvh2,
+    /// A millionth of the mesh's size (or of its coordinates' magnitude, if larger): far
+    /// above f32 rounding, far below any real overlap; points closer than this to a
+    /// surface are on it.
     touch: f64,
 }
 
 /// What is known of a probe against each piece: Some(true) inside, Some(false) outside,
-/// None on its surface or undecided.
-pub(crate) type Sides = Vec<Option<bool>>;
+/// None on its surface or undecided. Only the pieces whose faces its rays met are listed
+/// (sorted, without the outside ones); every other piece is outside. A list of every
+/// piece per probe made a mesh of 10,000 cubes hold 5.5 GB.
+pub(crate) struct Sides(Vec<(u32, Option<bool>)>);
+
+impl Sides {
+    /// The probe's side of piece j.
+    pub(crate) fn of(&self, j: usize) -> Option<bool> {
+        match self.0.binary_search_by_key(&(j as u32), |e| e.0) {
+            Ok(k) => self.0[k].1,
+            Err(_) => Some(false),
+        }
+    }
+
+    /// The pieces the probe is inside or on the surface of (undecided), with which.
+    pub(crate) fn listed(&self) -> impl Iterator<Item = (usize, Option<bool>)> + '_ {
+        self.0.iter().map(|&(j, v)| (j as usize, v))
+    }
+}
 
 impl<'a> Survey<'a> {
     pub(crate) fn new(m: &'a TriMesh, pieces: &'a [Vec<usize>]) -> Self {
@@ -67,8 +96,14 @@ impl<'a> Survey<'a> {
                 piece_of[t] = k as u32;
             }
         }
+        // Relative to the coordinates' size as well as the mesh's: f32 positions far from
+        // the origin round by more than a millionth of a small mesh (a contact at 1,000
+        // from the origin was taken as a crossing).
         let (lo, hi) = m.bounds();
-        let touch = 1e-6 * (hi - lo).max_element().max(f32::MIN_POSITIVE);
+        let scale = (hi - lo)
+            .max_element()
+            .max(lo.abs().max(hi.abs()).max_element());
+        let touch = 1e-6 * scale.max(f32::MIN_POSITIVE);
         let tris: Vec<Triangle> = (0..m.triangles.len())
             .map(|i| {
                 let [a, b, c] = m.triangle(i).map(|v| v.to_array().into());
@@ -90,11 +125,30 @@ impl<'a> Survey<'a> {
             node.aabb.min -= touch;
             node.aabb.max += touch;
         }
+        let bounds: Vec<Aabb> = pieces
+            .iter()
+            .map(|tris| {
+                let mut b = Aabb::empty();
+                for &t in tris {
+                    for v in m.triangle(t) {
+                        b.extend(v.to_array().into());
+                    }
+                }
+                Aabb::new(b.min - touch, b.max + touch)
+            })
+            .collect();
+        let boxes = build_bvh2(
+            &bounds,
+            BvhBuildParams::fast_build(),
+            &mut std::time::Duration::default(),
+        );
         Self {
             m,
             pieces,
             piece_of,
             bvh,
+            bounds,
+            boxes,
             touch: touch as f64,
         }
     }
@@ -120,35 +174,80 @@ impl<'a> Survey<'a> {
         (u >= 0.0 && v >= 0.0 && u + v <= 1.0).then(|| e2.dot(qv) / det)
     }
 
-    /// Each piece's side of `p` (see the module's doc).
-    pub(crate) fn sides(&self, p: DVec3) -> Sides {
-        let n = self.pieces.len();
-        let mut parity = vec![[false; 4]; n];
-        let mut on = vec![false; n];
+    /// Each piece's side of `p` (see the module's doc) but piece `own`'s, the one p is a
+    /// probe of (p is on its surface; listed as outside).
+    pub(crate) fn sides(&self, p: DVec3, own: usize) -> Sides {
         let origin = p.as_vec3();
+        let at = origin.to_array();
+        // The pieces whose box holds p, sorted.
+        let mut near: Vec<u32> = Vec::new();
+        self.boxes.point_traverse(at.into(), |b, node| {
+            let node = &b.nodes[node as usize];
+            for k in node.first_index..node.first_index + node.prim_count {
+                let j = b.primitive_indices[k as usize];
+                if j as usize != own && self.bounds[j as usize].contains_point(at.into()) {
+                    near.push(j);
+                }
+            }
+            true
+        });
+        if near.is_empty() {
+            return Sides(Vec::new());
+        }
+        near.sort_unstable();
+        // (piece, ray, on its surface) for each face met.
+        let mut met: Vec<(u32, usize, bool)> = Vec::new();
         for (r, d) in directions().into_iter().enumerate() {
+            // To the farthest exit from the near pieces' boxes.
+            let reach = near
+                .iter()
+                .map(|&j| {
+                    let b = &self.bounds[j as usize];
+                    (0..3)
+                        .filter(|&a| d[a] != 0.0)
+                        .map(|a| {
+                            let wall = if d[a] > 0.0 { b.max[a] } else { b.min[a] };
+                            (wall as f64 - p[a]) / d[a]
+                        })
+                        .fold(f64::INFINITY, f64::min)
+                })
+                .fold(0.0f64, f64::max);
             let ray = Ray::new(
                 origin.to_array().into(),
                 d.as_vec3().to_array().into(),
                 0.0,
-                f32::INFINITY,
+                (reach + self.touch) as f32,
             );
             self.bvh.ray_traverse_anyhit(ray, |_, id| {
                 let t = self.bvh.primitive_indices[id] as usize;
-                let j = self.piece_of[t] as usize;
-                match self.meets(p, d, t) {
-                    Some(s) if s.abs() < self.touch => on[j] = true,
-                    Some(s) if s > 0.0 => parity[j][r] ^= true,
-                    _ => {}
+                if near.binary_search(&self.piece_of[t]).is_err() {
+                    return;
+                }
+                let Some(s) = self.meets(p, d, t) else {
+                    return;
+                };
+                let on = s.abs() < self.touch;
+                if on || s > 0.0 {
+                    met.push((self.piece_of[t], r, on));
                 }
             });
         }
-        (0..n)
-            .map(|j| {
-                let agree = parity[j].iter().all(|&x| x == parity[j][0]);
-                (!on[j] && agree).then_some(parity[j][0])
-            })
-            .collect()
+        met.sort_unstable();
+        let mut listed = Vec::new();
+        for group in met.chunk_by(|a, b| a.0 == b.0) {
+            let mut parity = [false; 6];
+            let mut on = false;
+            for &(_, r, o) in group {
+                on |= o;
+                parity[r] ^= !o;
+            }
+            let agree = parity.iter().all(|&x| x == parity[0]);
+            let side = (!on && agree).then_some(parity[0]);
+            if side != Some(false) {
+                listed.push((group[0].0, side));
+            }
+        }
+        Sides(listed)
     }
 
     /// Each piece's probes with their sides of every piece: sampled ones, and those where
@@ -158,9 +257,10 @@ impl<'a> Survey<'a> {
         self.pieces
             .iter()
             .zip(crossing)
-            .map(|(tris, extra)| {
+            .enumerate()
+            .map(|(i, (tris, extra))| {
                 let probes: Vec<DVec3> = self.sampled(tris).into_iter().chain(extra).collect();
-                probes.par_iter().map(|&p| self.sides(p)).collect()
+                probes.par_iter().map(|&p| self.sides(p, i)).collect()
             })
             .collect()
     }

@@ -1542,6 +1542,14 @@ fn gpu_overlapping_pieces_render_as_on_the_cpu() {
         &dir.path().join("cube2.obj").display().to_string(),
         &obj.display().to_string(),
     );
+    let (slabs_matched, slabs_dielectric) = (
+        grow(&slabs_scene(dir.path(), "kind = \"index-matched\"")),
+        grow(&slabs_scene(dir.path(), "kind = \"dielectric\"\nior = 1.5")),
+    );
+    // All eleven solid (depth 0), none taken for a cavity (asked before the GPU, which
+    // this does not need).
+    let pieces = common::build_scene(&slabs_matched, false).geo.pieces;
+    assert_eq!(pieces.map(|p| p.at_depth), Some(vec![0x7FF]));
     {
         let Some(ctx) = gpu() else { return };
         let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
@@ -1574,13 +1582,6 @@ fn gpu_overlapping_pieces_render_as_on_the_cpu() {
         true,
         64,
     );
-    let (slabs_matched, slabs_dielectric) = (
-        grow(&slabs_scene(dir.path(), "kind = \"index-matched\"")),
-        grow(&slabs_scene(dir.path(), "kind = \"dielectric\"\nior = 1.5")),
-    );
-    // All eleven solid (depth 0), none taken for a cavity.
-    let pieces = common::build_scene(&slabs_matched, false).geo.pieces;
-    assert_eq!(pieces.map(|p| p.at_depth), Some(vec![0x7FF]));
     compare_devices(
         "ST-CVAE, eleven overlapping slabs",
         &slabs_matched,

@@ -1049,6 +1049,64 @@ fn overlaps_are_found_where_edges_cross() {
     assert_eq!(mesh::overlapping_pieces(&m), [(0, 1)], "cube and well");
 }
 
+/// The block resting on a cavity's floor (pieces_are_wound_by_their_nesting) turned so
+/// that the floor's plane holds the lines of two of the survey's rays (piece_survey.rs,
+/// `directions`), or nearly, and far from the origin: its contact is still found on the
+/// surface, so the block stays solid. Along those rays a contact ~1e-7 off the plane lay
+/// more than the touch distance away, and at 1,000 from the origin f32 rounding exceeded
+/// a millionth of the mesh's size; either way the block was taken for air.
+#[test]
+fn contacts_are_found_along_grazing_rays_and_far_from_the_origin() {
+    let c = mesh::cube;
+    let a = glam::Vec3::new(0.2677, 0.5345, 0.8018).normalize();
+    let b = glam::Vec3::new(-0.6133, 0.2871, -0.7358).normalize();
+    let n = a.cross(b).normalize();
+    let block = moved(
+        scaled(c(1.0), glam::Vec3::new(0.6, 0.6, 0.6)),
+        -glam::Vec3::Y * 0.5,
+    );
+    let parts = [c(2.0), c(1.6), block];
+    let want = 8.0 - 1.6 * 1.6 * 1.6 + 0.216;
+    for (what, turn, offset) in [
+        ("as built", glam::Quat::IDENTITY, 0.0),
+        (
+            "floor along two rays",
+            glam::Quat::from_rotation_arc(glam::Vec3::Y, n),
+            0.0,
+        ),
+        (
+            "floor 3e-3 off two rays",
+            glam::Quat::from_rotation_arc(glam::Vec3::Y, n) * glam::Quat::from_rotation_x(3e-3),
+            0.0,
+        ),
+        (
+            "at 1,000 from the origin",
+            glam::Quat::from_rotation_arc(glam::Vec3::Y, n),
+            1000.0,
+        ),
+    ] {
+        let placed: Vec<Piece> = parts
+            .iter()
+            .map(|p| {
+                let mut p = p.clone();
+                p.positions
+                    .iter_mut()
+                    .for_each(|v| *v = turn * *v + glam::Vec3::X * offset);
+                (p, false)
+            })
+            .collect();
+        let m = mesh::prepare(pieces(&placed)).unwrap();
+        let (v, _) = volume_and_area(&m);
+        // The volume sums about 1,000·area terms at the offset: f32 positions there are
+        // 6e-5 apart, so 1e-3 of the volume bounds their rounding; a block taken for air
+        // is off by 0.432.
+        assert!(
+            (v - want).abs() < 1e-3 * want,
+            "{what}: volume {v}, want {want}"
+        );
+    }
+}
+
 /// An L-shaped prism (a 2×2 square less a 1×1 corner, 1 deep) whose end caps are
 /// hexagons listed from each of their six vertices in turn: every listing must cut into
 /// the same area, 2·3 + 8·1 = 14, and volume 3. A fan from the first vertex covers the
