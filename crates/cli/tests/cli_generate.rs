@@ -334,6 +334,26 @@ fn bad_input_gives_one_line_errors() {
     );
 }
 
+/// `stcvae ARGS` started in `dir`, its stderr captured.
+#[cfg(unix)]
+fn spawn_in(dir: &std::path::Path, args: &[&str]) -> std::process::Child {
+    std::process::Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args(args)
+        .current_dir(dir)
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+/// Whether a command's hidden temporary output exists in `dir` (it is writing).
+#[cfg(unix)]
+fn writing_in(dir: &std::path::Path) -> bool {
+    fs::read_dir(dir)
+        .unwrap()
+        .flatten()
+        .any(|e| e.file_name().to_string_lossy().ends_with(".partial"))
+}
+
 /// Ctrl-C (SIGINT) stops `generate` and `sample` after their current chunk: exit status
 /// 130, a one-line message, and no file left behind, neither the output nor its hidden
 /// temporary (`sample` used to be killed outright and leave a `.partial` of any size).
@@ -341,7 +361,6 @@ fn bad_input_gives_one_line_errors() {
 #[test]
 fn interrupted_runs_leave_no_files() {
     use common::interrupt_when;
-    use std::process::{Command, Stdio};
     use std::time::Duration;
     let model = concat!(env!("CARGO_MANIFEST_DIR"), "/../../models/default.stcvae");
     // The model path is the one argument that could hold a space: kept whole.
@@ -358,20 +377,10 @@ fn interrupted_runs_leave_no_files() {
     let runs = [(&runs[0], false), (&runs[1], false), (&runs[0], true)];
     for (args, twice) in runs {
         let dir = tempfile::tempdir().unwrap();
-        let child = Command::new(env!("CARGO_BIN_EXE_stcvae"))
-            .args(args)
-            .current_dir(dir.path())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap();
+        let child = spawn_in(dir.path(), args);
         // Interrupted once its temporary output exists, i.e. mid-work (not at the output
         // check's short-lived probe file).
-        let started = || {
-            fs::read_dir(dir.path())
-                .unwrap()
-                .flatten()
-                .any(|e| e.file_name().to_string_lossy().ends_with(".partial"))
-        };
+        let started = || writing_in(dir.path());
         interrupt_when(
             &child,
             started,
@@ -397,7 +406,6 @@ fn interrupted_runs_leave_no_files() {
 #[test]
 fn an_interrupted_merge_leaves_no_files() {
     use common::interrupt_when;
-    use std::process::{Command, Stdio};
     use std::time::Duration;
     let dir = tempfile::tempdir().unwrap();
     // 0.3-0.4 s to merge into binary on the development VM (longer into CSV), many times
@@ -407,18 +415,8 @@ fn an_interrupted_merge_leaves_no_files() {
         dir.path(),
     ));
     for out_name in ["merged.csv", "merged.bin"] {
-        let child = Command::new(env!("CARGO_BIN_EXE_stcvae"))
-            .args(["merge", "big.bin", "--out", out_name])
-            .current_dir(dir.path())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap();
-        let started = || {
-            fs::read_dir(dir.path())
-                .unwrap()
-                .flatten()
-                .any(|e| e.file_name().to_string_lossy().ends_with(".partial"))
-        };
+        let child = spawn_in(dir.path(), &["merge", "big.bin", "--out", out_name]);
+        let started = || writing_in(dir.path());
         interrupt_when(&child, started, Duration::from_millis(20), 1, out_name);
         let out = child.wait_with_output().unwrap();
         let err = stderr(&out);
