@@ -159,12 +159,18 @@ fn blocked(geo: &Geometry, planes: &[Plane; 12]) -> bool {
     if nodes.is_empty() {
         return false;
     }
+    // The tree's boxes are grown by eps/2 (Geometry::new), as much as the region's floor
+    // h₀ lies above the triangle's plane, so a box of faces in that plane always reached
+    // it and every face in it was clipped: a cylinder's fan cap of 4,000 slivers took
+    // 19 s. Shrunk by 90 % of the growth, the boxes still hold their faces (with 1e-6
+    // of the scene to spare, far above rounding) and such boxes are skipped.
+    let shrink = 0.45 * geo.eps as f64;
     let mut stack = vec![0usize];
     while let Some(i) = stack.pop() {
         let node = &nodes[i];
         let (lo, hi) = (
-            DVec3::from_array(node.aabb.min.to_array().map(f64::from)),
-            DVec3::from_array(node.aabb.max.to_array().map(f64::from)),
+            DVec3::from_array(node.aabb.min.to_array().map(f64::from)) + shrink,
+            DVec3::from_array(node.aabb.max.to_array().map(f64::from)) - shrink,
         );
         // The box's lowest value of m·q: outside one plane entirely means disjoint.
         let outside = planes.iter().any(|(m, d)| {
@@ -271,11 +277,35 @@ mod tests {
     /// the origin (coarser coordinates: an ulp of 100 is 8e-6) is checked too. (The rays
     /// here do not come close enough to a neighbour to tell the δ margin from none; a
     /// region 2 % too small fails.)
+    /// A unit cylinder of `n` sides from z = −1 to 1, its caps fans from their centres.
+    fn fanned_cylinder(n: u32) -> crate::mesh::TriMesh {
+        let mut positions = vec![
+            glam::Vec3::new(0.0, 0.0, -1.0),
+            glam::Vec3::new(0.0, 0.0, 1.0),
+        ];
+        let mut triangles = Vec::new();
+        for k in 0..n {
+            let a = std::f32::consts::TAU * k as f32 / n as f32;
+            positions.push(glam::Vec3::new(a.cos(), a.sin(), -1.0));
+            positions.push(glam::Vec3::new(a.cos(), a.sin(), 1.0));
+            let (b0, b1) = (2 + 2 * k, 2 + 2 * ((k + 1) % n));
+            let (t0, t1) = (b0 + 1, b1 + 1);
+            triangles.extend([[0, b1, b0], [1, t0, t1], [b0, b1, t1], [b0, t1, t0]]);
+        }
+        crate::mesh::TriMesh {
+            positions,
+            triangles,
+        }
+    }
+
     #[test]
     fn rays_in_escape_cones_meet_nothing() {
         for (name, geo) in [
             ("bunny", fresh(bunny_mesh())),
             ("torus knot", fresh(crate::mesh::torus_knot())),
+            // Caps fanned from their centres: coplanar slivers, whose boxes the cone
+            // test now skips rather than clipping every face in them.
+            ("cylinder with fanned caps", fresh(fanned_cylinder(64))),
             ("bunny at (100, 50, 0)", {
                 let mut m = bunny_mesh();
                 for p in &mut m.positions {
