@@ -159,12 +159,12 @@ fn blocked(geo: &Geometry, planes: &[Plane; 12]) -> bool {
     if nodes.is_empty() {
         return false;
     }
-    // The tree's boxes are grown by eps/2 (Geometry::new), as much as the region's floor
-    // h₀ lies above the triangle's plane, so a box of faces in that plane always reached
-    // it and every face in it was clipped: a cylinder's fan cap of 4,000 slivers took
-    // 19 s. Shrunk by 90 % of the growth, the boxes still hold their faces (with 1e-6
-    // of the scene to spare, far above rounding) and such boxes are skipped.
-    let shrink = 0.45 * geo.eps as f64;
+    // The tree's boxes are grown by eps/2 (Geometry::box_growth), as much as the region's
+    // floor h₀ lies above the triangle's plane, so a box of faces in that plane always
+    // reached it and every face in it was clipped: a cylinder's fan cap of 4,000 slivers
+    // took 19 s. Shrunk by 90 % of the growth, the boxes still hold their faces (with
+    // 1e-6 of the scene to spare, far above rounding) and such boxes are skipped.
+    let shrink = 0.9 * geo.box_growth() as f64;
     let mut stack = vec![0usize];
     while let Some(i) = stack.pop() {
         let node = &nodes[i];

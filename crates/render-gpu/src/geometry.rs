@@ -237,7 +237,18 @@ impl Boundable for PaddedTri {
     }
 }
 
+/// The spawn offset `eps`, and how far the tree's boxes are grown, as fractions of the
+/// mesh's scale ([`TriMesh::scale`]). The escape cones' box test reads the growth back
+/// ([`Geometry::box_growth`]).
+const EPS: f32 = 2e-5;
+const BOX_GROWTH: f32 = 1e-5;
+
 impl Geometry {
+    /// How far each box of `bvh` is grown beyond the faces in it.
+    pub fn box_growth(&self) -> f32 {
+        self.eps / EPS * BOX_GROWTH
+    }
+
     pub fn new(mesh: TriMesh) -> Self {
         let (overlaps, table) = crate::mesh::overlaps_and_pieces(&mesh);
         let pieces = table.map(|(of, depths)| Pieces::new(&of, &depths));
@@ -263,17 +274,13 @@ impl Geometry {
             &mut Duration::default(),
         );
         let (lo, hi) = mesh.bounds();
-        let scale = lo
-            .abs()
-            .max(hi.abs())
-            .max_element()
-            .max((hi - lo).max_element());
+        let scale = mesh.scale();
         // The slab test rounds: a ray through a vertex that lies on a leaf's box face can
         // miss the box and with it the triangle the watertight test would have hit (seen
         // for ~0.1 % of rays aimed at vertices from inside). Padding every box by far more
         // than the rounding error (~1e-7 of the distances involved) makes the traversal
         // conservative; the cost is a few more box hits.
-        let pad = scale * 1e-5;
+        let pad = scale * BOX_GROWTH;
         for n in &mut bvh.nodes {
             n.aabb.min -= pad;
             n.aabb.max += pad;
@@ -309,7 +316,7 @@ impl Geometry {
             cw_back: 2e-4 + scale * 1e-5,
             lo,
             hi,
-            eps: scale * 2e-5,
+            eps: scale * EPS,
             bounds,
             escape_cos: Vec::new(),
             overlaps,

@@ -24,6 +24,18 @@ impl TriMesh {
         bounds_of(self.positions.iter().copied())
     }
 
+    /// The larger of the mesh's extent and its coordinates' magnitude: what f32 rounding
+    /// of its positions grows with, so the tolerances that must stay above that rounding
+    /// (the spawn offset, box padding, the piece survey's touch distance) are fractions
+    /// of it.
+    pub fn scale(&self) -> f32 {
+        let (lo, hi) = self.bounds();
+        lo.abs()
+            .max(hi.abs())
+            .max_element()
+            .max((hi - lo).max_element())
+    }
+
     /// Six times the signed volume (positive for an outward-oriented closed mesh).
     fn signed_volume6(&self) -> f64 {
         (0..self.triangles.len()).map(|t| self.volume6_of(t)).sum()

@@ -99,11 +99,7 @@ impl<'a> Survey<'a> {
         // Relative to the coordinates' size as well as the mesh's: f32 positions far from
         // the origin round by more than a millionth of a small mesh (a contact at 1,000
         // from the origin was taken as a crossing).
-        let (lo, hi) = m.bounds();
-        let scale = (hi - lo)
-            .max_element()
-            .max(lo.abs().max(hi.abs()).max_element());
-        let touch = 1e-6 * scale.max(f32::MIN_POSITIVE);
+        let touch = 1e-6 * m.scale().max(f32::MIN_POSITIVE);
         let tris: Vec<Triangle> = (0..m.triangles.len())
             .map(|i| {
                 let [a, b, c] = m.triangle(i).map(|v| v.to_array().into());
