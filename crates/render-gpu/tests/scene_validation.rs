@@ -39,6 +39,10 @@ fn the_base_scene_is_valid() {
 fn unknown_keys_are_rejected() {
     let e = err(&BASE.replace("g = 0.0", "g = 0.0\nsigma_s = 1.0"));
     assert!(e.contains("s.toml") && e.contains("sigma_s"), "{e}");
+    // Of two misspelt keys, the first in the file is named, with its line (the parsed
+    // table was sorted by key, so `zoom` above `aperture` was reported as `aperture`).
+    let e = err(&BASE.replace("fov_deg = 20.0", "fov_deg = 20.0\nzoom = 2\naperture = 1"));
+    assert!(e.contains("s.toml:6:") && e.contains("`zoom`"), "{e}");
 }
 
 #[test]
