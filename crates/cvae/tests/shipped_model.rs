@@ -7,62 +7,138 @@ use std::path::Path;
 use cvae::ModelSet;
 use cvae::eval::{PAIRS, QUANTITIES, evaluate_setting};
 
-/// The shipped model's KS statistics at this test's seed (2026-11-28), per setting (τ, g,
-/// φ) and quantity ([`QUANTITIES`] but log N, whose statistic is N's: KS is unchanged by a
-/// monotone map), then the 2-D statistics of [`PAIRS`] (measured 2026-12-01). The seed is
-/// fixed, so they are deterministic.
+/// The shipped model's KS statistics, each the mean over seeds 1–[`MEASURE_SEEDS`]
+/// (2026-12-02, [`remeasure_the_stored_means`]), per setting (τ, g, φ) and quantity
+/// ([`QUANTITIES`] but log N, whose statistic is N's: KS is unchanged by a monotone map),
+/// then the 2-D statistics of [`PAIRS`].
 const MEASURED: [((f64, f64, f64), [f64; 9]); 3] = [
     (
         (5.0, 0.4, 1.0),
         [
-            0.0192, 0.0319, 0.0198, 0.0153, 0.0267, 0.0335, 0.0194, 0.0317, 0.0388,
+            0.0183, 0.0333, 0.0127, 0.0125, 0.0243, 0.0263, 0.0142, 0.0347, 0.0354,
         ],
     ),
     (
         (25.0, 0.0, 1.0),
         [
-            0.0200, 0.0294, 0.0228, 0.0150, 0.0506, 0.0204, 0.0149, 0.0352, 0.0310,
+            0.0165, 0.0306, 0.0130, 0.0143, 0.0555, 0.0299, 0.0143, 0.0333, 0.0331,
         ],
     ),
     (
         (125.0, -0.7, 1.0),
         [
-            0.0177, 0.0370, 0.0131, 0.0144, 0.0435, 0.0484, 0.0150, 0.0392, 0.0388,
+            0.0184, 0.0302, 0.0109, 0.0144, 0.0456, 0.0352, 0.0159, 0.0325, 0.0326,
         ],
     ),
 ];
 
-/// 10,000 vs 10,000 samples, as `stcvae eval`. Each KS statistic may exceed its value at
-/// this seed by 0.02. A change that only redraws the random numbers (another order of
-/// draws, another seed) moves a statistic by about the spread of the two-sample KS under
-/// the null, ~0.004 at this size (its mean is ~0.0125), so 0.02 is 5 of those. A sampling
-/// regression (a wrong transform, frame or exact branch) that raises any statistic by
-/// more than 0.02 fails; the earlier flat bounds (0.05, 0.07 for the events) let α's
-/// statistic grow 2.2–3.8× unnoticed. (A misfit the size of the noise adds less than
-/// itself to a statistic, so a small new misfit can still pass.) The 2-D statistics
-/// spread more under the null: simulator against simulator, 12 seed pairs at (5, 0.4) and
-/// (25, 0) (two of the three settings), their mean was 0.019–0.021 and their spread
-/// 0.003–0.005, so they get 0.025 (5 of the larger spread). They catch what the marginals cannot: exit directions right
-/// overall but paired with the wrong exit points.
+/// Seeds the test averages each statistic over, and seeds the stored means were taken over
+/// ([`remeasure_the_stored_means`]).
+const TEST_SEEDS: u64 = 4;
+const MEASURE_SEEDS: u64 = 24;
+
+/// The statistics' names, in [`MEASURED`]'s order.
+fn names() -> impl Iterator<Item = &'static str> {
+    QUANTITIES
+        .into_iter()
+        .filter(|q| *q != "log_n")
+        .chain(PAIRS.map(|p| p.0))
+}
+
+/// Each statistic at one setting and seed: 10,000 model against 10,000 simulator samples,
+/// as `stcvae eval`.
+fn statistics(m: &ModelSet, (tau, g, albedo): (f64, f64, f64), seed: u64) -> [f64; 9] {
+    let r = evaluate_setting(m, tau, g, albedo, 10_000, seed);
+    let mut out = [0.0; 9];
+    for (o, q) in out.iter_mut().zip(names()) {
+        *o = r.ks(q).unwrap();
+    }
+    out
+}
+
+fn shipped() -> ModelSet {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/default.stcvae");
+    ModelSet::load(&path).unwrap()
+}
+
+/// The mean over [`TEST_SEEDS`] seeds of each KS statistic may exceed its stored mean over
+/// [`MEASURE_SEEDS`] seeds by 0.02.
+/// - Why 0.02 is safe: most of these statistics measure the model's misfit, not only
+///   noise, and over 24 seeds (2026-12-02, [`remeasure_the_stored_means`]) their spread
+///   was 0.0027–0.0073 (the 2-D ones 0.0031–0.0049). The mean of 4 seeds then spreads by
+///   at most 0.0073/2 = 0.0037, the stored mean by at most 0.0073/√24 = 0.0015, so their
+///   difference by at most 0.004: 0.02 is 5 of those, for the widest statistic. A
+///   change that only redraws the random numbers (another order of draws) cannot fail it.
+///   (The previous form compared one seed with its own stored value plus 0.02; a
+///   redrawn seed's difference spreads by up to √2·0.0073 = 0.010, so the widest
+///   statistic alone failed about one redraw in 40.)
+/// - What it catches: a sampling regression (a wrong transform, frame or exact branch)
+///   that raises any statistic's expectation by more than 0.02, where the stored means
+///   are 0.011–0.056; the earlier flat bounds (0.05, 0.07 for the events) let α's
+///   statistic grow 2.2–3.8× unnoticed. (A misfit the size of the noise adds less than
+///   itself to a statistic, so a small new misfit can still pass.) The 2-D statistics
+///   catch what the marginals cannot: exit directions right overall but paired with the
+///   wrong exit points.
 #[test]
 fn shipped_model_quick_eval() {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/default.stcvae");
-    let m = ModelSet::load(&path).unwrap();
-    for ((tau, g, albedo), measured) in MEASURED {
-        let r = evaluate_setting(&m, tau, g, albedo, 10_000, 1);
-        let quantities = QUANTITIES
-            .into_iter()
-            .filter(|q| *q != "log_n")
-            .map(|q| (q, 0.02))
-            .chain(PAIRS.map(|p| (p.0, 0.025)));
-        assert_eq!(quantities.clone().count(), measured.len());
-        for ((q, margin), at_seed) in quantities.zip(measured) {
-            let ks = r.ks(q).unwrap();
-            let bound = at_seed + margin;
+    let m = shipped();
+    for (setting, stored) in MEASURED {
+        let mut now = [0.0; 9];
+        for seed in 1..=TEST_SEEDS {
+            for (n, v) in now.iter_mut().zip(statistics(&m, setting, seed)) {
+                *n += v / TEST_SEEDS as f64;
+            }
+        }
+        for ((q, ks), mean) in names().zip(now).zip(stored) {
+            let bound = mean + 0.02;
             assert!(
                 ks <= bound,
-                "τ = {tau}, g = {g}: KS({q}) = {ks:.4} > {bound:.4} (it was {at_seed} at this seed)"
+                "(τ, g, φ) = {setting:?}: KS({q}) averaged over {TEST_SEEDS} seeds = {ks:.4} \
+                 > {bound:.4} (its mean over {MEASURE_SEEDS} seeds was {mean})"
             );
         }
+    }
+}
+
+/// Prints [`MEASURED`] anew, with each statistic's spread over the seeds (for the margin
+/// above): `cargo test --release -p cvae --test shipped_model -- --ignored --nocapture`
+/// after retraining the shipped model.
+#[test]
+#[ignore = "re-measures the stored means (~90 s); run by hand after retraining"]
+fn remeasure_the_stored_means() {
+    let m = shipped();
+    for (setting, _) in MEASURED {
+        let per_seed: Vec<[f64; 9]> = (1..=MEASURE_SEEDS)
+            .map(|seed| statistics(&m, setting, seed))
+            .collect();
+        let n = per_seed.len() as f64;
+        let mean: Vec<f64> = (0..9)
+            .map(|k| per_seed.iter().map(|v| v[k]).sum::<f64>() / n)
+            .collect();
+        let sd: Vec<f64> = (0..9)
+            .map(|k| {
+                (per_seed
+                    .iter()
+                    .map(|v| (v[k] - mean[k]).powi(2))
+                    .sum::<f64>()
+                    / (n - 1.0))
+                    .sqrt()
+            })
+            .collect();
+        println!("{setting:?}");
+        println!(
+            "  mean {}",
+            mean.iter()
+                .map(|x| format!("{x:.4}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+        println!(
+            "  sd   {}",
+            sd.iter()
+                .map(|x| format!("{x:.4}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
     }
 }
