@@ -361,11 +361,8 @@ fn many_event_exits_match_an_independent_simulation() {
         }
         let p_exit = two_sample_chi_square_p(&ex_lib, &ex_ref);
         let p_n = two_sample_chi_square_p(&n_lib, &n_ref);
-        assert!(
-            p_exit > 1e-4 && p_n > 1e-4,
-            "τ = {tau}, g = {g}: exits p = {p_exit:.2e}, N p = {p_n:.2e}\n{ex_lib:?}\n{ex_ref:?}\n{n_lib:?}\n{n_ref:?}"
-        );
-        // The emptiest exit bin, for the comment above (printed with --nocapture).
+        // The emptiest exit bin (per sample): the chi-square law needs ~5 or more, so a
+        // change of the bins or the walk that empties one fails here rather than skewing p.
         let least = ex_lib
             .iter()
             .zip(&ex_ref)
@@ -373,6 +370,14 @@ fn many_event_exits_match_an_independent_simulation() {
             .min()
             .unwrap()
             / 2;
+        assert!(
+            least >= 5,
+            "τ = {tau}, g = {g}: an exit bin holds ~{least} walks"
+        );
+        assert!(
+            p_exit > 1e-4 && p_n > 1e-4,
+            "τ = {tau}, g = {g}: exits p = {p_exit:.2e}, N p = {p_n:.2e}\n{ex_lib:?}\n{ex_ref:?}\n{n_lib:?}\n{n_ref:?}"
+        );
         eprintln!(
             "τ = {tau}, g = {g}: exits p = {p_exit:.3}, N p = {p_n:.3}, fewest walks in an \
              exit bin ≈ {least}"

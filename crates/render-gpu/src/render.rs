@@ -503,7 +503,49 @@ pub fn pixel_variance(
 
 #[cfg(test)]
 mod tests {
-    use super::{pixel_sample, resolve_pixel, tile_side};
+    use super::{MIN_VARIANCE_SPP, pixel_sample, pixel_variance, resolve_pixel, tile_side};
+    use scatter_sim::rng::splitmix64;
+
+    /// `pixel_variance` from the renderers' running sums (×3 estimates in `sum`, squares
+    /// in `squares`, channels from `pixel_sample`) equals the textbook variance of the
+    /// channel's mean, Σ(x − x̄)²/(n − 1)/n, computed here in two passes from the samples
+    /// themselves, to f32 rounding (1e-5 relative). The seed-spread test in integrators.rs
+    /// cannot see an n against n − 1 (8/7 at its 8 samples a channel); this sees any
+    /// such factor.
+    #[test]
+    fn the_variance_is_that_of_each_channels_mean() {
+        for seed in [1u64, 9] {
+            for pixel in 0..20u32 {
+                for spp in [MIN_VARIANCE_SPP, 7, 13, 40] {
+                    let mut samples: [Vec<f64>; 3] = Default::default();
+                    let (mut sum, mut squares) = ([0f64; 3], [0f64; 3]);
+                    for s in 0..spp {
+                        let c = pixel_sample(seed, pixel as u64, s).3;
+                        let bits = splitmix64(seed ^ ((pixel as u64) << 32 | s as u64));
+                        // Estimates from 0 to 5, with a spike now and then.
+                        let l = (bits >> 11) as f64 / (1u64 << 53) as f64 * 5.0;
+                        let l = if bits % 7 == 0 { 40.0 * l } else { l };
+                        samples[c].push(l);
+                        sum[c] += 3.0 * l;
+                        squares[c] += l * l;
+                    }
+                    let got = pixel_variance(sum, squares, spp, seed, pixel);
+                    for c in 0..3 {
+                        let x = &samples[c];
+                        let n = x.len() as f64;
+                        let mean = x.iter().sum::<f64>() / n;
+                        let want =
+                            x.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0) / n;
+                        assert!(
+                            (got[c] as f64 - want).abs() <= 1e-5 * want.max(1e-12),
+                            "seed {seed} pixel {pixel} spp {spp} channel {c}: {} vs {want}",
+                            got[c]
+                        );
+                    }
+                }
+            }
+        }
+    }
 
     /// Samples whose estimates are all 1 (a white furnace) resolve to exactly 1 in every
     /// channel at any spp from 3, whichever channel a pixel starts with; the sums are

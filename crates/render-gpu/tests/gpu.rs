@@ -1330,6 +1330,14 @@ fn wgsl_rays_are_watertight_and_match_rust() {
         t_off * 1000 <= rays.len(),
         "{t_off} closest hits differ from the CPU's"
     );
+    // Touches at the aimed point: 65 of 20,000 on the H200, 0 on lavapipe. 1 % (3× the
+    // worst seen) bounds them, so that a GPU that counts every silhouette touch, or none
+    // where the CPU counts them, is not waved through as rounding.
+    assert!(
+        touch * 100 <= rays.len(),
+        "{touch} of {} rays count a touch at the aimed point differently from the CPU",
+        rays.len()
+    );
     assert!(
         len_off * 1000 <= paired,
         "{len_off} inside lengths differ from the CPU's"
