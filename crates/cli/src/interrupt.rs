@@ -30,6 +30,15 @@ pub fn flag() -> &'static AtomicBool {
                 scatter_sim::output::remove_live_temporaries();
                 std::process::exit(130);
             }
+            // Ctrl-C in a shell also ends the readers of a pipe the output goes to: from
+            // now on a write there fails (dropped, main.rs) rather than ending the process
+            // before its clean stop.
+            #[cfg(unix)]
+            // SAFETY: changes one signal's disposition; ctrlc runs this handler on its own
+            // thread, not in signal context.
+            unsafe {
+                libc::signal(libc::SIGPIPE, libc::SIG_IGN);
+            }
             eprintln!("\ninterrupt: stopping at the next safe point (Ctrl-C again to abort)");
         });
     });

@@ -1,5 +1,31 @@
 //! `stcvae`: learned multiple scattering for fast subsurface-scattering rendering.
 
+// std's print macros panic when the write fails. After Ctrl-C the terminal's pipe may be
+// gone (`stcvae … 2>&1 | tee log`: the signal ends `tee` too), and a panic, or SIGPIPE's
+// default of ending the process, then cut the clean stop short: a 1.5 GB hidden
+// temporary left, a training checkpoint unsaved. These shadow them in every module below
+// (declared after them) and drop the text where it cannot be written; the interrupt
+// handler then ignores SIGPIPE (interrupt.rs). Before an interrupt, SIGPIPE still ends
+// the process quietly (`stcvae bench … | head -1`, [`default_sigpipe`]).
+macro_rules! eprintln {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stderr(), $($arg)*);
+    }};
+}
+macro_rules! println {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stdout(), $($arg)*);
+    }};
+}
+macro_rules! print {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = write!(std::io::stdout(), $($arg)*);
+    }};
+}
+
 mod bench;
 mod bench_devices;
 mod bench_error;

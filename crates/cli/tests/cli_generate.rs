@@ -400,6 +400,36 @@ fn interrupted_runs_leave_no_files() {
     }
 }
 
+/// Ctrl-C in a shell ends every process of the pipeline: with `stcvae … 2>&1 | tee log`
+/// the pipe's reader is gone when stcvae writes its "interrupt" line, and SIGPIPE (or a
+/// print's panic) ended it before its clean stop: a 1.5 GB hidden temporary stayed. Here
+/// the reader is closed just before the signal: the stop must still be clean (status
+/// 130, not a signal's death) and leave nothing.
+#[cfg(unix)]
+#[test]
+fn an_interrupt_with_the_output_pipe_gone_still_cleans_up() {
+    use common::interrupt_when;
+    use std::time::Duration;
+    let dir = tempfile::tempdir().unwrap();
+    let args = words("generate --samples 1000000000 --tau 5 --g 0 --albedo 1 --out big.bin");
+    let mut child = spawn_in(dir.path(), &args);
+    // Closed once the work runs (its first line, "generating …", went out while the
+    // reader was there); the signal follows at once.
+    interrupt_when(
+        &child,
+        || writing_in(dir.path()),
+        Duration::ZERO,
+        0,
+        "generate",
+    );
+    drop(child.stderr.take());
+    interrupt_when(&child, || true, Duration::ZERO, 1, "generate");
+    let status = child.wait().unwrap();
+    assert_eq!(status.code(), Some(130), "{status:?}");
+    let left: Vec<_> = fs::read_dir(dir.path()).unwrap().collect();
+    assert!(left.is_empty(), "left {left:?}");
+}
+
 /// Ctrl-C stops `merge` too, into CSV and binary: it was killed outright and left its
 /// hidden temporary (224 MB for a 4-million-walk dataset) beside the output.
 #[cfg(unix)]

@@ -35,7 +35,8 @@ pub fn words(line: &str) -> Vec<&str> {
 /// the kernel keeps it pending apart from the first (process-directed) one instead of
 /// merging the two, and the handler sees two signals; a second `kill` process could start
 /// more than the CLI's 300 ms same-request window later on a loaded machine. (Other Unix
-/// systems get two process-directed signals, which the kernel may merge into one.)
+/// systems get two process-directed signals, which the kernel may merge into one.) With
+/// `signals` 0 it only waits.
 #[cfg(unix)]
 pub fn interrupt_when(
     child: &Child,
@@ -53,7 +54,10 @@ pub fn interrupt_when(
         std::thread::sleep(Duration::from_millis(50));
     }
     std::thread::sleep(settle);
-    assert!((1..=2).contains(&signals), "{what}: {signals} signals");
+    assert!(signals <= 2, "{what}: {signals} signals");
+    if signals == 0 {
+        return;
+    }
     let pid = child.id() as libc::pid_t;
     // SAFETY: plain system calls on a child process this test owns and has not reaped.
     let sent = unsafe { libc::kill(pid, libc::SIGINT) };
