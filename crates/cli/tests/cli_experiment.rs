@@ -70,7 +70,9 @@ fn every_experiment_runs_quick() {
         let out = quick_experiment(&cfg, tmp.path());
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(out.status.success(), "{}: {err}", cfg.display());
-        let dir = tmp.path().join(cfg.file_stem().unwrap());
+        // A quick run's own folder: it wrote over a full run's results in the same one.
+        let name = cfg.file_stem().unwrap().to_string_lossy();
+        let dir = tmp.path().join(format!("{name}-quick"));
         let csv = std::fs::read_to_string(dir.join("figures.csv")).unwrap();
         let mut lines = csv.lines();
         let header: Vec<&str> = lines.next().unwrap().split(',').collect();
@@ -99,7 +101,7 @@ fn every_experiment_runs_quick() {
     }
     // The teaser's renders carry their pair's seeds, so `merge` knows a copy by its seed
     // (it compared pixels only before); its montages are no renders and are refused.
-    let teaser = tmp.path().join("teaser");
+    let teaser = tmp.path().join("teaser-quick");
     std::fs::copy(teaser.join("pt_k1.exr"), teaser.join("copy.exr")).unwrap();
     let merge = |inputs: &[&str]| {
         let out = Command::new(env!("CARGO_BIN_EXE_stcvae"))
@@ -165,7 +167,7 @@ fn files_of_an_earlier_run_are_named() {
         "{note}"
     );
     assert!(
-        out.join("tiny").join("pt_k2.exr").exists(),
+        out.join("tiny-quick").join("pt_k2.exr").exists(),
         "named, not deleted"
     );
     // A scene whose camera looks away from the object has nothing to measure: an error
@@ -305,7 +307,7 @@ fn experiment_configs_are_checked_before_any_rendering() {
         assert!(!out.status.success());
         let err = String::from_utf8_lossy(&out.stderr).into_owned();
         assert!(!err.contains("panicked"), "{err}");
-        assert!(!tmp.path().join("results/exp").exists(), "{err}");
+        assert!(!tmp.path().join("results/exp-quick").exists(), "{err}");
         err
     };
     let run = |body: &str| run_kind("complexity", body);
@@ -378,4 +380,54 @@ fn an_interrupted_experiment_writes_no_report() {
     // Its first render was cut short, so nothing was saved: the folders the run made, the
     // results root among them, are gone again.
     assert!(!d.path().join("fresh").exists(), "{err}");
+
+    // Over an earlier run's results, stopped before it saved anything: the earlier report
+    // and figures stay as they were (they were removed up front).
+    let out = d.path().join("earlier/teaser");
+    std::fs::create_dir_all(&out).unwrap();
+    for f in ["report.md", "figures.csv"] {
+        std::fs::write(out.join(f), "earlier").unwrap();
+    }
+    let mut child = Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args([
+            "experiment",
+            "configs/experiments/teaser.toml",
+            "--device",
+            "cpu",
+            "--out",
+        ])
+        .arg(d.path().join("earlier"))
+        .current_dir(root())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Nothing shows in the folder when it starts: its first line on stderr ("experiment
+    // teaser … ->", written as Ctrl-C's handler goes in) does. Two seconds on, it is
+    // mid-render (the first render takes minutes).
+    let seen = std::sync::Arc::new(std::sync::Mutex::new(String::new()));
+    let reader = {
+        let (seen, pipe) = (seen.clone(), child.stderr.take().unwrap());
+        std::thread::spawn(move || {
+            use std::io::BufRead;
+            for line in std::io::BufReader::new(pipe).lines().map_while(Result::ok) {
+                let mut s = seen.lock().unwrap();
+                s.push_str(&line);
+                s.push('\n');
+            }
+        })
+    };
+    let started = || seen.lock().unwrap().contains("experiment teaser");
+    common::interrupt_when(&child, started, Duration::from_secs(2), 1, "the rerun");
+    let status = child.wait().unwrap();
+    reader.join().unwrap();
+    let err = seen.lock().unwrap().clone();
+    assert_eq!(status.code(), Some(130), "{err}");
+    assert!(err.contains("the earlier run's report"), "{err}");
+    for f in ["report.md", "figures.csv"] {
+        assert_eq!(
+            std::fs::read_to_string(out.join(f)).unwrap(),
+            "earlier",
+            "{f}: {err}"
+        );
+    }
 }

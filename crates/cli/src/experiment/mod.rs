@@ -21,7 +21,8 @@ pub const DEFAULT_OUT: &str = "results";
 #[derive(clap::Args)]
 #[command(
     after_help = "Configs: configs/experiments/{teaser,quality,complexity,absorption,\
-    distributions,nee,fallback}.toml. Each writes OUT/<name>/report.md with its figures.\n\n\
+    distributions,nee,fallback}.toml. Each writes OUT/<name>/report.md with its figures \
+    (OUT/<name>-quick/ with --quick).\n\n\
     Example:\n  stcvae experiment configs/experiments/teaser.toml --quick"
 )]
 pub struct Args {
@@ -33,7 +34,8 @@ pub struct Args {
     /// Where renders run: auto (a hardware GPU if any, else the CPU), gpu or cpu.
     #[arg(long, value_enum, default_value_t = DeviceArg::Auto)]
     pub device: DeviceArg,
-    /// Results root; the experiment writes `OUT/<config name>/`.
+    /// Results root; the experiment writes `OUT/<config name>/` (`OUT/<config name>-quick/`
+    /// with --quick).
     #[arg(long, default_value = DEFAULT_OUT)]
     pub out: PathBuf,
     /// Model file (default: models/default.stcvae).
@@ -64,7 +66,13 @@ pub fn run(a: Args) -> Result<()> {
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_else(|| "experiment".into());
     kinds::preflight(&cfg, a.model.as_deref()).with_context(|| a.config.display().to_string())?;
-    let out = a.out.join(&name);
+    // A quick run has a folder of its own: it wrote over a full run's images and report
+    // (hours of rendering) in the same one.
+    let out = a.out.join(if a.quick {
+        format!("{name}-quick")
+    } else {
+        name.clone()
+    });
     // A file where the folder or a report goes, or an unwritable place, fails now rather
     // than after the renders (the reports' checks cover their folder's).
     for f in ["report.md", "figures.csv"] {
@@ -90,16 +98,8 @@ pub fn run(a: Args) -> Result<()> {
         .map(PathBuf::from)
         .collect();
     std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
-    // (The reports below are removed now and written anew: never named as left over.)
+    // (The reports are written anew at the end: never named as left over.)
     let before = crate::left_over::Snapshot::take(&out);
-    // The previous run's report goes now, not when this run's is written: a run that
-    // fails part way must not leave a report that no longer matches its images.
-    for stale in ["report.md", "figures.csv"] {
-        let p = out.join(stale);
-        if p.is_file() {
-            std::fs::remove_file(&p).with_context(|| format!("cannot remove {}", p.display()))?;
-        }
-    }
     let ctx = Ctx {
         cfg: &cfg,
         budget: if a.quick { cfg.quick } else { cfg.full },
@@ -117,6 +117,24 @@ pub fn run(a: Args) -> Result<()> {
     // Ctrl-C is a request to stop after the current render pass (measure::render_once).
     crate::interrupt::flag();
     if let Err(e) = kinds::run(&ctx, &mut rep) {
+        // A run that saved images and failed part way must not leave an earlier report
+        // beside them that no longer matches them; one stopped before it saved anything
+        // leaves the earlier run's results as they were (removed up front, an
+        // interrupted rerun took a finished run's report with it).
+        if before.changed_any() {
+            for stale in ["report.md", "figures.csv"] {
+                let p = out.join(stale);
+                if p.is_file() {
+                    std::fs::remove_file(&p)
+                        .with_context(|| format!("cannot remove {}", p.display()))?;
+                }
+            }
+        } else if out.join("report.md").is_file() {
+            return Err(anyhow::anyhow!(
+                "{e:#} (nothing was saved: the earlier run's report in {} is as it was)",
+                out.display()
+            ));
+        }
         // A run stopped before it saved anything leaves no empty folder (remove_dir
         // removes only an empty one); one that saved images says where they are.
         let _ = std::fs::remove_dir(&out);
