@@ -82,17 +82,18 @@ pub fn run(a: Args) -> Result<()> {
     }
     // A dataset written over a render's file (say `--out run.exr` by a slip), a config or
     // a model would replace it with binary rows.
-    if let Some(ext) = a.out.extension().and_then(|e| e.to_str())
-        && ["exr", "png", "json", "toml", "stcvae", "md"]
-            .iter()
-            .any(|x| ext.eq_ignore_ascii_case(x))
-    {
-        bail!(
-            "--out {}: the inputs are datasets, which merge into a dataset file (.csv for \
-             text, any other name binary, e.g. .bin), not .{ext}",
-            a.out.display()
-        );
-    }
+    let not_datasets = [
+        &crate::paths::IMAGE_EXTS[..],
+        &crate::paths::CONFIG_EXTS,
+        &crate::paths::MODEL_EXTS,
+    ]
+    .concat();
+    crate::paths::check_kind(
+        "--out",
+        &a.out,
+        "a dataset, as its inputs are (.csv for text, any other name binary, e.g. .bin)",
+        &not_datasets,
+    )?;
     check_paths(&a.inputs, std::slice::from_ref(&a.out))?;
     crate::check_out("--out", &a.out)?;
     let csv_inputs = a.inputs.iter().filter(|p| dataset::is_csv(p)).count();

@@ -5,22 +5,30 @@ use std::path::{Path, PathBuf};
 use anyhow::{Result, bail};
 
 /// The file a path names, for comparing paths written differently (`./a.exr`, `a.exr`);
-/// an output that does not exist yet is resolved through its parent directory.
+/// a path that does not exist yet is resolved through its nearest existing ancestor (so
+/// `ck/m.stcvae` lies within `ck` while neither exists).
 pub(crate) fn identity(p: &Path) -> PathBuf {
     if let Ok(c) = p.canonicalize() {
         return c;
     }
-    match (p.parent(), p.file_name()) {
-        (Some(dir), Some(name)) => {
-            let dir = if dir.as_os_str().is_empty() {
-                Path::new(".")
-            } else {
-                dir
-            };
-            dir.canonicalize()
-                .map_or_else(|_| p.to_path_buf(), |d| d.join(name))
+    let mut rest = Vec::new();
+    let mut at = p;
+    loop {
+        match (at.parent(), at.file_name()) {
+            (Some(dir), Some(name)) => {
+                rest.push(name.to_os_string());
+                let dir = if dir.as_os_str().is_empty() {
+                    Path::new(".")
+                } else {
+                    dir
+                };
+                if let Ok(c) = dir.canonicalize() {
+                    return rest.iter().rev().fold(c, |acc, n| acc.join(n));
+                }
+                at = dir;
+            }
+            _ => return p.to_path_buf(),
         }
-        _ => p.to_path_buf(),
     }
 }
 
@@ -65,4 +73,25 @@ mod tests {
         let missing = [("--config".to_string(), dir.path().join("nope.toml"))];
         assert!(check_not_input("--out", &input, &missing).is_ok());
     }
+}
+
+/// The extensions of the files the commands write and read, by what they hold.
+pub(crate) const IMAGE_EXTS: [&str; 3] = ["exr", "png", "json"];
+pub(crate) const CONFIG_EXTS: [&str; 2] = ["toml", "md"];
+pub(crate) const MODEL_EXTS: [&str; 1] = ["stcvae"];
+pub(crate) const DATASET_EXTS: [&str; 2] = ["bin", "csv"];
+
+/// Refuses an output named like a file of another kind (`exts`): `generate --out
+/// models/default.stcvae` replaced the shipped model with a dataset, `train --out w.csv`
+/// a CSV with a model, both without a word. `holds` says what the command writes.
+pub(crate) fn check_kind(flag: &str, out: &Path, holds: &str, exts: &[&str]) -> Result<()> {
+    if let Some(ext) = out.extension().and_then(|e| e.to_str())
+        && exts.iter().any(|x| ext.eq_ignore_ascii_case(x))
+    {
+        bail!(
+            "{flag} {}: this writes {holds}, not a .{ext} file; choose another name",
+            out.display()
+        );
+    }
+    Ok(())
 }

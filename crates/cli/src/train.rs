@@ -136,6 +136,16 @@ fn load(path: &Path) -> Result<TrainConfig> {
     {
         bail!("{}: {field} = \"\" names no path", path.display());
     }
+    // A CSV was generated in full (2^22 walks with the shipped config) and then refused as
+    // "not an stcvae dataset (bad magic bytes)".
+    if scatter_sim::dataset::is_csv(&cfg.dataset) {
+        bail!(
+            "{}: dataset = \"{}\": train reads binary datasets (e.g. .bin; `stcvae generate` \
+             writes one for any other name than .csv)",
+            path.display(),
+            cfg.dataset.display()
+        );
+    }
     for k in ModelKind::ALL {
         cfg.model(k)
             .validate(k.name())
@@ -247,6 +257,25 @@ pub fn run(a: Args) -> Result<()> {
         None => format!("{}: out =", a.config.display()),
     };
     crate::check_out(&out_flag, &out)?;
+    let not_models = [
+        &crate::paths::IMAGE_EXTS[..],
+        &crate::paths::CONFIG_EXTS,
+        &crate::paths::DATASET_EXTS,
+    ]
+    .concat();
+    crate::paths::check_kind(&out_flag, &out, "a model file (.stcvae)", &not_models)?;
+    // Nor in the checkpoints' folder: the model saved over a checkpoint broke --resume,
+    // and one named as the folder failed only once training was done.
+    let ck = crate::paths::identity(&cfg.checkpoint_dir);
+    if crate::paths::identity(&out).starts_with(&ck) {
+        bail!(
+            "{out_flag} {} lies in checkpoint_dir = {} of {}: the model would replace a \
+             checkpoint (or the folder); give it another place",
+            out.display(),
+            cfg.checkpoint_dir.display(),
+            a.config.display()
+        );
+    }
     let field = |f: &str| format!("the config's {f}");
     let mut inputs = vec![
         ("--config".to_string(), a.config.clone()),

@@ -236,10 +236,16 @@ fn bad_input_gives_one_line_errors() {
         // Datasets merged over a render's file would replace the image.
         (
             "merge whole.csv --out render.exr",
-            "merge into a dataset file (.csv for text, any other name binary, e.g. .bin), not .exr",
+            "--out render.exr: this writes a dataset, as its inputs are (.csv for text, any \
+             other name binary, e.g. .bin), not a .exr file",
         ),
-        // ... and over a config.
-        ("merge whole.csv --out data.toml", "not .toml"),
+        // ... and over a config; `generate` likewise over a model or a config.
+        ("merge whole.csv --out data.toml", "not a .toml file"),
+        (
+            "generate --samples 10 --out models.stcvae",
+            "--out models.stcvae: this writes a dataset",
+        ),
+        ("generate --samples 10 --out ds.TOML", "not a .TOML file"),
         // A CSV cut short mid-row: refused, naming the file and line.
         (
             "merge cut.csv whole.csv --out x.csv",

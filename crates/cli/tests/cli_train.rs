@@ -276,6 +276,44 @@ fn a_bad_base_fails_before_any_work() {
     );
 }
 
+/// Outputs that would replace another kind of file or a checkpoint, and a CSV dataset, are
+/// refused before any dataset is generated or model trained (a CSV dataset was generated
+/// in full and then refused as "bad magic bytes"; `--out ck`, the checkpoints' folder,
+/// failed only after training).
+#[test]
+fn wrong_outputs_and_csv_datasets_fail_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    setup(dir.path());
+    for (out, want) in [
+        (
+            "w.csv",
+            "--out w.csv: this writes a model file (.stcvae), not a .csv file",
+        ),
+        ("ck", "--out ck lies in checkpoint_dir = ck"),
+        (
+            "ck/m.stcvae",
+            "--out ck/m.stcvae lies in checkpoint_dir = ck",
+        ),
+    ] {
+        let o = stcvae(
+            &["train", "--config", "train.toml", "--out", out],
+            dir.path(),
+        );
+        assert!(!o.status.success(), "{out}");
+        assert!(stderr(&o).contains(want), "{out}: {}", stderr(&o));
+    }
+    replace_in(&dir.path().join("train.toml"), "d.bin", "d.csv");
+    let o = stcvae(&["train", "--config", "train.toml"], dir.path());
+    assert!(
+        !o.status.success() && stderr(&o).contains("train reads binary datasets"),
+        "{}",
+        stderr(&o)
+    );
+    for f in ["d.bin", "d.csv", "ck"] {
+        assert!(!dir.path().join(f).exists(), "{f} made before the checks");
+    }
+}
+
 /// `--resume` from nothing, or from a damaged checkpoint, is refused (the first started
 /// afresh without a word, the second loaded the damaged weights); a run's final loss is
 /// its last step's (a run shorter than the logging interval reported its first step's);
