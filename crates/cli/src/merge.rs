@@ -364,7 +364,12 @@ fn merge_csv(a: &Args) -> Result<()> {
     let mut out =
         AtomicFile::create(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
     let mut rows = 0u64;
+    // Per input a digest of its rows: a shard copied under another name would count twice
+    // (binary shards are told apart by their headers, CSV files only by their rows).
+    let mut digests: Vec<(u64, u64)> = Vec::with_capacity(a.inputs.len());
     for (i, path) in a.inputs.iter().enumerate() {
+        let mut digest = std::hash::DefaultHasher::new();
+        let mut own_rows = 0u64;
         scatter_sim::output::check_input(path)
             .with_context(|| format!("cannot open {}", path.display()))?;
         let f = File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
@@ -394,12 +399,26 @@ fn merge_csv(a: &Args) -> Result<()> {
             dataset::Row::parse_csv(&line)
                 .map_err(|e| anyhow!("{}: line {}: {e}", path.display(), n + 2))?;
             writeln!(out, "{line}")?;
+            std::hash::Hasher::write(&mut digest, line.trim_end().as_bytes());
+            std::hash::Hasher::write(&mut digest, b"\n");
+            own_rows += 1;
             rows += 1;
             // (The temporary file is removed as `out` is dropped.)
             if cancel.load(std::sync::atomic::Ordering::Relaxed) {
                 bail!("interrupted: nothing written to {}", a.out.display());
             }
         }
+        let d = (std::hash::Hasher::finish(&digest), own_rows);
+        if let Some(j) = digests.iter().position(|e| *e == d && d.1 > 0) {
+            bail!(
+                "{} and {} hold the same rows: a shard given twice would count twice (nothing \
+                 written to {})",
+                a.inputs[j].display(),
+                path.display(),
+                a.out.display()
+            );
+        }
+        digests.push(d);
     }
     out.commit()
         .with_context(|| format!("cannot write {}", a.out.display()))?;

@@ -185,6 +185,22 @@ fn shards_merge_into_the_unsharded_run() {
         stderr(&out)
     );
     assert!(!dir.path().join("dup.bin").exists());
+    // CSV rows carry no walk number: a shard copied under another name is told by its rows.
+    ok(&stcvae(
+        &["merge", "part-1.bin", "--out", "p1.csv"],
+        dir.path(),
+    ));
+    fs::copy(dir.path().join("p1.csv"), dir.path().join("copy.csv")).unwrap();
+    let out = stcvae(
+        &["merge", "p1.csv", "copy.csv", "--out", "dup.csv"],
+        dir.path(),
+    );
+    assert!(
+        !out.status.success() && stderr(&out).contains("p1.csv and copy.csv hold the same rows"),
+        "{}",
+        stderr(&out)
+    );
+    assert!(!dir.path().join("dup.csv").exists());
     // A shard of another run (another seed) merges, with a note naming both runs and how
     // much of each the output holds.
     fs::write(
