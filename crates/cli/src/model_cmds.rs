@@ -202,6 +202,39 @@ fn warn_outside_training(m: &cvae::ModelSet, c: Conditions, flag: &str) {
     }
 }
 
+/// Which of the paper's grid settings (`eval`'s) lie outside the model's training range,
+/// as one line, or None: a model trained on other conditions had its figures there
+/// reported as a fit, without a word.
+fn grid_outside_training(m: &cvae::ModelSet) -> Option<String> {
+    let t = &m.training;
+    let mut outside = Vec::new();
+    for (name, values, r) in [
+        ("tau", &eval::TAUS[..], t.tau_range),
+        ("g", &eval::GS[..], t.g_range),
+        ("albedo", &eval::ALBEDOS[..], t.albedo_range),
+    ] {
+        let out: Vec<String> = values
+            .iter()
+            .filter(|&&v| outside_training(v, r))
+            .map(|v| v.to_string())
+            .collect();
+        if !out.is_empty() {
+            outside.push(format!(
+                "{name} {} (trained {})",
+                out.join(", "),
+                training_range(r)
+            ));
+        }
+    }
+    (!outside.is_empty()).then(|| {
+        format!(
+            "the grid's {} lie outside the model's training range: its figures at those \
+             settings measure an extrapolation",
+            outside.join("; ")
+        )
+    })
+}
+
 /// Whether `v` lies outside a model's training range `r` beyond rounding and beyond the
 /// gap between the range the training data happened to cover and its nominal bounds
 /// (the shipped model's τ reaches 299.9996 of the 300 its sampler allows): 1e-5 of the
@@ -391,11 +424,18 @@ pub fn evaluate_into(
     seed: u64,
 ) -> Result<std::collections::BTreeMap<&'static str, f64>> {
     let (m, model_name) = open_eval(model, out, samples)?;
+    let outside = grid_outside_training(&m);
+    if let Some(w) = &outside {
+        eprintln!("warning: {w}");
+    }
     let pb = progress::bar(32, "settings");
     let reports = eval::evaluate_grid(&m, samples, seed, |i, _| pb.set_position(i as u64));
     pb.finish_and_clear();
     let max_ks = max_ks_of(&reports);
     let (json, mut md) = eval_json_and_head(&model_name, samples, seed, &reports)?;
+    if let Some(w) = &outside {
+        writeln!(md, "\n**Warning:** {w}.")?;
+    }
     // The plots redraw the φ = 1 settings with the grid's seeds (same samples).
     let mut cols = Vec::new();
     for (i, &tau) in eval::TAUS.iter().enumerate() {

@@ -272,9 +272,10 @@ pub fn prepare(
 }
 
 /// The models extrapolate outside the media they were trained on (τ is kept inside by the
-/// sphere steps' max_tau; g and the albedo are the scene's): said once, by `render` (the
-/// bench and the experiments render their own, known media).
-fn warn_outside_training(p: &Prepared, scene_path: &Path) {
+/// sphere steps' max_tau; g and the albedo are the scene's): said once, by `render` and
+/// by `experiment` (once per scene and medium; another `--model` may not cover the
+/// experiments' media).
+pub(crate) fn warn_outside_training(p: &Prepared, scene_path: &Path) {
     let Some(m) = &p.model else { return };
     let t = &m.training;
     let med = &p.file.medium;
@@ -297,11 +298,17 @@ fn warn_outside_training(p: &Prepared, scene_path: &Path) {
         ));
     }
     if !outside.is_empty() {
-        eprintln!(
+        let line = format!(
             "warning: {}: {} outside the model's training range: ST-CVAE extrapolates there",
             scene_path.display(),
             outside.join(", ")
         );
+        static SAID: std::sync::Mutex<Vec<String>> = std::sync::Mutex::new(Vec::new());
+        let mut said = SAID.lock().unwrap_or_else(|e| e.into_inner());
+        if !said.contains(&line) {
+            eprintln!("{line}");
+            said.push(line);
+        }
     }
 }
 

@@ -163,6 +163,25 @@ fn a_fixed_condition_warns_and_a_bad_checkpoint_dir_fails_first() {
         "{}",
         stderr(&out)
     );
+    // Its evaluation on the paper's grid says the grid's g lie outside what it knows (the
+    // figures were reported as a fit), on the terminal and in metrics.md.
+    let out = stcvae(
+        &[
+            "eval",
+            "--model",
+            "m.stcvae",
+            "--samples",
+            "50",
+            "--out",
+            "ev",
+        ],
+        dir.path(),
+    );
+    assert!(out.status.success(), "{}", stderr(&out));
+    let want = "g -0.7, 0, 0.4, 0.9 (trained [0.25, 0.25]) lie outside the model's training range";
+    assert!(stderr(&out).contains(want), "{}", stderr(&out));
+    let md = fs::read_to_string(dir.path().join("ev/metrics.md")).unwrap();
+    assert!(md.contains(want), "{md}");
     fs::remove_file(dir.path().join("d.bin")).unwrap();
     fs::write(dir.path().join("afile"), b"").unwrap();
     replace_in(
