@@ -343,11 +343,20 @@ fn max_ks_of(reports: &[SettingReport]) -> std::collections::BTreeMap<&'static s
         .collect()
 }
 
-/// metrics.json and metrics.md as one set (neither is left beside the other's previous
-/// version by a failure, e.g. a full disk), errors naming the file.
-fn write_metrics(out: &Path, json: &[u8], md: &[u8]) -> Result<()> {
+/// metrics.json, metrics.md and the plots (named, encoded) as one set (none is left
+/// beside the others' previous versions by a failure, e.g. a full disk), errors naming
+/// the file.
+fn write_metrics(out: &Path, json: &[u8], md: &[u8], plots: &[(String, Vec<u8>)]) -> Result<()> {
     let (j, m) = (out.join("metrics.json"), out.join("metrics.md"));
-    scatter_sim::output::write_atomic_set(&[(&j, json), (&m, md)])
+    let paths: Vec<PathBuf> = plots.iter().map(|(name, _)| out.join(name)).collect();
+    let mut files: Vec<(&Path, &[u8])> = vec![(&j, json), (&m, md)];
+    files.extend(
+        paths
+            .iter()
+            .zip(plots)
+            .map(|(p, (_, b))| (p.as_path(), b.as_slice())),
+    );
+    scatter_sim::output::write_atomic_set(&files)
         .map_err(|(path, e)| anyhow::anyhow!("cannot write {}: {e}", path.display()))
 }
 
@@ -398,7 +407,12 @@ fn evaluate_settings(a: &EvalArgs) -> Result<()> {
     let (m, name) = open_eval(a.model.as_deref(), &a.out, a.samples)?;
     let mut reports = Vec::new();
     let mut bands = String::new();
+    let cancel = crate::interrupt::flag();
     for (i, c) in a.at.iter().enumerate() {
+        // Ctrl-C stops it between settings, writing nothing.
+        if cancel.load(std::sync::atomic::Ordering::Relaxed) {
+            bail!("interrupted: nothing written to {}", a.out.display());
+        }
         warn_outside_training(&m, *c, "--at ");
         let seed = a.seed.wrapping_add(i as u64);
         let (model, sim) = (
@@ -410,7 +424,7 @@ fn evaluate_settings(a: &EvalArgs) -> Result<()> {
     }
     let (json, mut md) = eval_json_and_head(&name, a.samples, a.seed, &reports)?;
     md.extend(bands.into_bytes());
-    write_metrics(&a.out, &json, &md)?;
+    write_metrics(&a.out, &json, &md, &[])?;
     print!("{}", String::from_utf8_lossy(&md));
     Ok(())
 }
@@ -428,9 +442,24 @@ pub fn evaluate_into(
     if let Some(w) = &outside {
         eprintln!("warning: {w}");
     }
+    // Ctrl-C stops it after the current setting, writing nothing.
+    let cancel = crate::interrupt::flag();
+    eprintln!(
+        "evaluating {model_name} on the paper's grid (32 settings, {samples} model and \
+         simulator samples each) -> {}",
+        out.display()
+    );
     let pb = progress::bar(32, "settings");
-    let reports = eval::evaluate_grid(&m, samples, seed, |i, _| pb.set_position(i as u64));
+    let stopped = || cancel.load(std::sync::atomic::Ordering::Relaxed);
+    let interrupted = || anyhow::anyhow!("interrupted: nothing written to {}", out.display());
+    let reports = eval::evaluate_grid(&m, samples, seed, |i, _| {
+        pb.set_position(i as u64);
+        !stopped()
+    });
     pb.finish_and_clear();
+    if stopped() {
+        return Err(interrupted());
+    }
     let max_ks = max_ks_of(&reports);
     let (json, mut md) = eval_json_and_head(&model_name, samples, seed, &reports)?;
     if let Some(w) = &outside {
@@ -440,6 +469,9 @@ pub fn evaluate_into(
     let mut cols = Vec::new();
     for (i, &tau) in eval::TAUS.iter().enumerate() {
         for (j, &g) in eval::GS.iter().enumerate() {
+            if stopped() {
+                return Err(interrupted());
+            }
             let seed = seed.wrapping_add((i * eval::GS.len() + j) as u64);
             cols.push((
                 tau,
@@ -450,15 +482,15 @@ pub fn evaluate_into(
         }
     }
     let panels: Vec<crate::plots::Panel> = cols.iter().map(|(t, g, m, s)| (*t, *g, m, s)).collect();
-    let figs = crate::plots::write_all(out, &panels)?;
+    let figs = crate::plots::render_all(&panels)?;
     writeln!(
         md,
         "\nPlots: {}",
         figs.iter()
-            .map(|f| format!("[{f}]({f})"))
+            .map(|(f, _)| format!("[{f}]({f})"))
             .collect::<Vec<_>>()
             .join(", ")
     )?;
-    write_metrics(out, &json, &md)?;
+    write_metrics(out, &json, &md, &figs)?;
     Ok(max_ks)
 }

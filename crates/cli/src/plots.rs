@@ -52,7 +52,7 @@ fn steps(h: &[f64], lo: f64, hi: f64) -> Vec<(f64, f64)> {
         .collect()
 }
 
-fn to_png(path: &Path, buf: &[u8], w: u32, h: u32) -> Result<()> {
+fn encode_png(buf: &[u8], w: u32, h: u32) -> Result<Vec<u8>> {
     let mut out = Vec::new();
     {
         let mut enc = png::Encoder::new(&mut out, w, h);
@@ -60,18 +60,16 @@ fn to_png(path: &Path, buf: &[u8], w: u32, h: u32) -> Result<()> {
         enc.set_depth(png::BitDepth::Eight);
         enc.write_header()?.write_image_data(buf)?;
     }
-    scatter_sim::output::write_atomic(path, &out)?;
+    Ok(out)
+}
+
+fn to_png(path: &Path, buf: &[u8], w: u32, h: u32) -> Result<()> {
+    scatter_sim::output::write_atomic(path, &encode_png(buf, w, h)?)?;
     Ok(())
 }
 
 /// A 4 × 4 grid (rows τ, columns g) of 1-D histograms of column `q`.
-pub fn histogram_grid(
-    path: &Path,
-    panels: &[Panel],
-    q: usize,
-    title: &str,
-    log_y: bool,
-) -> Result<()> {
+fn histogram_grid(panels: &[Panel], q: usize, title: &str, log_y: bool) -> Result<Vec<u8>> {
     init_font();
     let (w, h) = (1400u32, 1200u32);
     let mut buf = vec![255u8; (w * h * 3) as usize];
@@ -145,11 +143,11 @@ pub fn histogram_grid(
         }
         root.present().map_err(|e| anyhow!("plot: {e}"))?;
     }
-    to_png(path, &buf, w, h)
+    encode_png(&buf, w, h)
 }
 
 /// 2-D densities of (cos θ, `q`) for a few settings: simulator left, model right.
-pub fn density_pairs(path: &Path, panels: &[Panel], q: usize, qname: &str) -> Result<()> {
+fn density_pairs(panels: &[Panel], q: usize, qname: &str) -> Result<Vec<u8>> {
     init_font();
     let bins = 40usize;
     let (w, h) = (900u32, 260 * panels.len() as u32 + 40);
@@ -214,35 +212,43 @@ pub fn density_pairs(path: &Path, panels: &[Panel], q: usize, qname: &str) -> Re
         }
         root.present().map_err(|e| anyhow!("plot: {e}"))?;
     }
-    to_png(path, &buf, w, h)
+    encode_png(&buf, w, h)
 }
 
-/// Writes fig11_n.png, fig12_cos_theta.png, fig12_cos_alpha.png, fig12_cos_beta.png.
-pub fn write_all(dir: &Path, panels: &[Panel]) -> Result<Vec<String>> {
-    let mut written = Vec::new();
-    histogram_grid(
-        &dir.join("fig11_n.png"),
-        panels,
-        LOG_N,
-        "log N: simulator (black) vs model (red), log density",
-        true,
-    )?;
-    written.push("fig11_n.png".to_string());
-    histogram_grid(
-        &dir.join("fig12_cos_theta.png"),
-        panels,
-        COS,
-        "cos θ: simulator (black) vs model (red)",
-        false,
-    )?;
-    written.push("fig12_cos_theta.png".to_string());
+/// fig11_n.png, fig12_cos_theta.png, fig12_cos_alpha.png and fig12_cos_beta.png, named
+/// and encoded: `eval` writes them with its metrics as one set (a full disk left three
+/// plots and no metrics).
+pub fn render_all(panels: &[Panel]) -> Result<Vec<(String, Vec<u8>)>> {
     // The paper's Fig. 12 shows a few settings; pick one per τ at g = 0.4 (index 2).
     let few: Vec<Panel> = panels.iter().filter(|p| p.1 == GS[2]).cloned().collect();
-    density_pairs(&dir.join("fig12_cos_alpha.png"), &few, ALPHA, "α")?;
-    written.push("fig12_cos_alpha.png".to_string());
-    density_pairs(&dir.join("fig12_cos_beta.png"), &few, BETA, "β")?;
-    written.push("fig12_cos_beta.png".to_string());
-    Ok(written)
+    Ok(vec![
+        (
+            "fig11_n.png".to_string(),
+            histogram_grid(
+                panels,
+                LOG_N,
+                "log N: simulator (black) vs model (red), log density",
+                true,
+            )?,
+        ),
+        (
+            "fig12_cos_theta.png".to_string(),
+            histogram_grid(
+                panels,
+                COS,
+                "cos θ: simulator (black) vs model (red)",
+                false,
+            )?,
+        ),
+        (
+            "fig12_cos_alpha.png".to_string(),
+            density_pairs(&few, ALPHA, "α")?,
+        ),
+        (
+            "fig12_cos_beta.png".to_string(),
+            density_pairs(&few, BETA, "β")?,
+        ),
+    ])
 }
 
 /// A log axis's ticks between `lo` and `hi` > 0: labelled ones (1, 2 and 5 times a power

@@ -461,11 +461,13 @@ pub fn compare_setting(
 }
 
 /// The full grid: 16 settings at φ = 1 plus the 16 EventGen settings at φ = 0.9.
+/// `progress(done, total)` is told after each setting; where it returns false the grid
+/// stops there and the settings done so far are returned (a stop request).
 pub fn evaluate_grid(
     m: &ModelSet,
     samples: usize,
     seed: u64,
-    mut progress: impl FnMut(usize, usize),
+    mut progress: impl FnMut(usize, usize) -> bool,
 ) -> Vec<SettingReport> {
     let settings: Vec<(f64, f64, f64)> = ALBEDOS
         .iter()
@@ -475,15 +477,21 @@ pub fn evaluate_grid(
         })
         .collect();
     let total = settings.len();
-    settings
-        .iter()
-        .enumerate()
-        .map(|(i, &(t, g, a))| {
-            let r = evaluate_setting(m, t, g, a, samples, seed.wrapping_add(i as u64));
-            progress(i + 1, total);
-            r
-        })
-        .collect()
+    let mut reports = Vec::with_capacity(total);
+    for (i, &(t, g, a)) in settings.iter().enumerate() {
+        reports.push(evaluate_setting(
+            m,
+            t,
+            g,
+            a,
+            samples,
+            seed.wrapping_add(i as u64),
+        ));
+        if !progress(i + 1, total) {
+            break;
+        }
+    }
+    reports
 }
 
 /// Largest KS of `quantity` over the reports that have it; None where none has (at φ < 1
