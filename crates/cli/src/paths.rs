@@ -48,6 +48,27 @@ pub(crate) fn check_not_input(flag: &str, out: &Path, inputs: &[(String, PathBuf
     Ok(())
 }
 
+/// The extensions of the files the commands write and read, by what they hold.
+pub(crate) const IMAGE_EXTS: [&str; 3] = ["exr", "png", "json"];
+pub(crate) const CONFIG_EXTS: [&str; 2] = ["toml", "md"];
+pub(crate) const MODEL_EXTS: [&str; 1] = ["stcvae"];
+pub(crate) const DATASET_EXTS: [&str; 2] = ["bin", "csv"];
+
+/// Refuses an output named like a file of another kind (`exts`): `generate --out
+/// models/default.stcvae` replaced the shipped model with a dataset, `train --out w.csv`
+/// a CSV with a model, both without a word. `holds` says what the command writes.
+pub(crate) fn check_kind(flag: &str, out: &Path, holds: &str, exts: &[&str]) -> Result<()> {
+    if let Some(ext) = out.extension().and_then(|e| e.to_str())
+        && exts.iter().any(|x| ext.eq_ignore_ascii_case(x))
+    {
+        bail!(
+            "{flag} {}: this writes {holds}, not a .{ext} file; choose another name",
+            out.display()
+        );
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -73,25 +94,4 @@ mod tests {
         let missing = [("--config".to_string(), dir.path().join("nope.toml"))];
         assert!(check_not_input("--out", &input, &missing).is_ok());
     }
-}
-
-/// The extensions of the files the commands write and read, by what they hold.
-pub(crate) const IMAGE_EXTS: [&str; 3] = ["exr", "png", "json"];
-pub(crate) const CONFIG_EXTS: [&str; 2] = ["toml", "md"];
-pub(crate) const MODEL_EXTS: [&str; 1] = ["stcvae"];
-pub(crate) const DATASET_EXTS: [&str; 2] = ["bin", "csv"];
-
-/// Refuses an output named like a file of another kind (`exts`): `generate --out
-/// models/default.stcvae` replaced the shipped model with a dataset, `train --out w.csv`
-/// a CSV with a model, both without a word. `holds` says what the command writes.
-pub(crate) fn check_kind(flag: &str, out: &Path, holds: &str, exts: &[&str]) -> Result<()> {
-    if let Some(ext) = out.extension().and_then(|e| e.to_str())
-        && exts.iter().any(|x| ext.eq_ignore_ascii_case(x))
-    {
-        bail!(
-            "{flag} {}: this writes {holds}, not a .{ext} file; choose another name",
-            out.display()
-        );
-    }
-    Ok(())
 }
