@@ -451,7 +451,8 @@ pub fn run(a: Args) -> Result<()> {
     ]
     .iter()
     .filter(|(_, r)| r[0] == r[1])
-    .map(|(name, r)| format!("{name} = {}", r[0]))
+    // The ranges are the dataset's f32 columns: 0.4 printed as 0.4000000059604645.
+    .map(|(name, r)| format!("{name} = {}", r[0] as f32))
     .collect();
     if !fixed.is_empty() {
         eprintln!(

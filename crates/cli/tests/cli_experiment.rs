@@ -324,6 +324,14 @@ fn experiment_configs_are_checked_before_any_rendering() {
     );
     assert!(e.contains("kind = \"teaser\" needs densities"), "{e}");
     // Densities as `bench render --k` takes them; the paper's figures positive.
+    let e = run_kind(
+        "absorption",
+        "scene = \"ok.toml\"\nabsorptions = [1e-300, 0.5]",
+    );
+    assert!(
+        e.contains("absorptions: 1e-300 is out of range: allowed [1e-6, 1)"),
+        "{e}"
+    );
     let e = run("scene = \"ok.toml\"\ndensities = [1e-300]");
     assert!(
         e.contains("densities: 1e-300 is out of range: allowed [0.001, 1000]"),

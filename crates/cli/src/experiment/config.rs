@@ -165,6 +165,15 @@ impl Config {
         if self.absorptions.iter().any(|&a| a >= 1.0) {
             bail!("absorptions are 1 − φ and must be below 1");
         }
+        // As densities: 1e-300 printed a 300-digit figure, and below ~1e-6 the albedo
+        // 1 − a is 1 to the renderer's f32 (no absorption at all).
+        if let Some(a) = self.absorptions.iter().find(|a| **a < 1e-6) {
+            bail!(
+                "absorptions: {} is out of range: allowed [1e-6, 1) (1 − φ; below 1e-6 the \
+                 albedo rounds to 1 in the renderer's single precision)",
+                scatter_sim::ranges::num(*a)
+            );
+        }
         let most = render_gpu::scene::MAX_SCENE_VALUE;
         if let Some(t) = self.thresholds.iter().find(|t| !(0.0..=most).contains(*t)) {
             bail!(
