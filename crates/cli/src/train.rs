@@ -53,7 +53,7 @@ pub struct Args {
     #[arg(long, allow_negative_numbers = true, default_value_t = 1.0)]
     steps_scale: f64,
     /// burn backend: flex (pure-Rust CPU, the default) or wgpu (GPU through wgpu; needs a
-    /// build with `--features wgpu-train`).
+    /// build with `--features stcvae/wgpu-train`).
     #[arg(long, default_value = "flex", value_parser = ["flex", "wgpu"])]
     backend: String,
 }
