@@ -94,4 +94,18 @@ mod tests {
         let missing = [("--config".to_string(), dir.path().join("nope.toml"))];
         assert!(check_not_input("--out", &input, &missing).is_ok());
     }
+
+    /// Paths that do not exist yet resolve through their nearest existing ancestor, so a
+    /// file within a folder still to be made lies within it (`train --out ck/m.stcvae`
+    /// with checkpoint_dir = ck was missed: one side stayed relative).
+    #[test]
+    fn missing_paths_resolve_through_their_nearest_existing_ancestor() {
+        let dir = tempfile::tempdir().unwrap();
+        let real = dir.path().canonicalize().unwrap();
+        let deep = dir.path().join("a").join("b").join("m.stcvae");
+        assert_eq!(identity(&deep), real.join("a/b/m.stcvae"));
+        assert!(identity(&deep).starts_with(identity(&dir.path().join("a"))));
+        let dotted = dir.path().join("a").join(".").join("b").join("m.stcvae");
+        assert_eq!(identity(&dotted), identity(&deep));
+    }
 }
