@@ -3,7 +3,7 @@
 // transmittance summed over every inside segment of the straight shadow ray, and with a
 // dielectric boundary the Fresnel transmittance at each crossing (documented bias).
 
-const MAX_OPTICAL_DEPTH: f32 = 50.0;
+// MAX_OPTICAL_DEPTH and PROXY_DEPTH_CAP come from nee.rs (gpu/kernels.rs, source).
 const MAX_CROSSINGS: u32 = 64u;
 
 fn transmittance(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
@@ -212,7 +212,10 @@ fn nee_proxy(x: vec3<f32>, w: vec3<f32>, free: f32, c: vec3<f32>, f: f32, channe
             cos_l = light_extreme_cos(i, w, g);
         }
         let phase = hg_pdf(g, cos_l);
-        q += l.irradiance[channel] * phase * exp(-sigma * max(free, ball_chord(x, wl, c, f)));
+        // nee::PROXY_DEPTH_CAP: a positive proxy for every event (a wide disk's centre
+        // chord underflowed to 0 and the event's light was lost).
+        let depth = min(sigma * max(free, ball_chord(x, wl, c, f)), PROXY_DEPTH_CAP);
+        q += l.irradiance[channel] * phase * exp(-depth);
     }
     return q;
 }

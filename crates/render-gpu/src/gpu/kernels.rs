@@ -367,11 +367,13 @@ pub fn source(
         }
     };
     // The traversal stack's size, from its one definition here (scene.wgsl uses it), the
-    // shadow-ray roulette threshold and flight margin from the CPU integrator's (nee.wgsl,
-    // path.wgsl), and the node packing's count bits from GpuNode's.
+    // shadow-ray roulette threshold, the optical-depth limits and the flight margin from
+    // the CPU integrator's (nee.wgsl, path.wgsl), and the node packing's count bits from
+    // GpuNode's.
     let stack = format!(
         "const STACK_DEPTH: u32 = {STACK_DEPTH}u;\n{}\
          const ROULETTE_BOUND: f32 = {:?};\nconst FLIGHT_MARGIN_OF_EPS: f32 = {:?};\n\
+         const MAX_OPTICAL_DEPTH: f32 = {:?};\nconst PROXY_DEPTH_CAP: f32 = {:?};\n\
          const SLIVER_REACH_OF_EPS: f32 = {:?};\n\
          const PATH_NEE_M: u32 = {path_nee_m}u;\nconst SLOT: u32 = {}u;\n\
          const STAGE_VEC4S: u32 = {STAGE_VEC4S}u;\n\
@@ -382,6 +384,8 @@ pub fn source(
         shape.wgsl(),
         crate::integrator::nee::ROULETTE_BOUND,
         crate::geometry::FLIGHT_MARGIN_OF_EPS,
+        crate::integrator::nee::MAX_OPTICAL_DEPTH,
+        crate::integrator::nee::PROXY_DEPTH_CAP,
         crate::geometry::SLIVER_REACH_OF_EPS,
         slot_vec4s(path_nee_m),
         super::scene_buffers::GpuNode::COUNT_BITS,

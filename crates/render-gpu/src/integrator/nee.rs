@@ -15,8 +15,18 @@ use super::uniform;
 use crate::optics::fresnel;
 use crate::setup::{Boundary, SceneData};
 
-/// Beyond this optical depth the transmittance (< 2e-22) is taken as 0.
-const MAX_OPTICAL_DEPTH: f32 = 50.0;
+/// Beyond this optical depth the transmittance (< 2e-22) is taken as 0 (the WGSL kernels
+/// get it from here, gpu/kernels.rs).
+pub const MAX_OPTICAL_DEPTH: f32 = 50.0;
+/// The deepest optical depth [`proxy`] weighs an event by: its exp(−σ_t·free) stays
+/// ≥ e^−40 = 4e-18. Under a wide sun disk the disk's centre direction, along which the
+/// proxy measures `free`, can cross far more medium than directions near the disk's edge
+/// that still light the event; there exp(−σ_t·free) underflowed to 0 in f32 (from an
+/// optical depth of ~104, ~87 where a GPU flushes denormals), the event was never offered
+/// to the path's NEE reservoirs, and its light was lost. Capped, every event keeps a
+/// positive proxy, which is all the reservoirs' unbiasedness needs; an event deeper than
+/// this is still offered with ~1e-17 of a surface event's weight.
+pub const PROXY_DEPTH_CAP: f32 = 40.0;
 /// Most surface crossings followed along one shadow ray.
 const MAX_CROSSINGS: usize = 64;
 
@@ -90,7 +100,7 @@ pub fn proxy(scene: &SceneData, w: Vec3, free: impl Fn(Vec3) -> f32, channel: us
             w.dot(wl).clamp(-1.0, 1.0)
         };
         let phase = hg_pdf(scene.g as f64, cos as f64) as f32;
-        q += light.irradiance[channel] * phase * (-sigma * free(wl)).exp();
+        q += light.irradiance[channel] * phase * (-(sigma * free(wl)).min(PROXY_DEPTH_CAP)).exp();
     }
     q
 }
@@ -357,6 +367,40 @@ mod tests {
     /// √((1 − p)/(p·10⁵)) = 0.40 %, and |z| < 4 is asked. A roulette that dropped its 1/p
     /// would give 0.387 of it (150 SE off); no image test can see this, as the rouletted
     /// rays carry little light in any scene.
+    /// The path-level reservoirs are unbiased only where every event that some light can
+    /// reach has a positive proxy. Under an 80° disk the proxy's chord is the disk
+    /// centre's, which may cross 300 optical depths where the disk's edge crosses almost
+    /// none: exp(−300) is 0 in f32, and such events were never offered. Capped at
+    /// [`PROXY_DEPTH_CAP`], the proxy stays positive (≥ E·ρ·e^−40) and is unchanged at
+    /// depths below the cap.
+    #[test]
+    fn the_proxy_is_positive_at_any_depth_and_exact_below_the_cap() {
+        let f = crate::scene::SceneFile::parse(
+            std::path::Path::new("t.toml"),
+            "[camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 20.0\n\
+             width = 8\nheight = 8\n[object]\nshape = \"sphere\"\nradius = 0.5\n\
+             [medium]\nsigma_t = [600.0, 600.0, 600.0]\nalbedo = [0.99, 0.99, 0.99]\ng = 0.5\n\
+             [[light]]\nkind = \"directional\"\ndirection = [0.0, -1.0, 0.0]\n\
+             irradiance = [3.0, 3.0, 3.0]\nangular_diameter_deg = 80.0\n",
+        )
+        .unwrap();
+        let scene = SceneData::build(&f, std::path::Path::new("."), false, &[]).unwrap();
+        let w = Vec3::new(1.0, 0.0, 0.0);
+        let deep = proxy(&scene, w, |_| 0.5, 0);
+        let floor = 3.0 * hg_pdf(0.5, -1.0) as f32 * (-PROXY_DEPTH_CAP).exp();
+        assert!(
+            deep >= 0.999 * floor && deep > 0.0,
+            "σ·free = 300: proxy {deep}"
+        );
+        // 6 optical depths: the plain bound, E·ρ·e^−6, as before the cap.
+        let shallow = proxy(&scene, w, |_| 0.01, 0);
+        let plain = proxy(&scene, w, |_| 0.0, 0) * (-6.0f32).exp();
+        assert!(
+            (shallow / plain - 1.0).abs() < 1e-5,
+            "σ·free = 6: {shallow} vs {plain}"
+        );
+    }
+
     #[test]
     fn the_shadow_ray_roulette_is_unbiased_where_it_fires() {
         let f = crate::scene::SceneFile::parse(
