@@ -119,6 +119,17 @@ pub(crate) fn out_stem(out: &Path) -> PathBuf {
     }
 }
 
+/// Whether OUT.var.exr is some other image than a variance image of OUT: a render,
+/// montage or map the user named OUT.var has OUT.var.png beside it, a render its tag
+/// (variance images are untagged and have no PNG). Such a file is neither removed as
+/// stale nor overwritten by `render --variance`.
+pub(crate) fn foreign_var_exr(out: &Path) -> bool {
+    let var = image_out(out, "var.exr");
+    var.is_file()
+        && (image_out(out, "var.png").exists()
+            || !matches!(render_gpu::image_io::read_exr(&var), Ok((_, None))))
+}
+
 /// OUT.ext for an image output: [`out_stem`] plus the extension.
 pub(crate) fn image_out(out: &Path, ext: &str) -> PathBuf {
     let mut s = out_stem(out).into_os_string();
@@ -182,10 +193,7 @@ pub(crate) fn write_image_set_with(
     // untagged image with no PNG beside it, as variance images are written: a render,
     // montage or map the user named OUT.var (its EXR is OUT.var.exr) has OUT.var.png, and
     // a render its tag; one was deleted as a stale variance image.
-    let stale = variance.is_none()
-        && var.is_file()
-        && !image_out(out, "var.png").exists()
-        && matches!(render_gpu::image_io::read_exr(&var), Ok((_, None)));
+    let stale = variance.is_none() && var.is_file() && !foreign_var_exr(out);
     scatter_sim::output::write_atomic_set(&files)
         .map_err(|(path, e)| anyhow!("cannot write {}: {e}", path.display()))?;
     if stale {

@@ -129,7 +129,7 @@ pub fn bar(len: u64, unit: &str) -> ProgressBar {
 /// now and then to a log ([`target`]).
 pub fn render_bar(label: &str, pixels: u64, o: &render_gpu::render::RenderOptions) -> ProgressBar {
     if let Some(b) = o.time_budget {
-        return spinner(&format!("{label}, {b} s"));
+        return spinner(&format!("{label}, {} s", scatter_sim::ranges::num(b)));
     }
     let pb = bar(pixels * o.spp as u64, "samples");
     pb.set_message(label.to_string());

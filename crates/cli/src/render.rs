@@ -449,6 +449,16 @@ pub fn run(a: Args) -> Result<()> {
         if *ext == "var.exr" {
             scatter_sim::output::check_output_path(&f)
                 .map_err(|e| anyhow::anyhow!("--out {}: {e}", a.out.display()))?;
+            // A render named OUT.var had its image replaced by this one's variance.
+            if crate::merge::foreign_var_exr(&a.out) {
+                bail!(
+                    "--out {}: {} is another image (a render or picture named {}), which \
+                     the variance image would replace: choose another --out",
+                    a.out.display(),
+                    f.display(),
+                    crate::merge::out_stem(&a.out).display().to_string() + ".var"
+                );
+            }
         }
     }
     let extra = if a.variance {
@@ -490,8 +500,8 @@ pub fn run(a: Args) -> Result<()> {
         p.file.camera.height,
         match (spp_cap, a.time_budget) {
             (Some(n), None) => format!("{n} spp"),
-            (Some(n), Some(b)) => format!("{b} s, at most {n} spp"),
-            (None, Some(b)) => format!("{b} s, no spp limit"),
+            (Some(n), Some(b)) => format!("{} s, at most {n} spp", scatter_sim::ranges::num(b)),
+            (None, Some(b)) => format!("{} s, no spp limit", scatter_sim::ranges::num(b)),
             (None, None) => unreachable!("an spp cap is lifted only by a time budget"),
         },
         r.integrator.name(),

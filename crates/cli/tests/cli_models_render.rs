@@ -1579,6 +1579,30 @@ fn render_variance_writes_a_variance_image() {
         common::stderr(&e)
     );
     assert!(var.exists(), "the render v.var.exr was removed");
+    // Nor does --variance write over it (the render v.var's set would hold a variance
+    // image as its EXR).
+    let before = std::fs::read(&var).unwrap();
+    let e = stcvae(&[
+        "render",
+        "--scene",
+        s,
+        "--spp",
+        "6",
+        "--variance",
+        "--out",
+        o,
+    ]);
+    assert!(
+        !e.status.success()
+            && common::stderr(&e).contains("which the variance image would replace"),
+        "{}",
+        common::stderr(&e)
+    );
+    assert_eq!(
+        std::fs::read(&var).unwrap(),
+        before,
+        "v.var.exr was overwritten"
+    );
     let few = d.path().join("few");
     let e = stcvae(&[
         "render",
