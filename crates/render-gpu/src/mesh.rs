@@ -786,7 +786,7 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
                     Some(i) => i.into_u32().collect(),
                     None => (0..n).collect(),
                 };
-                if idx.len() % 3 != 0 || idx.iter().any(|&i| i >= n) {
+                if !idx.len().is_multiple_of(3) || idx.iter().any(|&i| i >= n) {
                     return Err(RenderError::mesh(path, "invalid triangle indices"));
                 }
                 mesh.triangles.extend(idx.chunks(3).map(|c| {

@@ -524,7 +524,7 @@ mod tests {
                         let bits = splitmix64(seed ^ ((pixel as u64) << 32 | s as u64));
                         // Estimates from 0 to 5, with a spike now and then.
                         let l = (bits >> 11) as f64 / (1u64 << 53) as f64 * 5.0;
-                        let l = if bits % 7 == 0 { 40.0 * l } else { l };
+                        let l = if bits.is_multiple_of(7) { 40.0 * l } else { l };
                         samples[c].push(l);
                         sum[c] += 3.0 * l;
                         squares[c] += l * l;

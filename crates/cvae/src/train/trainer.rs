@@ -374,7 +374,7 @@ pub fn train_model(
         // Step 0 is always logged: it is the untrained model's loss; so is the last step,
         // whose report is the final loss (a run shorter than LOG_EVERY steps otherwise
         // reported its first step's loss as the final one).
-        let log_now = info.step % LOG_EVERY == 0 || info.step + 1 == cfg.steps;
+        let log_now = info.step.is_multiple_of(LOG_EVERY) || info.step + 1 == cfg.steps;
         if log_now {
             let v = terms.loss.clone().into_scalar::<f32>();
             if !v.is_finite() {
@@ -386,7 +386,7 @@ pub fn train_model(
         let grads = GradientsParams::from_grads(terms.loss.backward(), &model);
         model = optim.step(cfg.learning_rate(info.step), model, grads);
         info.step += 1;
-        if info.step % REPORT_EVERY == 0 || info.step == 1 || info.step == cfg.steps {
+        if info.step.is_multiple_of(REPORT_EVERY) || info.step == 1 || info.step == cfg.steps {
             if acc_n > 0 {
                 let mean = (acc / acc_n as f64) as f32;
                 report(kind, info.step, mean);
@@ -396,7 +396,7 @@ pub fn train_model(
             acc_n = 0;
         }
         let stop = cancel.load(Ordering::Relaxed);
-        if stop || (checkpoint_every > 0 && info.step % checkpoint_every == 0) {
+        if stop || (checkpoint_every > 0 && info.step.is_multiple_of(checkpoint_every)) {
             // The loss is read every LOG_EVERY steps only: a checkpoint must not replace
             // the last good one with weights that have gone non-finite since.
             if !exportable(&model, &table.norm) {
