@@ -202,17 +202,9 @@ pub fn run(a: Args) -> Result<()> {
         .map(|c| ("--config".to_string(), c.clone()))
         .collect();
     crate::paths::check_not_input("--out", &a.out, &inputs)?;
-    let not_datasets = [
-        &crate::paths::IMAGE_EXTS[..],
-        &crate::paths::CONFIG_EXTS,
-        &crate::paths::MODEL_EXTS,
-    ]
-    .concat();
-    crate::paths::check_kind(
-        "--out",
+    crate::paths::check_dataset_out(
         &a.out,
         "a dataset (.csv for text, any other name binary, e.g. .bin)",
-        &not_datasets,
     )?;
     let piece = spec.piece();
     let pool = pool(a.threads)?;

@@ -82,17 +82,9 @@ pub fn run(a: Args) -> Result<()> {
     }
     // A dataset written over a render's file (say `--out run.exr` by a slip), a config or
     // a model would replace it with binary rows.
-    let not_datasets = [
-        &crate::paths::IMAGE_EXTS[..],
-        &crate::paths::CONFIG_EXTS,
-        &crate::paths::MODEL_EXTS,
-    ]
-    .concat();
-    crate::paths::check_kind(
-        "--out",
+    crate::paths::check_dataset_out(
         &a.out,
         "a dataset, as its inputs are (.csv for text, any other name binary, e.g. .bin)",
-        &not_datasets,
     )?;
     check_paths(&a.inputs, std::slice::from_ref(&a.out))?;
     crate::check_out("--out", &a.out)?;

@@ -54,6 +54,13 @@ pub(crate) const CONFIG_EXTS: [&str; 2] = ["toml", "md"];
 pub(crate) const MODEL_EXTS: [&str; 1] = ["stcvae"];
 pub(crate) const DATASET_EXTS: [&str; 2] = ["bin", "csv"];
 
+/// [`check_kind`] for a dataset output (`generate`, `merge`): not an image, config or
+/// model name.
+pub(crate) fn check_dataset_out(out: &Path, holds: &str) -> Result<()> {
+    let not_datasets = [&IMAGE_EXTS[..], &CONFIG_EXTS, &MODEL_EXTS].concat();
+    check_kind("--out", out, holds, &not_datasets)
+}
+
 /// Refuses an output named like a file of another kind (`exts`): `generate --out
 /// models/default.stcvae` replaced the shipped model with a dataset, `train --out w.csv`
 /// a CSV with a model, both without a word. `holds` says what the command writes.

@@ -350,6 +350,24 @@ fn experiment_configs_are_checked_before_any_rendering() {
     );
 }
 
+/// The full teaser experiment into `out`, on the CPU, from the repository root, its
+/// stderr piped: it renders for minutes.
+fn full_teaser(out: &Path) -> std::process::Child {
+    Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args([
+            "experiment",
+            "configs/experiments/teaser.toml",
+            "--device",
+            "cpu",
+            "--out",
+        ])
+        .arg(out)
+        .current_dir(root())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
 /// Ctrl-C (SIGINT) during an experiment stops it after the current render pass: exit status
 /// 130, a one-line message, no report (a cut-short render must not be measured) and no
 /// empty folders.
@@ -358,19 +376,7 @@ fn experiment_configs_are_checked_before_any_rendering() {
 fn an_interrupted_experiment_writes_no_report() {
     use std::time::Duration;
     let d = tempfile::tempdir().unwrap();
-    let child = Command::new(env!("CARGO_BIN_EXE_stcvae"))
-        .args([
-            "experiment",
-            "configs/experiments/teaser.toml",
-            "--device",
-            "cpu",
-            "--out",
-        ])
-        .arg(d.path().join("fresh"))
-        .current_dir(root())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
+    let child = full_teaser(&d.path().join("fresh"));
     // The full teaser renders for minutes: interrupted two seconds after it has started.
     let out = d.path().join("fresh/teaser");
     common::interrupt_when(
@@ -396,19 +402,7 @@ fn an_interrupted_experiment_writes_no_report() {
     for f in ["report.md", "figures.csv"] {
         std::fs::write(out.join(f), "earlier").unwrap();
     }
-    let mut child = Command::new(env!("CARGO_BIN_EXE_stcvae"))
-        .args([
-            "experiment",
-            "configs/experiments/teaser.toml",
-            "--device",
-            "cpu",
-            "--out",
-        ])
-        .arg(d.path().join("earlier"))
-        .current_dir(root())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut child = full_teaser(&d.path().join("earlier"));
     // Nothing shows in the folder when it starts: its first line on stderr ("experiment
     // teaser … ->", written as Ctrl-C's handler goes in) does. Two seconds on, it is
     // mid-render (the first render takes minutes).
