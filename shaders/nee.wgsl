@@ -3,8 +3,8 @@
 // transmittance summed over every inside segment of the straight shadow ray, and with a
 // dielectric boundary the Fresnel transmittance at each crossing (documented bias).
 
-// MAX_OPTICAL_DEPTH and PROXY_DEPTH_CAP come from nee.rs (gpu/kernels.rs, source).
-const MAX_CROSSINGS: u32 = 64u;
+// MAX_OPTICAL_DEPTH, MAX_CROSSINGS and PROXY_DEPTH_CAP come from nee.rs (gpu/kernels.rs,
+// source).
 
 fn transmittance(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
     if overlapping() {
@@ -196,9 +196,10 @@ fn path_nee_reset() {
     }
 }
 
-/// nee::proxy: Σ_l E_l · ρ_g(W·ω_l) · exp(−σ_t·free(ω_l)) with the light's central
-/// direction (or the disk's where ρ_g is largest, for a disk wider than its lobe), free(ω_l) = max(`free`, the chord through the free ball (`c`, `f`)): the bound
-/// nee_direct's roulette uses.
+/// nee::proxy: Σ_l E_l · ρ_g(W·ω_l) · exp(−min(σ_t·free(ω_l), PROXY_DEPTH_CAP)) with the
+/// light's central direction (or the disk's where ρ_g is largest, for a disk wider than its
+/// lobe), free(ω_l) = max(`free`, the chord through the free ball (`c`, `f`)): the bound
+/// nee_direct's roulette uses, up to the cap.
 fn nee_proxy(x: vec3<f32>, w: vec3<f32>, free: f32, c: vec3<f32>, f: f32, channel: u32) -> f32 {
     let g = params.consts.x;
     let sigma = params.sigma_t[channel];

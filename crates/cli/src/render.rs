@@ -273,14 +273,18 @@ pub fn prepare(
 
 /// The models extrapolate outside the media they were trained on (τ is kept inside by the
 /// sphere steps' max_tau; g and the albedo are the scene's): said once, by `render` and
-/// by `experiment` (once per scene and medium; another `--model` may not cover the
+/// by `experiment` (once per scene and parameter; another `--model` may not cover the
 /// experiments' media).
 pub(crate) fn warn_outside_training(p: &Prepared, scene_path: &Path) {
     let Some(m) = &p.model else { return };
     let t = &m.training;
     let med = &p.file.medium;
+    // Said once per scene and parameter: an absorption sweep varies the albedo over one
+    // scene, and printed the same warning once per value.
     let mut outside = Vec::new();
+    let mut which = scene_path.display().to_string();
     if crate::model_cmds::outside_training(med.g, t.g_range) {
+        which += ":g";
         outside.push(format!(
             "medium.g = {} (trained {})",
             med.g,
@@ -292,22 +296,23 @@ pub(crate) fn warn_outside_training(p: &Prepared, scene_path: &Path) {
         .iter()
         .find(|&&a| crate::model_cmds::outside_training(a, t.albedo_range))
     {
+        which += ":albedo";
         outside.push(format!(
             "medium.albedo {a} (trained {})",
             crate::model_cmds::training_range(t.albedo_range)
         ));
     }
     if !outside.is_empty() {
-        let line = format!(
-            "warning: {}: {} outside the model's training range: ST-CVAE extrapolates there",
-            scene_path.display(),
-            outside.join(", ")
-        );
         static SAID: std::sync::Mutex<Vec<String>> = std::sync::Mutex::new(Vec::new());
         let mut said = SAID.lock().unwrap_or_else(|e| e.into_inner());
-        if !said.contains(&line) {
-            eprintln!("{line}");
-            said.push(line);
+        if !said.contains(&which) {
+            eprintln!(
+                "warning: {}: {} outside the model's training range: ST-CVAE extrapolates \
+                 there",
+                scene_path.display(),
+                outside.join(", ")
+            );
+            said.push(which);
         }
     }
 }

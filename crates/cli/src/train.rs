@@ -257,20 +257,22 @@ pub fn run(a: Args) -> Result<()> {
         None => format!("{}: out =", a.config.display()),
     };
     crate::check_out(&out_flag, &out)?;
+    // (and not a checkpoint's .bpk: its .json is refused as an image's report)
     let not_models = [
         &crate::paths::IMAGE_EXTS[..],
         &crate::paths::CONFIG_EXTS,
         &crate::paths::DATASET_EXTS,
+        &["bpk"],
     ]
     .concat();
     crate::paths::check_kind(&out_flag, &out, "a model file (.stcvae)", &not_models)?;
-    // Nor in the checkpoints' folder: the model saved over a checkpoint broke --resume,
-    // and one named as the folder failed only once training was done.
-    let ck = crate::paths::identity(&cfg.checkpoint_dir);
-    if crate::paths::identity(&out).starts_with(&ck) {
+    // Nor the checkpoints' folder itself: it failed only once training was done. (A
+    // model saved over a checkpoint, which broke --resume, has a checkpoint's extension,
+    // refused above; a model file beside the checkpoints is fine.)
+    if crate::paths::identity(&out) == crate::paths::identity(&cfg.checkpoint_dir) {
         bail!(
-            "{out_flag} {} lies in checkpoint_dir = {} of {}: the model would replace a \
-             checkpoint (or the folder); give it another place",
+            "{out_flag} {} is checkpoint_dir = {} of {}, the folder the checkpoints go \
+             in: give the model a file name",
             out.display(),
             cfg.checkpoint_dir.display(),
             a.config.display()

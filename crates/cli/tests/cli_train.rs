@@ -298,7 +298,7 @@ fn a_bad_base_fails_before_any_work() {
 /// Outputs that would replace another kind of file or a checkpoint, and a CSV dataset, are
 /// refused before any dataset is generated or model trained (a CSV dataset was generated
 /// in full and then refused as "bad magic bytes"; `--out ck`, the checkpoints' folder,
-/// failed only after training).
+/// failed only after training). A model file beside the checkpoints is fine.
 #[test]
 fn wrong_outputs_and_csv_datasets_fail_before_any_work() {
     let dir = tempfile::tempdir().unwrap();
@@ -308,11 +308,9 @@ fn wrong_outputs_and_csv_datasets_fail_before_any_work() {
             "w.csv",
             "--out w.csv: this writes a model file (.stcvae), not a .csv file",
         ),
-        ("ck", "--out ck lies in checkpoint_dir = ck"),
-        (
-            "ck/m.stcvae",
-            "--out ck/m.stcvae lies in checkpoint_dir = ck",
-        ),
+        ("ck", "--out ck is checkpoint_dir = ck of train.toml"),
+        ("ck/lengthgen.bpk", "not a .bpk file"),
+        ("ck/lengthgen.json", "not a .json file"),
     ] {
         let o = stcvae(
             &["train", "--config", "train.toml", "--out", out],
@@ -331,6 +329,14 @@ fn wrong_outputs_and_csv_datasets_fail_before_any_work() {
     for f in ["d.bin", "d.csv", "ck"] {
         assert!(!dir.path().join(f).exists(), "{f} made before the checks");
     }
+    // A model file among the checkpoints replaces none of them.
+    replace_in(&dir.path().join("train.toml"), "d.csv", "d.bin");
+    let o = stcvae(
+        &["train", "--config", "train.toml", "--out", "ck/m.stcvae"],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(dir.path().join("ck/m.stcvae").is_file());
 }
 
 /// `--resume` from nothing, or from a damaged checkpoint, is refused (the first started

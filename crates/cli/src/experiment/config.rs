@@ -165,12 +165,13 @@ impl Config {
         if self.absorptions.iter().any(|&a| a >= 1.0) {
             bail!("absorptions are 1 − φ and must be below 1");
         }
-        // As densities: 1e-300 printed a 300-digit figure, and below ~1e-6 the albedo
-        // 1 − a is 1 to the renderer's f32 (no absorption at all).
+        // As densities: 1e-300 printed a 300-digit figure. Below ~1e-6 the renderer's f32
+        // albedo 1 − a misstates a by more than 1 % (f32 steps by 6e-8 below 1), and below
+        // ~3e-8 it is 1 (no absorption at all).
         if let Some(a) = self.absorptions.iter().find(|a| **a < 1e-6) {
             bail!(
                 "absorptions: {} is out of range: allowed [1e-6, 1) (1 − φ; below 1e-6 the \
-                 albedo rounds to 1 in the renderer's single precision)",
+                 renderer's single-precision albedo misstates it by more than 1 %)",
                 scatter_sim::ranges::num(*a)
             );
         }

@@ -104,6 +104,7 @@ fn plot(
     log: (bool, bool),
     series: &[Series],
 ) -> Result<()> {
+    ctx.saving()?;
     line_plot(
         &ctx.out.join(file),
         title,
@@ -450,6 +451,8 @@ fn absorption(ctx: &Ctx, rep: &mut Report) -> Result<()> {
 fn distributions(ctx: &Ctx, rep: &mut Report) -> Result<()> {
     let samples = ctx.budget.samples.unwrap_or(10_000);
     let max_ks = crate::model_cmds::evaluate_into(ctx.model.as_deref(), &ctx.out, samples, 1)?;
+    // Its metrics and plots, written at its end as one set, are this run's first files.
+    ctx.saving()?;
     rep.columns(&["quantity", "max_ks"]);
     for (q, v) in &max_ks {
         rep.row(vec![(*q).into(), Cell::Num(*v)]);

@@ -481,6 +481,7 @@ pub fn save(
     (spp, hash, seeds): (u32, u64, &[u64]),
     exposure: f32,
 ) -> Result<String> {
+    ctx.saving()?;
     crate::merge::write_image_set(
         &ctx.out.join(name),
         img,
@@ -501,6 +502,7 @@ pub fn save(
 /// with an untagged EXR: it is no render of the scene, and `merge` refuses it (tagged as
 /// one, as it was until 2026-12-02, two work maps of a scene could be averaged as renders).
 pub fn save_picture(ctx: &Ctx, name: &str, img: &RgbImage, exposure: f32) -> Result<String> {
+    ctx.saving()?;
     crate::merge::write_image_set_with(&ctx.out.join(name), img, None, exposure, None, None)?;
     Ok(format!("{name}.png"))
 }

@@ -50,9 +50,29 @@ pub struct Ctx<'a> {
     pub engine: &'a Engine,
     pub model: Option<PathBuf>,
     pub out: PathBuf,
+    /// Whether this run has saved a file yet ([`Ctx::saving`]).
+    saved: std::cell::Cell<bool>,
 }
 
 impl Ctx<'_> {
+    /// Called before every file a run saves into its folder (renders, pictures, plots,
+    /// metrics): the first removes the earlier run's report.md and figures.csv, which
+    /// would no longer describe the folder's images, however this run then ends (a second
+    /// Ctrl-C or a kill skips any clean-up). A run that saves nothing leaves them as they
+    /// were (removed up front, an interrupted rerun took a finished run's report with it).
+    pub fn saving(&self) -> Result<()> {
+        if !self.saved.replace(true) {
+            for stale in ["report.md", "figures.csv"] {
+                let p = self.out.join(stale);
+                if p.is_file() {
+                    std::fs::remove_file(&p)
+                        .with_context(|| format!("cannot remove {}", p.display()))?;
+                }
+            }
+        }
+        Ok(())
+    }
+
     pub fn engine_is_gpu(&self) -> bool {
         self.engine.is_gpu()
     }
@@ -106,6 +126,7 @@ pub fn run(a: Args) -> Result<()> {
         engine: &engine,
         model: a.model.clone(),
         out: out.clone(),
+        saved: std::cell::Cell::new(false),
     };
     let mut rep = Report::new(&cfg, &a, &engine);
     eprintln!(
@@ -117,19 +138,10 @@ pub fn run(a: Args) -> Result<()> {
     // Ctrl-C is a request to stop after the current render pass (measure::render_once).
     crate::interrupt::flag();
     if let Err(e) = kinds::run(&ctx, &mut rep) {
-        // A run that saved images and failed part way must not leave an earlier report
-        // beside them that no longer matches them; one stopped before it saved anything
-        // leaves the earlier run's results as they were (removed up front, an
-        // interrupted rerun took a finished run's report with it).
-        if before.changed_any() {
-            for stale in ["report.md", "figures.csv"] {
-                let p = out.join(stale);
-                if p.is_file() {
-                    std::fs::remove_file(&p)
-                        .with_context(|| format!("cannot remove {}", p.display()))?;
-                }
-            }
-        } else if out.join("report.md").is_file() {
+        // A run that saved files removed the earlier report with its first (Ctx::saving);
+        // one stopped before it saved anything leaves the earlier run's results as they
+        // were.
+        if !before.changed_any() && out.join("report.md").is_file() {
             return Err(anyhow::anyhow!(
                 "{e:#} (nothing was saved: the earlier run's report in {} is as it was)",
                 out.display()

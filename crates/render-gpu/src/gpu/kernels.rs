@@ -374,6 +374,7 @@ pub fn source(
         "const STACK_DEPTH: u32 = {STACK_DEPTH}u;\n{}\
          const ROULETTE_BOUND: f32 = {:?};\nconst FLIGHT_MARGIN_OF_EPS: f32 = {:?};\n\
          const MAX_OPTICAL_DEPTH: f32 = {:?};\nconst PROXY_DEPTH_CAP: f32 = {:?};\n\
+         const MAX_CROSSINGS: u32 = {}u;\n\
          const SLIVER_REACH_OF_EPS: f32 = {:?};\n\
          const PATH_NEE_M: u32 = {path_nee_m}u;\nconst SLOT: u32 = {}u;\n\
          const STAGE_VEC4S: u32 = {STAGE_VEC4S}u;\n\
@@ -386,6 +387,7 @@ pub fn source(
         crate::geometry::FLIGHT_MARGIN_OF_EPS,
         crate::integrator::nee::MAX_OPTICAL_DEPTH,
         crate::integrator::nee::PROXY_DEPTH_CAP,
+        crate::integrator::nee::MAX_CROSSINGS,
         crate::geometry::SLIVER_REACH_OF_EPS,
         slot_vec4s(path_nee_m),
         super::scene_buffers::GpuNode::COUNT_BITS,

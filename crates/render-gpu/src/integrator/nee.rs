@@ -27,8 +27,9 @@ pub const MAX_OPTICAL_DEPTH: f32 = 50.0;
 /// positive proxy, which is all the reservoirs' unbiasedness needs; an event deeper than
 /// this is still offered with ~1e-17 of a surface event's weight.
 pub const PROXY_DEPTH_CAP: f32 = 40.0;
-/// Most surface crossings followed along one shadow ray.
-const MAX_CROSSINGS: usize = 64;
+/// Most surface crossings followed along one shadow ray (the WGSL kernels get it from
+/// here, gpu/kernels.rs).
+pub const MAX_CROSSINGS: u32 = 64;
 
 /// Shadow-ray roulette on a bound of the NEE term: with T ≤ exp(−σ_t·free(ω_l)) (the
 /// shadow ray along ω_l crosses at least free(ω_l) of medium, [`direct`]),
@@ -82,8 +83,9 @@ pub fn direct(
 }
 
 /// A positive proxy of [`direct`]'s value at an event (X, W) whose shadow ray along ω_l
-/// crosses at least `free(ω_l)` of medium: Σ_l E_l · ρ_g(W·ω_l) · exp(−σ_t·free(ω_l)),
-/// the bound its roulette uses (with the light's central direction for a sun disk; where
+/// crosses at least `free(ω_l)` of medium: Σ_l E_l · ρ_g(W·ω_l) · exp(−min(σ_t·free(ω_l),
+/// [`PROXY_DEPTH_CAP`])), the bound its roulette uses up to the cap (with the light's
+/// central direction for a sun disk; where
 /// the phase lobe is narrower than the disk, with the phase function's largest value over
 /// it, [`crate::light::DirectionalLight::extreme_cos`]).
 pub fn proxy(scene: &SceneData, w: Vec3, free: impl Fn(Vec3) -> f32, channel: usize) -> f32 {
@@ -358,15 +360,6 @@ mod tests {
         fits("pairs", &obs, &exp);
     }
 
-    /// The shadow-ray roulette keeps NEE unbiased where it fires. At the centre of a sphere
-    /// (radius 0.5, σ_t 2) with g = 0.97 and a delta light straight behind the direction of
-    /// travel, HG's value (1 − g)/(4π(1 + g)²) = 6.15e-4 is below the threshold ρ_iso/50 =
-    /// 1.59e-3 (PT passes free = 0, so the phase value alone decides), so each ray is cast
-    /// with probability p = 0.387 and weighted 1/p. The mean over 10⁵ draws must be
-    /// E·ρ·e^(−σ_t·r) (written out, not through `hg_pdf`); its relative standard error is
-    /// √((1 − p)/(p·10⁵)) = 0.40 %, and |z| < 4 is asked. A roulette that dropped its 1/p
-    /// would give 0.387 of it (150 SE off); no image test can see this, as the rouletted
-    /// rays carry little light in any scene.
     /// The path-level reservoirs are unbiased only where every event that some light can
     /// reach has a positive proxy. Under an 80° disk the proxy's chord is the disk
     /// centre's, which may cross 300 optical depths where the disk's edge crosses almost
@@ -401,6 +394,15 @@ mod tests {
         );
     }
 
+    /// The shadow-ray roulette keeps NEE unbiased where it fires. At the centre of a sphere
+    /// (radius 0.5, σ_t 2) with g = 0.97 and a delta light straight behind the direction of
+    /// travel, HG's value (1 − g)/(4π(1 + g)²) = 6.15e-4 is below the threshold ρ_iso/50 =
+    /// 1.59e-3 (PT passes free = 0, so the phase value alone decides), so each ray is cast
+    /// with probability p = 0.387 and weighted 1/p. The mean over 10⁵ draws must be
+    /// E·ρ·e^(−σ_t·r) (written out, not through `hg_pdf`); its relative standard error is
+    /// √((1 − p)/(p·10⁵)) = 0.40 %, and |z| < 4 is asked. A roulette that dropped its 1/p
+    /// would give 0.387 of it (150 SE off); no image test can see this, as the rouletted
+    /// rays carry little light in any scene.
     #[test]
     fn the_shadow_ray_roulette_is_unbiased_where_it_fires() {
         let f = crate::scene::SceneFile::parse(
