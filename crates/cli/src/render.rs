@@ -275,8 +275,9 @@ pub fn prepare(
 /// sphere steps' max_tau; g and the albedo are the scene's): said once, by `render` and
 /// by `experiment` (once per scene and parameter; another `--model` may not cover the
 /// experiments' media).
-pub(crate) fn warn_outside_training(p: &Prepared, scene_path: &Path) {
-    let Some(m) = &p.model else { return };
+/// Returns the warning when it was said now (for the experiment's report).
+pub(crate) fn warn_outside_training(p: &Prepared, scene_path: &Path) -> Option<String> {
+    let Some(m) = &p.model else { return None };
     let t = &m.training;
     let med = &p.file.medium;
     // Said once per scene and parameter: an absorption sweep varies the albedo over one
@@ -306,15 +307,17 @@ pub(crate) fn warn_outside_training(p: &Prepared, scene_path: &Path) {
         static SAID: std::sync::Mutex<Vec<String>> = std::sync::Mutex::new(Vec::new());
         let mut said = SAID.lock().unwrap_or_else(|e| e.into_inner());
         if !said.contains(&which) {
-            eprintln!(
-                "warning: {}: {} outside the model's training range: ST-CVAE extrapolates \
-                 there",
+            let line = format!(
+                "{}: {} outside the model's training range: ST-CVAE extrapolates there",
                 scene_path.display(),
                 outside.join(", ")
             );
+            eprintln!("warning: {line}");
             said.push(which);
+            return Some(line);
         }
     }
+    None
 }
 
 /// `--out` is a path stem (OUT.exr, OUT.png, OUT.json); checked before rendering so that a
@@ -431,7 +434,7 @@ pub fn run(a: Args) -> Result<()> {
     if a.model.is_some() && p.model.is_none() {
         eprintln!("note: --model is not used: the PT integrator needs no model");
     }
-    warn_outside_training(&p, &a.scene);
+    let _ = warn_outside_training(&p, &a.scene);
     if p.model.is_some() && !p.models_trusted() {
         eprintln!(
             "note: medium.g = {} is above {}, where the models' sphere steps were measured \

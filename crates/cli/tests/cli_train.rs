@@ -182,6 +182,27 @@ fn a_fixed_condition_warns_and_a_bad_checkpoint_dir_fails_first() {
     assert!(stderr(&out).contains(want), "{}", stderr(&out));
     let md = fs::read_to_string(dir.path().join("ev/metrics.md")).unwrap();
     assert!(md.contains(want), "{md}");
+    // So does an experiment rendering with it (the bunny's g = 0.875), in its report too.
+    let teaser = root().join("configs/experiments/teaser.toml");
+    let out = stcvae(
+        &[
+            "experiment",
+            teaser.to_str().unwrap(),
+            "--quick",
+            "--device",
+            "cpu",
+            "--model",
+            "m.stcvae",
+            "--out",
+            "res",
+        ],
+        dir.path(),
+    );
+    assert!(out.status.success(), "{}", stderr(&out));
+    let want = "medium.g = 0.875 (trained [0.25, 0.25]) outside the model's training range";
+    assert_eq!(stderr(&out).matches(want).count(), 1, "{}", stderr(&out));
+    let report = fs::read_to_string(dir.path().join("res/teaser-quick/report.md")).unwrap();
+    assert!(report.contains(want), "{report}");
     fs::remove_file(dir.path().join("d.bin")).unwrap();
     fs::write(dir.path().join("afile"), b"").unwrap();
     replace_in(

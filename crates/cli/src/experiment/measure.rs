@@ -96,7 +96,9 @@ pub fn render_once(
         f.camera.height = ((size as f64 * aspect).round() as u32).max(1);
         edit(f);
     })?;
-    crate::render::warn_outside_training(&p, scene);
+    if let Some(w) = crate::render::warn_outside_training(&p, scene) {
+        ctx.warnings.borrow_mut().push(w);
+    }
     let set = p.settings();
     // Ctrl-C stops the render after its current pass; a cut-short render must not be
     // measured, so the experiment ends here without a report.

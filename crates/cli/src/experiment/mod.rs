@@ -52,6 +52,9 @@ pub struct Ctx<'a> {
     pub out: PathBuf,
     /// Whether this run has saved a file yet ([`Ctx::saving`]).
     saved: std::cell::Cell<bool>,
+    /// Warnings said during the run, repeated in the report (a model extrapolating
+    /// showed only on the terminal).
+    pub warnings: std::cell::RefCell<Vec<String>>,
 }
 
 impl Ctx<'_> {
@@ -127,6 +130,7 @@ pub fn run(a: Args) -> Result<()> {
         model: a.model.clone(),
         out: out.clone(),
         saved: std::cell::Cell::new(false),
+        warnings: Default::default(),
     };
     let mut rep = Report::new(&cfg, &a, &engine);
     eprintln!(
@@ -164,6 +168,9 @@ pub fn run(a: Args) -> Result<()> {
             ));
         }
         return Err(e);
+    }
+    for w in ctx.warnings.borrow().iter() {
+        rep.text(&format!("\n**Warning:** {w}."));
     }
     rep.write(&out)?;
     before.note_left_over("report.md");
