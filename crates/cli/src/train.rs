@@ -257,7 +257,7 @@ pub fn run(a: Args) -> Result<()> {
         None => format!("{}: out =", a.config.display()),
     };
     crate::check_out(&out_flag, &out)?;
-    // (and not a checkpoint's .bpk: its .json is refused as an image's report)
+    // Nor a checkpoint's name: .bpk here, .json with the renders' reports.
     let not_models = [
         &crate::paths::IMAGE_EXTS[..],
         &crate::paths::CONFIG_EXTS,
