@@ -74,15 +74,11 @@ pub fn run(a: Args) -> Result<()> {
     };
     let scene = render_gpu::scene::SceneFile::load(&a.scene)?;
     // The render's own refusal says "use --device cpu", which this bench does not take.
-    let most = render_gpu::gpu::scene_buffers::MAX_GPU_LIGHTS;
-    if scene.lights.len() > most {
-        bail!(
-            "{}: {} lights; the GPU kernels take at most {most}, so the devices cannot be \
-             compared on this scene",
-            a.scene.display(),
-            scene.lights.len()
-        );
-    }
+    crate::device::check_gpu_lights(
+        &a.scene,
+        scene.lights.len(),
+        ", so the devices cannot be compared on this scene",
+    )?;
     reject_repeats(&a.k)?;
     for &k in &a.k {
         let mut f = scene.clone();

@@ -367,15 +367,8 @@ pub fn run(a: Args) -> Result<()> {
         crate::check_out_dir("--pt-cache", dir)?;
     }
     let engine = Engine::open(a.device)?.without_fallback();
-    // The GPU's light limit, named with the scene before the banner and the table's head
-    // (the render's own refusal came after them, without the file).
-    let most = render_gpu::gpu::scene_buffers::MAX_GPU_LIGHTS;
-    if engine.is_gpu() && scene.lights.len() > most {
-        bail!(
-            "{}: {} lights; the GPU kernels take at most {most}: use --device cpu",
-            a.scene.display(),
-            scene.lights.len()
-        );
+    if engine.is_gpu() {
+        crate::device::check_gpu_lights(&a.scene, scene.lights.len(), ": use --device cpu")?;
     }
     // Every density's ST-CVAE scene is checked before the table's head and the first
     // render, so that a bad setting or model fails at once, not after PT's (possibly long)

@@ -13,6 +13,20 @@ use render_gpu::setup::SceneData;
 /// The CPU's model name where the OS reports one (Linux): CPU timings differ by 2× and
 /// more between machines of one core count, and PT and ST-CVAE do not scale alike, so
 /// reports, benches and the PT cache name it.
+/// A scene with more lights than the GPU kernels take, refused before a bench prints its
+/// banner, naming the scene (the render's own refusal came after the table's head,
+/// without the file); `then` says what follows.
+pub fn check_gpu_lights(scene: &std::path::Path, lights: usize, then: &str) -> Result<()> {
+    let most = render_gpu::gpu::scene_buffers::MAX_GPU_LIGHTS;
+    if lights > most {
+        anyhow::bail!(
+            "{}: {lights} lights; the GPU kernels take at most {most}{then}",
+            scene.display()
+        );
+    }
+    Ok(())
+}
+
 pub fn cpu_model() -> Option<String> {
     let info = std::fs::read_to_string("/proc/cpuinfo").ok()?;
     let line = info.lines().find(|l| l.starts_with("model name"))?;

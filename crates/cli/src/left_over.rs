@@ -72,21 +72,6 @@ impl Snapshot {
         names
     }
 
-    /// Whether a file was written (or added) in the folder since the snapshot.
-    pub(crate) fn changed_any(&self) -> bool {
-        std::fs::read_dir(&self.dir)
-            .into_iter()
-            .flatten()
-            .flatten()
-            .any(|e| {
-                let name = e.file_name().to_string_lossy().into_owned();
-                !name.starts_with('.')
-                    && identity(&e.path()).is_some_and(|now| {
-                        !self.files.iter().any(|(n, id)| *n == name && *id == now)
-                    })
-            })
-    }
-
     /// Says which files an earlier run left (at most 12 named), if any.
     pub(crate) fn note_left_over(&self, what: &str) {
         let names = self.left_over();

@@ -1,6 +1,7 @@
 //! `stcvae merge`: join dataset shards.
 
 use std::fs::File;
+use std::hash::{DefaultHasher, Hasher};
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
 
@@ -368,7 +369,7 @@ fn merge_csv(a: &Args) -> Result<()> {
     // (binary shards are told apart by their headers, CSV files only by their rows).
     let mut digests: Vec<(u64, u64)> = Vec::with_capacity(a.inputs.len());
     for (i, path) in a.inputs.iter().enumerate() {
-        let mut digest = std::hash::DefaultHasher::new();
+        let mut digest = DefaultHasher::new();
         let mut own_rows = 0u64;
         scatter_sim::output::check_input(path)
             .with_context(|| format!("cannot open {}", path.display()))?;
@@ -399,8 +400,8 @@ fn merge_csv(a: &Args) -> Result<()> {
             dataset::Row::parse_csv(&line)
                 .map_err(|e| anyhow!("{}: line {}: {e}", path.display(), n + 2))?;
             writeln!(out, "{line}")?;
-            std::hash::Hasher::write(&mut digest, line.trim_end().as_bytes());
-            std::hash::Hasher::write(&mut digest, b"\n");
+            digest.write(line.trim_end().as_bytes());
+            digest.write(b"\n");
             own_rows += 1;
             rows += 1;
             // (The temporary file is removed as `out` is dropped.)
@@ -408,7 +409,7 @@ fn merge_csv(a: &Args) -> Result<()> {
                 bail!("interrupted: nothing written to {}", a.out.display());
             }
         }
-        let d = (std::hash::Hasher::finish(&digest), own_rows);
+        let d = (digest.finish(), own_rows);
         if let Some(j) = digests.iter().position(|e| *e == d && d.1 > 0) {
             bail!(
                 "{} and {} hold the same rows: a shard given twice would count twice (nothing \

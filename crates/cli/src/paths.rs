@@ -11,25 +11,17 @@ pub(crate) fn identity(p: &Path) -> PathBuf {
     if let Ok(c) = p.canonicalize() {
         return c;
     }
-    let mut rest = Vec::new();
-    let mut at = p;
-    loop {
-        match (at.parent(), at.file_name()) {
-            (Some(dir), Some(name)) => {
-                rest.push(name.to_os_string());
-                let dir = if dir.as_os_str().is_empty() {
-                    Path::new(".")
-                } else {
-                    dir
-                };
-                if let Ok(c) = dir.canonicalize() {
-                    return rest.iter().rev().fold(c, |acc, n| acc.join(n));
-                }
-                at = dir;
-            }
-            _ => return p.to_path_buf(),
+    for above in p.ancestors().skip(1) {
+        let dir = if above.as_os_str().is_empty() {
+            Path::new(".")
+        } else {
+            above
+        };
+        if let (Ok(c), Ok(rest)) = (dir.canonicalize(), p.strip_prefix(above)) {
+            return c.join(rest);
         }
     }
+    p.to_path_buf()
 }
 
 /// Refuses an output that is one of the command's inputs (`inputs`: what each one is, a

@@ -272,20 +272,22 @@ pub fn prepare(
 }
 
 /// The models extrapolate outside the media they were trained on (τ is kept inside by the
-/// sphere steps' max_tau; g and the albedo are the scene's): said once, by `render` and
-/// by `experiment` (once per scene and parameter; another `--model` may not cover the
-/// experiments' media).
-/// Returns the warning when it was said now (for the experiment's report).
-pub(crate) fn warn_outside_training(p: &Prepared, scene_path: &Path) -> Option<String> {
-    let Some(m) = &p.model else { return None };
+/// sphere steps' max_tau; g and the albedo are the scene's): the warning `render` gives,
+/// and `experiment` too (another `--model` may not cover its media), with as its key the
+/// scene and which parameters lie outside: an experiment says it once per key (an
+/// absorption sweep varies the albedo over one scene, and printed the same warning once
+/// per value).
+pub(crate) fn outside_training_warning(
+    p: &Prepared,
+    scene_path: &Path,
+) -> Option<(String, String)> {
+    let m = p.model.as_ref()?;
     let t = &m.training;
     let med = &p.file.medium;
-    // Said once per scene and parameter: an absorption sweep varies the albedo over one
-    // scene, and printed the same warning once per value.
     let mut outside = Vec::new();
-    let mut which = scene_path.display().to_string();
+    let mut key = scene_path.display().to_string();
     if crate::model_cmds::outside_training(med.g, t.g_range) {
-        which += ":g";
+        key += ":g";
         outside.push(format!(
             "medium.g = {} (trained {})",
             med.g,
@@ -297,27 +299,20 @@ pub(crate) fn warn_outside_training(p: &Prepared, scene_path: &Path) -> Option<S
         .iter()
         .find(|&&a| crate::model_cmds::outside_training(a, t.albedo_range))
     {
-        which += ":albedo";
+        key += ":albedo";
         outside.push(format!(
             "medium.albedo {a} (trained {})",
             crate::model_cmds::training_range(t.albedo_range)
         ));
     }
-    if !outside.is_empty() {
-        static SAID: std::sync::Mutex<Vec<String>> = std::sync::Mutex::new(Vec::new());
-        let mut said = SAID.lock().unwrap_or_else(|e| e.into_inner());
-        if !said.contains(&which) {
-            let line = format!(
-                "{}: {} outside the model's training range: ST-CVAE extrapolates there",
-                scene_path.display(),
-                outside.join(", ")
-            );
-            eprintln!("warning: {line}");
-            said.push(which);
-            return Some(line);
-        }
-    }
-    None
+    (!outside.is_empty()).then(|| {
+        let line = format!(
+            "{}: {} outside the model's training range: ST-CVAE extrapolates there",
+            scene_path.display(),
+            outside.join(", ")
+        );
+        (key, line)
+    })
 }
 
 /// `--out` is a path stem (OUT.exr, OUT.png, OUT.json); checked before rendering so that a
@@ -434,7 +429,9 @@ pub fn run(a: Args) -> Result<()> {
     if a.model.is_some() && p.model.is_none() {
         eprintln!("note: --model is not used: the PT integrator needs no model");
     }
-    let _ = warn_outside_training(&p, &a.scene);
+    if let Some((_, w)) = outside_training_warning(&p, &a.scene) {
+        eprintln!("warning: {w}");
+    }
     if p.model.is_some() && !p.models_trusted() {
         eprintln!(
             "note: medium.g = {} is above {}, where the models' sphere steps were measured \

@@ -96,8 +96,12 @@ pub fn render_once(
         f.camera.height = ((size as f64 * aspect).round() as u32).max(1);
         edit(f);
     })?;
-    if let Some(w) = crate::render::warn_outside_training(&p, scene) {
-        ctx.warnings.borrow_mut().push(w);
+    if let Some((key, w)) = crate::render::outside_training_warning(&p, scene) {
+        let mut said = ctx.warnings.borrow_mut();
+        if !said.iter().any(|(k, _)| *k == key) {
+            eprintln!("warning: {w}");
+            said.push((key, w));
+        }
     }
     let set = p.settings();
     // Ctrl-C stops the render after its current pass; a cut-short render must not be

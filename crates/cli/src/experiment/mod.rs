@@ -52,9 +52,9 @@ pub struct Ctx<'a> {
     pub out: PathBuf,
     /// Whether this run has saved a file yet ([`Ctx::saving`]).
     saved: std::cell::Cell<bool>,
-    /// Warnings said during the run, repeated in the report (a model extrapolating
-    /// showed only on the terminal).
-    pub warnings: std::cell::RefCell<Vec<String>>,
+    /// Warnings said during the run (key, text), each once, repeated in the report (a
+    /// model extrapolating showed only on the terminal).
+    pub warnings: std::cell::RefCell<Vec<(String, String)>>,
 }
 
 impl Ctx<'_> {
@@ -145,7 +145,7 @@ pub fn run(a: Args) -> Result<()> {
         // A run that saved files removed the earlier report with its first (Ctx::saving);
         // one stopped before it saved anything leaves the earlier run's results as they
         // were.
-        if !before.changed_any() && out.join("report.md").is_file() {
+        if !ctx.saved.get() && out.join("report.md").is_file() {
             return Err(anyhow::anyhow!(
                 "{e:#} (nothing was saved: the earlier run's report in {} is as it was)",
                 out.display()
@@ -169,7 +169,7 @@ pub fn run(a: Args) -> Result<()> {
         }
         return Err(e);
     }
-    for w in ctx.warnings.borrow().iter() {
+    for (_, w) in ctx.warnings.borrow().iter() {
         rep.text(&format!("\n**Warning:** {w}."));
     }
     rep.write(&out)?;
