@@ -132,13 +132,14 @@ struct Event {
 var<private> event_was_centre: bool;
 
 /// The representative event given N (wf.rel_log_n, and lam = Λ(N)) and the exit; event 1
-/// (the centre, W = +z) exactly with probability φ/Λ(N) when single scattering is exact.
+/// (the centre, W = +z) exactly with probability φ/Λ(N) when single scattering is exact
+/// (1 at φ = 0, the limit, as on the CPU: cvae::sampler's centre_event).
 /// `mirror`: the antithetic partner of the previous (decoded) event draw, its latent and
 /// output normals negated (cvae::sampler::event_draws); dec_noise still holds them, as no
 /// other decoder runs between a step's event draws and the decoders only read it.
 fn sample_event(wf: WalkFeatures, channel: u32, lam: f32, e: Exit, mirror: bool) -> Event {
     let albedo = params.albedo[channel];
-    event_was_centre = model.flags.x != 0u && rand() * lam < albedo;
+    event_was_centre = model.flags.x != 0u && (albedo <= 0.0 || rand() * lam < albedo);
     if event_was_centre {
         return Event(vec3<f32>(0.0), vec3<f32>(0.0, 0.0, 1.0));
     }

@@ -266,10 +266,11 @@ impl ModelSet {
     }
 
     /// Exact mode's choice of event 1 (the centre) as the representative event, with its
-    /// probability φ/Λ(N).
+    /// probability φ/Λ(N); at φ = 0 its limit 1 (φ/Λ(N) → 1 as φ → 0⁺), as the
+    /// simulator's reservoir keeps event 1 there.
     fn centre_event(&self, walk: &ModelWalk, rng: &mut WalkRng) -> bool {
         self.single_scattering == SingleScattering::Exact
-            && rng.uniform() * walk.lambda < walk.albedo
+            && (walk.albedo <= 0.0 || rng.uniform() * walk.lambda < walk.albedo)
     }
 
     /// The event (X, W) from EventGen's output.

@@ -366,6 +366,8 @@ fn single_scattering_branch_probability() {
 /// The exact centre event: given N and φ, event 1 (X = 0, W = +z) is chosen with
 /// probability φ/Λ(N). 100,000 draws per case, |z| < 4 as above. EventGen never returns
 /// exactly the centre (its outputs are continuous), so X = 0 identifies the branch.
+/// At φ = 0 the probability is its limit φ/Λ(N) → 1 as φ → 0⁺, the simulator's choice
+/// (its reservoir keeps event 1): 0/0 read as "never" sent every draw to EventGen.
 #[test]
 fn centre_event_probability() {
     use scatter_sim::frame::CanonicalExit;
@@ -375,7 +377,10 @@ fn centre_event_probability() {
         alpha: 0.1,
         beta: -0.2,
     };
-    for (i, (albedo, n_events)) in [(1.0, 2u64), (0.8, 3), (0.99, 40)].into_iter().enumerate() {
+    for (i, (albedo, n_events)) in [(1.0, 2u64), (0.8, 3), (0.99, 40), (0.0, 5)]
+        .into_iter()
+        .enumerate()
+    {
         let mut rng = WalkRng::from_seed(70 + i as u64);
         let n = 100_000u64;
         let hits = (0..n)
@@ -385,6 +390,10 @@ fn centre_event_probability() {
             .count() as u64;
         // Λ(N) = Σ_{k=1..N} φ^k summed here, not by the sampler's own `lambda`.
         let lambda: f64 = (1..=n_events).map(|k| albedo_pow(albedo, k)).sum();
+        if albedo == 0.0 {
+            assert_eq!(hits, n, "φ = 0 always picks the centre");
+            continue;
+        }
         let p = albedo / lambda;
         let z = scatter_sim::stats::proportion_z(hits, n, p);
         assert!(

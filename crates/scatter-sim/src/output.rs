@@ -109,11 +109,12 @@ pub fn check_replaceable(path: &Path) -> io::Result<()> {
 /// Ctrl-C calls `exit`) can still remove them: each is registered while its guard lives.
 static LIVE: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
 
-/// Keeps a temporary's path in [`LIVE`] until dropped (after its rename or removal).
-struct Live(PathBuf);
+/// Keeps a temporary's path (a file, or a folder of them) in [`LIVE`] until dropped
+/// (after its rename or removal).
+pub struct Live(PathBuf);
 
 impl Live {
-    fn new(path: &Path) -> Self {
+    pub fn new(path: &Path) -> Self {
         LIVE.lock()
             .unwrap_or_else(|e| e.into_inner())
             .push(path.to_path_buf());
@@ -136,7 +137,11 @@ impl Drop for Live {
 pub fn remove_live_temporaries() {
     let live = LIVE.lock().unwrap_or_else(|e| e.into_inner());
     for p in live.iter() {
-        let _ = fs::remove_file(p);
+        if p.is_dir() {
+            let _ = fs::remove_dir_all(p);
+        } else {
+            let _ = fs::remove_file(p);
+        }
     }
 }
 

@@ -229,6 +229,11 @@ fn paths(dir: &Path, kind: ModelKind) -> (PathBuf, PathBuf, PathBuf) {
     )
 }
 
+/// Writes the model, the optimiser state and the JSON that holds their checksums as one
+/// set: burn writes the two records into a temporary folder beside the checkpoints, and
+/// the three files are renamed into place only once all are written. Saved one by one, a
+/// failure after the model's rename (a full disk, a second Ctrl-C, a kill) left a new
+/// model beside the old JSON, whose checksum then refused the resume, and the run was lost.
 fn save_checkpoint(
     dir: &Path,
     kind: ModelKind,
@@ -242,18 +247,32 @@ fn save_checkpoint(
         msg: e,
     };
     std::fs::create_dir_all(dir).map_err(|e| err(dir, e.to_string()))?;
+    let staging = tempfile::Builder::new()
+        .prefix(&format!(".{}-saving", kind.name()))
+        .tempdir_in(dir)
+        .map_err(|e| err(dir, e.to_string()))?;
+    // Removed by a second Ctrl-C's exit too, which skips the folder's destructor.
+    let _live = scatter_sim::output::Live::new(staging.path());
+    let (sm, so) = (
+        staging.path().join("model.bpk"),
+        staging.path().join("optim.bpk"),
+    );
     model
         .clone()
-        .save_file(&m)
+        .save_file(&sm)
         .map_err(|e| err(&m, e.to_string()))?;
-    optim.save(&o).map_err(|e| err(&o, e.to_string()))?;
+    optim.save(&so).map_err(|e| err(&o, e.to_string()))?;
+    let mbytes = std::fs::read(&sm).map_err(|e| err(&m, e.to_string()))?;
+    let obytes = std::fs::read(&so).map_err(|e| err(&o, e.to_string()))?;
     let mut info = info.clone();
-    info.crc32 = Some([
-        crc_of(&m).map_err(|e| err(&m, e.to_string()))?,
-        crc_of(&o).map_err(|e| err(&o, e.to_string()))?,
-    ]);
+    info.crc32 = Some([crc32fast::hash(&mbytes), crc32fast::hash(&obytes)]);
     let json = serde_json::to_vec_pretty(&info).expect("serialisable");
-    scatter_sim::output::write_atomic(&j, &json).map_err(|e| err(&j, e.to_string()))
+    scatter_sim::output::write_atomic_set(&[
+        (m.as_path(), mbytes.as_slice()),
+        (o.as_path(), obytes.as_slice()),
+        (j.as_path(), json.as_slice()),
+    ])
+    .map_err(|(p, e)| err(&p, e.to_string()))
 }
 
 /// The loss is read every LOG_EVERY steps (reading synchronises, so not every step) and
@@ -510,6 +529,67 @@ mod tests {
         assert_eq!(
             e,
             "pathgen.warmup: 101 exceeds steps = 100: allowed 0..=steps"
+        );
+    }
+
+    /// A checkpoint's three files are replaced as a set: when one cannot be written (here
+    /// the optimiser's path became a folder) the model and the JSON keep their earlier
+    /// bytes, so the model still matches the checksum its JSON holds; saved one by one, the
+    /// new model sat beside the old JSON and the resume was refused. No staging folder is
+    /// left behind either way.
+    #[test]
+    fn a_failed_checkpoint_save_keeps_the_previous_set() {
+        let d = tempfile::tempdir().unwrap();
+        let kind = ModelKind::LengthGen;
+        let device = Device::flex();
+        let arch = config(10, None).architecture();
+        let mut rng = WalkRng::from_seed(5);
+        let first = Cvae::new(kind.cond(), kind.out(), &arch, &mut rng, &device);
+        let second = Cvae::new(kind.cond(), kind.out(), &arch, &mut rng, &device);
+        let optim = Adamax::default().init();
+        let info = |step| CheckpointInfo {
+            feature_version: crate::features::FEATURE_VERSION,
+            step,
+            seconds: 0.0,
+            norm: Standardisation {
+                cond_shift: vec![0.0; kind.cond()],
+                cond_scale: vec![1.0; kind.cond()],
+                out_shift: vec![0.0; kind.out()],
+                out_scale: vec![1.0; kind.out()],
+            },
+            history: Vec::new(),
+            crc32: None,
+            single_scattering: None,
+            ranges: None,
+        };
+        save_checkpoint(d.path(), kind, &first, &optim, &info(1)).unwrap();
+        let (m, o, j) = paths(d.path(), kind);
+        let saved: CheckpointInfo = serde_json::from_slice(&std::fs::read(&j).unwrap()).unwrap();
+        check_crcs(&saved, &[&m, &o]).unwrap();
+        let (model_before, json_before) = (std::fs::read(&m).unwrap(), std::fs::read(&j).unwrap());
+        std::fs::remove_file(&o).unwrap();
+        std::fs::create_dir(&o).unwrap();
+        assert!(save_checkpoint(d.path(), kind, &second, &optim, &info(2)).is_err());
+        assert_eq!(std::fs::read(&m).unwrap(), model_before);
+        assert_eq!(std::fs::read(&j).unwrap(), json_before);
+        std::fs::remove_dir(&o).unwrap();
+        save_checkpoint(d.path(), kind, &second, &optim, &info(2)).unwrap();
+        assert_ne!(
+            std::fs::read(&m).unwrap(),
+            model_before,
+            "a new model differs"
+        );
+        let saved: CheckpointInfo = serde_json::from_slice(&std::fs::read(&j).unwrap()).unwrap();
+        assert_eq!(saved.step, 2);
+        check_crcs(&saved, &[&m, &o]).unwrap();
+        let mut left: Vec<String> = std::fs::read_dir(d.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        left.sort();
+        assert_eq!(
+            left,
+            ["lengthgen-optim.bpk", "lengthgen.bpk", "lengthgen.json"]
         );
     }
 
