@@ -29,6 +29,20 @@ pub struct DirectionalLight {
     pub half_angle: f32,
 }
 
+/// sin² of a sun disk's half-angle, or None for a delta light. Below a micro-radian
+/// (0.2″) the disk is a delta light: its radiance E/(π sin²θ) would overflow f32 (a
+/// 1e-18° disk rendered NaN), and no image could tell.
+pub fn disk_sin2(d: &LightDesc) -> Option<f64> {
+    let half = (d.angular_diameter_deg * 0.5).to_radians();
+    (half >= 1e-6).then(|| half.sin().powi(2))
+}
+
+/// A sun disk's radiance from its irradiance on a plane facing it:
+/// E = ∫ L cos θ dω = L π sin²θ_max.
+pub fn disk_radiance(irradiance: f64, sin2: f64) -> f64 {
+    irradiance / (std::f64::consts::PI * sin2)
+}
+
 impl DirectionalLight {
     pub fn new(d: &LightDesc) -> Self {
         let dir = Vec3::new(
@@ -39,16 +53,11 @@ impl DirectionalLight {
         .normalize();
         let half = (d.angular_diameter_deg * 0.5).to_radians();
         let irradiance = d.irradiance.map(|v| v as f32);
-        // Below a micro-radian (0.2″) the disk is a delta light: its radiance E/(π sin²θ)
-        // would overflow f32 (a 1e-18° disk rendered NaN), and no image could tell.
-        let (one_minus_cos, sin2_max, radiance) = if half >= 1e-6 {
-            // Irradiance on a plane facing the disk: E = ∫ L cos θ dω = L π sin²θ_max.
-            let s2 = half.sin().powi(2);
+        let (one_minus_cos, sin2_max, radiance) = if let Some(s2) = disk_sin2(d) {
             (
                 (2.0 * (half / 2.0).sin().powi(2)) as f32,
                 s2 as f32,
-                d.irradiance
-                    .map(|e| (e / (std::f64::consts::PI * s2)) as f32),
+                d.irradiance.map(|e| disk_radiance(e, s2) as f32),
             )
         } else {
             (0.0, 0.0, [0.0; 3])

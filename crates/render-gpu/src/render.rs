@@ -497,7 +497,9 @@ pub fn pixel_variance(
         let n = counts[c] as f64;
         let mean = sum[c] / (3.0 * n);
         let s2 = ((squares[c] - n * mean * mean) / (n - 1.0)).max(0.0);
-        (s2 / n) as f32
+        // Scenes bound every radiance (scene::MAX_RADIANCE), so this stays far below
+        // f32::MAX; the clamp keeps a variance image finite should a path bring more.
+        (s2 / n).min(f64::from(f32::MAX)) as f32
     })
 }
 

@@ -572,6 +572,23 @@ impl SceneFile {
                     num(l.angular_diameter_deg)
                 ));
             }
+            // The disk's radiance is bounded as an environment's is: a small disk of a large
+            // irradiance made radiances of ~1e21, whose squares overflowed `--variance`.
+            if let Some(s2) = crate::light::disk_sin2(l) {
+                for (k, e) in l.irradiance.iter().enumerate() {
+                    if crate::light::disk_radiance(*e, s2) > MAX_RADIANCE {
+                        let most = MAX_RADIANCE * std::f64::consts::PI * s2;
+                        return Err(format!(
+                            "light[{i}].irradiance[{k}] = {} over a disk of \
+                             angular_diameter_deg = {} is a radiance beyond {MAX_RADIANCE:e}: \
+                             allowed up to {most:.4e} at this diameter (or a wider disk, or \
+                             angular_diameter_deg = 0 for a delta light)",
+                            num(*e),
+                            num(l.angular_diameter_deg)
+                        ));
+                    }
+                }
+            }
         }
         if let Some(r) = self.environment.radiance {
             for (k, e) in r.iter().enumerate() {

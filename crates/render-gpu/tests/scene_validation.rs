@@ -215,6 +215,24 @@ fn values_that_break_single_precision_are_refused() {
         "{BASE}\n[environment]\nradiance = [1.0, 1e39, 1.0]\n"
     ));
     assert!(e.contains("environment.radiance[1]"), "{e}");
+    // A sun disk's radiance E/(π sin²θ) is bounded as an environment's: an irradiance of
+    // 1e12 over a 0.001° disk is a radiance of ~4e21, whose squares overflowed --variance.
+    // At 0.001° the largest irradiance is π·sin²(8.72665e-6 rad)·1e12 = 239.246.
+    let disk = |e: &str, d: &str| {
+        format!(
+            "{BASE}{}angular_diameter_deg = {d}\n",
+            light.replace("irradiance = [1.0, 1.0, 1.0]", &format!("irradiance = [1.0, {e}, 1.0]"))
+        )
+    };
+    let e = err(&disk("1e12", "0.001"));
+    assert!(
+        e.contains("light[0].irradiance[1]") && e.contains("angular_diameter_deg = 0.001"),
+        "{e}"
+    );
+    assert!(err(&disk("240.0", "0.001")).contains("allowed up to 2.3925e2"));
+    SceneFile::parse(Path::new("s.toml"), &disk("239.0", "0.001")).unwrap();
+    // A delta light (diameter 0) has no radiance to bound.
+    SceneFile::parse(Path::new("s.toml"), &disk("1e12", "0.0")).unwrap();
 }
 
 /// serde's `[f64; 3]` reads three elements of a longer TOML array and drops the rest
