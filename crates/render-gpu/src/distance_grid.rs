@@ -41,9 +41,21 @@ pub struct DistanceGrid {
 
 const MAGIC: &[u8; 8] = b"STCVDG04";
 
+/// Most triangle references the cell lists may hold: their offsets are u32 (in the cache
+/// file and in the kernels' buffer). At ~300 references a triangle, a mesh of ~14 M
+/// triangles reaches it; past it the offsets wrapped (a panic at the wrapped cell, wrong
+/// lists after it) where a clear error is due.
+pub const MAX_CANDIDATES: u64 = u32::MAX as u64;
+
 impl DistanceGrid {
-    /// Builds the grid with `resolution` cells along the longest side of the bounds.
-    pub fn build(geo: &Geometry, resolution: u32) -> Self {
+    /// Builds the grid with `resolution` cells along the longest side of the bounds; an
+    /// error when its cell lists would exceed [`MAX_CANDIDATES`] (the lists stop being
+    /// built once past it, so the error comes before the memory runs out).
+    pub fn build(geo: &Geometry, resolution: u32) -> Result<Self, String> {
+        Self::build_within(geo, resolution, MAX_CANDIDATES)
+    }
+
+    fn build_within(geo: &Geometry, resolution: u32, most: u64) -> Result<Self, String> {
         let extent = geo.hi - geo.lo;
         let cell = extent.max_element() / resolution as f32;
         let dims = (extent / cell).ceil().as_uvec3().max(UVec3::ONE);
@@ -62,12 +74,15 @@ impl DistanceGrid {
         // d(c) + 2h of c: listing every triangle that near c lists T. The padding covers
         // f32 rounding of p's cell and of the distances (1e-4 of a cell, ~100 ulps).
         let h = 0.5 * 3f32.sqrt() * cell;
+        let listed = std::sync::atomic::AtomicU64::new(0);
         let lists: Vec<Vec<u32>> = exact
             .par_iter()
             .enumerate()
             .map(|(i, &d)| {
                 let mut list = Vec::new();
-                if d * (1.0 - 1e-5) - margin < near_surface + h {
+                if d * (1.0 - 1e-5) - margin < near_surface + h
+                    && listed.load(std::sync::atomic::Ordering::Relaxed) <= most
+                {
                     let c = Self::centre_of(lo, cell, dims, i);
                     let reach = (d + 2.0 * h) * (1.0 + 1e-5) + 1e-4 * cell + geo.eps;
                     geo.triangles_within(c, reach, &mut list);
@@ -75,10 +90,20 @@ impl DistanceGrid {
                     // query's first exact distance lets the cheap bounds skip most others.
                     // A non-negative f32's bits order as its value.
                     list.sort_by_cached_key(|&prim| (geo.nearest_of(c, &[prim]).to_bits(), prim));
+                    listed.fetch_add(list.len() as u64, std::sync::atomic::Ordering::Relaxed);
                 }
                 list
             })
             .collect();
+        let listed = listed.into_inner();
+        if listed > most {
+            return Err(format!(
+                "the distance grid of {} triangles at render.grid_resolution = {resolution} \
+                 would list more than {most} triangle references (offsets are 32-bit): lower \
+                 render.grid_resolution or simplify the mesh",
+                geo.tris.len()
+            ));
+        }
         let mut cells = Vec::with_capacity(n + 1);
         let mut candidates = Vec::new();
         for (d, list) in exact.iter().zip(lists) {
@@ -87,7 +112,7 @@ impl DistanceGrid {
             candidates.extend_from_slice(&list);
         }
         cells.push([0, candidates.len() as u32]);
-        Self {
+        Ok(Self {
             lo,
             cell,
             inv_cell: 1.0 / cell,
@@ -95,7 +120,7 @@ impl DistanceGrid {
             near_surface,
             cells,
             candidates,
-        }
+        })
     }
 
     /// The index of the cell holding `p` (None outside the grid).
@@ -207,16 +232,16 @@ impl DistanceGrid {
     }
 
     /// Loads the grid from the cache or builds and caches it when building takes long.
-    pub fn cached(geo: &Geometry, resolution: u32) -> Self {
+    pub fn cached(geo: &Geometry, resolution: u32) -> Result<Self, String> {
         let key = cache_key(geo, resolution);
         let path = cache_file(&format!("grid-{key:016x}-{resolution}"));
         if let Some(p) = &path
             && let Some(g) = Self::read(p, geo.tris.len())
         {
-            return g;
+            return Ok(g);
         }
         let t0 = std::time::Instant::now();
-        let g = Self::build(geo, resolution);
+        let g = Self::build(geo, resolution)?;
         // Reading a cached grid takes ~10 ms; the default bunny's grid took 0.85 s to
         // build on 2 cores, a quarter of the default render, when only grids over a
         // second were cached.
@@ -227,7 +252,7 @@ impl DistanceGrid {
             let _ = g.write(p);
             prune_stale(p);
         }
-        g
+        Ok(g)
     }
 
     fn write(&self, path: &Path) -> std::io::Result<()> {
@@ -391,13 +416,33 @@ pub(crate) fn cache_dir() -> Option<PathBuf> {
 mod tests {
     use super::{CODE, DistanceGrid, prune_stale};
 
+    /// Cell lists beyond the cap (u32 offsets in the real build) are an error naming the
+    /// grid resolution, not wrapped offsets; at the cap exactly the grid builds. The cube's
+    /// grid at 8 cells a side holds a few thousand references, so caps just below and at
+    /// that count decide it.
+    #[test]
+    fn too_many_references_are_refused() {
+        let geo = crate::geometry::Geometry::new(crate::mesh::cube(1.0));
+        let n = DistanceGrid::build(&geo, 8).unwrap().candidates.len() as u64;
+        assert!(n > 100, "{n}");
+        assert_eq!(
+            DistanceGrid::build_within(&geo, 8, n)
+                .unwrap()
+                .candidates
+                .len() as u64,
+            n
+        );
+        let e = DistanceGrid::build_within(&geo, 8, n - 1).err().unwrap();
+        assert!(e.contains("render.grid_resolution = 8"), "{e}");
+    }
+
     /// A cached grid with a valid checksum is still refused (rebuilt) where its contents
     /// would break a render: a candidate index beyond the mesh (it panicked with an index
     /// out of bounds) or a negative distance. The file as written reads back as it was.
     #[test]
     fn forged_cache_contents_are_rebuilt() {
         let geo = crate::geometry::Geometry::new(crate::mesh::cube(1.0));
-        let grid = DistanceGrid::build(&geo, 8);
+        let grid = DistanceGrid::build(&geo, 8).unwrap();
         let d = tempfile::tempdir().unwrap();
         let path = d.path().join("grid.bin");
         grid.write(&path).unwrap();
@@ -407,7 +452,7 @@ mod tests {
             (grid.cells.clone(), grid.candidates.clone())
         );
         let forge = |edit: &dyn Fn(&mut DistanceGrid)| {
-            let mut g = DistanceGrid::build(&geo, 8);
+            let mut g = DistanceGrid::build(&geo, 8).unwrap();
             edit(&mut g);
             g.write(&path).unwrap();
             DistanceGrid::read(&path, geo.tris.len())

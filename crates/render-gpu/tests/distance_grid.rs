@@ -61,7 +61,7 @@ fn bunny() -> Geometry {
 #[test]
 fn bunny_grid_is_conservative_and_useful() {
     let geo = bunny();
-    let grid = DistanceGrid::build(&geo, 48);
+    let grid = DistanceGrid::build(&geo, 48).unwrap();
     let efficiency = check(&geo, &grid, 3000, 11);
     // Not trivially conservative: at 48 cells the Lipschitz bound keeps most of the
     // distance (a cell's half-diagonal is ~2% of the bunny's height).
@@ -74,7 +74,7 @@ fn bunny_grid_is_conservative_and_useful() {
 #[test]
 fn sphere_grid_matches_the_radius() {
     let geo = Geometry::new(mesh::sphere(0.5));
-    let grid = DistanceGrid::build(&geo, 32);
+    let grid = DistanceGrid::build(&geo, 32).unwrap();
     check(&geo, &grid, 1000, 12);
     // At the centre the free radius is the sphere's minus at most twice a cell's
     // half-diagonal (0.5·√3/32 ≈ 0.027: once in d(c) ≥ d(p) − |p − c|, once in the bound
@@ -93,7 +93,7 @@ fn sphere_grid_matches_the_radius() {
 #[test]
 fn candidate_lists_give_the_exact_distance() {
     let geo = bunny();
-    let grid = DistanceGrid::build(&geo, 64);
+    let grid = DistanceGrid::build(&geo, 64).unwrap();
     let (cells, mean) = grid.candidate_stats();
     assert!(
         cells > 1000 && mean < 64.0,
@@ -141,7 +141,7 @@ fn candidate_lists_give_the_exact_distance() {
 fn local_hits_equal_bvh_casts() {
     let geo = bunny();
     for res in [64, 128] {
-        let grid = DistanceGrid::build(&geo, res);
+        let grid = DistanceGrid::build(&geo, res).unwrap();
         let mut rng = WalkRng::for_walk(31, res as u64);
         let (mut answered, mut hits) = (0, 0);
         let n = 100_000;

@@ -221,7 +221,10 @@ fn values_that_break_single_precision_are_refused() {
     let disk = |e: &str, d: &str| {
         format!(
             "{BASE}{}angular_diameter_deg = {d}\n",
-            light.replace("irradiance = [1.0, 1.0, 1.0]", &format!("irradiance = [1.0, {e}, 1.0]"))
+            light.replace(
+                "irradiance = [1.0, 1.0, 1.0]",
+                &format!("irradiance = [1.0, {e}, 1.0]")
+            )
         )
     };
     let e = err(&disk("1e12", "0.001"));
