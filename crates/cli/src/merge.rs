@@ -250,16 +250,28 @@ fn merge_binary(a: &Args) -> Result<()> {
             .iter()
             .flat_map(|r| &r.header().pieces)
             .all(|p| first.as_ref().is_some_and(|f| f.same_run(p)));
+    // Each piece of each input, where its rows lie in the file; shards of one run go in
+    // walk order, piece by piece: an input that is itself a merge of shards 0 and 2 puts
+    // shard 1's rows between its two pieces, as the unsharded run has them.
+    let mut segments: Vec<Segment> = Vec::new();
+    for (input, r) in readers.iter().enumerate() {
+        let mut offset = 0;
+        for piece in &r.header().pieces {
+            segments.push(Segment {
+                input,
+                offset,
+                piece: piece.clone(),
+            });
+            offset += piece.count;
+        }
+    }
     if one_run {
-        readers.sort_by_key(|r| r.header().pieces.first().map_or(0, |p| p.first_walk));
+        segments.sort_by_key(|s| s.piece.first_walk);
     }
     // Refuse duplicated walks: two pieces of one run that overlap.
-    let all: Vec<(&Piece, &PathBuf)> = readers
-        .iter()
-        .flat_map(|r| r.header().pieces.iter().map(move |p| (p, &a.inputs[0])))
-        .collect();
-    for (i, (p, _)) in all.iter().enumerate() {
-        for (q, _) in &all[i + 1..] {
+    for (i, p) in segments.iter().enumerate() {
+        for q in &segments[i + 1..] {
+            let (p, q) = (&p.piece, &q.piece);
             let overlap =
                 p.first_walk < q.first_walk + q.count && q.first_walk < p.first_walk + p.count;
             if p.same_run(q) && overlap && p.count > 0 && q.count > 0 {
@@ -274,7 +286,7 @@ fn merge_binary(a: &Args) -> Result<()> {
             }
         }
     }
-    let pieces = coalesce(readers.iter().flat_map(|r| r.header().pieces.clone()));
+    let pieces = coalesce(segments.iter().map(|s| s.piece.clone()));
     let header = Header::new(pieces);
     // Said after the rows, which may still be refused: a note above an error reads as
     // part of it.
@@ -289,14 +301,41 @@ fn merge_binary(a: &Args) -> Result<()> {
     let cancel = crate::interrupt::flag();
     let pb = progress::bar(header.count, "rows");
     let mut sink = dataset::create_sink(&a.out, header.clone())?;
-    for r in &mut readers {
-        while let Some(row) = r.next_row()? {
+    let stopped = || {
+        // (The sink's temporary file is removed as it is dropped.)
+        if cancel.load(std::sync::atomic::Ordering::Relaxed) {
+            bail!("interrupted: nothing written to {}", a.out.display());
+        }
+        Ok(())
+    };
+    for s in &segments {
+        // Each input's own reader takes its pieces in file order; a piece wanted out of
+        // that order is read by a second reader, which passes over the rows before it.
+        let mut side;
+        let r = if readers[s.input].rows_read() == s.offset {
+            &mut readers[s.input]
+        } else {
+            side = DatasetReader::open(readers[s.input].path())?;
+            for _ in 0..s.offset {
+                side.next_row()?;
+                stopped()?;
+            }
+            &mut side
+        };
+        for _ in 0..s.piece.count {
+            let row = r
+                .next_row()?
+                .context("a dataset ended before its header's count")?;
             sink.push(&row)?;
             pb.inc(1);
-            // (The sink's temporary file is removed as it is dropped.)
-            if cancel.load(std::sync::atomic::Ordering::Relaxed) {
-                bail!("interrupted: nothing written to {}", a.out.display());
-            }
+            stopped()?;
+        }
+    }
+    // Every input read to its end, so each file's checksum is verified, rows taken by a
+    // second reader included.
+    for r in &mut readers {
+        while r.next_row()?.is_some() {
+            stopped()?;
         }
     }
     sink.finish()?;
@@ -311,6 +350,13 @@ fn merge_binary(a: &Args) -> Result<()> {
         a.out.display()
     );
     Ok(())
+}
+
+/// One piece of an input dataset: its rows start `offset` rows into the file.
+struct Segment {
+    input: usize,
+    offset: u64,
+    piece: Piece,
 }
 
 /// Where the pieces come from more than one run (`generate` with other seeds, sizes or

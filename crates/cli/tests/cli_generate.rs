@@ -161,6 +161,30 @@ fn shards_merge_into_the_unsharded_run() {
     let (header, merged) = read_dataset(&dir.path().join("merged.bin")).unwrap();
     assert_eq!(header.count, 3001);
     assert!(whole == merged, "merged rows differ from the unsharded run");
+    // An input that is itself a merge of shards 0 and 2 holds two pieces with shard 1's
+    // walks between them: the merge puts shard 1's rows between its pieces (sorting the
+    // inputs by their first piece gave the rows of 0, 2, 1, 3).
+    ok(&stcvae(
+        &["merge", "part-2.bin", "part-0.bin", "--out", "m02.bin"],
+        dir.path(),
+    ));
+    ok(&stcvae(
+        &[
+            "merge",
+            "part-3.bin",
+            "m02.bin",
+            "part-1.bin",
+            "--out",
+            "m0123.bin",
+        ],
+        dir.path(),
+    ));
+    let (header, rows) = read_dataset(&dir.path().join("m0123.bin")).unwrap();
+    assert_eq!((header.count, header.pieces.len()), (3001, 1));
+    assert!(
+        whole == rows,
+        "a merge of merged shards differs from the unsharded run"
+    );
     // Binary → CSV through merge equals a direct CSV run.
     ok(&stcvae(
         &["merge", "merged.bin", "--out", "merged.csv"],

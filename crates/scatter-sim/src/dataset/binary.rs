@@ -209,6 +209,11 @@ impl DatasetReader {
         &self.path
     }
 
+    /// How many rows have been read so far.
+    pub fn rows_read(&self) -> u64 {
+        self.next_row
+    }
+
     /// The next row, `None` after the last (once the checksum has been verified).
     pub fn next_row(&mut self) -> Result<Option<Row>, DatasetError> {
         if self.done {
