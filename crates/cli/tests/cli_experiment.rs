@@ -260,6 +260,33 @@ fn bad_experiment_config_is_a_clear_error() {
         std::fs::read_dir(d.path()).unwrap().next().is_none(),
         "a folder or file was made before the error"
     );
+    // The same with the scene's own max_tau in a scene file of `pt`: the thresholds are
+    // checked as the ST-CVAE renders they are for, before PT's pair.
+    let pt_scene = d.path().join("capped.toml");
+    std::fs::write(
+        &pt_scene,
+        std::fs::read_to_string(scene).unwrap() + "max_tau = 50.0\n",
+    )
+    .unwrap();
+    std::fs::write(
+        &cfg,
+        format!(
+            "kind = \"fallback\"\ntitle = \"t\"\nscene = {pt_scene:?}\ndensities = [1.0]\n\
+             thresholds = [0.0, 60.0]\n[full]\nsize = 8\nspp = 2\n[quick]\nsize = 8\nspp = 2\n"
+        ),
+    )
+    .unwrap();
+    let out_dir = tempfile::tempdir().unwrap();
+    let out = quick_experiment(&cfg, out_dir.path());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && err.contains("threshold 60") && err.contains("max_tau = 50"),
+        "{err}"
+    );
+    assert!(
+        std::fs::read_dir(out_dir.path()).unwrap().next().is_none(),
+        "a folder or file was made before the error"
+    );
     // A scene or a training config given instead says what it is, not "unknown field".
     let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../../configs");
     for (file, what) in [

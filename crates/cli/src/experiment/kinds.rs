@@ -77,6 +77,9 @@ pub(super) fn preflight(
         for &t in &cfg.thresholds {
             let mut f = base.clone();
             f.render.min_tau = Some(t);
+            // Checked as the ST-CVAE render it is for: a scene file of `pt` skips the
+            // min_tau-against-max_tau check, which then failed after PT's renders.
+            f.render.integrator = Stcvae;
             check(f, format!("with threshold {t}"))?;
         }
         // Without max_tau the cap is the model's (render::prepare refuses the rest, but
