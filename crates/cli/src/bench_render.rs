@@ -430,7 +430,7 @@ pub fn run(a: Args) -> Result<()> {
             save_images(&a, dir, k, &pt, &st)?;
         }
         println!(
-            "{:>4} {:>20} {:>7.2} {:>7.2} {:>8.2}x {:>9.2} {:>10.2}x {:>10.1} {:>10.2} {:>10.2} {:>9.4} {:>9.4} {:>9.4} {:>10} {:>10}",
+            "{:>4} {:>20} {:>7.2} {:>7.2} {:>8.2}x {:>9.2} {:>10.2}x {:>10.1} {:>10.2} {:>10.2} {:>9.4} {:>9} {:>9.4} {:>10} {:>10}",
             k,
             format!("({}, {}, {})", 150.0 * k, 187.5 * k, 125.0 * k),
             pt.seconds,
@@ -442,7 +442,8 @@ pub fn run(a: Args) -> Result<()> {
             st.per_path(st.stats.steps),
             st.per_path(st.stats.events),
             c.bias,
-            c.bias_upper95,
+            c.bias_upper95
+                .map_or_else(|| "n/a".to_owned(), |u| format!("{u:.4}")),
             c.noise,
             crate::progress::si(pt.paths_per_second()),
             crate::progress::si(st.paths_per_second())
@@ -484,7 +485,8 @@ pub fn run(a: Args) -> Result<()> {
     println!(
         "speed-up = PT time / ST-CVAE time at equal spp; var ratio = PT variance / ST-CVAE variance; \
          equal-error = their product (time ratio to reach the same noise); bias RMSE is noise-corrected \
-         (bias 95%: its one-sided 95% upper confidence bound), images scaled so PT's brightest 1% of \
+         (bias 95%: its one-sided 95% upper confidence bound; n/a where the noise estimates are too noisy to \
+         bound it), images scaled so PT's brightest 1% of \
          object pixels is 1"
     );
     Ok(())

@@ -1,5 +1,6 @@
 //! Eval plots like the paper's Fig. 11 (histograms of N, log scale) and Fig. 12 (cos θ
-//! histograms and the (cos θ, α), (cos θ, β) densities): simulator in black, model in red.
+//! histograms, simulator in black and model in red; the (cos θ, α), (cos θ, β) densities
+//! at g = 0.4, simulator and model side by side).
 //!
 //! Drawn with plotters into a memory buffer and written as PNG through the atomic writer.
 

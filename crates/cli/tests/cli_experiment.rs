@@ -78,7 +78,7 @@ fn every_experiment_runs_quick() {
         let header: Vec<&str> = lines.next().unwrap().split(',').collect();
         let mut rows = 0;
         for line in lines {
-            let cells: Vec<&str> = line.split(',').collect();
+            let cells = csv_cells(line);
             assert_eq!(cells.len(), header.len(), "{}: {line}", cfg.display());
             for (h, c) in header.iter().zip(&cells) {
                 if let Ok(v) = c.parse::<f64>() {
@@ -88,6 +88,10 @@ fn every_experiment_runs_quick() {
             rows += 1;
         }
         assert!(rows > 0, "{}: no figures", cfg.display());
+        if name == "nee" {
+            // Labels keep their commas (quoted), as report.md has them.
+            assert!(csv.contains("\"PT, no NEE\","), "{csv}");
+        }
         let report = std::fs::read_to_string(dir.join("report.md")).unwrap();
         let mut images = 0;
         for part in report.split("](").skip(1) {
@@ -459,4 +463,23 @@ fn an_interrupted_experiment_writes_no_report() {
             "{f}: {err}"
         );
     }
+}
+
+/// The cells of one CSV line, quoted cells (RFC 4180: "" is a quote) unquoted.
+fn csv_cells(line: &str) -> Vec<String> {
+    let (mut cells, mut cell, mut quoted) = (Vec::new(), String::new(), false);
+    let mut chars = line.chars().peekable();
+    while let Some(c) = chars.next() {
+        match (c, quoted) {
+            ('"', true) if chars.peek() == Some(&'"') => {
+                cell.push('"');
+                chars.next();
+            }
+            ('"', _) => quoted = !quoted,
+            (',', false) => cells.push(std::mem::take(&mut cell)),
+            (c, _) => cell.push(c),
+        }
+    }
+    cells.push(cell);
+    cells
 }

@@ -47,6 +47,23 @@ pub struct Budget {
     pub samples: Option<usize>,
 }
 
+impl Budget {
+    /// The nee kind's time per method, 1 s unless given.
+    pub fn seconds(&self) -> f64 {
+        self.seconds.unwrap_or(1.0)
+    }
+
+    /// The nee kind's reference spp, 256 unless given.
+    pub fn reference_spp(&self) -> u32 {
+        self.reference_spp.unwrap_or(256)
+    }
+
+    /// The distributions kind's samples per setting, 10,000 unless given.
+    pub fn samples(&self) -> usize {
+        self.samples.unwrap_or(10_000)
+    }
+}
+
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Config {

@@ -64,7 +64,8 @@ pub(super) fn preflight(
         // The mesh too, before hours of rendering: a missing one failed the run after its
         // first scene (with the previous run's report left beside the new images).
         let dir = path.parent().unwrap_or(std::path::Path::new("."));
-        render_gpu::setup::object_mesh(&base, dir)?;
+        render_gpu::setup::object_mesh(&base, dir)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
         let check = |f: SceneFile, what: String| -> Result<()> {
             f.validate()
                 .map_err(|e| anyhow::anyhow!("{}: {what}: {e}", path.display()))
@@ -275,6 +276,9 @@ fn quality(ctx: &Ctx, rep: &mut Report) -> Result<()> {
                     ..f.lights.first().cloned().unwrap_or_else(default_light)
                 }];
             };
+            // With NEE, unlike the paper's Fig. 6/7: the light is a delta light, which paths
+            // without NEE never reach (front and back renders were the same picture, lit by
+            // the environment alone).
             let pt = render_pair(ctx, &scene, Pt, true, &edit)?;
             let st = render_pair(ctx, &scene, Stcvae, true, &edit)?;
             let c = compare(&pt, &st);
@@ -302,7 +306,7 @@ fn quality(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             ));
         }
     }
-    rep.text("Noise-corrected bias RMSE of ST-CVAE against PT at equal spp, with its one-sided 95 % bound (images scaled so PT's brightest 1 % of object pixels is 1).\n");
+    rep.text("Both with NEE (ST-CVAE's through EventGen), unlike the paper's Fig. 6/7: the light is a delta light, which paths without NEE never reach. Noise-corrected bias RMSE of ST-CVAE against PT at equal spp, with its one-sided 95 % bound (images scaled so PT's brightest 1 % of object pixels is 1).\n");
     rep.table();
     for (name, k, f) in figs {
         rep.image(
@@ -323,6 +327,12 @@ fn default_light() -> LightDesc {
 /// Fig. 8/9: where the work goes (per-pixel PT events vs sphere steps) and time vs
 /// density, for the scene and for a thin-featured object.
 fn complexity(ctx: &Ctx, rep: &mut Report) -> Result<()> {
+    if ctx.engine_is_gpu() {
+        eprintln!(
+            "note: the per-pixel work maps (Fig. 8) come from the CPU integrators: this run on \
+             the GPU measures the times only (--device cpu draws the maps)"
+        );
+    }
     rep.columns(&[
         "object",
         "density",
@@ -381,7 +391,7 @@ fn complexity(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         rep.image(&format!("{obj}, density ×{k}: PT events (left) vs ST-CVAE steps + events (right) per path, log scale, white = {max:.0}"), &f);
     }
     if ctx.engine_is_gpu() {
-        rep.text("(Per-pixel work maps come from the CPU integrators; this run used the GPU.)\n");
+        rep.text("**No per-pixel work maps (Fig. 8) in this run:** they come from the CPU integrators, and this run used the GPU; `--device cpu` draws them.\n");
     }
     let mut s = Vec::new();
     for (obj, tp, ts) in curves {
@@ -452,7 +462,7 @@ fn absorption(ctx: &Ctx, rep: &mut Report) -> Result<()> {
 
 /// Fig. 11/12: the eval plots and tables of the model.
 fn distributions(ctx: &Ctx, rep: &mut Report) -> Result<()> {
-    let samples = ctx.budget.samples.unwrap_or(10_000);
+    let samples = ctx.budget.samples();
     let max_ks = crate::model_cmds::evaluate_into(ctx.model.as_deref(), &ctx.out, samples, 1)?;
     // Its metrics and plots, written at its end as one set, are this run's first files.
     ctx.saving()?;
@@ -479,8 +489,8 @@ fn distributions(ctx: &Ctx, rep: &mut Report) -> Result<()> {
 fn nee(ctx: &Ctx, rep: &mut Report) -> Result<()> {
     let scene = ctx.cfg.scene_path();
     let none = |_: &mut SceneFile| {};
-    let seconds = ctx.budget.seconds.unwrap_or(1.0);
-    let ref_spp = ctx.budget.reference_spp.unwrap_or(256);
+    let seconds = ctx.budget.seconds();
+    let ref_spp = ctx.budget.reference_spp();
     let ref_seed = 99;
     let (reference, hash) = render_once(
         ctx,
@@ -532,7 +542,7 @@ fn nee(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         }
         curves.push(series(name, pts));
     }
-    rep.text(&format!("Each method renders for the same wall time (the budget; a render stops after the pass in which it ran out); RMSE and mean absolute error (MAE; the plot) against a PT + NEE reference of {ref_spp} spp, in units where the reference's brightest 1 % of object pixels is 1 (the reference's own noise is included). RMSE squares errors and is decided by a few firefly pixels; MAE measures the noise the eye sees.\n"));
+    rep.text(&format!("Each method renders for the same wall time (the budget; a render stops after the pass in which it ran out); RMSE and mean absolute error (MAE; the plot) over the whole frame (the background, a constant, adds no error but dilutes both) against a PT + NEE reference of {ref_spp} spp, in units where the reference's brightest 1 % of object pixels is 1 (the reference's own noise is included). RMSE squares errors and is decided by a few firefly pixels; MAE measures the noise the eye sees.\n"));
     rep.table();
     let refs: Vec<&_> = std::iter::once(&reference.image)
         .chain(finals.iter())

@@ -238,8 +238,11 @@ pub struct Comparison {
     /// Var_B are independent across pixels, so their mean has standard error s/√n and
     /// bias² ≤ mean + 1.645·s/√n with 95 % confidence (normal approximation over n ≈ 10⁴
     /// object pixel-channels; heavy-tailed pixels make s itself noisy, so read bounds
-    /// near the target with a second seed pair).
-    pub bias_upper95: f64,
+    /// near the target with a second seed pair). None where mean + 1.645·s/√n ≤ 0: the
+    /// differences are smaller than the noise estimates predict, which at a few samples a
+    /// pixel means those estimates are too noisy to bound anything (a bound of 0 read as
+    /// an exact match).
+    pub bias_upper95: Option<f64>,
     /// RMSE the two noises alone would give over the object, scaled.
     pub noise: f64,
     /// Per channel (R, G, B): the noise-corrected bias RMSE, scaled like `bias`; and the
@@ -394,7 +397,7 @@ pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
         var_ratio,
         var_ratio_se,
         bias: mean_e.max(0.0).sqrt() * scale,
-        bias_upper95: (mean_e + 1.645 * se).max(0.0).sqrt() * scale,
+        bias_upper95: (mean_e + 1.645 * se > 0.0).then(|| (mean_e + 1.645 * se).sqrt() * scale),
         noise: (noise / n).sqrt() * scale,
         block_chi2: zs.iter().map(|z| z * z).sum::<f64>() / zs.len().max(1) as f64,
         blocks: zs.len(),
@@ -593,7 +596,8 @@ mod tests {
         // pixel-channels the bound is noise·√((z + 1.645)·√3/√n) with z the estimate's
         // own z-score: ≈ 0.19·noise at z = 0, and 0.5·noise only at z ≈ 10. A bound
         // without the 1/√n in its standard error would be ~1.7·noise.
-        assert!(c.bias < c.bias_upper95 && c.bias_upper95 < 0.5 * c.noise);
+        let upper = c.bias_upper95.expect("resolved at 6,912 pixel-channels");
+        assert!(c.bias < upper && upper < 0.5 * c.noise);
     }
 
     /// Every object block counted, and their χ²/dof within 4 sd of noise alone (see

@@ -133,6 +133,7 @@ pub fn run(a: Args) -> Result<()> {
         warnings: Default::default(),
     };
     let mut rep = Report::new(&cfg, &a, &engine);
+    rep.text(&budget_line(cfg.kind, &ctx.budget));
     eprintln!(
         "experiment {name} ({}{}) -> {}",
         cfg.kind.name(),
@@ -176,4 +177,34 @@ pub fn run(a: Args) -> Result<()> {
     before.note_left_over("report.md");
     eprintln!("wrote {}", out.join("report.md").display());
     Ok(())
+}
+
+/// What was rendered, so that paths/s and noise can be checked against the files: the
+/// image width, and the samples actually taken (an experiment's spp are two seeds of
+/// half each, rounded up to a multiple of 3, so 256 asked are 258 rendered).
+fn budget_line(kind: config::Kind, b: &config::Budget) -> String {
+    match kind {
+        config::Kind::Distributions => format!(
+            "Samples: {} model draws and as many simulator walks per setting.\n",
+            b.samples()
+        ),
+        config::Kind::Nee => format!(
+            "Renders: {} pixels wide (the scene's aspect kept); {} s per method; the \
+             reference is PT with NEE at {} spp.\n",
+            b.size,
+            b.seconds(),
+            b.reference_spp()
+        ),
+        _ => {
+            let half = measure::half_spp(b.spp);
+            format!(
+                "Renders: {} pixels wide (the scene's aspect kept), {} spp each: two seeds of \
+                 {half} ({} asked, halved and rounded up to a multiple of 3 so that every \
+                 pixel gives each colour channel as many samples).\n",
+                b.size,
+                2 * half,
+                b.spp
+            )
+        }
+    }
 }

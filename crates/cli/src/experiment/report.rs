@@ -14,6 +14,13 @@ pub enum Cell {
     Text(String),
 }
 
+/// A bound that could not be resolved reads as such (not as 0, nor as NaN).
+impl From<Option<f64>> for Cell {
+    fn from(v: Option<f64>) -> Self {
+        v.map_or(Cell::Text("not resolved".into()), Cell::Num)
+    }
+}
+
 impl From<f64> for Cell {
     fn from(v: f64) -> Self {
         Cell::Num(v)
@@ -125,10 +132,7 @@ impl Report {
             let cells: Vec<String> = r
                 .iter()
                 .map(|c| match c {
-                    Cell::Num(v) if v.abs() >= 1e4 || (v.abs() < 1e-3 && *v != 0.0) => {
-                        format!("{v:.3e}")
-                    }
-                    Cell::Num(v) => format!("{}", (v * 1e4).round() / 1e4),
+                    Cell::Num(v) => significant4(*v),
                     Cell::Text(t) => t.clone(),
                 })
                 .collect();
@@ -145,7 +149,7 @@ impl Report {
                 .iter()
                 .map(|c| match c {
                     Cell::Num(v) => format!("{v}"),
-                    Cell::Text(t) => t.replace(',', ";"),
+                    Cell::Text(t) => csv_field(t),
                 })
                 .collect();
             csv.push_str(&cells.join(","));
@@ -158,5 +162,63 @@ impl Report {
         ])
         .map_err(|(path, e)| anyhow::anyhow!("cannot write {}: {e}", path.display()))?;
         Ok(())
+    }
+}
+
+/// A number to 4 significant digits: 0.001953 and 13.83, not 0.002 and 13.8275 (rounding
+/// to 4 decimals hid an absorption's doubling and gave ratios more digits than their
+/// times); beyond [1e-3, 1e4) in exponent form.
+fn significant4(v: f64) -> String {
+    if !v.is_finite() || v == 0.0 {
+        return format!("{v}");
+    }
+    if v.abs() >= 1e4 || v.abs() < 1e-3 {
+        return format!("{v:.3e}");
+    }
+    let decimals = (3 - v.abs().log10().floor() as i32).max(0) as usize;
+    let s = format!("{v:.decimals$}");
+    if s.contains('.') {
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        s
+    }
+}
+
+/// A CSV field as RFC 4180 has it: quoted where it holds a comma, a quote or a line
+/// break (commas were replaced by semicolons, so labels differed from the report's).
+fn csv_field(t: &str) -> String {
+    if t.contains([',', '"', '\n', '\r']) {
+        format!("\"{}\"", t.replace('"', "\"\""))
+    } else {
+        t.to_string()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{csv_field, significant4};
+
+    #[test]
+    fn numbers_keep_four_significant_digits() {
+        for (v, want) in [
+            (0.001953125, "0.001953"),
+            (13.827, "13.83"),
+            (0.0475, "0.0475"),
+            (128.0, "128"),
+            (9999.4, "9999"),
+            (1e-4, "1.000e-4"),
+            (12346.0, "1.235e4"),
+            (-0.5, "-0.5"),
+            (0.0, "0"),
+        ] {
+            assert_eq!(significant4(v), want, "{v}");
+        }
+    }
+
+    #[test]
+    fn csv_fields_are_quoted_where_needed() {
+        assert_eq!(csv_field("PT, no NEE"), "\"PT, no NEE\"");
+        assert_eq!(csv_field("a \"b\""), "\"a \"\"b\"\"\"");
+        assert_eq!(csv_field("ST-CVAE"), "ST-CVAE");
     }
 }
