@@ -450,8 +450,8 @@ pub fn run(a: Args) -> Result<()> {
         );
         if let Some(when) = cached {
             println!(
-                "     (PT from --pt-cache, measured {:.1} h before this run: its time and so the speed-up are that run's)",
-                crate::pt_cache::age_hours(when)
+                "     (PT from --pt-cache, measured {} before this run: its time and so the speed-up are that run's)",
+                crate::pt_cache::age(when)
             );
         }
         let [r, g, b] = c.channel_offset.map(|(o, se)| {

@@ -209,7 +209,7 @@ pub fn run(a: Args) -> Result<()> {
     let piece = spec.piece();
     let pool = pool(a.threads)?;
     eprintln!(
-        "generating {}{} ({} mode, seed {}, {} threads) -> {}",
+        "generating {}{} ({} mode, seed {}, {}) -> {}",
         progress::count(piece.count, "walk"),
         if spec.shard == Shard::WHOLE {
             String::new()
@@ -229,7 +229,7 @@ pub fn run(a: Args) -> Result<()> {
             "sampled-condition"
         },
         spec.seed,
-        pool.current_num_threads(),
+        progress::count(pool.current_num_threads() as u64, "thread"),
         a.out.display()
     );
     let mut sink = dataset::create_sink(&a.out, Header::new(vec![piece.clone()]))?;

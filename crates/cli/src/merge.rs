@@ -372,9 +372,27 @@ fn runs_note(pieces: &[Piece]) -> Option<String> {
         }
     }
     (runs.len() > 1).then(|| {
+        // Runs of one seed and size differ in their condition sampler: named then, or the
+        // note listed the same words twice.
         let each: Vec<String> = runs
             .iter()
-            .map(|(r, count)| format!("seed {} ({count} of its {} walks)", r.seed, r.total_walks))
+            .map(|(r, count)| {
+                let twin = runs.iter().any(|(o, _)| {
+                    !std::ptr::eq(*o, *r) && o.seed == r.seed && o.total_walks == r.total_walks
+                });
+                let sampler = if twin {
+                    format!(
+                        ", conditions {}",
+                        serde_json::to_string(&r.sampler).unwrap_or_default()
+                    )
+                } else {
+                    String::new()
+                };
+                format!(
+                    "seed {} ({count} of its {} walks{sampler})",
+                    r.seed, r.total_walks
+                )
+            })
             .collect();
         format!(
             "note: the inputs come from {} different runs: {}",

@@ -383,8 +383,8 @@ fn eval_json_and_head(
          seed {seed} + i, mod 2^64). KS = two-sample Kolmogorov–Smirnov statistic, W1 = Wasserstein-1 \
          distance; for the pairs (cos θ, α) and (cos θ, β) the 2-D KS statistic (the largest \
          difference of the samples' shares in a quadrant about any sample point, Fasano–\
-         Franceschini) and the sliced W1 (mean 1-D W1 of {} projections). At φ = 0.9 only the \
-         representative event (EventGen) depends on φ.\n",
+         Franceschini) and the sliced W1 (mean 1-D W1 of {} projections). Only the representative \
+         event (EventGen) depends on φ; N and the exit do not.\n",
         eval::SLICES
     )?;
     let mut line = max_ks

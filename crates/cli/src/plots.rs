@@ -76,9 +76,11 @@ fn histogram_grid(panels: &[Panel], q: usize, title: &str, log_y: bool) -> Resul
     let mut buf = vec![255u8; (w * h * 3) as usize];
     {
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
+        // A right margin: the last column's "1.0" tick label ran off the image.
         let root = root
             .titled(title, ("sans-serif", 24))
-            .map_err(|e| anyhow!("plot: {e}"))?;
+            .map_err(|e| anyhow!("plot: {e}"))?
+            .margin(0, 0, 0, 14);
         let cells = root.split_evenly((TAUS.len(), GS.len()));
         for (cell, &(tau, g, model, sim)) in cells.iter().zip(panels) {
             let (lo, hi) = match q {
@@ -101,7 +103,8 @@ fn histogram_grid(panels: &[Panel], q: usize, title: &str, log_y: bool) -> Resul
             b.caption(caption, ("sans-serif", 15))
                 .margin(6)
                 .x_label_area_size(22)
-                .y_label_area_size(40);
+                .y_label_area_size(52);
+            let y_desc = if log_y { "density (log)" } else { "density" };
             if log_y {
                 let floor = 1e-4 * top;
                 let mut chart = b
@@ -112,6 +115,7 @@ fn histogram_grid(panels: &[Panel], q: usize, title: &str, log_y: bool) -> Resul
                     .disable_mesh()
                     .x_labels(5)
                     .y_labels(4)
+                    .y_desc(y_desc)
                     .label_style(("sans-serif", 11))
                     .draw()
                     .map_err(|e| anyhow!("plot: {e}"))?;
@@ -132,6 +136,7 @@ fn histogram_grid(panels: &[Panel], q: usize, title: &str, log_y: bool) -> Resul
                     .disable_mesh()
                     .x_labels(5)
                     .y_labels(4)
+                    .y_desc(y_desc)
                     .label_style(("sans-serif", 11))
                     .draw()
                     .map_err(|e| anyhow!("plot: {e}"))?;
@@ -181,8 +186,10 @@ fn density_pairs(panels: &[Panel], q: usize, qname: &str) -> Result<Vec<u8>> {
                 let mut chart = ChartBuilder::on(&rows[2 * i + k])
                     .caption(format!("{who}: τ = {tau}, g = {g}"), ("sans-serif", 14))
                     .margin(6)
-                    .x_label_area_size(22)
-                    .y_label_area_size(34)
+                    .margin_right(16)
+                    // Room for the tick labels and "cos θ" under them (they overlapped).
+                    .x_label_area_size(36)
+                    .y_label_area_size(40)
                     .build_cartesian_2d(-1.0..1.0, -1.0..1.0)
                     .map_err(|e| anyhow!("plot: {e}"))?;
                 chart

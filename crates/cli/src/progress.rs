@@ -42,6 +42,7 @@ pub fn target() -> ProgressDrawTarget {
             state: Mutex::new(LogState {
                 last: Instant::now(),
                 lines: Vec::new(),
+                written: Vec::new(),
             }),
         }),
         1,
@@ -60,6 +61,9 @@ struct LogLines {
 struct LogState {
     last: Instant,
     lines: Vec<String>,
+    /// The draw written last: the same lines again (a spinner's message between its
+    /// ticks) are not written twice.
+    written: Vec<String>,
 }
 
 impl TermLike for LogLines {
@@ -96,9 +100,10 @@ impl TermLike for LogLines {
     fn flush(&self) -> std::io::Result<()> {
         let mut st = self.state.lock().unwrap_or_else(|e| e.into_inner());
         let lines = std::mem::take(&mut st.lines);
-        if !lines.is_empty() && st.last.elapsed() >= self.every {
+        if !lines.is_empty() && lines != st.written && st.last.elapsed() >= self.every {
             st.last = Instant::now();
             eprintln!("{}", lines.join("\n"));
+            st.written = lines;
         }
         Ok(())
     }
@@ -141,9 +146,13 @@ pub fn render_bar(label: &str, pixels: u64, o: &render_gpu::render::RenderOption
 /// then to a log ([`target`]).
 pub fn spinner(msg: &str) -> ProgressBar {
     let pb = ProgressBar::with_draw_target(None, target());
-    pb.set_style(
-        ProgressStyle::with_template("{spinner} {msg} ({elapsed})").expect("valid template"),
-    );
+    // The spinning glyph means nothing in a log's lines.
+    let template = if std::io::stderr().is_terminal() {
+        "{spinner} {msg} ({elapsed})"
+    } else {
+        "{msg} ({elapsed})"
+    };
+    pb.set_style(ProgressStyle::with_template(template).expect("valid template"));
     pb.set_message(msg.to_string());
     pb.enable_steady_tick(std::time::Duration::from_millis(120));
     pb

@@ -124,9 +124,15 @@ fn unix_now() -> u64 {
         .map_or(0, |d| d.as_secs())
 }
 
-/// Hours from a stored pair's `measured_unix` to now.
-pub fn age_hours(measured_unix: u64) -> f64 {
-    unix_now().saturating_sub(measured_unix) as f64 / 3600.0
+/// How long ago a stored pair was measured, in seconds, minutes or hours as fits (a pair
+/// of a few minutes read "0.0 h").
+pub fn age(measured_unix: u64) -> String {
+    let s = unix_now().saturating_sub(measured_unix);
+    match s {
+        0..120 => crate::progress::count(s, "second"),
+        120..7200 => format!("{} minutes", s / 60),
+        _ => format!("{:.1} h", s as f64 / 3600.0),
+    }
 }
 
 /// Stores `pair` in `file` (written whole or not at all). A pair with a non-finite value

@@ -84,7 +84,7 @@ fn parse_exposure(s: &str) -> Result<f32, String> {
         Ok(e)
     } else {
         Err(format!(
-            "{} is out of range: allowed [{:e}, {:e}] (a positive, finite f32)",
+            "{} is out of range: must be > 0 and finite as an f32, i.e. in [{:e}, {:e}]",
             s.trim(),
             f32::from_bits(1),
             f32::MAX

@@ -28,7 +28,7 @@ use crate::{interrupt, progress};
 )]
 pub struct Args {
     /// Training config (TOML).
-    #[arg(long, default_value = "configs/train/default.toml")]
+    #[arg(long, default_value = DEFAULT_CONFIG)]
     config: PathBuf,
     /// Train only this model (lengthgen, pathgen or eventgen); the other two decoders of
     /// the exported file come from their checkpoints.
@@ -115,11 +115,22 @@ impl TrainConfig {
     }
 }
 
+/// The shipped training config, relative to the repository root.
+const DEFAULT_CONFIG: &str = "configs/train/default.toml";
+
 /// Paths in a config are relative to the current directory (the repository root for
 /// the shipped configs), like every other path on the command line.
 fn load(path: &Path) -> Result<TrainConfig> {
-    let text = scatter_sim::output::read_input_to_string(path)
-        .with_context(|| format!("cannot read training config {}", path.display()))?;
+    let text = scatter_sim::output::read_input_to_string(path).with_context(|| {
+        // The default's paths inside (dataset, dataset_config, checkpoints, out) are
+        // relative to the repository root too, so it is not looked for elsewhere.
+        let hint = if path == Path::new(DEFAULT_CONFIG) && !path.exists() {
+            " (run from the repository root, where the shipped configs are, or pass --config)"
+        } else {
+            ""
+        };
+        format!("cannot read training config {}{hint}", path.display())
+    })?;
     crate::generate::wrong_kind(path, &text, render_gpu::scene::ConfigKind::Training)?;
     let cfg: TrainConfig = parse_toml(path, &text)?;
     // An empty path is the current directory (nine checkpoint files landed there) or no

@@ -119,7 +119,7 @@ fn every_experiment_runs_quick() {
         String::from_utf8_lossy(&out.stderr).into_owned()
     };
     let err = merge(&["pt_k1.exr", "copy.exr"]);
-    assert!(err.contains("the same seed 11"), "{err}");
+    assert!(err.contains("shares seed 11 with"), "{err}");
     let err = merge(&["pt_k1.exr", "teaser_k1.exr"]);
     assert!(err.contains("teaser_k1.exr: no stcvae render tag"), "{err}");
 }

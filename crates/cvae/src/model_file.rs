@@ -33,12 +33,16 @@ pub enum ModelError {
         supported: u32,
     },
     #[error(
-        "{path}: the model file has {found} bytes where its header promises {expected}: truncated or padded"
+        "{path}: the model file has {found} bytes where its header promises {}{expected}: truncated or padded",
+        if *.at_least { "at least " } else { "" }
     )]
     Truncated {
         path: PathBuf,
         expected: usize,
         found: usize,
+        /// Only the header (not yet the weights' shapes) was read: the file needs at least
+        /// `expected` bytes (a file cut inside its JSON read as promising that many).
+        at_least: bool,
     },
     #[error("{path}: checksum mismatch: the model file is corrupt")]
     Checksum { path: PathBuf },
@@ -241,6 +245,7 @@ impl ModelSet {
                 path: p(),
                 expected: 20,
                 found: bytes.len(),
+                at_least: true,
             });
         }
         let version = u32::from_le_bytes(bytes[8..12].try_into().unwrap());
@@ -257,6 +262,7 @@ impl ModelSet {
                 path: p(),
                 expected: 16 + json_len + 4,
                 found: bytes.len(),
+                at_least: true,
             });
         }
         let body = &bytes[..bytes.len() - 4];
@@ -278,6 +284,7 @@ impl ModelSet {
                 path: p(),
                 expected,
                 found: bytes.len(),
+                at_least: false,
             });
         }
         if crc32fast::hash(body) != stored {

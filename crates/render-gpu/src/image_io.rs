@@ -466,12 +466,17 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
                     p.display(),
                     o.path.display()
                 ),
-                (s, _) => format!(
-                    "{}: holds the same render as {} (the same seed{}, perhaps on the other \
-                     device): its samples would count twice; merge renders of different seeds",
+                (Some(s), _) => format!(
+                    "{}: shares seed {s} with {} (its samples, on either device, are in both): \
+                     they would count twice; merge renders of different seeds",
                     p.display(),
                     o.path.display(),
-                    s.map_or(String::new(), |s| format!(" {s}"))
+                ),
+                (None, _) => format!(
+                    "{}: holds the same render as {} (equal pixels): its samples would count \
+                     twice; merge renders of different seeds",
+                    p.display(),
+                    o.path.display(),
                 ),
             }));
         }

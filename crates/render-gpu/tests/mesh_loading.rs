@@ -489,7 +489,10 @@ fn merge_refuses_one_seed_twice_but_not_equal_constant_images() {
         panic!("one seed twice")
     };
     let e = e.to_string();
-    assert!(e.contains("same seed 1") && e.contains("a8.exr"), "{e}");
+    assert!(
+        e.contains("shares seed 1 with") && e.contains("a8.exr"),
+        "{e}"
+    );
     let (img, tag) = merge_exrs(&[&a, &b]).unwrap();
     assert_eq!((tag.spp, &tag.seeds), (8, &vec![1, 2]));
     assert_eq!(img.pixels[0], [2.0; 3]);
@@ -499,7 +502,10 @@ fn merge_refuses_one_seed_twice_but_not_equal_constant_images() {
         panic!("a merge and its own input")
     };
     let e = e.to_string();
-    assert!(e.contains("same seed 2") && e.contains("ab.exr"), "{e}");
+    assert!(
+        e.contains("shares seed 2 with") && e.contains("ab.exr"),
+        "{e}"
+    );
     let c = put("c.exr", 5.0, true, &[3], 8);
     let (img, tag) = merge_exrs(&[&ab, &c]).unwrap();
     assert_eq!((tag.spp, tag.seeds), (16, vec![1, 2, 3]));
@@ -527,7 +533,7 @@ fn merge_refuses_one_seed_twice_but_not_equal_constant_images() {
     let Err(e) = merge_exrs(&[&mixed, &a]) else {
         panic!("a merge with an unknown seed and its own known input")
     };
-    assert!(e.to_string().contains("same seed 1"), "{e}");
+    assert!(e.to_string().contains("shares seed 1 with"), "{e}");
     // Nor its input of unknown seed, known again by its pixels, directly or inside
     // another merge.
     let Err(e) = merge_exrs(&[&mixed, &old3]) else {
