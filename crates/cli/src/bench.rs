@@ -87,11 +87,14 @@ fn bench_sim(walks: u64, threads: Option<usize>) -> Result<()> {
             walks as f64 / t
         );
     }
-    println!("parallel speed-up: {:.2}x", t1 / tn);
+    // One thread against one thread is the noise of two timings, not a speed-up.
+    if all.current_num_threads() > 1 {
+        println!("parallel speed-up: {:.2}x", t1 / tn);
+    }
     let projected = DEFAULT_WALKS as f64 * tn / walks as f64;
     println!(
-        "projected time of the default {DEFAULT_WALKS}-walk dataset on {} threads: {:.0} s ({:.1} min)",
-        all.current_num_threads(),
+        "projected time of the default {DEFAULT_WALKS}-walk dataset on {}: {:.0} s ({:.1} min)",
+        crate::progress::count(all.current_num_threads() as u64, "thread"),
         projected,
         projected / 60.0
     );

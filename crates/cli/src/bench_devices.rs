@@ -107,7 +107,7 @@ pub fn run(a: Args) -> Result<()> {
         .without_fallback();
     let cpu = Engine::open(DeviceArg::Cpu)?;
     println!(
-        "stcvae bench devices: {} ({}x{}), σ_t × k, {} spp, seed {}\n  GPU: {}\n  CPU: {}",
+        "stcvae bench devices: {} ({}x{}), σ_t × k, {} spp, seed {}\n  {}\n  {}",
         a.scene.display(),
         a.size,
         a.size,
@@ -139,11 +139,11 @@ pub fn run(a: Args) -> Result<()> {
             let compile = warm_up.as_ref().unwrap_or(&on_gpu).compile_seconds;
             let (c, g) = (on_cpu.paths_per_second(), on_gpu.paths_per_second());
             println!(
-                "{:>6} {:>8} {:>8.2} {:>8.2} {:>12} {:>12} {:>7.2}x {:>10.2}",
+                "{:>6} {:>8} {:>8} {:>8} {:>12} {:>12} {:>7.2}x {:>10.2}",
                 k,
                 name,
-                on_cpu.seconds,
-                on_gpu.seconds,
+                crate::progress::significant4(on_cpu.seconds),
+                crate::progress::significant4(on_gpu.seconds),
                 si(c),
                 si(g),
                 g / c.max(1e-9),

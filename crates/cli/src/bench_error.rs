@@ -379,6 +379,24 @@ pub fn run(a: Args) -> Result<()> {
         }
         refs.push(img);
     }
+    // Renders of different scenes (another density, light or estimator) would be averaged
+    // as one reference, their difference counted as its noise and subtracted from every
+    // image's error.
+    if let Some(((pa, ta), (pb, tb))) = ref_seen
+        .tags
+        .iter()
+        .zip(ref_seen.tags.iter().skip(1))
+        .find(|((_, a), (_, b))| a.scene_hash != b.scene_hash)
+    {
+        bail!(
+            "{} and {} are renders of different scenes (scene hashes {:016x} and {:016x}): \
+             the references must be renders of one scene",
+            pa.display(),
+            pb.display(),
+            ta.scene_hash,
+            tb.scene_hash
+        );
+    }
     let r = Reference::new(&refs, a.object_threshold);
     // Every image is read before anything is printed, so a bad one leaves no half table.
     let mut image_seen = Seen::default();
@@ -433,14 +451,21 @@ pub fn run(a: Args) -> Result<()> {
         let ratios = if objects == 0 {
             "(no object pixels)".to_string()
         } else {
-            let [or, og, ob] = m.object_ratio;
-            format!("{or:.3}, {og:.3}, {ob:.3}")
+            // A channel the reference leaves black on the object has no ratio.
+            let [or, og, ob] = m.object_ratio.map(|v| {
+                if v.is_finite() {
+                    format!("{v:.3}")
+                } else {
+                    "n/a".to_owned()
+                }
+            });
+            format!("{or}, {og}, {ob}")
         };
         println!(
             "{name:<40} {:>9} {:>9.4} {:>10} {:>9}  {ratios}",
-            seconds.map_or(String::new(), |s| format!("{s:.2}")),
+            seconds.map_or(String::new(), crate::progress::significant4),
             mse.sqrt(),
-            cost.map_or(String::new(), |c| format!("{c:.4}")),
+            cost.map_or(String::new(), crate::progress::significant4),
             vs,
         );
         if let Some(t) = seconds {

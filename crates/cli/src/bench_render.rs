@@ -6,7 +6,6 @@
 //! Images are scaled so that the 99th percentile of PT's object pixels is 1.
 
 use std::path::PathBuf;
-use std::sync::atomic::AtomicBool;
 
 use anyhow::{Context, Result, bail};
 use render_gpu::integrator::IntegratorKind;
@@ -16,6 +15,7 @@ use crate::device::{DeviceArg, Engine};
 use crate::experiment::measure::{
     BLOCK, MIN_BLOCK_DOF, Pair, block_z, compare, half_spp, pair_seeds,
 };
+use crate::progress::significant4;
 use crate::render::prepare;
 
 #[derive(clap::Args)]
@@ -283,7 +283,10 @@ fn render_pair(
     kind: IntegratorKind,
 ) -> Result<Pair> {
     let set = p.settings();
-    let cancel = AtomicBool::new(false);
+    // Ctrl-C stops the render after its pass and the bench there: a cut-short render is
+    // never measured, and the temporaries of a cache entry or image being written are
+    // removed (a local flag let the signal kill the process, leaving them).
+    let cancel = crate::interrupt::flag();
     let half = half_spp(a.spp);
     // No warm-up render on a GPU: the renderer compiles its kernel before its clock starts.
     let mut outs = Vec::new();
@@ -306,14 +309,29 @@ fn render_pair(
             &set,
             &opts,
             &|done, _| pb.set_position(done),
-            &cancel,
+            cancel,
         );
         pb.finish_and_clear();
         outs.push(o?);
+        if crate::interrupt::requested() {
+            bail!("interrupted: the rows printed so far stand; nothing more was measured");
+        }
     }
     let b = outs.pop().expect("two renders");
     let a_out = outs.pop().expect("two renders");
-    Ok(Pair::from_halves(a_out, b, p.data.hash))
+    let pair = Pair::from_halves(a_out, b, p.data.hash);
+    // Every column compares the object's pixels, found by their noise: with none the
+    // variance ratio was 0/0 printed as 0, and a bias of 0 read as a pass.
+    if pair.var.iter().flatten().all(|&v| v <= 0.0) {
+        bail!(
+            "{}: no pixel differs between the two {} renders: the object is out of view, \
+             unlit or black, so there is nothing to measure (check the scene's camera, lights \
+             and medium)",
+            a.scene.display(),
+            kind.name()
+        );
+    }
+    Ok(pair)
 }
 
 /// Most samples a pixel the bench takes (the header's pair arithmetic is u32).
@@ -390,6 +408,33 @@ pub fn run(a: Args) -> Result<()> {
         )),
         None => None,
     };
+    // Every density's stored PT pair is read once before the first render, so that a
+    // damaged entry fails now, not after the densities before it have rendered.
+    if let (Some(dir), Some(id)) = (&a.pt_cache, identity.as_deref()) {
+        for &k in &a.k {
+            let p = prepare_k(&a, IntegratorKind::Pt, k)?;
+            let file = crate::pt_cache::path(dir, k, p.data.hash, 2 * half_spp(a.spp), id);
+            crate::pt_cache::load(&file, p.data.hash, 2 * half_spp(a.spp), id)?;
+        }
+    }
+    // So are the files `--save` writes for every density (one that is a directory failed
+    // the run after that density's renders).
+    if let Some(dir) = &a.save {
+        for &k in &a.k {
+            for f in [
+                "pt.exr",
+                "pt.png",
+                "pt.json",
+                "stcvae.exr",
+                "stcvae.png",
+                "stcvae.json",
+                "z.png",
+                "pixels.csv",
+            ] {
+                crate::check_out("--save", &dir.join(format!("k{k}_{f}")))?;
+            }
+        }
+    }
     // The scene's own setting unless --nee gives one.
     let nee = a.nee.unwrap_or(scene.render.nee);
     println!(
@@ -430,11 +475,16 @@ pub fn run(a: Args) -> Result<()> {
             save_images(&a, dir, k, &pt, &st)?;
         }
         println!(
-            "{:>4} {:>20} {:>7.2} {:>7.2} {:>8.2}x {:>9.2} {:>10.2}x {:>10.1} {:>10.2} {:>10.2} {:>9.4} {:>9} {:>9.4} {:>10} {:>10}",
+            "{:>4} {:>20} {:>7} {:>7} {:>8.2}x {:>9.2} {:>10.2}x {:>10.1} {:>10.2} {:>10.2} {:>9.4} {:>9} {:>9.4} {:>10} {:>10}",
             k,
-            format!("({}, {}, {})", 150.0 * k, 187.5 * k, 125.0 * k),
-            pt.seconds,
-            st.seconds,
+            format!(
+                "({}, {}, {})",
+                significant4(150.0 * k),
+                significant4(187.5 * k),
+                significant4(125.0 * k)
+            ),
+            significant4(pt.seconds),
+            significant4(st.seconds),
             c.speedup,
             c.var_ratio,
             c.speedup * c.var_ratio,
@@ -484,7 +534,9 @@ pub fn run(a: Args) -> Result<()> {
     }
     println!(
         "speed-up = PT time / ST-CVAE time at equal spp; var ratio = PT variance / ST-CVAE variance; \
-         equal-error = their product (time ratio to reach the same noise); bias RMSE is noise-corrected \
+         equal-error = their product (time ratio to reach the same noise); PT ev/path = scattering events \
+         a path, ST st/path and ev/path = ST-CVAE's sphere steps and PT events (thin regions) a path; \
+         noise = the RMSE the two renders' noise alone gives; bias RMSE is noise-corrected \
          (bias 95%: its one-sided 95% upper confidence bound; n/a where the noise estimates are too noisy to \
          bound it), images scaled so PT's brightest 1% of \
          object pixels is 1"

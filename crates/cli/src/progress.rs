@@ -177,6 +177,26 @@ pub fn si(x: f64) -> String {
     }
 }
 
+/// A number to 4 significant digits: 0.001953 and 13.83, not 0.002 and 13.8275 (fixed
+/// decimals hid an absorption's doubling, printed small times as 0.00 beside their
+/// ratios, and gave ratios more digits than their times); beyond [1e-3, 1e4) in exponent
+/// form.
+pub fn significant4(v: f64) -> String {
+    if !v.is_finite() || v == 0.0 {
+        return format!("{v}");
+    }
+    if v.abs() >= 1e4 || v.abs() < 1e-3 {
+        return format!("{v:.3e}");
+    }
+    let decimals = (3 - v.abs().log10().floor() as i32).max(0) as usize;
+    let s = format!("{v:.decimals$}");
+    if s.contains('.') {
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        s
+    }
+}
+
 /// "1 walk", "2 walks": a count with its noun.
 pub fn count(n: u64, noun: &str) -> String {
     if n == 1 {

@@ -193,7 +193,7 @@ const MIN_ROWS: usize = 1000;
 fn checkpoint_decoder(
     cfg: &TrainConfig,
     k: ModelKind,
-) -> Result<(cvae::decoder::Decoder, u32, Option<ConditionRanges>)> {
+) -> Result<(cvae::decoder::Decoder, u32, Option<ConditionRanges>, u64)> {
     let (d, info) =
         cvae::train::trainer::load_decoder(&cfg.checkpoint_dir, k, &cfg.model(k).architecture())
             .with_context(|| {
@@ -226,7 +226,27 @@ fn checkpoint_decoder(
             cfg.single_scattering.name()
         );
     }
-    Ok((d, version, info.ranges))
+    // A checkpoint left by an interrupted run is taken as it is, but not unsaid.
+    let steps = cfg.model(k).steps;
+    if info.step < steps {
+        eprintln!(
+            "note: {} comes from its checkpoint at step {} of the config's {steps}: an \
+             unfinished training (train it on with --model {} --resume)",
+            k.name(),
+            info.step,
+            k.name()
+        );
+    }
+    Ok((d, version, info.ranges, info.step))
+}
+
+/// The untrained loss when a run's last reported loss is above it by more than a tenth
+/// (of it, or of 1 near 0): the first report is one step's batch, so a margin keeps its
+/// noise from warning about a model that did learn. Losses may be negative (the
+/// log-variance heads).
+fn loss_rose(history: &[(u64, f32)]) -> Option<f32> {
+    let (&(_, first), &(_, last)) = (history.first()?, history.last()?);
+    (last > first + 0.1 * first.abs().max(1.0)).then_some(first)
 }
 
 /// Narrows the file's ranges to what a decoder from elsewhere (`source`) was trained on:
@@ -277,6 +297,22 @@ pub fn run(a: Args) -> Result<()> {
     ]
     .concat();
     crate::paths::check_kind(&out_flag, &out, "a model file (.stcvae)", &not_models)?;
+    // Whatever its name, an existing file is replaced only if it is a model file: a
+    // dataset or scene without the usual extension was overwritten without a word.
+    if let Ok(mut f) = std::fs::File::open(&out)
+        && out.is_file()
+    {
+        use std::io::Read as _;
+        let mut head = Vec::new();
+        let _ = f.by_ref().take(8).read_to_end(&mut head);
+        if !head.is_empty() && head != cvae::model_file::MAGIC {
+            bail!(
+                "{out_flag} {}: exists and is not an stcvae model file (it would be replaced): \
+                 choose another name or remove it",
+                out.display()
+            );
+        }
+    }
     // Nor the checkpoints' folder itself: it failed only once training was done. (A
     // model saved over a checkpoint, which broke --resume, has a checkpoint's extension,
     // refused above; a model file beside the checkpoints is fine.)
@@ -423,10 +459,10 @@ pub fn run(a: Args) -> Result<()> {
         }
         if t.rows < MIN_ROWS {
             eprintln!(
-                "warning: {} has only {} usable walks for {}: too few to learn a distribution \
+                "warning: {} has only {} for {}: too few to learn a distribution \
                  (the shipped model used 2^22 walks)",
                 cfg.dataset.display(),
-                t.rows,
+                progress::count(t.rows as u64, "usable walk"),
                 k.name()
             );
         }
@@ -485,7 +521,7 @@ pub fn run(a: Args) -> Result<()> {
         narrow(&mut info, theirs, &format!("--base {base_name}"))?;
     }
     // Checked before the training, as the modes are above.
-    for (k, (_, _, ranges)) in &from_checkpoints {
+    for (k, (_, _, ranges, _)) in &from_checkpoints {
         if let Some(r) = ranges {
             narrow(&mut info, *r, &format!("the {} checkpoint", k.name()))?;
         }
@@ -493,6 +529,9 @@ pub fn run(a: Args) -> Result<()> {
     drop(rows);
 
     let cancel = interrupt::flag();
+    for &k in &kinds {
+        cvae::train::trainer::remove_stale_temporaries(&cfg.checkpoint_dir, k);
+    }
     let multi = MultiProgress::with_draw_target(crate::progress::target());
     let scaled = |k: ModelKind| {
         let mut m = cfg.model(k).clone();
@@ -538,14 +577,39 @@ pub fn run(a: Args) -> Result<()> {
                     report,
                 );
                 bar.finish();
+                // One model's failure (a checkpoint that does not fit, a divergence) stops
+                // the others at their next step, each with a checkpoint: they trained on to
+                // their end (40 minutes at the default size) before the error was shown.
+                if matches!(&r, Err(e) if !matches!(e, TrainError::Interrupted(_))) {
+                    cancel.store(true, std::sync::atomic::Ordering::SeqCst);
+                }
                 results.lock().unwrap().push(r);
             });
         }
     });
     let seconds = start.elapsed().as_secs_f64();
+    let results = results.into_inner().unwrap();
+    // A model's own failure is the error to show; the others stopped because of it.
+    let stopped = results
+        .iter()
+        .any(|r| matches!(r, Err(TrainError::Interrupted(_))));
     let mut trained = Vec::new();
-    for r in results.into_inner().unwrap() {
-        trained.push(r?);
+    let mut interrupted = None;
+    for r in results {
+        match r {
+            Ok(t) => trained.push(t),
+            Err(TrainError::Interrupted(d)) => interrupted = Some(TrainError::Interrupted(d)),
+            Err(e) if stopped => {
+                return Err(anyhow::anyhow!(
+                    "{e} (the other models stopped at their next step with a checkpoint; \
+                     --resume continues them)"
+                ));
+            }
+            Err(e) => return Err(e.into()),
+        }
+    }
+    if let Some(e) = interrupted {
+        return Err(e.into());
     }
     let mut decoders = std::collections::HashMap::new();
     let mut notes = Vec::new();
@@ -563,6 +627,16 @@ pub fn run(a: Args) -> Result<()> {
             );
         }
         let last = t.info.history.last().map_or(f32::NAN, |h| h.1);
+        // A learning rate too high can leave a finite but useless model: its loss above the
+        // untrained network's (one run's EventGen went from 6.07 to 21,916 and was written
+        // without a word).
+        if let Some(first) = loss_rose(&t.info.history) {
+            eprintln!(
+                "warning: {}'s loss rose from {first:.4} (untrained) to {last:.4}: it diverged \
+                 or learned nothing; lower lr or lr_final, or check the dataset",
+                t.kind.name()
+            );
+        }
         // A resumed model's seconds include the runs before this one.
         notes.push(format!(
             "{}: {} steps, final loss {last:.4}, {:.0} s{}",
@@ -592,8 +666,8 @@ pub fn run(a: Args) -> Result<()> {
                 .iter()
                 .position(|(c, _)| *c == k)
                 .expect("read before the training: no base, not trained now");
-            let (_, (d, version, _)) = from_checkpoints.swap_remove(at);
-            notes.push(format!("{}: from checkpoint", k.name()));
+            let (_, (d, version, _, step)) = from_checkpoints.swap_remove(at);
+            notes.push(format!("{}: from checkpoint at step {step}", k.name()));
             if k == ModelKind::EventGen {
                 event_version = version;
             }
@@ -633,4 +707,24 @@ pub fn run(a: Args) -> Result<()> {
     // default training config no longer overwrites it: say how to use what was written.
     eprintln!("render with it: stcvae render --model {}", out.display());
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::loss_rose;
+
+    /// A loss that ends above its start by more than the margin is reported with its
+    /// start; one that fell, or rose within the first batch's noise, is not.
+    #[test]
+    fn a_rising_loss_is_told_from_noise() {
+        assert_eq!(
+            loss_rose(&[(1, 6.07), (500, 2.1), (3000, 21916.0)]),
+            Some(6.07)
+        );
+        assert_eq!(loss_rose(&[(1, 6.07), (3000, 2.98)]), None);
+        assert_eq!(loss_rose(&[(1, 6.0), (3000, 6.5)]), None);
+        assert_eq!(loss_rose(&[(1, -3.0), (3000, -1.0)]), Some(-3.0));
+        assert_eq!(loss_rose(&[(1, 0.05), (30, 0.12)]), None);
+        assert_eq!(loss_rose(&[]), None);
+    }
 }

@@ -992,8 +992,13 @@ fn bench_render_reuses_stored_pt_pairs() {
         // The first pixel's red mean gets a leading "-1": negative, same length.
         std::fs::write(&f, text.replace("\"mean\":[[", "\"mean\":[[-1")).unwrap();
     }
-    let err = fails(&bench("6", &[]));
+    // Refused before the table and any render: a damaged entry of a later density failed
+    // the run after the densities before it had rendered.
+    let out = bench("6", &[]);
+    let err = fails(&out);
     assert!(err.contains("pt-v") && err.contains("damaged"), "{err}");
+    let table = String::from_utf8_lossy(&out.stdout);
+    assert!(!table.contains("sigma_t"), "{table}");
 }
 
 /// `bench render --save`: both images, the z map and the pixel table, whose means are the
@@ -1081,7 +1086,7 @@ fn bench_devices_prints_both_devices_and_their_ratio() {
     };
     let text = String::from_utf8_lossy(&out.stdout).into_owned();
     assert!(
-        text.contains("GPU: gpu: ") && text.contains("CPU: cpu ("),
+        text.contains("\n  gpu: ") && text.contains("\n  cpu ("),
         "{text}"
     );
     let rows: Vec<Vec<&str>> = text
@@ -1301,6 +1306,49 @@ fn bench_error_ranks_renders_by_error_and_names_bad_inputs() {
     assert!(e.contains("none.exr"), "{e}");
     let e = fails(&bench_error(&[&format!("{low},{high}")]));
     assert!(e.contains("three (R,G,B"), "{e}");
+    // References of two scenes (here twice the density) are not one reference: their
+    // difference counted as its noise and was subtracted from every image's error.
+    let dense_scene = d.path().join("dense.toml");
+    std::fs::write(
+        &dense_scene,
+        sphere_scene_text(16).replace(
+            "sigma_t = [20.0, 20.0, 20.0]",
+            "sigma_t = [40.0, 40.0, 40.0]",
+        ),
+    )
+    .unwrap();
+    let dense = render("dense", "32", "4", &dense_scene);
+    let mixed = format!("{},{dense}", refs[0]);
+    let e = fails(&stcvae(&["bench", "error", "--reference", &mixed, &high]));
+    assert!(
+        e.contains("different scenes") && e.contains("dense.exr"),
+        "{e}"
+    );
+    // A channel the reference leaves black on the object has no ratio: n/a, not NaN.
+    let red_scene = d.path().join("red.toml");
+    let red_text = sphere_scene_text(16)
+        .replace(
+            "irradiance = [2.0, 2.0, 2.0]",
+            "irradiance = [2.0, 0.0, 0.0]",
+        )
+        .replace("radiance = [0.1, 0.1, 0.1]", "radiance = [0.1, 0.0, 0.0]");
+    assert!(red_text.contains("[2.0, 0.0, 0.0]") && red_text.contains("[0.1, 0.0, 0.0]"));
+    std::fs::write(&red_scene, red_text).unwrap();
+    let red: Vec<String> = ["5", "6"]
+        .iter()
+        .map(|s| render(&format!("red{s}"), "8", s, &red_scene))
+        .collect();
+    let red_img = render("red7", "8", "7", &red_scene);
+    let out = stcvae(&[
+        "bench",
+        "error",
+        "--reference",
+        &red.join(","),
+        &format!("{red_img}:1"),
+    ]);
+    ok(&out);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("n/a, n/a") && !text.contains("NaN"), "{text}");
 }
 
 /// A time budget shorter than any pass stops after the first pass, which renders one

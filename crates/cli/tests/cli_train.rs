@@ -358,6 +358,48 @@ fn wrong_outputs_and_csv_datasets_fail_before_any_work() {
     );
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(dir.path().join("ck/m.stcvae").is_file());
+    // An existing file that is not a model is not replaced, whatever its name (a dataset
+    // without its extension was overwritten); a model file is.
+    fs::copy(dir.path().join("d.bin"), dir.path().join("datanoext")).unwrap();
+    let o = stcvae(
+        &["train", "--config", "train.toml", "--out", "datanoext"],
+        dir.path(),
+    );
+    assert!(
+        !o.status.success()
+            && stderr(&o).contains("datanoext: exists and is not an stcvae model file"),
+        "{}",
+        stderr(&o)
+    );
+    assert_eq!(
+        fs::read(dir.path().join("datanoext")).unwrap(),
+        fs::read(dir.path().join("d.bin")).unwrap()
+    );
+}
+
+/// What an aborted checkpoint save leaves (a staging folder, hidden temporaries of the
+/// three files) is removed when the model trains again; other files stay. Models that
+/// learn get no warning about a rising loss.
+#[test]
+fn stale_save_temporaries_are_removed() {
+    let dir = tempfile::tempdir().unwrap();
+    setup(dir.path());
+    let ck = dir.path().join("ck");
+    fs::create_dir_all(ck.join(".lengthgen-savingAbC123")).unwrap();
+    fs::write(ck.join(".lengthgen-savingAbC123/model.bpk"), b"x").unwrap();
+    fs::write(ck.join(".eventgen.json.XyZ987.partial"), b"{").unwrap();
+    fs::write(ck.join(".pathgen-optim.bpk.Qq1234.partial"), b"x").unwrap();
+    fs::write(ck.join("notes.txt"), b"mine").unwrap();
+    let o = stcvae(&["train", "--config", "train.toml"], dir.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let mut left: Vec<String> = fs::read_dir(&ck)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with('.') || n == "notes.txt")
+        .collect();
+    left.sort();
+    assert_eq!(left, ["notes.txt"]);
+    assert!(!stderr(&o).contains("loss rose"), "{}", stderr(&o));
 }
 
 /// `--resume` from nothing, or from a damaged checkpoint, is refused (the first started
@@ -537,4 +579,38 @@ fn checkpoint_decoders_keep_their_mode_and_ranges() {
         set.training
     );
     assert!(set.training.notes.contains("pathgen: from checkpoint"));
+}
+
+/// One model's failure stops the others at their next step, each with a checkpoint, and
+/// the error names the failing model's checkpoint: they trained on to their end (40
+/// minutes at the default size) before it was shown. Here LengthGen's checkpoint no longer
+/// fits its architecture, so its resume fails as it loads, while PathGen and EventGen
+/// would train on for 20,000 steps.
+#[test]
+fn one_failing_model_stops_the_others() {
+    let dir = tempfile::tempdir().unwrap();
+    setup(dir.path());
+    let o = stcvae(&["train", "--config", "train.toml"], dir.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let cfg = dir.path().join("train.toml");
+    let text = fs::read_to_string(&cfg).unwrap();
+    let text = text
+        .replacen("hidden = [4]", "hidden = [4, 4, 4]", 1)
+        .replace("steps = 30", "steps = 20000");
+    fs::write(&cfg, text).unwrap();
+    let o = stcvae(&["train", "--config", "train.toml", "--resume"], dir.path());
+    let err = stderr(&o);
+    assert!(!o.status.success());
+    assert!(
+        err.contains("lengthgen.bpk") && err.contains("the other models stopped"),
+        "{err}"
+    );
+    for m in ["pathgen", "eventgen"] {
+        let json: serde_json::Value = serde_json::from_str(
+            &fs::read_to_string(dir.path().join(format!("ck/{m}.json"))).unwrap(),
+        )
+        .unwrap();
+        let step = json["step"].as_u64().unwrap();
+        assert!((30..20000).contains(&step), "{m} at step {step}");
+    }
 }

@@ -132,7 +132,7 @@ impl Report {
             let cells: Vec<String> = r
                 .iter()
                 .map(|c| match c {
-                    Cell::Num(v) => significant4(*v),
+                    Cell::Num(v) => crate::progress::significant4(*v),
                     Cell::Text(t) => t.clone(),
                 })
                 .collect();
@@ -165,25 +165,6 @@ impl Report {
     }
 }
 
-/// A number to 4 significant digits: 0.001953 and 13.83, not 0.002 and 13.8275 (rounding
-/// to 4 decimals hid an absorption's doubling and gave ratios more digits than their
-/// times); beyond [1e-3, 1e4) in exponent form.
-fn significant4(v: f64) -> String {
-    if !v.is_finite() || v == 0.0 {
-        return format!("{v}");
-    }
-    if v.abs() >= 1e4 || v.abs() < 1e-3 {
-        return format!("{v:.3e}");
-    }
-    let decimals = (3 - v.abs().log10().floor() as i32).max(0) as usize;
-    let s = format!("{v:.decimals$}");
-    if s.contains('.') {
-        s.trim_end_matches('0').trim_end_matches('.').to_string()
-    } else {
-        s
-    }
-}
-
 /// A CSV field as RFC 4180 has it: quoted where it holds a comma, a quote or a line
 /// break (commas were replaced by semicolons, so labels differed from the report's).
 fn csv_field(t: &str) -> String {
@@ -196,7 +177,8 @@ fn csv_field(t: &str) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::{csv_field, significant4};
+    use super::csv_field;
+    use crate::progress::significant4;
 
     #[test]
     fn numbers_keep_four_significant_digits() {

@@ -128,7 +128,7 @@ impl ModelConfig {
 
 #[derive(Debug, Error)]
 pub enum TrainError {
-    #[error("interrupted: checkpoint saved in {0}")]
+    #[error("interrupted: checkpoints saved in {0}; run the same command with --resume to go on")]
     Interrupted(PathBuf),
     #[error("{path}: {msg}")]
     Checkpoint { path: PathBuf, msg: String },
@@ -213,6 +213,33 @@ pub struct Trained {
     pub kind: ModelKind,
     pub decoder: Decoder,
     pub info: CheckpointInfo,
+}
+
+/// Removes what an aborted save of `kind`'s checkpoint can leave in `dir`: its staging
+/// folder (`.NAME-saving…`) and the hidden temporaries of its three files
+/// (`.FILE.XXXXXX.partial`, and `.FILE.XXXXXX.previous` links). A second Ctrl-C exits
+/// without destructors, and a temporary created in the instant before its registration
+/// for that exit's clean-up is missed; nothing else writes these names.
+pub fn remove_stale_temporaries(dir: &Path, kind: ModelKind) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    let (m, o, j) = paths(dir, kind);
+    let files: Vec<String> = [m, o, j]
+        .iter()
+        .filter_map(|p| p.file_name().map(|n| format!(".{}.", n.to_string_lossy())))
+        .collect();
+    let staging = format!(".{}-saving", kind.name());
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let temporary = files.iter().any(|f| name.starts_with(f.as_str()))
+            && (name.ends_with(".partial") || name.ends_with(".previous"));
+        if name.starts_with(&staging) && e.path().is_dir() {
+            let _ = std::fs::remove_dir_all(e.path());
+        } else if temporary && e.path().is_file() {
+            let _ = std::fs::remove_file(e.path());
+        }
+    }
 }
 
 /// Whether `dir` holds a checkpoint of `kind` that `resume` would continue from.
