@@ -341,6 +341,26 @@ pub fn run(a: Args) -> Result<()> {
         &format!("{}: checkpoint_dir =", a.config.display()),
         &cfg.checkpoint_dir,
     )?;
+    // And what the dataset comes from: a folder named as the dataset failed with a bare
+    // "Is a directory"; a bad dataset_config only after "generating it from … first".
+    if cfg.dataset.is_dir() {
+        bail!(
+            "{}: dataset = \"{}\" is a directory: name a binary dataset file",
+            a.config.display(),
+            cfg.dataset.display()
+        );
+    }
+    if !cfg.dataset.exists()
+        && let Some(dc) = &cfg.dataset_config
+    {
+        crate::generate::load_config(dc).with_context(|| {
+            format!(
+                "{}: dataset_config = \"{}\" (read to generate the missing dataset)",
+                a.config.display(),
+                dc.display()
+            )
+        })?;
+    }
     // Read before hours of training, so that a wrong path fails at once.
     let base = match &a.base {
         Some(p) => {
