@@ -44,6 +44,9 @@ fn default_batch() -> usize {
 }
 const DEFAULT_WARMUP: u64 = 500;
 
+/// Most floats one layer's activations may hold in a training batch (batch × width).
+pub const MAX_BATCH_FLOATS: usize = 1 << 25;
+
 impl ModelConfig {
     pub fn architecture(&self) -> Architecture {
         Architecture {
@@ -109,6 +112,28 @@ impl ModelConfig {
         // 2^20 rows the gradients average out anyway and the memory does not.
         if self.batch_size == 0 || self.batch_size > 1 << 20 {
             return bad("batch_size", "must be in 1..=1048576");
+        }
+        // Each layer's activations and their gradients hold batch_size × width floats: a
+        // batch of 2^20 with 1,024-wide encoder layers asked 4 GiB per tensor and aborted
+        // on allocation. 2^25 floats (128 MiB a tensor) keeps a step within a few GiB.
+        let widest = self
+            .hidden
+            .iter()
+            .chain(self.encoder_hidden.iter().flatten())
+            .copied()
+            .max()
+            .unwrap_or(1);
+        if self.batch_size.saturating_mul(widest) > MAX_BATCH_FLOATS {
+            return bad(
+                "batch_size",
+                &format!(
+                    "{} × the widest layer's {widest} = {} floats a tensor, beyond {} (2^25): \
+                     lower batch_size or the layer widths",
+                    self.batch_size,
+                    self.batch_size.saturating_mul(widest),
+                    MAX_BATCH_FLOATS
+                ),
+            );
         }
         if !(self.lr > 0.0 && self.lr < 1.0 && self.lr_final >= 0.0 && self.lr_final <= self.lr) {
             return bad("lr", "need 0 < lr < 1 and 0 <= lr_final <= lr");
@@ -556,6 +581,23 @@ mod tests {
         assert_eq!(
             e,
             "pathgen.warmup: 101 exceeds steps = 100: allowed 0..=steps"
+        );
+    }
+
+    /// A batch whose widest layer's activations would pass 2^25 floats is refused, naming
+    /// the field; exactly 2^25 passes.
+    #[test]
+    fn a_batch_too_large_for_memory_is_refused() {
+        let mut c = config(100, None);
+        c.hidden = vec![32];
+        c.encoder_hidden = Some(vec![1024, 1024]);
+        c.batch_size = MAX_BATCH_FLOATS / 1024;
+        assert!(c.validate("pathgen").is_ok());
+        c.batch_size += 1;
+        let e = c.validate("pathgen").unwrap_err();
+        assert!(
+            e.starts_with("pathgen.batch_size: ") && e.contains("1024"),
+            "{e}"
         );
     }
 
