@@ -195,7 +195,8 @@ fn probe_shadow(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_in
 }
 
 /// In: WalkFeatures (tau feature, g, log prior, relative log N) at 0..3; exit (cos θ, α,
-/// β) at 4..6; an RNG seed at 8 (params.albedo is 0, so the centre event never comes up).
+/// β) at 4..6; an RNG seed at 8. The test gives a learned-mode model (model.flags.x = 0),
+/// so the exact mode's centre event never comes up.
 /// Out: the noise of a fresh EventGen draw at 0..10 and of its mirrored partner at 11..21
 /// (DEC_LATENT_2 + DEC_OUT_2 = 11 for the shipped model); the partner's event X at
 /// 22..24 and W at 25..27.
