@@ -389,8 +389,8 @@ pub fn run(a: Args) -> Result<()> {
         .find(|((_, a), (_, b))| a.scene_hash != b.scene_hash)
     {
         bail!(
-            "{} and {} are renders of different scenes (scene hashes {:016x} and {:016x}): \
-             the references must be renders of one scene",
+            "{} and {} are renders of different scenes or render settings (scene hashes \
+             {:016x} and {:016x}): the references must be renders of one scene",
             pa.display(),
             pb.display(),
             ta.scene_hash,

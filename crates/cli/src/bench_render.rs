@@ -108,6 +108,34 @@ impl Args {
     }
 }
 
+/// A saved image's stem for density k (`name`: "pt" or "stcvae"), the z map and the pixel
+/// table: the names `save_images` writes, one place for them and for `run`'s checks.
+fn saved_stem(dir: &std::path::Path, k: f64, name: &str) -> std::path::PathBuf {
+    dir.join(format!("k{k}_{name}"))
+}
+
+fn saved_z(dir: &std::path::Path, k: f64) -> std::path::PathBuf {
+    dir.join(format!("k{k}_z.png"))
+}
+
+fn saved_pixels(dir: &std::path::Path, k: f64) -> std::path::PathBuf {
+    dir.join(format!("k{k}_pixels.csv"))
+}
+
+/// Every file `save_images` writes for density k.
+fn saved_files(dir: &std::path::Path, k: f64) -> Vec<std::path::PathBuf> {
+    let mut files: Vec<_> = ["pt", "stcvae"]
+        .iter()
+        .flat_map(|n| {
+            let stem = saved_stem(dir, k, n);
+            ["exr", "png"].map(|e| crate::merge::image_out(&stem, e))
+        })
+        .collect();
+    files.push(saved_z(dir, k));
+    files.push(saved_pixels(dir, k));
+    files
+}
+
 /// Writes the ladder step's images into `dir` (see `Args::save`).
 fn save_images(a: &Args, dir: &std::path::Path, k: f64, pt: &Pair, st: &Pair) -> Result<()> {
     use render_gpu::image_io::{RenderTag, RgbImage, write_png};
@@ -128,8 +156,7 @@ fn save_images(a: &Args, dir: &std::path::Path, k: f64, pt: &Pair, st: &Pair) ->
             partial: false,
             unknown_digests: Vec::new(),
         };
-        let stem = dir.join(format!("k{k}_{name}"));
-        crate::merge::write_image_set(&stem, &p.mean, &tag, exposure, None)?;
+        crate::merge::write_image_set(&saved_stem(dir, k, name), &p.mean, &tag, exposure, None)?;
     }
     let (w, h) = (pt.mean.width, pt.mean.height);
     let mut z = RgbImage::new(w, h);
@@ -140,7 +167,7 @@ fn save_images(a: &Args, dir: &std::path::Path, k: f64, pt: &Pair, st: &Pair) ->
         let block = zs[(y / BLOCK) * blocks_x + x / BLOCK];
         *p = block.map(|v| v.map_or(0.5, |v| (0.5 + v / 8.0).clamp(0.0, 1.0) as f32));
     }
-    write_png(&dir.join(format!("k{k}_z.png")), &z, 1.0)?;
+    write_png(&saved_z(dir, k), &z, 1.0)?;
     // Per pixel and channel, both pairs' means and the variances of those means (from
     // their two seeds): what the bias columns are computed from, for analyses the table
     // does not make (where in the image a bias lies, other pixel classes or metrics).
@@ -161,7 +188,7 @@ fn save_images(a: &Args, dir: &std::path::Path, k: f64, pt: &Pair, st: &Pair) ->
             );
         }
     }
-    let path = dir.join(format!("k{k}_pixels.csv"));
+    let path = saved_pixels(dir, k);
     scatter_sim::output::write_atomic(&path, csv.as_bytes())
         .with_context(|| format!("cannot write {}", path.display()))?;
     Ok(())
@@ -322,7 +349,7 @@ fn render_pair(
     let pair = Pair::from_halves(a_out, b, p.data.hash);
     // Every column compares the object's pixels, found by their noise: with none the
     // variance ratio was 0/0 printed as 0, and a bias of 0 read as a pass.
-    if pair.var.iter().flatten().all(|&v| v <= 0.0) {
+    if !pair.has_noise() {
         bail!(
             "{}: no pixel differs between the two {} renders: the object is out of view, \
              unlit or black, so there is nothing to measure (check the scene's camera, lights \
@@ -421,17 +448,8 @@ pub fn run(a: Args) -> Result<()> {
     // the run after that density's renders).
     if let Some(dir) = &a.save {
         for &k in &a.k {
-            for f in [
-                "pt.exr",
-                "pt.png",
-                "pt.json",
-                "stcvae.exr",
-                "stcvae.png",
-                "stcvae.json",
-                "z.png",
-                "pixels.csv",
-            ] {
-                crate::check_out("--save", &dir.join(format!("k{k}_{f}")))?;
+            for f in saved_files(dir, k) {
+                crate::check_out("--save", &f)?;
             }
         }
     }
@@ -450,7 +468,7 @@ pub fn run(a: Args) -> Result<()> {
         engine.describe()
     );
     println!(
-        "{:>4} {:>20} {:>7} {:>7} {:>9} {:>9} {:>11} {:>10} {:>10} {:>10} {:>9} {:>9} {:>9} {:>10} {:>10}",
+        "{:>4} {:>20} {:>8} {:>8} {:>9} {:>9} {:>11} {:>10} {:>10} {:>10} {:>9} {:>9} {:>9} {:>10} {:>10}",
         "k",
         "sigma_t",
         "PT s",
@@ -475,7 +493,7 @@ pub fn run(a: Args) -> Result<()> {
             save_images(&a, dir, k, &pt, &st)?;
         }
         println!(
-            "{:>4} {:>20} {:>7} {:>7} {:>8.2}x {:>9.2} {:>10.2}x {:>10.1} {:>10.2} {:>10.2} {:>9.4} {:>9} {:>9.4} {:>10} {:>10}",
+            "{:>4} {:>20} {:>8} {:>8} {:>8.2}x {:>9.2} {:>10.2}x {:>10.1} {:>10.2} {:>10.2} {:>9.4} {:>9} {:>9.4} {:>10} {:>10}",
             k,
             format!(
                 "({}, {}, {})",

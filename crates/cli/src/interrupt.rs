@@ -5,7 +5,10 @@ use std::sync::OnceLock;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+/// What long loops poll: set by Ctrl-C, or by [`stop_the_others`].
 static FLAG: AtomicBool = AtomicBool::new(false);
+/// Set by Ctrl-C only: whether the user asked (exit status 130, "again" means abort).
+static USER: AtomicBool = AtomicBool::new(false);
 static INSTALLED: OnceLock<()> = OnceLock::new();
 static FIRST: OnceLock<Instant> = OnceLock::new();
 
@@ -21,7 +24,8 @@ pub fn flag() -> &'static AtomicBool {
     INSTALLED.get_or_init(|| {
         let _ = ctrlc::set_handler(|| {
             let first = *FIRST.get_or_init(Instant::now);
-            if FLAG.swap(true, Ordering::SeqCst) {
+            FLAG.store(true, Ordering::SeqCst);
+            if USER.swap(true, Ordering::SeqCst) {
                 if first.elapsed() < SAME_REQUEST {
                     return;
                 }
@@ -45,6 +49,14 @@ pub fn flag() -> &'static AtomicBool {
     &FLAG
 }
 
+/// Whether the user asked to stop (Ctrl-C), as opposed to [`stop_the_others`].
 pub fn requested() -> bool {
-    FLAG.load(Ordering::SeqCst)
+    USER.load(Ordering::SeqCst)
+}
+
+/// Stops the loops polling [`flag`] as Ctrl-C does, without it counting as the user's
+/// request: one training thread's failure ends the others with their checkpoints, yet the
+/// command exits with 1, not 130, and the user's first Ctrl-C is still a first.
+pub fn stop_the_others() {
+    FLAG.store(true, Ordering::SeqCst);
 }

@@ -323,9 +323,10 @@ fn merge_binary(a: &Args) -> Result<()> {
             &mut side
         };
         for _ in 0..s.piece.count {
-            let row = r
-                .next_row()?
-                .context("a dataset ended before its header's count")?;
+            let path = r.path().to_path_buf();
+            let row = r.next_row()?.with_context(|| {
+                format!("{}: ended before its header's row count", path.display())
+            })?;
             sink.push(&row)?;
             pb.inc(1);
             stopped()?;

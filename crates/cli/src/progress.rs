@@ -190,6 +190,10 @@ pub fn significant4(v: f64) -> String {
     }
     let decimals = (3 - v.abs().log10().floor() as i32).max(0) as usize;
     let s = format!("{v:.decimals$}");
+    // 9999.6 rounds to 5 digits.
+    if s.trim_start_matches('-').len() > 4 && !s.contains('.') {
+        return format!("{v:.3e}");
+    }
     if s.contains('.') {
         s.trim_end_matches('0').trim_end_matches('.').to_string()
     } else {

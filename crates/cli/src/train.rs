@@ -193,6 +193,7 @@ const MIN_ROWS: usize = 1000;
 fn checkpoint_decoder(
     cfg: &TrainConfig,
     k: ModelKind,
+    steps_scale: f64,
 ) -> Result<(cvae::decoder::Decoder, u32, Option<ConditionRanges>, u64)> {
     let (d, info) =
         cvae::train::trainer::load_decoder(&cfg.checkpoint_dir, k, &cfg.model(k).architecture())
@@ -226,18 +227,29 @@ fn checkpoint_decoder(
             cfg.single_scattering.name()
         );
     }
-    // A checkpoint left by an interrupted run is taken as it is, but not unsaid.
-    let steps = cfg.model(k).steps;
+    // A checkpoint left by an interrupted run is taken as it is, but not unsaid (the
+    // steps as this run scales them: a checkpoint of a scaled run is finished at its own).
+    let steps = scaled_steps(cfg.model(k).steps, steps_scale);
     if info.step < steps {
         eprintln!(
-            "note: {} comes from its checkpoint at step {} of the config's {steps}: an \
-             unfinished training (train it on with --model {} --resume)",
+            "note: {} comes from its checkpoint at step {} of {steps}: an unfinished training \
+             (train it on with --model {} --resume{})",
             k.name(),
             info.step,
-            k.name()
+            k.name(),
+            if steps_scale == 1.0 {
+                String::new()
+            } else {
+                format!(" --steps-scale {}", scatter_sim::ranges::num(steps_scale))
+            }
         );
     }
     Ok((d, version, info.ranges, info.step))
+}
+
+/// A model's steps under `--steps-scale`: rounded, at least one.
+fn scaled_steps(steps: u64, scale: f64) -> u64 {
+    ((steps as f64 * scale).round() as u64).max(1)
 }
 
 /// The untrained loss when a run's last reported loss is above it by more than a tenth
@@ -451,7 +463,7 @@ pub fn run(a: Args) -> Result<()> {
     let mut from_checkpoints = Vec::new();
     if base.is_none() {
         for k in ModelKind::ALL.into_iter().filter(|k| !kinds.contains(k)) {
-            from_checkpoints.push((k, checkpoint_decoder(&cfg, k)?));
+            from_checkpoints.push((k, checkpoint_decoder(&cfg, k, a.steps_scale)?));
         }
     }
     ensure_dataset(&cfg)?;
@@ -556,7 +568,7 @@ pub fn run(a: Args) -> Result<()> {
     let scaled = |k: ModelKind| {
         let mut m = cfg.model(k).clone();
         let warmup = m.warmup();
-        m.steps = ((m.steps as f64 * a.steps_scale).round() as u64).max(1);
+        m.steps = scaled_steps(m.steps, a.steps_scale);
         m.warmup = Some(warmup.min(m.steps / 4));
         m
     };
@@ -601,7 +613,7 @@ pub fn run(a: Args) -> Result<()> {
                 // the others at their next step, each with a checkpoint: they trained on to
                 // their end (40 minutes at the default size) before the error was shown.
                 if matches!(&r, Err(e) if !matches!(e, TrainError::Interrupted(_))) {
-                    cancel.store(true, std::sync::atomic::Ordering::SeqCst);
+                    interrupt::stop_the_others();
                 }
                 results.lock().unwrap().push(r);
             });
@@ -619,7 +631,7 @@ pub fn run(a: Args) -> Result<()> {
         match r {
             Ok(t) => trained.push(t),
             Err(TrainError::Interrupted(d)) => interrupted = Some(TrainError::Interrupted(d)),
-            Err(e) if stopped => {
+            Err(e) if stopped && !interrupt::requested() => {
                 return Err(anyhow::anyhow!(
                     "{e} (the other models stopped at their next step with a checkpoint; \
                      --resume continues them)"

@@ -50,7 +50,8 @@ pub const MAX_CANDIDATES: u64 = u32::MAX as u64;
 impl DistanceGrid {
     /// Builds the grid with `resolution` cells along the longest side of the bounds; an
     /// error when its cell lists would exceed [`MAX_CANDIDATES`] (the lists stop being
-    /// built once past it, so the error comes before the memory runs out).
+    /// built once past it, so the error comes instead of wrapped offsets; the lists alone
+    /// are 16 GiB by then, which a smaller machine may not reach).
     pub fn build(geo: &Geometry, resolution: u32) -> Result<Self, String> {
         Self::build_within(geo, resolution, MAX_CANDIDATES)
     }

@@ -145,6 +145,31 @@ pub fn remove_live_temporaries() {
     }
 }
 
+/// Removes the hidden temporaries an aborted write of `path` can leave beside it (its
+/// `.NAME.XXXXXX.partial` file, and `.NAME.XXXXXX.previous` links of a set's renames): a
+/// second Ctrl-C exits without destructors, and a temporary made in the instant before
+/// its registration in [`LIVE`] is missed. For outputs only one command writes at a time
+/// (a training's checkpoints), called before it writes them again.
+pub fn remove_stale_temporaries_of(path: &Path) {
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    let Ok(entries) = fs::read_dir(dir) else {
+        return;
+    };
+    let prefix = temp_prefix(path);
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        if name.starts_with(&prefix)
+            && (name.ends_with(".partial") || name.ends_with(".previous"))
+            && e.path().is_file()
+        {
+            let _ = fs::remove_file(e.path());
+        }
+    }
+}
+
 /// Refuses an input path that is a named pipe, a socket or a device: opening a FIFO with
 /// no writer blocks for ever (a scene, mesh, model or image given as one hung the command,
 /// deaf to a first Ctrl-C), and stcvae reads its inputs whole, with their size known.

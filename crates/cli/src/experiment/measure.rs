@@ -26,6 +26,12 @@ pub struct Pair {
 }
 
 impl Pair {
+    /// Whether any pixel's two renders differ: every comparison measures the object's
+    /// pixels, found by their noise, and with none there is nothing to measure (0/0).
+    pub fn has_noise(&self) -> bool {
+        self.var.iter().flatten().any(|&v| v > 0.0)
+    }
+
     /// The pair of two renders of the same scene with different seeds.
     pub fn from_halves(a: RenderOutput, b: RenderOutput, hash: u64) -> Self {
         let mut mean = RgbImage::new(a.image.width, a.image.height);
@@ -169,7 +175,7 @@ pub fn render_pair(
     let pair = Pair::from_halves(a, b, hash);
     // Every figure compares the object's pixels, found by their noise: with none (the
     // object out of view, unlit or black) the offsets came out 0/0 in figures.csv.
-    if pair.var.iter().flatten().all(|&v| v <= 0.0) {
+    if !pair.has_noise() {
         bail!(
             "{}: no pixel differs between the renders of seeds {s1} and {s2}: the object is \
              out of view, unlit or black, so there is nothing to measure (check the scene's \

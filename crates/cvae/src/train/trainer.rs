@@ -242,27 +242,19 @@ pub struct Trained {
 
 /// Removes what an aborted save of `kind`'s checkpoint can leave in `dir`: its staging
 /// folder (`.NAME-saving…`) and the hidden temporaries of its three files
-/// (`.FILE.XXXXXX.partial`, and `.FILE.XXXXXX.previous` links). A second Ctrl-C exits
-/// without destructors, and a temporary created in the instant before its registration
-/// for that exit's clean-up is missed; nothing else writes these names.
+/// ([`scatter_sim::output::remove_stale_temporaries_of`]).
 pub fn remove_stale_temporaries(dir: &Path, kind: ModelKind) {
+    let (m, o, j) = paths(dir, kind);
+    for p in [&m, &o, &j] {
+        scatter_sim::output::remove_stale_temporaries_of(p);
+    }
     let Ok(entries) = std::fs::read_dir(dir) else {
         return;
     };
-    let (m, o, j) = paths(dir, kind);
-    let files: Vec<String> = [m, o, j]
-        .iter()
-        .filter_map(|p| p.file_name().map(|n| format!(".{}.", n.to_string_lossy())))
-        .collect();
     let staging = format!(".{}-saving", kind.name());
     for e in entries.flatten() {
-        let name = e.file_name().to_string_lossy().into_owned();
-        let temporary = files.iter().any(|f| name.starts_with(f.as_str()))
-            && (name.ends_with(".partial") || name.ends_with(".previous"));
-        if name.starts_with(&staging) && e.path().is_dir() {
+        if e.file_name().to_string_lossy().starts_with(&staging) && e.path().is_dir() {
             let _ = std::fs::remove_dir_all(e.path());
-        } else if temporary && e.path().is_file() {
-            let _ = std::fs::remove_file(e.path());
         }
     }
 }
@@ -283,9 +275,11 @@ fn paths(dir: &Path, kind: ModelKind) -> (PathBuf, PathBuf, PathBuf) {
 
 /// Writes the model, the optimiser state and the JSON that holds their checksums as one
 /// set: burn writes the two records into a temporary folder beside the checkpoints, and
-/// the three files are renamed into place only once all are written. Saved one by one, a
-/// failure after the model's rename (a full disk, a second Ctrl-C, a kill) left a new
-/// model beside the old JSON, whose checksum then refused the resume, and the run was lost.
+/// the three files are renamed into place only once all are written, a failed rename
+/// putting back the ones before it. Saved one by one, a failure while writing (a full
+/// disk, a folder in the way) left a new model beside the old JSON, whose checksum then
+/// refused the resume, and the run was lost. A kill between the three renames (a window
+/// of microseconds) can still mix the sets; the checksums then refuse the resume.
 fn save_checkpoint(
     dir: &Path,
     kind: ModelKind,
