@@ -213,7 +213,13 @@ fn check_crcs(info: &CheckpointInfo, files: &[&Path]) -> Result<(), TrainError> 
     for (&path, want) in files.iter().zip(crcs) {
         let got = crc_of(path).map_err(|e| TrainError::Checkpoint {
             path: path.into(),
-            msg: e.to_string(),
+            msg: if e.kind() == std::io::ErrorKind::NotFound {
+                "missing beside its checkpoint record: the checkpoint is incomplete; start \
+                 over with --fresh"
+                    .to_string()
+            } else {
+                e.to_string()
+            },
         })?;
         if got != want {
             return Err(TrainError::Checkpoint {
@@ -367,7 +373,16 @@ pub fn train_model(
             msg: e,
         };
         let text = read_checkpoint_file(&jpath).map_err(|e| err(&jpath, e.to_string()))?;
-        info = serde_json::from_slice(&text).map_err(|e| err(&jpath, e.to_string()))?;
+        info = serde_json::from_slice(&text).map_err(|e| {
+            err(
+                &jpath,
+                format!(
+                    "not a readable checkpoint record ({e}): the save was cut short or the file \
+                     edited; start over with --fresh --model {}",
+                    kind.name()
+                ),
+            )
+        })?;
         // Versions 2 and 3 differ only in EventGen's targets (whose standardisation would
         // differ too); LengthGen and PathGen go on as they were.
         if kind != ModelKind::EventGen
