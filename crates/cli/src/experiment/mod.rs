@@ -64,7 +64,7 @@ impl Ctx<'_> {
     /// Ctrl-C or a kill skips any clean-up). A run that saves nothing leaves them as they
     /// were (removed up front, an interrupted rerun took a finished run's report with it).
     pub fn saving(&self) -> Result<()> {
-        if !self.saved.replace(true) {
+        if !self.saved.get() {
             for stale in ["report.md", "figures.csv"] {
                 let p = self.out.join(stale);
                 if p.is_file() {
@@ -72,6 +72,9 @@ impl Ctx<'_> {
                         .with_context(|| format!("cannot remove {}", p.display()))?;
                 }
             }
+            // Only now: a report that could not be removed (an immutable file) failed the
+            // run before anything was saved, and the message said "images saved so far".
+            self.saved.set(true);
         }
         Ok(())
     }
