@@ -323,10 +323,12 @@ fn merge_binary(a: &Args) -> Result<()> {
             &mut side
         };
         for _ in 0..s.piece.count {
-            let path = r.path().to_path_buf();
-            let row = r.next_row()?.with_context(|| {
-                format!("{}: ended before its header's row count", path.display())
-            })?;
+            let Some(row) = r.next_row()? else {
+                bail!(
+                    "{}: ended before its header's row count",
+                    r.path().display()
+                );
+            };
             sink.push(&row)?;
             pb.inc(1);
             stopped()?;

@@ -244,14 +244,19 @@ fn bad_experiment_config_is_a_clear_error() {
         env!("CARGO_MANIFEST_DIR"),
         "/../../configs/scenes/sphere.toml"
     );
-    std::fs::write(
-        &cfg,
-        format!(
-            "kind = \"fallback\"\ntitle = \"t\"\nscene = {scene:?}\ndensities = [1.0]\n\
-             thresholds = [0.0, 400.0]\n[full]\nsize = 8\nspp = 2\n[quick]\nsize = 8\nspp = 2\n"
-        ),
-    )
-    .unwrap();
+    // A fallback experiment of `scene` at the given thresholds, written to `cfg`.
+    let fallback = |scene: &std::path::Path, thresholds: &str| {
+        std::fs::write(
+            &cfg,
+            format!(
+                "kind = \"fallback\"\ntitle = \"t\"\nscene = {scene:?}\ndensities = [1.0]\n\
+                 thresholds = [{thresholds}]\n[full]\nsize = 8\nspp = 2\n[quick]\nsize = 8\n\
+                 spp = 2\n"
+            ),
+        )
+        .unwrap();
+    };
+    fallback(std::path::Path::new(scene), "0.0, 400.0");
     let d = tempfile::tempdir().unwrap();
     let out = quick_experiment(&cfg, d.path());
     let err = String::from_utf8_lossy(&out.stderr);
@@ -272,14 +277,7 @@ fn bad_experiment_config_is_a_clear_error() {
         std::fs::read_to_string(scene).unwrap() + "max_tau = 50.0\n",
     )
     .unwrap();
-    std::fs::write(
-        &cfg,
-        format!(
-            "kind = \"fallback\"\ntitle = \"t\"\nscene = {pt_scene:?}\ndensities = [1.0]\n\
-             thresholds = [0.0, 60.0]\n[full]\nsize = 8\nspp = 2\n[quick]\nsize = 8\nspp = 2\n"
-        ),
-    )
-    .unwrap();
+    fallback(&pt_scene, "0.0, 60.0");
     let out_dir = tempfile::tempdir().unwrap();
     let out = quick_experiment(&cfg, out_dir.path());
     let err = String::from_utf8_lossy(&out.stderr);

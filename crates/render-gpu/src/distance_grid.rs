@@ -7,6 +7,7 @@
 //! integrator then falls back to ordinary PT events).
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use glam::{UVec3, Vec3};
 use rayon::prelude::*;
@@ -75,14 +76,14 @@ impl DistanceGrid {
         // d(c) + 2h of c: listing every triangle that near c lists T. The padding covers
         // f32 rounding of p's cell and of the distances (1e-4 of a cell, ~100 ulps).
         let h = 0.5 * 3f32.sqrt() * cell;
-        let listed = std::sync::atomic::AtomicU64::new(0);
+        let listed = AtomicU64::new(0);
         let lists: Vec<Vec<u32>> = exact
             .par_iter()
             .enumerate()
             .map(|(i, &d)| {
                 let mut list = Vec::new();
                 if d * (1.0 - 1e-5) - margin < near_surface + h
-                    && listed.load(std::sync::atomic::Ordering::Relaxed) <= most
+                    && listed.load(Ordering::Relaxed) <= most
                 {
                     let c = Self::centre_of(lo, cell, dims, i);
                     let reach = (d + 2.0 * h) * (1.0 + 1e-5) + 1e-4 * cell + geo.eps;
@@ -91,7 +92,7 @@ impl DistanceGrid {
                     // query's first exact distance lets the cheap bounds skip most others.
                     // A non-negative f32's bits order as its value.
                     list.sort_by_cached_key(|&prim| (geo.nearest_of(c, &[prim]).to_bits(), prim));
-                    listed.fetch_add(list.len() as u64, std::sync::atomic::Ordering::Relaxed);
+                    listed.fetch_add(list.len() as u64, Ordering::Relaxed);
                 }
                 list
             })

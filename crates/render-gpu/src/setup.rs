@@ -158,13 +158,10 @@ impl SceneData {
                 eye[0], eye[1], eye[2]
             )));
         }
-        let grid = match with_grid {
-            true => Some(
-                DistanceGrid::cached(&geo, scene.render.grid_resolution)
-                    .map_err(RenderError::Scene)?,
-            ),
-            false => None,
-        };
+        let grid = with_grid
+            .then(|| DistanceGrid::cached(&geo, scene.render.grid_resolution))
+            .transpose()
+            .map_err(RenderError::Scene)?;
         let m = &scene.medium;
         let mut camera = Camera::new(&scene.camera);
         camera.start_before(geo.lo, geo.hi);

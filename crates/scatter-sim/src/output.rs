@@ -22,10 +22,7 @@ pub fn check_output_path(path: &Path) -> Result<(), String> {
     if text.ends_with('/') || text.ends_with(std::path::MAIN_SEPARATOR) {
         return Err(format!("{text} ends with a path separator: name a file"));
     }
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
+    let dir = folder_of(path);
     // The nearest ancestor that is there at all: a symbolic link counts even when it
     // points nowhere (exists() would step over it, and creating the directories would
     // then fail after the work).
@@ -151,10 +148,7 @@ pub fn remove_live_temporaries() {
 /// its registration in [`LIVE`] is missed. For outputs only one command writes at a time
 /// (a training's checkpoints), called before it writes them again.
 pub fn remove_stale_temporaries_of(path: &Path) {
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
+    let dir = folder_of(path);
     let Ok(entries) = fs::read_dir(dir) else {
         return;
     };
@@ -206,6 +200,15 @@ pub fn read_input_to_string(path: &Path) -> io::Result<String> {
     fs::read_to_string(path)
 }
 
+/// The folder `path` lies in: its parent, or "." for a bare file name (whose parent is
+/// the empty path).
+fn folder_of(path: &Path) -> &Path {
+    match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    }
+}
+
 /// The start of a temporary's name beside `path` (".NAME."): at most 64 bytes of the
 /// target's name, so that the temporary stays within a file system's 255-byte names
 /// whenever the target's name does (the whole name plus ".XXXXXX.partial" failed for names
@@ -234,15 +237,12 @@ impl AtomicFile {
     /// `path` that cannot be replaced ([`check_replaceable`]; callers name the path).
     pub fn create(path: &Path) -> io::Result<Self> {
         check_replaceable(path)?;
-        let dir = match path.parent() {
-            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-            _ => PathBuf::from("."),
-        };
-        fs::create_dir_all(&dir)?;
+        let dir = folder_of(path);
+        fs::create_dir_all(dir)?;
         let tmp = tempfile::Builder::new()
             .prefix(&temp_prefix(path))
             .suffix(".partial")
-            .tempfile_in(&dir)?;
+            .tempfile_in(dir)?;
         Ok(Self {
             path: path.to_path_buf(),
             live: Live::new(tmp.path()),
@@ -389,10 +389,7 @@ impl Previous {
         if fs::symlink_metadata(path).is_err() {
             return Before::Absent;
         }
-        let dir = match path.parent() {
-            Some(p) if !p.as_os_str().is_empty() => p,
-            _ => Path::new("."),
-        };
+        let dir = folder_of(path);
         match tempfile::Builder::new()
             .prefix(&temp_prefix(path))
             .suffix(".previous")

@@ -403,7 +403,9 @@ pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
         var_ratio,
         var_ratio_se,
         bias: mean_e.max(0.0).sqrt() * scale,
-        bias_upper95: (mean_e + 1.645 * se > 0.0).then(|| (mean_e + 1.645 * se).sqrt() * scale),
+        bias_upper95: Some(mean_e + 1.645 * se)
+            .filter(|&b2| b2 > 0.0)
+            .map(|b2| b2.sqrt() * scale),
         noise: (noise / n).sqrt() * scale,
         block_chi2: zs.iter().map(|z| z * z).sum::<f64>() / zs.len().max(1) as f64,
         blocks: zs.len(),

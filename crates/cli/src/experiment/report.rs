@@ -178,25 +178,6 @@ fn csv_field(t: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::csv_field;
-    use crate::progress::significant4;
-
-    #[test]
-    fn numbers_keep_four_significant_digits() {
-        for (v, want) in [
-            (0.001953125, "0.001953"),
-            (13.827, "13.83"),
-            (0.0475, "0.0475"),
-            (128.0, "128"),
-            (9999.4, "9999"),
-            (9999.6, "1.000e4"),
-            (1e-4, "1.000e-4"),
-            (12346.0, "1.235e4"),
-            (-0.5, "-0.5"),
-            (0.0, "0"),
-        ] {
-            assert_eq!(significant4(v), want, "{v}");
-        }
-    }
 
     #[test]
     fn csv_fields_are_quoted_where_needed() {

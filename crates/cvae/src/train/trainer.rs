@@ -123,15 +123,14 @@ impl ModelConfig {
             .copied()
             .max()
             .unwrap_or(1);
-        if self.batch_size.saturating_mul(widest) > MAX_BATCH_FLOATS {
+        let floats = self.batch_size.saturating_mul(widest);
+        if floats > MAX_BATCH_FLOATS {
             return bad(
                 "batch_size",
                 &format!(
-                    "{} × the widest layer's {widest} = {} floats a tensor, beyond {} (2^25): \
-                     lower batch_size or the layer widths",
-                    self.batch_size,
-                    self.batch_size.saturating_mul(widest),
-                    MAX_BATCH_FLOATS
+                    "{} × the widest layer's {widest} = {floats} floats a tensor, beyond \
+                     {MAX_BATCH_FLOATS} (2^25): lower batch_size or the layer widths",
+                    self.batch_size
                 ),
             );
         }
