@@ -26,7 +26,9 @@ struct PathState {
     scattered: bool,
     alive: bool,
     // Lower bound on the distance to the surface (0: unknown); set by sphere steps, saved
-    // with the path between dispatches. See PathState::free on the CPU.
+    // with the path between dispatches. See PathState::free on the CPU. Negative in a
+    // path just spawned inside: minus the medium its spawn passed (PathState::skip),
+    // taken off its next flight.
     free: f32,
 }
 
@@ -190,7 +192,7 @@ fn bounce_begin() -> Query {
         return q;
     }
     if p_inside {
-        q.t = -log(1.0 - rand()) / params.sigma_t[p_channel];
+        q.t = max(-log(1.0 - rand()) / params.sigma_t[p_channel] - max(-ps.free, 0.0), 0.0);
         // A surface just past the collision counts as reached (integrator/mod.rs: a
         // collision rounded to the far side would leave the path outside).
         q.tmax = q.t + params.consts.z * FLIGHT_MARGIN_OF_EPS;
@@ -301,6 +303,9 @@ fn flight_end(t: f32, h: Hit) -> bool {
             p_inside = false;
             ps.dir = incoming;
         }
+        if p_inside {
+            ps.free = -spawn_skip(n, ps.dir);
+        }
         return false;
     }
     if h.found {
@@ -354,6 +359,9 @@ fn flight_end(t: f32, h: Hit) -> bool {
         if p_inside && beyond_sliver(ps.pos, n) {
             // Reflected back inside where the medium is thinner than the offset.
             p_inside = false;
+        }
+        if p_inside {
+            ps.free = -spawn_skip(n, ps.dir);
         }
         p_from_step = false;
         return false;

@@ -541,6 +541,11 @@ fn tri_normal(prim: u32) -> vec3<f32> {
     return tris[prim].n.xyz;
 }
 
+/// The medium passed by a path spawned inside heading dir (Geometry::spawn_skip).
+fn spawn_skip(n: vec3<f32>, dir: vec3<f32>) -> f32 {
+    return params.consts.z / max(abs(dot(dir, n)), SKIP_MIN_COS);
+}
+
 /// A point just off the surface at p, on the side dir points to.
 fn spawn(p: vec3<f32>, n: vec3<f32>, dir: vec3<f32>) -> vec3<f32> {
     let side = select(-1.0, 1.0, dot(dir, n) >= 0.0);

@@ -222,3 +222,40 @@ fn shard_parsing_and_ranges() {
         }
     }
 }
+
+/// A header beyond what the reader accepts (16 MiB: a merge of ~76,000 empty pieces) is
+/// refused when the file is created, before any row is copied, with the file left
+/// unwritten; and a file claiming one is refused as such, not as "truncated" with equal
+/// sizes.
+#[test]
+fn a_header_too_large_to_read_back_is_not_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("huge.bin");
+    let one = spec(1, Shard::WHOLE).piece();
+    let pieces = (0..200_000u64)
+        .map(|i| scatter_sim::dataset::Piece {
+            seed: i,
+            ..one.clone()
+        })
+        .collect();
+    let e = create_sink(&path, Header::new(pieces))
+        .err()
+        .expect("refused");
+    assert!(
+        e.to_string()
+            .contains("beyond the 16777216 a dataset may have"),
+        "{e}"
+    );
+    assert!(!path.exists());
+    // A file that claims a header of 2^24 + 1 bytes.
+    let mut bytes = b"STCVAEDS".to_vec();
+    bytes.extend(2u32.to_le_bytes());
+    bytes.extend(((1u32 << 24) + 1).to_le_bytes());
+    bytes.resize(1 << 25, b' ');
+    let claimed = dir.path().join("claims.bin");
+    fs::write(&claimed, &bytes).unwrap();
+    let Err(e) = read_dataset(&claimed) else {
+        panic!("a header claiming 2^24 + 1 bytes was read")
+    };
+    assert!(e.to_string().contains("beyond the 16777216 allowed"), "{e}");
+}

@@ -42,13 +42,20 @@ fn identity(path: &Path) -> Option<Identity> {
 impl Snapshot {
     /// The folder's files now (none if it does not exist); hidden files are left out.
     pub(crate) fn take(dir: &Path) -> Self {
+        Self::take_matching(dir, |_| true)
+    }
+
+    /// The folder's files whose names `ours` accepts: the names a command writes, where
+    /// its folder may hold the user's own files (`eval --out .` named a config and a CSV
+    /// beside its metrics as "of an earlier run" to delete).
+    pub(crate) fn take_matching(dir: &Path, ours: impl Fn(&str) -> bool) -> Self {
         let files = std::fs::read_dir(dir)
             .into_iter()
             .flatten()
             .flatten()
             .filter_map(|e| {
                 let name = e.file_name().to_string_lossy().into_owned();
-                (!name.starts_with('.'))
+                (!name.starts_with('.') && ours(&name))
                     .then(|| identity(&e.path()).map(|id| (name, id)))
                     .flatten()
             })

@@ -239,24 +239,27 @@ fn merge_images(a: &Args) -> Result<()> {
 }
 
 fn merge_binary(a: &Args) -> Result<()> {
-    let mut readers = a
+    // Headers first, each file closed again: one reader is open at a time while the rows
+    // are copied (1,100 shards ran out of file descriptors at the usual limit of 1,024,
+    // with a 1 MiB buffer each).
+    let headers = a
         .inputs
         .iter()
-        .map(|p| DatasetReader::open(p))
+        .map(|p| DatasetReader::open(p).map(|r| r.header().clone()))
         .collect::<Result<Vec<_>, _>>()?;
-    let first = readers[0].header().pieces.first().cloned();
+    let first = headers[0].pieces.first().cloned();
     let one_run = first.is_some()
-        && readers
+        && headers
             .iter()
-            .flat_map(|r| &r.header().pieces)
+            .flat_map(|h| &h.pieces)
             .all(|p| first.as_ref().is_some_and(|f| f.same_run(p)));
     // Each piece of each input, where its rows lie in the file; shards of one run go in
     // walk order, piece by piece: an input that is itself a merge of shards 0 and 2 puts
     // shard 1's rows between its two pieces, as the unsharded run has them.
     let mut segments: Vec<Segment> = Vec::new();
-    for (input, r) in readers.iter().enumerate() {
+    for (input, h) in headers.iter().enumerate() {
         let mut offset = 0;
-        for piece in &r.header().pieces {
+        for piece in &h.pieces {
             segments.push(Segment {
                 input,
                 offset,
@@ -308,20 +311,38 @@ fn merge_binary(a: &Args) -> Result<()> {
         }
         Ok(())
     };
+    // Each input's checksum is verified by reading it to its end: as its last piece is
+    // copied, or (a piece taken out of file order, from a merge of merges) afterwards.
+    let mut verified = vec![false; headers.len()];
+    let mut done_with = |(input, mut r): (usize, DatasetReader)| -> Result<()> {
+        if r.rows_read() == headers[input].count {
+            r.next_row()?;
+            verified[input] = true;
+        }
+        Ok(())
+    };
+    let open = |input: usize| -> Result<DatasetReader> {
+        let r = DatasetReader::open(&a.inputs[input])?;
+        if *r.header() != headers[input] {
+            bail!("{}: changed while being merged", a.inputs[input].display());
+        }
+        Ok(r)
+    };
+    let mut current: Option<(usize, DatasetReader)> = None;
     for s in &segments {
-        // Each input's own reader takes its pieces in file order; a piece wanted out of
-        // that order is read by a second reader, which passes over the rows before it.
-        let mut side;
-        let r = if readers[s.input].rows_read() == s.offset {
-            &mut readers[s.input]
-        } else {
-            side = DatasetReader::open(readers[s.input].path())?;
+        let reuse = matches!(&current, Some((i, r)) if *i == s.input && r.rows_read() == s.offset);
+        if !reuse {
+            if let Some(c) = current.take() {
+                done_with(c)?;
+            }
+            let mut r = open(s.input)?;
             for _ in 0..s.offset {
-                side.next_row()?;
+                r.next_row()?;
                 stopped()?;
             }
-            &mut side
-        };
+            current = Some((s.input, r));
+        }
+        let (_, r) = current.as_mut().expect("opened above");
         for _ in 0..s.piece.count {
             let Some(row) = r.next_row()? else {
                 bail!(
@@ -334,9 +355,11 @@ fn merge_binary(a: &Args) -> Result<()> {
             stopped()?;
         }
     }
-    // Every input read to its end, so each file's checksum is verified, rows taken by a
-    // second reader included.
-    for r in &mut readers {
+    if let Some(c) = current.take() {
+        done_with(c)?;
+    }
+    for input in (0..headers.len()).filter(|&i| !verified[i]) {
+        let mut r = open(input)?;
         while r.next_row()?.is_some() {
             stopped()?;
         }
@@ -377,8 +400,10 @@ fn runs_note(pieces: &[Piece]) -> Option<String> {
     (runs.len() > 1).then(|| {
         // Runs of one seed and size differ in their condition sampler: named then, or the
         // note listed the same words twice.
+        // At most 10 named: 76,000 runs made one line of megabytes.
         let each: Vec<String> = runs
             .iter()
+            .take(10)
             .map(|(r, count)| {
                 let twin = runs.iter().any(|(o, _)| {
                     !std::ptr::eq(*o, *r) && o.seed == r.seed && o.total_walks == r.total_walks
@@ -397,10 +422,16 @@ fn runs_note(pieces: &[Piece]) -> Option<String> {
                 )
             })
             .collect();
+        let more = runs.len() - each.len();
         format!(
-            "note: the inputs come from {} different runs: {}",
+            "note: the inputs come from {} different runs: {}{}",
             runs.len(),
-            each.join(", ")
+            each.join(", "),
+            if more > 0 {
+                format!(" and {more} more")
+            } else {
+                String::new()
+            }
         )
     })
 }

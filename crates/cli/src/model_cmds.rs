@@ -32,7 +32,12 @@ pub fn load_model(path: Option<&Path>) -> Result<ModelSet> {
              from the repository root (the shipped model lives there) or pass --model FILE"
         );
     }
-    Ok(ModelSet::load(&p)?)
+    // A file the user named is named as the flag's value (a bare "x: No such file" did
+    // not say which option it came from).
+    ModelSet::load(&p).map_err(|e| match path {
+        Some(_) => anyhow::anyhow!("--model {e}"),
+        None => e.into(),
+    })
 }
 
 #[derive(clap::Args)]
@@ -279,6 +284,9 @@ pub(crate) fn training_range(r: [f64; 2]) -> String {
 /// Most walks a setting `eval` compares: it keeps every sample of both sides in memory
 /// (a few hundred bytes a walk), and 10⁹ asked for 80 GB and aborted.
 pub(crate) const MAX_EVAL_SAMPLES: usize = 4_000_000;
+/// Most samples a setting for which `eval` keeps the plots' columns as the grid draws
+/// them: 640 bytes a sample over the 16 plotted settings (`plots::plotted`).
+const KEEP_PLOT_SAMPLES: usize = 500_000;
 
 #[derive(serde::Serialize)]
 struct EvalJson<'a> {
@@ -290,7 +298,9 @@ struct EvalJson<'a> {
 }
 
 pub fn evaluate(a: EvalArgs) -> Result<()> {
-    let before = crate::left_over::Snapshot::take(&a.out);
+    let before = crate::left_over::Snapshot::take_matching(&a.out, |name| {
+        name.starts_with("metrics.") || (name.starts_with("fig") && name.ends_with(".png"))
+    });
     if !a.at.is_empty() {
         evaluate_settings(&a)?;
     } else {
@@ -408,6 +418,13 @@ fn evaluate_settings(a: &EvalArgs) -> Result<()> {
     let mut reports = Vec::new();
     let mut bands = String::new();
     let cancel = crate::interrupt::flag();
+    eprintln!(
+        "evaluating {name} at {} ({} model and simulator samples each) -> {}",
+        progress::count(a.at.len() as u64, "setting"),
+        a.samples,
+        a.out.display()
+    );
+    let pb = progress::bar(a.at.len() as u64, "settings");
     for (i, c) in a.at.iter().enumerate() {
         // Ctrl-C stops it between settings, writing nothing.
         if cancel.load(std::sync::atomic::Ordering::Relaxed) {
@@ -421,7 +438,9 @@ fn evaluate_settings(a: &EvalArgs) -> Result<()> {
         );
         reports.push(eval::compare_setting(&model, &sim, c.tau, c.g, c.albedo));
         bands += &eval::fine_shells_table(&model, &sim, c.tau, c.g, c.albedo);
+        pb.inc(1);
     }
+    pb.finish_and_clear();
     let (json, mut md) = eval_json_and_head(&name, a.samples, a.seed, &reports)?;
     md.extend(bands.into_bytes());
     write_metrics(&a.out, &json, &md, &[])?;
@@ -452,10 +471,30 @@ pub fn evaluate_into(
     let pb = progress::bar(32, "settings");
     let stopped = || cancel.load(std::sync::atomic::Ordering::Relaxed);
     let interrupted = || anyhow::anyhow!("interrupted: nothing written to {}", out.display());
-    let reports = eval::evaluate_grid(&m, samples, seed, |i, _| {
-        pb.set_position(i as u64);
-        !stopped()
-    });
+    // The plots' columns of the φ = 1 settings are kept as the grid draws them (drawn
+    // again they doubled those settings' time, with no word while it ran); beyond
+    // KEEP_PLOT_SAMPLES (~0.3 GB kept) they are drawn again, with their own bar.
+    let keep = samples <= KEEP_PLOT_SAMPLES;
+    let mut cols = Vec::new();
+    let reports = eval::evaluate_grid(
+        &m,
+        samples,
+        seed,
+        |i, _| {
+            pb.set_position(i as u64);
+            !stopped()
+        },
+        |(tau, g, albedo), model, sim| {
+            if keep && albedo == 1.0 {
+                cols.push((
+                    tau,
+                    g,
+                    crate::plots::plotted(model, g),
+                    crate::plots::plotted(sim, g),
+                ));
+            }
+        },
+    );
     pb.finish_and_clear();
     if stopped() {
         return Err(interrupted());
@@ -465,21 +504,25 @@ pub fn evaluate_into(
     if let Some(w) = &outside {
         writeln!(md, "\n**Warning:** {w}.")?;
     }
-    // The plots redraw the φ = 1 settings with the grid's seeds (same samples).
-    let mut cols = Vec::new();
-    for (i, &tau) in eval::TAUS.iter().enumerate() {
-        for (j, &g) in eval::GS.iter().enumerate() {
-            if stopped() {
-                return Err(interrupted());
+    if !keep {
+        // The φ = 1 settings again with the grid's seeds (the same samples).
+        let pb = progress::bar(16, "settings drawn again for the plots");
+        for (i, &tau) in eval::TAUS.iter().enumerate() {
+            for (j, &g) in eval::GS.iter().enumerate() {
+                if stopped() {
+                    return Err(interrupted());
+                }
+                let seed = seed.wrapping_add((i * eval::GS.len() + j) as u64);
+                cols.push((
+                    tau,
+                    g,
+                    crate::plots::plotted(&eval::model_columns(&m, tau, g, 1.0, samples, seed), g),
+                    crate::plots::plotted(&eval::simulator_columns(tau, g, 1.0, samples, seed), g),
+                ));
+                pb.inc(1);
             }
-            let seed = seed.wrapping_add((i * eval::GS.len() + j) as u64);
-            cols.push((
-                tau,
-                g,
-                eval::model_columns(&m, tau, g, 1.0, samples, seed),
-                eval::simulator_columns(tau, g, 1.0, samples, seed),
-            ));
         }
+        pb.finish_and_clear();
     }
     let panels: Vec<crate::plots::Panel> = cols.iter().map(|(t, g, m, s)| (*t, *g, m, s)).collect();
     let figs = crate::plots::render_all(&panels)?;

@@ -26,6 +26,21 @@ fn init_font() {
 /// One grid cell's data: (τ, g, model columns, simulator columns).
 pub type Panel<'a> = (f64, f64, &'a Columns, &'a Columns);
 
+/// The columns the plots of a setting at `g` read (log N and cos θ; α and β at the g of
+/// the 2-D figures), the others left empty: what `eval` keeps of the grid's samples.
+pub fn plotted(c: &Columns, g: f64) -> Columns {
+    let mut slim = Columns::default();
+    let wanted: &[usize] = if g == GS[2] {
+        &[LOG_N, COS, ALPHA, BETA]
+    } else {
+        &[LOG_N, COS]
+    };
+    for &q in wanted {
+        slim.0[q] = c.0[q].clone();
+    }
+    slim
+}
+
 const LOG_N: usize = 1;
 const COS: usize = 2;
 const ALPHA: usize = 3;

@@ -39,7 +39,7 @@ pub struct Args {
     pub spp: Option<u32>,
     /// Random seed, an integer in [0, 2⁶⁴) (overrides render.seed): renders with different
     /// seeds are independent and can be averaged with `stcvae merge`.
-    #[arg(long, allow_negative_numbers = true)]
+    #[arg(long, allow_negative_numbers = true, value_parser = parse_seed)]
     pub seed: Option<u64>,
     /// Model file for stcvae (default: models/default.stcvae).
     #[arg(long)]
@@ -69,6 +69,13 @@ pub struct Args {
     /// longer belong to OUT.exr.
     #[arg(long)]
     pub variance: bool,
+}
+
+/// `--seed`: clap's own u64 parser said only "invalid digit found in string" for -1.
+pub fn parse_seed(s: &str) -> Result<u64, String> {
+    s.trim()
+        .parse()
+        .map_err(|_| "expected a whole number in [0, 2^64)".to_string())
 }
 
 /// `--exposure`: a positive number that stays positive and finite as the f32 the PNG
@@ -102,16 +109,29 @@ fn parse_integrator(s: &str) -> Result<IntegratorKind, String> {
 
 #[derive(Serialize)]
 struct Report<'a> {
+    /// The stcvae version that rendered it.
+    version: &'static str,
     scene: String,
     integrator: &'static str,
     nee: bool,
     model: Option<String>,
+    /// FNV-1a 64 of the model (hex): tells a replaced model file apart.
+    model_hash: Option<String>,
     /// Samples per pixel rendered: fewer than `spp_requested` when a time budget or Ctrl-C
     /// stopped the render.
     spp: u32,
     /// None under a time budget without --spp: the budget alone ends the render.
     spp_requested: Option<u32>,
+    /// `--time-budget` in seconds.
+    time_budget: Option<f64>,
+    /// Whether Ctrl-C cut the render short (a time budget's stop is not an interruption).
+    interrupted: bool,
+    /// The seed, and the same as text: JSON readers that hold numbers as doubles (jq,
+    /// JavaScript) round seeds above 2^53.
     seed: u64,
+    seed_text: String,
+    /// `--exposure`, the factor the PNG was scaled by (the EXR is not).
+    exposure: f32,
     width: u32,
     height: u32,
     seconds: f64,
@@ -125,17 +145,19 @@ struct Report<'a> {
     /// PT: scattering events per path. ST-CVAE: the thin-region PT fallbacks per path.
     mean_pt_events_per_path: f64,
     mean_sphere_steps_per_path: f64,
-    min_tau: f64,
+    /// ST-CVAE's settings; null for PT, which reads none of them.
+    min_tau: Option<f64>,
     max_tau: Option<f64>,
     /// Sphere steps below this optical radius simulate their walk exactly; null when all
     /// do (g above render_gpu::scene::MODEL_MAX_G).
     exact_tau: Option<f64>,
-    /// NEE events per model-drawn and per exactly simulated sphere step.
-    nee_samples: u32,
-    exact_nee_samples: u32,
+    /// NEE events per model-drawn and per exactly simulated sphere step (null without
+    /// NEE).
+    nee_samples: Option<u32>,
+    exact_nee_samples: Option<u32>,
     /// ST-CVAE's shadow rays per path (0: one at every NEE event).
-    path_nee_rays: u32,
-    grid_resolution: u32,
+    path_nee_rays: Option<u32>,
+    grid_resolution: Option<u32>,
     scene_hash: String,
     /// Where it ran: "cpu (N threads, CPU model)" or "gpu: adapter (backend, type)", with
     /// "on CPU model" after a software adapter.
@@ -155,6 +177,8 @@ pub struct Prepared {
     pub data: SceneData,
     pub model: Option<cvae::ModelSet>,
     pub model_path: Option<PathBuf>,
+    /// FNV-1a 64 of the model file's bytes.
+    pub model_hash: Option<u64>,
     pub max_tau: f32,
 }
 
@@ -265,6 +289,15 @@ pub fn prepare(
     Ok(Prepared {
         file,
         data,
+        // Of the file's bytes (what a user can hash again), not the re-serialised model.
+        model_hash: model_path
+            .as_ref()
+            .and_then(|p| std::fs::read(p).ok())
+            .map(|bytes| {
+                let mut h = render_gpu::hash::Fnv64::new();
+                h.write(&bytes);
+                h.finish()
+            }),
         model,
         model_path,
         max_tau,
@@ -386,6 +419,25 @@ fn render_inputs(a: &Args, p: &Prepared) -> Vec<(String, PathBuf)> {
 
 /// Says once when the scene's lights cannot contribute: delta lights without NEE.
 pub fn note_unreachable_lights(p: &Prepared) {
+    // A scene without light renders black by design; say so rather than hand over a
+    // black image as a result.
+    let env = &p.data.env;
+    let env_black = env.radiance.iter().all(|&v| v == 0.0)
+        || env
+            .map
+            .as_ref()
+            .is_some_and(|m| m.pixels.iter().all(|px| px.iter().all(|&v| v == 0.0)));
+    if env_black
+        && p.data
+            .lights
+            .iter()
+            .all(|l| l.irradiance.iter().all(|&v| v == 0.0))
+    {
+        eprintln!(
+            "warning: the scene has no light (no [[light]] with irradiance above 0 and a \
+             black [environment]): the image will be black"
+        );
+    }
     if p.data.lights.iter().all(|l| l.is_delta()) && !p.file.render.nee && !p.data.lights.is_empty()
     {
         eprintln!(
@@ -548,14 +600,22 @@ pub fn run(a: Args) -> Result<()> {
         unknown_digests: Vec::new(),
     };
     let paths = out.stats.paths.max(1) as f64;
+    let stcvae = p.model.is_some();
+    let stcvae_nee = stcvae && r.nee;
     let report = Report {
+        version: env!("CARGO_PKG_VERSION"),
         scene: a.scene.display().to_string(),
         integrator: r.integrator.name(),
         nee: r.nee,
         model: p.model_path.as_ref().map(|m| m.display().to_string()),
+        model_hash: p.model_hash.map(|h| format!("{h:016x}")),
         spp: out.spp,
         spp_requested: spp_cap,
+        time_budget: a.time_budget,
+        interrupted,
         seed: r.seed,
+        seed_text: r.seed.to_string(),
+        exposure: a.exposure,
         width: p.file.camera.width,
         height: p.file.camera.height,
         seconds: out.seconds,
@@ -564,13 +624,13 @@ pub fn run(a: Args) -> Result<()> {
         paths_per_second: out.paths_per_second(),
         mean_pt_events_per_path: out.stats.events as f64 / paths,
         mean_sphere_steps_per_path: out.stats.steps as f64 / paths,
-        min_tau: set.min_tau as f64,
-        max_tau: p.model.as_ref().map(|_| p.max_tau as f64),
-        exact_tau: p.models_trusted().then_some(set.exact_tau as f64),
-        nee_samples: set.nee_samples,
-        exact_nee_samples: set.exact_nee_samples,
-        path_nee_rays: set.path_nee_rays,
-        grid_resolution: r.grid_resolution,
+        min_tau: stcvae.then_some(set.min_tau as f64),
+        max_tau: stcvae.then_some(p.max_tau as f64),
+        exact_tau: (stcvae && p.models_trusted()).then_some(set.exact_tau as f64),
+        nee_samples: stcvae_nee.then_some(set.nee_samples),
+        exact_nee_samples: stcvae_nee.then_some(set.exact_nee_samples),
+        path_nee_rays: stcvae_nee.then_some(set.path_nee_rays),
+        grid_resolution: stcvae.then_some(r.grid_resolution),
         scene_hash: format!("{hash:016x}"),
         device: engine.describe(),
         mean_rgb: mean_rgb(&out.image),
@@ -677,11 +737,20 @@ pub(crate) fn mean_rgb(image: &render_gpu::image_io::RgbImage) -> [f64; 3] {
 /// `leaks`; `what` names the render where a command renders several.
 pub(crate) fn leak_note(stats: &render_gpu::integrator::PathStats, what: &str) {
     if stats.leaks > 0 {
+        let rate = stats.leaks as f64 / stats.paths.max(1) as f64;
+        // Rounding leaks a path in 10⁵ or fewer; a mesh folded through itself (a single
+        // closed piece is not checked for that) leaks in most paths, and the image is wrong.
+        let cause = if rate > 1e-3 {
+            "; this many mean the mesh most likely intersects itself, and the image is wrong \
+             there: repair the mesh"
+        } else {
+            ""
+        };
         eprintln!(
-            "note: {what}{} times (over {} paths, {:.1e} a path) a path was found outside the mesh while it believed itself inside; each continued from there as outside",
-            stats.leaks,
-            stats.paths,
-            stats.leaks as f64 / stats.paths.max(1) as f64
+            "note: {what}{} times (over {} paths, {rate:.1e} a path) a path was found outside \
+             the mesh while it believed itself inside; each continued from there as \
+             outside{cause}",
+            stats.leaks, stats.paths,
         );
     }
 }

@@ -58,6 +58,31 @@ fn fixed_condition_csv() {
     }
 }
 
+/// Outputs get an ordinary file's mode narrowed by the umask, like any other program's: a
+/// fixed 0644 made them readable by everyone under umask 077. Run through `sh` so that
+/// the umask is the child's alone (the tests share one process).
+#[cfg(unix)]
+#[test]
+fn outputs_follow_the_umask() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tempfile::tempdir().unwrap();
+    for (umask, mode) in [("077", 0o600), ("022", 0o644)] {
+        let out = std::process::Command::new("sh")
+            .arg("-c")
+            .arg(format!(
+                "umask {umask} && exec \"$0\" generate --samples 10 --tau 1 --g 0 --albedo 1 \
+                 --out w{umask}.bin"
+            ))
+            .arg(env!("CARGO_BIN_EXE_stcvae"))
+            .current_dir(dir.path())
+            .output()
+            .unwrap();
+        ok(&out);
+        let m = fs::metadata(dir.path().join(format!("w{umask}.bin"))).unwrap();
+        assert_eq!(m.permissions().mode() & 0o777, mode, "umask {umask}");
+    }
+}
+
 /// The last shard of a run of u64::MAX walks holds one walk, the one at index u64::MAX − 1:
 /// its chunk's end must not wrap (start + 4,096 did, and the run never ended, filling the
 /// disk). The shard's walk index is the run's, so this is a run of one walk.
@@ -107,6 +132,55 @@ fn the_last_shard_of_the_largest_run_ends() {
     assert!(status.success(), "{status}");
     let text = fs::read_to_string(dir.path().join("last.csv")).unwrap();
     assert_eq!(text.lines().count(), 2, "a header and one walk: {text}");
+}
+
+/// `merge` holds one input open at a time: under a descriptor limit of 20 it merges 40
+/// shards (it opened them all at once and ran out of descriptors at 1,100 shards under
+/// the usual 1,024), and the rows are the unsharded run's.
+#[cfg(unix)]
+#[test]
+fn merge_keeps_one_input_open() {
+    let dir = tempfile::tempdir().unwrap();
+    let gen_args = |extra: &[&str]| {
+        let mut v = vec![
+            "generate",
+            "--samples",
+            "400",
+            "--tau",
+            "2",
+            "--g",
+            "0",
+            "--albedo",
+            "1",
+        ];
+        v.extend_from_slice(extra);
+        v.iter().map(|s| s.to_string()).collect::<Vec<_>>()
+    };
+    let run = |args: Vec<String>| {
+        let a: Vec<&str> = args.iter().map(String::as_str).collect();
+        ok(&stcvae(&a, dir.path()));
+    };
+    run(gen_args(&["--out", "whole.bin"]));
+    let mut names = Vec::new();
+    for i in 0..40 {
+        let (shard, name) = (format!("{i}/40"), format!("p{i:02}.bin"));
+        run(gen_args(&["--shard", &shard, "--out", &name]));
+        names.push(name);
+    }
+    let out = std::process::Command::new("sh")
+        .arg("-c")
+        .arg(format!(
+            "ulimit -n 20 && exec \"$0\" merge {} --out merged.bin",
+            names.join(" ")
+        ))
+        .arg(env!("CARGO_BIN_EXE_stcvae"))
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    ok(&out);
+    let (_, whole) = read_dataset(&dir.path().join("whole.bin")).unwrap();
+    let (_, merged) = read_dataset(&dir.path().join("merged.bin")).unwrap();
+    assert!(whole == merged, "merged rows differ from the unsharded run");
 }
 
 #[test]
@@ -475,6 +549,46 @@ fn interrupted_runs_leave_no_files() {
         let left: Vec<_> = fs::read_dir(dir.path()).unwrap().collect();
         assert!(left.is_empty(), "{args:?} left {left:?}");
     }
+}
+
+/// `eval` names as left over only files it writes itself: run in a folder that holds the
+/// user's own files (`--out .`), it told them to delete a config and a CSV.
+#[test]
+fn eval_names_only_its_own_files_as_left_over() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = concat!(env!("CARGO_MANIFEST_DIR"), "/../../models/default.stcvae");
+    fs::write(dir.path().join("small.toml"), "x = 1\n").unwrap();
+    fs::write(dir.path().join("walks.csv"), "tau\n").unwrap();
+    // A plot of an earlier grid run, which `--at` does not draw.
+    fs::write(dir.path().join("fig11_n.png"), b"png").unwrap();
+    let out = stcvae(
+        &[
+            "eval",
+            "--model",
+            model,
+            "--at",
+            "5,0,1",
+            "--samples",
+            "100",
+            "--out",
+            ".",
+        ],
+        dir.path(),
+    );
+    ok(&out);
+    let err = String::from_utf8_lossy(&out.stderr);
+    let note = err
+        .lines()
+        .find(|l| l.contains("of an earlier run"))
+        .unwrap_or_else(|| panic!("no note: {err}"));
+    assert!(
+        note.contains("1 file of an earlier run") && note.contains("fig11_n.png"),
+        "{note}"
+    );
+    assert!(
+        !note.contains("small.toml") && !note.contains("walks.csv"),
+        "{note}"
+    );
 }
 
 /// Ctrl-C stops `eval` after its current setting: status 130, the message, no results

@@ -457,7 +457,29 @@ fn bad_arguments_name_the_argument() {
     let d = tempfile::tempdir().unwrap();
     let file = d.path().join("file");
     std::fs::write(&file, b"x").unwrap();
-    let cases: [(Vec<String>, &str); 17] = [
+    let cases: [(Vec<String>, &str); 19] = [
+        // The seed's range (clap's parser said "invalid digit found in string"); a model
+        // file that is missing named as --model's value.
+        (
+            vec!["render".into(), "--seed".into(), "-1".into()],
+            "'-1' for '--seed <SEED>': expected a whole number in [0, 2^64)",
+        ),
+        (
+            vec![
+                "sample".into(),
+                "--model".into(),
+                "missing.stcvae".into(),
+                "--tau".into(),
+                "1".into(),
+                "--g".into(),
+                "0".into(),
+                "--albedo".into(),
+                "1".into(),
+                "--out".into(),
+                d.path().join("s.csv").display().to_string(),
+            ],
+            "--model missing.stcvae: ",
+        ),
         // A file of another command: named for what it is.
         (
             vec![
@@ -852,6 +874,39 @@ fn sphere_pt_render(device: &str, out: &Path) -> Command {
     c
 }
 
+/// The render's JSON says where the image came from: the version, the exposure, whether
+/// Ctrl-C cut it short, the seed as text too (JSON readers holding doubles round seeds
+/// above 2^53); under PT, ST-CVAE's settings are null, not values PT never read.
+#[test]
+fn the_render_json_describes_the_render() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("r");
+    ok(&sphere_pt_render("cpu", &out)
+        .args(["--seed", "18446744073709551615", "--exposure", "2"])
+        .output()
+        .unwrap());
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(tmp.path().join("r.json")).unwrap()).unwrap();
+    assert_eq!(json["version"], env!("CARGO_PKG_VERSION"), "{json}");
+    assert_eq!(json["seed_text"], "18446744073709551615", "{json}");
+    assert_eq!(json["exposure"], 2.0, "{json}");
+    assert_eq!(json["interrupted"], false, "{json}");
+    assert!(json["time_budget"].is_null(), "{json}");
+    for key in [
+        "model",
+        "model_hash",
+        "min_tau",
+        "max_tau",
+        "exact_tau",
+        "nee_samples",
+        "exact_nee_samples",
+        "path_nee_rays",
+        "grid_resolution",
+    ] {
+        assert!(json[key].is_null(), "{key} under PT: {json}");
+    }
+}
+
 /// Without a usable adapter (`WGPU_BACKEND=gl` names only a backend that is not compiled
 /// in), `--device gpu` is a one-line error naming the fix, and `--device auto` renders on
 /// the CPU and says so once.
@@ -1129,6 +1184,13 @@ fn shipped_defaults_are_found_from_another_directory() {
         .join("configs/scenes/bunny.toml")
         .canonicalize()
         .unwrap();
+    // The model's hash is of the file the render read.
+    let mut h = render_gpu::hash::Fnv64::new();
+    h.write(&std::fs::read(&model).unwrap());
+    assert!(
+        json.contains(&format!("\"model_hash\": \"{:016x}\"", h.finish())),
+        "{json}"
+    );
     for (what, p) in [("model", &model), ("scene", &scene)] {
         assert!(
             json.contains(&format!("{:?}", p.display().to_string())),

@@ -462,12 +462,15 @@ pub fn compare_setting(
 
 /// The full grid: 16 settings at φ = 1 plus the 16 EventGen settings at φ = 0.9.
 /// `progress(done, total)` is told after each setting; where it returns false the grid
-/// stops there and the settings done so far are returned (a stop request).
+/// stops there and the settings done so far are returned (a stop request). `seen` gets
+/// each setting's (τ, g, φ) and its model and simulator samples (for plots, which then
+/// need not draw them again).
 pub fn evaluate_grid(
     m: &ModelSet,
     samples: usize,
     seed: u64,
     mut progress: impl FnMut(usize, usize) -> bool,
+    mut seen: impl FnMut((f64, f64, f64), &Columns, &Columns),
 ) -> Vec<SettingReport> {
     let settings: Vec<(f64, f64, f64)> = ALBEDOS
         .iter()
@@ -479,14 +482,11 @@ pub fn evaluate_grid(
     let total = settings.len();
     let mut reports = Vec::with_capacity(total);
     for (i, &(t, g, a)) in settings.iter().enumerate() {
-        reports.push(evaluate_setting(
-            m,
-            t,
-            g,
-            a,
-            samples,
-            seed.wrapping_add(i as u64),
-        ));
+        let seed = seed.wrapping_add(i as u64);
+        let sim = simulator_columns(t, g, a, samples, seed);
+        let model = model_columns(m, t, g, a, samples, seed);
+        reports.push(compare_setting(&model, &sim, t, g, a));
+        seen((t, g, a), &model, &sim);
         if !progress(i + 1, total) {
             break;
         }

@@ -33,7 +33,7 @@ pub enum ModelError {
         supported: u32,
     },
     #[error(
-        "{path}: the model file has {found} bytes where its header promises {}{expected}: truncated or padded",
+        "{path}: the model file has {found} bytes where its header promises {}{expected}: truncated, padded or damaged in its header",
         if *.at_least { "at least " } else { "" }
     )]
     Truncated {
@@ -87,6 +87,7 @@ pub struct DecoderSpec {
 
 /// What the models were trained on: renderers warn when asked for conditions outside.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct TrainingInfo {
     pub tau_range: [f64; 2],
     pub g_range: [f64; 2],
@@ -373,15 +374,71 @@ impl ModelSet {
         let event = decoders.pop().unwrap();
         let path_d = decoders.pop().unwrap();
         let length = decoders.pop().unwrap();
-        Ok(Self {
+        let set = Self {
             feature_version: meta.feature_version,
             single_scattering: meta.single_scattering,
             training: meta.training,
             length,
             path: path_d,
             event,
-        })
+        };
+        set.check_length_decoder()
+            .map_err(|e| invalid(format!("lengthgen: {e}")))?;
+        Ok(set)
     }
+
+    /// LengthGen's median and spread of the relative log N over a 3 × 3 grid of its
+    /// training range (τ spaced in ln(1 + τ)), at the latent mean.
+    ///
+    /// Weights and standardisation each within their bounds can still decode N = e^100
+    /// (capped at 1e15), and NEE through EventGen weighs a walk's every event: such a file
+    /// rendered an image of 1e13 without a word. The simulator's walks have a median
+    /// relative log N within about ±1 and a spread below 1 (docs/TRAINING.md), so a file
+    /// beyond ±[`MAX_RELATIVE_LOG_N`] or a spread above [`MAX_LOG_N_SPREAD`] is damaged
+    /// or hand-edited, never merely under-trained (training starts from the data's own
+    /// mean and spread).
+    pub fn check_length_decoder(&self) -> Result<(), String> {
+        let t = &self.training;
+        let (lo, hi) = (t.tau_range[0].ln_1p(), t.tau_range[1].ln_1p());
+        let z = vec![0f32; self.length.latent];
+        for i in 0..3 {
+            let tau = (lo + (hi - lo) * i as f64 / 2.0).exp_m1();
+            for j in 0..3 {
+                let g = t.g_range[0] + (t.g_range[1] - t.g_range[0]) * j as f64 / 2.0;
+                let cond = features::WalkFeatures::new(tau, g, 1.0).length_cond();
+                let head = self.length.head(&self.length.draw(&cond, &z, &[0.0]));
+                let (scale, shift) = (
+                    self.length.out_scale[0] as f64,
+                    self.length.out_shift[0] as f64,
+                );
+                let median = head[0] as f64 * scale + shift;
+                let logvar =
+                    head[1].clamp(-crate::decoder::LOGVAR_CLAMP, crate::decoder::LOGVAR_CLAMP);
+                let spread = scale * (0.5 * logvar as f64).exp();
+                if !(median.abs() <= MAX_RELATIVE_LOG_N && spread <= MAX_LOG_N_SPREAD) {
+                    return Err(format!(
+                        "at τ = {}, g = {} it decodes ln N = ln(diffusion count) + \
+                         {median:.1} ± {spread:.1} (median ± spread); trained models stay \
+                         within ±{MAX_RELATIVE_LOG_N} and a spread of {MAX_LOG_N_SPREAD} (a \
+                         damaged or hand-edited file)",
+                        significant(tau),
+                        significant(g)
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Bounds of [`ModelSet::check_length_decoder`], in units of ln N.
+pub const MAX_RELATIVE_LOG_N: f64 = 8.0;
+pub const MAX_LOG_N_SPREAD: f64 = 4.0;
+
+/// τ and g of a probe point, short and exact enough to repeat on the command line.
+fn significant(x: f64) -> String {
+    let s = format!("{x:.4}");
+    s.trim_end_matches('0').trim_end_matches('.').to_string()
 }
 
 /// Bounds on a decoder's standardisation: every feature it reads or writes is O(1) to

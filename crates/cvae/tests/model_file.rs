@@ -161,6 +161,15 @@ fn load_refuses_foreign_and_oversized_files_before_reading_them() {
     let hidden = vec![MAX_WIDTH; MAX_HIDDEN_LAYERS];
     let mut m = random_models(5, 1.0);
     m.length = random_decoder(&mut rng, LENGTH_COND, 16, &hidden, LENGTH_OUT, 1.0);
+    // Eight random layers decode absurd walk lengths, which the load probe refuses: a
+    // zero head (median N the diffusion count, spread e^1) keeps the size test about size.
+    let head = m.length.layers.last_mut().unwrap();
+    *head = Dense::new(
+        head.inputs,
+        head.outputs,
+        vec![0.0; head.inputs * head.outputs],
+        vec![0.0; head.outputs],
+    );
     m.path = random_decoder(&mut rng, PATH_COND, 16, &hidden, PATH_OUT, 1.0);
     m.event = random_decoder(&mut rng, EVENT_COND, 16, &hidden, EVENT_OUT, 1.0);
     let bytes = m.to_bytes();
@@ -321,7 +330,11 @@ fn bad_training_ranges_are_refused() {
     let mut long = random_models(5, 1.0).to_bytes();
     long.push(0);
     let e = ModelSet::from_bytes(&long, Path::new("r.stcvae")).unwrap_err();
-    assert!(e.to_string().contains("truncated or padded"), "{e}");
+    assert!(
+        e.to_string()
+            .contains("truncated, padded or damaged in its header"),
+        "{e}"
+    );
 }
 
 /// Wild weights (gain 40) make the decoders return absurd values; the sampler must
@@ -538,4 +551,30 @@ fn antithetic_event_draws_keep_the_marginal() {
     let p = albedo / lambda;
     let z = scatter_sim::stats::proportion_z(centres, n as u64, p);
     assert!(z.abs() < 4.0, "centre share: p = {p:.4}, z = {z:.2}");
+}
+
+/// LengthGen is probed on load: weights and standardisation each inside their bounds
+/// decoded N = e^100 (rendered at 1e13 without a word). A median beyond e^±8 times the
+/// diffusion count, or a spread above e^4, is refused by condition; the random test
+/// weights (O(1) outputs, like a trained file's) pass.
+#[test]
+fn absurd_lengthgen_is_refused() {
+    let load = |m: &ModelSet| ModelSet::from_bytes(&m.to_bytes(), Path::new("n.stcvae"));
+    let mut m = random_models(5, 1.0);
+    load(&m).unwrap();
+    m.length.out_shift[0] = 50.0;
+    let e = load(&m).unwrap_err().to_string();
+    assert!(
+        e.contains("n.stcvae: invalid model: lengthgen: at τ = 0, g = -0.999 it decodes ln N = ln(diffusion count) + 48.9 ± 0.7"),
+        "{e}"
+    );
+    assert!(e.contains("damaged or hand-edited"), "{e}");
+    // The log-variance head's bias at the weight bound: a spread of e^(8 × out_scale).
+    let mut m = random_models(5, 1.0);
+    let head = m.length.layers.last_mut().unwrap();
+    let mut bias = head.bias.clone();
+    bias[1] = 1e4;
+    *head = Dense::new(head.inputs, head.outputs, head.weight.clone(), bias);
+    let e = load(&m).unwrap_err().to_string();
+    assert!(e.contains("+ -1.1 ± 2981.0 (median ± spread)"), "{e}");
 }

@@ -40,6 +40,14 @@ pub struct Hit {
 
 /// [`Geometry::flight_margin`] in units of eps (the WGSL kernels take it from here).
 pub const FLIGHT_MARGIN_OF_EPS: f32 = 0.02;
+/// The smallest |cos| [`Geometry::spawn_skip`] divides by (the WGSL kernels take it from
+/// here).
+pub const SKIP_MIN_COS: f32 = 0.05;
+/// Most mean free paths the spawn offset eps may span (σ_t·eps). With the skip taken off
+/// the next flight ([`Geometry::spawn_skip`]) a unit sphere's image is flat to 0.15 % up
+/// to σ_t·eps = 0.4 (σ_t 10⁴) and 4.7 % dark at 1.2 (docs/BENCHMARKS.md): a collision
+/// drawn within the offset still happens at its depth.
+pub const MAX_SPAWN_DEPTH: f32 = 0.5;
 /// How far [`Geometry::beyond_sliver`] looks, in units of eps. What it must see is a far
 /// face between the spawned point and the hit point, at t < eps; looking a little past the
 /// hit point (by more than the spawned point's rounding, an ulp of the coordinates, ~1 %
@@ -587,6 +595,16 @@ impl Geometry {
     #[inline]
     pub fn within_bounds(&self, p: Vec3) -> bool {
         p.cmpge(self.lo - self.eps).all() && p.cmple(self.hi + self.eps).all()
+    }
+
+    /// The medium a path spawned inside at a surface with normal `normal`, heading `dir`,
+    /// has passed without a chance to scatter: the way along `dir` from the surface to
+    /// [`Self::spawn`]'s depth eps. The next flight is measured from the surface by
+    /// taking it off ([`crate::integrator`]'s `PathState::skip`). A grazing direction's
+    /// credit stops at eps / [`SKIP_MIN_COS`].
+    #[inline]
+    pub fn spawn_skip(&self, normal: Vec3, dir: Vec3) -> f32 {
+        self.eps / dir.dot(normal).abs().max(SKIP_MIN_COS)
     }
 
     /// A point just off the surface at `p`, on the side `dir` points to.

@@ -183,8 +183,30 @@ pub fn prepare(mut m: TriMesh) -> Result<TriMesh, String> {
         ));
     }
     let dropped = m.triangles.len() - triangles.len();
+    // Only the vertices the triangles use, in their order: a PLY's or glTF's stray point
+    // counted in the bounds, and so scaled the object under `height` (a cube with one
+    // unused vertex came out a tenth of its size, off-centre), set its offsets' scale and
+    // could fail the extent check for a point that is not drawn.
+    let mut new_index = vec![u32::MAX; positions.len()];
+    for t in &triangles {
+        for &i in t {
+            new_index[i as usize] = 0;
+        }
+    }
+    let mut used = Vec::with_capacity(positions.len());
+    for (i, p) in positions.iter().enumerate() {
+        if new_index[i] == 0 {
+            new_index[i] = used.len() as u32;
+            used.push(*p);
+        }
+    }
+    for t in &mut triangles {
+        for i in t.iter_mut() {
+            *i = new_index[*i as usize];
+        }
+    }
     m = TriMesh {
-        positions,
+        positions: used,
         triangles,
     };
     check_closed(&m).map_err(|e| {

@@ -94,9 +94,27 @@ impl SceneData {
         let mesh = object_mesh(scene, scene_dir)?;
         let env = crate::light::Environment::new(&scene.environment, scene_dir)?;
         let mut h = Fnv64::new();
+        // What the image depends on, and nothing else: renders of one scene from two job
+        // folders (the mesh named by another relative path) or with settings their
+        // integrator never reads must merge. The mesh and map contents are hashed below.
         let mut ident = scene.clone();
         ident.render.spp = 0;
         ident.render.seed = 0;
+        ident.object.mesh = ident.object.mesh.map(|_| "mesh".into());
+        ident.environment.file = ident.environment.file.map(|_| "map".into());
+        let unread = crate::scene::RenderDesc::default();
+        let r = &mut ident.render;
+        if r.integrator == crate::scene::IntegratorKind::Pt {
+            r.grid_resolution = unread.grid_resolution;
+            r.min_tau = None;
+            r.max_tau = None;
+            r.exact_tau = None;
+        }
+        if r.integrator == crate::scene::IntegratorKind::Pt || !r.nee {
+            r.nee_samples = unread.nee_samples;
+            r.exact_nee_samples = unread.exact_nee_samples;
+            r.path_nee_rays = unread.path_nee_rays;
+        }
         h.write(serde_json::to_string(&ident).unwrap_or_default().as_bytes());
         for p in &mesh.positions {
             for x in p.to_array() {
@@ -132,6 +150,23 @@ impl SceneData {
             )
         });
         let geo = Geometry::new(mesh);
+        // The medium must be thicker than the surface offset by a margin, or paths entering
+        // it start too deep and the image comes out dark (black at σ_t 10⁶ on a unit
+        // sphere) without a word.
+        for (i, &s) in scene.medium.sigma_t.iter().enumerate() {
+            let depth = s * geo.eps as f64;
+            if depth > crate::geometry::MAX_SPAWN_DEPTH as f64 {
+                return Err(RenderError::Scene(format!(
+                    "medium.sigma_t[{i}] = {} is too dense for an object of this size: the \
+                     renderer's surface offset ({:.3e}, 2e-5 of the object's extent) would be \
+                     {depth:.2} mean free paths deep and darken the image; allowed sigma_t <= \
+                     {:.4e} here (scale the object up or lower sigma_t)",
+                    scatter_sim::ranges::num(s),
+                    geo.eps,
+                    crate::geometry::MAX_SPAWN_DEPTH as f64 / geo.eps as f64
+                )));
+            }
+        }
         let mut notes: Vec<String> = geo
             .overlaps
             .iter()

@@ -44,6 +44,35 @@ fn write(dir: &tempfile::TempDir, name: &str, text: &[u8]) -> PathBuf {
 const CUBE_OBJ: &str = "v -1 -1 -1\nv 1 -1 -1\nv -1 1 -1\nv 1 1 -1\nv -1 -1 1\nv 1 -1 1\nv -1 1 1\nv 1 1 1\n\
 f 1 3 4 2\nf 5 6 8 7\nf 1 2 6 5\nf 3 7 8 4\nf 1 5 7 3\nf 2 4 8 6\n";
 
+/// A vertex no face uses (PLY and glTF may hold them; OBJ's reader drops them) is not
+/// part of the object: it counted in the bounds, so `height` shrank a cube with a stray
+/// point at y = 10 to a tenth of its size, off-centre, and rendered it almost empty.
+#[test]
+fn unused_vertices_are_not_part_of_the_object() {
+    let d = tempfile::tempdir().unwrap();
+    let cube = load_mesh(&write(&d, "cube.obj", CUBE_OBJ.as_bytes())).unwrap();
+    let mut ply = String::from(
+        "ply\nformat ascii 1.0\nelement vertex 9\nproperty float x\nproperty float y\n\
+         property float z\nelement face 6\nproperty list uchar int vertex_indices\nend_header\n",
+    );
+    let (verts, faces) = CUBE_OBJ.split_at(CUBE_OBJ.find('f').unwrap());
+    for v in verts.lines() {
+        ply += &format!("{}\n", &v[2..]);
+    }
+    ply += "0 10 0\n";
+    for f in faces.lines() {
+        let idx: Vec<u32> = f[2..]
+            .split(' ')
+            .map(|i| i.parse::<u32>().unwrap() - 1)
+            .collect();
+        ply += &format!("4 {} {} {} {}\n", idx[0], idx[1], idx[2], idx[3]);
+    }
+    let m = load_mesh(&write(&d, "stray.ply", ply.as_bytes())).unwrap();
+    assert_eq!(m.positions.len(), 8);
+    assert_eq!(m.bounds(), cube.bounds());
+    assert_eq!(m.triangles.len(), 12);
+}
+
 #[test]
 fn obj_quads_load_and_an_open_mesh_is_refused() {
     let d = tempfile::tempdir().unwrap();
@@ -1375,6 +1404,59 @@ fn the_scene_hash_sees_how_faces_are_cut() {
     let one = hash(split("f 3 7 8\nf 3 8 4\n"));
     assert_eq!(one, hash(split("f 3 7 8\nf 3 8 4\n")), "one mesh, one hash");
     assert_ne!(one, hash(split("f 3 7 4\nf 7 8 4\n")), "the other diagonal");
+}
+
+/// The scene hash keeps what the image depends on and nothing else: one mesh named by
+/// another path (a render from another job folder) and settings the integrator never
+/// reads (ST-CVAE's with PT, NEE's without NEE) leave it alone, so such renders merge;
+/// a setting the integrator does read changes it.
+#[test]
+fn the_scene_hash_ignores_paths_and_unread_settings() {
+    let d = tempfile::tempdir().unwrap();
+    write(&d, "m.obj", CUBE_OBJ.as_bytes());
+    std::fs::create_dir(d.path().join("job")).unwrap();
+    let hash = |mesh: &str, render: &str| {
+        let f = render_gpu::scene::SceneFile::parse(
+            &d.path().join("s.toml"),
+            &format!(
+                "[camera]\norigin = [0.0, 0.0, 6.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 30.0\n\
+                 width = 8\nheight = 8\n[object]\nmesh = \"{mesh}\"\n\
+                 [medium]\nsigma_t = [1.0, 1.0, 1.0]\nalbedo = [0.5, 0.5, 0.5]\n\
+                 [render]\n{render}\n"
+            ),
+        )
+        .unwrap();
+        render_gpu::setup::SceneData::build(&f, d.path(), false, &[])
+            .unwrap()
+            .hash
+    };
+    let pt = hash("m.obj", "integrator = \"pt\"");
+    assert_eq!(
+        pt,
+        hash("job/../m.obj", "integrator = \"pt\""),
+        "another path"
+    );
+    assert_eq!(
+        pt,
+        hash(
+            "m.obj",
+            "integrator = \"pt\"\nnee_samples = 4\nmin_tau = 0.5"
+        ),
+        "ST-CVAE's settings under PT"
+    );
+    assert_ne!(
+        pt,
+        hash("m.obj", "integrator = \"pt\"\nnee = false"),
+        "NEE off"
+    );
+    let st = |r: &str| hash("m.obj", &format!("integrator = \"stcvae\"\n{r}"));
+    assert_ne!(st(""), st("min_tau = 0.5"), "read by ST-CVAE");
+    assert_ne!(st(""), st("nee_samples = 4"), "read with NEE");
+    assert_eq!(
+        st("nee = false"),
+        st("nee = false\nnee_samples = 4"),
+        "unread without NEE"
+    );
 }
 
 /// The torus knot is a tube around its curve: every triangle lies about the tube's radius

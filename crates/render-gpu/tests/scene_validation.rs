@@ -345,3 +345,30 @@ fn other_configs_are_named_not_parsed() {
         }
     }
 }
+
+/// A medium denser than the surface offset allows (σ_t·eps above
+/// geometry::MAX_SPAWN_DEPTH; eps is 2e-5 of the object's extent, 4e-5 for the unit
+/// sphere) is refused by channel with the largest σ_t allowed for the object: at σ_t 10⁶
+/// the image came out black without a word. The same density in an object 100 times
+/// smaller is fine: the bound is on σ_t times the size.
+#[test]
+fn a_medium_too_dense_for_the_surface_offset_is_refused() {
+    let build = |sigma: &str, radius: &str| {
+        let text = BASE.replace("sigma_t = [10.0, 10.0, 10.0]", sigma).replace(
+            "shape = \"sphere\"",
+            &format!("shape = \"sphere\"\nradius = {radius}"),
+        );
+        let f = SceneFile::parse(Path::new("s.toml"), &text).unwrap();
+        render_gpu::setup::SceneData::build(&f, Path::new("."), false, &[])
+            .map(|_| ())
+            .map_err(|e| e.to_string())
+    };
+    let e = build("sigma_t = [10.0, 1e5, 10.0]", "1.0").unwrap_err();
+    assert!(
+        e.contains("medium.sigma_t[1] = 100000 is too dense")
+            && e.contains("allowed sigma_t <= 1.2500e4"),
+        "{e}"
+    );
+    build("sigma_t = [10.0, 1e4, 10.0]", "1.0").unwrap();
+    build("sigma_t = [10.0, 1e5, 10.0]", "0.01").unwrap();
+}

@@ -239,10 +239,17 @@ impl AtomicFile {
         check_replaceable(path)?;
         let dir = folder_of(path);
         fs::create_dir_all(dir)?;
-        let tmp = tempfile::Builder::new()
-            .prefix(&temp_prefix(path))
-            .suffix(".partial")
-            .tempfile_in(dir)?;
+        let mut builder = tempfile::Builder::new();
+        let prefix = temp_prefix(path);
+        builder.prefix(&prefix).suffix(".partial");
+        // An ordinary file's mode, which the umask then narrows like any other program's
+        // (a fixed 0644 after writing made files readable under umask 077).
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            builder.permissions(std::fs::Permissions::from_mode(0o666));
+        }
+        let tmp = builder.tempfile_in(dir)?;
         Ok(Self {
             path: path.to_path_buf(),
             live: Live::new(tmp.path()),
@@ -263,13 +270,6 @@ impl AtomicFile {
     /// longer fail for want of space.
     fn finish(self) -> io::Result<Finished> {
         let tmp = self.writer.into_inner().map_err(|e| e.into_error())?;
-        // Temporaries are created private (0600); the result is an ordinary file.
-        #[cfg(unix)]
-        {
-            use std::os::unix::fs::PermissionsExt;
-            tmp.as_file()
-                .set_permissions(std::fs::Permissions::from_mode(0o644))?;
-        }
         tmp.as_file().sync_all()?;
         Ok(Finished {
             tmp,

@@ -87,6 +87,12 @@ pub fn trace_many(
         for (i, cell) in slots.iter_mut().enumerate() {
             loop {
                 if cell.is_none() {
+                    // Also checked here: an ordinary path never reaches the in-path check
+                    // (every STOP_CHECK_EVERY iterations), so Ctrl-C waited for a whole
+                    // tile of PT in a dense medium (4–6 s).
+                    if stop.load(std::sync::atomic::Ordering::Relaxed) {
+                        return false;
+                    }
                     let Some(s) = next() else { break };
                     let mut path = Path::new(s.origin, s.dir, s.channel, s.rng);
                     path.first_hit = s.first_hit;

@@ -33,7 +33,7 @@ pub enum DatasetError {
         expected: u64,
         found: u64,
     },
-    #[error("{path}: checksum mismatch: the rows are corrupt")]
+    #[error("{path}: checksum mismatch: the header or the rows are corrupt")]
     Checksum { path: PathBuf },
     #[error("{path}: row {row}: {msg}")]
     BadRow {

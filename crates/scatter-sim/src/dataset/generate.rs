@@ -17,7 +17,7 @@ use crate::rng::WalkRng;
 use crate::walk::simulate_walk;
 
 /// Walks per chunk: about a second of work on two cores for the authors' sampler, small
-/// enough for a lively progress bar and a prompt Ctrl-C, large enough to keep both
+/// enough for a lively progress bar, large enough to keep both
 /// cores busy despite the τ³ spread of walk lengths.
 const CHUNK: u64 = 4096;
 
@@ -108,18 +108,27 @@ pub fn generate(
     let mut summary = GenerateSummary::default();
     let range = spec.range();
     let mut start = range.start;
-    let mut chunk: Vec<(Row, u64)> = Vec::with_capacity(CHUNK as usize);
+    let mut chunk: Vec<Option<(Row, u64)>> = Vec::with_capacity(CHUNK as usize);
     while start < range.end {
         if cancel.load(Ordering::Relaxed) {
             return Err(DatasetError::Interrupted);
         }
         // Not start + CHUNK: a shard ending at walk u64::MAX would wrap it and never end.
         let end = start + (range.end - start).min(CHUNK);
+        // Each walk looks at `cancel` too: at τ = 1000 a chunk is minutes of work (walks
+        // of ~10⁶ events), and a scheduler's SIGKILL after its grace period found the
+        // temporary file still there.
         (0..(end - start) as usize)
             .into_par_iter()
-            .map(|j| walk_row(spec.seed, &spec.sampler, start + j as u64))
+            .map(|j| {
+                (!cancel.load(Ordering::Relaxed))
+                    .then(|| walk_row(spec.seed, &spec.sampler, start + j as u64))
+            })
             .collect_into_vec(&mut chunk);
-        for (row, n) in &chunk {
+        if cancel.load(Ordering::Relaxed) {
+            return Err(DatasetError::Interrupted);
+        }
+        for (row, n) in chunk.iter().flatten() {
             sink.push(row)?;
             summary.events += n;
             summary.max_events = summary.max_events.max(*n);
