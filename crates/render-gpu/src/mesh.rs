@@ -145,7 +145,9 @@ pub fn load_mesh(path: &Path) -> Result<TriMesh, RenderError> {
 /// closed, manifold and consistently oriented, and orients it outward.
 pub fn prepare(mut m: TriMesh) -> Result<TriMesh, String> {
     if m.triangles.is_empty() {
-        return Err("the mesh has no triangles".into());
+        // (Faces whose corners coincide are dropped as they are read: a file of collapsed
+        // faces lands here too.)
+        return Err("the mesh has no triangles with three distinct corners".into());
     }
     if let Some(p) = m.positions.iter().find(|p| !p.is_finite()) {
         return Err(format!("a vertex position is not finite: {p}"));

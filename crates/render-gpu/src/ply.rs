@@ -114,6 +114,11 @@ pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
         match w.as_slice() {
             ["format", "ascii", _] => binary = Some(false),
             ["format", "binary_little_endian", _] => binary = Some(true),
+            ["format", f @ ("ascii" | "binary_little_endian")] => {
+                return Err(format!(
+                    "`format {f}` lacks its version: write `format {f} 1.0`"
+                ));
+            }
             ["format", f, ..] => return Err(format!("PLY format `{f}` is not supported")),
             ["element", name, count] => elements.push(Element {
                 name: name.to_string(),

@@ -1301,6 +1301,33 @@ fn gltf_instances_scenes_uris_and_morph_weights() {
     assert_eq!(load_mesh(&p).unwrap().triangles.len(), 12);
 }
 
+/// A `format` line without its version is named for that (it read as "format `ascii` is
+/// not supported"), and a file of faces that all collapse to a point says why it has no
+/// triangles.
+#[test]
+fn ply_format_without_version_and_collapsed_faces_are_named() {
+    let d = tempfile::tempdir().unwrap();
+    let tetra = "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n\
+                 property float z\nelement face 4\nproperty list uchar int vertex_indices\n\
+                 end_header\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n";
+    let e = load_mesh(&write(
+        &d,
+        "v.ply",
+        tetra.replace("ascii 1.0", "ascii").as_bytes(),
+    ))
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("`format ascii` lacks its version"), "{e}");
+    let point = tetra.replace("1 0 0\n0 1 0\n0 0 1\n", "0 0 0\n0 0 0\n0 0 0\n");
+    let e = load_mesh(&write(&d, "p.ply", point.as_bytes()))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("no triangles with three distinct corners"),
+        "{e}"
+    );
+}
+
 /// The header ends only at an `end_header` line of its own (trailing blanks allowed): not
 /// at a comment that mentions it, and a binary body starts right after the line.
 #[test]
