@@ -580,6 +580,17 @@ fn check_closed(m: &TriMesh) -> Result<(), String> {
         .filter(|&&(f, b)| f + b == 2 && f != b)
         .count();
     if boundary == 0 && non_manifold > 0 {
+        // A flat closed surface (a box of height 0) welds into faces listed twice: named
+        // for its flatness, which is the cause, not for a two-sided export.
+        let (lo, hi) = m.bounds();
+        let side = f64::from((hi - lo).max_element());
+        let volume = m.signed_volume6().abs() / 6.0;
+        if side > 0.0 && !(volume > 1e-9 * side.powi(3)) {
+            return Err(format!(
+                "the mesh encloses no volume ({volume:e} for a box {side:e} across): it is flat \
+                 or degenerate"
+            ));
+        }
         // Closed, but parts meet along edges: welding made one edge of their two.
         return Err(format!(
             "the mesh is not a manifold surface: more than two faces share {non_manifold} of \

@@ -1301,6 +1301,30 @@ fn gltf_instances_scenes_uris_and_morph_weights() {
     assert_eq!(load_mesh(&p).unwrap().triangles.len(), 12);
 }
 
+/// A closed mesh flattened to a plane (its top and bottom weld into faces listed twice)
+/// is named flat, as the README says, not "a two-sided export".
+#[test]
+fn a_flat_closed_mesh_is_named_flat() {
+    let d = tempfile::tempdir().unwrap();
+    let flat: String = CUBE_OBJ
+        .lines()
+        .map(|l| match l.strip_prefix("v ") {
+            Some(v) => {
+                let xyz: Vec<&str> = v.split(' ').collect();
+                format!("v {} {} 0\n", xyz[0], xyz[1])
+            }
+            None => format!("{l}\n"),
+        })
+        .collect();
+    let e = load_mesh(&write(&d, "flat.obj", flat.as_bytes()))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("encloses no volume") && e.contains("flat"),
+        "{e}"
+    );
+}
+
 /// A `format` line without its version is named for that (it read as "format `ascii` is
 /// not supported"), and a file of faces that all collapse to a point says why it has no
 /// triangles.
