@@ -48,7 +48,7 @@ pub struct Args {
     /// Write only shard i of n (e.g. 3/8): disjoint pieces that `stcvae merge` joins into
     /// exactly the unsharded run (binary shards, in any order; CSV rows carry no walk
     /// number, so CSV shards are joined in the order given: list them 0, 1, …, n − 1).
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     shard: Option<Shard>,
     /// Worker threads, 1 to 1,024 (default: all cores). The output does not depend on it.
     #[arg(long, value_parser = crate::generate::threads_parser())]

@@ -478,6 +478,11 @@ fn merge_csv(a: &Args) -> Result<()> {
             .transpose()
             .with_context(|| format!("{}: line 1", path.display()))?
             .with_context(|| format!("{}: empty file", path.display()))?;
+        // A spreadsheet's save starts with a byte-order mark; CRLF ends are read below.
+        let head = head
+            .strip_prefix('\u{feff}')
+            .unwrap_or(&head)
+            .trim_end_matches('\r');
         if head != dataset::COLUMNS.join(",") {
             bail!(
                 "{}: not an stcvae walk CSV (unexpected header row)",

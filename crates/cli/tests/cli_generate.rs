@@ -330,6 +330,19 @@ fn shards_merge_into_the_unsharded_run() {
         stderr(&out)
     );
     assert!(!dir.path().join("dup.csv").exists());
+    // The same CSV as a spreadsheet saves it (a byte-order mark, CRLF line ends) merges
+    // into the same rows (it was refused for an "unexpected header row").
+    let text = fs::read_to_string(dir.path().join("p1.csv")).unwrap();
+    let excel = format!("\u{feff}{}", text.replace('\n', "\r\n"));
+    fs::write(dir.path().join("excel.csv"), excel).unwrap();
+    ok(&stcvae(
+        &["merge", "excel.csv", "--out", "from_excel.csv"],
+        dir.path(),
+    ));
+    assert_eq!(
+        fs::read_to_string(dir.path().join("from_excel.csv")).unwrap(),
+        text
+    );
     // A shard of another run (another seed) merges, with a note naming both runs and how
     // much of each the output holds.
     fs::write(
@@ -372,6 +385,11 @@ fn bad_input_gives_one_line_errors() {
         ("generate --config typo.toml --out x.bin", "walkz"),
         ("generate --config range.toml --out x.bin", "tau.max"),
         ("generate --samples 10 --shard 4/4 --out x.bin", "shard"),
+        // A negative index meets the shard parser, not "unexpected argument '-1'".
+        (
+            "generate --samples 10 --shard -1/3 --out x.bin",
+            "shard '-1/3': expected i/n",
+        ),
         ("merge garbage.bin --out y.bin", "garbage.bin"),
         (
             "generate --config zero.toml --out x.bin",
