@@ -192,7 +192,15 @@ fn bounce_begin() -> Query {
         return q;
     }
     if p_inside {
-        q.t = max(-log(1.0 - rand()) / params.sigma_t[p_channel] - max(-ps.free, 0.0), 0.0);
+        let skip = max(-ps.free, 0.0);
+        let drawn = -log(1.0 - rand()) / params.sigma_t[p_channel];
+        if drawn < skip {
+            // A collision within the way the spawn passed, at its own depth
+            // (integrator/mod.rs).
+            ps.pos -= ps.dir * min(skip - drawn, SKIP_BACK * skip);
+            q.o = ps.pos;
+        }
+        q.t = max(drawn - skip, 0.0);
         // A surface just past the collision counts as reached (integrator/mod.rs: a
         // collision rounded to the far side would leave the path outside).
         q.tmax = q.t + params.consts.z * FLIGHT_MARGIN_OF_EPS;
@@ -317,8 +325,9 @@ fn flight_end(t: f32, h: Hit) -> bool {
             let past = spawn(p, n, ps.dir);
             if in_union(past, ps.dir) {
                 // A face within the union of overlapping pieces: no boundary; the flight
-                // goes on, its rest redrawn past the face (integrator/mod.rs).
+                // goes on, its rest redrawn from the face (integrator/mod.rs).
                 ps.pos = past;
+                ps.free = -spawn_skip(n, ps.dir);
                 p_from_step = false;
                 return false;
             }

@@ -874,6 +874,48 @@ fn sphere_pt_render(device: &str, out: &Path) -> Command {
     c
 }
 
+/// A scene without light (no `[[light]]`, a black environment) renders black by design,
+/// with a warning saying so; one light is enough to silence it.
+#[test]
+fn a_scene_without_light_is_warned_about() {
+    let d = tempfile::tempdir().unwrap();
+    let scene = "[camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 20.0\n\
+                 width = 8\nheight = 8\n[object]\nshape = \"sphere\"\n\
+                 [medium]\nsigma_t = [10.0, 10.0, 10.0]\nalbedo = [0.9, 0.9, 0.9]\n";
+    let lit = format!(
+        "{scene}[[light]]\nkind = \"directional\"\ndirection = [0.0, 0.0, -1.0]\n\
+         irradiance = [1.0, 1.0, 1.0]\n"
+    );
+    for (name, text, warned) in [
+        ("dark.toml", scene.to_string(), true),
+        ("lit.toml", lit, false),
+    ] {
+        std::fs::write(d.path().join(name), text).unwrap();
+        let out = common::stcvae(
+            &[
+                "render",
+                "--scene",
+                name,
+                "--integrator",
+                "pt",
+                "--spp",
+                "1",
+                "--device",
+                "cpu",
+                "--out",
+                "r",
+            ],
+            d.path(),
+        );
+        let err = ok(&out);
+        assert_eq!(
+            err.contains("the scene has no light"),
+            warned,
+            "{name}: {err}"
+        );
+    }
+}
+
 /// The render's JSON says where the image came from: the version, the exposure, whether
 /// Ctrl-C cut it short, the seed as text too (JSON readers holding doubles round seeds
 /// above 2^53); under PT, ST-CVAE's settings are null, not values PT never read.

@@ -43,11 +43,15 @@ pub const FLIGHT_MARGIN_OF_EPS: f32 = 0.02;
 /// The smallest |cos| [`Geometry::spawn_skip`] divides by (the WGSL kernels take it from
 /// here).
 pub const SKIP_MIN_COS: f32 = 0.05;
-/// Most mean free paths the spawn offset eps may span (σ_t·eps). With the skip taken off
-/// the next flight ([`Geometry::spawn_skip`]) a unit sphere's image is flat to 0.15 % up
-/// to σ_t·eps = 0.4 (σ_t 10⁴) and 4.7 % dark at 1.2 (docs/BENCHMARKS.md): a collision
-/// drawn within the offset still happens at its depth.
-pub const MAX_SPAWN_DEPTH: f32 = 0.5;
+/// The most of a spawn's skipped way a collision drawn within it is moved back along the
+/// path (the WGSL kernels take it from here): it then lies at its own depth, but at least
+/// a tenth of eps deep (2·10⁻⁶ of the object's size), where rays from it still see the
+/// face it came through. (0.95 measured the same.)
+pub const SKIP_BACK: f32 = 0.9;
+/// Most mean free paths the spawn offset eps may span (σ_t·eps). With the skip a sphere's
+/// image moves by −0.14 % at σ_t·eps = 0.2 and −0.33 % at 0.5 (against 300 times thinner;
+/// docs/BENCHMARKS.md, forty-sixth session), so 0.25 keeps it within ~0.2 %.
+pub const MAX_SPAWN_DEPTH: f32 = 0.25;
 /// How far [`Geometry::beyond_sliver`] looks, in units of eps. What it must see is a far
 /// face between the spawned point and the hit point, at t < eps; looking a little past the
 /// hit point (by more than the spawned point's rounding, an ulp of the coordinates, ~1 %

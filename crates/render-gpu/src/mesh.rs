@@ -581,15 +581,35 @@ fn check_closed(m: &TriMesh) -> Result<(), String> {
         .count();
     if boundary == 0 && non_manifold > 0 {
         // A flat closed surface (a box of height 0) welds into faces listed twice: named
-        // for its flatness, which is the cause, not for a two-sided export.
+        // for its flatness, which is the cause, not for a two-sided export. Flat: every
+        // vertex on the plane of the largest triangle (a signed volume could cancel
+        // between pieces wound oppositely in the file).
         let (lo, hi) = m.bounds();
-        let side = f64::from((hi - lo).max_element());
-        let volume = m.signed_volume6().abs() / 6.0;
-        if side > 0.0 && !(volume > 1e-9 * side.powi(3)) {
-            return Err(format!(
-                "the mesh encloses no volume ({volume:e} for a box {side:e} across): it is flat \
-                 or degenerate"
-            ));
+        let side = (hi - lo).max_element();
+        let normal = m
+            .triangles
+            .iter()
+            .map(|t| {
+                let [a, b, c] = t.map(|i| m.positions[i as usize]);
+                ((b - a).cross(c - a), a)
+            })
+            .max_by(|x, y| x.0.length_squared().total_cmp(&y.0.length_squared()));
+        if let Some((n, a)) = normal
+            && n.length_squared() > 0.0
+        {
+            let n = n.normalize();
+            let off = m
+                .positions
+                .iter()
+                .map(|p| (*p - a).dot(n).abs())
+                .fold(0.0f32, f32::max);
+            if off <= 1e-6 * side {
+                return Err(
+                    "the mesh encloses no volume: all its vertices lie in one plane (it is \
+                     flat)"
+                        .into(),
+                );
+            }
         }
         // Closed, but parts meet along edges: welding made one edge of their two.
         return Err(format!(

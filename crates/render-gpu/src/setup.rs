@@ -157,10 +157,11 @@ impl SceneData {
             let depth = s * geo.eps as f64;
             if depth > crate::geometry::MAX_SPAWN_DEPTH as f64 {
                 return Err(RenderError::Scene(format!(
-                    "medium.sigma_t[{i}] = {} is too dense for an object of this size: the \
-                     renderer's surface offset ({:.3e}, 2e-5 of the object's extent) would be \
-                     {depth:.2} mean free paths deep and darken the image; allowed sigma_t <= \
-                     {:.4e} here (scale the object up or lower sigma_t)",
+                    "medium.sigma_t[{i}] = {} is too dense for this object: the renderer's \
+                     surface offset ({:.3e}, 2e-5 of the object's largest coordinate or \
+                     extent) would be {depth:.2} mean free paths deep and bias the image; \
+                     allowed sigma_t <= {:.4e} here (scale the object up, move it to the \
+                     origin, or lower sigma_t)",
                     scatter_sim::ranges::num(s),
                     geo.eps,
                     crate::geometry::MAX_SPAWN_DEPTH as f64 / geo.eps as f64

@@ -962,8 +962,9 @@ fn a_stop_request_ends_the_render_within_a_pass() {
 }
 
 /// A stop request is also answered inside one long path: started at the centre of a cube
-/// 20 across with σ_t = 1000, albedo 1 (τ = 10⁴ to every face, ~10⁸ events to get out), a
-/// PT path runs to the 5·10⁷-iteration cap, which took ~23 s and kept SIGTERM waiting. Here the request is made as the first path is handed
+/// 20 across with σ_t = 500, albedo 1 (τ = 5,000 to every face, ~10⁷ events to get out), a
+/// PT path runs for seconds (to the 5·10⁷-iteration cap in a denser cube, ~23 s), which
+/// kept SIGTERM waiting. Here the request is made as the first path is handed
 /// out (no clock involved), so only a check inside the path, which comes every 65,536 of
 /// its iterations, can see it: the wavefront must give up (false) without reporting it. Without the in-path check the path ran to
 /// its cap, was reported, and the wavefront then returned true, having no other place to
@@ -975,7 +976,7 @@ fn a_stop_request_ends_a_long_path() {
     let text = "[camera]\norigin = [0, 0, 60.0]\ntarget = [0.0, 0.0, 0.0]\n\
                 fov_deg = 0.001\nwidth = 2\nheight = 2\n\
                 [object]\nshape = \"cube\"\nheight = 20.0\n\
-                [medium]\nsigma_t = [1000.0, 1000.0, 1000.0]\nalbedo = [1.0, 1.0, 1.0]\ng = 0.0\n\
+                [medium]\nsigma_t = [500.0, 500.0, 500.0]\nalbedo = [1.0, 1.0, 1.0]\ng = 0.0\n\
                 [boundary]\nkind = \"index-matched\"\n\
                 [environment]\nradiance = [0.05, 0.05, 0.05]\n\
                 [render]\nintegrator = \"pt\"\nspp = 3\n";
@@ -998,7 +999,7 @@ fn a_stop_request_ends_a_long_path() {
             stop.store(true, Ordering::Relaxed);
             let dir = s.camera.ray_dir(1.0, 1.0);
             // From the centre: the path meets the far face from inside and is taken in
-            // where it is (the touching-parts rule), 10⁴ mean free paths from any face.
+            // where it is (the touching-parts rule), 5,000 mean free paths from any face.
             Some(Sample {
                 origin: glam::Vec3::ZERO,
                 dir,
@@ -1206,15 +1207,15 @@ fn the_variance_image_matches_the_spread_between_seeds() {
     );
 }
 
-/// A path entering the medium is spawned eps (2e-5 of the object's extent) deep; without
+/// A path entering the medium is spawned eps (2e-5 of the object's size) deep; without
 /// taking that way off its first flight (`PathState::skip`) it passed σ_t·eps of optical
-/// depth unattenuated and its first collisions lay too deep. A unit sphere at σ_t = 300 and
-/// at 10⁴ (σ_t·eps = 0.024 and 0.8) is a half-space to the light at both (diffusion length
-/// ~2/σ_t against radius 1), so their images must agree: before the fix the dense one was
-/// 5.3 % dark (0.1076 against 0.1137 at 1,024 spp). 600,000 paths each give the mean over
-/// channels a standard error of ~0.1 %; allowed: 4 standard errors of the difference plus
-/// 0.3 % for the sphere's curvature (0.15 % measured between the two densities with the
-/// fix, itself within noise).
+/// depth unattenuated and its first collisions lay too deep. A sphere of radius 0.5 (eps
+/// 2e-5) at σ_t = 300 and at 10⁴ (σ_t·eps = 0.006 and 0.2) is a half-space to the light at
+/// both (diffusion length ~2/σ_t against radius 0.5), so their images must agree: before
+/// the fix the dense one was 5.3 % dark (0.1076 against 0.1137 at 1,024 spp; now −0.14 %).
+/// 600,000 paths each give the mean over channels a standard error of ~0.1 %; allowed: 4
+/// standard errors of the difference plus 0.3 % for the sphere's curvature and what is
+/// left of the offset's bias (docs/BENCHMARKS.md, forty-sixth session).
 #[test]
 fn the_image_does_not_darken_with_density() {
     let sphere = |sigma: f64| {
