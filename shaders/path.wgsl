@@ -195,10 +195,13 @@ fn bounce_begin() -> Query {
         let skip = max(-ps.free, 0.0);
         let drawn = -log(1.0 - rand()) / params.sigma_t[p_channel];
         if drawn < skip {
-            // A collision within the way the spawn passed, at its own depth
-            // (integrator/mod.rs).
-            ps.pos -= ps.dir * min(skip - drawn, SKIP_BACK * skip);
-            q.o = ps.pos;
+            // A collision within the way the spawn passed, at its own depth unless the
+            // way back crosses a face (integrator/mod.rs).
+            let back = min(skip - drawn, SKIP_BACK * skip);
+            if !intersect(ps.pos, -ps.dir, back + (1.0 - SKIP_BACK) * params.consts.z).found {
+                ps.pos -= ps.dir * back;
+                q.o = ps.pos;
+            }
         }
         q.t = max(drawn - skip, 0.0);
         // A surface just past the collision counts as reached (integrator/mod.rs: a

@@ -49,7 +49,7 @@ pub const SKIP_MIN_COS: f32 = 0.05;
 /// face it came through. (0.95 measured the same.)
 pub const SKIP_BACK: f32 = 0.9;
 /// Most mean free paths the spawn offset eps may span (σ_t·eps). With the skip a sphere's
-/// image moves by −0.14 % at σ_t·eps = 0.2 and −0.33 % at 0.5 (against 300 times thinner;
+/// image moves by −0.11 % at σ_t·eps = 0.2 and −0.33 % at 0.5 (against σ_t·eps = 0.006;
 /// docs/BENCHMARKS.md, forty-sixth session), so 0.25 keeps it within ~0.2 %.
 pub const MAX_SPAWN_DEPTH: f32 = 0.25;
 /// How far [`Geometry::beyond_sliver`] looks, in units of eps. What it must see is a far
