@@ -423,7 +423,7 @@ pub fn run(a: Args) -> Result<()> {
     for (i, &k) in a.k.iter().enumerate() {
         let p = prepare_k(&a, IntegratorKind::Stcvae, k)?;
         if i == 0 {
-            crate::render::note_unreachable_lights(&p);
+            crate::render::note_lights(&p);
         }
     }
     let identity = match &a.pt_cache {

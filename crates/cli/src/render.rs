@@ -417,8 +417,9 @@ fn render_inputs(a: &Args, p: &Prepared) -> Vec<(String, PathBuf)> {
     v
 }
 
-/// Says once when the scene's lights cannot contribute: delta lights without NEE.
-pub fn note_unreachable_lights(p: &Prepared) {
+/// Says once when the scene's lights cannot contribute: no light at all, or delta lights
+/// without NEE.
+pub fn note_lights(p: &Prepared) {
     // A scene without light renders black by design; say so rather than hand over a
     // black image as a result.
     let env = &p.data.env;
@@ -493,7 +494,7 @@ pub fn run(a: Args) -> Result<()> {
             render_gpu::scene::MODEL_MAX_G
         );
     }
-    note_unreachable_lights(&p);
+    note_lights(&p);
     let inputs = render_inputs(&a, &p);
     let exts: &[&str] = if a.variance {
         &["exr", "png", "json", "var.exr"]

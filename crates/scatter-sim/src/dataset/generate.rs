@@ -97,8 +97,9 @@ pub fn walk_row(seed: u64, sampler: &ConditionSampler, index: u64) -> (Row, u64)
 }
 
 /// Generates the spec's rows into `sink` on the current rayon pool. `progress` is called
-/// after each chunk with the walks and events done so far; setting `cancel` stops at the
-/// next chunk and returns an error (the sink is dropped, so no output file appears).
+/// after each chunk with the walks and events done so far; setting `cancel` stops once the
+/// walks under way end and returns an error (the sink is dropped, so no output file
+/// appears).
 pub fn generate(
     spec: &GenerateSpec,
     sink: &mut dyn RowSink,
