@@ -418,15 +418,17 @@ const C_PENDING: u32 = 6u;
 const C_TRUNCATED: u32 = 7u;
 const C_EXACT: u32 = 8u;
 
-/// A path between dispatches, one per (pixel, lane), in `accum` as SLOT = 6 + 2·PATH_NEE_M
+/// A path between dispatches, one per (pixel, lane), in `accum` as SLOT = 7 + 2·PATH_NEE_M
 /// vec4s (prepended by kernels.rs): position and β (once the path has ended and its NEE
 /// rays are under way, p_nee_sum and p_nee_light instead); direction and radiance; the RNG
 /// state; channel (bits 0–7) | flags (8–15) | NEE rays left (16–), iterations, samples
 /// finished, the free distance (f32 bits; the current sample follows from the samples
 /// finished); the accumulated RGB + finished-sample count of the whole
-/// render (ACC); then per path-level NEE reservoir its event's (X, q) and (W, A); last ACC
-/// as the chunk began (SLOT − 1: what a render stopped mid-chunk keeps, gpu/renderer.rs).
+/// render (ACC); then per path-level NEE reservoir its event's (X, q) and (W, A); the
+/// rounding ACC's RGB lost (SLOT − 2, add_sample); last ACC as the chunk began, its lost
+/// rounding added back (SLOT − 1: what a render stopped mid-chunk keeps, gpu/renderer.rs).
 const ACC: u32 = 4u;
+const ACC_LO: u32 = SLOT - 2u;
 const F_ALIVE: u32 = 1u;
 const F_SCATTERED: u32 = 2u;
 const F_INSIDE: u32 = 4u;
@@ -523,6 +525,7 @@ var<private> sl_count: u32;
 var<private> sl_j: u32;
 var<private> sl_done: bool;
 var<private> sl_acc: vec4<f32>;
+var<private> sl_lo: vec3<f32>;
 
 // The staged render's sphere steps (stcvae.wgsl, scatter_at; staged.wgsl, STAGED_STEPS):
 // whether stage_main parks them for step_main, which runs each whole, whether this one was
@@ -577,15 +580,17 @@ fn slot_begin(idx: u32, kind: u32) -> bool {
         sl_count = min(params.image.w, (params.sampling.y - sl_first + lanes - 1u) / lanes);
     }
     sl_acc = accum[sl_base + ACC];
+    sl_lo = accum[sl_base + ACC_LO].xyz;
     if kind == 2u {
         // First dispatch of the render: clear the accumulator (it was poisoned with NaN,
         // so a slot never reached shows on the host).
         sl_acc = vec4<f32>(0.0);
+        sl_lo = vec3<f32>(0.0);
     }
     if kind != 0u {
         // The whole chunks so far, kept apart while this one adds to ACC: a render stopped
-        // mid-chunk returns them (as the CPU drops an unfinished pass).
-        accum[sl_base + SLOT - 1u] = sl_acc;
+        // mid-chunk returns them (as the CPU drops an unfinished pass), rounded once.
+        accum[sl_base + SLOT - 1u] = vec4<f32>(sl_acc.xyz + sl_lo, sl_acc.w);
     }
     sl_j = 0u;
     sl_done = sl_count == 0u;
@@ -640,8 +645,7 @@ fn bounce_done(casting: bool) {
         if PATH_NEE_M > 0u && pn_total > 0.0 {
             ps.radiance += p_nee_sum * pn_total / f32(PATH_NEE_M);
         }
-        sl_acc[p_channel] += 3.0 * path_result();
-        sl_acc.w += 1.0;
+        add_sample(p_channel, 3.0 * path_result());
         sl_j += 1u;
         if sl_j >= sl_count {
             sl_done = true;
@@ -649,6 +653,24 @@ fn bounce_done(casting: bool) {
             start_sample();
         }
     }
+}
+
+/// Adds a finished sample `x` to channel `c` of the slot's sum (and counts it), keeping
+/// what the f32 addition rounded off in sl_lo (Neumaier's compensated sum): a plain f32
+/// sum of many equal samples rounds the same way at every addition and drifted 1.2·10⁻⁴
+/// from the mean at 65,536 samples a slot (`long_slot_sums_do_not_drift`). The host adds
+/// ACC and ACC_LO in f64. A compiler that reassociated (s − t) + x to x − x would leave
+/// sl_lo at 0: the plain sum, no worse. The count is exact up to 2^24 (MAX_SLOT_SAMPLES).
+fn add_sample(c: u32, x: f32) {
+    let s = sl_acc[c];
+    let t = s + x;
+    if abs(s) >= abs(x) {
+        sl_lo[c] += (s - t) + x;
+    } else {
+        sl_lo[c] += (x - t) + s;
+    }
+    sl_acc[c] = t;
+    sl_acc.w += 1.0;
 }
 
 /// The slot's state saved (`was_done`: it was done when the dispatch began; then only a
@@ -663,6 +685,7 @@ fn slot_end(was_done: bool, count_pending: bool) {
         stats[C_PENDING] = 1u;
     }
     accum[sl_base + ACC] = sl_acc;
+    accum[sl_base + ACC_LO] = vec4<f32>(sl_lo, 0.0);
     add_stats();
     prof_end();
 }

@@ -2194,18 +2194,18 @@ fn lane_profile_counts_and_changes_nothing() {
     );
 }
 
-/// A path slot sums its samples in f32, which holds 2^22 of them well: more samples a
+/// A path slot counts its samples in f32, which counts 2^24 of them: more samples a
 /// pixel than the image's slots can hold is a clear error before any work, not pixels
-/// "with fewer finished samples" at the end. A 64² image has at most 2^20 / 4096 = 256
+/// "with fewer finished samples" at the end. A 128² image has at most 2^20 / 2^14 = 64
 /// slots a pixel on any adapter, so 2^32 − 1 spp (what a time budget asks when nothing
-/// caps it) is over 256 · 2^22 = 2^30.
+/// caps it) is over 64 · 2^24 = 2^30.
 #[test]
 fn more_samples_than_the_slots_hold_are_refused() {
     let Some(ctx) = gpu() else { return };
     let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
     let text = common::furnace_scene("kind = \"index-matched\"")
-        .replace("width = 12", "width = 64")
-        .replace("height = 12", "height = 64");
+        .replace("width = 12", "width = 128")
+        .replace("height = 12", "height = 128");
     let s = common::build_scene(&text, false);
     // Were it not refused, the render is stopped at its first progress report (and fails
     // the test) instead of running for days.
@@ -2221,7 +2221,40 @@ fn more_samples_than_the_slots_hold_are_refused() {
         panic!("a render of 2^32 − 1 spp began");
     };
     assert!(
-        matches!(e, RenderError::GpuLimit(_)) && e.to_string().contains("2^22 per path slot"),
+        matches!(e, RenderError::GpuLimit(_)) && e.to_string().contains("2^24 per path slot"),
         "{e}"
     );
+}
+
+/// A path slot sums its samples in f32, and a plain f32 sum of many equal samples drifts:
+/// each addition rounds to the sum's ulp, the same way every time. Here every camera ray
+/// misses the object (the camera looks away from it) and meets a sky of 0.7, so every
+/// sample is 3 × 0.7 in its channel and every pixel's mean is 0.7 up to the final
+/// division's rounding. On a software adapter the 64 × 64 image takes one lane a pixel
+/// (gpu/renderer.rs, target_threads), so each slot sums all 16,384 samples of its pixel
+/// (a hardware adapter gives it 256 lanes, 64 samples each: a weak check there). The
+/// plain sum was 2.1·10⁻⁵ off here (8.3·10⁻⁵ at 65,536 samples); a compensated sum is
+/// within a few ulps of the exact one (Neumaier: 2ε|sum| + O(nε²)), and f32(2.1)/3 is
+/// 0.7 to within one ulp (6·10⁻⁸), so 3·10⁻⁷ (five ulps) is the bound.
+#[test]
+fn long_slot_sums_do_not_drift() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let text = common::furnace_scene("kind = \"index-matched\"")
+        .replace("target = [0.0, 0.0, 0.0]", "target = [0.0, 0.0, 10.0]")
+        .replace("width = 12\nheight = 12", "width = 64\nheight = 64");
+    assert!(text.contains("10.0]") && text.contains("width = 64"));
+    let s = common::build_scene(&text, false);
+    let spp = 16384;
+    let out = on_gpu(&ctx, &s, &settings(IntegratorKind::Pt, true), &opts(spp, 1));
+    assert_eq!(out.stats.paths, 64 * 64 * spp as u64);
+    assert_eq!(out.stats.events, 0, "no camera ray may reach the object");
+    let worst = out
+        .image
+        .pixels
+        .iter()
+        .flatten()
+        .map(|v| (v - 0.7).abs())
+        .fold(0.0, f32::max);
+    assert!(worst <= 3e-7, "a pixel is {worst:e} from 0.7");
 }

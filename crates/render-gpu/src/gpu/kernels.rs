@@ -324,9 +324,17 @@ pub const STAGE_VEC4S: u64 = 4;
 
 /// vec4s of one path slot in the accumulation buffer (`SLOT` in shaders/path.wgsl): the
 /// path's state, the render's accumulated RGB (vec4 [`ACC_VEC4`]), two per path-level
-/// NEE reservoir, and last the accumulated RGB as the chunk began ([`committed_vec4`]).
+/// NEE reservoir, what the RGB sums rounded off ([`acc_lo_vec4`]), and last the
+/// accumulated RGB as the chunk began ([`committed_vec4`]).
 pub fn slot_vec4s(path_nee_m: u32) -> u64 {
-    6 + 2 * path_nee_m as u64
+    7 + 2 * path_nee_m as u64
+}
+
+/// Which vec4 of a path slot holds in xyz what the f32 additions to ACC's RGB rounded off
+/// (`ACC_LO` in shaders/path.wgsl, add_sample): the slot's sum is ACC + ACC_LO, taken in
+/// f64 on the host.
+pub fn acc_lo_vec4(path_nee_m: u32) -> u64 {
+    slot_vec4s(path_nee_m) - 2
 }
 
 /// Which vec4 of a path slot holds its accumulated RGB and finished-sample count as they

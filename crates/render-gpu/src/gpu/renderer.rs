@@ -27,8 +27,8 @@ use super::scene_buffers::{
 /// between chunks). A chunk takes several dispatches of bounded work each.
 const TARGET_CHUNK_SECONDS: f64 = 1.0;
 
-/// Most samples one path slot accumulates (f32 sums; see where `lanes` is chosen).
-pub const MAX_SLOT_SAMPLES: u64 = 1 << 22;
+/// Most samples one path slot accumulates (an f32 count; see where `lanes` is chosen).
+pub const MAX_SLOT_SAMPLES: u64 = 1 << 24;
 
 /// Bounces each invocation runs per dispatch at first. llvmpipe (lavapipe) stops a shader
 /// after 65,535 loop iterations in total, counted per SIMD batch (a loop runs as long as
@@ -574,7 +574,7 @@ pub fn render_gpu(
     let spp = opts.spp.max(1);
     // Every path slot of a band lives in one storage binding: adapters offer 128 MiB to
     // several GiB, and a 1024² image at 2²⁰ invocations with two path-level NEE
-    // reservoirs needs 168 MB.
+    // reservoirs needs 185 MB.
     let limits = &ctx.limits;
     let slot_bytes = 16 * slot_vec4s;
     // The staged render's records and its queues take one binding each too, at fewer bytes
@@ -589,10 +589,10 @@ pub fn render_gpu(
         .min(limits.max_buffer_size)
         / binding_bytes;
     let lanes = (target_threads(ctx).min(fit) / pixels.max(1)).clamp(1, spp as u64) as u32;
-    // A slot sums its samples and counts them in f32: at 2^22 samples the sum's ulp is
-    // half a sample's size (a rounding of up to a quarter sample each), and at 2^24 the
-    // count stops. A time budget's render stops at 2^22 a slot (days on today's GPUs);
-    // asking for more is refused before any dispatch.
+    // A slot counts its samples in f32, which stops at 2^24 (its sums keep what they
+    // round off, shaders/path.wgsl add_sample). A time budget's render stops at 2^24 a
+    // slot (days to weeks on today's GPUs); asking for more is refused before any
+    // dispatch.
     let most = lanes as u64 * MAX_SLOT_SAMPLES;
     let spp = if (spp as u64) <= most {
         spp
@@ -600,13 +600,13 @@ pub fn render_gpu(
         most as u32
     } else {
         return Err(RenderError::GpuLimit(format!(
-            "{spp} samples per pixel exceed the {most} the GPU's f32 sums hold for a \
-             {}x{} image on {} (2^22 per path slot); render several seeds and merge \
+            "{spp} samples per pixel exceed the {most} the GPU's f32 counts hold for a \
+             {}x{} image on {} (2^24 per path slot); render several seeds and merge \
              them, or use --device cpu",
             cam.width, cam.height, ctx.adapter.name
         )));
     };
-    // An image whose slots exceed one binding (lavapipe's 128 MiB holds 0.84–1.4 M pixels)
+    // An image whose slots exceed one binding (lavapipe's 128 MiB holds 0.76–1.2 M pixels)
     // is rendered in bands of rows, each with its own accumulation buffer, one after
     // another within every chunk of samples. Seeds follow the pixel's index in the image,
     // so a band renders what the whole image would. A software adapter also bands an image
@@ -861,11 +861,13 @@ pub fn render_gpu(
     for band in bands {
         let bytes = read_back(ctx, &res.accums[band.index], band.bytes)?;
         let vals: &[f32] = bytemuck::cast_slice(&bytes);
-        let acc_vec4 = if dropped.is_some_and(|started| band.index < started) {
-            kernels::committed_vec4(path_nee_m)
+        // A band whose chunk was dropped gives back the whole chunks' sums, rounded once
+        // to f32; the others their sums and what those rounded off.
+        let (acc_vec4, lo_vec4) = if dropped.is_some_and(|started| band.index < started) {
+            (kernels::committed_vec4(path_nee_m), None)
         } else {
-            kernels::ACC_VEC4
-        } as usize;
+            (kernels::ACC_VEC4, Some(kernels::acc_lo_vec4(path_nee_m)))
+        };
         let first = band.row0 as usize * cam.width as usize;
         let count = band.rows as usize * cam.width as usize;
         for (p, px) in image.pixels[first..first + count].iter_mut().enumerate() {
@@ -873,9 +875,15 @@ pub fn render_gpu(
             let mut finished = 0f64;
             for l in 0..lanes as usize {
                 let slot = (p * lanes as usize + l) * slot_vec4s as usize;
-                let q = &vals[(slot + acc_vec4) * 4..][..4];
+                let q = &vals[(slot + acc_vec4 as usize) * 4..][..4];
                 for c in 0..3 {
                     sum[c] += q[c] as f64;
+                }
+                if let Some(lo) = lo_vec4 {
+                    let lo = &vals[(slot + lo as usize) * 4..][..3];
+                    for c in 0..3 {
+                        sum[c] += lo[c] as f64;
+                    }
                 }
                 finished += q[3] as f64;
             }
