@@ -319,7 +319,16 @@ fn flight_end(t: f32, h: Hit) -> bool {
         }
         return false;
     }
-    if h.found {
+    // A face found only thanks to the flight margin (beyond t) is not reached: the
+    // collision stands, the margin short of the face (integrator/mod.rs). Met from
+    // outside (a leak), it is still the face.
+    var reached = h.found;
+    var t_end = t;
+    if h.found && h.t > t && (overlapping() || dot(ps.dir, tri_normal(h.prim)) >= 0.0) {
+        reached = false;
+        t_end = min(t, max(h.t - params.consts.z * FLIGHT_MARGIN_OF_EPS, 0.0));
+    }
+    if reached {
         ps.free = 0.0;
         let p = ps.pos + ps.dir * h.t;
         var n = tri_normal(h.prim);
@@ -378,8 +387,8 @@ fn flight_end(t: f32, h: Hit) -> bool {
         p_from_step = false;
         return false;
     }
-    ps.pos += ps.dir * t;
-    ps.free = max(ps.free - t, 0.0);
+    ps.pos += ps.dir * t_end;
+    ps.free = max(ps.free - t_end, 0.0);
     let pad = params.consts.z; // eps, as in Geometry::within_bounds
     if any(ps.pos < mesh_bounds(false) - pad) || any(ps.pos > mesh_bounds(true) + pad) {
         // Outside the mesh's bounding box grown by eps: not inside after all (the CPU's

@@ -15,7 +15,9 @@ fn scatter_at(channel: u32) -> bool {
     let grid_free = grid_radius(ps.pos);
     // The path's own bound (what is left of its last free ball) costs nothing.
     var free = max(grid_free, ps.free);
-    if free < near && sigma * free < min_tau {
+    // Refined wherever the step below would otherwise fall back (at min_tau = 0, a bound
+    // of 0: sphere_step.rs).
+    if free < near && !(free * SHRINK > 0.0 && sigma * free * SHRINK >= min_tau) {
         // The grid's Lipschitz bound loses up to two cell half-diagonals near the surface; the
         // exact distance often still allows a sphere step there. It comes from the cell's
         // candidate triangles, or else from a search that stops at the largest distance
