@@ -244,6 +244,19 @@ fn mean_events_grow_like_tau_squared() {
 /// Exp(τ) long in units of the radius; the walk ends where a flight crosses |x| = 1.
 /// Returns N, the exit point and the exit direction.
 fn reference_walk(tau: f64, g: f64, rng: &mut WalkRng) -> (u64, DVec3, DVec3) {
+    reference_walk_events(tau, g, rng, &mut Vec::new())
+}
+
+/// [`reference_walk`], keeping every event's position and arriving direction in `events`
+/// (event 1 first: the centre, arrived at along +z).
+fn reference_walk_events(
+    tau: f64,
+    g: f64,
+    rng: &mut WalkRng,
+    events: &mut Vec<(DVec3, DVec3)>,
+) -> (u64, DVec3, DVec3) {
+    events.clear();
+    events.push((DVec3::ZERO, DVec3::Z));
     let hg_cos = |xi: f64| {
         if g.abs() < 1e-6 {
             2.0 * xi - 1.0
@@ -273,6 +286,7 @@ fn reference_walk(tau: f64, g: f64, rng: &mut WalkRng) -> (u64, DVec3, DVec3) {
         }
         p += flight * d;
         n += 1;
+        events.push((p, d));
     }
 }
 
@@ -328,15 +342,21 @@ fn two_sample_chi_square_p(a: &[u64], b: &[u64]) -> f64 {
 /// Design §5's chi-square test of the sphere exit, for walks of many events: the exits the
 /// models learn (the canonical record, turned back into (x, ω) by `from_canonical`) and N
 /// against [`reference_walk`], 200,000 walks each, at a thin and a thicker sphere with
-/// forward and backward scattering. The emptiest of the 97 exit bins holds ~17 (τ = 2)
-/// and ~61 (τ = 8) walks a sample, most thousands, so the chi-square law holds; p > 1e-4
-/// per histogram fails a correct simulator with probability ~4e-4 in all. Checked by
+/// forward and backward scattering, and at the strongly forward g = 0.95 (τ = 30, N in
+/// the hundreds) and backward g = −0.8. The emptiest of the 97 exit bins holds ~17
+/// (τ = 2), ~61 (τ = 8), ~20 (τ = 30, without the empty N = 1 bin) and ~30 (g = −0.8)
+/// walks a sample, most thousands, so the chi-square law holds (g = −0.9 at τ = 3 left a
+/// bin of ~4); p > 1e-4 per histogram fails a correct simulator with probability ~8e-4
+/// in all. Checked by
 /// sabotage (temporary edits, 2026-12-01): the exit direction mirrored about the normal
 /// (2μx − ω) gives p = 0 for the exits; the reference's flight rate 3 % high gives
 /// p = 9e-31 for N and 1e-6 for the exits.
 #[test]
 fn many_event_exits_match_an_independent_simulation() {
-    for (i, &(tau, g)) in [(2.0, 0.5), (8.0, -0.3)].iter().enumerate() {
+    for (i, &(tau, g)) in [(2.0, 0.5), (8.0, -0.3), (30.0, 0.95), (4.0, -0.8)]
+        .iter()
+        .enumerate()
+    {
         let count = 200_000u64;
         let seed = 70 + i as u64;
         let library = walks(tau, g, 1.0, seed, count);
@@ -363,10 +383,13 @@ fn many_event_exits_match_an_independent_simulation() {
         let p_n = two_sample_chi_square_p(&n_lib, &n_ref);
         // The emptiest exit bin (per sample): the chi-square law needs ~5 or more, so a
         // change of the bins or the walk that empties one fails here rather than skewing p.
+        // The N = 1 bin is left out at τ = 30, where e^−30 of the walks fall in it.
         let least = ex_lib
             .iter()
             .zip(&ex_ref)
-            .map(|(a, b)| a + b)
+            .enumerate()
+            .filter(|&(b, _)| b > 0 || tau < 20.0)
+            .map(|(_, (a, b))| a + b)
             .min()
             .unwrap()
             / 2;
@@ -381,6 +404,104 @@ fn many_event_exits_match_an_independent_simulation() {
         eprintln!(
             "τ = {tau}, g = {g}: exits p = {p_exit:.3}, N p = {p_n:.3}, fewest walks in an \
              exit bin ≈ {least}"
+        );
+    }
+}
+
+/// Bin of a walk's representative event for [`event_targets_match_direct_enumeration`]:
+/// one bin for the centre (k = 1), then 3 × 3 × 3 × 2 bins of coordinates that every frame
+/// convention gives alike (rotations about z and mirrors through planes holding z, the
+/// walk's symmetries): the event's radius, its direction's cosine to +z, its arriving
+/// direction's cosine to the outward radial, and whether it lies on the exit's side.
+fn event_bin(k: u64, x: DVec3, w: DVec3, exit: DVec3) -> usize {
+    if k == 1 {
+        return 0;
+    }
+    let r = x.length();
+    let u = x / r;
+    let cell = |v: f64, lo: f64, hi: f64, n: usize| {
+        (((v - lo) / (hi - lo) * n as f64) as usize).min(n - 1)
+    };
+    1 + cell(r, 0.0, 1.0, 3) * 18
+        + cell(u.z, -1.0, 1.0, 3) * 6
+        + cell(w.dot(u), -1.0, 1.0, 3) * 2
+        + usize::from(u.dot(exit) > 0.0)
+}
+
+/// EventGen's training targets as the simulator records them — the representative event's
+/// index, position and arriving direction (`simulate_walk`'s reservoir, design §2) — against
+/// [`reference_walk_events`], which keeps every event and picks k with probability
+/// φ^k/Λ(N) by enumerating them (design §5: "reservoir choice against direct
+/// enumeration"). Two-sample chi-square over 55 bins of [`event_bin`], 100,000 walks
+/// each, at τ = 5 and albedo 0.9 and 0.999 (events late in the walk matter at the
+/// second). Also, given N, the library's index alone: its randomised PIT under
+/// φ^k/Λ(N) is uniform, in 20 bins (chi-square, 19 degrees of freedom). p > 1e-4 for each
+/// of the four fails a correct simulator with probability ~4e-4. Checked by sabotage
+/// (temporary edits, 2026-12-02, albedo 0.9): the reference choosing with φ^1.5k gives
+/// events p = 8e-152; its arriving directions mirrored about the radial, p = 0; the
+/// PIT taken under φ^1.2k (as if the library chose so), index p = 3e-98.
+#[test]
+fn event_targets_match_direct_enumeration() {
+    for (i, &(tau, g, albedo)) in [(5.0, 0.3, 0.9), (5.0, -0.5, 0.999)].iter().enumerate() {
+        let count = 100_000u64;
+        let seed = 90 + i as u64;
+        let library = walks(tau, g, albedo, seed, count);
+        let reference: Vec<(u64, DVec3, DVec3, DVec3)> = (0..count)
+            .into_par_iter()
+            .map(|j| {
+                let mut rng = WalkRng::for_walk(seed + 1000, j);
+                let mut events = Vec::new();
+                let (n, exit, _) = reference_walk_events(tau, g, &mut rng, &mut events);
+                // Direct enumeration: P(k) = φ^k / Σ φ^i over the walk's N events.
+                let weights: Vec<f64> = (1..=n).map(|k| albedo.powi(k as i32)).collect();
+                let mut u = rng.uniform() * weights.iter().sum::<f64>();
+                let mut k = n;
+                for (idx, w) in weights.iter().enumerate() {
+                    if u < *w {
+                        k = idx as u64 + 1;
+                        break;
+                    }
+                    u -= w;
+                }
+                let (x, w) = events[k as usize - 1];
+                (k, x, w, exit)
+            })
+            .collect();
+        let (mut lib, mut refs) = (vec![0u64; 55], vec![0u64; 55]);
+        for w in &library {
+            lib[event_bin(w.event_index, w.event_pos, w.event_dir, w.exit_pos)] += 1;
+        }
+        for &(k, x, w, exit) in &reference {
+            refs[event_bin(k, x, w, exit)] += 1;
+        }
+        let least = lib.iter().zip(&refs).map(|(a, b)| a + b).min().unwrap() / 2;
+        assert!(
+            least >= 5,
+            "albedo {albedo}: an event bin holds ~{least} walks"
+        );
+        let p_events = two_sample_chi_square_p(&lib, &refs);
+        // The index given N: u = F(k − 1) + v·φ^k/Λ(N), v ~ U(0, 1) from a stream of its
+        // own, is uniform on [0, 1) when P(k | N) = φ^k/Λ(N).
+        let mut pit = vec![0u64; 20];
+        for (j, w) in library.iter().enumerate() {
+            let total: f64 = (1..=w.n).map(|k| albedo.powi(k as i32)).sum();
+            let below: f64 = (1..w.event_index).map(|k| albedo.powi(k as i32)).sum();
+            let v = WalkRng::for_walk(seed + 2000, j as u64).uniform();
+            let u = (below + v * albedo.powi(w.event_index as i32)) / total;
+            pit[((u * 20.0) as usize).min(19)] += 1;
+        }
+        let expected = vec![count as f64 / 20.0; 20];
+        let p_index = scatter_sim::stats::chi_square_p_value(
+            scatter_sim::stats::chi_square(&pit, &expected),
+            19,
+        );
+        assert!(
+            p_events > 1e-4 && p_index > 1e-4,
+            "albedo {albedo}: events p = {p_events:.2e}, index p = {p_index:.2e}\n{lib:?}\n{refs:?}\n{pit:?}"
+        );
+        eprintln!(
+            "albedo {albedo}: events p = {p_events:.3}, index p = {p_index:.3}, fewest walks in \
+             an event bin ≈ {least}"
         );
     }
 }

@@ -3,7 +3,6 @@
 //! hardware GPU's multiple of them).
 
 use std::path::PathBuf;
-use std::sync::atomic::AtomicBool;
 
 use anyhow::{Result, bail};
 use render_gpu::integrator::IntegratorKind;
@@ -38,6 +37,9 @@ pub struct Args {
     seed: u64,
 }
 
+/// One render with a progress bar (PT at k = 8 runs for minutes on a software adapter).
+/// Ctrl-C stops it after its pass and the bench there: a cut-short render is never
+/// compared.
 fn render(
     engine: &Engine,
     p: &crate::render::Prepared,
@@ -45,14 +47,32 @@ fn render(
     seed: u64,
     time_budget: Option<f64>,
 ) -> Result<RenderOutput> {
-    let cancel = AtomicBool::new(false);
     let opts = RenderOptions {
         spp,
         seed,
         time_budget,
         variance: false,
     };
-    engine.render(&p.data, &p.settings(), &opts, &|_, _| {}, &cancel)
+    let cam = &p.file.camera;
+    let label = format!(
+        "σ_t {:?}, {}, {}",
+        p.file.medium.sigma_t,
+        p.settings().kind.name(),
+        if engine.is_gpu() { "GPU" } else { "CPU" }
+    );
+    let pb = crate::progress::render_bar(&label, cam.width as u64 * cam.height as u64, &opts);
+    let out = engine.render(
+        &p.data,
+        &p.settings(),
+        &opts,
+        &|done, _| pb.set_position(done),
+        crate::interrupt::flag(),
+    );
+    pb.finish_and_clear();
+    if crate::interrupt::requested() {
+        bail!("interrupted: the rows printed so far stand; nothing more was measured");
+    }
+    out
 }
 
 /// Seconds of untimed GPU work before each timed GPU render on a hardware adapter, which

@@ -49,7 +49,8 @@ pub struct Args {
     /// Output model file (overrides the config).
     #[arg(long)]
     out: Option<PathBuf>,
-    /// Scale every model's step count (e.g. 0.01 for a smoke test).
+    /// Scale every model's step count (e.g. 0.01 for a smoke test); a scaled run's
+    /// warm-up is at most a quarter of its steps.
     #[arg(long, allow_negative_numbers = true, default_value_t = 1.0)]
     steps_scale: f64,
     /// burn backend: flex (pure-Rust CPU, the default) or wgpu (GPU through wgpu; needs a
@@ -198,11 +199,23 @@ fn checkpoint_decoder(
     let (d, info) =
         cvae::train::trainer::load_decoder(&cfg.checkpoint_dir, k, &cfg.model(k).architecture())
             .with_context(|| {
-                format!(
-                    "the model file needs {}: train it first (or all three at once), or take \
-                     it from a model file with --base",
-                    k.name()
-                )
+                // A checkpoint that is there but cannot be read is damaged or from another
+                // architecture: training it "first" is not the advice then.
+                if cvae::train::trainer::has_checkpoint(&cfg.checkpoint_dir, k) {
+                    format!(
+                        "the model file needs {0}, whose checkpoint in {1} cannot be used: \
+                         retrain it (train --model {0} --fresh), or take it from a model file \
+                         with --base",
+                        k.name(),
+                        cfg.checkpoint_dir.display()
+                    )
+                } else {
+                    format!(
+                        "the model file needs {}: train it first (or all three at once), or \
+                         take it from a model file with --base",
+                        k.name()
+                    )
+                }
             })?;
     let version = info.feature_version;
     if cvae::features::EventRadial::of_version(version).is_none() {
@@ -250,6 +263,19 @@ fn checkpoint_decoder(
 /// A model's steps under `--steps-scale`: rounded, at least one.
 fn scaled_steps(steps: u64, scale: f64) -> u64 {
     ((steps as f64 * scale).round() as u64).max(1)
+}
+
+/// A model's configuration under `--steps-scale`. A config's own warm-up is kept as
+/// written at scale 1 (it was shortened to a quarter of the steps without a word); a
+/// scaled run's is capped at a quarter of its steps so that its rate still decays.
+fn scaled_model(m: &ModelConfig, scale: f64) -> ModelConfig {
+    let mut m = m.clone();
+    if scale != 1.0 {
+        let warmup = m.warmup();
+        m.steps = scaled_steps(m.steps, scale);
+        m.warmup = Some(warmup.min(m.steps / 4));
+    }
+    m
 }
 
 /// The untrained loss when a run's last reported loss is above it by more than a tenth
@@ -565,13 +591,7 @@ pub fn run(a: Args) -> Result<()> {
         cvae::train::trainer::remove_stale_temporaries(&cfg.checkpoint_dir, k);
     }
     let multi = MultiProgress::with_draw_target(crate::progress::target());
-    let scaled = |k: ModelKind| {
-        let mut m = cfg.model(k).clone();
-        let warmup = m.warmup();
-        m.steps = scaled_steps(m.steps, a.steps_scale);
-        m.warmup = Some(warmup.min(m.steps / 4));
-        m
-    };
+    let scaled = |k: ModelKind| scaled_model(cfg.model(k), a.steps_scale);
     let bars: Vec<ProgressBar> = kinds
         .iter()
         .map(|&k| {
@@ -743,7 +763,26 @@ pub fn run(a: Args) -> Result<()> {
 
 #[cfg(test)]
 mod tests {
-    use super::loss_rose;
+    use super::{loss_rose, scaled_model};
+
+    /// A written warm-up stands at scale 1, however long; scaled runs cap it at a quarter
+    /// of their steps; an unwritten one follows the steps (`ModelConfig::warmup`).
+    #[test]
+    fn a_written_warmup_is_kept_unless_scaled() {
+        let text = "lengthgen = { latent = 2, hidden = [8], steps = 200, lr = 1e-3, lr_final = 1e-4, \
+                    warmup = 150 }";
+        #[derive(serde::Deserialize)]
+        struct One {
+            lengthgen: cvae::train::ModelConfig,
+        }
+        let m = toml::from_str::<One>(text).unwrap().lengthgen;
+        let kept = scaled_model(&m, 1.0);
+        assert_eq!((kept.steps, kept.warmup()), (200, 150));
+        let half = scaled_model(&m, 0.5);
+        assert_eq!((half.steps, half.warmup()), (100, 25));
+        let unwritten = cvae::train::ModelConfig { warmup: None, ..m };
+        assert_eq!(scaled_model(&unwritten, 1.0).warmup(), 50);
+    }
 
     /// A loss that ends above its start by more than the margin is reported with its
     /// start; one that fell, or rose within the first batch's noise, is not.

@@ -377,6 +377,31 @@ fn experiment_configs_are_checked_before_any_rendering() {
         e.contains("exp.toml") && e.contains("thresholds does not apply to kind = \"complexity\""),
         "{e}"
     );
+    // So would a budget's size and spp where the kind renders nothing or renders for a
+    // time, and a kind that renders needs them.
+    let e = run_kind("distributions", "");
+    assert!(
+        e.contains("full.size does not apply to kind = \"distributions\", which renders no image"),
+        "{e}"
+    );
+    let e = run_kind("nee", "scene = \"ok.toml\"");
+    assert!(
+        e.contains("full.spp does not apply to kind = \"nee\", which renders for `seconds`"),
+        "{e}"
+    );
+    let cfg = tmp.path().join("exp.toml");
+    std::fs::write(
+        &cfg,
+        "kind = \"quality\"\ntitle = \"t\"\nscene = \"ok.toml\"\ndensities = [1.0]\n\
+         [full]\nsize = 8\n[quick]\nsize = 8\nspp = 2\n",
+    )
+    .unwrap();
+    let out = quick_experiment(&cfg, &tmp.path().join("results"));
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && e.contains("[full] needs spp: kind = \"quality\" renders with it"),
+        "{e}"
+    );
 }
 
 /// The full teaser experiment into `out`, on the CPU, from the repository root, its

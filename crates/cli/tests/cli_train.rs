@@ -314,6 +314,22 @@ fn a_bad_base_fails_before_any_work() {
         !dir.path().join("ck").exists(),
         "no checkpoint before the check"
     );
+    // One that is there but damaged is named as such: training it "first" is not the
+    // advice then.
+    fs::create_dir_all(dir.path().join("ck")).unwrap();
+    fs::write(dir.path().join("ck/lengthgen.json"), b"{\"step\": ").unwrap();
+    let out = stcvae(
+        &["train", "--config", "train.toml", "--model", "pathgen"],
+        dir.path(),
+    );
+    let err = stderr(&out);
+    assert!(
+        !out.status.success()
+            && err.contains("needs lengthgen, whose checkpoint in ck cannot be used")
+            && err.contains("train --model lengthgen --fresh")
+            && !err.contains("train it first"),
+        "{err}"
+    );
 }
 
 /// Outputs that would replace another kind of file or a checkpoint, and a CSV dataset, are

@@ -204,3 +204,23 @@ fn short_training_improves_fit() {
     );
     assert!(after < 0.07, "KS before {before:.3}, after {after:.3}");
 }
+
+/// LengthGen's target scale includes the spread of its dequantisation: at τ = 0.01 almost
+/// every walk has N = 1, so the midpoint targets ln(1.5) − prior hardly vary, and the scale
+/// was floored at 10⁻⁶ (standardised batch targets of ~10⁵; a loss of 1.4·10⁷). The batches
+/// draw ln(N + u), whose standard deviation at N = 1 is √0.0391 = 0.198; the prior varies
+/// little with τ and g fixed, so the scale must be close to that (0.15–0.25). Without the
+/// dequantisation it was 0.049 here (the 1 % of walks with N = 2 alone), 10⁻⁶ where every
+/// N is 1.
+#[test]
+fn lengthgen_scale_covers_the_dequantisation() {
+    let s = scatter_sim::ConditionSampler::fixed(scatter_sim::Conditions {
+        tau: 0.01,
+        g: 0.0,
+        albedo: 1.0,
+    });
+    let rows: Vec<_> = (0..3000).map(|w| walk_row(5, &s, w).0).collect();
+    let table = Table::build(ModelKind::LengthGen, &rows, SingleScattering::Learned);
+    let scale = table.norm.out_scale[0];
+    assert!((0.15..0.25).contains(&scale), "out_scale {scale}");
+}

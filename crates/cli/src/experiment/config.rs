@@ -35,10 +35,11 @@ impl Kind {
 #[derive(Clone, Copy, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Budget {
-    /// Image side in pixels.
-    pub size: u32,
-    /// Samples per pixel of each render (split over two seeds where noise is measured).
-    pub spp: u32,
+    /// Image width in pixels (every kind but distributions, which renders nothing).
+    size: Option<u32>,
+    /// Samples per pixel of each render, split over two seeds where noise is measured
+    /// (every kind but distributions and nee, which renders for `seconds`).
+    spp: Option<u32>,
     /// Equal-time budget in seconds (nee).
     pub seconds: Option<f64>,
     /// Samples per pixel of the converged reference (nee).
@@ -48,6 +49,16 @@ pub struct Budget {
 }
 
 impl Budget {
+    /// The image width (checked present by `validate` for the kinds that render).
+    pub fn size(&self) -> u32 {
+        self.size.unwrap_or(0)
+    }
+
+    /// The samples per pixel (checked present by `validate` for the kinds that read them).
+    pub fn spp(&self) -> u32 {
+        self.spp.unwrap_or(0)
+    }
+
     /// The nee kind's time per method, 1 s unless given.
     pub fn seconds(&self) -> f64 {
         self.seconds.unwrap_or(1.0)
@@ -118,24 +129,53 @@ impl Config {
     }
 
     fn validate(&self) -> Result<()> {
+        // Which budget fields the kind reads: a size for any kind that renders, spp for
+        // those that render a fixed number of samples (nee renders for `seconds`). One the
+        // kind does not read would be ignored without a word: refused.
+        let renders = self.kind != Kind::Distributions;
+        let reads_spp = renders && self.kind != Kind::Nee;
         for (name, b) in [("full", &self.full), ("quick", &self.quick)] {
+            for (field, given, read) in [
+                ("size", b.size.is_some(), renders),
+                ("spp", b.spp.is_some(), reads_spp),
+            ] {
+                if read && !given {
+                    bail!(
+                        "[{name}] needs {field}: kind = \"{}\" renders with it",
+                        self.kind.name()
+                    );
+                }
+                if given && !read {
+                    bail!(
+                        "{name}.{field} does not apply to kind = \"{}\", which {}: remove it",
+                        self.kind.name(),
+                        if renders {
+                            "renders for `seconds`"
+                        } else {
+                            "renders no image"
+                        }
+                    );
+                }
+            }
             // As `bench render --size`: the figures are measured over 4×4-pixel blocks and
             // the object's pixels, which a smaller image hardly has (size 1 reported a
             // variance ratio of 7e297).
-            if !(8..=4096).contains(&b.size) {
+            if let Some(size) = b.size
+                && !(8..=4096).contains(&size)
+            {
                 bail!(
-                    "{name}.size = {} is out of range (8..=4096: the figures are measured over \
-                     4×4-pixel blocks)",
-                    b.size
+                    "{name}.size = {size} is out of range (8..=4096: the figures are measured \
+                     over 4×4-pixel blocks)"
                 );
             }
             // At most bench render's 2^30: a pair's two halves add up in u32.
             let most = crate::bench_render::MAX_BENCH_SPP;
-            if !(2..=most).contains(&b.spp) {
+            if let Some(spp) = b.spp
+                && !(2..=most).contains(&spp)
+            {
                 bail!(
-                    "{name}.spp = {} is out of range: allowed [2, {most}] (noise is measured \
-                     from two seeds)",
-                    b.spp
+                    "{name}.spp = {spp} is out of range: allowed [2, {most}] (noise is \
+                     measured from two seeds)"
                 );
             }
             if let Some(s) = b.seconds
@@ -277,7 +317,7 @@ impl Config {
         if let Some((field, _)) = given.iter().find(|(f, set)| *set && !reads.contains(f)) {
             bail!(
                 "{field} does not apply to kind = \"{}\", which reads {} (besides title, \
-                 description and the [full]/[quick] size and spp): remove it",
+                 description and the [full]/[quick] budgets): remove it",
                 self.kind.name(),
                 reads.join(", ")
             );

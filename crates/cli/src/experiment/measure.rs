@@ -95,7 +95,7 @@ pub fn render_once(
     edit: &dyn Fn(&mut SceneFile),
     o: &RenderOptions,
 ) -> Result<(render_gpu::render::RenderOutput, u64)> {
-    let size = ctx.budget.size;
+    let size = ctx.budget.size();
     let p = prepare(scene, Some(kind), Some(nee), ctx.model.as_deref(), |f| {
         let aspect = f.camera.height as f64 / f.camera.width as f64;
         f.camera.width = size;
@@ -168,7 +168,7 @@ pub fn render_pair(
     nee: bool,
     edit: &dyn Fn(&mut SceneFile),
 ) -> Result<Pair> {
-    let half = half_spp(ctx.budget.spp);
+    let half = half_spp(ctx.budget.spp());
     let [s1, s2] = pair_seeds(kind);
     let (a, hash) = render_once(ctx, scene, (kind, nee), edit, &opts(half, s1, None))?;
     let (b, _) = render_once(ctx, scene, (kind, nee), edit, &opts(half, s2, None))?;

@@ -194,19 +194,19 @@ fn budget_line(kind: config::Kind, b: &config::Budget) -> String {
         config::Kind::Nee => format!(
             "Renders: {} pixels wide (the scene's aspect kept); {} s per method; the \
              reference is PT with NEE at {} spp.\n",
-            b.size,
+            b.size(),
             b.seconds(),
             b.reference_spp()
         ),
         _ => {
-            let half = measure::half_spp(b.spp);
+            let half = measure::half_spp(b.spp());
             format!(
                 "Renders: {} pixels wide (the scene's aspect kept), {} spp each: two seeds of \
                  {half} ({} asked, halved and rounded up to a multiple of 3 so that every \
                  pixel gives each colour channel as many samples).\n",
-                b.size,
+                b.size(),
                 2 * half,
-                b.spp
+                b.spp()
             )
         }
     }
