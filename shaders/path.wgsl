@@ -198,7 +198,7 @@ fn bounce_begin() -> Query {
             // A collision within the way the spawn passed, at its own depth unless the
             // way back crosses a face (integrator/mod.rs).
             let back = min(skip - drawn, SKIP_BACK * skip);
-            if !intersect(ps.pos, -ps.dir, back + (1.0 - SKIP_BACK) * params.consts.z).found {
+            if !intersect(ps.pos, -ps.dir, back + SKIP_CLEAR_OF_EPS * params.consts.z).found {
                 ps.pos -= ps.dir * back;
                 q.o = ps.pos;
             }

@@ -45,13 +45,21 @@ pub const FLIGHT_MARGIN_OF_EPS: f32 = 0.02;
 pub const SKIP_MIN_COS: f32 = 0.05;
 /// The most of a spawn's skipped way a collision drawn within it is moved back along the
 /// path (the WGSL kernels take it from here): it then lies at its own depth, but at least
-/// a tenth of eps deep (2·10⁻⁶ of the object's size), where rays from it still see the
-/// face it came through. (0.95 measured the same.)
-pub const SKIP_BACK: f32 = 0.9;
-/// Most mean free paths the spawn offset eps may span (σ_t·eps). With the skip a sphere's
-/// image moves by −0.11 % at σ_t·eps = 0.2 and −0.33 % at 0.5 (against σ_t·eps = 0.006;
-/// docs/BENCHMARKS.md, forty-sixth session), so 0.25 keeps it within ~0.2 %.
-pub const MAX_SPAWN_DEPTH: f32 = 0.25;
+/// a fiftieth of the way deep (the flight margin's 4·10⁻⁷ of the object's size at normal
+/// entry), where rays from it still see the face it came through. Collisions lifted to
+/// the floor lie too deep: at 0.9 the image was +0.08 % bright at σ_t·eps = 0.2.
+pub const SKIP_BACK: f32 = 0.98;
+/// How far beyond a collision's way back a face must be clear, in units of eps (the WGSL
+/// kernels take it from here): half the floor's depth at normal entry, so that the face
+/// the path came through, (1 − SKIP_BACK)·eps/|cos| beyond, is never met by the cast (at
+/// (1 − SKIP_BACK)·eps a ray met it at normal entry, leaving those collisions eps deep).
+pub const SKIP_CLEAR_OF_EPS: f32 = 0.01;
+/// Most mean free paths the spawn offset eps may span (σ_t·eps). With the skip, the
+/// collisions within the flight margin kept and the floor above, a sphere's image moves by
+/// +0.05 % at σ_t·eps = 0.2, +0.06 % at 0.5 and +0.08 % at 1 against σ_t·eps = 0.006
+/// (standard error ~0.025 %; docs/BENCHMARKS.md, forty-seventh session; it was −0.33 % at
+/// 0.5 when the bound was 0.25), and a cube's edge leaks 10 paths in 200,000 at 0.96.
+pub const MAX_SPAWN_DEPTH: f32 = 1.0;
 /// How far [`Geometry::beyond_sliver`] looks, in units of eps. What it must see is a far
 /// face between the spawned point and the hit point, at t < eps; looking a little past the
 /// hit point (by more than the spawned point's rounding, an ulp of the coordinates, ~1 %

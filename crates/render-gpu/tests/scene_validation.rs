@@ -347,7 +347,7 @@ fn other_configs_are_named_not_parsed() {
 }
 
 /// A medium denser than the surface offset allows (σ_t·eps above
-/// geometry::MAX_SPAWN_DEPTH = 0.25; eps is 2e-5 of the object's largest coordinate or
+/// geometry::MAX_SPAWN_DEPTH = 1; eps is 2e-5 of the object's largest coordinate or
 /// extent, 4e-5 for the sphere of radius 1) is refused by channel with the largest σ_t
 /// allowed for the object: at σ_t 10⁶ the image came out black without a word. The same density in an object 100 times
 /// smaller is fine: the bound is on σ_t times the size.
@@ -366,9 +366,9 @@ fn a_medium_too_dense_for_the_surface_offset_is_refused() {
     let e = build("sigma_t = [10.0, 1e5, 10.0]", "1.0").unwrap_err();
     assert!(
         e.contains("medium.sigma_t[1] = 100000 is too dense")
-            && e.contains("allowed sigma_t <= 6.2500e3"),
+            && e.contains("allowed sigma_t <= 2.5000e4"),
         "{e}"
     );
-    build("sigma_t = [10.0, 6e3, 10.0]", "1.0").unwrap();
+    build("sigma_t = [10.0, 2.4e4, 10.0]", "1.0").unwrap();
     build("sigma_t = [10.0, 1e5, 10.0]", "0.01").unwrap();
 }

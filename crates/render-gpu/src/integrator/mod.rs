@@ -16,7 +16,7 @@ use glam::Vec3;
 use scatter_sim::phase::hg_sample_direction;
 use scatter_sim::rng::WalkRng;
 
-use crate::geometry::{Hit, SKIP_BACK};
+use crate::geometry::{Hit, SKIP_BACK, SKIP_CLEAR_OF_EPS};
 use crate::optics::{fresnel, reflect, refract};
 use crate::setup::{Boundary, SceneData};
 
@@ -420,17 +420,18 @@ impl Path {
             let drawn = -(1.0 - uniform(rng)).ln() / sigma;
             if drawn < s.skip {
                 // A collision within the way the spawn passed happens at its own depth:
-                // back along the path from the spawn point, but at least a tenth of eps
-                // deep, clear of the face just crossed (placed at the spawn point, such
-                // collisions lay too deep: 1.4 % dark at σ_t·eps = 0.4). Not across
-                // another face: the way back also runs sideways (to 18 eps at grazing
-                // entry) and near a convex edge it left the medium (36 % of the paths
-                // entering a cube's top face at |cos| = 0.05 by its edge leaked); there
-                // the collision stays at the spawn point. (The face must be clear by the
-                // same eps/10 as the one crossed.)
+                // back along the path from the spawn point, but at least a fiftieth of the
+                // way deep, clear of the face just crossed (SKIP_BACK; placed at the spawn
+                // point, such collisions lay too deep: 1.4 % dark at σ_t·eps = 0.4). Not
+                // across another face: the way back also runs sideways (to 18 eps at
+                // grazing entry) and near a convex edge it left the medium (36 % of the
+                // paths entering a cube's top face at |cos| = 0.05 by its edge leaked);
+                // there the collision stays at the spawn point. (The face must be clear by
+                // SKIP_CLEAR_OF_EPS, less than the floor, so the cast never meets the face
+                // the path came through.)
                 let back = (s.skip - drawn).min(SKIP_BACK * s.skip);
                 if geo
-                    .intersect(s.pos, -s.dir, back + (1.0 - SKIP_BACK) * geo.eps)
+                    .intersect(s.pos, -s.dir, back + SKIP_CLEAR_OF_EPS * geo.eps)
                     .is_none()
                 {
                     s.pos -= s.dir * back;
