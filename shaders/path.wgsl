@@ -204,8 +204,9 @@ fn bounce_begin() -> Query {
             }
         }
         q.t = max(drawn - skip, 0.0);
-        // A surface just past the collision counts as reached (integrator/mod.rs: a
-        // collision rounded to the far side would leave the path outside).
+        // The query looks just past the collision (integrator/mod.rs: a collision rounded
+        // to the far side of a surface would leave the path outside); flight_end keeps a
+        // face found only there from being reached.
         q.tmax = q.t + params.consts.z * FLIGHT_MARGIN_OF_EPS;
         // A flight shorter than the known free distance cannot reach the surface.
         q.query = q.t >= ps.free;
@@ -586,7 +587,8 @@ fn slot_begin(idx: u32, kind: u32) -> bool {
     sl_first = params.sampling.x + lane;
     sl_count = 0u;
     if sl_first < params.sampling.y {
-        sl_count = min(params.image.w, (params.sampling.y - sl_first + lanes - 1u) / lanes);
+        // ⌈(end − first) / lanes⌉ without the sum that wraps near 2^32 samples.
+        sl_count = min(params.image.w, (params.sampling.y - sl_first - 1u) / lanes + 1u);
     }
     sl_acc = accum[sl_base + ACC];
     sl_lo = accum[sl_base + ACC_LO].xyz;
@@ -667,8 +669,8 @@ fn bounce_done(casting: bool) {
 /// Adds a finished sample `x` to channel `c` of the slot's sum (and counts it), keeping
 /// what the f32 addition rounded off in sl_lo (Neumaier's compensated sum): a plain f32
 /// sum of many equal samples rounds the same way at every addition and drifted 1.2·10⁻⁴
-/// from the mean at 65,536 samples a slot (`long_slot_sums_do_not_drift`). The host adds
-/// ACC and ACC_LO in f64. A compiler that reassociated (s − t) + x to x − x would leave
+/// of the mean (8.3·10⁻⁵ of 0.7) at 65,536 samples a slot (`long_slot_sums_do_not_drift`).
+/// The host adds ACC and ACC_LO in f64. A compiler that reassociated (s − t) + x to x − x would leave
 /// sl_lo at 0: the plain sum, no worse. The count is exact up to 2^24 (MAX_SLOT_SAMPLES).
 fn add_sample(c: u32, x: f32) {
     let s = sl_acc[c];

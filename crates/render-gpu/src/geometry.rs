@@ -595,8 +595,9 @@ impl Geometry {
         shear.hit(v(t.v0.into()), v(t.v1.into()), v(t.v2.into()), 0.0, tmax)
     }
 
-    /// How far past a flight's end a surface still counts as reached: a few f32 roundings
-    /// of positions at the scene's scale (eps is 2e-5 of it; this is 4e-7 of it).
+    /// How far past a flight's end the integrators look for a surface, and how far short
+    /// of one found there the collision then stands: a few f32 roundings of positions at
+    /// the scene's scale (eps is 2e-5 of it; this is 4e-7 of it).
     #[inline]
     pub fn flight_margin(&self) -> f32 {
         self.eps * FLIGHT_MARGIN_OF_EPS

@@ -2258,3 +2258,28 @@ fn long_slot_sums_do_not_drift() {
         .fold(0.0, f32::max);
     assert!(worst <= 3e-7, "a pixel is {worst:e} from 0.7");
 }
+
+/// An error wgpu meets outside an error scope is reported by the next wait as one line
+/// naming the adapter (wgpu's default handler panicked), and once: the wait after it is
+/// clean, so a shared context goes on working. The error here: a buffer that may be both
+/// mapped for reading and bound as storage, which WebGPU forbids.
+#[test]
+fn uncaptured_gpu_errors_are_reported_not_panics() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let _bad = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("forbidden usages"),
+        size: 16,
+        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::STORAGE,
+        mapped_at_creation: false,
+    });
+    let e = ctx
+        .poll(wgpu::PollType::wait_indefinitely())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains(&ctx.adapter.name) && e.contains("reported an error") && !e.contains('\n'),
+        "{e}"
+    );
+    ctx.poll(wgpu::PollType::wait_indefinitely()).unwrap();
+}

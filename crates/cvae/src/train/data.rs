@@ -230,7 +230,8 @@ impl Table {
         let (out_shift, mut out_scale) = column_stats(&target, p);
         if kind == ModelKind::LengthGen && !n.is_empty() {
             // The batches dequantise N with u ~ U(0, 1), the statistics above with its
-            // midpoint: add the spread u gives. Where N hardly varies (τ ≪ 1: N = 1
+            // midpoint: add the spread u gives to the scale (the shift stays the
+            // midpoint's, a constant stored with the model). Where N hardly varies (τ ≪ 1: N = 1
             // throughout) the midpoint's spread is 0, the scale was floored at 10⁻⁶ and
             // the standardised targets were ~10⁵ (a loss of 1.4·10⁷ that still "fell").
             let dequantised =

@@ -76,6 +76,50 @@ pub struct GpuContext {
     pub features: wgpu::Features,
     /// The largest subgroup (SIMD group) the adapter may run: 8 on lavapipe, 32 on NVIDIA.
     pub subgroup_max_size: u32,
+    /// The first error wgpu reported outside an error scope since the last wait
+    /// ([`GpuContext::poll`]), on one line: wgpu's default handler panics.
+    uncaptured: std::sync::Arc<std::sync::Mutex<Option<String>>>,
+}
+
+/// wgpu's error text ("Validation Error\n\nCaused by:\n  …") on one line.
+pub fn one_line(text: &str) -> String {
+    text.lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty())
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+impl GpuContext {
+    /// Waits as `poll_type` says, then reports an error wgpu met meanwhile outside an error
+    /// scope. A lost device (a driver reset, a watchdog) makes wgpu's poll panic instead of
+    /// returning an error: that panic is caught and reported as an error too.
+    pub fn poll(&self, poll_type: wgpu::PollType) -> Result<(), RenderError> {
+        let polled =
+            std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| self.device.poll(poll_type)));
+        let uncaptured = self
+            .uncaptured
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .take();
+        if let Some(e) = uncaptured {
+            return Err(RenderError::Gpu(format!(
+                "{} reported an error: {e}; use --device cpu",
+                self.adapter.name
+            )));
+        }
+        match polled {
+            Ok(Ok(_)) => Ok(()),
+            Ok(Err(e)) => Err(RenderError::Gpu(format!(
+                "the GPU did not finish: {}",
+                one_line(&e.to_string())
+            ))),
+            Err(_) => Err(RenderError::Gpu(format!(
+                "{} was lost while rendering (a driver reset or watchdog); use --device cpu",
+                self.adapter.name
+            ))),
+        }
+    }
 }
 
 fn summary(info: &wgpu::AdapterInfo) -> AdapterSummary {
@@ -195,6 +239,14 @@ impl GpuContext {
             ..Default::default()
         }))
         .map_err(|e| RenderError::Gpu(format!("cannot open {}: {e}", info.name)))?;
+        let uncaptured = std::sync::Arc::new(std::sync::Mutex::new(None::<String>));
+        let sink = uncaptured.clone();
+        device.on_uncaptured_error(std::sync::Arc::new(move |e: wgpu::Error| {
+            let mut first = sink.lock().unwrap_or_else(|p| p.into_inner());
+            if first.is_none() {
+                *first = Some(one_line(&e.to_string()));
+            }
+        }));
         Ok(Self {
             device,
             queue,
@@ -202,6 +254,7 @@ impl GpuContext {
             limits,
             features,
             subgroup_max_size: info.subgroup_max_size,
+            uncaptured,
         })
     }
 }

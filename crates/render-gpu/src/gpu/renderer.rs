@@ -128,8 +128,10 @@ pub fn kernel_shape() -> Result<KernelShape, RenderError> {
              one's counters (the default)",
         ),
     ];
+    // An empty value is unset (the default): `STCVAE_GPU_STAGED_AHEAD=` turned a
+    // default-on switch off.
     for (name, field, what) in switches {
-        if let Some(v) = env_value(name) {
+        if let Some(v) = env_value(name).filter(|v| !v.trim().is_empty()) {
             *field = parse_switch(name, &v, what)?;
         }
     }
@@ -152,14 +154,8 @@ fn parse_switch(name: &str, v: &str, what: &str) -> Result<bool, RenderError> {
     parse_choice(
         name,
         v,
-        &[
-            ("1", true),
-            ("true", true),
-            ("0", false),
-            ("false", false),
-            ("", false),
-        ],
-        &format!("a switch: allowed 1 or true ({what}), 0, false or empty"),
+        &[("1", true), ("true", true), ("0", false), ("false", false)],
+        &format!("a switch: allowed 1 or true ({what}), 0 or false, empty for the default"),
     )
 }
 
@@ -536,7 +532,8 @@ pub fn render_gpu(
     };
     if scene.lights.len() > super::scene_buffers::MAX_GPU_LIGHTS {
         return Err(RenderError::GpuLimit(format!(
-            "the GPU kernels take at most {} lights (the scene has {}); use --device cpu",
+            "the GPU kernels take at most {} [[light]] entries (the scene has {}); use \
+             --device cpu",
             super::scene_buffers::MAX_GPU_LIGHTS,
             scene.lights.len()
         )));
@@ -841,9 +838,16 @@ pub fn render_gpu(
         let dt = t0.elapsed().as_secs_f64();
         kept_seconds = start.elapsed().as_secs_f64();
         s0 = s1;
-        // Grow (or shrink) the next chunk toward the target duration.
-        let scale = (TARGET_CHUNK_SECONDS / dt.max(1e-4)).clamp(0.5, 4.0);
-        per_lane = fixed_per_lane.unwrap_or(((per_lane as f64 * scale) as u32).max(1));
+        // Grow (or shrink) the next chunk toward the target duration: under a time budget
+        // at most a twentieth of it and what is left of it, as the CPU sizes its passes
+        // (a fixed second overshot `--time-budget 0.3` to 0.6 s).
+        let target = opts.time_budget.map_or(TARGET_CHUNK_SECONDS, |b| {
+            let left = b - start.elapsed().as_secs_f64();
+            TARGET_CHUNK_SECONDS.min(0.05 * b).min(left).max(1e-3)
+        });
+        let scale = (target / dt.max(1e-4)).clamp(0.5, 4.0);
+        per_lane =
+            fixed_per_lane.unwrap_or(((per_lane as f64 * scale) as u32).clamp(1, MAX_LANE_SAMPLES));
         let out_of_time = opts
             .time_budget
             .is_some_and(|b| start.elapsed().as_secs_f64() >= b);
@@ -903,7 +907,8 @@ pub fn render_gpu(
     }
     if short > 0 {
         return Err(RenderError::Gpu(format!(
-            "{short} of {pixels} pixels came back with fewer than {s0} finished samples from {}",
+            "{short} of {pixels} pixels came back with a finished-sample count other than \
+             {s0} from {}",
             ctx.adapter
         )));
     }
@@ -963,6 +968,14 @@ mod tests {
             unsafe { std::env::remove_var("STCVAE_GPU_PROFILE") };
             assert_eq!(r.unwrap().profile, on, "{v:?}");
         }
+        // Empty is the default, also where the default is on.
+        for (v, on) in [("", true), (" ", true), ("0", false)] {
+            unsafe { std::env::set_var("STCVAE_GPU_STAGED_AHEAD", v) };
+            let r = kernel_shape();
+            unsafe { std::env::remove_var("STCVAE_GPU_STAGED_AHEAD") };
+            assert_eq!(r.unwrap().ahead, on, "{v:?}");
+        }
+        assert!(KernelShape::default().ahead);
         unsafe { std::env::set_var("STCVAE_GPU_PROFILE", "yes") };
         let e = kernel_shape().unwrap_err().to_string();
         unsafe { std::env::remove_var("STCVAE_GPU_PROFILE") };

@@ -470,12 +470,10 @@ impl Readback {
         let failed = |e: &dyn std::fmt::Display| {
             RenderError::Gpu(format!("reading GPU results failed: {e}"))
         };
-        ctx.device
-            .poll(wgpu::PollType::Wait {
-                submission_index: Some(self.submission),
-                timeout: None,
-            })
-            .map_err(|e| RenderError::Gpu(format!("the GPU did not finish: {e}")))?;
+        ctx.poll(wgpu::PollType::Wait {
+            submission_index: Some(self.submission),
+            timeout: None,
+        })?;
         match self.mapped.recv() {
             Ok(Ok(())) => {}
             Ok(Err(e)) => return Err(failed(&e)),
@@ -491,8 +489,5 @@ impl Readback {
 
 /// Blocks until the queue is idle.
 pub fn wait(ctx: &GpuContext) -> Result<(), RenderError> {
-    ctx.device
-        .poll(wgpu::PollType::wait_indefinitely())
-        .map(|_| ())
-        .map_err(|e| RenderError::Gpu(format!("the GPU did not finish: {e}")))
+    ctx.poll(wgpu::PollType::wait_indefinitely())
 }
