@@ -439,6 +439,12 @@ pub fn run(a: Args) -> Result<()> {
             );
         }
     }
+    // The models this run continues (their notes count the seconds of the runs before).
+    let resumed: Vec<ModelKind> = kinds
+        .iter()
+        .copied()
+        .filter(|&k| a.resume && cvae::train::trainer::has_checkpoint(&cfg.checkpoint_dir, k))
+        .collect();
     if a.resume {
         // Resuming from nothing used to start afresh without a word.
         let missing: Vec<&str> = kinds
@@ -689,13 +695,18 @@ pub fn run(a: Args) -> Result<()> {
                 t.kind.name()
             );
         }
-        // A resumed model's seconds include the runs before this one.
+        // A resumed model's seconds include the runs before this one (one that --resume
+        // found no checkpoint of started this run).
         notes.push(format!(
             "{}: {} steps, final loss {last:.4}, {:.0} s{}",
             t.kind.name(),
             t.info.step,
             t.info.seconds,
-            if a.resume { " over all its runs" } else { "" }
+            if resumed.contains(&t.kind) {
+                " over all its runs"
+            } else {
+                ""
+            }
         ));
         decoders.insert(t.kind, t.decoder.clone());
     }

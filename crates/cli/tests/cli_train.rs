@@ -461,6 +461,34 @@ fn resume_needs_an_intact_checkpoint_and_the_last_loss_is_the_last_steps() {
     let out = resume(dir.path());
     assert!(out.status.success(), "resume failed: {}", stderr(&out));
     assert!(!stderr(&out).contains("past the"), "{}", stderr(&out));
+    // All three resumed with EventGen's checkpoint alone: the other two start here, and
+    // only EventGen's note counts the seconds of earlier runs (all three said so).
+    let out = stcvae(&["train", "--config", "train.toml", "--resume"], dir.path());
+    assert!(out.status.success(), "resume failed: {}", stderr(&out));
+    let notes = ModelSet::load(&dir.path().join("m.stcvae"))
+        .unwrap()
+        .training
+        .notes;
+    let line = |k: &str| {
+        notes
+            .split("; ")
+            .find(|l| l.starts_with(&format!("{k}: ")))
+            .unwrap_or_else(|| panic!("no {k} note in {notes}"))
+            .to_owned()
+    };
+    assert!(line("eventgen").ends_with("over all its runs"), "{notes}");
+    assert!(!line("lengthgen").contains("over all its runs"), "{notes}");
+    assert!(!line("pathgen").contains("over all its runs"), "{notes}");
+    // Checkpoints of all three now: leave only EventGen's for what follows.
+    for k in ["lengthgen", "pathgen"] {
+        for f in [
+            format!("{k}.json"),
+            format!("{k}.bpk"),
+            format!("{k}-optim.bpk"),
+        ] {
+            fs::remove_file(dir.path().join("ck").join(f)).unwrap();
+        }
+    }
     // Fewer steps than the checkpoint has done (5 × 0.6): exported as it is, and said so.
     let out = eventgen_with_all(dir.path(), &["--resume", "--steps-scale", "0.6"]);
     assert!(out.status.success(), "resume failed: {}", stderr(&out));

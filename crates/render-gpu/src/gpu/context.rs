@@ -263,6 +263,18 @@ impl GpuContext {
 mod tests {
     use super::*;
 
+    /// wgpu's multi-line error text becomes one line, its blank lines and indents gone.
+    #[test]
+    fn gpu_errors_fit_on_one_line() {
+        let text = "Validation Error\n\nCaused by:\n  In Device::create_buffer\n    \
+                    Usages contain both MAP_READ and STORAGE\n";
+        assert_eq!(
+            one_line(text),
+            "Validation Error Caused by: In Device::create_buffer Usages contain both \
+             MAP_READ and STORAGE"
+        );
+    }
+
     /// The reason names the fix that applies: `--device gpu` where a software adapter
     /// exists, installing lavapipe where none does. (Backends are given, so that
     /// `WGPU_BACKEND` in the environment plays no part.)

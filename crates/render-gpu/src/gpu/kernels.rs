@@ -574,8 +574,9 @@ pub fn pipeline(
         });
     if let Some(e) = pollster::block_on(scope.pop()) {
         return Err(RenderError::Gpu(format!(
-            "the {kernel:?} kernel did not compile on {}: {e}",
-            ctx.adapter
+            "the {kernel:?} kernel did not compile on {}: {}",
+            ctx.adapter,
+            super::context::one_line(&e.to_string())
         )));
     }
     Ok(p)

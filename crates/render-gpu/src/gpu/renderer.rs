@@ -728,16 +728,18 @@ pub fn render_gpu(
         let total: u64 = accum_bytes.iter().sum();
         return Err(RenderError::GpuLimit(format!(
             "{} is out of memory for this render's buffers ({} MB of path state for {} \
-             pixels): {e}; lower the image size or use --device cpu",
+             pixels): {}; lower the image size or use --device cpu",
             ctx.adapter.name,
             total / 1_000_000,
-            pixels
+            pixels,
+            super::context::one_line(&e.to_string())
         )));
     }
     if let Some(e) = invalid {
         return Err(RenderError::Gpu(format!(
-            "setting up the render's buffers on {} failed: {e}",
-            ctx.adapter.name
+            "setting up the render's buffers on {} failed: {}",
+            ctx.adapter.name,
+            super::context::one_line(&e.to_string())
         )));
     }
     poisoned?;
@@ -839,13 +841,14 @@ pub fn render_gpu(
         kept_seconds = start.elapsed().as_secs_f64();
         s0 = s1;
         // Grow (or shrink) the next chunk toward the target duration: under a time budget
-        // at most a twentieth of it and what is left of it, as the CPU sizes its passes
-        // (a fixed second overshot `--time-budget 0.3` to 0.6 s).
-        let target = opts.time_budget.map_or(TARGET_CHUNK_SECONDS, |b| {
+        // at most what is left of it, shrinking at once (a fixed second overshot
+        // `--time-budget 0.3` to 0.43 s on lavapipe; a twentieth of the budget, as the CPU
+        // sizes its passes, cost a quarter of the samples of a 2 s budget there).
+        let (target, least) = opts.time_budget.map_or((TARGET_CHUNK_SECONDS, 0.5), |b| {
             let left = b - start.elapsed().as_secs_f64();
-            TARGET_CHUNK_SECONDS.min(0.05 * b).min(left).max(1e-3)
+            (TARGET_CHUNK_SECONDS.min(left).max(1e-3), 0.02)
         });
-        let scale = (target / dt.max(1e-4)).clamp(0.5, 4.0);
+        let scale = (target / dt.max(1e-4)).clamp(least, 4.0);
         per_lane =
             fixed_per_lane.unwrap_or(((per_lane as f64 * scale) as u32).clamp(1, MAX_LANE_SAMPLES));
         let out_of_time = opts
