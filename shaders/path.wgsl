@@ -670,8 +670,9 @@ fn bounce_done(casting: bool) {
 /// what the f32 addition rounded off in sl_lo (Neumaier's compensated sum): a plain f32
 /// sum of many equal samples rounds the same way at every addition and drifted 1.2·10⁻⁴
 /// of the mean (8.3·10⁻⁵ of 0.7) at 65,536 samples a slot (`long_slot_sums_do_not_drift`).
-/// The host adds ACC and ACC_LO in f64. A compiler that reassociated (s − t) + x to x − x would leave
-/// sl_lo at 0: the plain sum, no worse. The count is exact up to 2^24 (MAX_SLOT_SAMPLES).
+/// The host adds ACC and ACC_LO in f64. A compiler that reassociated (s − t) + x to x − x
+/// would leave sl_lo at 0: the plain sum, no worse. The count is exact up to 2^24
+/// (MAX_SLOT_SAMPLES).
 fn add_sample(c: u32, x: f32) {
     let s = sl_acc[c];
     let t = s + x;

@@ -780,8 +780,8 @@ mod tests {
     /// of their steps; an unwritten one follows the steps (`ModelConfig::warmup`).
     #[test]
     fn a_written_warmup_is_kept_unless_scaled() {
-        let text = "lengthgen = { latent = 2, hidden = [8], steps = 200, lr = 1e-3, lr_final = 1e-4, \
-                    warmup = 150 }";
+        let text = "lengthgen = { latent = 2, hidden = [8], steps = 200, lr = 1e-3, \
+                    lr_final = 1e-4, warmup = 150 }";
         #[derive(serde::Deserialize)]
         struct One {
             lengthgen: cvae::train::ModelConfig,

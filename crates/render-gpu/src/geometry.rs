@@ -47,7 +47,8 @@ pub const SKIP_MIN_COS: f32 = 0.05;
 /// path (the WGSL kernels take it from here): it then lies at its own depth, but at least
 /// a fiftieth of the way deep (the flight margin's 4·10⁻⁷ of the object's size at normal
 /// entry), where rays from it still see the face it came through. Collisions lifted to
-/// the floor lie too deep: at 0.9 the image was +0.08 % bright at σ_t·eps = 0.2.
+/// the floor lie too deep: at 0.9 (and the cast below at a tenth of eps) the image was
+/// +0.08 % bright at σ_t·eps = 0.2.
 pub const SKIP_BACK: f32 = 0.98;
 /// How far beyond a collision's way back a face must be clear, in units of eps (the WGSL
 /// kernels take it from here): half the floor's depth at normal entry, so that the face

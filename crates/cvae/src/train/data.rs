@@ -231,9 +231,10 @@ impl Table {
         if kind == ModelKind::LengthGen && !n.is_empty() {
             // The batches dequantise N with u ~ U(0, 1), the statistics above with its
             // midpoint: add the spread u gives to the scale (the shift stays the
-            // midpoint's, a constant stored with the model). Where N hardly varies (τ ≪ 1: N = 1
-            // throughout) the midpoint's spread is 0, the scale was floored at 10⁻⁶ and
-            // the standardised targets were ~10⁵ (a loss of 1.4·10⁷ that still "fell").
+            // midpoint's, a constant stored with the model). Where N hardly varies
+            // (τ ≪ 1: N = 1 throughout) the midpoint's spread is 0, the scale was floored
+            // at 10⁻⁶ and the standardised targets were ~10⁵ (a loss of 1.4·10⁷ that still
+            // "fell").
             let dequantised =
                 n.iter().map(|&k| log_dequantised_variance(k)).sum::<f64>() / n.len() as f64;
             out_scale[0] = ((out_scale[0] as f64).powi(2) + dequantised).sqrt() as f32;

@@ -703,8 +703,8 @@ mod tests {
     /// allowed 4.
     #[test]
     fn collisions_within_the_flight_margin_stand() {
-        let text = "[camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 20.0\nwidth = 4\nheight = 4\n\
-                    [object]\nshape = \"cube\"\n\
+        let text = "[camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\n\
+                    fov_deg = 20.0\nwidth = 4\nheight = 4\n[object]\nshape = \"cube\"\n\
                     [medium]\nsigma_t = [SIGMA, SIGMA, SIGMA]\nalbedo = [0.0, 0.0, 0.0]\n\
                     [environment]\nradiance = [1.0, 1.0, 1.0]\n";
         let probe = SceneFile::parse(

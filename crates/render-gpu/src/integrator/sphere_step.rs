@@ -79,7 +79,7 @@ pub(crate) fn begin(
     let mut free = grid_free.max(s.free);
     // Refined wherever the step below would otherwise fall back: at min_tau = 0 that is a
     // bound of 0, which `σ·free < min_tau` never caught (2.2 fallback events a path on
-    // the bunny at ×4 where the exact distance left 0.02).
+    // the bunny at ×4 where the exact distance leaves 0.013).
     if free < grid.near_surface && !(free * SHRINK > 0.0 && sigma * free * SHRINK >= set.min_tau) {
         // Near the surface the grid's Lipschitz bound loses up to two cell half-diagonals,
         // which at high density is many mean free paths of PT fallback events. When the
