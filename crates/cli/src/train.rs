@@ -449,7 +449,7 @@ pub fn run(a: Args) -> Result<()> {
         // Resuming from nothing used to start afresh without a word.
         let missing: Vec<&str> = kinds
             .iter()
-            .filter(|&&k| !cvae::train::trainer::has_checkpoint(&cfg.checkpoint_dir, k))
+            .filter(|k| !resumed.contains(k))
             .map(|k| k.name())
             .collect();
         if missing.len() == kinds.len() {
