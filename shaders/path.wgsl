@@ -321,7 +321,7 @@ fn flight_end(t: f32, h: Hit) -> bool {
         return false;
     }
     // A face found only thanks to the flight margin (beyond t) is not reached: the
-    // collision stands, the margin short of the face (integrator/mod.rs). Met from
+    // collision stands, the margin short of the face (Geometry::flight_end). Met from
     // outside (a leak), it is still the face.
     var reached = h.found;
     var t_end = t;

@@ -604,6 +604,26 @@ impl Geometry {
         self.eps * FLIGHT_MARGIN_OF_EPS
     }
 
+    /// Where a flight of length `t` along `dir` ends, given `hit`, what the cast that looked
+    /// [`Self::flight_margin`] beyond `t` found: the face it reached, or none and the
+    /// distance at which the collision stands. A face found only thanks to the margin
+    /// (beyond `t`) is not reached: the collision stands, moved back to the margin's
+    /// distance from the face, where every collision the margin leaves alone may lie. Taken
+    /// as an exit, those collisions were lost: −0.01·σ_t·eps of the image (−0.2 % at
+    /// σ_t·eps = 0.2; integrator/mod.rs' `collisions_within_the_flight_margin_stand`). A
+    /// face met from outside (a leak) is still the face, as is any face of overlapping
+    /// pieces (their normals do not tell in from out). path.wgsl's `flight_end` does the
+    /// same on the GPU.
+    #[inline]
+    pub fn flight_end(&self, hit: Option<Hit>, dir: Vec3, t: f32) -> (Option<Hit>, f32) {
+        match hit {
+            Some(h) if h.t > t && (self.pieces.is_some() || dir.dot(h.normal) >= 0.0) => {
+                (None, t.min((h.t - self.flight_margin()).max(0.0)))
+            }
+            h => (h, t),
+        }
+    }
+
     /// Whether `p` lies in the mesh's bounding box grown by eps: every point inside the
     /// closed mesh does.
     #[inline]

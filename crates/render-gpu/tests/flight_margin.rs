@@ -3,10 +3,11 @@
 //! beyond the surface, a path is left outside while it believes itself inside. Such a
 //! path scattered through the air for 10⁴–10⁵ events with unshadowed NEE — the rare
 //! "heavy-tailed" fireflies of PT and ST-CVAE renders. The integrators therefore ask for
-//! hits up to `Geometry::flight_margin` past the flight (integrator/mod.rs): a face up to
-//! the flight's end is reached, one found beyond it leaves the collision standing the
-//! margin short of it along the ray. This test shows that without the margin such flights
-//! occur and with it none do (34,000 flights, random directions, grazing ones included).
+//! hits up to `Geometry::flight_margin` past the flight and end it by
+//! `Geometry::flight_end`: a face up to the flight's end is reached, one found beyond it
+//! leaves the collision standing the margin short of it along the ray. This test shows
+//! that without the margin such flights occur and with it none do (34,000 flights, random
+//! directions, grazing ones included).
 
 mod common;
 
@@ -38,15 +39,14 @@ fn flights_ending_at_the_surface_never_leave_a_path_outside() {
             if geo.intersect(p, d, t).is_none() && !geo.inside(end) {
                 lost_plain += 1;
             }
-            // With it (integrator/mod.rs): a face up to t is reached (the path leaves);
-            // one found beyond t, within the margin, leaves the collision standing, moved
-            // back from the face; with none found it stands at the end. Where it stands
-            // must be inside.
-            let margin = geo.flight_margin();
-            let stands = match geo.intersect(p, d, t + margin) {
-                Some(h2) if h2.t <= t => None,
-                Some(h2) => Some(p + d * (h2.t - margin).max(0.0)),
-                None => Some(end),
+            // With it, by the integrators' own rule (`Geometry::flight_end`): a face up to
+            // t is reached (the path leaves); one found beyond t, within the margin, leaves
+            // the collision standing, moved back from the face; with none found it stands
+            // at the end. Where it stands must be inside.
+            let cast = geo.intersect(p, d, t + geo.flight_margin());
+            let stands = match geo.flight_end(cast, d, t) {
+                (Some(_), _) => None,
+                (None, t_end) => Some(p + d * t_end),
             };
             if stands.is_some_and(|q| !geo.inside(q)) {
                 lost_margin += 1;
