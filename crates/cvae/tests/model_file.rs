@@ -555,8 +555,8 @@ fn antithetic_event_draws_keep_the_marginal() {
 
 /// LengthGen is probed on load: weights and standardisation each inside their bounds
 /// decoded N = e^100 (rendered at 1e13 without a word). A median beyond e^±8 times the
-/// diffusion count, or a spread above e^4, is refused by condition; the random test
-/// weights (O(1) outputs, like a trained file's) pass.
+/// diffusion count, or a spread above e^4, is refused by condition and latent draw; the
+/// random test weights (O(1) outputs, like a trained file's) pass.
 #[test]
 fn absurd_lengthgen_is_refused() {
     let load = |m: &ModelSet| ModelSet::from_bytes(&m.to_bytes(), Path::new("n.stcvae"));
@@ -577,4 +577,20 @@ fn absurd_lengthgen_is_refused() {
     *head = Dense::new(head.inputs, head.outputs, head.weight.clone(), bias);
     let e = load(&m).unwrap_err().to_string();
     assert!(e.contains("+ -1.1 ± 2981.0 (median ± spread)"), "{e}");
+    // Latent weights at the bound leave the latent mean's decoding alone: such a file
+    // (the shipped model so edited, checksum recomputed) decoded a mean N of 2·10⁹ away
+    // from z = 0. The probes 3 standard deviations out along each latent axis refuse it.
+    let mut m = random_models(5, 1.0);
+    let (cond, latent) = (m.length.cond, m.length.latent);
+    let first = &mut m.length.layers[0];
+    let mut weight = first.weight.clone();
+    for o in 0..first.outputs {
+        for i in cond..cond + latent {
+            weight[o * first.inputs + i] = 1e4;
+        }
+    }
+    *first = Dense::new(first.inputs, first.outputs, weight, first.bias.clone());
+    let e = load(&m).unwrap_err().to_string();
+    assert!(e.contains("-0.999 and latent [3.0"), "{e}");
+    assert!(e.contains("damaged or hand-edited"), "{e}");
 }
