@@ -132,6 +132,10 @@ pub fn sample(a: SampleArgs) -> Result<()> {
         pb.inc(walks.len() as u64);
     }
     pb.finish_and_clear();
+    // A Ctrl-C during the last chunk (or the only one: 65,536 walks or fewer) stops it too.
+    if cancel.load(Ordering::Relaxed) {
+        bail!("interrupted: nothing written to {}", a.out.display());
+    }
     sink.finish()?;
     if saturated > 0 {
         eprintln!(
@@ -315,7 +319,15 @@ pub fn evaluate(a: EvalArgs) -> Result<()> {
 }
 
 /// Checks shared by both modes of `eval`; the model and the name to print for it.
-fn open_eval(model: Option<&Path>, out: &Path, samples: usize) -> Result<(ModelSet, String)> {
+/// Checks `eval`'s arguments and every file it will write (metrics.json, metrics.md and,
+/// with `plots`, the plots: a directory in a plot's place once failed only after the whole
+/// grid), then loads the model.
+fn open_eval(
+    model: Option<&Path>,
+    out: &Path,
+    samples: usize,
+    plots: bool,
+) -> Result<(ModelSet, String)> {
     if !(2..=MAX_EVAL_SAMPLES).contains(&samples) {
         bail!(
             "--samples {samples} is out of range: allowed [2, {MAX_EVAL_SAMPLES}] (the KS and \
@@ -332,8 +344,15 @@ fn open_eval(model: Option<&Path>, out: &Path, samples: usize) -> Result<(ModelS
     let name = model_path(model).display().to_string();
     // Checked now, created when the results are written: an eval stopped part way (Ctrl-C
     // kills it) leaves no empty directory behind.
-    scatter_sim::output::check_output_path(&out.join("metrics.json"))
-        .map_err(|e| anyhow::anyhow!("--out {}: {e}", out.display()))?;
+    let plot_files = if plots {
+        &crate::plots::PLOT_FILES[..]
+    } else {
+        &[]
+    };
+    for name in ["metrics.json", "metrics.md"].iter().chain(plot_files) {
+        scatter_sim::output::check_output_path(&out.join(name))
+            .map_err(|e| anyhow::anyhow!("--out {}: {e}", out.display()))?;
+    }
     Ok((m, name))
 }
 
@@ -414,7 +433,7 @@ fn eval_json_and_head(
 /// `eval --at`: the given settings only (setting i with seed + i), no plots; the table and
 /// the fine shell bands go to stdout too.
 fn evaluate_settings(a: &EvalArgs) -> Result<()> {
-    let (m, name) = open_eval(a.model.as_deref(), &a.out, a.samples)?;
+    let (m, name) = open_eval(a.model.as_deref(), &a.out, a.samples, false)?;
     let mut reports = Vec::new();
     let mut bands = String::new();
     let cancel = crate::interrupt::flag();
@@ -441,6 +460,10 @@ fn evaluate_settings(a: &EvalArgs) -> Result<()> {
         pb.inc(1);
     }
     pb.finish_and_clear();
+    // A Ctrl-C during the last setting (or the only one) stops it too.
+    if cancel.load(std::sync::atomic::Ordering::Relaxed) {
+        bail!("interrupted: nothing written to {}", a.out.display());
+    }
     let (json, mut md) = eval_json_and_head(&name, a.samples, a.seed, &reports)?;
     md.extend(bands.into_bytes());
     write_metrics(&a.out, &json, &md, &[])?;
@@ -456,7 +479,7 @@ pub fn evaluate_into(
     samples: usize,
     seed: u64,
 ) -> Result<std::collections::BTreeMap<&'static str, f64>> {
-    let (m, model_name) = open_eval(model, out, samples)?;
+    let (m, model_name) = open_eval(model, out, samples, true)?;
     let outside = grid_outside_training(&m);
     if let Some(w) = &outside {
         eprintln!("warning: {w}");

@@ -238,15 +238,22 @@ fn density_pairs(panels: &[Panel], q: usize, qname: &str) -> Result<Vec<u8>> {
     encode_png(&buf, w, h)
 }
 
-/// fig11_n.png, fig12_cos_theta.png, fig12_cos_alpha.png and fig12_cos_beta.png, named
-/// and encoded: `eval` writes them with its metrics as one set (a full disk left three
-/// plots and no metrics).
+/// The names of [`render_all`]'s plots, in its order (`eval` checks them before it starts).
+pub const PLOT_FILES: [&str; 4] = [
+    "fig11_n.png",
+    "fig12_cos_theta.png",
+    "fig12_cos_alpha.png",
+    "fig12_cos_beta.png",
+];
+
+/// The plots of [`PLOT_FILES`], named and encoded: `eval` writes them with its metrics as
+/// one set (a full disk left three plots and no metrics).
 pub fn render_all(panels: &[Panel]) -> Result<Vec<(String, Vec<u8>)>> {
     // The paper's Fig. 12 shows a few settings; pick one per τ at g = 0.4 (index 2).
     let few: Vec<Panel> = panels.iter().filter(|p| p.1 == GS[2]).cloned().collect();
     Ok(vec![
         (
-            "fig11_n.png".to_string(),
+            PLOT_FILES[0].to_string(),
             histogram_grid(
                 panels,
                 LOG_N,
@@ -255,7 +262,7 @@ pub fn render_all(panels: &[Panel]) -> Result<Vec<(String, Vec<u8>)>> {
             )?,
         ),
         (
-            "fig12_cos_theta.png".to_string(),
+            PLOT_FILES[1].to_string(),
             histogram_grid(
                 panels,
                 COS,
@@ -263,14 +270,8 @@ pub fn render_all(panels: &[Panel]) -> Result<Vec<(String, Vec<u8>)>> {
                 false,
             )?,
         ),
-        (
-            "fig12_cos_alpha.png".to_string(),
-            density_pairs(&few, ALPHA, "α")?,
-        ),
-        (
-            "fig12_cos_beta.png".to_string(),
-            density_pairs(&few, BETA, "β")?,
-        ),
+        (PLOT_FILES[2].to_string(), density_pairs(&few, ALPHA, "α")?),
+        (PLOT_FILES[3].to_string(), density_pairs(&few, BETA, "β")?),
     ])
 }
 

@@ -569,6 +569,54 @@ fn interrupted_runs_leave_no_files() {
     }
 }
 
+/// A Ctrl-C during `eval --at`'s last setting (here its only one) stops it too: it was
+/// looked for only between settings, so this run wrote its metrics and exited 0 after
+/// saying it would stop. Interrupted once it has said what it evaluates (stderr, written
+/// to a file the test reads), i.e. while the setting's 100,000 simulator walks at τ = 125
+/// (seconds) are drawn.
+#[cfg(unix)]
+#[test]
+fn eval_interrupted_in_its_last_setting_writes_nothing() {
+    use common::interrupt_when;
+    use std::time::Duration;
+    let dir = tempfile::tempdir().unwrap();
+    let model = concat!(env!("CARGO_MANIFEST_DIR"), "/../../models/default.stcvae");
+    let log = dir.path().join("stderr.txt");
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args(["eval", "--model", model, "--at", "125,0.9,1"])
+        .args(words("--samples 100000 --out ev"))
+        .current_dir(dir.path())
+        .stderr(fs::File::create(&log).unwrap())
+        .spawn()
+        .unwrap();
+    let started = || fs::read_to_string(&log).is_ok_and(|t| t.contains("evaluating"));
+    interrupt_when(&child, started, Duration::from_millis(300), 1, "eval --at");
+    let out = child.wait_with_output().unwrap();
+    let err = fs::read_to_string(&log).unwrap();
+    assert_eq!(out.status.code(), Some(130), "{err}");
+    assert!(err.contains("interrupted: nothing written"), "{err}");
+    assert!(!dir.path().join("ev").exists(), "{err}");
+}
+
+/// Every file `eval` will write is checked before it starts: a directory where a plot
+/// goes failed only after the whole grid (hours at 4M samples).
+#[test]
+fn eval_checks_its_plot_files_before_it_starts() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = concat!(env!("CARGO_MANIFEST_DIR"), "/../../models/default.stcvae");
+    fs::create_dir_all(dir.path().join("ev/fig12_cos_beta.png")).unwrap();
+    let out = stcvae(
+        &["eval", "--model", model, "--samples", "2", "--out", "ev"],
+        dir.path(),
+    );
+    let err = stderr(&out);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains("--out ev: ev/fig12_cos_beta.png") && !err.contains("evaluating"),
+        "{err}"
+    );
+}
+
 /// `eval` names as left over only files it writes itself: run in a folder that holds the
 /// user's own files (`--out .`), it told them to delete a config and a CSV.
 #[test]

@@ -60,11 +60,17 @@ pub struct Metric {
     pub w1: f64,
 }
 
-/// model / simulator − 1 for a mean, with its standard error (delta method).
+/// model / simulator − 1 for a mean, with its standard error (delta method). Where the
+/// simulator's mean is 0 there is no ratio: `value` and `se` are None (null in
+/// metrics.json, which once held 2·10³⁰⁶ and an infinite error there) and the two means
+/// tell what was seen.
 #[derive(Clone, Copy, Debug, Serialize)]
 pub struct RatioError {
-    pub value: f64,
-    pub se: f64,
+    pub value: Option<f64>,
+    pub se: Option<f64>,
+    /// The model's and the simulator's means of the statistic.
+    pub model_mean: f64,
+    pub sim_mean: f64,
     /// Whether the simulator's mean is known to 10 %: at large τ the sphere statistic
     /// rests on the rare events within ~1/τ of the boundary, and 10⁴ walks see too few of
     /// them for a ratio to mean anything.
@@ -236,14 +242,15 @@ pub fn ratio_error(model: &[f64], sim: &[f64]) -> RatioError {
     let (ms, ss) = mean_se(&scaled(sim));
     // A simulator mean of 0 (no event in a thin shell; light that never gets out) says
     // nothing a ratio could use: unresolved, whatever its standard error.
-    let resolved = ms > 0.0 && ss < 0.1 * ms;
-    let ms = if ms == 0.0 { f64::MIN_POSITIVE } else { ms };
     let ratio = mm / ms;
     let se = ((sm / ms).powi(2) + ((ss / ms) * ratio).powi(2)).sqrt();
+    let defined = ms > 0.0 && ratio.is_finite() && se.is_finite();
     RatioError {
-        value: ratio - 1.0,
-        se,
-        resolved: resolved && se.is_finite() && ratio.is_finite(),
+        value: defined.then_some(ratio - 1.0),
+        se: defined.then_some(se),
+        model_mean: mm * unit,
+        sim_mean: ms * unit,
+        resolved: defined && ss < 0.1 * ms,
     }
 }
 
@@ -597,8 +604,8 @@ pub fn markdown_table(reports: &[SettingReport]) -> String {
             .chain(sides)
             .chain(r.shells)
         {
-            if r.resolved {
-                s += &format!(" {:+.1} % ± {:.1} % |", 100.0 * r.value, 100.0 * r.se);
+            if let (true, Some(value), Some(se)) = (r.resolved, r.value, r.se) {
+                s += &format!(" {:+.1} % ± {:.1} % |", 100.0 * value, 100.0 * se);
             } else {
                 s += " too rare to resolve |";
             }
@@ -669,8 +676,15 @@ mod tests {
     #[test]
     fn zero_simulator_mean_is_unresolved() {
         let r = ratio_error(&[0.0, 1.0, 0.0], &[0.0; 3]);
-        assert!(!r.resolved, "{r:?}");
+        assert!(!r.resolved && r.value.is_none() && r.se.is_none(), "{r:?}");
+        assert!(
+            (r.model_mean - 1.0 / 3.0).abs() < 1e-15 && r.sim_mean == 0.0,
+            "{r:?}"
+        );
         assert!(!ratio_error(&[0.0; 3], &[0.0; 3]).resolved);
+        // In metrics.json: null, never a number standing for infinity.
+        let json = serde_json::to_string(&r).unwrap();
+        assert!(json.contains("\"value\":null,\"se\":null"), "{json}");
     }
 
     /// Tiny means (τ = 500: the simulator's sphere NEE ~1e-200) keep a finite error: model
@@ -681,12 +695,11 @@ mod tests {
         let scale = |k: f64| [0.9 * k, 1.0 * k, 1.1 * k];
         let big = ratio_error(&scale(0.8), &scale(1.0));
         let tiny = ratio_error(&scale(0.8e-200), &scale(1e-200));
-        assert!(tiny.resolved && tiny.se.is_finite(), "{tiny:?}");
-        assert!((tiny.value + 0.2).abs() < 1e-12, "{tiny:?}");
-        assert!(
-            (tiny.se - big.se).abs() < 1e-12 * big.se,
-            "{tiny:?} vs {big:?}"
-        );
+        let (value, se) = (tiny.value.unwrap(), tiny.se.unwrap());
+        assert!(tiny.resolved && se.is_finite(), "{tiny:?}");
+        assert!((value + 0.2).abs() < 1e-12, "{tiny:?}");
+        let big_se = big.se.unwrap();
+        assert!((se - big_se).abs() < 1e-12 * big_se, "{tiny:?} vs {big:?}");
     }
 
     /// The Fibonacci directions are unit vectors spread over the sphere: their mean is
@@ -731,8 +744,9 @@ mod tests {
             };
             let (a, b) = (run(1 + 2 * pair), run(2 + 2 * pair));
             for (k, r) in (0..9).map(|k| ratio_error(&a[k], &b[k])).enumerate() {
-                assert!(r.se > 0.0 && r.value.is_finite(), "{r:?}");
-                chi2[k] += (r.value / r.se).powi(2);
+                let (value, se) = (r.value.unwrap(), r.se.unwrap());
+                assert!(se > 0.0 && value.is_finite(), "{r:?}");
+                chi2[k] += (value / se).powi(2);
             }
         }
         for (k, &c) in chi2.iter().enumerate() {
