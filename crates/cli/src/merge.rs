@@ -238,6 +238,13 @@ fn merge_images(a: &Args) -> Result<()> {
     Ok(())
 }
 
+/// Reads a dataset to its end, which verifies its checksum.
+fn read_through(path: &std::path::Path) -> Result<()> {
+    let mut r = DatasetReader::open(path)?;
+    while r.next_row()?.is_some() {}
+    Ok(())
+}
+
 fn merge_binary(a: &Args) -> Result<()> {
     // Headers first, each file closed again: one reader is open at a time while the rows
     // are copied (1,100 shards ran out of file descriptors at the usual limit of 1,024,
@@ -272,12 +279,16 @@ fn merge_binary(a: &Args) -> Result<()> {
         segments.sort_by_key(|s| s.piece.first_walk);
     }
     // Refuse duplicated walks: two pieces of one run that overlap.
-    for (i, p) in segments.iter().enumerate() {
-        for q in &segments[i + 1..] {
-            let (p, q) = (&p.piece, &q.piece);
+    for (i, ps) in segments.iter().enumerate() {
+        for qs in &segments[i + 1..] {
+            let (p, q) = (&ps.piece, &qs.piece);
             let overlap =
                 p.first_walk < q.first_walk + q.count && q.first_walk < p.first_walk + p.count;
             if p.same_run(q) && overlap && p.count > 0 && q.count > 0 {
+                // The headers are not yet checked against their files' checksums: a
+                // corrupt one (a digit changed) read as overlapping shards.
+                read_through(&a.inputs[ps.input])?;
+                read_through(&a.inputs[qs.input])?;
                 bail!(
                     "inputs overlap: walks {}..{} and {}..{} of the run with seed {} appear twice",
                     p.first_walk,

@@ -314,6 +314,35 @@ fn shards_merge_into_the_unsharded_run() {
         stderr(&out)
     );
     assert!(!dir.path().join("dup.bin").exists());
+    // A corrupt header that reads as overlapping (one digit of shard 1's first walk
+    // changed, so that it starts 10 walks early) is named as corrupt, not as an overlap.
+    let mut bytes = fs::read(dir.path().join("part-1.bin")).unwrap();
+    let key = b"\"first_walk\":";
+    let at = bytes.windows(key.len()).position(|w| w == key).unwrap() + key.len();
+    let digits = at + bytes[at..].iter().position(|b| b.is_ascii_digit()).unwrap();
+    let tens = digits
+        + bytes[digits..]
+            .iter()
+            .take_while(|b| b.is_ascii_digit())
+            .count()
+        - 2;
+    assert!(
+        bytes[tens] > b'0',
+        "shard 1 starts at a walk of at least 10"
+    );
+    bytes[tens] -= 1;
+    fs::write(dir.path().join("part-1x.bin"), bytes).unwrap();
+    let out = stcvae(
+        &["merge", "part-0.bin", "part-1x.bin", "--out", "x.bin"],
+        dir.path(),
+    );
+    assert!(
+        !out.status.success()
+            && stderr(&out).contains("part-1x.bin: checksum mismatch")
+            && !stderr(&out).contains("overlap"),
+        "{}",
+        stderr(&out)
+    );
     // CSV rows carry no walk number: a shard copied under another name is told by its rows.
     ok(&stcvae(
         &["merge", "part-1.bin", "--out", "p1.csv"],
@@ -569,35 +598,6 @@ fn interrupted_runs_leave_no_files() {
     }
 }
 
-/// A Ctrl-C during `eval --at`'s last setting (here its only one) stops it too: it was
-/// looked for only between settings, so this run wrote its metrics and exited 0 after
-/// saying it would stop. Interrupted once it has said what it evaluates (stderr, written
-/// to a file the test reads), i.e. while the setting's 100,000 simulator walks at τ = 125
-/// (seconds) are drawn.
-#[cfg(unix)]
-#[test]
-fn eval_interrupted_in_its_last_setting_writes_nothing() {
-    use common::interrupt_when;
-    use std::time::Duration;
-    let dir = tempfile::tempdir().unwrap();
-    let model = concat!(env!("CARGO_MANIFEST_DIR"), "/../../models/default.stcvae");
-    let log = dir.path().join("stderr.txt");
-    let child = std::process::Command::new(env!("CARGO_BIN_EXE_stcvae"))
-        .args(["eval", "--model", model, "--at", "125,0.9,1"])
-        .args(words("--samples 100000 --out ev"))
-        .current_dir(dir.path())
-        .stderr(fs::File::create(&log).unwrap())
-        .spawn()
-        .unwrap();
-    let started = || fs::read_to_string(&log).is_ok_and(|t| t.contains("evaluating"));
-    interrupt_when(&child, started, Duration::from_millis(300), 1, "eval --at");
-    let out = child.wait_with_output().unwrap();
-    let err = fs::read_to_string(&log).unwrap();
-    assert_eq!(out.status.code(), Some(130), "{err}");
-    assert!(err.contains("interrupted: nothing written"), "{err}");
-    assert!(!dir.path().join("ev").exists(), "{err}");
-}
-
 /// Every file `eval` will write is checked before it starts: a directory where a plot
 /// goes failed only after the whole grid (hours at 4M samples).
 #[test]
@@ -658,40 +658,43 @@ fn eval_names_only_its_own_files_as_left_over() {
 }
 
 /// Ctrl-C stops `eval` after its current setting: status 130, the message, no results
-/// folder (it ended without a word, status 130 from the default handler).
+/// folder (it ended without a word, status 130 from the default handler). The last
+/// setting included: `eval --at` with one setting looked for a stop only between settings,
+/// so it wrote its metrics and exited 0 after saying it would stop.
 #[cfg(unix)]
 #[test]
 fn an_interrupted_eval_says_so_and_writes_nothing() {
     use std::io::BufRead;
     use std::time::Duration;
-    let dir = tempfile::tempdir().unwrap();
     let model = concat!(env!("CARGO_MANIFEST_DIR"), "/../../models/default.stcvae");
-    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_stcvae"))
-        .args([
-            "eval",
-            "--model",
-            model,
-            "--samples",
-            "200000",
-            "--out",
-            "ev",
-        ])
-        .current_dir(dir.path())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    // Its first line comes once Ctrl-C's handler is in; a setting of 200,000 samples takes
-    // seconds, so the signal lands mid-grid.
-    let mut lines = std::io::BufReader::new(child.stderr.take().unwrap()).lines();
-    let first = lines.next().unwrap().unwrap();
-    assert!(first.starts_with("evaluating "), "{first}");
-    common::interrupt_when(&child, || true, Duration::from_millis(200), 1, "eval");
-    let rest: Vec<String> = lines.map_while(Result::ok).collect();
-    let status = child.wait().unwrap();
-    let err = rest.join("\n");
-    assert_eq!(status.code(), Some(130), "{err}");
-    assert!(err.contains("interrupted: nothing written to ev"), "{err}");
-    assert!(!dir.path().join("ev").exists(), "{err}");
+    for args in [
+        "--samples 200000 --out ev",
+        "--at 125,0.9,1 --samples 100000 --out ev",
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_stcvae"))
+            .args(["eval", "--model", model])
+            .args(words(args))
+            .current_dir(dir.path())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        // Its first line comes once Ctrl-C's handler is in; a setting of 100,000 samples
+        // or more takes seconds, so the signal lands mid-setting.
+        let mut lines = std::io::BufReader::new(child.stderr.take().unwrap()).lines();
+        let first = lines.next().unwrap().unwrap();
+        assert!(first.starts_with("evaluating "), "{args}: {first}");
+        common::interrupt_when(&child, || true, Duration::from_millis(200), 1, "eval");
+        let rest: Vec<String> = lines.map_while(Result::ok).collect();
+        let status = child.wait().unwrap();
+        let err = rest.join("\n");
+        assert_eq!(status.code(), Some(130), "{args}: {err}");
+        assert!(
+            err.contains("interrupted: nothing written to ev"),
+            "{args}: {err}"
+        );
+        assert!(!dir.path().join("ev").exists(), "{args}: {err}");
+    }
 }
 
 /// Ctrl-C in a shell ends every process of the pipeline: with `stcvae … 2>&1 | tee log`
