@@ -24,7 +24,8 @@ enum What {
         /// Walks per measurement (the authors' condition distribution, seed 1; at least
         /// 1,024: fewer take too little time to measure, and one walk read as a 171× parallel
         /// speed-up).
-        #[arg(long, default_value_t = 16384, value_parser = clap::value_parser!(u64).range(1024..))]
+        #[arg(long, allow_negative_numbers = true, default_value_t = 16384,
+              value_parser = crate::whole::whole::<u64>(1024, u64::MAX))]
         walks: u64,
         /// Threads of the parallel measurement (default: all cores).
         #[arg(long, value_parser = crate::generate::threads_parser())]

@@ -24,16 +24,19 @@ pub struct Args {
     #[arg(long, value_delimiter = ',', default_value = "1", value_parser = parse_k)]
     k: Vec<f64>,
     /// Samples per pixel of every render, 1 to 1,048,576.
-    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..=1 << 20))]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 16,
+          value_parser = crate::whole::whole::<u32>(1, 1 << 20))]
     spp: u32,
     /// Image side in pixels, 8 to 8,192. A large GPU needs ~256² or more to be full.
-    #[arg(long, default_value_t = 128, value_parser = clap::value_parser!(u32).range(8..=8192))]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 128,
+          value_parser = crate::whole::whole::<u32>(8, 8192))]
     size: u32,
     /// Model file for ST-CVAE (default: models/default.stcvae).
     #[arg(long)]
     model: Option<PathBuf>,
     /// Random seed of every render.
-    #[arg(long, allow_negative_numbers = true, default_value_t = 1)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1,
+          value_parser = crate::render::parse_seed)]
     seed: u64,
 }
 

@@ -32,11 +32,13 @@ pub struct Args {
     /// Samples per pixel of each integrator, 2 to 2^30: each of two seeds renders half
     /// (rounded down), rounded up to a multiple of 3 (one per hero channel), so 2 renders 6
     /// and 13 renders 12.
-    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(2..=MAX_BENCH_SPP as i64))]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 16,
+          value_parser = crate::whole::whole::<u32>(2, MAX_BENCH_SPP as u64))]
     spp: u32,
     /// Image side in pixels, 8 to 4,096 (at least 8: the bias is measured over 4×4-pixel
     /// blocks and the object's pixels, which a smaller image hardly has).
-    #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u32).range(8..=4096))]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 64,
+          value_parser = crate::whole::whole::<u32>(8, 4096))]
     size: u32,
     /// Model file for ST-CVAE (default: models/default.stcvae).
     #[arg(long)]
@@ -94,7 +96,7 @@ pub struct Args {
     /// ±0.05–0.1 between sets (rare heavy paths), the bias estimate by its noise. At most
     /// 4,611,686,018,427,387,900, where 14 + 4N still fits a 64-bit seed.
     #[arg(long, allow_negative_numbers = true, default_value_t = 0,
-          value_parser = clap::value_parser!(u64).range(..=MAX_SEED_SET))]
+          value_parser = crate::whole::whole::<u64>(0, MAX_SEED_SET))]
     seeds: u64,
 }
 

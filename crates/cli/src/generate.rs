@@ -30,7 +30,7 @@ pub struct Args {
     out: PathBuf,
     /// Number of walks of the whole run (overrides the config; in fixed-condition mode,
     /// default 10,000; at least 1).
-    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=u64::MAX))]
+    #[arg(long, allow_negative_numbers = true, value_parser = crate::whole::whole::<u64>(1, u64::MAX))]
     samples: Option<u64>,
     /// Fixed-condition mode: optical radius τ of every walk, in [0, 1000] (needs --g and
     /// --albedo).
@@ -43,7 +43,7 @@ pub struct Args {
     #[arg(long, requires_all = ["tau", "g"], allow_hyphen_values = true)]
     albedo: Option<f64>,
     /// Random seed (overrides the config; default 1).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true, value_parser = crate::render::parse_seed)]
     seed: Option<u64>,
     /// Write only shard i of n (e.g. 3/8): disjoint pieces that `stcvae merge` joins into
     /// exactly the unsharded run (binary shards, in any order; CSV rows carry no walk
@@ -107,8 +107,8 @@ pub fn parse_toml<T: serde::de::DeserializeOwned>(path: &Path, text: &str) -> Re
 
 /// The range of `--threads` wherever it is offered: beyond ~1,000 threads the OS runs out
 /// of processes or stack memory long before the work speeds up.
-pub fn threads_parser() -> clap::builder::RangedU64ValueParser<usize> {
-    clap::builder::RangedU64ValueParser::new().range(1..=MAX_THREADS as u64)
+pub fn threads_parser() -> impl Fn(&str) -> Result<usize, String> + Clone + Send + Sync {
+    crate::whole::whole(1, MAX_THREADS as u64)
 }
 
 const MAX_THREADS: usize = 1024;

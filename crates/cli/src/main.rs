@@ -44,6 +44,7 @@ mod pt_cache;
 mod render;
 mod shipped;
 mod train;
+mod whole;
 
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 

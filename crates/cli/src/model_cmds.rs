@@ -61,11 +61,13 @@ pub struct SampleArgs {
     #[arg(long, allow_hyphen_values = true)]
     albedo: f64,
     /// Number of model walks to draw, at least 1.
-    #[arg(long, default_value_t = 10_000)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 10_000,
+          value_parser = crate::whole::whole::<u64>(1, u64::MAX))]
     samples: u64,
     /// Random seed: walk i uses the stream (seed, i), so a run is reproducible whatever
     /// the thread count.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1,
+          value_parser = crate::render::parse_seed)]
     seed: u64,
     /// Output CSV file.
     #[arg(long)]
@@ -164,11 +166,13 @@ pub struct EvalArgs {
     #[arg(long, default_value = "results/eval")]
     out: PathBuf,
     /// Samples per setting, for the model and for the simulator each: 2 to 4,000,000.
-    #[arg(long, default_value_t = 10_000)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 10_000,
+          value_parser = crate::whole::whole::<usize>(2, MAX_EVAL_SAMPLES as u64))]
     samples: usize,
     /// Random seed; setting i of the grid uses seed + i (mod 2^64) for the model and the
     /// simulator.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1,
+          value_parser = crate::render::parse_seed)]
     seed: u64,
     /// Evaluate these settings instead of the paper's grid, each given as TAU,G,ALBEDO
     /// (repeatable): a scene's own g and albedos, for instance. Writes metrics.md and

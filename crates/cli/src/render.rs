@@ -35,7 +35,7 @@ pub struct Args {
     #[arg(long)]
     pub nee: Option<bool>,
     /// Samples per pixel, at least 1 (overrides render.spp).
-    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
+    #[arg(long, allow_negative_numbers = true, value_parser = crate::whole::whole::<u32>(1, u32::MAX.into()))]
     pub spp: Option<u32>,
     /// Random seed, an integer in [0, 2⁶⁴) (overrides render.seed): renders with different
     /// seeds are independent and can be averaged with `stcvae merge`.
@@ -73,9 +73,7 @@ pub struct Args {
 
 /// `--seed`: clap's own u64 parser said only "invalid digit found in string" for -1.
 pub fn parse_seed(s: &str) -> Result<u64, String> {
-    s.trim()
-        .parse()
-        .map_err(|_| "expected a whole number in [0, 2^64)".to_string())
+    crate::whole::whole(0, u64::MAX)(s)
 }
 
 /// `--exposure`: a positive number that stays positive and finite as the f32 the PNG

@@ -455,7 +455,21 @@ fn bad_input_gives_one_line_errors() {
         // Thread counts the OS cannot start (14,715 threads and a stack overflow once).
         (
             "generate --samples 10 --tau 5 --g 0 --albedo 1 --threads 100000 --out x.csv",
-            "100000 is not in 1..=1024",
+            "100000 is out of range: allowed [1, 1024]",
+        ),
+        // Counts and seeds that are not whole numbers name their range too (clap's own
+        // parser said "invalid digit found in string").
+        (
+            "generate --samples 1.5 --tau 5 --g 0 --albedo 1 --out x.csv",
+            "'1.5' for '--samples <SAMPLES>': expected a whole number in [1, 2^64)",
+        ),
+        (
+            "eval --samples -1 --out ev",
+            "'-1' for '--samples <SAMPLES>': expected a whole number in [2, 4000000]",
+        ),
+        (
+            "sample --tau 5 --g 0 --albedo 1 --seed -3 --out s.csv",
+            "'-3' for '--seed <SEED>': expected a whole number in [0, 2^64)",
         ),
         (
             "merge whole.csv --out afile/x.csv",
