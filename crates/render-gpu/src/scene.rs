@@ -120,7 +120,8 @@ pub struct ObjectDesc {
     pub size: Option<f64>,
     /// Mesh file, relative to the scene file.
     pub mesh: Option<PathBuf>,
-    /// Rescale the mesh so its bounding-box height is this, centred at the origin.
+    /// Rescale the object (mesh or shape) so its bounding-box height is this, centred at the
+    /// origin.
     pub height: Option<f64>,
 }
 

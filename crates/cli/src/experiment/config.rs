@@ -59,14 +59,16 @@ impl Budget {
         self.spp.unwrap_or(0)
     }
 
-    /// The nee kind's time per method, 1 s unless given.
+    /// The nee kind's time per method (checked present by `validate` for nee, the one kind
+    /// that reads it).
     pub fn seconds(&self) -> f64 {
-        self.seconds.unwrap_or(1.0)
+        self.seconds.unwrap_or(0.0)
     }
 
-    /// The nee kind's reference spp, 256 unless given.
+    /// The nee kind's reference spp (checked present by `validate` for nee, the one kind
+    /// that reads it).
     pub fn reference_spp(&self) -> u32 {
-        self.reference_spp.unwrap_or(256)
+        self.reference_spp.unwrap_or(0)
     }
 
     /// The distributions kind's samples per setting, 10,000 unless given.
