@@ -42,8 +42,8 @@ pub struct Args {
     #[arg(long)]
     resume: bool,
     /// Start over although the config's checkpoint_dir holds checkpoints of the models to
-    /// train: they are replaced as the new run saves its own. Without --resume or --fresh,
-    /// such checkpoints make `train` stop before any work.
+    /// train: they are removed as the training starts. Without --resume or --fresh, such
+    /// checkpoints make `train` stop before any work.
     #[arg(long, conflicts_with = "resume")]
     fresh: bool,
     /// Output model file (overrides the config).
@@ -595,6 +595,9 @@ pub fn run(a: Args) -> Result<()> {
     let cancel = interrupt::flag();
     for &k in &kinds {
         cvae::train::trainer::remove_stale_temporaries(&cfg.checkpoint_dir, k);
+        if a.fresh {
+            cvae::train::trainer::remove_checkpoint(&cfg.checkpoint_dir, k)?;
+        }
     }
     let multi = MultiProgress::with_draw_target(crate::progress::target());
     let scaled = |k: ModelKind| scaled_model(cfg.model(k), a.steps_scale);

@@ -659,3 +659,45 @@ fn one_failing_model_stops_the_others() {
         assert!((30..20000).contains(&step), "{m} at step {step}");
     }
 }
+
+/// `--fresh` removes the checkpoints of the models it trains as it starts: a run that
+/// diverged before its first save left the earlier run's LengthGen checkpoint in place,
+/// and `--resume` would have continued that one as if it were this run's (a divergence
+/// cannot be forced within the config's bounds, so the test watches the checkpoint go
+/// while the run trains toward a first save it never reaches, then stops it). The models
+/// not trained keep theirs.
+#[cfg(unix)]
+#[test]
+fn fresh_removes_the_checkpoints_it_replaces() {
+    let dir = tempfile::tempdir().unwrap();
+    setup(dir.path());
+    let o = stcvae(&["train", "--config", "train.toml"], dir.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    let json = dir.path().join("ck/lengthgen.json");
+    assert!(json.exists());
+    let cfg = dir.path().join("train.toml");
+    replace_in(
+        &cfg,
+        "checkpoint_dir = \"ck\"\n",
+        "checkpoint_dir = \"ck\"\ncheckpoint_every = 1000000\n",
+    );
+    replace_in(&cfg, "steps = 30", "steps = 2000000");
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args([
+            "train",
+            "--config",
+            "train.toml",
+            "--model",
+            "lengthgen",
+            "--fresh",
+        ])
+        .current_dir(dir.path())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let gone = || !json.exists();
+    common::interrupt_when(&child, gone, std::time::Duration::ZERO, 1, "train --fresh");
+    let out = child.wait_with_output().unwrap();
+    assert_eq!(out.status.code(), Some(130), "{}", stderr(&out));
+    assert!(dir.path().join("ck/pathgen.json").exists());
+}

@@ -158,7 +158,8 @@ pub enum TrainError {
     Checkpoint { path: PathBuf, msg: String },
     #[error(
         "{0}: the loss or the weights became non-finite (or beyond the model file's bound) \
-         at step {1}; lower the learning rate (the last checkpoint is from before)"
+         at step {1}; lower the learning rate (its last checkpoint, if this run saved one, is \
+         from before)"
     )]
     Diverged(&'static str, u64),
 }
@@ -262,6 +263,26 @@ pub fn remove_stale_temporaries(dir: &Path, kind: ModelKind) {
             let _ = std::fs::remove_dir_all(e.path());
         }
     }
+}
+
+/// Removes `kind`'s checkpoint from `dir` (a `--fresh` run replaces it from the start: a
+/// run that diverged before its first save left the earlier run's checkpoint, which
+/// `--resume` then continued as if it were this run's).
+pub fn remove_checkpoint(dir: &Path, kind: ModelKind) -> Result<(), TrainError> {
+    let (m, o, j) = paths(dir, kind);
+    // The JSON first: without it no resume reads the other two.
+    for p in [&j, &m, &o] {
+        match std::fs::remove_file(p) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                return Err(TrainError::Checkpoint {
+                    path: p.clone(),
+                    msg: format!("cannot remove it for --fresh: {e}"),
+                });
+            }
+            _ => {}
+        }
+    }
+    Ok(())
 }
 
 /// Whether `dir` holds a checkpoint of `kind` that `resume` would continue from.
