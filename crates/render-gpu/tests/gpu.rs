@@ -742,10 +742,19 @@ fn compare_devices_with(
     let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
     let s = common::build_scene(text, set.kind == IntegratorKind::Stcvae);
     let set = *set;
-    let spp = std::env::var("STCVAE_GPU_TEST_SPP")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(spp);
+    // `STCVAE_GPU_TEST_SPP` (undocumented, for looking closer by hand) may only raise the
+    // spp each comparison was sized for: fewer samples would weaken it unseen.
+    let spp = match std::env::var("STCVAE_GPU_TEST_SPP") {
+        Ok(v) => {
+            let more: u32 = v.parse().expect("STCVAE_GPU_TEST_SPP: a whole number");
+            assert!(
+                more >= spp,
+                "STCVAE_GPU_TEST_SPP {more} is below {name}'s {spp}"
+            );
+            more
+        }
+        Err(_) => spp,
+    };
     let cpu: Vec<_> = (1..=4)
         .map(|seed| on_cpu(&s, &set, &opts(spp, seed)))
         .collect();
@@ -1107,6 +1116,10 @@ fn image_means_agree(
     for k in 9..=16 {
         let o = render_gpu_with_env(&ctx, s, set, &opts(24, k), vars).unwrap();
         assert_eq!(o.stats.paths, 64 * 24);
+        // The switches took effect (a renamed variable would leave the test unsplit).
+        if let Some((_, b)) = vars.iter().find(|(k, _)| *k == "STCVAE_GPU_BOUNCES") {
+            assert_eq!(o.dispatch.bounce_budget.to_string(), *b, "{name}");
+        }
         assert!(
             o.stats.events as f64 / o.stats.paths as f64 >= min_events,
             "{name}: the scene must make long paths: {:?}",

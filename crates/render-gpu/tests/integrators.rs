@@ -578,9 +578,17 @@ fn exact_sphere_steps_match_pt() {
             "{label}: every sphere step must be exact: {stats:?}"
         );
         // Leaks (a path found outside while believed inside) happen to PT too, ~1 in 10⁶
-        // paths through the bunny's f32 surface (the default render reports them).
+        // paths through the bunny's f32 surface (the default render reports them), so the
+        // bunny may have one in 10⁵; the sphere's convex surface none (0 measured in each
+        // case, the bunny's too). Each leak after a sphere step is counted (a step that
+        // left the medium), so this also bounds the steps' own escapes.
+        let allowed = if label.starts_with("sphere") {
+            0
+        } else {
+            stats.paths / 100_000
+        };
         assert!(
-            stats.capped + stats.non_finite == 0 && stats.leaks * 100_000 <= stats.paths,
+            stats.capped + stats.non_finite == 0 && stats.leaks <= allowed,
             "{label}: {stats:?}"
         );
         assert_means_agree(

@@ -27,9 +27,30 @@ fn shipped_bunny_loads_closed_from_glb_and_ply() {
     );
 }
 
+/// The built-in shapes face outward as built, checked here without the crate's own
+/// orientation code (which `prepare` uses, so `prepare(m) == m` alone would pass inward
+/// shapes if it never turned anything): both are convex and centred at the origin, so
+/// every face's normal points away from it, and the signed volume is the shape's
+/// (the cube's exactly, the triangulated sphere's a little under 4/3·π·0.5³).
 #[test]
 fn shapes_are_closed_and_outward() {
-    for m in [mesh::sphere(0.5), mesh::cube(1.0)] {
+    let ball = 4.0 / 3.0 * std::f64::consts::PI * 0.125;
+    for (m, volume, tol) in [
+        (mesh::sphere(0.5), ball, 0.02 * ball),
+        (mesh::cube(1.0), 1.0, 1e-6),
+    ] {
+        let mut v6 = 0.0;
+        for t in &m.triangles {
+            let [a, b, c] = t.map(|i| m.positions[i as usize].as_dvec3());
+            let outward = (b - a).cross(c - a).dot((a + b + c) / 3.0);
+            assert!(outward > 0.0, "a face turned inward: {t:?}");
+            v6 += a.dot(b.cross(c));
+        }
+        let v = v6 / 6.0;
+        assert!(
+            v <= volume + 1e-9 && v > volume - tol,
+            "volume {v}, expected {volume} − [0, {tol}]"
+        );
         let p = mesh::prepare(m.clone()).unwrap();
         assert_eq!(p.triangles, m.triangles, "already outward-oriented");
     }
