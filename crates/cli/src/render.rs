@@ -577,13 +577,27 @@ pub fn run(a: Args) -> Result<()> {
         progress::render_bar("rendering", pixels, &opts)
     };
     let cancel = interrupt::flag();
-    let out = engine.render(
-        &p.data,
-        &set,
-        &opts,
-        &|done, _| pb.set_position(done),
-        cancel,
-    )?;
+    let out = engine
+        .render(
+            &p.data,
+            &set,
+            &opts,
+            &|done, _| pb.set_position(done),
+            cancel,
+        )
+        .map_err(|e| {
+            // A scene beyond the GPU's limits (lights, mesh, image, spp) is named: what to
+            // change is in its file. A limit met through an STCVAE_GPU_* switch names the
+            // switch instead.
+            match e.downcast_ref::<render_gpu::error::RenderError>() {
+                Some(render_gpu::error::RenderError::GpuLimit(why))
+                    if !why.contains("STCVAE_GPU_") =>
+                {
+                    anyhow!("{}: {why}", a.scene.display())
+                }
+                _ => e,
+            }
+        })?;
     pb.finish_and_clear();
     if out.spp == 0 {
         bail!("interrupted before the first pass finished: nothing written");

@@ -975,6 +975,51 @@ fn no_gpu_adapter_is_a_clear_error_or_a_cpu_fallback() {
     assert!(json.contains("\"device\": \"cpu"), "{json}");
 }
 
+/// A scene beyond the GPU kernels' limits (here five directional lights; they take four)
+/// is refused on `--device gpu` naming the scene file, where the fix goes, and rendered on
+/// the CPU under `--device auto`.
+#[test]
+fn a_scene_beyond_the_gpu_limits_is_named() {
+    let tmp = tempfile::tempdir().unwrap();
+    let light = "[[light]]\nkind = \"directional\"\ndirection = [0.0, -1.0, 0.0]\n\
+                 irradiance = [1.0, 1.0, 1.0]\n";
+    let scene = format!(
+        "[camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 20.0\n\
+         width = 8\nheight = 8\n[object]\nshape = \"sphere\"\n\
+         [medium]\nsigma_t = [5.0, 5.0, 5.0]\nalbedo = [0.9, 0.9, 0.9]\n{}",
+        light.repeat(5)
+    );
+    let path = tmp.path().join("lights.toml");
+    std::fs::write(&path, scene).unwrap();
+    let run = |device: &str| {
+        Command::new(env!("CARGO_BIN_EXE_stcvae"))
+            .args(["render", "--integrator", "pt", "--spp", "2", "--scene"])
+            .arg(&path)
+            .args(["--device", device, "--out"])
+            .arg(tmp.path().join("r"))
+            .env("WGPU_BACKEND", "vulkan")
+            .output()
+            .unwrap()
+    };
+    let out = run("gpu");
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    if err.contains("no wgpu adapter") || err.contains("mesa-vulkan-drivers") {
+        assert!(std::env::var_os("CI").is_none(), "CI needs lavapipe: {err}");
+        common::skip(&format!("a_scene_beyond_the_gpu_limits_is_named: {err}"));
+        return;
+    }
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains(&format!(
+            "{}: the GPU kernels take at most 4 [[light]] entries (the scene has 5)",
+            path.display()
+        )),
+        "{err}"
+    );
+    let err = ok(&run("auto"));
+    assert!(err.contains("rendering on the CPU"), "{err}");
+}
+
 /// With a valid `WGPU_BACKEND` but no driver behind it (the Vulkan loader pointed at an ICD
 /// file that does not exist), the error names the missing driver and its fix, not the
 /// variable; `--device auto` says there is no GPU adapter and renders on the CPU.

@@ -217,7 +217,7 @@ impl KernelShape {
             .min(l.max_compute_workgroup_size_x);
         if self.workgroup > most {
             return Err(RenderError::GpuLimit(format!(
-                "a workgroup of {} threads exceeds {}'s limit of {most}",
+                "a workgroup of {} threads (STCVAE_GPU_WORKGROUP) exceeds {}'s limit of {most}",
                 self.workgroup, ctx.adapter.name
             )));
         }
