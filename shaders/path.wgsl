@@ -300,6 +300,8 @@ fn flight_end(t: f32, h: Hit) -> bool {
             let f = fresnel(abs(dot(ps.dir, n)), 1.0, ior);
             if rand() < f {
                 ps.dir = reflect_dir(ps.dir, n);
+                // Light the path meets from here on is not NEE's (integrator/mod.rs).
+                ps.scattered = false;
                 // (A turned normal is not the one the triangle's escape cone is about.)
                 p_left_through = select(h.prim, NO_TRI, turned);
             } else {
@@ -367,6 +369,7 @@ fn flight_end(t: f32, h: Hit) -> bool {
             let f = fresnel(abs(dot(ps.dir, n)), ior, 1.0);
             if rand() < f {
                 ps.dir = reflect_dir(ps.dir, n);
+                ps.scattered = false; // (as above)
             } else {
                 ps.dir = refract_dir(ps.dir, n, ior, 1.0);
                 p_inside = false;

@@ -139,8 +139,12 @@ pub(crate) struct PathState {
     pub dir: Vec3,
     pub beta: f32,
     pub radiance: f32,
-    /// Whether the path has scattered (or sphere-stepped) since the camera: with NEE on,
-    /// such a path must not also collect the sun disk when it escapes.
+    /// Whether the path has scattered (or sphere-stepped) since the camera or its last
+    /// reflection off the boundary: with NEE on, such a path must not also collect the sun
+    /// disk when it escapes, as NEE counted that light (its shadow ray crosses the
+    /// boundary straight, transmitted). After a reflection it must: NEE never samples
+    /// light that reaches an event by way of a reflection (a prism's total internal
+    /// reflection lost 44 % of its image with NEE on; `nee_counts_light_after_a_reflection`).
     pub scattered: bool,
     pub alive: bool,
     /// A lower bound on the distance from `pos` to the surface (0: unknown). ST-CVAE
@@ -388,6 +392,9 @@ impl Path {
                         let f = fresnel(s.dir.dot(h.normal).abs(), 1.0, ior);
                         if uniform(rng) < f {
                             s.dir = reflect(s.dir, h.normal);
+                            // Light the path meets from here on is not NEE's
+                            // (`PathState::scattered`).
+                            s.scattered = false;
                             // (A turned normal is not the one the triangle's escape
                             // cone is about.)
                             *left_through = (!turned).then_some(h.prim);
@@ -497,6 +504,7 @@ impl Path {
                         let f = fresnel(s.dir.dot(h.normal).abs(), ior, 1.0);
                         if uniform(rng) < f {
                             s.dir = reflect(s.dir, h.normal);
+                            s.scattered = false; // (as above)
                         } else {
                             s.dir = refract(s.dir, h.normal, ior, 1.0).unwrap_or(s.dir);
                             *inside = false;

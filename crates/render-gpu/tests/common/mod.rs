@@ -339,3 +339,26 @@ pub fn skip(reason: &str) {
     use std::io::Write;
     let _ = writeln!(std::io::stderr(), "skipping {reason}");
 }
+
+/// A right-angle prism along z (legs of 1 along x and y, depth 1, centred in z), its
+/// hypotenuse facing +x+y.
+pub const PRISM_OBJ: &str = "v 0 0 -0.5\nv 1 0 -0.5\nv 0 1 -0.5\nv 0 0 0.5\nv 1 0 0.5\nv 0 1 0.5\n\
+                             f 1 3 2\nf 4 5 6\nf 1 2 5 4\nf 1 4 6 3\nf 2 3 6 5\n";
+
+/// The prism of [`PRISM_OBJ`] (written into `dir`) in glass (ior 1.5, σ_t 1, albedo 1,
+/// isotropic), lit along +y by a 20° sun disk that enters its bottom face and is totally
+/// reflected by the hypotenuse, seen from +z through its front face, in a black sky
+/// (integrators.rs, nee_counts_light_after_a_reflection).
+pub fn prism_scene(dir: &Path) -> String {
+    let mesh = dir.join("prism.obj");
+    std::fs::write(&mesh, PRISM_OBJ).unwrap();
+    format!(
+        "[camera]\norigin = [0.33, 0.33, 4.0]\ntarget = [0.33, 0.33, 0.0]\nfov_deg = 4.0\n\
+         width = 8\nheight = 8\n[object]\nmesh = {:?}\n[medium]\nsigma_t = [1.0, 1.0, 1.0]\n\
+         albedo = [1.0, 1.0, 1.0]\ng = 0.0\n[boundary]\nkind = \"dielectric\"\nior = 1.5\n\
+         [[light]]\nkind = \"directional\"\ndirection = [0.0, 1.0, 0.0]\n\
+         irradiance = [1.0, 1.0, 1.0]\nangular_diameter_deg = 20.0\n\
+         [environment]\nradiance = [0.0, 0.0, 0.0]\n",
+        mesh.display().to_string()
+    )
+}
