@@ -552,45 +552,42 @@ fn spawn(p: vec3<f32>, n: vec3<f32>, dir: vec3<f32>) -> vec3<f32> {
     return p + n * (side * params.consts.z);
 }
 
-/// Squared distance from p to triangle (a, b, c) (Ericson §5.1.5).
-fn point_triangle_d2(p: vec3<f32>, a: vec3<f32>, b: vec3<f32>, c: vec3<f32>) -> f32 {
+/// Squared distance from p to triangle (a, b, c) with unit normal n: the plane's distance
+/// over the face, the nearest edge's beside it, decided by edge functions that stay exact
+/// on long thin triangles (geometry.rs, point_triangle_d2).
+fn point_triangle_d2(p: vec3<f32>, a: vec3<f32>, b: vec3<f32>, c: vec3<f32>, n: vec3<f32>) -> f32 {
     let ab = b - a;
-    let ac = c - a;
+    let bc = c - b;
+    let ca = a - c;
     let ap = p - a;
-    let d1 = dot(ab, ap);
-    let d2 = dot(ac, ap);
-    if d1 <= 0.0 && d2 <= 0.0 {
-        return dot(ap, ap);
-    }
     let bp = p - b;
-    let d3 = dot(ab, bp);
-    let d4 = dot(ac, bp);
-    if d3 >= 0.0 && d4 <= d3 {
-        return dot(bp, bp);
-    }
-    let vc = d1 * d4 - d3 * d2;
-    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-        let q = p - (a + ab * (d1 / (d1 - d3)));
-        return dot(q, q);
-    }
     let cp = p - c;
-    let d5 = dot(ab, cp);
-    let d6 = dot(ac, cp);
-    if d6 >= 0.0 && d5 <= d6 {
-        return dot(cp, cp);
+    let oa = over_edge(ap, ab, n);
+    let ob = over_edge(bp, bc, n);
+    let oc = over_edge(cp, ca, n);
+    if oa && ob && oc {
+        let h = dot(n, ap);
+        return h * h;
     }
-    let vb = d5 * d2 - d1 * d6;
-    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-        let q = p - (a + ac * (d2 / (d2 - d6)));
-        return dot(q, q);
-    }
-    let va = d3 * d6 - d5 * d4;
-    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
-        let q = p - (b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6))));
-        return dot(q, q);
-    }
-    let denom = 1.0 / (va + vb + vc);
-    let q = p - (a + ab * (vb * denom) + ac * (vc * denom));
+    // Beside the face: the nearest point is on an edge the point is beyond.
+    var best = 3.4e38;
+    if !oa { best = edge_d2(ap, ab); }
+    if !ob { best = min(best, edge_d2(bp, bc)); }
+    if !oc { best = min(best, edge_d2(cp, ca)); }
+    return best;
+}
+
+/// Whether a point vp from an edge's start lies on the face's side of edge e (within
+/// EDGE_TOLERANCE, erring towards the face).
+fn over_edge(vp: vec3<f32>, e: vec3<f32>, n: vec3<f32>) -> bool {
+    let s = dot(n, cross(e, vp));
+    return s >= 0.0 || s * s <= EDGE_TOLERANCE * EDGE_TOLERANCE * dot(e, e) * dot(vp, vp);
+}
+
+/// Squared distance from a point vp from segment e's start to the segment.
+fn edge_d2(vp: vec3<f32>, e: vec3<f32>) -> f32 {
+    let t = clamp(dot(vp, e) / max(dot(e, e), 1.17549435e-38), 0.0, 1.0);
+    let q = vp - e * t;
     return dot(q, q);
 }
 
@@ -618,7 +615,7 @@ fn surface_distance(p: vec3<f32>, limit: f32) -> f32 {
         if node.count > 0u {
             for (var k = node.first; k < node.first + node.count; k++) {
                 let t = tris[k];
-                best = min(best, point_triangle_d2(p, t.v0.xyz, t.v1.xyz, t.v2.xyz));
+                best = min(best, point_triangle_d2(p, t.v0.xyz, t.v1.xyz, t.v2.xyz, t.n.xyz));
             }
         } else {
             let a = node.first;
@@ -708,7 +705,7 @@ fn grid_exact_distance(p: vec3<f32>) -> f32 {
     var best = 3.4e38;
     for (var k = list.x; k < list.y; k++) {
         let t = tris[grid_candidate(k)];
-        best = min(best, point_triangle_d2(p, t.v0.xyz, t.v1.xyz, t.v2.xyz));
+        best = min(best, point_triangle_d2(p, t.v0.xyz, t.v1.xyz, t.v2.xyz, t.n.xyz));
     }
     return sqrt(best);
 }

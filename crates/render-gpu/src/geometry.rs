@@ -285,8 +285,11 @@ impl Geometry {
             .collect();
         let normals: Vec<Vec3> = (0..mesh.triangles.len())
             .map(|i| {
-                let [a, b, c] = mesh.triangle(i);
-                (b - a).cross(c - a).normalize()
+                // In f64: an f32 cross product of a long thin triangle's edges tilts the
+                // normal by ~ε·length/width (6·10⁻⁵ at 1,000:1), which the distances
+                // (`point_triangle_d2`) and the plane bounds of `nearest_of` would carry.
+                let [a, b, c] = mesh.triangle(i).map(|v| v.as_dvec3());
+                (b - a).cross(c - a).normalize().as_vec3()
             })
             .collect();
         let mut bvh = build_bvh2_from_tris(
@@ -709,8 +712,11 @@ impl Geometry {
                 // Visit the nearer child first: push it last.
                 let (near, far) = if da < db { (a, b) } else { (b, a) };
                 if top + 2 > stack.len() {
-                    // Deeper than any balanced tree; fall back to the conservative bound.
-                    return best.sqrt().min(da.min(db).sqrt());
+                    // Deeper than any balanced tree: a bound below the distance, from the
+                    // boxes of both children and of every node still pending.
+                    let pending = stack[..top].iter().map(|&j| box_d2(j));
+                    let floor = pending.fold(da.min(db), f32::min);
+                    return best.min(floor).sqrt();
                 }
                 stack[top] = far;
                 stack[top + 1] = near;
@@ -774,7 +780,8 @@ impl Geometry {
     #[inline]
     fn triangle_d2(&self, p: Vec3A, prim: u32) -> f32 {
         let t = &self.tris[prim as usize];
-        point_triangle_d2(p, from_arr(t.v0), from_arr(t.v1), from_arr(t.v2))
+        let n = Vec3A::from(self.normals[prim as usize]);
+        point_triangle_d2(p, from_arr(t.v0), from_arr(t.v1), from_arr(t.v2), n)
     }
 
     /// Whether `p` is inside the closed mesh: the majority of the parities of crossings
@@ -816,49 +823,51 @@ impl Geometry {
     }
 }
 
-/// Squared distance from `p` to triangle (a, b, c) (Ericson, Real-Time Collision
-/// Detection §5.1.5: Voronoi regions of the vertices, edges and face).
-pub fn point_triangle_d2(p: Vec3A, a: Vec3A, b: Vec3A, c: Vec3A) -> f32 {
-    let ab = b - a;
-    let ac = c - a;
-    let ap = p - a;
-    let d1 = ab.dot(ap);
-    let d2 = ac.dot(ap);
-    if d1 <= 0.0 && d2 <= 0.0 {
-        return ap.length_squared();
+/// Squared distance from `p` to triangle (a, b, c) whose unit normal `n` is that of
+/// (b − a) × (c − a) (computed in f64: [`Geometry::normals`]).
+///
+/// Ericson's Voronoi-region test (Real-Time Collision Detection §5.1.5) decides by
+/// differences of products of dot products, which in f32 lose their precision on long thin
+/// triangles: it put points over the face into an edge's region and overestimated their
+/// distance (by 45 eps just inside a 1,000-segment cylinder's side), so balls reached
+/// beyond the surface and paths leaked (2.9 % of them there). Here which side of each edge
+/// the point lies is the edge function n·(e × (p − v)), whose rounding is ~ε·|e|·|p − v|
+/// however thin the triangle; a point over the face, within a tolerance that errs towards
+/// "over" (where the plane's distance is still a lower bound), gets its distance to the
+/// plane, any other its distance to the nearest edge. So the result never exceeds the true
+/// distance by more than f32 rounding at the scale of |p − v|. scene.wgsl does the same.
+pub fn point_triangle_d2(p: Vec3A, a: Vec3A, b: Vec3A, c: Vec3A, n: Vec3A) -> f32 {
+    let (ab, bc, ca) = (b - a, c - b, a - c);
+    let over = |v: Vec3A, e: Vec3A| {
+        let vp = p - v;
+        let s = n.dot(e.cross(vp));
+        s >= 0.0
+            || s * s <= EDGE_TOLERANCE * EDGE_TOLERANCE * e.length_squared() * vp.length_squared()
+    };
+    let (oa, ob, oc) = (over(a, ab), over(b, bc), over(c, ca));
+    if oa && ob && oc {
+        let h = n.dot(p - a);
+        return h * h;
     }
-    let bp = p - b;
-    let d3 = ab.dot(bp);
-    let d4 = ac.dot(bp);
-    if d3 >= 0.0 && d4 <= d3 {
-        return bp.length_squared();
-    }
-    let vc = d1 * d4 - d3 * d2;
-    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-        let v = d1 / (d1 - d3);
-        return (p - (a + ab * v)).length_squared();
-    }
-    let cp = p - c;
-    let d5 = ab.dot(cp);
-    let d6 = ac.dot(cp);
-    if d6 >= 0.0 && d5 <= d6 {
-        return cp.length_squared();
-    }
-    let vb = d5 * d2 - d1 * d6;
-    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-        let w = d2 / (d2 - d6);
-        return (p - (a + ac * w)).length_squared();
-    }
-    let va = d3 * d6 - d5 * d4;
-    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
-        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
-        return (p - (b + (c - b) * w)).length_squared();
-    }
-    let denom = 1.0 / (va + vb + vc);
-    let v = vb * denom;
-    let w = vc * denom;
-    (p - (a + ab * v + ac * w)).length_squared()
+    // Beside the face, the nearest point lies on an edge the point is beyond (the face is
+    // convex): one or two segments to measure, not three.
+    let edge = |beyond: bool, v: Vec3A, e: Vec3A| {
+        if beyond {
+            return f32::INFINITY;
+        }
+        let vp = p - v;
+        let t = (vp.dot(e) / e.length_squared().max(f32::MIN_POSITIVE)).clamp(0.0, 1.0);
+        (vp - e * t).length_squared()
+    };
+    edge(oa, a, ab).min(edge(ob, b, bc)).min(edge(oc, c, ca))
 }
+
+/// How far outside an edge, in-plane and relative to the point's distance from the edge's
+/// start, a point still counts as over the face in [`point_triangle_d2`]: beyond the edge
+/// function's f32 rounding (~4·6·10⁻⁸), so that no point over the face is taken for one
+/// beside it (which would overestimate its distance); one beside it taken for over gets
+/// the plane's distance, a lower bound. The WGSL kernels take it from here.
+pub const EDGE_TOLERANCE: f32 = 4e-6;
 
 #[cfg(test)]
 mod tests {

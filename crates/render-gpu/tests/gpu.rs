@@ -1379,7 +1379,6 @@ fn wgsl_grid_and_candidate_lists_match_rust() {
     let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
     let scene = furnace_bunny(true);
     let geo = &scene.geo;
-    let grid = scene.grid.as_ref().unwrap();
     let mut rng = WalkRng::from_seed(29);
     let mut points = Vec::new();
     while points.len() < 4_000 {
@@ -1392,6 +1391,39 @@ fn wgsl_grid_and_candidate_lists_match_rust() {
         points.push(p);
         points.push(near);
     }
+    let listed = grid_probe_matches(&ctx, &scene, &points);
+    assert!(listed > 1_000, "only {listed} points near the surface");
+    // Long thin triangles (tests/distance_grid.rs, thin_triangles_never_overestimate_the_
+    // distance, checks the CPU's distances there against f64): a 1,000-segment cylinder,
+    // points 10⁻⁷ to 10⁻³ inside its surface, where the old f32 formula was 45 eps off.
+    let dir = tempfile::tempdir().unwrap();
+    let obj = dir.path().join("cylinder.obj");
+    std::fs::write(&obj, common::cylinder_obj(1000)).unwrap();
+    let text = common::furnace_scene("kind = \"index-matched\"").replace(
+        "mesh = \"../../assets/bunny.glb\"",
+        &format!("mesh = {:?}", obj.display().to_string()),
+    );
+    let scene = common::build_scene(&text, true);
+    let geo = &scene.geo;
+    let mut points = Vec::new();
+    for k in 0..geo.tris.len() {
+        let t = &geo.tris[k];
+        let [a, b, c] = [t.v0, t.v1, t.v2].map(|v| glam::Vec3::from_array(v.into()));
+        let on = (a + b + c) / 3.0;
+        let depth = [1e-7, 1e-6, 1e-5, 1e-4, 1e-3][k % 5];
+        points.push(on - geo.normals[k] * depth);
+    }
+    let listed = grid_probe_matches(&ctx, &scene, &points);
+    assert!(
+        listed > 3_000,
+        "only {listed} points near the cylinder's surface"
+    );
+}
+
+/// Runs `probe_grid` at `points` and checks its radius, list distance and search against
+/// the CPU's; returns how many points had a candidate list.
+fn grid_probe_matches(ctx: &GpuContext, scene: &SceneData, points: &[glam::Vec3]) -> usize {
+    let (geo, grid) = (&scene.geo, scene.grid.as_ref().unwrap());
     let items: Vec<Item> = points
         .iter()
         .map(|p| {
@@ -1400,9 +1432,8 @@ fn wgsl_grid_and_candidate_lists_match_rust() {
             it
         })
         .collect();
-    let out =
-        render_gpu::gpu::probe::run_probe_on(&ctx, "probe_grid", model(), &items, Some(&scene))
-            .unwrap();
+    let out = render_gpu::gpu::probe::run_probe_on(ctx, "probe_grid", model(), &items, Some(scene))
+        .unwrap();
     let mut listed = 0;
     for (p, o) in points.iter().zip(&out) {
         let close = |a: f32, b: f32| (a - b).abs() <= 1e-5 * a.abs().max(1e-2);
@@ -1421,7 +1452,7 @@ fn wgsl_grid_and_candidate_lists_match_rust() {
             None => assert_eq!(o[1], -1.0, "a WGSL list where the CPU has none, at {p}"),
         }
     }
-    assert!(listed > 1_000, "only {listed} points near the surface");
+    listed
 }
 
 /// The WGSL cell-list hit (scene.wgsl, `grid_local_hit`: ST-CVAE's flights near the

@@ -382,7 +382,7 @@ pub fn source(
         "const STACK_DEPTH: u32 = {STACK_DEPTH}u;\n{}\
          const ROULETTE_BOUND: f32 = {:?};\nconst FLIGHT_MARGIN_OF_EPS: f32 = {:?};\n\
          const SKIP_MIN_COS: f32 = {:?};\nconst SKIP_BACK: f32 = {:?};\n\
-         const SKIP_CLEAR_OF_EPS: f32 = {:?};\n\
+         const SKIP_CLEAR_OF_EPS: f32 = {:?};\nconst EDGE_TOLERANCE: f32 = {:?};\n\
          const MAX_OPTICAL_DEPTH: f32 = {:?};\nconst PROXY_DEPTH_CAP: f32 = {:?};\n\
          const MAX_CROSSINGS: u32 = {}u;\n\
          const SLIVER_REACH_OF_EPS: f32 = {:?};\n\
@@ -398,6 +398,7 @@ pub fn source(
         crate::geometry::SKIP_MIN_COS,
         crate::geometry::SKIP_BACK,
         crate::geometry::SKIP_CLEAR_OF_EPS,
+        crate::geometry::EDGE_TOLERANCE,
         crate::integrator::nee::MAX_OPTICAL_DEPTH,
         crate::integrator::nee::PROXY_DEPTH_CAP,
         crate::integrator::nee::MAX_CROSSINGS,

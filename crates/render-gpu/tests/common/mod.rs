@@ -362,3 +362,21 @@ pub fn prism_scene(dir: &Path) -> String {
         mesh.display().to_string()
     )
 }
+
+/// A closed cylinder as OBJ text (radius 0.5, height 1, centred): `segments` side quads
+/// and two fan caps, long thin triangles (at 1,000 segments 0.003 wide for 1 long).
+pub fn cylinder_obj(segments: u32) -> String {
+    let mut text = String::from("v 0 -0.5 0\nv 0 0.5 0\n");
+    for k in 0..segments {
+        let a = std::f64::consts::TAU * k as f64 / segments as f64;
+        let (x, z) = (0.5 * a.cos(), 0.5 * a.sin());
+        text += &format!("v {x} -0.5 {z}\nv {x} 0.5 {z}\n");
+    }
+    for k in 0..segments {
+        // OBJ indices from 1: the centres are 1 and 2, ring k's vertices 3 + 2k and 4 + 2k.
+        let (b0, t0) = (3 + 2 * k, 4 + 2 * k);
+        let (b1, t1) = (3 + 2 * ((k + 1) % segments), 4 + 2 * ((k + 1) % segments));
+        text += &format!("f {b0} {t0} {t1}\nf {b0} {t1} {b1}\nf 1 {b0} {b1}\nf 2 {t1} {t0}\n");
+    }
+    text
+}
