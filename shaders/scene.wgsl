@@ -562,26 +562,29 @@ fn point_triangle_d2(p: vec3<f32>, a: vec3<f32>, b: vec3<f32>, c: vec3<f32>, n: 
     let ap = p - a;
     let bp = p - b;
     let cp = p - c;
-    let oa = over_edge(ap, ab, n);
-    let ob = over_edge(bp, bc, n);
-    let oc = over_edge(cp, ca, n);
-    if oa && ob && oc {
+    let sa = edge_side(ap, ab, n);
+    let sb = edge_side(bp, bc, n);
+    let sc = edge_side(cp, ca, n);
+    if sa.x && sb.x && sc.x {
         let h = dot(n, ap);
         return h * h;
     }
-    // Beside the face: the nearest point is on an edge the point is beyond.
+    // Beside the face: the nearest point is on an edge whose line the point is beyond or
+    // within the tolerance of.
     var best = 3.4e38;
-    if !oa { best = edge_d2(ap, ab); }
-    if !ob { best = min(best, edge_d2(bp, bc)); }
-    if !oc { best = min(best, edge_d2(cp, ca)); }
+    if sa.y { best = edge_d2(ap, ab); }
+    if sb.y { best = min(best, edge_d2(bp, bc)); }
+    if sc.y { best = min(best, edge_d2(cp, ca)); }
     return best;
 }
 
-/// Whether a point vp from an edge's start lies on the face's side of edge e (within
-/// EDGE_TOLERANCE, erring towards the face).
-fn over_edge(vp: vec3<f32>, e: vec3<f32>, n: vec3<f32>) -> bool {
+/// For a point vp from an edge's start: whether it lies on the face's side of edge e
+/// (within EDGE_TOLERANCE, erring towards the face), and whether beyond its line or
+/// within the tolerance of it (geometry.rs, point_triangle_d2).
+fn edge_side(vp: vec3<f32>, e: vec3<f32>, n: vec3<f32>) -> vec2<bool> {
     let s = dot(n, cross(e, vp));
-    return s >= 0.0 || s * s <= EDGE_TOLERANCE * EDGE_TOLERANCE * dot(e, e) * dot(vp, vp);
+    let near = s * s <= EDGE_TOLERANCE * EDGE_TOLERANCE * dot(e, e) * dot(vp, vp);
+    return vec2<bool>(s >= 0.0 || near, s < 0.0 || near);
 }
 
 /// Squared distance from a point vp from segment e's start to the segment.
@@ -625,7 +628,15 @@ fn surface_distance(p: vec3<f32>, limit: f32) -> f32 {
             let nb = node_at(b);
             let db = box_d2(p, nb.lo, nb.hi);
             if top + 2u > STACK_DEPTH {
-                return sqrt(min(best, min(da, db)));
+                // A bound below the distance from both children's boxes and every pending
+                // node's (Geometry::distance_within). Unreached: the renderer refuses BVHs
+                // deeper than the stack.
+                var floor = min(da, db);
+                for (var j = 0u; j < top; j++) {
+                    let nj = node_at(trav_stack[stack_base + j]);
+                    floor = min(floor, box_d2(p, nj.lo, nj.hi));
+                }
+                return sqrt(min(best, floor));
             }
             if da < db {
                 trav_stack[stack_base + top] = b;

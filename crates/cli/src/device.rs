@@ -51,8 +51,8 @@ pub enum DeviceArg {
 }
 
 /// Where renders run. A GPU chosen by `auto` gives way to the CPU, for good, when a scene is
-/// beyond it ([`RenderError::GpuLimit`]); one chosen with `--device gpu` reports that as
-/// the error.
+/// beyond it ([`RenderError::GpuLimit`], [`RenderError::SceneBeyondGpu`]); one chosen with
+/// `--device gpu` reports that as the error.
 pub struct Engine {
     gpu: Option<Box<GpuContext>>,
     auto: bool,
@@ -139,7 +139,7 @@ impl Engine {
             return Ok(render(scene, set, opts, progress, cancel));
         };
         match render_gpu(c, scene, set, opts, progress, cancel) {
-            Err(RenderError::GpuLimit(why)) if self.auto => {
+            Err(RenderError::GpuLimit(why) | RenderError::SceneBeyondGpu(why)) if self.auto => {
                 eprintln!(
                     "{why}: rendering on the CPU ({} threads) instead",
                     rayon::current_num_threads()

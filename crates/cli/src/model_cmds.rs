@@ -81,9 +81,6 @@ pub fn sample(a: SampleArgs) -> Result<()> {
         albedo: a.albedo,
     };
     c.validate().map_err(|e| anyhow::anyhow!("--{e}"))?;
-    if a.samples == 0 {
-        bail!("--samples 0 is out of range: allowed [1, inf)");
-    }
     // A folder first: "name the file *.csv" would not say what is wrong with /tmp.
     crate::check_out("--out", &a.out)?;
     if !is_csv(&a.out) {

@@ -586,13 +586,10 @@ pub fn run(a: Args) -> Result<()> {
             cancel,
         )
         .map_err(|e| {
-            // A scene beyond the GPU's limits (lights, mesh, image, spp) is named: what to
-            // change is in its file. A limit met through an STCVAE_GPU_* switch names the
-            // switch instead.
+            // A scene beyond the GPU's limits (lights, mesh, image) is named: what to
+            // change is in its file.
             match e.downcast_ref::<render_gpu::error::RenderError>() {
-                Some(render_gpu::error::RenderError::GpuLimit(why))
-                    if !why.contains("STCVAE_GPU_") =>
-                {
+                Some(render_gpu::error::RenderError::SceneBeyondGpu(why)) => {
                     anyhow!("{}: {why}", a.scene.display())
                 }
                 _ => e,

@@ -26,11 +26,16 @@ pub enum RenderError {
     /// tests skip, for this reason alone.
     #[error("{0}")]
     NoAdapter(String),
-    /// The scene is beyond what the GPU kernels or the adapter hold (lights, BVH depth, a
-    /// buffer over the adapter's binding limit), while the CPU integrators render it:
-    /// `--device auto` falls back to the CPU for this reason.
+    /// The render is beyond what the GPU kernels or the adapter hold for reasons outside
+    /// the scene file (the spp, the adapter's memory or bindings, an STCVAE_GPU_* switch),
+    /// while the CPU integrators render it: `--device auto` falls back to the CPU.
     #[error("{0}")]
     GpuLimit(String),
+    /// The scene is beyond what the GPU kernels or the adapter hold (lights, BVH depth, a
+    /// buffer over the adapter's binding limit): as [`RenderError::GpuLimit`], and the
+    /// CLI names the scene file, where the change goes.
+    #[error("{0}")]
+    SceneBeyondGpu(String),
     /// An adapter could not be opened, or the GPU failed.
     #[error("{0}")]
     Gpu(String),

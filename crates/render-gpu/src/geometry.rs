@@ -838,28 +838,33 @@ impl Geometry {
 /// distance by more than f32 rounding at the scale of |p − v|. scene.wgsl does the same.
 pub fn point_triangle_d2(p: Vec3A, a: Vec3A, b: Vec3A, c: Vec3A, n: Vec3A) -> f32 {
     let (ab, bc, ca) = (b - a, c - b, a - c);
-    let over = |v: Vec3A, e: Vec3A| {
+    // For each edge: whether the point is on the face's side of its line (within the
+    // tolerance), and whether beyond the line or within the tolerance of it.
+    let side = |v: Vec3A, e: Vec3A| {
         let vp = p - v;
         let s = n.dot(e.cross(vp));
-        s >= 0.0
-            || s * s <= EDGE_TOLERANCE * EDGE_TOLERANCE * e.length_squared() * vp.length_squared()
+        let near =
+            s * s <= EDGE_TOLERANCE * EDGE_TOLERANCE * e.length_squared() * vp.length_squared();
+        (s >= 0.0 || near, s < 0.0 || near)
     };
-    let (oa, ob, oc) = (over(a, ab), over(b, bc), over(c, ca));
+    let ((oa, ma), (ob, mb), (oc, mc)) = (side(a, ab), side(b, bc), side(c, ca));
     if oa && ob && oc {
         let h = n.dot(p - a);
         return h * h;
     }
-    // Beside the face, the nearest point lies on an edge the point is beyond (the face is
-    // convex): one or two segments to measure, not three.
-    let edge = |beyond: bool, v: Vec3A, e: Vec3A| {
-        if beyond {
+    // Beside the face, the nearest point lies on an edge whose line the point is beyond or
+    // on (the face is convex): those within the tolerance of their line count too,
+    // whichever side rounding put the point, or an edge next to a vertex of nearly 180°
+    // (a fan's rim) was left out and the distance overestimated 150-fold.
+    let edge = |measure: bool, v: Vec3A, e: Vec3A| {
+        if !measure {
             return f32::INFINITY;
         }
         let vp = p - v;
         let t = (vp.dot(e) / e.length_squared().max(f32::MIN_POSITIVE)).clamp(0.0, 1.0);
         (vp - e * t).length_squared()
     };
-    edge(oa, a, ab).min(edge(ob, b, bc)).min(edge(oc, c, ca))
+    edge(ma, a, ab).min(edge(mb, b, bc)).min(edge(mc, c, ca))
 }
 
 /// How far outside an edge, in-plane and relative to the point's distance from the edge's

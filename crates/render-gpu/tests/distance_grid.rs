@@ -272,3 +272,41 @@ fn thin_triangles_never_overestimate_the_distance() {
     eprintln!("{checked} distances, the largest over the truth by {worst:e}");
     assert!(checked > 4000, "{checked}");
 }
+
+/// Triangles with a vertex of nearly 180° (a fan's rim: 179.64° and flatter) and points
+/// just past their long edges near that vertex: within the edge test's tolerance of one
+/// edge's line and clearly beyond the other's. Measuring only the edges the point was
+/// clearly beyond gave 6.1·10⁻⁴ for a true 3.95·10⁻⁶ (a review's case, the first below).
+/// Each distance must not exceed an f64 computation by more than 10⁻⁶.
+#[test]
+fn nearly_flat_vertices_never_overestimate_the_distance() {
+    use glam::Vec3A;
+    use render_gpu::geometry::point_triangle_d2;
+    let mut rng = WalkRng::for_walk(13, 0);
+    let mut worst = 0f64;
+    for (k, rise) in [6.3e-3f64, 1e-3, 1e-4, 1e-5].into_iter().enumerate() {
+        let (a, b, c) = (DVec3::ZERO, DVec3::X, DVec3::new(2.0, rise, 0.0));
+        let n = (b - a).cross(c - a).normalize();
+        for i in 0..2_000 {
+            let p = if k == 0 && i == 0 {
+                DVec3::new(0.99939, -3.9e-6, 6.9e-7)
+            } else {
+                let x = 0.9 + 0.2 * rng.uniform();
+                let y = (rng.uniform() - 0.7) * 2e-5;
+                let z = (rng.uniform() - 0.5) * 2e-4;
+                DVec3::new(x, y, z)
+            };
+            let pf = p.as_vec3();
+            let q = pf.as_dvec3();
+            let truth = triangle_d2_f64(q, a, b, c).sqrt();
+            let [af, bf, cf, nf] = [a, b, c, n].map(|v| Vec3A::from(v.as_vec3()));
+            let d = point_triangle_d2(Vec3A::from(pf), af, bf, cf, nf).sqrt() as f64;
+            worst = worst.max(d - truth);
+            assert!(
+                d <= truth + 1e-6,
+                "rise {rise}, point {q}: {d} against {truth}"
+            );
+        }
+    }
+    eprintln!("largest over the truth: {worst:e}");
+}

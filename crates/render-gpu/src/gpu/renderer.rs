@@ -531,7 +531,7 @@ pub fn render_gpu(
         IntegratorKind::Stcvae => Kernel::Stcvae,
     };
     if scene.lights.len() > super::scene_buffers::MAX_GPU_LIGHTS {
-        return Err(RenderError::GpuLimit(format!(
+        return Err(RenderError::SceneBeyondGpu(format!(
             "the GPU kernels take at most {} [[light]] entries (the scene has {}); use \
              --device cpu",
             super::scene_buffers::MAX_GPU_LIGHTS,
@@ -616,7 +616,7 @@ pub fn render_gpu(
     }
     let band_rows = band_rows.min(cam.height as u64) as u32;
     if band_rows == 0 {
-        return Err(RenderError::GpuLimit(format!(
+        return Err(RenderError::SceneBeyondGpu(format!(
             "one row of {} pixels needs {} bytes of path state, over {}'s storage binding \
              limit of {} bytes; use --device cpu",
             cam.width,
@@ -653,7 +653,7 @@ pub fn render_gpu(
     let mut params: Params = scene_params(scene, set, opts.seed);
     let depth = bvh_depth(&scene.geo.bvh);
     if depth + 1 > kernels::STACK_DEPTH as usize {
-        return Err(RenderError::GpuLimit(format!(
+        return Err(RenderError::SceneBeyondGpu(format!(
             "the mesh's BVH is {depth} levels deep; the GPU kernels' traversal stack holds {} \
              entries; use --device cpu",
             kernels::STACK_DEPTH

@@ -143,7 +143,7 @@ impl Resources {
             ),
         ];
         if let Some((biggest, what)) = sizes.into_iter().filter(|s| s.0 > max).max_by_key(|s| s.0) {
-            return Err(RenderError::GpuLimit(format!(
+            return Err(RenderError::SceneBeyondGpu(format!(
                 "a buffer of {biggest} bytes exceeds {}'s storage binding limit of {max} bytes: \
                  {what}, or use --device cpu",
                 ctx.adapter.name

@@ -209,7 +209,7 @@ pub fn geometry_buffers(scene: &SceneData) -> Result<(Vec<GpuNode>, Vec<GpuTri>)
     let mut nodes = Vec::with_capacity(geo.bvh.nodes.len() + 2);
     for n in &geo.bvh.nodes {
         if n.prim_count > GpuNode::MAX_COUNT || n.first_index > GpuNode::MAX_FIRST {
-            return Err(RenderError::GpuLimit(format!(
+            return Err(RenderError::SceneBeyondGpu(format!(
                 "the mesh's BVH has a node the GPU kernels cannot hold (first {}, count {}; \
                  at most {} and {}); use --device cpu",
                 n.first_index,

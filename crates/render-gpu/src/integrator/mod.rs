@@ -144,7 +144,7 @@ pub(crate) struct PathState {
     /// disk when it escapes, as NEE counted that light (its shadow ray crosses the
     /// boundary straight, transmitted). After a reflection it must: NEE never samples
     /// light that reaches an event by way of a reflection (a prism's total internal
-    /// reflection lost 44 % of its image with NEE on; `nee_counts_light_after_a_reflection`).
+    /// reflection lost 41 % of its image with NEE on; `nee_counts_light_after_a_reflection`).
     pub scattered: bool,
     pub alive: bool,
     /// A lower bound on the distance from `pos` to the surface (0: unknown). ST-CVAE
