@@ -1536,18 +1536,6 @@ fn gpu_paths_pass_slivers_thinner_than_the_spawn_offset() {
     common::check_slivers(|s, kind| on_gpu(&ctx, s, &settings(kind, true), &opts(12, 3)));
 }
 
-/// The sphere of integrators.rs' the_image_does_not_darken_with_density at `sigma` (radius
-/// 0.5, eps 2e-5, albedo 0.9, lit head-on), filling a 32² image.
-fn dense_sphere(sigma: f64) -> String {
-    format!(
-        "[camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 10.0\n\
-         width = 32\nheight = 32\n[object]\nshape = \"sphere\"\n\
-         [medium]\nsigma_t = [{sigma:?}, {sigma:?}, {sigma:?}]\nalbedo = [0.9, 0.9, 0.9]\n\
-         [[light]]\nkind = \"directional\"\ndirection = [0.0, 0.0, -1.0]\n\
-         irradiance = [1.0, 1.0, 1.0]\n"
-    )
-}
-
 /// The image mean over 16 seeds of `spp` and the variance of that mean, estimated from the
 /// spread of the seeds' means (15 degrees of freedom); no path may leak.
 fn seeded_mean(render: impl Fn(u64) -> RenderOutput, what: &str) -> (f64, f64) {
@@ -1580,7 +1568,7 @@ fn gpu_image_does_not_darken_at_the_density_bound() {
     let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
     let set = settings(IntegratorKind::Pt, true);
     let mean_of = |sigma: f64| {
-        let s = common::build_scene(&dense_sphere(sigma), false);
+        let s = common::build_scene(&common::dense_sphere(sigma), false);
         seeded_mean(|seed| on_gpu(&ctx, &s, &set, &opts(64, seed)), "PT")
     };
     let (thin, var_thin) = mean_of(300.0);
@@ -1608,7 +1596,7 @@ fn gpu_stcvae_agrees_with_the_cpu_at_the_density_bound() {
     let Some(ctx) = gpu() else { return };
     let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
     let set = settings(IntegratorKind::Stcvae, true);
-    let s = common::build_scene(&dense_sphere(48_000.0), true);
+    let s = common::build_scene(&common::dense_sphere(48_000.0), true);
     let (cpu, var_cpu) = seeded_mean(|seed| on_cpu(&s, &set, &opts(64, seed)), "CPU");
     let (gpu, var_gpu) = seeded_mean(|seed| on_gpu(&ctx, &s, &set, &opts(64, 100 + seed)), "GPU");
     let z = (gpu - cpu) / (var_cpu + var_gpu).sqrt();

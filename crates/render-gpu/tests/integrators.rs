@@ -1291,18 +1291,9 @@ fn the_variance_image_matches_the_spread_between_seeds() {
 /// (docs/BENCHMARKS.md, forty-seventh session).
 #[test]
 fn the_image_does_not_darken_with_density() {
-    let sphere = |sigma: f64| {
-        format!(
-            "[camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 10.0\n\
-             width = 32\nheight = 32\n[object]\nshape = \"sphere\"\n\
-             [medium]\nsigma_t = [{sigma:?}, {sigma:?}, {sigma:?}]\nalbedo = [0.9, 0.9, 0.9]\n\
-             [[light]]\nkind = \"directional\"\ndirection = [0.0, 0.0, -1.0]\n\
-             irradiance = [1.0, 1.0, 1.0]\n"
-        )
-    };
     let set = settings(IntegratorKind::Pt, true, None);
     let mean_of = |sigma: f64| {
-        let (_, s) = scene(&sphere(sigma), false);
+        let (_, s) = scene(&common::dense_sphere(sigma), false);
         let (mean, sem, stats) = estimate(&s, &set, 600_000, 17);
         assert_eq!(stats.leaks, 0);
         let m = mean.iter().sum::<f64>() / 3.0;

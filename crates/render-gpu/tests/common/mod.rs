@@ -380,3 +380,17 @@ pub fn cylinder_obj(segments: u32) -> String {
     }
     text
 }
+
+/// A sphere of radius 0.5 (eps 2e-5) at `sigma`, albedo 0.9, lit head-on by a delta sun
+/// along the view, filling a 32² image: a half-space to the light at any density where
+/// the diffusion length is far below the radius (integrators.rs,
+/// the_image_does_not_darken_with_density; gpu.rs at the density bound).
+pub fn dense_sphere(sigma: f64) -> String {
+    format!(
+        "[camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 10.0\n\
+         width = 32\nheight = 32\n[object]\nshape = \"sphere\"\n\
+         [medium]\nsigma_t = [{sigma:?}, {sigma:?}, {sigma:?}]\nalbedo = [0.9, 0.9, 0.9]\n\
+         [[light]]\nkind = \"directional\"\ndirection = [0.0, 0.0, -1.0]\n\
+         irradiance = [1.0, 1.0, 1.0]\n"
+    )
+}
