@@ -1,7 +1,7 @@
 //! Whole-number options. clap's own parsers said only "invalid digit found in string" for
 //! -1, 1.5 or 10^30, without the allowed range; these name it whatever was typed.
 
-/// A parser of whole numbers in [`lo`, `hi`] into `T` (which must hold `hi`).
+/// A parser of whole numbers from `lo` to `hi` (inclusive) into `T`, which must hold `hi`.
 pub fn whole<T>(lo: u64, hi: u64) -> impl Fn(&str) -> Result<T, String> + Clone + Send + Sync
 where
     T: TryFrom<u64>,

@@ -845,7 +845,9 @@ pub fn point_triangle_d2(p: Vec3A, a: Vec3A, b: Vec3A, c: Vec3A, n: Vec3A) -> f3
         let s = n.dot(e.cross(vp));
         let near =
             s * s <= EDGE_TOLERANCE * EDGE_TOLERANCE * e.length_squared() * vp.length_squared();
-        (s >= 0.0 || near, s < 0.0 || near)
+        // (A NaN, from a triangle of no area, which `mesh::prepare` drops, measures every
+        // edge: the exact distance to the segments.)
+        (s >= 0.0 || near, s < 0.0 || s.is_nan() || near)
     };
     let ((oa, ma), (ob, mb), (oc, mc)) = (side(a, ab), side(b, bc), side(c, ca));
     if oa && ob && oc {
