@@ -452,10 +452,13 @@ fn evaluate_settings(a: &EvalArgs) -> Result<()> {
         }
         warn_outside_training(&m, *c, "--at ");
         let seed = a.seed.wrapping_add(i as u64);
-        let (model, sim) = (
-            eval::model_columns(&m, c.tau, c.g, c.albedo, a.samples, seed),
-            eval::simulator_columns(c.tau, c.g, c.albedo, a.samples, seed),
-        );
+        // Within a setting too: it takes minutes at 4M samples and τ = 125.
+        let stopped = || anyhow::anyhow!("interrupted: nothing written to {}", a.out.display());
+        let setting = (c.tau, c.g, c.albedo);
+        let model =
+            eval::model_columns_until(&m, setting, a.samples, seed, cancel).ok_or_else(stopped)?;
+        let sim = eval::simulator_columns_until(c.tau, c.g, c.albedo, a.samples, seed, cancel)
+            .ok_or_else(stopped)?;
         reports.push(eval::compare_setting(&model, &sim, c.tau, c.g, c.albedo));
         bands += &eval::fine_shells_table(&model, &sim, c.tau, c.g, c.albedo);
         pb.inc(1);
@@ -504,6 +507,7 @@ pub fn evaluate_into(
         &m,
         samples,
         seed,
+        cancel,
         |i, _| {
             pb.set_position(i as u64);
             !stopped()
@@ -537,12 +541,12 @@ pub fn evaluate_into(
                     return Err(interrupted());
                 }
                 let seed = seed.wrapping_add((i * eval::GS.len() + j) as u64);
-                cols.push((
-                    tau,
-                    g,
-                    crate::plots::plotted(&eval::model_columns(&m, tau, g, 1.0, samples, seed), g),
-                    crate::plots::plotted(&eval::simulator_columns(tau, g, 1.0, samples, seed), g),
-                ));
+                let model = eval::model_columns_until(&m, (tau, g, 1.0), samples, seed, cancel)
+                    .ok_or_else(interrupted)?;
+                let sim = eval::simulator_columns_until(tau, g, 1.0, samples, seed, cancel)
+                    .ok_or_else(interrupted)?;
+                let plotted = |c: &eval::Columns| crate::plots::plotted(c, g);
+                cols.push((tau, g, plotted(&model), plotted(&sim)));
                 pb.inc(1);
             }
         }

@@ -13,6 +13,8 @@
 //! share of events near the sphere's surface ([`SHELLS`]). Small KS values can hide a
 //! few per cent in these, which is what an image shows (docs/BENCHMARKS.md).
 
+use std::sync::atomic::{AtomicBool, Ordering};
+
 use rayon::prelude::*;
 use serde::Serialize;
 
@@ -346,15 +348,32 @@ impl Columns {
 
 /// `count` simulator walks at fixed conditions (stream `seed`, one per walk).
 pub fn simulator_columns(tau: f64, g: f64, albedo: f64, count: usize, seed: u64) -> Columns {
-    let walks: Vec<_> = (0..count as u64)
+    simulator_columns_until(tau, g, albedo, count, seed, &AtomicBool::new(false))
+        .unwrap_or_else(|| Columns::from_walks(Vec::new()))
+}
+
+/// As [`simulator_columns`], or None once `stop` is set: a Ctrl-C need not wait for a
+/// setting's walks (minutes at 4M samples and τ = 125).
+pub fn simulator_columns_until(
+    tau: f64,
+    g: f64,
+    albedo: f64,
+    count: usize,
+    seed: u64,
+    stop: &AtomicBool,
+) -> Option<Columns> {
+    let walks: Option<Vec<_>> = (0..count as u64)
         .into_par_iter()
         .map(|i| {
+            if stop.load(Ordering::Relaxed) {
+                return None;
+            }
             let mut rng = WalkRng::for_walk(seed, i);
-            simulate_walk(tau, g, albedo, &mut rng).canonical()
+            let w = simulate_walk(tau, g, albedo, &mut rng).canonical();
+            Some((w.n, w.exit, w.event_pos, w.event_dir))
         })
-        .map(|w| (w.n, w.exit, w.event_pos, w.event_dir))
         .collect();
-    Columns::from_walks(walks)
+    walks.map(Columns::from_walks)
 }
 
 /// `count` model walks at fixed conditions.
@@ -366,15 +385,31 @@ pub fn model_columns(
     count: usize,
     seed: u64,
 ) -> Columns {
-    let walks: Vec<_> = (0..count as u64)
+    let never = AtomicBool::new(false);
+    model_columns_until(m, (tau, g, albedo), count, seed, &never)
+        .unwrap_or_else(|| Columns::from_walks(Vec::new()))
+}
+
+/// As [`model_columns`] at (τ, g, φ), or None once `stop` is set.
+pub fn model_columns_until(
+    m: &ModelSet,
+    (tau, g, albedo): (f64, f64, f64),
+    count: usize,
+    seed: u64,
+    stop: &AtomicBool,
+) -> Option<Columns> {
+    let walks: Option<Vec<_>> = (0..count as u64)
         .into_par_iter()
         .map(|i| {
+            if stop.load(Ordering::Relaxed) {
+                return None;
+            }
             let mut rng = WalkRng::for_walk(seed ^ 0x6d6f_64656c, i);
-            m.sample_walk(tau, g, albedo, true, &mut rng)
+            let w = m.sample_walk(tau, g, albedo, true, &mut rng);
+            Some((w.n, w.exit, w.event_pos, w.event_dir))
         })
-        .map(|w| (w.n, w.exit, w.event_pos, w.event_dir))
         .collect();
-    Columns::from_walks(walks)
+    walks.map(Columns::from_walks)
 }
 
 /// Compares the columns; `which` selects quantities by index into [`QUANTITIES`].
@@ -468,14 +503,16 @@ pub fn compare_setting(
 }
 
 /// The full grid: 16 settings at φ = 1 plus the 16 EventGen settings at φ = 0.9.
-/// `progress(done, total)` is told after each setting; where it returns false the grid
-/// stops there and the settings done so far are returned (a stop request). `seen` gets
+/// `progress(done, total)` is told after each setting; where it returns false, or `stop`
+/// is set (checked within a setting's walks too), the grid stops and the settings done so
+/// far are returned (a stop request). `seen` gets
 /// each setting's (τ, g, φ) and its model and simulator samples (for plots, which then
 /// need not draw them again).
 pub fn evaluate_grid(
     m: &ModelSet,
     samples: usize,
     seed: u64,
+    stop: &AtomicBool,
     mut progress: impl FnMut(usize, usize) -> bool,
     mut seen: impl FnMut((f64, f64, f64), &Columns, &Columns),
 ) -> Vec<SettingReport> {
@@ -490,8 +527,12 @@ pub fn evaluate_grid(
     let mut reports = Vec::with_capacity(total);
     for (i, &(t, g, a)) in settings.iter().enumerate() {
         let seed = seed.wrapping_add(i as u64);
-        let sim = simulator_columns(t, g, a, samples, seed);
-        let model = model_columns(m, t, g, a, samples, seed);
+        let Some(sim) = simulator_columns_until(t, g, a, samples, seed, stop) else {
+            break;
+        };
+        let Some(model) = model_columns_until(m, (t, g, a), samples, seed, stop) else {
+            break;
+        };
         reports.push(compare_setting(&model, &sim, t, g, a));
         seen((t, g, a), &model, &sim);
         if !progress(i + 1, total) {
@@ -670,6 +711,25 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// A stop request ends a setting's walks (None, nothing drawn after it), so a Ctrl-C
+    /// need not wait minutes for a large setting; unset, the columns hold every walk.
+    #[test]
+    fn columns_stop_when_asked() {
+        let stop = AtomicBool::new(true);
+        assert!(simulator_columns_until(5.0, 0.0, 1.0, 100_000, 1, &stop).is_none());
+        let go = AtomicBool::new(false);
+        let c = simulator_columns_until(5.0, 0.0, 1.0, 1_000, 1, &go).unwrap();
+        assert!(c.0.iter().all(|col| col.len() == 1_000));
+        let m = crate::model_file::ModelSet::load(std::path::Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../models/default.stcvae"
+        )))
+        .unwrap();
+        assert!(model_columns_until(&m, (5.0, 0.0, 1.0), 100_000, 1, &stop).is_none());
+        let c = model_columns_until(&m, (5.0, 0.0, 1.0), 1_000, 1, &go).unwrap();
+        assert!(c.0.iter().all(|col| col.len() == 1_000));
     }
 
     /// A simulator mean of 0 makes a ratio meaningless: never "resolved".
