@@ -445,28 +445,24 @@ fn evaluate_settings(a: &EvalArgs) -> Result<()> {
         a.out.display()
     );
     let pb = progress::bar(a.at.len() as u64, "settings");
+    // Ctrl-C stops it, writing nothing: within a setting's walks (a setting takes minutes
+    // at 4M samples and τ = 125), and after the last one.
+    let stopped = || anyhow::anyhow!("interrupted: nothing written to {}", a.out.display());
     for (i, c) in a.at.iter().enumerate() {
-        // Ctrl-C stops it between settings, writing nothing.
-        if cancel.load(std::sync::atomic::Ordering::Relaxed) {
-            bail!("interrupted: nothing written to {}", a.out.display());
-        }
         warn_outside_training(&m, *c, "--at ");
         let seed = a.seed.wrapping_add(i as u64);
-        // Within a setting too: it takes minutes at 4M samples and τ = 125.
-        let stopped = || anyhow::anyhow!("interrupted: nothing written to {}", a.out.display());
         let setting = (c.tau, c.g, c.albedo);
         let model =
             eval::model_columns_until(&m, setting, a.samples, seed, cancel).ok_or_else(stopped)?;
-        let sim = eval::simulator_columns_until(c.tau, c.g, c.albedo, a.samples, seed, cancel)
-            .ok_or_else(stopped)?;
+        let sim =
+            eval::simulator_columns_until(setting, a.samples, seed, cancel).ok_or_else(stopped)?;
         reports.push(eval::compare_setting(&model, &sim, c.tau, c.g, c.albedo));
         bands += &eval::fine_shells_table(&model, &sim, c.tau, c.g, c.albedo);
         pb.inc(1);
     }
     pb.finish_and_clear();
-    // A Ctrl-C during the last setting (or the only one) stops it too.
     if cancel.load(std::sync::atomic::Ordering::Relaxed) {
-        bail!("interrupted: nothing written to {}", a.out.display());
+        return Err(stopped());
     }
     let (json, mut md) = eval_json_and_head(&name, a.samples, a.seed, &reports)?;
     md.extend(bands.into_bytes());
@@ -543,7 +539,7 @@ pub fn evaluate_into(
                 let seed = seed.wrapping_add((i * eval::GS.len() + j) as u64);
                 let model = eval::model_columns_until(&m, (tau, g, 1.0), samples, seed, cancel)
                     .ok_or_else(interrupted)?;
-                let sim = eval::simulator_columns_until(tau, g, 1.0, samples, seed, cancel)
+                let sim = eval::simulator_columns_until((tau, g, 1.0), samples, seed, cancel)
                     .ok_or_else(interrupted)?;
                 let plotted = |c: &eval::Columns| crate::plots::plotted(c, g);
                 cols.push((tau, g, plotted(&model), plotted(&sim)));

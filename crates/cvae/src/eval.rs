@@ -348,16 +348,14 @@ impl Columns {
 
 /// `count` simulator walks at fixed conditions (stream `seed`, one per walk).
 pub fn simulator_columns(tau: f64, g: f64, albedo: f64, count: usize, seed: u64) -> Columns {
-    simulator_columns_until(tau, g, albedo, count, seed, &AtomicBool::new(false))
+    simulator_columns_until((tau, g, albedo), count, seed, &AtomicBool::new(false))
         .unwrap_or_else(|| Columns::from_walks(Vec::new()))
 }
 
-/// As [`simulator_columns`], or None once `stop` is set: a Ctrl-C need not wait for a
+/// As [`simulator_columns`] at (τ, g, φ), or None once `stop` is set: a Ctrl-C need not wait for a
 /// setting's walks (minutes at 4M samples and τ = 125).
 pub fn simulator_columns_until(
-    tau: f64,
-    g: f64,
-    albedo: f64,
+    (tau, g, albedo): (f64, f64, f64),
     count: usize,
     seed: u64,
     stop: &AtomicBool,
@@ -527,7 +525,7 @@ pub fn evaluate_grid(
     let mut reports = Vec::with_capacity(total);
     for (i, &(t, g, a)) in settings.iter().enumerate() {
         let seed = seed.wrapping_add(i as u64);
-        let Some(sim) = simulator_columns_until(t, g, a, samples, seed, stop) else {
+        let Some(sim) = simulator_columns_until((t, g, a), samples, seed, stop) else {
             break;
         };
         let Some(model) = model_columns_until(m, (t, g, a), samples, seed, stop) else {
@@ -718,9 +716,9 @@ mod tests {
     #[test]
     fn columns_stop_when_asked() {
         let stop = AtomicBool::new(true);
-        assert!(simulator_columns_until(5.0, 0.0, 1.0, 100_000, 1, &stop).is_none());
+        assert!(simulator_columns_until((5.0, 0.0, 1.0), 100_000, 1, &stop).is_none());
         let go = AtomicBool::new(false);
-        let c = simulator_columns_until(5.0, 0.0, 1.0, 1_000, 1, &go).unwrap();
+        let c = simulator_columns_until((5.0, 0.0, 1.0), 1_000, 1, &go).unwrap();
         assert!(c.0.iter().all(|col| col.len() == 1_000));
         let m = crate::model_file::ModelSet::load(std::path::Path::new(concat!(
             env!("CARGO_MANIFEST_DIR"),
