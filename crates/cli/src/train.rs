@@ -508,17 +508,21 @@ pub fn run(a: Args) -> Result<()> {
         .collect();
     for (k, t) in kinds.iter().zip(&tables) {
         if t.rows == 0 {
+            let why = if cfg.single_scattering != SingleScattering::Exact {
+                "the dataset is empty; generate one with more samples"
+            } else if *k == ModelKind::EventGen && t.ranges.albedo[1] <= 0.0 {
+                // The reservoir keeps event 1, the centre, whenever the albedo is 0.
+                "every walk has albedo 0, whose representative event is always the centre, \
+                 which exact mode draws without EventGen; generate a dataset with albedo > 0"
+            } else {
+                "it needs walks with N >= 2 and, for EventGen, events other than the centre; \
+                 generate a dataset with larger tau or more samples"
+            };
             bail!(
-                "{}: none of its {} walks is usable for {} ({}); generate a dataset with \
-                 larger tau or more samples",
+                "{}: none of its {} walks is usable for {} ({why})",
                 cfg.dataset.display(),
                 rows.len(),
                 k.name(),
-                if cfg.single_scattering == SingleScattering::Exact {
-                    "it needs walks with N >= 2 and, for EventGen, events other than the centre"
-                } else {
-                    "the dataset is empty"
-                }
             );
         }
         if t.rows < MIN_ROWS {
@@ -612,7 +616,13 @@ pub fn run(a: Args) -> Result<()> {
         .collect();
     let report = |k: ModelKind, step: u64, loss: f32| {
         if let Some(i) = kinds.iter().position(|&x| x == k) {
+            // A resumed run's first report jumps from 0 to the checkpoint's step: the
+            // rate and ETA are measured from there, not from the jump.
+            let resumed = bars[i].position() == 0 && step > 1;
             bars[i].set_position(step);
+            if resumed {
+                bars[i].reset_eta();
+            }
             bars[i].set_message(format!("{:>9} loss {loss:.4}", k.name()));
         }
     };

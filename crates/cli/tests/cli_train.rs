@@ -701,3 +701,28 @@ fn fresh_removes_the_checkpoints_it_replaces() {
     assert_eq!(out.status.code(), Some(130), "{}", stderr(&out));
     assert!(dir.path().join("ck/pathgen.json").exists());
 }
+
+/// A dataset whose every walk has albedo 0 has no event for EventGen in exact mode (the
+/// reservoir keeps the centre, which exact mode draws itself): the refusal names the
+/// albedo, where it used to advise a larger tau or more samples, which cannot help.
+#[test]
+fn albedo_zero_data_is_refused_for_eventgen_naming_the_albedo() {
+    let dir = tempfile::tempdir().unwrap();
+    setup(dir.path());
+    replace_in(
+        &dir.path().join("data.toml"),
+        "albedo = { kind = \"one-minus-power\", epsilon = 1e-6, exponent = 6.0 }",
+        "albedo = { kind = \"fixed\", value = 0.0 }",
+    );
+    let base = root().join("models/default.stcvae");
+    let out = train_eventgen(dir.path(), base.to_str().unwrap());
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    assert!(
+        err.contains(
+            "d.bin: none of its 3001 walks is usable for eventgen (every walk has albedo 0"
+        ),
+        "{err}"
+    );
+    assert!(!err.contains("larger tau"), "{err}");
+}

@@ -18,7 +18,9 @@ pub fn splitmix64(mut z: u64) -> u64 {
 }
 
 /// The random stream of one walk (xoshiro256++: fast, 2^256 period, good equidistribution).
-#[derive(Clone, Debug)]
+/// Serialisable so that a training checkpoint can carry its stream's position: a resumed
+/// run then draws the batches the uninterrupted run would have drawn.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct WalkRng(Xoshiro256PlusPlus);
 
 impl WalkRng {

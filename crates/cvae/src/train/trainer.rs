@@ -191,6 +191,20 @@ pub struct CheckpointInfo {
     pub single_scattering: Option<crate::model_file::SingleScattering>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ranges: Option<ConditionRanges>,
+    /// Where the batch stream stood, and the loss readings taken since the last report:
+    /// a resumed run draws the batches the uninterrupted one would have drawn, so the
+    /// weights do not depend on when a Ctrl-C came. Checkpoints written before it existed
+    /// resume on a fresh stream.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stream: Option<StreamState>,
+}
+
+/// The part of a run's state that is not in burn's records.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StreamState {
+    pub rng: WalkRng,
+    /// Sum and count of the loss readings since the last report.
+    pub pending_loss: (f64, u64),
 }
 
 fn crc_of(path: &Path) -> std::io::Result<u32> {
@@ -352,8 +366,9 @@ fn save_checkpoint(
 const LOG_EVERY: u64 = 10;
 const REPORT_EVERY: u64 = 500;
 
-/// Trains one model. `report(step, loss)` is called every few steps; `cancel` stops
-/// after the current step with a checkpoint.
+/// Trains one model. `report(step, loss)` is called every few steps, and once at the
+/// start of a resumed run with the checkpoint's last report; `cancel` stops after the
+/// current step with a checkpoint.
 #[allow(clippy::too_many_arguments)]
 pub fn train_model(
     kind: ModelKind,
@@ -385,6 +400,7 @@ pub fn train_model(
         crc32: None,
         single_scattering: Some(table.mode),
         ranges: Some(table.ranges),
+        stream: None,
     };
     let (mpath, opath, jpath) = paths(checkpoint_dir, kind);
     if resume && jpath.exists() {
@@ -453,8 +469,19 @@ pub fn train_model(
         // Same mode (checked above) and same data (the standardisation matched).
         info.single_scattering = Some(table.mode);
         info.ranges = Some(table.ranges);
-        // A fresh stream for the rest of the run (the old one's position is not saved).
         rng = WalkRng::for_walk(seed ^ info.step.rotate_left(32), kind as u64);
+    }
+    // The stream where the checkpoint left it; one saved before streams were kept goes on
+    // with the fresh stream above.
+    let (mut acc, mut acc_n) = (0f64, 0u64);
+    if let Some(state) = info.stream.take() {
+        rng = state.rng;
+        (acc, acc_n) = state.pending_loss;
+    }
+    // A resumed run says at once where it stands: its first report would otherwise come
+    // up to REPORT_EVERY steps later, and a progress bar sat at 0 until then.
+    if let Some(&(step, loss)) = info.history.last() {
+        report(kind, step, loss);
     }
     let start = Instant::now();
     let base_seconds = info.seconds;
@@ -462,8 +489,6 @@ pub fn train_model(
     let b = cfg.batch_size;
     let (mut cond, mut target) = (Vec::new(), Vec::new());
     let mut eps = vec![0f32; b * l];
-    let mut acc = 0f64;
-    let mut acc_n = 0u64;
     while info.step < cfg.steps {
         table.batch(b, &mut rng, &mut cond, &mut target);
         normals(&mut rng, &mut eps);
@@ -503,7 +528,12 @@ pub fn train_model(
                 return Err(TrainError::Diverged(kind.name(), info.step));
             }
             info.seconds = base_seconds + start.elapsed().as_secs_f64();
+            info.stream = Some(StreamState {
+                rng: rng.clone(),
+                pending_loss: (acc, acc_n),
+            });
             save_checkpoint(checkpoint_dir, kind, &model, &optim, &info)?;
+            info.stream = None;
             if stop {
                 return Err(TrainError::Interrupted(checkpoint_dir.into()));
             }
@@ -514,7 +544,13 @@ pub fn train_model(
         return Err(TrainError::Diverged(kind.name(), info.step));
     }
     info.seconds = base_seconds + start.elapsed().as_secs_f64();
+    // A finished run's stream too: `--resume` with more steps goes on from it.
+    info.stream = Some(StreamState {
+        rng,
+        pending_loss: (acc, acc_n),
+    });
     save_checkpoint(checkpoint_dir, kind, &model, &optim, &info)?;
+    info.stream = None;
     Ok(Trained {
         kind,
         decoder,
@@ -534,8 +570,18 @@ fn within_bounds(d: &Decoder) -> bool {
     })
 }
 
+/// Whether a checkpoint may replace the last good one: the decoder as [`within_bounds`],
+/// and the encoder finite as well (a `--resume` from NaN encoder weights diverged at
+/// once). Adamax's moments are not read: a non-finite gradient makes its parameter's
+/// update, and so the parameter, non-finite in the same step (u = max(β₂u, |g|) = ∞ or
+/// NaN, and m/u = NaN).
 fn exportable(model: &Cvae, norm: &Standardisation) -> bool {
     within_bounds(&model.valid().export(norm))
+        && model
+            .encoder
+            .to_dense()
+            .iter()
+            .all(|l| l.weight.iter().chain(&l.bias).all(|v| v.is_finite()))
 }
 
 /// The decoder of a model's last checkpoint (for exporting a set in which only some
@@ -659,6 +705,7 @@ mod tests {
             crc32: None,
             single_scattering: None,
             ranges: None,
+            stream: None,
         };
         save_checkpoint(d.path(), kind, &first, &optim, &info(1)).unwrap();
         let (m, o, j) = paths(d.path(), kind);
@@ -722,5 +769,15 @@ mod tests {
             d.layers[last] = crate::decoder::Dense::new(l.inputs, l.outputs, w, l.bias.clone());
             assert!(!within_bounds(&d), "{bad}");
         }
+        // A NaN in the encoder alone (the decoder still finite) is refused too.
+        let mut broken = model.clone();
+        let first = &broken.encoder.layers[0];
+        let [i, o] = first.weight.val().dims();
+        let mut w: Vec<f32> = first.weight.val().try_into_vec_as::<f32>().unwrap();
+        w[1] = f32::NAN;
+        broken.encoder.layers[0].weight =
+            burn::module::Param::from_data(TensorData::new(w, [i, o]), &Device::flex());
+        assert!(within_bounds(&broken.valid().export(&norm)));
+        assert!(!exportable(&broken, &norm));
     }
 }
