@@ -383,11 +383,11 @@ impl Geometry {
     /// The closest hit along `origin + t·dir`, t ∈ [0, tmax], among the triangles
     /// `prims` (the same watertight test as [`Geometry::intersect`]; a tie keeps the
     /// first). A triangle whose plane the segment does not reach is skipped before the
-    /// watertight test: both ends on one side of it, farther than 10⁻⁷ of the scene's
-    /// size (a few roundings of the plane distances), which a hit cannot be.
+    /// watertight test: both ends on one side of it, farther than 10⁻⁶ of the scene's
+    /// size (ten times the roundings of the plane distances), which a hit cannot be.
     pub fn closest_of(&self, origin: Vec3, dir: Vec3, tmax: f32, prims: &[u32]) -> Option<Hit> {
         let shear = RayShear::new(origin, dir);
-        let slack = self.eps * 0.005;
+        let slack = self.eps * 0.05;
         let mut best = Closest::new(tmax);
         for &prim in prims {
             let b = &self.bounds[prim as usize];
@@ -596,7 +596,8 @@ impl Geometry {
     fn hit_tri(&self, shear: &RayShear, prim: usize, tmax: f32) -> f32 {
         let t = &self.tris[prim];
         let v = |a: [f32; 3]| Vec3::from_array(a);
-        shear.hit(v(t.v0.into()), v(t.v1.into()), v(t.v2.into()), 0.0, tmax)
+        let n = self.normals[prim];
+        shear.hit(v(t.v0.into()), v(t.v1.into()), v(t.v2.into()), n, 0.0, tmax)
     }
 
     /// How far past a flight's end the integrators look for a surface, and how far short
