@@ -147,7 +147,7 @@ struct Report<'a> {
     min_tau: Option<f64>,
     max_tau: Option<f64>,
     /// Sphere steps below this optical radius simulate their walk exactly; null when all
-    /// do (g above render_gpu::scene::MODEL_MAX_G).
+    /// do (|g| above render_gpu::scene::MODEL_MAX_G).
     exact_tau: Option<f64>,
     /// NEE events per model-drawn and per exactly simulated sphere step (null without
     /// NEE).
@@ -181,10 +181,10 @@ pub struct Prepared {
 }
 
 impl Prepared {
-    /// Whether ST-CVAE may draw sphere steps from the models in this medium: not above
-    /// [`render_gpu::scene::MODEL_MAX_G`], where they were measured biased.
+    /// Whether ST-CVAE may draw sphere steps from the models in this medium: not for |g|
+    /// above [`render_gpu::scene::MODEL_MAX_G`], where they were measured biased.
     pub fn models_trusted(&self) -> bool {
-        self.file.medium.g <= render_gpu::scene::MODEL_MAX_G
+        self.file.medium.g.abs() <= render_gpu::scene::MODEL_MAX_G
     }
 
     /// The integrator settings of this scene (its `[render]` table, with the overrides
@@ -485,10 +485,10 @@ pub fn run(a: Args) -> Result<()> {
     }
     if p.model.is_some() && !p.models_trusted() {
         eprintln!(
-            "note: medium.g = {} is above {}, where the models' sphere steps were measured \
+            "note: |medium.g| = {} is above {}, where the models' sphere steps were measured \
              biased: every step's walk is simulated exactly (the same image as PT's, at \
              about its cost)",
-            p.file.medium.g,
+            p.file.medium.g.abs(),
             render_gpu::scene::MODEL_MAX_G
         );
     }

@@ -809,16 +809,21 @@ fn max_tau_is_checked_against_the_training_range() {
     );
 }
 
-/// Above render_gpu::scene::MODEL_MAX_G (0.98) ST-CVAE takes no step from the models, where
-/// they were measured biased: every sphere step's walk is simulated, even with
-/// exact_tau = 0 (the models alone), the JSON's exact_tau is null and a note says why. At
-/// 0.98 the models still draw the steps.
+/// For |g| above render_gpu::scene::MODEL_MAX_G (0.98) ST-CVAE takes no step from the
+/// models, where they were measured biased (forward and backward): every sphere step's walk
+/// is simulated, even with exact_tau = 0 (the models alone), the JSON's exact_tau is null
+/// and a note says why. At ±0.98 the models still draw the steps.
 #[test]
-fn strongly_forward_media_take_no_model_steps() {
+fn strongly_anisotropic_media_take_no_model_steps() {
     let d = tempfile::tempdir().unwrap();
     let scene = d.path().join("s.toml");
     let out = d.path().join("r");
-    for (g, trusted) in [("0.98", true), ("0.99", false)] {
+    for (g, trusted) in [
+        ("0.98", true),
+        ("0.99", false),
+        ("-0.98", true),
+        ("-0.99", false),
+    ] {
         let text = sphere_scene_text(8)
             .replace("g = 0.4", &format!("g = {g}"))
             .replace("[render]\n", "[render]\nexact_tau = 0.0\n");

@@ -311,14 +311,19 @@ pub const DEFAULT_MIN_TAU: f64 = 1.0;
 /// RMSE is 0 (95 % bound 0.0100; 8: 0.0038, bound 0.0149). On lavapipe the kernels' scalar
 /// walks make 20 ~3 % slower than 8.
 pub const DEFAULT_EXACT_TAU: f64 = 20.0;
-/// Largest g at which ST-CVAE draws sphere steps from the models; above it every step's
-/// walk is simulated exactly. The shipped models were trained for g up to 0.999, but their
-/// steps were measured biased against PT beyond 0.98 (thirty-ninth session, NEE off, σ_t
-/// 600, radius 0.5, 8 seeds of 128 spp each; docs/BENCHMARKS.md): within 1–3.5 % and
-/// |z| < 3 at g = 0.95–0.98, then −6 % (z −4.5) at 0.985, −11 % at 0.99 and +34–69 % at
-/// 0.999. The exact walks cost little there: a ball of optical radius τ
-/// holds ~(1 − g)τ²/2 events, ≤ 900 at g ≥ 0.98 and τ ≤ 300. Strongly backward media
-/// (g → −1) were measured right and keep the models (their exact walks would be long).
+/// Largest |g| at which ST-CVAE draws sphere steps from the models; beyond it every step's
+/// walk is simulated exactly. The shipped models were trained for |g| up to 0.999, but their
+/// steps were measured biased against PT beyond 0.98 on both sides. Forward (thirty-ninth
+/// session, NEE off, σ_t 600, radius 0.5, 8 seeds of 128 spp each; docs/BENCHMARKS.md):
+/// within 1–3.5 % and |z| < 3 at g = 0.95–0.98, then −6 % (z −4.5) at 0.985, −11 % at
+/// 0.99 and +34–69 % at 0.999. Backward (forty-ninth session, NEE off, σ_t 400, the models
+/// alone: exact_tau 0, 8 seeds of 256 spp): within 1.6 % (|z| ≤ 2.1) at g = −0.9 to −0.98,
+/// then +3–5 % (z 2.4–5.0) at −0.985 and +9–11 % (z 6–9.5) at −0.99; a step's own
+/// E[0.99^N] is −27 % at τ 25, g −0.99 (`stcvae eval --at 25,-0.99,0.99`). With the
+/// default exact_tau few steps in such media came from the models (0.4–1 % at g −0.99,
+/// σ_t 100–400), which is why the thirty-ninth session's renders at g → −1 looked right.
+/// The exact walks cost little: a ball of optical radius τ holds ~(1 − g)τ²/2 events,
+/// ≤ 900 at g ≥ 0.98 and τ ≤ 300; backward paths rarely go deep enough for long ones.
 pub const MODEL_MAX_G: f64 = 0.98;
 /// Largest exact-walk threshold accepted: a walk in a ball of optical radius τ has
 /// ~(1 − g)τ²/2 events, and beyond this the models are far cheaper.

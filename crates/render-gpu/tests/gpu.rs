@@ -983,8 +983,8 @@ fn cpu_gpu_agree_in_less_common_settings() {
         &set,
         96,
     );
-    // g = −0.99 is within the models' trusted range (MODEL_MAX_G bounds g > 0 only): every
-    // step from the models (exact_tau 0), so their single-scattering branch, whose exit
+    // g = −0.99, every step from the models (exact_tau 0; the CLI would simulate them all,
+    // |g| being above MODEL_MAX_G, but the devices must agree on the models' steps too), so their single-scattering branch, whose exit
     // keeps HG's own sin θ, runs at a lobe ~0.01 rad wide. NEE off: with it, the backward
     // lobe's shadow-ray weights left only 11 blocks with noise estimates of 10 dof here.
     let backward = narrow.replace("g = 0.999", "g = -0.99");
