@@ -141,6 +141,9 @@ pub fn load_mesh(path: &Path) -> Result<TriMesh, RenderError> {
     prepare(raw).map_err(|e| RenderError::mesh(path, e))
 }
 
+/// Largest vertex coordinate a mesh file may hold (see `prepare`).
+pub const MAX_FILE_COORDINATE: f32 = 1e15;
+
 /// Welds coincident vertices, drops degenerate triangles, checks that the surface is
 /// closed, manifold and consistently oriented, and orients it outward.
 pub fn prepare(mut m: TriMesh) -> Result<TriMesh, String> {
@@ -151,6 +154,18 @@ pub fn prepare(mut m: TriMesh) -> Result<TriMesh, String> {
     }
     if let Some(p) = m.positions.iter().find(|p| !p.is_finite()) {
         return Err(format!("a vertex position is not finite: {p}"));
+    }
+    // The checks below square edge lengths in f32, which overflow beyond ~10¹⁹: a cube
+    // with one corner at 3·10³⁸ came out "not closed". Far below the overflow, far above
+    // any size object.height can bring into the renderers' range (±10⁶).
+    if let Some(p) = m
+        .positions
+        .iter()
+        .find(|p| p.abs().max_element() > MAX_FILE_COORDINATE)
+    {
+        return Err(format!(
+            "a vertex position, {p}, lies beyond ±{MAX_FILE_COORDINATE:e}: too large for              single precision; scale the file down (object.height scales only after loading)"
+        ));
     }
     // Weld by exact position: files split vertices at normal/UV seams.
     let mut index: HashMap<[u32; 3], u32> = HashMap::new();

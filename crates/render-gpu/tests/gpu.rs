@@ -2198,8 +2198,9 @@ fn kernel_shapes_render_the_same_image() {
         ..settings(IntegratorKind::Stcvae, true)
     };
     // 128 threads with workgroup stacks: the largest array lavapipe's 32 KiB holds.
+    // An empty value is the default, as unset (it was refused as out of range).
     let shapes: [&[(&str, &str)]; 5] = [
-        &[],
+        &[("STCVAE_GPU_WORKGROUP", ""), ("STCVAE_GPU_STACK", " ")],
         &[("STCVAE_GPU_WORKGROUP", "8")],
         &[("STCVAE_GPU_WORKGROUP", "128")],
         &[
@@ -2223,6 +2224,7 @@ fn kernel_shapes_render_the_same_image() {
         };
         let base = run(shapes[0]);
         assert_eq!(base.dispatch.workgroup, 64);
+        assert_eq!(base.dispatch.stack, Some(StackMemory::Workgroup));
         assert!(base.image.pixels.iter().any(|p| p[0] > 0.0));
         for vars in &shapes[1..] {
             let out = run(vars);

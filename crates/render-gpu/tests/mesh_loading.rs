@@ -381,6 +381,40 @@ fn meshes_without_volume_are_refused() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("flat.obj") && e.contains("height"), "{e}");
+    // A cube near f32's largest value is refused by its size, before the checks that
+    // square edge lengths (which called one "not closed"); 10¹⁵ across is still loaded,
+    // for object.height to scale.
+    for (size, refused) in [("3e38", true), ("1e16", true), ("1e15", false)] {
+        let text: String = CUBE_OBJ
+            .lines()
+            .map(|l| match l.strip_prefix("v ") {
+                Some(v) => {
+                    // Every coordinate of CUBE_OBJ is ±1.
+                    let v: Vec<String> = v
+                        .split(' ')
+                        .map(|x| format!("{}{size}", if x.starts_with('-') { "-" } else { "" }))
+                        .collect();
+                    format!("v {}\n", v.join(" "))
+                }
+                None => format!("{l}\n"),
+            })
+            .collect();
+        assert!(
+            text.contains(&format!("v -{size} -{size} -{size}\n")),
+            "{text}"
+        );
+        let r = load_mesh(&write(&d, "far.obj", text.as_bytes()));
+        assert_eq!(
+            r.is_err(),
+            refused,
+            "{size}: {:?}",
+            r.err().map(|e| e.to_string())
+        );
+        if let Err(e) = r {
+            let e = e.to_string();
+            assert!(e.contains("far.obj") && e.contains("beyond ±1e15"), "{e}");
+        }
+    }
     // The cube passes the same checks.
     write(&d, "flat.obj", CUBE_OBJ.as_bytes());
     let m = render_gpu::setup::object_mesh(&scene("height = 1.0"), d.path()).unwrap();

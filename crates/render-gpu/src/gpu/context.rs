@@ -20,6 +20,14 @@ impl AdapterChoice {
     }
 }
 
+/// The backends `WGPU_BACKEND` names; None when it is unset or empty (wgpu reads an empty
+/// value as no backend at all, which left no adapter to find).
+fn backends_from_env() -> Option<wgpu::Backends> {
+    std::env::var_os("WGPU_BACKEND")
+        .filter(|v| !v.is_empty())
+        .and_then(|_| wgpu::Backends::from_env())
+}
+
 /// The adapters wgpu finds on `backends`; the instance's other settings come from the
 /// environment.
 fn adapters_on(backends: wgpu::Backends) -> Vec<wgpu::Adapter> {
@@ -149,10 +157,10 @@ fn no_adapter(
     // adapters it has: that is the fault to name, or the hint to install lavapipe misleads
     // on a machine that has it. A value whose backend just lacks a driver is not at fault.
     if backends.is_none()
-        && let Some(v) = std::env::var_os("WGPU_BACKEND")
+        && let Some(v) = std::env::var_os("WGPU_BACKEND").filter(|v| !v.is_empty())
     {
         let v = v.to_string_lossy();
-        if wgpu::Backends::from_env().is_none_or(|b| (b & wgpu::Backends::PRIMARY).is_empty()) {
+        if backends_from_env().is_none_or(|b| (b & wgpu::Backends::PRIMARY).is_empty()) {
             return format!(
                 "no wgpu adapter found with WGPU_BACKEND={v} (this build uses vulkan, metal \
                  or dx12; gl is not compiled in); unset it or name one of those"
@@ -202,8 +210,7 @@ impl GpuContext {
         backends: Option<wgpu::Backends>,
     ) -> Result<Self, RenderError> {
         let primary = wgpu::Backends::PRIMARY;
-        let searched =
-            backends.unwrap_or_else(|| wgpu::Backends::from_env().unwrap_or(primary)) & primary;
+        let searched = backends.unwrap_or_else(|| backends_from_env().unwrap_or(primary)) & primary;
         let mut adapters = adapters_on(searched);
         let software: Vec<String> = adapters
             .iter()

@@ -131,7 +131,7 @@ pub fn kernel_shape() -> Result<KernelShape, RenderError> {
     // An empty value is unset (the default): `STCVAE_GPU_STAGED_AHEAD=` turned a
     // default-on switch off.
     for (name, field, what) in switches {
-        if let Some(v) = env_value(name).filter(|v| !v.trim().is_empty()) {
+        if let Some(v) = env_value(name) {
             *field = parse_switch(name, &v, what)?;
         }
     }
@@ -174,10 +174,12 @@ fn parse_choice<T: Copy>(
         .ok_or_else(|| RenderError::Gpu(format!("{name}={v:?} is not {what}")))
 }
 
-/// The environment variable `name`, None when unset (a value that is not Unicode is passed
-/// on lossily, so that the range error shows it).
+/// The environment variable `name`, None when unset or empty (`STCVAE_GPU_BOUNCES=` in a
+/// script that clears a setting means the default, as a shell's unset would; a value that
+/// is not Unicode is passed on lossily, so that the range error shows it).
 fn env_value(name: &str) -> Option<String> {
     match std::env::var(name) {
+        Ok(v) if v.trim().is_empty() => None,
         Ok(v) => Some(v),
         Err(std::env::VarError::NotPresent) => None,
         Err(std::env::VarError::NotUnicode(v)) => Some(v.to_string_lossy().into_owned()),
