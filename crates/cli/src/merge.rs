@@ -57,6 +57,23 @@ fn check_paths(inputs: &[PathBuf], outputs: &[PathBuf]) -> Result<()> {
 }
 
 pub fn run(a: Args) -> Result<()> {
+    // A render's other outputs, given by a slip (`merge r1.png r2.png`): said so, rather
+    // than read as datasets with bad magic bytes.
+    if let Some((p, ext)) = a.inputs.iter().find_map(|p| {
+        let ext = p.extension()?.to_str()?.to_ascii_lowercase();
+        ["png", "json"].contains(&ext.as_str()).then(|| (p, ext))
+    }) {
+        bail!(
+            "{}: merge reads a render's .exr (the .{ext} beside it is {}); give {}",
+            p.display(),
+            if ext == "png" {
+                "an 8-bit preview"
+            } else {
+                "its report"
+            },
+            p.with_extension("exr").display()
+        );
+    }
     let is_exr = |p: &PathBuf| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr"));
     let exr_inputs = a.inputs.iter().filter(|p| is_exr(p)).count();
     if exr_inputs == a.inputs.len() {

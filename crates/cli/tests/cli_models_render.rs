@@ -309,6 +309,18 @@ fn render_writes_exr_png_json_and_merge_averages_by_spp() {
         d.path().join("x").to_str().unwrap(),
     ]));
     assert!(e.contains("different scenes"), "{e}");
+    // A render's preview given instead of its EXR: named, with the file to give.
+    let e = fails(&stcvae(&[
+        "merge",
+        a.with_extension("png").to_str().unwrap(),
+        o.with_extension("exr").to_str().unwrap(),
+        "--out",
+        d.path().join("x").to_str().unwrap(),
+    ]));
+    assert!(
+        e.contains("a.png: merge reads a render's .exr") && e.contains("a.exr"),
+        "{e}"
+    );
     // The same render given twice (spelt two ways) would count twice: refused.
     let a_exr = a.with_extension("exr");
     let a_dot = d.path().join(".").join("a.exr");
