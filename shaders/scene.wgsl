@@ -191,7 +191,7 @@ fn tri_intersect(sh: Shear, tri: Tri, tmax: f32) -> f32 {
     // The distance from the triangle's plane, as watertight.rs (RayShear::hit) explains:
     // Woop's interpolated depth is off the plane by up to 10x the flight margin on long
     // thin triangles. Through the vertex of largest weight, bounded by the vertices'
-    // sheared depths (grazing rays); a zero n.d keeps Woop's t.
+    // sheared depths (grazing rays); a non-finite one (n.d = 0) keeps Woop's t.
     let au = abs(u);
     let av = abs(v);
     let aw = abs(w);
@@ -204,7 +204,11 @@ fn tri_intersect(sh: Shear, tri: Tri, tmax: f32) -> f32 {
     let nd = dot(tri.n.xyz, sh.d);
     var t = (u * a.z + v * b.z + w * c.z) / det;
     if nd != 0.0 {
-        t = clamp(dot(tri.n.xyz, nearest - sh.o) / nd, min(min(a.z, b.z), c.z), max(max(a.z, b.z), c.z));
+        // Finite only (WGSL may not keep NaN or ∞ apart), as the CPU's is_finite.
+        let planar = dot(tri.n.xyz, nearest - sh.o) / nd;
+        if abs(planar) <= 3.4e38 {
+            t = min(max(planar, min(min(a.z, b.z), c.z)), max(max(a.z, b.z), c.z));
+        }
     }
     if t >= 0.0 && t <= tmax {
         return t;
@@ -307,7 +311,7 @@ var<private> u_more: bool;
 /// Drops each face met twice at one point from the sorted list and returns the pieces
 /// crossed an odd number of times (geometry.rs, union_crossings: a ray through the edge
 /// two triangles of one face share hits both; twice = the same piece, the same side and
-/// t within a hundredth of the spawn offset).
+/// t within a hundredth of the spawn offset over |cos|).
 fn union_dedupe(d: vec3<f32>) -> u32 {
     let tol = params.consts.z * 0.01;
     var kept = 0u;
@@ -316,11 +320,13 @@ fn union_dedupe(d: vec3<f32>) -> u32 {
         let t = u_t[i];
         let k = u_tri[i];
         let bit = piece_bit(k);
-        let exiting = dot(d, tri_normal(k)) > 0.0;
+        let cosn = dot(d, tri_normal(k));
+        let exiting = cosn > 0.0;
+        let reach = tol / max(abs(cosn), 1e-3);
         var twice = false;
         var j = kept;
         loop {
-            if j == 0u || t - u_t[j - 1u] > tol {
+            if j == 0u || t - u_t[j - 1u] > reach {
                 break;
             }
             j -= 1u;

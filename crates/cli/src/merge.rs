@@ -61,7 +61,7 @@ pub fn run(a: Args) -> Result<()> {
     // than read as datasets with bad magic bytes.
     if let Some((p, ext)) = a.inputs.iter().find_map(|p| {
         let ext = p.extension()?.to_str()?.to_ascii_lowercase();
-        ["png", "json"].contains(&ext.as_str()).then(|| (p, ext))
+        ["png", "json"].contains(&ext.as_str()).then_some((p, ext))
     }) {
         bail!(
             "{}: merge reads a render's .exr (the .{ext} beside it is {}); give {}",

@@ -469,7 +469,7 @@ fn bad_arguments_name_the_argument() {
     let d = tempfile::tempdir().unwrap();
     let file = d.path().join("file");
     std::fs::write(&file, b"x").unwrap();
-    let cases: [(Vec<String>, &str); 19] = [
+    let cases: [(Vec<String>, &str); 20] = [
         // The seed's range (clap's parser said "invalid digit found in string"); a model
         // file that is missing named as --model's value.
         (
@@ -595,7 +595,7 @@ fn bad_arguments_name_the_argument() {
             ],
             "--k lists 1 twice",
         ),
-        // A .json is neither a render nor a dataset: named.
+        // A render's .json is not the render: named, with the file to give.
         (
             vec![
                 "merge".into(),
@@ -604,7 +604,18 @@ fn bad_arguments_name_the_argument() {
                 "--out".into(),
                 d.path().join("m").display().to_string(),
             ],
-            "mixed inputs: b.json is not a render (.exr)",
+            "b.json: merge reads a render's .exr (the .json beside it is its report); give b.exr",
+        ),
+        // Anything else that is not an .exr, beside one: mixed.
+        (
+            vec![
+                "merge".into(),
+                "a.exr".into(),
+                "b.bin".into(),
+                "--out".into(),
+                d.path().join("m").display().to_string(),
+            ],
+            "mixed inputs: b.bin is not a render (.exr)",
         ),
         (
             vec![

@@ -157,8 +157,10 @@ fn a_resumed_run_equals_the_uninterrupted_one() {
     let (resumed, rest_reports) = run(b.path(), true, None);
     let resumed = resumed.unwrap();
     assert_eq!(resumed.info.step, 1200);
-    // The resumed run first repeats the checkpoint's last report (where a progress bar
-    // stands), then goes on as the whole run did.
+    // The resumed run first says where it stands (the checkpoint's step, here a report's,
+    // and its last loss: a progress bar's place), then goes on as the whole run did. (A
+    // stop between reports, where the saved loss readings matter, needs a Ctrl-C at a
+    // step no callback sees; not covered.)
     assert_eq!(rest_reports[0], *first_reports.last().unwrap());
     assert_eq!(
         [first_reports, rest_reports[1..].to_vec()].concat(),

@@ -529,7 +529,8 @@ impl Geometry {
     /// tie rule), and counted twice its piece's parity came out wrong, e.g. for a ray
     /// aimed at a box face's centre, on its diagonal. Twice means the same piece, the
     /// same side (both entries or both exits) and t within a hundredth of the spawn
-    /// offset; an entry and an exit at one point (a ray grazing an edge) stay both.
+    /// offset over |cos| (the face's distance along the normal); an entry and an exit at
+    /// one point (a ray grazing an edge) stay both.
     fn union_crossings(
         &self,
         pieces: &Pieces,
@@ -559,10 +560,13 @@ impl Geometry {
         let mut kept = 0usize;
         for i in 0..n {
             let c = out[i];
+            // Along the ray: two planes through one edge give distances that differ by
+            // their roundings over |cos|, as union_walk's reach.
+            let reach = tol / c.2.abs().max(1e-3);
             let twice = out[..kept]
                 .iter()
                 .rev()
-                .take_while(|k| c.0 - k.0 <= tol)
+                .take_while(|k| c.0 - k.0 <= reach)
                 .any(|k| k.1 == c.1 && (k.2 > 0.0) == (c.2 > 0.0));
             if !twice {
                 out[kept] = c;

@@ -155,18 +155,6 @@ pub fn prepare(mut m: TriMesh) -> Result<TriMesh, String> {
     if let Some(p) = m.positions.iter().find(|p| !p.is_finite()) {
         return Err(format!("a vertex position is not finite: {p}"));
     }
-    // The checks below square edge lengths in f32, which overflow beyond ~10¹⁹: a cube
-    // with one corner at 3·10³⁸ came out "not closed". Far below the overflow, far above
-    // any size object.height can bring into the renderers' range (±10⁶).
-    if let Some(p) = m
-        .positions
-        .iter()
-        .find(|p| p.abs().max_element() > MAX_FILE_COORDINATE)
-    {
-        return Err(format!(
-            "a vertex position, {p}, lies beyond ±{MAX_FILE_COORDINATE:e}: too large for              single precision; scale the file down (object.height scales only after loading)"
-        ));
-    }
     // Weld by exact position: files split vertices at normal/UV seams.
     let mut index: HashMap<[u32; 3], u32> = HashMap::new();
     let mut positions = Vec::new();
@@ -226,6 +214,20 @@ pub fn prepare(mut m: TriMesh) -> Result<TriMesh, String> {
         positions: used,
         triangles,
     };
+    // Of the vertices the triangles use: the checks below square edge lengths in f32,
+    // which overflow beyond ~10¹⁹ (a cube with one corner at 3·10³⁸ came out "not
+    // closed"). The bound is far below the overflow and far above any size object.height
+    // can bring into the renderers' range (±10⁶).
+    if let Some(p) = m
+        .positions
+        .iter()
+        .find(|p| p.abs().max_element() > MAX_FILE_COORDINATE)
+    {
+        return Err(format!(
+            "a vertex position, {p}, lies beyond ±{MAX_FILE_COORDINATE:e}: too large for \
+             single precision; scale the file down (object.height scales only after loading)"
+        ));
+    }
     check_closed(&m).map_err(|e| {
         if dropped > 0 && e.contains("boundary edges") {
             // A file may close its surface only through zero-area triangles (e.g. slivers

@@ -136,7 +136,8 @@ impl RayShear {
         };
         let planar = n.dot(nearest - self.origin) / n.dot(self.dir);
         let t = if planar.is_finite() {
-            planar.clamp(a.z.min(b.z).min(c.z), a.z.max(b.z).max(c.z))
+            // (max/min, not clamp: clamp panics on NaN bounds.)
+            planar.max(a.z.min(b.z).min(c.z)).min(a.z.max(b.z).max(c.z))
         } else {
             (u * a.z + v * b.z + w * c.z) / det
         };

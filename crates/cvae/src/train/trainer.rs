@@ -193,7 +193,8 @@ pub struct CheckpointInfo {
     pub ranges: Option<ConditionRanges>,
     /// Where the batch stream stood, and the loss readings taken since the last report:
     /// a resumed run draws the batches the uninterrupted one would have drawn, so the
-    /// weights do not depend on when a Ctrl-C came. Checkpoints written before it existed
+    /// weights do not depend on when a Ctrl-C came. (The f64 sum survives JSON exactly:
+    /// serde_json's float_roundtrip.) Checkpoints written before it existed
     /// resume on a fresh stream.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stream: Option<StreamState>,
@@ -367,8 +368,8 @@ const LOG_EVERY: u64 = 10;
 const REPORT_EVERY: u64 = 500;
 
 /// Trains one model. `report(step, loss)` is called every few steps, and once at the
-/// start of a resumed run with the checkpoint's last report; `cancel` stops after the
-/// current step with a checkpoint.
+/// start of a resumed run with the checkpoint's step and last loss; `cancel` stops after
+/// the current step with a checkpoint.
 #[allow(clippy::too_many_arguments)]
 pub fn train_model(
     kind: ModelKind,
@@ -480,8 +481,9 @@ pub fn train_model(
     }
     // A resumed run says at once where it stands: its first report would otherwise come
     // up to REPORT_EVERY steps later, and a progress bar sat at 0 until then.
-    if let Some(&(step, loss)) = info.history.last() {
-        report(kind, step, loss);
+    // At the checkpoint's step (a Ctrl-C lands between reports), with the last loss read.
+    if let Some(&(_, loss)) = info.history.last() {
+        report(kind, info.step, loss);
     }
     let start = Instant::now();
     let base_seconds = info.seconds;
@@ -539,10 +541,11 @@ pub fn train_model(
             }
         }
     }
-    let decoder = model.valid().export(&table.norm);
-    if !within_bounds(&decoder) {
+    // The encoder too: the final save is what `--resume` with more steps goes on from.
+    if !exportable(&model, &table.norm) {
         return Err(TrainError::Diverged(kind.name(), info.step));
     }
+    let decoder = model.valid().export(&table.norm);
     info.seconds = base_seconds + start.elapsed().as_secs_f64();
     // A finished run's stream too: `--resume` with more steps goes on from it.
     info.stream = Some(StreamState {

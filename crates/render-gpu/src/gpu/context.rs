@@ -24,7 +24,7 @@ impl AdapterChoice {
 /// value as no backend at all, which left no adapter to find).
 fn backends_from_env() -> Option<wgpu::Backends> {
     std::env::var_os("WGPU_BACKEND")
-        .filter(|v| !v.is_empty())
+        .filter(|v| !v.to_string_lossy().trim().is_empty())
         .and_then(|_| wgpu::Backends::from_env())
 }
 
@@ -157,7 +157,8 @@ fn no_adapter(
     // adapters it has: that is the fault to name, or the hint to install lavapipe misleads
     // on a machine that has it. A value whose backend just lacks a driver is not at fault.
     if backends.is_none()
-        && let Some(v) = std::env::var_os("WGPU_BACKEND").filter(|v| !v.is_empty())
+        && let Some(v) =
+            std::env::var_os("WGPU_BACKEND").filter(|v| !v.to_string_lossy().trim().is_empty())
     {
         let v = v.to_string_lossy();
         if backends_from_env().is_none_or(|b| (b & wgpu::Backends::PRIMARY).is_empty()) {

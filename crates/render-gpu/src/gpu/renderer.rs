@@ -960,7 +960,9 @@ mod tests {
         // `with` leaves both unset: the defaults.
         assert_eq!(kernel_shape().unwrap(), KernelShape::default());
         assert_eq!(with(" 8 ", "workgroup").unwrap().workgroup, 8);
-        for bad in ["0", "48", "512", "-64", "", "sixty-four"] {
+        // Empty is unset, as for every variable here.
+        assert_eq!(with("", " ").unwrap(), KernelShape::default());
+        for bad in ["0", "48", "512", "-64", "sixty-four"] {
             let e = with(bad, "workgroup").unwrap_err().to_string();
             assert!(
                 e.contains("STCVAE_GPU_WORKGROUP") && e.contains("[8, 16, 32, 64, 128, 256]"),
