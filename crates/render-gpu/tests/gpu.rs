@@ -1646,16 +1646,7 @@ fn gpu_paths_under_thin_triangles_do_not_leak() {
     let Some(ctx) = gpu() else { return };
     let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
     let dir = tempfile::tempdir().unwrap();
-    let obj = dir.path().join("cylinder.obj");
-    std::fs::write(&obj, common::cylinder_obj(1000)).unwrap();
-    let text = format!(
-        "[camera]\norigin = [3.0, 0.2, 0.1]\ntarget = [0.5, 0.0, 0.0]\nup = [0.0, 1.0, 0.0]\n\
-         fov_deg = 1.0\nwidth = 64\nheight = 64\n[object]\nmesh = {:?}\n\
-         [medium]\nsigma_t = [2000.0, 2000.0, 2000.0]\nalbedo = [0.999, 0.999, 0.999]\n\
-         [[light]]\nkind = \"directional\"\ndirection = [0.5, -0.5, -1.0]\n\
-         irradiance = [3.0, 3.0, 3.0]\n[environment]\nradiance = [0.05, 0.05, 0.05]\n",
-        obj.display().to_string()
-    );
+    let text = common::cylinder_scene(dir.path(), common::CYLINDER_SIDE_ON);
     let s = common::build_scene(&text, false);
     let out = on_gpu(&ctx, &s, &settings(IntegratorKind::Pt, true), &opts(8, 5));
     assert!(out.stats.events > 100 * out.stats.paths, "{:?}", out.stats);

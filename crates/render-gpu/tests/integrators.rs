@@ -1354,16 +1354,7 @@ fn collisions_moved_back_stay_inside_at_an_edge() {
 #[test]
 fn paths_under_thin_triangles_do_not_leak() {
     let dir = tempfile::tempdir().unwrap();
-    let obj = dir.path().join("cylinder.obj");
-    std::fs::write(&obj, common::cylinder_obj(1000)).unwrap();
-    let text = format!(
-        "[camera]\norigin = [3.0, 0.2, 0.1]\ntarget = [0.5, 0.0, 0.0]\nup = [0.0, 1.0, 0.0]\n\
-         fov_deg = 1.0\nwidth = 64\nheight = 64\n[object]\nmesh = {:?}\n\
-         [medium]\nsigma_t = [2000.0, 2000.0, 2000.0]\nalbedo = [0.999, 0.999, 0.999]\n\
-         [[light]]\nkind = \"directional\"\ndirection = [0.5, -0.5, -1.0]\n\
-         irradiance = [3.0, 3.0, 3.0]\n[environment]\nradiance = [0.05, 0.05, 0.05]\n",
-        obj.display().to_string()
-    );
+    let text = common::cylinder_scene(dir.path(), common::CYLINDER_SIDE_ON);
     let (_, s) = scene(&text, false);
     let (_, _, stats) = estimate(&s, &settings(IntegratorKind::Pt, true, None), 262_144, 5);
     assert!(stats.events > 100 * stats.paths, "{stats:?}");
@@ -1383,15 +1374,9 @@ fn paths_under_thin_triangles_do_not_leak() {
 fn sphere_steps_on_thin_triangles_stay_inside() {
     let m = model();
     let dir = tempfile::tempdir().unwrap();
-    let obj = dir.path().join("cylinder.obj");
-    std::fs::write(&obj, common::cylinder_obj(1000)).unwrap();
-    let text = format!(
-        "[camera]\norigin = [0.0, 3.0, 3.0]\ntarget = [0.0, 0.0, 0.0]\nup = [0.0, 0.0, 1.0]\n\
-         fov_deg = 25.0\nwidth = 64\nheight = 64\n[object]\nmesh = {:?}\n\
-         [medium]\nsigma_t = [2000.0, 2000.0, 2000.0]\nalbedo = [0.999, 0.999, 0.999]\n\
-         [[light]]\nkind = \"directional\"\ndirection = [0.5, -0.5, -1.0]\n\
-         irradiance = [3.0, 3.0, 3.0]\n[environment]\nradiance = [0.05, 0.05, 0.05]\n",
-        obj.display().to_string()
+    let text = common::cylinder_scene(
+        dir.path(),
+        "origin = [0.0, 3.0, 3.0]\ntarget = [0.0, 0.0, 0.0]\nup = [0.0, 0.0, 1.0]\nfov_deg = 25.0",
     );
     let (_, s) = scene(&text, true);
     let (_, _, stats) = estimate(

@@ -381,6 +381,27 @@ pub fn cylinder_obj(segments: u32) -> String {
     text
 }
 
+/// The camera of [`cylinder_scene`] that sees the cylinder's side head-on through a 1°
+/// field of view: every pixel on its long thin triangles.
+pub const CYLINDER_SIDE_ON: &str = "origin = [3.0, 0.2, 0.1]\ntarget = [0.5, 0.0, 0.0]\n\
+                                    up = [0.0, 1.0, 0.0]\nfov_deg = 1.0";
+
+/// The 1,000-segment cylinder of [`cylinder_obj`] (written into `dir`) at σ_t = 2,000,
+/// albedo 0.999, a sun at an angle and a dim sky, 64² pixels, seen from `camera` (the
+/// `[camera]` table's origin, target, up and fov_deg lines): paths bounce hundreds of
+/// times just under long thin triangles.
+pub fn cylinder_scene(dir: &Path, camera: &str) -> String {
+    let obj = dir.join("cylinder.obj");
+    std::fs::write(&obj, cylinder_obj(1000)).unwrap();
+    format!(
+        "[camera]\n{camera}\nwidth = 64\nheight = 64\n[object]\nmesh = {:?}\n\
+         [medium]\nsigma_t = [2000.0, 2000.0, 2000.0]\nalbedo = [0.999, 0.999, 0.999]\n\
+         [[light]]\nkind = \"directional\"\ndirection = [0.5, -0.5, -1.0]\n\
+         irradiance = [3.0, 3.0, 3.0]\n[environment]\nradiance = [0.05, 0.05, 0.05]\n",
+        obj.display().to_string()
+    )
+}
+
 /// A sphere of radius 0.5 (eps 2e-5) at `sigma`, albedo 0.9, lit head-on by a delta sun
 /// along the view, filling a 32² image: a half-space to the light at any density where
 /// the diffusion length is far below the radius (integrators.rs,
