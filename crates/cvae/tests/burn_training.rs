@@ -4,6 +4,7 @@
 use std::sync::atomic::AtomicBool;
 
 use burn::prelude::*;
+use cvae::decoder::LOGVAR_CLAMP;
 use cvae::model_file::SingleScattering;
 use cvae::train::network::{Architecture, Cvae};
 use cvae::train::{ModelConfig, ModelKind, Table, train_model};
@@ -85,7 +86,7 @@ fn exported_decoder_equals_burn() {
                 .try_into_vec_as::<f32>()
                 .unwrap();
             for j in 0..out {
-                let lv = head[out + j].clamp(-16.0, 16.0);
+                let lv = head[out + j].clamp(-LOGVAR_CLAMP, LOGVAR_CLAMP);
                 let want =
                     (head[j] + (0.5 * lv).exp() * e[j]) * norm.out_scale[j] + norm.out_shift[j];
                 assert!(

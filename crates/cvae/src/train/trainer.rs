@@ -479,9 +479,9 @@ pub fn train_model(
         rng = state.rng;
         (acc, acc_n) = state.pending_loss;
     }
-    // A resumed run says at once where it stands: its first report would otherwise come
-    // up to REPORT_EVERY steps later, and a progress bar sat at 0 until then.
-    // At the checkpoint's step (a Ctrl-C lands between reports), with the last loss read.
+    // A resumed run says at once where it stands, at the checkpoint's step (a Ctrl-C lands
+    // between reports) with the last loss read: its first report would otherwise come up
+    // to REPORT_EVERY steps later, and a progress bar sat at 0 until then.
     if let Some(&(_, loss)) = info.history.last() {
         report(kind, info.step, loss);
     }
@@ -535,7 +535,6 @@ pub fn train_model(
                 pending_loss: (acc, acc_n),
             });
             save_checkpoint(checkpoint_dir, kind, &model, &optim, &info)?;
-            info.stream = None;
             if stop {
                 return Err(TrainError::Interrupted(checkpoint_dir.into()));
             }
@@ -553,7 +552,6 @@ pub fn train_model(
         pending_loss: (acc, acc_n),
     });
     save_checkpoint(checkpoint_dir, kind, &model, &optim, &info)?;
-    info.stream = None;
     Ok(Trained {
         kind,
         decoder,

@@ -20,12 +20,15 @@ impl AdapterChoice {
     }
 }
 
-/// The backends `WGPU_BACKEND` names; None when it is unset or empty (wgpu reads an empty
-/// value as no backend at all, which left no adapter to find).
+/// `WGPU_BACKEND`, None when it is unset or blank (wgpu reads an empty value as no
+/// backend at all, which left no adapter to find).
+fn backend_var() -> Option<std::ffi::OsString> {
+    std::env::var_os("WGPU_BACKEND").filter(|v| !v.to_string_lossy().trim().is_empty())
+}
+
+/// The backends `WGPU_BACKEND` names; None when [`backend_var`] is.
 fn backends_from_env() -> Option<wgpu::Backends> {
-    std::env::var_os("WGPU_BACKEND")
-        .filter(|v| !v.to_string_lossy().trim().is_empty())
-        .and_then(|_| wgpu::Backends::from_env())
+    backend_var().and_then(|_| wgpu::Backends::from_env())
 }
 
 /// The adapters wgpu finds on `backends`; the instance's other settings come from the
@@ -157,8 +160,7 @@ fn no_adapter(
     // adapters it has: that is the fault to name, or the hint to install lavapipe misleads
     // on a machine that has it. A value whose backend just lacks a driver is not at fault.
     if backends.is_none()
-        && let Some(v) =
-            std::env::var_os("WGPU_BACKEND").filter(|v| !v.to_string_lossy().trim().is_empty())
+        && let Some(v) = backend_var()
     {
         let v = v.to_string_lossy();
         if backends_from_env().is_none_or(|b| (b & wgpu::Backends::PRIMARY).is_empty()) {
