@@ -259,3 +259,56 @@ fn a_header_too_large_to_read_back_is_not_written() {
     };
     assert!(e.to_string().contains("beyond the 16777216 allowed"), "{e}");
 }
+
+/// A header whose checksum is right but whose content no generate run writes: an unknown
+/// key, or a piece whose sampler draws τ beyond the simulator's range. Both are refused
+/// when the file is opened, by name, instead of being carried into merged files.
+#[test]
+fn foreign_headers_with_valid_checksums_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let good = dir.path().join("good.bin");
+    write(&spec(50, Shard::WHOLE), &good, 1);
+    let bytes = fs::read(&good).unwrap();
+    let json_len = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
+    let json = std::str::from_utf8(&bytes[16..16 + json_len]).unwrap();
+    let rows = &bytes[16 + json_len..bytes.len() - 12];
+    // The file as a foreign writer would make it: header, rows, CRC over both (version 2).
+    let rebuilt = |name: &str, json: &str| {
+        let mut out = b"STCVAEDS".to_vec();
+        out.extend(2u32.to_le_bytes());
+        out.extend((json.len() as u32).to_le_bytes());
+        out.extend(json.as_bytes());
+        out.extend(rows);
+        let mut crc = crc32fast::Hasher::new();
+        crc.update(json.as_bytes());
+        crc.update(rows);
+        out.extend(crc.finalize().to_le_bytes());
+        out.extend(b"STCVEND!");
+        let p = dir.path().join(name);
+        fs::write(&p, out).unwrap();
+        p
+    };
+    // The rebuilt original is read: the test's own writer is right.
+    let (_, back) = read_dataset(&rebuilt("same.bin", json)).unwrap();
+    assert_eq!(back.len(), 50);
+
+    let extra = json.replacen("{", "{\"weights\":[1,2],", 1);
+    let e = expect_err(&rebuilt("extra.bin", &extra));
+    let msg = e.to_string();
+    assert!(
+        matches!(e, DatasetError::Header { .. }) && msg.contains("weights"),
+        "{msg}"
+    );
+    assert!(msg.contains("extra.bin"), "{msg}");
+
+    let wide = json.replacen("\"max\":40.0", "\"max\":4000.0", 1);
+    assert_ne!(wide, json, "the header holds tau's max as written");
+    let e = expect_err(&rebuilt("wide.bin", &wide));
+    let msg = e.to_string();
+    assert!(
+        matches!(e, DatasetError::Header { .. })
+            && msg.contains("tau.max")
+            && msg.contains("[0, 1000]"),
+        "{msg}"
+    );
+}

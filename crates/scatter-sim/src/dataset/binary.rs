@@ -185,6 +185,17 @@ impl DatasetReader {
                 ),
             });
         }
+        // A piece's sampler is provenance that merge compares and training reports; one
+        // no generate run could have used (hand-edited, or another writer's) is refused
+        // by its field and range rather than carried into a merged file.
+        for (i, p) in header.pieces.iter().enumerate() {
+            if let Err(e) = p.sampler.validate() {
+                return Err(DatasetError::Header {
+                    path: path.into(),
+                    msg: format!("piece {i}'s sampler: {e}"),
+                });
+            }
+        }
         let sum = header
             .pieces
             .iter()

@@ -63,8 +63,10 @@ impl Piece {
     }
 }
 
-/// The JSON header of a binary dataset.
+/// The JSON header of a binary dataset. Its fields have not changed since version 1, so
+/// a key this build does not know is damage or another writer's, and refused.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Header {
     /// Number of rows.
     pub count: u64,
