@@ -77,6 +77,27 @@ enum Body<'a> {
 }
 
 impl Body<'_> {
+    /// Refuses data after the last element: the header's counts are then smaller than
+    /// what the body holds (a count edited by hand, or faces appended without it), and
+    /// the mesh read would silently lack the rest. Trailing whitespace (a final newline
+    /// after binary data) is no data.
+    fn finish(self) -> Result<(), String> {
+        let extra = match self {
+            Body::Ascii(mut it) => it.next().map(|tok| format!("`{tok}`")),
+            Body::Binary(b, pos) => b[pos..]
+                .iter()
+                .any(|c| !c.is_ascii_whitespace())
+                .then(|| format!("{} bytes", b.len() - pos)),
+        };
+        match extra {
+            None => Ok(()),
+            Some(what) => Err(format!(
+                "{what} after the last element the header declares: its element counts do \
+                 not match the body"
+            )),
+        }
+    }
+
     fn next(&mut self, t: Scalar) -> Result<f64, String> {
         match self {
             Body::Ascii(it) => {
@@ -222,6 +243,7 @@ pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
             }
         }
     }
+    body.finish()?;
     let nv = mesh.positions.len() as u32;
     if face_indices.iter().any(|&i| i >= nv) {
         return Err(format!(

@@ -1603,3 +1603,45 @@ fn the_torus_knot_is_a_tube_around_its_curve() {
         );
     }
 }
+
+/// Data after the last declared element means the header's counts are short of the body
+/// (the mesh read would lack the rest): refused, ASCII and binary alike, while a final
+/// newline after binary data is accepted.
+#[test]
+fn ply_data_beyond_the_declared_elements_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let ascii = "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n\
+                 property float z\nelement face 4\nproperty list uchar int vertex_indices\n\
+                 end_header\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n";
+    load_mesh(&write(&d, "ok.ply", ascii.as_bytes())).expect("the tetrahedron reads");
+    let e = load_mesh(&write(&d, "more.ply", format!("{ascii}3 1 2 0\n").as_bytes()))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("more.ply") && e.contains("`3` after the last element"),
+        "{e}"
+    );
+    let mut bin = b"ply\nformat binary_little_endian 1.0\nelement vertex 4\nproperty float x\n\
+                    property float y\nproperty float z\nelement face 4\n\
+                    property list uchar int vertex_indices\nend_header\n"
+        .to_vec();
+    for p in [[0f32, 0., 0.], [1., 0., 0.], [0., 1., 0.], [0., 0., 1.]] {
+        p.iter().for_each(|x| bin.extend_from_slice(&x.to_le_bytes()));
+    }
+    for f in [[0i32, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]] {
+        bin.push(3);
+        f.iter().for_each(|i| bin.extend_from_slice(&i.to_le_bytes()));
+    }
+    let mut newline = bin.clone();
+    newline.push(b'\n');
+    load_mesh(&write(&d, "nl.ply", &newline)).expect("a final newline is no data");
+    let mut tail = bin.clone();
+    tail.extend_from_slice(&7f32.to_le_bytes());
+    let e = load_mesh(&write(&d, "tail.ply", &tail))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("tail.ply") && e.contains("4 bytes after the last element"),
+        "{e}"
+    );
+}
