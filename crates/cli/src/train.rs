@@ -439,6 +439,20 @@ pub fn run(a: Args) -> Result<()> {
             );
         }
     }
+    if !a.fresh
+        && let Some(p) = kinds
+            .iter()
+            .find_map(|&k| cvae::train::trainer::orphan_record(&cfg.checkpoint_dir, k))
+    {
+        let stem = p.file_stem().unwrap_or_default().to_string_lossy();
+        let name = stem.trim_end_matches("-optim");
+        bail!(
+            "{}: a checkpoint record without its {name}.json beside it (the JSON was removed, \
+             or a save was cut short): it cannot be resumed; --fresh --model {name} removes it \
+             and trains from the start",
+            p.display()
+        );
+    }
     // The models this run continues (their notes count the seconds of the runs before).
     let resumed: Vec<ModelKind> = kinds
         .iter()

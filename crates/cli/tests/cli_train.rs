@@ -726,3 +726,35 @@ fn albedo_zero_data_is_refused_for_eventgen_naming_the_albedo() {
     );
     assert!(!err.contains("larger tau"), "{err}");
 }
+
+/// A model record without its checkpoint JSON (removed by hand, or a kill between a first
+/// save's renames) cannot be resumed: `--resume` used to train that model from the start
+/// and a plain run to write over the record, both without a word. Both are refused naming
+/// the file; `--fresh` removes it and trains.
+#[test]
+fn a_checkpoint_record_without_its_json_is_named() {
+    let dir = tempfile::tempdir().unwrap();
+    setup(dir.path());
+    let o = stcvae(&["train", "--config", "train.toml"], dir.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    fs::remove_file(dir.path().join("ck/lengthgen.json")).unwrap();
+    for args in [
+        &["train", "--config", "train.toml", "--resume"][..],
+        &["train", "--config", "train.toml", "--model", "lengthgen"][..],
+    ] {
+        let o = stcvae(args, dir.path());
+        assert!(!o.status.success(), "{args:?} was accepted");
+        let err = stderr(&o);
+        assert!(
+            err.contains("lengthgen.bpk: a checkpoint record without its lengthgen.json")
+                && err.contains("--fresh --model lengthgen"),
+            "{args:?}: {err}"
+        );
+    }
+    let o = stcvae(
+        &["train", "--config", "train.toml", "--model", "lengthgen", "--fresh"],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(dir.path().join("ck/lengthgen.json").exists());
+}

@@ -305,6 +305,17 @@ pub fn has_checkpoint(dir: &Path, kind: ModelKind) -> bool {
     paths(dir, kind).2.exists()
 }
 
+/// A model or optimiser record of `kind` in `dir` without the JSON that makes it a
+/// checkpoint (the JSON removed by hand, or a kill between a first save's renames): no
+/// resume can read it, and a new run would write over it without a word.
+pub fn orphan_record(dir: &Path, kind: ModelKind) -> Option<PathBuf> {
+    let (m, o, j) = paths(dir, kind);
+    if j.exists() {
+        return None;
+    }
+    [m, o].into_iter().find(|p| p.exists())
+}
+
 fn paths(dir: &Path, kind: ModelKind) -> (PathBuf, PathBuf, PathBuf) {
     let n = kind.name();
     (
