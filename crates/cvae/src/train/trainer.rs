@@ -62,7 +62,10 @@ impl ModelConfig {
         self.warmup.unwrap_or(DEFAULT_WARMUP.min(self.steps / 4))
     }
 
-    /// Linear warm-up to `lr`, then cosine decay to `lr_final` at the last step.
+    /// Linear warm-up to `lr`, then cosine decay that would reach `lr_final` at step
+    /// `steps`, one past the last step taken (steps count from 0): the last step's rate is
+    /// above `lr_final` by (lr − lr_final)·(π/2)²/(steps − warmup)², nothing a run
+    /// notices, and the shipped model was trained so.
     pub fn learning_rate(&self, step: u64) -> f64 {
         let warmup = self.warmup();
         if step < warmup {
