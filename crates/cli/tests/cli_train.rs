@@ -752,7 +752,14 @@ fn a_checkpoint_record_without_its_json_is_named() {
         );
     }
     let o = stcvae(
-        &["train", "--config", "train.toml", "--model", "lengthgen", "--fresh"],
+        &[
+            "train",
+            "--config",
+            "train.toml",
+            "--model",
+            "lengthgen",
+            "--fresh",
+        ],
         dir.path(),
     );
     assert!(o.status.success(), "{}", stderr(&o));

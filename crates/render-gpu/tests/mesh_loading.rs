@@ -1614,9 +1614,13 @@ fn ply_data_beyond_the_declared_elements_is_refused() {
                  property float z\nelement face 4\nproperty list uchar int vertex_indices\n\
                  end_header\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n";
     load_mesh(&write(&d, "ok.ply", ascii.as_bytes())).expect("the tetrahedron reads");
-    let e = load_mesh(&write(&d, "more.ply", format!("{ascii}3 1 2 0\n").as_bytes()))
-        .unwrap_err()
-        .to_string();
+    let e = load_mesh(&write(
+        &d,
+        "more.ply",
+        format!("{ascii}3 1 2 0\n").as_bytes(),
+    ))
+    .unwrap_err()
+    .to_string();
     assert!(
         e.contains("more.ply") && e.contains("`3` after the last element"),
         "{e}"
@@ -1626,11 +1630,13 @@ fn ply_data_beyond_the_declared_elements_is_refused() {
                     property list uchar int vertex_indices\nend_header\n"
         .to_vec();
     for p in [[0f32, 0., 0.], [1., 0., 0.], [0., 1., 0.], [0., 0., 1.]] {
-        p.iter().for_each(|x| bin.extend_from_slice(&x.to_le_bytes()));
+        p.iter()
+            .for_each(|x| bin.extend_from_slice(&x.to_le_bytes()));
     }
     for f in [[0i32, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]] {
         bin.push(3);
-        f.iter().for_each(|i| bin.extend_from_slice(&i.to_le_bytes()));
+        f.iter()
+            .for_each(|i| bin.extend_from_slice(&i.to_le_bytes()));
     }
     let mut newline = bin.clone();
     newline.push(b'\n');

@@ -753,6 +753,77 @@ mod tests {
         );
     }
 
+    /// A run whose loss turns non-finite stops with `Diverged`, naming the model and the
+    /// step and advising a lower rate, and leaves the last checkpoint as it was. The
+    /// divergence is forced by resuming from a checkpoint whose encoder holds one NaN (no
+    /// rate within the config's bounds diverges reliably): the first loss read, at the
+    /// checkpoint's step, is NaN.
+    #[test]
+    fn a_non_finite_loss_stops_the_run_and_keeps_the_checkpoint() {
+        let d = tempfile::tempdir().unwrap();
+        let kind = ModelKind::LengthGen;
+        let device = Device::flex().autodiff();
+        let sampler = scatter_sim::ConditionSampler::authors();
+        let rows: Vec<_> = (0..400)
+            .map(|i| scatter_sim::dataset::walk_row(9, &sampler, i).0)
+            .collect();
+        let table = Table::build(kind, &rows, crate::SingleScattering::Exact);
+        let cfg = config(40, Some(0));
+        let mut rng = WalkRng::from_seed(5);
+        let mut model = Cvae::new(
+            kind.cond(),
+            kind.out(),
+            &cfg.architecture(),
+            &mut rng,
+            &device,
+        );
+        let first = &model.encoder.layers[0];
+        let [i, o] = first.weight.val().dims();
+        let mut w: Vec<f32> = first.weight.val().try_into_vec_as::<f32>().unwrap();
+        w[0] = f32::NAN;
+        model.encoder.layers[0].weight =
+            burn::module::Param::from_data(TensorData::new(w, [i, o]), &device);
+        let info = CheckpointInfo {
+            feature_version: crate::features::FEATURE_VERSION,
+            step: 10,
+            seconds: 0.0,
+            norm: table.norm.clone(),
+            history: vec![(10, 1.0)],
+            crc32: None,
+            single_scattering: Some(table.mode),
+            ranges: Some(table.ranges),
+            stream: None,
+        };
+        save_checkpoint(d.path(), kind, &model, &Adamax::default().init(), &info).unwrap();
+        let (_, _, j) = paths(d.path(), kind);
+        let before = std::fs::read(&j).unwrap();
+        let e = train_model(
+            kind,
+            &table,
+            &cfg,
+            1,
+            &device,
+            d.path(),
+            5,
+            true,
+            &AtomicBool::new(false),
+            &|_, _, _| {},
+        )
+        .err()
+        .expect("a NaN weight trains on");
+        assert!(matches!(e, TrainError::Diverged("lengthgen", 10)), "{e}");
+        assert!(
+            e.to_string()
+                .contains("at step 10; lower the learning rate"),
+            "{e}"
+        );
+        assert_eq!(
+            std::fs::read(&j).unwrap(),
+            before,
+            "the checkpoint was replaced"
+        );
+    }
+
     /// A checkpoint or model is written only with weights a model file can hold: a fresh
     /// network's pass; one NaN weight, or one beyond MAX_WEIGHT, fails (a checkpoint of
     /// such weights replaced the last good one; a final one gave a file every reader
