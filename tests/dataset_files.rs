@@ -312,3 +312,44 @@ fn foreign_headers_with_valid_checksums_are_refused() {
         "{msg}"
     );
 }
+
+/// The held-out walks of a dataset are the walks its run would have drawn next: equal, row
+/// for row, to the start of the second half of a run twice as long with the same seed, so
+/// none of them is in the dataset and their distribution is the dataset's. Shards of one
+/// run count as that run once; two runs share the walks by their row counts.
+#[test]
+fn held_out_walks_are_the_runs_next_walks() {
+    use scatter_sim::dataset::{Piece, held_out_rows, walk_row};
+    let dir = tempfile::tempdir().unwrap();
+    let whole = spec(300, Shard::WHOLE);
+    let longer = dir.path().join("longer.bin");
+    let mut second_half = spec(600, Shard { index: 1, count: 2 });
+    second_half.seed = whole.seed;
+    write(&second_half, &longer, 2);
+    let (_, next) = read_dataset(&longer).unwrap();
+    let held = held_out_rows(&[whole.piece()], 100);
+    assert_eq!(held.len(), 100);
+    assert!(
+        held == next[..100],
+        "the held-out walks are walks 300..400 of the run"
+    );
+
+    let shards: Vec<Piece> = (0..3)
+        .map(|i| spec(300, Shard { index: i, count: 3 }).piece())
+        .collect();
+    assert!(
+        held_out_rows(&shards, 100) == held,
+        "three shards are one run"
+    );
+
+    let mut other = spec(100, Shard::WHOLE);
+    other.seed = 5;
+    let mixed = held_out_rows(&[whole.piece(), other.piece()], 10);
+    // 10 walks over 300 + 100 rows: 7.5 and 2.5, the tie's extra walk to the first run.
+    let expected: Vec<_> = (0..8)
+        .map(|j| walk_row(whole.seed, &whole.sampler, 300 + j).0)
+        .chain((0..2).map(|j| walk_row(5, &other.sampler, 100 + j).0))
+        .collect();
+    assert!(mixed == expected);
+    assert!(held_out_rows(&[], 10).is_empty());
+}

@@ -172,6 +172,22 @@ impl Table {
     /// Conditioning on k ≥ 2 leaves the reservoir's choice among k ≥ 2 proportional to
     /// φ^k, which is what the sampler needs.
     pub fn build(kind: ModelKind, rows: &[Row], mode: SingleScattering) -> Table {
+        Self::build_with(kind, rows, mode, None)
+    }
+
+    /// A table of other walks standardised as `of` is (its statistics, not theirs), so a
+    /// model trained on `of` reads them as it reads its own: held-out walks for a
+    /// validation loss.
+    pub fn like(of: &Table, rows: &[Row]) -> Table {
+        Self::build_with(of.kind, rows, of.mode, Some(&of.norm))
+    }
+
+    fn build_with(
+        kind: ModelKind,
+        rows: &[Row],
+        mode: SingleScattering,
+        given: Option<&Standardisation>,
+    ) -> Table {
         let exact = mode == SingleScattering::Exact;
         let keep: Vec<&Row> = rows
             .iter()
@@ -226,8 +242,32 @@ impl Table {
                 }
             }
         }
-        let (cond_shift, cond_scale) = column_stats(&cond, c);
-        let (out_shift, mut out_scale) = column_stats(&target, p);
+        let norm = match given {
+            Some(norm) => norm.clone(),
+            None => Self::statistics(kind, &cond, &target, &n),
+        };
+        standardise(&mut cond, c, &norm.cond_shift, &norm.cond_scale);
+        if kind != ModelKind::LengthGen {
+            standardise(&mut target, p, &norm.out_shift, &norm.out_scale);
+        }
+        Table {
+            kind,
+            rows: keep.len(),
+            cond,
+            target,
+            n,
+            prior,
+            norm,
+            mode,
+            ranges: ConditionRanges::of(rows),
+        }
+    }
+
+    /// The standardisation of these (unstandardised) columns.
+    fn statistics(kind: ModelKind, cond: &[f32], target: &[f32], n: &[u32]) -> Standardisation {
+        let (c, p) = (kind.cond(), kind.out());
+        let (cond_shift, cond_scale) = column_stats(cond, c);
+        let (out_shift, mut out_scale) = column_stats(target, p);
         if kind == ModelKind::LengthGen && !n.is_empty() {
             // The batches dequantise N with u ~ U(0, 1), the statistics above with its
             // midpoint: add the spread u gives to the scale (the shift stays the
@@ -239,25 +279,11 @@ impl Table {
                 n.iter().map(|&k| log_dequantised_variance(k)).sum::<f64>() / n.len() as f64;
             out_scale[0] = ((out_scale[0] as f64).powi(2) + dequantised).sqrt() as f32;
         }
-        standardise(&mut cond, c, &cond_shift, &cond_scale);
-        if kind != ModelKind::LengthGen {
-            standardise(&mut target, p, &out_shift, &out_scale);
-        }
-        Table {
-            kind,
-            rows: keep.len(),
-            cond,
-            target,
-            n,
-            prior,
-            norm: Standardisation {
-                cond_shift,
-                cond_scale,
-                out_shift,
-                out_scale,
-            },
-            mode,
-            ranges: ConditionRanges::of(rows),
+        Standardisation {
+            cond_shift,
+            cond_scale,
+            out_shift,
+            out_scale,
         }
     }
 
@@ -269,18 +295,32 @@ impl Table {
         cond: &mut Vec<f32>,
         target: &mut Vec<f32>,
     ) {
-        let (c, p) = (self.kind.cond(), self.kind.out());
         cond.clear();
         target.clear();
         for _ in 0..size {
             let i = (rng.next_u64() % self.rows as u64) as usize;
-            cond.extend_from_slice(&self.cond[i * c..(i + 1) * c]);
-            if self.kind == ModelKind::LengthGen {
-                let y = ((self.n[i] as f64 + rng.uniform()).ln() - self.prior[i] as f64) as f32;
-                target.push((y - self.norm.out_shift[0]) / self.norm.out_scale[0]);
-            } else {
-                target.extend_from_slice(&self.target[i * p..(i + 1) * p]);
-            }
+            self.push_row(i, rng, cond, target);
+        }
+    }
+
+    /// Every row once, in order, into `cond` and `target` as [`Self::batch`] fills them
+    /// (LengthGen's N dequantised with draws from `rng`).
+    pub fn all_rows(&self, rng: &mut WalkRng, cond: &mut Vec<f32>, target: &mut Vec<f32>) {
+        cond.clear();
+        target.clear();
+        for i in 0..self.rows {
+            self.push_row(i, rng, cond, target);
+        }
+    }
+
+    fn push_row(&self, i: usize, rng: &mut WalkRng, cond: &mut Vec<f32>, target: &mut Vec<f32>) {
+        let (c, p) = (self.kind.cond(), self.kind.out());
+        cond.extend_from_slice(&self.cond[i * c..(i + 1) * c]);
+        if self.kind == ModelKind::LengthGen {
+            let y = ((self.n[i] as f64 + rng.uniform()).ln() - self.prior[i] as f64) as f32;
+            target.push((y - self.norm.out_shift[0]) / self.norm.out_scale[0]);
+        } else {
+            target.extend_from_slice(&self.target[i * p..(i + 1) * p]);
         }
     }
 }

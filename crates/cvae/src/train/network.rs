@@ -140,6 +140,31 @@ impl Cvae {
     /// Negative ELBO: Gaussian NLL of the target under the decoder (constant dropped)
     /// plus KL(q(z|x,c) ‖ N(0, I)); `eps` are the reparameterisation normals [B, latent].
     pub fn loss(&self, cond: Tensor<2>, target: Tensor<2>, eps: Tensor<2>) -> LossTerms {
+        let (nll, kl) = self.row_terms(cond, target, eps);
+        let (nll, kl) = (nll.mean(), kl.mean());
+        LossTerms {
+            loss: nll.clone() + kl.clone(),
+            nll,
+            kl,
+        }
+    }
+
+    /// Each row's negative ELBO [B] (a validation loss's mean and standard error).
+    pub fn row_losses(&self, cond: Tensor<2>, target: Tensor<2>, eps: Tensor<2>) -> Vec<f32> {
+        let (nll, kl) = self.row_terms(cond, target, eps);
+        (nll + kl)
+            .into_data()
+            .try_to_vec::<f32>()
+            .expect("the loss is f32")
+    }
+
+    /// Each row's NLL and KL, [B, 1] each.
+    fn row_terms(
+        &self,
+        cond: Tensor<2>,
+        target: Tensor<2>,
+        eps: Tensor<2>,
+    ) -> (Tensor<2>, Tensor<2>) {
         let (l, p) = (self.latent, self.out);
         let h = self
             .encoder
@@ -152,18 +177,12 @@ impl Cvae {
         let lv = d.narrow(1, p, p).clamp(-LOGVAR_CLAMP, LOGVAR_CLAMP);
         let nll = (lv.clone() + (target - mu).square() * lv.neg().exp())
             .mul_scalar(0.5)
-            .sum_dim(1)
-            .mean();
+            .sum_dim(1);
         let kl = (mu_z.square() + lv_z.clone().exp() - lv_z)
             .sub_scalar(1.0)
             .mul_scalar(0.5)
-            .sum_dim(1)
-            .mean();
-        LossTerms {
-            loss: nll.clone() + kl.clone(),
-            nll,
-            kl,
-        }
+            .sum_dim(1);
+        (nll, kl)
     }
 
     /// The decoder as a plain-Rust [`Decoder`] with the given standardisation.

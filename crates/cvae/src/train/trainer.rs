@@ -15,6 +15,7 @@ use scatter_sim::WalkRng;
 use super::adamax::Adamax;
 use super::data::{ConditionRanges, ModelKind, Standardisation, Table};
 use super::network::{Architecture, Cvae};
+use super::validation::{Validation, ValidationPoint};
 use crate::decoder::Decoder;
 use crate::sampler::normals;
 
@@ -201,6 +202,10 @@ pub struct CheckpointInfo {
     /// resume on a fresh stream.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stream: Option<StreamState>,
+    /// The validation losses read at each report ([`super::validation`]); empty in
+    /// checkpoints written before they were read.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub validation: Vec<ValidationPoint>,
 }
 
 /// The part of a run's state that is not in burn's records.
@@ -381,9 +386,10 @@ fn save_checkpoint(
 const LOG_EVERY: u64 = 10;
 const REPORT_EVERY: u64 = 500;
 
-/// Trains one model. `report(step, loss)` is called every few steps, and once at the
-/// start of a resumed run with the checkpoint's step and last loss; `cancel` stops after
-/// the current step with a checkpoint.
+/// Trains one model. `report(kind, step, loss, validation)` is called every few steps
+/// (with the validation losses when `validation` is given), and once at the start of a
+/// resumed run with the checkpoint's step and last readings; `cancel` stops after the
+/// current step with a checkpoint.
 #[allow(clippy::too_many_arguments)]
 pub fn train_model(
     kind: ModelKind,
@@ -395,7 +401,8 @@ pub fn train_model(
     checkpoint_every: u64,
     resume: bool,
     cancel: &AtomicBool,
-    report: &(dyn Fn(ModelKind, u64, f32) + Sync),
+    validation: Option<&Validation>,
+    report: &(dyn Fn(ModelKind, u64, f32, Option<&ValidationPoint>) + Sync),
 ) -> Result<Trained, TrainError> {
     let mut rng = WalkRng::for_walk(seed, kind as u64);
     let mut model = Cvae::new(
@@ -416,6 +423,7 @@ pub fn train_model(
         single_scattering: Some(table.mode),
         ranges: Some(table.ranges),
         stream: None,
+        validation: Vec::new(),
     };
     let (mpath, opath, jpath) = paths(checkpoint_dir, kind);
     if resume && jpath.exists() {
@@ -497,8 +505,9 @@ pub fn train_model(
     // between reports) with the last loss read: its first report would otherwise come up
     // to REPORT_EVERY steps later, and a progress bar sat at 0 until then.
     if let Some(&(_, loss)) = info.history.last() {
-        report(kind, info.step, loss);
+        report(kind, info.step, loss, info.validation.last());
     }
+    let eval_device = device.clone().inner();
     let start = Instant::now();
     let base_seconds = info.seconds;
     let (c, p, l) = (kind.cond(), kind.out(), cfg.latent);
@@ -530,7 +539,16 @@ pub fn train_model(
         if info.step.is_multiple_of(REPORT_EVERY) || info.step == 1 || info.step == cfg.steps {
             if acc_n > 0 {
                 let mean = (acc / acc_n as f64) as f32;
-                report(kind, info.step, mean);
+                if let Some(v) = validation {
+                    info.validation
+                        .push(v.evaluate(&model.valid(), info.step, &eval_device));
+                }
+                report(
+                    kind,
+                    info.step,
+                    mean,
+                    validation.and(info.validation.last()),
+                );
                 info.history.push((info.step, mean));
             }
             acc = 0.0;
@@ -721,6 +739,7 @@ mod tests {
             single_scattering: None,
             ranges: None,
             stream: None,
+            validation: Vec::new(),
         };
         save_checkpoint(d.path(), kind, &first, &optim, &info(1)).unwrap();
         let (m, o, j) = paths(d.path(), kind);
@@ -793,6 +812,7 @@ mod tests {
             single_scattering: Some(table.mode),
             ranges: Some(table.ranges),
             stream: None,
+            validation: Vec::new(),
         };
         save_checkpoint(d.path(), kind, &model, &Adamax::default().init(), &info).unwrap();
         let (_, _, j) = paths(d.path(), kind);
@@ -807,7 +827,8 @@ mod tests {
             5,
             true,
             &AtomicBool::new(false),
-            &|_, _, _| {},
+            None,
+            &|_, _, _, _| {},
         )
         .err()
         .expect("a NaN weight trains on");

@@ -140,3 +140,45 @@ pub fn generate(
     }
     Ok(summary)
 }
+
+/// `n` walks that no row of a dataset with these `pieces` holds, from the same
+/// distribution: walks `total_walks, total_walks + 1, …` of each run the pieces come
+/// from, which that run would have drawn next (walk i depends on (seed, i) alone, so they
+/// are also the rows a larger run of the same seed would hold there). The `n` walks are
+/// shared among the runs by their row counts (largest remainder); a dataset merged from
+/// shards of one run counts as that run once. Held-out walks for a validation loss cost
+/// a simulation of `n` walks, not rows taken from training.
+pub fn held_out_rows(pieces: &[Piece], n: u64) -> Vec<Row> {
+    let mut runs: Vec<(&Piece, u64)> = Vec::new();
+    for p in pieces {
+        match runs.iter_mut().find(|(r, _)| r.same_run(p)) {
+            Some((_, count)) => *count += p.count,
+            None => runs.push((p, p.count)),
+        }
+    }
+    let total: u128 = runs.iter().map(|(_, c)| *c as u128).sum();
+    if total == 0 || n == 0 {
+        return Vec::new();
+    }
+    let mut share: Vec<(u64, u128)> = runs
+        .iter()
+        .map(|(_, c)| {
+            let exact = n as u128 * *c as u128;
+            ((exact / total) as u64, exact % total)
+        })
+        .collect();
+    let given: u64 = share.iter().map(|s| s.0).sum();
+    let mut order: Vec<usize> = (0..share.len()).collect();
+    order.sort_by_key(|&i| std::cmp::Reverse(share[i].1));
+    for &i in order.iter().take((n - given) as usize) {
+        share[i].0 += 1;
+    }
+    let jobs: Vec<(&Piece, u64)> = runs
+        .iter()
+        .zip(&share)
+        .flat_map(|((run, _), (k, _))| (0..*k).map(move |j| (*run, j)))
+        .collect();
+    jobs.into_par_iter()
+        .map(|(run, j)| walk_row(run.seed, &run.sampler, run.total_walks.wrapping_add(j)).0)
+        .collect()
+}

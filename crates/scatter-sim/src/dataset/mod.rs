@@ -27,7 +27,7 @@ mod row;
 pub use binary::{DatasetReader, DatasetWriter, read_dataset};
 pub use csv::CsvWriter;
 pub use error::DatasetError;
-pub use generate::{GenerateSpec, GenerateSummary, Shard, generate, walk_row};
+pub use generate::{GenerateSpec, GenerateSummary, Shard, generate, held_out_rows, walk_row};
 pub use row::{COLUMNS, ROW_BYTES, Row};
 
 use serde::{Deserialize, Serialize};
