@@ -316,13 +316,16 @@ fn compact(v: &f64) -> String {
     }
 }
 
+/// A series with more points is drawn as a line alone.
+const MAX_MARKED_POINTS: usize = 60;
+
 /// One named series of a line plot.
 pub struct Series {
     pub name: String,
     pub points: Vec<(f64, f64)>,
 }
 
-/// A line plot of a few series (markers at the points), optionally on log axes; used by
+/// A line plot of a few series (markers at the points of short ones), optionally on log axes; used by
 /// the experiments for time / speed-up curves and by `bench error` for error against time.
 /// `legend`: where the legend goes; `None` puts it in the upper right, above the lines.
 pub fn line_plot(
@@ -414,9 +417,13 @@ pub fn line_plot(
                         .legend(move |(x, y)| {
                             PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2))
                         });
-                    chart
-                        .draw_series(p.into_iter().map(|q| Circle::new(q, 4, c.filled())))
-                        .map_err(|x| e(&x))?;
+                    // Markers only where they can be told apart (a training's hundreds
+                    // of readings drew a solid band).
+                    if p.len() <= MAX_MARKED_POINTS {
+                        chart
+                            .draw_series(p.into_iter().map(|q| Circle::new(q, 4, c.filled())))
+                            .map_err(|x| e(&x))?;
+                    }
                 }
                 chart
                     .configure_series_labels()

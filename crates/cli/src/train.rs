@@ -8,9 +8,10 @@ use anyhow::{Context, Result, bail};
 use burn::prelude::Device;
 use cvae::model_file::{ModelSet, SingleScattering, TrainingInfo};
 use cvae::train::data::ConditionRanges;
+use cvae::train::validation::{VALIDATION_ROWS, Validation, ValidationPoint};
 use cvae::train::{ModelConfig, ModelKind, Table, TrainError, train_model};
 use indicatif::{MultiProgress, ProgressBar};
-use scatter_sim::dataset::read_dataset;
+use scatter_sim::dataset::{held_out_rows, read_dataset};
 use serde::Deserialize;
 
 use crate::generate::parse_toml;
@@ -24,7 +25,12 @@ use crate::{interrupt, progress};
     The three models train concurrently, one thread each. If the dataset named in the config \
     does not exist it is generated first from `dataset_config`. Ctrl-C saves a checkpoint; \
     --resume continues from it. Checkpoints already in checkpoint_dir stop a new run unless \
-    --resume or --fresh says what to do with them."
+    --resume or --fresh says what to do with them.\n\n\
+    Validation: 4,096 walks the dataset's run would have drawn next are simulated as held-out \
+    walks; at each report every model's loss on them is read beside its loss on as many of \
+    its training walks (both with fixed draws), shown on the progress bar, plotted beside \
+    the model file (NAME.loss.png), and a held-out loss far above the training walks' is \
+    reported as memorising."
 )]
 pub struct Args {
     /// Training config (TOML).
@@ -287,6 +293,89 @@ fn loss_rose(history: &[(u64, f32)]) -> Option<f32> {
     (last > first + 0.1 * first.abs().max(1.0)).then_some(first)
 }
 
+/// Held-out walks simulated for the validation loss: twice the rows a validation reads,
+/// so that models which leave walks out (N = 1 in exact mode, EventGen's centre events)
+/// still find enough.
+const HELD_OUT_WALKS: u64 = 2 * VALIDATION_ROWS as u64;
+
+/// Held-out losses ranking this far above the training walks' (Mann–Whitney z) are
+/// reported as memorising: noise alone passes it with probability ~3·10⁻⁵ at the last
+/// report (z is N(0, 1) while the model generalises).
+const GAP_WARNING_Z: f32 = 4.0;
+
+/// Each model's validation batches: walks the dataset's run would have drawn next,
+/// simulated now, standardised as the model's table. A model with no usable held-out
+/// walk trains without one, and says so.
+fn validations(
+    cfg: &TrainConfig,
+    kinds: &[ModelKind],
+    tables: &[Table],
+    pieces: &[scatter_sim::dataset::Piece],
+    steps_scale: f64,
+) -> Vec<Option<Validation>> {
+    let t0 = Instant::now();
+    let held = held_out_rows(pieces, HELD_OUT_WALKS);
+    eprintln!(
+        "{} held out for the validation loss (the walks the dataset's run would draw next), \
+         simulated in {:.1} s",
+        progress::count(held.len() as u64, "walk"),
+        t0.elapsed().as_secs_f64()
+    );
+    kinds
+        .iter()
+        .zip(tables)
+        .map(|(&k, t)| {
+            let latent = scaled_model(cfg.model(k), steps_scale).latent;
+            let v = Validation::new(t, &Table::like(t, &held), latent, cfg.seed);
+            if v.is_none() {
+                eprintln!(
+                    "note: no held-out walk is usable for {}: it trains without a validation loss",
+                    k.name()
+                );
+            }
+            v
+        })
+        .collect()
+}
+
+/// The trained models' validation losses against their steps, beside the model file
+/// (`NAME.loss.png`); `None` when no model read any.
+fn loss_plot(out: &Path, trained: &[cvae::train::Trained]) -> Result<Option<PathBuf>> {
+    use crate::plots::{Series, line_plot};
+    let mut series = Vec::new();
+    for t in trained.iter().filter(|t| !t.info.validation.is_empty()) {
+        let points = |f: fn(&ValidationPoint) -> f32| {
+            t.info
+                .validation
+                .iter()
+                .map(|v| (v.step as f64, f64::from(f(v))))
+                .collect()
+        };
+        series.push(Series {
+            name: format!("{} training walks", t.kind.name()),
+            points: points(|v| v.train.0),
+        });
+        series.push(Series {
+            name: format!("{} held-out walks", t.kind.name()),
+            points: points(|v| v.held_out.0),
+        });
+    }
+    if series.is_empty() {
+        return Ok(None);
+    }
+    let path = out.with_extension("loss.png");
+    line_plot(
+        &path,
+        "Validation loss (negative ELBO, fixed draws)",
+        "step",
+        "loss",
+        (true, false),
+        &series,
+        None,
+    )?;
+    Ok(Some(path))
+}
+
 /// Narrows the file's ranges to what a decoder from elsewhere (`source`) was trained on:
 /// the file's ranges bound every decoder in it (the renderer's default max_tau is
 /// tau_range[1]), so with decoders from two trainings, only what both saw.
@@ -515,7 +604,7 @@ pub fn run(a: Args) -> Result<()> {
     ensure_dataset(&cfg)?;
     let t0 = Instant::now();
     eprintln!("reading {}", cfg.dataset.display());
-    let (_, rows) = read_dataset(&cfg.dataset)?;
+    let (header, rows) = read_dataset(&cfg.dataset)?;
     let tables: Vec<Table> = kinds
         .iter()
         .map(|&k| Table::build(k, &rows, cfg.single_scattering))
@@ -609,6 +698,7 @@ pub fn run(a: Args) -> Result<()> {
         }
     }
     drop(rows);
+    let validations = validations(&cfg, &kinds, &tables, &header.pieces, a.steps_scale);
 
     let cancel = interrupt::flag();
     for &k in &kinds {
@@ -628,7 +718,7 @@ pub fn run(a: Args) -> Result<()> {
             pb
         })
         .collect();
-    let report = |k: ModelKind, step: u64, loss: f32| {
+    let report = |k: ModelKind, step: u64, loss: f32, v: Option<&ValidationPoint>| {
         if let Some(i) = kinds.iter().position(|&x| x == k) {
             // A resumed run's first report jumps from 0 to the checkpoint's step: the
             // rate and ETA are measured from there, not from the jump.
@@ -637,7 +727,13 @@ pub fn run(a: Args) -> Result<()> {
             if resumed {
                 bars[i].reset_eta();
             }
-            bars[i].set_message(format!("{:>9} loss {loss:.4}", k.name()));
+            let held = v.map_or(String::new(), |v| {
+                format!(
+                    ", held-out {:.4} (training walks {:.4})",
+                    v.held_out.0, v.train.0
+                )
+            });
+            bars[i].set_message(format!("{:>9} loss {loss:.4}{held}", k.name()));
         }
     };
     let start = Instant::now();
@@ -645,6 +741,7 @@ pub fn run(a: Args) -> Result<()> {
     std::thread::scope(|s| {
         for (i, &k) in kinds.iter().enumerate() {
             let table = &tables[i];
+            let validation = validations[i].as_ref();
             let mc = scaled(k);
             let (cfg, results, report, bar) = (&cfg, &results, &report, &bars[i]);
             let device = device.clone();
@@ -659,6 +756,7 @@ pub fn run(a: Args) -> Result<()> {
                     cfg.checkpoint_every,
                     a.resume,
                     cancel,
+                    validation,
                     report,
                 );
                 bar.finish();
@@ -722,12 +820,31 @@ pub fn run(a: Args) -> Result<()> {
                 t.kind.name()
             );
         }
+        let held = t.info.validation.last();
+        if let Some(v) = held
+            && v.gap_z > GAP_WARNING_Z
+        {
+            eprintln!(
+                "warning: {}'s losses on held-out walks (mean {:.4}) rank above those on its \
+                 training walks (mean {:.4}) by z = {:.0}: it is learning the dataset's walks \
+                 rather than their distribution; train on more walks (a larger `walks` in the \
+                 dataset config) or for fewer steps",
+                t.kind.name(),
+                v.held_out.0,
+                v.train.0,
+                v.gap_z
+            );
+        }
         // A resumed model's seconds include the runs before this one (one that --resume
         // found no checkpoint of started this run).
         notes.push(format!(
-            "{}: {} steps, final loss {last:.4}, {:.0} s{}",
+            "{}: {} steps, final loss {last:.4}{}, {:.0} s{}",
             t.kind.name(),
             t.info.step,
+            held.map_or(String::new(), |v| format!(
+                " (held-out {:.4})",
+                v.held_out.0
+            )),
             t.info.seconds,
             if resumed.contains(&t.kind) {
                 " over all its runs"
@@ -793,6 +910,9 @@ pub fn run(a: Args) -> Result<()> {
         out.display(),
         set.to_bytes().len()
     );
+    if let Some(plot) = loss_plot(&out, &trained)? {
+        eprintln!("loss curves: {}", plot.display());
+    }
     // `render` reads the shipped models/default.stcvae unless told otherwise, and the
     // default training config no longer overwrites it: say how to use what was written.
     eprintln!("render with it: stcvae render --model {}", out.display());

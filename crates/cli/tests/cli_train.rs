@@ -416,6 +416,8 @@ fn stale_save_temporaries_are_removed() {
     left.sort();
     assert_eq!(left, ["notes.txt"]);
     assert!(!stderr(&o).contains("loss rose"), "{}", stderr(&o));
+    // 3,001 walks and 30 steps: nothing to memorise yet.
+    assert!(!stderr(&o).contains("rank above"), "{}", stderr(&o));
 }
 
 /// `--resume` from nothing, or from a damaged checkpoint, is refused (the first started
@@ -764,4 +766,40 @@ fn a_checkpoint_record_without_its_json_is_named() {
     );
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(dir.path().join("ck/lengthgen.json").exists());
+}
+
+/// A run that memorises its dataset is told so: 40 walks trained 3,000 steps with a wide
+/// latent, PathGen's losses on held-out walks (the run's next walks) rank far above its
+/// losses on training walks (z = 38 measured; the warning's bar is 4). The loss curves are
+/// plotted beside the model file, and the final held-out loss is in the summary.
+#[test]
+fn a_memorising_run_is_warned_and_its_loss_curves_plotted() {
+    let dir = tempfile::tempdir().unwrap();
+    setup(dir.path());
+    replace_in(&dir.path().join("data.toml"), "walks = 3001", "walks = 40");
+    let cfg = dir.path().join("train.toml");
+    let text = fs::read_to_string(&cfg).unwrap();
+    let wide = text
+        .replace("hidden = [4, 4]", "hidden = [4]")
+        .replace(
+            "latent = 2\nhidden = [4]",
+            "latent = 5\nhidden = [16, 16, 16]",
+        )
+        .replace("steps = 30", "steps = 3000");
+    assert_eq!(wide.matches("steps = 3000").count(), 3);
+    assert_eq!(wide.matches("hidden = [16, 16, 16]").count(), 3);
+    fs::write(&cfg, wide).unwrap();
+    let o = stcvae(&["train", "--config", "train.toml"], dir.path());
+    let err = stderr(&o);
+    assert!(o.status.success(), "{err}");
+    assert!(
+        err.contains("warning: pathgen's losses on held-out walks")
+            && err.contains("it is learning the dataset's walks rather than their distribution"),
+        "{err}"
+    );
+    assert!(err.contains("pathgen: 3000 steps, final loss"), "{err}");
+    assert!(err.contains("(held-out "), "{err}");
+    assert!(err.contains("loss curves: m.loss.png"), "{err}");
+    let png = fs::read(dir.path().join("m.loss.png")).unwrap();
+    assert!(png.starts_with(b"\x89PNG"), "a PNG");
 }

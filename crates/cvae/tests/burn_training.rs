@@ -348,13 +348,12 @@ fn lengthgen_scale_covers_the_dequantisation() {
 }
 
 /// The validation loss tells learning from memorising. PathGen at τ = 3, g = 0: trained on
-/// 20,000 walks its loss on held-out walks (the run's next ones) stays within noise of its
-/// loss on training walks; trained as long on 40 walks it lies far above (the model learns
-/// those walks, not their distribution). The gap is read in standard errors of the
-/// difference of two means over 2,048 rows each (`ValidationPoint::gap_z`): measured 0.2
-/// and 14.6 (losses 1.50 against 1.51; 1.19 against 2.15). Noise alone passes 4 with
-/// probability 6·10⁻⁵; the bar of 8 leaves the memorising run a margin of almost half
-/// its gap.
+/// 20,000 walks its losses on held-out walks (the run's next ones) rank within noise of its
+/// losses on training walks; trained as long on 40 walks they rank far above (the model
+/// learns those walks, not their distribution). The gap is Mann–Whitney's z over 2,048
+/// rows a side (`ValidationPoint::gap_z`, N(0, 1) without a gap): measured 0.07 and 10.8
+/// (mean losses 1.497 against 1.506; 1.19 against 2.15). Noise alone passes 4 with
+/// probability 6·10⁻⁵; the bar of 6 leaves the memorising run a margin of 45 %.
 #[test]
 fn the_held_out_loss_tells_learning_from_memorising() {
     use cvae::train::validation::Validation;
@@ -412,10 +411,9 @@ fn the_held_out_loss_tells_learning_from_memorising() {
     let few = last_point(40);
     eprintln!(
         "20,000 walks: {many:?} (z {:.1}); 40 walks: {few:?} (z {:.1})",
-        many.gap_z(),
-        few.gap_z()
+        many.gap_z, few.gap_z
     );
     assert_eq!(many.step, 3000);
-    assert!(many.gap_z().abs() < 4.0, "{many:?}");
-    assert!(few.gap_z() > 8.0, "{few:?}");
+    assert!(many.gap_z.abs() < 4.0, "{many:?}");
+    assert!(few.gap_z > 6.0, "{few:?}");
 }

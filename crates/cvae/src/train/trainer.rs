@@ -386,6 +386,10 @@ fn save_checkpoint(
 const LOG_EVERY: u64 = 10;
 const REPORT_EVERY: u64 = 500;
 
+/// What `train_model` tells its caller at each report: the model, the step, the mean
+/// training loss since the last report and the validation losses when it reads them.
+pub type Report<'a> = dyn Fn(ModelKind, u64, f32, Option<&ValidationPoint>) + Sync + 'a;
+
 /// Trains one model. `report(kind, step, loss, validation)` is called every few steps
 /// (with the validation losses when `validation` is given), and once at the start of a
 /// resumed run with the checkpoint's step and last readings; `cancel` stops after the
@@ -402,7 +406,7 @@ pub fn train_model(
     resume: bool,
     cancel: &AtomicBool,
     validation: Option<&Validation>,
-    report: &(dyn Fn(ModelKind, u64, f32, Option<&ValidationPoint>) + Sync),
+    report: &Report<'_>,
 ) -> Result<Trained, TrainError> {
     let mut rng = WalkRng::for_walk(seed, kind as u64);
     let mut model = Cvae::new(
