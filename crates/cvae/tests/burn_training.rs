@@ -101,11 +101,16 @@ fn exported_decoder_equals_burn() {
 }
 
 /// A run stopped by a Ctrl-C and resumed ends with the same weights, bit for bit, and the
-/// same loss history as the run left alone: the checkpoint carries the batch stream's
-/// position. A resume used to reseed the stream, so the weights depended on when the stop
-/// came (EventGen's final loss 0.78 against 0.87 in one trial of the review).
+/// same loss and validation histories as the run left alone: the checkpoint carries the
+/// batch stream's position and the loss readings since the last report. A resume used to
+/// reseed the stream, so the weights depended on when the stop came (EventGen's final
+/// loss 0.78 against 0.87 in one trial of the review). Two stops: a Ctrl-C, which lands at
+/// a report (step 500: no readings pending), and a kill after the periodic checkpoint of
+/// step 730, between reports, with 23 readings pending (the checkpoint copied aside at the
+/// next report, as a kill would have left it).
 #[test]
 fn a_resumed_run_equals_the_uninterrupted_one() {
+    use cvae::train::validation::Validation;
     let s = scatter_sim::ConditionSampler::fixed(scatter_sim::Conditions {
         tau: 5.0,
         g: 0.3,
@@ -113,6 +118,9 @@ fn a_resumed_run_equals_the_uninterrupted_one() {
     });
     let rows: Vec<_> = (0..3000).map(|w| walk_row(21, &s, w).0).collect();
     let table = Table::build(ModelKind::PathGen, &rows, SingleScattering::Exact);
+    let held_rows: Vec<_> = (3000..4000).map(|w| walk_row(21, &s, w).0).collect();
+    let held = Table::like(&table, &held_rows);
+    let validation = Validation::new(&table, &held, 2, 1).unwrap();
     let cfg = ModelConfig {
         latent: 2,
         hidden: vec![8],
@@ -124,6 +132,7 @@ fn a_resumed_run_equals_the_uninterrupted_one() {
         warmup: Some(20),
     };
     let dev = Device::flex().autodiff();
+    let copy_aside = tempfile::tempdir().unwrap();
     let run = |dir: &std::path::Path, resume: bool, stop_at: Option<u64>| {
         let cancel = AtomicBool::new(false);
         let history = std::sync::Mutex::new(Vec::new());
@@ -131,6 +140,11 @@ fn a_resumed_run_equals_the_uninterrupted_one() {
             history.lock().unwrap().push((step, loss));
             if Some(step) == stop_at {
                 cancel.store(true, std::sync::atomic::Ordering::Relaxed);
+            }
+            if step == 1000 && !resume {
+                for f in ["pathgen.bpk", "pathgen-optim.bpk", "pathgen.json"] {
+                    std::fs::copy(dir.join(f), copy_aside.path().join(f)).unwrap();
+                }
             }
         };
         let r = train_model(
@@ -140,10 +154,10 @@ fn a_resumed_run_equals_the_uninterrupted_one() {
             8,
             &dev,
             dir,
-            0,
+            730,
             resume,
             &cancel,
-            None,
+            Some(&validation),
             &report,
         );
         (r, history.into_inner().unwrap())
@@ -161,20 +175,39 @@ fn a_resumed_run_equals_the_uninterrupted_one() {
     let resumed = resumed.unwrap();
     assert_eq!(resumed.info.step, 1200);
     // The resumed run first says where it stands (the checkpoint's step, here a report's,
-    // and its last loss: a progress bar's place), then goes on as the whole run did. (A
-    // stop between reports, where the saved loss readings matter, needs a Ctrl-C at a
-    // step no callback sees; not covered.)
+    // and its last loss: a progress bar's place), then goes on as the whole run did.
     assert_eq!(rest_reports[0], *first_reports.last().unwrap());
     assert_eq!(
         [first_reports, rest_reports[1..].to_vec()].concat(),
         whole_reports,
         "the losses reported"
     );
-    assert_eq!(resumed.info.history, whole.info.history);
-    for (x, y) in resumed.decoder.layers.iter().zip(&whole.decoder.layers) {
-        assert_eq!(x.weight, y.weight);
-        assert_eq!(x.bias, y.bias);
-    }
+    let same = |r: &cvae::train::Trained, what: &str| {
+        assert_eq!(r.info.history, whole.info.history, "{what}: loss history");
+        assert_eq!(
+            r.info.validation, whole.info.validation,
+            "{what}: validation"
+        );
+        for (x, y) in r.decoder.layers.iter().zip(&whole.decoder.layers) {
+            assert_eq!(x.weight, y.weight, "{what}");
+            assert_eq!(x.bias, y.bias, "{what}");
+        }
+    };
+    same(&resumed, "after the Ctrl-C");
+    // The checkpoint of step 730, between reports, with the readings of steps 500..730
+    // pending (the whole run's: its periodic checkpoint, copied at step 1000).
+    let aside: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(copy_aside.path().join("pathgen.json")).unwrap())
+            .unwrap();
+    assert_eq!(aside["step"], 730);
+    assert_eq!(aside["stream"]["pending_loss"][1], 23);
+    let (killed, _) = run(copy_aside.path(), true, None);
+    same(&killed.unwrap(), "after the kill at step 730");
+    assert_eq!(
+        whole.info.validation.len(),
+        4,
+        "points at steps 1, 500, 1000, 1200"
+    );
 }
 
 /// PathGen on 20,000 walks at three fixed conditions: 600 Adamax steps lower the loss
