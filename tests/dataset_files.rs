@@ -316,7 +316,8 @@ fn foreign_headers_with_valid_checksums_are_refused() {
 /// The held-out walks of a dataset are the walks its run would have drawn next: equal, row
 /// for row, to the start of the second half of a run twice as long with the same seed, so
 /// none of them is in the dataset and their distribution is the dataset's. Shards of one
-/// run count as that run once; two runs share the walks by their row counts.
+/// run count as that run once, runs of one seed and sampler as one stream; two runs share
+/// the walks by their row counts.
 #[test]
 fn held_out_walks_are_the_runs_next_walks() {
     use scatter_sim::dataset::{Piece, held_out_rows, walk_row};
@@ -351,5 +352,13 @@ fn held_out_walks_are_the_runs_next_walks() {
         .chain((0..2).map(|j| walk_row(5, &other.sampler, 100 + j).0))
         .collect();
     assert!(mixed == expected);
+    // Runs of one seed and sampler are one stream: a run of 600 beside the run of 300
+    // holds the latter's next walks, so the held-out walks start at 600.
+    let longer_run = spec(600, Shard::WHOLE).piece();
+    let beside = held_out_rows(&[whole.piece(), longer_run], 4);
+    let after: Vec<_> = (600..604)
+        .map(|j| walk_row(whole.seed, &whole.sampler, j).0)
+        .collect();
+    assert!(beside == after);
     assert!(held_out_rows(&[], 10).is_empty());
 }

@@ -8,7 +8,7 @@ use anyhow::{Context, Result, bail};
 use burn::prelude::Device;
 use cvae::model_file::{ModelSet, SingleScattering, TrainingInfo};
 use cvae::train::data::ConditionRanges;
-use cvae::train::validation::{VALIDATION_ROWS, Validation, ValidationPoint};
+use cvae::train::validation::{MIN_VALIDATION_ROWS, VALIDATION_ROWS, Validation, ValidationPoint};
 use cvae::train::{ModelConfig, ModelKind, Table, TrainError, train_model};
 use indicatif::{MultiProgress, ProgressBar};
 use scatter_sim::dataset::{held_out_rows, read_dataset};
@@ -298,9 +298,10 @@ fn loss_rose(history: &[(u64, f32)]) -> Option<f32> {
 /// still find enough.
 const HELD_OUT_WALKS: u64 = 2 * VALIDATION_ROWS as u64;
 
-/// Held-out losses ranking this far above the training walks' (Mann–Whitney z) are
-/// reported as memorising: noise alone passes it with probability ~3·10⁻⁵ at the last
-/// report (z is N(0, 1) while the model generalises).
+/// Held-out losses this far above the training walks' (`ValidationPoint::gap_z`, N(0, 1)
+/// while the model generalises) are reported as memorising: noise alone passes it with
+/// probability ~3·10⁻⁵ at 2,048 rows a side (~1.5·10⁻⁴ at the fewest, 20, where z follows
+/// Student's t with ~38 degrees of freedom).
 const GAP_WARNING_Z: f32 = 4.0;
 
 /// Each model's validation batches: walks the dataset's run would have drawn next,
@@ -329,7 +330,8 @@ fn validations(
             let v = Validation::new(t, &Table::like(t, &held), latent, cfg.seed);
             if v.is_none() {
                 eprintln!(
-                    "note: no held-out walk is usable for {}: it trains without a validation loss",
+                    "note: fewer than {MIN_VALIDATION_ROWS} usable training or held-out walks for \
+                     {}: it trains without a validation loss",
                     k.name()
                 );
             }
@@ -825,7 +827,7 @@ pub fn run(a: Args) -> Result<()> {
             && v.gap_z > GAP_WARNING_Z
         {
             eprintln!(
-                "warning: {}'s losses on held-out walks (mean {:.4}) rank above those on its \
+                "warning: {}'s losses on held-out walks (mean {:.4}) lie above those on its \
                  training walks (mean {:.4}) by z = {:.0}: it is learning the dataset's walks \
                  rather than their distribution; train on more walks (a larger `walks` in the \
                  dataset config) or for fewer steps",
@@ -910,8 +912,11 @@ pub fn run(a: Args) -> Result<()> {
         out.display(),
         set.to_bytes().len()
     );
-    if let Some(plot) = loss_plot(&out, &trained)? {
-        eprintln!("loss curves: {}", plot.display());
+    // The model is written: a plot that fails is told, not the training's failure.
+    match loss_plot(&out, &trained) {
+        Ok(Some(plot)) => eprintln!("loss curves: {}", plot.display()),
+        Ok(None) => {}
+        Err(e) => eprintln!("warning: the loss curves were not plotted: {e:#}"),
     }
     // `render` reads the shipped models/default.stcvae unless told otherwise, and the
     // default training config no longer overwrites it: say how to use what was written.

@@ -417,7 +417,7 @@ fn stale_save_temporaries_are_removed() {
     assert_eq!(left, ["notes.txt"]);
     assert!(!stderr(&o).contains("loss rose"), "{}", stderr(&o));
     // 3,001 walks and 30 steps: nothing to memorise yet.
-    assert!(!stderr(&o).contains("rank above"), "{}", stderr(&o));
+    assert!(!stderr(&o).contains("lie above"), "{}", stderr(&o));
 }
 
 /// `--resume` from nothing, or from a damaged checkpoint, is refused (the first started
@@ -769,9 +769,10 @@ fn a_checkpoint_record_without_its_json_is_named() {
 }
 
 /// A run that memorises its dataset is told so: 40 walks trained 3,000 steps with a wide
-/// latent, PathGen's losses on held-out walks (the run's next walks) rank far above its
-/// losses on training walks (z = 38 measured; the warning's bar is 4). The loss curves are
-/// plotted beside the model file, and the final held-out loss is in the summary.
+/// latent, EventGen's losses on held-out walks (the run's next walks) lie far above its
+/// losses on training walks (z = 11.4 measured over its 23 rows; the warning's bar is 4).
+/// The loss curves are plotted beside the model file, and the final held-out loss is in
+/// the summary.
 #[test]
 fn a_memorising_run_is_warned_and_its_loss_curves_plotted() {
     let dir = tempfile::tempdir().unwrap();
@@ -793,7 +794,7 @@ fn a_memorising_run_is_warned_and_its_loss_curves_plotted() {
     let err = stderr(&o);
     assert!(o.status.success(), "{err}");
     assert!(
-        err.contains("warning: pathgen's losses on held-out walks")
+        err.contains("warning: eventgen's losses on held-out walks")
             && err.contains("it is learning the dataset's walks rather than their distribution"),
         "{err}"
     );

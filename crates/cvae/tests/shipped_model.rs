@@ -7,13 +7,16 @@ use std::path::Path;
 use cvae::ModelSet;
 use cvae::eval::{PAIRS, QUANTITIES, evaluate_setting};
 
+/// A medium (τ, g, φ) and its stored statistics.
+type Setting = ((f64, f64, f64), &'static [f64]);
+
 /// The shipped model's KS statistics, each the mean over seeds 1–[`MEASURE_SEEDS`]
 /// (2026-12-02, [`remeasure_the_stored_means`]), per setting (τ, g, φ) and quantity: at
 /// φ = 1 [`QUANTITIES`] but log N (whose statistic is N's: KS is unchanged by a monotone
 /// map), then the 2-D statistics of [`PAIRS`]; at φ < 1 the representative event's three
 /// (`eval` compares only those there: N and the exit do not depend on φ, the event's
 /// choice among the walk's events does, through φ^k and EventGen's (1 − φ)^(1/6)).
-const MEASURED: [((f64, f64, f64), &[f64]); 4] = [
+const MEASURED: [Setting; 4] = [
     (
         (5.0, 0.4, 1.0),
         &[

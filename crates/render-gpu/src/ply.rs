@@ -79,14 +79,19 @@ enum Body<'a> {
 impl Body<'_> {
     /// Refuses data after the last element: the header's counts are then smaller than
     /// what the body holds (a count edited by hand, or faces appended without it), and
-    /// the mesh read would silently lack the rest. Trailing whitespace (a final newline
-    /// after binary data) is no data.
+    /// the mesh read would silently lack the rest. Padding is no data: whitespace (a final
+    /// newline after binary data), NULs, and the end-of-file mark (0x1A) old Windows
+    /// tools append.
     fn finish(self) -> Result<(), String> {
+        let padding = |c: &u8| c.is_ascii_whitespace() || *c == 0 || *c == 0x1a;
         let extra = match self {
-            Body::Ascii(mut it) => it.next().map(|tok| format!("`{tok}`")),
+            Body::Ascii(it) => it
+                .flat_map(|tok| tok.split(['\0', '\x1a']))
+                .find(|tok| !tok.is_empty())
+                .map(|tok| format!("`{tok}`")),
             Body::Binary(b, pos) => b[pos..]
                 .iter()
-                .any(|c| !c.is_ascii_whitespace())
+                .any(|c| !padding(c))
                 .then(|| format!("{} bytes", b.len() - pos)),
         };
         match extra {

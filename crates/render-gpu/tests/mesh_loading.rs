@@ -1605,8 +1605,8 @@ fn the_torus_knot_is_a_tube_around_its_curve() {
 }
 
 /// Data after the last declared element means the header's counts are short of the body
-/// (the mesh read would lack the rest): refused, ASCII and binary alike, while a final
-/// newline after binary data is accepted.
+/// (the mesh read would lack the rest): refused, ASCII and binary alike, while padding (a
+/// final newline, NULs, an end-of-file mark) is accepted.
 #[test]
 fn ply_data_beyond_the_declared_elements_is_refused() {
     let d = tempfile::tempdir().unwrap();
@@ -1614,6 +1614,9 @@ fn ply_data_beyond_the_declared_elements_is_refused() {
                  property float z\nelement face 4\nproperty list uchar int vertex_indices\n\
                  end_header\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n";
     load_mesh(&write(&d, "ok.ply", ascii.as_bytes())).expect("the tetrahedron reads");
+    // Old Windows tools end a text file with 0x1A: padding, not data.
+    load_mesh(&write(&d, "eof.ply", format!("{ascii}\x1a").as_bytes()))
+        .expect("an end-of-file mark is no data");
     let e = load_mesh(&write(
         &d,
         "more.ply",
@@ -1641,6 +1644,9 @@ fn ply_data_beyond_the_declared_elements_is_refused() {
     let mut newline = bin.clone();
     newline.push(b'\n');
     load_mesh(&write(&d, "nl.ply", &newline)).expect("a final newline is no data");
+    let mut nuls = bin.clone();
+    nuls.extend_from_slice(&[0, 0, 0, 0]);
+    load_mesh(&write(&d, "nul.ply", &nuls)).expect("NUL padding is no data");
     let mut tail = bin.clone();
     tail.extend_from_slice(&7f32.to_le_bytes());
     let e = load_mesh(&write(&d, "tail.ply", &tail))

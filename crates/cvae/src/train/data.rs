@@ -303,12 +303,18 @@ impl Table {
         }
     }
 
-    /// Every row once, in order, into `cond` and `target` as [`Self::batch`] fills them
-    /// (LengthGen's N dequantised with draws from `rng`).
-    pub fn all_rows(&self, rng: &mut WalkRng, cond: &mut Vec<f32>, target: &mut Vec<f32>) {
+    /// The rows `indices`, in their order, into `cond` and `target` as [`Self::batch`]
+    /// fills them (LengthGen's N dequantised with draws from `rng`).
+    pub fn rows_at(
+        &self,
+        indices: &[usize],
+        rng: &mut WalkRng,
+        cond: &mut Vec<f32>,
+        target: &mut Vec<f32>,
+    ) {
         cond.clear();
         target.clear();
-        for i in 0..self.rows {
+        for &i in indices {
             self.push_row(i, rng, cond, target);
         }
     }

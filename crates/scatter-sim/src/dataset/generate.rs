@@ -143,27 +143,36 @@ pub fn generate(
 
 /// `n` walks that no row of a dataset with these `pieces` holds, from the same
 /// distribution: walks `total_walks, total_walks + 1, …` of each run the pieces come
-/// from, which that run would have drawn next (walk i depends on (seed, i) alone, so they
-/// are also the rows a larger run of the same seed would hold there). The `n` walks are
-/// shared among the runs by their row counts (largest remainder); a dataset merged from
-/// shards of one run counts as that run once. Held-out walks for a validation loss cost
-/// a simulation of `n` walks, not rows taken from training.
+/// from, which that run would have drawn next (walk i depends on (seed, sampler, i) alone,
+/// so they are also the rows a larger run of the same seed would hold there). Runs of one
+/// seed and sampler are one stream whatever their sizes: its held-out walks start after
+/// the largest run's end (the smaller run's next walks are the larger one's rows). The
+/// `n` walks are shared among the streams by their row counts (largest remainder), and
+/// returned stream by stream. Held-out walks for a validation loss cost a simulation of
+/// `n` walks, not rows taken from training.
 pub fn held_out_rows(pieces: &[Piece], n: u64) -> Vec<Row> {
-    let mut runs: Vec<(&Piece, u64)> = Vec::new();
+    // (a piece of the stream, where its held-out walks start, its rows)
+    let mut streams: Vec<(&Piece, u64, u64)> = Vec::new();
     for p in pieces {
-        match runs.iter_mut().find(|(r, _)| r.same_run(p)) {
-            Some((_, count)) => *count += p.count,
-            None => runs.push((p, p.count)),
+        match streams
+            .iter_mut()
+            .find(|(r, _, _)| r.seed == p.seed && r.sampler == p.sampler)
+        {
+            Some((_, start, count)) => {
+                *start = (*start).max(p.total_walks);
+                *count += p.count;
+            }
+            None => streams.push((p, p.total_walks, p.count)),
         }
     }
-    let total: u128 = runs.iter().map(|(_, c)| *c as u128).sum();
+    let total: u128 = streams.iter().map(|s| s.2 as u128).sum();
     if total == 0 || n == 0 {
         return Vec::new();
     }
-    let mut share: Vec<(u64, u128)> = runs
+    let mut share: Vec<(u64, u128)> = streams
         .iter()
-        .map(|(_, c)| {
-            let exact = n as u128 * *c as u128;
+        .map(|s| {
+            let exact = n as u128 * s.2 as u128;
             ((exact / total) as u64, exact % total)
         })
         .collect();
@@ -173,12 +182,12 @@ pub fn held_out_rows(pieces: &[Piece], n: u64) -> Vec<Row> {
     for &i in order.iter().take((n - given) as usize) {
         share[i].0 += 1;
     }
-    let jobs: Vec<(&Piece, u64)> = runs
+    let jobs: Vec<(&Piece, u64)> = streams
         .iter()
         .zip(&share)
-        .flat_map(|((run, _), (k, _))| (0..*k).map(move |j| (*run, j)))
+        .flat_map(|(&(run, start, _), (k, _))| (0..*k).map(move |j| (run, start.wrapping_add(j))))
         .collect();
     jobs.into_par_iter()
-        .map(|(run, j)| walk_row(run.seed, &run.sampler, run.total_walks.wrapping_add(j)).0)
+        .map(|(run, index)| walk_row(run.seed, &run.sampler, index).0)
         .collect()
 }
