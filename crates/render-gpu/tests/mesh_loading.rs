@@ -1380,15 +1380,40 @@ fn a_flat_closed_mesh_is_named_flat() {
     );
 }
 
+/// A tetrahedron (volume 1/6) as an ASCII PLY file.
+const TETRA_PLY: &str = "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\n\
+                         property float y\nproperty float z\nelement face 4\n\
+                         property list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n\
+                         0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n";
+
+/// The same tetrahedron as a binary PLY file: `header_tail` before its elements, `end` as
+/// the header's last line, `eol` ending each header line (LF, CRLF or a lone CR: all three
+/// are in use).
+fn tetra_ply_binary(header_tail: &str, end: &str, eol: &str) -> Vec<u8> {
+    let mut b = format!(
+        "ply\nformat binary_little_endian 1.0\n{header_tail}element vertex 4\n\
+         property float x\nproperty float y\nproperty float z\nelement face 4\n\
+         property list uchar int vertex_indices\n{end}\n"
+    )
+    .replace('\n', eol)
+    .into_bytes();
+    for p in [[0f32, 0., 0.], [1., 0., 0.], [0., 1., 0.], [0., 0., 1.]] {
+        p.iter().for_each(|x| b.extend_from_slice(&x.to_le_bytes()));
+    }
+    for f in [[0i32, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]] {
+        b.push(3);
+        f.iter().for_each(|i| b.extend_from_slice(&i.to_le_bytes()));
+    }
+    b
+}
+
 /// A `format` line without its version is named for that (it read as "format `ascii` is
 /// not supported"), and a file of faces that all collapse to a point says why it has no
 /// triangles.
 #[test]
 fn ply_format_without_version_and_collapsed_faces_are_named() {
     let d = tempfile::tempdir().unwrap();
-    let tetra = "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n\
-                 property float z\nelement face 4\nproperty list uchar int vertex_indices\n\
-                 end_header\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n";
+    let tetra = TETRA_PLY;
     let e = load_mesh(&write(
         &d,
         "v.ply",
@@ -1412,31 +1437,8 @@ fn ply_format_without_version_and_collapsed_faces_are_named() {
 #[test]
 fn ply_header_ends_at_its_own_line() {
     let d = tempfile::tempdir().unwrap();
-    // `eol` ends each header line: LF, CRLF or a lone CR (all three are in use).
-    let tetra = |header_tail: &str, end: &str, eol: &str| {
-        let mut b = format!(
-            "ply\nformat binary_little_endian 1.0\n{header_tail}element vertex 4\n\
-             property float x\nproperty float y\nproperty float z\nelement face 4\n\
-             property list uchar int vertex_indices\n{end}\n"
-        )
-        .replace('\n', eol)
-        .into_bytes();
-        for p in [[0f32, 0., 0.], [1., 0., 0.], [0., 1., 0.], [0., 0., 1.]] {
-            p.iter().for_each(|x| b.extend_from_slice(&x.to_le_bytes()));
-        }
-        for f in [[0i32, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]] {
-            b.push(3);
-            f.iter().for_each(|i| b.extend_from_slice(&i.to_le_bytes()));
-        }
-        b
-    };
-    let ascii = |eol: &str| {
-        "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n\
-         property float z\nelement face 4\nproperty list uchar int vertex_indices\n\
-         end_header\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n"
-            .replace('\n', eol)
-            .into_bytes()
-    };
+    let tetra = tetra_ply_binary;
+    let ascii = |eol: &str| TETRA_PLY.replace('\n', eol).into_bytes();
     for (name, text) in [
         ("plain.ply", tetra("", "end_header", "\n")),
         (
@@ -1610,9 +1612,7 @@ fn the_torus_knot_is_a_tube_around_its_curve() {
 #[test]
 fn ply_data_beyond_the_declared_elements_is_refused() {
     let d = tempfile::tempdir().unwrap();
-    let ascii = "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n\
-                 property float z\nelement face 4\nproperty list uchar int vertex_indices\n\
-                 end_header\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 2 1\n3 0 1 3\n3 0 3 2\n3 1 2 3\n";
+    let ascii = TETRA_PLY;
     load_mesh(&write(&d, "ok.ply", ascii.as_bytes())).expect("the tetrahedron reads");
     // Old Windows tools end a text file with 0x1A: padding, not data.
     load_mesh(&write(&d, "eof.ply", format!("{ascii}\x1a").as_bytes()))
@@ -1628,19 +1628,7 @@ fn ply_data_beyond_the_declared_elements_is_refused() {
         e.contains("more.ply") && e.contains("`3` after the last element"),
         "{e}"
     );
-    let mut bin = b"ply\nformat binary_little_endian 1.0\nelement vertex 4\nproperty float x\n\
-                    property float y\nproperty float z\nelement face 4\n\
-                    property list uchar int vertex_indices\nend_header\n"
-        .to_vec();
-    for p in [[0f32, 0., 0.], [1., 0., 0.], [0., 1., 0.], [0., 0., 1.]] {
-        p.iter()
-            .for_each(|x| bin.extend_from_slice(&x.to_le_bytes()));
-    }
-    for f in [[0i32, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]] {
-        bin.push(3);
-        f.iter()
-            .for_each(|i| bin.extend_from_slice(&i.to_le_bytes()));
-    }
+    let bin = tetra_ply_binary("", "end_header", "\n");
     let mut newline = bin.clone();
     newline.push(b'\n');
     load_mesh(&write(&d, "nl.ply", &newline)).expect("a final newline is no data");
