@@ -18,13 +18,13 @@ use super::data::Table;
 use super::network::Cvae;
 use crate::sampler::normals;
 
-/// Rows of each half, at most: a rank test over 2 × 2,048 rows tells a shift of a sixteenth
-/// of the losses' spread at about 2 z; the evaluation costs four forward passes of a
+/// Rows of each half, at most: over 2 × 2,048 rows the gap's z reads a shift of a sixteenth
+/// of the losses' spread as 2; the evaluation costs four forward passes of a
 /// default training batch (1,024 rows) every 500 steps.
 pub const VALIDATION_ROWS: usize = 2048;
 
-/// Fewer rows a side than this and no validation is read: the rank statistic's normal
-/// approximation needs a few dozen.
+/// Fewer rows a side than this and no validation is read: the gap's z is N(0, 1) only
+/// for a few dozen rows and more (Student's t below).
 pub const MIN_VALIDATION_ROWS: usize = 20;
 
 /// A row's loss beyond this (or not finite) is read as this: a memorising model finds some
@@ -87,7 +87,7 @@ impl Validation {
     /// `held` must be standardised like `train` ([`Table::like`]). Each side is `n`
     /// distinct rows drawn at random, n = the smaller table's rows up to
     /// [`VALIDATION_ROWS`]: distinct, so a small training table's rows do not count
-    /// twice (the rank statistic would spread wider than N(0, 1)); at random, so held-out
+    /// twice (the gap's z would spread wider than N(0, 1)); at random, so held-out
     /// walks simulated stream by stream are not the first streams' alone. `None` with
     /// fewer than [`MIN_VALIDATION_ROWS`] a side. The draws come from `seed` alone, not
     /// from the training's stream, so reading the loss changes nothing in the training.
@@ -140,9 +140,9 @@ impl Validation {
     }
 }
 
-/// The losses through asinh: like the losses in the bulk (single digits), logarithmic in
-/// the tail, where a memorising model's few absurd held-out losses (hundreds) would
-/// otherwise widen the standard error more than they move the mean, and hide the gap.
+/// The losses through asinh: monotone, linear near 0 and logarithmic in the tail, where a
+/// memorising model's few absurd held-out losses (hundreds) would otherwise widen the
+/// standard error more than they move the mean, and hide the gap.
 fn tempered(losses: &[f64]) -> Vec<f64> {
     losses.iter().map(|v| v.asinh()).collect()
 }
