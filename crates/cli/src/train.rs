@@ -312,7 +312,6 @@ fn validations(
     kinds: &[ModelKind],
     tables: &[Table],
     pieces: &[scatter_sim::dataset::Piece],
-    steps_scale: f64,
 ) -> Vec<Option<Validation>> {
     let t0 = Instant::now();
     let held = held_out_rows(pieces, HELD_OUT_WALKS);
@@ -326,8 +325,7 @@ fn validations(
         .iter()
         .zip(tables)
         .map(|(&k, t)| {
-            let latent = scaled_model(cfg.model(k), steps_scale).latent;
-            let v = Validation::new(t, &Table::like(t, &held), latent, cfg.seed);
+            let v = Validation::new(t, &Table::like(t, &held), cfg.model(k).latent, cfg.seed);
             if v.is_none() {
                 eprintln!(
                     "note: fewer than {MIN_VALIDATION_ROWS} usable training or held-out walks for \
@@ -700,7 +698,7 @@ pub fn run(a: Args) -> Result<()> {
         }
     }
     drop(rows);
-    let validations = validations(&cfg, &kinds, &tables, &header.pieces, a.steps_scale);
+    let validations = validations(&cfg, &kinds, &tables, &header.pieces);
 
     let cancel = interrupt::flag();
     for &k in &kinds {
