@@ -67,6 +67,14 @@ fn setup(dir: &Path) {
     fs::write(dir.join("train.toml"), cfg).unwrap();
 }
 
+/// [`setup`], then one full training run of the config, which must succeed: the
+/// checkpoints the tests of resume, --fresh and stopping start from.
+fn setup_and_train(dir: &Path) {
+    setup(dir);
+    let o = stcvae(&["train", "--config", "train.toml"], dir);
+    assert!(o.status.success(), "{}", stderr(&o));
+}
+
 #[test]
 fn one_model_retrained_against_a_base_file_keeps_the_others() {
     let dir = tempfile::tempdir().unwrap();
@@ -635,9 +643,7 @@ fn checkpoint_decoders_keep_their_mode_and_ranges() {
 #[test]
 fn one_failing_model_stops_the_others() {
     let dir = tempfile::tempdir().unwrap();
-    setup(dir.path());
-    let o = stcvae(&["train", "--config", "train.toml"], dir.path());
-    assert!(o.status.success(), "{}", stderr(&o));
+    setup_and_train(dir.path());
     let cfg = dir.path().join("train.toml");
     let text = fs::read_to_string(&cfg).unwrap();
     let text = text
@@ -672,9 +678,7 @@ fn one_failing_model_stops_the_others() {
 #[test]
 fn fresh_removes_the_checkpoints_it_replaces() {
     let dir = tempfile::tempdir().unwrap();
-    setup(dir.path());
-    let o = stcvae(&["train", "--config", "train.toml"], dir.path());
-    assert!(o.status.success(), "{}", stderr(&o));
+    setup_and_train(dir.path());
     let json = dir.path().join("ck/lengthgen.json");
     assert!(json.exists());
     let cfg = dir.path().join("train.toml");
@@ -736,9 +740,7 @@ fn albedo_zero_data_is_refused_for_eventgen_naming_the_albedo() {
 #[test]
 fn a_checkpoint_record_without_its_json_is_named() {
     let dir = tempfile::tempdir().unwrap();
-    setup(dir.path());
-    let o = stcvae(&["train", "--config", "train.toml"], dir.path());
-    assert!(o.status.success(), "{}", stderr(&o));
+    setup_and_train(dir.path());
     fs::remove_file(dir.path().join("ck/lengthgen.json")).unwrap();
     for args in [
         &["train", "--config", "train.toml", "--resume"][..],
