@@ -472,10 +472,7 @@ pub fn run(a: Args) -> Result<()> {
             let line = spec.label.clone().unwrap_or(name);
             match lines.iter_mut().find(|s| s.name == line) {
                 Some(s) => s.points.push((t, mse.sqrt())),
-                None => lines.push(Series {
-                    name: line,
-                    points: vec![(t, mse.sqrt())],
-                }),
+                None => lines.push(Series::new(line, vec![(t, mse.sqrt())])),
             }
         }
     }

@@ -323,6 +323,22 @@ const MAX_MARKED_POINTS: usize = 60;
 pub struct Series {
     pub name: String,
     pub points: Vec<(f64, f64)>,
+    /// Index into the plot's palette; `None` takes the series' own position. Curves that
+    /// belong together (one model's training and held-out losses) share a colour.
+    pub colour: Option<usize>,
+    /// Drawn dashed, to tell apart two curves of one colour.
+    pub dashed: bool,
+}
+
+impl Series {
+    pub fn new(name: impl Into<String>, points: Vec<(f64, f64)>) -> Self {
+        Series {
+            name: name.into(),
+            points,
+            colour: None,
+            dashed: false,
+        }
+    }
 }
 
 /// A line plot of a few series (markers at the points of short ones), optionally on log axes; used by
@@ -403,25 +419,47 @@ pub fn line_plot(
                 }
                 mesh.draw().map_err(|x| e(&x))?;
                 for (i, s) in series.iter().enumerate() {
-                    let c = colours[i % colours.len()];
+                    let c = colours[s.colour.unwrap_or(i) % colours.len()];
                     let p: Vec<(f64, f64)> = s
                         .points
                         .iter()
                         .cloned()
                         .filter(|&(x, y)| finite(x, log_x) && finite(y, log_y))
                         .collect();
-                    chart
-                        .draw_series(LineSeries::new(p.clone(), c.stroke_width(2)))
+                    let drawn = if s.dashed {
+                        chart.draw_series(DashedLineSeries::new(
+                            p.clone(),
+                            8,
+                            5,
+                            c.stroke_width(2),
+                        ))
+                    } else {
+                        chart.draw_series(LineSeries::new(p.clone(), c.stroke_width(2)))
+                    };
+                    let dashed = s.dashed;
+                    drawn
                         .map_err(|x| e(&x))?
                         .label(s.name.clone())
                         .legend(move |(x, y)| {
-                            PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2))
+                            // A dashed key is two strokes with a gap: a dash that the
+                            // key's 18 px can show.
+                            let (a, b) = if dashed { (7, 11) } else { (9, 9) };
+                            EmptyElement::at((x, y))
+                                + PathElement::new(vec![(0, 0), (a, 0)], c.stroke_width(2))
+                                + PathElement::new(vec![(b, 0), (18, 0)], c.stroke_width(2))
                         });
                     // Markers only where they can be told apart (a training's hundreds
                     // of readings drew a solid band).
                     if p.len() <= MAX_MARKED_POINTS {
+                        // A dashed series' markers hollow, so that they stay apart from
+                        // those of the solid series of the same colour.
+                        let mark = if s.dashed {
+                            c.stroke_width(2)
+                        } else {
+                            c.filled()
+                        };
                         chart
-                            .draw_series(p.into_iter().map(|q| Circle::new(q, 4, c.filled())))
+                            .draw_series(p.into_iter().map(|q| Circle::new(q, 4, mark)))
                             .map_err(|x| e(&x))?;
                     }
                 }

@@ -343,7 +343,15 @@ fn validations(
 fn loss_plot(out: &Path, trained: &[cvae::train::Trained]) -> Result<Option<PathBuf>> {
     use crate::plots::{Series, line_plot};
     let mut series = Vec::new();
-    for t in trained.iter().filter(|t| !t.info.validation.is_empty()) {
+    // One colour per model, the same in every run whatever order the models finished in:
+    // its training walks solid, its held-out walks dashed.
+    for (i, kind) in ModelKind::ALL.into_iter().enumerate() {
+        let Some(t) = trained
+            .iter()
+            .find(|t| t.kind == kind && !t.info.validation.is_empty())
+        else {
+            continue;
+        };
         let points = |f: fn(&ValidationPoint) -> f32| {
             t.info
                 .validation
@@ -352,12 +360,19 @@ fn loss_plot(out: &Path, trained: &[cvae::train::Trained]) -> Result<Option<Path
                 .collect()
         };
         series.push(Series {
-            name: format!("{} training walks", t.kind.name()),
-            points: points(|v| v.train.0),
+            colour: Some(i),
+            ..Series::new(
+                format!("{} training walks", t.kind.name()),
+                points(|v| v.train.0),
+            )
         });
         series.push(Series {
-            name: format!("{} held-out walks", t.kind.name()),
-            points: points(|v| v.held_out.0),
+            colour: Some(i),
+            dashed: true,
+            ..Series::new(
+                format!("{} held-out walks", t.kind.name()),
+                points(|v| v.held_out.0),
+            )
         });
     }
     if series.is_empty() {

@@ -135,10 +135,7 @@ fn k_name(k: f64) -> String {
 }
 
 fn series(name: &str, points: Vec<(f64, f64)>) -> Series {
-    Series {
-        name: name.into(),
-        points,
-    }
+    Series::new(name, points)
 }
 
 /// Fig. 1: PT vs ST-CVAE at equal spp along the density ladder.
