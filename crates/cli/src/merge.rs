@@ -31,6 +31,11 @@ pub struct Args {
     /// (.csv for CSV, else binary).
     #[arg(long)]
     out: PathBuf,
+    /// Renders only: exposure of the merged PNG preview, > 0 (the EXR is linear and
+    /// unscaled). Default: the exposure the inputs' reports (their .json) record, where
+    /// they all record the same one, else 1.
+    #[arg(long, allow_negative_numbers = true, value_parser = crate::render::parse_exposure)]
+    exposure: Option<f32>,
 }
 
 /// Refuses an input given twice (it would count twice) and outputs that overwrite an input.
@@ -97,6 +102,9 @@ pub fn run(a: Args) -> Result<()> {
              (.bin, .csv), not both",
             other.display()
         );
+    }
+    if a.exposure.is_some() {
+        bail!("--exposure applies to renders (.exr) only: a dataset has no preview");
     }
     // A dataset written over a render's file (say `--out run.exr` by a slip), a config or
     // a model would replace it with binary rows.
@@ -226,10 +234,26 @@ pub(crate) fn write_image_set_with(
 /// OUT.json.
 fn merge_images(a: &Args) -> Result<()> {
     crate::render::check_out_stem(&a.out)?;
+    // Ctrl-C asks to stop. Before the set is written (large renders take seconds to read)
+    // nothing is; once writing, the set is finished whole. Without the handler the signal
+    // ended the process mid-write, leaving hidden temporaries, or a new image beside the
+    // old report between two renames.
+    let cancel = crate::interrupt::flag();
     let inputs: Vec<&std::path::Path> = a.inputs.iter().map(|p| p.as_path()).collect();
     let (img, tag) = render_gpu::image_io::merge_exrs(&inputs)?;
+    if cancel.load(std::sync::atomic::Ordering::Relaxed) {
+        bail!(
+            "interrupted: nothing written to {}.{{exr,png,json}}",
+            out_stem(&a.out).display()
+        );
+    }
+    let exposure = match a.exposure {
+        Some(e) => e,
+        None => inputs_exposure(&a.inputs),
+    };
     let report = serde_json::json!({
         "inputs": a.inputs.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
+        "exposure": exposure,
         "spp": tag.spp,
         "scene_hash": format!("{:016x}", tag.scene_hash),
         "seeds": tag.seeds,
@@ -243,7 +267,7 @@ fn merge_images(a: &Args) -> Result<()> {
         &a.out,
         &img,
         &tag,
-        1.0,
+        exposure,
         Some(&serde_json::to_vec_pretty(&report)?),
     )?;
     eprintln!(
@@ -253,6 +277,29 @@ fn merge_images(a: &Args) -> Result<()> {
         out_stem(&a.out).display()
     );
     Ok(())
+}
+
+/// The preview exposure the renders' reports (IN.json beside each IN.exr; a merge's own
+/// report records it too) agree on; 1 where one has none or they differ (said so).
+fn inputs_exposure(inputs: &[PathBuf]) -> f32 {
+    let recorded = |p: &PathBuf| -> Option<f32> {
+        let text = std::fs::read_to_string(p.with_extension("json")).ok()?;
+        let v: serde_json::Value = serde_json::from_str(&text).ok()?;
+        let e = v.get("exposure")?.as_f64()? as f32;
+        (e.is_finite() && e > 0.0).then_some(e)
+    };
+    let found: Vec<Option<f32>> = inputs.iter().map(recorded).collect();
+    match found.first() {
+        Some(&Some(e)) if found.iter().all(|f| *f == Some(e)) => e,
+        _ => {
+            if found.iter().any(|f| f.is_some_and(|e| e != 1.0)) {
+                eprintln!(
+                    "note: the inputs' previews were not all at one recorded exposure: the                      merged PNG is at exposure 1 (--exposure sets it)"
+                );
+            }
+            1.0
+        }
+    }
 }
 
 /// Reads a dataset to its end, which verifies its checksum.
@@ -518,7 +565,7 @@ fn merge_csv(a: &Args) -> Result<()> {
             );
         }
         if i == 0 {
-            writeln!(out, "{head}")?;
+            writeln!(out, "{head}").with_context(|| format!("cannot write {}", a.out.display()))?;
         }
         for (n, line) in lines.enumerate() {
             // Line numbers count from 1, with the header as line 1.
@@ -530,7 +577,7 @@ fn merge_csv(a: &Args) -> Result<()> {
             // Checked as a binary row is: a truncated, edited or foreign row is refused.
             dataset::Row::parse_csv(&line)
                 .map_err(|e| anyhow!("{}: line {}: {e}", path.display(), n + 2))?;
-            writeln!(out, "{line}")?;
+            writeln!(out, "{line}").with_context(|| format!("cannot write {}", a.out.display()))?;
             digest.write(line.trim_end().as_bytes());
             digest.write(b"\n");
             own_rows += 1;

@@ -8,7 +8,6 @@ use anyhow::{Result, bail};
 use cvae::ModelSet;
 use cvae::eval::{self, SettingReport};
 use rayon::prelude::*;
-use scatter_sim::WalkRng;
 use scatter_sim::conditions::Conditions;
 use scatter_sim::dataset::{CsvWriter, Row, RowSink, is_csv};
 use scatter_sim::walk::CanonicalWalk;
@@ -64,8 +63,10 @@ pub struct SampleArgs {
     #[arg(long, allow_negative_numbers = true, default_value_t = 10_000,
           value_parser = crate::whole::whole::<u64>(1, u64::MAX))]
     samples: u64,
-    /// Random seed: walk i uses the stream (seed, i), so a run is reproducible whatever
-    /// the thread count.
+    /// Random seed: walk i has a stream of its own, so a run is reproducible whatever the
+    /// thread count. The model's streams are apart from the simulator's: a `generate` of
+    /// the same seed gives independent walks (and `eval` with seed S draws these for a
+    /// setting of seed S).
     #[arg(long, allow_negative_numbers = true, default_value_t = 1,
           value_parser = crate::render::parse_seed)]
     seed: u64,
@@ -97,7 +98,7 @@ pub fn sample(a: SampleArgs) -> Result<()> {
         &[("the model".to_string(), model_path(a.model.as_deref()))],
     )?;
     let m = load_model(a.model.as_deref())?;
-    warn_outside_training(&m, c, "--");
+    let _ = warn_outside_training(&m, c, "--");
     let mut sink = Box::new(CsvWriter::create(&a.out, a.samples)?);
     // Drawn in chunks so that memory stays bounded however many walks are asked for.
     const CHUNK: u64 = 1 << 16;
@@ -114,7 +115,7 @@ pub fn sample(a: SampleArgs) -> Result<()> {
         let walks: Vec<_> = (start..(start + CHUNK).min(a.samples))
             .into_par_iter()
             .map(|i| {
-                let mut rng = WalkRng::for_walk(a.seed, i);
+                let mut rng = cvae::eval::model_rng(a.seed, i);
                 m.sample_walk(c.tau, c.g, c.albedo, true, &mut rng)
             })
             .collect();
@@ -166,8 +167,9 @@ pub struct EvalArgs {
     #[arg(long, allow_negative_numbers = true, default_value_t = 10_000,
           value_parser = crate::whole::whole::<usize>(2, MAX_EVAL_SAMPLES as u64))]
     samples: usize,
-    /// Random seed; setting i of the grid uses seed + i (mod 2^64) for the model and the
-    /// simulator.
+    /// Random seed; setting i (of the grid or of --at) uses seed + i (mod 2^64). The
+    /// model's walks are those `sample --seed` draws with it, in streams apart from the
+    /// simulator's, so the two are independent.
     #[arg(long, allow_negative_numbers = true, default_value_t = 1,
           value_parser = crate::render::parse_seed)]
     seed: u64,
@@ -196,20 +198,26 @@ fn parse_setting(s: &str) -> Result<Conditions, String> {
 }
 
 /// The models extrapolate outside the conditions they were trained on; say so once.
-fn warn_outside_training(m: &cvae::ModelSet, c: Conditions, flag: &str) {
+/// Warns (stderr) of each condition outside the model's training range, and returns the
+/// warnings for a report that keeps them.
+fn warn_outside_training(m: &cvae::ModelSet, c: Conditions, flag: &str) -> Vec<String> {
     let t = &m.training;
+    let mut warnings = Vec::new();
     for (name, v, r) in [
         ("tau", c.tau, t.tau_range),
         ("g", c.g, t.g_range),
         ("albedo", c.albedo, t.albedo_range),
     ] {
         if outside_training(v, r) {
-            eprintln!(
-                "warning: {flag}{name} {v} lies outside the model's training range {}: the samples are an extrapolation",
+            let w = format!(
+                "{flag}{name} {v} lies outside the model's training range {}: the samples are an extrapolation",
                 training_range(r)
             );
+            eprintln!("warning: {w}");
+            warnings.push(w);
         }
     }
+    warnings
 }
 
 /// Which of the paper's grid settings (`eval`'s) lie outside the model's training range,
@@ -303,8 +311,10 @@ struct EvalJson<'a> {
 }
 
 pub fn evaluate(a: EvalArgs) -> Result<()> {
+    // Only the files eval writes: the user's own metrics.csv or fig1.png in the folder
+    // were named as an earlier run's, to delete.
     let before = crate::left_over::Snapshot::take_matching(&a.out, |name| {
-        name.starts_with("metrics.") || (name.starts_with("fig") && name.ends_with(".png"))
+        ["metrics.md", "metrics.json"].contains(&name) || crate::plots::PLOT_FILES.contains(&name)
     });
     if !a.at.is_empty() {
         evaluate_settings(&a)?;
@@ -410,7 +420,8 @@ fn eval_json_and_head(
     writeln!(
         md,
         "{samples} model samples vs {samples} fresh simulator walks per setting (setting i: \
-         seed {seed} + i, mod 2^64). KS = two-sample Kolmogorov–Smirnov statistic, W1 = Wasserstein-1 \
+         seed {seed} + i, mod 2^64; the model's walks are those `sample --seed` draws, in streams \
+         apart from the simulator's). KS = two-sample Kolmogorov–Smirnov statistic, W1 = Wasserstein-1 \
          distance; for the pairs (cos θ, α) and (cos θ, β) the 2-D KS statistic (the largest \
          difference of the samples' shares in a quadrant about any sample point, Fasano–\
          Franceschini) and the sliced W1 (mean 1-D W1 of {} projections). Only the representative \
@@ -448,8 +459,10 @@ fn evaluate_settings(a: &EvalArgs) -> Result<()> {
     // Ctrl-C stops it, writing nothing: within a setting's walks (a setting takes minutes
     // at 4M samples and τ = 125), and after the last one.
     let stopped = || anyhow::anyhow!("interrupted: nothing written to {}", a.out.display());
+    // Kept in metrics.md too: saved figures of an extrapolation read as a fit.
+    let mut warnings = Vec::new();
     for (i, c) in a.at.iter().enumerate() {
-        warn_outside_training(&m, *c, "--at ");
+        warnings.extend(warn_outside_training(&m, *c, "--at "));
         let seed = a.seed.wrapping_add(i as u64);
         let setting = (c.tau, c.g, c.albedo);
         let model =
@@ -465,20 +478,31 @@ fn evaluate_settings(a: &EvalArgs) -> Result<()> {
         return Err(stopped());
     }
     let (json, mut md) = eval_json_and_head(&name, a.samples, a.seed, &reports)?;
+    for w in &warnings {
+        writeln!(md, "\n**Warning:** {w}.")?;
+    }
     md.extend(bands.into_bytes());
     write_metrics(&a.out, &json, &md, &[])?;
     print!("{}", String::from_utf8_lossy(&md));
     Ok(())
 }
 
-/// Evaluates the model into `out` (metrics.json, metrics.md, plots); returns the max KS
-/// per quantity over the grid.
+/// What [`evaluate_into`] measured beyond its files.
+pub struct GridEval {
+    /// The max KS per quantity over the grid.
+    pub max_ks: std::collections::BTreeMap<&'static str, f64>,
+    /// The grid settings outside the model's training range, as printed and kept in
+    /// metrics.md (for a report that embeds the plots).
+    pub outside: Option<String>,
+}
+
+/// Evaluates the model into `out` (metrics.json, metrics.md, plots).
 pub fn evaluate_into(
     model: Option<&Path>,
     out: &Path,
     samples: usize,
     seed: u64,
-) -> Result<std::collections::BTreeMap<&'static str, f64>> {
+) -> Result<GridEval> {
     let (m, model_name) = open_eval(model, out, samples, true)?;
     let outside = grid_outside_training(&m);
     if let Some(w) = &outside {
@@ -550,6 +574,10 @@ pub fn evaluate_into(
     }
     let panels: Vec<crate::plots::Panel> = cols.iter().map(|(t, g, m, s)| (*t, *g, m, s)).collect();
     let figs = crate::plots::render_all(&panels)?;
+    // A Ctrl-C while the plots were drawn (seconds) stops it too: it said it would stop.
+    if stopped() {
+        return Err(interrupted());
+    }
     writeln!(
         md,
         "\nPlots: {}",
@@ -559,5 +587,5 @@ pub fn evaluate_into(
             .join(", ")
     )?;
     write_metrics(out, &json, &md, &figs)?;
-    Ok(max_ks)
+    Ok(GridEval { max_ks, outside })
 }

@@ -427,12 +427,7 @@ pub fn line_plot(
                         .filter(|&(x, y)| finite(x, log_x) && finite(y, log_y))
                         .collect();
                     let drawn = if s.dashed {
-                        chart.draw_series(DashedLineSeries::new(
-                            p.clone(),
-                            8,
-                            5,
-                            c.stroke_width(2),
-                        ))
+                        chart.draw_series(DashedLineSeries::new(p.clone(), 8, 5, c.stroke_width(2)))
                     } else {
                         chart.draw_series(LineSeries::new(p.clone(), c.stroke_width(2)))
                     };

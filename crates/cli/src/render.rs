@@ -79,7 +79,7 @@ pub fn parse_seed(s: &str) -> Result<u64, String> {
 /// `--exposure`: a positive number that stays positive and finite as the f32 the PNG
 /// encoder scales by. Parsed as f64 first so that the message quotes what was typed
 /// (clap's own f32 parser turned 1e-300 into 0 and the message said "--exposure 0").
-fn parse_exposure(s: &str) -> Result<f32, String> {
+pub(crate) fn parse_exposure(s: &str) -> Result<f32, String> {
     let x: f64 = s
         .trim()
         .parse()
@@ -187,6 +187,15 @@ impl Prepared {
         self.file.medium.g.abs() <= render_gpu::scene::MODEL_MAX_G
     }
 
+    /// The scene's hash with ST-CVAE's thresholds in force folded in. A scene file
+    /// usually leaves them unset, and the code that fills them in (render_gpu::scene's
+    /// defaults and MODEL_MAX_G, the model's τ limit here) is not among the sources the
+    /// scene hash includes (render-gpu's build.rs): renders by builds that differ there
+    /// converge to different images and must not be merged as one scene's.
+    fn hash_with_thresholds(&self) -> u64 {
+        thresholds_hash(self.data.hash, &self.settings())
+    }
+
     /// The integrator settings of this scene (its `[render]` table, with the overrides
     /// `prepare` applied, the defaults and the model's τ limit); the same on every device.
     pub fn settings(&self) -> IntegratorSettings<'_> {
@@ -284,7 +293,7 @@ pub fn prepare(
             file.render.min_tau_or_default()
         );
     }
-    Ok(Prepared {
+    let mut p = Prepared {
         file,
         data,
         // Of the file's bytes (what a user can hash again), not the re-serialised model.
@@ -299,7 +308,22 @@ pub fn prepare(
         model,
         model_path,
         max_tau,
-    })
+    };
+    if p.model.is_some() {
+        p.data.hash = p.hash_with_thresholds();
+    }
+    Ok(p)
+}
+
+/// `scene_hash` with the sphere steps' thresholds `s` folded in (see
+/// [`Prepared::hash_with_thresholds`]).
+fn thresholds_hash(scene_hash: u64, s: &IntegratorSettings) -> u64 {
+    let mut h = render_gpu::hash::Fnv64::new();
+    h.write(&scene_hash.to_le_bytes());
+    for v in [s.min_tau, s.max_tau, s.exact_tau] {
+        h.write(&v.to_le_bytes());
+    }
+    h.finish()
 }
 
 /// The models extrapolate outside the media they were trained on (τ is kept inside by the
@@ -767,7 +791,47 @@ pub(crate) fn leak_note(stats: &render_gpu::integrator::PathStats, what: &str) {
 
 #[cfg(test)]
 mod tests {
-    use super::parse_exposure;
+    use super::{
+        IntegratorKind, IntegratorSettings, SceneData, parse_exposure, prepare, thresholds_hash,
+    };
+
+    /// The hash that `merge` and the PT cache compare holds ST-CVAE's thresholds in
+    /// force, which the scene file leaves unset and code outside the hashed sources fills
+    /// in: a build with another model τ limit (or default) writes renders of another hash.
+    /// PT's hash, which they never touch, stays the scene's own.
+    #[test]
+    fn the_scene_hash_holds_the_thresholds_in_force() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+        let scene = root.join("configs/scenes/sphere.toml");
+        let model = root.join("models/default.stcvae");
+        let dir = scene.parent().unwrap();
+        let st = prepare(
+            &scene,
+            Some(IntegratorKind::Stcvae),
+            None,
+            Some(&model),
+            |_| {},
+        )
+        .unwrap();
+        let bytes = st.model.as_ref().unwrap().to_bytes();
+        let base = SceneData::build(&st.file, dir, false, &bytes).unwrap().hash;
+        let settings = st.settings();
+        assert_eq!(st.data.hash, thresholds_hash(base, &settings));
+        assert_ne!(st.data.hash, base);
+        let edits: [fn(&mut IntegratorSettings); 3] = [
+            |s| s.max_tau = 50.0,
+            |s| s.min_tau = 2.0,
+            |s| s.exact_tau = 8.0,
+        ];
+        for edit in edits {
+            let mut other = settings;
+            edit(&mut other);
+            assert_ne!(thresholds_hash(base, &other), st.data.hash);
+        }
+        let pt = prepare(&scene, Some(IntegratorKind::Pt), None, Some(&model), |_| {}).unwrap();
+        let pt_base = SceneData::build(&pt.file, dir, false, &[]).unwrap().hash;
+        assert_eq!(pt.data.hash, pt_base);
+    }
 
     #[test]
     fn exposure_takes_positive_finite_f32s_and_quotes_what_was_typed() {

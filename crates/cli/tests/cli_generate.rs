@@ -58,6 +58,68 @@ fn fixed_condition_csv() {
     }
 }
 
+/// `generate` and `sample` of one seed draw independent walks: the model's random numbers
+/// are a stream apart from the simulator's. With one stream for both, row i of the two
+/// files shared numbers (the simulator's first deflection and the decoders' first latent
+/// values), and the paired rows correlated: over these 200,000 rows the event's y
+/// position at z = 13.5 and its z direction at z = 19.
+///
+/// Statistic: per column, the Pearson correlation r of the paired rows; for independent
+/// pairs r·√n is standard normal for large n whatever the columns' distributions (they are
+/// bounded). Bar |z| < 5 for each of the ≤ 10 varying columns: a false alarm has
+/// probability 10 · 5.7·10⁻⁷ ≈ 6·10⁻⁶.
+#[test]
+fn generate_and_sample_of_one_seed_are_independent() {
+    let dir = tempfile::tempdir().unwrap();
+    let model = concat!(env!("CARGO_MANIFEST_DIR"), "/../../models/default.stcvae");
+    let conditions = words("--samples 200000 --tau 2 --g 0 --albedo 1 --seed 7");
+    ok(&stcvae(
+        &[&["generate"][..], &conditions, &["--out", "g.csv"]].concat(),
+        dir.path(),
+    ));
+    ok(&stcvae(
+        &[
+            &["sample", "--model", model][..],
+            &conditions,
+            &["--out", "s.csv"],
+        ]
+        .concat(),
+        dir.path(),
+    ));
+    let columns = |name: &str| -> Vec<Vec<f64>> {
+        let text = fs::read_to_string(dir.path().join(name)).unwrap();
+        let mut cols = vec![Vec::new(); 13];
+        for line in text.lines().skip(1) {
+            for (c, v) in line.split(',').enumerate() {
+                cols[c].push(v.parse::<f64>().unwrap());
+            }
+        }
+        cols
+    };
+    let (g, s) = (columns("g.csv"), columns("s.csv"));
+    let n = g[0].len();
+    assert_eq!((n, s[0].len()), (200_000, 200_000));
+    let mut tested = 0;
+    for c in 3..13 {
+        let (a, b) = (&g[c], &s[c]);
+        let mean = |x: &[f64]| x.iter().sum::<f64>() / n as f64;
+        let (ma, mb) = (mean(a), mean(b));
+        let var = |x: &[f64], m: f64| x.iter().map(|v| (v - m).powi(2)).sum::<f64>();
+        let (va, vb) = (var(a, ma), var(b, mb));
+        if va == 0.0 || vb == 0.0 {
+            continue;
+        }
+        let cov: f64 = a.iter().zip(b).map(|(x, y)| (x - ma) * (y - mb)).sum();
+        let z = cov / (va * vb).sqrt() * (n as f64).sqrt();
+        assert!(
+            z.abs() < 5.0,
+            "column {c}: paired-row correlation z = {z:.1}"
+        );
+        tested += 1;
+    }
+    assert!(tested >= 8, "only {tested} columns vary");
+}
+
 /// Outputs get an ordinary file's mode narrowed by the umask, like any other program's: a
 /// fixed 0644 made them readable by everyone under umask 077. Run through `sh` so that
 /// the umask is the child's alone (the tests share one process).
@@ -639,6 +701,9 @@ fn eval_names_only_its_own_files_as_left_over() {
     let model = concat!(env!("CARGO_MANIFEST_DIR"), "/../../models/default.stcvae");
     fs::write(dir.path().join("small.toml"), "x = 1\n").unwrap();
     fs::write(dir.path().join("walks.csv"), "tau\n").unwrap();
+    // Named like eval's files but not among them: the user's.
+    fs::write(dir.path().join("metrics.csv"), "a\n").unwrap();
+    fs::write(dir.path().join("fig1.png"), b"png").unwrap();
     // A plot of an earlier grid run, which `--at` does not draw.
     fs::write(dir.path().join("fig11_n.png"), b"png").unwrap();
     let out = stcvae(
@@ -666,7 +731,10 @@ fn eval_names_only_its_own_files_as_left_over() {
         "{note}"
     );
     assert!(
-        !note.contains("small.toml") && !note.contains("walks.csv"),
+        !note.contains("small.toml")
+            && !note.contains("walks.csv")
+            && !note.contains("metrics.csv")
+            && !note.contains("fig1.png"),
         "{note}"
     );
 }

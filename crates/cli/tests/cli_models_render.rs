@@ -230,6 +230,152 @@ fn model_errors_are_one_line() {
     );
 }
 
+/// The merged preview is at the exposure the inputs were rendered with (their reports
+/// record it), or at `--exposure`; before, it was always at 1, four times darker than
+/// either input of two `--exposure 4` renders. The EXR is linear whatever the exposure.
+#[test]
+fn a_merged_preview_keeps_the_inputs_exposure() {
+    use render_gpu::image_io::{encode_png, read_exr};
+    let d = tempfile::tempdir().unwrap();
+    let scene = sphere_scene_file(d.path(), 16);
+    let (a, b) = (d.path().join("a"), d.path().join("b"));
+    for (out, seed) in [(&a, "1"), (&b, "2")] {
+        ok(&render_scene(
+            &scene,
+            "pt",
+            "2",
+            seed,
+            out,
+            &["--exposure", "4"],
+        ));
+    }
+    let m = d.path().join("m");
+    ok(&merge_renders(&a, &b, &m));
+    let (img, _) = read_exr(&m.with_extension("exr")).unwrap();
+    let png = |p: &Path| std::fs::read(p.with_extension("png")).unwrap();
+    assert_eq!(png(&m), encode_png(&img, 4.0).unwrap());
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(m.with_extension("json")).unwrap()).unwrap();
+    assert_eq!(report["exposure"], 4.0);
+    // Given: it wins.
+    let m2 = d.path().join("m2");
+    ok(&stcvae(&[
+        "merge",
+        a.with_extension("exr").to_str().unwrap(),
+        b.with_extension("exr").to_str().unwrap(),
+        "--out",
+        m2.to_str().unwrap(),
+        "--exposure",
+        "0.5",
+    ]));
+    assert_eq!(png(&m2), encode_png(&img, 0.5).unwrap());
+    // Inputs that disagree (a merge at 4 and a render at 1): exposure 1, said so.
+    let c = d.path().join("c");
+    ok(&render_scene(&scene, "pt", "2", "3", &c, &[]));
+    let o = stcvae(&[
+        "merge",
+        m.with_extension("exr").to_str().unwrap(),
+        c.with_extension("exr").to_str().unwrap(),
+        "--out",
+        d.path().join("m3").to_str().unwrap(),
+    ]);
+    let err = ok(&o);
+    assert!(err.contains("not all at one recorded exposure"), "{err}");
+    let (img3, _) = read_exr(&d.path().join("m3.exr")).unwrap();
+    assert_eq!(png(&d.path().join("m3")), encode_png(&img3, 1.0).unwrap());
+    // Datasets have no preview.
+    let e = fails(&stcvae(&[
+        "merge",
+        "x.bin",
+        "--out",
+        "y.bin",
+        "--exposure",
+        "2",
+    ]));
+    assert!(
+        e.contains("--exposure applies to renders (.exr) only"),
+        "{e}"
+    );
+}
+
+/// Ctrl-C during an image merge leaves the set whole or not at all: exit 130 with
+/// "nothing written" and no output (stopped while reading the inputs), or exit 0 with all
+/// three files readable (stopped while writing: the set is finished), and never a hidden
+/// temporary. Before, the merge had no handler: the signal ended it wherever it was, up
+/// to between two renames of the set. The signal goes out once the handler is in place
+/// (/proc's caught-signal mask), so the test does not race its installation; when the
+/// inputs are read decides only which of the two clean outcomes it sees.
+#[cfg(target_os = "linux")]
+#[test]
+fn an_interrupted_image_merge_writes_the_set_whole_or_not_at_all() {
+    use render_gpu::image_io::{RenderTag, RgbImage, read_exr, write_exr};
+    let d = tempfile::tempdir().unwrap();
+    // 1,024² renders of varied values: reading and writing them takes a while.
+    let mut img = RgbImage::new(1024, 1024);
+    let mut x = 1u32;
+    for p in &mut img.pixels {
+        for v in p.iter_mut() {
+            x = x.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            *v = (x >> 8) as f32 / (1u32 << 24) as f32;
+        }
+    }
+    let mut inputs = Vec::new();
+    for seed in 1..=4u64 {
+        let path = d.path().join(format!("r{seed}.exr"));
+        let tag = RenderTag {
+            spp: 4,
+            scene_hash: 7,
+            seeds: vec![seed],
+            partial: false,
+            unknown_digests: Vec::new(),
+        };
+        write_exr(&path, &img, &tag).unwrap();
+        inputs.push(path);
+    }
+    let out = d.path().join("out");
+    std::fs::create_dir(&out).unwrap();
+    let child = Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .arg("merge")
+        .args(&inputs)
+        .args(["--out", "out/m"])
+        .current_dir(d.path())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    assert!(
+        common::wait_for_sigint_handler(&child),
+        "merge ended without ever handling Ctrl-C"
+    );
+    // SAFETY: a plain system call on a child this test owns and has not reaped.
+    assert_eq!(
+        unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGINT) },
+        0
+    );
+    let o = child.wait_with_output().unwrap();
+    let err = common::stderr(&o);
+    let mut left: Vec<String> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    left.sort();
+    match o.status.code() {
+        Some(130) => {
+            assert!(
+                err.contains("interrupted: nothing written to out/m.{exr,png,json}"),
+                "{err}"
+            );
+            assert!(left.is_empty(), "{left:?}");
+        }
+        Some(0) => {
+            assert_eq!(left, ["m.exr", "m.json", "m.png"], "{err}");
+            let (merged, tag) = read_exr(&out.join("m.exr")).unwrap();
+            assert_eq!(tag.unwrap().spp, 16);
+            assert_eq!(merged.pixels.len(), img.pixels.len());
+        }
+        other => panic!("merge ended with {other:?} (killed by the signal?): {err}"),
+    }
+}
+
 #[test]
 fn render_writes_exr_png_json_and_merge_averages_by_spp() {
     let d = tempfile::tempdir().unwrap();
@@ -281,7 +427,7 @@ fn render_writes_exr_png_json_and_merge_averages_by_spp() {
             assert!((im.pixels[i][c] - want).abs() <= 1e-5 * want.abs().max(1.0));
         }
     }
-    // A different scene (another σ_t) is refused.
+    // A different scene (another σ_t, all else as `a` but the seed) is refused.
     let other = d.path().join("o.toml");
     std::fs::write(
         &other,
@@ -292,15 +438,7 @@ fn render_writes_exr_png_json_and_merge_averages_by_spp() {
     )
     .unwrap();
     let o = d.path().join("o");
-    ok(&stcvae(&[
-        "render",
-        "--scene",
-        other.to_str().unwrap(),
-        "--spp",
-        "1",
-        "--out",
-        o.to_str().unwrap(),
-    ]));
+    ok(&render_scene(&other, "stcvae", "1", "3", &o, &[]));
     let e = fails(&stcvae(&[
         "merge",
         a.with_extension("exr").to_str().unwrap(),
@@ -366,8 +504,8 @@ fn render_writes_exr_png_json_and_merge_averages_by_spp() {
     ]));
     assert!(e.contains("0 spp"), "{e}");
     assert!(!d.path().join("zm.exr").exists());
-    // The merge's report, and a copy of an input (same pixels, another file) refused: it
-    // would count its samples twice.
+    // The merge's report, and a copy of an input (another file of the same seed) refused:
+    // it would count its samples twice.
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(m.with_extension("json")).unwrap()).unwrap();
     assert_eq!(report["spp"], 12);

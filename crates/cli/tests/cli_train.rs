@@ -7,7 +7,7 @@ use std::fs;
 use std::path::{Path, PathBuf};
 use std::process::Output;
 
-use common::{stcvae, stderr};
+use common::{stcvae, stderr, words};
 use cvae::model_file::ModelSet;
 
 fn root() -> PathBuf {
@@ -190,6 +190,17 @@ fn a_fixed_condition_warns_and_a_bad_checkpoint_dir_fails_first() {
     assert!(stderr(&out).contains(want), "{}", stderr(&out));
     let md = fs::read_to_string(dir.path().join("ev/metrics.md")).unwrap();
     assert!(md.contains(want), "{md}");
+    // `eval --at` the same, each setting's warning in its metrics.md too (it went to the
+    // terminal only).
+    let out = stcvae(
+        &words("eval --model m.stcvae --at 5,0.5,1 --samples 50 --out ev2"),
+        dir.path(),
+    );
+    assert!(out.status.success(), "{}", stderr(&out));
+    let want = "--at g 0.5 lies outside the model's training range [0.25, 0.25]";
+    assert!(stderr(&out).contains(want), "{}", stderr(&out));
+    let md = fs::read_to_string(dir.path().join("ev2/metrics.md")).unwrap();
+    assert!(md.contains(want), "{md}");
     // So does an experiment rendering with it (the bunny's g = 0.875), in its report too.
     let teaser = root().join("configs/experiments/teaser.toml");
     let out = stcvae(
@@ -210,6 +221,25 @@ fn a_fixed_condition_warns_and_a_bad_checkpoint_dir_fails_first() {
     let want = "medium.g = 0.875 (trained [0.25, 0.25]) outside the model's training range";
     assert_eq!(stderr(&out).matches(want).count(), 1, "{}", stderr(&out));
     let report = fs::read_to_string(dir.path().join("res/teaser-quick/report.md")).unwrap();
+    assert!(report.contains(want), "{report}");
+    // And the distributions experiment, whose report embeds the eval's plots (the warning
+    // was in its metrics.md only).
+    let distributions = root().join("configs/experiments/distributions.toml");
+    let out = stcvae(
+        &[
+            "experiment",
+            distributions.to_str().unwrap(),
+            "--quick",
+            "--model",
+            "m.stcvae",
+            "--out",
+            "res",
+        ],
+        dir.path(),
+    );
+    assert!(out.status.success(), "{}", stderr(&out));
+    let want = "g -0.7, 0, 0.4, 0.9 (trained [0.25, 0.25]) lie outside the model's training range";
+    let report = fs::read_to_string(dir.path().join("res/distributions-quick/report.md")).unwrap();
     assert!(report.contains(want), "{report}");
     fs::remove_file(dir.path().join("d.bin")).unwrap();
     fs::write(dir.path().join("afile"), b"").unwrap();

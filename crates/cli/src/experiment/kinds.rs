@@ -148,6 +148,7 @@ fn teaser(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         "st_seconds",
         "speedup",
         "var_ratio",
+        "var_ratio_se",
         "equal_error_speedup",
         "pt_events_per_path",
         "st_steps_per_path",
@@ -179,6 +180,7 @@ fn teaser(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             st.seconds.into(),
             c.speedup.into(),
             c.var_ratio.into(),
+            c.var_ratio_se.into(),
             (c.speedup * c.var_ratio).into(),
             pt.per_path(pt.stats.events).into(),
             st.per_path(st.stats.steps).into(),
@@ -216,7 +218,7 @@ fn teaser(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             save_picture(ctx, &format!("teaser_k{}", k_name(k)), &both, exposure)?,
         ));
     }
-    rep.text("Both integrators at equal spp; speed-up = PT time / ST-CVAE time; var ratio = PT's per-pixel variance / ST-CVAE's; bias RMSE is noise-corrected (bias_upper95: its one-sided 95 % bound), images scaled so PT's brightest 1 % of object pixels is 1.\n");
+    rep.text("Both integrators at equal spp; speed-up = PT time / ST-CVAE time; var ratio = PT's per-pixel variance / ST-CVAE's (var_ratio_se: its standard error; heavy-tailed pixels make it swing); bias RMSE is noise-corrected (bias_upper95: its one-sided 95 % bound), images scaled so PT's brightest 1 % of object pixels is 1.\n");
     rep.table();
     for (k, f) in figs {
         rep.image(
@@ -260,6 +262,7 @@ fn quality(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         "noise_rmse",
         "speedup",
         "var_ratio",
+        "var_ratio_se",
     ]);
     let mut figs = Vec::new();
     for (name, dir) in [("front", [0.3, -0.3, -1.0]), ("back", [0.3, -0.3, 1.0])] {
@@ -267,9 +270,12 @@ fn quality(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             let edit = move |f: &mut SceneFile| {
                 scale_density(k)(f);
                 let irradiance = f.lights.first().map_or([3.0; 3], |l| l.irradiance);
+                // One delta light, as the report says: a scene's sun disk (and its other
+                // lights) were kept or dropped without a word.
                 f.lights = vec![LightDesc {
                     direction: dir,
                     irradiance,
+                    angular_diameter_deg: 0.0,
                     ..f.lights.first().cloned().unwrap_or_else(default_light)
                 }];
             };
@@ -287,6 +293,7 @@ fn quality(ctx: &Ctx, rep: &mut Report) -> Result<()> {
                 c.noise.into(),
                 c.speedup.into(),
                 c.var_ratio.into(),
+                c.var_ratio_se.into(),
             ]);
             let exposure = scale_of(&pt.mean) as f32;
             let diff = difference(&pt.mean, &st.mean, 4.0);
@@ -303,7 +310,7 @@ fn quality(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             ));
         }
     }
-    rep.text("Both with NEE (ST-CVAE's through EventGen), unlike the paper's Fig. 6/7: the light is a delta light, which paths without NEE never reach. Noise-corrected bias RMSE of ST-CVAE against PT at equal spp, with its one-sided 95 % bound (images scaled so PT's brightest 1 % of object pixels is 1).\n");
+    rep.text("Both with NEE (ST-CVAE's through EventGen), unlike the paper's Fig. 6/7: the scene's lights are replaced by one delta light (the first light's irradiance) from the front or the back, which paths without NEE never reach. Noise-corrected bias RMSE of ST-CVAE against PT at equal spp, with its one-sided 95 % bound (images scaled so PT's brightest 1 % of object pixels is 1).\n");
     rep.table();
     for (name, k, f) in figs {
         rep.image(
@@ -460,21 +467,22 @@ fn absorption(ctx: &Ctx, rep: &mut Report) -> Result<()> {
 /// Fig. 11/12: the eval plots and tables of the model.
 fn distributions(ctx: &Ctx, rep: &mut Report) -> Result<()> {
     let samples = ctx.budget.samples();
-    let max_ks = crate::model_cmds::evaluate_into(ctx.model.as_deref(), &ctx.out, samples, 1)?;
+    let grid = crate::model_cmds::evaluate_into(ctx.model.as_deref(), &ctx.out, samples, 1)?;
     // Its metrics and plots, written at its end as one set, are this run's first files.
     ctx.saving()?;
+    // The report's figures are the eval's: so is its warning (in metrics.md only, the
+    // report presented the plots of an extrapolation as a fit).
+    if let Some(w) = grid.outside {
+        ctx.warnings.borrow_mut().push(("distributions".into(), w));
+    }
+    let max_ks = grid.max_ks;
     rep.columns(&["quantity", "max_ks"]);
     for (q, v) in &max_ks {
         rep.row(vec![(*q).into(), Cell::Num(*v)]);
     }
     rep.text(&format!("{samples} model samples vs {samples} simulator walks per setting (τ ∈ {{1, 5, 25, 125}} × g ∈ {{−0.7, 0, 0.4, 0.9}}, φ ∈ {{1, 0.9}}); the largest two-sample KS statistic over the grid. Full table: [metrics.md](metrics.md).\n"));
     rep.table();
-    for f in [
-        "fig11_n.png",
-        "fig12_cos_theta.png",
-        "fig12_cos_alpha.png",
-        "fig12_cos_beta.png",
-    ] {
+    for f in crate::plots::PLOT_FILES {
         if ctx.out.join(f).exists() {
             rep.image(f, f);
         }
@@ -521,7 +529,9 @@ fn nee(ctx: &Ctx, rep: &mut Report) -> Result<()> {
                 &scene,
                 (kind, with_nee),
                 &none,
-                &opts(1 << 20, 7, Some(b)),
+                // The budget alone ends it, as `render --time-budget` does: a cap of 2^20
+                // spp stopped a fast method (a GPU, a small frame) before its time.
+                &opts(u32::MAX, 7, Some(b)),
             )?;
             let (e, m) = errors(&reference.image, &o.image);
             rep.row(vec![
@@ -539,7 +549,7 @@ fn nee(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         }
         curves.push(series(name, pts));
     }
-    rep.text(&format!("Each method renders for the same wall time (the budget; a render stops after the pass in which it ran out); RMSE and mean absolute error (MAE; the plot) over the whole frame (the background, a constant, adds no error but dilutes both) against a PT + NEE reference of {ref_spp} spp, in units where the reference's brightest 1 % of object pixels is 1 (the reference's own noise is included). RMSE squares errors and is decided by a few firefly pixels; MAE measures the noise the eye sees.\n"));
+    rep.text(&format!("Each method renders for the same wall time (the budget; a render stops after the pass in which it ran out); RMSE and mean absolute error (MAE; the plot) over the whole frame (the background, a constant, adds no error but dilutes both) against a PT + NEE reference of {ref_spp} spp, in units where the reference's 99th-percentile pixel is 1 (of its pixels brighter than 1/1,000 of its brightest, the visible background included: about the object's 95th percentile when the background fills most of the frame; the reference's own noise is included). RMSE squares errors and is decided by a few firefly pixels; MAE measures the noise the eye sees.\n"));
     rep.table();
     let refs: Vec<&_> = std::iter::once(&reference.image)
         .chain(finals.iter())
@@ -567,6 +577,7 @@ fn fallback(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         "st_seconds",
         "speedup",
         "var_ratio",
+        "var_ratio_se",
         "st_steps_per_path",
         "st_fallback_events_per_path",
         "bias_rmse",
@@ -588,16 +599,30 @@ fn fallback(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             st.seconds.into(),
             c.speedup.into(),
             c.var_ratio.into(),
+            c.var_ratio_se.into(),
             st.per_path(st.stats.steps).into(),
             st.per_path(st.stats.events).into(),
             c.bias.into(),
             c.bias_upper95.into(),
             c.noise.into(),
         ]);
-        // A log axis cannot show 0 (the authors' behaviour): plot it at a small offset.
-        sp.push((t.max(0.01), c.speedup));
+        sp.push((t, c.speedup));
     }
-    rep.text("min_tau = 0 is the authors' behaviour (a sphere step however thin the free region); above it, points where σ_t·r < min_tau take an ordinary PT event instead. Speed-up against PT at equal spp; min_tau = 0 is drawn at 0.01. Bias RMSE is noise-corrected, with its one-sided 95 % bound.\n");
+    // A log axis cannot show 0 (the authors' behaviour): it is drawn a decade below the
+    // smallest positive threshold, at most at 0.01 (every threshold below 0.01 was drawn
+    // at 0.01 with it).
+    let smallest = sp
+        .iter()
+        .map(|p| p.0)
+        .filter(|&t| t > 0.0)
+        .fold(f64::INFINITY, f64::min);
+    let zero_at = (smallest / 10.0).min(0.01);
+    for p in &mut sp {
+        if p.0 == 0.0 {
+            p.0 = zero_at;
+        }
+    }
+    rep.text(&format!("min_tau = 0 is the authors' behaviour (a sphere step however thin the free region); above it, points where σ_t·r < min_tau take an ordinary PT event instead. Speed-up against PT at equal spp; min_tau = 0 is drawn at {}. Bias RMSE is noise-corrected, with its one-sided 95 % bound.\n", crate::progress::significant4(zero_at)));
     rep.table();
     plot(
         ctx,

@@ -186,8 +186,11 @@ pub fn render_pair(
     Ok(pair)
 }
 
-/// 1 / (the 99th percentile of the luminance of the reference's object pixels): images
-/// are compared in units where the brightest 1 % of the object is ≈ 1.
+/// 1 / (the 99th percentile of the luminance of the reference's pixels brighter than
+/// 1/1,000 of its brightest): the exposure of the experiments' pictures, and the unit of
+/// [`errors`]. A visible background above that floor counts (it cannot be told from the
+/// object without the renders' noise), so where it fills most of the frame this is about
+/// the object's 95th percentile; comparisons that have the noise use [`object_scale`].
 pub fn scale_of(reference: &RgbImage) -> f64 {
     let mut l: Vec<f64> = reference.pixels.iter().map(|p| lum(*p)).collect();
     let max = l.iter().cloned().fold(0.0, f64::max);

@@ -192,10 +192,13 @@ fn budget_line(kind: config::Kind, b: &config::Budget) -> String {
             b.samples()
         ),
         config::Kind::Nee => format!(
-            "Renders: {} pixels wide (the scene's aspect kept); {} s per method; the \
-             reference is PT with NEE at {} spp.\n",
+            "Renders: {} pixels wide (the scene's aspect kept); budgets of {}, {} and {} s \
+             per method ({} s each in all); the reference is PT with NEE at {} spp.\n",
             b.size(),
+            b.seconds() / 4.0,
+            b.seconds() / 2.0,
             b.seconds(),
+            1.75 * b.seconds(),
             b.reference_spp()
         ),
         _ => {

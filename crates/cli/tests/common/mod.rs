@@ -72,6 +72,38 @@ pub fn interrupt_when(
     }
 }
 
+/// Waits until `child` has a handler for SIGINT (the `SigCgt` mask of its
+/// /proc/PID/status), so that a signal sent now tests the handling rather than the race
+/// with its installation. False when the child exits first: it never caught SIGINT.
+#[cfg(target_os = "linux")]
+pub fn wait_for_sigint_handler(child: &Child) -> bool {
+    let status = format!("/proc/{}/status", child.id());
+    let start = Instant::now();
+    while start.elapsed() < Duration::from_secs(600) {
+        let Ok(text) = std::fs::read_to_string(&status) else {
+            return false;
+        };
+        // A zombie (exited, not yet reaped) still has a status file, with State Z.
+        if text
+            .lines()
+            .any(|l| l.starts_with("State:") && l.contains('Z'))
+        {
+            return false;
+        }
+        let caught = text
+            .lines()
+            .find_map(|l| l.strip_prefix("SigCgt:"))
+            .and_then(|m| u64::from_str_radix(m.trim(), 16).ok())
+            .unwrap_or(0);
+        // Bit n−1 is signal n; SIGINT is 2.
+        if caught & (1 << (libc::SIGINT - 1)) != 0 {
+            return true;
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    false
+}
+
 /// Says on the terminal why a test is skipped. Written to stderr directly rather than with
 /// `eprintln!`, which libtest captures and shows only for failing tests: a skipped test
 /// passes, so its reason would otherwise never be seen without `--nocapture`.
