@@ -143,6 +143,10 @@ pub fn run(a: Args) -> Result<()> {
         "{:>6} {:>8} {:>8} {:>8} {:>12} {:>12} {:>8} {:>10}",
         "k", "", "CPU s", "GPU s", "CPU paths/s", "GPU paths/s", "GPU/CPU", "compile s"
     );
+    // Every row prepared before the first render, as `bench render` does: the checks that
+    // need the built scene (a density too deep for the object's surface offset, the
+    // model's τ range, the distance grid) failed a later density after minutes of renders.
+    let mut rows = Vec::new();
     for &k in &a.k {
         for (kind, name) in [
             (IntegratorKind::Pt, "PT"),
@@ -150,7 +154,14 @@ pub fn run(a: Args) -> Result<()> {
         ] {
             let p = prepare(&a.scene, Some(kind), None, a.model.as_deref(), |f| {
                 edit(f, k)
-            })?;
+            })
+            .map_err(|e| anyhow::anyhow!("{e:#} (σ_t × {k}, set by --k)"))?;
+            rows.push((k, name, p));
+        }
+    }
+    for (k, name, p) in &rows {
+        let (k, p) = (*k, p);
+        {
             let on_cpu = render(&cpu, &p, a.spp, a.seed, None)?;
             // The warm-up compiles the kernel, so its compile time is the one to report.
             let warm_up = if gpu.is_hardware_gpu() {

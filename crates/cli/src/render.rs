@@ -489,6 +489,22 @@ pub fn run(a: Args) -> Result<()> {
              sums): use --device cpu or auto"
         );
     }
+    // The image's memory is checked before `prepare` builds the mesh, BVH and distance
+    // grid (about a minute for a large grid): the camera's size is in the file alone. A
+    // file that does not load is left to `prepare`, whose errors say why.
+    let variance_bytes = if a.variance {
+        render_gpu::render::VARIANCE_BYTES_PER_PIXEL
+    } else {
+        0
+    };
+    if let Ok(f) = SceneFile::load(&a.scene) {
+        render_gpu::render::check_image_memory_with(
+            f.camera.width,
+            f.camera.height,
+            variance_bytes,
+        )
+        .map_err(|e| anyhow::anyhow!("{}: camera.width/height: {e}", a.scene.display()))?;
+    }
     let p = prepare(&a.scene, a.integrator, a.nee, a.model.as_deref(), |f| {
         if let Some(s) = a.spp {
             f.render.spp = s;
@@ -541,13 +557,6 @@ pub fn run(a: Args) -> Result<()> {
             }
         }
     }
-    let extra = if a.variance {
-        render_gpu::render::VARIANCE_BYTES_PER_PIXEL
-    } else {
-        0
-    };
-    render_gpu::render::check_image_memory_with(p.file.camera.width, p.file.camera.height, extra)
-        .map_err(|e| anyhow::anyhow!("{}: camera.width/height: {e}", a.scene.display()))?;
     // The variance needs the CPU renderer's squared sums (a GPU was refused above).
     let device = if a.variance {
         if a.device == DeviceArg::Auto {

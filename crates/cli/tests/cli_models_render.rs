@@ -74,6 +74,13 @@ fn merge_renders(a: &Path, b: &Path, m: &Path) -> Output {
 /// `stcvae ARGS` with wgpu narrowed to Vulkan (lavapipe in CI), which must succeed; None,
 /// with the reason printed, only where no Vulkan adapter exists and not under CI.
 fn on_vulkan(args: &[&str], test: &str) -> Option<Output> {
+    let out = on_vulkan_any(args, test)?;
+    ok(&out);
+    Some(out)
+}
+
+/// [`on_vulkan`] without the check that it succeeds.
+fn on_vulkan_any(args: &[&str], test: &str) -> Option<Output> {
     let out = Command::new(env!("CARGO_BIN_EXE_stcvae"))
         .args(args)
         .env("WGPU_BACKEND", "vulkan")
@@ -86,7 +93,6 @@ fn on_vulkan(args: &[&str], test: &str) -> Option<Output> {
         common::skip(&format!("{test}: {err}"));
         return None;
     }
-    ok(&out);
     Some(out)
 }
 
@@ -545,7 +551,10 @@ fn render_writes_exr_png_json_and_merge_averages_by_spp() {
     ]));
     assert!(e.contains("directory"), "{e}");
     // A render that cannot write one of its three files writes none of them: the earlier
-    // render's EXR and JSON stay together (an 8-spp EXR beside a 4-spp JSON before).
+    // render's EXR and JSON stay together (an 8-spp EXR beside a 4-spp JSON before). A
+    // directory in the PNG's place is refused before rendering (check_out_stem); a write
+    // that fails part way through the set is undone by scatter_sim::output's set writer,
+    // whose unit tests make each step fail.
     let a_json = a.with_extension("json");
     let (exr_before, json_before) = (
         std::fs::read(&a_exr).unwrap(),
@@ -888,15 +897,22 @@ fn bad_scenes_are_one_line_errors() {
 /// An image larger than the memory the process may allocate is refused before any work,
 /// with one line naming the size (Rust aborts on a failed allocation: the 6 GB of a
 /// 16,384² image's sums ended in "memory allocation of 6442450944 bytes failed" and a
-/// core dump under a 3 GB limit).
+/// core dump under a 3 GB limit). Before any work: its mesh, which is missing, is never
+/// read (the check ran after the mesh, BVH and distance grid were built).
 #[cfg(unix)]
 #[test]
 fn images_beyond_the_memory_limit_are_refused() {
     let d = tempfile::tempdir().unwrap();
     let scene = d.path().join("huge.toml");
-    std::fs::write(&scene, sphere_scene_text(16384)).unwrap();
+    let text = sphere_scene_text(16384)
+        .replace("shape = \"sphere\"\nradius = 0.5", "mesh = \"missing.ply\"");
+    assert!(
+        text.contains("missing.ply"),
+        "the sphere scene's object changed"
+    );
+    std::fs::write(&scene, text).unwrap();
     let out = d.path().join("r");
-    // 3 GB of address space: the binary runs, the image's ~16 GB cannot be had.
+    // 3 GB of address space: the binary runs, the image's tens of GB cannot be had.
     let shell = std::process::Command::new("sh")
         .arg("-c")
         .arg(format!(
@@ -1082,8 +1098,74 @@ fn a_scene_without_light_is_warned_about() {
     }
 }
 
-/// The render's JSON says where the image came from: the version, the exposure, whether
-/// Ctrl-C cut it short, the seed as text too (JSON readers holding doubles round seeds
+/// Ctrl-C during a render keeps the passes finished: exit status 130, the image written
+/// with the samples it has, and its JSON says it was cut short (`interrupted`, `spp` below
+/// `spp_requested`, the same spp as the EXR's tag). The signal goes out once the progress
+/// lines (written per update under STCVAE_LOG_PROGRESS_EVERY=0) count two passes' samples,
+/// so at least one pass has finished however slow the machine.
+#[cfg(unix)]
+#[test]
+fn an_interrupted_render_keeps_its_finished_passes_and_says_so() {
+    use std::io::BufRead;
+    let d = tempfile::tempdir().unwrap();
+    let scene = sphere_scene_file(d.path(), 16);
+    let out = d.path().join("r");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args([
+            "render",
+            "--device",
+            "cpu",
+            "--integrator",
+            "pt",
+            "--spp",
+            "100000",
+        ])
+        .arg("--scene")
+        .arg(&scene)
+        .arg("--out")
+        .arg(&out)
+        .env("STCVAE_LOG_PROGRESS_EVERY", "0")
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // A pass is 256 spp of the 16² pixels (100,000 spp: the largest pass).
+    let pass = 256 * 16 * 16;
+    let mut err = String::new();
+    let mut sent = false;
+    for line in std::io::BufReader::new(child.stderr.take().unwrap()).lines() {
+        let line = line.unwrap();
+        let done = line
+            .split_whitespace()
+            .find_map(|w| w.split_once('/'))
+            .and_then(|(n, _)| n.replace(',', "").parse::<u64>().ok());
+        if !sent && done.is_some_and(|n| n >= 2 * pass) {
+            // SAFETY: a plain system call on a child this test owns and has not reaped.
+            assert_eq!(
+                unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGINT) },
+                0
+            );
+            sent = true;
+        }
+        err += &line;
+        err.push('\n');
+    }
+    let status = child.wait().unwrap();
+    assert!(sent, "no progress line counted two passes: {err}");
+    assert_eq!(status.code(), Some(130), "{err}");
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.with_extension("json")).unwrap())
+            .unwrap();
+    assert_eq!(json["interrupted"], true, "{json}");
+    assert_eq!(json["spp_requested"], 100000, "{json}");
+    let spp = json["spp"].as_u64().unwrap();
+    assert!((256..100000).contains(&spp) && spp % 256 == 0, "{json}");
+    let (_, tag) = render_gpu::image_io::read_exr(&out.with_extension("exr")).unwrap();
+    assert_eq!(tag.unwrap().spp, spp);
+}
+
+/// The render's JSON says where the image came from: the version, the exposure, that
+/// Ctrl-C did not cut it short (an interrupted render's `interrupted: true` is checked by
+/// the interrupt tests), the seed as text too (JSON readers holding doubles round seeds
 /// above 2^53); under PT, ST-CVAE's settings are null, not values PT never read.
 #[test]
 fn the_render_json_describes_the_render() {
@@ -1373,6 +1455,30 @@ fn bench_render_save_writes_images_and_the_pixel_table() {
 /// `bench devices`: PT and ST-CVAE rendered on the GPU (lavapipe in CI) and on the CPU,
 /// a row per density and integrator with the GPU/CPU ratio of paths/s. Skipped, with the
 /// reason, only where no Vulkan adapter exists and not under CI.
+/// `bench devices` builds every density's scene before it renders any: a density too deep
+/// for the bunny's surface offset (k = 300, above the README's k ≈ 265) failed only after
+/// the k = 1 rows had rendered (minutes on lavapipe). Now it fails before the first row.
+#[test]
+fn bench_devices_checks_every_density_before_rendering() {
+    let Some(out) = on_vulkan_any(
+        &common::words(
+            "bench devices --scene configs/scenes/bunny.toml --size 8 --spp 1 --k 1,300",
+        ),
+        "bench_devices_checks_every_density_before_rendering",
+    ) else {
+        return;
+    };
+    let e = fails(&out);
+    assert!(e.contains("too dense") && e.contains("σ_t × 300"), "{e}");
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        !text
+            .lines()
+            .any(|l| l.contains(" PT ") || l.contains("ST-CVAE ")),
+        "a row rendered first: {text}"
+    );
+}
+
 #[test]
 fn bench_devices_prints_both_devices_and_their_ratio() {
     let Some(out) = on_vulkan(
@@ -1534,18 +1640,32 @@ fn bench_error_ranks_renders_by_error_and_names_bad_inputs() {
         e.contains("seed 1 in common") && e.contains("ref1.exr") && e.contains("twin.exr"),
         "{e}"
     );
+    // So is one by the other integrator: its hash differs (the integrator is in it), yet
+    // with a reference's seed it draws the same camera rays and first numbers.
+    let st_twin = d.path().join("st_twin");
+    ok(&render_scene(
+        &scene,
+        "stcvae",
+        "4",
+        "2",
+        &st_twin,
+        &["--device", "cpu"],
+    ));
+    let st_twin = st_twin.with_extension("exr");
+    let e = fails(&bench_error(&[&format!("{}:1", st_twin.display())]));
+    assert!(
+        e.contains("seed 2 in common") && e.contains("ref2.exr") && e.contains("st_twin.exr"),
+        "{e}"
+    );
     // A copy of a reference without its tag (as another renderer's EXR would be) is told
     // apart by its pixels instead.
-    let (pixels, tag) = render_gpu::image_io::read_exr(Path::new(&refs[1])).unwrap();
+    let (pixels, _) = render_gpu::image_io::read_exr(Path::new(&refs[1])).unwrap();
     let copy = d.path().join("copy.exr");
-    let foreign = render_gpu::image_io::RenderTag {
-        scene_hash: tag.unwrap().scene_hash ^ 1,
-        seeds: Vec::new(),
-        partial: false,
-        unknown_digests: Vec::new(),
-        spp: 32,
-    };
-    render_gpu::image_io::write_exr(&copy, &pixels, &foreign).unwrap();
+    std::fs::write(
+        &copy,
+        render_gpu::image_io::encode_untagged_exr(&pixels).unwrap(),
+    )
+    .unwrap();
     let e = fails(&bench_error(&[&format!("{}:1", copy.display())]));
     assert!(
         e.contains("same pixels") && e.contains("ref2.exr") && e.contains("copy.exr"),

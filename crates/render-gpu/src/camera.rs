@@ -24,14 +24,19 @@ impl Camera {
         let v = |a: [f64; 3]| Vec3::new(a[0] as f32, a[1] as f32, a[2] as f32);
         let origin = v(d.origin);
         let forward = (v(d.target) - origin).normalize();
-        let right = forward.cross(v(d.up)).normalize();
+        // `up` normalised first, as the scene check does (scene::camera_basis_f32): the
+        // raw cross product of a valid but tiny up ([0, 1e-24, 1e-22]) squared to 0 in
+        // f32 and every ray was NaN.
+        let right = forward.cross(v(d.up).normalize()).normalize();
         let up = right.cross(forward);
         Self {
             origin,
             forward,
             right,
             up,
-            tan_half: (d.fov_deg.to_radians() as f32 * 0.5).tan(),
+            // In f64: just under 180° the f32 angle rounds to π or past it, and the
+            // tangent of its half turned negative (the image rotated by 180°).
+            tan_half: (d.fov_deg.to_radians() * 0.5).tan() as f32,
             width: d.width,
             height: d.height,
             start: 0.0,
@@ -88,5 +93,47 @@ impl Camera {
         let u = (2.0 * x / w - 1.0) * self.tan_half;
         let v = (1.0 - 2.0 * y / h) * self.tan_half * h / w;
         (self.forward + self.right * u + self.up * v).normalize()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn desc(up: [f64; 3], fov_deg: f64) -> CameraDesc {
+        CameraDesc {
+            origin: [0.0, 0.0, 4.0],
+            target: [0.0, 0.0, 0.0],
+            up,
+            fov_deg,
+            width: 8,
+            height: 8,
+        }
+    }
+
+    /// Scenes the check accepts give a camera whose top-left ray points up and left: an up
+    /// vector valid but tiny (NaN rays before), and a field of view just under 180° (the
+    /// image rotated by 180° before).
+    #[test]
+    fn accepted_extremes_keep_the_image_upright() {
+        for (up, fov) in [
+            ([0.0, 1.0, 0.0], 40.0),
+            ([0.0, 1e-24, 1e-22], 40.0),
+            ([0.0, 1.0, 0.0], 179.999999),
+        ] {
+            let d = desc(up, fov);
+            let shipped = concat!(
+                env!("CARGO_MANIFEST_DIR"),
+                "/../../configs/scenes/sphere.toml"
+            );
+            let mut f = crate::scene::SceneFile::load(std::path::Path::new(shipped)).unwrap();
+            f.camera = d.clone();
+            assert!(f.validate().is_ok(), "{up:?} {fov}: the check refuses it");
+            let c = Camera::new(&d);
+            let r = c.ray_dir(0.0, 0.0);
+            assert!(r.is_finite(), "{up:?} {fov}: {r}");
+            // The camera looks along −z with +y up and +x right: top-left is −x, +y.
+            assert!(r.x < 0.0 && r.y > 0.0, "{up:?} {fov}: {r}");
+        }
     }
 }

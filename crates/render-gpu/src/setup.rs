@@ -129,6 +129,10 @@ impl SceneData {
             }
         }
         if let Some(m) = &env.map {
+            // Its shape too: one pixel buffer read as 16×8 or as 32×4 lights the scene
+            // differently.
+            h.write(&(m.width as u64).to_le_bytes());
+            h.write(&(m.height as u64).to_le_bytes());
             for px in &m.pixels {
                 for v in px {
                     h.write(&v.to_le_bytes());
