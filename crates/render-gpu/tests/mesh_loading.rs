@@ -1514,6 +1514,46 @@ fn the_scene_hash_sees_how_faces_are_cut() {
     assert_ne!(one, hash(split("f 3 7 4\nf 7 8 4\n")), "the other diagonal");
 }
 
+/// The scene hash holds the environment map's shape, not only its pixels: one pixel
+/// buffer read as 16×8 or as 32×4 lights the scene differently (both hashed alike).
+#[test]
+fn the_scene_hash_sees_the_environment_maps_shape() {
+    let d = tempfile::tempdir().unwrap();
+    write(&d, "m.obj", CUBE_OBJ.as_bytes());
+    let pixels: Vec<[f32; 3]> = (0..128).map(|i| [i as f32 / 128.0, 0.5, 1.0]).collect();
+    let hash = |w: usize, h: usize| {
+        let map = render_gpu::image_io::RgbImage {
+            width: w,
+            height: h,
+            pixels: pixels.clone(),
+        };
+        let name = format!("env{w}x{h}.exr");
+        write(
+            &d,
+            &name,
+            &render_gpu::image_io::encode_untagged_exr(&map).unwrap(),
+        );
+        let f = render_gpu::scene::SceneFile::parse(
+            &d.path().join("s.toml"),
+            &format!(
+                "[camera]\norigin = [0.0, 0.0, 6.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 30.0\n\
+                 width = 8\nheight = 8\n[object]\nmesh = \"m.obj\"\n\
+                 [medium]\nsigma_t = [1.0, 1.0, 1.0]\nalbedo = [0.5, 0.5, 0.5]\n\
+                 [environment]\nfile = \"env.exr\"\n"
+            ),
+        )
+        .unwrap();
+        // One file name in the scene for both maps: the name is not hashed.
+        std::fs::copy(d.path().join(&name), d.path().join("env.exr")).unwrap();
+        render_gpu::setup::SceneData::build(&f, d.path(), false, &[])
+            .unwrap()
+            .hash
+    };
+    let wide = hash(16, 8);
+    assert_eq!(wide, hash(16, 8), "one map, one hash");
+    assert_ne!(wide, hash(32, 4), "the same pixels in another shape");
+}
+
 /// The scene hash keeps what the image depends on and nothing else: one mesh named by
 /// another path (a render from another job folder) and settings the integrator never
 /// reads (ST-CVAE's with PT, NEE's without NEE) leave it alone, so such renders merge;
