@@ -40,8 +40,9 @@ struct Stored {
 }
 
 /// What a stored pair depends on beyond the scene and spp: the device (`device`: the
-/// adapter, or the CPU integrators' thread count), the CPU's model, and this binary, so
-/// that a rebuilt renderer (say, a fix to PT) never reuses an image it would not render.
+/// adapter, or the CPU integrators' thread count), the CPU's model, on a GPU the
+/// `STCVAE_GPU_*` settings, and this binary, so that a rebuilt renderer (say, a fix to PT)
+/// never reuses an image it would not render.
 pub fn identity(device: &str) -> Result<String> {
     let mut s = device.to_string();
     // The CPU's model is the host's too when a GPU renders; a CPU device names it already.
@@ -50,6 +51,23 @@ pub fn identity(device: &str) -> Result<String> {
     {
         s += " / ";
         s += &m;
+    }
+    // The GPU kernels' settings from the environment (workgroup size, stack, the staged
+    // render, profiling) change a GPU's PT time: a pair timed under one must not supply
+    // the speed-up of a run under another.
+    if s.starts_with("gpu") {
+        let mut vars: Vec<String> = std::env::vars_os()
+            .filter_map(|(k, v)| {
+                let k = k.to_str()?;
+                k.starts_with("STCVAE_GPU_")
+                    .then(|| format!("{k}={}", v.to_string_lossy()))
+            })
+            .collect();
+        vars.sort();
+        for v in vars {
+            s += " / ";
+            s += &v;
+        }
     }
     let exe = std::env::current_exe().context("cannot locate this binary")?;
     let bytes = std::fs::read(&exe).with_context(|| format!("cannot read {}", exe.display()))?;

@@ -1310,6 +1310,59 @@ fn adapter_search_prints_no_wayland_error() {
     assert!(!err.contains("XDG_RUNTIME_DIR"), "{err}");
 }
 
+/// On a GPU the stored PT pair is keyed by the kernels' settings from the environment
+/// too: a pair timed with one workgroup size supplied the speed-up of a run with another.
+#[test]
+fn a_gpu_pt_pair_is_stored_per_kernel_setting() {
+    let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().join("pt");
+    let args = [
+        "bench",
+        "render",
+        "--device",
+        "gpu",
+        "--k",
+        "0.25",
+        "--spp",
+        "6",
+        "--size",
+        "8",
+        "--pt-cache",
+        cache.to_str().unwrap(),
+    ];
+    let run = |workgroup: Option<&str>| -> Option<String> {
+        let mut c = Command::new(env!("CARGO_BIN_EXE_stcvae"));
+        c.args(args)
+            .env("WGPU_BACKEND", "vulkan")
+            .env_remove("STCVAE_GPU_WORKGROUP")
+            .current_dir(root());
+        if let Some(w) = workgroup {
+            c.env("STCVAE_GPU_WORKGROUP", w);
+        }
+        let out = c.output().expect("run stcvae");
+        let err = String::from_utf8_lossy(&out.stderr).into_owned();
+        if !out.status.success()
+            && err.contains("no wgpu adapter")
+            && std::env::var_os("CI").is_none()
+        {
+            common::skip(&format!(
+                "a_gpu_pt_pair_is_stored_per_kernel_setting: {err}"
+            ));
+            return None;
+        }
+        ok(&out);
+        Some(String::from_utf8_lossy(&out.stdout).into_owned())
+    };
+    let hit = "PT from --pt-cache";
+    let Some(first) = run(None) else {
+        return;
+    };
+    assert!(!first.contains(hit), "{first}");
+    assert!(run(None).unwrap().contains(hit));
+    assert!(!run(Some("32")).unwrap().contains(hit));
+    assert_eq!(std::fs::read_dir(&cache).unwrap().count(), 2);
+}
+
 /// `bench render --pt-cache`: a second run reuses PT's pair, also when only ST-CVAE's own
 /// settings change; another spp, NEE off or another set of seeds is a miss; a bad ST-CVAE
 /// setting fails before any render.
