@@ -293,6 +293,16 @@ fn log_ticks(lo: f64, hi: f64) -> (Vec<f64>, Vec<f64>) {
             }
         }
     }
+    // Beyond four decades the 1-2-5 labels ran into each other (a training's 1 to 400,000
+    // steps): powers of ten alone, where two lie inside.
+    let decades: Vec<f64> = bold
+        .iter()
+        .copied()
+        .filter(|v| (v.log10().round() - v.log10()).abs() < 1e-9)
+        .collect();
+    if hi / lo > 1e4 && decades.len() >= 2 {
+        bold = decades;
+    }
     if bold.len() < 2 {
         bold.clone_from(&light);
     }
@@ -302,10 +312,17 @@ fn log_ticks(lo: f64, hi: f64) -> (Vec<f64>, Vec<f64>) {
     (bold, light)
 }
 
-/// A tick label with three significant digits at most and no trailing zeros (0.05, 20, 0.037).
+/// A tick label with three significant digits at most and no trailing zeros (0.05, 20,
+/// 0.037); from 10,000 on in thousands or millions (50k, 1.5M), which stay short.
 fn compact(v: &f64) -> String {
     if !(v.is_finite() && *v != 0.0) {
         return format!("{v}");
+    }
+    if v.abs() >= 1e6 {
+        return compact(&(v / 1e6)) + "M";
+    }
+    if v.abs() >= 1e4 {
+        return compact(&(v / 1e3)) + "k";
     }
     let decimals = (2 - v.abs().log10().floor() as i32).max(0) as usize;
     let s = format!("{v:.decimals$}");
@@ -526,6 +543,10 @@ mod tests {
         // One image's point (the axis spans ×1.69 around it) with no multiple inside: the ends.
         let (bold, _) = log_ticks(1.1, 1.86);
         assert!(near(&bold, &[1.1, 1.86]), "{bold:?}");
+        // A training's steps, 1 to 400,000 (and the axis' padding): powers of ten alone
+        // (the 1-2-5 labels of five decades ran into each other).
+        let (bold, _) = log_ticks(0.77, 520_000.0);
+        assert!(near(&bold, &[1.0, 10.0, 100.0, 1e3, 1e4, 1e5]), "{bold:?}");
         for (v, want) in [
             (0.1 * 0.5, "0.05"),
             (0.2, "0.2"),
@@ -534,6 +555,9 @@ mod tests {
             (0.0372, "0.0372"),
             (1.86, "1.86"),
             (1234.6, "1235"),
+            (50_000.0, "50k"),
+            (400_000.0, "400k"),
+            (1.5e6, "1.5M"),
         ] {
             assert_eq!(compact(&v), want, "{v}");
         }
