@@ -159,31 +159,28 @@ pub fn run(a: Args) -> Result<()> {
             rows.push((k, name, p));
         }
     }
-    for (k, name, p) in &rows {
-        let (k, p) = (*k, p);
-        {
-            let on_cpu = render(&cpu, &p, a.spp, a.seed, None)?;
-            // The warm-up compiles the kernel, so its compile time is the one to report.
-            let warm_up = if gpu.is_hardware_gpu() {
-                Some(render(&gpu, &p, a.spp, a.seed, Some(GPU_WARM_UP_SECONDS))?)
-            } else {
-                None
-            };
-            let on_gpu = render(&gpu, &p, a.spp, a.seed, None)?;
-            let compile = warm_up.as_ref().unwrap_or(&on_gpu).compile_seconds;
-            let (c, g) = (on_cpu.paths_per_second(), on_gpu.paths_per_second());
-            println!(
-                "{:>6} {:>8} {:>8} {:>8} {:>12} {:>12} {:>7.2}x {:>10.2}",
-                k,
-                name,
-                crate::progress::significant4(on_cpu.seconds),
-                crate::progress::significant4(on_gpu.seconds),
-                si(c),
-                si(g),
-                g / c.max(1e-9),
-                compile
-            );
-        }
+    for &(k, name, ref p) in &rows {
+        let on_cpu = render(&cpu, p, a.spp, a.seed, None)?;
+        // The warm-up compiles the kernel, so its compile time is the one to report.
+        let warm_up = if gpu.is_hardware_gpu() {
+            Some(render(&gpu, p, a.spp, a.seed, Some(GPU_WARM_UP_SECONDS))?)
+        } else {
+            None
+        };
+        let on_gpu = render(&gpu, p, a.spp, a.seed, None)?;
+        let compile = warm_up.as_ref().unwrap_or(&on_gpu).compile_seconds;
+        let (c, g) = (on_cpu.paths_per_second(), on_gpu.paths_per_second());
+        println!(
+            "{:>6} {:>8} {:>8} {:>8} {:>12} {:>12} {:>7.2}x {:>10.2}",
+            k,
+            name,
+            crate::progress::significant4(on_cpu.seconds),
+            crate::progress::significant4(on_gpu.seconds),
+            si(c),
+            si(g),
+            g / c.max(1e-9),
+            compile
+        );
     }
     println!(
         "GPU/CPU: GPU paths/s over CPU paths/s, rendering time only (the kernel's compilation, \

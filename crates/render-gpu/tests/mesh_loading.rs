@@ -1535,12 +1535,10 @@ fn the_scene_hash_sees_the_environment_maps_shape() {
         );
         let f = render_gpu::scene::SceneFile::parse(
             &d.path().join("s.toml"),
-            &format!(
-                "[camera]\norigin = [0.0, 0.0, 6.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 30.0\n\
-                 width = 8\nheight = 8\n[object]\nmesh = \"m.obj\"\n\
-                 [medium]\nsigma_t = [1.0, 1.0, 1.0]\nalbedo = [0.5, 0.5, 0.5]\n\
-                 [environment]\nfile = \"env.exr\"\n"
-            ),
+            "[camera]\norigin = [0.0, 0.0, 6.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 30.0\n\
+             width = 8\nheight = 8\n[object]\nmesh = \"m.obj\"\n\
+             [medium]\nsigma_t = [1.0, 1.0, 1.0]\nalbedo = [0.5, 0.5, 0.5]\n\
+             [environment]\nfile = \"env.exr\"\n",
         )
         .unwrap();
         // One file name in the scene for both maps: the name is not hashed.
