@@ -294,7 +294,8 @@ fn inputs_exposure(inputs: &[PathBuf]) -> f32 {
         _ => {
             if found.iter().any(|f| f.is_some_and(|e| e != 1.0)) {
                 eprintln!(
-                    "note: the inputs' previews were not all at one recorded exposure: the                      merged PNG is at exposure 1 (--exposure sets it)"
+                    "note: the inputs' previews were not all at one recorded exposure: the \
+                     merged PNG is at exposure 1 (--exposure sets it)"
                 );
             }
             1.0

@@ -197,9 +197,9 @@ fn parse_setting(s: &str) -> Result<Conditions, String> {
     Ok(c)
 }
 
-/// The models extrapolate outside the conditions they were trained on; say so once.
-/// Warns (stderr) of each condition outside the model's training range, and returns the
-/// warnings for a report that keeps them.
+/// The models extrapolate outside the conditions they were trained on: warns (stderr) of
+/// each condition outside the model's training range, and returns the warnings for a
+/// report that keeps them.
 fn warn_outside_training(m: &cvae::ModelSet, c: Conditions, flag: &str) -> Vec<String> {
     let t = &m.training;
     let mut warnings = Vec::new();

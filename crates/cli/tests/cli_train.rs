@@ -202,42 +202,35 @@ fn a_fixed_condition_warns_and_a_bad_checkpoint_dir_fails_first() {
     let md = fs::read_to_string(dir.path().join("ev2/metrics.md")).unwrap();
     assert!(md.contains(want), "{md}");
     // So does an experiment rendering with it (the bunny's g = 0.875), in its report too.
-    let teaser = root().join("configs/experiments/teaser.toml");
-    let out = stcvae(
-        &[
-            "experiment",
-            teaser.to_str().unwrap(),
-            "--quick",
-            "--device",
-            "cpu",
-            "--model",
-            "m.stcvae",
-            "--out",
-            "res",
-        ],
-        dir.path(),
-    );
-    assert!(out.status.success(), "{}", stderr(&out));
+    // `stcvae experiment configs/experiments/NAME.toml --quick` with this model, which
+    // must succeed.
+    let experiment = |name: &str| {
+        let cfg = root().join(format!("configs/experiments/{name}.toml"));
+        let out = stcvae(
+            &[
+                "experiment",
+                cfg.to_str().unwrap(),
+                "--quick",
+                "--device",
+                "cpu",
+                "--model",
+                "m.stcvae",
+                "--out",
+                "res",
+            ],
+            dir.path(),
+        );
+        assert!(out.status.success(), "{}", stderr(&out));
+        out
+    };
+    let out = experiment("teaser");
     let want = "medium.g = 0.875 (trained [0.25, 0.25]) outside the model's training range";
     assert_eq!(stderr(&out).matches(want).count(), 1, "{}", stderr(&out));
     let report = fs::read_to_string(dir.path().join("res/teaser-quick/report.md")).unwrap();
     assert!(report.contains(want), "{report}");
     // And the distributions experiment, whose report embeds the eval's plots (the warning
     // was in its metrics.md only).
-    let distributions = root().join("configs/experiments/distributions.toml");
-    let out = stcvae(
-        &[
-            "experiment",
-            distributions.to_str().unwrap(),
-            "--quick",
-            "--model",
-            "m.stcvae",
-            "--out",
-            "res",
-        ],
-        dir.path(),
-    );
-    assert!(out.status.success(), "{}", stderr(&out));
+    experiment("distributions");
     let want = "g -0.7, 0, 0.4, 0.9 (trained [0.25, 0.25]) lie outside the model's training range";
     let report = fs::read_to_string(dir.path().join("res/distributions-quick/report.md")).unwrap();
     assert!(report.contains(want), "{report}");
