@@ -143,23 +143,31 @@ pub fn run(a: Args) -> Result<()> {
         "{:>6} {:>8} {:>8} {:>8} {:>12} {:>12} {:>8} {:>10}",
         "k", "", "CPU s", "GPU s", "CPU paths/s", "GPU paths/s", "GPU/CPU", "compile s"
     );
-    // Every row prepared before the first render, as `bench render` does: the checks that
-    // need the built scene (a density too deep for the object's surface offset, the
+    // Every row's scene is built once before the first render, as `bench render` does:
+    // the checks that need it (a density too deep for the object's surface offset, the
     // model's τ range, the distance grid) failed a later density after minutes of renders.
-    let mut rows = Vec::new();
-    for &k in &a.k {
-        for (kind, name) in [
-            (IntegratorKind::Pt, "PT"),
-            (IntegratorKind::Stcvae, "ST-CVAE"),
-        ] {
-            let p = prepare(&a.scene, Some(kind), None, a.model.as_deref(), |f| {
-                edit(f, k)
+    // Built again when rendered (the grid from its disk cache) rather than kept: each holds
+    // its own copy of the distance grid.
+    let rows: Vec<(f64, IntegratorKind, &str)> =
+        a.k.iter()
+            .flat_map(|&k| {
+                [
+                    (k, IntegratorKind::Pt, "PT"),
+                    (k, IntegratorKind::Stcvae, "ST-CVAE"),
+                ]
             })
-            .map_err(|e| anyhow::anyhow!("{e:#} (σ_t × {k}, set by --k)"))?;
-            rows.push((k, name, p));
-        }
+            .collect();
+    let prepare_row = |k: f64, kind: IntegratorKind| {
+        prepare(&a.scene, Some(kind), None, a.model.as_deref(), |f| {
+            edit(f, k)
+        })
+        .map_err(|e| anyhow::anyhow!("{e:#} (σ_t × {k}, set by --k)"))
+    };
+    for &(k, kind, _) in &rows {
+        prepare_row(k, kind)?;
     }
-    for &(k, name, ref p) in &rows {
+    for &(k, kind, name) in &rows {
+        let p = &prepare_row(k, kind)?;
         let on_cpu = render(&cpu, p, a.spp, a.seed, None)?;
         // The warm-up compiles the kernel, so its compile time is the one to report.
         let warm_up = if gpu.is_hardware_gpu() {

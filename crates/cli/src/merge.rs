@@ -235,7 +235,7 @@ pub(crate) fn write_image_set_with(
 fn merge_images(a: &Args) -> Result<()> {
     crate::render::check_out_stem(&a.out)?;
     // Ctrl-C asks to stop. Before the set is written (large renders take seconds to read)
-    // nothing is; once writing, the set is finished whole. Without the handler the signal
+    // nothing is; once writing, the set is finished whole (exit status 130 either way). Without the handler the signal
     // ended the process mid-write, leaving hidden temporaries, or a new image beside the
     // old report between two renames.
     let cancel = crate::interrupt::flag();
@@ -276,6 +276,11 @@ fn merge_images(a: &Args) -> Result<()> {
         tag.spp,
         out_stem(&a.out).display()
     );
+    // Asked to stop while writing: the set is whole, and the exit status says the stop
+    // was asked for (130), as an interrupted render's does.
+    if cancel.load(std::sync::atomic::Ordering::Relaxed) {
+        bail!("interrupted while writing: the merged set was written whole");
+    }
     Ok(())
 }
 

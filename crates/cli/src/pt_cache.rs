@@ -3,9 +3,9 @@
 //! At high density PT is almost all of the bench's time (k = 8, 16,386 spp: ~27 of 31
 //! minutes), while what changes between runs when models or ST-CVAE settings are compared
 //! is ST-CVAE alone. A PT pair depends only on the scene (its hash covers the ladder's
-//! σ_t, the size and every render setting), the spp, the device and the binary (a
-//! rebuilt renderer may render PT differently), which name the file; they are checked
-//! again on reading.
+//! σ_t, the size and every render setting), the spp, the device (on a GPU with its
+//! `STCVAE_GPU_*` kernel settings) and the binary (a rebuilt renderer may render PT
+//! differently), which name the file; they are checked again on reading.
 
 use std::path::{Path, PathBuf};
 

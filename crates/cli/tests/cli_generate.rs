@@ -65,8 +65,8 @@ fn fixed_condition_csv() {
 /// position at z = 13.5 and its z direction at z = 19.
 ///
 /// Statistic: per column, the Pearson correlation r of the paired rows; for independent
-/// pairs r·√n is standard normal for large n whatever the columns' distributions (they are
-/// bounded). Bar |z| < 5 for each of the ≤ 10 varying columns: a false alarm has
+/// pairs r·√n is standard normal for large n whatever the columns' distributions (finite
+/// variances suffice). Bar |z| < 5 for each of the ≤ 10 varying columns: a false alarm has
 /// probability 10 · 5.7·10⁻⁷ ≈ 6·10⁻⁶.
 #[test]
 fn generate_and_sample_of_one_seed_are_independent() {
