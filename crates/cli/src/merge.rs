@@ -235,9 +235,9 @@ pub(crate) fn write_image_set_with(
 fn merge_images(a: &Args) -> Result<()> {
     crate::render::check_out_stem(&a.out)?;
     // Ctrl-C asks to stop. Before the set is written (large renders take seconds to read)
-    // nothing is; once writing, the set is finished whole (exit status 130 either way). Without the handler the signal
-    // ended the process mid-write, leaving hidden temporaries, or a new image beside the
-    // old report between two renames.
+    // nothing is; once writing, the set is finished whole (exit status 130 either way).
+    // Without the handler the signal ended the process mid-write, leaving hidden
+    // temporaries, or a new image beside the old report between two renames.
     let cancel = crate::interrupt::flag();
     let inputs: Vec<&std::path::Path> = a.inputs.iter().map(|p| p.as_path()).collect();
     let (img, tag) = render_gpu::image_io::merge_exrs(&inputs)?;

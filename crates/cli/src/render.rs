@@ -187,15 +187,6 @@ impl Prepared {
         self.file.medium.g.abs() <= render_gpu::scene::MODEL_MAX_G
     }
 
-    /// The scene's hash with ST-CVAE's thresholds in force folded in. A scene file
-    /// usually leaves them unset, and the code that fills them in (render_gpu::scene's
-    /// defaults and MODEL_MAX_G, the model's τ limit here) is not among the sources the
-    /// scene hash includes (render-gpu's build.rs): renders by builds that differ there
-    /// converge to different images and must not be merged as one scene's.
-    fn hash_with_thresholds(&self) -> u64 {
-        thresholds_hash(self.data.hash, &self.settings())
-    }
-
     /// The integrator settings of this scene (its `[render]` table, with the overrides
     /// `prepare` applied, the defaults and the model's τ limit); the same on every device.
     pub fn settings(&self) -> IntegratorSettings<'_> {
@@ -310,13 +301,16 @@ pub fn prepare(
         max_tau,
     };
     if p.model.is_some() {
-        p.data.hash = p.hash_with_thresholds();
+        p.data.hash = thresholds_hash(p.data.hash, &p.settings());
     }
     Ok(p)
 }
 
-/// `scene_hash` with the sphere steps' thresholds `s` folded in (see
-/// [`Prepared::hash_with_thresholds`]).
+/// `scene_hash` with ST-CVAE's thresholds in force `s` folded in. A scene file usually
+/// leaves them unset, and the code that fills them in (render_gpu::scene's defaults and
+/// MODEL_MAX_G, the model's τ limit here) is not among the sources the scene hash
+/// includes (render-gpu's build.rs): renders by builds that differ there converge to
+/// different images and must not be merged as one scene's.
 fn thresholds_hash(scene_hash: u64, s: &IntegratorSettings) -> u64 {
     let mut h = render_gpu::hash::Fnv64::new();
     h.write(&scene_hash.to_le_bytes());

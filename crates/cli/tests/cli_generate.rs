@@ -99,12 +99,12 @@ fn generate_and_sample_of_one_seed_are_independent() {
     let (g, s) = (columns("g.csv"), columns("s.csv"));
     let n = g[0].len();
     assert_eq!((n, s[0].len()), (200_000, 200_000));
+    let mean = |x: &[f64]| x.iter().sum::<f64>() / n as f64;
+    let var = |x: &[f64], m: f64| x.iter().map(|v| (v - m).powi(2)).sum::<f64>();
     let mut tested = 0;
     for c in 3..13 {
         let (a, b) = (&g[c], &s[c]);
-        let mean = |x: &[f64]| x.iter().sum::<f64>() / n as f64;
         let (ma, mb) = (mean(a), mean(b));
-        let var = |x: &[f64], m: f64| x.iter().map(|v| (v - m).powi(2)).sum::<f64>();
         let (va, vb) = (var(a, ma), var(b, mb));
         if va == 0.0 || vb == 0.0 {
             continue;

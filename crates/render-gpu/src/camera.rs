@@ -116,17 +116,17 @@ mod tests {
     /// image rotated by 180° before).
     #[test]
     fn accepted_extremes_keep_the_image_upright() {
+        let shipped = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../configs/scenes/sphere.toml"
+        );
+        let mut f = crate::scene::SceneFile::load(std::path::Path::new(shipped)).unwrap();
         for (up, fov) in [
             ([0.0, 1.0, 0.0], 40.0),
             ([0.0, 1e-24, 1e-22], 40.0),
             ([0.0, 1.0, 0.0], 179.999999),
         ] {
             let d = desc(up, fov);
-            let shipped = concat!(
-                env!("CARGO_MANIFEST_DIR"),
-                "/../../configs/scenes/sphere.toml"
-            );
-            let mut f = crate::scene::SceneFile::load(std::path::Path::new(shipped)).unwrap();
             f.camera = d.clone();
             assert!(f.validate().is_ok(), "{up:?} {fov}: the check refuses it");
             let c = Camera::new(&d);
