@@ -224,7 +224,8 @@ pub fn prepare(
              from the repository root (the default scene lives there) or pass --scene FILE"
         );
     }
-    let mut file = SceneFile::load(scene_path)?;
+    // Validated below, once the overrides are in.
+    let mut file = SceneFile::load_unvalidated(scene_path)?;
     if let Some(i) = integrator {
         file.render.integrator = i;
     }

@@ -973,6 +973,22 @@ fn max_tau_is_checked_against_the_training_range() {
             );
         }
     }
+    // The check is ST-CVAE's: an ST-CVAE scene with that max_tau renders with `--integrator
+    // pt` (the scene was validated before the command line's overrides, and refused).
+    let text = sphere_scene_text(8)
+        .replace("[render]\n", "[render]\nmax_tau = 0.5\n")
+        .replace("integrator = \"pt\"", "integrator = \"stcvae\"");
+    assert!(
+        text.contains("integrator = \"stcvae\""),
+        "the sphere scene changed"
+    );
+    std::fs::write(&scene, text).unwrap();
+    let mut pt_args = args;
+    pt_args[4] = "pt";
+    ok(&stcvae(&pt_args));
+    let mut no_override = args.to_vec();
+    no_override.drain(3..5);
+    fails(&stcvae(&no_override));
     // Without max_tau the cap is the model's: a min_tau above it is refused as well.
     let text = sphere_scene_text(8).replace("[render]\n", "[render]\nmin_tau = 400.0\n");
     std::fs::write(&scene, text).unwrap();

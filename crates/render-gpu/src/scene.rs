@@ -411,7 +411,25 @@ impl SceneFile {
         Self::parse(path, &text)
     }
 
+    /// Like [`SceneFile::load`] without [`SceneFile::validate`], for a caller that
+    /// overrides fields (the command line's `--integrator`, `--spp`…) and validates the
+    /// result: a check that holds for one integrator only (max_tau below min_tau leaves
+    /// ST-CVAE no sphere step) must not refuse the file rendered with another.
+    pub fn load_unvalidated(path: &Path) -> Result<Self, RenderError> {
+        let text = scatter_sim::output::read_input_to_string(path)
+            .map_err(|e| RenderError::io(path, format!("cannot read scene file: {e}")))?;
+        Self::parse_unvalidated(path, &text)
+    }
+
     pub fn parse(path: &Path, text: &str) -> Result<Self, RenderError> {
+        let scene = Self::parse_unvalidated(path, text)?;
+        scene
+            .validate()
+            .map_err(|m| RenderError::Scene(format!("{}: {m}", path.display())))?;
+        Ok(scene)
+    }
+
+    fn parse_unvalidated(path: &Path, text: &str) -> Result<Self, RenderError> {
         // Another command's config given as a scene read as "unknown field `densities`" (or
         // whichever unknown key came first): say what the file is.
         if let Some(what) = config_kind(text).filter(|k| *k != ConfigKind::Scene) {
@@ -421,12 +439,7 @@ impl SceneFile {
                 what.describe()
             )));
         }
-        let scene: SceneFile = toml::from_str(text)
-            .map_err(|e| RenderError::Scene(describe_toml_error(path, text, &e)))?;
-        scene
-            .validate()
-            .map_err(|m| RenderError::Scene(format!("{}: {m}", path.display())))?;
-        Ok(scene)
+        toml::from_str(text).map_err(|e| RenderError::Scene(describe_toml_error(path, text, &e)))
     }
 
     /// Checks every range. The message names the field and the allowed range.
