@@ -12,6 +12,8 @@ use crate::{interrupt, progress};
 
 /// The paper-sized dataset: 2^22 walks.
 pub const DEFAULT_WALKS: u64 = 1 << 22;
+/// Where a whole run goes without --out: the training set `train`'s default config reads.
+const DEFAULT_OUT: &str = "data/train.bin";
 /// Walks in fixed-condition mode when --samples is not given.
 const DEFAULT_FIXED_WALKS: u64 = 10_000;
 
@@ -25,9 +27,11 @@ pub struct Args {
     /// with 2^22 walks.
     #[arg(long)]
     config: Option<PathBuf>,
-    /// Output file: `.csv` writes CSV, anything else the binary dataset format.
-    #[arg(long, default_value = "data/train.bin")]
-    out: PathBuf,
+    /// Output file: `.csv` writes CSV, anything else the binary dataset format. Default
+    /// data/train.bin (the training set `train` reads) for a whole run of a config or of
+    /// the default distribution; fixed-condition mode and --shard need one.
+    #[arg(long)]
+    out: Option<PathBuf>,
     /// Number of walks of the whole run (overrides the config; in fixed-condition mode,
     /// default 10,000; at least 1).
     #[arg(long, allow_negative_numbers = true, value_parser = crate::whole::whole::<u64>(1, u64::MAX))]
@@ -132,7 +136,7 @@ pub fn pool(threads: Option<usize>) -> Result<rayon::ThreadPool> {
 pub fn generate_from_config(config: &Path, out: &Path) -> Result<()> {
     run(Args {
         config: Some(config.to_path_buf()),
-        out: out.to_path_buf(),
+        out: Some(out.to_path_buf()),
         samples: None,
         tau: None,
         g: None,
@@ -193,17 +197,31 @@ pub fn run(a: Args) -> Result<()> {
     if spec.total_walks == 0 {
         bail!("the number of walks must be at least 1");
     }
+    // A default of data/train.bin there replaced the training set without a word (and
+    // `train` then trained on 10,000 walks of one medium).
+    let out = match (&a.out, fixed, a.shard) {
+        (Some(o), _, _) => o.clone(),
+        (None, true, _) => bail!(
+            "--out is needed in fixed-condition mode (--tau/--g/--albedo): the default, \
+             {DEFAULT_OUT}, is the training set `stcvae train` reads"
+        ),
+        (None, false, Some(_)) => bail!(
+            "--out is needed with --shard: each shard is a file of its own, joined by \
+             `stcvae merge` (the default, {DEFAULT_OUT}, is the training set)"
+        ),
+        (None, false, None) => PathBuf::from(DEFAULT_OUT),
+    };
     // First, so that a Ctrl-C from here on stops cleanly.
     let cancel = interrupt::flag();
-    crate::check_out("--out", &a.out)?;
+    crate::check_out("--out", &out)?;
     let inputs: Vec<(String, PathBuf)> = a
         .config
         .iter()
         .map(|c| ("--config".to_string(), c.clone()))
         .collect();
-    crate::paths::check_not_input("--out", &a.out, &inputs)?;
+    crate::paths::check_not_input("--out", &out, &inputs)?;
     crate::paths::check_dataset_out(
-        &a.out,
+        &out,
         "a dataset (.csv for text, any other name binary, e.g. .bin)",
     )?;
     let piece = spec.piece();
@@ -230,9 +248,9 @@ pub fn run(a: Args) -> Result<()> {
         },
         spec.seed,
         progress::count(pool.current_num_threads() as u64, "thread"),
-        a.out.display()
+        out.display()
     );
-    let mut sink = dataset::create_sink(&a.out, Header::new(vec![piece.clone()]))?;
+    let mut sink = dataset::create_sink(&out, Header::new(vec![piece.clone()]))?;
     let pb = progress::bar(piece.count, "walks");
     let start = Instant::now();
     let summary = pool.install(|| {
@@ -244,7 +262,7 @@ pub fn run(a: Args) -> Result<()> {
     });
     pb.finish_and_clear();
     let summary = summary.map_err(|e| match e {
-        DatasetError::Interrupted => anyhow!("interrupted: nothing written to {}", a.out.display()),
+        DatasetError::Interrupted => anyhow!("interrupted: nothing written to {}", out.display()),
         e => e.into(),
     })?;
     sink.finish()?;
@@ -252,7 +270,7 @@ pub fn run(a: Args) -> Result<()> {
     eprintln!(
         "wrote {} to {} in {:.1} s: {} events ({} events/s, {:.1} per walk, max {})",
         progress::count(summary.walks as u64, "walk"),
-        a.out.display(),
+        out.display(),
         secs,
         summary.events,
         progress::si(summary.events as f64 / secs),

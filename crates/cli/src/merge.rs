@@ -348,24 +348,50 @@ fn merge_binary(a: &Args) -> Result<()> {
     if one_run {
         segments.sort_by_key(|s| s.piece.first_walk);
     }
-    // Refuse duplicated walks: two pieces of one run that overlap.
+    // Pieces of one seed under two condition samplers draw walk i from the same random
+    // numbers: rows of the same walk indices are correlated (said, not refused: training
+    // on them is sound, only worth less than as many independent walks).
+    let mut correlated: Option<String> = None;
+    // Refuse duplicated walks: two pieces of one stream that overlap (of one run, or of two
+    // runs of one seed and sampler but different sizes, whose walk i is the same walk).
     for (i, ps) in segments.iter().enumerate() {
         for qs in &segments[i + 1..] {
             let (p, q) = (&ps.piece, &qs.piece);
             let overlap =
                 p.first_walk < q.first_walk + q.count && q.first_walk < p.first_walk + p.count;
-            if p.same_run(q) && overlap && p.count > 0 && q.count > 0 {
+            if overlap && p.seed == q.seed && !p.same_stream(q) && correlated.is_none() {
+                let (from, to) = (
+                    p.first_walk.max(q.first_walk),
+                    (p.first_walk + p.count).min(q.first_walk + q.count),
+                );
+                correlated = Some(format!(
+                    "warning: walks {from}..{to} of seed {} appear under two condition \
+                     samplers, drawn from the same random numbers: their rows are correlated \
+                     (generate the runs with different --seed)",
+                    p.seed
+                ));
+            }
+            if p.same_stream(q) && overlap && p.count > 0 && q.count > 0 {
                 // The headers are not yet checked against their files' checksums: a
                 // corrupt one (a digit changed) read as overlapping shards.
                 read_through(&a.inputs[ps.input])?;
                 read_through(&a.inputs[qs.input])?;
                 bail!(
-                    "inputs overlap: walks {}..{} and {}..{} of the run with seed {} appear twice",
+                    "inputs overlap: walks {}..{} and {}..{} of seed {} appear twice{}",
                     p.first_walk,
                     p.first_walk + p.count,
                     q.first_walk,
                     q.first_walk + q.count,
-                    p.seed
+                    p.seed,
+                    if p.same_run(q) {
+                        String::new()
+                    } else {
+                        format!(
+                            " (runs of {} and {} walks with the same seed and conditions share \
+                             their first walks)",
+                            p.total_walks, q.total_walks
+                        )
+                    }
                 );
             }
         }
@@ -447,7 +473,7 @@ fn merge_binary(a: &Args) -> Result<()> {
     }
     sink.finish()?;
     pb.finish_and_clear();
-    if let Some(note) = note {
+    for note in note.iter().chain(&correlated) {
         eprintln!("{note}");
     }
     eprintln!(

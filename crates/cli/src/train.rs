@@ -190,6 +190,53 @@ fn ensure_dataset(cfg: &TrainConfig) -> Result<()> {
     crate::generate::generate_from_config(dc, &cfg.dataset)
 }
 
+/// A dataset that is there is trained on as it is, but one that is not the whole run its
+/// `dataset_config` describes (the config edited since, or another `generate` written
+/// over it) is a warning: the model would learn other walks than the config says, unsaid.
+fn not_the_configs_run(
+    dataset: &Path,
+    config: &Path,
+    header: &scatter_sim::dataset::Header,
+) -> Result<Option<String>> {
+    let dc = crate::generate::load_config(config)?;
+    let run = scatter_sim::dataset::Piece {
+        seed: dc.seed,
+        sampler: dc.conditions,
+        total_walks: dc.walks,
+        first_walk: 0,
+        count: dc.walks,
+    };
+    // `merge` refuses overlapping pieces of one run, so pieces of the run that add up to
+    // its size are the whole of it.
+    if header.count == dc.walks && header.pieces.iter().all(|p| p.same_run(&run)) {
+        return Ok(None);
+    }
+    let first = header.pieces.first();
+    let holds = match first {
+        Some(p) if header.pieces.iter().all(|q| q.same_run(p)) => format!(
+            "{} walks of a run with seed {}, {} walks{}",
+            header.count,
+            p.seed,
+            p.total_walks,
+            if p.sampler == run.sampler {
+                ", the config's conditions"
+            } else {
+                ", other conditions"
+            }
+        ),
+        Some(_) => format!("{} walks of several runs", header.count),
+        None => "no walks".to_owned(),
+    };
+    Ok(Some(format!(
+        "warning: {} is not the run {} describes (seed {}, {} walks): it holds {holds}. \
+         Training on it as it is; remove it to generate the config's run",
+        dataset.display(),
+        config.display(),
+        dc.seed,
+        dc.walks
+    )))
+}
+
 /// Below this many usable walks per model `train` warns: a CVAE's conditional
 /// distribution cannot be learned from fewer, though a test may still want to try.
 const MIN_ROWS: usize = 1000;
@@ -620,6 +667,11 @@ pub fn run(a: Args) -> Result<()> {
     let t0 = Instant::now();
     eprintln!("reading {}", cfg.dataset.display());
     let (header, rows) = read_dataset(&cfg.dataset)?;
+    if let Some(dc) = &cfg.dataset_config
+        && let Some(w) = not_the_configs_run(&cfg.dataset, dc, &header)?
+    {
+        eprintln!("{w}");
+    }
     let tables: Vec<Table> = kinds
         .iter()
         .map(|&k| Table::build(k, &rows, cfg.single_scattering))

@@ -376,6 +376,46 @@ fn shards_merge_into_the_unsharded_run() {
         stderr(&out)
     );
     assert!(!dir.path().join("dup.bin").exists());
+    // Walk i depends on the seed, the conditions and i alone: a smaller run of the same
+    // seed and conditions holds the larger one's first walks, and merged with a shard of
+    // the larger one it duplicates them (it was merged, as "2 different runs").
+    ok(&stcvae(
+        &[
+            "generate",
+            "--config",
+            "small.toml",
+            "--samples",
+            "1000",
+            "--out",
+            "first1000.bin",
+        ],
+        dir.path(),
+    ));
+    let (_, first) = read_dataset(&dir.path().join("first1000.bin")).unwrap();
+    assert!(
+        first[..] == whole[..1000],
+        "walk i depends on the run's size"
+    );
+    let out = stcvae(
+        &["merge", "first1000.bin", "part-1.bin", "--out", "dup.bin"],
+        dir.path(),
+    );
+    assert!(
+        !out.status.success()
+            && stderr(&out).contains("of seed 5 appear twice (runs of 1000 and 3001 walks"),
+        "{}",
+        stderr(&out)
+    );
+    assert!(!dir.path().join("dup.bin").exists());
+    // Without shared walks they merge: the rows are the larger run's.
+    ok(&stcvae(
+        &["merge", "first1000.bin", "part-3.bin", "--out", "apart.bin"],
+        dir.path(),
+    ));
+    let (h3, _) = read_dataset(&dir.path().join("part-3.bin")).unwrap();
+    let from = h3.pieces[0].first_walk as usize;
+    let (_, apart) = read_dataset(&dir.path().join("apart.bin")).unwrap();
+    assert!(apart[..1000] == whole[..1000] && apart[1000..] == whole[from..]);
     // A corrupt header that reads as overlapping (one digit of shard 1's first walk
     // changed, so that it starts 10 walks early) is named as corrupt, not as an overlap.
     let mut bytes = fs::read(dir.path().join("part-1.bin")).unwrap();
@@ -462,7 +502,57 @@ fn shards_merge_into_the_unsharded_run() {
         "note: the inputs come from 2 different runs: seed 5 ({} of its 3001 walks), seed 6 ({} of its 3001 walks)",
         header.count, other.count
     );
-    assert!(stderr(&out).contains(&want), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains(&want) && !stderr(&out).contains("warning"),
+        "{}",
+        stderr(&out)
+    );
+    // One seed under two condition samplers: walk i of each draws the same random numbers.
+    for (g, name) in [("0.4", "g04.bin"), ("0.5", "g05.bin")] {
+        ok(&stcvae(
+            &[
+                "generate",
+                "--samples",
+                "300",
+                "--tau",
+                "5",
+                "--g",
+                g,
+                "--albedo",
+                "1",
+                "--out",
+                name,
+            ],
+            dir.path(),
+        ));
+    }
+    let out = stcvae(
+        &["merge", "g04.bin", "g05.bin", "--out", "paired.bin"],
+        dir.path(),
+    );
+    ok(&out);
+    assert!(
+        stderr(&out).contains(
+            "warning: walks 0..300 of seed 1 appear under two condition samplers, drawn from \
+             the same random numbers"
+        ),
+        "{}",
+        stderr(&out)
+    );
+    // The rows are paired indeed: the walks' event counts agree far more often than two
+    // independent walks' would (g 0.4 against 0.5 changes few of the early flights).
+    let (_, a) = read_dataset(&dir.path().join("g04.bin")).unwrap();
+    let (_, b) = read_dataset(&dir.path().join("g05.bin")).unwrap();
+    let same = a.iter().zip(&b).filter(|(x, y)| x.n == y.n).count();
+    let shuffled = a
+        .iter()
+        .zip(b.iter().rev())
+        .filter(|(x, y)| x.n == y.n)
+        .count();
+    assert!(
+        same > 2 * shuffled,
+        "same n: paired {same}, unpaired {shuffled}"
+    );
 }
 
 #[test]
@@ -476,6 +566,15 @@ fn bad_input_gives_one_line_errors() {
         ("generate --config typo.toml --out x.bin", "walkz"),
         ("generate --config range.toml --out x.bin", "tau.max"),
         ("generate --samples 10 --shard 4/4 --out x.bin", "shard"),
+        // The default output is the training set: fixed conditions or a shard replaced it.
+        (
+            "generate --tau 5 --g 0 --albedo 1",
+            "--out is needed in fixed-condition mode (--tau/--g/--albedo): the default, data/train.bin, is the training set",
+        ),
+        (
+            "generate --samples 10 --shard 0/2",
+            "--out is needed with --shard",
+        ),
         // A negative index meets the shard parser, not "unexpected argument '-1'".
         (
             "generate --samples 10 --shard -1/3 --out x.bin",

@@ -134,6 +134,43 @@ fn one_model_retrained_against_a_base_file_keeps_the_others() {
     assert!(got.training.tau_range[0] >= shipped.training.tau_range[0]);
 }
 
+/// A dataset that is there is trained on as it is; one that is not the run its
+/// dataset_config describes (the config edited since) says so.
+#[test]
+fn a_dataset_not_of_its_config_is_named() {
+    let dir = tempfile::tempdir().unwrap();
+    setup(dir.path());
+    let base = root().join("models/default.stcvae");
+    let base = base.to_str().unwrap();
+    let out = train_one(dir.path(), "lengthgen", base);
+    assert!(out.status.success(), "train failed: {}", stderr(&out));
+    assert!(!stderr(&out).contains("is not the run"), "{}", stderr(&out));
+    replace_in(&dir.path().join("data.toml"), "seed = 5", "seed = 6");
+    let out = stcvae(
+        &[
+            "train",
+            "--config",
+            "train.toml",
+            "--model",
+            "lengthgen",
+            "--base",
+            base,
+            "--fresh",
+        ],
+        dir.path(),
+    );
+    assert!(out.status.success(), "train failed: {}", stderr(&out));
+    assert!(
+        stderr(&out).contains(
+            "warning: d.bin is not the run data.toml describes (seed 6, 3001 walks): it holds \
+             3001 walks of a run with seed 5, 3001 walks, the config's conditions. Training on \
+             it as it is"
+        ),
+        "{}",
+        stderr(&out)
+    );
+}
+
 /// The shipped training config must not write over the shipped model: `train` writes
 /// feature version 3 and the shipped file is version 2, validated for its image.
 #[test]

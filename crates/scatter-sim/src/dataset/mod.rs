@@ -55,6 +55,12 @@ pub struct Piece {
 }
 
 impl Piece {
+    /// True if both pieces draw their walks from one stream: walk i depends on the seed,
+    /// the sampler and i alone (`walk_row`), so runs of different sizes share their rows.
+    pub fn same_stream(&self, other: &Piece) -> bool {
+        self.seed == other.seed && self.sampler == other.sampler
+    }
+
     /// True if both pieces come from the same run (same seed, sampler and size).
     pub fn same_run(&self, other: &Piece) -> bool {
         self.seed == other.seed
