@@ -164,6 +164,14 @@ fn load(path: &Path) -> Result<TrainConfig> {
             cfg.dataset.display()
         );
     }
+    // 0 turned the periodic checkpoints off without a word: a kill (not a Ctrl-C, which
+    // saves one) after most of an hour lost the whole run.
+    if cfg.checkpoint_every == 0 {
+        bail!(
+            "{}: checkpoint_every = 0 is out of range: at least 1 (steps between checkpoints)",
+            path.display()
+        );
+    }
     for k in ModelKind::ALL {
         cfg.model(k)
             .validate(k.name())
@@ -293,9 +301,12 @@ fn checkpoint_decoder(
             cfg.single_scattering.name()
         );
     }
-    // A checkpoint left by an interrupted run is taken as it is, but not unsaid (the
-    // steps as this run scales them: a checkpoint of a scaled run is finished at its own).
-    let steps = scaled_steps(cfg.model(k).steps, steps_scale);
+    // A checkpoint left by an interrupted run is taken as it is, but not unsaid. Finished
+    // or not by its own run's steps (a run stopped at step 4,000 of 400,000 was taken as
+    // finished by a run scaled to 4,000); older checkpoints, which do not record them, by
+    // the steps as this run scales them.
+    let this_run = scaled_steps(cfg.model(k).steps, steps_scale);
+    let steps = info.plan.as_ref().map_or(this_run, |p| p.steps);
     if info.step < steps {
         eprintln!(
             "note: {} comes from its checkpoint at step {} of {steps}: an unfinished training \
@@ -303,7 +314,9 @@ fn checkpoint_decoder(
             k.name(),
             info.step,
             k.name(),
-            if steps_scale == 1.0 {
+            if steps != this_run {
+                " and the settings it was started with".to_owned()
+            } else if steps_scale == 1.0 {
                 String::new()
             } else {
                 format!(" --steps-scale {}", scatter_sim::ranges::num(steps_scale))
@@ -311,6 +324,40 @@ fn checkpoint_decoder(
         );
     }
     Ok((d, version, info.ranges, info.step))
+}
+
+/// The command that goes on from an interrupted run's checkpoints: the run's own with
+/// --resume for --fresh ("the same command with --resume" was `--fresh --resume`, which
+/// clap refuses).
+fn resume_command(a: &Args) -> String {
+    let quote = |p: &Path| {
+        let s = p.display().to_string();
+        if s.chars()
+            .all(|c| c.is_ascii_alphanumeric() || "/._-+,".contains(c))
+        {
+            s
+        } else {
+            format!("'{}'", s.replace('\'', "'\\''"))
+        }
+    };
+    let mut c = format!("stcvae train --config {}", quote(&a.config));
+    if let Some(k) = a.model {
+        c += &format!(" --model {}", k.name());
+    }
+    if let Some(b) = &a.base {
+        c += &format!(" --base {}", quote(b));
+    }
+    c += " --resume";
+    if let Some(o) = &a.out {
+        c += &format!(" --out {}", quote(o));
+    }
+    if a.steps_scale != 1.0 {
+        c += &format!(" --steps-scale {}", scatter_sim::ranges::num(a.steps_scale));
+    }
+    if a.backend != "flex" {
+        c += &format!(" --backend {}", a.backend);
+    }
+    c
 }
 
 /// A model's steps under `--steps-scale`: rounded, at least one.
@@ -768,6 +815,11 @@ pub fn run(a: Args) -> Result<()> {
     let validations = validations(&cfg, &kinds, &tables, &header.pieces);
 
     let cancel = interrupt::flag();
+    // A Ctrl-C after a dataset was generated here (whose handler then caught it) while the
+    // rows were read: --fresh removed the checkpoints and each model saved a step-1 set.
+    if interrupt::requested() {
+        bail!("interrupted before training: no checkpoint removed or written");
+    }
     for &k in &kinds {
         cvae::train::trainer::remove_stale_temporaries(&cfg.checkpoint_dir, k);
         if a.fresh {
@@ -858,8 +910,12 @@ pub fn run(a: Args) -> Result<()> {
             Err(e) => return Err(e.into()),
         }
     }
-    if let Some(e) = interrupted {
-        return Err(e.into());
+    if let Some(TrainError::Interrupted(d)) = interrupted {
+        bail!(
+            "interrupted: checkpoints saved in {}; go on with: {}",
+            d.display(),
+            resume_command(&a)
+        );
     }
     let mut decoders = std::collections::HashMap::new();
     let mut notes = Vec::new();

@@ -434,8 +434,37 @@ fn wrong_outputs_and_csv_datasets_fail_before_any_work() {
     for f in ["d.bin", "d.csv", "ck"] {
         assert!(!dir.path().join(f).exists(), "{f} made before the checks");
     }
-    // A model file among the checkpoints replaces none of them.
     replace_in(&dir.path().join("train.toml"), "d.csv", "d.bin");
+    // checkpoint_every = 0 turned the periodic checkpoints off unsaid; a final rate above
+    // the peak is named as lr_final (it was reported as lr).
+    let cfg = dir.path().join("train.toml");
+    let text = fs::read_to_string(&cfg).unwrap();
+    for (from, to, want) in [
+        (
+            "checkpoint_dir = \"ck\"\n",
+            "checkpoint_dir = \"ck\"\ncheckpoint_every = 0\n",
+            "train.toml: checkpoint_every = 0 is out of range: at least 1",
+        ),
+        (
+            "lr_final = 3e-4",
+            "lr_final = 5e-3",
+            "lengthgen.lr_final: 0.005 is out of range: allowed [0, lr = 0.003]",
+        ),
+    ] {
+        replace_in(&cfg, from, to);
+        let o = stcvae(&["train", "--config", "train.toml"], dir.path());
+        assert!(
+            !o.status.success() && stderr(&o).contains(want),
+            "{}",
+            stderr(&o)
+        );
+        fs::write(&cfg, &text).unwrap();
+    }
+    assert!(
+        !dir.path().join("d.bin").exists(),
+        "the dataset made before the checks"
+    );
+    // A model file among the checkpoints replaces none of them.
     let o = stcvae(
         &["train", "--config", "train.toml", "--out", "ck/m.stcvae"],
         dir.path(),
@@ -766,6 +795,55 @@ fn fresh_removes_the_checkpoints_it_replaces() {
     let out = child.wait_with_output().unwrap();
     assert_eq!(out.status.code(), Some(130), "{}", stderr(&out));
     assert!(dir.path().join("ck/pathgen.json").exists());
+    // The advice is a command that runs: "the same command with --resume" was
+    // `--fresh --resume`, which the argument parser refuses (exit 2).
+    let err = stderr(&out);
+    let line = err
+        .lines()
+        .find_map(|l| l.split_once("go on with: stcvae "))
+        .unwrap_or_else(|| panic!("no resume command in: {err}"))
+        .1;
+    assert_eq!(line, "train --config train.toml --model lengthgen --resume");
+    // Resumed under another plan (here --steps-scale, as a run started scaled and resumed
+    // without it), the unfinished run is refused, naming both: its learning rate would
+    // jump mid-decay. The refusal also shows the advice parses.
+    let mut args = common::words(line);
+    args.extend(["--steps-scale", "0.5"]);
+    let out = stcvae(&args, dir.path());
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("the checkpoint's run stopped at step ")
+            && err.contains(
+                "of 2000000 and was started with steps = 2000000; this run has steps = 1000000"
+            ),
+        "{err}"
+    );
+    // Taken into a model file by a run scaled down to 1 step, the checkpoint is unfinished
+    // by its own run's steps (it read as finished against the scaled steps, unsaid).
+    let out = stcvae(
+        &[
+            "train",
+            "--config",
+            "train.toml",
+            "--model",
+            "pathgen",
+            "--steps-scale",
+            "1e-7",
+            "--fresh",
+        ],
+        dir.path(),
+    );
+    let err = stderr(&out);
+    assert!(out.status.success(), "{err}");
+    assert!(
+        err.contains("note: lengthgen comes from its checkpoint at step ")
+            && err.contains(
+                " of 2000000: an unfinished training (train it on with --model lengthgen \
+                 --resume and the settings it was started with)"
+            ),
+        "{err}"
+    );
 }
 
 /// A dataset whose every walk has albedo 0 has no event for EventGen in exact mode (the

@@ -11,6 +11,7 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use scatter_sim::WalkRng;
+use scatter_sim::ranges::num;
 
 use super::adamax::Adamax;
 use super::data::{ConditionRanges, ModelKind, Standardisation, Table};
@@ -138,8 +139,21 @@ impl ModelConfig {
                 ),
             );
         }
-        if !(self.lr > 0.0 && self.lr < 1.0 && self.lr_final >= 0.0 && self.lr_final <= self.lr) {
-            return bad("lr", "need 0 < lr < 1 and 0 <= lr_final <= lr");
+        if !(self.lr > 0.0 && self.lr < 1.0) {
+            return bad(
+                "lr",
+                &format!("{} is out of range: allowed (0, 1)", num(self.lr)),
+            );
+        }
+        if !(self.lr_final >= 0.0 && self.lr_final <= self.lr) {
+            return bad(
+                "lr_final",
+                &format!(
+                    "{} is out of range: allowed [0, lr = {}]",
+                    num(self.lr_final),
+                    num(self.lr)
+                ),
+            );
         }
         // A warm-up longer than the run never reaches lr, nor decays to lr_final.
         if let Some(w) = self.warmup
@@ -206,6 +220,67 @@ pub struct CheckpointInfo {
     /// checkpoints written before they were read.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub validation: Vec<ValidationPoint>,
+    /// The schedule the run was started with. Absent in checkpoints written before it
+    /// existed (then not checked).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub plan: Option<Plan>,
+}
+
+/// What a run's batches and learning rates follow, as run (after `--steps-scale`): an
+/// unfinished run resumed under another plan jumped in learning rate mid-decay (a run
+/// started with `--steps-scale 0.25` and resumed without it trained 4× as long) and was no
+/// longer the run an uninterrupted one would have been; a finished one may go on under a
+/// new plan (more steps).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Plan {
+    pub steps: u64,
+    pub warmup: u64,
+    pub batch_size: usize,
+    pub lr: f64,
+    pub lr_final: f64,
+    /// The run's seed, which also draws its validation walks.
+    pub seed: u64,
+}
+
+impl Plan {
+    pub fn of(cfg: &ModelConfig, seed: u64) -> Self {
+        Self {
+            steps: cfg.steps,
+            warmup: cfg.warmup(),
+            batch_size: cfg.batch_size,
+            lr: cfg.lr,
+            lr_final: cfg.lr_final,
+            seed,
+        }
+    }
+
+    /// The settings that differ from `other`'s, as `name = value` of this plan.
+    fn differences(&self, other: &Plan) -> Vec<String> {
+        [
+            ("steps", self.steps != other.steps, self.steps.to_string()),
+            (
+                "warmup",
+                self.warmup != other.warmup,
+                self.warmup.to_string(),
+            ),
+            (
+                "batch_size",
+                self.batch_size != other.batch_size,
+                self.batch_size.to_string(),
+            ),
+            ("lr", self.lr != other.lr, num(self.lr)),
+            (
+                "lr_final",
+                self.lr_final != other.lr_final,
+                num(self.lr_final),
+            ),
+            ("seed", self.seed != other.seed, self.seed.to_string()),
+        ]
+        .into_iter()
+        .filter(|d| d.1)
+        .map(|(name, _, v)| format!("{name} = {v}"))
+        .collect()
+    }
 }
 
 /// The part of a run's state that is not in burn's records.
@@ -428,6 +503,7 @@ pub fn train_model(
         ranges: Some(table.ranges),
         stream: None,
         validation: Vec::new(),
+        plan: Some(Plan::of(cfg, seed)),
     };
     let (mpath, opath, jpath) = paths(checkpoint_dir, kind);
     if resume && jpath.exists() {
@@ -485,6 +561,25 @@ pub fn train_model(
                     .into(),
             ));
         }
+        let plan = Plan::of(cfg, seed);
+        if let Some(was) = &info.plan
+            && info.step < was.steps
+            && *was != plan
+        {
+            return Err(err(
+                &jpath,
+                format!(
+                    "the checkpoint's run stopped at step {} of {} and was started with {}; \
+                     this run has {}: resume with the settings it was started with (the same \
+                     config and --steps-scale), or start over with --fresh",
+                    info.step,
+                    was.steps,
+                    was.differences(&plan).join(", "),
+                    plan.differences(was).join(", ")
+                ),
+            ));
+        }
+        info.plan = Some(plan);
         check_crcs(&info, &[&mpath, &opath])?;
         for p in [&mpath, &opath] {
             scatter_sim::output::check_input(p).map_err(|e| err(p, e.to_string()))?;
@@ -744,6 +839,7 @@ mod tests {
             ranges: None,
             stream: None,
             validation: Vec::new(),
+            plan: None,
         };
         save_checkpoint(d.path(), kind, &first, &optim, &info(1)).unwrap();
         let (m, o, j) = paths(d.path(), kind);
@@ -817,6 +913,7 @@ mod tests {
             ranges: Some(table.ranges),
             stream: None,
             validation: Vec::new(),
+            plan: None,
         };
         save_checkpoint(d.path(), kind, &model, &Adamax::default().init(), &info).unwrap();
         let (_, _, j) = paths(d.path(), kind);
