@@ -166,21 +166,31 @@ mod tests {
 
     /// Floyd's draws are distinct, in range and uniform: over 30,000 draws of 3 of 10 each
     /// index is drawn Binomial(30,000, 0.3) times (mean 9,000, sd 79); every count lies
-    /// within 5 sd (noise alone leaves it with probability ~6·10⁻⁶ for the ten). All of a
-    /// table is all of it.
+    /// within 5 sd (noise alone leaves it with probability ~6·10⁻⁶ for the ten). Uniform
+    /// over subsets too, which the counts alone do not show (three consecutive indices
+    /// from a uniform start pass them): each of the 120 subsets expects 250 draws, and
+    /// Pearson's χ² with 119 degrees of freedom stays below 185, its 10⁻⁴ quantile
+    /// (Wilson–Hilferty). All of a table is all of it.
     #[test]
     fn distinct_draws_are_uniform() {
         let mut rng = WalkRng::from_seed(4);
         let mut counts = [0u32; 10];
+        let mut subsets = [0u32; 1 << 10];
         for _ in 0..30_000 {
             let d = distinct(10, 3, &mut rng);
             assert_eq!(d.len(), 3);
             assert!(d.windows(2).all(|w| w[0] < w[1]) && d[2] < 10, "{d:?}");
             d.iter().for_each(|&i| counts[i] += 1);
+            subsets[d.iter().map(|&i| 1usize << i).sum::<usize>()] += 1;
         }
         for c in counts {
             assert!((c as f64 - 9000.0).abs() < 5.0 * 79.4, "{counts:?}");
         }
+        let chi2: f64 = (0..1usize << 10)
+            .filter(|m| m.count_ones() == 3)
+            .map(|m| (subsets[m] as f64 - 250.0).powi(2) / 250.0)
+            .sum();
+        assert!(chi2 < 185.0, "χ² over the 120 subsets = {chi2:.1}");
         assert_eq!(distinct(5, 5, &mut rng), [0, 1, 2, 3, 4]);
     }
 }
