@@ -225,6 +225,15 @@ pub fn run(a: Args) -> Result<()> {
         "a dataset (.csv for text, any other name binary, e.g. .bin)",
     )?;
     let piece = spec.piece();
+    if piece.count == 0 {
+        eprintln!(
+            "warning: shard {}/{} of a run of {} holds no walk (more shards than walks): \
+             the file has no rows",
+            spec.shard.index,
+            spec.shard.count,
+            progress::count(spec.total_walks, "walk")
+        );
+    }
     let pool = pool(a.threads)?;
     eprintln!(
         "generating {}{} ({} mode, seed {}, {}) -> {}",

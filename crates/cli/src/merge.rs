@@ -403,8 +403,26 @@ fn merge_binary(a: &Args) -> Result<()> {
     let note = if one_run {
         let covered: u64 = header.count;
         let total = header.pieces[0].total_walks;
-        (covered != total)
-            .then(|| format!("note: the inputs hold {covered} of the run's {total} walks"))
+        (covered != total).then(|| {
+            // A shard missing from a cluster's merge (a job that failed) was one line of
+            // "note" among the progress output: say which walks, as a warning.
+            let gaps = missing_walks(&header.pieces, total);
+            let named: Vec<String> = gaps
+                .iter()
+                .take(3)
+                .map(|(a, b)| format!("{a}..{b}"))
+                .collect();
+            format!(
+                "warning: the inputs hold {covered} of the run's {total} walks; missing: \
+                 walks {}{} (merge the missing shards too to rebuild the run)",
+                named.join(", "),
+                if gaps.len() > 3 {
+                    format!(" and {} more ranges", gaps.len() - 3)
+                } else {
+                    String::new()
+                }
+            )
+        })
     } else {
         runs_note(&header.pieces)
     };
@@ -483,6 +501,23 @@ fn merge_binary(a: &Args) -> Result<()> {
         a.out.display()
     );
     Ok(())
+}
+
+/// The walk ranges of a run of `total` walks that `pieces` (of that run, in walk order,
+/// without overlaps) leave out.
+fn missing_walks(pieces: &[Piece], total: u64) -> Vec<(u64, u64)> {
+    let mut gaps = Vec::new();
+    let mut next = 0;
+    for p in pieces.iter().filter(|p| p.count > 0) {
+        if p.first_walk > next {
+            gaps.push((next, p.first_walk));
+        }
+        next = next.max(p.first_walk + p.count);
+    }
+    if next < total {
+        gaps.push((next, total));
+    }
+    gaps
 }
 
 /// One piece of an input dataset: its rows start `offset` rows into the file.

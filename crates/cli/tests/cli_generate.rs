@@ -352,6 +352,55 @@ fn shards_merge_into_the_unsharded_run() {
         whole == rows,
         "pieces out of their file's order kept that order"
     );
+    // More shards than walks: an empty shard, said so.
+    let out = stcvae(
+        &[
+            "generate",
+            "--samples",
+            "3",
+            "--shard",
+            "1/8",
+            "--tau",
+            "1",
+            "--g",
+            "0",
+            "--albedo",
+            "1",
+            "--out",
+            "empty.bin",
+        ],
+        dir.path(),
+    );
+    ok(&out);
+    assert!(
+        stderr(&out).contains("warning: shard 1/8 of a run of 3 walks holds no walk"),
+        "{}",
+        stderr(&out)
+    );
+    assert_eq!(
+        read_dataset(&dir.path().join("empty.bin")).unwrap().0.count,
+        0
+    );
+    // A merge missing shards (a cluster job that failed) names the walks it lacks.
+    let out = stcvae(
+        &["merge", "part-2.bin", "part-0.bin", "--out", "p02.bin"],
+        dir.path(),
+    );
+    ok(&out);
+    let piece = |i: usize| {
+        let (h, _) = read_dataset(&dir.path().join(format!("part-{i}.bin"))).unwrap();
+        (
+            h.pieces[0].first_walk,
+            h.pieces[0].first_walk + h.pieces[0].count,
+        )
+    };
+    let ((_, a), (b, c), (d, _)) = (piece(0), piece(1), piece(3));
+    assert!(a == b && d > c, "shards 1 and 3 follow 0 and 2");
+    let want = format!(
+        "warning: the inputs hold {} of the run's 3001 walks; missing: walks {b}..{c}, {d}..3001",
+        3001 - (c - b) - (3001 - d)
+    );
+    assert!(stderr(&out).contains(&want), "{}", stderr(&out));
     // Binary → CSV through merge equals a direct CSV run.
     ok(&stcvae(
         &["merge", "merged.bin", "--out", "merged.csv"],

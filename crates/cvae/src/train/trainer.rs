@@ -46,6 +46,9 @@ fn default_batch() -> usize {
 }
 const DEFAULT_WARMUP: u64 = 500;
 
+/// Most hidden layers an encoder may have (the decoders': [`crate::decoder::MAX_HIDDEN_LAYERS`]).
+pub const MAX_ENCODER_LAYERS: usize = 8;
+
 /// Most floats one layer's activations may hold in a training batch (batch × width).
 pub const MAX_BATCH_FLOATS: usize = 1 << 25;
 
@@ -105,12 +108,16 @@ impl ModelConfig {
                 ),
             );
         }
+        // Depth bounded too: the batch check below is per tensor, and 64 layers of 1,024
+        // at the largest batch it allows asked tens of GiB and aborted on allocation.
         if let Some(e) = &self.encoder_hidden
-            && (e.is_empty() || e.iter().any(|&h| h == 0 || h > 1024))
+            && (e.is_empty()
+                || e.len() > MAX_ENCODER_LAYERS
+                || e.iter().any(|&h| h == 0 || h > 1024))
         {
             return bad(
                 "encoder_hidden",
-                "one or more layers, each of width 1..=1024",
+                &format!("1..={MAX_ENCODER_LAYERS} layers, each of width 1..=1024"),
             );
         }
         // A batch's activations are batch_size × widest layer floats per layer; beyond
@@ -806,6 +813,13 @@ mod tests {
             e.starts_with("pathgen.batch_size: ") && e.contains("1024"),
             "{e}"
         );
+        // The check is per tensor: the depth is bounded apart.
+        c.batch_size = MAX_BATCH_FLOATS / 1024;
+        c.encoder_hidden = Some(vec![1024; MAX_ENCODER_LAYERS]);
+        assert!(c.validate("pathgen").is_ok());
+        c.encoder_hidden = Some(vec![1024; MAX_ENCODER_LAYERS + 1]);
+        let e = c.validate("pathgen").unwrap_err();
+        assert!(e.starts_with("pathgen.encoder_hidden: 1..=8 layers"), "{e}");
     }
 
     /// A checkpoint's three files are replaced as a set: when one cannot be written (here
