@@ -142,11 +142,11 @@ fn damaged_files_are_rejected_with_clear_errors() {
         "{e}"
     );
     // Wrong version.
-    let mut v3 = bytes.clone();
-    v3[8] = 3;
-    let e = expect_err(&put("v3.bin", &v3));
-    assert!(matches!(e, DatasetError::Version { found: 3, .. }), "{e}");
-    assert!(e.to_string().contains("version 3"));
+    let mut v4 = bytes.clone();
+    v4[8] = 4;
+    let e = expect_err(&put("v4.bin", &v4));
+    assert!(matches!(e, DatasetError::Version { found: 4, .. }), "{e}");
+    assert!(e.to_string().contains("version 4"));
     // The header is under the checksum (version 2): a seed's digit changed into another
     // valid header is refused (it passed, and merge took the file for another run).
     let seed_at = bytes
@@ -289,8 +289,21 @@ fn foreign_headers_with_valid_checksums_are_refused() {
         p
     };
     // The rebuilt original is read: the test's own writer is right.
-    let (_, back) = read_dataset(&rebuilt("same.bin", json)).unwrap();
+    let (header, back) = read_dataset(&rebuilt("same.bin", json)).unwrap();
     assert_eq!(back.len(), 50);
+    // Each piece records the simulator that drew it (format version 3), 8 hex digits; a
+    // header without it (versions 1 and 2) reads as unknown.
+    let fp = scatter_sim::dataset::simulator_fingerprint();
+    assert!(
+        fp.len() == 8 && fp.chars().all(|c| c.is_ascii_hexdigit()),
+        "{fp}"
+    );
+    assert_eq!(header.pieces[0].simulator.as_deref(), Some(fp));
+    assert_eq!(bytes[8], 3, "written as format version 3");
+    let unrecorded = json.replacen(&format!(",\"simulator\":\"{fp}\""), "", 1);
+    assert_ne!(unrecorded, json, "the header holds the fingerprint");
+    let (header, _) = read_dataset(&rebuilt("v2.bin", &unrecorded)).unwrap();
+    assert_eq!(header.pieces[0].simulator, None);
 
     let extra = json.replacen("{", "{\"weights\":[1,2],", 1);
     let e = expect_err(&rebuilt("extra.bin", &extra));

@@ -491,7 +491,11 @@ fn merge_binary(a: &Args) -> Result<()> {
     }
     sink.finish()?;
     pb.finish_and_clear();
-    for note in note.iter().chain(&correlated) {
+    for note in note
+        .iter()
+        .chain(&correlated)
+        .chain(&simulators_note(&header.pieces))
+    {
         eprintln!("{note}");
     }
     eprintln!(
@@ -501,6 +505,26 @@ fn merge_binary(a: &Args) -> Result<()> {
         a.out.display()
     );
     Ok(())
+}
+
+/// Where the pieces were drawn by different simulators ([`dataset::simulator_fingerprint`],
+/// recorded since format version 3), a warning naming them: shards of one run generated
+/// by two builds (a cluster's nodes updated between jobs) hold walks from two
+/// distributions, which merged as one run unsaid.
+fn simulators_note(pieces: &[Piece]) -> Option<String> {
+    let mut seen: Vec<Option<&str>> = pieces.iter().map(|p| p.simulator.as_deref()).collect();
+    seen.sort_unstable();
+    seen.dedup();
+    (seen.len() > 1).then(|| {
+        let names: Vec<&str> = seen.iter().map(|s| s.unwrap_or("unrecorded")).collect();
+        format!(
+            "warning: the inputs were drawn by {} simulators ({}; this build's is {}): their \
+             walks may differ in distribution, not only in their random numbers",
+            seen.len(),
+            names.join(", "),
+            dataset::simulator_fingerprint()
+        )
+    })
 }
 
 /// The walk ranges of a run of `total` walks that `pieces` (of that run, in walk order,
@@ -584,6 +608,7 @@ fn coalesce(pieces: impl Iterator<Item = Piece>) -> Vec<Piece> {
     for p in pieces {
         if let Some(last) = out.last_mut()
             && last.same_run(&p)
+            && last.simulator == p.simulator
             && last.first_walk + last.count == p.first_walk
         {
             last.count += p.count;

@@ -381,6 +381,33 @@ fn shards_merge_into_the_unsharded_run() {
         read_dataset(&dir.path().join("empty.bin")).unwrap().0.count,
         0
     );
+    // Shard 1 as another simulator drew it (its fingerprint changed; the rows are this
+    // build's, which does not matter here): the merge is one run, but warns of the two.
+    let fp = scatter_sim::dataset::simulator_fingerprint();
+    let (mut h1, r1) = read_dataset(&dir.path().join("part-1.bin")).unwrap();
+    assert_eq!(h1.pieces[0].simulator.as_deref(), Some(fp));
+    h1.pieces[0].simulator = Some("0badc0de".into());
+    let mut sink = scatter_sim::dataset::create_sink(&dir.path().join("old-1.bin"), h1).unwrap();
+    for row in &r1 {
+        sink.push(row).unwrap();
+    }
+    sink.finish().unwrap();
+    let out = stcvae(
+        &["merge", "part-0.bin", "old-1.bin", "--out", "builds.bin"],
+        dir.path(),
+    );
+    ok(&out);
+    assert!(
+        stderr(&out).contains(&format!(
+            "warning: the inputs were drawn by 2 simulators (0badc0de, {fp}; this build's is {fp})"
+        )) || stderr(&out).contains(&format!(
+            "warning: the inputs were drawn by 2 simulators ({fp}, 0badc0de; this build's is {fp})"
+        )),
+        "{}",
+        stderr(&out)
+    );
+    let (h, _) = read_dataset(&dir.path().join("builds.bin")).unwrap();
+    assert_eq!(h.pieces.len(), 2, "pieces of two simulators are kept apart");
     // A merge missing shards (a cluster job that failed) names the walks it lacks.
     let out = stcvae(
         &["merge", "part-2.bin", "part-0.bin", "--out", "p02.bin"],

@@ -12,7 +12,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use rayon::prelude::*;
 
 use super::{DatasetError, Piece, Row, RowSink};
-use crate::conditions::ConditionSampler;
+use crate::conditions::{AlbedoSampler, ConditionSampler, GSampler, TauSampler};
 use crate::rng::WalkRng;
 use crate::walk::simulate_walk;
 
@@ -76,8 +76,40 @@ impl GenerateSpec {
             total_walks: self.total_walks,
             first_walk: r.start,
             count: r.end - r.start,
+            simulator: Some(simulator_fingerprint().to_owned()),
         }
     }
+}
+
+/// This build's simulator, as 8 hex digits: the CRC-32 of the rows of 64 fixed walks over
+/// moderate media (τ 0.5–12, |g| ≤ 0.95, φ 0.3–1; a few ms, once). Anything that changes
+/// a walk changes it: the walk, the phase function, the reservoir, the frames, the random
+/// streams, a dependency's numbers, the platform's libm. Hashing the sources instead would
+/// miss the last three and change with every comment. Datasets record it per piece, so
+/// that shards of different builds are not merged unsaid, and `train`, whose held-out
+/// walks this build simulates, can tell a dataset drawn by another.
+pub fn simulator_fingerprint() -> &'static str {
+    static FINGERPRINT: std::sync::OnceLock<String> = std::sync::OnceLock::new();
+    FINGERPRINT.get_or_init(|| {
+        let sampler = ConditionSampler {
+            tau: TauSampler::Uniform {
+                min: 0.5,
+                max: 12.0,
+            },
+            g: GSampler::Uniform {
+                min: -0.95,
+                max: 0.95,
+            },
+            albedo: AlbedoSampler::Uniform { min: 0.3, max: 1.0 },
+        };
+        let mut crc = crc32fast::Hasher::new();
+        let mut bytes = [0u8; super::ROW_BYTES];
+        for i in 0..64 {
+            walk_row(0x5107_1A70, &sampler, i).0.encode(&mut bytes);
+            crc.update(&bytes);
+        }
+        format!("{:08x}", crc.finalize())
+    })
 }
 
 /// Totals of a generation run.
@@ -154,10 +186,7 @@ pub fn held_out_rows(pieces: &[Piece], n: u64) -> Vec<Row> {
     // (a piece of the stream, where its held-out walks start, its rows)
     let mut streams: Vec<(&Piece, u64, u64)> = Vec::new();
     for p in pieces {
-        match streams
-            .iter_mut()
-            .find(|(r, _, _)| r.seed == p.seed && r.sampler == p.sampler)
-        {
+        match streams.iter_mut().find(|(r, _, _)| r.same_stream(p)) {
             Some((_, start, count)) => {
                 *start = (*start).max(p.total_walks);
                 *count += p.count;

@@ -16,7 +16,9 @@
 //! The size is known from the header, so truncation is detected before any row is read,
 //! and the CRC catches corruption once the rows have streamed past. Version 2 added the
 //! header to the CRC: a header damaged into other valid JSON (a seed's digit) passed, and
-//! `merge` then took one run's walks twice as "two runs". Version 1 files are still read.
+//! `merge` then took one run's walks twice as "two runs". Version 3 added each piece's
+//! `simulator` fingerprint ([`simulator_fingerprint`]). Versions 1 and 2 are still read
+//! (their pieces' simulator unknown).
 
 mod binary;
 mod csv;
@@ -27,7 +29,9 @@ mod row;
 pub use binary::{DatasetReader, DatasetWriter, read_dataset};
 pub use csv::CsvWriter;
 pub use error::DatasetError;
-pub use generate::{GenerateSpec, GenerateSummary, Shard, generate, held_out_rows, walk_row};
+pub use generate::{
+    GenerateSpec, GenerateSummary, Shard, generate, held_out_rows, simulator_fingerprint, walk_row,
+};
 pub use row::{COLUMNS, ROW_BYTES, Row};
 
 use serde::{Deserialize, Serialize};
@@ -37,7 +41,7 @@ use crate::conditions::ConditionSampler;
 
 pub const MAGIC: &[u8; 8] = b"STCVAEDS";
 pub const END_MARKER: &[u8; 8] = b"STCVEND!";
-pub const FORMAT_VERSION: u32 = 2;
+pub const FORMAT_VERSION: u32 = 3;
 /// The oldest format version still read (its CRC leaves the header out).
 pub const OLDEST_FORMAT_VERSION: u32 = 1;
 
@@ -52,6 +56,11 @@ pub struct Piece {
     pub total_walks: u64,
     pub first_walk: u64,
     pub count: u64,
+    /// The simulator that drew the walks ([`simulator_fingerprint`]); absent in files of
+    /// format versions 1 and 2. Not part of a run's or a stream's identity: it is the
+    /// same walk by intent, and where builds differ `merge` and `train` say so.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub simulator: Option<String>,
 }
 
 impl Piece {
@@ -69,8 +78,9 @@ impl Piece {
     }
 }
 
-/// The JSON header of a binary dataset. Its fields have not changed since version 1, so
-/// a key this build does not know is damage or another writer's, and refused.
+/// The JSON header of a binary dataset. Its fields have not changed since version 1 (the
+/// pieces gained `simulator` in version 3, optional), so a key this build does not know is
+/// damage or another writer's, and refused.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Header {
