@@ -798,7 +798,8 @@ fn spawn_in(dir: &std::path::Path, args: &[&str]) -> std::process::Child {
 #[cfg(unix)]
 fn writing_in(dir: &std::path::Path) -> bool {
     fs::read_dir(dir)
-        .unwrap()
+        .into_iter()
+        .flatten()
         .flatten()
         .any(|e| e.file_name().to_string_lossy().ends_with(".partial"))
 }
@@ -815,7 +816,8 @@ fn interrupted_runs_leave_no_files() {
     // The model path is the one argument that could hold a space: kept whole.
     let sample_tail = words("--tau 5 --g 0.4 --albedo 0.9 --samples 100000000000 --out big.csv");
     let runs: [Vec<&str>; 2] = [
-        words("generate --samples 1000000000 --tau 5 --g 0 --albedo 1 --out big.bin"),
+        // Into folders that do not exist yet: they are removed again.
+        words("generate --samples 1000000000 --tau 5 --g 0 --albedo 1 --out new/sub/big.bin"),
         [&["sample", "--model", model][..], &sample_tail].concat(),
     ];
     // The generate run once more with the signal sent twice back to back, as `timeout`
@@ -829,7 +831,7 @@ fn interrupted_runs_leave_no_files() {
         let child = spawn_in(dir.path(), args);
         // Interrupted once its temporary output exists, i.e. mid-work (not at the output
         // check's short-lived probe file).
-        let started = || writing_in(dir.path());
+        let started = || writing_in(dir.path()) || writing_in(&dir.path().join("new/sub"));
         interrupt_when(
             &child,
             started,

@@ -230,6 +230,41 @@ pub struct AtomicFile {
     path: PathBuf,
     writer: BufWriter<NamedTempFile>,
     live: Live,
+    // Last: dropped after the temporary file, whose folder is then empty.
+    made: MadeDirs,
+}
+
+/// The folders [`AtomicFile::create`] made for its target, deepest first: removed again
+/// (each only while empty) when the file is dropped uncommitted, since an interrupted
+/// `generate --out new/sub/x.bin` left `new/sub/` behind. A run aborted by a second Ctrl-C
+/// still leaves them (its temporary files are removed, nothing else is).
+struct MadeDirs(Vec<PathBuf>);
+
+impl MadeDirs {
+    fn create(dir: &Path) -> io::Result<Self> {
+        let mut missing = Vec::new();
+        let mut at = Some(dir);
+        while let Some(d) = at {
+            if d.as_os_str().is_empty() || d.exists() {
+                break;
+            }
+            missing.push(d.to_path_buf());
+            at = d.parent();
+        }
+        fs::create_dir_all(dir)?;
+        Ok(Self(missing))
+    }
+}
+
+impl Drop for MadeDirs {
+    fn drop(&mut self) {
+        for d in &self.0 {
+            // Not empty (another program's file, a sibling output): kept, and its parents.
+            if fs::remove_dir(d).is_err() {
+                break;
+            }
+        }
+    }
 }
 
 impl AtomicFile {
@@ -238,7 +273,7 @@ impl AtomicFile {
     pub fn create(path: &Path) -> io::Result<Self> {
         check_replaceable(path)?;
         let dir = folder_of(path);
-        fs::create_dir_all(dir)?;
+        let made = MadeDirs::create(dir)?;
         let mut builder = tempfile::Builder::new();
         let prefix = temp_prefix(path);
         builder.prefix(&prefix).suffix(".partial");
@@ -254,6 +289,7 @@ impl AtomicFile {
             path: path.to_path_buf(),
             live: Live::new(tmp.path()),
             writer: BufWriter::with_capacity(1 << 20, tmp),
+            made,
         })
     }
 
@@ -269,6 +305,9 @@ impl AtomicFile {
     /// Flushes and syncs the temporary: everything but the rename, which can then no
     /// longer fail for want of space.
     fn finish(self) -> io::Result<Finished> {
+        // Committing: the folders hold the output from here on.
+        let mut made = self.made;
+        made.0.clear();
         let tmp = self.writer.into_inner().map_err(|e| e.into_error())?;
         tmp.as_file().sync_all()?;
         Ok(Finished {
