@@ -5,7 +5,7 @@
 //! reported with the number of boundary edges rather than rendered with leaks.
 
 use std::collections::HashMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use glam::{Mat4, Vec3};
 
@@ -241,8 +241,32 @@ pub fn prepare(mut m: TriMesh) -> Result<TriMesh, String> {
             e
         }
     })?;
-    orient_pieces(&mut m);
+    let pieces = pieces(&m);
+    let volumes = piece_volumes(&m, &pieces);
+    flat_pieces(&m, &pieces, &volumes)?;
+    orient_pieces(&mut m, &pieces, &volumes);
     Ok(m)
+}
+
+/// Refuses a piece that encloses no volume though the whole mesh does (which
+/// `TriMesh::check_scale` alone sees): a face listed twice, once each way (a "two-sided"
+/// export), is closed by the edge check, and paths entering it were spawned past it, in
+/// the air, believing themselves inside the medium.
+fn flat_pieces(m: &TriMesh, pieces: &[Vec<usize>], volumes: &[f64]) -> Result<(), String> {
+    for (k, (tris, v6)) in pieces.iter().zip(volumes).enumerate() {
+        let (lo, hi) = bounds_of(tris.iter().flat_map(|&t| m.triangle(t)));
+        let side = f64::from((hi - lo).max_element());
+        let volume = v6.abs() / 6.0;
+        if !(volume > 1e-9 * side.powi(3)) {
+            return Err(format!(
+                "piece {k} of the mesh ({} triangles, {side:e} across) encloses no volume \
+                 ({volume:e}): a flat surface closed on itself, such as a face listed twice \
+                 with opposite windings (a two-sided export); remove it",
+                tris.len()
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// Winds each closed piece of the mesh so that its faces point away from the medium.
@@ -256,16 +280,14 @@ pub fn prepare(mut m: TriMesh) -> Result<TriMesh, String> {
 /// orienting the whole mesh by its total volume left such a piece inside out, rendered
 /// with leaks and too bright. Pieces that merely overlap are not nested: each faces
 /// outward, as before.
-fn orient_pieces(m: &mut TriMesh) {
-    let pieces = pieces(m);
-    let volumes = piece_volumes(m, &pieces);
+fn orient_pieces(m: &mut TriMesh, pieces: &[Vec<usize>], volumes: &[f64]) {
     let depths = if pieces.len() < 2 {
         vec![0; pieces.len()]
     } else {
-        let survey = Survey::new(m, &pieces);
-        nesting_depths(&survey.classified_probes(), &volumes)
+        let survey = Survey::new(m, pieces);
+        nesting_depths(&survey.classified_probes(), volumes)
     };
-    for ((tris, volume), depth) in pieces.iter().zip(volumes).zip(depths) {
+    for ((tris, &volume), depth) in pieces.iter().zip(volumes).zip(depths) {
         if (volume > 0.0) != (depth % 2 == 0) {
             for &t in tris {
                 m.triangles[t].swap(1, 2);
@@ -494,21 +516,34 @@ pub(crate) struct Triangulator {
     ring: Vec<u32>,
 }
 
+/// Most vertices a file's face may have. Ear clipping a polygon costs O(n²) and more
+/// when it is not simple: one face of 20,000 vertices in random order took 6 s, one of
+/// 200,000 (a PLY allows lists of 10⁶) would have run for hours.
+pub const MAX_FACE_VERTICES: usize = 4096;
+
 impl Triangulator {
     /// [`Self::polygon`] for each polygon of `indices`, listed one after another with
-    /// their vertex counts in `sizes` (which add up to `indices.len()`).
+    /// their vertex counts in `sizes` (which add up to `indices.len()`); refuses a
+    /// polygon of more than [`MAX_FACE_VERTICES`], naming it (counted from 0).
     pub(crate) fn polygons(
         &mut self,
         positions: &[Vec3],
         indices: &[u32],
         sizes: impl IntoIterator<Item = usize>,
         out: &mut Vec<[u32; 3]>,
-    ) {
+    ) -> Result<(), String> {
         let mut at = 0;
-        for n in sizes {
+        for (k, n) in sizes.into_iter().enumerate() {
+            if n > MAX_FACE_VERTICES {
+                return Err(format!(
+                    "face {k} has {n} vertices: at most {MAX_FACE_VERTICES} are supported \
+                     (triangulate it before exporting)"
+                ));
+            }
             self.polygon(positions, &indices[at..at + n], out);
             at += n;
         }
+        Ok(())
     }
 
     /// Appends the triangles of `poly` (indices into `positions`, all valid) to `out`.
@@ -651,6 +686,10 @@ fn check_closed(m: &TriMesh) -> Result<(), String> {
     Ok(())
 }
 
+/// Most triangles a glTF file's nodes may place in all (2^25, ~1.6 GB of mesh before the
+/// BVH and the distance grid are built).
+pub const MAX_GLTF_TRIANGLES: u64 = 1 << 25;
+
 fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
     let bytes = std::fs::read(path).map_err(|e| RenderError::io(path, e))?;
     // A .glb is binary and starts with the magic "glTF"; without it gltf would parse the
@@ -693,12 +732,38 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
         RenderError::mesh(path, format!("not a valid glTF/GLB file: {what}"))
     })?;
     let dir = path.parent().unwrap_or(Path::new("."));
-    let mut buffers: Vec<Vec<u8>> = Vec::new();
+    // Every buffer is held while the mesh is read. Only buffer 0 may be the GLB's binary
+    // chunk (glTF 2.0, 5.5), taken once: each entry naming it copied it, and a 1 MB file
+    // listing 100,000 buffers asked 100 GB (an abort, not an error). Buffers naming one
+    // file share one read of it; what all of them declare must be allocatable.
+    let declared: u64 = document.buffers().map(|b| b.length() as u64).sum();
+    if !crate::render::reservable(declared) {
+        return Err(RenderError::mesh(
+            path,
+            format!(
+                "its buffers declare {:.1} GB in all, more than can be allocated",
+                declared as f64 / 1e9
+            ),
+        ));
+    }
+    let mut blob = blob;
+    let mut read: HashMap<(PathBuf, usize), std::rc::Rc<Vec<u8>>> = HashMap::new();
+    let mut buffers: Vec<std::rc::Rc<Vec<u8>>> = Vec::new();
     for b in document.buffers() {
         let data = match b.source() {
-            gltf::buffer::Source::Bin => blob
-                .clone()
-                .ok_or_else(|| RenderError::mesh(path, "the GLB binary chunk is missing"))?,
+            gltf::buffer::Source::Bin if b.index() != 0 => {
+                return Err(RenderError::mesh(
+                    path,
+                    format!(
+                        "buffer {} refers to the GLB binary chunk, which only buffer 0 may",
+                        b.index()
+                    ),
+                ));
+            }
+            gltf::buffer::Source::Bin => std::rc::Rc::new(
+                blob.take()
+                    .ok_or_else(|| RenderError::mesh(path, "the GLB binary chunk is missing"))?,
+            ),
             gltf::buffer::Source::Uri(uri) if uri.starts_with("data:") => {
                 return Err(RenderError::mesh(
                     path,
@@ -709,6 +774,10 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
                 // URIs are percent-encoded (RFC 3986): exporters write a space as %20.
                 let name = percent_encoding::percent_decode_str(uri).decode_utf8_lossy();
                 let p = dir.join(&*name);
+                if let Some(d) = read.get(&(p.clone(), b.length())) {
+                    buffers.push(d.clone());
+                    continue;
+                }
                 let cannot = |e: std::io::Error| {
                     RenderError::mesh(
                         path,
@@ -731,6 +800,8 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
                     &mut data,
                 )
                 .map_err(cannot)?;
+                let data = std::rc::Rc::new(data);
+                read.insert((p, b.length()), data.clone());
                 data
             }
         };
@@ -739,6 +810,9 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
         }
         buffers.push(data);
     }
+    // Instances of one mesh (nodes naming it) are copied into the one triangle list: 5,000
+    // nodes over a mesh of 10⁶ triangles asked for 5·10⁹.
+    let mut instanced: u64 = 0;
     let mut mesh = TriMesh::default();
     let scene = document
         .default_scene()
@@ -808,6 +882,18 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
                         &buffers,
                     )
                     .map_err(|e| RenderError::mesh(path, e))?;
+                }
+                instanced += prim.indices().map_or(positions.count(), |i| i.count()) as u64 / 3;
+                if instanced > MAX_GLTF_TRIANGLES {
+                    return Err(RenderError::mesh(
+                        path,
+                        format!(
+                            "its nodes place more than {MAX_GLTF_TRIANGLES} triangles (node {} \
+                             adds mesh {}'s): instance fewer copies",
+                            node.index(),
+                            m.index()
+                        ),
+                    ));
                 }
                 let targets: Vec<_> = prim.morph_targets().collect();
                 let in_use = |k: usize| weights.get(k).is_some_and(|&w| w != 0.0);
@@ -882,7 +968,7 @@ fn check_accessor(
     what: &str,
     types: &[gltf::accessor::DataType],
     dims: gltf::accessor::Dimensions,
-    buffers: &[Vec<u8>],
+    buffers: &[std::rc::Rc<Vec<u8>>],
 ) -> Result<(), String> {
     let id = format!("{what} accessor {}", acc.index());
     if acc.sparse().is_some() {
@@ -914,7 +1000,7 @@ fn check_accessor(
         .and_then(|x| x.checked_add(size))
         .and_then(|x| x.checked_add(acc.offset()))
         .and_then(|x| x.checked_add(view.offset()));
-    let buffer_len = buffers.get(view.buffer().index()).map_or(0, Vec::len);
+    let buffer_len = buffers.get(view.buffer().index()).map_or(0, |b| b.len());
     match (end, view_end) {
         (Some(end), Some(view_end)) if end <= view_end && view_end <= buffer_len => Ok(()),
         _ => Err(format!(
@@ -956,6 +1042,7 @@ fn load_obj(path: &Path) -> Result<TriMesh, RenderError> {
     if let Some(problem) = obj_problem(&text) {
         return Err(RenderError::mesh(path, problem));
     }
+    let text = positions_only(&text);
     // Materials are not used: the medium comes from the scene file.
     let (models, _) = tobj::load_obj_buf(&mut text.as_bytes(), &opts, |_| {
         Err(tobj::LoadError::OpenFileFailed)
@@ -993,9 +1080,36 @@ fn load_obj(path: &Path) -> Result<TriMesh, RenderError> {
             &indices,
             arities.iter().map(|&a| a as usize),
             &mut mesh.triangles,
-        );
+        )
+        .map_err(|e| RenderError::mesh(path, e))?;
     }
     Ok(mesh)
+}
+
+/// The OBJ text with what the renderer does not use taken out before tobj reads it: its
+/// texture-coordinate and normal lines and the faces' references to them (tobj computed
+/// their offsets unchecked: an index of −3 into one `vt` overflowed, a panic in a build
+/// with overflow checks, a message without a line elsewhere), and polylines (`l`), which
+/// tobj read as faces when of three points or more (a cube with a polyline was refused as
+/// "faces listed twice").
+fn positions_only(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    for line in text.lines() {
+        let mut words = line.split_whitespace();
+        match words.next() {
+            Some("l" | "vt" | "vn" | "vp") => {}
+            Some("f") => {
+                out.push('f');
+                for w in words {
+                    out.push(' ');
+                    out.push_str(w.split('/').next().unwrap_or(""));
+                }
+            }
+            _ => out.push_str(line),
+        }
+        out.push('\n');
+    }
+    out
 }
 
 /// The first line of an OBJ text that tobj would refuse without saying where, or read

@@ -260,7 +260,7 @@ pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
         &face_indices,
         face_sizes,
         &mut mesh.triangles,
-    );
+    )?;
     Ok(mesh)
 }
 

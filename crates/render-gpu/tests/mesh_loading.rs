@@ -377,10 +377,11 @@ fn meshes_without_volume_are_refused() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("flat.obj") && e.contains("no volume"), "{e}");
+    // With a height to scale to as well: a flat mesh has none (refused as flat first).
     let e = render_gpu::setup::object_mesh(&scene("height = 1.0"), d.path())
         .unwrap_err()
         .to_string();
-    assert!(e.contains("flat.obj") && e.contains("height"), "{e}");
+    assert!(e.contains("flat.obj") && e.contains("no volume"), "{e}");
     // A cube near f32's largest value is refused by its size, before the checks that
     // square edge lengths (which called one "not closed"); 10¹⁵ across is still loaded,
     // for object.height to scale.
@@ -1682,4 +1683,133 @@ fn ply_data_beyond_the_declared_elements_is_refused() {
         e.contains("tail.ply") && e.contains("4 bytes after the last element"),
         "{e}"
     );
+}
+
+/// A GLB file of `json` and the binary chunk `bin` (each chunk padded to 4 bytes).
+fn glb(json: &str, bin: &[u8]) -> Vec<u8> {
+    let mut j = json.as_bytes().to_vec();
+    while !j.len().is_multiple_of(4) {
+        j.push(b' ');
+    }
+    let mut b = bin.to_vec();
+    while !b.len().is_multiple_of(4) {
+        b.push(0);
+    }
+    let total = 12 + 8 + j.len() + 8 + b.len();
+    let mut out = b"glTF".to_vec();
+    out.extend(2u32.to_le_bytes());
+    out.extend((total as u32).to_le_bytes());
+    out.extend((j.len() as u32).to_le_bytes());
+    out.extend(b"JSON");
+    out.extend(j);
+    out.extend((b.len() as u32).to_le_bytes());
+    out.extend(b"BIN\0");
+    out.extend(b);
+    out
+}
+
+/// Inputs whose size grew without bound in memory or time are refused by name: a GLB
+/// listing 100,000 buffers that each named its binary chunk (each copied it: 100 GB from
+/// 1 MB), nodes placing a mesh more often than the triangle limit allows, a face of more
+/// vertices than ear clipping is given. A piece with no volume beside one that has it
+/// (a two-sided face) is refused, where the whole mesh's volume let it through.
+#[test]
+fn inputs_that_grow_without_bound_or_hide_a_flat_piece_are_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let bin = cube_bin();
+    let doc = |buffers: &str, nodes: &str, primitives: usize| {
+        let prim = r#"{"attributes":{"POSITION":0},"indices":1}"#;
+        let prims = vec![prim; primitives].join(",");
+        format!(
+            r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[{nodes}]}}],
+            "nodes":[{}],"meshes":[{{"primitives":[{prims}]}}],
+            "buffers":[{buffers}],
+            "bufferViews":[{{"buffer":0,"byteOffset":0,"byteLength":96}},
+                           {{"buffer":0,"byteOffset":96,"byteLength":72}}],
+            "accessors":[{{"bufferView":0,"componentType":5126,"count":8,"type":"VEC3",
+                           "min":[-0.5,-0.5,-0.5],"max":[0.5,0.5,0.5]}},
+                         {{"bufferView":1,"componentType":5123,"count":36,"type":"SCALAR"}}]}}"#,
+            vec![r#"{"mesh":0}"#; nodes.split(',').count()].join(",")
+        )
+    };
+    // The plain GLB loads.
+    let one = r#"{"byteLength":168}"#;
+    let ok = write(&d, "one.glb", &glb(&doc(one, "0", 1), &bin));
+    assert_eq!(load_mesh(&ok).unwrap().triangles.len(), 12);
+    let many = [one, &vec![r#"{"byteLength":1}"#; 100_000].join(",")].join(",");
+    let e = load_mesh(&write(&d, "many.glb", &glb(&doc(&many, "0", 1), &bin)))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("many.glb") && e.contains("buffer 1 refers to the GLB binary chunk"),
+        "{e}"
+    );
+    // 140 nodes over a mesh of 20,000 primitives of 12 triangles each: 33.6 M > 2^25.
+    let nodes: Vec<String> = (0..140).map(|i| i.to_string()).collect();
+    let e = load_mesh(&write(
+        &d,
+        "copies.glb",
+        &glb(&doc(one, &nodes.join(","), 20_000), &bin),
+    ))
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("copies.glb")
+            && e.contains(&format!(
+                "its nodes place more than {} triangles",
+                mesh::MAX_GLTF_TRIANGLES
+            )),
+        "{e}"
+    );
+    // One face of 5,000 vertices (a circle): refused, naming the face.
+    let n = mesh::MAX_FACE_VERTICES + 904;
+    let mut obj = String::new();
+    for k in 0..n {
+        let a = k as f64 / n as f64 * std::f64::consts::TAU;
+        obj += &format!("v {} {} 0\n", a.cos(), a.sin());
+    }
+    obj += "v 0 0 1\nf";
+    for k in 1..=n {
+        obj += &format!(" {k}");
+    }
+    obj += "\n";
+    for k in 1..=n {
+        obj += &format!("f {} {k} {}\n", n + 1, k % n + 1);
+    }
+    let e = load_mesh(&write(&d, "cone.obj", obj.as_bytes()))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("cone.obj") && e.contains(&format!("face 0 has {n} vertices: at most 4096")),
+        "{e}"
+    );
+    // A cube beside a face listed twice, once each way: every edge is used once in each
+    // direction, so only the piece's own volume tells.
+    let cube = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nv 0 0 1\nv 1 0 1\nv 0 1 1\nv 1 1 1\n\
+                f 1 3 4\nf 1 4 2\nf 5 6 8\nf 5 8 7\nf 1 2 6\nf 1 6 5\nf 3 7 8\nf 3 8 4\n\
+                f 1 5 7\nf 1 7 3\nf 2 4 8\nf 2 8 6\n";
+    let two_sided = format!("{cube}v 3 0 0\nv 4 0 0\nv 3 1 0\nf 9 10 11\nf 9 11 10\n");
+    let e = load_mesh(&write(&d, "twosided.obj", two_sided.as_bytes()))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("twosided.obj")
+            && e.contains("2 triangles")
+            && e.contains("encloses no volume")
+            && e.contains("two-sided"),
+        "{e}"
+    );
+    // What the renderer does not read is not read: a polyline of three points (read as a
+    // face, and the cube refused as "faces listed twice"), texture-coordinate references
+    // counting back past the `vt` lines (an overflow in the reader).
+    let polyline = format!("{cube}l 1 2 3\n");
+    let m = load_mesh(&write(&d, "polyline.obj", polyline.as_bytes())).unwrap();
+    assert_eq!(m.triangles.len(), 12);
+    let uv = cube.replace(
+        "f 1 3 4\n",
+        "vt 0 0\nvn 0 0 1\nf 1/-3/-5 3/-3/7 4//9223372036854775807\n",
+    );
+    assert_ne!(uv, cube);
+    let m = load_mesh(&write(&d, "uv.obj", uv.as_bytes())).unwrap();
+    assert_eq!(m.triangles.len(), 12);
 }
