@@ -926,12 +926,23 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
                     .ok_or_else(|| RenderError::mesh(path, "a primitive has no POSITION"))?
                     .map(Vec3::from_array)
                     .collect();
-                for (k, (displaced, _, _)) in reader.read_morph_targets().enumerate() {
-                    if let (true, Some(d)) = (in_use(k), displaced) {
-                        let w = weights[k];
-                        for (p, d) in local.iter_mut().zip(d) {
-                            *p += w * Vec3::from_array(d);
-                        }
+                // The targets in use, their positions alone, each accessor checked above:
+                // the reader's own walk over every target built readers for the unused
+                // ones' normals and tangents too, unchecked (a count of 0 underflowed).
+                for (k, t) in targets.iter().enumerate().filter(|&(k, _)| in_use(k)) {
+                    let Some(acc) = t.positions() else { continue };
+                    let d = gltf::accessor::Iter::<[f32; 3]>::new(acc, |b| {
+                        buffers.get(b.index()).map(|v| &v[..])
+                    })
+                    .ok_or_else(|| {
+                        RenderError::mesh(
+                            path,
+                            format!("morph target {k}'s positions cannot be read"),
+                        )
+                    })?;
+                    let w = weights[k];
+                    for (p, d) in local.iter_mut().zip(d) {
+                        *p += w * Vec3::from_array(d);
                     }
                 }
                 let pos: Vec<Vec3> = local

@@ -1346,6 +1346,26 @@ fn gltf_instances_scenes_uris_and_morph_weights() {
             "weights {node_w} {mesh_w}"
         );
     }
+    // A target not in use (weight 0) is not read: its NORMAL accessor holds nothing
+    // (count 0), which the reader's walk over every target underflowed on.
+    let doc = format!(
+        r#""scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0,"weights":[0.5,0.0]}}],{}"#,
+        mesh("").replace(
+            r#""targets":[{"POSITION":2}]"#,
+            r#""targets":[{"POSITION":2},{"POSITION":2,"NORMAL":3}]"#
+        )
+    );
+    assert!(doc.contains(r#""NORMAL":3"#));
+    let text = std::fs::read_to_string(cube_doc(&d, "t.gltf", "c.bin", "c.bin", &doc)).unwrap();
+    let text = text.replace(
+        r#""min":[1,0,0],"max":[1,0,0]}]"#,
+        r#""min":[1,0,0],"max":[1,0,0]},
+                     {"bufferView":2,"componentType":5126,"count":0,"type":"VEC3"}]"#,
+    );
+    assert!(text.contains(r#""count":0"#));
+    let m = load_mesh(&write(&d, "t.gltf", text.as_bytes())).unwrap();
+    let (lo, hi) = m.bounds();
+    assert_eq!((lo.x, hi.x), (0.0, 1.0));
     // A buffer named with a space, written %20 as URIs require.
     let p = cube_doc(
         &d,
