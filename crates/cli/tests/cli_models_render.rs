@@ -2269,6 +2269,37 @@ fn overlapping_mesh_pieces_are_noted() {
         err.contains(
             "many.toml: the mesh has 17 closed pieces and 204 triangles: beyond 16 \
                       pieces or 2000000 triangles they are not checked for overlaps"
+        ) && !err.contains("nesting"),
+        "{err}"
+    );
+    // Beyond 256 pieces their nesting is not surveyed either (each wound outward).
+    let (mut v, mut f) = (String::new(), String::new());
+    for k in 0..257 {
+        let x0 = -0.5 + k as f32 * 0.06;
+        let (vk, fk) = boxed(x0, x0 + 0.04, 8 * k);
+        v += &vk;
+        f += &fk;
+    }
+    std::fs::write(d.path().join("many.obj"), format!("{v}{f}")).unwrap();
+    let out = stcvae(&[
+        "render",
+        "--scene",
+        many.to_str().unwrap(),
+        "--spp",
+        "1",
+        "--device",
+        "cpu",
+        "--out",
+        d.path().join("m").to_str().unwrap(),
+    ]);
+    let err = common::stderr(&out);
+    assert!(out.status.success(), "{err}");
+    assert!(
+        err.contains(
+            "the mesh has 257 closed pieces and 3084 triangles: beyond 16 pieces or 2000000 \
+             triangles they are not checked for overlaps, and an overlap would render partly \
+             as air; join overlapping pieces into one closed surface; beyond 256 pieces their \
+             nesting is not surveyed either"
         ),
         "{err}"
     );

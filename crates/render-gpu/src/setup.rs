@@ -147,10 +147,19 @@ impl SceneData {
             format!(
                 "the mesh has {n} closed pieces and {} triangles: beyond {} pieces or {} \
                  triangles they are not checked for overlaps, and an overlap would render \
-                 partly as air; join overlapping pieces into one closed surface",
+                 partly as air; join overlapping pieces into one closed surface{}",
                 mesh.triangles.len(),
                 crate::mesh::MAX_OVERLAP_PIECES,
-                crate::mesh::MAX_OVERLAP_CHECK_TRIANGLES
+                crate::mesh::MAX_OVERLAP_CHECK_TRIANGLES,
+                if n > crate::mesh::MAX_NESTING_PIECES {
+                    format!(
+                        "; beyond {} pieces their nesting is not surveyed either: each is \
+                         solid, wound outward (a cavity would render as medium)",
+                        crate::mesh::MAX_NESTING_PIECES
+                    )
+                } else {
+                    String::new()
+                }
             )
         });
         let geo = Geometry::new(mesh);

@@ -1833,3 +1833,30 @@ fn inputs_that_grow_without_bound_or_hide_a_flat_piece_are_refused() {
     let m = load_mesh(&write(&d, "uv.obj", uv.as_bytes())).unwrap();
     assert_eq!(m.triangles.len(), 12);
 }
+
+/// Nesting is surveyed in meshes of up to `MAX_NESTING_PIECES` pieces (the survey's cost
+/// grows with the square of how many overlap: 2,000 overlapping cubes took 168 s and
+/// 2.6 GB); beyond, each piece is solid, wound outward, and `render` notes it. A hollow
+/// box (8 − 1) beside small cubes of 10⁻³ each: its cavity is wound inward up to the
+/// limit, solid one piece beyond it.
+#[test]
+fn nesting_is_surveyed_up_to_its_piece_limit() {
+    let c = mesh::cube;
+    let volume_with = |pieces_in_all: usize| {
+        let mut parts: Vec<Piece> = vec![(c(2.0), false), (c(1.0), false)];
+        for k in 2..pieces_in_all {
+            let at = glam::Vec3::new(3.0 + 0.2 * (k % 16) as f32, 0.2 * (k / 16) as f32, 0.0);
+            parts.push((moved(c(0.1), at), false));
+        }
+        let m = mesh::prepare(pieces(&parts)).unwrap();
+        volume_and_area(&m).0 - (pieces_in_all - 2) as f64 * 1e-3
+    };
+    let limit = mesh::MAX_NESTING_PIECES;
+    let (within, beyond) = (volume_with(limit), volume_with(limit + 1));
+    assert!((within - 7.0).abs() < 1e-4, "{limit} pieces: {within}");
+    assert!(
+        (beyond - 9.0).abs() < 1e-4,
+        "{} pieces: {beyond}",
+        limit + 1
+    );
+}
