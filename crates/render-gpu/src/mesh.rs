@@ -182,9 +182,21 @@ pub fn prepare(mut m: TriMesh) -> Result<TriMesh, String> {
         triangles.push(t);
     }
     if triangles.is_empty() {
+        // Areas are squared in f32 (as the renderers use them): below ~10⁻¹¹ scene units
+        // an edge's square underflows, and a mesh in such units read as degenerate unsaid.
+        let (lo, hi) = bounds_of(positions.iter().copied());
+        let side = (hi - lo).max_element();
         return Err(format!(
-            "all {} triangles are degenerate (zero area)",
-            m.triangles.len()
+            "all {} triangles are degenerate (zero area){}",
+            m.triangles.len(),
+            if side > 0.0 && side < 1e-8 {
+                format!(
+                    "; the mesh is {side:e} units across, too small for single precision: \
+                     scale the file up (object.height scales only after loading)"
+                )
+            } else {
+                String::new()
+            }
         ));
     }
     let dropped = m.triangles.len() - triangles.len();
@@ -738,6 +750,9 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
         };
         RenderError::mesh(path, format!("not a valid glTF/GLB file: {what}"))
     })?;
+    if document.meshes().len() == 0 {
+        return Err(RenderError::mesh(path, "the glTF file holds no mesh"));
+    }
     let dir = path.parent().unwrap_or(Path::new("."));
     // Every buffer is held while the mesh is read. Only buffer 0 may be the GLB's binary
     // chunk (glTF 2.0, 5.5), taken once: each entry naming it copied it, and a 1 MB file

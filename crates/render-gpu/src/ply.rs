@@ -171,6 +171,16 @@ pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
         }
     }
     let binary = binary.ok_or("the PLY header has no format line")?;
+    // Faces come as `face` lists only: a file of triangle strips read as "no triangles".
+    if !elements.iter().any(|e| e.name == "face")
+        && let Some(e) = elements.iter().find(|e| e.name != "vertex" && e.count > 0)
+    {
+        return Err(format!(
+            "the PLY file has no `face` element (element `{}` is not read): faces must be \
+             `element face` with a vertex-index list",
+            e.name
+        ));
+    }
     let mut body = if binary {
         Body::Binary(bytes, body_start)
     } else {

@@ -1832,6 +1832,44 @@ fn inputs_that_grow_without_bound_or_hide_a_flat_piece_are_refused() {
     assert_ne!(uv, cube);
     let m = load_mesh(&write(&d, "uv.obj", uv.as_bytes())).unwrap();
     assert_eq!(m.triangles.len(), 12);
+    // Files that hold no faces the loader reads say why, not "no triangles".
+    let e = load_mesh(&write(
+        &d,
+        "empty.gltf",
+        br#"{"asset":{"version":"2.0"},"scenes":[{"nodes":[]}]}"#,
+    ))
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("empty.gltf: the glTF file holds no mesh"), "{e}");
+    let strips = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n\
+                  property float z\nelement tristrips 1\nproperty list int int vertex_indices\n\
+                  end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
+    let e = load_mesh(&write(&d, "strips.ply", strips.as_bytes()))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("strips.ply: the PLY file has no `face` element (element `tristrips`"),
+        "{e}"
+    );
+    // A cube 10⁻¹³ across: its areas vanish in single precision.
+    let tiny: String = cube
+        .lines()
+        .map(|l| match l.strip_prefix("v ") {
+            Some(v) => {
+                let xyz: Vec<String> = v.split(' ').map(|x| format!("{x}e-13")).collect();
+                format!("v {}\n", xyz.join(" "))
+            }
+            None => format!("{l}\n"),
+        })
+        .collect();
+    let e = load_mesh(&write(&d, "tiny.obj", tiny.as_bytes()))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("all 12 triangles are degenerate")
+            && e.contains("too small for single precision"),
+        "{e}"
+    );
 }
 
 /// Nesting is surveyed in meshes of up to `MAX_NESTING_PIECES` pieces (the survey's cost
