@@ -63,6 +63,22 @@ impl TriMesh {
         for p in &mut self.positions {
             *p = (*p - centre) * s;
         }
+        // Rounding to the new positions can merge a feature smaller than f32's resolution
+        // at its distance from the centre into one point: its triangles would get NaN
+        // normals.
+        let collapsed = (0..self.triangles.len())
+            .filter(|&t| {
+                let [a, b, c] = self.triangle(t).map(|v| v.as_dvec3());
+                (b - a).cross(c - a).length_squared() == 0.0
+            })
+            .count();
+        if collapsed > 0 {
+            return Err(format!(
+                "scaled to height {height}, {collapsed} of its triangles collapse to no area \
+                 (details below single precision's resolution where they lie): scale the \
+                 file itself, or remove them"
+            ));
+        }
         Ok(())
     }
 

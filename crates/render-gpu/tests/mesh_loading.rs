@@ -1851,6 +1851,36 @@ fn inputs_that_grow_without_bound_or_hide_a_flat_piece_are_refused() {
         e.contains("strips.ply: the PLY file has no `face` element (element `tristrips`"),
         "{e}"
     );
+    // A tetrahedron 10⁻⁹ across at the origin beside a cube from 0.1 to 1.1: loaded, but
+    // scaled to a height (centred at 0.55) its corners round into one point, which gave
+    // its triangles NaN normals.
+    let cube_and_speck = "v 0.1 0.1 0.1\nv 1.1 0.1 0.1\nv 0.1 1.1 0.1\nv 1.1 1.1 0.1\n\
+         v 0.1 0.1 1.1\nv 1.1 0.1 1.1\nv 0.1 1.1 1.1\nv 1.1 1.1 1.1\n\
+         f 1 3 4\nf 1 4 2\nf 5 6 8\nf 5 8 7\nf 1 2 6\nf 1 6 5\nf 3 7 8\nf 3 8 4\n\
+         f 1 5 7\nf 1 7 3\nf 2 4 8\nf 2 8 6\n\
+         v 0 0 0\nv 1e-9 0 0\nv 0 1e-9 0\nv 0 0 1e-9\nf 9 11 10\nf 9 10 12\nf 9 12 11\nf 10 11 12\n";
+    write(&d, "speck.obj", cube_and_speck.as_bytes());
+    assert_eq!(
+        load_mesh(&d.path().join("speck.obj"))
+            .unwrap()
+            .triangles
+            .len(),
+        16
+    );
+    let scene = render_gpu::scene::SceneFile::parse(
+        &d.path().join("s.toml"),
+        "[camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 20.0\n\
+         width = 8\nheight = 8\n[object]\nmesh = \"speck.obj\"\nheight = 1.0\n\
+         [medium]\nsigma_t = [1.0, 1.0, 1.0]\nalbedo = [1.0, 1.0, 1.0]\n",
+    )
+    .unwrap();
+    let e = render_gpu::setup::object_mesh(&scene, d.path())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("speck.obj: scaled to height 1, 4 of its triangles collapse to no area"),
+        "{e}"
+    );
     // A cube 10⁻¹³ across: its areas vanish in single precision.
     let tiny: String = cube
         .lines()
