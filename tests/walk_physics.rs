@@ -203,7 +203,12 @@ fn from_canonical_repairs_out_of_range_values() {
 /// flight alike (the ratio stays 4); the absolute 2% band below catches those, since mean
 /// N goes with the flight rate squared (a rate 5% off moves it ~10%). With 20,000 walks
 /// per τ each mean has a relative standard error of ≈ 0.45%, the ratio ≈ 0.65% (±0.026).
-/// The 2% band on the formula covers its O(1/τ²) error plus 3 standard errors.
+/// The 2% band on the formula covers its O(1/τ²) error plus 3 standard errors. At g = 0.5
+/// the formula's own error (z_b scaled by 1/(1 − g), the source a transport length off the
+/// centre) is not known to that accuracy, so there mean N is compared with the
+/// independent simulator of this file ([`reference_walk`]) instead: 80,000 walks each
+/// (mean N ≈ 946, standard error of the difference ≈ 0.32 %), Welch's |z| < 4: a flight
+/// rate 1 % off moves mean N ~2 %, z ≈ 6.
 #[test]
 fn mean_events_grow_like_tau_squared() {
     let mean_n = |tau: f64, g: f64, seed: u64| {
@@ -220,21 +225,29 @@ fn mean_events_grow_like_tau_squared() {
         (3.85..=4.05).contains(&ratio),
         "mean N(100)/mean N(50) = {ratio:.3} ({m100:.0}±{s100:.0} / {m50:.0}±{s50:.0})"
     );
-    for (tau, g, seed) in [(50.0, 0.0, 61), (100.0, 0.0, 62), (60.0, 0.5, 63)] {
-        let (m, _) = if tau == 50.0 {
-            (m50, s50)
-        } else if tau == 100.0 {
-            (m100, s100)
-        } else {
-            mean_n(tau, g, seed)
-        };
-        let zb = 0.71 / (1.0 - g);
-        let predicted = (1.0 - g) * (tau + zb).powi(2) / 2.0;
+    for (tau, m) in [(50.0, m50), (100.0, m100)] {
+        let predicted = (tau + 0.71f64).powi(2) / 2.0;
         assert!(
             (m / predicted - 1.0).abs() < 0.02,
-            "tau = {tau}, g = {g}: mean N = {m:.1}, diffusion {predicted:.1}"
+            "tau = {tau}, g = 0: mean N = {m:.1}, diffusion {predicted:.1}"
         );
     }
+    let ns: Vec<f64> = walks(60.0, 0.5, 1.0, 63, 80_000)
+        .iter()
+        .map(|w| w.n as f64)
+        .collect();
+    let (m, s) = mean_and_sem(&ns);
+    let reference: Vec<f64> = (0..80_000u64)
+        .into_par_iter()
+        .map(|k| reference_walk(60.0, 0.5, &mut WalkRng::for_walk(1063, k)).0 as f64)
+        .collect();
+    let (r, sr) = mean_and_sem(&reference);
+    let z = (m - r) / (s * s + sr * sr).sqrt();
+    eprintln!("tau 60, g 0.5: mean N {m:.1} ± {s:.1}, independent {r:.1} ± {sr:.1}, z = {z:.2}");
+    assert!(
+        z.abs() < 4.0,
+        "tau = 60, g = 0.5: mean N = {m:.1} ± {s:.1}, independent simulator {r:.1} ± {sr:.1} (z = {z:.2})"
+    );
 }
 
 /// A second simulator of the unit-sphere walk, written for this test from the physics
