@@ -384,7 +384,73 @@ impl ModelSet {
         };
         set.check_length_decoder()
             .map_err(|e| invalid(format!("lengthgen: {e}")))?;
+        set.check_finite_heads().map_err(invalid)?;
         Ok(set)
+    }
+
+    /// PathGen's and EventGen's heads are finite over a grid of their inputs: τ and g as
+    /// [`Self::check_length_decoder`] probes them, relative log N −2, 0, 2, an exit at
+    /// the pole and one at the equator, the training range's albedos, at the latent mean
+    /// and [`PROBE_LATENT`] out along each latent axis. The samplers replace a non-finite
+    /// output by a fixed valid one, so a file whose weights (each within its bound)
+    /// overflow to inf, then NaN, loaded and rendered a plausible, wrong image (every exit
+    /// at α = β = 0) without a word.
+    fn check_finite_heads(&self) -> Result<(), String> {
+        let t = &self.training;
+        let (lo, hi) = (t.tau_range[0].ln_1p(), t.tau_range[1].ln_1p());
+        let probes = |latent: usize| {
+            (0..=2 * latent).map(move |k| {
+                let mut z = vec![0f32; latent];
+                if k > 0 {
+                    z[(k - 1) / 2] = if k % 2 == 1 {
+                        PROBE_LATENT
+                    } else {
+                        -PROBE_LATENT
+                    };
+                }
+                z
+            })
+        };
+        let mut conditions = Vec::new();
+        for i in 0..3 {
+            let tau = (lo + (hi - lo) * i as f64 / 2.0).exp_m1();
+            for j in 0..3 {
+                let g = t.g_range[0] + (t.g_range[1] - t.g_range[0]) * j as f64 / 2.0;
+                for albedo in t.albedo_range {
+                    conditions.push(features::WalkFeatures::new(tau, g, albedo));
+                }
+            }
+        }
+        let finite = |d: &crate::decoder::Decoder, cond: &[f64], z: &[f32]| {
+            let head = d.head(&d.draw(cond, z, &[0.0; crate::decoder::MAX_OUT]));
+            head[..2 * d.out].iter().all(|h| h.is_finite())
+        };
+        for f in &conditions {
+            for rel in [-2.0, 0.0, 2.0] {
+                let path = f.path_cond(rel);
+                for (name, d, cond) in [
+                    ("pathgen", &self.path, &path[..]),
+                    (
+                        "eventgen",
+                        &self.event,
+                        &f.event_cond(rel, 1.0, 0.0, 0.0)[..],
+                    ),
+                    (
+                        "eventgen",
+                        &self.event,
+                        &f.event_cond(rel, 0.0, 0.5, 0.5)[..],
+                    ),
+                ] {
+                    if let Some(z) = probes(d.latent).find(|z| !finite(d, cond, z)) {
+                        return Err(format!(
+                            "{name}: its output is not finite at conditions {cond:?} and \
+                             latent {z:?} (a damaged or hand-edited file)"
+                        ));
+                    }
+                }
+            }
+        }
+        Ok(())
     }
 
     /// LengthGen's median and spread of the relative log N over a 3 × 3 grid of its

@@ -594,3 +594,44 @@ fn absurd_lengthgen_is_refused() {
     assert!(e.contains("-0.999 and latent [3.0"), "{e}");
     assert!(e.contains("damaged or hand-edited"), "{e}");
 }
+
+/// PathGen and EventGen are probed on load too: the samplers replace a non-finite output
+/// by a fixed valid one, so weights each within the bound that overflow to inf (8 layers
+/// of 64, every weight 10⁴: activations grow ~6·10⁵-fold a layer) loaded and rendered
+/// every exit at α = β = 0 without a word. Refused, naming the model; the random test
+/// weights pass.
+#[test]
+fn non_finite_decoders_are_refused() {
+    let load = |m: &ModelSet| ModelSet::from_bytes(&m.to_bytes(), Path::new("n.stcvae"));
+    for which in ["pathgen", "eventgen"] {
+        let mut m = random_models(5, 1.0);
+        load(&m).unwrap();
+        let d = if which == "pathgen" {
+            &mut m.path
+        } else {
+            &mut m.event
+        };
+        let mut rng = WalkRng::from_seed(9);
+        let mut wide = random_decoder(&mut rng, d.cond, d.latent, &[64; 8], d.out, 1.0);
+        wide.layers = wide
+            .layers
+            .iter()
+            .map(|l| {
+                Dense::new(
+                    l.inputs,
+                    l.outputs,
+                    vec![1e4; l.weight.len()],
+                    l.bias.clone(),
+                )
+            })
+            .collect();
+        *d = wide;
+        let e = load(&m).unwrap_err().to_string();
+        assert!(
+            e.contains(&format!(
+                "n.stcvae: invalid model: {which}: its output is not finite"
+            )) && e.contains("damaged or hand-edited"),
+            "{e}"
+        );
+    }
+}
