@@ -355,6 +355,18 @@ pub(crate) fn outside_training_warning(
             crate::model_cmds::training_range(t.albedo_range)
         ));
     }
+    // The models draw the sphere steps from max(min_tau, exact_tau) up (smaller ones are
+    // PT or exact walks): a model trained from τ = 30 drew steps from 20 unsaid.
+    let s = p.settings();
+    let lowest = s.min_tau.max(s.exact_tau) as f64;
+    if lowest <= s.max_tau as f64 && crate::model_cmds::outside_training(lowest, t.tau_range) {
+        key += ":tau";
+        outside.push(format!(
+            "sphere steps from τ = {} (render.min_tau/exact_tau; trained {})",
+            scatter_sim::ranges::num(lowest),
+            crate::model_cmds::training_range(t.tau_range)
+        ));
+    }
     (!outside.is_empty()).then(|| {
         let line = format!(
             "{}: {} outside the model's training range: ST-CVAE extrapolates there",

@@ -2304,3 +2304,48 @@ fn overlapping_mesh_pieces_are_noted() {
         "{err}"
     );
 }
+
+/// The models draw the sphere steps from max(min_tau, exact_tau) up: a model trained from
+/// τ = 30 used from 20 (the default exact_tau) extrapolates, and `render` says so, as it
+/// does for g and the albedo; the shipped model, trained from τ ≈ 0, is not warned.
+#[test]
+fn model_steps_below_the_trained_taus_are_warned() {
+    let d = tempfile::tempdir().unwrap();
+    let scene = sphere_scene_file(d.path(), 8);
+    let mut m = cvae::ModelSet::load(&root().join("models/default.stcvae")).unwrap();
+    let render = |model: &Path| {
+        stcvae(&[
+            "render",
+            "--scene",
+            scene.to_str().unwrap(),
+            "--integrator",
+            "stcvae",
+            "--model",
+            model.to_str().unwrap(),
+            "--spp",
+            "1",
+            "--device",
+            "cpu",
+            "--out",
+            d.path().join("r").to_str().unwrap(),
+        ])
+    };
+    let out = render(&root().join("models/default.stcvae"));
+    ok(&out);
+    assert!(
+        !common::stderr(&out).contains("sphere steps from"),
+        "{}",
+        common::stderr(&out)
+    );
+    m.training.tau_range[0] = 30.0;
+    let file = d.path().join("from30.stcvae");
+    m.save(&file).unwrap();
+    let out = render(&file);
+    ok(&out);
+    let err = common::stderr(&out);
+    assert!(
+        err.contains("sphere steps from τ = 20 (render.min_tau/exact_tau; trained [30, ")
+            && err.contains("outside the model's training range: ST-CVAE extrapolates there"),
+        "{err}"
+    );
+}
