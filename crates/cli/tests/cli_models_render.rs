@@ -1538,6 +1538,47 @@ fn bench_devices_checks_every_density_before_rendering() {
     );
 }
 
+/// On a software adapter the path state lives in host memory, which `render` checks with
+/// the image: `bench devices` did not, and a 3,000² bench under a 3 GB limit aborted with
+/// "memory allocation of 108000000 bytes failed". Now a one-line error before any row.
+/// (A hardware adapter keeps that state on the device: skipped there.)
+#[cfg(unix)]
+#[test]
+fn bench_devices_checks_the_software_gpus_memory() {
+    let out = Command::new("sh")
+        .arg("-c")
+        .arg(format!(
+            "ulimit -v 3000000 && exec '{}' bench devices --scene configs/scenes/sphere.toml \
+             --size 3000 --spp 1 --k 1",
+            env!("CARGO_BIN_EXE_stcvae")
+        ))
+        .env("WGPU_BACKEND", "vulkan")
+        .current_dir(root())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    let text = String::from_utf8_lossy(&out.stdout).into_owned();
+    if err.contains("no wgpu adapter") && std::env::var_os("CI").is_none() {
+        common::skip(&format!(
+            "bench_devices_checks_the_software_gpus_memory: {err}"
+        ));
+        return;
+    }
+    if !text.contains("llvmpipe") {
+        common::skip("bench_devices_checks_the_software_gpus_memory: not a software adapter");
+        return;
+    }
+    let e = fails(&out);
+    assert!(
+        e.contains("--size 3000: a 3000 x 3000 image needs about")
+            && e.contains("(with the software GPU's path state)")
+            && !e.contains("memory allocation")
+            && e.lines().filter(|l| l.starts_with("error")).count() == 1,
+        "{e}"
+    );
+    assert!(!text.lines().any(|l| l.contains(" PT ")), "{text}");
+}
+
 #[test]
 fn bench_devices_prints_both_devices_and_their_ratio() {
     let Some(out) = on_vulkan(
