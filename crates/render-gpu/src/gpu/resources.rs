@@ -52,8 +52,8 @@ const QUEUE_HEAD: u64 = 4 * (1 + 2 + 2 * 12);
 const QUEUES: u64 = 9;
 const _: () = assert!(QUEUES <= 12, "Queue.counts holds 12 lengths");
 
-/// Where in the indirect buffer each kernel's dispatch arguments lie (`STAGE_ARGS` etc. in
-/// shaders/staged.wgsl, in words), and its size.
+/// Where in the indirect buffer each kernel's dispatch arguments lie, in bytes (`STAGE_ARGS`
+/// etc. in shaders/staged.wgsl: words 0, 3 and 6), and its size.
 const STAGE_ARGS_AT: u64 = 0;
 const STEP_ARGS_AT: u64 = 12;
 const QUERY_ARGS_AT: u64 = 24;
