@@ -208,6 +208,27 @@ const MAX_LANE_SAMPLES: u32 = 65_536;
 /// dispatch cannot be interrupted, so this bounds how long a stop request waits.
 const SOFTWARE_BAND_SLOTS: u64 = 1 << 16;
 
+/// The most path slots a hardware GPU's dispatch covers. A band was as large as a storage
+/// binding allows: 16.8 M slots for a 4096² PT render, 16× the 2^20 invocations that the
+/// bounce budget's "far below watchdogs" was reckoned for (an H100's PT at k = 8, ~10⁹
+/// events/s, would take ~4 s a dispatch, beyond Windows' 2 s watchdog, and a stop request
+/// would wait as long).
+const HARDWARE_BAND_SLOTS: u64 = 1 << 22;
+
+/// Rows of `row_slots` path slots a band holds: what one binding of `fit` slots takes, at
+/// most the image's `height`, and no more than the adapter's per-dispatch cap
+/// ([`SOFTWARE_BAND_SLOTS`], [`HARDWARE_BAND_SLOTS`]) allows but one row; 0 where not even
+/// a row fits a binding.
+fn band_rows(fit: u64, row_slots: u64, height: u32, software: bool) -> u32 {
+    let cap = if software {
+        SOFTWARE_BAND_SLOTS
+    } else {
+        HARDWARE_BAND_SLOTS
+    };
+    let rows = fit / row_slots;
+    rows.min((cap / row_slots).max(1)).min(height as u64) as u32
+}
+
 /// The most bounces a dispatch may be given: lavapipe's loop limit, which every bounce
 /// takes at least one iteration of. Hardware GPUs gained < 6 % from 256 to 1024.
 const MAX_BOUNCES: u32 = 65_535;
@@ -612,11 +633,7 @@ pub fn render_gpu(
     // of more than SOFTWARE_BAND_SLOTS slots, so that a dispatch stays short enough for a
     // stop request, answered between dispatches, to be answered within seconds.
     let row_slots = cam.width as u64 * lanes as u64;
-    let mut band_rows = fit / row_slots;
-    if ctx.adapter.software {
-        band_rows = band_rows.min((SOFTWARE_BAND_SLOTS / row_slots).max(1));
-    }
-    let band_rows = band_rows.min(cam.height as u64) as u32;
+    let band_rows = band_rows(fit, row_slots, cam.height, ctx.adapter.software);
     if band_rows == 0 {
         return Err(RenderError::SceneBeyondGpu(format!(
             "one row of {} pixels needs {} bytes of path state, over {}'s storage binding \
@@ -1007,6 +1024,21 @@ mod tests {
                 "{e}"
             );
         }
+    }
+
+    #[test]
+    fn bands_are_capped_per_dispatch() {
+        // A 4096² image at one lane a pixel, a 2 GiB binding of 112-byte slots: one band of
+        // every row before the cap; now 1,024 rows (4 M slots) a band.
+        let fit = ((1u64 << 31) - 1) / 112;
+        assert_eq!(band_rows(fit, 4096, 4096, false), 1024);
+        assert_eq!(band_rows(fit, 4096, 4096, true), 16);
+        // A binding smaller than the cap decides; a row wider than the cap is a band alone;
+        // a short image is one band; no row fits: 0.
+        assert_eq!(band_rows(1 << 20, 4096, 4096, false), 256);
+        assert_eq!(band_rows(fit, 1 << 23, 4096, false), 1);
+        assert_eq!(band_rows(fit, 4096, 100, false), 100);
+        assert_eq!(band_rows(100, 4096, 4096, false), 0);
     }
 
     #[test]
