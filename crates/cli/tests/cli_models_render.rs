@@ -2252,60 +2252,52 @@ fn overlapping_mesh_pieces_are_noted() {
         .concat();
         (v.concat(), faces)
     };
+    // `obj` as NAME.obj, the object of the sphere scene NAME.toml, rendered: its stderr.
+    let render_mesh = |name: &str, obj: String| {
+        std::fs::write(d.path().join(format!("{name}.obj")), obj).unwrap();
+        let scene = d.path().join(format!("{name}.toml"));
+        std::fs::write(
+            &scene,
+            sphere_scene_text(8).replace(
+                "shape = \"sphere\"\nradius = 0.5",
+                &format!("mesh = \"{name}.obj\""),
+            ),
+        )
+        .unwrap();
+        let out = stcvae(&[
+            "render",
+            "--scene",
+            scene.to_str().unwrap(),
+            "--spp",
+            "1",
+            "--device",
+            "cpu",
+            "--out",
+            d.path().join("r").to_str().unwrap(),
+        ]);
+        let err = common::stderr(&out);
+        assert!(out.status.success(), "{err}");
+        err
+    };
     let (v1, f1) = boxed(-0.5, 0.2, 0);
     let (v2, f2) = boxed(-0.2, 0.5, 8);
-    std::fs::write(d.path().join("two.obj"), format!("{v1}{v2}{f1}{f2}")).unwrap();
-    let scene = d.path().join("two.toml");
-    std::fs::write(
-        &scene,
-        sphere_scene_text(8).replace("shape = \"sphere\"\nradius = 0.5", "mesh = \"two.obj\""),
-    )
-    .unwrap();
-    let out = stcvae(&[
-        "render",
-        "--scene",
-        scene.to_str().unwrap(),
-        "--spp",
-        "1",
-        "--device",
-        "cpu",
-        "--out",
-        d.path().join("r").to_str().unwrap(),
-    ]);
-    let err = common::stderr(&out);
-    assert!(out.status.success(), "{err}");
+    let err = render_mesh("two", format!("{v1}{v2}{f1}{f2}"));
     assert!(
         err.contains("note: ") && err.contains("two.toml: pieces 1 and 2 of the mesh overlap"),
         "{err}"
     );
-    // Beyond 16 pieces they are not checked, and the render says so: 17 boxes apart.
-    let (mut v, mut f) = (String::new(), String::new());
-    for k in 0..17 {
-        let x0 = -0.5 + k as f32 * 0.06;
-        let (vk, fk) = boxed(x0, x0 + 0.04, 8 * k);
-        v += &vk;
-        f += &fk;
-    }
-    std::fs::write(d.path().join("many.obj"), format!("{v}{f}")).unwrap();
-    let many = d.path().join("many.toml");
-    std::fs::write(
-        &many,
-        sphere_scene_text(8).replace("shape = \"sphere\"\nradius = 0.5", "mesh = \"many.obj\""),
-    )
-    .unwrap();
-    let out = stcvae(&[
-        "render",
-        "--scene",
-        many.to_str().unwrap(),
-        "--spp",
-        "1",
-        "--device",
-        "cpu",
-        "--out",
-        d.path().join("m").to_str().unwrap(),
-    ]);
-    let err = common::stderr(&out);
-    assert!(out.status.success(), "{err}");
+    // Beyond 16 pieces they are not checked, and the render says so: `count` boxes apart.
+    let boxes = |count: usize| {
+        let (mut v, mut f) = (String::new(), String::new());
+        for k in 0..count {
+            let x0 = -0.5 + k as f32 * 0.06;
+            let (vk, fk) = boxed(x0, x0 + 0.04, 8 * k);
+            v += &vk;
+            f += &fk;
+        }
+        format!("{v}{f}")
+    };
+    let err = render_mesh("many", boxes(17));
     assert!(
         err.contains(
             "many.toml: the mesh has 17 closed pieces and 204 triangles: beyond 16 \
@@ -2314,27 +2306,7 @@ fn overlapping_mesh_pieces_are_noted() {
         "{err}"
     );
     // Beyond 256 pieces their nesting is not surveyed either (each wound outward).
-    let (mut v, mut f) = (String::new(), String::new());
-    for k in 0..257 {
-        let x0 = -0.5 + k as f32 * 0.06;
-        let (vk, fk) = boxed(x0, x0 + 0.04, 8 * k);
-        v += &vk;
-        f += &fk;
-    }
-    std::fs::write(d.path().join("many.obj"), format!("{v}{f}")).unwrap();
-    let out = stcvae(&[
-        "render",
-        "--scene",
-        many.to_str().unwrap(),
-        "--spp",
-        "1",
-        "--device",
-        "cpu",
-        "--out",
-        d.path().join("m").to_str().unwrap(),
-    ]);
-    let err = common::stderr(&out);
-    assert!(out.status.success(), "{err}");
+    let err = render_mesh("many", boxes(257));
     assert!(
         err.contains(
             "the mesh has 257 closed pieces and 3084 triangles: beyond 16 pieces or 2000000 \
