@@ -167,13 +167,8 @@ pub fn run(a: Args) -> Result<()> {
         let p = prepare_row(k, kind)?;
         // A software adapter keeps its path state in host memory, as `render` checks.
         if !gpu.is_hardware_gpu() {
-            let slot = 16 * render_gpu::gpu::kernels::slot_vec4s(p.settings().path_nee() as u32);
-            render_gpu::render::check_image_memory_with(a.size, a.size, slot).map_err(|e| {
-                anyhow::anyhow!(
-                    "--size {}: {e} (with the software GPU's path state)",
-                    a.size
-                )
-            })?;
+            crate::render::software_gpu_memory(a.size, a.size, &p.settings())
+                .map_err(|e| anyhow::anyhow!("--size {}: {e}", a.size))?;
         }
     }
     for &(k, kind, name) in &rows {

@@ -359,7 +359,13 @@ fn merge_binary(a: &Args) -> Result<()> {
             let (p, q) = (&ps.piece, &qs.piece);
             let overlap =
                 p.first_walk < q.first_walk + q.count && q.first_walk < p.first_walk + p.count;
-            if overlap && p.seed == q.seed && !p.same_stream(q) && correlated.is_none() {
+            if overlap
+                && p.count > 0
+                && q.count > 0
+                && p.seed == q.seed
+                && !p.same_stream(q)
+                && correlated.is_none()
+            {
                 let (from, to) = (
                     p.first_walk.max(q.first_walk),
                     (p.first_walk + p.count).min(q.first_walk + q.count),
@@ -512,19 +518,36 @@ fn merge_binary(a: &Args) -> Result<()> {
 /// by two builds (a cluster's nodes updated between jobs) hold walks from two
 /// distributions, which merged as one run unsaid.
 fn simulators_note(pieces: &[Piece]) -> Option<String> {
-    let mut seen: Vec<Option<&str>> = pieces.iter().map(|p| p.simulator.as_deref()).collect();
+    let mut seen: Vec<&str> = pieces
+        .iter()
+        .filter_map(|p| p.simulator.as_deref())
+        .collect();
     seen.sort_unstable();
     seen.dedup();
-    (seen.len() > 1).then(|| {
-        let names: Vec<&str> = seen.iter().map(|s| s.unwrap_or("unrecorded")).collect();
-        format!(
+    let unrecorded = pieces.iter().any(|p| p.simulator.is_none());
+    if seen.len() > 1 {
+        Some(format!(
             "warning: the inputs were drawn by {} simulators ({}; this build's is {}): their \
-             walks may differ in distribution, not only in their random numbers",
+             walks may differ in distribution, not only in their random numbers{}",
             seen.len(),
-            names.join(", "),
-            dataset::simulator_fingerprint()
-        )
-    })
+            seen.join(", "),
+            dataset::simulator_fingerprint(),
+            if unrecorded {
+                "; some inputs (format 1 or 2) do not record theirs"
+            } else {
+                ""
+            }
+        ))
+    } else {
+        // Nothing shows that an older file's simulator differs: said as a note.
+        (unrecorded && !seen.is_empty()).then(|| {
+            format!(
+                "note: some inputs (format 1 or 2) do not record their simulator; the others' \
+                 is {}",
+                seen[0]
+            )
+        })
+    }
 }
 
 /// The walk ranges of a run of `total` walks that `pieces` (of that run, in walk order,

@@ -377,6 +377,18 @@ pub(crate) fn outside_training_warning(
     })
 }
 
+/// The image's memory with a software adapter's path state, which lives in host memory
+/// (`gpu::kernels::slot_vec4s`, 16 bytes each): checked before a render on one.
+pub(crate) fn software_gpu_memory(
+    width: u32,
+    height: u32,
+    set: &IntegratorSettings,
+) -> std::result::Result<(), String> {
+    let slot = 16 * render_gpu::gpu::kernels::slot_vec4s(set.path_nee() as u32);
+    render_gpu::render::check_image_memory_with(width, height, slot)
+        .map_err(|e| format!("{e} (with the software GPU's path state)"))
+}
+
 /// `--out` is a path stem (OUT.exr, OUT.png, OUT.json); checked before rendering so that a
 /// long render is not lost to an unwritable name.
 pub(crate) fn check_out_stem(out: &Path) -> Result<()> {
@@ -504,7 +516,9 @@ pub fn run(a: Args) -> Result<()> {
     } else {
         0
     };
-    if let Ok(f) = SceneFile::load(&a.scene) {
+    // Unvalidated: `prepare` validates after the overrides (an ST-CVAE scene with max_tau
+    // below min_tau renders with --integrator pt, and was not checked here).
+    if let Ok(f) = SceneFile::load_unvalidated(&a.scene) {
         render_gpu::render::check_image_memory_with(
             f.camera.width,
             f.camera.height,
@@ -576,18 +590,8 @@ pub fn run(a: Args) -> Result<()> {
     let engine = Engine::open(device)?;
     let set = p.settings();
     if engine.is_gpu() && !engine.is_hardware_gpu() {
-        let slot = 16 * render_gpu::gpu::kernels::slot_vec4s(set.path_nee() as u32);
-        render_gpu::render::check_image_memory_with(
-            p.file.camera.width,
-            p.file.camera.height,
-            slot,
-        )
-        .map_err(|e| {
-            anyhow::anyhow!(
-                "{}: camera.width/height: {e} (with the software GPU's path state)",
-                a.scene.display()
-            )
-        })?;
+        software_gpu_memory(p.file.camera.width, p.file.camera.height, &set)
+            .map_err(|e| anyhow::anyhow!("{}: camera.width/height: {e}", a.scene.display()))?;
     }
     eprintln!(
         "rendering {} ({}x{}, {}, {}{}) on the {}",

@@ -206,7 +206,17 @@ fn not_the_configs_run(
     config: &Path,
     header: &scatter_sim::dataset::Header,
 ) -> Result<Option<String>> {
-    let dc = crate::generate::load_config(config)?;
+    // A warning's check: a config that does not load (not needed while the dataset is
+    // there) is said, not fatal.
+    let dc = match crate::generate::load_config(config) {
+        Ok(dc) => dc,
+        Err(e) => {
+            return Ok(Some(format!(
+                "note: {} is not compared with its dataset_config: {e:#}",
+                dataset.display()
+            )));
+        }
+    };
     let run = scatter_sim::dataset::Piece {
         seed: dc.seed,
         sampler: dc.conditions,

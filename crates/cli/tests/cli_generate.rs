@@ -629,6 +629,63 @@ fn shards_merge_into_the_unsharded_run() {
         same > 2 * shuffled,
         "same n: paired {same}, unpaired {shuffled}"
     );
+    // An empty piece of seed 1 under another sampler shares no walk: no warning.
+    let out = stcvae(
+        &[
+            "generate",
+            "--samples",
+            "3",
+            "--shard",
+            "1/2",
+            "--tau",
+            "1",
+            "--g",
+            "0",
+            "--albedo",
+            "1",
+            "--out",
+            "one.bin",
+        ],
+        dir.path(),
+    );
+    ok(&out);
+    let (mut h, _) = read_dataset(&dir.path().join("one.bin")).unwrap();
+    h.pieces[0].count = 0;
+    assert!(h.pieces[0].first_walk > 0, "{:?}", h.pieces[0]);
+    let mut sink = scatter_sim::dataset::create_sink(
+        &dir.path().join("none.bin"),
+        scatter_sim::dataset::Header::new(h.pieces.clone()),
+    )
+    .unwrap();
+    sink.finish().unwrap();
+    let out = stcvae(
+        &["merge", "none.bin", "g04.bin", "--out", "with_none.bin"],
+        dir.path(),
+    );
+    ok(&out);
+    assert!(!stderr(&out).contains("warning"), "{}", stderr(&out));
+    // A file that does not record its simulator (format 1 or 2) beside one that does: a
+    // note, not "2 simulators".
+    let (mut h, rows) = read_dataset(&dir.path().join("g05.bin")).unwrap();
+    h.pieces[0].simulator = None;
+    let mut sink = scatter_sim::dataset::create_sink(&dir.path().join("old.bin"), h).unwrap();
+    for row in &rows {
+        sink.push(row).unwrap();
+    }
+    sink.finish().unwrap();
+    let out = stcvae(
+        &["merge", "old.bin", "g04.bin", "--out", "mixed2.bin"],
+        dir.path(),
+    );
+    ok(&out);
+    assert!(
+        stderr(&out).contains(&format!(
+            "note: some inputs (format 1 or 2) do not record their simulator; the others' is {}",
+            scatter_sim::dataset::simulator_fingerprint()
+        )) && !stderr(&out).contains("simulators ("),
+        "{}",
+        stderr(&out)
+    );
 }
 
 #[test]

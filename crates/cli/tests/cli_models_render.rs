@@ -2286,18 +2286,19 @@ fn overlapping_mesh_pieces_are_noted() {
         err.contains("note: ") && err.contains("two.toml: pieces 1 and 2 of the mesh overlap"),
         "{err}"
     );
-    // Beyond 16 pieces they are not checked, and the render says so: `count` boxes apart.
-    let boxes = |count: usize| {
+    // Beyond 16 pieces they are not checked, and the render says so: `count` boxes `step`
+    // apart.
+    let boxes = |count: usize, step: f32| {
         let (mut v, mut f) = (String::new(), String::new());
         for k in 0..count {
-            let x0 = -0.5 + k as f32 * 0.06;
+            let x0 = -0.5 + k as f32 * step;
             let (vk, fk) = boxed(x0, x0 + 0.04, 8 * k);
             v += &vk;
             f += &fk;
         }
         format!("{v}{f}")
     };
-    let err = render_mesh("many", boxes(17));
+    let err = render_mesh("many", boxes(17, 0.06));
     assert!(
         err.contains(
             "many.toml: the mesh has 17 closed pieces and 204 triangles: beyond 16 \
@@ -2305,14 +2306,15 @@ fn overlapping_mesh_pieces_are_noted() {
         ) && !err.contains("nesting"),
         "{err}"
     );
-    // Beyond 256 pieces their nesting is not surveyed either (each wound outward).
-    let err = render_mesh("many", boxes(257));
+    // Beyond 20,000 pairs of overlapping pieces their nesting is not surveyed either (each
+    // wound outward): 201 boxes all overlapping.
+    let err = render_mesh("many", boxes(201, 1e-4));
     assert!(
         err.contains(
-            "the mesh has 257 closed pieces and 3084 triangles: beyond 16 pieces or 2000000 \
+            "the mesh has 201 closed pieces and 2412 triangles: beyond 16 pieces or 2000000 \
              triangles they are not checked for overlaps, and an overlap would render partly \
-             as air; join overlapping pieces into one closed surface; beyond 256 pieces their \
-             nesting is not surveyed either"
+             as air; join overlapping pieces into one closed surface; beyond 20000 pairs of \
+             pieces whose boxes overlap, or 4096 pieces, their nesting is not surveyed either"
         ),
         "{err}"
     );

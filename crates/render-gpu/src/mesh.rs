@@ -49,37 +49,45 @@ impl TriMesh {
 
     /// Scales the mesh so that its bounding-box height (y extent) is `height` and centres
     /// the bounding box at the origin. A mesh with no extent along y cannot be scaled.
+    ///
+    /// Rounding to the new positions can merge a feature smaller than f32's resolution at
+    /// its distance from the centre into one point, and its triangles would get NaN
+    /// normals. Such a mesh is prepared again (welded, those triangles dropped, checked
+    /// closed), as a file without them would have been, and scaled again, since its
+    /// bounds may have changed; a second collapse is an error.
     pub fn normalise_height(&mut self, height: f32) -> Result<(), String> {
-        let (lo, hi) = self.bounds();
-        let centre = (lo + hi) * 0.5;
-        let extent = hi.y - lo.y;
-        if !(extent > 0.0) {
-            return Err(
-                "the mesh is flat along y (zero bounding-box height), so `height` cannot scale it"
-                    .into(),
-            );
-        }
-        let s = height / extent;
-        for p in &mut self.positions {
-            *p = (*p - centre) * s;
-        }
-        // Rounding to the new positions can merge a feature smaller than f32's resolution
-        // at its distance from the centre into one point: its triangles would get NaN
-        // normals.
-        let collapsed = (0..self.triangles.len())
-            .filter(|&t| {
-                let [a, b, c] = self.triangle(t).map(|v| v.as_dvec3());
-                (b - a).cross(c - a).length_squared() == 0.0
-            })
-            .count();
-        if collapsed > 0 {
-            return Err(format!(
+        for attempt in 0..2 {
+            let (lo, hi) = self.bounds();
+            let centre = (lo + hi) * 0.5;
+            let extent = hi.y - lo.y;
+            if !(extent > 0.0) {
+                return Err(
+                    "the mesh is flat along y (zero bounding-box height), so `height` cannot \
+                     scale it"
+                        .into(),
+                );
+            }
+            let s = height / extent;
+            for p in &mut self.positions {
+                *p = (*p - centre) * s;
+            }
+            let collapsed = (0..self.triangles.len())
+                .filter(|&t| zero_area(self.triangle(t)))
+                .count();
+            if collapsed == 0 {
+                return Ok(());
+            }
+            let why = format!(
                 "scaled to height {height}, {collapsed} of its triangles collapse to no area \
-                 (details below single precision's resolution where they lie): scale the \
-                 file itself, or remove them"
-            ));
+                 (details below single precision's resolution where they lie)"
+            );
+            if attempt == 1 {
+                return Err(format!("{why}: scale the file itself"));
+            }
+            *self = prepare(std::mem::take(self))
+                .map_err(|e| format!("{why}, and without them {e}"))?;
         }
-        Ok(())
+        unreachable!("the second attempt returns")
     }
 
     /// The object must fit the renderers' single-precision arithmetic: every coordinate
@@ -101,7 +109,7 @@ impl TriMesh {
             ));
         }
         let volume = self.signed_volume6().abs() / 6.0;
-        if !(volume > 1e-9 * f64::from(side).powi(3)) {
+        if !encloses_volume(volume, f64::from(side)) {
             return Err(format!(
                 "the mesh encloses no volume ({volume:e} for a box {side:e} across): it is flat or degenerate"
             ));
@@ -112,6 +120,21 @@ impl TriMesh {
     pub fn triangle(&self, i: usize) -> [Vec3; 3] {
         self.triangles[i].map(|k| self.positions[k as usize])
     }
+}
+
+/// Whether a closed surface `side` across encloses a volume: more than 10⁻⁹ of its box's
+/// (a closed but flat surface encloses none).
+fn encloses_volume(volume: f64, side: f64) -> bool {
+    volume > 1e-9 * side.powi(3)
+}
+
+/// Whether a triangle has no area in single precision (as the renderers compute with it)
+/// or exactly (as its normal is taken, in f64: `Geometry::new`), where either would make
+/// its normal NaN.
+fn zero_area([a, b, c]: [Vec3; 3]) -> bool {
+    let exact = |[a, b, c]: [glam::DVec3; 3]| (b - a).cross(c - a).length_squared() == 0.0;
+    (b - a).cross(c - a).length_squared() == 0.0
+        || exact([a.as_dvec3(), b.as_dvec3(), c.as_dvec3()])
 }
 
 /// The bounding box of `points` (lowest and highest corner).
@@ -191,8 +214,7 @@ pub fn prepare(mut m: TriMesh) -> Result<TriMesh, String> {
         if t[0] == t[1] || t[1] == t[2] || t[0] == t[2] {
             continue;
         }
-        let [a, b, c] = t.map(|i| positions[i as usize]);
-        if (b - a).cross(c - a).length_squared() == 0.0 {
+        if zero_area(t.map(|i| positions[i as usize])) {
             continue;
         }
         triangles.push(t);
@@ -285,7 +307,7 @@ fn flat_pieces(m: &TriMesh, pieces: &[Vec<usize>], volumes: &[f64]) -> Result<()
         let (lo, hi) = bounds_of(tris.iter().flat_map(|&t| m.triangle(t)));
         let side = f64::from((hi - lo).max_element());
         let volume = v6.abs() / 6.0;
-        if !(volume > 1e-9 * side.powi(3)) {
+        if !encloses_volume(volume, side) {
             return Err(format!(
                 "piece {k} of the mesh ({} triangles, {side:e} across) encloses no volume \
                  ({volume:e}): a flat surface closed on itself, such as a face listed twice \
@@ -309,10 +331,8 @@ fn flat_pieces(m: &TriMesh, pieces: &[Vec<usize>], volumes: &[f64]) -> Result<()
 /// with leaks and too bright. Pieces that merely overlap are not nested: each faces
 /// outward, as before.
 fn orient_pieces(m: &mut TriMesh, pieces: &[Vec<usize>], volumes: &[f64]) {
-    // Beyond MAX_NESTING_PIECES each piece faces outward by itself (`unchecked_pieces`
-    // says so): the survey's cost grows with the square of how many pieces overlap
-    // (2,000 overlapping cubes: 168 s and 2.6 GB; 200: 2 s).
-    let depths = if pieces.len() < 2 || pieces.len() > MAX_NESTING_PIECES {
+    // Beyond the survey's limits each piece faces outward by itself (`render` says so).
+    let depths = if pieces.len() < 2 || !nesting_surveyed(m, pieces) {
         vec![0; pieces.len()]
     } else {
         let survey = Survey::new(m, pieces);
@@ -447,9 +467,44 @@ pub fn overlaps_and_pieces(m: &TriMesh) -> (Vec<(usize, usize)>, Option<PieceTab
     (overlaps, Some((of_tri, depths)))
 }
 
-/// Most pieces whose nesting [`prepare`] surveys (cavities wound inward); beyond, each
-/// piece is wound outward by itself.
-pub const MAX_NESTING_PIECES: usize = 256;
+/// Most pairs of pieces with overlapping bounding boxes, and most pieces, whose nesting
+/// [`prepare`] surveys (cavities wound inward); beyond either, each piece is wound outward
+/// by itself. The survey's cost grows with the pairs that overlap: 2,000 cubes all
+/// overlapping (~2·10⁶ pairs) took 168 s and 2.6 GB, 200 (19,900 pairs) 2 s; pieces apart
+/// cost little each.
+pub const MAX_NESTING_PAIRS: usize = 20_000;
+pub const MAX_NESTING_PIECES: usize = 4096;
+
+/// Whether [`prepare`] surveys the nesting of `m`'s `pieces` (see [`MAX_NESTING_PAIRS`]).
+fn nesting_surveyed(m: &TriMesh, pieces: &[Vec<usize>]) -> bool {
+    if pieces.len() > MAX_NESTING_PIECES {
+        return false;
+    }
+    let mut boxes: Vec<(Vec3, Vec3)> = pieces
+        .iter()
+        .map(|tris| bounds_of(tris.iter().flat_map(|&t| m.triangle(t))))
+        .collect();
+    boxes.sort_by(|a, b| a.0.x.total_cmp(&b.0.x));
+    let mut pairs = 0;
+    for (i, (lo, hi)) in boxes.iter().enumerate() {
+        for (lo2, hi2) in boxes[i + 1..].iter().take_while(|b| b.0.x <= hi.x) {
+            if lo2.y <= hi.y && lo.y <= hi2.y && lo2.z <= hi.z && lo.z <= hi2.z {
+                pairs += 1;
+                if pairs > MAX_NESTING_PAIRS {
+                    return false;
+                }
+            }
+        }
+    }
+    true
+}
+
+/// Whether a mesh's nesting goes unsurveyed (beyond [`MAX_NESTING_PAIRS`] or
+/// [`MAX_NESTING_PIECES`]): its cavities, if any, render as medium.
+pub fn nesting_unsurveyed(m: &TriMesh) -> bool {
+    let pieces = pieces(m);
+    pieces.len() > 1 && !nesting_surveyed(m, &pieces)
+}
 
 /// Most pieces [`overlapping_pieces`] checks (and [`overlaps_and_pieces`] numbers).
 pub const MAX_OVERLAP_PIECES: usize = 16;
@@ -721,8 +776,8 @@ fn check_closed(m: &TriMesh) -> Result<(), String> {
     Ok(())
 }
 
-/// Most triangles a glTF file's nodes may place in all (2^25, ~1.6 GB of mesh before the
-/// BVH and the distance grid are built).
+/// Most triangles, and most vertices, a glTF file's nodes may place in all (2^25, ~1.6 GB
+/// of mesh before the BVH and the distance grid are built).
 pub const MAX_GLTF_TRIANGLES: u64 = 1 << 25;
 
 fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
@@ -774,7 +829,9 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
     // chunk (glTF 2.0, 5.5), taken once: each entry naming it copied it, and a 1 MB file
     // listing 100,000 buffers asked 100 GB (an abort, not an error). Buffers naming one
     // file share one read of it; what all of them declare must be allocatable.
-    let declared: u64 = document.buffers().map(|b| b.length() as u64).sum();
+    let declared = document
+        .buffers()
+        .fold(0u64, |sum, b| sum.saturating_add(b.length() as u64));
     if !crate::render::reservable(declared) {
         return Err(RenderError::mesh(
             path,
@@ -850,7 +907,7 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
     }
     // Instances of one mesh (nodes naming it) are copied into the one triangle list: 5,000
     // nodes over a mesh of 10⁶ triangles asked for 5·10⁹.
-    let mut instanced: u64 = 0;
+    let mut instanced = [0u64; 2];
     let mut mesh = TriMesh::default();
     let scene = document
         .default_scene()
@@ -921,13 +978,16 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
                     )
                     .map_err(|e| RenderError::mesh(path, e))?;
                 }
-                instanced += prim.indices().map_or(positions.count(), |i| i.count()) as u64 / 3;
-                if instanced > MAX_GLTF_TRIANGLES {
+                // Each copy's vertices are copied too: counted apart (10⁶ vertices under 3
+                // indices, placed 10⁵ times, is one triangle a copy).
+                instanced[0] += prim.indices().map_or(positions.count(), |i| i.count()) as u64 / 3;
+                instanced[1] += positions.count() as u64;
+                if instanced.iter().any(|&n| n > MAX_GLTF_TRIANGLES) {
                     return Err(RenderError::mesh(
                         path,
                         format!(
-                            "its nodes place more than {MAX_GLTF_TRIANGLES} triangles (node {} \
-                             adds mesh {}'s): instance fewer copies",
+                            "its nodes place more than {MAX_GLTF_TRIANGLES} triangles or vertices \
+                             (node {} adds mesh {}'s): instance fewer copies",
                             node.index(),
                             m.index()
                         ),

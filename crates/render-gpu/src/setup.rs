@@ -151,10 +151,12 @@ impl SceneData {
                 mesh.triangles.len(),
                 crate::mesh::MAX_OVERLAP_PIECES,
                 crate::mesh::MAX_OVERLAP_CHECK_TRIANGLES,
-                if n > crate::mesh::MAX_NESTING_PIECES {
+                if crate::mesh::nesting_unsurveyed(&mesh) {
                     format!(
-                        "; beyond {} pieces their nesting is not surveyed either: each is \
-                         solid, wound outward (a cavity would render as medium)",
+                        "; beyond {} pairs of pieces whose boxes overlap, or {} pieces, their \
+                         nesting is not surveyed either: each is solid, wound outward (a \
+                         cavity would render as medium)",
+                        crate::mesh::MAX_NESTING_PAIRS,
                         crate::mesh::MAX_NESTING_PIECES
                     )
                 } else {

@@ -1764,6 +1764,20 @@ fn inputs_that_grow_without_bound_or_hide_a_flat_piece_are_refused() {
         e.contains("many.glb") && e.contains("buffer 1 refers to the GLB binary chunk"),
         "{e}"
     );
+    // Buffers declaring more than memory holds (two of 2^62 bytes: their sum overflowed u64
+    // in a build with overflow checks) are refused before any is read.
+    let huge = r#"{"byteLength":4611686018427387904},{"byteLength":4611686018427387904}"#;
+    let huge = [one, huge].join(",").replace(
+        r#"{"byteLength":4611"#,
+        r#"{"uri":"x.bin","byteLength":4611"#,
+    );
+    let e = load_mesh(&write(&d, "huge.glb", &glb(&doc(&huge, "0", 1), &bin)))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("huge.glb: its buffers declare") && e.contains("more than can be allocated"),
+        "{e}"
+    );
     // 140 nodes over a mesh of 20,000 primitives of 12 triangles each: 33.6 M > 2^25.
     let nodes: Vec<String> = (0..140).map(|i| i.to_string()).collect();
     let e = load_mesh(&write(
@@ -1776,7 +1790,7 @@ fn inputs_that_grow_without_bound_or_hide_a_flat_piece_are_refused() {
     assert!(
         e.contains("copies.glb")
             && e.contains(&format!(
-                "its nodes place more than {} triangles",
+                "its nodes place more than {} triangles or vertices",
                 mesh::MAX_GLTF_TRIANGLES
             )),
         "{e}"
@@ -1853,7 +1867,8 @@ fn inputs_that_grow_without_bound_or_hide_a_flat_piece_are_refused() {
     );
     // A tetrahedron 10⁻⁹ across at the origin beside a cube from 0.1 to 1.1: loaded, but
     // scaled to a height (centred at 0.55) its corners round into one point, which gave
-    // its triangles NaN normals.
+    // its triangles NaN normals. The scaled mesh is prepared again: the speck's triangles
+    // dropped, the cube stays.
     let cube_and_speck = "v 0.1 0.1 0.1\nv 1.1 0.1 0.1\nv 0.1 1.1 0.1\nv 1.1 1.1 0.1\n\
          v 0.1 0.1 1.1\nv 1.1 0.1 1.1\nv 0.1 1.1 1.1\nv 1.1 1.1 1.1\n\
          f 1 3 4\nf 1 4 2\nf 5 6 8\nf 5 8 7\nf 1 2 6\nf 1 6 5\nf 3 7 8\nf 3 8 4\n\
@@ -1874,13 +1889,10 @@ fn inputs_that_grow_without_bound_or_hide_a_flat_piece_are_refused() {
          [medium]\nsigma_t = [1.0, 1.0, 1.0]\nalbedo = [1.0, 1.0, 1.0]\n",
     )
     .unwrap();
-    let e = render_gpu::setup::object_mesh(&scene, d.path())
-        .unwrap_err()
-        .to_string();
-    assert!(
-        e.contains("speck.obj: scaled to height 1, 4 of its triangles collapse to no area"),
-        "{e}"
-    );
+    let m = render_gpu::setup::object_mesh(&scene, d.path()).unwrap();
+    assert_eq!(m.triangles.len(), 12);
+    let (lo, hi) = m.bounds();
+    assert!((hi.y - lo.y - 1.0).abs() < 1e-6, "{lo} {hi}");
     // A cube 10⁻¹³ across: its areas vanish in single precision.
     let tiny: String = cube
         .lines()
@@ -1902,29 +1914,28 @@ fn inputs_that_grow_without_bound_or_hide_a_flat_piece_are_refused() {
     );
 }
 
-/// Nesting is surveyed in meshes of up to `MAX_NESTING_PIECES` pieces (the survey's cost
-/// grows with the square of how many overlap: 2,000 overlapping cubes took 168 s and
+/// Nesting is surveyed while at most `MAX_NESTING_PAIRS` pairs of pieces have overlapping
+/// boxes (the survey's cost grows with them: 2,000 cubes all overlapping took 168 s and
 /// 2.6 GB); beyond, each piece is solid, wound outward, and `render` notes it. A hollow
-/// box (8 − 1) beside small cubes of 10⁻³ each: its cavity is wound inward up to the
-/// limit, solid one piece beyond it.
+/// box (8 − 1, one pair) beside `n` cubes of 10⁻³ each: its cavity is wound inward with
+/// 300 cubes apart (a piece count, the first limit tried, left it solid), and with 199
+/// cubes all overlapping (19,701 + 1 pairs); solid with 201 (20,101).
 #[test]
-fn nesting_is_surveyed_up_to_its_piece_limit() {
+fn nesting_is_surveyed_up_to_its_overlap_limit() {
     let c = mesh::cube;
-    let volume_with = |pieces_in_all: usize| {
+    let volume_with = |n: usize, step: f32| {
         let mut parts: Vec<Piece> = vec![(c(2.0), false), (c(1.0), false)];
-        for k in 2..pieces_in_all {
-            let at = glam::Vec3::new(3.0 + 0.2 * (k % 16) as f32, 0.2 * (k / 16) as f32, 0.0);
+        for k in 0..n {
+            // Shifted along every axis, so that no two cubes share a face's plane.
+            let s = step * k as f32;
+            let at = glam::Vec3::new(3.0 + s, 0.7 * s, 0.3 * s);
             parts.push((moved(c(0.1), at), false));
         }
         let m = mesh::prepare(pieces(&parts)).unwrap();
-        volume_and_area(&m).0 - (pieces_in_all - 2) as f64 * 1e-3
+        volume_and_area(&m).0 - n as f64 * 1e-3
     };
-    let limit = mesh::MAX_NESTING_PIECES;
-    let (within, beyond) = (volume_with(limit), volume_with(limit + 1));
-    assert!((within - 7.0).abs() < 1e-4, "{limit} pieces: {within}");
-    assert!(
-        (beyond - 9.0).abs() < 1e-4,
-        "{} pieces: {beyond}",
-        limit + 1
-    );
+    for (n, step, want) in [(300, 0.2, 7.0), (199, 1e-4, 7.0), (201, 1e-4, 9.0)] {
+        let v = volume_with(n, step);
+        assert!((v - want).abs() < 1e-4, "{n} cubes {step} apart: {v}");
+    }
 }

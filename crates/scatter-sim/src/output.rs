@@ -305,15 +305,13 @@ impl AtomicFile {
     /// Flushes and syncs the temporary: everything but the rename, which can then no
     /// longer fail for want of space.
     fn finish(self) -> io::Result<Finished> {
-        // Committing: the folders hold the output from here on.
-        let mut made = self.made;
-        made.0.clear();
         let tmp = self.writer.into_inner().map_err(|e| e.into_error())?;
         tmp.as_file().sync_all()?;
         Ok(Finished {
             tmp,
             path: self.path,
             _live: self.live,
+            made: self.made,
         })
     }
 }
@@ -323,11 +321,15 @@ struct Finished {
     tmp: NamedTempFile,
     path: PathBuf,
     _live: Live,
+    // Last: the folders go only if the rename does not happen.
+    made: MadeDirs,
 }
 
 impl Finished {
-    fn persist(self) -> io::Result<()> {
+    fn persist(mut self) -> io::Result<()> {
         self.tmp.persist(&self.path).map_err(|e| e.error)?;
+        // The folders hold the output now.
+        self.made.0.clear();
         Ok(())
     }
 }

@@ -70,6 +70,25 @@ pub struct Standardisation {
     pub out_scale: Vec<f32>,
 }
 
+impl Standardisation {
+    /// Whether `self` (a checkpoint's) standardises the same data as `now`: equal, but for
+    /// a column without spread, scaled by 10⁻⁶ before that scale became 1 ([`column_stats`]),
+    /// which puts the training rows at the same input (0) either way.
+    pub fn same_data(&self, now: &Standardisation) -> bool {
+        let scales = |was: &[f32], is: &[f32]| {
+            was.len() == is.len()
+                && was
+                    .iter()
+                    .zip(is)
+                    .all(|(&w, &i)| w == i || (i == 1.0 && w == 1e-6))
+        };
+        self.cond_shift == now.cond_shift
+            && self.out_shift == now.out_shift
+            && scales(&self.cond_scale, &now.cond_scale)
+            && scales(&self.out_scale, &now.out_scale)
+    }
+}
+
 /// Mean and standard deviation of each column of a row-major matrix; a column without
 /// spread (below [`MIN_SPREAD`]: a fixed-condition dataset's g, say) gets scale 1. Its
 /// value tells the network nothing, and with a scale of 10⁻⁶ any other value reached it
@@ -344,6 +363,26 @@ impl Table {
 
 #[cfg(test)]
 mod tests {
+    /// A checkpoint from before constant columns kept scale 1 (10⁻⁶ then) standardises the
+    /// same data; any other difference does not.
+    #[test]
+    fn old_constant_column_scales_are_the_same_data() {
+        let now = super::Standardisation {
+            cond_shift: vec![0.875, 3.0],
+            cond_scale: vec![1.0, 2.0],
+            out_shift: vec![0.0],
+            out_scale: vec![1.5],
+        };
+        let mut was = now.clone();
+        was.cond_scale[0] = 1e-6;
+        assert!(was.same_data(&now) && now.same_data(&now));
+        was.cond_scale[1] = 1e-6;
+        assert!(!was.same_data(&now));
+        let mut moved = now.clone();
+        moved.cond_shift[0] = 0.9;
+        assert!(!moved.same_data(&now));
+    }
+
     /// A constant column is scaled by 1, not 10⁻⁶ (which multiplied any other value a
     /// million-fold at the network's input); a varying one by its standard deviation.
     #[test]

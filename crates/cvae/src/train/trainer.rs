@@ -560,7 +560,7 @@ pub fn train_model(
                 ),
             ));
         }
-        if info.norm != table.norm {
+        if !info.norm.same_data(&table.norm) {
             return Err(err(
                 &jpath,
                 "checkpoint was trained on other data (standardisation differs): start over \
