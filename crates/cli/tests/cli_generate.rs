@@ -652,7 +652,7 @@ fn shards_merge_into_the_unsharded_run() {
     let (mut h, _) = read_dataset(&dir.path().join("one.bin")).unwrap();
     h.pieces[0].count = 0;
     assert!(h.pieces[0].first_walk > 0, "{:?}", h.pieces[0]);
-    let mut sink = scatter_sim::dataset::create_sink(
+    let sink = scatter_sim::dataset::create_sink(
         &dir.path().join("none.bin"),
         scatter_sim::dataset::Header::new(h.pieces.clone()),
     )

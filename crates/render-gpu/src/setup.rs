@@ -102,8 +102,17 @@ impl SceneData {
         ident.render.seed = 0;
         ident.object.mesh = ident.object.mesh.map(|_| "mesh".into());
         ident.environment.file = ident.environment.file.map(|_| "map".into());
+        // The object's size settings are in the mesh's positions, hashed below, and a
+        // threshold left at its default is the default: equivalent files (radius = 0.5 on
+        // the default sphere, min_tau = 1 written out) hashed apart, and `merge` refused
+        // their renders.
+        ident.object.radius = None;
+        ident.object.size = None;
+        ident.object.height = None;
         let unread = crate::scene::RenderDesc::default();
         let r = &mut ident.render;
+        r.min_tau = Some(r.min_tau_or_default());
+        r.exact_tau = Some(r.exact_tau_or_default());
         if r.integrator == crate::scene::IntegratorKind::Pt {
             r.grid_resolution = unread.grid_resolution;
             r.min_tau = None;

@@ -1618,6 +1618,35 @@ fn the_scene_hash_ignores_paths_and_unread_settings() {
     );
     let st = |r: &str| hash("m.obj", &format!("integrator = \"stcvae\"\n{r}"));
     assert_ne!(st(""), st("min_tau = 0.5"), "read by ST-CVAE");
+    // A threshold written at its default is the default.
+    assert_eq!(
+        st(""),
+        st("min_tau = 1.0\nexact_tau = 20.0"),
+        "defaults written out"
+    );
+    assert_ne!(st(""), st("exact_tau = 8.0"), "read by ST-CVAE");
+    // An object's size setting is in its mesh: the default sphere's radius written out is
+    // the same scene, another radius is not.
+    let sphere = |object: &str| {
+        let f = render_gpu::scene::SceneFile::parse(
+            &d.path().join("s.toml"),
+            &format!(
+                "[camera]\norigin = [0.0, 0.0, 6.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 30.0\n\
+                 width = 8\nheight = 8\n[object]\nshape = \"sphere\"\n{object}\n\
+                 [medium]\nsigma_t = [1.0, 1.0, 1.0]\nalbedo = [0.5, 0.5, 0.5]\n"
+            ),
+        )
+        .unwrap();
+        render_gpu::setup::SceneData::build(&f, d.path(), false, &[])
+            .unwrap()
+            .hash
+    };
+    assert_eq!(
+        sphere(""),
+        sphere("radius = 0.5"),
+        "the default radius written out"
+    );
+    assert_ne!(sphere(""), sphere("radius = 0.6"), "another radius");
     assert_ne!(st(""), st("nee_samples = 4"), "read with NEE");
     assert_eq!(
         st("nee = false"),
