@@ -387,11 +387,7 @@ fn shards_merge_into_the_unsharded_run() {
     let (mut h1, r1) = read_dataset(&dir.path().join("part-1.bin")).unwrap();
     assert_eq!(h1.pieces[0].simulator.as_deref(), Some(fp));
     h1.pieces[0].simulator = Some("0badc0de".into());
-    let mut sink = scatter_sim::dataset::create_sink(&dir.path().join("old-1.bin"), h1).unwrap();
-    for row in &r1 {
-        sink.push(row).unwrap();
-    }
-    sink.finish().unwrap();
+    common::write_dataset(&dir.path().join("old-1.bin"), h1, &r1);
     let out = stcvae(
         &["merge", "part-0.bin", "old-1.bin", "--out", "builds.bin"],
         dir.path(),
@@ -652,12 +648,8 @@ fn shards_merge_into_the_unsharded_run() {
     let (mut h, _) = read_dataset(&dir.path().join("one.bin")).unwrap();
     h.pieces[0].count = 0;
     assert!(h.pieces[0].first_walk > 0, "{:?}", h.pieces[0]);
-    let sink = scatter_sim::dataset::create_sink(
-        &dir.path().join("none.bin"),
-        scatter_sim::dataset::Header::new(h.pieces.clone()),
-    )
-    .unwrap();
-    sink.finish().unwrap();
+    let none = scatter_sim::dataset::Header::new(h.pieces.clone());
+    common::write_dataset(&dir.path().join("none.bin"), none, &[]);
     let out = stcvae(
         &["merge", "none.bin", "g04.bin", "--out", "with_none.bin"],
         dir.path(),
@@ -668,11 +660,7 @@ fn shards_merge_into_the_unsharded_run() {
     // note, not "2 simulators".
     let (mut h, rows) = read_dataset(&dir.path().join("g05.bin")).unwrap();
     h.pieces[0].simulator = None;
-    let mut sink = scatter_sim::dataset::create_sink(&dir.path().join("old.bin"), h).unwrap();
-    for row in &rows {
-        sink.push(row).unwrap();
-    }
-    sink.finish().unwrap();
+    common::write_dataset(&dir.path().join("old.bin"), h, &rows);
     let out = stcvae(
         &["merge", "old.bin", "g04.bin", "--out", "mixed2.bin"],
         dir.path(),

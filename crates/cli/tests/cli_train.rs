@@ -161,11 +161,7 @@ fn a_dataset_not_of_its_config_is_named() {
     // Drawn by another simulator (its fingerprint changed, rows kept): said so.
     let (mut header, rows) = scatter_sim::dataset::read_dataset(&dir.path().join("d.bin")).unwrap();
     header.pieces[0].simulator = Some("0badc0de".into());
-    let mut sink = scatter_sim::dataset::create_sink(&dir.path().join("d.bin"), header).unwrap();
-    for row in &rows {
-        sink.push(row).unwrap();
-    }
-    sink.finish().unwrap();
+    common::write_dataset(&dir.path().join("d.bin"), header, &rows);
     let out = retrain();
     assert!(
         stderr(&out).contains(&format!(

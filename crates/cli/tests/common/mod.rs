@@ -7,6 +7,20 @@ use std::path::Path;
 use std::process::{Child, Command, Output};
 use std::time::{Duration, Instant};
 
+/// Writes `header` and `rows` as a binary dataset at `path`: a file as another build or
+/// format version would have written it (its pieces edited), with a valid checksum.
+pub fn write_dataset(
+    path: &Path,
+    header: scatter_sim::dataset::Header,
+    rows: &[scatter_sim::dataset::Row],
+) {
+    let mut sink = scatter_sim::dataset::create_sink(path, header).unwrap();
+    for row in rows {
+        sink.push(row).unwrap();
+    }
+    sink.finish().unwrap();
+}
+
 /// Runs `stcvae args…` with `dir` as the current directory.
 pub fn stcvae(args: &[&str], dir: &Path) -> Output {
     Command::new(env!("CARGO_BIN_EXE_stcvae"))
