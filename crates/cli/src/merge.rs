@@ -357,15 +357,12 @@ fn merge_binary(a: &Args) -> Result<()> {
     for (i, ps) in segments.iter().enumerate() {
         for qs in &segments[i + 1..] {
             let (p, q) = (&ps.piece, &qs.piece);
-            let overlap =
-                p.first_walk < q.first_walk + q.count && q.first_walk < p.first_walk + p.count;
-            if overlap
-                && p.count > 0
+            // Pieces that share walk indices (an empty piece shares none).
+            let overlap = p.count > 0
                 && q.count > 0
-                && p.seed == q.seed
-                && !p.same_stream(q)
-                && correlated.is_none()
-            {
+                && p.first_walk < q.first_walk + q.count
+                && q.first_walk < p.first_walk + p.count;
+            if overlap && p.seed == q.seed && !p.same_stream(q) && correlated.is_none() {
                 let (from, to) = (
                     p.first_walk.max(q.first_walk),
                     (p.first_walk + p.count).min(q.first_walk + q.count),
@@ -377,7 +374,7 @@ fn merge_binary(a: &Args) -> Result<()> {
                     p.seed
                 ));
             }
-            if p.same_stream(q) && overlap && p.count > 0 && q.count > 0 {
+            if overlap && p.same_stream(q) {
                 // The headers are not yet checked against their files' checksums: a
                 // corrupt one (a digit changed) read as overlapping shards.
                 read_through(&a.inputs[ps.input])?;
@@ -500,7 +497,7 @@ fn merge_binary(a: &Args) -> Result<()> {
     for note in note
         .iter()
         .chain(&correlated)
-        .chain(&simulators_note(&header.pieces))
+        .chain(&simulators_note(&header))
     {
         eprintln!("{note}");
     }
@@ -517,14 +514,8 @@ fn merge_binary(a: &Args) -> Result<()> {
 /// recorded since format version 3), a warning naming them: shards of one run generated
 /// by two builds (a cluster's nodes updated between jobs) hold walks from two
 /// distributions, which merged as one run unsaid.
-fn simulators_note(pieces: &[Piece]) -> Option<String> {
-    let mut seen: Vec<&str> = pieces
-        .iter()
-        .filter_map(|p| p.simulator.as_deref())
-        .collect();
-    seen.sort_unstable();
-    seen.dedup();
-    let unrecorded = pieces.iter().any(|p| p.simulator.is_none());
+fn simulators_note(header: &Header) -> Option<String> {
+    let (seen, unrecorded) = header.simulators();
     if seen.len() > 1 {
         Some(format!(
             "warning: the inputs were drawn by {} simulators ({}; this build's is {}): their \

@@ -384,10 +384,14 @@ fn shards_merge_into_the_unsharded_run() {
     // Shard 1 as another simulator drew it (its fingerprint changed; the rows are this
     // build's, which does not matter here): the merge is one run, but warns of the two.
     let fp = scatter_sim::dataset::simulator_fingerprint();
-    let (mut h1, r1) = read_dataset(&dir.path().join("part-1.bin")).unwrap();
-    assert_eq!(h1.pieces[0].simulator.as_deref(), Some(fp));
-    h1.pieces[0].simulator = Some("0badc0de".into());
-    common::write_dataset(&dir.path().join("old-1.bin"), h1, &r1);
+    common::rewrite_dataset(
+        &dir.path().join("part-1.bin"),
+        &dir.path().join("old-1.bin"),
+        |h| {
+            assert_eq!(h.pieces[0].simulator.as_deref(), Some(fp));
+            h.pieces[0].simulator = Some("0badc0de".into());
+        },
+    );
     let out = stcvae(
         &["merge", "part-0.bin", "old-1.bin", "--out", "builds.bin"],
         dir.path(),
@@ -658,9 +662,11 @@ fn shards_merge_into_the_unsharded_run() {
     assert!(!stderr(&out).contains("warning"), "{}", stderr(&out));
     // A file that does not record its simulator (format 1 or 2) beside one that does: a
     // note, not "2 simulators".
-    let (mut h, rows) = read_dataset(&dir.path().join("g05.bin")).unwrap();
-    h.pieces[0].simulator = None;
-    common::write_dataset(&dir.path().join("old.bin"), h, &rows);
+    common::rewrite_dataset(
+        &dir.path().join("g05.bin"),
+        &dir.path().join("old.bin"),
+        |h| h.pieces[0].simulator = None,
+    );
     let out = stcvae(
         &["merge", "old.bin", "g04.bin", "--out", "mixed2.bin"],
         dir.path(),

@@ -159,9 +159,8 @@ fn a_dataset_not_of_its_config_is_named() {
         out
     };
     // Drawn by another simulator (its fingerprint changed, rows kept): said so.
-    let (mut header, rows) = scatter_sim::dataset::read_dataset(&dir.path().join("d.bin")).unwrap();
-    header.pieces[0].simulator = Some("0badc0de".into());
-    common::write_dataset(&dir.path().join("d.bin"), header, &rows);
+    let d = dir.path().join("d.bin");
+    common::rewrite_dataset(&d, &d, |h| h.pieces[0].simulator = Some("0badc0de".into()));
     let out = retrain();
     assert!(
         stderr(&out).contains(&format!(

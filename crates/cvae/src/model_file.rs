@@ -396,31 +396,15 @@ impl ModelSet {
     /// overflow to inf, then NaN, loaded and rendered a plausible, wrong image (every exit
     /// at α = β = 0) without a word.
     fn check_finite_heads(&self) -> Result<(), String> {
-        let t = &self.training;
-        let (lo, hi) = (t.tau_range[0].ln_1p(), t.tau_range[1].ln_1p());
-        let probes = |latent: usize| {
-            (0..=2 * latent).map(move |k| {
-                let mut z = vec![0f32; latent];
-                if k > 0 {
-                    z[(k - 1) / 2] = if k % 2 == 1 {
-                        PROBE_LATENT
-                    } else {
-                        -PROBE_LATENT
-                    };
-                }
-                z
+        let conditions: Vec<_> = self
+            .probe_media()
+            .into_iter()
+            .flat_map(|(tau, g)| {
+                self.training
+                    .albedo_range
+                    .map(|albedo| features::WalkFeatures::new(tau, g, albedo))
             })
-        };
-        let mut conditions = Vec::new();
-        for i in 0..3 {
-            let tau = (lo + (hi - lo) * i as f64 / 2.0).exp_m1();
-            for j in 0..3 {
-                let g = t.g_range[0] + (t.g_range[1] - t.g_range[0]) * j as f64 / 2.0;
-                for albedo in t.albedo_range {
-                    conditions.push(features::WalkFeatures::new(tau, g, albedo));
-                }
-            }
-        }
+            .collect();
         let finite = |d: &crate::decoder::Decoder, cond: &[f64], z: &[f32]| {
             let head = d.head(&d.draw(cond, z, &[0.0; crate::decoder::MAX_OUT]));
             head[..2 * d.out].iter().all(|h| h.is_finite())
@@ -441,7 +425,7 @@ impl ModelSet {
                         &f.event_cond(rel, 0.0, 0.5, 0.5)[..],
                     ),
                 ] {
-                    if let Some(z) = probes(d.latent).find(|z| !finite(d, cond, z)) {
+                    if let Some(z) = latent_probes(d.latent).find(|z| !finite(d, cond, z)) {
                         return Err(format!(
                             "{name}: its output is not finite at conditions {cond:?} and \
                              latent {z:?} (a damaged or hand-edited file)"
@@ -468,27 +452,30 @@ impl ModelSet {
     /// elsewhere, an image of 5·10⁶. The shipped model's medians stay within ±1.9 and its
     /// spreads below 1 at every probe.
     pub fn check_length_decoder(&self) -> Result<(), String> {
-        let t = &self.training;
-        let (lo, hi) = (t.tau_range[0].ln_1p(), t.tau_range[1].ln_1p());
-        let latent = self.length.latent;
-        let probes = (0..=2 * latent).map(|k| {
-            let mut z = vec![0f32; latent];
-            if k > 0 {
-                let sign = if k % 2 == 1 { 1.0 } else { -1.0 };
-                z[(k - 1) / 2] = sign * PROBE_LATENT;
-            }
-            z
-        });
-        for z in probes {
-            for i in 0..3 {
-                let tau = (lo + (hi - lo) * i as f64 / 2.0).exp_m1();
-                for j in 0..3 {
-                    let g = t.g_range[0] + (t.g_range[1] - t.g_range[0]) * j as f64 / 2.0;
-                    self.check_length_probe(tau, g, &z)?;
-                }
+        for z in latent_probes(self.length.latent) {
+            for (tau, g) in self.probe_media() {
+                self.check_length_probe(tau, g, &z)?;
             }
         }
         Ok(())
+    }
+
+    /// The probes' media: a 3 × 3 grid of the training range's (τ, g), τ spaced in
+    /// ln(1 + τ).
+    fn probe_media(&self) -> Vec<(f64, f64)> {
+        let t = &self.training;
+        let (lo, hi) = (t.tau_range[0].ln_1p(), t.tau_range[1].ln_1p());
+        let mut media = Vec::with_capacity(9);
+        for i in 0..3 {
+            let tau = (lo + (hi - lo) * i as f64 / 2.0).exp_m1();
+            for j in 0..3 {
+                media.push((
+                    tau,
+                    t.g_range[0] + (t.g_range[1] - t.g_range[0]) * j as f64 / 2.0,
+                ));
+            }
+        }
+        media
     }
 
     /// One probe of [`Self::check_length_decoder`].
@@ -518,6 +505,18 @@ impl ModelSet {
             significant(g)
         ))
     }
+}
+
+/// The probes' latent points: the mean, then [`PROBE_LATENT`] out along each axis, + and −.
+fn latent_probes(latent: usize) -> impl Iterator<Item = Vec<f32>> {
+    (0..=2 * latent).map(move |k| {
+        let mut z = vec![0f32; latent];
+        if k > 0 {
+            let sign = if k % 2 == 1 { 1.0 } else { -1.0 };
+            z[(k - 1) / 2] = sign * PROBE_LATENT;
+        }
+        z
+    })
 }
 
 /// How far out along each latent axis [`ModelSet::check_length_decoder`] probes, in

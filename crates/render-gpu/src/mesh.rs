@@ -293,8 +293,9 @@ pub fn prepare(mut m: TriMesh) -> Result<TriMesh, String> {
     })?;
     let pieces = pieces(&m);
     let volumes = piece_volumes(&m, &pieces);
-    flat_pieces(&m, &pieces, &volumes)?;
-    orient_pieces(&mut m, &pieces, &volumes);
+    let boxes = piece_boxes(&m, &pieces);
+    flat_pieces(&pieces, &volumes, &boxes)?;
+    orient_pieces(&mut m, &pieces, &volumes, &boxes);
     Ok(m)
 }
 
@@ -302,10 +303,13 @@ pub fn prepare(mut m: TriMesh) -> Result<TriMesh, String> {
 /// `TriMesh::check_scale` alone sees): a face listed twice, once each way (a "two-sided"
 /// export), is closed by the edge check, and paths entering it were spawned past it, in
 /// the air, believing themselves inside the medium.
-fn flat_pieces(m: &TriMesh, pieces: &[Vec<usize>], volumes: &[f64]) -> Result<(), String> {
-    for (k, (tris, v6)) in pieces.iter().zip(volumes).enumerate() {
-        let (lo, hi) = bounds_of(tris.iter().flat_map(|&t| m.triangle(t)));
-        let side = f64::from((hi - lo).max_element());
+fn flat_pieces(
+    pieces: &[Vec<usize>],
+    volumes: &[f64],
+    boxes: &[(Vec3, Vec3)],
+) -> Result<(), String> {
+    for (k, ((tris, v6), (lo, hi))) in pieces.iter().zip(volumes).zip(boxes).enumerate() {
+        let side = f64::from((*hi - *lo).max_element());
         let volume = v6.abs() / 6.0;
         if !encloses_volume(volume, side) {
             return Err(format!(
@@ -330,9 +334,9 @@ fn flat_pieces(m: &TriMesh, pieces: &[Vec<usize>], volumes: &[f64]) -> Result<()
 /// orienting the whole mesh by its total volume left such a piece inside out, rendered
 /// with leaks and too bright. Pieces that merely overlap are not nested: each faces
 /// outward, as before.
-fn orient_pieces(m: &mut TriMesh, pieces: &[Vec<usize>], volumes: &[f64]) {
+fn orient_pieces(m: &mut TriMesh, pieces: &[Vec<usize>], volumes: &[f64], boxes: &[(Vec3, Vec3)]) {
     // Beyond the survey's limits each piece faces outward by itself (`render` says so).
-    let depths = if pieces.len() < 2 || !nesting_surveyed(m, pieces) {
+    let depths = if pieces.len() < 2 || !nesting_surveyed(boxes) {
         vec![0; pieces.len()]
     } else {
         let survey = Survey::new(m, pieces);
@@ -475,15 +479,13 @@ pub fn overlaps_and_pieces(m: &TriMesh) -> (Vec<(usize, usize)>, Option<PieceTab
 pub const MAX_NESTING_PAIRS: usize = 20_000;
 pub const MAX_NESTING_PIECES: usize = 4096;
 
-/// Whether [`prepare`] surveys the nesting of `m`'s `pieces` (see [`MAX_NESTING_PAIRS`]).
-fn nesting_surveyed(m: &TriMesh, pieces: &[Vec<usize>]) -> bool {
-    if pieces.len() > MAX_NESTING_PIECES {
+/// Whether [`prepare`] surveys the nesting of pieces with these bounding `boxes` (see
+/// [`MAX_NESTING_PAIRS`]).
+fn nesting_surveyed(boxes: &[(Vec3, Vec3)]) -> bool {
+    if boxes.len() > MAX_NESTING_PIECES {
         return false;
     }
-    let mut boxes: Vec<(Vec3, Vec3)> = pieces
-        .iter()
-        .map(|tris| bounds_of(tris.iter().flat_map(|&t| m.triangle(t))))
-        .collect();
+    let mut boxes = boxes.to_vec();
     boxes.sort_by(|a, b| a.0.x.total_cmp(&b.0.x));
     let mut pairs = 0;
     for (i, (lo, hi)) in boxes.iter().enumerate() {
@@ -503,7 +505,15 @@ fn nesting_surveyed(m: &TriMesh, pieces: &[Vec<usize>]) -> bool {
 /// [`MAX_NESTING_PIECES`]): its cavities, if any, render as medium.
 pub fn nesting_unsurveyed(m: &TriMesh) -> bool {
     let pieces = pieces(m);
-    pieces.len() > 1 && !nesting_surveyed(m, &pieces)
+    pieces.len() > 1 && !nesting_surveyed(&piece_boxes(m, &pieces))
+}
+
+/// Each piece's bounding box (lowest and highest corner).
+fn piece_boxes(m: &TriMesh, pieces: &[Vec<usize>]) -> Vec<(Vec3, Vec3)> {
+    pieces
+        .iter()
+        .map(|tris| bounds_of(tris.iter().flat_map(|&t| m.triangle(t))))
+        .collect()
 }
 
 /// Most pieces [`overlapping_pieces`] checks (and [`overlaps_and_pieces`] numbers).

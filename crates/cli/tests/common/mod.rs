@@ -21,6 +21,17 @@ pub fn write_dataset(
     sink.finish().unwrap();
 }
 
+/// The dataset `from` written to `to` with its header edited by `edit` (rows kept).
+pub fn rewrite_dataset(
+    from: &Path,
+    to: &Path,
+    edit: impl FnOnce(&mut scatter_sim::dataset::Header),
+) {
+    let (mut header, rows) = scatter_sim::dataset::read_dataset(from).unwrap();
+    edit(&mut header);
+    write_dataset(to, header, &rows);
+}
+
 /// Runs `stcvae args…` with `dir` as the current directory.
 pub fn stcvae(args: &[&str], dir: &Path) -> Output {
     Command::new(env!("CARGO_BIN_EXE_stcvae"))

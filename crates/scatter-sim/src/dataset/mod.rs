@@ -95,6 +95,19 @@ pub struct Header {
 }
 
 impl Header {
+    /// The simulators its pieces record ([`simulator_fingerprint`]), distinct and sorted,
+    /// and whether some piece records none (format versions 1 and 2).
+    pub fn simulators(&self) -> (Vec<&str>, bool) {
+        let mut seen: Vec<&str> = self
+            .pieces
+            .iter()
+            .filter_map(|p| p.simulator.as_deref())
+            .collect();
+        seen.sort_unstable();
+        seen.dedup();
+        (seen, self.pieces.iter().any(|p| p.simulator.is_none()))
+    }
+
     pub fn new(pieces: Vec<Piece>) -> Self {
         Self {
             count: pieces.iter().map(|p| p.count).sum(),
