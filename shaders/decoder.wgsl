@@ -167,7 +167,9 @@ fn sample_event(wf: WalkFeatures, channel: u32, lam: f32, e: Exit, mirror: bool)
         // 1/√2 at the centre, as on the CPU.
         x *= select(0.70710678, sqrt(-expm1(-0.5 * big * big)) / big, big > 1e-12);
     } else if big > 1e-12 {
-        x *= tanh(big) / big;
+        // tanh's argument bounded: WGSL lets a driver take it from exponentials, which
+        // overflow to a NaN event above ~89 (tanh(20) is 1 in f32 already).
+        x *= tanh(min(big, 20.0)) / big;
     }
     if dot(x, x) > 1.0 {
         x = normalize(x);

@@ -84,7 +84,7 @@ fn render(
 /// same scene, whose upload and compilation keep the GPU busy just before, took 0.40 s
 /// (40–42 M). Software adapters are left alone (each render there also compiles its
 /// kernel, seconds each time).
-const GPU_WARM_UP_SECONDS: f64 = 0.5;
+pub(crate) const GPU_WARM_UP_SECONDS: f64 = 0.5;
 
 pub fn run(a: Args) -> Result<()> {
     render_gpu::render::check_image_memory(a.size, a.size)

@@ -79,7 +79,9 @@ pub struct Args {
     /// Also write each density's images to this folder: kK_pt and kK_stcvae (EXR + PNG,
     /// the two seeds' mean) and kK_z.png, where the bias lies: per channel and 4×4-pixel
     /// block (measure::block_z), the z-score of ST-CVAE − PT against both noises, drawn as 0.5 + z/8 (grey:
-    /// agreement; brighter: ST-CVAE brighter; |z| > 3 is rarely noise), and kK_pixels.csv:
+    /// agreement, or a block whose noise estimate is too poor to judge: the background and
+    /// silhouette blocks of a few noisy pixels; brighter: ST-CVAE brighter; |z| > 3 is
+    /// rarely noise), and kK_pixels.csv:
     /// per pixel and channel both means and the variances of those means.
     #[arg(long)]
     save: Option<PathBuf>,
@@ -173,12 +175,15 @@ fn save_images(a: &Args, dir: &std::path::Path, k: f64, pt: &Pair, st: &Pair) ->
     // Per pixel and channel, both pairs' means and the variances of those means (from
     // their two seeds): what the bias columns are computed from, for analyses the table
     // does not make (where in the image a bias lies, other pixel classes or metrics).
-    use std::fmt::Write as _;
-    let mut csv = String::from("x,y,channel,pt_mean,pt_var,stcvae_mean,stcvae_var\n");
+    // Streamed: held as one string, a 4,096² table took ~3.5 GB.
+    use std::io::Write as _;
+    let path = saved_pixels(dir, k);
+    let cannot = || format!("cannot write {}", path.display());
+    let mut csv = scatter_sim::output::AtomicFile::create(&path).with_context(cannot)?;
+    writeln!(csv, "x,y,channel,pt_mean,pt_var,stcvae_mean,stcvae_var").with_context(cannot)?;
     for i in 0..w * h {
         for c in 0..3 {
-            // Writing to a String cannot fail.
-            let _ = writeln!(
+            writeln!(
                 csv,
                 "{},{},{c},{:e},{:e},{:e},{:e}",
                 i % w,
@@ -187,12 +192,11 @@ fn save_images(a: &Args, dir: &std::path::Path, k: f64, pt: &Pair, st: &Pair) ->
                 pt.var[i][c],
                 st.mean.pixels[i][c],
                 st.var[i][c]
-            );
+            )
+            .with_context(cannot)?;
         }
     }
-    let path = saved_pixels(dir, k);
-    scatter_sim::output::write_atomic(&path, csv.as_bytes())
-        .with_context(|| format!("cannot write {}", path.display()))?;
+    csv.commit().with_context(cannot)?;
     Ok(())
 }
 
@@ -317,9 +321,24 @@ fn render_pair(
     // removed (a local flag let the signal kill the process, leaving them).
     let cancel = crate::interrupt::flag();
     let half = half_spp(a.spp);
-    // No warm-up render on a GPU: the renderer compiles its kernel before its clock starts.
-    let mut outs = Vec::new();
     let cam = &p.file.camera;
+    // The renderer compiles its kernel before its clock starts, but a hardware GPU idle
+    // through the CPU's preparation runs its first timed render slower (`bench devices`
+    // measured ~30 % on an H100): untimed work first, as there. Software adapters compile
+    // at every render, so a warm-up would not help them.
+    if engine.is_hardware_gpu() {
+        let opts = RenderOptions {
+            spp: half,
+            seed: a.seeds_of(kind)[0],
+            time_budget: Some(crate::bench_devices::GPU_WARM_UP_SECONDS),
+            variance: false,
+        };
+        engine.render(&p.data, &set, &opts, &|_, _| {}, cancel)?;
+        if crate::interrupt::requested() {
+            bail!("interrupted: the rows printed so far stand; nothing more was measured");
+        }
+    }
+    let mut outs = Vec::new();
     for seed in a.seeds_of(kind) {
         let label = format!(
             "σ_t {:?}, {}, seed {seed}",
@@ -362,6 +381,11 @@ fn render_pair(
     }
     Ok(pair)
 }
+
+/// Bytes a pixel the bench holds beside a render's own ([`render_gpu::render::BYTES_PER_PIXEL`]):
+/// two pairs of mean (12), variance (24) and work (4), and the two renders a pair is
+/// made from (image 12 and work 4 each).
+const PAIRS_BYTES_PER_PIXEL: u64 = 2 * (12 + 24 + 4) + 2 * (12 + 4);
 
 /// Most samples a pixel the bench takes (the header's pair arithmetic is u32).
 pub(crate) const MAX_BENCH_SPP: u32 = 1 << 30;
@@ -417,6 +441,11 @@ pub fn run(a: Args) -> Result<()> {
     if engine.is_gpu() {
         crate::device::check_gpu_lights(&a.scene, scene.lights.len(), ": use --device cpu")?;
     }
+    // The render's buffers and the bench's own (both pairs and a pair's two renders), as
+    // `render` and `bench devices` check: --size 4096 under a memory limit aborted with
+    // "memory allocation … failed" instead of a line.
+    render_gpu::render::check_image_memory_with(a.size, a.size, PAIRS_BYTES_PER_PIXEL)
+        .map_err(|e| anyhow::anyhow!("--size {}: {e}", a.size))?;
     // Every density's ST-CVAE scene is checked before the table's head and the first
     // render, so that a bad setting or model fails at once, not after PT's (possibly long)
     // renders. They are prepared again when rendered (well under a second each, the grid
@@ -426,6 +455,12 @@ pub fn run(a: Args) -> Result<()> {
         let p = prepare_k(&a, IntegratorKind::Stcvae, k)?;
         if i == 0 {
             crate::render::note_lights(&p);
+        }
+        // A software adapter keeps its path state in host memory (ST-CVAE's, with its
+        // NEE reservoirs, is the larger of the two integrators').
+        if engine.is_gpu() && !engine.is_hardware_gpu() {
+            crate::render::software_gpu_memory(a.size, a.size, &p.settings())
+                .map_err(|e| anyhow::anyhow!("--size {}: {e}", a.size))?;
         }
     }
     let identity = match &a.pt_cache {

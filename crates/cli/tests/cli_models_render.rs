@@ -1538,6 +1538,33 @@ fn bench_devices_checks_every_density_before_rendering() {
     );
 }
 
+/// `bench render` holds both integrators' pairs beside a render's buffers: it checked no
+/// memory at all, and `--size 4096` under a limit aborted with "memory allocation …
+/// failed". A 3,500² image's render buffers (~1.5 GB) fit a 2.5 GB limit, the bench's
+/// (~2.9 GB) do not: one line before the table and any render.
+#[cfg(unix)]
+#[test]
+fn bench_render_checks_its_memory() {
+    let out = Command::new("sh")
+        .arg("-c")
+        .arg(format!(
+            "ulimit -v 2500000 && exec '{}' bench render --size 3500 --spp 2 --k 1",
+            env!("CARGO_BIN_EXE_stcvae")
+        ))
+        .current_dir(root())
+        .output()
+        .unwrap();
+    let e = fails(&out);
+    assert!(
+        e.contains("--size 3500: a 3500 x 3500 image needs about")
+            && !e.contains("memory allocation")
+            && e.lines().filter(|l| l.starts_with("error")).count() == 1,
+        "{e}"
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(!text.contains("sigma_t"), "{text}");
+}
+
 /// On a software adapter the path state lives in host memory, which `render` checks with
 /// the image: `bench devices` did not, and a 3,000² bench under a 3 GB limit aborted with
 /// "memory allocation of 108000000 bytes failed". Now a one-line error before any row.
