@@ -59,6 +59,7 @@ fn every_experiment_runs_quick() {
         "nee",
         "quality",
         "teaser",
+        "teaser_no_nee",
     ];
     let found: Vec<String> = configs()
         .iter()
@@ -387,6 +388,47 @@ fn experiment_configs_are_checked_before_any_rendering() {
     let e = run_kind("nee", "scene = \"ok.toml\"");
     assert!(
         e.contains("full.spp does not apply to kind = \"nee\", which renders for `seconds`"),
+        "{e}"
+    );
+    // Without NEE a delta light is never reached: every light of ok.toml (the default
+    // bunny) is one, so the renders would be lit by the environment alone.
+    let e = run("scene = \"ok.toml\"\ndensities = [1.0]\nnee = false");
+    assert!(
+        e.contains("ok.toml: every light is a delta light") && e.contains("(nee = false)"),
+        "{e}"
+    );
+    let cfg = tmp.path().join("exp.toml");
+    std::fs::write(
+        &cfg,
+        "kind = \"nee\"\ntitle = \"t\"\nscene = \"ok.toml\"\n[full]\nsize = 8\nseconds = 1.0\n\
+         reference_spp = 4\n[quick]\nsize = 8\nseconds = 1.0\nreference_spp = 4\n",
+    )
+    .unwrap();
+    let out = quick_experiment(&cfg, &tmp.path().join("results"));
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && e.contains("the \"PT, no NEE\" row"),
+        "{e}"
+    );
+    // quality replaces the lights by a delta light and renders with NEE: `nee` refused.
+    let e = run_kind(
+        "quality",
+        "scene = \"ok.toml\"\ndensities = [1.0]\nnee = false",
+    );
+    assert!(
+        e.contains("nee does not apply to kind = \"quality\""),
+        "{e}"
+    );
+    // The size is the width; the camera's aspect sets the height, bounded as the width (a
+    // 128×8 camera at size 16 would render 16×1).
+    std::fs::write(
+        tmp.path().join("wide.toml"),
+        bunny.replace("height = 128", "height = 8"),
+    )
+    .unwrap();
+    let e = run("scene = \"wide.toml\"\ndensities = [1.0]");
+    assert!(
+        e.contains("wide.toml: its camera's aspect (128 x 8) makes full.size = 8 a 8 x 1 image"),
         "{e}"
     );
     let cfg = tmp.path().join("exp.toml");

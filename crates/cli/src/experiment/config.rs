@@ -98,9 +98,15 @@ pub struct Config {
     /// Thin-region thresholds min_tau (fallback).
     #[serde(default)]
     pub thresholds: Vec<f64>,
-    /// The paper's figures to print beside ours (teaser: speed-ups per density).
+    /// The paper's figures to print beside ours (teaser, quality: speed-ups per density).
     #[serde(default)]
     pub paper: Vec<f64>,
+    /// Next-event estimation in both integrators (teaser, complexity, absorption,
+    /// fallback; default on). Off, only paths escaping into a light's disk or the
+    /// environment count, as in the paper's Figs. 1 and 6–10, which leave in-scattered
+    /// direct light out: PT then casts no shadow ray at each event, and the speed-ups
+    /// are those of the walks alone.
+    pub nee: Option<bool>,
     pub full: Budget,
     pub quick: Budget,
     #[serde(skip)]
@@ -293,13 +299,13 @@ impl Config {
         // A field the kind does not read would be ignored without a word (thresholds in a
         // teaser, seconds under [quick] of a quality run): refused, naming what it reads.
         let reads: &[&str] = match self.kind {
-            Kind::Teaser => &["scene", "densities", "paper"],
-            Kind::Quality => &["scene", "densities"],
-            Kind::Complexity => &["scene", "scenes", "densities"],
-            Kind::Absorption => &["scene", "absorptions"],
+            Kind::Teaser => &["scene", "densities", "paper", "nee"],
+            Kind::Quality => &["scene", "densities", "paper"],
+            Kind::Complexity => &["scene", "scenes", "densities", "nee"],
+            Kind::Absorption => &["scene", "absorptions", "nee"],
             Kind::Distributions => &["samples"],
             Kind::Nee => &["scene", "seconds", "reference_spp"],
-            Kind::Fallback => &["scene", "densities", "thresholds"],
+            Kind::Fallback => &["scene", "densities", "thresholds", "nee"],
         };
         let budgets = [&self.full, &self.quick];
         let given = [
@@ -309,6 +315,7 @@ impl Config {
             ("absorptions", !self.absorptions.is_empty()),
             ("thresholds", !self.thresholds.is_empty()),
             ("paper", !self.paper.is_empty()),
+            ("nee", self.nee.is_some()),
             ("seconds", budgets.iter().any(|b| b.seconds.is_some())),
             (
                 "reference_spp",
@@ -325,6 +332,17 @@ impl Config {
             );
         }
         Ok(())
+    }
+
+    /// Whether the renders use next-event estimation (`nee`, default on).
+    pub fn nee(&self) -> bool {
+        self.nee.unwrap_or(true)
+    }
+
+    /// Whether some render of this experiment counts light only where a path escapes
+    /// into it: `nee = false`, or the nee kind's PT row without NEE.
+    pub fn renders_without_nee(&self) -> bool {
+        !self.nee() || self.kind == Kind::Nee
     }
 
     pub fn scene_path(&self) -> PathBuf {

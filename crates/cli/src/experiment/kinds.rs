@@ -61,8 +61,39 @@ pub(super) fn preflight(
     }
     for path in &scenes {
         let base = SceneFile::load(path)?;
+        // Without NEE a delta light is never reached: the renders would converge to an
+        // image lit by the environment alone, and be compared as if lit.
+        if cfg.renders_without_nee() && !base.lights.iter().any(|l| l.angular_diameter_deg > 0.0) {
+            bail!(
+                "{}: every light is a delta light (light.angular_diameter_deg = 0), which \
+                 renders without next-event estimation never reach{}: give a light a disk \
+                 (e.g. configs/scenes/bunny_sun_wide.toml)",
+                path.display(),
+                if cfg.kind == Kind::Nee {
+                    " (the \"PT, no NEE\" row)"
+                } else {
+                    " (nee = false)"
+                }
+            );
+        }
         // The mesh too, before hours of rendering: a missing one failed the run after its
         // first scene (with the previous run's report left beside the new images).
+        // The budgets' size is the width; the scene's aspect sets the height, which the
+        // same range bounds (a 1000×10 camera at size 8 rendered an 8×1 image).
+        for (name, b) in [("full", &cfg.full), ("quick", &cfg.quick)] {
+            let size = b.size();
+            let h = super::measure::height_at(size, &base.camera);
+            if !(8..=4096).contains(&h) {
+                bail!(
+                    "{}: its camera's aspect ({} x {}) makes {name}.size = {size} a {size} x \
+                     {h} image, and the height must be in 8..=4096 as the width (the figures \
+                     are measured over 4×4-pixel blocks)",
+                    path.display(),
+                    base.camera.width,
+                    base.camera.height
+                );
+            }
+        }
         let dir = path.parent().unwrap_or(std::path::Path::new("."));
         render_gpu::setup::object_mesh(&base, dir)
             .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
@@ -166,8 +197,8 @@ fn teaser(ctx: &Ctx, rep: &mut Report) -> Result<()> {
     let mut figs = Vec::new();
     for (i, &k) in ctx.cfg.densities.iter().enumerate() {
         let edit = scale_density(k);
-        let pt = render_pair(ctx, &scene, Pt, true, &edit)?;
-        let st = render_pair(ctx, &scene, Stcvae, true, &edit)?;
+        let pt = render_pair(ctx, &scene, Pt, ctx.cfg.nee(), &edit)?;
+        let st = render_pair(ctx, &scene, Stcvae, ctx.cfg.nee(), &edit)?;
         let c = compare(&pt, &st);
         let exposure = scale_of(&pt.mean) as f32;
         let sigma = SceneFile::load(&scene)?.medium.sigma_t[0] * k;
@@ -218,7 +249,7 @@ fn teaser(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             save_picture(ctx, &format!("teaser_k{}", k_name(k)), &both, exposure)?,
         ));
     }
-    rep.text("Both integrators at equal spp; speed-up = PT time / ST-CVAE time; var ratio = PT's per-pixel variance / ST-CVAE's (var_ratio_se: its standard error; heavy-tailed pixels make it swing); bias RMSE is noise-corrected (bias_upper95: its one-sided 95 % bound), images scaled so PT's brightest 1 % of object pixels is 1.\n");
+    rep.text(&format!("Both integrators at equal spp; speed-up = PT time / ST-CVAE time; var ratio = PT's per-pixel variance / ST-CVAE's (var_ratio_se: its standard error; heavy-tailed pixels make it swing); bias RMSE is noise-corrected (bias_upper95: its one-sided 95 % bound), in units of PT's brightest 1 % of object pixels. {}Pictures exposed so that PT's 99th-percentile pixel of the frame is 1.\n", if ctx.cfg.nee() { "" } else { "Without NEE, as the paper's speed-ups: light counted where a path escapes into the sun's disk. " }));
     rep.table();
     for (k, f) in figs {
         rep.image(
@@ -263,10 +294,11 @@ fn quality(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         "speedup",
         "var_ratio",
         "var_ratio_se",
+        "paper_speedup",
     ]);
     let mut figs = Vec::new();
     for (name, dir) in [("front", [0.3, -0.3, -1.0]), ("back", [0.3, -0.3, 1.0])] {
-        for &k in &ctx.cfg.densities {
+        for (i, &k) in ctx.cfg.densities.iter().enumerate() {
             let edit = move |f: &mut SceneFile| {
                 scale_density(k)(f);
                 let irradiance = f.lights.first().map_or([3.0; 3], |l| l.irradiance);
@@ -282,8 +314,8 @@ fn quality(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             // With NEE, unlike the paper's Fig. 6/7: the light is a delta light, which paths
             // without NEE never reach (front and back renders were the same picture, lit by
             // the environment alone).
-            let pt = render_pair(ctx, &scene, Pt, true, &edit)?;
-            let st = render_pair(ctx, &scene, Stcvae, true, &edit)?;
+            let pt = render_pair(ctx, &scene, Pt, ctx.cfg.nee(), &edit)?;
+            let st = render_pair(ctx, &scene, Stcvae, ctx.cfg.nee(), &edit)?;
             let c = compare(&pt, &st);
             rep.row(vec![
                 name.into(),
@@ -294,6 +326,11 @@ fn quality(ctx: &Ctx, rep: &mut Report) -> Result<()> {
                 c.speedup.into(),
                 c.var_ratio.into(),
                 c.var_ratio_se.into(),
+                ctx.cfg
+                    .paper
+                    .get(i)
+                    .copied()
+                    .map_or_else(|| "".into(), Into::into),
             ]);
             let exposure = scale_of(&pt.mean) as f32;
             let diff = difference(&pt.mean, &st.mean, 4.0);
@@ -310,7 +347,7 @@ fn quality(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             ));
         }
     }
-    rep.text("Both with NEE (ST-CVAE's through EventGen), unlike the paper's Fig. 6/7: the scene's lights are replaced by one delta light (the first light's irradiance) from the front or the back, which paths without NEE never reach. Noise-corrected bias RMSE of ST-CVAE against PT at equal spp, with its one-sided 95 % bound (images scaled so PT's brightest 1 % of object pixels is 1).\n");
+    rep.text("Both with NEE (ST-CVAE's through EventGen), unlike the paper's Fig. 6/7: the scene's lights are replaced by one delta light (the first light's irradiance) from the front or the back, which paths without NEE never reach. Noise-corrected bias RMSE of ST-CVAE against PT at equal spp, with its one-sided 95 % bound (in units of PT's brightest 1 % of object pixels). Speed-up = PT time / ST-CVAE time at equal spp; paper_speedup: the paper's, per density (its renders without NEE). Pictures exposed so that PT's 99th-percentile pixel of the frame is 1.\n");
     rep.table();
     for (name, k, f) in figs {
         rep.image(
@@ -345,6 +382,7 @@ fn complexity(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         "speedup",
         "pt_events_per_path",
         "st_steps_per_path",
+        "st_exact_steps_per_path",
         "st_fallback_events_per_path",
     ]);
     let mut scenes = vec![ctx.cfg.scene_path()];
@@ -358,8 +396,8 @@ fn complexity(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         let (mut tp, mut ts) = (Vec::new(), Vec::new());
         for &k in &ctx.cfg.densities {
             let edit = scale_density(k);
-            let pt: Pair = render_pair(ctx, scene, Pt, true, &edit)?;
-            let st: Pair = render_pair(ctx, scene, Stcvae, true, &edit)?;
+            let pt: Pair = render_pair(ctx, scene, Pt, ctx.cfg.nee(), &edit)?;
+            let st: Pair = render_pair(ctx, scene, Stcvae, ctx.cfg.nee(), &edit)?;
             rep.row(vec![
                 obj.clone().into(),
                 k.into(),
@@ -368,6 +406,7 @@ fn complexity(ctx: &Ctx, rep: &mut Report) -> Result<()> {
                 (pt.seconds / st.seconds.max(1e-9)).into(),
                 pt.per_path(pt.stats.events).into(),
                 st.per_path(st.stats.steps).into(),
+                st.per_path(st.stats.exact_steps).into(),
                 st.per_path(st.stats.events).into(),
             ]);
             tp.push((k, pt.seconds));
@@ -389,7 +428,7 @@ fn complexity(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         }
         curves.push((obj, tp, ts));
     }
-    rep.text("Events per path count real scattering events (PT) and sphere steps plus thin-region PT fallback events (ST-CVAE), over all pixels (background included).\n");
+    rep.text("Events per path count real scattering events (PT) and sphere steps plus thin-region PT fallback events (ST-CVAE), over all pixels (background included). Of the sphere steps, those of optical radius below exact_tau have their walk simulated exactly (st_exact_steps_per_path); the events inside those walks are not counted, so ST-CVAE's work is understated where exact steps are many.\n");
     rep.table();
     for (obj, k, max, f) in figs {
         rep.image(&format!("{obj}, density ×{k}: PT events (left) vs ST-CVAE steps + events (right) per path, log scale, white = {max:.0}"), &f);
@@ -432,8 +471,8 @@ fn absorption(ctx: &Ctx, rep: &mut Report) -> Result<()> {
     let (mut tp, mut ts) = (Vec::new(), Vec::new());
     for &a in &ctx.cfg.absorptions {
         let edit = move |f: &mut SceneFile| f.medium.albedo = [1.0 - a; 3];
-        let pt = render_pair(ctx, &scene, Pt, true, &edit)?;
-        let st = render_pair(ctx, &scene, Stcvae, true, &edit)?;
+        let pt = render_pair(ctx, &scene, Pt, ctx.cfg.nee(), &edit)?;
+        let st = render_pair(ctx, &scene, Stcvae, ctx.cfg.nee(), &edit)?;
         let c = compare(&pt, &st);
         rep.row(vec![
             a.into(),
@@ -451,7 +490,7 @@ fn absorption(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         tp.push((a, pt.seconds));
         ts.push((a, st.seconds));
     }
-    rep.text("Albedo φ = 1 − absorption on all channels, equal spp. Bias RMSE is noise-corrected with its one-sided 95 % bound; offset is ST-CVAE's image total over PT's on the object, minus 1, in %, with its standard error (images scaled so PT's brightest 1 % of object pixels is 1).\n");
+    rep.text("Albedo φ = 1 − absorption on all channels, equal spp. Bias RMSE is noise-corrected with its one-sided 95 % bound; offset is ST-CVAE's image total over PT's on the object, minus 1, in %, with its standard error; the bias in units of PT's brightest 1 % of object pixels.\n");
     rep.table();
     plot(
         ctx,
@@ -567,11 +606,14 @@ fn nee(ctx: &Ctx, rep: &mut Report) -> Result<()> {
     )
 }
 
-/// Beyond the paper: speed-up vs the thin-region threshold of the sphere step.
+/// Beyond the paper: speed-up vs the thin-region threshold of the sphere step, for the
+/// project's estimator (steps below `exact_tau` simulated exactly) and the authors' (every
+/// step drawn from the models: `exact_tau = 0`).
 fn fallback(ctx: &Ctx, rep: &mut Report) -> Result<()> {
     let scene = ctx.cfg.scene_path();
     let k = ctx.cfg.densities.first().copied().unwrap_or(1.0);
     rep.columns(&[
+        "steps_drawn",
         "min_tau",
         "density",
         "st_seconds",
@@ -579,51 +621,80 @@ fn fallback(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         "var_ratio",
         "var_ratio_se",
         "st_steps_per_path",
+        "st_exact_steps_per_path",
         "st_fallback_events_per_path",
         "bias_rmse",
         "bias_upper95",
         "noise_rmse",
     ]);
-    let pt = render_pair(ctx, &scene, Pt, true, &scale_density(k))?;
-    let mut sp = Vec::new();
-    for &t in &ctx.cfg.thresholds {
-        let edit = move |f: &mut SceneFile| {
-            scale_density(k)(f);
-            f.render.min_tau = Some(t);
-        };
-        let st = render_pair(ctx, &scene, Stcvae, true, &edit)?;
-        let c = compare(&pt, &st);
-        rep.row(vec![
-            t.into(),
-            k.into(),
-            st.seconds.into(),
-            c.speedup.into(),
-            c.var_ratio.into(),
-            c.var_ratio_se.into(),
-            st.per_path(st.stats.steps).into(),
-            st.per_path(st.stats.events).into(),
-            c.bias.into(),
-            c.bias_upper95.into(),
-            c.noise.into(),
-        ]);
-        sp.push((t, c.speedup));
+    let pt = render_pair(ctx, &scene, Pt, ctx.cfg.nee(), &scale_density(k))?;
+    // The scene's exact_tau (the default unless it sets one) against 0. With the default
+    // (20) every threshold below it only moves steps between exact walks and PT events:
+    // labelled "the authors' behaviour" alone, min_tau = 0 was no model step at all.
+    let default_exact = SceneFile::load(&scene)?.render.exact_tau_or_default();
+    let modes = [
+        (
+            format!(
+                "models above exact_tau = {}",
+                crate::progress::significant4(default_exact)
+            ),
+            None,
+        ),
+        ("models at every step (exact_tau = 0)".to_owned(), Some(0.0)),
+    ];
+    let mut curves = Vec::new();
+    for (label, exact_tau) in &modes {
+        let mut sp = Vec::new();
+        for &t in &ctx.cfg.thresholds {
+            let exact_tau = *exact_tau;
+            let edit = move |f: &mut SceneFile| {
+                scale_density(k)(f);
+                f.render.min_tau = Some(t);
+                if exact_tau.is_some() {
+                    f.render.exact_tau = exact_tau;
+                }
+            };
+            let st = render_pair(ctx, &scene, Stcvae, ctx.cfg.nee(), &edit)?;
+            let c = compare(&pt, &st);
+            rep.row(vec![
+                label.clone().into(),
+                t.into(),
+                k.into(),
+                st.seconds.into(),
+                c.speedup.into(),
+                c.var_ratio.into(),
+                c.var_ratio_se.into(),
+                st.per_path(st.stats.steps).into(),
+                st.per_path(st.stats.exact_steps).into(),
+                st.per_path(st.stats.events).into(),
+                c.bias.into(),
+                c.bias_upper95.into(),
+                c.noise.into(),
+            ]);
+            sp.push((t, c.speedup));
+        }
+        curves.push((label.clone(), sp));
     }
-    // A log axis cannot show 0 (the authors' behaviour): it is drawn a decade below the
-    // smallest positive threshold, at most at 0.01 (every threshold below 0.01 was drawn
-    // at 0.01 with it).
-    let smallest = sp
+    // A log axis cannot show 0: it is drawn a decade below the smallest positive
+    // threshold, at most at 0.01 (every threshold below 0.01 was drawn at 0.01 with it).
+    let smallest = ctx
+        .cfg
+        .thresholds
         .iter()
-        .map(|p| p.0)
+        .copied()
         .filter(|&t| t > 0.0)
         .fold(f64::INFINITY, f64::min);
     let zero_at = (smallest / 10.0).min(0.01);
-    for p in &mut sp {
-        if p.0 == 0.0 {
-            p.0 = zero_at;
+    for (_, sp) in &mut curves {
+        for p in sp.iter_mut() {
+            if p.0 == 0.0 {
+                p.0 = zero_at;
+            }
         }
     }
-    rep.text(&format!("min_tau = 0 is the authors' behaviour (a sphere step however thin the free region); above it, points where σ_t·r < min_tau take an ordinary PT event instead. Speed-up against PT at equal spp; min_tau = 0 is drawn at {}. Bias RMSE is noise-corrected, with its one-sided 95 % bound.\n", crate::progress::significant4(zero_at)));
+    rep.text(&format!("Points where σ_t·r < min_tau take an ordinary PT event instead of a sphere step; a step of optical radius below exact_tau has its walk simulated exactly, above it drawn from the models. The authors draw every step from the models, however thin the free region: min_tau = 0 with exact_tau = 0. With the scene's exact_tau ({}) every threshold below it only trades exact walks for PT events. Speed-up against PT at equal spp; min_tau = 0 is drawn at {}. Steps per path count both kinds of step (the exact ones also apart; the events inside an exact walk are not counted), over all pixels. Bias RMSE is noise-corrected, with its one-sided 95 % bound.\n", crate::progress::significant4(default_exact), crate::progress::significant4(zero_at)));
     rep.table();
+    let s: Vec<_> = curves.into_iter().map(|(l, sp)| series(&l, sp)).collect();
     plot(
         ctx,
         rep,
@@ -631,7 +702,7 @@ fn fallback(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         "Speed-up vs thin-region threshold",
         ("min_tau", "speed-up over PT"),
         (true, false),
-        &[series("ST-CVAE", sp)],
+        &s,
     )
 }
 

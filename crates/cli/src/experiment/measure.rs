@@ -87,6 +87,12 @@ pub fn opts(spp: u32, seed: u64, time_budget: Option<f64>) -> RenderOptions {
     }
 }
 
+/// The image height an experiment renders at width `size`: the scene camera's aspect kept.
+pub fn height_at(size: u32, camera: &render_gpu::scene::CameraDesc) -> u32 {
+    let aspect = camera.height as f64 / camera.width as f64;
+    ((size as f64 * aspect).round() as u32).max(1)
+}
+
 /// One render of `scene` edited by `edit`.
 pub fn render_once(
     ctx: &Ctx,
@@ -97,9 +103,8 @@ pub fn render_once(
 ) -> Result<(render_gpu::render::RenderOutput, u64)> {
     let size = ctx.budget.size();
     let p = prepare(scene, Some(kind), Some(nee), ctx.model.as_deref(), |f| {
-        let aspect = f.camera.height as f64 / f.camera.width as f64;
+        f.camera.height = height_at(size, &f.camera);
         f.camera.width = size;
-        f.camera.height = ((size as f64 * aspect).round() as u32).max(1);
         edit(f);
     })?;
     if let Some((key, w)) = crate::render::outside_training_warning(&p, scene) {

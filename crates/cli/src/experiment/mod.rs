@@ -136,7 +136,7 @@ pub fn run(a: Args) -> Result<()> {
         warnings: Default::default(),
     };
     let mut rep = Report::new(&cfg, &a, &engine);
-    rep.text(&budget_line(cfg.kind, &ctx.budget));
+    rep.text(&budget_line(&cfg, &ctx.budget));
     eprintln!(
         "experiment {name} ({}{}) -> {}",
         cfg.kind.name(),
@@ -185,8 +185,8 @@ pub fn run(a: Args) -> Result<()> {
 /// What was rendered, so that paths/s and noise can be checked against the files: the
 /// image width, and the samples actually taken (an experiment's spp are two seeds of
 /// half each, rounded up to a multiple of 3, so 256 asked are 258 rendered).
-fn budget_line(kind: config::Kind, b: &config::Budget) -> String {
-    match kind {
+fn budget_line(cfg: &Config, b: &config::Budget) -> String {
+    match cfg.kind {
         config::Kind::Distributions => format!(
             "Samples: {} model draws and as many simulator walks per setting.\n",
             b.samples()
@@ -206,10 +206,16 @@ fn budget_line(kind: config::Kind, b: &config::Budget) -> String {
             format!(
                 "Renders: {} pixels wide (the scene's aspect kept), {} spp each: two seeds of \
                  {half} ({} asked, halved and rounded up to a multiple of 3 so that every \
-                 pixel gives each colour channel as many samples).\n",
+                 pixel gives each colour channel as many samples). Next-event estimation \
+                 {} in both integrators.\n",
                 b.size(),
                 2 * half,
-                b.spp()
+                b.spp(),
+                if cfg.nee() {
+                    "on"
+                } else {
+                    "off (only paths escaping into a light's disk or the environment count)"
+                }
             )
         }
     }
