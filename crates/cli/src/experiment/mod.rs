@@ -20,8 +20,8 @@ pub const DEFAULT_OUT: &str = "results";
 
 #[derive(clap::Args)]
 #[command(
-    after_help = "Configs: configs/experiments/{teaser,quality,complexity,absorption,\
-    distributions,nee,fallback}.toml. Each writes OUT/<name>/report.md with its figures \
+    after_help = "Configs: configs/experiments/{teaser,teaser_no_nee,quality,complexity,\
+    absorption,distributions,nee,fallback}.toml. Each writes OUT/<name>/report.md with its figures \
     (OUT/<name>-quick/ with --quick).\n\n\
     Example:\n  stcvae experiment configs/experiments/teaser.toml --quick"
 )]
