@@ -457,10 +457,15 @@ pub fn run(a: Args) -> Result<()> {
             crate::render::note_lights(&p);
         }
         // A software adapter keeps its path state in host memory (ST-CVAE's, with its
-        // NEE reservoirs, is the larger of the two integrators').
+        // NEE reservoirs, is the larger of the two integrators'), beside the bench's own.
         if engine.is_gpu() && !engine.is_hardware_gpu() {
-            crate::render::software_gpu_memory(a.size, a.size, &p.settings())
-                .map_err(|e| anyhow::anyhow!("--size {}: {e}", a.size))?;
+            crate::render::software_gpu_memory(
+                a.size,
+                a.size,
+                &p.settings(),
+                PAIRS_BYTES_PER_PIXEL,
+            )
+            .map_err(|e| anyhow::anyhow!("--size {}: {e}", a.size))?;
         }
     }
     let identity = match &a.pt_cache {

@@ -378,14 +378,16 @@ pub(crate) fn outside_training_warning(
 }
 
 /// The image's memory with a software adapter's path state, which lives in host memory
-/// (`gpu::kernels::slot_vec4s`, 16 bytes each): checked before a render on one.
+/// (`gpu::kernels::slot_vec4s`, 16 bytes each), and `extra` bytes a pixel the caller holds
+/// beside them: checked before a render on one.
 pub(crate) fn software_gpu_memory(
     width: u32,
     height: u32,
     set: &IntegratorSettings,
+    extra: u64,
 ) -> std::result::Result<(), String> {
     let slot = 16 * render_gpu::gpu::kernels::slot_vec4s(set.path_nee() as u32);
-    render_gpu::render::check_image_memory_with(width, height, slot)
+    render_gpu::render::check_image_memory_with(width, height, slot + extra)
         .map_err(|e| format!("{e} (with the software GPU's path state)"))
 }
 
@@ -590,7 +592,7 @@ pub fn run(a: Args) -> Result<()> {
     let engine = Engine::open(device)?;
     let set = p.settings();
     if engine.is_gpu() && !engine.is_hardware_gpu() {
-        software_gpu_memory(p.file.camera.width, p.file.camera.height, &set)
+        software_gpu_memory(p.file.camera.width, p.file.camera.height, &set, 0)
             .map_err(|e| anyhow::anyhow!("{}: camera.width/height: {e}", a.scene.display()))?;
     }
     eprintln!(

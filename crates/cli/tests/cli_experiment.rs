@@ -93,7 +93,32 @@ fn every_experiment_runs_quick() {
             // Labels keep their commas (quoted), as report.md has them.
             assert!(csv.contains("\"PT, no NEE\","), "{csv}");
         }
+        if name == "fallback" {
+            // Each threshold in both modes: exact walks below exact_tau = 20 (most of the
+            // bunny's steps at ×4), none with exact_tau = 0.
+            let col = header
+                .iter()
+                .position(|h| *h == "st_exact_steps_per_path")
+                .unwrap();
+            let (mut exact, mut drawn) = (0, 0);
+            for line in csv.lines().skip(1) {
+                let cells = csv_cells(line);
+                let v: f64 = cells[col].parse().unwrap();
+                if cells[0].contains("exact_tau = 0") {
+                    assert_eq!(v, 0.0, "{line}");
+                    drawn += 1;
+                } else {
+                    assert!(v > 0.0, "{line}");
+                    exact += 1;
+                }
+            }
+            assert!(exact > 0 && exact == drawn, "{csv}");
+        }
         let report = std::fs::read_to_string(dir.join("report.md")).unwrap();
+        if name == "teaser_no_nee" || name == "teaser" {
+            let off = report.contains("Next-event estimation off");
+            assert_eq!(off, name == "teaser_no_nee", "{report}");
+        }
         let mut images = 0;
         for part in report.split("](").skip(1) {
             let file = &part[..part.find(')').unwrap()];
@@ -420,7 +445,7 @@ fn experiment_configs_are_checked_before_any_rendering() {
         "{e}"
     );
     // The size is the width; the camera's aspect sets the height, bounded as the width (a
-    // 128×8 camera at size 16 would render 16×1).
+    // 128×8 camera at size 8 would render 8×1).
     std::fs::write(
         tmp.path().join("wide.toml"),
         bunny.replace("height = 128", "height = 8"),

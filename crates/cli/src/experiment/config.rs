@@ -103,9 +103,9 @@ pub struct Config {
     pub paper: Vec<f64>,
     /// Next-event estimation in both integrators (teaser, complexity, absorption,
     /// fallback; default on). Off, only paths escaping into a light's disk or the
-    /// environment count, as in the paper's Figs. 1 and 6–10, which leave in-scattered
-    /// direct light out: PT then casts no shadow ray at each event, and the speed-ups
-    /// are those of the walks alone.
+    /// environment count, as in the paper's Figs. 6–7 (which leave in-scattered direct
+    /// light out, and most likely its other speed-ups): PT then casts no shadow ray at
+    /// each event, and the speed-ups are those of the walks alone.
     pub nee: Option<bool>,
     pub full: Budget,
     pub quick: Budget,
