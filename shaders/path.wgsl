@@ -16,7 +16,7 @@ const C_LEAKS: u32 = 3u;
 const C_CAPPED: u32 = 4u;
 const C_NON_FINITE: u32 = 5u;
 
-var<private> stats: array<u32, 9>;
+var<private> stats: array<u32, PATH_COUNTERS>;
 
 struct PathState {
     pos: vec3<f32>,
@@ -430,6 +430,8 @@ fn add_counter(slot: u32, v: u32) {
 const C_PENDING: u32 = 6u;
 const C_TRUNCATED: u32 = 7u;
 const C_EXACT: u32 = 8u;
+// Scattering events simulated inside exact steps' walks (their N).
+const C_EXACT_EVENTS: u32 = 9u;
 
 /// A path between dispatches, one per (pixel, lane), in `accum` as SLOT = 7 + 2·PATH_NEE_M
 /// vec4s (prepended by kernels.rs): position and β (once the path has ended and its NEE
@@ -576,7 +578,7 @@ fn slot_begin(idx: u32, kind: u32) -> bool {
     if pixel >= width * params.image.y {
         return false;
     }
-    for (var i = 0u; i < 9u; i++) {
+    for (var i = 0u; i < PATH_COUNTERS; i++) {
         stats[i] = 0u;
     }
     sl_base = idx * SLOT;
@@ -707,12 +709,12 @@ fn slot_end(was_done: bool, count_pending: bool) {
 
 /// The invocation's counts added to the counters: once per subgroup, by its first active
 /// lane, where the kernel aggregates (gpu/kernels.rs, aggregate_wgsl). The staged render
-/// adds them at every turn, and every invocation adding to the same nine words would
+/// adds them at every turn, and every invocation adding to the same ten words would
 /// queue up on them. A sum is taken in 16-bit halves, which no subgroup of up to 2^16
 /// lanes can overflow.
 fn add_stats() {
     let leader = sg_rank() == 0u;
-    for (var i = 0u; i < 9u; i++) {
+    for (var i = 0u; i < PATH_COUNTERS; i++) {
         let lo = sg_sum(stats[i] & 0xffffu);
         let hi = sg_sum(stats[i] >> 16u);
         if leader {

@@ -76,6 +76,7 @@ fn scatter_at(channel: u32) -> bool {
         let walk = exact_walk(tau, g, channel, m, frame, max(free / r, 1.0));
         stats[C_STEPS] += 1u;
         stats[C_EXACT] += 1u;
+        stats[C_EXACT_EVENTS] += u32(walk.n);
         n = walk.n;
         ex_exit_x = walk.x;
         ex_exit_w = walk.w;

@@ -531,6 +531,74 @@ fn white_furnace_gpu() {
     }
 }
 
+/// The kernels count the scattering events inside exact steps' walks (`exact_events`, the
+/// walks' N), as the CPU does (integrators.rs, `exact_walk_events_add_up_to_pts_events`):
+/// with every step exact, albedo 1 and NEE off, they and the fallback events add up in
+/// expectation to PT's events per path. Eight renders of 24² × 30 spp on each side (on
+/// different seeds) give the batch means' spread; with its ~14 degrees of freedom (Welch)
+/// |t| > 5.5 has probability ~1e-4 under agreement. Uncounted, the walks' events would
+/// leave ST-CVAE's total at ~1 a path against PT's ~15.
+#[test]
+fn gpu_exact_walk_events_add_up_to_pts_events() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let text = r#"
+[camera]
+origin = [0.0, 0.0, 4.0]
+target = [0.0, 0.0, 0.0]
+fov_deg = 18.0
+width = 24
+height = 24
+[object]
+shape = "sphere"
+radius = 0.5
+[medium]
+sigma_t = [20.0, 40.0, 80.0]
+albedo = [1.0, 1.0, 1.0]
+g = 0.5
+[environment]
+radiance = [1.0, 1.0, 1.0]
+[render]
+grid_resolution = 64
+"#;
+    let exact = IntegratorSettings {
+        exact_tau: 50.0,
+        max_tau: 49.0,
+        min_tau: 0.0,
+        ..settings(IntegratorKind::Stcvae, false)
+    };
+    let pt = settings(IntegratorKind::Pt, false);
+    let mut means = Vec::new();
+    for (set, seed) in [(&pt, 40), (&exact, 60)] {
+        let s = common::build_scene(text, set.kind == IntegratorKind::Stcvae);
+        let batches: Vec<f64> = (0..8)
+            .map(|b| {
+                let st = on_gpu(&ctx, &s, set, &opts(30, seed + b)).stats;
+                if set.kind == IntegratorKind::Stcvae {
+                    assert!(
+                        st.exact_steps == st.steps
+                            && st.steps > st.paths / 4
+                            && st.exact_events >= st.exact_steps,
+                        "every step exact, each walk of at least one event: {st:?}"
+                    );
+                }
+                (st.events + st.exact_events) as f64 / st.paths as f64
+            })
+            .collect();
+        let n = batches.len() as f64;
+        let mean = batches.iter().sum::<f64>() / n;
+        let var = batches.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
+        means.push((mean, (var / n).sqrt()));
+    }
+    let ((a, sa), (b, sb)) = (means[0], means[1]);
+    let t = (a - b) / (sa * sa + sb * sb).sqrt();
+    eprintln!("GPU events a path: PT {a:.3} ± {sa:.3}, ST-CVAE {b:.3} ± {sb:.3}, t = {t:.2}");
+    assert!(
+        t.abs() < 5.5 && a > 5.0,
+        "PT {a:.3} ± {sa:.3} events a path, ST-CVAE's exact walks and fallbacks {b:.3} ± {sb:.3} (t = {t:.2})"
+    );
+}
+
 /// The kernels pick each sample's hero channel with the same function as the CPU
 /// (`channel_offset`): in a 1-spp furnace render every pixel is 3L in exactly the channel
 /// the CPU would have traced there, for two seeds.

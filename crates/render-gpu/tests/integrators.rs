@@ -629,6 +629,60 @@ fn exact_sphere_steps_match_pt() {
     }
 }
 
+/// An exact sphere step simulates the same walk PT would, so the scattering events inside
+/// exact steps' walks (`exact_events`, each walk's N) plus the fallback events add up, in
+/// expectation, to PT's events per path: the work the step column hides, as the
+/// complexity experiment reports it. Albedo 1 and NEE off, so that neither integrator's
+/// roulette or weights shorten a path; every step exact (max_tau below exact_tau). Ten
+/// batches of 20,000 paths on each side give the means' standard errors (from the batch
+/// means' spread, the per-path counts being heavy-tailed); |z| < 4.5. Uncounted, the walks'
+/// events would leave ST-CVAE's total at a few events a path against PT's hundreds.
+#[test]
+fn exact_walk_events_add_up_to_pts_events() {
+    let m = model();
+    let text = SUN_SCENE
+        .replace(
+            "sigma_t = [4.0, 12.0, 40.0]",
+            "sigma_t = [20.0, 40.0, 80.0]",
+        )
+        .replace("albedo = [0.99, 0.95, 0.8]", "albedo = [1.0, 1.0, 1.0]")
+        .replace("fov_deg = 13.0", "fov_deg = 18.0");
+    let (_, s) = scene(&text, true);
+    let exact = IntegratorSettings {
+        exact_tau: 50.0,
+        max_tau: 49.0,
+        min_tau: 0.0,
+        ..settings(IntegratorKind::Stcvae, false, Some(&m))
+    };
+    let pt = settings(IntegratorKind::Pt, false, None);
+    // Mean and standard error of the per-batch events per path.
+    let per_path = |set: &IntegratorSettings, seed: u64, total: fn(&PathStats) -> u64| {
+        let batches: Vec<f64> = (0..10)
+            .map(|b| {
+                let (_, _, st) = estimate(&s, set, 20_000, seed + b);
+                total(&st) as f64 / st.paths as f64
+            })
+            .collect();
+        let n = batches.len() as f64;
+        let mean = batches.iter().sum::<f64>() / n;
+        let var = batches.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
+        (mean, (var / n).sqrt())
+    };
+    let (a, sa) = per_path(&pt, 100, |st| st.events);
+    let (b, sb) = per_path(&exact, 200, |st| st.exact_events + st.events);
+    let (_, _, st) = estimate(&s, &exact, 20_000, 300);
+    assert!(
+        st.steps > st.paths / 2 && st.exact_steps == st.steps && st.exact_events >= st.steps,
+        "every step exact, each walk of at least one event: {st:?}"
+    );
+    let zc = z(a, sa, b, sb);
+    eprintln!("events a path: PT {a:.3} ± {sa:.3}, ST-CVAE {b:.3} ± {sb:.3}, z = {zc:.2}");
+    assert!(
+        zc.abs() < 4.5 && a > 10.0,
+        "PT {a:.2} ± {sa:.2} events a path, ST-CVAE's exact walks and fallbacks {b:.2} ± {sb:.2} (z = {zc:.2})"
+    );
+}
+
 /// At min_tau = 0 (the authors' behaviour: a sphere step however thin the free region)
 /// a collision falls back to a PT event only where even the exact surface distance leaves
 /// no ball (within eps of the surface: collisions moved back within an entering path's

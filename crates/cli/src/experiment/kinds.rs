@@ -391,6 +391,7 @@ fn complexity(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         "pt_events_per_path",
         "st_steps_per_path",
         "st_exact_steps_per_path",
+        "st_exact_walk_events_per_path",
         "st_fallback_events_per_path",
     ]);
     let mut scenes = vec![ctx.cfg.scene_path()];
@@ -415,6 +416,7 @@ fn complexity(ctx: &Ctx, rep: &mut Report) -> Result<()> {
                 pt.per_path(pt.stats.events).into(),
                 st.per_path(st.stats.steps).into(),
                 st.per_path(st.stats.exact_steps).into(),
+                st.per_path(st.stats.exact_events).into(),
                 st.per_path(st.stats.events).into(),
             ]);
             tp.push((k, pt.seconds));
@@ -436,7 +438,7 @@ fn complexity(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         }
         curves.push((obj, tp, ts));
     }
-    rep.text("Events per path count real scattering events (PT) and sphere steps plus thin-region PT fallback events (ST-CVAE), over all pixels (background included). Of the sphere steps, those of optical radius below exact_tau have their walk simulated exactly (st_exact_steps_per_path); the events inside those walks are not counted, so ST-CVAE's work is understated where exact steps are many.\n");
+    rep.text("Events per path count real scattering events (PT) and sphere steps plus thin-region PT fallback events (ST-CVAE), over all pixels (background included). Of the sphere steps, those of optical radius below exact_tau have their walk simulated exactly (st_exact_steps_per_path), with st_exact_walk_events_per_path scattering events inside them: work the steps column does not show (the work maps count a step as one).\n");
     rep.table();
     for (obj, k, max, f) in figs {
         rep.image(&format!("{obj}, density ×{k}: PT events (left) vs ST-CVAE steps + events (right) per path, log scale, white = {max:.0}"), &f);
@@ -630,6 +632,7 @@ fn fallback(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         "var_ratio_se",
         "st_steps_per_path",
         "st_exact_steps_per_path",
+        "st_exact_walk_events_per_path",
         "st_fallback_events_per_path",
         "bias_rmse",
         "bias_upper95",
@@ -675,6 +678,7 @@ fn fallback(ctx: &Ctx, rep: &mut Report) -> Result<()> {
                 c.var_ratio_se.into(),
                 st.per_path(st.stats.steps).into(),
                 st.per_path(st.stats.exact_steps).into(),
+                st.per_path(st.stats.exact_events).into(),
                 st.per_path(st.stats.events).into(),
                 c.bias.into(),
                 c.bias_upper95.into(),
@@ -701,7 +705,7 @@ fn fallback(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             }
         }
     }
-    rep.text(&format!("Points where σ_t·r < min_tau take an ordinary PT event instead of a sphere step; a step of optical radius below exact_tau has its walk simulated exactly, above it drawn from the models. The authors draw every step from the models, however thin the free region: min_tau = 0 with exact_tau = 0. With the scene's exact_tau ({}) every threshold below it only trades exact walks for PT events. Speed-up against PT at equal spp; min_tau = 0 is drawn at {}. Steps per path count both kinds of step (the exact ones also apart; the events inside an exact walk are not counted), over all pixels. Bias RMSE is noise-corrected, with its one-sided 95 % bound.\n", crate::progress::significant4(default_exact), crate::progress::significant4(zero_at)));
+    rep.text(&format!("Points where σ_t·r < min_tau take an ordinary PT event instead of a sphere step; a step of optical radius below exact_tau has its walk simulated exactly, above it drawn from the models. The authors draw every step from the models, however thin the free region: min_tau = 0 with exact_tau = 0. With the scene's exact_tau ({}) every threshold below it only trades exact walks for PT events. Speed-up against PT at equal spp; min_tau = 0 is drawn at {}. Steps per path count both kinds of step (the exact ones also apart, with the scattering events simulated inside them), over all pixels. Bias RMSE is noise-corrected, with its one-sided 95 % bound.\n", crate::progress::significant4(default_exact), crate::progress::significant4(zero_at)));
     rep.table();
     let s: Vec<_> = curves.into_iter().map(|(l, sp)| series(&l, sp)).collect();
     plot(

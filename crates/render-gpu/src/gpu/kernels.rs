@@ -149,9 +149,9 @@ fn profile_wgsl(on: bool) -> String {
          }}\n\
          fn prof_end() {{\n\
          \x20   for (var i = 0u; i < {n}u; i++) {{\n\
-         \x20       add_counter(9u + 3u * i, prof_active[i]);\n\
-         \x20       add_counter(10u + 3u * i, prof_capacity[i]);\n\
-         \x20       add_counter(11u + 3u * i, prof_passes[i]);\n\
+         \x20       add_counter(PATH_COUNTERS + 3u * i, prof_active[i]);\n\
+         \x20       add_counter(PATH_COUNTERS + 1u + 3u * i, prof_capacity[i]);\n\
+         \x20       add_counter(PATH_COUNTERS + 2u + 3u * i, prof_passes[i]);\n\
          \x20   }}\n\
          }}\n"
     )
@@ -389,6 +389,7 @@ pub fn source(
          const PATH_NEE_M: u32 = {path_nee_m}u;\nconst SLOT: u32 = {}u;\n\
          const STAGE_VEC4S: u32 = {STAGE_VEC4S}u;\n\
          const NODE_COUNT_BITS: u32 = {}u;\nconst COUNTER_WORDS: u32 = {}u;\n\
+         const PATH_COUNTERS: u32 = {}u;\n\
          const STAGED_STEPS: bool = {};\nconst OVERLAPS: bool = {};\n\
          const DIELECTRIC: bool = {};\nconst ENV_MAP: bool = {};\n\
          const LIGHTS: u32 = {}u;\nconst NEE: bool = {};\n{}{}",
@@ -406,6 +407,7 @@ pub fn source(
         slot_vec4s(path_nee_m),
         super::scene_buffers::GpuNode::COUNT_BITS,
         2 * super::resources::COUNTER_SLOTS,
+        super::resources::PATH_COUNTERS,
         shape.staged && shape.steps,
         switches.overlaps,
         switches.dielectric,

@@ -502,9 +502,10 @@ fn tally(
     let pair = |k: usize| counter(c, k);
     if let Some(lanes) = &mut dispatch.lanes {
         for (i, p) in lanes.phases.iter_mut().enumerate() {
-            p.active += pair(9 + 3 * i);
-            p.capacity += pair(10 + 3 * i);
-            p.passes += pair(11 + 3 * i);
+            let k = super::resources::PATH_COUNTERS as usize + 3 * i;
+            p.active += pair(k);
+            p.capacity += pair(k + 1);
+            p.passes += pair(k + 2);
         }
     }
     stats.add(&PathStats {
@@ -515,6 +516,7 @@ fn tally(
         capped: pair(4),
         non_finite: pair(5),
         exact_steps: pair(8),
+        exact_events: pair(9),
     });
     if pair(7) > 0 {
         let hint = if budget > 1 {

@@ -30,10 +30,14 @@ pub struct Resources {
     _inputs: Vec<wgpu::Buffer>,
 }
 
-/// Counter slots (lo/hi u32 pairs): nine path counters (`C_*` in shaders/path.wgsl), then
-/// per lane-profile phase its active lanes, its lane capacity and its subgroup passes
+/// The path counters (`C_*` in shaders/path.wgsl, which gets this number as
+/// `PATH_COUNTERS`): the first counter slots.
+pub const PATH_COUNTERS: u64 = 10;
+
+/// Counter slots (lo/hi u32 pairs): the path counters, then per lane-profile phase its
+/// active lanes, its lane capacity and its subgroup passes
 /// ([`super::kernels::PROFILE_PHASES`]).
-pub const COUNTER_SLOTS: u64 = 9 + 3 * super::kernels::PROFILE_PHASES.len() as u64;
+pub const COUNTER_SLOTS: u64 = PATH_COUNTERS + 3 * super::kernels::PROFILE_PHASES.len() as u64;
 
 /// The counter slot of the invocations still pending after a dispatch (`C_PENDING` in
 /// shaders/path.wgsl).

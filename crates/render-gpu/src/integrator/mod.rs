@@ -33,6 +33,10 @@ pub struct PathStats {
     /// Of those, the steps whose walk was simulated exactly (below `exact_tau`).
     #[serde(default)]
     pub exact_steps: u64,
+    /// The scattering events simulated inside those walks (each walk's N): the work an
+    /// exact step hides, which `events` and `steps` do not show.
+    #[serde(default)]
+    pub exact_events: u64,
     /// Paths found outside the medium while believed inside: a flight from a sphere-step
     /// exit that met the surface from outside (the exit was not inside after all), or a
     /// collision outside the mesh's bounds. Should stay 0.
@@ -49,6 +53,7 @@ impl PathStats {
         self.events += o.events;
         self.steps += o.steps;
         self.exact_steps += o.exact_steps;
+        self.exact_events += o.exact_events;
         self.leaks += o.leaks;
         self.capped += o.capped;
         self.non_finite += o.non_finite;

@@ -189,6 +189,7 @@ fn resolve_exact(
         let Some(Waiting::Exact(step)) = path.step.take() else {
             unreachable!("an exact step waits in slot {i}")
         };
+        path.stats.exact_events += walk.n as u64;
         step.finish(scene, set, path.channel, &mut path.s, walk, &mut path.rng);
     }
 }
