@@ -167,12 +167,14 @@ pub(crate) fn write_image_set(
     exposure: f32,
     json: Option<&[u8]>,
 ) -> Result<()> {
-    write_image_set_with(out, img, Some(tag), exposure, json, None)
+    write_image_set_with(out, img, Some(tag), exposure, json, None, &[])
 }
 
 /// [`write_image_set`] with, given `variance`, OUT.var.exr in the same set (untagged:
 /// `merge` refuses it as a render). Without `tag` OUT.exr is untagged too: a picture
 /// made from renders (a montage, a map), not a render that `merge` could average.
+/// `inputs`: the files the command read (as `paths::check_not_input` takes them), which
+/// an OUT.var.exr that looks stale is not removed as.
 pub(crate) fn write_image_set_with(
     out: &Path,
     img: &render_gpu::image_io::RgbImage,
@@ -180,6 +182,7 @@ pub(crate) fn write_image_set_with(
     exposure: f32,
     json: Option<&[u8]>,
     variance: Option<&render_gpu::image_io::RgbImage>,
+    inputs: &[(String, PathBuf)],
 ) -> Result<()> {
     let (exr, png, js) = (
         image_out(out, "exr"),
@@ -211,7 +214,13 @@ pub(crate) fn write_image_set_with(
     // untagged image with no PNG beside it, as variance images are written: a render,
     // montage or map the user named OUT.var (its EXR is OUT.var.exr) has OUT.var.png, and
     // a render its tag; one was deleted as a stale variance image.
-    let stale = variance.is_none() && var.is_file() && !foreign_var_exr(out);
+    // Nor a file this command read: an environment map named OUT.var.exr (untagged, no
+    // PNG) was deleted by the render that had just read it.
+    let read = {
+        let v = crate::paths::identity(&var);
+        inputs.iter().any(|(_, p)| crate::paths::identity(p) == v)
+    };
+    let stale = variance.is_none() && var.is_file() && !foreign_var_exr(out) && !read;
     scatter_sim::output::write_atomic_set(&files)
         .map_err(|(path, e)| anyhow!("cannot write {}: {e}", path.display()))?;
     if stale {
@@ -257,6 +266,9 @@ fn merge_images(a: &Args) -> Result<()> {
         "spp": tag.spp,
         "scene_hash": format!("{:016x}", tag.scene_hash),
         "seeds": tag.seeds,
+        // As the render report's seed_text: readers that hold numbers as doubles (jq,
+        // JavaScript) round seeds above 2^53, and two seeds read as one.
+        "seeds_text": tag.seeds.iter().map(|s| s.to_string()).collect::<Vec<_>>(),
         // Whether inputs of unknown seed (older files, paired averages) are in it too.
         "unknown_seeds": tag.some_unknown(),
         "width": img.width,

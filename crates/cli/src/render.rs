@@ -712,6 +712,7 @@ pub fn run(a: Args) -> Result<()> {
         a.exposure,
         Some(&serde_json::to_vec_pretty(&report)?),
         out.variance.as_ref(),
+        &inputs,
     )?;
     if out.stats.capped > 0 || out.stats.non_finite > 0 {
         eprintln!(

@@ -515,6 +515,7 @@ fn render_writes_exr_png_json_and_merge_averages_by_spp() {
         serde_json::from_str(&std::fs::read_to_string(m.with_extension("json")).unwrap()).unwrap();
     assert_eq!(report["spp"], 12);
     assert_eq!(report["seeds"], serde_json::json!([1, 2]));
+    assert_eq!(report["seeds_text"], serde_json::json!(["1", "2"]));
     // The merged mean is the spp-weighted mean of the inputs' (4 and 8 spp).
     let mean = |p: &Path| -> Vec<f64> {
         let j: serde_json::Value =
@@ -2167,6 +2168,48 @@ fn render_variance_writes_a_variance_image() {
         common::stderr(&e)
     );
     assert!(!var.exists());
+    // Nor is a file the render read: an environment map named sky.var.exr (untagged, no
+    // PNG, as a variance image) was deleted by `render --out sky`, which had just read it.
+    let sky = d.path().join("sky");
+    ok(&stcvae(&[
+        "render",
+        "--scene",
+        s,
+        "--spp",
+        "6",
+        "--variance",
+        "--out",
+        sky.to_str().unwrap(),
+    ]));
+    for ext in ["exr", "png", "json"] {
+        std::fs::remove_file(d.path().join(format!("sky.{ext}"))).unwrap();
+    }
+    let lit = d.path().join("lit.toml");
+    let text = std::fs::read_to_string(&scene).unwrap();
+    assert!(text.contains("[environment]\n"));
+    std::fs::write(
+        &lit,
+        text.replace("[environment]\n", "[environment]\nfile = \"sky.var.exr\"\n"),
+    )
+    .unwrap();
+    let e = stcvae(&[
+        "render",
+        "--scene",
+        lit.to_str().unwrap(),
+        "--spp",
+        "2",
+        "--out",
+        sky.to_str().unwrap(),
+    ]);
+    assert!(
+        e.status.success() && !common::stderr(&e).contains("removed"),
+        "{}",
+        common::stderr(&e)
+    );
+    assert!(
+        d.path().join("sky.var.exr").exists(),
+        "the environment map was removed"
+    );
     // But a render the user named v.var (its files v.var.exr, .png, .json) is no variance
     // image of v, and stays.
     let named = d.path().join("v.var");

@@ -46,8 +46,8 @@ pub const QUANTITIES: [&str; 8] = [
 /// The joint distributions compared (paper §5.3, design notes): the exit direction's
 /// angles against the exit point's cos θ, by their columns in [`QUANTITIES`]. Their KS is
 /// the 2-D statistic ([`ks_two_sample_2d`]), their W1 the sliced one
-/// ([`sliced_wasserstein1`], [`SLICES`] directions; cos θ and the angles in radians as
-/// they are). Measured where the marginals are (φ = 1).
+/// ([`sliced_wasserstein1`], [`SLICES`] directions; cos θ, α and β, all cosines in
+/// [−1, 1], as they are). Measured where the marginals are (φ = 1).
 pub const PAIRS: [(&str, usize, usize); 2] = [("cos_theta_alpha", 2, 3), ("cos_theta_beta", 2, 4)];
 
 /// Directions of the sliced W1: the mean over 64 of them is within ~0.1 % of the

@@ -467,8 +467,10 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
                     o.path.display()
                 ),
                 (Some(s), _) => format!(
-                    "{}: shares seed {s} with {} (its samples, on either device, are in both): \
-                     they would count twice; merge renders of different seeds",
+                    "{}: shares seed {s} with {}: rendered on one device, its samples are in \
+                     both and would count twice (the tag does not record the device, and the \
+                     CPU and GPU draw different streams from one seed, so renders of one seed \
+                     on the two are refused too); merge renders of different seeds",
                     p.display(),
                     o.path.display(),
                 ),

@@ -116,7 +116,10 @@ pub fn wasserstein1(a: &mut [f64], b: &mut [f64]) -> f64 {
 /// Two-dimensional two-sample KS statistic (Peacock's idea, evaluated at the data points
 /// as Fasano and Franceschini do): the largest difference between the two samples'
 /// shares in any of the four quadrants {x ≤ x₀ or > x₀} × {y ≤ y₀ or > y₀} about any
-/// point (x₀, y₀) of either sample. Unlike the marginals' statistics it sees a wrong
+/// point (x₀, y₀) of either sample. The larger of the two samples' maxima, where
+/// Fasano–Franceschini (and Numerical Recipes' ks2d2s) average them: never below theirs,
+/// so their critical values do not apply (the docs compare it with its own null level,
+/// simulator against simulator). Unlike the marginals' statistics it sees a wrong
 /// dependence between the coordinates (a model whose exit direction is right on average
 /// but paired with the wrong exit points). Unchanged by increasing maps of either axis (it
 /// depends on ranks only; a decreasing map swaps closed and open quadrant sides), and NaN

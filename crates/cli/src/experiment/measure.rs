@@ -531,7 +531,7 @@ pub fn save(
 /// one, as it was until 2026-12-02, two work maps of a scene could be averaged as renders).
 pub fn save_picture(ctx: &Ctx, name: &str, img: &RgbImage, exposure: f32) -> Result<String> {
     ctx.saving()?;
-    crate::merge::write_image_set_with(&ctx.out.join(name), img, None, exposure, None, None)?;
+    crate::merge::write_image_set_with(&ctx.out.join(name), img, None, exposure, None, None, &[])?;
     Ok(format!("{name}.png"))
 }
 
