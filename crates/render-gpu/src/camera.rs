@@ -23,11 +23,15 @@ impl Camera {
     pub fn new(d: &CameraDesc) -> Self {
         let v = |a: [f64; 3]| Vec3::new(a[0] as f32, a[1] as f32, a[2] as f32);
         let origin = v(d.origin);
-        let forward = (v(d.target) - origin).normalize();
+        // Normalised in f64, as the scene check does (scene::unit_f32): in f32 tiny
+        // components square to subnormals and the result is not of unit length.
+        let unit = |w: Vec3| w.as_dvec3().normalize().as_vec3();
+        let forward = unit(v(d.target) - origin);
         // `up` normalised first, as the scene check does (scene::camera_basis_f32): the
         // raw cross product of a valid but tiny up ([0, 1e-24, 1e-22]) squared to 0 in
         // f32 and every ray was NaN.
-        let right = forward.cross(v(d.up).normalize()).normalize();
+        let up_dir = glam::DVec3::from_array(d.up).normalize().as_vec3();
+        let right = forward.cross(up_dir).normalize();
         let up = right.cross(forward);
         Self {
             origin,

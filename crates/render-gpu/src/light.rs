@@ -45,12 +45,9 @@ pub fn disk_radiance(irradiance: f64, sin2: f64) -> f64 {
 
 impl DirectionalLight {
     pub fn new(d: &LightDesc) -> Self {
-        let dir = Vec3::new(
-            d.direction[0] as f32,
-            d.direction[1] as f32,
-            d.direction[2] as f32,
-        )
-        .normalize();
+        // In f64 (scene::unit_f32, which checked it): in f32 tiny components square to
+        // subnormals and the result is not of unit length.
+        let dir = glam::DVec3::from_array(d.direction).normalize().as_vec3();
         let half = (d.angular_diameter_deg * 0.5).to_radians();
         let irradiance = d.irradiance.map(|v| v as f32);
         let (one_minus_cos, sin2_max, radiance) = if let Some(s2) = disk_sin2(d) {

@@ -51,6 +51,22 @@ pub fn describe_toml_error(path: &Path, text: &str, e: &toml::de::Error) -> Stri
     // A field missing from the top level is reported at the document's start, whose first
     // line (often a comment) says nothing: name the field alone.
     let top_level = e.span().is_some_and(|s| s.start == 0) && msg.starts_with("missing field");
+    // A file opening with a table's header is ambiguous there: toml reports that table's
+    // missing field at byte 0 too (a scene opening with [camera] and no fov_deg), and
+    // `height` is a field of two tables. Both places named.
+    let first = text
+        .trim_start_matches('\u{feff}')
+        .lines()
+        .next()
+        .unwrap_or("")
+        .trim();
+    if top_level && first.starts_with('[') {
+        let shown = printable(&first.chars().take(80).collect::<String>());
+        return format!(
+            "{}: {msg} (at the top level or in `{shown}`)",
+            path.display()
+        );
+    }
     let at = e.span().filter(|_| !top_level).map(|s| {
         let start = s.start.min(text.len());
         let line_start = text[..start].rfind('\n').map_or(0, |i| i + 1);
@@ -664,8 +680,9 @@ impl SceneFile {
                 r.nee_samples
             ));
         }
+        // In f32, as the renderers hold it: 1e-300 is 0 there, no step at all.
         if let Some(t) = r.max_tau
-            && !(t > 0.0 && t.is_finite())
+            && !(t as f32 > 0.0 && t.is_finite())
         {
             return Err(format!(
                 "render.max_tau = {} is out of range: allowed (0, the model's training maximum]",
@@ -676,7 +693,7 @@ impl SceneFile {
         // its name. (Without max_tau the cap is the model's training maximum, 300.)
         if let Some(t) = r.max_tau
             && r.integrator == IntegratorKind::Stcvae
-            && t < r.min_tau_or_default()
+            && (t as f32) < r.min_tau_or_default() as f32
         {
             return Err(format!(
                 "render.max_tau = {t} is below render.min_tau = {}{}: no sphere step could be \
@@ -706,10 +723,11 @@ fn bounded3(name: &str, v: [f64; 3], max: f64) -> Result<(), String> {
     Ok(())
 }
 
-/// `v` normalised the way the renderers do it (in f32), or None when it collapses there.
+/// `v` normalised the way the renderers do it (in f64, then taken to f32: normalised in
+/// f32, components below ~1e-21 squared to subnormals, and [3e-23, 0, -6e-23] came out
+/// of unit length by 7 %, its light that much darker), or None when it collapses.
 fn unit_f32(v: [f64; 3]) -> Option<glam::Vec3> {
-    let v = glam::DVec3::from_array(v).as_vec3();
-    let u = v.normalize_or_zero();
+    let u = glam::DVec3::from_array(v).normalize_or_zero().as_vec3();
     (u != glam::Vec3::ZERO && u.is_finite()).then_some(u)
 }
 

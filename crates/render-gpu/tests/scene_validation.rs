@@ -177,9 +177,10 @@ fn values_that_break_single_precision_are_refused() {
             "target = [0.0, 0.0, 4.0000000001]",
             "camera.target",
         ),
+        // Too short to normalise even in f64.
         (
             "fov_deg = 20.0",
-            "fov_deg = 20.0\nup = [0.0, 1e-30, 0.0]",
+            "fov_deg = 20.0\nup = [0.0, 1e-320, 0.0]",
             "camera.up",
         ),
         (
@@ -208,9 +209,32 @@ fn values_that_break_single_precision_are_refused() {
     );
     let e = err(&format!(
         "{BASE}{}",
-        light.replace("[0.0, 0.0, -1.0]", "[0.0, 0.0, -1e-40]")
+        light.replace("[0.0, 0.0, -1.0]", "[0.0, 0.0, -1e-320]")
     ));
     assert!(e.contains("light[0].direction"), "{e}");
+    // Short but normalisable in f64: accepted, and of unit length in the renderer. In f32
+    // components below ~1e-21 squared to subnormals: [3e-23, 0, -6e-23] came out 7 % short
+    // of unit length and its light as much darker; up = [0, 1e-30, 0] and a direction of
+    // [0, 0, -1e-40] were refused though valid.
+    let short = format!(
+        "{}{}",
+        BASE.replace("fov_deg = 20.0", "fov_deg = 20.0\nup = [0.0, 1e-30, 0.0]"),
+        light.replace("[0.0, 0.0, -1.0]", "[3e-23, 0.0, -6e-23]")
+    );
+    let f = SceneFile::parse(Path::new("s.toml"), &short).unwrap();
+    let l = render_gpu::light::DirectionalLight::new(&f.lights[0]);
+    let want = glam::Vec3::new(1.0, 0.0, -2.0).normalize();
+    assert!((l.to_light + want).length() < 1e-6, "{:?}", l.to_light);
+    let cam = render_gpu::camera::Camera::new(&f.camera);
+    assert!((cam.up() - glam::Vec3::Y).length() < 1e-6, "{:?}", cam.up());
+    SceneFile::parse(
+        Path::new("s.toml"),
+        &format!(
+            "{BASE}{}",
+            light.replace("[0.0, 0.0, -1.0]", "[0.0, 0.0, -1e-40]")
+        ),
+    )
+    .unwrap();
     let e = err(&format!(
         "{BASE}\n[environment]\nradiance = [1.0, 1e39, 1.0]\n"
     ));
@@ -309,6 +333,15 @@ fn a_missing_table_is_named_without_the_first_line() {
     // A field missing inside a table still points at that table.
     let e = err(&text.replace("sigma_t = [10.0, 10.0, 10.0]\n", ""));
     assert!(e.contains("missing field `sigma_t`"), "{e}");
+    // A file opening with the table that lacks the field: toml reports it at byte 0 as a
+    // top-level field, so both places are named (it said "missing field `fov_deg`" alone).
+    assert!(BASE.trim_start().starts_with("[camera]"), "{BASE}");
+    let fov = BASE.lines().find(|l| l.starts_with("fov_deg")).unwrap();
+    let e = err(&BASE.trim_start().replace(&format!("{fov}\n"), ""));
+    assert!(
+        e.contains("missing field `fov_deg` (at the top level or in `[camera]`)"),
+        "{e}"
+    );
 }
 
 /// A binary file given as a scene (valid UTF-8 with NULs and escape bytes, as the head of
