@@ -125,6 +125,12 @@ fn other_fields_are_checked() {
     assert!(e.contains("light[0].direction"), "{e}");
     let e = err(&format!("{BASE}\n[render]\nspp = 0\n"));
     assert!(e.contains("render.spp"), "{e}");
+    // A max_tau that is 0 in f32, as the renderers hold it: ST-CVAE with no sphere step
+    // (PT under its name) rendered without a word.
+    let e = err(&format!(
+        "{BASE}\n[render]\nintegrator = \"stcvae\"\nmin_tau = 0.0\nmax_tau = 1e-300\n"
+    ));
+    assert!(e.contains("render.max_tau = 1e-300 is out of range"), "{e}");
     for bad in ["-1.0", "51.0", "nan"] {
         let e = err(&format!("{BASE}\n[render]\nexact_tau = {bad}\n"));
         assert!(
