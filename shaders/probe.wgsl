@@ -251,7 +251,7 @@ fn probe_loop_limit(@builtin(global_invocation_id) gid: vec3<u32>) {
     set_f(i, 2u, x);
 }
 
-/// In: the nine path counters' counts (u32 bits) at 0..9. Adds them to the counters as a
+/// In: the path counters' counts (u32 bits) at 0..PATH_COUNTERS. Adds them to the counters as a
 /// path slot adds its own (path.wgsl, add_stats); items past the count leave their lanes
 /// inactive, as finished slots do.
 @compute @workgroup_size(WORKGROUP)
@@ -260,7 +260,7 @@ fn probe_counters(@builtin(global_invocation_id) gid: vec3<u32>) {
     if i >= params.image.x {
         return;
     }
-    for (var k = 0u; k < 9u; k++) {
+    for (var k = 0u; k < PATH_COUNTERS; k++) {
         stats[k] = bitcast<u32>(item_f(i, k));
     }
     add_stats();

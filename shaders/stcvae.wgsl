@@ -77,6 +77,13 @@ fn scatter_at(channel: u32) -> bool {
         stats[C_STEPS] += 1u;
         stats[C_EXACT] += 1u;
         stats[C_EXACT_EVENTS] += u32(walk.n);
+        // A u32 of this invocation until add_stats: flushed before it could wrap (above
+        // |g| = 0.98 every step is exact up to max_tau, ~10⁵ events a walk at g = −0.999,
+        // and a dispatch may run up to 65,535 bounces).
+        if stats[C_EXACT_EVENTS] >= 0x80000000u {
+            add_counter(C_EXACT_EVENTS, stats[C_EXACT_EVENTS]);
+            stats[C_EXACT_EVENTS] = 0u;
+        }
         n = walk.n;
         ex_exit_x = walk.x;
         ex_exit_w = walk.w;

@@ -258,7 +258,12 @@ fn path_counters_add_up_per_subgroup_and_per_invocation() {
     let Some(ctx) = gpu() else { return };
     let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
     let mut rng = WalkRng::from_seed(41);
-    let counts: Vec<[u32; 9]> = (0..203)
+    use render_gpu::gpu::probe::PROBE_COUNTERS;
+    assert_eq!(
+        PROBE_COUNTERS, 10,
+        "every path counter, the walks' events too"
+    );
+    let counts: Vec<[u32; PROBE_COUNTERS]> = (0..203)
         .map(|i| {
             std::array::from_fn(|k| match (i + k) % 4 {
                 _ if i < 64 => [u32::MAX, 0xffff][i % 2],
@@ -269,7 +274,8 @@ fn path_counters_add_up_per_subgroup_and_per_invocation() {
             })
         })
         .collect();
-    let want: [u64; 9] = std::array::from_fn(|k| counts.iter().map(|c| c[k] as u64).sum());
+    let want: [u64; PROBE_COUNTERS] =
+        std::array::from_fn(|k| counts.iter().map(|c| c[k] as u64).sum());
     assert!(
         want.iter().all(|&w| w > u32::MAX as u64),
         "every total carries"
@@ -535,9 +541,11 @@ fn white_furnace_gpu() {
 /// walks' N), as the CPU does (integrators.rs, `exact_walk_events_add_up_to_pts_events`):
 /// with every step exact, albedo 1 and NEE off, they and the fallback events add up in
 /// expectation to PT's events per path. Eight renders of 24² × 30 spp on each side (on
-/// different seeds) give the batch means' spread; with its ~14 degrees of freedom (Welch)
-/// |t| > 5.5 has probability ~1e-4 under agreement. Uncounted, the walks' events would
-/// leave ST-CVAE's total at ~1 a path against PT's ~15.
+/// different seeds) give the batch means' spread; with its ~11 degrees of freedom (Welch,
+/// measured spreads) |t| > 5.5 has probability ~2e-4 under agreement. Uncounted, the walks'
+/// events would leave ST-CVAE's total at ~1 a path against PT's ~15; each walk counted one
+/// short would move it by the exact steps a path (~3), checked to be above 4 standard
+/// errors of the difference.
 #[test]
 fn gpu_exact_walk_events_add_up_to_pts_events() {
     let Some(ctx) = gpu() else { return };
@@ -569,6 +577,7 @@ grid_resolution = 64
     };
     let pt = settings(IntegratorKind::Pt, false);
     let mut means = Vec::new();
+    let mut steps = 0.0;
     for (set, seed) in [(&pt, 40), (&exact, 60)] {
         let s = common::build_scene(text, set.kind == IntegratorKind::Stcvae);
         let batches: Vec<f64> = (0..8)
@@ -581,6 +590,7 @@ grid_resolution = 64
                             && st.exact_events >= st.exact_steps,
                         "every step exact, each walk of at least one event: {st:?}"
                     );
+                    steps = st.exact_steps as f64 / st.paths as f64;
                 }
                 (st.events + st.exact_events) as f64 / st.paths as f64
             })
@@ -592,7 +602,13 @@ grid_resolution = 64
     }
     let ((a, sa), (b, sb)) = (means[0], means[1]);
     let t = (a - b) / (sa * sa + sb * sb).sqrt();
-    eprintln!("GPU events a path: PT {a:.3} ± {sa:.3}, ST-CVAE {b:.3} ± {sb:.3}, t = {t:.2}");
+    eprintln!(
+        "GPU events a path: PT {a:.3} ± {sa:.3}, ST-CVAE {b:.3} ± {sb:.3}, t = {t:.2}; exact steps a path {steps:.3}"
+    );
+    assert!(
+        steps > 4.0 * (sa * sa + sb * sb).sqrt(),
+        "an off-by-one a walk ({steps:.3} a path) would not show"
+    );
     assert!(
         t.abs() < 5.5 && a > 5.0,
         "PT {a:.3} ± {sa:.3} events a path, ST-CVAE's exact walks and fallbacks {b:.3} ± {sb:.3} (t = {t:.2})"

@@ -647,6 +647,14 @@ fn exact_walk_events_add_up_to_pts_events() {
         )
         .replace("albedo = [0.99, 0.95, 0.8]", "albedo = [1.0, 1.0, 1.0]")
         .replace("fov_deg = 13.0", "fov_deg = 18.0");
+    // With an albedo below 1, PT's roulette would end paths the walks do not.
+    for want in [
+        "sigma_t = [20.0",
+        "albedo = [1.0, 1.0, 1.0]",
+        "fov_deg = 18.0",
+    ] {
+        assert!(text.contains(want), "{want}");
+    }
     let (_, s) = scene(&text, true);
     let exact = IntegratorSettings {
         exact_tau: 50.0,
@@ -676,7 +684,14 @@ fn exact_walk_events_add_up_to_pts_events() {
         "every step exact, each walk of at least one event: {st:?}"
     );
     let zc = z(a, sa, b, sb);
-    eprintln!("events a path: PT {a:.3} ± {sa:.3}, ST-CVAE {b:.3} ± {sb:.3}, z = {zc:.2}");
+    let steps = st.exact_steps as f64 / st.paths as f64;
+    eprintln!(
+        "events a path: PT {a:.3} ± {sa:.3}, ST-CVAE {b:.3} ± {sb:.3}, z = {zc:.2}; exact steps a path {steps:.3}"
+    );
+    assert!(
+        steps > 4.0 * (sa * sa + sb * sb).sqrt(),
+        "an off-by-one a walk ({steps:.3} a path) would not show"
+    );
     assert!(
         zc.abs() < 4.5 && a > 10.0,
         "PT {a:.2} ± {sa:.2} events a path, ST-CVAE's exact walks and fallbacks {b:.2} ± {sb:.2} (z = {zc:.2})"

@@ -35,16 +35,19 @@ pub fn run_probe_on(
     probe(ctx, entry, model, items, scene, KernelShape::default()).map(|(items, _)| items)
 }
 
-/// Runs "probe_counters": item i's nine counts are added to the path counters as a
+/// The path counters the counter probe fills ([`super::resources::PATH_COUNTERS`]).
+pub const PROBE_COUNTERS: usize = super::resources::PATH_COUNTERS as usize;
+
+/// Runs "probe_counters": item i's counts are added to the path counters as a
 /// path slot adds its own (shaders/path.wgsl, add_stats), once per subgroup if
 /// `aggregate` (and the adapter has subgroup operations), else once per item. Returns
 /// the counters' totals.
 pub fn run_counter_probe(
     ctx: &GpuContext,
     model: &cvae::ModelSet,
-    counts: &[[u32; 9]],
+    counts: &[[u32; PROBE_COUNTERS]],
     aggregate: bool,
-) -> Result<[u64; 9], RenderError> {
+) -> Result<[u64; PROBE_COUNTERS], RenderError> {
     let items: Vec<Item> = counts
         .iter()
         .map(|c| std::array::from_fn(|k| f32::from_bits(c.get(k).copied().unwrap_or(0))))
