@@ -96,19 +96,22 @@ fn every_experiment_runs_quick() {
         if name == "fallback" {
             // Each threshold in both modes: exact walks below exact_tau = 20 (most of the
             // bunny's steps at ×4), none with exact_tau = 0.
-            let col = header
-                .iter()
-                .position(|h| *h == "st_exact_steps_per_path")
-                .unwrap();
+            let column = |name: &str| header.iter().position(|h| *h == name).unwrap();
+            let (col, events) = (
+                column("st_exact_steps_per_path"),
+                column("st_exact_walk_events_per_path"),
+            );
             let (mut exact, mut drawn) = (0, 0);
             for line in csv.lines().skip(1) {
                 let cells = csv_cells(line);
                 let v: f64 = cells[col].parse().unwrap();
+                // A walk has at least one event (its centre).
+                let e: f64 = cells[events].parse().unwrap();
                 if cells[0].contains("exact_tau = 0") {
-                    assert_eq!(v, 0.0, "{line}");
+                    assert_eq!((v, e), (0.0, 0.0), "{line}");
                     drawn += 1;
                 } else {
-                    assert!(v > 0.0, "{line}");
+                    assert!(v > 0.0 && e >= v, "{line}");
                     exact += 1;
                 }
             }
