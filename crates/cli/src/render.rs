@@ -722,12 +722,23 @@ pub fn run(a: Args) -> Result<()> {
     }
     leak_note(&out.stats, "");
     eprintln!(
-        "{} spp in {:.1} s ({} paths/s; {:.1} PT events, {:.1} sphere steps per path{}) -> {}.{{exr,png,json{}}}",
+        "{} spp in {:.1} s ({} paths/s; {:.1} PT events, {:.1} sphere steps per path{}{}) -> {}.{{exr,png,json{}}}",
         out.spp,
         out.seconds,
         progress::si(report.paths_per_second),
         report.mean_pt_events_per_path,
         report.mean_sphere_steps_per_path,
+        // The work an exact step hides: its walk, simulated event by event.
+        if out.stats.exact_steps > 0 {
+            let per = |n: u64| n as f64 / out.stats.paths.max(1) as f64;
+            format!(
+                ", {:.1} of them exact with {:.1} events in their walks",
+                per(out.stats.exact_steps),
+                per(out.stats.exact_events)
+            )
+        } else {
+            String::new()
+        },
         // A driver that compiles at the first dispatch (lavapipe: seconds on a cold cache)
         // is timed apart, so that paths/s measure rendering.
         if out.compile_seconds >= 0.1 {
