@@ -595,10 +595,7 @@ grid_resolution = 64
                 (st.events + st.exact_events) as f64 / st.paths as f64
             })
             .collect();
-        let n = batches.len() as f64;
-        let mean = batches.iter().sum::<f64>() / n;
-        let var = batches.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
-        means.push((mean, (var / n).sqrt()));
+        means.push(common::batch_mean_se(&batches));
     }
     let ((a, sa), (b, sb)) = (means[0], means[1]);
     let t = (a - b) / (sa * sa + sb * sb).sqrt();

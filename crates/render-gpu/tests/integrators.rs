@@ -671,10 +671,7 @@ fn exact_walk_events_add_up_to_pts_events() {
                 total(&st) as f64 / st.paths as f64
             })
             .collect();
-        let n = batches.len() as f64;
-        let mean = batches.iter().sum::<f64>() / n;
-        let var = batches.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
-        (mean, (var / n).sqrt())
+        common::batch_mean_se(&batches)
     };
     let (a, sa) = per_path(&pt, 100, |st| st.events);
     let (b, sb) = per_path(&exact, 200, |st| st.exact_events + st.events);

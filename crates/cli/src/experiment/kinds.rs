@@ -205,8 +205,8 @@ fn teaser(ctx: &Ctx, rep: &mut Report) -> Result<()> {
     let mut figs = Vec::new();
     for (i, &k) in ctx.cfg.densities.iter().enumerate() {
         let edit = scale_density(k);
-        let pt = render_pair(ctx, &scene, Pt, ctx.cfg.nee(), &edit)?;
-        let st = render_pair(ctx, &scene, Stcvae, ctx.cfg.nee(), &edit)?;
+        let pt = render_pair(ctx, &scene, Pt, &edit)?;
+        let st = render_pair(ctx, &scene, Stcvae, &edit)?;
         let c = compare(&pt, &st);
         let exposure = scale_of(&pt.mean) as f32;
         let sigma = SceneFile::load(&scene)?.medium.sigma_t[0] * k;
@@ -322,8 +322,8 @@ fn quality(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             // With NEE, unlike the paper's Fig. 6/7: the light is a delta light, which paths
             // without NEE never reach (front and back renders were the same picture, lit by
             // the environment alone).
-            let pt = render_pair(ctx, &scene, Pt, ctx.cfg.nee(), &edit)?;
-            let st = render_pair(ctx, &scene, Stcvae, ctx.cfg.nee(), &edit)?;
+            let pt = render_pair(ctx, &scene, Pt, &edit)?;
+            let st = render_pair(ctx, &scene, Stcvae, &edit)?;
             let c = compare(&pt, &st);
             rep.row(vec![
                 name.into(),
@@ -405,8 +405,8 @@ fn complexity(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         let (mut tp, mut ts) = (Vec::new(), Vec::new());
         for &k in &ctx.cfg.densities {
             let edit = scale_density(k);
-            let pt: Pair = render_pair(ctx, scene, Pt, ctx.cfg.nee(), &edit)?;
-            let st: Pair = render_pair(ctx, scene, Stcvae, ctx.cfg.nee(), &edit)?;
+            let pt: Pair = render_pair(ctx, scene, Pt, &edit)?;
+            let st: Pair = render_pair(ctx, scene, Stcvae, &edit)?;
             rep.row(vec![
                 obj.clone().into(),
                 k.into(),
@@ -481,8 +481,8 @@ fn absorption(ctx: &Ctx, rep: &mut Report) -> Result<()> {
     let (mut tp, mut ts) = (Vec::new(), Vec::new());
     for &a in &ctx.cfg.absorptions {
         let edit = move |f: &mut SceneFile| f.medium.albedo = [1.0 - a; 3];
-        let pt = render_pair(ctx, &scene, Pt, ctx.cfg.nee(), &edit)?;
-        let st = render_pair(ctx, &scene, Stcvae, ctx.cfg.nee(), &edit)?;
+        let pt = render_pair(ctx, &scene, Pt, &edit)?;
+        let st = render_pair(ctx, &scene, Stcvae, &edit)?;
         let c = compare(&pt, &st);
         rep.row(vec![
             a.into(),
@@ -638,7 +638,7 @@ fn fallback(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         "bias_upper95",
         "noise_rmse",
     ]);
-    let pt = render_pair(ctx, &scene, Pt, ctx.cfg.nee(), &scale_density(k))?;
+    let pt = render_pair(ctx, &scene, Pt, &scale_density(k))?;
     // The scene's exact_tau (the default unless it sets one) against 0. With the default
     // (20) every threshold below it only moves steps between exact walks and PT events:
     // labelled "the authors' behaviour" alone, min_tau = 0 was no model step at all.
@@ -666,7 +666,7 @@ fn fallback(ctx: &Ctx, rep: &mut Report) -> Result<()> {
                     f.render.exact_tau = exact_tau;
                 }
             };
-            let st = render_pair(ctx, &scene, Stcvae, ctx.cfg.nee(), &edit)?;
+            let st = render_pair(ctx, &scene, Stcvae, &edit)?;
             let c = compare(&pt, &st);
             rep.row(vec![
                 label.clone().into(),

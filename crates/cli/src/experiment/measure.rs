@@ -170,9 +170,10 @@ pub fn render_pair(
     ctx: &Ctx,
     scene: &Path,
     kind: IntegratorKind,
-    nee: bool,
     edit: &dyn Fn(&mut SceneFile),
 ) -> Result<Pair> {
+    // NEE as the config says (`nee`, default on).
+    let nee = ctx.cfg.nee();
     let half = half_spp(ctx.budget.spp());
     let [s1, s2] = pair_seeds(kind);
     let (a, hash) = render_once(ctx, scene, (kind, nee), edit, &opts(half, s1, None))?;

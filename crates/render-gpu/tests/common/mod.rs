@@ -415,3 +415,12 @@ pub fn dense_sphere(sigma: f64) -> String {
          irradiance = [1.0, 1.0, 1.0]\n"
     )
 }
+
+/// The mean of batch means and its standard error (from their spread, n − 1 degrees of
+/// freedom): for quantities whose per-path values are heavy-tailed or not kept.
+pub fn batch_mean_se(batches: &[f64]) -> (f64, f64) {
+    let n = batches.len() as f64;
+    let mean = batches.iter().sum::<f64>() / n;
+    let var = batches.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
+    (mean, (var / n).sqrt())
+}
