@@ -225,6 +225,32 @@ fn probe_event_pair(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
 }
 
+/// In: WalkFeatures (tau feature, g, log prior, relative log N) at 0..3; an RNG seed at
+/// 8. Out: LengthGen's N at 0 and the normals it drew at 1..11 (DEC_LATENT_0 + DEC_OUT_0
+/// of them, at most 11); PathGen's exit (cos θ, α, β) for the given relative log N at
+/// 12..14 and its normals at 16..31 (at most 16).
+@compute @workgroup_size(WORKGROUP)
+fn probe_length_path(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gid.x;
+    if i >= params.image.x {
+        return;
+    }
+    let wf = WalkFeatures(item_f(i, 0u), item_f(i, 1u), item_f(i, 2u), item_f(i, 3u));
+    rng_seed(u32(item_f(i, 8u)), 0u, i, 0u);
+    clear_item(i);
+    set_f(i, 0u, sample_multiple_n(wf));
+    for (var k = 0u; k < min(DEC_LATENT_0 + DEC_OUT_0, 11u); k++) {
+        set_f(i, 1u + k, dec_noise[k]);
+    }
+    let e = sample_exit(wf);
+    set_f(i, 12u, e.cos_theta);
+    set_f(i, 13u, e.alpha);
+    set_f(i, 14u, e.beta);
+    for (var k = 0u; k < min(DEC_LATENT_1 + DEC_OUT_1, 16u); k++) {
+        set_f(i, 16u + k, dec_noise[k]);
+    }
+}
+
 /// In: loop iterations n at 0, loop-limit probe passes at 1. Out: the iterations that ran
 /// at 0 (fewer than n where llvmpipe's loop limit cut the loop), 1 at 1 if the probe then
 /// saw the limit run out. No clear_item: after a cut-off its loop would run one pass.

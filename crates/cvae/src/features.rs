@@ -83,6 +83,11 @@ pub fn event_cond(
     f.event_cond(f.relative_log_n(n), cos_theta, beta, alpha)
 }
 
+/// The largest N LengthGen's read-out gives, 10^15 (shaders/decoder.wgsl caps at the same
+/// value): only a damaged or absurd draw gets there, and with NEE's weight Λ(N) = N at
+/// φ = 1 the cap bounds that outlier alike on both devices.
+pub const MAX_DECODED_N: u64 = 1_000_000_000_000_000;
+
 /// The features of one walk's (τ, g, φ), which all three models' conditions share. A
 /// renderer draws N, the exit and two events for every sphere step: computing these once
 /// per step, not once per model, saves eight of its ~17 f64 logarithms and powers.
@@ -116,15 +121,14 @@ impl WalkFeatures {
         (n as f64).ln() - self.log_prior
     }
 
-    /// Inverse of [`length_target`]: N = ⌊exp(y + prior)⌋, at least `n_min`.
+    /// Inverse of [`length_target`]: N = ⌊exp(y + prior)⌋, at least `n_min` and at most
+    /// [`MAX_DECODED_N`].
     pub fn n_from_target(&self, y: f64, n_min: u64) -> u64 {
         let v = (y + self.log_prior).exp().floor();
-        if v.is_finite() && v < 1e15 {
-            (v as u64).max(n_min)
-        } else if v.is_nan() {
+        if v.is_nan() {
             n_min
         } else {
-            1_000_000_000_000_000
+            (v.min(MAX_DECODED_N as f64) as u64).max(n_min)
         }
     }
 

@@ -307,6 +307,100 @@ fn wgsl_event_pairs_are_mirrored() {
     }
 }
 
+/// The WGSL read-outs of LengthGen (N = ⌊exp(y + prior)⌋ clamped to [n_min, 10^15]) and
+/// PathGen (logit → cos θ, the disk's radial map → (β, α), repaired into the disk) equal
+/// the Rust ones (`length_result`, `path_result`) for the noise the WGSL drew, in both
+/// single-scattering modes (n_min 2 and 1). Tolerances: the decoder outputs agree within
+/// ~1e-5 (`wgsl_decoder_matches_rust`), which exp carries into N as a relative 1e-5, plus
+/// f32's rounding of y + prior (|y + prior| < 20 here: 20 × 6e-8) and of N itself, and the
+/// floor can step by one: |ΔN| ≤ 1 + 3e-5 N. The exit's maps have slopes below 1 in y and
+/// (β, α), so 1e-4 absolute covers the 1e-5 of the outputs with f32 rounding to spare. A
+/// tenth of the items move the prior by ±60 to reach both clamps, which the shipped
+/// model's draws seldom do.
+#[test]
+fn wgsl_length_and_exit_read_outs_match_rust() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    for mode in [
+        cvae::model_file::SingleScattering::Exact,
+        cvae::model_file::SingleScattering::Learned,
+    ] {
+        let mut set = model().clone();
+        set.single_scattering = mode;
+        length_and_exit_match(&ctx, &set);
+    }
+}
+
+fn length_and_exit_match(ctx: &GpuContext, m: &cvae::ModelSet) {
+    let (l0, l1) = (m.length.latent + m.length.out, m.path.latent + m.path.out);
+    assert!(
+        l0 <= 11 && l1 <= 16,
+        "the probe's layout holds 11 + 16 normals"
+    );
+    let mut rng = WalkRng::from_seed(31);
+    let items: Vec<Item> = (0..600)
+        .map(|i| {
+            let mut it: Item = [0.0; 32];
+            let tau = 300.0 * rng.uniform().powi(2);
+            let g = 1.8 * rng.uniform() - 0.9;
+            let f = cvae::features::WalkFeatures::new(tau, g, 1.0);
+            let shift = match i % 20 {
+                0 => 60.0,
+                1 => -60.0,
+                _ => 0.0,
+            };
+            let rel = f.relative_log_n(1 + (200.0 * rng.uniform()) as u64);
+            it[..4].copy_from_slice(&[
+                f.tau as f32,
+                g as f32,
+                (f.log_prior + shift) as f32,
+                rel as f32,
+            ]);
+            it[8] = i as f32;
+            it
+        })
+        .collect();
+    let out = render_gpu::gpu::probe::run_probe(ctx, "probe_length_path", m, &items).unwrap();
+    let (mut low, mut high) = (0, 0);
+    for (i, (o, it)) in out.iter().zip(&items).enumerate() {
+        let f = cvae::features::WalkFeatures {
+            tau: it[0] as f64,
+            g: it[1] as f64,
+            albedo: 0.0,
+            log_prior: it[2] as f64,
+        };
+        let (z, eps) = o[1..1 + l0].split_at(m.length.latent);
+        let n = m.length_result(
+            &f,
+            &m.length.output(&m.length.draw(&f.length_cond(), z, eps)),
+        );
+        let got = o[0] as f64;
+        assert!(
+            (got - n as f64).abs() <= 1.0 + 3e-5 * n as f64,
+            "item {i} (n_min {}): N {got} vs {n}",
+            m.n_min()
+        );
+        low += usize::from(n == m.n_min());
+        high += usize::from(n == cvae::features::MAX_DECODED_N);
+        let (z, eps) = o[16..16 + l1].split_at(m.path.latent);
+        let cond = f.path_cond(it[3] as f64);
+        let e = m.path_result(&m.path.output(&m.path.draw(&cond, z, eps)));
+        let want = [e.cos_theta, e.alpha, e.beta];
+        for (k, w) in want.iter().enumerate() {
+            assert!(
+                (o[12 + k] as f64 - w).abs() < 1e-4,
+                "item {i}: exit {k} {} vs {w}",
+                o[12 + k]
+            );
+        }
+    }
+    // Every item shifted by ±60 lands on a clamp (e^±60 beyond both ends).
+    assert!(
+        low >= 30 && high >= 30,
+        "clamps reached: {low} at n_min, {high} at 10^15"
+    );
+}
+
 fn event_pairs_match(ctx: &GpuContext, m: &cvae::ModelSet) {
     let (latent, out_n) = (m.event.latent, m.event.out);
     assert_eq!(latent + out_n, 11, "the probe's layout holds 11 normals");

@@ -13,7 +13,7 @@ use super::scene_buffers::{GpuNode, GpuTri, Params, geometry_buffers, grid_buffe
 /// One probe item: 32 floats in, 32 floats out (layouts in `shaders/probe.wgsl`).
 pub type Item = [f32; 32];
 
-/// Runs `entry` ("probe_decoder" or "probe_frame") over `items`.
+/// Runs `entry` (a probe kernel of shaders/probe.wgsl that needs no scene) over `items`.
 pub fn run_probe(
     ctx: &GpuContext,
     entry: &str,
