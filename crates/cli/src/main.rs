@@ -79,7 +79,7 @@ enum Command {
     Merge(merge::Args),
     /// Run an experiment that reproduces a result of the paper (configs/experiments/).
     Experiment(experiment::Args),
-    /// Measure the speed of parts of stcvae.
+    /// Measure stcvae: the speed of its parts, its devices, and its error against other renderers.
     Bench(bench::Args),
 }
 

@@ -6,7 +6,7 @@
 
 use std::path::Path;
 
-use anyhow::{Result, anyhow};
+use anyhow::{Context, Result, anyhow};
 use cvae::eval::{Columns, GS, TAUS};
 pub use plotters::chart::SeriesLabelPosition;
 use plotters::prelude::*;
@@ -80,8 +80,8 @@ fn encode_png(buf: &[u8], w: u32, h: u32) -> Result<Vec<u8>> {
 }
 
 fn to_png(path: &Path, buf: &[u8], w: u32, h: u32) -> Result<()> {
-    scatter_sim::output::write_atomic(path, &encode_png(buf, w, h)?)?;
-    Ok(())
+    scatter_sim::output::write_atomic(path, &encode_png(buf, w, h)?)
+        .with_context(|| format!("cannot write {}", path.display()))
 }
 
 /// A 4 × 4 grid (rows τ, columns g) of 1-D histograms of column `q`.

@@ -20,12 +20,26 @@ pub const DEFAULT_SCENE: &str = "configs/scenes/bunny.toml";
 #[command(
     after_help = "With no arguments renders the shipped bunny scene with the shipped \
     model to out/render.{exr,png,json}. Options given here override the scene's [render] table.\n\n\
-    Example:\n  stcvae render --scene configs/scenes/sphere.toml --integrator pt --spp 256 --out out/sphere_pt"
+    Example:\n  stcvae render --scene configs/scenes/sphere.toml --integrator pt --spp 256 --out out/sphere_pt\n  \
+    stcvae render configs/scenes/sphere.toml --width 128 --spp 16   (a quick look: 128 pixels wide)"
 )]
 pub struct Args {
     /// Scene file (TOML; the format is in the README).
     #[arg(long, default_value = DEFAULT_SCENE, value_parser = crate::shipped::scene_arg(DEFAULT_SCENE))]
     pub scene: PathBuf,
+    /// The scene file, given without --scene (`stcvae render S.toml`).
+    #[arg(value_name = "SCENE", conflicts_with = "scene")]
+    pub scene_file: Option<PathBuf>,
+    /// Image width in pixels, 1 to 16384 (overrides camera.width; given alone, the height
+    /// follows the camera's aspect).
+    #[arg(long, allow_negative_numbers = true,
+          value_parser = crate::whole::whole::<u32>(1, render_gpu::scene::MAX_IMAGE_SIDE as u64))]
+    pub width: Option<u32>,
+    /// Image height in pixels, 1 to 16384 (overrides camera.height; given alone, the width
+    /// follows the camera's aspect).
+    #[arg(long, allow_negative_numbers = true,
+          value_parser = crate::whole::whole::<u32>(1, render_gpu::scene::MAX_IMAGE_SIDE as u64))]
+    pub height: Option<u32>,
     /// pt (volumetric path tracing, the reference) or stcvae (sphere tracing with the CVAEs)
     /// (overrides render.integrator).
     #[arg(long, value_parser = parse_integrator)]
@@ -48,7 +62,7 @@ pub struct Args {
     /// three years; the JSON and the EXR header record the spp actually rendered; at least
     /// one pass runs).
     /// The scene's spp is then no limit; --spp given too stops at that many first.
-    #[arg(long, allow_negative_numbers = true)]
+    #[arg(long, allow_negative_numbers = true, value_parser = parse_time_budget)]
     pub time_budget: Option<f64>,
     /// Output path without extension: writes OUT.exr, OUT.png and OUT.json (a typed .exr,
     /// .png or .json is dropped: `--out a.exr` writes a.exr, a.png, a.json).
@@ -93,6 +107,22 @@ pub(crate) fn parse_exposure(s: &str) -> Result<f32, String> {
             s.trim(),
             f32::from_bits(1),
             f32::MAX
+        ))
+    }
+}
+
+/// `--time-budget`: clap's own f64 parser said only "invalid float literal", with no range.
+fn parse_time_budget(s: &str) -> Result<f64, String> {
+    let b: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{s}' is not a number of seconds"))?;
+    if b > 0.0 && b <= MAX_TIME_BUDGET {
+        Ok(b)
+    } else {
+        Err(format!(
+            "{} is out of range: allowed (0, {MAX_TIME_BUDGET:e}] seconds",
+            s.trim()
         ))
     }
 }
@@ -493,7 +523,44 @@ pub fn note_lights(p: &Prepared) {
 /// Longest `--time-budget`, in seconds (over three years).
 const MAX_TIME_BUDGET: f64 = 1e8;
 
-pub fn run(a: Args) -> Result<()> {
+/// The image size `--width`/`--height` ask for, or None to keep the camera's. One alone
+/// keeps the camera's aspect (rounded, at least 1 pixel); a derived side beyond the
+/// largest image is refused naming both flags.
+fn image_size(
+    camera: &render_gpu::scene::CameraDesc,
+    width: Option<u32>,
+    height: Option<u32>,
+) -> Result<Option<(u32, u32)>> {
+    let (w0, h0) = (camera.width as f64, camera.height as f64);
+    let derive = |given: u32, from: f64, to: f64, flag: &str, other: &str| -> Result<u32> {
+        if from <= 0.0 || to <= 0.0 {
+            // The scene check names the camera's zero side.
+            return Ok(given);
+        }
+        let v = (given as f64 * to / from).round().max(1.0);
+        let max = render_gpu::scene::MAX_IMAGE_SIDE;
+        if v > max as f64 {
+            bail!(
+                "--{flag} {given} with the camera's aspect ({} x {}) gives a {other} of {v}, \
+                 beyond the largest {max}: give --{other} too",
+                camera.width,
+                camera.height
+            );
+        }
+        Ok(v as u32)
+    };
+    Ok(match (width, height) {
+        (None, None) => None,
+        (Some(w), Some(h)) => Some((w, h)),
+        (Some(w), None) => Some((w, derive(w, w0, h0, "width", "height")?)),
+        (None, Some(h)) => Some((derive(h, h0, w0, "height", "width")?, h)),
+    })
+}
+
+pub fn run(mut a: Args) -> Result<()> {
+    if let Some(p) = a.scene_file.take() {
+        a.scene = p;
+    }
     // 1e300 was taken (a render without end, announced with 300 digits).
     if let Some(b) = a.time_budget
         && !(b > 0.0 && b <= MAX_TIME_BUDGET)
@@ -520,13 +587,18 @@ pub fn run(a: Args) -> Result<()> {
     };
     // Unvalidated: `prepare` validates after the overrides (an ST-CVAE scene with max_tau
     // below min_tau renders with --integrator pt, and was not checked here).
+    let mut size = None;
     if let Ok(f) = SceneFile::load_unvalidated(&a.scene) {
-        render_gpu::render::check_image_memory_with(
-            f.camera.width,
-            f.camera.height,
-            variance_bytes,
-        )
-        .map_err(|e| anyhow::anyhow!("{}: camera.width/height: {e}", a.scene.display()))?;
+        size = image_size(&f.camera, a.width, a.height)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", a.scene.display()))?;
+        let (w, h) = size.unwrap_or((f.camera.width, f.camera.height));
+        render_gpu::render::check_image_memory_with(w, h, variance_bytes).map_err(|e| {
+            if size.is_some() {
+                anyhow::anyhow!("--width/--height {w} x {h}: {e}")
+            } else {
+                anyhow::anyhow!("{}: camera.width/height: {e}", a.scene.display())
+            }
+        })?;
     }
     let p = prepare(&a.scene, a.integrator, a.nee, a.model.as_deref(), |f| {
         if let Some(s) = a.spp {
@@ -534,6 +606,10 @@ pub fn run(a: Args) -> Result<()> {
         }
         if let Some(s) = a.seed {
             f.render.seed = s;
+        }
+        if let Some((w, h)) = size {
+            f.camera.width = w;
+            f.camera.height = h;
         }
     })?;
     let r = &p.file.render;
@@ -592,8 +668,14 @@ pub fn run(a: Args) -> Result<()> {
     let engine = Engine::open(device)?;
     let set = p.settings();
     if engine.is_gpu() && !engine.is_hardware_gpu() {
-        software_gpu_memory(p.file.camera.width, p.file.camera.height, &set, 0)
-            .map_err(|e| anyhow::anyhow!("{}: camera.width/height: {e}", a.scene.display()))?;
+        let (w, h) = (p.file.camera.width, p.file.camera.height);
+        software_gpu_memory(w, h, &set, 0).map_err(|e| {
+            if size.is_some() {
+                anyhow::anyhow!("--width/--height {w} x {h}: {e}")
+            } else {
+                anyhow::anyhow!("{}: camera.width/height: {e}", a.scene.display())
+            }
+        })?;
     }
     eprintln!(
         "rendering {} ({}x{}, {}, {}{}) on the {}",

@@ -27,8 +27,9 @@ use crate::{interrupt, progress};
     --resume continues from it. Checkpoints already in checkpoint_dir stop a new run unless \
     --resume or --fresh says what to do with them.\n\n\
     Validation: 4,096 walks the dataset's run would have drawn next are simulated as held-out \
-    walks; at each report every model's loss on them is read beside its loss on as many of \
-    its training walks (both with fixed draws), shown on the progress bar, plotted beside \
+    walks; at each report every model's loss on up to 2,048 of them (those of the kind it \
+    trains on) is read beside its loss on \
+    as many of its training walks (both with fixed draws), shown on the progress bar, plotted beside \
     the model file (NAME.loss.png), and a held-out loss far above the training walks' is \
     reported as memorising."
 )]
@@ -638,7 +639,7 @@ pub fn run(a: Args) -> Result<()> {
                     p.display()
                 );
             }
-            let set = ModelSet::load(p)?;
+            let set = ModelSet::load(p).map_err(|e| anyhow::anyhow!("--base {e}"))?;
             if set.single_scattering != cfg.single_scattering {
                 bail!(
                     "--base {}: its single_scattering ({}) differs from the config's ({})",

@@ -616,7 +616,7 @@ fn bad_arguments_name_the_argument() {
     let d = tempfile::tempdir().unwrap();
     let file = d.path().join("file");
     std::fs::write(&file, b"x").unwrap();
-    let cases: [(Vec<String>, &str); 20] = [
+    let cases: [(Vec<String>, &str); 21] = [
         // The seed's range (clap's parser said "invalid digit found in string"); a model
         // file that is missing named as --model's value.
         (
@@ -662,7 +662,11 @@ fn bad_arguments_name_the_argument() {
         // A budget without end, or an exposure that is 0 as an f32: refused, quoted short.
         (
             vec!["render".into(), "--time-budget".into(), "1e300".into()],
-            "--time-budget 1e300 is out of range: allowed (0, 1e8] seconds",
+            "'--time-budget <TIME_BUDGET>': 1e300 is out of range: allowed (0, 1e8] seconds",
+        ),
+        (
+            vec!["render".into(), "--time-budget".into(), "abc".into()],
+            "'abc' is not a number of seconds",
         ),
         (
             vec!["render".into(), "--exposure".into(), "1e-300".into()],
@@ -1214,6 +1218,61 @@ fn the_render_json_describes_the_render() {
     ] {
         assert!(json[key].is_null(), "{key} under PT: {json}");
     }
+}
+
+/// `--width`/`--height` override the camera's size, one alone keeping its aspect (a 32 x 64
+/// camera: width 16 gives 16 x 32, height 8 gives 4 x 8); a derived side beyond the
+/// largest image names both flags; the scene may be given without --scene, but not twice.
+#[test]
+fn render_size_flags_and_a_plain_scene_argument() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = tmp.path().join("tall.toml");
+    let text = sphere_scene_text(128)
+        .replace("width = 128", "width = 32")
+        .replace("height = 128", "height = 64");
+    std::fs::write(&scene, text).unwrap();
+    let sc = scene.to_str().unwrap();
+    for (flags, want) in [
+        (vec!["--width", "16"], (16, 32)),
+        (vec!["--height", "8"], (4, 8)),
+        (vec!["--width", "6", "--height", "5"], (6, 5)),
+        (vec![], (32, 64)),
+    ] {
+        let out = tmp.path().join("r");
+        let mut args = vec![
+            "render",
+            sc,
+            "--integrator",
+            "pt",
+            "--spp",
+            "1",
+            "--device",
+            "cpu",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        args.extend_from_slice(&flags);
+        ok(&stcvae(&args));
+        let json: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(tmp.path().join("r.json")).unwrap()).unwrap();
+        assert_eq!(
+            (json["width"].as_u64(), json["height"].as_u64()),
+            (Some(want.0), Some(want.1)),
+            "{flags:?}: {json}"
+        );
+    }
+    let e = fails(&stcvae(&[
+        "render", sc, "--width", "16384", "--device", "cpu",
+    ]));
+    assert!(
+        e.contains("--width 16384 with the camera's aspect (32 x 64) gives a height of 32768")
+            && e.contains("give --height too"),
+        "{e}"
+    );
+    let e = fails(&stcvae(&["render", sc, "--scene", sc]));
+    assert!(e.contains("cannot be used with"), "{e}");
+    let e = fails(&stcvae(&["render", "--width", "0"]));
+    assert!(e.contains("--width") && e.contains("16384"), "{e}");
 }
 
 /// Without a usable adapter (`WGPU_BACKEND=gl` names only a backend that is not compiled

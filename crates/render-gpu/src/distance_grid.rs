@@ -250,8 +250,10 @@ impl DistanceGrid {
         if t0.elapsed().as_secs_f64() > 0.1
             && let Some(p) = &path
         {
-            // A cache that cannot be written only costs time next run.
-            let _ = g.write(p);
+            // A cache that cannot be written only costs time next run; said once.
+            if let Err(e) = g.write(p) {
+                note_unwritable_cache(p, &e);
+            }
             prune_stale(p);
         }
         Ok(g)
@@ -398,6 +400,19 @@ pub(crate) fn mesh_hasher(geo: &Geometry, tag: &[u8]) -> Fnv64 {
         }
     }
     h
+}
+
+/// Says once a run that a cache file could not be written: a render that rebuilt its
+/// grid every time (an unwritable ~/.cache) was a second slower with no word why.
+pub(crate) fn note_unwritable_cache(path: &Path, e: &std::io::Error) {
+    static SAID: std::sync::Once = std::sync::Once::new();
+    SAID.call_once(|| {
+        eprintln!(
+            "note: cannot write the cache file {} ({e}): distance grids and escape cones are \
+             rebuilt every run; set STCVAE_CACHE to a writable folder to keep them",
+            path.display()
+        )
+    });
 }
 
 /// `$STCVAE_CACHE`, else `$XDG_CACHE_HOME/stcvae`, else `~/.cache/stcvae`.

@@ -48,8 +48,10 @@ pub fn cached(geo: &Geometry) -> Vec<f32> {
     if t0.elapsed().as_secs_f64() > 0.1
         && let Some(p) = &path
     {
-        // A cache that cannot be written only costs time next run.
-        let _ = write(p, &cos);
+        // A cache that cannot be written only costs time next run; said once.
+        if let Err(e) = write(p, &cos) {
+            crate::distance_grid::note_unwritable_cache(p, &e);
+        }
         crate::distance_grid::prune_stale(p);
     }
     cos

@@ -166,6 +166,9 @@ pub fn run(a: Args) -> Result<()> {
             }
         }
         if out.exists() {
+            // Files of an earlier run that this one did not reach keep their names: say
+            // so, or the folder reads as this run's alone.
+            before.note_left_over("saved images");
             return Err(anyhow::anyhow!(
                 "{e:#} (images saved so far stay in {})",
                 out.display()
