@@ -79,11 +79,6 @@ fn encode_png(buf: &[u8], w: u32, h: u32) -> Result<Vec<u8>> {
     Ok(out)
 }
 
-fn to_png(path: &Path, buf: &[u8], w: u32, h: u32) -> Result<()> {
-    scatter_sim::output::write_atomic(path, &encode_png(buf, w, h)?)
-        .with_context(|| format!("cannot write {}", path.display()))
-}
-
 /// A 4 × 4 grid (rows τ, columns g) of 1-D histograms of column `q`.
 fn histogram_grid(panels: &[Panel], q: usize, title: &str, log_y: bool) -> Result<Vec<u8>> {
     init_font();
@@ -366,10 +361,26 @@ pub fn line_plot(
     title: &str,
     x_label: &str,
     y_label: &str,
-    (log_x, log_y): (bool, bool),
+    axes: (bool, bool),
     series: &[Series],
     legend: Option<SeriesLabelPosition>,
 ) -> Result<()> {
+    let png = line_plot_png(path, title, x_label, y_label, axes, series, legend)?;
+    scatter_sim::output::write_atomic(path, &png)
+        .with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// [`line_plot`]'s PNG in memory, for a caller that writes it in a set with other files;
+/// `path` only names the plot in errors.
+pub fn line_plot_png(
+    path: &Path,
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    (log_x, log_y): (bool, bool),
+    series: &[Series],
+    legend: Option<SeriesLabelPosition>,
+) -> Result<Vec<u8>> {
     init_font();
     let (w, h) = (900u32, 600u32);
     let pts = || series.iter().flat_map(|s| s.points.iter().cloned());
@@ -518,7 +529,7 @@ pub fn line_plot(
         }
         root.present().map_err(|x| e(&x))?;
     }
-    to_png(path, &buf, w, h)
+    encode_png(&buf, w, h)
 }
 
 #[cfg(test)]

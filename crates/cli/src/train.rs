@@ -464,10 +464,22 @@ fn validations(
         .collect()
 }
 
-/// The trained models' validation losses against their steps, beside the model file
-/// (`NAME.loss.png`); `None` when no model read any.
-fn loss_plot(out: &Path, trained: &[cvae::train::Trained]) -> Result<Option<PathBuf>> {
-    use crate::plots::{Series, line_plot};
+/// Where the loss curves of model file `out` go: NAME.loss.png for NAME.stcvae, else the
+/// whole file name with .loss.png added (`with_extension` gave m.v1 and m.v2 one plot).
+fn loss_plot_path(out: &Path) -> PathBuf {
+    let mut name = match out.extension() {
+        Some(e) if e == "stcvae" => out.with_extension(""),
+        _ => out.to_path_buf(),
+    }
+    .into_os_string();
+    name.push(".loss.png");
+    PathBuf::from(name)
+}
+
+/// The trained models' validation losses against their steps, as the PNG for
+/// [`loss_plot_path`]; `None` when no model read any.
+fn loss_plot(path: &Path, trained: &[cvae::train::Trained]) -> Result<Option<Vec<u8>>> {
+    use crate::plots::{Series, line_plot_png};
     let mut series = Vec::new();
     // One colour per model, the same in every run whatever order the models finished in:
     // its training walks solid, its held-out walks dashed.
@@ -504,17 +516,16 @@ fn loss_plot(out: &Path, trained: &[cvae::train::Trained]) -> Result<Option<Path
     if series.is_empty() {
         return Ok(None);
     }
-    let path = out.with_extension("loss.png");
-    line_plot(
-        &path,
+    line_plot_png(
+        path,
         "Validation loss (negative ELBO, fixed draws)",
         "step",
         "loss",
         (true, false),
         &series,
         None,
-    )?;
-    Ok(Some(path))
+    )
+    .map(Some)
 }
 
 /// Narrows the file's ranges to what a decoder from elsewhere (`source`) was trained on:
@@ -556,6 +567,10 @@ pub fn run(a: Args) -> Result<()> {
         None => format!("{}: out =", a.config.display()),
     };
     crate::check_out(&out_flag, &out)?;
+    crate::check_out(
+        &format!("{out_flag} (its loss curves)"),
+        &loss_plot_path(&out),
+    )?;
     // Nor a checkpoint's name: .bpk here, .json with the renders' reports.
     let not_models = [
         &crate::paths::IMAGE_EXTS[..],
@@ -1058,21 +1073,44 @@ pub fn run(a: Args) -> Result<()> {
     };
     // What every reader will check, checked before writing: a file they would all refuse
     // is not written (a decoder from an old checkpoint is not otherwise validated).
-    ModelSet::from_bytes(&set.to_bytes(), &out)
+    let bytes = set.to_bytes();
+    ModelSet::from_bytes(&bytes, &out)
         .context("the trained model fails the model file's checks; nothing written")?;
-    set.save(&out)?;
+    // The model and its loss curves are written as one set: an earlier run's plot never
+    // stays beside a new model as if it were its curves. A plot that cannot be drawn is
+    // told, not the training's failure, and the earlier plot goes.
+    let plot_path = loss_plot_path(&out);
+    let plot = loss_plot(&plot_path, &trained).unwrap_or_else(|e| {
+        eprintln!("warning: the loss curves were not plotted: {e:#}");
+        None
+    });
+    let mut files: Vec<(&Path, &[u8])> = vec![(&out, &bytes)];
+    if let Some(png) = &plot {
+        files.push((&plot_path, png));
+    }
+    scatter_sim::output::write_atomic_set(&files)
+        .map_err(|(p, e)| anyhow::anyhow!("cannot write {}: {e}", p.display()))?;
     eprintln!(
         "trained in {seconds:.0} s{} ({}); wrote {} ({} bytes)",
         if a.resume { " this run" } else { "" },
         notes.join("; "),
         out.display(),
-        set.to_bytes().len()
+        bytes.len()
     );
-    // The model is written: a plot that fails is told, not the training's failure.
-    match loss_plot(&out, &trained) {
-        Ok(Some(plot)) => eprintln!("loss curves: {}", plot.display()),
-        Ok(None) => {}
-        Err(e) => eprintln!("warning: the loss curves were not plotted: {e:#}"),
+    match plot {
+        Some(_) => eprintln!("loss curves: {}", plot_path.display()),
+        None if plot_path.is_file() => match std::fs::remove_file(&plot_path) {
+            Ok(()) => eprintln!(
+                "note: removed {}: an earlier run's loss curves (this run read no \
+                 validation loss)",
+                plot_path.display()
+            ),
+            Err(e) => eprintln!(
+                "warning: {} is an earlier run's loss curves and could not be removed: {e}",
+                plot_path.display()
+            ),
+        },
+        None => {}
     }
     // `render` reads the shipped models/default.stcvae unless told otherwise, and the
     // default training config no longer overwrites it: say how to use what was written.
@@ -1082,7 +1120,22 @@ pub fn run(a: Args) -> Result<()> {
 
 #[cfg(test)]
 mod tests {
-    use super::{loss_rose, scaled_model};
+    use super::{loss_plot_path, loss_rose, scaled_model};
+
+    /// NAME.stcvae plots to NAME.loss.png; any other name keeps its whole self, so models
+    /// m.v1 and m.v2 get plots of their own.
+    #[test]
+    fn each_model_file_has_its_own_loss_plot() {
+        use std::path::Path;
+        for (model, plot) in [
+            ("models/trained.stcvae", "models/trained.loss.png"),
+            ("m.v1", "m.v1.loss.png"),
+            ("m.v2", "m.v2.loss.png"),
+            ("m", "m.loss.png"),
+        ] {
+            assert_eq!(loss_plot_path(Path::new(model)), Path::new(plot));
+        }
+    }
 
     /// A written warm-up stands at scale 1, however long; scaled runs cap it at a quarter
     /// of their steps; an unwritten one follows the steps (`ModelConfig::warmup`).

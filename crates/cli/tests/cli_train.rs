@@ -924,6 +924,28 @@ fn a_checkpoint_record_without_its_json_is_named() {
 /// A run that memorises its dataset is told so: 40 walks trained 3,000 steps with a wide
 /// latent, EventGen's losses on held-out walks (the run's next walks) lie far above its
 /// losses on training walks (z = 11.4 measured over its 23 rows; the warning's bar is 4).
+/// A run that reads no validation loss (10 walks: under the 20 rows a validation needs)
+/// writes no loss curves, and an earlier run's plot under the model's name goes with a
+/// note: it stayed beside the new model as if it were its curves.
+#[test]
+fn an_earlier_runs_loss_curves_do_not_stay_beside_a_new_model() {
+    let dir = tempfile::tempdir().unwrap();
+    setup(dir.path());
+    replace_in(&dir.path().join("data.toml"), "walks = 3001", "walks = 10");
+    let stale = dir.path().join("m.loss.png");
+    fs::write(&stale, b"an earlier run's curves").unwrap();
+    let o = stcvae(&["train", "--config", "train.toml"], dir.path());
+    let err = stderr(&o);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("it trains without a validation loss"), "{err}");
+    assert!(
+        err.contains("note: removed m.loss.png: an earlier run's loss curves"),
+        "{err}"
+    );
+    assert!(!stale.exists());
+    assert!(dir.path().join("m.stcvae").is_file());
+}
+
 /// The loss curves are plotted beside the model file, and the final held-out loss is in
 /// the summary.
 #[test]
