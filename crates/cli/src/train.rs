@@ -25,7 +25,8 @@ use crate::{interrupt, progress};
     The three models train concurrently, one thread each. If the dataset named in the config \
     does not exist it is generated first from `dataset_config`. Ctrl-C saves a checkpoint; \
     --resume continues from it. Checkpoints already in checkpoint_dir stop a new run unless \
-    --resume or --fresh says what to do with them.\n\n\
+    --resume or --fresh says what to do with them. A run holds its checkpoint_dir (a lock on \
+    its .train.lock): a second run on the same folder is refused.\n\n\
     Validation: 4,096 walks the dataset's run would have drawn next are simulated as held-out \
     walks; at each report every model's loss on up to 2,048 of them (those of the kind it \
     trains on) is read beside its loss on \
@@ -464,6 +465,42 @@ fn validations(
         .collect()
 }
 
+/// The lock file a training run holds in its checkpoint_dir.
+const CHECKPOINT_LOCK: &str = ".train.lock";
+
+/// Holds `dir` for this run (an advisory lock, released when the process ends however it
+/// ends). Two runs sharing a checkpoint_dir deleted each other's temporaries when they
+/// started and then took turns overwriting the same checkpoints, whose checksums still
+/// matched: a later --resume continued whichever saved last. A file system without locks
+/// is warned about, not refused.
+fn lock_checkpoint_dir(dir: &Path, config: &Path) -> Result<std::fs::File> {
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("{}: checkpoint_dir = {}", config.display(), dir.display()))?;
+    let path = dir.join(CHECKPOINT_LOCK);
+    let f = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(&path)
+        .with_context(|| format!("cannot open {}", path.display()))?;
+    match f.try_lock() {
+        Ok(()) => {}
+        Err(std::fs::TryLockError::WouldBlock) => bail!(
+            "{}: checkpoint_dir = {} is in use by another `stcvae train` (it holds {}): wait \
+             for it to end, or give this run a checkpoint_dir of its own",
+            config.display(),
+            dir.display(),
+            path.display()
+        ),
+        Err(std::fs::TryLockError::Error(e)) => eprintln!(
+            "warning: cannot lock {} ({e}): make sure no other training uses this \
+             checkpoint_dir",
+            path.display()
+        ),
+    }
+    Ok(f)
+}
+
 /// Where the loss curves of model file `out` go: NAME.loss.png for NAME.stcvae, else the
 /// whole file name with .loss.png added (`with_extension` gave m.v1 and m.v2 one plot).
 fn loss_plot_path(out: &Path) -> PathBuf {
@@ -870,6 +907,8 @@ pub fn run(a: Args) -> Result<()> {
     if interrupt::requested() {
         bail!("interrupted before training: no checkpoint removed or written");
     }
+    // Held until the model is written; taken before this run removes or writes anything.
+    let _lock = lock_checkpoint_dir(&cfg.checkpoint_dir, &a.config)?;
     for &k in &kinds {
         cvae::train::trainer::remove_stale_temporaries(&cfg.checkpoint_dir, k);
         if a.fresh {

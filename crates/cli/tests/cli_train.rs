@@ -524,7 +524,8 @@ fn stale_save_temporaries_are_removed() {
         .filter(|n| n.starts_with('.') || n == "notes.txt")
         .collect();
     left.sort();
-    assert_eq!(left, ["notes.txt"]);
+    // The run's lock file stays (removing a lock file races with the next run's lock).
+    assert_eq!(left, [".train.lock", "notes.txt"]);
     assert!(!stderr(&o).contains("loss rose"), "{}", stderr(&o));
     // 3,001 walks and 30 steps: nothing to memorise yet.
     assert!(!stderr(&o).contains("lie above"), "{}", stderr(&o));
@@ -924,6 +925,38 @@ fn a_checkpoint_record_without_its_json_is_named() {
 /// A run that memorises its dataset is told so: 40 walks trained 3,000 steps with a wide
 /// latent, EventGen's losses on held-out walks (the run's next walks) lie far above its
 /// losses on training walks (z = 11.4 measured over its 23 rows; the warning's bar is 4).
+/// A second run on a checkpoint_dir that another training holds is refused before it
+/// removes or writes anything there; once the holder is gone the same run trains. The
+/// test holds the lock itself (the lock a run takes: an advisory lock on ck/.train.lock).
+#[test]
+fn a_checkpoint_dir_in_use_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    setup(dir.path());
+    let ck = dir.path().join("ck");
+    fs::create_dir_all(&ck).unwrap();
+    let stale = ck.join(".lengthgen.bpk.abc123.partial");
+    fs::write(&stale, b"another run's save under way").unwrap();
+    let holder = fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(ck.join(".train.lock"))
+        .unwrap();
+    holder.lock().unwrap();
+    let o = stcvae(&["train", "--config", "train.toml", "--fresh"], dir.path());
+    let err = stderr(&o);
+    assert!(!o.status.success(), "{err}");
+    assert!(
+        err.contains("checkpoint_dir = ck is in use by another `stcvae train`"),
+        "{err}"
+    );
+    assert!(stale.exists(), "the holder's temporaries are left alone");
+    drop(holder);
+    let o = stcvae(&["train", "--config", "train.toml", "--fresh"], dir.path());
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(ck.join("lengthgen.json").is_file());
+}
+
 /// A run that reads no validation loss (10 walks: under the 20 rows a validation needs)
 /// writes no loss curves, and an earlier run's plot under the model's name goes with a
 /// note: it stayed beside the new model as if it were its curves.
