@@ -49,9 +49,42 @@ pub fn flag() -> &'static AtomicBool {
     &FLAG
 }
 
-/// Whether the user asked to stop (Ctrl-C), as opposed to [`stop_the_others`].
+/// Whether the user asked to stop (Ctrl-C, or a closed output pipe: [`stop_on_closed_pipe`]),
+/// as opposed to [`stop_the_others`].
 pub fn requested() -> bool {
     USER.load(Ordering::SeqCst)
+}
+
+/// Set when a write found the pipe it went to closed.
+static PIPE: AtomicBool = AtomicBool::new(false);
+
+/// A closed pipe on stdout or stderr becomes a request to stop, as Ctrl-C is: quitting
+/// `less` in `stcvae generate … 2>&1 | less`, or a `tee` that died, ended the process with
+/// SIGPIPE's default at the next progress line, leaving GBs of hidden temporaries and a
+/// training's last up to 5,000 steps unsaved. The write itself then fails and its text is
+/// dropped (main.rs's print macros). For commands whose product is a file; the tables of
+/// `bench` keep the default (`stcvae bench render | head -1` ends quietly).
+pub fn stop_on_closed_pipe() {
+    #[cfg(unix)]
+    {
+        extern "C" fn on_sigpipe(_: libc::c_int) {
+            // Atomic stores only: async-signal-safe.
+            PIPE.store(true, Ordering::SeqCst);
+            USER.store(true, Ordering::SeqCst);
+            FLAG.store(true, Ordering::SeqCst);
+        }
+        let handler: extern "C" fn(libc::c_int) = on_sigpipe;
+        // SAFETY: called from main before the command starts any thread; the handler only
+        // stores to atomics.
+        unsafe {
+            libc::signal(libc::SIGPIPE, handler as libc::sighandler_t);
+        }
+    }
+}
+
+/// Whether a write found its pipe closed ([`stop_on_closed_pipe`]).
+pub fn pipe_closed() -> bool {
+    PIPE.load(Ordering::SeqCst)
 }
 
 /// Stops the loops polling [`flag`] as Ctrl-C does, without it counting as the user's

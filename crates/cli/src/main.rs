@@ -6,7 +6,8 @@
 // temporary left, a training checkpoint unsaved. These shadow them in every module below
 // (declared after them) and drop the text where it cannot be written; the interrupt
 // handler then ignores SIGPIPE (interrupt.rs). Before an interrupt, SIGPIPE still ends
-// the process quietly (`stcvae bench … | head -1`, [`default_sigpipe`]).
+// the process quietly in `bench` (`stcvae bench … | head -1`, [`default_sigpipe`]); the
+// other commands take a closed pipe as a request to stop (interrupt::stop_on_closed_pipe).
 macro_rules! eprintln {
     ($($arg:tt)*) => {{
         use std::io::Write as _;
@@ -144,6 +145,9 @@ fn main() {
     quiet_wayland_probe();
     default_sigpipe();
     let cli = parse_cli();
+    if !matches!(cli.command, Command::Bench(_)) {
+        interrupt::stop_on_closed_pipe();
+    }
     let result = match cli.command {
         Command::Generate(a) => generate::run(a),
         Command::Train(a) => train::run(a),
@@ -155,6 +159,11 @@ fn main() {
         Command::Bench(a) => bench::run(a),
     };
     if let Err(e) = result {
+        if interrupt::pipe_closed() {
+            // 141 = 128 + SIGPIPE, what a shell reports for a process the signal ended.
+            eprintln!("error: {e:#} (stopped: the pipe the output went to was closed)");
+            std::process::exit(141);
+        }
         eprintln!("error: {e:#}");
         std::process::exit(if interrupt::requested() { 130 } else { 1 });
     }

@@ -1037,6 +1037,30 @@ fn an_interrupt_with_the_output_pipe_gone_still_cleans_up() {
     assert!(left.is_empty(), "left {left:?}");
 }
 
+/// A closed output pipe is a request to stop, as Ctrl-C is (`stcvae generate … 2>&1 | less`
+/// and quitting less): SIGPIPE's default ended the process at its next line, leaving its
+/// hidden temporary. Here stderr is a pipe whose reader is closed before the start, so
+/// the first line already finds it closed: the run of 10⁹ walks (minutes) must stop at
+/// once, write nothing, and exit with 141 (128 + SIGPIPE), not die of the signal.
+#[cfg(unix)]
+#[test]
+fn a_closed_output_pipe_stops_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    let status = std::process::Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args(words(
+            "generate --samples 1000000000 --tau 5 --g 0 --albedo 1 --out big.bin",
+        ))
+        .current_dir(dir.path())
+        .stderr(writer)
+        .status()
+        .unwrap();
+    assert_eq!(status.code(), Some(141), "{status:?}");
+    let left: Vec<_> = fs::read_dir(dir.path()).unwrap().collect();
+    assert!(left.is_empty(), "left {left:?}");
+}
+
 /// Ctrl-C stops `merge` too, into CSV and binary: it was killed outright and left its
 /// hidden temporary (224 MB for a 4-million-walk dataset) beside the output.
 #[cfg(unix)]
