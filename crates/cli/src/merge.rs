@@ -260,8 +260,13 @@ fn merge_images(a: &Args) -> Result<()> {
         Some(e) => e,
         None => inputs_exposure(&a.inputs),
     };
+    let (integrator, devices) = inputs_origin(&a.inputs);
     let report = serde_json::json!({
+        // As the render report: which stcvae merged them.
+        "version": env!("CARGO_PKG_VERSION"),
         "inputs": a.inputs.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
+        "integrator": integrator,
+        "devices": devices,
         "exposure": exposure,
         "spp": tag.spp,
         "scene_hash": format!("{:016x}", tag.scene_hash),
@@ -294,6 +299,45 @@ fn merge_images(a: &Args) -> Result<()> {
         bail!("interrupted while writing: the merged set was written whole");
     }
     Ok(())
+}
+
+/// What the inputs' reports (IN.json, as [`inputs_exposure`] reads them) say about how
+/// they were made: the integrator where every report names the same one (null where one
+/// is missing; the scene hash, which includes it, already refused a mix), and the devices
+/// they ran on, each once, in the inputs' order (a merge's own report gives its devices).
+fn inputs_origin(inputs: &[PathBuf]) -> (Option<String>, Vec<String>) {
+    let reports: Vec<Option<serde_json::Value>> = inputs
+        .iter()
+        .map(|p| {
+            let text = std::fs::read_to_string(p.with_extension("json")).ok()?;
+            serde_json::from_str(&text).ok()
+        })
+        .collect();
+    let text = |v: &serde_json::Value, k: &str| v.get(k)?.as_str().map(str::to_owned);
+    let kinds: Vec<Option<String>> = reports
+        .iter()
+        .map(|r| r.as_ref().and_then(|v| text(v, "integrator")))
+        .collect();
+    let integrator = match kinds.first() {
+        Some(Some(k)) if kinds.iter().all(|x| x.as_ref() == Some(k)) => Some(k.clone()),
+        _ => None,
+    };
+    let mut devices: Vec<String> = Vec::new();
+    for v in reports.iter().flatten() {
+        let found = text(v, "device").into_iter().chain(
+            v.get("devices")
+                .and_then(|d| d.as_array())
+                .into_iter()
+                .flatten()
+                .filter_map(|d| d.as_str().map(str::to_owned)),
+        );
+        for d in found {
+            if !devices.contains(&d) {
+                devices.push(d);
+            }
+        }
+    }
+    (integrator, devices)
 }
 
 /// The preview exposure the renders' reports (IN.json beside each IN.exr; a merge's own

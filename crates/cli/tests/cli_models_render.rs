@@ -516,6 +516,14 @@ fn render_writes_exr_png_json_and_merge_averages_by_spp() {
     assert_eq!(report["spp"], 12);
     assert_eq!(report["seeds"], serde_json::json!([1, 2]));
     assert_eq!(report["seeds_text"], serde_json::json!(["1", "2"]));
+    // How the inputs were made, from their reports: one integrator, one device.
+    assert_eq!(report["version"], env!("CARGO_PKG_VERSION"));
+    assert_eq!(report["integrator"], "stcvae", "{report}");
+    assert_eq!(
+        report["devices"].as_array().map(Vec::len),
+        Some(1),
+        "{report}"
+    );
     // The merged mean is the spp-weighted mean of the inputs' (4 and 8 spp).
     let mean = |p: &Path| -> Vec<f64> {
         let j: serde_json::Value =
@@ -2069,6 +2077,11 @@ fn merge_averages_stcvae_renders_of_both_devices() {
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(m.with_extension("json")).unwrap()).unwrap();
     assert_eq!(json["spp"], 5, "{json}");
+    // Both devices named, CPU first as the inputs were given.
+    let devices = json["devices"].as_array().unwrap();
+    assert_eq!(devices.len(), 2, "{json}");
+    assert!(devices[0].as_str().unwrap().starts_with("cpu"), "{json}");
+    assert!(devices[1].as_str().unwrap().starts_with("gpu"), "{json}");
 }
 
 /// An input that is a named pipe is refused at once by every reader, naming it: opening

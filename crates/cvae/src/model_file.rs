@@ -210,6 +210,14 @@ impl ModelSet {
             )));
         }
         let len = meta.len();
+        if len == 0 {
+            // "bad magic bytes" for a file with no bytes read as damage; an empty file is
+            // more often a failed download or copy.
+            return Err(ModelError::Invalid {
+                path: path.into(),
+                msg: "the file is empty, not a model file".into(),
+            });
+        }
         if len < 8 {
             return Err(ModelError::BadMagic { path: path.into() });
         }

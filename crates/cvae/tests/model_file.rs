@@ -150,8 +150,16 @@ fn load_refuses_foreign_and_oversized_files_before_reading_them() {
         e.contains("big.stcvae") && e.contains("more than any model file"),
         "{e}"
     );
+    // An empty file is named as one (a failed copy), not as damaged magic bytes; a short
+    // one keeps the magic bytes' message.
     let empty = sparse("empty.stcvae", b"", 0);
-    let e = ModelSet::load(&empty).unwrap_err();
+    let e = ModelSet::load(&empty).unwrap_err().to_string();
+    assert!(
+        e.contains("empty.stcvae") && e.contains("the file is empty"),
+        "{e}"
+    );
+    let short = sparse("short.stcvae", b"STC", 3);
+    let e = ModelSet::load(&short).unwrap_err();
     assert!(matches!(e, ModelError::BadMagic { .. }), "{e}");
     // A directory is named as one (it read as "bad magic bytes").
     let e = ModelSet::load(dir.path()).unwrap_err().to_string();
