@@ -904,6 +904,29 @@ fn bad_scenes_are_one_line_errors() {
         "{e}"
     );
     assert!(!out.with_extension("exr").exists());
+    // A value of the wrong kind names the kind in words, not serde's Rust type.
+    let sphere = std::fs::read_to_string(root().join("configs/scenes/sphere.toml")).unwrap();
+    for (from, to, want) in [
+        (
+            "width = 128",
+            "width = -16",
+            "expected a whole number in [0, 4294967295]",
+        ),
+        (
+            "width = 128",
+            "width = 1.5",
+            "expected a whole number in [0, 4294967295]",
+        ),
+        ("fov_deg = ", "fov_deg = \"wide\" # ", "expected a number"),
+    ] {
+        assert!(sphere.contains(from), "{from}");
+        std::fs::write(&scene, sphere.replacen(from, to, 1)).unwrap();
+        let e = fails(&stcvae(&["render", "--scene", scene.to_str().unwrap()]));
+        assert!(
+            e.contains("s.toml:") && e.contains(want) && e.trim().lines().count() == 1,
+            "{to}: {e}"
+        );
+    }
 }
 
 /// An image larger than the memory the process may allocate is refused before any work,

@@ -47,7 +47,7 @@ pub struct CameraDesc {
 /// wrong type, a triple of the wrong length) does not say which key it belongs to, the
 /// quoted line does. Every TOML file stcvae reads reports its errors this way.
 pub fn describe_toml_error(path: &Path, text: &str, e: &toml::de::Error) -> String {
-    let msg = printable(&e.message().trim().replace('\n', " "));
+    let msg = plain_types(&printable(&e.message().trim().replace('\n', " ")));
     // A field missing from the top level is reported at the document's start, whose first
     // line (often a comment) says nothing: name the field alone.
     let top_level = e.span().is_some_and(|s| s.start == 0) && msg.starts_with("missing field");
@@ -81,6 +81,21 @@ pub fn describe_toml_error(path: &Path, text: &str, e: &toml::de::Error) -> Stri
         Some((l, _)) => format!("{}:{l}: {msg}", path.display()),
         None => format!("{}: {msg}", path.display()),
     }
+}
+
+/// serde's Rust type names in words: `width = -16` said "expected u32". The field's own
+/// range is checked after parsing (the validation's messages give it).
+fn plain_types(msg: &str) -> String {
+    [
+        ("expected u32", "expected a whole number in [0, 4294967295]"),
+        ("expected u64", "expected a whole number in [0, 2⁶⁴)"),
+        ("expected usize", "expected a whole number, at least 0"),
+        ("expected i64", "expected a whole number"),
+        ("expected f64", "expected a number"),
+        ("expected f32", "expected a number"),
+    ]
+    .iter()
+    .fold(msg.to_string(), |m, (rust, plain)| m.replace(rust, plain))
 }
 
 /// `s` with control characters escaped (`\u{0}`, `\t`): a binary file given as a config is
