@@ -189,11 +189,8 @@ pub(crate) fn write_image_set_with(
         image_out(out, "png"),
         image_out(out, "json"),
     );
-    if let Some(dir) = exr.parent()
-        && !dir.as_os_str().is_empty()
-    {
-        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    }
+    // No folder made here: the set's writer makes the missing ones and removes them again
+    // if the set fails (one made up front stayed behind, empty).
     let exr_bytes = match tag {
         Some(tag) => render_gpu::image_io::encode_exr(img, tag),
         None => render_gpu::image_io::encode_untagged_exr(img),

@@ -163,9 +163,6 @@ pub fn store(file: &Path, pair: &Pair, identity: &str) -> Result<bool> {
     if !finite {
         return Ok(false);
     }
-    if let Some(dir) = file.parent() {
-        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    }
     let s = Stored {
         version: VERSION,
         width: pair.mean.width,
