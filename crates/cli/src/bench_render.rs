@@ -140,8 +140,29 @@ fn saved_files(dir: &std::path::Path, k: f64) -> Vec<std::path::PathBuf> {
     files
 }
 
-/// Writes the ladder step's images into `dir` (see `Args::save`).
+/// Writes the ladder step's images into `dir` (see `Args::save`). A failure part way (a
+/// full disk at the pixel table, several GB at 4,096²) removes the step's six files,
+/// written by this run or an earlier one: new images beside an earlier run's z map and
+/// pixel table, of other seeds or spp, read as one run's.
 fn save_images(a: &Args, dir: &std::path::Path, k: f64, pt: &Pair, st: &Pair) -> Result<()> {
+    save_images_or_none(a, dir, k, pt, st).map_err(|e| {
+        for f in saved_files(dir, k) {
+            let _ = std::fs::remove_file(f);
+        }
+        e.context(format!(
+            "k = {k}'s saved files were removed, so that none of an earlier run stays \
+             beside this one's"
+        ))
+    })
+}
+
+fn save_images_or_none(
+    a: &Args,
+    dir: &std::path::Path,
+    k: f64,
+    pt: &Pair,
+    st: &Pair,
+) -> Result<()> {
     use render_gpu::image_io::{RenderTag, RgbImage, write_png};
     // `run` created `dir` before rendering.
     let exposure = crate::experiment::measure::scale_of(&pt.mean) as f32;
@@ -612,7 +633,50 @@ pub fn run(a: Args) -> Result<()> {
 
 #[cfg(test)]
 mod tests {
-    use super::parse_k;
+    use super::{Args, parse_k, save_images, saved_files};
+    use crate::experiment::measure::Pair;
+    use clap::Parser as _;
+
+    /// A save that fails part way (the pixel table's name taken by a folder, after the
+    /// images were written) leaves none of k's files, neither this run's nor an earlier
+    /// run's (a z map and images of other seeds beside the new ones read as one run's).
+    #[test]
+    fn a_failed_save_leaves_no_mixed_files() {
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            a: Args,
+        }
+        let a = Cli::try_parse_from(["bench"]).unwrap().a;
+        let dir = tempfile::tempdir().unwrap();
+        let files = saved_files(dir.path(), 1.0);
+        let (table, others) = files.split_last().unwrap();
+        for f in others {
+            std::fs::write(f, b"an earlier run's").unwrap();
+        }
+        std::fs::create_dir(table).unwrap();
+        let pair = |v: f32| {
+            let mut mean = render_gpu::image_io::RgbImage::new(4, 4);
+            mean.pixels.iter_mut().for_each(|p| *p = [v; 3]);
+            Pair {
+                mean,
+                var: vec![[0.01; 3]; 16],
+                seconds: 1.0,
+                stats: Default::default(),
+                work: vec![1.0; 16],
+                spp: 2,
+                hash: 7,
+            }
+        };
+        let e = save_images(&a, dir.path(), 1.0, &pair(0.5), &pair(0.4)).unwrap_err();
+        assert!(
+            format!("{e:#}").contains("k = 1's saved files were removed"),
+            "{e:#}"
+        );
+        for f in others {
+            assert!(!f.exists(), "{} left", f.display());
+        }
+    }
 
     #[test]
     fn k_takes_its_range_and_nothing_else() {
