@@ -425,8 +425,11 @@ fn eval_json_and_head(
          distance; for the pairs (cos θ, α) and (cos θ, β) the 2-D KS statistic (the largest \
          difference of the samples' shares in a quadrant about any sample point, Fasano–\
          Franceschini) and the sliced W1 (mean 1-D W1 of {} projections). Only the representative \
-         event (EventGen) depends on φ; N and the exit do not.\n",
-        eval::SLICES
+         event (EventGen) depends on φ; N and the exit do not. Renders with the default \
+         exact_tau = {} simulate sphere steps below that τ exactly and draw from the models \
+         only above it: rows of smaller τ matter only for scenes that lower exact_tau.\n",
+        eval::SLICES,
+        render_gpu::scene::DEFAULT_EXACT_TAU
     )?;
     let mut line = max_ks
         .iter()
