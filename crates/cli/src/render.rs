@@ -616,6 +616,23 @@ pub fn run(mut a: Args) -> Result<()> {
     // A budget alone renders until it is spent: the scene's spp (64 in bunny_sun.toml)
     // stopped "30 s of PT" after a few seconds.
     let spp_cap = (a.time_budget.is_none() || a.spp.is_some()).then_some(r.spp);
+    // Known before the render: --variance with fewer spp than it needs wrote no variance
+    // image and exited 0 after the work. (Under a time budget alone it is told after.)
+    if let Some(n) = spp_cap
+        && a.variance
+        && n < render_gpu::render::MIN_VARIANCE_SPP
+    {
+        bail!(
+            "--variance needs at least {} spp (2 samples a channel); this render has {n} \
+             ({}): raise --spp",
+            render_gpu::render::MIN_VARIANCE_SPP,
+            if a.spp.is_some() {
+                "--spp"
+            } else {
+                "the scene's render.spp"
+            }
+        );
+    }
     if a.model.is_some() && p.model.is_none() {
         eprintln!("note: --model is not used: the PT integrator needs no model");
     }
