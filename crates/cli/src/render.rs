@@ -42,7 +42,7 @@ pub struct Args {
     pub height: Option<u32>,
     /// pt (volumetric path tracing, the reference) or stcvae (sphere tracing with the CVAEs)
     /// (overrides render.integrator).
-    #[arg(long, value_parser = parse_integrator)]
+    #[arg(long, value_parser = integrator_parser())]
     pub integrator: Option<IntegratorKind>,
     /// Next-event estimation to the directional lights, true or false (overrides
     /// render.nee).
@@ -127,12 +127,17 @@ fn parse_time_budget(s: &str) -> Result<f64, String> {
     }
 }
 
-fn parse_integrator(s: &str) -> Result<IntegratorKind, String> {
-    match s {
-        "pt" => Ok(IntegratorKind::Pt),
-        "stcvae" | "st-cvae" => Ok(IntegratorKind::Stcvae),
-        _ => Err(format!("unknown integrator '{s}': expected pt or stcvae")),
-    }
+/// `--integrator`: pt or stcvae (st-cvae accepted too), listed in the help.
+fn integrator_parser() -> impl clap::builder::TypedValueParser<Value = IntegratorKind> {
+    use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser as _};
+    PossibleValuesParser::new([
+        PossibleValue::new("pt"),
+        PossibleValue::new("stcvae").alias("st-cvae"),
+    ])
+    .map(|s| match s.as_str() {
+        "pt" => IntegratorKind::Pt,
+        _ => IntegratorKind::Stcvae,
+    })
 }
 
 #[derive(Serialize)]
