@@ -261,7 +261,7 @@ impl Boundable for PaddedTri {
 /// The spawn offset `eps`, and how far the tree's boxes are grown, as fractions of the
 /// mesh's scale ([`TriMesh::scale`]). The escape cones' box test reads the growth back
 /// ([`Geometry::box_growth`]).
-const EPS: f32 = 2e-5;
+pub const EPS: f32 = 2e-5;
 const BOX_GROWTH: f32 = 1e-5;
 
 impl Geometry {

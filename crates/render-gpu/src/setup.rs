@@ -54,6 +54,9 @@ pub struct SceneData {
     pub env: Environment,
     /// Hash of everything that defines the converged image, except spp and seed.
     pub hash: u64,
+    /// Where the renderer's origin lies in the scene file's frame (0 unless the mesh lay
+    /// far from the origin and was moved there: `recentre`).
+    pub centre: [f64; 3],
     /// Notes about the scene for the command to print, one line each (overlapping mesh
     /// pieces, rendered as their union but slower than one closed surface).
     pub notes: Vec<String>,
@@ -82,6 +85,81 @@ pub fn object_mesh(scene: &SceneFile, scene_dir: &Path) -> Result<TriMesh, Rende
     Ok(m)
 }
 
+/// Moves the mesh so that its bounding box is centred at the origin when it lies farther
+/// from the origin than its own extent (where its position, not its size, set the
+/// tolerances); returns the shift (the renderer's origin in the scene file's frame, 0 for
+/// a mesh left in place: the shipped shapes, every mesh scaled by `object.height`, and
+/// any mesh about the origin render exactly as before).
+fn recentre(mesh: &mut TriMesh) -> [f64; 3] {
+    let (lo, hi) = mesh.bounds();
+    let c = (lo.as_dvec3() + hi.as_dvec3()) * 0.5;
+    let extent = (hi - lo).max_element() as f64;
+    if c.abs().max_element() > extent {
+        // In f64, then rounded once: the differences are at the new, smaller magnitude,
+        // where f32 resolves finer than the file's positions did.
+        for p in &mut mesh.positions {
+            *p = (p.as_dvec3() - c).as_vec3();
+        }
+        c.to_array()
+    } else {
+        [0.0; 3]
+    }
+}
+
+/// The camera's origin and target, each paired with the centre's coordinate.
+fn camera_points(
+    cam: &mut crate::scene::CameraDesc,
+    centre: [f64; 3],
+) -> impl Iterator<Item = (&mut f64, &mut f64, f64)> {
+    cam.origin
+        .iter_mut()
+        .zip(cam.target.iter_mut())
+        .zip(centre)
+        .map(|((o, t), c)| (o, t, c))
+}
+
+/// Objects thinner than the surface offset resolves are refused, and those whose edges it
+/// may blur are noted. Paths start `eps` inside the surface they enter (2e-5 of the
+/// object's largest extent): a plate 1000 wide and 0.015 thick (offset 0.02) rendered as
+/// background without a word. Slabs render exactly up to an offset of 0.9 of their
+/// thickness (measured: plates 1000 and 10 wide, 0.022–0.2 thick, gave the same image),
+/// but near edges a path can start beyond the side face next to it: a unit cube with an
+/// offset of 0.02 rendered 0.27 % too transparent. The bounding box's thinnest side
+/// stands for the thickness: an object thin along a slanted direction is not caught.
+fn thin_object_check(geo: &Geometry) -> Result<Option<String>, RenderError> {
+    let thinnest = (geo.hi - geo.lo).min_element();
+    let ratio = geo.eps / thinnest;
+    let most = |share: f32| share / crate::geometry::EPS;
+    if ratio > MAX_OFFSET_OF_THICKNESS {
+        return Err(RenderError::Scene(format!(
+            "the object is too thin for its size: its bounding box is {thinnest:.4e} thick \
+             where the renderer's surface offset (2e-5 of its largest extent) is {:.4e}, so \
+             paths would start beyond its far side (allowed: a largest side at most {:.0}× \
+             the thinnest)",
+            geo.eps,
+            most(MAX_OFFSET_OF_THICKNESS)
+        )));
+    }
+    Ok((ratio > NOTE_OFFSET_OF_THICKNESS).then(|| {
+        format!(
+            "the object is thin for its size (its bounding box {thinnest:.4e} thick, its \
+             largest side {:.0}× that, beyond {:.0}×): within the renderer's surface offset \
+             ({:.4e}) of its edges, paths may start beyond the side face next to them and the \
+             image there come out too transparent",
+            (geo.hi - geo.lo).max_element() / thinnest,
+            most(NOTE_OFFSET_OF_THICKNESS),
+            geo.eps
+        )
+    }))
+}
+
+/// The surface offset's largest share of the object's thinnest bounding-box side: half
+/// (slabs render exactly to 0.9 and vanish at 1; edges are biased well before).
+pub const MAX_OFFSET_OF_THICKNESS: f32 = 0.5;
+
+/// The share beyond which a thin object is noted (a cube at twice this was 0.27 % off).
+pub const NOTE_OFFSET_OF_THICKNESS: f32 = 0.01;
+
 impl SceneData {
     /// Builds everything; `with_grid` also builds (or loads from the cache) the distance
     /// grid. `extra_hash` identifies inputs outside the scene (e.g. the model file).
@@ -91,7 +169,13 @@ impl SceneData {
         with_grid: bool,
         extra_hash: &[u8],
     ) -> Result<Self, RenderError> {
-        let mesh = object_mesh(scene, scene_dir)?;
+        let mut mesh = object_mesh(scene, scene_dir)?;
+        // A mesh far from the origin is moved to it in the renderer's frame: the surface
+        // offset and the other tolerances grow with the mesh's largest coordinate (f32
+        // rounding does), so a unit cube placed at x = 40,000 got an offset of 0.8 and
+        // rendered 5.7 % too transparent, and at 51,000 not at all. Lights and the
+        // environment are directions; the camera moves with the object.
+        let centre = recentre(&mut mesh);
         let env = crate::light::Environment::new(&scene.environment, scene_dir)?;
         let mut h = Fnv64::new();
         // What the image depends on, and nothing else: renders of one scene from two job
@@ -174,6 +258,7 @@ impl SceneData {
             )
         });
         let geo = Geometry::new(mesh);
+        let thin = thin_object_check(&geo)?;
         // The medium must be thicker than the surface offset by a margin, or paths entering
         // it start too deep and the image comes out dark (black at σ_t 10⁶ on a unit
         // sphere) without a word.
@@ -207,15 +292,22 @@ impl SceneData {
             })
             .collect();
         notes.extend(unchecked);
+        notes.extend(thin);
         // Every path starts in air (the integrators trace camera rays from outside the
         // object); from inside, a camera's paths would be taken for entering ones and lit
         // as if in air, so the image would be wrong without any error.
-        let eye = scene.camera.origin.map(|v| v as f32);
+        let mut cam_desc = scene.camera.clone();
+        for (o, t, c) in camera_points(&mut cam_desc, centre) {
+            *o -= c;
+            *t -= c;
+        }
+        let eye = cam_desc.origin.map(|v| v as f32);
         if geo.inside(glam::Vec3::from_array(eye)) {
+            let o = scene.camera.origin;
             return Err(RenderError::Scene(format!(
                 "camera.origin = [{}, {}, {}] lies inside the object: the camera must be \
                  outside it (in air)",
-                eye[0], eye[1], eye[2]
+                o[0] as f32, o[1] as f32, o[2] as f32
             )));
         }
         let grid = with_grid
@@ -223,7 +315,7 @@ impl SceneData {
             .transpose()
             .map_err(RenderError::Scene)?;
         let m = &scene.medium;
-        let mut camera = Camera::new(&scene.camera);
+        let mut camera = Camera::new(&cam_desc);
         camera.start_before(geo.lo, geo.hi);
         Ok(Self {
             geo,
@@ -241,6 +333,7 @@ impl SceneData {
             lights: scene.lights.iter().map(DirectionalLight::new).collect(),
             env,
             hash: h.finish(),
+            centre,
             notes,
         })
     }
