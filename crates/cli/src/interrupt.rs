@@ -52,7 +52,7 @@ pub fn flag() -> &'static AtomicBool {
 /// Whether the user asked to stop (Ctrl-C, or a closed output pipe: [`stop_on_closed_pipe`]),
 /// as opposed to [`stop_the_others`].
 pub fn requested() -> bool {
-    USER.load(Ordering::SeqCst)
+    USER.load(Ordering::SeqCst) || PIPE.load(Ordering::SeqCst)
 }
 
 /// Set when a write found the pipe it went to closed.
@@ -69,8 +69,9 @@ pub fn stop_on_closed_pipe() {
     {
         extern "C" fn on_sigpipe(_: libc::c_int) {
             // Atomic stores only: async-signal-safe.
+            // Not USER: a Ctrl-C after it is then still a first one (USER taken as set
+            // made the first press a repeat within SAME_REQUEST, which did nothing).
             PIPE.store(true, Ordering::SeqCst);
-            USER.store(true, Ordering::SeqCst);
             FLAG.store(true, Ordering::SeqCst);
         }
         let handler: extern "C" fn(libc::c_int) = on_sigpipe;

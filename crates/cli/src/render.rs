@@ -28,7 +28,8 @@ pub struct Args {
     #[arg(long, default_value = DEFAULT_SCENE, value_parser = crate::shipped::scene_arg(DEFAULT_SCENE))]
     pub scene: PathBuf,
     /// The scene file, given without --scene (`stcvae render S.toml`).
-    #[arg(value_name = "SCENE", conflicts_with = "scene")]
+    #[arg(value_name = "SCENE", conflicts_with = "scene",
+          value_parser = crate::shipped::scene_arg(DEFAULT_SCENE))]
     pub scene_file: Option<PathBuf>,
     /// Image width in pixels, 1 to 16384 (overrides camera.width; given alone, the height
     /// follows the camera's aspect).
@@ -140,7 +141,8 @@ fn forward_model_steps_warning(p: &Prepared) -> Option<String> {
         })
 }
 
-/// `--time-budget`: clap's own f64 parser said only "invalid float literal", with no range.
+/// `--time-budget`: clap's own f64 parser said only "invalid float literal", with no range;
+/// and 1e300 was taken (a render without end, announced with 300 digits).
 fn parse_time_budget(s: &str) -> Result<f64, String> {
     let b: f64 = s
         .trim()
@@ -186,7 +188,7 @@ struct Report<'a> {
     spp_requested: Option<u32>,
     /// `--time-budget` in seconds.
     time_budget: Option<f64>,
-    /// Whether Ctrl-C cut the render short (a time budget's stop is not an interruption).
+    /// Whether Ctrl-C, SIGTERM or a closed output pipe cut the render short (a time budget's stop is not an interruption).
     interrupted: bool,
     /// The seed, and the same as text: JSON readers that hold numbers as doubles (jq,
     /// JavaScript) round seeds above 2^53.
@@ -568,8 +570,13 @@ fn image_size(
     let (w0, h0) = (camera.width as f64, camera.height as f64);
     let derive = |given: u32, from: f64, to: f64, flag: &str, other: &str| -> Result<u32> {
         if from <= 0.0 || to <= 0.0 {
-            // The scene check names the camera's zero side.
-            return Ok(given);
+            bail!(
+                "camera.width = {}, camera.height = {}: a side of 0 is out of range (allowed \
+                 [1, {}]), and --{flag} alone keeps the camera's aspect, which needs both",
+                camera.width,
+                camera.height,
+                render_gpu::scene::MAX_IMAGE_SIDE
+            );
         }
         let v = (given as f64 * to / from).round().max(1.0);
         let max = render_gpu::scene::MAX_IMAGE_SIDE;
@@ -594,15 +601,6 @@ fn image_size(
 pub fn run(mut a: Args) -> Result<()> {
     if let Some(p) = a.scene_file.take() {
         a.scene = p;
-    }
-    // 1e300 was taken (a render without end, announced with 300 digits).
-    if let Some(b) = a.time_budget
-        && !(b > 0.0 && b <= MAX_TIME_BUDGET)
-    {
-        bail!(
-            "--time-budget {} is out of range: allowed (0, {MAX_TIME_BUDGET:e}] seconds",
-            scatter_sim::ranges::num(b)
-        );
     }
     check_out_stem(&a.out)?;
     if a.variance && a.device == DeviceArg::Gpu {

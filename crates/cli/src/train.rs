@@ -661,6 +661,15 @@ pub fn run(a: Args) -> Result<()> {
         &format!("{}: checkpoint_dir =", a.config.display()),
         &cfg.checkpoint_dir,
     )?;
+    // A folder already there is held from now on, before its checkpoints are looked at
+    // (a second run was told "holds checkpoints", and with --fresh read the whole dataset
+    // before being refused); one not there yet is made and held only before the first
+    // thing written into it, so a refused run leaves no folder.
+    let early_lock = cfg
+        .checkpoint_dir
+        .is_dir()
+        .then(|| lock_checkpoint_dir(&cfg.checkpoint_dir, &a.config))
+        .transpose()?;
     // And what the dataset comes from: a folder named as the dataset failed with a bare
     // "Is a directory"; a bad dataset_config only after "generating it from … first".
     if cfg.dataset.is_dir() {
@@ -908,7 +917,10 @@ pub fn run(a: Args) -> Result<()> {
         bail!("interrupted before training: no checkpoint removed or written");
     }
     // Held until the model is written; taken before this run removes or writes anything.
-    let _lock = lock_checkpoint_dir(&cfg.checkpoint_dir, &a.config)?;
+    let _lock = match early_lock {
+        Some(l) => l,
+        None => lock_checkpoint_dir(&cfg.checkpoint_dir, &a.config)?,
+    };
     for &k in &kinds {
         cvae::train::trainer::remove_stale_temporaries(&cfg.checkpoint_dir, k);
         if a.fresh {
@@ -1140,8 +1152,8 @@ pub fn run(a: Args) -> Result<()> {
         Some(_) => eprintln!("loss curves: {}", plot_path.display()),
         None if plot_path.is_file() => match std::fs::remove_file(&plot_path) {
             Ok(()) => eprintln!(
-                "note: removed {}: an earlier run's loss curves (this run read no \
-                 validation loss)",
+                "note: removed {}: an earlier run's loss curves (this run has none to \
+                 plot)",
                 plot_path.display()
             ),
             Err(e) => eprintln!(

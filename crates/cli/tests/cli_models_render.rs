@@ -983,11 +983,14 @@ fn far_and_thin_objects_render_as_they_should_or_are_refused() {
         ]));
         let j: serde_json::Value =
             serde_json::from_slice(&std::fs::read(d.path().join("r.json")).unwrap()).unwrap();
-        j["mean_rgb"].clone()
+        (j["mean_rgb"].clone(), j["scene_hash"].clone())
     };
-    let near = mean(&scene("near", 0.0, box_obj(0.0, 1.0, 1.0)));
-    let far = mean(&scene("far", 51_000.0, box_obj(51_000.0, 1.0, 1.0)));
+    let (near, near_hash) = mean(&scene("near", 0.0, box_obj(0.0, 1.0, 1.0)));
+    let (far, far_hash) = mean(&scene("far", 51_000.0, box_obj(51_000.0, 1.0, 1.0)));
     assert_eq!(near, far);
+    // Where the mesh was is part of the scene: moved alike, the two must not pass for one
+    // scene in `merge` (cubes at 40,000 and 40,010 before one camera hashed alike).
+    assert_ne!(near_hash, far_hash);
     // Transmittance through the cube, not the background's 1 everywhere.
     assert!(near[0].as_f64().unwrap() < 0.9, "{near}");
     let thin = scene("thin", 0.0, box_obj(0.0, 1000.0, 0.015));
@@ -1393,6 +1396,17 @@ fn render_size_flags_and_a_plain_scene_argument() {
     );
     let e = fails(&stcvae(&["render", sc, "--scene", sc]));
     assert!(e.contains("cannot be used with"), "{e}");
+    // A camera side of 0 is named, not hidden by the flag that keeps its aspect.
+    let flat = tmp.path().join("flat.toml");
+    std::fs::write(
+        &flat,
+        std::fs::read_to_string(&scene)
+            .unwrap()
+            .replace("height = 64", "height = 0"),
+    )
+    .unwrap();
+    let e = fails(&stcvae(&["render", flat.to_str().unwrap(), "--width", "8"]));
+    assert!(e.contains("camera.height = 0"), "{e}");
     let e = fails(&stcvae(&["render", "--width", "0"]));
     assert!(e.contains("--width") && e.contains("16384"), "{e}");
 }

@@ -922,9 +922,6 @@ fn a_checkpoint_record_without_its_json_is_named() {
     assert!(dir.path().join("ck/lengthgen.json").exists());
 }
 
-/// A run that memorises its dataset is told so: 40 walks trained 3,000 steps with a wide
-/// latent, EventGen's losses on held-out walks (the run's next walks) lie far above its
-/// losses on training walks (z = 11.4 measured over its 23 rows; the warning's bar is 4).
 /// A second run on a checkpoint_dir that another training holds is refused before it
 /// removes or writes anything there; once the holder is gone the same run trains. The
 /// test holds the lock itself (the lock a run takes: an advisory lock on ck/.train.lock).
@@ -951,6 +948,8 @@ fn a_checkpoint_dir_in_use_is_refused() {
         "{err}"
     );
     assert!(stale.exists(), "the holder's temporaries are left alone");
+    // Refused before any work: the missing dataset was not generated.
+    assert!(!dir.path().join("d.bin").exists());
     drop(holder);
     let o = stcvae(&["train", "--config", "train.toml", "--fresh"], dir.path());
     assert!(o.status.success(), "{}", stderr(&o));
@@ -979,6 +978,9 @@ fn an_earlier_runs_loss_curves_do_not_stay_beside_a_new_model() {
     assert!(dir.path().join("m.stcvae").is_file());
 }
 
+/// A run that memorises its dataset is told so: 40 walks trained 3,000 steps with a wide
+/// latent, EventGen's losses on held-out walks (the run's next walks) lie far above its
+/// losses on training walks (z = 11.4 measured over its 23 rows; the warning's bar is 4).
 /// The loss curves are plotted beside the model file, and the final held-out loss is in
 /// the summary.
 #[test]

@@ -407,11 +407,15 @@ pub(crate) fn mesh_hasher(geo: &Geometry, tag: &[u8]) -> Fnv64 {
 pub(crate) fn note_unwritable_cache(path: &Path, e: &std::io::Error) {
     static SAID: std::sync::Once = std::sync::Once::new();
     SAID.call_once(|| {
-        eprintln!(
+        // Not eprintln!: it panics where stderr is a closed pipe, which the CLI takes as
+        // a request to stop cleanly.
+        use std::io::Write as _;
+        let _ = writeln!(
+            std::io::stderr(),
             "note: cannot write the cache file {} ({e}): distance grids and escape cones are \
              rebuilt every run; set STCVAE_CACHE to a writable folder to keep them",
             path.display()
-        )
+        );
     });
 }
 

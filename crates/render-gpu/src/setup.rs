@@ -133,9 +133,10 @@ fn thin_object_check(geo: &Geometry) -> Result<Option<String>, RenderError> {
     if ratio > MAX_OFFSET_OF_THICKNESS {
         return Err(RenderError::Scene(format!(
             "the object is too thin for its size: its bounding box is {thinnest:.4e} thick \
-             where the renderer's surface offset (2e-5 of its largest extent) is {:.4e}, so \
-             paths would start beyond its far side (allowed: a largest side at most {:.0}× \
-             the thinnest)",
+             where the renderer's surface offset (2e-5 of its largest coordinate or extent) \
+             is {:.4e}, so paths would start beyond its far side (allowed: an offset of at \
+             most {MAX_OFFSET_OF_THICKNESS} of the thinnest side, i.e. a largest side at \
+             most {:.0}× the thinnest for an object about the origin)",
             geo.eps,
             most(MAX_OFFSET_OF_THICKNESS)
         )));
@@ -236,6 +237,14 @@ impl SceneData {
         // The renderer's own estimating code (build.rs): renders by builds that converge
         // to different images must not pass for renders of one scene.
         h.write(env!("STCVAE_RENDER_CODE").as_bytes());
+        // The positions hashed are the moved ones: where the mesh was is part of the scene
+        // (a cube at x = 40,000 and at 40,010 before one camera hashed alike and merged).
+        // Nothing is added for an unmoved mesh, whose hash stays as it was.
+        if centre != [0.0; 3] {
+            for c in centre {
+                h.write(&c.to_le_bytes());
+            }
+        }
         let unchecked = crate::mesh::unchecked_pieces(&mesh).map(|n| {
             format!(
                 "the mesh has {n} closed pieces and {} triangles: beyond {} pieces or {} \
