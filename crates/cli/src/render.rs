@@ -112,6 +112,16 @@ pub(crate) fn parse_exposure(s: &str) -> Result<f32, String> {
     }
 }
 
+/// An image-size refusal, blamed on --width/--height where they set the size, else on
+/// the scene's camera.
+fn size_error(a: &Args, flags: bool, w: u32, h: u32, e: impl std::fmt::Display) -> anyhow::Error {
+    if flags {
+        anyhow!("--width/--height {w} x {h}: {e}")
+    } else {
+        anyhow!("{}: camera.width/height: {e}", a.scene.display())
+    }
+}
+
 /// g from which the models' own small sphere steps were measured biased (below).
 const BIASED_SMALL_STEPS_G: f64 = 0.9;
 
@@ -624,13 +634,8 @@ pub fn run(mut a: Args) -> Result<()> {
         size = image_size(&f.camera, a.width, a.height)
             .map_err(|e| anyhow::anyhow!("{}: {e}", a.scene.display()))?;
         let (w, h) = size.unwrap_or((f.camera.width, f.camera.height));
-        render_gpu::render::check_image_memory_with(w, h, variance_bytes).map_err(|e| {
-            if size.is_some() {
-                anyhow::anyhow!("--width/--height {w} x {h}: {e}")
-            } else {
-                anyhow::anyhow!("{}: camera.width/height: {e}", a.scene.display())
-            }
-        })?;
+        render_gpu::render::check_image_memory_with(w, h, variance_bytes)
+            .map_err(|e| size_error(&a, size.is_some(), w, h, e))?;
     }
     let p = prepare(&a.scene, a.integrator, a.nee, a.model.as_deref(), |f| {
         if let Some(s) = a.spp {
@@ -721,13 +726,7 @@ pub fn run(mut a: Args) -> Result<()> {
     let set = p.settings();
     if engine.is_gpu() && !engine.is_hardware_gpu() {
         let (w, h) = (p.file.camera.width, p.file.camera.height);
-        software_gpu_memory(w, h, &set, 0).map_err(|e| {
-            if size.is_some() {
-                anyhow::anyhow!("--width/--height {w} x {h}: {e}")
-            } else {
-                anyhow::anyhow!("{}: camera.width/height: {e}", a.scene.display())
-            }
-        })?;
+        software_gpu_memory(w, h, &set, 0).map_err(|e| size_error(&a, size.is_some(), w, h, e))?;
     }
     eprintln!(
         "rendering {} ({}x{}, {}, {}{}) on the {}",

@@ -54,9 +54,6 @@ pub struct SceneData {
     pub env: Environment,
     /// Hash of everything that defines the converged image, except spp and seed.
     pub hash: u64,
-    /// Where the renderer's origin lies in the scene file's frame (0 unless the mesh lay
-    /// far from the origin and was moved there: `recentre`).
-    pub centre: [f64; 3],
     /// Notes about the scene for the command to print, one line each (overlapping mesh
     /// pieces, rendered as their union but slower than one closed surface).
     pub notes: Vec<String>,
@@ -106,21 +103,9 @@ fn recentre(mesh: &mut TriMesh) -> [f64; 3] {
     }
 }
 
-/// The camera's origin and target, each paired with the centre's coordinate.
-fn camera_points(
-    cam: &mut crate::scene::CameraDesc,
-    centre: [f64; 3],
-) -> impl Iterator<Item = (&mut f64, &mut f64, f64)> {
-    cam.origin
-        .iter_mut()
-        .zip(cam.target.iter_mut())
-        .zip(centre)
-        .map(|((o, t), c)| (o, t, c))
-}
-
 /// Objects thinner than the surface offset resolves are refused, and those whose edges it
 /// may blur are noted. Paths start `eps` inside the surface they enter (2e-5 of the
-/// object's largest extent): a plate 1000 wide and 0.015 thick (offset 0.02) rendered as
+/// object's largest coordinate or extent): a plate 1000 wide and 0.015 thick (offset 0.02) rendered as
 /// background without a word. Slabs render exactly up to an offset of 0.9 of their
 /// thickness (measured: plates 1000 and 10 wide, 0.022–0.2 thick, gave the same image),
 /// but near edges a path can start beyond the side face next to it: a unit cube with an
@@ -306,9 +291,9 @@ impl SceneData {
         // object); from inside, a camera's paths would be taken for entering ones and lit
         // as if in air, so the image would be wrong without any error.
         let mut cam_desc = scene.camera.clone();
-        for (o, t, c) in camera_points(&mut cam_desc, centre) {
-            *o -= c;
-            *t -= c;
+        for (k, c) in centre.into_iter().enumerate() {
+            cam_desc.origin[k] -= c;
+            cam_desc.target[k] -= c;
         }
         let eye = cam_desc.origin.map(|v| v as f32);
         if geo.inside(glam::Vec3::from_array(eye)) {
@@ -342,7 +327,6 @@ impl SceneData {
             lights: scene.lights.iter().map(DirectionalLight::new).collect(),
             env,
             hash: h.finish(),
-            centre,
             notes,
         })
     }
