@@ -146,16 +146,23 @@ fn hg_sample(g: f32, xi: f32) -> vec2<f32> {
     return vec2<f32>(select(c, -c, neg), sqrt(m * p));
 }
 
+/// copysign(1, z): −1 for −0.0 too, as the CPU's `1f32.copysign(n.z)` (a comparison
+/// n.z >= 0 would give −0.0 the other basis, so the devices would deflect one direction
+/// differently).
+fn sign_bit_of(z: f32) -> f32 {
+    return select(1.0, -1.0, (bitcast<u32>(z) >> 31u) != 0u);
+}
+
 /// Duff et al. (2017): t, b completing unit n to a right-handed basis.
 fn basis_t(n: vec3<f32>) -> vec3<f32> {
-    let s = select(-1.0, 1.0, n.z >= 0.0);
+    let s = sign_bit_of(n.z);
     let a = -1.0 / (s + n.z);
     let b = n.x * n.y * a;
     return vec3<f32>(1.0 + s * n.x * n.x * a, s * b, -s * n.x);
 }
 
 fn basis_b(n: vec3<f32>) -> vec3<f32> {
-    let s = select(-1.0, 1.0, n.z >= 0.0);
+    let s = sign_bit_of(n.z);
     let a = -1.0 / (s + n.z);
     let b = n.x * n.y * a;
     return vec3<f32>(b, s + n.y * n.y * a, -n.y);

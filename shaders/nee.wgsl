@@ -114,7 +114,7 @@ fn ball_chord(x: vec3<f32>, dir: vec3<f32>, c: vec3<f32>, f: f32) -> f32 {
     let d = x - c;
     let b = dot(d, dir);
     let chord = -b + sqrt(b * b + max(f * f - dot(d, d), 0.0));
-    return min(chord * (1.0 - 1e-4), 2.0 * f);
+    return min(chord * BALL_CHORD_SHRINK, 2.0 * f);
 }
 
 /// Σ over lights of ρ_g(W·ω_l) · T(x → light) · (E, or L/pdf for a sun disk). Every

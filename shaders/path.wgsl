@@ -3,18 +3,13 @@
 // `scatter_at(channel)`, what happens at a real collision: a PT event (pt.wgsl) or a
 // sphere step (stcvae.wgsl); it returns true after a sphere step.
 
-const RR_THRESHOLD: f32 = 0.25;
-const MAX_ITERATIONS: u32 = 50000000u;
+// RR_THRESHOLD and MAX_ITERATIONS are the CPU integrator's (prepended by gpu/kernels.rs).
 
-// Counter slots (pairs lo/hi): paths, events, steps, leaks, capped, non-finite,
-// pending, truncated, exact steps; then, from slot 9, three per lane-profile phase (active
-// lanes, capacity, passes: gpu/kernels.rs, profile_wgsl).
-const C_PATHS: u32 = 0u;
-const C_EVENTS: u32 = 1u;
-const C_STEPS: u32 = 2u;
-const C_LEAKS: u32 = 3u;
-const C_CAPPED: u32 = 4u;
-const C_NON_FINITE: u32 = 5u;
+// Counter slots (pairs lo/hi): the path counters C_PATHS, C_EVENTS, C_STEPS, C_LEAKS,
+// C_CAPPED, C_NON_FINITE, C_PENDING, C_TRUNCATED, C_EXACT, C_EXACT_EVENTS (numbered in
+// gpu/resources.rs, slot, and prepended by gpu/kernels.rs); then, from slot
+// PATH_COUNTERS, three per lane-profile phase (active lanes, capacity, passes:
+// gpu/kernels.rs, profile_wgsl).
 
 var<private> stats: array<u32, PATH_COUNTERS>;
 
@@ -425,13 +420,8 @@ fn add_counter(slot: u32, v: u32) {
     }
 }
 
-// Counter slot 6: invocations that still have work after this dispatch; slot 7:
-// invocations whose bounce loop ended early (a driver loop limit: see below).
-const C_PENDING: u32 = 6u;
-const C_TRUNCATED: u32 = 7u;
-const C_EXACT: u32 = 8u;
-// Scattering events simulated inside exact steps' walks (their N).
-const C_EXACT_EVENTS: u32 = 9u;
+// C_PENDING counts the invocations that still have work after this dispatch;
+// C_TRUNCATED those whose bounce loop ended early (a driver loop limit: see below).
 
 /// A path between dispatches, one per (pixel, lane), in `accum` as SLOT = 7 + 2·PATH_NEE_M
 /// vec4s (prepended by kernels.rs): position and β (once the path has ended and its NEE
@@ -442,7 +432,7 @@ const C_EXACT_EVENTS: u32 = 9u;
 /// render (ACC); then per path-level NEE reservoir its event's (X, q) and (W, A); the
 /// rounding ACC's RGB lost (SLOT − 2, add_sample); last ACC as the chunk began, its lost
 /// rounding added back (SLOT − 1: what a render stopped mid-chunk keeps, gpu/renderer.rs).
-const ACC: u32 = 4u;
+// ACC (kernels.rs, ACC_VEC4) is prepended.
 const ACC_LO: u32 = SLOT - 2u;
 const F_ALIVE: u32 = 1u;
 const F_SCATTERED: u32 = 2u;

@@ -251,6 +251,20 @@ fn probe_length_path(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
 }
 
+/// In: τ at 0, g at 1. Out: walk_features' τ feature and log prior (the conditioning
+/// every sphere step computes, decoder.wgsl) at 0, 1.
+@compute @workgroup_size(WORKGROUP)
+fn probe_features(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gid.x;
+    if i >= params.image.x {
+        return;
+    }
+    let wf = walk_features(item_f(i, 0u), item_f(i, 1u));
+    clear_item(i);
+    set_f(i, 0u, wf.tau);
+    set_f(i, 1u, wf.log_prior);
+}
+
 /// In: loop iterations n at 0, loop-limit probe passes at 1. Out: the iterations that ran
 /// at 0 (fewer than n where llvmpipe's loop limit cut the loop), 1 at 1 if the probe then
 /// saw the limit run out. No clear_item: after a cut-off its loop would run one pass.

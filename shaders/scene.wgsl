@@ -26,7 +26,7 @@ struct Params {
     env_radiance: vec4<f32>,
     grid_lo: vec4<f32>,         // w: cell size
     grid_dims: vec4<u32>,       // w: 1 if a grid is bound
-    lights: array<Light, 4>,
+    lights: array<Light, MAX_LIGHTS>,
     image: vec4<u32>,           // width, height, lanes, samples per lane
     sampling: vec4<u32>,        // first sample, end sample, seed lo, seed hi
     flags: vec4<u32>,           // light count, nee, dielectric, stcvae (the kernels read the
@@ -317,7 +317,7 @@ var<private> u_more: bool;
 /// two triangles of one face share hits both; twice = the same piece, the same side and
 /// t within a hundredth of the spawn offset over |cos|).
 fn union_dedupe(d: vec3<f32>) -> u32 {
-    let tol = params.consts.z * 0.01;
+    let tol = params.consts.z * CROSSING_TOL_OF_EPS;
     var kept = 0u;
     var around = 0u;
     for (var i = 0u; i < u_count; i++) {
@@ -767,14 +767,14 @@ fn grid_local_hit(o: vec3<f32>, d: vec3<f32>, tmax: f32, hit: ptr<function, Hit>
         return false;
     }
     // The coverage in f32, shrunk by far more than its rounding (consts2.y: near_surface).
-    let reach = (bitcast<f32>(grid[2u * u32(i)]) + params.consts2.y * 0.5) * (1.0 - 1e-5);
+    let reach = (bitcast<f32>(grid[2u * u32(i)]) + params.consts2.y * 0.5) * LOCAL_REACH_SHRINK;
     if length(o - grid_cell_centre(q)) + tmax > reach {
         return false;
     }
     let sh = ray_shear(o, d);
     // A segment with both ends beyond this distance on one side of a triangle's plane
     // cannot meet it (Geometry::closest_of's cull; consts.z: eps).
-    let slack = params.consts.z * 0.05;
+    let slack = params.consts.z * PLANE_SLACK_OF_EPS;
     var best = Hit(tmax, 0u, false);
     for (var k = list.x; k < list.y; k++) {
         prof(7u);
@@ -797,7 +797,7 @@ fn grid_local_hit(o: vec3<f32>, d: vec3<f32>, tmax: f32, hit: ptr<function, Hit>
 /// An upper bound on the true distance at a point of grid radius r: r + √3·cell plus
 /// slack (DistanceGrid::distance_upper_bound; consts2.y holds near_surface = 2√3·cell).
 fn grid_distance_upper_bound(r: f32) -> f32 {
-    return r + 0.5 * params.consts2.y * 1.01;
+    return r + 0.5 * params.consts2.y * UPPER_BOUND_SLACK;
 }
 
 // ---- dielectric boundary ----
@@ -865,7 +865,7 @@ fn light_sample(i: u32, u1: f32, u2: f32, channel: u32) -> LightSample {
 fn light_phase_share(i: u32, g: f32) -> f32 {
     let one_minus_g = 1.0 - abs(g);
     let lobe = PI * one_minus_g * one_minus_g;
-    return select(0.0, 0.5, TWO_PI * params.lights[i].to_light.w > lobe);
+    return select(0.0, PHASE_SHARE, TWO_PI * params.lights[i].to_light.w > lobe);
 }
 
 /// light.rs, DirectionalLight::extreme_cos: the cosine with `w` of the disk's direction

@@ -31,9 +31,9 @@ struct Queue {
     // in this turn.
     step_len: u32,
     query_len: u32,
-    // Each queue's length by its number (QUEUE_*), in the two copies; room for QUEUES ≤ 12
-    // (asserted with QUEUE_HEAD in gpu/resources.rs).
-    counts: array<array<atomic<u32>, 12>, 2>,
+    // Each queue's length by its number (QUEUE_*), in the two copies; room for QUEUES ≤
+    // QUEUE_LENGTHS (gpu/resources.rs, whose QUEUE_HEAD the layout test checks).
+    counts: array<array<atomic<u32>, QUEUE_LENGTHS>, 2>,
     // QUEUES + 1 regions of `slots` entries, one per queue, and the running paths' second
     // copy last.
     items: array<u32>,
@@ -43,7 +43,7 @@ struct Queue {
 // Workgroups (x, y, z) for the indirect dispatches over the running paths (the next
 // stage_main's), the parked sphere steps and the ray queries: written by the arguments'
 // kernels alone, which have a layout of their own (gpu/kernels.rs, args_layout).
-@group(0) @binding(10) var<storage, read_write> indirect: array<u32, 9>;
+@group(0) @binding(10) var<storage, read_write> indirect: array<u32, ARGS_WORDS>;
 
 const Q_PENDING: u32 = 1u;
 const Q_SHADOW: u32 = 2u;
@@ -63,7 +63,9 @@ const QUEUE_STEPS: u32 = 5u;
 const QUEUE_LOCAL: u32 = 6u;
 const QUEUE_CLOSEST: u32 = 7u;
 const QUEUE_SHADOW: u32 = 8u;
-const QUEUES: u32 = 9u;
+// QUEUES, the host's count (gpu/resources.rs), is prepended.
+const_assert QUEUES == QUEUE_SHADOW + 1u;
+const_assert QUEUES <= QUEUE_LENGTHS;
 // step_main's queues (from QUEUE_WALKS) and trace_main's (from QUEUE_LOCAL).
 const STEP_QUEUES: u32 = 5u;
 const QUERY_QUEUES: u32 = 3u;
@@ -164,10 +166,10 @@ fn dispatch_args(at: u32, n: u32) {
     indirect[at + 2u] = 1u;
 }
 
-// Where each kernel's arguments lie in the indirect buffer (words; gpu/resources.rs).
-const STAGE_ARGS: u32 = 0u;
-const STEP_ARGS: u32 = 3u;
-const QUERY_ARGS: u32 = 6u;
+// Where each kernel's arguments lie in the indirect buffer (words): STAGE_ARGS,
+// STEP_ARGS and QUERY_ARGS, prepended from gpu/resources.rs.
+const_assert STEP_ARGS >= STAGE_ARGS + 3u && QUERY_ARGS >= STEP_ARGS + 3u;
+const_assert ARGS_WORDS >= QUERY_ARGS + 3u;
 
 /// Closes the turn: dispatch arguments for the queues stage_main just filled
 /// (trace_main's, step_main's, and the next stage_main's over the running paths), then the

@@ -5,7 +5,7 @@
 // albedo weight and no separate NEE: EventGen's representative event, weighted Λ(N),
 // stands for NEE at all N events of the walk.
 
-const SHRINK: f32 = 0.9999;
+// SHRINK and EXACT_DISTANCE_SHRINK are sphere_step.rs's (prepended by gpu/kernels.rs).
 
 fn scatter_at(channel: u32) -> bool {
     let sigma = params.sigma_t[channel];
@@ -26,7 +26,7 @@ fn scatter_at(channel: u32) -> bool {
         if exact < 0.0 {
             exact = surface_distance(ps.pos, grid_distance_upper_bound(grid_free));
         }
-        free = max(free, exact * (1.0 - 1e-5) - params.consts.z);
+        free = max(free, exact * EXACT_DISTANCE_SHRINK - params.consts.z);
     }
     let r = min(free * SHRINK, max_tau / sigma);
     let tau = sigma * r;
@@ -190,17 +190,17 @@ fn scatter_at(channel: u32) -> bool {
 
 // ---- exact sphere steps (crates/render-gpu/src/integrator/sphere_step.rs, exact_step) ----
 
-// = scene::MAX_EXACT_NEE_SAMPLES (asserted in gpu/scene_buffers.rs).
-const MAX_EXACT_EVENTS: u32 = 4u;
+// MAX_EXACT_EVENTS = scene::MAX_EXACT_NEE_SAMPLES and MAX_PROXY_LIGHTS = the CPU's
+// (event_choice.rs), prepended by gpu/kernels.rs.
 // The exact step's event slots: (X, W) in the walk's frame, the proxy q of the event a slot
 // holds, then (after exact_walk) the events' weights Q/q with equal slots merged.
-var<private> ex_x: array<vec3<f32>, 4>;
-var<private> ex_w: array<vec3<f32>, 4>;
-var<private> ex_q: array<f32, 4>;
-var<private> ex_weight: array<f32, 4>;
+var<private> ex_x: array<vec3<f32>, MAX_EXACT_EVENTS>;
+var<private> ex_w: array<vec3<f32>, MAX_EXACT_EVENTS>;
+var<private> ex_q: array<f32, MAX_EXACT_EVENTS>;
+var<private> ex_weight: array<f32, MAX_EXACT_EVENTS>;
 var<private> ex_total: f32;
 // The lights in the walk's frame (xyz) with their irradiance in the path's channel (w).
-var<private> ex_lights: array<vec4<f32>, 4>;
+var<private> ex_lights: array<vec4<f32>, MAX_PROXY_LIGHTS>;
 
 struct ExactWalk {
     x: vec3<f32>,
@@ -248,7 +248,7 @@ fn exact_offer(x: vec3<f32>, w: vec3<f32>, q: f32, phi_k: f32, m: u32) {
 /// The walk in the unit sphere of optical radius tau (integrator/walk_lanes.rs), its m NEE
 /// events left in ex_x, ex_w, ex_weight (the first `used`).
 fn exact_walk(tau: f32, g: f32, channel: u32, m: u32, frame: WalkFrame, f_unit: f32) -> ExactWalk {
-    var nl = min(LIGHTS, 4u);
+    var nl = min(LIGHTS, MAX_PROXY_LIGHTS);
     var flat = false;
     for (var i = 0u; i < nl; i++) {
         let l = params.lights[i];

@@ -297,12 +297,18 @@ fn prepare_k(a: &Args, kind: IntegratorKind, k: f64) -> Result<crate::render::Pr
     })
 }
 
+/// The teaser's medium at k = 1 (configs/scenes/bunny.toml's, which `experiment teaser`
+/// reads; tested equal), which the ladder scales by k.
+const LADDER_SIGMA_T: [f64; 3] = [150.0, 187.5, 125.0];
+const LADDER_ALBEDO: [f64; 3] = [0.99999, 0.99995, 0.975];
+const LADDER_G: f64 = 0.875;
+
 /// The ladder's medium at density k, the bench's size and (ST-CVAE only) the command's
 /// overrides of its settings.
 fn ladder_scene(a: &Args, kind: IntegratorKind, k: f64, f: &mut render_gpu::scene::SceneFile) {
-    f.medium.sigma_t = [150.0 * k, 187.5 * k, 125.0 * k];
-    f.medium.albedo = [0.99999, 0.99995, 0.975];
-    f.medium.g = 0.875;
+    f.medium.sigma_t = LADDER_SIGMA_T.map(|s| s * k);
+    f.medium.albedo = LADDER_ALBEDO;
+    f.medium.g = LADDER_G;
     f.camera.width = a.size;
     f.camera.height = a.size;
     // ST-CVAE's own settings: PT ignores them, and leaving them out of PT's scene
@@ -519,10 +525,13 @@ pub fn run(a: Args) -> Result<()> {
     // The scene's own setting unless --nee gives one.
     let nee = a.nee.unwrap_or(scene.render.nee);
     println!(
-        "stcvae bench render: {} ({}x{}), g = 0.875, albedo (0.99999, 0.99995, 0.975), NEE {}, {} spp each (2 seeds of {}: a multiple of 3 per seed; seeds PT {:?}, ST-CVAE {:?}), {}",
+        "stcvae bench render: {} ({}x{}), g = {LADDER_G}, albedo ({}, {}, {}), NEE {}, {} spp each (2 seeds of {}: a multiple of 3 per seed; seeds PT {:?}, ST-CVAE {:?}), {}",
         a.scene.display(),
         a.size,
         a.size,
+        LADDER_ALBEDO[0],
+        LADDER_ALBEDO[1],
+        LADDER_ALBEDO[2],
         if nee { "on" } else { "off" },
         2 * half_spp(a.spp),
         half_spp(a.spp),
@@ -675,6 +684,50 @@ mod tests {
         );
         for f in others {
             assert!(!f.exists(), "{} left", f.display());
+        }
+    }
+
+    /// The ladder at k = 1 is the teaser's scene file, so that the bench's figures and
+    /// `experiment teaser`'s are of one medium.
+    #[test]
+    fn the_ladder_at_k_1_is_the_teaser_medium() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../configs/scenes/bunny.toml");
+        let text = std::fs::read_to_string(&path).unwrap();
+        let f = render_gpu::scene::SceneFile::parse(&path, &text).unwrap();
+        assert_eq!(f.medium.sigma_t, super::LADDER_SIGMA_T);
+        assert_eq!(f.medium.albedo, super::LADDER_ALBEDO);
+        assert_eq!(f.medium.g, super::LADDER_G);
+    }
+
+    /// The help's ranges of the settings the bench overrides are the scene file's limits
+    /// (clap's help is written as doc comments, which cannot name the constants).
+    #[test]
+    fn the_help_gives_the_scene_limits() {
+        use clap::CommandFactory as _;
+        use render_gpu::scene::{MAX_EXACT_NEE_SAMPLES, MAX_NEE_SAMPLES, MAX_PATH_NEE_RAYS};
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            a: Args,
+        }
+        let cmd = Cli::command();
+        let help = |id: &str| {
+            cmd.get_arguments()
+                .find(|a| a.get_id() == id)
+                .and_then(|a| a.get_help())
+                .map(|h| h.to_string())
+                .unwrap_or_default()
+        };
+        for (id, range) in [
+            ("nee_samples", format!("1 to {MAX_NEE_SAMPLES} ")),
+            (
+                "exact_nee_samples",
+                format!("1 to {MAX_EXACT_NEE_SAMPLES} "),
+            ),
+            ("path_nee_rays", format!("0 to {MAX_PATH_NEE_RAYS} ")),
+        ] {
+            assert!(help(id).contains(&range), "--{id}: {}", help(id));
         }
     }
 

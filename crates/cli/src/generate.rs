@@ -170,7 +170,7 @@ pub fn run(a: Args) -> Result<()> {
                 Some(p) => load_config(p)?,
                 None => DatasetConfig {
                     walks: DEFAULT_WALKS,
-                    seed: 1,
+                    seed: default_seed(),
                     conditions: ConditionSampler::authors(),
                 },
             };
@@ -287,4 +287,52 @@ pub fn run(a: Args) -> Result<()> {
         summary.max_events
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    /// The shipped dataset config draws from the authors' distribution, which `generate`
+    /// without a config uses too (`ConditionSampler::authors`): the two spellings of one
+    /// distribution must not drift apart.
+    #[test]
+    fn the_default_dataset_config_is_the_authors_distribution() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../configs/dataset/default.toml");
+        let cfg = super::load_config(&path).unwrap();
+        assert_eq!(
+            cfg.conditions,
+            scatter_sim::conditions::ConditionSampler::authors()
+        );
+        assert_eq!(cfg.seed, super::default_seed());
+        assert_eq!(cfg.walks, super::DEFAULT_WALKS);
+    }
+
+    /// `generate`'s and `sample`'s help give τ's and g's ranges as the checks have them
+    /// (clap's help is written as doc comments, which cannot name the constants).
+    #[test]
+    fn the_help_gives_the_checked_ranges() {
+        use clap::CommandFactory as _;
+        use scatter_sim::ranges::{G_RANGE, TAU_RANGE};
+        #[derive(clap::Parser)]
+        struct Generate {
+            #[command(flatten)]
+            a: super::Args,
+        }
+        #[derive(clap::Parser)]
+        struct Sample {
+            #[command(flatten)]
+            a: crate::model_cmds::SampleArgs,
+        }
+        for cmd in [Generate::command(), Sample::command()] {
+            let help = |id: &str| {
+                cmd.get_arguments()
+                    .find(|a| a.get_id() == id)
+                    .and_then(|a| a.get_help())
+                    .map(|h| h.to_string())
+                    .unwrap_or_default()
+            };
+            assert!(help("tau").contains(TAU_RANGE), "{}", help("tau"));
+            assert!(help("g").contains(G_RANGE), "{}", help("g"));
+        }
+    }
 }

@@ -262,15 +262,15 @@ pub(crate) fn outside_training(v: f64, r: [f64; 2]) -> bool {
     v < r[0] - tol || v > r[1] + tol
 }
 
-/// Whether a largest sphere step `t` (render.max_tau, --max-tau) goes beyond the model's
-/// training range, with [`outside_training`]'s tolerance: the shipped model's 299.9996
-/// admits the max_tau = 300 of the README's example.
 /// The largest sphere step without `max_tau`: the model's training maximum, as the
 /// renderer holds it (f32). A `min_tau` above it leaves ST-CVAE no step to take.
 pub(crate) fn default_max_tau(m: &ModelSet) -> f64 {
     m.training.tau_range[1] as f32 as f64
 }
 
+/// Whether a largest sphere step `t` (render.max_tau, --max-tau) goes beyond the model's
+/// training range, with [`outside_training`]'s tolerance: the shipped model's 299.9996
+/// admits the max_tau = 300 of the README's example.
 pub(crate) fn beyond_trained_tau(t: f64, m: &ModelSet) -> bool {
     let r = m.training.tau_range;
     t > r[1] && outside_training(t, r)

@@ -48,6 +48,14 @@ const MAGIC: &[u8; 8] = b"STCVDG04";
 /// lists after it) where a clear error is due.
 pub const MAX_CANDIDATES: u64 = u32::MAX as u64;
 
+/// A cell's coverage, in f32, is shrunk by this factor (far more than its rounding) before
+/// a local hit test trusts that its candidate list holds every triangle within reach.
+pub const LOCAL_REACH_SHRINK: f32 = 1.0 - 1e-5;
+
+/// The slack of [`DistanceGrid::distance_upper_bound`]: 1 % covers the rounding margin
+/// (eps/2, below 1 % of √3·cell for any grid under 1,000 cells a side).
+pub const UPPER_BOUND_SLACK: f32 = 1.01;
+
 impl DistanceGrid {
     /// Builds the grid with `resolution` cells along the longest side of the bounds; an
     /// error when its cell lists would exceed [`MAX_CANDIDATES`] (the lists stop being
@@ -176,7 +184,8 @@ impl DistanceGrid {
             return None;
         }
         // The coverage in f32, shrunk by far more than its rounding.
-        let reach = (f32::from_bits(self.cells[i][0]) + self.near_surface * 0.5) * (1.0 - 1e-5);
+        let reach =
+            (f32::from_bits(self.cells[i][0]) + self.near_surface * 0.5) * LOCAL_REACH_SHRINK;
         if (origin - centre).length() + tmax > reach {
             return None;
         }
@@ -230,7 +239,7 @@ impl DistanceGrid {
     /// this bound returns the exact distance while visiting only the nodes near p.
     #[inline]
     pub fn distance_upper_bound(&self, radius: f32) -> f32 {
-        radius + 0.5 * self.near_surface * 1.01
+        radius + 0.5 * self.near_surface * UPPER_BOUND_SLACK
     }
 
     /// Loads the grid from the cache or builds and caches it when building takes long.

@@ -69,6 +69,15 @@ pub const MAX_SPAWN_DEPTH: f32 = 1.0;
 /// take it from here).
 pub const SLIVER_REACH_OF_EPS: f32 = 1.05;
 
+/// A segment with both ends farther than this (in units of eps, 10⁻⁶ of the scene's size:
+/// ten times the roundings of the plane distances) on one side of a triangle's plane
+/// cannot meet it ([`Geometry::closest_of`]'s cull).
+pub const PLANE_SLACK_OF_EPS: f32 = 0.05;
+
+/// Two crossings of one face within this (in units of eps) are one crossing of an edge
+/// two of its triangles share (the union's dedupe).
+pub const CROSSING_TOL_OF_EPS: f32 = 0.01;
+
 pub struct Geometry {
     pub mesh: TriMesh,
     pub tris: Vec<Triangle>,
@@ -387,7 +396,7 @@ impl Geometry {
     /// size (ten times the roundings of the plane distances), which a hit cannot be.
     pub fn closest_of(&self, origin: Vec3, dir: Vec3, tmax: f32, prims: &[u32]) -> Option<Hit> {
         let shear = RayShear::new(origin, dir);
-        let slack = self.eps * 0.05;
+        let slack = self.eps * PLANE_SLACK_OF_EPS;
         let mut best = Closest::new(tmax);
         for &prim in prims {
             let b = &self.bounds[prim as usize];
@@ -556,7 +565,7 @@ impl Geometry {
             return None;
         }
         out[..n].sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
-        let tol = self.eps * 0.01;
+        let tol = self.eps * CROSSING_TOL_OF_EPS;
         let mut kept = 0usize;
         for i in 0..n {
             let c = out[i];

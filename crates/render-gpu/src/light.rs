@@ -9,6 +9,10 @@ use crate::error::RenderError;
 use crate::image_io::{MAX_ENV_PIXELS, RgbImage, read_exr_at_most};
 use crate::scene::{EnvironmentDesc, LightDesc};
 
+/// The share of NEE's directions drawn from the phase function where its lobe is
+/// narrower than a sun disk ([`DirectionalLight::phase_share`]).
+pub const PHASE_SHARE: f32 = 0.5;
+
 #[derive(Clone, Copy, Debug)]
 pub struct DirectionalLight {
     /// Unit vector pointing toward the light (minus the travel direction).
@@ -111,7 +115,11 @@ impl DirectionalLight {
     /// what they did.
     pub fn phase_share(&self, g: f32) -> f32 {
         let lobe = PI * (1.0 - g.abs()).powi(2);
-        if self.solid_angle() > lobe { 0.5 } else { 0.0 }
+        if self.solid_angle() > lobe {
+            PHASE_SHARE
+        } else {
+            0.0
+        }
     }
 
     /// NEE's direction toward this light from an event scattering along `w` in a medium

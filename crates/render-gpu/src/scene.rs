@@ -365,6 +365,8 @@ pub const MAX_EXACT_NEE_SAMPLES: u32 = 4;
 /// Largest `render.path_nee_rays` (the GPU kernel saves each reservoir with its path
 /// between dispatches, two vec4s each: shaders/path.wgsl).
 pub const MAX_PATH_NEE_RAYS: u32 = 2;
+/// Most representative events (EventGen draws) per model-drawn sphere step.
+pub const MAX_NEE_SAMPLES: u32 = 64;
 
 impl RenderDesc {
     /// The exact-walk threshold: the scene's, else [`DEFAULT_EXACT_TAU`].
@@ -689,9 +691,9 @@ impl SceneFile {
                 r.path_nee_rays
             ));
         }
-        if !(1..=64).contains(&r.nee_samples) {
+        if !(1..=MAX_NEE_SAMPLES).contains(&r.nee_samples) {
             return Err(format!(
-                "render.nee_samples = {} is out of range: allowed [1, 64]",
+                "render.nee_samples = {} is out of range: allowed [1, {MAX_NEE_SAMPLES}]",
                 r.nee_samples
             ));
         }

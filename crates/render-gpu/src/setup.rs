@@ -118,10 +118,11 @@ fn thin_object_check(geo: &Geometry) -> Result<Option<String>, RenderError> {
     if ratio > MAX_OFFSET_OF_THICKNESS {
         return Err(RenderError::Scene(format!(
             "the object is too thin for its size: its bounding box is {thinnest:.4e} thick \
-             where the renderer's surface offset (2e-5 of its largest coordinate or extent) \
+             where the renderer's surface offset ({:e} of its largest coordinate or extent) \
              is {:.4e}, so paths would start beyond its far side (allowed: an offset of at \
              most {MAX_OFFSET_OF_THICKNESS} of the thinnest side, i.e. a largest side at \
              most {:.0}× the thinnest for an object about the origin)",
+            crate::geometry::EPS,
             geo.eps,
             most(MAX_OFFSET_OF_THICKNESS)
         )));
@@ -261,12 +262,13 @@ impl SceneData {
             if depth > crate::geometry::MAX_SPAWN_DEPTH as f64 {
                 return Err(RenderError::Scene(format!(
                     "medium.sigma_t[{i}] = {} is too dense for this object: the renderer's \
-                     surface offset ({:.3e}, 2e-5 of the object's largest coordinate or \
+                     surface offset ({:.3e}, {:e} of the object's largest coordinate or \
                      extent) would be {depth:.2} mean free paths deep and bias the image; \
                      allowed sigma_t <= {:.4e} here (scale the object up, move it to the \
                      origin, or lower sigma_t)",
                     scatter_sim::ranges::num(s),
                     geo.eps,
+                    crate::geometry::EPS,
                     crate::geometry::MAX_SPAWN_DEPTH as f64 / geo.eps as f64
                 )));
             }

@@ -76,7 +76,7 @@ fn wgsl_hg_and_frame_match_rust() {
     let mut rng = WalkRng::from_seed(17);
     let mut items = Vec::new();
     let mut expect = Vec::new();
-    for _ in 0..4096 {
+    for n in 0..4096 {
         let g = if rng.uniform() < 0.25 {
             let edge = [0.99, 0.995, 0.999][(rng.uniform() * 3.0) as usize % 3];
             if rng.uniform() < 0.5 { -edge } else { edge }
@@ -89,6 +89,19 @@ fn wgsl_hg_and_frame_match_rust() {
             if v.length_squared() > 0.01 && v.length_squared() < 1.0 {
                 break v.normalize().as_vec3().as_dvec3();
             }
+        };
+        // Every 128th direction in the plane z = ±0: the basis's sign must follow the
+        // sign bit of a −0.0 as the CPU's copysign does, or the GPU deflects it otherwise.
+        let dir = match n % 256 {
+            0 => DVec3::new(dir.x, dir.y, -0.0)
+                .normalize()
+                .as_vec3()
+                .as_dvec3(),
+            128 => DVec3::new(dir.x, dir.y, 0.0)
+                .normalize()
+                .as_vec3()
+                .as_dvec3(),
+            _ => dir,
         };
         let (c, s) = rng.unit_circle();
         let (c, s) = (c as f32 as f64, s as f32 as f64);
@@ -328,6 +341,46 @@ fn wgsl_length_and_exit_read_outs_match_rust() {
         let mut set = model().clone();
         set.single_scattering = mode;
         length_and_exit_match(&ctx, &set);
+    }
+}
+
+/// The WGSL conditioning features of a sphere step (τ feature ln(1 + τ) and the log prior
+/// of N) equal cvae::features' (f64) on τ from 0 to 10⁴ and g across (−1, 1): the two are
+/// written apart (decoder.wgsl and features.rs), and a change to one alone would feed the
+/// GPU's decoders other inputs than the ones the model was trained on. Tolerance: the
+/// inputs are exact f32 values on both sides; Vulkan's log is exact to 2⁻²¹ absolute near 1
+/// and to 3 ulp of its result elsewhere (3 × 2⁻²³ ≈ 3.6e-7 relative), and the prior's
+/// argument (up to ~10⁸) is a few f32 operations (each 6e-8 relative, which ln turns into
+/// ≤ 3e-7 absolute): 2e-6 absolute plus 4e-7 of the value. A change of either coefficient
+/// of the prior by 1 % moves it by far more for some items: the 0.5's by ~1e-2 at τ = 10⁴,
+/// the 0.71's by ~9e-3 at τ = 10 with g near 1.
+#[test]
+fn wgsl_walk_features_match_rust() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let mut rng = WalkRng::from_seed(43);
+    let items: Vec<Item> = (0..2000)
+        .map(|i| {
+            let mut it: Item = [0.0; 32];
+            it[0] = match i % 10 {
+                0 => 0.0,
+                1 => 1e-6 * rng.uniform() as f32,
+                _ => 10f64.powf(4.0 * rng.uniform()) as f32,
+            };
+            it[1] = (1.998 * rng.uniform() - 0.999) as f32;
+            it
+        })
+        .collect();
+    let out = render_gpu::gpu::probe::run_probe(&ctx, "probe_features", model(), &items).unwrap();
+    for (i, (o, it)) in out.iter().zip(&items).enumerate() {
+        let (tau, g) = (it[0] as f64, it[1] as f64);
+        let f = cvae::features::WalkFeatures::new(tau, g, 1.0);
+        for (k, (got, want)) in [(o[0], f.tau), (o[1], f.log_prior)].into_iter().enumerate() {
+            assert!(
+                (got as f64 - want).abs() < 2e-6 + 4e-7 * want.abs(),
+                "item {i} (τ {tau}, g {g}): feature {k} {got} vs {want}"
+            );
+        }
     }
 }
 

@@ -12,6 +12,10 @@ pub const G_MAX: f64 = 0.999;
 pub const TAU_LIMIT: f64 = 1000.0;
 /// Upper end of the authors' training distribution τ = 300·u³.
 pub const AUTHORS_TAU_MAX: f64 = 300.0;
+/// [`TAU_LIMIT`]'s and [`G_MAX`]'s ranges as messages and `--help` texts write them
+/// (tested equal to the numbers, and the CLI's help against these).
+pub const TAU_RANGE: &str = "[0, 1000]";
+pub const G_RANGE: &str = "[-0.999, 0.999]";
 
 /// A value for a range message: scientific notation when plain digits would run long
 /// (1e38 rather than 39 digits, 1e-7 rather than 0.0000001). Written in the value's own
@@ -51,15 +55,24 @@ fn check(field: &str, value: f64, ok: bool, allowed: &'static str) -> Result<(),
 
 /// τ ∈ [0, TAU_LIMIT].
 pub fn check_tau(field: &str, tau: f64) -> Result<(), RangeError> {
-    check(field, tau, (0.0..=TAU_LIMIT).contains(&tau), "[0, 1000]")
+    check(field, tau, (0.0..=TAU_LIMIT).contains(&tau), TAU_RANGE)
 }
 
 /// g ∈ [−G_MAX, G_MAX].
 pub fn check_g(field: &str, g: f64) -> Result<(), RangeError> {
-    check(field, g, (-G_MAX..=G_MAX).contains(&g), "[-0.999, 0.999]")
+    check(field, g, (-G_MAX..=G_MAX).contains(&g), G_RANGE)
 }
 
 /// φ ∈ [0, 1].
 pub fn check_albedo(field: &str, albedo: f64) -> Result<(), RangeError> {
     check(field, albedo, (0.0..=1.0).contains(&albedo), "[0, 1]")
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_range_texts_are_the_limits() {
+        assert_eq!(super::TAU_RANGE, format!("[0, {}]", super::TAU_LIMIT));
+        assert_eq!(super::G_RANGE, format!("[-{0}, {0}]", super::G_MAX));
+    }
 }

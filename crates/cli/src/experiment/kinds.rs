@@ -529,7 +529,17 @@ fn distributions(ctx: &Ctx, rep: &mut Report) -> Result<()> {
     for (q, v) in &max_ks {
         rep.row(vec![(*q).into(), Cell::Num(*v)]);
     }
-    rep.text(&format!("{samples} model samples vs {samples} simulator walks per setting (τ ∈ {{1, 5, 25, 125}} × g ∈ {{−0.7, 0, 0.4, 0.9}}, φ ∈ {{1, 0.9}}); the largest two-sample KS statistic over the grid. Full table: [metrics.md](metrics.md).\n"));
+    // The grid as eval::TAUS, GS and ALBEDOS hold it, minus signs typeset.
+    let set = |v: &[f64]| {
+        let items: Vec<String> = v.iter().map(|x| format!("{x}").replace('-', "−")).collect();
+        format!("{{{}}}", items.join(", "))
+    };
+    rep.text(&format!(
+        "{samples} model samples vs {samples} simulator walks per setting (τ ∈ {} × g ∈ {}, φ ∈ {}); the largest two-sample KS statistic over the grid. Full table: [metrics.md](metrics.md).\n",
+        set(&cvae::eval::TAUS),
+        set(&cvae::eval::GS),
+        set(&cvae::eval::ALBEDOS)
+    ));
     rep.table();
     for f in crate::plots::PLOT_FILES {
         if ctx.out.join(f).exists() {

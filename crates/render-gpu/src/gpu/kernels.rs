@@ -416,7 +416,7 @@ pub fn source(
         switches.nee,
         profile_wgsl(shape.profile),
         aggregate_wgsl(shape.aggregate),
-    );
+    ) + &tied_constants_wgsl();
 
     let parts: &[&str] = match (kernel, shape.staged) {
         (Kernel::Pt, false) => &[COMMON, &stack, SCENE, NEE, PT, PATH],
@@ -439,6 +439,51 @@ pub fn source(
         ],
     };
     Ok(parts.join("\n"))
+}
+
+/// The kernels' constants whose one definition is on the host: the estimator's factors
+/// shared with the CPU integrators (a copy in WGSL could drift from them silently, and
+/// images of both devices are merged), and the sizes and slots of the buffers the host
+/// writes and reads.
+fn tied_constants_wgsl() -> String {
+    use super::resources as r;
+    use crate::{distance_grid, geometry, integrator, light};
+    let mut s = format!(
+        "const RR_THRESHOLD: f32 = {:?};\nconst MAX_ITERATIONS: u32 = {}u;\n\
+         const SHRINK: f32 = {:?};\nconst EXACT_DISTANCE_SHRINK: f32 = {:?};\n\
+         const BALL_CHORD_SHRINK: f32 = {:?};\nconst LOCAL_REACH_SHRINK: f32 = {:?};\n\
+         const UPPER_BOUND_SLACK: f32 = {:?};\nconst PLANE_SLACK_OF_EPS: f32 = {:?};\n\
+         const CROSSING_TOL_OF_EPS: f32 = {:?};\nconst PHASE_SHARE: f32 = {:?};\n\
+         const MAX_LIGHTS: u32 = {}u;\nconst MAX_PROXY_LIGHTS: u32 = {}u;\n\
+         const MAX_EXACT_EVENTS: u32 = {}u;\nconst ACC: u32 = {}u;\n\
+         const QUEUES: u32 = {}u;\nconst QUEUE_LENGTHS: u32 = {}u;\n\
+         const STAGE_ARGS: u32 = {}u;\nconst STEP_ARGS: u32 = {}u;\n\
+         const QUERY_ARGS: u32 = {}u;\nconst ARGS_WORDS: u32 = {}u;\n",
+        integrator::RR_THRESHOLD,
+        u32::try_from(integrator::MAX_ITERATIONS).expect("MAX_ITERATIONS fits a u32"),
+        integrator::sphere_step::SHRINK,
+        integrator::sphere_step::EXACT_DISTANCE_SHRINK,
+        integrator::sphere_step::BALL_CHORD_SHRINK,
+        distance_grid::LOCAL_REACH_SHRINK,
+        distance_grid::UPPER_BOUND_SLACK,
+        geometry::PLANE_SLACK_OF_EPS,
+        geometry::CROSSING_TOL_OF_EPS,
+        light::PHASE_SHARE,
+        super::scene_buffers::MAX_GPU_LIGHTS,
+        integrator::event_choice::MAX_PROXY_LIGHTS,
+        crate::scene::MAX_EXACT_NEE_SAMPLES,
+        ACC_VEC4,
+        r::QUEUES,
+        r::QUEUE_LENGTHS,
+        r::STAGE_ARGS_AT / 4,
+        r::STEP_ARGS_AT / 4,
+        r::QUERY_ARGS_AT / 4,
+        r::ARGS_BYTES / 4,
+    );
+    for (name, slot) in r::slot::WGSL {
+        s += &format!("const {name}: u32 = {slot}u;\n");
+    }
+    s
 }
 
 fn storage(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {

@@ -18,7 +18,11 @@ pub fn model_params(m: &ModelSet) -> ModelParams {
         flags: [
             (m.single_scattering == SingleScattering::Exact) as u32,
             m.n_min() as u32,
-            (m.event_radial() == cvae::features::EventRadial::GaussianEdge) as u32,
+            // A match, not a comparison: a new map must be given its WGSL code here.
+            match m.event_radial() {
+                cvae::features::EventRadial::Atanh => 0,
+                cvae::features::EventRadial::GaussianEdge => 1,
+            },
             0,
         ],
     }

@@ -16,8 +16,8 @@ use super::kernels::{self, Kernel, KernelShape, StackMemory};
 
 use super::model_buffers::model_params;
 use super::resources::{
-    COUNTER_BYTES, Inputs, PENDING_SLOT, QUEUE_SLOT_BYTES, Readback, Resources, STAGE_SLOT_BYTES,
-    StagedKernels, Turn, read_back, start_read_back, wait,
+    COUNTER_BYTES, Inputs, QUEUE_SLOT_BYTES, Readback, Resources, STAGE_SLOT_BYTES, StagedKernels,
+    Turn, read_back, slot, start_read_back, wait,
 };
 use super::scene_buffers::{
     Params, bvh_depth, env_buffer, geometry_buffers, grid_buffer, scene_params,
@@ -434,8 +434,8 @@ impl Dispatcher<'_> {
                 }
             }
             let c = wait_for(ctx, read, dispatch)?;
-            let pair = |k: usize| counter(&c, k);
-            if pair(7) > 0
+            let pair = |k: u64| counter(&c, k);
+            if pair(slot::TRUNCATED) > 0
                 && let Some(snap) = snap
             {
                 // Undo the cut-off dispatch and redo it with half the budget.
@@ -451,7 +451,7 @@ impl Dispatcher<'_> {
             // Counted once a dispatch stands (an undone one is not).
             tally(ctx, &c, *budget, stats, dispatch)?;
             params.misc[3] = 0;
-            if pair(PENDING_SLOT as usize) == 0 {
+            if pair(slot::PENDING) == 0 {
                 // The submission sent ahead ran its turns over empty queues; its counters
                 // are read all the same, so that nothing it did goes uncounted.
                 if let Some(last) = in_flight.take() {
@@ -484,7 +484,8 @@ fn wait_for(
 }
 
 /// Counter slot `k` (a lo/hi pair of u32 words) of the counters `c` read back.
-fn counter(c: &[u8], k: usize) -> u64 {
+fn counter(c: &[u8], k: u64) -> u64 {
+    let k = k as usize;
     let word = |i: usize| u32::from_le_bytes(c[4 * i..4 * i + 4].try_into().unwrap()) as u64;
     word(2 * k) | (word(2 * k + 1) << 32)
 }
@@ -499,26 +500,26 @@ fn tally(
     stats: &mut PathStats,
     dispatch: &mut DispatchStats,
 ) -> Result<(), RenderError> {
-    let pair = |k: usize| counter(c, k);
+    let pair = |k: u64| counter(c, k);
     if let Some(lanes) = &mut dispatch.lanes {
         for (i, p) in lanes.phases.iter_mut().enumerate() {
-            let k = super::resources::PATH_COUNTERS as usize + 3 * i;
+            let k = super::resources::PATH_COUNTERS + 3 * i as u64;
             p.active += pair(k);
             p.capacity += pair(k + 1);
             p.passes += pair(k + 2);
         }
     }
     stats.add(&PathStats {
-        paths: pair(0),
-        events: pair(1),
-        steps: pair(2),
-        leaks: pair(3),
-        capped: pair(4),
-        non_finite: pair(5),
-        exact_steps: pair(8),
-        exact_events: pair(9),
+        paths: pair(slot::PATHS),
+        events: pair(slot::EVENTS),
+        steps: pair(slot::STEPS),
+        leaks: pair(slot::LEAKS),
+        capped: pair(slot::CAPPED),
+        non_finite: pair(slot::NON_FINITE),
+        exact_steps: pair(slot::EXACT),
+        exact_events: pair(slot::EXACT_EVENTS),
     });
-    if pair(7) > 0 {
+    if pair(slot::TRUNCATED) > 0 {
         let hint = if budget > 1 {
             format!("set STCVAE_GPU_BOUNCES below {budget}")
         } else {
@@ -531,7 +532,7 @@ fn tally(
         return Err(RenderError::Gpu(format!(
             "{} invocations were stopped by {}'s loop limit (lavapipe stops a shader \
              after 65,535 loop iterations); {hint} or use --device cpu",
-            pair(7),
+            pair(slot::TRUNCATED),
             ctx.adapter.name,
         )));
     }

@@ -30,38 +30,82 @@ pub struct Resources {
     _inputs: Vec<wgpu::Buffer>,
 }
 
-/// The path counters (`C_*` in shaders/path.wgsl, which gets this number as
-/// `PATH_COUNTERS`): the first counter slots.
-pub const PATH_COUNTERS: u64 = 10;
+/// The path counters' slots (lo/hi u32 pairs), read by the host here and named `C_*` in
+/// the kernels, which get them from [`slot::WGSL`] (gpu/kernels.rs): one definition, so a
+/// counter cannot be written under one number and read under another.
+pub mod slot {
+    pub const PATHS: u64 = 0;
+    pub const EVENTS: u64 = 1;
+    pub const STEPS: u64 = 2;
+    pub const LEAKS: u64 = 3;
+    pub const CAPPED: u64 = 4;
+    pub const NON_FINITE: u64 = 5;
+    /// Invocations that still have work after a dispatch.
+    pub const PENDING: u64 = 6;
+    /// Invocations whose bounce loop a driver's loop limit ended early.
+    pub const TRUNCATED: u64 = 7;
+    pub const EXACT: u64 = 8;
+    /// Scattering events simulated inside exact steps' walks (their N).
+    pub const EXACT_EVENTS: u64 = 9;
+    /// Every path counter under its kernels' name, in slot order.
+    pub const WGSL: [(&str, u64); 10] = [
+        ("C_PATHS", PATHS),
+        ("C_EVENTS", EVENTS),
+        ("C_STEPS", STEPS),
+        ("C_LEAKS", LEAKS),
+        ("C_CAPPED", CAPPED),
+        ("C_NON_FINITE", NON_FINITE),
+        ("C_PENDING", PENDING),
+        ("C_TRUNCATED", TRUNCATED),
+        ("C_EXACT", EXACT),
+        ("C_EXACT_EVENTS", EXACT_EVENTS),
+    ];
+}
+
+/// The path counters (`PATH_COUNTERS` in the kernels): the first counter slots.
+pub const PATH_COUNTERS: u64 = slot::WGSL.len() as u64;
+const _: () = {
+    let mut i = 0;
+    while i < slot::WGSL.len() {
+        assert!(
+            slot::WGSL[i].1 == i as u64,
+            "slot::WGSL lists the slots in order"
+        );
+        i += 1;
+    }
+};
 
 /// Counter slots (lo/hi u32 pairs): the path counters, then per lane-profile phase its
 /// active lanes, its lane capacity and its subgroup passes
 /// ([`super::kernels::PROFILE_PHASES`]).
 pub const COUNTER_SLOTS: u64 = PATH_COUNTERS + 3 * super::kernels::PROFILE_PHASES.len() as u64;
 
-/// The counter slot of the invocations still pending after a dispatch (`C_PENDING` in
-/// shaders/path.wgsl).
-pub const PENDING_SLOT: u64 = 6;
-
 /// Bytes of the staged render's `stage` buffer per path slot: its query record.
 pub const STAGE_SLOT_BYTES: u64 = 16 * super::kernels::STAGE_VEC4S;
 
+/// Lengths `Queue.counts` holds per copy (`QUEUE_LENGTHS` in the kernels).
+pub const QUEUE_LENGTHS: u64 = 12;
+
 /// Bytes before the queues' slot indices (`Queue` in shaders/staged.wgsl): the turn, the
 /// parked sphere steps' and the ray queries' totals, then every queue's length in two
-/// copies of 12 words.
-const QUEUE_HEAD: u64 = 4 * (1 + 2 + 2 * 12);
+/// copies of [`QUEUE_LENGTHS`] words. Checked against the WGSL struct's layout by
+/// `kernels::tests::host_structs_match_the_wgsl_layouts`.
+pub const QUEUE_HEAD: u64 = 4 * (1 + 2 + 2 * QUEUE_LENGTHS);
 
 /// The queues (`QUEUES` in shaders/staged.wgsl): running paths, parked exact steps by
 /// optical radius (four), parked model steps, and ray queries by kind (three).
-const QUEUES: u64 = 9;
-const _: () = assert!(QUEUES <= 12, "Queue.counts holds 12 lengths");
+pub const QUEUES: u64 = 9;
+const _: () = assert!(
+    QUEUES <= QUEUE_LENGTHS,
+    "Queue.counts holds QUEUE_LENGTHS lengths"
+);
 
-/// Where in the indirect buffer each kernel's dispatch arguments lie, in bytes (`STAGE_ARGS`
-/// etc. in shaders/staged.wgsl: words 0, 3 and 6), and its size.
-const STAGE_ARGS_AT: u64 = 0;
-const STEP_ARGS_AT: u64 = 12;
-const QUERY_ARGS_AT: u64 = 24;
-const ARGS_BYTES: u64 = QUERY_ARGS_AT + 12;
+/// Where in the indirect buffer each kernel's dispatch arguments lie, in bytes (the
+/// kernels get them in words as `STAGE_ARGS` etc.), and its size.
+pub const STAGE_ARGS_AT: u64 = 0;
+pub const STEP_ARGS_AT: u64 = 12;
+pub const QUERY_ARGS_AT: u64 = 24;
+pub const ARGS_BYTES: u64 = QUERY_ARGS_AT + 12;
 
 /// Bytes of the staged render's queues per path slot: one entry in each queue, two in the
 /// running paths' (its copies alternate by turn).

@@ -69,11 +69,6 @@ pub struct Params {
 /// constant so that the shader compiler cannot unroll the loop away.
 pub const LOOP_PROBE_PASSES: f32 = 2.0;
 
-// shaders/stcvae.wgsl sizes its exact steps' reservoir arrays with MAX_EXACT_EVENTS = 4:
-// the scene's limit on exact_nee_samples must match, or the GPU would clamp where the CPU
-// does not.
-const _: () = assert!(crate::scene::MAX_EXACT_NEE_SAMPLES == 4);
-
 /// A BVH2 node as obvhs lays it out (children of an inner node at `first`, `first + 1`;
 /// a leaf's triangles at `first..first + count` of the reordered triangle buffer).
 #[repr(C)]

@@ -6,7 +6,7 @@
 //! stratified over a pixel's samples) and its estimate is added, times 3, to that channel;
 //! `render::resolve_pixel` turns the sums into each channel's mean over its own samples.
 
-mod event_choice;
+pub(crate) mod event_choice;
 pub mod nee;
 pub mod sphere_step;
 mod walk_lanes;
@@ -95,9 +95,9 @@ impl IntegratorSettings<'_> {
 }
 
 /// Safety cap on loop iterations of one path; far beyond any physical path here.
-const MAX_ITERATIONS: u64 = 50_000_000;
+pub(crate) const MAX_ITERATIONS: u64 = 50_000_000;
 /// Russian roulette starts below this throughput; survivors are raised back to it.
-const RR_THRESHOLD: f32 = 0.25;
+pub(crate) const RR_THRESHOLD: f32 = 0.25;
 
 /// Uniform in [0, 1) with 24 random bits, as the kernels' `rand()`: an f64 uniform cast
 /// to f32 rounds to exactly 1.0 about once in 2^25 draws, which sent a totally reflected

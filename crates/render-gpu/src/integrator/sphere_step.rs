@@ -23,7 +23,15 @@ use super::{IntegratorSettings, PathState, PathStats, pt_event, roulette};
 use crate::setup::SceneData;
 
 /// The sphere radius is shrunk by this factor so the exit point stays strictly inside.
-const SHRINK: f32 = 1.0 - 1e-4;
+pub(crate) const SHRINK: f32 = 1.0 - 1e-4;
+
+/// An exact surface distance is shrunk by this factor (far more than its f32 rounding)
+/// before it bounds a sphere.
+pub(crate) const EXACT_DISTANCE_SHRINK: f32 = 1.0 - 1e-5;
+
+/// A shadow ray's chord through the free ball is shrunk by this factor, so that the
+/// medium it is known to cross stays strictly inside the ball.
+pub(crate) const BALL_CHORD_SHRINK: f32 = 1.0 - 1e-4;
 
 /// What [`begin`] did.
 pub(crate) enum Begun {
@@ -92,7 +100,7 @@ pub(crate) fn begin(
                 .geo
                 .distance_within(s.pos, grid.distance_upper_bound(grid_free))
         });
-        free = free.max(exact * (1.0 - 1e-5) - scene.geo.eps);
+        free = free.max(exact * EXACT_DISTANCE_SHRINK - scene.geo.eps);
     }
     let r = (free * SHRINK).min(set.max_tau / sigma);
     let tau = sigma * r;
@@ -398,7 +406,7 @@ fn complete(
             let free_ball = ball.free;
             let x_free = |wl: Vec3| {
                 let chord = chord_to_sphere(d, wl, free_ball * free_ball);
-                (chord * (1.0 - 1e-4)).min(2.0 * free_ball).max(x_grid)
+                (chord * BALL_CHORD_SHRINK).min(2.0 * free_ball).max(x_grid)
             };
             let c = s.beta * nee.scale * weight;
             s.add_nee(scene, m, (x, w.as_vec3()), c, x_free, channel, rng);

@@ -119,10 +119,14 @@ impl Row {
             return Err("n = 0 (every walk has at least the centre event)".into());
         }
         if !(0.0..=crate::ranges::TAU_LIMIT as f32).contains(&self.tau) {
-            return Err(format!("tau = {} outside [0, 1000]", self.tau));
+            return Err(format!(
+                "tau = {} outside {}",
+                self.tau,
+                crate::ranges::TAU_RANGE
+            ));
         }
         if self.g.abs() > crate::ranges::G_MAX as f32 + SLACK {
-            return Err(format!("g = {} outside [-0.999, 0.999]", self.g));
+            return Err(format!("g = {} outside {}", self.g, crate::ranges::G_RANGE));
         }
         if !(0.0..=1.0).contains(&self.albedo) {
             return Err(format!("albedo = {} outside [0, 1]", self.albedo));
