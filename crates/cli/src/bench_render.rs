@@ -266,7 +266,8 @@ fn pt_pair(
     let p = prepare_k(a, IntegratorKind::Pt, k)?;
     let spp = 2 * half_spp(a.spp);
     let file = crate::pt_cache::path(dir, k, p.data.hash, spp, id);
-    if let Some((pair, when)) = crate::pt_cache::load(&file, p.data.hash, spp, id)? {
+    let size = (p.data.camera.width, p.data.camera.height);
+    if let Some((pair, when)) = crate::pt_cache::load(&file, p.data.hash, spp, size, id)? {
         return Ok((pair, Some(when)));
     }
     let pair = render_pair(a, engine, &p, IntegratorKind::Pt)?;
@@ -294,6 +295,16 @@ fn run_pair(a: &Args, engine: &Engine, kind: IntegratorKind, k: f64) -> Result<P
 fn prepare_k(a: &Args, kind: IntegratorKind, k: f64) -> Result<crate::render::Prepared> {
     prepare(&a.scene, Some(kind), a.nee, a.model.as_deref(), |f| {
         ladder_scene(a, kind, k, f)
+    })
+    .map_err(|e| {
+        // The medium is the ladder's, not the file's: say which flag made it.
+        if format!("{e:#}").contains("medium.sigma_t") {
+            e.context(format!(
+                "--k {k}: the ladder's sigma_t is k × {LADDER_SIGMA_T:?}"
+            ))
+        } else {
+            e
+        }
     })
 }
 
@@ -510,7 +521,8 @@ pub fn run(a: Args) -> Result<()> {
         for &k in &a.k {
             let p = prepare_k(&a, IntegratorKind::Pt, k)?;
             let file = crate::pt_cache::path(dir, k, p.data.hash, 2 * half_spp(a.spp), id);
-            crate::pt_cache::load(&file, p.data.hash, 2 * half_spp(a.spp), id)?;
+            let size = (p.data.camera.width, p.data.camera.height);
+            crate::pt_cache::load(&file, p.data.hash, 2 * half_spp(a.spp), size, id)?;
         }
     }
     // So are the files `--save` writes for every density (one that is a directory failed

@@ -88,7 +88,13 @@ pub fn path(dir: &Path, k: f64, hash: u64, spp: u32, identity: &str) -> PathBuf 
 }
 
 /// The stored pair and the Unix time it was measured at, if `file` exists.
-pub fn load(file: &Path, hash: u64, spp: u32, identity: &str) -> Result<Option<(Pair, u64)>> {
+pub fn load(
+    file: &Path,
+    hash: u64,
+    spp: u32,
+    size: (u32, u32),
+    identity: &str,
+) -> Result<Option<(Pair, u64)>> {
     let bytes = match std::fs::read(file) {
         Ok(b) => b,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
@@ -105,13 +111,18 @@ pub fn load(file: &Path, hash: u64, spp: u32, identity: &str) -> Result<Option<(
         || s.hash != format!("{hash:016x}")
         || s.spp != spp
         || s.identity != identity
+        || (s.width, s.height) != (size.0 as usize, size.1 as usize)
         || n != Some(s.mean.len())
         || s.var.len() != s.mean.len()
+        || s.work.len() != s.mean.len()
         || !(s.seconds.is_finite() && s.seconds > 0.0)
         // Pixel means and variances are finite and ≥ 0 in any render (an edited file with a
-        // negative variance gave a negative variance ratio, a mean of 1e39 an infinite bias).
-        || s.mean.iter().flatten().any(|v| !(v.is_finite() && *v >= 0.0))
-        || s.var.iter().flatten().any(|v| !(v.is_finite() && *v >= 0.0))
+        // negative variance gave a negative variance ratio, a mean of 1e39 an infinite
+        // bias), and far below what squares or sums of them overflow (a variance of 1e308
+        // printed "var ratio inf ± NaN"): radiances are at most 1e12 (scene checks).
+        || s.mean.iter().flatten().any(|v| !(v.is_finite() && (0.0..=1e15).contains(v)))
+        || s.var.iter().flatten().any(|v| !(0.0..=1e30).contains(v))
+        || s.work.iter().any(|v| !(v.is_finite() && *v >= 0.0))
     {
         bail!(
             "{}: stored for another version, scene, spp, size, device or binary, or damaged \
@@ -211,9 +222,9 @@ mod tests {
         let id = identity("cpu (2 threads)").unwrap();
         let f = path(dir.path(), 8.0, p.hash, p.spp, &id);
         assert_ne!(f, path(dir.path(), 8.0, p.hash, p.spp, "gpu: other"));
-        assert!(load(&f, p.hash, p.spp, &id).unwrap().is_none());
+        assert!(load(&f, p.hash, p.spp, (3, 2), &id).unwrap().is_none());
         assert!(store(&f, &p, &id).unwrap());
-        let (q, when) = load(&f, p.hash, p.spp, &id).unwrap().unwrap();
+        let (q, when) = load(&f, p.hash, p.spp, (3, 2), &id).unwrap().unwrap();
         assert!(when > 0);
         assert_eq!(q.mean, p.mean);
         assert_eq!(q.var, p.var);
@@ -226,11 +237,39 @@ mod tests {
             (p.hash, p.spp + 3, id.as_str()),
             (p.hash, p.spp, "gpu: other"),
         ] {
-            let err = load(&f, h, spp, i).err().expect("refused").to_string();
+            let err = load(&f, h, spp, (3, 2), i)
+                .err()
+                .expect("refused")
+                .to_string();
             assert!(err.contains(f.to_str().unwrap()), "{err}");
         }
+        // Edited values the report would print as inf, NaN or for another image size: a
+        // variance of 1e308 (finite, but its ratio overflowed), a 2×3 image for a 3×2
+        // bench, a negative work count.
+        let text = std::fs::read_to_string(&f).unwrap();
+        let stored: serde_json::Value = serde_json::from_str(&text).unwrap();
+        type Edit = fn(&mut serde_json::Value);
+        let edits: [Edit; 3] = [
+            |v| v["var"][0][0] = 1e308.into(),
+            |v| {
+                v["width"] = 2.into();
+                v["height"] = 3.into();
+            },
+            |v| v["work"][5] = (-1.0).into(),
+        ];
+        for (i, edit) in edits.into_iter().enumerate() {
+            let mut v = stored.clone();
+            edit(&mut v);
+            std::fs::write(&f, v.to_string()).unwrap();
+            assert!(load(&f, p.hash, p.spp, (3, 2), &id).is_err(), "edit {i}");
+        }
+        std::fs::write(&f, stored.to_string()).unwrap();
+        assert!(load(&f, p.hash, p.spp, (3, 2), &id).is_ok());
         std::fs::write(&f, b"{\"version\": 1").unwrap();
-        let err = format!("{:#}", load(&f, p.hash, p.spp, &id).err().expect("refused"));
+        let err = format!(
+            "{:#}",
+            load(&f, p.hash, p.spp, (3, 2), &id).err().expect("refused")
+        );
         assert!(err.contains("delete it"), "{err}");
     }
 

@@ -907,6 +907,14 @@ pub fn run(a: Args) -> Result<()> {
             narrow(&mut info, *r, &format!("the {} checkpoint", k.name()))?;
         }
     }
+    // The model file's own check, here rather than after the training, which it would
+    // otherwise end with "nothing written" (walks all at tau = 0, say).
+    cvae::model_file::check_training(&info).map_err(|e| {
+        anyhow::anyhow!(
+            "{}: its walks cannot make a model file: {e}",
+            cfg.dataset.display()
+        )
+    })?;
     drop(rows);
     let validations = validations(&cfg, &kinds, &tables, &header.pieces);
 

@@ -624,7 +624,7 @@ fn bad_arguments_name_the_argument() {
     let d = tempfile::tempdir().unwrap();
     let file = d.path().join("file");
     std::fs::write(&file, b"x").unwrap();
-    let cases: [(Vec<String>, &str); 21] = [
+    let cases: [(Vec<String>, &str); 22] = [
         // The seed's range (clap's parser said "invalid digit found in string"); a model
         // file that is missing named as --model's value.
         (
@@ -753,6 +753,19 @@ fn bad_arguments_name_the_argument() {
                 "1,2,1".into(),
             ],
             "--k lists 1 twice",
+        ),
+        // Too dense for the bunny's surface offset: the flag is named, not the file's
+        // sigma_t, which the ladder replaced.
+        (
+            vec![
+                "bench".into(),
+                "render".into(),
+                "--k".into(),
+                "1000".into(),
+                "--size".into(),
+                "8".into(),
+            ],
+            "--k 1000: the ladder's sigma_t is k × [150.0, 187.5, 125.0]: ",
         ),
         // A render's .json is not the render: named, with the file to give.
         (

@@ -885,6 +885,37 @@ fn albedo_zero_data_is_refused_for_eventgen_naming_the_albedo() {
     assert!(!err.contains("larger tau"), "{err}");
 }
 
+/// Walks that could not make a model file (all at τ = 0: its training range must reach
+/// above 0) are refused before the training, naming the dataset; they used to be trained
+/// in full and then refused with "nothing written". The paper's learned mode, so that the
+/// walks of N = 1 (every walk at τ = 0) are used at all.
+#[test]
+fn a_dataset_that_cannot_make_a_model_file_is_refused_before_training() {
+    let dir = tempfile::tempdir().unwrap();
+    setup(dir.path());
+    replace_in(
+        &dir.path().join("data.toml"),
+        "tau = { kind = \"power\", max = 30.0, exponent = 3.0 }",
+        "tau = { kind = \"fixed\", value = 0.0 }",
+    );
+    replace_in(
+        &dir.path().join("train.toml"),
+        "checkpoint_dir = \"ck\"\n",
+        "checkpoint_dir = \"ck\"\nsingle_scattering = \"learned\"\n",
+    );
+    let out = stcvae(&["train", "--config", "train.toml"], dir.path());
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    assert!(
+        err.contains("d.bin: its walks cannot make a model file: training.tau_range = [0.0, 0.0]"),
+        "{err}"
+    );
+    assert!(
+        !dir.path().join("ck").exists(),
+        "checkpoints written: {err}"
+    );
+}
+
 /// A model record without its checkpoint JSON (removed by hand, or a kill between a first
 /// save's renames) cannot be resumed: `--resume` used to train that model from the start
 /// and a plain run to write over the record, both without a word. Both are refused naming

@@ -593,17 +593,21 @@ pub const MAX_FILE_BYTES: u64 = 16 << 20;
 
 /// The training ranges steer the renderers' warnings and the sphere-step cap (τ_max), so
 /// they must be ordered and inside the project's parameter ranges.
-fn check_training(t: &TrainingInfo) -> Result<(), String> {
+/// The training ranges a model file may hold (`train` checks its dataset's before
+/// training).
+pub fn check_training(t: &TrainingInfo) -> Result<(), String> {
     use scatter_sim::ranges::{G_MAX, TAU_LIMIT};
-    // The slack absorbs the f32 storage of the training rows (0.999f32 > 0.999).
-    let ok = |r: [f64; 2], lo: f64, hi: f64| lo - 1e-6 <= r[0] && r[0] <= r[1] && r[1] <= hi + 1e-6;
+    // The slack absorbs the f32 storage of the training rows' g (0.999f32 > 0.999); the
+    // other ends (0, 1, 1000) are exact in f32.
+    let ok = |r: [f64; 2], lo: f64, hi: f64| lo <= r[0] && r[0] <= r[1] && r[1] <= hi;
+    let slack = 1e-6;
     if !(ok(t.tau_range, 0.0, TAU_LIMIT) && t.tau_range[1] > 0.0) {
         return Err(format!(
             "training.tau_range = {:?}: expected 0 <= lo <= hi <= {TAU_LIMIT}, hi > 0",
             t.tau_range
         ));
     }
-    if !ok(t.g_range, -G_MAX, G_MAX) {
+    if !ok(t.g_range, -G_MAX - slack, G_MAX + slack) {
         return Err(format!(
             "training.g_range = {:?}: expected -{G_MAX} <= lo <= hi <= {G_MAX}",
             t.g_range

@@ -264,12 +264,14 @@ impl SceneData {
                     "medium.sigma_t[{i}] = {} is too dense for this object: the renderer's \
                      surface offset ({:.3e}, {:e} of the object's largest coordinate or \
                      extent) would be {depth:.2} mean free paths deep and bias the image; \
-                     allowed sigma_t <= {:.4e} here (scale the object up, move it to the \
-                     origin, or lower sigma_t)",
+                     allowed sigma_t <= {:.4e} here: the object's optical size (sigma_t \
+                     times its largest coordinate or extent) is at most {:.0} mean free \
+                     paths, so lower sigma_t or the object's size",
                     scatter_sim::ranges::num(s),
                     geo.eps,
                     crate::geometry::EPS,
-                    crate::geometry::MAX_SPAWN_DEPTH as f64 / geo.eps as f64
+                    crate::geometry::MAX_SPAWN_DEPTH as f64 / geo.eps as f64,
+                    crate::geometry::MAX_SPAWN_DEPTH / crate::geometry::EPS
                 )));
             }
         }

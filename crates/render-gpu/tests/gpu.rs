@@ -2226,6 +2226,29 @@ fn a_stop_mid_chunk_keeps_the_whole_chunks() {
     }
 }
 
+/// A stop requested before the first submission (in the CLI: while the kernels compile,
+/// up to minutes for a large model on lavapipe) submits nothing and gives no image
+/// (0 spp), as the CPU path does; it used to render the whole image.
+#[test]
+fn a_stop_before_the_first_submission_renders_nothing() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let s = common::build_scene(&sphere_scene("kind = \"index-matched\""), true);
+    for kind in [IntegratorKind::Pt, IntegratorKind::Stcvae] {
+        let cancel = AtomicBool::new(true);
+        let out = render_gpu(
+            &ctx,
+            &s,
+            &settings(kind, true),
+            &opts(4, 8),
+            &|_, _| {},
+            &cancel,
+        )
+        .unwrap();
+        assert_eq!((out.spp, out.dispatch.dispatches), (0, 0), "{kind:?}");
+    }
+}
+
 /// A path resumes exactly where it stopped, so the image does not depend on the dispatch
 /// schedule, and the staged render (`STCVAE_GPU_STAGED`: paths advanced to their next ray
 /// query or sphere step by one kernel, the queued queries traced by another and the queued

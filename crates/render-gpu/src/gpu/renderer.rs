@@ -815,6 +815,12 @@ pub fn render_gpu(
     // samples kept (paths/s read ~30 % low after Ctrl-C on lavapipe).
     let mut kept_seconds = 0.0;
     while s0 < spp {
+        // A stop requested before the first chunk (while the kernels compiled, which on
+        // lavapipe takes seconds, minutes for a large model) renders nothing, as on the
+        // CPU; later ones are seen after each submission and each chunk.
+        if s0 == 0 && cancel.load(Ordering::Relaxed) {
+            break;
+        }
         let s1 = (s0 as u64 + lanes as u64 * per_lane as u64).min(spp as u64) as u32;
         params.image[2] = lanes;
         params.image[3] = per_lane;

@@ -125,7 +125,9 @@ impl Row {
                 crate::ranges::TAU_RANGE
             ));
         }
-        if self.g.abs() > crate::ranges::G_MAX as f32 + SLACK {
+        // Exact: the simulator clamps g to ±G_MAX before storing it in f32, and the model
+        // file's check of the training range (G_MAX + 1e-6) must pass whatever rows pass.
+        if self.g.abs() > crate::ranges::G_MAX as f32 {
             return Err(format!("g = {} outside {}", self.g, crate::ranges::G_RANGE));
         }
         if !(0.0..=1.0).contains(&self.albedo) {
@@ -280,5 +282,16 @@ mod tests {
                 .unwrap_err()
                 .contains("found 3 fields")
         );
+    }
+
+    /// g is held to ±G_MAX as f32 exactly, what the simulator stores: a row just beyond it
+    /// used to pass here and fail the model file's training-range check after training.
+    #[test]
+    fn g_is_held_to_its_stored_limit() {
+        let at = |g: f32| Row { g, ..sample_row() }.validate();
+        assert!(at(crate::ranges::G_MAX as f32).is_ok());
+        assert!(at(-(crate::ranges::G_MAX as f32)).is_ok());
+        assert!(at(0.999_01).is_err());
+        assert!(at(f32::from_bits((crate::ranges::G_MAX as f32).to_bits() + 1)).is_err());
     }
 }
