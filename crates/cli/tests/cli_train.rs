@@ -636,6 +636,30 @@ fn resume_needs_an_intact_checkpoint_and_the_last_loss_is_the_last_steps() {
         "{err}"
     );
     replace_in(&cfg, "hidden = [4, 6]", "hidden = [4, 4]");
+    // An edited record (what its checksums do not cover): a time or a step no run
+    // writes is refused by name, not carried into the reports and the model's notes.
+    let record = dir.path().join("ck/eventgen.json");
+    let kept = fs::read_to_string(&record).unwrap();
+    for (field, value, says) in [
+        ("seconds", serde_json::json!(-1e308), "seconds = -1e308"),
+        (
+            "step",
+            serde_json::json!(u64::MAX),
+            "step = 18446744073709551615",
+        ),
+    ] {
+        let mut v: serde_json::Value = serde_json::from_str(&kept).unwrap();
+        v[field] = value;
+        fs::write(&record, v.to_string()).unwrap();
+        let out = resume(dir.path());
+        assert!(!out.status.success());
+        let err = stderr(&out);
+        assert!(
+            err.contains("eventgen.json") && err.contains(says) && err.contains("--fresh"),
+            "{err}"
+        );
+    }
+    fs::write(&record, kept).unwrap();
     let weights = dir.path().join("ck/eventgen.bpk");
     let mut bytes = fs::read(&weights).unwrap();
     let i = bytes.len() / 2;

@@ -1253,6 +1253,21 @@ fn obj_problem(text: &str) -> Option<String> {
                         line.trim()
                     ));
                 }
+                // What tobj takes after x y z: nothing, a weight w ≠ 0, or a colour r g b
+                // (its own errors name no line).
+                let numbers: Option<Vec<f32>> = coords.iter().map(|w| w.parse().ok()).collect();
+                let fits = match numbers.as_deref() {
+                    Some([_, _, _] | [_, _, _, _, _, _]) => true,
+                    Some([_, _, _, w]) => *w != 0.0,
+                    _ => false,
+                };
+                if !fits {
+                    return Some(format!(
+                        "line {at}: vertex `{}` is not `v x y z`, `v x y z w` (w not 0) or \
+                         `v x y z r g b` in numbers",
+                        line.trim()
+                    ));
+                }
                 before += 1;
             }
             Some("f") => {

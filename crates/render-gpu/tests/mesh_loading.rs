@@ -189,6 +189,9 @@ fn broken_files_give_clear_errors() {
         "v 0 0 0 1\nv 1 0 0 1\nv 0 1 0 1\nv 0 0 1 1\nvt 0 0\nvn 0 0 1\n\
          f 1/1/1 3/1/1 2/1/1\nf 1//1 2//1 4//1\nf 1 4 3\nf 2 3 4\n",
         "v 0 0 0\r\nv 1 0 0\r\nv 0 1 0\r\nv 0 0 1\r\nf 1 3 2\r\nf 1 2 4\r\nf 1 4 3\r\nf 2 3 4\r\n",
+        // Vertex colours.
+        "v 0 0 0 1 0 0\nv 1 0 0 0 1 0\nv 0 1 0 0 0 1\nv 0 0 1 1 1 1\n\
+         f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n",
     ];
     for (i, text) in variants.iter().enumerate() {
         let name = format!("ok{i}.obj");
@@ -205,6 +208,28 @@ fn broken_files_give_clear_errors() {
             "v 0 0 1\n",
             "v 0 0\n",
             "line 4: vertex `v 0 0` needs three numbers",
+        ),
+        // What follows x y z is a weight, a colour or nothing (tobj said "position parse
+        // error" and "color parse error", naming no line).
+        (
+            "v 0 0 1\n",
+            "v 0 0 1 x\n",
+            "line 4: vertex `v 0 0 1 x` is not `v x y z`, `v x y z w` (w not 0) or",
+        ),
+        (
+            "v 0 0 1\n",
+            "v 0 0 1 0\n",
+            "line 4: vertex `v 0 0 1 0` is not",
+        ),
+        (
+            "v 0 0 1\n",
+            "v 0 0 1 1 2 3 4\n",
+            "line 4: vertex `v 0 0 1 1 2 3 4` is not",
+        ),
+        (
+            "v 0 0 1\n",
+            "v 0 0 1 1 2\n",
+            "line 4: vertex `v 0 0 1 1 2` is not",
         ),
         (
             "f 2 3 4\n",

@@ -233,6 +233,40 @@ pub struct CheckpointInfo {
     pub plan: Option<Plan>,
 }
 
+impl CheckpointInfo {
+    /// What a record written by a run always satisfies, which its checksums do not cover
+    /// (they cover the weight files): an edited step or time (u64::MAX steps, −1e308 s)
+    /// went on into the reports and the model file's notes.
+    fn check(&self) -> Result<(), String> {
+        if !(self.seconds.is_finite() && self.seconds >= 0.0) {
+            return Err(format!(
+                "seconds = {} is not a training time (finite, >= 0)",
+                scatter_sim::ranges::num(self.seconds)
+            ));
+        }
+        // No run takes 10^12 steps (at ~1 µs a step, 11 days per 10^12); the history's
+        // steps are the run's own, in order, with finite losses.
+        if self.step > MAX_STEPS {
+            return Err(format!("step = {} is beyond {MAX_STEPS:e}", self.step));
+        }
+        let mut last = 0;
+        for &(step, loss) in &self.history {
+            if step < last || step > self.step || !loss.is_finite() {
+                return Err(format!(
+                    "history entry ({step}, {loss}) is not a step up to {} in order with a \
+                     finite loss",
+                    self.step
+                ));
+            }
+            last = step;
+        }
+        Ok(())
+    }
+}
+
+/// The most steps a checkpoint record may say it has taken ([`CheckpointInfo::check`]).
+const MAX_STEPS: u64 = 1_000_000_000_000;
+
 /// What a run's batches and learning rates follow, as run (after `--steps-scale`): an
 /// unfinished run resumed under another plan jumped in learning rate mid-decay (a run
 /// started with `--steps-scale 0.25` and resumed without it trained 4× as long) and was no
@@ -529,6 +563,15 @@ pub fn train_model(
                 ),
             )
         })?;
+        info.check().map_err(|e| {
+            err(
+                &jpath,
+                format!(
+                    "{e}: the file was edited or damaged; start over with --fresh --model {}",
+                    kind.name()
+                ),
+            )
+        })?;
         // Versions 2 and 3 differ only in EventGen's targets (whose standardisation would
         // differ too); LengthGen and PathGen go on as they were.
         if kind != ModelKind::EventGen
@@ -737,6 +780,8 @@ pub fn load_decoder(
     };
     let text = read_checkpoint_file(&j).map_err(|e| err(&j, e.to_string()))?;
     let info: CheckpointInfo = serde_json::from_slice(&text).map_err(|e| err(&j, e.to_string()))?;
+    info.check()
+        .map_err(|e| err(&j, format!("{e}: the file was edited or damaged")))?;
     check_crcs(&info, &[&m])?;
     scatter_sim::output::check_input(&m).map_err(|e| err(&m, e.to_string()))?;
     let device = Device::flex();
