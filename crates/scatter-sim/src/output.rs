@@ -382,10 +382,17 @@ fn write_set_with(
         ready.push(f.finish().map_err(fail)?);
     }
     let mut placed: Vec<(PathBuf, Before)> = Vec::with_capacity(ready.len());
-    for f in ready {
+    // The folders the set made stay removable until every file is in place: a rename
+    // that fails takes the set's earlier files back out, and then their new folders too.
+    let mut made = Vec::with_capacity(ready.len());
+    let mut ready = ready.into_iter();
+    while let Some(mut f) = ready.next() {
         let path = f.path.clone();
         let before = keep(&path);
+        made.push(std::mem::replace(&mut f.made, MadeDirs(Vec::new())));
         if let Err(e) = persist(f) {
+            // The temporaries not yet renamed go first, so that the folders can empty.
+            drop(ready);
             // Newest first, so each file gets back what it held before this call.
             for (done, before) in placed.into_iter().rev() {
                 match before {
@@ -399,9 +406,15 @@ fn write_set_with(
                     Before::Unkept => {}
                 }
             }
+            // Deepest folders were made by the later files: removed first.
+            made.into_iter().rev().for_each(drop);
             return Err((path, e));
         }
         placed.push((path, before));
+    }
+    for mut m in made {
+        // The folders hold the output now.
+        m.0.clear();
     }
     Ok(())
 }
@@ -521,6 +534,31 @@ mod tests {
         assert_eq!(fs::read(&a).unwrap(), b"new a");
         assert!(!b.exists());
         assert_eq!(fs::read(&c).unwrap(), b"old c");
+        // A set in folders it made: a rename that fails removes them again, the deeper
+        // one made by a later file too (an empty new/ was left behind); a set that
+        // succeeds keeps them.
+        let (x, y) = (d.path().join("new/x"), d.path().join("new/sub/y"));
+        let nested: [(&Path, &[u8]); 2] = [(&x, b"x"), (&y, b"y")];
+        let mut k = 0;
+        write_set_with(
+            &nested,
+            |f| {
+                k += 1;
+                if k == 2 {
+                    return Err(io::Error::new(io::ErrorKind::PermissionDenied, "refused"));
+                }
+                f.persist()
+            },
+            Previous::keep,
+        )
+        .unwrap_err();
+        assert!(!d.path().join("new").exists());
+        write_atomic_set(&nested).unwrap();
+        assert_eq!(
+            (fs::read(&x).unwrap(), fs::read(&y).unwrap()),
+            (b"x".to_vec(), b"y".to_vec())
+        );
+        fs::remove_dir_all(d.path().join("new")).unwrap();
         write_atomic_set(&set).unwrap();
         for (p, bytes) in set {
             assert_eq!(fs::read(p).unwrap(), bytes);

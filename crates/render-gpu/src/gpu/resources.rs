@@ -89,7 +89,7 @@ pub const QUEUE_LENGTHS: u64 = 12;
 /// Bytes before the queues' slot indices (`Queue` in shaders/staged.wgsl): the turn, the
 /// parked sphere steps' and the ray queries' totals, then every queue's length in two
 /// copies of [`QUEUE_LENGTHS`] words. Checked against the WGSL struct's layout by
-/// `kernels::tests::host_structs_match_the_wgsl_layouts`.
+/// `host_structs_match_the_wgsl_layouts` (tests/wgsl_layout.rs).
 pub const QUEUE_HEAD: u64 = 4 * (1 + 2 + 2 * QUEUE_LENGTHS);
 
 /// The queues (`QUEUES` in shaders/staged.wgsl): running paths, parked exact steps by
