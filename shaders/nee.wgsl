@@ -90,7 +90,7 @@ fn transmittance_union(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
         last = t;
         // The faces within the spawn offset of this one are crossed with it (geometry.rs,
         // union_walk: touching pieces make no boundary).
-        let reach = t + params.consts.z / max(cos, 1e-3);
+        let reach = t + params.consts.z / max(cos, GRAZING_COS_FLOOR);
         loop {
             if i >= u_count || u_t[i] > reach {
                 break;

@@ -326,7 +326,7 @@ fn union_dedupe(d: vec3<f32>) -> u32 {
         let bit = piece_bit(k);
         let cosn = dot(d, tri_normal(k));
         let exiting = cosn > 0.0;
-        let reach = tol / max(abs(cosn), 1e-3);
+        let reach = tol / max(abs(cosn), GRAZING_COS_FLOOR);
         var twice = false;
         var j = kept;
         loop {

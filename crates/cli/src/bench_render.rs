@@ -275,7 +275,8 @@ fn pt_pair(
     match crate::pt_cache::store(&file, &pair, id) {
         Ok(true) => {}
         Ok(false) => eprintln!(
-            "warning: PT's render at k = {k} has a non-finite value; not stored in {}",
+            "warning: PT's render at k = {k} has a non-finite or out-of-range value; not \
+             stored in {}",
             dir.display()
         ),
         Err(e) => eprintln!(

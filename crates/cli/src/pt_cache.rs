@@ -87,6 +87,23 @@ pub fn path(dir: &Path, k: f64, hash: u64, spp: u32, identity: &str) -> PathBuf 
     ))
 }
 
+/// Whether a pair's pixels can be stored and read back. Pixel means and variances are
+/// finite and ≥ 0 in any render (an edited file with a negative variance gave a negative
+/// variance ratio, a mean of 1e39 an infinite bias), and far below what squares or sums of
+/// them overflow (a variance of 1e308 printed "var ratio inf ± NaN"): radiances are at most
+/// 1e12 (scene checks). Work counts are per pixel on the CPU and absent on the GPU, whose
+/// kernels count paths, not per-pixel work.
+fn values_in_range(mean: &[[f32; 3]], var: &[[f64; 3]], work: &[f32]) -> bool {
+    var.len() == mean.len()
+        && (work.is_empty() || work.len() == mean.len())
+        && mean
+            .iter()
+            .flatten()
+            .all(|v| v.is_finite() && (0.0..=1e15).contains(v))
+        && var.iter().flatten().all(|v| (0.0..=1e30).contains(v))
+        && work.iter().all(|v| v.is_finite() && *v >= 0.0)
+}
+
 /// The stored pair and the Unix time it was measured at, if `file` exists.
 pub fn load(
     file: &Path,
@@ -113,16 +130,8 @@ pub fn load(
         || s.identity != identity
         || (s.width, s.height) != (size.0 as usize, size.1 as usize)
         || n != Some(s.mean.len())
-        || s.var.len() != s.mean.len()
-        || s.work.len() != s.mean.len()
         || !(s.seconds.is_finite() && s.seconds > 0.0)
-        // Pixel means and variances are finite and ≥ 0 in any render (an edited file with a
-        // negative variance gave a negative variance ratio, a mean of 1e39 an infinite
-        // bias), and far below what squares or sums of them overflow (a variance of 1e308
-        // printed "var ratio inf ± NaN"): radiances are at most 1e12 (scene checks).
-        || s.mean.iter().flatten().any(|v| !(v.is_finite() && (0.0..=1e15).contains(v)))
-        || s.var.iter().flatten().any(|v| !(0.0..=1e30).contains(v))
-        || s.work.iter().any(|v| !(v.is_finite() && *v >= 0.0))
+        || !values_in_range(&s.mean, &s.var, &s.work)
     {
         bail!(
             "{}: stored for another version, scene, spp, size, device or binary, or damaged \
@@ -164,14 +173,12 @@ pub fn age(measured_unix: u64) -> String {
     }
 }
 
-/// Stores `pair` in `file` (written whole or not at all). A pair with a non-finite value
-/// is not stored (JSON cannot hold it; it would be an unreadable file) and `false` says so.
+/// Stores `pair` in `file` (written whole or not at all). A pair that `load` would refuse
+/// (a non-finite value, which JSON cannot hold, or one beyond the ranges of
+/// `values_in_range`) is not stored and `false` says so, so no file of ours reads as
+/// damaged.
 pub fn store(file: &Path, pair: &Pair, identity: &str) -> Result<bool> {
-    let finite = pair.mean.pixels.iter().flatten().all(|v| v.is_finite())
-        && pair.var.iter().flatten().all(|v| v.is_finite())
-        && pair.work.iter().all(|v| v.is_finite())
-        && pair.seconds.is_finite();
-    if !finite {
+    if !(pair.seconds.is_finite() && values_in_range(&pair.mean.pixels, &pair.var, &pair.work)) {
         return Ok(false);
     }
     let s = Stored {
@@ -265,6 +272,15 @@ mod tests {
         }
         std::fs::write(&f, stored.to_string()).unwrap();
         assert!(load(&f, p.hash, p.spp, (3, 2), &id).is_ok());
+        // A GPU pair has no per-pixel work map and reads back as stored (it was refused as
+        // damaged, failing every second GPU bench).
+        let gpu = Pair {
+            work: Vec::new(),
+            ..pair(p.hash)
+        };
+        assert!(store(&f, &gpu, &id).unwrap());
+        let (q, _) = load(&f, p.hash, p.spp, (3, 2), &id).unwrap().unwrap();
+        assert!(q.work.is_empty());
         std::fs::write(&f, b"{\"version\": 1").unwrap();
         let err = format!(
             "{:#}",
@@ -274,12 +290,22 @@ mod tests {
     }
 
     #[test]
-    fn a_pair_with_a_non_finite_value_is_not_stored() {
+    fn a_pair_that_would_read_as_damaged_is_not_stored() {
         let dir = tempfile::tempdir().unwrap();
-        let mut p = pair(7);
-        p.mean.pixels[1][2] = f32::NAN;
-        let f = path(dir.path(), 1.0, p.hash, p.spp, "cpu");
-        assert!(!store(&f, &p, "cpu").unwrap());
-        assert!(!f.exists());
+        type Edit = fn(&mut Pair);
+        let edits: [Edit; 5] = [
+            |p| p.mean.pixels[1][2] = f32::NAN,
+            |p| p.mean.pixels[1][2] = 1e20,
+            |p| p.var[3][0] = 1e31,
+            |p| p.work.truncate(2),
+            |p| p.seconds = f64::INFINITY,
+        ];
+        for (i, edit) in edits.into_iter().enumerate() {
+            let mut p = pair(7);
+            edit(&mut p);
+            let f = path(dir.path(), 1.0, p.hash, p.spp, "cpu");
+            assert!(!store(&f, &p, "cpu").unwrap(), "edit {i}");
+            assert!(!f.exists(), "edit {i}");
+        }
     }
 }

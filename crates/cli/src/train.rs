@@ -717,6 +717,19 @@ pub fn run(a: Args) -> Result<()> {
         Some(k) => vec![k],
         None => ModelKind::ALL.to_vec(),
     };
+    // A scaled run is held to the steps a config may ask for (a checkpoint past them would
+    // be refused as damaged on --resume).
+    for &k in &kinds {
+        let steps = scaled_steps(cfg.model(k).steps, a.steps_scale);
+        if steps > cvae::train::trainer::MAX_STEPS {
+            bail!(
+                "--steps-scale {} gives {}.steps = {steps} in {}: allowed at most 2^40",
+                scatter_sim::ranges::num(a.steps_scale),
+                k.name(),
+                a.config.display()
+            );
+        }
+    }
     // The CPU renders any model the config allows; the GPU kernels a smaller one.
     for &k in &kinds {
         if let Err(e) =

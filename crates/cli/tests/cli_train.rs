@@ -473,6 +473,23 @@ fn wrong_outputs_and_csv_datasets_fail_before_any_work() {
         );
         fs::write(&cfg, &text).unwrap();
     }
+    // Steps a config may ask for (2^40), scaled past them: the checkpoints would have been
+    // refused as damaged on --resume.
+    replace_in(&cfg, "steps = 30\n", "steps = 1099511627776\n");
+    let o = stcvae(
+        &["train", "--config", "train.toml", "--steps-scale", "2"],
+        dir.path(),
+    );
+    assert!(
+        !o.status.success()
+            && stderr(&o).contains(
+                "--steps-scale 2 gives lengthgen.steps = 2199023255552 in train.toml: \
+                 allowed at most 2^40"
+            ),
+        "{}",
+        stderr(&o)
+    );
+    fs::write(&cfg, &text).unwrap();
     assert!(
         !dir.path().join("d.bin").exists(),
         "the dataset made before the checks"

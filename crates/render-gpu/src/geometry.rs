@@ -78,6 +78,11 @@ pub const PLANE_SLACK_OF_EPS: f32 = 0.05;
 /// two of its triangles share (the union's dedupe).
 pub const CROSSING_TOL_OF_EPS: f32 = 0.01;
 
+/// The least |cos| between a ray and a face's normal that a distance tolerance is divided
+/// by to reach along the ray (the union's dedupe, a flight's crossings of one place): a
+/// grazing face would otherwise reach without bound.
+pub const GRAZING_COS_FLOOR: f32 = 1e-3;
+
 pub struct Geometry {
     pub mesh: TriMesh,
     pub tris: Vec<Triangle>,
@@ -174,7 +179,7 @@ pub fn union_walk(
             length += t - last;
         }
         last = t;
-        let reach = t + gap / c.abs().max(1e-3);
+        let reach = t + gap / c.abs().max(GRAZING_COS_FLOOR);
         while i < crossings.len() && crossings[i].0 <= reach {
             set ^= crossings[i].1;
             i += 1;
@@ -571,7 +576,7 @@ impl Geometry {
             let c = out[i];
             // Along the ray: two planes through one edge give distances that differ by
             // their roundings over |cos|, as union_walk's reach.
-            let reach = tol / c.2.abs().max(1e-3);
+            let reach = tol / c.2.abs().max(GRAZING_COS_FLOOR);
             let twice = out[..kept]
                 .iter()
                 .rev()

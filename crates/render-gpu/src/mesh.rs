@@ -1232,11 +1232,11 @@ fn positions_only(text: &str) -> String {
 }
 
 /// The first line of an OBJ text that tobj would refuse without saying where, or read
-/// wrongly, as "line N: ...": a vertex without three numbers, a face of fewer than three
-/// vertices, or a face index that names no vertex: a positive one is allowed up to the
-/// file's vertex count (tobj, like the format, lets a face name vertices defined after
-/// it), a negative one counts back from the vertices defined before its line. None if
-/// there is none.
+/// wrongly, as "line N: ...": a vertex without three numbers or with values after them
+/// other than a weight (not 0) or a colour, a face of fewer than three vertices, or a
+/// face index that names no vertex: a positive one is allowed up to the file's vertex
+/// count (tobj, like the format, lets a face name vertices defined after it), a negative
+/// one counts back from the vertices defined before its line. None if there is none.
 fn obj_problem(text: &str) -> Option<String> {
     let is_vertex = |line: &str| line.split_whitespace().next() == Some("v");
     let total = text.lines().filter(|l| is_vertex(l)).count() as i64;

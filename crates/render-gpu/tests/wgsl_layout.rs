@@ -217,6 +217,7 @@ fn the_kernels_take_these_constants_from_the_host_alone() {
         "UPPER_BOUND_SLACK",
         "PLANE_SLACK_OF_EPS",
         "CROSSING_TOL_OF_EPS",
+        "GRAZING_COS_FLOOR",
         "PHASE_SHARE",
         "MAX_LIGHTS",
         "MAX_PROXY_LIGHTS",

@@ -391,8 +391,12 @@ fn write_set_with(
         let before = keep(&path);
         made.push(std::mem::replace(&mut f.made, MadeDirs(Vec::new())));
         if let Err(e) = persist(f) {
-            // The temporaries not yet renamed go first, so that the folders can empty.
-            drop(ready);
+            // The temporaries not yet renamed go first, so that the folders can empty; their
+            // folders join the set's, all removed newest first below (each dropped with its
+            // own file, a later file's deeper folder still held an earlier one's open).
+            for mut rest in ready {
+                made.push(std::mem::replace(&mut rest.made, MadeDirs(Vec::new())));
+            }
             // Newest first, so each file gets back what it held before this call.
             for (done, before) in placed.into_iter().rev() {
                 match before {
@@ -406,7 +410,7 @@ fn write_set_with(
                     Before::Unkept => {}
                 }
             }
-            // Deepest folders were made by the later files: removed first.
+            // A folder made later is never the parent of one made earlier: newest first.
             made.into_iter().rev().for_each(drop);
             return Err((path, e));
         }
@@ -535,28 +539,34 @@ mod tests {
         assert!(!b.exists());
         assert_eq!(fs::read(&c).unwrap(), b"old c");
         // A set in folders it made: a rename that fails removes them again, the deeper
-        // one made by a later file too (an empty new/ was left behind); a set that
-        // succeeds keeps them.
-        let (x, y) = (d.path().join("new/x"), d.path().join("new/sub/y"));
-        let nested: [(&Path, &[u8]); 2] = [(&x, b"x"), (&y, b"y")];
-        let mut k = 0;
-        write_set_with(
-            &nested,
-            |f| {
-                k += 1;
-                if k == 2 {
-                    return Err(io::Error::new(io::ErrorKind::PermissionDenied, "refused"));
-                }
-                f.persist()
-            },
-            Previous::keep,
-        )
-        .unwrap_err();
-        assert!(!d.path().join("new").exists());
+        // ones made by later files too, renamed or not (an empty new/ was left behind when
+        // the second failed, new/a/ when the first did); a set that succeeds keeps them.
+        let (x, y, z) = (
+            d.path().join("new/x"),
+            d.path().join("new/a/y"),
+            d.path().join("new/a/b/z"),
+        );
+        let nested: [(&Path, &[u8]); 3] = [(&x, b"x"), (&y, b"y"), (&z, b"z")];
+        for fail_at in 1..=3 {
+            let mut k = 0;
+            write_set_with(
+                &nested,
+                |f| {
+                    k += 1;
+                    if k == fail_at {
+                        return Err(io::Error::new(io::ErrorKind::PermissionDenied, "refused"));
+                    }
+                    f.persist()
+                },
+                Previous::keep,
+            )
+            .unwrap_err();
+            assert!(!d.path().join("new").exists(), "failed at {fail_at}");
+        }
         write_atomic_set(&nested).unwrap();
         assert_eq!(
-            (fs::read(&x).unwrap(), fs::read(&y).unwrap()),
-            (b"x".to_vec(), b"y".to_vec())
+            [&x, &y, &z].map(|p| fs::read(p).unwrap()),
+            [b"x", b"y", b"z"].map(|b| b.to_vec())
         );
         fs::remove_dir_all(d.path().join("new")).unwrap();
         write_atomic_set(&set).unwrap();

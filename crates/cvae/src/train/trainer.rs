@@ -83,7 +83,7 @@ impl ModelConfig {
 
     pub fn validate(&self, name: &str) -> Result<(), String> {
         let bad = |f: &str, why: &str| Err(format!("{name}.{f}: {why}"));
-        if self.steps == 0 || self.steps > 1 << 40 {
+        if self.steps == 0 || self.steps > MAX_STEPS {
             return bad(
                 "steps",
                 "must be in 1..=2^40 (0 would train nothing and export an untrained model)",
@@ -244,10 +244,11 @@ impl CheckpointInfo {
                 scatter_sim::ranges::num(self.seconds)
             ));
         }
-        // No run takes 10^12 steps (at ~1 µs a step, 11 days per 10^12); the history's
-        // steps are the run's own, in order, with finite losses.
+        // No run takes more steps than a model may be given (after --steps-scale, which
+        // is held to the same limit); the history's steps are the run's own, in order,
+        // with finite losses.
         if self.step > MAX_STEPS {
-            return Err(format!("step = {} is beyond {MAX_STEPS:e}", self.step));
+            return Err(format!("step = {} is beyond 2^40", self.step));
         }
         let mut last = 0;
         for &(step, loss) in &self.history {
@@ -264,8 +265,13 @@ impl CheckpointInfo {
     }
 }
 
-/// The most steps a checkpoint record may say it has taken ([`CheckpointInfo::check`]).
-const MAX_STEPS: u64 = 1_000_000_000_000;
+/// The most steps a model may train for, as configured or after `--steps-scale`, and so
+/// the most a checkpoint record may say it has taken ([`CheckpointInfo::check`]). At
+/// ~1 µs a step 2^40 is 13 days; the bound keeps step counts exact in f64 and in the
+/// learning-rate schedule.
+pub const MAX_STEPS: u64 = 1 << 40;
+// The messages say "2^40".
+const _: () = assert!(MAX_STEPS == 1 << 40);
 
 /// What a run's batches and learning rates follow, as run (after `--steps-scale`): an
 /// unfinished run resumed under another plan jumped in learning rate mid-decay (a run

@@ -344,8 +344,8 @@ pub fn committed_vec4(path_nee_m: u32) -> u64 {
     slot_vec4s(path_nee_m) - 1
 }
 
-/// Which vec4 of a path slot holds the accumulated RGB and finished-sample count (`ACC`
-/// in shaders/path.wgsl).
+/// Which vec4 of a path slot holds the accumulated RGB and finished-sample count (`ACC`,
+/// prepended to the kernels from here by [`tied_constants_wgsl`]).
 pub const ACC_VEC4: u64 = 4;
 
 /// The full WGSL source of a kernel with `path_nee_m` path-level NEE reservoirs (0: a
@@ -453,7 +453,8 @@ fn tied_constants_wgsl() -> String {
          const SHRINK: f32 = {:?};\nconst EXACT_DISTANCE_SHRINK: f32 = {:?};\n\
          const BALL_CHORD_SHRINK: f32 = {:?};\nconst LOCAL_REACH_SHRINK: f32 = {:?};\n\
          const UPPER_BOUND_SLACK: f32 = {:?};\nconst PLANE_SLACK_OF_EPS: f32 = {:?};\n\
-         const CROSSING_TOL_OF_EPS: f32 = {:?};\nconst PHASE_SHARE: f32 = {:?};\n\
+         const CROSSING_TOL_OF_EPS: f32 = {:?};\nconst GRAZING_COS_FLOOR: f32 = {:?};\n\
+         const PHASE_SHARE: f32 = {:?};\n\
          const MAX_LIGHTS: u32 = {}u;\nconst MAX_PROXY_LIGHTS: u32 = {}u;\n\
          const MAX_EXACT_EVENTS: u32 = {}u;\nconst ACC: u32 = {}u;\n\
          const QUEUES: u32 = {}u;\nconst QUEUE_LENGTHS: u32 = {}u;\n\
@@ -468,6 +469,7 @@ fn tied_constants_wgsl() -> String {
         distance_grid::UPPER_BOUND_SLACK,
         geometry::PLANE_SLACK_OF_EPS,
         geometry::CROSSING_TOL_OF_EPS,
+        geometry::GRAZING_COS_FLOOR,
         light::PHASE_SHARE,
         super::scene_buffers::MAX_GPU_LIGHTS,
         integrator::event_choice::MAX_PROXY_LIGHTS,

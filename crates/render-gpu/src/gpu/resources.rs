@@ -92,8 +92,8 @@ pub const QUEUE_LENGTHS: u64 = 12;
 /// `host_structs_match_the_wgsl_layouts` (tests/wgsl_layout.rs).
 pub const QUEUE_HEAD: u64 = 4 * (1 + 2 + 2 * QUEUE_LENGTHS);
 
-/// The queues (`QUEUES` in shaders/staged.wgsl): running paths, parked exact steps by
-/// optical radius (four), parked model steps, and ray queries by kind (three).
+/// The queues (`QUEUES`, prepended to the kernels from Rust): running paths, parked exact
+/// steps by optical radius (four), parked model steps, and ray queries by kind (three).
 pub const QUEUES: u64 = 9;
 const _: () = assert!(
     QUEUES <= QUEUE_LENGTHS,
