@@ -253,11 +253,13 @@ fn merge_images(a: &Args) -> Result<()> {
             out_stem(&a.out).display()
         );
     }
+    let reports = input_reports(&a.inputs);
     let exposure = match a.exposure {
         Some(e) => e,
-        None => inputs_exposure(&a.inputs),
+        None => inputs_exposure(&reports),
     };
-    let (integrator, devices) = inputs_origin(&a.inputs);
+    let (integrator, devices) = inputs_origin(&reports);
+    let renders = inputs_renders(&a.inputs, &reports);
     let report = serde_json::json!({
         // As the render report: which stcvae merged them.
         "version": env!("CARGO_PKG_VERSION"),
@@ -276,6 +278,7 @@ fn merge_images(a: &Args) -> Result<()> {
         "width": img.width,
         "height": img.height,
         "mean_rgb": crate::render::mean_rgb(&img),
+        "renders": renders,
     });
     write_image_set(
         &a.out,
@@ -298,18 +301,24 @@ fn merge_images(a: &Args) -> Result<()> {
     Ok(())
 }
 
-/// What the inputs' reports (IN.json, as [`inputs_exposure`] reads them) say about how
-/// they were made: the integrator where every report names the same one (null where one
-/// is missing; the scene hash, which includes it, already refused a mix), and the devices
-/// they ran on, each once, in the inputs' order (a merge's own report gives its devices).
-fn inputs_origin(inputs: &[PathBuf]) -> (Option<String>, Vec<String>) {
-    let reports: Vec<Option<serde_json::Value>> = inputs
+/// The inputs' reports (IN.json beside each IN.exr), None where one is missing or not
+/// JSON. They are trusted for the merged report only: the image and its spp come from the
+/// EXRs' own headers.
+fn input_reports(inputs: &[PathBuf]) -> Vec<Option<serde_json::Value>> {
+    inputs
         .iter()
         .map(|p| {
             let text = std::fs::read_to_string(p.with_extension("json")).ok()?;
             serde_json::from_str(&text).ok()
         })
-        .collect();
+        .collect()
+}
+
+/// What the inputs' reports say about how they were made: the integrator where every
+/// report names the same one (null where one is missing; the scene hash, which includes
+/// it, already refused a mix), and the devices they ran on, each once, in the inputs'
+/// order (a merge's own report gives its devices).
+fn inputs_origin(reports: &[Option<serde_json::Value>]) -> (Option<String>, Vec<String>) {
     let text = |v: &serde_json::Value, k: &str| v.get(k)?.as_str().map(str::to_owned);
     let kinds: Vec<Option<String>> = reports
         .iter()
@@ -337,16 +346,51 @@ fn inputs_origin(inputs: &[PathBuf]) -> (Option<String>, Vec<String>) {
     (integrator, devices)
 }
 
-/// The preview exposure the renders' reports (IN.json beside each IN.exr; a merge's own
-/// report records it too) agree on; 1 where one has none or they differ (said so).
-fn inputs_exposure(inputs: &[PathBuf]) -> f32 {
-    let recorded = |p: &PathBuf| -> Option<f32> {
-        let text = std::fs::read_to_string(p.with_extension("json")).ok()?;
-        let v: serde_json::Value = serde_json::from_str(&text).ok()?;
-        let e = v.get("exposure")?.as_f64()? as f32;
+/// Each render in the merge as its report describes it (how many samples, which seed,
+/// device and model, whether a time budget or a stop cut it short, how long it took),
+/// nulls where its report is missing; a merged input contributes the renders its own
+/// report lists. The merged report's totals alone lost which render was interrupted or
+/// ran where.
+fn inputs_renders(
+    inputs: &[PathBuf],
+    reports: &[Option<serde_json::Value>],
+) -> Vec<serde_json::Value> {
+    const KEYS: [&str; 9] = [
+        "spp",
+        "seed_text",
+        "device",
+        "integrator",
+        "model",
+        "model_hash",
+        "time_budget",
+        "interrupted",
+        "seconds",
+    ];
+    let mut out = Vec::new();
+    for (p, r) in inputs.iter().zip(reports) {
+        if let Some(inner) = r.as_ref().and_then(|v| v.get("renders")?.as_array()) {
+            out.extend(inner.iter().cloned());
+            continue;
+        }
+        let mut entry = serde_json::Map::new();
+        entry.insert("file".into(), p.display().to_string().into());
+        for k in KEYS {
+            let v = r.as_ref().and_then(|v| v.get(k)).cloned();
+            entry.insert(k.into(), v.unwrap_or(serde_json::Value::Null));
+        }
+        out.push(entry.into());
+    }
+    out
+}
+
+/// The preview exposure the renders' reports (a merge's own report records it too) agree
+/// on; 1 where one has none or they differ (said so).
+fn inputs_exposure(reports: &[Option<serde_json::Value>]) -> f32 {
+    let recorded = |v: &Option<serde_json::Value>| -> Option<f32> {
+        let e = v.as_ref()?.get("exposure")?.as_f64()? as f32;
         (e.is_finite() && e > 0.0).then_some(e)
     };
-    let found: Vec<Option<f32>> = inputs.iter().map(recorded).collect();
+    let found: Vec<Option<f32>> = reports.iter().map(recorded).collect();
     match found.first() {
         Some(&Some(e)) if found.iter().all(|f| *f == Some(e)) => e,
         _ => {

@@ -87,14 +87,17 @@ pub fn path(dir: &Path, k: f64, hash: u64, spp: u32, identity: &str) -> PathBuf 
     ))
 }
 
-/// Whether a pair's pixels can be stored and read back. Pixel means and variances are
+/// Whether a pair can be stored and read back: it took some finite time, and its pixels
+/// fit. Pixel means and variances are
 /// finite and ≥ 0 in any render (an edited file with a negative variance gave a negative
 /// variance ratio, a mean of 1e39 an infinite bias), and far below what squares or sums of
 /// them overflow (a variance of 1e308 printed "var ratio inf ± NaN"): radiances are at most
 /// 1e12 (scene checks). Work counts are per pixel on the CPU and absent on the GPU, whose
 /// kernels count paths, not per-pixel work.
-fn values_in_range(mean: &[[f32; 3]], var: &[[f64; 3]], work: &[f32]) -> bool {
-    var.len() == mean.len()
+fn values_in_range(mean: &[[f32; 3]], var: &[[f64; 3]], work: &[f32], seconds: f64) -> bool {
+    seconds.is_finite()
+        && seconds > 0.0
+        && var.len() == mean.len()
         && (work.is_empty() || work.len() == mean.len())
         && mean
             .iter()
@@ -130,8 +133,7 @@ pub fn load(
         || s.identity != identity
         || (s.width, s.height) != (size.0 as usize, size.1 as usize)
         || n != Some(s.mean.len())
-        || !(s.seconds.is_finite() && s.seconds > 0.0)
-        || !values_in_range(&s.mean, &s.var, &s.work)
+        || !values_in_range(&s.mean, &s.var, &s.work, s.seconds)
     {
         bail!(
             "{}: stored for another version, scene, spp, size, device or binary, or damaged \
@@ -178,7 +180,7 @@ pub fn age(measured_unix: u64) -> String {
 /// `values_in_range`) is not stored and `false` says so, so no file of ours reads as
 /// damaged.
 pub fn store(file: &Path, pair: &Pair, identity: &str) -> Result<bool> {
-    if !(pair.seconds.is_finite() && values_in_range(&pair.mean.pixels, &pair.var, &pair.work)) {
+    if !values_in_range(&pair.mean.pixels, &pair.var, &pair.work, pair.seconds) {
         return Ok(false);
     }
     let s = Stored {
@@ -293,12 +295,13 @@ mod tests {
     fn a_pair_that_would_read_as_damaged_is_not_stored() {
         let dir = tempfile::tempdir().unwrap();
         type Edit = fn(&mut Pair);
-        let edits: [Edit; 5] = [
+        let edits: [Edit; 6] = [
             |p| p.mean.pixels[1][2] = f32::NAN,
             |p| p.mean.pixels[1][2] = 1e20,
             |p| p.var[3][0] = 1e31,
             |p| p.work.truncate(2),
             |p| p.seconds = f64::INFINITY,
+            |p| p.seconds = 0.0,
         ];
         for (i, edit) in edits.into_iter().enumerate() {
             let mut p = pair(7);

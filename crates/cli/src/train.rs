@@ -393,6 +393,14 @@ fn resume_command(a: &Args) -> String {
     c
 }
 
+/// The models a run trains: the one `--model` names, else all three.
+fn trained_kinds(model: Option<ModelKind>) -> Vec<ModelKind> {
+    match model {
+        Some(k) => vec![k],
+        None => ModelKind::ALL.to_vec(),
+    }
+}
+
 /// A model's steps under `--steps-scale`: rounded, at least one.
 fn scaled_steps(steps: u64, scale: f64) -> u64 {
     ((steps as f64 * scale).round() as u64).max(1)
@@ -597,6 +605,19 @@ pub fn run(a: Args) -> Result<()> {
             scatter_sim::ranges::num(a.steps_scale)
         );
     }
+    // A scaled run is held to the steps a config may ask for (a checkpoint past them would
+    // be refused as damaged on --resume).
+    for k in trained_kinds(a.model) {
+        let steps = scaled_steps(cfg.model(k).steps, a.steps_scale);
+        if steps > cvae::train::trainer::MAX_STEPS {
+            bail!(
+                "--steps-scale {} gives {}.steps = {steps} in {}: allowed at most 2^40",
+                scatter_sim::ranges::num(a.steps_scale),
+                k.name(),
+                a.config.display()
+            );
+        }
+    }
     let out = a.out.clone().unwrap_or_else(|| cfg.out.clone());
     // Checked before hours of training, not when the model is saved.
     let out_flag = match a.out {
@@ -713,23 +734,7 @@ pub fn run(a: Args) -> Result<()> {
         }
         None => None,
     };
-    let kinds: Vec<ModelKind> = match a.model {
-        Some(k) => vec![k],
-        None => ModelKind::ALL.to_vec(),
-    };
-    // A scaled run is held to the steps a config may ask for (a checkpoint past them would
-    // be refused as damaged on --resume).
-    for &k in &kinds {
-        let steps = scaled_steps(cfg.model(k).steps, a.steps_scale);
-        if steps > cvae::train::trainer::MAX_STEPS {
-            bail!(
-                "--steps-scale {} gives {}.steps = {steps} in {}: allowed at most 2^40",
-                scatter_sim::ranges::num(a.steps_scale),
-                k.name(),
-                a.config.display()
-            );
-        }
-    }
+    let kinds = trained_kinds(a.model);
     // The CPU renders any model the config allows; the GPU kernels a smaller one.
     for &k in &kinds {
         if let Err(e) =

@@ -2223,6 +2223,37 @@ fn merge_averages_stcvae_renders_of_both_devices() {
     assert_eq!(devices.len(), 2, "{json}");
     assert!(devices[0].as_str().unwrap().starts_with("cpu"), "{json}");
     assert!(devices[1].as_str().unwrap().starts_with("gpu"), "{json}");
+    // And each render as its report describes it, in the inputs' order; a merge of the
+    // merge lists the same renders (its input is the merged report, not one render).
+    let renders = json["renders"].as_array().unwrap();
+    assert_eq!(renders.len(), 2, "{json}");
+    for (r, (spp, device, seed)) in renders.iter().zip([(2, "cpu", "1"), (3, "gpu", "2")]) {
+        assert_eq!(r["spp"], spp, "{json}");
+        assert!(r["device"].as_str().unwrap().starts_with(device), "{json}");
+        assert_eq!(r["seed_text"], seed, "{json}");
+        assert_eq!(r["interrupted"], false, "{json}");
+        assert_eq!(r["integrator"], "stcvae", "{json}");
+        assert!(r["model_hash"].is_string(), "{json}");
+    }
+    let (c, mm) = (d.path().join("c"), d.path().join("mm"));
+    ok(&render_scene(
+        &scene,
+        "stcvae",
+        "1",
+        "3",
+        &c,
+        &["--device", "cpu"],
+    ));
+    ok(&merge_renders(&m, &c, &mm));
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(mm.with_extension("json")).unwrap()).unwrap();
+    let renders = json["renders"].as_array().unwrap();
+    assert_eq!(renders.len(), 3, "{json}");
+    assert_eq!(
+        renders[2]["file"],
+        c.with_extension("exr").display().to_string(),
+        "{json}"
+    );
 }
 
 /// An input that is a named pipe is refused at once by every reader, naming it: opening

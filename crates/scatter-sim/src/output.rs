@@ -241,6 +241,9 @@ pub struct AtomicFile {
 struct MadeDirs(Vec<PathBuf>);
 
 impl MadeDirs {
+    /// Makes `dir` one level at a time and records the levels this call made: a level that
+    /// only looked missing (`x/../old` with `x` missing names an existing `old`) exists
+    /// once its parent is made, and is not someone else's folder to remove.
     fn create(dir: &Path) -> io::Result<Self> {
         let mut missing = Vec::new();
         let mut at = Some(dir);
@@ -248,11 +251,20 @@ impl MadeDirs {
             if d.as_os_str().is_empty() || d.exists() {
                 break;
             }
-            missing.push(d.to_path_buf());
+            missing.push(d);
             at = d.parent();
         }
-        fs::create_dir_all(dir)?;
-        Ok(Self(missing))
+        let mut made = Self(Vec::new());
+        for d in missing.into_iter().rev() {
+            match fs::create_dir(d) {
+                // Deepest first, as Drop removes them.
+                Ok(()) => made.0.insert(0, d.to_path_buf()),
+                Err(e) if e.kind() == io::ErrorKind::AlreadyExists && d.is_dir() => {}
+                // What was made so far is removed again (dropping `made`).
+                Err(e) => return Err(e),
+            }
+        }
+        Ok(made)
     }
 }
 
@@ -372,14 +384,26 @@ fn write_set_with(
     mut persist: impl FnMut(Finished) -> io::Result<()>,
     keep: impl Fn(&Path) -> Before,
 ) -> Result<(), (PathBuf, io::Error)> {
-    let mut ready = Vec::with_capacity(files.len());
+    let mut ready: Vec<Finished> = Vec::with_capacity(files.len());
     for &(path, bytes) in files {
-        let fail = |e| (path.to_path_buf(), e);
-        let mut f = AtomicFile::create(path).map_err(fail)?;
-        f.write_all(bytes).map_err(fail)?;
         // Written out and synced now, not at the rename: a full disk must fail here,
         // before any file of the set has replaced its predecessor.
-        ready.push(f.finish().map_err(fail)?);
+        let written = AtomicFile::create(path).and_then(|mut f| {
+            f.write_all(bytes)?;
+            f.finish()
+        });
+        match written {
+            Ok(f) => ready.push(f),
+            Err(e) => {
+                // Newest first: a file's new folders may hold later files' temporaries,
+                // never earlier ones' (first to last, new/ stayed when its second file's
+                // temporary was still in it).
+                while let Some(f) = ready.pop() {
+                    drop(f);
+                }
+                return Err((path.to_path_buf(), e));
+            }
+        }
     }
     let mut placed: Vec<(PathBuf, Before)> = Vec::with_capacity(ready.len());
     // The folders the set made stay removable until every file is in place: a rename
@@ -563,6 +587,28 @@ mod tests {
             .unwrap_err();
             assert!(!d.path().join("new").exists(), "failed at {fail_at}");
         }
+        // A set that fails before its renames (here its last file is a folder, refused)
+        // removes the folders too: new/ stayed, its second file's temporary still in it
+        // when the first file's folders were removed.
+        let folder = d.path().join("folder");
+        fs::create_dir(&folder).unwrap();
+        let unwritable: [(&Path, &[u8]); 3] = [(&x, b"x"), (&y, b"y"), (&folder, b"f")];
+        let (at, _) = write_atomic_set(&unwritable).unwrap_err();
+        assert_eq!(at, folder);
+        assert!(!d.path().join("new").exists());
+        fs::remove_dir(&folder).unwrap();
+        // Through a missing folder and back out of it: the existing folder named is not
+        // one the set made, and stays (it was removed when empty).
+        let old = d.path().join("old");
+        fs::create_dir(&old).unwrap();
+        let through = d.path().join("gone/../old/w");
+        let round: [(&Path, &[u8]); 2] = [(&through, b"w"), (&folder, b"f")];
+        fs::create_dir(&folder).unwrap();
+        write_atomic_set(&round).unwrap_err();
+        assert!(old.is_dir(), "an existing folder removed");
+        assert!(!d.path().join("gone").exists());
+        fs::remove_dir(&folder).unwrap();
+        fs::remove_dir(&old).unwrap();
         write_atomic_set(&nested).unwrap();
         assert_eq!(
             [&x, &y, &z].map(|p| fs::read(p).unwrap()),
