@@ -275,8 +275,8 @@ fn pt_pair(
     match crate::pt_cache::store(&file, &pair, id) {
         Ok(true) => {}
         Ok(false) => eprintln!(
-            "warning: PT's render at k = {k} has a non-finite or out-of-range value; not \
-             stored in {}",
+            "warning: PT's render at k = {k} cannot be stored (a non-finite or out-of-range \
+             value, or no measured time); not stored in {}",
             dir.display()
         ),
         Err(e) => eprintln!(
@@ -362,20 +362,11 @@ fn render_pair(
     let half = half_spp(a.spp);
     let cam = &p.file.camera;
     // The renderer compiles its kernel before its clock starts, but a hardware GPU idle
-    // through the CPU's preparation runs its first timed render slower (`bench devices`
-    // measured ~30 % on an H100): untimed work first, as there. Software adapters compile
-    // at every render, so a warm-up would not help them.
-    if engine.is_hardware_gpu() {
-        let opts = RenderOptions {
-            spp: half,
-            seed: a.seeds_of(kind)[0],
-            time_budget: Some(crate::bench_devices::GPU_WARM_UP_SECONDS),
-            variance: false,
-        };
-        engine.render(&p.data, &set, &opts, &|_, _| {}, cancel)?;
-        if crate::interrupt::requested() {
-            bail!("interrupted: the rows printed so far stand; nothing more was measured");
-        }
+    // through the CPU's preparation runs its first timed render slower: untimed work
+    // first, as in `bench devices`.
+    engine.warm_up(&p.data, &set, half, a.seeds_of(kind)[0], cancel)?;
+    if crate::interrupt::requested() {
+        bail!("interrupted: the rows printed so far stand; nothing more was measured");
     }
     let mut outs = Vec::new();
     for seed in a.seeds_of(kind) {

@@ -150,4 +150,28 @@ impl Engine {
             r => Ok(r?),
         }
     }
+
+    /// Untimed work before a timed render, on a hardware GPU only: one idle through the
+    /// CPU's preparation of a scene runs its first timed render slower (`bench devices`
+    /// measured ~30 % on an H100). Software adapters compile their kernel at every render,
+    /// so a warm-up would not help them; the CPU needs none.
+    pub fn warm_up(
+        &self,
+        scene: &SceneData,
+        set: &IntegratorSettings,
+        spp: u32,
+        seed: u64,
+        cancel: &AtomicBool,
+    ) -> Result<()> {
+        if self.is_hardware_gpu() {
+            let opts = RenderOptions {
+                spp,
+                seed,
+                time_budget: Some(crate::bench_devices::GPU_WARM_UP_SECONDS),
+                variance: false,
+            };
+            self.render(scene, set, &opts, &|_, _| {}, cancel)?;
+        }
+        Ok(())
+    }
 }

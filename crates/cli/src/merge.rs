@@ -278,6 +278,7 @@ fn merge_images(a: &Args) -> Result<()> {
         "width": img.width,
         "height": img.height,
         "mean_rgb": crate::render::mean_rgb(&img),
+        "renders_complete": renders_complete(&renders, tag.spp),
         "renders": renders,
     });
     write_image_set(
@@ -349,8 +350,8 @@ fn inputs_origin(reports: &[Option<serde_json::Value>]) -> (Option<String>, Vec<
 /// Each render in the merge as its report describes it (how many samples, which seed,
 /// device and model, whether a time budget or a stop cut it short, how long it took),
 /// nulls where its report is missing; a merged input contributes the renders its own
-/// report lists. The merged report's totals alone lost which render was interrupted or
-/// ran where.
+/// report lists, or, written before the list existed, one entry marked `merged`. The
+/// merged report's totals alone lost which render was interrupted or ran where.
 fn inputs_renders(
     inputs: &[PathBuf],
     reports: &[Option<serde_json::Value>],
@@ -374,13 +375,32 @@ fn inputs_renders(
         }
         let mut entry = serde_json::Map::new();
         entry.insert("file".into(), p.display().to_string().into());
-        for k in KEYS {
+        // A merge written before `renders` existed: one entry for its renders, with the
+        // seeds and devices it recorded.
+        let merged = r.as_ref().is_some_and(|v| v.get("inputs").is_some());
+        let keys: &[&str] = if merged {
+            &["spp", "seeds_text", "devices", "integrator"]
+        } else {
+            &KEYS
+        };
+        if merged {
+            entry.insert("merged".into(), true.into());
+        }
+        for &k in keys {
             let v = r.as_ref().and_then(|v| v.get(k)).cloned();
             entry.insert(k.into(), v.unwrap_or(serde_json::Value::Null));
         }
         out.push(entry.into());
     }
     out
+}
+
+/// Whether the renders listed account for every sample of the merged image: their
+/// reports' spp add up to the EXR headers'. Not where a report is missing, damaged or
+/// stale (a render redone after its report was written).
+fn renders_complete(renders: &[serde_json::Value], spp: u64) -> bool {
+    let listed: Option<u64> = renders.iter().map(|r| r.get("spp")?.as_u64()).sum();
+    listed == Some(spp)
 }
 
 /// The preview exposure the renders' reports (a merge's own report records it too) agree

@@ -892,6 +892,9 @@ pub fn run(mut a: Args) -> Result<()> {
     if let Some(lanes) = &out.dispatch.lanes {
         print_lanes(lanes);
     }
+    if let Some(note) = budget_overrun_note(a.time_budget, &out, engine.is_gpu()) {
+        eprintln!("{note}");
+    }
     if interrupted {
         // Written, but cut short: exit 130 as `generate` and `train` do, so that scripts
         // can tell it from a complete render.
@@ -902,6 +905,34 @@ pub fn run(mut a: Args) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// Why a render ran well past its time budget, which it stops only after the pass in
+/// which the budget ran out: a budget shorter than the first pass (a GPU's is one sample
+/// for each of a pixel's path slots, 16 spp of a small image on lavapipe) renders that
+/// pass whole. None where it kept to twice the budget.
+fn budget_overrun_note(
+    budget: Option<f64>,
+    out: &render_gpu::render::RenderOutput,
+    gpu: bool,
+) -> Option<String> {
+    let b = budget?;
+    (out.seconds > 2.0 * b).then(|| {
+        let least = if gpu {
+            format!(
+                "on the GPU a pass is at least {} spp here, one sample per path slot of a pixel",
+                out.dispatch.slots_per_pixel
+            )
+        } else {
+            "the first is 1 spp".to_string()
+        };
+        format!(
+            "note: the render took {} s of a {} s budget: it stops only after a whole pass \
+             ({least})",
+            progress::significant4(out.seconds),
+            scatter_sim::ranges::num(b)
+        )
+    })
 }
 
 /// The lane profile (`STCVAE_GPU_PROFILE=1`): per phase, its share of all subgroup passes

@@ -576,3 +576,54 @@ fn csv_cells(line: &str) -> Vec<String> {
     cells.push(cell);
     cells
 }
+
+/// An experiment on the GPU (lavapipe in CI): the equal-time comparison renders every
+/// method to its budgets there, with finite figures, and the report names the device.
+/// Skipped, with the reason, only where no Vulkan adapter exists and not under CI.
+#[test]
+fn an_experiment_runs_on_the_gpu() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args([
+            "experiment",
+            "configs/experiments/nee.toml",
+            "--quick",
+            "--device",
+            "gpu",
+            "--out",
+        ])
+        .arg(tmp.path())
+        .env("WGPU_BACKEND", "vulkan")
+        .current_dir(root())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    if !out.status.success() && err.contains("no wgpu adapter") && std::env::var_os("CI").is_none()
+    {
+        common::skip(&format!("an_experiment_runs_on_the_gpu: {err}"));
+        return;
+    }
+    assert!(out.status.success(), "{err}");
+    let dir = tmp.path().join("nee-quick");
+    let csv = std::fs::read_to_string(dir.join("figures.csv")).unwrap();
+    let mut lines = csv.lines();
+    let header = csv_cells(lines.next().unwrap());
+    let column = |name: &str| header.iter().position(|h| h == name).unwrap();
+    let (spp, seconds) = (column("spp"), column("seconds"));
+    let mut rows = 0;
+    for line in lines {
+        let cells = csv_cells(line);
+        for c in &cells {
+            if let Ok(v) = c.parse::<f64>() {
+                assert!(v.is_finite(), "{line}");
+            }
+        }
+        let (s, t): (f64, f64) = (cells[spp].parse().unwrap(), cells[seconds].parse().unwrap());
+        assert!(s >= 1.0 && t > 0.0, "{line}");
+        rows += 1;
+    }
+    // Three methods at three budgets each.
+    assert_eq!(rows, 9, "{csv}");
+    let report = std::fs::read_to_string(dir.join("report.md")).unwrap();
+    assert!(report.contains("gpu: "), "{report}");
+}

@@ -2176,6 +2176,62 @@ fn a_time_budget_stops_after_a_pass_and_records_its_spp() {
         (json["spp"].as_u64(), json["spp_requested"].is_null()),
         (Some(1), true)
     );
+    // 1e-9 s is far below a pass: the note says why the render took longer.
+    assert!(
+        String::from_utf8_lossy(&out.stderr)
+            .contains("it stops only after a whole pass (the first is 1 spp)"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// The GPU's time budget (lavapipe in CI): its first chunk renders one sample for each
+/// of a pixel's path slots, so a budget shorter than that chunk gets that chunk whole,
+/// recorded as its spp in the JSON and the EXR alike, and the note says why it took
+/// longer than asked. Skipped, with the reason, only where no Vulkan adapter exists and
+/// not under CI.
+#[test]
+fn a_gpu_time_budget_renders_whole_chunks() {
+    let d = tempfile::tempdir().unwrap();
+    let scene = sphere_scene_file(d.path(), 16);
+    let out = d.path().join("g");
+    let args = [
+        "render",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--integrator",
+        "pt",
+        "--spp",
+        "64",
+        "--time-budget",
+        "1e-9",
+        "--device",
+        "gpu",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    let Some(o) = on_vulkan(&args, "a_gpu_time_budget_renders_whole_chunks") else {
+        return;
+    };
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.with_extension("json")).unwrap())
+            .unwrap();
+    let slots = json["gpu_dispatch"]["slots_per_pixel"].as_u64().unwrap();
+    assert!((1..=64).contains(&slots), "{json}");
+    // The first chunk at one sample a slot, then the budget is spent.
+    assert_eq!(json["spp"].as_u64(), Some(slots), "{json}");
+    assert_eq!(json["spp_requested"].as_u64(), Some(64), "{json}");
+    assert_eq!(json["interrupted"], false, "{json}");
+    let (image, tag) = render_gpu::image_io::read_exr(&out.with_extension("exr")).unwrap();
+    assert_eq!(tag.unwrap().spp, slots);
+    assert!(image.pixels.iter().flatten().all(|v| v.is_finite()));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains(&format!(
+            "on the GPU a pass is at least {slots} spp here, one sample per path slot"
+        )),
+        "{err}"
+    );
 }
 
 /// The two devices run one estimator (tested image against image in render-gpu's gpu.rs),
@@ -2235,6 +2291,7 @@ fn merge_averages_stcvae_renders_of_both_devices() {
         assert_eq!(r["integrator"], "stcvae", "{json}");
         assert!(r["model_hash"].is_string(), "{json}");
     }
+    assert_eq!(json["renders_complete"], true, "{json}");
     let (c, mm) = (d.path().join("c"), d.path().join("mm"));
     ok(&render_scene(
         &scene,
@@ -2249,11 +2306,30 @@ fn merge_averages_stcvae_renders_of_both_devices() {
         serde_json::from_str(&std::fs::read_to_string(mm.with_extension("json")).unwrap()).unwrap();
     let renders = json["renders"].as_array().unwrap();
     assert_eq!(renders.len(), 3, "{json}");
+    assert_eq!(json["renders_complete"], true, "{json}");
     assert_eq!(
         renders[2]["file"],
         c.with_extension("exr").display().to_string(),
         "{json}"
     );
+    // A merge written before the list (no `renders`) is one entry marked merged; a render
+    // without its report has nulls, and the list no longer accounts for every sample.
+    let mjson = m.with_extension("json");
+    let mut old: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&mjson).unwrap()).unwrap();
+    old.as_object_mut().unwrap().remove("renders");
+    std::fs::write(&mjson, old.to_string()).unwrap();
+    std::fs::remove_file(c.with_extension("json")).unwrap();
+    ok(&merge_renders(&m, &c, &mm));
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(mm.with_extension("json")).unwrap()).unwrap();
+    let renders = json["renders"].as_array().unwrap();
+    assert_eq!(renders.len(), 2, "{json}");
+    assert_eq!(renders[0]["merged"], true, "{json}");
+    assert_eq!(renders[0]["spp"], 5, "{json}");
+    assert_eq!(renders[0]["devices"].as_array().unwrap().len(), 2, "{json}");
+    assert!(renders[1]["spp"].is_null(), "{json}");
+    assert_eq!(json["renders_complete"], false, "{json}");
 }
 
 /// An input that is a named pipe is refused at once by every reader, naming it: opening

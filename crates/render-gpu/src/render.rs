@@ -94,6 +94,9 @@ pub struct DispatchStats {
     pub redone: u64,
     /// Bands of rows the image was rendered in (1: one storage binding held it all).
     pub bands: u32,
+    /// Path slots per pixel: the samples of a pixel rendered at once, so the fewest a
+    /// chunk, the first of a time budget's included, renders.
+    pub slots_per_pixel: u32,
     /// Bounces a dispatch advanced each path by, at the end of the render.
     pub bounce_budget: u32,
     /// Threads per workgroup of the kernel (`STCVAE_GPU_WORKGROUP`).

@@ -123,13 +123,19 @@ pub fn render_once(
         cam.width as u64 * cam.height as u64,
         o,
     );
-    let out = ctx.engine.render(
-        &p.data,
-        &set,
-        o,
-        &|done, _| pb.set_position(done),
-        crate::interrupt::flag(),
-    );
+    // Experiments compare times: a hardware GPU gets the benches' untimed warm-up.
+    let out = ctx
+        .engine
+        .warm_up(&p.data, &set, o.spp, o.seed, crate::interrupt::flag())
+        .and_then(|()| {
+            ctx.engine.render(
+                &p.data,
+                &set,
+                o,
+                &|done, _| pb.set_position(done),
+                crate::interrupt::flag(),
+            )
+        });
     pb.finish_and_clear();
     let out = out?;
     if crate::interrupt::requested() {

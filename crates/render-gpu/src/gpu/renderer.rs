@@ -793,6 +793,7 @@ pub fn render_gpu(
     let mut stats = PathStats::default();
     let mut dispatch = DispatchStats {
         bands: bands.len() as u32,
+        slots_per_pixel: lanes,
         workgroup: shape.workgroup,
         stack: Some(shape.stack),
         staged: shape.staged,
