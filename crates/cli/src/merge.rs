@@ -278,7 +278,7 @@ fn merge_images(a: &Args) -> Result<()> {
         "width": img.width,
         "height": img.height,
         "mean_rgb": crate::render::mean_rgb(&img),
-        "renders_complete": renders_complete(&renders, tag.spp),
+        "renders_complete": renders_complete(&renders, &tag),
         "renders": renders,
     });
     write_image_set(
@@ -396,11 +396,31 @@ fn inputs_renders(
 }
 
 /// Whether the renders listed account for every sample of the merged image: their
-/// reports' spp add up to the EXR headers'. Not where a report is missing, damaged or
-/// stale (a render redone after its report was written).
-fn renders_complete(renders: &[serde_json::Value], spp: u64) -> bool {
-    let listed: Option<u64> = renders.iter().map(|r| r.get("spp")?.as_u64()).sum();
-    listed == Some(spp)
+/// reports' spp add up to the EXR headers' and their seeds are the headers' seeds. Not
+/// where a report is missing, damaged or stale (a render redone with another seed after
+/// its report was written).
+fn renders_complete(renders: &[serde_json::Value], tag: &render_gpu::image_io::RenderTag) -> bool {
+    let mut spp = Some(0u64);
+    let mut seeds: Vec<String> = Vec::new();
+    for r in renders {
+        spp = spp
+            .zip(r.get("spp").and_then(|v| v.as_u64()))
+            .and_then(|(a, b)| a.checked_add(b));
+        if let Some(s) = r.get("seed_text").and_then(|v| v.as_str()) {
+            seeds.push(s.to_owned());
+        }
+        let merged = r.get("seeds_text").and_then(|v| v.as_array());
+        seeds.extend(
+            merged
+                .into_iter()
+                .flatten()
+                .filter_map(|s| s.as_str().map(str::to_owned)),
+        );
+    }
+    let mut want: Vec<String> = tag.seeds.iter().map(u64::to_string).collect();
+    seeds.sort();
+    want.sort();
+    spp == Some(tag.spp) && seeds == want && !tag.some_unknown()
 }
 
 /// The preview exposure the renders' reports (a merge's own report records it too) agree
@@ -830,4 +850,43 @@ fn merge_csv(a: &Args) -> Result<()> {
         a.out.display()
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use render_gpu::image_io::RenderTag;
+    use serde_json::json;
+
+    #[test]
+    fn the_renders_list_is_complete_only_with_every_sample_and_seed() {
+        let tag = RenderTag {
+            spp: 5,
+            scene_hash: 1,
+            seeds: vec![1, 2, 3],
+            partial: false,
+            unknown_digests: Vec::new(),
+        };
+        let render = |spp: u64, seed: &str| json!({"spp": spp, "seed_text": seed});
+        let merged = json!({"merged": true, "spp": 3, "seeds_text": ["2", "3"]});
+        assert!(renders_complete(&[render(2, "1"), merged.clone()], &tag));
+        assert!(renders_complete(
+            &[render(2, "1"), render(1, "2"), render(2, "3")],
+            &tag
+        ));
+        // A stale report (another seed, same spp), a missing one, spp that do not add up
+        // or overflow, a render of unknown seed in the image.
+        assert!(!renders_complete(&[render(2, "9"), merged.clone()], &tag));
+        assert!(!renders_complete(&[json!({}), merged.clone()], &tag));
+        assert!(!renders_complete(&[render(3, "1"), merged.clone()], &tag));
+        assert!(!renders_complete(
+            &[render(u64::MAX, "1"), merged.clone(), render(u64::MAX, "4")],
+            &tag
+        ));
+        let partial = RenderTag {
+            partial: true,
+            ..tag.clone()
+        };
+        assert!(!renders_complete(&[render(2, "1"), merged], &partial));
+    }
 }

@@ -94,9 +94,10 @@ pub struct DispatchStats {
     pub redone: u64,
     /// Bands of rows the image was rendered in (1: one storage binding held it all).
     pub bands: u32,
-    /// Path slots per pixel: the samples of a pixel rendered at once, so the fewest a
-    /// chunk, the first of a time budget's included, renders.
-    pub slots_per_pixel: u32,
+    /// Samples per pixel of the first chunk: a pixel's path slots times the samples each
+    /// renders in it (`STCVAE_GPU_LANE_SAMPLES`, else 1), at most the spp asked for. A
+    /// time budget shorter than this chunk's time still gets the chunk whole.
+    pub first_chunk_spp: u32,
     /// Bounces a dispatch advanced each path by, at the end of the render.
     pub bounce_budget: u32,
     /// Threads per workgroup of the kernel (`STCVAE_GPU_WORKGROUP`).

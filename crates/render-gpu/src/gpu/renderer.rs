@@ -793,7 +793,6 @@ pub fn render_gpu(
     let mut stats = PathStats::default();
     let mut dispatch = DispatchStats {
         bands: bands.len() as u32,
-        slots_per_pixel: lanes,
         workgroup: shape.workgroup,
         stack: Some(shape.stack),
         staged: shape.staged,
@@ -823,6 +822,9 @@ pub fn render_gpu(
             break;
         }
         let s1 = (s0 as u64 + lanes as u64 * per_lane as u64).min(spp as u64) as u32;
+        if s0 == 0 {
+            dispatch.first_chunk_spp = s1;
+        }
         params.image[2] = lanes;
         params.image[3] = per_lane;
         params.sampling[0] = s0;
