@@ -716,13 +716,7 @@ mod tests {
             a: Args,
         }
         let cmd = Cli::command();
-        let help = |id: &str| {
-            cmd.get_arguments()
-                .find(|a| a.get_id() == id)
-                .and_then(|a| a.get_help())
-                .map(|h| h.to_string())
-                .unwrap_or_default()
-        };
+        let help = |id: &str| crate::help_of(&cmd, id);
         for (id, range) in [
             ("nee_samples", format!("1 to {MAX_NEE_SAMPLES} ")),
             (

@@ -324,13 +324,7 @@ mod tests {
             a: crate::model_cmds::SampleArgs,
         }
         for cmd in [Generate::command(), Sample::command()] {
-            let help = |id: &str| {
-                cmd.get_arguments()
-                    .find(|a| a.get_id() == id)
-                    .and_then(|a| a.get_help())
-                    .map(|h| h.to_string())
-                    .unwrap_or_default()
-            };
+            let help = |id: &str| crate::help_of(&cmd, id);
             assert!(help("tau").contains(TAU_RANGE), "{}", help("tau"));
             assert!(help("g").contains(G_RANGE), "{}", help("g"));
         }

@@ -47,6 +47,17 @@ mod shipped;
 mod train;
 mod whole;
 
+/// The help text of argument `id` of `cmd` (empty if it has none), for tests that hold
+/// help texts to the constants they quote.
+#[cfg(test)]
+fn help_of(cmd: &clap::Command, id: &str) -> String {
+    cmd.get_arguments()
+        .find(|a| a.get_id() == id)
+        .and_then(|a| a.get_help())
+        .map(|h| h.to_string())
+        .unwrap_or_default()
+}
+
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 #[derive(Parser)]
