@@ -377,15 +377,12 @@ fn inputs_renders(
         entry.insert("file".into(), p.display().to_string().into());
         // A merge written before `renders` existed: one entry for its renders, with the
         // seeds and devices it recorded.
-        let merged = r.as_ref().is_some_and(|v| v.get("inputs").is_some());
-        let keys: &[&str] = if merged {
+        let keys: &[&str] = if r.as_ref().is_some_and(|v| v.get("inputs").is_some()) {
+            entry.insert("merged".into(), true.into());
             &["spp", "seeds_text", "devices", "integrator"]
         } else {
             &KEYS
         };
-        if merged {
-            entry.insert("merged".into(), true.into());
-        }
         for &k in keys {
             let v = r.as_ref().and_then(|v| v.get(k)).cloned();
             entry.insert(k.into(), v.unwrap_or(serde_json::Value::Null));

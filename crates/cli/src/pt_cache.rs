@@ -88,11 +88,10 @@ pub fn path(dir: &Path, k: f64, hash: u64, spp: u32, identity: &str) -> PathBuf 
 }
 
 /// Whether a pair can be stored and read back: it took some finite time, and its pixels
-/// fit. Pixel means and variances are
-/// finite and ≥ 0 in any render (an edited file with a negative variance gave a negative
-/// variance ratio, a mean of 1e39 an infinite bias), and far below what squares or sums of
-/// them overflow (a variance of 1e308 printed "var ratio inf ± NaN"): radiances are at most
-/// 1e12 (scene checks). Work counts are per pixel on the CPU and absent on the GPU, whose
+/// fit. Pixel means and variances are finite and ≥ 0 in any render (an edited file with a
+/// negative variance gave a negative variance ratio, a mean of 1e39 an infinite bias), and
+/// far below what squares or sums of them overflow (a variance of 1e308 printed "var ratio
+/// inf ± NaN"): radiances are at most 1e12 (scene checks). Work counts are per pixel on the CPU and absent on the GPU, whose
 /// kernels count paths, not per-pixel work.
 fn values_in_range(mean: &[[f32; 3]], var: &[[f64; 3]], work: &[f32], seconds: f64) -> bool {
     seconds.is_finite()

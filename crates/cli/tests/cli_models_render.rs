@@ -88,13 +88,7 @@ fn on_vulkan_any(args: &[&str], envs: &[(&str, &str)], test: &str) -> Option<Out
         .current_dir(root())
         .output()
         .expect("run stcvae");
-    let err = String::from_utf8_lossy(&out.stderr).into_owned();
-    if !out.status.success() && err.contains("no wgpu adapter") && std::env::var_os("CI").is_none()
-    {
-        common::skip(&format!("{test}: {err}"));
-        return None;
-    }
-    Some(out)
+    (!common::skipped_without_vulkan(&out, test)).then_some(out)
 }
 
 fn ok(out: &Output) -> String {
@@ -2187,9 +2181,8 @@ fn a_time_budget_stops_after_a_pass_and_records_its_spp() {
 
 /// The GPU's time budget (lavapipe in CI): its first chunk renders one sample for each
 /// of a pixel's path slots (times STCVAE_GPU_LANE_SAMPLES where set), so a budget shorter
-/// than that chunk gets that chunk whole,
-/// recorded as its spp in the JSON and the EXR alike, and the note says why it took
-/// longer than asked. Skipped, with the reason, only where no Vulkan adapter exists and
+/// than that chunk gets that chunk whole, recorded as its spp in the JSON and the EXR
+/// alike, and the note says why it took longer than asked. Skipped, with the reason, only where no Vulkan adapter exists and
 /// not under CI.
 #[test]
 fn a_gpu_time_budget_renders_whole_chunks() {

@@ -398,9 +398,7 @@ fn write_set_with(
                 // Newest first: a file's new folders may hold later files' temporaries,
                 // never earlier ones' (first to last, new/ stayed when its second file's
                 // temporary was still in it).
-                while let Some(f) = ready.pop() {
-                    drop(f);
-                }
+                ready.into_iter().rev().for_each(drop);
                 return Err((path.to_path_buf(), e));
             }
         }
@@ -415,12 +413,9 @@ fn write_set_with(
         let before = keep(&path);
         made.push(std::mem::replace(&mut f.made, MadeDirs(Vec::new())));
         if let Err(e) = persist(f) {
-            // The temporaries not yet renamed go first, so that the folders can empty; their
-            // folders join the set's, all removed newest first below (each dropped with its
-            // own file, a later file's deeper folder still held an earlier one's open).
-            for mut rest in ready {
-                made.push(std::mem::replace(&mut rest.made, MadeDirs(Vec::new())));
-            }
+            // The temporaries not yet renamed go first, newest first with their folders as
+            // above, so that the earlier files' folders can empty.
+            ready.rev().for_each(drop);
             // Newest first, so each file gets back what it held before this call.
             for (done, before) in placed.into_iter().rev() {
                 match before {

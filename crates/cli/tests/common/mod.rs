@@ -129,6 +129,20 @@ pub fn wait_for_sigint_handler(child: &Child) -> bool {
     false
 }
 
+/// Whether `out` of a GPU command failed only for want of a Vulkan adapter here, outside
+/// CI, where the test is then skipped with the reason said ([`skip`]); under CI, where
+/// lavapipe is installed, never.
+pub fn skipped_without_vulkan(out: &Output, test: &str) -> bool {
+    let err = String::from_utf8_lossy(&out.stderr);
+    let skip_it = !out.status.success()
+        && err.contains("no wgpu adapter")
+        && std::env::var_os("CI").is_none();
+    if skip_it {
+        skip(&format!("{test}: {err}"));
+    }
+    skip_it
+}
+
 /// Says on the terminal why a test is skipped. Written to stderr directly rather than with
 /// `eprintln!`, which libtest captures and shows only for failing tests: a skipped test
 /// passes, so its reason would otherwise never be seen without `--nocapture`.

@@ -270,8 +270,6 @@ impl CheckpointInfo {
 /// ~1 µs a step 2^40 is 13 days; the bound keeps step counts exact in f64 and in the
 /// learning-rate schedule.
 pub const MAX_STEPS: u64 = 1 << 40;
-// The messages say "2^40".
-const _: () = assert!(MAX_STEPS == 1 << 40);
 
 /// What a run's batches and learning rates follow, as run (after `--steps-scale`): an
 /// unfinished run resumed under another plan jumped in learning rate mid-decay (a run
