@@ -424,3 +424,135 @@ pub fn batch_mean_se(batches: &[f64]) -> (f64, f64) {
     let var = batches.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0);
     (mean, (var / n).sqrt())
 }
+
+/// Nodes and weights of the `n`-point Gauss–Legendre rule on [0, 1] (Newton's method on
+/// the Legendre polynomial from the Chebyshev guesses; exact for polynomials of degree
+/// 2n − 1).
+pub fn gauss_legendre_01(n: usize) -> Vec<(f64, f64)> {
+    (0..n)
+        .map(|i| {
+            let mut x = (std::f64::consts::PI * (i as f64 + 0.75) / (n as f64 + 0.5)).cos();
+            let mut dp = 0.0;
+            for _ in 0..100 {
+                // P_n(x) and P_n'(x) by the three-term recurrence.
+                let (mut p0, mut p1) = (1.0, x);
+                for k in 2..=n {
+                    let k = k as f64;
+                    (p0, p1) = (p1, ((2.0 * k - 1.0) * x * p1 - (k - 1.0) * p0) / k);
+                }
+                dp = n as f64 * (x * p1 - p0) / (x * x - 1.0);
+                let dx = p1 / dp;
+                x -= dx;
+                if dx.abs() < 1e-15 {
+                    break;
+                }
+            }
+            let w = 2.0 / ((1.0 - x * x) * dp * dp);
+            (0.5 * (1.0 - x), 0.5 * w)
+        })
+        .collect()
+}
+
+/// Chandrasekhar's H-function of isotropic scattering with single-scattering albedo `w`
+/// (0 < w < 1), at `mu`. Solved from the form
+/// 1/H(μ) = √(1−w) + (w/2) ∫₀¹ μ' H(μ') / (μ + μ') dμ'
+/// (Radiative Transfer, ch. V), iterated to a fixed point at 64 Gauss–Legendre nodes. An
+/// independent reference for the renderer's half-space tests: it shares no code with the
+/// renderer or the simulator.
+pub fn chandrasekhar_h(w: f64, mu: f64) -> f64 {
+    let q = gauss_legendre_01(64);
+    let s = (1.0 - w).sqrt();
+    let at = |h: &[f64], m: f64| {
+        let i: f64 = q
+            .iter()
+            .zip(h)
+            .map(|(&(x, wt), &hx)| wt * x * hx / (m + x))
+            .sum();
+        1.0 / (s + 0.5 * w * i)
+    };
+    let mut h = vec![1.0; q.len()];
+    for _ in 0..10_000 {
+        let next: Vec<f64> = q.iter().map(|&(x, _)| at(&h, x)).collect();
+        let change = next
+            .iter()
+            .zip(&h)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        h = next;
+        if change < 1e-13 {
+            break;
+        }
+    }
+    // The zeroth moment ∫₀¹ H dμ = (2/w)(1 − √(1−w)) holds for the exact H: a check on the
+    // quadrature and the iteration that the fixed point does not impose.
+    let h0: f64 = q.iter().zip(&h).map(|(&(_, wt), &hx)| wt * hx).sum();
+    let exact = 2.0 / w * (1.0 - s);
+    assert!((h0 / exact - 1.0).abs() < 1e-6, "H moment {h0} vs {exact}");
+    at(&h, mu)
+}
+
+/// The plane albedo of a semi-infinite, index-matched, isotropically scattering medium of
+/// albedo `w` for light arriving at cos θ = `mu`: r(μ) = 1 − H(μ)√(1−w) (Chandrasekhar).
+/// By reciprocity it is also the radiance leaving the medium towards `mu` under a uniform
+/// sky of radiance 1, which is what a camera looking at the medium sees.
+pub fn half_space_albedo(w: f64, mu: f64) -> f64 {
+    1.0 - chandrasekhar_h(w, mu) * (1.0 - w).sqrt()
+}
+
+/// The three albedos of [`half_space_scene`], one a channel.
+pub const HALF_SPACE_ALBEDOS: [f64; 3] = [0.5, 0.9, 0.99];
+
+/// A half-space as a renderer sees it: a cube of edge 2 and σ_t = 100 (200 mean free paths
+/// a side) under a uniform sky of radiance 1, isotropic scattering, index-matched, no
+/// lights; seen from 40 above through a 0.6° lens, so every pixel looks at the middle
+/// ±0.21 of the top face within 0.3° of its normal (r(μ) changes by < 1e-5 there). Light
+/// from the other faces has to cross ≥ 79 mean free paths of a medium whose diffusion
+/// length is at most 5.8 of them (albedo 0.99: 1/√(3(1 − w))), so it arrives damped by
+/// e^−13 or more: the cube is a half-space to far below the tests' noise.
+pub fn half_space_scene(width: u32) -> String {
+    let [a, b, c] = HALF_SPACE_ALBEDOS;
+    format!(
+        r#"
+[camera]
+origin = [0.0, 0.0, 40.0]
+target = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+fov_deg = 0.6
+width = {width}
+height = {width}
+[object]
+shape = "cube"
+size = 2.0
+[medium]
+sigma_t = [100.0, 100.0, 100.0]
+albedo = [{a}, {b}, {c}]
+g = 0.0
+[boundary]
+kind = "index-matched"
+[environment]
+radiance = [1.0, 1.0, 1.0]
+[render]
+grid_resolution = 32
+"#
+    )
+}
+
+/// Per channel, the mean of an image's pixels and its standard error from their spread
+/// (pixels are independent estimates).
+pub fn pixel_mean_and_sem(image: &render_gpu::image_io::RgbImage) -> ([f64; 3], [f64; 3]) {
+    let n = image.pixels.len() as f64;
+    let mut mean = [0.0; 3];
+    let mut sem = [0.0; 3];
+    for c in 0..3 {
+        let m = image.pixels.iter().map(|p| p[c] as f64).sum::<f64>() / n;
+        let var = image
+            .pixels
+            .iter()
+            .map(|p| (p[c] as f64 - m).powi(2))
+            .sum::<f64>()
+            / (n - 1.0);
+        mean[c] = m;
+        sem[c] = (var / n).sqrt();
+    }
+    (mean, sem)
+}
