@@ -453,50 +453,68 @@ pub fn gauss_legendre_01(n: usize) -> Vec<(f64, f64)> {
         .collect()
 }
 
-/// Chandrasekhar's H-function of isotropic scattering with single-scattering albedo `w`
-/// (0 < w < 1), at `mu`. Solved from the form
+/// Chandrasekhar's H-function of isotropic scattering with single-scattering albedo w
+/// (0 < w < 1), solved from the form
 /// 1/H(μ) = √(1−w) + (w/2) ∫₀¹ μ' H(μ') / (μ + μ') dμ'
 /// (Radiative Transfer, ch. V), iterated to a fixed point at 64 Gauss–Legendre nodes. An
 /// independent reference for the renderer's half-space tests: it shares no code with the
 /// renderer or the simulator.
-pub fn chandrasekhar_h(w: f64, mu: f64) -> f64 {
-    let q = gauss_legendre_01(64);
-    let s = (1.0 - w).sqrt();
-    let at = |h: &[f64], m: f64| {
-        let i: f64 = q
-            .iter()
-            .zip(h)
-            .map(|(&(x, wt), &hx)| wt * x * hx / (m + x))
-            .sum();
-        1.0 / (s + 0.5 * w * i)
-    };
-    let mut h = vec![1.0; q.len()];
-    for _ in 0..10_000 {
-        let next: Vec<f64> = q.iter().map(|&(x, _)| at(&h, x)).collect();
-        let change = next
-            .iter()
-            .zip(&h)
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0, f64::max);
-        h = next;
-        if change < 1e-13 {
-            break;
-        }
-    }
-    // The zeroth moment ∫₀¹ H dμ = (2/w)(1 − √(1−w)) holds for the exact H: a check on the
-    // quadrature and the iteration that the fixed point does not impose.
-    let h0: f64 = q.iter().zip(&h).map(|(&(_, wt), &hx)| wt * hx).sum();
-    let exact = 2.0 / w * (1.0 - s);
-    assert!((h0 / exact - 1.0).abs() < 1e-6, "H moment {h0} vs {exact}");
-    at(&h, mu)
+pub struct HFunction {
+    w: f64,
+    nodes: Vec<(f64, f64)>,
+    at_nodes: Vec<f64>,
 }
 
-/// The plane albedo of a semi-infinite, index-matched, isotropically scattering medium of
-/// albedo `w` for light arriving at cos θ = `mu`: r(μ) = 1 − H(μ)√(1−w) (Chandrasekhar).
-/// By reciprocity it is also the radiance leaving the medium towards `mu` under a uniform
-/// sky of radiance 1, which is what a camera looking at the medium sees.
-pub fn half_space_albedo(w: f64, mu: f64) -> f64 {
-    1.0 - chandrasekhar_h(w, mu) * (1.0 - w).sqrt()
+impl HFunction {
+    pub fn new(w: f64) -> Self {
+        let mut h = Self {
+            w,
+            nodes: gauss_legendre_01(64),
+            at_nodes: vec![1.0; 64],
+        };
+        for _ in 0..10_000 {
+            let next: Vec<f64> = h.nodes.iter().map(|&(x, _)| h.at(x)).collect();
+            let change = next
+                .iter()
+                .zip(&h.at_nodes)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max);
+            h.at_nodes = next;
+            if change < 1e-13 {
+                break;
+            }
+        }
+        // The zeroth moment ∫₀¹ H dμ = (2/w)(1 − √(1−w)) holds for the exact H: a check on
+        // the quadrature and the iteration that the fixed point does not impose.
+        let h0: f64 = h
+            .nodes
+            .iter()
+            .zip(&h.at_nodes)
+            .map(|(q, hx)| q.1 * hx)
+            .sum();
+        let exact = 2.0 / w * (1.0 - (1.0 - w).sqrt());
+        assert!((h0 / exact - 1.0).abs() < 1e-6, "H moment {h0} vs {exact}");
+        h
+    }
+
+    /// H(μ), μ in [0, 1].
+    pub fn at(&self, mu: f64) -> f64 {
+        let i: f64 = self
+            .nodes
+            .iter()
+            .zip(&self.at_nodes)
+            .map(|(&(x, wt), &hx)| wt * x * hx / (mu + x))
+            .sum();
+        1.0 / ((1.0 - self.w).sqrt() + 0.5 * self.w * i)
+    }
+
+    /// The plane albedo of a semi-infinite, index-matched medium of this albedo for light
+    /// arriving at cos θ = `mu`: r(μ) = 1 − H(μ)√(1−w) (Chandrasekhar). By reciprocity it is
+    /// also the radiance leaving the medium towards `mu` under a uniform sky of radiance 1,
+    /// which is what a camera looking at the medium sees.
+    pub fn half_space_albedo(&self, mu: f64) -> f64 {
+        1.0 - self.at(mu) * (1.0 - self.w).sqrt()
+    }
 }
 
 /// The three albedos of [`half_space_scene`], one a channel.
@@ -504,18 +522,23 @@ pub const HALF_SPACE_ALBEDOS: [f64; 3] = [0.5, 0.9, 0.99];
 
 /// A half-space as a renderer sees it: a cube of edge 2 and σ_t = 100 (200 mean free paths
 /// a side) under a uniform sky of radiance 1, isotropic scattering, index-matched, no
-/// lights; seen from 40 above through a 0.6° lens, so every pixel looks at the middle
-/// ±0.21 of the top face within 0.3° of its normal (r(μ) changes by < 1e-5 there). Light
-/// from the other faces has to cross ≥ 79 mean free paths of a medium whose diffusion
-/// length is at most 5.8 of them (albedo 0.99: 1/√(3(1 − w))), so it arrives damped by
-/// e^−13 or more: the cube is a half-space to far below the tests' noise.
-pub fn half_space_scene(width: u32) -> String {
+/// lights; seen from 40 away through a 0.6° lens, at `view_deg` from the top face's normal
+/// (at most 60°), so every pixel looks at the middle of the top face, at most 0.42 from its
+/// centre. Light from the other faces has to cross ≥ 58 mean free paths of a medium whose
+/// diffusion length is at most 5.8 of them (albedo 0.99: 1/√(3(1 − w))), so it arrives
+/// damped by e^−10 or more: the cube is a half-space to far below the tests' noise.
+pub fn half_space_scene(width: u32, view_deg: f64) -> String {
+    assert!((0.0..=60.0).contains(&view_deg));
     let [a, b, c] = HALF_SPACE_ALBEDOS;
+    let (sin, cos) = view_deg.to_radians().sin_cos();
+    // Aimed at the top face's centre (aimed at the cube's, an oblique view would meet a
+    // side face first).
+    let (x, z) = (40.0 * sin, 1.0 + 40.0 * cos);
     format!(
         r#"
 [camera]
-origin = [0.0, 0.0, 40.0]
-target = [0.0, 0.0, 0.0]
+origin = [{x}, 0.0, {z}]
+target = [0.0, 0.0, 1.0]
 up = [0.0, 1.0, 0.0]
 fov_deg = 0.6
 width = {width}
@@ -555,4 +578,64 @@ pub fn pixel_mean_and_sem(image: &render_gpu::image_io::RgbImage) -> ([f64; 3], 
         sem[c] = (var / n).sqrt();
     }
     (mean, sem)
+}
+
+/// Chandrasekhar's r(μ) of each channel's albedo averaged over the pixel centres' view
+/// directions of `camera` (looking down at a top face with normal +z): the reference a
+/// render of [`half_space_scene`] converges to, to well below the tests' noise (each pixel
+/// spans 0.01°, over which r(μ) is linear to far below the noise).
+pub fn half_space_reference(camera: &render_gpu::camera::Camera) -> [f64; 3] {
+    HALF_SPACE_ALBEDOS.map(|w| {
+        let h = HFunction::new(w);
+        let (width, height) = (camera.width, camera.height);
+        let mut sum = 0.0;
+        for y in 0..height {
+            for x in 0..width {
+                let d = camera.ray_dir(x as f32 + 0.5, y as f32 + 0.5);
+                sum += h.half_space_albedo(-d.z as f64);
+            }
+        }
+        sum / (width * height) as f64
+    })
+}
+
+/// The checks of a half-space render: no path lost, sphere steps carrying the paths (~2
+/// a path, measured), exact or drawn from the models, and each channel's pixel mean within
+/// 4.5 standard errors plus `allowance` (a share of the reference) of `reference`.
+pub fn check_half_space(
+    label: &str,
+    out: &render_gpu::render::RenderOutput,
+    set: &render_gpu::integrator::IntegratorSettings,
+    reference: [f64; 3],
+    allowance: f64,
+) {
+    let st = out.stats;
+    assert_eq!(st.capped + st.non_finite + st.leaks, 0, "{label}: {st:?}");
+    if set.kind == render_gpu::integrator::IntegratorKind::Stcvae {
+        let stepped = if set.exact_tau > 0.0 {
+            st.exact_steps
+        } else {
+            st.steps - st.exact_steps
+        };
+        assert!(stepped > st.paths, "{label}: {st:?}");
+    }
+    let (mean, sem) = pixel_mean_and_sem(&out.image);
+    for c in 0..3 {
+        let w = HALF_SPACE_ALBEDOS[c];
+        let z = (mean[c] - reference[c]) / sem[c];
+        eprintln!(
+            "{label}, w = {w}: {:.5} ± {:.5} against r = {:.5} ({:+.2} %, z = {z:+.2})",
+            mean[c],
+            sem[c],
+            reference[c],
+            100.0 * (mean[c] / reference[c] - 1.0)
+        );
+        assert!(
+            (mean[c] - reference[c]).abs() < 4.5 * sem[c] + allowance * reference[c],
+            "{label}, albedo {w}: {} ± {} against Chandrasekhar's {}",
+            mean[c],
+            sem[c],
+            reference[c]
+        );
+    }
 }
