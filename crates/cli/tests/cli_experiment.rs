@@ -628,3 +628,51 @@ fn an_experiment_runs_on_the_gpu() {
     let report = std::fs::read_to_string(dir.join("report.md")).unwrap();
     assert!(report.contains("gpu: "), "{report}");
 }
+
+/// A scene with more lights than the GPU kernels take is refused on the GPU before any
+/// render, by the scene's name and the limit, and the run makes no folder (it failed at its
+/// first render, after the renders of the scenes before it).
+#[test]
+fn an_experiment_on_the_gpu_refuses_too_many_lights_at_once() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scenes = root().join("configs/scenes");
+    let light = "\n[[light]]\nkind = \"directional\"\ndirection = [0.5, -0.5, -1.0]\n\
+                 irradiance = [0.5, 0.5, 0.5]\nangular_diameter_deg = 10.0\n";
+    let scene = std::fs::read_to_string(scenes.join("bunny_sun.toml"))
+        .unwrap()
+        .replace(
+            "../../assets/bunny.glb",
+            &root().join("assets/bunny.glb").to_string_lossy(),
+        )
+        + &light.repeat(4);
+    std::fs::write(tmp.path().join("five_lights.toml"), scene).unwrap();
+    let config = std::fs::read_to_string(root().join("configs/experiments/nee.toml"))
+        .unwrap()
+        .replace("../scenes/bunny_sun.toml", "five_lights.toml");
+    std::fs::write(tmp.path().join("nee.toml"), config).unwrap();
+    let results = tmp.path().join("results");
+    let out = Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args([
+            "experiment",
+            "nee.toml",
+            "--quick",
+            "--device",
+            "gpu",
+            "--out",
+        ])
+        .arg(&results)
+        .env("WGPU_BACKEND", "vulkan")
+        .current_dir(tmp.path())
+        .output()
+        .unwrap();
+    if common::skipped_without_vulkan(&out, "an_experiment_on_the_gpu_refuses_too_many_lights") {
+        return;
+    }
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains("five_lights.toml: 5 lights; the GPU kernels take at most 4"),
+        "{err}"
+    );
+    assert!(!results.exists(), "{err}");
+}

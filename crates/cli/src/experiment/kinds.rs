@@ -28,6 +28,16 @@ fn scale_density(k: f64) -> impl Fn(&mut SceneFile) {
     move |f: &mut SceneFile| f.medium.sigma_t = f.medium.sigma_t.map(|s| s * k)
 }
 
+/// The scene files the experiment renders.
+pub(super) fn scene_paths(cfg: &super::config::Config) -> Vec<std::path::PathBuf> {
+    let mut scenes = Vec::new();
+    if cfg.scene.is_some() {
+        scenes.push(cfg.scene_path());
+    }
+    scenes.extend(cfg.scenes.iter().map(|s| cfg.dir.join(s)));
+    scenes
+}
+
 /// Checks every scene edit the experiment will make before the first render, so that a
 /// density or threshold out of the scene file's ranges fails at once, not after the
 /// renders before it.
@@ -35,11 +45,7 @@ pub(super) fn preflight(
     cfg: &super::config::Config,
     model: Option<&std::path::Path>,
 ) -> Result<()> {
-    let mut scenes = Vec::new();
-    if cfg.scene.is_some() {
-        scenes.push(cfg.scene_path());
-    }
-    scenes.extend(cfg.scenes.iter().map(|s| cfg.dir.join(s)));
+    let scenes = scene_paths(cfg);
     // Images are named after their scene file's stem and the varied value: two scenes
     // of one stem, or a value listed twice, would overwrite each other's images.
     let mut stems: Vec<_> = scenes

@@ -113,6 +113,15 @@ pub fn run(a: Args) -> Result<()> {
         a.device
     };
     let engine = Engine::open(device)?.without_fallback();
+    // The GPU's light limit, which only the chosen device knows, before any render too (a
+    // scene past it failed the run at its first render, after the renders before it).
+    if engine.is_gpu() {
+        for path in kinds::scene_paths(&cfg) {
+            let f = render_gpu::scene::SceneFile::load(&path)?;
+            crate::device::check_gpu_lights(&path, f.lights.len(), ": use --device cpu")
+                .with_context(|| a.config.display().to_string())?;
+        }
+    }
     if a.model.is_some() {
         crate::model_cmds::load_model(a.model.as_deref())?;
     }
