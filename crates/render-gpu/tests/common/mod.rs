@@ -639,3 +639,267 @@ pub fn check_half_space(
         );
     }
 }
+
+/// A sphere of radius `radius` at the origin, seen along −z by parallel rays, lit by a
+/// uniform sky of radiance 1 (no lights): the share of light it sends back along a ray
+/// through (x, y), for one channel's σ_t, albedo and HG g, with an index-matched boundary
+/// (`ior` None) or a smooth dielectric of index `ior`. An analog walk written for the tests
+/// from the physics alone, in f64, sharing no code with the renderer or the simulator
+/// (flights Exp(σ_t), survival w an event, HG by the textbook inverse CDF, Fresnel's
+/// unpolarised reflectance chosen by chance at each crossing, total internal reflection):
+/// each walk returns 1 when it reaches the sky, 0 when absorbed.
+pub struct SphereWalk {
+    pub radius: f64,
+    pub sigma_t: f64,
+    pub albedo: f64,
+    pub g: f64,
+    pub ior: Option<f64>,
+}
+
+impl SphereWalk {
+    /// Fresnel's unpolarised reflectance for light meeting the surface at cos θ = `c`
+    /// (> 0) from index `n1` into `n2`; 1 past the critical angle.
+    fn reflectance(c: f64, n1: f64, n2: f64) -> f64 {
+        let s2 = (n1 / n2).powi(2) * (1.0 - c * c);
+        if s2 >= 1.0 {
+            return 1.0;
+        }
+        let ct = (1.0 - s2).sqrt();
+        let rs = (n1 * c - n2 * ct) / (n1 * c + n2 * ct);
+        let rp = (n1 * ct - n2 * c) / (n1 * ct + n2 * c);
+        0.5 * (rs * rs + rp * rp)
+    }
+
+    /// `d` refracted through the surface of unit normal `n` (pointing to the side `d`
+    /// comes from), cos θ = `c` > 0, from `n1` into `n2` (below the critical angle).
+    fn refracted(d: glam::DVec3, n: glam::DVec3, c: f64, n1: f64, n2: f64) -> glam::DVec3 {
+        let eta = n1 / n2;
+        let ct = (1.0 - eta * eta * (1.0 - c * c)).sqrt();
+        (d * eta + n * (eta * c - ct)).normalize()
+    }
+
+    /// A direction at angle θ from `d` with cos θ drawn from HG(g), about a random azimuth.
+    fn scatter(&self, d: glam::DVec3, rng: &mut scatter_sim::WalkRng) -> glam::DVec3 {
+        let (u, v) = (rng.uniform(), rng.uniform());
+        let g = self.g;
+        let cos = if g.abs() < 1e-6 {
+            1.0 - 2.0 * u
+        } else {
+            let f = (1.0 - g * g) / (1.0 - g + 2.0 * g * u);
+            ((1.0 + g * g - f * f) / (2.0 * g)).clamp(-1.0, 1.0)
+        };
+        let sin = (1.0 - cos * cos).max(0.0).sqrt();
+        let phi = 2.0 * std::f64::consts::PI * v;
+        // Any unit vector not along d, made perpendicular to it.
+        let a = if d.x.abs() < 0.6 {
+            glam::DVec3::X
+        } else {
+            glam::DVec3::Y
+        };
+        let t1 = (a - d * a.dot(d)).normalize();
+        let t2 = d.cross(t1);
+        (d * cos + (t1 * phi.cos() + t2 * phi.sin()) * sin).normalize()
+    }
+
+    /// One walk of the light arriving along −z at (x, y), x² + y² < radius²: 1 if it
+    /// reaches the sky, 0 if absorbed.
+    pub fn walk(&self, x: f64, y: f64, rng: &mut scatter_sim::WalkRng) -> f64 {
+        let r = self.radius;
+        let mut p = glam::DVec3::new(x, y, (r * r - x * x - y * y).max(0.0).sqrt());
+        let mut d = glam::DVec3::NEG_Z;
+        if let Some(n) = self.ior {
+            let normal = p / r;
+            let c = -d.dot(normal);
+            if rng.uniform() < Self::reflectance(c, 1.0, n) {
+                return 1.0;
+            }
+            d = Self::refracted(d, normal, c, 1.0, n);
+        }
+        loop {
+            let flight = -(1.0 - rng.uniform()).ln() / self.sigma_t;
+            // Where the ray from p along d leaves the sphere (p is inside or on it).
+            let b = p.dot(d);
+            let exit = -b + (b * b - (p.length_squared() - r * r)).max(0.0).sqrt();
+            if flight < exit {
+                p += d * flight;
+                if rng.uniform() >= self.albedo {
+                    return 0.0;
+                }
+                d = self.scatter(d, rng);
+                continue;
+            }
+            p += d * exit;
+            let Some(n) = self.ior else { return 1.0 };
+            let normal = p.normalize();
+            let c = d.dot(normal);
+            if rng.uniform() >= Self::reflectance(c, n, 1.0) {
+                return 1.0;
+            }
+            d = (d - normal * (2.0 * c)).normalize();
+            // Back onto the sphere, as the walk's next flight starts from it.
+            p = normal * r;
+        }
+    }
+}
+
+/// The sphere of [`sphere_walk_scene`]: per channel σ_t, albedo; HG g; the radius.
+pub const SPHERE_WALK_SIGMA_T: [f64; 3] = [3.0, 10.0, 30.0];
+pub const SPHERE_WALK_ALBEDO: [f64; 3] = [0.9, 0.99, 0.95];
+pub const SPHERE_WALK_G: f64 = 0.6;
+pub const SPHERE_WALK_RADIUS: f64 = 0.5;
+/// Half the width the camera of [`sphere_walk_scene`] sees at the sphere's centre.
+pub const SPHERE_WALK_HALF_VIEW: f64 = 0.6;
+
+/// The sphere of [`SphereWalk`] as a scene: optical radii 1.5, 5 and 15, lit by a sky of
+/// radiance 1 and seen from 10⁴ away, so that the camera's rays are parallel within
+/// 6·10⁻⁵ rad and the view is ±0.6 wide at the centre; `boundary` is the [boundary]
+/// table's body.
+pub fn sphere_walk_scene(width: u32, boundary: &str) -> String {
+    let [s0, s1, s2] = SPHERE_WALK_SIGMA_T;
+    let [a0, a1, a2] = SPHERE_WALK_ALBEDO;
+    let fov = 2.0 * (SPHERE_WALK_HALF_VIEW / 1e4).atan().to_degrees();
+    format!(
+        r#"
+[camera]
+origin = [0.0, 0.0, 10000.0]
+target = [0.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+fov_deg = {fov}
+width = {width}
+height = {width}
+[object]
+shape = "sphere"
+radius = {SPHERE_WALK_RADIUS}
+[medium]
+sigma_t = [{s0}, {s1}, {s2}]
+albedo = [{a0}, {a1}, {a2}]
+g = {SPHERE_WALK_G}
+[boundary]
+{boundary}
+[environment]
+radiance = [1.0, 1.0, 1.0]
+[render]
+grid_resolution = 32
+"#
+    )
+}
+
+/// The pixels of a `width`² [`sphere_walk_scene`] wholly on the sphere (their four corners
+/// inside its outline), as their lower-left corners in the plane of the sphere's centre,
+/// and the pixels' edge length there.
+pub fn sphere_walk_pixels(width: u32) -> (Vec<(usize, f64, f64)>, f64) {
+    let edge = 2.0 * SPHERE_WALK_HALF_VIEW / width as f64;
+    let r2 = SPHERE_WALK_RADIUS * SPHERE_WALK_RADIUS;
+    let mut inside = Vec::new();
+    for j in 0..width as usize {
+        for i in 0..width as usize {
+            let (x, y) = (
+                -SPHERE_WALK_HALF_VIEW + edge * i as f64,
+                -SPHERE_WALK_HALF_VIEW + edge * j as f64,
+            );
+            let far = |a: f64| a.abs().max((a + edge).abs());
+            if far(x).powi(2) + far(y).powi(2) < r2 {
+                // Image rows run downwards, y upwards: the set is symmetric, but the
+                // index names the image's pixel.
+                let row = width as usize - 1 - j;
+                inside.push((row * width as usize + i, x, y));
+            }
+        }
+    }
+    (inside, edge)
+}
+
+/// Per channel, the mean of [`SphereWalk`] over `n` walks through uniformly random points
+/// of the pixels `sphere_walk_pixels(width)` lists, and its standard error.
+pub fn sphere_walk_reference(width: u32, ior: Option<f64>, n: u64) -> ([f64; 3], [f64; 3]) {
+    use rayon::prelude::*;
+    let (pixels, edge) = sphere_walk_pixels(width);
+    let mut mean = [0.0; 3];
+    let mut sem = [0.0; 3];
+    for c in 0..3 {
+        let walk = SphereWalk {
+            radius: SPHERE_WALK_RADIUS,
+            sigma_t: SPHERE_WALK_SIGMA_T[c],
+            albedo: SPHERE_WALK_ALBEDO[c],
+            g: SPHERE_WALK_G,
+            ior,
+        };
+        let hits: f64 = (0..n)
+            .into_par_iter()
+            .map(|k| {
+                let mut rng = scatter_sim::WalkRng::for_walk(9_000 + c as u64, k);
+                let p = pixels[(rng.uniform() * pixels.len() as f64) as usize % pixels.len()];
+                let (x, y) = (p.1 + edge * rng.uniform(), p.2 + edge * rng.uniform());
+                walk.walk(x, y, &mut rng)
+            })
+            .sum();
+        let m = hits / n as f64;
+        mean[c] = m;
+        sem[c] = (m * (1.0 - m) / (n as f64 - 1.0)).sqrt();
+    }
+    (mean, sem)
+}
+
+/// Per channel, the mean over `pixels` of an image and its standard error from their
+/// spread.
+pub fn pixels_mean_and_sem(
+    image: &render_gpu::image_io::RgbImage,
+    pixels: &[(usize, f64, f64)],
+) -> ([f64; 3], [f64; 3]) {
+    let n = pixels.len() as f64;
+    let mut mean = [0.0; 3];
+    let mut sem = [0.0; 3];
+    for c in 0..3 {
+        let v = |p: &(usize, f64, f64)| image.pixels[p.0][c] as f64;
+        let m = pixels.iter().map(v).sum::<f64>() / n;
+        let var = pixels.iter().map(|p| (v(p) - m).powi(2)).sum::<f64>() / (n - 1.0);
+        mean[c] = m;
+        sem[c] = (var / n).sqrt();
+    }
+    (mean, sem)
+}
+
+/// The checks of a [`sphere_walk_scene`] render against `reference` (means and standard
+/// errors from [`sphere_walk_reference`]): no path lost, sphere steps run (exact or drawn
+/// from the models), and each channel's mean over the pixels wholly on the sphere within 4.5
+/// standard errors of the difference plus `allowance` (a share of the reference).
+pub fn check_sphere_walk(
+    label: &str,
+    out: &render_gpu::render::RenderOutput,
+    set: &render_gpu::integrator::IntegratorSettings,
+    (rm, rs): ([f64; 3], [f64; 3]),
+    allowance: f64,
+) {
+    let st = out.stats;
+    assert_eq!(st.capped + st.non_finite + st.leaks, 0, "{label}: {st:?}");
+    if set.kind == render_gpu::integrator::IntegratorKind::Stcvae {
+        let stepped = if set.exact_tau > 0.0 {
+            st.exact_steps
+        } else {
+            st.steps - st.exact_steps
+        };
+        assert!(stepped > st.paths / 2, "{label}: {st:?}");
+    }
+    let (pixels, _) = sphere_walk_pixels(out.image.width as u32);
+    let (mean, sem) = pixels_mean_and_sem(&out.image, &pixels);
+    for c in 0..3 {
+        let se = (sem[c].powi(2) + rs[c].powi(2)).sqrt();
+        let z = (mean[c] - rm[c]) / se;
+        eprintln!(
+            "{label}, channel {c}: {:.5} ± {:.5} against the walk's {:.5} ± {:.5} ({:+.2} %, z = {z:+.2})",
+            mean[c],
+            sem[c],
+            rm[c],
+            rs[c],
+            100.0 * (mean[c] / rm[c] - 1.0)
+        );
+        assert!(
+            (mean[c] - rm[c]).abs() < 4.5 * se + allowance * rm[c],
+            "{label}, channel {c}: {} ± {} against the independent walk's {} ± {}",
+            mean[c],
+            sem[c],
+            rm[c],
+            rs[c]
+        );
+    }
+}
