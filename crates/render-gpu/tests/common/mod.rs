@@ -643,17 +643,21 @@ pub fn check_half_space(
 /// A sphere of radius `radius` at the origin, seen along −z by parallel rays, lit by a
 /// uniform sky of radiance 1 (no lights): the share of light it sends back along a ray
 /// through (x, y), for one channel's σ_t, albedo and HG g, with an index-matched boundary
-/// (`ior` None) or a smooth dielectric of index `ior`. An analog walk written for the tests
-/// from the physics alone, in f64, sharing no code with the renderer or the simulator
-/// (flights Exp(σ_t), survival w an event, HG by the textbook inverse CDF, Fresnel's
-/// unpolarised reflectance chosen by chance at each crossing, total internal reflection):
-/// each walk returns 1 when it reaches the sky, 0 when absorbed.
+/// (`ior` None) or a smooth dielectric of index `ior`, and an optional sun disk. An analog
+/// walk written for the tests from the physics alone, in f64, sharing no code with the
+/// renderer or the simulator (flights Exp(σ_t), survival w an event, HG by the textbook
+/// inverse CDF, Fresnel's unpolarised reflectance chosen by chance at each crossing, total
+/// internal reflection, Snell's law on the way out): each walk returns the sky's radiance
+/// where it leaves (1, plus the sun's where it leaves into its disk), 0 when absorbed.
 pub struct SphereWalk {
     pub radius: f64,
     pub sigma_t: f64,
     pub albedo: f64,
     pub g: f64,
     pub ior: Option<f64>,
+    /// A sun disk in the sky: the unit direction towards its centre, the cosine of its
+    /// angular radius and its radiance.
+    pub sun: Option<(glam::DVec3, f64, f64)>,
 }
 
 impl SphereWalk {
@@ -701,8 +705,16 @@ impl SphereWalk {
         (d * cos + (t1 * phi.cos() + t2 * phi.sin()) * sin).normalize()
     }
 
-    /// One walk of the light arriving along −z at (x, y), x² + y² < radius²: 1 if it
-    /// reaches the sky, 0 if absorbed.
+    /// The sky's radiance towards unit `d`.
+    fn sky(&self, d: glam::DVec3) -> f64 {
+        match self.sun {
+            Some((to_sun, cos_max, radiance)) if d.dot(to_sun) >= cos_max => 1.0 + radiance,
+            _ => 1.0,
+        }
+    }
+
+    /// One walk of the light arriving along −z at (x, y), x² + y² < radius²: the sky's
+    /// radiance where it leaves, 0 if absorbed.
     pub fn walk(&self, x: f64, y: f64, rng: &mut scatter_sim::WalkRng) -> f64 {
         let r = self.radius;
         let mut p = glam::DVec3::new(x, y, (r * r - x * x - y * y).max(0.0).sqrt());
@@ -711,7 +723,7 @@ impl SphereWalk {
             let normal = p / r;
             let c = -d.dot(normal);
             if rng.uniform() < Self::reflectance(c, 1.0, n) {
-                return 1.0;
+                return self.sky(d + normal * (2.0 * c));
             }
             d = Self::refracted(d, normal, c, 1.0, n);
         }
@@ -729,11 +741,13 @@ impl SphereWalk {
                 continue;
             }
             p += d * exit;
-            let Some(n) = self.ior else { return 1.0 };
+            let Some(n) = self.ior else {
+                return self.sky(d);
+            };
             let normal = p.normalize();
             let c = d.dot(normal);
             if rng.uniform() >= Self::reflectance(c, n, 1.0) {
-                return 1.0;
+                return self.sky(Self::refracted(d, -normal, c, n, 1.0));
             }
             d = (d - normal * (2.0 * c)).normalize();
             // Back onto the sphere, as the walk's next flight starts from it.
@@ -749,15 +763,33 @@ pub const SPHERE_WALK_G: f64 = 0.6;
 pub const SPHERE_WALK_RADIUS: f64 = 0.5;
 /// Half the width the camera of [`sphere_walk_scene`] sees at the sphere's centre.
 pub const SPHERE_WALK_HALF_VIEW: f64 = 0.6;
+/// The sun of [`sphere_walk_scene`]: the direction its light travels, its irradiance and
+/// its disk's angular diameter in degrees (wide, so the reference's analog walks find it).
+pub const SPHERE_WALK_SUN: ([f64; 3], f64, f64) = ([0.3, -1.0, -0.2], 1.0, 40.0);
+
+/// The sun of [`sphere_walk_scene`] as [`SphereWalk`] takes it: the disk's radiance from
+/// its irradiance as a light's definition gives it, E = L·π sin²θ (a uniform disk of
+/// angular radius θ seen face on).
+pub fn sphere_walk_sun() -> (glam::DVec3, f64, f64) {
+    let (dir, irradiance, diameter) = SPHERE_WALK_SUN;
+    let half = (diameter / 2.0).to_radians();
+    let to_sun = -glam::DVec3::from_array(dir).normalize();
+    (
+        to_sun,
+        half.cos(),
+        irradiance / (std::f64::consts::PI * half.sin().powi(2)),
+    )
+}
 
 /// The sphere of [`SphereWalk`] as a scene: optical radii 1.5, 5 and 15, lit by a sky of
-/// radiance 1 and seen from 10⁴ away, so that the camera's rays are parallel within
+/// radiance 1 and [`SPHERE_WALK_SUN`], and seen from 10⁴ away, so that the camera's rays are parallel within
 /// 6·10⁻⁵ rad and the view is ±0.6 wide at the centre; `boundary` is the [boundary]
 /// table's body.
 pub fn sphere_walk_scene(width: u32, boundary: &str) -> String {
     let [s0, s1, s2] = SPHERE_WALK_SIGMA_T;
     let [a0, a1, a2] = SPHERE_WALK_ALBEDO;
     let fov = 2.0 * (SPHERE_WALK_HALF_VIEW / 1e4).atan().to_degrees();
+    let ([dx, dy, dz], irradiance, diameter) = SPHERE_WALK_SUN;
     format!(
         r#"
 [camera]
@@ -776,6 +808,11 @@ albedo = [{a0}, {a1}, {a2}]
 g = {SPHERE_WALK_G}
 [boundary]
 {boundary}
+[[light]]
+kind = "directional"
+direction = [{dx}, {dy}, {dz}]
+irradiance = [{irradiance}, {irradiance}, {irradiance}]
+angular_diameter_deg = {diameter}
 [environment]
 radiance = [1.0, 1.0, 1.0]
 [render]
@@ -823,19 +860,21 @@ pub fn sphere_walk_reference(width: u32, ior: Option<f64>, n: u64) -> ([f64; 3],
             albedo: SPHERE_WALK_ALBEDO[c],
             g: SPHERE_WALK_G,
             ior,
+            sun: Some(sphere_walk_sun()),
         };
-        let hits: f64 = (0..n)
+        let (sum, sq) = (0..n)
             .into_par_iter()
             .map(|k| {
                 let mut rng = scatter_sim::WalkRng::for_walk(9_000 + c as u64, k);
                 let p = pixels[(rng.uniform() * pixels.len() as f64) as usize % pixels.len()];
                 let (x, y) = (p.1 + edge * rng.uniform(), p.2 + edge * rng.uniform());
-                walk.walk(x, y, &mut rng)
+                let v = walk.walk(x, y, &mut rng);
+                (v, v * v)
             })
-            .sum();
-        let m = hits / n as f64;
+            .reduce(|| (0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
+        let m = sum / n as f64;
         mean[c] = m;
-        sem[c] = (m * (1.0 - m) / (n as f64 - 1.0)).sqrt();
+        sem[c] = ((sq / n as f64 - m * m).max(0.0) / (n as f64 - 1.0)).sqrt();
     }
     (mean, sem)
 }
