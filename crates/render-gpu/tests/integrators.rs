@@ -1519,7 +1519,9 @@ fn the_h_function_matches_chandrasekhars_table() {
 /// under a sky of radiance 1 and a 40° sun disk, index-matched and a smooth dielectric of
 /// index 1.5, seen by parallel rays; the reference walks (`common::SphereWalk`, f64, written
 /// from the physics alone) through the same pixels. Unlike the half-space, the sphere's
-/// light depends on its optical size, the phase function's g, the index and the light.
+/// light depends on its optical size, the phase function's g, the index and the light. The
+/// renderer's sphere is an icosphere of 20,480 flat triangles (their normals within ~1° of
+/// the sphere's, its radius within 0.03 %), which the measurements below do not resolve.
 ///
 /// The pixels wholly on the sphere (2,128 of 64², 128 spp) against 2·10⁶ reference walks a
 /// channel, |z| < 4.5 on the difference (27 comparisons: a false alarm has probability
