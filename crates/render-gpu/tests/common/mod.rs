@@ -560,26 +560,6 @@ grid_resolution = 32
     )
 }
 
-/// Per channel, the mean of an image's pixels and its standard error from their spread
-/// (pixels are independent estimates).
-pub fn pixel_mean_and_sem(image: &render_gpu::image_io::RgbImage) -> ([f64; 3], [f64; 3]) {
-    let n = image.pixels.len() as f64;
-    let mut mean = [0.0; 3];
-    let mut sem = [0.0; 3];
-    for c in 0..3 {
-        let m = image.pixels.iter().map(|p| p[c] as f64).sum::<f64>() / n;
-        let var = image
-            .pixels
-            .iter()
-            .map(|p| (p[c] as f64 - m).powi(2))
-            .sum::<f64>()
-            / (n - 1.0);
-        mean[c] = m;
-        sem[c] = (var / n).sqrt();
-    }
-    (mean, sem)
-}
-
 /// Chandrasekhar's r(μ) of each channel's albedo averaged over the pixel centres' view
 /// directions of `camera` (looking down at a top face with normal +z): the reference a
 /// render of [`half_space_scene`] converges to, to well below the tests' noise (each pixel
@@ -597,47 +577,6 @@ pub fn half_space_reference(camera: &render_gpu::camera::Camera) -> [f64; 3] {
         }
         sum / (width * height) as f64
     })
-}
-
-/// The checks of a half-space render: no path lost, sphere steps carrying the paths (~2
-/// a path, measured), exact or drawn from the models, and each channel's pixel mean within
-/// 4.5 standard errors plus `allowance` (a share of the reference) of `reference`.
-pub fn check_half_space(
-    label: &str,
-    out: &render_gpu::render::RenderOutput,
-    set: &render_gpu::integrator::IntegratorSettings,
-    reference: [f64; 3],
-    allowance: f64,
-) {
-    let st = out.stats;
-    assert_eq!(st.capped + st.non_finite + st.leaks, 0, "{label}: {st:?}");
-    if set.kind == render_gpu::integrator::IntegratorKind::Stcvae {
-        let stepped = if set.exact_tau > 0.0 {
-            st.exact_steps
-        } else {
-            st.steps - st.exact_steps
-        };
-        assert!(stepped > st.paths, "{label}: {st:?}");
-    }
-    let (mean, sem) = pixel_mean_and_sem(&out.image);
-    for c in 0..3 {
-        let w = HALF_SPACE_ALBEDOS[c];
-        let z = (mean[c] - reference[c]) / sem[c];
-        eprintln!(
-            "{label}, w = {w}: {:.5} ± {:.5} against r = {:.5} ({:+.2} %, z = {z:+.2})",
-            mean[c],
-            sem[c],
-            reference[c],
-            100.0 * (mean[c] / reference[c] - 1.0)
-        );
-        assert!(
-            (mean[c] - reference[c]).abs() < 4.5 * sem[c] + allowance * reference[c],
-            "{label}, albedo {w}: {} ± {} against Chandrasekhar's {}",
-            mean[c],
-            sem[c],
-            reference[c]
-        );
-    }
 }
 
 /// A sphere of radius `radius` at the origin, seen along −z by parallel rays, lit by a
@@ -846,6 +785,11 @@ pub fn sphere_walk_pixels(width: u32) -> (Vec<(usize, f64, f64)>, f64) {
     (inside, edge)
 }
 
+/// The image indices of `sphere_walk_pixels(width)`.
+pub fn sphere_walk_indices(width: u32) -> Vec<usize> {
+    sphere_walk_pixels(width).0.iter().map(|p| p.0).collect()
+}
+
 /// Per channel, the mean of [`SphereWalk`] over `n` walks through uniformly random points
 /// of the pixels `sphere_walk_pixels(width)` lists, and its standard error.
 pub fn sphere_walk_reference(width: u32, ior: Option<f64>, n: u64) -> ([f64; 3], [f64; 3]) {
@@ -879,35 +823,38 @@ pub fn sphere_walk_reference(width: u32, ior: Option<f64>, n: u64) -> ([f64; 3],
     (mean, sem)
 }
 
-/// Per channel, the mean over `pixels` of an image and its standard error from their
-/// spread.
+/// Per channel, the mean of an image's pixels `indices` and its standard error from their
+/// spread (pixels are independent estimates).
 pub fn pixels_mean_and_sem(
     image: &render_gpu::image_io::RgbImage,
-    pixels: &[(usize, f64, f64)],
+    indices: &[usize],
 ) -> ([f64; 3], [f64; 3]) {
-    let n = pixels.len() as f64;
+    let n = indices.len() as f64;
     let mut mean = [0.0; 3];
     let mut sem = [0.0; 3];
     for c in 0..3 {
-        let v = |p: &(usize, f64, f64)| image.pixels[p.0][c] as f64;
-        let m = pixels.iter().map(v).sum::<f64>() / n;
-        let var = pixels.iter().map(|p| (v(p) - m).powi(2)).sum::<f64>() / (n - 1.0);
+        let v = |&i: &usize| image.pixels[i][c] as f64;
+        let m = indices.iter().map(v).sum::<f64>() / n;
+        let var = indices.iter().map(|i| (v(i) - m).powi(2)).sum::<f64>() / (n - 1.0);
         mean[c] = m;
         sem[c] = (var / n).sqrt();
     }
     (mean, sem)
 }
 
-/// The checks of a [`sphere_walk_scene`] render against `reference` (means and standard
-/// errors from [`sphere_walk_reference`]): no path lost, sphere steps run (exact or drawn
-/// from the models), and each channel's mean over the pixels wholly on the sphere within 4.5
+/// The checks of a render against an absolute reference (per channel its value and
+/// standard error, 0 for a closed form): no path lost; for ST-CVAE, more than
+/// `steps_per_path` sphere steps a path, exact or drawn from the models as `set` says, so
+/// they carry the image; and each channel's mean over the pixels `indices` within 4.5
 /// standard errors of the difference plus `allowance` (a share of the reference).
-pub fn check_sphere_walk(
+pub fn check_against_reference(
     label: &str,
     out: &render_gpu::render::RenderOutput,
     set: &render_gpu::integrator::IntegratorSettings,
+    indices: &[usize],
     (rm, rs): ([f64; 3], [f64; 3]),
     allowance: f64,
+    steps_per_path: f64,
 ) {
     let st = out.stats;
     assert_eq!(st.capped + st.non_finite + st.leaks, 0, "{label}: {st:?}");
@@ -917,15 +864,17 @@ pub fn check_sphere_walk(
         } else {
             st.steps - st.exact_steps
         };
-        assert!(stepped > st.paths / 2, "{label}: {st:?}");
+        assert!(
+            stepped as f64 > steps_per_path * st.paths as f64,
+            "{label}: {st:?}"
+        );
     }
-    let (pixels, _) = sphere_walk_pixels(out.image.width as u32);
-    let (mean, sem) = pixels_mean_and_sem(&out.image, &pixels);
+    let (mean, sem) = pixels_mean_and_sem(&out.image, indices);
     for c in 0..3 {
         let se = (sem[c].powi(2) + rs[c].powi(2)).sqrt();
         let z = (mean[c] - rm[c]) / se;
         eprintln!(
-            "{label}, channel {c}: {:.5} ± {:.5} against the walk's {:.5} ± {:.5} ({:+.2} %, z = {z:+.2})",
+            "{label}, channel {c}: {:.5} ± {:.5} against {:.5} ± {:.5} ({:+.2} %, z = {z:+.2})",
             mean[c],
             sem[c],
             rm[c],
@@ -934,7 +883,7 @@ pub fn check_sphere_walk(
         );
         assert!(
             (mean[c] - rm[c]).abs() < 4.5 * se + allowance * rm[c],
-            "{label}, channel {c}: {} ± {} against the independent walk's {} ± {}",
+            "{label}, channel {c}: {} ± {} against the reference's {} ± {}",
             mean[c],
             sem[c],
             rm[c],
