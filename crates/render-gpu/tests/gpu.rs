@@ -2772,29 +2772,7 @@ fn gpu_sphere_matches_an_independent_walk() {
         ),
         ("PT", settings(IntegratorKind::Pt, true), 0.015),
     ];
-    let on_sphere = common::sphere_walk_indices(64);
-    for (name, boundary, ior, cases) in [
-        (
-            "index-matched",
-            "kind = \"index-matched\"",
-            None,
-            &matched[..],
-        ),
-        (
-            "dielectric",
-            "kind = \"dielectric\"\nior = 1.5",
-            Some(1.5),
-            &dielectric[..],
-        ),
-    ] {
-        let s = common::build_scene(&common::sphere_walk_scene(64, boundary), true);
-        let reference = common::sphere_walk_reference(64, ior, 2_000_000);
-        for (label, set, allowance) in cases {
-            let out = on_gpu(&ctx, &s, set, &opts(48, 14));
-            let label = format!("GPU {label}, {name}");
-            common::check_against_reference(
-                &label, &out, set, &on_sphere, reference, *allowance, 0.5,
-            );
-        }
-    }
+    common::check_sphere_walk_cases("GPU ", &matched, &dielectric, |s, set| {
+        on_gpu(&ctx, s, set, &opts(48, 14))
+    });
 }

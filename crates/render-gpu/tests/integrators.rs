@@ -1575,29 +1575,7 @@ fn a_sphere_matches_an_independent_walk() {
         ("PT", pt(true), 0.015),
         ("ST-CVAE, exact steps", exact, 0.015),
     ];
-    let on_sphere = common::sphere_walk_indices(64);
-    for (name, boundary, ior, cases) in [
-        (
-            "index-matched",
-            "kind = \"index-matched\"",
-            None,
-            &matched[..],
-        ),
-        (
-            "dielectric",
-            "kind = \"dielectric\"\nior = 1.5",
-            Some(1.5),
-            &dielectric[..],
-        ),
-    ] {
-        let (_, s) = scene(&common::sphere_walk_scene(64, boundary), true);
-        let reference = common::sphere_walk_reference(64, ior, 2_000_000);
-        for (label, set, allowance) in cases {
-            let out = render_quiet(&s, set, 128, 13);
-            let label = format!("{label}, {name}");
-            common::check_against_reference(
-                &label, &out, set, &on_sphere, reference, *allowance, 0.5,
-            );
-        }
-    }
+    common::check_sphere_walk_cases("", &matched, &dielectric, |s, set| {
+        render_quiet(s, set, 128, 13)
+    });
 }

@@ -891,3 +891,39 @@ pub fn check_against_reference(
         );
     }
 }
+
+/// One setting of a reference test: its label, the integrator's settings and the allowance
+/// beyond the noise (a share of the reference).
+pub type ReferenceCase<'a> = (&'a str, render_gpu::integrator::IntegratorSettings<'a>, f64);
+
+/// Renders the sphere of [`sphere_walk_scene`] (64²) with each case, index-matched
+/// (`matched`) and as a dielectric of index 1.5 (`dielectric`), and checks each against
+/// 2·10⁶ reference walks a channel ([`check_against_reference`]).
+pub fn check_sphere_walk_cases(
+    device: &str,
+    matched: &[ReferenceCase],
+    dielectric: &[ReferenceCase],
+    render: impl Fn(
+        &render_gpu::setup::SceneData,
+        &render_gpu::integrator::IntegratorSettings,
+    ) -> render_gpu::render::RenderOutput,
+) {
+    let on_sphere = sphere_walk_indices(64);
+    for (name, boundary, ior, cases) in [
+        ("index-matched", "kind = \"index-matched\"", None, matched),
+        (
+            "dielectric",
+            "kind = \"dielectric\"\nior = 1.5",
+            Some(1.5),
+            dielectric,
+        ),
+    ] {
+        let s = build_scene(&sphere_walk_scene(64, boundary), true);
+        let reference = sphere_walk_reference(64, ior, 2_000_000);
+        for (label, set, allowance) in cases {
+            let out = render(&s, set);
+            let label = format!("{device}{label}, {name}");
+            check_against_reference(&label, &out, set, &on_sphere, reference, *allowance, 0.5);
+        }
+    }
+}
