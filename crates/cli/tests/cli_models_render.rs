@@ -1250,6 +1250,53 @@ fn a_scene_without_light_is_warned_about() {
     }
 }
 
+/// A dielectric scene rendered with NEE and a light says that its NEE is the paper's
+/// approximation; with NEE off, index-matched, or without lights it says nothing.
+#[test]
+fn nee_through_a_dielectric_is_noted_as_approximate() {
+    let d = tempfile::tempdir().unwrap();
+    let base = sphere_scene_text(8);
+    let dielectric = base.replace(
+        "kind = \"index-matched\"",
+        "kind = \"dielectric\"\nior = 1.5",
+    );
+    assert_ne!(dielectric, base, "the sphere scene's boundary changed");
+    let dark = dielectric.split("[[light]]").next().unwrap().to_string()
+        + "[environment]\nradiance = [0.1, 0.1, 0.1]\n";
+    for (name, text, nee, noted) in [
+        ("dielectric.toml", &dielectric, "true", true),
+        ("dielectric.toml", &dielectric, "false", false),
+        ("matched.toml", &base, "true", false),
+        ("dark.toml", &dark, "true", false),
+    ] {
+        std::fs::write(d.path().join(name), text).unwrap();
+        let out = common::stcvae(
+            &[
+                "render",
+                "--scene",
+                name,
+                "--integrator",
+                "pt",
+                "--spp",
+                "1",
+                "--nee",
+                nee,
+                "--device",
+                "cpu",
+                "--out",
+                "r",
+            ],
+            d.path(),
+        );
+        let err = ok(&out);
+        assert_eq!(
+            err.contains("NEE through a dielectric boundary follows the paper's straight"),
+            noted,
+            "{name}, nee {nee}: {err}"
+        );
+    }
+}
+
 /// Ctrl-C during a render keeps the passes finished: exit status 130, the image written
 /// with the samples it has, and its JSON says it was cut short (`interrupted`, `spp` below
 /// `spp_requested`, the same spp as the EXR's tag). The signal goes out once the progress
