@@ -520,9 +520,13 @@ pub fn run(a: Args) -> Result<()> {
     // So are the files `--save` writes for every density (one that is a directory failed
     // the run after that density's renders).
     if let Some(dir) = &a.save {
+        let mut inputs = crate::render::scene_inputs(&a.scene, &scene);
+        let model = crate::model_cmds::model_path(a.model.as_deref());
+        inputs.push(("the model".to_string(), model));
         for &k in &a.k {
             for f in saved_files(dir, k) {
                 crate::check_out("--save", &f)?;
+                crate::paths::check_not_input("--save", &f, &inputs)?;
             }
         }
     }

@@ -309,7 +309,7 @@ fn input_reports(inputs: &[PathBuf]) -> Vec<Option<serde_json::Value>> {
     inputs
         .iter()
         .map(|p| {
-            let text = std::fs::read_to_string(p.with_extension("json")).ok()?;
+            let text = scatter_sim::output::read_input_to_string(&p.with_extension("json")).ok()?;
             serde_json::from_str(&text).ok()
         })
         .collect()

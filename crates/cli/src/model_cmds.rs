@@ -360,8 +360,11 @@ fn open_eval(
     } else {
         &[]
     };
-    for name in ["metrics.json", "metrics.md"].iter().chain(plot_files) {
-        scatter_sim::output::check_output_path(&out.join(name))
+    let inputs = [("--model".to_string(), model_path(model))];
+    for file in ["metrics.json", "metrics.md"].iter().chain(plot_files) {
+        let f = out.join(file);
+        crate::paths::check_not_input("--out", &f, &inputs)?;
+        scatter_sim::output::check_output_path(&f)
             .map_err(|e| anyhow::anyhow!("--out {}: {e}", out.display()))?;
     }
     Ok((m, name))

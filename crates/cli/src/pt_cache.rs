@@ -114,7 +114,8 @@ pub fn load(
     size: (u32, u32),
     identity: &str,
 ) -> Result<Option<(Pair, u64)>> {
-    let bytes = match std::fs::read(file) {
+    // A named pipe here blocked the bench and a link to /dev/zero read until memory ran out.
+    let bytes = match scatter_sim::output::check_input(file).and_then(|()| std::fs::read(file)) {
         Ok(b) => b,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
         Err(e) => return Err(e).with_context(|| format!("cannot read {}", file.display())),
@@ -204,6 +205,25 @@ pub fn store(file: &Path, pair: &Pair, identity: &str) -> Result<bool> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A stored pair that is a named pipe or a device is refused by name, not waited on or
+    /// read without end (a FIFO blocked the bench; /dev/zero filled memory).
+    #[cfg(unix)]
+    #[test]
+    fn a_pair_that_is_no_file_is_refused() {
+        let d = tempfile::tempdir().unwrap();
+        let (fifo, zero) = (d.path().join("p.json"), d.path().join("z.json"));
+        let ok = std::process::Command::new("mkfifo").arg(&fifo).status();
+        assert!(ok.is_ok_and(|s| s.success()), "mkfifo {}", fifo.display());
+        std::os::unix::fs::symlink("/dev/zero", &zero).unwrap();
+        for (f, what) in [(&fifo, "named pipe"), (&zero, "device")] {
+            let Err(e) = load(f, 1, 2, (3, 2), "x") else {
+                panic!("{} was read", f.display());
+            };
+            let e = format!("{e:#}");
+            assert!(e.contains(what), "{e}");
+        }
+    }
 
     fn pair(hash: u64) -> Pair {
         let mut mean = RgbImage::new(3, 2);

@@ -510,28 +510,36 @@ pub(crate) fn check_out_stem(out: &Path) -> Result<()> {
 /// The files a render reads (and `--model`, even when PT leaves it unread): none may be
 /// one of its outputs.
 fn render_inputs(a: &Args, p: &Prepared) -> Vec<(String, PathBuf)> {
-    let dir = a.scene.parent().unwrap_or(Path::new("."));
-    let field = |f: &str| format!("the scene's {f}");
-    let mut v = vec![("--scene".to_string(), a.scene.clone())];
-    v.extend(
-        p.file
-            .object
-            .mesh
-            .iter()
-            .map(|m| (field("object.mesh"), dir.join(m))),
-    );
-    v.extend(
-        p.file
-            .environment
-            .file
-            .iter()
-            .map(|f| (field("environment.file"), dir.join(f))),
-    );
+    let mut v = scene_inputs(&a.scene, &p.file);
     v.extend(
         p.model_path
             .iter()
             .chain(&a.model)
             .map(|m| ("the model".to_string(), m.clone())),
+    );
+    v
+}
+
+/// The files a scene reads (the scene, its mesh and a glTF mesh's buffers, its environment
+/// map), as `paths::check_not_input` takes them.
+pub fn scene_inputs(scene: &Path, file: &SceneFile) -> Vec<(String, PathBuf)> {
+    let dir = scene.parent().unwrap_or(Path::new("."));
+    let field = |f: &str| format!("the scene's {f}");
+    let mut v = vec![("--scene".to_string(), scene.to_path_buf())];
+    if let Some(m) = &file.object.mesh {
+        let mesh = dir.join(m);
+        v.extend(
+            render_gpu::mesh::gltf_buffer_files(&mesh)
+                .into_iter()
+                .map(|b| (field("object.mesh's buffer"), b)),
+        );
+        v.push((field("object.mesh"), mesh));
+    }
+    v.extend(
+        file.environment
+            .file
+            .iter()
+            .map(|f| (field("environment.file"), dir.join(f))),
     );
     v
 }
@@ -1059,5 +1067,32 @@ mod tests {
         // Below f32's smallest subnormal the f32 would be 0: refused, naming the input.
         let e = parse_exposure("1e-300").unwrap_err();
         assert!(e.starts_with("1e-300 is out of range"), "{e}");
+    }
+
+    /// An output named like a file the scene reads is refused, a glTF mesh's external
+    /// buffer included: `render --out gb` wrote its gb.exr over the buffer of that name.
+    #[test]
+    fn outputs_naming_a_glb_buffer_or_another_scene_input_are_refused() {
+        let d = tempfile::tempdir().unwrap();
+        let gltf = r#"{"asset":{"version":"2.0"},"buffers":[{"uri":"g%20b.exr","byteLength":4}]}"#;
+        std::fs::write(d.path().join("m.gltf"), gltf).unwrap();
+        let scene = d.path().join("s.toml");
+        let text = "[camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 20.0\nwidth = 8\nheight = 8\n\
+                    [object]\nmesh = \"m.gltf\"\n[medium]\nsigma_t = [1.0, 1.0, 1.0]\n\
+                    albedo = [0.5, 0.5, 0.5]\n[environment]\nfile = \"sky.exr\"\n";
+        let file = render_gpu::scene::SceneFile::parse(&scene, text).unwrap();
+        let inputs = super::scene_inputs(&scene, &file);
+        for (name, what) in [
+            ("g b.exr", "the scene's object.mesh's buffer"),
+            ("m.gltf", "the scene's object.mesh"),
+            ("sky.exr", "the scene's environment.file"),
+            ("s.toml", "--scene"),
+        ] {
+            let e = crate::paths::check_not_input("--out", &d.path().join(name), &inputs)
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(&format!("is also {what}")), "{name}: {e}");
+        }
+        crate::paths::check_not_input("--out", &d.path().join("r.exr"), &inputs).unwrap();
     }
 }

@@ -485,6 +485,10 @@ fn lock_checkpoint_dir(dir: &Path, config: &Path) -> Result<std::fs::File> {
     std::fs::create_dir_all(dir)
         .with_context(|| format!("{}: checkpoint_dir = {}", config.display(), dir.display()))?;
     let path = dir.join(CHECKPOINT_LOCK);
+    // Opening a named pipe there waited for a reader for ever.
+    if path.symlink_metadata().is_ok() {
+        scatter_sim::output::check_input(&path).with_context(|| format!("{}", path.display()))?;
+    }
     let f = std::fs::OpenOptions::new()
         .create(true)
         .truncate(false)
@@ -1197,6 +1201,22 @@ pub fn run(a: Args) -> Result<()> {
 
 #[cfg(test)]
 mod tests {
+    /// A named pipe where the lock file goes is refused by name (opening it waited for a
+    /// reader for ever).
+    #[cfg(unix)]
+    #[test]
+    fn a_named_pipe_as_the_lock_file_is_refused() {
+        let d = tempfile::tempdir().unwrap();
+        let mkfifo = |p: &std::path::Path| {
+            let ok = std::process::Command::new("mkfifo").arg(p).status();
+            assert!(ok.is_ok_and(|s| s.success()), "mkfifo {}", p.display());
+        };
+        mkfifo(&d.path().join(super::CHECKPOINT_LOCK));
+        let e = super::lock_checkpoint_dir(d.path(), std::path::Path::new("t.toml")).unwrap_err();
+        let e = format!("{e:#}");
+        assert!(e.contains(".train.lock") && e.contains("named pipe"), "{e}");
+    }
+
     use super::{loss_plot_path, loss_rose, scaled_model};
 
     /// NAME.stcvae plots to NAME.loss.png; any other name keeps its whole self, so models

@@ -676,3 +676,38 @@ fn an_experiment_on_the_gpu_refuses_too_many_lights_at_once() {
     );
     assert!(!results.exists(), "{err}");
 }
+
+/// A model in the output folder under a name the run writes is refused before any render
+/// and stays: `--model` at OUT/nee-quick/figures.csv was removed as the previous run's
+/// figures, and the run failed at its next render.
+#[test]
+fn an_experiment_never_removes_its_model() {
+    let tmp = tempfile::tempdir().unwrap();
+    let folder = tmp.path().join("nee-quick");
+    std::fs::create_dir(&folder).unwrap();
+    let shipped = std::fs::read(root().join("models/default.stcvae")).unwrap();
+    let model = folder.join("figures.csv");
+    std::fs::write(&model, &shipped).unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args([
+            "experiment",
+            "configs/experiments/nee.toml",
+            "--quick",
+            "--device",
+            "cpu",
+        ])
+        .arg("--model")
+        .arg(&model)
+        .arg("--out")
+        .arg(tmp.path())
+        .current_dir(root())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains("figures.csv is in the output folder") && !err.contains("panicked"),
+        "{err}"
+    );
+    assert_eq!(std::fs::read(&model).unwrap(), shipped);
+}

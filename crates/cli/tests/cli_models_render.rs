@@ -1250,6 +1250,57 @@ fn a_scene_without_light_is_warned_about() {
     }
 }
 
+/// Outputs that would replace the command's own model are refused before any work, and
+/// the model stays: `eval --out D` with the model at D/metrics.json, `bench render --save D`
+/// with it at D/k1_pixels.csv (both replaced it with their results, exit 0).
+#[test]
+fn eval_and_bench_outputs_never_replace_the_model() {
+    let d = tempfile::tempdir().unwrap();
+    let shipped = std::fs::read(root().join("models/default.stcvae")).unwrap();
+    let model = d.path().join("metrics.json");
+    std::fs::write(&model, &shipped).unwrap();
+    let out = stcvae(&[
+        "eval",
+        "--model",
+        model.to_str().unwrap(),
+        "--at",
+        "5,0.4,1",
+        "--samples",
+        "50",
+        "--out",
+        d.path().to_str().unwrap(),
+    ]);
+    let err = fails(&out);
+    assert!(err.contains("metrics.json is also --model"), "{err}");
+    assert_eq!(std::fs::read(&model).unwrap(), shipped);
+    let save = d.path().join("save");
+    std::fs::create_dir(&save).unwrap();
+    let model = save.join("k1_pixels.csv");
+    std::fs::write(&model, &shipped).unwrap();
+    let scene = sphere_scene_file(d.path(), 8);
+    let out = stcvae(&[
+        "bench",
+        "render",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--k",
+        "1",
+        "--spp",
+        "6",
+        "--size",
+        "8",
+        "--device",
+        "cpu",
+        "--model",
+        model.to_str().unwrap(),
+        "--save",
+        save.to_str().unwrap(),
+    ]);
+    let err = fails(&out);
+    assert!(err.contains("k1_pixels.csv is also the model"), "{err}");
+    assert_eq!(std::fs::read(&model).unwrap(), shipped);
+}
+
 /// A dielectric scene rendered with NEE and a light says that its NEE is the paper's
 /// approximation; with NEE off, index-matched, or without lights it says nothing.
 #[test]

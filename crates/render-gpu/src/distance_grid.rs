@@ -294,6 +294,9 @@ impl DistanceGrid {
     /// break a render: dimensions whose cell count overflows or is 0, a candidate beyond the
     /// mesh (an index out of bounds), or a cell size or distance that is not finite and ≥ 0.
     fn read(path: &Path, triangles: usize) -> Option<Self> {
+        // A named pipe blocked the render and a link to /dev/zero read until memory ran out:
+        // anything but a regular file is a miss, replaced when the grid is written.
+        scatter_sim::output::check_input(path).ok()?;
         let b = std::fs::read(path).ok()?;
         if b.len() < 40 + 4 || &b[..8] != MAGIC {
             return None;
@@ -444,6 +447,23 @@ pub(crate) fn cache_dir() -> Option<PathBuf> {
 
 #[cfg(test)]
 mod tests {
+    /// A cache entry that is a named pipe or a device is a miss, not a wait or a read
+    /// without end (a FIFO blocked the render; a link to /dev/zero filled memory).
+    #[cfg(unix)]
+    #[test]
+    fn a_cache_entry_that_is_no_file_is_a_miss() {
+        let d = tempfile::tempdir().unwrap();
+        let mkfifo = |p: &std::path::Path| {
+            let ok = std::process::Command::new("mkfifo").arg(p).status();
+            assert!(ok.is_ok_and(|s| s.success()), "mkfifo {}", p.display());
+        };
+        let (fifo, zero) = (d.path().join("fifo.bin"), d.path().join("zero.bin"));
+        mkfifo(&fifo);
+        std::os::unix::fs::symlink("/dev/zero", &zero).unwrap();
+        assert!(DistanceGrid::read(&fifo, 12).is_none());
+        assert!(DistanceGrid::read(&zero, 12).is_none());
+    }
+
     use super::{CODE, DistanceGrid, prune_stale};
 
     /// Cell lists beyond the cap (u32 offsets in the real build) are an error naming the

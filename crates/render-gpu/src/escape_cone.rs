@@ -72,6 +72,8 @@ fn write(path: &std::path::Path, cos: &[f32]) -> std::io::Result<()> {
 
 /// Cached cosines for `n` triangles; anything unexpected means "compute them" (None).
 fn read(path: &std::path::Path, n: usize) -> Option<Vec<f32>> {
+    // Anything but a regular file (a named pipe blocked, /dev/zero filled memory) is a miss.
+    scatter_sim::output::check_input(path).ok()?;
     let b = std::fs::read(path).ok()?;
     if b.len() != 16 + 4 * n || &b[..8] != MAGIC {
         return None;
@@ -236,6 +238,22 @@ fn meets(tri: &[DVec3; 3], planes: &[Plane; 12]) -> bool {
 
 #[cfg(test)]
 mod tests {
+    /// A cache entry that is a named pipe or a device is a miss (`distance_grid`'s test).
+    #[cfg(unix)]
+    #[test]
+    fn a_cache_entry_that_is_no_file_is_a_miss() {
+        let d = tempfile::tempdir().unwrap();
+        let mkfifo = |p: &std::path::Path| {
+            let ok = std::process::Command::new("mkfifo").arg(p).status();
+            assert!(ok.is_ok_and(|s| s.success()), "mkfifo {}", p.display());
+        };
+        let (fifo, zero) = (d.path().join("fifo.bin"), d.path().join("zero.bin"));
+        mkfifo(&fifo);
+        std::os::unix::fs::symlink("/dev/zero", &zero).unwrap();
+        assert!(super::read(&fifo, 12).is_none());
+        assert!(super::read(&zero, 12).is_none());
+    }
+
     use scatter_sim::rng::WalkRng;
 
     use super::{NO_CONE, TANS};

@@ -790,6 +790,36 @@ fn check_closed(m: &TriMesh) -> Result<(), String> {
 /// of mesh before the BVH and the distance grid are built).
 pub const MAX_GLTF_TRIANGLES: u64 = 1 << 25;
 
+/// The files a glTF/GLB mesh reads its buffers from (not the mesh file itself; none for a
+/// file that is not glTF or cannot be parsed, which loading the mesh reports), so that a
+/// command can refuse an output that would replace one: `render --out gb` wrote its
+/// `gb.exr` over a buffer of that name and the mesh read as garbage from then on.
+pub fn gltf_buffer_files(path: &Path) -> Vec<PathBuf> {
+    let gltf_ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("gltf") || e.eq_ignore_ascii_case("glb"));
+    if !gltf_ext || scatter_sim::output::check_input(path).is_err() {
+        return Vec::new();
+    }
+    let Ok(bytes) = std::fs::read(path) else {
+        return Vec::new();
+    };
+    let Ok(g) = gltf::Gltf::from_slice_without_validation(&bytes) else {
+        return Vec::new();
+    };
+    let dir = path.parent().unwrap_or(Path::new("."));
+    g.document
+        .buffers()
+        .filter_map(|b| match b.source() {
+            gltf::buffer::Source::Uri(uri) if !uri.starts_with("data:") => {
+                Some(dir.join(&*percent_encoding::percent_decode_str(uri).decode_utf8_lossy()))
+            }
+            _ => None,
+        })
+        .collect()
+}
+
 fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
     let bytes = std::fs::read(path).map_err(|e| RenderError::io(path, e))?;
     // A .glb is binary and starts with the magic "glTF"; without it gltf would parse the
@@ -1063,8 +1093,28 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
                     Some(i) => i.into_u32().collect(),
                     None => (0..n).collect(),
                 };
-                if !idx.len().is_multiple_of(3) || idx.iter().any(|&i| i >= n) {
-                    return Err(RenderError::mesh(path, "invalid triangle indices"));
+                if !idx.len().is_multiple_of(3) {
+                    return Err(RenderError::mesh(
+                        path,
+                        format!(
+                            "mesh {} primitive {}: {} triangle indices, not a multiple of 3",
+                            m.index(),
+                            prim.index(),
+                            idx.len()
+                        ),
+                    ));
+                }
+                if let Some(&i) = idx.iter().find(|&&i| i >= n) {
+                    return Err(RenderError::mesh(
+                        path,
+                        format!(
+                            "mesh {} primitive {}: index {i} names no vertex: allowed 0..={} \
+                             ({n} vertices)",
+                            m.index(),
+                            prim.index(),
+                            n.saturating_sub(1)
+                        ),
+                    ));
                 }
                 mesh.triangles.extend(idx.chunks(3).map(|c| {
                     let t = [c[0] + base, c[1] + base, c[2] + base];

@@ -323,6 +323,30 @@ fn cube_gltf(
     write(d, name, json.as_bytes())
 }
 
+/// A glTF's external buffers are listed (for the commands' output checks), and an index
+/// beyond the primitive's vertices is named with the allowed range (it said "invalid
+/// triangle indices").
+#[test]
+fn gltf_buffers_are_listed_and_bad_indices_named() {
+    let d = tempfile::tempdir().unwrap();
+    let p = cube_gltf(&d, "c.gltf", r#"[{"mesh":0}]"#, 5123, 12);
+    assert_eq!(
+        render_gpu::mesh::gltf_buffer_files(&p),
+        vec![d.path().join("cube.bin")]
+    );
+    let mut bin = cube_bin();
+    bin[96..98].copy_from_slice(&50u16.to_le_bytes());
+    write(&d, "cube.bin", &bin);
+    let e = load_mesh(&p).unwrap_err().to_string();
+    assert!(
+        e.contains("c.gltf")
+            && e.contains(
+                "mesh 0 primitive 0: index 50 names no vertex: allowed 0..=7 (8 vertices)"
+            ),
+        "{e}"
+    );
+}
+
 /// Files the `gltf` reader would panic or loop on give one-line errors instead.
 #[test]
 fn malformed_gltf_is_an_error_not_a_panic_or_a_hang() {

@@ -104,6 +104,7 @@ pub fn run(a: Args) -> Result<()> {
     for f in ["report.md", "figures.csv"] {
         crate::check_out("--out", &out.join(f))?;
     }
+    check_inputs_outside(&a, &cfg, &out)?;
     // The device and the model first: a run that cannot start leaves no empty folder behind.
     // `distributions` samples the models and the simulator and renders nothing: no device
     // to look for (it said "rendering on the CPU").
@@ -231,4 +232,38 @@ fn budget_line(cfg: &Config, b: &config::Budget) -> String {
             )
         }
     }
+}
+
+/// What an experiment writes into its output folder: images (EXR, PNG, JSON), plots, the
+/// figures' CSV and the report.
+const WRITTEN_EXTS: [&str; 5] = ["exr", "png", "json", "csv", "md"];
+
+/// Refuses an input (the config, the model, a scene and the files it reads) in the output
+/// folder under a name of the kind the run writes there: a `--model` named figures.csv in
+/// it was removed as the previous run's figures, and the run failed at its next render.
+fn check_inputs_outside(a: &Args, cfg: &Config, out: &std::path::Path) -> Result<()> {
+    let mut inputs = vec![("the config".to_string(), a.config.clone())];
+    inputs.extend(a.model.iter().map(|m| ("--model".to_string(), m.clone())));
+    for path in kinds::scene_paths(cfg) {
+        // (Loaded and checked by preflight already.)
+        if let Ok(f) = render_gpu::scene::SceneFile::load(&path) {
+            inputs.extend(crate::render::scene_inputs(&path, &f));
+        }
+    }
+    let folder = crate::paths::identity(out);
+    for (what, p) in &inputs {
+        let written = p
+            .extension()
+            .and_then(|e| e.to_str())
+            .is_some_and(|e| WRITTEN_EXTS.iter().any(|x| e.eq_ignore_ascii_case(x)));
+        if written && crate::paths::identity(p).starts_with(&folder) {
+            anyhow::bail!(
+                "{what} {} is in the output folder {}, where the run writes and replaces \
+                 .exr, .png, .json, .csv and .md files: move it or choose another --out",
+                p.display(),
+                out.display()
+            );
+        }
+    }
+    Ok(())
 }
