@@ -802,10 +802,10 @@ pub fn gltf_buffer_files(path: &Path) -> Vec<PathBuf> {
     if !gltf_ext || scatter_sim::output::check_input(path).is_err() {
         return Vec::new();
     }
-    let Ok(bytes) = std::fs::read(path) else {
+    let Ok(json) = gltf_json_bytes(path) else {
         return Vec::new();
     };
-    let Ok(g) = gltf::Gltf::from_slice_without_validation(&bytes) else {
+    let Ok(g) = gltf::Gltf::from_slice_without_validation(&json) else {
         return Vec::new();
     };
     let dir = path.parent().unwrap_or(Path::new("."));
@@ -818,6 +818,24 @@ pub fn gltf_buffer_files(path: &Path) -> Vec<PathBuf> {
             _ => None,
         })
         .collect()
+}
+
+/// A glTF file's JSON: a GLB's first chunk alone (its binary chunk may be large), or the
+/// whole of a .gltf.
+fn gltf_json_bytes(path: &Path) -> std::io::Result<Vec<u8>> {
+    use std::io::Read;
+    let mut f = std::fs::File::open(path)?;
+    let mut head = [0u8; 20];
+    let n = f.read(&mut head)?;
+    if n == 20 && &head[..4] == b"glTF" && &head[16..20] == b"JSON" {
+        let len = u32::from_le_bytes(head[12..16].try_into().unwrap()) as u64;
+        let mut json = Vec::new();
+        f.take(len).read_to_end(&mut json)?;
+        return Ok(json);
+    }
+    let mut all = head[..n].to_vec();
+    f.read_to_end(&mut all)?;
+    Ok(all)
 }
 
 fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {

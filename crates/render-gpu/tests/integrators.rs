@@ -1467,13 +1467,15 @@ fn sphere_steps_on_thin_triangles_stay_inside() {
 /// direction sampling, the surface's crossing) passed them all. A half-space's r does not
 /// depend on σ_t: flight lengths are checked by `a_sphere_matches_an_independent_walk`.
 ///
-/// PT and ST-CVAE with exact steps are unbiased: 128² pixels × 64 spp (~10⁶ paths) give
-/// standard errors of 0.0003–0.0006 (0.06–0.3 %), and |z| < 4.5 per channel (12
-/// comparisons: a false alarm has probability ~10⁻⁴). Four PT renders of 256 spp a view
+/// PT and ST-CVAE with exact steps are unbiased: two renders of 128² pixels × 32 spp (~10⁶
+/// paths; `common::split_mean_and_sem`) give standard errors of 0.06–0.28 %, and |z| < 4.5
+/// per channel (12 comparisons: a false alarm has probability ~10⁻⁴; the largest here is
+/// 3.0, exact steps at 60°, whose four renders of 256 spp a view were within 0.07 % ± 0.07 %
+/// of r). Four PT renders of 256 spp a view
 /// were −0.09 % ± 0.07 % (0°) and −0.05 % ± 0.05 % (60°) off r at w = 0.5, where the
 /// relative noise is largest. An albedo 1 % off moves r(1) by 1.5, 3.8 and 10.8 % (z =
 /// 5.5, 26, 150). The models alone (every step a CVAE draw) carry the shipped model's own
-/// error, measured here at +0.4 to +0.8 % (z up to 5.9), within the 3 % allowance that
+/// error, measured here at −0.2 to +0.8 %, within the 3 % allowance that
 /// `stcvae_matches_pt_on_a_sphere_and_the_bunny` justifies.
 #[test]
 fn a_half_space_reflects_chandrasekhars_albedo() {
@@ -1491,29 +1493,45 @@ fn a_half_space_reflects_chandrasekhars_albedo() {
             ("ST-CVAE, the models", models_only(&m), 0.03),
         ] {
             let label = format!("{label}, seen at {view_deg}°");
-            let out = render_quiet(&s, &set, 64, 11);
-            let all: Vec<usize> = (0..out.image.pixels.len()).collect();
+            let (a, b) = (
+                render_quiet(&s, &set, 32, 11),
+                render_quiet(&s, &set, 32, 12),
+            );
+            let all: Vec<usize> = (0..a.image.pixels.len()).collect();
+            let measured = common::split_mean_and_sem(&a.image, &b.image, &all);
             let reference = (reference, [0.0; 3]);
-            common::check_against_reference(&label, &out, &set, &all, reference, allowance, 1.0);
+            common::check_against_reference(
+                &label,
+                &[&a, &b],
+                &set,
+                measured,
+                reference,
+                allowance,
+                1.0,
+            );
         }
     }
 }
 
-/// The H-function solver against Chandrasekhar's table: for conservative scattering
-/// H(1) = 2.90781 (Radiative Transfer, ch. V). The solver needs w < 1 (its iteration stalls
-/// at w = 1), and near 1 H(1) falls like c√(1 − w), so the value at w = 1 is extrapolated
-/// from 1 − w = 10⁻⁴ and 10⁻⁶ (Richardson in √(1 − w); the O(1 − w) term left is ~10⁻⁵).
-/// A wrong kernel in the integral equation (μ'/(μ + μ') without its μ', a missing ½) moves
-/// H(1) by tens of percent.
+/// The H-function's iteration against Chandrasekhar's closed form (an integral of
+/// elementary functions, `common::chandrasekhar_h_closed`) at the tests' albedos and at
+/// several μ, and the closed form against his table's conservative H(1) = 2.90781. The
+/// iteration and the closed form share only the Gauss–Legendre rule.
 #[test]
-fn the_h_function_matches_chandrasekhars_table() {
-    let (h4, h6) = (
-        common::HFunction::new(1.0 - 1e-4).at(1.0),
-        common::HFunction::new(1.0 - 1e-6).at(1.0),
-    );
-    let h = h6 + (h6 - h4) / 9.0;
-    eprintln!("H(1) at 1 − w = 1e-4, 1e-6: {h4}, {h6}; extrapolated to w = 1: {h}");
-    assert!((h - 2.90781).abs() < 2e-4, "H(1) = {h}");
+fn the_h_function_matches_its_closed_form_and_table() {
+    for w in common::HALF_SPACE_ALBEDOS {
+        let h = common::HFunction::new(w);
+        for mu in [0.05, 0.25, 0.5, 0.75, 1.0] {
+            let (it, closed) = (h.at(mu), common::chandrasekhar_h_closed(w, mu, 400));
+            assert!(
+                (it - closed).abs() < 1e-7,
+                "w {w}, μ {mu}: {it} against {closed}"
+            );
+        }
+    }
+    let h1 = common::chandrasekhar_h_closed(1.0, 1.0, 4000);
+    eprintln!("conservative H(1) from the closed form: {h1}");
+    assert!((h1 - 2.90781).abs() < 1e-5, "H(1) = {h1}");
 }
 
 /// The renderer against a second, independent simulation of the same light transport: a
@@ -1525,21 +1543,23 @@ fn the_h_function_matches_chandrasekhars_table() {
 /// renderer's sphere is an icosphere of 20,480 flat triangles (their normals within ~1° of
 /// the sphere's, its radius within 0.03 %), which the measurements below do not resolve.
 ///
-/// The pixels wholly on the sphere (2,128 of 64², 128 spp) against 2·10⁶ reference walks a
-/// channel, |z| < 4.5 on the difference (27 comparisons: a false alarm has probability
-/// ~2·10⁻⁴); standard errors 0.05–0.4 %. Unbiased, so with no allowance: PT with and
-/// without NEE and exact ST-CVAE where index-matched, and without NEE through the
-/// dielectric; four PT renders of 384 spp a setting were within 0.1 % ± 0.06 % of 8·10⁶
-/// walks (0.24 % ± 0.16 % in the densest channel). NEE through the dielectric uses the
-/// paper's straight shadow ray (README), measured here at −0.37 % ± 0.05 %, −0.06 % and
-/// +0.60 % ± 0.18 % (channels 0, 1, 2): allowed 1.5 %. The models' steps (every step a
+/// The pixels wholly on the sphere (2,128 of 64²; two renders of 64 spp) against 2·10⁶
+/// reference walks a channel, |z| < 4.5 on the difference (27 comparisons: a false alarm
+/// has probability ~2·10⁻⁴); standard errors 0.04–0.38 %. Unbiased, so with no allowance:
+/// PT with and without NEE and exact ST-CVAE where index-matched, and without NEE through
+/// the dielectric; four PT renders of 384 spp a setting were within 0.1 % of 8·10⁶ walks
+/// (0.24 % in the densest channel), inside their noise. NEE through the dielectric uses the
+/// paper's straight shadow ray (README), measured there at −0.37 %, −0.06 % and +0.60 %
+/// (channels 0, 1, 2; ± 0.05 %, 0.04 % and 0.18 % or less): allowed 1.5 %. The models' steps (every step a
 /// CVAE draw) get the 3 % allowance of `stcvae_matches_pt_on_a_sphere_and_the_bunny`
 /// (measured here: within 1.1 %).
 ///
 /// Measured with the reference alone (4·10⁶ walks, sky only): σ_t 1 % too large moves the
 /// means by −0.06 to −0.33 %, g = 0.61 for 0.6 by up to −0.65 % (the densest channel), an
-/// index of 1.51 for 1.5 by −0.2 to −0.6 %; so flight lengths off by ~5 %, a g off by ~0.03
-/// or of the wrong sign, a Fresnel term with its indices swapped fail.
+/// index of 1.51 for 1.5 by −0.2 to −0.6 %. So σ_t off by 5 % (−1.6 % in channel 0 through
+/// the dielectric, z ≈ 12) or an index off by 0.03 fails, as does a g off by 0.05 (−3 % in
+/// the densest channel, ~8 of its standard errors) or of the wrong sign, or a Fresnel term
+/// with its indices swapped.
 #[test]
 fn a_sphere_matches_an_independent_walk() {
     let m = model();
@@ -1575,7 +1595,7 @@ fn a_sphere_matches_an_independent_walk() {
         ("PT", pt(true), 0.015),
         ("ST-CVAE, exact steps", exact, 0.015),
     ];
-    common::check_sphere_walk_cases("", &matched, &dielectric, |s, set| {
-        render_quiet(s, set, 128, 13)
+    common::check_sphere_walk_cases("", &matched, &dielectric, 13, |s, set, seed| {
+        render_quiet(s, set, 64, seed)
     });
 }

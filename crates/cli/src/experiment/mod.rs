@@ -116,7 +116,8 @@ pub fn run(a: Args) -> Result<()> {
     let engine = Engine::open(device)?.without_fallback();
     // The GPU's light limit, which only the chosen device knows, before any render too (a
     // scene past it failed the run at its first render, after the renders before it).
-    if engine.is_gpu() {
+    // (`quality` replaces a scene's lights with one delta light of its own.)
+    if engine.is_gpu() && cfg.kind != config::Kind::Quality {
         for path in kinds::scene_paths(&cfg) {
             let f = render_gpu::scene::SceneFile::load(&path)?;
             crate::device::check_gpu_lights(&path, f.lights.len(), ": use --device cpu")
@@ -256,7 +257,7 @@ fn check_inputs_outside(a: &Args, cfg: &Config, out: &std::path::Path) -> Result
             .extension()
             .and_then(|e| e.to_str())
             .is_some_and(|e| WRITTEN_EXTS.iter().any(|x| e.eq_ignore_ascii_case(x)));
-        if written && crate::paths::identity(p).starts_with(&folder) {
+        if written && crate::paths::identity(p).parent() == Some(folder.as_path()) {
             anyhow::bail!(
                 "{what} {} is in the output folder {}, where the run writes and replaces \
                  .exr, .png, .json, .csv and .md files: move it or choose another --out",
