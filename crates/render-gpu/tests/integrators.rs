@@ -1556,9 +1556,10 @@ fn the_h_function_matches_its_closed_form_and_table() {
 ///
 /// Measured with the reference alone (4·10⁶ walks, sky only): σ_t 1 % too large moves the
 /// means by −0.06 to −0.33 %, g = 0.61 for 0.6 by up to −0.65 % (the densest channel), an
-/// index of 1.51 for 1.5 by −0.2 to −0.6 %. So σ_t off by 5 % (−1.6 % in channel 0 through
-/// the dielectric, z ≈ 12) or an index off by 0.03 fails, as does a g off by 0.05 (−3 % in
-/// the densest channel, ~8 of its standard errors) or of the wrong sign, or a Fresnel term
+/// index of 1.51 for 1.5 by −0.2 to −0.6 %. So, by those sensitivities and the standard
+/// errors here, σ_t off by 5 % fails (−1.0 % in channel 0 index-matched and −1.6 %
+/// through the dielectric: z ≈ 16 and 9), as do an index off by 0.03 (z ≈ 7), a g off by
+/// 0.05 (−2.3 % in the densest channel, z ≈ 12) or of the wrong sign, and a Fresnel term
 /// with its indices swapped.
 #[test]
 fn a_sphere_matches_an_independent_walk() {
