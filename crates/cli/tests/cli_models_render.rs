@@ -1208,6 +1208,26 @@ fn sphere_pt_render(device: &str, out: &Path) -> Command {
     c
 }
 
+/// A 1-spp PT render on the CPU of `scene` in `dir` (to `dir`/r), plus `extra`, which must
+/// succeed: its standard error output, for the notes and warnings it gives.
+fn one_sample_pt(dir: &Path, scene: &str, extra: &[&str]) -> String {
+    let mut args = vec![
+        "render",
+        "--scene",
+        scene,
+        "--integrator",
+        "pt",
+        "--spp",
+        "1",
+        "--device",
+        "cpu",
+        "--out",
+        "r",
+    ];
+    args.extend_from_slice(extra);
+    ok(&common::stcvae(&args, dir))
+}
+
 /// A scene without light (no `[[light]]`, a black environment) renders black by design,
 /// with a warning saying so; one light is enough to silence it.
 #[test]
@@ -1225,23 +1245,7 @@ fn a_scene_without_light_is_warned_about() {
         ("lit.toml", lit, false),
     ] {
         std::fs::write(d.path().join(name), text).unwrap();
-        let out = common::stcvae(
-            &[
-                "render",
-                "--scene",
-                name,
-                "--integrator",
-                "pt",
-                "--spp",
-                "1",
-                "--device",
-                "cpu",
-                "--out",
-                "r",
-            ],
-            d.path(),
-        );
-        let err = ok(&out);
+        let err = one_sample_pt(d.path(), name, &[]);
         assert_eq!(
             err.contains("the scene has no light"),
             warned,
@@ -1321,25 +1325,7 @@ fn nee_through_a_dielectric_is_noted_as_approximate() {
         ("dark.toml", &dark, "true", false),
     ] {
         std::fs::write(d.path().join(name), text).unwrap();
-        let out = common::stcvae(
-            &[
-                "render",
-                "--scene",
-                name,
-                "--integrator",
-                "pt",
-                "--spp",
-                "1",
-                "--nee",
-                nee,
-                "--device",
-                "cpu",
-                "--out",
-                "r",
-            ],
-            d.path(),
-        );
-        let err = ok(&out);
+        let err = one_sample_pt(d.path(), name, &["--nee", nee]);
         assert_eq!(
             err.contains("NEE through a dielectric boundary follows the paper's straight"),
             noted,

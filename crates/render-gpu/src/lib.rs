@@ -24,3 +24,14 @@ pub mod setup;
 pub mod watertight;
 
 pub use error::RenderError;
+
+/// Test helper: a named pipe and a link to /dev/zero in `dir`, paths that open like files
+/// but block for ever or never end (for the caches' readers).
+#[cfg(all(test, unix))]
+pub(crate) fn not_files(dir: &std::path::Path) -> [std::path::PathBuf; 2] {
+    let (fifo, zero) = (dir.join("fifo.bin"), dir.join("zero.bin"));
+    let ok = std::process::Command::new("mkfifo").arg(&fifo).status();
+    assert!(ok.is_ok_and(|s| s.success()), "mkfifo {}", fifo.display());
+    std::os::unix::fs::symlink("/dev/zero", &zero).unwrap();
+    [fifo, zero]
+}

@@ -2718,37 +2718,18 @@ fn gpu_half_space_reflects_chandrasekhars_albedo() {
         exact_tau: 50.0,
         ..settings(IntegratorKind::Stcvae, true)
     };
-    for view_deg in [0.0, 60.0] {
-        let s = common::build_scene(&common::half_space_scene(64, view_deg), true);
-        let reference = common::half_space_reference(&s.camera);
-        for (label, set, allowance) in [
-            ("PT", settings(IntegratorKind::Pt, true), 0.0),
-            ("ST-CVAE, exact steps", exact, 0.0),
-            (
-                "ST-CVAE, the models",
-                settings(IntegratorKind::Stcvae, true),
-                0.03,
-            ),
-        ] {
-            let label = format!("GPU {label}, seen at {view_deg}°");
-            let (a, b) = (
-                on_gpu(&ctx, &s, &set, &opts(32, 12)),
-                on_gpu(&ctx, &s, &set, &opts(32, 13)),
-            );
-            let all: Vec<usize> = (0..a.image.pixels.len()).collect();
-            let measured = common::split_mean_and_sem(&a.image, &b.image, &all);
-            let reference = (reference, [0.0; 3]);
-            common::check_against_reference(
-                &label,
-                &[&a, &b],
-                &set,
-                measured,
-                reference,
-                allowance,
-                1.0,
-            );
-        }
-    }
+    let cases = [
+        ("PT", settings(IntegratorKind::Pt, true), 0.0),
+        ("ST-CVAE, exact steps", exact, 0.0),
+        (
+            "ST-CVAE, the models",
+            settings(IntegratorKind::Stcvae, true),
+            0.03,
+        ),
+    ];
+    common::check_half_space_cases("GPU ", 64, &cases, 12, |s, set, seed| {
+        on_gpu(&ctx, s, set, &opts(32, seed))
+    });
 }
 
 /// The kernels against the independent walk of `common::SphereWalk` (integrators.rs,

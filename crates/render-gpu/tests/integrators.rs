@@ -1484,33 +1484,14 @@ fn a_half_space_reflects_chandrasekhars_albedo() {
         exact_tau: 50.0,
         ..settings(IntegratorKind::Stcvae, true, Some(&m))
     };
-    for view_deg in [0.0, 60.0] {
-        let (_, s) = scene(&common::half_space_scene(128, view_deg), true);
-        let reference = common::half_space_reference(&s.camera);
-        for (label, set, allowance) in [
-            ("PT", settings(IntegratorKind::Pt, true, None), 0.0),
-            ("ST-CVAE, exact steps", exact, 0.0),
-            ("ST-CVAE, the models", models_only(&m), 0.03),
-        ] {
-            let label = format!("{label}, seen at {view_deg}°");
-            let (a, b) = (
-                render_quiet(&s, &set, 32, 11),
-                render_quiet(&s, &set, 32, 12),
-            );
-            let all: Vec<usize> = (0..a.image.pixels.len()).collect();
-            let measured = common::split_mean_and_sem(&a.image, &b.image, &all);
-            let reference = (reference, [0.0; 3]);
-            common::check_against_reference(
-                &label,
-                &[&a, &b],
-                &set,
-                measured,
-                reference,
-                allowance,
-                1.0,
-            );
-        }
-    }
+    let cases = [
+        ("PT", settings(IntegratorKind::Pt, true, None), 0.0),
+        ("ST-CVAE, exact steps", exact, 0.0),
+        ("ST-CVAE, the models", models_only(&m), 0.03),
+    ];
+    common::check_half_space_cases("", 128, &cases, 11, |s, set, seed| {
+        render_quiet(s, set, 32, seed)
+    });
 }
 
 /// The H-function's iteration against Chandrasekhar's closed form (an integral of

@@ -956,3 +956,30 @@ pub fn check_sphere_walk_cases(
         }
     }
 }
+
+/// Renders the half-space of [`half_space_scene`] (`width`², seen at 0° and 60°) twice with
+/// each case (seeds `seed` and `seed` + 1, for [`split_mean_and_sem`]) and checks each
+/// against Chandrasekhar's albedo ([`half_space_reference`], [`check_against_reference`]).
+pub fn check_half_space_cases(
+    device: &str,
+    width: u32,
+    cases: &[ReferenceCase],
+    seed: u64,
+    render: impl Fn(
+        &render_gpu::setup::SceneData,
+        &render_gpu::integrator::IntegratorSettings,
+        u64,
+    ) -> render_gpu::render::RenderOutput,
+) {
+    let all: Vec<usize> = (0..(width * width) as usize).collect();
+    for view_deg in [0.0, 60.0] {
+        let s = build_scene(&half_space_scene(width, view_deg), true);
+        let reference = (half_space_reference(&s.camera), [0.0; 3]);
+        for (label, set, allowance) in cases {
+            let (a, b) = (render(&s, set, seed), render(&s, set, seed + 1));
+            let measured = split_mean_and_sem(&a.image, &b.image, &all);
+            let label = format!("{device}{label}, seen at {view_deg}°");
+            check_against_reference(&label, &[&a, &b], set, measured, reference, *allowance, 1.0);
+        }
+    }
+}
