@@ -577,26 +577,33 @@ fn csv_cells(line: &str) -> Vec<String> {
     cells
 }
 
+/// `stcvae experiment configs/experiments/nee.toml --quick --device DEVICE`, plus `extra`,
+/// into `out` (on Vulkan alone where the device is a GPU).
+fn quick_nee(device: &str, extra: &[&std::ffi::OsStr], out: &Path) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args([
+            "experiment",
+            "configs/experiments/nee.toml",
+            "--quick",
+            "--device",
+            device,
+        ])
+        .args(extra)
+        .arg("--out")
+        .arg(out)
+        .env("WGPU_BACKEND", "vulkan")
+        .current_dir(root())
+        .output()
+        .unwrap()
+}
+
 /// An experiment on the GPU (lavapipe in CI): the equal-time comparison renders every
 /// method to its budgets there, with finite figures, and the report names the device.
 /// Skipped, with the reason, only where no Vulkan adapter exists and not under CI.
 #[test]
 fn an_experiment_runs_on_the_gpu() {
     let tmp = tempfile::tempdir().unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_stcvae"))
-        .args([
-            "experiment",
-            "configs/experiments/nee.toml",
-            "--quick",
-            "--device",
-            "gpu",
-            "--out",
-        ])
-        .arg(tmp.path())
-        .env("WGPU_BACKEND", "vulkan")
-        .current_dir(root())
-        .output()
-        .unwrap();
+    let out = quick_nee("gpu", &[], tmp.path());
     if common::skipped_without_vulkan(&out, "an_experiment_runs_on_the_gpu") {
         return;
     }
@@ -688,21 +695,7 @@ fn an_experiment_never_removes_its_model() {
     let shipped = std::fs::read(root().join("models/default.stcvae")).unwrap();
     let model = folder.join("figures.csv");
     std::fs::write(&model, &shipped).unwrap();
-    let out = Command::new(env!("CARGO_BIN_EXE_stcvae"))
-        .args([
-            "experiment",
-            "configs/experiments/nee.toml",
-            "--quick",
-            "--device",
-            "cpu",
-        ])
-        .arg("--model")
-        .arg(&model)
-        .arg("--out")
-        .arg(tmp.path())
-        .current_dir(root())
-        .output()
-        .unwrap();
+    let out = quick_nee("cpu", &["--model".as_ref(), model.as_os_str()], tmp.path());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success(), "{err}");
     assert!(

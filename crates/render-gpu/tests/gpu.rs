@@ -2727,7 +2727,7 @@ fn gpu_half_space_reflects_chandrasekhars_albedo() {
             0.03,
         ),
     ];
-    common::check_half_space_cases("GPU ", 64, &cases, 12, |s, set, seed| {
+    common::check_half_space_cases("GPU ", 64, &cases, 12, &|s, set, seed| {
         on_gpu(&ctx, s, set, &opts(32, seed))
     });
 }
@@ -2765,7 +2765,7 @@ fn gpu_sphere_matches_an_independent_walk() {
         ),
         ("PT", settings(IntegratorKind::Pt, true), 0.015),
     ];
-    common::check_sphere_walk_cases("GPU ", &matched, &dielectric, 14, |s, set, seed| {
+    common::check_sphere_walk_cases("GPU ", &matched, &dielectric, 14, &|s, set, seed| {
         on_gpu(&ctx, s, set, &opts(24, seed))
     });
 }

@@ -1489,7 +1489,7 @@ fn a_half_space_reflects_chandrasekhars_albedo() {
         ("ST-CVAE, exact steps", exact, 0.0),
         ("ST-CVAE, the models", models_only(&m), 0.03),
     ];
-    common::check_half_space_cases("", 128, &cases, 11, |s, set, seed| {
+    common::check_half_space_cases("", 128, &cases, 11, &|s, set, seed| {
         render_quiet(s, set, 32, seed)
     });
 }
@@ -1577,7 +1577,7 @@ fn a_sphere_matches_an_independent_walk() {
         ("PT", pt(true), 0.015),
         ("ST-CVAE, exact steps", exact, 0.015),
     ];
-    common::check_sphere_walk_cases("", &matched, &dielectric, 13, |s, set, seed| {
+    common::check_sphere_walk_cases("", &matched, &dielectric, 13, &|s, set, seed| {
         render_quiet(s, set, 64, seed)
     });
 }

@@ -9,6 +9,8 @@ mod report;
 
 use std::path::PathBuf;
 
+use render_gpu::scene::SceneFile;
+
 use anyhow::{Context, Result};
 
 use crate::device::{DeviceArg, Engine};
@@ -104,7 +106,12 @@ pub fn run(a: Args) -> Result<()> {
     for f in ["report.md", "figures.csv"] {
         crate::check_out("--out", &out.join(f))?;
     }
-    check_inputs_outside(&a, &cfg, &out)?;
+    // The scene files, read once for the checks below (preflight has checked them).
+    let scenes = kinds::scene_paths(&cfg)
+        .into_iter()
+        .map(|p| Ok((SceneFile::load(&p)?, p)))
+        .collect::<Result<Vec<_>>>()?;
+    check_inputs_outside(&a, &scenes, &out)?;
     // The device and the model first: a run that cannot start leaves no empty folder behind.
     // `distributions` samples the models and the simulator and renders nothing: no device
     // to look for (it said "rendering on the CPU").
@@ -118,9 +125,8 @@ pub fn run(a: Args) -> Result<()> {
     // scene past it failed the run at its first render, after the renders before it).
     // (`quality` replaces a scene's lights with one delta light of its own.)
     if engine.is_gpu() && cfg.kind != config::Kind::Quality {
-        for path in kinds::scene_paths(&cfg) {
-            let f = render_gpu::scene::SceneFile::load(&path)?;
-            crate::device::check_gpu_lights(&path, f.lights.len(), ": use --device cpu")
+        for (f, path) in &scenes {
+            crate::device::check_gpu_lights(path, f.lights.len(), ": use --device cpu")
                 .with_context(|| a.config.display().to_string())?;
         }
     }
@@ -242,14 +248,15 @@ const WRITTEN_EXTS: [&str; 5] = ["exr", "png", "json", "csv", "md"];
 /// Refuses an input (the config, the model, a scene and the files it reads) in the output
 /// folder under a name of the kind the run writes there: a `--model` named figures.csv in
 /// it was removed as the previous run's figures, and the run failed at its next render.
-fn check_inputs_outside(a: &Args, cfg: &Config, out: &std::path::Path) -> Result<()> {
+fn check_inputs_outside(
+    a: &Args,
+    scenes: &[(SceneFile, PathBuf)],
+    out: &std::path::Path,
+) -> Result<()> {
     let mut inputs = vec![("the config".to_string(), a.config.clone())];
     inputs.extend(a.model.iter().map(|m| ("--model".to_string(), m.clone())));
-    for path in kinds::scene_paths(cfg) {
-        // (Loaded and checked by preflight already.)
-        if let Ok(f) = render_gpu::scene::SceneFile::load(&path) {
-            inputs.extend(crate::render::scene_inputs(&path, &f));
-        }
+    for (f, path) in scenes {
+        inputs.extend(crate::render::scene_inputs(path, f));
     }
     let folder = crate::paths::identity(out);
     for (what, p) in &inputs {

@@ -865,22 +865,41 @@ pub fn split_mean_and_sem(
     (mean, sem)
 }
 
-/// The checks of renders against an absolute reference (per channel its value and standard
-/// error, 0 for a closed form): no path lost in any render; for ST-CVAE, more than
-/// `steps_per_path` sphere steps a path, exact or drawn from the models as `set` says, so
-/// they carry the image; and each channel's mean (`render`: means and standard errors)
-/// within 4.5 standard errors of the difference plus `allowance` (a share of the
-/// reference).
+/// A render of a reference scene with given settings and seed (CPU or GPU).
+pub type RenderWith<'a> = dyn Fn(
+        &render_gpu::setup::SceneData,
+        &render_gpu::integrator::IntegratorSettings,
+        u64,
+    ) -> render_gpu::render::RenderOutput
+    + 'a;
+
+/// What a reference scene's renders are held to: the pixels compared, the reference's
+/// value and standard error per channel (0 for a closed form), and the sphere steps a path
+/// ST-CVAE must take there.
+pub struct Reference<'a> {
+    pub indices: &'a [usize],
+    pub value: ([f64; 3], [f64; 3]),
+    pub steps_per_path: f64,
+}
+
+/// Renders `s` with `set` twice (seeds `seed` and `seed` + 1, for [`split_mean_and_sem`])
+/// and checks the renders against `reference`: no path lost in either; for ST-CVAE, more
+/// than `steps_per_path` sphere steps a path, exact or drawn from the models as `set` says,
+/// so they carry the image; and each channel's mean over the pixels within 4.5 standard
+/// errors of the difference plus `allowance` (a share of the reference).
 pub fn check_against_reference(
     label: &str,
-    outs: &[&render_gpu::render::RenderOutput],
+    s: &render_gpu::setup::SceneData,
     set: &render_gpu::integrator::IntegratorSettings,
-    (mean, sem): ([f64; 3], [f64; 3]),
-    (rm, rs): ([f64; 3], [f64; 3]),
     allowance: f64,
-    steps_per_path: f64,
+    seed: u64,
+    reference: &Reference,
+    render: &RenderWith,
 ) {
-    for out in outs {
+    let (a, b) = (render(s, set, seed), render(s, set, seed + 1));
+    let (mean, sem) = split_mean_and_sem(&a.image, &b.image, reference.indices);
+    let (rm, rs) = reference.value;
+    for out in [&a, &b] {
         let st = out.stats;
         assert_eq!(st.capped + st.non_finite + st.leaks, 0, "{label}: {st:?}");
         if set.kind == render_gpu::integrator::IntegratorKind::Stcvae {
@@ -890,7 +909,7 @@ pub fn check_against_reference(
                 st.steps - st.exact_steps
             };
             assert!(
-                stepped as f64 > steps_per_path * st.paths as f64,
+                stepped as f64 > reference.steps_per_path * st.paths as f64,
                 "{label}: {st:?}"
             );
         }
@@ -921,8 +940,7 @@ pub fn check_against_reference(
 /// beyond the noise (a share of the reference).
 pub type ReferenceCase<'a> = (&'a str, render_gpu::integrator::IntegratorSettings<'a>, f64);
 
-/// Renders the sphere of [`sphere_walk_scene`] (64²) twice with each case (seeds `seed`
-/// and `seed` + 1, for [`split_mean_and_sem`]), index-matched (`matched`) and as a
+/// Renders the sphere of [`sphere_walk_scene`] (64²) with each case, index-matched (`matched`) and as a
 /// dielectric of index 1.5 (`dielectric`), and checks each against 2·10⁶ reference walks a
 /// channel ([`check_against_reference`]).
 pub fn check_sphere_walk_cases(
@@ -930,11 +948,7 @@ pub fn check_sphere_walk_cases(
     matched: &[ReferenceCase],
     dielectric: &[ReferenceCase],
     seed: u64,
-    render: impl Fn(
-        &render_gpu::setup::SceneData,
-        &render_gpu::integrator::IntegratorSettings,
-        u64,
-    ) -> render_gpu::render::RenderOutput,
+    render: &RenderWith,
 ) {
     let on_sphere = sphere_walk_indices(64);
     for (name, boundary, ior, cases) in [
@@ -947,39 +961,39 @@ pub fn check_sphere_walk_cases(
         ),
     ] {
         let s = build_scene(&sphere_walk_scene(64, boundary), true);
-        let reference = sphere_walk_reference(64, ior, 2_000_000);
+        let reference = Reference {
+            indices: &on_sphere,
+            value: sphere_walk_reference(64, ior, 2_000_000),
+            steps_per_path: 0.5,
+        };
         for (label, set, allowance) in cases {
-            let (a, b) = (render(&s, set, seed), render(&s, set, seed + 1));
-            let measured = split_mean_and_sem(&a.image, &b.image, &on_sphere);
             let label = format!("{device}{label}, {name}");
-            check_against_reference(&label, &[&a, &b], set, measured, reference, *allowance, 0.5);
+            check_against_reference(&label, &s, set, *allowance, seed, &reference, &render);
         }
     }
 }
 
-/// Renders the half-space of [`half_space_scene`] (`width`², seen at 0° and 60°) twice with
-/// each case (seeds `seed` and `seed` + 1, for [`split_mean_and_sem`]) and checks each
+/// Renders the half-space of [`half_space_scene`] (`width`², seen at 0° and 60°) with each
+/// case and checks each
 /// against Chandrasekhar's albedo ([`half_space_reference`], [`check_against_reference`]).
 pub fn check_half_space_cases(
     device: &str,
     width: u32,
     cases: &[ReferenceCase],
     seed: u64,
-    render: impl Fn(
-        &render_gpu::setup::SceneData,
-        &render_gpu::integrator::IntegratorSettings,
-        u64,
-    ) -> render_gpu::render::RenderOutput,
+    render: &RenderWith,
 ) {
     let all: Vec<usize> = (0..(width * width) as usize).collect();
     for view_deg in [0.0, 60.0] {
         let s = build_scene(&half_space_scene(width, view_deg), true);
-        let reference = (half_space_reference(&s.camera), [0.0; 3]);
+        let reference = Reference {
+            indices: &all,
+            value: (half_space_reference(&s.camera), [0.0; 3]),
+            steps_per_path: 1.0,
+        };
         for (label, set, allowance) in cases {
-            let (a, b) = (render(&s, set, seed), render(&s, set, seed + 1));
-            let measured = split_mean_and_sem(&a.image, &b.image, &all);
             let label = format!("{device}{label}, seen at {view_deg}°");
-            check_against_reference(&label, &[&a, &b], set, measured, reference, *allowance, 1.0);
+            check_against_reference(&label, &s, set, *allowance, seed, &reference, &render);
         }
     }
 }
