@@ -1,7 +1,8 @@
 // Shared include: next-event estimation to the directional lights from a point inside
 // the medium (crates/render-gpu/src/integrator/nee.rs): phase toward the light, the
-// transmittance summed over every inside segment of the straight shadow ray, and with a
-// dielectric boundary the Fresnel transmittance at each crossing (documented bias).
+// transmittance summed over every inside segment of the shadow ray, and with a
+// dielectric boundary the Fresnel transmittance at each crossing and the refraction at
+// the nearest (nee.rs, shadow).
 
 // MAX_OPTICAL_DEPTH, MAX_CROSSINGS and PROXY_DEPTH_CAP come from nee.rs (gpu/kernels.rs,
 // source).
@@ -9,7 +10,7 @@
 fn transmittance(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
     if overlapping() {
         // One traversal, its own (transmittance_of would discard this one's).
-        return transmittance_union(x, dir, channel);
+        return transmittance_union(x, dir, channel, false);
     }
     return transmittance_of(crossings(x, dir), x, dir, channel);
 }
@@ -17,7 +18,7 @@ fn transmittance(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
 /// The transmittance of the shadow ray x + t·dir from its crossings.
 fn transmittance_of(c: Crossings, x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
     if overlapping() {
-        return transmittance_union(x, dir, channel);
+        return transmittance_union(x, dir, channel, false);
     }
     if c.balance == 1 && c.length >= 0.0 {
         return exp(-params.sigma_t[channel] * c.length) * c.fresnel_t;
@@ -27,24 +28,135 @@ fn transmittance_of(c: Crossings, x: vec3<f32>, dir: vec3<f32>, channel: u32) ->
     return transmittance_ordered(x, dir, channel);
 }
 
+/// A shadow ray's refraction where it first leaves a dielectric medium through a face
+/// of triangle `prim` (nee.rs, refraction): the beam's narrowing r = cos θ_i / cos θ_t
+/// and the refracted direction d toward the light; r = 0 where it does not leave through
+/// it (an entry: a point outside by rounding). `flip`: the face may be of either
+/// orientation (overlapping pieces: a piece nested in another is a hole).
+struct Refraction {
+    r: f32,
+    d: vec3<f32>,
+}
+
+fn refraction_at(prim: u32, dir: vec3<f32>, flip: bool) -> Refraction {
+    var n = tri_normal(prim);
+    if flip && dot(dir, n) < 0.0 {
+        n = -n;
+    }
+    let cos_i = dot(dir, n);
+    if !(cos_i > 0.0) {
+        return Refraction(0.0, dir);
+    }
+    let ior = params.consts.y;
+    let cos_t = sqrt(1.0 - max(1.0 - cos_i * cos_i, 0.0) / (ior * ior));
+    return Refraction(cos_i / cos_t, normalize((dir - cos_i * n) / ior + cos_t * n));
+}
+
+/// Where the last shadow ray of shadow_of (or transmittance_union/_ordered_r refracting)
+/// refracted: the distance to that face (1e30: it stayed straight) and its triangle.
+var<private> sh_first_t: f32;
+var<private> sh_first_prim: u32;
+
+/// NEE's transmittance of the shadow ray x + t·dir (nee.rs, shadow, without its phase
+/// ratio: refracted_phase_ratio), `c` its crossings where pieces do not overlap:
+/// transmittance_of's, and with a dielectric boundary refracted where it first leaves the
+/// medium: the depth up to there multiplied by r, the beam narrowed by r.
+fn shadow_of(c: Crossings, x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
+    sh_first_t = 1e30;
+    if !DIELECTRIC {
+        return transmittance_of(c, x, dir, channel);
+    }
+    if overlapping() {
+        return transmittance_union(x, dir, channel, true);
+    }
+    if c.balance == 1 && c.length >= 0.0 {
+        let sigma = params.sigma_t[channel];
+        if c.first_t < 1e29 {
+            let rf = refraction_at(c.first_prim, dir, false);
+            if rf.r > 0.0 {
+                sh_first_t = c.first_t;
+                sh_first_prim = c.first_prim;
+                let depth = sigma * (c.length - c.first_t * (1.0 - rf.r));
+                return exp(-max(depth, 0.0)) * c.fresnel_t * rf.r;
+            }
+        }
+        return exp(-sigma * c.length) * c.fresnel_t;
+    }
+    return transmittance_ordered_r(x, dir, channel, true);
+}
+
+/// shadow_of with the crossings gathered here (one traversal where pieces overlap).
+fn shadow(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
+    if overlapping() {
+        sh_first_t = 1e30;
+        return transmittance_union(x, dir, channel, DIELECTRIC);
+    }
+    return shadow_of(crossings(x, dir), x, dir, channel);
+}
+
+/// nee.rs, shadow: the phase value (from an event scattering along w) toward the direction
+/// refraction at (first_t, first_prim) turns `dir` to, over that toward `dir`; 1 where
+/// the ray stayed straight (first_t ≥ 1e29).
+fn refracted_phase_ratio(first_t: f32, first_prim: u32, dir: vec3<f32>, w: vec3<f32>) -> f32 {
+    if !DIELECTRIC || first_t >= 1e29 {
+        return 1.0;
+    }
+    let rf = refraction_at(first_prim, dir, overlapping());
+    let g = params.consts.x;
+    let p = hg_pdf_between(g, w, dir);
+    if rf.r > 0.0 && p > 0.0 {
+        return hg_pdf_between(g, w, rf.d) / p;
+    }
+    return 1.0;
+}
+
+/// The phase value `phase` toward `wl`, or with a dielectric boundary the largest over a
+/// share of the directions refraction can turn it to (nee.rs, phase_bound): the roulette's
+/// and the proxy's bound.
+fn phase_bound(w: vec3<f32>, wl: vec3<f32>, phase: f32) -> f32 {
+    if !DIELECTRIC {
+        return phase;
+    }
+    let g = params.consts.x;
+    let angle = acos(clamp(dot(w, wl), -1.0, 1.0));
+    // A share of 90° − the critical angle (nee.rs, PHASE_BOUND_TURN, refraction_turn).
+    let turn = PHASE_BOUND_TURN * (0.5 * PI - asin(clamp(1.0 / params.consts.y, 0.0, 1.0)));
+    var nearest = max(angle - turn, 0.0);
+    if g < 0.0 {
+        nearest = min(angle + turn, PI);
+    }
+    return max(phase, hg_pdf(g, cos(nearest)));
+}
+
 /// The crossings walked in order. Past each, the ray is in the medium by turns, or where
 /// pieces overlap as in_union says (a closest-hit walk steps past the second of two faces
 /// in one plane); Fresnel's factor applies where that changes (nee.rs,
 /// transmittance_ordered).
 fn transmittance_ordered(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
+    return transmittance_ordered_r(x, dir, channel, false);
+}
+
+/// transmittance_ordered, with `refract` refracted where it first crosses the boundary if
+/// that is a way out (nee.rs, ordered; sets sh_first_t/_prim): the depth up to there and
+/// the result multiplied by r. Until that crossing the depth is not cut off at
+/// MAX_OPTICAL_DEPTH: refraction can shorten it below.
+fn transmittance_ordered_r(x: vec3<f32>, dir: vec3<f32>, channel: u32, refract: bool) -> f32 {
     let sigma = params.sigma_t[channel];
     var o = x;
     var inside = !overlapping() || in_union(x, dir);
     var depth = 0.0;
     var fresnel_t = 1.0;
+    var crossed = !refract;
+    var travelled = 0.0;
     for (var i = 0u; i < MAX_CROSSINGS; i++) {
         let h = intersect(o, dir, 1e30);
         if !h.found {
             return exp(-depth) * fresnel_t;
         }
+        travelled += h.t;
         if inside {
             depth += sigma * h.t;
-            if depth > MAX_OPTICAL_DEPTH {
+            if crossed && depth > MAX_OPTICAL_DEPTH {
                 return 0.0;
             }
         }
@@ -56,6 +168,22 @@ fn transmittance_ordered(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
         }
         if now != inside {
             fresnel_t *= crossing_transmittance(abs(dot(dir, n)));
+            if !crossed {
+                crossed = true;
+                if inside {
+                    let rf = refraction_at(h.prim, dir, overlapping());
+                    if rf.r > 0.0 {
+                        // Everything so far was inside: the first segment's depth.
+                        depth *= rf.r;
+                        fresnel_t *= rf.r;
+                        sh_first_t = travelled;
+                        sh_first_prim = h.prim;
+                    }
+                }
+                if depth > MAX_OPTICAL_DEPTH {
+                    return 0.0;
+                }
+            }
             inside = now;
         }
     }
@@ -67,11 +195,15 @@ fn transmittance_ordered(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
 /// (those crossed an odd number of times); the length counts where the pieces around
 /// the ray make medium, Fresnel's factor where that changes (geometry.rs, union_walk).
 /// Beyond UNION_CROSSINGS crossings, the ordered walk.
-fn transmittance_union(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
+fn transmittance_union(x: vec3<f32>, dir: vec3<f32>, channel: u32, refract: bool) -> f32 {
     let c = crossings(x, dir);
     if u_more {
-        return transmittance_ordered(x, dir, channel);
+        return transmittance_ordered_r(x, dir, channel, refract);
     }
+    // The first crossing of the union's boundary, if a way out (geometry.rs, union_walk).
+    var first_t = 1e30;
+    var first_prim = 0u;
+    var boundary_seen = false;
     var around = c.pieces;
     var medium = union_medium(around);
     var length = 0.0;
@@ -83,7 +215,8 @@ fn transmittance_union(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
             break;
         }
         let t = u_t[i];
-        let cos = abs(dot(dir, tri_normal(u_tri[i])));
+        let k = u_tri[i];
+        let cos = abs(dot(dir, tri_normal(k)));
         if medium {
             length += t - last;
         }
@@ -101,10 +234,24 @@ fn transmittance_union(x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
         let now = union_medium(around);
         if now != medium {
             fresnel_t *= crossing_transmittance(cos);
+            if !boundary_seen && medium {
+                first_t = t;
+                first_prim = k;
+            }
+            boundary_seen = true;
             medium = now;
         }
     }
-    let depth = params.sigma_t[channel] * length;
+    var depth = params.sigma_t[channel] * length;
+    if refract && first_t < 1e29 {
+        let rf = refraction_at(first_prim, dir, true);
+        if rf.r > 0.0 {
+            sh_first_t = first_t;
+            sh_first_prim = first_prim;
+            depth = max(params.sigma_t[channel] * (length - first_t * (1.0 - rf.r)), 0.0);
+            fresnel_t *= rf.r;
+        }
+    }
     return select(exp(-depth) * fresnel_t, 0.0, depth > MAX_OPTICAL_DEPTH);
 }
 
@@ -129,7 +276,8 @@ fn nee_direct(x: vec3<f32>, w: vec3<f32>, free: f32, c: vec3<f32>, f: f32, chann
     for (var i = 0u; i < LIGHTS; i++) {
         let ray = nee_light_ray(i, x, w, free, c, f, channel, rouletted);
         if ray.casts {
-            sum += transmittance(x, ray.dir, channel) * ray.weight;
+            let t = shadow(x, ray.dir, channel);
+            sum += t * ray.weight * refracted_phase_ratio(sh_first_t, sh_first_prim, ray.dir, w);
         }
     }
     return sum;
@@ -168,7 +316,8 @@ fn nee_light_ray(i: u32, x: vec3<f32>, w: vec3<f32>, free: f32, c: vec3<f32>, f:
     let threshold = ROULETTE_BOUND * INV_4PI;
     let phase = hg_pdf_between(g, w, ls.dir);
     var weight = ls.factor * phase;
-    let bound = phase * exp(-params.sigma_t[channel] * max(free, ball_chord(x, ls.dir, c, f)));
+    let bound = phase_bound(w, ls.dir, phase)
+        * exp(-params.sigma_t[channel] * max(free, ball_chord(x, ls.dir, c, f)));
     if rouletted && bound < threshold {
         if rand() * threshold >= bound {
             return LightRay(ls.dir, 0.0, false);
@@ -212,7 +361,7 @@ fn nee_proxy(x: vec3<f32>, w: vec3<f32>, free: f32, c: vec3<f32>, f: f32, channe
         if light_phase_share(i, g) > 0.0 {
             cos_l = light_extreme_cos(i, w, g);
         }
-        let phase = hg_pdf(g, cos_l);
+        let phase = phase_bound(w, wl, hg_pdf(g, cos_l));
         // nee::PROXY_DEPTH_CAP: a positive proxy for every event (a wide disk's centre
         // chord underflowed to 0 and the event's light was lost).
         let depth = min(sigma * max(free, ball_chord(x, wl, c, f)), PROXY_DEPTH_CAP);

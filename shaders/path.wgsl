@@ -147,10 +147,11 @@ fn bounce() {
     if q.ended {
         return;
     }
-    let h = answer_query(q, p_channel);
+    var h = answer_query(q, p_channel);
     var tr = 0.0;
     if q.shadow && q.query {
-        tr = transmittance_of(tr_cross, q.o, q.d, p_channel);
+        tr = shadow_of(tr_cross, q.o, q.d, p_channel);
+        h = refraction_hit();
     }
     bounce_end(q, h, tr);
 }
@@ -234,11 +235,19 @@ fn answer_query(q: Query, channel: u32) -> Hit {
     return h;
 }
 
-/// The bounce after its ray query: `h` its hit, `tr` a shadow ray's transmittance.
+/// Where the last shadow ray of shadow_of refracted, as a hit (none: it stayed
+/// straight), for bounce_end's phase ratio.
+fn refraction_hit() -> Hit {
+    return Hit(sh_first_t, sh_first_prim, sh_first_t < 1e29);
+}
+
+/// The bounce after its ray query: `h` its hit (a shadow ray's nearest crossing), `tr` a
+/// shadow ray's transmittance.
 fn bounce_end(q: Query, h: Hit, tr: f32) {
     if q.shadow {
         if q.query {
-            p_nee_light += tr * q.weight;
+            let first_t = select(1e30, h.t, h.found);
+            p_nee_light += tr * q.weight * refracted_phase_ratio(first_t, h.prim, q.d, pn_w[q.k]);
         }
         if q.last_light {
             p_nee_sum += p_nee_light / pn_q[q.k];

@@ -263,6 +263,21 @@ struct Crossings {
     // overlap (union_medium); `crossings` only (trace's shadow rays have no use for it:
     // with overlaps NEE walks its crossings in order).
     pieces: u32,
+    // The nearest crossing (the lower triangle on a tie, as Geometry::crossed), where a
+    // dielectric's NEE refracts (nee.wgsl, shadow_of); first_t 1e30 if none. Kept only
+    // with a dielectric boundary (DIELECTRIC is a constant).
+    first_t: f32,
+    first_prim: u32,
+}
+
+/// `c` with its nearest crossing updated by one at distance t of triangle k.
+fn nearer_crossing(c: Crossings, t: f32, k: u32) -> Crossings {
+    var n = c;
+    if DIELECTRIC && (t < c.first_t || (t == c.first_t && k < c.first_prim)) {
+        n.first_t = t;
+        n.first_prim = k;
+    }
+    return n;
 }
 
 /// Whether the mesh's pieces overlap (geometry.rs, Geometry::pieces): the object is their
@@ -382,7 +397,7 @@ fn union_keep(t: f32, k: u32) {
 /// the sums come out the same bit for bit.
 fn trace(o: vec3<f32>, d: vec3<f32>, tmax0: f32, all: bool) -> Hit {
     var best = Hit(tmax0, 0u, false);
-    tr_cross = Crossings(0.0, 1.0, 0, 0u);
+    tr_cross = Crossings(0.0, 1.0, 0, 0u, 1e30, 0u);
     // Exact zeros would make 0·∞ = NaN in the slab test.
     let inv_d = 1.0 / (d + select(vec3<f32>(0.0), vec3<f32>(1e-30), d == vec3<f32>(0.0)));
     let sh = ray_shear(o, d);
@@ -413,6 +428,7 @@ fn trace(o: vec3<f32>, d: vec3<f32>, tmax0: f32, all: bool) -> Hit {
                         tr_cross.length += select(-t, t, exiting);
                         tr_cross.balance += select(-1, 1, exiting);
                         tr_cross.fresnel_t *= crossing_transmittance(abs(cosn));
+                        tr_cross = nearer_crossing(tr_cross, t, k);
                     } else if closer(t, k, best) {
                         best = Hit(t, k, true);
                     }
@@ -507,7 +523,7 @@ fn intersect(o: vec3<f32>, d: vec3<f32>, tmax0: f32) -> Hit {
 
 /// Every surface crossing of the line o + t·d, t ≥ 0, in one BVH traversal.
 fn crossings(o: vec3<f32>, d: vec3<f32>) -> Crossings {
-    var c = Crossings(0.0, 1.0, 0, 0u);
+    var c = Crossings(0.0, 1.0, 0, 0u, 1e30, 0u);
     if overlapping() {
         u_count = 0u;
         u_more = false;
@@ -536,6 +552,7 @@ fn crossings(o: vec3<f32>, d: vec3<f32>) -> Crossings {
                     c.length += select(-t, t, exiting);
                     c.balance += select(-1, 1, exiting);
                     c.fresnel_t *= crossing_transmittance(abs(cosn));
+                    c = nearer_crossing(c, t, k);
                     if overlapping() {
                         c.pieces ^= piece_bit(k);
                         union_keep(t, k);

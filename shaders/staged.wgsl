@@ -321,10 +321,11 @@ fn trace_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
         let rec = queue_entry(QUEUE_LOCAL, QUERY_QUEUES, i) * STAGE_VEC4S;
         let q = load_query(rec);
         let channel = bitcast<u32>(stage[rec + 3u].x);
-        let h = answer_query(q, channel);
+        var h = answer_query(q, channel);
         var tr = 0.0;
         if q.shadow {
-            tr = transmittance_of(tr_cross, q.o, q.d, channel);
+            tr = shadow_of(tr_cross, q.o, q.d, channel);
+            h = refraction_hit();
         }
         stage[rec + 3u] = vec4<f32>(h.t, bitcast<f32>(h.prim), bitcast<f32>(select(0u, 1u, h.found)), tr);
         if loop_limit_ran_out(u32(params.consts3.z)) {

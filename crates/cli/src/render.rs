@@ -572,17 +572,18 @@ pub fn note_lights(p: &Prepared) {
             "note: delta lights can only be reached by NEE; with --nee false they add nothing"
         );
     }
-    // Measured against an independent walk (render-gpu's tests, `a_sphere_matches_an_
-    // independent_walk`: −0.4 % and +0.6 %) and a flat face under an oblique sun (7–12 %).
+    // Measured against an independent walk through a sphere (render-gpu's tests,
+    // `a_sphere_matches_an_independent_walk`: −0.8 %, −0.5 %, −0.2 % on the CPU) and NEE off
+    // under a sun 60° off a flat face (`nee_through_a_dielectric_refracts_toward_an_oblique_
+    // sun`: within its ~1.4 % noise, where the paper's straight shadow ray read 7–12 %).
     if p.file.render.nee
         && !p.data.lights.is_empty()
         && matches!(p.data.boundary, render_gpu::setup::Boundary::Dielectric(_))
     {
         eprintln!(
-            "note: NEE through a dielectric boundary follows the paper's straight shadow ray \
-             (no refraction): lights read a few % off where refraction bends their way in \
-             (~10 % for a sun far off a flat face's normal); --nee false is unbiased, and \
-             noisier"
+            "note: NEE through a dielectric boundary refracts at the plane of the face its \
+             shadow ray leaves through: exact on flat faces, about 1 % dark on curved ones \
+             (their focusing is left out); --nee false is unbiased, and noisier"
         );
     }
 }

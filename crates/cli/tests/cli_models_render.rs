@@ -1308,7 +1308,7 @@ fn eval_and_bench_outputs_never_replace_the_model() {
 /// A dielectric scene rendered with NEE and a light says that its NEE is the paper's
 /// approximation; with NEE off, index-matched, or without lights it says nothing.
 #[test]
-fn nee_through_a_dielectric_is_noted_as_approximate() {
+fn nee_through_a_dielectric_is_noted_as_approximate_on_curved_faces() {
     let d = tempfile::tempdir().unwrap();
     let base = sphere_scene_text(8);
     let dielectric = base.replace(
@@ -1327,7 +1327,7 @@ fn nee_through_a_dielectric_is_noted_as_approximate() {
         std::fs::write(d.path().join(name), text).unwrap();
         let err = one_sample_pt(d.path(), name, &["--nee", nee]);
         assert_eq!(
-            err.contains("NEE through a dielectric boundary follows the paper's straight"),
+            err.contains("NEE through a dielectric boundary refracts at the plane of the face"),
             noted,
             "{name}, nee {nee}: {err}"
         );

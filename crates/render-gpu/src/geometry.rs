@@ -38,6 +38,22 @@ pub struct Hit {
     pub normal: Vec3,
 }
 
+/// Every crossing of a ray from a point, unordered ([`Geometry::crossed`]).
+#[derive(Clone, Copy, Debug)]
+pub struct Crossed {
+    /// Σ t(exits) − Σ t(entries): the length inside when `paired`.
+    pub length: f32,
+    /// The crossings' factors multiplied.
+    pub product: f32,
+    /// Whether the crossings pair up as they must for an origin inside (one more exit
+    /// than entries, a non-negative length); else a crack or an origin outside.
+    pub paired: bool,
+    /// The nearest crossing's distance and triangle ([`Geometry::crossed`]), or where
+    /// pieces overlap the first crossing of the union's boundary if it leaves the medium
+    /// ([`union_walk`]).
+    pub first: Option<(f32, usize)>,
+}
+
 /// [`Geometry::flight_margin`] in units of eps (the WGSL kernels take it from here).
 pub const FLIGHT_MARGIN_OF_EPS: f32 = 0.02;
 /// The smallest |cos| [`Geometry::spawn_skip`] divides by (the WGSL kernels take it from
@@ -157,24 +173,27 @@ impl Pieces {
 }
 
 /// The length in the medium and the product of `factor` over the medium's boundary
-/// along crossings (t, piece bit, dir·normal) in order of t, starting from the pieces
-/// crossed an odd number of times ([`Geometry::union_inside_length`]). The faces within
+/// along crossings (t, piece bit, dir·normal, triangle) in order of t, starting from the
+/// pieces crossed an odd number of times ([`Geometry::union_inside_length`]), and the
+/// first boundary crossing (t, triangle) where it leaves the medium (None where the first
+/// is an entry, or there is none). The faces within
 /// `gap` (the spawn offset) of a crossing along its normal are crossed with it, as the
 /// path loop's point spawned past a face is past them too: pieces touching across a gap
 /// thinner than that make no boundary there (crossed one by one, an exit sorted before
 /// the entry passed through air, and a dielectric's Fresnel factor came twice).
 pub fn union_walk(
     pieces: &Pieces,
-    crossings: &[(f32, u32, f32)],
+    crossings: &[UnionCrossing],
     gap: f32,
     factor: &mut impl FnMut(f32, bool) -> f32,
-) -> (f32, f32) {
+) -> Crossed {
     let mut set = crossings.iter().fold(0u32, |s, c| s ^ c.1);
     let mut medium = pieces.medium(set);
     let (mut length, mut product, mut last) = (0.0f32, 1.0f32, 0.0f32);
+    let (mut first, mut boundary_seen) = (None, false);
     let mut i = 0;
     while i < crossings.len() {
-        let (t, _, c) = crossings[i];
+        let (t, _, c, prim) = crossings[i];
         if medium {
             length += t - last;
         }
@@ -187,11 +206,23 @@ pub fn union_walk(
         let now = pieces.medium(set);
         if now != medium {
             product *= factor(c.abs(), medium);
+            if !boundary_seen && medium {
+                first = Some((t, prim as usize));
+            }
+            boundary_seen = true;
             medium = now;
         }
     }
-    (length, product)
+    Crossed {
+        length,
+        product,
+        paired: true,
+        first,
+    }
 }
+
+/// One crossing of [`union_walk`]: t, the piece's bit, dir·normal, the triangle.
+pub type UnionCrossing = (f32, u32, f32, u32);
 
 /// Most crossings [`Geometry::union_inside_length`] sorts (on the stack); a shadow ray
 /// with more is walked crossing by crossing.
@@ -450,16 +481,34 @@ impl Geometry {
         &self,
         origin: Vec3,
         dir: Vec3,
-        mut factor: impl FnMut(f32, bool) -> f32,
+        factor: impl FnMut(f32, bool) -> f32,
     ) -> Option<(f32, f32)> {
+        let c = self.crossed(origin, dir, factor);
+        c.paired.then_some((c.length, c.product))
+    }
+
+    /// [`Self::inside_length`]'s traversal, with the nearest crossing (NEE's refraction
+    /// happens there) and whether the crossings paired up.
+    pub fn crossed(
+        &self,
+        origin: Vec3,
+        dir: Vec3,
+        mut factor: impl FnMut(f32, bool) -> f32,
+    ) -> Crossed {
         let shear = RayShear::new(origin, dir);
         let mut length = 0.0f32;
         let mut balance = 0i32;
         let mut product = 1.0f32;
+        let mut first: Option<(f32, usize)> = None;
         let mut visit = |prim: u32| {
             let prim = prim as usize;
             let t = self.hit_tri(&shear, prim, f32::INFINITY);
             if t.is_finite() {
+                // The nearest, the lower triangle index on a tie: the same whatever
+                // order the traversal finds them in (scene.wgsl does the same).
+                if first.is_none_or(|(ft, fp)| t < ft || (t == ft && prim < fp)) {
+                    first = Some((t, prim));
+                }
                 let c = dir.dot(self.normals[prim]);
                 let exiting = c > 0.0;
                 if exiting {
@@ -488,7 +537,12 @@ impl Geometry {
                 });
             }
         }
-        (balance == 1 && length >= 0.0).then_some((length, product))
+        Crossed {
+            length,
+            product,
+            paired: balance == 1 && length >= 0.0,
+            first,
+        }
     }
 
     /// Whether `p` is in the medium of a mesh whose pieces overlap: the pieces whose
@@ -498,7 +552,7 @@ impl Geometry {
     /// (overlapping boxes often share face planes), which flipping one piece at each
     /// crossing would miss: the second face lies behind the spawned point.
     pub fn in_union(&self, pieces: &Pieces, p: Vec3, dir: Vec3) -> bool {
-        let mut crossings = [(0.0f32, 0u32, 0.0f32); MAX_UNION_CROSSINGS];
+        let mut crossings = [(0.0f32, 0u32, 0.0f32, 0u32); MAX_UNION_CROSSINGS];
         let set = match self.union_crossings(pieces, p, dir, &mut crossings) {
             Some(n) => crossings[..n].iter().fold(0, |s, c| s ^ c.1),
             // More than the list holds: every hit flips its piece, a face met twice
@@ -550,7 +604,7 @@ impl Geometry {
         pieces: &Pieces,
         origin: Vec3,
         dir: Vec3,
-        out: &mut [(f32, u32, f32); MAX_UNION_CROSSINGS],
+        out: &mut [UnionCrossing; MAX_UNION_CROSSINGS],
     ) -> Option<usize> {
         let shear = RayShear::new(origin, dir);
         let mut n = 0usize;
@@ -561,7 +615,12 @@ impl Geometry {
                 if n == MAX_UNION_CROSSINGS {
                     overflow = true;
                 } else {
-                    out[n] = (t, pieces.bit_of[prim], dir.dot(self.normals[prim]));
+                    out[n] = (
+                        t,
+                        pieces.bit_of[prim],
+                        dir.dot(self.normals[prim]),
+                        prim as u32,
+                    );
                     n += 1;
                 }
             }
@@ -602,9 +661,22 @@ impl Geometry {
         pieces: &Pieces,
         origin: Vec3,
         dir: Vec3,
-        mut factor: impl FnMut(f32, bool) -> f32,
+        factor: impl FnMut(f32, bool) -> f32,
     ) -> Option<(f32, f32)> {
-        let mut crossings = [(0.0f32, 0u32, 0.0f32); MAX_UNION_CROSSINGS];
+        self.union_crossed(pieces, origin, dir, factor)
+            .map(|c| (c.length, c.product))
+    }
+
+    /// [`Self::union_inside_length`] with the first crossing of the union's boundary
+    /// where it leaves the medium (t, triangle; [`union_walk`]).
+    pub fn union_crossed(
+        &self,
+        pieces: &Pieces,
+        origin: Vec3,
+        dir: Vec3,
+        mut factor: impl FnMut(f32, bool) -> f32,
+    ) -> Option<Crossed> {
+        let mut crossings = [(0.0f32, 0u32, 0.0f32, 0u32); MAX_UNION_CROSSINGS];
         let n = self.union_crossings(pieces, origin, dir, &mut crossings)?;
         Some(union_walk(pieces, &crossings[..n], self.eps, &mut factor))
     }

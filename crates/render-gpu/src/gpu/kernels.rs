@@ -384,6 +384,7 @@ pub fn source(
          const SKIP_MIN_COS: f32 = {:?};\nconst SKIP_BACK: f32 = {:?};\n\
          const SKIP_CLEAR_OF_EPS: f32 = {:?};\nconst EDGE_TOLERANCE: f32 = {:?};\n\
          const MAX_OPTICAL_DEPTH: f32 = {:?};\nconst PROXY_DEPTH_CAP: f32 = {:?};\n\
+         const PHASE_BOUND_TURN: f32 = {:?};\n\
          const MAX_CROSSINGS: u32 = {}u;\n\
          const SLIVER_REACH_OF_EPS: f32 = {:?};\n\
          const PATH_NEE_M: u32 = {path_nee_m}u;\nconst SLOT: u32 = {}u;\n\
@@ -402,6 +403,7 @@ pub fn source(
         crate::geometry::EDGE_TOLERANCE,
         crate::integrator::nee::MAX_OPTICAL_DEPTH,
         crate::integrator::nee::PROXY_DEPTH_CAP,
+        crate::integrator::nee::PHASE_BOUND_TURN,
         crate::integrator::nee::MAX_CROSSINGS,
         crate::geometry::SLIVER_REACH_OF_EPS,
         slot_vec4s(path_nee_m),
