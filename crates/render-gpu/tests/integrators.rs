@@ -256,39 +256,15 @@ fn nee_on_equals_nee_off_pt() {
     }
 }
 
-/// A dielectric cube lit straight from above by a 10° sun disk, seen 30° off the normal
-/// (so the top face's mirror image of the sun misses the camera) through a lens that sees
-/// only the middle fifth of the top face. NEE refracts its shadow rays at the top face
-/// (nee.rs, `shadow`), exactly there; the one light it leaves out, entering the side
-/// faces at ≥ 85° toward points whose straight ray leaves through the top, is ~2 % of the
-/// top's and must cross 0.4 of a medium whose diffusion length is ~0.13 (σ_t ≥ 20,
+/// `common::dielectric_cube_scene` lit straight from above, seen through a lens that sees
+/// only the middle fifth of the top face, isotropic: there NEE refracts its shadow rays
+/// at the top face (nee.rs, `shadow`) exactly; the one light it leaves out, entering the
+/// side faces at ≥ 85° toward points whose straight ray leaves through the top, is ~2 %
+/// of the top's and must cross 0.4 of a medium whose diffusion length is ~0.13 (σ_t ≥ 20,
 /// albedo 0.95), so < 0.1 % of it reaches the seen region.
-const DIELECTRIC_SUN_SCENE: &str = r#"
-[camera]
-origin = [0.0, -1.5, 3.098]
-target = [0.0, 0.0, 0.5]
-up = [0.0, 0.0, 1.0]
-fov_deg = 3.0
-width = 8
-height = 8
-[object]
-shape = "cube"
-size = 1.0
-[medium]
-sigma_t = [20.0, 30.0, 40.0]
-albedo = [0.95, 0.95, 0.95]
-g = 0.0
-[boundary]
-kind = "dielectric"
-ior = 1.5
-[[light]]
-kind = "directional"
-direction = [0.0, 0.0, -1.0]
-irradiance = [1.0, 1.0, 1.0]
-angular_diameter_deg = 10.0
-[environment]
-radiance = [0.0, 0.0, 0.0]
-"#;
+fn dielectric_sun_scene(direction: &str) -> String {
+    common::dielectric_cube_scene(3.0, 8, 0.0, direction)
+}
 
 /// Through a dielectric boundary, light that NEE brings in along its shadow ray must be
 /// seen by the camera with the same radiance factor as light that paths find by
@@ -298,7 +274,7 @@ radiance = [0.0, 0.0, 0.0]
 /// 0.16 %, off 1.17 %): an NEE term off by more than ~6 % fails.
 #[test]
 fn nee_on_equals_nee_off_through_a_dielectric_pt() {
-    let (_, s) = scene(DIELECTRIC_SUN_SCENE, false);
+    let (_, s) = scene(&dielectric_sun_scene("[0.0, 0.0, -1.0]"), false);
     let set = |nee| settings(IntegratorKind::Pt, nee, None);
     let (on, son, _) = estimate(&s, &set(true), 600_000, 1);
     let (off, soff, _) = estimate(&s, &set(false), 6_000_000, 2);
@@ -349,15 +325,11 @@ fn nee_counts_light_after_a_reflection() {
 /// 1.068, 1.119, 1.092 (R, G, B; ± 0.026) here; weighed as light leaving the medium at
 /// 60°, as until 2026-11-28, total internal reflection let NEE light nothing (0.03). Now
 /// on and off must agree within 4 standard errors of their difference plus 0.5 % for the
-/// side faces' light (see DIELECTRIC_SUN_SCENE); NEE off needs 15× the paths for a standard
+/// side faces' light (see dielectric_sun_scene); NEE off needs 15× the paths for a standard
 /// error of ~1.5 % of the ratio, so the straight ray's +9 % and +12 % fail.
 #[test]
 fn nee_through_a_dielectric_refracts_toward_an_oblique_sun() {
-    let text = DIELECTRIC_SUN_SCENE.replace(
-        "direction = [0.0, 0.0, -1.0]",
-        "direction = [0.0, -0.8660254, -0.5]",
-    );
-    let (_, s) = scene(&text, false);
+    let (_, s) = scene(&dielectric_sun_scene("[0.0, -0.8660254, -0.5]"), false);
     let set = |nee| settings(IntegratorKind::Pt, nee, None);
     let (on, son, _) = estimate(&s, &set(true), 600_000, 1);
     let (off, soff, _) = estimate(&s, &set(false), 9_000_000, 2);

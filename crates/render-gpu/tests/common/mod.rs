@@ -340,6 +340,42 @@ pub fn skip(reason: &str) {
     let _ = writeln!(std::io::stderr(), "skipping {reason}");
 }
 
+/// A dielectric cube (ior 1.5, size 1) lit by a 10° sun disk travelling along
+/// `direction`, seen 30° off its top face's normal (so the face's mirror image of the sun
+/// misses the camera for the suns the tests use) through a lens of `fov_deg` aimed at the
+/// face's centre, `pixels` square, its medium's phase function `g`: how NEE's shadow rays
+/// refract (integrators.rs; gpu.rs, `cpu_gpu_agree_on_refracted_nee_through_flat_faces`).
+pub fn dielectric_cube_scene(fov_deg: f64, pixels: u32, g: f64, direction: &str) -> String {
+    format!(
+        r#"
+[camera]
+origin = [0.0, -1.5, 3.098]
+target = [0.0, 0.0, 0.5]
+up = [0.0, 0.0, 1.0]
+fov_deg = {fov_deg:?}
+width = {pixels}
+height = {pixels}
+[object]
+shape = "cube"
+size = 1.0
+[medium]
+sigma_t = [20.0, 30.0, 40.0]
+albedo = [0.95, 0.95, 0.95]
+g = {g:?}
+[boundary]
+kind = "dielectric"
+ior = 1.5
+[[light]]
+kind = "directional"
+direction = {direction}
+irradiance = [1.0, 1.0, 1.0]
+angular_diameter_deg = 10.0
+[environment]
+radiance = [0.0, 0.0, 0.0]
+"#
+    )
+}
+
 /// A right-angle prism along z (legs of 1 along x and y, depth 1, centred in z), its
 /// hypotenuse facing +x+y.
 pub const PRISM_OBJ: &str = "v 0 0 -0.5\nv 1 0 -0.5\nv 0 1 -0.5\nv 0 0 0.5\nv 1 0 0.5\nv 0 1 0.5\n\
