@@ -283,8 +283,10 @@ pub const MAX_PATH_NEE_RAYS: usize = crate::scene::MAX_PATH_NEE_RAYS as usize;
 /// An event i whose NEE term is c_i·f_i (c_i: throughput × albedo or Λ(N)/M weights, f_i:
 /// [`direct`]'s value) is offered with weight a_i = c_i·q_i, q_i its [`proxy`]; a
 /// reservoir holds event K with probability a_K/A (A = Σ a_i) and A·f_K/q_K estimates
-/// Σ c_i f_i without bias for any positive proxy. f ≤ q for a delta light (the proxy's
-/// transmittance is a bound), so a chosen event adds at most A.
+/// Σ c_i f_i without bias for any positive proxy. f ≤ q for a delta light where the
+/// boundary is index-matched (the proxy's transmittance is a bound), so a chosen event
+/// adds at most A; through a dielectric the refracted shadow ray's phase value and length
+/// can exceed what the proxy assumed ([`phase_bound`]), so f/q is not bounded there.
 ///
 /// Why it pays for ST-CVAE and not for PT: the proxy's transmittance comes from the
 /// free distance an event knows. ST-CVAE's events lie in free balls whose chords bound
