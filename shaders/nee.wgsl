@@ -60,7 +60,7 @@ var<private> sh_first_prim: u32;
 /// NEE's transmittance of the shadow ray x + t·dir (nee.rs, shadow, without its phase
 /// ratio: refracted_phase_ratio), `c` its crossings where pieces do not overlap:
 /// transmittance_of's, and with a dielectric boundary refracted where it first leaves the
-/// medium: the depth up to there multiplied by r, the beam narrowed by r.
+/// medium: the depth up to there and the beam's irradiance multiplied by r.
 fn shadow_of(c: Crossings, x: vec3<f32>, dir: vec3<f32>, channel: u32) -> f32 {
     sh_first_t = 1e30;
     if !DIELECTRIC {

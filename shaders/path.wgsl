@@ -164,9 +164,9 @@ fn bounce() {
 /// compiler is left a closest-hit query, as fast as before this was shared.)
 fn bounce_begin() -> Query {
     prof(0u);
-    let shadow = PATH_NEE_M > 0u && p_nee_left > 0u;
-    var q = Query(ps.pos, 1e30, ps.dir, 0.0, 0.0, 0u, false, shadow, true, false, false);
-    if shadow {
+    let nee_ray = PATH_NEE_M > 0u && p_nee_left > 0u;
+    var q = Query(ps.pos, 1e30, ps.dir, 0.0, 0.0, 0u, false, nee_ray, true, false, false);
+    if nee_ray {
         // nee_direct(x, w, 0, x, 0, channel, false) of reservoir k toward one light, its
         // random numbers drawn in the same order.
         let nl = max(LIGHTS, 1u);

@@ -582,8 +582,9 @@ pub fn note_lights(p: &Prepared) {
     {
         eprintln!(
             "note: NEE through a dielectric boundary refracts at the plane of the face its \
-             shadow ray leaves through: exact on flat faces, about 1 % dark on curved ones \
-             (their focusing is left out); --nee false is unbiased, and noisier"
+             shadow ray leaves through: exact where one flat face admits the light, a little \
+             dark near edges between lit faces and on curved ones (~1 % on a sphere: their \
+             focusing is left out); --nee false is unbiased, and noisier"
         );
     }
 }

@@ -505,7 +505,9 @@ impl Geometry {
             let t = self.hit_tri(&shear, prim, f32::INFINITY);
             if t.is_finite() {
                 // The nearest, the lower triangle index on a tie: the same whatever
-                // order the traversal finds them in (scene.wgsl does the same).
+                // order the traversal finds them in (scene.wgsl does the same in its own
+                // triangle order, so an exact tie, a set of measure zero, may pick
+                // another face there).
                 if first.is_none_or(|(ft, fp)| t < ft || (t == ft && prim < fp)) {
                     first = Some((t, prim));
                 }

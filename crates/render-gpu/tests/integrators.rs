@@ -256,14 +256,16 @@ fn nee_on_equals_nee_off_pt() {
     }
 }
 
-/// `common::dielectric_cube_scene` lit straight from above, seen through a lens that sees
-/// only the middle fifth of the top face, isotropic: there NEE refracts its shadow rays
-/// at the top face (nee.rs, `shadow`) exactly; the one light it leaves out, entering the
-/// side faces at ≥ 85° toward points whose straight ray leaves through the top, is ~2 %
-/// of the top's and must cross 0.4 of a medium whose diffusion length is ~0.13 (σ_t ≥ 20,
-/// albedo 0.95), so < 0.1 % of it reaches the seen region.
-fn dielectric_sun_scene(direction: &str) -> String {
-    common::dielectric_cube_scene(3.0, 8, 0.0, direction)
+/// `common::dielectric_cube_scene` seen through a lens that sees only the middle fifth of
+/// the top face, with phase function `g`: there NEE refracts its shadow rays at the top
+/// face (nee.rs, `shadow`) exactly. What it leaves out is the light a side face admits
+/// toward points whose shadow ray leaves through the top; under the seen region those
+/// lie ≥ 0.4 from any side face, a way of optical depth ≥ 8 (σ_t ≥ 20) that passes
+/// e^−8 = 3·10⁻⁴ of it, so < 0.1 % of the image (a sun straight above lights the side
+/// faces at ≥ 85°, with ~2 % of the top's irradiance; one 60° off the top's normal lights
+/// one side face at 30°).
+fn dielectric_sun_scene(g: f64, direction: &str) -> String {
+    common::dielectric_cube_scene(3.0, 8, g, direction)
 }
 
 /// Through a dielectric boundary, light that NEE brings in along its shadow ray must be
@@ -274,7 +276,7 @@ fn dielectric_sun_scene(direction: &str) -> String {
 /// 0.16 %, off 1.17 %): an NEE term off by more than ~6 % fails.
 #[test]
 fn nee_on_equals_nee_off_through_a_dielectric_pt() {
-    let (_, s) = scene(&dielectric_sun_scene("[0.0, 0.0, -1.0]"), false);
+    let (_, s) = scene(&dielectric_sun_scene(0.0, "[0.0, 0.0, -1.0]"), false);
     let set = |nee| settings(IntegratorKind::Pt, nee, None);
     let (on, son, _) = estimate(&s, &set(true), 600_000, 1);
     let (off, soff, _) = estimate(&s, &set(false), 6_000_000, 2);
@@ -294,10 +296,11 @@ fn nee_on_equals_nee_off_through_a_dielectric_pt() {
 /// reflection off the boundary, escape into the disk, and those were dropped with the
 /// sun once a path had scattered: NEE on was 0.59 of NEE off in a wider view of this
 /// prism (41 % of the image lost; −41 % in this view). Now a reflection clears
-/// `scattered`. Allowed: 2 % (for NEE's shadow ray, straight until 2026-12-04, whose
-/// path lengths differed from the refracted ones by < 1 %) plus 4 standard errors of the
-/// difference (measured since with the refracted ray: −3.5 %, −1.7 %, −3.6 %, each
-/// ± 1.2 %, within 2 % and 1.3 standard errors).
+/// `scattered`. Allowed: 2 % for the light NEE leaves out, which a second face admits
+/// toward points whose shadow ray leaves through the bottom (the disk's directions up to
+/// 10° off +y meet the leg face x = 0 at ≥ 80°) plus 4 standard errors of the difference
+/// (measured with the straight shadow ray until 2026-12-04: −2.5 %, −0.7 %, −2.6 %;
+/// refracted: −3.5 %, −1.7 %, −3.6 %, each ± 1.2 %, within 2 % and 1.3 standard errors).
 #[test]
 fn nee_counts_light_after_a_reflection() {
     let dir = tempfile::tempdir().unwrap();
@@ -319,17 +322,20 @@ fn nee_counts_light_after_a_reflection() {
 /// A sun 60° from the top face's normal, beyond the critical angle (41.8° at ior 1.5),
 /// where refraction bends the light's way in most: NEE's shadow ray must be the refracted
 /// one (35.3° from the normal inside), weighed with the Fresnel transmittance of light
-/// entering from air at 60° and the beam's narrowing cos 60°/cos 35.3° = 0.61. The
-/// paper's straight shadow ray (until 2026-12-04) runs 1/cos 60° = 2 depths to the surface
-/// where the refracted light runs 1.22, leaves out the 0.61, and read NEE on / off =
-/// 1.068, 1.119, 1.092 (R, G, B; ± 0.026) here; weighed as light leaving the medium at
-/// 60°, as until 2026-11-28, total internal reflection let NEE light nothing (0.03). Now
-/// on and off must agree within 4 standard errors of their difference plus 0.5 % for the
-/// side faces' light (see dielectric_sun_scene); NEE off needs 15× the paths for a standard
-/// error of ~1.5 % of the ratio, so the straight ray's +9 % and +12 % fail.
+/// entering from air at 60° and the beam's irradiance lowered by cos 60°/cos 35.3° = 0.61,
+/// the phase function (g = 0.5) read toward the refracted direction. Measured NEE on / off
+/// − 1 in R (± 1.5 %): −0.2 % now; +7.4 % with the phase function read toward the light's
+/// direction in air; +13.5 % with the paper's straight shadow ray (until 2026-12-04), which
+/// runs 1/cos 60° = 2 depths to the surface where the refracted light runs 1.22 and leaves
+/// out the 0.61 (with g = 0 it read +6.8 %, +11.9 %, +9.2 % in R, G, B). Weighed as light
+/// leaving the medium at 60°, as until 2026-11-28, total internal reflection let NEE light
+/// nothing (on / off 0.03). On and off must agree within 4 standard errors of their
+/// difference plus 0.5 % for the side faces' light (`dielectric_sun_scene`); NEE off needs
+/// 15× the paths of NEE on for a standard error of ~1.5 % of the ratio, so both wrong
+/// readings fail.
 #[test]
 fn nee_through_a_dielectric_refracts_toward_an_oblique_sun() {
-    let (_, s) = scene(&dielectric_sun_scene("[0.0, -0.8660254, -0.5]"), false);
+    let (_, s) = scene(&dielectric_sun_scene(0.5, "[0.0, -0.8660254, -0.5]"), false);
     let set = |nee| settings(IntegratorKind::Pt, nee, None);
     let (on, son, _) = estimate(&s, &set(true), 600_000, 1);
     let (off, soff, _) = estimate(&s, &set(false), 9_000_000, 2);

@@ -39,7 +39,9 @@ pub const MAX_CROSSINGS: u32 = 64;
 /// only with probability c / (ROULETTE_BOUND·ρ_iso) and its result divided by that
 /// probability: unbiased, and a surviving ray adds at most ROULETTE_BOUND·ρ_iso·E — a
 /// fiftieth of an average unshadowed event — so the added variance is small next to what
-/// events near the surface contribute. Including the phase value matters for forward
+/// events near the surface contribute. (Through a dielectric c is no strict bound: the
+/// refracted ray's phase value and length can beat it, [`phase_bound`]; the roulette stays
+/// unbiased.) Including the phase value matters for forward
 /// scattering: with g = 0.875 nine in ten directions toward the light have less than the
 /// mean phase, and their rays are skipped from shallower depths than the transmittance
 /// bound alone would allow. PT (no distance bound, free = 0) skips a ray only when the
@@ -131,10 +133,12 @@ fn refraction_turn(ior: f32) -> f32 {
 /// face where the straight ray first leaves the medium and reaches `x` along the refracted
 /// direction d (turned toward the face's normal n: cos θ_t = √(1 − sin²θ_i/ior²)), across
 /// that face's plane: the first segment's length s becomes s·r with r = cos θ_i / cos θ_t
-/// (the same depth below the plane), the beam narrows by r (power through an area of the
-/// face spreads over cross-sections ∝ cos θ_i outside and cos θ_t inside), and the phase
-/// function is read toward d. Exact on a flat face (every face of a triangle mesh is)
-/// where the refracted way out crosses the same face; on a curved surface the face's plane
+/// (the same depth below the plane), the beam's irradiance falls by r (power through an
+/// area of the face spreads over cross-sections ∝ cos θ_i outside and cos θ_t inside), and
+/// the phase function is read toward d. Exact where a single flat face (every face of a
+/// triangle mesh is) admits the light that reaches `x`: near an edge between two lit faces
+/// light also comes in through the other one, which this leaves out (as the straight ray
+/// did); on a curved surface the face's plane
 /// stands for it, which leaves out how the surface focuses the light (a sphere: −0.8 %,
 /// `a_sphere_matches_an_independent_walk`). The straight ray (the paper's, until
 /// 2026-12-04) read a sun 60° off a flat face 7–12 % too bright. Crossings after the first
