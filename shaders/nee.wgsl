@@ -29,7 +29,7 @@ fn transmittance_of(c: Crossings, x: vec3<f32>, dir: vec3<f32>, channel: u32) ->
 }
 
 /// A shadow ray's refraction where it first leaves a dielectric medium through a face
-/// of triangle `prim` (nee.rs, refraction): the beam's narrowing r = cos θ_i / cos θ_t
+/// of triangle `prim` (nee.rs, refraction): the beam's factor r = cos θ_i / cos θ_t
 /// and the refracted direction d toward the light; r = 0 where it does not leave through
 /// it (an entry: a point outside by rounding). `flip`: the face may be of either
 /// orientation (overlapping pieces: a piece nested in another is a hole).

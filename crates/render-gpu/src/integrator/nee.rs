@@ -138,9 +138,8 @@ fn refraction_turn(ior: f32) -> f32 {
 /// the phase function is read toward d. Exact where a single flat face (every face of a
 /// triangle mesh is) admits the light that reaches `x`: near an edge between two lit faces
 /// light also comes in through the other one, which this leaves out (as the straight ray
-/// did); on a curved surface the face's plane
-/// stands for it, which leaves out how the surface focuses the light (a sphere: −0.8 %,
-/// `a_sphere_matches_an_independent_walk`). The straight ray (the paper's, until
+/// did); on a curved surface the face's plane stands for it, which leaves out how the
+/// surface focuses the light (a sphere: −0.8 %, `a_sphere_matches_an_independent_walk`). The straight ray (the paper's, until
 /// 2026-12-04) read a sun 60° off a flat face 7–12 % too bright. Crossings after the first
 /// (re-entries of non-convex meshes) stay straight, with their Fresnel factors; where
 /// pieces overlap, the first crossing of the union's boundary refracts. nee.wgsl does the
@@ -158,7 +157,7 @@ fn shadow(scene: &SceneData, x: Vec3, w: Vec3, wl: Vec3, phase: f32, channel: us
     }
 }
 
-/// [`shadow`]'s transmittance (the beam's narrowing r included) and the refracted
+/// [`shadow`]'s transmittance (the beam's factor r included) and the refracted
 /// direction toward the light (None where the ray stays straight: its first crossing of
 /// the boundary is no way out).
 fn refracted_transmittance(
@@ -200,7 +199,7 @@ fn refracted_transmittance(
     }
 }
 
-/// The beam's narrowing r = cos θ_i / cos θ_t and the refracted direction d toward the
+/// The beam's factor r = cos θ_i / cos θ_t and the refracted direction d toward the
 /// light for a shadow ray along `wl` leaving through a face of outward normal `n`
 /// ([`shadow`]); None where it does not leave through it (an entry: a point outside by
 /// rounding).
