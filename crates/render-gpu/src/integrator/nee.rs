@@ -181,7 +181,7 @@ fn refracted_transmittance(
         ..
     }) = crossed
     else {
-        return ordered_refracted(scene, ior, x, wl, channel);
+        return ordered(scene, Some(ior), x, wl, channel);
     };
     // The way out's outward normal: where pieces overlap it may cross a face of either
     // orientation (a piece nested in another is a hole).
@@ -380,21 +380,10 @@ pub fn transmittance_ordered(scene: &SceneData, x: Vec3, dir: Vec3, channel: usi
     ordered(scene, None, x, dir, channel).0
 }
 
-/// [`transmittance_ordered`] refracted at the first way out of a dielectric of index
-/// `ior` ([`shadow`]), with the refracted direction.
-fn ordered_refracted(
-    scene: &SceneData,
-    ior: f32,
-    x: Vec3,
-    dir: Vec3,
-    channel: usize,
-) -> (f32, Option<Vec3>) {
-    ordered(scene, Some(ior), x, dir, channel)
-}
-
 /// The ordered walk, refracted at the first crossing of the boundary if `ior` is given
 /// and that crossing is a way out: the optical depth up to it is then multiplied by r
-/// and the result by r ([`shadow`]). Until that crossing the depth is not cut off at
+/// and the result by r, and the refracted direction returned ([`shadow`]). Until that
+/// crossing the depth is not cut off at
 /// [`MAX_OPTICAL_DEPTH`]: refraction can shorten it below.
 fn ordered(
     scene: &SceneData,
