@@ -433,16 +433,22 @@ fn add_counter(slot: u32, v: u32) {
 // C_TRUNCATED those whose bounce loop ended early (a driver loop limit: see below).
 
 /// A path between dispatches, one per (pixel, lane), in `accum` as SLOT = 7 + 2·PATH_NEE_M
-/// vec4s (prepended by kernels.rs): position and β (once the path has ended and its NEE
+/// (+ 3 with VARIANCE) vec4s (prepended by kernels.rs): position and β (once the path has ended and its NEE
 /// rays are under way, p_nee_sum and p_nee_light instead); direction and radiance; the RNG
 /// state; channel (bits 0–7) | flags (8–15) | NEE rays left (16–), iterations, samples
 /// finished, the free distance (f32 bits; the current sample follows from the samples
 /// finished); the accumulated RGB + finished-sample count of the whole
-/// render (ACC); then per path-level NEE reservoir its event's (X, q) and (W, A); the
-/// rounding ACC's RGB lost (SLOT − 2, add_sample); last ACC as the chunk began, its lost
+/// render (ACC); then per path-level NEE reservoir its event's (X, q) and (W, A); with
+/// VARIANCE the squared sums (below); the rounding ACC's RGB lost (SLOT − 2, add_sample); last ACC as the chunk began, its lost
 /// rounding added back (SLOT − 1: what a render stopped mid-chunk keeps, gpu/renderer.rs).
-// ACC (kernels.rs, ACC_VEC4) is prepended.
+// ACC (kernels.rs, ACC_VEC4) is prepended. With VARIANCE (`render --variance`) three
+// vec4s before ACC_LO hold the sums of the squared values ACC adds, per channel, what their f32
+// additions rounded off, and those sums as the chunk began (kernels.rs, acc_sq_vec4 and
+// the two after it); without it they are not in the slot and never read.
 const ACC_LO: u32 = SLOT - 2u;
+const ACC_SQ: u32 = SLOT - 5u;
+const ACC_SQ_LO: u32 = SLOT - 4u;
+const SQ_COMMITTED: u32 = SLOT - 3u;
 const F_ALIVE: u32 = 1u;
 const F_SCATTERED: u32 = 2u;
 const F_INSIDE: u32 = 4u;
@@ -540,6 +546,9 @@ var<private> sl_j: u32;
 var<private> sl_done: bool;
 var<private> sl_acc: vec4<f32>;
 var<private> sl_lo: vec3<f32>;
+// With VARIANCE: the sums of the squared values added to sl_acc, and what they rounded off.
+var<private> sl_sq: vec3<f32>;
+var<private> sl_sq_lo: vec3<f32>;
 
 // The staged render's sphere steps (stcvae.wgsl, scatter_at; staged.wgsl, STAGED_STEPS):
 // whether stage_main parks them for step_main, which runs each whole, whether this one was
@@ -596,16 +605,25 @@ fn slot_begin(idx: u32, kind: u32) -> bool {
     }
     sl_acc = accum[sl_base + ACC];
     sl_lo = accum[sl_base + ACC_LO].xyz;
+    if VARIANCE {
+        sl_sq = accum[sl_base + ACC_SQ].xyz;
+        sl_sq_lo = accum[sl_base + ACC_SQ_LO].xyz;
+    }
     if kind == 2u {
         // First dispatch of the render: clear the accumulator (it was poisoned with NaN,
         // so a slot never reached shows on the host).
         sl_acc = vec4<f32>(0.0);
         sl_lo = vec3<f32>(0.0);
+        sl_sq = vec3<f32>(0.0);
+        sl_sq_lo = vec3<f32>(0.0);
     }
     if kind != 0u {
         // The whole chunks so far, kept apart while this one adds to ACC: a render stopped
         // mid-chunk returns them (as the CPU drops an unfinished pass), rounded once.
         accum[sl_base + SLOT - 1u] = vec4<f32>(sl_acc.xyz + sl_lo, sl_acc.w);
+        if VARIANCE {
+            accum[sl_base + SQ_COMMITTED] = vec4<f32>(sl_sq + sl_sq_lo, 0.0);
+        }
     }
     sl_j = 0u;
     sl_done = sl_count == 0u;
@@ -660,7 +678,7 @@ fn bounce_done(casting: bool) {
         if PATH_NEE_M > 0u && pn_total > 0.0 {
             ps.radiance += p_nee_sum * pn_total / f32(PATH_NEE_M);
         }
-        add_sample(p_channel, 3.0 * path_result());
+        add_sample(p_channel, path_result());
         sl_j += 1u;
         if sl_j >= sl_count {
             sl_done = true;
@@ -670,23 +688,52 @@ fn bounce_done(casting: bool) {
     }
 }
 
-/// Adds a finished sample `x` to channel `c` of the slot's sum (and counts it), keeping
-/// what the f32 addition rounded off in sl_lo (Neumaier's compensated sum): a plain f32
-/// sum of many equal samples rounds the same way at every addition and drifted 1.2·10⁻⁴
-/// of the mean (8.3·10⁻⁵ of 0.7) at 65,536 samples a slot (`long_slot_sums_do_not_drift`).
-/// The host adds ACC and ACC_LO in f64. A compiler that reassociated (s − t) + x to x − x
-/// would leave sl_lo at 0: the plain sum, no worse. The count is exact up to 2^24
-/// (MAX_SLOT_SAMPLES).
-fn add_sample(c: u32, x: f32) {
-    let s = sl_acc[c];
+/// Adds a finished sample's estimate `l` to channel `c` of the slot's sum, times 3 (the
+/// hero channel's weight, integrator/mod.rs), and counts it; with VARIANCE also the square
+/// of that same f32 value 3·l to the squared sums (the host divides them by 9 for
+/// render.rs's pixel_variance, which reads Σl²). Squaring the value the RGB sum adds, and
+/// exactly (`exact_square`), keeps a constant pixel's variance at 0 to rounding: squares of
+/// l beside sums of a rounded 3·l left a background pixel a variance of ~10⁻⁹.
+/// Each sum keeps what the f32 addition rounded off (Neumaier's compensated sum,
+/// `compensated_add`): a plain f32 sum of many equal samples rounds the same way at every
+/// addition and drifted 1.2·10⁻⁴ of the mean (8.3·10⁻⁵ of 0.7) at 65,536 samples a slot
+/// (`long_slot_sums_do_not_drift`). The host adds each sum and its rounding in f64. The
+/// count is exact up to 2^24 (MAX_SLOT_SAMPLES).
+fn add_sample(c: u32, l: f32) {
+    let x = 3.0 * l;
+    let a = compensated_add(sl_acc[c], x);
+    sl_acc[c] = a.x;
+    sl_lo[c] += a.y;
+    sl_acc.w += 1.0;
+    if VARIANCE {
+        let sq = exact_square(x);
+        let q = compensated_add(sl_sq[c], sq.x);
+        sl_sq[c] = q.x;
+        sl_sq_lo[c] += q.y + sq.y;
+    }
+}
+
+/// x² as the unevaluated sum p + e, exactly (Dekker's product over Veltkamp's split of x
+/// into halves of 12 significant bits, whose products f32 holds exactly): WGSL's fma may
+/// be computed unfused, so it cannot give e. A compiler that simplified t − (t − x) to x
+/// would give e = 0 (or an fma's exact e): the rounded square, no worse.
+fn exact_square(x: f32) -> vec2<f32> {
+    let p = x * x;
+    let t = 4097.0 * x;
+    let hi = t - (t - x);
+    let lo = x - hi;
+    return vec2<f32>(p, ((hi * hi - p) + 2.0 * hi * lo) + lo * lo);
+}
+
+/// s + x in f32 and what that addition rounded off (Neumaier). A compiler that
+/// reassociated (s − t) + x to x − x would give 0 for the rounding: the plain sum, no
+/// worse.
+fn compensated_add(s: f32, x: f32) -> vec2<f32> {
     let t = s + x;
     if abs(s) >= abs(x) {
-        sl_lo[c] += (s - t) + x;
-    } else {
-        sl_lo[c] += (x - t) + s;
+        return vec2<f32>(t, (s - t) + x);
     }
-    sl_acc[c] = t;
-    sl_acc.w += 1.0;
+    return vec2<f32>(t, (x - t) + s);
 }
 
 /// The slot's state saved (`was_done`: it was done when the dispatch began; then only a
@@ -702,6 +749,10 @@ fn slot_end(was_done: bool, count_pending: bool) {
     }
     accum[sl_base + ACC] = sl_acc;
     accum[sl_base + ACC_LO] = vec4<f32>(sl_lo, 0.0);
+    if VARIANCE {
+        accum[sl_base + ACC_SQ] = vec4<f32>(sl_sq, 0.0);
+        accum[sl_base + ACC_SQ_LO] = vec4<f32>(sl_sq_lo, 0.0);
+    }
     add_stats();
     prof_end();
 }

@@ -167,7 +167,7 @@ pub fn run(a: Args) -> Result<()> {
         let p = prepare_row(k, kind)?;
         // A software adapter keeps its path state in host memory, as `render` checks.
         if !gpu.is_hardware_gpu() {
-            crate::render::software_gpu_memory(a.size, a.size, &p.settings(), 0)
+            crate::render::software_gpu_memory(a.size, a.size, &p.settings(), false, 0)
                 .map_err(|e| anyhow::anyhow!("--size {}: {e}", a.size))?;
         }
     }

@@ -493,6 +493,7 @@ pub fn run(a: Args) -> Result<()> {
                 a.size,
                 a.size,
                 &p.settings(),
+                false,
                 PAIRS_BYTES_PER_PIXEL,
             )
             .map_err(|e| anyhow::anyhow!("--size {}: {e}", a.size))?;

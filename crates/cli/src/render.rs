@@ -78,9 +78,8 @@ pub struct Args {
     #[arg(long, allow_negative_numbers = true, default_value_t = 1.0, value_parser = parse_exposure)]
     pub exposure: f32,
     /// Also write OUT.var.exr: per pixel and channel the estimated variance of the
-    /// pixel's value (its squared standard error, from the samples' own spread). Computed
-    /// by the CPU renderer (--device auto picks it; the GPU kernels keep no squared sums)
-    /// from 6 spp on. A render without it removes an older OUT.var.exr, which would no
+    /// pixel's value (its squared standard error, from the samples' own spread), on
+    /// either device, from 6 spp on. A render without it removes an older OUT.var.exr, which would no
     /// longer belong to OUT.exr.
     #[arg(long)]
     pub variance: bool,
@@ -454,15 +453,16 @@ pub(crate) fn outside_training_warning(
 }
 
 /// The image's memory with a software adapter's path state, which lives in host memory
-/// (`gpu::kernels::slot_vec4s`, 16 bytes each), and `extra` bytes a pixel the caller holds
-/// beside them: checked before a render on one.
+/// (`gpu::kernels::slot_vec4s`, 16 bytes each, with `variance` its squared sums too), and
+/// `extra` bytes a pixel the caller holds beside them: checked before a render on one.
 pub(crate) fn software_gpu_memory(
     width: u32,
     height: u32,
     set: &IntegratorSettings,
+    variance: bool,
     extra: u64,
 ) -> std::result::Result<(), String> {
-    let slot = 16 * render_gpu::gpu::kernels::slot_vec4s(set.path_nee() as u32);
+    let slot = 16 * render_gpu::gpu::kernels::slot_vec4s(set.path_nee() as u32, variance);
     render_gpu::render::check_image_memory_with(width, height, slot + extra)
         .map_err(|e| format!("{e} (with the software GPU's path state)"))
 }
@@ -636,12 +636,6 @@ pub fn run(mut a: Args) -> Result<()> {
         a.scene = p;
     }
     check_out_stem(&a.out)?;
-    if a.variance && a.device == DeviceArg::Gpu {
-        bail!(
-            "--variance is computed by the CPU renderer only (the GPU kernels keep no squared \
-             sums): use --device cpu or auto"
-        );
-    }
     // The image's memory is checked before `prepare` builds the mesh, BVH and distance
     // grid (about a minute for a large grid): the camera's size is in the file alone. A
     // file that does not load is left to `prepare`, whose errors say why.
@@ -736,20 +730,12 @@ pub fn run(mut a: Args) -> Result<()> {
             }
         }
     }
-    // The variance needs the CPU renderer's squared sums (a GPU was refused above).
-    let device = if a.variance {
-        if a.device == DeviceArg::Auto {
-            eprintln!("note: --variance renders on the CPU (the GPU kernels keep no squared sums)");
-        }
-        DeviceArg::Cpu
-    } else {
-        a.device
-    };
-    let engine = Engine::open(device)?;
+    let engine = Engine::open(a.device)?;
     let set = p.settings();
     if engine.is_gpu() && !engine.is_hardware_gpu() {
         let (w, h) = (p.file.camera.width, p.file.camera.height);
-        software_gpu_memory(w, h, &set, 0).map_err(|e| size_error(&a, size.is_some(), w, h, e))?;
+        software_gpu_memory(w, h, &set, a.variance, variance_bytes)
+            .map_err(|e| size_error(&a, size.is_some(), w, h, e))?;
     }
     eprintln!(
         "rendering {} ({}x{}, {}, {}{}) on the {}",

@@ -43,8 +43,9 @@ pub struct RenderOptions {
     pub seed: u64,
     /// Stop after the pass during which this many seconds have passed.
     pub time_budget: Option<f64>,
-    /// Also estimate each pixel's variance ([`RenderOutput::variance`]; CPU only: the GPU
-    /// kernels keep no squared sums).
+    /// Also estimate each pixel's variance ([`RenderOutput::variance`]): the CPU renderer
+    /// sums its samples' squares in f64, the GPU kernels per path slot in compensated f32
+    /// (`gpu::kernels::acc_sq_vec4`).
     pub variance: bool,
 }
 

@@ -684,6 +684,106 @@ fn white_furnace_gpu() {
     }
 }
 
+/// `RenderOptions::variance` on the GPU: the kernels' per-slot squared sums
+/// (`kernels::acc_sq_vec4`), checked as integrators.rs checks the CPU renderer's
+/// (`the_variance_image_matches_the_spread_between_seeds`). In a white furnace every
+/// sample is 0.9, so each pixel's variance is 0 up to rounding, which the compensated
+/// squares keep below 1e-10 (PT and ST-CVAE, the single kernel and the staged render).
+/// On the lit sphere (configs/scenes/sphere.toml at 12², PT + NEE, 24 spp: 8 samples a
+/// channel) the reported variances, summed over pixels and channels, match (a) the
+/// spread of each pixel's value over K = 12 seeds and (b) the CPU renderer's reported
+/// variances of the same scene (12 other seeds), both as ratios in the CPU test's band
+/// [0.6, 1.6]: each side pools ~60 object pixels × 3 channels × 12 renders, whose ratio
+/// the CPU test measured at 1.025; noise of the pooled sums from heavy-tailed NEE samples
+/// is what the band's width allows for. The hero channel's factor 3 squared into the sums
+/// (9×) or a sample's variance for the mean's (24×) lands far outside it. The formula the
+/// host applies to the sums is `render::pixel_variance`, checked exactly in render.rs.
+#[test]
+fn gpu_variance_image_matches_the_spread_and_the_cpu() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let with_variance = |spp: u32, seed: u64| RenderOptions {
+        variance: true,
+        ..opts(spp, seed)
+    };
+    // At 0.9 each sample adds x = 3·0.9 = 2.6999998 in f32, whose f32 square is 3.8e-8
+    // above x²: squares rounded so (no exact_square in path.wgsl) leave each pixel a
+    // variance of ~1.4e-9, above the bound. (At the usual furnace's 0.7 the rounding is
+    // downward and the variance is clamped to 0, so that could not show it.)
+    let furnace = common::furnace_scene("kind = \"index-matched\"")
+        .replace("radiance = [0.7, 0.7, 0.7]", "radiance = [0.9, 0.9, 0.9]");
+    assert!(furnace.contains("[0.9, 0.9, 0.9]"));
+    for kind in [IntegratorKind::Pt, IntegratorKind::Stcvae] {
+        let s = common::build_scene(&furnace, kind == IntegratorKind::Stcvae);
+        for staged in [false, true] {
+            let vars: &[(&str, &str)] = if staged {
+                &[("STCVAE_GPU_STAGED", "1")]
+            } else {
+                &[]
+            };
+            let out =
+                render_gpu_with_env(&ctx, &s, &settings(kind, true), &with_variance(13, 3), vars)
+                    .unwrap();
+            let v = out.variance.expect("a variance image at 13 spp");
+            assert!(
+                v.pixels
+                    .iter()
+                    .flatten()
+                    .all(|&x| (0.0..1e-10).contains(&x)),
+                "{kind:?}, staged {staged}: furnace variances {:?}",
+                &v.pixels[..4]
+            );
+        }
+        // Below 6 spp some channel has one sample: no variance image, as on the CPU.
+        let few = on_gpu(&ctx, &s, &settings(kind, true), &with_variance(5, 3));
+        assert!(few.variance.is_none(), "{kind:?}");
+    }
+
+    let text = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/scenes/sphere.toml"),
+    )
+    .unwrap()
+    .replace("width = 128", "width = 12")
+    .replace("height = 128", "height = 12");
+    let s = common::build_scene(&text, false);
+    let set = settings(IntegratorKind::Pt, true);
+    let k = 12u64;
+    let gpu_outs: Vec<RenderOutput> = (0..k)
+        .map(|seed| on_gpu(&ctx, &s, &set, &with_variance(24, 100 + seed)))
+        .collect();
+    let cpu_outs: Vec<RenderOutput> = (0..k)
+        .map(|seed| on_cpu(&s, &set, &with_variance(24, 200 + seed)))
+        .collect();
+    let reported = |outs: &[RenderOutput]| -> f64 {
+        let var = outs.iter().map(|o| o.variance.as_ref().unwrap());
+        var.flat_map(|v| v.pixels.iter().flatten().map(|&x| x as f64))
+            .sum::<f64>()
+            / outs.len() as f64
+    };
+    let mut spread = 0f64;
+    for p in 0..gpu_outs[0].image.pixels.len() {
+        for c in 0..3 {
+            let vals: Vec<f64> = gpu_outs
+                .iter()
+                .map(|o| o.image.pixels[p][c] as f64)
+                .collect();
+            let mean = vals.iter().sum::<f64>() / k as f64;
+            // Background pixels (the constant sky) add 0 here and to the reported sums.
+            spread += vals.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (k - 1) as f64;
+        }
+    }
+    let (gpu_reported, cpu_reported) = (reported(&gpu_outs), reported(&cpu_outs));
+    let (to_spread, to_cpu) = (spread / gpu_reported, gpu_reported / cpu_reported);
+    eprintln!(
+        "GPU variance: spread over seeds / reported = {to_spread:.3}, GPU / CPU reported = \
+         {to_cpu:.3} (Σ reported {gpu_reported:.3e})"
+    );
+    assert!(
+        gpu_reported > 0.0 && (0.6..1.6).contains(&to_spread) && (0.6..1.6).contains(&to_cpu),
+        "spread / reported {to_spread}, GPU / CPU {to_cpu}"
+    );
+}
+
 /// The kernels count the scattering events inside exact steps' walks (`exact_events`, the
 /// walks' N), as the CPU does (integrators.rs, `exact_walk_events_add_up_to_pts_events`):
 /// with every step exact, albedo 1 and NEE off, they and the fallback events add up in
@@ -2146,7 +2246,7 @@ fn images_beyond_the_binding_limit_render_in_bands() {
     let s = common::build_scene(&text, false);
     let set = settings(IntegratorKind::Pt, true);
     // PT carries no path-level NEE reservoirs.
-    let slot = 16 * render_gpu::gpu::kernels::slot_vec4s(0);
+    let slot = 16 * render_gpu::gpu::kernels::slot_vec4s(0, false);
     let saved = ctx.limits.clone();
     let mut run = |slots: u64| {
         ctx.limits.max_storage_buffer_binding_size = slots * slot;

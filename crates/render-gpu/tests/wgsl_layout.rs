@@ -38,6 +38,7 @@ fn sources() -> Vec<(String, String)> {
                         env_map: on,
                         lights: if on { 4 } else { 1 },
                         nee: on,
+                        variance: on,
                     };
                     let shape = KernelShape {
                         staged,

@@ -292,6 +292,9 @@ pub struct SceneSwitches {
     pub lights: u32,
     /// Next-event estimation on (`NEE`; the render's setting).
     pub nee: bool,
+    /// Per-slot squared sums for the variance image (`VARIANCE`; the render's
+    /// `--variance`): three vec4s more a slot ([`slot_vec4s`]), kept only when asked.
+    pub variance: bool,
 }
 
 impl SceneSwitches {
@@ -303,6 +306,7 @@ impl SceneSwitches {
             env_map: scene.env.map.is_some(),
             lights: scene.lights.len().min(super::scene_buffers::MAX_GPU_LIGHTS) as u32,
             nee,
+            variance: false,
         }
     }
 }
@@ -324,24 +328,45 @@ pub const STAGE_VEC4S: u64 = 4;
 
 /// vec4s of one path slot in the accumulation buffer (`SLOT` in shaders/path.wgsl): the
 /// path's state, the render's accumulated RGB (vec4 [`ACC_VEC4`]), two per path-level
-/// NEE reservoir, what the RGB sums rounded off ([`acc_lo_vec4`]), and last the
+/// NEE reservoir, with `variance` the squared sums ([`acc_sq_vec4`], [`acc_sq_lo_vec4`],
+/// [`committed_sq_vec4`]), what the RGB sums rounded off ([`acc_lo_vec4`]), and last the
 /// accumulated RGB as the chunk began ([`committed_vec4`]).
-pub fn slot_vec4s(path_nee_m: u32) -> u64 {
-    7 + 2 * path_nee_m as u64
+pub fn slot_vec4s(path_nee_m: u32, variance: bool) -> u64 {
+    7 + 2 * path_nee_m as u64 + if variance { 3 } else { 0 }
 }
 
 /// Which vec4 of a path slot holds in xyz what the f32 additions to ACC's RGB rounded off
 /// (`ACC_LO` in shaders/path.wgsl, add_sample): the slot's sum is ACC + ACC_LO, taken in
 /// f64 on the host.
-pub fn acc_lo_vec4(path_nee_m: u32) -> u64 {
-    slot_vec4s(path_nee_m) - 2
+pub fn acc_lo_vec4(path_nee_m: u32, variance: bool) -> u64 {
+    slot_vec4s(path_nee_m, variance) - 2
 }
 
 /// Which vec4 of a path slot holds its accumulated RGB and finished-sample count as they
 /// were when the current chunk of samples began (`SLOT − 1` in shaders/path.wgsl): the
 /// image of the whole chunks, which a render stopped mid-chunk returns.
-pub fn committed_vec4(path_nee_m: u32) -> u64 {
-    slot_vec4s(path_nee_m) - 1
+pub fn committed_vec4(path_nee_m: u32, variance: bool) -> u64 {
+    slot_vec4s(path_nee_m, variance) - 1
+}
+
+/// With `variance`: which vec4 of a path slot holds in xyz the sum of the squares of the
+/// values ACC's RGB adds (`ACC_SQ` in shaders/path.wgsl): each sample's estimate times 3,
+/// so the host divides by 9 for `render::pixel_variance`, which reads the estimates'.
+pub fn acc_sq_vec4(path_nee_m: u32) -> u64 {
+    slot_vec4s(path_nee_m, true) - 5
+}
+
+/// With `variance`: what the f32 additions to [`acc_sq_vec4`] rounded off (`ACC_SQ_LO`),
+/// kept as for the RGB sums: a constant background's squares drift as its sums would,
+/// and the variance, a difference of the two, would read that drift as noise.
+pub fn acc_sq_lo_vec4(path_nee_m: u32) -> u64 {
+    slot_vec4s(path_nee_m, true) - 4
+}
+
+/// With `variance`: the squared sums as the current chunk began, rounded once
+/// (`SQ_COMMITTED`), beside [`committed_vec4`] for a render stopped mid-chunk.
+pub fn committed_sq_vec4(path_nee_m: u32) -> u64 {
+    slot_vec4s(path_nee_m, true) - 3
 }
 
 /// Which vec4 of a path slot holds the accumulated RGB and finished-sample count (`ACC`,
@@ -393,7 +418,7 @@ pub fn source(
          const PATH_COUNTERS: u32 = {}u;\n\
          const STAGED_STEPS: bool = {};\nconst OVERLAPS: bool = {};\n\
          const DIELECTRIC: bool = {};\nconst ENV_MAP: bool = {};\n\
-         const LIGHTS: u32 = {}u;\nconst NEE: bool = {};\n{}{}",
+         const LIGHTS: u32 = {}u;\nconst NEE: bool = {};\nconst VARIANCE: bool = {};\n{}{}",
         shape.wgsl(),
         crate::integrator::nee::ROULETTE_BOUND,
         crate::geometry::FLIGHT_MARGIN_OF_EPS,
@@ -406,7 +431,7 @@ pub fn source(
         crate::integrator::nee::PHASE_BOUND_TURN,
         crate::integrator::nee::MAX_CROSSINGS,
         crate::geometry::SLIVER_REACH_OF_EPS,
-        slot_vec4s(path_nee_m),
+        slot_vec4s(path_nee_m, switches.variance),
         super::scene_buffers::GpuNode::COUNT_BITS,
         2 * super::resources::COUNTER_SLOTS,
         super::resources::PATH_COUNTERS,
@@ -416,6 +441,7 @@ pub fn source(
         switches.env_map,
         switches.lights,
         switches.nee,
+        switches.variance,
         profile_wgsl(shape.profile),
         aggregate_wgsl(shape.aggregate),
     ) + &tied_constants_wgsl();

@@ -569,9 +569,14 @@ pub fn render_gpu(
     let layout = kernels::bind_group_layout(ctx, shape.staged)?;
     // Path-level NEE (ST-CVAE only, as on the CPU): its reservoirs travel with each path.
     let path_nee_m = set.path_nee() as u32;
-    let slot_vec4s = kernels::slot_vec4s(path_nee_m);
+    // The variance image's squared sums travel in the slots too (kernels::acc_sq_vec4).
+    let squares_kept = opts.variance;
+    let slot_vec4s = kernels::slot_vec4s(path_nee_m, squares_kept);
     let args_layout = shape.staged.then(|| kernels::args_layout(ctx));
-    let switches = kernels::SceneSwitches::of(scene, set.nee);
+    let switches = kernels::SceneSwitches {
+        variance: squares_kept,
+        ..kernels::SceneSwitches::of(scene, set.nee)
+    };
     let build_in = |layout, entry| {
         kernels::pipeline(
             ctx, layout, kernel, set.model, path_nee_m, switches, shape, entry,
@@ -891,6 +896,10 @@ pub fn render_gpu(
     }
     wait(ctx)?;
     let mut image = RgbImage::new(cam.width as usize, cam.height as usize);
+    // Squared sums only where asked and where every channel has two samples, as the CPU
+    // renderer gives its variance image (render::MIN_VARIANCE_SPP).
+    let mut variance = (squares_kept && s0 >= crate::render::MIN_VARIANCE_SPP)
+        .then(|| RgbImage::new(cam.width as usize, cam.height as usize));
     // Stopped in the first chunk: no sample is whole (slots of bands not yet reached still
     // hold the poison), so there is no image, as on the CPU.
     let bands = if s0 == 0 { &[][..] } else { &bands[..] };
@@ -901,36 +910,61 @@ pub fn render_gpu(
         let vals: &[f32] = bytemuck::cast_slice(&bytes);
         // A band whose chunk was dropped gives back the whole chunks' sums, rounded once
         // to f32; the others their sums and what those rounded off.
-        let (acc_vec4, lo_vec4) = if dropped.is_some_and(|started| band.index < started) {
-            (kernels::committed_vec4(path_nee_m), None)
+        let committed = dropped.is_some_and(|started| band.index < started);
+        let (acc_vec4, lo_vec4, sq_vec4s) = if committed {
+            (
+                kernels::committed_vec4(path_nee_m, squares_kept),
+                None,
+                [Some(kernels::committed_sq_vec4(path_nee_m)), None],
+            )
         } else {
-            (kernels::ACC_VEC4, Some(kernels::acc_lo_vec4(path_nee_m)))
+            (
+                kernels::ACC_VEC4,
+                Some(kernels::acc_lo_vec4(path_nee_m, squares_kept)),
+                [
+                    Some(kernels::acc_sq_vec4(path_nee_m)),
+                    Some(kernels::acc_sq_lo_vec4(path_nee_m)),
+                ],
+            )
+        };
+        // xyz of vec4 `v` of `slot`, added to `to` in f64.
+        let add = |to: &mut [f64; 3], slot: usize, v: u64| {
+            let q = &vals[(slot + v as usize) * 4..][..3];
+            for c in 0..3 {
+                to[c] += q[c] as f64;
+            }
         };
         let first = band.row0 as usize * cam.width as usize;
         let count = band.rows as usize * cam.width as usize;
         for (p, px) in image.pixels[first..first + count].iter_mut().enumerate() {
             let mut sum = [0f64; 3];
+            let mut squares = [0f64; 3];
             let mut finished = 0f64;
             for l in 0..lanes as usize {
                 let slot = (p * lanes as usize + l) * slot_vec4s as usize;
-                let q = &vals[(slot + acc_vec4 as usize) * 4..][..4];
-                for c in 0..3 {
-                    sum[c] += q[c] as f64;
+                for v in std::iter::once(acc_vec4).chain(lo_vec4) {
+                    add(&mut sum, slot, v);
                 }
-                if let Some(lo) = lo_vec4 {
-                    let lo = &vals[(slot + lo as usize) * 4..][..3];
-                    for c in 0..3 {
-                        sum[c] += lo[c] as f64;
+                if variance.is_some() {
+                    for v in sq_vec4s.into_iter().flatten() {
+                        add(&mut squares, slot, v);
                     }
                 }
-                finished += q[3] as f64;
+                finished += vals[(slot + acc_vec4 as usize) * 4 + 3] as f64;
             }
-            if !sum.iter().all(|v| v.is_finite()) {
+            if !sum.iter().chain(&squares).all(|v| v.is_finite()) {
                 bad += 1;
             } else if finished != s0 as f64 {
                 short += 1;
             }
-            *px = crate::render::resolve_pixel(sum, s0, opts.seed, (first + p) as u32);
+            let pixel = (first + p) as u32;
+            *px = crate::render::resolve_pixel(sum, s0, opts.seed, pixel);
+            if let Some(var) = &mut variance {
+                // The slots square the ×3 values they sum (kernels::acc_sq_vec4).
+                let squares = squares.map(|q| q / 9.0);
+                var.pixels[first + p] =
+                    crate::render::pixel_variance(sum, squares, s0, opts.seed, pixel);
+            }
         }
     }
     if bad > 0 {
@@ -961,7 +995,7 @@ pub fn render_gpu(
             bounce_budget: budget,
             ..dispatch
         },
-        variance: None,
+        variance,
     })
 }
 
