@@ -433,14 +433,16 @@ fn add_counter(slot: u32, v: u32) {
 // C_TRUNCATED those whose bounce loop ended early (a driver loop limit: see below).
 
 /// A path between dispatches, one per (pixel, lane), in `accum` as SLOT = 7 + 2·PATH_NEE_M
-/// (+ 3 with VARIANCE) vec4s (prepended by kernels.rs): position and β (once the path has ended and its NEE
-/// rays are under way, p_nee_sum and p_nee_light instead); direction and radiance; the RNG
-/// state; channel (bits 0–7) | flags (8–15) | NEE rays left (16–), iterations, samples
-/// finished, the free distance (f32 bits; the current sample follows from the samples
-/// finished); the accumulated RGB + finished-sample count of the whole
+/// (+ 3 with VARIANCE) vec4s (prepended by kernels.rs): position and β (once the path has
+/// ended and its NEE rays are under way, p_nee_sum and p_nee_light instead); direction and
+/// radiance; the RNG state; channel (bits 0–7) | flags (8–15) | NEE rays left (16–),
+/// iterations, samples finished, the free distance (f32 bits; the current sample follows
+/// from the samples finished); the accumulated RGB + finished-sample count of the whole
 /// render (ACC); then per path-level NEE reservoir its event's (X, q) and (W, A); with
-/// VARIANCE the squared sums (below); the rounding ACC's RGB lost (SLOT − 2, add_sample); last ACC as the chunk began, its lost
-/// rounding added back (SLOT − 1: what a render stopped mid-chunk keeps, gpu/renderer.rs).
+/// VARIANCE the squared sums (below); the rounding ACC's RGB lost (SLOT − 2, add_sample),
+/// with the slot's PT events + sphere steps in w (the work map, slot_end); last ACC as the
+/// chunk began, its lost rounding added back (SLOT − 1: what a render stopped mid-chunk
+/// keeps, gpu/renderer.rs).
 // ACC (kernels.rs, ACC_VEC4) is prepended. With VARIANCE (`render --variance`) three
 // vec4s before ACC_LO hold the sums of the squared values ACC adds, per channel, what their f32
 // additions rounded off, and those sums as the chunk began (kernels.rs, acc_sq_vec4 and
@@ -546,6 +548,8 @@ var<private> sl_j: u32;
 var<private> sl_done: bool;
 var<private> sl_acc: vec4<f32>;
 var<private> sl_lo: vec3<f32>;
+// The slot's PT events + sphere steps over the render (ACC_LO.w): the per-pixel work map.
+var<private> sl_work: f32;
 // With VARIANCE: the sums of the squared values added to sl_acc, and what they rounded off.
 var<private> sl_sq: vec3<f32>;
 var<private> sl_sq_lo: vec3<f32>;
@@ -604,7 +608,9 @@ fn slot_begin(idx: u32, kind: u32) -> bool {
         sl_count = min(params.image.w, (params.sampling.y - sl_first - 1u) / lanes + 1u);
     }
     sl_acc = accum[sl_base + ACC];
-    sl_lo = accum[sl_base + ACC_LO].xyz;
+    let lo = accum[sl_base + ACC_LO];
+    sl_lo = lo.xyz;
+    sl_work = lo.w;
     if VARIANCE {
         sl_sq = accum[sl_base + ACC_SQ].xyz;
         sl_sq_lo = accum[sl_base + ACC_SQ_LO].xyz;
@@ -614,6 +620,7 @@ fn slot_begin(idx: u32, kind: u32) -> bool {
         // so a slot never reached shows on the host).
         sl_acc = vec4<f32>(0.0);
         sl_lo = vec3<f32>(0.0);
+        sl_work = 0.0;
         sl_sq = vec3<f32>(0.0);
         sl_sq_lo = vec3<f32>(0.0);
     }
@@ -748,7 +755,10 @@ fn slot_end(was_done: bool, count_pending: bool) {
         stats[C_PENDING] = 1u;
     }
     accum[sl_base + ACC] = sl_acc;
-    accum[sl_base + ACC_LO] = vec4<f32>(sl_lo, 0.0);
+    // This visit's events and steps (its counters began at 0 in slot_begin), as the CPU
+    // renderer's work map counts them (render.rs: events + steps a path).
+    sl_work += f32(stats[C_EVENTS] + stats[C_STEPS]);
+    accum[sl_base + ACC_LO] = vec4<f32>(sl_lo, sl_work);
     if VARIANCE {
         accum[sl_base + ACC_SQ] = vec4<f32>(sl_sq, 0.0);
         accum[sl_base + ACC_SQ_LO] = vec4<f32>(sl_sq_lo, 0.0);

@@ -66,7 +66,8 @@ pub struct RenderOutput {
     pub compile_seconds: f64,
     pub stats: PathStats,
     /// Per pixel, the mean number of PT scattering events plus sphere steps per path —
-    /// where the work goes (paper Fig. 8/9). The CPU path fills it; the GPU leaves it empty.
+    /// where the work goes (paper Fig. 8/9). Both devices fill it (the GPU from each path
+    /// slot's counts, `gpu::kernels::acc_lo_vec4`'s w).
     pub work: Vec<f32>,
     /// How the GPU ran the render (all zero on the CPU).
     pub dispatch: DispatchStats,

@@ -1096,6 +1096,64 @@ fn compare_devices_with(
     Some(gpu)
 }
 
+/// The per-pixel work map (`RenderOutput::work`: PT events + sphere steps a path, the
+/// paper's Fig. 8), which the kernels count per path slot (`kernels::acc_lo_vec4`'s w).
+/// Exactly: on each device the map times the spp sums to the render's counters (events +
+/// steps), to f32 rounding of the per-pixel means (1e-5 relative), for the single kernel
+/// and the staged render, whose sphere steps run in a kernel of their own. In distribution:
+/// the GPU's maps against the CPU's, K = 4 renders a device, with the image test's
+/// block z-scores (`assert_same_image`; the map in channel 0, the other two 0 and so
+/// noiseless, skipped), on the sphere at 48² so that ≥ 30 4×4 blocks cover it: a count
+/// put to the wrong pixel or path, or a visit counted twice, moves whole blocks by many σ.
+#[test]
+fn gpu_work_map_matches_the_counters_and_the_cpu() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let text = sphere_scene("kind = \"index-matched\"")
+        .replace("width = 24\nheight = 24", "width = 48\nheight = 48");
+    assert!(text.contains("width = 48"));
+    let summed = |o: &RenderOutput, what: &str| {
+        let map: f64 = o.work.iter().map(|&w| w as f64 * o.spp as f64).sum();
+        let counted = (o.stats.events + o.stats.steps) as f64;
+        assert_eq!(o.work.len(), o.image.pixels.len(), "{what}");
+        assert!(
+            counted > 0.0 && (map - counted).abs() <= 1e-5 * counted,
+            "{what}: the map sums to {map}, the counters to {counted}"
+        );
+    };
+    let as_image = |o: &RenderOutput| {
+        let mut m = RenderOutput {
+            image: o.image.clone(),
+            work: Vec::new(),
+            variance: None,
+            ..*o
+        };
+        for (p, &w) in m.image.pixels.iter_mut().zip(&o.work) {
+            *p = [w, 0.0, 0.0];
+        }
+        m
+    };
+    for kind in [IntegratorKind::Pt, IntegratorKind::Stcvae] {
+        let s = common::build_scene(&text, kind == IntegratorKind::Stcvae);
+        let set = settings(kind, true);
+        let cpu: Vec<_> = (1..=4)
+            .map(|seed| on_cpu(&s, &set, &opts(16, seed)))
+            .collect();
+        let gpu: Vec<_> = (5..=8)
+            .map(|seed| on_gpu(&ctx, &s, &set, &opts(16, seed)))
+            .collect();
+        for (i, o) in cpu.iter().chain(&gpu).enumerate() {
+            summed(o, &format!("{kind:?}, render {i} (CPU first)"));
+        }
+        let staged =
+            render_gpu_with_env(&ctx, &s, &set, &opts(16, 9), &[("STCVAE_GPU_STAGED", "1")])
+                .unwrap();
+        summed(&staged, &format!("{kind:?}, staged"));
+        let maps = |r: &[RenderOutput]| r.iter().map(as_image).collect::<Vec<_>>();
+        assert_same_image(&format!("{kind:?} work map"), &maps(&cpu), &maps(&gpu));
+    }
+}
+
 #[test]
 fn cpu_gpu_agree_pt_sphere() {
     let im = sphere_scene("kind = \"index-matched\"");

@@ -382,12 +382,6 @@ fn default_light() -> LightDesc {
 /// Fig. 8/9: where the work goes (per-pixel PT events vs sphere steps) and time vs
 /// density, for the scene and for a thin-featured object.
 fn complexity(ctx: &Ctx, rep: &mut Report) -> Result<()> {
-    if ctx.engine_is_gpu() {
-        eprintln!(
-            "note: the per-pixel work maps (Fig. 8) come from the CPU integrators: this run on \
-             the GPU measures the times only (--device cpu draws the maps)"
-        );
-    }
     rep.columns(&[
         "object",
         "density",
@@ -448,9 +442,6 @@ fn complexity(ctx: &Ctx, rep: &mut Report) -> Result<()> {
     rep.table();
     for (obj, k, max, f) in figs {
         rep.image(&format!("{obj}, density ×{k}: PT events (left) vs ST-CVAE steps + events (right) per path, log scale, white = {max:.0}"), &f);
-    }
-    if ctx.engine_is_gpu() {
-        rep.text("**No per-pixel work maps (Fig. 8) in this run:** they come from the CPU integrators, and this run used the GPU; `--device cpu` draws them.\n");
     }
     let mut s = Vec::new();
     for (obj, tp, ts) in curves {

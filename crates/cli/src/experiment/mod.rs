@@ -80,10 +80,6 @@ impl Ctx<'_> {
         }
         Ok(())
     }
-
-    pub fn engine_is_gpu(&self) -> bool {
-        self.engine.is_gpu()
-    }
 }
 
 pub fn run(a: Args) -> Result<()> {

@@ -337,7 +337,8 @@ pub fn slot_vec4s(path_nee_m: u32, variance: bool) -> u64 {
 
 /// Which vec4 of a path slot holds in xyz what the f32 additions to ACC's RGB rounded off
 /// (`ACC_LO` in shaders/path.wgsl, add_sample): the slot's sum is ACC + ACC_LO, taken in
-/// f64 on the host.
+/// f64 on the host. Its w counts the slot's PT events + sphere steps over the render (the
+/// work map; in f32, exact to 2^24, which a map drawn on a log scale does not need).
 pub fn acc_lo_vec4(path_nee_m: u32, variance: bool) -> u64 {
     slot_vec4s(path_nee_m, variance) - 2
 }

@@ -900,6 +900,9 @@ pub fn render_gpu(
     // renderer gives its variance image (render::MIN_VARIANCE_SPP).
     let mut variance = (squares_kept && s0 >= crate::render::MIN_VARIANCE_SPP)
         .then(|| RgbImage::new(cam.width as usize, cam.height as usize));
+    // Per pixel the PT events + sphere steps a path, as the CPU renderer's `work`.
+    let mut work = vec![0f32; pixels as usize];
+    let lo_of_slot = kernels::acc_lo_vec4(path_nee_m, squares_kept) as usize;
     // Stopped in the first chunk: no sample is whole (slots of bands not yet reached still
     // hold the poison), so there is no image, as on the CPU.
     let bands = if s0 == 0 { &[][..] } else { &bands[..] };
@@ -940,11 +943,16 @@ pub fn render_gpu(
             let mut sum = [0f64; 3];
             let mut squares = [0f64; 3];
             let mut finished = 0f64;
+            let (mut events, mut paths) = (0f64, 0f64);
             for l in 0..lanes as usize {
                 let slot = (p * lanes as usize + l) * slot_vec4s as usize;
                 for v in std::iter::once(acc_vec4).chain(lo_vec4) {
                     add(&mut sum, slot, v);
                 }
+                // The work counts every visit, a dropped chunk's too, so it is read per
+                // path over every finished sample (ACC's count), not over the whole chunks'.
+                events += vals[(slot + lo_of_slot) * 4 + 3] as f64;
+                paths += vals[(slot + kernels::ACC_VEC4 as usize) * 4 + 3] as f64;
                 if variance.is_some() {
                     for v in sq_vec4s.into_iter().flatten() {
                         add(&mut squares, slot, v);
@@ -952,6 +960,7 @@ pub fn render_gpu(
                 }
                 finished += vals[(slot + acc_vec4 as usize) * 4 + 3] as f64;
             }
+            work[first + p] = (events / paths.max(1.0)) as f32;
             if !sum.iter().chain(&squares).all(|v| v.is_finite()) {
                 bad += 1;
             } else if finished != s0 as f64 {
@@ -990,7 +999,7 @@ pub fn render_gpu(
         },
         compile_seconds,
         stats,
-        work: Vec::new(),
+        work,
         dispatch: DispatchStats {
             bounce_budget: budget,
             ..dispatch
