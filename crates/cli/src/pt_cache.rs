@@ -91,8 +91,8 @@ pub fn path(dir: &Path, k: f64, hash: u64, spp: u32, identity: &str) -> PathBuf 
 /// fit. Pixel means and variances are finite and ≥ 0 in any render (an edited file with a
 /// negative variance gave a negative variance ratio, a mean of 1e39 an infinite bias), and
 /// far below what squares or sums of them overflow (a variance of 1e308 printed "var ratio
-/// inf ± NaN"): radiances are at most 1e12 (scene checks). Work counts are per pixel on the CPU and absent on the GPU, whose
-/// kernels count paths, not per-pixel work.
+/// inf ± NaN"): radiances are at most 1e12 (scene checks). Work counts are per pixel, or absent in a
+/// pair stored before the GPU counted them (2026-12-04).
 fn values_in_range(mean: &[[f32; 3]], var: &[[f64; 3]], work: &[f32], seconds: f64) -> bool {
     seconds.is_finite()
         && seconds > 0.0
@@ -293,8 +293,9 @@ mod tests {
         }
         std::fs::write(&f, stored.to_string()).unwrap();
         assert!(load(&f, p.hash, p.spp, (3, 2), &id).is_ok());
-        // A GPU pair has no per-pixel work map and reads back as stored (it was refused as
-        // damaged, failing every second GPU bench).
+        // A pair without a per-pixel work map (a GPU's, stored before the kernels counted
+        // one) reads back as stored (it was refused as damaged, failing every second GPU
+        // bench).
         let gpu = Pair {
             work: Vec::new(),
             ..pair(p.hash)

@@ -734,6 +734,8 @@ pub fn run(mut a: Args) -> Result<()> {
     let set = p.settings();
     if engine.is_gpu() && !engine.is_hardware_gpu() {
         let (w, h) = (p.file.camera.width, p.file.camera.height);
+        // (variance_bytes holds the CPU's f64 squares too, which the GPU keeps in its
+        // slots instead: a little more than it needs.)
         software_gpu_memory(w, h, &set, a.variance, variance_bytes)
             .map_err(|e| size_error(&a, size.is_some(), w, h, e))?;
     }

@@ -2505,7 +2505,7 @@ fn named_pipes_as_inputs_are_refused_not_waited_on() {
 }
 
 /// `render --variance` writes OUT.var.exr beside the image in the same set (its statistics
-/// are tested in render-gpu's integrators.rs): finite, ≥ 0, zero on the constant sky and
+/// are tested in render-gpu's integrators.rs and gpu.rs): finite, ≥ 0, zero on the constant sky and
 /// positive on the object; the JSON names it; `merge` refuses it as a render; too few spp
 /// are refused before the render; the GPU writes one too.
 #[test]
@@ -2522,6 +2522,8 @@ fn render_variance_writes_a_variance_image() {
         "--spp",
         "12",
         "--variance",
+        "--device",
+        "cpu",
         "--out",
         o,
     ]));

@@ -67,7 +67,9 @@ pub struct RenderOutput {
     pub stats: PathStats,
     /// Per pixel, the mean number of PT scattering events plus sphere steps per path —
     /// where the work goes (paper Fig. 8/9). Both devices fill it (the GPU from each path
-    /// slot's counts, `gpu::kernels::acc_lo_vec4`'s w).
+    /// slot's counts, `gpu::kernels::acc_lo_vec4`'s w). A GPU render stopped mid-chunk
+    /// keeps the dropped chunk's counts in it (the CPU drops that pass's): a little high
+    /// there, and no longer the counters' sum.
     pub work: Vec<f32>,
     /// How the GPU ran the render (all zero on the CPU).
     pub dispatch: DispatchStats,

@@ -688,7 +688,10 @@ fn white_furnace_gpu() {
 /// (`kernels::acc_sq_vec4`), checked as integrators.rs checks the CPU renderer's
 /// (`the_variance_image_matches_the_spread_between_seeds`). In a white furnace every
 /// sample is 0.9, so each pixel's variance is 0 up to rounding, which the compensated
-/// squares keep below 1e-10 (PT and ST-CVAE, the single kernel and the staged render).
+/// squares keep below 1e-10 (PT and ST-CVAE, the single kernel and the staged render;
+/// the bound is one-sided, since `pixel_variance` clamps below at 0, and squares lost
+/// altogether pass it: `staged_render_equals_one_kernel` holds the schedules' variance
+/// images equal, and a stop mid-chunk's is checked in `a_stop_mid_chunk_keeps_the_whole_chunks`).
 /// On the lit sphere (configs/scenes/sphere.toml at 12², PT + NEE, 24 spp: 8 samples a
 /// channel) the reported variances, summed over pixels and channels, match (a) the
 /// spread of each pixel's value over K = 12 seeds and (b) the CPU renderer's reported
@@ -696,7 +699,7 @@ fn white_furnace_gpu() {
 /// [0.6, 1.6]: each side pools ~60 object pixels × 3 channels × 12 renders, whose ratio
 /// the CPU test measured at 1.025; noise of the pooled sums from heavy-tailed NEE samples
 /// is what the band's width allows for. The hero channel's factor 3 squared into the sums
-/// (9×) or a sample's variance for the mean's (24×) lands far outside it. The formula the
+/// (9×) or a sample's variance for the mean's (8×) lands far outside it. The formula the
 /// host applies to the sums is `render::pixel_variance`, checked exactly in render.rs.
 #[test]
 fn gpu_variance_image_matches_the_spread_and_the_cpu() {
@@ -745,6 +748,7 @@ fn gpu_variance_image_matches_the_spread_and_the_cpu() {
     .unwrap()
     .replace("width = 128", "width = 12")
     .replace("height = 128", "height = 12");
+    assert!(text.contains("width = 12\n") && text.contains("height = 12\n"));
     let s = common::build_scene(&text, false);
     let set = settings(IntegratorKind::Pt, true);
     let k = 12u64;
@@ -2351,6 +2355,8 @@ fn images_beyond_the_binding_limit_render_in_bands() {
 /// visit keeps no snapshot; the stop then also waits for the submission sent ahead). A
 /// hardware adapter renders one band whose lanes take all 4 spp in one chunk, which is
 /// then not stopped: there the test checks only that a render stopped late is whole.
+/// Last, with `--variance` at 6 samples a slot and chunk, the variance image of a render
+/// stopped in its second chunk equals that of the first chunk's whole render (below).
 #[test]
 fn a_stop_mid_chunk_keeps_the_whole_chunks() {
     let Some(ctx) = gpu() else { return };
@@ -2410,6 +2416,74 @@ fn a_stop_mid_chunk_keeps_the_whole_chunks() {
         assert_same_render(&whole, &stopped, &format!("{what}, the whole chunks"));
         assert!(whole.image.pixels.iter().any(|p| p[0] > 0.0));
     }
+
+    // The variance's squares as the chunk began (kernels::committed_sq_vec4): ST-CVAE at 6
+    // samples a slot and chunk, stopped in its second chunk, against a whole render of the
+    // first. The committed sums are rounded once to f32 (6e-8 of Σl² = n·m² + (n − 1)·s²),
+    // which moves a pixel's variance (s²/n) by at most ~1.2e-7·(m² + n·v)/(n − 1) with n·v
+    // = s²: allowed 1e-6·(m² + spp·v), a wide margin. A wrong slot index or a missing write
+    // (the chunk's own squares, or the poison) misses that by orders of magnitude.
+    let s = common::build_scene(&text, true);
+    let vars = [
+        ("STCVAE_GPU_LANE_SAMPLES", "6"),
+        ("STCVAE_GPU_BOUNCES", "4"),
+    ];
+    for (name, value) in vars {
+        // SAFETY: this test holds the context's lock, as every render of this binary.
+        unsafe { std::env::set_var(name, value) };
+    }
+    let bands = if ctx.adapter.software { 3 } else { 1 };
+    let render = |reports: usize, spp: u32| {
+        let cancel = AtomicBool::new(false);
+        let seen = std::sync::atomic::AtomicUsize::new(0);
+        let progress = |_: u64, _: u64| {
+            if seen.fetch_add(1, Ordering::Relaxed) + 1 == reports {
+                cancel.store(true, Ordering::Relaxed);
+            }
+        };
+        let o = RenderOptions {
+            variance: true,
+            ..opts(spp, 8)
+        };
+        render_gpu(&ctx, &s, &stcvae, &o, &progress, &cancel).unwrap()
+    };
+    let stopped = render(bands + 1, 12);
+    let whole = render(0, stopped.spp.max(1));
+    for (name, _) in vars {
+        unsafe { std::env::remove_var(name) };
+    }
+    if ctx.adapter.software {
+        assert_eq!(stopped.spp, 6);
+    }
+    if stopped.spp >= 6 {
+        // The committed RGB is rounded once too (where one sample a slot and chunk above
+        // leaves nothing to round): the image agrees to f32 rounding, not bit for bit.
+        assert_eq!(stopped.stats, whole.stats);
+        let largest = largest_relative_difference(&whole, &stopped);
+        assert!(
+            largest < 1e-6,
+            "variance: the images differ by {largest:.2e}"
+        );
+        let (a, b) = (whole.variance.unwrap(), stopped.variance.unwrap());
+        let spp = whole.spp as f32;
+        for (i, ((va, vb), m)) in a
+            .pixels
+            .iter()
+            .zip(&b.pixels)
+            .zip(&whole.image.pixels)
+            .enumerate()
+        {
+            for c in 0..3 {
+                let allowed = 1e-6 * (m[c] * m[c] + spp * va[c]);
+                assert!(
+                    (va[c] - vb[c]).abs() <= allowed,
+                    "pixel {i} channel {c}: variance {} whole, {} stopped",
+                    va[c],
+                    vb[c]
+                );
+            }
+        }
+    }
 }
 
 /// A stop requested before the first submission (in the CLI: while the kernels compile,
@@ -2455,7 +2529,9 @@ fn a_stop_before_the_first_submission_renders_nothing() {
 /// Most take 2 samples per slot and chunk (a slot starts its second path inside a
 /// dispatch or turn); ST-CVAE takes 1 at 12 spp, two chunks on a software adapter (a later
 /// chunk's first turn). Covered: PT (a shadow ray at every event), ST-CVAE with one and two
-/// path-level NEE reservoirs, exact walks, without NEE, and a dielectric boundary.
+/// path-level NEE reservoirs, exact walks, without NEE, and a dielectric boundary. Every
+/// render keeps the variance's squared sums (`--variance`), and where the images must agree
+/// bit for bit so must the variance images and the work maps, which the slots carry too.
 /// (Before the thirtieth session a resumed ST-CVAE path forgot its free distance, and the
 /// one-bounce render differed.)
 /// The relative difference allowed between the staged render with its step kernel and
@@ -2503,8 +2579,15 @@ fn staged_render_equals_one_kernel() {
     let mut mismatches = Vec::new();
     for (name, s, set, per_slot) in cases {
         let lanes = ("STCVAE_GPU_LANE_SAMPLES", per_slot);
-        let render =
-            |vars: &[(&str, &str)]| render_gpu_with_env(&ctx, s, &set, &opts(12, 5), vars).unwrap();
+        // With the variance's squared sums and the work map, which travel in the slots
+        // too and must come out the same whatever the schedule.
+        let with_variance = RenderOptions {
+            variance: true,
+            ..opts(12, 5)
+        };
+        let render = |vars: &[(&str, &str)]| {
+            render_gpu_with_env(&ctx, s, &set, &with_variance, vars).unwrap()
+        };
         let one_bounce = render(&[lanes, ("STCVAE_GPU_BOUNCES", "1")]);
         let default = render(&[lanes]);
         let staged = render(&[lanes, ("STCVAE_GPU_STAGED", "1")]);
@@ -2556,6 +2639,19 @@ fn staged_render_equals_one_kernel() {
             ),
         ] {
             assert_eq!(out.stats, default.stats, "{name}, {what}");
+            if allowed == 0.0 {
+                // (On hardware the step kernel's few ulps are not compared here: the
+                // variance, a difference of sums, would magnify them.)
+                let var = |o: &RenderOutput| o.variance.as_ref().expect("12 spp").pixels.clone();
+                assert!(
+                    var(out) == var(&default),
+                    "{name}, {what}: the variance images differ"
+                );
+                assert!(
+                    out.work == default.work,
+                    "{name}, {what}: the work maps differ"
+                );
+            }
             let differ = differing_pixels(&default, out);
             let largest = largest_relative_difference(&default, out);
             if largest > allowed {

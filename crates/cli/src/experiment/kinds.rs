@@ -421,6 +421,7 @@ fn complexity(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             ]);
             tp.push((k, pt.seconds));
             ts.push((k, st.seconds));
+            // Both devices count the work; a PT pair cached before the GPU did has none.
             if !pt.work.is_empty() && !st.work.is_empty() {
                 let max = pt.work.iter().chain(&st.work).cloned().fold(0.0, f32::max);
                 let (w, h) = (pt.mean.width, pt.mean.height);

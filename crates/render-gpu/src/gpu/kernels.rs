@@ -365,7 +365,9 @@ pub fn acc_sq_lo_vec4(path_nee_m: u32) -> u64 {
 }
 
 /// With `variance`: the squared sums as the current chunk began, rounded once
-/// (`SQ_COMMITTED`), beside [`committed_vec4`] for a render stopped mid-chunk.
+/// (`SQ_COMMITTED`), beside [`committed_vec4`] for a render stopped mid-chunk. That
+/// rounding (6e-8 of the sum) leaves a constant pixel of a stopped render a variance of
+/// up to ~1e-7·value²/(n − 1) rather than 0.
 pub fn committed_sq_vec4(path_nee_m: u32) -> u64 {
     slot_vec4s(path_nee_m, true) - 3
 }

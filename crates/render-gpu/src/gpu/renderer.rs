@@ -570,7 +570,9 @@ pub fn render_gpu(
     // Path-level NEE (ST-CVAE only, as on the CPU): its reservoirs travel with each path.
     let path_nee_m = set.path_nee() as u32;
     // The variance image's squared sums travel in the slots too (kernels::acc_sq_vec4).
-    let squares_kept = opts.variance;
+    // (Not where no variance image can come out: fewer spp than it needs, and no budget.)
+    let squares_kept = opts.variance
+        && (opts.time_budget.is_some() || opts.spp >= crate::render::MIN_VARIANCE_SPP);
     let slot_vec4s = kernels::slot_vec4s(path_nee_m, squares_kept);
     let args_layout = shape.staged.then(|| kernels::args_layout(ctx));
     let switches = kernels::SceneSwitches {
@@ -634,7 +636,8 @@ pub fn render_gpu(
             cam.width, cam.height, ctx.adapter.name
         )));
     };
-    // An image whose slots exceed one binding (lavapipe's 128 MiB holds 0.76–1.2 M pixels)
+    // An image whose slots exceed one binding (lavapipe's 128 MiB holds 0.76–1.2 M pixels,
+    // 0.6–0.84 M with the variance's squares)
     // is rendered in bands of rows, each with its own accumulation buffer, one after
     // another within every chunk of samples. Seeds follow the pixel's index in the image,
     // so a band renders what the whole image would. A software adapter also bands an image
