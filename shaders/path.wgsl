@@ -444,9 +444,9 @@ fn add_counter(slot: u32, v: u32) {
 /// chunk began, its lost rounding added back (SLOT − 1: what a render stopped mid-chunk
 /// keeps, gpu/renderer.rs).
 // ACC (kernels.rs, ACC_VEC4) is prepended. With VARIANCE (`render --variance`) three
-// vec4s before ACC_LO hold the sums of the squared values ACC adds, per channel, what their f32
-// additions rounded off, and those sums as the chunk began (kernels.rs, acc_sq_vec4 and
-// the two after it); without it they are not in the slot and never read.
+// vec4s before ACC_LO hold the sums of the squared values ACC adds, per channel, what
+// their f32 additions rounded off, and those sums as the chunk began (kernels.rs,
+// acc_sq_vec4 and the two after it); without it they are not in the slot and never read.
 const ACC_LO: u32 = SLOT - 2u;
 const ACC_SQ: u32 = SLOT - 5u;
 const ACC_SQ_LO: u32 = SLOT - 4u;
@@ -699,8 +699,8 @@ fn bounce_done(casting: bool) {
 /// hero channel's weight, integrator/mod.rs), and counts it; with VARIANCE also the square
 /// of that same f32 value 3·l to the squared sums (the host divides them by 9 for
 /// render.rs's pixel_variance, which reads Σl²). Squaring the value the RGB sum adds, and
-/// exactly (`exact_square`), keeps a constant pixel's variance at 0 to rounding: squares of
-/// l beside sums of a rounded 3·l left a background pixel a variance of ~10⁻⁹.
+/// exactly (`exact_square`), keeps a constant pixel's variance at 0 to rounding: squares
+/// rounded to f32 left one 1.1–1.4·10⁻⁹ (gpu.rs, the furnace at 0.9).
 /// Each sum keeps what the f32 addition rounded off (Neumaier's compensated sum,
 /// `compensated_add`): a plain f32 sum of many equal samples rounds the same way at every
 /// addition and drifted 1.2·10⁻⁴ of the mean (8.3·10⁻⁵ of 0.7) at 65,536 samples a slot

@@ -2385,16 +2385,8 @@ fn a_stop_mid_chunk_keeps_the_whole_chunks() {
             unsafe { std::env::set_var(name, value) };
         }
         let bands = if ctx.adapter.software { 3 } else { 1 };
-        let stopped_after = |reports: usize, spp: u32| {
-            let cancel = AtomicBool::new(false);
-            let seen = std::sync::atomic::AtomicUsize::new(0);
-            let progress = |_: u64, _: u64| {
-                if seen.fetch_add(1, Ordering::Relaxed) + 1 == reports {
-                    cancel.store(true, Ordering::Relaxed);
-                }
-            };
-            render_gpu(&ctx, &s, &set, &opts(spp, 8), &progress, &cancel).unwrap()
-        };
+        let stopped_after =
+            |reports: usize, spp: u32| stopped_at(&ctx, &s, &set, &opts(spp, 8), reports);
         // A report a band: the one after the first chunk's is the second chunk's first.
         let stopped = stopped_after(bands + 1, 4);
         let none = stopped_after(1, 4);
@@ -2434,18 +2426,11 @@ fn a_stop_mid_chunk_keeps_the_whole_chunks() {
     }
     let bands = if ctx.adapter.software { 3 } else { 1 };
     let render = |reports: usize, spp: u32| {
-        let cancel = AtomicBool::new(false);
-        let seen = std::sync::atomic::AtomicUsize::new(0);
-        let progress = |_: u64, _: u64| {
-            if seen.fetch_add(1, Ordering::Relaxed) + 1 == reports {
-                cancel.store(true, Ordering::Relaxed);
-            }
-        };
         let o = RenderOptions {
             variance: true,
             ..opts(spp, 8)
         };
-        render_gpu(&ctx, &s, &stcvae, &o, &progress, &cancel).unwrap()
+        stopped_at(&ctx, &s, &stcvae, &o, reports)
     };
     let stopped = render(bands + 1, 12);
     let whole = render(0, stopped.spp.max(1));
@@ -2484,6 +2469,25 @@ fn a_stop_mid_chunk_keeps_the_whole_chunks() {
             }
         }
     }
+}
+
+/// A GPU render that asks to stop at its `reports`-th progress report (0: never); the
+/// renderer reports after each band of each chunk.
+fn stopped_at(
+    ctx: &GpuContext,
+    s: &SceneData,
+    set: &IntegratorSettings,
+    o: &RenderOptions,
+    reports: usize,
+) -> RenderOutput {
+    let cancel = AtomicBool::new(false);
+    let seen = std::sync::atomic::AtomicUsize::new(0);
+    let progress = |_: u64, _: u64| {
+        if seen.fetch_add(1, Ordering::Relaxed) + 1 == reports {
+            cancel.store(true, Ordering::Relaxed);
+        }
+    };
+    render_gpu(ctx, s, set, o, &progress, &cancel).unwrap()
 }
 
 /// A stop requested before the first submission (in the CLI: while the kernels compile,
