@@ -332,6 +332,19 @@ pub fn overlapping_parts_scenes(dir: &Path, boundary: &str) -> Vec<(String, Stri
     ]
 }
 
+/// A variance image of a render whose every sample is the same value (a white furnace):
+/// 0 up to rounding in every pixel and channel, below 1e-10 (`what` names the render).
+pub fn assert_noiseless(v: &render_gpu::image_io::RgbImage, what: &str) {
+    assert!(
+        v.pixels
+            .iter()
+            .flatten()
+            .all(|&x| (0.0..1e-10).contains(&x)),
+        "{what}: furnace variances {:?}",
+        &v.pixels[..4]
+    );
+}
+
 /// Says on the terminal why a test is skipped. Written to stderr directly rather than with
 /// `eprintln!`, which libtest captures and shows only for failing tests: a skipped test
 /// passes, so its reason would otherwise never be seen without `--nocapture`.
