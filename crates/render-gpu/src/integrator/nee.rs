@@ -139,8 +139,9 @@ fn refraction_turn(ior: f32) -> f32 {
 /// triangle mesh is) admits the light that reaches `x`: near an edge between two lit faces
 /// light also comes in through the other one, which this leaves out (as the straight ray
 /// did); on a curved surface the face's plane stands for it, which leaves out how the
-/// surface focuses the light (a sphere: −0.8 %, `a_sphere_matches_an_independent_walk`). The straight ray (the paper's, until
-/// 2026-12-04) read a sun 60° off a flat face 7–12 % too bright. Crossings after the first
+/// surface focuses the light (a sphere: −0.8 %, `a_sphere_matches_an_independent_walk`).
+/// The straight ray (the paper's, until 2026-12-04) read a sun 60° off a flat face 7–12 %
+/// too bright. Crossings after the first
 /// (re-entries of non-convex meshes) stay straight, with their Fresnel factors; where
 /// pieces overlap, the first crossing of the union's boundary refracts. nee.wgsl does the
 /// same (`shadow_of`, `refracted_phase_ratio`).
