@@ -211,7 +211,8 @@ struct ExactWalk {
 
 /// q: the phase value toward each light times the transmittance across the free ball's
 /// chord (radius² f2 in units of the walk's sphere), times the light's irradiance; 1 for
-/// every event when nl = 0 (a light dark in this channel: events by φ^k alone).
+/// every event when nl = 0 (a light dark in this channel, or more lights than
+/// MAX_PROXY_LIGHTS: events by φ^k alone).
 fn exact_proxy(x: vec3<f32>, w: vec3<f32>, nl: u32, f2: f32, tau: f32, g: f32) -> f32 {
     if nl == 0u {
         return 1.0;
@@ -249,7 +250,10 @@ fn exact_offer(x: vec3<f32>, w: vec3<f32>, q: f32, phi_k: f32, m: u32) {
 /// events left in ex_x, ex_w, ex_weight (the first `used`).
 fn exact_walk(tau: f32, g: f32, channel: u32, m: u32, frame: WalkFrame, f_unit: f32) -> ExactWalk {
     var nl = min(LIGHTS, MAX_PROXY_LIGHTS);
-    var flat = false;
+    // Beyond MAX_PROXY_LIGHTS lights every event weighs alike (q = 1), as on the CPU
+    // (event_choice.rs, Proxy::new): a proxy of some lights only would stay unbiased but
+    // choose other events than the CPU's.
+    var flat = LIGHTS > MAX_PROXY_LIGHTS;
     for (var i = 0u; i < nl; i++) {
         let l = params.lights[i];
         let wl = l.to_light.xyz;

@@ -651,11 +651,11 @@ fn an_experiment_on_the_gpu_refuses_too_many_lights_at_once() {
             "../../assets/bunny.glb",
             &root().join("assets/bunny.glb").to_string_lossy(),
         )
-        + &light.repeat(4);
-    std::fs::write(tmp.path().join("five_lights.toml"), scene).unwrap();
+        + &light.repeat(64);
+    std::fs::write(tmp.path().join("many_lights.toml"), scene).unwrap();
     let config = std::fs::read_to_string(root().join("configs/experiments/nee.toml"))
         .unwrap()
-        .replace("../scenes/bunny_sun.toml", "five_lights.toml");
+        .replace("../scenes/bunny_sun.toml", "many_lights.toml");
     std::fs::write(tmp.path().join("nee.toml"), config).unwrap();
     let results = tmp.path().join("results");
     let out = Command::new(env!("CARGO_BIN_EXE_stcvae"))
@@ -678,7 +678,7 @@ fn an_experiment_on_the_gpu_refuses_too_many_lights_at_once() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success(), "{err}");
     assert!(
-        err.contains("five_lights.toml: 5 lights; the GPU kernels take at most 4"),
+        err.contains("many_lights.toml: 65 lights; the GPU kernels take at most 64"),
         "{err}"
     );
     assert!(!results.exists(), "{err}");

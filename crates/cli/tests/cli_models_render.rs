@@ -1529,7 +1529,7 @@ fn no_gpu_adapter_is_a_clear_error_or_a_cpu_fallback() {
     assert!(json.contains("\"device\": \"cpu"), "{json}");
 }
 
-/// A scene beyond the GPU kernels' limits (here five directional lights; they take four)
+/// A scene beyond the GPU kernels' limits (here 65 directional lights; they take 64)
 /// is refused on `--device gpu` naming the scene file, where the fix goes, and rendered on
 /// the CPU under `--device auto`.
 #[test]
@@ -1541,7 +1541,7 @@ fn a_scene_beyond_the_gpu_limits_is_named() {
         "[camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 20.0\n\
          width = 8\nheight = 8\n[object]\nshape = \"sphere\"\n\
          [medium]\nsigma_t = [5.0, 5.0, 5.0]\nalbedo = [0.9, 0.9, 0.9]\n{}",
-        light.repeat(5)
+        light.repeat(65)
     );
     let path = tmp.path().join("lights.toml");
     std::fs::write(&path, scene).unwrap();
@@ -1565,7 +1565,7 @@ fn a_scene_beyond_the_gpu_limits_is_named() {
     assert!(!out.status.success(), "{err}");
     assert!(
         err.contains(&format!(
-            "{}: the GPU kernels take at most 4 [[light]] entries (the scene has 5)",
+            "{}: the GPU kernels take at most 64 [[light]] entries (the scene has 65)",
             path.display()
         )),
         "{err}"

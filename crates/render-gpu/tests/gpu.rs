@@ -1414,6 +1414,65 @@ fn cpu_gpu_agree_in_less_common_settings() {
     );
 }
 
+/// Six lights: more than the exact steps' proxy weighs (`MAX_PROXY_LIGHTS` = 4; beyond it
+/// both devices weigh every walk event alike) and than the GPU kernels took before (4;
+/// such scenes were refused on the GPU). Delta lights and disks, one dark in a channel,
+/// from every side (two from behind the sphere, which only light that crosses it
+/// reaches): PT with NEE through an index-matched boundary, then ST-CVAE through a
+/// dielectric with exact steps (four events each) and two path-level reservoirs, so every
+/// loop over the lights (NEE, the reservoirs' shadow rays, the refracted rays) runs six
+/// times. The check is `assert_same_image`'s.
+#[test]
+fn cpu_gpu_agree_under_six_lights() {
+    let lights: String = [
+        ([-0.5, -0.6, -0.62], [0.6, 0.6, 0.6], 40.0),
+        ([0.7, 0.2, -0.3], [0.5, 0.0, 0.3], 20.0),
+        ([0.0, 0.0, -1.0], [0.3, 0.4, 0.5], 0.0),
+        ([0.3, -0.9, 0.2], [0.4, 0.4, 0.2], 10.0),
+        ([-0.8, 0.3, 0.4], [0.2, 0.3, 0.4], 0.0),
+        ([0.1, 0.6, 0.7], [0.5, 0.5, 0.5], 30.0),
+    ]
+    .iter()
+    .map(|(d, e, disk)| {
+        format!(
+            "[[light]]\nkind = \"directional\"\ndirection = {d:?}\nirradiance = {e:?}\n\
+             angular_diameter_deg = {disk:?}\n"
+        )
+    })
+    .collect();
+    let disk = "[[light]]\nkind = \"directional\"\ndirection = [-0.5, -0.6, -0.62]\n\
+                irradiance = [2.0, 2.0, 2.0]\nangular_diameter_deg = 40.0\n";
+    let scene = |boundary: &str| {
+        let text = sphere_scene(boundary);
+        assert!(text.contains(disk));
+        text.replace(disk, &lights)
+    };
+    let im = scene("kind = \"index-matched\"");
+    assert_eq!(common::build_scene(&im, false).lights.len(), 6);
+    if compare_devices_with(
+        "PT, NEE, six lights",
+        &im,
+        &settings(IntegratorKind::Pt, true),
+        96,
+    )
+    .is_none()
+    {
+        return;
+    }
+    let set = IntegratorSettings {
+        exact_tau: render_gpu::scene::DEFAULT_EXACT_TAU as f32,
+        exact_nee_samples: 4,
+        path_nee_rays: 2,
+        ..settings(IntegratorKind::Stcvae, true)
+    };
+    compare_devices_with(
+        "ST-CVAE dielectric, exact steps, path NEE, six lights",
+        &scene("kind = \"dielectric\"\nior = 1.33"),
+        &set,
+        96,
+    );
+}
+
 #[test]
 fn cpu_gpu_agree_bunny() {
     let text = sphere_scene("kind = \"index-matched\"").replace(

@@ -36,7 +36,7 @@ fn sources() -> Vec<(String, String)> {
                         overlaps: on,
                         dielectric: on,
                         env_map: on,
-                        lights: if on { 4 } else { 1 },
+                        lights: if on { 6 } else { 1 },
                         nee: on,
                         variance: on,
                     };

@@ -11,8 +11,12 @@ use crate::geometry::Geometry;
 use crate::integrator::{IntegratorKind, IntegratorSettings};
 use crate::setup::{Boundary, SceneData};
 
-/// Lights the kernels read (the uniform holds a fixed array).
-pub const MAX_GPU_LIGHTS: usize = 4;
+/// Lights the kernels read (the uniform holds a fixed array). 64 rather than the CPU's
+/// unbounded list: 48 B a light is 3 KB of uniform, far below any adapter's 64 KiB, while
+/// NEE already casts a shadow ray per light and event, so scenes of more lights render
+/// on the CPU. The kernels loop over the scene's own count (`LIGHTS`), so the unused
+/// entries cost nothing but their bytes.
+pub const MAX_GPU_LIGHTS: usize = 64;
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
@@ -23,7 +27,7 @@ pub struct GpuLight {
 }
 
 #[repr(C)]
-#[derive(Clone, Copy, Debug, Default, Pod, Zeroable)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
 pub struct Params {
     pub cam_origin: [f32; 4],
     pub cam_forward: [f32; 4],
@@ -61,6 +65,13 @@ pub struct Params {
     /// bits of the pieces at it ([`crate::geometry::Pieces::at_depth`]; each triangle's
     /// piece is in its `v0.w`); all 0 without overlaps.
     pub pieces: [[u32; 4]; 4],
+}
+
+/// All zero (the std library derives `Default` only for arrays of up to 32 lights).
+impl Default for Params {
+    fn default() -> Self {
+        Self::zeroed()
+    }
 }
 
 /// Passes of the kernel's loop-limit probe (path.wgsl, after the bounce loop): where
