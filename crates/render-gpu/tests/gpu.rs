@@ -1414,16 +1414,9 @@ fn cpu_gpu_agree_in_less_common_settings() {
     );
 }
 
-/// Six lights: more than the exact steps' proxy weighs (`MAX_PROXY_LIGHTS` = 4; beyond it
-/// both devices weigh every walk event alike) and than the GPU kernels took before (4;
-/// such scenes were refused on the GPU). Delta lights and disks, one dark in a channel,
-/// from every side (two from behind the sphere, which only light that crosses it
-/// reaches): PT with NEE through an index-matched boundary, then ST-CVAE through a
-/// dielectric with exact steps (four events each) and two path-level reservoirs, so every
-/// loop over the lights (NEE, the reservoirs' shadow rays, the refracted rays) runs six
-/// times. The check is `assert_same_image`'s.
-#[test]
-fn cpu_gpu_agree_under_six_lights() {
+/// `sphere_scene` under six lights instead of its one disk: delta lights and disks, one dark
+/// in G, from every side (two from behind the sphere).
+fn six_lights_scene(boundary: &str) -> String {
     let lights: String = [
         ([-0.5, -0.6, -0.62], [0.6, 0.6, 0.6], 40.0),
         ([0.7, 0.2, -0.3], [0.5, 0.0, 0.3], 20.0),
@@ -1442,12 +1435,22 @@ fn cpu_gpu_agree_under_six_lights() {
     .collect();
     let disk = "[[light]]\nkind = \"directional\"\ndirection = [-0.5, -0.6, -0.62]\n\
                 irradiance = [2.0, 2.0, 2.0]\nangular_diameter_deg = 40.0\n";
-    let scene = |boundary: &str| {
-        let text = sphere_scene(boundary);
-        assert!(text.contains(disk));
-        text.replace(disk, &lights)
-    };
-    let im = scene("kind = \"index-matched\"");
+    let text = sphere_scene(boundary);
+    assert!(text.contains(disk));
+    text.replace(disk, &lights)
+}
+
+/// Six lights (`six_lights_scene`): more than the exact steps' proxy weighs
+/// (`MAX_PROXY_LIGHTS` = 4; beyond it both devices weigh every walk event alike) and than
+/// the GPU kernels took before (4; such scenes were refused on the GPU). The two from
+/// behind the sphere reach the camera only through it. PT with NEE through an
+/// index-matched boundary, then ST-CVAE through a dielectric with exact steps (four events
+/// each) and two path-level reservoirs, so every loop over the lights (NEE, the
+/// reservoirs' shadow rays, the refracted rays) runs six times. The check is
+/// `assert_same_image`'s; `staged_render_equals_one_kernel` renders the scene staged too.
+#[test]
+fn cpu_gpu_agree_under_six_lights() {
+    let im = six_lights_scene("kind = \"index-matched\"");
     assert_eq!(common::build_scene(&im, false).lights.len(), 6);
     if compare_devices_with(
         "PT, NEE, six lights",
@@ -1467,7 +1470,7 @@ fn cpu_gpu_agree_under_six_lights() {
     };
     compare_devices_with(
         "ST-CVAE dielectric, exact steps, path NEE, six lights",
-        &scene("kind = \"dielectric\"\nior = 1.33"),
+        &six_lights_scene("kind = \"dielectric\"\nior = 1.33"),
         &set,
         96,
     );
@@ -2587,7 +2590,8 @@ fn a_stop_before_the_first_submission_renders_nothing() {
 /// Most take 2 samples per slot and chunk (a slot starts its second path inside a
 /// dispatch or turn); ST-CVAE takes 1 at 12 spp, two chunks on a software adapter (a later
 /// chunk's first turn). Covered: PT (a shadow ray at every event), ST-CVAE with one and two
-/// path-level NEE reservoirs, exact walks, without NEE, and a dielectric boundary. Every
+/// path-level NEE reservoirs, exact walks, without NEE, a dielectric boundary, and six
+/// lights (each reservoir's shadow rays queued one a light). Every
 /// render keeps the variance's squared sums (`--variance`), and where the images must agree
 /// bit for bit so must the variance images and the work maps, which the slots carry too.
 /// (Before the thirtieth session a resumed ST-CVAE path forgot its free distance, and the
@@ -2604,6 +2608,8 @@ fn staged_render_equals_one_kernel() {
     let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
     let matched = common::build_scene(&sphere_scene("kind = \"index-matched\""), true);
     let dielectric = common::build_scene(&sphere_scene("kind = \"dielectric\"\nior = 1.5"), true);
+    let six_lights =
+        common::build_scene(&six_lights_scene("kind = \"dielectric\"\nior = 1.5"), true);
     let st = settings(IntegratorKind::Stcvae, true);
     // (name, scene, settings, samples per slot and chunk)
     let cases = [
@@ -2629,6 +2635,18 @@ fn staged_render_equals_one_kernel() {
             &dielectric,
             IntegratorSettings {
                 path_nee_rays: 2,
+                ..st
+            },
+            "2",
+        ),
+        // More lights than the exact steps' proxy weighs: each reservoir's six shadow rays
+        // are queued one a visit, the last light's flagged (staged.wgsl, Q_LAST_LIGHT).
+        (
+            "ST-CVAE dielectric, six lights, 2 reservoirs, exact walks",
+            &six_lights,
+            IntegratorSettings {
+                path_nee_rays: 2,
+                exact_tau: 8.0,
                 ..st
             },
             "2",
