@@ -262,8 +262,8 @@ fn tile_stride(n: u64) -> u64 {
 
 /// Has the driver compile `pipeline` now, outside the render's clock, and returns how long
 /// that took. llvmpipe (lavapipe) compiles a pipeline at its first dispatch, not when it is
-/// created: on a cold shader cache about 2 s (Mesa 22) to 10 s (Mesa 25) for the default
-/// ST-CVAE kernel, which the first chunk's time, the paths/s and a `--time-budget` would
+/// created: on a cold shader cache 1–4 s (Mesa 22) to 6–19 s (Mesa 25) for the default
+/// scene's kernels, which the first chunk's time, the paths/s and a `--time-budget` would
 /// otherwise count. The dispatch is empty: with a zero image height no workgroup has a tile
 /// (`render_main` returns at once), so no buffer is touched, but for the staged render's
 /// arguments' kernels (`args_kernel`), which close a turn over empty queues.

@@ -11,11 +11,11 @@ use crate::geometry::Geometry;
 use crate::integrator::{IntegratorKind, IntegratorSettings};
 use crate::setup::{Boundary, SceneData};
 
-/// Lights the kernels read (the uniform holds a fixed array). 64 rather than the CPU's
-/// unbounded list: 48 B a light is 3 KB of uniform, far below any adapter's 64 KiB, while
-/// NEE already casts a shadow ray per light and event, so scenes of more lights render
-/// on the CPU. The kernels loop over the scene's own count (`LIGHTS`), so the unused
-/// entries cost nothing but their bytes.
+/// Lights the kernels read (`Params` holds a fixed array). 64 rather than the CPU's
+/// unbounded list: 48 B a light is 3 KB of the params buffer, far below any binding limit,
+/// while NEE casts a shadow ray per light and event, so a scene of more lights is slow
+/// anywhere and renders on the CPU. The kernels loop over the scene's own count
+/// (`LIGHTS`), so the unused entries cost nothing but their bytes.
 pub const MAX_GPU_LIGHTS: usize = 64;
 
 #[repr(C)]
