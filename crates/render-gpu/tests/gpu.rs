@@ -1045,6 +1045,10 @@ grid_resolution = 64
     )
 }
 
+/// `sphere_scene`'s one light, as it stands in the text (tests replace it).
+const SPHERE_SCENE_DISK: &str = "[[light]]\nkind = \"directional\"\n\
+    direction = [-0.5, -0.6, -0.62]\nirradiance = [2.0, 2.0, 2.0]\nangular_diameter_deg = 40.0\n";
+
 /// `text` (a `sphere_scene`) with another extinction and albedo.
 fn with_medium(text: String, sigma_t: &str, albedo: &str) -> String {
     text.replace(
@@ -1301,8 +1305,7 @@ fn cpu_gpu_agree_in_less_common_settings() {
     let lights = "[[light]]\nkind = \"directional\"\ndirection = [-0.5, -0.6, -0.62]\n\
                   irradiance = [2.0, 2.0, 2.0]\n";
     let base = sphere_scene("kind = \"index-matched\"");
-    let disk = "[[light]]\nkind = \"directional\"\ndirection = [-0.5, -0.6, -0.62]\n\
-                irradiance = [2.0, 2.0, 2.0]\nangular_diameter_deg = 40.0\n";
+    let disk = SPHERE_SCENE_DISK;
     assert!(base.contains(disk));
     // 32² rather than 24²: at 24² only 31 of the 4×4 blocks had noise enough to estimate
     // (heavy-tailed paths at albedo 1 and g 0.9), next to the 30 the check asks.
@@ -1434,8 +1437,7 @@ fn six_lights_scene(boundary: &str) -> String {
         )
     })
     .collect();
-    let disk = "[[light]]\nkind = \"directional\"\ndirection = [-0.5, -0.6, -0.62]\n\
-                irradiance = [2.0, 2.0, 2.0]\nangular_diameter_deg = 40.0\n";
+    let disk = SPHERE_SCENE_DISK;
     let text = sphere_scene(boundary);
     assert!(text.contains(disk));
     text.replace(disk, &lights)
