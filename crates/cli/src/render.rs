@@ -576,10 +576,7 @@ pub fn note_lights(p: &Prepared) {
     // `a_sphere_matches_an_independent_walk`: −0.8 %, −0.5 %, −0.2 % on the CPU) and NEE off
     // under a sun 60° off a flat face (`nee_through_a_dielectric_refracts_toward_an_oblique_
     // sun`: within its ~1.4 % noise, where the paper's straight shadow ray read 7–12 %).
-    if p.file.render.nee
-        && !p.data.lights.is_empty()
-        && matches!(p.data.boundary, render_gpu::setup::Boundary::Dielectric(_))
-    {
+    if p.file.render.nee && !p.data.lights.is_empty() && p.data.boundary.ior().is_some() {
         eprintln!(
             "note: NEE through a dielectric boundary refracts at the plane of the face its \
              shadow ray leaves through: exact where one flat face admits the light, a little \

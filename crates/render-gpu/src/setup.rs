@@ -12,14 +12,42 @@ use crate::light::{DirectionalLight, Environment};
 use crate::mesh::{self, TriMesh};
 use crate::scene::{BoundaryKind, MAX_SCENE_VALUE, MIN_OBJECT_SIZE, SceneFile, Shape};
 
+/// The medium's boundary: index-matched, or a dielectric of index [`Self::ior`].
+///
+/// A struct, not an enum with a dataless index-matched variant: that variant left the f32
+/// of the other one uninitialised, and the optimiser hoists `1/ior²` out of the path loop
+/// (a division has no side effects), taken or not. On 2026-12-05 the leftover bits were a
+/// subnormal (0x72f), and dividing by it took a microcode assist at every resumption of a
+/// path: 6 % of an index-matched k = 8 ST-CVAE render's time, a different share in every
+/// build (docs/BENCHMARKS.md, "Sixtieth session"). Here every byte is defined.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Boundary {
-    IndexMatched,
-    /// Index of refraction of the medium.
-    Dielectric(f32),
+pub struct Boundary {
+    /// The index of refraction; 1 when index-matched.
+    ior: f32,
+    dielectric: bool,
 }
 
 impl Boundary {
+    /// No refraction, no reflection: the medium's index is the air's.
+    pub const INDEX_MATCHED: Self = Self {
+        ior: 1.0,
+        dielectric: false,
+    };
+
+    /// A dielectric boundary of index of refraction `ior`.
+    pub fn dielectric(ior: f32) -> Self {
+        Self {
+            ior,
+            dielectric: true,
+        }
+    }
+
+    /// The dielectric's index of refraction; None when index-matched.
+    #[inline]
+    pub fn ior(self) -> Option<f32> {
+        self.dielectric.then_some(self.ior)
+    }
+
     /// The factor on every NEE term of light scattered in the medium: 1/ior² with a
     /// dielectric boundary, 1 when index-matched. The one source of this convention for the
     /// CPU integrators and the WGSL kernels (`params.consts4.x`).
@@ -34,9 +62,9 @@ impl Boundary {
     /// object's NEE was ior² too bright (2.25× at ior 1.5); camera paths start outside
     /// the object, so a path inside has always entered once more than it has left.
     pub fn nee_scale(self) -> f32 {
-        match self {
-            Boundary::IndexMatched => 1.0,
-            Boundary::Dielectric(ior) => 1.0 / (ior * ior),
+        match self.ior() {
+            None => 1.0,
+            Some(ior) => 1.0 / (ior * ior),
         }
     }
 }
@@ -323,9 +351,9 @@ impl SceneData {
             albedo: m.albedo.map(|v| v as f32),
             g: m.g as f32,
             boundary: match scene.boundary.kind {
-                BoundaryKind::IndexMatched => Boundary::IndexMatched,
+                BoundaryKind::IndexMatched => Boundary::INDEX_MATCHED,
                 BoundaryKind::Dielectric => {
-                    Boundary::Dielectric(scene.boundary.ior.unwrap_or(1.5) as f32)
+                    Boundary::dielectric(scene.boundary.ior.unwrap_or(1.5) as f32)
                 }
             },
             lights: scene.lights.iter().map(DirectionalLight::new).collect(),

@@ -302,7 +302,7 @@ impl SceneSwitches {
     pub fn of(scene: &crate::setup::SceneData, nee: bool) -> Self {
         Self {
             overlaps: scene.geo.pieces.is_some(),
-            dielectric: matches!(scene.boundary, crate::setup::Boundary::Dielectric(_)),
+            dielectric: scene.boundary.ior().is_some(),
             env_map: scene.env.map.is_some(),
             lights: scene.lights.len().min(super::scene_buffers::MAX_GPU_LIGHTS) as u32,
             nee,

@@ -9,7 +9,7 @@ use crate::distance_grid::DistanceGrid;
 use crate::error::RenderError;
 use crate::geometry::Geometry;
 use crate::integrator::{IntegratorKind, IntegratorSettings};
-use crate::setup::{Boundary, SceneData};
+use crate::setup::SceneData;
 
 /// Lights the kernels read (`Params` holds a fixed array). 64 rather than the CPU's
 /// unbounded list: 48 B a light is 3 KB of the params buffer, far below any binding limit,
@@ -59,7 +59,7 @@ pub struct Params {
     /// the loop-limit probe's passes ([`LOOP_PROBE_PASSES`]), the camera rays' start
     /// ([`crate::camera::Camera::start`]).
     pub consts3: [f32; 4],
-    /// NEE's radiance factor ([`Boundary::nee_scale`]), then unused.
+    /// NEE's radiance factor ([`crate::setup::Boundary::nee_scale`]), then unused.
     pub consts4: [f32; 4],
     /// Where the mesh's pieces overlap, per nesting depth (16 at most, 4 to an entry) the
     /// bits of the pieces at it ([`crate::geometry::Pieces::at_depth`]; each triangle's
@@ -294,9 +294,9 @@ pub fn scene_params(scene: &SceneData, set: &IntegratorSettings, seed: u64) -> P
         .map
         .as_ref()
         .map_or((0, 0), |m| (m.width as u32, m.height as u32));
-    let (dielectric, ior) = match scene.boundary {
-        Boundary::IndexMatched => (0, 1.0),
-        Boundary::Dielectric(ior) => (1, ior),
+    let (dielectric, ior) = match scene.boundary.ior() {
+        None => (0, 1.0),
+        Some(ior) => (1, ior),
     };
     Params {
         cam_origin: v4(cam.origin, cam.tan_half()),

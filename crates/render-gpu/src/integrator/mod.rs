@@ -18,7 +18,7 @@ use scatter_sim::rng::WalkRng;
 
 use crate::geometry::{Hit, SKIP_BACK, SKIP_CLEAR_OF_EPS};
 use crate::optics::{fresnel, reflect, refract};
-use crate::setup::{Boundary, SceneData};
+use crate::setup::SceneData;
 
 pub use crate::scene::IntegratorKind;
 
@@ -391,9 +391,9 @@ impl Path {
                 }
                 let p = s.pos + s.dir * h.t;
                 let incoming = s.dir;
-                match scene.boundary {
-                    Boundary::IndexMatched => *inside = true,
-                    Boundary::Dielectric(ior) => {
+                match scene.boundary.ior() {
+                    None => *inside = true,
+                    Some(ior) => {
                         let f = fresnel(s.dir.dot(h.normal).abs(), 1.0, ior);
                         if uniform(rng) < f {
                             s.dir = reflect(s.dir, h.normal);
@@ -503,9 +503,9 @@ impl Path {
                     *from_step = false;
                     continue;
                 }
-                match scene.boundary {
-                    Boundary::IndexMatched => *inside = false,
-                    Boundary::Dielectric(ior) => {
+                match scene.boundary.ior() {
+                    None => *inside = false,
+                    Some(ior) => {
                         let f = fresnel(s.dir.dot(h.normal).abs(), ior, 1.0);
                         if uniform(rng) < f {
                             s.dir = reflect(s.dir, h.normal);

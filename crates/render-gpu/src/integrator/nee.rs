@@ -5,7 +5,7 @@
 //! shadow ray (non-convex meshes re-enter). With a dielectric boundary the ray refracts
 //! where it first leaves the medium ([`shadow`]) and is multiplied by the Fresnel
 //! transmittance at each crossing. The term then takes the camera side's radiance factor
-//! 1/ior² ([`Boundary::nee_scale`]).
+//! 1/ior² ([`crate::setup::Boundary::nee_scale`]).
 
 use glam::Vec3;
 use scatter_sim::phase::{hg_pdf, hg_pdf_between};
@@ -14,7 +14,7 @@ use scatter_sim::rng::WalkRng;
 use super::uniform;
 use crate::geometry::Crossed;
 use crate::optics::fresnel;
-use crate::setup::{Boundary, SceneData};
+use crate::setup::SceneData;
 
 /// Beyond this optical depth the transmittance (< 2e-22) is taken as 0 (the WGSL kernels
 /// get it from here, gpu/kernels.rs).
@@ -104,9 +104,9 @@ pub const PHASE_BOUND_TURN: f32 = 0.5;
 /// the refracted direction's phase value ([`shadow`]) should rarely exceed by much.
 /// Any positive bound keeps both unbiased.
 fn phase_bound(scene: &SceneData, w: Vec3, wl: Vec3, phase: f32) -> f32 {
-    match scene.boundary {
-        Boundary::IndexMatched => phase,
-        Boundary::Dielectric(ior) => {
+    match scene.boundary.ior() {
+        None => phase,
+        Some(ior) => {
             let angle = w.dot(wl).clamp(-1.0, 1.0).acos();
             let turn = PHASE_BOUND_TURN * refraction_turn(ior);
             let nearest = if scene.g >= 0.0 {
@@ -146,7 +146,7 @@ fn refraction_turn(ior: f32) -> f32 {
 /// pieces overlap, the first crossing of the union's boundary refracts. nee.wgsl does the
 /// same (`shadow_of`, `refracted_phase_ratio`).
 fn shadow(scene: &SceneData, x: Vec3, w: Vec3, wl: Vec3, phase: f32, channel: usize) -> f32 {
-    let Boundary::Dielectric(ior) = scene.boundary else {
+    let Some(ior) = scene.boundary.ior() else {
         return transmittance(scene, x, wl, channel);
     };
     let (t, d) = refracted_transmittance(scene, ior, x, wl, channel);
@@ -367,9 +367,9 @@ pub fn transmittance(scene: &SceneData, x: Vec3, dir: Vec3, channel: usize) -> f
 /// 2026-11-28, it put every light beyond the critical angle (41.8° from the normal at
 /// ior 1.5) in total internal reflection: no NEE at all there.
 fn crossing_transmittance(scene: &SceneData, cos: f32) -> f32 {
-    match scene.boundary {
-        Boundary::IndexMatched => 1.0,
-        Boundary::Dielectric(ior) => 1.0 - fresnel(cos, 1.0, ior),
+    match scene.boundary.ior() {
+        None => 1.0,
+        Some(ior) => 1.0 - fresnel(cos, 1.0, ior),
     }
 }
 
