@@ -363,3 +363,24 @@ impl SceneData {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::Boundary;
+
+    /// The struct keeps the enum's meaning: only a dielectric has an index, and NEE's
+    /// factor is 1/ior² for it, exactly 1 index-matched (the defined `ior` field of an
+    /// index-matched boundary, 1, must not leak into `ior()`).
+    #[test]
+    fn a_boundary_reads_as_the_enum_it_replaced() {
+        assert_eq!(Boundary::INDEX_MATCHED.ior(), None);
+        assert_eq!(Boundary::INDEX_MATCHED.nee_scale(), 1.0);
+        let b = Boundary::dielectric(1.5);
+        assert_eq!(b.ior(), Some(1.5));
+        assert_eq!(b.nee_scale(), 1.0 / 2.25);
+        // A dielectric of the air's index is still a dielectric (Fresnel's 0 reflects
+        // nothing, but the refraction code runs), not index-matched.
+        assert_eq!(Boundary::dielectric(1.0).ior(), Some(1.0));
+        assert_ne!(Boundary::dielectric(1.0), Boundary::INDEX_MATCHED);
+    }
+}
