@@ -18,8 +18,8 @@ use crate::scene::{BoundaryKind, MAX_SCENE_VALUE, MIN_OBJECT_SIZE, SceneFile, Sh
 /// of the other one uninitialised, and the optimiser hoists `1/ior²` out of the path loop
 /// (a division has no side effects), taken or not. On 2026-12-05 the leftover bits were a
 /// subnormal (0x72f), and dividing by it took a microcode assist at every resumption of a
-/// path: 6 % of an index-matched k = 8 ST-CVAE render's time, a different share in every
-/// build (docs/BENCHMARKS.md, "Sixtieth session"). Here every byte is defined.
+/// path: an index-matched k = 8 bunny ran ST-CVAE 15 % and PT 10 % slower, by other shares
+/// in other builds (docs/BENCHMARKS.md, "Sixtieth session"). Here every byte is defined.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Boundary {
     /// The index of refraction; 1 when index-matched.
