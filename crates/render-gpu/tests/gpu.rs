@@ -1032,12 +1032,7 @@ albedo = [0.99, 0.95, 0.9]
 g = 0.5
 [boundary]
 {boundary}
-[[light]]
-kind = "directional"
-direction = [-0.5, -0.6, -0.62]
-irradiance = [2.0, 2.0, 2.0]
-angular_diameter_deg = 40.0
-[environment]
+{SPHERE_SCENE_DISK}[environment]
 radiance = [0.1, 0.1, 0.1]
 [render]
 grid_resolution = 64
@@ -1045,7 +1040,7 @@ grid_resolution = 64
     )
 }
 
-/// `sphere_scene`'s one light, as it stands in the text (tests replace it).
+/// `sphere_scene`'s one light (tests replace it in the text).
 const SPHERE_SCENE_DISK: &str = "[[light]]\nkind = \"directional\"\n\
     direction = [-0.5, -0.6, -0.62]\nirradiance = [2.0, 2.0, 2.0]\nangular_diameter_deg = 40.0\n";
 
