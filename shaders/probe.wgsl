@@ -42,6 +42,70 @@ fn probe_decoder(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
 }
 
+/// Decoder throughput (`stcvae bench decoders`). In: as probe_decoder, plus rounds at 29.
+/// Out: the sum over the rounds of output 0, each round with its first noise value moved
+/// by 1e-3 (so no round can be folded into another; the host recomputes some sums). A
+/// decoder chosen by a constant (`which` < 3, inlined, as the render kernels call them) or
+/// by the item's id, known only at run time (3): on a driver that runs every branch of an
+/// `if` whether or not a lane takes it (Mesa 22's llvmpipe) that case costs all three.
+fn decoder_rate(i: u32, which: u32) {
+    for (var k = 0u; k < 12u; k++) {
+        dec_cond[k] = item_f(i, k);
+    }
+    for (var k = 0u; k < 16u; k++) {
+        dec_noise[k] = item_f(i, 12u + k);
+    }
+    let id = u32(item_f(i, 28u));
+    let rounds = u32(item_f(i, 29u));
+    var sum = 0.0;
+    for (var r = 0u; r < rounds; r++) {
+        dec_noise[0] += 1e-3;
+        if which == 0u {
+            decoder_sample(0u);
+        } else if which == 1u {
+            decoder_sample(1u);
+        } else if which == 2u {
+            decoder_sample(2u);
+        } else if id == 0u {
+            decoder_sample(0u);
+        } else if id == 1u {
+            decoder_sample(1u);
+        } else {
+            decoder_sample(2u);
+        }
+        sum += dec_out[0];
+    }
+    set_f(i, 0u, sum);
+}
+
+@compute @workgroup_size(WORKGROUP)
+fn probe_decoder_rate_0(@builtin(global_invocation_id) gid: vec3<u32>) {
+    if gid.x < params.image.x {
+        decoder_rate(gid.x, 0u);
+    }
+}
+
+@compute @workgroup_size(WORKGROUP)
+fn probe_decoder_rate_1(@builtin(global_invocation_id) gid: vec3<u32>) {
+    if gid.x < params.image.x {
+        decoder_rate(gid.x, 1u);
+    }
+}
+
+@compute @workgroup_size(WORKGROUP)
+fn probe_decoder_rate_2(@builtin(global_invocation_id) gid: vec3<u32>) {
+    if gid.x < params.image.x {
+        decoder_rate(gid.x, 2u);
+    }
+}
+
+@compute @workgroup_size(WORKGROUP)
+fn probe_decoder_rate_any(@builtin(global_invocation_id) gid: vec3<u32>) {
+    if gid.x < params.image.x {
+        decoder_rate(gid.x, 3u);
+    }
+}
+
 /// In: g, ξ at 0, 1; dir at 4..7; (cos ψ, sin ψ) at 8, 9; exit (cos θ, α, β) at 12..15;
 /// X at 16..19. Out: HG (cos θ, sin θ) at 0, 1; deflect(dir, θ, ψ) at 4..7, normalised at
 /// 20..23, and HG's density from dir to it at 2; world exit point at 8..11; world exit

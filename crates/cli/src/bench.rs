@@ -37,6 +37,9 @@ enum What {
     /// The same renders (PT and ST-CVAE) on the GPU and on the CPU, side by side: paths/s
     /// of each and their ratio.
     Devices(crate::bench_devices::Args),
+    /// The three decoders' draws per second on the CPU and on a GPU adapter (the kernels'
+    /// best case on a software adapter), and whether the adapter skips untaken branches.
+    Decoders(crate::bench_decoders::Args),
     /// Images of any renderer against a reference (the mean of independent renders, its
     /// noise subtracted): RMSE, MSE × seconds and the time each needs for equal error.
     Error(crate::bench_error::Args),
@@ -47,6 +50,7 @@ pub fn run(a: Args) -> Result<()> {
         What::Sim { walks, threads } => bench_sim(walks, threads),
         What::Render(r) => crate::bench_render::run(r),
         What::Devices(d) => crate::bench_devices::run(d),
+        What::Decoders(d) => crate::bench_decoders::run(d),
         What::Error(e) => crate::bench_error::run(e),
     }
 }

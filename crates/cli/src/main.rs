@@ -28,6 +28,7 @@ macro_rules! print {
 }
 
 mod bench;
+mod bench_decoders;
 mod bench_devices;
 mod bench_error;
 mod bench_render;

@@ -1616,6 +1616,40 @@ fn adapter_search_prints_no_wayland_error() {
     assert!(!err.contains("XDG_RUNTIME_DIR"), "{err}");
 }
 
+/// `bench decoders` on a Vulkan adapter: a row per decoder and the branch verdict. The
+/// bench itself fails when the GPU's decoder sums differ from the CPU decoder's (checked on
+/// its first items), so a passing run also shows the timed probe computes the decoders.
+/// Which verdict it prints is the driver's (Mesa 22 runs every branch, Mesa 25 and hardware
+/// GPUs skip), so only its presence is asserted.
+#[test]
+fn bench_decoders_prints_each_decoder_and_the_branch_verdict() {
+    let args = ["bench", "decoders", "--draws", "1024", "--rounds", "3"];
+    let Some(out) = on_vulkan_any(
+        &args,
+        &[],
+        "bench_decoders_prints_each_decoder_and_the_branch_verdict",
+    ) else {
+        return;
+    };
+    ok(&out);
+    let text = String::from_utf8_lossy(&out.stdout);
+    for name in ["LengthGen", "PathGen", "EventGen"] {
+        let row = text
+            .lines()
+            .find(|l| l.trim_start().starts_with(name))
+            .unwrap_or_else(|| panic!("no {name} row: {text}"));
+        assert!(row.trim_end().ends_with('x'), "{row}");
+    }
+    assert!(
+        text.contains("skips branches no lane takes")
+            || text.contains("runs every branch of an `if`"),
+        "{text}"
+    );
+    // Out of range: a one-line error naming the flag.
+    let err = fails(&stcvae(&["bench", "decoders", "--rounds", "0"]));
+    assert!(err.contains("--rounds"), "{err}");
+}
+
 /// On a GPU the stored PT pair is keyed by the kernels' settings from the environment
 /// too: a pair timed with one workgroup size supplied the speed-up of a run with another.
 #[test]
