@@ -43,8 +43,9 @@ fn probe_decoder(@builtin(global_invocation_id) gid: vec3<u32>) {
 }
 
 /// Decoder throughput (`stcvae bench decoders`). In: as probe_decoder, plus rounds at 29.
-/// Out: the sum over the rounds of output 0, each round with its first noise value moved
-/// by 1e-3 (so no round can be folded into another; the host recomputes some sums). A
+/// Out, at 31 (the inputs stay, for the next timed dispatch): the sum over the rounds of
+/// output 0, each round with its first noise value moved by 1e-3 more (so no round can be
+/// folded into another; the host recomputes some sums). A
 /// decoder chosen by a constant (`which` < 3, inlined, as the render kernels call them) or
 /// by the item's id, known only at run time (3): on a driver that runs every branch of an
 /// `if` whether or not a lane takes it (Mesa 22's llvmpipe) that case costs all three.
@@ -75,7 +76,7 @@ fn decoder_rate(i: u32, which: u32) {
         }
         sum += dec_out[0];
     }
-    set_f(i, 0u, sum);
+    set_f(i, 31u, sum);
 }
 
 @compute @workgroup_size(WORKGROUP)
