@@ -4,8 +4,8 @@
 //!
 //! The decoders are the render kernels' most favourable code for a software adapter:
 //! straight-line arithmetic with the weights as constants, no memory access and no lane
-//! divergence. Their ratio to the CPU bounds what the whole kernel could reach there,
-//! whose traversals and grid queries load memory lane by lane (docs/BENCHMARKS.md,
+//! divergence. Their ratio to the CPU is the kernels' best case there; the traversals and
+//! grid queries, which load memory lane by lane, run far below it (docs/BENCHMARKS.md,
 //! sixty-first session). The branch row tells why Mesa 22's lavapipe (Debian 12, CI) runs
 //! the kernels at less than half the speed of Mesa 25's.
 
