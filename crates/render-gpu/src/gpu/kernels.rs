@@ -273,8 +273,9 @@ impl KernelShape {
 
 /// What a scene needs of the kernels, fixed when they are compiled (WGSL constants)
 /// rather than read from the scene parameters: lavapipe's JIT keeps the code of a branch
-/// that a run-time flag switches off, and code that never runs still slowed the path loop
-/// (register pressure in the inlined kernel). Measured on lavapipe (2026-12-02,
+/// that a run-time flag switches off, and Mesa 22's runs it too (its llvmpipe executes
+/// both sides of every `if` under a mask, taken or not: `stcvae bench decoders`), so code
+/// that never runs slowed the path loop. Measured on lavapipe (2026-12-02,
 /// docs/BENCHMARKS.md): the overlap code as a run-time flag cost PT 13 % on every mesh;
 /// the dielectric and environment-map branches as constants gained 8 % on an
 /// index-matched scene without a map, and the light count and NEE another 5–9 % for
