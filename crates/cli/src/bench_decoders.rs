@@ -184,7 +184,6 @@ pub fn run(a: Args) -> Result<()> {
     );
     let mut rng = WalkRng::from_seed(1);
     let decoders = model.decoders();
-    let names = ["LengthGen", "PathGen", "EventGen"];
     let mut gpu_rates = [0f64; 3];
     let items_of: Vec<Vec<Item>> = decoders
         .iter()
@@ -196,6 +195,7 @@ pub fn run(a: Args) -> Result<()> {
         .iter()
         .zip(&items_of)
         .map(|(d, its)| {
+            // Each item's first round, as the GPU's first round draws it.
             let draws: Vec<Draw> = its.iter().flat_map(|it| round_draws(d, it, 1)).collect();
             (cpu_rate(&single, d, &draws), cpu_rate(&all, d, &draws))
         })
@@ -217,7 +217,7 @@ pub fn run(a: Args) -> Result<()> {
             .sum();
         println!(
             "{:>10} {:>16} {:>6} {:>14} {:>14} {:>12} {:>8.2}x",
-            names[id],
+            cvae::ModelSet::DECODER_NAMES[id],
             layers.join("-"),
             macs,
             si(c1),

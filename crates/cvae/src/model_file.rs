@@ -151,9 +151,13 @@ impl ModelSet {
             .expect("a ModelSet holds a feature version this build reads")
     }
 
+    /// The three decoders, named in [`Self::DECODER_NAMES`]'s order.
     pub fn decoders(&self) -> [&Decoder; 3] {
         [&self.length, &self.path, &self.event]
     }
+
+    /// The names of [`Self::decoders`], in its order, for messages and tables.
+    pub const DECODER_NAMES: [&'static str; 3] = ["LengthGen", "PathGen", "EventGen"];
 
     /// Serialises to the file layout.
     pub fn to_bytes(&self) -> Vec<u8> {

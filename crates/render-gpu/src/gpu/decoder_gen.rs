@@ -126,12 +126,7 @@ pub fn fits_kernels(cond: usize, latent: usize, out: usize) -> Result<(), String
 /// (`DEC_LATENT_i`, `DEC_OUT_i`).
 pub fn decoders_wgsl(m: &ModelSet) -> Result<String, RenderError> {
     let mut out = String::from("// Generated from the model file: do not edit.\n\n");
-    for (i, (d, name)) in m
-        .decoders()
-        .iter()
-        .zip(["LengthGen", "PathGen", "EventGen"])
-        .enumerate()
-    {
+    for (i, (d, name)) in m.decoders().iter().zip(ModelSet::DECODER_NAMES).enumerate() {
         fits_kernels(d.cond, d.latent, d.out)
             .map_err(|e| RenderError::Model(format!("{name} {e}")))?;
         let _ = writeln!(out, "const DEC_LATENT_{i}: u32 = {}u;", d.latent);
