@@ -443,14 +443,12 @@ fn add_counter(slot: u32, v: u32) {
 /// with the slot's PT events + sphere steps in w (the work map, slot_end); last ACC as the
 /// chunk began, its lost rounding added back (SLOT − 1: what a render stopped mid-chunk
 /// keeps, gpu/renderer.rs).
-// ACC (kernels.rs, ACC_VEC4) is prepended. With VARIANCE (`render --variance`) three
-// vec4s before ACC_LO hold the sums of the squared values ACC adds, per channel, what
-// their f32 additions rounded off, and those sums as the chunk began (kernels.rs,
-// acc_sq_vec4 and the two after it); without it they are not in the slot and never read.
-const ACC_LO: u32 = SLOT - 2u;
-const ACC_SQ: u32 = SLOT - 5u;
-const ACC_SQ_LO: u32 = SLOT - 4u;
-const SQ_COMMITTED: u32 = SLOT - 3u;
+// ACC, ACC_LO and COMMITTED (SLOT − 2 and SLOT − 1) are prepended from kernels.rs
+// (ACC_VEC4, acc_lo_vec4, committed_vec4), the one layout the host reads back. With
+// VARIANCE (`render --variance`) three vec4s before ACC_LO hold the sums of the squared
+// values ACC adds, per channel, what their f32 additions rounded off, and those sums as
+// the chunk began (ACC_SQ, ACC_SQ_LO, SQ_COMMITTED: kernels.rs, acc_sq_vec4 and the two
+// after it, prepended too); without it they are not in the slot and never read.
 const F_ALIVE: u32 = 1u;
 const F_SCATTERED: u32 = 2u;
 const F_INSIDE: u32 = 4u;
@@ -627,7 +625,7 @@ fn slot_begin(idx: u32, kind: u32) -> bool {
     if kind != 0u {
         // The whole chunks so far, kept apart while this one adds to ACC: a render stopped
         // mid-chunk returns them (as the CPU drops an unfinished pass), rounded once.
-        accum[sl_base + SLOT - 1u] = vec4<f32>(sl_acc.xyz + sl_lo, sl_acc.w);
+        accum[sl_base + COMMITTED] = vec4<f32>(sl_acc.xyz + sl_lo, sl_acc.w);
         if VARIANCE {
             accum[sl_base + SQ_COMMITTED] = vec4<f32>(sl_sq + sl_sq_lo, 0.0);
         }

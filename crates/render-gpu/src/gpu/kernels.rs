@@ -345,7 +345,7 @@ pub fn acc_lo_vec4(path_nee_m: u32, variance: bool) -> u64 {
 }
 
 /// Which vec4 of a path slot holds its accumulated RGB and finished-sample count as they
-/// were when the current chunk of samples began (`SLOT − 1` in shaders/path.wgsl): the
+/// were when the current chunk of samples began (`COMMITTED`, prepended to the kernels): the
 /// image of the whole chunks, which a render stopped mid-chunk returns.
 pub fn committed_vec4(path_nee_m: u32, variance: bool) -> u64 {
     slot_vec4s(path_nee_m, variance) - 1
@@ -417,6 +417,8 @@ pub fn source(
          const MAX_CROSSINGS: u32 = {}u;\n\
          const SLIVER_REACH_OF_EPS: f32 = {:?};\n\
          const PATH_NEE_M: u32 = {path_nee_m}u;\nconst SLOT: u32 = {}u;\n\
+         const ACC_LO: u32 = {}u;\nconst COMMITTED: u32 = {}u;\n\
+         const ACC_SQ: u32 = {}u;\nconst ACC_SQ_LO: u32 = {}u;\nconst SQ_COMMITTED: u32 = {}u;\n\
          const STAGE_VEC4S: u32 = {STAGE_VEC4S}u;\n\
          const NODE_COUNT_BITS: u32 = {}u;\nconst COUNTER_WORDS: u32 = {}u;\n\
          const PATH_COUNTERS: u32 = {}u;\n\
@@ -436,6 +438,13 @@ pub fn source(
         crate::integrator::nee::MAX_CROSSINGS,
         crate::geometry::SLIVER_REACH_OF_EPS,
         slot_vec4s(path_nee_m, switches.variance),
+        acc_lo_vec4(path_nee_m, switches.variance),
+        committed_vec4(path_nee_m, switches.variance),
+        // The squares' vec4s as they sit when VARIANCE is on; without it the kernels
+        // never read them.
+        acc_sq_vec4(path_nee_m),
+        acc_sq_lo_vec4(path_nee_m),
+        committed_sq_vec4(path_nee_m),
         super::scene_buffers::GpuNode::COUNT_BITS,
         2 * super::resources::COUNTER_SLOTS,
         super::resources::PATH_COUNTERS,
