@@ -267,7 +267,9 @@ fn check_distinct(names: &[&str]) -> Result<()> {
     Ok(())
 }
 
-/// Refuses two stcvae renders that share a seed: they share random numbers, so an image
+/// Refuses two stcvae renders that share a seed: on one device they share random numbers
+/// (the CPU and the GPU draw different streams from a seed, but the tag does not record
+/// the device, so a pair from different devices is refused too), so an image
 /// would match a reference by more than the image's accuracy (an image rendered with a
 /// reference's seed read RMSE 0). Whatever their scene hashes: an ST-CVAE image and a PT
 /// reference of one scene differ in hash (the integrator is in it), yet with one seed they
@@ -282,9 +284,10 @@ fn check_shared_seeds(references: &Seen, images: &Seen) -> Result<()> {
         for (pb, b) in &tags[..i.min(tags.len())] {
             if let Some(seed) = a.seeds.iter().find(|s| b.seeds.contains(s)) {
                 bail!(
-                    "{} and {} are renders with seed {seed} in common: they share random \
-                     numbers (whichever integrator drew them), so the error would read low; \
-                     render them with other seeds",
+                    "{} and {} are renders with seed {seed} in common: on one device they \
+                     share random numbers (whichever integrator drew them), and their tags do \
+                     not record the device, so the error could read low; render them with \
+                     other seeds",
                     pb.display(),
                     pa.display()
                 );

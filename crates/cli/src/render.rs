@@ -237,7 +237,7 @@ struct Report<'a> {
     device: String,
     /// Mean of the image per channel (a quick comparison between renders).
     mean_rgb: [f64; 3],
-    /// With --variance: the variance image's file, and the square root of its mean per
+    /// With --variance: the variance image's file name (beside the JSON), and the square root of its mean per
     /// channel over all pixels (a constant background, whose variance is 0, included).
     variance_file: Option<String>,
     rms_standard_error_rgb: Option<[f64; 3]>,
@@ -831,10 +831,12 @@ pub fn run(mut a: Args) -> Result<()> {
         scene_hash: format!("{hash:016x}"),
         device: engine.describe(),
         mean_rgb: mean_rgb(&out.image),
+        // The bare name: the file sits beside the JSON, and a path relative to the
+        // render's working directory misled a reader resolving it from the JSON's folder.
         variance_file: out.variance.as_ref().map(|_| {
             crate::merge::image_out(&a.out, "var.exr")
-                .display()
-                .to_string()
+                .file_name()
+                .map_or_else(String::new, |n| n.to_string_lossy().into_owned())
         }),
         rms_standard_error_rgb: out.variance.as_ref().map(|v| mean_rgb(v).map(f64::sqrt)),
         stats: &out.stats,

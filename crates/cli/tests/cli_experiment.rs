@@ -117,6 +117,48 @@ fn every_experiment_runs_quick() {
             }
             assert!(exact > 0 && exact == drawn, "{csv}");
         }
+        if name == "complexity" {
+            // The work maps' EXRs hold the counts per path (their PNGs the log scale): each
+            // half's mean over the pixels, which all trace as many paths, is the table's
+            // figure per path (PT events left; ST-CVAE steps plus fallback events right) up
+            // to the f32 rounding of the per-pixel counts (1e-4 relative allowed). A map
+            // scaled for display (0–1) misses the bunny's counts, tens per path, by far.
+            let column = |name: &str| header.iter().position(|h| *h == name).unwrap();
+            let mut maps = 0;
+            for line in csv.lines().skip(1) {
+                let cells = csv_cells(line);
+                let (obj, k) = (cells[column("object")].as_str(), &cells[column("density")]);
+                let file = dir.join(format!("work_{obj}_k{k}.exr"));
+                if !file.exists() {
+                    // A PT pair cached before the GPU counted work has no map (kinds.rs).
+                    continue;
+                }
+                let (img, tag) = render_gpu::image_io::read_exr(&file).unwrap();
+                assert!(tag.is_none(), "{}: a map, not a render", file.display());
+                let half = (img.width - 2) / 2;
+                let mean = |x0: usize| {
+                    let mut sum = 0.0;
+                    for y in 0..img.height {
+                        for x in x0..x0 + half {
+                            sum += img.pixels[y * img.width + x][0] as f64;
+                        }
+                    }
+                    sum / (half * img.height) as f64
+                };
+                let figure = |name: &str| cells[column(name)].parse::<f64>().unwrap();
+                let pt = figure("pt_events_per_path");
+                let st = figure("st_steps_per_path") + figure("st_fallback_events_per_path");
+                for (what, map, table) in [("PT", mean(0), pt), ("ST-CVAE", mean(half + 2), st)] {
+                    assert!(
+                        (map - table).abs() <= 1e-4 * table && table > 0.0,
+                        "{}: {what}'s map holds {map} per path, the table {table}",
+                        file.display()
+                    );
+                }
+                maps += 1;
+            }
+            assert!(maps > 0, "complexity wrote no work map");
+        }
         let report = std::fs::read_to_string(dir.join("report.md")).unwrap();
         if name == "teaser_no_nee" || name == "teaser" {
             let off = report.contains("Next-event estimation off");

@@ -1640,9 +1640,12 @@ fn bench_decoders_prints_each_decoder_and_the_branch_verdict() {
             .unwrap_or_else(|| panic!("no {name} row: {text}"));
         assert!(row.trim_end().ends_with('x'), "{row}");
     }
+    // Any of the three verdicts (runs this short may land between the outcomes); which
+    // one a ratio gives is bench_decoders.rs's unit test.
     assert!(
         text.contains("skips branches no lane takes")
-            || text.contains("runs every branch of an `if`"),
+            || text.contains("runs every branch of an `if`")
+            || text.contains("inconclusive, between the two outcomes"),
         "{text}"
     );
     // Out of range: a one-line error naming the flag.
@@ -2578,12 +2581,8 @@ fn render_variance_writes_a_variance_image() {
     );
     let json: serde_json::Value =
         serde_json::from_slice(&std::fs::read(d.path().join("v.json")).unwrap()).unwrap();
-    assert!(
-        json["variance_file"]
-            .as_str()
-            .unwrap()
-            .ends_with("v.var.exr")
-    );
+    // The bare name, beside the JSON (not a path from the render's working directory).
+    assert_eq!(json["variance_file"].as_str().unwrap(), "v.var.exr");
     assert_eq!(json["rms_standard_error_rgb"].as_array().unwrap().len(), 3);
     let m = d.path().join("m");
     let e = stcvae(&["merge", var.to_str().unwrap(), "--out", m.to_str().unwrap()]);

@@ -1,11 +1,12 @@
 //! The seven experiments: what each renders and measures (see configs/experiments/).
 
 use anyhow::{Result, bail};
+use render_gpu::image_io::RgbImage;
 use render_gpu::integrator::IntegratorKind::{Pt, Stcvae};
 use render_gpu::scene::{LightDesc, SceneFile};
 
 use super::measure::{
-    Pair, compare, difference, errors, opts, pair_seeds, render_once, render_pair, save,
+    Pair, compare, difference, errors, opts, pair_seeds, render_once, render_pair, save, save_map,
     save_picture, scale_of, side_by_side, work_image,
 };
 use super::report::{Cell, Report};
@@ -425,7 +426,17 @@ fn complexity(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             if !pt.work.is_empty() && !st.work.is_empty() {
                 let max = pt.work.iter().chain(&st.work).cloned().fold(0.0, f32::max);
                 let (w, h) = (pt.mean.width, pt.mean.height);
-                let maps = side_by_side(&[
+                // The EXR holds the counts per path (a reader compares devices or runs by
+                // number), the PNG their log scale against this pair's largest.
+                let counts = |work: &[f32]| {
+                    let mut img = RgbImage::new(w, h);
+                    for (p, &n) in img.pixels.iter_mut().zip(work) {
+                        *p = [n; 3];
+                    }
+                    img
+                };
+                let data = side_by_side(&[&counts(&pt.work), &counts(&st.work)]);
+                let display = side_by_side(&[
                     &work_image(&pt.work, w, h, max),
                     &work_image(&st.work, w, h, max),
                 ]);
@@ -433,7 +444,7 @@ fn complexity(ctx: &Ctx, rep: &mut Report) -> Result<()> {
                     obj.clone(),
                     k,
                     max,
-                    save_picture(ctx, &format!("work_{obj}_k{}", k_name(k)), &maps, 1.0)?,
+                    save_map(ctx, &format!("work_{obj}_k{}", k_name(k)), &data, &display)?,
                 ));
             }
         }
@@ -442,7 +453,7 @@ fn complexity(ctx: &Ctx, rep: &mut Report) -> Result<()> {
     rep.text("Events per path count real scattering events (PT) and sphere steps plus thin-region PT fallback events (ST-CVAE), over all pixels (background included). Of the sphere steps, those of optical radius below exact_tau have their walk simulated exactly (st_exact_steps_per_path), with st_exact_walk_events_per_path scattering events inside them: work the steps column does not show (the work maps count a step as one).\n");
     rep.table();
     for (obj, k, max, f) in figs {
-        rep.image(&format!("{obj}, density ×{k}: PT events (left) vs ST-CVAE steps + events (right) per path, log scale, white = {max:.0}"), &f);
+        rep.image(&format!("{obj}, density ×{k}: PT events (left) vs ST-CVAE steps + events (right) per path, log scale, white = {max:.0} (the EXR beside it holds the counts)"), &f);
     }
     let mut s = Vec::new();
     for (obj, tp, ts) in curves {

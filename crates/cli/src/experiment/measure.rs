@@ -542,6 +542,24 @@ pub fn save_picture(ctx: &Ctx, name: &str, img: &RgbImage, exposure: f32) -> Res
     Ok(format!("{name}.png"))
 }
 
+/// Writes a map as NAME.exr holding `data` (linear values a reader can take numbers from,
+/// untagged) and NAME.png showing `display`, one set as every image; returns the PNG's
+/// name. The work maps: counts per path in the EXR, their log scale in the PNG.
+pub fn save_map(ctx: &Ctx, name: &str, data: &RgbImage, display: &RgbImage) -> Result<String> {
+    ctx.saving()?;
+    let (exr, png) = (
+        ctx.out.join(format!("{name}.exr")),
+        ctx.out.join(format!("{name}.png")),
+    );
+    let exr_bytes = render_gpu::image_io::encode_untagged_exr(data)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", exr.display()))?;
+    let png_bytes = render_gpu::image_io::encode_png(display, 1.0)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", png.display()))?;
+    scatter_sim::output::write_atomic_set(&[(&exr, &exr_bytes), (&png, &png_bytes)])
+        .map_err(|(path, e)| anyhow::anyhow!("cannot write {}: {e}", path.display()))?;
+    Ok(format!("{name}.png"))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
