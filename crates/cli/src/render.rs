@@ -237,8 +237,9 @@ struct Report<'a> {
     device: String,
     /// Mean of the image per channel (a quick comparison between renders).
     mean_rgb: [f64; 3],
-    /// With --variance: the variance image's file name (beside the JSON), and the square root of its mean per
-    /// channel over all pixels (a constant background, whose variance is 0, included).
+    /// With --variance: the variance image's file name (beside the JSON), and the square
+    /// root of its mean per channel over all pixels (a constant background, whose variance
+    /// is 0, included).
     variance_file: Option<String>,
     rms_standard_error_rgb: Option<[f64; 3]>,
     stats: &'a PathStats,
