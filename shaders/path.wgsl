@@ -439,10 +439,10 @@ fn add_counter(slot: u32, v: u32) {
 /// iterations, samples finished, the free distance (f32 bits; the current sample follows
 /// from the samples finished); the accumulated RGB + finished-sample count of the whole
 /// render (ACC); then per path-level NEE reservoir its event's (X, q) and (W, A); with
-/// VARIANCE the squared sums (below); the rounding ACC's RGB lost (SLOT − 2, add_sample),
-/// with the slot's PT events + sphere steps in w (the work map, slot_end); last ACC as the
-/// chunk began, its lost rounding added back (SLOT − 1: what a render stopped mid-chunk
-/// keeps, gpu/renderer.rs).
+/// VARIANCE the squared sums (below); the rounding ACC's RGB lost (ACC_LO = SLOT − 2,
+/// add_sample), with the slot's PT events + sphere steps in w (the work map, slot_end);
+/// last ACC as the chunk began, its lost rounding added back (COMMITTED = SLOT − 1: what a
+/// render stopped mid-chunk keeps, gpu/renderer.rs).
 // ACC, ACC_LO and COMMITTED (SLOT − 2 and SLOT − 1) are prepended from kernels.rs
 // (ACC_VEC4, acc_lo_vec4, committed_vec4), the one layout the host reads back. With
 // VARIANCE (`render --variance`) three vec4s before ACC_LO hold the sums of the squared

@@ -159,7 +159,9 @@ pub(crate) fn image_out(out: &Path, ext: &str) -> PathBuf {
 /// Writes OUT.exr (linear, tagged), OUT.png (preview at `exposure`) and, given `json`,
 /// OUT.json as one set ([`scatter_sim::output::write_atomic_set`]): a failure never leaves
 /// a new image beside an old report. Creates OUT's folder. Every image stcvae writes goes
-/// through here (render, merge, experiments, `bench render --save`).
+/// through here (render, merge, experiments, `bench render --save`) but the work maps of
+/// `experiment complexity`, whose EXR and PNG hold different images
+/// (`experiment::measure::save_map`, through the same atomic set).
 pub(crate) fn write_image_set(
     out: &Path,
     img: &render_gpu::image_io::RgbImage,

@@ -422,7 +422,7 @@ fn complexity(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             ]);
             tp.push((k, pt.seconds));
             ts.push((k, st.seconds));
-            // Both devices count the work; a PT pair cached before the GPU did has none.
+            // Both devices count the work (a render without counts has none to draw).
             if !pt.work.is_empty() && !st.work.is_empty() {
                 let max = pt.work.iter().chain(&st.work).cloned().fold(0.0, f32::max);
                 let (w, h) = (pt.mean.width, pt.mean.height);
@@ -435,7 +435,14 @@ fn complexity(ctx: &Ctx, rep: &mut Report) -> Result<()> {
                     }
                     img
                 };
-                let data = side_by_side(&[&counts(&pt.work), &counts(&st.work)]);
+                let mut data = side_by_side(&[&counts(&pt.work), &counts(&st.work)]);
+                // The gap between the halves holds 0, not a count (side_by_side paints it
+                // white, the largest value, which a reader averaging the EXR would count).
+                for y in 0..data.height {
+                    for x in w..data.width - w {
+                        data.pixels[y * data.width + x] = [0.0; 3];
+                    }
+                }
                 let display = side_by_side(&[
                     &work_image(&pt.work, w, h, max),
                     &work_image(&st.work, w, h, max),

@@ -337,9 +337,9 @@ pub fn slot_vec4s(path_nee_m: u32, variance: bool) -> u64 {
 }
 
 /// Which vec4 of a path slot holds in xyz what the f32 additions to ACC's RGB rounded off
-/// (`ACC_LO` in shaders/path.wgsl, add_sample): the slot's sum is ACC + ACC_LO, taken in
-/// f64 on the host. Its w counts the slot's PT events + sphere steps over the render (the
-/// work map; in f32, exact to 2^24, which a map drawn on a log scale does not need).
+/// (`ACC_LO`, prepended to the kernels; shaders/path.wgsl, add_sample): the slot's sum is
+/// ACC + ACC_LO, taken in f64 on the host. Its w counts the slot's PT events + sphere
+/// steps over the render (the work map; in f32, exact to 2^24).
 pub fn acc_lo_vec4(path_nee_m: u32, variance: bool) -> u64 {
     slot_vec4s(path_nee_m, variance) - 2
 }
@@ -352,8 +352,9 @@ pub fn committed_vec4(path_nee_m: u32, variance: bool) -> u64 {
 }
 
 /// With `variance`: which vec4 of a path slot holds in xyz the sum of the squares of the
-/// values ACC's RGB adds (`ACC_SQ` in shaders/path.wgsl): each sample's estimate times 3,
-/// so the host divides by 9 for `render::pixel_variance`, which reads the estimates'.
+/// values ACC's RGB adds (`ACC_SQ`, prepended to the kernels): each sample's estimate
+/// times 3, so the host divides by 9 for `render::pixel_variance`, which reads the
+/// estimates'.
 pub fn acc_sq_vec4(path_nee_m: u32) -> u64 {
     slot_vec4s(path_nee_m, true) - 5
 }
