@@ -190,6 +190,9 @@ pub fn run(a: Args) -> Result<()> {
             e.trim_end_matches(", or use --device cpu")
         )
     })?;
+    if let Some(note) = crate::device::vector_width_note(ctx.adapter.software) {
+        eprintln!("{note}");
+    }
     let single = crate::generate::pool(Some(1))?;
     let all = crate::generate::pool(a.threads)?;
     let threads = all.current_num_threads();

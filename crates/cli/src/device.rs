@@ -27,6 +27,28 @@ pub fn check_gpu_lights(scene: &std::path::Path, lights: usize, then: &str) -> R
     Ok(())
 }
 
+/// A note for a software adapter run with `LP_NATIVE_VECTOR_WIDTH` and Mesa's shader cache
+/// on: the cache does not key on the width, so a warm cache serves kernels compiled at
+/// another width while the adapter's name gives the new one. Four sessions' width
+/// comparisons measured one width that way (docs/BENCHMARKS.md, sixty-second session).
+pub fn vector_width_note(software: bool) -> Option<String> {
+    let width = std::env::var("LP_NATIVE_VECTOR_WIDTH").ok();
+    let cache_off = std::env::var("MESA_SHADER_CACHE_DISABLE").ok();
+    width_note(software, width.as_deref(), cache_off.as_deref())
+}
+
+fn width_note(software: bool, width: Option<&str>, cache_off: Option<&str>) -> Option<String> {
+    let off = cache_off.is_some_and(|v| matches!(v.trim(), "true" | "1" | "yes"));
+    (software && width.is_some() && !off).then(|| {
+        format!(
+            "note: LP_NATIVE_VECTOR_WIDTH={} is set, but Mesa's shader cache does not key on \
+             it: a kernel compiled before at another width may run instead (set \
+             MESA_SHADER_CACHE_DISABLE=true, or clear ~/.cache/mesa_shader_cache*)",
+            width.unwrap_or_default()
+        )
+    })
+}
+
 pub fn cpu_model() -> Option<String> {
     let info = std::fs::read_to_string("/proc/cpuinfo").ok()?;
     let line = info.lines().find(|l| l.starts_with("model name"))?;
@@ -85,6 +107,9 @@ impl Engine {
         };
         if let Some(c) = &gpu {
             eprintln!("GPU: {}", c.adapter);
+            if let Some(note) = vector_width_note(c.adapter.software) {
+                eprintln!("{note}");
+            }
         }
         Ok(Self {
             gpu,
@@ -173,5 +198,20 @@ impl Engine {
             self.render(scene, set, &opts, &|_, _| {}, cancel)?;
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_vector_width_note_shows_only_where_the_cache_could_mislead() {
+        assert!(width_note(true, Some("128"), None).is_some_and(|n| n.contains("=128")));
+        assert!(width_note(true, Some("128"), Some("false")).is_some());
+        assert!(width_note(true, Some("128"), Some("true")).is_none());
+        assert!(width_note(true, Some("512"), Some("1")).is_none());
+        assert!(width_note(true, None, None).is_none());
+        assert!(width_note(false, Some("128"), None).is_none());
     }
 }
