@@ -23,6 +23,16 @@ fn clear_item(i: u32) {
     }
 }
 
+/// Item i's decoder conditions (floats 0..12) and noise (12..28) into the decoders' inputs.
+fn load_decoder_inputs(i: u32) {
+    for (var k = 0u; k < 12u; k++) {
+        dec_cond[k] = item_f(i, k);
+    }
+    for (var k = 0u; k < 16u; k++) {
+        dec_noise[k] = item_f(i, 12u + k);
+    }
+}
+
 /// In: cond[0..12], noise[12..28], decoder id at 28. Out: outputs at 0..8.
 @compute @workgroup_size(WORKGROUP)
 fn probe_decoder(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -30,12 +40,7 @@ fn probe_decoder(@builtin(global_invocation_id) gid: vec3<u32>) {
     if i >= params.image.x {
         return;
     }
-    for (var k = 0u; k < 12u; k++) {
-        dec_cond[k] = item_f(i, k);
-    }
-    for (var k = 0u; k < 16u; k++) {
-        dec_noise[k] = item_f(i, 12u + k);
-    }
+    load_decoder_inputs(i);
     decoder_sample(u32(item_f(i, 28u)));
     for (var k = 0u; k < 8u; k++) {
         set_f(i, k, dec_out[k]);
@@ -50,12 +55,7 @@ fn probe_decoder(@builtin(global_invocation_id) gid: vec3<u32>) {
 /// by the item's id, known only at run time (3): on a driver that runs every branch of an
 /// `if` whether or not a lane takes it (Mesa 22's llvmpipe) that case costs all three.
 fn decoder_rate(i: u32, which: u32) {
-    for (var k = 0u; k < 12u; k++) {
-        dec_cond[k] = item_f(i, k);
-    }
-    for (var k = 0u; k < 16u; k++) {
-        dec_noise[k] = item_f(i, 12u + k);
-    }
+    load_decoder_inputs(i);
     let id = u32(item_f(i, 28u));
     let rounds = u32(item_f(i, 29u));
     var sum = 0.0;
