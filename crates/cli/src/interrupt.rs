@@ -43,7 +43,11 @@ pub fn flag() -> &'static AtomicBool {
             unsafe {
                 libc::signal(libc::SIGPIPE, libc::SIG_IGN);
             }
-            eprintln!("\ninterrupt: stopping at the next safe point (Ctrl-C again to abort)");
+            // The handler also takes SIGTERM and SIGHUP (ctrlc's `termination` feature) and
+            // cannot tell them from Ctrl-C, so the message names both.
+            eprintln!(
+                "\ninterrupt: stopping at the next safe point (a second Ctrl-C or signal aborts)"
+            );
         });
     });
     &FLAG
