@@ -1916,8 +1916,17 @@ fn bench_devices_checks_the_software_gpus_memory() {
         ));
         return;
     }
-    if !text.contains("llvmpipe") {
-        common::skip("bench_devices_checks_the_software_gpus_memory: not a software adapter");
+    // Skipped only where the banner names a hardware adapter. Any other outcome (no banner,
+    // a load error, the adapter failing under the ulimit) reaches the assertions, so the
+    // test cannot pass in CI without the check having run.
+    let gpu = text.lines().find(|l| l.trim_start().starts_with("gpu: "));
+    if let Some(line) = gpu
+        && !line.contains("Cpu")
+    {
+        common::skip(&format!(
+            "bench_devices_checks_the_software_gpus_memory: a hardware adapter ({})",
+            line.trim()
+        ));
         return;
     }
     let e = fails(&out);
@@ -2525,7 +2534,9 @@ fn named_pipes_as_inputs_are_refused_not_waited_on() {
             if let Some(s) = child.try_wait().unwrap() {
                 break s;
             }
-            if start.elapsed().as_secs() > 60 {
+            // A guard against a hang, not a timing: each case is refused before any work,
+            // so even a loaded machine ends it in seconds (`interrupt_when`'s guard too).
+            if start.elapsed().as_secs() > 600 {
                 child.kill().unwrap();
                 panic!("{args:?} waited on a named pipe");
             }

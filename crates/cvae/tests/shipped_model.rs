@@ -96,7 +96,7 @@ fn shipped() -> ModelSet {
 /// - Why that is safe: most of these statistics measure the model's misfit, not only
 ///   noise; over 24 seeds their spread σ was 0.0027–0.0073. The test's seeds are among
 ///   the measured ones, so the mean of 4 differs from the mean of 24 by σ·√(1/4 − 1/24)
-///   = 0.46σ in spread; 5 of those (a false alarm ~3·10⁻⁷ a statistic, 33 of them) is
+///   = 0.46σ in spread; 5 of those (a false alarm ~3·10⁻⁷ a statistic, 30 of them) is
 ///   0.0062–0.0167. The floor keeps a statistic whose spread was measured low from a
 ///   bound tighter than its estimate's own error (σ from 24 seeds is ±15 %). A change
 ///   that only redraws the random numbers (another order of draws) cannot fail it.
@@ -115,6 +115,9 @@ fn shipped_model_quick_eval() {
     let m = shipped();
     for (setting, stored, spread) in MEASURED {
         assert_eq!(stored.len(), spread.len(), "{setting:?}");
+        // A statistic added to `names` without a stored mean would shift every later one
+        // onto its neighbour's mean (the zip below pairs them by position).
+        assert_eq!(names(setting.2).len(), stored.len(), "{setting:?}");
         let mut now = vec![0.0; stored.len()];
         for seed in 1..=TEST_SEEDS {
             for (n, v) in now.iter_mut().zip(statistics(&m, setting, seed)) {

@@ -200,7 +200,9 @@ fn host_structs_match_the_wgsl_layouts() {
 
 /// A kernel's source with the host's constants removed no longer compiles: the WGSL has
 /// no copies of its own to fall back on (a copy would drift from the host's value
-/// silently). Each name below is used by the kernels and defined only by gpu/kernels.rs.
+/// silently). Each name below is used by the kernels and defined only by gpu/kernels.rs:
+/// no file in shaders/ defines it (the assembled source's one definition could otherwise
+/// be a shader's own, with the host's prepending dropped).
 #[test]
 fn the_kernels_take_these_constants_from_the_host_alone() {
     let (name, src) = sources()
@@ -208,6 +210,19 @@ fn the_kernels_take_these_constants_from_the_host_alone() {
         .find(|(n, _)| n.starts_with("Stcvae staged true m 2 switches true"))
         .unwrap();
     parse(&name, &src);
+    let shader_dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shaders");
+    let shaders: Vec<(String, String)> = std::fs::read_dir(&shader_dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|x| x == "wgsl"))
+        .map(|p| {
+            (
+                p.display().to_string(),
+                std::fs::read_to_string(&p).unwrap(),
+            )
+        })
+        .collect();
+    assert!(shaders.len() >= 8, "{}: the shaders", shader_dir.display());
     for constant in [
         "RR_THRESHOLD",
         "MAX_ITERATIONS",
@@ -245,6 +260,12 @@ fn the_kernels_take_these_constants_from_the_host_alone() {
             1,
             "{constant} is defined once"
         );
+        for (file, text) in &shaders {
+            assert!(
+                !text.contains(&definition),
+                "{file} defines {constant}: it must come from gpu/kernels.rs"
+            );
+        }
         let without: String = src
             .lines()
             .filter(|l| !l.starts_with(&definition))

@@ -952,6 +952,11 @@ pub fn check_against_reference(
         let st = out.stats;
         assert_eq!(st.capped + st.non_finite + st.leaks, 0, "{label}: {st:?}");
         if set.kind == render_gpu::integrator::IntegratorKind::Stcvae {
+            // A case with exact steps is held to the reference without the models'
+            // allowance, so none of its steps may be a model's draw.
+            if set.exact_tau > 0.0 {
+                assert_eq!(st.steps, st.exact_steps, "{label}: steps beyond exact_tau");
+            }
             let stepped = if set.exact_tau > 0.0 {
                 st.exact_steps
             } else {
