@@ -440,6 +440,15 @@ fn experiment_configs_are_checked_before_any_rendering() {
         e.contains("absorptions: 1e-300 is out of range: allowed [1e-6, 1)"),
         "{e}"
     );
+    // Within the config's range but too dense for this object's surface offset: refused
+    // before the renders at the densities before it, naming the density and the most that
+    // fits (the bunny's densest channel, 187.5, at the 48,741 its size allows).
+    let e = run("scene = \"ok.toml\"\ndensities = [1.0, 1000.0]");
+    assert!(
+        e.contains("ok.toml: densities = 1000: medium.sigma_t[0] = 150000 is too dense")
+            && e.contains("(densities up to 259.9 fit this object)"),
+        "{e}"
+    );
     let e = run("scene = \"ok.toml\"\ndensities = [1e-300]");
     assert!(
         e.contains("densities: 1e-300 is out of range: allowed [0.001, 1000]"),

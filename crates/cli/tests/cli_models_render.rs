@@ -911,18 +911,29 @@ fn bad_scenes_are_one_line_errors() {
         "{e}"
     );
     assert!(!out.with_extension("exr").exists());
-    // A value of the wrong kind names the kind in words, not serde's Rust type.
+    // A value of the wrong kind names the kind in words, not serde's Rust type, and a
+    // whole-number field its own range, not the type's ([0, 4294967295]).
     let sphere = std::fs::read_to_string(root().join("configs/scenes/sphere.toml")).unwrap();
     for (from, to, want) in [
         (
             "width = 128",
             "width = -16",
-            "expected a whole number in [0, 4294967295]",
+            "expected a whole number in [1, 16384]",
         ),
         (
             "width = 128",
             "width = 1.5",
-            "expected a whole number in [0, 4294967295]",
+            "expected a whole number in [1, 16384]",
+        ),
+        (
+            "spp = 64",
+            "spp = -1",
+            "expected a whole number in [1, 2^32)",
+        ),
+        (
+            "[render]",
+            "[render]\npath_nee_rays = 2.5",
+            "expected a whole number in [0, 2]",
         ),
         ("fov_deg = ", "fov_deg = \"wide\" # ", "expected a number"),
     ] {

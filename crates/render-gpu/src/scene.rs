@@ -83,6 +83,72 @@ pub fn describe_toml_error(path: &Path, text: &str, e: &toml::de::Error) -> Stri
     }
 }
 
+/// A scene file's whole-number fields and their ranges (inclusive): `validate` checks
+/// them here, and a value serde refuses for the type (negative, fractional, beyond 2^32)
+/// is reported with the field's range, not the type's.
+const WHOLE_FIELDS: [(&str, u32, u32); 7] = [
+    ("camera.width", 1, MAX_IMAGE_SIDE),
+    ("camera.height", 1, MAX_IMAGE_SIDE),
+    ("render.spp", 1, u32::MAX),
+    ("render.grid_resolution", 4, MAX_GRID),
+    ("render.exact_nee_samples", 1, MAX_EXACT_NEE_SAMPLES),
+    ("render.path_nee_rays", 0, MAX_PATH_NEE_RAYS),
+    ("render.nee_samples", 1, MAX_NEE_SAMPLES),
+];
+
+fn whole_range(lo: u32, hi: u32) -> String {
+    if hi == u32::MAX {
+        format!("[{lo}, 2^32)")
+    } else {
+        format!("[{lo}, {hi}]")
+    }
+}
+
+fn check_whole(name: &str, v: u32) -> Result<(), String> {
+    let &(_, lo, hi) = WHOLE_FIELDS
+        .iter()
+        .find(|f| f.0 == name)
+        .expect("a field of WHOLE_FIELDS");
+    if (lo..=hi).contains(&v) {
+        return Ok(());
+    }
+    Err(format!(
+        "{name} = {v} is out of range: allowed {}",
+        whole_range(lo, hi)
+    ))
+}
+
+/// `message` ([`describe_toml_error`]'s) with the type's range replaced by the field's
+/// where the value refused is one of [`WHOLE_FIELDS`]: `width = -1` read "expected a whole
+/// number in [0, 4294967295]", a range the field does not have. The key is the one on the
+/// error's line (`camera` and `render` share none of these names; `height` of `object` is
+/// a number, refused with another message).
+fn whole_field_range(message: String, text: &str, e: &toml::de::Error) -> String {
+    let generic = "expected a whole number in [0, 4294967295]";
+    let Some(span) = e.span().filter(|_| message.contains(generic)) else {
+        return message;
+    };
+    let start = span.start.min(text.len());
+    let line_start = text[..start].rfind('\n').map_or(0, |i| i + 1);
+    let line = text[line_start..].lines().next().unwrap_or("");
+    let key = line
+        .split('=')
+        .next()
+        .unwrap_or("")
+        .trim()
+        .trim_matches('"');
+    match WHOLE_FIELDS
+        .iter()
+        .find(|f| f.0.rsplit('.').next() == Some(key))
+    {
+        Some(&(_, lo, hi)) => message.replace(
+            generic,
+            &format!("expected a whole number in {}", whole_range(lo, hi)),
+        ),
+        None => message,
+    }
+}
+
 /// serde's Rust type names in words: `width = -16` said "expected u32". The field's own
 /// range is checked after parsing (the validation's messages give it).
 fn plain_types(msg: &str) -> String {
@@ -472,7 +538,13 @@ impl SceneFile {
                 what.describe()
             )));
         }
-        toml::from_str(text).map_err(|e| RenderError::Scene(describe_toml_error(path, text, &e)))
+        toml::from_str(text).map_err(|e| {
+            RenderError::Scene(whole_field_range(
+                describe_toml_error(path, text, &e),
+                text,
+                &e,
+            ))
+        })
     }
 
     /// Checks every range. The message names the field and the allowed range.
@@ -489,13 +561,8 @@ impl SceneFile {
                 num(c.fov_deg)
             ));
         }
-        for (name, v) in [("camera.width", c.width), ("camera.height", c.height)] {
-            if v == 0 || v > MAX_IMAGE_SIDE {
-                return Err(format!(
-                    "{name} = {v} is out of range: allowed [1, {MAX_IMAGE_SIDE}]"
-                ));
-            }
-        }
+        check_whole("camera.width", c.width)?;
+        check_whole("camera.height", c.height)?;
 
         let o = &self.object;
         match (o.shape, &o.mesh) {
@@ -654,15 +721,8 @@ impl SceneFile {
         }
 
         let r = &self.render;
-        if r.spp == 0 {
-            return Err("render.spp = 0 is out of range: allowed [1, 2^32)".into());
-        }
-        if !(4..=MAX_GRID).contains(&r.grid_resolution) {
-            return Err(format!(
-                "render.grid_resolution = {} is out of range: allowed [4, {MAX_GRID}]",
-                r.grid_resolution
-            ));
-        }
+        check_whole("render.spp", r.spp)?;
+        check_whole("render.grid_resolution", r.grid_resolution)?;
         if let Some(t) = r.min_tau
             && !(0.0..=MAX_SCENE_VALUE).contains(&t)
         {
@@ -679,24 +739,9 @@ impl SceneFile {
                 num(t)
             ));
         }
-        if !(1..=MAX_EXACT_NEE_SAMPLES).contains(&r.exact_nee_samples) {
-            return Err(format!(
-                "render.exact_nee_samples = {} is out of range: allowed [1, {MAX_EXACT_NEE_SAMPLES}]",
-                r.exact_nee_samples
-            ));
-        }
-        if r.path_nee_rays > MAX_PATH_NEE_RAYS {
-            return Err(format!(
-                "render.path_nee_rays = {} is out of range: allowed [0, {MAX_PATH_NEE_RAYS}]",
-                r.path_nee_rays
-            ));
-        }
-        if !(1..=MAX_NEE_SAMPLES).contains(&r.nee_samples) {
-            return Err(format!(
-                "render.nee_samples = {} is out of range: allowed [1, {MAX_NEE_SAMPLES}]",
-                r.nee_samples
-            ));
-        }
+        check_whole("render.exact_nee_samples", r.exact_nee_samples)?;
+        check_whole("render.path_nee_rays", r.path_nee_rays)?;
+        check_whole("render.nee_samples", r.nee_samples)?;
         // In f32, as the renderers hold it: 1e-300 is 0 there, no step at all.
         if let Some(t) = r.max_tau
             && !(t as f32 > 0.0 && t.is_finite())

@@ -110,6 +110,40 @@ pub fn object_mesh(scene: &SceneFile, scene_dir: &Path) -> Result<TriMesh, Rende
     Ok(m)
 }
 
+/// The surface offset eps of the scene's object as the renderer places it (moved by
+/// [`recentre`]), without building its geometry: what [`check_density`] needs to check
+/// media before a run renders anything (`experiment`'s densities).
+pub fn object_eps(scene: &SceneFile, scene_dir: &Path) -> Result<f32, RenderError> {
+    let mut mesh = object_mesh(scene, scene_dir)?;
+    recentre(&mut mesh);
+    Ok(mesh.scale() * crate::geometry::EPS)
+}
+
+/// The medium must be thicker than the surface offset `eps` by a margin, or paths entering
+/// it start too deep and the image comes out dark (black at σ_t 10⁶ on a unit sphere)
+/// without a word.
+pub fn check_density(sigma_t: [f64; 3], eps: f32) -> Result<(), RenderError> {
+    for (i, &s) in sigma_t.iter().enumerate() {
+        let depth = s * eps as f64;
+        if depth > crate::geometry::MAX_SPAWN_DEPTH as f64 {
+            return Err(RenderError::Scene(format!(
+                "medium.sigma_t[{i}] = {} is too dense for this object: the renderer's \
+                 surface offset ({:.3e}, {:e} of the object's largest coordinate or \
+                 extent) would be {depth:.2} mean free paths deep and bias the image; \
+                 allowed sigma_t <= {:.4e} here: the object's optical size (sigma_t \
+                 times its largest coordinate or extent) is at most {:.0} mean free \
+                 paths, so lower sigma_t or the object's size",
+                scatter_sim::ranges::num(s),
+                eps,
+                crate::geometry::EPS,
+                crate::geometry::MAX_SPAWN_DEPTH as f64 / eps as f64,
+                crate::geometry::MAX_SPAWN_DEPTH / crate::geometry::EPS
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// Moves the mesh so that its bounding box is centred at the origin when it lies farther
 /// from the origin than its own extent (where its position, not its size, set the
 /// tolerances); returns the shift (the renderer's origin in the scene file's frame, 0 for
@@ -282,27 +316,7 @@ impl SceneData {
         });
         let geo = Geometry::new(mesh);
         let thin = thin_object_check(&geo)?;
-        // The medium must be thicker than the surface offset by a margin, or paths entering
-        // it start too deep and the image comes out dark (black at σ_t 10⁶ on a unit
-        // sphere) without a word.
-        for (i, &s) in scene.medium.sigma_t.iter().enumerate() {
-            let depth = s * geo.eps as f64;
-            if depth > crate::geometry::MAX_SPAWN_DEPTH as f64 {
-                return Err(RenderError::Scene(format!(
-                    "medium.sigma_t[{i}] = {} is too dense for this object: the renderer's \
-                     surface offset ({:.3e}, {:e} of the object's largest coordinate or \
-                     extent) would be {depth:.2} mean free paths deep and bias the image; \
-                     allowed sigma_t <= {:.4e} here: the object's optical size (sigma_t \
-                     times its largest coordinate or extent) is at most {:.0} mean free \
-                     paths, so lower sigma_t or the object's size",
-                    scatter_sim::ranges::num(s),
-                    geo.eps,
-                    crate::geometry::EPS,
-                    crate::geometry::MAX_SPAWN_DEPTH as f64 / geo.eps as f64,
-                    crate::geometry::MAX_SPAWN_DEPTH / crate::geometry::EPS
-                )));
-            }
-        }
+        check_density(scene.medium.sigma_t, geo.eps)?;
         let mut notes: Vec<String> = geo
             .overlaps
             .iter()

@@ -110,16 +110,48 @@ pub(super) fn preflight(
             }
         }
         let dir = path.parent().unwrap_or(std::path::Path::new("."));
-        render_gpu::setup::object_mesh(&base, dir)
+        let eps = render_gpu::setup::object_eps(&base, dir)
             .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
         let check = |f: SceneFile, what: String| -> Result<()> {
             f.validate()
                 .map_err(|e| anyhow::anyhow!("{}: {what}: {e}", path.display()))
         };
-        for &k in &cfg.densities {
+        // The scene's own medium where no densities scale it (its check came after the
+        // renders of the scenes before it).
+        let unscaled = [1.0];
+        let densities = if cfg.densities.is_empty() {
+            &unscaled[..]
+        } else {
+            &cfg.densities[..]
+        };
+        for &k in densities {
             let mut f = base.clone();
             scale_density(k)(&mut f);
-            check(f, format!("with density {k}"))?;
+            check(f.clone(), format!("with density {k}"))?;
+            // How dense a medium the object takes depends on its size, which the scene
+            // file's ranges cannot know: a density of 1000 on the bunny failed only
+            // after the renders at the densities before it.
+            render_gpu::setup::check_density(f.medium.sigma_t, eps).map_err(|e| {
+                let densest = base.medium.sigma_t.iter().copied().fold(0.0, f64::max);
+                let most = f64::from(render_gpu::geometry::MAX_SPAWN_DEPTH) / f64::from(eps);
+                // Rounded down, so that the figure given fits.
+                let k_max = most / densest;
+                let shown = if k_max >= 1.0 {
+                    format!("{}", (k_max * 10.0).floor() / 10.0)
+                } else {
+                    format!("{k_max:.3e}")
+                };
+                anyhow::anyhow!(
+                    "{}: {}: {e} (densities up to {} fit this object)",
+                    path.display(),
+                    if cfg.densities.is_empty() {
+                        "its medium".to_string()
+                    } else {
+                        format!("densities = {k}")
+                    },
+                    shown
+                )
+            })?;
         }
         for &t in &cfg.thresholds {
             let mut f = base.clone();
