@@ -306,13 +306,37 @@ fn merge_images(a: &Args) -> Result<()> {
 
 /// The inputs' reports (IN.json beside each IN.exr), None where one is missing or not
 /// JSON. They are trusted for the merged report only: the image and its spp come from the
-/// EXRs' own headers.
+/// EXRs' own headers. A report that is there but cannot be read is named in a warning:
+/// silently, its render's entry in the merged report came out all nulls, as if it had none.
 fn input_reports(inputs: &[PathBuf]) -> Vec<Option<serde_json::Value>> {
     inputs
         .iter()
         .map(|p| {
-            let text = scatter_sim::output::read_input_to_string(&p.with_extension("json")).ok()?;
-            serde_json::from_str(&text).ok()
+            let path = p.with_extension("json");
+            if !path.exists() {
+                return None;
+            }
+            let read = scatter_sim::output::read_input_to_string(&path)
+                .map_err(|e| e.to_string())
+                .and_then(|t| {
+                    serde_json::from_str::<serde_json::Value>(&t).map_err(|e| e.to_string())
+                })
+                .and_then(|v| {
+                    v.is_object()
+                        .then_some(v)
+                        .ok_or_else(|| "not a JSON object".to_string())
+                });
+            match read {
+                Ok(v) => Some(v),
+                Err(e) => {
+                    eprintln!(
+                        "warning: {}: the render's report could not be read ({e}); the merged \
+                         report lists that render without its details",
+                        path.display()
+                    );
+                    None
+                }
+            }
         })
         .collect()
 }

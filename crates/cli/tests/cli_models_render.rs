@@ -2455,22 +2455,34 @@ fn merge_averages_stcvae_renders_of_both_devices() {
         serde_json::from_str(&std::fs::read_to_string(&mjson).unwrap()).unwrap();
     old.as_object_mut().unwrap().remove("renders");
     std::fs::write(&mjson, old.to_string()).unwrap();
-    std::fs::remove_file(c.with_extension("json")).unwrap();
-    ok(&merge_renders(&m, &c, &mm));
-    let json: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(mm.with_extension("json")).unwrap()).unwrap();
-    let renders = json["renders"].as_array().unwrap();
-    assert_eq!(renders.len(), 2, "{json}");
-    assert_eq!(renders[0]["merged"], true, "{json}");
-    assert_eq!(renders[0]["spp"], 5, "{json}");
-    assert_eq!(renders[0]["devices"].as_array().unwrap().len(), 2, "{json}");
-    assert!(renders[1]["spp"].is_null(), "{json}");
-    assert_eq!(json["renders_complete"], false, "{json}");
+    // A missing report is taken quietly; one that is there but damaged is named.
+    for damaged in [None, Some("garbage"), Some("[1, 2]")] {
+        match damaged {
+            None => std::fs::remove_file(c.with_extension("json")).unwrap(),
+            Some(text) => std::fs::write(c.with_extension("json"), text).unwrap(),
+        }
+        let err = ok(&merge_renders(&m, &c, &mm));
+        let warned = err.contains(&format!(
+            "warning: {}: the render's report could not be read",
+            c.with_extension("json").display()
+        ));
+        assert_eq!(warned, damaged.is_some(), "{damaged:?}: {err}");
+        let json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(mm.with_extension("json")).unwrap())
+                .unwrap();
+        let renders = json["renders"].as_array().unwrap();
+        assert_eq!(renders.len(), 2, "{json}");
+        assert_eq!(renders[0]["merged"], true, "{json}");
+        assert_eq!(renders[0]["spp"], 5, "{json}");
+        assert_eq!(renders[0]["devices"].as_array().unwrap().len(), 2, "{json}");
+        assert!(renders[1]["spp"].is_null(), "{json}");
+        assert_eq!(json["renders_complete"], false, "{json}");
+    }
 }
 
 /// An input that is a named pipe is refused at once by every reader, naming it: opening
 /// a FIFO without a writer blocked for ever (a scene, mesh, model, image or dataset given
-/// as one hung the command). Each command gets 60 s before the test kills it and fails.
+/// as one hung the command). Each command gets 600 s before the test kills it and fails.
 #[cfg(unix)]
 #[test]
 fn named_pipes_as_inputs_are_refused_not_waited_on() {
