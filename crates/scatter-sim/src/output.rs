@@ -164,6 +164,41 @@ pub fn remove_stale_temporaries_of(path: &Path) {
     }
 }
 
+/// Removes the `.NAME.XXXXXX.partial` temporaries beside `path` (`prefix` is
+/// [`temp_prefix`]'s) that no process is writing, and returns them with their sizes. Each
+/// writer holds a lock on its temporary ([`AtomicFile::create`]), which the OS releases
+/// when the process dies, so one whose lock can be taken was left by a run that was
+/// killed (SIGKILL, the OOM killer, a power cut) before any handler could remove it: a
+/// killed `generate` left a hidden `.y.csv.XXXXXX.partial` that no later run removed or
+/// named, and a dataset's holds hundreds of MB. A temporary another run is writing keeps
+/// its lock and is left alone.
+fn remove_killed_temporaries(path: &Path, prefix: &str) -> Vec<(PathBuf, u64)> {
+    let Ok(entries) = fs::read_dir(folder_of(path)) else {
+        return Vec::new();
+    };
+    let mut gone = Vec::new();
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        // tempfile's six random characters between the prefix and the suffix.
+        let ours = name.len() == prefix.len() + 6 + ".partial".len()
+            && name.starts_with(prefix)
+            && name.ends_with(".partial");
+        if !ours || !e.file_type().is_ok_and(|t| t.is_file()) {
+            continue;
+        }
+        let Ok(f) = fs::File::open(e.path()) else {
+            continue;
+        };
+        if f.try_lock().is_ok() {
+            let bytes = f.metadata().map_or(0, |m| m.len());
+            if fs::remove_file(e.path()).is_ok() {
+                gone.push((e.path(), bytes));
+            }
+        }
+    }
+    gone
+}
+
 /// Refuses an input path that is a named pipe, a socket or a device: opening a FIFO with
 /// no writer blocks for ever (a scene, mesh, model or image given as one hung the command,
 /// deaf to a first Ctrl-C), and stcvae reads its inputs whole, with their size known.
@@ -296,7 +331,19 @@ impl AtomicFile {
             use std::os::unix::fs::PermissionsExt;
             builder.permissions(std::fs::Permissions::from_mode(0o666));
         }
+        for (gone, bytes) in remove_killed_temporaries(path, &prefix) {
+            eprintln!(
+                "note: removed {} ({bytes} bytes), the temporary of an earlier run that was \
+                 killed while writing {}",
+                gone.display(),
+                path.display()
+            );
+        }
         let tmp = builder.tempfile_in(dir)?;
+        // Held while this process has the file open (the OS drops it when the process
+        // dies): marks the temporary as being written, for `remove_killed_temporaries`.
+        // Where the file system has no locks the temporary is simply never swept.
+        let _ = tmp.as_file().try_lock();
         Ok(Self {
             path: path.to_path_buf(),
             live: Live::new(tmp.path()),
@@ -489,6 +536,39 @@ impl Previous {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A temporary left by a killed run (no lock: its process is gone) is removed when the
+    /// same output is written again; one another writer holds (here a live `AtomicFile`,
+    /// whose lock a second open file conflicts with even in one process) is left, as are
+    /// other names' temporaries and a file that only looks like one.
+    #[test]
+    fn a_killed_runs_temporary_is_swept_and_a_live_one_kept() {
+        let d = tempfile::tempdir().unwrap();
+        let out = d.path().join("y.csv");
+        let killed = d.path().join(".y.csv.AbC123.partial");
+        let other = d.path().join(".z.csv.AbC123.partial");
+        let lookalike = d.path().join(".y.csv.seven77.partial");
+        for p in [&killed, &other, &lookalike] {
+            fs::write(p, b"half a dataset").unwrap();
+        }
+        let mut live = AtomicFile::create(&out).unwrap();
+        // Creating `live` swept the killed run's temporary already.
+        assert!(!killed.exists());
+        let live_tmp: Vec<PathBuf> = fs::read_dir(d.path())
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .filter(|p| ![&other, &lookalike].contains(&p))
+            .collect();
+        assert_eq!(live_tmp.len(), 1, "{live_tmp:?}");
+        fs::write(&killed, b"half a dataset").unwrap();
+        let gone = remove_killed_temporaries(&out, &temp_prefix(&out));
+        assert_eq!(gone, vec![(killed.clone(), 14)]);
+        assert!(live_tmp[0].exists(), "the live temporary was removed");
+        assert!(other.exists() && lookalike.exists());
+        live.write_all(b"x").unwrap();
+        live.commit().unwrap();
+        assert_eq!(fs::read(&out).unwrap(), b"x");
+    }
 
     /// A rename that fails part way through a set puts back what the set's earlier renames
     /// replaced: an old file its old bytes, a new name nothing. Nothing else is left in
