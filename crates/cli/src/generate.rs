@@ -234,6 +234,25 @@ pub fn run(a: Args) -> Result<()> {
             progress::count(spec.total_walks, "walk")
         );
     }
+    // A run whose file cannot fit fails only when the disk fills, after hours (`--samples
+    // 18446744073709551615` started with an ETA of 45,962,785 years): refused now. Rows are
+    // 56 bytes in the binary format and longer as CSV text, so this is a lower bound.
+    let need = piece
+        .count
+        .saturating_mul(scatter_sim::dataset::ROW_BYTES as u64);
+    if let Some(free) = crate::paths::free_bytes(&out)
+        && need > free
+    {
+        bail!(
+            "{}: {} need at least {} ({} bytes a walk), and its file system has {} free: \
+             lower --samples (or the config's walks), or write elsewhere",
+            out.display(),
+            progress::count(piece.count, "walk"),
+            indicatif::HumanBytes(need),
+            scatter_sim::dataset::ROW_BYTES,
+            indicatif::HumanBytes(free)
+        );
+    }
     let pool = pool(a.threads)?;
     eprintln!(
         "generating {}{} ({} mode, seed {}, {}) -> {}",

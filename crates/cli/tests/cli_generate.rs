@@ -196,6 +196,35 @@ fn the_last_shard_of_the_largest_run_ends() {
     assert_eq!(text.lines().count(), 2, "a header and one walk: {text}");
 }
 
+/// A run whose file cannot fit on its disk is refused before any walk, naming the file,
+/// the least it needs and the space free: `--samples 18446744073709551615` started and
+/// showed an ETA of 45,962,785 years. 2^64 − 1 walks of 56 bytes exceed any file system.
+#[test]
+fn a_run_larger_than_its_disk_is_refused_at_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args([
+            "generate",
+            "--samples",
+            &u64::MAX.to_string(),
+            "--out",
+            "x.bin",
+        ])
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains(
+            "x.bin: 18446744073709551615 walks need at least 16.00 EiB (56 bytes a walk)"
+        ) && err.contains("free: lower --samples")
+            && err.trim().lines().count() == 1,
+        "{err}"
+    );
+    assert_eq!(fs::read_dir(dir.path()).unwrap().count(), 0);
+}
+
 /// `merge` holds one input open at a time: under a descriptor limit of 20 it merges 40
 /// shards (it opened them all at once and ran out of descriptors at 1,100 shards under
 /// the usual 1,024), and the rows are the unsharded run's.
