@@ -216,9 +216,8 @@ fn a_run_larger_than_its_disk_is_refused_at_once() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success(), "{err}");
     assert!(
-        err.contains(
-            "x.bin: 18446744073709551615 walks need at least 16.00 EiB (56 bytes a walk)"
-        ) && err.contains("free: lower --samples")
+        err.contains("x.bin: 18446744073709551615 walks need at least 16.00 EiB (56 bytes a walk)")
+            && err.contains("free: lower --samples")
             && err.trim().lines().count() == 1,
         "{err}"
     );

@@ -688,7 +688,7 @@ fn resume_needs_an_intact_checkpoint_and_the_last_loss_is_the_last_steps() {
         stderr(&out).contains("eventgen.bpk")
             && stderr(&out).contains("checksum")
             // The advice leads somewhere: a run without --resume would be refused too.
-            && stderr(&out).contains("start over with --fresh"),
+            && stderr(&out).contains("start over with --fresh --model eventgen"),
         "{}",
         stderr(&out)
     );

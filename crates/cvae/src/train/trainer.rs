@@ -349,7 +349,9 @@ fn read_checkpoint_file(path: &Path) -> std::io::Result<Vec<u8>> {
 
 /// Compares the weights (and, when given, the optimiser state) with the CRC-32s saved in
 /// `info` (not checked for checkpoints saved without them).
-fn check_crcs(info: &CheckpointInfo, files: &[&Path]) -> Result<(), TrainError> {
+/// One model's damaged checkpoint is that model's to redo: `--fresh` alone restarts all
+/// three (the damaged record's message already named the model).
+fn check_crcs(info: &CheckpointInfo, files: &[&Path], kind: ModelKind) -> Result<(), TrainError> {
     let Some(crcs) = info.crc32 else {
         return Ok(());
     };
@@ -357,9 +359,11 @@ fn check_crcs(info: &CheckpointInfo, files: &[&Path]) -> Result<(), TrainError> 
         let got = crc_of(path).map_err(|e| TrainError::Checkpoint {
             path: path.into(),
             msg: if e.kind() == std::io::ErrorKind::NotFound {
-                "missing beside its checkpoint record: the checkpoint is incomplete; start \
-                 over with --fresh"
-                    .to_string()
+                format!(
+                    "missing beside its checkpoint record: the checkpoint is incomplete; start \
+                     over with --fresh --model {}",
+                    kind.name()
+                )
             } else {
                 e.to_string()
             },
@@ -370,7 +374,8 @@ fn check_crcs(info: &CheckpointInfo, files: &[&Path]) -> Result<(), TrainError> 
                 msg: format!(
                     "checksum {got:08x} differs from the {want:08x} saved with the checkpoint: \
                      the file is damaged or was replaced, or its save was cut short; start \
-                     over with --fresh"
+                     over with --fresh --model {}",
+                    kind.name()
                 ),
             });
         }
@@ -634,7 +639,7 @@ pub fn train_model(
             ));
         }
         info.plan = Some(plan);
-        check_crcs(&info, &[&mpath, &opath])?;
+        check_crcs(&info, &[&mpath, &opath], kind)?;
         for p in [&mpath, &opath] {
             scatter_sim::output::check_input(p).map_err(|e| err(p, e.to_string()))?;
         }
@@ -786,7 +791,7 @@ pub fn load_decoder(
     let info: CheckpointInfo = serde_json::from_slice(&text).map_err(|e| err(&j, e.to_string()))?;
     info.check()
         .map_err(|e| err(&j, format!("{e}: the file was edited or damaged")))?;
-    check_crcs(&info, &[&m])?;
+    check_crcs(&info, &[&m], kind)?;
     scatter_sim::output::check_input(&m).map_err(|e| err(&m, e.to_string()))?;
     let device = Device::flex();
     let mut rng = WalkRng::from_seed(0);
@@ -907,7 +912,7 @@ mod tests {
         save_checkpoint(d.path(), kind, &first, &optim, &info(1)).unwrap();
         let (m, o, j) = paths(d.path(), kind);
         let saved: CheckpointInfo = serde_json::from_slice(&std::fs::read(&j).unwrap()).unwrap();
-        check_crcs(&saved, &[&m, &o]).unwrap();
+        check_crcs(&saved, &[&m, &o], kind).unwrap();
         let (model_before, json_before) = (std::fs::read(&m).unwrap(), std::fs::read(&j).unwrap());
         std::fs::remove_file(&o).unwrap();
         std::fs::create_dir(&o).unwrap();
@@ -923,7 +928,7 @@ mod tests {
         );
         let saved: CheckpointInfo = serde_json::from_slice(&std::fs::read(&j).unwrap()).unwrap();
         assert_eq!(saved.step, 2);
-        check_crcs(&saved, &[&m, &o]).unwrap();
+        check_crcs(&saved, &[&m, &o], kind).unwrap();
         let mut left: Vec<String> = std::fs::read_dir(d.path())
             .unwrap()
             .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
