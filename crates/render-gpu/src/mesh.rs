@@ -1208,14 +1208,21 @@ fn load_obj(path: &Path) -> Result<TriMesh, RenderError> {
         ignore_lines: true,
     };
     let bytes = std::fs::read(path).map_err(|e| RenderError::io(path, e))?;
-    // tobj reads line by line: bytes that are not UTF-8 text stop it.
-    let text = String::from_utf8(bytes).map_err(|_| {
-        RenderError::mesh(
+    // tobj reads line by line: bytes that are not UTF-8 text stop it. A NUL marks a
+    // binary file; other stray bytes are a comment's or a name's in another encoding
+    // (Latin-1 "# café" was refused as "not text"), which no vertex or face reads: they
+    // become U+FFFD, and a number spoilt by one is named with its line by `obj_problem`.
+    if bytes.contains(&0) {
+        return Err(RenderError::mesh(
             path,
             "not a valid OBJ file: it is not text (an OBJ mesh is a text file of 'v' and 'f' \
              lines)",
-        )
-    })?;
+        ));
+    }
+    let text = match String::from_utf8(bytes) {
+        Ok(t) => t,
+        Err(e) => String::from_utf8_lossy(e.as_bytes()).into_owned(),
+    };
     // A UTF-8 byte-order mark hid the first line ("face index 8 names no vertex"), and
     // tobj splits lines at '\n' only (old Mac files end them with '\r').
     let text = text.strip_prefix('\u{feff}').unwrap_or(&text);

@@ -108,6 +108,22 @@ fn obj_quads_load_and_an_open_mesh_is_refused() {
         let other = load_mesh(&write(&d, name, text.as_bytes())).unwrap();
         assert_eq!(other.triangles, m.triangles, "{name}");
     }
+    // A comment and an object name in Latin-1 (not UTF-8) load as the same cube; a stray
+    // byte inside a number is named with its line; a NUL makes the file binary.
+    let latin1 = [b"# caf\xe9\no cub\xe9\n".as_slice(), CUBE_OBJ.as_bytes()].concat();
+    let other = load_mesh(&write(&d, "latin1.obj", &latin1)).unwrap();
+    assert_eq!(other.triangles, m.triangles);
+    let rest = &CUBE_OBJ.as_bytes()[CUBE_OBJ.find('\n').unwrap() + 1..];
+    let spoilt = [b"v -1\xe9 -1 -1\n".as_slice(), rest].concat();
+    let e = load_mesh(&write(&d, "spoilt.obj", &spoilt))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("spoilt.obj") && e.contains("line 1"), "{e}");
+    let binary = [CUBE_OBJ.as_bytes(), b"\0\0"].concat();
+    let e = load_mesh(&write(&d, "nul.obj", &binary))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("it is not text"), "{e}");
     // Remove one quad: four boundary edges.
     let open = CUBE_OBJ.replace("f 2 4 8 6\n", "");
     let e = load_mesh(&write(&d, "open.obj", open.as_bytes()))
