@@ -68,6 +68,42 @@ pub(crate) fn check_kind(flag: &str, out: &Path, holds: &str, exts: &[&str]) -> 
     Ok(())
 }
 
+/// Bytes this user may still write on the file system that will hold `out` (its nearest
+/// existing folder), where the OS says (Unix; None elsewhere or on error).
+pub(crate) fn free_bytes(out: &Path) -> Option<u64> {
+    #[cfg(unix)]
+    {
+        use std::os::unix::ffi::OsStrExt;
+        let dir = out
+            .ancestors()
+            .skip(1)
+            .map(|a| {
+                if a.as_os_str().is_empty() {
+                    Path::new(".")
+                } else {
+                    a
+                }
+            })
+            .find(|a| a.is_dir())?;
+        let c = std::ffi::CString::new(dir.as_os_str().as_bytes()).ok()?;
+        let mut st = std::mem::MaybeUninit::<libc::statvfs>::uninit();
+        // SAFETY: `c` is a NUL-terminated path and `st` a buffer statvfs fills on success.
+        if unsafe { libc::statvfs(c.as_ptr(), st.as_mut_ptr()) } != 0 {
+            return None;
+        }
+        // SAFETY: statvfs returned 0, so it filled `st`.
+        let st = unsafe { st.assume_init() };
+        // fsblkcnt_t and c_ulong are 32 bits on some targets.
+        #[allow(clippy::unnecessary_cast)]
+        Some((st.f_bavail as u64).saturating_mul(st.f_frsize as u64))
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = out;
+        None
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -106,39 +142,5 @@ mod tests {
         assert!(identity(&deep).starts_with(identity(&dir.path().join("a"))));
         let dotted = dir.path().join("a").join(".").join("b").join("m.stcvae");
         assert_eq!(identity(&dotted), identity(&deep));
-    }
-}
-
-/// Bytes this user may still write on the file system that will hold `out` (its nearest
-/// existing folder), where the OS says (Unix; None elsewhere or on error).
-pub(crate) fn free_bytes(out: &Path) -> Option<u64> {
-    #[cfg(unix)]
-    {
-        use std::os::unix::ffi::OsStrExt;
-        let dir = out
-            .ancestors()
-            .skip(1)
-            .map(|a| {
-                if a.as_os_str().is_empty() {
-                    Path::new(".")
-                } else {
-                    a
-                }
-            })
-            .find(|a| a.is_dir())?;
-        let c = std::ffi::CString::new(dir.as_os_str().as_bytes()).ok()?;
-        let mut st = std::mem::MaybeUninit::<libc::statvfs>::uninit();
-        // SAFETY: `c` is a NUL-terminated path and `st` a buffer statvfs fills on success.
-        if unsafe { libc::statvfs(c.as_ptr(), st.as_mut_ptr()) } != 0 {
-            return None;
-        }
-        // SAFETY: statvfs returned 0, so it filled `st`.
-        let st = unsafe { st.assume_init() };
-        Some((st.f_bavail as u64).saturating_mul(st.f_frsize as u64))
-    }
-    #[cfg(not(unix))]
-    {
-        let _ = out;
-        None
     }
 }
