@@ -129,20 +129,6 @@ pub fn run(a: Args) -> Result<()> {
         })?
         .without_fallback();
     let cpu = Engine::open(DeviceArg::Cpu)?;
-    println!(
-        "stcvae bench devices: {} ({}x{}), σ_t × k, {} spp, seed {}\n  {}\n  {}",
-        a.scene.display(),
-        a.size,
-        a.size,
-        a.spp,
-        a.seed,
-        gpu.describe(),
-        cpu.describe()
-    );
-    println!(
-        "{:>6} {:>8} {:>8} {:>8} {:>12} {:>12} {:>8} {:>10}",
-        "k", "", "CPU s", "GPU s", "CPU paths/s", "GPU paths/s", "GPU/CPU", "compile s"
-    );
     // Every row's scene is built once before the first render, as `bench render` does:
     // the checks that need it (a density too deep for the object's surface offset, the
     // model's τ range, the distance grid) failed a later density after minutes of renders.
@@ -171,6 +157,22 @@ pub fn run(a: Args) -> Result<()> {
                 .map_err(|e| anyhow::anyhow!("--size {}: {e}", a.size))?;
         }
     }
+    // The banner and the table's head after every check: a refused --k or --size came
+    // after the head, as if a row were to follow.
+    println!(
+        "stcvae bench devices: {} ({}x{}), σ_t × k, {} spp, seed {}\n  {}\n  {}",
+        a.scene.display(),
+        a.size,
+        a.size,
+        a.spp,
+        a.seed,
+        gpu.describe(),
+        cpu.describe()
+    );
+    println!(
+        "{:>6} {:>8} {:>8} {:>8} {:>12} {:>12} {:>8} {:>10}",
+        "k", "", "CPU s", "GPU s", "CPU paths/s", "GPU paths/s", "GPU/CPU", "compile s"
+    );
     for &(k, kind, name) in &rows {
         let p = &prepare_row(k, kind)?;
         let on_cpu = render(&cpu, p, a.spp, a.seed, None)?;
