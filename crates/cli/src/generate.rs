@@ -235,21 +235,19 @@ pub fn run(a: Args) -> Result<()> {
         );
     }
     // A run whose file cannot fit fails only when the disk fills, after hours (`--samples
-    // 18446744073709551615` started with an ETA of 45,962,785 years): refused now. Rows are
-    // 56 bytes in the binary format and longer as CSV text, so this is a lower bound.
-    let need = piece
-        .count
-        .saturating_mul(scatter_sim::dataset::ROW_BYTES as u64);
+    // 18446744073709551615` started with an ETA of 45,962,785 years): refused now, on the
+    // least a row can take in this format (a lower bound: no run that fits is refused).
+    let per_walk = scatter_sim::dataset::least_row_bytes(&out);
+    let need = piece.count.saturating_mul(per_walk);
     if let Some(free) = crate::paths::free_bytes(&out)
         && need > free
     {
         bail!(
-            "{}: {} need at least {} ({} bytes a walk), and its file system has {} free: \
-             lower --samples (or the config's walks), or write elsewhere",
+            "{}: {} need at least {} ({per_walk} bytes a walk at least), and its file system \
+             has {} free: lower --samples (or the config's walks), or write elsewhere",
             out.display(),
             progress::count(piece.count, "walk"),
             indicatif::HumanBytes(need),
-            scatter_sim::dataset::ROW_BYTES,
             indicatif::HumanBytes(free)
         );
     }

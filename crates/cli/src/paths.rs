@@ -93,6 +93,11 @@ pub(crate) fn free_bytes(out: &Path) -> Option<u64> {
         }
         // SAFETY: statvfs returned 0, so it filled `st`.
         let st = unsafe { st.assume_init() };
+        // A file system that reports no sizes (a FUSE one without statfs, or one queried
+        // by a user it does not serve) gives zeros: unknown, not full.
+        if st.f_blocks == 0 || st.f_frsize == 0 {
+            return None;
+        }
         // fsblkcnt_t and c_ulong are 32 bits on some targets.
         #[allow(clippy::unnecessary_cast)]
         Some((st.f_bavail as u64).saturating_mul(st.f_frsize as u64))
