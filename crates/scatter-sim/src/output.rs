@@ -164,6 +164,36 @@ pub fn remove_stale_temporaries_of(path: &Path) {
     }
 }
 
+/// A new temporary in `dir`, locked: the lock is held while this process has the file open
+/// (the OS drops it when the process dies) and marks the temporary as being written, for
+/// [`remove_killed_temporaries`]. Between its creation and the lock another run's sweep
+/// may take and remove it; a file that no longer has its name is then made again (the
+/// write would have gone to an unlinked file and its rename failed after the work). The
+/// lock waits for such a sweep to let go. Where the file system has no locks the
+/// temporary is never swept.
+fn locked_temporary(builder: &tempfile::Builder, dir: &Path) -> io::Result<NamedTempFile> {
+    for _ in 0..8 {
+        let tmp = builder.tempfile_in(dir)?;
+        if tmp.as_file().lock().is_err() {
+            return Ok(tmp);
+        }
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::MetadataExt;
+            let open = tmp.as_file().metadata()?;
+            let named = fs::symlink_metadata(tmp.path());
+            if !named.is_ok_and(|n| n.dev() == open.dev() && n.ino() == open.ino()) {
+                // Swept: its name is gone, and dropping `tmp` finds nothing to remove.
+                continue;
+            }
+        }
+        return Ok(tmp);
+    }
+    Err(io::Error::other(
+        "its temporary file was removed as soon as it was made, eight times",
+    ))
+}
+
 /// Removes the `.NAME.XXXXXX.partial` temporaries beside `path` (`prefix` is
 /// [`temp_prefix`]'s) that no process is writing, and returns them with their sizes. Each
 /// writer holds a lock on its temporary ([`AtomicFile::create`]), which the OS releases
@@ -244,8 +274,8 @@ fn folder_of(path: &Path) -> &Path {
     }
 }
 
-/// The start of a temporary's name beside `path` (".NAME."): at most 64 bytes of the
-/// target's name, so that the temporary stays within a file system's 255-byte names
+/// The start of a temporary's name beside `path` (".NAME."): at most 64 bytes standing for
+/// the target's name, so that the temporary stays within a file system's 255-byte names
 /// whenever the target's name does (the whole name plus ".XXXXXX.partial" failed for names
 /// of 236–255 bytes, after the work was done).
 fn temp_prefix(path: &Path) -> String {
@@ -253,11 +283,21 @@ fn temp_prefix(path: &Path) -> String {
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
-    let mut cut = name.len().min(64);
+    if name.len() <= 64 {
+        return format!(".{name}.");
+    }
+    // Longer names: their first 55 bytes and a checksum of the whole name, so that two
+    // outputs that differ only further on (long shard names) have prefixes of their own
+    // and a sweep ([`remove_killed_temporaries`]) keeps to its own output's temporaries.
+    let mut cut = 55;
     while !name.is_char_boundary(cut) {
         cut -= 1;
     }
-    format!(".{}.", &name[..cut])
+    format!(
+        ".{}~{:08x}.",
+        &name[..cut],
+        crc32fast::hash(name.as_bytes())
+    )
 }
 
 /// A buffered writer to a temporary file that becomes `path` on [`AtomicFile::commit`].
@@ -339,11 +379,7 @@ impl AtomicFile {
                 path.display()
             );
         }
-        let tmp = builder.tempfile_in(dir)?;
-        // Held while this process has the file open (the OS drops it when the process
-        // dies): marks the temporary as being written, for `remove_killed_temporaries`.
-        // Where the file system has no locks the temporary is simply never swept.
-        let _ = tmp.as_file().try_lock();
+        let tmp = locked_temporary(&builder, dir)?;
         Ok(Self {
             path: path.to_path_buf(),
             live: Live::new(tmp.path()),
@@ -568,6 +604,18 @@ mod tests {
         live.write_all(b"x").unwrap();
         live.commit().unwrap();
         assert_eq!(fs::read(&out).unwrap(), b"x");
+        // Names alike for their first 64 bytes (long shard names) sweep only their own.
+        let long = "s".repeat(70);
+        let (a, b) = (
+            d.path().join(format!("{long}_1.csv")),
+            d.path().join(format!("{long}_2.csv")),
+        );
+        let (pa, pb) = (temp_prefix(&a), temp_prefix(&b));
+        assert!(pa != pb && pa.len() == 66 && pb.len() == 66, "{pa} {pb}");
+        let killed_b = d.path().join(format!("{pb}AbC123.partial"));
+        fs::write(&killed_b, b"x").unwrap();
+        assert!(remove_killed_temporaries(&a, &pa).is_empty());
+        assert_eq!(remove_killed_temporaries(&b, &pb), vec![(killed_b, 1)]);
     }
 
     /// A rename that fails part way through a set puts back what the set's earlier renames
