@@ -449,6 +449,21 @@ fn experiment_configs_are_checked_before_any_rendering() {
             && e.contains("(densities up to 259.9 fit this object)"),
         "{e}"
     );
+    // A kind that scales no density checks the scene's own medium, without the hint.
+    std::fs::write(
+        tmp.path().join("dense.toml"),
+        bunny.replace(
+            "sigma_t = [150.0, 187.5, 125.0]",
+            "sigma_t = [150000.0, 187.5, 125.0]",
+        ),
+    )
+    .unwrap();
+    let e = run_kind("absorption", "scene = \"dense.toml\"\nabsorptions = [0.5]");
+    assert!(
+        e.contains("dense.toml: medium.sigma_t[0] = 150000 is too dense")
+            && !e.contains("densities up to"),
+        "{e}"
+    );
     let e = run("scene = \"ok.toml\"\ndensities = [1e-300]");
     assert!(
         e.contains("densities: 1e-300 is out of range: allowed [0.001, 1000]"),

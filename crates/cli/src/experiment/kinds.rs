@@ -132,24 +132,17 @@ pub(super) fn preflight(
             // file's ranges cannot know: a density of 1000 on the bunny failed only
             // after the renders at the densities before it.
             render_gpu::setup::check_density(f.medium.sigma_t, eps).map_err(|e| {
+                if cfg.densities.is_empty() {
+                    // A kind that scales nothing: the scene's own sigma_t, whose limit the
+                    // message gives.
+                    return anyhow::anyhow!("{}: {e}", path.display());
+                }
                 let densest = base.medium.sigma_t.iter().copied().fold(0.0, f64::max);
                 let most = f64::from(render_gpu::geometry::MAX_SPAWN_DEPTH) / f64::from(eps);
-                // Rounded down, so that the figure given fits.
-                let k_max = most / densest;
-                let shown = if k_max >= 1.0 {
-                    format!("{}", (k_max * 10.0).floor() / 10.0)
-                } else {
-                    format!("{k_max:.3e}")
-                };
                 anyhow::anyhow!(
-                    "{}: {}: {e} (densities up to {} fit this object)",
+                    "{}: densities = {k}: {e} ({})",
                     path.display(),
-                    if cfg.densities.is_empty() {
-                        "its medium".to_string()
-                    } else {
-                        format!("densities = {k}")
-                    },
-                    shown
+                    densest_hint(most / densest)
                 )
             })?;
         }
@@ -199,6 +192,21 @@ fn plot(
     )?;
     rep.image(title, file);
     Ok(())
+}
+
+/// The most density that fits, rounded down to three significant figures (at least one
+/// decimal) so that the figure given fits, within the configs' range [0.001, 1000].
+fn densest_hint(k_max: f64) -> String {
+    if !(k_max >= 0.001) {
+        return "no density from the configs' least, 0.001, fits this object".to_string();
+    }
+    let k_max = k_max.min(1000.0);
+    let decimals = (2 - k_max.log10().floor() as i32).max(1) as usize;
+    let scale = 10f64.powi(decimals as i32);
+    format!(
+        "densities up to {:.decimals$} fit this object",
+        (k_max * scale).floor() / scale
+    )
 }
 
 /// A density as file names write it: as typed where that is short (k0.5, k8), else in
@@ -786,5 +794,25 @@ mod tests {
             assert_eq!(super::k_name(k), name);
         }
         assert!(super::k_name(1e300).len() <= 12);
+    }
+
+    /// The density given as the most that fits is rounded down (0.99996 is not "1.000"),
+    /// to three significant figures, and stays within the configs' range.
+    #[test]
+    fn the_densest_hint_rounds_down() {
+        for (k, shown) in [
+            (259.95, "259.9"),
+            (1.0, "1.00"),
+            (0.99996, "0.999"),
+            (0.012345, "0.0123"),
+            (5e4, "1000.0"),
+        ] {
+            assert_eq!(
+                super::densest_hint(k),
+                format!("densities up to {shown} fit this object")
+            );
+        }
+        assert!(super::densest_hint(5e-4).starts_with("no density"));
+        assert!(super::densest_hint(f64::NAN).starts_with("no density"));
     }
 }
