@@ -926,6 +926,11 @@ fn bad_scenes_are_one_line_errors() {
             "expected a whole number in [1, 16384]",
         ),
         (
+            "width = 128",
+            "'width' = -16",
+            "expected a whole number in [1, 16384]",
+        ),
+        (
             "spp = 64",
             "spp = -1",
             "expected a whole number in [1, 2^32)",

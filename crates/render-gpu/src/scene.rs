@@ -39,7 +39,9 @@ pub struct CameraDesc {
     pub up: [f64; 3],
     /// Horizontal field of view, degrees.
     pub fov_deg: f64,
+    #[serde(deserialize_with = "whole::<W_WIDTH, _>")]
     pub width: u32,
+    #[serde(deserialize_with = "whole::<W_HEIGHT, _>")]
     pub height: u32,
 }
 
@@ -96,6 +98,14 @@ const WHOLE_FIELDS: [(&str, u32, u32); 7] = [
     ("render.nee_samples", 1, MAX_NEE_SAMPLES),
 ];
 
+const W_WIDTH: usize = 0;
+const W_HEIGHT: usize = 1;
+const W_SPP: usize = 2;
+const W_GRID: usize = 3;
+const W_EXACT_NEE_SAMPLES: usize = 4;
+const W_PATH_NEE_RAYS: usize = 5;
+const W_NEE_SAMPLES: usize = 6;
+
 fn whole_range(lo: u32, hi: u32) -> String {
     if hi == u32::MAX {
         format!("[{lo}, 2^32)")
@@ -104,11 +114,8 @@ fn whole_range(lo: u32, hi: u32) -> String {
     }
 }
 
-fn check_whole(name: &str, v: u32) -> Result<(), String> {
-    let &(_, lo, hi) = WHOLE_FIELDS
-        .iter()
-        .find(|f| f.0 == name)
-        .expect("a field of WHOLE_FIELDS");
+fn check_whole(field: usize, v: u32) -> Result<(), String> {
+    let (name, lo, hi) = WHOLE_FIELDS[field];
     if (lo..=hi).contains(&v) {
         return Ok(());
     }
@@ -118,35 +125,28 @@ fn check_whole(name: &str, v: u32) -> Result<(), String> {
     ))
 }
 
-/// `message` ([`describe_toml_error`]'s) with the type's range replaced by the field's
-/// where the value refused is one of [`WHOLE_FIELDS`]: `width = -1` read "expected a whole
-/// number in [0, 4294967295]", a range the field does not have. The key is the one on the
-/// error's line (`camera` and `render` share none of these names; `height` of `object` is
-/// a number, refused with another message).
-fn whole_field_range(message: String, text: &str, e: &toml::de::Error) -> String {
-    let generic = "expected a whole number in [0, 4294967295]";
-    let Some(span) = e.span().filter(|_| message.contains(generic)) else {
-        return message;
-    };
-    let start = span.start.min(text.len());
-    let line_start = text[..start].rfind('\n').map_or(0, |i| i + 1);
-    let line = text[line_start..].lines().next().unwrap_or("");
-    let key = line
-        .split('=')
-        .next()
-        .unwrap_or("")
-        .trim()
-        .trim_matches('"');
-    match WHOLE_FIELDS
-        .iter()
-        .find(|f| f.0.rsplit('.').next() == Some(key))
-    {
-        Some(&(_, lo, hi)) => message.replace(
-            generic,
-            &format!("expected a whole number in {}", whole_range(lo, hi)),
-        ),
-        None => message,
+/// Reads one of [`WHOLE_FIELDS`] (`I` its index): a value serde would refuse for the type
+/// (negative, fractional, beyond 2^32) is refused with the field's own range, not the
+/// type's (`width = -1` read "expected a whole number in [0, 4294967295]"), wherever the
+/// key is written (inline tables, dotted or quoted keys). A whole number of the type but
+/// out of range is left to `validate`, which names the field.
+fn whole<'de, const I: usize, D: serde::Deserializer<'de>>(d: D) -> Result<u32, D::Error> {
+    struct Whole(usize);
+    impl serde::de::Visitor<'_> for Whole {
+        type Value = u32;
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            let (_, lo, hi) = WHOLE_FIELDS[self.0];
+            write!(f, "a whole number in {}", whole_range(lo, hi))
+        }
+        fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<u32, E> {
+            u32::try_from(v)
+                .map_err(|_| E::invalid_value(serde::de::Unexpected::Unsigned(v), &self))
+        }
+        fn visit_i64<E: serde::de::Error>(self, v: i64) -> Result<u32, E> {
+            u32::try_from(v).map_err(|_| E::invalid_value(serde::de::Unexpected::Signed(v), &self))
+        }
     }
+    d.deserialize_u32(Whole(I))
 }
 
 /// serde's Rust type names in words: `width = -16` said "expected u32". The field's own
@@ -307,12 +307,12 @@ pub struct RenderDesc {
     pub integrator: IntegratorKind,
     #[serde(default = "yes")]
     pub nee: bool,
-    #[serde(default = "default_spp")]
+    #[serde(default = "default_spp", deserialize_with = "whole::<W_SPP, _>")]
     pub spp: u32,
     #[serde(default = "one")]
     pub seed: u64,
     /// Distance-grid cells along the longest side of the mesh bounds (ST-CVAE).
-    #[serde(default = "default_grid")]
+    #[serde(default = "default_grid", deserialize_with = "whole::<W_GRID, _>")]
     pub grid_resolution: u32,
     /// Thin-region fallback: below this optical radius σ_t·r a sphere step is replaced
     /// by an ordinary PT event (ST-CVAE). Unset: [`DEFAULT_MIN_TAU`].
@@ -329,13 +329,19 @@ pub struct RenderDesc {
     /// (ST-CVAE). 2 by measurement (docs/BENCHMARKS.md): with one, rare paths near the
     /// lit surface dominate the variance; a second EventGen draw removed them at ~10–25 %
     /// more time.
-    #[serde(default = "default_nee_samples")]
+    #[serde(
+        default = "default_nee_samples",
+        deserialize_with = "whole::<W_NEE_SAMPLES, _>"
+    )]
     pub nee_samples: u32,
     /// NEE events per exactly simulated sphere step (below `exact_tau`), chosen among
     /// the walk's events by importance. 1 by measurement (docs/BENCHMARKS.md, fifteenth
     /// session): the importance choice already puts the event near the lit side, so a
     /// second one lowers the variance less than its shadow ray costs.
-    #[serde(default = "default_exact_nee_samples")]
+    #[serde(
+        default = "default_exact_nee_samples",
+        deserialize_with = "whole::<W_EXACT_NEE_SAMPLES, _>"
+    )]
     pub exact_nee_samples: u32,
     /// Shadow rays per path (ST-CVAE): each chooses one of the path's NEE events by a
     /// proxy of its contribution (`integrator::nee::PathNee`); 0 casts one at every NEE
@@ -343,7 +349,10 @@ pub struct RenderDesc {
     /// faster than 0 at ~9 % more variance, ahead at equal error at every density of the
     /// bench ladder; PT always casts one at every event. The GPU kernels run the same
     /// estimator (shaders/nee.wgsl; on lavapipe 1 is ~28 % faster than 0).
-    #[serde(default = "default_path_nee_rays")]
+    #[serde(
+        default = "default_path_nee_rays",
+        deserialize_with = "whole::<W_PATH_NEE_RAYS, _>"
+    )]
     pub path_nee_rays: u32,
 }
 
@@ -538,13 +547,7 @@ impl SceneFile {
                 what.describe()
             )));
         }
-        toml::from_str(text).map_err(|e| {
-            RenderError::Scene(whole_field_range(
-                describe_toml_error(path, text, &e),
-                text,
-                &e,
-            ))
-        })
+        toml::from_str(text).map_err(|e| RenderError::Scene(describe_toml_error(path, text, &e)))
     }
 
     /// Checks every range. The message names the field and the allowed range.
@@ -561,8 +564,8 @@ impl SceneFile {
                 num(c.fov_deg)
             ));
         }
-        check_whole("camera.width", c.width)?;
-        check_whole("camera.height", c.height)?;
+        check_whole(W_WIDTH, c.width)?;
+        check_whole(W_HEIGHT, c.height)?;
 
         let o = &self.object;
         match (o.shape, &o.mesh) {
@@ -721,8 +724,8 @@ impl SceneFile {
         }
 
         let r = &self.render;
-        check_whole("render.spp", r.spp)?;
-        check_whole("render.grid_resolution", r.grid_resolution)?;
+        check_whole(W_SPP, r.spp)?;
+        check_whole(W_GRID, r.grid_resolution)?;
         if let Some(t) = r.min_tau
             && !(0.0..=MAX_SCENE_VALUE).contains(&t)
         {
@@ -739,9 +742,9 @@ impl SceneFile {
                 num(t)
             ));
         }
-        check_whole("render.exact_nee_samples", r.exact_nee_samples)?;
-        check_whole("render.path_nee_rays", r.path_nee_rays)?;
-        check_whole("render.nee_samples", r.nee_samples)?;
+        check_whole(W_EXACT_NEE_SAMPLES, r.exact_nee_samples)?;
+        check_whole(W_PATH_NEE_RAYS, r.path_nee_rays)?;
+        check_whole(W_NEE_SAMPLES, r.nee_samples)?;
         // In f32, as the renderers hold it: 1e-300 is 0 there, no step at all.
         if let Some(t) = r.max_tau
             && !(t as f32 > 0.0 && t.is_finite())
