@@ -313,7 +313,11 @@ fn input_reports(inputs: &[PathBuf]) -> Vec<Option<serde_json::Value>> {
         .iter()
         .map(|p| {
             let path = p.with_extension("json");
-            if !path.exists() {
+            // Not there at all: quietly none. A link to nothing, or one in a folder that
+            // cannot be read, is there and unreadable: warned of below.
+            if std::fs::symlink_metadata(&path)
+                .is_err_and(|e| e.kind() == std::io::ErrorKind::NotFound)
+            {
                 return None;
             }
             let read = scatter_sim::output::read_input_to_string(&path)

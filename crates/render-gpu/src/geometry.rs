@@ -309,6 +309,13 @@ impl Boundable for PaddedTri {
 pub const EPS: f32 = 2e-5;
 const BOX_GROWTH: f32 = 1e-5;
 
+/// The spawn offset eps of a mesh: [`EPS`] of its largest coordinate or extent
+/// ([`TriMesh::scale`]); `Geometry::new` and the checks made before building it
+/// (`setup::object_eps`) both take it from here.
+pub fn spawn_offset(mesh: &TriMesh) -> f32 {
+    mesh.scale() * EPS
+}
+
 impl Geometry {
     /// How far each box of `bvh` is grown beyond the faces in it.
     pub fn box_growth(&self) -> f32 {
@@ -344,6 +351,7 @@ impl Geometry {
         );
         let (lo, hi) = mesh.bounds();
         let scale = mesh.scale();
+        let eps = spawn_offset(&mesh);
         // The slab test rounds: a ray through a vertex that lies on a leaf's box face can
         // miss the box and with it the triangle the watertight test would have hit (seen
         // for ~0.1 % of rays aimed at vertices from inside). Padding every box by far more
@@ -385,7 +393,7 @@ impl Geometry {
             cw_back: 2e-4 + scale * 1e-5,
             lo,
             hi,
-            eps: scale * EPS,
+            eps,
             bounds,
             escape_cos: Vec::new(),
             overlaps,

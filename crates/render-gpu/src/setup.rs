@@ -116,7 +116,7 @@ pub fn object_mesh(scene: &SceneFile, scene_dir: &Path) -> Result<TriMesh, Rende
 pub fn object_eps(scene: &SceneFile, scene_dir: &Path) -> Result<f32, RenderError> {
     let mut mesh = object_mesh(scene, scene_dir)?;
     recentre(&mut mesh);
-    Ok(mesh.scale() * crate::geometry::EPS)
+    Ok(crate::geometry::spawn_offset(&mesh))
 }
 
 /// The medium must be thicker than the surface offset `eps` by a margin, or paths entering

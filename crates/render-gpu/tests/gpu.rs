@@ -940,8 +940,8 @@ const MIN_BLOCK_DOF: f64 = 20.0;
 /// |z| < 6.5) fail it while noise alone passes with a wide margin.
 ///
 /// Across the file: ~40 calls of 64–256 blocks × 3 channels, ~10⁴ block z's in all. At the
-/// floor ν = 20 each passes 6.5 with probability 2.5e-6 (up to ~5 % over the file if every
-/// block sat there); most blocks have ν near 90 (16 pixels × 3 per device), where it is
+/// floor ν = 20 each passes 6.5 with probability 2.5e-6 (a few per cent over the file if
+/// every block sat there); most blocks have ν near 90 (16 pixels × 3 per device), where it is
 /// 4e-9. The seeds are fixed, so that is the chance that a reseed or a change that only
 /// redraws the random numbers trips it, not a flaky run.
 ///
