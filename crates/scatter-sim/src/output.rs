@@ -171,6 +171,9 @@ pub fn remove_stale_temporaries_of(path: &Path) {
 /// write would have gone to an unlinked file and its rename failed after the work). The
 /// lock waits for such a sweep to let go. Where the file system has no locks the
 /// temporary is never swept.
+// Only Unix can tell a swept temporary from its own (dev and inode), so only there does the
+// loop go round again.
+#[cfg_attr(not(unix), allow(clippy::never_loop))]
 fn locked_temporary(builder: &tempfile::Builder, dir: &Path) -> io::Result<NamedTempFile> {
     for _ in 0..8 {
         let tmp = builder.tempfile_in(dir)?;
@@ -203,6 +206,7 @@ fn locked_temporary(builder: &tempfile::Builder, dir: &Path) -> io::Result<Named
 /// named, and a dataset's holds hundreds of MB. A temporary another run is writing keeps
 /// its lock and is left alone.
 fn remove_killed_temporaries(path: &Path, prefix: &str) -> Vec<(PathBuf, u64)> {
+    const FRESH_TEMPORARY: std::time::Duration = std::time::Duration::from_secs(3);
     let Ok(entries) = fs::read_dir(folder_of(path)) else {
         return Vec::new();
     };
@@ -219,7 +223,13 @@ fn remove_killed_temporaries(path: &Path, prefix: &str) -> Vec<(PathBuf, u64)> {
         let Ok(f) = fs::File::open(e.path()) else {
             continue;
         };
-        if f.try_lock().is_ok() {
+        // Younger than a few seconds: possibly another run's, made an instant before its
+        // lock (`locked_temporary`); a killed run's is swept by a later write.
+        let fresh = f
+            .metadata()
+            .and_then(|m| m.modified())
+            .is_ok_and(|t| t.elapsed().is_ok_and(|age| age < FRESH_TEMPORARY));
+        if !fresh && f.try_lock().is_ok() {
             let bytes = f.metadata().map_or(0, |m| m.len());
             if fs::remove_file(e.path()).is_ok() {
                 gone.push((e.path(), bytes));
@@ -573,10 +583,24 @@ impl Previous {
 mod tests {
     use super::*;
 
+    /// `bytes` written to `path`, last modified a minute ago: a temporary its run left
+    /// behind, past [`remove_killed_temporaries`]' few seconds of grace.
+    fn left_behind(path: &Path, bytes: &[u8]) {
+        fs::write(path, bytes).unwrap();
+        let minute_ago = std::time::SystemTime::now() - std::time::Duration::from_secs(60);
+        fs::File::options()
+            .write(true)
+            .open(path)
+            .unwrap()
+            .set_modified(minute_ago)
+            .unwrap();
+    }
+
     /// A temporary left by a killed run (no lock: its process is gone) is removed when the
     /// same output is written again; one another writer holds (here a live `AtomicFile`,
     /// whose lock a second open file conflicts with even in one process) is left, as are
-    /// other names' temporaries and a file that only looks like one.
+    /// one made an instant ago (maybe another run's, not yet locked), other names'
+    /// temporaries and a file that only looks like one.
     #[test]
     fn a_killed_runs_temporary_is_swept_and_a_live_one_kept() {
         let d = tempfile::tempdir().unwrap();
@@ -584,23 +608,33 @@ mod tests {
         let killed = d.path().join(".y.csv.AbC123.partial");
         let other = d.path().join(".z.csv.AbC123.partial");
         let lookalike = d.path().join(".y.csv.seven77.partial");
+        let young = d.path().join(".y.csv.Young1.partial");
         for p in [&killed, &other, &lookalike] {
-            fs::write(p, b"half a dataset").unwrap();
+            left_behind(p, b"half a dataset");
         }
+        fs::write(&young, b"just made").unwrap();
         let mut live = AtomicFile::create(&out).unwrap();
         // Creating `live` swept the killed run's temporary already.
         assert!(!killed.exists());
+        assert!(young.exists());
         let live_tmp: Vec<PathBuf> = fs::read_dir(d.path())
             .unwrap()
             .map(|e| e.unwrap().path())
-            .filter(|p| ![&other, &lookalike].contains(&p))
+            .filter(|p| ![&other, &lookalike, &young].contains(&p))
             .collect();
         assert_eq!(live_tmp.len(), 1, "{live_tmp:?}");
-        fs::write(&killed, b"half a dataset").unwrap();
+        left_behind(&killed, b"half a dataset");
+        // The live one is as old as the killed one now: its lock alone keeps it.
+        fs::File::options()
+            .write(true)
+            .open(&live_tmp[0])
+            .unwrap()
+            .set_modified(std::time::SystemTime::now() - std::time::Duration::from_secs(60))
+            .unwrap();
         let gone = remove_killed_temporaries(&out, &temp_prefix(&out));
         assert_eq!(gone, vec![(killed.clone(), 14)]);
         assert!(live_tmp[0].exists(), "the live temporary was removed");
-        assert!(other.exists() && lookalike.exists());
+        assert!(other.exists() && lookalike.exists() && young.exists());
         live.write_all(b"x").unwrap();
         live.commit().unwrap();
         assert_eq!(fs::read(&out).unwrap(), b"x");
@@ -613,7 +647,7 @@ mod tests {
         let (pa, pb) = (temp_prefix(&a), temp_prefix(&b));
         assert!(pa != pb && pa.len() == 66 && pb.len() == 66, "{pa} {pb}");
         let killed_b = d.path().join(format!("{pb}AbC123.partial"));
-        fs::write(&killed_b, b"x").unwrap();
+        left_behind(&killed_b, b"x");
         assert!(remove_killed_temporaries(&a, &pa).is_empty());
         assert_eq!(remove_killed_temporaries(&b, &pb), vec![(killed_b, 1)]);
     }
