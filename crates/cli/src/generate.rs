@@ -234,23 +234,7 @@ pub fn run(a: Args) -> Result<()> {
             progress::count(spec.total_walks, "walk")
         );
     }
-    // A run whose file cannot fit fails only when the disk fills, after hours (`--samples
-    // 18446744073709551615` started with an ETA of 45,962,785 years): refused now, on the
-    // least a row can take in this format (a lower bound: no run that fits is refused).
-    let per_walk = scatter_sim::dataset::least_row_bytes(&out);
-    let need = piece.count.saturating_mul(per_walk);
-    if let Some(free) = crate::paths::free_bytes(&out)
-        && need > free
-    {
-        bail!(
-            "{}: {} need at least {} ({per_walk} bytes a walk at least), and its file system \
-             has {} free: lower --samples (or the config's walks), or write elsewhere",
-            out.display(),
-            progress::count(piece.count, "walk"),
-            indicatif::HumanBytes(need),
-            indicatif::HumanBytes(free)
-        );
-    }
+    crate::paths::check_room(&out, piece.count, "--samples (or the config's walks)")?;
     let pool = pool(a.threads)?;
     eprintln!(
         "generating {}{} ({} mode, seed {}, {}) -> {}",

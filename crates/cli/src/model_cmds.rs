@@ -97,6 +97,7 @@ pub fn sample(a: SampleArgs) -> Result<()> {
         &a.out,
         &[("the model".to_string(), model_path(a.model.as_deref()))],
     )?;
+    crate::paths::check_room(&a.out, a.samples, "--samples")?;
     let m = load_model(a.model.as_deref())?;
     let _ = warn_outside_training(&m, c, "--");
     let mut sink = Box::new(CsvWriter::create(&a.out, a.samples)?);
@@ -145,7 +146,11 @@ pub fn sample(a: SampleArgs) -> Result<()> {
             u32::MAX
         );
     }
-    eprintln!("wrote {} model walks to {}", a.samples, a.out.display());
+    eprintln!(
+        "wrote {} to {}",
+        progress::count(a.samples, "model walk"),
+        a.out.display()
+    );
     Ok(())
 }
 

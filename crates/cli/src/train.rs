@@ -1092,9 +1092,9 @@ pub fn run(a: Args) -> Result<()> {
         // A resumed model's seconds include the runs before this one (one that --resume
         // found no checkpoint of started this run).
         notes.push(format!(
-            "{}: {} steps, final loss {last:.4}{}, {:.0} s{}",
+            "{}: {}, final loss {last:.4}{}, {:.0} s{}",
             t.kind.name(),
-            t.info.step,
+            crate::progress::count(t.info.step, "step"),
             held.map_or(String::new(), |v| format!(
                 " (held-out {:.4})",
                 v.held_out.0

@@ -244,6 +244,31 @@ fn a_run_larger_than_its_disk_is_refused_at_once() {
         );
         assert_eq!(fs::read_dir(dir.path()).unwrap().count(), 0);
     }
+    // `sample` too (it wrote 50 MB/s toward a full disk), before it loads the model.
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args([
+            "sample",
+            "--tau",
+            "5",
+            "--g",
+            "0",
+            "--albedo",
+            "1",
+            "--samples",
+        ])
+        .args([&u64::MAX.to_string(), "--out", "s.csv"])
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success()
+            && err.contains("s.csv: 18446744073709551615 walks need at least 16.00 EiB (26 bytes")
+            && err.contains("lower --samples, or write elsewhere")
+            && err.trim().lines().count() == 1,
+        "{err}"
+    );
+    assert_eq!(fs::read_dir(dir.path()).unwrap().count(), 0);
 }
 
 /// `merge` holds one input open at a time: under a descriptor limit of 20 it merges 40

@@ -199,7 +199,8 @@ impl ProbeSetup {
     /// The items as the dispatches left them.
     fn items(&self, ctx: &GpuContext) -> Result<Vec<Item>, RenderError> {
         let out = read_back(ctx, &self.res.accums[0], self.bytes)?;
-        Ok(bytemuck::cast_slice::<u8, f32>(&out)
+        // Copied into f32s: a Vec<u8> need not be aligned for them (cast_slice panics).
+        Ok(bytemuck::pod_collect_to_vec::<u8, f32>(&out)
             .chunks_exact(32)
             .map(|c| c.try_into().unwrap())
             .collect())

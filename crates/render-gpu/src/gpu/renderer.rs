@@ -566,6 +566,11 @@ pub fn render_gpu(
     }
     let model = set.model.map(model_params).unwrap_or_default();
     let shape = kernel_shape()?.on(ctx);
+    // Every variable read now, before buffers and the kernels' compilation (seconds to
+    // minutes on lavapipe): a bad value was refused only after them.
+    let first_budget = bounce_budget(ctx)?;
+    let rounds = staged_rounds()?;
+    let fixed_per_lane = fixed_lane_samples()?;
     let layout = kernels::bind_group_layout(ctx, shape.staged)?;
     // Path-level NEE (ST-CVAE only, as on the CPU): its reservoirs travel with each path.
     let path_nee_m = set.path_nee() as u32;
@@ -742,7 +747,7 @@ pub fn render_gpu(
             at += n;
         }
     }
-    let mut budget = bounce_budget(ctx)?;
+    let mut budget = first_budget;
     params.consts2[2] = budget as f32;
     // The path states before the dispatch in flight, kept on software adapters while a
     // cut-off dispatch can be redone with a smaller budget.
@@ -793,7 +798,7 @@ pub fn render_gpu(
         res: &res,
         kernels: &kernels,
         snapshot: snapshot.as_ref(),
-        rounds: staged_rounds()?,
+        rounds,
         ahead: shape.ahead && shape.staged && snapshot.is_none(),
         cancel,
     };
@@ -811,7 +816,6 @@ pub fn render_gpu(
         ..Default::default()
     };
     let mut s0 = 0u32;
-    let fixed_per_lane = fixed_lane_samples()?;
     let mut per_lane = fixed_per_lane.unwrap_or(1);
     let total = pixels * spp as u64;
     // Set when a stop request drops the chunk under way, to the number of bands that had
@@ -913,7 +917,15 @@ pub fn render_gpu(
     let mut short = 0usize;
     for band in bands {
         let bytes = read_back(ctx, &res.accums[band.index], band.bytes)?;
-        let vals: &[f32] = bytemuck::cast_slice(&bytes);
+        // A Vec<u8> need not be aligned for f32s (cast_slice would panic): copied where not.
+        let copied: Vec<f32>;
+        let vals: &[f32] = match bytemuck::try_cast_slice(&bytes) {
+            Ok(v) => v,
+            Err(_) => {
+                copied = bytemuck::pod_collect_to_vec(&bytes);
+                &copied
+            }
+        };
         // A band whose chunk was dropped gives back the whole chunks' sums, rounded once
         // to f32; the others their sums and what those rounded off.
         let committed = dropped.is_some_and(|started| band.index < started);
