@@ -940,10 +940,13 @@ fn interrupted_runs_leave_no_files() {
     use std::time::Duration;
     let model = concat!(env!("CARGO_MANIFEST_DIR"), "/../../models/default.stcvae");
     // The model path is the one argument that could hold a space: kept whole.
-    let sample_tail = words("--tau 5 --g 0.4 --albedo 0.9 --samples 100000000000 --out big.csv");
+    // Runs of a minute and more, stopped within a second, whose files would still fit the
+    // disk: both commands refuse, before any work, a file larger than the free space
+    // (10¹¹ CSV walks need at least 2.6 TB, and the refusal left this test waiting).
+    let sample_tail = words("--tau 5 --g 0.4 --albedo 0.9 --samples 100000000 --out big.csv");
     let runs: [Vec<&str>; 2] = [
         // Into folders that do not exist yet: they are removed again.
-        words("generate --samples 1000000000 --tau 5 --g 0 --albedo 1 --out new/sub/big.bin"),
+        words("generate --samples 100000000 --tau 5 --g 0 --albedo 1 --out new/sub/big.bin"),
         [&["sample", "--model", model][..], &sample_tail].concat(),
     ];
     // The generate run once more with the signal sent twice back to back, as `timeout`
@@ -1093,7 +1096,7 @@ fn an_interrupt_with_the_output_pipe_gone_still_cleans_up() {
     use common::interrupt_when;
     use std::time::Duration;
     let dir = tempfile::tempdir().unwrap();
-    let args = words("generate --samples 1000000000 --tau 5 --g 0 --albedo 1 --out big.bin");
+    let args = words("generate --samples 100000000 --tau 5 --g 0 --albedo 1 --out big.bin");
     let mut child = spawn_in(dir.path(), &args);
     // Closed once the work runs (its first line, "generating …", went out while the
     // reader was there); the signal follows at once.
@@ -1115,8 +1118,8 @@ fn an_interrupt_with_the_output_pipe_gone_still_cleans_up() {
 /// A closed output pipe is a request to stop, as Ctrl-C is (`stcvae generate … 2>&1 | less`
 /// and quitting less): SIGPIPE's default ended the process at its next line, leaving its
 /// hidden temporary. Here stderr is a pipe whose reader is closed before the start, so
-/// the first line already finds it closed: the run of 10⁹ walks (minutes) must stop at
-/// once, write nothing, and exit with 141 (128 + SIGPIPE), not die of the signal.
+/// the first line already finds it closed: the run of 10⁸ walks (a minute; 5.6 GB at
+/// least, within the free space `generate` asks for) must stop at once, write nothing, and exit with 141 (128 + SIGPIPE), not die of the signal.
 #[cfg(unix)]
 #[test]
 fn a_closed_output_pipe_stops_cleanly() {
@@ -1125,7 +1128,7 @@ fn a_closed_output_pipe_stops_cleanly() {
     drop(reader);
     let status = std::process::Command::new(env!("CARGO_BIN_EXE_stcvae"))
         .args(words(
-            "generate --samples 1000000000 --tau 5 --g 0 --albedo 1 --out big.bin",
+            "generate --samples 100000000 --tau 5 --g 0 --albedo 1 --out big.bin",
         ))
         .current_dir(dir.path())
         .stderr(writer)
