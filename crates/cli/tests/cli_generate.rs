@@ -220,18 +220,9 @@ fn a_run_larger_than_its_disk_is_refused_at_once() {
         return;
     }
     // The least a row takes in each format (`least_row_bytes`).
+    let max = u64::MAX.to_string();
     for (name, per_walk) in [("x.bin", 56), ("x.csv", 26)] {
-        let out = std::process::Command::new(env!("CARGO_BIN_EXE_stcvae"))
-            .args([
-                "generate",
-                "--samples",
-                &u64::MAX.to_string(),
-                "--out",
-                name,
-            ])
-            .current_dir(dir.path())
-            .output()
-            .unwrap();
+        let out = stcvae(&["generate", "--samples", &max, "--out", name], dir.path());
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(!out.status.success(), "{err}");
         assert!(
@@ -245,21 +236,14 @@ fn a_run_larger_than_its_disk_is_refused_at_once() {
         assert_eq!(fs::read_dir(dir.path()).unwrap().count(), 0);
     }
     // `sample` too (it wrote 50 MB/s toward a full disk), before it loads the model.
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_stcvae"))
-        .args([
-            "sample",
-            "--tau",
-            "5",
-            "--g",
-            "0",
-            "--albedo",
-            "1",
-            "--samples",
-        ])
-        .args([&u64::MAX.to_string(), "--out", "s.csv"])
-        .current_dir(dir.path())
-        .output()
-        .unwrap();
+    let out = stcvae(
+        &[
+            &words("sample --tau 5 --g 0 --albedo 1 --out s.csv --samples")[..],
+            &[max.as_str()],
+        ]
+        .concat(),
+        dir.path(),
+    );
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
         !out.status.success()

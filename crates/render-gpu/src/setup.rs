@@ -119,13 +119,18 @@ pub fn object_eps(scene: &SceneFile, scene_dir: &Path) -> Result<f32, RenderErro
     Ok(crate::geometry::spawn_offset(&mesh))
 }
 
+/// The densest sigma_t an object of surface offset `eps` takes ([`check_density`]).
+pub fn max_sigma_t(eps: f32) -> f64 {
+    crate::geometry::MAX_SPAWN_DEPTH as f64 / eps as f64
+}
+
 /// The medium must be thicker than the surface offset `eps` by a margin, or paths entering
 /// it start too deep and the image comes out dark (black at σ_t 10⁶ on a unit sphere)
 /// without a word.
 pub fn check_density(sigma_t: [f64; 3], eps: f32) -> Result<(), RenderError> {
     for (i, &s) in sigma_t.iter().enumerate() {
         let depth = s * eps as f64;
-        if depth > crate::geometry::MAX_SPAWN_DEPTH as f64 {
+        if s > max_sigma_t(eps) {
             return Err(RenderError::Scene(format!(
                 "medium.sigma_t[{i}] = {} is too dense for this object: the renderer's \
                  surface offset ({:.3e}, {:e} of the object's largest coordinate or \
@@ -136,7 +141,7 @@ pub fn check_density(sigma_t: [f64; 3], eps: f32) -> Result<(), RenderError> {
                 scatter_sim::ranges::num(s),
                 eps,
                 crate::geometry::EPS,
-                crate::geometry::MAX_SPAWN_DEPTH as f64 / eps as f64,
+                max_sigma_t(eps),
                 crate::geometry::MAX_SPAWN_DEPTH / crate::geometry::EPS
             )));
         }

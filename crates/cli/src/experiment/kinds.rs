@@ -112,7 +112,7 @@ pub(super) fn preflight(
         let dir = path.parent().unwrap_or(std::path::Path::new("."));
         let eps = render_gpu::setup::object_eps(&base, dir)
             .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-        let check = |f: SceneFile, what: String| -> Result<()> {
+        let check = |f: &SceneFile, what: String| -> Result<()> {
             f.validate()
                 .map_err(|e| anyhow::anyhow!("{}: {what}: {e}", path.display()))
         };
@@ -127,7 +127,7 @@ pub(super) fn preflight(
         for &k in densities {
             let mut f = base.clone();
             scale_density(k)(&mut f);
-            check(f.clone(), format!("with density {k}"))?;
+            check(&f, format!("with density {k}"))?;
             // How dense a medium the object takes depends on its size, which the scene
             // file's ranges cannot know: a density of 1000 on the bunny failed only
             // after the renders at the densities before it.
@@ -138,7 +138,7 @@ pub(super) fn preflight(
                     return anyhow::anyhow!("{}: {e}", path.display());
                 }
                 let densest = base.medium.sigma_t.iter().copied().fold(0.0, f64::max);
-                let most = f64::from(render_gpu::geometry::MAX_SPAWN_DEPTH) / f64::from(eps);
+                let most = render_gpu::setup::max_sigma_t(eps);
                 anyhow::anyhow!(
                     "{}: densities = {k}: {e} ({})",
                     path.display(),
@@ -152,7 +152,7 @@ pub(super) fn preflight(
             // Checked as the ST-CVAE render it is for: a scene file of `pt` skips the
             // min_tau-against-max_tau check, which then failed after PT's renders.
             f.render.integrator = Stcvae;
-            check(f, format!("with threshold {t}"))?;
+            check(&f, format!("with threshold {t}"))?;
         }
         // Without max_tau the cap is the model's (render::prepare refuses the rest, but
         // only when that threshold's turn comes, after the renders before it).
