@@ -190,6 +190,9 @@ pub fn run(a: Args) -> Result<()> {
             e.trim_end_matches(", or use --device cpu")
         )
     })?;
+    for why in &ctx.passed_over {
+        eprintln!("(passed over: {why})");
+    }
     if let Some(note) = crate::device::vector_width_note(ctx.adapter.software) {
         eprintln!("{note}");
     }

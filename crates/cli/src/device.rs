@@ -107,6 +107,9 @@ impl Engine {
         };
         if let Some(c) = &gpu {
             eprintln!("GPU: {}", c.adapter);
+            for why in &c.passed_over {
+                eprintln!("  (passed over: {why})");
+            }
             if let Some(note) = vector_width_note(c.adapter.software) {
                 eprintln!("{note}");
             }

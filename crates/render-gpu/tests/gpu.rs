@@ -182,6 +182,36 @@ fn wgsl_hg_and_frame_match_rust() {
 /// the Rust decoder on random inputs within 1e-5 (relative to the output's size: both are
 /// f32 with different summation orders, so the difference is a few ulps of the larger
 /// partial sums).
+/// A read-back in pieces returns the buffer's bytes in order, whatever the piece: one that
+/// divides the size, one that leaves a short last piece, one below wgpu's map alignment
+/// (rounded up to it) and one beyond the size. Each word holds its own index mixed, so a
+/// piece copied to the wrong place or twice is seen.
+#[test]
+fn read_back_in_pieces_returns_every_byte_in_order() {
+    use render_gpu::gpu::resources::read_back_in_pieces;
+    use wgpu::util::DeviceExt;
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let words: Vec<u32> = (0..1000u32)
+        .map(|i| i.wrapping_mul(0x9e37_79b9) ^ 0x5bd1_e995)
+        .collect();
+    let buf = ctx
+        .device
+        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("read-back test"),
+            contents: bytemuck::cast_slice(&words),
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+        });
+    let expect: &[u8] = bytemuck::cast_slice(&words);
+    for piece in [400, 96, 1, 1 << 20] {
+        let got = read_back_in_pieces(&ctx, &buf, 4000, piece).expect("read back");
+        assert!(got == expect, "piece {piece}: the bytes differ");
+    }
+    // A prefix: only the bytes asked for.
+    let got = read_back_in_pieces(&ctx, &buf, 1204, 96).expect("read back");
+    assert!(got == expect[..1204], "prefix: the bytes differ");
+}
+
 #[test]
 fn wgsl_decoders_match_rust() {
     let Some(ctx) = gpu() else { return };

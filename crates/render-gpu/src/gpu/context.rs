@@ -87,6 +87,9 @@ pub struct GpuContext {
     pub features: wgpu::Features,
     /// The largest subgroup (SIMD group) the adapter may run: 8 on lavapipe, 32 on NVIDIA.
     pub subgroup_max_size: u32,
+    /// Why adapters ranked above this one could not be opened, one line each (usually
+    /// none); the caller reports them with the adapter.
+    pub passed_over: Vec<String>,
     /// The first error wgpu reported outside an error scope since the last wait
     /// ([`GpuContext::poll`]), on one line: wgpu's default handler panics.
     uncaptured: std::sync::Arc<std::sync::Mutex<Option<String>>>,
@@ -248,7 +251,7 @@ impl GpuContext {
             .collect();
         adapters.retain(|a| choice.admits(&a.get_info()));
         adapters.sort_by_key(|a| rank(a.get_info().device_type));
-        let Some(adapter) = adapters.into_iter().next() else {
+        if adapters.is_empty() {
             // Only on this error path: what the backends WGPU_BACKEND left out would offer.
             let elsewhere: Vec<String> = if backends.is_none() && searched != primary {
                 adapters_on(primary)
@@ -263,17 +266,31 @@ impl GpuContext {
             return Err(RenderError::NoAdapter(no_adapter(
                 choice, backends, &software, &elsewhere,
             )));
-        };
+        }
+        // An adapter that is listed may still fail to open (a driver that lists a GPU it
+        // cannot start, out of memory): the next one in rank is tried, and the failures are
+        // kept to be reported beside the one that opened.
+        let opened = open_first(adapters, |adapter| {
+            let limits = adapter.limits();
+            let features = adapter.features() & wgpu::Features::SUBGROUP;
+            pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+                label: Some("stcvae"),
+                required_features: features,
+                required_limits: limits.clone(),
+                ..Default::default()
+            }))
+            .map(|dq| (dq, limits, features))
+            .map_err(|e| {
+                format!(
+                    "cannot open {}: {}",
+                    adapter.get_info().name,
+                    one_line(&e.to_string())
+                )
+            })
+        });
+        let (adapter, ((device, queue), limits, features), passed_over) =
+            opened.map_err(|failures| RenderError::Gpu(failures.join("; ")))?;
         let info = adapter.get_info();
-        let limits = adapter.limits();
-        let features = adapter.features() & wgpu::Features::SUBGROUP;
-        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
-            label: Some("stcvae"),
-            required_features: features,
-            required_limits: limits.clone(),
-            ..Default::default()
-        }))
-        .map_err(|e| RenderError::Gpu(format!("cannot open {}: {e}", info.name)))?;
         let uncaptured = std::sync::Arc::new(std::sync::Mutex::new(None::<String>));
         let sink = uncaptured.clone();
         device.on_uncaptured_error(std::sync::Arc::new(move |e: wgpu::Error| {
@@ -289,9 +306,26 @@ impl GpuContext {
             limits,
             features,
             subgroup_max_size: info.subgroup_max_size,
+            passed_over,
             uncaptured,
         })
     }
+}
+
+/// The first of `candidates` that `open` opens, with the reasons the ones before it
+/// failed; every reason, in order, when none opens.
+fn open_first<A, T>(
+    candidates: Vec<A>,
+    mut open: impl FnMut(&A) -> Result<T, String>,
+) -> Result<(A, T, Vec<String>), Vec<String>> {
+    let mut failures = Vec::new();
+    for candidate in candidates {
+        match open(&candidate) {
+            Ok(t) => return Ok((candidate, t, failures)),
+            Err(why) => failures.push(why),
+        }
+    }
+    Err(failures)
 }
 
 #[cfg(test)]
@@ -308,6 +342,26 @@ mod tests {
         assert_eq!(quietly(|| 7).ok(), Some(7));
         assert!(!QUIET.with(|q| q.get()));
         assert!(std::panic::catch_unwind(|| panic!("a real bug")).is_err());
+    }
+
+    /// The first adapter that opens is taken, after the failures of those ranked above
+    /// it, which are kept in order; when none opens, every failure is returned.
+    #[test]
+    fn the_next_adapter_is_tried_when_one_fails_to_open() {
+        let open = |name: &&str| match *name {
+            "good" | "also good" => Ok(name.len()),
+            bad => Err(format!("cannot open {bad}")),
+        };
+        let (name, len, before) =
+            open_first(vec!["broken", "lost", "good", "also good"], open).expect("one opens");
+        assert_eq!((name, len), ("good", 4));
+        assert_eq!(before, ["cannot open broken", "cannot open lost"]);
+        assert_eq!(
+            open_first(vec!["broken", "lost"], open).err(),
+            Some(vec!["cannot open broken".into(), "cannot open lost".into()])
+        );
+        let (_, _, before) = open_first(vec!["good", "broken"], open).expect("first opens");
+        assert!(before.is_empty());
     }
 
     /// wgpu's multi-line error text becomes one line, its blank lines and indents gone.

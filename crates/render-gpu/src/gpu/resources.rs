@@ -474,9 +474,74 @@ pub struct Turn {
     pub relist: bool,
 }
 
-/// Copies `size` bytes of `buf` to the host (blocking).
+/// The most bytes [`read_back`] stages at a time. An image's band is up to the binding
+/// limit (~0.9 GB on hardware GPUs) and was staged whole: a second band-sized allocation in
+/// host-visible memory after the render, and on lavapipe, where GPU buffers are host
+/// memory, a third copy of the band beside the buffer and the bytes returned.
+pub const READ_PIECE: u64 = 64 << 20;
+
+/// Copies `size` bytes of `buf` to the host (blocking), [`READ_PIECE`] bytes at a time.
 pub fn read_back(ctx: &GpuContext, buf: &wgpu::Buffer, size: u64) -> Result<Vec<u8>, RenderError> {
-    start_read_back(ctx, buf, size).finish(ctx)
+    read_back_in_pieces(ctx, buf, size, READ_PIECE)
+}
+
+/// As [`read_back`], through one staging buffer of at most `piece` bytes (rounded up to
+/// wgpu's map alignment) that is filled, mapped and read once per piece. `size` is a
+/// multiple of 4, as every buffer of f32s and u32s is (wgpu copies whole words).
+///
+/// The staging buffer is made inside an out-of-memory scope: a failed allocation is this
+/// device's limit, said in one line, not an invalid buffer whose map fails later.
+pub fn read_back_in_pieces(
+    ctx: &GpuContext,
+    buf: &wgpu::Buffer,
+    size: u64,
+    piece: u64,
+) -> Result<Vec<u8>, RenderError> {
+    debug_assert_eq!(
+        size % wgpu::COPY_BUFFER_ALIGNMENT,
+        0,
+        "read-back of part of a word"
+    );
+    let piece = piece
+        .max(1)
+        .next_multiple_of(wgpu::MAP_ALIGNMENT)
+        .min(size.next_multiple_of(wgpu::MAP_ALIGNMENT))
+        .max(wgpu::MAP_ALIGNMENT);
+    let scope = ctx.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+    let staging = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("readback"),
+        size: piece,
+        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    if let Some(e) = pollster::block_on(scope.pop()) {
+        return Err(RenderError::GpuLimit(format!(
+            "{} is out of memory for reading the results back ({} MB at a time): {}; lower \
+             the image size or use --device cpu",
+            ctx.adapter.name,
+            piece.div_ceil(1_000_000),
+            super::context::one_line(&e.to_string())
+        )));
+    }
+    let mut data = Vec::with_capacity(size as usize);
+    let mut at = 0;
+    while at < size {
+        let n = (size - at).min(piece);
+        let mut enc = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+        enc.copy_buffer_to_buffer(buf, at, &staging, 0, n);
+        let submission = ctx.queue.submit([enc.finish()]);
+        let (tx, mapped) = mpsc::channel();
+        staging.map_async(wgpu::MapMode::Read, ..n, move |r| {
+            let _ = tx.send(r);
+        });
+        data.extend_from_slice(&Readback::wait_mapped(
+            ctx, &staging, submission, &mapped, n,
+        )?);
+        at += n;
+    }
+    Ok(data)
 }
 
 /// A copy of a buffer on its way to the host: submitted after everything submitted before
@@ -515,22 +580,35 @@ impl Readback {
     /// Waits for the copy (and what was submitted before it, not after) and returns the
     /// bytes.
     pub fn finish(self, ctx: &GpuContext) -> Result<Vec<u8>, RenderError> {
+        let size = self.staging.size();
+        Self::wait_mapped(ctx, &self.staging, self.submission, &self.mapped, size)
+    }
+
+    /// Waits for `submission` and the mapping of `staging`'s first `size` bytes, copies
+    /// them out and unmaps `staging` for its next use.
+    fn wait_mapped(
+        ctx: &GpuContext,
+        staging: &wgpu::Buffer,
+        submission: wgpu::SubmissionIndex,
+        mapped: &mpsc::Receiver<Result<(), wgpu::BufferAsyncError>>,
+        size: u64,
+    ) -> Result<Vec<u8>, RenderError> {
         let failed = |e: &dyn std::fmt::Display| {
             RenderError::Gpu(format!("reading GPU results failed: {e}"))
         };
         ctx.poll(wgpu::PollType::Wait {
-            submission_index: Some(self.submission),
+            submission_index: Some(submission),
             timeout: None,
         })?;
-        match self.mapped.recv() {
+        match mapped.recv() {
             Ok(Ok(())) => {}
             Ok(Err(e)) => return Err(failed(&e)),
             Err(e) => return Err(failed(&e)),
         }
-        let view = self.staging.get_mapped_range(..).map_err(|e| failed(&e))?;
+        let view = staging.get_mapped_range(..size).map_err(|e| failed(&e))?;
         let data = view.to_vec();
         drop(view);
-        self.staging.unmap();
+        staging.unmap();
         Ok(data)
     }
 }
