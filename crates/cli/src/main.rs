@@ -99,6 +99,7 @@ enum Command {
 /// Fails at once, naming `flag` and the part of `path` at fault, when the output could not
 /// be written after the work (scatter_sim::output::check_output_path).
 pub(crate) fn check_out(flag: &str, path: &std::path::Path) -> anyhow::Result<()> {
+    paths::check_not_stdout(flag, path)?;
     scatter_sim::output::check_output_path(path)
         .map_err(|e| anyhow::anyhow!("{flag} {}: {e}", path.display()))
 }

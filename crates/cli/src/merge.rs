@@ -260,8 +260,22 @@ fn merge_images(a: &Args) -> Result<()> {
         Some(e) => e,
         None => inputs_exposure(&reports),
     };
-    let (integrator, devices) = inputs_origin(&reports);
+    let (mut integrator, devices) = inputs_origin(&reports);
     let renders = inputs_renders(&a.inputs, &reports);
+    let complete = renders_complete(&renders, &tag);
+    // Every input has a report and every image its seeds, yet the reports' seeds or spp
+    // are not the images': a report left from an earlier render of that name, or edited.
+    // It is listed as it is (renders_complete says false), but its integrator is not
+    // taken for the merge's, and the user is told.
+    if !complete && !tag.some_unknown() && reports.iter().all(Option::is_some) {
+        eprintln!(
+            "warning: the inputs' reports do not match their images (their seeds or spp \
+             differ from the EXR headers': a report left from another render, or edited); \
+             the merged report lists them as they are, with renders_complete false and no \
+             integrator"
+        );
+        integrator = None;
+    }
     let report = serde_json::json!({
         // As the render report: which stcvae merged them.
         "version": env!("CARGO_PKG_VERSION"),
@@ -280,7 +294,7 @@ fn merge_images(a: &Args) -> Result<()> {
         "width": img.width,
         "height": img.height,
         "mean_rgb": crate::render::mean_rgb(&img),
-        "renders_complete": renders_complete(&renders, &tag),
+        "renders_complete": complete,
         "renders": renders,
     });
     write_image_set(
@@ -837,12 +851,23 @@ fn merge_csv(a: &Args) -> Result<()> {
         if i == 0 {
             writeln!(out, "{head}").with_context(|| format!("cannot write {}", a.out.display()))?;
         }
+        // The first blank line since the last row: stcvae writes none, so one followed by
+        // more rows is a row emptied (an edit gone wrong), which was skipped silently.
+        let mut blank: Option<usize> = None;
         for (n, line) in lines.enumerate() {
             // Line numbers count from 1, with the header as line 1.
             let line = line.with_context(|| format!("{}: line {}", path.display(), n + 2))?;
-            // Blank lines (an editor's trailing newline) carry no row; CSV readers skip them.
+            // Blank lines at the end (an editor's trailing newlines) carry no row.
             if line.trim().is_empty() {
+                blank.get_or_insert(n + 2);
                 continue;
+            }
+            if let Some(at) = blank {
+                bail!(
+                    "{}: line {at}: a blank line among the rows (a row emptied?); stcvae \
+                     writes none: remove it or restore the row",
+                    path.display()
+                );
             }
             // Checked as a binary row is: a truncated, edited or foreign row is refused.
             dataset::Row::parse_csv(&line)

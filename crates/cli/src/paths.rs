@@ -57,12 +57,25 @@ pub(crate) fn check_dataset_out(out: &Path, holds: &str) -> Result<()> {
 /// models/default.stcvae` replaced the shipped model with a dataset, `train --out w.csv`
 /// a CSV with a model, both without a word. `holds` says what the command writes.
 pub(crate) fn check_kind(flag: &str, out: &Path, holds: &str, exts: &[&str]) -> Result<()> {
+    check_not_stdout(flag, out)?;
     if let Some(ext) = out.extension().and_then(|e| e.to_str())
         && exts.iter().any(|x| ext.eq_ignore_ascii_case(x))
     {
         bail!(
             "{flag} {}: this writes {holds}, not a .{ext} file; choose another name",
             out.display()
+        );
+    }
+    Ok(())
+}
+
+/// Refuses `-` as an output: many tools read it as standard output, and stcvae wrote a
+/// file named `-` in the working folder. `./-` still names such a file.
+pub(crate) fn check_not_stdout(flag: &str, out: &Path) -> Result<()> {
+    if out.as_os_str() == "-" {
+        bail!(
+            "{flag} -: stcvae writes files, not standard output; give a file name (./- for a \
+             file named -)"
         );
     }
     Ok(())

@@ -471,6 +471,7 @@ pub(crate) fn software_gpu_memory(
 /// `--out` is a path stem (OUT.exr, OUT.png, OUT.json); checked before rendering so that a
 /// long render is not lost to an unwritable name.
 pub(crate) fn check_out_stem(out: &Path) -> Result<()> {
+    crate::paths::check_not_stdout("--out", out)?;
     let text = out.as_os_str().to_string_lossy();
     if out.file_name().is_none()
         || text.ends_with('/')

@@ -609,6 +609,33 @@ fn shards_merge_into_the_unsharded_run() {
         fs::read_to_string(dir.path().join("from_excel.csv")).unwrap(),
         text
     );
+    // A blank line among the rows is a row emptied: it was skipped without a word, one
+    // walk fewer in the output. Refused, naming its line; blank lines at the end (an
+    // editor's) still pass.
+    let mut holed: Vec<&str> = text.lines().collect();
+    assert!(holed.len() > 5, "too few rows to make a hole");
+    holed[3] = "";
+    fs::write(dir.path().join("holed.csv"), holed.join("\n") + "\n").unwrap();
+    let out = stcvae(
+        &["merge", "holed.csv", "--out", "holed_out.csv"],
+        dir.path(),
+    );
+    assert!(
+        !out.status.success()
+            && stderr(&out).contains("holed.csv: line 4: a blank line among the rows"),
+        "{}",
+        stderr(&out)
+    );
+    assert!(!dir.path().join("holed_out.csv").exists());
+    fs::write(dir.path().join("trailing.csv"), format!("{text}\n \n")).unwrap();
+    ok(&stcvae(
+        &["merge", "trailing.csv", "--out", "trailing_out.csv"],
+        dir.path(),
+    ));
+    assert_eq!(
+        fs::read_to_string(dir.path().join("trailing_out.csv")).unwrap(),
+        text
+    );
     // A shard of another run (another seed) merges, with a note naming both runs and how
     // much of each the output holds.
     fs::write(
@@ -780,6 +807,23 @@ fn bad_input_gives_one_line_errors() {
         ),
         // ... and over a config; `generate` likewise over a model or a config.
         ("merge whole.csv --out data.toml", "not a .toml file"),
+        // `-` is not standard output: a file named `-` was written in the working folder.
+        (
+            "merge whole.csv --out -",
+            "--out -: stcvae writes files, not standard output",
+        ),
+        (
+            "sample --tau 5 --g 0 --albedo 1 --samples 10 --out -",
+            "--out -: stcvae writes files, not standard output",
+        ),
+        (
+            "render --spp 1 --width 8 --height 8 --out -",
+            "--out -: stcvae writes files, not standard output",
+        ),
+        (
+            "generate --samples 10 --tau 5 --g 0 --albedo 1 --out -",
+            "--out -: stcvae writes files, not standard output",
+        ),
         (
             "generate --samples 10 --out models.stcvae",
             "--out models.stcvae: this writes a dataset",

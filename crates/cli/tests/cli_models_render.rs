@@ -415,7 +415,13 @@ fn render_writes_exr_png_json_and_merge_averages_by_spp() {
         assert!(dispatch["dispatches"].as_u64().unwrap() >= 1, "{dispatch}");
     }
     let m = d.path().join("m");
-    ok(&merge_renders(&a, &b, &m));
+    // With their own reports: no warning, and the renders' integrator is the merge's.
+    let err = ok(&merge_renders(&a, &b, &m));
+    assert!(!err.contains("warning"), "{err}");
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(m.with_extension("json")).unwrap()).unwrap();
+    assert_eq!(json["integrator"], "stcvae", "{json}");
+    assert_eq!(json["renders_complete"], true, "{json}");
     let (ia, _) = render_gpu::image_io::read_exr(&a.with_extension("exr")).unwrap();
     let (ib, _) = render_gpu::image_io::read_exr(&b.with_extension("exr")).unwrap();
     let (im, tag) = render_gpu::image_io::read_exr(&m.with_extension("exr")).unwrap();
@@ -601,6 +607,25 @@ fn render_writes_exr_png_json_and_merge_averages_by_spp() {
         assert!(x.with_extension(ext).exists(), "missing x.{ext}");
     }
     assert!(!d.path().join("x.exr.exr").exists());
+    // A report left from another render (o's: seed 3, 1 spp, beside b's image of seed 2
+    // and 8 spp) was taken into the merged report without a word, its integrator as the
+    // merge's. Now the merge says so, and records no integrator.
+    std::fs::copy(o.with_extension("json"), b.with_extension("json")).unwrap();
+    let mut o_json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(b.with_extension("json")).unwrap()).unwrap();
+    o_json["integrator"] = "pt".into();
+    std::fs::write(b.with_extension("json"), o_json.to_string()).unwrap();
+    let stale = d.path().join("stale");
+    let err = ok(&merge_renders(&a, &b, &stale));
+    assert!(
+        err.contains("warning: the inputs' reports do not match their images"),
+        "{err}"
+    );
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(stale.with_extension("json")).unwrap())
+            .unwrap();
+    assert_eq!(json["renders_complete"], false, "{json}");
+    assert!(json["integrator"].is_null(), "{json}");
 }
 
 fn tag_of(p: &Path) -> u64 {

@@ -249,7 +249,8 @@ pub fn read_exr_at_most(
             .flat_map(|h| h.channels.list.iter().map(|ch| ch.name.to_string()))
             .collect();
         return Err(RenderError::Image(format!(
-            "{}: no layer has R, G and B channels (found {}): stcvae reads RGB images",
+            "{}: no part of the file has channels named R, G and B (found {}): stcvae reads \
+             the unlayered RGB channels it writes",
             path.display(),
             if found.is_empty() {
                 "none".to_string()
@@ -606,7 +607,7 @@ mod tests {
             .unwrap();
         let e = read_exr(&p).unwrap_err().to_string();
         assert!(
-            e.contains("grey.exr: no layer has R, G and B channels (found Y)"),
+            e.contains("grey.exr: no part of the file has channels named R, G and B (found Y)"),
             "{e}"
         );
     }

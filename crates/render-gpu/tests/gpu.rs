@@ -178,13 +178,10 @@ fn wgsl_hg_and_frame_match_rust() {
     }
 }
 
-/// The WGSL decoders (vec4 rows, softplus, log-variance clamp, de-standardisation) equal
-/// the Rust decoder on random inputs within 1e-5 (relative to the output's size: both are
-/// f32 with different summation orders, so the difference is a few ulps of the larger
-/// partial sums).
 /// A read-back in pieces returns the buffer's bytes in order, whatever the piece: one that
 /// divides the size, one that leaves a short last piece, one below wgpu's map alignment
-/// (rounded up to it) and one beyond the size. Each word holds its own index mixed, so a
+/// (rounded up to it) and one beyond the size; an empty read-back and one of part of a word
+/// are handled. Each word holds its own index mixed, so a
 /// piece copied to the wrong place or twice is seen.
 #[test]
 fn read_back_in_pieces_returns_every_byte_in_order() {
@@ -210,8 +207,19 @@ fn read_back_in_pieces_returns_every_byte_in_order() {
     // A prefix: only the bytes asked for.
     let got = read_back_in_pieces(&ctx, &buf, 1204, 96).expect("read back");
     assert!(got == expect[..1204], "prefix: the bytes differ");
+    // Nothing, and part of a word (which wgpu cannot copy) refused, not a panic.
+    assert!(
+        read_back_in_pieces(&ctx, &buf, 0, 96)
+            .expect("empty")
+            .is_empty()
+    );
+    assert!(read_back_in_pieces(&ctx, &buf, 6, 96).is_err());
 }
 
+/// The WGSL decoders (vec4 rows, softplus, log-variance clamp, de-standardisation) equal
+/// the Rust decoder on random inputs within 1e-5 (relative to the output's size: both are
+/// f32 with different summation orders, so the difference is a few ulps of the larger
+/// partial sums).
 #[test]
 fn wgsl_decoders_match_rust() {
     let Some(ctx) = gpu() else { return };

@@ -17,18 +17,35 @@ pub const AUTHORS_TAU_MAX: f64 = 300.0;
 pub const TAU_RANGE: &str = "[0, 1000]";
 pub const G_RANGE: &str = "[-0.999, 0.999]";
 
-/// A value for a range message: scientific notation when plain digits would run long
-/// (1e38 rather than 39 digits, 1e-7 rather than 0.0000001). Written in the value's own
-/// type, so an f32 reads as its shortest f32 digits.
+/// A value for a range message: [`Short`]'s digits.
 pub fn num<T>(v: T) -> String
 where
     T: Copy + Into<f64> + std::fmt::Display + std::fmt::LowerExp,
 {
-    let x: f64 = v.into();
-    if x != 0.0 && x.is_finite() && !(1e-4..1e6).contains(&x.abs()) {
-        format!("{v:e}")
-    } else {
-        format!("{v}")
+    Short(v).to_string()
+}
+
+/// A number written short and exact, for messages and CSV rows alike: the shortest digits
+/// that read back to the same value in its own type (an f32 as its shortest f32 digits),
+/// in scientific notation when plain digits would run long (1e38 rather than 39 digits,
+/// 1e-7 rather than 0.0000001; Rust's `{}` never uses an exponent, and an albedo of 1e-300
+/// took 302 characters in a CSV row). Zero is written 0 whatever its sign (`--tau -0` wrote
+/// -0); every other value reads back bit for bit.
+pub struct Short<T>(pub T);
+
+impl<T> std::fmt::Display for Short<T>
+where
+    T: Copy + Into<f64> + std::fmt::Display + std::fmt::LowerExp,
+{
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let x: f64 = self.0.into();
+        if x == 0.0 {
+            f.write_str("0")
+        } else if x.is_finite() && !(1e-4..1e6).contains(&x.abs()) {
+            write!(f, "{:e}", self.0)
+        } else {
+            write!(f, "{}", self.0)
+        }
     }
 }
 

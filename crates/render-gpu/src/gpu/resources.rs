@@ -486,8 +486,10 @@ pub fn read_back(ctx: &GpuContext, buf: &wgpu::Buffer, size: u64) -> Result<Vec<
 }
 
 /// As [`read_back`], through one staging buffer of at most `piece` bytes (rounded up to
-/// wgpu's map alignment) that is filled, mapped and read once per piece. `size` is a
-/// multiple of 4, as every buffer of f32s and u32s is (wgpu copies whole words).
+/// wgpu's map alignment) that is filled, mapped and read once per piece; one such buffer a
+/// call (the final read-back makes one a band of the image). `size` is a
+/// multiple of 4, as every buffer of f32s and u32s is (wgpu copies whole words); any other
+/// is refused.
 ///
 /// The staging buffer is made inside an out-of-memory scope: a failed allocation is this
 /// device's limit, said in one line, not an invalid buffer whose map fails later.
@@ -497,11 +499,14 @@ pub fn read_back_in_pieces(
     size: u64,
     piece: u64,
 ) -> Result<Vec<u8>, RenderError> {
-    debug_assert_eq!(
-        size % wgpu::COPY_BUFFER_ALIGNMENT,
-        0,
-        "read-back of part of a word"
-    );
+    if !size.is_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT) {
+        return Err(RenderError::Gpu(format!(
+            "a read-back of {size} bytes, not whole 4-byte words (a bug in stcvae)"
+        )));
+    }
+    if size == 0 {
+        return Ok(Vec::new());
+    }
     let piece = piece
         .max(1)
         .next_multiple_of(wgpu::MAP_ALIGNMENT)
@@ -516,8 +521,8 @@ pub fn read_back_in_pieces(
     });
     if let Some(e) = pollster::block_on(scope.pop()) {
         return Err(RenderError::GpuLimit(format!(
-            "{} is out of memory for reading the results back ({} MB at a time): {}; lower \
-             the image size or use --device cpu",
+            "{} is out of memory for the {} MB buffer that reads the results back: {}; use \
+             --device cpu",
             ctx.adapter.name,
             piece.div_ceil(1_000_000),
             super::context::one_line(&e.to_string())
@@ -536,9 +541,9 @@ pub fn read_back_in_pieces(
         staging.map_async(wgpu::MapMode::Read, ..n, move |r| {
             let _ = tx.send(r);
         });
-        data.extend_from_slice(&Readback::wait_mapped(
-            ctx, &staging, submission, &mapped, n,
-        )?);
+        Readback::wait_mapped(ctx, &staging, submission, &mapped, n, |bytes| {
+            data.extend_from_slice(bytes)
+        })?;
         at += n;
     }
     Ok(data)
@@ -581,18 +586,28 @@ impl Readback {
     /// bytes.
     pub fn finish(self, ctx: &GpuContext) -> Result<Vec<u8>, RenderError> {
         let size = self.staging.size();
-        Self::wait_mapped(ctx, &self.staging, self.submission, &self.mapped, size)
+        let mut data = Vec::new();
+        Self::wait_mapped(
+            ctx,
+            &self.staging,
+            self.submission,
+            &self.mapped,
+            size,
+            |b| data = b.to_vec(),
+        )?;
+        Ok(data)
     }
 
-    /// Waits for `submission` and the mapping of `staging`'s first `size` bytes, copies
-    /// them out and unmaps `staging` for its next use.
+    /// Waits for `submission` and the mapping of `staging`'s first `size` bytes, hands them
+    /// to `take` and unmaps `staging` for its next use.
     fn wait_mapped(
         ctx: &GpuContext,
         staging: &wgpu::Buffer,
         submission: wgpu::SubmissionIndex,
         mapped: &mpsc::Receiver<Result<(), wgpu::BufferAsyncError>>,
         size: u64,
-    ) -> Result<Vec<u8>, RenderError> {
+        take: impl FnOnce(&[u8]),
+    ) -> Result<(), RenderError> {
         let failed = |e: &dyn std::fmt::Display| {
             RenderError::Gpu(format!("reading GPU results failed: {e}"))
         };
@@ -606,10 +621,10 @@ impl Readback {
             Err(e) => return Err(failed(&e)),
         }
         let view = staging.get_mapped_range(..size).map_err(|e| failed(&e))?;
-        let data = view.to_vec();
+        take(&view);
         drop(view);
         staging.unmap();
-        Ok(data)
+        Ok(())
     }
 }
 

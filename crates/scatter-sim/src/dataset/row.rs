@@ -3,6 +3,7 @@
 use std::io::{self, Write};
 
 use crate::conditions::Conditions;
+use crate::ranges::Short;
 use crate::walk::CanonicalWalk;
 
 /// Column names of the CSV header, in row order.
@@ -185,48 +186,27 @@ impl Row {
         Ok(row)
     }
 
-    /// One CSV line in [`COLUMNS`] order; shortest round-trip formatting ([`Num`]).
+    /// One CSV line in [`COLUMNS`] order, each number short and exact (`ranges::Short`).
     pub fn write_csv(&self, w: &mut impl Write) -> io::Result<()> {
         let [x, y, z] = self.ev_pos;
         let [wx, wy, wz] = self.ev_dir;
         writeln!(
             w,
             "{},{},{},{},{},{},{},{},{},{},{},{},{}",
-            Num(self.tau),
-            Num(self.g),
-            Num(self.albedo),
+            Short(self.tau),
+            Short(self.g),
+            Short(self.albedo),
             self.n,
-            Num(self.cos_theta),
-            Num(self.beta),
-            Num(self.alpha),
-            Num(x),
-            Num(y),
-            Num(z),
-            Num(wx),
-            Num(wy),
-            Num(wz)
+            Short(self.cos_theta),
+            Short(self.beta),
+            Short(self.alpha),
+            Short(x),
+            Short(y),
+            Short(z),
+            Short(wx),
+            Short(wy),
+            Short(wz)
         )
-    }
-}
-
-/// A number as a CSV row holds it: the shortest digits that read back to the same value,
-/// in exponent form outside [1e-5, 1e16). Rust's `{}` never uses an exponent: an albedo
-/// of 1e-300 took 302 characters. −0 (from `--tau -0`) is written 0.
-struct Num<T>(T);
-
-impl<T> std::fmt::Display for Num<T>
-where
-    T: Copy + Into<f64> + std::fmt::Display + std::fmt::LowerExp,
-{
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let v: f64 = self.0.into();
-        if v == 0.0 {
-            f.write_str("0")
-        } else if !(1e-5..1e16).contains(&v.abs()) {
-            write!(f, "{:e}", self.0)
-        } else {
-            write!(f, "{}", self.0)
-        }
     }
 }
 
@@ -235,11 +215,25 @@ fn finite_field<T: std::str::FromStr + Copy + Into<f64>>(
     fields: &[&str],
     i: usize,
 ) -> Result<T, String> {
-    fields[i]
+    if let Some(v) = fields[i]
         .parse::<T>()
         .ok()
         .filter(|v| (*v).into().is_finite())
-        .ok_or_else(|| format!("{} = {:?} is not a finite number", COLUMNS[i], fields[i]))
+    {
+        return Ok(v);
+    }
+    // A finite number that T cannot hold (1e308 in an f32 column) is out of the column's
+    // range, not "not a finite number".
+    if fields[i].parse::<f64>().is_ok_and(f64::is_finite) {
+        return Err(format!(
+            "{} = {} is out of range (beyond f32, whose largest is 3.4e38)",
+            COLUMNS[i], fields[i]
+        ));
+    }
+    Err(format!(
+        "{} = {:?} is not a finite number",
+        COLUMNS[i], fields[i]
+    ))
 }
 
 #[cfg(test)]
@@ -271,7 +265,7 @@ mod tests {
     }
 
     /// Tiny and huge values are written with an exponent and read back exactly; −0 is
-    /// written 0; ordinary values keep their plain digits.
+    /// written 0 (in every column); ordinary values keep their plain digits.
     #[test]
     fn csv_numbers_are_short_and_exact() {
         let row = Row {
@@ -300,8 +294,8 @@ mod tests {
         assert!(line.len() < 100, "{line}");
         let back = Row::parse_csv(line.trim_end()).unwrap();
         assert_eq!(back, Row { tau: 0.0, ..row });
-        assert_eq!(format!("{}", Num(2.5e16f64)), "2.5e16");
-        assert_eq!(format!("{}", Num(123456.75f32)), "123456.75");
+        assert_eq!(format!("{}", Short(2.5e16f64)), "2.5e16");
+        assert_eq!(format!("{}", Short(123456.75f32)), "123456.75");
     }
 
     /// Each column out of its range (or not a number) is refused, naming the column.
@@ -324,7 +318,9 @@ mod tests {
             (3, "0", "n = 0"),
             (4, "7", "exit"),
             (7, "1e30", "event"),
-            (7, "1e39", "ev_x = \"1e39\" is not a finite number"),
+            (7, "1e39", "ev_x = 1e39 is out of range (beyond f32"),
+            (0, "1e308", "tau = 1e308 is out of range (beyond f32"),
+            (0, "inf", "tau = \"inf\" is not a finite number"),
             (10, "nan", "ev_wx"),
         ] {
             let mut fields = good.clone();
