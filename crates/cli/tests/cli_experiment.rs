@@ -311,6 +311,18 @@ fn bad_experiment_config_is_a_clear_error() {
         "{err}"
     );
     assert!(!err.contains("panicked"), "{err}");
+    // A value the field's type cannot hold names the field's range, not the type's
+    // ("expected a whole number in [0, 4294967295]" for spp = 1e9 or size = -5).
+    let (err, success) = run("1.0", "1e9");
+    assert!(
+        !success && err.contains("expected a whole number in [2, 1073741824]"),
+        "{err}"
+    );
+    let (err, success) = run("1.0", "-2");
+    assert!(
+        !success && err.contains("expected a whole number in [2, 1073741824]"),
+        "{err}"
+    );
     // spp near u32::MAX: a pair's halves added up in u32 and wrapped to 2 in the tag.
     let (err, success) = run("1.0", "4294967295");
     assert!(
@@ -425,12 +437,25 @@ fn experiment_configs_are_checked_before_any_rendering() {
     assert!(e.contains("densities") && e.contains("twice"), "{e}");
     let e = run("scene = \"ok.toml\"\ndensities = \"1.0\"");
     assert!(e.contains("exp.toml:4") && e.contains("densities"), "{e}");
-    // An empty list is reported as missing, not as a mismatch with `paper`.
+    // An empty list is refused as such, not as a mismatch with `paper`; in a fallback
+    // config, whose densities default to [1], it read as no key at all, and the run
+    // rendered at density 1 under a description of another.
     let e = run_kind(
         "teaser",
         "scene = \"ok.toml\"\ndensities = []\npaper = [2.2]",
     );
-    assert!(e.contains("kind = \"teaser\" needs densities"), "{e}");
+    assert!(
+        e.contains("densities") && e.contains("an empty list: give at least one value"),
+        "{e}"
+    );
+    let e = run_kind(
+        "fallback",
+        "scene = \"ok.toml\"\ndensities = []\nthresholds = [0.0]",
+    );
+    assert!(
+        e.contains("densities") && e.contains("an empty list: give at least one value"),
+        "{e}"
+    );
     // Densities as `bench render --k` takes them; the paper's figures positive.
     let e = run_kind(
         "absorption",

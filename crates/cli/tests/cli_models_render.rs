@@ -643,7 +643,7 @@ fn bad_arguments_name_the_argument() {
     let d = tempfile::tempdir().unwrap();
     let file = d.path().join("file");
     std::fs::write(&file, b"x").unwrap();
-    let cases: [(Vec<String>, &str); 22] = [
+    let cases: [(Vec<String>, &str); 23] = [
         // The seed's range (clap's parser said "invalid digit found in string"); a model
         // file that is missing named as --model's value.
         (
@@ -763,6 +763,16 @@ fn bad_arguments_name_the_argument() {
         (
             vec!["bench".into(), "sim".into(), "--walks".into(), "0".into()],
             "--walks",
+        ),
+        // 2^64 walks was taken, and would never have finished.
+        (
+            vec![
+                "bench".into(),
+                "sim".into(),
+                "--walks".into(),
+                "18446744073709551615".into(),
+            ],
+            "allowed [1024, 16777216]",
         ),
         (
             vec![

@@ -36,16 +36,83 @@ impl Kind {
 #[serde(deny_unknown_fields)]
 pub struct Budget {
     /// Image width in pixels (every kind but distributions, which renders nothing).
+    #[serde(default, deserialize_with = "whole_in::<W_SIZE, _, _>")]
     size: Option<u32>,
     /// Samples per pixel of each render, split over two seeds where noise is measured
     /// (every kind but distributions and nee, which renders for `seconds`).
+    #[serde(default, deserialize_with = "whole_in::<W_SPP, _, _>")]
     spp: Option<u32>,
     /// Equal-time budget in seconds (nee).
     pub seconds: Option<f64>,
     /// Samples per pixel of the converged reference (nee).
+    #[serde(default, deserialize_with = "whole_in::<W_REFERENCE_SPP, _, _>")]
     pub reference_spp: Option<u32>,
     /// Samples per eval setting (distributions).
+    #[serde(default, deserialize_with = "whole_in::<W_SAMPLES, _, _>")]
     pub samples: Option<usize>,
+}
+
+/// The budgets' whole-number fields' ranges (inclusive), which `validate` checks and
+/// whose messages say why. Size: `bench render --size`'s, since the figures are measured
+/// over 4×4-pixel blocks and the object's pixels; spp: from two seeds, at most bench
+/// render's 2^30, whose pairs' halves add up in u32.
+const WHOLE: [(u64, u64); 4] = [
+    (8, 4096),
+    (2, crate::bench_render::MAX_BENCH_SPP as u64),
+    (1, u32::MAX as u64),
+    (2, crate::model_cmds::MAX_EVAL_SAMPLES as u64),
+];
+const W_SIZE: usize = 0;
+const W_SPP: usize = 1;
+const W_REFERENCE_SPP: usize = 2;
+const W_SAMPLES: usize = 3;
+
+/// A list that, where the key is given, holds something: `densities = []` in a fallback
+/// config read as no key at all, and the run rendered at the default density under a
+/// description of another.
+fn non_empty<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Vec<f64>, D::Error> {
+    let v = Vec::<f64>::deserialize(d)?;
+    if v.is_empty() {
+        return Err(serde::de::Error::custom(
+            "an empty list: give at least one value, or leave the key out",
+        ));
+    }
+    Ok(v)
+}
+
+/// Reads one of the budgets' whole numbers (`I` indexes [`WHOLE`]): a value the type
+/// cannot hold (negative, fractional, beyond 2^32) is refused with the field's own range
+/// (`size = -5` said "expected a whole number in [0, 4294967295]" for a field of
+/// [8, 4096]); one the type holds but out of range is left to `validate`, which says why
+/// the range is what it is.
+fn whole_in<'de, const I: usize, D, T>(d: D) -> std::result::Result<Option<T>, D::Error>
+where
+    D: serde::Deserializer<'de>,
+    T: TryFrom<u64>,
+{
+    struct Whole<T>(usize, std::marker::PhantomData<T>);
+    impl<T: TryFrom<u64>> serde::de::Visitor<'_> for Whole<T> {
+        type Value = T;
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            let (lo, hi) = WHOLE[self.0];
+            if hi == u32::MAX as u64 {
+                write!(f, "a whole number in [{lo}, 2^32)")
+            } else {
+                write!(f, "a whole number in [{lo}, {hi}]")
+            }
+        }
+        fn visit_u64<E: serde::de::Error>(self, v: u64) -> std::result::Result<T, E> {
+            T::try_from(v).map_err(|_| E::invalid_value(serde::de::Unexpected::Unsigned(v), &self))
+        }
+        fn visit_i64<E: serde::de::Error>(self, v: i64) -> std::result::Result<T, E> {
+            u64::try_from(v)
+                .ok()
+                .and_then(|u| T::try_from(u).ok())
+                .ok_or_else(|| E::invalid_value(serde::de::Unexpected::Signed(v), &self))
+        }
+    }
+    d.deserialize_u64(Whole::<T>(I, std::marker::PhantomData))
+        .map(Some)
 }
 
 impl Budget {
@@ -90,7 +157,7 @@ pub struct Config {
     #[serde(default)]
     pub scenes: Vec<PathBuf>,
     /// Multipliers of the scene's σ_t.
-    #[serde(default)]
+    #[serde(default, deserialize_with = "non_empty")]
     pub densities: Vec<f64>,
     /// Absorption 1 − φ values (absorption).
     #[serde(default)]
@@ -168,21 +235,22 @@ impl Config {
             // As `bench render --size`: the figures are measured over 4×4-pixel blocks and
             // the object's pixels, which a smaller image hardly has (size 1 reported a
             // variance ratio of 7e297).
+            let (lo, hi) = WHOLE[W_SIZE];
             if let Some(size) = b.size
-                && !(8..=4096).contains(&size)
+                && !(lo..=hi).contains(&size.into())
             {
                 bail!(
-                    "{name}.size = {size} is out of range (8..=4096: the figures are measured \
-                     over 4×4-pixel blocks)"
+                    "{name}.size = {size} is out of range: allowed [{lo}, {hi}] (the figures \
+                     are measured over 4×4-pixel blocks)"
                 );
             }
             // At most bench render's 2^30: a pair's two halves add up in u32.
-            let most = crate::bench_render::MAX_BENCH_SPP;
+            let (lo, most) = WHOLE[W_SPP];
             if let Some(spp) = b.spp
-                && !(2..=most).contains(&spp)
+                && !(lo..=most).contains(&spp.into())
             {
                 bail!(
-                    "{name}.spp = {spp} is out of range: allowed [2, {most}] (noise is \
+                    "{name}.spp = {spp} is out of range: allowed [{lo}, {most}] (noise is \
                      measured from two seeds)"
                 );
             }
@@ -194,16 +262,16 @@ impl Config {
                     scatter_sim::ranges::num(s)
                 );
             }
+            let (lo, hi) = WHOLE[W_SAMPLES];
             if let Some(n) = b.samples
-                && !(2..=crate::model_cmds::MAX_EVAL_SAMPLES).contains(&n)
+                && !(lo..=hi).contains(&(n as u64))
             {
-                bail!(
-                    "{name}.samples = {n} is out of range: allowed [2, {}]",
-                    crate::model_cmds::MAX_EVAL_SAMPLES
-                );
+                bail!("{name}.samples = {n} is out of range: allowed [{lo}, {hi}]");
             }
-            if b.reference_spp == Some(0) {
-                bail!("{name}.reference_spp = 0 is out of range: allowed [1, 2^32)");
+            if let Some(n) = b.reference_spp
+                && u64::from(n) < WHOLE[W_REFERENCE_SPP].0
+            {
+                bail!("{name}.reference_spp = {n} is out of range: allowed [1, 2^32)");
             }
         }
         let positive = |what: &str, v: &[f64]| -> Result<()> {
