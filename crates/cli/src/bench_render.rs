@@ -63,7 +63,8 @@ pub struct Args {
     #[arg(long)]
     path_nee_rays: Option<u32>,
     /// Below this optical radius ST-CVAE simulates a sphere step's walk exactly instead of
-    /// drawing it from the models (overrides the scene's; 0: always the models).
+    /// drawing it from the models (overrides the scene's; in [0, 50]; 0: always the
+    /// models).
     #[arg(long, allow_negative_numbers = true)]
     exact_tau: Option<f64>,
     /// Next-event estimation in both integrators. `false` counts only paths that escape
@@ -164,7 +165,7 @@ fn save_images_or_none(
     st: &Pair,
 ) -> Result<()> {
     use render_gpu::image_io::{RenderTag, RgbImage, write_png};
-    // `run` created `dir` before rendering.
+    // `run` checked `dir` before rendering; the first file written makes it.
     let exposure = crate::experiment::measure::scale_of(&pt.mean) as f32;
     for (name, p, kind) in [
         ("pt", pt, IntegratorKind::Pt),
@@ -459,8 +460,9 @@ pub fn run(a: Args) -> Result<()> {
         if dir.exists() && !dir.is_dir() {
             bail!("--save {}: exists and is not a directory", dir.display());
         }
-        std::fs::create_dir_all(dir)
-            .with_context(|| format!("--save: cannot create {}", dir.display()))?;
+        // Checked, not made: the first saved file makes it (an interrupted bench left an
+        // empty folder).
+        crate::check_out_dir("--save", dir)?;
     }
     // So is the PT cache's directory: PT's renders are the long part of a bench, and a
     // cache that cannot take them should say so before they run.

@@ -1833,6 +1833,29 @@ fn bench_render_reuses_stored_pt_pairs() {
 fn bench_render_save_writes_images_and_the_pixel_table() {
     let dir = tempfile::tempdir().unwrap();
     let save = dir.path().join("b");
+    // A bench refused after --save was checked (here for its --pt-cache, under a file)
+    // leaves no folder: --save made it at once, and an empty one stayed behind.
+    let afile = dir.path().join("afile");
+    std::fs::write(&afile, b"").unwrap();
+    let err = fails(&stcvae(&[
+        "bench",
+        "render",
+        "--k",
+        "0.25",
+        "--spp",
+        "6",
+        "--size",
+        "8",
+        "--save",
+        save.to_str().unwrap(),
+        "--pt-cache",
+        afile.join("cache").to_str().unwrap(),
+    ]));
+    assert!(err.contains("--pt-cache"), "{err}");
+    assert!(
+        !save.exists(),
+        "--save's folder was made before the bench ran"
+    );
     ok(&stcvae(&[
         "bench",
         "render",
