@@ -7,7 +7,7 @@ where
     T: TryFrom<u64>,
 {
     move |s: &str| {
-        let range = range_text(lo, hi);
+        let range = scatter_sim::ranges::whole_range(lo, hi);
         let v: u64 = s
             .trim()
             .parse()
@@ -16,15 +16,6 @@ where
             return Err(format!("{v} is out of range: allowed {range}"));
         }
         T::try_from(v).map_err(|_| format!("allowed {range}"))
-    }
-}
-
-/// `[lo, hi]`, with 2^64 and 2^32 written as such rather than in twenty digits.
-fn range_text(lo: u64, hi: u64) -> String {
-    match hi {
-        u64::MAX => format!("[{lo}, 2^64)"),
-        h if h == u64::from(u32::MAX) => format!("[{lo}, 2^32)"),
-        h => format!("[{lo}, {h}]"),
     }
 }
 

@@ -440,22 +440,19 @@ fn experiment_configs_are_checked_before_any_rendering() {
     // An empty list is refused as such, not as a mismatch with `paper`; in a fallback
     // config, whose densities default to [1], it read as no key at all, and the run
     // rendered at density 1 under a description of another.
-    let e = run_kind(
-        "teaser",
-        "scene = \"ok.toml\"\ndensities = []\npaper = [2.2]",
-    );
-    assert!(
-        e.contains("densities") && e.contains("an empty list: give at least one value"),
-        "{e}"
-    );
-    let e = run_kind(
-        "fallback",
-        "scene = \"ok.toml\"\ndensities = []\nthresholds = [0.0]",
-    );
-    assert!(
-        e.contains("densities") && e.contains("an empty list: give at least one value"),
-        "{e}"
-    );
+    for (kind, other) in [
+        ("teaser", "paper = [2.2]"),
+        ("fallback", "thresholds = [0.0]"),
+    ] {
+        let e = run_kind(
+            kind,
+            &format!("scene = \"ok.toml\"\ndensities = []\n{other}"),
+        );
+        assert!(
+            e.contains("densities") && e.contains("an empty list: give at least one value"),
+            "{kind}: {e}"
+        );
+    }
     // Densities as `bench render --k` takes them; the paper's figures positive.
     let e = run_kind(
         "absorption",

@@ -1837,37 +1837,29 @@ fn bench_render_save_writes_images_and_the_pixel_table() {
     // leaves no folder: --save made it at once, and an empty one stayed behind.
     let afile = dir.path().join("afile");
     std::fs::write(&afile, b"").unwrap();
-    let err = fails(&stcvae(&[
-        "bench",
-        "render",
-        "--k",
-        "0.25",
-        "--spp",
-        "6",
-        "--size",
-        "8",
-        "--save",
-        save.to_str().unwrap(),
-        "--pt-cache",
-        afile.join("cache").to_str().unwrap(),
-    ]));
+    let bench = |more: &[&str]| {
+        let args = [
+            "bench",
+            "render",
+            "--k",
+            "0.25",
+            "--spp",
+            "6",
+            "--size",
+            "8",
+            "--save",
+            save.to_str().unwrap(),
+        ];
+        stcvae(&[&args[..], more].concat())
+    };
+    let cache = afile.join("cache");
+    let err = fails(&bench(&["--pt-cache", cache.to_str().unwrap()]));
     assert!(err.contains("--pt-cache"), "{err}");
     assert!(
         !save.exists(),
         "--save's folder was made before the bench ran"
     );
-    ok(&stcvae(&[
-        "bench",
-        "render",
-        "--k",
-        "0.25",
-        "--spp",
-        "6",
-        "--size",
-        "8",
-        "--save",
-        save.to_str().unwrap(),
-    ]));
+    ok(&bench(&[]));
     for f in [
         "k0.25_pt.exr",
         "k0.25_pt.png",

@@ -106,14 +106,6 @@ const W_EXACT_NEE_SAMPLES: usize = 4;
 const W_PATH_NEE_RAYS: usize = 5;
 const W_NEE_SAMPLES: usize = 6;
 
-fn whole_range(lo: u32, hi: u32) -> String {
-    if hi == u32::MAX {
-        format!("[{lo}, 2^32)")
-    } else {
-        format!("[{lo}, {hi}]")
-    }
-}
-
 fn check_whole(field: usize, v: u32) -> Result<(), String> {
     let (name, lo, hi) = WHOLE_FIELDS[field];
     if (lo..=hi).contains(&v) {
@@ -121,7 +113,7 @@ fn check_whole(field: usize, v: u32) -> Result<(), String> {
     }
     Err(format!(
         "{name} = {v} is out of range: allowed {}",
-        whole_range(lo, hi)
+        scatter_sim::ranges::whole_range(lo.into(), hi.into())
     ))
 }
 
@@ -131,22 +123,11 @@ fn check_whole(field: usize, v: u32) -> Result<(), String> {
 /// key is written (inline tables, dotted or quoted keys). A whole number of the type but
 /// out of range is left to `validate`, which names the field.
 fn whole<'de, const I: usize, D: serde::Deserializer<'de>>(d: D) -> Result<u32, D::Error> {
-    struct Whole(usize);
-    impl serde::de::Visitor<'_> for Whole {
-        type Value = u32;
-        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
-            let (_, lo, hi) = WHOLE_FIELDS[self.0];
-            write!(f, "a whole number in {}", whole_range(lo, hi))
-        }
-        fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<u32, E> {
-            u32::try_from(v)
-                .map_err(|_| E::invalid_value(serde::de::Unexpected::Unsigned(v), &self))
-        }
-        fn visit_i64<E: serde::de::Error>(self, v: i64) -> Result<u32, E> {
-            u32::try_from(v).map_err(|_| E::invalid_value(serde::de::Unexpected::Signed(v), &self))
-        }
-    }
-    d.deserialize_u32(Whole(I))
+    let (_, lo, hi) = WHOLE_FIELDS[I];
+    d.deserialize_u32(scatter_sim::ranges::WholeIn::<u32>::new(
+        lo.into(),
+        hi.into(),
+    ))
 }
 
 /// serde's Rust type names in words: `width = -16` said "expected u32". The field's own

@@ -85,6 +85,54 @@ pub fn check_albedo(field: &str, albedo: f64) -> Result<(), RangeError> {
     check(field, albedo, (0.0..=1.0).contains(&albedo), "[0, 1]")
 }
 
+/// `[lo, hi]` of whole numbers, with 2^64 and 2^32 written as such rather than in twenty
+/// digits: the one wording of the CLI's options, the scene's fields and the experiment
+/// budgets' fields.
+pub fn whole_range(lo: u64, hi: u64) -> String {
+    match hi {
+        u64::MAX => format!("[{lo}, 2^64)"),
+        h if h == u64::from(u32::MAX) => format!("[{lo}, 2^32)"),
+        h => format!("[{lo}, {h}]"),
+    }
+}
+
+/// A serde visitor for a config file's whole-number field of range [lo, hi]: a value the
+/// type `T` cannot hold (negative, fractional, beyond it) is refused with the field's own
+/// range ("expected a whole number in [8, 4096]"), not the type's ("[0, 4294967295]"). A
+/// value `T` holds is returned even out of range, for the config's validation, which
+/// names the field and says why the range is what it is.
+pub struct WholeIn<T> {
+    pub lo: u64,
+    pub hi: u64,
+    pub of: std::marker::PhantomData<T>,
+}
+
+impl<T> WholeIn<T> {
+    pub fn new(lo: u64, hi: u64) -> Self {
+        Self {
+            lo,
+            hi,
+            of: std::marker::PhantomData,
+        }
+    }
+}
+
+impl<T: TryFrom<u64>> serde::de::Visitor<'_> for WholeIn<T> {
+    type Value = T;
+    fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        write!(f, "a whole number in {}", whole_range(self.lo, self.hi))
+    }
+    fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<T, E> {
+        T::try_from(v).map_err(|_| E::invalid_value(serde::de::Unexpected::Unsigned(v), &self))
+    }
+    fn visit_i64<E: serde::de::Error>(self, v: i64) -> Result<T, E> {
+        u64::try_from(v)
+            .ok()
+            .and_then(|u| T::try_from(u).ok())
+            .ok_or_else(|| E::invalid_value(serde::de::Unexpected::Signed(v), &self))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     #[test]

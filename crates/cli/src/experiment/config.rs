@@ -90,28 +90,8 @@ where
     D: serde::Deserializer<'de>,
     T: TryFrom<u64>,
 {
-    struct Whole<T>(usize, std::marker::PhantomData<T>);
-    impl<T: TryFrom<u64>> serde::de::Visitor<'_> for Whole<T> {
-        type Value = T;
-        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
-            let (lo, hi) = WHOLE[self.0];
-            if hi == u32::MAX as u64 {
-                write!(f, "a whole number in [{lo}, 2^32)")
-            } else {
-                write!(f, "a whole number in [{lo}, {hi}]")
-            }
-        }
-        fn visit_u64<E: serde::de::Error>(self, v: u64) -> std::result::Result<T, E> {
-            T::try_from(v).map_err(|_| E::invalid_value(serde::de::Unexpected::Unsigned(v), &self))
-        }
-        fn visit_i64<E: serde::de::Error>(self, v: i64) -> std::result::Result<T, E> {
-            u64::try_from(v)
-                .ok()
-                .and_then(|u| T::try_from(u).ok())
-                .ok_or_else(|| E::invalid_value(serde::de::Unexpected::Signed(v), &self))
-        }
-    }
-    d.deserialize_u64(Whole::<T>(I, std::marker::PhantomData))
+    let (lo, hi) = WHOLE[I];
+    d.deserialize_u64(scatter_sim::ranges::WholeIn::<T>::new(lo, hi))
         .map(Some)
 }
 
@@ -268,10 +248,14 @@ impl Config {
             {
                 bail!("{name}.samples = {n} is out of range: allowed [{lo}, {hi}]");
             }
+            let (lo, hi) = WHOLE[W_REFERENCE_SPP];
             if let Some(n) = b.reference_spp
-                && u64::from(n) < WHOLE[W_REFERENCE_SPP].0
+                && u64::from(n) < lo
             {
-                bail!("{name}.reference_spp = {n} is out of range: allowed [1, 2^32)");
+                bail!(
+                    "{name}.reference_spp = {n} is out of range: allowed {}",
+                    scatter_sim::ranges::whole_range(lo, hi)
+                );
             }
         }
         let positive = |what: &str, v: &[f64]| -> Result<()> {

@@ -513,12 +513,7 @@ pub fn read_back_in_pieces(
         .min(size.next_multiple_of(wgpu::MAP_ALIGNMENT))
         .max(wgpu::MAP_ALIGNMENT);
     let scope = ctx.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
-    let staging = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("readback"),
-        size: piece,
-        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-        mapped_at_creation: false,
-    });
+    let staging = staging_buffer(ctx, piece);
     if let Some(e) = pollster::block_on(scope.pop()) {
         return Err(RenderError::GpuLimit(format!(
             "{} is out of memory for the {} MB buffer that reads the results back: {}; use \
@@ -532,15 +527,7 @@ pub fn read_back_in_pieces(
     let mut at = 0;
     while at < size {
         let n = (size - at).min(piece);
-        let mut enc = ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-        enc.copy_buffer_to_buffer(buf, at, &staging, 0, n);
-        let submission = ctx.queue.submit([enc.finish()]);
-        let (tx, mapped) = mpsc::channel();
-        staging.map_async(wgpu::MapMode::Read, ..n, move |r| {
-            let _ = tx.send(r);
-        });
+        let (submission, mapped) = copy_and_map(ctx, buf, at, &staging, n);
         Readback::wait_mapped(ctx, &staging, submission, &mapped, n, |bytes| {
             data.extend_from_slice(bytes)
         })?;
@@ -559,26 +546,48 @@ pub struct Readback {
 
 /// Submits a copy of `size` bytes of `buf` for the host to read once the GPU gets there.
 pub fn start_read_back(ctx: &GpuContext, buf: &wgpu::Buffer, size: u64) -> Readback {
-    let staging = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("readback"),
-        size,
-        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-        mapped_at_creation: false,
-    });
-    let mut enc = ctx
-        .device
-        .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
-    enc.copy_buffer_to_buffer(buf, 0, &staging, 0, size);
-    let submission = ctx.queue.submit([enc.finish()]);
-    let (tx, mapped) = mpsc::channel();
-    staging.map_async(wgpu::MapMode::Read, .., move |r| {
-        let _ = tx.send(r);
-    });
+    let staging = staging_buffer(ctx, size);
+    let (submission, mapped) = copy_and_map(ctx, buf, 0, &staging, size);
     Readback {
         staging,
         submission,
         mapped,
     }
+}
+
+/// A buffer of `size` bytes the host can map to read what a copy put there.
+fn staging_buffer(ctx: &GpuContext, size: u64) -> wgpu::Buffer {
+    ctx.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("readback"),
+        size,
+        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    })
+}
+
+/// Submits a copy of `n` bytes of `buf` from byte `at` to the start of `staging`, and asks
+/// for those bytes of `staging` to be mapped once the copy is done; the receiver gets the
+/// mapping's outcome.
+fn copy_and_map(
+    ctx: &GpuContext,
+    buf: &wgpu::Buffer,
+    at: u64,
+    staging: &wgpu::Buffer,
+    n: u64,
+) -> (
+    wgpu::SubmissionIndex,
+    mpsc::Receiver<Result<(), wgpu::BufferAsyncError>>,
+) {
+    let mut enc = ctx
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+    enc.copy_buffer_to_buffer(buf, at, staging, 0, n);
+    let submission = ctx.queue.submit([enc.finish()]);
+    let (tx, mapped) = mpsc::channel();
+    staging.map_async(wgpu::MapMode::Read, ..n, move |r| {
+        let _ = tx.send(r);
+    });
+    (submission, mapped)
 }
 
 impl Readback {
