@@ -309,6 +309,30 @@ fn check_shared_seeds(references: &Seen, images: &Seen) -> Result<()> {
     Ok(())
 }
 
+/// Refuses stcvae renders of different views: an image of another scene (another camera,
+/// mesh, medium or light) than the reference's, of the same size, would be measured
+/// against it and read as a large error without a word. The scene hash cannot tell (it
+/// holds the integrator and its settings, so an ST-CVAE image and its PT reference always
+/// differ there); the view hash leaves those out. Files without one (other renderers',
+/// older renders) are not checked.
+fn check_views(references: &Seen, images: &Seen) -> Result<()> {
+    let mut views = references
+        .tags
+        .iter()
+        .chain(&images.tags)
+        .filter_map(|(p, t)| Some((p, t.view_hash?)));
+    if let Some((p0, v0)) = views.next()
+        && let Some((p, v)) = views.find(|&(_, v)| v != v0)
+    {
+        bail!(
+            "{} and {} show different scenes (view hashes {v0:016x} and {v:016x}: their              camera, object, medium, boundary, lights or environment differ): every image              must be a render of the references' scene",
+            p0.display(),
+            p.display()
+        );
+    }
+    Ok(())
+}
+
 /// The image an argument names, checked against the reference's size.
 fn load_spec(files: &[String], w: usize, h: usize, seen: &mut Seen) -> Result<RgbImage> {
     let mut images = Vec::with_capacity(files.len());
@@ -409,6 +433,7 @@ pub fn run(a: Args) -> Result<()> {
         .map(|s| load_spec(&s.files, r.width, r.height, &mut image_seen))
         .collect::<Result<_>>()?;
     check_shared_seeds(&ref_seen, &image_seen)?;
+    check_views(&ref_seen, &image_seen)?;
     let ref_noise = r.noise_mse.sqrt();
     let objects = r.object.iter().filter(|&&o| o).count();
     println!(

@@ -181,6 +181,7 @@ fn save_images_or_none(
             seeds: a.seeds_of(kind).to_vec(),
             partial: false,
             unknown_digests: Vec::new(),
+            view_hash: p.view,
         };
         crate::merge::write_image_set(&saved_stem(dir, k, name), &p.mean, &tag, exposure, None)?;
     }
@@ -268,7 +269,9 @@ fn pt_pair(
     let spp = 2 * half_spp(a.spp);
     let file = crate::pt_cache::path(dir, k, p.data.hash, spp, id);
     let size = (p.data.camera.width, p.data.camera.height);
-    if let Some((pair, when)) = crate::pt_cache::load(&file, p.data.hash, spp, size, id)? {
+    if let Some((mut pair, when)) = crate::pt_cache::load(&file, p.data.hash, spp, size, id)? {
+        // The scene hash it was stored under covers everything the view hash does.
+        pair.view = Some(p.data.view_hash);
         return Ok((pair, Some(when)));
     }
     let pair = render_pair(a, engine, &p, IntegratorKind::Pt)?;
@@ -398,7 +401,7 @@ fn render_pair(
     }
     let b = outs.pop().expect("two renders");
     let a_out = outs.pop().expect("two renders");
-    let pair = Pair::from_halves(a_out, b, p.data.hash);
+    let pair = Pair::from_halves(a_out, b, (p.data.hash, p.data.view_hash));
     // Every column compares the object's pixels, found by their noise: with none the
     // variance ratio was 0/0 printed as 0, and a bias of 0 read as a pass.
     if !pair.has_noise() {
@@ -686,6 +689,7 @@ mod tests {
                 work: vec![1.0; 16],
                 spp: 2,
                 hash: 7,
+                view: None,
             }
         };
         let e = save_images(&a, dir.path(), 1.0, &pair(0.5), &pair(0.4)).unwrap_err();

@@ -918,6 +918,7 @@ mod tests {
             seeds: vec![1, 2, 3],
             partial: false,
             unknown_digests: Vec::new(),
+            view_hash: None,
         };
         let render = |spp: u64, seed: &str| json!({"spp": spp, "seed_text": seed});
         let merged = json!({"merged": true, "spp": 3, "seeds_text": ["2", "3"]});

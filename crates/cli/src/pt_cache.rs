@@ -153,6 +153,9 @@ pub fn load(
         work: s.work,
         spp: s.spp,
         hash,
+        // Not stored: the caller's scene, whose hash the file's name and contents match,
+        // gives it.
+        view: None,
     };
     Ok(Some((pair, s.measured_unix)))
 }
@@ -240,6 +243,7 @@ mod tests {
             work: vec![1.0; 6],
             spp: 10,
             hash,
+            view: None,
         }
     }
 

@@ -797,6 +797,7 @@ pub fn run(mut a: Args) -> Result<()> {
         seeds: vec![r.seed],
         partial: false,
         unknown_digests: Vec::new(),
+        view_hash: Some(p.data.view_hash),
     };
     let paths = out.stats.paths.max(1) as f64;
     let stcvae = p.model.is_some();

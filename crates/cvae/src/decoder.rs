@@ -442,8 +442,9 @@ impl Decoder {
 mod tests {
     use super::*;
 
-    /// Both lane widths (8: AVX2 and portable builds; 16: AVX-512), with separate and
-    /// fused multiply-adds, equal one-by-one evaluation on batches that end mid-group.
+    /// Every variant `outputs` runs (separate multiply-adds on 8 lanes: portable builds;
+    /// fused on 8: AVX2; fused on 16: AVX-512), and separate ones on 16, equal one-by-one
+    /// evaluation on batches that end mid-group.
     /// Tolerance as in `tests/model_file.rs`: f32 rounding of sums taken in another order
     /// is a few ulps of O(1–10) values; a wrong lane or weight is O(0.1–1).
     #[test]
@@ -481,13 +482,14 @@ mod tests {
             .collect();
         let single: Vec<Head> = draws.iter().map(|x| d.head(x)).collect();
         let mut heads = vec![[0f32; 2 * MAX_OUT]; draws.len()];
-        for width in 0..3 {
+        for width in 0..4 {
             // Poisoned, so a lane a variant leaves unwritten fails the comparison below
             // instead of showing the previous variant's value.
             heads.fill([f32::NAN; 2 * MAX_OUT]);
             match width {
                 0 => d.heads_with::<Separate, 8>(&draws, &mut heads),
                 1 => d.heads_with::<Separate, 16>(&draws, &mut heads),
+                2 => d.heads_with::<Fused, 8>(&draws, &mut heads),
                 _ => d.heads_with::<Fused, 16>(&draws, &mut heads),
             }
             for (a, b) in single.iter().zip(&heads) {

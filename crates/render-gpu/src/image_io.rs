@@ -13,7 +13,7 @@ use scatter_sim::output::write_atomic;
 
 use crate::error::RenderError;
 
-/// The render tag as one text attribute, `spp=N scene=HEX [seed=S | seeds=S,S,…]`, where
+/// The render tag as one text attribute, `spp=N scene=HEX [view=HEX] [seed=S | seeds=S,S,…]`, where
 /// a `?` in the list stands for inputs of unknown seed, `?HEX` for one whose pixel digest
 /// is HEX (see [`RenderTag::partial`] and [`RenderTag::unknown_digests`]). One
 /// attribute, not
@@ -94,6 +94,10 @@ pub struct RenderTag {
     /// merge, where their pixels vary: the only way to know one of them again (without
     /// them a merge M of a and u accepted u once more, and again).
     pub unknown_digests: Vec<u64>,
+    /// What the image shows whichever integrator rendered it
+    /// ([`crate::setup::SceneData::view_hash`]); None in files written before it was
+    /// recorded, and in a merge of such a file.
+    pub view_hash: Option<u64>,
 }
 
 impl RenderTag {
@@ -103,25 +107,26 @@ impl RenderTag {
     }
 }
 
-/// The fields of a tag text, each once: `spp`, `scene` and one of `seed` / `seeds`.
-/// Anything else (an unknown or repeated key, both seed forms, a repeated seed) means a
-/// damaged or hand-edited file, which `merge` must not trust with its seed bookkeeping.
-fn parse_tag_text(t: &str) -> Option<[Option<String>; 3]> {
-    let mut fields: [Option<String>; 4] = Default::default();
+/// The fields of a tag text, each once: `spp`, `scene`, `view` and one of `seed` /
+/// `seeds`. Anything else (an unknown or repeated key, both seed forms, a repeated seed)
+/// means a damaged or hand-edited file, which `merge` must not trust with its seed
+/// bookkeeping.
+fn parse_tag_text(t: &str) -> Option<[Option<String>; 4]> {
+    let mut fields: [Option<String>; 5] = Default::default();
     for kv in t.split(' ').filter(|kv| !kv.is_empty()) {
         let (k, v) = kv.split_once('=')?;
-        let i = ["spp", "scene", "seed", "seeds"]
+        let i = ["spp", "scene", "seed", "seeds", "view"]
             .iter()
             .position(|&n| n == k)?;
         if fields[i].replace(v.to_string()).is_some() {
             return None;
         }
     }
-    let [spp, scene, seed, seeds] = fields;
+    let [spp, scene, seed, seeds, view] = fields;
     if seed.is_some() && seeds.is_some() {
         return None;
     }
-    Some([spp, scene, seed.or(seeds)])
+    Some([spp, scene, seed.or(seeds), view])
 }
 
 pub fn write_exr(
@@ -152,6 +157,9 @@ fn encode(img: &RgbImage, tag: Option<&RenderTag>) -> std::result::Result<Vec<u8
     let mut attrs = LayerAttributes::default();
     if let Some(tag) = tag {
         let mut text = format!("spp={} scene={:016x}", tag.spp, tag.scene_hash);
+        if let Some(v) = tag.view_hash {
+            text += &format!(" view={v:016x}");
+        }
         let digests = &tag.unknown_digests;
         match (tag.seeds.as_slice(), tag.partial) {
             ([], false) if digests.is_empty() => {}
@@ -298,7 +306,7 @@ pub fn read_exr_at_most(
     let bad = |attr: &str, v: &str| {
         RenderError::Image(format!("{}: bad {attr} attribute `{v}`", path.display()))
     };
-    let (names, [spp, scene, seed]) = match &tagged {
+    let (names, [spp, scene, seed, view]) = match &tagged {
         // One render's `seed`, or a merge's `seeds` (a comma-separated list).
         Some(t) => (
             [ATTR_TAG; 3],
@@ -306,7 +314,7 @@ pub fn read_exr_at_most(
         ),
         None => (
             [ATTR_SPP, ATTR_SCENE, ATTR_SEED],
-            [text(ATTR_SPP), text(ATTR_SCENE), text(ATTR_SEED)],
+            [text(ATTR_SPP), text(ATTR_SCENE), text(ATTR_SEED), None],
         ),
     };
     let tag = match (spp, scene) {
@@ -340,6 +348,12 @@ pub fn read_exr_at_most(
                 seeds,
                 partial,
                 unknown_digests: digests,
+                view_hash: view
+                    .map(|v| match u64::from_str_radix(&v, 16) {
+                        Ok(x) if v.len() == 16 => Ok(x),
+                        _ => Err(bad(names[1], &v)),
+                    })
+                    .transpose()?,
             })
         }
         // A tag attribute without its spp and scene is damaged; an old file without the
@@ -569,6 +583,11 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
                 t0.partial |= tag.some_unknown();
                 t0.seeds.extend(&tag.seeds);
                 t0.unknown_digests.extend(unknown_digests);
+                // Equal scene hashes give equal views; a file written before views were
+                // recorded leaves the merge's unknown.
+                if tag.view_hash != t0.view_hash {
+                    t0.view_hash = None;
+                }
             }
         }
     }
@@ -636,6 +655,7 @@ mod tests {
                 seeds,
                 partial,
                 unknown_digests,
+                view_hash: partial.then_some(0xfedc_ba98_7654_3210),
             };
             let first = encode_exr(&img, &tag).unwrap();
             for _ in 0..10 {
@@ -660,6 +680,7 @@ mod tests {
             seeds: vec![2],
             partial: false,
             unknown_digests: Vec::new(),
+            view_hash: None,
         };
         let bytes = encode_exr(&image(), &good).unwrap();
         let from = b"spp=4 scene=00000000000000ab seed=2";
@@ -675,6 +696,7 @@ mod tests {
             "spp=4 scene=00000000000000ab foo=b1",
             "spp=4 scene=000000000ab seeds=22,22",
             "spp=4 scene=0000ab seed=1 seeds=2,3",
+            "spp=4 scene=00000000000000ab view=2",
         ] {
             assert_eq!(bad.len(), from.len(), "{bad}");
             let mut b = bytes.clone();
@@ -702,6 +724,7 @@ mod tests {
             seeds: vec![1],
             partial: false,
             unknown_digests: Vec::new(),
+            view_hash: None,
         };
         let bytes = encode_exr(&img, &tag).unwrap();
         let u64_at = |p: usize| u64::from_le_bytes(bytes[p..p + 8].try_into().unwrap());
@@ -746,6 +769,7 @@ mod tests {
                     seeds: vec![seed],
                     partial: false,
                     unknown_digests: Vec::new(),
+                    view_hash: None,
                 };
                 let path = dir.path().join(name);
                 std::fs::write(&path, encode_exr(img, &tag).unwrap()).unwrap();

@@ -82,6 +82,11 @@ pub struct SceneData {
     pub env: Environment,
     /// Hash of everything that defines the converged image, except spp and seed.
     pub hash: u64,
+    /// Hash of what the image shows (camera, object, medium, boundary, lights,
+    /// environment), whichever integrator renders it: `bench error` refuses an image of
+    /// another view than its reference's, which the scene hash cannot tell (an ST-CVAE
+    /// image and its PT reference always differ there).
+    pub view_hash: u64,
     /// Notes about the scene for the command to print, one line each (overlapping mesh
     /// pieces, rendered as their union but slower than one closed surface).
     pub notes: Vec<String>,
@@ -263,26 +268,35 @@ impl SceneData {
             r.path_nee_rays = unread.path_nee_rays;
         }
         h.write(serde_json::to_string(&ident).unwrap_or_default().as_bytes());
+        // The view hash leaves out every integrator setting (PT and ST-CVAE, with or
+        // without NEE, all render the one picture) and the code and model that estimate it.
+        let mut view = Fnv64::new();
+        ident.render = unread;
+        view.write(serde_json::to_string(&ident).unwrap_or_default().as_bytes());
+        let mut both = |bytes: &[u8]| {
+            h.write(bytes);
+            view.write(bytes);
+        };
         for p in &mesh.positions {
             for x in p.to_array() {
-                h.write(&x.to_le_bytes());
+                both(&x.to_le_bytes());
             }
         }
         // Which vertices form each face, too: one vertex set cut into different triangles
         // is a different object.
         for t in &mesh.triangles {
             for i in t {
-                h.write(&i.to_le_bytes());
+                both(&i.to_le_bytes());
             }
         }
         if let Some(m) = &env.map {
             // Its shape too: one pixel buffer read as 16×8 or as 32×4 lights the scene
             // differently.
-            h.write(&(m.width as u64).to_le_bytes());
-            h.write(&(m.height as u64).to_le_bytes());
+            both(&(m.width as u64).to_le_bytes());
+            both(&(m.height as u64).to_le_bytes());
             for px in &m.pixels {
                 for v in px {
-                    h.write(&v.to_le_bytes());
+                    both(&v.to_le_bytes());
                 }
             }
         }
@@ -296,6 +310,7 @@ impl SceneData {
         if centre != [0.0; 3] {
             for c in centre {
                 h.write(&c.to_le_bytes());
+                view.write(&c.to_le_bytes());
             }
         }
         let unchecked = crate::mesh::unchecked_pieces(&mesh).map(|n| {
@@ -378,6 +393,7 @@ impl SceneData {
             lights: scene.lights.iter().map(DirectionalLight::new).collect(),
             env,
             hash: h.finish(),
+            view_hash: view.finish(),
             notes,
         })
     }

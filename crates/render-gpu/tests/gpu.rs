@@ -1252,6 +1252,7 @@ fn sky(d: &tempfile::TempDir, f: impl Fn(usize, usize) -> [f32; 3]) -> std::path
         seeds: Vec::new(),
         partial: false,
         unknown_digests: Vec::new(),
+        view_hash: None,
     };
     write_exr(&path, &map, &tag).unwrap();
     path

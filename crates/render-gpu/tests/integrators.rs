@@ -738,6 +738,7 @@ fn environment_map_is_read_and_oriented() {
             seeds: Vec::new(),
             partial: false,
             unknown_digests: Vec::new(),
+            view_hash: None,
         },
     )
     .unwrap();
@@ -753,6 +754,7 @@ fn environment_map_is_read_and_oriented() {
             seeds: Vec::new(),
             partial: false,
             unknown_digests: Vec::new(),
+            view_hash: None,
         },
     )
     .unwrap();

@@ -499,6 +499,7 @@ fn environment_maps_with_bad_pixels_are_refused() {
         seeds: Vec::new(),
         partial: false,
         unknown_digests: Vec::new(),
+        view_hash: None,
     };
     let desc = |f: &str| render_gpu::scene::EnvironmentDesc {
         radiance: None,
@@ -556,6 +557,7 @@ fn exr_with_a_huge_declared_size_is_refused() {
         seeds: Vec::new(),
         partial: false,
         unknown_digests: Vec::new(),
+        view_hash: None,
     };
     write_exr(&path, &RgbImage::new(4, 2), &tag).unwrap();
     assert!(read_exr(&path).is_ok());
@@ -627,6 +629,7 @@ fn merge_refuses_one_seed_twice_but_not_equal_constant_images() {
             seeds: seeds.to_vec(),
             partial: false,
             unknown_digests: Vec::new(),
+            view_hash: None,
         };
         write_exr(&path, &img, &tag).unwrap();
         assert_eq!(read_exr(&path).unwrap().1, Some(tag));
@@ -1718,6 +1721,61 @@ fn the_scene_hash_ignores_paths_and_unread_settings() {
         st("nee = false\nnee_samples = 4"),
         "unread without NEE"
     );
+}
+
+/// The view hash (what `bench error` compares) is one for every integrator and setting
+/// of a scene, the model and the build's code included, and another for another camera,
+/// medium, light, mesh placement or environment.
+#[test]
+fn the_view_hash_is_the_scene_without_its_integrator() {
+    let d = tempfile::tempdir().unwrap();
+    write(&d, "m.obj", CUBE_OBJ.as_bytes());
+    let base = "[camera]\norigin = [0.0, 0.0, 6.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 30.0\n\
+                width = 8\nheight = 8\n[object]\nmesh = \"m.obj\"\n\
+                [medium]\nsigma_t = [1.0, 1.0, 1.0]\nalbedo = [0.5, 0.5, 0.5]\n\
+                [[light]]\nkind = \"directional\"\ndirection = [0.0, 1.0, 0.0]\nirradiance = [1.0, 1.0, 1.0]\n";
+    let build = |text: &str, model: &[u8]| {
+        let f = render_gpu::scene::SceneFile::parse(&d.path().join("s.toml"), text).unwrap();
+        let s = render_gpu::setup::SceneData::build(&f, d.path(), false, model).unwrap();
+        (s.hash, s.view_hash)
+    };
+    let (pt, view) = build(&format!("{base}[render]\nintegrator = \"pt\"\n"), &[]);
+    for (render, model) in [
+        (
+            "integrator = \"pt\"\nnee = false\nspp = 7\nseed = 3",
+            &b""[..],
+        ),
+        ("integrator = \"stcvae\"", &b"model"[..]),
+        (
+            "integrator = \"stcvae\"\nnee = false\nmin_tau = 0.5\nexact_tau = 3.0",
+            &b"another model"[..],
+        ),
+    ] {
+        let (h, v) = build(&format!("{base}[render]\n{render}\n"), model);
+        assert_ne!(
+            h, pt,
+            "{render}: the scene hash holds the integrator's settings"
+        );
+        assert_eq!(v, view, "{render}: one view");
+    }
+    for (from, to) in [
+        ("origin = [0.0, 0.0, 6.0]", "origin = [0.0, 0.5, 6.0]"),
+        ("sigma_t = [1.0, 1.0, 1.0]", "sigma_t = [2.0, 1.0, 1.0]"),
+        (
+            "irradiance = [1.0, 1.0, 1.0]",
+            "irradiance = [1.0, 1.0, 0.5]",
+        ),
+        (
+            "width = 8\nheight = 8",
+            "width = 8\nheight = 8\n[boundary]\nkind = \"dielectric\"",
+        ),
+    ] {
+        assert!(base.contains(from), "{from}");
+        assert_ne!(build(&base.replace(from, to), &[]).1, view, "{to}");
+    }
+    // Another mesh: the cube stretched along x.
+    write(&d, "m.obj", CUBE_OBJ.replace("v 1", "v 2").as_bytes());
+    assert_ne!(build(base, &[]).1, view, "another mesh");
 }
 
 /// The torus knot is a tube around its curve: every triangle lies about the tube's radius

@@ -288,14 +288,14 @@ fn teaser(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             ctx,
             &format!("pt_k{}", k_name(k)),
             &pt.mean,
-            (pt.spp, pt.hash, &pair_seeds(Pt)),
+            (pt.spp, (pt.hash, pt.view), &pair_seeds(Pt)),
             exposure,
         )?;
         save(
             ctx,
             &format!("stcvae_k{}", k_name(k)),
             &st.mean,
-            (st.spp, st.hash, &pair_seeds(Stcvae)),
+            (st.spp, (st.hash, st.view), &pair_seeds(Stcvae)),
             exposure,
         )?;
         let both = side_by_side(&[&pt.mean, &st.mean]);
@@ -612,7 +612,7 @@ fn nee(ctx: &Ctx, rep: &mut Report) -> Result<()> {
     let seconds = ctx.budget.seconds();
     let ref_spp = ctx.budget.reference_spp();
     let ref_seed = 99;
-    let (reference, hash) = render_once(
+    let (reference, (hash, view)) = render_once(
         ctx,
         &scene,
         (Pt, true),
@@ -624,7 +624,7 @@ fn nee(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         ctx,
         "reference",
         &reference.image,
-        (reference.spp, hash, &[ref_seed]),
+        (reference.spp, (hash, Some(view)), &[ref_seed]),
         exposure,
     )?;
     rep.columns(&["method", "budget_seconds", "seconds", "spp", "rmse", "mae"]);

@@ -23,6 +23,9 @@ pub struct Pair {
     pub work: Vec<f32>,
     pub spp: u32,
     pub hash: u64,
+    /// What the images show ([`render_gpu::setup::SceneData::view_hash`]); None for a
+    /// pair read back from bench render's PT cache until its caller sets it.
+    pub view: Option<u64>,
 }
 
 impl Pair {
@@ -33,7 +36,7 @@ impl Pair {
     }
 
     /// The pair of two renders of the same scene with different seeds.
-    pub fn from_halves(a: RenderOutput, b: RenderOutput, hash: u64) -> Self {
+    pub fn from_halves(a: RenderOutput, b: RenderOutput, (hash, view): (u64, u64)) -> Self {
         let mut mean = RgbImage::new(a.image.width, a.image.height);
         let mut var = Vec::with_capacity(a.image.pixels.len());
         for ((m, x), y) in mean
@@ -66,6 +69,7 @@ impl Pair {
             work,
             spp: a.spp + b.spp,
             hash,
+            view: Some(view),
         }
     }
 
@@ -100,7 +104,7 @@ pub fn render_once(
     (kind, nee): (IntegratorKind, bool),
     edit: &dyn Fn(&mut SceneFile),
     o: &RenderOptions,
-) -> Result<(render_gpu::render::RenderOutput, u64)> {
+) -> Result<(render_gpu::render::RenderOutput, (u64, u64))> {
     let size = ctx.budget.size();
     let p = prepare(scene, Some(kind), Some(nee), ctx.model.as_deref(), |f| {
         f.camera.height = height_at(size, &f.camera);
@@ -147,7 +151,7 @@ pub fn render_once(
         &out.stats,
         &format!("{} ({}, seed {}): ", scene.display(), kind.name(), o.seed),
     );
-    Ok((out, p.data.hash))
+    Ok((out, (p.data.hash, p.data.view_hash)))
 }
 
 /// The two seeds of an integrator's pair. PT and ST-CVAE must not share them: a sample's
@@ -182,9 +186,9 @@ pub fn render_pair(
     let nee = ctx.cfg.nee();
     let half = half_spp(ctx.budget.spp());
     let [s1, s2] = pair_seeds(kind);
-    let (a, hash) = render_once(ctx, scene, (kind, nee), edit, &opts(half, s1, None))?;
+    let (a, ids) = render_once(ctx, scene, (kind, nee), edit, &opts(half, s1, None))?;
     let (b, _) = render_once(ctx, scene, (kind, nee), edit, &opts(half, s2, None))?;
-    let pair = Pair::from_halves(a, b, hash);
+    let pair = Pair::from_halves(a, b, ids);
     // Every figure compares the object's pixels, found by their noise: with none (the
     // object out of view, unlit or black) the offsets came out 0/0 in figures.csv.
     if !pair.has_noise() {
@@ -513,7 +517,7 @@ pub fn save(
     ctx: &Ctx,
     name: &str,
     img: &RgbImage,
-    (spp, hash, seeds): (u32, u64, &[u64]),
+    (spp, (hash, view), seeds): (u32, (u64, Option<u64>), &[u64]),
     exposure: f32,
 ) -> Result<String> {
     ctx.saving()?;
@@ -526,6 +530,7 @@ pub fn save(
             seeds: seeds.to_vec(),
             partial: false,
             unknown_digests: Vec::new(),
+            view_hash: view,
         },
         exposure,
         None,
