@@ -143,6 +143,15 @@ struct Seen {
 fn load(path: &Path, seen: &mut Seen) -> Result<RgbImage> {
     let (img, tag) = read_exr(path)?;
     if let Some(t) = tag {
+        // An stcvae render's pixels are ≥ 0 (`merge` refuses others too). Other
+        // renderers' may not be: a spectral-to-RGB conversion leaves small negatives.
+        if let Some((x, y, v)) = img.first_value(|v| v < 0.0) {
+            bail!(
+                "{}: pixel ({x}, {y}) is {v}: an stcvae render's pixels are ≥ 0 (a damaged \
+                 file?)",
+                path.display()
+            );
+        }
         seen.tags.push((path.to_path_buf(), t));
     }
     seen.digests.push((path.to_path_buf(), img.pixel_digest()));

@@ -172,12 +172,14 @@ fn main() {
         Command::Bench(a) => bench::run(a),
     };
     if let Err(e) = result {
+        // One line, whatever names or tags from the inputs it quotes.
+        let e = scatter_sim::ranges::printable(&format!("{e:#}"));
         if interrupt::pipe_closed() {
             // 141 = 128 + SIGPIPE, what a shell reports for a process the signal ended.
-            eprintln!("error: {e:#} (stopped: the pipe the output went to was closed)");
+            eprintln!("error: {e} (stopped: the pipe the output went to was closed)");
             std::process::exit(141);
         }
-        eprintln!("error: {e:#}");
+        eprintln!("error: {e}");
         std::process::exit(if interrupt::requested() { 130 } else { 1 });
     }
 }

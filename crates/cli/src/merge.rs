@@ -811,6 +811,17 @@ fn coalesce(pieces: impl Iterator<Item = Piece>) -> Vec<Piece> {
     out
 }
 
+/// Whether the file's last byte is a newline.
+fn ends_with_newline(path: &Path) -> Result<bool> {
+    use std::io::{Read, Seek, SeekFrom};
+    let mut f = File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
+    let mut last = [0u8];
+    f.seek(SeekFrom::End(-1))
+        .and_then(|_| f.read_exact(&mut last))
+        .with_context(|| format!("cannot read {}", path.display()))?;
+    Ok(last[0] == b'\n')
+}
+
 fn merge_csv(a: &Args) -> Result<()> {
     if !dataset::is_csv(&a.out) {
         bail!(
@@ -881,6 +892,17 @@ fn merge_csv(a: &Args) -> Result<()> {
             if cancel.load(std::sync::atomic::Ordering::Relaxed) {
                 bail!("interrupted: nothing written to {}", a.out.display());
             }
+        }
+        // stcvae ends every row with a newline; a last row without one is a file cut short,
+        // whose last number read shorter (-0.32728904 as -0.3272) and passed its range
+        // check.
+        // (Blank lines after the last row, as an editor leaves them, show it whole.)
+        if own_rows > 0 && blank.is_none() && !ends_with_newline(path)? {
+            bail!(
+                "{}: the last row has no line end: the file was cut short (truncated?);                  nothing written to {}",
+                path.display(),
+                a.out.display()
+            );
         }
         let d = (digest.finish(), own_rows);
         if let Some(j) = digests.iter().position(|e| *e == d && d.1 > 0) {

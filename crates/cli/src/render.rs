@@ -341,8 +341,9 @@ pub fn prepare(
         .map_or(f64::INFINITY, crate::model_cmds::default_max_tau);
     let max_tau = match (file.render.max_tau, &model) {
         (Some(t), Some(m)) if crate::model_cmds::beyond_trained_tau(t, m) => bail!(
-            "{}: render.max_tau = {t} is beyond the model's training range {}",
+            "{}: render.max_tau = {} is beyond the model's training range {}",
             scene_path.display(),
+            scatter_sim::ranges::num(t),
             crate::model_cmds::training_range(m.training.tau_range)
         ),
         (Some(t), _) => t,

@@ -636,6 +636,16 @@ fn shards_merge_into_the_unsharded_run() {
         fs::read_to_string(dir.path().join("trailing_out.csv")).unwrap(),
         text
     );
+    // A file cut short mid-number (here its last digit; a review's cut read -0.3272 for
+    // -0.32728904, within range) is refused by its missing line end; nothing is written.
+    fs::write(dir.path().join("cut.csv"), &text[..text.len() - 2]).unwrap();
+    let out = stcvae(&["merge", "cut.csv", "--out", "cut_out.csv"], dir.path());
+    assert!(
+        !out.status.success() && stderr(&out).contains("cut.csv: the last row has no line end"),
+        "{}",
+        stderr(&out)
+    );
+    assert!(!dir.path().join("cut_out.csv").exists());
     // A shard of another run (another seed) merges, with a note naming both runs and how
     // much of each the output holds.
     fs::write(

@@ -978,6 +978,12 @@ fn bad_scenes_are_one_line_errors() {
             "expected a whole number in [0, 2]",
         ),
         ("fov_deg = ", "fov_deg = \"wide\" # ", "expected a number"),
+        // A float is written as given, short (serde wrote 1e308's 309 digits).
+        (
+            "width = 128",
+            "width = 1e308",
+            "floating point `1e308`, expected a whole number in [1, 16384]",
+        ),
     ] {
         assert!(sphere.contains(from), "{from}");
         std::fs::write(&scene, sphere.replacen(from, to, 1)).unwrap();
@@ -987,6 +993,25 @@ fn bad_scenes_are_one_line_errors() {
             "{to}: {e}"
         );
     }
+    // A mesh path holding a newline and a terminal escape (which cleared the screen) is
+    // quoted escaped, on one line.
+    let mesh_text = sphere.replacen(
+        "shape = \"sphere\"\nradius = 0.5",
+        "mesh = \"bad\\nline2\\u001b[2J.glb\"",
+        1,
+    );
+    assert!(
+        mesh_text.contains("u001b"),
+        "the sphere scene names its shape"
+    );
+    std::fs::write(&scene, mesh_text).unwrap();
+    let e = fails(&stcvae(&["render", "--scene", scene.to_str().unwrap()]));
+    assert!(
+        e.contains("bad\\nline2\\u{1b}[2J.glb")
+            && e.trim().lines().count() == 1
+            && !e.contains('\u{1b}'),
+        "{e}"
+    );
 }
 
 /// A box mesh `w` × `w` × `t` centred at x = `x`, wound outward.
@@ -2197,6 +2222,18 @@ fn bench_error_ranks_renders_by_error_and_names_bad_inputs() {
         e.contains("same pixels") && e.contains("ref2.exr") && e.contains("copy.exr"),
         "{e}"
     );
+    // A tagged render with a negative pixel is damaged (stcvae's pixels are ≥ 0), as
+    // `merge` says too; it was measured without a word.
+    let (mut img, tag) = render_gpu::image_io::read_exr(Path::new(&high)).unwrap();
+    img.pixels[5][0] = -1.0;
+    let tag = render_gpu::image_io::RenderTag {
+        seeds: vec![77],
+        ..tag.unwrap()
+    };
+    let neg = d.path().join("neg.exr");
+    std::fs::write(&neg, render_gpu::image_io::encode_exr(&img, &tag).unwrap()).unwrap();
+    let e = fails(&bench_error(&[&format!("{}:1", neg.display())]));
+    assert!(e.contains("neg.exr: pixel (5, 0) is -1"), "{e}");
     let e = fails(&bench_error(&[&format!("{high}:abc")]));
     assert!(
         e.contains("`abc` after the ':' is not a number of seconds"),

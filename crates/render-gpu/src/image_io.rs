@@ -294,7 +294,15 @@ pub fn read_exr_at_most(
         .first_valid_layer()
         .all_attributes()
         .from_file(path)
-        .map_err(|e| RenderError::Image(format!("{}: cannot read EXR: {e}", path.display())))?;
+        .map_err(|e| {
+            // The header read above, so the pixel blocks or their offset table are at
+            // fault; exr's own words ("Invalid argument (os error 22)" for an offset past
+            // the end) do not say so.
+            RenderError::Image(format!(
+                "{}: cannot read the EXR's pixels (a damaged or cut-short file?): {e}",
+                path.display()
+            ))
+        })?;
     let other: &HashMap<Text, AttributeValue> = &image.layer_data.attributes.other;
     let text = |k: &str| match other.get(&Text::from(k)) {
         Some(AttributeValue::Text(t)) => Some(t.to_string()),

@@ -5,7 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
-use scatter_sim::ranges::{G_MAX, num};
+use scatter_sim::ranges::{G_MAX, num, printable};
 use serde::{Deserialize, Serialize};
 
 use crate::error::RenderError;
@@ -143,20 +143,6 @@ fn plain_types(msg: &str) -> String {
     ]
     .iter()
     .fold(msg.to_string(), |m, (rust, plain)| m.replace(rust, plain))
-}
-
-/// `s` with control characters escaped (`\u{0}`, `\t`): a binary file given as a config is
-/// valid UTF-8 often enough, and its NULs and escapes must not reach the terminal raw.
-fn printable(s: &str) -> String {
-    let mut out = String::with_capacity(s.len());
-    for c in s.chars() {
-        if c.is_control() {
-            out.extend(c.escape_default());
-        } else {
-            out.push(c);
-        }
-    }
-    out
 }
 
 /// Exactly three numbers. serde's own `[f64; 3]` reads the first three elements of a

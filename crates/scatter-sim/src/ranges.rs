@@ -25,6 +25,22 @@ where
     Short(v).to_string()
 }
 
+/// `s` with control characters escaped (`\n`, `\u{1b}`): every message is one line, and a
+/// file name, tag or config text taken from a damaged or hostile file may hold newlines
+/// and terminal escapes, which must not reach the terminal raw (a mesh path with an ESC
+/// sequence cleared the screen).
+pub fn printable(s: &str) -> String {
+    let mut out = String::with_capacity(s.len());
+    for c in s.chars() {
+        if c.is_control() {
+            out.extend(c.escape_default());
+        } else {
+            out.push(c);
+        }
+    }
+    out
+}
+
 /// A number written short and exact, for messages and CSV rows alike: the shortest digits
 /// that read back to the same value in its own type (an f32 as its shortest f32 digits),
 /// in scientific notation when plain digits would run long (1e38 rather than 39 digits,
@@ -130,6 +146,12 @@ impl<T: TryFrom<u64>> serde::de::Visitor<'_> for WholeIn<T> {
             .ok()
             .and_then(|u| T::try_from(u).ok())
             .ok_or_else(|| E::invalid_value(serde::de::Unexpected::Signed(v), &self))
+    }
+    /// Refused as serde would, but written short: serde writes the float in full
+    /// (`width = 1e308` gave 309 digits); Debug keeps `128.0` as written and gives `1e308`.
+    fn visit_f64<E: serde::de::Error>(self, v: f64) -> Result<T, E> {
+        let shown = format!("floating point `{v:?}`");
+        Err(E::invalid_type(serde::de::Unexpected::Other(&shown), &self))
     }
 }
 

@@ -604,7 +604,7 @@ mod tests {
             variance: None,
         };
         let [a, b]: [RgbImage; 2] = halves.try_into().ok().unwrap();
-        Pair::from_halves(out(a), out(b), 0)
+        Pair::from_halves(out(a), out(b), (0, 0))
     }
 
     /// A smooth "object": brightness varying over the image, with a background of 0 in the
