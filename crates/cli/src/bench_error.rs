@@ -22,7 +22,9 @@ use crate::plots::{Series, line_plot};
     RMSE is noise-corrected: sqrt(mean((image − reference)²) − mean(Var(reference mean))), \
     Var(reference mean) being the renders' sample variance over their count; 0 where the \
     difference is below the reference's own noise. The images must be independent of the \
-    references (other seeds); a file given twice is refused. MSE·s is the MSE times the \
+    references (other seeds); a file given twice is refused, and so is an stcvae render of \
+    another scene than the references' (their tags record what the image shows, whichever \
+    integrator drew it; other renderers' images are not checked). MSE·s is the MSE times the \
     render's seconds; `vs first` divides it by the first timed image's: how much longer that \
     renderer takes to reach the same error, as long as its MSE falls as 1/time (a biased \
     renderer's does not at errors near its bias, so compare at the errors measured).\n\n\

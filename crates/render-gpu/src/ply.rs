@@ -216,46 +216,51 @@ pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
             // header that lies about the count cannot make this reserve more than the file.
             mesh.positions.reserve(el.count.min(bytes.len() / 6));
         }
-        for _ in 0..el.count {
-            let mut p = [0f32; 3];
-            for prop in &el.props {
-                match prop {
-                    Property::Scalar(name, t) => {
-                        let v = body.next(*t)?;
-                        if is_vertex {
-                            match name.as_str() {
-                                "x" => p[0] = v as f32,
-                                "y" => p[1] = v as f32,
-                                "z" => p[2] = v as f32,
-                                _ => {}
+        for k in 0..el.count {
+            // Which entry a bad value is in: an ASCII body has no other landmark.
+            let mut entry = || -> Result<(), String> {
+                let mut p = [0f32; 3];
+                for prop in &el.props {
+                    match prop {
+                        Property::Scalar(name, t) => {
+                            let v = body.next(*t)?;
+                            if is_vertex {
+                                match name.as_str() {
+                                    "x" => p[0] = v as f32,
+                                    "y" => p[1] = v as f32,
+                                    "z" => p[2] = v as f32,
+                                    _ => {}
+                                }
                             }
                         }
-                    }
-                    Property::List(name, ct, it) => {
-                        let n = body.next(*ct)?;
-                        if !(0.0..=1e6).contains(&n) || n.fract() != 0.0 {
-                            return Err(format!("bad list length {n} in element {}", el.name));
-                        }
-                        let mut idx = Vec::with_capacity(n as usize);
-                        for _ in 0..n as usize {
-                            idx.push(body.next(*it)?);
-                        }
-                        if is_face && (name == "vertex_indices" || name == "vertex_index") {
-                            if idx.len() < 3 {
-                                return Err("a face has fewer than 3 vertices".into());
+                        Property::List(name, ct, it) => {
+                            let n = body.next(*ct)?;
+                            if !(0.0..=1e6).contains(&n) || n.fract() != 0.0 {
+                                return Err(format!("bad list length {n}"));
                             }
-                            if idx.iter().any(|&v| v < 0.0 || v.fract() != 0.0) {
-                                return Err("a face has a negative or fractional index".into());
+                            let mut idx = Vec::with_capacity(n as usize);
+                            for _ in 0..n as usize {
+                                idx.push(body.next(*it)?);
                             }
-                            face_indices.extend(idx.iter().map(|&v| v as u32));
-                            face_sizes.push(idx.len());
+                            if is_face && (name == "vertex_indices" || name == "vertex_index") {
+                                if idx.len() < 3 {
+                                    return Err("a face has fewer than 3 vertices".into());
+                                }
+                                if idx.iter().any(|&v| v < 0.0 || v.fract() != 0.0) {
+                                    return Err("a face has a negative or fractional index".into());
+                                }
+                                face_indices.extend(idx.iter().map(|&v| v as u32));
+                                face_sizes.push(idx.len());
+                            }
                         }
                     }
                 }
-            }
-            if is_vertex {
-                mesh.positions.push(Vec3::from_array(p));
-            }
+                if is_vertex {
+                    mesh.positions.push(Vec3::from_array(p));
+                }
+                Ok(())
+            };
+            entry().map_err(|e| format!("{} {}: {e}", el.name, k + 1))?;
         }
     }
     body.finish()?;
