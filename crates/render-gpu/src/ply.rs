@@ -43,6 +43,33 @@ impl Scalar {
             Self::F64 => 8,
         }
     }
+    /// Whether an ASCII value fits the declared type: a `uchar` property holding `1.5` or
+    /// `300` is a damaged or mislabelled file (a binary reader would read other bytes).
+    fn holds(self, v: f64) -> bool {
+        let (lo, hi) = match self {
+            Self::I8 => (i8::MIN as f64, i8::MAX as f64),
+            Self::U8 => (0.0, u8::MAX as f64),
+            Self::I16 => (i16::MIN as f64, i16::MAX as f64),
+            Self::U16 => (0.0, u16::MAX as f64),
+            Self::I32 => (i32::MIN as f64, i32::MAX as f64),
+            Self::U32 => (0.0, u32::MAX as f64),
+            Self::F32 | Self::F64 => return true,
+        };
+        v.fract() == 0.0 && (lo..=hi).contains(&v)
+    }
+    /// The type's PLY name.
+    fn name(self) -> &'static str {
+        match self {
+            Self::I8 => "char",
+            Self::U8 => "uchar",
+            Self::I16 => "short",
+            Self::U16 => "ushort",
+            Self::I32 => "int",
+            Self::U32 => "uint",
+            Self::F32 => "float",
+            Self::F64 => "double",
+        }
+    }
     fn read(self, b: &[u8]) -> f64 {
         match self {
             Self::I8 => b[0] as i8 as f64,
@@ -107,8 +134,13 @@ impl Body<'_> {
         match self {
             Body::Ascii(it) => {
                 let tok = it.next().ok_or("the file ends early (truncated?)")?;
-                tok.parse::<f64>()
-                    .map_err(|_| format!("`{tok}` is not a number"))
+                let v = tok
+                    .parse::<f64>()
+                    .map_err(|_| format!("`{tok}` is not a number"))?;
+                if !t.holds(v) {
+                    return Err(format!("`{tok}` is not a {} value", t.name()));
+                }
+                Ok(v)
             }
             Body::Binary(b, pos) => {
                 let n = t.size();
@@ -138,6 +170,9 @@ pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
     for line in lines {
         let w: Vec<&str> = line.split_whitespace().collect();
         match w.as_slice() {
+            ["format", _, v] if *v != "1.0" => {
+                return Err(format!("PLY version `{v}` is not supported (1.0 is)"));
+            }
             ["format", "ascii", _] => binary = Some(false),
             ["format", "binary_little_endian", _] => binary = Some(true),
             ["format", f @ ("ascii" | "binary_little_endian")] => {

@@ -167,15 +167,38 @@ fn broken_files_give_clear_errors() {
         .unwrap_err()
         .to_string();
     assert!(
-        e.contains("frac.ply") && e.contains("face 2: bad list length"),
+        e.contains("frac.ply") && e.contains("face 2: `3.7` is not a uchar value"),
         "{e}"
     );
+    // An integer property holding a value beyond its type, or a PLY version other than
+    // 1.0 (the only one): a damaged or mislabelled file.
+    for (from, to, want) in [
+        (
+            "3 1 2 3\n",
+            "300 1 2 3\n",
+            "face 4: `300` is not a uchar value",
+        ),
+        (
+            "format ascii 1.0",
+            "format ascii 2.0",
+            "PLY version `2.0` is not supported",
+        ),
+    ] {
+        let text = tet.replace(from, to);
+        let e = load_mesh(&write(&d, "bad.ply", text.as_bytes()))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("bad.ply") && e.contains(want), "{to}: {e}");
+    }
     // A bad value names its element and entry: an ASCII body has no other landmark.
     let word = tet.replace("0 1 0\n", "0 a 0\n");
     let e = load_mesh(&write(&d, "word.ply", word.as_bytes()))
         .unwrap_err()
         .to_string();
-    assert!(e.contains("word.ply") && e.contains("vertex 3: `a` is not a number"), "{e}");
+    assert!(
+        e.contains("word.ply") && e.contains("vertex 3: `a` is not a number"),
+        "{e}"
+    );
     // A face index beyond the vertices, or one that is no integer, is named with its line
     // and the allowed range (tobj says only "out of bounds" or "face parse error").
     let tet_obj = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n";

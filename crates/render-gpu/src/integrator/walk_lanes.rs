@@ -640,10 +640,12 @@ mod tests {
     /// and of the exit's cos θ to +z and of the exit direction's cos to the exit normal
     /// (two-sample Kolmogorov–Smirnov), for forward (g = 0.875) and isotropic scattering,
     /// 40,000 walks each, up to τ = 18 (near the default `exact_tau`, where N is counted
-    /// in bins of 8 events). The chi-square with 11 degrees of freedom (two samples: the
-    /// statistic Σ (a − b)²/(a + b)) exceeds 31.3 with probability 0.1 %; the KS distance
-    /// of two samples of n exceeds 1.95·√(2/n) = 0.0138 with probability 0.1 %. Flights 5 %
-    /// too long or azimuths over half a turn each fail the N test by far.
+    /// in bins of 8 events). Twelve tests (four media, each a chi-square and two KS), each
+    /// at a false-alarm rate of 10⁻⁴, ~1.2·10⁻³ in all (at 0.1 % each it was 1.2 %): the
+    /// chi-square with 11 degrees of freedom (two samples: the statistic Σ (a − b)²/(a + b))
+    /// exceeds 37.4 with probability 10⁻⁴; the KS distance of two samples of n exceeds
+    /// 2.23·√(2/n) = 0.0157 with probability 10⁻⁴. Flights 5 % too long or azimuths over
+    /// half a turn each fail the N test by far.
     #[test]
     fn lane_walks_match_the_simulator() {
         let n = 40_000;
@@ -679,13 +681,13 @@ mod tests {
                 .filter(|(a, b)| **a + **b > 0)
                 .map(|(&a, &b)| (a as f64 - b as f64).powi(2) / (a + b) as f64)
                 .sum();
-            assert!(chi2 < 31.3, "τ {tau}, g {g}: N chi-square {chi2}");
+            assert!(chi2 < 37.4, "τ {tau}, g {g}: N chi-square {chi2}");
             for (a, b, what) in [
                 (&mut ours.1, &mut theirs.1, "exit cos θ"),
                 (&mut ours.2, &mut theirs.2, "exit direction"),
             ] {
                 let d = scatter_sim::stats::ks_two_sample(a, b);
-                assert!(d < 0.0138, "τ {tau}, g {g}: {what} KS distance {d}");
+                assert!(d < 0.0157, "τ {tau}, g {g}: {what} KS distance {d}");
             }
         }
     }
