@@ -336,7 +336,9 @@ fn check_views(references: &Seen, images: &Seen) -> Result<()> {
         && let Some((p, v)) = views.find(|&(_, v)| v != v0)
     {
         bail!(
-            "{} and {} show different scenes (view hashes {v0:016x} and {v:016x}: their              camera, object, medium, boundary, lights or environment differ): every image              must be a render of the references' scene",
+            "{} and {} show different scenes (view hashes {v0:016x} and {v:016x}: their \
+             camera, object, medium, boundary, lights or environment differ): every image \
+             must be a render of the references' scene",
             p0.display(),
             p.display()
         );

@@ -899,7 +899,8 @@ fn merge_csv(a: &Args) -> Result<()> {
         // (Blank lines after the last row, as an editor leaves them, show it whole.)
         if own_rows > 0 && blank.is_none() && !ends_with_newline(path)? {
             bail!(
-                "{}: the last row has no line end: the file was cut short (truncated?);                  nothing written to {}",
+                "{}: the last row has no line end: the file was cut short (truncated?); \
+                 nothing written to {}",
                 path.display(),
                 a.out.display()
             );

@@ -232,6 +232,9 @@ struct Report<'a> {
     path_nee_rays: Option<u32>,
     grid_resolution: Option<u32>,
     scene_hash: String,
+    /// The scene without its integrator settings, model and build (what `bench error`
+    /// compares), as in the EXR's tag.
+    view_hash: String,
     /// Where it ran: "cpu (N threads, CPU model)" or "gpu: adapter (backend, type)", with
     /// "on CPU model" after a software adapter.
     device: String,
@@ -833,6 +836,7 @@ pub fn run(mut a: Args) -> Result<()> {
         path_nee_rays: stcvae_nee.then_some(set.path_nee_rays),
         grid_resolution: stcvae.then_some(r.grid_resolution),
         scene_hash: format!("{hash:016x}"),
+        view_hash: format!("{:016x}", p.data.view_hash),
         device: engine.describe(),
         mean_rgb: mean_rgb(&out.image),
         // The bare name: the file sits beside the JSON, and a path relative to the

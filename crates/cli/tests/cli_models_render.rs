@@ -1500,6 +1500,16 @@ fn the_render_json_describes_the_render() {
     assert_eq!(json["exposure"], 2.0, "{json}");
     assert_eq!(json["interrupted"], false, "{json}");
     assert!(json["time_budget"].is_null(), "{json}");
+    // The hashes are the EXR tag's.
+    let (_, tag) = render_gpu::image_io::read_exr(&tmp.path().join("r.exr")).unwrap();
+    let tag = tag.unwrap();
+    assert_eq!(
+        json["scene_hash"],
+        format!("{:016x}", tag.scene_hash),
+        "{json}"
+    );
+    let view = tag.view_hash.expect("a render's tag records its view");
+    assert_eq!(json["view_hash"], format!("{view:016x}"), "{json}");
     for key in [
         "model",
         "model_hash",

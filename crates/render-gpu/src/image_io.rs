@@ -13,12 +13,12 @@ use scatter_sim::output::write_atomic;
 
 use crate::error::RenderError;
 
-/// The render tag as one text attribute, `spp=N scene=HEX [view=HEX] [seed=S | seeds=S,S,…]`, where
-/// a `?` in the list stands for inputs of unknown seed, `?HEX` for one whose pixel digest
-/// is HEX (see [`RenderTag::partial`] and [`RenderTag::unknown_digests`]). One
-/// attribute, not
-/// three: the exr crate keeps custom attributes in a HashMap, whose order (and so the
-/// file's bytes) changed from run to run with three.
+/// The render tag as one text attribute, `spp=N scene=HEX [view=HEX] [seed=S |
+/// seeds=S,S,…]`, where a `?` in the list stands for inputs of unknown seed, `?HEX` for
+/// one whose pixel digest is HEX (see [`RenderTag::partial`] and
+/// [`RenderTag::unknown_digests`]). One attribute, not three: the exr crate keeps custom
+/// attributes in a HashMap, whose order (and so the file's bytes) changed from run to run
+/// with three.
 const ATTR_TAG: &str = "stcvaeTag";
 /// The three attributes that files written before `ATTR_TAG` carry (still read).
 const ATTR_SPP: &str = "stcvaeSpp";
