@@ -596,8 +596,7 @@ pub fn run(a: Args) -> Result<()> {
             st.per_path(st.stats.steps),
             st.per_path(st.stats.events),
             c.bias,
-            c.bias_upper95
-                .map_or_else(|| "n/a".to_owned(), |u| format!("{u:.4}")),
+            format!("{:.4}", c.bias_upper95),
             c.noise,
             crate::progress::si(pt.paths_per_second()),
             crate::progress::si(st.paths_per_second())
@@ -647,9 +646,8 @@ pub fn run(a: Args) -> Result<()> {
          equal-error = their product (time ratio to reach the same noise); PT ev/path = scattering events \
          a path, ST st/path and ev/path = ST-CVAE's sphere steps and PT events (thin regions) a path; \
          noise = the RMSE the two renders' noise alone gives; bias RMSE is noise-corrected \
-         (bias 95%: its one-sided 95% upper confidence bound; n/a where the noise estimates are too noisy to \
-         bound it), images scaled so PT's brightest 1% of \
-         object pixels is 1"
+         (bias 95%: its one-sided 95% upper confidence bound, from a negative estimate raised to 0), \
+         images scaled so PT's brightest 1% of object pixels is 1"
     );
     Ok(())
 }
