@@ -285,6 +285,8 @@ fn merge_images(a: &Args) -> Result<()> {
         "exposure": exposure,
         "spp": tag.spp,
         "scene_hash": format!("{:016x}", tag.scene_hash),
+        // Null where an input was written before views were recorded.
+        "view_hash": tag.view_hash.map(|v| format!("{v:016x}")),
         "seeds": tag.seeds,
         // As the render report's seed_text: readers that hold numbers as doubles (jq,
         // JavaScript) round seeds above 2^53, and two seeds read as one.

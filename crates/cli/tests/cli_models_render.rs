@@ -426,7 +426,16 @@ fn render_writes_exr_png_json_and_merge_averages_by_spp() {
     let (ia, _) = render_gpu::image_io::read_exr(&a.with_extension("exr")).unwrap();
     let (ib, _) = render_gpu::image_io::read_exr(&b.with_extension("exr")).unwrap();
     let (im, tag) = render_gpu::image_io::read_exr(&m.with_extension("exr")).unwrap();
-    assert_eq!(tag.unwrap().spp, 12);
+    let tag = tag.unwrap();
+    assert_eq!(tag.spp, 12);
+    // The merge keeps the inputs' view, in its tag and its report.
+    let a_json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(a.with_extension("json")).unwrap()).unwrap();
+    let view = tag
+        .view_hash
+        .expect("the merge of two new renders keeps their view");
+    assert_eq!(json["view_hash"], format!("{view:016x}"), "{json}");
+    assert_eq!(json["view_hash"], a_json["view_hash"], "{json}");
     for i in 0..im.pixels.len() {
         for c in 0..3 {
             let want = (4.0 * ia.pixels[i][c] + 8.0 * ib.pixels[i][c]) / 12.0;

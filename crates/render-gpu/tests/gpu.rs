@@ -829,7 +829,8 @@ fn gpu_variance_image_matches_the_spread_and_the_cpu() {
 /// measured spreads) |t| > 5.5 has probability ~2e-4 under agreement. Uncounted, the walks'
 /// events would leave ST-CVAE's total at ~1 a path against PT's ~15; each walk counted one
 /// short would move it by the exact steps a path (~3), checked to be above 7.5 standard
-/// errors of the difference (the bound plus 2: such a shift fails ~95 % of the time; at 4,
+/// errors of the difference (the bound plus 2: such a shift fails ~92 % of the time as a t
+/// with ~11 degrees of freedom; at 4,
 /// below the bound, it could pass).
 #[test]
 fn gpu_exact_walk_events_add_up_to_pts_events() {

@@ -619,7 +619,7 @@ fn exact_sphere_steps_match_pt() {
 /// floor of 9; 4.5 allowed 2.8e-4–1.5e-3). Uncounted, the walks' events would leave
 /// ST-CVAE's total at a few events a path against PT's hundreds; each walk counted one
 /// short would move it by the exact steps a path, checked to be over 7.2 standard errors
-/// of the difference (the bound plus 2, so that such a shift fails ~95 % of the time; it
+/// of the difference (the bound plus 2, so that such a shift fails 91–94 % of the time; it
 /// is ~11 here: 2.90 against 0.26).
 #[test]
 fn exact_walk_events_add_up_to_pts_events() {
@@ -1231,7 +1231,7 @@ fn overlapping_pieces_render_as_their_union() {
 /// under a constant sky L = 1: a path's radiance is 1 when the boundary reflects it and 0
 /// otherwise, so the mean is Fresnel's unpolarised reflectance at 60° for n = 1.5, written
 /// out below from Snell's law (0.0892; it changes by < 10⁻⁴ over the lens). At an oblique
-/// angle the two polarisations differ (0.176 and 0.002) and so do the two sides of the
+/// angle the two polarisations differ (0.177 and 0.002) and so do the two sides of the
 /// face: the wrong side's cosine gives 0.043, swapped indices total internal reflection
 /// (1); at normal incidence, as this test once looked, all of these gave the same 0.04.
 /// The boundary is achromatic, so the three channels' means (a third of the paths each)

@@ -1802,6 +1802,45 @@ fn the_view_hash_is_the_scene_without_its_integrator() {
         assert!(base.contains(from), "{from}");
         assert_ne!(build(&base.replace(from, to), &[]).1, view, "{to}");
     }
+    // An environment map: one view for one map, another for other pixels.
+    let sky = |v: f32| {
+        let map = render_gpu::image_io::RgbImage {
+            width: 8,
+            height: 4,
+            pixels: vec![[v, 0.5, 1.0]; 32],
+        };
+        write(
+            &d,
+            "env.exr",
+            &render_gpu::image_io::encode_untagged_exr(&map).unwrap(),
+        );
+        build(&format!("{base}[environment]\nfile = \"env.exr\"\n"), &[]).1
+    };
+    let lit = sky(0.25);
+    assert_ne!(lit, view, "a map");
+    assert_eq!(sky(0.25), lit, "the same map");
+    assert_ne!(sky(0.5), lit, "another map");
+    // The same cube 40,000 and 40,010 along x before the same camera: recentred, both
+    // meshes are the same positions, and only where the mesh was tells the views apart.
+    let far = |x: f64| {
+        let obj: String = CUBE_OBJ
+            .lines()
+            .map(|l| match l.strip_prefix("v ") {
+                Some(v) => {
+                    let c: Vec<f64> = v.split(' ').map(|t| t.parse().unwrap()).collect();
+                    format!("v {} {} {}\n", c[0] + x, c[1], c[2])
+                }
+                None => format!("{l}\n"),
+            })
+            .collect();
+        write(&d, "far.obj", obj.as_bytes());
+        let text = base
+            .replace("mesh = \"m.obj\"", "mesh = \"far.obj\"")
+            .replace("origin = [0.0, 0.0, 6.0]", "origin = [40005.0, 0.0, 40.0]")
+            .replace("target = [0.0, 0.0, 0.0]", "target = [40005.0, 0.0, 0.0]");
+        build(&text, &[]).1
+    };
+    assert_ne!(far(40_000.0), far(40_010.0), "the mesh moved");
     // Another mesh: the cube stretched along x.
     write(&d, "m.obj", CUBE_OBJ.replace("v 1", "v 2").as_bytes());
     assert_ne!(build(base, &[]).1, view, "another mesh");

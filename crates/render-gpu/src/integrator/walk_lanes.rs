@@ -644,7 +644,7 @@ mod tests {
     /// at a false-alarm rate of 10⁻⁴, ~1.2·10⁻³ in all (at 0.1 % each it was 1.2 %): the
     /// chi-square with 11 degrees of freedom (two samples: the statistic Σ (a − b)²/(a + b))
     /// exceeds 37.4 with probability 10⁻⁴; the KS distance of two samples of n exceeds
-    /// 2.23·√(2/n) = 0.0157 with probability 10⁻⁴. Flights 5 % too long or azimuths over
+    /// 2.23·√(2/n) = 0.0158 with probability 10⁻⁴. Flights 5 % too long or azimuths over
     /// half a turn each fail the N test by far.
     #[test]
     fn lane_walks_match_the_simulator() {
@@ -687,7 +687,7 @@ mod tests {
                 (&mut ours.2, &mut theirs.2, "exit direction"),
             ] {
                 let d = scatter_sim::stats::ks_two_sample(a, b);
-                assert!(d < 0.0157, "τ {tau}, g {g}: {what} KS distance {d}");
+                assert!(d < 0.0158, "τ {tau}, g {g}: {what} KS distance {d}");
             }
         }
     }
