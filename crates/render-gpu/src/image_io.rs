@@ -749,6 +749,16 @@ mod tests {
         std::fs::write(&path, &damaged).unwrap();
         let e = read_exr(&path).unwrap_err().to_string();
         assert!(e.contains("damaged EXR: row 16 holds no pixels"), "{e}");
+        // A first offset far beyond the file's end: exr said only "Invalid argument (os
+        // error 22)"; the message says the pixels could not be read.
+        let mut beyond = bytes.clone();
+        beyond[table..table + 8].copy_from_slice(&(1u64 << 62).to_le_bytes());
+        std::fs::write(&path, &beyond).unwrap();
+        let e = read_exr(&path).unwrap_err().to_string();
+        assert!(
+            e.contains("a.exr: cannot read the EXR's pixels (a damaged or cut-short file?)"),
+            "{e}"
+        );
     }
 
     /// A render with a NaN, infinite or negative pixel is refused by name and position, not
