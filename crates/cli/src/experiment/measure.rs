@@ -365,25 +365,26 @@ impl Comparison {
 }
 
 /// The noise-corrected squared bias per object pixel-channel, unscaled, and its standard
-/// error ([`Comparison::bias_upper95`]): the mean over the `object` pixels of e = Σ_c d_c²
-/// − Var_A,c − Var_B,c, over 3, and the spread of those per-pixel e (the background's are
-/// 0 and count in neither).
-fn bias_squared(reference: &Pair, other: &Pair, object: usize) -> (f64, f64) {
-    let (mut sum, mut sum2) = (0.0f64, 0.0f64);
+/// error ([`Comparison::bias_upper95`]): the mean over the `object` pixels of e = Σ_c e_c,
+/// e_c = d_c² − Var_A,c − Var_B,c, over 3, and the spread of those per-pixel e (the
+/// background's are 0 and count in neither); with the sums of each channel's e_c, for
+/// [`Comparison::channel_bias`].
+fn bias_squared(reference: &Pair, other: &Pair, object: usize) -> (f64, f64, [f64; 3]) {
+    let (mut sum2, mut channels) = (0.0f64, [0.0f64; 3]);
     for i in 0..reference.mean.pixels.len() {
-        let e: f64 = (0..3)
-            .map(|c| {
-                let d = (reference.mean.pixels[i][c] - other.mean.pixels[i][c]) as f64;
-                d * d - reference.var[i][c] - other.var[i][c]
-            })
-            .sum();
-        sum += e;
+        let mut e = 0.0;
+        for (c, sum) in channels.iter_mut().enumerate() {
+            let d = (reference.mean.pixels[i][c] - other.mean.pixels[i][c]) as f64;
+            let e_c = d * d - reference.var[i][c] - other.var[i][c];
+            *sum += e_c;
+            e += e_c;
+        }
         sum2 += e * e;
     }
     let n = object.max(1) as f64;
-    let mean = sum / n;
+    let mean = channels.iter().sum::<f64>() / n;
     let se = ((sum2 / n - mean * mean).max(0.0) / (n - 1.0).max(1.0)).sqrt();
-    (mean / 3.0, se / 3.0)
+    (mean / 3.0, se / 3.0, channels)
 }
 
 pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
@@ -394,24 +395,19 @@ pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
         .filter(|&i| noisy(reference, other, i))
         .count();
     let n = (object.max(1) * 3) as f64;
-    let mut noise = 0.0;
     let (mut va, mut vb) = (0.0, 0.0);
-    let mut ch_e = [0f64; 3];
     // Σ reference, Σ other, Σ Var_reference, Σ Var_other per channel.
     let mut sums = [[0f64; 4]; 3];
     for i in 0..reference.mean.pixels.len() {
-        for c in 0..3 {
-            let d = (reference.mean.pixels[i][c] - other.mean.pixels[i][c]) as f64;
-            ch_e[c] += d * d - reference.var[i][c] - other.var[i][c];
+        for (c, sum) in sums.iter_mut().enumerate() {
             // Totals over the pixels with any noise: the object (a background pixel is the
             // same constant in both and would only dilute the offset).
             if reference.var[i][c] + other.var[i][c] > 0.0 {
-                sums[c][0] += reference.mean.pixels[i][c] as f64;
-                sums[c][1] += other.mean.pixels[i][c] as f64;
-                sums[c][2] += reference.var[i][c];
-                sums[c][3] += other.var[i][c];
+                sum[0] += reference.mean.pixels[i][c] as f64;
+                sum[1] += other.mean.pixels[i][c] as f64;
+                sum[2] += reference.var[i][c];
+                sum[3] += other.var[i][c];
             }
-            noise += reference.var[i][c] + other.var[i][c];
             va += reference.var[i][c];
             vb += other.var[i][c];
         }
@@ -430,7 +426,7 @@ pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
         .map(|&(_, v)| 2.0 * v * v * (v - 1.0) / ((v - 2.0) * (v - 2.0) * (v - 4.0)))
         .sum::<f64>()
         / (nb * nb);
-    let (mean_e, se) = bias_squared(reference, other, object);
+    let (mean_e, se, ch_e) = bias_squared(reference, other, object);
     let var_ratio = va / vb.max(1e-300);
     let var_ratio_se = reference
         .var
@@ -446,7 +442,7 @@ pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
         var_ratio_se,
         bias: mean_e.max(0.0).sqrt() * scale,
         bias_upper95: (mean_e.max(0.0) + 1.645 * se).sqrt() * scale,
-        noise: (noise / n).sqrt() * scale,
+        noise: ((va + vb) / n).sqrt() * scale,
         block_chi2: zs.iter().map(|z| z * z).sum::<f64>() / zs.len().max(1) as f64,
         blocks: zs.len(),
         block_null: (null_mean, null_var.sqrt()),
@@ -611,9 +607,9 @@ mod tests {
                 let mut img = RgbImage::new(SIDE, SIDE);
                 for (p, t) in img.pixels.iter_mut().zip(truth) {
                     // (No draw where unshared: the other tests' numbers stay as they were.)
-                    let one = if shared { rng.standard_normal() } else { 0.0 };
+                    let one = shared.then(|| rng.standard_normal());
                     for c in 0..3 {
-                        let z = if shared { one } else { rng.standard_normal() };
+                        let z = one.unwrap_or_else(|| rng.standard_normal());
                         p[c] = t[c] * (1.0 + rel * z);
                     }
                 }
@@ -774,7 +770,7 @@ mod tests {
             .map(|p| (0.2 * p[2] as f64).powi(2) / 3.0)
             .sum::<f64>()
             / object.len() as f64;
-        let (est, se) = bias_squared(&a, &b, object.len());
+        let (est, se, _) = bias_squared(&a, &b, object.len());
         assert!(
             (est - truth_b2).abs() < 4.0 * se,
             "bias² {est} ± {se}, truth {truth_b2}"
@@ -812,7 +808,7 @@ mod tests {
             .map(|k| {
                 let a = pair_noise(&t, 100 + 2 * k, 0.1, true);
                 let b = pair_noise(&t, 101 + 2 * k, 0.1, true);
-                let (est, se) = bias_squared(&a, &b, object);
+                let (est, se, _) = bias_squared(&a, &b, object);
                 est / se
             })
             .collect();
