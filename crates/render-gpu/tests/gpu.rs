@@ -1205,6 +1205,9 @@ fn cpu_gpu_agree_pt_sphere() {
     compare_devices("PT, no NEE", &im, IntegratorKind::Pt, false, 96);
     let di = sphere_scene("kind = \"dielectric\"\nior = 1.5");
     compare_devices("PT dielectric, NEE", &di, IntegratorKind::Pt, true, 96);
+    // Without NEE a path reaches the sun only by escaping toward it, through the Fresnel
+    // choices alone.
+    compare_devices("PT dielectric, no NEE", &di, IntegratorKind::Pt, false, 96);
 }
 
 /// NEE through a dielectric cube under a sun 60° off its top face's normal, where the
@@ -1298,6 +1301,14 @@ fn cpu_gpu_agree_stcvae_sphere() {
         compare_devices_with(&format!("ST-CVAE, NEE, {rays} path rays"), &im, &set, 96);
     }
     let di = sphere_scene("kind = \"dielectric\"\nior = 1.5");
+    // The models' steps inside a dielectric, the light found by escaping alone.
+    compare_devices(
+        "ST-CVAE dielectric, no NEE",
+        &di,
+        IntegratorKind::Stcvae,
+        false,
+        96,
+    );
     // With NEE: its 1/ior² and its crossings' Fresnel weights (Boundary::nee_scale,
     // crossing_transmittance) in every NEE route, path-level reservoirs and exact walks
     // included.
@@ -1543,6 +1554,27 @@ fn cpu_gpu_agree_bunny() {
         ..settings(IntegratorKind::Stcvae, true)
     };
     compare_devices_with("bunny ST-CVAE exact steps, NEE", &text, &exact, 96);
+    // The rest of the matrix on the bunny: without NEE, and inside a dielectric
+    // with and without it.
+    let dielectric = text.replace(
+        "kind = \"index-matched\"",
+        "kind = \"dielectric\"\nior = 1.5",
+    );
+    assert_ne!(dielectric, text, "the bunny scene names its boundary");
+    for (boundary, scene) in [("index-matched", &text), ("dielectric", &dielectric)] {
+        for (kind, label) in [
+            (IntegratorKind::Pt, "PT"),
+            (IntegratorKind::Stcvae, "ST-CVAE"),
+        ] {
+            for nee in [false, true] {
+                if boundary == "index-matched" && nee {
+                    continue; // compared above
+                }
+                let name = format!("bunny {label} {boundary}, NEE {nee}");
+                compare_devices(&name, scene, kind, nee, 96);
+            }
+        }
+    }
 }
 
 /// Long paths (τ = 500, albedo 0.999: ~180 events on average, heavy-tailed, many beyond
