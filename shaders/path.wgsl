@@ -598,6 +598,11 @@ fn slot_begin(idx: u32, kind: u32) -> bool {
     sl_px = pixel % width;
     sl_py = pixel / width + row0;
     sl_pixel_id = pixel + row0 * width;
+    if UNWRITTEN_PIXEL != 0xffffffffu && sl_pixel_id == UNWRITTEN_PIXEL {
+        // A test hook (kernels.rs, KernelShape::unwritten_pixel): this pixel's slots stay
+        // as the host poisoned them.
+        return false;
+    }
     sl_offset = channel_offset(params.sampling.z, params.sampling.w, sl_pixel_id);
     sl_first = params.sampling.x + lane;
     sl_count = 0u;

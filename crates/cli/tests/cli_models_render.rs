@@ -1713,6 +1713,60 @@ fn adapter_search_prints_no_wayland_error() {
     assert!(!err.contains("XDG_RUNTIME_DIR"), "{err}");
 }
 
+/// `--device gpu` names its adapter once, on Vulkan, and records it in the JSON; `--device
+/// auto` passes over a software adapter (lavapipe: slower than the CPU path) for the CPU,
+/// saying why, and takes a hardware one.
+#[test]
+fn auto_passes_over_a_software_adapter_and_gpu_names_it_once() {
+    let tmp = tempfile::tempdir().unwrap();
+    let render = |device: &str, name: &str| {
+        let out = tmp.path().join(name);
+        let args = [
+            "render",
+            "--scene",
+            "configs/scenes/sphere.toml",
+            "--integrator",
+            "pt",
+            "--spp",
+            "2",
+            "--device",
+            device,
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        let run = on_vulkan_any(
+            &args,
+            &[],
+            "auto_passes_over_a_software_adapter_and_gpu_names_it_once",
+        )?;
+        let err = ok(&run);
+        let json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.with_extension("json")).unwrap())
+                .unwrap();
+        let device = json["device"].as_str().unwrap().to_string();
+        Some((err, device))
+    };
+    let Some((err, device)) = render("gpu", "gpu") else {
+        return;
+    };
+    let named: Vec<&str> = err.lines().filter(|l| l.starts_with("GPU: ")).collect();
+    assert_eq!(named.len(), 1, "the adapter named once: {err}");
+    assert!(named[0].contains("(Vulkan, "), "{err}");
+    assert!(device.starts_with("gpu: "), "{device}");
+    let software = named[0].contains(", Cpu, ");
+    let (err, device) = render("auto", "auto").expect("Vulkan was there a moment ago");
+    if software {
+        assert!(device.starts_with("cpu"), "{device}");
+        assert!(
+            err.contains("no hardware GPU adapter (--device gpu would use the software adapter"),
+            "{err}"
+        );
+        assert!(!err.lines().any(|l| l.starts_with("GPU: ")), "{err}");
+    } else {
+        assert!(device.starts_with("gpu: "), "{device}");
+    }
+}
+
 /// `bench decoders` on a Vulkan adapter: a row per decoder and the branch verdict. The
 /// bench itself fails when the GPU's decoder sums differ from the CPU decoder's (checked on
 /// its first items), so a passing run also shows the timed probe computes the decoders.
@@ -2094,6 +2148,73 @@ fn bench_devices_prints_both_devices_and_their_ratio() {
             ratio.len() == 1 && ratio[0].is_finite() && ratio[0] > 0.0,
             "{text}"
         );
+    }
+}
+
+/// `bench render`'s table on each device: a row per ladder step, the device in the header,
+/// and columns that agree with each other (the speed-up is PT's time over ST-CVAE's, the
+/// equal-error figure the speed-up times the variance ratio, and the paths/s their
+/// inverse ratio: both render the same paths). Tolerances: the printed rounding (two
+/// decimals, four significant digits).
+#[test]
+fn bench_render_prints_the_ladder_on_each_device() {
+    for device in ["cpu", "gpu"] {
+        let args = [
+            "bench", "render", "--device", device, "--k", "0.25,0.5", "--spp", "6", "--size", "8",
+        ];
+        let out = if device == "cpu" {
+            stcvae(&args)
+        } else {
+            match on_vulkan_any(&args, &[], "bench_render_prints_the_ladder_on_each_device") {
+                Some(out) => out,
+                None => return,
+            }
+        };
+        ok(&out);
+        let text = String::from_utf8_lossy(&out.stdout).into_owned();
+        let header = text.lines().next().unwrap_or_default();
+        assert!(header.contains(&format!("), {device}")), "{text}");
+        let number = |w: &str| -> f64 {
+            w.trim_end_matches('x')
+                .parse()
+                .unwrap_or_else(|_| panic!("{w}: {text}"))
+        };
+        let rows: Vec<Vec<&str>> = text
+            .lines()
+            .map(|l| l.split_whitespace().collect::<Vec<_>>())
+            .filter(|w| w.len() == 19 && w[1].starts_with('('))
+            .collect();
+        let labels: Vec<&str> = rows.iter().map(|w| w[0]).collect();
+        assert_eq!(labels, ["0.25", "0.5"], "{text}");
+        for w in &rows {
+            // k, σ_t (three fields), PT s, ST s, speed-up, var ratio, equal-error, three
+            // work columns, bias, its bound, noise, PT paths/s and unit, ST's and unit.
+            let (pt_s, st_s) = (number(w[4]), number(w[5]));
+            let (speed_up, var_ratio, equal) = (number(w[6]), number(w[7]), number(w[8]));
+            assert!(w[6].ends_with('x') && w[8].ends_with('x'), "{text}");
+            assert!(pt_s > 0.0 && st_s > 0.0, "{text}");
+            assert!(
+                (speed_up - pt_s / st_s).abs() <= 0.006 + 0.002 * speed_up,
+                "{text}"
+            );
+            assert!(
+                (equal - speed_up * var_ratio).abs() <= 0.005 * (speed_up + var_ratio) + 0.006,
+                "{text}"
+            );
+            let rate = |v: &str, unit: &str| {
+                number(v)
+                    * match unit {
+                        "k" => 1e3,
+                        "M" => 1e6,
+                        _ => panic!("paths/s unit {unit}: {text}"),
+                    }
+            };
+            let (pt_rate, st_rate) = (rate(w[15], w[16]), rate(w[17], w[18]));
+            assert!(
+                (pt_rate / st_rate * speed_up - 1.0).abs() <= 0.006 / speed_up + 0.002,
+                "{text}"
+            );
+        }
     }
 }
 

@@ -1592,6 +1592,38 @@ fn cpu_gpu_agree_bunny() {
 /// every event before a path's last dispatch: z = 7.0 when checked at 24 spp a render,
 /// which a t₇ bound of 5.4 (the spread itself estimated from 8 seeds) misses ~15 % of the
 /// time; at [`MEANS_SPP`] = 96 the shift doubles to ~14.
+/// A pixel the kernels never write is an error, not a black pixel: the host poisons the
+/// accumulation with NaN before the first dispatch, and a test hook has the kernels leave
+/// one pixel's slots alone, in the single kernel and in the staged render. Without the
+/// poison those slots would read as zeros and fail the finished-sample count instead, with
+/// another message, so this holds the poison in place as well as the check. The same
+/// render without the hook succeeds.
+#[test]
+fn an_unwritten_pixel_is_an_error() {
+    let Some(ctx) = gpu() else {
+        return;
+    };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let s = common::build_scene(&sphere_scene("kind = \"index-matched\""), false);
+    let set = settings(IntegratorKind::Pt, true);
+    for staged in ["0", "1"] {
+        let vars = [
+            ("STCVAE_GPU_TEST_UNWRITTEN_PIXEL", "300"),
+            ("STCVAE_GPU_STAGED", staged),
+        ];
+        let Err(err) = render_gpu_with_env(&ctx, &s, &set, &opts(3, 1), &vars) else {
+            panic!("staged {staged}: a pixel left unwritten rendered without an error");
+        };
+        let err = err.to_string();
+        assert!(
+            err.contains("1 of 576 pixels came back unwritten or non-finite"),
+            "staged {staged}: {err}"
+        );
+        let fine = render_gpu_with_env(&ctx, &s, &set, &opts(3, 1), &vars[1..]).unwrap();
+        assert!(fine.image.pixels.iter().flatten().all(|v| v.is_finite()));
+    }
+}
+
 #[test]
 fn long_paths_resume_across_dispatches() {
     let pt = settings(IntegratorKind::Pt, true);

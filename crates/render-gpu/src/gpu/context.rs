@@ -332,6 +332,35 @@ fn open_first<A, T>(
 mod tests {
     use super::*;
 
+    /// The device opens with its adapter's own limits, not wgpu's defaults: the staged
+    /// kernel alone binds ten storage buffers, two more than the default allows, and large
+    /// images need the adapter's largest binding. Skipped, saying so, only where no Vulkan
+    /// adapter exists outside CI (as the GPU tests).
+    #[test]
+    fn the_device_has_its_adapters_own_limits() {
+        let vulkan = wgpu::Backends::VULKAN;
+        let ctx = match GpuContext::with_backends(AdapterChoice::Any, Some(vulkan)) {
+            Ok(c) => c,
+            Err(RenderError::NoAdapter(e)) => {
+                assert!(std::env::var_os("CI").is_none(), "CI must have Vulkan: {e}");
+                eprintln!("skipping the_device_has_its_adapters_own_limits: {e}");
+                return;
+            }
+            Err(e) => panic!("{e}"),
+        };
+        let adapter = adapters_on(vulkan)
+            .into_iter()
+            .find(|a| a.get_info().name == ctx.adapter.name)
+            .expect("the adapter listed again");
+        assert_eq!(ctx.device.limits(), adapter.limits());
+        assert_eq!(ctx.limits, adapter.limits());
+        assert_ne!(
+            adapter.limits(),
+            wgpu::Limits::default(),
+            "a test that can fail"
+        );
+    }
+
     /// A panic inside `quietly` comes back as an error (the lost-device path), the value
     /// of a closure that returns does too, and a panic after it is a panic again: the
     /// flag is cleared whichever way the closure ended.

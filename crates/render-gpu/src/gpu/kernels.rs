@@ -78,6 +78,11 @@ pub struct KernelShape {
     /// of the one before, where no snapshot is kept to undo from (`STCVAE_GPU_STAGED_AHEAD`,
     /// on by default; the host's dispatching only, no kernel changes).
     pub ahead: bool,
+    /// A pixel whose slots the kernels leave alone (`STCVAE_GPU_TEST_UNWRITTEN_PIXEL`; a
+    /// test hook, off by default): the render must then report it as unwritten, which is
+    /// what the host's NaN poison is for. Off, the kernels hold no trace of it (the check
+    /// is a constant false).
+    pub unwritten_pixel: Option<u32>,
 }
 
 impl Default for KernelShape {
@@ -90,6 +95,7 @@ impl Default for KernelShape {
             aggregate: false,
             steps: true,
             ahead: true,
+            unwritten_pixel: None,
         }
     }
 }
@@ -265,8 +271,10 @@ impl KernelShape {
             ),
         };
         format!(
-            "const WORKGROUP: u32 = {}u;\nconst STACK_STRIDE: u32 = {stride}u;\n{stack}\n",
-            self.workgroup
+            "const WORKGROUP: u32 = {}u;\nconst STACK_STRIDE: u32 = {stride}u;\n{stack}\n\
+             const UNWRITTEN_PIXEL: u32 = {}u;\n",
+            self.workgroup,
+            self.unwritten_pixel.unwrap_or(u32::MAX)
         )
     }
 }

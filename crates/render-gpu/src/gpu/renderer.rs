@@ -79,7 +79,8 @@ fn parse_lane_samples(v: &str) -> Result<Option<u32>, RenderError> {
 
 /// The kernels' shape from `STCVAE_GPU_WORKGROUP` (threads per workgroup) and
 /// `STCVAE_GPU_STACK` (`workgroup` or `private`), each [`KernelShape::default`]'s when
-/// unset. For measuring on hardware GPUs: the image does not depend on it.
+/// unset. For measuring on hardware GPUs: the image does not depend on it. (Also the test
+/// hook `STCVAE_GPU_TEST_UNWRITTEN_PIXEL`, [`KernelShape::unwritten_pixel`].)
 pub fn kernel_shape() -> Result<KernelShape, RenderError> {
     let mut shape = KernelShape::default();
     if let Some(v) = env_value("STCVAE_GPU_WORKGROUP") {
@@ -134,6 +135,20 @@ pub fn kernel_shape() -> Result<KernelShape, RenderError> {
         if let Some(v) = env_value(name) {
             *field = parse_switch(name, &v, what)?;
         }
+    }
+    if let Some(v) = env_value("STCVAE_GPU_TEST_UNWRITTEN_PIXEL") {
+        shape.unwritten_pixel = Some(
+            v.trim()
+                .parse::<u32>()
+                .ok()
+                .filter(|&p| p < u32::MAX)
+                .ok_or_else(|| {
+                    RenderError::Gpu(format!(
+                        "STCVAE_GPU_TEST_UNWRITTEN_PIXEL={v:?} is not a pixel index (a test \
+                         hook: unset it)"
+                    ))
+                })?,
+        );
     }
     if let Some(v) = env_value("STCVAE_GPU_STACK") {
         shape.stack = parse_choice(
