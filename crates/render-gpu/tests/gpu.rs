@@ -1577,21 +1577,6 @@ fn cpu_gpu_agree_bunny() {
     }
 }
 
-/// Long paths (τ = 500, albedo 0.999: ~180 events on average, heavy-tailed, many beyond
-/// the ~650 PT events one invocation could loop on lavapipe, whose shaders stop after
-/// 65,535 loop iterations in total) must resume across dispatches (128 bounces each on a
-/// software adapter, fewer after a cut-off), every sample must finish (the renderer errors otherwise), and the
-/// image mean must agree with the CPU's. The z-score of the difference of the two image
-/// means uses the spread of 8 seeds per device, so it is Welch's t with at least 7 degrees
-/// of freedom: |t₇| > 5.4 has probability 1e-3. A truncated or lost path population
-/// darkens the object by far more.
-///
-/// The same for ST-CVAE with every collision a PT fallback (min_tau beyond any ball) and
-/// path-level NEE: its reservoirs must travel with the path between dispatches (path.wgsl,
-/// save_path / load_path_nee). Reservoirs reset at each dispatch instead lose the NEE of
-/// every event before a path's last dispatch: z = 7.0 when checked at 24 spp a render,
-/// which a t₇ bound of 5.4 (the spread itself estimated from 8 seeds) misses ~15 % of the
-/// time; at [`MEANS_SPP`] = 96 the shift doubles to ~14.
 /// A pixel the kernels never write is an error, not a black pixel: the host poisons the
 /// accumulation with NaN before the first dispatch, and a test hook has the kernels leave
 /// one pixel's slots alone, in the single kernel and in the staged render. Without the
@@ -1624,6 +1609,21 @@ fn an_unwritten_pixel_is_an_error() {
     }
 }
 
+/// Long paths (τ = 500, albedo 0.999: ~180 events on average, heavy-tailed, many beyond
+/// the ~650 PT events one invocation could loop on lavapipe, whose shaders stop after
+/// 65,535 loop iterations in total) must resume across dispatches (128 bounces each on a
+/// software adapter, fewer after a cut-off), every sample must finish (the renderer errors otherwise), and the
+/// image mean must agree with the CPU's. The z-score of the difference of the two image
+/// means uses the spread of 8 seeds per device, so it is Welch's t with at least 7 degrees
+/// of freedom: |t₇| > 5.4 has probability 1e-3. A truncated or lost path population
+/// darkens the object by far more.
+///
+/// The same for ST-CVAE with every collision a PT fallback (min_tau beyond any ball) and
+/// path-level NEE: its reservoirs must travel with the path between dispatches (path.wgsl,
+/// save_path / load_path_nee). Reservoirs reset at each dispatch instead lose the NEE of
+/// every event before a path's last dispatch: z = 7.0 when checked at 24 spp a render,
+/// which a t₇ bound of 5.4 (the spread itself estimated from 8 seeds) misses ~15 % of the
+/// time; at [`MEANS_SPP`] = 96 the shift doubles to ~14.
 #[test]
 fn long_paths_resume_across_dispatches() {
     let pt = settings(IntegratorKind::Pt, true);

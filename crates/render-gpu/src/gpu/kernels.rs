@@ -39,7 +39,7 @@ pub enum StackMemory {
 }
 
 /// How the kernels sit on the hardware: threads per workgroup and where the traversal
-/// stacks live. Neither changes what any path computes (seeds follow the pixel and the
+/// stacks live (and a test hook, `unwritten_pixel`). Neither changes what any path computes (seeds follow the pixel and the
 /// sample, not the thread), so the image is the same bit for bit whatever the shape
 /// (tested); they differ in speed only, which hardware GPUs decide (occupancy, divergence
 /// per warp) and which `STCVAE_GPU_WORKGROUP` / `STCVAE_GPU_STACK` let a device session
@@ -80,8 +80,8 @@ pub struct KernelShape {
     pub ahead: bool,
     /// A pixel whose slots the kernels leave alone (`STCVAE_GPU_TEST_UNWRITTEN_PIXEL`; a
     /// test hook, off by default): the render must then report it as unwritten, which is
-    /// what the host's NaN poison is for. Off, the kernels hold no trace of it (the check
-    /// is a constant false).
+    /// what the host's NaN poison is for. Off, its branch in `slot_begin` is constant
+    /// false. The one field of the shape that changes the image.
     pub unwritten_pixel: Option<u32>,
 }
 

@@ -79,8 +79,9 @@ fn parse_lane_samples(v: &str) -> Result<Option<u32>, RenderError> {
 
 /// The kernels' shape from `STCVAE_GPU_WORKGROUP` (threads per workgroup) and
 /// `STCVAE_GPU_STACK` (`workgroup` or `private`), each [`KernelShape::default`]'s when
-/// unset. For measuring on hardware GPUs: the image does not depend on it. (Also the test
-/// hook `STCVAE_GPU_TEST_UNWRITTEN_PIXEL`, [`KernelShape::unwritten_pixel`].)
+/// unset. For measuring on hardware GPUs: the image does not depend on them. (Also the
+/// test hook `STCVAE_GPU_TEST_UNWRITTEN_PIXEL`, [`KernelShape::unwritten_pixel`], which
+/// makes the render fail.)
 pub fn kernel_shape() -> Result<KernelShape, RenderError> {
     let mut shape = KernelShape::default();
     if let Some(v) = env_value("STCVAE_GPU_WORKGROUP") {
