@@ -1741,6 +1741,15 @@ fn auto_passes_over_a_software_adapter_and_gpu_names_it_once() {
     };
     let named: Vec<&str> = err.lines().filter(|l| l.starts_with("GPU: ")).collect();
     assert_eq!(named.len(), 1, "the adapter named once: {err}");
+    // The GPU render's preview: the scene's size, and not one flat colour.
+    let f = std::fs::File::open(tmp.path().join("gpu.png")).unwrap();
+    let mut dec = png::Decoder::new(std::io::BufReader::new(f))
+        .read_info()
+        .unwrap();
+    let mut buf = vec![0; dec.output_buffer_size()];
+    let info = dec.next_frame(&mut buf).unwrap();
+    assert_eq!((info.width, info.height), (128, 128));
+    assert!(buf.iter().any(|&b| b != buf[0]), "a flat preview");
     assert!(named[0].contains("(Vulkan, "), "{err}");
     assert!(device.starts_with("gpu: "), "{device}");
     // The adapter's type follows its backend: "(Vulkan, Cpu, driver)" or "(Vulkan, Cpu)".

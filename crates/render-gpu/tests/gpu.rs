@@ -1607,6 +1607,15 @@ fn an_unwritten_pixel_is_an_error() {
         let fine = render_gpu_with_env(&ctx, &s, &set, &opts(3, 1), &vars[1..]).unwrap();
         assert!(fine.image.pixels.iter().flatten().all(|v| v.is_finite()));
     }
+    // A pixel beyond the image would leave every pixel written and test nothing.
+    let beyond = [("STCVAE_GPU_TEST_UNWRITTEN_PIXEL", "576")];
+    let Err(err) = render_gpu_with_env(&ctx, &s, &set, &opts(3, 1), &beyond) else {
+        panic!("a hook beyond the image was taken");
+    };
+    assert!(
+        err.to_string().contains("beyond the image's 576 pixels"),
+        "{err}"
+    );
 }
 
 /// Long paths (τ = 500, albedo 0.999: ~180 events on average, heavy-tailed, many beyond

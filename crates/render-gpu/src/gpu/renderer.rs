@@ -582,6 +582,13 @@ pub fn render_gpu(
     }
     let model = set.model.map(model_params).unwrap_or_default();
     let shape = kernel_shape()?.on(ctx);
+    let image_pixels = scene.camera.width as u64 * scene.camera.height as u64;
+    if let Some(p) = shape.unwritten_pixel.filter(|&p| p as u64 >= image_pixels) {
+        // A hook that misses the image would test nothing while seeming to.
+        return Err(RenderError::Gpu(format!(
+            "STCVAE_GPU_TEST_UNWRITTEN_PIXEL={p} is beyond the image's {image_pixels} pixels"
+        )));
+    }
     // Every variable read now, before buffers and the kernels' compilation (seconds to
     // minutes on lavapipe): a bad value was refused only after them.
     let first_budget = bounce_budget(ctx)?;
@@ -1093,6 +1100,20 @@ mod tests {
             e.contains("STCVAE_GPU_PROFILE") && e.contains("1 or true"),
             "{e}"
         );
+        // The test hook: a pixel index, u32::MAX (its "none") refused.
+        for (v, want) in [("7", Some(7)), (" 0 ", Some(0)), ("", None)] {
+            unsafe { std::env::set_var("STCVAE_GPU_TEST_UNWRITTEN_PIXEL", v) };
+            let r = kernel_shape();
+            unsafe { std::env::remove_var("STCVAE_GPU_TEST_UNWRITTEN_PIXEL") };
+            assert_eq!(r.unwrap().unwritten_pixel, want, "{v:?}");
+        }
+        for bad in ["-1", "4294967295", "x"] {
+            unsafe { std::env::set_var("STCVAE_GPU_TEST_UNWRITTEN_PIXEL", bad) };
+            let r = kernel_shape();
+            unsafe { std::env::remove_var("STCVAE_GPU_TEST_UNWRITTEN_PIXEL") };
+            let e = r.unwrap_err().to_string();
+            assert!(e.contains("STCVAE_GPU_TEST_UNWRITTEN_PIXEL"), "{e}");
+        }
         let e = with("64", "shared").unwrap_err().to_string();
         assert!(
             e.contains("STCVAE_GPU_STACK") && e.contains("workgroup or private"),
