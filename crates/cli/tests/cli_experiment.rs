@@ -21,15 +21,8 @@ fn configs() -> Vec<PathBuf> {
 }
 
 fn check_png(path: &Path) {
-    let f = std::fs::File::open(path).unwrap();
-    let mut dec = png::Decoder::new(std::io::BufReader::new(f))
-        .read_info()
-        .unwrap_or_else(|e| panic!("{}: not a PNG: {e}", path.display()));
-    let mut buf = vec![0; dec.output_buffer_size()];
-    let info = dec
-        .next_frame(&mut buf)
-        .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    assert!(info.width > 0 && info.height > 0, "{}", path.display());
+    let (width, height, _) = common::read_png(path);
+    assert!(width > 0 && height > 0, "{}", path.display());
 }
 
 /// `stcvae experiment CFG --quick --device cpu --out OUT`, run from the repository root.

@@ -1742,13 +1742,8 @@ fn auto_passes_over_a_software_adapter_and_gpu_names_it_once() {
     let named: Vec<&str> = err.lines().filter(|l| l.starts_with("GPU: ")).collect();
     assert_eq!(named.len(), 1, "the adapter named once: {err}");
     // The GPU render's preview: the scene's size, and not one flat colour.
-    let f = std::fs::File::open(tmp.path().join("gpu.png")).unwrap();
-    let mut dec = png::Decoder::new(std::io::BufReader::new(f))
-        .read_info()
-        .unwrap();
-    let mut buf = vec![0; dec.output_buffer_size()];
-    let info = dec.next_frame(&mut buf).unwrap();
-    assert_eq!((info.width, info.height), (128, 128));
+    let (width, height, buf) = common::read_png(&tmp.path().join("gpu.png"));
+    assert_eq!((width, height), (128, 128));
     assert!(buf.iter().any(|&b| b != buf[0]), "a flat preview");
     assert!(named[0].contains("(Vulkan, "), "{err}");
     assert!(device.starts_with("gpu: "), "{device}");
@@ -2412,13 +2407,8 @@ fn bench_error_ranks_renders_by_error_and_names_bad_inputs() {
     assert!(text.contains("plot: "), "{text}");
     // The table names each image by its file, not its label.
     assert!(text.lines().any(|l| l.starts_with(&other)), "{text}");
-    let f = std::fs::File::open(&plot).unwrap();
-    let mut dec = png::Decoder::new(std::io::BufReader::new(f))
-        .read_info()
-        .unwrap();
-    let mut buf = vec![0; dec.output_buffer_size()];
-    let info = dec.next_frame(&mut buf).unwrap();
-    assert_eq!((info.width, info.height), (900, 600));
+    let (width, height, buf) = common::read_png(&plot);
+    assert_eq!((width, height), (900, 600));
     let count = |rgb: [u8; 3]| buf.chunks(3).filter(|p| *p == rgb).count();
     // The legend's red sample is ~38 pixels and the marker's disc ~50.
     assert!(count([255, 0, 0]) > 60, "no red marker drawn");
