@@ -582,11 +582,12 @@ pub fn render_gpu(
     }
     let model = set.model.map(model_params).unwrap_or_default();
     let shape = kernel_shape()?.on(ctx);
-    let image_pixels = scene.camera.width as u64 * scene.camera.height as u64;
-    if let Some(p) = shape.unwritten_pixel.filter(|&p| p as u64 >= image_pixels) {
+    let cam = &scene.camera;
+    let pixels = cam.width as u64 * cam.height as u64;
+    if let Some(p) = shape.unwritten_pixel.filter(|&p| p as u64 >= pixels) {
         // A hook that misses the image would test nothing while seeming to.
         return Err(RenderError::Gpu(format!(
-            "STCVAE_GPU_TEST_UNWRITTEN_PIXEL={p} is beyond the image's {image_pixels} pixels"
+            "STCVAE_GPU_TEST_UNWRITTEN_PIXEL={p} is beyond the image's {pixels} pixels"
         )));
     }
     // Every variable read now, before buffers and the kernels' compilation (seconds to
@@ -627,8 +628,6 @@ pub fn render_gpu(
     } else {
         Kernels::Single(build("render_main")?)
     };
-    let cam = &scene.camera;
-    let pixels = cam.width as u64 * cam.height as u64;
     let spp = opts.spp.max(1);
     // Every path slot of a band lives in one storage binding: adapters offer 128 MiB to
     // several GiB, and a 1024² image at 2²⁰ invocations with two path-level NEE
@@ -1079,39 +1078,39 @@ mod tests {
                 "{e}"
             );
         }
-        for (v, on) in [("1", true), ("true", true), ("0", false), ("", false)] {
-            unsafe { std::env::set_var("STCVAE_GPU_PROFILE", v) };
+        // The shape with one variable set (and unset again after).
+        let with_one = |name: &str, v: &str| {
+            unsafe { std::env::set_var(name, v) };
             let r = kernel_shape();
-            unsafe { std::env::remove_var("STCVAE_GPU_PROFILE") };
+            unsafe { std::env::remove_var(name) };
+            r
+        };
+        for (v, on) in [("1", true), ("true", true), ("0", false), ("", false)] {
+            let r = with_one("STCVAE_GPU_PROFILE", v);
             assert_eq!(r.unwrap().profile, on, "{v:?}");
         }
         // Empty is the default, also where the default is on.
         for (v, on) in [("", true), (" ", true), ("0", false)] {
-            unsafe { std::env::set_var("STCVAE_GPU_STAGED_AHEAD", v) };
-            let r = kernel_shape();
-            unsafe { std::env::remove_var("STCVAE_GPU_STAGED_AHEAD") };
+            let r = with_one("STCVAE_GPU_STAGED_AHEAD", v);
             assert_eq!(r.unwrap().ahead, on, "{v:?}");
         }
         assert!(KernelShape::default().ahead);
-        unsafe { std::env::set_var("STCVAE_GPU_PROFILE", "yes") };
-        let e = kernel_shape().unwrap_err().to_string();
-        unsafe { std::env::remove_var("STCVAE_GPU_PROFILE") };
+        let e = with_one("STCVAE_GPU_PROFILE", "yes")
+            .unwrap_err()
+            .to_string();
         assert!(
             e.contains("STCVAE_GPU_PROFILE") && e.contains("1 or true"),
             "{e}"
         );
         // The test hook: a pixel index, u32::MAX (its "none") refused.
         for (v, want) in [("7", Some(7)), (" 0 ", Some(0)), ("", None)] {
-            unsafe { std::env::set_var("STCVAE_GPU_TEST_UNWRITTEN_PIXEL", v) };
-            let r = kernel_shape();
-            unsafe { std::env::remove_var("STCVAE_GPU_TEST_UNWRITTEN_PIXEL") };
+            let r = with_one("STCVAE_GPU_TEST_UNWRITTEN_PIXEL", v);
             assert_eq!(r.unwrap().unwritten_pixel, want, "{v:?}");
         }
         for bad in ["-1", "4294967295", "x"] {
-            unsafe { std::env::set_var("STCVAE_GPU_TEST_UNWRITTEN_PIXEL", bad) };
-            let r = kernel_shape();
-            unsafe { std::env::remove_var("STCVAE_GPU_TEST_UNWRITTEN_PIXEL") };
-            let e = r.unwrap_err().to_string();
+            let e = with_one("STCVAE_GPU_TEST_UNWRITTEN_PIXEL", bad)
+                .unwrap_err()
+                .to_string();
             assert!(e.contains("STCVAE_GPU_TEST_UNWRITTEN_PIXEL"), "{e}");
         }
         let e = with("64", "shared").unwrap_err().to_string();
