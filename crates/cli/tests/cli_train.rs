@@ -654,19 +654,31 @@ fn resume_needs_an_intact_checkpoint_and_the_last_loss_is_the_last_steps() {
     );
     replace_in(&cfg, "hidden = [4, 6]", "hidden = [4, 4]");
     // An edited record (what its checksums do not cover): a time or a step no run
-    // writes is refused by name, not carried into the reports and the model's notes.
+    // writes is refused by name, not carried into the reports and the model's notes; so
+    // is an emptied history (a final loss of NaN) and a standardisation no model file
+    // may hold (reported under the model file's name, after the data was read).
     let record = dir.path().join("ck/eventgen.json");
     let kept = fs::read_to_string(&record).unwrap();
     for (field, value, says) in [
-        ("seconds", serde_json::json!(-1e308), "seconds = -1e308"),
+        ("/seconds", serde_json::json!(-1e308), "seconds = -1e308"),
         (
-            "step",
+            "/step",
             serde_json::json!(u64::MAX),
             "step = 18446744073709551615",
         ),
+        (
+            "/history",
+            serde_json::json!([]),
+            "history does not begin at step 1",
+        ),
+        (
+            "/norm/out_scale/0",
+            serde_json::json!(0.0),
+            "norm: out_scale[0] = 0 is out of range",
+        ),
     ] {
         let mut v: serde_json::Value = serde_json::from_str(&kept).unwrap();
-        v[field] = value;
+        *v.pointer_mut(field).unwrap() = value;
         fs::write(&record, v.to_string()).unwrap();
         let out = resume(dir.path());
         assert!(!out.status.success());

@@ -556,11 +556,27 @@ pub const MIN_SCALE: f32 = 1e-6;
 /// Checks the shifts and scales of a decoder with `cond` inputs and `out` outputs, naming
 /// the first field out of its range.
 fn check_standardisation(spec: &DecoderSpec, cond: usize, out: usize) -> Result<(), String> {
+    check_norm(
+        [
+            &spec.cond_shift,
+            &spec.cond_scale,
+            &spec.out_shift,
+            &spec.out_scale,
+        ],
+        cond,
+        out,
+    )
+}
+
+/// [`check_standardisation`] on the four vectors (cond shift and scale, out shift and
+/// scale) wherever they are kept: a training checkpoint's record holds them too, and an
+/// edited one was reported only when the model file was written, under its name.
+pub(crate) fn check_norm(v: [&[f32]; 4], cond: usize, out: usize) -> Result<(), String> {
     for (name, v, n, is_scale) in [
-        ("cond_shift", &spec.cond_shift, cond, false),
-        ("cond_scale", &spec.cond_scale, cond, true),
-        ("out_shift", &spec.out_shift, out, false),
-        ("out_scale", &spec.out_scale, out, true),
+        ("cond_shift", v[0], cond, false),
+        ("cond_scale", v[1], cond, true),
+        ("out_shift", v[2], out, false),
+        ("out_scale", v[3], out, true),
     ] {
         if v.len() != n {
             return Err(format!("{name} has {} values, expected {n}", v.len()));

@@ -234,10 +234,12 @@ pub struct CheckpointInfo {
 }
 
 impl CheckpointInfo {
-    /// What a record written by a run always satisfies, which its checksums do not cover
-    /// (they cover the weight files): an edited step or time (u64::MAX steps, −1e308 s)
-    /// went on into the reports and the model file's notes.
-    fn check(&self) -> Result<(), String> {
+    /// What a record of `kind` written by a run always satisfies, which its checksums do
+    /// not cover (they cover the weight files): an edited step or time (u64::MAX steps,
+    /// −1e308 s) went on into the reports and the model file's notes, an emptied history
+    /// into a final loss of NaN, and an edited standardisation was reported only when the
+    /// model file was written, under the model file's name.
+    fn check(&self, kind: ModelKind) -> Result<(), String> {
         if !(self.seconds.is_finite() && self.seconds >= 0.0) {
             return Err(format!(
                 "seconds = {} is not a training time (finite, >= 0)",
@@ -261,7 +263,20 @@ impl CheckpointInfo {
             }
             last = step;
         }
-        Ok(())
+        // Step 1's loss (the untrained model's) is the first entry of every run's history.
+        if self.step > 0 && self.history.first().map(|h| h.0) != Some(1) {
+            return Err(format!(
+                "history does not begin at step 1 although the run is at step {}",
+                self.step
+            ));
+        }
+        let n = &self.norm;
+        crate::model_file::check_norm(
+            [&n.cond_shift, &n.cond_scale, &n.out_shift, &n.out_scale],
+            kind.cond(),
+            kind.out(),
+        )
+        .map_err(|e| format!("norm: {e}"))
     }
 }
 
@@ -572,7 +587,7 @@ pub fn train_model(
                 ),
             )
         })?;
-        info.check().map_err(|e| {
+        info.check(kind).map_err(|e| {
             err(
                 &jpath,
                 format!(
@@ -646,6 +661,11 @@ pub fn train_model(
         model = model
             .try_load_file(&mpath)
             .map_err(|e| err(&mpath, record_error(kind, e.to_string())))?;
+        // A run never saves such weights ([`exportable`]): resumed, they read as a
+        // divergence at the first loss, blamed on the learning rate.
+        if !exportable(&model, &info.norm) {
+            return Err(err(&mpath, damaged_weights(kind)));
+        }
         optim = optim.load(&opath).map_err(|e| err(&opath, e.to_string()))?;
         // Same mode (checked above) and same data (the standardisation matched).
         info.single_scattering = Some(table.mode);
@@ -789,7 +809,7 @@ pub fn load_decoder(
     };
     let text = read_checkpoint_file(&j).map_err(|e| err(&j, e.to_string()))?;
     let info: CheckpointInfo = serde_json::from_slice(&text).map_err(|e| err(&j, e.to_string()))?;
-    info.check()
+    info.check(kind)
         .map_err(|e| err(&j, format!("{e}: the file was edited or damaged")))?;
     check_crcs(&info, &[&m], kind)?;
     scatter_sim::output::check_input(&m).map_err(|e| err(&m, e.to_string()))?;
@@ -798,7 +818,21 @@ pub fn load_decoder(
     let model = Cvae::new(kind.cond(), kind.out(), arch, &mut rng, &device)
         .try_load_file(&m)
         .map_err(|e| err(&m, record_error(kind, e.to_string())))?;
-    Ok((model.export(&info.norm), info))
+    let decoder = model.export(&info.norm);
+    if !within_bounds(&decoder) {
+        return Err(err(&m, damaged_weights(kind)));
+    }
+    Ok((decoder, info))
+}
+
+/// Weights a run would not have saved, in a file whose checksum matches its record.
+fn damaged_weights(kind: ModelKind) -> String {
+    format!(
+        "holds weights that are not finite or beyond ±{:e}, which no run saves: the \
+         checkpoint was edited or damaged; start over with --fresh --model {}",
+        crate::model_file::MAX_WEIGHT,
+        kind.name()
+    )
 }
 
 /// burn's error for a checkpoint whose tensors do not fit the network lists every
@@ -942,9 +976,11 @@ mod tests {
 
     /// A run whose loss turns non-finite stops with `Diverged`, naming the model and the
     /// step and advising a lower rate, and leaves the last checkpoint as it was. The
-    /// divergence is forced by resuming from a checkpoint whose encoder holds one NaN (no
-    /// rate within the config's bounds diverges reliably): the first loss read, at the
-    /// checkpoint's step, is NaN.
+    /// divergence is forced by resuming from a checkpoint whose encoder holds one weight
+    /// of 1e30 (finite, so the checkpoint loads; no rate within the config's bounds
+    /// diverges reliably): the first loss read, at the checkpoint's step, overflows. A
+    /// NaN weight instead, which no run saves, is refused as a damaged checkpoint naming
+    /// its file before any step (it read as a divergence blamed on the learning rate).
     #[test]
     fn a_non_finite_loss_stops_the_run_and_keeps_the_checkpoint() {
         let d = tempfile::tempdir().unwrap();
@@ -956,61 +992,87 @@ mod tests {
             .collect();
         let table = Table::build(kind, &rows, crate::SingleScattering::Exact);
         let cfg = config(40, Some(0));
-        let mut rng = WalkRng::from_seed(5);
-        let mut model = Cvae::new(
-            kind.cond(),
-            kind.out(),
-            &cfg.architecture(),
-            &mut rng,
-            &device,
-        );
-        let first = &model.encoder.layers[0];
-        let [i, o] = first.weight.val().dims();
-        let mut w: Vec<f32> = first.weight.val().try_into_vec_as::<f32>().unwrap();
-        w[0] = f32::NAN;
-        model.encoder.layers[0].weight =
-            burn::module::Param::from_data(TensorData::new(w, [i, o]), &device);
-        let info = CheckpointInfo {
-            feature_version: crate::features::FEATURE_VERSION,
-            step: 10,
-            seconds: 0.0,
-            norm: table.norm.clone(),
-            history: vec![(10, 1.0)],
-            crc32: None,
-            single_scattering: Some(table.mode),
-            ranges: Some(table.ranges),
-            stream: None,
-            validation: Vec::new(),
-            plan: None,
+        let resume_from = |w0: f32, in_decoder: bool| {
+            let mut rng = WalkRng::from_seed(5);
+            let mut model = Cvae::new(
+                kind.cond(),
+                kind.out(),
+                &cfg.architecture(),
+                &mut rng,
+                &device,
+            );
+            let mlp = if in_decoder {
+                &mut model.decoder
+            } else {
+                &mut model.encoder
+            };
+            let [i, o] = mlp.layers[0].weight.val().dims();
+            let mut w: Vec<f32> = mlp.layers[0].weight.val().try_into_vec_as::<f32>().unwrap();
+            w[0] = w0;
+            mlp.layers[0].weight =
+                burn::module::Param::from_data(TensorData::new(w, [i, o]), &device);
+            let info = CheckpointInfo {
+                feature_version: crate::features::FEATURE_VERSION,
+                step: 10,
+                seconds: 0.0,
+                norm: table.norm.clone(),
+                history: vec![(1, 2.0), (10, 1.0)],
+                crc32: None,
+                single_scattering: Some(table.mode),
+                ranges: Some(table.ranges),
+                stream: None,
+                validation: Vec::new(),
+                plan: None,
+            };
+            save_checkpoint(d.path(), kind, &model, &Adamax::default().init(), &info).unwrap();
+            let (_, _, j) = paths(d.path(), kind);
+            let before = std::fs::read(&j).unwrap();
+            let e = train_model(
+                kind,
+                &table,
+                &cfg,
+                1,
+                &device,
+                d.path(),
+                5,
+                true,
+                &AtomicBool::new(false),
+                None,
+                &|_, _, _, _| {},
+            )
+            .err()
+            .expect("a run from such weights trains on");
+            assert_eq!(
+                std::fs::read(&j).unwrap(),
+                before,
+                "the checkpoint was replaced"
+            );
+            e
         };
-        save_checkpoint(d.path(), kind, &model, &Adamax::default().init(), &info).unwrap();
-        let (_, _, j) = paths(d.path(), kind);
-        let before = std::fs::read(&j).unwrap();
-        let e = train_model(
-            kind,
-            &table,
-            &cfg,
-            1,
-            &device,
-            d.path(),
-            5,
-            true,
-            &AtomicBool::new(false),
-            None,
-            &|_, _, _, _| {},
-        )
-        .err()
-        .expect("a NaN weight trains on");
+        let e = resume_from(1e30, false);
         assert!(matches!(e, TrainError::Diverged("lengthgen", 10)), "{e}");
         assert!(
             e.to_string()
                 .contains("at step 10; lower the learning rate"),
             "{e}"
         );
-        assert_eq!(
-            std::fs::read(&j).unwrap(),
-            before,
-            "the checkpoint was replaced"
+        for in_decoder in [false, true] {
+            let e = resume_from(f32::NAN, in_decoder).to_string();
+            assert!(
+                e.contains("lengthgen.bpk")
+                    && e.contains("not finite")
+                    && e.contains("--fresh --model lengthgen"),
+                "{e}"
+            );
+        }
+        // The decoder alone, taken into a model file another run exports, is refused too.
+        let e = load_decoder(d.path(), kind, &cfg.architecture())
+            .err()
+            .expect("a NaN decoder weight was taken")
+            .to_string();
+        assert!(
+            e.contains("lengthgen.bpk") && e.contains("not finite"),
+            "{e}"
         );
     }
 
