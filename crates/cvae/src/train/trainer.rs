@@ -1067,8 +1067,7 @@ mod tests {
         }
         // The decoder alone, taken into a model file another run exports, is refused too.
         let e = load_decoder(d.path(), kind, &cfg.architecture())
-            .err()
-            .expect("a NaN decoder weight was taken")
+            .expect_err("a NaN decoder weight was taken")
             .to_string();
         assert!(
             e.contains("lengthgen.bpk") && e.contains("not finite"),
