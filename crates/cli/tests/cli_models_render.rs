@@ -1047,7 +1047,7 @@ fn box_obj(x: f64, w: f64, t: f64) -> String {
 /// its transmittance) with the camera 4 in front gives the very same image at x = 0 and
 /// x = 51,000 (same seed, the same geometry once moved). And an object thinner than the
 /// offset resolves is refused (a plate 1000 wide, 0.015 thick, rendered as background),
-/// one near that noted.
+/// one near that noted; so is an object whose walls are thinner than the offset.
 #[test]
 fn far_and_thin_objects_render_as_they_should_or_are_refused() {
     let d = tempfile::tempdir().unwrap();
@@ -1111,8 +1111,45 @@ fn far_and_thin_objects_render_as_they_should_or_are_refused() {
         flat_out.to_str().unwrap(),
     ]);
     let err = ok(&o);
+    let walls_note = "of the object's surface lies within the renderer's surface offset";
     assert!(
-        err.contains("note: ") && err.contains("the object is thin for its size"),
+        err.contains("note: ")
+            && err.contains("the object is thin for its size")
+            && !err.contains(walls_note),
+        "{err}"
+    );
+    // A unit cube with a cavity whose walls are 5e-6 thick, a quarter of the offset (2e-5
+    // of the cube's extent):
+    // every face is found, from outside and from the cavity (it rendered as bare
+    // background without a word).
+    let inner = box_obj(0.0, 1.0 - 1e-5, 1.0 - 1e-5);
+    let inner: String = inner
+        .lines()
+        .map(|l| match l.strip_prefix("f ") {
+            Some(f) => {
+                let shifted: Vec<String> = f
+                    .split(' ')
+                    .map(|i| (i.parse::<u32>().unwrap() + 8).to_string())
+                    .collect();
+                format!("f {}\n", shifted.join(" "))
+            }
+            None => format!("{l}\n"),
+        })
+        .collect();
+    let shell = scene("shell", 0.0, box_obj(0.0, 1.0, 1.0) + &inner);
+    let o = stcvae(&[
+        "render",
+        shell.to_str().unwrap(),
+        "--spp",
+        "1",
+        "--device",
+        "cpu",
+        "--out",
+        d.path().join("shell").to_str().unwrap(),
+    ]);
+    let err = ok(&o);
+    assert!(
+        err.contains(&format!("shell.toml: 100.0 % {walls_note} (2.0000e-5)")),
         "{err}"
     );
 }

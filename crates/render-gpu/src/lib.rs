@@ -21,6 +21,7 @@ mod ply;
 pub mod render;
 pub mod scene;
 pub mod setup;
+pub mod thin_walls;
 pub mod watertight;
 
 pub use error::RenderError;

@@ -212,6 +212,31 @@ fn thin_object_check(geo: &Geometry) -> Result<Option<String>, RenderError> {
     }))
 }
 
+/// A note where more than [`crate::thin_walls::NOTE_AREA_SHARE`] of the surface lies
+/// within the surface offset of a far side (`centre`: where the mesh was moved from, to
+/// name the place in the scene's coordinates).
+fn thin_walls_note(geo: &Geometry, centre: [f64; 3]) -> Option<String> {
+    let w = crate::thin_walls::thin_walls(geo);
+    (w.area_share > crate::thin_walls::NOTE_AREA_SHARE).then(|| {
+        let at =
+            w.at.map(|p| {
+                let p = p.as_dvec3() + glam::DVec3::from_array(centre);
+                format!(", such as at [{:.4}, {:.4}, {:.4}]", p.x, p.y, p.z)
+            })
+            .unwrap_or_default();
+        format!(
+            "{:.1} % of the object's surface lies within the renderer's surface offset \
+             ({:.4e}) of a far side{at}: paths entering there start beyond that wall and pass \
+             through it as air, so those parts render too transparent; thicken them beyond \
+             {:.1e} (the offset is {:e} of the object's size: scaling it does not help)",
+            100.0 * w.area_share,
+            geo.eps,
+            2.0 * geo.eps,
+            crate::geometry::EPS
+        )
+    })
+}
+
 /// The surface offset's largest share of the object's thinnest bounding-box side: half
 /// (slabs render exactly to 0.9 and vanish at 1; edges are biased well before).
 pub const MAX_OFFSET_OF_THICKNESS: f32 = 0.5;
@@ -352,7 +377,13 @@ impl SceneData {
             })
             .collect();
         notes.extend(unchecked);
+        // The object's box already says it is thin as a whole; otherwise its walls may be.
+        let walls = thin
+            .is_none()
+            .then(|| thin_walls_note(&geo, centre))
+            .flatten();
         notes.extend(thin);
+        notes.extend(walls);
         // Every path starts in air (the integrators trace camera rays from outside the
         // object); from inside, a camera's paths would be taken for entering ones and lit
         // as if in air, so the image would be wrong without any error.

@@ -1,0 +1,108 @@
+//! Parts of an object thinner than the surface offset: a path entering there starts
+//! beyond the far side ([`Geometry::beyond_sliver`] then sends it on through the air), so
+//! those parts render as if they were not there. The bounding-box check of `setup` sees
+//! only an object thin as a whole; a shell whose walls were 5·10⁻⁶ thick (the offset 2·10⁻⁵)
+//! rendered as bare background without a word.
+
+use crate::geometry::Geometry;
+use glam::Vec3;
+use rayon::prelude::*;
+
+/// The surface (by area) where an entering path would start beyond a far side, and a
+/// point of the largest such face.
+pub struct ThinWalls {
+    /// Share of the surface's area, in [0, 1].
+    pub area_share: f64,
+    /// The centroid of the largest face found so, in the mesh's coordinates.
+    pub at: Option<Vec3>,
+}
+
+/// Share of the surface beyond which `render` notes thin walls: about one path entering
+/// in a thousand passing through a wall as air. A sharp edge of an ordinary mesh fires the
+/// test on a few small faces (the shipped bunny: none at its size; see the tests).
+pub const NOTE_AREA_SHARE: f64 = 1e-3;
+
+/// Tests each face at its centroid as an entering path meets it: spawned `eps` inside,
+/// the way back out meets another surface from outside first.
+pub fn thin_walls(geo: &Geometry) -> ThinWalls {
+    let n = geo.mesh.triangles.len();
+    let (thin, total, best) = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let [a, b, c] = geo.mesh.triangle(i);
+            let area = f64::from((b - a).cross(c - a).length()) * 0.5;
+            let normal = geo.normals[i];
+            let centroid = (a + b + c) / 3.0;
+            let q = geo.spawn(centroid, normal, -normal);
+            let fires = geo.beyond_sliver(q, normal, |o, d, t| geo.intersect(o, d, t));
+            if fires {
+                (area, area, Some((area, centroid)))
+            } else {
+                (0.0, area, None)
+            }
+        })
+        .reduce(
+            || (0.0, 0.0, None),
+            |x, y| {
+                let best = match (x.2, y.2) {
+                    (Some(p), Some(q)) => Some(if q.0 > p.0 { q } else { p }),
+                    (p, q) => p.or(q),
+                };
+                (x.0 + y.0, x.1 + y.1, best)
+            },
+        );
+    ThinWalls {
+        area_share: if total > 0.0 { thin / total } else { 0.0 },
+        at: best.map(|b| b.1),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::{TriMesh, cube, prepare};
+
+    /// A cube of side 1 with a cavity: the cube scaled by `inner`, wound inward.
+    fn shell(inner: f32) -> Geometry {
+        let outer = cube(1.0);
+        let mut m = TriMesh {
+            positions: outer.positions.clone(),
+            triangles: outer.triangles.clone(),
+        };
+        let base = m.positions.len() as u32;
+        m.positions
+            .extend(outer.positions.iter().map(|p| *p * inner));
+        m.triangles.extend(
+            outer
+                .triangles
+                .iter()
+                .map(|t| [t[0] + base, t[2] + base, t[1] + base]),
+        );
+        Geometry::new(prepare(m).expect("a closed shell"))
+    }
+
+    /// Walls of a quarter of the offset are found everywhere (both of their sides, the
+    /// whole surface); walls of twice the offset nowhere, nor is a plain cube, a sphere or
+    /// the shipped bunny (whose thin features at the top of its head are smaller than
+    /// [`NOTE_AREA_SHARE`] of its surface).
+    #[test]
+    fn walls_thinner_than_the_offset_are_found() {
+        let eps = shell(0.5).eps;
+        // Wall thickness = (1 − inner)/2.
+        let thin = shell(1.0 - 0.5 * eps);
+        let w = thin_walls(&thin);
+        assert!(w.area_share > 0.999, "{}", w.area_share);
+        assert!(w.at.is_some());
+        let thick = shell(1.0 - 4.0 * eps);
+        assert_eq!(thick.eps, eps);
+        assert_eq!(thin_walls(&thick).area_share, 0.0);
+        for m in [cube(1.0), crate::mesh::sphere(0.5)] {
+            assert_eq!(thin_walls(&Geometry::new(m)).area_share, 0.0);
+        }
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/bunny.glb");
+        let mut bunny = crate::mesh::load_mesh(&path).expect("the shipped bunny");
+        bunny.normalise_height(1.0).unwrap();
+        let share = thin_walls(&Geometry::new(bunny)).area_share;
+        assert!(share < NOTE_AREA_SHARE, "{share}");
+    }
+}
