@@ -7,7 +7,7 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-use glam::{Mat4, Vec3};
+use glam::{Mat4, Vec3, Vec4};
 
 use crate::error::RenderError;
 use crate::piece_survey::{Sides, Survey};
@@ -838,6 +838,41 @@ fn gltf_json_bytes(path: &Path) -> std::io::Result<Vec<u8>> {
     Ok(all)
 }
 
+/// A node's local transform. glTF 2.0 (5.25) allows a unit-quaternion rotation and an
+/// affine matrix (decomposable into translation, rotation and scale) only; gltf turned a
+/// zero or unnormalised quaternion into the identity and dropped a projective matrix's
+/// last row without a word.
+fn node_matrix(node: &gltf::Node) -> Result<Mat4, String> {
+    match node.transform() {
+        gltf::scene::Transform::Decomposed { rotation: q, .. }
+            if !((Vec4::from_array(q).length() - 1.0).abs() <= UNIT_QUATERNION_SLACK) =>
+        {
+            return Err(format!(
+                "node {}: rotation {q:?} is not a unit quaternion (length {}); glTF rotations \
+                 are unit quaternions [x, y, z, w]",
+                node.index(),
+                Vec4::from_array(q).length()
+            ));
+        }
+        gltf::scene::Transform::Matrix { matrix: m } => {
+            let last = [m[0][3], m[1][3], m[2][3], m[3][3]];
+            if last != [0.0, 0.0, 0.0, 1.0] {
+                return Err(format!(
+                    "node {}: matrix's last row is {last:?}, not [0.0, 0.0, 0.0, 1.0]: glTF \
+                     node matrices are affine (translation, rotation and scale)",
+                    node.index()
+                ));
+            }
+        }
+        _ => {}
+    }
+    Ok(Mat4::from_cols_array_2d(&node.transform().matrix()))
+}
+
+/// How far from 1 a node rotation's length may be: exporters write quaternions rounded to
+/// a few digits, which scale by as little; anything farther is not a rotation.
+const UNIT_QUATERNION_SLACK: f32 = 1e-3;
+
 fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
     let bytes = std::fs::read(path).map_err(|e| RenderError::io(path, e))?;
     // A .glb is binary and starts with the magic "glTF"; without it gltf would parse the
@@ -913,14 +948,32 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
                     ),
                 ));
             }
-            gltf::buffer::Source::Bin => std::rc::Rc::new(
-                blob.take()
-                    .ok_or_else(|| RenderError::mesh(path, "the GLB binary chunk is missing"))?,
-            ),
+            gltf::buffer::Source::Bin => std::rc::Rc::new(blob.take().ok_or_else(|| {
+                // gltf reads a buffer without a uri (or with an empty one) as the chunk.
+                RenderError::mesh(
+                    path,
+                    if bytes.starts_with(b"glTF") {
+                        "the GLB binary chunk is missing"
+                    } else {
+                        "buffer 0 names no file (it has no uri): a .gltf keeps its buffers \
+                         in files beside it"
+                    },
+                )
+            })?),
             gltf::buffer::Source::Uri(uri) if uri.starts_with("data:") => {
                 return Err(RenderError::mesh(
                     path,
                     "embedded base64 buffers are not supported: convert to .glb",
+                ));
+            }
+            gltf::buffer::Source::Uri("") => {
+                return Err(RenderError::mesh(
+                    path,
+                    format!(
+                        "buffer {} names no file (its uri is empty): a .gltf keeps its \
+                         buffers in files beside it",
+                        b.index()
+                    ),
                 ));
             }
             gltf::buffer::Source::Uri(uri) => {
@@ -959,7 +1012,22 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
             }
         };
         if data.len() < b.length() {
-            return Err(RenderError::mesh(path, "a buffer is shorter than declared"));
+            let held = match b.source() {
+                gltf::buffer::Source::Uri(uri) => {
+                    let name = percent_encoding::percent_decode_str(uri).decode_utf8_lossy();
+                    format!("its file {}", dir.join(&*name).display())
+                }
+                gltf::buffer::Source::Bin => "the GLB binary chunk".to_string(),
+            };
+            return Err(RenderError::mesh(
+                path,
+                format!(
+                    "buffer {} declares {} bytes, but {held} holds {}",
+                    b.index(),
+                    b.length(),
+                    data.len()
+                ),
+            ));
         }
         buffers.push(data);
     }
@@ -997,7 +1065,7 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
                 ),
             ));
         }
-        let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
+        let world = parent * node_matrix(&node).map_err(|e| RenderError::mesh(path, e))?;
         // A mirroring transform reverses the winding; glTF asks loaders to undo that.
         let mirrored = world.determinant() < 0.0;
         if let Some(m) = node.mesh() {

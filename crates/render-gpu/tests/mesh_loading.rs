@@ -419,6 +419,38 @@ fn malformed_gltf_is_an_error_not_a_panic_or_a_hang() {
             cube_gltf(&d, "long.gltf", r#"[{"mesh":0}]"#, 5123, 16),
             "reaches past",
         ),
+        // Rotations that are no unit quaternions, and a projective matrix: gltf took the
+        // first two as the identity and dropped the matrix's last row.
+        (
+            cube_gltf(
+                &d,
+                "q0.gltf",
+                r#"[{"mesh":0,"rotation":[0,0,0,0]}]"#,
+                5123,
+                12,
+            ),
+            "node 0: rotation [0.0, 0.0, 0.0, 0.0] is not a unit quaternion (length 0)",
+        ),
+        (
+            cube_gltf(
+                &d,
+                "q5.gltf",
+                r#"[{"mesh":0,"rotation":[0,0,0,5]}]"#,
+                5123,
+                12,
+            ),
+            "is not a unit quaternion (length 5)",
+        ),
+        (
+            cube_gltf(
+                &d,
+                "proj.gltf",
+                r#"[{"mesh":0,"matrix":[1,0,0,0, 0,1,0,0, 0,0,1,1, 0,0,0,0]}]"#,
+                5123,
+                12,
+            ),
+            "node 0: matrix's last row is [0.0, 0.0, 1.0, 0.0], not [0.0, 0.0, 0.0, 1.0]",
+        ),
     ];
     for (path, want) in cases {
         let e = load_mesh(&path).unwrap_err().to_string();
@@ -427,6 +459,49 @@ fn malformed_gltf_is_an_error_not_a_panic_or_a_hang() {
             "{e}"
         );
     }
+    // A rotation rounded as exporters write it (length 1 − 3·10⁻⁶) is a rotation: a
+    // quarter turn about z leaves the unit cube where it was.
+    let turned = cube_gltf(
+        &d,
+        "turned.gltf",
+        r#"[{"mesh":0,"rotation":[0,0,0.707105,0.707105]}]"#,
+        5123,
+        12,
+    );
+    let (lo, hi) = load_mesh(&turned).unwrap().bounds();
+    assert!((lo + 0.5).abs().max_element() < 1e-5 && (hi - 0.5).abs().max_element() < 1e-5);
+    // A buffer file shorter than the buffer declares is named with both sizes, and a
+    // buffer without a file name is not called a missing GLB chunk in a .gltf.
+    let short = cube_gltf(&d, "short.gltf", r#"[{"mesh":0}]"#, 5123, 12);
+    write(&d, "cube.bin", &cube_bin()[..50]);
+    let e = load_mesh(&short).unwrap_err().to_string();
+    assert!(
+        e.contains("short.gltf: buffer 0 declares 168 bytes, but its file")
+            && e.contains("cube.bin holds 50"),
+        "{e}"
+    );
+    let text = std::fs::read_to_string(&short).unwrap();
+    let unnamed = write(
+        &d,
+        "unnamed.gltf",
+        text.replace(r#""uri":"cube.bin","#, r#""uri":"","#)
+            .as_bytes(),
+    );
+    let e = load_mesh(&unnamed).unwrap_err().to_string();
+    assert!(
+        e.contains("unnamed.gltf: buffer 0 names no file (its uri is empty)"),
+        "{e}"
+    );
+    let unnamed = write(
+        &d,
+        "no_uri.gltf",
+        text.replace(r#""uri":"cube.bin","#, "").as_bytes(),
+    );
+    let e = load_mesh(&unnamed).unwrap_err().to_string();
+    assert!(
+        e.contains("no_uri.gltf: buffer 0 names no file (it has no uri)"),
+        "{e}"
+    );
     // A buffer file that is not there: the error names the .gltf that refers to it too.
     let gone = cube_gltf(&d, "gone.gltf", r#"[{"mesh":0}]"#, 5123, 12);
     std::fs::remove_file(d.path().join("cube.bin")).unwrap();
