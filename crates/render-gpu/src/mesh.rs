@@ -93,19 +93,31 @@ impl TriMesh {
     /// The object must fit the renderers' single-precision arithmetic: every coordinate
     /// within ±`max`, the bounding box's largest side at least `min_size`, and a volume
     /// that is not negligible next to that box (a closed but flat surface has no inside).
-    pub fn check_scale(&self, min_size: f32, max: f32) -> Result<(), String> {
+    /// `height`: the object.height it was scaled to, if any, which the advice then names
+    /// (a box 10⁷ times wider than high, scaled to height 1, was told to "scale it down
+    /// (object.height)").
+    pub fn check_scale(&self, min_size: f32, max: f32, height: Option<f32>) -> Result<(), String> {
         let (lo, hi) = self.bounds();
+        let advice = |way: &str, than: &str| match height {
+            Some(h) => format!(
+                "scaled to object.height = {h} (its largest side {:.3e}× its height); set {than} \
+                 object.height",
+                (hi - lo).max_element() / (hi.y - lo.y)
+            ),
+            None => format!("scale it {way} (object.height)"),
+        };
         if !(lo.abs().max_element() <= max && hi.abs().max_element() <= max) {
             return Err(format!(
-                "the mesh's bounding box [{lo}, {hi}] reaches beyond ±{max:e} scene units: \
-                 scale it down (object.height)"
+                "the mesh's bounding box [{lo}, {hi}] reaches beyond ±{max:e} scene units: {}",
+                advice("down", "a smaller")
             ));
         }
         let side = (hi - lo).max_element();
         if !(side >= min_size) {
             return Err(format!(
                 "the mesh is {side:e} scene units across, below the smallest allowed {min_size:e}: \
-                 scale it up (object.height)"
+                 {}",
+                advice("up", "a larger")
             ));
         }
         let volume = self.signed_volume6().abs() / 6.0;
@@ -1423,7 +1435,21 @@ fn obj_problem(text: &str) -> Option<String> {
                     ));
                 }
                 for w in refs {
-                    let first = w.split('/').next().unwrap_or("");
+                    // v, v/vt, v//vn or v/vt/vn: the texture and normal indices are not
+                    // used, but a reference of other words is not a face (`2/x/y` and
+                    // `3///` were read as vertices 2 and 3); an empty part is let through.
+                    let parts: Vec<&str> = w.split('/').collect();
+                    if parts.len() > 3
+                        || parts[1..]
+                            .iter()
+                            .any(|p| !p.is_empty() && p.parse::<i64>().is_err())
+                    {
+                        return Some(format!(
+                            "line {at}: face vertex `{w}` is not v, v/vt, v//vn or v/vt/vn \
+                             (indices as integers)"
+                        ));
+                    }
+                    let first = parts[0];
                     let ok = first
                         .parse::<i64>()
                         .is_ok_and(|i| (1..=total).contains(&i) || (-before..=-1).contains(&i));
@@ -1631,4 +1657,43 @@ pub fn torus_knot() -> TriMesh {
         }
     }
     m
+}
+
+#[cfg(test)]
+mod tests {
+    use super::cube;
+
+    /// A size out of range is told apart by how it came about: scaled by object.height,
+    /// the advice names that setting and which way to change it (a box 10⁷ times wider
+    /// than high, scaled to height 1, was told to "scale it down (object.height)" as if
+    /// the file were too large); from the file itself, to scale it.
+    #[test]
+    fn the_size_checks_advice_follows_object_height() {
+        let mut wide = cube(1.0);
+        for p in &mut wide.positions {
+            p.x *= 1e7;
+            p.z *= 1e7;
+        }
+        let e = wide.check_scale(1e-3, 1e6, None).unwrap_err();
+        assert!(
+            e.ends_with("scene units: scale it down (object.height)"),
+            "{e}"
+        );
+        let e = wide.check_scale(1e-3, 1e6, Some(1.0)).unwrap_err();
+        assert!(
+            e.ends_with(
+                "scaled to object.height = 1 (its largest side 1.000e7× its height); set a \
+                 smaller object.height"
+            ),
+            "{e}"
+        );
+        let tiny = cube(1e-4);
+        let e = tiny.check_scale(1e-3, 1e6, Some(1e-4)).unwrap_err();
+        assert!(
+            e.contains("below the smallest allowed 1e-3")
+                && e.ends_with("set a larger object.height"),
+            "{e}"
+        );
+        assert!(cube(1.0).check_scale(1e-3, 1e6, Some(1.0)).is_ok());
+    }
 }

@@ -97,6 +97,39 @@ struct Element {
     props: Vec<Property>,
 }
 
+/// Names the header must not repeat, and the face list the reader looks for: a second
+/// `element vertex` was read as more vertices and a second `property float x` over the
+/// first, without a word; a face element whose list had another name gave "no triangles
+/// with three distinct corners".
+fn check_names(elements: &[Element]) -> Result<(), String> {
+    for (i, el) in elements.iter().enumerate() {
+        if elements[..i].iter().any(|e| e.name == el.name) {
+            return Err(format!("element `{}` is declared twice", el.name));
+        }
+        let name = |p: &Property| match p {
+            Property::Scalar(n, _) | Property::List(n, _, _) => n.clone(),
+        };
+        for (k, p) in el.props.iter().enumerate() {
+            if el.props[..k].iter().any(|q| name(q) == name(p)) {
+                return Err(format!(
+                    "element `{}` declares property `{}` twice",
+                    el.name,
+                    name(p)
+                ));
+            }
+        }
+        let face_list = |p: &Property| matches!(p, Property::List(n, _, _) if n == "vertex_indices" || n == "vertex_index");
+        if el.name == "face" && el.count > 0 && !el.props.iter().any(face_list) {
+            return Err(
+                "the face element has no `vertex_indices` (or `vertex_index`) list: faces \
+                 must be `property list <count type> <index type> vertex_indices`"
+                    .into(),
+            );
+        }
+    }
+    Ok(())
+}
+
 /// Reads values one at a time from the body, ASCII or binary.
 enum Body<'a> {
     Ascii(std::str::SplitAsciiWhitespace<'a>),
@@ -206,6 +239,7 @@ pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
         }
     }
     let binary = binary.ok_or("the PLY header has no format line")?;
+    check_names(&elements)?;
     // Faces come as `face` lists only: a file of triangle strips read as "no triangles".
     if !elements.iter().any(|e| e.name == "face")
         && let Some(e) = elements.iter().find(|e| e.name != "vertex" && e.count > 0)

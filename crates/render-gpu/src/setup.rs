@@ -110,8 +110,12 @@ pub fn object_mesh(scene: &SceneFile, scene_dir: &Path) -> Result<TriMesh, Rende
         m.normalise_height(h as f32)
             .map_err(|e| RenderError::Mesh(format!("{name}: {e}")))?;
     }
-    m.check_scale(MIN_OBJECT_SIZE as f32, MAX_SCENE_VALUE as f32)
-        .map_err(|e| RenderError::Mesh(format!("{name}: {e}")))?;
+    m.check_scale(
+        MIN_OBJECT_SIZE as f32,
+        MAX_SCENE_VALUE as f32,
+        o.height.map(|h| h as f32),
+    )
+    .map_err(|e| RenderError::Mesh(format!("{name}: {e}")))?;
     Ok(m)
 }
 

@@ -232,7 +232,7 @@ fn broken_files_give_clear_errors() {
         "f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n",
         "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf -4 -2 -3\nf -4 -3 -1\nf -4 -1 -2\nf -3 -2 -1\n",
         "v 0 0 0 1\nv 1 0 0 1\nv 0 1 0 1\nv 0 0 1 1\nvt 0 0\nvn 0 0 1\n\
-         f 1/1/1 3/1/1 2/1/1\nf 1//1 2//1 4//1\nf 1 4 3\nf 2 3 4\n",
+         f 1/1/1 3/1/1 2/1/1\nf 1//1 2//1 4//1\nf 1/1 4/ 3//\nf 2 3 4\n",
         "v 0 0 0\r\nv 1 0 0\r\nv 0 1 0\r\nv 0 0 1\r\nf 1 3 2\r\nf 1 2 4\r\nf 1 4 3\r\nf 2 3 4\r\n",
         // Vertex colours.
         "v 0 0 0 1 0 0\nv 1 0 0 0 1 0\nv 0 1 0 0 0 1\nv 0 0 1 1 1 1\n\
@@ -280,6 +280,17 @@ fn broken_files_give_clear_errors() {
             "f 2 3 4\n",
             "f 2 3\n",
             "line 8: face `f 2 3` has 2 vertices: a face needs at least 3",
+        ),
+        // References of other words than v, v/vt, v//vn, v/vt/vn (read as vertices 2, 3).
+        (
+            "f 2 3 4\n",
+            "f 2/x/y 3 4\n",
+            "line 8: face vertex `2/x/y` is not v, v/vt, v//vn or v/vt/vn",
+        ),
+        (
+            "f 2 3 4\n",
+            "f 2 3/// 4\n",
+            "line 8: face vertex `3///` is not",
         ),
     ];
     for (i, (from, to, needle)) in cases.into_iter().enumerate() {
@@ -1623,6 +1634,39 @@ fn ply_format_without_version_and_collapsed_faces_are_named() {
         e.contains("no triangles with three distinct corners"),
         "{e}"
     );
+}
+
+/// A header that repeats an element or a property, or whose faces have no
+/// `vertex_indices` list, is named for it: the first two were read without a word (a
+/// second `property float x` over the first), the last said "no triangles".
+#[test]
+fn ply_headers_repeating_names_or_without_a_face_list_are_named() {
+    let d = tempfile::tempdir().unwrap();
+    assert!(load_mesh(&write(&d, "ok.ply", TETRA_PLY.as_bytes())).is_ok());
+    let vertex = "element vertex 4\nproperty float x\nproperty float y\nproperty float z\n";
+    for (name, text, want) in [
+        (
+            "px.ply",
+            TETRA_PLY.replace("property float x\n", "property float x\nproperty float x\n"),
+            "element `vertex` declares property `x` twice",
+        ),
+        (
+            "v2.ply",
+            TETRA_PLY.replace(vertex, &format!("{vertex}{vertex}")),
+            "element `vertex` is declared twice",
+        ),
+        (
+            "nolist.ply",
+            TETRA_PLY.replace("vertex_indices", "corners"),
+            "the face element has no `vertex_indices` (or `vertex_index`) list",
+        ),
+    ] {
+        assert_ne!(text, TETRA_PLY, "{name}: the edit did not apply");
+        let e = load_mesh(&write(&d, name, text.as_bytes()))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(name) && e.contains(want), "{e}");
+    }
 }
 
 /// The header ends only at an `end_header` line of its own (trailing blanks allowed): not
