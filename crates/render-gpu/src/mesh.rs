@@ -123,7 +123,9 @@ impl TriMesh {
         let volume = self.signed_volume6().abs() / 6.0;
         if !encloses_volume(volume, f64::from(side)) {
             return Err(format!(
-                "the mesh encloses no volume ({volume:e} for a box {side:e} across): it is flat or degenerate"
+                "the mesh encloses no volume ({volume:e} for a box {side:e} across): it is flat \
+                 or degenerate{}",
+                rounded_flat(lo, hi)
             ));
         }
         Ok(())
@@ -768,11 +770,11 @@ fn check_closed(m: &TriMesh) -> Result<(), String> {
                 .map(|p| (*p - a).dot(n).abs())
                 .fold(0.0f32, f32::max);
             if off <= 1e-6 * side {
-                return Err(
+                return Err(format!(
                     "the mesh encloses no volume: all its vertices lie in one plane (it is \
-                     flat)"
-                        .into(),
-                );
+                     flat){}",
+                    rounded_flat(lo, hi)
+                ));
             }
         }
         // Closed, but parts meet along edges: welding made one edge of their two.
@@ -1659,6 +1661,22 @@ pub fn torus_knot() -> TriMesh {
     m
 }
 
+/// Far from the origin, single precision may have flattened a mesh as it was read (a
+/// unit cube at x = 10⁷, where f32 steps by 1, was called flat without a word on why):
+/// said so where the step there exceeds 10⁻³ of the box's largest side.
+fn rounded_flat(lo: Vec3, hi: Vec3) -> String {
+    let reach = lo.abs().max(hi.abs()).max_element();
+    let step = reach * f32::EPSILON;
+    if step > (hi - lo).max_element() * 1e-3 {
+        format!(
+            "; or single precision rounded it flat as it was read: its coordinates reach \
+             {reach:e}, where f32 steps by {step:.1e}; move it nearer the origin in the file"
+        )
+    } else {
+        String::new()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::cube;
@@ -1695,5 +1713,26 @@ mod tests {
             "{e}"
         );
         assert!(cube(1.0).check_scale(1e-3, 1e6, Some(1.0)).is_ok());
+    }
+
+    /// A flat mesh far from the origin is told that single precision may have flattened
+    /// it; one near the origin is not.
+    #[test]
+    fn a_flat_mesh_far_out_names_the_rounding() {
+        let mut flat = cube(1.0);
+        for p in &mut flat.positions {
+            p.x = 1e7;
+        }
+        let e = flat.check_scale(1e-3, 1e15, None).unwrap_err();
+        assert!(
+            e.contains("it is flat or degenerate; or single precision rounded it flat")
+                && e.contains("reach 1e7"),
+            "{e}"
+        );
+        for p in &mut flat.positions {
+            p.x = 0.0;
+        }
+        let e = flat.check_scale(1e-3, 1e15, None).unwrap_err();
+        assert!(e.ends_with("it is flat or degenerate"), "{e}");
     }
 }

@@ -1579,7 +1579,26 @@ fn a_flat_closed_mesh_is_named_flat() {
         .unwrap_err()
         .to_string();
     assert!(
-        e.contains("encloses no volume") && e.contains("flat"),
+        e.contains("encloses no volume") && e.ends_with("(it is flat)"),
+        "{e}"
+    );
+    // A unit cube moved to x = 10⁷ in the file, where f32 steps by 1: read flat, and
+    // said why it may be.
+    let far: String = CUBE_OBJ
+        .lines()
+        .map(|l| match l.strip_prefix("v ") {
+            Some(v) => {
+                let xyz: Vec<f64> = v.split(' ').map(|w| w.parse().unwrap()).collect();
+                format!("v {} {} {}\n", 0.5 * xyz[0] + 1e7, xyz[1], xyz[2])
+            }
+            None => format!("{l}\n"),
+        })
+        .collect();
+    let e = load_mesh(&write(&d, "far.obj", far.as_bytes()))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("single precision rounded it flat as it was read: its coordinates reach 1e7"),
         "{e}"
     );
 }
