@@ -107,6 +107,7 @@ pub fn sample(a: SampleArgs) -> Result<()> {
     // N is a u32 column (as in `generate`'s files); a model asked far outside its training
     // can draw more, written as u32::MAX and counted here.
     let mut saturated = 0u64;
+    let mut repaired = 0u64;
     for start in (0..a.samples).step_by(CHUNK as usize) {
         if cancel.load(Ordering::Relaxed) {
             // Dropping the sink removes its temporary file.
@@ -117,10 +118,11 @@ pub fn sample(a: SampleArgs) -> Result<()> {
             .into_par_iter()
             .map(|i| {
                 let mut rng = cvae::eval::model_rng(a.seed, i);
-                m.sample_walk(c.tau, c.g, c.albedo, true, &mut rng)
+                m.sample_walk_checked(c.tau, c.g, c.albedo, true, &mut rng)
             })
             .collect();
-        for w in &walks {
+        for (w, bad) in &walks {
+            repaired += u64::from(*bad);
             saturated += u64::from(w.n > u64::from(u32::MAX));
             let cw = CanonicalWalk {
                 n: w.n,
@@ -138,6 +140,14 @@ pub fn sample(a: SampleArgs) -> Result<()> {
         bail!("interrupted: nothing written to {}", a.out.display());
     }
     sink.finish()?;
+    if repaired > 0 {
+        eprintln!(
+            "warning: {repaired} of the walks had a decoder output that is not finite, \
+             written with it replaced by a value in range: a trained model never gives one, \
+             so the model file {} was damaged or edited; train it again",
+            model_path(a.model.as_deref()).display()
+        );
+    }
     if saturated > 0 {
         eprintln!(
             "note: {saturated} of the walks drew N above {} (the N column's largest value), \

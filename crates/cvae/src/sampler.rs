@@ -322,17 +322,40 @@ impl ModelSet {
         with_event: bool,
         rng: &mut WalkRng,
     ) -> ModelWalk {
+        self.sample_walk_checked(tau, g, albedo, with_event, rng).0
+    }
+
+    /// [`Self::sample_walk`] (the same draws from `rng`), and whether a decoder's output
+    /// was not finite and so repaired ([`repair_exit`], [`repair_event`], N's clamp): a
+    /// trained model's never is, but a hand-edited one that passes the model file's
+    /// checks can be, and `sample` wrote its repaired exits (cos θ = 1, α = β = 0) as
+    /// if drawn.
+    pub fn sample_walk_checked(
+        &self,
+        tau: f64,
+        g: f64,
+        albedo: f64,
+        with_event: bool,
+        rng: &mut WalkRng,
+    ) -> (ModelWalk, bool) {
+        let finite = |o: &Output| o.iter().all(|v| v.is_finite());
         let features = features::WalkFeatures::new(tau, g, albedo);
         if let Some(walk) = self.single_walk(features, tau, g, albedo, rng) {
-            return walk;
+            return (walk, false);
         }
-        let n = self.sample_multiple_n(&features, rng);
-        let exit = self.sample_exit(&features, features.relative_log_n(n), rng);
-        let mut walk = ModelWalk::multiple(n, exit, features, albedo);
-        if with_event {
-            (walk.event_pos, walk.event_dir) = self.sample_event_given(&walk, rng);
+        let length = self.length.output(&self.length_draw(&features, rng));
+        let n = self.length_result(&features, &length);
+        let path = self
+            .path
+            .output(&self.path_draw(&features, features.relative_log_n(n), rng));
+        let mut walk = ModelWalk::multiple(n, self.path_result(&path), features, albedo);
+        let mut repaired = !finite(&length) || !finite(&path);
+        if with_event && let Some(d) = self.event_draw(&walk, rng) {
+            let event = self.event.output(&d);
+            repaired |= !finite(&event);
+            (walk.event_pos, walk.event_dir) = self.event_result(&event);
         }
-        walk
+        (walk, repaired)
     }
 }
 

@@ -345,6 +345,72 @@ fn bad_training_ranges_are_refused() {
     );
 }
 
+/// A decoder output that is not finite is reported by `sample_walk_checked` (and the walk
+/// is the one `sample_walk` draws from the same numbers, repaired into range); a model
+/// whose outputs are finite reports none. Here PathGen's and then EventGen's last bias is
+/// made NaN, so every walk with N ≥ 2 (and its event, where EventGen runs) is affected.
+#[test]
+fn non_finite_decoder_outputs_are_reported() {
+    let clean = random_models(4, 1.0);
+    let draw = |m: &ModelSet, seed: u64| {
+        let mut rng = WalkRng::from_seed(seed);
+        let (w, bad) = m.sample_walk_checked(5.0, 0.3, 0.99, true, &mut rng);
+        let mut rng = WalkRng::from_seed(seed);
+        let plain = m.sample_walk(5.0, 0.3, 0.99, true, &mut rng);
+        assert_eq!(
+            (w.n, w.exit.cos_theta, w.event_pos),
+            (plain.n, plain.exit.cos_theta, plain.event_pos)
+        );
+        (w, bad)
+    };
+    assert!((0..2_000).all(|s| !draw(&clean, s).1));
+    for which in ["path", "event"] {
+        let mut m = random_models(4, 1.0);
+        let d = if which == "path" {
+            &mut m.path
+        } else {
+            &mut m.event
+        };
+        let last = d.layers.len() - 1;
+        d.layers[last].bias[0] = f32::NAN;
+        let (mut multiple, mut flagged) = (0, 0);
+        // EventGen's expected runs and their variance, Σ p and Σ p(1 − p) with
+        // p = 1 − φ/Λ(N) (the N are PathGen-independent: EventGen is drawn last).
+        let (mut expected, mut variance) = (0.0, 0.0);
+        for s in 0..2_000 {
+            let (w, bad) = draw(&m, s);
+            multiple += u32::from(!w.single);
+            flagged += u32::from(bad);
+            if !w.single {
+                let p = 1.0 - 0.99 / cvae::sampler::lambda(0.99, w.n);
+                expected += p;
+                variance += p * (1.0 - p);
+            }
+            // PathGen runs for every walk with N ≥ 2; EventGen for those whose event is
+            // not event 1 (chosen with probability φ/Λ(N), and then at the centre, where a
+            // repaired event lands too, so the two cannot be told apart here).
+            if which == "path" {
+                assert_eq!(bad, !w.single, "{which}, seed {s}");
+            } else {
+                assert!(!bad || !w.single, "{which}, seed {s}");
+            }
+        }
+        assert!(
+            multiple > 1_000,
+            "{which}: {multiple} of 2,000 walks had N ≥ 2"
+        );
+        if which == "event" {
+            // A sum of independent Bernoulli draws: |z| < 4 fails a correct report with
+            // probability 6e-5 (the normal approximation holds at ~10³ terms).
+            let z = (f64::from(flagged) - expected) / variance.sqrt();
+            assert!(
+                z.abs() < 4.0,
+                "{flagged} flagged, {expected:.1} expected: z = {z:.2}"
+            );
+        }
+    }
+}
+
 /// Wild weights (gain 40) make the decoders return absurd values; the sampler must
 /// still produce valid walks: N ≥ 1, cos θ ∈ [−1, 1], α² + β² ≤ 1, |X| ≤ 1, |W| = 1.
 #[test]
