@@ -258,7 +258,7 @@ fn merge_images(a: &Args) -> Result<()> {
     let reports = input_reports(&a.inputs);
     let exposure = match a.exposure {
         Some(e) => e,
-        None => inputs_exposure(&reports),
+        None => inputs_exposure(&a.inputs, &reports),
     };
     let (mut integrator, devices) = inputs_origin(&reports);
     let renders = inputs_renders(&a.inputs, &reports);
@@ -467,13 +467,24 @@ fn renders_complete(renders: &[serde_json::Value], tag: &render_gpu::image_io::R
 }
 
 /// The preview exposure the renders' reports (a merge's own report records it too) agree
-/// on; 1 where one has none or they differ (said so).
-fn inputs_exposure(reports: &[Option<serde_json::Value>]) -> f32 {
-    let recorded = |v: &Option<serde_json::Value>| -> Option<f32> {
-        let e = v.as_ref()?.get("exposure")?.as_f64()? as f32;
-        (e.is_finite() && e > 0.0).then_some(e)
+/// on; 1 where one has none or they differ (said so). One that is there but no exposure
+/// (an edited report: −5, 0, a string) is named and counts as none; it was passed over
+/// without a word.
+fn inputs_exposure(inputs: &[PathBuf], reports: &[Option<serde_json::Value>]) -> f32 {
+    let recorded = |(p, v): (&PathBuf, &Option<serde_json::Value>)| -> Option<f32> {
+        let value = v.as_ref()?.get("exposure")?;
+        let e = value.as_f64().map(|e| e as f32);
+        let e = e.filter(|e| e.is_finite() && *e > 0.0);
+        if e.is_none() {
+            eprintln!(
+                "note: {}: exposure = {value} is not a preview exposure (> 0 and finite as an \
+                 f32): taken as none",
+                p.with_extension("json").display()
+            );
+        }
+        e
     };
-    let found: Vec<Option<f32>> = reports.iter().map(recorded).collect();
+    let found: Vec<Option<f32>> = inputs.iter().zip(reports).map(recorded).collect();
     match found.first() {
         Some(&Some(e)) if found.iter().all(|f| *f == Some(e)) => e,
         _ => {

@@ -284,6 +284,23 @@ fn a_merged_preview_keeps_the_inputs_exposure() {
     assert!(err.contains("not all at one recorded exposure"), "{err}");
     let (img3, _) = read_exr(&d.path().join("m3.exr")).unwrap();
     assert_eq!(png(&d.path().join("m3")), encode_png(&img3, 1.0).unwrap());
+    // An edited report whose exposure is none (−5): named, taken as none, so the merge of
+    // it with a render at 4 is at exposure 1.
+    let json = b.with_extension("json");
+    let mut v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    v["exposure"] = serde_json::json!(-5.0);
+    std::fs::write(&json, v.to_string()).unwrap();
+    let m4 = d.path().join("m4");
+    let err = ok(&merge_renders(&a, &b, &m4));
+    assert!(
+        err.contains(&format!(
+            "{}: exposure = -5.0 is not a preview exposure",
+            json.display()
+        )),
+        "{err}"
+    );
+    assert_eq!(png(&m4), encode_png(&img, 1.0).unwrap());
     // Datasets have no preview.
     let e = fails(&stcvae(&[
         "merge",
