@@ -1155,8 +1155,16 @@ pub fn run(a: Args) -> Result<()> {
     // What every reader will check, checked before writing: a file they would all refuse
     // is not written (a decoder from an old checkpoint is not otherwise validated).
     let bytes = set.to_bytes();
-    ModelSet::from_bytes(&bytes, &out)
-        .context("the trained model fails the model file's checks; nothing written")?;
+    // The checks' own wording blames a damaged or edited file; one trained here failing
+    // them comes from its data or its schedule, which is what to look at.
+    ModelSet::from_bytes(&bytes, &out).with_context(|| {
+        format!(
+            "the trained model fails the model file's checks, so nothing was written; a model \
+             trained (not edited) fails them when the dataset {} holds walks far from what \
+             the simulator draws, or when training diverged (lower lr)",
+            cfg.dataset.display()
+        )
+    })?;
     // The model and its loss curves are written as one set: an earlier run's plot never
     // stays beside a new model as if it were its curves. A plot that cannot be drawn is
     // told, not the training's failure, and the earlier plot goes.
