@@ -1115,19 +1115,21 @@ fn far_and_thin_objects_render_as_they_should_or_are_refused() {
         e.contains("thin.toml: the object is too thin for its size") && e.contains("25000×"),
         "{e}"
     );
+    // One sample of a scene, its notes (stderr).
+    let notes = |scene: &Path, name: &str| {
+        ok(&stcvae(&[
+            "render",
+            scene.to_str().unwrap(),
+            "--spp",
+            "1",
+            "--device",
+            "cpu",
+            "--out",
+            d.path().join(name).to_str().unwrap(),
+        ]))
+    };
     let flat = scene("flat", 0.0, box_obj(0.0, 1000.0, 0.2));
-    let flat_out = d.path().join("flat");
-    let o = stcvae(&[
-        "render",
-        flat.to_str().unwrap(),
-        "--spp",
-        "1",
-        "--device",
-        "cpu",
-        "--out",
-        flat_out.to_str().unwrap(),
-    ]);
-    let err = ok(&o);
+    let err = notes(&flat, "flat");
     let walls_note = "of the object's surface lies within the renderer's surface offset";
     assert!(
         err.contains("note: ")
@@ -1154,17 +1156,7 @@ fn far_and_thin_objects_render_as_they_should_or_are_refused() {
         })
         .collect();
     let shell = scene("shell", 0.0, box_obj(0.0, 1.0, 1.0) + &inner);
-    let o = stcvae(&[
-        "render",
-        shell.to_str().unwrap(),
-        "--spp",
-        "1",
-        "--device",
-        "cpu",
-        "--out",
-        d.path().join("shell").to_str().unwrap(),
-    ]);
-    let err = ok(&o);
+    let err = notes(&shell, "shell");
     assert!(
         err.contains(&format!("shell.toml: 100.0 % {walls_note} (2.0000e-5)")),
         "{err}"

@@ -1565,16 +1565,21 @@ fn gltf_instances_scenes_uris_and_morph_weights() {
 #[test]
 fn a_flat_closed_mesh_is_named_flat() {
     let d = tempfile::tempdir().unwrap();
-    let flat: String = CUBE_OBJ
-        .lines()
-        .map(|l| match l.strip_prefix("v ") {
-            Some(v) => {
-                let xyz: Vec<&str> = v.split(' ').collect();
-                format!("v {} {} 0\n", xyz[0], xyz[1])
-            }
-            None => format!("{l}\n"),
-        })
-        .collect();
+    // CUBE_OBJ with each vertex moved by `f`.
+    let moved = |f: fn([f64; 3]) -> [f64; 3]| -> String {
+        CUBE_OBJ
+            .lines()
+            .map(|l| match l.strip_prefix("v ") {
+                Some(v) => {
+                    let xyz: Vec<f64> = v.split(' ').map(|w| w.parse().unwrap()).collect();
+                    let [x, y, z] = f([xyz[0], xyz[1], xyz[2]]);
+                    format!("v {x} {y} {z}\n")
+                }
+                None => format!("{l}\n"),
+            })
+            .collect()
+    };
+    let flat = moved(|[x, y, _]| [x, y, 0.0]);
     let e = load_mesh(&write(&d, "flat.obj", flat.as_bytes()))
         .unwrap_err()
         .to_string();
@@ -1584,16 +1589,7 @@ fn a_flat_closed_mesh_is_named_flat() {
     );
     // A unit cube moved to x = 10⁷ in the file, where f32 steps by 1: read flat, and
     // said why it may be.
-    let far: String = CUBE_OBJ
-        .lines()
-        .map(|l| match l.strip_prefix("v ") {
-            Some(v) => {
-                let xyz: Vec<f64> = v.split(' ').map(|w| w.parse().unwrap()).collect();
-                format!("v {} {} {}\n", 0.5 * xyz[0] + 1e7, xyz[1], xyz[2])
-            }
-            None => format!("{l}\n"),
-        })
-        .collect();
+    let far = moved(|[x, y, z]| [0.5 * x + 1e7, y, z]);
     let e = load_mesh(&write(&d, "far.obj", far.as_bytes()))
         .unwrap_err()
         .to_string();
