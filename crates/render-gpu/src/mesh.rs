@@ -852,7 +852,7 @@ fn gltf_json_bytes(path: &Path) -> std::io::Result<Vec<u8>> {
     Ok(all)
 }
 
-/// A node's local transform. glTF 2.0 (5.25) allows a unit-quaternion rotation and an
+/// A node's local transform. glTF 2.0 allows a unit-quaternion rotation and an
 /// affine matrix (decomposable into translation, rotation and scale) only; gltf turned a
 /// zero or unnormalised quaternion into the identity and dropped a projective matrix's
 /// last row without a word.
@@ -963,7 +963,7 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
                 ));
             }
             gltf::buffer::Source::Bin => std::rc::Rc::new(blob.take().ok_or_else(|| {
-                // gltf reads a buffer without a uri (or with an empty one) as the chunk.
+                // gltf reads a buffer without a uri as the chunk.
                 RenderError::mesh(
                     path,
                     if bytes.starts_with(b"glTF") {
