@@ -449,6 +449,25 @@ pub fn run(a: Args) -> Result<()> {
     check_views(&ref_seen, &image_seen)?;
     let ref_noise = r.noise_mse.sqrt();
     let objects = r.object.iter().filter(|&&o| o).count();
+    // A sky brighter than the threshold makes every pixel the object's (sphere.toml's 0.1
+    // per channel), and the object column then measures the whole frame.
+    let sums = || r.mean.iter().map(|m| m.iter().sum::<f64>());
+    if objects == r.object.len() {
+        eprintln!(
+            "note: every pixel's R + G + B exceeds --object-threshold {}, the background's \
+             too: the object column covers the whole image; give a threshold above the \
+             background's (the image's least is {:.4})",
+            a.object_threshold,
+            sums().fold(f64::INFINITY, f64::min)
+        );
+    } else if objects == 0 {
+        eprintln!(
+            "note: no pixel's R + G + B exceeds --object-threshold {}: the object column is \
+             empty; give a threshold below the object's (the image's greatest is {:.4})",
+            a.object_threshold,
+            sums().fold(f64::NEG_INFINITY, f64::max)
+        );
+    }
     println!(
         "stcvae bench error: reference = mean of {} render(s), {}x{}, {}; {objects} object pixels (R+G+B > {})",
         refs.len(),

@@ -90,16 +90,13 @@ impl Engine {
             DeviceArg::Auto => match GpuContext::new(AdapterChoice::Hardware) {
                 Ok(c) => Some(Box::new(c)),
                 Err(RenderError::NoAdapter(why)) => {
-                    eprintln!(
-                        "{why}: rendering on the CPU ({} threads)",
-                        rayon::current_num_threads()
-                    );
+                    eprintln!("{why}: rendering on the CPU ({})", cpu_threads());
                     None
                 }
                 Err(e) => {
                     eprintln!(
-                        "the GPU could not be used ({e}): rendering on the CPU ({} threads)",
-                        rayon::current_num_threads()
+                        "the GPU could not be used ({e}): rendering on the CPU ({})",
+                        cpu_threads()
                     );
                     None
                 }
@@ -148,8 +145,8 @@ impl Engine {
     pub fn describe(&self) -> String {
         let model = cpu_model();
         match (self.active_gpu(), model) {
-            (None, Some(m)) => format!("cpu ({} threads, {m})", rayon::current_num_threads()),
-            (None, None) => format!("cpu ({} threads)", rayon::current_num_threads()),
+            (None, Some(m)) => format!("cpu ({}, {m})", cpu_threads()),
+            (None, None) => format!("cpu ({})", cpu_threads()),
             (Some(c), Some(m)) if c.adapter.software => format!("gpu: {} on {m}", c.adapter),
             (Some(c), _) => format!("gpu: {}", c.adapter),
         }
@@ -168,10 +165,7 @@ impl Engine {
         };
         match render_gpu(c, scene, set, opts, progress, cancel) {
             Err(RenderError::GpuLimit(why) | RenderError::SceneBeyondGpu(why)) if self.auto => {
-                eprintln!(
-                    "{why}: rendering on the CPU ({} threads) instead",
-                    rayon::current_num_threads()
-                );
+                eprintln!("{why}: rendering on the CPU ({}) instead", cpu_threads());
                 self.fell_back.set(true);
                 Ok(render(scene, set, opts, progress, cancel))
             }
@@ -202,6 +196,11 @@ impl Engine {
         }
         Ok(())
     }
+}
+
+/// "N threads" of the CPU path ("1 thread" under `RAYON_NUM_THREADS=1`).
+fn cpu_threads() -> String {
+    crate::progress::count(rayon::current_num_threads() as u64, "thread")
 }
 
 #[cfg(test)]

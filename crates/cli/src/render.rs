@@ -49,7 +49,7 @@ pub struct Args {
     /// render.nee).
     #[arg(long)]
     pub nee: Option<bool>,
-    /// Samples per pixel, at least 1 (overrides render.spp).
+    /// Samples per pixel, 1 to 2³² − 1 (overrides render.spp).
     #[arg(long, allow_negative_numbers = true, value_parser = crate::whole::whole::<u32>(1, u32::MAX.into()))]
     pub spp: Option<u32>,
     /// Random seed, an integer in [0, 2⁶⁴) (overrides render.seed): renders with different

@@ -57,8 +57,8 @@ pub struct Args {
     /// Output model file (overrides the config).
     #[arg(long)]
     out: Option<PathBuf>,
-    /// Scale every model's step count (e.g. 0.01 for a smoke test); a scaled run's
-    /// warm-up is at most a quarter of its steps.
+    /// Scale every model's step count, in (0, 1000] (e.g. 0.01 for a smoke test); a
+    /// scaled run's warm-up is at most a quarter of its steps.
     #[arg(long, allow_negative_numbers = true, default_value_t = 1.0)]
     steps_scale: f64,
     /// burn backend: flex (pure-Rust CPU, the default) or wgpu (GPU through wgpu; needs a

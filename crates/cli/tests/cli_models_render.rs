@@ -2377,6 +2377,29 @@ fn bench_error_ranks_renders_by_error_and_names_bad_inputs() {
     );
     assert_eq!(h[3], 1.0);
     assert!((l[3] - l[2] / h[2]).abs() <= 0.01 * l[3] + 0.01, "{text}");
+    // A threshold that every pixel, the sky's too, exceeds, or that none does, is said so:
+    // the object column then measures the whole frame, or nothing. This scene's sky
+    // (0.1 a channel, seen as R + G + B ≈ 0.29) is above the default 0.2.
+    let all = ok(&out);
+    assert!(
+        all.contains("note: every pixel's R + G + B exceeds --object-threshold 0.2"),
+        "{all}"
+    );
+    let none = ok(&bench_error(&[
+        "--object-threshold",
+        "1000",
+        &format!("{high}:2"),
+    ]));
+    assert!(
+        none.contains("note: no pixel's R + G + B exceeds --object-threshold 1000"),
+        "{none}"
+    );
+    let split = ok(&bench_error(&[
+        "--object-threshold",
+        "0.5",
+        &format!("{high}:2"),
+    ]));
+    assert!(!split.contains("note:"), "{split}");
     // An image rendered with a reference's seed shares its samples (it read RMSE 0): refused
     // by the EXRs' tags, naming both files and the seed.
     let twin = render("twin", "64", "1", &scene);

@@ -229,11 +229,7 @@ impl Environment {
             }
             None => None,
         };
-        let radiance = match (d.radiance, &map) {
-            (Some(r), _) => r.map(|v| v as f32),
-            (None, Some(_)) => [1.0; 3],
-            (None, None) => [0.0; 3],
-        };
+        let radiance = d.radiance_or_default().map(|v| v as f32);
         // The radiance seen is the scale times the pixel, each within the bound alone; a
         // product beyond it (1e12 × 1e12) overflowed f32 in `--variance`'s squared sums.
         if let (Some(m), Some(f)) = (&map, &d.file) {

@@ -85,6 +85,41 @@ pub fn describe_toml_error(path: &Path, text: &str, e: &toml::de::Error) -> Stri
     }
 }
 
+/// A field toml reports missing at the document's start, placed: a scene's top level
+/// holds tables only, so a missing [camera], [object] or [medium] is that table, and any
+/// other field missing there belongs to the table the file opens with (toml gives both
+/// the same place; [`describe_toml_error`], which serves every config, names both, and a
+/// missing [medium] in a file opening with [camera] read as "missing field `medium` (at
+/// the top level or in `[camera]`)"). None for any other error.
+fn missing_in_scene(path: &Path, text: &str, e: &toml::de::Error) -> Option<String> {
+    let field = e
+        .message()
+        .strip_prefix("missing field `")?
+        .split('`')
+        .next()?;
+    if e.span()?.start != 0 {
+        return None;
+    }
+    let table: toml::Table = text.parse().ok()?;
+    if ["camera", "object", "medium"].contains(&field) && !table.contains_key(field) {
+        return Some(format!(
+            "{}: the table [{field}] is missing (a scene has [camera], [object] and [medium])",
+            path.display()
+        ));
+    }
+    let first = text
+        .trim_start_matches('\u{feff}')
+        .lines()
+        .map(str::trim)
+        .find(|l| !l.is_empty() && !l.starts_with('#'))?;
+    let name = first.strip_prefix('[')?.split(']').next()?.trim();
+    table.get(name)?.as_table()?;
+    Some(format!(
+        "{}: missing field `{field}` in [{name}]",
+        path.display()
+    ))
+}
+
 /// A scene file's whole-number fields and their ranges (inclusive): `validate` checks
 /// them here, and a value serde refuses for the type (negative, fractional, beyond 2^32)
 /// is reported with the field's range, not the type's.
@@ -215,8 +250,17 @@ pub enum BoundaryKind {
 pub struct BoundaryDesc {
     #[serde(default)]
     pub kind: BoundaryKind,
-    /// Index of refraction of the medium (dielectric only; default 1.5).
+    /// Index of refraction of the medium (dielectric only; default [`DEFAULT_IOR`]).
     pub ior: Option<f64>,
+}
+
+/// A dielectric's index of refraction where the scene gives none.
+pub const DEFAULT_IOR: f64 = 1.5;
+
+impl BoundaryDesc {
+    pub fn ior_or_default(&self) -> f64 {
+        self.ior.unwrap_or(DEFAULT_IOR)
+    }
 }
 
 #[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq)]
@@ -248,6 +292,22 @@ pub struct EnvironmentDesc {
     pub radiance: Option<[f64; 3]>,
     /// Lat-long EXR, relative to the scene file (multiplied by `radiance` if both given).
     pub file: Option<PathBuf>,
+}
+
+impl EnvironmentDesc {
+    /// The radiance (the map's scale where there is a map) when none is given: black
+    /// without a map, 1 (the map as it is) with one.
+    pub fn default_radiance(&self) -> [f64; 3] {
+        if self.file.is_some() {
+            [1.0; 3]
+        } else {
+            [0.0; 3]
+        }
+    }
+
+    pub fn radiance_or_default(&self) -> [f64; 3] {
+        self.radiance.unwrap_or(self.default_radiance())
+    }
 }
 
 #[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
@@ -514,7 +574,12 @@ impl SceneFile {
                 what.describe()
             )));
         }
-        toml::from_str(text).map_err(|e| RenderError::Scene(describe_toml_error(path, text, &e)))
+        toml::from_str(text).map_err(|e| {
+            RenderError::Scene(
+                missing_in_scene(path, text, &e)
+                    .unwrap_or_else(|| describe_toml_error(path, text, &e)),
+            )
+        })
     }
 
     /// Checks every range. The message names the field and the allowed range.
@@ -622,7 +687,7 @@ impl SceneFile {
                 );
             }
             BoundaryKind::Dielectric => {
-                let ior = b.ior.unwrap_or(1.5);
+                let ior = b.ior_or_default();
                 // Above 1 as the renderers' f32 too (1.0000000000000002 is 1 there).
                 if !(ior as f32 > 1.0 && ior <= 4.0) {
                     return Err(format!(

@@ -274,6 +274,16 @@ impl SceneData {
         ident.render.seed = 0;
         ident.object.mesh = ident.object.mesh.map(|_| "mesh".into());
         ident.environment.file = ident.environment.file.map(|_| "map".into());
+        // A default written out is the default (ior = 1.5 on a dielectric, a black sky
+        // given as radiance = [0, 0, 0]): the same image hashed apart, and `merge` and
+        // `bench error` refused the pair. Taken to None, so scenes leaving them out keep
+        // their hashes.
+        if ident.boundary.ior == Some(crate::scene::DEFAULT_IOR) {
+            ident.boundary.ior = None;
+        }
+        if ident.environment.radiance == Some(ident.environment.default_radiance()) {
+            ident.environment.radiance = None;
+        }
         // The object's size settings are in the mesh's positions, hashed below, and a
         // threshold left at its default is the default: equivalent files (radius = 0.5 on
         // the default sphere, min_tau = 1 written out) hashed apart, and `merge` refused
@@ -422,7 +432,7 @@ impl SceneData {
             boundary: match scene.boundary.kind {
                 BoundaryKind::IndexMatched => Boundary::INDEX_MATCHED,
                 BoundaryKind::Dielectric => {
-                    Boundary::dielectric(scene.boundary.ior.unwrap_or(1.5) as f32)
+                    Boundary::dielectric(scene.boundary.ior_or_default() as f32)
                 }
             },
             lights: scene.lights.iter().map(DirectionalLight::new).collect(),

@@ -1878,6 +1878,29 @@ fn the_scene_hash_ignores_paths_and_unread_settings() {
         "the default radius written out"
     );
     assert_ne!(sphere(""), sphere("radius = 0.6"), "another radius");
+    // So is a boundary's or an environment's default written out (ior = 1.5 given, a black
+    // sky given as radiance 0: the same image hashed apart, and `merge` refused the pair).
+    let dielectric = "[boundary]\nkind = \"dielectric\"";
+    assert_eq!(
+        sphere(dielectric),
+        sphere(&format!("{dielectric}\nior = 1.5")),
+        "the default ior written out"
+    );
+    assert_ne!(
+        sphere(dielectric),
+        sphere(&format!("{dielectric}\nior = 1.4")),
+        "another ior"
+    );
+    assert_eq!(
+        sphere(""),
+        sphere("[environment]\nradiance = [0.0, 0.0, 0.0]"),
+        "a black sky written out"
+    );
+    assert_ne!(
+        sphere(""),
+        sphere("[environment]\nradiance = [0.0, 0.0, 0.1]"),
+        "a sky"
+    );
     assert_ne!(st(""), st("nee_samples = 4"), "read with NEE");
     assert_eq!(
         st("nee = false"),

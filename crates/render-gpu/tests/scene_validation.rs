@@ -334,8 +334,24 @@ fn a_missing_table_is_named_without_the_first_line() {
     let text = format!("# a sphere\n{}", BASE);
     let medium_at = text.find("[medium]").unwrap();
     let e = err(&text[..medium_at]);
-    assert!(e.contains("missing field `medium`"), "{e}");
+    assert!(
+        e.contains(
+            "s.toml: the table [medium] is missing (a scene has [camera], [object] and [medium])"
+        ),
+        "{e}"
+    );
     assert!(!e.contains("a sphere"), "{e}");
+    // Whichever table is missing, with the file opening with another (it read "missing
+    // field `camera` (at the top level or in `[object]`)").
+    let without_camera = {
+        let (cam, obj) = (
+            BASE.find("[camera]").unwrap(),
+            BASE.find("[object]").unwrap(),
+        );
+        format!("{}{}", &BASE[..cam], &BASE[obj..])
+    };
+    let e = err(&without_camera);
+    assert!(e.contains("the table [camera] is missing"), "{e}");
     // A field missing inside a table still points at that table.
     let e = err(&text.replace("sigma_t = [10.0, 10.0, 10.0]\n", ""));
     assert!(e.contains("missing field `sigma_t`"), "{e}");
@@ -345,7 +361,16 @@ fn a_missing_table_is_named_without_the_first_line() {
     let fov = BASE.lines().find(|l| l.starts_with("fov_deg")).unwrap();
     let e = err(&BASE.trim_start().replace(&format!("{fov}\n"), ""));
     assert!(
-        e.contains("missing field `fov_deg` (at the top level or in `[camera]`)"),
+        e.ends_with("s.toml: missing field `fov_deg` in [camera]"),
+        "{e}"
+    );
+    // Behind a comment line toml points at the table's header itself.
+    let e = err(&format!(
+        "# c\n{}",
+        BASE.trim_start().replace(&format!("{fov}\n"), "")
+    ));
+    assert!(
+        e.ends_with("s.toml:2: missing field `fov_deg` (in `[camera]`)"),
         "{e}"
     );
 }
