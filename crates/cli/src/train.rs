@@ -1161,7 +1161,8 @@ pub fn run(a: Args) -> Result<()> {
         format!(
             "the trained model fails the model file's checks, so nothing was written; a model \
              trained (not edited) fails them when the dataset {} holds walks far from what \
-             the simulator draws, or when training diverged (lower lr)",
+             the simulator draws, or when training diverged (lower lr); a decoder taken from \
+             another run's checkpoint or --base file carries its own run's data",
             cfg.dataset.display()
         )
     })?;

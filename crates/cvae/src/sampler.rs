@@ -338,7 +338,8 @@ impl ModelSet {
         with_event: bool,
         rng: &mut WalkRng,
     ) -> (ModelWalk, bool) {
-        let finite = |o: &Output| o.iter().all(|v| v.is_finite());
+        // A decoder's outputs are the first `out` values of its Output.
+        let finite = |d: &Decoder, o: &Output| o[..d.out].iter().all(|v| v.is_finite());
         let features = features::WalkFeatures::new(tau, g, albedo);
         if let Some(walk) = self.single_walk(features, tau, g, albedo, rng) {
             return (walk, false);
@@ -349,10 +350,10 @@ impl ModelSet {
             .path
             .output(&self.path_draw(&features, features.relative_log_n(n), rng));
         let mut walk = ModelWalk::multiple(n, self.path_result(&path), features, albedo);
-        let mut repaired = !finite(&length) || !finite(&path);
+        let mut repaired = !finite(&self.length, &length) || !finite(&self.path, &path);
         if with_event && let Some(d) = self.event_draw(&walk, rng) {
             let event = self.event.output(&d);
-            repaired |= !finite(&event);
+            repaired |= !finite(&self.event, &event);
             (walk.event_pos, walk.event_dir) = self.event_result(&event);
         }
         (walk, repaired)

@@ -7,7 +7,7 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-use glam::{Mat4, Vec3, Vec4};
+use glam::{Mat4, Quat, Vec3};
 
 use crate::error::RenderError;
 use crate::piece_survey::{Sides, Survey};
@@ -852,40 +852,69 @@ fn gltf_json_bytes(path: &Path) -> std::io::Result<Vec<u8>> {
     Ok(all)
 }
 
-/// A node's local transform. glTF 2.0 allows a unit-quaternion rotation and an
-/// affine matrix (decomposable into translation, rotation and scale) only; gltf turned a
-/// zero or unnormalised quaternion into the identity and dropped a projective matrix's
-/// last row without a word.
+/// A node's local transform. glTF 2.0 allows a unit-quaternion rotation and an affine
+/// matrix (decomposable into translation, rotation and scale) only; gltf turned a zero or
+/// unnormalised quaternion into the identity and dropped a projective matrix's last row
+/// without a word. Checked only for nodes that place a mesh (their own or their
+/// children's): a camera's or a light's node places nothing. A rotation within
+/// [`UNIT_QUATERNION_SLACK`] of unit length is normalised (exporters round it).
 fn node_matrix(node: &gltf::Node) -> Result<Mat4, String> {
+    let places = node.mesh().is_some() || node.children().next().is_some();
     match node.transform() {
-        gltf::scene::Transform::Decomposed { rotation: q, .. }
-            if !((Vec4::from_array(q).length() - 1.0).abs() <= UNIT_QUATERNION_SLACK) =>
-        {
-            return Err(format!(
-                "node {}: rotation {q:?} is not a unit quaternion (length {}); glTF rotations \
-                 are unit quaternions [x, y, z, w]",
-                node.index(),
-                Vec4::from_array(q).length()
-            ));
+        gltf::scene::Transform::Decomposed {
+            translation,
+            rotation,
+            scale,
+        } => {
+            let q = Quat::from_array(rotation);
+            if places && !((q.length() - 1.0).abs() <= UNIT_QUATERNION_SLACK) {
+                return Err(format!(
+                    "node {}: rotation {rotation:?} is not a unit quaternion (length {}); glTF \
+                     rotations are unit quaternions [x, y, z, w]",
+                    node.index(),
+                    q.length()
+                ));
+            }
+            // gltf's own product, as before, of the rotation made unit where rounding left
+            // it off (a unit one is kept bit for bit: the meshes, and so the scene hashes
+            // and caches, of existing files stay as they were).
+            let rotation = if (q.length() - 1.0).abs() > 1e-6 && q.length() > 0.0 && q.is_finite() {
+                q.normalize().to_array()
+            } else {
+                rotation
+            };
+            let t = gltf::scene::Transform::Decomposed {
+                translation,
+                rotation,
+                scale,
+            };
+            Ok(Mat4::from_cols_array_2d(&t.matrix()))
         }
         gltf::scene::Transform::Matrix { matrix: m } => {
             let last = [m[0][3], m[1][3], m[2][3], m[3][3]];
-            if last != [0.0, 0.0, 0.0, 1.0] {
+            let affine = last
+                .iter()
+                .zip([0.0, 0.0, 0.0, 1.0])
+                .all(|(x, want)| (x - want).abs() <= AFFINE_ROW_SLACK);
+            if places && !affine {
                 return Err(format!(
                     "node {}: matrix's last row is {last:?}, not [0.0, 0.0, 0.0, 1.0]: glTF \
                      node matrices are affine (translation, rotation and scale)",
                     node.index()
                 ));
             }
+            Ok(Mat4::from_cols_array_2d(&m))
         }
-        _ => {}
     }
-    Ok(Mat4::from_cols_array_2d(&node.transform().matrix()))
 }
 
 /// How far from 1 a node rotation's length may be: exporters write quaternions rounded to
 /// a few digits, which scale by as little; anything farther is not a rotation.
 const UNIT_QUATERNION_SLACK: f32 = 1e-3;
+
+/// How far a node matrix's last row may be from [0, 0, 0, 1]: exporters write it exactly,
+/// or rounded from a product of matrices in f32.
+const AFFINE_ROW_SLACK: f32 = 1e-6;
 
 fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
     let bytes = std::fs::read(path).map_err(|e| RenderError::io(path, e))?;
@@ -956,10 +985,18 @@ fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
             gltf::buffer::Source::Bin if b.index() != 0 => {
                 return Err(RenderError::mesh(
                     path,
-                    format!(
-                        "buffer {} refers to the GLB binary chunk, which only buffer 0 may",
-                        b.index()
-                    ),
+                    if bytes.starts_with(b"glTF") {
+                        format!(
+                            "buffer {} refers to the GLB binary chunk, which only buffer 0 may",
+                            b.index()
+                        )
+                    } else {
+                        format!(
+                            "buffer {} names no file (it has no uri): a .gltf keeps its \
+                             buffers in files beside it",
+                            b.index()
+                        )
+                    },
                 ));
             }
             gltf::buffer::Source::Bin => std::rc::Rc::new(blob.take().ok_or_else(|| {

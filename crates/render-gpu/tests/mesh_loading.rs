@@ -481,6 +481,21 @@ fn malformed_gltf_is_an_error_not_a_panic_or_a_hang() {
     );
     let (lo, hi) = load_mesh(&turned).unwrap().bounds();
     assert!((lo + 0.5).abs().max_element() < 1e-5 && (hi - 0.5).abs().max_element() < 1e-5);
+    // A node that places nothing (a camera's, say: no mesh, no children) is not held to
+    // it, and a matrix's last row rounded in f32 is affine.
+    for (name, nodes) in [
+        (
+            "leaf.gltf",
+            r#"[{"mesh":0,"children":[1]},{"rotation":[0,0,0,0]}]"#,
+        ),
+        (
+            "rounded.gltf",
+            r#"[{"mesh":0,"matrix":[1,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,0,1.0000001]}]"#,
+        ),
+    ] {
+        let p = cube_gltf(&d, name, nodes, 5123, 12);
+        assert_eq!(load_mesh(&p).unwrap().triangles.len(), 12, "{name}");
+    }
     // A buffer file shorter than the buffer declares is named with both sizes, and a
     // buffer without a file name is not called a missing GLB chunk in a .gltf.
     let short = cube_gltf(&d, "short.gltf", r#"[{"mesh":0}]"#, 5123, 12);
@@ -511,6 +526,20 @@ fn malformed_gltf_is_an_error_not_a_panic_or_a_hang() {
     let e = load_mesh(&unnamed).unwrap_err().to_string();
     assert!(
         e.contains("no_uri.gltf: buffer 0 names no file (it has no uri)"),
+        "{e}"
+    );
+    // A later buffer without a uri, in a .gltf: not "refers to the GLB binary chunk".
+    write(&d, "cube.bin", &cube_bin());
+    let second = text.replace(
+        r#"{"uri":"cube.bin","byteLength":168}"#,
+        r#"{"uri":"cube.bin","byteLength":168},{"byteLength":4}"#,
+    );
+    assert_ne!(second, text);
+    let e = load_mesh(&write(&d, "second.gltf", second.as_bytes()))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("second.gltf: buffer 1 names no file (it has no uri)"),
         "{e}"
     );
     // A buffer file that is not there: the error names the .gltf that refers to it too.
