@@ -855,8 +855,8 @@ fn gltf_json_bytes(path: &Path) -> std::io::Result<Vec<u8>> {
 /// A node's local transform. glTF 2.0 allows a unit-quaternion rotation and an affine
 /// matrix (decomposable into translation, rotation and scale) only; gltf turned a zero or
 /// unnormalised quaternion into the identity and dropped a projective matrix's last row
-/// without a word. Checked only for nodes that place a mesh (their own or their
-/// children's): a camera's or a light's node places nothing. A rotation within
+/// without a word. Checked only for nodes with a mesh or children (which may place meshes
+/// below them): a camera's or a light's leaf node places nothing. A rotation within
 /// [`UNIT_QUATERNION_SLACK`] of unit length is normalised (exporters round it).
 fn node_matrix(node: &gltf::Node) -> Result<Mat4, String> {
     let places = node.mesh().is_some() || node.children().next().is_some();

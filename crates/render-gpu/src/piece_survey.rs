@@ -18,6 +18,11 @@ use obvhs::ray::Ray;
 use obvhs::triangle::Triangle;
 use rayon::prelude::*;
 
+/// How close (relative to the mesh's scale, [`crate::mesh::TriMesh::scale`]) two pieces'
+/// surfaces count as touching rather than crossing; `crate::thin_walls` takes faces
+/// closer than this to the entry plane for a touching piece's too.
+pub(crate) const TOUCH_OF_SCALE: f32 = 1e-6;
+
 use crate::mesh::TriMesh;
 
 /// Most probes kept per piece from the points along its edges between meetings with other
@@ -99,7 +104,7 @@ impl<'a> Survey<'a> {
         // Relative to the coordinates' size as well as the mesh's: f32 positions far from
         // the origin round by more than a millionth of a small mesh (a contact at 1,000
         // from the origin was taken as a crossing).
-        let touch = 1e-6 * m.scale().max(f32::MIN_POSITIVE);
+        let touch = TOUCH_OF_SCALE * m.scale().max(f32::MIN_POSITIVE);
         let tris: Vec<Triangle> = (0..m.triangles.len())
             .map(|i| {
                 let [a, b, c] = m.triangle(i).map(|v| v.to_array().into());

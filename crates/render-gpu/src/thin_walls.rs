@@ -4,7 +4,8 @@
 //! only an object thin as a whole; a shell whose walls were 5·10⁻⁶ thick (the offset 2·10⁻⁵)
 //! rendered as bare background without a word.
 
-use crate::geometry::{Geometry, SLIVER_REACH_OF_EPS};
+use crate::geometry::{EPS, Geometry, SLIVER_REACH_OF_EPS};
+use crate::piece_survey::TOUCH_OF_SCALE;
 use glam::Vec3;
 use rayon::prelude::*;
 
@@ -24,11 +25,6 @@ pub struct ThinWalls {
 /// the offset over more than a thousandth of the surface are noted.
 pub const NOTE_AREA_SHARE: f64 = 1e-3;
 
-/// How close to the entry plane (in units of eps) a far face is taken for a face in that
-/// plane: a few ulps of the coordinates (one is ~0.6 % of eps at the scene's scale), so
-/// walls thinner than 3 % of the offset go unnoticed.
-const COPLANAR_OF_EPS: f32 = 0.03;
-
 /// Tests each face at its centroid as an entering path meets it: spawned `eps` inside,
 /// the way back out meets another surface from outside first. Faces no path enters from
 /// the air are left out: where pieces of the mesh touch or overlap, the other piece's face
@@ -44,14 +40,20 @@ pub fn thin_walls(geo: &Geometry) -> ThinWalls {
             let normal = geo.normals[i];
             let centroid = (a + b + c) / 3.0;
             let q = geo.spawn(centroid, normal, -normal);
-            // Geometry::beyond_sliver's test, less a far face within a few ulps of the
-            // entry plane: another piece touching this one there (a box standing on a
-            // slab) ties with the face itself, and no path enters either from the air.
+            // Geometry::beyond_sliver's test, less a far face within the pieces' touching
+            // distance of the face itself (measured along the same ray, so that the
+            // roundings of the centroid and of q cancel): another piece touching this one
+            // there, or sunk into it by less than the piece survey tells from touching (a
+            // box standing on a slab), is no wall, and no path enters either face from the
+            // air. Walls thinner than that (5 % of the offset) go unnoticed.
+            let reach = geo.eps * SLIVER_REACH_OF_EPS;
+            let own = geo
+                .closest_of(q, normal, reach, &[i as u32])
+                .map_or(geo.eps, |h| h.t);
+            let touch = geo.eps / EPS * TOUCH_OF_SCALE;
             let far = geo
-                .intersect(q, normal, geo.eps * SLIVER_REACH_OF_EPS)
-                .is_some_and(|h| {
-                    h.normal.dot(normal) < 0.0 && h.t < geo.eps * (1.0 - COPLANAR_OF_EPS)
-                });
+                .intersect(q, normal, reach)
+                .is_some_and(|h| h.normal.dot(normal) < 0.0 && h.t < own - touch);
             // Overlapping pieces: a face within another piece's medium is crossed inside.
             let covered = || {
                 geo.pieces
@@ -152,14 +154,17 @@ mod tests {
         for m in [cube(1.0), crate::mesh::sphere(0.5)] {
             assert_eq!(thin_walls(&Geometry::new(m)).area_share, 0.0);
         }
-        // A box resting on a slab, and one sunk into it by a fifth of the offset: their
-        // contact faces are not entered from the air (taken as thin walls, they were 0.9 %
-        // and 1.9 % of the surface here, above NOTE_AREA_SHARE).
-        for sunk in [0.0, 0.2 * eps] {
-            let mut m = slab_and_box(sunk);
-            m = prepare(m).expect("two closed pieces");
-            let share = thin_walls(&Geometry::new(m)).area_share;
-            assert_eq!(share, 0.0, "sunk {sunk}");
+        // A box resting on a slab, sunk into it by 3 % of the slab's offset (less than
+        // the piece survey tells from touching: pieces None), and by 20 % (overlapping
+        // pieces): their contact faces are not entered from the air (taken as thin walls,
+        // they were 0.9 % and 1.9 % of the surface here, above NOTE_AREA_SHARE).
+        let slab_eps = Geometry::new(prepare(slab_and_box(0.0)).unwrap()).eps;
+        for (sunk, overlapping) in [(0.0, false), (0.03, false), (0.2, true)] {
+            let m = prepare(slab_and_box(sunk * slab_eps)).expect("two closed pieces");
+            let g = Geometry::new(m);
+            assert_eq!(g.pieces.is_some(), overlapping, "sunk {sunk}");
+            let share = thin_walls(&g).area_share;
+            assert_eq!(share, 0.0, "sunk {sunk} of the offset");
         }
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/bunny.glb");
         let mut bunny = crate::mesh::load_mesh(&path).expect("the shipped bunny");
