@@ -2385,20 +2385,19 @@ fn bench_error_ranks_renders_by_error_and_names_bad_inputs() {
         all.contains("note: every pixel's R + G + B exceeds --object-threshold 0.2"),
         "{all}"
     );
-    let none = ok(&bench_error(&[
-        "--object-threshold",
-        "1000",
-        &format!("{high}:2"),
-    ]));
+    let with_threshold = |t: &str| {
+        ok(&bench_error(&[
+            "--object-threshold",
+            t,
+            &format!("{high}:2"),
+        ]))
+    };
+    let none = with_threshold("1000");
     assert!(
         none.contains("note: no pixel's R + G + B exceeds --object-threshold 1000"),
         "{none}"
     );
-    let split = ok(&bench_error(&[
-        "--object-threshold",
-        "0.5",
-        &format!("{high}:2"),
-    ]));
+    let split = with_threshold("0.5");
     assert!(!split.contains("note:"), "{split}");
     // An image rendered with a reference's seed shares its samples (it read RMSE 0): refused
     // by the EXRs' tags, naming both files and the seed.

@@ -472,26 +472,23 @@ fn malformed_gltf_is_an_error_not_a_panic_or_a_hang() {
     }
     // A rotation rounded as exporters write it (length 1 − 3·10⁻⁶) is a rotation: a
     // quarter turn about z leaves the unit cube where it was.
-    let turned = cube_gltf(
-        &d,
+    let bounds = |name: &str, nodes: &str| {
+        load_mesh(&cube_gltf(&d, name, nodes, 5123, 12))
+            .unwrap()
+            .bounds()
+    };
+    let (lo, hi) = bounds(
         "turned.gltf",
         r#"[{"mesh":0,"rotation":[0,0,0.707105,0.707105]}]"#,
-        5123,
-        12,
     );
-    let (lo, hi) = load_mesh(&turned).unwrap().bounds();
     assert!((lo + 0.5).abs().max_element() < 1e-5 && (hi - 0.5).abs().max_element() < 1e-5);
     // One rounded further (length 0.9995, within the slack) is made a rotation, not a
     // rotation and a scale: a 30° turn about z of the unit cube reaches
     // (cos 30° + sin 30°)/2 = 0.683013 in x (0.682832 unnormalised).
-    let rounded = cube_gltf(
-        &d,
+    let (_, hi) = bounds(
         "rounded_q.gltf",
         r#"[{"mesh":0,"rotation":[0,0,0.25869,0.965443]}]"#,
-        5123,
-        12,
     );
-    let (_, hi) = load_mesh(&rounded).unwrap().bounds();
     assert!((hi.x - 0.683013).abs() < 1e-5, "{hi}");
     // A node that places nothing (a camera's, say: no mesh, no children) is not held to
     // it, and a matrix's last row rounded in f32 is affine.
