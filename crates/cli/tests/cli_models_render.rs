@@ -1115,18 +1115,17 @@ fn far_and_thin_objects_render_as_they_should_or_are_refused() {
         e.contains("thin.toml: the object is too thin for its size") && e.contains("25000×"),
         "{e}"
     );
-    // One sample of a scene, its notes (stderr).
+    // One sample of a (PT) scene, its notes (stderr).
     let notes = |scene: &Path, name: &str| {
-        ok(&stcvae(&[
-            "render",
-            scene.to_str().unwrap(),
-            "--spp",
+        let out = d.path().join(name);
+        ok(&render_scene(
+            scene,
+            "pt",
             "1",
-            "--device",
-            "cpu",
-            "--out",
-            d.path().join(name).to_str().unwrap(),
-        ]))
+            "1",
+            &out,
+            &["--device", "cpu"],
+        ))
     };
     let flat = scene("flat", 0.0, box_obj(0.0, 1000.0, 0.2));
     let err = notes(&flat, "flat");

@@ -106,9 +106,11 @@ fn check_names(elements: &[Element]) -> Result<(), String> {
         if elements[..i].iter().any(|e| e.name == el.name) {
             return Err(format!("element `{}` is declared twice", el.name));
         }
-        let name = |p: &Property| match p {
-            Property::Scalar(n, _) | Property::List(n, _, _) => n.clone(),
-        };
+        fn name(p: &Property) -> &str {
+            match p {
+                Property::Scalar(n, _) | Property::List(n, _, _) => n,
+            }
+        }
         for (k, p) in el.props.iter().enumerate() {
             if el.props[..k].iter().any(|q| name(q) == name(p)) {
                 return Err(format!(

@@ -46,14 +46,17 @@ pub fn thin_walls(geo: &Geometry) -> ThinWalls {
             // there, or sunk into it by less than the piece survey tells from touching (a
             // box standing on a slab), is no wall, and no path enters either face from the
             // air. Walls thinner than that (5 % of the offset) go unnoticed.
+            // The face's own hit is cast only behind a far face met from outside, which
+            // most faces never have.
             let reach = geo.eps * SLIVER_REACH_OF_EPS;
-            let own = geo
-                .closest_of(q, normal, reach, &[i as u32])
-                .map_or(geo.eps, |h| h.t);
             let touch = geo.eps / EPS * TOUCH_OF_SCALE;
+            let own = || {
+                geo.closest_of(q, normal, reach, &[i as u32])
+                    .map_or(geo.eps, |h| h.t)
+            };
             let far = geo
                 .intersect(q, normal, reach)
-                .is_some_and(|h| h.normal.dot(normal) < 0.0 && h.t < own - touch);
+                .is_some_and(|h| h.normal.dot(normal) < 0.0 && h.t < own() - touch);
             // Overlapping pieces: a face within another piece's medium is crossed inside.
             let covered = || {
                 geo.pieces
