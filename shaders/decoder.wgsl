@@ -8,10 +8,11 @@ const D_PATH: u32 = 1u;
 const D_EVENT: u32 = 2u;
 
 // Scratch of one decoder call: raw conditioning features in, normals (z then ε) in,
-// de-standardised outputs out.
-var<private> dec_cond: array<f32, 16>;
-var<private> dec_noise: array<f32, 16>;
-var<private> dec_out: array<f32, 8>;
+// de-standardised outputs out. Its sizes, MAX_DECODED_N and the prior's PRIOR_* come with
+// the generated decoders (gpu/decoder_gen.rs, from cvae::features).
+var<private> dec_cond: array<f32, DEC_MAX_COND>;
+var<private> dec_noise: array<f32, DEC_MAX_NOISE>;
+var<private> dec_out: array<f32, DEC_MAX_OUT>;
 
 /// Fills dec_noise[0..n] with standard normals (Box–Muller).
 fn fill_normals(n: u32) {
@@ -33,7 +34,7 @@ fn tau_feature(tau: f32) -> f32 {
 }
 
 fn log_n_prior(tau: f32, g: f32) -> f32 {
-    return log(1.0 + 0.5 * (1.0 - g) * tau * tau + 0.71 * tau);
+    return log(1.0 + PRIOR_QUADRATIC * (1.0 - g) * tau * tau + PRIOR_LINEAR * tau);
 }
 
 /// Λ(N) = Σ_{k=1..N} φ^k = φ(1 − φ^N)/(1 − φ), from ln φ and 1 − φ computed in f64.
@@ -80,9 +81,9 @@ fn sample_multiple_n(wf: WalkFeatures) -> f32 {
     let v = floor(exp(dec_out[0] + wf.log_prior));
     let n_min = f32(model.flags.y);
     if !is_finite(v) {
-        return select(n_min, 1e15, v > 0.0);
+        return select(n_min, MAX_DECODED_N, v > 0.0);
     }
-    return clamp(v, n_min, 1e15);
+    return clamp(v, n_min, MAX_DECODED_N);
 }
 
 struct Exit {

@@ -23,6 +23,9 @@ fn clear_item(i: u32) {
     }
 }
 
+// The item layout below holds the decoders' whole scratch (gpu/decoder_gen.rs).
+const_assert DEC_MAX_COND == 12u && DEC_MAX_NOISE == 16u && DEC_MAX_OUT == 8u;
+
 /// Item i's decoder conditions (floats 0..12) and noise (12..28) into the decoders' inputs.
 fn load_decoder_inputs(i: u32) {
     for (var k = 0u; k < 12u; k++) {

@@ -197,9 +197,12 @@ fn from_canonical_repairs_out_of_range_values() {
 /// Diffusion limit: mean N ≈ (1 − g)(τ + z_b)²/2 with z_b ≈ 0.71/(1 − g) the
 /// extrapolated-boundary length of radiative transfer (Milne problem), so the ratio
 /// mean N(100)/mean N(50) at g = 0 is (100.71/50.71)² = 3.944 from this formula; an
-/// independent simulation gave 3.967 ± 0.025. The ratio checks the τ² growth: mean N
-/// growing like τ (a walk without diffusion) gives ~2, like τ³ ~8, far outside
-/// [3.85, 4.05] (−2.4 % / +2.7 % around 3.944). It is blind to an error that scales every
+/// independent simulation gave 3.967 ± 0.025, and the simulator itself 3.924 ± 0.009 and
+/// 3.939 ± 0.010 (`stcvae generate --tau 50|100 --g 0 --albedo 1`, 2·10⁵ and 1.0–1.2·10⁵
+/// walks, 2026-12-05). The ratio checks the τ² growth: mean N growing like τ (a walk
+/// without diffusion) gives ~2, like τ³ ~8, far outside [3.80, 4.05]: 4.6–5.0 of this
+/// test's standard errors (±0.026, below) from 3.93, so a reseed does not
+/// trip it (the earlier lower bound 3.85 sat 2.8 of them below 3.924). It is blind to an error that scales every
 /// flight alike (the ratio stays 4); the absolute 2% band below catches those, since mean
 /// N goes with the flight rate squared (a rate 5% off moves it ~10%). With 20,000 walks
 /// per τ each mean has a relative standard error of ≈ 0.45%, the ratio ≈ 0.65% (±0.026).
@@ -222,7 +225,7 @@ fn mean_events_grow_like_tau_squared() {
     let (m100, s100) = mean_n(100.0, 0.0, 62);
     let ratio = m100 / m50;
     assert!(
-        (3.85..=4.05).contains(&ratio),
+        (3.80..=4.05).contains(&ratio),
         "mean N(100)/mean N(50) = {ratio:.3} ({m100:.0}±{s100:.0} / {m50:.0}±{s50:.0})"
     );
     for (tau, m) in [(50.0, m50), (100.0, m100)] {

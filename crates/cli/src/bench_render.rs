@@ -583,9 +583,9 @@ pub fn run(a: Args) -> Result<()> {
             k,
             format!(
                 "({}, {}, {})",
-                significant4(150.0 * k),
-                significant4(187.5 * k),
-                significant4(125.0 * k)
+                significant4(LADDER_SIGMA_T[0] * k),
+                significant4(LADDER_SIGMA_T[1] * k),
+                significant4(LADDER_SIGMA_T[2] * k)
             ),
             significant4(pt.seconds),
             significant4(st.seconds),
@@ -718,7 +718,10 @@ mod tests {
     #[test]
     fn the_help_gives_the_scene_limits() {
         use clap::CommandFactory as _;
-        use render_gpu::scene::{MAX_EXACT_NEE_SAMPLES, MAX_NEE_SAMPLES, MAX_PATH_NEE_RAYS};
+        use render_gpu::scene::{
+            MAX_EXACT_NEE_SAMPLES, MAX_EXACT_TAU, MAX_NEE_SAMPLES, MAX_PATH_NEE_RAYS,
+            MAX_SCENE_VALUE,
+        };
         #[derive(clap::Parser)]
         struct Cli {
             #[command(flatten)]
@@ -733,9 +736,19 @@ mod tests {
                 format!("1 to {MAX_EXACT_NEE_SAMPLES} "),
             ),
             ("path_nee_rays", format!("0 to {MAX_PATH_NEE_RAYS} ")),
+            ("exact_tau", format!("in [0, {MAX_EXACT_TAU}]")),
+            ("min_tau", format!("in [0, {MAX_SCENE_VALUE:e}]")),
         ] {
             assert!(help(id).contains(&range), "--{id}: {}", help(id));
         }
+        // The ladder as the help gives it.
+        let [a, b, c] = super::LADDER_SIGMA_T;
+        let medium = format!("σ_t = k·({a}, {b}, {c}), albedo");
+        assert!(
+            help("scene").contains(&medium),
+            "--scene: {}",
+            help("scene")
+        );
     }
 
     #[test]

@@ -1092,4 +1092,21 @@ mod tests {
         }
         crate::paths::check_not_input("--out", &d.path().join("r.exr"), &inputs).unwrap();
     }
+
+    /// The help's image sizes are the scene file's limit (doc comments cannot name it).
+    #[test]
+    fn the_help_gives_the_image_size_limit() {
+        use clap::CommandFactory as _;
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            a: super::Args,
+        }
+        let cmd = Cli::command();
+        let range = format!("1 to {}", render_gpu::scene::MAX_IMAGE_SIDE);
+        for id in ["width", "height"] {
+            let help = crate::help_of(&cmd, id);
+            assert!(help.contains(&range), "--{id}: {help}");
+        }
+    }
 }

@@ -43,10 +43,18 @@ pub fn tau_feature(tau: f64) -> f64 {
     tau.max(0.0).ln_1p()
 }
 
+/// The diffusion-limit event count's coefficients, N ≈ ½(1 − g)τ² + 0.71τ: the τ² term is
+/// diffusion's, the linear one comes from the extrapolated boundary z_b ≈ 0.71 transport
+/// lengths (Milne problem). The GPU kernels take both from here (shaders/decoder.wgsl's
+/// `log_n_prior`); a copy in WGSL that drifted would feed LengthGen other inputs than it
+/// was trained on.
+pub const PRIOR_QUADRATIC: f64 = 0.5;
+pub const PRIOR_LINEAR: f64 = 0.71;
+
 /// ln of the diffusion-limit event count, made finite and ≥ ln 1 for small τ.
 #[inline]
 pub fn log_n_prior(tau: f64, g: f64) -> f64 {
-    (1.0 + 0.5 * (1.0 - g) * tau * tau + 0.71 * tau).ln()
+    (1.0 + PRIOR_QUADRATIC * (1.0 - g) * tau * tau + PRIOR_LINEAR * tau).ln()
 }
 
 #[inline]
@@ -84,7 +92,7 @@ pub fn event_cond(
 }
 
 /// The largest N LengthGen's read-out gives, 10^15 (shaders/decoder.wgsl caps at the same
-/// value): only a damaged or absurd draw gets there, and with NEE's weight Λ(N) = N at
+/// value, which the GPU kernels take from here): only a damaged or absurd draw gets there, and with NEE's weight Λ(N) = N at
 /// φ = 1 the cap bounds that outlier alike on both devices.
 pub const MAX_DECODED_N: u64 = 1_000_000_000_000_000;
 

@@ -548,8 +548,9 @@ fn significant(x: f64) -> String {
 /// O(10) (ln(1 + τ) ≤ 7, g and the albedo feature in [−1, 1], log N relative to the
 /// diffusion scale, the output maps' real lines: docs/TRAINING.md), so a shift beyond
 /// ±MAX_NORM or a scale above it is a damaged or hand-edited file, which would decode
-/// absurd walks (N = 2^32 − 1) into a bright image without an error. MIN_SCALE is the
-/// floor training gives a column with no spread (a fixed condition).
+/// absurd walks (N = 2^32 − 1) into a bright image without an error. Training writes no
+/// scale below MIN_SCALE: a column with less spread gets scale 1 (train/data.rs's
+/// `MIN_SPREAD`, defined from it).
 pub const MAX_NORM: f32 = 100.0;
 pub const MIN_SCALE: f32 = 1e-6;
 

@@ -5,7 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
-use scatter_sim::ranges::{G_MAX, num, printable};
+use scatter_sim::ranges::{self, num, printable};
 use serde::{Deserialize, Serialize};
 
 use crate::error::RenderError;
@@ -663,20 +663,10 @@ impl SceneFile {
                     f32::MIN_POSITIVE
                 ));
             }
-            let a = m.albedo[i];
-            if !(0.0..=1.0).contains(&a) {
-                return Err(format!(
-                    "medium.albedo[{i}] = {} is out of range: allowed [0, 1]",
-                    num(a)
-                ));
-            }
+            ranges::check_albedo(&format!("medium.albedo[{i}]"), m.albedo[i])
+                .map_err(|e| e.to_string())?;
         }
-        if !(m.g.abs() <= G_MAX) {
-            return Err(format!(
-                "medium.g = {} is out of range: allowed [-{G_MAX}, {G_MAX}]",
-                num(m.g)
-            ));
-        }
+        ranges::check_g("medium.g", m.g).map_err(|e| e.to_string())?;
 
         let b = &self.boundary;
         match b.kind {

@@ -253,6 +253,12 @@ fn the_kernels_take_these_constants_from_the_host_alone() {
         "C_PATHS",
         "C_PENDING",
         "C_EXACT_EVENTS",
+        "DEC_MAX_COND",
+        "DEC_MAX_NOISE",
+        "DEC_MAX_OUT",
+        "MAX_DECODED_N",
+        "PRIOR_QUADRATIC",
+        "PRIOR_LINEAR",
     ] {
         let definition = format!("const {constant}: ");
         assert_eq!(

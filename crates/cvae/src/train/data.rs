@@ -58,8 +58,9 @@ impl std::str::FromStr for ModelKind {
     }
 }
 
-/// Below this standard deviation a column counts as constant ([`column_stats`]).
-const MIN_SPREAD: f64 = 1e-6;
+/// Below this standard deviation a column counts as constant ([`column_stats`]). The model
+/// file's floor on scales, so that every scale training writes passes the loader's check.
+const MIN_SPREAD: f64 = crate::model_file::MIN_SCALE as f64;
 
 /// Affine standardisation of inputs and outputs (stored in the model file).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -302,9 +303,9 @@ impl Table {
             // The batches dequantise N with u ~ U(0, 1), the statistics above with its
             // midpoint: add the spread u gives to the scale (the shift stays the
             // midpoint's, a constant stored with the model). Where N hardly varies
-            // (τ ≪ 1: N = 1 throughout) the midpoint's spread is 0, the scale was floored
-            // at 10⁻⁶ and the standardised targets were ~10⁵ (a loss of 1.4·10⁷ that still
-            // "fell").
+            // (τ ≪ 1: N = 1 throughout) the midpoint's spread is 0: when such a scale was
+            // floored at 10⁻⁶, the standardised targets were ~10⁵ (a loss of 1.4·10⁷ that
+            // still "fell").
             let dequantised =
                 n.iter().map(|&k| log_dequantised_variance(k)).sum::<f64>() / n.len() as f64;
             out_scale[0] = ((out_scale[0] as f64).powi(2) + dequantised).sqrt() as f32;

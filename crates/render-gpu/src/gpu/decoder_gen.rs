@@ -15,7 +15,8 @@ use cvae::decoder::{Decoder, LOGVAR_CLAMP};
 use crate::error::RenderError;
 
 /// Sizes of the kernels' decoder scratch (`dec_cond`, `dec_noise`, `dec_out` in
-/// shaders/decoder.wgsl; the probe reads 12 conditions).
+/// shaders/decoder.wgsl, sized by these as `DEC_MAX_COND`, `DEC_MAX_NOISE` and
+/// `DEC_MAX_OUT`; the probe's item layout asserts them).
 const MAX_COND: usize = 12;
 const MAX_NOISE: usize = 16;
 const MAX_OUT: usize = 8;
@@ -122,10 +123,26 @@ pub fn fits_kernels(cond: usize, latent: usize, out: usize) -> Result<(), String
     Ok(())
 }
 
+/// The decoder scratch's sizes and the features' constants whose one definition is in
+/// Rust (cvae::features), for shaders/decoder.wgsl: a WGSL copy could drift from them
+/// silently, and only the GPU tests would see it.
+fn feature_constants_wgsl() -> String {
+    use cvae::features as f;
+    format!(
+        "const DEC_MAX_COND: u32 = {MAX_COND}u;\nconst DEC_MAX_NOISE: u32 = {MAX_NOISE}u;\n\
+         const DEC_MAX_OUT: u32 = {MAX_OUT}u;\nconst MAX_DECODED_N: f32 = {};\n\
+         const PRIOR_QUADRATIC: f32 = {};\nconst PRIOR_LINEAR: f32 = {};\n\n",
+        lit(f::MAX_DECODED_N as f32),
+        lit(f::PRIOR_QUADRATIC as f32),
+        lit(f::PRIOR_LINEAR as f32),
+    )
+}
+
 /// `decoder_sample(d)`, its three straight-line variants for `m` and their sizes
 /// (`DEC_LATENT_i`, `DEC_OUT_i`).
 pub fn decoders_wgsl(m: &ModelSet) -> Result<String, RenderError> {
     let mut out = String::from("// Generated from the model file: do not edit.\n\n");
+    out += &feature_constants_wgsl();
     for (i, (d, name)) in m.decoders().iter().zip(ModelSet::DECODER_NAMES).enumerate() {
         fits_kernels(d.cond, d.latent, d.out)
             .map_err(|e| RenderError::Model(format!("{name} {e}")))?;
