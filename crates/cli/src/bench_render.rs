@@ -38,7 +38,7 @@ pub struct Args {
     /// Image side in pixels, 8 to 4,096 (at least 8: the bias is measured over 4×4-pixel
     /// blocks and the object's pixels, which a smaller image hardly has).
     #[arg(long, allow_negative_numbers = true, default_value_t = 64,
-          value_parser = crate::whole::whole::<u32>(8, 4096))]
+          value_parser = crate::whole::whole::<u32>(MIN_BENCH_SIZE as u64, MAX_BENCH_SIZE as u64))]
     size: u32,
     /// Model file for ST-CVAE (default: models/default.stcvae).
     #[arg(long)]
@@ -421,6 +421,12 @@ fn render_pair(
 /// made from (image 12 and work 4 each).
 const PAIRS_BYTES_PER_PIXEL: u64 = 2 * (12 + 24 + 4) + 2 * (12 + 4);
 
+/// The image sides the bias is measured on, here and in the experiments' budgets: at
+/// least 8, since it is measured over 4×4-pixel blocks and the object's pixels, which a
+/// smaller image hardly has.
+pub(crate) const MIN_BENCH_SIZE: u32 = 8;
+pub(crate) const MAX_BENCH_SIZE: u32 = 4096;
+
 /// Most samples a pixel the bench takes (the header's pair arithmetic is u32).
 pub(crate) const MAX_BENCH_SPP: u32 = 1 << 30;
 
@@ -738,6 +744,15 @@ mod tests {
             ("path_nee_rays", format!("0 to {MAX_PATH_NEE_RAYS} ")),
             ("exact_tau", format!("in [0, {MAX_EXACT_TAU}]")),
             ("min_tau", format!("in [0, {MAX_SCENE_VALUE:e}]")),
+            (
+                "size",
+                format!(
+                    "{} to {},{:03} ",
+                    super::MIN_BENCH_SIZE,
+                    super::MAX_BENCH_SIZE / 1000,
+                    super::MAX_BENCH_SIZE % 1000
+                ),
+            ),
         ] {
             assert!(help(id).contains(&range), "--{id}: {}", help(id));
         }

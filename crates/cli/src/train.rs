@@ -1178,8 +1178,18 @@ pub fn run(a: Args) -> Result<()> {
     if let Some(png) = &plot {
         files.push((&plot_path, png));
     }
-    scatter_sim::output::write_atomic_set(&files)
-        .map_err(|(p, e)| anyhow::anyhow!("cannot write {}: {e}", p.display()))?;
+    // The training is not lost with the files: its last checkpoints hold it, and a
+    // resumed run at its plan's end only exports (a full disk here gave no way on).
+    scatter_sim::output::write_atomic_set(&files).map_err(|(p, e)| {
+        anyhow::anyhow!(
+            "cannot write {}: {e}; nothing was written, but the training's checkpoints in \
+             {} are complete: once the output can be written, `{}` writes it without \
+             training again",
+            p.display(),
+            cfg.checkpoint_dir.display(),
+            resume_command(&a)
+        )
+    })?;
     eprintln!(
         "trained in {seconds:.0} s{} ({}); wrote {} ({} bytes)",
         if a.resume { " this run" } else { "" },

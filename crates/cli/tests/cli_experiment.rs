@@ -647,6 +647,46 @@ fn an_interrupted_experiment_writes_no_report() {
     }
 }
 
+/// A rerun whose first image cannot be saved (its name taken by a folder; a full disk
+/// alike) fails having saved nothing, and leaves the earlier run's report and figures as
+/// they were: they went only once a file of the new run was in place (removed before the
+/// first save, a failed one took them).
+#[test]
+fn a_rerun_that_saves_nothing_keeps_the_earlier_report() {
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("teaser-quick");
+    std::fs::create_dir_all(out.join("pt_k1.exr")).unwrap();
+    for f in ["report.md", "figures.csv"] {
+        std::fs::write(out.join(f), "earlier").unwrap();
+    }
+    let done = Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args([
+            "experiment",
+            "configs/experiments/teaser.toml",
+            "--quick",
+            "--device",
+            "cpu",
+            "--out",
+        ])
+        .arg(d.path())
+        .current_dir(root())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&done.stderr);
+    assert!(!done.status.success(), "{err}");
+    assert!(
+        err.contains("pt_k1.exr") && err.contains("nothing was saved: the earlier run's report"),
+        "{err}"
+    );
+    for f in ["report.md", "figures.csv"] {
+        assert_eq!(
+            std::fs::read_to_string(out.join(f)).unwrap(),
+            "earlier",
+            "{f}: {err}"
+        );
+    }
+}
+
 /// The cells of one CSV line, quoted cells (RFC 4180: "" is a quote) unquoted.
 fn csv_cells(line: &str) -> Vec<String> {
     let (mut cells, mut cell, mut quoted) = (Vec::new(), String::new(), false);

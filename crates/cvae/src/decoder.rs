@@ -156,9 +156,12 @@ impl Dense {
 
 /// Most outputs of any decoder (EventGen's six); a head holds twice as many.
 pub const MAX_OUT: usize = 8;
-/// Most inputs (conditions + latent) of any decoder: EventGen's 7 conditions plus the
-/// training config's largest latent size, 16.
+/// Largest latent size a training config may ask for.
+pub const MAX_LATENT: usize = 16;
+/// Most inputs (conditions + latent) of any decoder: EventGen's conditions plus the
+/// largest latent size (with room to spare: 7 + 16 = 23).
 pub const MAX_INPUT: usize = 24;
+const _: () = assert!(crate::features::EVENT_COND + MAX_LATENT <= MAX_INPUT);
 
 /// One decoder draw set up but not yet evaluated: its standardised input row and its
 /// output noise. A draw in three parts (set up, evaluate, read out) lets a renderer

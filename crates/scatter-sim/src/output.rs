@@ -67,11 +67,31 @@ pub fn check_output_path(path: &Path) -> Result<(), String> {
 
 /// Refuses an output `path` that must not be replaced: an output is a finished file
 /// renamed over whatever is there, which would destroy a FIFO or a device node
-/// (`/dev/null` written as root), and cannot replace a directory. A symbolic link is
+/// (`/dev/null` written as root), and cannot replace a directory. Nor is anything written
+/// into /dev, /proc or /sys ([`system_folder`]): `--out /dev/stdout` as root replaced
+/// that link with a file, for every process of the machine. A symbolic link is
 /// replaced like a file (its target is left as it is): following it would let another
 /// user's link in a shared folder such as /tmp aim an output at the writer's own files.
 /// The error's message follows the path, e.g. "x is a directory".
 pub fn check_replaceable(path: &Path) -> io::Result<()> {
+    let dir = folder_of(path);
+    if let Some(real) = system_folder(dir) {
+        let shown = dir.display().to_string();
+        let real = real.display().to_string();
+        let real = if real == shown {
+            String::new()
+        } else {
+            format!(", that is {real}")
+        };
+        return Err(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            format!(
+                "is in {shown}{real}, a folder of devices and kernel entries: stcvae writes \
+                 files, renamed over what is there, not to standard output or devices; name \
+                 a file elsewhere"
+            ),
+        ));
+    }
     let meta = match fs::symlink_metadata(path) {
         // Not there (or a file on the way, which the caller's directory checks name).
         Err(e)
@@ -100,6 +120,15 @@ pub fn check_replaceable(path: &Path) -> io::Result<()> {
         ));
     }
     Ok(())
+}
+
+/// `dir` resolved, where it is /dev itself or lies under /proc or /sys (Linux's device
+/// and kernel folders): `--out /dev/stdout` reaches /dev, `/dev/fd/1` /proc. Folders below
+/// /dev, such as the tmpfs /dev/shm, hold files and are let through.
+fn system_folder(dir: &Path) -> Option<PathBuf> {
+    let real = fs::canonicalize(dir).ok()?;
+    let system = real == Path::new("/dev") || real.starts_with("/proc") || real.starts_with("/sys");
+    system.then_some(real)
 }
 
 /// The temporaries being written now, so that an abort that skips destructors (a second
@@ -313,7 +342,7 @@ fn temp_prefix(path: &Path) -> String {
 /// A buffered writer to a temporary file that becomes `path` on [`AtomicFile::commit`].
 pub struct AtomicFile {
     path: PathBuf,
-    writer: BufWriter<NamedTempFile>,
+    writer: BufWriter<Temporary>,
     live: Live,
     // Last: dropped after the temporary file, whose folder is then empty.
     made: MadeDirs,
@@ -393,7 +422,7 @@ impl AtomicFile {
         Ok(Self {
             path: path.to_path_buf(),
             live: Live::new(tmp.path()),
-            writer: BufWriter::with_capacity(1 << 20, tmp),
+            writer: BufWriter::with_capacity(1 << 20, Temporary(tmp)),
             made,
         })
     }
@@ -410,7 +439,7 @@ impl AtomicFile {
     /// Flushes and syncs the temporary: everything but the rename, which can then no
     /// longer fail for want of space.
     fn finish(self) -> io::Result<Finished> {
-        let tmp = self.writer.into_inner().map_err(|e| e.into_error())?;
+        let Temporary(tmp) = self.writer.into_inner().map_err(|e| e.into_error())?;
         tmp.as_file().sync_all()?;
         Ok(Finished {
             tmp,
@@ -418,6 +447,21 @@ impl AtomicFile {
             _live: self.live,
             made: self.made,
         })
+    }
+}
+
+/// The temporary, written through its `File`: NamedTempFile's own `Write` adds "at path
+/// …/.NAME.XXXXXX.partial" to every error, naming a file that is gone by the time the
+/// message is read (the callers name the output itself).
+struct Temporary(NamedTempFile);
+
+impl Write for Temporary {
+    #[inline]
+    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+        self.0.as_file_mut().write(buf)
+    }
+    fn flush(&mut self) -> io::Result<()> {
+        self.0.as_file_mut().flush()
     }
 }
 
@@ -496,6 +540,8 @@ fn write_set_with(
             }
         }
     }
+    // Held until the set is in place (dropped on return).
+    let _folder = ready.first().and_then(|f| lock_folder(folder_of(&f.path)));
     let mut placed: Vec<(PathBuf, Before)> = Vec::with_capacity(ready.len());
     // The folders the set made stay removable until every file is in place: a rename
     // that fails takes the set's earlier files back out, and then their new folders too.
@@ -533,6 +579,21 @@ fn write_set_with(
         m.0.clear();
     }
     Ok(())
+}
+
+/// Serialises the renames of sets written into one folder at once. Two runs writing the
+/// same output (two renders given one --out) each wrote whole sets of temporaries, but
+/// their renames interleaved: one run's image beside the other's report, both exiting 0
+/// (4 of 60 tries). Now the last set renamed is the one left, whole. The lock is taken on
+/// the folder itself, so no lock file is left behind; where the folder cannot be locked
+/// (no such locks on its file system, or not Unix) the renames go unserialised, as before.
+fn lock_folder(dir: &Path) -> Option<fs::File> {
+    if !cfg!(unix) {
+        return None;
+    }
+    let folder = fs::File::open(dir).ok()?;
+    folder.lock().ok()?;
+    Some(folder)
 }
 
 /// What a set's file had before its rename.
@@ -816,6 +877,63 @@ mod tests {
         assert!(!nowhere.exists());
     }
 
+    /// Nothing is renamed into /dev, /proc or /sys (checked without writing); a folder
+    /// below /dev that holds files, such as /dev/shm, is let through.
+    #[test]
+    fn system_folders_are_refused() {
+        for (out, named) in [
+            ("/dev/stdout", "is in /dev, a folder of devices"),
+            ("/dev/stderr", "is in /dev, a folder of devices"),
+            ("/dev/render.exr", "is in /dev, a folder of devices"),
+            ("/proc/self/render.exr", "is in /proc/self, that is /proc/"),
+            ("/sys/render.exr", "is in /sys, a folder of devices"),
+        ] {
+            let e = check_output_path(Path::new(out)).unwrap_err();
+            assert!(e.starts_with(&format!("{out} {named}")), "{e}");
+            assert!(AtomicFile::create(Path::new(out)).is_err(), "{out}");
+        }
+        if Path::new("/dev/fd").exists() {
+            let e = check_output_path(Path::new("/dev/fd/1")).unwrap_err();
+            assert!(e.contains("is in /dev/fd, that is /proc/"), "{e}");
+        }
+        let shm = Path::new("/dev/shm");
+        if shm.is_dir() {
+            assert!(check_replaceable(&shm.join("render.exr")).is_ok());
+        }
+    }
+
+    /// Two writers of one set at once leave one writer's set whole, never a mix: the
+    /// renames are serialised on the folder. Without the lock, 4 of 60 pairs of renders
+    /// mixed; here each of 300 rounds races two threads, so a lock that did not hold would
+    /// show up many times over.
+    #[test]
+    fn sets_written_at_once_stay_whole() {
+        let d = tempfile::tempdir().unwrap();
+        let names: Vec<PathBuf> = ["a.exr", "a.png", "a.json"]
+            .iter()
+            .map(|n| d.path().join(n))
+            .collect();
+        for round in 0..300 {
+            std::thread::scope(|s| {
+                for who in [b"1", b"2"] {
+                    let names = &names;
+                    s.spawn(move || {
+                        let files: Vec<(&Path, &[u8])> =
+                            names.iter().map(|n| (n.as_path(), &who[..])).collect();
+                        write_atomic_set(&files).unwrap();
+                    });
+                }
+            });
+            let got: Vec<Vec<u8>> = names.iter().map(|n| fs::read(n).unwrap()).collect();
+            assert!(got.iter().all(|g| *g == got[0]), "round {round}: {got:?}");
+        }
+        assert_eq!(
+            fs::read_dir(d.path()).unwrap().count(),
+            3,
+            "temporaries left"
+        );
+    }
+
     /// A target whose name is as long as names get (255 bytes, multi-byte characters
     /// across the temporary's cut) is written: the temporary's name is shorter than it.
     #[test]
@@ -900,7 +1018,7 @@ mod tests {
             #[cfg(target_os = "linux")]
             {
                 let e = check_output_path(Path::new("/proc/self/out.bin")).unwrap_err();
-                assert!(e.contains("cannot create files in /proc/self"), "{e}");
+                assert!(e.contains("a folder of devices and kernel entries"), "{e}");
             }
         }
     }

@@ -57,7 +57,10 @@ pub struct Budget {
 /// over 4×4-pixel blocks and the object's pixels; spp: from two seeds, at most bench
 /// render's 2^30, whose pairs' halves add up in u32.
 const WHOLE: [(u64, u64); 4] = [
-    (8, 4096),
+    (
+        crate::bench_render::MIN_BENCH_SIZE as u64,
+        crate::bench_render::MAX_BENCH_SIZE as u64,
+    ),
     (2, crate::bench_render::MAX_BENCH_SPP as u64),
     (1, u32::MAX as u64),
     (2, crate::model_cmds::MAX_EVAL_SAMPLES as u64),

@@ -98,11 +98,12 @@ pub(super) fn preflight(
         for (name, b) in [("full", &cfg.full), ("quick", &cfg.quick)] {
             let size = b.size();
             let h = super::measure::height_at(size, &base.camera);
-            if !(8..=4096).contains(&h) {
+            use crate::bench_render::{MAX_BENCH_SIZE, MIN_BENCH_SIZE};
+            if !(MIN_BENCH_SIZE..=MAX_BENCH_SIZE).contains(&h) {
                 bail!(
                     "{}: its camera's aspect ({} x {}) makes {name}.size = {size} a {size} x \
-                     {h} image, and the height must be in 8..=4096 as the width (the figures \
-                     are measured over 4×4-pixel blocks)",
+                     {h} image, and the height must be in {MIN_BENCH_SIZE}..={MAX_BENCH_SIZE} \
+                     as the width (the figures are measured over 4×4-pixel blocks)",
                     path.display(),
                     base.camera.width,
                     base.camera.height
@@ -179,7 +180,6 @@ fn plot(
     log: (bool, bool),
     series: &[Series],
 ) -> Result<()> {
-    ctx.saving()?;
     line_plot(
         &ctx.out.join(file),
         title,
@@ -190,6 +190,7 @@ fn plot(
         // plotters' own default place, where the experiments' legends have always been.
         Some(SeriesLabelPosition::MiddleRight),
     )?;
+    ctx.saved_one()?;
     rep.image(title, file);
     Ok(())
 }
@@ -574,7 +575,7 @@ fn distributions(ctx: &Ctx, rep: &mut Report) -> Result<()> {
     let samples = ctx.budget.samples();
     let grid = crate::model_cmds::evaluate_into(ctx.model.as_deref(), &ctx.out, samples, 1)?;
     // Its metrics and plots, written at its end as one set, are this run's first files.
-    ctx.saving()?;
+    ctx.saved_one()?;
     // The report's figures are the eval's: so is its warning (in metrics.md only, the
     // report presented the plots of an extrapolation as a fit).
     if let Some(w) = grid.outside {

@@ -534,7 +534,6 @@ pub fn save(
     (spp, (hash, view), seeds): (u32, (u64, Option<u64>), &[u64]),
     exposure: f32,
 ) -> Result<String> {
-    ctx.saving()?;
     crate::merge::write_image_set(
         &ctx.out.join(name),
         img,
@@ -549,6 +548,7 @@ pub fn save(
         exposure,
         None,
     )?;
+    ctx.saved_one()?;
     Ok(format!("{name}.png"))
 }
 
@@ -556,8 +556,8 @@ pub fn save(
 /// with an untagged EXR: it is no render of the scene, and `merge` refuses it (tagged as
 /// one, as it was until 2026-12-02, two work maps of a scene could be averaged as renders).
 pub fn save_picture(ctx: &Ctx, name: &str, img: &RgbImage, exposure: f32) -> Result<String> {
-    ctx.saving()?;
     crate::merge::write_image_set_with(&ctx.out.join(name), img, None, exposure, None, None, &[])?;
+    ctx.saved_one()?;
     Ok(format!("{name}.png"))
 }
 
@@ -565,7 +565,6 @@ pub fn save_picture(ctx: &Ctx, name: &str, img: &RgbImage, exposure: f32) -> Res
 /// untagged) and NAME.png showing `display`, one set as every image; returns the PNG's
 /// name. The work maps: counts per path in the EXR, their log scale in the PNG.
 pub fn save_map(ctx: &Ctx, name: &str, data: &RgbImage, display: &RgbImage) -> Result<String> {
-    ctx.saving()?;
     let (exr, png) = (
         ctx.out.join(format!("{name}.exr")),
         ctx.out.join(format!("{name}.png")),
@@ -576,6 +575,7 @@ pub fn save_map(ctx: &Ctx, name: &str, data: &RgbImage, display: &RgbImage) -> R
         .map_err(|e| anyhow::anyhow!("{}: {e}", png.display()))?;
     scatter_sim::output::write_atomic_set(&[(&exr, &exr_bytes), (&png, &png_bytes)])
         .map_err(|(path, e)| anyhow::anyhow!("cannot write {}: {e}", path.display()))?;
+    ctx.saved_one()?;
     Ok(format!("{name}.png"))
 }
 

@@ -52,7 +52,7 @@ pub struct Ctx<'a> {
     pub engine: &'a Engine,
     pub model: Option<PathBuf>,
     pub out: PathBuf,
-    /// Whether this run has saved a file yet ([`Ctx::saving`]).
+    /// Whether this run has saved a file yet ([`Ctx::saved_one`]).
     saved: std::cell::Cell<bool>,
     /// Warnings said during the run (key, text), each once, repeated in the report (a
     /// model extrapolating showed only on the terminal).
@@ -60,13 +60,17 @@ pub struct Ctx<'a> {
 }
 
 impl Ctx<'_> {
-    /// Called before every file a run saves into its folder (renders, pictures, plots,
-    /// metrics): the first removes the earlier run's report.md and figures.csv, which
-    /// would no longer describe the folder's images, however this run then ends (a second
-    /// Ctrl-C or a kill skips any clean-up). A run that saves nothing leaves them as they
-    /// were (removed up front, an interrupted rerun took a finished run's report with it).
-    pub fn saving(&self) -> Result<()> {
-        if !self.saved.get() {
+    /// Called after every file a run saves into its folder (renders, pictures, plots,
+    /// metrics): the first removes the earlier run's report.md and figures.csv, which no
+    /// longer describe the folder's images, however this run then ends (a second Ctrl-C
+    /// or a kill skips any clean-up). Until a file of this run is in place they stay: a
+    /// run that saves nothing leaves them as they were (removed up front, an interrupted
+    /// rerun took a finished run's report with it; removed before the first save, a full
+    /// disk at the first image did).
+    pub fn saved_one(&self) -> Result<()> {
+        // Set first: a report that cannot be removed (an immutable file) fails the run
+        // with a file of it saved, and the message then says where.
+        if !self.saved.replace(true) {
             for stale in ["report.md", "figures.csv"] {
                 let p = self.out.join(stale);
                 if p.is_file() {
@@ -74,9 +78,6 @@ impl Ctx<'_> {
                         .with_context(|| format!("cannot remove {}", p.display()))?;
                 }
             }
-            // Only now: a report that could not be removed (an immutable file) failed the
-            // run before anything was saved, and the message said "images saved so far".
-            self.saved.set(true);
         }
         Ok(())
     }
@@ -159,7 +160,7 @@ pub fn run(a: Args) -> Result<()> {
     // Ctrl-C is a request to stop after the current render pass (measure::render_once).
     crate::interrupt::flag();
     if let Err(e) = kinds::run(&ctx, &mut rep) {
-        // A run that saved files removed the earlier report with its first (Ctx::saving);
+        // A run that saved files removed the earlier report after its first (Ctx::saved_one);
         // one stopped before it saved anything leaves the earlier run's results as they
         // were.
         if !ctx.saved.get() && out.join("report.md").is_file() {

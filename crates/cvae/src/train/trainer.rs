@@ -89,8 +89,11 @@ impl ModelConfig {
                 "must be in 1..=2^40 (0 would train nothing and export an untrained model)",
             );
         }
-        if self.latent == 0 || self.latent > 16 {
-            return bad("latent", "must be in 1..=16");
+        if self.latent == 0 || self.latent > crate::decoder::MAX_LATENT {
+            return bad(
+                "latent",
+                &format!("must be in 1..={}", crate::decoder::MAX_LATENT),
+            );
         }
         if self.hidden.is_empty()
             || self.hidden.len() > crate::decoder::MAX_HIDDEN_LAYERS
