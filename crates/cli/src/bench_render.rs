@@ -577,12 +577,28 @@ pub fn run(a: Args) -> Result<()> {
         "PT paths/s",
         "ST paths/s"
     );
+    // The folders --save makes (none yet: the first saved file makes them), so that a run
+    // whose saving fails leaves none of them empty, as other commands' failed writes do.
+    let save_made: Vec<PathBuf> = a.save.as_deref().map_or_else(Vec::new, |dir| {
+        dir.ancestors()
+            .take_while(|d| !d.as_os_str().is_empty() && !d.exists())
+            .map(PathBuf::from)
+            .collect()
+    });
     for &k in &a.k {
         let (pt, cached) = pt_pair(&a, &engine, k, identity.as_deref())?;
         let st = run_pair(&a, &engine, IntegratorKind::Stcvae, k)?;
         let c = compare(&pt, &st);
         if let Some(dir) = &a.save {
-            save_images(&a, dir, k, &pt, &st)?;
+            save_images(&a, dir, k, &pt, &st).inspect_err(|_| {
+                // Deepest first; one that holds anything (an earlier density's files)
+                // stays, and so do its parents.
+                for d in &save_made {
+                    if std::fs::remove_dir(d).is_err() {
+                        break;
+                    }
+                }
+            })?;
         }
         println!(
             "{:>4} {:>20} {:>8} {:>8} {:>8.2}x {:>9.2} {:>10.2}x {:>10.1} {:>10.2} {:>10.2} {:>9.4} {:>9} {:>9.4} {:>10} {:>10}",
