@@ -1182,9 +1182,8 @@ pub fn run(a: Args) -> Result<()> {
     // resumed run at its plan's end only exports (a full disk here gave no way on).
     scatter_sim::output::write_atomic_set(&files).map_err(|(p, e)| {
         anyhow::anyhow!(
-            "cannot write {}: {e}; nothing was written, but the training's checkpoints in \
-             {} are complete: once the output can be written, `{}` writes it without \
-             training again",
+            "cannot write {}: {e}; the training's checkpoints in {} are complete: once \
+             the output can be written, `{}` writes it without training again",
             p.display(),
             cfg.checkpoint_dir.display(),
             resume_command(&a)

@@ -92,8 +92,9 @@ pub fn event_cond(
 }
 
 /// The largest N LengthGen's read-out gives, 10^15 (shaders/decoder.wgsl caps at the same
-/// value, which the GPU kernels take from here): only a damaged or absurd draw gets there, and with NEE's weight Λ(N) = N at
-/// φ = 1 the cap bounds that outlier alike on both devices.
+/// value, which the GPU kernels take from here): only a damaged or absurd draw gets there,
+/// and with NEE's weight Λ(N) = N at φ = 1 the cap bounds that outlier alike on both
+/// devices.
 pub const MAX_DECODED_N: u64 = 1_000_000_000_000_000;
 
 /// The features of one walk's (τ, g, φ), which all three models' conditions share. A

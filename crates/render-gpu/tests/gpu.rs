@@ -982,7 +982,7 @@ const MIN_BLOCK_DOF: f64 = 20.0;
 /// Across the file (counted 2026-12-05): 41 render comparisons at 24² or 32² (at most 64
 /// blocks × 3 channels each) and two work maps at 48² (144 blocks, channel 0 only), at
 /// most ~8,200 block z's in all. At the floor ν = 20 each passes 6.5 with probability
-/// 2.5e-6 (≤ 2 % over the file if every block sat there); most blocks have ν near 90
+/// 2.5e-6 (≈ 2 % over the file if every block sat there); most blocks have ν near 90
 /// (16 pixels × 3 per device), where it is 4e-9. The seeds are fixed, so that is the chance that a reseed or a change that only
 /// redraws the random numbers trips it, not a flaky run.
 ///

@@ -123,12 +123,24 @@ pub fn check_replaceable(path: &Path) -> io::Result<()> {
 }
 
 /// `dir` resolved, where it is /dev itself or lies under /proc or /sys (Linux's device
-/// and kernel folders): `--out /dev/stdout` reaches /dev, `/dev/fd/1` /proc. Folders below
-/// /dev, such as the tmpfs /dev/shm, hold files and are let through.
+/// and kernel folders): `--out /dev/stdout` reaches /dev, `/dev/fd/1` /proc, and
+/// `/dev/new/x` would make a folder in /dev. Folders below /dev that are there, such as
+/// the tmpfs /dev/shm, hold files and are let through. A folder not made yet resolves
+/// through its nearest existing ancestor.
 fn system_folder(dir: &Path) -> Option<PathBuf> {
-    let real = fs::canonicalize(dir).ok()?;
-    let system = real == Path::new("/dev") || real.starts_with("/proc") || real.starts_with("/sys");
-    system.then_some(real)
+    let existing = dir.ancestors().find(|a| a.exists())?;
+    let made = dir.strip_prefix(existing).ok()?;
+    let real = fs::canonicalize(existing).ok()?;
+    let system =
+        (real == Path::new("/dev")) || real.starts_with("/proc") || real.starts_with("/sys");
+    // (join("") would add a separator: "/dev/".)
+    system.then(|| {
+        if made.as_os_str().is_empty() {
+            real
+        } else {
+            real.join(made)
+        }
+    })
 }
 
 /// The temporaries being written now, so that an abort that skips destructors (a second
@@ -205,7 +217,7 @@ pub fn remove_stale_temporaries_of(path: &Path) {
 #[cfg_attr(not(unix), allow(clippy::never_loop))]
 fn locked_temporary(builder: &tempfile::Builder, dir: &Path) -> io::Result<NamedTempFile> {
     for _ in 0..8 {
-        let tmp = builder.tempfile_in(dir)?;
+        let tmp = builder.tempfile_in(dir).map_err(without_temporary)?;
         if tmp.as_file().lock().is_err() {
             return Ok(tmp);
         }
@@ -224,6 +236,16 @@ fn locked_temporary(builder: &tempfile::Builder, dir: &Path) -> io::Result<Named
     Err(io::Error::other(
         "its temporary file was removed as soon as it was made, eight times",
     ))
+}
+
+/// tempfile's error without the temporary's path it adds ("… at path
+/// …/.x.exr.XXXXXX.partial"), a file that is gone by the time the message is read: the
+/// callers name the output itself.
+fn without_temporary(e: io::Error) -> io::Error {
+    match e.get_ref().and_then(|inner| inner.source()) {
+        Some(cause) => io::Error::new(e.kind(), cause.to_string()),
+        None => e,
+    }
 }
 
 /// Removes the `.NAME.XXXXXX.partial` temporaries beside `path` (`prefix` is
@@ -587,13 +609,47 @@ fn write_set_with(
 /// (4 of 60 tries). Now the last set renamed is the one left, whole. The lock is taken on
 /// the folder itself, so no lock file is left behind; where the folder cannot be locked
 /// (no such locks on its file system, or not Unix) the renames go unserialised, as before.
+///
+/// Another program may hold a lock on the folder for long (`flock DIR cmd`, or anyone's on
+/// /tmp): after [`FOLDER_LOCK_WAIT`] the renames go ahead without it, with a note.
 fn lock_folder(dir: &Path) -> Option<fs::File> {
-    if !cfg!(unix) {
-        return None;
+    let locked = lock_folder_within(dir, FOLDER_LOCK_WAIT);
+    if locked.is_err() {
+        eprintln!(
+            "note: {} stayed locked by another program for {} s; this output's files are \
+             renamed into it without waiting (two stcvae runs writing one output at this \
+             moment could mix their files)",
+            dir.display(),
+            FOLDER_LOCK_WAIT.as_secs()
+        );
     }
-    let folder = fs::File::open(dir).ok()?;
-    folder.lock().ok()?;
-    Some(folder)
+    locked.ok().flatten()
+}
+
+/// How long a set's renames wait for its folder's lock. Another stcvae holds it for the
+/// milliseconds of its own renames.
+const FOLDER_LOCK_WAIT: std::time::Duration = std::time::Duration::from_secs(5);
+
+/// The folder's lock within `wait`: Ok(None) where it cannot be locked at all, Err(())
+/// where it stayed held by another for `wait`.
+fn lock_folder_within(dir: &Path, wait: std::time::Duration) -> Result<Option<fs::File>, ()> {
+    if !cfg!(unix) {
+        return Ok(None);
+    }
+    let Ok(folder) = fs::File::open(dir) else {
+        return Ok(None);
+    };
+    let start = std::time::Instant::now();
+    loop {
+        match folder.try_lock() {
+            Ok(()) => return Ok(Some(folder)),
+            Err(fs::TryLockError::WouldBlock) if start.elapsed() < wait => {
+                std::thread::sleep(std::time::Duration::from_millis(5));
+            }
+            Err(fs::TryLockError::WouldBlock) => return Err(()),
+            Err(fs::TryLockError::Error(_)) => return Ok(None),
+        }
+    }
 }
 
 /// What a set's file had before its rename.
@@ -877,8 +933,10 @@ mod tests {
         assert!(!nowhere.exists());
     }
 
-    /// Nothing is renamed into /dev, /proc or /sys (checked without writing); a folder
-    /// below /dev that holds files, such as /dev/shm, is let through.
+    /// Nothing is renamed into /dev, /proc or /sys (checked without writing), nor a folder
+    /// made in /dev; a folder below /dev that holds files, such as /dev/shm, is let
+    /// through.
+    #[cfg(target_os = "linux")]
     #[test]
     fn system_folders_are_refused() {
         for (out, named) in [
@@ -887,6 +945,7 @@ mod tests {
             ("/dev/render.exr", "is in /dev, a folder of devices"),
             ("/proc/self/render.exr", "is in /proc/self, that is /proc/"),
             ("/sys/render.exr", "is in /sys, a folder of devices"),
+            ("/dev/new/render.exr", "is in /dev/new, a folder of devices"),
         ] {
             let e = check_output_path(Path::new(out)).unwrap_err();
             assert!(e.starts_with(&format!("{out} {named}")), "{e}");
@@ -932,6 +991,21 @@ mod tests {
             3,
             "temporaries left"
         );
+    }
+
+    /// A folder another program keeps locked holds a set's renames up only for the wait
+    /// given, then they go ahead (`flock DIR cmd` around a run hung it for ever); once the
+    /// lock is let go it is taken.
+    #[cfg(unix)]
+    #[test]
+    fn a_folder_locked_by_another_is_waited_for_only_so_long() {
+        let d = tempfile::tempdir().unwrap();
+        let other = fs::File::open(d.path()).unwrap();
+        other.lock().unwrap();
+        let wait = std::time::Duration::from_millis(50);
+        assert!(lock_folder_within(d.path(), wait).is_err());
+        drop(other);
+        assert!(matches!(lock_folder_within(d.path(), wait), Ok(Some(_))));
     }
 
     /// A target whose name is as long as names get (255 bytes, multi-byte characters
