@@ -40,7 +40,7 @@ pub struct DistanceGrid {
     pub candidates: Vec<u32>,
 }
 
-const MAGIC: &[u8; 8] = b"STCVDG04";
+const MAGIC: &[u8; 8] = b"STCVDG05";
 
 /// Most triangle references the cell lists may hold: their offsets are u32 (in the cache
 /// file and in the kernels' buffer). At ~300 references a triangle, a mesh of ~14 M
@@ -65,11 +65,16 @@ impl DistanceGrid {
         Self::build_within(geo, resolution, MAX_CANDIDATES)
     }
 
-    fn build_within(geo: &Geometry, resolution: u32, most: u64) -> Result<Self, String> {
+    /// The grid's corner, cell size and cell counts for `geo` at `resolution`.
+    fn frame(geo: &Geometry, resolution: u32) -> (Vec3, f32, UVec3) {
         let extent = geo.hi - geo.lo;
         let cell = extent.max_element() / resolution as f32;
         let dims = (extent / cell).ceil().as_uvec3().max(UVec3::ONE);
-        let lo = geo.lo;
+        (geo.lo, cell, dims)
+    }
+
+    fn build_within(geo: &Geometry, resolution: u32, most: u64) -> Result<Self, String> {
+        let (lo, cell, dims) = Self::frame(geo, resolution);
         let n = (dims.x * dims.y * dims.z) as usize;
         // Relative margin for f32 rounding in the distance computation.
         let margin = geo.eps * 0.5;
@@ -247,7 +252,7 @@ impl DistanceGrid {
         let key = cache_key(geo, resolution);
         let path = cache_file(&format!("grid-{key:016x}-{resolution}"));
         if let Some(p) = &path
-            && let Some(g) = Self::read(p, geo.tris.len())
+            && let Some(g) = Self::read(p, key, geo, resolution)
         {
             return Ok(g);
         }
@@ -260,7 +265,7 @@ impl DistanceGrid {
             && let Some(p) = &path
         {
             // A cache that cannot be written only costs time next run; said once.
-            if let Err(e) = g.write(p) {
+            if let Err(e) = g.write(p, key) {
                 note_unwritable_cache(p, &e);
             }
             prune_stale(p);
@@ -268,9 +273,10 @@ impl DistanceGrid {
         Ok(g)
     }
 
-    fn write(&self, path: &Path) -> std::io::Result<()> {
-        let mut bytes = Vec::with_capacity(48 + 8 * self.cells.len() + 4 * self.candidates.len());
+    fn write(&self, path: &Path, key: u64) -> std::io::Result<()> {
+        let mut bytes = Vec::with_capacity(56 + 8 * self.cells.len() + 4 * self.candidates.len());
         bytes.extend_from_slice(MAGIC);
+        bytes.extend_from_slice(&key.to_le_bytes());
         for v in [self.lo.x, self.lo.y, self.lo.z, self.cell] {
             bytes.extend_from_slice(&v.to_le_bytes());
         }
@@ -289,25 +295,38 @@ impl DistanceGrid {
         scatter_sim::output::write_atomic(path, &bytes)
     }
 
-    /// Reads a cached grid of a mesh of `triangles` triangles; anything unexpected means
-    /// "rebuild" (None). A file with a valid checksum is still checked for what would
-    /// break a render: dimensions whose cell count overflows or is 0, a candidate beyond the
-    /// mesh (an index out of bounds), or a cell size or distance that is not finite and ≥ 0.
-    fn read(path: &Path, triangles: usize) -> Option<Self> {
+    /// Reads the cached grid of `geo` at `resolution` (cache key `key`); anything
+    /// unexpected means "rebuild" (None). A file with a valid checksum is still checked:
+    /// its key and frame must be this mesh's at this resolution (a file of another mesh
+    /// with as many triangles, copied under this name, was read, and rendered 24× too
+    /// bright), and nothing may break a render: dimensions whose cell count overflows or
+    /// is 0, a candidate beyond the mesh (an index out of bounds), or a distance that is
+    /// not finite and ≥ 0.
+    fn read(path: &Path, key: u64, geo: &Geometry, resolution: u32) -> Option<Self> {
+        let triangles = geo.tris.len();
         // A named pipe blocked the render and a link to /dev/zero read until memory ran out:
         // anything but a regular file is a miss, replaced when the grid is written.
         scatter_sim::output::check_input(path).ok()?;
         let b = std::fs::read(path).ok()?;
-        if b.len() < 40 + 4 || &b[..8] != MAGIC {
+        if b.len() < 48 + 4 || &b[..8] != MAGIC {
             return None;
         }
         let (body, crc) = b.split_at(b.len() - 4);
-        if crc32fast::hash(body) != u32::from_le_bytes(crc.try_into().ok()?) {
+        if crc32fast::hash(body) != u32::from_le_bytes(crc.try_into().ok()?)
+            || u64::from_le_bytes(body[8..16].try_into().ok()?) != key
+        {
             return None;
         }
+        // The header as the key's grid has it, then the rest as written without the key.
+        let body = &body[8..];
         let f = |i: usize| f32::from_le_bytes(body[8 + 4 * i..12 + 4 * i].try_into().unwrap());
         let u = |i: usize| u32::from_le_bytes(body[8 + 4 * i..12 + 4 * i].try_into().unwrap());
         let dims = UVec3::new(u(4), u(5), u(6));
+        let (lo, cell, want) = Self::frame(geo, resolution);
+        let same = |a: f32, b: f32| a.to_bits() == b.to_bits();
+        if dims != want || !same(f(3), cell) || !(0..3).all(|i| same(f(i), lo[i])) {
+            return None;
+        }
         // Cells are indexed in u32 (`cell_of`): a product that overflows it, or wraps in
         // usize, would pass the length check below and index out of bounds.
         let n = (dims.x as usize)
@@ -453,8 +472,13 @@ mod tests {
     #[test]
     fn a_cache_entry_that_is_no_file_is_a_miss() {
         let d = tempfile::tempdir().unwrap();
+        let geo = crate::geometry::Geometry::new(crate::mesh::cube(1.0));
         for p in crate::not_files(d.path()) {
-            assert!(DistanceGrid::read(&p, 12).is_none(), "{}", p.display());
+            assert!(
+                DistanceGrid::read(&p, 7, &geo, 8).is_none(),
+                "{}",
+                p.display()
+            );
         }
     }
 
@@ -482,15 +506,24 @@ mod tests {
 
     /// A cached grid with a valid checksum is still refused (rebuilt) where its contents
     /// would break a render: a candidate index beyond the mesh (it panicked with an index
-    /// out of bounds) or a negative distance. The file as written reads back as it was.
+    /// out of bounds) or a negative distance; and where it is not this mesh's grid at this
+    /// resolution: another key (another mesh's file of as many triangles, copied under this
+    /// name, rendered 24× too bright), another resolution's grid, or a frame edited. The
+    /// file as written reads back as it was.
     #[test]
     fn forged_cache_contents_are_rebuilt() {
         let geo = crate::geometry::Geometry::new(crate::mesh::cube(1.0));
         let grid = DistanceGrid::build(&geo, 8).unwrap();
         let d = tempfile::tempdir().unwrap();
         let path = d.path().join("grid.bin");
-        grid.write(&path).unwrap();
-        let back = DistanceGrid::read(&path, geo.tris.len()).expect("its own file");
+        let key = 7;
+        grid.write(&path, key).unwrap();
+        let back = DistanceGrid::read(&path, key, &geo, 8).expect("its own file");
+        assert!(DistanceGrid::read(&path, key + 1, &geo, 8).is_none());
+        assert!(DistanceGrid::read(&path, key, &geo, 16).is_none());
+        let moved = crate::geometry::Geometry::new(crate::mesh::cube(1.5));
+        assert_eq!(moved.tris.len(), geo.tris.len());
+        assert!(DistanceGrid::read(&path, key, &moved, 8).is_none());
         assert_eq!(
             (back.cells, back.candidates),
             (grid.cells.clone(), grid.candidates.clone())
@@ -498,9 +531,12 @@ mod tests {
         let forge = |edit: &dyn Fn(&mut DistanceGrid)| {
             let mut g = DistanceGrid::build(&geo, 8).unwrap();
             edit(&mut g);
-            g.write(&path).unwrap();
-            DistanceGrid::read(&path, geo.tris.len())
+            g.write(&path, key).unwrap();
+            DistanceGrid::read(&path, key, &geo, 8)
         };
+        assert!(forge(&|g| g.cell *= 3.0).is_none());
+        assert!(forge(&|g| g.lo.x += 0.25).is_none());
+        assert!(forge(&|g| g.dims = glam::UVec3::new(g.dims.z, g.dims.y, g.dims.x + 1)).is_none());
         assert!(!grid.candidates.is_empty());
         assert!(forge(&|g| g.candidates[0] = 1_000_000_000).is_none());
         assert!(forge(&|g| g.cells[0][0] = (-1.0f32).to_bits()).is_none());

@@ -30,7 +30,7 @@ pub const NO_CONE: f32 = 2.0;
 /// A half-space m·q ≤ d.
 type Plane = (DVec3, f64);
 
-const MAGIC: &[u8; 8] = b"STCVEC01";
+const MAGIC: &[u8; 8] = b"STCVEC02";
 
 /// [`escape_cosines`], from the cache directory of the distance grids when a run before
 /// has computed them for the same mesh. They cost ~17 µs a triangle on 2 cores (55 ms for
@@ -40,7 +40,7 @@ pub fn cached(geo: &Geometry) -> Vec<f32> {
     // (`cache_file`), so a change to TANS, the margins or the region is never read stale.
     let key = crate::distance_grid::mesh_hasher(geo, b"escape-cones-v2").finish();
     let path = crate::distance_grid::cache_file(&format!("cones-{key:016x}"));
-    if let Some(cos) = path.as_deref().and_then(|p| read(p, geo.tris.len())) {
+    if let Some(cos) = path.as_deref().and_then(|p| read(p, key, geo.tris.len())) {
         return cos;
     }
     let t0 = std::time::Instant::now();
@@ -49,7 +49,7 @@ pub fn cached(geo: &Geometry) -> Vec<f32> {
         && let Some(p) = &path
     {
         // A cache that cannot be written only costs time next run; said once.
-        if let Err(e) = write(p, &cos) {
+        if let Err(e) = write(p, key, &cos) {
             crate::distance_grid::note_unwritable_cache(p, &e);
         }
         crate::distance_grid::prune_stale(p);
@@ -57,8 +57,9 @@ pub fn cached(geo: &Geometry) -> Vec<f32> {
     cos
 }
 
-fn write(path: &std::path::Path, cos: &[f32]) -> std::io::Result<()> {
+fn write(path: &std::path::Path, key: u64, cos: &[f32]) -> std::io::Result<()> {
     let mut bytes = MAGIC.to_vec();
+    bytes.extend_from_slice(&key.to_le_bytes());
     bytes.extend_from_slice(&(cos.len() as u32).to_le_bytes());
     for c in cos {
         bytes.extend_from_slice(&c.to_le_bytes());
@@ -70,21 +71,24 @@ fn write(path: &std::path::Path, cos: &[f32]) -> std::io::Result<()> {
     scatter_sim::output::write_atomic(path, &bytes)
 }
 
-/// Cached cosines for `n` triangles; anything unexpected means "compute them" (None).
-fn read(path: &std::path::Path, n: usize) -> Option<Vec<f32>> {
+/// Cached cosines for `n` triangles under cache key `key` (held in the file too, so that
+/// another mesh's file copied under this name is a miss); anything unexpected means
+/// "compute them" (None).
+fn read(path: &std::path::Path, key: u64, n: usize) -> Option<Vec<f32>> {
     // Anything but a regular file (a named pipe blocked, /dev/zero filled memory) is a miss.
     scatter_sim::output::check_input(path).ok()?;
     let b = std::fs::read(path).ok()?;
-    if b.len() != 16 + 4 * n || &b[..8] != MAGIC {
+    if b.len() != 24 + 4 * n || &b[..8] != MAGIC {
         return None;
     }
     let (body, crc) = b.split_at(b.len() - 4);
     if crc32fast::hash(body) != u32::from_le_bytes(crc.try_into().ok()?)
-        || u32::from_le_bytes(body[8..12].try_into().ok()?) as usize != n
+        || u64::from_le_bytes(body[8..16].try_into().ok()?) != key
+        || u32::from_le_bytes(body[16..20].try_into().ok()?) as usize != n
     {
         return None;
     }
-    let cos: Vec<f32> = body[12..]
+    let cos: Vec<f32> = body[20..]
         .chunks_exact(4)
         .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
         .collect();
@@ -244,7 +248,7 @@ mod tests {
     fn a_cache_entry_that_is_no_file_is_a_miss() {
         let d = tempfile::tempdir().unwrap();
         for p in crate::not_files(d.path()) {
-            assert!(super::read(&p, 12).is_none(), "{}", p.display());
+            assert!(super::read(&p, 7, 12).is_none(), "{}", p.display());
         }
     }
 
@@ -377,19 +381,21 @@ mod tests {
         }
     }
 
-    /// The cache file round-trips, and a damaged file or one for another mesh is not read.
+    /// The cache file round-trips, and a damaged file or one for another mesh is not read:
+    /// one of as many triangles but another key (a file copied under another name) too.
     #[test]
     fn cached_cones_round_trip_and_damage_is_refused() {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("c.bin");
         let cos = vec![0.5, NO_CONE, 0.9];
-        super::write(&p, &cos).unwrap();
-        assert_eq!(super::read(&p, 3), Some(cos));
-        assert_eq!(super::read(&p, 4), None);
+        super::write(&p, 7, &cos).unwrap();
+        assert_eq!(super::read(&p, 7, 3), Some(cos));
+        assert_eq!(super::read(&p, 7, 4), None);
+        assert_eq!(super::read(&p, 8, 3), None);
         let mut b = std::fs::read(&p).unwrap();
-        b[13] ^= 1;
+        b[21] ^= 1;
         std::fs::write(&p, &b).unwrap();
-        assert_eq!(super::read(&p, 3), None);
+        assert_eq!(super::read(&p, 7, 3), None);
     }
 
     /// The cones must also be wide enough to spare casts: on the bunny 70 % of the area has
