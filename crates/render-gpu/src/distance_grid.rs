@@ -317,7 +317,8 @@ impl DistanceGrid {
         {
             return None;
         }
-        // The header as the key's grid has it, then the rest as written without the key.
+        // From here the offsets are those of a file without the key, which sits where the
+        // magic did.
         let body = &body[8..];
         let f = |i: usize| f32::from_le_bytes(body[8 + 4 * i..12 + 4 * i].try_into().unwrap());
         let u = |i: usize| u32::from_le_bytes(body[8 + 4 * i..12 + 4 * i].try_into().unwrap());
