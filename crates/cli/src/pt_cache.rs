@@ -44,7 +44,10 @@ struct Stored {
 /// Fnv64 of the stored JSON with an empty checksum, in hex. A pair's pixels pass every
 /// range check when one of their digits is changed: a bit flipped on disk (one digit of a
 /// pixel's mean) turned the bias RMSE from 0 into 0.08 without a word. The JSON is written
-/// and read back by serde_json alone, whose output of a value it parsed is the same text.
+/// and read back by serde_json alone, whose output of a value it parsed is the same text
+/// because floats parse exactly with its `float_roundtrip` feature (the workspace's
+/// Cargo.toml): without it a 17-digit f64 could read back one ulp off, and the pair as
+/// damaged.
 fn checksum_of(s: &Stored) -> Result<String> {
     debug_assert!(s.checksum.is_empty());
     let mut h = Fnv64::new();
@@ -140,9 +143,15 @@ pub fn load(
         )
     })?;
     let sum = std::mem::take(&mut s.checksum);
+    if checksum_of(&s)? != sum {
+        bail!(
+            "{}: damaged (its checksum does not match its contents; delete it to render PT \
+             again)",
+            file.display()
+        );
+    }
     let n = s.width.checked_mul(s.height);
-    if checksum_of(&s)? != sum
-        || s.version != VERSION
+    if s.version != VERSION
         || s.hash != format!("{hash:016x}")
         || s.spp != spp
         || s.identity != identity
@@ -309,7 +318,11 @@ mod tests {
         let mut v = stored.clone();
         v["mean"][4][1] = 1.75.into();
         std::fs::write(&f, v.to_string()).unwrap();
-        assert!(load(&f, p.hash, p.spp, (3, 2), &id).is_err());
+        let err = format!(
+            "{:#}",
+            load(&f, p.hash, p.spp, (3, 2), &id).err().expect("refused")
+        );
+        assert!(err.contains("damaged (its checksum"), "{err}");
         std::fs::write(&f, sealed(&v)).unwrap();
         assert!(load(&f, p.hash, p.spp, (3, 2), &id).is_ok());
         type Edit = fn(&mut serde_json::Value);
