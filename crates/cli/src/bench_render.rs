@@ -269,10 +269,17 @@ fn pt_pair(
     let spp = 2 * half_spp(a.spp);
     let file = crate::pt_cache::path(dir, k, p.data.hash, spp, id);
     let size = (p.data.camera.width, p.data.camera.height);
-    if let Some((mut pair, when)) = crate::pt_cache::load(&file, p.data.hash, spp, size, id)? {
-        // The scene hash it was stored under covers everything the view hash does.
-        pair.view = Some(p.data.view_hash);
-        return Ok((pair, Some(when)));
+    match crate::pt_cache::load(&file, p.data.hash, spp, size, id) {
+        Ok(Some((mut pair, when))) => {
+            // The scene hash it was stored under covers everything the view hash does.
+            pair.view = Some(p.data.view_hash);
+            return Ok((pair, Some(when)));
+        }
+        Ok(None) => {}
+        Err(e) if crate::pt_cache::is_damaged(&e) => {
+            eprintln!("note: {e:#}: PT at k = {k} is rendered again and stored in its place");
+        }
+        Err(e) => return Err(e),
     }
     let pair = render_pair(a, engine, &p, IntegratorKind::Pt)?;
     // The render stands whether or not it can be kept for the next run.
@@ -519,14 +526,19 @@ pub fn run(a: Args) -> Result<()> {
         )),
         None => None,
     };
-    // Every density's stored PT pair is read once before the first render, so that a
-    // damaged entry fails now, not after the densities before it have rendered.
+    // Every density's stored PT pair is read once before the first render, so that one
+    // that cannot be read (a directory, no permission) fails now, not after the densities
+    // before it have rendered. A damaged one is rendered again in its turn, with a note.
     if let (Some(dir), Some(id)) = (&a.pt_cache, identity.as_deref()) {
         for &k in &a.k {
             let p = prepare_k(&a, IntegratorKind::Pt, k)?;
             let file = crate::pt_cache::path(dir, k, p.data.hash, 2 * half_spp(a.spp), id);
             let size = (p.data.camera.width, p.data.camera.height);
-            crate::pt_cache::load(&file, p.data.hash, 2 * half_spp(a.spp), size, id)?;
+            if let Err(e) = crate::pt_cache::load(&file, p.data.hash, 2 * half_spp(a.spp), size, id)
+                && !crate::pt_cache::is_damaged(&e)
+            {
+                return Err(e);
+            }
         }
     }
     // So are the files `--save` writes for every density (one that is a directory failed

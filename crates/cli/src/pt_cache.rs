@@ -9,7 +9,7 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use render_gpu::hash::Fnv64;
 use render_gpu::image_io::RgbImage;
 use render_gpu::integrator::PathStats;
@@ -122,7 +122,27 @@ fn values_in_range(mean: &[[f32; 3]], var: &[[f64; 3]], work: &[f32], seconds: f
         && work.iter().all(|v| v.is_finite() && *v >= 0.0)
 }
 
-/// The stored pair and the Unix time it was measured at, if `file` exists.
+/// A stored pair that cannot be used (damaged, edited, or not a pair at all): the bench
+/// renders PT again and replaces it, with a note, as a cache does; it stopped the bench,
+/// asking for the file to be deleted by hand. Errors reading the file stay errors.
+#[derive(Debug)]
+pub struct Damaged(String);
+
+impl std::fmt::Display for Damaged {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Damaged {}
+
+/// Whether `e` is [`Damaged`]'s.
+pub fn is_damaged(e: &anyhow::Error) -> bool {
+    e.downcast_ref::<Damaged>().is_some()
+}
+
+/// The stored pair and the Unix time it was measured at, if `file` exists; a [`Damaged`]
+/// error where it cannot be used.
 pub fn load(
     file: &Path,
     hash: u64,
@@ -136,19 +156,15 @@ pub fn load(
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
         Err(e) => return Err(e).with_context(|| format!("cannot read {}", file.display())),
     };
-    let mut s: Stored = serde_json::from_slice(&bytes).with_context(|| {
-        format!(
-            "{}: not a stored PT pair (delete it to render PT again)",
-            file.display()
-        )
-    })?;
+    let mut s: Stored = serde_json::from_slice(&bytes)
+        .map_err(|e| Damaged(format!("{}: not a stored PT pair ({e})", file.display())))?;
     let sum = std::mem::take(&mut s.checksum);
     if checksum_of(&s)? != sum {
-        bail!(
-            "{}: damaged (its checksum does not match its contents; delete it to render PT \
-             again)",
+        return Err(Damaged(format!(
+            "{}: damaged (its checksum does not match its contents)",
             file.display()
-        );
+        ))
+        .into());
     }
     let n = s.width.checked_mul(s.height);
     if s.version != VERSION
@@ -159,11 +175,11 @@ pub fn load(
         || n != Some(s.mean.len())
         || !values_in_range(&s.mean, &s.var, &s.work, s.seconds)
     {
-        bail!(
-            "{}: stored for another version, scene, spp, size, device or binary, or damaged \
-             (delete it to render PT again)",
+        return Err(Damaged(format!(
+            "{}: stored for another version, scene, spp, size, device or binary, or damaged",
             file.display()
-        );
+        ))
+        .into());
     }
     let pair = Pair {
         mean: RgbImage {
@@ -318,11 +334,12 @@ mod tests {
         let mut v = stored.clone();
         v["mean"][4][1] = 1.75.into();
         std::fs::write(&f, v.to_string()).unwrap();
-        let err = format!(
-            "{:#}",
-            load(&f, p.hash, p.spp, (3, 2), &id).err().expect("refused")
+        let err = load(&f, p.hash, p.spp, (3, 2), &id).err().expect("refused");
+        assert!(is_damaged(&err), "{err:#}");
+        assert!(
+            format!("{err:#}").contains("damaged (its checksum"),
+            "{err:#}"
         );
-        assert!(err.contains("damaged (its checksum"), "{err}");
         std::fs::write(&f, sealed(&v)).unwrap();
         assert!(load(&f, p.hash, p.spp, (3, 2), &id).is_ok());
         type Edit = fn(&mut serde_json::Value);
@@ -338,7 +355,8 @@ mod tests {
             let mut v = stored.clone();
             edit(&mut v);
             std::fs::write(&f, sealed(&v)).unwrap();
-            assert!(load(&f, p.hash, p.spp, (3, 2), &id).is_err(), "edit {i}");
+            let err = load(&f, p.hash, p.spp, (3, 2), &id).err().expect("refused");
+            assert!(is_damaged(&err), "edit {i}: {err:#}");
         }
         std::fs::write(&f, stored.to_string()).unwrap();
         assert!(load(&f, p.hash, p.spp, (3, 2), &id).is_ok());
@@ -357,7 +375,7 @@ mod tests {
             "{:#}",
             load(&f, p.hash, p.spp, (3, 2), &id).err().expect("refused")
         );
-        assert!(err.contains("delete it"), "{err}");
+        assert!(err.contains("not a stored PT pair"), "{err}");
     }
 
     #[test]
