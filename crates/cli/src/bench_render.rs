@@ -530,11 +530,12 @@ pub fn run(a: Args) -> Result<()> {
     // that cannot be read (a directory, no permission) fails now, not after the densities
     // before it have rendered. A damaged one is rendered again in its turn, with a note.
     if let (Some(dir), Some(id)) = (&a.pt_cache, identity.as_deref()) {
+        let spp = 2 * half_spp(a.spp);
         for &k in &a.k {
             let p = prepare_k(&a, IntegratorKind::Pt, k)?;
-            let file = crate::pt_cache::path(dir, k, p.data.hash, 2 * half_spp(a.spp), id);
+            let file = crate::pt_cache::path(dir, k, p.data.hash, spp, id);
             let size = (p.data.camera.width, p.data.camera.height);
-            if let Err(e) = crate::pt_cache::load(&file, p.data.hash, 2 * half_spp(a.spp), size, id)
+            if let Err(e) = crate::pt_cache::load(&file, p.data.hash, spp, size, id)
                 && !crate::pt_cache::is_damaged(&e)
             {
                 return Err(e);

@@ -18,12 +18,12 @@ use obvhs::ray::Ray;
 use obvhs::triangle::Triangle;
 use rayon::prelude::*;
 
+use crate::mesh::TriMesh;
+
 /// How close (relative to the mesh's scale, [`crate::mesh::TriMesh::scale`]) two pieces'
 /// surfaces count as touching rather than crossing; `crate::thin_walls` takes faces
 /// closer than this to the entry plane for a touching piece's too.
 pub(crate) const TOUCH_OF_SCALE: f32 = 1e-6;
-
-use crate::mesh::TriMesh;
 
 /// Most probes kept per piece from the points along its edges between meetings with other
 /// pieces' faces, and most meetings of other pieces' edges with its faces (six probes

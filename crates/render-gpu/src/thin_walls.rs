@@ -32,6 +32,9 @@ pub const NOTE_AREA_SHARE: f64 = 1e-3;
 /// within the medium.
 pub fn thin_walls(geo: &Geometry) -> ThinWalls {
     let n = geo.mesh.triangles.len();
+    let reach = geo.eps * SLIVER_REACH_OF_EPS;
+    // The piece survey's touching distance, TOUCH_OF_SCALE of the mesh's scale.
+    let touch = geo.eps / EPS * TOUCH_OF_SCALE;
     let (thin, total, best) = (0..n)
         .into_par_iter()
         .map(|i| {
@@ -48,8 +51,6 @@ pub fn thin_walls(geo: &Geometry) -> ThinWalls {
             // air. Walls thinner than that (5 % of the offset) go unnoticed.
             // The face's own hit is cast only behind a far face met from outside, which
             // most faces never have.
-            let reach = geo.eps * SLIVER_REACH_OF_EPS;
-            let touch = geo.eps / EPS * TOUCH_OF_SCALE;
             let own = || {
                 geo.closest_of(q, normal, reach, &[i as u32])
                     .map_or(geo.eps, |h| h.t)
