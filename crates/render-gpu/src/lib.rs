@@ -17,7 +17,6 @@ pub mod light;
 pub mod mesh;
 pub mod optics;
 mod piece_survey;
-mod ply;
 pub mod render;
 pub mod scene;
 pub mod setup;

@@ -7,7 +7,7 @@
 
 use glam::Vec3;
 
-use crate::mesh::TriMesh;
+use super::TriMesh;
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Scalar {
