@@ -282,14 +282,17 @@ fn another_simulator(dataset: &Path, header: &scatter_sim::dataset::Header) -> O
 /// distribution cannot be learned from fewer, though a test may still want to try.
 const MIN_ROWS: usize = 1000;
 
+/// A decoder read from its checkpoint: the decoder, its feature version, the condition
+/// ranges it was trained on (None for checkpoints that predate recording them) and its step.
+type CheckpointDecoder = (cvae::decoder::Decoder, u32, Option<ConditionRanges>, u64);
+
 /// The decoder of `k` from the config's checkpoint folder, for a model file whose other
-/// decoders are trained now, with its feature version and the condition ranges it was
-/// trained on (None for checkpoints that predate recording them).
+/// decoders are trained now (see [`CheckpointDecoder`]).
 fn checkpoint_decoder(
     cfg: &TrainConfig,
     k: ModelKind,
     steps_scale: f64,
-) -> Result<(cvae::decoder::Decoder, u32, Option<ConditionRanges>, u64)> {
+) -> Result<CheckpointDecoder> {
     let (d, info) =
         cvae::train::trainer::load_decoder(&cfg.checkpoint_dir, k, &cfg.model(k).architecture())
             .with_context(|| {
@@ -600,30 +603,11 @@ fn narrow(info: &mut TrainingInfo, other: ConditionRanges, source: &str) -> Resu
     Ok(())
 }
 
-pub fn run(a: Args) -> Result<()> {
-    let cfg = load(&a.config)?;
-    let device = device(&a.backend)?;
-    if !(a.steps_scale > 0.0 && a.steps_scale <= 1e3) {
-        bail!(
-            "--steps-scale = {} is out of range: allowed (0, 1000]",
-            scatter_sim::ranges::num(a.steps_scale)
-        );
-    }
-    // A scaled run is held to the steps a config may ask for (a checkpoint past them would
-    // be refused as damaged on --resume).
-    for k in trained_kinds(a.model) {
-        let steps = scaled_steps(cfg.model(k).steps, a.steps_scale);
-        if steps > cvae::train::trainer::MAX_STEPS {
-            bail!(
-                "--steps-scale {} gives {}.steps = {steps} in {}: allowed at most 2^40",
-                scatter_sim::ranges::num(a.steps_scale),
-                k.name(),
-                a.config.display()
-            );
-        }
-    }
+/// The model file's path (`--out`, else the config's `out`), refused before hours of
+/// training where writing it would fail or replace what is not a model: checked here, not
+/// when the model is saved. The checkpoint folder is checked as an output too.
+fn model_out(a: &Args, cfg: &TrainConfig) -> Result<PathBuf> {
     let out = a.out.clone().unwrap_or_else(|| cfg.out.clone());
-    // Checked before hours of training, not when the model is saved.
     let out_flag = match a.out {
         Some(_) => "--out".to_string(),
         None => format!("{}: out =", a.config.display()),
@@ -686,39 +670,15 @@ pub fn run(a: Args) -> Result<()> {
         &format!("{}: checkpoint_dir =", a.config.display()),
         &cfg.checkpoint_dir,
     )?;
-    // A folder already there is held from now on, before its checkpoints are looked at
-    // (a second run was told "holds checkpoints", and with --fresh read the whole dataset
-    // before being refused); one not there yet is made and held only before the first
-    // thing written into it, so a refused run leaves no folder.
-    let early_lock = cfg
-        .checkpoint_dir
-        .is_dir()
-        .then(|| lock_checkpoint_dir(&cfg.checkpoint_dir, &a.config))
-        .transpose()?;
-    // And what the dataset comes from: a folder named as the dataset failed with a bare
-    // "Is a directory"; a bad dataset_config only after "generating it from … first".
-    if cfg.dataset.is_dir() {
-        bail!(
-            "{}: dataset = \"{}\" is a directory: name a binary dataset file",
-            a.config.display(),
-            cfg.dataset.display()
-        );
-    }
-    if !cfg.dataset.exists()
-        && let Some(dc) = &cfg.dataset_config
-    {
-        crate::generate::load_config(dc).with_context(|| {
-            format!(
-                "{}: dataset_config = \"{}\" (read to generate the missing dataset)",
-                a.config.display(),
-                dc.display()
-            )
-        })?;
-    }
-    // Read before hours of training, so that a wrong path fails at once.
-    let base = match &a.base {
+    Ok(out)
+}
+
+/// The `--base` model whose decoders fill those not trained now, read before hours of
+/// training so that a wrong path fails at once; with its name as given.
+fn load_base(a: &Args, cfg: &TrainConfig, out: &Path) -> Result<Option<(String, ModelSet)>> {
+    Ok(match &a.base {
         Some(p) => {
-            if crate::paths::identity(p) == crate::paths::identity(&out) {
+            if crate::paths::identity(p) == crate::paths::identity(out) {
                 bail!(
                     "--base {} is also the output: give --out another file, or the base would \
                      be overwritten by the mix",
@@ -737,21 +697,18 @@ pub fn run(a: Args) -> Result<()> {
             Some((p.display().to_string(), set))
         }
         None => None,
-    };
-    let kinds = trained_kinds(a.model);
-    // The CPU renders any model the config allows; the GPU kernels a smaller one.
-    for &k in &kinds {
-        if let Err(e) =
-            render_gpu::gpu::decoder_gen::fits_kernels(k.cond(), cfg.model(k).latent, k.out())
-        {
-            eprintln!(
-                "warning: {}: {}.latent = {}: the model {e}; it will render on the CPU only",
-                a.config.display(),
-                k.name(),
-                cfg.model(k).latent
-            );
-        }
-    }
+    })
+}
+
+/// The models of `kinds` this run continues from their checkpoints, after refusing what
+/// would lose or misread a checkpoint: a record without its JSON, `--resume` with nothing
+/// to continue, or a new run over checkpoints it would replace (neither `--resume` nor
+/// `--fresh`).
+fn checkpoints_to_resume(
+    a: &Args,
+    cfg: &TrainConfig,
+    kinds: &[ModelKind],
+) -> Result<Vec<ModelKind>> {
     if !a.fresh
         && let Some(p) = kinds
             .iter()
@@ -817,15 +774,21 @@ pub fn run(a: Args) -> Result<()> {
             );
         }
     }
-    // Without a base, the decoders not trained now come from the checkpoints: read (and
-    // checked) once, before the training rather than after it.
-    let mut from_checkpoints = Vec::new();
-    if base.is_none() {
-        for k in ModelKind::ALL.into_iter().filter(|k| !kinds.contains(k)) {
-            from_checkpoints.push((k, checkpoint_decoder(&cfg, k, a.steps_scale)?));
-        }
-    }
-    ensure_dataset(&cfg)?;
+    Ok(resumed)
+}
+
+/// The dataset (generated first where the config says how and it is missing), read and
+/// turned into one table per model of `kinds`; refused where a model would have no walks
+/// to learn from.
+fn read_tables(
+    cfg: &TrainConfig,
+    kinds: &[ModelKind],
+) -> Result<(
+    scatter_sim::dataset::Header,
+    Vec<scatter_sim::dataset::Row>,
+    Vec<Table>,
+)> {
+    ensure_dataset(cfg)?;
     let t0 = Instant::now();
     eprintln!("reading {}", cfg.dataset.display());
     let (header, rows) = read_dataset(&cfg.dataset)?;
@@ -887,76 +850,21 @@ pub fn run(a: Args) -> Result<()> {
         },
         t0.elapsed().as_secs_f64()
     );
-    let ranges = ConditionRanges::of(&rows);
-    let mut info = TrainingInfo {
-        tau_range: ranges.tau,
-        g_range: ranges.g,
-        albedo_range: ranges.albedo,
-        notes: String::new(),
-    };
-    // A condition the dataset never varies (a `generate --tau/--g/--albedo` dataset) gives
-    // decoders that know one value of it: anywhere else they extrapolate blindly.
-    let fixed: Vec<String> = [
-        ("tau", info.tau_range),
-        ("g", info.g_range),
-        ("albedo", info.albedo_range),
-    ]
-    .iter()
-    .filter(|(_, r)| r[0] == r[1])
-    // The ranges are the dataset's f32 columns: 0.4 printed as 0.4000000059604645.
-    .map(|(name, r)| format!("{name} = {}", r[0] as f32))
-    .collect();
-    if !fixed.is_empty() {
-        eprintln!(
-            "warning: {}: every walk has {}; the model will know only that value, and renders \
-             or samples at any other are extrapolation",
-            cfg.dataset.display(),
-            fixed.join(", ")
-        );
-    }
-    if let Some((base_name, b)) = &base {
-        let t = &b.training;
-        let theirs = ConditionRanges {
-            tau: t.tau_range,
-            g: t.g_range,
-            albedo: t.albedo_range,
-        };
-        narrow(&mut info, theirs, &format!("--base {base_name}"))?;
-    }
-    // Checked before the training, as the modes are above.
-    for (k, (_, _, ranges, _)) in &from_checkpoints {
-        if let Some(r) = ranges {
-            narrow(&mut info, *r, &format!("the {} checkpoint", k.name()))?;
-        }
-    }
-    // The model file's own check, here rather than after the training, which it would
-    // otherwise end with "nothing written" (walks all at tau = 0, say).
-    cvae::model_file::check_training(&info).map_err(|e| {
-        anyhow::anyhow!(
-            "{}: its walks cannot make a model file: {e}",
-            cfg.dataset.display()
-        )
-    })?;
-    drop(rows);
-    let validations = validations(&cfg, &kinds, &tables, &header.pieces);
+    Ok((header, rows, tables))
+}
 
-    let cancel = interrupt::flag();
-    // A Ctrl-C after a dataset was generated here (whose handler then caught it) while the
-    // rows were read: --fresh removed the checkpoints and each model saved a step-1 set.
-    if interrupt::requested() {
-        bail!("interrupted before training: no checkpoint removed or written");
-    }
-    // Held until the model is written; taken before this run removes or writes anything.
-    let _lock = match early_lock {
-        Some(l) => l,
-        None => lock_checkpoint_dir(&cfg.checkpoint_dir, &a.config)?,
-    };
-    for &k in &kinds {
-        cvae::train::trainer::remove_stale_temporaries(&cfg.checkpoint_dir, k);
-        if a.fresh {
-            cvae::train::trainer::remove_checkpoint(&cfg.checkpoint_dir, k)?;
-        }
-    }
+/// Trains each model of `kinds` on its own thread, with a progress bar each, and returns
+/// them with the seconds the training took. One model's failure stops the others at their
+/// next step (each with a checkpoint); an interrupt ends with the command that resumes.
+fn train_models(
+    a: &Args,
+    cfg: &TrainConfig,
+    device: &Device,
+    kinds: &[ModelKind],
+    tables: &[Table],
+    validations: &[Option<Validation>],
+    cancel: &'static std::sync::atomic::AtomicBool,
+) -> Result<(Vec<cvae::train::Trained>, f64)> {
     let multi = MultiProgress::with_draw_target(crate::progress::target());
     let scaled = |k: ModelKind| scaled_model(cfg.model(k), a.steps_scale);
     let bars: Vec<ProgressBar> = kinds
@@ -993,7 +901,7 @@ pub fn run(a: Args) -> Result<()> {
             let table = &tables[i];
             let validation = validations[i].as_ref();
             let mc = scaled(k);
-            let (cfg, results, report, bar) = (&cfg, &results, &report, &bars[i]);
+            let (results, report, bar) = (&results, &report, &bars[i]);
             let device = device.clone();
             s.spawn(move || {
                 let r = train_model(
@@ -1045,15 +953,31 @@ pub fn run(a: Args) -> Result<()> {
         bail!(
             "interrupted: checkpoints saved in {}; go on with: {}",
             d.display(),
-            resume_command(&a)
+            resume_command(a)
         );
     }
+    Ok((trained, seconds))
+}
+
+/// The model file's set: the decoders trained now, the others from `--base` or from their
+/// checkpoints (read before the training), with the notes that say where each came from.
+/// Warns where a trained model's losses show it diverged or learned the dataset's walks.
+fn model_set(
+    a: &Args,
+    cfg: &TrainConfig,
+    trained: &[cvae::train::Trained],
+    resumed: &[ModelKind],
+    base: Option<&(String, ModelSet)>,
+    mut from_checkpoints: Vec<(ModelKind, CheckpointDecoder)>,
+    info: TrainingInfo,
+) -> (ModelSet, Vec<String>) {
+    let scaled = |k: ModelKind| scaled_model(cfg.model(k), a.steps_scale);
     let mut decoders = std::collections::HashMap::new();
     let mut notes = Vec::new();
     // A file's feature version says how to read its EventGen (versions 2 and 3 differ only
     // there), so it is the version of wherever EventGen comes from.
     let mut event_version = cvae::features::FEATURE_VERSION;
-    for t in &trained {
+    for t in trained {
         let steps = scaled(t.kind).steps;
         if t.info.step > steps {
             eprintln!(
@@ -1110,7 +1034,7 @@ pub fn run(a: Args) -> Result<()> {
     }
     for k in ModelKind::ALL {
         if let std::collections::hash_map::Entry::Vacant(slot) = decoders.entry(k) {
-            if let Some((base_name, b)) = &base {
+            if let Some((base_name, b)) = base {
                 let d = match k {
                     ModelKind::LengthGen => &b.length,
                     ModelKind::PathGen => &b.path,
@@ -1152,6 +1076,181 @@ pub fn run(a: Args) -> Result<()> {
         path: decoders.remove(&ModelKind::PathGen).unwrap(),
         event: decoders.remove(&ModelKind::EventGen).unwrap(),
     };
+    (set, notes)
+}
+
+/// What the model file records of its training: the dataset's condition ranges, narrowed
+/// to those of the decoders taken from `--base` or from checkpoints, and checked as every
+/// reader of the file will check them (here, not after hours of training). Warns where the
+/// dataset holds one value of a condition.
+fn training_info(
+    cfg: &TrainConfig,
+    rows: &[scatter_sim::dataset::Row],
+    base: Option<&(String, ModelSet)>,
+    from_checkpoints: &[(ModelKind, CheckpointDecoder)],
+) -> Result<TrainingInfo> {
+    let ranges = ConditionRanges::of(rows);
+    let mut info = TrainingInfo {
+        tau_range: ranges.tau,
+        g_range: ranges.g,
+        albedo_range: ranges.albedo,
+        notes: String::new(),
+    };
+    // A condition the dataset never varies (a `generate --tau/--g/--albedo` dataset) gives
+    // decoders that know one value of it: anywhere else they extrapolate blindly.
+    let fixed: Vec<String> = [
+        ("tau", info.tau_range),
+        ("g", info.g_range),
+        ("albedo", info.albedo_range),
+    ]
+    .iter()
+    .filter(|(_, r)| r[0] == r[1])
+    // The ranges are the dataset's f32 columns: 0.4 printed as 0.4000000059604645.
+    .map(|(name, r)| format!("{name} = {}", r[0] as f32))
+    .collect();
+    if !fixed.is_empty() {
+        eprintln!(
+            "warning: {}: every walk has {}; the model will know only that value, and renders \
+             or samples at any other are extrapolation",
+            cfg.dataset.display(),
+            fixed.join(", ")
+        );
+    }
+    if let Some((base_name, b)) = base {
+        let t = &b.training;
+        let theirs = ConditionRanges {
+            tau: t.tau_range,
+            g: t.g_range,
+            albedo: t.albedo_range,
+        };
+        narrow(&mut info, theirs, &format!("--base {base_name}"))?;
+    }
+    // Checked before the training, as the modes are above.
+    for (k, (_, _, ranges, _)) in from_checkpoints {
+        if let Some(r) = ranges {
+            narrow(&mut info, *r, &format!("the {} checkpoint", k.name()))?;
+        }
+    }
+    // The model file's own check, here rather than after the training, which it would
+    // otherwise end with "nothing written" (walks all at tau = 0, say).
+    cvae::model_file::check_training(&info).map_err(|e| {
+        anyhow::anyhow!(
+            "{}: its walks cannot make a model file: {e}",
+            cfg.dataset.display()
+        )
+    })?;
+    Ok(info)
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let cfg = load(&a.config)?;
+    let device = device(&a.backend)?;
+    if !(a.steps_scale > 0.0 && a.steps_scale <= 1e3) {
+        bail!(
+            "--steps-scale = {} is out of range: allowed (0, 1000]",
+            scatter_sim::ranges::num(a.steps_scale)
+        );
+    }
+    // A scaled run is held to the steps a config may ask for (a checkpoint past them would
+    // be refused as damaged on --resume).
+    for k in trained_kinds(a.model) {
+        let steps = scaled_steps(cfg.model(k).steps, a.steps_scale);
+        if steps > cvae::train::trainer::MAX_STEPS {
+            bail!(
+                "--steps-scale {} gives {}.steps = {steps} in {}: allowed at most 2^40",
+                scatter_sim::ranges::num(a.steps_scale),
+                k.name(),
+                a.config.display()
+            );
+        }
+    }
+    let out = model_out(&a, &cfg)?;
+    // A folder already there is held from now on, before its checkpoints are looked at
+    // (a second run was told "holds checkpoints", and with --fresh read the whole dataset
+    // before being refused); one not there yet is made and held only before the first
+    // thing written into it, so a refused run leaves no folder.
+    let early_lock = cfg
+        .checkpoint_dir
+        .is_dir()
+        .then(|| lock_checkpoint_dir(&cfg.checkpoint_dir, &a.config))
+        .transpose()?;
+    // And what the dataset comes from: a folder named as the dataset failed with a bare
+    // "Is a directory"; a bad dataset_config only after "generating it from … first".
+    if cfg.dataset.is_dir() {
+        bail!(
+            "{}: dataset = \"{}\" is a directory: name a binary dataset file",
+            a.config.display(),
+            cfg.dataset.display()
+        );
+    }
+    if !cfg.dataset.exists()
+        && let Some(dc) = &cfg.dataset_config
+    {
+        crate::generate::load_config(dc).with_context(|| {
+            format!(
+                "{}: dataset_config = \"{}\" (read to generate the missing dataset)",
+                a.config.display(),
+                dc.display()
+            )
+        })?;
+    }
+    let base = load_base(&a, &cfg, &out)?;
+    let kinds = trained_kinds(a.model);
+    // The CPU renders any model the config allows; the GPU kernels a smaller one.
+    for &k in &kinds {
+        if let Err(e) =
+            render_gpu::gpu::decoder_gen::fits_kernels(k.cond(), cfg.model(k).latent, k.out())
+        {
+            eprintln!(
+                "warning: {}: {}.latent = {}: the model {e}; it will render on the CPU only",
+                a.config.display(),
+                k.name(),
+                cfg.model(k).latent
+            );
+        }
+    }
+    let resumed = checkpoints_to_resume(&a, &cfg, &kinds)?;
+    // Without a base, the decoders not trained now come from the checkpoints: read (and
+    // checked) once, before the training rather than after it.
+    let mut from_checkpoints = Vec::new();
+    if base.is_none() {
+        for k in ModelKind::ALL.into_iter().filter(|k| !kinds.contains(k)) {
+            from_checkpoints.push((k, checkpoint_decoder(&cfg, k, a.steps_scale)?));
+        }
+    }
+    let (header, rows, tables) = read_tables(&cfg, &kinds)?;
+    let info = training_info(&cfg, &rows, base.as_ref(), &from_checkpoints)?;
+    drop(rows);
+    let validations = validations(&cfg, &kinds, &tables, &header.pieces);
+
+    let cancel = interrupt::flag();
+    // A Ctrl-C after a dataset was generated here (whose handler then caught it) while the
+    // rows were read: --fresh removed the checkpoints and each model saved a step-1 set.
+    if interrupt::requested() {
+        bail!("interrupted before training: no checkpoint removed or written");
+    }
+    // Held until the model is written; taken before this run removes or writes anything.
+    let _lock = match early_lock {
+        Some(l) => l,
+        None => lock_checkpoint_dir(&cfg.checkpoint_dir, &a.config)?,
+    };
+    for &k in &kinds {
+        cvae::train::trainer::remove_stale_temporaries(&cfg.checkpoint_dir, k);
+        if a.fresh {
+            cvae::train::trainer::remove_checkpoint(&cfg.checkpoint_dir, k)?;
+        }
+    }
+    let (trained, seconds) =
+        train_models(&a, &cfg, &device, &kinds, &tables, &validations, cancel)?;
+    let (set, notes) = model_set(
+        &a,
+        &cfg,
+        &trained,
+        &resumed,
+        base.as_ref(),
+        from_checkpoints,
+        info,
+    );
     // What every reader will check, checked before writing: a file they would all refuse
     // is not written (a decoder from an old checkpoint is not otherwise validated).
     let bytes = set.to_bytes();
