@@ -3,6 +3,7 @@
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
+use std::rc::Rc;
 
 use glam::{Mat4, Quat, Vec3};
 
@@ -169,128 +170,7 @@ pub(super) fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
     if document.meshes().len() == 0 {
         return Err(RenderError::mesh(path, "the glTF file holds no mesh"));
     }
-    let dir = path.parent().unwrap_or(Path::new("."));
-    // Every buffer is held while the mesh is read. Only buffer 0 may be the GLB's binary
-    // chunk (glTF 2.0, 5.5), taken once: each entry naming it copied it, and a 1 MB file
-    // listing 100,000 buffers asked 100 GB (an abort, not an error). Buffers naming one
-    // file share one read of it; what all of them declare must be allocatable.
-    let declared = document
-        .buffers()
-        .fold(0u64, |sum, b| sum.saturating_add(b.length() as u64));
-    if !crate::render::reservable(declared) {
-        return Err(RenderError::mesh(
-            path,
-            format!(
-                "its buffers declare {:.1} GB in all, more than can be allocated",
-                declared as f64 / 1e9
-            ),
-        ));
-    }
-    let mut blob = blob;
-    let mut read: HashMap<(PathBuf, usize), std::rc::Rc<Vec<u8>>> = HashMap::new();
-    let mut buffers: Vec<std::rc::Rc<Vec<u8>>> = Vec::new();
-    for b in document.buffers() {
-        let data = match b.source() {
-            gltf::buffer::Source::Bin if b.index() != 0 => {
-                return Err(RenderError::mesh(
-                    path,
-                    if bytes.starts_with(b"glTF") {
-                        format!(
-                            "buffer {} refers to the GLB binary chunk, which only buffer 0 may",
-                            b.index()
-                        )
-                    } else {
-                        format!(
-                            "buffer {} names no file (it has no uri): a .gltf keeps its \
-                             buffers in files beside it",
-                            b.index()
-                        )
-                    },
-                ));
-            }
-            gltf::buffer::Source::Bin => std::rc::Rc::new(blob.take().ok_or_else(|| {
-                // gltf reads a buffer without a uri as the chunk.
-                RenderError::mesh(
-                    path,
-                    if bytes.starts_with(b"glTF") {
-                        "the GLB binary chunk is missing"
-                    } else {
-                        "buffer 0 names no file (it has no uri): a .gltf keeps its buffers \
-                         in files beside it"
-                    },
-                )
-            })?),
-            gltf::buffer::Source::Uri(uri) if uri.starts_with("data:") => {
-                return Err(RenderError::mesh(
-                    path,
-                    "embedded base64 buffers are not supported: convert to .glb",
-                ));
-            }
-            gltf::buffer::Source::Uri("") => {
-                return Err(RenderError::mesh(
-                    path,
-                    format!(
-                        "buffer {} names no file (its uri is empty): a .gltf keeps its \
-                         buffers in files beside it",
-                        b.index()
-                    ),
-                ));
-            }
-            gltf::buffer::Source::Uri(uri) => {
-                // URIs are percent-encoded (RFC 3986): exporters write a space as %20.
-                let name = percent_encoding::percent_decode_str(uri).decode_utf8_lossy();
-                let p = dir.join(&*name);
-                if let Some(d) = read.get(&(p.clone(), b.length())) {
-                    buffers.push(d.clone());
-                    continue;
-                }
-                let cannot = |e: std::io::Error| {
-                    RenderError::mesh(
-                        path,
-                        format!("its buffer {} cannot be read: {e}", p.display()),
-                    )
-                };
-                // Only what the buffer declares, from a regular file: a URI naming
-                // /dev/zero read until memory ran out (and opening a FIFO waits for a
-                // writer, so the kind is looked at first).
-                if !std::fs::metadata(&p).map_err(cannot)?.is_file() {
-                    return Err(RenderError::mesh(
-                        path,
-                        format!("its buffer {} is not a regular file", p.display()),
-                    ));
-                }
-                let file = std::fs::File::open(&p).map_err(cannot)?;
-                let mut data = Vec::new();
-                std::io::Read::read_to_end(
-                    &mut std::io::Read::take(file, b.length() as u64),
-                    &mut data,
-                )
-                .map_err(cannot)?;
-                let data = std::rc::Rc::new(data);
-                read.insert((p, b.length()), data.clone());
-                data
-            }
-        };
-        if data.len() < b.length() {
-            let held = match b.source() {
-                gltf::buffer::Source::Uri(uri) => {
-                    let name = percent_encoding::percent_decode_str(uri).decode_utf8_lossy();
-                    format!("its file {}", dir.join(&*name).display())
-                }
-                gltf::buffer::Source::Bin => "the GLB binary chunk".to_string(),
-            };
-            return Err(RenderError::mesh(
-                path,
-                format!(
-                    "buffer {} declares {} bytes, but {held} holds {}",
-                    b.index(),
-                    b.length(),
-                    data.len()
-                ),
-            ));
-        }
-        buffers.push(data);
-    }
+    let buffers = read_buffers(path, &bytes, &document, blob)?;
     // Instances of one mesh (nodes naming it) are copied into the one triangle list: 5,000
     // nodes over a mesh of 10⁶ triangles asked for 5·10⁹.
     let mut instanced = [0u64; 2];
@@ -475,6 +355,138 @@ pub(super) fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
     Ok(mesh)
 }
 
+/// Every buffer of a glTF file, held while its mesh is read: the GLB's binary chunk
+/// (`blob`; `bytes` is the file) or the files beside it that the buffers name.
+fn read_buffers(
+    path: &Path,
+    bytes: &[u8],
+    document: &gltf::Document,
+    mut blob: Option<Vec<u8>>,
+) -> Result<Vec<Rc<Vec<u8>>>, RenderError> {
+    let dir = path.parent().unwrap_or(Path::new("."));
+    // Every buffer is held while the mesh is read. Only buffer 0 may be the GLB's binary
+    // chunk (glTF 2.0, 5.5), taken once: each entry naming it copied it, and a 1 MB file
+    // listing 100,000 buffers asked 100 GB (an abort, not an error). Buffers naming one
+    // file share one read of it; what all of them declare must be allocatable.
+    let declared = document
+        .buffers()
+        .fold(0u64, |sum, b| sum.saturating_add(b.length() as u64));
+    if !crate::render::reservable(declared) {
+        return Err(RenderError::mesh(
+            path,
+            format!(
+                "its buffers declare {:.1} GB in all, more than can be allocated",
+                declared as f64 / 1e9
+            ),
+        ));
+    }
+    let mut read: HashMap<(PathBuf, usize), std::rc::Rc<Vec<u8>>> = HashMap::new();
+    let mut buffers: Vec<std::rc::Rc<Vec<u8>>> = Vec::new();
+    for b in document.buffers() {
+        let data = match b.source() {
+            gltf::buffer::Source::Bin if b.index() != 0 => {
+                return Err(RenderError::mesh(
+                    path,
+                    if bytes.starts_with(b"glTF") {
+                        format!(
+                            "buffer {} refers to the GLB binary chunk, which only buffer 0 may",
+                            b.index()
+                        )
+                    } else {
+                        format!(
+                            "buffer {} names no file (it has no uri): a .gltf keeps its \
+                             buffers in files beside it",
+                            b.index()
+                        )
+                    },
+                ));
+            }
+            gltf::buffer::Source::Bin => std::rc::Rc::new(blob.take().ok_or_else(|| {
+                // gltf reads a buffer without a uri as the chunk.
+                RenderError::mesh(
+                    path,
+                    if bytes.starts_with(b"glTF") {
+                        "the GLB binary chunk is missing"
+                    } else {
+                        "buffer 0 names no file (it has no uri): a .gltf keeps its buffers \
+                         in files beside it"
+                    },
+                )
+            })?),
+            gltf::buffer::Source::Uri(uri) if uri.starts_with("data:") => {
+                return Err(RenderError::mesh(
+                    path,
+                    "embedded base64 buffers are not supported: convert to .glb",
+                ));
+            }
+            gltf::buffer::Source::Uri("") => {
+                return Err(RenderError::mesh(
+                    path,
+                    format!(
+                        "buffer {} names no file (its uri is empty): a .gltf keeps its \
+                         buffers in files beside it",
+                        b.index()
+                    ),
+                ));
+            }
+            gltf::buffer::Source::Uri(uri) => {
+                // URIs are percent-encoded (RFC 3986): exporters write a space as %20.
+                let name = percent_encoding::percent_decode_str(uri).decode_utf8_lossy();
+                let p = dir.join(&*name);
+                if let Some(d) = read.get(&(p.clone(), b.length())) {
+                    buffers.push(d.clone());
+                    continue;
+                }
+                let cannot = |e: std::io::Error| {
+                    RenderError::mesh(
+                        path,
+                        format!("its buffer {} cannot be read: {e}", p.display()),
+                    )
+                };
+                // Only what the buffer declares, from a regular file: a URI naming
+                // /dev/zero read until memory ran out (and opening a FIFO waits for a
+                // writer, so the kind is looked at first).
+                if !std::fs::metadata(&p).map_err(cannot)?.is_file() {
+                    return Err(RenderError::mesh(
+                        path,
+                        format!("its buffer {} is not a regular file", p.display()),
+                    ));
+                }
+                let file = std::fs::File::open(&p).map_err(cannot)?;
+                let mut data = Vec::new();
+                std::io::Read::read_to_end(
+                    &mut std::io::Read::take(file, b.length() as u64),
+                    &mut data,
+                )
+                .map_err(cannot)?;
+                let data = std::rc::Rc::new(data);
+                read.insert((p, b.length()), data.clone());
+                data
+            }
+        };
+        if data.len() < b.length() {
+            let held = match b.source() {
+                gltf::buffer::Source::Uri(uri) => {
+                    let name = percent_encoding::percent_decode_str(uri).decode_utf8_lossy();
+                    format!("its file {}", dir.join(&*name).display())
+                }
+                gltf::buffer::Source::Bin => "the GLB binary chunk".to_string(),
+            };
+            return Err(RenderError::mesh(
+                path,
+                format!(
+                    "buffer {} declares {} bytes, but {held} holds {}",
+                    b.index(),
+                    b.length(),
+                    data.len()
+                ),
+            ));
+        }
+        buffers.push(data);
+    }
+    Ok(buffers)
+}
+
 /// What the `gltf` reader assumes without checking (it panics otherwise): the component
 /// type and shape, a dense accessor, a stride that fits the element, and data that lies
 /// inside its buffer view and buffer.
@@ -483,7 +495,7 @@ fn check_accessor(
     what: &str,
     types: &[gltf::accessor::DataType],
     dims: gltf::accessor::Dimensions,
-    buffers: &[std::rc::Rc<Vec<u8>>],
+    buffers: &[Rc<Vec<u8>>],
 ) -> Result<(), String> {
     let id = format!("{what} accessor {}", acc.index());
     if acc.sparse().is_some() {
