@@ -463,11 +463,12 @@ pub fn run(a: Args) -> Result<()> {
     } else if let Some(t) = a.min_tau {
         // Without --max-tau the cap is the model's: a threshold above it leaves no step.
         let m = crate::model_cmds::load_model(a.model.as_deref())?;
-        let most = crate::model_cmds::default_max_tau(&m);
-        if t > most {
+        if crate::model_cmds::default_max_tau(t, &m).is_none() {
             bail!(
-                "--min-tau {t} is above the model's training maximum {most} (the default \
-                 --max-tau): no sphere step could be taken"
+                "--min-tau {} is above the model's training maximum {} (the default \
+                 --max-tau): no sphere step could be taken",
+                scatter_sim::ranges::num(t),
+                scatter_sim::ranges::num(crate::model_cmds::trained_max_tau(&m) as f32)
             );
         }
     }

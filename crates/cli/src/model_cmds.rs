@@ -277,10 +277,26 @@ pub(crate) fn outside_training(v: f64, r: [f64; 2]) -> bool {
     v < r[0] - tol || v > r[1] + tol
 }
 
-/// The largest sphere step without `max_tau`: the model's training maximum, as the
-/// renderer holds it (f32). A `min_tau` above it leaves ST-CVAE no step to take.
-pub(crate) fn default_max_tau(m: &ModelSet) -> f64 {
+/// The model's training maximum, as the renderer holds it (f32): the largest sphere step
+/// without `max_tau` ([`default_max_tau`]).
+pub(crate) fn trained_max_tau(m: &ModelSet) -> f64 {
     m.training.tau_range[1] as f32 as f64
+}
+
+/// The largest sphere step without `max_tau`, for a render whose threshold is `min_tau`:
+/// the model's training maximum ([`trained_max_tau`]), raised to a `min_tau` within
+/// [`beyond_trained_tau`]'s tolerance above it, as a `max_tau` written there is allowed
+/// (min_tau = 300 was refused against the shipped model's 299.9996, and min_tau = max_tau
+/// = 300 rendered). None for a `min_tau` beyond that: ST-CVAE would have no step to take.
+pub(crate) fn default_max_tau(min_tau: f64, m: &ModelSet) -> Option<f64> {
+    let top = trained_max_tau(m);
+    if min_tau <= top {
+        Some(top)
+    } else if beyond_trained_tau(min_tau, m) {
+        None
+    } else {
+        Some(min_tau)
+    }
 }
 
 /// Whether a largest sphere step `t` (render.max_tau, --max-tau) goes beyond the model's

@@ -2,7 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Result, anyhow, bail};
+use anyhow::{Context, Result, anyhow, bail};
 use render_gpu::image_io::RenderTag;
 use render_gpu::integrator::{IntegratorKind, IntegratorSettings, PathStats};
 use render_gpu::render::RenderOptions;
@@ -339,9 +339,7 @@ pub fn prepare(
     for n in &data.notes {
         eprintln!("note: {}: {n}", scene_path.display());
     }
-    let trained_max = model
-        .as_ref()
-        .map_or(f64::INFINITY, crate::model_cmds::default_max_tau);
+    let min_tau = file.render.min_tau_or_default();
     let max_tau = match (file.render.max_tau, &model) {
         (Some(t), Some(m)) if crate::model_cmds::beyond_trained_tau(t, m) => bail!(
             "{}: render.max_tau = {} is beyond the model's training range {}",
@@ -350,21 +348,20 @@ pub fn prepare(
             crate::model_cmds::training_range(m.training.tau_range)
         ),
         (Some(t), _) => t,
-        (None, _) => trained_max,
+        (None, None) => f64::INFINITY,
+        // The scene check refuses max_tau < min_tau when both are written; without max_tau
+        // the cap is the model's, known only now.
+        (None, Some(m)) => crate::model_cmds::default_max_tau(min_tau, m).with_context(|| {
+            format!(
+                "{}: render.min_tau = {} is above the model's training maximum {} (the \
+                 default max_tau): no sphere step could be taken (allowed: min_tau <= \
+                 max_tau)",
+                scene_path.display(),
+                scatter_sim::ranges::num(min_tau),
+                scatter_sim::ranges::num(crate::model_cmds::trained_max_tau(m) as f32)
+            )
+        })?,
     } as f32;
-    // The scene check refuses max_tau < min_tau when both are written; without max_tau
-    // the cap is the model's, known only now.
-    if file.render.max_tau.is_none()
-        && model.is_some()
-        && (max_tau as f64) < file.render.min_tau_or_default()
-    {
-        bail!(
-            "{}: render.min_tau = {} is above the model's training maximum {max_tau} (the \
-             default max_tau): no sphere step could be taken (allowed: min_tau <= max_tau)",
-            scene_path.display(),
-            file.render.min_tau_or_default()
-        );
-    }
     let mut p = Prepared {
         file,
         data,

@@ -1268,6 +1268,12 @@ fn max_tau_is_checked_against_the_training_range() {
             && e.trim().lines().count() == 1,
         "{e}"
     );
+    // Within the tolerance that lets `max_tau = 300` past the shipped model's 299.9996, a
+    // min_tau of 300 raises the default cap to it, as writing both would (it was refused
+    // alone and rendered with max_tau = 300 beside it).
+    let text = sphere_scene_text(8).replace("[render]\n", "[render]\nmin_tau = 300.0\n");
+    std::fs::write(&scene, text).unwrap();
+    ok(&stcvae(&args));
 }
 
 /// For |g| above render_gpu::scene::MODEL_MAX_G (0.98) ST-CVAE takes no step from the

@@ -238,10 +238,12 @@ impl Environment {
                 let seen = r as f64 * top as f64;
                 if seen > crate::scene::MAX_RADIANCE {
                     return Err(RenderError::Image(format!(
-                        "{}: environment.radiance[{k}] = {r} times the map's largest value \
-                         {top} there is {seen:e}, beyond the radiance bound: the product must \
-                         be at most {:e}",
+                        "{}: environment.radiance[{k}] = {} times the map's largest value \
+                         {} there is {seen:.4e}, beyond the radiance bound: the product must be at \
+                         most {:e}",
                         scene_dir.join(f).display(),
+                        scatter_sim::ranges::num(r),
+                        scatter_sim::ranges::num(top),
                         crate::scene::MAX_RADIANCE
                     )));
                 }

@@ -681,8 +681,9 @@ impl SceneFile {
                 // Above 1 as the renderers' f32 too (1.0000000000000002 is 1 there).
                 if !(ior as f32 > 1.0 && ior <= 4.0) {
                     return Err(format!(
-                        "boundary.ior = {ior} is out of range: allowed (1, 4] (as an f32: at \
+                        "boundary.ior = {} is out of range: allowed (1, 4] (as an f32: at \
                          least {})",
+                        num(ior),
                         f32::from_bits(1.0f32.to_bits() + 1)
                     ));
                 }
@@ -783,9 +784,10 @@ impl SceneFile {
             && (t as f32) < r.min_tau_or_default() as f32
         {
             return Err(format!(
-                "render.max_tau = {t} is below render.min_tau = {}{}: no sphere step could be \
+                "render.max_tau = {} is below render.min_tau = {}{}: no sphere step could be \
                  taken (allowed: max_tau >= min_tau)",
-                r.min_tau_or_default(),
+                num(t),
+                num(r.min_tau_or_default()),
                 if r.min_tau.is_none() {
                     " (its default)"
                 } else {

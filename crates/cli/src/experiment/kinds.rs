@@ -158,12 +158,18 @@ pub(super) fn preflight(
         // Without max_tau the cap is the model's (render::prepare refuses the rest, but
         // only when that threshold's turn comes, after the renders before it).
         if !cfg.thresholds.is_empty() && base.render.max_tau.is_none() {
-            let most = crate::model_cmds::default_max_tau(&crate::model_cmds::load_model(model)?);
-            if let Some(t) = cfg.thresholds.iter().find(|&&t| t > most) {
+            let m = crate::model_cmds::load_model(model)?;
+            if let Some(&t) = cfg
+                .thresholds
+                .iter()
+                .find(|&&t| crate::model_cmds::default_max_tau(t, &m).is_none())
+            {
                 bail!(
-                    "{}: threshold {t} is above the model's training maximum {most} (the \
-                     default max_tau): no sphere step could be taken",
-                    path.display()
+                    "{}: threshold {} is above the model's training maximum {} (the default \
+                     max_tau): no sphere step could be taken",
+                    path.display(),
+                    scatter_sim::ranges::num(t),
+                    scatter_sim::ranges::num(crate::model_cmds::trained_max_tau(&m) as f32)
                 );
             }
         }
