@@ -555,6 +555,219 @@ fn tally(
     Ok(())
 }
 
+/// The bands of rows an image is rendered in, one after another within every chunk of
+/// samples, each with its own accumulation buffer of `slot_bytes` a path slot (`lanes`
+/// slots a pixel). An image whose slots exceed one binding (`fit` slots; lavapipe's
+/// 128 MiB holds 0.76–1.2 M pixels, 0.6–0.84 M with the variance's squares) takes
+/// several. Seeds follow the pixel's index in the image, so a band renders what the whole
+/// image would. A software adapter also bands an image of more than
+/// [`SOFTWARE_BAND_SLOTS`] slots, so that a dispatch stays short enough for a stop
+/// request, answered between dispatches, to be answered within seconds.
+fn plan_bands(
+    ctx: &GpuContext,
+    cam: &crate::camera::Camera,
+    lanes: u32,
+    fit: u64,
+    binding_bytes: u64,
+    slot_bytes: u64,
+    workgroup: u32,
+) -> Result<Vec<Band>, RenderError> {
+    let row_slots = cam.width as u64 * lanes as u64;
+    let band_rows = band_rows(fit, row_slots, cam.height, ctx.adapter.software);
+    if band_rows == 0 {
+        return Err(RenderError::SceneBeyondGpu(format!(
+            "one row of {} pixels needs {} bytes of path state, over {}'s storage binding \
+             limit of {} bytes; use --device cpu",
+            cam.width,
+            cam.width as u64 * binding_bytes,
+            ctx.adapter.name,
+            ctx.limits.max_storage_buffer_binding_size
+        )));
+    }
+    Ok((0..cam.height)
+        .step_by(band_rows as usize)
+        .enumerate()
+        .map(|(index, row0)| {
+            let rows = band_rows.min(cam.height - row0);
+            let threads = cam.width as u64 * rows as u64 * lanes as u64;
+            // Workgroups as (x, y) within the 65,535 a dimension allows.
+            let groups = threads.div_ceil(workgroup as u64);
+            Band {
+                index,
+                row0,
+                rows,
+                groups: if groups <= 65535 {
+                    (groups as u32, 1)
+                } else {
+                    (65535, groups.div_ceil(65535) as u32)
+                },
+                stride: tile_stride(groups) as f32,
+                bytes: threads * slot_bytes,
+            }
+        })
+        .collect())
+}
+
+/// Poisons the accumulation buffers: a pixel the kernel never wrote stays NaN and is
+/// reported when the image is read back ([`SlotReadout::read`]) instead of passing as
+/// black. A piece at a time, each submitted and
+/// waited for: wgpu keeps every write's staging copy until a submission completes, and
+/// written whole those copies doubled the host memory of the largest images (on
+/// lavapipe, where the buffers are host memory too, ~190 bytes a pixel instead of ~95).
+fn poison(
+    ctx: &GpuContext,
+    accums: &[wgpu::Buffer],
+    accum_bytes: &[u64],
+) -> Result<(), RenderError> {
+    const POISON_PIECE: u64 = 64 << 20;
+    let largest = accum_bytes.iter().copied().max().unwrap_or(0);
+    let nan = vec![0xffu8; POISON_PIECE.min(largest) as usize]; // all-ones f32 bits = NaN
+    for (buf, &bytes) in accums.iter().zip(accum_bytes) {
+        let mut at = 0;
+        while at < bytes {
+            let n = (bytes - at).min(POISON_PIECE);
+            ctx.queue.write_buffer(buf, at, &nan[..n as usize]);
+            ctx.queue.submit([]);
+            super::resources::wait(ctx)?;
+            at += n;
+        }
+    }
+    Ok(())
+}
+
+/// How a render's path slots are laid out and how far it got: what reading them back
+/// into images needs.
+struct SlotReadout {
+    width: u32,
+    height: u32,
+    lanes: u32,
+    slot_vec4s: u64,
+    path_nee_m: u32,
+    squares_kept: bool,
+    /// Whole samples a pixel.
+    spp: u32,
+    /// The bands that had begun a chunk a stop request dropped (see `render_gpu`).
+    dropped: Option<usize>,
+    seed: u64,
+}
+
+impl SlotReadout {
+    /// The image, the variance image (where asked for and `spp` allows) and the work map
+    /// from the bands' slots; a pixel unwritten, non-finite or short of `spp` finished
+    /// samples is an error.
+    fn read(
+        &self,
+        ctx: &GpuContext,
+        res: &Resources,
+        bands: &[Band],
+    ) -> Result<(RgbImage, Option<RgbImage>, Vec<f32>), RenderError> {
+        let pixels = self.width as u64 * self.height as u64;
+        let mut image = RgbImage::new(self.width as usize, self.height as usize);
+        // Squared sums only where asked and where every channel has two samples, as the CPU
+        // renderer gives its variance image (render::MIN_VARIANCE_SPP).
+        let mut variance = (self.squares_kept && self.spp >= crate::render::MIN_VARIANCE_SPP)
+            .then(|| RgbImage::new(self.width as usize, self.height as usize));
+        // Per pixel the PT events + sphere steps a path, as the CPU renderer's `work`.
+        let mut work = vec![0f32; pixels as usize];
+        let lo_of_slot = kernels::acc_lo_vec4(self.path_nee_m, self.squares_kept) as usize;
+        // Stopped in the first chunk: no sample is whole (slots of bands not yet reached still
+        // hold the poison), so there is no image, as on the CPU.
+        let bands = if self.spp == 0 { &[][..] } else { bands };
+        let mut bad = 0usize;
+        let mut short = 0usize;
+        for band in bands {
+            let bytes = read_back(ctx, &res.accums[band.index], band.bytes)?;
+            // A Vec<u8> need not be aligned for f32s (cast_slice would panic): copied where not.
+            let copied: Vec<f32>;
+            let vals: &[f32] = match bytemuck::try_cast_slice(&bytes) {
+                Ok(v) => v,
+                Err(_) => {
+                    copied = bytemuck::pod_collect_to_vec(&bytes);
+                    &copied
+                }
+            };
+            // A band whose chunk was dropped gives back the whole chunks' sums, rounded once
+            // to f32; the others their sums and what those rounded off.
+            let committed = self.dropped.is_some_and(|started| band.index < started);
+            let (acc_vec4, lo_vec4, sq_vec4s) = if committed {
+                (
+                    kernels::committed_vec4(self.path_nee_m, self.squares_kept),
+                    None,
+                    [Some(kernels::committed_sq_vec4(self.path_nee_m)), None],
+                )
+            } else {
+                (
+                    kernels::ACC_VEC4,
+                    Some(kernels::acc_lo_vec4(self.path_nee_m, self.squares_kept)),
+                    [
+                        Some(kernels::acc_sq_vec4(self.path_nee_m)),
+                        Some(kernels::acc_sq_lo_vec4(self.path_nee_m)),
+                    ],
+                )
+            };
+            // xyz of vec4 `v` of `slot`, added to `to` in f64.
+            let add = |to: &mut [f64; 3], slot: usize, v: u64| {
+                let q = &vals[(slot + v as usize) * 4..][..3];
+                for c in 0..3 {
+                    to[c] += q[c] as f64;
+                }
+            };
+            let first = band.row0 as usize * self.width as usize;
+            let count = band.rows as usize * self.width as usize;
+            for (p, px) in image.pixels[first..first + count].iter_mut().enumerate() {
+                let mut sum = [0f64; 3];
+                let mut squares = [0f64; 3];
+                let mut finished = 0f64;
+                let (mut events, mut paths) = (0f64, 0f64);
+                for l in 0..self.lanes as usize {
+                    let slot = (p * self.lanes as usize + l) * self.slot_vec4s as usize;
+                    for v in std::iter::once(acc_vec4).chain(lo_vec4) {
+                        add(&mut sum, slot, v);
+                    }
+                    // The work counts every visit, a dropped chunk's too, so it is read per
+                    // path over every finished sample (ACC's count), not over the whole chunks'.
+                    events += vals[(slot + lo_of_slot) * 4 + 3] as f64;
+                    paths += vals[(slot + kernels::ACC_VEC4 as usize) * 4 + 3] as f64;
+                    if variance.is_some() {
+                        for v in sq_vec4s.into_iter().flatten() {
+                            add(&mut squares, slot, v);
+                        }
+                    }
+                    finished += vals[(slot + acc_vec4 as usize) * 4 + 3] as f64;
+                }
+                work[first + p] = (events / paths.max(1.0)) as f32;
+                if !sum.iter().chain(&squares).all(|v| v.is_finite()) {
+                    bad += 1;
+                } else if finished != self.spp as f64 {
+                    short += 1;
+                }
+                let pixel = (first + p) as u32;
+                *px = crate::render::resolve_pixel(sum, self.spp, self.seed, pixel);
+                if let Some(var) = &mut variance {
+                    // The slots square the ×3 values they sum (kernels::acc_sq_vec4).
+                    let squares = squares.map(|q| q / 9.0);
+                    var.pixels[first + p] =
+                        crate::render::pixel_variance(sum, squares, self.spp, self.seed, pixel);
+                }
+            }
+        }
+        if bad > 0 {
+            return Err(RenderError::Gpu(format!(
+                "{bad} of {pixels} pixels came back unwritten or non-finite from {}",
+                ctx.adapter
+            )));
+        }
+        if short > 0 {
+            return Err(RenderError::Gpu(format!(
+                "{short} of {pixels} pixels came back with a finished-sample count other than \
+                 {} from {}",
+                self.spp, ctx.adapter
+            )));
+        }
+        Ok((image, variance, work))
+    }
+}
+
 /// Renders on the GPU with the estimators of the CPU integrators. `progress(done, total)`
 /// counts pixel-samples after each band of each chunk; `cancel` stops after the submission
 /// under way (and, where the staged render sent one ahead, that one too), dropping the
@@ -663,47 +876,15 @@ pub fn render_gpu(
             cam.width, cam.height, ctx.adapter.name
         )));
     };
-    // An image whose slots exceed one binding (lavapipe's 128 MiB holds 0.76–1.2 M pixels,
-    // 0.6–0.84 M with the variance's squares)
-    // is rendered in bands of rows, each with its own accumulation buffer, one after
-    // another within every chunk of samples. Seeds follow the pixel's index in the image,
-    // so a band renders what the whole image would. A software adapter also bands an image
-    // of more than SOFTWARE_BAND_SLOTS slots, so that a dispatch stays short enough for a
-    // stop request, answered between dispatches, to be answered within seconds.
-    let row_slots = cam.width as u64 * lanes as u64;
-    let band_rows = band_rows(fit, row_slots, cam.height, ctx.adapter.software);
-    if band_rows == 0 {
-        return Err(RenderError::SceneBeyondGpu(format!(
-            "one row of {} pixels needs {} bytes of path state, over {}'s storage binding \
-             limit of {} bytes; use --device cpu",
-            cam.width,
-            cam.width as u64 * binding_bytes,
-            ctx.adapter.name,
-            limits.max_storage_buffer_binding_size
-        )));
-    }
-    let bands: Vec<Band> = (0..cam.height)
-        .step_by(band_rows as usize)
-        .enumerate()
-        .map(|(index, row0)| {
-            let rows = band_rows.min(cam.height - row0);
-            let threads = cam.width as u64 * rows as u64 * lanes as u64;
-            // Workgroups as (x, y) within the 65,535 a dimension allows.
-            let groups = threads.div_ceil(shape.workgroup as u64);
-            Band {
-                index,
-                row0,
-                rows,
-                groups: if groups <= 65535 {
-                    (groups as u32, 1)
-                } else {
-                    (65535, groups.div_ceil(65535) as u32)
-                },
-                stride: tile_stride(groups) as f32,
-                bytes: threads * slot_bytes,
-            }
-        })
-        .collect();
+    let bands = plan_bands(
+        ctx,
+        cam,
+        lanes,
+        fit,
+        binding_bytes,
+        slot_bytes,
+        shape.workgroup,
+    )?;
     let accum_bytes: Vec<u64> = bands.iter().map(|b| b.bytes).collect();
     // The staged render's records serve every band in turn.
     let largest_slots = accum_bytes.iter().copied().max().unwrap_or(0) / slot_bytes;
@@ -745,30 +926,10 @@ pub fn render_gpu(
             stage_slots: if shape.staged { largest_slots } else { 0 },
         },
     )?;
-    // Poison the accumulation buffers: a pixel the kernel never wrote stays NaN and is
-    // reported below instead of passing as black. A piece at a time, each submitted and
-    // waited for: wgpu keeps every write's staging copy until a submission completes, and
-    // written whole those copies doubled the host memory of the largest images (on
-    // lavapipe, where the buffers are host memory too, ~190 bytes a pixel instead of ~95).
-    const POISON_PIECE: u64 = 64 << 20;
-    let largest = accum_bytes.iter().copied().max().unwrap_or(0);
-    let nan = vec![0xffu8; POISON_PIECE.min(largest) as usize]; // all-ones f32 bits = NaN
     // A failed wait is reported after the error scopes: an out-of-memory error they hold
     // says more than "the GPU did not finish".
-    let mut poisoned = Ok(());
-    'bands: for (buf, &bytes) in res.accums.iter().zip(&accum_bytes) {
-        let mut at = 0;
-        while at < bytes {
-            let n = (bytes - at).min(POISON_PIECE);
-            ctx.queue.write_buffer(buf, at, &nan[..n as usize]);
-            ctx.queue.submit([]);
-            poisoned = super::resources::wait(ctx);
-            if poisoned.is_err() {
-                break 'bands;
-            }
-            at += n;
-        }
-    }
+    let poisoned = poison(ctx, &res.accums, &accum_bytes);
+    let largest = accum_bytes.iter().copied().max().unwrap_or(0);
     let mut budget = first_budget;
     params.consts2[2] = budget as f32;
     // The path states before the dispatch in flight, kept on software adapters while a
@@ -924,108 +1085,18 @@ pub fn render_gpu(
         }
     }
     wait(ctx)?;
-    let mut image = RgbImage::new(cam.width as usize, cam.height as usize);
-    // Squared sums only where asked and where every channel has two samples, as the CPU
-    // renderer gives its variance image (render::MIN_VARIANCE_SPP).
-    let mut variance = (squares_kept && s0 >= crate::render::MIN_VARIANCE_SPP)
-        .then(|| RgbImage::new(cam.width as usize, cam.height as usize));
-    // Per pixel the PT events + sphere steps a path, as the CPU renderer's `work`.
-    let mut work = vec![0f32; pixels as usize];
-    let lo_of_slot = kernels::acc_lo_vec4(path_nee_m, squares_kept) as usize;
-    // Stopped in the first chunk: no sample is whole (slots of bands not yet reached still
-    // hold the poison), so there is no image, as on the CPU.
-    let bands = if s0 == 0 { &[][..] } else { &bands[..] };
-    let mut bad = 0usize;
-    let mut short = 0usize;
-    for band in bands {
-        let bytes = read_back(ctx, &res.accums[band.index], band.bytes)?;
-        // A Vec<u8> need not be aligned for f32s (cast_slice would panic): copied where not.
-        let copied: Vec<f32>;
-        let vals: &[f32] = match bytemuck::try_cast_slice(&bytes) {
-            Ok(v) => v,
-            Err(_) => {
-                copied = bytemuck::pod_collect_to_vec(&bytes);
-                &copied
-            }
-        };
-        // A band whose chunk was dropped gives back the whole chunks' sums, rounded once
-        // to f32; the others their sums and what those rounded off.
-        let committed = dropped.is_some_and(|started| band.index < started);
-        let (acc_vec4, lo_vec4, sq_vec4s) = if committed {
-            (
-                kernels::committed_vec4(path_nee_m, squares_kept),
-                None,
-                [Some(kernels::committed_sq_vec4(path_nee_m)), None],
-            )
-        } else {
-            (
-                kernels::ACC_VEC4,
-                Some(kernels::acc_lo_vec4(path_nee_m, squares_kept)),
-                [
-                    Some(kernels::acc_sq_vec4(path_nee_m)),
-                    Some(kernels::acc_sq_lo_vec4(path_nee_m)),
-                ],
-            )
-        };
-        // xyz of vec4 `v` of `slot`, added to `to` in f64.
-        let add = |to: &mut [f64; 3], slot: usize, v: u64| {
-            let q = &vals[(slot + v as usize) * 4..][..3];
-            for c in 0..3 {
-                to[c] += q[c] as f64;
-            }
-        };
-        let first = band.row0 as usize * cam.width as usize;
-        let count = band.rows as usize * cam.width as usize;
-        for (p, px) in image.pixels[first..first + count].iter_mut().enumerate() {
-            let mut sum = [0f64; 3];
-            let mut squares = [0f64; 3];
-            let mut finished = 0f64;
-            let (mut events, mut paths) = (0f64, 0f64);
-            for l in 0..lanes as usize {
-                let slot = (p * lanes as usize + l) * slot_vec4s as usize;
-                for v in std::iter::once(acc_vec4).chain(lo_vec4) {
-                    add(&mut sum, slot, v);
-                }
-                // The work counts every visit, a dropped chunk's too, so it is read per
-                // path over every finished sample (ACC's count), not over the whole chunks'.
-                events += vals[(slot + lo_of_slot) * 4 + 3] as f64;
-                paths += vals[(slot + kernels::ACC_VEC4 as usize) * 4 + 3] as f64;
-                if variance.is_some() {
-                    for v in sq_vec4s.into_iter().flatten() {
-                        add(&mut squares, slot, v);
-                    }
-                }
-                finished += vals[(slot + acc_vec4 as usize) * 4 + 3] as f64;
-            }
-            work[first + p] = (events / paths.max(1.0)) as f32;
-            if !sum.iter().chain(&squares).all(|v| v.is_finite()) {
-                bad += 1;
-            } else if finished != s0 as f64 {
-                short += 1;
-            }
-            let pixel = (first + p) as u32;
-            *px = crate::render::resolve_pixel(sum, s0, opts.seed, pixel);
-            if let Some(var) = &mut variance {
-                // The slots square the ×3 values they sum (kernels::acc_sq_vec4).
-                let squares = squares.map(|q| q / 9.0);
-                var.pixels[first + p] =
-                    crate::render::pixel_variance(sum, squares, s0, opts.seed, pixel);
-            }
-        }
-    }
-    if bad > 0 {
-        return Err(RenderError::Gpu(format!(
-            "{bad} of {pixels} pixels came back unwritten or non-finite from {}",
-            ctx.adapter
-        )));
-    }
-    if short > 0 {
-        return Err(RenderError::Gpu(format!(
-            "{short} of {pixels} pixels came back with a finished-sample count other than \
-             {s0} from {}",
-            ctx.adapter
-        )));
-    }
+    let readout = SlotReadout {
+        width: cam.width,
+        height: cam.height,
+        lanes,
+        slot_vec4s,
+        path_nee_m,
+        squares_kept,
+        spp: s0,
+        dropped,
+        seed: opts.seed,
+    };
+    let (image, variance, work) = readout.read(ctx, &res, &bands)?;
     Ok(RenderOutput {
         image,
         spp: s0,
