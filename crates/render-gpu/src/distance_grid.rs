@@ -6,14 +6,13 @@
 //! that radius around p never crosses the mesh. Outside the grid the radius is 0 (the
 //! integrator then falls back to ordinary PT events).
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use glam::{UVec3, Vec3};
 use rayon::prelude::*;
 
 use crate::geometry::{Geometry, Hit};
-use crate::hash::Fnv64;
 
 pub struct DistanceGrid {
     pub lo: Vec3,
@@ -250,10 +249,11 @@ impl DistanceGrid {
     /// Loads the grid from the cache or builds and caches it when building takes long.
     pub fn cached(geo: &Geometry, resolution: u32) -> Result<Self, String> {
         let key = cache_key(geo, resolution);
-        let path = cache_file(&format!("grid-{key:016x}-{resolution}"));
+        let path = crate::cache::cache_file(&format!("grid-{key:016x}-{resolution}"));
         if let Some(p) = &path
             && let Some(g) = Self::read(p, key, geo, resolution)
         {
+            crate::cache::touch(p);
             return Ok(g);
         }
         let t0 = std::time::Instant::now();
@@ -266,9 +266,9 @@ impl DistanceGrid {
         {
             // A cache that cannot be written only costs time next run; said once.
             if let Err(e) = g.write(p, key) {
-                note_unwritable_cache(p, &e);
+                crate::cache::note_unwritable_cache(p, &e);
             }
-            prune_stale(p);
+            crate::cache::tidy(p);
         }
         Ok(g)
     }
@@ -374,95 +374,9 @@ impl DistanceGrid {
 }
 
 fn cache_key(geo: &Geometry, resolution: u32) -> u64 {
-    let mut h = mesh_hasher(geo, b"distance-grid-v4");
+    let mut h = crate::cache::mesh_hasher(geo, b"distance-grid-v4");
     h.write(&resolution.to_le_bytes());
     h.finish()
-}
-
-/// The code that computes what is cached (a hash of its sources, build.rs): the last part
-/// of every cache file's name.
-const CODE: &str = env!("STCVAE_CACHE_CODE");
-
-/// The cache file of `stem` (what is cached, of which mesh) as this code computes it.
-pub(crate) fn cache_file(stem: &str) -> Option<PathBuf> {
-    cache_dir().map(|d| d.join(format!("{stem}-{CODE}.bin")))
-}
-
-/// Removes the files of `path`'s stem that other code wrote: no build of this code can
-/// read them, and a grid is up to tens of MB.
-pub(crate) fn prune_stale(path: &Path) {
-    let (Some(dir), Some(name)) = (path.parent(), path.file_name()) else {
-        return;
-    };
-    let name = name.to_string_lossy();
-    let Some(stem) = name.strip_suffix(&format!("-{CODE}.bin")) else {
-        return;
-    };
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return;
-    };
-    for e in entries.flatten() {
-        let other = e.file_name();
-        let other = other.to_string_lossy();
-        let code = other
-            .strip_prefix(stem)
-            .and_then(|r| r.strip_prefix('-'))
-            .and_then(|r| r.strip_suffix(".bin"));
-        if code
-            .is_some_and(|c| c != CODE && c.len() == 16 && c.bytes().all(|b| b.is_ascii_hexdigit()))
-        {
-            let _ = std::fs::remove_file(e.path());
-        }
-    }
-}
-
-/// A hasher fed with `tag` and the mesh (vertex positions and triangles): the key of what
-/// is cached for a mesh.
-pub(crate) fn mesh_hasher(geo: &Geometry, tag: &[u8]) -> Fnv64 {
-    let mut h = Fnv64::new();
-    h.write(tag);
-    for p in &geo.mesh.positions {
-        for x in p.to_array() {
-            h.write(&x.to_le_bytes());
-        }
-    }
-    for t in &geo.mesh.triangles {
-        for i in t {
-            h.write(&i.to_le_bytes());
-        }
-    }
-    h
-}
-
-/// Says once a run that a cache file could not be written: a render that rebuilt its
-/// grid every time (an unwritable ~/.cache) was a second slower with no word why.
-pub(crate) fn note_unwritable_cache(path: &Path, e: &std::io::Error) {
-    static SAID: std::sync::Once = std::sync::Once::new();
-    SAID.call_once(|| {
-        // Not eprintln!: it panics where stderr is a closed pipe, which the CLI takes as
-        // a request to stop cleanly.
-        use std::io::Write as _;
-        let _ = writeln!(
-            std::io::stderr(),
-            "note: cannot write the cache file {} ({e}): distance grids and escape cones are \
-             rebuilt every run; set STCVAE_CACHE to a writable folder to keep them",
-            path.display()
-        );
-    });
-}
-
-/// `$STCVAE_CACHE`, else `$XDG_CACHE_HOME/stcvae`, else `~/.cache/stcvae`.
-pub(crate) fn cache_dir() -> Option<PathBuf> {
-    // An empty variable counts as unset (STCVAE_CACHE="" cached grids in the current
-    // directory).
-    let var = |k: &str| std::env::var_os(k).filter(|v| !v.is_empty());
-    if let Some(d) = var("STCVAE_CACHE") {
-        return Some(PathBuf::from(d));
-    }
-    if let Some(d) = var("XDG_CACHE_HOME") {
-        return Some(PathBuf::from(d).join("stcvae"));
-    }
-    var("HOME").map(|h| PathBuf::from(h).join(".cache").join("stcvae"))
 }
 
 #[cfg(test)]
@@ -483,7 +397,7 @@ mod tests {
         }
     }
 
-    use super::{CODE, DistanceGrid, prune_stale};
+    use super::DistanceGrid;
 
     /// Cell lists beyond the cap (u32 offsets in the real build) are an error naming the
     /// grid resolution, not wrapped offsets; at the cap exactly the grid builds. The cube's
@@ -550,39 +464,5 @@ mod tests {
             g.candidates.clear();
         });
         assert!(wrapped.is_none());
-    }
-
-    /// Writing this code's cache file of a stem removes that stem's files written by other
-    /// code, and nothing else: not another mesh's or resolution's (one that only extends
-    /// the stem, 640 after 64), nor files that merely look alike.
-    #[test]
-    fn stale_cache_files_of_the_stem_are_removed() {
-        let d = tempfile::tempdir().unwrap();
-        let other_code = if CODE == "0123456789abcdef" {
-            "fedcba9876543210"
-        } else {
-            "0123456789abcdef"
-        };
-        let mine = format!("grid-00ab-64-{CODE}.bin");
-        let stale = format!("grid-00ab-64-{other_code}.bin");
-        let kept = [
-            format!("grid-00ab-640-{other_code}.bin"),
-            format!("grid-00cd-64-{other_code}.bin"),
-            format!("cones-00ab-{other_code}.bin"),
-            "grid-00ab-64.bin".to_string(),
-            "grid-00ab-64-notes.bin".to_string(),
-        ];
-        for n in kept.iter().chain([&mine, &stale]) {
-            std::fs::write(d.path().join(n), b"x").unwrap();
-        }
-        prune_stale(&d.path().join(&mine));
-        let mut left: Vec<String> = std::fs::read_dir(d.path())
-            .unwrap()
-            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-            .collect();
-        left.sort();
-        let mut want: Vec<String> = kept.iter().chain([&mine]).cloned().collect();
-        want.sort();
-        assert_eq!(left, want);
     }
 }

@@ -38,9 +38,13 @@ const MAGIC: &[u8; 8] = b"STCVEC02";
 pub fn cached(geo: &Geometry) -> Vec<f32> {
     // The tag keeps cones apart from grids; the file's name also holds a hash of the code
     // (`cache_file`), so a change to TANS, the margins or the region is never read stale.
-    let key = crate::distance_grid::mesh_hasher(geo, b"escape-cones-v2").finish();
-    let path = crate::distance_grid::cache_file(&format!("cones-{key:016x}"));
-    if let Some(cos) = path.as_deref().and_then(|p| read(p, key, geo.tris.len())) {
+    let key = crate::cache::mesh_hasher(geo, b"escape-cones-v2").finish();
+    let path = crate::cache::cache_file(&format!("cones-{key:016x}"));
+    if let Some((p, cos)) = path
+        .as_deref()
+        .and_then(|p| Some((p, read(p, key, geo.tris.len())?)))
+    {
+        crate::cache::touch(p);
         return cos;
     }
     let t0 = std::time::Instant::now();
@@ -50,9 +54,9 @@ pub fn cached(geo: &Geometry) -> Vec<f32> {
     {
         // A cache that cannot be written only costs time next run; said once.
         if let Err(e) = write(p, key, &cos) {
-            crate::distance_grid::note_unwritable_cache(p, &e);
+            crate::cache::note_unwritable_cache(p, &e);
         }
-        crate::distance_grid::prune_stale(p);
+        crate::cache::tidy(p);
     }
     cos
 }

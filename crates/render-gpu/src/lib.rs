@@ -4,6 +4,7 @@
 //! The scene side (scene files, meshes, BVH, distance grid, lights, outputs) is shared
 //! by the CPU integrators here and the wgpu kernels.
 
+mod cache;
 pub mod camera;
 pub mod distance_grid;
 pub mod error;

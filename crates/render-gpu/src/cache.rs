@@ -1,0 +1,238 @@
+//! The cache of distance grids and escape cones between runs: where it lives, how its
+//! files are named (by mesh and by the code that computes them), and how it is kept from
+//! growing without end.
+
+use std::path::{Path, PathBuf};
+use std::time::SystemTime;
+
+use crate::geometry::Geometry;
+use crate::hash::Fnv64;
+
+/// The code that computes what is cached (a hash of its sources, build.rs): the last part
+/// of every cache file's name.
+const CODE: &str = env!("STCVAE_CACHE_CODE");
+
+/// The cache file of `stem` (what is cached, of which mesh) as this code computes it.
+pub(crate) fn cache_file(stem: &str) -> Option<PathBuf> {
+    cache_dir().map(|d| d.join(format!("{stem}-{CODE}.bin")))
+}
+
+/// Removes the files of `path`'s stem that other code wrote: no build of this code can
+/// read them, and a grid is up to tens of MB.
+pub(crate) fn prune_stale(path: &Path) {
+    let (Some(dir), Some(name)) = (path.parent(), path.file_name()) else {
+        return;
+    };
+    let name = name.to_string_lossy();
+    let Some(stem) = name.strip_suffix(&format!("-{CODE}.bin")) else {
+        return;
+    };
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let other = e.file_name();
+        let other = other.to_string_lossy();
+        let code = other
+            .strip_prefix(stem)
+            .and_then(|r| r.strip_prefix('-'))
+            .and_then(|r| r.strip_suffix(".bin"));
+        if code
+            .is_some_and(|c| c != CODE && c.len() == 16 && c.bytes().all(|b| b.is_ascii_hexdigit()))
+        {
+            let _ = std::fs::remove_file(e.path());
+        }
+    }
+}
+
+/// A hasher fed with `tag` and the mesh (vertex positions and triangles): the key of what
+/// is cached for a mesh.
+pub(crate) fn mesh_hasher(geo: &Geometry, tag: &[u8]) -> Fnv64 {
+    let mut h = Fnv64::new();
+    h.write(tag);
+    for p in &geo.mesh.positions {
+        for x in p.to_array() {
+            h.write(&x.to_le_bytes());
+        }
+    }
+    for t in &geo.mesh.triangles {
+        for i in t {
+            h.write(&i.to_le_bytes());
+        }
+    }
+    h
+}
+
+/// Says once a run that a cache file could not be written: a render that rebuilt its
+/// grid every time (an unwritable ~/.cache) was a second slower with no word why.
+pub(crate) fn note_unwritable_cache(path: &Path, e: &std::io::Error) {
+    static SAID: std::sync::Once = std::sync::Once::new();
+    SAID.call_once(|| {
+        // Not eprintln!: it panics where stderr is a closed pipe, which the CLI takes as
+        // a request to stop cleanly.
+        use std::io::Write as _;
+        let _ = writeln!(
+            std::io::stderr(),
+            "note: cannot write the cache file {} ({e}): distance grids and escape cones are \
+             rebuilt every run; set STCVAE_CACHE to a writable folder to keep them",
+            path.display()
+        );
+    });
+}
+
+/// `$STCVAE_CACHE`, else `$XDG_CACHE_HOME/stcvae`, else `~/.cache/stcvae`.
+pub(crate) fn cache_dir() -> Option<PathBuf> {
+    // An empty variable counts as unset (STCVAE_CACHE="" cached grids in the current
+    // directory).
+    let var = |k: &str| std::env::var_os(k).filter(|v| !v.is_empty());
+    if let Some(d) = var("STCVAE_CACHE") {
+        return Some(PathBuf::from(d));
+    }
+    if let Some(d) = var("XDG_CACHE_HOME") {
+        return Some(PathBuf::from(d).join("stcvae"));
+    }
+    var("HOME").map(|h| PathBuf::from(h).join(".cache").join("stcvae"))
+}
+
+/// Most bytes the cache's entries may hold together. Each object size, mesh and grid
+/// resolution is an entry of its own (the bunny's grid ~23 MB at 128, a fine mesh's up to
+/// GBs), so a sweep over object heights filled the cache without end (4.1 GB of 113 files
+/// here). Past it, the entries used longest ago go; the one just written always stays.
+pub const MAX_CACHE_BYTES: u64 = 4_000_000_000;
+
+/// What a cache file's name looks like: `grid-…-CODE.bin` or `cones-…-CODE.bin`, whatever
+/// the code that wrote it. Only such files are counted and removed.
+fn is_entry(name: &str) -> bool {
+    (name.starts_with("grid-") || name.starts_with("cones-"))
+        && name
+            .strip_suffix(".bin")
+            .and_then(|r| r.rsplit_once('-'))
+            .is_some_and(|(_, c)| c.len() == 16 && c.bytes().all(|b| b.is_ascii_hexdigit()))
+}
+
+/// Marks a cache entry as just used (its modification time, which [`trim`] orders by):
+/// reading does not change it where the file system keeps no access times. Best effort:
+/// a read-only cache is read all the same.
+pub(crate) fn touch(path: &Path) {
+    if let Ok(f) = std::fs::File::options().write(true).open(path) {
+        let _ = f.set_modified(SystemTime::now());
+    }
+}
+
+/// After `path` was written: removes its stem's files of other code ([`prune_stale`]),
+/// then the entries used longest ago while all of them hold more than
+/// [`MAX_CACHE_BYTES`].
+pub(crate) fn tidy(path: &Path) {
+    prune_stale(path);
+    trim(path, MAX_CACHE_BYTES);
+}
+
+/// Removes the cache entries beside `keep` used longest ago (oldest modification time
+/// first) until those left hold at most `most` bytes; `keep` itself stays whatever its
+/// size. Entries another process removes meanwhile are skipped.
+fn trim(keep: &Path, most: u64) {
+    let (Some(dir), Some(kept)) = (keep.parent(), keep.file_name()) else {
+        return;
+    };
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    let mut files: Vec<(SystemTime, u64, PathBuf)> = entries
+        .flatten()
+        .filter(|e| e.file_name() != kept && is_entry(&e.file_name().to_string_lossy()))
+        .filter_map(|e| {
+            let m = e.metadata().ok().filter(|m| m.is_file())?;
+            Some((m.modified().ok()?, m.len(), e.path()))
+        })
+        .collect();
+    let mut total: u64 =
+        files.iter().map(|f| f.1).sum::<u64>() + std::fs::metadata(keep).map_or(0, |m| m.len());
+    // Oldest first (ties by name, for a fixed order).
+    files.sort_by(|a, b| a.0.cmp(&b.0).then_with(|| a.2.cmp(&b.2)));
+    for (_, len, path) in files {
+        if total <= most {
+            break;
+        }
+        if std::fs::remove_file(&path).is_ok() {
+            total = total.saturating_sub(len);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::time::{Duration, SystemTime};
+
+    use super::{CODE, prune_stale, trim};
+
+    /// Writing this code's cache file of a stem removes that stem's files written by other
+    /// code, and nothing else: not another mesh's or resolution's (one that only extends
+    /// the stem, 640 after 64), nor files that merely look alike.
+    #[test]
+    fn stale_cache_files_of_the_stem_are_removed() {
+        let d = tempfile::tempdir().unwrap();
+        let other_code = if CODE == "0123456789abcdef" {
+            "fedcba9876543210"
+        } else {
+            "0123456789abcdef"
+        };
+        let mine = format!("grid-00ab-64-{CODE}.bin");
+        let stale = format!("grid-00ab-64-{other_code}.bin");
+        let kept = [
+            format!("grid-00ab-640-{other_code}.bin"),
+            format!("grid-00cd-64-{other_code}.bin"),
+            format!("cones-00ab-{other_code}.bin"),
+            "grid-00ab-64.bin".to_string(),
+            "grid-00ab-64-notes.bin".to_string(),
+        ];
+        for n in kept.iter().chain([&mine, &stale]) {
+            std::fs::write(d.path().join(n), b"x").unwrap();
+        }
+        prune_stale(&d.path().join(&mine));
+        let mut left: Vec<String> = std::fs::read_dir(d.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        left.sort();
+        let mut want: Vec<String> = kept.iter().chain([&mine]).cloned().collect();
+        want.sort();
+        assert_eq!(left, want);
+    }
+
+    /// Past the cap the entries used longest ago go, oldest first, until the rest fit; the
+    /// one just written stays even when it alone is larger; files that are not entries
+    /// are neither counted nor removed.
+    #[test]
+    fn the_cache_keeps_its_most_recently_used_entries() {
+        let d = tempfile::tempdir().unwrap();
+        let entry = |stem: &str, bytes: usize, age_s: u64| {
+            let p = d.path().join(format!("{stem}-{CODE}.bin"));
+            std::fs::write(&p, vec![0u8; bytes]).unwrap();
+            let f = std::fs::File::options().write(true).open(&p).unwrap();
+            f.set_modified(SystemTime::now() - Duration::from_secs(age_s))
+                .unwrap();
+            p
+        };
+        let oldest = entry("grid-0001-64", 400, 500);
+        let old = entry("cones-0002", 300, 400);
+        let recent = entry("grid-0003-128", 200, 300);
+        let newest = entry("grid-0004-64", 100, 200);
+        let other = d.path().join("notes.bin");
+        std::fs::write(&other, vec![0u8; 5000]).unwrap();
+        // 400 + 300 + 200 + 100 = 1000 bytes: a cap of 1000 removes nothing.
+        trim(&newest, 1000);
+        assert!(oldest.exists() && old.exists() && recent.exists() && newest.exists());
+        // A cap of 650: the oldest (400) goes, leaving 600; the rest stay.
+        trim(&newest, 650);
+        assert!(!oldest.exists() && old.exists() && recent.exists() && newest.exists());
+        // Touched, `old` becomes the most recently used: a cap of 450 now removes `recent`
+        // (used longer ago), leaving old + newest = 400.
+        super::touch(&old);
+        trim(&newest, 450);
+        assert!(old.exists() && !recent.exists() && newest.exists());
+        // A cap below the kept entry alone removes every other entry, never the kept one.
+        trim(&newest, 10);
+        assert!(!old.exists() && newest.exists());
+        assert!(other.exists(), "a file that is no cache entry was removed");
+    }
+}
