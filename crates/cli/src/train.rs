@@ -904,19 +904,42 @@ fn train_models(
             let (results, report, bar) = (&results, &report, &bars[i]);
             let device = device.clone();
             s.spawn(move || {
-                let r = train_model(
-                    k,
-                    table,
-                    &mc,
-                    cfg.seed,
-                    &device,
-                    &cfg.checkpoint_dir,
-                    cfg.checkpoint_every,
-                    a.resume,
-                    cancel,
-                    validation,
-                    report,
-                );
+                // A panic inside burn or the optimiser (a resumed optimiser state whose
+                // tensors have another shape than the model's) is an error of this model:
+                // it ended the command with "a scoped thread panicked".
+                let r = scatter_sim::quiet::quietly(|| {
+                    train_model(
+                        k,
+                        table,
+                        &mc,
+                        cfg.seed,
+                        &device,
+                        &cfg.checkpoint_dir,
+                        cfg.checkpoint_every,
+                        a.resume,
+                        cancel,
+                        validation,
+                        report,
+                    )
+                })
+                .unwrap_or_else(|panic| {
+                    let what = scatter_sim::quiet::panic_text(&*panic);
+                    Err(TrainError::Failed(if a.resume {
+                        format!(
+                            "{}: {}'s training stopped on an error ({what}): the checkpoint it \
+                             resumed may have been edited or damaged; start over with --fresh \
+                             --model {}",
+                            cfg.checkpoint_dir.display(),
+                            k.name(),
+                            k.name()
+                        )
+                    } else {
+                        format!(
+                            "{}'s training stopped on an internal error: {what}",
+                            k.name()
+                        )
+                    }))
+                });
                 bar.finish();
                 // One model's failure (a checkpoint that does not fit, a divergence) stops
                 // the others at their next step, each with a checkpoint: they trained on to

@@ -676,6 +676,19 @@ fn resume_needs_an_intact_checkpoint_and_the_last_loss_is_the_last_steps() {
             serde_json::json!(0.0),
             "norm: out_scale[0] = 0 is out of range",
         ),
+        // Xoshiro's all-zero state, which it never leaves: the latent noise's normal
+        // sampler looped on it for ever (a hang Ctrl-C could not stop).
+        (
+            "/stream/rng/s",
+            serde_json::json!([0, 0, 0, 0]),
+            "stream.rng is the all-zero state",
+        ),
+        // A sum whose mean is beyond f32: reported as a final loss of inf.
+        (
+            "/stream/pending_loss",
+            serde_json::json!([1e308, 1]),
+            "stream.pending_loss = (1e308, 1)",
+        ),
     ] {
         let mut v: serde_json::Value = serde_json::from_str(&kept).unwrap();
         *v.pointer_mut(field).unwrap() = value;
@@ -704,6 +717,63 @@ fn resume_needs_an_intact_checkpoint_and_the_last_loss_is_the_last_steps() {
         "{}",
         stderr(&out)
     );
+
+    // Record files burn's loader or the optimiser panicked on (a tensor of another type, an
+    // optimiser state of another shape than its parameter's), their checksums dropped from
+    // the record as a checkpoint from before them has none: one line naming the
+    // checkpoint, no panic.
+    let fresh = eventgen_with(dir.path(), "--fresh");
+    assert!(fresh.status.success(), "--fresh failed: {}", stderr(&fresh));
+    let kept_record = fs::read_to_string(&record).unwrap();
+    let mut v: serde_json::Value = serde_json::from_str(&kept_record).unwrap();
+    v.as_object_mut().unwrap().remove("crc32");
+    let optim = dir.path().join("ck/eventgen-optim.bpk");
+    // The first tensor shape [a, b] with a ≠ b (CBOR: "shape", an array of two, two small
+    // integers) is written [b, a].
+    let swapped = |mut bytes: Vec<u8>| {
+        let at = bytes
+            .windows(8)
+            .position(|w| &w[..6] == b"shape\x82" && w[6] < 0x18 && w[7] < 0x18 && w[6] != w[7])
+            .expect("a tensor of two unequal dimensions");
+        bytes.swap(at + 6, at + 7);
+        bytes
+    };
+    let retyped = |bytes: Vec<u8>| {
+        let text = b"dtypecF32";
+        let at = bytes
+            .windows(text.len())
+            .position(|w| w == text)
+            .expect("an f32 tensor");
+        let mut bytes = bytes;
+        bytes[at + 6..at + 9].copy_from_slice(b"I32");
+        bytes
+    };
+    for (file, edit, says) in [
+        (
+            &weights,
+            &retyped as &dyn Fn(Vec<u8>) -> Vec<u8>,
+            "eventgen.bpk: cannot be read",
+        ),
+        (&optim, &swapped, "eventgen's training stopped on an error"),
+    ] {
+        let kept_file = fs::read(file).unwrap();
+        fs::write(file, edit(kept_file.clone())).unwrap();
+        fs::write(&record, v.to_string()).unwrap();
+        // One step more than the checkpoint holds, so that the optimiser takes a step.
+        replace_in(&dir.path().join("train.toml"), "steps = 5", "steps = 6");
+        let out = resume(dir.path());
+        replace_in(&dir.path().join("train.toml"), "steps = 6", "steps = 5");
+        assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
+        let err = stderr(&out);
+        assert!(
+            err.contains(says)
+                && err.contains("--fresh --model eventgen")
+                && !err.contains("panicked"),
+            "{err}"
+        );
+        fs::write(file, kept_file).unwrap();
+        fs::write(&record, &kept_record).unwrap();
+    }
 
     replace_in(&dir.path().join("train.toml"), "steps = 5", "steps = 0");
     fs::remove_dir_all(dir.path().join("ck")).unwrap();

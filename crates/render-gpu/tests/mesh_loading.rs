@@ -470,6 +470,22 @@ fn malformed_gltf_is_an_error_not_a_panic_or_a_hang() {
             "{e}"
         );
     }
+    // A POSITION naming no accessor: gltf's own validation looked it up unchecked and
+    // panicked (index out of bounds).
+    let good_text = std::fs::read_to_string(d.path().join("good.gltf")).unwrap();
+    assert_eq!(good_text.matches(r#""POSITION":0"#).count(), 1);
+    let missing = d.path().join("missing_position.gltf");
+    std::fs::write(
+        &missing,
+        good_text.replace(r#""POSITION":0"#, r#""POSITION":7"#),
+    )
+    .unwrap();
+    let e = load_mesh(&missing).unwrap_err().to_string();
+    assert!(
+        e.contains("missing_position.gltf")
+            && e.contains("POSITION names accessor 7, but the file has 2 accessors"),
+        "{e}"
+    );
     // A rotation rounded as exporters write it (length 1 − 3·10⁻⁶) is a rotation: a
     // quarter turn about z leaves the unit cube where it was.
     let bounds = |name: &str, nodes: &str| {

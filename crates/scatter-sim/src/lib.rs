@@ -12,6 +12,7 @@ pub mod dataset;
 pub mod frame;
 pub mod output;
 pub mod phase;
+pub mod quiet;
 pub mod ranges;
 pub mod reservoir;
 pub mod rng;

@@ -47,6 +47,14 @@ impl WalkRng {
         Self::for_walk(seed, u64::MAX)
     }
 
+    /// Whether this is xoshiro's forbidden all-zero state, which it never leaves (every
+    /// draw 0): no stream made here is in it, but one read from a file may be. Four zero
+    /// draws in a row from any other state have probability 2^-256.
+    pub fn is_degenerate(&self) -> bool {
+        let mut r = self.clone();
+        (0..4).all(|_| r.next_u64() == 0)
+    }
+
     #[inline]
     pub fn next_u64(&mut self) -> u64 {
         self.0.next_u64()

@@ -190,6 +190,10 @@ pub enum TrainError {
          from before)"
     )]
     Diverged(&'static str, u64),
+    /// A panic inside burn or the optimiser while training, caught by the caller and told
+    /// in one line.
+    #[error("{0}")]
+    Failed(String),
 }
 
 /// Progress of a model, saved beside its weights.
@@ -272,6 +276,23 @@ impl CheckpointInfo {
                 "history does not begin at step 1 although the run is at step {}",
                 self.step
             ));
+        }
+        // Xoshiro never leaves the all-zero state (every draw 0): the latent noise's normal
+        // sampler looped on it for ever, deaf to Ctrl-C.
+        if let Some(s) = &self.stream {
+            if s.rng.is_degenerate() {
+                return Err("stream.rng is the all-zero state, which no run saves".into());
+            }
+            // Its mean is the next report's loss, in f32.
+            let (sum, count) = s.pending_loss;
+            let mean = (sum / count.max(1) as f64) as f32;
+            if !(sum.is_finite() && mean.is_finite() && count <= REPORT_EVERY) {
+                return Err(format!(
+                    "stream.pending_loss = ({}, {count}) is not a sum of at most \
+                     {REPORT_EVERY} loss readings with a finite mean",
+                    scatter_sim::ranges::num(sum)
+                ));
+            }
         }
         let n = &self.norm;
         crate::model_file::check_norm(
@@ -661,15 +682,13 @@ pub fn train_model(
         for p in [&mpath, &opath] {
             scatter_sim::output::check_input(p).map_err(|e| err(p, e.to_string()))?;
         }
-        model = model
-            .try_load_file(&mpath)
-            .map_err(|e| err(&mpath, record_error(kind, e.to_string())))?;
+        model = loaded(kind, &mpath, || model.try_load_file(&mpath))?;
         // A run never saves such weights ([`exportable`]): resumed, they read as a
         // divergence at the first loss, blamed on the learning rate.
         if !exportable(&model, &info.norm) {
             return Err(err(&mpath, damaged_weights(kind)));
         }
-        optim = optim.load(&opath).map_err(|e| err(&opath, e.to_string()))?;
+        optim = loaded(kind, &opath, || optim.load(&opath))?;
         // Same mode (checked above) and same data (the standardisation matched).
         info.single_scattering = Some(table.mode);
         info.ranges = Some(table.ranges);
@@ -818,9 +837,8 @@ pub fn load_decoder(
     scatter_sim::output::check_input(&m).map_err(|e| err(&m, e.to_string()))?;
     let device = Device::flex();
     let mut rng = WalkRng::from_seed(0);
-    let model = Cvae::new(kind.cond(), kind.out(), arch, &mut rng, &device)
-        .try_load_file(&m)
-        .map_err(|e| err(&m, record_error(kind, e.to_string())))?;
+    let fresh = Cvae::new(kind.cond(), kind.out(), arch, &mut rng, &device);
+    let model = loaded(kind, &m, || fresh.try_load_file(&m))?;
     let decoder = model.export(&info.norm);
     if !within_bounds(&decoder) {
         return Err(err(&m, damaged_weights(kind)));
@@ -836,6 +854,29 @@ fn damaged_weights(kind: ModelKind) -> String {
         crate::model_file::MAX_WEIGHT,
         kind.name()
     )
+}
+
+/// What burn's loader makes of the record file `path`, its error or its panic (a tensor
+/// of another type or rank, a damaged parameter id) as a checkpoint error naming the file.
+fn loaded<T, E: std::fmt::Display>(
+    kind: ModelKind,
+    path: &Path,
+    load: impl FnOnce() -> Result<T, E>,
+) -> Result<T, TrainError> {
+    let msg = match scatter_sim::quiet::quietly(load) {
+        Ok(Ok(v)) => return Ok(v),
+        Ok(Err(e)) => record_error(kind, e.to_string()),
+        Err(panic) => format!(
+            "cannot be read ({}): the checkpoint was edited or damaged; start over with \
+             --fresh --model {}",
+            scatter_sim::quiet::panic_text(&*panic),
+            kind.name()
+        ),
+    };
+    Err(TrainError::Checkpoint {
+        path: path.into(),
+        msg,
+    })
 }
 
 /// burn's error for a checkpoint whose tensors do not fit the network lists every

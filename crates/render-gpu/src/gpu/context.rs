@@ -109,7 +109,7 @@ impl GpuContext {
     /// scope. A lost device (a driver reset, a watchdog) makes wgpu's poll panic instead of
     /// returning an error: that panic is caught and reported as an error too.
     pub fn poll(&self, poll_type: wgpu::PollType) -> Result<(), RenderError> {
-        let polled = quietly(|| self.device.poll(poll_type));
+        let polled = scatter_sim::quiet::quietly(|| self.device.poll(poll_type));
         let uncaptured = self
             .uncaptured
             .lock()
@@ -133,32 +133,6 @@ impl GpuContext {
             ))),
         }
     }
-}
-
-std::thread_local! {
-    /// Set while this thread runs [`quietly`]'s closure.
-    static QUIET: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
-}
-
-/// Runs `f`, catching a panic as an `Err` without the panic's message: a lost device
-/// panics inside wgpu's poll, and the default hook printed "thread 'main' panicked at …
-/// Parent device is lost" and a backtrace note before the one-line error the caller gives.
-/// A hook installed once passes every other panic (other threads', and this thread's
-/// outside `f`) to the hook it replaced.
-fn quietly<T>(f: impl FnOnce() -> T) -> std::thread::Result<T> {
-    static HOOK: std::sync::Once = std::sync::Once::new();
-    HOOK.call_once(|| {
-        let previous = std::panic::take_hook();
-        std::panic::set_hook(Box::new(move |info| {
-            if !QUIET.with(|q| q.get()) {
-                previous(info);
-            }
-        }));
-    });
-    QUIET.with(|q| q.set(true));
-    let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(f));
-    QUIET.with(|q| q.set(false));
-    result
 }
 
 fn summary(info: &wgpu::AdapterInfo) -> AdapterSummary {
@@ -365,18 +339,6 @@ mod tests {
             wgpu::Limits::default(),
             "a test that can fail"
         );
-    }
-
-    /// A panic inside `quietly` comes back as an error (the lost-device path), the value
-    /// of a closure that returns does too, and a panic after it is a panic again: the
-    /// flag is cleared whichever way the closure ended.
-    #[test]
-    fn quietly_catches_a_panic_and_then_lets_panics_through() {
-        assert!(quietly(|| panic!("Parent device is lost")).is_err());
-        assert!(!QUIET.with(|q| q.get()));
-        assert_eq!(quietly(|| 7).ok(), Some(7));
-        assert!(!QUIET.with(|q| q.get()));
-        assert!(std::panic::catch_unwind(|| panic!("a real bug")).is_err());
     }
 
     /// The first adapter that opens is taken, after the failures of those ranked above

@@ -159,6 +159,9 @@ pub(super) fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
             ));
         }
     }
+    if let Some(e) = unnamed_position_accessor(&bytes) {
+        return Err(RenderError::mesh(path, e));
+    }
     let gltf::Gltf { document, blob } = gltf::Gltf::from_slice(&bytes).map_err(|e| {
         let what = if bytes.is_empty() {
             "the file is empty".to_string()
@@ -353,6 +356,27 @@ pub(super) fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
         }
     }
     Ok(mesh)
+}
+
+/// A primitive whose POSITION names no accessor, in a file that parses (its other faults
+/// are left to gltf's validation): that validation looks the accessor up unchecked
+/// (gltf-json 1.4), and such a file panicked.
+fn unnamed_position_accessor(bytes: &[u8]) -> Option<String> {
+    let g = gltf::Gltf::from_slice_without_validation(bytes).ok()?;
+    let root = g.document.as_json();
+    let positions = gltf::json::validation::Checked::Valid(gltf::Semantic::Positions);
+    root.meshes.iter().enumerate().find_map(|(m, mesh)| {
+        mesh.primitives.iter().enumerate().find_map(|(p, prim)| {
+            let i = prim.attributes.get(&positions)?.value();
+            (i >= root.accessors.len()).then(|| {
+                format!(
+                    "not a valid glTF/GLB file: mesh {m} primitive {p}: POSITION names accessor \
+                     {i}, but the file has {} accessors",
+                    root.accessors.len()
+                )
+            })
+        })
+    })
 }
 
 /// Every buffer of a glTF file, held while its mesh is read: the GLB's binary chunk
