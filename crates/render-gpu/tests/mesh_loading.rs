@@ -470,6 +470,17 @@ fn malformed_gltf_is_an_error_not_a_panic_or_a_hang() {
             "{e}"
         );
     }
+    // A cycle in a file without a scene: no node is a root, and it read as "no triangles".
+    let sceneless = d.path().join("cycle_no_scene.gltf");
+    let cycle = std::fs::read_to_string(d.path().join("cycle.gltf")).unwrap();
+    let without = cycle.replace(r#""scene":0,"scenes":[{"nodes":[0]}],"#, "");
+    assert_ne!(without, cycle, "cube_gltf's scene changed");
+    std::fs::write(&sceneless, without).unwrap();
+    let e = load_mesh(&sceneless).unwrap_err().to_string();
+    assert!(
+        e.contains("cycle_no_scene.gltf") && e.contains("the node hierarchy has a cycle"),
+        "{e}"
+    );
     // A POSITION naming no accessor: gltf's own validation looked it up unchecked and
     // panicked (index out of bounds).
     let good_text = std::fs::read_to_string(d.path().join("good.gltf")).unwrap();

@@ -190,7 +190,17 @@ pub(super) fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
             for c in document.nodes().flat_map(|n| n.children()) {
                 child[c.index()] = true;
             }
-            document.nodes().filter(|n| !child[n.index()]).collect()
+            let roots: Vec<gltf::Node> = document.nodes().filter(|n| !child[n.index()]).collect();
+            // Nodes but no root: each is another's child, so they form a cycle (which a
+            // scene's walk reports where it meets it); it read as "no triangles".
+            if roots.is_empty() && document.nodes().len() > 0 {
+                return Err(RenderError::mesh(
+                    path,
+                    "every node is another's child and the file has no scene: the node \
+                     hierarchy has a cycle",
+                ));
+            }
+            roots
         }
     };
     let mut stack: Vec<(gltf::Node, Mat4)> =
