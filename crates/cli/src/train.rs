@@ -863,8 +863,10 @@ fn train_models(
     kinds: &[ModelKind],
     tables: &[Table],
     validations: &[Option<Validation>],
-    cancel: &'static std::sync::atomic::AtomicBool,
+    resumed: &[ModelKind],
 ) -> Result<(Vec<cvae::train::Trained>, f64)> {
+    // The handler is installed already (`run`): this is its flag.
+    let cancel = interrupt::flag();
     let multi = MultiProgress::with_draw_target(crate::progress::target());
     let scaled = |k: ModelKind| scaled_model(cfg.model(k), a.steps_scale);
     let bars: Vec<ProgressBar> = kinds
@@ -924,7 +926,7 @@ fn train_models(
                 })
                 .unwrap_or_else(|panic| {
                     let what = scatter_sim::quiet::panic_text(&*panic);
-                    Err(TrainError::Failed(if a.resume {
+                    Err(TrainError::Failed(if resumed.contains(&k) {
                         format!(
                             "{}: {}'s training stopped on an error ({what}): the checkpoint it \
                              resumed may have been edited or damaged; start over with --fresh \
@@ -1246,7 +1248,8 @@ pub fn run(a: Args) -> Result<()> {
     drop(rows);
     let validations = validations(&cfg, &kinds, &tables, &header.pieces);
 
-    let cancel = interrupt::flag();
+    // The handler, installed now, before the checkpoints are touched.
+    interrupt::flag();
     // A Ctrl-C after a dataset was generated here (whose handler then caught it) while the
     // rows were read: --fresh removed the checkpoints and each model saved a step-1 set.
     if interrupt::requested() {
@@ -1264,7 +1267,7 @@ pub fn run(a: Args) -> Result<()> {
         }
     }
     let (trained, seconds) =
-        train_models(&a, &cfg, &device, &kinds, &tables, &validations, cancel)?;
+        train_models(&a, &cfg, &device, &kinds, &tables, &validations, &resumed)?;
     let (set, notes) = model_set(
         &a,
         &cfg,

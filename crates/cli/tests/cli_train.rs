@@ -689,6 +689,12 @@ fn resume_needs_an_intact_checkpoint_and_the_last_loss_is_the_last_steps() {
             serde_json::json!([1e308, 1]),
             "stream.pending_loss = (1e308, 1)",
         ),
+        // A sum of no readings: added into the next report's mean, a wrong finite loss.
+        (
+            "/stream/pending_loss",
+            serde_json::json!([5.0, 0]),
+            "stream.pending_loss = (5, 0)",
+        ),
     ] {
         let mut v: serde_json::Value = serde_json::from_str(&kept).unwrap();
         *v.pointer_mut(field).unwrap() = value;

@@ -129,7 +129,7 @@ pub(crate) fn tidy(path: &Path) {
 
 /// Removes the cache entries beside `keep` used longest ago (oldest modification time
 /// first) until those left hold at most `most` bytes; `keep` itself stays whatever its
-/// size. Entries another process removes meanwhile are skipped.
+/// size. An entry another process removed meanwhile counts as removed.
 fn trim(keep: &Path, most: u64) {
     let (Some(dir), Some(kept)) = (keep.parent(), keep.file_name()) else {
         return;
@@ -153,8 +153,10 @@ fn trim(keep: &Path, most: u64) {
         if total <= most {
             break;
         }
-        if std::fs::remove_file(&path).is_ok() {
-            total = total.saturating_sub(len);
+        // Gone already (another run trimming too) frees the space as well.
+        match std::fs::remove_file(&path) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {}
+            _ => total = total.saturating_sub(len),
         }
     }
 }

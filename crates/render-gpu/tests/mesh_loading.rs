@@ -470,17 +470,30 @@ fn malformed_gltf_is_an_error_not_a_panic_or_a_hang() {
             "{e}"
         );
     }
-    // A cycle in a file without a scene: no node is a root, and it read as "no triangles".
-    let sceneless = d.path().join("cycle_no_scene.gltf");
+    // Without a scene, a cycle of nodes no root leads into: all the file's nodes (it read
+    // as "no triangles"), or beside a root's tree (its nodes were dropped without a word).
     let cycle = std::fs::read_to_string(d.path().join("cycle.gltf")).unwrap();
-    let without = cycle.replace(r#""scene":0,"scenes":[{"nodes":[0]}],"#, "");
-    assert_ne!(without, cycle, "cube_gltf's scene changed");
-    std::fs::write(&sceneless, without).unwrap();
-    let e = load_mesh(&sceneless).unwrap_err().to_string();
-    assert!(
-        e.contains("cycle_no_scene.gltf") && e.contains("the node hierarchy has a cycle"),
-        "{e}"
+    let sceneless = cycle.replace(r#""scene":0,"scenes":[{"nodes":[0]}],"#, "");
+    assert_ne!(sceneless, cycle, "cube_gltf's scene changed");
+    let beside = sceneless.replace(
+        r#"[{"mesh":0,"children":[0]}]"#,
+        r#"[{"mesh":0},{"mesh":0,"children":[2]},{"mesh":0,"children":[1]}]"#,
     );
+    assert_ne!(beside, sceneless, "cube_gltf's nodes changed");
+    for (name, text, node) in [
+        ("cycle_alone.gltf", &sceneless, "node 0"),
+        ("cycle_beside.gltf", &beside, "node 1"),
+    ] {
+        let path = d.path().join(name);
+        std::fs::write(&path, text).unwrap();
+        let e = load_mesh(&path).unwrap_err().to_string();
+        assert!(
+            e.contains(name)
+                && e.contains(&format!("{node} is reached from no root node"))
+                && e.contains("the node hierarchy has a cycle"),
+            "{e}"
+        );
+    }
     // A POSITION naming no accessor: gltf's own validation looked it up unchecked and
     // panicked (index out of bounds).
     let good_text = std::fs::read_to_string(d.path().join("good.gltf")).unwrap();

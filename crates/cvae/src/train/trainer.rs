@@ -283,13 +283,17 @@ impl CheckpointInfo {
             if s.rng.is_degenerate() {
                 return Err("stream.rng is the all-zero state, which no run saves".into());
             }
-            // Its mean is the next report's loss, in f32.
+            // Its mean is the next report's loss, in f32. A reading is taken every
+            // LOG_EVERY steps and at a run's last; the readings are summed from the last
+            // report, at most REPORT_EVERY steps back.
             let (sum, count) = s.pending_loss;
+            let most = REPORT_EVERY / LOG_EVERY + 1;
             let mean = (sum / count.max(1) as f64) as f32;
-            if !(sum.is_finite() && mean.is_finite() && count <= REPORT_EVERY) {
+            if !(sum.is_finite() && mean.is_finite() && count <= most && (count > 0 || sum == 0.0))
+            {
                 return Err(format!(
-                    "stream.pending_loss = ({}, {count}) is not a sum of at most \
-                     {REPORT_EVERY} loss readings with a finite mean",
+                    "stream.pending_loss = ({}, {count}) is not a sum of at most {most} loss \
+                     readings with a finite mean (0 for none)",
                     scatter_sim::ranges::num(sum)
                 ));
             }

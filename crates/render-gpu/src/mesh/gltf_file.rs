@@ -181,7 +181,7 @@ pub(super) fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
     let scene = document
         .default_scene()
         .or_else(|| document.scenes().next());
-    let roots: Vec<gltf::Node> = match scene {
+    let roots: Vec<gltf::Node> = match &scene {
         Some(s) => s.nodes().collect(),
         // No scene: every node that is no other's child (the children come through their
         // parents; started from too, they would be reached twice).
@@ -190,17 +190,7 @@ pub(super) fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
             for c in document.nodes().flat_map(|n| n.children()) {
                 child[c.index()] = true;
             }
-            let roots: Vec<gltf::Node> = document.nodes().filter(|n| !child[n.index()]).collect();
-            // Nodes but no root: each is another's child, so they form a cycle (which a
-            // scene's walk reports where it meets it); it read as "no triangles".
-            if roots.is_empty() && document.nodes().len() > 0 {
-                return Err(RenderError::mesh(
-                    path,
-                    "every node is another's child and the file has no scene: the node \
-                     hierarchy has a cycle",
-                ));
-            }
-            roots
+            document.nodes().filter(|n| !child[n.index()]).collect()
         }
     };
     let mut stack: Vec<(gltf::Node, Mat4)> =
@@ -364,6 +354,21 @@ pub(super) fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
         for c in node.children() {
             stack.push((c, world));
         }
+    }
+    // Without a scene every node is to be placed: one the walk from the roots never
+    // reached is on a cycle of children that no root leads into (every node of a file
+    // that is one such cycle read as "no triangles", a cycle beside a root's tree was
+    // dropped without a word).
+    if scene.is_none()
+        && let Some(n) = visited.iter().position(|&v| !v)
+    {
+        return Err(RenderError::mesh(
+            path,
+            format!(
+                "node {n} is reached from no root node (the file has no scene): the node \
+                 hierarchy has a cycle"
+            ),
+        ));
     }
     Ok(mesh)
 }
