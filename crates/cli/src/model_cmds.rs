@@ -506,7 +506,12 @@ fn evaluate_settings(a: &EvalArgs) -> Result<()> {
             eval::model_columns_until(&m, setting, a.samples, seed, cancel).ok_or_else(stopped)?;
         let sim =
             eval::simulator_columns_until(setting, a.samples, seed, cancel).ok_or_else(stopped)?;
-        reports.push(eval::compare_setting(&model, &sim, c.tau, c.g, c.albedo));
+        let report =
+            eval::compare_setting_until(&model, &sim, setting, cancel).ok_or_else(stopped)?;
+        reports.push(report);
+        if cancel.load(std::sync::atomic::Ordering::Relaxed) {
+            return Err(stopped());
+        }
         bands += &eval::fine_shells_table(&model, &sim, c.tau, c.g, c.albedo);
         pb.inc(1);
     }

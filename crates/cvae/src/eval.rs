@@ -423,35 +423,57 @@ pub fn model_rng(seed: u64, i: u64) -> WalkRng {
 
 /// Compares the columns; `which` selects quantities by index into [`QUANTITIES`].
 pub fn compare(model: &Columns, sim: &Columns, which: &[usize]) -> Vec<Metric> {
+    compare_until(model, sim, which, &AtomicBool::new(false)).expect("never stopped")
+}
+
+/// As [`compare`], or None once `stop` is set (looked at before each quantity).
+fn compare_until(
+    model: &Columns,
+    sim: &Columns,
+    which: &[usize],
+    stop: &AtomicBool,
+) -> Option<Vec<Metric>> {
     which
         .iter()
         .map(|&q| {
+            if stop.load(Ordering::Relaxed) {
+                return None;
+            }
             let (mut a, mut b) = (model.0[q].clone(), sim.0[q].clone());
             let ks = ks_two_sample(&mut a, &mut b);
             let w1 = wasserstein1(&mut a, &mut b);
-            Metric {
+            Some(Metric {
                 quantity: QUANTITIES[q].to_string(),
                 ks,
                 w1,
-            }
+            })
         })
         .collect()
 }
 
 /// Compares the joint distributions of [`PAIRS`].
 pub fn compare_pairs(model: &Columns, sim: &Columns) -> Vec<Metric> {
+    compare_pairs_until(model, sim, &AtomicBool::new(false)).expect("never stopped")
+}
+
+/// As [`compare_pairs`], or None once `stop` is set (looked at before each pair: the 2-D
+/// tests of a million samples take seconds each).
+fn compare_pairs_until(model: &Columns, sim: &Columns, stop: &AtomicBool) -> Option<Vec<Metric>> {
     PAIRS
         .iter()
         .map(|&(name, x, y)| {
+            if stop.load(Ordering::Relaxed) {
+                return None;
+            }
             let zip = |c: &Columns| -> Vec<(f64, f64)> {
                 c.0[x].iter().copied().zip(c.0[y].iter().copied()).collect()
             };
             let (a, b) = (zip(model), zip(sim));
-            Metric {
+            Some(Metric {
                 quantity: name.to_string(),
                 ks: ks_two_sample_2d(&a, &b),
                 w1: sliced_wasserstein1(&a, &b, SLICES),
-            }
+            })
         })
         .collect()
 }
@@ -479,26 +501,45 @@ pub fn compare_setting(
     g: f64,
     albedo: f64,
 ) -> SettingReport {
+    compare_setting_until(model, sim, (tau, g, albedo), &AtomicBool::new(false))
+        .expect("never stopped")
+}
+
+/// As [`compare_setting`], or None once `stop` is set, looked at between its parts: at a
+/// million samples the comparison took ~30 s after the walks, and a Ctrl-C then waited for
+/// all of it.
+pub fn compare_setting_until(
+    model: &Columns,
+    sim: &Columns,
+    (tau, g, albedo): (f64, f64, f64),
+    stop: &AtomicBool,
+) -> Option<SettingReport> {
+    let go_on = || (!stop.load(Ordering::Relaxed)).then_some(());
+    go_on()?;
     let (model_nee, sim_nee) = (
         model.nee_samples(tau, g, albedo),
         sim.nee_samples(tau, g, albedo),
     );
+    go_on()?;
     let (model_shells, sim_shells) = (model.shell_samples(), sim.shell_samples());
     let (model_survival, sim_survival) = (model.survival_samples(), sim.survival_samples());
+    go_on()?;
     let (model_half, sim_half) = (
         model.half_space_samples(tau, g, albedo),
         sim.half_space_samples(tau, g, albedo),
     );
+    go_on()?;
     let which: Vec<usize> = if albedo == 1.0 {
         (0..QUANTITIES.len()).collect()
     } else {
         vec![5, 6, 7]
     };
-    let mut metrics = compare(model, sim, &which);
+    let mut metrics = compare_until(model, sim, &which, stop)?;
     if albedo == 1.0 {
-        metrics.extend(compare_pairs(model, sim));
+        metrics.extend(compare_pairs_until(model, sim, stop)?);
     }
-    SettingReport {
+    go_on()?;
+    Some(SettingReport {
         tau,
         g,
         albedo,
@@ -508,7 +549,7 @@ pub fn compare_setting(
         sphere_nee: ratio_error(&model_nee[1], &sim_nee[1]),
         half_space: [0, 1, 2].map(|k| ratio_error(&model_half[k], &sim_half[k])),
         shells: [0, 1].map(|k| ratio_error(&model_shells[k], &sim_shells[k])),
-    }
+    })
 }
 
 /// The full grid: 16 settings at φ = 1 plus the 16 EventGen settings at φ = 0.9.
@@ -542,7 +583,10 @@ pub fn evaluate_grid(
         let Some(model) = model_columns_until(m, (t, g, a), samples, seed, stop) else {
             break;
         };
-        reports.push(compare_setting(&model, &sim, t, g, a));
+        let Some(report) = compare_setting_until(&model, &sim, (t, g, a), stop) else {
+            break;
+        };
+        reports.push(report);
         seen((t, g, a), &model, &sim);
         if !progress(i + 1, total) {
             break;
