@@ -144,6 +144,15 @@ struct Seen {
 
 fn load(path: &Path, seen: &mut Seen) -> Result<RgbImage> {
     let (img, tag) = read_exr(path)?;
+    // Other renderers' images are untagged too, but `render --variance`'s are named so:
+    // one given as a reference or an image was measured as a render without a word.
+    if tag.is_none() && path.to_string_lossy().ends_with(".var.exr") {
+        bail!(
+            "{}: a variance image of `render --variance` (untagged, named *.var.exr), not a \
+             render: leave it out",
+            path.display()
+        );
+    }
     if let Some(t) = tag {
         // An stcvae render's pixels are ≥ 0 (`merge` refuses others too). Other
         // renderers' may not be: a spectral-to-RGB conversion leaves small negatives.

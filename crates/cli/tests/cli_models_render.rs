@@ -2434,6 +2434,23 @@ fn bench_error_ranks_renders_by_error_and_names_bad_inputs() {
         e.contains("seed 2 in common") && e.contains("ref2.exr") && e.contains("st_twin.exr"),
         "{e}"
     );
+    // `render --variance`'s side image is no render (it was measured as one).
+    let varied = d.path().join("varied");
+    ok(&render_scene(
+        &scene,
+        "pt",
+        "8",
+        "12",
+        &varied,
+        &["--device", "cpu", "--variance"],
+    ));
+    let var_image = d.path().join("varied.var.exr");
+    assert!(var_image.is_file());
+    let e = fails(&bench_error(&[&format!("{}:8", var_image.display())]));
+    assert!(
+        e.contains("varied.var.exr: a variance image of `render --variance`"),
+        "{e}"
+    );
     // A copy of a reference without its tag (as another renderer's EXR would be) is told
     // apart by its pixels instead.
     let (pixels, _) = render_gpu::image_io::read_exr(Path::new(&refs[1])).unwrap();
