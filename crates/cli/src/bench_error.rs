@@ -466,14 +466,14 @@ pub fn run(a: Args) -> Result<()> {
             "note: every pixel's R + G + B exceeds --object-threshold {}, the background's \
              too: the object column covers the whole image; give a threshold above the \
              background's (the image's least is {:.4})",
-            a.object_threshold,
+            scatter_sim::ranges::num(a.object_threshold),
             sums().fold(f64::INFINITY, f64::min)
         );
     } else if objects == 0 {
         eprintln!(
             "note: no pixel's R + G + B exceeds --object-threshold {}: the object column is \
              empty; give a threshold below the object's (the image's greatest is {:.4})",
-            a.object_threshold,
+            scatter_sim::ranges::num(a.object_threshold),
             sums().fold(f64::NEG_INFINITY, f64::max)
         );
     }
@@ -487,7 +487,7 @@ pub fn run(a: Args) -> Result<()> {
         } else {
             "no noise estimate with one render (nothing subtracted)".into()
         },
-        a.object_threshold
+        scatter_sim::ranges::num(a.object_threshold)
     );
     println!(
         "{:<40} {:>9} {:>9} {:>10} {:>9}  object mean / reference (R, G, B)",

@@ -634,8 +634,11 @@ pub fn fine_shells_table(model: &Columns, sim: &Columns, tau: f64, g: f64, albed
             .count()
     };
     let mut s = format!(
-        "\nEvents by distance 1 − |X| from the sphere's surface, τ = {tau}, g = {g}, φ = {albedo} \
-         (simulator's count; model / simulator):\n\n|"
+        "\nEvents by distance 1 − |X| from the sphere's surface, τ = {}, g = {}, φ = {} \
+         (simulator's count; model / simulator):\n\n|",
+        scatter_sim::ranges::num(tau),
+        scatter_sim::ranges::num(g),
+        scatter_sim::ranges::num(albedo)
     );
     for [lo, hi] in FINE_SHELLS {
         s += &format!(" {lo}–{hi} |");
@@ -683,7 +686,8 @@ pub fn markdown_table(reports: &[SettingReport]) -> String {
     s += &"---|".repeat(2 + SURVIVAL_ALBEDOS.len() + SURFACE_SIDES.len() + SHELLS.len());
     s += "\n";
     for r in reports {
-        s += &format!("| {} | {} | {} |", r.tau, r.g, r.albedo);
+        let num = scatter_sim::ranges::num::<f64>;
+        s += &format!("| {} | {} | {} |", num(r.tau), num(r.g), num(r.albedo));
         for q in QUANTITIES.into_iter().chain(PAIRS.map(|p| p.0)) {
             match r.metrics.iter().find(|m| m.quantity == q) {
                 Some(m) => s += &format!(" {:.3} / {:.3} |", m.ks, m.w1),
