@@ -71,10 +71,13 @@ fn time_walks(pool: &rayon::ThreadPool, sampler: &ConditionSampler, n: u64) -> (
 fn bench_sim(walks: u64, threads: Option<usize>) -> Result<()> {
     let sampler = ConditionSampler::authors();
     let single = pool(Some(1))?;
-    let all = pool(threads)?;
     // Warm-up: page in code and let the CPU clock settle.
-    time_walks(&all, &sampler, walks.min(512));
+    time_walks(&single, &sampler, walks.min(512));
     let (t1, events) = time_walks(&single, &sampler, walks);
+    // Made after the one-thread pass: a pool's idle workers spin a while after its last
+    // job, and 1,024 of them on two cores made that pass read 5-8x slow (and the
+    // speed-up ~1.3x).
+    let all = pool(threads)?;
     let (tn, _) = time_walks(&all, &sampler, walks);
     let per_walk = events as f64 / walks as f64;
     println!(
