@@ -685,8 +685,8 @@ pub fn markdown_table(reports: &[SettingReport]) -> String {
     s += &"---|".repeat(QUANTITIES.len() + PAIRS.len());
     s += &"---|".repeat(2 + SURVIVAL_ALBEDOS.len() + SURFACE_SIDES.len() + SHELLS.len());
     s += "\n";
+    let num = scatter_sim::ranges::num::<f64>;
     for r in reports {
-        let num = scatter_sim::ranges::num::<f64>;
         s += &format!("| {} | {} | {} |", num(r.tau), num(r.g), num(r.albedo));
         for q in QUANTITIES.into_iter().chain(PAIRS.map(|p| p.0)) {
             match r.metrics.iter().find(|m| m.quantity == q) {

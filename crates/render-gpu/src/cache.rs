@@ -37,9 +37,7 @@ pub(crate) fn prune_stale(path: &Path) {
             .strip_prefix(stem)
             .and_then(|r| r.strip_prefix('-'))
             .and_then(|r| r.strip_suffix(".bin"));
-        if code
-            .is_some_and(|c| c != CODE && c.len() == 16 && c.bytes().all(|b| b.is_ascii_hexdigit()))
-        {
+        if code.is_some_and(|c| c != CODE && is_code(c)) {
             let _ = std::fs::remove_file(e.path());
         }
     }
@@ -107,7 +105,13 @@ fn is_entry(name: &str) -> bool {
         && name
             .strip_suffix(".bin")
             .and_then(|r| r.rsplit_once('-'))
-            .is_some_and(|(_, c)| c.len() == 16 && c.bytes().all(|b| b.is_ascii_hexdigit()))
+            .is_some_and(|(_, c)| is_code(c))
+}
+
+/// Whether `c` has the form of [`CODE`], the hash that ends every cache file's name: 16
+/// hex digits.
+fn is_code(c: &str) -> bool {
+    c.len() == 16 && c.bytes().all(|b| b.is_ascii_hexdigit())
 }
 
 /// Marks a cache entry as just used (its modification time, which [`trim`] orders by):
