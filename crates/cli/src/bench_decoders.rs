@@ -213,7 +213,7 @@ pub fn run(a: Args) -> Result<()> {
         "layers",
         "MACs",
         "CPU 1 thread",
-        format!("CPU {threads} threads"),
+        format!("CPU {}", crate::progress::count(threads as u64, "thread")),
         "GPU",
         "GPU/CPU"
     );
@@ -290,9 +290,10 @@ pub fn run(a: Args) -> Result<()> {
         }
     );
     println!(
-        "GPU/CPU: the GPU's draws/s over the CPU's on {threads} threads; the GPU's from the \
+        "GPU/CPU: the GPU's draws/s over the CPU's on {}; the GPU's from the \
          fastest of {REPEATS} dispatches (compiled and uploaded once, each timed from \
-         submission to idle), the CPU's from the fastest of {REPEATS} runs of {CPU_SECONDS} s, measured first"
+         submission to idle), the CPU's from the fastest of {REPEATS} runs of {CPU_SECONDS} s, measured first",
+        crate::progress::count(threads as u64, "thread")
     );
     Ok(())
 }

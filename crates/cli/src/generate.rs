@@ -63,6 +63,7 @@ pub struct Args {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DatasetConfig {
+    #[serde(deserialize_with = "at_least_one")]
     pub walks: u64,
     #[serde(default = "default_seed")]
     pub seed: u64,
@@ -72,6 +73,12 @@ pub struct DatasetConfig {
 
 fn default_seed() -> u64 {
     1
+}
+
+/// A config's whole number of at least 1 (`walks`, `checkpoint_every`): -1 is refused with
+/// the range that 0 is refused by, not serde's "[0, 2^64)".
+pub fn at_least_one<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<u64, D::Error> {
+    scatter_sim::ranges::whole_in(d, 1, u64::MAX)
 }
 
 pub fn load_config(path: &Path) -> Result<DatasetConfig> {

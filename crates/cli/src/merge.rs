@@ -693,9 +693,9 @@ fn merge_binary(a: &Args) -> Result<()> {
         eprintln!("{note}");
     }
     eprintln!(
-        "merged {}, {} rows -> {}",
+        "merged {}, {} -> {}",
         progress::count(a.inputs.len() as u64, "file"),
-        header.count,
+        progress::count(header.count, "row"),
         a.out.display()
     );
     Ok(())
@@ -933,8 +933,9 @@ fn merge_csv(a: &Args) -> Result<()> {
     out.commit()
         .with_context(|| format!("cannot write {}", a.out.display()))?;
     eprintln!(
-        "merged {}, {rows} rows -> {}",
+        "merged {}, {} -> {}",
         progress::count(a.inputs.len() as u64, "file"),
+        progress::count(rows, "row"),
         a.out.display()
     );
     Ok(())

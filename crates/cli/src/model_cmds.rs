@@ -199,7 +199,8 @@ pub struct EvalArgs {
 fn parse_setting(s: &str) -> Result<Conditions, String> {
     let v: Vec<f64> = s
         .split(',')
-        .map(|x| x.trim().parse::<f64>())
+        // + 0.0 makes -0 a plain 0: `--at -0,0,1` printed "-0" in the tables.
+        .map(|x| x.trim().parse::<f64>().map(|v| v + 0.0))
         .collect::<Result<_, _>>()
         .map_err(|e| format!("'{s}': {e}: expected three numbers TAU,G,ALBEDO, e.g. 5,0.875,1"))?;
     let [tau, g, albedo] = v[..] else {
@@ -630,4 +631,15 @@ pub fn evaluate_into(
     )?;
     write_metrics(out, &json, &md, &figs)?;
     Ok(GridEval { max_ks, outside })
+}
+
+#[cfg(test)]
+mod tests {
+    /// `--at -0,-0,1` printed "-0" for tau and g in eval's tables.
+    #[test]
+    fn a_negative_zero_setting_reads_as_zero() {
+        let c = super::parse_setting("-0,-0.0,1").unwrap();
+        assert!(c.tau.is_sign_positive() && c.g.is_sign_positive(), "{c:?}");
+        assert_eq!((c.tau, c.g, c.albedo), (0.0, 0.0, 1.0));
+    }
 }

@@ -864,8 +864,9 @@ pub fn run(mut a: Args) -> Result<()> {
     )?;
     if out.stats.capped > 0 || out.stats.non_finite > 0 {
         eprintln!(
-            "warning: {} paths stopped by the iteration cap, {} non-finite estimates replaced by 0",
-            out.stats.capped, out.stats.non_finite
+            "warning: {} stopped by the iteration cap, {} replaced by 0",
+            progress::count(out.stats.capped, "path"),
+            progress::count(out.stats.non_finite, "non-finite estimate")
         );
     }
     leak_note(&out.stats, "");

@@ -97,7 +97,10 @@ struct TrainConfig {
     seed: u64,
     #[serde(default = "exact")]
     single_scattering: SingleScattering,
-    #[serde(default = "checkpoint_every")]
+    #[serde(
+        default = "checkpoint_every",
+        deserialize_with = "crate::generate::at_least_one"
+    )]
     checkpoint_every: u64,
     lengthgen: ModelConfig,
     pathgen: ModelConfig,

@@ -347,6 +347,56 @@ fn a_fixed_condition_warns_and_a_bad_checkpoint_dir_fails_first() {
     assert!(err.contains("eventgen.hidden: 1..=8 layers"), "{err}");
 }
 
+/// A whole number the field's type cannot hold (negative, fractional) is refused with the
+/// field's own range, the one its validation then checks: `batch_size = -1` said "expected
+/// a whole number, at least 0" (serde's usize), where 0 is refused as well.
+#[test]
+fn negative_whole_numbers_are_refused_with_the_fields_range() {
+    let dir = tempfile::tempdir().unwrap();
+    setup(dir.path());
+    let cfg = fs::read_to_string(dir.path().join("train.toml")).unwrap();
+    for (from, to, range) in [
+        ("hidden = [4, 4]", "hidden = [4, -1]", "[1, 64]"),
+        ("batch_size = 64", "batch_size = -1", "[1, 1048576]"),
+        ("latent = 2", "latent = 0.5", "[1, 16]"),
+        ("warmup = 5", "warmup = -5", "[0, 2^40]"),
+        ("steps = 30", "steps = -30", "[1, 2^40]"),
+        ("encoder_hidden = [8]", "encoder_hidden = [-8]", "[1, 1024]"),
+        (
+            "checkpoint_dir = \"ck\"",
+            "checkpoint_dir = \"ck\"\ncheckpoint_every = -1",
+            "[1, 2^64)",
+        ),
+    ] {
+        assert!(cfg.contains(from), "{from}");
+        fs::write(dir.path().join("train.toml"), cfg.replacen(from, to, 1)).unwrap();
+        let out = stcvae(&["train", "--config", "train.toml"], dir.path());
+        let err = stderr(&out);
+        assert!(!out.status.success(), "{to}");
+        assert!(
+            err.contains(&format!("expected a whole number in {range}"))
+                && err.contains(to.lines().last().unwrap()),
+            "{to}: {err}"
+        );
+    }
+    let data = fs::read_to_string(dir.path().join("data.toml")).unwrap();
+    fs::write(
+        dir.path().join("data.toml"),
+        data.replacen("walks = 3001", "walks = -1", 1),
+    )
+    .unwrap();
+    let out = stcvae(
+        &["generate", "--config", "data.toml", "--out", "x.bin"],
+        dir.path(),
+    );
+    let err = stderr(&out);
+    assert!(
+        !out.status.success() && err.contains("data.toml:1:") && err.contains("[1, 2^64)"),
+        "{err}"
+    );
+    assert!(!dir.path().join("x.bin").exists());
+}
+
 #[test]
 fn a_bad_base_fails_before_any_work() {
     let dir = tempfile::tempdir().unwrap();

@@ -78,6 +78,20 @@ pub(crate) fn note_unwritable_cache(path: &Path, e: &std::io::Error) {
     });
 }
 
+/// Says that a cache entry exists but cannot be used (damaged, truncated, or another
+/// mesh's copied under its name) and is being rebuilt: the render was seconds slower than
+/// the one before with no word why.
+pub(crate) fn note_unusable_entry(path: &Path) {
+    if std::fs::symlink_metadata(path).is_ok() {
+        use std::io::Write as _;
+        let _ = writeln!(
+            std::io::stderr(),
+            "note: the cache file {} is damaged or not this mesh's: rebuilding it",
+            path.display()
+        );
+    }
+}
+
 /// `$STCVAE_CACHE`, else `$XDG_CACHE_HOME/stcvae`, else `~/.cache/stcvae`.
 pub(crate) fn cache_dir() -> Option<PathBuf> {
     // An empty variable counts as unset (STCVAE_CACHE="" cached grids in the current

@@ -250,11 +250,12 @@ impl DistanceGrid {
     pub fn cached(geo: &Geometry, resolution: u32) -> Result<Self, String> {
         let key = cache_key(geo, resolution);
         let path = crate::cache::cache_file(&format!("grid-{key:016x}-{resolution}"));
-        if let Some(p) = &path
-            && let Some(g) = Self::read(p, key, geo, resolution)
-        {
-            crate::cache::touch(p);
-            return Ok(g);
+        if let Some(p) = &path {
+            if let Some(g) = Self::read(p, key, geo, resolution) {
+                crate::cache::touch(p);
+                return Ok(g);
+            }
+            crate::cache::note_unusable_entry(p);
         }
         let t0 = std::time::Instant::now();
         let g = Self::build(geo, resolution)?;

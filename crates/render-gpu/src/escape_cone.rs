@@ -40,12 +40,12 @@ pub fn cached(geo: &Geometry) -> Vec<f32> {
     // (`cache_file`), so a change to TANS, the margins or the region is never read stale.
     let key = crate::cache::mesh_hasher(geo, b"escape-cones-v2").finish();
     let path = crate::cache::cache_file(&format!("cones-{key:016x}"));
-    if let Some((p, cos)) = path
-        .as_deref()
-        .and_then(|p| Some((p, read(p, key, geo.tris.len())?)))
-    {
-        crate::cache::touch(p);
-        return cos;
+    if let Some(p) = &path {
+        if let Some(cos) = read(p, key, geo.tris.len()) {
+            crate::cache::touch(p);
+            return cos;
+        }
+        crate::cache::note_unusable_entry(p);
     }
     let t0 = std::time::Instant::now();
     let cos = escape_cosines(geo);

@@ -170,7 +170,7 @@ fn whole<'de, const I: usize, D: serde::Deserializer<'de>>(d: D) -> Result<u32, 
 fn plain_types(msg: &str) -> String {
     [
         ("expected u32", "expected a whole number in [0, 4294967295]"),
-        ("expected u64", "expected a whole number in [0, 2⁶⁴)"),
+        ("expected u64", "expected a whole number in [0, 2^64)"),
         ("expected usize", "expected a whole number, at least 0"),
         ("expected i64", "expected a whole number"),
         ("expected f64", "expected a number"),

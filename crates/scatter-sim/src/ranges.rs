@@ -108,6 +108,9 @@ pub fn whole_range(lo: u64, hi: u64) -> String {
     match hi {
         u64::MAX => format!("[{lo}, 2^64)"),
         h if h == u64::from(u32::MAX) => format!("[{lo}, 2^32)"),
+        h if h.is_power_of_two() && h > u64::from(u32::MAX) => {
+            format!("[{lo}, 2^{}]", h.trailing_zeros())
+        }
         h => format!("[{lo}, {h}]"),
     }
 }
@@ -153,6 +156,54 @@ impl<T: TryFrom<u64>> serde::de::Visitor<'_> for WholeIn<T> {
         let shown = format!("floating point `{v:?}`");
         Err(E::invalid_type(serde::de::Unexpected::Other(&shown), &self))
     }
+}
+
+/// One element of a list read by [`WholeListIn`].
+impl<'de, T: TryFrom<u64>> serde::de::DeserializeSeed<'de> for WholeIn<T> {
+    type Value = T;
+    fn deserialize<D: serde::Deserializer<'de>>(self, d: D) -> Result<T, D::Error> {
+        d.deserialize_u64(self)
+    }
+}
+
+/// A config file's list of whole numbers, each of range [lo, hi]: `hidden = [16, -1]`
+/// said "expected a whole number, at least 0" (serde's usize) where 0 is refused too.
+pub struct WholeListIn<T>(pub WholeIn<T>);
+
+impl<'de, T: TryFrom<u64>> serde::de::Visitor<'de> for WholeListIn<T> {
+    type Value = Vec<T>;
+    fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        write!(
+            f,
+            "a list of whole numbers in {}",
+            whole_range(self.0.lo, self.0.hi)
+        )
+    }
+    fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> Result<Vec<T>, A::Error> {
+        let mut v = Vec::new();
+        while let Some(x) = seq.next_element_seed(WholeIn::<T>::new(self.0.lo, self.0.hi))? {
+            v.push(x);
+        }
+        Ok(v)
+    }
+}
+
+/// Reads a whole number of range [lo, hi] with [`WholeIn`] (for `deserialize_with`).
+pub fn whole_in<'de, D: serde::Deserializer<'de>, T: TryFrom<u64>>(
+    d: D,
+    lo: u64,
+    hi: u64,
+) -> Result<T, D::Error> {
+    d.deserialize_u64(WholeIn::<T>::new(lo, hi))
+}
+
+/// Reads a list of whole numbers of range [lo, hi] with [`WholeListIn`].
+pub fn whole_list_in<'de, D: serde::Deserializer<'de>, T: TryFrom<u64>>(
+    d: D,
+    lo: u64,
+    hi: u64,
+) -> Result<Vec<T>, D::Error> {
+    d.deserialize_seq(WholeListIn(WholeIn::<T>::new(lo, hi)))
 }
 
 #[cfg(test)]

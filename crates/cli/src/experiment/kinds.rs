@@ -80,9 +80,9 @@ pub(super) fn preflight(
                 .all(|l| render_gpu::light::disk_sin2(l).is_none())
         {
             bail!(
-                "{}: every light is a delta light (light.angular_diameter_deg = 0), which \
-                 renders without next-event estimation never reach{}: give a light a disk \
-                 (e.g. configs/scenes/bunny_sun_wide.toml)",
+                "{}: every light is a delta light (light.angular_diameter_deg = 0), and a \
+                 render without next-event estimation{} never reaches one: give a light a \
+                 disk (e.g. configs/scenes/bunny_sun_wide.toml)",
                 path.display(),
                 if cfg.kind == Kind::Nee {
                     " (the \"PT, no NEE\" row)"

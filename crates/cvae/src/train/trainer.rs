@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use scatter_sim::WalkRng;
-use scatter_sim::ranges::num;
+use scatter_sim::ranges::{num, whole_in, whole_list_in, whole_range};
 
 use super::adamax::Adamax;
 use super::data::{ConditionRanges, ModelKind, Standardisation, Table};
@@ -25,20 +25,53 @@ use crate::sampler::normals;
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ModelConfig {
+    #[serde(deserialize_with = "read_latent")]
     pub latent: usize,
+    #[serde(deserialize_with = "read_hidden")]
     pub hidden: Vec<usize>,
-    #[serde(default)]
+    #[serde(default, deserialize_with = "read_encoder_hidden")]
     pub encoder_hidden: Option<Vec<usize>>,
+    #[serde(deserialize_with = "read_steps")]
     pub steps: u64,
-    #[serde(default = "default_batch")]
+    #[serde(default = "default_batch", deserialize_with = "read_batch")]
     pub batch_size: usize,
     /// Peak learning rate (after warm-up).
     pub lr: f64,
     /// Learning rate at the last step (cosine decay from `lr`).
     pub lr_final: f64,
     /// Linear warm-up steps; default: 500, or a quarter of `steps` when that is fewer.
-    #[serde(default)]
+    #[serde(default, deserialize_with = "read_warmup")]
     pub warmup: Option<u64>,
+}
+
+/// Most rows a training batch may have (its activations' memory is bounded again by
+/// [`MAX_BATCH_FLOATS`]).
+pub const MAX_BATCH: usize = 1 << 20;
+/// Widest layer an encoder may have.
+pub const MAX_ENCODER_WIDTH: usize = 1024;
+
+// The whole-number fields read with their own ranges, so that a value the type cannot
+// hold (`batch_size = -1`) is refused with the range `validate` then checks ("[1,
+// 1048576]"), not the type's ("at least 0", where 0 is refused as well).
+fn read_latent<'de, D: serde::Deserializer<'de>>(d: D) -> Result<usize, D::Error> {
+    whole_in(d, 1, crate::decoder::MAX_LATENT as u64)
+}
+fn read_hidden<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<usize>, D::Error> {
+    whole_list_in(d, 1, crate::decoder::MAX_WIDTH as u64)
+}
+fn read_encoder_hidden<'de, D: serde::Deserializer<'de>>(
+    d: D,
+) -> Result<Option<Vec<usize>>, D::Error> {
+    whole_list_in(d, 1, MAX_ENCODER_WIDTH as u64).map(Some)
+}
+fn read_steps<'de, D: serde::Deserializer<'de>>(d: D) -> Result<u64, D::Error> {
+    whole_in(d, 1, MAX_STEPS)
+}
+fn read_batch<'de, D: serde::Deserializer<'de>>(d: D) -> Result<usize, D::Error> {
+    whole_in(d, 1, MAX_BATCH as u64)
+}
+fn read_warmup<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Option<u64>, D::Error> {
+    whole_in(d, 0, MAX_STEPS).map(Some)
 }
 
 fn default_batch() -> usize {
@@ -86,13 +119,22 @@ impl ModelConfig {
         if self.steps == 0 || self.steps > MAX_STEPS {
             return bad(
                 "steps",
-                "must be in 1..=2^40 (0 would train nothing and export an untrained model)",
+                &format!(
+                    "{} is out of range: allowed {} (0 would train nothing and export an \
+                     untrained model)",
+                    self.steps,
+                    whole_range(1, MAX_STEPS)
+                ),
             );
         }
         if self.latent == 0 || self.latent > crate::decoder::MAX_LATENT {
             return bad(
                 "latent",
-                &format!("must be in 1..={}", crate::decoder::MAX_LATENT),
+                &format!(
+                    "{} is out of range: allowed {}",
+                    self.latent,
+                    whole_range(1, crate::decoder::MAX_LATENT as u64)
+                ),
             );
         }
         if self.hidden.is_empty()
@@ -116,17 +158,24 @@ impl ModelConfig {
         if let Some(e) = &self.encoder_hidden
             && (e.is_empty()
                 || e.len() > MAX_ENCODER_LAYERS
-                || e.iter().any(|&h| h == 0 || h > 1024))
+                || e.iter().any(|&h| h == 0 || h > MAX_ENCODER_WIDTH))
         {
             return bad(
                 "encoder_hidden",
-                &format!("1..={MAX_ENCODER_LAYERS} layers, each of width 1..=1024"),
+                &format!("1..={MAX_ENCODER_LAYERS} layers, each of width 1..={MAX_ENCODER_WIDTH}"),
             );
         }
         // A batch's activations are batch_size × widest layer floats per layer; beyond
         // 2^20 rows the gradients average out anyway and the memory does not.
-        if self.batch_size == 0 || self.batch_size > 1 << 20 {
-            return bad("batch_size", "must be in 1..=1048576");
+        if self.batch_size == 0 || self.batch_size > MAX_BATCH {
+            return bad(
+                "batch_size",
+                &format!(
+                    "{} is out of range: allowed {}",
+                    self.batch_size,
+                    whole_range(1, MAX_BATCH as u64)
+                ),
+            );
         }
         // Each layer's activations and their gradients hold batch_size × width floats: a
         // batch of 2^20 with 1,024-wide encoder layers asked 4 GiB per tensor and aborted
