@@ -128,6 +128,71 @@ const AFFINE_ROW_SLACK: f32 = 1e-6;
 
 pub(super) fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
     let bytes = std::fs::read(path).map_err(|e| RenderError::io(path, e))?;
+    let (document, blob) = parse_document(path, &bytes)?;
+    let buffers = read_buffers(path, &bytes, &document, blob)?;
+    let scene = document
+        .default_scene()
+        .or_else(|| document.scenes().next());
+    let mut stack: Vec<(gltf::Node, Mat4)> = root_nodes(&document, scene.as_ref())
+        .into_iter()
+        .map(|n| (n, Mat4::IDENTITY))
+        .collect();
+    let mut reading = Reading {
+        path,
+        buffers: &buffers,
+        mesh: TriMesh::default(),
+        instanced: [0; 2],
+    };
+    // glTF nodes form a tree: a node reached twice means a cycle (which would loop
+    // forever) or a node with two parents, both invalid.
+    let mut visited = vec![false; document.nodes().len()];
+    while let Some((node, parent)) = stack.pop() {
+        if std::mem::replace(&mut visited[node.index()], true) {
+            return Err(RenderError::mesh(
+                path,
+                format!(
+                    "node {} is reached twice: the node hierarchy has a cycle or a node with two parents",
+                    node.index()
+                ),
+            ));
+        }
+        let world = parent * node_matrix(&node).map_err(|e| RenderError::mesh(path, e))?;
+        if let Some(m) = node.mesh() {
+            // The morph targets' default weights (the node's, else the mesh's) shape the
+            // mesh as the file shows it at rest.
+            let weights = node.weights().or(m.weights()).unwrap_or(&[]);
+            for prim in m.primitives() {
+                reading.add(node.index(), &m, &prim, weights, world)?;
+            }
+        }
+        for c in node.children() {
+            stack.push((c, world));
+        }
+    }
+    // Without a scene every node is to be placed: one the walk from the roots never
+    // reached is on a cycle of children that no root leads into (every node of a file
+    // that is one such cycle read as "no triangles", a cycle beside a root's tree was
+    // dropped without a word).
+    if scene.is_none()
+        && let Some(n) = visited.iter().position(|&v| !v)
+    {
+        return Err(RenderError::mesh(
+            path,
+            format!(
+                "node {n} is reached from no root node (the file has no scene): the node \
+                 hierarchy has a cycle"
+            ),
+        ));
+    }
+    Ok(reading.mesh)
+}
+
+/// The file's glTF document and GLB binary chunk, with the faults gltf reports obscurely
+/// (or panics on) named first.
+fn parse_document(
+    path: &Path,
+    bytes: &[u8],
+) -> Result<(gltf::Document, Option<Vec<u8>>), RenderError> {
     // A .glb is binary and starts with the magic "glTF"; without it gltf would parse the
     // bytes as JSON and say "expected value at line 1 column 1".
     let glb = path
@@ -159,10 +224,10 @@ pub(super) fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
             ));
         }
     }
-    if let Some(e) = unnamed_position_accessor(&bytes) {
+    if let Some(e) = unnamed_position_accessor(bytes) {
         return Err(RenderError::mesh(path, e));
     }
-    let gltf::Gltf { document, blob } = gltf::Gltf::from_slice(&bytes).map_err(|e| {
+    let gltf::Gltf { document, blob } = gltf::Gltf::from_slice(bytes).map_err(|e| {
         let what = if bytes.is_empty() {
             "the file is empty".to_string()
         } else {
@@ -173,18 +238,18 @@ pub(super) fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
     if document.meshes().len() == 0 {
         return Err(RenderError::mesh(path, "the glTF file holds no mesh"));
     }
-    let buffers = read_buffers(path, &bytes, &document, blob)?;
-    // Instances of one mesh (nodes naming it) are copied into the one triangle list: 5,000
-    // nodes over a mesh of 10⁶ triangles asked for 5·10⁹.
-    let mut instanced = [0u64; 2];
-    let mut mesh = TriMesh::default();
-    let scene = document
-        .default_scene()
-        .or_else(|| document.scenes().next());
-    let roots: Vec<gltf::Node> = match &scene {
+    Ok((document, blob))
+}
+
+/// The nodes a walk starts from: the scene's, or without a scene every node that is no
+/// other's child (the children come through their parents; started from too, they would
+/// be reached twice).
+fn root_nodes<'a>(
+    document: &'a gltf::Document,
+    scene: Option<&gltf::Scene<'a>>,
+) -> Vec<gltf::Node<'a>> {
+    match scene {
         Some(s) => s.nodes().collect(),
-        // No scene: every node that is no other's child (the children come through their
-        // parents; started from too, they would be reached twice).
         None => {
             let mut child = vec![false; document.nodes().len()];
             for c in document.nodes().flat_map(|n| n.children()) {
@@ -192,185 +257,168 @@ pub(super) fn load_gltf(path: &Path) -> Result<TriMesh, RenderError> {
             }
             document.nodes().filter(|n| !child[n.index()]).collect()
         }
-    };
-    let mut stack: Vec<(gltf::Node, Mat4)> =
-        roots.into_iter().map(|n| (n, Mat4::IDENTITY)).collect();
-    // glTF nodes form a tree: a node reached twice means a cycle (which would loop
-    // forever) or a node with two parents, both invalid.
-    let mut visited = vec![false; document.nodes().len()];
-    while let Some((node, parent)) = stack.pop() {
-        if std::mem::replace(&mut visited[node.index()], true) {
+    }
+}
+
+/// The triangle list being read from a glTF file's primitives.
+struct Reading<'a> {
+    path: &'a Path,
+    buffers: &'a [Rc<Vec<u8>>],
+    mesh: TriMesh,
+    /// Triangles and vertices placed so far. Instances of one mesh (nodes naming it) are
+    /// copied into the one triangle list: 5,000 nodes over a mesh of 10⁶ triangles asked
+    /// for 5·10⁹.
+    instanced: [u64; 2],
+}
+
+impl Reading<'_> {
+    /// Appends primitive `prim` of mesh `m`, placed by node `node` at `world` with the
+    /// morph `weights`.
+    fn add(
+        &mut self,
+        node: usize,
+        m: &gltf::Mesh,
+        prim: &gltf::Primitive,
+        weights: &[f32],
+        world: Mat4,
+    ) -> Result<(), RenderError> {
+        // A mirroring transform reverses the winding; glTF asks loaders to undo that.
+        let mirrored = world.determinant() < 0.0;
+        if prim.mode() != gltf::mesh::Mode::Triangles {
             return Err(RenderError::mesh(
-                path,
+                self.path,
                 format!(
-                    "node {} is reached twice: the node hierarchy has a cycle or a node with two parents",
-                    node.index()
+                    "primitive mode {:?} is not supported: triangles only",
+                    prim.mode()
                 ),
             ));
         }
-        let world = parent * node_matrix(&node).map_err(|e| RenderError::mesh(path, e))?;
-        // A mirroring transform reverses the winding; glTF asks loaders to undo that.
-        let mirrored = world.determinant() < 0.0;
-        if let Some(m) = node.mesh() {
-            // The morph targets' default weights (the node's, else the mesh's) shape the
-            // mesh as the file shows it at rest.
-            let weights = node.weights().or(m.weights()).unwrap_or(&[]);
-            for prim in m.primitives() {
-                if prim.mode() != gltf::mesh::Mode::Triangles {
-                    return Err(RenderError::mesh(
-                        path,
-                        format!(
-                            "primitive mode {:?} is not supported: triangles only",
-                            prim.mode()
-                        ),
-                    ));
-                }
-                use gltf::accessor::{DataType, Dimensions};
-                let positions = prim
-                    .get(&gltf::Semantic::Positions)
-                    .ok_or_else(|| RenderError::mesh(path, "a primitive has no POSITION"))?;
+        use gltf::accessor::{DataType, Dimensions};
+        let positions = prim
+            .get(&gltf::Semantic::Positions)
+            .ok_or_else(|| RenderError::mesh(self.path, "a primitive has no POSITION"))?;
+        check_accessor(
+            &positions,
+            "POSITION",
+            &[DataType::F32],
+            Dimensions::Vec3,
+            self.buffers,
+        )
+        .map_err(|e| RenderError::mesh(self.path, e))?;
+        if let Some(ind) = prim.indices() {
+            check_accessor(
+                &ind,
+                "indices",
+                &[DataType::U8, DataType::U16, DataType::U32],
+                Dimensions::Scalar,
+                self.buffers,
+            )
+            .map_err(|e| RenderError::mesh(self.path, e))?;
+        }
+        // Each copy's vertices are copied too: counted apart (10⁶ vertices under 3
+        // indices, placed 10⁵ times, is one triangle a copy).
+        self.instanced[0] += prim.indices().map_or(positions.count(), |i| i.count()) as u64 / 3;
+        self.instanced[1] += positions.count() as u64;
+        if self.instanced.iter().any(|&n| n > MAX_GLTF_TRIANGLES) {
+            return Err(RenderError::mesh(
+                self.path,
+                format!(
+                    "its nodes place more than {MAX_GLTF_TRIANGLES} triangles or vertices \
+                     (node {} adds mesh {}'s): instance fewer copies",
+                    node,
+                    m.index()
+                ),
+            ));
+        }
+        let targets: Vec<_> = prim.morph_targets().collect();
+        let in_use = |k: usize| weights.get(k).is_some_and(|&w| w != 0.0);
+        for (k, t) in targets.iter().enumerate().filter(|&(k, _)| in_use(k)) {
+            if let Some(acc) = t.positions() {
                 check_accessor(
-                    &positions,
-                    "POSITION",
+                    &acc,
+                    "morph target POSITION",
                     &[DataType::F32],
                     Dimensions::Vec3,
-                    &buffers,
+                    self.buffers,
                 )
-                .map_err(|e| RenderError::mesh(path, e))?;
-                if let Some(ind) = prim.indices() {
-                    check_accessor(
-                        &ind,
-                        "indices",
-                        &[DataType::U8, DataType::U16, DataType::U32],
-                        Dimensions::Scalar,
-                        &buffers,
-                    )
-                    .map_err(|e| RenderError::mesh(path, e))?;
-                }
-                // Each copy's vertices are copied too: counted apart (10⁶ vertices under 3
-                // indices, placed 10⁵ times, is one triangle a copy).
-                instanced[0] += prim.indices().map_or(positions.count(), |i| i.count()) as u64 / 3;
-                instanced[1] += positions.count() as u64;
-                if instanced.iter().any(|&n| n > MAX_GLTF_TRIANGLES) {
+                .map_err(|e| RenderError::mesh(self.path, e))?;
+                if acc.count() != positions.count() {
                     return Err(RenderError::mesh(
-                        path,
+                        self.path,
                         format!(
-                            "its nodes place more than {MAX_GLTF_TRIANGLES} triangles or vertices \
-                             (node {} adds mesh {}'s): instance fewer copies",
-                            node.index(),
-                            m.index()
+                            "morph target {k} has {} positions for the primitive's {}",
+                            acc.count(),
+                            positions.count()
                         ),
                     ));
                 }
-                let targets: Vec<_> = prim.morph_targets().collect();
-                let in_use = |k: usize| weights.get(k).is_some_and(|&w| w != 0.0);
-                for (k, t) in targets.iter().enumerate().filter(|&(k, _)| in_use(k)) {
-                    if let Some(acc) = t.positions() {
-                        check_accessor(
-                            &acc,
-                            "morph target POSITION",
-                            &[DataType::F32],
-                            Dimensions::Vec3,
-                            &buffers,
-                        )
-                        .map_err(|e| RenderError::mesh(path, e))?;
-                        if acc.count() != positions.count() {
-                            return Err(RenderError::mesh(
-                                path,
-                                format!(
-                                    "morph target {k} has {} positions for the primitive's {}",
-                                    acc.count(),
-                                    positions.count()
-                                ),
-                            ));
-                        }
-                    }
-                }
-                let reader = prim.reader(|b| buffers.get(b.index()).map(|v| &v[..]));
-                let base = mesh.positions.len() as u32;
-                let mut local: Vec<Vec3> = reader
-                    .read_positions()
-                    .ok_or_else(|| RenderError::mesh(path, "a primitive has no POSITION"))?
-                    .map(Vec3::from_array)
-                    .collect();
-                // The targets in use, their positions alone, each accessor checked above:
-                // the reader's own walk over every target built readers for the unused
-                // ones' normals and tangents too, unchecked (a count of 0 underflowed).
-                for (k, t) in targets.iter().enumerate().filter(|&(k, _)| in_use(k)) {
-                    let Some(acc) = t.positions() else { continue };
-                    let d = gltf::accessor::Iter::<[f32; 3]>::new(acc, |b| {
-                        buffers.get(b.index()).map(|v| &v[..])
-                    })
-                    .ok_or_else(|| {
-                        RenderError::mesh(
-                            path,
-                            format!("morph target {k}'s positions cannot be read"),
-                        )
-                    })?;
-                    let w = weights[k];
-                    for (p, d) in local.iter_mut().zip(d) {
-                        *p += w * Vec3::from_array(d);
-                    }
-                }
-                let pos: Vec<Vec3> = local
-                    .into_iter()
-                    .map(|p| world.transform_point3(p))
-                    .collect();
-                let n = pos.len() as u32;
-                mesh.positions.extend(pos);
-                let idx: Vec<u32> = match reader.read_indices() {
-                    Some(i) => i.into_u32().collect(),
-                    None => (0..n).collect(),
-                };
-                if !idx.len().is_multiple_of(3) {
-                    return Err(RenderError::mesh(
-                        path,
-                        format!(
-                            "mesh {} primitive {}: {} triangle indices, not a multiple of 3",
-                            m.index(),
-                            prim.index(),
-                            idx.len()
-                        ),
-                    ));
-                }
-                if let Some(&i) = idx.iter().find(|&&i| i >= n) {
-                    return Err(RenderError::mesh(
-                        path,
-                        format!(
-                            "mesh {} primitive {}: index {i} names no vertex: allowed 0..={} \
-                             ({n} vertices)",
-                            m.index(),
-                            prim.index(),
-                            n.saturating_sub(1)
-                        ),
-                    ));
-                }
-                mesh.triangles.extend(idx.chunks(3).map(|c| {
-                    let t = [c[0] + base, c[1] + base, c[2] + base];
-                    if mirrored { [t[0], t[2], t[1]] } else { t }
-                }));
             }
         }
-        for c in node.children() {
-            stack.push((c, world));
+        let reader = prim.reader(|b| self.buffers.get(b.index()).map(|v| &v[..]));
+        let base = self.mesh.positions.len() as u32;
+        let mut local: Vec<Vec3> = reader
+            .read_positions()
+            .ok_or_else(|| RenderError::mesh(self.path, "a primitive has no POSITION"))?
+            .map(Vec3::from_array)
+            .collect();
+        // The targets in use, their positions alone, each accessor checked above:
+        // the reader's own walk over every target built readers for the unused
+        // ones' normals and tangents too, unchecked (a count of 0 underflowed).
+        for (k, t) in targets.iter().enumerate().filter(|&(k, _)| in_use(k)) {
+            let Some(acc) = t.positions() else { continue };
+            let d = gltf::accessor::Iter::<[f32; 3]>::new(acc, |b| {
+                self.buffers.get(b.index()).map(|v| &v[..])
+            })
+            .ok_or_else(|| {
+                RenderError::mesh(
+                    self.path,
+                    format!("morph target {k}'s positions cannot be read"),
+                )
+            })?;
+            let w = weights[k];
+            for (p, d) in local.iter_mut().zip(d) {
+                *p += w * Vec3::from_array(d);
+            }
         }
+        let pos: Vec<Vec3> = local
+            .into_iter()
+            .map(|p| world.transform_point3(p))
+            .collect();
+        let n = pos.len() as u32;
+        self.mesh.positions.extend(pos);
+        let idx: Vec<u32> = match reader.read_indices() {
+            Some(i) => i.into_u32().collect(),
+            None => (0..n).collect(),
+        };
+        if !idx.len().is_multiple_of(3) {
+            return Err(RenderError::mesh(
+                self.path,
+                format!(
+                    "mesh {} primitive {}: {} triangle indices, not a multiple of 3",
+                    m.index(),
+                    prim.index(),
+                    idx.len()
+                ),
+            ));
+        }
+        if let Some(&i) = idx.iter().find(|&&i| i >= n) {
+            return Err(RenderError::mesh(
+                self.path,
+                format!(
+                    "mesh {} primitive {}: index {i} names no vertex: allowed 0..={} \
+                     ({n} vertices)",
+                    m.index(),
+                    prim.index(),
+                    n.saturating_sub(1)
+                ),
+            ));
+        }
+        self.mesh.triangles.extend(idx.chunks(3).map(|c| {
+            let t = [c[0] + base, c[1] + base, c[2] + base];
+            if mirrored { [t[0], t[2], t[1]] } else { t }
+        }));
+        Ok(())
     }
-    // Without a scene every node is to be placed: one the walk from the roots never
-    // reached is on a cycle of children that no root leads into (every node of a file
-    // that is one such cycle read as "no triangles", a cycle beside a root's tree was
-    // dropped without a word).
-    if scene.is_none()
-        && let Some(n) = visited.iter().position(|&v| !v)
-    {
-        return Err(RenderError::mesh(
-            path,
-            format!(
-                "node {n} is reached from no root node (the file has no scene): the node \
-                 hierarchy has a cycle"
-            ),
-        ));
-    }
-    Ok(mesh)
 }
 
 /// A primitive whose POSITION names no accessor, in a file that parses (its other faults
