@@ -636,24 +636,12 @@ pub fn run(mut a: Args) -> Result<()> {
         a.scene = p;
     }
     check_out_stem(&a.out)?;
-    // The image's memory is checked before `prepare` builds the mesh, BVH and distance
-    // grid (about a minute for a large grid): the camera's size is in the file alone. A
-    // file that does not load is left to `prepare`, whose errors say why.
     let variance_bytes = if a.variance {
         render_gpu::render::VARIANCE_BYTES_PER_PIXEL
     } else {
         0
     };
-    // Unvalidated: `prepare` validates after the overrides (an ST-CVAE scene with max_tau
-    // below min_tau renders with --integrator pt, and was not checked here).
-    let mut size = None;
-    if let Ok(f) = SceneFile::load_unvalidated(&a.scene) {
-        size = image_size(&f.camera, a.width, a.height)
-            .map_err(|e| anyhow::anyhow!("{}: {e}", a.scene.display()))?;
-        let (w, h) = size.unwrap_or((f.camera.width, f.camera.height));
-        render_gpu::render::check_image_memory_with(w, h, variance_bytes)
-            .map_err(|e| size_error(&a, size.is_some(), w, h, e))?;
-    }
+    let size = requested_size(&a, variance_bytes)?;
     let p = prepare(&a.scene, a.integrator, a.nee, a.model.as_deref(), |f| {
         if let Some(s) = a.spp {
             f.render.spp = s;
@@ -670,66 +658,10 @@ pub fn run(mut a: Args) -> Result<()> {
     // A budget alone renders until it is spent: the scene's spp (64 in bunny_sun.toml)
     // stopped "30 s of PT" after a few seconds.
     let spp_cap = (a.time_budget.is_none() || a.spp.is_some()).then_some(r.spp);
-    // Known before the render: --variance with fewer spp than it needs wrote no variance
-    // image and exited 0 after the work. (Under a time budget alone it is told after.)
-    if let Some(n) = spp_cap
-        && a.variance
-        && n < render_gpu::render::MIN_VARIANCE_SPP
-    {
-        bail!(
-            "--variance needs at least {} spp (2 samples a channel); this render has {n} \
-             ({}): raise --spp",
-            render_gpu::render::MIN_VARIANCE_SPP,
-            if a.spp.is_some() {
-                "--spp"
-            } else {
-                "the scene's render.spp"
-            }
-        );
-    }
-    if a.model.is_some() && p.model.is_none() {
-        eprintln!("note: --model is not used: the PT integrator needs no model");
-    }
-    if let Some((_, w)) = outside_training_warning(&p, &a.scene) {
-        eprintln!("warning: {w}");
-    }
-    if p.model.is_some() && !p.models_trusted() {
-        eprintln!(
-            "note: |medium.g| = {} is above {}, where the models' sphere steps were measured \
-             biased: every step's walk is simulated exactly (the same image as PT's, at \
-             about its cost)",
-            p.file.medium.g.abs(),
-            render_gpu::scene::MODEL_MAX_G
-        );
-    }
-    if let Some(w) = forward_model_steps_warning(&p) {
-        eprintln!("warning: {}: {w}", a.scene.display());
-    }
-    note_lights(&p);
+    check_variance_spp(&a, spp_cap)?;
+    prepared_notes(&a, &p);
     let inputs = render_inputs(&a, &p);
-    let exts: &[&str] = if a.variance {
-        &["exr", "png", "json", "var.exr"]
-    } else {
-        &["exr", "png", "json"]
-    };
-    for ext in exts {
-        let f = crate::merge::image_out(&a.out, ext);
-        crate::paths::check_not_input("--out", &f, &inputs)?;
-        if *ext == "var.exr" {
-            scatter_sim::output::check_output_path(&f)
-                .map_err(|e| anyhow::anyhow!("--out {}: {e}", a.out.display()))?;
-            // A render named OUT.var had its image replaced by this one's variance.
-            if crate::merge::foreign_var_exr(&a.out) {
-                bail!(
-                    "--out {}: {} is another image (a render or picture named {}), which \
-                     the variance image would replace: choose another --out",
-                    a.out.display(),
-                    f.display(),
-                    crate::merge::out_stem(&a.out).display().to_string() + ".var"
-                );
-            }
-        }
-    }
+    check_outputs(&a, &inputs)?;
     let engine = Engine::open(a.device)?;
     let set = p.settings();
     if engine.is_gpu() && !engine.is_hardware_gpu() {
@@ -800,10 +732,158 @@ pub fn run(mut a: Args) -> Result<()> {
         unknown_digests: Vec::new(),
         view_hash: Some(p.data.view_hash),
     };
+    let report = report(&a, &p, &set, &engine, &out, spp_cap, interrupted);
+    if a.variance && out.variance.is_none() {
+        eprintln!(
+            "note: no variance image: {} spp is below the {} it needs (2 samples a channel)",
+            out.spp,
+            render_gpu::render::MIN_VARIANCE_SPP
+        );
+    }
+    crate::merge::write_image_set_with(
+        &a.out,
+        &out.image,
+        Some(&tag),
+        a.exposure,
+        Some(&serde_json::to_vec_pretty(&report)?),
+        out.variance.as_ref(),
+        &inputs,
+    )?;
+    if out.stats.capped > 0 || out.stats.non_finite > 0 {
+        eprintln!(
+            "warning: {} stopped by the iteration cap, {} replaced by 0",
+            progress::count(out.stats.capped, "path"),
+            progress::count(out.stats.non_finite, "non-finite estimate")
+        );
+    }
+    leak_note(&out.stats, "");
+    print_summary(&a, &out, &report);
+    if let Some(lanes) = &out.dispatch.lanes {
+        print_lanes(lanes);
+    }
+    if let Some(note) = budget_overrun_note(a.time_budget, &out, engine.is_gpu()) {
+        eprintln!("{note}");
+    }
+    if interrupted {
+        // Written, but cut short: exit 130 as `generate` and `train` do, so that scripts
+        // can tell it from a complete render.
+        bail!(
+            "interrupted: the files hold the {} spp finished before the stop{}",
+            out.spp,
+            spp_cap.map_or(String::new(), |n| format!(" ({n} asked)"))
+        );
+    }
+    Ok(())
+}
+
+/// The image size `--width`/`--height` ask for (None: the camera's), with the image's
+/// memory checked against it before `prepare` builds the mesh, BVH and distance grid.
+fn requested_size(a: &Args, variance_bytes: u64) -> Result<Option<(u32, u32)>> {
+    // (Building a large grid takes about a minute.) The camera's size is in the file
+    // alone. A file that does not load is left to `prepare`, whose errors say why.
+    // Unvalidated: `prepare` validates after the overrides (an ST-CVAE scene with max_tau
+    // below min_tau renders with --integrator pt, and was not checked here).
+    let mut size = None;
+    if let Ok(f) = SceneFile::load_unvalidated(&a.scene) {
+        size = image_size(&f.camera, a.width, a.height)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", a.scene.display()))?;
+        let (w, h) = size.unwrap_or((f.camera.width, f.camera.height));
+        render_gpu::render::check_image_memory_with(w, h, variance_bytes)
+            .map_err(|e| size_error(a, size.is_some(), w, h, e))?;
+    }
+    Ok(size)
+}
+
+/// Known before the render: --variance with fewer spp than it needs wrote no variance
+/// image and exited 0 after the work. (Under a time budget alone it is told after.)
+fn check_variance_spp(a: &Args, spp_cap: Option<u32>) -> Result<()> {
+    if let Some(n) = spp_cap
+        && a.variance
+        && n < render_gpu::render::MIN_VARIANCE_SPP
+    {
+        bail!(
+            "--variance needs at least {} spp (2 samples a channel); this render has {n} \
+             ({}): raise --spp",
+            render_gpu::render::MIN_VARIANCE_SPP,
+            if a.spp.is_some() {
+                "--spp"
+            } else {
+                "the scene's render.spp"
+            }
+        );
+    }
+    Ok(())
+}
+
+/// What the user should know about the prepared render before it starts: an unused model,
+/// conditions outside the model's training, steps simulated exactly, the lights.
+fn prepared_notes(a: &Args, p: &Prepared) {
+    if a.model.is_some() && p.model.is_none() {
+        eprintln!("note: --model is not used: the PT integrator needs no model");
+    }
+    if let Some((_, w)) = outside_training_warning(p, &a.scene) {
+        eprintln!("warning: {w}");
+    }
+    if p.model.is_some() && !p.models_trusted() {
+        eprintln!(
+            "note: |medium.g| = {} is above {}, where the models' sphere steps were measured \
+             biased: every step's walk is simulated exactly (the same image as PT's, at \
+             about its cost)",
+            p.file.medium.g.abs(),
+            render_gpu::scene::MODEL_MAX_G
+        );
+    }
+    if let Some(w) = forward_model_steps_warning(p) {
+        eprintln!("warning: {}: {w}", a.scene.display());
+    }
+    note_lights(p);
+}
+
+/// The output files may be written: none is an input, and the variance image replaces no
+/// other image.
+fn check_outputs(a: &Args, inputs: &[(String, PathBuf)]) -> Result<()> {
+    let exts: &[&str] = if a.variance {
+        &["exr", "png", "json", "var.exr"]
+    } else {
+        &["exr", "png", "json"]
+    };
+    for ext in exts {
+        let f = crate::merge::image_out(&a.out, ext);
+        crate::paths::check_not_input("--out", &f, inputs)?;
+        if *ext == "var.exr" {
+            scatter_sim::output::check_output_path(&f)
+                .map_err(|e| anyhow::anyhow!("--out {}: {e}", a.out.display()))?;
+            // A render named OUT.var had its image replaced by this one's variance.
+            if crate::merge::foreign_var_exr(&a.out) {
+                bail!(
+                    "--out {}: {} is another image (a render or picture named {}), which \
+                     the variance image would replace: choose another --out",
+                    a.out.display(),
+                    f.display(),
+                    crate::merge::out_stem(&a.out).display().to_string() + ".var"
+                );
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The render's JSON report.
+fn report<'o>(
+    a: &Args,
+    p: &Prepared,
+    set: &IntegratorSettings,
+    engine: &Engine,
+    out: &'o render_gpu::render::RenderOutput,
+    spp_cap: Option<u32>,
+    interrupted: bool,
+) -> Report<'o> {
+    let r = &p.file.render;
+    let hash = p.data.hash;
     let paths = out.stats.paths.max(1) as f64;
     let stcvae = p.model.is_some();
     let stcvae_nee = stcvae && r.nee;
-    let report = Report {
+    Report {
         version: env!("CARGO_PKG_VERSION"),
         scene: a.scene.display().to_string(),
         integrator: r.integrator.name(),
@@ -845,31 +925,11 @@ pub fn run(mut a: Args) -> Result<()> {
         }),
         rms_standard_error_rgb: out.variance.as_ref().map(|v| mean_rgb(v).map(f64::sqrt)),
         stats: &out.stats,
-    };
-    if a.variance && out.variance.is_none() {
-        eprintln!(
-            "note: no variance image: {} spp is below the {} it needs (2 samples a channel)",
-            out.spp,
-            render_gpu::render::MIN_VARIANCE_SPP
-        );
     }
-    crate::merge::write_image_set_with(
-        &a.out,
-        &out.image,
-        Some(&tag),
-        a.exposure,
-        Some(&serde_json::to_vec_pretty(&report)?),
-        out.variance.as_ref(),
-        &inputs,
-    )?;
-    if out.stats.capped > 0 || out.stats.non_finite > 0 {
-        eprintln!(
-            "warning: {} stopped by the iteration cap, {} replaced by 0",
-            progress::count(out.stats.capped, "path"),
-            progress::count(out.stats.non_finite, "non-finite estimate")
-        );
-    }
-    leak_note(&out.stats, "");
+}
+
+/// The line that ends a render: its speed, its work per path, and where it went.
+fn print_summary(a: &Args, out: &render_gpu::render::RenderOutput, report: &Report) {
     eprintln!(
         "{} spp in {:.1} s ({} paths/s; {:.1} PT events, {:.1} sphere steps per path{}{}) -> {}.{{exr,png,json{}}}",
         out.spp,
@@ -905,22 +965,6 @@ pub fn run(mut a: Args) -> Result<()> {
             ""
         }
     );
-    if let Some(lanes) = &out.dispatch.lanes {
-        print_lanes(lanes);
-    }
-    if let Some(note) = budget_overrun_note(a.time_budget, &out, engine.is_gpu()) {
-        eprintln!("{note}");
-    }
-    if interrupted {
-        // Written, but cut short: exit 130 as `generate` and `train` do, so that scripts
-        // can tell it from a complete render.
-        bail!(
-            "interrupted: the files hold the {} spp finished before the stop{}",
-            out.spp,
-            spp_cap.map_or(String::new(), |n| format!(" ({n} asked)"))
-        );
-    }
-    Ok(())
 }
 
 /// Why a render ran well past its time budget, which it stops only after the pass in
