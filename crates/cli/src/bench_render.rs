@@ -438,13 +438,75 @@ pub(crate) const MAX_BENCH_SIZE: u32 = 4096;
 pub(crate) const MAX_BENCH_SPP: u32 = 1 << 30;
 
 pub fn run(a: Args) -> Result<()> {
-    // The overrides checked before anything runs, and blamed on the command line rather
-    // than on the scene file they are applied to.
+    // The overrides are checked before anything runs, and blamed on the command line
+    // rather than on the scene file they are applied to.
     reject_repeats(&a.k)?;
     let scene = render_gpu::scene::SceneFile::load(&a.scene)?;
+    check_options(&a, &scene)?;
+    let engine = Engine::open(a.device)?.without_fallback();
+    if engine.is_gpu() {
+        crate::device::check_gpu_lights(&a.scene, scene.lights.len(), ": use --device cpu")?;
+    }
+    // The render's buffers and the bench's own (both pairs and a pair's two renders), as
+    // `render` and `bench devices` check: --size 4096 under a memory limit aborted with
+    // "memory allocation … failed" instead of a line.
+    render_gpu::render::check_image_memory_with(a.size, a.size, PAIRS_BYTES_PER_PIXEL)
+        .map_err(|e| anyhow::anyhow!("--size {}: {e}", a.size))?;
+    check_densities(&a, &engine)?;
+    let identity = match &a.pt_cache {
+        // The set of seeds is part of what a stored pair depends on.
+        Some(_) => Some(format!(
+            "{} / seed set {}",
+            crate::pt_cache::identity(&engine.describe())?,
+            a.seeds
+        )),
+        None => None,
+    };
+    check_stored_pairs(&a, identity.as_deref())?;
+    check_saved_files(&a, &scene)?;
+    print_head(&a, &scene, &engine);
+    // The folders --save makes (none yet: the first saved file makes them), so that a run
+    // whose saving fails leaves none of them empty, as other commands' failed writes do.
+    let save_made: Vec<PathBuf> = a.save.as_deref().map_or_else(Vec::new, |dir| {
+        dir.ancestors()
+            .take_while(|d| !d.as_os_str().is_empty() && !d.exists())
+            .map(PathBuf::from)
+            .collect()
+    });
+    for &k in &a.k {
+        let (pt, cached) = pt_pair(&a, &engine, k, identity.as_deref())?;
+        let st = run_pair(&a, &engine, IntegratorKind::Stcvae, k)?;
+        let c = compare(&pt, &st);
+        if let Some(dir) = &a.save {
+            save_images(&a, dir, k, &pt, &st).inspect_err(|_| {
+                // Deepest first; one that holds anything (an earlier density's files)
+                // stays, and so do its parents.
+                for d in &save_made {
+                    if std::fs::remove_dir(d).is_err() {
+                        break;
+                    }
+                }
+            })?;
+        }
+        print_row(k, &pt, &st, &c, cached);
+    }
+    println!(
+        "speed-up = PT time / ST-CVAE time at equal spp; var ratio = PT variance / ST-CVAE variance; \
+         equal-error = their product (time ratio to reach the same noise); PT ev/path = scattering events \
+         a path, ST st/path and ev/path = ST-CVAE's sphere steps and PT events (thin regions) a path; \
+         noise = the RMSE the two renders' noise alone gives; bias RMSE is noise-corrected \
+         (bias 95%: its one-sided 95% upper confidence bound, from a negative estimate raised to 0), \
+         images scaled so PT's brightest 1% of object pixels is 1"
+    );
+    Ok(())
+}
+
+/// The ladder's overrides of the scene, --max-tau and --min-tau against the model, and
+/// the output folders.
+fn check_options(a: &Args, scene: &render_gpu::scene::SceneFile) -> Result<()> {
     for &k in &a.k {
         let mut f = scene.clone();
-        ladder_scene(&a, IntegratorKind::Stcvae, k, &mut f);
+        ladder_scene(a, IntegratorKind::Stcvae, k, &mut f);
         if let Err(e) = f.validate() {
             bail!(
                 "{e} (set by this command's options, applied to {})",
@@ -486,22 +548,18 @@ pub fn run(a: Args) -> Result<()> {
     if let Some(dir) = &a.pt_cache {
         crate::check_out_dir("--pt-cache", dir)?;
     }
-    let engine = Engine::open(a.device)?.without_fallback();
-    if engine.is_gpu() {
-        crate::device::check_gpu_lights(&a.scene, scene.lights.len(), ": use --device cpu")?;
-    }
-    // The render's buffers and the bench's own (both pairs and a pair's two renders), as
-    // `render` and `bench devices` check: --size 4096 under a memory limit aborted with
-    // "memory allocation … failed" instead of a line.
-    render_gpu::render::check_image_memory_with(a.size, a.size, PAIRS_BYTES_PER_PIXEL)
-        .map_err(|e| anyhow::anyhow!("--size {}: {e}", a.size))?;
+    Ok(())
+}
+
+/// Every density's ST-CVAE scene, checked before the table's head and the first render.
+fn check_densities(a: &Args, engine: &Engine) -> Result<()> {
     // Every density's ST-CVAE scene is checked before the table's head and the first
     // render, so that a bad setting or model fails at once, not after PT's (possibly long)
     // renders. They are prepared again when rendered (well under a second each, the grid
     // coming from its disk cache) rather than kept: each holds its own copy of the
     // distance grid.
     for (i, &k) in a.k.iter().enumerate() {
-        let p = prepare_k(&a, IntegratorKind::Stcvae, k)?;
+        let p = prepare_k(a, IntegratorKind::Stcvae, k)?;
         if i == 0 {
             crate::render::note_lights(&p);
         }
@@ -518,22 +576,18 @@ pub fn run(a: Args) -> Result<()> {
             .map_err(|e| anyhow::anyhow!("--size {}: {e}", a.size))?;
         }
     }
-    let identity = match &a.pt_cache {
-        // The set of seeds is part of what a stored pair depends on.
-        Some(_) => Some(format!(
-            "{} / seed set {}",
-            crate::pt_cache::identity(&engine.describe())?,
-            a.seeds
-        )),
-        None => None,
-    };
+    Ok(())
+}
+
+/// Every density's stored PT pair, read before the first render.
+fn check_stored_pairs(a: &Args, identity: Option<&str>) -> Result<()> {
     // Every density's stored PT pair is read once before the first render, so that one
     // that cannot be read (a directory, no permission) fails now, not after the densities
     // before it have rendered. A damaged one is rendered again in its turn, with a note.
-    if let (Some(dir), Some(id)) = (&a.pt_cache, identity.as_deref()) {
+    if let (Some(dir), Some(id)) = (&a.pt_cache, identity) {
         let spp = 2 * half_spp(a.spp);
         for &k in &a.k {
-            let p = prepare_k(&a, IntegratorKind::Pt, k)?;
+            let p = prepare_k(a, IntegratorKind::Pt, k)?;
             let file = crate::pt_cache::path(dir, k, p.data.hash, spp, id);
             let size = (p.data.camera.width, p.data.camera.height);
             if let Err(e) = crate::pt_cache::load(&file, p.data.hash, spp, size, id)
@@ -543,10 +597,15 @@ pub fn run(a: Args) -> Result<()> {
             }
         }
     }
+    Ok(())
+}
+
+/// The files `--save` writes for every density, checked before the first render.
+fn check_saved_files(a: &Args, scene: &render_gpu::scene::SceneFile) -> Result<()> {
     // So are the files `--save` writes for every density (one that is a directory failed
     // the run after that density's renders).
     if let Some(dir) = &a.save {
-        let mut inputs = crate::render::scene_inputs(&a.scene, &scene);
+        let mut inputs = crate::render::scene_inputs(&a.scene, scene);
         let model = crate::model_cmds::model_path(a.model.as_deref());
         inputs.push(("the model".to_string(), model));
         for &k in &a.k {
@@ -556,6 +615,11 @@ pub fn run(a: Args) -> Result<()> {
             }
         }
     }
+    Ok(())
+}
+
+/// The bench's title line and the table's head.
+fn print_head(a: &Args, scene: &render_gpu::scene::SceneFile, engine: &Engine) {
     // The scene's own setting unless --nee gives one.
     let nee = a.nee.unwrap_or(scene.render.nee);
     println!(
@@ -591,101 +655,78 @@ pub fn run(a: Args) -> Result<()> {
         "PT paths/s",
         "ST paths/s"
     );
-    // The folders --save makes (none yet: the first saved file makes them), so that a run
-    // whose saving fails leaves none of them empty, as other commands' failed writes do.
-    let save_made: Vec<PathBuf> = a.save.as_deref().map_or_else(Vec::new, |dir| {
-        dir.ancestors()
-            .take_while(|d| !d.as_os_str().is_empty() && !d.exists())
-            .map(PathBuf::from)
-            .collect()
-    });
-    for &k in &a.k {
-        let (pt, cached) = pt_pair(&a, &engine, k, identity.as_deref())?;
-        let st = run_pair(&a, &engine, IntegratorKind::Stcvae, k)?;
-        let c = compare(&pt, &st);
-        if let Some(dir) = &a.save {
-            save_images(&a, dir, k, &pt, &st).inspect_err(|_| {
-                // Deepest first; one that holds anything (an earlier density's files)
-                // stays, and so do its parents.
-                for d in &save_made {
-                    if std::fs::remove_dir(d).is_err() {
-                        break;
-                    }
-                }
-            })?;
-        }
-        println!(
-            "{:>4} {:>20} {:>8} {:>8} {:>8.2}x {:>9.2} {:>10.2}x {:>10.1} {:>10.2} {:>10.2} {:>9.4} {:>9} {:>9.4} {:>10} {:>10}",
-            k,
-            format!(
-                "({}, {}, {})",
-                significant4(LADDER_SIGMA_T[0] * k),
-                significant4(LADDER_SIGMA_T[1] * k),
-                significant4(LADDER_SIGMA_T[2] * k)
-            ),
-            significant4(pt.seconds),
-            significant4(st.seconds),
-            c.speedup,
-            c.var_ratio,
-            c.speedup * c.var_ratio,
-            pt.per_path(pt.stats.events),
-            st.per_path(st.stats.steps),
-            st.per_path(st.stats.events),
-            c.bias,
-            format!("{:.4}", c.bias_upper95),
-            c.noise,
-            crate::progress::si(pt.paths_per_second()),
-            crate::progress::si(st.paths_per_second())
-        );
-        if let Some(when) = cached {
-            println!(
-                "     (PT from --pt-cache, measured {} before this run: its time and so the speed-up are that run's)",
-                crate::pt_cache::age(when)
-            );
-        }
-        let [r, g, b] = c.channel_offset.map(|(o, se)| {
-            if o.is_finite() && se.is_finite() {
-                format!("{:+.2}% ± {:.2}%", 100.0 * o, 100.0 * se)
-            } else {
-                "n/a (PT's total is ~0)".to_owned()
-            }
-        });
-        let blocks = if c.blocks == 0 {
-            format!(
-                "no {BLOCK}x{BLOCK} block has ≥ {MIN_BLOCK_DOF} dof of noise estimate (image too small or too few spp)"
-            )
-        } else {
-            format!(
-                "{BLOCK}x{BLOCK}-block chi2/dof {:.2} over {} with ≥ {MIN_BLOCK_DOF} dof ({:.2} ± {:.2} if they differ by noise alone)",
-                c.block_chi2, c.blocks, c.block_null.0, c.block_null.1
-            )
-        };
-        println!(
-            "     var ratio {:.2} ± {:.2}; per channel (R, G, B): bias RMSE {:.4} {:.4} {:.4}; ST-CVAE/PT total − 1: {r}, {g}, {b}; {blocks}",
-            c.var_ratio, c.var_ratio_se, c.channel_bias[0], c.channel_bias[1], c.channel_bias[2],
-        );
-        // The work the steps column hides: exact steps are walks simulated event by event.
-        println!(
-            "     ST-CVAE's exact steps (τ < exact_tau) a path {:.2}, simulating {:.1} events in their walks",
-            st.per_path(st.stats.exact_steps),
-            st.per_path(st.stats.exact_events)
-        );
-        if st.stats.leaks + pt.stats.leaks > 0 {
-            println!(
-                "     (paths found outside while believed inside: PT {}, ST-CVAE {})",
-                pt.stats.leaks, st.stats.leaks
-            );
-        }
-    }
+}
+
+/// One density's row of the table, and the lines that detail it.
+fn print_row(
+    k: f64,
+    pt: &Pair,
+    st: &Pair,
+    c: &crate::experiment::measure::Comparison,
+    cached: Option<u64>,
+) {
     println!(
-        "speed-up = PT time / ST-CVAE time at equal spp; var ratio = PT variance / ST-CVAE variance; \
-         equal-error = their product (time ratio to reach the same noise); PT ev/path = scattering events \
-         a path, ST st/path and ev/path = ST-CVAE's sphere steps and PT events (thin regions) a path; \
-         noise = the RMSE the two renders' noise alone gives; bias RMSE is noise-corrected \
-         (bias 95%: its one-sided 95% upper confidence bound, from a negative estimate raised to 0), \
-         images scaled so PT's brightest 1% of object pixels is 1"
+        "{:>4} {:>20} {:>8} {:>8} {:>8.2}x {:>9.2} {:>10.2}x {:>10.1} {:>10.2} {:>10.2} {:>9.4} {:>9} {:>9.4} {:>10} {:>10}",
+        k,
+        format!(
+            "({}, {}, {})",
+            significant4(LADDER_SIGMA_T[0] * k),
+            significant4(LADDER_SIGMA_T[1] * k),
+            significant4(LADDER_SIGMA_T[2] * k)
+        ),
+        significant4(pt.seconds),
+        significant4(st.seconds),
+        c.speedup,
+        c.var_ratio,
+        c.speedup * c.var_ratio,
+        pt.per_path(pt.stats.events),
+        st.per_path(st.stats.steps),
+        st.per_path(st.stats.events),
+        c.bias,
+        format!("{:.4}", c.bias_upper95),
+        c.noise,
+        crate::progress::si(pt.paths_per_second()),
+        crate::progress::si(st.paths_per_second())
     );
-    Ok(())
+    if let Some(when) = cached {
+        println!(
+            "     (PT from --pt-cache, measured {} before this run: its time and so the speed-up are that run's)",
+            crate::pt_cache::age(when)
+        );
+    }
+    let [r, g, b] = c.channel_offset.map(|(o, se)| {
+        if o.is_finite() && se.is_finite() {
+            format!("{:+.2}% ± {:.2}%", 100.0 * o, 100.0 * se)
+        } else {
+            "n/a (PT's total is ~0)".to_owned()
+        }
+    });
+    let blocks = if c.blocks == 0 {
+        format!(
+            "no {BLOCK}x{BLOCK} block has ≥ {MIN_BLOCK_DOF} dof of noise estimate (image too small or too few spp)"
+        )
+    } else {
+        format!(
+            "{BLOCK}x{BLOCK}-block chi2/dof {:.2} over {} with ≥ {MIN_BLOCK_DOF} dof ({:.2} ± {:.2} if they differ by noise alone)",
+            c.block_chi2, c.blocks, c.block_null.0, c.block_null.1
+        )
+    };
+    println!(
+        "     var ratio {:.2} ± {:.2}; per channel (R, G, B): bias RMSE {:.4} {:.4} {:.4}; ST-CVAE/PT total − 1: {r}, {g}, {b}; {blocks}",
+        c.var_ratio, c.var_ratio_se, c.channel_bias[0], c.channel_bias[1], c.channel_bias[2],
+    );
+    // The work the steps column hides: exact steps are walks simulated event by event.
+    println!(
+        "     ST-CVAE's exact steps (τ < exact_tau) a path {:.2}, simulating {:.1} events in their walks",
+        st.per_path(st.stats.exact_steps),
+        st.per_path(st.stats.exact_events)
+    );
+    if st.stats.leaks + pt.stats.leaks > 0 {
+        println!(
+            "     (paths found outside while believed inside: PT {}, ST-CVAE {})",
+            pt.stats.leaks, st.stats.leaks
+        );
+    }
 }
 
 #[cfg(test)]
