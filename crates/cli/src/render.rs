@@ -52,7 +52,7 @@ pub struct Args {
     /// Samples per pixel, 1 to 2³² − 1 (overrides render.spp).
     #[arg(long, allow_negative_numbers = true, value_parser = crate::whole::whole::<u32>(1, u32::MAX.into()))]
     pub spp: Option<u32>,
-    /// Random seed, an integer in [0, 2⁶⁴) (overrides render.seed): renders with different
+    /// Random seed, an integer in [0, 2^64) (overrides render.seed): renders with different
     /// seeds are independent and can be averaged with `stcvae merge`.
     #[arg(long, allow_negative_numbers = true, value_parser = parse_seed)]
     pub seed: Option<u64>,

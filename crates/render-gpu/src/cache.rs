@@ -80,9 +80,11 @@ pub(crate) fn note_unwritable_cache(path: &Path, e: &std::io::Error) {
 
 /// Says that a cache entry exists but cannot be used (damaged, truncated, or another
 /// mesh's copied under its name) and is being rebuilt: the render was seconds slower than
-/// the one before with no word why.
-pub(crate) fn note_unusable_entry(path: &Path) {
-    if std::fs::symlink_metadata(path).is_ok() {
+/// the one before with no word why. Returns whether it did: the rebuilt entry then
+/// replaces it however quickly it was built, or the note would come back every run.
+pub(crate) fn note_unusable_entry(path: &Path) -> bool {
+    let exists = std::fs::symlink_metadata(path).is_ok();
+    if exists {
         use std::io::Write as _;
         let _ = writeln!(
             std::io::stderr(),
@@ -90,6 +92,7 @@ pub(crate) fn note_unusable_entry(path: &Path) {
             path.display()
         );
     }
+    exists
 }
 
 /// `$STCVAE_CACHE`, else `$XDG_CACHE_HOME/stcvae`, else `~/.cache/stcvae`.

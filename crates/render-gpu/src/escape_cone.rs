@@ -40,16 +40,17 @@ pub fn cached(geo: &Geometry) -> Vec<f32> {
     // (`cache_file`), so a change to TANS, the margins or the region is never read stale.
     let key = crate::cache::mesh_hasher(geo, b"escape-cones-v2").finish();
     let path = crate::cache::cache_file(&format!("cones-{key:016x}"));
+    let mut unusable = false;
     if let Some(p) = &path {
         if let Some(cos) = read(p, key, geo.tris.len()) {
             crate::cache::touch(p);
             return cos;
         }
-        crate::cache::note_unusable_entry(p);
+        unusable = crate::cache::note_unusable_entry(p);
     }
     let t0 = std::time::Instant::now();
     let cos = escape_cosines(geo);
-    if t0.elapsed().as_secs_f64() > 0.1
+    if (t0.elapsed().as_secs_f64() > 0.1 || unusable)
         && let Some(p) = &path
     {
         // A cache that cannot be written only costs time next run; said once.

@@ -22,6 +22,7 @@ use crate::sampler::normals;
 
 /// Training settings of one model (a `[lengthgen]`, `[pathgen]` or `[eventgen]` table
 /// of the training config).
+/// (Its absent options are not serialized as null, which their readers refuse.)
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ModelConfig {
@@ -29,7 +30,11 @@ pub struct ModelConfig {
     pub latent: usize,
     #[serde(deserialize_with = "read_hidden")]
     pub hidden: Vec<usize>,
-    #[serde(default, deserialize_with = "read_encoder_hidden")]
+    #[serde(
+        default,
+        deserialize_with = "read_encoder_hidden",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub encoder_hidden: Option<Vec<usize>>,
     #[serde(deserialize_with = "read_steps")]
     pub steps: u64,
@@ -40,7 +45,11 @@ pub struct ModelConfig {
     /// Learning rate at the last step (cosine decay from `lr`).
     pub lr_final: f64,
     /// Linear warm-up steps; default: 500, or a quarter of `steps` when that is fewer.
-    #[serde(default, deserialize_with = "read_warmup")]
+    #[serde(
+        default,
+        deserialize_with = "read_warmup",
+        skip_serializing_if = "Option::is_none"
+    )]
     pub warmup: Option<u64>,
 }
 
@@ -962,6 +971,31 @@ mod tests {
             lr_final: 1e-4,
             warmup,
         }
+    }
+
+    /// A config written out reads back as it was, its absent options included (written as
+    /// null, they were refused by the range-checking readers), and a negative width or
+    /// batch is refused with the field's range.
+    #[test]
+    fn a_model_config_round_trips_and_states_its_ranges() {
+        for c in [config(100, None), config(100, Some(7))] {
+            let text = serde_json::to_string(&c).unwrap();
+            assert_eq!(
+                serde_json::from_str::<ModelConfig>(&text).unwrap(),
+                c,
+                "{text}"
+            );
+        }
+        let bad = |json: &str| {
+            serde_json::from_str::<ModelConfig>(json)
+                .unwrap_err()
+                .to_string()
+        };
+        let base = r#""latent": 2, "steps": 10, "lr": 0.01, "lr_final": 0.001"#;
+        let e = bad(&format!(r#"{{{base}, "hidden": [4, -1]}}"#));
+        assert!(e.contains("expected a whole number in [1, 64]"), "{e}");
+        let e = bad(&format!(r#"{{{base}, "hidden": [4], "batch_size": -1}}"#));
+        assert!(e.contains("expected a whole number in [1, 1048576]"), "{e}");
     }
 
     /// Without a `warmup` line a short run warms up over a quarter of its steps (the
