@@ -376,77 +376,8 @@ fn load_spec(files: &[String], w: usize, h: usize, seen: &mut Seen) -> Result<Rg
 }
 
 pub fn run(a: Args) -> Result<()> {
-    if !(a.object_threshold.is_finite() && a.object_threshold >= 0.0) {
-        bail!(
-            "--object-threshold {}: must be a finite number ≥ 0",
-            a.object_threshold
-        );
-    }
-    let specs: Vec<Spec> = a
-        .images
-        .iter()
-        .map(|s| parse_spec(s))
-        .collect::<Result<_>>()?;
-    if a.plot.is_some() && specs.iter().all(|s| s.seconds.is_none()) {
-        bail!("--plot: no image has :SECONDS, its render time (the plot's x axis)");
-    }
-    // A folder, a file in the way or an unwritable place fails now, not after the table.
-    if let Some(path) = &a.plot {
-        crate::check_out("--plot", path)?;
-    }
-    let mut references = Vec::new();
-    for r in &a.reference {
-        references.extend(file_list("--reference", r)?);
-    }
-    let names: Vec<&str> = references
-        .iter()
-        .chain(specs.iter().flat_map(|s| s.files.iter()))
-        .map(String::as_str)
-        .collect();
-    check_distinct(&names)?;
-    if let Some(path) = &a.plot {
-        if !path
-            .extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case("png"))
-        {
-            bail!(
-                "--plot {}: the plot is a PNG; name the file *.png",
-                path.display()
-            );
-        }
-        let inputs: Vec<(String, PathBuf)> = names
-            .iter()
-            .map(|n| (format!("an input image ({n})"), PathBuf::from(n)))
-            .collect();
-        crate::paths::check_not_input("--plot", path, &inputs)?;
-    }
-    let mut ref_seen = Seen::default();
-    let mut refs: Vec<RgbImage> = Vec::with_capacity(references.len());
-    for p in &references {
-        let img = load(Path::new(p), &mut ref_seen)?;
-        if let Some(first) = refs.first() {
-            same_size(p, &img, first.width, first.height)?;
-        }
-        refs.push(img);
-    }
-    // Renders of different scenes (another density, light or estimator) would be averaged
-    // as one reference, their difference counted as its noise and subtracted from every
-    // image's error.
-    if let Some(((pa, ta), (pb, tb))) = ref_seen
-        .tags
-        .iter()
-        .zip(ref_seen.tags.iter().skip(1))
-        .find(|((_, a), (_, b))| a.scene_hash != b.scene_hash)
-    {
-        bail!(
-            "{} and {} are renders of different scenes or render settings (scene hashes \
-             {:016x} and {:016x}): the references must be renders of one scene",
-            pa.display(),
-            pb.display(),
-            ta.scene_hash,
-            tb.scene_hash
-        );
-    }
+    let (specs, references) = read_args(&a)?;
+    let (refs, ref_seen) = read_references(&references)?;
     let r = Reference::new(&refs, a.object_threshold);
     // Every image is read before anything is printed, so a bad one leaves no half table.
     let mut image_seen = Seen::default();
@@ -458,25 +389,7 @@ pub fn run(a: Args) -> Result<()> {
     check_views(&ref_seen, &image_seen)?;
     let ref_noise = r.noise_mse.sqrt();
     let objects = r.object.iter().filter(|&&o| o).count();
-    // A sky brighter than the threshold makes every pixel the object's (sphere.toml's 0.1
-    // per channel), and the object column then measures the whole frame.
-    let sums = || r.mean.iter().map(|m| m.iter().sum::<f64>());
-    if objects == r.object.len() {
-        eprintln!(
-            "note: every pixel's R + G + B exceeds --object-threshold {}, the background's \
-             too: the object column covers the whole image; give a threshold above the \
-             background's (the image's least is {:.4})",
-            scatter_sim::ranges::num(a.object_threshold),
-            sums().fold(f64::INFINITY, f64::min)
-        );
-    } else if objects == 0 {
-        eprintln!(
-            "note: no pixel's R + G + B exceeds --object-threshold {}: the object column is \
-             empty; give a threshold below the object's (the image's greatest is {:.4})",
-            scatter_sim::ranges::num(a.object_threshold),
-            sums().fold(f64::NEG_INFINITY, f64::max)
-        );
-    }
+    note_object_pixels(&r, objects, a.object_threshold);
     println!(
         "stcvae bench error: reference = mean of {} render(s), {}x{}, {}; {objects} object pixels (R+G+B > {})",
         refs.len(),
@@ -547,28 +460,139 @@ pub fn run(a: Args) -> Result<()> {
         }
     }
     if let Some(path) = &a.plot {
-        if lines.iter().flat_map(|s| &s.points).all(|p| p.1 <= 0.0) {
+        draw_plot(path, &mut lines)?;
+    }
+    Ok(())
+}
+
+/// The image specifications and the reference files, with the options checked before any
+/// image is read.
+fn read_args(a: &Args) -> Result<(Vec<Spec>, Vec<String>)> {
+    if !(a.object_threshold.is_finite() && a.object_threshold >= 0.0) {
+        bail!(
+            "--object-threshold {}: must be a finite number ≥ 0",
+            a.object_threshold
+        );
+    }
+    let specs: Vec<Spec> = a
+        .images
+        .iter()
+        .map(|s| parse_spec(s))
+        .collect::<Result<_>>()?;
+    if a.plot.is_some() && specs.iter().all(|s| s.seconds.is_none()) {
+        bail!("--plot: no image has :SECONDS, its render time (the plot's x axis)");
+    }
+    // A folder, a file in the way or an unwritable place fails now, not after the table.
+    if let Some(path) = &a.plot {
+        crate::check_out("--plot", path)?;
+    }
+    let mut references = Vec::new();
+    for r in &a.reference {
+        references.extend(file_list("--reference", r)?);
+    }
+    let names: Vec<&str> = references
+        .iter()
+        .chain(specs.iter().flat_map(|s| s.files.iter()))
+        .map(String::as_str)
+        .collect();
+    check_distinct(&names)?;
+    if let Some(path) = &a.plot {
+        if !path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("png"))
+        {
             bail!(
-                "--plot: every timed image's RMSE is 0 (below the reference's own noise): \
-                 nothing to draw on a log axis"
+                "--plot {}: the plot is a PNG; name the file *.png",
+                path.display()
             );
         }
-        for s in &mut lines {
-            s.points.sort_by(|p, q| p.0.total_cmp(&q.0));
-        }
-        // An RMSE of 0 (below the reference's noise) has no place on a log axis: the plot
-        // leaves it out, and the table above shows it.
-        line_plot(
-            path,
-            "RMSE against render time (noise-corrected)",
-            "seconds",
-            "RMSE",
-            (true, true),
-            &lines,
-            None,
-        )?;
-        println!("plot: {}", path.display());
+        let inputs: Vec<(String, PathBuf)> = names
+            .iter()
+            .map(|n| (format!("an input image ({n})"), PathBuf::from(n)))
+            .collect();
+        crate::paths::check_not_input("--plot", path, &inputs)?;
     }
+    Ok((specs, references))
+}
+
+/// The reference renders, of one size and one scene.
+fn read_references(references: &[String]) -> Result<(Vec<RgbImage>, Seen)> {
+    let mut ref_seen = Seen::default();
+    let mut refs: Vec<RgbImage> = Vec::with_capacity(references.len());
+    for p in references {
+        let img = load(Path::new(p), &mut ref_seen)?;
+        if let Some(first) = refs.first() {
+            same_size(p, &img, first.width, first.height)?;
+        }
+        refs.push(img);
+    }
+    // Renders of different scenes (another density, light or estimator) would be averaged
+    // as one reference, their difference counted as its noise and subtracted from every
+    // image's error.
+    if let Some(((pa, ta), (pb, tb))) = ref_seen
+        .tags
+        .iter()
+        .zip(ref_seen.tags.iter().skip(1))
+        .find(|((_, a), (_, b))| a.scene_hash != b.scene_hash)
+    {
+        bail!(
+            "{} and {} are renders of different scenes or render settings (scene hashes \
+             {:016x} and {:016x}): the references must be renders of one scene",
+            pa.display(),
+            pb.display(),
+            ta.scene_hash,
+            tb.scene_hash
+        );
+    }
+    Ok((refs, ref_seen))
+}
+
+/// Says when the object column covers the whole image, or none of it.
+fn note_object_pixels(r: &Reference, objects: usize, threshold: f64) {
+    // A sky brighter than the threshold makes every pixel the object's (sphere.toml's 0.1
+    // per channel), and the object column then measures the whole frame.
+    let sums = || r.mean.iter().map(|m| m.iter().sum::<f64>());
+    if objects == r.object.len() {
+        eprintln!(
+            "note: every pixel's R + G + B exceeds --object-threshold {}, the background's \
+             too: the object column covers the whole image; give a threshold above the \
+             background's (the image's least is {:.4})",
+            scatter_sim::ranges::num(threshold),
+            sums().fold(f64::INFINITY, f64::min)
+        );
+    } else if objects == 0 {
+        eprintln!(
+            "note: no pixel's R + G + B exceeds --object-threshold {}: the object column is \
+             empty; give a threshold below the object's (the image's greatest is {:.4})",
+            scatter_sim::ranges::num(threshold),
+            sums().fold(f64::NEG_INFINITY, f64::max)
+        );
+    }
+}
+
+/// The RMSE-against-time plot of the timed images, one line a label.
+fn draw_plot(path: &Path, lines: &mut [Series]) -> Result<()> {
+    if lines.iter().flat_map(|s| &s.points).all(|p| p.1 <= 0.0) {
+        bail!(
+            "--plot: every timed image's RMSE is 0 (below the reference's own noise): \
+             nothing to draw on a log axis"
+        );
+    }
+    for s in lines.iter_mut() {
+        s.points.sort_by(|p, q| p.0.total_cmp(&q.0));
+    }
+    // An RMSE of 0 (below the reference's noise) has no place on a log axis: the plot
+    // leaves it out, and the table above shows it.
+    line_plot(
+        path,
+        "RMSE against render time (noise-corrected)",
+        "seconds",
+        "RMSE",
+        (true, true),
+        lines,
+        None,
+    )?;
+    println!("plot: {}", path.display());
     Ok(())
 }
 
