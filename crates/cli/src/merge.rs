@@ -521,9 +521,39 @@ fn merge_binary(a: &Args) -> Result<()> {
             .iter()
             .flat_map(|h| &h.pieces)
             .all(|p| first.as_ref().is_some_and(|f| f.same_run(p)));
-    // Each piece of each input, where its rows lie in the file; shards of one run go in
-    // walk order, piece by piece: an input that is itself a merge of shards 0 and 2 puts
-    // shard 1's rows between its two pieces, as the unsharded run has them.
+    let segments = segments_of(&headers, one_run);
+    let correlated = check_overlaps(a, &segments)?;
+    let pieces = coalesce(segments.iter().map(|s| s.piece.clone()));
+    let header = Header::new(pieces);
+    // Said after the rows, which may still be refused: a note above an error reads as
+    // part of it.
+    let note = coverage_note(&header, one_run);
+    let cancel = crate::interrupt::flag();
+    let pb = progress::bar(header.count, "rows");
+    let mut sink = dataset::create_sink(&a.out, header.clone())?;
+    copy_rows(a, &headers, &segments, sink.as_mut(), &pb, cancel)?;
+    sink.finish()?;
+    pb.finish_and_clear();
+    for note in note
+        .iter()
+        .chain(&correlated)
+        .chain(&simulators_note(&header))
+    {
+        eprintln!("{note}");
+    }
+    eprintln!(
+        "merged {}, {} -> {}",
+        progress::count(a.inputs.len() as u64, "file"),
+        progress::count(header.count, "row"),
+        a.out.display()
+    );
+    Ok(())
+}
+
+/// Each piece of each input, where its rows lie in the file; shards of one run go in
+/// walk order, piece by piece: an input that is itself a merge of shards 0 and 2 puts
+/// shard 1's rows between its two pieces, as the unsharded run has them.
+fn segments_of(headers: &[Header], one_run: bool) -> Vec<Segment> {
     let mut segments: Vec<Segment> = Vec::new();
     for (input, h) in headers.iter().enumerate() {
         let mut offset = 0;
@@ -539,6 +569,12 @@ fn merge_binary(a: &Args) -> Result<()> {
     if one_run {
         segments.sort_by_key(|s| s.piece.first_walk);
     }
+    segments
+}
+
+/// Refuses duplicated walks (two pieces of one stream that overlap), and returns the
+/// warning for pieces of one seed under two condition samplers, whose rows are correlated.
+fn check_overlaps(a: &Args, segments: &[Segment]) -> Result<Option<String>> {
     // Pieces of one seed under two condition samplers draw walk i from the same random
     // numbers: rows of the same walk indices are correlated (said, not refused: training
     // on them is sound, only worth less than as many independent walks).
@@ -590,11 +626,12 @@ fn merge_binary(a: &Args) -> Result<()> {
             }
         }
     }
-    let pieces = coalesce(segments.iter().map(|s| s.piece.clone()));
-    let header = Header::new(pieces);
-    // Said after the rows, which may still be refused: a note above an error reads as
-    // part of it.
-    let note = if one_run {
+    Ok(correlated)
+}
+
+/// What the merged file lacks of its run (one run), or which runs it holds (several).
+fn coverage_note(header: &Header, one_run: bool) -> Option<String> {
+    if one_run {
         let covered: u64 = header.count;
         let total = header.pieces[0].total_walks;
         (covered != total).then(|| {
@@ -619,10 +656,19 @@ fn merge_binary(a: &Args) -> Result<()> {
         })
     } else {
         runs_note(&header.pieces)
-    };
-    let cancel = crate::interrupt::flag();
-    let pb = progress::bar(header.count, "rows");
-    let mut sink = dataset::create_sink(&a.out, header.clone())?;
+    }
+}
+
+/// Copies every segment's rows into `sink`, reading each input to its end so that its
+/// checksum is verified.
+fn copy_rows(
+    a: &Args,
+    headers: &[Header],
+    segments: &[Segment],
+    sink: &mut dyn dataset::RowSink,
+    pb: &indicatif::ProgressBar,
+    cancel: &std::sync::atomic::AtomicBool,
+) -> Result<()> {
     let stopped = || {
         // (The sink's temporary file is removed as it is dropped.)
         if cancel.load(std::sync::atomic::Ordering::Relaxed) {
@@ -648,7 +694,7 @@ fn merge_binary(a: &Args) -> Result<()> {
         Ok(r)
     };
     let mut current: Option<(usize, DatasetReader)> = None;
-    for s in &segments {
+    for s in segments {
         let reuse = matches!(&current, Some((i, r)) if *i == s.input && r.rows_read() == s.offset);
         if !reuse {
             if let Some(c) = current.take() {
@@ -683,21 +729,6 @@ fn merge_binary(a: &Args) -> Result<()> {
             stopped()?;
         }
     }
-    sink.finish()?;
-    pb.finish_and_clear();
-    for note in note
-        .iter()
-        .chain(&correlated)
-        .chain(&simulators_note(&header))
-    {
-        eprintln!("{note}");
-    }
-    eprintln!(
-        "merged {}, {} -> {}",
-        progress::count(a.inputs.len() as u64, "file"),
-        progress::count(header.count, "row"),
-        a.out.display()
-    );
     Ok(())
 }
 
