@@ -265,114 +265,8 @@ impl SceneData {
         // environment are directions; the camera moves with the object.
         let centre = recentre(&mut mesh);
         let env = crate::light::Environment::new(&scene.environment, scene_dir)?;
-        let mut h = Fnv64::new();
-        // What the image depends on, and nothing else: renders of one scene from two job
-        // folders (the mesh named by another relative path) or with settings their
-        // integrator never reads must merge. The mesh and map contents are hashed below.
-        let mut ident = scene.clone();
-        ident.render.spp = 0;
-        ident.render.seed = 0;
-        ident.object.mesh = ident.object.mesh.map(|_| "mesh".into());
-        ident.environment.file = ident.environment.file.map(|_| "map".into());
-        // A default written out is the default (ior = 1.5 on a dielectric, a black sky
-        // given as radiance = [0, 0, 0]): the same image hashed apart, and `merge` and
-        // `bench error` refused the pair. Taken to None, so scenes leaving them out keep
-        // their hashes.
-        if ident.boundary.ior == Some(crate::scene::DEFAULT_IOR) {
-            ident.boundary.ior = None;
-        }
-        if ident.environment.radiance == Some(ident.environment.default_radiance()) {
-            ident.environment.radiance = None;
-        }
-        // The object's size settings are in the mesh's positions, hashed below, and a
-        // threshold left at its default is the default: equivalent files (radius = 0.5 on
-        // the default sphere, min_tau = 1 written out) hashed apart, and `merge` refused
-        // their renders.
-        ident.object.radius = None;
-        ident.object.size = None;
-        ident.object.height = None;
-        let unread = crate::scene::RenderDesc::default();
-        let r = &mut ident.render;
-        r.min_tau = Some(r.min_tau_or_default());
-        r.exact_tau = Some(r.exact_tau_or_default());
-        if r.integrator == crate::scene::IntegratorKind::Pt {
-            r.grid_resolution = unread.grid_resolution;
-            r.min_tau = None;
-            r.max_tau = None;
-            r.exact_tau = None;
-        }
-        if r.integrator == crate::scene::IntegratorKind::Pt || !r.nee {
-            r.nee_samples = unread.nee_samples;
-            r.exact_nee_samples = unread.exact_nee_samples;
-            r.path_nee_rays = unread.path_nee_rays;
-        }
-        h.write(serde_json::to_string(&ident).unwrap_or_default().as_bytes());
-        // The view hash leaves out every integrator setting (PT and ST-CVAE, with or
-        // without NEE, all render the one picture) and the code and model that estimate it.
-        let mut view = Fnv64::new();
-        ident.render = unread;
-        view.write(serde_json::to_string(&ident).unwrap_or_default().as_bytes());
-        let mut both = |bytes: &[u8]| {
-            h.write(bytes);
-            view.write(bytes);
-        };
-        for p in &mesh.positions {
-            for x in p.to_array() {
-                both(&x.to_le_bytes());
-            }
-        }
-        // Which vertices form each face, too: one vertex set cut into different triangles
-        // is a different object.
-        for t in &mesh.triangles {
-            for i in t {
-                both(&i.to_le_bytes());
-            }
-        }
-        if let Some(m) = &env.map {
-            // Its shape too: one pixel buffer read as 16×8 or as 32×4 lights the scene
-            // differently.
-            both(&(m.width as u64).to_le_bytes());
-            both(&(m.height as u64).to_le_bytes());
-            for px in &m.pixels {
-                for v in px {
-                    both(&v.to_le_bytes());
-                }
-            }
-        }
-        h.write(extra_hash);
-        // The renderer's own estimating code (build.rs): renders by builds that converge
-        // to different images must not pass for renders of one scene.
-        h.write(env!("STCVAE_RENDER_CODE").as_bytes());
-        // The positions hashed are the moved ones: where the mesh was is part of the scene
-        // (a cube at x = 40,000 and at 40,010 before one camera hashed alike and merged).
-        // Nothing is added for an unmoved mesh, whose hash stays as it was.
-        if centre != [0.0; 3] {
-            for c in centre {
-                h.write(&c.to_le_bytes());
-                view.write(&c.to_le_bytes());
-            }
-        }
-        let unchecked = crate::mesh::unchecked_pieces(&mesh).map(|n| {
-            format!(
-                "the mesh has {n} closed pieces and {} triangles: beyond {} pieces or {} \
-                 triangles they are not checked for overlaps, and an overlap would render \
-                 partly as air; join overlapping pieces into one closed surface{}",
-                mesh.triangles.len(),
-                crate::mesh::MAX_OVERLAP_PIECES,
-                crate::mesh::MAX_OVERLAP_CHECK_TRIANGLES,
-                if crate::mesh::nesting_unsurveyed(&mesh) {
-                    format!(
-                        "; beyond {} pairs of pieces whose boxes overlap, or {} pieces, their \
-                         nesting is not surveyed either: each is solid, wound outward (a \
-                         cavity would render as medium)",
-                        crate::mesh::MAX_NESTING_PAIRS,
-                        crate::mesh::MAX_NESTING_PIECES
-                    )
-                } else {
-                    String::new()
-                }
-            )
-        });
+        let (hash, view_hash) = scene_hashes(scene, &mesh, &env, centre, extra_hash);
+        let unchecked = unchecked_pieces_note(&mesh);
         let geo = Geometry::new(mesh);
         let thin = thin_object_check(&geo)?;
         check_density(scene.medium.sigma_t, geo.eps)?;
@@ -437,11 +331,137 @@ impl SceneData {
             },
             lights: scene.lights.iter().map(DirectionalLight::new).collect(),
             env,
-            hash: h.finish(),
-            view_hash: view.finish(),
+            hash,
+            view_hash,
             notes,
         })
     }
+}
+
+/// The scene's hash, of what its image depends on (the settings its integrator reads, the
+/// mesh, the map, the model and the estimating code), and its view hash, of the picture
+/// alone (the same for every integrator).
+fn scene_hashes(
+    scene: &SceneFile,
+    mesh: &TriMesh,
+    env: &Environment,
+    centre: [f64; 3],
+    extra_hash: &[u8],
+) -> (u64, u64) {
+    let mut h = Fnv64::new();
+    // What the image depends on, and nothing else: renders of one scene from two job
+    // folders (the mesh named by another relative path) or with settings their
+    // integrator never reads must merge. The mesh and map contents are hashed below.
+    let mut ident = scene.clone();
+    ident.render.spp = 0;
+    ident.render.seed = 0;
+    ident.object.mesh = ident.object.mesh.map(|_| "mesh".into());
+    ident.environment.file = ident.environment.file.map(|_| "map".into());
+    // A default written out is the default (ior = 1.5 on a dielectric, a black sky
+    // given as radiance = [0, 0, 0]): the same image hashed apart, and `merge` and
+    // `bench error` refused the pair. Taken to None, so scenes leaving them out keep
+    // their hashes.
+    if ident.boundary.ior == Some(crate::scene::DEFAULT_IOR) {
+        ident.boundary.ior = None;
+    }
+    if ident.environment.radiance == Some(ident.environment.default_radiance()) {
+        ident.environment.radiance = None;
+    }
+    // The object's size settings are in the mesh's positions, hashed below, and a
+    // threshold left at its default is the default: equivalent files (radius = 0.5 on
+    // the default sphere, min_tau = 1 written out) hashed apart, and `merge` refused
+    // their renders.
+    ident.object.radius = None;
+    ident.object.size = None;
+    ident.object.height = None;
+    let unread = crate::scene::RenderDesc::default();
+    let r = &mut ident.render;
+    r.min_tau = Some(r.min_tau_or_default());
+    r.exact_tau = Some(r.exact_tau_or_default());
+    if r.integrator == crate::scene::IntegratorKind::Pt {
+        r.grid_resolution = unread.grid_resolution;
+        r.min_tau = None;
+        r.max_tau = None;
+        r.exact_tau = None;
+    }
+    if r.integrator == crate::scene::IntegratorKind::Pt || !r.nee {
+        r.nee_samples = unread.nee_samples;
+        r.exact_nee_samples = unread.exact_nee_samples;
+        r.path_nee_rays = unread.path_nee_rays;
+    }
+    h.write(serde_json::to_string(&ident).unwrap_or_default().as_bytes());
+    // The view hash leaves out every integrator setting (PT and ST-CVAE, with or
+    // without NEE, all render the one picture) and the code and model that estimate it.
+    let mut view = Fnv64::new();
+    ident.render = unread;
+    view.write(serde_json::to_string(&ident).unwrap_or_default().as_bytes());
+    let mut both = |bytes: &[u8]| {
+        h.write(bytes);
+        view.write(bytes);
+    };
+    for p in &mesh.positions {
+        for x in p.to_array() {
+            both(&x.to_le_bytes());
+        }
+    }
+    // Which vertices form each face, too: one vertex set cut into different triangles
+    // is a different object.
+    for t in &mesh.triangles {
+        for i in t {
+            both(&i.to_le_bytes());
+        }
+    }
+    if let Some(m) = &env.map {
+        // Its shape too: one pixel buffer read as 16×8 or as 32×4 lights the scene
+        // differently.
+        both(&(m.width as u64).to_le_bytes());
+        both(&(m.height as u64).to_le_bytes());
+        for px in &m.pixels {
+            for v in px {
+                both(&v.to_le_bytes());
+            }
+        }
+    }
+    h.write(extra_hash);
+    // The renderer's own estimating code (build.rs): renders by builds that converge
+    // to different images must not pass for renders of one scene.
+    h.write(env!("STCVAE_RENDER_CODE").as_bytes());
+    // The positions hashed are the moved ones: where the mesh was is part of the scene
+    // (a cube at x = 40,000 and at 40,010 before one camera hashed alike and merged).
+    // Nothing is added for an unmoved mesh, whose hash stays as it was.
+    if centre != [0.0; 3] {
+        for c in centre {
+            h.write(&c.to_le_bytes());
+            view.write(&c.to_le_bytes());
+        }
+    }
+    (h.finish(), view.finish())
+}
+
+/// Says when the mesh has too many pieces or triangles for its pieces to be checked for
+/// overlaps (or their nesting surveyed).
+fn unchecked_pieces_note(mesh: &TriMesh) -> Option<String> {
+    crate::mesh::unchecked_pieces(mesh).map(|n| {
+        format!(
+            "the mesh has {n} closed pieces and {} triangles: beyond {} pieces or {} \
+             triangles they are not checked for overlaps, and an overlap would render \
+             partly as air; join overlapping pieces into one closed surface{}",
+            mesh.triangles.len(),
+            crate::mesh::MAX_OVERLAP_PIECES,
+            crate::mesh::MAX_OVERLAP_CHECK_TRIANGLES,
+            if crate::mesh::nesting_unsurveyed(mesh) {
+                format!(
+                    "; beyond {} pairs of pieces whose boxes overlap, or {} pieces, their \
+                     nesting is not surveyed either: each is solid, wound outward (a \
+                     cavity would render as medium)",
+                    crate::mesh::MAX_NESTING_PAIRS,
+                    crate::mesh::MAX_NESTING_PIECES
+                )
+            } else {
+                String::new()
+            }
+        )
+    })
 }
 
 #[cfg(test)]
