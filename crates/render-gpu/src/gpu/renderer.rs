@@ -841,7 +841,6 @@ pub fn render_gpu(
     } else {
         Kernels::Single(build("render_main")?)
     };
-    let spp = opts.spp.max(1);
     // Every path slot of a band lives in one storage binding: adapters offer 128 MiB to
     // several GiB, and a 1024² image at 2²⁰ invocations with two path-level NEE
     // reservoirs needs 185 MB.
@@ -858,24 +857,7 @@ pub fn render_gpu(
         .max_storage_buffer_binding_size
         .min(limits.max_buffer_size)
         / binding_bytes;
-    let lanes = (target_threads(ctx).min(fit) / pixels.max(1)).clamp(1, spp as u64) as u32;
-    // A slot counts its samples in f32, which stops at 2^24 (its sums keep what they
-    // round off, shaders/path.wgsl add_sample). A time budget's render stops at 2^24 a
-    // slot (days to weeks on today's GPUs); asking for more is refused before any
-    // dispatch.
-    let most = lanes as u64 * MAX_SLOT_SAMPLES;
-    let spp = if (spp as u64) <= most {
-        spp
-    } else if opts.time_budget.is_some() {
-        most as u32
-    } else {
-        return Err(RenderError::GpuLimit(format!(
-            "{spp} samples per pixel exceed the {most} the GPU's f32 counts hold for a \
-             {}x{} image on {} (2^24 per path slot); render several seeds and merge \
-             them, or use --device cpu",
-            cam.width, cam.height, ctx.adapter.name
-        )));
-    };
+    let (lanes, spp) = lanes_and_spp(ctx, cam, fit, opts)?;
     let bands = plan_bands(
         ctx,
         cam,
@@ -903,79 +885,28 @@ pub fn render_gpu(
         .grid
         .as_ref()
         .map_or_else(Vec::new, |g| grid_buffer(g, &scene.geo));
-    // Bands keep each binding within its limit, not the whole within the GPU's memory: an
-    // allocation that fails is a limit of this device (the CPU may render the scene), not
-    // a panic in wgpu's default error handler.
-    // A buffer whose allocation failed is invalid, and filling it through the queue is a
-    // validation error: caught by the outer scope, so the out-of-memory error (inner) is
-    // what is reported, not wgpu's panic on the validation error it causes.
-    let follow_on = ctx.device.push_error_scope(wgpu::ErrorFilter::Validation);
-    let scope = ctx.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
-    let res = Resources::new(
+    let inputs = Inputs {
+        params: &params,
+        accum_bytes: &accum_bytes,
+        nodes: &nodes,
+        tris: &tris,
+        env: &env,
+        grid: &grid,
+        model: &model,
+        stage_slots: if shape.staged { largest_slots } else { 0 },
+    };
+    let (res, snapshot) = upload(
         ctx,
         &layout,
         args_layout.as_ref(),
-        &Inputs {
-            params: &params,
-            accum_bytes: &accum_bytes,
-            nodes: &nodes,
-            tris: &tris,
-            env: &env,
-            grid: &grid,
-            model: &model,
-            stage_slots: if shape.staged { largest_slots } else { 0 },
-        },
+        &inputs,
+        shape.staged,
+        first_budget,
+        pixels,
     )?;
-    // A failed wait is reported after the error scopes: an out-of-memory error they hold
-    // says more than "the GPU did not finish".
-    let poisoned = poison(ctx, &res.accums, &accum_bytes);
-    let largest = accum_bytes.iter().copied().max().unwrap_or(0);
     let mut budget = first_budget;
     params.consts2[2] = budget as f32;
-    // The path states before the dispatch in flight, kept on software adapters while a
-    // cut-off dispatch can be redone with a smaller budget.
-    let snapshot = (ctx.adapter.software && budget > 1).then(|| Snapshot {
-        accum: res.snapshot_buffer(ctx, largest),
-        staged: shape
-            .staged
-            .then(|| [&res.stage, &res.queue].map(|b| res.snapshot_buffer(ctx, b.size()))),
-    });
-    let out_of_memory = pollster::block_on(scope.pop());
-    let invalid = pollster::block_on(follow_on.pop());
-    if let Some(e) = out_of_memory {
-        let total: u64 = accum_bytes.iter().sum();
-        return Err(RenderError::GpuLimit(format!(
-            "{} is out of memory for this render's buffers ({} MB of path state for {} \
-             pixels): {}; lower the image size or use --device cpu",
-            ctx.adapter.name,
-            total / 1_000_000,
-            pixels,
-            super::context::one_line(&e.to_string())
-        )));
-    }
-    if let Some(e) = invalid {
-        return Err(RenderError::Gpu(format!(
-            "setting up the render's buffers on {} failed: {}",
-            ctx.adapter.name,
-            super::context::one_line(&e.to_string())
-        )));
-    }
-    poisoned?;
-    let mut compile_seconds = 0.0;
-    match &kernels {
-        // The queues start zeroed: trace_main and step_main find nothing to do, and the
-        // arguments' kernels write arguments the first turn overwrites (args_main also
-        // closes a turn of empty queues, which only changes which copy comes next).
-        Kernels::Staged(k) => {
-            for p in [&k.stage, &k.trace].into_iter().chain(&k.step) {
-                compile_seconds += compile(ctx, &res, p, &params, false)?;
-            }
-            for p in [&k.args, &k.list_args] {
-                compile_seconds += compile(ctx, &res, p, &params, true)?;
-            }
-        }
-        Kernels::Single(p) => compile_seconds = compile(ctx, &res, p, &params, false)?,
-    }
+    let compile_seconds = compile_kernels(ctx, &res, &kernels, &params)?;
     let gpu = Dispatcher {
         ctx,
         res: &res,
@@ -985,8 +916,6 @@ pub fn render_gpu(
         ahead: shape.ahead && shape.staged && snapshot.is_none(),
         cancel,
     };
-    let start = Instant::now();
-    let mut stats = PathStats::default();
     let mut dispatch = DispatchStats {
         bands: bands.len() as u32,
         workgroup: shape.workgroup,
@@ -998,92 +927,22 @@ pub fn render_gpu(
         ahead: gpu.ahead,
         ..Default::default()
     };
-    let mut s0 = 0u32;
-    let mut per_lane = fixed_per_lane.unwrap_or(1);
-    let total = pixels * spp as u64;
-    // Set when a stop request drops the chunk under way, to the number of bands that had
-    // begun it: their image is then the slots' committed accumulators
-    // (kernels::committed_vec4), the whole chunks before it; the bands after them have not
-    // begun the chunk, and their accumulators hold exactly those chunks.
-    let mut dropped: Option<usize> = None;
-    // When the last whole chunk ended: a dropped chunk's time does not count against the
-    // samples kept (paths/s read ~30 % low after Ctrl-C on lavapipe).
-    let mut kept_seconds = 0.0;
-    while s0 < spp {
-        // A stop requested before the first chunk (while the kernels compiled, which on
-        // lavapipe takes seconds, minutes for a large model) renders nothing, as on the
-        // CPU; later ones are seen after each submission and each chunk.
-        if s0 == 0 && cancel.load(Ordering::Relaxed) {
-            break;
-        }
-        let s1 = (s0 as u64 + lanes as u64 * per_lane as u64).min(spp as u64) as u32;
-        if s0 == 0 {
-            dispatch.first_chunk_spp = s1;
-        }
-        params.image[2] = lanes;
-        params.image[3] = per_lane;
-        params.sampling[0] = s0;
-        params.sampling[1] = s1;
-        let t0 = Instant::now();
-        let stats_before = stats;
-        for band in &bands {
-            // A stop request is looked at after each submission (in run_band) and after
-            // each band: a band reached after one still begins the chunk (one submission
-            // more to wait for), so that which bands had begun it follows from their
-            // submissions alone.
-            let finished = gpu.run_band(
-                band,
-                s0 == 0,
-                &mut params,
-                &mut budget,
-                &mut stats,
-                &mut dispatch,
-            )?;
-            if !finished {
-                dropped = Some(band.index + 1);
-                break;
-            }
-            // A band that finished in one submission never looked at the stop request
-            // (run_band returns when its paths are done): without this, a stop waited for
-            // every band of the chunk, ~15 s at 1024² on lavapipe. The next band has not
-            // begun the chunk, which `dropped` says as for a band cut short.
-            if cancel.load(Ordering::Relaxed) && band.index + 1 < bands.len() {
-                dropped = Some(band.index + 1);
-                break;
-            }
-            let done_rows = (band.row0 + band.rows) as u64;
-            progress(
-                pixels * s0 as u64 + cam.width as u64 * done_rows * (s1 - s0) as u64,
-                total,
-            );
-        }
-        if dropped.is_some() {
-            // Its paths are not counted either, as the CPU does not count a dropped pass's
-            // (its dispatches, which ran, stay in `dispatch`).
-            stats = stats_before;
-            break;
-        }
-        let dt = t0.elapsed().as_secs_f64();
-        kept_seconds = start.elapsed().as_secs_f64();
-        s0 = s1;
-        // Grow (or shrink) the next chunk toward the target duration: under a time budget
-        // at most what is left of it, shrinking at once (a fixed second overshot
-        // `--time-budget 0.3` to 0.43 s on lavapipe; a twentieth of the budget, as the CPU
-        // sizes its passes, cost a quarter of the samples of a 2 s budget there).
-        let (target, least) = opts.time_budget.map_or((TARGET_CHUNK_SECONDS, 0.5), |b| {
-            let left = b - start.elapsed().as_secs_f64();
-            (TARGET_CHUNK_SECONDS.min(left).max(1e-3), 0.02)
-        });
-        let scale = (target / dt.max(1e-4)).clamp(least, 4.0);
-        per_lane =
-            fixed_per_lane.unwrap_or(((per_lane as f64 * scale) as u32).clamp(1, MAX_LANE_SAMPLES));
-        let out_of_time = opts
-            .time_budget
-            .is_some_and(|b| start.elapsed().as_secs_f64() >= b);
-        if out_of_time || cancel.load(Ordering::Relaxed) {
-            break;
-        }
-    }
+    let plan = ChunkPlan {
+        lanes,
+        spp,
+        fixed_per_lane,
+        pixels,
+        width: cam.width,
+        time_budget: opts.time_budget,
+        progress,
+    };
+    let Chunks {
+        spp: s0,
+        dropped,
+        kept_seconds,
+        start,
+        stats,
+    } = gpu.render_chunks(&bands, &plan, &mut params, &mut budget, &mut dispatch)?;
     wait(ctx)?;
     let readout = SlotReadout {
         width: cam.width,
@@ -1114,6 +973,255 @@ pub fn render_gpu(
         },
         variance,
     })
+}
+
+/// The number of path slots per pixel (lanes) and the samples per pixel to render: as asked,
+/// or, under a time budget, at most what the slots' counts hold.
+fn lanes_and_spp(
+    ctx: &GpuContext,
+    cam: &crate::camera::Camera,
+    fit: u64,
+    opts: &RenderOptions,
+) -> Result<(u32, u32), RenderError> {
+    let spp = opts.spp.max(1);
+    let pixels = cam.width as u64 * cam.height as u64;
+    let lanes = (target_threads(ctx).min(fit) / pixels.max(1)).clamp(1, spp as u64) as u32;
+    // A slot counts its samples in f32, which stops at 2^24 (its sums keep what they
+    // round off, shaders/path.wgsl add_sample). A time budget's render stops at 2^24 a
+    // slot (days to weeks on today's GPUs); asking for more is refused before any
+    // dispatch.
+    let most = lanes as u64 * MAX_SLOT_SAMPLES;
+    let spp = if (spp as u64) <= most {
+        spp
+    } else if opts.time_budget.is_some() {
+        most as u32
+    } else {
+        return Err(RenderError::GpuLimit(format!(
+            "{spp} samples per pixel exceed the {most} the GPU's f32 counts hold for a \
+             {}x{} image on {} (2^24 per path slot); render several seeds and merge \
+             them, or use --device cpu",
+            cam.width, cam.height, ctx.adapter.name
+        )));
+    };
+    Ok((lanes, spp))
+}
+
+/// The render's buffers, filled, the path state poisoned, and the snapshot buffers where a
+/// cut-off dispatch may be redone. Out of memory is this device's limit, said as such.
+fn upload(
+    ctx: &GpuContext,
+    layout: &wgpu::BindGroupLayout,
+    args_layout: Option<&wgpu::BindGroupLayout>,
+    inputs: &Inputs,
+    staged: bool,
+    budget: u32,
+    pixels: u64,
+) -> Result<(Resources, Option<Snapshot>), RenderError> {
+    // Bands keep each binding within its limit, not the whole within the GPU's memory: an
+    // allocation that fails is a limit of this device (the CPU may render the scene), not
+    // a panic in wgpu's default error handler.
+    // A buffer whose allocation failed is invalid, and filling it through the queue is a
+    // validation error: caught by the outer scope, so the out-of-memory error (inner) is
+    // what is reported, not wgpu's panic on the validation error it causes.
+    let follow_on = ctx.device.push_error_scope(wgpu::ErrorFilter::Validation);
+    let scope = ctx.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+    let res = Resources::new(ctx, layout, args_layout, inputs)?;
+    let accum_bytes = inputs.accum_bytes;
+    // A failed wait is reported after the error scopes: an out-of-memory error they hold
+    // says more than "the GPU did not finish".
+    let poisoned = poison(ctx, &res.accums, accum_bytes);
+    let largest = accum_bytes.iter().copied().max().unwrap_or(0);
+    // The path states before the dispatch in flight, kept on software adapters while a
+    // cut-off dispatch can be redone with a smaller budget.
+    let snapshot = (ctx.adapter.software && budget > 1).then(|| Snapshot {
+        accum: res.snapshot_buffer(ctx, largest),
+        staged: staged
+            .then(|| [&res.stage, &res.queue].map(|b| res.snapshot_buffer(ctx, b.size()))),
+    });
+    let out_of_memory = pollster::block_on(scope.pop());
+    let invalid = pollster::block_on(follow_on.pop());
+    if let Some(e) = out_of_memory {
+        let total: u64 = accum_bytes.iter().sum();
+        return Err(RenderError::GpuLimit(format!(
+            "{} is out of memory for this render's buffers ({} MB of path state for {} \
+             pixels): {}; lower the image size or use --device cpu",
+            ctx.adapter.name,
+            total / 1_000_000,
+            pixels,
+            super::context::one_line(&e.to_string())
+        )));
+    }
+    if let Some(e) = invalid {
+        return Err(RenderError::Gpu(format!(
+            "setting up the render's buffers on {} failed: {}",
+            ctx.adapter.name,
+            super::context::one_line(&e.to_string())
+        )));
+    }
+    poisoned?;
+    Ok((res, snapshot))
+}
+
+/// Compiles every kernel of the render ([`compile`]) and returns the seconds it took.
+fn compile_kernels(
+    ctx: &GpuContext,
+    res: &Resources,
+    kernels: &Kernels,
+    params: &Params,
+) -> Result<f64, RenderError> {
+    let mut compile_seconds = 0.0;
+    match kernels {
+        // The queues start zeroed: trace_main and step_main find nothing to do, and the
+        // arguments' kernels write arguments the first turn overwrites (args_main also
+        // closes a turn of empty queues, which only changes which copy comes next).
+        Kernels::Staged(k) => {
+            for p in [&k.stage, &k.trace].into_iter().chain(&k.step) {
+                compile_seconds += compile(ctx, res, p, params, false)?;
+            }
+            for p in [&k.args, &k.list_args] {
+                compile_seconds += compile(ctx, res, p, params, true)?;
+            }
+        }
+        Kernels::Single(p) => compile_seconds = compile(ctx, res, p, params, false)?,
+    }
+    Ok(compile_seconds)
+}
+
+/// How a render deals its samples out in chunks.
+struct ChunkPlan<'p> {
+    lanes: u32,
+    spp: u32,
+    /// `STCVAE_GPU_LANE_SAMPLES`: each lane's samples a chunk, fixed; else sized to
+    /// [`TARGET_CHUNK_SECONDS`].
+    fixed_per_lane: Option<u32>,
+    pixels: u64,
+    width: u32,
+    time_budget: Option<f64>,
+    progress: &'p (dyn Fn(u64, u64) + Sync),
+}
+
+/// What the chunks rendered.
+struct Chunks {
+    /// The samples per pixel of the whole chunks.
+    spp: u32,
+    /// Set when a stop request dropped the chunk under way, to the number of bands that
+    /// had begun it.
+    dropped: Option<usize>,
+    /// When the last whole chunk ended.
+    kept_seconds: f64,
+    start: Instant,
+    stats: PathStats,
+}
+
+impl Dispatcher<'_> {
+    /// Renders the plan's samples chunk by chunk over the bands, until done, out of time or
+    /// stopped.
+    fn render_chunks(
+        &self,
+        bands: &[Band],
+        plan: &ChunkPlan,
+        params: &mut Params,
+        budget: &mut u32,
+        dispatch: &mut DispatchStats,
+    ) -> Result<Chunks, RenderError> {
+        let &ChunkPlan {
+            lanes,
+            spp,
+            fixed_per_lane,
+            pixels,
+            width,
+            time_budget,
+            progress,
+        } = plan;
+        let cancel = self.cancel;
+        let start = Instant::now();
+        let mut stats = PathStats::default();
+        let mut s0 = 0u32;
+        let mut per_lane = fixed_per_lane.unwrap_or(1);
+        let total = pixels * spp as u64;
+        // Set when a stop request drops the chunk under way, to the number of bands that had
+        // begun it: their image is then the slots' committed accumulators
+        // (kernels::committed_vec4), the whole chunks before it; the bands after them have not
+        // begun the chunk, and their accumulators hold exactly those chunks.
+        let mut dropped: Option<usize> = None;
+        // When the last whole chunk ended: a dropped chunk's time does not count against the
+        // samples kept (paths/s read ~30 % low after Ctrl-C on lavapipe).
+        let mut kept_seconds = 0.0;
+        while s0 < spp {
+            // A stop requested before the first chunk (while the kernels compiled, which on
+            // lavapipe takes seconds, minutes for a large model) renders nothing, as on the
+            // CPU; later ones are seen after each submission and each chunk.
+            if s0 == 0 && cancel.load(Ordering::Relaxed) {
+                break;
+            }
+            let s1 = (s0 as u64 + lanes as u64 * per_lane as u64).min(spp as u64) as u32;
+            if s0 == 0 {
+                dispatch.first_chunk_spp = s1;
+            }
+            params.image[2] = lanes;
+            params.image[3] = per_lane;
+            params.sampling[0] = s0;
+            params.sampling[1] = s1;
+            let t0 = Instant::now();
+            let stats_before = stats;
+            for band in bands {
+                // A stop request is looked at after each submission (in run_band) and after
+                // each band: a band reached after one still begins the chunk (one submission
+                // more to wait for), so that which bands had begun it follows from their
+                // submissions alone.
+                let finished =
+                    self.run_band(band, s0 == 0, params, budget, &mut stats, dispatch)?;
+                if !finished {
+                    dropped = Some(band.index + 1);
+                    break;
+                }
+                // A band that finished in one submission never looked at the stop request
+                // (run_band returns when its paths are done): without this, a stop waited for
+                // every band of the chunk, ~15 s at 1024² on lavapipe. The next band has not
+                // begun the chunk, which `dropped` says as for a band cut short.
+                if cancel.load(Ordering::Relaxed) && band.index + 1 < bands.len() {
+                    dropped = Some(band.index + 1);
+                    break;
+                }
+                let done_rows = (band.row0 + band.rows) as u64;
+                progress(
+                    pixels * s0 as u64 + width as u64 * done_rows * (s1 - s0) as u64,
+                    total,
+                );
+            }
+            if dropped.is_some() {
+                // Its paths are not counted either, as the CPU does not count a dropped pass's
+                // (its dispatches, which ran, stay in `dispatch`).
+                stats = stats_before;
+                break;
+            }
+            let dt = t0.elapsed().as_secs_f64();
+            kept_seconds = start.elapsed().as_secs_f64();
+            s0 = s1;
+            // Grow (or shrink) the next chunk toward the target duration: under a time budget
+            // at most what is left of it, shrinking at once (a fixed second overshot
+            // `--time-budget 0.3` to 0.43 s on lavapipe; a twentieth of the budget, as the CPU
+            // sizes its passes, cost a quarter of the samples of a 2 s budget there).
+            let (target, least) = time_budget.map_or((TARGET_CHUNK_SECONDS, 0.5), |b| {
+                let left = b - start.elapsed().as_secs_f64();
+                (TARGET_CHUNK_SECONDS.min(left).max(1e-3), 0.02)
+            });
+            let scale = (target / dt.max(1e-4)).clamp(least, 4.0);
+            per_lane = fixed_per_lane
+                .unwrap_or(((per_lane as f64 * scale) as u32).clamp(1, MAX_LANE_SAMPLES));
+            let out_of_time = time_budget.is_some_and(|b| start.elapsed().as_secs_f64() >= b);
+            if out_of_time || cancel.load(Ordering::Relaxed) {
+                break;
+            }
+        }
+        Ok(Chunks {
+            spp: s0,
+            dropped,
+            kept_seconds,
+            start,
+            stats,
+        })
+    }
 }
 
 #[cfg(test)]
