@@ -155,69 +155,8 @@ pub fn generate_from_config(config: &Path, out: &Path) -> Result<()> {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let (mut spec, fixed) = match (a.tau, a.g, a.albedo) {
-        (Some(tau), Some(g), Some(albedo)) => {
-            if a.config.is_some() {
-                bail!("--config and --tau/--g/--albedo are exclusive: choose one");
-            }
-            let c = Conditions { tau, g, albedo };
-            c.validate().map_err(|e| anyhow::anyhow!("--{e}"))?;
-            (
-                GenerateSpec {
-                    seed: 1,
-                    sampler: ConditionSampler::fixed(c),
-                    total_walks: DEFAULT_FIXED_WALKS,
-                    shard: Shard::WHOLE,
-                },
-                true,
-            )
-        }
-        _ => {
-            let cfg = match &a.config {
-                Some(p) => load_config(p)?,
-                None => DatasetConfig {
-                    walks: DEFAULT_WALKS,
-                    seed: default_seed(),
-                    conditions: ConditionSampler::authors(),
-                },
-            };
-            (
-                GenerateSpec {
-                    seed: cfg.seed,
-                    sampler: cfg.conditions,
-                    total_walks: cfg.walks,
-                    shard: Shard::WHOLE,
-                },
-                false,
-            )
-        }
-    };
-    if let Some(n) = a.samples {
-        spec.total_walks = n;
-    }
-    if let Some(s) = a.seed {
-        spec.seed = s;
-    }
-    if let Some(s) = a.shard {
-        spec.shard = s;
-    }
-    if spec.total_walks == 0 {
-        bail!("the number of walks must be at least 1");
-    }
-    // A default of data/train.bin there replaced the training set without a word (and
-    // `train` then trained on 10,000 walks of one medium).
-    let out = match (&a.out, fixed, a.shard) {
-        (Some(o), _, _) => o.clone(),
-        (None, true, _) => bail!(
-            "--out is needed in fixed-condition mode (--tau/--g/--albedo): the default, \
-             {DEFAULT_OUT}, is the training set `stcvae train` reads"
-        ),
-        (None, false, Some(_)) => bail!(
-            "--out is needed with --shard: each shard is a file of its own, joined by \
-             `stcvae merge` (the default, {DEFAULT_OUT}, is the training set)"
-        ),
-        (None, false, None) => PathBuf::from(DEFAULT_OUT),
-    };
+    let (spec, fixed) = spec_of(&a)?;
+    let out = out_path(&a, fixed)?;
     // First, so that a Ctrl-C from here on stops cleanly.
     let cancel = interrupt::flag();
     crate::check_out("--out", &out)?;
@@ -295,6 +234,80 @@ pub fn run(a: Args) -> Result<()> {
         summary.max_events
     );
     Ok(())
+}
+
+/// What to generate: the fixed conditions or the config's (the authors' distribution by
+/// default), with the command line's walks, seed and shard; and whether the conditions are
+/// fixed.
+fn spec_of(a: &Args) -> Result<(GenerateSpec, bool)> {
+    let (mut spec, fixed) = match (a.tau, a.g, a.albedo) {
+        (Some(tau), Some(g), Some(albedo)) => {
+            if a.config.is_some() {
+                bail!("--config and --tau/--g/--albedo are exclusive: choose one");
+            }
+            let c = Conditions { tau, g, albedo };
+            c.validate().map_err(|e| anyhow::anyhow!("--{e}"))?;
+            (
+                GenerateSpec {
+                    seed: 1,
+                    sampler: ConditionSampler::fixed(c),
+                    total_walks: DEFAULT_FIXED_WALKS,
+                    shard: Shard::WHOLE,
+                },
+                true,
+            )
+        }
+        _ => {
+            let cfg = match &a.config {
+                Some(p) => load_config(p)?,
+                None => DatasetConfig {
+                    walks: DEFAULT_WALKS,
+                    seed: default_seed(),
+                    conditions: ConditionSampler::authors(),
+                },
+            };
+            (
+                GenerateSpec {
+                    seed: cfg.seed,
+                    sampler: cfg.conditions,
+                    total_walks: cfg.walks,
+                    shard: Shard::WHOLE,
+                },
+                false,
+            )
+        }
+    };
+    if let Some(n) = a.samples {
+        spec.total_walks = n;
+    }
+    if let Some(s) = a.seed {
+        spec.seed = s;
+    }
+    if let Some(s) = a.shard {
+        spec.shard = s;
+    }
+    if spec.total_walks == 0 {
+        bail!("the number of walks must be at least 1");
+    }
+    Ok((spec, fixed))
+}
+
+/// The output file: `--out`, or the training set's default where that cannot be a mistake.
+fn out_path(a: &Args, fixed: bool) -> Result<PathBuf> {
+    // A default of data/train.bin there replaced the training set without a word (and
+    // `train` then trained on 10,000 walks of one medium).
+    Ok(match (&a.out, fixed, a.shard) {
+        (Some(o), _, _) => o.clone(),
+        (None, true, _) => bail!(
+            "--out is needed in fixed-condition mode (--tau/--g/--albedo): the default, \
+             {DEFAULT_OUT}, is the training set `stcvae train` reads"
+        ),
+        (None, false, Some(_)) => bail!(
+            "--out is needed with --shard: each shard is a file of its own, joined by \
+             `stcvae merge` (the default, {DEFAULT_OUT}, is the training set)"
+        ),
+        (None, false, None) => PathBuf::from(DEFAULT_OUT),
+    })
 }
 
 #[cfg(test)]
