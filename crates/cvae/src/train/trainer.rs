@@ -656,105 +656,9 @@ pub fn train_model(
         validation: Vec::new(),
         plan: Some(Plan::of(cfg, seed)),
     };
-    let (mpath, opath, jpath) = paths(checkpoint_dir, kind);
-    if resume && jpath.exists() {
-        let err = |p: &Path, e: String| TrainError::Checkpoint {
-            path: p.into(),
-            msg: e,
-        };
-        let text = read_checkpoint_file(&jpath).map_err(|e| err(&jpath, e.to_string()))?;
-        info = serde_json::from_slice(&text).map_err(|e| {
-            err(
-                &jpath,
-                format!(
-                    "not a readable checkpoint record ({e}): the save was cut short or the file \
-                     edited; start over with --fresh --model {}",
-                    kind.name()
-                ),
-            )
-        })?;
-        info.check(kind).map_err(|e| {
-            err(
-                &jpath,
-                format!(
-                    "{e}: the file was edited or damaged; start over with --fresh --model {}",
-                    kind.name()
-                ),
-            )
-        })?;
-        // Versions 2 and 3 differ only in EventGen's targets (whose standardisation would
-        // differ too); LengthGen and PathGen go on as they were.
-        if kind != ModelKind::EventGen
-            && info.feature_version == crate::features::OLDEST_FEATURE_VERSION
-        {
-            info.feature_version = crate::features::FEATURE_VERSION;
-        }
-        if info.feature_version != crate::features::FEATURE_VERSION {
-            return Err(err(
-                &jpath,
-                format!(
-                    "checkpoint has feature version {} (this build trains {}): start over \
-                     with --fresh",
-                    info.feature_version,
-                    crate::features::FEATURE_VERSION
-                ),
-            ));
-        }
-        if let Some(m) = info.single_scattering
-            && m != table.mode
-        {
-            return Err(err(
-                &jpath,
-                format!(
-                    "checkpoint was trained with single_scattering = {} and the config says {}: \
-                     start over with --fresh, or restore the config",
-                    m.name(),
-                    table.mode.name()
-                ),
-            ));
-        }
-        if !info.norm.same_data(&table.norm) {
-            return Err(err(
-                &jpath,
-                "checkpoint was trained on other data (standardisation differs): start over \
-                 with --fresh, or train on its dataset"
-                    .into(),
-            ));
-        }
-        let plan = Plan::of(cfg, seed);
-        if let Some(was) = &info.plan
-            && info.step < was.steps
-            && *was != plan
-        {
-            return Err(err(
-                &jpath,
-                format!(
-                    "the checkpoint's run stopped at step {} of {} and was started with {}; \
-                     this run has {}: resume with the settings it was started with (the same \
-                     config and --steps-scale), or start over with --fresh",
-                    info.step,
-                    was.steps,
-                    was.differences(&plan).join(", "),
-                    plan.differences(was).join(", ")
-                ),
-            ));
-        }
-        info.plan = Some(plan);
-        check_crcs(&info, &[&mpath, &opath], kind)?;
-        for p in [&mpath, &opath] {
-            scatter_sim::output::check_input(p).map_err(|e| err(p, e.to_string()))?;
-        }
-        model = loaded(kind, &mpath, || model.try_load_file(&mpath))?;
-        // A run never saves such weights ([`exportable`]): resumed, they read as a
-        // divergence at the first loss, blamed on the learning rate.
-        if !exportable(&model, &info.norm) {
-            return Err(err(&mpath, damaged_weights(kind)));
-        }
-        optim = loaded(kind, &opath, || optim.load(&opath))?;
-        // Same mode (checked above) and same data (the standardisation matched).
-        info.single_scattering = Some(table.mode);
-        info.ranges = Some(table.ranges);
-        rng = WalkRng::for_walk(seed ^ info.step.rotate_left(32), kind as u64);
+    if resume && paths(checkpoint_dir, kind).2.exists() {
+        (info, model, optim, rng) =
+            resume_from(kind, table, cfg, seed, checkpoint_dir, model, optim)?;
     }
     // The stream where the checkpoint left it; one saved before streams were kept goes on
     // with the fresh stream above.
@@ -916,6 +820,119 @@ fn damaged_weights(kind: ModelKind) -> String {
         crate::model_file::MAX_WEIGHT,
         kind.name()
     )
+}
+
+/// The run's state at its last checkpoint in `checkpoint_dir`: the record, the weights, the
+/// optimiser and a stream, each checked against the run it is to go on with (the same
+/// model, feature version, single-scattering mode, data and plan).
+fn resume_from(
+    kind: ModelKind,
+    table: &Table,
+    cfg: &ModelConfig,
+    seed: u64,
+    checkpoint_dir: &Path,
+    model: Cvae,
+    optim: ModuleOptimizer,
+) -> Result<(CheckpointInfo, Cvae, ModuleOptimizer, WalkRng), TrainError> {
+    let (mpath, opath, jpath) = paths(checkpoint_dir, kind);
+    let err = |p: &Path, e: String| TrainError::Checkpoint {
+        path: p.into(),
+        msg: e,
+    };
+    let text = read_checkpoint_file(&jpath).map_err(|e| err(&jpath, e.to_string()))?;
+    let mut info: CheckpointInfo = serde_json::from_slice(&text).map_err(|e| {
+        err(
+            &jpath,
+            format!(
+                "not a readable checkpoint record ({e}): the save was cut short or the file \
+                 edited; start over with --fresh --model {}",
+                kind.name()
+            ),
+        )
+    })?;
+    info.check(kind).map_err(|e| {
+        err(
+            &jpath,
+            format!(
+                "{e}: the file was edited or damaged; start over with --fresh --model {}",
+                kind.name()
+            ),
+        )
+    })?;
+    // Versions 2 and 3 differ only in EventGen's targets (whose standardisation would
+    // differ too); LengthGen and PathGen go on as they were.
+    if kind != ModelKind::EventGen
+        && info.feature_version == crate::features::OLDEST_FEATURE_VERSION
+    {
+        info.feature_version = crate::features::FEATURE_VERSION;
+    }
+    if info.feature_version != crate::features::FEATURE_VERSION {
+        return Err(err(
+            &jpath,
+            format!(
+                "checkpoint has feature version {} (this build trains {}): start over \
+                 with --fresh",
+                info.feature_version,
+                crate::features::FEATURE_VERSION
+            ),
+        ));
+    }
+    if let Some(m) = info.single_scattering
+        && m != table.mode
+    {
+        return Err(err(
+            &jpath,
+            format!(
+                "checkpoint was trained with single_scattering = {} and the config says {}: \
+                 start over with --fresh, or restore the config",
+                m.name(),
+                table.mode.name()
+            ),
+        ));
+    }
+    if !info.norm.same_data(&table.norm) {
+        return Err(err(
+            &jpath,
+            "checkpoint was trained on other data (standardisation differs): start over \
+             with --fresh, or train on its dataset"
+                .into(),
+        ));
+    }
+    let plan = Plan::of(cfg, seed);
+    if let Some(was) = &info.plan
+        && info.step < was.steps
+        && *was != plan
+    {
+        return Err(err(
+            &jpath,
+            format!(
+                "the checkpoint's run stopped at step {} of {} and was started with {}; \
+                 this run has {}: resume with the settings it was started with (the same \
+                 config and --steps-scale), or start over with --fresh",
+                info.step,
+                was.steps,
+                was.differences(&plan).join(", "),
+                plan.differences(was).join(", ")
+            ),
+        ));
+    }
+    info.plan = Some(plan);
+    check_crcs(&info, &[&mpath, &opath], kind)?;
+    for p in [&mpath, &opath] {
+        scatter_sim::output::check_input(p).map_err(|e| err(p, e.to_string()))?;
+    }
+    let model = loaded(kind, &mpath, || model.try_load_file(&mpath))?;
+    // A run never saves such weights ([`exportable`]): resumed, they read as a
+    // divergence at the first loss, blamed on the learning rate.
+    if !exportable(&model, &info.norm) {
+        return Err(err(&mpath, damaged_weights(kind)));
+    }
+    let optim = loaded(kind, &opath, || optim.load(&opath))?;
+    // Same mode (checked above) and same data (the standardisation matched).
+    info.single_scattering = Some(table.mode);
+    info.ranges = Some(table.ranges);
+    let rng = WalkRng::for_walk(seed ^ info.step.rotate_left(32), kind as u64);
+    Ok((info, model, optim, rng))
 }
 
 /// What burn's loader makes of the record file `path`, its error or its panic (a tensor
