@@ -3307,8 +3307,8 @@ fn model_steps_below_the_trained_taus_are_warned() {
 
 /// A cache entry that exists but cannot be used (here overwritten with other bytes) is
 /// rebuilt and written again, and the render says why it took longer: the rebuild used to
-/// be silent. The bunny's grid takes ~3 s to build on 2 cores, over the 0.1 s from which
-/// it is cached; a cache folder of the test's own keeps the user's apart.
+/// be silent. The bunny's grid takes ~1.6 s to build on 2 cores, over the 0.1 s from
+/// which it is cached; a cache folder of the test's own keeps the user's apart.
 #[test]
 fn a_damaged_cache_entry_is_rebuilt_with_a_note() {
     let dir = tempfile::tempdir().unwrap();

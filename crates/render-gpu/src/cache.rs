@@ -83,7 +83,9 @@ pub(crate) fn note_unwritable_cache(path: &Path, e: &std::io::Error) {
 /// the one before with no word why. Returns whether it did: the rebuilt entry then
 /// replaces it however quickly it was built, or the note would come back every run.
 pub(crate) fn note_unusable_entry(path: &Path) -> bool {
-    let exists = std::fs::symlink_metadata(path).is_ok();
+    // A folder or other non-file in the entry's place is not the entry (and a write
+    // cannot replace it: said by the write's own note).
+    let exists = std::fs::symlink_metadata(path).is_ok_and(|m| !m.is_dir());
     if exists {
         use std::io::Write as _;
         let _ = writeln!(

@@ -40,8 +40,13 @@ pub fn cached(geo: &Geometry) -> Vec<f32> {
     // (`cache_file`), so a change to TANS, the margins or the region is never read stale.
     let key = crate::cache::mesh_hasher(geo, b"escape-cones-v2").finish();
     let path = crate::cache::cache_file(&format!("cones-{key:016x}"));
+    cached_at(geo, key, path.as_deref())
+}
+
+/// [`cached`] with the cache entry at `path` (None: no cache) under key `key`.
+fn cached_at(geo: &Geometry, key: u64, path: Option<&std::path::Path>) -> Vec<f32> {
     let mut unusable = false;
-    if let Some(p) = &path {
+    if let Some(p) = path {
         if let Some(cos) = read(p, key, geo.tris.len()) {
             crate::cache::touch(p);
             return cos;
@@ -51,7 +56,7 @@ pub fn cached(geo: &Geometry) -> Vec<f32> {
     let t0 = std::time::Instant::now();
     let cos = escape_cosines(geo);
     if (t0.elapsed().as_secs_f64() > 0.1 || unusable)
-        && let Some(p) = &path
+        && let Some(p) = path
     {
         // A cache that cannot be written only costs time next run; said once.
         if let Err(e) = write(p, key, &cos) {
@@ -384,6 +389,24 @@ mod tests {
                 "{name}: only {cast} of 40,000 rays were cast"
             );
         }
+    }
+
+    /// A damaged entry is replaced by the rebuilt cones, however fast they were built: a
+    /// cube's take microseconds, far below the 0.1 s from which new results are cached, and
+    /// a damaged entry was rebuilt but not rewritten, so it stayed damaged (and its note
+    /// came back every run).
+    #[test]
+    fn a_damaged_entry_is_replaced_however_fast_the_rebuild() {
+        let geo = crate::geometry::Geometry::new(crate::mesh::cube(1.0));
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("cones.bin");
+        std::fs::write(&p, b"not a cache entry").unwrap();
+        let cos = super::cached_at(&geo, 7, Some(&p));
+        assert_eq!(super::read(&p, 7, geo.tris.len()), Some(cos));
+        // Without an entry, a fast result is not cached.
+        let fresh = dir.path().join("fresh.bin");
+        super::cached_at(&geo, 7, Some(&fresh));
+        assert!(!fresh.exists());
     }
 
     /// The cache file round-trips, and a damaged file or one for another mesh is not read:
