@@ -85,7 +85,7 @@ pub(crate) fn note_unwritable_cache(path: &Path, e: &std::io::Error) {
 pub(crate) fn note_unusable_entry(path: &Path) -> bool {
     // A folder or other non-file in the entry's place is not the entry (and a write
     // cannot replace it: said by the write's own note).
-    let exists = std::fs::symlink_metadata(path).is_ok_and(|m| !m.is_dir());
+    let exists = std::fs::symlink_metadata(path).is_ok_and(|m| m.is_file() || m.is_symlink());
     if exists {
         use std::io::Write as _;
         let _ = writeln!(

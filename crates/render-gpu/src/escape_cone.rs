@@ -40,11 +40,20 @@ pub fn cached(geo: &Geometry) -> Vec<f32> {
     // (`cache_file`), so a change to TANS, the margins or the region is never read stale.
     let key = crate::cache::mesh_hasher(geo, b"escape-cones-v2").finish();
     let path = crate::cache::cache_file(&format!("cones-{key:016x}"));
-    cached_at(geo, key, path.as_deref())
+    cached_at(geo, key, path.as_deref(), CACHED_FROM_SECONDS)
 }
 
-/// [`cached`] with the cache entry at `path` (None: no cache) under key `key`.
-fn cached_at(geo: &Geometry, key: u64, path: Option<&std::path::Path>) -> Vec<f32> {
+/// Results that took longer than this to compute are cached.
+const CACHED_FROM_SECONDS: f64 = 0.1;
+
+/// [`cached`] with the cache entry at `path` (None: no cache) under key `key`, new results
+/// cached when they took over `cached_from` seconds.
+fn cached_at(
+    geo: &Geometry,
+    key: u64,
+    path: Option<&std::path::Path>,
+    cached_from: f64,
+) -> Vec<f32> {
     let mut unusable = false;
     if let Some(p) = path {
         if let Some(cos) = read(p, key, geo.tris.len()) {
@@ -55,7 +64,7 @@ fn cached_at(geo: &Geometry, key: u64, path: Option<&std::path::Path>) -> Vec<f3
     }
     let t0 = std::time::Instant::now();
     let cos = escape_cosines(geo);
-    if (t0.elapsed().as_secs_f64() > 0.1 || unusable)
+    if (t0.elapsed().as_secs_f64() > cached_from || unusable)
         && let Some(p) = path
     {
         // A cache that cannot be written only costs time next run; said once.
@@ -391,21 +400,22 @@ mod tests {
         }
     }
 
-    /// A damaged entry is replaced by the rebuilt cones, however fast they were built: a
-    /// cube's take microseconds, far below the 0.1 s from which new results are cached, and
-    /// a damaged entry was rebuilt but not rewritten, so it stayed damaged (and its note
-    /// came back every run).
+    /// A damaged entry is replaced by the rebuilt cones, however fast they were built: one
+    /// rebuilt faster than new results are cached from (0.1 s; the bunny's take 55 ms) was
+    /// not rewritten, so it stayed damaged (and its note came back every run).
     #[test]
     fn a_damaged_entry_is_replaced_however_fast_the_rebuild() {
         let geo = crate::geometry::Geometry::new(crate::mesh::cube(1.0));
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("cones.bin");
         std::fs::write(&p, b"not a cache entry").unwrap();
-        let cos = super::cached_at(&geo, 7, Some(&p));
+        // No result is fast enough to be cached as new (the test does not depend on the
+        // machine's speed), but this one replaces a damaged entry.
+        let cos = super::cached_at(&geo, 7, Some(&p), f64::INFINITY);
         assert_eq!(super::read(&p, 7, geo.tris.len()), Some(cos));
         // Without an entry, a fast result is not cached.
         let fresh = dir.path().join("fresh.bin");
-        super::cached_at(&geo, 7, Some(&fresh));
+        super::cached_at(&geo, 7, Some(&fresh), f64::INFINITY);
         assert!(!fresh.exists());
     }
 

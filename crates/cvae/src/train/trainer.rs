@@ -656,7 +656,8 @@ pub fn train_model(
         validation: Vec::new(),
         plan: Some(Plan::of(cfg, seed)),
     };
-    if resume && paths(checkpoint_dir, kind).2.exists() {
+    let (.., record) = paths(checkpoint_dir, kind);
+    if resume && record.exists() {
         (info, model, optim, rng) =
             resume_from(kind, table, cfg, seed, checkpoint_dir, model, optim)?;
     }
