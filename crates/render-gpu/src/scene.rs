@@ -584,219 +584,249 @@ impl SceneFile {
 
     /// Checks every range. The message names the field and the allowed range.
     pub fn validate(&self) -> Result<(), String> {
-        let c = &self.camera;
-        bounded3("camera.origin", c.origin, MAX_SCENE_VALUE)?;
-        bounded3("camera.target", c.target, MAX_SCENE_VALUE)?;
-        bounded3("camera.up", c.up, MAX_SCENE_VALUE)?;
-        camera_basis_f32(c)?;
-        // See MIN_FOV_DEG (1e-300 was taken, and every pixel got the same ray).
-        if !(c.fov_deg >= MIN_FOV_DEG && c.fov_deg < 180.0) {
-            return Err(format!(
-                "camera.fov_deg = {} is out of range: allowed [{MIN_FOV_DEG}, 180)",
-                num(c.fov_deg)
-            ));
-        }
-        check_whole(W_WIDTH, c.width)?;
-        check_whole(W_HEIGHT, c.height)?;
-
-        let o = &self.object;
-        match (o.shape, &o.mesh) {
-            (Some(_), Some(_)) => {
-                return Err("object: give either `shape` or `mesh`, not both".into());
-            }
-            (None, None) => {
-                return Err(
-                    "object: missing `shape = \"sphere\"|\"cube\"|\"torus-knot\"` or `mesh = \"file\"`".into(),
-                );
-            }
-            _ => {}
-        }
-        // An empty name would be reported as the scene's folder, or as ": cannot open".
-        for (field, p) in [
-            ("object.mesh", &o.mesh),
-            ("environment.file", &self.environment.file),
-        ] {
-            if p.as_ref().is_some_and(|p| p.as_os_str().is_empty()) {
-                return Err(format!("{field} = \"\" names no file: give a file name"));
-            }
-        }
-        for (name, v) in [
-            ("object.radius", o.radius),
-            ("object.size", o.size),
-            ("object.height", o.height),
-        ] {
-            if let Some(v) = v
-                && !(MIN_OBJECT_SIZE..=MAX_SCENE_VALUE).contains(&v)
-            {
-                return Err(format!(
-                    "{name} = {} is out of range: allowed [{MIN_OBJECT_SIZE:e}, {MAX_SCENE_VALUE:e}]",
-                    num(v)
-                ));
-            }
-        }
-        if o.radius.is_some() && o.shape != Some(Shape::Sphere) {
-            return Err("object.radius applies to shape = \"sphere\" only".into());
-        }
-        if o.size.is_some() && o.shape != Some(Shape::Cube) {
-            return Err("object.size applies to shape = \"cube\" only".into());
-        }
-        // `height` rescales whatever the shape's own size made: given together, the size
-        // would be read and then have no effect.
-        for (name, v) in [("object.radius", o.radius), ("object.size", o.size)] {
-            if v.is_some() && o.height.is_some() {
-                return Err(format!(
-                    "{name} and object.height are both given: height rescales the object to \
-                     its bounding-box height, so {name} would have no effect; give one of them"
-                ));
-            }
-        }
-
-        let m = &self.medium;
-        for i in 0..3 {
-            let s = m.sigma_t[i];
-            // Positive as the renderers' f32 too (1e-300 became 0: a channel silently
-            // transparent).
-            if !(s as f32 >= f32::MIN_POSITIVE && s <= MAX_SCENE_VALUE) {
-                return Err(format!(
-                    "medium.sigma_t[{i}] = {} is out of range: allowed [{:e}, {MAX_SCENE_VALUE:e}]",
-                    num(s),
-                    f32::MIN_POSITIVE
-                ));
-            }
-            ranges::check_albedo(&format!("medium.albedo[{i}]"), m.albedo[i])
-                .map_err(|e| e.to_string())?;
-        }
-        ranges::check_g("medium.g", m.g).map_err(|e| e.to_string())?;
-
-        let b = &self.boundary;
-        match b.kind {
-            BoundaryKind::IndexMatched if b.ior.is_some() => {
-                return Err(
-                    "boundary.ior applies to kind = \"dielectric\" only (index-matched means ior = 1)"
-                        .into(),
-                );
-            }
-            BoundaryKind::Dielectric => {
-                let ior = b.ior_or_default();
-                // Above 1 as the renderers' f32 too (1.0000000000000002 is 1 there).
-                if !(ior as f32 > 1.0 && ior <= 4.0) {
-                    return Err(format!(
-                        "boundary.ior = {} is out of range: allowed (1, 4] (as an f32: at \
-                         least {})",
-                        num(ior),
-                        f32::from_bits(1.0f32.to_bits() + 1)
-                    ));
-                }
-            }
-            _ => {}
-        }
-
-        for (i, l) in self.lights.iter().enumerate() {
-            bounded3(
-                &format!("light[{i}].direction"),
-                l.direction,
-                MAX_SCENE_VALUE,
-            )?;
-            if unit_f32(l.direction).is_none() {
-                return Err(format!(
-                    "light[{i}].direction = {:?} is zero or too short to normalise",
-                    l.direction
-                ));
-            }
-            for (k, e) in l.irradiance.iter().enumerate() {
-                if !(*e >= 0.0 && *e <= MAX_RADIANCE) {
-                    return Err(format!(
-                        "light[{i}].irradiance[{k}] = {} is out of range: allowed [0, {MAX_RADIANCE:e}]",
-                        num(*e)
-                    ));
-                }
-            }
-            if !(0.0..=90.0).contains(&l.angular_diameter_deg) {
-                return Err(format!(
-                    "light[{i}].angular_diameter_deg = {} is out of range: allowed [0, 90]",
-                    num(l.angular_diameter_deg)
-                ));
-            }
-            // The disk's radiance is bounded as an environment's is: a small disk of a large
-            // irradiance made radiances of ~1e21, whose squares overflowed `--variance`.
-            if let Some(s2) = crate::light::disk_sin2(l) {
-                for (k, e) in l.irradiance.iter().enumerate() {
-                    if crate::light::disk_radiance(*e, s2) > MAX_RADIANCE {
-                        let most = MAX_RADIANCE * std::f64::consts::PI * s2;
-                        return Err(format!(
-                            "light[{i}].irradiance[{k}] = {} over a disk of \
-                             angular_diameter_deg = {} is a radiance beyond {MAX_RADIANCE:e}: \
-                             allowed up to {most:.4e} at this diameter (or a wider disk, or \
-                             angular_diameter_deg = 0 for a delta light)",
-                            num(*e),
-                            num(l.angular_diameter_deg)
-                        ));
-                    }
-                }
-            }
-        }
-        if let Some(r) = self.environment.radiance {
-            for (k, e) in r.iter().enumerate() {
-                if !(*e >= 0.0 && *e <= MAX_RADIANCE) {
-                    return Err(format!(
-                        "environment.radiance[{k}] = {} is out of range: allowed [0, {MAX_RADIANCE:e}]",
-                        num(*e)
-                    ));
-                }
-            }
-        }
-
-        let r = &self.render;
-        check_whole(W_SPP, r.spp)?;
-        check_whole(W_GRID, r.grid_resolution)?;
-        if let Some(t) = r.min_tau
-            && !(0.0..=MAX_SCENE_VALUE).contains(&t)
-        {
-            return Err(format!(
-                "render.min_tau = {} is out of range: allowed [0, {MAX_SCENE_VALUE:e}]",
-                num(t)
-            ));
-        }
-        if let Some(t) = r.exact_tau
-            && !(0.0..=MAX_EXACT_TAU).contains(&t)
-        {
-            return Err(format!(
-                "render.exact_tau = {} is out of range: allowed [0, {MAX_EXACT_TAU}]",
-                num(t)
-            ));
-        }
-        check_whole(W_EXACT_NEE_SAMPLES, r.exact_nee_samples)?;
-        check_whole(W_PATH_NEE_RAYS, r.path_nee_rays)?;
-        check_whole(W_NEE_SAMPLES, r.nee_samples)?;
-        // In f32, as the renderers hold it: 1e-300 is 0 there, no step at all.
-        if let Some(t) = r.max_tau
-            && !(t as f32 > 0.0 && t.is_finite())
-        {
-            return Err(format!(
-                "render.max_tau = {} is out of range: allowed (0, the model's training maximum]",
-                num(t)
-            ));
-        }
-        // A cap below the threshold leaves ST-CVAE no step to take: it would be PT under
-        // its name. (Without max_tau the cap is the model's training maximum, 300.)
-        if let Some(t) = r.max_tau
-            && r.integrator == IntegratorKind::Stcvae
-            && (t as f32) < r.min_tau_or_default() as f32
-        {
-            return Err(format!(
-                "render.max_tau = {} is below render.min_tau = {}{}: no sphere step could be \
-                 taken (allowed: max_tau >= min_tau)",
-                num(t),
-                num(r.min_tau_or_default()),
-                if r.min_tau.is_none() {
-                    " (its default)"
-                } else {
-                    ""
-                }
-            ));
-        }
-        Ok(())
+        check_camera(&self.camera)?;
+        check_object(&self.object, &self.environment.file)?;
+        check_medium(&self.medium)?;
+        check_boundary(&self.boundary)?;
+        check_lights(&self.lights)?;
+        check_environment(self.environment.radiance)?;
+        check_render(&self.render)
     }
+}
+
+/// The camera's vectors, basis, field of view and image size.
+fn check_camera(c: &CameraDesc) -> Result<(), String> {
+    bounded3("camera.origin", c.origin, MAX_SCENE_VALUE)?;
+    bounded3("camera.target", c.target, MAX_SCENE_VALUE)?;
+    bounded3("camera.up", c.up, MAX_SCENE_VALUE)?;
+    camera_basis_f32(c)?;
+    // See MIN_FOV_DEG (1e-300 was taken, and every pixel got the same ray).
+    if !(c.fov_deg >= MIN_FOV_DEG && c.fov_deg < 180.0) {
+        return Err(format!(
+            "camera.fov_deg = {} is out of range: allowed [{MIN_FOV_DEG}, 180)",
+            num(c.fov_deg)
+        ));
+    }
+    check_whole(W_WIDTH, c.width)?;
+    check_whole(W_HEIGHT, c.height)?;
+    Ok(())
+}
+
+/// The object: a shape or a mesh, and the size settings that apply to it (`env_file`,
+/// the environment map's name, is checked for an empty name with the mesh's).
+fn check_object(o: &ObjectDesc, env_file: &Option<PathBuf>) -> Result<(), String> {
+    match (o.shape, &o.mesh) {
+        (Some(_), Some(_)) => {
+            return Err("object: give either `shape` or `mesh`, not both".into());
+        }
+        (None, None) => {
+            return Err(
+                "object: missing `shape = \"sphere\"|\"cube\"|\"torus-knot\"` or `mesh = \"file\"`"
+                    .into(),
+            );
+        }
+        _ => {}
+    }
+    // An empty name would be reported as the scene's folder, or as ": cannot open".
+    for (field, p) in [("object.mesh", &o.mesh), ("environment.file", env_file)] {
+        if p.as_ref().is_some_and(|p| p.as_os_str().is_empty()) {
+            return Err(format!("{field} = \"\" names no file: give a file name"));
+        }
+    }
+    for (name, v) in [
+        ("object.radius", o.radius),
+        ("object.size", o.size),
+        ("object.height", o.height),
+    ] {
+        if let Some(v) = v
+            && !(MIN_OBJECT_SIZE..=MAX_SCENE_VALUE).contains(&v)
+        {
+            return Err(format!(
+                "{name} = {} is out of range: allowed [{MIN_OBJECT_SIZE:e}, {MAX_SCENE_VALUE:e}]",
+                num(v)
+            ));
+        }
+    }
+    if o.radius.is_some() && o.shape != Some(Shape::Sphere) {
+        return Err("object.radius applies to shape = \"sphere\" only".into());
+    }
+    if o.size.is_some() && o.shape != Some(Shape::Cube) {
+        return Err("object.size applies to shape = \"cube\" only".into());
+    }
+    // `height` rescales whatever the shape's own size made: given together, the size
+    // would be read and then have no effect.
+    for (name, v) in [("object.radius", o.radius), ("object.size", o.size)] {
+        if v.is_some() && o.height.is_some() {
+            return Err(format!(
+                "{name} and object.height are both given: height rescales the object to \
+                 its bounding-box height, so {name} would have no effect; give one of them"
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The medium's extinction, albedo and g.
+fn check_medium(m: &MediumDesc) -> Result<(), String> {
+    for i in 0..3 {
+        let s = m.sigma_t[i];
+        // Positive as the renderers' f32 too (1e-300 became 0: a channel silently
+        // transparent).
+        if !(s as f32 >= f32::MIN_POSITIVE && s <= MAX_SCENE_VALUE) {
+            return Err(format!(
+                "medium.sigma_t[{i}] = {} is out of range: allowed [{:e}, {MAX_SCENE_VALUE:e}]",
+                num(s),
+                f32::MIN_POSITIVE
+            ));
+        }
+        ranges::check_albedo(&format!("medium.albedo[{i}]"), m.albedo[i])
+            .map_err(|e| e.to_string())?;
+    }
+    ranges::check_g("medium.g", m.g).map_err(|e| e.to_string())?;
+    Ok(())
+}
+
+/// The boundary's kind and index of refraction.
+fn check_boundary(b: &BoundaryDesc) -> Result<(), String> {
+    match b.kind {
+        BoundaryKind::IndexMatched if b.ior.is_some() => {
+            return Err(
+                "boundary.ior applies to kind = \"dielectric\" only (index-matched means ior = 1)"
+                    .into(),
+            );
+        }
+        BoundaryKind::Dielectric => {
+            let ior = b.ior_or_default();
+            // Above 1 as the renderers' f32 too (1.0000000000000002 is 1 there).
+            if !(ior as f32 > 1.0 && ior <= 4.0) {
+                return Err(format!(
+                    "boundary.ior = {} is out of range: allowed (1, 4] (as an f32: at \
+                     least {})",
+                    num(ior),
+                    f32::from_bits(1.0f32.to_bits() + 1)
+                ));
+            }
+        }
+        _ => {}
+    }
+    Ok(())
+}
+
+/// Each light's direction, irradiance and disk.
+fn check_lights(lights: &[LightDesc]) -> Result<(), String> {
+    for (i, l) in lights.iter().enumerate() {
+        bounded3(
+            &format!("light[{i}].direction"),
+            l.direction,
+            MAX_SCENE_VALUE,
+        )?;
+        if unit_f32(l.direction).is_none() {
+            return Err(format!(
+                "light[{i}].direction = {:?} is zero or too short to normalise",
+                l.direction
+            ));
+        }
+        for (k, e) in l.irradiance.iter().enumerate() {
+            if !(*e >= 0.0 && *e <= MAX_RADIANCE) {
+                return Err(format!(
+                    "light[{i}].irradiance[{k}] = {} is out of range: allowed [0, {MAX_RADIANCE:e}]",
+                    num(*e)
+                ));
+            }
+        }
+        if !(0.0..=90.0).contains(&l.angular_diameter_deg) {
+            return Err(format!(
+                "light[{i}].angular_diameter_deg = {} is out of range: allowed [0, 90]",
+                num(l.angular_diameter_deg)
+            ));
+        }
+        // The disk's radiance is bounded as an environment's is: a small disk of a large
+        // irradiance made radiances of ~1e21, whose squares overflowed `--variance`.
+        if let Some(s2) = crate::light::disk_sin2(l) {
+            for (k, e) in l.irradiance.iter().enumerate() {
+                if crate::light::disk_radiance(*e, s2) > MAX_RADIANCE {
+                    let most = MAX_RADIANCE * std::f64::consts::PI * s2;
+                    return Err(format!(
+                        "light[{i}].irradiance[{k}] = {} over a disk of \
+                         angular_diameter_deg = {} is a radiance beyond {MAX_RADIANCE:e}: \
+                         allowed up to {most:.4e} at this diameter (or a wider disk, or \
+                         angular_diameter_deg = 0 for a delta light)",
+                        num(*e),
+                        num(l.angular_diameter_deg)
+                    ));
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The environment's constant radiance.
+fn check_environment(radiance: Option<[f64; 3]>) -> Result<(), String> {
+    if let Some(r) = radiance {
+        for (k, e) in r.iter().enumerate() {
+            if !(*e >= 0.0 && *e <= MAX_RADIANCE) {
+                return Err(format!(
+                    "environment.radiance[{k}] = {} is out of range: allowed [0, {MAX_RADIANCE:e}]",
+                    num(*e)
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The render settings and thresholds.
+fn check_render(r: &RenderDesc) -> Result<(), String> {
+    check_whole(W_SPP, r.spp)?;
+    check_whole(W_GRID, r.grid_resolution)?;
+    if let Some(t) = r.min_tau
+        && !(0.0..=MAX_SCENE_VALUE).contains(&t)
+    {
+        return Err(format!(
+            "render.min_tau = {} is out of range: allowed [0, {MAX_SCENE_VALUE:e}]",
+            num(t)
+        ));
+    }
+    if let Some(t) = r.exact_tau
+        && !(0.0..=MAX_EXACT_TAU).contains(&t)
+    {
+        return Err(format!(
+            "render.exact_tau = {} is out of range: allowed [0, {MAX_EXACT_TAU}]",
+            num(t)
+        ));
+    }
+    check_whole(W_EXACT_NEE_SAMPLES, r.exact_nee_samples)?;
+    check_whole(W_PATH_NEE_RAYS, r.path_nee_rays)?;
+    check_whole(W_NEE_SAMPLES, r.nee_samples)?;
+    // In f32, as the renderers hold it: 1e-300 is 0 there, no step at all.
+    if let Some(t) = r.max_tau
+        && !(t as f32 > 0.0 && t.is_finite())
+    {
+        return Err(format!(
+            "render.max_tau = {} is out of range: allowed (0, the model's training maximum]",
+            num(t)
+        ));
+    }
+    // A cap below the threshold leaves ST-CVAE no step to take: it would be PT under
+    // its name. (Without max_tau the cap is the model's training maximum, 300.)
+    if let Some(t) = r.max_tau
+        && r.integrator == IntegratorKind::Stcvae
+        && (t as f32) < r.min_tau_or_default() as f32
+    {
+        return Err(format!(
+            "render.max_tau = {} is below render.min_tau = {}{}: no sphere step could be \
+             taken (allowed: max_tau >= min_tau)",
+            num(t),
+            num(r.min_tau_or_default()),
+            if r.min_tau.is_none() {
+                " (its default)"
+            } else {
+                ""
+            }
+        ));
+    }
+    Ok(())
 }
 
 /// Every component finite and within ±`max`.
