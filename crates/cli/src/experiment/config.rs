@@ -187,80 +187,94 @@ impl Config {
     }
 
     fn validate(&self) -> Result<()> {
+        for (name, b) in [("full", &self.full), ("quick", &self.quick)] {
+            self.check_budget(name, b)?;
+        }
+        self.check_lists()?;
+        self.check_needs()?;
+        self.check_fields_read()
+    }
+
+    /// One budget (`[full]` or `[quick]`): the fields its kind reads, each in its range.
+    fn check_budget(&self, name: &str, b: &Budget) -> Result<()> {
         // Which budget fields the kind reads: a size for any kind that renders, spp for
         // those that render a fixed number of samples (nee renders for `seconds`). One the
         // kind does not read would be ignored without a word: refused.
         let renders = self.kind != Kind::Distributions;
         let reads_spp = renders && self.kind != Kind::Nee;
-        for (name, b) in [("full", &self.full), ("quick", &self.quick)] {
-            for (field, given, read) in [
-                ("size", b.size.is_some(), renders),
-                ("spp", b.spp.is_some(), reads_spp),
-            ] {
-                if read && !given {
-                    bail!(
-                        "[{name}] needs {field}: kind = \"{}\" renders with it",
-                        self.kind.name()
-                    );
-                }
-                if given && !read {
-                    bail!(
-                        "{name}.{field} does not apply to kind = \"{}\", which {}: remove it",
-                        self.kind.name(),
-                        if renders {
-                            "renders for `seconds`"
-                        } else {
-                            "renders no image"
-                        }
-                    );
-                }
-            }
-            // As `bench render --size`: the figures are measured over 4×4-pixel blocks and
-            // the object's pixels, which a smaller image hardly has (size 1 reported a
-            // variance ratio of 7e297).
-            let (lo, hi) = WHOLE[W_SIZE];
-            if let Some(size) = b.size
-                && !(lo..=hi).contains(&size.into())
-            {
+        for (field, given, read) in [
+            ("size", b.size.is_some(), renders),
+            ("spp", b.spp.is_some(), reads_spp),
+        ] {
+            if read && !given {
                 bail!(
-                    "{name}.size = {size} is out of range: allowed [{lo}, {hi}] (the figures \
-                     are measured over 4×4-pixel blocks)"
+                    "[{name}] needs {field}: kind = \"{}\" renders with it",
+                    self.kind.name()
                 );
             }
-            // At most bench render's 2^30: a pair's two halves add up in u32.
-            let (lo, most) = WHOLE[W_SPP];
-            if let Some(spp) = b.spp
-                && !(lo..=most).contains(&spp.into())
-            {
+            if given && !read {
                 bail!(
-                    "{name}.spp = {spp} is out of range: allowed [{lo}, {most}] (noise is \
-                     measured from two seeds)"
-                );
-            }
-            if let Some(s) = b.seconds
-                && !(s > 0.0 && s <= 86_400.0)
-            {
-                bail!(
-                    "{name}.seconds = {} is out of range: allowed (0, 86400]",
-                    scatter_sim::ranges::num(s)
-                );
-            }
-            let (lo, hi) = WHOLE[W_SAMPLES];
-            if let Some(n) = b.samples
-                && !(lo..=hi).contains(&(n as u64))
-            {
-                bail!("{name}.samples = {n} is out of range: allowed [{lo}, {hi}]");
-            }
-            let (lo, hi) = WHOLE[W_REFERENCE_SPP];
-            if let Some(n) = b.reference_spp
-                && u64::from(n) < lo
-            {
-                bail!(
-                    "{name}.reference_spp = {n} is out of range: allowed {}",
-                    scatter_sim::ranges::whole_range(lo, hi)
+                    "{name}.{field} does not apply to kind = \"{}\", which {}: remove it",
+                    self.kind.name(),
+                    if renders {
+                        "renders for `seconds`"
+                    } else {
+                        "renders no image"
+                    }
                 );
             }
         }
+        // As `bench render --size`: the figures are measured over 4×4-pixel blocks and
+        // the object's pixels, which a smaller image hardly has (size 1 reported a
+        // variance ratio of 7e297).
+        let (lo, hi) = WHOLE[W_SIZE];
+        if let Some(size) = b.size
+            && !(lo..=hi).contains(&size.into())
+        {
+            bail!(
+                "{name}.size = {size} is out of range: allowed [{lo}, {hi}] (the figures \
+                 are measured over 4×4-pixel blocks)"
+            );
+        }
+        // At most bench render's 2^30: a pair's two halves add up in u32.
+        let (lo, most) = WHOLE[W_SPP];
+        if let Some(spp) = b.spp
+            && !(lo..=most).contains(&spp.into())
+        {
+            bail!(
+                "{name}.spp = {spp} is out of range: allowed [{lo}, {most}] (noise is \
+                 measured from two seeds)"
+            );
+        }
+        if let Some(s) = b.seconds
+            && !(s > 0.0 && s <= 86_400.0)
+        {
+            bail!(
+                "{name}.seconds = {} is out of range: allowed (0, 86400]",
+                scatter_sim::ranges::num(s)
+            );
+        }
+        let (lo, hi) = WHOLE[W_SAMPLES];
+        if let Some(n) = b.samples
+            && !(lo..=hi).contains(&(n as u64))
+        {
+            bail!("{name}.samples = {n} is out of range: allowed [{lo}, {hi}]");
+        }
+        let (lo, hi) = WHOLE[W_REFERENCE_SPP];
+        if let Some(n) = b.reference_spp
+            && u64::from(n) < lo
+        {
+            bail!(
+                "{name}.reference_spp = {n} is out of range: allowed {}",
+                scatter_sim::ranges::whole_range(lo, hi)
+            );
+        }
+        Ok(())
+    }
+
+    /// The lists of densities, paper figures, absorptions and thresholds, each value in its
+    /// range.
+    fn check_lists(&self) -> Result<()> {
         let positive = |what: &str, v: &[f64]| -> Result<()> {
             if let Some(x) = v.iter().find(|x| !(**x > 0.0) || !x.is_finite()) {
                 bail!("{what} must be positive and finite (found {x})");
@@ -302,6 +316,11 @@ impl Config {
                 scatter_sim::ranges::num(*t)
             );
         }
+        Ok(())
+    }
+
+    /// What the kind needs: a scene, its list, its budgets' fields.
+    fn check_needs(&self) -> Result<()> {
         let needs_scene = self.kind != Kind::Distributions;
         if needs_scene && self.scene.is_none() {
             bail!("scene is required for kind = \"{}\"", self.kind.name());
@@ -351,6 +370,11 @@ impl Config {
                 }
             );
         }
+        Ok(())
+    }
+
+    /// A field the kind does not read is refused.
+    fn check_fields_read(&self) -> Result<()> {
         // A field the kind does not read would be ignored without a word (thresholds in a
         // teaser, seconds under [quick] of a quality run): refused, naming what it reads.
         let reads: &[&str] = match self.kind {
