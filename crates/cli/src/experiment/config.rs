@@ -195,7 +195,8 @@ impl Config {
         self.check_fields_read()
     }
 
-    /// One budget (`[full]` or `[quick]`): the fields its kind reads, each in its range.
+    /// One budget (`[full]` or `[quick]`): size and spp given exactly where the kind reads
+    /// them, and every field given in its range.
     fn check_budget(&self, name: &str, b: &Budget) -> Result<()> {
         // Which budget fields the kind reads: a size for any kind that renders, spp for
         // those that render a fixed number of samples (nee renders for `seconds`). One the
@@ -319,7 +320,8 @@ impl Config {
         Ok(())
     }
 
-    /// What the kind needs: a scene, its list, its budgets' fields.
+    /// What the kind needs: a scene, its list, its budgets' fields; and at most one `paper`
+    /// figure per density.
     fn check_needs(&self) -> Result<()> {
         let needs_scene = self.kind != Kind::Distributions;
         if needs_scene && self.scene.is_none() {
