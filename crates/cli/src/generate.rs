@@ -87,7 +87,11 @@ pub fn load_config(path: &Path) -> Result<DatasetConfig> {
     wrong_kind(path, &text, render_gpu::scene::ConfigKind::Dataset)?;
     let cfg: DatasetConfig = parse_toml(path, &text)?;
     if cfg.walks == 0 {
-        bail!("{}: walks = 0 is out of range: at least 1", path.display());
+        // Worded as -1's refusal is (`at_least_one`).
+        bail!(
+            "{}: walks = 0 is out of range: allowed [1, 2^64)",
+            path.display()
+        );
     }
     cfg.conditions
         .validate()

@@ -173,7 +173,8 @@ fn load(path: &Path) -> Result<TrainConfig> {
     // saves one) after most of an hour lost the whole run.
     if cfg.checkpoint_every == 0 {
         bail!(
-            "{}: checkpoint_every = 0 is out of range: at least 1 (steps between checkpoints)",
+            "{}: checkpoint_every = 0 is out of range: allowed [1, 2^64) (steps between \
+             checkpoints)",
             path.display()
         );
     }

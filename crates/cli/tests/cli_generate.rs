@@ -806,7 +806,7 @@ fn bad_input_gives_one_line_errors() {
         ("merge garbage.bin --out y.bin", "garbage.bin"),
         (
             "generate --config zero.toml --out x.bin",
-            "zero.toml: walks = 0",
+            "zero.toml: walks = 0 is out of range: allowed [1, 2^64)",
         ),
         ("generate --samples 0 --out x.bin", "--samples"),
         // Datasets merged over a render's file would replace the image.

@@ -506,7 +506,7 @@ fn wrong_outputs_and_csv_datasets_fail_before_any_work() {
         (
             "checkpoint_dir = \"ck\"\n",
             "checkpoint_dir = \"ck\"\ncheckpoint_every = 0\n",
-            "train.toml: checkpoint_every = 0 is out of range: at least 1",
+            "train.toml: checkpoint_every = 0 is out of range: allowed [1, 2^64)",
         ),
         (
             "lr_final = 3e-4",
