@@ -101,9 +101,9 @@ pub fn check_albedo(field: &str, albedo: f64) -> Result<(), RangeError> {
     check(field, albedo, (0.0..=1.0).contains(&albedo), "[0, 1]")
 }
 
-/// `[lo, hi]` of whole numbers, with 2^64 and 2^32 written as such rather than in twenty
-/// digits: the one wording of the CLI's options, the scene's fields and the experiment
-/// budgets' fields.
+/// `[lo, hi]` of whole numbers, with 2^64, 2^32 and larger powers of two (the trainer's
+/// 2^40 steps) written as such rather than in up to twenty digits: the one wording of the
+/// CLI's options and the scene's, experiments' and configs' fields.
 pub fn whole_range(lo: u64, hi: u64) -> String {
     match hi {
         u64::MAX => format!("[{lo}, 2^64)"),
