@@ -250,29 +250,13 @@ impl DistanceGrid {
     pub fn cached(geo: &Geometry, resolution: u32) -> Result<Self, String> {
         let key = cache_key(geo, resolution);
         let path = crate::cache::cache_file(&format!("grid-{key:016x}-{resolution}"));
-        let mut unusable = false;
-        if let Some(p) = &path {
-            if let Some(g) = Self::read(p, key, geo, resolution) {
-                crate::cache::touch(p);
-                return Ok(g);
-            }
-            unusable = crate::cache::note_unusable_entry(p);
-        }
-        let t0 = std::time::Instant::now();
-        let g = Self::build(geo, resolution)?;
-        // Reading a cached grid takes ~10 ms; the default bunny's grid took 0.85 s to
-        // build on 2 cores, a quarter of the default render, when only grids over a
-        // second were cached.
-        if (t0.elapsed().as_secs_f64() > 0.1 || unusable)
-            && let Some(p) = &path
-        {
-            // A cache that cannot be written only costs time next run; said once.
-            if let Err(e) = g.write(p, key) {
-                crate::cache::note_unwritable_cache(p, &e);
-            }
-            crate::cache::tidy(p);
-        }
-        Ok(g)
+        crate::cache::read_or_build(
+            path.as_deref(),
+            crate::cache::CACHED_FROM_SECONDS,
+            |p| Self::read(p, key, geo, resolution),
+            || Self::build(geo, resolution),
+            |p, g| g.write(p, key),
+        )
     }
 
     fn write(&self, path: &Path, key: u64) -> std::io::Result<()> {

@@ -40,11 +40,8 @@ pub fn cached(geo: &Geometry) -> Vec<f32> {
     // (`cache_file`), so a change to TANS, the margins or the region is never read stale.
     let key = crate::cache::mesh_hasher(geo, b"escape-cones-v2").finish();
     let path = crate::cache::cache_file(&format!("cones-{key:016x}"));
-    cached_at(geo, key, path.as_deref(), CACHED_FROM_SECONDS)
+    cached_at(geo, key, path.as_deref(), crate::cache::CACHED_FROM_SECONDS)
 }
-
-/// Results that took longer than this to compute are cached.
-const CACHED_FROM_SECONDS: f64 = 0.1;
 
 /// [`cached`] with the cache entry at `path` (None: no cache) under key `key`, new results
 /// cached when they took over `cached_from` seconds.
@@ -54,25 +51,13 @@ fn cached_at(
     path: Option<&std::path::Path>,
     cached_from: f64,
 ) -> Vec<f32> {
-    let mut unusable = false;
-    if let Some(p) = path {
-        if let Some(cos) = read(p, key, geo.tris.len()) {
-            crate::cache::touch(p);
-            return cos;
-        }
-        unusable = crate::cache::note_unusable_entry(p);
-    }
-    let t0 = std::time::Instant::now();
-    let cos = escape_cosines(geo);
-    if (t0.elapsed().as_secs_f64() > cached_from || unusable)
-        && let Some(p) = path
-    {
-        // A cache that cannot be written only costs time next run; said once.
-        if let Err(e) = write(p, key, &cos) {
-            crate::cache::note_unwritable_cache(p, &e);
-        }
-        crate::cache::tidy(p);
-    }
+    let Ok(cos) = crate::cache::read_or_build(
+        path,
+        cached_from,
+        |p| read(p, key, geo.tris.len()),
+        || Ok::<_, std::convert::Infallible>(escape_cosines(geo)),
+        |p, cos| write(p, key, cos),
+    );
     cos
 }
 

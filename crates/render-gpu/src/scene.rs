@@ -159,10 +159,7 @@ fn check_whole(field: usize, v: u32) -> Result<(), String> {
 /// out of range is left to `validate`, which names the field.
 fn whole<'de, const I: usize, D: serde::Deserializer<'de>>(d: D) -> Result<u32, D::Error> {
     let (_, lo, hi) = WHOLE_FIELDS[I];
-    d.deserialize_u32(scatter_sim::ranges::WholeIn::<u32>::new(
-        lo.into(),
-        hi.into(),
-    ))
+    scatter_sim::ranges::whole_in(d, lo.into(), hi.into())
 }
 
 /// serde's Rust type names in words: `width = -16` said "expected u32". The field's own

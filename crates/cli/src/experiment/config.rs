@@ -94,8 +94,7 @@ where
     T: TryFrom<u64>,
 {
     let (lo, hi) = WHOLE[I];
-    d.deserialize_u64(scatter_sim::ranges::WholeIn::<T>::new(lo, hi))
-        .map(Some)
+    scatter_sim::ranges::whole_in(d, lo, hi).map(Some)
 }
 
 impl Budget {
