@@ -312,7 +312,8 @@ fn a_fixed_condition_warns_and_a_bad_checkpoint_dir_fails_first() {
     let out = train_eventgen(dir.path(), base.to_str().unwrap());
     assert!(!out.status.success());
     assert!(
-        stderr(&out).contains("train.toml: lengthgen.warmup: 31 exceeds steps = 30"),
+        stderr(&out)
+            .contains("train.toml: lengthgen.warmup: 31 exceeds steps: allowed [0, steps = 30]"),
         "{}",
         stderr(&out)
     );
@@ -344,7 +345,13 @@ fn a_fixed_condition_warns_and_a_bad_checkpoint_dir_fails_first() {
     let out = train_eventgen(dir.path(), base.to_str().unwrap());
     assert!(!out.status.success());
     let err = stderr(&out);
-    assert!(err.contains("eventgen.hidden: 1..=8 layers"), "{err}");
+    assert!(
+        err.contains(
+            "eventgen.hidden: 9 layers is out of range: allowed 1 to 8 layers, each of width \
+             [1, 64]"
+        ),
+        "{err}"
+    );
 }
 
 /// A whole number the field's type cannot hold (negative, fractional) is refused with the

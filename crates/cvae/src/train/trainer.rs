@@ -146,33 +146,21 @@ impl ModelConfig {
                 ),
             );
         }
-        if self.hidden.is_empty()
-            || self.hidden.len() > crate::decoder::MAX_HIDDEN_LAYERS
-            || self
-                .hidden
-                .iter()
-                .any(|&h| h == 0 || h > crate::decoder::MAX_WIDTH)
-        {
-            return bad(
-                "hidden",
-                &format!(
-                    "1..={} layers, each of width 1..={}",
-                    crate::decoder::MAX_HIDDEN_LAYERS,
-                    crate::decoder::MAX_WIDTH
-                ),
-            );
+        if let Some(why) = layers_out_of_range(
+            &self.hidden,
+            crate::decoder::MAX_HIDDEN_LAYERS,
+            crate::decoder::MAX_WIDTH,
+        ) {
+            return bad("hidden", &why);
         }
         // Depth bounded too: the batch check below is per tensor, and 64 layers of 1,024
         // at the largest batch it allows asked tens of GiB and aborted on allocation.
-        if let Some(e) = &self.encoder_hidden
-            && (e.is_empty()
-                || e.len() > MAX_ENCODER_LAYERS
-                || e.iter().any(|&h| h == 0 || h > MAX_ENCODER_WIDTH))
+        if let Some(why) = self
+            .encoder_hidden
+            .as_deref()
+            .and_then(|e| layers_out_of_range(e, MAX_ENCODER_LAYERS, MAX_ENCODER_WIDTH))
         {
-            return bad(
-                "encoder_hidden",
-                &format!("1..={MAX_ENCODER_LAYERS} layers, each of width 1..={MAX_ENCODER_WIDTH}"),
-            );
+            return bad("encoder_hidden", &why);
         }
         // A batch's activations are batch_size × widest layer floats per layer; beyond
         // 2^20 rows the gradients average out anyway and the memory does not.
@@ -229,11 +217,33 @@ impl ModelConfig {
         {
             return bad(
                 "warmup",
-                &format!("{w} exceeds steps = {}: allowed 0..=steps", self.steps),
+                &format!("{w} exceeds steps: allowed [0, steps = {}]", self.steps),
             );
         }
         Ok(())
     }
+}
+
+/// Why a list of layer widths is refused, naming the part that is wrong (the count, or the
+/// first width out of range) so that a long list is not echoed whole.
+fn layers_out_of_range(widths: &[usize], max_layers: usize, max_width: usize) -> Option<String> {
+    let allowed = format!(
+        "allowed 1 to {max_layers} layers, each of width {}",
+        whole_range(1, max_width as u64)
+    );
+    if widths.is_empty() || widths.len() > max_layers {
+        let n = widths.len();
+        let layers = if n == 1 { "layer" } else { "layers" };
+        return Some(format!("{n} {layers} is out of range: {allowed}"));
+    }
+    let (i, w) = widths
+        .iter()
+        .enumerate()
+        .find(|&(_, &w)| w == 0 || w > max_width)?;
+    Some(format!(
+        "width {w} (layer {}) is out of range: {allowed}",
+        i + 1
+    ))
 }
 
 #[derive(Debug, Error)]
@@ -1031,12 +1041,34 @@ mod tests {
         let e = config(100, Some(101)).validate("pathgen").unwrap_err();
         assert_eq!(
             e,
-            "pathgen.warmup: 101 exceeds steps = 100: allowed 0..=steps"
+            "pathgen.warmup: 101 exceeds steps: allowed [0, steps = 100]"
         );
     }
 
     /// A batch whose widest layer's activations would pass 2^25 floats is refused, naming
     /// the field; exactly 2^25 passes.
+    /// A refused layer list names its count or its first bad width, not the whole list.
+    #[test]
+    fn layer_lists_name_what_is_out_of_range() {
+        let mut c = config(100, None);
+        let allowed = "allowed 1 to 8 layers, each of width [1, 64]";
+        for (hidden, why) in [
+            (vec![], "0 layers is out of range".to_string()),
+            (
+                vec![16, 0, 16],
+                "width 0 (layer 2) is out of range".to_string(),
+            ),
+            (vec![65], "width 65 (layer 1) is out of range".to_string()),
+            (vec![1; 10_000], "10000 layers is out of range".to_string()),
+        ] {
+            c.hidden = hidden;
+            let e = c.validate("lengthgen").unwrap_err();
+            assert_eq!(e, format!("lengthgen.hidden: {why}: {allowed}"));
+        }
+        c.hidden = vec![64; 8];
+        assert!(c.validate("lengthgen").is_ok());
+    }
+
     #[test]
     fn a_batch_too_large_for_memory_is_refused() {
         let mut c = config(100, None);
@@ -1056,7 +1088,11 @@ mod tests {
         assert!(c.validate("pathgen").is_ok());
         c.encoder_hidden = Some(vec![1024; MAX_ENCODER_LAYERS + 1]);
         let e = c.validate("pathgen").unwrap_err();
-        assert!(e.starts_with("pathgen.encoder_hidden: 1..=8 layers"), "{e}");
+        assert_eq!(
+            e,
+            "pathgen.encoder_hidden: 9 layers is out of range: allowed 1 to 8 layers, each \
+             of width [1, 1024]"
+        );
     }
 
     /// A checkpoint's three files are replaced as a set: when one cannot be written (here
