@@ -2,13 +2,19 @@
 //! their temporary output files are removed as they are dropped.
 
 use std::sync::OnceLock;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI32, Ordering};
 use std::time::{Duration, Instant};
 
 /// What long loops poll: set by Ctrl-C, or by [`stop_the_others`].
 static FLAG: AtomicBool = AtomicBool::new(false);
-/// Set by Ctrl-C only: whether the user asked (exit status 130, "again" means abort).
+/// Set by Ctrl-C (or SIGTERM, SIGHUP) only: whether the user asked (exit status 128 + the
+/// signal, "again" means abort).
 static USER: AtomicBool = AtomicBool::new(false);
+/// The first stop signal's number (0: none seen, or a platform where it is not known),
+/// for the exit status: 128 + its number, as a shell reports for a process the signal
+/// ended (130 for Ctrl-C, 143 for SIGTERM from `kill` or a batch scheduler, 129 for
+/// SIGHUP), so that a script can tell who stopped it.
+static SIGNAL: AtomicI32 = AtomicI32::new(0);
 static INSTALLED: OnceLock<()> = OnceLock::new();
 static FIRST: OnceLock<Instant> = OnceLock::new();
 
@@ -32,7 +38,7 @@ pub fn flag() -> &'static AtomicBool {
                 // Ctrl-C again: the user means it. `exit` runs no destructors, so the
                 // temporaries being written are removed here.
                 scatter_sim::output::remove_live_temporaries();
-                std::process::exit(130);
+                std::process::exit(exit_status());
             }
             // Ctrl-C in a shell also ends the readers of a pipe the output goes to: from
             // now on a write there fails (dropped, main.rs) rather than ending the process
@@ -43,14 +49,89 @@ pub fn flag() -> &'static AtomicBool {
             unsafe {
                 libc::signal(libc::SIGPIPE, libc::SIG_IGN);
             }
-            // The handler also takes SIGTERM and SIGHUP (ctrlc's `termination` feature) and
-            // cannot tell them from Ctrl-C, so the message names both.
+            // The handler also takes SIGTERM and SIGHUP (ctrlc's `termination` feature).
             eprintln!(
-                "\ninterrupt: stopping at the next safe point (a second Ctrl-C or signal aborts)"
+                "\ninterrupt{}: stopping at the next safe point (a second Ctrl-C or signal \
+                 aborts)",
+                signal_name().map_or(String::new(), |n| format!(" ({n})"))
             );
         });
+        #[cfg(unix)]
+        record_signals();
     });
     &FLAG
+}
+
+/// The exit status of a command the user stopped: 128 + the first stop signal's number.
+pub fn exit_status() -> i32 {
+    match SIGNAL.load(Ordering::SeqCst) {
+        0 => 130,
+        n => 128 + n,
+    }
+}
+
+fn signal_name() -> Option<&'static str> {
+    #[cfg(unix)]
+    match SIGNAL.load(Ordering::SeqCst) {
+        libc::SIGINT => return Some("SIGINT"),
+        libc::SIGTERM => return Some("SIGTERM"),
+        libc::SIGHUP => return Some("SIGHUP"),
+        _ => {}
+    }
+    None
+}
+
+/// The handlers ctrlc installed for the stop signals, called after ours records the
+/// signal's number: ctrlc's handler runs one closure for all of them and cannot say which
+/// came. Indexed as STOP_SIGNALS.
+#[cfg(unix)]
+static CHAINED: [std::sync::atomic::AtomicUsize; 3] =
+    [const { std::sync::atomic::AtomicUsize::new(0) }; 3];
+
+#[cfg(unix)]
+const STOP_SIGNALS: [libc::c_int; 3] = [libc::SIGINT, libc::SIGTERM, libc::SIGHUP];
+
+/// Puts a handler in front of ctrlc's for each stop signal that records the first one's
+/// number, then calls ctrlc's. A signal whose current action is not a plain handler
+/// (ctrlc failed to install, or another library's `SA_SIGINFO` handler) is left alone,
+/// and its stop exits with 130 as before.
+#[cfg(unix)]
+fn record_signals() {
+    extern "C" fn record(sig: libc::c_int) {
+        // Atomic operations and a call to ctrlc's handler (a write to its pipe) only:
+        // async-signal-safe.
+        let _ = SIGNAL.compare_exchange(0, sig, Ordering::SeqCst, Ordering::SeqCst);
+        if let Some(i) = STOP_SIGNALS.iter().position(|&s| s == sig) {
+            let h = CHAINED[i].load(Ordering::SeqCst);
+            if h != 0 {
+                // SAFETY: `h` was read from sigaction as a plain handler of this type
+                // (neither SIG_DFL, SIG_IGN nor an SA_SIGINFO handler) and stays installed
+                // code for the life of the process.
+                let f: extern "C" fn(libc::c_int) = unsafe { std::mem::transmute(h) };
+                f(sig);
+            }
+        }
+    }
+    let handler: extern "C" fn(libc::c_int) = record;
+    for (i, &sig) in STOP_SIGNALS.iter().enumerate() {
+        // SAFETY: sigaction reads and writes the structs passed, which are zeroed (a valid
+        // sigaction) and live across the calls; called once, from the thread that
+        // installed ctrlc's handlers, before any stop can be handled by ours.
+        unsafe {
+            let mut old: libc::sigaction = std::mem::zeroed();
+            if libc::sigaction(sig, std::ptr::null(), &mut old) != 0
+                || old.sa_flags & libc::SA_SIGINFO != 0
+                || old.sa_sigaction == libc::SIG_DFL
+                || old.sa_sigaction == libc::SIG_IGN
+            {
+                continue;
+            }
+            CHAINED[i].store(old.sa_sigaction, Ordering::SeqCst);
+            let mut new = old;
+            new.sa_sigaction = handler as libc::sighandler_t;
+            libc::sigaction(sig, &new, std::ptr::null_mut());
+        }
+    }
 }
 
 /// Whether the user asked to stop (Ctrl-C, or a closed output pipe: [`stop_on_closed_pipe`]),

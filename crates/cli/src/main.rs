@@ -180,7 +180,11 @@ fn main() {
             std::process::exit(141);
         }
         eprintln!("error: {e}");
-        std::process::exit(if interrupt::requested() { 130 } else { 1 });
+        std::process::exit(if interrupt::requested() {
+            interrupt::exit_status()
+        } else {
+            1
+        });
     }
 }
 

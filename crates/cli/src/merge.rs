@@ -243,9 +243,9 @@ pub(crate) fn write_image_set_with(
 fn merge_images(a: &Args) -> Result<()> {
     crate::render::check_out_stem(&a.out)?;
     // Ctrl-C asks to stop. Before the set is written (large renders take seconds to read)
-    // nothing is; once writing, the set is finished whole (exit status 130 either way).
-    // Without the handler the signal ended the process mid-write, leaving hidden
-    // temporaries, or a new image beside the old report between two renames.
+    // nothing is; once writing, the set is finished whole (exit status 130 either way, 143
+    // for SIGTERM). Without the handler the signal ended the process mid-write, leaving
+    // hidden temporaries, or a new image beside the old report between two renames.
     let cancel = crate::interrupt::flag();
     let inputs: Vec<&std::path::Path> = a.inputs.iter().map(|p| p.as_path()).collect();
     let (img, tag) = render_gpu::image_io::merge_exrs(&inputs)?;
@@ -313,7 +313,7 @@ fn merge_images(a: &Args) -> Result<()> {
         out_stem(&a.out).display()
     );
     // Asked to stop while writing: the set is whole, and the exit status says the stop
-    // was asked for (130), as an interrupted render's does.
+    // was asked for (130, or 128 + another stop signal), as an interrupted render's does.
     if cancel.load(std::sync::atomic::Ordering::Relaxed) {
         bail!("interrupted while writing: the merged set was written whole");
     }

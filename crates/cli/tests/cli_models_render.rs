@@ -1481,6 +1481,20 @@ fn nee_through_a_dielectric_is_noted_as_approximate_on_curved_faces() {
 #[cfg(unix)]
 #[test]
 fn an_interrupted_render_keeps_its_finished_passes_and_says_so() {
+    interrupt_a_render(libc::SIGINT, "SIGINT");
+}
+
+/// SIGTERM (`kill`, a batch scheduler's time limit) stops a render as Ctrl-C does, and
+/// the exit status says which: 143 = 128 + 15, as a shell reports for a process the signal
+/// ended (it was 130, Ctrl-C's, since one handler took all stop signals).
+#[cfg(unix)]
+#[test]
+fn a_terminated_render_keeps_its_passes_and_exits_143() {
+    interrupt_a_render(libc::SIGTERM, "SIGTERM");
+}
+
+#[cfg(unix)]
+fn interrupt_a_render(signal: libc::c_int, name: &str) {
     use std::io::BufRead;
     let d = tempfile::tempdir().unwrap();
     let scene = sphere_scene_file(d.path(), 16);
@@ -1515,10 +1529,7 @@ fn an_interrupted_render_keeps_its_finished_passes_and_says_so() {
             .and_then(|(n, _)| n.replace(',', "").parse::<u64>().ok());
         if !sent && done.is_some_and(|n| n >= 2 * pass) {
             // SAFETY: a plain system call on a child this test owns and has not reaped.
-            assert_eq!(
-                unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGINT) },
-                0
-            );
+            assert_eq!(unsafe { libc::kill(child.id() as libc::pid_t, signal) }, 0);
             sent = true;
         }
         err += &line;
@@ -1526,7 +1537,11 @@ fn an_interrupted_render_keeps_its_finished_passes_and_says_so() {
     }
     let status = child.wait().unwrap();
     assert!(sent, "no progress line counted two passes: {err}");
-    assert_eq!(status.code(), Some(130), "{err}");
+    assert_eq!(status.code(), Some(128 + signal), "{err}");
+    assert!(
+        err.contains(&format!("interrupt ({name}): stopping")),
+        "{err}"
+    );
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.with_extension("json")).unwrap())
             .unwrap();
