@@ -223,6 +223,27 @@ pub fn read_exr_at_most(
         };
         RenderError::Image(format!("{}: cannot read EXR: {what}", path.display()))
     })?;
+    check_headers(path, &meta, max_pixels)?;
+    let image = read_rgb_pixels(path)?;
+    let tag = tag_of(path, &image.layer_data.attributes.other)?;
+    let (pixels, written) = image.layer_data.channel_data.pixels;
+    if let Some(i) = written.iter().position(|&w| !w) {
+        return Err(RenderError::Image(format!(
+            "{}: damaged EXR: row {} holds no pixels (a block is missing)",
+            path.display(),
+            i / pixels.width.max(1)
+        )));
+    }
+    Ok((pixels, tag))
+}
+
+/// Refuses, before any pixel is allocated, a header whose image is larger than
+/// `max_pixels` or than the memory left, and a file with no RGB part.
+fn check_headers(
+    path: &Path,
+    meta: &exr::meta::MetaData,
+    max_pixels: usize,
+) -> std::result::Result<(), RenderError> {
     for h in meta.headers.iter() {
         let (w, ht) = (h.layer_size.width(), h.layer_size.height());
         if w.checked_mul(ht).is_none_or(|n| n > max_pixels) {
@@ -267,7 +288,15 @@ pub fn read_exr_at_most(
             }
         )));
     }
-    let image = read()
+    Ok(())
+}
+
+/// An RGB EXR read with, for each pixel, whether the file wrote it.
+type RgbPixelsImage = PixelImage<(RgbImage, Vec<bool>), RgbChannels>;
+
+/// The RGB pixels of the file's first valid layer, with their written-or-not flags.
+fn read_rgb_pixels(path: &Path) -> std::result::Result<RgbPixelsImage, RenderError> {
+    read()
         .no_deep_data()
         .largest_resolution_level()
         .specific_channels()
@@ -295,15 +324,22 @@ pub fn read_exr_at_most(
         .all_attributes()
         .from_file(path)
         .map_err(|e| {
-            // The header read above, so the pixel blocks or their offset table are at
-            // fault; exr's own words ("Invalid argument (os error 22)" for an offset past
-            // the end) do not say so.
+            // The header was read before (`check_headers`), so the pixel blocks or their
+            // offset table are at fault; exr's own words ("Invalid argument (os error
+            // 22)" for an offset past the end) do not say so.
             RenderError::Image(format!(
                 "{}: cannot read the EXR's pixels (a damaged or cut-short file?): {e}",
                 path.display()
             ))
-        })?;
-    let other: &HashMap<Text, AttributeValue> = &image.layer_data.attributes.other;
+        })
+}
+
+/// The render tag among a file's attributes (`ATTR_TAG`, or the three attributes of older
+/// files); None for a file without one.
+fn tag_of(
+    path: &Path,
+    other: &HashMap<Text, AttributeValue>,
+) -> std::result::Result<Option<RenderTag>, RenderError> {
     let text = |k: &str| match other.get(&Text::from(k)) {
         Some(AttributeValue::Text(t)) => Some(t.to_string()),
         _ => None,
@@ -325,7 +361,7 @@ pub fn read_exr_at_most(
             [text(ATTR_SPP), text(ATTR_SCENE), text(ATTR_SEED), None],
         ),
     };
-    let tag = match (spp, scene) {
+    Ok(match (spp, scene) {
         (Some(s), Some(h)) => {
             let (mut seeds, mut partial, mut digests) = (Vec::new(), false, Vec::new());
             let v = seed.as_deref().unwrap_or_default();
@@ -370,16 +406,7 @@ pub fn read_exr_at_most(
             Some(t) => return Err(bad(ATTR_TAG, &t)),
             None => None,
         },
-    };
-    let (pixels, written) = image.layer_data.channel_data.pixels;
-    if let Some(i) = written.iter().position(|&w| !w) {
-        return Err(RenderError::Image(format!(
-            "{}: damaged EXR: row {} holds no pixels (a block is missing)",
-            path.display(),
-            i / pixels.width.max(1)
-        )));
-    }
-    Ok((pixels, tag))
+    })
 }
 
 /// sRGB transfer function of a linear value in [0, 1].
@@ -431,21 +458,6 @@ pub fn encode_png(img: &RgbImage, exposure: f32) -> std::result::Result<Vec<u8>,
 /// different scenes or sizes, images without a render tag, and two renders of one seed.
 pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag), RenderError> {
     let mut acc: Option<(RgbImage, RenderTag, Vec<[f64; 3]>)> = None;
-    // Renders with the same seed share their samples (a copy, or a seed rendered again at
-    // another spp), which would count twice. Files without a recorded seed (written
-    // before it was) are compared by their pixels instead, unless the image is constant
-    // (an object out of view or unlit: every seed gives the same pixels).
-    // Renders of other scenes are refused below with that reason.
-    struct Seen<'a> {
-        scene: Option<u64>,
-        seeds: Vec<u64>,
-        unknown: bool,
-        digest: Option<u64>,
-        /// The digests of the renders of unknown seed it holds: its own where it is one
-        /// (no seed at all), those its tag records where it is a merge of some.
-        unknown_digests: Vec<u64>,
-        path: &'a Path,
-    }
     let mut seen: Vec<Seen> = Vec::new();
     for &p in paths {
         let (img, tag) = read_exr(p)?;
@@ -462,142 +474,19 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
         {
             unknown_digests.push(d);
         }
-        let shared = |o: &Seen| seeds.iter().copied().find(|s| o.seeds.contains(s));
-        // A seed in common shares samples; where either holds renders of unknown seed,
-        // equal pixels are the only sign left: the images' own, or those recorded of the
-        // renders of unknown seed a merge holds.
-        let twin = seen.iter().find(|o| {
-            o.scene == scene
-                && (shared(o).is_some()
-                    || ((unknown || o.unknown) && digest.is_some() && o.digest == digest)
-                    || unknown_digests
-                        .iter()
-                        .any(|d| o.unknown_digests.contains(d)))
-        });
-        if let Some(o) = twin {
-            // Known by a seed, by equal pixels, or by a recorded render of unknown seed
-            // that both hold (two merges sharing an input).
-            let common = unknown_digests
-                .iter()
-                .find(|d| o.unknown_digests.contains(d));
-            let same_pixels = digest.is_some() && o.digest == digest;
-            return Err(RenderError::Image(match (shared(o), common) {
-                (None, Some(d)) if !same_pixels => format!(
-                    "{}: holds a render of unknown seed that {} holds too (pixels with digest \
-                     {d:016x}): its samples would count twice; merge images with no render in \
-                     common",
-                    p.display(),
-                    o.path.display()
-                ),
-                (Some(s), _) => format!(
-                    "{}: shares seed {s} with {}: rendered on one device, its samples are in \
-                     both and would count twice (the tag does not record the device, and the \
-                     CPU and GPU draw different streams from one seed, so renders of one seed \
-                     on the two are refused too); merge renders of different seeds",
-                    p.display(),
-                    o.path.display(),
-                ),
-                (None, _) => format!(
-                    "{}: holds the same render as {} (equal pixels): its samples would count \
-                     twice; merge renders of different seeds",
-                    p.display(),
-                    o.path.display(),
-                ),
-            }));
-        }
-        seen.push(Seen {
+        let input = Seen {
             scene,
             seeds,
             unknown,
             digest,
             unknown_digests: unknown_digests.clone(),
             path: p,
-        });
-        let tag = tag.ok_or_else(|| {
-            // `merge *.exr` picks up `render --variance`'s images too.
-            let hint = if p.to_string_lossy().ends_with(".var.exr") {
-                " (a variance image of `render --variance`? leave it out)"
-            } else {
-                ""
-            };
-            RenderError::Image(format!(
-                "{}: no stcvae render tag (spp, scene hash) in the EXR header: not an stcvae \
-                 render{hint}",
-                p.display()
-            ))
-        })?;
-        if tag.spp == 0 {
-            return Err(RenderError::Image(format!(
-                "{}: the render tag says 0 spp: nothing to weight it by",
-                p.display()
-            )));
-        }
-        if let Some((x, y)) = img.first_non_finite() {
-            return Err(RenderError::Image(format!(
-                "{}: pixel ({x}, {y}) is not finite: refusing to spread it into the merge",
-                p.display(),
-            )));
-        }
-        // Radiance estimates are never negative; such a pixel means a damaged or foreign
-        // file (the environment loader refuses them too).
-        if let Some((x, y, _)) = img.first_value(|v| v < 0.0) {
-            return Err(RenderError::Image(format!(
-                "{}: pixel ({x}, {y}) is negative: a render's pixels are ≥ 0",
-                p.display()
-            )));
-        }
-        match &mut acc {
-            None => {
-                let sum = img
-                    .pixels
-                    .iter()
-                    .map(|px| px.map(|v| v as f64 * tag.spp as f64))
-                    .collect();
-                let mut tag = tag;
-                tag.partial = tag.some_unknown();
-                tag.unknown_digests = unknown_digests;
-                acc = Some((img, tag, sum));
-            }
-            Some((first, t0, sum)) => {
-                if tag.scene_hash != t0.scene_hash {
-                    return Err(RenderError::Image(format!(
-                        "{}: scene hash {:016x} differs from {:016x} of {}: renders of different scenes (or of one scene with another integrator, model or render settings, or by a build of stcvae whose renderer differs) cannot be merged",
-                        p.display(),
-                        tag.scene_hash,
-                        t0.scene_hash,
-                        paths[0].display()
-                    )));
-                }
-                if (img.width, img.height) != (first.width, first.height) {
-                    return Err(RenderError::Image(format!(
-                        "{}: size {}x{} differs from {}x{}",
-                        p.display(),
-                        img.width,
-                        img.height,
-                        first.width,
-                        first.height
-                    )));
-                }
-                for (s, px) in sum.iter_mut().zip(&img.pixels) {
-                    for c in 0..3 {
-                        s[c] += px[c] as f64 * tag.spp as f64;
-                    }
-                }
-                t0.spp = t0.spp.checked_add(tag.spp).ok_or_else(|| {
-                    RenderError::Image(format!("{}: the spp total overflows", p.display()))
-                })?;
-                // Known seeds are kept whatever else comes in; an input of unknown seed
-                // marks the list as partial (a list with it missing would read as whole).
-                t0.partial |= tag.some_unknown();
-                t0.seeds.extend(&tag.seeds);
-                t0.unknown_digests.extend(unknown_digests);
-                // Equal scene hashes give equal views; a file written before views were
-                // recorded leaves the merge's unknown.
-                if tag.view_hash != t0.view_hash {
-                    t0.view_hash = None;
-                }
-            }
-        }
+        };
+        refuse_shared_samples(&seen, &input)?;
+        seen.push(input);
+        let tag = merge_tag(p, tag)?;
+        check_merge_pixels(p, &img)?;
+        accumulate(&mut acc, paths[0], p, img, tag, unknown_digests)?;
     }
     let (mut img, tag, sum) =
         acc.ok_or_else(|| RenderError::Image("merge: no input images".into()))?;
@@ -605,6 +494,187 @@ pub fn merge_exrs(paths: &[&Path]) -> std::result::Result<(RgbImage, RenderTag),
         *px = s.map(|v| (v / tag.spp as f64) as f32);
     }
     Ok((img, tag))
+}
+
+/// An input of `merge_exrs` as far as shared samples go. Renders with the same seed share
+/// their samples (a copy, or a seed rendered again at another spp), which would count
+/// twice. Files without a recorded seed (written before it was) are compared by their
+/// pixels instead, unless the image is constant (an object out of view or unlit: every
+/// seed gives the same pixels). Renders of other scenes are refused by `accumulate` with
+/// that reason.
+struct Seen<'a> {
+    scene: Option<u64>,
+    seeds: Vec<u64>,
+    unknown: bool,
+    digest: Option<u64>,
+    /// The digests of the renders of unknown seed it holds: its own where it is one
+    /// (no seed at all), those its tag records where it is a merge of some.
+    unknown_digests: Vec<u64>,
+    path: &'a Path,
+}
+
+/// Refuses `input` where it shares samples with a render read before it.
+fn refuse_shared_samples(seen: &[Seen], input: &Seen) -> std::result::Result<(), RenderError> {
+    let Seen {
+        scene,
+        seeds,
+        unknown,
+        digest,
+        unknown_digests,
+        path: p,
+    } = input;
+    let (scene, unknown, digest) = (*scene, *unknown, *digest);
+    let shared = |o: &Seen| seeds.iter().copied().find(|s| o.seeds.contains(s));
+    // A seed in common shares samples; where either holds renders of unknown seed,
+    // equal pixels are the only sign left: the images' own, or those recorded of the
+    // renders of unknown seed a merge holds.
+    let twin = seen.iter().find(|o| {
+        o.scene == scene
+            && (shared(o).is_some()
+                || ((unknown || o.unknown) && digest.is_some() && o.digest == digest)
+                || unknown_digests
+                    .iter()
+                    .any(|d| o.unknown_digests.contains(d)))
+    });
+    if let Some(o) = twin {
+        // Known by a seed, by equal pixels, or by a recorded render of unknown seed
+        // that both hold (two merges sharing an input).
+        let common = unknown_digests
+            .iter()
+            .find(|d| o.unknown_digests.contains(d));
+        let same_pixels = digest.is_some() && o.digest == digest;
+        return Err(RenderError::Image(match (shared(o), common) {
+            (None, Some(d)) if !same_pixels => format!(
+                "{}: holds a render of unknown seed that {} holds too (pixels with digest \
+                 {d:016x}): its samples would count twice; merge images with no render in \
+                 common",
+                p.display(),
+                o.path.display()
+            ),
+            (Some(s), _) => format!(
+                "{}: shares seed {s} with {}: rendered on one device, its samples are in \
+                 both and would count twice (the tag does not record the device, and the \
+                 CPU and GPU draw different streams from one seed, so renders of one seed \
+                 on the two are refused too); merge renders of different seeds",
+                p.display(),
+                o.path.display(),
+            ),
+            (None, _) => format!(
+                "{}: holds the same render as {} (equal pixels): its samples would count \
+                 twice; merge renders of different seeds",
+                p.display(),
+                o.path.display(),
+            ),
+        }));
+    }
+    Ok(())
+}
+
+/// The render tag `merge` weights an input by: present, and of at least one sample.
+fn merge_tag(p: &Path, tag: Option<RenderTag>) -> std::result::Result<RenderTag, RenderError> {
+    let tag = tag.ok_or_else(|| {
+        // `merge *.exr` picks up `render --variance`'s images too.
+        let hint = if p.to_string_lossy().ends_with(".var.exr") {
+            " (a variance image of `render --variance`? leave it out)"
+        } else {
+            ""
+        };
+        RenderError::Image(format!(
+            "{}: no stcvae render tag (spp, scene hash) in the EXR header: not an stcvae \
+             render{hint}",
+            p.display()
+        ))
+    })?;
+    if tag.spp == 0 {
+        return Err(RenderError::Image(format!(
+            "{}: the render tag says 0 spp: nothing to weight it by",
+            p.display()
+        )));
+    }
+    Ok(tag)
+}
+
+/// Refuses an input pixel that is not finite or is negative.
+fn check_merge_pixels(p: &Path, img: &RgbImage) -> std::result::Result<(), RenderError> {
+    if let Some((x, y)) = img.first_non_finite() {
+        return Err(RenderError::Image(format!(
+            "{}: pixel ({x}, {y}) is not finite: refusing to spread it into the merge",
+            p.display(),
+        )));
+    }
+    // Radiance estimates are never negative; such a pixel means a damaged or foreign
+    // file (the environment loader refuses them too).
+    if let Some((x, y, _)) = img.first_value(|v| v < 0.0) {
+        return Err(RenderError::Image(format!(
+            "{}: pixel ({x}, {y}) is negative: a render's pixels are ≥ 0",
+            p.display()
+        )));
+    }
+    Ok(())
+}
+
+/// Adds one input, weighted by its spp, to the running sum (the first input starts it).
+fn accumulate(
+    acc: &mut Option<(RgbImage, RenderTag, Vec<[f64; 3]>)>,
+    first_path: &Path,
+    p: &Path,
+    img: RgbImage,
+    tag: RenderTag,
+    unknown_digests: Vec<u64>,
+) -> std::result::Result<(), RenderError> {
+    match acc {
+        None => {
+            let sum = img
+                .pixels
+                .iter()
+                .map(|px| px.map(|v| v as f64 * tag.spp as f64))
+                .collect();
+            let mut tag = tag;
+            tag.partial = tag.some_unknown();
+            tag.unknown_digests = unknown_digests;
+            *acc = Some((img, tag, sum));
+        }
+        Some((first, t0, sum)) => {
+            if tag.scene_hash != t0.scene_hash {
+                return Err(RenderError::Image(format!(
+                    "{}: scene hash {:016x} differs from {:016x} of {}: renders of different scenes (or of one scene with another integrator, model or render settings, or by a build of stcvae whose renderer differs) cannot be merged",
+                    p.display(),
+                    tag.scene_hash,
+                    t0.scene_hash,
+                    first_path.display()
+                )));
+            }
+            if (img.width, img.height) != (first.width, first.height) {
+                return Err(RenderError::Image(format!(
+                    "{}: size {}x{} differs from {}x{}",
+                    p.display(),
+                    img.width,
+                    img.height,
+                    first.width,
+                    first.height
+                )));
+            }
+            for (s, px) in sum.iter_mut().zip(&img.pixels) {
+                for c in 0..3 {
+                    s[c] += px[c] as f64 * tag.spp as f64;
+                }
+            }
+            t0.spp = t0.spp.checked_add(tag.spp).ok_or_else(|| {
+                RenderError::Image(format!("{}: the spp total overflows", p.display()))
+            })?;
+            // Known seeds are kept whatever else comes in; an input of unknown seed
+            // marks the list as partial (a list with it missing would read as whole).
+            t0.partial |= tag.some_unknown();
+            t0.seeds.extend(&tag.seeds);
+            t0.unknown_digests.extend(unknown_digests);
+            // Equal scene hashes give equal views; a file written before views were
+            // recorded leaves the merge's unknown.
+            if tag.view_hash != t0.view_hash {
+                t0.view_hash = None;
+            }
+        }
+    }
+    Ok(())
 }
 
 #[cfg(test)]
