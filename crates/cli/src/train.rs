@@ -1174,25 +1174,7 @@ fn training_info(
 pub fn run(a: Args) -> Result<()> {
     let cfg = load(&a.config)?;
     let device = device(&a.backend)?;
-    if !(a.steps_scale > 0.0 && a.steps_scale <= 1e3) {
-        bail!(
-            "--steps-scale = {} is out of range: allowed (0, 1000]",
-            scatter_sim::ranges::num(a.steps_scale)
-        );
-    }
-    // A scaled run is held to the steps a config may ask for (a checkpoint past them would
-    // be refused as damaged on --resume).
-    for k in trained_kinds(a.model) {
-        let steps = scaled_steps(cfg.model(k).steps, a.steps_scale);
-        if steps > cvae::train::trainer::MAX_STEPS {
-            bail!(
-                "--steps-scale {} gives {}.steps = {steps} in {}: allowed at most 2^40",
-                scatter_sim::ranges::num(a.steps_scale),
-                k.name(),
-                a.config.display()
-            );
-        }
-    }
+    check_steps_scale(&a, &cfg)?;
     let out = model_out(&a, &cfg)?;
     // A folder already there is held from now on, before its checkpoints are looked at
     // (a second run was told "holds checkpoints", and with --fresh read the whole dataset
@@ -1203,41 +1185,10 @@ pub fn run(a: Args) -> Result<()> {
         .is_dir()
         .then(|| lock_checkpoint_dir(&cfg.checkpoint_dir, &a.config))
         .transpose()?;
-    // And what the dataset comes from: a folder named as the dataset failed with a bare
-    // "Is a directory"; a bad dataset_config only after "generating it from … first".
-    if cfg.dataset.is_dir() {
-        bail!(
-            "{}: dataset = \"{}\" is a directory: name a binary dataset file",
-            a.config.display(),
-            cfg.dataset.display()
-        );
-    }
-    if !cfg.dataset.exists()
-        && let Some(dc) = &cfg.dataset_config
-    {
-        crate::generate::load_config(dc).with_context(|| {
-            format!(
-                "{}: dataset_config = \"{}\" (read to generate the missing dataset)",
-                a.config.display(),
-                dc.display()
-            )
-        })?;
-    }
+    check_dataset_source(&a, &cfg)?;
     let base = load_base(&a, &cfg, &out)?;
     let kinds = trained_kinds(a.model);
-    // The CPU renders any model the config allows; the GPU kernels a smaller one.
-    for &k in &kinds {
-        if let Err(e) =
-            render_gpu::gpu::decoder_gen::fits_kernels(k.cond(), cfg.model(k).latent, k.out())
-        {
-            eprintln!(
-                "warning: {}: {}.latent = {}: the model {e}; it will render on the CPU only",
-                a.config.display(),
-                k.name(),
-                cfg.model(k).latent
-            );
-        }
-    }
+    warn_cpu_only_models(&a, &cfg, &kinds);
     let resumed = checkpoints_to_resume(&a, &cfg, &kinds)?;
     // Without a base, the decoders not trained now come from the checkpoints: read (and
     // checked) once, before the training rather than after it.
@@ -1281,12 +1232,92 @@ pub fn run(a: Args) -> Result<()> {
         from_checkpoints,
         info,
     );
+    write_model(&a, &cfg, &out, &set, &trained, seconds, &notes)
+}
+
+/// Refuses a --steps-scale out of range, or one that takes a model past the steps a config
+/// may ask for (a checkpoint past them would be refused as damaged on --resume).
+fn check_steps_scale(a: &Args, cfg: &TrainConfig) -> Result<()> {
+    if !(a.steps_scale > 0.0 && a.steps_scale <= 1e3) {
+        bail!(
+            "--steps-scale = {} is out of range: allowed (0, 1000]",
+            scatter_sim::ranges::num(a.steps_scale)
+        );
+    }
+    for k in trained_kinds(a.model) {
+        let steps = scaled_steps(cfg.model(k).steps, a.steps_scale);
+        if steps > cvae::train::trainer::MAX_STEPS {
+            bail!(
+                "--steps-scale {} gives {}.steps = {steps} in {}: allowed at most 2^40",
+                scatter_sim::ranges::num(a.steps_scale),
+                k.name(),
+                a.config.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Refuses a dataset that is a folder, and a dataset_config that cannot be read where
+/// the dataset is to be generated from it, before anything is read or generated.
+fn check_dataset_source(a: &Args, cfg: &TrainConfig) -> Result<()> {
+    // A folder named as the dataset failed with a bare "Is a directory"; a bad
+    // dataset_config only after "generating it from … first".
+    if cfg.dataset.is_dir() {
+        bail!(
+            "{}: dataset = \"{}\" is a directory: name a binary dataset file",
+            a.config.display(),
+            cfg.dataset.display()
+        );
+    }
+    if !cfg.dataset.exists()
+        && let Some(dc) = &cfg.dataset_config
+    {
+        crate::generate::load_config(dc).with_context(|| {
+            format!(
+                "{}: dataset_config = \"{}\" (read to generate the missing dataset)",
+                a.config.display(),
+                dc.display()
+            )
+        })?;
+    }
+    Ok(())
+}
+
+/// Warns of a model too large for the GPU kernels: the CPU renders any model the config
+/// allows.
+fn warn_cpu_only_models(a: &Args, cfg: &TrainConfig, kinds: &[ModelKind]) {
+    for &k in kinds {
+        if let Err(e) =
+            render_gpu::gpu::decoder_gen::fits_kernels(k.cond(), cfg.model(k).latent, k.out())
+        {
+            eprintln!(
+                "warning: {}: {}.latent = {}: the model {e}; it will render on the CPU only",
+                a.config.display(),
+                k.name(),
+                cfg.model(k).latent
+            );
+        }
+    }
+}
+
+/// Checks the trained set as its readers will, then writes it with its loss curves as one
+/// set, and says where they went.
+fn write_model(
+    a: &Args,
+    cfg: &TrainConfig,
+    out: &Path,
+    set: &ModelSet,
+    trained: &[cvae::train::Trained],
+    seconds: f64,
+    notes: &[String],
+) -> Result<()> {
     // What every reader will check, checked before writing: a file they would all refuse
     // is not written (a decoder from an old checkpoint is not otherwise validated).
     let bytes = set.to_bytes();
     // The checks' own wording blames a damaged or edited file; one trained here failing
     // them comes from its data or its schedule, which is what to look at.
-    ModelSet::from_bytes(&bytes, &out).with_context(|| {
+    ModelSet::from_bytes(&bytes, out).with_context(|| {
         format!(
             "the trained model fails the model file's checks, so nothing was written; a model \
              trained (not edited) fails them when the dataset {} holds walks far from what \
@@ -1298,12 +1329,12 @@ pub fn run(a: Args) -> Result<()> {
     // The model and its loss curves are written as one set: an earlier run's plot never
     // stays beside a new model as if it were its curves. A plot that cannot be drawn is
     // told, not the training's failure, and the earlier plot goes.
-    let plot_path = loss_plot_path(&out);
-    let plot = loss_plot(&plot_path, &trained).unwrap_or_else(|e| {
+    let plot_path = loss_plot_path(out);
+    let plot = loss_plot(&plot_path, trained).unwrap_or_else(|e| {
         eprintln!("warning: the loss curves were not plotted: {e:#}");
         None
     });
-    let mut files: Vec<(&Path, &[u8])> = vec![(&out, &bytes)];
+    let mut files: Vec<(&Path, &[u8])> = vec![(out, &bytes)];
     if let Some(png) = &plot {
         files.push((&plot_path, png));
     }
@@ -1315,7 +1346,7 @@ pub fn run(a: Args) -> Result<()> {
              the output can be written, `{}` writes it without training again",
             p.display(),
             cfg.checkpoint_dir.display(),
-            resume_command(&a)
+            resume_command(a)
         )
     })?;
     eprintln!(
