@@ -193,6 +193,56 @@ impl Body<'_> {
 pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
     // A UTF-8 byte-order mark before `ply` (some editors write one) is no part of it.
     let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
+    let (binary, elements, body_start) = parse_header(bytes)?;
+    let mut body = if binary {
+        Body::Binary(bytes, body_start)
+    } else {
+        let text =
+            std::str::from_utf8(&bytes[body_start..]).map_err(|_| "the PLY body is not text")?;
+        Body::Ascii(text.split_ascii_whitespace())
+    };
+    let mut mesh = TriMesh::default();
+    // Faces as read (flat indices, and each face's vertex count): cut into triangles once
+    // every vertex is known, since a face's shape decides its cut.
+    let (mut face_indices, mut face_sizes) = (Vec::<u32>::new(), Vec::<usize>::new());
+    for el in &elements {
+        // Guard against absurd counts before allocating.
+        if el.count > bytes.len() {
+            return Err(format!(
+                "element {} claims {} entries, more than the file can hold",
+                el.name, el.count
+            ));
+        }
+        if el.name == "vertex" {
+            check_vertex_properties(el)?;
+            // Each vertex takes at least 6 bytes ("0 0 0\n" in ASCII, 12 in binary), so a
+            // header that lies about the count cannot make this reserve more than the file.
+            mesh.positions.reserve(el.count.min(bytes.len() / 6));
+        }
+        for k in 0..el.count {
+            // Which entry a bad value is in: an ASCII body has no other landmark.
+            read_entry(el, &mut body, &mut mesh, &mut face_indices, &mut face_sizes)
+                .map_err(|e| format!("{} {}: {e}", el.name, k + 1))?;
+        }
+    }
+    body.finish()?;
+    let nv = mesh.positions.len() as u32;
+    if face_indices.iter().any(|&i| i >= nv) {
+        return Err(format!(
+            "a face refers to a vertex beyond the {nv} vertices"
+        ));
+    }
+    crate::mesh::Triangulator::default().polygons(
+        &mesh.positions,
+        &face_indices,
+        face_sizes,
+        &mut mesh.triangles,
+    )?;
+    Ok(mesh)
+}
+
+/// The header: whether the body is binary, the elements, and where the body starts.
+fn parse_header(bytes: &[u8]) -> Result<(bool, Vec<Element>, usize), String> {
     let (end, body_start) = header_end(bytes).ok_or("not a PLY file: no end_header line")?;
     let header = std::str::from_utf8(&bytes[..end]).map_err(|_| "the PLY header is not text")?;
     // Split at CR as well as LF: see `header_end` (the blank pieces of CRLF are skipped).
@@ -252,102 +302,73 @@ pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
             e.name
         ));
     }
-    let mut body = if binary {
-        Body::Binary(bytes, body_start)
-    } else {
-        let text =
-            std::str::from_utf8(&bytes[body_start..]).map_err(|_| "the PLY body is not text")?;
-        Body::Ascii(text.split_ascii_whitespace())
-    };
-    let mut mesh = TriMesh::default();
-    // Faces as read (flat indices, and each face's vertex count): cut into triangles once
-    // every vertex is known, since a face's shape decides its cut.
-    let (mut face_indices, mut face_sizes) = (Vec::<u32>::new(), Vec::<usize>::new());
-    for el in &elements {
-        // Guard against absurd counts before allocating.
-        if el.count > bytes.len() {
-            return Err(format!(
-                "element {} claims {} entries, more than the file can hold",
-                el.name, el.count
-            ));
+    Ok((binary, elements, body_start))
+}
+
+fn check_vertex_properties(el: &Element) -> Result<(), String> {
+    for axis in ["x", "y", "z"] {
+        if !el
+            .props
+            .iter()
+            .any(|p| matches!(p, Property::Scalar(n, _) if n == axis))
+        {
+            return Err(format!("the vertex element has no `{axis}` property"));
         }
-        let is_vertex = el.name == "vertex";
-        let is_face = el.name == "face";
-        if is_vertex {
-            for axis in ["x", "y", "z"] {
-                if !el
-                    .props
-                    .iter()
-                    .any(|p| matches!(p, Property::Scalar(n, _) if n == axis))
-                {
-                    return Err(format!("the vertex element has no `{axis}` property"));
-                }
-            }
-            // Each vertex takes at least 6 bytes ("0 0 0\n" in ASCII, 12 in binary), so a
-            // header that lies about the count cannot make this reserve more than the file.
-            mesh.positions.reserve(el.count.min(bytes.len() / 6));
-        }
-        for k in 0..el.count {
-            // Which entry a bad value is in: an ASCII body has no other landmark.
-            let mut entry = || -> Result<(), String> {
-                let mut p = [0f32; 3];
-                for prop in &el.props {
-                    match prop {
-                        Property::Scalar(name, t) => {
-                            let v = body.next(*t)?;
-                            if is_vertex {
-                                match name.as_str() {
-                                    "x" => p[0] = v as f32,
-                                    "y" => p[1] = v as f32,
-                                    "z" => p[2] = v as f32,
-                                    _ => {}
-                                }
-                            }
-                        }
-                        Property::List(name, ct, it) => {
-                            let n = body.next(*ct)?;
-                            if !(0.0..=1e6).contains(&n) || n.fract() != 0.0 {
-                                return Err(format!("bad list length {n}"));
-                            }
-                            let mut idx = Vec::with_capacity(n as usize);
-                            for _ in 0..n as usize {
-                                idx.push(body.next(*it)?);
-                            }
-                            if is_face && (name == "vertex_indices" || name == "vertex_index") {
-                                if idx.len() < 3 {
-                                    return Err("a face has fewer than 3 vertices".into());
-                                }
-                                if idx.iter().any(|&v| v < 0.0 || v.fract() != 0.0) {
-                                    return Err("a face has a negative or fractional index".into());
-                                }
-                                face_indices.extend(idx.iter().map(|&v| v as u32));
-                                face_sizes.push(idx.len());
-                            }
-                        }
+    }
+    Ok(())
+}
+
+/// One entry of an element: a vertex's position, or a face's vertex indices (kept with
+/// its vertex count); other properties and elements are read past.
+fn read_entry(
+    el: &Element,
+    body: &mut Body,
+    mesh: &mut TriMesh,
+    face_indices: &mut Vec<u32>,
+    face_sizes: &mut Vec<usize>,
+) -> Result<(), String> {
+    let is_vertex = el.name == "vertex";
+    let is_face = el.name == "face";
+    let mut p = [0f32; 3];
+    for prop in &el.props {
+        match prop {
+            Property::Scalar(name, t) => {
+                let v = body.next(*t)?;
+                if is_vertex {
+                    match name.as_str() {
+                        "x" => p[0] = v as f32,
+                        "y" => p[1] = v as f32,
+                        "z" => p[2] = v as f32,
+                        _ => {}
                     }
                 }
-                if is_vertex {
-                    mesh.positions.push(Vec3::from_array(p));
+            }
+            Property::List(name, ct, it) => {
+                let n = body.next(*ct)?;
+                if !(0.0..=1e6).contains(&n) || n.fract() != 0.0 {
+                    return Err(format!("bad list length {n}"));
                 }
-                Ok(())
-            };
-            entry().map_err(|e| format!("{} {}: {e}", el.name, k + 1))?;
+                let mut idx = Vec::with_capacity(n as usize);
+                for _ in 0..n as usize {
+                    idx.push(body.next(*it)?);
+                }
+                if is_face && (name == "vertex_indices" || name == "vertex_index") {
+                    if idx.len() < 3 {
+                        return Err("a face has fewer than 3 vertices".into());
+                    }
+                    if idx.iter().any(|&v| v < 0.0 || v.fract() != 0.0) {
+                        return Err("a face has a negative or fractional index".into());
+                    }
+                    face_indices.extend(idx.iter().map(|&v| v as u32));
+                    face_sizes.push(idx.len());
+                }
+            }
         }
     }
-    body.finish()?;
-    let nv = mesh.positions.len() as u32;
-    if face_indices.iter().any(|&i| i >= nv) {
-        return Err(format!(
-            "a face refers to a vertex beyond the {nv} vertices"
-        ));
+    if is_vertex {
+        mesh.positions.push(Vec3::from_array(p));
     }
-    crate::mesh::Triangulator::default().polygons(
-        &mesh.positions,
-        &face_indices,
-        face_sizes,
-        &mut mesh.triangles,
-    )?;
-    Ok(mesh)
+    Ok(())
 }
 
 /// Where the header ends (the start of its `end_header` line) and the body begins (after
