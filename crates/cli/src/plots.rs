@@ -383,51 +383,7 @@ pub fn line_plot_png(
 ) -> Result<Vec<u8>> {
     init_font();
     let (w, h) = (900u32, 600u32);
-    let pts = || series.iter().flat_map(|s| s.points.iter().cloned());
-    let finite = |v: f64, log: bool| v.is_finite() && (!log || v > 0.0);
-    let xs: Vec<f64> = pts().map(|p| p.0).filter(|&v| finite(v, log_x)).collect();
-    let ys: Vec<f64> = pts().map(|p| p.1).filter(|&v| finite(v, log_y)).collect();
-    if xs.is_empty() || ys.is_empty() {
-        return Err(anyhow!("plot {}: no finite points", path.display()));
-    }
-    let span = |v: &[f64], log: bool| {
-        let lo = v.iter().cloned().fold(f64::INFINITY, f64::min);
-        let hi = v.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
-        if log {
-            (lo / 1.3, hi * 1.3)
-        } else {
-            let pad = ((hi - lo) * 0.08).max(1e-9 + lo.abs() * 0.05);
-            (lo - pad, hi + pad)
-        }
-    };
-    let (x0, x1) = span(&xs, log_x);
-    let (y0, y1) = span(&ys, log_y);
-    // No legend position given: the y axis grows by the legend's height (20 px a series on
-    // a ~480 px plot), so the legend sits above every line in the upper right.
-    let (y1, legend) = match legend {
-        Some(l) => (y1, l),
-        None => {
-            let f = ((series.len() as f64 * 20.0 + 24.0) / 480.0).min(0.6);
-            let y1 = if log_y {
-                y1 * (y1 / y0).powf(f / (1.0 - f))
-            } else {
-                y1 + (y1 - y0) * f / (1.0 - f)
-            };
-            (y1, SeriesLabelPosition::UpperRight)
-        }
-    };
-    let colours = [
-        BLACK,
-        RED,
-        BLUE,
-        GREEN,
-        MAGENTA,
-        CYAN,
-        RGBColor(255, 140, 0),
-        RGBColor(128, 128, 128),
-        RGBColor(128, 64, 0),
-        RGBColor(0, 110, 0),
-    ];
+    let ((x0, x1), (y0, y1), legend) = axis_ranges(path, (log_x, log_y), series, legend)?;
     let mut buf = vec![255u8; (w * h * 3) as usize];
     {
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
@@ -447,12 +403,12 @@ pub fn line_plot_png(
                 }
                 mesh.draw().map_err(|x| e(&x))?;
                 for (i, s) in series.iter().enumerate() {
-                    let c = colours[s.colour.unwrap_or(i) % colours.len()];
+                    let c = COLOURS[s.colour.unwrap_or(i) % COLOURS.len()];
                     let p: Vec<(f64, f64)> = s
                         .points
                         .iter()
                         .cloned()
-                        .filter(|&(x, y)| finite(x, log_x) && finite(y, log_y))
+                        .filter(|&(x, y)| plottable(x, log_x) && plottable(y, log_y))
                         .collect();
                     let drawn = if s.dashed {
                         chart.draw_series(DashedLineSeries::new(p.clone(), 8, 5, c.stroke_width(2)))
@@ -530,6 +486,77 @@ pub fn line_plot_png(
         root.present().map_err(|x| e(&x))?;
     }
     encode_png(&buf, w, h)
+}
+
+/// Whether a coordinate can be drawn: finite, and positive on a log axis.
+fn plottable(v: f64, log: bool) -> bool {
+    v.is_finite() && (!log || v > 0.0)
+}
+
+/// The series' colours, in order (a series may pick one by its index).
+const COLOURS: [RGBColor; 10] = [
+    BLACK,
+    RED,
+    BLUE,
+    GREEN,
+    MAGENTA,
+    CYAN,
+    RGBColor(255, 140, 0),
+    RGBColor(128, 128, 128),
+    RGBColor(128, 64, 0),
+    RGBColor(0, 110, 0),
+];
+
+/// An axis's range: its lowest and highest value.
+type Span = (f64, f64);
+
+/// The x and y ranges that hold every finite point (positive on a log axis) with a margin,
+/// the y range grown to make room for the legend where none was placed, and its place.
+fn axis_ranges(
+    path: &Path,
+    (log_x, log_y): (bool, bool),
+    series: &[Series],
+    legend: Option<SeriesLabelPosition>,
+) -> Result<(Span, Span, SeriesLabelPosition)> {
+    let pts = || series.iter().flat_map(|s| s.points.iter().cloned());
+    let xs: Vec<f64> = pts()
+        .map(|p| p.0)
+        .filter(|&v| plottable(v, log_x))
+        .collect();
+    let ys: Vec<f64> = pts()
+        .map(|p| p.1)
+        .filter(|&v| plottable(v, log_y))
+        .collect();
+    if xs.is_empty() || ys.is_empty() {
+        return Err(anyhow!("plot {}: no finite points", path.display()));
+    }
+    let span = |v: &[f64], log: bool| {
+        let lo = v.iter().cloned().fold(f64::INFINITY, f64::min);
+        let hi = v.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+        if log {
+            (lo / 1.3, hi * 1.3)
+        } else {
+            let pad = ((hi - lo) * 0.08).max(1e-9 + lo.abs() * 0.05);
+            (lo - pad, hi + pad)
+        }
+    };
+    let (x0, x1) = span(&xs, log_x);
+    let (y0, y1) = span(&ys, log_y);
+    // No legend position given: the y axis grows by the legend's height (20 px a series on
+    // a ~480 px plot), so the legend sits above every line in the upper right.
+    let (y1, legend) = match legend {
+        Some(l) => (y1, l),
+        None => {
+            let f = ((series.len() as f64 * 20.0 + 24.0) / 480.0).min(0.6);
+            let y1 = if log_y {
+                y1 * (y1 / y0).powf(f / (1.0 - f))
+            } else {
+                y1 + (y1 - y0) * f / (1.0 - f)
+            };
+            (y1, SeriesLabelPosition::UpperRight)
+        }
+    };
+    Ok(((x0, x1), (y0, y1), legend))
 }
 
 #[cfg(test)]
