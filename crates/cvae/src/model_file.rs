@@ -250,34 +250,7 @@ impl ModelSet {
     pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Self, ModelError> {
         let p = || path.to_path_buf();
         let invalid = |msg: String| ModelError::Invalid { path: p(), msg };
-        if bytes.len() < 8 || &bytes[..8] != MAGIC {
-            return Err(ModelError::BadMagic { path: p() });
-        }
-        if bytes.len() < 20 {
-            return Err(ModelError::Truncated {
-                path: p(),
-                expected: 20,
-                found: bytes.len(),
-                at_least: true,
-            });
-        }
-        let version = u32::from_le_bytes(bytes[8..12].try_into().unwrap());
-        if version != VERSION {
-            return Err(ModelError::Version {
-                path: p(),
-                found: version,
-                supported: VERSION,
-            });
-        }
-        let json_len = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
-        if 16 + json_len + 4 > bytes.len() {
-            return Err(ModelError::Truncated {
-                path: p(),
-                expected: 16 + json_len + 4,
-                found: bytes.len(),
-                at_least: true,
-            });
-        }
+        let json_len = check_frame(bytes, path)?;
         let body = &bytes[..bytes.len() - 4];
         let stored = u32::from_le_bytes(bytes[bytes.len() - 4..].try_into().unwrap());
         let meta: Result<Metadata, _> = serde_json::from_slice(&bytes[16..16 + json_len]);
@@ -324,64 +297,7 @@ impl ModelSet {
             .map(|c| f32::from_le_bytes(c.try_into().unwrap()));
         let mut decoders = Vec::with_capacity(3);
         for (i, spec) in meta.decoders.iter().enumerate() {
-            let (cond, out) = SHAPES[i];
-            if spec.name != NAMES[i] || spec.cond != cond || spec.out != out {
-                return Err(invalid(format!(
-                    "decoder {i} is '{}' with {} inputs and {} outputs; expected '{}' with {cond} and {out}",
-                    spec.name, spec.cond, spec.out, NAMES[i]
-                )));
-            }
-            let widths: Vec<usize> = std::iter::once(spec.cond.saturating_add(spec.latent))
-                .chain(spec.hidden.iter().copied())
-                .chain(std::iter::once(spec.out.saturating_mul(2)))
-                .collect();
-            if spec.cond.saturating_add(spec.latent) > MAX_INPUT {
-                return Err(invalid(format!(
-                    "{}: {} conditions + {} latent inputs; at most {MAX_INPUT} in all",
-                    spec.name, spec.cond, spec.latent
-                )));
-            }
-            if spec.hidden.len() > MAX_HIDDEN_LAYERS {
-                return Err(invalid(format!(
-                    "{}: {} hidden layers; at most {MAX_HIDDEN_LAYERS}",
-                    spec.name,
-                    spec.hidden.len()
-                )));
-            }
-            if widths.iter().any(|&w| w == 0 || w > MAX_WIDTH) {
-                return Err(invalid(format!(
-                    "{}: layer widths {widths:?} outside 1..={MAX_WIDTH}",
-                    spec.name
-                )));
-            }
-            check_standardisation(spec, cond, out)
-                .map_err(|e| invalid(format!("{}: {e}", spec.name)))?;
-            let mut layers = Vec::new();
-            for w in widths.windows(2) {
-                let (inputs, outputs) = (w[0], w[1]);
-                let weight: Vec<f32> = floats.by_ref().take(inputs * outputs).collect();
-                let bias: Vec<f32> = floats.by_ref().take(outputs).collect();
-                if weight.len() != inputs * outputs || bias.len() != outputs {
-                    return Err(invalid("weights end early".into()));
-                }
-                if !weight.iter().chain(&bias).all(|v| v.abs() <= MAX_WEIGHT) {
-                    return Err(invalid(format!(
-                        "{}: a weight is non-finite or beyond ±{MAX_WEIGHT:e}",
-                        spec.name
-                    )));
-                }
-                layers.push(Dense::new(inputs, outputs, weight, bias));
-            }
-            decoders.push(Decoder {
-                cond,
-                latent: spec.latent,
-                out,
-                layers,
-                cond_shift: spec.cond_shift.clone(),
-                cond_scale: spec.cond_scale.clone(),
-                out_shift: spec.out_shift.clone(),
-                out_scale: spec.out_scale.clone(),
-            });
+            decoders.push(read_decoder(i, spec, &mut floats).map_err(invalid)?);
         }
         let event = decoders.pop().unwrap();
         let path_d = decoders.pop().unwrap();
@@ -654,5 +570,107 @@ fn weight_count(m: &Metadata) -> Option<usize> {
         widths.windows(2).try_fold(acc, |acc, w| {
             acc.checked_add(w[0].checked_mul(w[1])?.checked_add(w[1])?)
         })
+    })
+}
+
+/// Checks the file's frame (magic, version, the metadata's length within the file) and
+/// returns the metadata's length.
+fn check_frame(bytes: &[u8], path: &Path) -> Result<usize, ModelError> {
+    let p = || path.to_path_buf();
+    if bytes.len() < 8 || &bytes[..8] != MAGIC {
+        return Err(ModelError::BadMagic { path: p() });
+    }
+    if bytes.len() < 20 {
+        return Err(ModelError::Truncated {
+            path: p(),
+            expected: 20,
+            found: bytes.len(),
+            at_least: true,
+        });
+    }
+    let version = u32::from_le_bytes(bytes[8..12].try_into().unwrap());
+    if version != VERSION {
+        return Err(ModelError::Version {
+            path: p(),
+            found: version,
+            supported: VERSION,
+        });
+    }
+    let json_len = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
+    if 16 + json_len + 4 > bytes.len() {
+        return Err(ModelError::Truncated {
+            path: p(),
+            expected: 16 + json_len + 4,
+            found: bytes.len(),
+            at_least: true,
+        });
+    }
+    Ok(json_len)
+}
+
+/// Decoder `i` of the file: its shape checked against the one this build reads, its
+/// standardisation, and its layers' weights (each finite and within the bound) read from
+/// `floats`.
+fn read_decoder(
+    i: usize,
+    spec: &DecoderSpec,
+    floats: &mut impl Iterator<Item = f32>,
+) -> Result<Decoder, String> {
+    let (cond, out) = SHAPES[i];
+    if spec.name != NAMES[i] || spec.cond != cond || spec.out != out {
+        return Err(format!(
+            "decoder {i} is '{}' with {} inputs and {} outputs; expected '{}' with {cond} and {out}",
+            spec.name, spec.cond, spec.out, NAMES[i]
+        ));
+    }
+    let widths: Vec<usize> = std::iter::once(spec.cond.saturating_add(spec.latent))
+        .chain(spec.hidden.iter().copied())
+        .chain(std::iter::once(spec.out.saturating_mul(2)))
+        .collect();
+    if spec.cond.saturating_add(spec.latent) > MAX_INPUT {
+        return Err(format!(
+            "{}: {} conditions + {} latent inputs; at most {MAX_INPUT} in all",
+            spec.name, spec.cond, spec.latent
+        ));
+    }
+    if spec.hidden.len() > MAX_HIDDEN_LAYERS {
+        return Err(format!(
+            "{}: {} hidden layers; at most {MAX_HIDDEN_LAYERS}",
+            spec.name,
+            spec.hidden.len()
+        ));
+    }
+    if widths.iter().any(|&w| w == 0 || w > MAX_WIDTH) {
+        return Err(format!(
+            "{}: layer widths {widths:?} outside 1..={MAX_WIDTH}",
+            spec.name
+        ));
+    }
+    check_standardisation(spec, cond, out).map_err(|e| format!("{}: {e}", spec.name))?;
+    let mut layers = Vec::new();
+    for w in widths.windows(2) {
+        let (inputs, outputs) = (w[0], w[1]);
+        let weight: Vec<f32> = floats.by_ref().take(inputs * outputs).collect();
+        let bias: Vec<f32> = floats.by_ref().take(outputs).collect();
+        if weight.len() != inputs * outputs || bias.len() != outputs {
+            return Err("weights end early".into());
+        }
+        if !weight.iter().chain(&bias).all(|v| v.abs() <= MAX_WEIGHT) {
+            return Err(format!(
+                "{}: a weight is non-finite or beyond ±{MAX_WEIGHT:e}",
+                spec.name
+            ));
+        }
+        layers.push(Dense::new(inputs, outputs, weight, bias));
+    }
+    Ok(Decoder {
+        cond,
+        latent: spec.latent,
+        out,
+        layers,
+        cond_shift: spec.cond_shift.clone(),
+        cond_scale: spec.cond_scale.clone(),
+        out_shift: spec.out_shift.clone(),
+        out_scale: spec.out_scale.clone(),
     })
 }
