@@ -303,8 +303,11 @@ pub fn prepare(
              from the repository root (the default scene lives there) or pass --scene FILE"
         );
     }
-    // Validated below, once the overrides are in.
+    // Validated below, once the overrides are in; the fields they replace are checked as
+    // written first.
     let mut file = SceneFile::load_unvalidated(scene_path)?;
+    file.check_overridable()
+        .map_err(|e| anyhow!("{}: {e}", scene_path.display()))?;
     if let Some(i) = integrator {
         file.render.integrator = i;
     }
@@ -601,16 +604,8 @@ fn image_size(
     height: Option<u32>,
 ) -> Result<Option<(u32, u32)>> {
     let (w0, h0) = (camera.width as f64, camera.height as f64);
+    // The camera's sides are in range (`check_overridable`, before this).
     let derive = |given: u32, from: f64, to: f64, flag: &str, other: &str| -> Result<u32> {
-        if from <= 0.0 || to <= 0.0 {
-            bail!(
-                "camera.width = {}, camera.height = {}: a side of 0 is out of range (allowed \
-                 [1, {}]), and --{flag} alone keeps the camera's aspect, which needs both",
-                camera.width,
-                camera.height,
-                render_gpu::scene::MAX_IMAGE_SIDE
-            );
-        }
         let v = (given as f64 * to / from).round().max(1.0);
         let max = render_gpu::scene::MAX_IMAGE_SIDE;
         if v > max as f64 {
@@ -785,6 +780,8 @@ fn requested_size(a: &Args, variance_bytes: u64) -> Result<Option<(u32, u32)>> {
     // below min_tau renders with --integrator pt, and was not checked here).
     let mut size = None;
     if let Ok(f) = SceneFile::load_unvalidated(&a.scene) {
+        f.check_overridable()
+            .map_err(|e| anyhow::anyhow!("{}: {e}", a.scene.display()))?;
         size = image_size(&f.camera, a.width, a.height)
             .map_err(|e| anyhow::anyhow!("{}: {e}", a.scene.display()))?;
         let (w, h) = size.unwrap_or((f.camera.width, f.camera.height));

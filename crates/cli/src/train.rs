@@ -1258,8 +1258,9 @@ fn check_steps_scale(a: &Args, cfg: &TrainConfig) -> Result<()> {
     Ok(())
 }
 
-/// Refuses a dataset that is a folder, and a dataset_config that cannot be read where
-/// the dataset is to be generated from it, before anything is read or generated.
+/// Refuses a dataset that is a folder, and, where the dataset is to be generated, a
+/// dataset_config that cannot be read or a dataset path that cannot be written, before
+/// anything is read or generated.
 fn check_dataset_source(a: &Args, cfg: &TrainConfig) -> Result<()> {
     // A folder named as the dataset failed with a bare "Is a directory"; a bad
     // dataset_config only after "generating it from … first".
@@ -1280,6 +1281,9 @@ fn check_dataset_source(a: &Args, cfg: &TrainConfig) -> Result<()> {
                 dc.display()
             )
         })?;
+        // Generated here, the dataset is `generate`'s output: a path it cannot write was
+        // blamed on `--out`, a flag the user never gave.
+        crate::check_out(&format!("{}: dataset =", a.config.display()), &cfg.dataset)?;
     }
     Ok(())
 }

@@ -1662,6 +1662,43 @@ fn render_size_flags_and_a_plain_scene_argument() {
     .unwrap();
     let e = fails(&stcvae(&["render", flat.to_str().unwrap(), "--width", "8"]));
     assert!(e.contains("camera.height = 0"), "{e}");
+    // Nor by flags that replace it: a file that `experiment` and `bench` refuse is
+    // refused here too (`--width 8 --height 8` rendered it).
+    let e = fails(&stcvae(&[
+        "render",
+        flat.to_str().unwrap(),
+        "--width",
+        "8",
+        "--height",
+        "8",
+    ]));
+    assert!(
+        e.contains("camera.height = 0 is out of range: allowed [1, 16384]"),
+        "{e}"
+    );
+    let no_spp = tmp.path().join("no_spp.toml");
+    let text = std::fs::read_to_string(&scene).unwrap();
+    let spp_line = text
+        .lines()
+        .find(|l| l.starts_with("spp ="))
+        .expect("the scene sets render.spp");
+    std::fs::write(&no_spp, text.replace(spp_line, "spp = 0")).unwrap();
+    let e = fails(&stcvae(&["render", no_spp.to_str().unwrap(), "--spp", "1"]));
+    assert!(e.contains("render.spp = 0 is out of range"), "{e}");
+    // A side out of range is named for its range, not for the memory it would take
+    // (which depended on the machine's memory).
+    let wide = tmp.path().join("wide.toml");
+    std::fs::write(
+        &wide,
+        text.replace("height = 64", "height = 1")
+            .replace("width = 32", "width = 2147483647"),
+    )
+    .unwrap();
+    let e = fails(&stcvae(&["render", wide.to_str().unwrap()]));
+    assert!(
+        e.contains("camera.width = 2147483647 is out of range: allowed [1, 16384]"),
+        "{e}"
+    );
     let e = fails(&stcvae(&["render", "--width", "0"]));
     assert!(e.contains("--width") && e.contains("16384"), "{e}");
 }

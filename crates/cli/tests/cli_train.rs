@@ -354,6 +354,31 @@ fn a_fixed_condition_warns_and_a_bad_checkpoint_dir_fails_first() {
     );
 }
 
+/// A dataset that is to be generated where it cannot be written is refused naming the
+/// config's `dataset` field, before anything is generated: it was blamed on `--out`, a
+/// flag of `generate` that the user never gave.
+#[test]
+fn an_unwritable_dataset_path_names_the_config_field() {
+    let dir = tempfile::tempdir().unwrap();
+    setup(dir.path());
+    fs::write(dir.path().join("a_file"), "not a folder").unwrap();
+    replace_in(
+        &dir.path().join("train.toml"),
+        "dataset = \"d.bin\"",
+        "dataset = \"a_file/d.bin\"",
+    );
+    let base = root().join("models/default.stcvae");
+    let out = train_eventgen(dir.path(), base.to_str().unwrap());
+    assert!(!out.status.success());
+    let err = stderr(&out);
+    assert!(err.contains("train.toml: dataset = "), "{err}");
+    assert!(
+        !err.contains("--out") && !err.contains("generating"),
+        "{err}"
+    );
+    assert_eq!(err.lines().count(), 1, "{err}");
+}
+
 /// A whole number the field's type cannot hold (negative, fractional) is refused with the
 /// field's own range, the one its validation then checks: `batch_size = -1` said "expected
 /// a whole number, at least 0" (serde's usize), where 0 is refused as well.

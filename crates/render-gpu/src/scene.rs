@@ -579,6 +579,16 @@ impl SceneFile {
         })
     }
 
+    /// The ranges of the fields the command line can replace (`camera.width` and
+    /// `height`, `render.spp`), as the file writes them: `render --width 8` rendered a
+    /// file with `width = 0` that `experiment` and `bench` refuse, and a width too large
+    /// for memory was refused for its memory, not its range.
+    pub fn check_overridable(&self) -> Result<(), String> {
+        check_whole(W_WIDTH, self.camera.width)?;
+        check_whole(W_HEIGHT, self.camera.height)?;
+        check_whole(W_SPP, self.render.spp)
+    }
+
     /// Checks every range. The message names the field and the allowed range.
     pub fn validate(&self) -> Result<(), String> {
         check_camera(&self.camera)?;
