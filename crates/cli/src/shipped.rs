@@ -29,6 +29,11 @@ pub fn locate(rel: &str) -> PathBuf {
 /// defaulted) is located as above, any other path taken as given.
 pub fn scene_arg(default: &'static str) -> impl Fn(&str) -> Result<PathBuf, String> + Clone {
     move |s: &str| {
+        // As clap's own path parser refuses it: read, "" failed as ": cannot read scene
+        // file".
+        if s.is_empty() {
+            return Err("an empty path names no scene file".into());
+        }
         Ok(if s == default {
             locate(s)
         } else {

@@ -373,6 +373,14 @@ fn bad_experiment_config_is_a_clear_error() {
         std::fs::read_dir(out_dir.path()).unwrap().next().is_none(),
         "a folder or file was made before the error"
     );
+    // An empty scene name is named as such: joined to the config's folder it read as
+    // that folder ("cannot read scene file: Is a directory").
+    fallback(std::path::Path::new(""), "0.0");
+    let err = String::from_utf8_lossy(&quick_experiment(&cfg, out_dir.path()).stderr).into_owned();
+    assert!(
+        err.contains("bad.toml: scene = \"\" names no file"),
+        "{err}"
+    );
     // A scene or a training config given instead says what it is, not "unknown field".
     let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../../configs");
     for (file, what) in [

@@ -1701,6 +1701,11 @@ fn render_size_flags_and_a_plain_scene_argument() {
     );
     let e = fails(&stcvae(&["render", "--width", "0"]));
     assert!(e.contains("--width") && e.contains("16384"), "{e}");
+    // An empty scene name, given either way, is refused as such, not as ": cannot read".
+    for args in [&["render", ""][..], &["render", "--scene", ""]] {
+        let e = fails(&stcvae(args));
+        assert!(e.contains("an empty path names no scene file"), "{e}");
+    }
 }
 
 /// Without a usable adapter (`WGPU_BACKEND=gl` names only a backend that is not compiled

@@ -208,7 +208,8 @@ fn check_radiance_map(m: &RgbImage) -> Result<(), String> {
     let max = crate::scene::MAX_RADIANCE as f32;
     if let Some((x, y, v)) = m.first_value(|v| !(v >= 0.0 && v <= max)) {
         return Err(format!(
-            "environment pixel ({x}, {y}) = {v} is out of range: allowed [0, {max:e}]"
+            "environment pixel ({x}, {y}) = {} is out of range: allowed [0, {max:e}]",
+            scatter_sim::ranges::num(v)
         ));
     }
     if m.width == 0 || m.height == 0 {

@@ -165,6 +165,7 @@ fn whole<'de, const I: usize, D: serde::Deserializer<'de>>(d: D) -> Result<u32, 
 /// serde's Rust type names in words: `width = -16` said "expected u32". The field's own
 /// range is checked after parsing (the validation's messages give it).
 fn plain_types(msg: &str) -> String {
+    let msg = &plain_structs(&short_floats(msg));
     [
         ("expected u32", "expected a whole number in [0, 4294967295]"),
         ("expected u64", "expected a whole number in [0, 2^64)"),
@@ -175,6 +176,45 @@ fn plain_types(msg: &str) -> String {
     ]
     .iter()
     .fold(msg.to_string(), |m, (rust, plain)| m.replace(rust, plain))
+}
+
+/// serde names a table by the Rust type it fills ("expected struct ConditionSampler" for
+/// `conditions = 5`), which the user never sees: a table it is.
+fn plain_structs(msg: &str) -> String {
+    const TAG: &str = "expected struct ";
+    let mut out = String::with_capacity(msg.len());
+    let mut rest = msg;
+    while let Some(i) = rest.find(TAG) {
+        out.push_str(&rest[..i]);
+        out.push_str("expected a table");
+        let tail = &rest[i + TAG.len()..];
+        let end = tail
+            .find(|c: char| !(c.is_ascii_alphanumeric() || c == '_'))
+            .unwrap_or(tail.len());
+        rest = &tail[end..];
+    }
+    out.push_str(rest);
+    out
+}
+
+/// serde writes a float it refuses in full (`seed = 1e308` gave a 309-digit number):
+/// written short instead, as the range messages write theirs.
+fn short_floats(msg: &str) -> String {
+    const TAG: &str = "floating point `";
+    let mut out = String::with_capacity(msg.len());
+    let mut rest = msg;
+    while let Some(i) = rest.find(TAG) {
+        let (head, tail) = rest.split_at(i + TAG.len());
+        out.push_str(head);
+        let end = tail.find('`').unwrap_or(tail.len());
+        match tail[..end].parse::<f64>() {
+            Ok(v) if end > 16 => out.push_str(&num(v)),
+            _ => out.push_str(&tail[..end]),
+        }
+        rest = &tail[end..];
+    }
+    out.push_str(rest);
+    out
 }
 
 /// Exactly three numbers. serde's own `[f64; 3]` reads the first three elements of a

@@ -386,6 +386,22 @@ fn binary_input_is_quoted_printably() {
     assert!(e.contains("\\u{0}") && e.contains("\\u{1b}"), "{e}");
 }
 
+/// A float where a whole number belongs is quoted short, as the range messages write
+/// numbers: serde wrote `seed = 1e308` out in 309 digits. A table is called a table.
+#[test]
+fn refused_values_are_described_plainly() {
+    let e = err(&format!("{BASE}\n[render]\nseed = 1e308\n"));
+    assert!(e.contains("floating point `1e308`"), "{e}");
+    assert!(e.len() < 160, "{e}");
+    // A short one stays as written.
+    let e = err(&format!("{BASE}\n[render]\nseed = 1.5\n"));
+    assert!(e.contains("floating point `1.5`"), "{e}");
+    // A value where a table belongs is told so, not by the Rust type it would fill.
+    let e = err(&format!("environment = 5\n{BASE}"));
+    assert!(e.contains("expected a table"), "{e}");
+    assert!(!e.contains("struct"), "{e}");
+}
+
 /// Another command's file given as a scene is named for what it is (the parser named its
 /// first unknown key, `densities` or `[boundary]`), and each shipped file is recognised.
 #[test]

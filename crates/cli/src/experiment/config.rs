@@ -326,6 +326,18 @@ impl Config {
         if needs_scene && self.scene.is_none() {
             bail!("scene is required for kind = \"{}\"", self.kind.name());
         }
+        // Joined to the config's folder, "" read as that folder ("cannot read scene file:
+        // Is a directory").
+        if self
+            .scene
+            .as_ref()
+            .is_some_and(|p| p.as_os_str().is_empty())
+        {
+            bail!("scene = \"\" names no file: give a scene file");
+        }
+        if self.scenes.iter().any(|p| p.as_os_str().is_empty()) {
+            bail!("scenes holds \"\", which names no file: give scene files");
+        }
         let needs = |ok: bool, what: &str| -> Result<()> {
             if !ok {
                 bail!("kind = \"{}\" needs {what}", self.kind.name());
