@@ -666,53 +666,14 @@ pub fn run(mut a: Args) -> Result<()> {
         software_gpu_memory(w, h, &set, a.variance, variance_bytes)
             .map_err(|e| size_error(&a, size.is_some(), w, h, e))?;
     }
-    eprintln!(
-        "rendering {} ({}x{}, {}, {}{}) on the {}",
-        a.scene.display(),
-        p.file.camera.width,
-        p.file.camera.height,
-        match (spp_cap, a.time_budget) {
-            (Some(n), None) => format!("{n} spp"),
-            (Some(n), Some(b)) => format!("{} s, at most {n} spp", scatter_sim::ranges::num(b)),
-            (None, Some(b)) => format!("{} s, no spp limit", scatter_sim::ranges::num(b)),
-            (None, None) => unreachable!("an spp cap is lifted only by a time budget"),
-        },
-        r.integrator.name(),
-        if r.nee { ", NEE" } else { "" },
-        if engine.is_gpu() { "GPU" } else { "CPU" }
-    );
+    print_start(&a, &p, spp_cap, engine.is_gpu());
     let opts = RenderOptions {
         spp: spp_cap.unwrap_or(u32::MAX),
         seed: r.seed,
         time_budget: a.time_budget,
         variance: a.variance,
     };
-    let pixels = p.file.camera.width as u64 * p.file.camera.height as u64;
-    let pb = if spp_cap.is_some() {
-        progress::bar(pixels * opts.spp as u64, "samples")
-    } else {
-        progress::render_bar("rendering", pixels, &opts)
-    };
-    let cancel = interrupt::flag();
-    let out = engine
-        .render(
-            &p.data,
-            &set,
-            &opts,
-            &|done, _| pb.set_position(done),
-            cancel,
-        )
-        .map_err(|e| {
-            // A scene beyond the GPU's limits (lights, mesh, image) is named: what to
-            // change is in its file.
-            match e.downcast_ref::<render_gpu::error::RenderError>() {
-                Some(render_gpu::error::RenderError::SceneBeyondGpu(why)) => {
-                    anyhow!("{}: {why}", a.scene.display())
-                }
-                _ => e,
-            }
-        })?;
-    pb.finish_and_clear();
+    let out = render_with_progress(&a, &p, &engine, &set, &opts, spp_cap)?;
     if out.spp == 0 {
         bail!("interrupted before the first pass finished: nothing written");
     }
@@ -769,6 +730,58 @@ pub fn run(mut a: Args) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// The line that says what is about to be rendered, and where.
+fn print_start(a: &Args, p: &Prepared, spp_cap: Option<u32>, gpu: bool) {
+    eprintln!(
+        "rendering {} ({}x{}, {}, {}{}) on the {}",
+        a.scene.display(),
+        p.file.camera.width,
+        p.file.camera.height,
+        match (spp_cap, a.time_budget) {
+            (Some(n), None) => format!("{n} spp"),
+            (Some(n), Some(b)) => format!("{} s, at most {n} spp", scatter_sim::ranges::num(b)),
+            (None, Some(b)) => format!("{} s, no spp limit", scatter_sim::ranges::num(b)),
+            (None, None) => unreachable!("an spp cap is lifted only by a time budget"),
+        },
+        p.file.render.integrator.name(),
+        if p.file.render.nee { ", NEE" } else { "" },
+        if gpu { "GPU" } else { "CPU" }
+    );
+}
+
+/// Renders with a progress bar (of samples, or of time under a budget alone) and the
+/// Ctrl-C handler; a scene beyond the GPU's limits is named in the error.
+fn render_with_progress(
+    a: &Args,
+    p: &Prepared,
+    engine: &Engine,
+    set: &IntegratorSettings,
+    opts: &RenderOptions,
+    spp_cap: Option<u32>,
+) -> Result<render_gpu::render::RenderOutput> {
+    let pixels = p.file.camera.width as u64 * p.file.camera.height as u64;
+    let pb = if spp_cap.is_some() {
+        progress::bar(pixels * opts.spp as u64, "samples")
+    } else {
+        progress::render_bar("rendering", pixels, opts)
+    };
+    let cancel = interrupt::flag();
+    let out = engine
+        .render(&p.data, set, opts, &|done, _| pb.set_position(done), cancel)
+        .map_err(|e| {
+            // A scene beyond the GPU's limits (lights, mesh, image) is named: what to
+            // change is in its file.
+            match e.downcast_ref::<render_gpu::error::RenderError>() {
+                Some(render_gpu::error::RenderError::SceneBeyondGpu(why)) => {
+                    anyhow!("{}: {why}", a.scene.display())
+                }
+                _ => e,
+            }
+        })?;
+    pb.finish_and_clear();
+    Ok(out)
 }
 
 /// The image size `--width`/`--height` ask for (None: the camera's), with the image's
