@@ -154,58 +154,10 @@ impl DatasetReader {
             path: path.into(),
             msg: e.to_string(),
         })?;
-        // The checksum (over the header too since version 2) is known only after the rows
-        // have streamed past, so the header's columns and numbers are checked here: the
-        // rows are read by position, and merge adds and compares counts.
-        if header
-            .columns
-            .iter()
-            .map(String::as_str)
-            .ne(super::COLUMNS.iter().copied())
-        {
-            return Err(DatasetError::Header {
-                path: path.into(),
-                msg: format!(
-                    "columns [{}] differ from this build's [{}]",
-                    header.columns.join(", "),
-                    super::COLUMNS.join(", ")
-                ),
-            });
-        }
-        if let Some(p) = header.pieces.iter().find(|p| {
-            p.first_walk
-                .checked_add(p.count)
-                .is_none_or(|end| end > p.total_walks)
-        }) {
-            return Err(DatasetError::Header {
-                path: path.into(),
-                msg: format!(
-                    "a piece holds walks {} + {} of a run of {}: beyond the run's end",
-                    p.first_walk, p.count, p.total_walks
-                ),
-            });
-        }
-        // A piece's sampler is provenance that merge compares and training reports; one
-        // no generate run could have used (hand-edited, or another writer's) is refused
-        // by its field and range rather than carried into a merged file.
-        for (i, p) in header.pieces.iter().enumerate() {
-            if let Err(e) = p.sampler.validate() {
-                return Err(DatasetError::Header {
-                    path: path.into(),
-                    msg: format!("piece {i}'s sampler: {e}"),
-                });
-            }
-        }
-        let sum = header
-            .pieces
-            .iter()
-            .try_fold(0u64, |acc, p| acc.checked_add(p.count));
-        if sum != Some(header.count) {
-            return Err(DatasetError::Header {
-                path: path.into(),
-                msg: "piece counts do not add up to the row count".into(),
-            });
-        }
+        check_header(&header).map_err(|msg| DatasetError::Header {
+            path: path.into(),
+            msg,
+        })?;
         let expected = header
             .count
             .checked_mul(ROW_BYTES as u64)
@@ -274,6 +226,50 @@ impl DatasetReader {
         self.next_row += 1;
         Ok(Some(row))
     }
+}
+
+/// The header's columns and numbers, checked when the file is opened: the checksum (over
+/// the header too since version 2) is known only after the rows have streamed past.
+fn check_header(header: &Header) -> Result<(), String> {
+    // The rows are read by position, and merge adds and compares counts.
+    if header
+        .columns
+        .iter()
+        .map(String::as_str)
+        .ne(super::COLUMNS.iter().copied())
+    {
+        return Err(format!(
+            "columns [{}] differ from this build's [{}]",
+            header.columns.join(", "),
+            super::COLUMNS.join(", ")
+        ));
+    }
+    if let Some(p) = header.pieces.iter().find(|p| {
+        p.first_walk
+            .checked_add(p.count)
+            .is_none_or(|end| end > p.total_walks)
+    }) {
+        return Err(format!(
+            "a piece holds walks {} + {} of a run of {}: beyond the run's end",
+            p.first_walk, p.count, p.total_walks
+        ));
+    }
+    // A piece's sampler is provenance that merge compares and training reports; one
+    // no generate run could have used (hand-edited, or another writer's) is refused
+    // by its field and range rather than carried into a merged file.
+    for (i, p) in header.pieces.iter().enumerate() {
+        if let Err(e) = p.sampler.validate() {
+            return Err(format!("piece {i}'s sampler: {e}"));
+        }
+    }
+    let sum = header
+        .pieces
+        .iter()
+        .try_fold(0u64, |acc, p| acc.checked_add(p.count));
+    if sum != Some(header.count) {
+        return Err("piece counts do not add up to the row count".into());
+    }
+    Ok(())
 }
 
 impl Iterator for DatasetReader {
