@@ -47,69 +47,13 @@ pub(super) fn preflight(
     model: Option<&std::path::Path>,
 ) -> Result<()> {
     let scenes = scene_paths(cfg);
-    // Images are named after their scene file's stem and the varied value: two scenes
-    // of one stem, or a value listed twice, would overwrite each other's images.
-    let mut stems: Vec<_> = scenes
-        .iter()
-        .map(|p| p.file_stem().map(|s| s.to_owned()))
-        .collect();
-    stems.sort();
-    if stems.windows(2).any(|w| w[0] == w[1]) {
-        anyhow::bail!("two scenes share a file name; their images would overwrite each other");
-    }
-    for (what, v) in [
-        ("densities", &cfg.densities),
-        ("absorptions", &cfg.absorptions),
-        ("thresholds", &cfg.thresholds),
-    ] {
-        if let Some(x) = v.iter().enumerate().find(|(i, x)| v[..*i].contains(x)) {
-            anyhow::bail!("{what} lists {} twice", x.1);
-        }
-    }
+    check_names(cfg, &scenes)?;
     for path in &scenes {
         let base = SceneFile::load(path)?;
-        // Without NEE a delta light is never reached: the renders would converge to an
-        // image lit by the environment alone, and be compared as if lit.
-        // (A scene without lights, lit by its environment, is fine; a disk below a
-        // micro-radian is a delta light to the renderer, light::disk_sin2.)
-        if cfg.renders_without_nee()
-            && !base.lights.is_empty()
-            && base
-                .lights
-                .iter()
-                .all(|l| render_gpu::light::disk_sin2(l).is_none())
-        {
-            bail!(
-                "{}: every light is a delta light (light.angular_diameter_deg = 0), and a \
-                 render without next-event estimation{} never reaches one: give a light a \
-                 disk (e.g. configs/scenes/bunny_sun_wide.toml)",
-                path.display(),
-                if cfg.kind == Kind::Nee {
-                    " (the \"PT, no NEE\" row)"
-                } else {
-                    " (nee = false)"
-                }
-            );
-        }
+        check_lights_reached(cfg, path, &base)?;
+        check_heights(cfg, path, &base)?;
         // The mesh too, before hours of rendering: a missing one failed the run after its
         // first scene (with the previous run's report left beside the new images).
-        // The budgets' size is the width; the scene's aspect sets the height, which the
-        // same range bounds (a 1000×10 camera at size 8 rendered an 8×1 image).
-        for (name, b) in [("full", &cfg.full), ("quick", &cfg.quick)] {
-            let size = b.size();
-            let h = super::measure::height_at(size, &base.camera);
-            use crate::bench_render::{MAX_BENCH_SIZE, MIN_BENCH_SIZE};
-            if !(MIN_BENCH_SIZE..=MAX_BENCH_SIZE).contains(&h) {
-                bail!(
-                    "{}: its camera's aspect ({} x {}) makes {name}.size = {size} a {size} x \
-                     {h} image, and the height must be in {MIN_BENCH_SIZE}..={MAX_BENCH_SIZE} \
-                     as the width (the figures are measured over 4×4-pixel blocks)",
-                    path.display(),
-                    base.camera.width,
-                    base.camera.height
-                );
-            }
-        }
         let dir = path.parent().unwrap_or(std::path::Path::new("."));
         let eps = render_gpu::setup::object_eps(&base, dir)
             .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
@@ -117,36 +61,7 @@ pub(super) fn preflight(
             f.validate()
                 .map_err(|e| anyhow::anyhow!("{}: {what}: {e}", path.display()))
         };
-        // The scene's own medium where no densities scale it (its check came after the
-        // renders of the scenes before it).
-        let unscaled = [1.0];
-        let densities = if cfg.densities.is_empty() {
-            &unscaled[..]
-        } else {
-            &cfg.densities[..]
-        };
-        for &k in densities {
-            let mut f = base.clone();
-            scale_density(k)(&mut f);
-            check(&f, format!("with density {k}"))?;
-            // How dense a medium the object takes depends on its size, which the scene
-            // file's ranges cannot know: a density of 1000 on the bunny failed only
-            // after the renders at the densities before it.
-            render_gpu::setup::check_density(f.medium.sigma_t, eps).map_err(|e| {
-                if cfg.densities.is_empty() {
-                    // A kind that scales nothing: the scene's own sigma_t, whose limit the
-                    // message gives.
-                    return anyhow::anyhow!("{}: {e}", path.display());
-                }
-                let densest = base.medium.sigma_t.iter().copied().fold(0.0, f64::max);
-                let most = render_gpu::setup::max_sigma_t(eps);
-                anyhow::anyhow!(
-                    "{}: densities = {k}: {e} ({})",
-                    path.display(),
-                    densest_hint(most / densest)
-                )
-            })?;
-        }
+        check_densities(cfg, path, &base, eps, check)?;
         for &t in &cfg.thresholds {
             let mut f = base.clone();
             f.render.min_tau = Some(t);
@@ -173,6 +88,127 @@ pub(super) fn preflight(
                 );
             }
         }
+    }
+    Ok(())
+}
+
+/// Images are named after their scene file's stem and the varied value: two scenes of
+/// one stem, or a value listed twice, would overwrite each other's images.
+fn check_names(cfg: &super::config::Config, scenes: &[std::path::PathBuf]) -> Result<()> {
+    let mut stems: Vec<_> = scenes
+        .iter()
+        .map(|p| p.file_stem().map(|s| s.to_owned()))
+        .collect();
+    stems.sort();
+    if stems.windows(2).any(|w| w[0] == w[1]) {
+        anyhow::bail!("two scenes share a file name; their images would overwrite each other");
+    }
+    for (what, v) in [
+        ("densities", &cfg.densities),
+        ("absorptions", &cfg.absorptions),
+        ("thresholds", &cfg.thresholds),
+    ] {
+        if let Some(x) = v.iter().enumerate().find(|(i, x)| v[..*i].contains(x)) {
+            anyhow::bail!("{what} lists {} twice", x.1);
+        }
+    }
+    Ok(())
+}
+
+/// Without NEE a delta light is never reached: the renders would converge to an image
+/// lit by the environment alone, and be compared as if lit.
+fn check_lights_reached(
+    cfg: &super::config::Config,
+    path: &std::path::Path,
+    base: &SceneFile,
+) -> Result<()> {
+    // (A scene without lights, lit by its environment, is fine; a disk below a
+    // micro-radian is a delta light to the renderer, light::disk_sin2.)
+    if cfg.renders_without_nee()
+        && !base.lights.is_empty()
+        && base
+            .lights
+            .iter()
+            .all(|l| render_gpu::light::disk_sin2(l).is_none())
+    {
+        bail!(
+            "{}: every light is a delta light (light.angular_diameter_deg = 0), and a \
+             render without next-event estimation{} never reaches one: give a light a \
+             disk (e.g. configs/scenes/bunny_sun_wide.toml)",
+            path.display(),
+            if cfg.kind == Kind::Nee {
+                " (the \"PT, no NEE\" row)"
+            } else {
+                " (nee = false)"
+            }
+        );
+    }
+    Ok(())
+}
+
+/// The budgets' size is the width; the scene's aspect sets the height, which the same
+/// range bounds (a 1000×10 camera at size 8 rendered an 8×1 image).
+fn check_heights(
+    cfg: &super::config::Config,
+    path: &std::path::Path,
+    base: &SceneFile,
+) -> Result<()> {
+    for (name, b) in [("full", &cfg.full), ("quick", &cfg.quick)] {
+        let size = b.size();
+        let h = super::measure::height_at(size, &base.camera);
+        use crate::bench_render::{MAX_BENCH_SIZE, MIN_BENCH_SIZE};
+        if !(MIN_BENCH_SIZE..=MAX_BENCH_SIZE).contains(&h) {
+            bail!(
+                "{}: its camera's aspect ({} x {}) makes {name}.size = {size} a {size} x \
+                 {h} image, and the height must be in {MIN_BENCH_SIZE}..={MAX_BENCH_SIZE} \
+                 as the width (the figures are measured over 4×4-pixel blocks)",
+                path.display(),
+                base.camera.width,
+                base.camera.height
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Each density the experiment scales the scene's medium by, checked against the scene
+/// file's ranges (`check`) and the object's size.
+fn check_densities(
+    cfg: &super::config::Config,
+    path: &std::path::Path,
+    base: &SceneFile,
+    eps: f32,
+    check: impl Fn(&SceneFile, String) -> Result<()>,
+) -> Result<()> {
+    // The scene's own medium where no densities scale it (its check came after the
+    // renders of the scenes before it).
+    let unscaled = [1.0];
+    let densities = if cfg.densities.is_empty() {
+        &unscaled[..]
+    } else {
+        &cfg.densities[..]
+    };
+    for &k in densities {
+        let mut f = base.clone();
+        scale_density(k)(&mut f);
+        check(&f, format!("with density {k}"))?;
+        // How dense a medium the object takes depends on its size, which the scene
+        // file's ranges cannot know: a density of 1000 on the bunny failed only
+        // after the renders at the densities before it.
+        render_gpu::setup::check_density(f.medium.sigma_t, eps).map_err(|e| {
+            if cfg.densities.is_empty() {
+                // A kind that scales nothing: the scene's own sigma_t, whose limit the
+                // message gives.
+                return anyhow::anyhow!("{}: {e}", path.display());
+            }
+            let densest = base.medium.sigma_t.iter().copied().fold(0.0, f64::max);
+            let most = render_gpu::setup::max_sigma_t(eps);
+            anyhow::anyhow!(
+                "{}: densities = {k}: {e} ({})",
+                path.display(),
+                densest_hint(most / densest)
+            )
+        })?;
     }
     Ok(())
 }
