@@ -28,6 +28,8 @@ const SAME_REQUEST: Duration = Duration::from_millis(300);
 /// Installs the handler (once) and returns the flag to poll.
 pub fn flag() -> &'static AtomicBool {
     INSTALLED.get_or_init(|| {
+        #[cfg(unix)]
+        let ignored = ignored_stop_signals();
         let _ = ctrlc::set_handler(|| {
             let first = *FIRST.get_or_init(Instant::now);
             FLAG.store(true, Ordering::SeqCst);
@@ -57,9 +59,38 @@ pub fn flag() -> &'static AtomicBool {
             );
         });
         #[cfg(unix)]
-        record_signals();
+        {
+            keep_ignored(&ignored);
+            record_signals();
+        }
     });
     &FLAG
+}
+
+/// Which stop signals the process was started with ignored: `nohup` ignores SIGHUP, and a
+/// shell script's `cmd &` ignores SIGINT. ctrlc installs its handler over an ignored
+/// signal too, so `nohup stcvae train … &` stopped when its terminal closed.
+#[cfg(unix)]
+fn ignored_stop_signals() -> [bool; 3] {
+    STOP_SIGNALS.map(|sig| {
+        // SAFETY: reads the signal's current action into a zeroed (valid) struct.
+        unsafe {
+            let mut old: libc::sigaction = std::mem::zeroed();
+            libc::sigaction(sig, std::ptr::null(), &mut old) == 0
+                && old.sa_sigaction == libc::SIG_IGN
+        }
+    })
+}
+
+/// Puts back the ignoring of the signals [`ignored_stop_signals`] found ignored.
+#[cfg(unix)]
+fn keep_ignored(ignored: &[bool; 3]) {
+    for (&sig, _) in STOP_SIGNALS.iter().zip(ignored).filter(|(_, i)| **i) {
+        // SAFETY: sets one signal's disposition to SIG_IGN.
+        unsafe {
+            libc::signal(sig, libc::SIG_IGN);
+        }
+    }
 }
 
 /// The exit status of a command the user stopped: 128 + the first stop signal's number.
@@ -92,13 +123,14 @@ static CHAINED: [std::sync::atomic::AtomicUsize; 3] =
 const STOP_SIGNALS: [libc::c_int; 3] = [libc::SIGINT, libc::SIGTERM, libc::SIGHUP];
 
 /// Puts a handler in front of ctrlc's for each stop signal that records the first one's
-/// number, then calls ctrlc's. A signal whose current action is not a plain handler
-/// (ctrlc failed to install, or another library's `SA_SIGINFO` handler) is left alone,
-/// and its stop exits with 130 as before.
+/// number, then calls ctrlc's. A signal whose current action is not a plain handler is
+/// left alone: one ignored stays ignored, one at its default (ctrlc failed to install)
+/// ends the process, and one caught by another library's `SA_SIGINFO` handler exits 130
+/// if that handler stops the command.
 #[cfg(unix)]
 fn record_signals() {
     extern "C" fn record(sig: libc::c_int) {
-        // Atomic operations and a call to ctrlc's handler (a write to its pipe) only:
+        // Atomic operations and a call to ctrlc's handler (a `sem_post`) only:
         // async-signal-safe.
         let _ = SIGNAL.compare_exchange(0, sig, Ordering::SeqCst, Ordering::SeqCst);
         if let Some(i) = STOP_SIGNALS.iter().position(|&s| s == sig) {

@@ -1283,7 +1283,13 @@ fn check_dataset_source(a: &Args, cfg: &TrainConfig) -> Result<()> {
         })?;
         // Generated here, the dataset is `generate`'s output: a path it cannot write was
         // blamed on `--out`, a flag the user never gave.
-        crate::check_out(&format!("{}: dataset =", a.config.display()), &cfg.dataset)?;
+        scatter_sim::output::check_output_path(&cfg.dataset).map_err(|e| {
+            anyhow::anyhow!(
+                "{}: dataset = \"{}\": {e}",
+                a.config.display(),
+                cfg.dataset.display()
+            )
+        })?;
     }
     Ok(())
 }

@@ -1493,6 +1493,72 @@ fn a_terminated_render_keeps_its_passes_and_exits_143() {
     interrupt_a_render(libc::SIGTERM, "SIGTERM");
 }
 
+/// A stop signal the render was started with ignored stays ignored: under `nohup` (SIGHUP
+/// ignored) the render ran on, yet ctrlc's handler, installed over the ignoring, stopped
+/// it when the terminal closed. The signal goes out once a pass has finished; the render
+/// must then complete every sample.
+#[cfg(unix)]
+#[test]
+fn an_ignored_hangup_is_still_ignored() {
+    use std::io::BufRead;
+    use std::os::unix::process::CommandExt;
+    let d = tempfile::tempdir().unwrap();
+    let scene = sphere_scene_file(d.path(), 16);
+    let out = d.path().join("r");
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_stcvae"));
+    cmd.args([
+        "render",
+        "--device",
+        "cpu",
+        "--integrator",
+        "pt",
+        "--spp",
+        "2048",
+    ])
+    .arg("--scene")
+    .arg(&scene)
+    .arg("--out")
+    .arg(&out)
+    .env("STCVAE_LOG_PROGRESS_EVERY", "0")
+    .stderr(std::process::Stdio::piped());
+    // SAFETY: between fork and exec only `signal`, which is async-signal-safe.
+    unsafe {
+        cmd.pre_exec(|| {
+            libc::signal(libc::SIGHUP, libc::SIG_IGN);
+            Ok(())
+        });
+    }
+    let mut child = cmd.spawn().unwrap();
+    let mut err = String::new();
+    let mut sent = false;
+    for line in std::io::BufReader::new(child.stderr.take().unwrap()).lines() {
+        let line = line.unwrap();
+        let done = line
+            .split_whitespace()
+            .find_map(|w| w.split_once('/'))
+            .and_then(|(n, _)| n.replace(',', "").parse::<u64>().ok());
+        if !sent && done.is_some_and(|n| n > 0) {
+            // SAFETY: a plain system call on a child this test owns and has not reaped.
+            assert_eq!(
+                unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGHUP) },
+                0
+            );
+            sent = true;
+        }
+        err += &line;
+        err.push('\n');
+    }
+    let status = child.wait().unwrap();
+    assert!(sent, "no progress line counted a sample: {err}");
+    assert!(status.success(), "{status:?}: {err}");
+    assert!(!err.contains("interrupt"), "{err}");
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.with_extension("json")).unwrap())
+            .unwrap();
+    assert_eq!(json["spp"], 2048, "{json}");
+    assert_eq!(json["interrupted"], false, "{json}");
+}
+
 #[cfg(unix)]
 fn interrupt_a_render(signal: libc::c_int, name: &str) {
     use std::io::BufRead;
@@ -1663,15 +1729,24 @@ fn render_size_flags_and_a_plain_scene_argument() {
     let e = fails(&stcvae(&["render", flat.to_str().unwrap(), "--width", "8"]));
     assert!(e.contains("camera.height = 0"), "{e}");
     // Nor by flags that replace it: a file that `experiment` and `bench` refuse is
-    // refused here too (`--width 8 --height 8` rendered it).
-    let e = fails(&stcvae(&[
-        "render",
-        flat.to_str().unwrap(),
-        "--width",
-        "8",
-        "--height",
-        "8",
-    ]));
+    // refused here too (`--width 8 --height 8` rendered it). On the CPU and into the
+    // temporary folder, should one render after all.
+    let o = tmp.path().join("o");
+    let cpu_to = ["--device", "cpu", "--out", o.to_str().unwrap()];
+    let e = fails(&stcvae(
+        &[
+            &[
+                "render",
+                flat.to_str().unwrap(),
+                "--width",
+                "8",
+                "--height",
+                "8",
+            ][..],
+            &cpu_to,
+        ]
+        .concat(),
+    ));
     assert!(
         e.contains("camera.height = 0 is out of range: allowed [1, 16384]"),
         "{e}"
@@ -1683,7 +1758,13 @@ fn render_size_flags_and_a_plain_scene_argument() {
         .find(|l| l.starts_with("spp ="))
         .expect("the scene sets render.spp");
     std::fs::write(&no_spp, text.replace(spp_line, "spp = 0")).unwrap();
-    let e = fails(&stcvae(&["render", no_spp.to_str().unwrap(), "--spp", "1"]));
+    let e = fails(&stcvae(
+        &[
+            &["render", no_spp.to_str().unwrap(), "--spp", "1"][..],
+            &cpu_to,
+        ]
+        .concat(),
+    ));
     assert!(e.contains("render.spp = 0 is out of range"), "{e}");
     // A side out of range is named for its range, not for the memory it would take
     // (which depended on the machine's memory).
@@ -1694,7 +1775,9 @@ fn render_size_flags_and_a_plain_scene_argument() {
             .replace("width = 32", "width = 2147483647"),
     )
     .unwrap();
-    let e = fails(&stcvae(&["render", wide.to_str().unwrap()]));
+    let e = fails(&stcvae(
+        &[&["render", wide.to_str().unwrap()][..], &cpu_to].concat(),
+    ));
     assert!(
         e.contains("camera.width = 2147483647 is out of range: allowed [1, 16384]"),
         "{e}"

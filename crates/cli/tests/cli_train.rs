@@ -347,7 +347,7 @@ fn a_fixed_condition_warns_and_a_bad_checkpoint_dir_fails_first() {
     let err = stderr(&out);
     assert!(
         err.contains(
-            "eventgen.hidden: 9 layers is out of range: allowed 1 to 8 layers, each of width \
+            "eventgen.hidden: 9 layers, out of range: allowed [1, 8] layers, each of width \
              [1, 64]"
         ),
         "{err}"
@@ -371,7 +371,10 @@ fn an_unwritable_dataset_path_names_the_config_field() {
     let out = train_eventgen(dir.path(), base.to_str().unwrap());
     assert!(!out.status.success());
     let err = stderr(&out);
-    assert!(err.contains("train.toml: dataset = "), "{err}");
+    assert!(
+        err.contains("train.toml: dataset = \"a_file/d.bin\": "),
+        "{err}"
+    );
     assert!(
         !err.contains("--out") && !err.contains("generating"),
         "{err}"

@@ -613,7 +613,8 @@ fn check_merge_pixels(p: &Path, img: &RgbImage) -> std::result::Result<(), Rende
     Ok(())
 }
 
-/// Adds one input, weighted by its spp, to the running sum (the first input starts it).
+/// Adds one input, weighted by its spp, to the running sum (the first input starts it);
+/// refuses one of another scene or size than the first, and an spp total that overflows.
 fn accumulate(
     acc: &mut Option<(RgbImage, RenderTag, Vec<[f64; 3]>)>,
     first_path: &Path,

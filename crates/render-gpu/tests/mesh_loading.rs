@@ -715,6 +715,14 @@ fn environment_maps_with_bad_pixels_are_refused() {
             .to_string();
         assert!(e.contains(name) && e.contains("pixel (1, 1)"), "{e}");
     }
+    // A pixel beyond the bound is written short (3e38 was written out in 39 digits).
+    img.pixels[5] = [0.5, 3e38, 0.5];
+    write_exr(&d.path().join("huge.exr"), &img, &tag).unwrap();
+    let e = render_gpu::light::Environment::new(&desc("huge.exr"), d.path())
+        .err()
+        .expect("a pixel beyond the bound is refused")
+        .to_string();
+    assert!(e.contains("pixel (1, 1) = 3e38 is out of range"), "{e}");
     // Pixels and scale each within the bound, their product beyond it (the variance's
     // squared sums overflowed f32 to inf): refused, naming the field and the file.
     img.pixels.fill([0.5; 3]);

@@ -228,13 +228,12 @@ impl ModelConfig {
 /// first width out of range) so that a long list is not echoed whole.
 fn layers_out_of_range(widths: &[usize], max_layers: usize, max_width: usize) -> Option<String> {
     let allowed = format!(
-        "allowed 1 to {max_layers} layers, each of width {}",
+        "allowed {} layers, each of width {}",
+        whole_range(1, max_layers as u64),
         whole_range(1, max_width as u64)
     );
     if widths.is_empty() || widths.len() > max_layers {
-        let n = widths.len();
-        let layers = if n == 1 { "layer" } else { "layers" };
-        return Some(format!("{n} {layers} is out of range: {allowed}"));
+        return Some(format!("{} layers, out of range: {allowed}", widths.len()));
     }
     let (i, w) = widths
         .iter()
@@ -1045,21 +1044,19 @@ mod tests {
         );
     }
 
-    /// A batch whose widest layer's activations would pass 2^25 floats is refused, naming
-    /// the field; exactly 2^25 passes.
     /// A refused layer list names its count or its first bad width, not the whole list.
     #[test]
     fn layer_lists_name_what_is_out_of_range() {
         let mut c = config(100, None);
-        let allowed = "allowed 1 to 8 layers, each of width [1, 64]";
+        let allowed = "allowed [1, 8] layers, each of width [1, 64]";
         for (hidden, why) in [
-            (vec![], "0 layers is out of range".to_string()),
+            (vec![], "0 layers, out of range".to_string()),
             (
                 vec![16, 0, 16],
                 "width 0 (layer 2) is out of range".to_string(),
             ),
             (vec![65], "width 65 (layer 1) is out of range".to_string()),
-            (vec![1; 10_000], "10000 layers is out of range".to_string()),
+            (vec![1; 10_000], "10000 layers, out of range".to_string()),
         ] {
             c.hidden = hidden;
             let e = c.validate("lengthgen").unwrap_err();
@@ -1069,6 +1066,8 @@ mod tests {
         assert!(c.validate("lengthgen").is_ok());
     }
 
+    /// A batch whose widest layer's activations would pass 2^25 floats is refused, naming
+    /// the field; exactly 2^25 passes.
     #[test]
     fn a_batch_too_large_for_memory_is_refused() {
         let mut c = config(100, None);
@@ -1090,8 +1089,8 @@ mod tests {
         let e = c.validate("pathgen").unwrap_err();
         assert_eq!(
             e,
-            "pathgen.encoder_hidden: 9 layers is out of range: allowed 1 to 8 layers, each \
-             of width [1, 1024]"
+            "pathgen.encoder_hidden: 9 layers, out of range: allowed [1, 8] layers, each of \
+             width [1, 1024]"
         );
     }
 
