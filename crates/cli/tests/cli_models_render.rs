@@ -1493,6 +1493,36 @@ fn a_terminated_render_keeps_its_passes_and_exits_143() {
     interrupt_a_render(libc::SIGTERM, "SIGTERM");
 }
 
+/// Reads a render's stderr (progress lines written per update under
+/// STCVAE_LOG_PROGRESS_EVERY=0) to its end, sending `signal` once a line counts at least
+/// `samples` done; returns the text, the signal having been sent.
+#[cfg(unix)]
+fn signal_after_samples(
+    child: &mut std::process::Child,
+    signal: libc::c_int,
+    samples: u64,
+) -> String {
+    use std::io::BufRead;
+    let mut err = String::new();
+    let mut sent = false;
+    for line in std::io::BufReader::new(child.stderr.take().unwrap()).lines() {
+        let line = line.unwrap();
+        let done = line
+            .split_whitespace()
+            .find_map(|w| w.split_once('/'))
+            .and_then(|(n, _)| n.replace(',', "").parse::<u64>().ok());
+        if !sent && done.is_some_and(|n| n >= samples) {
+            // SAFETY: a plain system call on a child this test owns and has not reaped.
+            assert_eq!(unsafe { libc::kill(child.id() as libc::pid_t, signal) }, 0);
+            sent = true;
+        }
+        err += &line;
+        err.push('\n');
+    }
+    assert!(sent, "no progress line counted {samples} samples: {err}");
+    err
+}
+
 /// A stop signal the render was started with ignored stays ignored: under `nohup` (SIGHUP
 /// ignored) the render ran on, yet ctrlc's handler, installed over the ignoring, stopped
 /// it when the terminal closed. The signal goes out once a pass has finished; the render
@@ -1500,7 +1530,6 @@ fn a_terminated_render_keeps_its_passes_and_exits_143() {
 #[cfg(unix)]
 #[test]
 fn an_ignored_hangup_is_still_ignored() {
-    use std::io::BufRead;
     use std::os::unix::process::CommandExt;
     let d = tempfile::tempdir().unwrap();
     let scene = sphere_scene_file(d.path(), 16);
@@ -1529,27 +1558,8 @@ fn an_ignored_hangup_is_still_ignored() {
         });
     }
     let mut child = cmd.spawn().unwrap();
-    let mut err = String::new();
-    let mut sent = false;
-    for line in std::io::BufReader::new(child.stderr.take().unwrap()).lines() {
-        let line = line.unwrap();
-        let done = line
-            .split_whitespace()
-            .find_map(|w| w.split_once('/'))
-            .and_then(|(n, _)| n.replace(',', "").parse::<u64>().ok());
-        if !sent && done.is_some_and(|n| n > 0) {
-            // SAFETY: a plain system call on a child this test owns and has not reaped.
-            assert_eq!(
-                unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGHUP) },
-                0
-            );
-            sent = true;
-        }
-        err += &line;
-        err.push('\n');
-    }
+    let err = signal_after_samples(&mut child, libc::SIGHUP, 1);
     let status = child.wait().unwrap();
-    assert!(sent, "no progress line counted a sample: {err}");
     assert!(status.success(), "{status:?}: {err}");
     assert!(!err.contains("interrupt"), "{err}");
     let json: serde_json::Value =
@@ -1561,7 +1571,6 @@ fn an_ignored_hangup_is_still_ignored() {
 
 #[cfg(unix)]
 fn interrupt_a_render(signal: libc::c_int, name: &str) {
-    use std::io::BufRead;
     let d = tempfile::tempdir().unwrap();
     let scene = sphere_scene_file(d.path(), 16);
     let out = d.path().join("r");
@@ -1585,24 +1594,8 @@ fn interrupt_a_render(signal: libc::c_int, name: &str) {
         .unwrap();
     // A pass is 256 spp of the 16² pixels (100,000 spp: the largest pass).
     let pass = 256 * 16 * 16;
-    let mut err = String::new();
-    let mut sent = false;
-    for line in std::io::BufReader::new(child.stderr.take().unwrap()).lines() {
-        let line = line.unwrap();
-        let done = line
-            .split_whitespace()
-            .find_map(|w| w.split_once('/'))
-            .and_then(|(n, _)| n.replace(',', "").parse::<u64>().ok());
-        if !sent && done.is_some_and(|n| n >= 2 * pass) {
-            // SAFETY: a plain system call on a child this test owns and has not reaped.
-            assert_eq!(unsafe { libc::kill(child.id() as libc::pid_t, signal) }, 0);
-            sent = true;
-        }
-        err += &line;
-        err.push('\n');
-    }
+    let err = signal_after_samples(&mut child, signal, 2 * pass);
     let status = child.wait().unwrap();
-    assert!(sent, "no progress line counted two passes: {err}");
     assert_eq!(status.code(), Some(128 + signal), "{err}");
     assert!(
         err.contains(&format!("interrupt ({name}): stopping")),
