@@ -1493,6 +1493,31 @@ fn a_terminated_render_keeps_its_passes_and_exits_143() {
     interrupt_a_render(libc::SIGTERM, "SIGTERM");
 }
 
+/// A PT render on the CPU of a 16² sphere in `dir` at `spp`, writing a progress line per
+/// update (STCVAE_LOG_PROGRESS_EVERY=0) to a piped stderr; and its output stem.
+#[cfg(unix)]
+fn logged_pt_render(dir: &Path, spp: &str) -> (Command, PathBuf) {
+    let scene = sphere_scene_file(dir, 16);
+    let out = dir.join("r");
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_stcvae"));
+    cmd.args([
+        "render",
+        "--device",
+        "cpu",
+        "--integrator",
+        "pt",
+        "--spp",
+        spp,
+    ])
+    .arg("--scene")
+    .arg(&scene)
+    .arg("--out")
+    .arg(&out)
+    .env("STCVAE_LOG_PROGRESS_EVERY", "0")
+    .stderr(std::process::Stdio::piped());
+    (cmd, out)
+}
+
 /// Reads a render's stderr (progress lines written per update under
 /// STCVAE_LOG_PROGRESS_EVERY=0) to its end, sending `signal` once a line counts at least
 /// `samples` done; returns the text, the signal having been sent.
@@ -1532,24 +1557,7 @@ fn signal_after_samples(
 fn an_ignored_hangup_is_still_ignored() {
     use std::os::unix::process::CommandExt;
     let d = tempfile::tempdir().unwrap();
-    let scene = sphere_scene_file(d.path(), 16);
-    let out = d.path().join("r");
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_stcvae"));
-    cmd.args([
-        "render",
-        "--device",
-        "cpu",
-        "--integrator",
-        "pt",
-        "--spp",
-        "2048",
-    ])
-    .arg("--scene")
-    .arg(&scene)
-    .arg("--out")
-    .arg(&out)
-    .env("STCVAE_LOG_PROGRESS_EVERY", "0")
-    .stderr(std::process::Stdio::piped());
+    let (mut cmd, out) = logged_pt_render(d.path(), "2048");
     // SAFETY: between fork and exec only `signal`, which is async-signal-safe.
     unsafe {
         cmd.pre_exec(|| {
@@ -1572,26 +1580,8 @@ fn an_ignored_hangup_is_still_ignored() {
 #[cfg(unix)]
 fn interrupt_a_render(signal: libc::c_int, name: &str) {
     let d = tempfile::tempdir().unwrap();
-    let scene = sphere_scene_file(d.path(), 16);
-    let out = d.path().join("r");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_stcvae"))
-        .args([
-            "render",
-            "--device",
-            "cpu",
-            "--integrator",
-            "pt",
-            "--spp",
-            "100000",
-        ])
-        .arg("--scene")
-        .arg(&scene)
-        .arg("--out")
-        .arg(&out)
-        .env("STCVAE_LOG_PROGRESS_EVERY", "0")
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
+    let (mut cmd, out) = logged_pt_render(d.path(), "100000");
+    let mut child = cmd.spawn().unwrap();
     // A pass is 256 spp of the 16² pixels (100,000 spp: the largest pass).
     let pass = 256 * 16 * 16;
     let err = signal_after_samples(&mut child, signal, 2 * pass);
