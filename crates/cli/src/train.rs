@@ -901,7 +901,9 @@ fn train_models(
         }
     };
     let start = Instant::now();
-    let results: Mutex<Vec<Result<cvae::train::Trained, TrainError>>> = Mutex::new(Vec::new());
+    // Each with its model's index: the threads finish in any order.
+    let results: Mutex<Vec<(usize, Result<cvae::train::Trained, TrainError>)>> =
+        Mutex::new(Vec::new());
     std::thread::scope(|s| {
         for (i, &k) in kinds.iter().enumerate() {
             let table = &tables[i];
@@ -953,12 +955,17 @@ fn train_models(
                 if matches!(&r, Err(e) if !matches!(e, TrainError::Interrupted(_))) {
                     interrupt::stop_the_others();
                 }
-                results.lock().unwrap().push(r);
+                results.lock().unwrap().push((i, r));
             });
         }
     });
     let seconds = start.elapsed().as_secs_f64();
-    let results = results.into_inner().unwrap();
+    // In the models' order, not the order they finished in: the summary, the warnings and
+    // the model file's notes came out in a different order from run to run, so two runs of
+    // one config wrote different bytes.
+    let mut results = results.into_inner().unwrap();
+    results.sort_by_key(|&(i, _)| i);
+    let results = results.into_iter().map(|(_, r)| r).collect::<Vec<_>>();
     // A model's own failure is the error to show; the others stopped because of it.
     let stopped = results
         .iter()

@@ -694,6 +694,13 @@ fn resume_needs_an_intact_checkpoint_and_the_last_loss_is_the_last_steps() {
     assert!(line("eventgen").ends_with("over all its runs"), "{notes}");
     assert!(!line("lengthgen").contains("over all its runs"), "{notes}");
     assert!(!line("pathgen").contains("over all its runs"), "{notes}");
+    // The notes come in the models' order, not the order they finished in (EventGen, at
+    // its end already, finishes first here, and its note came first).
+    let at = |k: &str| notes.find(&format!("{k}: ")).unwrap();
+    assert!(
+        at("lengthgen") < at("pathgen") && at("pathgen") < at("eventgen"),
+        "{notes}"
+    );
     // Checkpoints of all three now: leave only EventGen's for what follows.
     for k in ["lengthgen", "pathgen"] {
         for f in [
