@@ -29,7 +29,7 @@ const SAME_REQUEST: Duration = Duration::from_millis(300);
 pub fn flag() -> &'static AtomicBool {
     INSTALLED.get_or_init(|| {
         #[cfg(unix)]
-        let ignored = ignored_stop_signals();
+        let hangup_ignored = hangup_ignored();
         let _ = ctrlc::set_handler(|| {
             let first = *FIRST.get_or_init(Instant::now);
             FLAG.store(true, Ordering::SeqCst);
@@ -60,36 +60,30 @@ pub fn flag() -> &'static AtomicBool {
         });
         #[cfg(unix)]
         {
-            keep_ignored(&ignored);
+            if hangup_ignored {
+                // SAFETY: sets one signal's disposition to SIG_IGN.
+                unsafe {
+                    libc::signal(libc::SIGHUP, libc::SIG_IGN);
+                }
+            }
             record_signals();
         }
     });
     &FLAG
 }
 
-/// Which stop signals the process was started with ignored: `nohup` ignores SIGHUP, and a
-/// shell script's `cmd &` ignores SIGINT. ctrlc installs its handler over an ignored
-/// signal too, so `nohup stcvae train … &` stopped when its terminal closed.
+/// Whether the process was started with SIGHUP ignored, as `nohup` starts it: ctrlc
+/// installs its handler over an ignored signal too, so `nohup stcvae train … &` stopped
+/// when its terminal closed. It is put back to ignored. (A SIGINT ignored by a
+/// non-interactive shell's `&` is still taken: test harnesses and CI runners start
+/// commands that way, and Ctrl-C or `kill -INT` is how a user means to stop one.)
 #[cfg(unix)]
-fn ignored_stop_signals() -> [bool; 3] {
-    STOP_SIGNALS.map(|sig| {
-        // SAFETY: reads the signal's current action into a zeroed (valid) struct.
-        unsafe {
-            let mut old: libc::sigaction = std::mem::zeroed();
-            libc::sigaction(sig, std::ptr::null(), &mut old) == 0
-                && old.sa_sigaction == libc::SIG_IGN
-        }
-    })
-}
-
-/// Puts back the ignoring of the signals [`ignored_stop_signals`] found ignored.
-#[cfg(unix)]
-fn keep_ignored(ignored: &[bool; 3]) {
-    for (&sig, _) in STOP_SIGNALS.iter().zip(ignored).filter(|(_, i)| **i) {
-        // SAFETY: sets one signal's disposition to SIG_IGN.
-        unsafe {
-            libc::signal(sig, libc::SIG_IGN);
-        }
+fn hangup_ignored() -> bool {
+    // SAFETY: reads the signal's current action into a zeroed (valid) struct.
+    unsafe {
+        let mut old: libc::sigaction = std::mem::zeroed();
+        libc::sigaction(libc::SIGHUP, std::ptr::null(), &mut old) == 0
+            && old.sa_sigaction == libc::SIG_IGN
     }
 }
 
@@ -124,7 +118,7 @@ const STOP_SIGNALS: [libc::c_int; 3] = [libc::SIGINT, libc::SIGTERM, libc::SIGHU
 
 /// Puts a handler in front of ctrlc's for each stop signal that records the first one's
 /// number, then calls ctrlc's. A signal whose current action is not a plain handler is
-/// left alone: one ignored stays ignored, one at its default (ctrlc failed to install)
+/// left alone: one ignored (SIGHUP under nohup) stays ignored, one at its default (ctrlc failed to install)
 /// ends the process, and one caught by another library's `SA_SIGINFO` handler exits 130
 /// if that handler stops the command.
 #[cfg(unix)]
