@@ -208,7 +208,7 @@ pub fn run(a: Args) -> Result<()> {
         },
         spec.seed,
         progress::count(pool.current_num_threads() as u64, "thread"),
-        out.display()
+        crate::paths::shown(&out)
     );
     let mut sink = dataset::create_sink(&out, Header::new(vec![piece.clone()]))?;
     let pb = progress::bar(piece.count, "walks");
@@ -230,7 +230,7 @@ pub fn run(a: Args) -> Result<()> {
     eprintln!(
         "wrote {} to {} in {:.1} s: {} events ({} events/s, {:.1} per walk, max {})",
         progress::count(summary.walks as u64, "walk"),
-        out.display(),
+        crate::paths::shown(&out),
         secs,
         summary.events,
         progress::si(summary.events as f64 / secs),

@@ -310,7 +310,7 @@ fn merge_images(a: &Args) -> Result<()> {
         "merged {} ({} spp in all) -> {}.{{exr,png,json}}",
         progress::count(inputs.len() as u64, "render"),
         tag.spp,
-        out_stem(&a.out).display()
+        crate::paths::shown(&out_stem(&a.out))
     );
     // Asked to stop while writing: the set is whole, and the exit status says the stop
     // was asked for (130, or 128 + another stop signal), as an interrupted render's does.
@@ -545,7 +545,7 @@ fn merge_binary(a: &Args) -> Result<()> {
         "merged {}, {} -> {}",
         progress::count(a.inputs.len() as u64, "file"),
         progress::count(header.count, "row"),
-        a.out.display()
+        crate::paths::shown(&a.out)
     );
     Ok(())
 }
@@ -967,7 +967,7 @@ fn merge_csv(a: &Args) -> Result<()> {
         "merged {}, {} -> {}",
         progress::count(a.inputs.len() as u64, "file"),
         progress::count(rows, "row"),
-        a.out.display()
+        crate::paths::shown(&a.out)
     );
     Ok(())
 }

@@ -159,7 +159,7 @@ pub fn sample(a: SampleArgs) -> Result<()> {
     eprintln!(
         "wrote {} to {}",
         progress::count(a.samples, "model walk"),
-        a.out.display()
+        crate::paths::shown(&a.out)
     );
     Ok(())
 }
@@ -491,7 +491,7 @@ fn evaluate_settings(a: &EvalArgs) -> Result<()> {
         "evaluating {name} at {} ({} model and simulator samples each) -> {}",
         progress::count(a.at.len() as u64, "setting"),
         a.samples,
-        a.out.display()
+        crate::paths::shown(&a.out)
     );
     let pb = progress::bar(a.at.len() as u64, "settings");
     // Ctrl-C stops it, writing nothing: within a setting's walks (a setting takes minutes
@@ -556,7 +556,7 @@ pub fn evaluate_into(
     eprintln!(
         "evaluating {model_name} on the paper's grid (32 settings, {samples} model and \
          simulator samples each) -> {}",
-        out.display()
+        crate::paths::shown(out)
     );
     let pb = progress::bar(32, "settings");
     let stopped = || cancel.load(std::sync::atomic::Ordering::Relaxed);

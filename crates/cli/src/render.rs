@@ -968,7 +968,7 @@ fn print_summary(a: &Args, out: &render_gpu::render::RenderOutput, report: &Repo
         } else {
             String::new()
         },
-        crate::merge::out_stem(&a.out).display(),
+        crate::paths::shown(&crate::merge::out_stem(&a.out)),
         if out.variance.is_some() {
             ",var.exr"
         } else {

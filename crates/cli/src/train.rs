@@ -1370,11 +1370,11 @@ fn write_model(
         "trained in {seconds:.0} s{} ({}); wrote {} ({} bytes)",
         if a.resume { " this run" } else { "" },
         notes.join("; "),
-        out.display(),
+        crate::paths::shown(out),
         bytes.len()
     );
     match plot {
-        Some(_) => eprintln!("loss curves: {}", plot_path.display()),
+        Some(_) => eprintln!("loss curves: {}", crate::paths::shown(&plot_path)),
         None if plot_path.is_file() => match std::fs::remove_file(&plot_path) {
             Ok(()) => eprintln!(
                 "note: removed {}: an earlier run's loss curves (this run has none to \
@@ -1390,7 +1390,10 @@ fn write_model(
     }
     // `render` reads the shipped models/default.stcvae unless told otherwise, and the
     // default training config no longer overwrites it: say how to use what was written.
-    eprintln!("render with it: stcvae render --model {}", out.display());
+    eprintln!(
+        "render with it: stcvae render --model {}",
+        crate::paths::shown(out)
+    );
     Ok(())
 }
 

@@ -1649,6 +1649,24 @@ fn the_render_json_describes_the_render() {
     }
 }
 
+/// The summary line shows the output's name with its control characters escaped, as the
+/// errors do: an `--out` holding a newline printed the summary over two lines.
+#[cfg(unix)]
+#[test]
+fn an_output_name_with_a_newline_stays_on_one_line() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("a\nb");
+    let o = sphere_pt_render("cpu", &out).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(o.status.success(), "{err}");
+    let summary = err
+        .lines()
+        .find(|l| l.contains(" spp in "))
+        .unwrap_or_else(|| panic!("no summary line: {err}"));
+    assert!(summary.ends_with("a\\nb.{exr,png,json}"), "{summary}");
+    assert!(out.with_extension("exr").is_file());
+}
+
 /// `--width`/`--height` override the camera's size, one alone keeping its aspect (a 32 x 64
 /// camera: width 16 gives 16 x 32, height 8 gives 4 x 8); a derived side beyond the
 /// largest image names both flags; the scene may be given without --scene, but not twice.

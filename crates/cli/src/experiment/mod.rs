@@ -155,7 +155,7 @@ pub fn run(a: Args) -> Result<()> {
         "experiment {name} ({}{}) -> {}",
         cfg.kind.name(),
         if a.quick { ", quick" } else { "" },
-        out.display()
+        crate::paths::shown(&out)
     );
     // Ctrl-C is a request to stop after the current render pass (measure::render_once).
     crate::interrupt::flag();
