@@ -118,9 +118,9 @@ const STOP_SIGNALS: [libc::c_int; 3] = [libc::SIGINT, libc::SIGTERM, libc::SIGHU
 
 /// Puts a handler in front of ctrlc's for each stop signal that records the first one's
 /// number, then calls ctrlc's. A signal whose current action is not a plain handler is
-/// left alone: one ignored (SIGHUP under nohup) stays ignored, one at its default (ctrlc failed to install)
-/// ends the process, and one caught by another library's `SA_SIGINFO` handler exits 130
-/// if that handler stops the command.
+/// left alone: one ignored (SIGHUP under nohup) stays ignored, one at its default (ctrlc
+/// failed to install) ends the process, and one caught by another library's `SA_SIGINFO`
+/// handler exits 130 if that handler stops the command.
 #[cfg(unix)]
 fn record_signals() {
     extern "C" fn record(sig: libc::c_int) {

@@ -904,12 +904,16 @@ fn train_models(
     // Each with its model's index: the threads finish in any order.
     let results: Mutex<Vec<(usize, Result<cvae::train::Trained, TrainError>)>> =
         Mutex::new(Vec::new());
+    // The model whose failure stopped the others (usize::MAX: none): a model stopped by it
+    // may fail too (its stop checkpoint cannot be saved), and its error is not the cause.
+    let first_failure = std::sync::atomic::AtomicUsize::new(usize::MAX);
     std::thread::scope(|s| {
         for (i, &k) in kinds.iter().enumerate() {
             let table = &tables[i];
             let validation = validations[i].as_ref();
             let mc = scaled(k);
             let (results, report, bar) = (&results, &report, &bars[i]);
+            let first_failure = &first_failure;
             let device = device.clone();
             s.spawn(move || {
                 // A panic inside burn or the optimiser (a resumed optimiser state whose
@@ -953,6 +957,12 @@ fn train_models(
                 // the others at their next step, each with a checkpoint: they trained on to
                 // their end (40 minutes at the default size) before the error was shown.
                 if matches!(&r, Err(e) if !matches!(e, TrainError::Interrupted(_))) {
+                    let _ = first_failure.compare_exchange(
+                        usize::MAX,
+                        i,
+                        std::sync::atomic::Ordering::SeqCst,
+                        std::sync::atomic::Ordering::SeqCst,
+                    );
                     interrupt::stop_the_others();
                 }
                 results.lock().unwrap().push((i, r));
@@ -961,10 +971,11 @@ fn train_models(
     });
     let seconds = start.elapsed().as_secs_f64();
     // In the models' order, not the order they finished in: the summary, the warnings and
-    // the model file's notes came out in a different order from run to run, so two runs of
-    // one config wrote different bytes.
+    // the model file's notes came out in a different order from run to run. A failure that
+    // stopped the others goes first, so that it is the error shown.
+    let first = first_failure.into_inner();
     let mut results = results.into_inner().unwrap();
-    results.sort_by_key(|&(i, _)| i);
+    results.sort_by_key(|&(i, _)| (i != first, i));
     let results = results.into_iter().map(|(_, r)| r).collect::<Vec<_>>();
     // A model's own failure is the error to show; the others stopped because of it.
     let stopped = results

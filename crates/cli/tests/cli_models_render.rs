@@ -1519,45 +1519,48 @@ fn logged_pt_render(dir: &Path, spp: &str) -> (Command, PathBuf) {
 }
 
 /// Reads a render's stderr (progress lines written per update under
-/// STCVAE_LOG_PROGRESS_EVERY=0) to its end, sending `signal` once a line counts at least
-/// `samples` done; returns the text, the signal having been sent.
+/// STCVAE_LOG_PROGRESS_EVERY=0) to its end, sending each signal once a line counts at least
+/// its number of samples done, in order; returns the text, every signal having been sent.
 #[cfg(unix)]
-fn signal_after_samples(
-    child: &mut std::process::Child,
-    signal: libc::c_int,
-    samples: u64,
-) -> String {
+fn signal_after_samples(child: &mut std::process::Child, signals: &[(libc::c_int, u64)]) -> String {
     use std::io::BufRead;
     let mut err = String::new();
-    let mut sent = false;
+    let mut sent = 0;
     for line in std::io::BufReader::new(child.stderr.take().unwrap()).lines() {
         let line = line.unwrap();
         let done = line
             .split_whitespace()
             .find_map(|w| w.split_once('/'))
             .and_then(|(n, _)| n.replace(',', "").parse::<u64>().ok());
-        if !sent && done.is_some_and(|n| n >= samples) {
+        while let Some(&(signal, samples)) = signals.get(sent)
+            && done.is_some_and(|n| n >= samples)
+        {
             // SAFETY: a plain system call on a child this test owns and has not reaped.
             assert_eq!(unsafe { libc::kill(child.id() as libc::pid_t, signal) }, 0);
-            sent = true;
+            sent += 1;
         }
         err += &line;
         err.push('\n');
     }
-    assert!(sent, "no progress line counted {samples} samples: {err}");
+    assert_eq!(
+        sent,
+        signals.len(),
+        "a signal was not sent ({signals:?}): {err}"
+    );
     err
 }
 
-/// A stop signal the render was started with ignored stays ignored: under `nohup` (SIGHUP
-/// ignored) the render ran on, yet ctrlc's handler, installed over the ignoring, stopped
-/// it when the terminal closed. The signal goes out once a pass has finished; the render
-/// must then complete every sample.
+/// A SIGHUP the render was started with ignored (`nohup`) stays ignored: ctrlc's handler,
+/// installed over the ignoring, stopped it when the terminal closed. SIGHUP goes out at
+/// the first samples counted and SIGTERM once two passes are done: the stop must be
+/// SIGTERM's (exit 143), which it cannot be if SIGHUP was taken (129), nor if the render
+/// ended before either signal reached it.
 #[cfg(unix)]
 #[test]
 fn an_ignored_hangup_is_still_ignored() {
     use std::os::unix::process::CommandExt;
     let d = tempfile::tempdir().unwrap();
-    let (mut cmd, out) = logged_pt_render(d.path(), "2048");
+    let (mut cmd, out) = logged_pt_render(d.path(), "100000");
     // SAFETY: between fork and exec only `signal`, which is async-signal-safe.
     unsafe {
         cmd.pre_exec(|| {
@@ -1566,15 +1569,16 @@ fn an_ignored_hangup_is_still_ignored() {
         });
     }
     let mut child = cmd.spawn().unwrap();
-    let err = signal_after_samples(&mut child, libc::SIGHUP, 1);
+    // A pass is 256 spp of the 16² pixels (100,000 spp: the largest pass).
+    let pass = 256 * 16 * 16;
+    let err = signal_after_samples(&mut child, &[(libc::SIGHUP, 1), (libc::SIGTERM, 2 * pass)]);
     let status = child.wait().unwrap();
-    assert!(status.success(), "{status:?}: {err}");
-    assert!(!err.contains("interrupt"), "{err}");
+    assert_eq!(status.code(), Some(143), "{err}");
+    assert!(err.contains("interrupt (SIGTERM): stopping"), "{err}");
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.with_extension("json")).unwrap())
             .unwrap();
-    assert_eq!(json["spp"], 2048, "{json}");
-    assert_eq!(json["interrupted"], false, "{json}");
+    assert_eq!(json["interrupted"], true, "{json}");
 }
 
 #[cfg(unix)]
@@ -1584,7 +1588,7 @@ fn interrupt_a_render(signal: libc::c_int, name: &str) {
     let mut child = cmd.spawn().unwrap();
     // A pass is 256 spp of the 16² pixels (100,000 spp: the largest pass).
     let pass = 256 * 16 * 16;
-    let err = signal_after_samples(&mut child, signal, 2 * pass);
+    let err = signal_after_samples(&mut child, &[(signal, 2 * pass)]);
     let status = child.wait().unwrap();
     assert_eq!(status.code(), Some(128 + signal), "{err}");
     assert!(

@@ -231,7 +231,7 @@ impl DatasetReader {
 /// The header's columns and numbers, checked when the file is opened: the checksum (over
 /// the header too since version 2) is known only after the rows have streamed past.
 fn check_header(header: &Header) -> Result<(), String> {
-    // The rows are read by position, and merge adds and compares counts.
+    // The rows are read by position.
     if header
         .columns
         .iter()
@@ -262,6 +262,7 @@ fn check_header(header: &Header) -> Result<(), String> {
             return Err(format!("piece {i}'s sampler: {e}"));
         }
     }
+    // Merge adds and compares counts.
     let sum = header
         .pieces
         .iter()
