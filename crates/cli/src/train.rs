@@ -970,11 +970,21 @@ fn train_models(
         }
     });
     let seconds = start.elapsed().as_secs_f64();
+    let trained = in_models_order(a, results.into_inner().unwrap(), first_failure.into_inner())?;
+    Ok((trained, seconds))
+}
+
+/// The trained models in the models' order, or the error to show: the failure of the
+/// model `first` (usize::MAX: none) that stopped the others, else any other failure, else
+/// the interruption.
+fn in_models_order(
+    a: &Args,
+    mut results: Vec<(usize, Result<cvae::train::Trained, TrainError>)>,
+    first: usize,
+) -> Result<Vec<cvae::train::Trained>> {
     // In the models' order, not the order they finished in: the summary, the warnings and
     // the model file's notes came out in a different order from run to run. A failure that
     // stopped the others goes first, so that it is the error shown.
-    let first = first_failure.into_inner();
-    let mut results = results.into_inner().unwrap();
     results.sort_by_key(|&(i, _)| (i != first, i));
     let results = results.into_iter().map(|(_, r)| r).collect::<Vec<_>>();
     // A model's own failure is the error to show; the others stopped because of it.
@@ -1003,7 +1013,7 @@ fn train_models(
             resume_command(a)
         );
     }
-    Ok((trained, seconds))
+    Ok(trained)
 }
 
 /// The model file's set: the decoders trained now, the others from `--base` or from their
