@@ -201,7 +201,7 @@ pub fn pipe_closed() -> bool {
 
 /// Stops the loops polling [`flag`] as Ctrl-C does, without it counting as the user's
 /// request: one training thread's failure ends the others with their checkpoints, yet the
-/// command exits with 1, not 130, and the user's first Ctrl-C is still a first.
+/// command exits with 1, not 128 + a signal, and the user's first Ctrl-C is still a first.
 pub fn stop_the_others() {
     FLAG.store(true, Ordering::SeqCst);
 }

@@ -85,12 +85,16 @@ impl Snapshot {
         if names.is_empty() {
             return;
         }
-        let shown: Vec<&str> = names.iter().take(12).map(String::as_str).collect();
+        let shown: Vec<String> = names
+            .iter()
+            .take(12)
+            .map(|n| scatter_sim::ranges::printable(n))
+            .collect();
         let more = names.len().saturating_sub(shown.len());
         eprintln!(
             "note: {} also holds {} file{} of an earlier run that this one did not write \
              (not in its {what}): {}{}; delete them, or give each run its own --out",
-            self.dir.display(),
+            crate::paths::shown(&self.dir),
             names.len(),
             if names.len() == 1 { "" } else { "s" },
             shown.join(", "),

@@ -226,12 +226,12 @@ pub(crate) fn write_image_set_with(
         match std::fs::remove_file(&var) {
             Ok(()) => eprintln!(
                 "note: removed {}, the variance image of an earlier render under this name",
-                var.display()
+                crate::paths::shown(&var)
             ),
             Err(e) => eprintln!(
                 "warning: {} is the variance image of an earlier render and could not be \
                  removed ({e}): it does not belong to the new image",
-                var.display()
+                crate::paths::shown(&var)
             ),
         }
     }
@@ -243,8 +243,8 @@ pub(crate) fn write_image_set_with(
 fn merge_images(a: &Args) -> Result<()> {
     crate::render::check_out_stem(&a.out)?;
     // Ctrl-C asks to stop. Before the set is written (large renders take seconds to read)
-    // nothing is; once writing, the set is finished whole (exit status 130 either way, 143
-    // for SIGTERM). Without the handler the signal ended the process mid-write, leaving
+    // nothing is; once writing, the set is finished whole (exit status 128 + the stop
+    // signal either way, 130 for Ctrl-C). Without the handler the signal ended the process mid-write, leaving
     // hidden temporaries, or a new image beside the old report between two renames.
     let cancel = crate::interrupt::flag();
     let inputs: Vec<&std::path::Path> = a.inputs.iter().map(|p| p.as_path()).collect();
@@ -313,7 +313,8 @@ fn merge_images(a: &Args) -> Result<()> {
         crate::paths::shown(&out_stem(&a.out))
     );
     // Asked to stop while writing: the set is whole, and the exit status says the stop
-    // was asked for (130, or 128 + another stop signal), as an interrupted render's does.
+    // was asked for (128 + the stop signal, 130 for Ctrl-C), as an interrupted render's
+    // does.
     if cancel.load(std::sync::atomic::Ordering::Relaxed) {
         bail!("interrupted while writing: the merged set was written whole");
     }

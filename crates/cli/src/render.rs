@@ -721,8 +721,8 @@ pub fn run(mut a: Args) -> Result<()> {
         eprintln!("{note}");
     }
     if interrupted {
-        // Written, but cut short: exit 130 (128 + the stop signal) as `generate` and
-        // `train` do, so that scripts can tell it from a complete render.
+        // Written, but cut short: exit 128 + the stop signal (130 for Ctrl-C) as
+        // `generate` and `train` do, so that scripts can tell it from a complete render.
         bail!(
             "interrupted: the files hold the {} spp finished before the stop{}",
             out.spp,

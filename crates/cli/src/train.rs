@@ -198,8 +198,8 @@ fn ensure_dataset(cfg: &TrainConfig) -> Result<()> {
     };
     eprintln!(
         "dataset {} not found: generating it from {} first",
-        cfg.dataset.display(),
-        dc.display()
+        crate::paths::shown(&cfg.dataset),
+        crate::paths::shown(dc)
     );
     crate::generate::generate_from_config(dc, &cfg.dataset)
 }
@@ -366,20 +366,23 @@ fn checkpoint_decoder(
     Ok((d, version, info.ranges, info.step))
 }
 
+/// A path as a shell word, in single quotes unless it is made of safe characters only,
+/// for the commands the messages suggest.
+fn quote(p: &Path) -> String {
+    let s = p.display().to_string();
+    if s.chars()
+        .all(|c| c.is_ascii_alphanumeric() || "/._-+,".contains(c))
+    {
+        s
+    } else {
+        format!("'{}'", s.replace('\'', "'\\''"))
+    }
+}
+
 /// The command that goes on from an interrupted run's checkpoints: the run's own with
 /// --resume for --fresh ("the same command with --resume" was `--fresh --resume`, which
 /// clap refuses).
 fn resume_command(a: &Args) -> String {
-    let quote = |p: &Path| {
-        let s = p.display().to_string();
-        if s.chars()
-            .all(|c| c.is_ascii_alphanumeric() || "/._-+,".contains(c))
-        {
-            s
-        } else {
-            format!("'{}'", s.replace('\'', "'\\''"))
-        }
-    };
     let mut c = format!("stcvae train --config {}", quote(&a.config));
     if let Some(k) = a.model {
         c += &format!(" --model {}", k.name());
@@ -1400,11 +1403,11 @@ fn write_model(
             Ok(()) => eprintln!(
                 "note: removed {}: an earlier run's loss curves (this run has none to \
                  plot)",
-                plot_path.display()
+                crate::paths::shown(&plot_path)
             ),
             Err(e) => eprintln!(
                 "warning: {} is an earlier run's loss curves and could not be removed: {e}",
-                plot_path.display()
+                crate::paths::shown(&plot_path)
             ),
         },
         None => {}
@@ -1413,7 +1416,7 @@ fn write_model(
     // default training config no longer overwrites it: say how to use what was written.
     eprintln!(
         "render with it: stcvae render --model {}",
-        crate::paths::shown(out)
+        scatter_sim::ranges::printable(&quote(out))
     );
     Ok(())
 }

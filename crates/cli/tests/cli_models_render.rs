@@ -1493,10 +1493,15 @@ fn a_terminated_render_keeps_its_passes_and_exits_143() {
     interrupt_a_render(libc::SIGTERM, "SIGTERM");
 }
 
-/// A PT render on the CPU of a 16² sphere in `dir` at `spp`, writing a progress line per
-/// update (STCVAE_LOG_PROGRESS_EVERY=0) to a piped stderr; and its output stem.
+/// The samples of one pass of [`logged_pt_render`]: 256 spp of the 16² pixels (100,000 spp
+/// takes the largest pass).
 #[cfg(unix)]
-fn logged_pt_render(dir: &Path, spp: &str) -> (Command, PathBuf) {
+const PASS: u64 = 256 * 16 * 16;
+
+/// A PT render on the CPU of a 16² sphere in `dir` at 100,000 spp, writing a progress line
+/// per update (STCVAE_LOG_PROGRESS_EVERY=0) to a piped stderr; and its output stem.
+#[cfg(unix)]
+fn logged_pt_render(dir: &Path) -> (Command, PathBuf) {
     let scene = sphere_scene_file(dir, 16);
     let out = dir.join("r");
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_stcvae"));
@@ -1507,7 +1512,7 @@ fn logged_pt_render(dir: &Path, spp: &str) -> (Command, PathBuf) {
         "--integrator",
         "pt",
         "--spp",
-        spp,
+        "100000",
     ])
     .arg("--scene")
     .arg(&scene)
@@ -1560,7 +1565,7 @@ fn signal_after_samples(child: &mut std::process::Child, signals: &[(libc::c_int
 fn an_ignored_hangup_is_still_ignored() {
     use std::os::unix::process::CommandExt;
     let d = tempfile::tempdir().unwrap();
-    let (mut cmd, out) = logged_pt_render(d.path(), "100000");
+    let (mut cmd, out) = logged_pt_render(d.path());
     // SAFETY: between fork and exec only `signal`, which is async-signal-safe.
     unsafe {
         cmd.pre_exec(|| {
@@ -1569,9 +1574,7 @@ fn an_ignored_hangup_is_still_ignored() {
         });
     }
     let mut child = cmd.spawn().unwrap();
-    // A pass is 256 spp of the 16² pixels (100,000 spp: the largest pass).
-    let pass = 256 * 16 * 16;
-    let err = signal_after_samples(&mut child, &[(libc::SIGHUP, 1), (libc::SIGTERM, 2 * pass)]);
+    let err = signal_after_samples(&mut child, &[(libc::SIGHUP, 1), (libc::SIGTERM, 2 * PASS)]);
     let status = child.wait().unwrap();
     assert_eq!(status.code(), Some(143), "{err}");
     assert!(err.contains("interrupt (SIGTERM): stopping"), "{err}");
@@ -1581,14 +1584,13 @@ fn an_ignored_hangup_is_still_ignored() {
     assert_eq!(json["interrupted"], true, "{json}");
 }
 
+/// Stops a render with `signal` after two passes and checks what it kept (the tests above).
 #[cfg(unix)]
 fn interrupt_a_render(signal: libc::c_int, name: &str) {
     let d = tempfile::tempdir().unwrap();
-    let (mut cmd, out) = logged_pt_render(d.path(), "100000");
+    let (mut cmd, out) = logged_pt_render(d.path());
     let mut child = cmd.spawn().unwrap();
-    // A pass is 256 spp of the 16² pixels (100,000 spp: the largest pass).
-    let pass = 256 * 16 * 16;
-    let err = signal_after_samples(&mut child, &[(signal, 2 * pass)]);
+    let err = signal_after_samples(&mut child, &[(signal, 2 * PASS)]);
     let status = child.wait().unwrap();
     assert_eq!(status.code(), Some(128 + signal), "{err}");
     assert!(
@@ -1673,7 +1675,8 @@ fn an_output_name_with_a_newline_stays_on_one_line() {
 
 /// `--width`/`--height` override the camera's size, one alone keeping its aspect (a 32 x 64
 /// camera: width 16 gives 16 x 32, height 8 gives 4 x 8); a derived side beyond the
-/// largest image names both flags; the scene may be given without --scene, but not twice.
+/// largest image names both flags; the scene may be given without --scene, but not twice,
+/// nor as ""; the fields the flags replace are checked as the file writes them.
 #[test]
 fn render_size_flags_and_a_plain_scene_argument() {
     let tmp = tempfile::tempdir().unwrap();

@@ -313,7 +313,7 @@ fn a_fixed_condition_warns_and_a_bad_checkpoint_dir_fails_first() {
     assert!(!out.status.success());
     assert!(
         stderr(&out)
-            .contains("train.toml: lengthgen.warmup: 31 exceeds steps: allowed [0, steps = 30]"),
+            .contains("train.toml: lengthgen.warmup: 31 is out of range: allowed [0, steps = 30]"),
         "{}",
         stderr(&out)
     );

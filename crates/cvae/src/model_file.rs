@@ -642,7 +642,7 @@ fn read_decoder(
     }
     if widths.iter().any(|&w| w == 0 || w > MAX_WIDTH) {
         return Err(format!(
-            "{}: layer widths {widths:?} outside 1..={MAX_WIDTH}",
+            "{}: layer widths {widths:?} out of range: allowed [1, {MAX_WIDTH}] each",
             spec.name
         ));
     }

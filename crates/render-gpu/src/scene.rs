@@ -162,8 +162,9 @@ fn whole<'de, const I: usize, D: serde::Deserializer<'de>>(d: D) -> Result<u32, 
     scatter_sim::ranges::whole_in(d, lo.into(), hi.into())
 }
 
-/// serde's Rust type names in words: `width = -16` said "expected u32". The field's own
-/// range is checked after parsing (the validation's messages give it).
+/// serde's Rust type names in words: `width = -16` said "expected u32" (and a table's
+/// type, [`plain_structs`]); a refused float written short ([`short_floats`]). The field's
+/// own range is checked after parsing (the validation's messages give it).
 fn plain_types(msg: &str) -> String {
     let msg = &plain_structs(&short_floats(msg));
     [

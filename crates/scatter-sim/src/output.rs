@@ -436,8 +436,8 @@ impl AtomicFile {
             eprintln!(
                 "note: removed {} ({bytes} bytes), the temporary of an earlier run that was \
                  killed while writing {}",
-                gone.display(),
-                path.display()
+                crate::ranges::printable(&gone.display().to_string()),
+                crate::ranges::printable(&path.display().to_string())
             );
         }
         let tmp = locked_temporary(&builder, dir)?;

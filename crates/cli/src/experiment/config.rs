@@ -319,8 +319,8 @@ impl Config {
         Ok(())
     }
 
-    /// What the kind needs: a scene, its list, its budgets' fields; and at most one `paper`
-    /// figure per density.
+    /// What the kind needs: a scene (not named ""), its list, its budgets' fields; and at
+    /// most one `paper` figure per density.
     fn check_needs(&self) -> Result<()> {
         let needs_scene = self.kind != Kind::Distributions;
         if needs_scene && self.scene.is_none() {

@@ -160,8 +160,8 @@ fn check_heights(
         if !(MIN_BENCH_SIZE..=MAX_BENCH_SIZE).contains(&h) {
             bail!(
                 "{}: its camera's aspect ({} x {}) makes {name}.size = {size} a {size} x \
-                 {h} image, and the height must be in {MIN_BENCH_SIZE}..={MAX_BENCH_SIZE} \
-                 as the width (the figures are measured over 4×4-pixel blocks)",
+                 {h} image, and the height, as the width, is allowed [{MIN_BENCH_SIZE}, \
+                 {MAX_BENCH_SIZE}] (the figures are measured over 4×4-pixel blocks)",
                 path.display(),
                 base.camera.width,
                 base.camera.height

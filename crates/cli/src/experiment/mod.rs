@@ -195,7 +195,7 @@ pub fn run(a: Args) -> Result<()> {
     }
     rep.write(&out)?;
     before.note_left_over("report.md");
-    eprintln!("wrote {}", out.join("report.md").display());
+    eprintln!("wrote {}", crate::paths::shown(&out.join("report.md")));
     Ok(())
 }
 

@@ -217,7 +217,7 @@ impl ModelConfig {
         {
             return bad(
                 "warmup",
-                &format!("{w} exceeds steps: allowed [0, steps = {}]", self.steps),
+                &format!("{w} is out of range: allowed [0, steps = {}]", self.steps),
             );
         }
         Ok(())
@@ -1040,7 +1040,7 @@ mod tests {
         let e = config(100, Some(101)).validate("pathgen").unwrap_err();
         assert_eq!(
             e,
-            "pathgen.warmup: 101 exceeds steps: allowed [0, steps = 100]"
+            "pathgen.warmup: 101 is out of range: allowed [0, steps = 100]"
         );
     }
 
