@@ -1393,7 +1393,8 @@ fn write_model(
     eprintln!(
         "trained in {seconds:.0} s{} ({}); wrote {} ({} bytes)",
         if a.resume { " this run" } else { "" },
-        notes.join("; "),
+        // A note may name the --base file.
+        scatter_sim::ranges::printable(&notes.join("; ")),
         crate::paths::shown(out),
         bytes.len()
     );

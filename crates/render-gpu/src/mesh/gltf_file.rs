@@ -405,7 +405,7 @@ impl Reading<'_> {
             return Err(RenderError::mesh(
                 self.path,
                 format!(
-                    "mesh {} primitive {}: index {i} names no vertex: allowed 0..={} \
+                    "mesh {} primitive {}: index {i} names no vertex: allowed [0, {}] \
                      ({n} vertices)",
                     m.index(),
                     prim.index(),

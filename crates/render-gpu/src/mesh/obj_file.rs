@@ -193,14 +193,14 @@ fn obj_problem(text: &str) -> Option<String> {
                     if !ok {
                         let back = if before > 0 {
                             format!(
-                                ", or -{before}..=-1 counting back over the {before} defined \
-                                 before it"
+                                ", or [-{before}, -1] counting back over the {before} \
+                                 defined before it"
                             )
                         } else {
                             String::new()
                         };
                         return Some(format!(
-                            "line {at}: face index `{first}` names no vertex: allowed 1..={total} \
+                            "line {at}: face index `{first}` names no vertex: allowed [1, {total}] \
                              for the file's {total} vertices{back}"
                         ));
                     }
