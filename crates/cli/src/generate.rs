@@ -89,8 +89,9 @@ pub fn load_config(path: &Path) -> Result<DatasetConfig> {
     if cfg.walks == 0 {
         // Worded as -1's refusal is (`at_least_one`).
         bail!(
-            "{}: walks = 0 is out of range: allowed [1, 2^64)",
-            path.display()
+            "{}: walks = 0 is out of range: allowed {}",
+            path.display(),
+            scatter_sim::ranges::whole_range(1, u64::MAX)
         );
     }
     cfg.conditions

@@ -6,9 +6,7 @@ use anyhow::{Result, bail};
 
 /// A path as the summary lines show it: control characters escaped, as in the errors (an
 /// `--out` holding a newline printed a summary over two lines).
-pub(crate) fn shown(p: &Path) -> String {
-    scatter_sim::ranges::printable(&p.display().to_string())
-}
+pub(crate) use scatter_sim::ranges::printable_path as shown;
 
 /// The file a path names, for comparing paths written differently (`./a.exr`, `a.exr`);
 /// a path that does not exist yet is resolved through its nearest existing ancestor (so

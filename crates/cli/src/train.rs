@@ -173,9 +173,9 @@ fn load(path: &Path) -> Result<TrainConfig> {
     // saves one) after most of an hour lost the whole run.
     if cfg.checkpoint_every == 0 {
         bail!(
-            "{}: checkpoint_every = 0 is out of range: allowed [1, 2^64) (steps between \
-             checkpoints)",
-            path.display()
+            "{}: checkpoint_every = 0 is out of range: allowed {} (steps between checkpoints)",
+            path.display(),
+            scatter_sim::ranges::whole_range(1, u64::MAX)
         );
     }
     for k in ModelKind::ALL {

@@ -182,36 +182,44 @@ fn plain_types(msg: &str) -> String {
 /// serde names a table by the Rust type it fills ("expected struct ConditionSampler" for
 /// `conditions = 5`), which the user never sees: a table it is.
 fn plain_structs(msg: &str) -> String {
-    const TAG: &str = "expected struct ";
-    let mut out = String::with_capacity(msg.len());
-    let mut rest = msg;
-    while let Some(i) = rest.find(TAG) {
-        out.push_str(&rest[..i]);
-        out.push_str("expected a table");
-        let tail = &rest[i + TAG.len()..];
-        let end = tail
-            .find(|c: char| !(c.is_ascii_alphanumeric() || c == '_'))
-            .unwrap_or(tail.len());
-        rest = &tail[end..];
-    }
-    out.push_str(rest);
-    out
+    rewrite_after(
+        msg,
+        "expected struct ",
+        |c| c.is_ascii_alphanumeric() || c == '_',
+        |_| "expected a table".into(),
+    )
 }
 
 /// serde writes a float it refuses in full (`seed = 1e308` gave a 309-digit number):
 /// written short instead, as the range messages write theirs.
 fn short_floats(msg: &str) -> String {
     const TAG: &str = "floating point `";
+    rewrite_after(
+        msg,
+        TAG,
+        |c| c != '`',
+        |v| match v.parse::<f64>() {
+            Ok(x) if v.len() > 16 => format!("{TAG}{}", num(x)),
+            _ => format!("{TAG}{v}"),
+        },
+    )
+}
+
+/// `msg` with each `tag` and the token after it (the characters `in_token` takes)
+/// replaced by `rewrite(token)`.
+fn rewrite_after(
+    msg: &str,
+    tag: &str,
+    in_token: impl Fn(char) -> bool,
+    rewrite: impl Fn(&str) -> String,
+) -> String {
     let mut out = String::with_capacity(msg.len());
     let mut rest = msg;
-    while let Some(i) = rest.find(TAG) {
-        let (head, tail) = rest.split_at(i + TAG.len());
-        out.push_str(head);
-        let end = tail.find('`').unwrap_or(tail.len());
-        match tail[..end].parse::<f64>() {
-            Ok(v) if end > 16 => out.push_str(&num(v)),
-            _ => out.push_str(&tail[..end]),
-        }
+    while let Some(i) = rest.find(tag) {
+        out.push_str(&rest[..i]);
+        let tail = &rest[i + tag.len()..];
+        let end = tail.find(|c| !in_token(c)).unwrap_or(tail.len());
+        out.push_str(&rewrite(&tail[..end]));
         rest = &tail[end..];
     }
     out.push_str(rest);

@@ -436,8 +436,8 @@ impl AtomicFile {
             eprintln!(
                 "note: removed {} ({bytes} bytes), the temporary of an earlier run that was \
                  killed while writing {}",
-                crate::ranges::printable(&gone.display().to_string()),
-                crate::ranges::printable(&path.display().to_string())
+                crate::ranges::printable_path(&gone),
+                crate::ranges::printable_path(path)
             );
         }
         let tmp = locked_temporary(&builder, dir)?;

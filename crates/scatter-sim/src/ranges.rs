@@ -25,6 +25,11 @@ where
     Short(v).to_string()
 }
 
+/// A path as messages show it: [`printable`] of its display form.
+pub fn printable_path(p: &std::path::Path) -> String {
+    printable(&p.display().to_string())
+}
+
 /// `s` with control characters escaped (`\n`, `\u{1b}`): every message is one line, and a
 /// file name, tag or config text taken from a damaged or hostile file may hold newlines
 /// and terminal escapes, which must not reach the terminal raw (a mesh path with an ESC
