@@ -213,7 +213,8 @@ pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
                 el.name, el.count
             ));
         }
-        if el.name == "vertex" {
+        let (is_vertex, is_face) = (el.name == "vertex", el.name == "face");
+        if is_vertex {
             check_vertex_properties(el)?;
             // Each vertex takes at least 6 bytes ("0 0 0\n" in ASCII, 12 in binary), so a
             // header that lies about the count cannot make this reserve more than the file.
@@ -221,8 +222,15 @@ pub fn parse(bytes: &[u8]) -> Result<TriMesh, String> {
         }
         for k in 0..el.count {
             // Which entry a bad value is in: an ASCII body has no other landmark.
-            read_entry(el, &mut body, &mut mesh, &mut face_indices, &mut face_sizes)
-                .map_err(|e| format!("{} {}: {e}", el.name, k + 1))?;
+            read_entry(
+                el,
+                (is_vertex, is_face),
+                &mut body,
+                &mut mesh,
+                &mut face_indices,
+                &mut face_sizes,
+            )
+            .map_err(|e| format!("{} {}: {e}", el.name, k + 1))?;
         }
     }
     body.finish()?;
@@ -319,16 +327,16 @@ fn check_vertex_properties(el: &Element) -> Result<(), String> {
 }
 
 /// One entry of an element: a vertex's position, or a face's vertex indices (kept with
-/// its vertex count); other properties and elements are read past.
+/// its vertex count); other properties and elements are read past. Whether the element is
+/// the vertices or the faces is decided once per element, by the caller.
 fn read_entry(
     el: &Element,
+    (is_vertex, is_face): (bool, bool),
     body: &mut Body,
     mesh: &mut TriMesh,
     face_indices: &mut Vec<u32>,
     face_sizes: &mut Vec<usize>,
 ) -> Result<(), String> {
-    let is_vertex = el.name == "vertex";
-    let is_face = el.name == "face";
     let mut p = [0f32; 3];
     for prop in &el.props {
         match prop {
