@@ -284,6 +284,21 @@ impl Reading<'_> {
     ) -> Result<(), RenderError> {
         // A mirroring transform reverses the winding; glTF asks loaders to undo that.
         let mirrored = world.determinant() < 0.0;
+        let targets = self.check_primitive(node, m, prim, weights)?;
+        let pos = self.placed_positions(prim, &targets, weights, world)?;
+        self.append_triangles(m, prim, pos, mirrored)
+    }
+
+    /// What the `gltf` reader would otherwise assume of `prim` (see [`check_accessor`]),
+    /// and the count of what the nodes place so far; returns the primitive's morph
+    /// targets.
+    fn check_primitive<'g>(
+        &mut self,
+        node: usize,
+        m: &gltf::Mesh,
+        prim: &gltf::Primitive<'g>,
+        weights: &[f32],
+    ) -> Result<Vec<gltf::mesh::MorphTarget<'g>>, RenderError> {
         if prim.mode() != gltf::mesh::Mode::Triangles {
             return Err(RenderError::mesh(
                 self.path,
@@ -331,8 +346,11 @@ impl Reading<'_> {
             ));
         }
         let targets: Vec<_> = prim.morph_targets().collect();
-        let in_use = |k: usize| weights.get(k).is_some_and(|&w| w != 0.0);
-        for (k, t) in targets.iter().enumerate().filter(|&(k, _)| in_use(k)) {
+        for (k, t) in targets
+            .iter()
+            .enumerate()
+            .filter(|&(k, _)| in_use(weights, k))
+        {
             if let Some(acc) = t.positions() {
                 check_accessor(
                     &acc,
@@ -354,8 +372,18 @@ impl Reading<'_> {
                 }
             }
         }
+        Ok(targets)
+    }
+
+    /// The primitive's positions, morphed by the targets in use and placed at `world`.
+    fn placed_positions(
+        &self,
+        prim: &gltf::Primitive,
+        targets: &[gltf::mesh::MorphTarget],
+        weights: &[f32],
+        world: Mat4,
+    ) -> Result<Vec<Vec3>, RenderError> {
         let reader = prim.reader(|b| self.buffers.get(b.index()).map(|v| &v[..]));
-        let base = self.mesh.positions.len() as u32;
         let mut local: Vec<Vec3> = reader
             .read_positions()
             .ok_or_else(|| RenderError::mesh(self.path, "a primitive has no POSITION"))?
@@ -364,7 +392,11 @@ impl Reading<'_> {
         // The targets in use, their positions alone, each accessor checked above:
         // the reader's own walk over every target built readers for the unused
         // ones' normals and tangents too, unchecked (a count of 0 underflowed).
-        for (k, t) in targets.iter().enumerate().filter(|&(k, _)| in_use(k)) {
+        for (k, t) in targets
+            .iter()
+            .enumerate()
+            .filter(|&(k, _)| in_use(weights, k))
+        {
             let Some(acc) = t.positions() else { continue };
             let d = gltf::accessor::Iter::<[f32; 3]>::new(acc, |b| {
                 self.buffers.get(b.index()).map(|v| &v[..])
@@ -380,10 +412,23 @@ impl Reading<'_> {
                 *p += w * Vec3::from_array(d);
             }
         }
-        let pos: Vec<Vec3> = local
+        Ok(local
             .into_iter()
             .map(|p| world.transform_point3(p))
-            .collect();
+            .collect())
+    }
+
+    /// Appends the positions `pos` and the primitive's triangles over them, each index
+    /// checked, reversing the winding where the placement `mirrored` it.
+    fn append_triangles(
+        &mut self,
+        m: &gltf::Mesh,
+        prim: &gltf::Primitive,
+        pos: Vec<Vec3>,
+        mirrored: bool,
+    ) -> Result<(), RenderError> {
+        let reader = prim.reader(|b| self.buffers.get(b.index()).map(|v| &v[..]));
+        let base = self.mesh.positions.len() as u32;
         let n = pos.len() as u32;
         self.mesh.positions.extend(pos);
         let idx: Vec<u32> = match reader.read_indices() {
@@ -419,6 +464,11 @@ impl Reading<'_> {
         }));
         Ok(())
     }
+}
+
+/// Whether morph target `k` is in use: it has a weight, and the weight is not 0.
+fn in_use(weights: &[f32], k: usize) -> bool {
+    weights.get(k).is_some_and(|&w| w != 0.0)
 }
 
 /// A primitive whose POSITION names no accessor, in a file that parses (its other faults
@@ -467,111 +517,141 @@ fn read_buffers(
             ),
         ));
     }
-    let mut read: HashMap<(PathBuf, usize), std::rc::Rc<Vec<u8>>> = HashMap::new();
-    let mut buffers: Vec<std::rc::Rc<Vec<u8>>> = Vec::new();
+    let mut read: HashMap<(PathBuf, usize), Rc<Vec<u8>>> = HashMap::new();
+    let mut buffers: Vec<Rc<Vec<u8>>> = Vec::new();
     for b in document.buffers() {
-        let data = match b.source() {
-            gltf::buffer::Source::Bin if b.index() != 0 => {
-                return Err(RenderError::mesh(
-                    path,
-                    if bytes.starts_with(b"glTF") {
-                        format!(
-                            "buffer {} refers to the GLB binary chunk, which only buffer 0 may",
-                            b.index()
-                        )
-                    } else {
-                        format!(
-                            "buffer {} names no file (it has no uri): a .gltf keeps its \
-                             buffers in files beside it",
-                            b.index()
-                        )
-                    },
-                ));
-            }
-            gltf::buffer::Source::Bin => std::rc::Rc::new(blob.take().ok_or_else(|| {
-                // gltf reads a buffer without a uri as the chunk.
-                RenderError::mesh(
-                    path,
-                    if bytes.starts_with(b"glTF") {
-                        "the GLB binary chunk is missing"
-                    } else {
-                        "buffer 0 names no file (it has no uri): a .gltf keeps its buffers \
-                         in files beside it"
-                    },
-                )
-            })?),
-            gltf::buffer::Source::Uri(uri) if uri.starts_with("data:") => {
-                return Err(RenderError::mesh(
-                    path,
-                    "embedded base64 buffers are not supported: convert to .glb",
-                ));
-            }
-            gltf::buffer::Source::Uri("") => {
-                return Err(RenderError::mesh(
-                    path,
-                    format!(
-                        "buffer {} names no file (its uri is empty): a .gltf keeps its \
-                         buffers in files beside it",
-                        b.index()
-                    ),
-                ));
-            }
-            gltf::buffer::Source::Uri(uri) => {
-                // URIs are percent-encoded (RFC 3986): exporters write a space as %20.
-                let name = percent_encoding::percent_decode_str(uri).decode_utf8_lossy();
-                let p = dir.join(&*name);
-                if let Some(d) = read.get(&(p.clone(), b.length())) {
-                    buffers.push(d.clone());
-                    continue;
-                }
-                let cannot = |e: std::io::Error| {
-                    RenderError::mesh(
-                        path,
-                        format!("its buffer {} cannot be read: {e}", p.display()),
-                    )
-                };
-                // Only what the buffer declares, from a regular file: a URI naming
-                // /dev/zero read until memory ran out (and opening a FIFO waits for a
-                // writer, so the kind is looked at first).
-                if !std::fs::metadata(&p).map_err(cannot)?.is_file() {
-                    return Err(RenderError::mesh(
-                        path,
-                        format!("its buffer {} is not a regular file", p.display()),
-                    ));
-                }
-                let file = std::fs::File::open(&p).map_err(cannot)?;
-                let mut data = Vec::new();
-                std::io::Read::read_to_end(
-                    &mut std::io::Read::take(file, b.length() as u64),
-                    &mut data,
-                )
-                .map_err(cannot)?;
-                let data = std::rc::Rc::new(data);
-                read.insert((p, b.length()), data.clone());
-                data
-            }
-        };
-        if data.len() < b.length() {
-            let held = match b.source() {
-                gltf::buffer::Source::Uri(uri) => {
-                    let name = percent_encoding::percent_decode_str(uri).decode_utf8_lossy();
-                    format!("its file {}", dir.join(&*name).display())
-                }
-                gltf::buffer::Source::Bin => "the GLB binary chunk".to_string(),
-            };
-            return Err(RenderError::mesh(
-                path,
-                format!(
-                    "buffer {} declares {} bytes, but {held} holds {}",
-                    b.index(),
-                    b.length(),
-                    data.len()
-                ),
-            ));
-        }
+        let data = buffer_data(path, bytes, dir, &b, &mut blob, &mut read)?;
+        check_buffer_length(path, dir, &b, &data)?;
         buffers.push(data);
     }
     Ok(buffers)
+}
+
+/// Where buffer `b` is held: the GLB's binary chunk (`blob`, taken), or a file beside
+/// `path` (read once for all the buffers naming it, `read`).
+fn buffer_data(
+    path: &Path,
+    bytes: &[u8],
+    dir: &Path,
+    b: &gltf::Buffer,
+    blob: &mut Option<Vec<u8>>,
+    read: &mut HashMap<(PathBuf, usize), Rc<Vec<u8>>>,
+) -> Result<Rc<Vec<u8>>, RenderError> {
+    Ok(match b.source() {
+        gltf::buffer::Source::Bin if b.index() != 0 => {
+            return Err(RenderError::mesh(
+                path,
+                if bytes.starts_with(b"glTF") {
+                    format!(
+                        "buffer {} refers to the GLB binary chunk, which only buffer 0 may",
+                        b.index()
+                    )
+                } else {
+                    format!(
+                        "buffer {} names no file (it has no uri): a .gltf keeps its \
+                         buffers in files beside it",
+                        b.index()
+                    )
+                },
+            ));
+        }
+        gltf::buffer::Source::Bin => Rc::new(blob.take().ok_or_else(|| {
+            // gltf reads a buffer without a uri as the chunk.
+            RenderError::mesh(
+                path,
+                if bytes.starts_with(b"glTF") {
+                    "the GLB binary chunk is missing"
+                } else {
+                    "buffer 0 names no file (it has no uri): a .gltf keeps its buffers \
+                     in files beside it"
+                },
+            )
+        })?),
+        gltf::buffer::Source::Uri(uri) if uri.starts_with("data:") => {
+            return Err(RenderError::mesh(
+                path,
+                "embedded base64 buffers are not supported: convert to .glb",
+            ));
+        }
+        gltf::buffer::Source::Uri("") => {
+            return Err(RenderError::mesh(
+                path,
+                format!(
+                    "buffer {} names no file (its uri is empty): a .gltf keeps its \
+                     buffers in files beside it",
+                    b.index()
+                ),
+            ));
+        }
+        gltf::buffer::Source::Uri(uri) => {
+            // URIs are percent-encoded (RFC 3986): exporters write a space as %20.
+            let name = percent_encoding::percent_decode_str(uri).decode_utf8_lossy();
+            read_file_buffer(path, dir.join(&*name), b.length(), read)?
+        }
+    })
+}
+
+/// A buffer held in the file `p` (its declared `length` at most), read once for every
+/// buffer naming that file with that length.
+fn read_file_buffer(
+    path: &Path,
+    p: PathBuf,
+    length: usize,
+    read: &mut HashMap<(PathBuf, usize), Rc<Vec<u8>>>,
+) -> Result<Rc<Vec<u8>>, RenderError> {
+    if let Some(d) = read.get(&(p.clone(), length)) {
+        return Ok(d.clone());
+    }
+    let cannot = |e: std::io::Error| {
+        RenderError::mesh(
+            path,
+            format!("its buffer {} cannot be read: {e}", p.display()),
+        )
+    };
+    // Only what the buffer declares, from a regular file: a URI naming
+    // /dev/zero read until memory ran out (and opening a FIFO waits for a
+    // writer, so the kind is looked at first).
+    if !std::fs::metadata(&p).map_err(cannot)?.is_file() {
+        return Err(RenderError::mesh(
+            path,
+            format!("its buffer {} is not a regular file", p.display()),
+        ));
+    }
+    let file = std::fs::File::open(&p).map_err(cannot)?;
+    let mut data = Vec::new();
+    std::io::Read::read_to_end(&mut std::io::Read::take(file, length as u64), &mut data)
+        .map_err(cannot)?;
+    let data = Rc::new(data);
+    read.insert((p, length), data.clone());
+    Ok(data)
+}
+
+/// Refuses buffer `b` when `data`, what holds it, is shorter than it declares.
+fn check_buffer_length(
+    path: &Path,
+    dir: &Path,
+    b: &gltf::Buffer,
+    data: &[u8],
+) -> Result<(), RenderError> {
+    if data.len() < b.length() {
+        let held = match b.source() {
+            gltf::buffer::Source::Uri(uri) => {
+                let name = percent_encoding::percent_decode_str(uri).decode_utf8_lossy();
+                format!("its file {}", dir.join(&*name).display())
+            }
+            gltf::buffer::Source::Bin => "the GLB binary chunk".to_string(),
+        };
+        return Err(RenderError::mesh(
+            path,
+            format!(
+                "buffer {} declares {} bytes, but {held} holds {}",
+                b.index(),
+                b.length(),
+                data.len()
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// What the `gltf` reader assumes without checking (it panics otherwise): the component
