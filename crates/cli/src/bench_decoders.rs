@@ -181,8 +181,9 @@ fn gpu_rate(
     Ok(rounds as f64 * items.len() as f64 / fastest)
 }
 
-pub fn run(a: Args) -> Result<()> {
-    let model = crate::model_cmds::load_model(a.model.as_deref())?;
+/// The GPU adapter the bench measures, what was passed over for it, and the note on a
+/// software adapter's vector width.
+fn open_gpu() -> Result<GpuContext> {
     let ctx = GpuContext::new(AdapterChoice::Any).map_err(|e| {
         let e = format!("{e:#}");
         anyhow::anyhow!(
@@ -196,6 +197,47 @@ pub fn run(a: Args) -> Result<()> {
     if let Some(note) = crate::device::vector_width_note(ctx.adapter.software) {
         eprintln!("{note}");
     }
+    Ok(ctx)
+}
+
+/// The line saying whether the adapter runs the branches no lane takes: LengthGen's draws
+/// again, with the decoder chosen at run time among all three (each decoder's
+/// draws/s alone, `gpu_rates`).
+fn branch_line(
+    ctx: &GpuContext,
+    model: &cvae::ModelSet,
+    decoder: &Decoder,
+    items: &[Item],
+    rounds: u32,
+    gpu_rates: &[f64; 3],
+) -> Result<()> {
+    // LengthGen's items again, the decoder now chosen at run time from the item's id.
+    let any = gpu_rate(ctx, model, "probe_decoder_rate_any", decoder, items, rounds)?;
+    let alone = gpu_rates[0];
+    // Were the two untaken branches run, the draw would cost all three decoders.
+    let all_three = 1.0 / gpu_rates.iter().map(|r| 1.0 / r).sum::<f64>();
+    println!(
+        "LengthGen chosen by a run-time branch (every lane the same): {} draws/s, {:.2}x \
+         LengthGen alone (if every branch ran: {:.2}x) — {}",
+        si(any),
+        any / alone,
+        all_three / alone,
+        match branch_verdict(any / alone, all_three / alone) {
+            Verdict::Skips => "the adapter skips branches no lane takes",
+            Verdict::RunsAll =>
+                "the adapter runs every branch of an `if`, taken or not (Mesa 22's llvmpipe \
+                 does: a render kernel pays for all its code at every bounce)",
+            Verdict::Unclear =>
+                "inconclusive, between the two outcomes: timings this short are dominated by \
+                 each dispatch's fixed cost; raise --draws and --rounds",
+        }
+    );
+    Ok(())
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let model = crate::model_cmds::load_model(a.model.as_deref())?;
+    let ctx = open_gpu()?;
     let single = crate::generate::pool(Some(1))?;
     let all = crate::generate::pool(a.threads)?;
     let threads = all.current_num_threads();
@@ -261,34 +303,14 @@ pub fn run(a: Args) -> Result<()> {
             g / cn
         );
     }
-    // LengthGen's items again, the decoder now chosen at run time from the item's id.
-    let any = gpu_rate(
+    branch_line(
         &ctx,
         &model,
-        "probe_decoder_rate_any",
         decoders[0],
         &items_of[0],
         a.rounds,
+        &gpu_rates,
     )?;
-    let alone = gpu_rates[0];
-    // Were the two untaken branches run, the draw would cost all three decoders.
-    let all_three = 1.0 / gpu_rates.iter().map(|r| 1.0 / r).sum::<f64>();
-    println!(
-        "LengthGen chosen by a run-time branch (every lane the same): {} draws/s, {:.2}x \
-         LengthGen alone (if every branch ran: {:.2}x) — {}",
-        si(any),
-        any / alone,
-        all_three / alone,
-        match branch_verdict(any / alone, all_three / alone) {
-            Verdict::Skips => "the adapter skips branches no lane takes",
-            Verdict::RunsAll =>
-                "the adapter runs every branch of an `if`, taken or not (Mesa 22's llvmpipe \
-                 does: a render kernel pays for all its code at every bounce)",
-            Verdict::Unclear =>
-                "inconclusive, between the two outcomes: timings this short are dominated by \
-                 each dispatch's fixed cost; raise --draws and --rounds",
-        }
-    );
     println!(
         "GPU/CPU: the GPU's draws/s over the CPU's on {}; the GPU's from the \
          fastest of {REPEATS} dispatches (compiled and uploaded once, each timed from \

@@ -86,15 +86,18 @@ fn render(
 /// kernel, seconds each time).
 pub(crate) const GPU_WARM_UP_SECONDS: f64 = 0.5;
 
-pub fn run(a: Args) -> Result<()> {
+/// The scene as density `k` renders it: σ_t × k at the bench's image `size`.
+fn scaled(f: &mut render_gpu::scene::SceneFile, k: f64, size: u32) {
+    f.medium.sigma_t = f.medium.sigma_t.map(|s| s * k);
+    f.camera.width = size;
+    f.camera.height = size;
+}
+
+/// Refuses an image size past memory, a scene the GPU cannot light, and a density whose
+/// scaled scene is invalid, before anything is rendered.
+fn check_scene(a: &Args) -> Result<()> {
     render_gpu::render::check_image_memory(a.size, a.size)
         .map_err(|e| anyhow::anyhow!("--size {}: {e}", a.size))?;
-    // The scene as each density renders it: σ_t × k at the bench's image size.
-    let edit = |f: &mut render_gpu::scene::SceneFile, k: f64| {
-        f.medium.sigma_t = f.medium.sigma_t.map(|s| s * k);
-        f.camera.width = a.size;
-        f.camera.height = a.size;
-    };
     let scene = render_gpu::scene::SceneFile::load(&a.scene)?;
     // The render's own refusal says "use --device cpu", which this bench does not take.
     crate::device::check_gpu_lights(
@@ -105,7 +108,7 @@ pub fn run(a: Args) -> Result<()> {
     reject_repeats(&a.k)?;
     for &k in &a.k {
         let mut f = scene.clone();
-        edit(&mut f, k);
+        scaled(&mut f, k, a.size);
         if let Err(e) = f.validate() {
             bail!(
                 "{e} (σ_t × {k}, set by --k, applied to {})",
@@ -113,8 +116,13 @@ pub fn run(a: Args) -> Result<()> {
             );
         }
     }
+    Ok(())
+}
+
+/// The model (ST-CVAE's rows come after PT's) and both engines, GPU and CPU.
+fn open_engines(model: Option<&std::path::Path>) -> Result<(Engine, Engine)> {
     // The model too: ST-CVAE's rows come after PT's, minutes in on lavapipe.
-    crate::model_cmds::load_model(a.model.as_deref())?;
+    crate::model_cmds::load_model(model)?;
     // Both engines first, so that a missing adapter fails before any rendering; neither
     // may fall back to the other part way.
     // The adapter error's advice to use --device cpu is render's; this bench has no such
@@ -129,6 +137,12 @@ pub fn run(a: Args) -> Result<()> {
         })?
         .without_fallback();
     let cpu = Engine::open(DeviceArg::Cpu)?;
+    Ok((gpu, cpu))
+}
+
+pub fn run(a: Args) -> Result<()> {
+    check_scene(&a)?;
+    let (gpu, cpu) = open_engines(a.model.as_deref())?;
     // Every row's scene is built once before the first render, as `bench render` does:
     // the checks that need it (a density too deep for the object's surface offset, the
     // model's τ range, the distance grid) failed a later density after minutes of renders.
@@ -145,7 +159,7 @@ pub fn run(a: Args) -> Result<()> {
             .collect();
     let prepare_row = |k: f64, kind: IntegratorKind| {
         prepare(&a.scene, Some(kind), None, a.model.as_deref(), |f| {
-            edit(f, k)
+            scaled(f, k, a.size)
         })
         .map_err(|e| anyhow::anyhow!("{e:#} (σ_t × {k}, set by --k)"))
     };

@@ -1038,57 +1038,10 @@ fn model_set(
     // there), so it is the version of wherever EventGen comes from.
     let mut event_version = cvae::features::FEATURE_VERSION;
     for t in trained {
-        let steps = scaled(t.kind).steps;
-        if t.info.step > steps {
-            eprintln!(
-                "note: {}'s checkpoint was already at step {}, past the {steps} steps asked: \
-                 exported as it was (no step undone)",
-                t.kind.name(),
-                t.info.step
-            );
-        }
-        let last = t.info.history.last().map_or(f32::NAN, |h| h.1);
-        // A learning rate too high can leave a finite but useless model: its loss above the
-        // untrained network's (one run's EventGen went from 6.07 to 21,916 and was written
-        // without a word).
-        if let Some(first) = loss_rose(&t.info.history) {
-            eprintln!(
-                "warning: {}'s loss rose from {first:.4} (untrained) to {last:.4}: it diverged \
-                 or learned nothing; lower lr or lr_final, or check the dataset",
-                t.kind.name()
-            );
-        }
-        let held = t.info.validation.last();
-        if let Some(v) = held
-            && v.gap_z > GAP_WARNING_Z
-        {
-            eprintln!(
-                "warning: {}'s losses on held-out walks (mean {:.4}) lie above those on its \
-                 training walks (mean {:.4}) by z = {:.0}: it is learning the dataset's walks \
-                 rather than their distribution; train on more walks (a larger `walks` in the \
-                 dataset config) or for fewer steps",
-                t.kind.name(),
-                v.held_out.0,
-                v.train.0,
-                v.gap_z
-            );
-        }
-        // A resumed model's seconds include the runs before this one (one that --resume
-        // found no checkpoint of started this run).
-        notes.push(format!(
-            "{}: {}, final loss {last:.4}{}, {:.0} s{}",
-            t.kind.name(),
-            crate::progress::count(t.info.step, "step"),
-            held.map_or(String::new(), |v| format!(
-                " (held-out {:.4})",
-                v.held_out.0
-            )),
-            t.info.seconds,
-            if resumed.contains(&t.kind) {
-                " over all its runs"
-            } else {
-                ""
-            }
+        notes.push(trained_note(
+            t,
+            scaled(t.kind).steps,
+            resumed.contains(&t.kind),
         ));
         decoders.insert(t.kind, t.decoder.clone());
     }
@@ -1137,6 +1090,59 @@ fn model_set(
         event: decoders.remove(&ModelKind::EventGen).unwrap(),
     };
     (set, notes)
+}
+
+/// The warnings a trained model calls for (a step count past the one asked, a loss that
+/// rose, a model that learned its walks rather than their distribution), printed, and the
+/// model file's note on it (`resumed`: its seconds span several runs).
+fn trained_note(t: &cvae::train::Trained, steps: u64, resumed: bool) -> String {
+    if t.info.step > steps {
+        eprintln!(
+            "note: {}'s checkpoint was already at step {}, past the {steps} steps asked: \
+             exported as it was (no step undone)",
+            t.kind.name(),
+            t.info.step
+        );
+    }
+    let last = t.info.history.last().map_or(f32::NAN, |h| h.1);
+    // A learning rate too high can leave a finite but useless model: its loss above the
+    // untrained network's (one run's EventGen went from 6.07 to 21,916 and was written
+    // without a word).
+    if let Some(first) = loss_rose(&t.info.history) {
+        eprintln!(
+            "warning: {}'s loss rose from {first:.4} (untrained) to {last:.4}: it diverged \
+             or learned nothing; lower lr or lr_final, or check the dataset",
+            t.kind.name()
+        );
+    }
+    let held = t.info.validation.last();
+    if let Some(v) = held
+        && v.gap_z > GAP_WARNING_Z
+    {
+        eprintln!(
+            "warning: {}'s losses on held-out walks (mean {:.4}) lie above those on its \
+             training walks (mean {:.4}) by z = {:.0}: it is learning the dataset's walks \
+             rather than their distribution; train on more walks (a larger `walks` in the \
+             dataset config) or for fewer steps",
+            t.kind.name(),
+            v.held_out.0,
+            v.train.0,
+            v.gap_z
+        );
+    }
+    // A resumed model's seconds include the runs before this one (one that --resume
+    // found no checkpoint of started this run).
+    format!(
+        "{}: {}, final loss {last:.4}{}, {:.0} s{}",
+        t.kind.name(),
+        crate::progress::count(t.info.step, "step"),
+        held.map_or(String::new(), |v| format!(
+            " (held-out {:.4})",
+            v.held_out.0
+        )),
+        t.info.seconds,
+        if resumed { " over all its runs" } else { "" }
+    )
 }
 
 /// What the model file records of its training: the dataset's condition ranges, narrowed

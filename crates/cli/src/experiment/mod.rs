@@ -7,7 +7,7 @@ mod kinds;
 pub mod measure;
 mod report;
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use render_gpu::scene::SceneFile;
 
@@ -110,26 +110,7 @@ pub fn run(a: Args) -> Result<()> {
         .collect::<Result<Vec<_>>>()?;
     check_inputs_outside(&a, &scenes, &out)?;
     // The device and the model first: a run that cannot start leaves no empty folder behind.
-    // `distributions` samples the models and the simulator and renders nothing: no device
-    // to look for (it said "rendering on the CPU").
-    let device = if cfg.kind == config::Kind::Distributions {
-        DeviceArg::Cpu
-    } else {
-        a.device
-    };
-    let engine = Engine::open(device)?.without_fallback();
-    // The GPU's light limit, which only the chosen device knows, before any render too (a
-    // scene past it failed the run at its first render, after the renders before it).
-    // (`quality` replaces a scene's lights with one delta light of its own.)
-    if engine.is_gpu() && cfg.kind != config::Kind::Quality {
-        for (f, path) in &scenes {
-            crate::device::check_gpu_lights(path, f.lights.len(), ": use --device cpu")
-                .with_context(|| a.config.display().to_string())?;
-        }
-    }
-    if a.model.is_some() {
-        crate::model_cmds::load_model(a.model.as_deref())?;
-    }
+    let engine = open_engine(&a, &cfg, &scenes)?;
     // The folders this run makes, innermost first, so that a run that saves nothing can
     // take them all away again (the results root too, when this run made it).
     let made: Vec<PathBuf> = out
@@ -160,35 +141,7 @@ pub fn run(a: Args) -> Result<()> {
     // Ctrl-C is a request to stop after the current render pass (measure::render_once).
     crate::interrupt::flag();
     if let Err(e) = kinds::run(&ctx, &mut rep) {
-        // A run that saved files removed the earlier report after its first (Ctx::saved_one);
-        // one stopped before it saved anything leaves the earlier run's results as they
-        // were.
-        if !ctx.saved.get() && out.join("report.md").is_file() {
-            return Err(anyhow::anyhow!(
-                "{e:#} (nothing was saved: the earlier run's report in {} is as it was)",
-                out.display()
-            ));
-        }
-        // A run stopped before it saved anything leaves no empty folder (remove_dir
-        // removes only an empty one); one that saved images says where they are.
-        let _ = std::fs::remove_dir(&out);
-        if !out.exists() {
-            for dir in made.iter().skip(1) {
-                if std::fs::remove_dir(dir).is_err() {
-                    break;
-                }
-            }
-        }
-        if out.exists() {
-            // Files of an earlier run that this one did not reach keep their names: say
-            // so, or the folder reads as this run's alone.
-            before.note_left_over("saved images");
-            return Err(anyhow::anyhow!(
-                "{e:#} (images saved so far stay in {})",
-                out.display()
-            ));
-        }
-        return Err(e);
+        return Err(failed_run(e, &out, ctx.saved.get(), &made, &before));
     }
     for (_, w) in ctx.warnings.borrow().iter() {
         rep.text(&format!("\n**Warning:** {w}."));
@@ -197,6 +150,70 @@ pub fn run(a: Args) -> Result<()> {
     before.note_left_over("report.md");
     eprintln!("wrote {}", crate::paths::shown(&out.join("report.md")));
     Ok(())
+}
+
+/// The engine the run renders on, its light limit checked against every scene, and the
+/// model named by --model read (so that a run that cannot start has made no folder).
+fn open_engine(a: &Args, cfg: &Config, scenes: &[(SceneFile, PathBuf)]) -> Result<Engine> {
+    // `distributions` samples the models and the simulator and renders nothing: no device
+    // to look for (it said "rendering on the CPU").
+    let device = if cfg.kind == config::Kind::Distributions {
+        DeviceArg::Cpu
+    } else {
+        a.device
+    };
+    let engine = Engine::open(device)?.without_fallback();
+    // The GPU's light limit, which only the chosen device knows, before any render too (a
+    // scene past it failed the run at its first render, after the renders before it).
+    // (`quality` replaces a scene's lights with one delta light of its own.)
+    if engine.is_gpu() && cfg.kind != config::Kind::Quality {
+        for (f, path) in scenes {
+            crate::device::check_gpu_lights(path, f.lights.len(), ": use --device cpu")
+                .with_context(|| a.config.display().to_string())?;
+        }
+    }
+    if a.model.is_some() {
+        crate::model_cmds::load_model(a.model.as_deref())?;
+    }
+    Ok(engine)
+}
+
+/// The error of a run that failed part way, after the clean-up its state asks for: the
+/// folders `made` are removed again if the run `saved` nothing, and the message says what
+/// of an earlier run or of this one stays in `out` (`before` names an earlier run's files).
+fn failed_run(
+    e: anyhow::Error,
+    out: &Path,
+    saved: bool,
+    made: &[PathBuf],
+    before: &crate::left_over::Snapshot,
+) -> anyhow::Error {
+    // A run that saved files removed the earlier report after its first (Ctx::saved_one);
+    // one stopped before it saved anything leaves the earlier run's results as they
+    // were.
+    if !saved && out.join("report.md").is_file() {
+        return anyhow::anyhow!(
+            "{e:#} (nothing was saved: the earlier run's report in {} is as it was)",
+            out.display()
+        );
+    }
+    // A run stopped before it saved anything leaves no empty folder (remove_dir
+    // removes only an empty one); one that saved images says where they are.
+    let _ = std::fs::remove_dir(out);
+    if !out.exists() {
+        for dir in made.iter().skip(1) {
+            if std::fs::remove_dir(dir).is_err() {
+                break;
+            }
+        }
+    }
+    if out.exists() {
+        // Files of an earlier run that this one did not reach keep their names: say
+        // so, or the folder reads as this run's alone.
+        before.note_left_over("saved images");
+        return anyhow::anyhow!("{e:#} (images saved so far stay in {})", out.display());
+    }
+    e
 }
 
 /// What was rendered, so that paths/s and noise can be checked against the files: the

@@ -625,6 +625,48 @@ const REPORT_EVERY: u64 = 500;
 /// training loss since the last report and the validation losses when it reads them.
 pub type Report<'a> = dyn Fn(ModelKind, u64, f32, Option<&ValidationPoint>) + Sync + 'a;
 
+/// A run's record before its first step (or a checkpoint to resume from).
+fn fresh_info(table: &Table, cfg: &ModelConfig, seed: u64) -> CheckpointInfo {
+    CheckpointInfo {
+        feature_version: crate::features::FEATURE_VERSION,
+        step: 0,
+        seconds: 0.0,
+        norm: table.norm.clone(),
+        history: Vec::new(),
+        crc32: None,
+        single_scattering: Some(table.mode),
+        ranges: Some(table.ranges),
+        stream: None,
+        validation: Vec::new(),
+        plan: Some(Plan::of(cfg, seed)),
+    }
+}
+
+/// A report at `info.step`: the held-out losses of `model` (the training copy) read on
+/// its inference copy (when there is a `validation`), the caller told, and the mean
+/// training loss kept in the history.
+fn record_report(
+    kind: ModelKind,
+    info: &mut CheckpointInfo,
+    mean: f32,
+    model: &Cvae,
+    validation: Option<&Validation>,
+    eval_device: &Device,
+    report: &Report<'_>,
+) {
+    if let Some(v) = validation {
+        info.validation
+            .push(v.evaluate(&model.valid(), info.step, eval_device));
+    }
+    report(
+        kind,
+        info.step,
+        mean,
+        validation.and(info.validation.last()),
+    );
+    info.history.push((info.step, mean));
+}
+
 /// Trains one model. `report(kind, step, loss, validation)` is called every few steps
 /// (with the validation losses when `validation` is given), and once at the start of a
 /// resumed run with the checkpoint's step and last readings; `cancel` stops after the
@@ -652,19 +694,7 @@ pub fn train_model(
         device,
     );
     let mut optim = Adamax::default().init();
-    let mut info = CheckpointInfo {
-        feature_version: crate::features::FEATURE_VERSION,
-        step: 0,
-        seconds: 0.0,
-        norm: table.norm.clone(),
-        history: Vec::new(),
-        crc32: None,
-        single_scattering: Some(table.mode),
-        ranges: Some(table.ranges),
-        stream: None,
-        validation: Vec::new(),
-        plan: Some(Plan::of(cfg, seed)),
-    };
+    let mut info = fresh_info(table, cfg, seed);
     let (.., record) = paths(checkpoint_dir, kind);
     if resume && record.exists() {
         (info, model, optim, rng) =
@@ -715,17 +745,15 @@ pub fn train_model(
         if info.step.is_multiple_of(REPORT_EVERY) || info.step == 1 || info.step == cfg.steps {
             if acc_n > 0 {
                 let mean = (acc / acc_n as f64) as f32;
-                if let Some(v) = validation {
-                    info.validation
-                        .push(v.evaluate(&model.valid(), info.step, &eval_device));
-                }
-                report(
+                record_report(
                     kind,
-                    info.step,
+                    &mut info,
                     mean,
-                    validation.and(info.validation.last()),
+                    &model,
+                    validation,
+                    &eval_device,
+                    report,
                 );
-                info.history.push((info.step, mean));
             }
             acc = 0.0;
             acc_n = 0;
