@@ -185,7 +185,13 @@ pub fn run(a: Args) -> Result<()> {
             progress::count(spec.total_walks, "walk")
         );
     }
-    crate::paths::check_room(&out, piece.count, "--samples (or the config's walks)")?;
+    // What sets the count: `train` generates from its dataset_config alone, and has no
+    // --samples to lower.
+    let lower = match (&a.config, a.samples) {
+        (Some(c), None) => format!("walks in {}", crate::paths::shown(c)),
+        _ => "--samples".to_string(),
+    };
+    crate::paths::check_room(&out, piece.count, &lower)?;
     let pool = pool(a.threads)?;
     eprintln!(
         "generating {}{} ({} mode, seed {}, {}) -> {}",

@@ -8,6 +8,8 @@
 // handler then ignores SIGPIPE (interrupt.rs). Before an interrupt, SIGPIPE still ends
 // the process quietly in `bench` (`stcvae bench … | head -1`, [`default_sigpipe`]); the
 // other commands take a closed pipe as a request to stop (interrupt::stop_on_closed_pipe).
+// Other errors on standard output (a full disk) are kept, and the command then fails
+// (stdout_check.rs).
 macro_rules! eprintln {
     ($($arg:tt)*) => {{
         use std::io::Write as _;
@@ -17,13 +19,17 @@ macro_rules! eprintln {
 macro_rules! println {
     ($($arg:tt)*) => {{
         use std::io::Write as _;
-        let _ = writeln!(std::io::stdout(), $($arg)*);
+        if let Err(e) = writeln!(std::io::stdout(), $($arg)*) {
+            crate::stdout_check::failed(&e);
+        }
     }};
 }
 macro_rules! print {
     ($($arg:tt)*) => {{
         use std::io::Write as _;
-        let _ = write!(std::io::stdout(), $($arg)*);
+        if let Err(e) = write!(std::io::stdout(), $($arg)*) {
+            crate::stdout_check::failed(&e);
+        }
     }};
 }
 
@@ -45,6 +51,7 @@ mod progress;
 mod pt_cache;
 mod render;
 mod shipped;
+mod stdout_check;
 mod train;
 mod whole;
 
@@ -170,7 +177,8 @@ fn main() {
         Command::Merge(a) => merge::run(a),
         Command::Experiment(a) => experiment::run(a),
         Command::Bench(a) => bench::run(a),
-    };
+    }
+    .and_then(|()| stdout_check::check());
     if let Err(e) = result {
         // One line, whatever names or tags from the inputs it quotes.
         let e = scatter_sim::ranges::printable(&format!("{e:#}"));

@@ -235,6 +235,44 @@ fn a_run_larger_than_its_disk_is_refused_at_once() {
         );
         assert_eq!(fs::read_dir(dir.path()).unwrap().count(), 0);
     }
+    // A count the dataset config sets is lowered there: `train`, which generates from its
+    // dataset_config, has no --samples (its refusal said "lower --samples").
+    fs::write(
+        dir.path().join("huge.toml"),
+        format!(
+            "walks = {max}\nseed = 1\n[conditions]\n\
+             tau = {{ kind = \"power\", max = 30.0, exponent = 3.0 }}\n\
+             g = {{ kind = \"uniform\", min = -1.0, max = 1.0 }}\n\
+             albedo = {{ kind = \"one-minus-power\", epsilon = 1e-6, exponent = 6.0 }}\n"
+        ),
+    )
+    .unwrap();
+    let model = "latent = 2\nhidden = [4]\nencoder_hidden = [8]\nsteps = 30\n\
+                 batch_size = 64\nlr = 3e-3\nlr_final = 3e-4\nwarmup = 5\n";
+    fs::write(
+        dir.path().join("t.toml"),
+        format!(
+            "dataset = \"d.bin\"\ndataset_config = \"huge.toml\"\nout = \"m.stcvae\"\n\
+             checkpoint_dir = \"ck\"\n[lengthgen]\n{model}[pathgen]\n{model}[eventgen]\n{model}"
+        ),
+    )
+    .unwrap();
+    for args in [
+        "generate --config huge.toml --out d.bin",
+        "train --config t.toml",
+    ] {
+        let out = stcvae(&words(args), dir.path());
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success()
+                && err.contains("d.bin: 18446744073709551615 walks need at least")
+                && err.contains("free: lower walks in huge.toml, or write elsewhere"),
+            "{args}: {err}"
+        );
+        assert!(!dir.path().join("d.bin").exists(), "{args}");
+    }
+    fs::remove_file(dir.path().join("huge.toml")).unwrap();
+    fs::remove_file(dir.path().join("t.toml")).unwrap();
     // `sample` too (it wrote 50 MB/s toward a full disk), before it loads the model.
     let out = stcvae(
         &[
@@ -1175,6 +1213,40 @@ fn a_closed_output_pipe_stops_cleanly() {
     assert_eq!(status.code(), Some(141), "{status:?}");
     let left: Vec<_> = fs::read_dir(dir.path()).unwrap().collect();
     assert!(left.is_empty(), "left {left:?}");
+}
+
+/// A table printed to a full disk is an error (`eval` and the benches print theirs on
+/// standard output): the print macros dropped every write error, so `eval … > table.md` on
+/// a full disk cut the table short, said nothing and exited 0. /dev/full fails every write
+/// with ENOSPC.
+#[cfg(target_os = "linux")]
+#[test]
+fn a_table_printed_to_a_full_disk_is_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    for args in [
+        "bench sim --walks 1024 --threads 1",
+        "eval --samples 200 --at 5,0.4,1 --out ev",
+    ] {
+        let full = fs::OpenOptions::new()
+            .write(true)
+            .open("/dev/full")
+            .unwrap();
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_stcvae"))
+            .args(words(args))
+            .current_dir(dir.path())
+            .stdout(full)
+            .output()
+            .unwrap();
+        let err = stderr(&out);
+        assert_eq!(out.status.code(), Some(1), "{args}: {err}");
+        assert!(
+            err.contains(
+                "error: cannot write standard output (its text is cut short): No space left \
+                 on device"
+            ) && err.trim().lines().last().unwrap().starts_with("error: "),
+            "{args}: {err}"
+        );
+    }
 }
 
 /// Ctrl-C stops `merge` too, into CSV and binary: it was killed outright and left its
