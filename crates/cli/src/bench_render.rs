@@ -7,7 +7,7 @@
 
 use std::path::PathBuf;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, anyhow, bail};
 use render_gpu::integrator::IntegratorKind;
 use render_gpu::render::RenderOptions;
 
@@ -141,32 +141,16 @@ fn saved_files(dir: &std::path::Path, k: f64) -> Vec<std::path::PathBuf> {
     files
 }
 
-/// Writes the ladder step's images into `dir` (see `Args::save`). A failure part way (a
-/// full disk at the pixel table, several GB at 4,096²) removes the step's six files,
-/// written by this run or an earlier one: new images beside an earlier run's z map and
-/// pixel table, of other seeds or spp, read as one run's.
+/// Writes the ladder step's images into `dir` (see `Args::save`) as one set: a failure
+/// part way (a full disk at the pixel table, several GB at 4,096²) leaves the step's six
+/// files as they were, all of an earlier run or none, never new images beside an earlier
+/// run's z map and pixel table of other seeds or spp (and it removed the earlier run's).
 fn save_images(a: &Args, dir: &std::path::Path, k: f64, pt: &Pair, st: &Pair) -> Result<()> {
-    save_images_or_none(a, dir, k, pt, st).map_err(|e| {
-        for f in saved_files(dir, k) {
-            let _ = std::fs::remove_file(f);
-        }
-        e.context(format!(
-            "k = {k}'s saved files were removed, so that none of an earlier run stays \
-             beside this one's"
-        ))
-    })
-}
-
-fn save_images_or_none(
-    a: &Args,
-    dir: &std::path::Path,
-    k: f64,
-    pt: &Pair,
-    st: &Pair,
-) -> Result<()> {
-    use render_gpu::image_io::{RenderTag, RgbImage, write_png};
-    // `run` checked `dir` before rendering; the first file written makes it.
+    use render_gpu::image_io::{RenderTag, RgbImage, encode_exr, encode_png};
+    use scatter_sim::output::Contents;
+    // `run` checked `dir` before rendering; the set's writer makes it.
     let exposure = crate::experiment::measure::scale_of(&pt.mean) as f32;
+    let mut images: Vec<(PathBuf, Vec<u8>)> = Vec::new();
     for (name, p, kind) in [
         ("pt", pt, IntegratorKind::Pt),
         ("stcvae", st, IntegratorKind::Stcvae),
@@ -183,7 +167,13 @@ fn save_images_or_none(
             unknown_digests: Vec::new(),
             view_hash: p.view,
         };
-        crate::merge::write_image_set(&saved_stem(dir, k, name), &p.mean, &tag, exposure, None)?;
+        let stem = saved_stem(dir, k, name);
+        let exr = crate::merge::image_out(&stem, "exr");
+        let png = crate::merge::image_out(&stem, "png");
+        let exr_bytes = encode_exr(&p.mean, &tag).map_err(|e| anyhow!("{}: {e}", exr.display()))?;
+        let png_bytes =
+            encode_png(&p.mean, exposure).map_err(|e| anyhow!("{}: {e}", png.display()))?;
+        images.extend([(exr, exr_bytes), (png, png_bytes)]);
     }
     let (w, h) = (pt.mean.width, pt.mean.height);
     let mut z = RgbImage::new(w, h);
@@ -194,33 +184,42 @@ fn save_images_or_none(
         let block = zs[(y / BLOCK) * blocks_x + x / BLOCK];
         *p = block.map(|v| v.map_or(0.5, |v| (0.5 + v / 8.0).clamp(0.0, 1.0) as f32));
     }
-    write_png(&saved_z(dir, k), &z, 1.0)?;
+    let z_path = saved_z(dir, k);
+    let z_bytes = encode_png(&z, 1.0).map_err(|e| anyhow!("{}: {e}", z_path.display()))?;
+    images.push((z_path, z_bytes));
     // Per pixel and channel, both pairs' means and the variances of those means (from
     // their two seeds): what the bias columns are computed from, for analyses the table
     // does not make (where in the image a bias lies, other pixel classes or metrics).
-    // Streamed: held as one string, a 4,096² table took ~3.5 GB.
-    use std::io::Write as _;
-    let path = saved_pixels(dir, k);
-    let cannot = || format!("cannot write {}", path.display());
-    let mut csv = scatter_sim::output::AtomicFile::create(&path).with_context(cannot)?;
-    writeln!(csv, "x,y,channel,pt_mean,pt_var,stcvae_mean,stcvae_var").with_context(cannot)?;
-    for i in 0..w * h {
-        for c in 0..3 {
-            writeln!(
-                csv,
-                "{},{},{c},{:e},{:e},{:e},{:e}",
-                i % w,
-                i / w,
-                pt.mean.pixels[i][c],
-                pt.var[i][c],
-                st.mean.pixels[i][c],
-                st.var[i][c]
-            )
-            .with_context(cannot)?;
+    // Streamed into its temporary: held as one string, a 4,096² table took ~3.5 GB.
+    let table = saved_pixels(dir, k);
+    let write_table: Contents = Box::new(|csv| {
+        writeln!(csv, "x,y,channel,pt_mean,pt_var,stcvae_mean,stcvae_var")?;
+        for i in 0..w * h {
+            for c in 0..3 {
+                writeln!(
+                    csv,
+                    "{},{},{c},{:e},{:e},{:e},{:e}",
+                    i % w,
+                    i / w,
+                    pt.mean.pixels[i][c],
+                    pt.var[i][c],
+                    st.mean.pixels[i][c],
+                    st.var[i][c]
+                )?;
+            }
         }
-    }
-    csv.commit().with_context(cannot)?;
-    Ok(())
+        Ok(())
+    });
+    let mut files: Vec<(&std::path::Path, Contents)> = images
+        .iter()
+        .map(|(path, bytes)| {
+            let write: Contents = Box::new(move |f| f.write_all(bytes));
+            (path.as_path(), write)
+        })
+        .collect();
+    files.push((&table, write_table));
+    scatter_sim::output::write_atomic_set_streamed(files)
+        .map_err(|(path, e)| anyhow!("cannot write {}: {e}", path.display()))
 }
 
 /// A density given twice in `--k` would be measured twice and tabled as two rows (an
@@ -736,10 +735,11 @@ mod tests {
     use clap::Parser as _;
 
     /// A save that fails part way (the pixel table's name taken by a folder, after the
-    /// images were written) leaves none of k's files, neither this run's nor an earlier
-    /// run's (a z map and images of other seeds beside the new ones read as one run's).
+    /// images were written) leaves k's files as an earlier run left them: no new image
+    /// beside an earlier run's z map and pixel table (of other seeds, read as one run's),
+    /// and the earlier run's set not removed either (it was, on a full disk).
     #[test]
-    fn a_failed_save_leaves_no_mixed_files() {
+    fn a_failed_save_leaves_the_earlier_set_whole() {
         #[derive(clap::Parser)]
         struct Cli {
             #[command(flatten)]
@@ -769,12 +769,20 @@ mod tests {
         };
         let e = save_images(&a, dir.path(), 1.0, &pair(0.5), &pair(0.4)).unwrap_err();
         assert!(
-            format!("{e:#}").contains("k = 1's saved files were removed"),
+            format!("{e:#}").contains(&format!("cannot write {}", table.display())),
             "{e:#}"
         );
         for f in others {
-            assert!(!f.exists(), "{} left", f.display());
+            assert_eq!(
+                std::fs::read(f).unwrap(),
+                b"an earlier run's",
+                "{}",
+                f.display()
+            );
         }
+        assert!(table.is_dir());
+        // Nothing else: no temporary of the set left behind.
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), files.len());
     }
 
     /// The ladder at k = 1 is the teaser's scene file, so that the bench's figures and

@@ -533,22 +533,44 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> io::Result<()> {
 /// an immutable file) puts back the files of the set already renamed: their predecessors
 /// are kept as hard links until the set is in place. The error names the file it concerns.
 pub fn write_atomic_set(files: &[(&Path, &[u8])]) -> Result<(), (PathBuf, io::Error)> {
+    write_atomic_set_streamed(bytes_of(files))
+}
+
+/// What writes one file of a set into its temporary ([`write_atomic_set_streamed`]).
+pub type Contents<'a> = Box<dyn FnOnce(&mut dyn Write) -> io::Result<()> + 'a>;
+
+/// [`write_atomic_set`] for files written as they are made rather than held in memory
+/// first (a pixel table of several GB beside its images).
+pub fn write_atomic_set_streamed(
+    files: Vec<(&Path, Contents<'_>)>,
+) -> Result<(), (PathBuf, io::Error)> {
     write_set_with(files, Finished::persist, Previous::keep)
 }
 
-/// [`write_atomic_set`] with the rename and the keeping of predecessors given, so that
-/// tests can make either fail.
+/// Files held in memory, as a set's [`Contents`].
+fn bytes_of<'a>(files: &[(&'a Path, &'a [u8])]) -> Vec<(&'a Path, Contents<'a>)> {
+    files
+        .iter()
+        .map(|&(path, bytes)| {
+            let write: Contents<'a> = Box::new(move |w: &mut dyn Write| w.write_all(bytes));
+            (path, write)
+        })
+        .collect()
+}
+
+/// [`write_atomic_set_streamed`] with the rename and the keeping of predecessors given, so
+/// that tests can make either fail.
 fn write_set_with(
-    files: &[(&Path, &[u8])],
+    files: Vec<(&Path, Contents<'_>)>,
     mut persist: impl FnMut(Finished) -> io::Result<()>,
     keep: impl Fn(&Path) -> Before,
 ) -> Result<(), (PathBuf, io::Error)> {
     let mut ready: Vec<Finished> = Vec::with_capacity(files.len());
-    for &(path, bytes) in files {
+    for (path, write) in files {
         // Written out and synced now, not at the rename: a full disk must fail here,
         // before any file of the set has replaced its predecessor.
         let written = AtomicFile::create(path).and_then(|mut f| {
-            f.write_all(bytes)?;
+            write(&mut f)?;
             f.finish()
         });
         match written {
@@ -792,7 +814,7 @@ mod tests {
         for fail_at in 0..3 {
             let mut k = 0;
             let (path, e) = write_set_with(
-                &set,
+                bytes_of(&set),
                 |f| {
                     k += 1;
                     if k == fail_at + 1 {
@@ -816,7 +838,7 @@ mod tests {
         // stays, rather than removing the file (a, replaced, then c refused).
         let mut k = 0;
         write_set_with(
-            &set,
+            bytes_of(&set),
             |f| {
                 k += 1;
                 if k == 3 {
@@ -848,7 +870,7 @@ mod tests {
         for fail_at in 1..=3 {
             let mut k = 0;
             write_set_with(
-                &nested,
+                bytes_of(&nested),
                 |f| {
                     k += 1;
                     if k == fail_at {
@@ -1029,7 +1051,7 @@ mod tests {
         fs::write(&long, b"old").unwrap();
         let mut renames = 0;
         let e = write_set_with(
-            &[(&long, b"new"), (&d.path().join("second"), b"z")],
+            bytes_of(&[(&long, b"new"), (&d.path().join("second"), b"z")]),
             |f| {
                 renames += 1;
                 if renames == 2 {
