@@ -569,11 +569,12 @@ fn paths(dir: &Path, kind: ModelKind) -> (PathBuf, PathBuf, PathBuf) {
 }
 
 /// Writes the model, the optimiser state and the JSON that holds their checksums as one
-/// set: burn writes the two records into a temporary folder beside the checkpoints, and
-/// the three files are renamed into place only once all are written, a failed rename
-/// putting back the ones before it. Saved one by one, a failure while writing (a full
-/// disk, a folder in the way) left a new model beside the old JSON, whose checksum then
-/// refused the resume, and the run was lost. A kill between the three renames (a window
+/// set: the two records are made in memory and the three files renamed into place only
+/// once all are written, a failed rename putting back the ones before it. Saved one by
+/// one, a failure while writing (a full disk, a folder in the way) left a new model beside
+/// the old JSON, whose checksum then refused the resume, and the run was lost. (burn wrote
+/// the records into a staging folder first: a full disk's error then named its hidden
+/// temporary, behind two prefixes of burn's.) A kill between the three renames (a window
 /// of microseconds) can still mix the sets; the checksums then refuse the resume.
 fn save_checkpoint(
     dir: &Path,
@@ -587,30 +588,18 @@ fn save_checkpoint(
         path: p.into(),
         msg: e,
     };
-    std::fs::create_dir_all(dir).map_err(|e| err(dir, e.to_string()))?;
-    let staging = tempfile::Builder::new()
-        .prefix(&format!(".{}-saving", kind.name()))
-        .tempdir_in(dir)
-        .map_err(|e| err(dir, e.to_string()))?;
-    // Removed by a second Ctrl-C's exit too, which skips the folder's destructor.
-    let _live = scatter_sim::output::Live::new(staging.path());
-    let (sm, so) = (
-        staging.path().join("model.bpk"),
-        staging.path().join("optim.bpk"),
-    );
-    model
+    let mbytes = model
         .clone()
-        .save_file(&sm)
+        .into_record()
+        .into_bytes()
         .map_err(|e| err(&m, e.to_string()))?;
-    optim.save(&so).map_err(|e| err(&o, e.to_string()))?;
-    let mbytes = std::fs::read(&sm).map_err(|e| err(&m, e.to_string()))?;
-    let obytes = std::fs::read(&so).map_err(|e| err(&o, e.to_string()))?;
+    let obytes = optim.into_bytes().map_err(|e| err(&o, e.to_string()))?;
     let mut info = info.clone();
     info.crc32 = Some([crc32fast::hash(&mbytes), crc32fast::hash(&obytes)]);
     let json = serde_json::to_vec_pretty(&info).expect("serialisable");
     scatter_sim::output::write_atomic_set(&[
-        (m.as_path(), mbytes.as_slice()),
-        (o.as_path(), obytes.as_slice()),
+        (m.as_path(), &mbytes[..]),
+        (o.as_path(), &obytes[..]),
         (j.as_path(), json.as_slice()),
     ])
     .map_err(|(p, e)| err(&p, e.to_string()))
@@ -1162,7 +1151,12 @@ mod tests {
         let (model_before, json_before) = (std::fs::read(&m).unwrap(), std::fs::read(&j).unwrap());
         std::fs::remove_file(&o).unwrap();
         std::fs::create_dir(&o).unwrap();
-        assert!(save_checkpoint(d.path(), kind, &second, &optim, &info(2)).is_err());
+        // The error names the checkpoint's own file, not a temporary of the save.
+        let e = save_checkpoint(d.path(), kind, &second, &optim, &info(2)).unwrap_err();
+        assert!(
+            e.to_string().starts_with(&format!("{}: ", o.display())),
+            "{e}"
+        );
         assert_eq!(std::fs::read(&m).unwrap(), model_before);
         assert_eq!(std::fs::read(&j).unwrap(), json_before);
         std::fs::remove_dir(&o).unwrap();
