@@ -184,10 +184,12 @@ pub fn remove_live_temporaries() {
 }
 
 /// Removes the hidden temporaries an aborted write of `path` can leave beside it (its
-/// `.NAME.XXXXXX.partial` file, and `.NAME.XXXXXX.previous` links of a set's renames): a
-/// second Ctrl-C exits without destructors, and a temporary made in the instant before
-/// its registration in [`LIVE`] is missed. For outputs only one command writes at a time
-/// (a training's checkpoints), called before it writes them again.
+/// `.NAME.XXXXXX.partial` file), and puts back the file a killed set's renames had
+/// replaced (its `.NAME.XXXXXX.previous` link, [`restore_killed_sets`]): a second Ctrl-C
+/// exits without destructors, and a temporary made in the instant before its registration
+/// in [`LIVE`] is missed. For outputs only one command writes at a time (a training's
+/// checkpoints, whose three files then make the earlier checkpoint again, which a resume
+/// can read), called before it writes them again.
 pub fn remove_stale_temporaries_of(path: &Path) {
     let dir = folder_of(path);
     let Ok(entries) = fs::read_dir(dir) else {
@@ -196,11 +198,13 @@ pub fn remove_stale_temporaries_of(path: &Path) {
     let prefix = temp_prefix(path);
     for e in entries.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
-        if name.starts_with(&prefix)
-            && (name.ends_with(".partial") || name.ends_with(".previous"))
-            && e.path().is_file()
-        {
+        if !name.starts_with(&prefix) || !e.path().is_file() {
+            continue;
+        }
+        if name.ends_with(".partial") {
             let _ = fs::remove_file(e.path());
+        } else if name.ends_with(".previous") {
+            put_back(&e.path(), path);
         }
     }
 }
@@ -586,6 +590,9 @@ fn write_set_with(
     }
     // Held until the set is in place (dropped on return).
     let _folder = ready.first().and_then(|f| lock_folder(folder_of(&f.path)));
+    if let (Some(_), Some(f)) = (&_folder, ready.first()) {
+        restore_killed_sets(folder_of(&f.path));
+    }
     let mut placed: Vec<(PathBuf, Before)> = Vec::with_capacity(ready.len());
     // The folders the set made stay removable until every file is in place: a rename
     // that fails takes the set's earlier files back out, and then their new folders too.
@@ -623,6 +630,74 @@ fn write_set_with(
         m.0.clear();
     }
     Ok(())
+}
+
+/// The length of the part of a temporary's name after its prefix: tempfile's six random
+/// characters and the suffix.
+const PREVIOUS_TAIL: usize = 6 + ".previous".len();
+
+/// Puts back the files a killed run's set had replaced: the `.NAME.XXXXXX.previous` links
+/// in `dir`. A set keeps each file it replaces as such a link until all its renames are
+/// done; a run killed in between (SIGKILL, the OOM killer) left the links, never removed,
+/// and its output a mix of the new set's first files and the old set's others. Renaming
+/// each link back over its file makes the earlier set whole again, as a failed set leaves
+/// it; a file that was not there before the killed set stays as the set wrote it. Called
+/// with `dir`'s lock held ([`lock_folder`]): a live set's links exist only while its
+/// writer holds that lock, so every link found is a killed run's.
+fn restore_killed_sets(dir: &Path) {
+    let Ok(entries) = fs::read_dir(dir) else {
+        return;
+    };
+    let names: Vec<String> = entries
+        .flatten()
+        .filter(|e| e.file_type().is_ok_and(|t| t.is_file()))
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    let is_link = |n: &str| {
+        n.starts_with('.')
+            && n.ends_with(".previous")
+            && n.len() > PREVIOUS_TAIL + 2
+            && n.is_char_boundary(n.len() - PREVIOUS_TAIL)
+            && n[..n.len() - PREVIOUS_TAIL].ends_with('.')
+    };
+    for link in names.iter().filter(|n| is_link(n)) {
+        let prefix = &link[..link.len() - PREVIOUS_TAIL];
+        // The file it was kept for: the one whose temporaries take this prefix (a long
+        // name's prefix holds a checksum of it, so the name cannot be read back from it).
+        let target = names
+            .iter()
+            .find(|n| !is_link(n) && temp_prefix(Path::new(n.as_str())) == prefix);
+        let link = dir.join(link);
+        match target {
+            Some(t) => put_back(&link, &dir.join(t)),
+            // Its file was removed since: nothing to put back.
+            None => {
+                let _ = fs::remove_file(&link);
+            }
+        }
+    }
+}
+
+/// Renames a killed set's `link` back over `target`, the file it was kept for, and says so;
+/// a link to the file `target` still is (the set was killed before that file's rename) is
+/// only removed (a rename between two names of one file does nothing, and the link stayed).
+fn put_back(link: &Path, target: &Path) {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        let id = |p: &Path| fs::symlink_metadata(p).map(|m| (m.dev(), m.ino())).ok();
+        if id(link).is_some() && id(link) == id(target) {
+            let _ = fs::remove_file(link);
+            return;
+        }
+    }
+    if fs::rename(link, target).is_ok() {
+        eprintln!(
+            "note: put back {} as it was before a run that was killed while replacing it \
+             and the files written with it (their earlier set is whole again)",
+            crate::ranges::printable_path(target)
+        );
+    }
 }
 
 /// Serialises the renames of sets written into one folder at once. Two runs writing the
@@ -789,6 +864,57 @@ mod tests {
         left_behind(&killed_b, b"x");
         assert!(remove_killed_temporaries(&a, &pa).is_empty());
         assert_eq!(remove_killed_temporaries(&b, &pb), vec![(killed_b, 1)]);
+    }
+
+    /// A run killed part way through a set's renames (SIGKILL between them) left the links
+    /// to what it replaced (`.NAME.XXXXXX.previous`) for ever, and a mixed set. The next set
+    /// written into the folder puts them back: here a.exr was replaced (its old bytes come
+    /// back), a.png's link is to the file as it still is (only the link goes), and the
+    /// link of a file removed since is removed. A long name's link finds its file by the
+    /// checksum in its prefix. `remove_stale_temporaries_of` (a training's checkpoints,
+    /// one file at a time) puts back the same way.
+    #[cfg(unix)]
+    #[test]
+    fn a_killed_sets_replaced_files_are_put_back() {
+        let d = tempfile::tempdir().unwrap();
+        let at = |n: &str| d.path().join(n);
+        let long = format!("{}.exr", "l".repeat(70));
+        for (n, b) in [
+            ("a.exr", "old exr"),
+            ("a.png", "old png"),
+            (long.as_str(), "old l"),
+        ] {
+            fs::write(at(n), b).unwrap();
+        }
+        // What the killed set did: kept every predecessor, renamed the new a.exr and long
+        // file over theirs, and was killed before a.png's rename.
+        let link = |n: &str| at(&format!("{}Kil123.previous", temp_prefix(&at(n))));
+        for n in ["a.exr", "a.png", long.as_str()] {
+            fs::hard_link(at(n), link(n)).unwrap();
+        }
+        fs::write(at("new"), "new exr").unwrap();
+        fs::rename(at("new"), at("a.exr")).unwrap();
+        fs::write(at("new"), "new l").unwrap();
+        fs::rename(at("new"), at(&long)).unwrap();
+        let gone = at(".gone.json.Kil123.previous");
+        fs::write(&gone, "a file removed since").unwrap();
+        write_atomic_set(&[(&at("b.txt"), b"another output")]).unwrap();
+        assert_eq!(fs::read_to_string(at("a.exr")).unwrap(), "old exr");
+        assert_eq!(fs::read_to_string(at("a.png")).unwrap(), "old png");
+        assert_eq!(fs::read_to_string(at(&long)).unwrap(), "old l");
+        let mut left: Vec<String> = fs::read_dir(d.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        left.sort();
+        assert_eq!(left, ["a.exr", "a.png", "b.txt", long.as_str()]);
+        // One file's sweep: the link is renamed back over its file.
+        fs::hard_link(at("a.exr"), link("a.exr")).unwrap();
+        fs::write(at("new"), "new exr").unwrap();
+        fs::rename(at("new"), at("a.exr")).unwrap();
+        remove_stale_temporaries_of(&at("a.exr"));
+        assert_eq!(fs::read_to_string(at("a.exr")).unwrap(), "old exr");
+        assert!(!link("a.exr").exists());
     }
 
     /// A rename that fails part way through a set puts back what the set's earlier renames

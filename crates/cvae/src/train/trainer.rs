@@ -1178,6 +1178,21 @@ mod tests {
             left,
             ["lengthgen-optim.bpk", "lengthgen.bpk", "lengthgen.json"]
         );
+        // A save killed between its renames: the model replaced (here by the step-1 one),
+        // the JSON not, and the replaced model kept as a link. The next run's sweep puts it
+        // back, and the checkpoint reads whole again (the sweep removed the link, and the
+        // resume was refused for a checksum).
+        #[cfg(unix)]
+        {
+            let step_2 = std::fs::read(&m).unwrap();
+            std::fs::hard_link(&m, d.path().join(".lengthgen.bpk.Kil123.previous")).unwrap();
+            std::fs::write(d.path().join("new"), &model_before).unwrap();
+            std::fs::rename(d.path().join("new"), &m).unwrap();
+            assert!(check_crcs(&saved, &[&m, &o], kind).is_err());
+            remove_stale_temporaries(d.path(), kind);
+            assert_eq!(std::fs::read(&m).unwrap(), step_2);
+            check_crcs(&saved, &[&m, &o], kind).unwrap();
+        }
     }
 
     /// A run whose loss turns non-finite stops with `Diverged`, naming the model and the
