@@ -159,9 +159,10 @@ pub(crate) fn image_out(out: &Path, ext: &str) -> PathBuf {
 /// Writes OUT.exr (linear, tagged), OUT.png (preview at `exposure`) and, given `json`,
 /// OUT.json as one set ([`scatter_sim::output::write_atomic_set`]): a failure never leaves
 /// a new image beside an old report. Creates OUT's folder. Every image stcvae writes goes
-/// through here (render, merge, experiments, `bench render --save`) but the work maps of
-/// `experiment complexity`, whose EXR and PNG hold different images
-/// (`experiment::measure::save_map`, through the same atomic set).
+/// through here (render, merge, experiments) but the work maps of `experiment complexity`,
+/// whose EXR and PNG hold different images (`experiment::measure::save_map`), and
+/// `bench render --save`'s six files a density (`bench_render::save_images`), each
+/// written as one atomic set of its own.
 pub(crate) fn write_image_set(
     out: &Path,
     img: &render_gpu::image_io::RgbImage,
@@ -209,7 +210,9 @@ pub(crate) fn write_image_set_with(
     files.extend(json.map(|j| (js.as_path(), j)));
     files.extend(var_bytes.as_deref().map(|v| (var.as_path(), v)));
     // An OUT.var.exr of an earlier render would sit beside the new image as if it were
-    // its own (it carries no tag to tell): removed once the set is in place. Only an
+    // its own (it carries no tag to tell): removed once the set is in place, before
+    // another run's set may land (a render with --variance to the same output, whose
+    // OUT.var.exr was left beside this render's image when it landed in between). Only an
     // untagged image with no PNG beside it, as variance images are written: a render,
     // montage or map the user named OUT.var (its EXR is OUT.var.exr) has OUT.var.png, and
     // a render its tag; one was deleted as a stale variance image.
@@ -219,10 +222,10 @@ pub(crate) fn write_image_set_with(
         let v = crate::paths::identity(&var);
         inputs.iter().any(|(_, p)| crate::paths::identity(p) == v)
     };
-    let stale = variance.is_none() && var.is_file() && !foreign_var_exr(out) && !read;
-    scatter_sim::output::write_atomic_set(&files)
-        .map_err(|(path, e)| anyhow!("cannot write {}: {e}", path.display()))?;
-    if stale {
+    let remove_stale = || {
+        if variance.is_some() || !var.is_file() || foreign_var_exr(out) || read {
+            return;
+        }
         match std::fs::remove_file(&var) {
             Ok(()) => eprintln!(
                 "note: removed {}, the variance image of an earlier render under this name",
@@ -234,7 +237,9 @@ pub(crate) fn write_image_set_with(
                 crate::paths::shown(&var)
             ),
         }
-    }
+    };
+    scatter_sim::output::write_atomic_set_then(&files, remove_stale)
+        .map_err(|(path, e)| anyhow!("cannot write {}: {e}", path.display()))?;
     Ok(())
 }
 

@@ -540,6 +540,17 @@ pub fn write_atomic_set(files: &[(&Path, &[u8])]) -> Result<(), (PathBuf, io::Er
     write_atomic_set_streamed(bytes_of(files))
 }
 
+/// [`write_atomic_set`], then `then` while the set's folder is still locked against other
+/// sets' renames: what depends on the set just placed and on no other run's set landing
+/// in between (a render without --variance removing an OUT.var.exr that another render of
+/// the same output, with --variance, might be placing at that moment).
+pub fn write_atomic_set_then(
+    files: &[(&Path, &[u8])],
+    then: impl FnOnce(),
+) -> Result<(), (PathBuf, io::Error)> {
+    write_set_with(bytes_of(files), Finished::persist, Previous::keep, then)
+}
+
 /// What writes one file of a set into its temporary ([`write_atomic_set_streamed`]).
 pub type Contents<'a> = Box<dyn FnOnce(&mut dyn Write) -> io::Result<()> + 'a>;
 
@@ -548,7 +559,7 @@ pub type Contents<'a> = Box<dyn FnOnce(&mut dyn Write) -> io::Result<()> + 'a>;
 pub fn write_atomic_set_streamed(
     files: Vec<(&Path, Contents<'_>)>,
 ) -> Result<(), (PathBuf, io::Error)> {
-    write_set_with(files, Finished::persist, Previous::keep)
+    write_set_with(files, Finished::persist, Previous::keep, || ())
 }
 
 /// Files held in memory, as a set's [`Contents`].
@@ -563,11 +574,12 @@ fn bytes_of<'a>(files: &[(&'a Path, &'a [u8])]) -> Vec<(&'a Path, Contents<'a>)>
 }
 
 /// [`write_atomic_set_streamed`] with the rename and the keeping of predecessors given, so
-/// that tests can make either fail.
+/// that tests can make either fail, and what to do `then` ([`write_atomic_set_then`]).
 fn write_set_with(
     files: Vec<(&Path, Contents<'_>)>,
     mut persist: impl FnMut(Finished) -> io::Result<()>,
     keep: impl Fn(&Path) -> Before,
+    then: impl FnOnce(),
 ) -> Result<(), (PathBuf, io::Error)> {
     let mut ready: Vec<Finished> = Vec::with_capacity(files.len());
     for (path, write) in files {
@@ -629,6 +641,7 @@ fn write_set_with(
         // The folders hold the output now.
         m.0.clear();
     }
+    then();
     Ok(())
 }
 
@@ -949,6 +962,7 @@ mod tests {
                     f.persist()
                 },
                 Previous::keep,
+                || (),
             )
             .unwrap_err();
             assert_eq!(
@@ -979,6 +993,7 @@ mod tests {
                     Previous::keep(p)
                 }
             },
+            || (),
         )
         .unwrap_err();
         assert_eq!(fs::read(&a).unwrap(), b"new a");
@@ -1005,6 +1020,7 @@ mod tests {
                     f.persist()
                 },
                 Previous::keep,
+                || (),
             )
             .unwrap_err();
             assert!(!d.path().join("new").exists(), "failed at {fail_at}");
@@ -1187,6 +1203,7 @@ mod tests {
                 }
             },
             Previous::keep,
+            || (),
         );
         assert!(e.is_err());
         assert_eq!(fs::read(&long).unwrap(), b"old");
