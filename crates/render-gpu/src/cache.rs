@@ -71,8 +71,8 @@ pub(crate) fn note_unwritable_cache(path: &Path, e: &std::io::Error) {
         use std::io::Write as _;
         let _ = writeln!(
             std::io::stderr(),
-            "note: cannot write the cache file {} ({e}): distance grids and escape cones are \
-             rebuilt every run; set STCVAE_CACHE to a writable folder to keep them",
+            "note: cannot write the cache file {} ({e}): what it holds is rebuilt every \
+             run; set STCVAE_CACHE to a writable folder with room to keep it",
             path.display()
         );
     });
@@ -80,13 +80,16 @@ pub(crate) fn note_unwritable_cache(path: &Path, e: &std::io::Error) {
 
 /// Says that a cache entry exists but cannot be used (damaged, truncated, or another
 /// mesh's copied under its name) and is being rebuilt: the render was seconds slower than
-/// the one before with no word why. Returns whether it did: the rebuilt entry then
+/// the one before with no word why. The entry is removed first: on a full disk its
+/// replacement could not be written while it held its space (23 MB for the bunny's grid),
+/// and it was rebuilt every run. Returns whether there was one: the rebuilt entry then
 /// replaces it however quickly it was built, or the note would come back every run.
 pub(crate) fn note_unusable_entry(path: &Path) -> bool {
     // A folder or other non-file in the entry's place is not the entry (and a write
     // cannot replace it: said by the write's own note).
     let exists = std::fs::symlink_metadata(path).is_ok_and(|m| m.is_file() || m.is_symlink());
     if exists {
+        let _ = std::fs::remove_file(path);
         use std::io::Write as _;
         let _ = writeln!(
             std::io::stderr(),
@@ -225,7 +228,23 @@ fn trim(keep: &Path, most: u64) {
 mod tests {
     use std::time::{Duration, SystemTime};
 
-    use super::{CODE, prune_stale, trim};
+    use super::{CODE, note_unusable_entry, prune_stale, trim};
+
+    /// An unusable entry is removed before it is rebuilt, so that its space is free for
+    /// the new one (on a full disk the damaged file stayed and was rebuilt every run); a
+    /// folder in an entry's place is not an entry and stays.
+    #[test]
+    fn an_unusable_entry_is_removed_before_its_rebuild() {
+        let d = tempfile::tempdir().unwrap();
+        let entry = d.path().join(format!("grid-x-{CODE}.bin"));
+        std::fs::write(&entry, b"damaged").unwrap();
+        assert!(note_unusable_entry(&entry));
+        assert!(!entry.exists());
+        assert!(!note_unusable_entry(&entry));
+        std::fs::create_dir(&entry).unwrap();
+        assert!(!note_unusable_entry(&entry));
+        assert!(entry.is_dir());
+    }
 
     /// Writing this code's cache file of a stem removes that stem's files written by other
     /// code, and nothing else: not another mesh's or resolution's (one that only extends

@@ -202,7 +202,15 @@ pub fn remove_stale_temporaries_of(path: &Path) {
             continue;
         }
         if name.ends_with(".partial") {
-            let _ = fs::remove_file(e.path());
+            let bytes = e.metadata().map_or(0, |m| m.len());
+            if fs::remove_file(e.path()).is_ok() {
+                eprintln!(
+                    "note: removed {} ({bytes} bytes), the temporary of an earlier run that \
+                     was stopped while writing {}",
+                    crate::ranges::printable_path(&e.path()),
+                    crate::ranges::printable_path(path)
+                );
+            }
         } else if name.ends_with(".previous") {
             put_back(&e.path(), path);
         }
