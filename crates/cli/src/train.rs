@@ -1222,6 +1222,12 @@ pub fn run(a: Args) -> Result<()> {
         .is_dir()
         .then(|| lock_checkpoint_dir(&cfg.checkpoint_dir, &a.config))
         .transpose()?;
+    // A checkpoint save killed between its renames is put back before any checkpoint is
+    // read (a model not trained now is read from its checkpoint, and the mixed set's
+    // checksums refused it).
+    if early_lock.is_some() {
+        scatter_sim::output::restore_killed_sets(&cfg.checkpoint_dir);
+    }
     check_dataset_source(&a, &cfg)?;
     let base = load_base(&a, &cfg, &out)?;
     let kinds = trained_kinds(a.model);

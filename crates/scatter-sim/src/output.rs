@@ -4,6 +4,7 @@
 //! it only once complete, so an error, a Ctrl-C or a crash never leaves a half-written
 //! file under the output name (the temporary is removed when dropped).
 
+use std::collections::HashMap;
 use std::fs;
 use std::io::{self, BufWriter, Write};
 use std::path::{Path, PathBuf};
@@ -184,12 +185,10 @@ pub fn remove_live_temporaries() {
 }
 
 /// Removes the hidden temporaries an aborted write of `path` can leave beside it (its
-/// `.NAME.XXXXXX.partial` file), and puts back the file a killed set's renames had
-/// replaced (its `.NAME.XXXXXX.previous` link, [`restore_killed_sets`]): a second Ctrl-C
-/// exits without destructors, and a temporary made in the instant before its registration
-/// in [`LIVE`] is missed. For outputs only one command writes at a time (a training's
-/// checkpoints, whose three files then make the earlier checkpoint again, which a resume
-/// can read), called before it writes them again.
+/// `.NAME.XXXXXX.partial` files) and says so: a second Ctrl-C exits without destructors,
+/// and a temporary made in the instant before its registration in [`LIVE`] is missed. For
+/// outputs only one command writes at a time (a training's checkpoints), called before it
+/// writes them again; the links a killed set left are [`restore_killed_sets`]'.
 pub fn remove_stale_temporaries_of(path: &Path) {
     let dir = folder_of(path);
     let Ok(entries) = fs::read_dir(dir) else {
@@ -198,23 +197,31 @@ pub fn remove_stale_temporaries_of(path: &Path) {
     let prefix = temp_prefix(path);
     for e in entries.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
-        if !name.starts_with(&prefix) || !e.path().is_file() {
+        // tempfile's six random characters between the prefix and the suffix: `x`'s
+        // prefix `.x.` also begins `x.json`'s temporaries.
+        let ours = name.len() == prefix.len() + 6 + ".partial".len()
+            && name.starts_with(&prefix)
+            && name.ends_with(".partial");
+        if !ours || !e.file_type().is_ok_and(|t| t.is_file()) {
             continue;
         }
-        if name.ends_with(".partial") {
-            let bytes = e.metadata().map_or(0, |m| m.len());
-            if fs::remove_file(e.path()).is_ok() {
-                eprintln!(
-                    "note: removed {} ({bytes} bytes), the temporary of an earlier run that \
-                     was stopped while writing {}",
-                    crate::ranges::printable_path(&e.path()),
-                    crate::ranges::printable_path(path)
-                );
-            }
-        } else if name.ends_with(".previous") {
-            put_back(&e.path(), path);
+        let bytes = e.metadata().map_or(0, |m| m.len());
+        if fs::remove_file(e.path()).is_ok() {
+            note(&format!(
+                "note: removed {} ({bytes} bytes), the temporary of an earlier run that was \
+                 stopped while writing {}",
+                crate::ranges::printable_path(&e.path()),
+                crate::ranges::printable_path(path)
+            ));
         }
     }
+}
+
+/// A note on stderr that cannot end the process: std's `eprintln!` panics where stderr is
+/// a closed pipe (`stcvae … 2>&1 | less`, less quit), which the CLI takes as a request to
+/// stop cleanly.
+fn note(line: &str) {
+    let _ = writeln!(io::stderr(), "{line}");
 }
 
 /// A new temporary in `dir`, locked: the lock is held while this process has the file open
@@ -445,12 +452,12 @@ impl AtomicFile {
             builder.permissions(std::fs::Permissions::from_mode(0o666));
         }
         for (gone, bytes) in remove_killed_temporaries(path, &prefix) {
-            eprintln!(
+            note(&format!(
                 "note: removed {} ({bytes} bytes), the temporary of an earlier run that was \
                  killed while writing {}",
                 crate::ranges::printable_path(&gone),
                 crate::ranges::printable_path(path)
-            );
+            ));
         }
         let tmp = locked_temporary(&builder, dir)?;
         Ok(Self {
@@ -586,7 +593,7 @@ fn bytes_of<'a>(files: &[(&'a Path, &'a [u8])]) -> Vec<(&'a Path, Contents<'a>)>
 fn write_set_with(
     files: Vec<(&Path, Contents<'_>)>,
     mut persist: impl FnMut(Finished) -> io::Result<()>,
-    keep: impl Fn(&Path) -> Before,
+    keep: impl Fn(&Path, &mut Marks) -> Before,
     then: impl FnOnce(),
 ) -> Result<(), (PathBuf, io::Error)> {
     let mut ready: Vec<Finished> = Vec::with_capacity(files.len());
@@ -610,9 +617,14 @@ fn write_set_with(
     }
     // Held until the set is in place (dropped on return).
     let _folder = ready.first().and_then(|f| lock_folder(folder_of(&f.path)));
-    if let (Some(_), Some(f)) = (&_folder, ready.first()) {
-        restore_killed_sets(folder_of(&f.path));
+    // Whatever a killed set left in these folders first: its links would otherwise take
+    // this set's names ([`restore_killed_sets`]).
+    let mut folders: Vec<&Path> = ready.iter().map(|f| folder_of(&f.path)).collect();
+    folders.dedup();
+    for dir in folders {
+        restore_killed_sets(dir);
     }
+    let mut marks = Marks::new();
     let mut placed: Vec<(PathBuf, Before)> = Vec::with_capacity(ready.len());
     // The folders the set made stay removable until every file is in place: a rename
     // that fails takes the set's earlier files back out, and then their new folders too.
@@ -620,7 +632,7 @@ fn write_set_with(
     let mut ready = ready.into_iter();
     while let Some(mut f) = ready.next() {
         let path = f.path.clone();
-        let before = keep(&path);
+        let before = keep(&path, &mut marks);
         made.push(std::mem::replace(&mut f.made, MadeDirs(Vec::new())));
         if let Err(e) = persist(f) {
             // The temporaries not yet renamed go first, newest first with their folders as
@@ -639,12 +651,17 @@ fn write_set_with(
                     Before::Unkept => {}
                 }
             }
+            marks.finish();
             // A folder made later is never the parent of one made earlier: newest first.
             made.into_iter().rev().for_each(drop);
             return Err((path, e));
         }
         placed.push((path, before));
     }
+    // The set is in place: a kill from here on leaves it so (its links are then only
+    // removed), and so must `then`'s work.
+    marks.finish();
+    drop(placed);
     for mut m in made {
         // The folders hold the output now.
         m.0.clear();
@@ -653,48 +670,92 @@ fn write_set_with(
     Ok(())
 }
 
-/// The length of the part of a temporary's name after its prefix: tempfile's six random
-/// characters and the suffix.
-const PREVIOUS_TAIL: usize = 6 + ".previous".len();
+/// The start of a set's mark's name ([`Mark`]): `.stcvae-set.ID.renaming`.
+const MARK_PREFIX: &str = ".stcvae-set.";
+const MARK_SUFFIX: &str = ".renaming";
+/// A kept file's link is `PREFIX` + the set's six-character id + this.
+const LINK_SUFFIX: &str = ".previous";
 
-/// Puts back the files a killed run's set had replaced: the `.NAME.XXXXXX.previous` links
-/// in `dir`. A set keeps each file it replaces as such a link until all its renames are
-/// done; a run killed in between (SIGKILL, the OOM killer) left the links, never removed,
-/// and its output a mix of the new set's first files and the old set's others. Renaming
-/// each link back over its file makes the earlier set whole again, as a failed set leaves
-/// it; a file that was not there before the killed set stays as the set wrote it. Called
-/// with `dir`'s lock held ([`lock_folder`]): a live set's links exist only while its
-/// writer holds that lock, so every link found is a killed run's.
-fn restore_killed_sets(dir: &Path) {
+/// What a killed set left in `dir` is undone or cleared: a set keeps each file it replaces
+/// as a link (`.NAME.ID.previous`) until its renames are done, and marks the folder
+/// (`.stcvae-set.ID.renaming`, locked) while they are under way. A run killed (SIGKILL,
+/// the OOM killer, a second Ctrl-C) left the links for ever, and its output a mix of the
+/// new set's first files and the old set's others: a new EXR beside the old JSON, a new
+/// model beside the old checkpoint JSON, whose checksum then refused the resume.
+/// - A set whose mark is there, unlocked (its run is gone), was killed during its
+///   renames: each link is renamed back over its file, and the earlier set's files are
+///   as they were (a file the killed set added, with none before it, stays).
+/// - A link without a mark is of a set killed after its renames, while it removed its
+///   links: the new set is whole, and the link is removed.
+/// - A set whose mark is locked is being written now; a mark that cannot be locked at all
+///   (a file system without locks) cannot tell, and its links are left.
+pub fn restore_killed_sets(dir: &Path) {
     let Ok(entries) = fs::read_dir(dir) else {
         return;
     };
     let names: Vec<String> = entries
         .flatten()
-        .filter(|e| e.file_type().is_ok_and(|t| t.is_file()))
+        .filter(|e| e.file_type().is_ok_and(|t| t.is_file() || t.is_symlink()))
         .map(|e| e.file_name().to_string_lossy().into_owned())
         .collect();
-    let is_link = |n: &str| {
-        n.starts_with('.')
-            && n.ends_with(".previous")
-            && n.len() > PREVIOUS_TAIL + 2
-            && n.is_char_boundary(n.len() - PREVIOUS_TAIL)
-            && n[..n.len() - PREVIOUS_TAIL].ends_with('.')
+    let tail = 6 + LINK_SUFFIX.len();
+    let link_of = |n: &str| -> Option<(usize, String)> {
+        let cut = n.len().checked_sub(tail)?;
+        let ok = n.starts_with('.')
+            && n.ends_with(LINK_SUFFIX)
+            && cut > 1
+            && n.is_char_boundary(cut)
+            && n[..cut].ends_with('.');
+        ok.then(|| (cut, n[cut..cut + 6].to_string()))
     };
-    for link in names.iter().filter(|n| is_link(n)) {
-        let prefix = &link[..link.len() - PREVIOUS_TAIL];
-        // The file it was kept for: the one whose temporaries take this prefix (a long
-        // name's prefix holds a checksum of it, so the name cannot be read back from it).
-        let target = names
-            .iter()
-            .find(|n| !is_link(n) && temp_prefix(Path::new(n.as_str())) == prefix);
-        let link = dir.join(link);
-        match target {
-            Some(t) => put_back(&link, &dir.join(t)),
-            // Its file was removed since: nothing to put back.
-            None => {
-                let _ = fs::remove_file(&link);
+    // Each set's state once: its mark's lock is held while its links are put back.
+    let mut states: HashMap<String, Option<Mark>> = HashMap::new();
+    for link in &names {
+        let Some((cut, id)) = link_of(link) else {
+            continue;
+        };
+        let state = states
+            .entry(id.clone())
+            .or_insert_with(|| Mark::state(&dir.join(format!("{MARK_PREFIX}{id}{MARK_SUFFIX}"))));
+        let link_path = dir.join(link);
+        match state {
+            // Being written, or cannot tell.
+            Some(Mark::Live) => {}
+            Some(Mark::Dead { .. }) => {
+                // The file it was kept for: the one whose temporaries take this prefix (a
+                // long name's prefix holds a checksum of it, so the name cannot be read
+                // back from it).
+                let prefix = &link[..cut];
+                match names
+                    .iter()
+                    .find(|n| link_of(n).is_none() && temp_prefix(Path::new(n.as_str())) == prefix)
+                {
+                    Some(t) => put_back(&link_path, &dir.join(t)),
+                    // Its file was removed since: nothing to put back.
+                    None => {
+                        let _ = fs::remove_file(&link_path);
+                    }
+                }
             }
+            // The set finished its renames: the link is of no use.
+            None => {
+                let _ = fs::remove_file(&link_path);
+            }
+        }
+    }
+    // The killed sets' marks go once their links are dealt with, and so do those of killed
+    // sets that kept nothing (every file new).
+    for n in names
+        .iter()
+        .filter(|n| n.starts_with(MARK_PREFIX) && n.ends_with(MARK_SUFFIX))
+    {
+        let id = &n[MARK_PREFIX.len()..n.len() - MARK_SUFFIX.len()];
+        let dead = match states.get(id) {
+            Some(state) => matches!(state, Some(Mark::Dead { .. })),
+            None => matches!(Mark::state(&dir.join(n)), Some(Mark::Dead { .. })),
+        };
+        if dead {
+            let _ = fs::remove_file(dir.join(n));
         }
     }
 }
@@ -713,11 +774,109 @@ fn put_back(link: &Path, target: &Path) {
         }
     }
     if fs::rename(link, target).is_ok() {
-        eprintln!(
+        note(&format!(
             "note: put back {} as it was before a run that was killed while replacing it \
-             and the files written with it (their earlier set is whole again)",
+             with the files written with it",
             crate::ranges::printable_path(target)
-        );
+        ));
+    }
+}
+
+/// A set's mark in each folder where it keeps a file it replaces, while its renames are
+/// under way ([`restore_killed_sets`]): `.stcvae-set.ID.renaming`, locked while held (the
+/// OS drops the lock when the process dies), removed when the renames are done or undone.
+/// Not in [`LIVE`]: a second Ctrl-C's exit leaves it, so that the next set written there
+/// puts the killed one's files back.
+struct Marks {
+    /// Six characters naming the set in its marks and links.
+    id: Option<String>,
+    /// Each marked folder (as the set's paths name it), its mark and the mark's lock.
+    held: Vec<(PathBuf, PathBuf, fs::File)>,
+}
+
+/// What [`Mark::state`] finds of a set's mark.
+enum Mark {
+    /// Its run is gone: its lock, taken by the caller, is held in here.
+    Dead { _lock: fs::File },
+    /// Its run holds it, or locks cannot tell (a file system without them).
+    Live,
+}
+
+impl Mark {
+    /// The state of the mark at `path`; None where there is no mark. One younger than a
+    /// few seconds counts as live: a set makes its mark an instant before it locks it.
+    fn state(path: &Path) -> Option<Self> {
+        const FRESH_MARK: std::time::Duration = std::time::Duration::from_secs(3);
+        let f = fs::File::open(path).ok()?;
+        let fresh = f
+            .metadata()
+            .and_then(|m| m.modified())
+            .is_ok_and(|t| t.elapsed().is_ok_and(|age| age < FRESH_MARK));
+        Some(match f.try_lock() {
+            Ok(()) if !fresh => Mark::Dead { _lock: f },
+            _ => Mark::Live,
+        })
+    }
+}
+
+impl Marks {
+    fn new() -> Self {
+        Self {
+            id: None,
+            held: Vec::new(),
+        }
+    }
+
+    /// The set's id, its folder `dir` marked (once); None where no mark can be made
+    /// there, and the file it would keep is then not kept.
+    fn in_folder(&mut self, dir: &Path) -> Option<String> {
+        if let Some(id) = &self.id
+            && self.held.iter().any(|(d, ..)| d == dir)
+        {
+            return Some(id.clone());
+        }
+        let (path, file) = match &self.id {
+            Some(id) => {
+                let path = dir.join(format!("{MARK_PREFIX}{id}{MARK_SUFFIX}"));
+                let file = fs::OpenOptions::new()
+                    .write(true)
+                    .create_new(true)
+                    .open(&path)
+                    .ok()?;
+                (path, file)
+            }
+            None => {
+                let (file, path) = tempfile::Builder::new()
+                    .prefix(MARK_PREFIX)
+                    .suffix(MARK_SUFFIX)
+                    .rand_bytes(6)
+                    .tempfile_in(dir)
+                    .ok()?
+                    .keep()
+                    .ok()?;
+                let name = path.file_name()?.to_string_lossy().into_owned();
+                let id = name
+                    .strip_prefix(MARK_PREFIX)?
+                    .strip_suffix(MARK_SUFFIX)?
+                    .to_string();
+                self.id = Some(id);
+                (path, file)
+            }
+        };
+        // A file system without locks: the mark is made all the same, and a sweep that
+        // cannot lock it leaves its set alone.
+        let _ = file.try_lock();
+        self.held.push((dir.to_path_buf(), path, file));
+        self.id.clone()
+    }
+
+    /// The renames are done (or undone): from here a kill leaves this set's files as they
+    /// are, and its links are only removed.
+    fn finish(self) {
+        for (_, path, file) in self.held {
+            let _ = fs::remove_file(&path);
+            drop(file);
+        }
     }
 }
 
@@ -733,13 +892,13 @@ fn put_back(link: &Path, target: &Path) {
 fn lock_folder(dir: &Path) -> Option<fs::File> {
     let locked = lock_folder_within(dir, FOLDER_LOCK_WAIT);
     if locked.is_err() {
-        eprintln!(
+        note(&format!(
             "note: {} stayed locked by another program for {} s; this output's files are \
              renamed into it without waiting (two stcvae runs writing one output at this \
              moment could mix their files)",
             dir.display(),
             FOLDER_LOCK_WAIT.as_secs()
-        );
+        ));
     }
     locked.ok().flatten()
 }
@@ -782,30 +941,33 @@ enum Before {
     Unkept,
 }
 
-/// A hard link to the file an output replaces, removed when dropped: the set's renames can
-/// then be undone.
+/// A hard link to the file an output replaces, `.NAME.ID.previous` (ID: its set's,
+/// [`Marks`]), removed when dropped: the set's renames can then be undone. Not in
+/// [`LIVE`], as its set's mark is not.
 struct Previous {
     link: tempfile::TempPath,
-    _live: Live,
 }
 
 impl Previous {
-    fn keep(path: &Path) -> Before {
+    fn keep(path: &Path, marks: &mut Marks) -> Before {
         if fs::symlink_metadata(path).is_err() {
             return Before::Absent;
         }
         let dir = folder_of(path);
-        match tempfile::Builder::new()
-            .prefix(&temp_prefix(path))
-            .suffix(".previous")
-            .make_in(dir, |p| fs::hard_link(path, p))
-        {
-            Ok(link) => {
-                let link = link.into_temp_path();
-                let live = Live::new(&link);
-                Before::Kept(Self { link, _live: live })
+        let Some(id) = marks.in_folder(dir) else {
+            return Before::Unkept;
+        };
+        let link = dir.join(format!("{}{id}{LINK_SUFFIX}", temp_prefix(path)));
+        if fs::hard_link(path, &link).is_err() {
+            return Before::Unkept;
+        }
+        match tempfile::TempPath::try_from_path(&link) {
+            Ok(link) => Before::Kept(Self { link }),
+            // No current folder to resolve a relative path by: not kept after all.
+            Err(_) => {
+                let _ = fs::remove_file(&link);
+                Before::Unkept
             }
-            Err(_) => Before::Unkept,
         }
     }
 
@@ -888,12 +1050,15 @@ mod tests {
     }
 
     /// A run killed part way through a set's renames (SIGKILL between them) left the links
-    /// to what it replaced (`.NAME.XXXXXX.previous`) for ever, and a mixed set. The next set
-    /// written into the folder puts them back: here a.exr was replaced (its old bytes come
-    /// back), a.png's link is to the file as it still is (only the link goes), and the
-    /// link of a file removed since is removed. A long name's link finds its file by the
-    /// checksum in its prefix. `remove_stale_temporaries_of` (a training's checkpoints,
-    /// one file at a time) puts back the same way.
+    /// to what it replaced (`.NAME.ID.previous`) for ever, and a mixed set. The next set
+    /// written into the folder deals with them by the killed set's mark:
+    /// - marked, the mark unlocked (its run gone): put back. Here a.exr was replaced (its
+    ///   old bytes come back), a.png's link is to the file as it still is (only the link
+    ///   goes), the link of a file removed since is removed, and a long name's link finds
+    ///   its file by the checksum in its prefix;
+    /// - unmarked (killed after its renames, while removing its links): the new files stay
+    ///   and the link goes (putting back the links left would mix the sets);
+    /// - marked and locked (being written now): left alone.
     #[cfg(unix)]
     #[test]
     fn a_killed_sets_replaced_files_are_put_back() {
@@ -907,35 +1072,65 @@ mod tests {
         ] {
             fs::write(at(n), b).unwrap();
         }
-        // What the killed set did: kept every predecessor, renamed the new a.exr and long
-        // file over theirs, and was killed before a.png's rename.
-        let link = |n: &str| at(&format!("{}Kil123.previous", temp_prefix(&at(n))));
+        // What the killed set did: marked the folder, kept every predecessor, renamed the
+        // new a.exr and long file over theirs, and was killed before a.png's rename.
+        let link = |n: &str, id: &str| at(&format!("{}{id}.previous", temp_prefix(&at(n))));
+        let mark = |id: &str| at(&format!(".stcvae-set.{id}.renaming"));
+        // Made a minute ago: a mark younger than a few seconds counts as live.
+        left_behind(&mark("Kil123"), b"");
         for n in ["a.exr", "a.png", long.as_str()] {
-            fs::hard_link(at(n), link(n)).unwrap();
+            fs::hard_link(at(n), link(n, "Kil123")).unwrap();
         }
-        fs::write(at("new"), "new exr").unwrap();
-        fs::rename(at("new"), at("a.exr")).unwrap();
-        fs::write(at("new"), "new l").unwrap();
-        fs::rename(at("new"), at(&long)).unwrap();
-        let gone = at(".gone.json.Kil123.previous");
-        fs::write(&gone, "a file removed since").unwrap();
+        let replace = |n: &str, b: &str| {
+            fs::write(at("new"), b).unwrap();
+            fs::rename(at("new"), at(n)).unwrap();
+        };
+        replace("a.exr", "new exr");
+        replace(&long, "new l");
+        fs::write(at(".gone.json.Kil123.previous"), "a file removed since").unwrap();
         write_atomic_set(&[(&at("b.txt"), b"another output")]).unwrap();
         assert_eq!(fs::read_to_string(at("a.exr")).unwrap(), "old exr");
         assert_eq!(fs::read_to_string(at("a.png")).unwrap(), "old png");
         assert_eq!(fs::read_to_string(at(&long)).unwrap(), "old l");
-        let mut left: Vec<String> = fs::read_dir(d.path())
-            .unwrap()
-            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-            .collect();
-        left.sort();
-        assert_eq!(left, ["a.exr", "a.png", "b.txt", long.as_str()]);
-        // One file's sweep: the link is renamed back over its file.
-        fs::hard_link(at("a.exr"), link("a.exr")).unwrap();
-        fs::write(at("new"), "new exr").unwrap();
-        fs::rename(at("new"), at("a.exr")).unwrap();
-        remove_stale_temporaries_of(&at("a.exr"));
-        assert_eq!(fs::read_to_string(at("a.exr")).unwrap(), "old exr");
-        assert!(!link("a.exr").exists());
+        let left = || {
+            let mut v: Vec<String> = fs::read_dir(d.path())
+                .unwrap()
+                .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+                .collect();
+            v.sort();
+            v
+        };
+        assert_eq!(left(), ["a.exr", "a.png", "b.txt", long.as_str()]);
+        // Killed while removing its links, its renames done: nothing is put back.
+        fs::hard_link(at("a.exr"), link("a.exr", "Don456")).unwrap();
+        replace("a.exr", "newest exr");
+        write_atomic_set(&[(&at("b.txt"), b"another output")]).unwrap();
+        assert_eq!(fs::read_to_string(at("a.exr")).unwrap(), "newest exr");
+        assert_eq!(left(), ["a.exr", "a.png", "b.txt", long.as_str()]);
+        // A set being written now: its mark locked (however old), its link left.
+        left_behind(&mark("Liv789"), b"");
+        let held = fs::File::open(mark("Liv789")).unwrap();
+        held.try_lock().unwrap();
+        fs::hard_link(at("a.png"), link("a.png", "Liv789")).unwrap();
+        replace("a.png", "live png");
+        restore_killed_sets(d.path());
+        assert_eq!(fs::read_to_string(at("a.png")).unwrap(), "live png");
+        assert!(link("a.png", "Liv789").exists() && mark("Liv789").exists());
+        drop(held);
+        // Its run gone, the next sweep puts the file back.
+        restore_killed_sets(d.path());
+        assert_eq!(fs::read_to_string(at("a.png")).unwrap(), "old png");
+        assert_eq!(left(), ["a.exr", "a.png", "b.txt", long.as_str()]);
+        // A mark made an instant ago, not locked yet: left as a live set's.
+        fs::write(mark("You000"), "").unwrap();
+        fs::hard_link(at("a.png"), link("a.png", "You000")).unwrap();
+        replace("a.png", "young png");
+        restore_killed_sets(d.path());
+        assert_eq!(fs::read_to_string(at("a.png")).unwrap(), "young png");
+        left_behind(&mark("You000"), b"");
+        restore_killed_sets(d.path());
+        assert_eq!(fs::read_to_string(at("a.png")).unwrap(), "old png");
+        assert_eq!(left(), ["a.exr", "a.png", "b.txt", long.as_str()]);
     }
 
     /// A rename that fails part way through a set puts back what the set's earlier renames
@@ -994,11 +1189,11 @@ mod tests {
                 }
                 f.persist()
             },
-            |p| {
+            |p, m| {
                 if p == a.as_path() {
                     Before::Unkept
                 } else {
-                    Previous::keep(p)
+                    Previous::keep(p, m)
                 }
             },
             || (),

@@ -504,10 +504,12 @@ pub struct Trained {
     pub info: CheckpointInfo,
 }
 
-/// Removes what an aborted save of `kind`'s checkpoint can leave in `dir`: its staging
-/// folder (`.NAME-saving…`) and the hidden temporaries of its three files
-/// ([`scatter_sim::output::remove_stale_temporaries_of`]).
+/// Removes what an aborted save of `kind`'s checkpoint can leave in `dir`: the hidden
+/// temporaries of its three files ([`scatter_sim::output::remove_stale_temporaries_of`]),
+/// and an earlier version's staging folder (`.NAME-saving…`); a save killed between its
+/// renames is put back first ([`scatter_sim::output::restore_killed_sets`]).
 pub fn remove_stale_temporaries(dir: &Path, kind: ModelKind) {
+    scatter_sim::output::restore_killed_sets(dir);
     let (m, o, j) = paths(dir, kind);
     for p in [&m, &o, &j] {
         scatter_sim::output::remove_stale_temporaries_of(p);
@@ -575,7 +577,8 @@ fn paths(dir: &Path, kind: ModelKind) -> (PathBuf, PathBuf, PathBuf) {
 /// the old JSON, whose checksum then refused the resume, and the run was lost. (burn wrote
 /// the records into a staging folder first: a full disk's error then named its hidden
 /// temporary, behind two prefixes of burn's.) A kill between the three renames (a window
-/// of microseconds) can still mix the sets; the checksums then refuse the resume.
+/// of microseconds) mixes the sets until the next run puts the earlier one back
+/// ([`remove_stale_temporaries`]).
 fn save_checkpoint(
     dir: &Path,
     kind: ModelKind,
@@ -1178,13 +1181,22 @@ mod tests {
             left,
             ["lengthgen-optim.bpk", "lengthgen.bpk", "lengthgen.json"]
         );
-        // A save killed between its renames: the model replaced (here by the step-1 one),
-        // the JSON not, and the replaced model kept as a link. The next run's sweep puts it
-        // back, and the checkpoint reads whole again (the sweep removed the link, and the
-        // resume was refused for a checksum).
+        // A save killed between its renames: its mark left, the model replaced (here by the
+        // step-1 one), the JSON not, and the replaced model kept as a link. The next run's
+        // sweep puts it back, and the checkpoint reads whole again (the sweep removed the
+        // link, and the resume was refused for a checksum).
         #[cfg(unix)]
         {
             let step_2 = std::fs::read(&m).unwrap();
+            // Made a minute ago: a younger mark counts as a live save's.
+            let mark = d.path().join(".stcvae-set.Kil123.renaming");
+            std::fs::write(&mark, "").unwrap();
+            std::fs::File::options()
+                .write(true)
+                .open(&mark)
+                .unwrap()
+                .set_modified(std::time::SystemTime::now() - std::time::Duration::from_secs(60))
+                .unwrap();
             std::fs::hard_link(&m, d.path().join(".lengthgen.bpk.Kil123.previous")).unwrap();
             std::fs::write(d.path().join("new"), &model_before).unwrap();
             std::fs::rename(d.path().join("new"), &m).unwrap();
