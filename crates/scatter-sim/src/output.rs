@@ -556,7 +556,7 @@ pub fn write_atomic_set(files: &[(&Path, &[u8])]) -> Result<(), (PathBuf, io::Er
 }
 
 /// [`write_atomic_set`], then `then` while the set's folder is still locked against other
-/// sets' renames: what depends on the set just placed and on no other run's set landing
+/// sets' renames (where it can be locked: [`lock_folder`]): what depends on the set just placed and on no other run's set landing
 /// in between (a render without --variance removing an OUT.var.exr that another render of
 /// the same output, with --variance, might be placing at that moment).
 pub fn write_atomic_set_then(
@@ -687,9 +687,16 @@ const LINK_SUFFIX: &str = ".previous";
 ///   as they were (a file the killed set added, with none before it, stays).
 /// - A link without a mark is of a set killed after its renames, while it removed its
 ///   links: the new set is whole, and the link is removed.
-/// - A set whose mark is locked is being written now; a mark that cannot be locked at all
-///   (a file system without locks) cannot tell, and its links are left.
+/// - A set whose mark is locked, or was made less than a few seconds ago, is being
+///   written now; a mark that cannot be locked at all (a file system without locks)
+///   cannot tell, and its links are left.
+///
+/// Unix only: elsewhere a file cannot be renamed over while another program has it open,
+/// and the links are left.
 pub fn restore_killed_sets(dir: &Path) {
+    if !cfg!(unix) {
+        return;
+    }
     let Ok(entries) = fs::read_dir(dir) else {
         return;
     };
