@@ -633,16 +633,22 @@ fn write_set_with(
     while let Some(mut f) = ready.next() {
         let path = f.path.clone();
         let before = keep(&path, &mut marks);
+        #[cfg(unix)]
+        if let (Before::Kept(_), Ok(m)) = (&before, f.tmp.as_file().metadata()) {
+            use std::os::unix::fs::MetadataExt;
+            marks.note_placing(&path, m.ino());
+        }
         made.push(std::mem::replace(&mut f.made, MadeDirs(Vec::new())));
         if let Err(e) = persist(f) {
             // The temporaries not yet renamed go first, newest first with their folders as
             // above, so that the earlier files' folders can empty.
             ready.rev().for_each(drop);
             // Newest first, so each file gets back what it held before this call.
+            let mut unrestored = false;
             for (done, before) in placed.into_iter().rev() {
                 match before {
                     Before::Kept(p) => {
-                        let _ = p.restore(&done);
+                        unrestored |= p.restore(&done).is_err();
                     }
                     Before::Absent => {
                         let _ = fs::remove_file(&done);
@@ -651,7 +657,13 @@ fn write_set_with(
                     Before::Unkept => {}
                 }
             }
-            marks.finish();
+            if unrestored {
+                // The link that could not be renamed back stays, and so does the mark, for
+                // the next write into the folder to put it back.
+                marks.abandon();
+            } else {
+                marks.finish();
+            }
             // A folder made later is never the parent of one made earlier: newest first.
             made.into_iter().rev().for_each(drop);
             return Err((path, e));
@@ -670,26 +682,75 @@ fn write_set_with(
     Ok(())
 }
 
-/// The start of a set's mark's name ([`Mark`]): `.stcvae-set.ID.renaming`.
+/// A set's mark's name ([`Marks`]): `.stcvae-set.ID.renaming`, made as `….marking`.
 const MARK_PREFIX: &str = ".stcvae-set.";
 const MARK_SUFFIX: &str = ".renaming";
-/// A kept file's link is `PREFIX` + the set's six-character id + this.
-const LINK_SUFFIX: &str = ".previous";
+const MARKING_SUFFIX: &str = ".marking";
+/// A kept file's link is its temporaries' prefix, the set's id and this: a suffix of its
+/// own, so that no other program's `.x.backup.previous` is taken for one.
+const LINK_SUFFIX: &str = ".stcvae-previous";
+/// The characters of a set's id.
+const ID_LEN: usize = 6;
+
+/// Whether `id` has the form of a set's id: six ASCII letters or digits, as tempfile makes.
+fn is_set_id(id: &str) -> bool {
+    id.len() == ID_LEN && id.bytes().all(|b| b.is_ascii_alphanumeric())
+}
+
+/// The id of a mark's name (`.stcvae-set.ID` + `suffix`).
+fn mark_id<'a>(name: &'a str, suffix: &str) -> Option<&'a str> {
+    let id = name.strip_prefix(MARK_PREFIX)?.strip_suffix(suffix)?;
+    is_set_id(id).then_some(id)
+}
+
+/// A link's name split into its file's temporaries' prefix and its set's id.
+fn link_of(name: &str) -> Option<(&str, &str)> {
+    let rest = name.strip_suffix(LINK_SUFFIX)?;
+    let cut = rest.len().checked_sub(ID_LEN)?;
+    if !rest.is_char_boundary(cut) {
+        return None;
+    }
+    let (prefix, id) = rest.split_at(cut);
+    (prefix.len() > 1 && prefix.starts_with('.') && prefix.ends_with('.') && is_set_id(id))
+        .then_some((prefix, id))
+}
+
+/// A folder's entries that are files or symbolic links, with their names as they are and
+/// as text (to match against; a name that is not UTF-8 is joined back as it is).
+fn files_in(dir: &Path) -> Vec<(std::ffi::OsString, String, fs::FileType)> {
+    let Ok(entries) = fs::read_dir(dir) else {
+        return Vec::new();
+    };
+    entries
+        .flatten()
+        .filter_map(|e| {
+            let t = e.file_type().ok()?;
+            (t.is_file() || t.is_symlink()).then(|| {
+                let name = e.file_name();
+                let text = name.to_string_lossy().into_owned();
+                (name, text, t)
+            })
+        })
+        .collect()
+}
 
 /// What a killed set left in `dir` is undone or cleared: a set keeps each file it replaces
-/// as a link (`.NAME.ID.previous`) until its renames are done, and marks the folder
-/// (`.stcvae-set.ID.renaming`, locked) while they are under way. A run killed (SIGKILL,
-/// the OOM killer, a second Ctrl-C) left the links for ever, and its output a mix of the
-/// new set's first files and the old set's others: a new EXR beside the old JSON, a new
-/// model beside the old checkpoint JSON, whose checksum then refused the resume.
-/// - A set whose mark is there, unlocked (its run is gone), was killed during its
-///   renames: each link is renamed back over its file, and the earlier set's files are
-///   as they were (a file the killed set added, with none before it, stays).
+/// as a link (`.NAME.ID.stcvae-previous`) until its renames are done, and marks the folder
+/// (`.stcvae-set.ID.renaming`, locked from before it is visible) while they are under way,
+/// noting in the mark each file it is about to place. A run killed (SIGKILL, the OOM
+/// killer, a second Ctrl-C) left the links for ever, and its output a mix of the new set's
+/// first files and the old set's others: a new EXR beside the old JSON, a new model beside
+/// the old checkpoint JSON, whose checksum then refused the resume.
+/// - A set whose mark is there and unlocked (its run is gone) was killed during its
+///   renames: each link whose file is still the one the set placed is renamed back over
+///   it. The earlier set's files are then as they were, but for a file the killed set
+///   added (none before it), one it could not keep (no hard links there), and one
+///   replaced since by another run (which stays).
 /// - A link without a mark is of a set killed after its renames, while it removed its
 ///   links: the new set is whole, and the link is removed.
-/// - A set whose mark is locked, or was made less than a few seconds ago, is being
-///   written now; a mark that cannot be locked at all (a file system without locks)
-///   cannot tell, and its links are left.
+/// - A set whose mark is locked is being written now, and one whose mark cannot be read or
+///   locked (another user's; a file system whose locks a read-only handle cannot take,
+///   such as NFS) cannot be told from one: their links are left.
 ///
 /// Unix only: elsewhere a file cannot be renamed over while another program has it open,
 /// and the links are left.
@@ -697,85 +758,88 @@ pub fn restore_killed_sets(dir: &Path) {
     if !cfg!(unix) {
         return;
     }
-    let Ok(entries) = fs::read_dir(dir) else {
+    let first = files_in(dir);
+    if !first
+        .iter()
+        .any(|(_, n, _)| link_of(n).is_some() || n.starts_with(MARK_PREFIX))
+    {
         return;
-    };
-    let names: Vec<String> = entries
-        .flatten()
-        .filter(|e| e.file_type().is_ok_and(|t| t.is_file() || t.is_symlink()))
-        .map(|e| e.file_name().to_string_lossy().into_owned())
-        .collect();
-    let tail = 6 + LINK_SUFFIX.len();
-    let link_of = |n: &str| -> Option<(usize, String)> {
-        let cut = n.len().checked_sub(tail)?;
-        let ok = n.starts_with('.')
-            && n.ends_with(LINK_SUFFIX)
-            && cut > 1
-            && n.is_char_boundary(cut)
-            && n[..cut].ends_with('.');
-        ok.then(|| (cut, n[cut..cut + 6].to_string()))
-    };
-    // Each set's state once: its mark's lock is held while its links are put back.
-    let mut states: HashMap<String, Option<Mark>> = HashMap::new();
-    for link in &names {
-        let Some((cut, id)) = link_of(link) else {
+    }
+    // Half-made marks of killed runs (`….marking`, not yet renamed to a mark) go; a live
+    // run's is locked, and one taken from it makes its run start that mark again.
+    for (name, text, t) in &first {
+        if t.is_file() && mark_id(text, MARKING_SUFFIX).is_some() && Mark::dead(&dir.join(name)) {
+            let _ = fs::remove_file(dir.join(name));
+        }
+    }
+    // Which sets were killed, decided before their links are listed: a set found dead adds
+    // no link after, where a listing made first could miss a link made since.
+    let mut dead: HashMap<String, (fs::File, HashMap<String, u64>)> = HashMap::new();
+    for (name, text, t) in &first {
+        let Some(id) = mark_id(text, MARK_SUFFIX) else {
             continue;
         };
-        let state = states
-            .entry(id.clone())
-            .or_insert_with(|| Mark::state(&dir.join(format!("{MARK_PREFIX}{id}{MARK_SUFFIX}"))));
-        let link_path = dir.join(link);
-        match state {
-            // Being written, or cannot tell.
-            Some(Mark::Live) => {}
-            Some(Mark::Dead { .. }) => {
+        if !t.is_file() {
+            continue;
+        }
+        if let Some((lock, placed)) = Mark::read_dead(&dir.join(name)) {
+            dead.insert(id.to_string(), (lock, placed));
+        }
+    }
+    let now = files_in(dir);
+    for (name, text, _) in &now {
+        let Some((prefix, id)) = link_of(text) else {
+            continue;
+        };
+        let link = dir.join(name);
+        match dead.get(id) {
+            Some((_, placed)) => {
                 // The file it was kept for: the one whose temporaries take this prefix (a
                 // long name's prefix holds a checksum of it, so the name cannot be read
                 // back from it).
-                let prefix = &link[..cut];
-                match names
-                    .iter()
-                    .find(|n| link_of(n).is_none() && temp_prefix(Path::new(n.as_str())) == prefix)
-                {
-                    Some(t) => put_back(&link_path, &dir.join(t)),
+                let target = now.iter().find(|(_, n, _)| {
+                    link_of(n).is_none() && temp_prefix(Path::new(n.as_str())) == prefix
+                });
+                match target {
+                    Some((t, tn, _)) => put_back(&link, &dir.join(t), placed.get(tn).copied()),
                     // Its file was removed since: nothing to put back.
                     None => {
-                        let _ = fs::remove_file(&link_path);
+                        let _ = fs::remove_file(&link);
                     }
                 }
             }
-            // The set finished its renames: the link is of no use.
             None => {
-                let _ = fs::remove_file(&link_path);
+                // A set with no mark finished its renames. One whose mark is there but
+                // not dead (live, or made after the marks were looked at) is left.
+                let mark = dir.join(format!("{MARK_PREFIX}{id}{MARK_SUFFIX}"));
+                if fs::symlink_metadata(&mark).is_err() {
+                    let _ = fs::remove_file(&link);
+                }
             }
         }
     }
-    // The killed sets' marks go once their links are dealt with, and so do those of killed
-    // sets that kept nothing (every file new).
-    for n in names
-        .iter()
-        .filter(|n| n.starts_with(MARK_PREFIX) && n.ends_with(MARK_SUFFIX))
-    {
-        let id = &n[MARK_PREFIX.len()..n.len() - MARK_SUFFIX.len()];
-        let dead = match states.get(id) {
-            Some(state) => matches!(state, Some(Mark::Dead { .. })),
-            None => matches!(Mark::state(&dir.join(n)), Some(Mark::Dead { .. })),
-        };
-        if dead {
-            let _ = fs::remove_file(dir.join(n));
-        }
+    // The killed sets' marks go once their links are dealt with (their locks held till
+    // then), and so do those of killed sets that kept nothing.
+    for (id, (lock, _)) in dead {
+        let _ = fs::remove_file(dir.join(format!("{MARK_PREFIX}{id}{MARK_SUFFIX}")));
+        drop(lock);
     }
 }
 
-/// Renames a killed set's `link` back over `target`, the file it was kept for, and says so;
-/// a link to the file `target` still is (the set was killed before that file's rename) is
-/// only removed (a rename between two names of one file does nothing, and the link stayed).
-fn put_back(link: &Path, target: &Path) {
+/// Renames a killed set's `link` back over `target`, the file it was kept for, and says
+/// so, where `target` is still the file the set placed there (`placed`: its inode, as the
+/// set noted it before the rename). A link to the file `target` still is (the set was
+/// killed before that file's rename), or one whose file was replaced since by another run,
+/// is only removed.
+fn put_back(link: &Path, target: &Path, placed: Option<u64>) {
     #[cfg(unix)]
     {
         use std::os::unix::fs::MetadataExt;
         let id = |p: &Path| fs::symlink_metadata(p).map(|m| (m.dev(), m.ino())).ok();
-        if id(link).is_some() && id(link) == id(target) {
+        let (Some(l), Some(t)) = (id(link), id(target)) else {
+            return;
+        };
+        if l == t || placed != Some(t.1) {
             let _ = fs::remove_file(link);
             return;
         }
@@ -790,10 +854,12 @@ fn put_back(link: &Path, target: &Path) {
 }
 
 /// A set's mark in each folder where it keeps a file it replaces, while its renames are
-/// under way ([`restore_killed_sets`]): `.stcvae-set.ID.renaming`, locked while held (the
-/// OS drops the lock when the process dies), removed when the renames are done or undone.
-/// Not in [`LIVE`]: a second Ctrl-C's exit leaves it, so that the next set written there
-/// puts the killed one's files back.
+/// under way ([`restore_killed_sets`]): `.stcvae-set.ID.renaming`, locked from before it
+/// can be seen (made as `….marking`, locked, then linked to its name) until its renames
+/// are done or undone, when it is removed (the OS drops the lock when the process dies).
+/// Before each rename the set notes in it the inode it is about to place and the file's
+/// name. Not in [`LIVE`]: a second Ctrl-C's exit leaves it, so that the next set written
+/// there puts the killed one's files back.
 struct Marks {
     /// Six characters naming the set in its marks and links.
     id: Option<String>,
@@ -801,28 +867,31 @@ struct Marks {
     held: Vec<(PathBuf, PathBuf, fs::File)>,
 }
 
-/// What [`Mark::state`] finds of a set's mark.
-enum Mark {
-    /// Its run is gone: its lock, taken by the caller, is held in here.
-    Dead { _lock: fs::File },
-    /// Its run holds it, or locks cannot tell (a file system without them).
-    Live,
-}
+/// A set's mark as [`restore_killed_sets`] finds it.
+struct Mark;
 
 impl Mark {
-    /// The state of the mark at `path`; None where there is no mark. One younger than a
-    /// few seconds counts as live: a set makes its mark an instant before it locks it.
-    fn state(path: &Path) -> Option<Self> {
-        const FRESH_MARK: std::time::Duration = std::time::Duration::from_secs(3);
-        let f = fs::File::open(path).ok()?;
-        let fresh = f
-            .metadata()
-            .and_then(|m| m.modified())
-            .is_ok_and(|t| t.elapsed().is_ok_and(|age| age < FRESH_MARK));
-        Some(match f.try_lock() {
-            Ok(()) if !fresh => Mark::Dead { _lock: f },
-            _ => Mark::Live,
-        })
+    /// Whether the file at `path` can be locked: the run that made it is gone.
+    fn dead(path: &Path) -> bool {
+        fs::File::open(path).is_ok_and(|f| f.try_lock().is_ok())
+    }
+
+    /// The mark at `path`, if its run is gone: its lock (held by the caller until its
+    /// links are dealt with) and the files the set noted, by name, with the inode it
+    /// placed at each. None for a live mark, or one that cannot be opened or locked.
+    fn read_dead(path: &Path) -> Option<(fs::File, HashMap<String, u64>)> {
+        let mut f = fs::File::open(path).ok()?;
+        f.try_lock().ok()?;
+        let mut text = String::new();
+        io::Read::read_to_string(&mut f, &mut text).ok()?;
+        let placed = text
+            .lines()
+            .filter_map(|l| {
+                let (ino, name) = l.split_once(' ')?;
+                Some((name.to_string(), ino.parse().ok()?))
+            })
+            .collect();
+        Some((f, placed))
     }
 }
 
@@ -842,40 +911,68 @@ impl Marks {
         {
             return Some(id.clone());
         }
-        let (path, file) = match &self.id {
-            Some(id) => {
-                let path = dir.join(format!("{MARK_PREFIX}{id}{MARK_SUFFIX}"));
-                let file = fs::OpenOptions::new()
-                    .write(true)
-                    .create_new(true)
-                    .open(&path)
-                    .ok()?;
-                (path, file)
+        // A few tries: a sweep may take a half-made mark, or another set hold its id.
+        for _ in 0..4 {
+            let (marking, file, id) = match &self.id {
+                Some(id) => {
+                    let marking = dir.join(format!("{MARK_PREFIX}{id}{MARKING_SUFFIX}"));
+                    let file = mark_file().create_new(true).open(&marking).ok()?;
+                    (marking, file, id.clone())
+                }
+                None => {
+                    let mut b = tempfile::Builder::new();
+                    b.prefix(MARK_PREFIX)
+                        .suffix(MARKING_SUFFIX)
+                        .rand_bytes(ID_LEN);
+                    // Readable by others, whose sweeps would otherwise take it for none.
+                    #[cfg(unix)]
+                    {
+                        use std::os::unix::fs::PermissionsExt;
+                        b.permissions(fs::Permissions::from_mode(0o644));
+                    }
+                    let (file, marking) = b.tempfile_in(dir).ok()?.keep().ok()?;
+                    let name = marking.file_name()?.to_string_lossy().into_owned();
+                    let id = mark_id(&name, MARKING_SUFFIX)?.to_string();
+                    (marking, file, id)
+                }
+            };
+            let mark = dir.join(format!("{MARK_PREFIX}{id}{MARK_SUFFIX}"));
+            // Locked before it has its name: a sweep never sees it unlocked while its run
+            // lives. A file system without locks: made all the same (its sweeps cannot
+            // lock it either, and leave its set alone).
+            let _ = file.try_lock();
+            let linked = fs::hard_link(&marking, &mark);
+            let _ = fs::remove_file(&marking);
+            match linked {
+                Ok(()) => {
+                    self.id = Some(id.clone());
+                    self.held.push((dir.to_path_buf(), mark, file));
+                    return Some(id);
+                }
+                // Taken by a sweep before it was locked, or the id is another set's.
+                Err(_) if self.id.is_none() => continue,
+                Err(_) => return None,
             }
-            None => {
-                let (file, path) = tempfile::Builder::new()
-                    .prefix(MARK_PREFIX)
-                    .suffix(MARK_SUFFIX)
-                    .rand_bytes(6)
-                    .tempfile_in(dir)
-                    .ok()?
-                    .keep()
-                    .ok()?;
-                let name = path.file_name()?.to_string_lossy().into_owned();
-                let id = name
-                    .strip_prefix(MARK_PREFIX)?
-                    .strip_suffix(MARK_SUFFIX)?
-                    .to_string();
-                self.id = Some(id);
-                (path, file)
-            }
-        };
-        // A file system without locks: the mark is made all the same, and a sweep that
-        // cannot lock it leaves its set alone.
-        let _ = file.try_lock();
-        self.held.push((dir.to_path_buf(), path, file));
-        self.id.clone()
+        }
+        None
     }
+
+    /// Notes in `path`'s folder's mark that the set is about to place the file of inode
+    /// `ino` at `path`: a sweep puts the kept file back only over that one.
+    fn note_placing(&mut self, path: &Path, ino: u64) {
+        let dir = folder_of(path);
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        if let Some((.., f)) = self.held.iter_mut().find(|(d, ..)| d == dir) {
+            let _ = writeln!(f, "{ino} {name}");
+        }
+    }
+
+    /// Lets go of the marks without removing them: a file could not be put back, and its
+    /// link stays for the next sweep.
+    fn abandon(self) {}
 
     /// The renames are done (or undone): from here a kill leaves this set's files as they
     /// are, and its links are only removed.
@@ -885,6 +982,18 @@ impl Marks {
             drop(file);
         }
     }
+}
+
+/// How a mark is opened for writing, readable by others.
+fn mark_file() -> fs::OpenOptions {
+    let mut o = fs::OpenOptions::new();
+    o.write(true);
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        o.mode(0o644);
+    }
+    o
 }
 
 /// Serialises the renames of sets written into one folder at once. Two runs writing the
@@ -948,7 +1057,7 @@ enum Before {
     Unkept,
 }
 
-/// A hard link to the file an output replaces, `.NAME.ID.previous` (ID: its set's,
+/// A hard link to the file an output replaces, `.NAME.ID.stcvae-previous` (ID: its set's,
 /// [`Marks`]), removed when dropped: the set's renames can then be undone. Not in
 /// [`LIVE`], as its set's mark is not.
 struct Previous {
@@ -978,8 +1087,13 @@ impl Previous {
         }
     }
 
+    /// Renames the link back over `path`; where that fails the link is kept (dropped, it
+    /// took the earlier file's last name with it).
     fn restore(self, path: &Path) -> io::Result<()> {
-        self.link.persist(path).map_err(|e| e.error)
+        self.link.persist(path).map_err(|e| {
+            let _ = e.path.keep();
+            e.error
+        })
     }
 }
 
@@ -1057,18 +1171,24 @@ mod tests {
     }
 
     /// A run killed part way through a set's renames (SIGKILL between them) left the links
-    /// to what it replaced (`.NAME.ID.previous`) for ever, and a mixed set. The next set
-    /// written into the folder deals with them by the killed set's mark:
+    /// to what it replaced for ever, and a mixed set. The next set written into the folder
+    /// deals with them by the killed set's mark (`.stcvae-set.ID.renaming`, which notes
+    /// each inode the set placed):
     /// - marked, the mark unlocked (its run gone): put back. Here a.exr was replaced (its
     ///   old bytes come back), a.png's link is to the file as it still is (only the link
     ///   goes), the link of a file removed since is removed, and a long name's link finds
     ///   its file by the checksum in its prefix;
+    /// - a file replaced since by another run: that run's file stays;
     /// - unmarked (killed after its renames, while removing its links): the new files stay
     ///   and the link goes (putting back the links left would mix the sets);
     /// - marked and locked (being written now): left alone.
+    ///
+    /// Other programs' files that only look alike stay, and a mark's name without an id
+    /// is no mark (it panicked the sweep).
     #[cfg(unix)]
     #[test]
     fn a_killed_sets_replaced_files_are_put_back() {
+        use std::os::unix::fs::MetadataExt;
         let d = tempfile::tempdir().unwrap();
         let at = |n: &str| d.path().join(n);
         let long = format!("{}.exr", "l".repeat(70));
@@ -1079,22 +1199,36 @@ mod tests {
         ] {
             fs::write(at(n), b).unwrap();
         }
-        // What the killed set did: marked the folder, kept every predecessor, renamed the
-        // new a.exr and long file over theirs, and was killed before a.png's rename.
-        let link = |n: &str, id: &str| at(&format!("{}{id}.previous", temp_prefix(&at(n))));
+        let link = |n: &str, id: &str| at(&format!("{}{id}.stcvae-previous", temp_prefix(&at(n))));
         let mark = |id: &str| at(&format!(".stcvae-set.{id}.renaming"));
-        // Made a minute ago: a mark younger than a few seconds counts as live.
-        left_behind(&mark("Kil123"), b"");
-        for n in ["a.exr", "a.png", long.as_str()] {
-            fs::hard_link(at(n), link(n, "Kil123")).unwrap();
-        }
+        let ino = |n: &str| fs::metadata(at(n)).unwrap().ino();
         let replace = |n: &str, b: &str| {
             fs::write(at("new"), b).unwrap();
             fs::rename(at("new"), at(n)).unwrap();
         };
+        // What the killed set did: marked the folder, kept every predecessor, renamed the
+        // new a.exr and long file over theirs (noting each), and was killed before
+        // a.png's rename.
+        for n in ["a.exr", "a.png", long.as_str()] {
+            fs::hard_link(at(n), link(n, "Kil123")).unwrap();
+        }
         replace("a.exr", "new exr");
         replace(&long, "new l");
-        fs::write(at(".gone.json.Kil123.previous"), "a file removed since").unwrap();
+        let noted = format!("{} a.exr\n{} {long}\n", ino("a.exr"), ino(&long));
+        fs::write(mark("Kil123"), noted).unwrap();
+        fs::write(
+            at(".gone.json.Kil123.stcvae-previous"),
+            "a file removed since",
+        )
+        .unwrap();
+        let others = [
+            ".notes.backup.previous",
+            ".stcvae-set.renaming",
+            ".a.exr.x.stcvae-previous",
+        ];
+        for n in others {
+            fs::write(at(n), "another program's").unwrap();
+        }
         write_atomic_set(&[(&at("b.txt"), b"another output")]).unwrap();
         assert_eq!(fs::read_to_string(at("a.exr")).unwrap(), "old exr");
         assert_eq!(fs::read_to_string(at("a.png")).unwrap(), "old png");
@@ -1103,41 +1237,48 @@ mod tests {
             let mut v: Vec<String> = fs::read_dir(d.path())
                 .unwrap()
                 .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+                .filter(|n| !others.contains(&n.as_str()))
                 .collect();
             v.sort();
             v
         };
-        assert_eq!(left(), ["a.exr", "a.png", "b.txt", long.as_str()]);
+        let whole = ["a.exr", "a.png", "b.txt", long.as_str()];
+        assert_eq!(left(), whole);
+        assert!(others.iter().all(|n| at(n).exists()));
         // Killed while removing its links, its renames done: nothing is put back.
         fs::hard_link(at("a.exr"), link("a.exr", "Don456")).unwrap();
         replace("a.exr", "newest exr");
-        write_atomic_set(&[(&at("b.txt"), b"another output")]).unwrap();
+        restore_killed_sets(d.path());
         assert_eq!(fs::read_to_string(at("a.exr")).unwrap(), "newest exr");
-        assert_eq!(left(), ["a.exr", "a.png", "b.txt", long.as_str()]);
-        // A set being written now: its mark locked (however old), its link left.
-        left_behind(&mark("Liv789"), b"");
-        let held = fs::File::open(mark("Liv789")).unwrap();
-        held.try_lock().unwrap();
+        assert_eq!(left(), whole);
+        // Killed after placing a.png, which another run replaced since: that run's stays.
+        fs::hard_link(at("a.png"), link("a.png", "Rep000")).unwrap();
+        replace("a.png", "killed run's png");
+        fs::write(mark("Rep000"), format!("{} a.png\n", ino("a.png"))).unwrap();
+        replace("a.png", "a later run's png");
+        restore_killed_sets(d.path());
+        assert_eq!(
+            fs::read_to_string(at("a.png")).unwrap(),
+            "a later run's png"
+        );
+        assert_eq!(left(), whole);
+        // A set being written now: its mark locked, its link left.
         fs::hard_link(at("a.png"), link("a.png", "Liv789")).unwrap();
         replace("a.png", "live png");
+        fs::write(mark("Liv789"), format!("{} a.png\n", ino("a.png"))).unwrap();
+        let held = fs::File::open(mark("Liv789")).unwrap();
+        held.try_lock().unwrap();
         restore_killed_sets(d.path());
         assert_eq!(fs::read_to_string(at("a.png")).unwrap(), "live png");
         assert!(link("a.png", "Liv789").exists() && mark("Liv789").exists());
         drop(held);
         // Its run gone, the next sweep puts the file back.
         restore_killed_sets(d.path());
-        assert_eq!(fs::read_to_string(at("a.png")).unwrap(), "old png");
-        assert_eq!(left(), ["a.exr", "a.png", "b.txt", long.as_str()]);
-        // A mark made an instant ago, not locked yet: left as a live set's.
-        fs::write(mark("You000"), "").unwrap();
-        fs::hard_link(at("a.png"), link("a.png", "You000")).unwrap();
-        replace("a.png", "young png");
-        restore_killed_sets(d.path());
-        assert_eq!(fs::read_to_string(at("a.png")).unwrap(), "young png");
-        left_behind(&mark("You000"), b"");
-        restore_killed_sets(d.path());
-        assert_eq!(fs::read_to_string(at("a.png")).unwrap(), "old png");
-        assert_eq!(left(), ["a.exr", "a.png", "b.txt", long.as_str()]);
+        assert_eq!(
+            fs::read_to_string(at("a.png")).unwrap(),
+            "a later run's png"
+        );
+        assert_eq!(left(), whole);
     }
 
     /// A rename that fails part way through a set puts back what the set's earlier renames

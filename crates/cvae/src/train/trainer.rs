@@ -1181,25 +1181,24 @@ mod tests {
             left,
             ["lengthgen-optim.bpk", "lengthgen.bpk", "lengthgen.json"]
         );
-        // A save killed between its renames: its mark left, the model replaced (here by the
-        // step-1 one), the JSON not, and the replaced model kept as a link. The next run's
-        // sweep puts it back, and the checkpoint reads whole again (the sweep removed the
-        // link, and the resume was refused for a checksum).
+        // A save killed between its renames: its mark left (noting the model it placed),
+        // the model replaced (here by the step-1 one), the JSON not, and the replaced model
+        // kept as a link. The next run's sweep puts it back, and the checkpoint reads whole
+        // again (the sweep removed the link, and the resume was refused for a checksum).
         #[cfg(unix)]
         {
+            use std::os::unix::fs::MetadataExt;
             let step_2 = std::fs::read(&m).unwrap();
-            // Made a minute ago: a younger mark counts as a live save's.
-            let mark = d.path().join(".stcvae-set.Kil123.renaming");
-            std::fs::write(&mark, "").unwrap();
-            std::fs::File::options()
-                .write(true)
-                .open(&mark)
-                .unwrap()
-                .set_modified(std::time::SystemTime::now() - std::time::Duration::from_secs(60))
-                .unwrap();
-            std::fs::hard_link(&m, d.path().join(".lengthgen.bpk.Kil123.previous")).unwrap();
+            let link = d.path().join(".lengthgen.bpk.Kil123.stcvae-previous");
+            std::fs::hard_link(&m, link).unwrap();
             std::fs::write(d.path().join("new"), &model_before).unwrap();
             std::fs::rename(d.path().join("new"), &m).unwrap();
+            let placed = std::fs::metadata(&m).unwrap().ino();
+            std::fs::write(
+                d.path().join(".stcvae-set.Kil123.renaming"),
+                format!("{placed} lengthgen.bpk\n"),
+            )
+            .unwrap();
             assert!(check_crcs(&saved, &[&m, &o], kind).is_err());
             remove_stale_temporaries(d.path(), kind);
             assert_eq!(std::fs::read(&m).unwrap(), step_2);
