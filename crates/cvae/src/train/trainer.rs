@@ -578,7 +578,8 @@ fn paths(dir: &Path, kind: ModelKind) -> (PathBuf, PathBuf, PathBuf) {
 /// the records into a staging folder first: a full disk's error then named its hidden
 /// temporary, behind two prefixes of burn's.) A kill between the three renames (a window
 /// of microseconds) mixes the sets until the next run puts the earlier one back
-/// ([`remove_stale_temporaries`]).
+/// ([`remove_stale_temporaries`]; on a local file system, whose locks tell a killed run's
+/// save from a live one).
 fn save_checkpoint(
     dir: &Path,
     kind: ModelKind,
