@@ -158,10 +158,10 @@ pub(crate) fn image_out(out: &Path, ext: &str) -> PathBuf {
 
 /// Writes OUT.exr (linear, tagged), OUT.png (preview at `exposure`) and, given `json`,
 /// OUT.json as one set ([`scatter_sim::output::write_atomic_set`]): a failure never leaves
-/// a new image beside an old report. Creates OUT's folder. Every image stcvae writes goes
-/// through here (render, merge, experiments) but the work maps of `experiment complexity`,
-/// whose EXR and PNG hold different images (`experiment::measure::save_map`), and
-/// `bench render --save`'s six files a density (`bench_render::save_images`), each
+/// a new image beside an old report. Creates OUT's folder. Every rendered image stcvae
+/// writes goes through here (render, merge, experiments) but the work maps of `experiment
+/// complexity`, whose EXR and PNG hold different images (`experiment::measure::save_map`),
+/// and `bench render --save`'s six files a density (`bench_render::save_images`), each
 /// written as one atomic set of its own.
 pub(crate) fn write_image_set(
     out: &Path,

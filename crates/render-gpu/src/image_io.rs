@@ -418,17 +418,8 @@ fn srgb(x: f32) -> f32 {
     }
 }
 
-/// An 8-bit sRGB preview at the given exposure (values clipped at 1).
-pub fn write_png(
-    path: &Path,
-    img: &RgbImage,
-    exposure: f32,
-) -> std::result::Result<(), RenderError> {
-    let bytes = encode_png(img, exposure).map_err(|e| RenderError::io(path, e))?;
-    write_atomic(path, &bytes).map_err(|e| RenderError::io(path, e))
-}
-
-/// The bytes of [`write_png`]'s file.
+/// An 8-bit sRGB preview at the given exposure (values clipped at 1), as a PNG file's
+/// bytes (written with the image's other files as one set).
 pub fn encode_png(img: &RgbImage, exposure: f32) -> std::result::Result<Vec<u8>, String> {
     let data: Vec<u8> = img
         .pixels

@@ -198,10 +198,13 @@ pub fn remove_stale_temporaries_of(path: &Path) {
     for e in entries.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
         // tempfile's six random characters between the prefix and the suffix: `x`'s
-        // prefix `.x.` also begins `x.json`'s temporaries.
-        let ours = name.len() == prefix.len() + 6 + ".partial".len()
-            && name.starts_with(&prefix)
-            && name.ends_with(".partial");
+        // prefix `.x.` also begins `x.json`'s temporaries. (`.previous`: the links of
+        // versions before the sets' marks, which no sweep of today's reads.)
+        let ours = [".partial", ".previous"].iter().any(|suffix| {
+            name.len() == prefix.len() + 6 + suffix.len()
+                && name.starts_with(&prefix)
+                && name.ends_with(suffix)
+        });
         if !ours || !e.file_type().is_ok_and(|t| t.is_file()) {
             continue;
         }
@@ -556,9 +559,10 @@ pub fn write_atomic_set(files: &[(&Path, &[u8])]) -> Result<(), (PathBuf, io::Er
 }
 
 /// [`write_atomic_set`], then `then` while the set's folder is still locked against other
-/// sets' renames (where it can be locked: [`lock_folder`]): what depends on the set just placed and on no other run's set landing
-/// in between (a render without --variance removing an OUT.var.exr that another render of
-/// the same output, with --variance, might be placing at that moment).
+/// sets' renames (where it can be locked: [`lock_folder`]): what depends on the set just
+/// placed and on no other run's set landing in between (a render without --variance
+/// removing an OUT.var.exr that another render of the same output, with --variance, might
+/// be placing at that moment).
 pub fn write_atomic_set_then(
     files: &[(&Path, &[u8])],
     then: impl FnOnce(),
@@ -617,8 +621,8 @@ fn write_set_with(
     }
     // Held until the set is in place (dropped on return).
     let _folder = ready.first().and_then(|f| lock_folder(folder_of(&f.path)));
-    // Whatever a killed set left in these folders first: its links would otherwise take
-    // this set's names ([`restore_killed_sets`]).
+    // A killed set's files in these folders are put back first, before this set replaces
+    // them ([`restore_killed_sets`]).
     let mut folders: Vec<&Path> = ready.iter().map(|f| folder_of(&f.path)).collect();
     folders.dedup();
     for dir in folders {
@@ -765,8 +769,9 @@ pub fn restore_killed_sets(dir: &Path) {
     {
         return;
     }
-    // Half-made marks of killed runs (`….marking`, not yet renamed to a mark) go; a live
-    // run's is locked, and one taken from it makes its run start that mark again.
+    // Half-made marks of killed runs (`….marking`, not yet linked to a mark's name) go; a
+    // live run's is locked (one taken in the instant before its lock is made again, or,
+    // in a set's later folder, the file there is not kept).
     for (name, text, t) in &first {
         if t.is_file() && mark_id(text, MARKING_SUFFIX).is_some() && Mark::dead(&dir.join(name)) {
             let _ = fs::remove_file(dir.join(name));
@@ -787,6 +792,9 @@ pub fn restore_killed_sets(dir: &Path) {
         }
     }
     let now = files_in(dir);
+    // Sets with a link that stayed (a rename refused): their marks stay too, or the next
+    // sweep would take the link for a finished set's and remove it.
+    let mut kept: std::collections::HashSet<String> = std::collections::HashSet::new();
     for (name, text, _) in &now {
         let Some((prefix, id)) = link_of(text) else {
             continue;
@@ -800,12 +808,13 @@ pub fn restore_killed_sets(dir: &Path) {
                 let target = now.iter().find(|(_, n, _)| {
                     link_of(n).is_none() && temp_prefix(Path::new(n.as_str())) == prefix
                 });
-                match target {
+                let gone = match target {
                     Some((t, tn, _)) => put_back(&link, &dir.join(t), placed.get(tn).copied()),
                     // Its file was removed since: nothing to put back.
-                    None => {
-                        let _ = fs::remove_file(&link);
-                    }
+                    None => fs::remove_file(&link).is_ok(),
+                };
+                if !gone {
+                    kept.insert(id.to_string());
                 }
             }
             None => {
@@ -821,7 +830,9 @@ pub fn restore_killed_sets(dir: &Path) {
     // The killed sets' marks go once their links are dealt with (their locks held till
     // then), and so do those of killed sets that kept nothing.
     for (id, (lock, _)) in dead {
-        let _ = fs::remove_file(dir.join(format!("{MARK_PREFIX}{id}{MARK_SUFFIX}")));
+        if !kept.contains(&id) {
+            let _ = fs::remove_file(dir.join(format!("{MARK_PREFIX}{id}{MARK_SUFFIX}")));
+        }
         drop(lock);
     }
 }
@@ -830,33 +841,38 @@ pub fn restore_killed_sets(dir: &Path) {
 /// so, where `target` is still the file the set placed there (`placed`: its inode, as the
 /// set noted it before the rename). A link to the file `target` still is (the set was
 /// killed before that file's rename), or one whose file was replaced since by another run,
-/// is only removed.
-fn put_back(link: &Path, target: &Path, placed: Option<u64>) {
+/// is only removed. Returns whether the link is gone: one that stays (a rename refused)
+/// keeps its set's mark, for a later sweep.
+fn put_back(link: &Path, target: &Path, placed: Option<u64>) -> bool {
     #[cfg(unix)]
     {
         use std::os::unix::fs::MetadataExt;
         let id = |p: &Path| fs::symlink_metadata(p).map(|m| (m.dev(), m.ino())).ok();
         let (Some(l), Some(t)) = (id(link), id(target)) else {
-            return;
+            return false;
         };
         if l == t || placed != Some(t.1) {
-            let _ = fs::remove_file(link);
-            return;
+            return fs::remove_file(link).is_ok();
         }
     }
-    if fs::rename(link, target).is_ok() {
+    #[cfg(not(unix))]
+    let _ = placed;
+    let done = fs::rename(link, target).is_ok();
+    if done {
         note(&format!(
-            "note: put back {} as it was before a run that was killed while replacing it \
-             with the files written with it",
+            "note: put back the earlier {}: a run was killed part way through replacing it \
+             and the files written with it",
             crate::ranges::printable_path(target)
         ));
     }
+    done
 }
 
 /// A set's mark in each folder where it keeps a file it replaces, while its renames are
 /// under way ([`restore_killed_sets`]): `.stcvae-set.ID.renaming`, locked from before it
 /// can be seen (made as `….marking`, locked, then linked to its name) until its renames
-/// are done or undone, when it is removed (the OS drops the lock when the process dies).
+/// are done or undone, when it is removed (the OS drops the lock when the process dies;
+/// a rollback that could not put a file back leaves it, [`Marks::abandon`]).
 /// Before each rename the set notes in it the inode it is about to place and the file's
 /// name. Not in [`LIVE`]: a second Ctrl-C's exit leaves it, so that the next set written
 /// there puts the killed one's files back.
@@ -924,7 +940,8 @@ impl Marks {
                     b.prefix(MARK_PREFIX)
                         .suffix(MARKING_SUFFIX)
                         .rand_bytes(ID_LEN);
-                    // Readable by others, whose sweeps would otherwise take it for none.
+                    // Readable by others, whose sweeps could not open it otherwise and would
+                    // leave its set's links for ever.
                     #[cfg(unix)]
                     {
                         use std::os::unix::fs::PermissionsExt;
@@ -939,8 +956,15 @@ impl Marks {
             let mark = dir.join(format!("{MARK_PREFIX}{id}{MARK_SUFFIX}"));
             // Locked before it has its name: a sweep never sees it unlocked while its run
             // lives. A file system without locks: made all the same (its sweeps cannot
-            // lock it either, and leave its set alone).
-            let _ = file.try_lock();
+            // lock it either, and leave its set alone). One a sweep holds an instant (it
+            // found it half-made) is made again.
+            if let Err(fs::TryLockError::WouldBlock) = file.try_lock() {
+                let _ = fs::remove_file(&marking);
+                if self.id.is_none() {
+                    continue;
+                }
+                return None;
+            }
             let linked = fs::hard_link(&marking, &mark);
             let _ = fs::remove_file(&marking);
             match linked {

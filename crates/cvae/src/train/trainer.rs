@@ -1118,8 +1118,8 @@ mod tests {
     /// A checkpoint's three files are replaced as a set: when one cannot be written (here
     /// the optimiser's path became a folder) the model and the JSON keep their earlier
     /// bytes, so the model still matches the checksum its JSON holds; saved one by one, the
-    /// new model sat beside the old JSON and the resume was refused. No staging folder is
-    /// left behind either way.
+    /// new model sat beside the old JSON and the resume was refused. Nothing else is left
+    /// behind either way.
     #[test]
     fn a_failed_checkpoint_save_keeps_the_previous_set() {
         let d = tempfile::tempdir().unwrap();
@@ -1185,7 +1185,8 @@ mod tests {
         // A save killed between its renames: its mark left (noting the model it placed),
         // the model replaced (here by the step-1 one), the JSON not, and the replaced model
         // kept as a link. The next run's sweep puts it back, and the checkpoint reads whole
-        // again (the sweep removed the link, and the resume was refused for a checksum).
+        // again (before, the sweep removed the link and the resume was refused for a
+        // checksum).
         #[cfg(unix)]
         {
             use std::os::unix::fs::MetadataExt;
