@@ -197,14 +197,11 @@ pub fn remove_stale_temporaries_of(path: &Path) {
     let prefix = temp_prefix(path);
     for e in entries.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
-        // tempfile's six random characters between the prefix and the suffix: `x`'s
-        // prefix `.x.` also begins `x.json`'s temporaries. (`.previous`: the links of
-        // versions before the sets' marks, which no sweep of today's reads.)
-        let ours = [".partial", ".previous"].iter().any(|suffix| {
-            name.len() == prefix.len() + 6 + suffix.len()
-                && name.starts_with(&prefix)
-                && name.ends_with(suffix)
-        });
+        // (`.previous`: the links of versions before the sets' marks, which no sweep of
+        // today's reads.)
+        let ours = [".partial", ".previous"]
+            .iter()
+            .any(|suffix| is_temporary_name(&name, &prefix, suffix));
         if !ours || !e.file_type().is_ok_and(|t| t.is_file()) {
             continue;
         }
@@ -218,6 +215,14 @@ pub fn remove_stale_temporaries_of(path: &Path) {
             ));
         }
     }
+}
+
+/// Whether `name` is a temporary tempfile made with `prefix` and `suffix`: its six random
+/// characters between the two (`x`'s prefix `.x.` also begins `x.json`'s temporaries).
+fn is_temporary_name(name: &str, prefix: &str, suffix: &str) -> bool {
+    name.len() == prefix.len() + 6 + suffix.len()
+        && name.starts_with(prefix)
+        && name.ends_with(suffix)
 }
 
 /// A note on stderr that cannot end the process: std's `eprintln!` panics where stderr is
@@ -286,10 +291,7 @@ fn remove_killed_temporaries(path: &Path, prefix: &str) -> Vec<(PathBuf, u64)> {
     let mut gone = Vec::new();
     for e in entries.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
-        // tempfile's six random characters between the prefix and the suffix.
-        let ours = name.len() == prefix.len() + 6 + ".partial".len()
-            && name.starts_with(prefix)
-            && name.ends_with(".partial");
+        let ours = is_temporary_name(&name, prefix, ".partial");
         if !ours || !e.file_type().is_ok_and(|t| t.is_file()) {
             continue;
         }
