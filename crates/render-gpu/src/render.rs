@@ -301,14 +301,7 @@ pub fn render(
     let tiles: Vec<(usize, usize)> = (0..h.div_ceil(tile))
         .flat_map(|ty| (0..w.div_ceil(tile)).map(move |tx| (tx * tile, ty * tile)))
         .collect();
-    let mut sum = vec![[0f64; 3]; w * h];
-    let mut squares = if opts.variance {
-        vec![[0f64; 3]; w * h]
-    } else {
-        Vec::new()
-    };
-    let mut work = vec![0u64; w * h];
-    let mut stats = PathStats::default();
+    let mut sums = Sums::new(w * h, opts.variance);
     let start = Instant::now();
     // Passes let a time budget or Ctrl-C stop between complete sets of samples. A pass
     // must not be small either: each tile's pass ends with its wavefront draining (the
@@ -351,47 +344,13 @@ pub fn render(
                 let Some(&t) = order.get(k) else { break };
                 let (x0, y0) = tiles[t];
                 let t0 = Instant::now();
-                let mut st = PathStats::default();
                 let (x1, y1) = ((x0 + tile).min(w), (y0 + tile).min(h));
-                let tw = x1 - x0;
-                let mut out: Vec<PixelSum> = vec![([0f64; 3], 0, [0f64; 3]); tw * (y1 - y0)];
-                // The tile's samples pixel by pixel, each with its own random stream; the
-                // wavefront traces wavefront::SLOTS (256) at a time and batches their decoder draws.
-                let mut samples = (y0..y1)
-                    .flat_map(|y| (x0..x1).map(move |x| (x, y)))
-                    .flat_map(|(x, y)| (s0..s1).map(move |s| (x, y, s)));
-                let mut camera_rays = CameraRays::default();
-                let next = || {
-                    let (x, y, s) = samples.next()?;
-                    let pixel = (y * w + x) as u64;
-                    let (rng, jx, jy, channel) = pixel_sample(opts.seed, pixel, s);
-                    let dir = cam.ray_dir(x as f32 + jx, y as f32 + jy);
-                    Some(Sample {
-                        origin: cam.ray_origin(dir),
-                        dir,
-                        first_hit: Some(camera_rays.first_hit(scene, pixel, s, dir)),
-                        channel,
-                        rng,
-                        tag: ((y - y0) * tw + (x - x0)) as u64,
-                    })
-                };
-                let whole = trace_many(
-                    scene,
-                    set,
-                    next,
-                    |tag, channel, l, path| {
-                        let px = &mut out[tag as usize];
-                        px.0[channel] += 3.0 * l as f64;
-                        px.1 += path.events + path.steps;
-                        px.2[channel] += (l as f64) * (l as f64);
-                        st.add(path);
-                    },
-                    cancel,
-                );
-                if !whole {
+                let rect = TileRect { x0, y0, x1, y1 };
+                let Some((out, st)) = trace_tile(scene, set, opts.seed, rect, s0..s1, cancel)
+                else {
                     // Stopped inside a long path: the tile is incomplete, so the pass is.
                     break;
-                }
+                };
                 let n = ((x1 - x0) * (y1 - y0)) as u64 * (s1 - s0) as u64;
                 progress(done.fetch_add(n, Ordering::Relaxed) + n, total);
                 mine.push((t, out, st, t0.elapsed().as_secs_f64()));
@@ -406,26 +365,10 @@ pub fn render(
             // finished tiles are dropped and the image is that of the passes before.
             break;
         }
-        // Each pixel gets one addition a pass, from its one tile, so the order in which
-        // the tiles finished does not matter.
         for (t, out, st, secs) in finished {
             cost[t] = secs;
-            stats.add(&st);
             let (x0, y0) = tiles[t];
-            let x1 = (x0 + tile).min(w);
-            for (i, (v, n, q)) in out.into_iter().enumerate() {
-                let (dx, dy) = (i % (x1 - x0), i / (x1 - x0));
-                let at = (y0 + dy) * w + x0 + dx;
-                for c in 0..3 {
-                    sum[at][c] += v[c];
-                }
-                if let Some(sq) = squares.get_mut(at) {
-                    for c in 0..3 {
-                        sq[c] += q[c];
-                    }
-                }
-                work[at] += n;
-            }
+            sums.add_tile(x0, y0, (x0 + tile).min(w), w, out, &st);
         }
         order.sort_by(|&a, &b| cost[b].total_cmp(&cost[a]).then(a.cmp(&b)));
         s0 = s1;
@@ -441,34 +384,162 @@ pub fn render(
             pass = ((0.05 * b / per_sample) as u32).clamp(1, pass.saturating_mul(2));
         }
     }
-    let spp = s0;
-    let mut image = RgbImage::new(w, h);
-    for (i, (px, s)) in image.pixels.iter_mut().zip(&sum).enumerate() {
-        *px = resolve_pixel(*s, spp, opts.seed, i as u32);
-    }
-    let variance = (opts.variance && spp >= MIN_VARIANCE_SPP).then(|| {
-        let mut v = RgbImage::new(w, h);
-        for (i, px) in v.pixels.iter_mut().enumerate() {
-            *px = pixel_variance(sum[i], squares[i], spp, opts.seed, i as u32);
-        }
-        v
-    });
-    RenderOutput {
-        image,
-        spp,
-        seconds: if spp == 0 {
-            start.elapsed().as_secs_f64()
-        } else {
-            seconds
+    let seconds = if s0 == 0 {
+        start.elapsed().as_secs_f64()
+    } else {
+        seconds
+    };
+    sums.output(w, h, s0, opts, seconds)
+}
+
+/// A tile's pixels: columns `x0..x1` of rows `y0..y1`.
+#[derive(Clone, Copy)]
+struct TileRect {
+    x0: usize,
+    y0: usize,
+    x1: usize,
+    y1: usize,
+}
+
+/// One pass over a tile: samples `passes` of each of its pixels, each with its own random
+/// stream; the wavefront traces wavefront::SLOTS (256) at a time and batches their decoder
+/// draws. The sums come in the tile's row order; `None` when a stop request came inside a
+/// long path (the tile is then incomplete).
+fn trace_tile(
+    scene: &SceneData,
+    set: &IntegratorSettings,
+    seed: u64,
+    rect: TileRect,
+    passes: std::ops::Range<u32>,
+    cancel: &AtomicBool,
+) -> Option<(Vec<PixelSum>, PathStats)> {
+    let cam = &scene.camera;
+    let w = cam.width as usize;
+    let TileRect { x0, y0, x1, y1 } = rect;
+    let tw = x1 - x0;
+    let mut st = PathStats::default();
+    let mut out: Vec<PixelSum> = vec![([0f64; 3], 0, [0f64; 3]); tw * (y1 - y0)];
+    let mut samples = (y0..y1)
+        .flat_map(|y| (x0..x1).map(move |x| (x, y)))
+        .flat_map(|(x, y)| passes.clone().map(move |s| (x, y, s)));
+    let mut camera_rays = CameraRays::default();
+    let next = || {
+        let (x, y, s) = samples.next()?;
+        let pixel = (y * w + x) as u64;
+        let (rng, jx, jy, channel) = pixel_sample(seed, pixel, s);
+        let dir = cam.ray_dir(x as f32 + jx, y as f32 + jy);
+        Some(Sample {
+            origin: cam.ray_origin(dir),
+            dir,
+            first_hit: Some(camera_rays.first_hit(scene, pixel, s, dir)),
+            channel,
+            rng,
+            tag: ((y - y0) * tw + (x - x0)) as u64,
+        })
+    };
+    let whole = trace_many(
+        scene,
+        set,
+        next,
+        |tag, channel, l, path| {
+            let px = &mut out[tag as usize];
+            px.0[channel] += 3.0 * l as f64;
+            px.1 += path.events + path.steps;
+            px.2[channel] += (l as f64) * (l as f64);
+            st.add(path);
         },
-        compile_seconds: 0.0,
-        stats,
-        work: work
-            .iter()
-            .map(|&n| (n as f64 / spp.max(1) as f64) as f32)
-            .collect(),
-        dispatch: DispatchStats::default(),
-        variance,
+        cancel,
+    );
+    whole.then_some((out, st))
+}
+
+/// A render's sums by pixel, in image order, over the passes finished so far.
+struct Sums {
+    sum: Vec<[f64; 3]>,
+    /// Empty without a variance image.
+    squares: Vec<[f64; 3]>,
+    /// Events and sphere steps.
+    work: Vec<u64>,
+    stats: PathStats,
+}
+
+impl Sums {
+    fn new(pixels: usize, variance: bool) -> Self {
+        Self {
+            sum: vec![[0f64; 3]; pixels],
+            squares: if variance {
+                vec![[0f64; 3]; pixels]
+            } else {
+                Vec::new()
+            },
+            work: vec![0u64; pixels],
+            stats: PathStats::default(),
+        }
+    }
+
+    /// Adds a tile's pass (`out` in the tile's row order; columns `x0..x1` from row `y0`
+    /// of an image `w` wide). Each pixel gets one addition a pass, from its one tile, so
+    /// the order in which the tiles finished does not matter.
+    fn add_tile(
+        &mut self,
+        x0: usize,
+        y0: usize,
+        x1: usize,
+        w: usize,
+        out: Vec<PixelSum>,
+        st: &PathStats,
+    ) {
+        self.stats.add(st);
+        for (i, (v, n, q)) in out.into_iter().enumerate() {
+            let (dx, dy) = (i % (x1 - x0), i / (x1 - x0));
+            let at = (y0 + dy) * w + x0 + dx;
+            for (s, v) in self.sum[at].iter_mut().zip(v) {
+                *s += v;
+            }
+            if let Some(sq) = self.squares.get_mut(at) {
+                for (s, q) in sq.iter_mut().zip(q) {
+                    *s += q;
+                }
+            }
+            self.work[at] += n;
+        }
+    }
+
+    /// The image of `spp` samples a pixel, its variance image where asked for and
+    /// possible, and the work per path.
+    fn output(
+        self,
+        w: usize,
+        h: usize,
+        spp: u32,
+        opts: &RenderOptions,
+        seconds: f64,
+    ) -> RenderOutput {
+        let mut image = RgbImage::new(w, h);
+        for (i, (px, s)) in image.pixels.iter_mut().zip(&self.sum).enumerate() {
+            *px = resolve_pixel(*s, spp, opts.seed, i as u32);
+        }
+        let variance = (opts.variance && spp >= MIN_VARIANCE_SPP).then(|| {
+            let mut v = RgbImage::new(w, h);
+            for (i, px) in v.pixels.iter_mut().enumerate() {
+                *px = pixel_variance(self.sum[i], self.squares[i], spp, opts.seed, i as u32);
+            }
+            v
+        });
+        RenderOutput {
+            image,
+            spp,
+            seconds,
+            compile_seconds: 0.0,
+            stats: self.stats,
+            work: self
+                .work
+                .iter()
+                .map(|&n| (n as f64 / spp.max(1) as f64) as f32)
+                .collect(),
+            dispatch: DispatchStats::default(),
+            variance,
+        }
     }
 }
 

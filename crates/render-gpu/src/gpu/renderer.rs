@@ -20,7 +20,7 @@ use super::resources::{
     Turn, read_back, slot, start_read_back, wait,
 };
 use super::scene_buffers::{
-    Params, bvh_depth, env_buffer, geometry_buffers, grid_buffer, scene_params,
+    GpuNode, GpuTri, Params, bvh_depth, env_buffer, geometry_buffers, grid_buffer, scene_params,
 };
 
 /// Wall time a chunk of samples aims at (progress, time budget and Ctrl-C are checked
@@ -355,6 +355,32 @@ impl Snapshot {
         let live = [&res.stage, &res.queue];
         self.staged.iter().flatten().zip(live)
     }
+
+    /// Copies `band`'s path states (and the staged render's records) here.
+    fn save(&self, ctx: &GpuContext, res: &Resources, band: &Band) {
+        res.copy(
+            ctx,
+            (&res.accums[band.index], 0),
+            (&self.accum, 0),
+            band.bytes,
+        );
+        for (copy, live) in self.staged_pairs(res) {
+            res.copy(ctx, (live, 0), (copy, 0), copy.size());
+        }
+    }
+
+    /// Puts back what [`Self::save`] copied, undoing the dispatches since.
+    fn restore(&self, ctx: &GpuContext, res: &Resources, band: &Band) {
+        res.copy(
+            ctx,
+            (&self.accum, 0),
+            (&res.accums[band.index], 0),
+            band.bytes,
+        );
+        for (copy, live) in self.staged_pairs(res) {
+            res.copy(ctx, (copy, 0), (live, 0), copy.size());
+        }
+    }
 }
 
 /// What every dispatch of a render uses.
@@ -375,6 +401,30 @@ struct Dispatcher<'a> {
 }
 
 impl Dispatcher<'_> {
+    /// Encodes and submits one dispatch of `band` (the staged render: one turn when it is
+    /// a chunk's `first`, whose dispatch kind params holds, else `rounds` turns).
+    fn submit(&self, band: &Band, first: bool, dispatch: &mut DispatchStats) {
+        let (ctx, res) = (self.ctx, self.res);
+        let encoding = Instant::now();
+        match self.kernels {
+            Kernels::Staged(staged) => {
+                let rounds = if first { 1 } else { self.rounds };
+                let turn = Turn {
+                    index: band.index,
+                    groups: band.groups,
+                    first,
+                    relist: self.snapshot.is_some(),
+                };
+                dispatch.dispatches += res.staged_rounds(ctx, staged, turn, rounds);
+            }
+            Kernels::Single(pipeline) => {
+                res.dispatch(ctx, pipeline, band.groups, band.index);
+                dispatch.dispatches += 1;
+            }
+        }
+        dispatch.host_encode_us += encoding.elapsed().as_micros() as u64;
+    }
+
     /// Dispatches the chunk of samples in `params` over `band` until no path of it is
     /// pending (`first`: the render's first chunk, whose first dispatch clears the
     /// accumulator). A dispatch cut off by a software adapter's loop limit is undone from
@@ -393,16 +443,14 @@ impl Dispatcher<'_> {
         let Self {
             ctx,
             res,
-            kernels,
             snapshot,
-            rounds,
             ahead,
             cancel,
+            ..
         } = *self;
         params.image[1] = band.rows;
         params.cam_right[3] = band.row0 as f32;
         params.consts2[3] = band.stride;
-        let accum = &res.accums[band.index];
         // Dispatch kind: 2: first dispatch of the render, 1: of a chunk, 0: resume.
         params.misc[3] = if first { 2 } else { 1 };
         let mut in_flight: Option<Readback> = None;
@@ -413,30 +461,9 @@ impl Dispatcher<'_> {
                 .write_buffer(&res.counters, 0, &[0u8; COUNTER_BYTES as usize]);
             let snap = snapshot.filter(|_| *budget > 1);
             if let Some(snap) = snap {
-                res.copy(ctx, (accum, 0), (&snap.accum, 0), band.bytes);
-                for (copy, live) in snap.staged_pairs(res) {
-                    res.copy(ctx, (live, 0), (copy, 0), copy.size());
-                }
+                snap.save(ctx, res, band);
             }
-            let encoding = Instant::now();
-            match kernels {
-                Kernels::Staged(staged) => {
-                    // A chunk's first turn alone: the dispatch kind in params is for it.
-                    let rounds = if params.misc[3] != 0 { 1 } else { rounds };
-                    let turn = Turn {
-                        index: band.index,
-                        groups: band.groups,
-                        first: params.misc[3] != 0,
-                        relist: snapshot.is_some(),
-                    };
-                    dispatch.dispatches += res.staged_rounds(ctx, staged, turn, rounds);
-                }
-                Kernels::Single(pipeline) => {
-                    res.dispatch(ctx, pipeline, band.groups, band.index);
-                    dispatch.dispatches += 1;
-                }
-            }
-            dispatch.host_encode_us += encoding.elapsed().as_micros() as u64;
+            self.submit(band, params.misc[3] != 0, dispatch);
             let mut read = start_read_back(ctx, &res.counters, COUNTER_BYTES);
             if ahead {
                 // The counters of the submission before this one, if any: this one is
@@ -455,10 +482,7 @@ impl Dispatcher<'_> {
                 && let Some(snap) = snap
             {
                 // Undo the cut-off dispatch and redo it with half the budget.
-                res.copy(ctx, (&snap.accum, 0), (accum, 0), band.bytes);
-                for (copy, live) in snap.staged_pairs(res) {
-                    res.copy(ctx, (copy, 0), (live, 0), copy.size());
-                }
+                snap.restore(ctx, res, band);
                 dispatch.redone += 1;
                 *budget /= 2;
                 params.consts2[2] = *budget as f32;
@@ -669,7 +693,6 @@ impl SlotReadout {
             .then(|| RgbImage::new(self.width as usize, self.height as usize));
         // Per pixel the PT events + sphere steps a path, as the CPU renderer's `work`.
         let mut work = vec![0f32; pixels as usize];
-        let lo_of_slot = kernels::acc_lo_vec4(self.path_nee_m, self.squares_kept) as usize;
         // Stopped in the first chunk: no sample is whole (slots of bands not yet reached still
         // hold the poison), so there is no image, as on the CPU.
         let bands = if self.spp == 0 { &[][..] } else { bands };
@@ -686,55 +709,18 @@ impl SlotReadout {
                     &copied
                 }
             };
-            // A band whose chunk was dropped gives back the whole chunks' sums, rounded once
-            // to f32; the others their sums and what those rounded off.
             let committed = self.dropped.is_some_and(|started| band.index < started);
-            let (acc_vec4, lo_vec4, sq_vec4s) = if committed {
-                (
-                    kernels::committed_vec4(self.path_nee_m, self.squares_kept),
-                    None,
-                    [Some(kernels::committed_sq_vec4(self.path_nee_m)), None],
-                )
-            } else {
-                (
-                    kernels::ACC_VEC4,
-                    Some(kernels::acc_lo_vec4(self.path_nee_m, self.squares_kept)),
-                    [
-                        Some(kernels::acc_sq_vec4(self.path_nee_m)),
-                        Some(kernels::acc_sq_lo_vec4(self.path_nee_m)),
-                    ],
-                )
-            };
-            // xyz of vec4 `v` of `slot`, added to `to` in f64.
-            let add = |to: &mut [f64; 3], slot: usize, v: u64| {
-                let q = &vals[(slot + v as usize) * 4..][..3];
-                for c in 0..3 {
-                    to[c] += q[c] as f64;
-                }
-            };
+            let vectors = self.band_vectors(committed);
             let first = band.row0 as usize * self.width as usize;
             let count = band.rows as usize * self.width as usize;
             for (p, px) in image.pixels[first..first + count].iter_mut().enumerate() {
-                let mut sum = [0f64; 3];
-                let mut squares = [0f64; 3];
-                let mut finished = 0f64;
-                let (mut events, mut paths) = (0f64, 0f64);
-                for l in 0..self.lanes as usize {
-                    let slot = (p * self.lanes as usize + l) * self.slot_vec4s as usize;
-                    for v in std::iter::once(acc_vec4).chain(lo_vec4) {
-                        add(&mut sum, slot, v);
-                    }
-                    // The work counts every visit, a dropped chunk's too, so it is read per
-                    // path over every finished sample (ACC's count), not over the whole chunks'.
-                    events += vals[(slot + lo_of_slot) * 4 + 3] as f64;
-                    paths += vals[(slot + kernels::ACC_VEC4 as usize) * 4 + 3] as f64;
-                    if variance.is_some() {
-                        for v in sq_vec4s.into_iter().flatten() {
-                            add(&mut squares, slot, v);
-                        }
-                    }
-                    finished += vals[(slot + acc_vec4 as usize) * 4 + 3] as f64;
-                }
+                let PixelSlots {
+                    sum,
+                    squares,
+                    finished,
+                    events,
+                    paths,
+                } = self.pixel_slots(vals, p, &vectors, variance.is_some());
                 work[first + p] = (events / paths.max(1.0)) as f32;
                 if !sum.iter().chain(&squares).all(|v| v.is_finite()) {
                     bad += 1;
@@ -766,6 +752,87 @@ impl SlotReadout {
         }
         Ok((image, variance, work))
     }
+
+    /// Which vec4s of a band's slots hold its sums. A band whose chunk was dropped
+    /// (`committed`) gives back the whole chunks' sums, rounded once to f32; the others their
+    /// sums and what those rounded off.
+    fn band_vectors(&self, committed: bool) -> BandVectors {
+        if committed {
+            BandVectors {
+                acc: kernels::committed_vec4(self.path_nee_m, self.squares_kept),
+                lo: None,
+                squares: [Some(kernels::committed_sq_vec4(self.path_nee_m)), None],
+            }
+        } else {
+            BandVectors {
+                acc: kernels::ACC_VEC4,
+                lo: Some(kernels::acc_lo_vec4(self.path_nee_m, self.squares_kept)),
+                squares: [
+                    Some(kernels::acc_sq_vec4(self.path_nee_m)),
+                    Some(kernels::acc_sq_lo_vec4(self.path_nee_m)),
+                ],
+            }
+        }
+    }
+
+    /// Pixel `p` of a band (`vals`, its slots' floats), summed over its lanes in f64;
+    /// the squared sums only `with_squares`.
+    fn pixel_slots(
+        &self,
+        vals: &[f32],
+        p: usize,
+        vectors: &BandVectors,
+        with_squares: bool,
+    ) -> PixelSlots {
+        let lo_of_slot = kernels::acc_lo_vec4(self.path_nee_m, self.squares_kept) as usize;
+        // xyz of vec4 `v` of `slot`, added to `to` in f64.
+        let add = |to: &mut [f64; 3], slot: usize, v: u64| {
+            let q = &vals[(slot + v as usize) * 4..][..3];
+            for (t, q) in to.iter_mut().zip(q) {
+                *t += *q as f64;
+            }
+        };
+        let mut out = PixelSlots::default();
+        for l in 0..self.lanes as usize {
+            let slot = (p * self.lanes as usize + l) * self.slot_vec4s as usize;
+            for v in std::iter::once(vectors.acc).chain(vectors.lo) {
+                add(&mut out.sum, slot, v);
+            }
+            // The work counts every visit, a dropped chunk's too, so it is read per
+            // path over every finished sample (ACC's count), not over the whole chunks'.
+            out.events += vals[(slot + lo_of_slot) * 4 + 3] as f64;
+            out.paths += vals[(slot + kernels::ACC_VEC4 as usize) * 4 + 3] as f64;
+            if with_squares {
+                for v in vectors.squares.into_iter().flatten() {
+                    add(&mut out.squares, slot, v);
+                }
+            }
+            out.finished += vals[(slot + vectors.acc as usize) * 4 + 3] as f64;
+        }
+        out
+    }
+}
+
+/// The vec4s of a slot that hold a band's sums ([`SlotReadout::band_vectors`]).
+struct BandVectors {
+    /// The sums, with the finished-sample count in w.
+    acc: u64,
+    /// What the sums rounded off, where kept.
+    lo: Option<u64>,
+    /// The squared sums and what they rounded off.
+    squares: [Option<u64>; 2],
+}
+
+/// One pixel's slots summed over its lanes.
+#[derive(Default)]
+struct PixelSlots {
+    sum: [f64; 3],
+    squares: [f64; 3],
+    /// Finished samples.
+    finished: f64,
+    /// PT events and sphere steps, and the paths that made them.
+    events: f64,
+    paths: f64,
 }
 
 /// Renders on the GPU with the estimators of the CPU integrators. `progress(done, total)`
@@ -785,24 +852,11 @@ pub fn render_gpu(
         IntegratorKind::Pt => Kernel::Pt,
         IntegratorKind::Stcvae => Kernel::Stcvae,
     };
-    if scene.lights.len() > super::scene_buffers::MAX_GPU_LIGHTS {
-        return Err(RenderError::SceneBeyondGpu(format!(
-            "the GPU kernels take at most {} [[light]] entries (the scene has {}); use \
-             --device cpu",
-            super::scene_buffers::MAX_GPU_LIGHTS,
-            scene.lights.len()
-        )));
-    }
     let model = set.model.map(model_params).unwrap_or_default();
     let shape = kernel_shape()?.on(ctx);
     let cam = &scene.camera;
     let pixels = cam.width as u64 * cam.height as u64;
-    if let Some(p) = shape.unwritten_pixel.filter(|&p| p as u64 >= pixels) {
-        // A hook that misses the image would test nothing while seeming to.
-        return Err(RenderError::Gpu(format!(
-            "STCVAE_GPU_TEST_UNWRITTEN_PIXEL={p} is beyond the image's {pixels} pixels"
-        )));
-    }
+    check_scene(scene, &shape, pixels)?;
     // Every variable read now, before buffers and the kernels' compilation (seconds to
     // minutes on lavapipe): a bad value was refused only after them.
     let first_budget = bounce_budget(ctx)?;
@@ -817,81 +871,32 @@ pub fn render_gpu(
         && (opts.time_budget.is_some() || opts.spp >= crate::render::MIN_VARIANCE_SPP);
     let slot_vec4s = kernels::slot_vec4s(path_nee_m, squares_kept);
     let args_layout = shape.staged.then(|| kernels::args_layout(ctx));
-    let switches = kernels::SceneSwitches {
-        variance: squares_kept,
-        ..kernels::SceneSwitches::of(scene, set.nee)
-    };
-    let build_in = |layout, entry| {
-        kernels::pipeline(
-            ctx, layout, kernel, set.model, path_nee_m, switches, shape, entry,
-        )
-    };
-    let build = |entry| build_in(&layout, entry);
-    let kernels = if let Some(args_layout) = &args_layout {
-        Kernels::Staged(StagedKernels {
-            stage: build("stage_main")?,
-            trace: build("trace_main")?,
-            args: build_in(args_layout, "args_main")?,
-            list_args: build_in(args_layout, "list_args_main")?,
-            step: match kernel {
-                Kernel::Stcvae if shape.steps => Some(build("step_main")?),
-                _ => None,
-            },
-        })
-    } else {
-        Kernels::Single(build("render_main")?)
-    };
-    // Every path slot of a band lives in one storage binding: adapters offer 128 MiB to
-    // several GiB, and a 1024² image at 2²⁰ invocations with two path-level NEE
-    // reservoirs needs 185 MB.
-    let limits = &ctx.limits;
-    let slot_bytes = 16 * slot_vec4s;
-    // The staged render's records and its queues take one binding each too, at fewer bytes
-    // a slot than the path state today.
-    let binding_bytes = if shape.staged {
-        slot_bytes.max(STAGE_SLOT_BYTES).max(QUEUE_SLOT_BYTES)
-    } else {
-        slot_bytes
-    };
-    let fit = limits
-        .max_storage_buffer_binding_size
-        .min(limits.max_buffer_size)
-        / binding_bytes;
-    let (lanes, spp) = lanes_and_spp(ctx, cam, fit, opts)?;
-    let bands = plan_bands(
+    let build = KernelBuild {
         ctx,
-        cam,
-        lanes,
-        fit,
-        binding_bytes,
-        slot_bytes,
-        shape.workgroup,
-    )?;
+        kernel,
+        model: set.model,
+        path_nee_m,
+        switches: kernels::SceneSwitches {
+            variance: squares_kept,
+            ..kernels::SceneSwitches::of(scene, set.nee)
+        },
+        shape,
+    };
+    let kernels = build.kernels(&layout, args_layout.as_ref())?;
+    let slot_bytes = 16 * slot_vec4s;
+    let (lanes, spp, bands) = plan_slots(ctx, cam, &shape, slot_bytes, opts)?;
     let accum_bytes: Vec<u64> = bands.iter().map(|b| b.bytes).collect();
     // The staged render's records serve every band in turn.
     let largest_slots = accum_bytes.iter().copied().max().unwrap_or(0) / slot_bytes;
     let mut params: Params = scene_params(scene, set, opts.seed);
-    let depth = bvh_depth(&scene.geo.bvh);
-    if depth + 1 > kernels::STACK_DEPTH as usize {
-        return Err(RenderError::SceneBeyondGpu(format!(
-            "the mesh's BVH is {depth} levels deep; the GPU kernels' traversal stack holds {} \
-             entries; use --device cpu",
-            kernels::STACK_DEPTH
-        )));
-    }
-    let (nodes, tris) = geometry_buffers(scene)?;
-    let env = env_buffer(scene);
-    let grid = scene
-        .grid
-        .as_ref()
-        .map_or_else(Vec::new, |g| grid_buffer(g, &scene.geo));
+    let arrays = SceneArrays::of(scene)?;
     let inputs = Inputs {
         params: &params,
         accum_bytes: &accum_bytes,
-        nodes: &nodes,
-        tris: &tris,
-        env: &env,
-        grid: &grid,
+        nodes: &arrays.nodes,
+        tris: &arrays.tris,
+        env: &arrays.env,
+        grid: &arrays.grid,
         model: &model,
         stage_slots: if shape.staged { largest_slots } else { 0 },
     };
@@ -916,17 +921,7 @@ pub fn render_gpu(
         ahead: shape.ahead && shape.staged && snapshot.is_none(),
         cancel,
     };
-    let mut dispatch = DispatchStats {
-        bands: bands.len() as u32,
-        workgroup: shape.workgroup,
-        stack: Some(shape.stack),
-        staged: shape.staged,
-        aggregate: shape.aggregate,
-        staged_steps: matches!(&kernels, Kernels::Staged(k) if k.step.is_some()),
-        lanes: shape.profile.then(LaneProfile::new),
-        ahead: gpu.ahead,
-        ..Default::default()
-    };
+    let mut dispatch = first_dispatch_stats(&shape, bands.len(), &kernels, gpu.ahead);
     let plan = ChunkPlan {
         lanes,
         spp,
@@ -973,6 +968,167 @@ pub fn render_gpu(
         },
         variance,
     })
+}
+
+/// Refuses a scene the kernels cannot take (too many lights, a BVH deeper than their
+/// traversal stack) and a test hook that misses the image, before any buffer is made or
+/// kernel compiled.
+fn check_scene(scene: &SceneData, shape: &KernelShape, pixels: u64) -> Result<(), RenderError> {
+    if scene.lights.len() > super::scene_buffers::MAX_GPU_LIGHTS {
+        return Err(RenderError::SceneBeyondGpu(format!(
+            "the GPU kernels take at most {} [[light]] entries (the scene has {}); use \
+             --device cpu",
+            super::scene_buffers::MAX_GPU_LIGHTS,
+            scene.lights.len()
+        )));
+    }
+    if let Some(p) = shape.unwritten_pixel.filter(|&p| p as u64 >= pixels) {
+        // A hook that misses the image would test nothing while seeming to.
+        return Err(RenderError::Gpu(format!(
+            "STCVAE_GPU_TEST_UNWRITTEN_PIXEL={p} is beyond the image's {pixels} pixels"
+        )));
+    }
+    let depth = bvh_depth(&scene.geo.bvh);
+    if depth + 1 > kernels::STACK_DEPTH as usize {
+        return Err(RenderError::SceneBeyondGpu(format!(
+            "the mesh's BVH is {depth} levels deep; the GPU kernels' traversal stack holds {} \
+             entries; use --device cpu",
+            kernels::STACK_DEPTH
+        )));
+    }
+    Ok(())
+}
+
+/// What every pipeline of one render is built from.
+struct KernelBuild<'a> {
+    ctx: &'a GpuContext,
+    kernel: Kernel,
+    model: Option<&'a cvae::ModelSet>,
+    path_nee_m: u32,
+    switches: kernels::SceneSwitches,
+    shape: KernelShape,
+}
+
+impl KernelBuild<'_> {
+    fn pipeline(
+        &self,
+        layout: &wgpu::BindGroupLayout,
+        entry: &str,
+    ) -> Result<wgpu::ComputePipeline, RenderError> {
+        kernels::pipeline(
+            self.ctx,
+            layout,
+            self.kernel,
+            self.model,
+            self.path_nee_m,
+            self.switches,
+            self.shape,
+            entry,
+        )
+    }
+
+    /// The single kernel, or, given the staged render's `args_layout`, its kernels (the
+    /// step kernel only for ST-CVAE with `shape.steps`).
+    fn kernels(
+        &self,
+        layout: &wgpu::BindGroupLayout,
+        args_layout: Option<&wgpu::BindGroupLayout>,
+    ) -> Result<Kernels, RenderError> {
+        let Some(args_layout) = args_layout else {
+            return Ok(Kernels::Single(self.pipeline(layout, "render_main")?));
+        };
+        Ok(Kernels::Staged(StagedKernels {
+            stage: self.pipeline(layout, "stage_main")?,
+            trace: self.pipeline(layout, "trace_main")?,
+            args: self.pipeline(args_layout, "args_main")?,
+            list_args: self.pipeline(args_layout, "list_args_main")?,
+            step: match self.kernel {
+                Kernel::Stcvae if self.shape.steps => Some(self.pipeline(layout, "step_main")?),
+                _ => None,
+            },
+        }))
+    }
+}
+
+/// Path slots per pixel, samples per pixel, and the bands of rows the slots are kept in,
+/// for slots of `slot_bytes`.
+fn plan_slots(
+    ctx: &GpuContext,
+    cam: &crate::camera::Camera,
+    shape: &KernelShape,
+    slot_bytes: u64,
+    opts: &RenderOptions,
+) -> Result<(u32, u32, Vec<Band>), RenderError> {
+    // Every path slot of a band lives in one storage binding: adapters offer 128 MiB to
+    // several GiB, and a 1024² image at 2²⁰ invocations with two path-level NEE
+    // reservoirs needs 185 MB.
+    let limits = &ctx.limits;
+    // The staged render's records and its queues take one binding each too, at fewer bytes
+    // a slot than the path state today.
+    let binding_bytes = if shape.staged {
+        slot_bytes.max(STAGE_SLOT_BYTES).max(QUEUE_SLOT_BYTES)
+    } else {
+        slot_bytes
+    };
+    let fit = limits
+        .max_storage_buffer_binding_size
+        .min(limits.max_buffer_size)
+        / binding_bytes;
+    let (lanes, spp) = lanes_and_spp(ctx, cam, fit, opts)?;
+    let bands = plan_bands(
+        ctx,
+        cam,
+        lanes,
+        fit,
+        binding_bytes,
+        slot_bytes,
+        shape.workgroup,
+    )?;
+    Ok((lanes, spp, bands))
+}
+
+/// The scene's arrays as the kernels read them.
+struct SceneArrays {
+    nodes: Vec<GpuNode>,
+    tris: Vec<GpuTri>,
+    env: Vec<[f32; 4]>,
+    /// Empty where the scene has no distance grid (PT).
+    grid: Vec<u32>,
+}
+
+impl SceneArrays {
+    fn of(scene: &SceneData) -> Result<Self, RenderError> {
+        let (nodes, tris) = geometry_buffers(scene)?;
+        Ok(Self {
+            nodes,
+            tris,
+            env: env_buffer(scene),
+            grid: scene
+                .grid
+                .as_ref()
+                .map_or_else(Vec::new, |g| grid_buffer(g, &scene.geo)),
+        })
+    }
+}
+
+/// The dispatch statistics known before the first dispatch.
+fn first_dispatch_stats(
+    shape: &KernelShape,
+    bands: usize,
+    kernels: &Kernels,
+    ahead: bool,
+) -> DispatchStats {
+    DispatchStats {
+        bands: bands as u32,
+        workgroup: shape.workgroup,
+        stack: Some(shape.stack),
+        staged: shape.staged,
+        aggregate: shape.aggregate,
+        staged_steps: matches!(kernels, Kernels::Staged(k) if k.step.is_some()),
+        lanes: shape.profile.then(LaneProfile::new),
+        ahead,
+        ..Default::default()
+    }
 }
 
 /// The number of path slots per pixel (lanes) and the samples per pixel to render: as asked,

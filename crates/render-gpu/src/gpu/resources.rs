@@ -156,6 +156,101 @@ fn init(ctx: &GpuContext, label: &str, bytes: &[u8], usage: wgpu::BufferUsages) 
     buffer
 }
 
+/// Refuses inputs that one storage binding of the adapter cannot hold, named with what
+/// would make them smaller: the message blamed the grid and mesh for an environment map too
+/// large.
+fn check_binding_sizes(ctx: &GpuContext, i: &Inputs) -> Result<(), RenderError> {
+    let max = ctx.limits.max_storage_buffer_binding_size;
+    let sizes = [
+        (
+            i.accum_bytes.iter().copied().max().unwrap_or(0),
+            "the image's band of samples (a smaller image)",
+        ),
+        (
+            std::mem::size_of_val(i.tris) as u64,
+            "the mesh's triangles (fewer triangles)",
+        ),
+        (
+            std::mem::size_of_val(i.nodes) as u64,
+            "the mesh's BVH (fewer triangles)",
+        ),
+        (
+            std::mem::size_of_val(i.grid) as u64,
+            "the distance grid (a lower render.grid_resolution or fewer triangles)",
+        ),
+        (
+            std::mem::size_of_val(i.env) as u64,
+            "the environment map (a smaller map)",
+        ),
+    ];
+    if let Some((biggest, what)) = sizes.into_iter().filter(|s| s.0 > max).max_by_key(|s| s.0) {
+        return Err(RenderError::SceneBeyondGpu(format!(
+            "a buffer of {biggest} bytes exceeds {}'s storage binding limit of {max} bytes: \
+             {what}, or use --device cpu",
+            ctx.adapter.name
+        )));
+    }
+    Ok(())
+}
+
+/// A storage buffer the kernels write and the host copies to and from, of at least 16 bytes
+/// (wgpu forbids zero-sized bindings).
+fn rw_buffer(ctx: &GpuContext, label: &str, size: u64) -> wgpu::Buffer {
+    ctx.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size: size.max(16),
+        usage: wgpu::BufferUsages::STORAGE
+            | wgpu::BufferUsages::COPY_SRC
+            | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    })
+}
+
+/// The bind group of the staged render's argument kernels ([`super::kernels::args_layout`]).
+fn args_bind_group(
+    ctx: &GpuContext,
+    layout: &wgpu::BindGroupLayout,
+    counters: &wgpu::Buffer,
+    queue: &wgpu::Buffer,
+    args: &wgpu::Buffer,
+) -> wgpu::BindGroup {
+    let entries =
+        [(2, counters), (9, queue), (10, args)].map(|(binding, b)| wgpu::BindGroupEntry {
+            binding,
+            resource: b.as_entire_binding(),
+        });
+    ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("stcvae dispatch arguments"),
+        layout,
+        entries: &entries,
+    })
+}
+
+/// One band's bind group: `buffers` in binding order, the staged render's two last ones
+/// bound only where its kernels are (`staged`; their layout).
+fn scene_bind_group(
+    ctx: &GpuContext,
+    layout: &wgpu::BindGroupLayout,
+    buffers: [&wgpu::Buffer; 10],
+    staged: bool,
+) -> wgpu::BindGroup {
+    let bound = if staged { 10 } else { 8 };
+    let entries: Vec<wgpu::BindGroupEntry> = buffers
+        .iter()
+        .take(bound)
+        .enumerate()
+        .map(|(k, b)| wgpu::BindGroupEntry {
+            binding: k as u32,
+            resource: b.as_entire_binding(),
+        })
+        .collect();
+    ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("stcvae scene"),
+        layout,
+        entries: &entries,
+    })
+}
+
 impl Resources {
     /// The buffers of `i` and their bind groups: one per band in `layout`, and, for the
     /// staged render, one in `args_layout` ([`super::kernels::args_layout`]).
@@ -165,38 +260,7 @@ impl Resources {
         args_layout: Option<&wgpu::BindGroupLayout>,
         i: &Inputs,
     ) -> Result<Self, RenderError> {
-        let max = ctx.limits.max_storage_buffer_binding_size;
-        // Named with what would make it smaller: the message blamed the grid and mesh for
-        // an environment map too large.
-        let sizes = [
-            (
-                i.accum_bytes.iter().copied().max().unwrap_or(0),
-                "the image's band of samples (a smaller image)",
-            ),
-            (
-                std::mem::size_of_val(i.tris) as u64,
-                "the mesh's triangles (fewer triangles)",
-            ),
-            (
-                std::mem::size_of_val(i.nodes) as u64,
-                "the mesh's BVH (fewer triangles)",
-            ),
-            (
-                std::mem::size_of_val(i.grid) as u64,
-                "the distance grid (a lower render.grid_resolution or fewer triangles)",
-            ),
-            (
-                std::mem::size_of_val(i.env) as u64,
-                "the environment map (a smaller map)",
-            ),
-        ];
-        if let Some((biggest, what)) = sizes.into_iter().filter(|s| s.0 > max).max_by_key(|s| s.0) {
-            return Err(RenderError::SceneBeyondGpu(format!(
-                "a buffer of {biggest} bytes exceeds {}'s storage binding limit of {max} bytes: \
-                 {what}, or use --device cpu",
-                ctx.adapter.name
-            )));
-        }
+        check_binding_sizes(ctx, i)?;
         let ro = wgpu::BufferUsages::STORAGE;
         let uni = wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST;
         let params = init(
@@ -208,56 +272,19 @@ impl Resources {
         let accums: Vec<wgpu::Buffer> = i
             .accum_bytes
             .iter()
-            .map(|&bytes| {
-                ctx.device.create_buffer(&wgpu::BufferDescriptor {
-                    label: Some("accum"),
-                    size: bytes.max(16),
-                    usage: wgpu::BufferUsages::STORAGE
-                        | wgpu::BufferUsages::COPY_SRC
-                        | wgpu::BufferUsages::COPY_DST,
-                    mapped_at_creation: false,
-                })
-            })
+            .map(|&bytes| rw_buffer(ctx, "accum", bytes))
             .collect();
-        let counters = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("counters"),
-            size: COUNTER_BYTES,
-            usage: wgpu::BufferUsages::STORAGE
-                | wgpu::BufferUsages::COPY_SRC
-                | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let rw = |label, size: u64| {
-            ctx.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
-                size: size.max(16),
-                usage: wgpu::BufferUsages::STORAGE
-                    | wgpu::BufferUsages::COPY_SRC
-                    | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            })
-        };
-        let stage = rw("stage", STAGE_SLOT_BYTES * i.stage_slots);
-        let queue = rw("queue", QUEUE_HEAD + QUEUE_SLOT_BYTES * i.stage_slots);
+        let counters = rw_buffer(ctx, "counters", COUNTER_BYTES);
+        let stage = rw_buffer(ctx, "stage", STAGE_SLOT_BYTES * i.stage_slots);
+        let queue = rw_buffer(ctx, "queue", QUEUE_HEAD + QUEUE_SLOT_BYTES * i.stage_slots);
         let args = ctx.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("dispatch args"),
             size: ARGS_BYTES,
             usage: wgpu::BufferUsages::INDIRECT | wgpu::BufferUsages::STORAGE,
             mapped_at_creation: false,
         });
-        let args_bind_group = args_layout.map(|layout| {
-            let entries = [(2, &counters), (9, &queue), (10, &args)].map(|(binding, b)| {
-                wgpu::BindGroupEntry {
-                    binding,
-                    resource: b.as_entire_binding(),
-                }
-            });
-            ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("stcvae dispatch arguments"),
-                layout,
-                entries: &entries,
-            })
-        });
+        let args_bind_group =
+            args_layout.map(|layout| args_bind_group(ctx, layout, &counters, &queue, &args));
         let tris = init(ctx, "tris", bytemuck::cast_slice(i.tris), ro);
         let nodes = init(ctx, "nodes", bytemuck::cast_slice(i.nodes), ro);
         let env = init(ctx, "env", bytemuck::cast_slice(i.env), ro);
@@ -269,22 +296,7 @@ impl Resources {
                 let buffers = [
                     &params, accum, &counters, &tris, &nodes, &env, &grid, &model, &stage, &queue,
                 ];
-                // The staged buffers are bound for the staged kernels alone (their layout).
-                let bound = if i.stage_slots > 0 { 10 } else { 8 };
-                let entries: Vec<wgpu::BindGroupEntry> = buffers
-                    .iter()
-                    .take(bound)
-                    .enumerate()
-                    .map(|(k, b)| wgpu::BindGroupEntry {
-                        binding: k as u32,
-                        resource: b.as_entire_binding(),
-                    })
-                    .collect();
-                ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                    label: Some("stcvae scene"),
-                    layout,
-                    entries: &entries,
-                })
+                scene_bind_group(ctx, layout, buffers, i.stage_slots > 0)
             })
             .collect();
         Ok(Self {
