@@ -32,7 +32,7 @@ pub struct Args {
           value_parser = crate::whole::whole::<u32>(8, 8192))]
     size: u32,
     /// Model file for ST-CVAE (default: models/default.stcvae).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::shipped::model_arg)]
     model: Option<PathBuf>,
     /// Random seed of every render.
     #[arg(long, allow_negative_numbers = true, default_value_t = 1,

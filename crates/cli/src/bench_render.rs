@@ -41,7 +41,7 @@ pub struct Args {
           value_parser = crate::whole::whole::<u32>(MIN_BENCH_SIZE as u64, MAX_BENCH_SIZE as u64))]
     size: u32,
     /// Model file for ST-CVAE (default: models/default.stcvae).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::shipped::model_arg)]
     model: Option<PathBuf>,
     /// Thin-region threshold of ST-CVAE, an optical radius in [0, 1e6] (overrides the
     /// scene's).

@@ -141,7 +141,28 @@ fn exit_on_usage(e: clap::Error) -> ! {
             | ErrorKind::DisplayVersion
             | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand
     ) {
-        e.exit()
+        // Written as clap writes it, but a failed write is an error, as for every other
+        // text on standard output (`--help > /dev/full` exited 0).
+        if let Err(e) = e.print() {
+            stdout_check::failed(&e);
+        }
+        if let Err(e) = stdout_check::check() {
+            eprintln!("error: {e}");
+            std::process::exit(1)
+        }
+        std::process::exit(e.exit_code())
+    }
+    // clap's "a value is required for '--out <OUT>' but none was supplied" for `--out ""`,
+    // where a value was supplied: said as the scene argument's parser says it. (Only its
+    // path parsers refuse "" this way; a list of choices keeps clap's words and the list.)
+    use clap::error::{ContextKind, ContextValue};
+    if e.kind() == ErrorKind::InvalidValue
+        && matches!(e.get(ContextKind::InvalidValue), Some(ContextValue::String(v)) if v.is_empty())
+        && !matches!(e.get(ContextKind::ValidValue), Some(ContextValue::Strings(v)) if !v.is_empty())
+        && let Some(ContextValue::String(arg)) = e.get(ContextKind::InvalidArg)
+    {
+        eprintln!("error: invalid value '' for '{arg}': an empty path names no file");
+        std::process::exit(2)
     }
     eprintln!("{}", one_line(&e.render().to_string()));
     std::process::exit(2)
@@ -165,6 +186,7 @@ fn main() {
     quiet_wayland_probe();
     default_sigpipe();
     let cli = parse_cli();
+    note_unread_thread_count();
     if !matches!(cli.command, Command::Bench(_)) {
         interrupt::stop_on_closed_pipe();
     }
@@ -205,8 +227,28 @@ fn main() {
 fn quiet_wayland_probe() {
     let unset = |name| std::env::var_os(name).is_none_or(|v| v.is_empty());
     if unset("XDG_RUNTIME_DIR") && unset("WAYLAND_DISPLAY") {
+        // (temp_dir() is TMPDIR as given: an empty or relative one brought the lines back.)
+        let tmp = Some(std::env::temp_dir())
+            .filter(|d| d.is_absolute())
+            .unwrap_or_else(|| "/tmp".into());
         // SAFETY: the first statement of `main`, before any other thread exists.
-        unsafe { std::env::set_var("XDG_RUNTIME_DIR", std::env::temp_dir()) };
+        unsafe { std::env::set_var("XDG_RUNTIME_DIR", tmp) };
+    }
+}
+
+/// rayon takes a RAYON_NUM_THREADS it cannot read (`abc`, `-1`) as unset, and every core
+/// is used without a word: said once, since the outputs report the count as if chosen.
+fn note_unread_thread_count() {
+    if let Some(v) = std::env::var_os("RAYON_NUM_THREADS")
+        && !v.is_empty()
+        && v.to_str().is_none_or(|s| s.parse::<usize>().is_err())
+    {
+        eprintln!(
+            "warning: RAYON_NUM_THREADS={} is not a whole number (0 or more): using all {} \
+             threads",
+            v.to_string_lossy(),
+            rayon::current_num_threads()
+        );
     }
 }
 

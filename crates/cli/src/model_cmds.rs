@@ -47,7 +47,7 @@ pub fn load_model(path: Option<&Path>) -> Result<ModelSet> {
 )]
 pub struct SampleArgs {
     /// Model file (default: models/default.stcvae).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::shipped::model_arg)]
     model: Option<PathBuf>,
     /// Optical radius τ, in [0, 1000] (the shipped model was trained on [0, 300]; beyond
     /// the model's training range the samples are an extrapolation, with a warning).
@@ -173,7 +173,7 @@ pub fn sample(a: SampleArgs) -> Result<()> {
 )]
 pub struct EvalArgs {
     /// Model file (default: models/default.stcvae).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::shipped::model_arg)]
     model: Option<PathBuf>,
     /// Output directory.
     #[arg(long, default_value = "results/eval")]

@@ -21,11 +21,40 @@ pub(crate) fn identity(p: &Path) -> PathBuf {
         } else {
             above
         };
-        if let (Ok(c), Ok(rest)) = (dir.canonicalize(), p.strip_prefix(above)) {
-            return c.join(rest);
+        if let (Ok(mut c), Ok(rest)) = (dir.canonicalize(), p.strip_prefix(above)) {
+            // The folders still to be made will be folders, so a `..` among them steps
+            // back as it reads (`new/../a.exr` is `a.exr`, which the writer would replace).
+            for part in rest.components() {
+                match part {
+                    std::path::Component::ParentDir => {
+                        c.pop();
+                    }
+                    std::path::Component::CurDir => {}
+                    other => c.push(other),
+                }
+            }
+            return c;
         }
     }
     p.to_path_buf()
+}
+
+/// A path as a shell word, for the commands the messages and reports suggest: in single
+/// quotes unless made of safe characters only, and after `./` where it would read as a
+/// flag.
+pub(crate) fn shell_word(p: &Path) -> String {
+    let mut s = p.display().to_string();
+    if s.starts_with('-') {
+        s.insert_str(0, "./");
+    }
+    if !s.is_empty()
+        && s.chars()
+            .all(|c| c.is_ascii_alphanumeric() || "/._-+,".contains(c))
+    {
+        s
+    } else {
+        format!("'{}'", s.replace('\'', "'\\''"))
+    }
 }
 
 /// Refuses an output that is one of the command's inputs (`inputs`: what each one is, a
@@ -187,5 +216,20 @@ mod tests {
         assert!(identity(&deep).starts_with(identity(&dir.path().join("a"))));
         let dotted = dir.path().join("a").join(".").join("b").join("m.stcvae");
         assert_eq!(identity(&dotted), identity(&deep));
+        // A `..` among the folders to be made steps back: `new/../in.exr` is `in.exr`
+        // (merge replaced its input through it).
+        let back = dir.path().join("new").join("..").join("in.exr");
+        assert_eq!(identity(&back), real.join("in.exr"));
+        let up = dir
+            .path()
+            .join("a")
+            .join("b")
+            .join("..")
+            .join("..")
+            .join("..");
+        assert_eq!(
+            identity(&up.join("x")),
+            identity(&real.join("..").join("x"))
+        );
     }
 }

@@ -57,7 +57,7 @@ pub struct Args {
     #[arg(long, allow_negative_numbers = true, value_parser = parse_seed)]
     pub seed: Option<u64>,
     /// Model file for stcvae (default: models/default.stcvae).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::shipped::model_arg)]
     pub model: Option<PathBuf>,
     /// Stop after the pass during which this many seconds have passed, in (0, 1e8] (over
     /// three years; the JSON and the EXR header record the spp actually rendered; at least
@@ -510,7 +510,31 @@ pub(crate) fn check_out_stem(out: &Path) -> Result<()> {
         scatter_sim::output::check_output_path(&f)
             .map_err(|e| anyhow::anyhow!("--out {}: {e}", out.display()))?;
     }
+    if let Some(render) = variance_image_owner(out) {
+        bail!(
+            "--out {}: {} is the variance image of the render {} (its JSON names it), which \
+             this image would replace: choose another --out",
+            out.display(),
+            crate::merge::image_out(out, "exr").display(),
+            render.display()
+        );
+    }
     Ok(())
+}
+
+/// The render whose variance image OUT.exr is, where OUT is named like one (`q.var`) and
+/// render q's report says so: `render --out q.var` replaced q's variance image without a
+/// word, while the other way round (`render --out q --variance` over a render q.var) was
+/// refused.
+fn variance_image_owner(out: &Path) -> Option<PathBuf> {
+    let stem = crate::merge::out_stem(out);
+    let render = stem.with_file_name(stem.file_name()?.to_str()?.strip_suffix(".var")?);
+    let exr = crate::merge::image_out(out, "exr");
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(crate::merge::image_out(&render, "json")).ok()?)
+            .ok()?;
+    let named = json.get("variance_file")?.as_str()?;
+    (exr.is_file() && Some(std::ffi::OsStr::new(named)) == exr.file_name()).then_some(render)
 }
 
 /// The files a render reads (and `--model`, even when PT leaves it unread): none may be

@@ -41,3 +41,17 @@ pub fn scene_arg(default: &'static str) -> impl Fn(&str) -> Result<PathBuf, Stri
         })
     }
 }
+
+/// clap's parser for `--model`: the shipped model's path, typed, is located as when the flag
+/// is left out (`--model models/default.stcvae` failed from another folder, while `--scene
+/// configs/scenes/bunny.toml` was found); any other path is taken as given.
+pub fn model_arg(s: &str) -> Result<PathBuf, String> {
+    if s.is_empty() {
+        return Err("an empty path names no model file".into());
+    }
+    Ok(if s == crate::model_cmds::DEFAULT_MODEL {
+        locate(s)
+    } else {
+        PathBuf::from(s)
+    })
+}

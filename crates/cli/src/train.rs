@@ -191,8 +191,18 @@ fn ensure_dataset(cfg: &TrainConfig) -> Result<()> {
         return Ok(());
     }
     let Some(dc) = &cfg.dataset_config else {
+        // A relative path is read from the working directory, not the config's folder (a
+        // config run from elsewhere named only the bare file).
+        let from = if cfg.dataset.is_relative() {
+            std::env::current_dir().map_or(String::new(), |d| {
+                format!(" (relative to the working directory, {})", d.display())
+            })
+        } else {
+            String::new()
+        };
         bail!(
-            "dataset {} does not exist and the config names no dataset_config to generate it",
+            "dataset = \"{}\"{from} does not exist, and the config names no dataset_config to \
+             generate it",
             cfg.dataset.display()
         );
     };
@@ -366,33 +376,23 @@ fn checkpoint_decoder(
     Ok((d, version, info.ranges, info.step))
 }
 
-/// A path as a shell word, in single quotes unless it is made of safe characters only,
-/// for the commands the messages suggest.
-fn quote(p: &Path) -> String {
-    let s = p.display().to_string();
-    if s.chars()
-        .all(|c| c.is_ascii_alphanumeric() || "/._-+,".contains(c))
-    {
-        s
-    } else {
-        format!("'{}'", s.replace('\'', "'\\''"))
-    }
-}
-
 /// The command that goes on from an interrupted run's checkpoints: the run's own with
 /// --resume for --fresh ("the same command with --resume" was `--fresh --resume`, which
 /// clap refuses).
 fn resume_command(a: &Args) -> String {
-    let mut c = format!("stcvae train --config {}", quote(&a.config));
+    let mut c = format!(
+        "stcvae train --config {}",
+        crate::paths::shell_word(&a.config)
+    );
     if let Some(k) = a.model {
         c += &format!(" --model {}", k.name());
     }
     if let Some(b) = &a.base {
-        c += &format!(" --base {}", quote(b));
+        c += &format!(" --base {}", crate::paths::shell_word(b));
     }
     c += " --resume";
     if let Some(o) = &a.out {
-        c += &format!(" --out {}", quote(o));
+        c += &format!(" --out {}", crate::paths::shell_word(o));
     }
     if a.steps_scale != 1.0 {
         c += &format!(" --steps-scale {}", scatter_sim::ranges::num(a.steps_scale));
@@ -1429,7 +1429,7 @@ fn write_model(
     // default training config no longer overwrites it: say how to use what was written.
     eprintln!(
         "render with it: stcvae render --model {}",
-        scatter_sim::ranges::printable(&quote(out))
+        scatter_sim::ranges::printable(&crate::paths::shell_word(out))
     );
     Ok(())
 }

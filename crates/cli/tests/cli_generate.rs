@@ -1223,9 +1223,12 @@ fn a_closed_output_pipe_stops_cleanly() {
 #[test]
 fn a_table_printed_to_a_full_disk_is_an_error() {
     let dir = tempfile::tempdir().unwrap();
+    // (--help and --version too: clap's own writer dropped the error and exited 0.)
     for args in [
         "bench sim --walks 1024 --threads 1",
         "eval --samples 200 --at 5,0.4,1 --out ev",
+        "render --help",
+        "--version",
     ] {
         let full = fs::OpenOptions::new()
             .write(true)
@@ -1247,6 +1250,91 @@ fn a_table_printed_to_a_full_disk_is_an_error() {
             "{args}: {err}"
         );
     }
+}
+
+/// Paths and the environment read as the user means them (a campaign's findings):
+/// - an output through a folder not made yet and then `..` (`new/../a.bin`) passed every
+///   check, so `merge` replaced its own input and `generate` could reach /dev: refused
+///   before the work now, with nothing made;
+/// - `--model models/default.stcvae` typed from another folder failed, though it is the
+///   default the help shows and the same path left out was found;
+/// - an empty path drew "a value is required … but none was supplied";
+/// - a RAYON_NUM_THREADS that rayon cannot read used every core without a word.
+#[test]
+fn paths_and_the_environment_are_read_as_meant() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let walks = |seed: &str, out: &str| {
+        stcvae(
+            &[
+                &words("generate --samples 50 --tau 5 --g 0 --albedo 1 --seed")[..],
+                &[seed, "--out", out],
+            ]
+            .concat(),
+            d,
+        )
+    };
+    ok(&walks("1", "a.bin"));
+    ok(&walks("2", "b.bin"));
+    let a = fs::read(d.join("a.bin")).unwrap();
+    let e = stcvae(&words("merge a.bin b.bin --out new/../a.bin"), d);
+    assert!(
+        !e.status.success() && stderr(&e).contains("--out would overwrite the input a.bin"),
+        "{}",
+        stderr(&e)
+    );
+    assert_eq!(
+        fs::read(d.join("a.bin")).unwrap(),
+        a,
+        "the input was replaced"
+    );
+    let e = walks("3", "new/../c.bin");
+    assert!(
+        !e.status.success()
+            && stderr(&e).contains("goes up (`..`) out of new, which does not exist yet"),
+        "{}",
+        stderr(&e)
+    );
+    assert!(!d.join("new").exists() && !d.join("c.bin").exists());
+    // The shipped model, typed, from a folder that is not the repository's.
+    ok(&stcvae(
+        &words(
+            "sample --model models/default.stcvae --tau 5 --g 0.4 --albedo 0.9 --samples 20 \
+             --seed 1 --out s.csv",
+        ),
+        d,
+    ));
+    for (args, says) in [
+        (
+            &["generate", "--samples", "5", "--out", ""][..],
+            "invalid value '' for '--out <OUT>': an empty path names no file",
+        ),
+        (
+            &["sample", "--model", "", "--out", "t.csv"],
+            "an empty path names no model file",
+        ),
+    ] {
+        let e = stcvae(args, d);
+        assert!(
+            e.status.code() == Some(2) && stderr(&e).contains(says),
+            "{args:?}: {}",
+            stderr(&e)
+        );
+    }
+    let e = std::process::Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args(words(
+            "generate --samples 5 --tau 5 --g 0 --albedo 1 --out r.bin",
+        ))
+        .current_dir(d)
+        .env("RAYON_NUM_THREADS", "abc")
+        .output()
+        .unwrap();
+    ok(&e);
+    assert!(
+        stderr(&e).contains("warning: RAYON_NUM_THREADS=abc is not a whole number"),
+        "{}",
+        stderr(&e)
+    );
 }
 
 /// Ctrl-C stops `merge` too, into CSV and binary: it was killed outright and left its

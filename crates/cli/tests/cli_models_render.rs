@@ -3118,6 +3118,25 @@ fn render_variance_writes_a_variance_image() {
     // The bare name, beside the JSON (not a path from the render's working directory).
     assert_eq!(json["variance_file"].as_str().unwrap(), "v.var.exr");
     assert_eq!(json["rms_standard_error_rgb"].as_array().unwrap().len(), 3);
+    // Nor does an image named v.var replace it: render and merge refuse, before the work
+    // (render --out v.var replaced v's variance image without a word).
+    let before = std::fs::read(&var).unwrap();
+    let as_var = d.path().join("v.var");
+    let v_exr = d.path().join("v.exr");
+    for args in [
+        vec!["render", "--scene", s, "--spp", "2", "--out"],
+        vec!["merge", v_exr.to_str().unwrap(), "--out"],
+    ] {
+        let e = stcvae(&[&args[..], &[as_var.to_str().unwrap()]].concat());
+        assert!(
+            !e.status.success()
+                && common::stderr(&e).contains("is the variance image of the render"),
+            "{args:?}: {}",
+            common::stderr(&e)
+        );
+        assert_eq!(std::fs::read(&var).unwrap(), before, "{args:?}");
+        assert!(!d.path().join("v.var.png").exists(), "{args:?}");
+    }
     let m = d.path().join("m");
     let e = stcvae(&["merge", var.to_str().unwrap(), "--out", m.to_str().unwrap()]);
     assert!(!e.status.success());

@@ -64,17 +64,38 @@ pub(crate) fn mesh_hasher(geo: &Geometry, tag: &[u8]) -> Fnv64 {
 /// Says once a run that a cache file could not be written: a render that rebuilt its
 /// grid every time (an unwritable ~/.cache) was a second slower with no word why.
 pub(crate) fn note_unwritable_cache(path: &Path, e: &std::io::Error) {
+    // STCVAE_CACHE naming a file gave "File exists (os error 17)", from making the folder.
+    let folder = path.parent().filter(|d| d.exists() && !d.is_dir());
+    let why = match folder {
+        Some(d) => format!("{} is not a folder", d.display()),
+        None => e.to_string(),
+    };
+    note_once(&format!(
+        "note: cannot write the cache file {} ({why}): what it holds is rebuilt every run; \
+         set STCVAE_CACHE to a writable folder with room to keep it",
+        path.display()
+    ));
+}
+
+/// Says once a run that there is no cache folder at all (HOME unset, and neither
+/// STCVAE_CACHE nor XDG_CACHE_HOME set to one): grids were rebuilt every run without a
+/// word, seconds each for the bunny.
+fn note_no_cache_folder() {
+    note_once(
+        "note: no cache folder (STCVAE_CACHE, XDG_CACHE_HOME and HOME are unset, empty or \
+         relative): distance grids and escape cones are rebuilt every run; set STCVAE_CACHE \
+         to a folder to keep them",
+    );
+}
+
+/// One cache note a run, the first that comes.
+fn note_once(text: &str) {
     static SAID: std::sync::Once = std::sync::Once::new();
     SAID.call_once(|| {
         // Not eprintln!: it panics where stderr is a closed pipe, which the CLI takes as
         // a request to stop cleanly.
         use std::io::Write as _;
-        let _ = writeln!(
-            std::io::stderr(),
-            "note: cannot write the cache file {} ({e}): what it holds is rebuilt every \
-             run; set STCVAE_CACHE to a writable folder with room to keep it",
-            path.display()
-        );
+        let _ = writeln!(std::io::stderr(), "{text}");
     });
 }
 
@@ -125,30 +146,41 @@ pub(crate) fn read_or_build<T, E>(
     }
     let t0 = std::time::Instant::now();
     let v = build()?;
-    if (t0.elapsed().as_secs_f64() > cached_from || unusable)
-        && let Some(p) = path
-    {
-        // A cache that cannot be written only costs time next run; said once.
-        if let Err(e) = write(p, &v) {
-            note_unwritable_cache(p, &e);
+    if t0.elapsed().as_secs_f64() > cached_from || unusable {
+        match path {
+            // A cache that cannot be written only costs time next run; said once.
+            Some(p) => {
+                if let Err(e) = write(p, &v) {
+                    note_unwritable_cache(p, &e);
+                }
+                tidy(p);
+            }
+            None => note_no_cache_folder(),
         }
-        tidy(p);
     }
     Ok(v)
 }
 
 /// `$STCVAE_CACHE`, else `$XDG_CACHE_HOME/stcvae`, else `~/.cache/stcvae`.
 pub(crate) fn cache_dir() -> Option<PathBuf> {
-    // An empty variable counts as unset (STCVAE_CACHE="" cached grids in the current
-    // directory).
-    let var = |k: &str| std::env::var_os(k).filter(|v| !v.is_empty());
-    if let Some(d) = var("STCVAE_CACHE") {
-        return Some(PathBuf::from(d));
+    cache_dir_from(|k| std::env::var_os(k))
+}
+
+/// [`cache_dir`] with the environment read through `var`. An empty variable counts as
+/// unset (STCVAE_CACHE="" cached grids in the current directory), and so do a relative
+/// XDG_CACHE_HOME or HOME, as the XDG base-directory rules say (a relative one made a
+/// cache folder in whatever folder a render ran in). STCVAE_CACHE is this program's own,
+/// taken as given.
+fn cache_dir_from(var: impl Fn(&str) -> Option<std::ffi::OsString>) -> Option<PathBuf> {
+    let set = |k: &str| var(k).filter(|v| !v.is_empty()).map(PathBuf::from);
+    if let Some(d) = set("STCVAE_CACHE") {
+        return Some(d);
     }
-    if let Some(d) = var("XDG_CACHE_HOME") {
-        return Some(PathBuf::from(d).join("stcvae"));
+    let absolute = |k: &str| set(k).filter(|d| d.is_absolute());
+    if let Some(d) = absolute("XDG_CACHE_HOME") {
+        return Some(d.join("stcvae"));
     }
-    var("HOME").map(|h| PathBuf::from(h).join(".cache").join("stcvae"))
+    absolute("HOME").map(|h| h.join(".cache").join("stcvae"))
 }
 
 /// Most bytes the cache's entries may hold together. Each object size, mesh and grid
@@ -228,7 +260,46 @@ fn trim(keep: &Path, most: u64) {
 mod tests {
     use std::time::{Duration, SystemTime};
 
-    use super::{CODE, note_unusable_entry, prune_stale, trim};
+    use super::{CODE, cache_dir_from, note_unusable_entry, prune_stale, trim};
+
+    /// Where the cache lives for each environment: STCVAE_CACHE as given, XDG_CACHE_HOME
+    /// and HOME only when absolute (a relative XDG_CACHE_HOME made a cache folder in the
+    /// working directory), empty values as unset, and no folder without any.
+    #[test]
+    fn the_cache_folder_follows_the_xdg_rules() {
+        let dir = |vars: &[(&str, &str)]| {
+            cache_dir_from(|k| {
+                vars.iter()
+                    .find(|(n, _)| *n == k)
+                    .map(|(_, v)| std::ffi::OsString::from(v))
+            })
+            .map(|p| p.to_string_lossy().into_owned())
+        };
+        let home = ("HOME", "/home/u");
+        assert_eq!(dir(&[home]).as_deref(), Some("/home/u/.cache/stcvae"));
+        assert_eq!(
+            dir(&[home, ("XDG_CACHE_HOME", "/x")]).as_deref(),
+            Some("/x/stcvae")
+        );
+        assert_eq!(
+            dir(&[home, ("XDG_CACHE_HOME", "rel")]).as_deref(),
+            Some("/home/u/.cache/stcvae")
+        );
+        assert_eq!(
+            dir(&[home, ("XDG_CACHE_HOME", "")]).as_deref(),
+            Some("/home/u/.cache/stcvae")
+        );
+        assert_eq!(
+            dir(&[home, ("XDG_CACHE_HOME", "/x"), ("STCVAE_CACHE", "rel")]).as_deref(),
+            Some("rel")
+        );
+        assert_eq!(
+            dir(&[("STCVAE_CACHE", ""), home]).as_deref(),
+            Some("/home/u/.cache/stcvae")
+        );
+        assert_eq!(dir(&[("HOME", "rel")]), None);
+        assert_eq!(dir(&[]), None);
+    }
 
     /// An unusable entry is removed before it is rebuilt, so that its space is free for
     /// the new one (on a full disk the damaged file stayed and was rebuilt every run); a

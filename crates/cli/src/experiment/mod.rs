@@ -41,7 +41,7 @@ pub struct Args {
     #[arg(long, default_value = DEFAULT_OUT)]
     pub out: PathBuf,
     /// Model file (default: models/default.stcvae).
-    #[arg(long)]
+    #[arg(long, value_parser = crate::shipped::model_arg)]
     pub model: Option<PathBuf>,
 }
 

@@ -65,6 +65,19 @@ pub fn today() -> String {
     format!("{y:04}-{m:02}-{d:02}")
 }
 
+/// `text` as a Markdown code span: fenced by one backtick more than its longest run of
+/// them, so that a path holding a backtick does not end the span early.
+fn code_span(text: &str) -> String {
+    let longest = text.split(|c| c != '`').map(str::len).max().unwrap_or(0);
+    let fence = "`".repeat(longest + 1);
+    let pad = if text.starts_with('`') || text.ends_with('`') {
+        " "
+    } else {
+        ""
+    };
+    format!("{fence}{pad}{text}{pad}{fence}")
+}
+
 impl Report {
     pub fn new(cfg: &Config, a: &Args, engine: &Engine) -> Self {
         let mut md = String::new();
@@ -72,10 +85,10 @@ impl Report {
         if !cfg.description.is_empty() {
             let _ = writeln!(md, "{}\n", cfg.description.trim());
         }
-        let _ = writeln!(
-            md,
-            "Regenerate: `stcvae experiment {}{}{}{}{}`  \nMachine: {} logical cores, {}; date {}.{}\n",
-            a.config.display(),
+        let word = crate::paths::shell_word;
+        let command = format!(
+            "stcvae experiment {}{}{}{}{}",
+            word(&a.config),
             if a.quick { " --quick" } else { "" },
             match a.device {
                 crate::device::DeviceArg::Auto => "",
@@ -85,12 +98,17 @@ impl Report {
             // The model is part of what was measured, and the folder of where it went.
             a.model
                 .as_ref()
-                .map_or(String::new(), |m| format!(" --model {}", m.display())),
+                .map_or(String::new(), |m| format!(" --model {}", word(m))),
             if a.out == std::path::Path::new(super::DEFAULT_OUT) {
                 String::new()
             } else {
-                format!(" --out {}", a.out.display())
+                format!(" --out {}", word(&a.out))
             },
+        );
+        let _ = writeln!(
+            md,
+            "Regenerate: {}  \nMachine: {} logical cores, {}; date {}.{}\n",
+            code_span(&command),
             std::thread::available_parallelism().map_or(0, |n| n.get()),
             engine.describe(),
             today(),
@@ -177,12 +195,29 @@ fn csv_field(t: &str) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::csv_field;
+    use super::{code_span, csv_field};
 
     #[test]
     fn csv_fields_are_quoted_where_needed() {
         assert_eq!(csv_field("PT, no NEE"), "\"PT, no NEE\"");
         assert_eq!(csv_field("a \"b\""), "\"a \"\"b\"\"\"");
         assert_eq!(csv_field("ST-CVAE"), "ST-CVAE");
+    }
+
+    /// The report's command, pasted into a shell, runs the same experiment: paths with
+    /// spaces, quotes or a leading dash are quoted (`--out out dir/x'y` ran another
+    /// command), and a backtick does not end the Markdown span early.
+    #[test]
+    fn the_regenerate_command_survives_odd_paths() {
+        use crate::paths::shell_word;
+        use std::path::Path;
+        assert_eq!(shell_word(Path::new("configs/t.toml")), "configs/t.toml");
+        assert_eq!(shell_word(Path::new("my teaser.toml")), "'my teaser.toml'");
+        assert_eq!(shell_word(Path::new("out dir/x'y")), "'out dir/x'\\''y'");
+        assert_eq!(shell_word(Path::new("-x")), "./-x");
+        assert_eq!(shell_word(Path::new("")), "''");
+        assert_eq!(code_span("stcvae experiment a"), "`stcvae experiment a`");
+        assert_eq!(code_span("a `b` c"), "``a `b` c``");
+        assert_eq!(code_span("x``y`"), "``` x``y` ```");
     }
 }
