@@ -114,7 +114,7 @@ pub(crate) fn check_out(flag: &str, path: &std::path::Path) -> anyhow::Result<()
 /// As [`check_out`] for a directory that the work will create files in (`label` names the
 /// flag or config field): a file in the way or an unwritable ancestor fails at once.
 pub(crate) fn check_out_dir(label: &str, dir: &std::path::Path) -> anyhow::Result<()> {
-    scatter_sim::output::check_output_path(&dir.join("file"))
+    scatter_sim::output::check_output_folder(dir)
         .map_err(|e| anyhow::anyhow!("{label} {}: {e}", dir.display()))
 }
 
@@ -140,9 +140,11 @@ fn exit_on_usage(e: clap::Error) -> ! {
         ErrorKind::DisplayHelp
             | ErrorKind::DisplayVersion
             | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand
-    ) {
+    ) && !e.use_stderr()
+    {
         // Written as clap writes it, but a failed write is an error, as for every other
-        // text on standard output (`--help > /dev/full` exited 0).
+        // text on standard output (`--help > /dev/full` exited 0). (Help that clap sends
+        // to standard error, a command line without a subcommand, keeps its way out.)
         if let Err(e) = e.print() {
             stdout_check::failed(&e);
         }
@@ -154,18 +156,35 @@ fn exit_on_usage(e: clap::Error) -> ! {
     }
     // clap's "a value is required for '--out <OUT>' but none was supplied" for `--out ""`,
     // where a value was supplied: said as the scene argument's parser says it. (Only its
-    // path parsers refuse "" this way; a list of choices keeps clap's words and the list.)
+    // path parsers refuse "" this way; a list of choices keeps clap's words and the list,
+    // and so does a flag given no value at all, which clap words alike.)
     use clap::error::{ContextKind, ContextValue};
     if e.kind() == ErrorKind::InvalidValue
         && matches!(e.get(ContextKind::InvalidValue), Some(ContextValue::String(v)) if v.is_empty())
         && !matches!(e.get(ContextKind::ValidValue), Some(ContextValue::Strings(v)) if !v.is_empty())
         && let Some(ContextValue::String(arg)) = e.get(ContextKind::InvalidArg)
+        && given_empty(arg)
     {
         eprintln!("error: invalid value '' for '{arg}': an empty path names no file");
         std::process::exit(2)
     }
     eprintln!("{}", one_line(&e.render().to_string()));
     std::process::exit(2)
+}
+
+/// Whether the command line gives the flag of clap's `arg` ("--out <OUT>") an empty value,
+/// as `--out ""` or `--out=`.
+fn given_empty(arg: &str) -> bool {
+    let Some(flag) = arg
+        .split_whitespace()
+        .next()
+        .filter(|f| f.starts_with("--"))
+    else {
+        return false;
+    };
+    let args: Vec<std::ffi::OsString> = std::env::args_os().collect();
+    let joined = format!("{flag}=");
+    args.windows(2).any(|w| w[0] == *flag && w[1].is_empty()) || args.iter().any(|a| *a == *joined)
 }
 
 /// clap's error text up to its usage lines, joined into one line (a tip in brackets).
@@ -237,17 +256,16 @@ fn quiet_wayland_probe() {
 }
 
 /// rayon takes a RAYON_NUM_THREADS it cannot read (`abc`, `-1`) as unset, and every core
-/// is used without a word: said once, since the outputs report the count as if chosen.
+/// was used without a word: said once, since the outputs report the count as if chosen.
 fn note_unread_thread_count() {
     if let Some(v) = std::env::var_os("RAYON_NUM_THREADS")
         && !v.is_empty()
         && v.to_str().is_none_or(|s| s.parse::<usize>().is_err())
     {
         eprintln!(
-            "warning: RAYON_NUM_THREADS={} is not a whole number (0 or more): using all {} \
-             threads",
-            v.to_string_lossy(),
-            rayon::current_num_threads()
+            "warning: RAYON_NUM_THREADS={} is not a whole number (0 or more), so it is \
+             ignored: all cores are used where --threads does not say otherwise",
+            v.to_string_lossy()
         );
     }
 }

@@ -596,10 +596,18 @@ pub fn note_lights(p: &Prepared) {
              black [environment]): the image will be black"
         );
     }
-    if p.data.lights.iter().all(|l| l.is_delta()) && !p.file.render.nee && !p.data.lights.is_empty()
-    {
+    // Counted whenever some are delta: with a disk light beside a sun, --nee false halved
+    // the image without a word, since the note came only when every light was delta.
+    let delta = p.data.lights.iter().filter(|l| l.is_delta()).count();
+    if delta > 0 && !p.file.render.nee {
+        let which = if delta == p.data.lights.len() {
+            String::new()
+        } else {
+            format!(" ({delta} of the scene's {})", p.data.lights.len())
+        };
         eprintln!(
-            "note: delta lights can only be reached by NEE; with --nee false they add nothing"
+            "note: delta lights{which} can only be reached by NEE; with --nee false they add \
+             nothing"
         );
     }
     // Measured against an independent walk through a sphere (render-gpu's tests,

@@ -44,7 +44,7 @@ pub struct Args {
     model: Option<ModelKind>,
     /// With --model: take the other two decoders from this model file instead of their
     /// checkpoints (e.g. retrain EventGen alone against the shipped models/default.stcvae).
-    #[arg(long, requires = "model")]
+    #[arg(long, requires = "model", value_parser = crate::shipped::model_arg)]
     base: Option<PathBuf>,
     /// Continue from the checkpoints in the config's checkpoint_dir.
     #[arg(long)]

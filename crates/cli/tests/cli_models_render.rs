@@ -3079,6 +3079,32 @@ fn named_pipes_as_inputs_are_refused_not_waited_on() {
 /// are tested in render-gpu's integrators.rs and gpu.rs): finite, ≥ 0, zero on the constant sky and
 /// positive on the object; the JSON names it; `merge` refuses it as a render; too few spp
 /// are refused before the render; the GPU writes one too.
+/// A delta light beside a disk light is lost to --nee false, and said so: the note came
+/// only when every light was delta, and the image came out half as bright without a word.
+#[test]
+fn a_delta_light_lost_to_nee_off_is_noted() {
+    let d = tempfile::tempdir().unwrap();
+    let scene = d.path().join("two.toml");
+    let text = sphere_scene_text(8);
+    assert!(text.contains("[environment]\n"));
+    let delta = "[[light]]\nkind = \"directional\"\ndirection = [0.0, 0.0, -1.0]\n\
+                 irradiance = [1.0, 1.0, 1.0]\nangular_diameter_deg = 0.0\n\n[environment]\n";
+    std::fs::write(&scene, text.replace("[environment]\n", delta)).unwrap();
+    let out = d.path().join("o");
+    let says = "note: delta lights (1 of the scene's 2) can only be reached by NEE";
+    for (nee, noted) in [("false", true), ("true", false)] {
+        let err = ok(&render_scene(
+            &scene,
+            "pt",
+            "1",
+            "1",
+            &out,
+            &["--nee", nee, "--device", "cpu"],
+        ));
+        assert_eq!(err.contains(says), noted, "--nee {nee}: {err}");
+    }
+}
+
 #[test]
 fn render_variance_writes_a_variance_image() {
     let d = tempfile::tempdir().unwrap();

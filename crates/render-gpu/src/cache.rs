@@ -82,9 +82,9 @@ pub(crate) fn note_unwritable_cache(path: &Path, e: &std::io::Error) {
 /// word, seconds each for the bunny.
 fn note_no_cache_folder() {
     note_once(
-        "note: no cache folder (STCVAE_CACHE, XDG_CACHE_HOME and HOME are unset, empty or \
-         relative): distance grids and escape cones are rebuilt every run; set STCVAE_CACHE \
-         to a folder to keep them",
+        "note: no cache folder (STCVAE_CACHE is unset, and XDG_CACHE_HOME and HOME are unset \
+         or relative): distance grids and escape cones are rebuilt every run; set \
+         STCVAE_CACHE to a folder to keep them",
     );
 }
 
@@ -161,7 +161,8 @@ pub(crate) fn read_or_build<T, E>(
     Ok(v)
 }
 
-/// `$STCVAE_CACHE`, else `$XDG_CACHE_HOME/stcvae`, else `~/.cache/stcvae`.
+/// `$STCVAE_CACHE`, else `$XDG_CACHE_HOME/stcvae`, else `~/.cache/stcvae`, the last two
+/// only from absolute paths ([`cache_dir_from`]); None: no cache folder.
 pub(crate) fn cache_dir() -> Option<PathBuf> {
     cache_dir_from(|k| std::env::var_os(k))
 }

@@ -99,7 +99,22 @@ pub fn object_mesh(scene: &SceneFile, scene_dir: &Path) -> Result<TriMesh, Rende
         (Some(Shape::Sphere), _) => mesh::sphere(o.radius.unwrap_or(0.5) as f32),
         (Some(Shape::Cube), _) => mesh::cube(o.size.unwrap_or(1.0) as f32),
         (Some(Shape::TorusKnot), _) => mesh::torus_knot(),
-        (None, Some(p)) => mesh::load_mesh(&scene_dir.join(p))?,
+        (None, Some(p)) => {
+            let path = scene_dir.join(p);
+            // Named with its field: a missing mesh was only "cube.obj: cannot open the
+            // mesh", which did not say where the name came from or where it was looked for.
+            if let Err(e) = std::fs::metadata(&path) {
+                return Err(RenderError::mesh(
+                    &path,
+                    format!(
+                        "cannot open the mesh of object.mesh = \"{}\" (found relative to the \
+                         scene file's folder): {e}",
+                        p.display()
+                    ),
+                ));
+            }
+            mesh::load_mesh(&path)?
+        }
         (None, None) => unreachable!("validated: shape or mesh"),
     };
     let name = match &o.mesh {

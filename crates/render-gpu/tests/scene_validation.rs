@@ -452,3 +452,20 @@ fn a_medium_too_dense_for_the_surface_offset_is_refused() {
     build("sigma_t = [10.0, 2.4e4, 10.0]", "1.0").unwrap();
     build("sigma_t = [10.0, 1e5, 10.0]", "0.01").unwrap();
 }
+
+/// A mesh that is not there is named with its field and where it was looked for: the
+/// message was only "cube.obj: cannot open the mesh", from whatever folder the scene was.
+#[test]
+fn a_missing_mesh_names_its_field() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = BASE.replace("shape = \"sphere\"", "mesh = \"nope.obj\"");
+    let scene = SceneFile::parse(&dir.path().join("s.toml"), &text).unwrap();
+    let Err(e) = render_gpu::setup::object_mesh(&scene, dir.path()) else {
+        panic!("a missing mesh loaded");
+    };
+    let e = e.to_string();
+    assert!(
+        e.contains("nope.obj: cannot open the mesh of object.mesh = \"nope.obj\" (found relative to the scene file's folder)"),
+        "{e}"
+    );
+}

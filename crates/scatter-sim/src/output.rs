@@ -13,22 +13,46 @@ use tempfile::NamedTempFile;
 
 /// Checks, before long work starts, that [`AtomicFile::create`] will be able to write `path`:
 /// the nearest existing ancestor of its directory is a directory in which files can be
-/// created (probed with a temporary file, removed at once), and `path` is not a directory.
-/// Otherwise the message says which part of the path is at fault, e.g. "x exists and is not
-/// a directory" instead of the "File exists" that creating the directories would report
-/// after the work.
+/// created and renamed (probed with a temporary file, removed at once), and `path` is a
+/// file the final rename can replace ([`check_replaceable`]; nor another user's file in a
+/// sticky folder, nor an immutable one). Otherwise the message says which part of the path
+/// is at fault, e.g. "x exists and is not a directory" instead of the "File exists" that
+/// creating the directories would report after the work.
 pub fn check_output_path(path: &Path) -> Result<(), String> {
-    // Its own refusals read on from the path ("x is a directory"); an error of the system
-    // follows a colon.
-    check_replaceable(path).map_err(|e| {
-        let sep = if e.raw_os_error().is_some() { ":" } else { "" };
-        format!("{}{sep} {e}", path.display())
-    })?;
+    check_replaceable(path).map_err(|e| after_path(path, &e))?;
     let text = path.as_os_str().to_string_lossy();
     if text.ends_with('/') || text.ends_with(std::path::MAIN_SEPARATOR) {
         return Err(format!("{text} ends with a path separator: name a file"));
     }
-    let dir = folder_of(path);
+    let Some(probe) = probe_folder(folder_of(path))? else {
+        return Ok(());
+    };
+    #[cfg(unix)]
+    check_renamable(path, probe.as_file())?;
+    drop(probe);
+    Ok(())
+}
+
+/// As [`check_output_path`] for a folder that the work will write files into (a
+/// checkpoint folder, `bench render --save`): the folder's own checks, with no file in it
+/// to judge (a name made up inside it was judged as a target: another user's file of that
+/// name in a sticky folder refused the folder).
+pub fn check_output_folder(dir: &Path) -> Result<(), String> {
+    check_place(dir, dir).map_err(|e| after_path(dir, &e))?;
+    probe_folder(dir).map(drop)
+}
+
+/// An error about `path`: the checks' own refusals read on from the path ("x is a
+/// directory"); an error of the system follows a colon.
+fn after_path(path: &Path, e: &io::Error) -> String {
+    let sep = if e.raw_os_error().is_some() { ":" } else { "" };
+    format!("{}{sep} {e}", path.display())
+}
+
+/// The nearest existing ancestor of `dir` (itself included), checked to be a folder in
+/// which files can be made and renamed, with the probe file made there (None: nothing on
+/// the path exists).
+fn probe_folder(dir: &Path) -> Result<Option<NamedTempFile>, String> {
     // The nearest ancestor that is there at all: a symbolic link counts even when it
     // points nowhere (exists() would step over it, and creating the directories would
     // then fail after the work).
@@ -44,7 +68,7 @@ pub fn check_output_path(path: &Path) -> Result<(), String> {
         })
         .find(|a| fs::symlink_metadata(a).is_ok())
     else {
-        return Ok(());
+        return Ok(None);
     };
     if !existing.exists() {
         return Err(format!(
@@ -58,20 +82,27 @@ pub fn check_output_path(path: &Path) -> Result<(), String> {
             existing.display()
         ));
     }
-    let probe = tempfile::Builder::new()
+    // Files can be made in an append-only folder, but neither renamed nor removed: the
+    // output failed after the work, and the probe and the temporary stayed.
+    #[cfg(target_os = "linux")]
+    if fixed_in_place(existing) {
+        return Err(format!(
+            "{} is immutable or append-only (chattr +i or +a): no output can be renamed \
+             into it",
+            existing.display()
+        ));
+    }
+    tempfile::Builder::new()
         .prefix(".stcvae-write-check.")
         .tempfile_in(existing)
+        .map(Some)
         .map_err(|e| {
             format!(
                 "cannot create files in {}: {}",
                 existing.display(),
                 e.kind()
             )
-        })?;
-    #[cfg(unix)]
-    check_renamable(path, probe.as_file())?;
-    drop(probe);
-    Ok(())
+        })
 }
 
 /// Refuses a target that the rename at the end of the work could not replace, though
@@ -97,7 +128,7 @@ fn check_renamable(path: &Path, probe: &fs::File) -> Result<(), String> {
         ));
     }
     #[cfg(target_os = "linux")]
-    if target.is_file() && immutable(path) {
+    if target.is_file() && fixed_in_place(path) {
         return Err(format!(
             "{} is immutable or append-only (chattr +i or +a), so no output can replace it: \
              choose another name",
@@ -114,14 +145,15 @@ fn sticky_keeps(me: u32, folder_mode: u32, folder_owner: u32, file_owner: u32) -
     folder_mode & 0o1000 != 0 && me != 0 && me != file_owner && me != folder_owner
 }
 
-/// Whether the regular file at `path` carries the immutable or append-only flag (which
-/// root cannot rename over either). A file this user cannot open to read is taken as not.
+/// Whether the file or folder at `path` carries the immutable or append-only flag (which
+/// root cannot rename over, or out of, either). One this user cannot open to read is taken
+/// as not.
 #[cfg(target_os = "linux")]
-fn immutable(path: &Path) -> bool {
+fn fixed_in_place(path: &Path) -> bool {
     use std::os::fd::AsRawFd;
     use std::os::unix::fs::OpenOptionsExt;
     // linux/fs.h: FS_IMMUTABLE_FL, FS_APPEND_FL.
-    const FLAGS: libc::c_long = 0x10 | 0x20;
+    const FLAGS: libc::c_int = 0x10 | 0x20;
     let Ok(f) = fs::OpenOptions::new()
         .read(true)
         .custom_flags(libc::O_NONBLOCK | libc::O_NOFOLLOW)
@@ -129,8 +161,10 @@ fn immutable(path: &Path) -> bool {
     else {
         return false;
     };
-    let mut flags: libc::c_long = 0;
-    // SAFETY: FS_IOC_GETFLAGS writes at most a long into `flags`, which lives past the call.
+    // The ioctl's number says long, but the kernel writes an int (a long read back would
+    // hold the flags in its high half on a big-endian machine).
+    let mut flags: libc::c_int = 0;
+    // SAFETY: FS_IOC_GETFLAGS writes one int into `flags`, which lives past the call.
     let ok = unsafe { libc::ioctl(f.as_raw_fd(), libc::FS_IOC_GETFLAGS, &mut flags) } == 0;
     ok && flags & FLAGS != 0
 }
@@ -144,34 +178,7 @@ fn immutable(path: &Path) -> bool {
 /// user's link in a shared folder such as /tmp aim an output at the writer's own files.
 /// The error's message follows the path, e.g. "x is a directory".
 pub fn check_replaceable(path: &Path) -> io::Result<()> {
-    if let Some(missing) = missing_before_parent(path) {
-        return Err(io::Error::new(
-            io::ErrorKind::InvalidInput,
-            format!(
-                "goes up (`..`) out of {}, which does not exist yet: write the path without \
-                 it",
-                missing.display()
-            ),
-        ));
-    }
-    let dir = folder_of(path);
-    if let Some(real) = system_folder(dir) {
-        let shown = dir.display().to_string();
-        let real = real.display().to_string();
-        let real = if real == shown {
-            String::new()
-        } else {
-            format!(", that is {real}")
-        };
-        return Err(io::Error::new(
-            io::ErrorKind::InvalidInput,
-            format!(
-                "is in {shown}{real}, a folder of devices and kernel entries: stcvae writes \
-                 files, renamed over what is there, not to standard output or devices; name \
-                 a file elsewhere"
-            ),
-        ));
-    }
+    check_place(folder_of(path), path)?;
     let meta = match fs::symlink_metadata(path) {
         // Not there (or a file on the way, which the caller's directory checks name).
         Err(e)
@@ -202,6 +209,40 @@ pub fn check_replaceable(path: &Path) -> io::Result<()> {
     Ok(())
 }
 
+/// Refuses a place no output may be written: `path` going up (`..`) out of a folder that
+/// does not exist yet ([`missing_before_parent`]), and `dir` (the output's folder, or the
+/// folder itself) in /dev, /proc or /sys ([`system_folder`]).
+fn check_place(dir: &Path, path: &Path) -> io::Result<()> {
+    if let Some(missing) = missing_before_parent(path) {
+        return Err(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            format!(
+                "goes up (`..`) out of {}, which does not exist yet: write the path without \
+                 it",
+                missing.display()
+            ),
+        ));
+    }
+    if let Some(real) = system_folder(dir) {
+        let shown = dir.display().to_string();
+        let real = real.display().to_string();
+        let real = if real == shown {
+            String::new()
+        } else {
+            format!(", that is {real}")
+        };
+        return Err(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            format!(
+                "is in {shown}{real}, a folder of devices and kernel entries: stcvae writes \
+                 files, renamed over what is there, not to standard output or devices; name \
+                 a file elsewhere"
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// The first component of `path` that does not exist, where a `..` comes after it. Such a
 /// path escaped every check of what it names: `new/../a.exr` is resolved through `.`, its
 /// nearest existing ancestor, as `./new/../a.exr`, a file that is not there, while the
@@ -217,9 +258,11 @@ fn missing_before_parent(path: &Path) -> Option<PathBuf> {
             return missing;
         }
         at.push(c);
+        // Only what is not there: a file on the way (NotADirectory) is named by the
+        // folder checks as what it is.
         if missing.is_none()
             && matches!(c, Component::Normal(_))
-            && fs::symlink_metadata(&at).is_err()
+            && fs::symlink_metadata(&at).is_err_and(|e| e.kind() == io::ErrorKind::NotFound)
         {
             missing = Some(at.clone());
         }
@@ -506,8 +549,8 @@ struct MadeDirs(Vec<PathBuf>);
 
 impl MadeDirs {
     /// Makes `dir` one level at a time and records the levels this call made: a level that
-    /// only looked missing (`x/../old` with `x` missing names an existing `old`) exists
-    /// once its parent is made, and is not someone else's folder to remove.
+    /// another run made meanwhile is not this one's to remove. (A path through a missing
+    /// level and back out, `x/../old`, is refused before: [`check_replaceable`].)
     fn create(dir: &Path) -> io::Result<Self> {
         let mut missing = Vec::new();
         let mut at = Some(dir);
@@ -1516,17 +1559,17 @@ mod tests {
         assert_eq!(at, folder);
         assert!(!d.path().join("new").exists());
         fs::remove_dir(&folder).unwrap();
-        // Through a missing folder and back out of it: the existing folder named is not
-        // one the set made, and stays (it was removed when empty).
+        // Through a missing folder and back out of it: refused before any folder is made
+        // (the existing folder it names was once removed when empty, `gone` left behind).
         let old = d.path().join("old");
         fs::create_dir(&old).unwrap();
         let through = d.path().join("gone/../old/w");
-        let round: [(&Path, &[u8]); 2] = [(&through, b"w"), (&folder, b"f")];
-        fs::create_dir(&folder).unwrap();
-        write_atomic_set(&round).unwrap_err();
+        let round: [(&Path, &[u8]); 1] = [(&through, b"w")];
+        let (at, e) = write_atomic_set(&round).unwrap_err();
+        assert_eq!(at, through);
+        assert!(e.to_string().contains("which does not exist yet"), "{e}");
         assert!(old.is_dir(), "an existing folder removed");
         assert!(!d.path().join("gone").exists());
-        fs::remove_dir(&folder).unwrap();
         fs::remove_dir(&old).unwrap();
         write_atomic_set(&nested).unwrap();
         assert_eq!(
@@ -1729,6 +1772,24 @@ mod tests {
         let e = r.unwrap_err();
         assert!(e.contains("kept.exr is immutable or append-only"), "{e}");
         check_output_path(&f).unwrap();
+        // An append-only folder takes new files but lets none be renamed or removed: the
+        // output failed after the work and left the probe and its temporary there.
+        let folder = d.path().join("log");
+        fs::create_dir(&folder).unwrap();
+        let chattr = |flag: &str, p: &Path| {
+            std::process::Command::new("chattr")
+                .arg(flag)
+                .arg(p)
+                .status()
+                .is_ok_and(|s| s.success())
+        };
+        assert!(chattr("+a", &folder), "chattr +a");
+        let r = check_output_path(&folder.join("new.bin"));
+        let left = fs::read_dir(&folder).unwrap().count();
+        assert!(chattr("-a", &folder), "chattr -a");
+        let e = r.unwrap_err();
+        assert!(e.contains("log is immutable or append-only"), "{e}");
+        assert_eq!(left, 0, "the probe was left in the folder");
     }
 
     #[test]
@@ -1759,6 +1820,20 @@ mod tests {
         let e = check_output_path(&d.path().join("a/b/../../../dev/x")).unwrap_err();
         assert!(e.contains("a, which does not exist yet"), "{e}");
         assert!(!d.path().join("new").exists() && !d.path().join("a").exists());
+        // A file on the way is named as what it is, `..` or not.
+        let e = check_output_path(&file.join("sub/../x")).unwrap_err();
+        assert!(e.contains("afile exists and is not a directory"), "{e}");
+        // A folder to write into is judged as a folder: the made-up file name its check
+        // once used (`file`) was judged as a target, so a folder holding a folder of that
+        // name was refused as "is a directory".
+        fs::create_dir_all(d.path().join("ck/file")).unwrap();
+        check_output_folder(&d.path().join("ck")).unwrap();
+        check_output_folder(&d.path().join("ck/new/deeper")).unwrap();
+        let e = check_output_folder(&d.path().join("new/../ck")).unwrap_err();
+        assert!(e.contains("new, which does not exist yet"), "{e}");
+        let e = check_output_folder(&file).unwrap_err();
+        assert!(e.contains("afile exists and is not a directory"), "{e}");
+        fs::remove_dir_all(d.path().join("ck")).unwrap();
         // Through folders that exist, `..` is an ordinary path.
         fs::create_dir(d.path().join("sub")).unwrap();
         check_output_path(&d.path().join("sub/../y.bin")).unwrap();

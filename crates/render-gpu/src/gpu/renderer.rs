@@ -563,11 +563,15 @@ fn tally(
         let hint = if budget > 1 {
             format!("set STCVAE_GPU_BOUNCES below {budget}")
         } else {
-            // One bounce's loops: exact walks (exact_tau), or hit tests over a coarse
-            // grid cell's long triangle list (a fine mesh under a low grid_resolution).
-            "a single bounce exceeded it: lower render.exact_tau, raise \
-             render.grid_resolution"
-                .to_string()
+            // One bounce's loops: exact walks (exact_tau; past MODEL_MAX_G every step is
+            // exact, and only max_tau bounds a walk: a hint of exact_tau alone sent users
+            // to a setting with no effect there), or hit tests over a coarse grid cell's
+            // long triangle list (a fine mesh under a low grid_resolution).
+            format!(
+                "a single bounce exceeded it: lower render.exact_tau (render.max_tau where \
+                 |medium.g| > {}: every step is exact there), raise render.grid_resolution",
+                crate::scene::MODEL_MAX_G
+            )
         };
         return Err(RenderError::Gpu(format!(
             "{} invocations were stopped by {}'s loop limit (lavapipe stops a shader \
