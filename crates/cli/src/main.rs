@@ -140,11 +140,14 @@ fn exit_on_usage(e: clap::Error) -> ! {
         ErrorKind::DisplayHelp
             | ErrorKind::DisplayVersion
             | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand
-    ) && !e.use_stderr()
-    {
+    ) {
+        if e.use_stderr() {
+            // Help for a command line without a subcommand goes to standard error, as
+            // clap writes it, with its status 2.
+            e.exit()
+        }
         // Written as clap writes it, but a failed write is an error, as for every other
-        // text on standard output (`--help > /dev/full` exited 0). (Help that clap sends
-        // to standard error, a command line without a subcommand, keeps its way out.)
+        // text on standard output (`--help > /dev/full` exited 0).
         if let Err(e) = e.print() {
             stdout_check::failed(&e);
         }

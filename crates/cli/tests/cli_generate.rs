@@ -1296,6 +1296,16 @@ fn paths_and_the_environment_are_read_as_meant() {
         stderr(&e)
     );
     assert!(!d.join("new").exists() && !d.join("c.bin").exists());
+    // Help without a subcommand still goes whole to standard error, status 2 (a mend of
+    // the --help change once cut it to one line).
+    let e = stcvae(&[], d);
+    assert!(
+        e.status.code() == Some(2)
+            && stderr(&e).contains("Usage:")
+            && stderr(&e).contains("Commands:"),
+        "{}",
+        stderr(&e)
+    );
     // The shipped model, typed, from a folder that is not the repository's.
     ok(&stcvae(
         &words(

@@ -3075,10 +3075,6 @@ fn named_pipes_as_inputs_are_refused_not_waited_on() {
     }
 }
 
-/// `render --variance` writes OUT.var.exr beside the image in the same set (its statistics
-/// are tested in render-gpu's integrators.rs and gpu.rs): finite, ≥ 0, zero on the constant sky and
-/// positive on the object; the JSON names it; `merge` refuses it as a render; too few spp
-/// are refused before the render; the GPU writes one too.
 /// A delta light beside a disk light is lost to --nee false, and said so: the note came
 /// only when every light was delta, and the image came out half as bright without a word.
 #[test]
@@ -3105,6 +3101,10 @@ fn a_delta_light_lost_to_nee_off_is_noted() {
     }
 }
 
+/// `render --variance` writes OUT.var.exr beside the image in the same set (its statistics
+/// are tested in render-gpu's integrators.rs and gpu.rs): finite, ≥ 0, zero on the constant sky and
+/// positive on the object; the JSON names it; `merge` refuses it as a render; too few spp
+/// are refused before the render; the GPU writes one too.
 #[test]
 fn render_variance_writes_a_variance_image() {
     let d = tempfile::tempdir().unwrap();

@@ -82,8 +82,8 @@ pub(crate) fn note_unwritable_cache(path: &Path, e: &std::io::Error) {
 /// word, seconds each for the bunny.
 fn note_no_cache_folder() {
     note_once(
-        "note: no cache folder (STCVAE_CACHE is unset, and XDG_CACHE_HOME and HOME are unset \
-         or relative): distance grids and escape cones are rebuilt every run; set \
+        "note: no cache folder (STCVAE_CACHE is unset or empty, and XDG_CACHE_HOME and HOME \
+         are unset, empty or relative): distance grids and escape cones are rebuilt every run; set \
          STCVAE_CACHE to a folder to keep them",
     );
 }

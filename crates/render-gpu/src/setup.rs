@@ -107,8 +107,8 @@ pub fn object_mesh(scene: &SceneFile, scene_dir: &Path) -> Result<TriMesh, Rende
                 return Err(RenderError::mesh(
                     &path,
                     format!(
-                        "cannot open the mesh of object.mesh = \"{}\" (found relative to the \
-                         scene file's folder): {e}",
+                        "cannot open the mesh of object.mesh = \"{}\" (a relative path is \
+                         looked for in the scene file's folder): {e}",
                         p.display()
                     ),
                 ));

@@ -465,7 +465,7 @@ fn a_missing_mesh_names_its_field() {
     };
     let e = e.to_string();
     assert!(
-        e.contains("nope.obj: cannot open the mesh of object.mesh = \"nope.obj\" (found relative to the scene file's folder)"),
+        e.contains("nope.obj: cannot open the mesh of object.mesh = \"nope.obj\" (a relative path is looked for in the scene file's folder)"),
         "{e}"
     );
 }

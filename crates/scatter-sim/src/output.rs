@@ -13,7 +13,8 @@ use tempfile::NamedTempFile;
 
 /// Checks, before long work starts, that [`AtomicFile::create`] will be able to write `path`:
 /// the nearest existing ancestor of its directory is a directory in which files can be
-/// created and renamed (probed with a temporary file, removed at once), and `path` is a
+/// created (probed with a temporary file, removed at once) and renamed (its flags), and
+/// `path` is a
 /// file the final rename can replace ([`check_replaceable`]; nor another user's file in a
 /// sticky folder, nor an immutable one). Otherwise the message says which part of the path
 /// is at fault, e.g. "x exists and is not a directory" instead of the "File exists" that
@@ -50,8 +51,9 @@ fn after_path(path: &Path, e: &io::Error) -> String {
 }
 
 /// The nearest existing ancestor of `dir` (itself included), checked to be a folder in
-/// which files can be made and renamed, with the probe file made there (None: nothing on
-/// the path exists).
+/// which files can be made (the probe file, made there and returned), and, on Linux, one
+/// whose flags let them be renamed (None: nothing on the path exists, or the probe could
+/// not be removed from it again).
 fn probe_folder(dir: &Path) -> Result<Option<NamedTempFile>, String> {
     // The nearest ancestor that is there at all: a symbolic link counts even when it
     // points nowhere (exists() would step over it, and creating the directories would
@@ -82,15 +84,21 @@ fn probe_folder(dir: &Path) -> Result<Option<NamedTempFile>, String> {
             existing.display()
         ));
     }
-    // Files can be made in an append-only folder, but neither renamed nor removed: the
-    // output failed after the work, and the probe and the temporary stayed.
+    // Files can be made in an append-only folder, but neither renamed nor removed: an
+    // output there failed after the work, and the probe and the temporary stayed. Folders
+    // can be made in it, though, and an output in one of them is written as anywhere: the
+    // probe is then skipped, since it could not be removed.
     #[cfg(target_os = "linux")]
-    if fixed_in_place(existing) {
-        return Err(format!(
-            "{} is immutable or append-only (chattr +i or +a): no output can be renamed \
-             into it",
-            existing.display()
-        ));
+    match fixed_flags(existing, true) {
+        0 => {}
+        f if f & IMMUTABLE == 0 && existing != dir => return Ok(None),
+        _ => {
+            return Err(format!(
+                "{} is immutable or append-only (chattr +i or +a): no output can be renamed \
+                 into it",
+                existing.display()
+            ));
+        }
     }
     tempfile::Builder::new()
         .prefix(".stcvae-write-check.")
@@ -128,7 +136,7 @@ fn check_renamable(path: &Path, probe: &fs::File) -> Result<(), String> {
         ));
     }
     #[cfg(target_os = "linux")]
-    if target.is_file() && fixed_in_place(path) {
+    if target.is_file() && fixed_flags(path, false) != 0 {
         return Err(format!(
             "{} is immutable or append-only (chattr +i or +a), so no output can replace it: \
              choose another name",
@@ -145,28 +153,39 @@ fn sticky_keeps(me: u32, folder_mode: u32, folder_owner: u32, file_owner: u32) -
     folder_mode & 0o1000 != 0 && me != 0 && me != file_owner && me != folder_owner
 }
 
-/// Whether the file or folder at `path` carries the immutable or append-only flag (which
-/// root cannot rename over, or out of, either). One this user cannot open to read is taken
-/// as not.
+/// linux/fs.h's FS_IMMUTABLE_FL and FS_APPEND_FL: nothing in such a file or folder may be
+/// renamed over or out of, by root either; an append-only folder still takes new files and
+/// folders.
 #[cfg(target_os = "linux")]
-fn fixed_in_place(path: &Path) -> bool {
+const IMMUTABLE: libc::c_int = 0x10;
+#[cfg(target_os = "linux")]
+const APPEND_ONLY: libc::c_int = 0x20;
+
+/// The immutable and append-only flags of the file or folder at `path` (0 for one this user
+/// cannot open to read), through a symbolic link where `follow` (a folder reached through a
+/// link is the folder written into; a target that is a link is replaced itself).
+#[cfg(target_os = "linux")]
+fn fixed_flags(path: &Path, follow: bool) -> libc::c_int {
     use std::os::fd::AsRawFd;
     use std::os::unix::fs::OpenOptionsExt;
-    // linux/fs.h: FS_IMMUTABLE_FL, FS_APPEND_FL.
-    const FLAGS: libc::c_int = 0x10 | 0x20;
+    let nofollow = if follow { 0 } else { libc::O_NOFOLLOW };
     let Ok(f) = fs::OpenOptions::new()
         .read(true)
-        .custom_flags(libc::O_NONBLOCK | libc::O_NOFOLLOW)
+        .custom_flags(libc::O_NONBLOCK | nofollow)
         .open(path)
     else {
-        return false;
+        return 0;
     };
     // The ioctl's number says long, but the kernel writes an int (a long read back would
     // hold the flags in its high half on a big-endian machine).
     let mut flags: libc::c_int = 0;
     // SAFETY: FS_IOC_GETFLAGS writes one int into `flags`, which lives past the call.
     let ok = unsafe { libc::ioctl(f.as_raw_fd(), libc::FS_IOC_GETFLAGS, &mut flags) } == 0;
-    ok && flags & FLAGS != 0
+    if ok {
+        flags & (IMMUTABLE | APPEND_ONLY)
+    } else {
+        0
+    }
 }
 
 /// Refuses an output `path` that must not be replaced: an output is a finished file
@@ -1745,9 +1764,9 @@ mod tests {
         assert!(!sticky_keeps(me, 0o40777, root, other), "no sticky bit");
     }
 
-    /// An immutable target fails the rename at the end of the work, even as root: refused
-    /// before it. Setting the flag needs root on a file system that keeps it (ext4 here);
-    /// elsewhere the test says so and checks nothing.
+    /// An immutable target, or an append-only folder, fails the rename at the end of the
+    /// work, even as root: refused before it. Setting the flags needs root on a file system
+    /// that keeps them (ext4 here); elsewhere the test says so and checks nothing.
     #[cfg(target_os = "linux")]
     #[test]
     fn an_immutable_target_is_refused_before_the_work() {
@@ -1790,6 +1809,19 @@ mod tests {
         let e = r.unwrap_err();
         assert!(e.contains("log is immutable or append-only"), "{e}");
         assert_eq!(left, 0, "the probe was left in the folder");
+        // Reached through a link, the same (the link was not followed, and the check
+        // skipped); but a folder still to be made in it takes the output, and no probe.
+        let link = d.path().join("loglink");
+        std::os::unix::fs::symlink(&folder, &link).unwrap();
+        assert!(chattr("+a", &folder), "chattr +a");
+        let through = check_output_path(&link.join("y.bin"));
+        let below = check_output_path(&folder.join("new/z.bin"));
+        let left = fs::read_dir(&folder).unwrap().count();
+        assert!(chattr("-a", &folder), "chattr -a");
+        let e = through.unwrap_err();
+        assert!(e.contains("loglink is immutable or append-only"), "{e}");
+        below.unwrap();
+        assert_eq!(left, 0, "the probe was left in the folder");
     }
 
     #[test]
@@ -1814,7 +1846,7 @@ mod tests {
         let left: Vec<_> = fs::read_dir(d.path()).unwrap().collect();
         assert_eq!(left.len(), 1, "{left:?}");
         // A `..` after a folder not made yet named a file no check saw (an input beside
-        // it, or /dev): refused, naming the folder, and nothing is made.
+        // it): refused, naming the folder, and nothing is made.
         let e = check_output_path(&d.path().join("new/../afile")).unwrap_err();
         assert!(e.contains("new, which does not exist yet"), "{e}");
         let e = check_output_path(&d.path().join("a/b/../../../dev/x")).unwrap_err();
