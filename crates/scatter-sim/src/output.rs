@@ -14,9 +14,8 @@ use tempfile::NamedTempFile;
 /// Checks, before long work starts, that [`AtomicFile::create`] will be able to write `path`:
 /// the nearest existing ancestor of its directory is a directory in which files can be
 /// created (probed with a temporary file, removed at once) and renamed (its flags), and
-/// `path` is a
-/// file the final rename can replace ([`check_replaceable`]; nor another user's file in a
-/// sticky folder, nor an immutable one). Otherwise the message says which part of the path
+/// `path` is a file the final rename can replace ([`check_replaceable`]; nor another user's
+/// file in a sticky folder, nor an immutable one). Otherwise the message says which part of the path
 /// is at fault, e.g. "x exists and is not a directory" instead of the "File exists" that
 /// creating the directories would report after the work.
 pub fn check_output_path(path: &Path) -> Result<(), String> {
