@@ -268,7 +268,7 @@ fn note_unread_thread_count() {
         eprintln!(
             "warning: RAYON_NUM_THREADS={} is not a whole number (0 or more), so it is \
              ignored: all cores are used where --threads does not say otherwise",
-            v.to_string_lossy()
+            scatter_sim::ranges::printable(&v.to_string_lossy())
         );
     }
 }

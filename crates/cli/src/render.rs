@@ -530,11 +530,15 @@ fn variance_image_owner(out: &Path) -> Option<PathBuf> {
     let stem = crate::merge::out_stem(out);
     let render = stem.with_file_name(stem.file_name()?.to_str()?.strip_suffix(".var")?);
     let exr = crate::merge::image_out(out, "exr");
-    let json: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(crate::merge::image_out(&render, "json")).ok()?)
-            .ok()?;
+    if !exr.is_file() {
+        return None;
+    }
+    // Read as inputs are: a FIFO named q.json would have held the command up.
+    let text = scatter_sim::output::read_input_to_string(&crate::merge::image_out(&render, "json"))
+        .ok()?;
+    let json: serde_json::Value = serde_json::from_str(&text).ok()?;
     let named = json.get("variance_file")?.as_str()?;
-    (exr.is_file() && Some(std::ffi::OsStr::new(named)) == exr.file_name()).then_some(render)
+    (Some(std::ffi::OsStr::new(named)) == exr.file_name()).then_some(render)
 }
 
 /// The files a render reads (and `--model`, even when PT leaves it unread): none may be

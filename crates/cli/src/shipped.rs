@@ -25,14 +25,19 @@ pub fn locate(rel: &str) -> PathBuf {
     }
 }
 
-/// clap's parser for a `--scene` whose default is `default`: that very string (given or
-/// defaulted) is located as above, any other path taken as given.
-pub fn scene_arg(default: &'static str) -> impl Fn(&str) -> Result<PathBuf, String> + Clone {
+/// clap's parser for a path flag whose default is `default`, a shipped file (`what`: the
+/// kind of file, for the empty path's refusal): that very string, given or defaulted, is
+/// located as above, any other path taken as given. (`--model models/default.stcvae`,
+/// typed, failed from another folder while `--scene configs/scenes/bunny.toml` was found.)
+fn shipped_arg(
+    default: &'static str,
+    what: &'static str,
+) -> impl Fn(&str) -> Result<PathBuf, String> + Clone {
     move |s: &str| {
         // As clap's own path parser refuses it: read, "" failed as ": cannot read scene
         // file".
         if s.is_empty() {
-            return Err("an empty path names no scene file".into());
+            return Err(format!("an empty path names no {what}"));
         }
         Ok(if s == default {
             locate(s)
@@ -42,16 +47,12 @@ pub fn scene_arg(default: &'static str) -> impl Fn(&str) -> Result<PathBuf, Stri
     }
 }
 
-/// clap's parser for `--model`: the shipped model's path, typed, is located as when the flag
-/// is left out (`--model models/default.stcvae` failed from another folder, while `--scene
-/// configs/scenes/bunny.toml` was found); any other path is taken as given.
+/// clap's parser for a `--scene` whose default is `default` ([`shipped_arg`]).
+pub fn scene_arg(default: &'static str) -> impl Fn(&str) -> Result<PathBuf, String> + Clone {
+    shipped_arg(default, "scene file")
+}
+
+/// clap's parser for `--model` and `train --base` ([`shipped_arg`]).
 pub fn model_arg(s: &str) -> Result<PathBuf, String> {
-    if s.is_empty() {
-        return Err("an empty path names no model file".into());
-    }
-    Ok(if s == crate::model_cmds::DEFAULT_MODEL {
-        locate(s)
-    } else {
-        PathBuf::from(s)
-    })
+    shipped_arg(crate::model_cmds::DEFAULT_MODEL, "model file")(s)
 }

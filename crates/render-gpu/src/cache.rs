@@ -91,12 +91,7 @@ fn note_no_cache_folder() {
 /// One cache note a run, the first that comes.
 fn note_once(text: &str) {
     static SAID: std::sync::Once = std::sync::Once::new();
-    SAID.call_once(|| {
-        // Not eprintln!: it panics where stderr is a closed pipe, which the CLI takes as
-        // a request to stop cleanly.
-        use std::io::Write as _;
-        let _ = writeln!(std::io::stderr(), "{text}");
-    });
+    SAID.call_once(|| scatter_sim::output::note(text));
 }
 
 /// Says that a cache entry exists but cannot be used (damaged, truncated, or another
@@ -111,12 +106,10 @@ pub(crate) fn note_unusable_entry(path: &Path) -> bool {
     let exists = std::fs::symlink_metadata(path).is_ok_and(|m| m.is_file() || m.is_symlink());
     if exists {
         let _ = std::fs::remove_file(path);
-        use std::io::Write as _;
-        let _ = writeln!(
-            std::io::stderr(),
+        scatter_sim::output::note(&format!(
             "note: the cache file {} is damaged or not this mesh's: rebuilding it",
             path.display()
-        );
+        ));
     }
     exists
 }

@@ -393,7 +393,7 @@ fn is_temporary_name(name: &str, prefix: &str, suffix: &str) -> bool {
 /// A note on stderr that cannot end the process: std's `eprintln!` panics where stderr is
 /// a closed pipe (`stcvae … 2>&1 | less`, less quit), which the CLI takes as a request to
 /// stop cleanly.
-fn note(line: &str) {
+pub fn note(line: &str) {
     let _ = writeln!(io::stderr(), "{line}");
 }
 
@@ -790,7 +790,9 @@ fn write_set_with(
     let _folder = ready.first().and_then(|f| lock_folder(folder_of(&f.path)));
     // A killed set's files in these folders are put back first, before this set replaces
     // them ([`restore_killed_sets`]).
+    // (Each once: `dedup` alone kept a folder that came back after another.)
     let mut folders: Vec<&Path> = ready.iter().map(|f| folder_of(&f.path)).collect();
+    folders.sort();
     folders.dedup();
     for dir in folders {
         restore_killed_sets(dir);
@@ -866,6 +868,11 @@ const ID_LEN: usize = 6;
 /// Whether `id` has the form of a set's id: six ASCII letters or digits, as tempfile makes.
 fn is_set_id(id: &str) -> bool {
     id.len() == ID_LEN && id.bytes().all(|b| b.is_ascii_alphanumeric())
+}
+
+/// The mark `.stcvae-set.ID` + `suffix` in `dir`.
+fn mark_path(dir: &Path, id: &str, suffix: &str) -> PathBuf {
+    dir.join(format!("{MARK_PREFIX}{id}{suffix}"))
 }
 
 /// The id of a mark's name (`.stcvae-set.ID` + `suffix`).
@@ -987,7 +994,7 @@ pub fn restore_killed_sets(dir: &Path) {
             None => {
                 // A set with no mark finished its renames. One whose mark is there but
                 // not dead (live, or made after the marks were looked at) is left.
-                let mark = dir.join(format!("{MARK_PREFIX}{id}{MARK_SUFFIX}"));
+                let mark = mark_path(dir, id, MARK_SUFFIX);
                 if fs::symlink_metadata(&mark).is_err() {
                     let _ = fs::remove_file(&link);
                 }
@@ -998,7 +1005,7 @@ pub fn restore_killed_sets(dir: &Path) {
     // then), and so do those of killed sets that kept nothing.
     for (id, (lock, _)) in dead {
         if !kept.contains(&id) {
-            let _ = fs::remove_file(dir.join(format!("{MARK_PREFIX}{id}{MARK_SUFFIX}")));
+            let _ = fs::remove_file(mark_path(dir, &id, MARK_SUFFIX));
         }
         drop(lock);
     }
@@ -1098,7 +1105,7 @@ impl Marks {
         for _ in 0..4 {
             let (marking, file, id) = match &self.id {
                 Some(id) => {
-                    let marking = dir.join(format!("{MARK_PREFIX}{id}{MARKING_SUFFIX}"));
+                    let marking = mark_path(dir, id, MARKING_SUFFIX);
                     let file = mark_file().create_new(true).open(&marking).ok()?;
                     (marking, file, id.clone())
                 }
@@ -1120,7 +1127,7 @@ impl Marks {
                     (marking, file, id)
                 }
             };
-            let mark = dir.join(format!("{MARK_PREFIX}{id}{MARK_SUFFIX}"));
+            let mark = mark_path(dir, &id, MARK_SUFFIX);
             // Locked before it has its name: a sweep never sees it unlocked while its run
             // lives. A file system without locks: made all the same (its sweeps cannot
             // lock it either, and leave its set alone). One a sweep holds an instant (it

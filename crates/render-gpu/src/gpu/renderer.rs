@@ -761,20 +761,25 @@ impl SlotReadout {
     /// (`committed`) gives back the whole chunks' sums, rounded once to f32; the others their
     /// sums and what those rounded off.
     fn band_vectors(&self, committed: bool) -> BandVectors {
+        // The work counts every visit, a dropped chunk's too: read from the live sums'
+        // round-off vec4 in either case.
+        let acc_lo = kernels::acc_lo_vec4(self.path_nee_m, self.squares_kept);
         if committed {
             BandVectors {
                 acc: kernels::committed_vec4(self.path_nee_m, self.squares_kept),
                 lo: None,
                 squares: [Some(kernels::committed_sq_vec4(self.path_nee_m)), None],
+                events: acc_lo,
             }
         } else {
             BandVectors {
                 acc: kernels::ACC_VEC4,
-                lo: Some(kernels::acc_lo_vec4(self.path_nee_m, self.squares_kept)),
+                lo: Some(acc_lo),
                 squares: [
                     Some(kernels::acc_sq_vec4(self.path_nee_m)),
                     Some(kernels::acc_sq_lo_vec4(self.path_nee_m)),
                 ],
+                events: acc_lo,
             }
         }
     }
@@ -788,7 +793,6 @@ impl SlotReadout {
         vectors: &BandVectors,
         with_squares: bool,
     ) -> PixelSlots {
-        let lo_of_slot = kernels::acc_lo_vec4(self.path_nee_m, self.squares_kept) as usize;
         // xyz of vec4 `v` of `slot`, added to `to` in f64.
         let add = |to: &mut [f64; 3], slot: usize, v: u64| {
             let q = &vals[(slot + v as usize) * 4..][..3];
@@ -804,7 +808,7 @@ impl SlotReadout {
             }
             // The work counts every visit, a dropped chunk's too, so it is read per
             // path over every finished sample (ACC's count), not over the whole chunks'.
-            out.events += vals[(slot + lo_of_slot) * 4 + 3] as f64;
+            out.events += vals[(slot + vectors.events as usize) * 4 + 3] as f64;
             out.paths += vals[(slot + kernels::ACC_VEC4 as usize) * 4 + 3] as f64;
             if with_squares {
                 for v in vectors.squares.into_iter().flatten() {
@@ -825,6 +829,8 @@ struct BandVectors {
     lo: Option<u64>,
     /// The squared sums and what they rounded off.
     squares: [Option<u64>; 2],
+    /// The vec4 whose w counts the PT events and sphere steps.
+    events: u64,
 }
 
 /// One pixel's slots summed over its lanes.
