@@ -79,7 +79,7 @@ pub struct Args {
     device: DeviceArg,
     /// Also write each density's images to this folder: kK_pt and kK_stcvae (EXR + PNG,
     /// the two seeds' mean) and kK_z.png, where the bias lies: per channel and 4×4-pixel
-    /// block (measure::block_z), the z-score of ST-CVAE − PT against both noises, drawn as 0.5 + z/8 (grey:
+    /// block (measure::block_z), the z-score of ST-CVAE − PT against both noises, drawn as grey level 0.5 + z/8 (mid-grey 128:
     /// agreement, or a block whose noise estimate is too poor to judge: the background and
     /// silhouette blocks of a few noisy pixels; brighter: ST-CVAE brighter; |z| > 3 is
     /// rarely noise), and kK_pixels.csv:
@@ -185,7 +185,8 @@ fn save_images(a: &Args, dir: &std::path::Path, k: f64, pt: &Pair, st: &Pair) ->
         *p = block.map(|v| v.map_or(0.5, |v| (0.5 + v / 8.0).clamp(0.0, 1.0) as f32));
     }
     let z_path = saved_z(dir, k);
-    let z_bytes = encode_png(&z, 1.0).map_err(|e| anyhow!("{}: {e}", z_path.display()))?;
+    let z_bytes = render_gpu::image_io::encode_png_linear(&z)
+        .map_err(|e| anyhow!("{}: {e}", z_path.display()))?;
     images.push((z_path, z_bytes));
     // Per pixel and channel, both pairs' means and the variances of those means (from
     // their two seeds): what the bias columns are computed from, for analyses the table
@@ -682,7 +683,8 @@ fn print_row(
         st.per_path(st.stats.steps),
         st.per_path(st.stats.events),
         c.bias,
-        format!("{:.4}", c.bias_upper95),
+        c.bias_upper95
+            .map_or("n/a".to_owned(), |b| format!("{b:.4}")),
         c.noise,
         crate::progress::si(pt.paths_per_second()),
         crate::progress::si(st.paths_per_second())
@@ -716,7 +718,7 @@ fn print_row(
     );
     // The work the steps column hides: exact steps are walks simulated event by event.
     println!(
-        "     ST-CVAE's exact steps (τ < exact_tau) a path {:.2}, simulating {:.1} events in their walks",
+        "     ST-CVAE's exact steps (τ < exact_tau) a path {:.2}, whose walks simulate {:.1} events a path",
         st.per_path(st.stats.exact_steps),
         st.per_path(st.stats.exact_events)
     );

@@ -452,13 +452,14 @@ pub fn line_plot_png(
                     .map_err(|x| e(&x))?;
             }};
         }
-        let log_axis = |lo: f64, hi: f64| {
+        let log_axis = |lo: f64, hi: f64, keys: Option<Vec<f64>>| {
             let (bold, light) = log_ticks(lo, hi);
             (lo..hi)
                 .log_scale()
-                .with_key_points(bold)
+                .with_key_points(keys.unwrap_or(bold))
                 .with_light_points(light)
         };
+        let ladder = || ladder_ticks(series);
         let mut b = ChartBuilder::on(&root);
         b.caption(title, ("sans-serif", 20))
             .margin(12)
@@ -468,18 +469,18 @@ pub fn line_plot_png(
             (false, false) => draw!(b.build_cartesian_2d(x0..x1, y0..y1).map_err(|x| e(&x))?),
             (true, false) => {
                 draw!(
-                    b.build_cartesian_2d(log_axis(x0, x1), y0..y1)
+                    b.build_cartesian_2d(log_axis(x0, x1, ladder()), y0..y1)
                         .map_err(|x| e(&x))?
                 )
             }
             (false, true) => {
                 draw!(
-                    b.build_cartesian_2d(x0..x1, log_axis(y0, y1))
+                    b.build_cartesian_2d(x0..x1, log_axis(y0, y1, None))
                         .map_err(|x| e(&x))?
                 )
             }
             (true, true) => draw!(
-                b.build_cartesian_2d(log_axis(x0, x1), log_axis(y0, y1))
+                b.build_cartesian_2d(log_axis(x0, x1, ladder()), log_axis(y0, y1, None))
                     .map_err(|x| e(&x))?
             ),
         }
@@ -487,6 +488,30 @@ pub fn line_plot_png(
     }
     encode_png(&buf, w, h)
 }
+
+/// The labelled ticks of a log x axis where every series is drawn at the same few x
+/// values (a ladder of densities or absorptions): those values, so that k = 4 and 8 or
+/// 2^-11 … 2^-5 are labelled where the 1-2-5 ticks labelled none of them. None otherwise
+/// (times, training steps), and the axis keeps its 1-2-5 ticks.
+fn ladder_ticks(series: &[Series]) -> Option<Vec<f64>> {
+    let xs = |s: &Series| {
+        let mut v: Vec<f64> = s
+            .points
+            .iter()
+            .map(|p| p.0)
+            .filter(|&x| plottable(x, true))
+            .collect();
+        v.sort_by(f64::total_cmp);
+        v.dedup();
+        v
+    };
+    let first = xs(series.first()?);
+    let shared = series.iter().all(|s| xs(s) == first);
+    (shared && (2..=MAX_LADDER_TICKS).contains(&first.len())).then_some(first)
+}
+
+/// Most ticks a ladder gets (more would run into each other on a 900 px axis).
+const MAX_LADDER_TICKS: usize = 10;
 
 /// Whether a coordinate can be drawn: finite, and positive on a log axis.
 fn plottable(v: f64, log: bool) -> bool {
@@ -561,7 +586,25 @@ fn axis_ranges(
 
 #[cfg(test)]
 mod tests {
-    use super::{compact, log_ticks};
+    use super::{Series, compact, ladder_ticks, log_ticks};
+
+    /// A ladder shared by every series labels its own values (k = 4 and 8 had no label
+    /// among 1, 2, 5, 10); times that differ between series, a single point or a training's
+    /// hundreds of steps keep the 1-2-5 ticks. Zero and negative x (off a log axis) are
+    /// left out of the ladder.
+    #[test]
+    fn a_shared_ladder_labels_its_own_values() {
+        let at = |xs: &[f64]| Series::new("s", xs.iter().map(|&x| (x, 1.0)).collect());
+        let k = [1.0, 2.0, 4.0, 8.0];
+        assert_eq!(
+            ladder_ticks(&[at(&k), at(&[8.0, 4.0, 2.0, 1.0, 0.0])]),
+            Some(k.to_vec())
+        );
+        assert_eq!(ladder_ticks(&[at(&k), at(&[1.0, 2.0, 4.0])]), None);
+        assert_eq!(ladder_ticks(&[at(&[3.0])]), None);
+        let steps: Vec<f64> = (1..=40).map(|i| 500.0 * i as f64).collect();
+        assert_eq!(ladder_ticks(&[at(&steps)]), None);
+    }
 
     #[test]
     fn log_axes_label_one_two_and_five_per_decade_or_enough_to_read() {

@@ -987,7 +987,7 @@ fn print_summary(a: &Args, out: &render_gpu::render::RenderOutput, report: &Repo
         if out.stats.exact_steps > 0 {
             let per = |n: u64| n as f64 / out.stats.paths.max(1) as f64;
             format!(
-                ", {:.1} of them exact with {:.1} events in their walks",
+                ", {:.1} of them exact, whose walks simulate {:.1} events a path",
                 per(out.stats.exact_steps),
                 per(out.stats.exact_events)
             )

@@ -118,6 +118,7 @@ fn every_experiment_runs_quick() {
             // scaled for display (0–1) misses the bunny's counts, tens per path, by far.
             let column = |name: &str| header.iter().position(|h| *h == name).unwrap();
             let mut maps = 0;
+            let mut drawn = std::collections::BTreeMap::new();
             for line in csv.lines().skip(1) {
                 let cells = csv_cells(line);
                 let (obj, k) = (cells[column("object")].as_str(), &cells[column("density")]);
@@ -157,8 +158,43 @@ fn every_experiment_runs_quick() {
                     );
                 }
                 maps += 1;
+                let png = dir.join(format!("work_{obj}_k{k}.png"));
+                drawn
+                    .entry(obj.to_string())
+                    .or_insert_with(Vec::new)
+                    .push((img, png));
             }
             assert_eq!(maps, csv.lines().count() - 1, "a work map for every row");
+            // The PNGs show log(1 + n) / log(1 + most) as the grey level itself (no sRGB
+            // curve), with one `most` for all of an object's densities: per-map scales
+            // drew k = 1 and k = 8 alike. ±1 level covers the f32 rounding at a level's edge.
+            for (obj, maps) in &drawn {
+                let most = maps
+                    .iter()
+                    .flat_map(|(img, _)| img.pixels.iter().map(|p| p[0]))
+                    .fold(0.0f32, f32::max);
+                let mut brightest = 0;
+                for (img, png) in maps {
+                    let (w, h, grey) = common::read_png(png);
+                    assert_eq!((w as usize, h as usize), (img.width, img.height));
+                    let half = (img.width - 2) / 2;
+                    for (i, p) in img.pixels.iter().enumerate() {
+                        if (half..half + 2).contains(&(i % img.width)) {
+                            continue;
+                        }
+                        let want = 255.0 * (1.0 + p[0]).ln() / (1.0 + most).ln();
+                        let got = grey[3 * i];
+                        assert!(
+                            (got as f32 - want).abs() <= 1.0,
+                            "{}: pixel {i} grey {got}, want {want} ({} a path of {most} on {obj})",
+                            png.display(),
+                            p[0]
+                        );
+                        brightest = brightest.max(got);
+                    }
+                }
+                assert_eq!(brightest, 255, "{obj}: its busiest pixel is white");
+            }
         }
         let report = std::fs::read_to_string(dir.join("report.md")).unwrap();
         if name == "teaser_no_nee" || name == "teaser" {

@@ -421,15 +421,34 @@ fn srgb(x: f32) -> f32 {
 /// An 8-bit sRGB preview at the given exposure (values clipped at 1), as a PNG file's
 /// bytes (written with the image's other files as one set).
 pub fn encode_png(img: &RgbImage, exposure: f32) -> std::result::Result<Vec<u8>, String> {
+    encode_png_levels(img, |v| {
+        let v = if v.is_finite() { v * exposure } else { 0.0 };
+        srgb(v.clamp(0.0, 1.0))
+    })
+}
+
+/// A diagram whose values in [0, 1] are the grey levels themselves (0.5 → 128), as a PNG
+/// file's bytes: for maps whose grey encodes a number (z-scores, work counts), which the
+/// sRGB curve of a render's preview would bend (z = 0 came out 188, not 128, and z = ±3
+/// as 240 and 99).
+pub fn encode_png_linear(img: &RgbImage) -> std::result::Result<Vec<u8>, String> {
+    encode_png_levels(img, |v| {
+        if v.is_finite() {
+            v.clamp(0.0, 1.0)
+        } else {
+            0.0
+        }
+    })
+}
+
+fn encode_png_levels(
+    img: &RgbImage,
+    level: impl Fn(f32) -> f32,
+) -> std::result::Result<Vec<u8>, String> {
     let data: Vec<u8> = img
         .pixels
         .iter()
-        .flat_map(|p| {
-            p.map(|v| {
-                let v = if v.is_finite() { v * exposure } else { 0.0 };
-                (srgb(v.clamp(0.0, 1.0)) * 255.0 + 0.5) as u8
-            })
-        })
+        .flat_map(|p| p.map(|v| (level(v) * 255.0 + 0.5) as u8))
         .collect();
     let mut buf = Vec::new();
     {
@@ -672,6 +691,46 @@ fn accumulate(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A diagram's values are its grey levels (0.5 → 128: a z-map's agreement is
+    /// mid-grey), where a render's preview bends them by the sRGB curve (0.5 → 188);
+    /// values beyond [0, 1] clip and a NaN is black in both.
+    #[test]
+    fn diagrams_are_written_without_the_srgb_curve() {
+        let mut img = RgbImage::new(3, 2);
+        img.pixels = vec![
+            [0.0, 0.5, 1.0],
+            [0.25, -1.0, 2.0],
+            [f32::NAN, 0.75, 0.001],
+            [0.1, 0.2, 0.3],
+            [0.4, 0.6, 0.7],
+            [0.8, 0.9, 0.95],
+        ];
+        let levels = |png: Vec<u8>| {
+            let mut dec = png::Decoder::new(std::io::Cursor::new(png))
+                .read_info()
+                .unwrap();
+            let mut buf = vec![0; dec.output_buffer_size()];
+            dec.next_frame(&mut buf).unwrap();
+            buf
+        };
+        let linear = levels(encode_png_linear(&img).unwrap());
+        let want: Vec<u8> = img
+            .pixels
+            .iter()
+            .flatten()
+            .map(|&v| {
+                if v.is_nan() {
+                    0
+                } else {
+                    (v.clamp(0.0, 1.0) * 255.0).round() as u8
+                }
+            })
+            .collect();
+        assert_eq!(linear, want);
+        let preview = levels(encode_png(&img, 1.0).unwrap());
+        assert_eq!((preview[1], linear[1]), (188, 128));
+    }
 
     fn image() -> RgbImage {
         let mut img = RgbImage::new(5, 3);

@@ -11,7 +11,7 @@ use super::measure::{
 };
 use super::report::{Cell, Report};
 use super::{Ctx, Kind};
-use crate::plots::{Series, SeriesLabelPosition, line_plot};
+use crate::plots::{Series, line_plot};
 
 pub fn run(ctx: &Ctx, rep: &mut Report) -> Result<()> {
     match ctx.cfg.kind {
@@ -229,8 +229,9 @@ fn plot(
         axes.1,
         log,
         series,
-        // plotters' own default place, where the experiments' legends have always been.
-        Some(SeriesLabelPosition::MiddleRight),
+        // Above the lines (the axis grows to hold it): in plotters' middle right it hid
+        // the paper's k = 8 point and the last point of other curves.
+        None,
     )?;
     ctx.saved_one()?;
     rep.image(title, file);
@@ -347,7 +348,7 @@ fn teaser(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             save_picture(ctx, &format!("teaser_k{}", k_name(k)), &both, exposure)?,
         ));
     }
-    rep.text(&format!("Both integrators at equal spp; speed-up = PT time / ST-CVAE time; var ratio = PT's per-pixel variance / ST-CVAE's (var_ratio_se: its standard error; heavy-tailed pixels make it swing); bias RMSE is noise-corrected (bias_upper95: its one-sided 95 % bound), in units of PT's brightest 1 % of object pixels. {}Pictures exposed so that PT's 99th-percentile pixel of the frame is 1.\n", if ctx.cfg.nee() { "" } else { "Without NEE (most likely as the paper timed its speed-ups): light counted where a path escapes into a light's disk or the environment. " }));
+    rep.text(&format!("Both integrators at equal spp; speed-up = PT time / ST-CVAE time; var ratio = PT's per-pixel variance / ST-CVAE's (var_ratio_se: its standard error; heavy-tailed pixels make it swing); bias RMSE is noise-corrected (bias_upper95: its one-sided 95 % bound, not resolved where fewer than 30 object pixels carry a term, as in sparse renders), in units of PT's brightest 1 % of object pixels. {}Pictures exposed so that PT's 99th-percentile pixel of the frame is 1.\n", if ctx.cfg.nee() { "" } else { "Without NEE (most likely as the paper timed its speed-ups): light counted where a path escapes into a light's disk or the environment. " }));
     rep.table();
     for (k, f) in figs {
         rep.image(
@@ -355,6 +356,8 @@ fn teaser(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             &f,
         );
     }
+    // teaser_no_nee's plots were titled as teaser's.
+    let without = if ctx.cfg.nee() { "" } else { ", without NEE" };
     let mut s = vec![series("stcvae (this run)", sp)];
     if !paper.is_empty() {
         s.push(series("paper (teaser)", paper));
@@ -363,7 +366,7 @@ fn teaser(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         ctx,
         rep,
         "speedup.png",
-        "Speed-up over PT at equal spp",
+        &format!("Speed-up over PT at equal spp{without}"),
         ("density multiplier", "speed-up"),
         (true, false),
         &s,
@@ -372,7 +375,7 @@ fn teaser(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         ctx,
         rep,
         "time.png",
-        "Render time",
+        &format!("Render time{without}"),
         ("density multiplier", "seconds"),
         (true, true),
         &[series("PT", times.0), series("ST-CVAE", times.1)],
@@ -487,6 +490,7 @@ fn complexity(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             .file_stem()
             .map_or("scene".into(), |s| s.to_string_lossy().into_owned());
         let (mut tp, mut ts) = (Vec::new(), Vec::new());
+        let mut works = Vec::new();
         for &k in &ctx.cfg.densities {
             let edit = scale_density(k);
             let pt: Pair = render_pair(ctx, scene, Pt, &edit)?;
@@ -507,43 +511,17 @@ fn complexity(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             ts.push((k, st.seconds));
             // Both devices count the work (a render without counts has none to draw).
             if !pt.work.is_empty() && !st.work.is_empty() {
-                let max = pt.work.iter().chain(&st.work).cloned().fold(0.0, f32::max);
-                let (w, h) = (pt.mean.width, pt.mean.height);
-                // The EXR holds the counts per path (a reader compares devices or runs by
-                // number), the PNG their log scale against this pair's largest.
-                let counts = |work: &[f32]| {
-                    let mut img = RgbImage::new(w, h);
-                    for (p, &n) in img.pixels.iter_mut().zip(work) {
-                        *p = [n; 3];
-                    }
-                    img
-                };
-                let mut data = side_by_side(&[&counts(&pt.work), &counts(&st.work)]);
-                // The gap between the halves holds 0, not a count (side_by_side paints it
-                // white, the largest value, which a reader averaging the EXR would count).
-                for y in 0..data.height {
-                    for x in w..data.width - w {
-                        data.pixels[y * data.width + x] = [0.0; 3];
-                    }
-                }
-                let display = side_by_side(&[
-                    &work_image(&pt.work, w, h, max),
-                    &work_image(&st.work, w, h, max),
-                ]);
-                figs.push((
-                    obj.clone(),
-                    k,
-                    max,
-                    save_map(ctx, &format!("work_{obj}_k{}", k_name(k)), &data, &display)?,
-                ));
+                let size = (pt.mean.width, pt.mean.height);
+                works.push((k, size, pt.work, st.work));
             }
         }
+        figs.extend(work_maps(ctx, &obj, works)?);
         curves.push((obj, tp, ts));
     }
     rep.text("Events per path count real scattering events (PT) and sphere steps plus thin-region PT fallback events (ST-CVAE), over all pixels (background included). Of the sphere steps, those of optical radius below exact_tau have their walk simulated exactly (st_exact_steps_per_path), with st_exact_walk_events_per_path scattering events inside them: work the steps column does not show (the work maps count a step as one).\n");
     rep.table();
     for (obj, k, max, f) in figs {
-        rep.image(&format!("{obj}, density ×{k}: PT events (left) vs ST-CVAE steps + events (right) per path, log scale, white = {max:.0} (the EXR beside it holds the counts)"), &f);
+        rep.image(&format!("{obj}, density ×{k}: PT events (left) vs ST-CVAE steps + events (right) per path; grey level log(1 + n) / log(1 + {max:.0}), white = {max:.0}, the most of any density's map (the EXR beside it holds the counts)"), &f);
     }
     let mut s = Vec::new();
     for (obj, tp, ts) in curves {
@@ -559,6 +537,53 @@ fn complexity(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         (true, true),
         &s,
     )
+}
+
+/// One density's work counts per path: (density, (width, height), PT's, ST-CVAE's).
+type Work = (f64, (usize, usize), Vec<f32>, Vec<f32>);
+
+/// Writes an object's work maps, PT's and ST-CVAE's side by side for each density, all
+/// on one scale (each pair's own largest count as white drew k = 1 and k = 8 alike,
+/// where PT's work grew 6.6-fold); returns (object, density, that largest count, the
+/// PNG's name) for the report.
+fn work_maps(ctx: &Ctx, obj: &str, works: Vec<Work>) -> Result<Vec<(String, f64, f32, String)>> {
+    let max = works
+        .iter()
+        .flat_map(|(.., pt, st)| pt.iter().chain(st))
+        .cloned()
+        .fold(0.0, f32::max);
+    let mut figs = Vec::new();
+    for (k, (w, h), pt_work, st_work) in works {
+        // The EXR holds the counts per path (a reader compares devices or runs by number),
+        // the PNG their log scale against the object's largest.
+        let counts = |work: &[f32]| {
+            let mut img = RgbImage::new(w, h);
+            for (p, &n) in img.pixels.iter_mut().zip(work) {
+                *p = [n; 3];
+            }
+            img
+        };
+        let mut data = side_by_side(&[&counts(&pt_work), &counts(&st_work)]);
+        // The gap between the halves holds 0, not a count (side_by_side paints it white,
+        // the largest value, which a reader averaging the EXR would count).
+        for y in 0..data.height {
+            for x in w..data.width - w {
+                data.pixels[y * data.width + x] = [0.0; 3];
+            }
+        }
+        let display = side_by_side(&[
+            &work_image(&pt_work, w, h, max),
+            &work_image(&st_work, w, h, max),
+        ]);
+        let name = format!("work_{obj}_k{}", k_name(k));
+        figs.push((
+            obj.to_string(),
+            k,
+            max,
+            save_map(ctx, &name, &data, &display)?,
+        ));
+    }
+    Ok(figs)
 }
 
 /// Fig. 10: time of PT and ST-CVAE as the absorption 1 − φ doubles.
@@ -599,7 +624,7 @@ fn absorption(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         tp.push((a, pt.seconds));
         ts.push((a, st.seconds));
     }
-    rep.text("Albedo φ = 1 − absorption on all channels, equal spp. Bias RMSE is noise-corrected with its one-sided 95 % bound; offset is ST-CVAE's image total over PT's on the object, minus 1, in %, with its standard error; the bias in units of PT's brightest 1 % of object pixels.\n");
+    rep.text("Albedo φ = 1 − absorption on all channels, equal spp. Bias RMSE is noise-corrected with its one-sided 95 % bound; offset is ST-CVAE's image total over PT's on the object, minus 1, in %, averaged over the channels, with the mean of the channels' standard errors (offset_se_pct: an upper bound on the average's standard error, as the channels share paths); the bias in units of PT's brightest 1 % of object pixels.\n");
     rep.table();
     plot(
         ctx,
@@ -719,7 +744,10 @@ fn nee(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         rep,
         "error_vs_time.png",
         "Error vs time",
-        ("seconds", "mean absolute error"),
+        (
+            "seconds",
+            "mean absolute error (reference's 99th percentile = 1)",
+        ),
         (true, true),
         &curves,
     )
@@ -822,7 +850,13 @@ fn fallback(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         rep,
         "speedup_vs_min_tau.png",
         "Speed-up vs thin-region threshold",
-        ("min_tau", "speed-up over PT"),
+        (
+            &format!(
+                "min_tau (0 drawn at {})",
+                crate::progress::significant4(zero_at)
+            ),
+            "speed-up over PT",
+        ),
         (true, false),
         &s,
     )

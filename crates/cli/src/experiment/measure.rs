@@ -270,8 +270,8 @@ pub struct Comparison {
     /// near the target with a second seed pair). The estimate's negative values are
     /// raised to 0 first: an unbiased pair lands below 0 half the time and below
     /// −1.645·s/√n one time in twenty, where the plain bound (then shown as n/a) had
-    /// nothing to say.
-    pub bias_upper95: f64,
+    /// nothing to say. None where too few pixels carry a term (`MIN_BIAS_TERMS`).
+    pub bias_upper95: Option<f64>,
     /// RMSE the two noises alone would give over the object, scaled.
     pub noise: f64,
     /// Per channel (R, G, B): the noise-corrected bias RMSE, scaled like `bias`; and the
@@ -368,9 +368,9 @@ impl Comparison {
 /// error ([`Comparison::bias_upper95`]): the mean over the `object` pixels of e = Σ_c e_c,
 /// e_c = d_c² − Var_A,c − Var_B,c, over 3, and the spread of those per-pixel e (the
 /// background's are 0 and count in neither); with the sums of each channel's e_c, for
-/// [`Comparison::channel_bias`].
-fn bias_squared(reference: &Pair, other: &Pair, object: usize) -> (f64, f64, [f64; 3]) {
-    let (mut sum2, mut channels) = (0.0f64, [0.0f64; 3]);
+/// [`Comparison::channel_bias`]; and how many pixels' e are not 0.
+fn bias_squared(reference: &Pair, other: &Pair, object: usize) -> (f64, f64, [f64; 3], usize) {
+    let (mut sum2, mut channels, mut terms) = (0.0f64, [0.0f64; 3], 0);
     for i in 0..reference.mean.pixels.len() {
         let mut e = 0.0;
         for (c, sum) in channels.iter_mut().enumerate() {
@@ -380,12 +380,20 @@ fn bias_squared(reference: &Pair, other: &Pair, object: usize) -> (f64, f64, [f6
             e += e_c;
         }
         sum2 += e * e;
+        terms += usize::from(e != 0.0);
     }
     let n = object.max(1) as f64;
     let mean = channels.iter().sum::<f64>() / n;
     let se = ((sum2 / n - mean * mean).max(0.0) / (n - 1.0).max(1.0)).sqrt();
-    (mean / 3.0, se / 3.0, channels)
+    (mean / 3.0, se / 3.0, channels, terms)
 }
+
+/// Fewest pixels with a term e ≠ 0 for [`Comparison::bias_upper95`]'s normal
+/// approximation. A pixel lit in one of the four renders alone has e = 0 exactly (d² and
+/// the half-split variance estimate are both x²/4), so sparse renders (a quick run without
+/// NEE: 25 object pixels, each lit once) gave a spread of 0 and a bound of 0 beside a
+/// noise RMSE of 1.57. Thirty is the usual floor for a mean's normal approximation.
+const MIN_BIAS_TERMS: usize = 30;
 
 pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
     let scale = object_scale(reference, other);
@@ -426,7 +434,7 @@ pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
         .map(|&(_, v)| 2.0 * v * v * (v - 1.0) / ((v - 2.0) * (v - 2.0) * (v - 4.0)))
         .sum::<f64>()
         / (nb * nb);
-    let (mean_e, se, ch_e) = bias_squared(reference, other, object);
+    let (mean_e, se, ch_e, terms) = bias_squared(reference, other, object);
     let var_ratio = va / vb.max(1e-300);
     let var_ratio_se = reference
         .var
@@ -441,7 +449,8 @@ pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
         var_ratio,
         var_ratio_se,
         bias: mean_e.max(0.0).sqrt() * scale,
-        bias_upper95: (mean_e.max(0.0) + 1.645 * se).sqrt() * scale,
+        bias_upper95: (terms >= MIN_BIAS_TERMS)
+            .then(|| (mean_e.max(0.0) + 1.645 * se).sqrt() * scale),
         noise: ((va + vb) / n).sqrt() * scale,
         block_chi2: zs.iter().map(|z| z * z).sum::<f64>() / zs.len().max(1) as f64,
         blocks: zs.len(),
@@ -571,7 +580,7 @@ pub fn save_map(ctx: &Ctx, name: &str, data: &RgbImage, display: &RgbImage) -> R
     );
     let exr_bytes = render_gpu::image_io::encode_untagged_exr(data)
         .map_err(|e| anyhow::anyhow!("{}: {e}", exr.display()))?;
-    let png_bytes = render_gpu::image_io::encode_png(display, 1.0)
+    let png_bytes = render_gpu::image_io::encode_png_linear(display)
         .map_err(|e| anyhow::anyhow!("{}: {e}", png.display()))?;
     scatter_sim::output::write_atomic_set(&[(&exr, &exr_bytes), (&png, &png_bytes)])
         .map_err(|(path, e)| anyhow::anyhow!("cannot write {}: {e}", path.display()))?;
@@ -668,7 +677,51 @@ mod tests {
         // pixel-channels the bound is noise·√((z + 1.645)·√3/√n) with z the estimate's
         // own z-score: ≈ 0.19·noise at z = 0, and 0.5·noise only at z ≈ 10. A bound
         // without the 1/√n in its standard error would be ~1.7·noise.
-        assert!(c.bias < c.bias_upper95 && c.bias_upper95 < 0.5 * c.noise);
+        let bound = c.bias_upper95.expect("6,912 object pixel-channels");
+        assert!(c.bias < bound && bound < 0.5 * c.noise);
+    }
+
+    /// Renders lit sparsely (each object pixel in one of the four halves alone, as a quick
+    /// run without NEE left them) give every pixel e = 0: the bound is unresolved, not 0
+    /// beside a noise of the size of the signal. Thirty such pixels with one lit in two
+    /// halves of the other pair resolve it.
+    #[test]
+    fn sparse_renders_leave_the_bias_bound_unresolved() {
+        let lit = |at: &[usize], v: f32| {
+            let mut img = RgbImage::new(SIDE, SIDE);
+            for &i in at {
+                img.pixels[i] = [v, 0.5 * v, 0.25 * v];
+            }
+            img
+        };
+        let pair_of = |a: RgbImage, b: RgbImage| {
+            let out = |image: RgbImage| RenderOutput {
+                image,
+                spp: 1,
+                seconds: 1.0,
+                compile_seconds: 0.0,
+                stats: PathStats::default(),
+                work: Vec::new(),
+                dispatch: Default::default(),
+                variance: None,
+            };
+            Pair::from_halves(out(a), out(b), (0, 0))
+        };
+        let object: Vec<usize> = (0..100).map(|i| 40 * i + 3).collect();
+        let pt = pair_of(lit(&object, 1.0), lit(&[], 1.0));
+        let dark = pair_of(lit(&[], 1.0), lit(&[], 1.0));
+        let c = compare(&pt, &dark);
+        assert!(
+            c.noise > 0.0 && c.bias_upper95.is_none(),
+            "{:?}",
+            c.bias_upper95
+        );
+        // Lit at 2 in both halves: d² = (1/2 − 2)² against the variance 1/4, e ≠ 0.
+        for n in [29, 30] {
+            let both = pair_of(lit(&object[..n], 2.0), lit(&object[..n], 2.0));
+            let c = compare(&pt, &both);
+            assert_eq!(c.bias_upper95.is_some(), n >= MIN_BIAS_TERMS, "{n}");
+        }
     }
 
     /// Every object block counted, and their χ²/dof within 4 sd of noise alone (see
@@ -770,7 +823,7 @@ mod tests {
             .map(|p| (0.2 * p[2] as f64).powi(2) / 3.0)
             .sum::<f64>()
             / object.len() as f64;
-        let (est, se, _) = bias_squared(&a, &b, object.len());
+        let (est, se, ..) = bias_squared(&a, &b, object.len());
         assert!(
             (est - truth_b2).abs() < 4.0 * se,
             "bias² {est} ± {se}, truth {truth_b2}"
@@ -782,7 +835,11 @@ mod tests {
             c.bias,
             est.sqrt() * scale
         );
-        assert!(c.bias_upper95 > c.bias, "{c:?}", c = c.bias_upper95);
+        assert!(
+            c.bias_upper95.unwrap() > c.bias,
+            "{c:?}",
+            c = c.bias_upper95
+        );
         let want = (3.0 * truth_b2).sqrt() * scale;
         assert!(
             (c.channel_bias[2] / want - 1.0).abs() < 0.08,
@@ -808,7 +865,7 @@ mod tests {
             .map(|k| {
                 let a = pair_noise(&t, 100 + 2 * k, 0.1, true);
                 let b = pair_noise(&t, 101 + 2 * k, 0.1, true);
-                let (est, se, _) = bias_squared(&a, &b, object);
+                let (est, se, ..) = bias_squared(&a, &b, object);
                 est / se
             })
             .collect();
