@@ -448,7 +448,7 @@ fn quality(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             ));
         }
     }
-    rep.text("Both with NEE (ST-CVAE's through EventGen), unlike the paper's Fig. 6/7: the scene's lights are replaced by one delta light (the first light's irradiance) from the front or the back, which paths without NEE never reach. Noise-corrected bias RMSE of ST-CVAE against PT at equal spp, with its one-sided 95 % bound (in units of PT's brightest 1 % of object pixels). Speed-up = PT time / ST-CVAE time at equal spp; paper_speedup: the paper's, per density (its renders without NEE). Pictures exposed so that PT's 99th-percentile pixel of the frame is 1.\n");
+    rep.text(&format!("Both with NEE (ST-CVAE's through EventGen), unlike the paper's Fig. 6/7: the scene's lights are replaced by one delta light (the first light's irradiance) from the front or the back, which paths without NEE never reach. Noise-corrected bias RMSE of ST-CVAE against PT at equal spp, with its one-sided 95 % bound (in units of PT's brightest 1 % of object pixels). Speed-up = PT time / ST-CVAE time at equal spp; paper_speedup: the paper's, per density (its renders without NEE). Pictures exposed so that PT's 99th-percentile pixel of the frame is 1. The |difference| ×4 panel is the paper's, whose renders had 16,000 spp; at {} spp it is mostly the two renders' noise (most of the object clips), and the table's noise-corrected bias is the measure of their difference.\n", 2 * crate::experiment::measure::half_spp(ctx.budget.spp())));
     rep.table();
     for (name, k, f) in figs {
         rep.image(
