@@ -252,7 +252,7 @@ pub fn render_all(panels: &[Panel]) -> Result<Vec<(String, Vec<u8>)>> {
             histogram_grid(
                 panels,
                 LOG_N,
-                "log N: simulator (black) vs model (red), log density",
+                "ln N (N: a walk's events): simulator (black) vs model (red), log density",
                 true,
             )?,
         ),

@@ -124,6 +124,8 @@ pub struct Geometry {
     /// [`Geometry::closest_of`] skips the ray test of a triangle whose plane a segment
     /// does not reach.
     bounds: Vec<[f32; 8]>,
+    /// The largest |coordinate| of the mesh: the scale at which `bounds` round.
+    coords: f32,
     /// Per triangle, cos θ of its escape cone ([`crate::escape_cone`]).
     pub(crate) escape_cos: Vec<f32>,
     /// The pairs of closed pieces that overlap ([`crate::mesh::overlapping_pieces`]).
@@ -395,6 +397,7 @@ impl Geometry {
             hi,
             eps,
             bounds,
+            coords: lo.abs().max(hi.abs()).max_element(),
             escape_cos: Vec::new(),
             overlaps,
             pieces,
@@ -869,8 +872,7 @@ impl Geometry {
     pub fn nearest_of(&self, p: Vec3, prims: &[u32]) -> f32 {
         let pa = Vec3A::from(p);
         let mut best = f32::INFINITY;
-        let reach = self.lo.abs().max(self.hi.abs()).max_element();
-        let slack = 1e-6 * (p.abs().max_element() + reach);
+        let slack = 1e-6 * (p.abs().max_element() + self.coords);
         for &prim in prims {
             let b = &self.bounds[prim as usize];
             let plane = (b[0] * p.x + b[1] * p.y + b[2] * p.z - b[3]).abs();
