@@ -590,7 +590,6 @@ fn draw_plot(path: &Path, lines: &mut [Series]) -> Result<()> {
         "RMSE",
         (true, true),
         lines,
-        None,
     )?;
     println!("plot: {}", path.display());
     Ok(())

@@ -8,7 +8,7 @@ use std::path::Path;
 
 use anyhow::{Context, Result, anyhow};
 use cvae::eval::{Columns, GS, TAUS};
-pub use plotters::chart::SeriesLabelPosition;
+use plotters::chart::SeriesLabelPosition;
 use plotters::prelude::*;
 use plotters::style::{FontStyle, register_font};
 
@@ -355,7 +355,7 @@ impl Series {
 
 /// A line plot of a few series (markers at the points of short ones), optionally on log axes; used by
 /// the experiments for time / speed-up curves and by `bench error` for error against time.
-/// `legend`: where the legend goes; `None` puts it in the upper right, above the lines.
+/// The legend goes in the upper right, above the lines (the y axis grows to make room).
 pub fn line_plot(
     path: &Path,
     title: &str,
@@ -363,9 +363,8 @@ pub fn line_plot(
     y_label: &str,
     axes: (bool, bool),
     series: &[Series],
-    legend: Option<SeriesLabelPosition>,
 ) -> Result<()> {
-    let png = line_plot_png(path, title, x_label, y_label, axes, series, legend)?;
+    let png = line_plot_png(path, title, x_label, y_label, axes, series)?;
     scatter_sim::output::write_atomic(path, &png)
         .with_context(|| format!("cannot write {}", path.display()))
 }
@@ -379,11 +378,10 @@ pub fn line_plot_png(
     y_label: &str,
     (log_x, log_y): (bool, bool),
     series: &[Series],
-    legend: Option<SeriesLabelPosition>,
 ) -> Result<Vec<u8>> {
     init_font();
     let (w, h) = (900u32, 600u32);
-    let ((x0, x1), (y0, y1), legend) = axis_ranges(path, (log_x, log_y), series, legend)?;
+    let ((x0, x1), (y0, y1)) = axis_ranges(path, (log_x, log_y), series)?;
     let mut buf = vec![255u8; (w * h * 3) as usize];
     {
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
@@ -444,7 +442,7 @@ pub fn line_plot_png(
                 }
                 chart
                     .configure_series_labels()
-                    .position(legend.clone())
+                    .position(SeriesLabelPosition::UpperRight)
                     .background_style(WHITE.mix(0.8))
                     .border_style(BLACK)
                     .label_font(("sans-serif", 14))
@@ -507,11 +505,17 @@ fn ladder_ticks(series: &[Series]) -> Option<Vec<f64>> {
     };
     let first = xs(series.first()?);
     let shared = series.iter().all(|s| xs(s) == first);
-    (shared && (2..=MAX_LADDER_TICKS).contains(&first.len())).then_some(first)
+    // Labels at least a factor apart, or 900 and 1,000 ran into each other.
+    let apart = first.windows(2).all(|w| w[1] >= MIN_LADDER_RATIO * w[0]);
+    (shared && apart && (2..=MAX_LADDER_TICKS).contains(&first.len())).then_some(first)
 }
 
 /// Most ticks a ladder gets (more would run into each other on a 900 px axis).
 const MAX_LADDER_TICKS: usize = 10;
+
+/// Least ratio of neighbouring ladder values (~30 px apart on a 900 px axis of two
+/// decades; 1, 2, 4, 8 and 2^-11 … 2^-5 are a factor of 2 apart).
+const MIN_LADDER_RATIO: f64 = 1.3;
 
 /// Whether a coordinate can be drawn: finite, and positive on a log axis.
 fn plottable(v: f64, log: bool) -> bool {
@@ -536,13 +540,12 @@ const COLOURS: [RGBColor; 10] = [
 type Span = (f64, f64);
 
 /// The x and y ranges that hold every finite point (positive on a log axis) with a margin,
-/// the y range grown to make room for the legend where none was placed, and its place.
+/// the y range grown to make room for the legend above the lines.
 fn axis_ranges(
     path: &Path,
     (log_x, log_y): (bool, bool),
     series: &[Series],
-    legend: Option<SeriesLabelPosition>,
-) -> Result<(Span, Span, SeriesLabelPosition)> {
+) -> Result<(Span, Span)> {
     let pts = || series.iter().flat_map(|s| s.points.iter().cloned());
     let xs: Vec<f64> = pts()
         .map(|p| p.0)
@@ -567,21 +570,15 @@ fn axis_ranges(
     };
     let (x0, x1) = span(&xs, log_x);
     let (y0, y1) = span(&ys, log_y);
-    // No legend position given: the y axis grows by the legend's height (20 px a series on
-    // a ~480 px plot), so the legend sits above every line in the upper right.
-    let (y1, legend) = match legend {
-        Some(l) => (y1, l),
-        None => {
-            let f = ((series.len() as f64 * 20.0 + 24.0) / 480.0).min(0.6);
-            let y1 = if log_y {
-                y1 * (y1 / y0).powf(f / (1.0 - f))
-            } else {
-                y1 + (y1 - y0) * f / (1.0 - f)
-            };
-            (y1, SeriesLabelPosition::UpperRight)
-        }
+    // The y axis grows by the legend's height (20 px a series on a ~480 px plot), so the
+    // legend sits above every line in the upper right.
+    let f = ((series.len() as f64 * 20.0 + 24.0) / 480.0).min(0.6);
+    let y1 = if log_y {
+        y1 * (y1 / y0).powf(f / (1.0 - f))
+    } else {
+        y1 + (y1 - y0) * f / (1.0 - f)
     };
-    Ok(((x0, x1), (y0, y1), legend))
+    Ok(((x0, x1), (y0, y1)))
 }
 
 #[cfg(test)]
@@ -604,6 +601,9 @@ mod tests {
         assert_eq!(ladder_ticks(&[at(&[3.0])]), None);
         let steps: Vec<f64> = (1..=40).map(|i| 500.0 * i as f64).collect();
         assert_eq!(ladder_ticks(&[at(&steps)]), None);
+        // A short training's steps: 900 and 1,000 would overlap.
+        let short: Vec<f64> = (1..=10).map(|i| 100.0 * i as f64).collect();
+        assert_eq!(ladder_ticks(&[at(&short)]), None);
     }
 
     #[test]

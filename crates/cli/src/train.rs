@@ -582,7 +582,6 @@ fn loss_plot(path: &Path, trained: &[cvae::train::Trained]) -> Result<Option<Vec
         "loss",
         (true, false),
         &series,
-        None,
     )
     .map(Some)
 }

@@ -45,6 +45,25 @@ const MAGIC: &[u8; 8] = b"STCVDG05";
 /// distances are found ([`DistanceGrid::centre_distances`]).
 const BLOCK: u32 = 4;
 
+/// Most listed triangles a block's cells scan per node its centre's search opened
+/// (measured: the shipped sphere, bunny and torus knot stay below it, a 499k-triangle
+/// sphere goes far above).
+const LIST_PER_NODE: usize = 4;
+
+/// Every triangle within `reach` of `c`, padded for f32 rounding (1e-5 relative, 1e-4 of a
+/// `cell` and the scene's offset eps, ~100 ulps), nearest first (ties by index, for a
+/// deterministic file), so that a query's first exact distance lets the cheap bounds
+/// skip most others. A non-negative f32's bits order as its value. None past `most`.
+fn nearest_first(geo: &Geometry, c: Vec3, reach: f32, cell: f32, most: usize) -> Option<Vec<u32>> {
+    let mut list = Vec::new();
+    let reach = reach * (1.0 + 1e-5) + 1e-4 * cell + geo.eps;
+    if !geo.triangles_within(c, reach, &mut list, most) {
+        return None;
+    }
+    list.sort_by_cached_key(|&prim| (geo.nearest_of(c, &[prim]).to_bits(), prim));
+    Some(list)
+}
+
 /// Most triangle references the cell lists may hold: their offsets are u32 (in the cache
 /// file and in the kernels' buffer). At ~300 references a triangle, a mesh of ~14 M
 /// triangles reaches it; past it the offsets wrapped (a panic at the wrapped cell, wrong
@@ -81,7 +100,7 @@ impl DistanceGrid {
         let n = (dims.x * dims.y * dims.z) as usize;
         // Relative margin for f32 rounding in the distance computation.
         let margin = geo.eps * 0.5;
-        let exact = Self::centre_distances(geo, lo, cell, dims);
+        let exact = Self::centre_distances(geo, (lo, cell, dims), LIST_PER_NODE);
         let near_surface = 2.0 * 3f32.sqrt() * cell;
         // A point p of cell c (|p − c| ≤ h, the half-diagonal) is refined when its radius
         // value − |p − c| is below near_surface, so only cells with value < near_surface + h
@@ -99,12 +118,8 @@ impl DistanceGrid {
                     && listed.load(Ordering::Relaxed) <= most
                 {
                     let c = Self::centre_of(lo, cell, dims, i);
-                    let reach = (d + 2.0 * h) * (1.0 + 1e-5) + 1e-4 * cell + geo.eps;
-                    geo.triangles_within(c, reach, &mut list);
-                    // Nearest first (ties by index, for a deterministic file), so that a
-                    // query's first exact distance lets the cheap bounds skip most others.
-                    // A non-negative f32's bits order as its value.
-                    list.sort_by_cached_key(|&prim| (geo.nearest_of(c, &[prim]).to_bits(), prim));
+                    list = nearest_first(geo, c, d + 2.0 * h, cell, usize::MAX)
+                        .expect("an uncapped list");
                     listed.fetch_add(list.len() as u64, Ordering::Relaxed);
                 }
                 list
@@ -210,62 +225,81 @@ impl DistanceGrid {
     /// cell, and the sphere's grid took 12–16 s to build. Instead one search per block of
     /// [`BLOCK`]³ cells finds the distance D of the block's centre C; every cell centre c of
     /// the block (|c − C| ≤ h) has d(c) ≤ D + h, so its nearest triangle lies within
-    /// D + 2h of C, and the nearest of the triangles that near C (padded for rounding as
-    /// the cell lists are) is the same triangle at the same f32 distance.
-    fn centre_distances(geo: &Geometry, lo: Vec3, cell: f32, dims: UVec3) -> Vec<f32> {
-        let blocks = (dims + (BLOCK - 1)) / BLOCK;
-        let count = (blocks.x * blocks.y * blocks.z) as usize;
-        let index = |c: UVec3| (c.x + dims.x * (c.y + dims.y * c.z)) as usize;
-        let per_block: Vec<(Vec<usize>, Vec<f32>)> = (0..count)
-            .into_par_iter()
-            .map(|b| {
-                let b = b as u32;
-                let at = UVec3::new(
-                    b % blocks.x,
-                    (b / blocks.x) % blocks.y,
-                    b / (blocks.x * blocks.y),
-                );
-                let first = at * BLOCK;
-                let last = (first + BLOCK).min(dims) - UVec3::ONE;
-                let mut cells = Vec::new();
-                for z in first.z..=last.z {
-                    for y in first.y..=last.y {
-                        for x in first.x..=last.x {
-                            cells.push(index(UVec3::new(x, y, z)));
-                        }
+    /// D + 2h of C, and the nearest of the triangles that near C ([`nearest_first`]) is the
+    /// same triangle at the same f32 distance. Where that list is long against the nodes
+    /// the block's search opened (a dense mesh, whose small boxes bound tightly), or the
+    /// search was not exact, the block's cells are searched one by one as before.
+    /// `list_per_node`: [`LIST_PER_NODE`] (a test sets it to take either way everywhere).
+    fn centre_distances(
+        geo: &Geometry,
+        (lo, cell, dims): (Vec3, f32, UVec3),
+        list_per_node: usize,
+    ) -> Vec<f32> {
+        let mut exact = vec![0f32; (dims.x * dims.y * dims.z) as usize];
+        let plane = (dims.x * dims.y) as usize;
+        let (bx, by) = (dims.x.div_ceil(BLOCK), dims.y.div_ceil(BLOCK));
+        // A slab of BLOCK planes at a time, its blocks in parallel, written in place: a
+        // list of (cell, value) pairs for the whole grid cost 12 bytes a cell more.
+        exact
+            .par_chunks_mut(plane * BLOCK as usize)
+            .enumerate()
+            .for_each(|(slab, values)| {
+                let blocks: Vec<(Vec<usize>, Vec<f32>)> = (0..bx * by)
+                    .into_par_iter()
+                    .map(|b| {
+                        let first = UVec3::new(b % bx, b / bx, slab as u32) * BLOCK;
+                        Self::block_distances(geo, (lo, cell, dims), first, list_per_node)
+                    })
+                    .collect();
+                let base = slab * plane * BLOCK as usize;
+                for (cells, ds) in blocks {
+                    for (i, d) in cells.into_iter().zip(ds) {
+                        values[i - base] = d;
                     }
                 }
-                let (c0, c1) = (
-                    Self::centre_of(lo, cell, dims, index(first)),
-                    Self::centre_of(lo, cell, dims, index(last)),
-                );
-                let centre = (c0 + c1) * 0.5;
-                let h = 0.5 * (c1 - c0).length();
-                let d = geo.distance(centre);
-                let mut list = Vec::new();
-                if d.is_finite() {
-                    let reach = (d + 2.0 * h) * (1.0 + 1e-5) + 1e-4 * cell + geo.eps;
-                    geo.triangles_within(centre, reach, &mut list);
-                    // Nearest to C first, so that a cell's first exact distance lets the
-                    // cheap bounds skip most of the rest.
-                    list.sort_by_cached_key(|&prim| {
-                        (geo.nearest_of(centre, &[prim]).to_bits(), prim)
-                    });
+            });
+        exact
+    }
+
+    /// The block of [`Self::centre_distances`] whose first cell is `first`: its cells'
+    /// indices and their distances.
+    fn block_distances(
+        geo: &Geometry,
+        (lo, cell, dims): (Vec3, f32, UVec3),
+        first: UVec3,
+        list_per_node: usize,
+    ) -> (Vec<usize>, Vec<f32>) {
+        let index = |c: UVec3| (c.x + dims.x * (c.y + dims.y * c.z)) as usize;
+        let last = (first + BLOCK).min(dims) - UVec3::ONE;
+        let mut cells = Vec::with_capacity((BLOCK * BLOCK * BLOCK) as usize);
+        for z in first.z..=last.z {
+            for y in first.y..=last.y {
+                for x in first.x..=last.x {
+                    cells.push(index(UVec3::new(x, y, z)));
                 }
-                let values = cells
-                    .iter()
-                    .map(|&i| geo.nearest_of(Self::centre_of(lo, cell, dims, i), &list))
-                    .collect();
-                (cells, values)
-            })
-            .collect();
-        let mut exact = vec![0f32; (dims.x * dims.y * dims.z) as usize];
-        for (cells, values) in per_block {
-            for (i, v) in cells.into_iter().zip(values) {
-                exact[i] = v;
             }
         }
-        exact
+        let centre_of = |i: usize| Self::centre_of(lo, cell, dims, i);
+        let (c0, c1) = (centre_of(index(first)), centre_of(index(last)));
+        let centre = (c0 + c1) * 0.5;
+        let h = 0.5 * (c1 - c0).length();
+        let search = geo.distance_search(centre, f32::INFINITY);
+        // A listed triangle's bounds cost a fraction of an opened node (its box test and
+        // the leaf's exact distances): past LIST_PER_NODE of them a cell's own search is
+        // the cheaper (a 499k-triangle sphere's grid took twice as long by the lists).
+        let most = list_per_node.saturating_mul(search.opened as usize);
+        let list = (search.exact && search.distance.is_finite())
+            .then(|| nearest_first(geo, centre, search.distance + 2.0 * h, cell, most))
+            .flatten()
+            .filter(|l| !l.is_empty());
+        let ds = cells
+            .iter()
+            .map(|&i| match &list {
+                Some(list) => geo.nearest_of(centre_of(i), list),
+                None => geo.distance(centre_of(i)),
+            })
+            .collect();
+        (cells, ds)
     }
 
     fn centre_of(lo: Vec3, cell: f32, dims: UVec3, i: usize) -> Vec3 {
@@ -438,7 +472,9 @@ mod tests {
     /// where every triangle is about as near to the centre, a cube's flat faces and sharp
     /// edges, the torus knot's close strands and the bunny; at resolutions whose cell counts
     /// leave partial blocks at the far faces. A block bound too tight (h = 0) fails it at
-    /// thousands of cells.
+    /// thousands of cells. Each block's cells take the list or their own searches as the
+    /// lists' lengths decide: both ways are checked everywhere (a cap of 0 searches every
+    /// cell, none lists every block), and the build's cap between them.
     #[test]
     fn block_distances_equal_the_bvh_search() {
         let bunny = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/bunny.ply");
@@ -450,9 +486,12 @@ mod tests {
         ];
         for (name, mesh) in meshes {
             let geo = crate::geometry::Geometry::new(mesh);
-            for resolution in [23, 42] {
+            for (resolution, cap) in [23, 42]
+                .into_iter()
+                .flat_map(|r| [(r, super::LIST_PER_NODE), (r, 0), (r, usize::MAX)])
+            {
                 let (lo, cell, dims) = DistanceGrid::frame(&geo, resolution);
-                let blocks = DistanceGrid::centre_distances(&geo, lo, cell, dims);
+                let blocks = DistanceGrid::centre_distances(&geo, (lo, cell, dims), cap);
                 assert_eq!(blocks.len(), (dims.x * dims.y * dims.z) as usize);
                 let differ = blocks
                     .iter()
@@ -462,7 +501,10 @@ mod tests {
                         d.to_bits() != geo.distance(c).to_bits()
                     })
                     .count();
-                assert_eq!(differ, 0, "{name} at {resolution}: {differ} cells differ");
+                assert_eq!(
+                    differ, 0,
+                    "{name} at {resolution}, cap {cap}: {differ} differ"
+                );
             }
         }
     }

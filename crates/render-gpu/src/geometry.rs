@@ -784,9 +784,21 @@ impl Geometry {
     /// min(distance to the surface, `limit`): the search skips every node farther than
     /// `limit`, which near the surface prunes most of the tree from the start.
     pub fn distance_within(&self, p: Vec3, limit: f32) -> f32 {
+        self.distance_search(p, limit).distance
+    }
+
+    /// [`Geometry::distance_within`] with what the search took: how many nodes it
+    /// opened (what a search nearby will cost) and whether the distance is exact (a tree
+    /// too deep for the stack gives a lower bound).
+    pub fn distance_search(&self, p: Vec3, limit: f32) -> DistanceSearch {
         let nodes = &self.bvh.nodes;
+        let mut search = DistanceSearch {
+            distance: limit,
+            exact: true,
+            opened: 0,
+        };
         if nodes.is_empty() {
-            return limit;
+            return search;
         }
         let pa = Vec3A::from(p);
         let box_d2 = |i: usize| {
@@ -806,6 +818,7 @@ impl Geometry {
                 continue;
             }
             let n = &nodes[i];
+            search.opened += 1;
             if n.prim_count > 0 {
                 for k in n.first_index..n.first_index + n.prim_count {
                     best = best.min(self.triangle_d2(pa, self.bvh.primitive_indices[k as usize]));
@@ -820,21 +833,26 @@ impl Geometry {
                     // boxes of both children and of every node still pending.
                     let pending = stack[..top].iter().map(|&j| box_d2(j));
                     let floor = pending.fold(da.min(db), f32::min);
-                    return best.min(floor).sqrt();
+                    search.distance = best.min(floor).sqrt();
+                    search.exact = false;
+                    return search;
                 }
                 stack[top] = far;
                 stack[top + 1] = near;
                 top += 2;
             }
         }
-        best.sqrt()
+        search.distance = best.sqrt();
+        search
     }
 
-    /// Appends to `out` every triangle within `radius` of `p` (a BVH range query).
-    pub fn triangles_within(&self, p: Vec3, radius: f32, out: &mut Vec<u32>) {
+    /// Appends to `out` every triangle within `radius` of `p` (a BVH range query); false,
+    /// with `out` incomplete, once it would hold more than `most` (a caller that only
+    /// wants a short list stops paying for a long one).
+    pub fn triangles_within(&self, p: Vec3, radius: f32, out: &mut Vec<u32>, most: usize) -> bool {
         let nodes = &self.bvh.nodes;
         if nodes.is_empty() {
-            return;
+            return true;
         }
         let pa = Vec3A::from(p);
         let r2 = radius * radius;
@@ -849,6 +867,9 @@ impl Geometry {
                 for k in n.first_index..n.first_index + n.prim_count {
                     let prim = self.bvh.primitive_indices[k as usize];
                     if self.triangle_d2(pa, prim) <= r2 {
+                        if out.len() == most {
+                            return false;
+                        }
                         out.push(prim);
                     }
                 }
@@ -856,6 +877,7 @@ impl Geometry {
                 stack.extend([n.first_index as usize, n.first_index as usize + 1]);
             }
         }
+        true
     }
 
     /// Distance from `p` to the nearest of the triangles `prims`, best listed nearest
@@ -930,6 +952,17 @@ impl Geometry {
         }
         crossings % 2 == 1
     }
+}
+
+/// What [`Geometry::distance_search`] found and what it took.
+#[derive(Clone, Copy, Debug)]
+pub struct DistanceSearch {
+    pub distance: f32,
+    /// False where the tree was too deep for the search's stack: `distance` is then a
+    /// lower bound.
+    pub exact: bool,
+    /// BVH nodes opened.
+    pub opened: u32,
 }
 
 /// Squared distance from `p` to triangle (a, b, c) whose unit normal `n` is that of

@@ -228,10 +228,9 @@ fn plot(
         axes.0,
         axes.1,
         log,
+        // (The legend above the lines: in plotters' middle right it hid the paper's
+        // k = 8 point and the last point of other curves.)
         series,
-        // Above the lines (the axis grows to hold it): in plotters' middle right it hid
-        // the paper's k = 8 point and the last point of other curves.
-        None,
     )?;
     ctx.saved_one()?;
     rep.image(title, file);
@@ -563,18 +562,23 @@ fn work_maps(ctx: &Ctx, obj: &str, works: Vec<Work>) -> Result<Vec<(String, f64,
             }
             img
         };
-        let mut data = side_by_side(&[&counts(&pt_work), &counts(&st_work)]);
-        // The gap between the halves holds 0, not a count (side_by_side paints it white,
-        // the largest value, which a reader averaging the EXR would count).
-        for y in 0..data.height {
-            for x in w..data.width - w {
-                data.pixels[y * data.width + x] = [0.0; 3];
+        // side_by_side paints the gap between the halves with the largest value.
+        let gap = |img: &mut RgbImage, v: f32| {
+            for y in 0..img.height {
+                for x in w..img.width - w {
+                    img.pixels[y * img.width + x] = [v; 3];
+                }
             }
-        }
-        let display = side_by_side(&[
+        };
+        let mut data = side_by_side(&[&counts(&pt_work), &counts(&st_work)]);
+        // 0 in the EXR: not a count, which a reader averaging it would take it for.
+        gap(&mut data, 0.0);
+        let mut display = side_by_side(&[
             &work_image(&pt_work, w, h, max),
             &work_image(&st_work, w, h, max),
         ]);
+        // White in the PNG, not the pair's own largest count, a level of the shared scale.
+        gap(&mut display, 1.0);
         let name = format!("work_{obj}_k{}", k_name(k));
         figs.push((
             obj.to_string(),
