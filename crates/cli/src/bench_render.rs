@@ -496,8 +496,9 @@ pub fn run(a: Args) -> Result<()> {
          a path, ST st/path and ev/path = ST-CVAE's sphere steps and PT events (thin regions) a path; \
          noise = the RMSE the two renders' noise alone gives; bias RMSE is noise-corrected \
          (bias 95%: its one-sided 95% upper confidence bound, from a negative estimate raised to 0; \
-         not resolved where fewer than 30 object pixels carry a term, as in sparse renders), \
-         images scaled so PT's brightest 1% of object pixels is 1"
+         not resolved where fewer than {} object pixels carry a term, as in sparse renders), \
+         images scaled so PT's brightest 1% of object pixels is 1",
+        crate::experiment::measure::MIN_BIAS_TERMS
     );
     Ok(())
 }

@@ -347,7 +347,7 @@ fn teaser(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             save_picture(ctx, &format!("teaser_k{}", k_name(k)), &both, exposure)?,
         ));
     }
-    rep.text(&format!("Both integrators at equal spp; speed-up = PT time / ST-CVAE time; var ratio = PT's per-pixel variance / ST-CVAE's (var_ratio_se: its standard error; heavy-tailed pixels make it swing); bias RMSE is noise-corrected (bias_upper95: its one-sided 95 % bound, not resolved where fewer than 30 object pixels carry a term, as in sparse renders), in units of PT's brightest 1 % of object pixels. {}Pictures exposed so that PT's 99th-percentile pixel of the frame is 1.\n", if ctx.cfg.nee() { "" } else { "Without NEE (most likely as the paper timed its speed-ups): light counted where a path escapes into a light's disk or the environment. " }));
+    rep.text(&format!("Both integrators at equal spp; speed-up = PT time / ST-CVAE time; var ratio = PT's per-pixel variance / ST-CVAE's (var_ratio_se: its standard error; heavy-tailed pixels make it swing); bias RMSE is noise-corrected (bias_upper95: its one-sided 95 % bound, not resolved where fewer than {} object pixels carry a term, as in sparse renders), in units of PT's brightest 1 % of object pixels. {}Pictures exposed so that PT's 99th-percentile pixel of the frame is 1.\n", super::measure::MIN_BIAS_TERMS, if ctx.cfg.nee() { "" } else { "Without NEE (most likely as the paper timed its speed-ups): light counted where a path escapes into a light's disk or the environment. " }));
     rep.table();
     for (k, f) in figs {
         rep.image(
@@ -447,7 +447,7 @@ fn quality(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             ));
         }
     }
-    rep.text(&format!("Both with NEE (ST-CVAE's through EventGen), unlike the paper's Fig. 6/7: the scene's lights are replaced by one delta light (the first light's irradiance) from the front or the back, which paths without NEE never reach. Noise-corrected bias RMSE of ST-CVAE against PT at equal spp, with its one-sided 95 % bound (in units of PT's brightest 1 % of object pixels). Speed-up = PT time / ST-CVAE time at equal spp; paper_speedup: the paper's, per density (its renders without NEE). Pictures exposed so that PT's 99th-percentile pixel of the frame is 1. The |difference| ×4 panel is the paper's, whose renders had 16,000 spp; at {} spp it is mostly the two renders' noise (most of the object clips), and the table's noise-corrected bias is the measure of their difference.\n", 2 * crate::experiment::measure::half_spp(ctx.budget.spp())));
+    rep.text(&format!("Both with NEE (ST-CVAE's through EventGen), unlike the paper's Fig. 6/7: the scene's lights are replaced by one delta light (the first light's irradiance) from the front or the back, which paths without NEE never reach. Noise-corrected bias RMSE of ST-CVAE against PT at equal spp, with its one-sided 95 % bound (in units of PT's brightest 1 % of object pixels). Speed-up = PT time / ST-CVAE time at equal spp; paper_speedup: the paper's, per density (its renders without NEE). Pictures exposed so that PT's 99th-percentile pixel of the frame is 1. The |difference| ×4 panel is the paper's, whose renders had 16,000 spp; at {} spp it is mostly the two renders' noise (most of the object clips), and the table's noise-corrected bias is the measure of their difference.\n", 2 * super::measure::half_spp(ctx.budget.spp())));
     rep.table();
     for (name, k, f) in figs {
         rep.image(

@@ -393,7 +393,7 @@ fn bias_squared(reference: &Pair, other: &Pair, object: usize) -> (f64, f64, [f6
 /// the half-split variance estimate are both x²/4), so sparse renders (a quick run without
 /// NEE: 25 object pixels, each lit once) gave a spread of 0 and a bound of 0 beside a
 /// noise RMSE of 1.57. Thirty is the usual floor for a mean's normal approximation.
-const MIN_BIAS_TERMS: usize = 30;
+pub const MIN_BIAS_TERMS: usize = 30;
 
 pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
     let scale = object_scale(reference, other);
@@ -625,6 +625,12 @@ mod tests {
                 img
             })
             .collect();
+        let [a, b]: [RgbImage; 2] = halves.try_into().ok().unwrap();
+        pair_of(a, b)
+    }
+
+    /// The pair of two 1-spp renders `a` and `b`, each timed at 1 s.
+    fn pair_of(a: RgbImage, b: RgbImage) -> Pair {
         let out = |image: RgbImage| RenderOutput {
             image,
             spp: 1,
@@ -635,7 +641,6 @@ mod tests {
             dispatch: Default::default(),
             variance: None,
         };
-        let [a, b]: [RgbImage; 2] = halves.try_into().ok().unwrap();
         Pair::from_halves(out(a), out(b), (0, 0))
     }
 
@@ -693,19 +698,6 @@ mod tests {
                 img.pixels[i] = [v, 0.5 * v, 0.25 * v];
             }
             img
-        };
-        let pair_of = |a: RgbImage, b: RgbImage| {
-            let out = |image: RgbImage| RenderOutput {
-                image,
-                spp: 1,
-                seconds: 1.0,
-                compile_seconds: 0.0,
-                stats: PathStats::default(),
-                work: Vec::new(),
-                dispatch: Default::default(),
-                variance: None,
-            };
-            Pair::from_halves(out(a), out(b), (0, 0))
         };
         let object: Vec<usize> = (0..100).map(|i| 40 * i + 3).collect();
         let pt = pair_of(lit(&object, 1.0), lit(&[], 1.0));
