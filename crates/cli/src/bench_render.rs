@@ -496,7 +496,7 @@ pub fn run(a: Args) -> Result<()> {
          a path, ST st/path and ev/path = ST-CVAE's sphere steps and PT events (thin regions) a path; \
          noise = the RMSE the two renders' noise alone gives; bias RMSE is noise-corrected \
          (bias 95%: its one-sided 95% upper confidence bound, from a negative estimate raised to 0; \
-         not resolved where fewer than {} object pixels carry a term, as in sparse renders), \
+         n/a: not resolved, where fewer than {} object pixels carry a term, as in sparse renders), \
          images scaled so PT's brightest 1% of object pixels is 1",
         crate::experiment::measure::MIN_BIAS_TERMS
     );
@@ -686,7 +686,7 @@ fn print_row(
         st.per_path(st.stats.events),
         c.bias,
         c.bias_upper95
-            .map_or("not resolved".to_owned(), |b| format!("{b:.4}")),
+            .map_or("n/a".to_owned(), |b| format!("{b:.4}")),
         c.noise,
         crate::progress::si(pt.paths_per_second()),
         crate::progress::si(st.paths_per_second())

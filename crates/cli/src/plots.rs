@@ -457,7 +457,7 @@ pub fn line_plot_png(
                 .with_key_points(keys.unwrap_or(bold))
                 .with_light_points(light)
         };
-        let ladder = || ladder_ticks(series);
+        let ladder = || ladder_ticks(series, (x0, x1));
         let mut b = ChartBuilder::on(&root);
         b.caption(title, ("sans-serif", 20))
             .margin(12)
@@ -490,8 +490,8 @@ pub fn line_plot_png(
 /// The labelled ticks of a log x axis where every series is drawn at the same few x
 /// values (a ladder of densities or absorptions): those values, so that k = 4 and 8 or
 /// 2^-11 … 2^-5 are labelled where the 1-2-5 ticks labelled none of them. None otherwise
-/// (times, training steps), and the axis keeps its 1-2-5 ticks.
-fn ladder_ticks(series: &[Series]) -> Option<Vec<f64>> {
+/// (times, training steps), and the axis keeps its 1-2-5 ticks. `span`: the axis' range.
+fn ladder_ticks(series: &[Series], (x0, x1): Span) -> Option<Vec<f64>> {
     let xs = |s: &Series| {
         let mut v: Vec<f64> = s
             .points
@@ -505,17 +505,20 @@ fn ladder_ticks(series: &[Series]) -> Option<Vec<f64>> {
     };
     let first = xs(series.first()?);
     let shared = series.iter().all(|s| xs(s) == first);
-    // Labels at least a factor apart, or 900 and 1,000 ran into each other.
-    let apart = first.windows(2).all(|w| w[1] >= MIN_LADDER_RATIO * w[0]);
+    // Labels apart on the axis, or 900 and 1,000 ran into each other.
+    let width = (x1 / x0).ln();
+    let apart = first
+        .windows(2)
+        .all(|w| (w[1] / w[0]).ln() >= MIN_LADDER_GAP * width);
     (shared && apart && (2..=MAX_LADDER_TICKS).contains(&first.len())).then_some(first)
 }
 
 /// Most ticks a ladder gets (more would run into each other on a 900 px axis).
 const MAX_LADDER_TICKS: usize = 10;
 
-/// Least ratio of neighbouring ladder values (~30 px apart on a 900 px axis of two
-/// decades; 1, 2, 4, 8 and 2^-11 … 2^-5 are a factor of 2 apart).
-const MIN_LADDER_RATIO: f64 = 1.3;
+/// Least gap between neighbouring ladder labels, as a share of the log axis' width (~40 px
+/// of the ~820 px plot; 1, 2, 4, 8 are a quarter of theirs apart).
+const MIN_LADDER_GAP: f64 = 0.05;
 
 /// Whether a coordinate can be drawn: finite, and positive on a log axis.
 fn plottable(v: f64, log: bool) -> bool {
@@ -594,16 +597,19 @@ mod tests {
         let at = |xs: &[f64]| Series::new("s", xs.iter().map(|&x| (x, 1.0)).collect());
         let k = [1.0, 2.0, 4.0, 8.0];
         assert_eq!(
-            ladder_ticks(&[at(&k), at(&[8.0, 4.0, 2.0, 1.0, 0.0])]),
+            ladder_ticks(&[at(&k), at(&[8.0, 4.0, 2.0, 1.0, 0.0])], (0.77, 10.4)),
             Some(k.to_vec())
         );
-        assert_eq!(ladder_ticks(&[at(&k), at(&[1.0, 2.0, 4.0])]), None);
-        assert_eq!(ladder_ticks(&[at(&[3.0])]), None);
+        assert_eq!(
+            ladder_ticks(&[at(&k), at(&[1.0, 2.0, 4.0])], (0.77, 10.4)),
+            None
+        );
+        assert_eq!(ladder_ticks(&[at(&[3.0])], (2.3, 3.9)), None);
         let steps: Vec<f64> = (1..=40).map(|i| 500.0 * i as f64).collect();
-        assert_eq!(ladder_ticks(&[at(&steps)]), None);
+        assert_eq!(ladder_ticks(&[at(&steps)], (385.0, 26_000.0)), None);
         // A short training's steps: 900 and 1,000 would overlap.
         let short: Vec<f64> = (1..=10).map(|i| 100.0 * i as f64).collect();
-        assert_eq!(ladder_ticks(&[at(&short)]), None);
+        assert_eq!(ladder_ticks(&[at(&short)], (77.0, 1300.0)), None);
     }
 
     #[test]

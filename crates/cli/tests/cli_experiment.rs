@@ -179,7 +179,9 @@ fn every_experiment_runs_quick() {
                     assert_eq!((w as usize, h as usize), (img.width, img.height));
                     let half = (img.width - 2) / 2;
                     for (i, p) in img.pixels.iter().enumerate() {
+                        // The gap between the halves is red, apart from every grey level.
                         if (half..half + 2).contains(&(i % img.width)) {
+                            assert_eq!(&grey[3 * i..3 * i + 3], &[255, 0, 0], "{}", png.display());
                             continue;
                         }
                         let want = 255.0 * (1.0 + p[0]).ln() / (1.0 + most).ln();

@@ -789,7 +789,8 @@ impl Geometry {
 
     /// [`Geometry::distance_within`] with what the search took: how many nodes it
     /// opened (what a search nearby will cost) and whether the distance is exact (a tree
-    /// too deep for the stack gives a lower bound).
+    /// too deep for the stack gives a lower bound; with a finite `limit`, exact means
+    /// min(distance, limit)).
     pub fn distance_search(&self, p: Vec3, limit: f32) -> DistanceSearch {
         let nodes = &self.bvh.nodes;
         let mut search = DistanceSearch {
@@ -867,7 +868,7 @@ impl Geometry {
                 for k in n.first_index..n.first_index + n.prim_count {
                     let prim = self.bvh.primitive_indices[k as usize];
                     if self.triangle_d2(pa, prim) <= r2 {
-                        if out.len() == most {
+                        if out.len() >= most {
                             return false;
                         }
                         out.push(prim);
@@ -1022,6 +1023,26 @@ pub const EDGE_TOLERANCE: f32 = 4e-6;
 mod tests {
     use super::*;
     use scatter_sim::rng::WalkRng;
+
+    /// The capped range query: a cap at the count lists them all, one below stops with
+    /// false, 0 stops at the first. Every face of a unit cube is 0.5 from its centre, so
+    /// all 12 triangles are within 1 of it.
+    #[test]
+    fn a_capped_range_query_stops_past_its_cap() {
+        let geo = Geometry::new(crate::mesh::cube(1.0));
+        let (centre, reach) = (Vec3::ZERO, 1.0);
+        let mut all = Vec::new();
+        assert!(geo.triangles_within(centre, reach, &mut all, usize::MAX));
+        assert_eq!(all.len(), 12);
+        let mut list = Vec::new();
+        assert!(geo.triangles_within(centre, reach, &mut list, 12));
+        assert_eq!(list.len(), 12);
+        for most in [0, 11] {
+            list.clear();
+            assert!(!geo.triangles_within(centre, reach, &mut list, most));
+            assert_eq!(list.len(), most);
+        }
+    }
 
     fn bunny() -> Geometry {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../assets/bunny.glb");
