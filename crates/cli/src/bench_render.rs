@@ -79,11 +79,11 @@ pub struct Args {
     device: DeviceArg,
     /// Also write each density's images to this folder: kK_pt and kK_stcvae (EXR + PNG,
     /// the two seeds' mean) and kK_z.png, where the bias lies: per channel and 4×4-pixel
-    /// block (measure::block_z), the z-score of ST-CVAE − PT against both noises, drawn as grey level 0.5 + z/8 (mid-grey 128:
-    /// agreement, or a block whose noise estimate is too poor to judge: the background and
-    /// silhouette blocks of a few noisy pixels; brighter: ST-CVAE brighter; |z| > 3 is
-    /// rarely noise), and kK_pixels.csv:
-    /// per pixel and channel both means and the variances of those means.
+    /// block (measure::block_z), the z-score of ST-CVAE − PT against both noises, drawn
+    /// as grey level 0.5 + z/8 (mid-grey 128: agreement, or a block whose noise estimate
+    /// is too poor to judge: the background and silhouette blocks of a few noisy pixels;
+    /// brighter: ST-CVAE brighter; |z| > 3 is rarely noise), and kK_pixels.csv: per pixel
+    /// and channel both means and the variances of those means.
     #[arg(long)]
     save: Option<PathBuf>,
     /// Reuse PT's renders: each density's PT pair (both seeds, time, statistics) is read

@@ -46,8 +46,9 @@ const MAGIC: &[u8; 8] = b"STCVDG05";
 const BLOCK: u32 = 4;
 
 /// Most listed triangles a block's cells scan per node its centre's search opened
-/// (measured: the shipped sphere, bunny and torus knot stay below it, a 499k-triangle
-/// sphere goes far above).
+/// (measured, list length over nodes opened: the sphere's blocks 3.0 at the median and 4.5
+/// at the 99th percentile, the bunny's 1.5 and 2.9, a 499k-triangle sphere's 36 to 270;
+/// docs/BENCHMARKS.md).
 const LIST_PER_NODE: usize = 4;
 
 /// Every triangle within `reach` of `c`, padded for f32 rounding (1e-5 relative, 1e-4 of a
@@ -55,13 +56,23 @@ const LIST_PER_NODE: usize = 4;
 /// deterministic file), so that a query's first exact distance lets the cheap bounds
 /// skip most others. A non-negative f32's bits order as its value. None past `most`.
 fn nearest_first(geo: &Geometry, c: Vec3, reach: f32, cell: f32, most: usize) -> Option<Vec<u32>> {
-    let mut list = Vec::new();
-    let reach = reach * (1.0 + 1e-5) + 1e-4 * cell + geo.eps;
-    if !geo.triangles_within(c, reach, &mut list, most) {
-        return None;
+    // (d², triangle) pairs in a buffer each thread keeps: one a list, freed among the
+    // lists that stay until they are joined, left the heap in pieces (+175 MB of peak
+    // memory for a 499k-triangle sphere's grid over the cells' own searches; +43 MB with
+    // the buffer).
+    thread_local! {
+        static PAIRS: std::cell::RefCell<Vec<(f32, u32)>> = const { std::cell::RefCell::new(Vec::new()) };
     }
-    list.sort_by_cached_key(|&prim| (geo.nearest_of(c, &[prim]).to_bits(), prim));
-    Some(list)
+    PAIRS.with_borrow_mut(|list| {
+        list.clear();
+        let reach = reach * (1.0 + 1e-5) + 1e-4 * cell + geo.eps;
+        if !geo.triangles_within(c, reach, list, most) {
+            return None;
+        }
+        // The distance as `nearest_of(c, &[prim])` gives it, from the query's own d².
+        list.sort_unstable_by_key(|&(d2, prim)| (d2.sqrt().to_bits(), prim));
+        Some(list.iter().map(|&(_, prim)| prim).collect())
+    })
 }
 
 /// Most triangle references the cell lists may hold: their offsets are u32 (in the cache
@@ -240,69 +251,59 @@ impl DistanceGrid {
         let mut exact = vec![0f32; (dims.x * dims.y * dims.z) as usize];
         let plane = (dims.x * dims.y) as usize;
         let (bx, by) = (dims.x.div_ceil(BLOCK), dims.y.div_ceil(BLOCK));
-        // A slab of BLOCK planes at a time, its blocks in parallel, written in place: a
-        // list of (cell, value) pairs for the whole grid cost 12 bytes a cell more.
+        // A slab of BLOCK planes at a time, written in place: its blocks' lists first, then
+        // its cells (a list of (cell, value) pairs for the whole grid cost 12 bytes a cell
+        // more).
         exact
             .par_chunks_mut(plane * BLOCK as usize)
             .enumerate()
             .for_each(|(slab, values)| {
-                let blocks: Vec<(Vec<usize>, Vec<f32>)> = (0..bx * by)
+                let lists: Vec<Option<Vec<u32>>> = (0..bx * by)
                     .into_par_iter()
                     .map(|b| {
                         let first = UVec3::new(b % bx, b / bx, slab as u32) * BLOCK;
-                        Self::block_distances(geo, (lo, cell, dims), first, list_per_node)
+                        Self::block_list(geo, (lo, cell, dims), first, list_per_node)
                     })
                     .collect();
                 let base = slab * plane * BLOCK as usize;
-                for (cells, ds) in blocks {
-                    for (i, d) in cells.into_iter().zip(ds) {
-                        values[i - base] = d;
-                    }
-                }
+                values.par_iter_mut().enumerate().for_each(|(j, v)| {
+                    let (x, y) = (j as u32 % dims.x, (j as u32 / dims.x) % dims.y);
+                    let c = Self::centre_of(lo, cell, dims, base + j);
+                    *v = match &lists[(x / BLOCK + bx * (y / BLOCK)) as usize] {
+                        Some(list) => geo.nearest_of(c, list),
+                        None => geo.distance(c),
+                    };
+                });
             });
         exact
     }
 
-    /// The block of [`Self::centre_distances`] whose first cell is `first`: its cells'
-    /// indices and their distances.
-    fn block_distances(
+    /// The triangle list of [`Self::centre_distances`]'s block whose first cell is
+    /// `first`; None where its cells are searched one by one.
+    fn block_list(
         geo: &Geometry,
         (lo, cell, dims): (Vec3, f32, UVec3),
         first: UVec3,
         list_per_node: usize,
-    ) -> (Vec<usize>, Vec<f32>) {
-        let index = |c: UVec3| (c.x + dims.x * (c.y + dims.y * c.z)) as usize;
+    ) -> Option<Vec<u32>> {
         let last = (first + BLOCK).min(dims) - UVec3::ONE;
-        let mut cells = Vec::with_capacity((BLOCK * BLOCK * BLOCK) as usize);
-        for z in first.z..=last.z {
-            for y in first.y..=last.y {
-                for x in first.x..=last.x {
-                    cells.push(index(UVec3::new(x, y, z)));
-                }
-            }
-        }
-        let centre_of = |i: usize| Self::centre_of(lo, cell, dims, i);
-        let (c0, c1) = (centre_of(index(first)), centre_of(index(last)));
+        // The first and last cells' centres, as `centre_of` gives them.
+        let (c0, c1) = (
+            lo + (first.as_vec3() + 0.5) * cell,
+            lo + (last.as_vec3() + 0.5) * cell,
+        );
         let centre = (c0 + c1) * 0.5;
         let h = 0.5 * (c1 - c0).length();
         let search = geo.distance_search(centre, f32::INFINITY);
         // A listed triangle's bounds cost a fraction of an opened node (its box test and
         // the leaf's exact distances): past LIST_PER_NODE of them a cell's own search is
         // the cheaper (a 499k-triangle sphere's grid took 38.1 s by the lists, 27.2 s by
-        // the cells' own searches).
+        // the cells' own searches before this build, 28.5 s with the fallback, which
+        // still pays for each block's search and capped list).
         let most = list_per_node.saturating_mul(search.opened as usize);
-        let list = (search.exact && search.distance.is_finite())
+        (search.exact && search.distance.is_finite())
             .then(|| nearest_first(geo, centre, search.distance + 2.0 * h, cell, most))
             .flatten()
-            .filter(|l| !l.is_empty());
-        let ds = cells
-            .iter()
-            .map(|&i| match &list {
-                Some(list) => geo.nearest_of(centre_of(i), list),
-                None => geo.distance(centre_of(i)),
-            })
-            .collect();
-        (cells, ds)
     }
 
     fn centre_of(lo: Vec3, cell: f32, dims: UVec3, i: usize) -> Vec3 {

@@ -791,7 +791,8 @@ impl Geometry {
     /// opened (what a search nearby will cost) and whether the distance is exact (a tree
     /// too deep for the stack gives a lower bound; with a finite `limit`, exact means
     /// min(distance, limit)).
-    pub fn distance_search(&self, p: Vec3, limit: f32) -> DistanceSearch {
+    #[inline]
+    pub(crate) fn distance_search(&self, p: Vec3, limit: f32) -> DistanceSearch {
         let nodes = &self.bvh.nodes;
         let mut search = DistanceSearch {
             distance: limit,
@@ -847,10 +848,17 @@ impl Geometry {
         search
     }
 
-    /// Appends to `out` every triangle within `radius` of `p` (a BVH range query); false,
-    /// with `out` incomplete, once it would hold more than `most` (a caller that only
-    /// wants a short list stops paying for a long one).
-    pub fn triangles_within(&self, p: Vec3, radius: f32, out: &mut Vec<u32>, most: usize) -> bool {
+    /// Appends to `out` every triangle within `radius` of `p` (a BVH range query), with its
+    /// squared distance (what a caller sorting them would compute again); false, with
+    /// `out` incomplete, once it would hold more than `most` (a caller that only wants a
+    /// short list stops paying for a long one).
+    pub(crate) fn triangles_within(
+        &self,
+        p: Vec3,
+        radius: f32,
+        out: &mut Vec<(f32, u32)>,
+        most: usize,
+    ) -> bool {
         let nodes = &self.bvh.nodes;
         if nodes.is_empty() {
             return true;
@@ -867,11 +875,12 @@ impl Geometry {
             if n.prim_count > 0 {
                 for k in n.first_index..n.first_index + n.prim_count {
                     let prim = self.bvh.primitive_indices[k as usize];
-                    if self.triangle_d2(pa, prim) <= r2 {
+                    let d2 = self.triangle_d2(pa, prim);
+                    if d2 <= r2 {
                         if out.len() >= most {
                             return false;
                         }
-                        out.push(prim);
+                        out.push((d2, prim));
                     }
                 }
             } else {
@@ -957,13 +966,13 @@ impl Geometry {
 
 /// What [`Geometry::distance_search`] found and what it took.
 #[derive(Clone, Copy, Debug)]
-pub struct DistanceSearch {
-    pub distance: f32,
+pub(crate) struct DistanceSearch {
+    pub(crate) distance: f32,
     /// False where the tree was too deep for the search's stack: `distance` is then a
     /// lower bound.
-    pub exact: bool,
+    pub(crate) exact: bool,
     /// BVH nodes opened.
-    pub opened: u32,
+    pub(crate) opened: u32,
 }
 
 /// Squared distance from `p` to triangle (a, b, c) whose unit normal `n` is that of

@@ -103,17 +103,12 @@ pub fn object_mesh(scene: &SceneFile, scene_dir: &Path) -> Result<TriMesh, Rende
             let path = scene_dir.join(p);
             // Named with its field: a missing mesh was only "cube.obj: cannot open the
             // mesh", which did not say where the name came from or where it was looked for.
-            if let Err(e) = std::fs::metadata(&path) {
-                return Err(RenderError::mesh(
-                    &path,
-                    format!(
-                        "cannot open the mesh of object.mesh = \"{}\" (a relative path is \
-                         looked for in the scene file's folder): {e}",
-                        p.display()
-                    ),
-                ));
-            }
-            mesh::load_mesh(&path)?
+            let what = format!(
+                "the mesh of object.mesh = \"{}\" (a relative path is looked for in the \
+                 scene file's folder)",
+                p.display()
+            );
+            mesh::load_mesh_as(&path, &what)?
         }
         (None, None) => unreachable!("validated: shape or mesh"),
     };

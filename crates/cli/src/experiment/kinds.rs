@@ -7,7 +7,7 @@ use render_gpu::scene::{LightDesc, SceneFile};
 
 use super::measure::{
     Pair, compare, difference, errors, opts, pair_seeds, render_once, render_pair, save, save_map,
-    save_picture, scale_of, side_by_side, work_image,
+    save_picture, scale_of, side_by_side, side_by_side_with, work_image,
 };
 use super::report::{Cell, Report};
 use super::{Ctx, Kind};
@@ -562,24 +562,17 @@ fn work_maps(ctx: &Ctx, obj: &str, works: Vec<Work>) -> Result<Vec<(String, f64,
             }
             img
         };
-        // side_by_side paints the gap between the halves with the largest value.
-        let gap = |img: &mut RgbImage, v: [f32; 3]| {
-            for y in 0..img.height {
-                for x in w..img.width - w {
-                    img.pixels[y * img.width + x] = v;
-                }
-            }
-        };
-        let mut data = side_by_side(&[&counts(&pt_work), &counts(&st_work)]);
-        // 0 in the EXR: a reader averaging the halves would count the largest value.
-        gap(&mut data, [0.0; 3]);
-        let mut display = side_by_side(&[
-            &work_image(&pt_work, w, h, max),
-            &work_image(&st_work, w, h, max),
-        ]);
-        // Red in the PNG: grey would read as a level of the shared scale (white, the
-        // object's largest count; the pair's own largest was drawn there before).
-        gap(&mut display, [1.0, 0.0, 0.0]);
+        // The gap holds 0 in the EXR (a reader averaging the halves would count a largest
+        // value there) and is red in the PNG (grey would read as a level of the shared
+        // scale: white, the object's largest count; the pair's own largest before).
+        let data = side_by_side_with(&[&counts(&pt_work), &counts(&st_work)], [0.0; 3]);
+        let display = side_by_side_with(
+            &[
+                &work_image(&pt_work, w, h, max),
+                &work_image(&st_work, w, h, max),
+            ],
+            [1.0, 0.0, 0.0],
+        );
         let name = format!("work_{obj}_k{}", k_name(k));
         figs.push((
             obj.to_string(),

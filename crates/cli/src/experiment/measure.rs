@@ -494,20 +494,26 @@ pub fn difference(a: &RgbImage, b: &RgbImage, gain: f32) -> RgbImage {
     d
 }
 
-/// Images side by side with a 2-pixel white gap (all the same height).
+/// Images side by side with a 2-pixel white gap (all the same height): white as bright
+/// as their brightest pixel.
 pub fn side_by_side(images: &[&RgbImage]) -> RgbImage {
-    let gap = 2;
-    let h = images.iter().map(|i| i.height).max().unwrap_or(1);
-    let w: usize =
-        images.iter().map(|i| i.width).sum::<usize>() + gap * images.len().saturating_sub(1);
-    let mut out = RgbImage::new(w.max(1), h);
     let white = images
         .iter()
         .flat_map(|i| i.pixels.iter().map(|p| lum(*p) as f32))
         .fold(0.0f32, f32::max)
         .max(1e-6);
+    side_by_side_with(images, [white; 3])
+}
+
+/// [`side_by_side`] with the gap (and any space below a shorter image) in `fill`.
+pub fn side_by_side_with(images: &[&RgbImage], fill: [f32; 3]) -> RgbImage {
+    let gap = 2;
+    let h = images.iter().map(|i| i.height).max().unwrap_or(1);
+    let w: usize =
+        images.iter().map(|i| i.width).sum::<usize>() + gap * images.len().saturating_sub(1);
+    let mut out = RgbImage::new(w.max(1), h);
     for p in &mut out.pixels {
-        *p = [white; 3];
+        *p = fill;
     }
     let mut x0 = 0;
     for img in images {

@@ -181,6 +181,12 @@ fn bounds_of(points: impl Iterator<Item = Vec3>) -> (Vec3, Vec3) {
 
 /// Loads a mesh file by extension and returns it welded, checked and outward-oriented.
 pub fn load_mesh(path: &Path) -> Result<TriMesh, RenderError> {
+    load_mesh_as(path, "the mesh")
+}
+
+/// [`load_mesh`], a missing file refused as "cannot open `what`" (a scene names the field
+/// the path came from).
+pub(crate) fn load_mesh_as(path: &Path, what: &str) -> Result<TriMesh, RenderError> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
@@ -190,10 +196,7 @@ pub fn load_mesh(path: &Path) -> Result<TriMesh, RenderError> {
     // failed".
     match std::fs::metadata(path) {
         Err(e) => {
-            return Err(RenderError::mesh(
-                path,
-                format!("cannot open the mesh: {e}"),
-            ));
+            return Err(RenderError::mesh(path, format!("cannot open {what}: {e}")));
         }
         Ok(m) if m.is_dir() => {
             return Err(RenderError::mesh(path, "is a directory, not a mesh file"));
