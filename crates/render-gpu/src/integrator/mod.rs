@@ -327,217 +327,44 @@ impl Path {
         set: &IntegratorSettings,
         stop: &std::sync::atomic::AtomicBool,
     ) -> Advance {
-        let geo = &scene.geo;
-        let channel = self.channel;
-        let sigma = scene.sigma_t[channel];
-        let Self {
-            s,
-            rng,
-            stats,
-            inside,
-            from_step,
-            left_through,
-            first_hit,
-            iterations,
-            step,
-            ..
-        } = self;
-        while s.alive {
-            *iterations += 1;
-            if *iterations > MAX_ITERATIONS {
-                stats.capped += 1;
+        while self.s.alive {
+            self.iterations += 1;
+            if self.iterations > MAX_ITERATIONS {
+                self.stats.capped += 1;
                 break;
             }
-            if *iterations % STOP_CHECK_EVERY == 0
+            if self.iterations.is_multiple_of(STOP_CHECK_EVERY)
                 && stop.load(std::sync::atomic::Ordering::Relaxed)
             {
                 return Advance::Stopped;
             }
-            if !*inside {
-                let hit = match (first_hit.take(), left_through.take()) {
-                    (Some(hit), _) => hit,
-                    (None, Some(prim)) if geo.escapes_from(prim, s.dir) => None,
-                    _ => geo.intersect(s.pos, s.dir, f32::INFINITY),
-                };
-                let Some(mut h) = hit else {
-                    s.radiance += s.beta * escape(scene, s.dir, channel, !(set.nee && s.scattered));
+            if !self.inside {
+                if self.cast_from_air(scene, set) {
                     break;
-                };
-                let mut turned = false;
-                if let Some(pieces) = &geo.pieces {
-                    let past = geo.spawn(s.pos + s.dir * h.t, h.normal, s.dir);
-                    if !geo.in_union(pieces, past, s.dir) {
-                        // A face crossed in air (within a cavity's piece): no boundary.
-                        s.pos = past;
-                        continue;
-                    }
-                    // Into the medium: its boundary's normal faces the air the path is in.
-                    if s.dir.dot(h.normal) > 0.0 {
-                        h.normal = -h.normal;
-                        turned = true;
-                    }
-                }
-                if s.dir.dot(h.normal) > 0.0 {
-                    // Met a surface from inside while believed outside: the path left one
-                    // part of the mesh into another across a gap of air thinner than eps
-                    // (touching parts), and was spawned inside that one. It enters where
-                    // it is, in its direction, as through a gap of no thickness (with a
-                    // dielectric boundary the refraction out of the first part stays).
-                    // Taken for an entry at the far face instead, the path would be
-                    // spawned outside believing itself inside: air events with unshadowed
-                    // NEE, as at a sliver.
-                    *inside = true;
-                    continue;
-                }
-                let p = s.pos + s.dir * h.t;
-                let incoming = s.dir;
-                match scene.boundary.ior() {
-                    None => *inside = true,
-                    Some(ior) => {
-                        let f = fresnel(s.dir.dot(h.normal).abs(), 1.0, ior);
-                        if uniform(rng) < f {
-                            s.dir = reflect(s.dir, h.normal);
-                            // Light the path meets from here on is not NEE's
-                            // (`PathState::scattered`).
-                            s.scattered = false;
-                            // (A turned normal is not the one the triangle's escape
-                            // cone is about.)
-                            *left_through = (!turned).then_some(h.prim);
-                        } else {
-                            s.dir = refract(s.dir, h.normal, 1.0, ior).unwrap_or(s.dir);
-                            *inside = true;
-                        }
-                    }
-                }
-                s.pos = geo.spawn(p, h.normal, s.dir);
-                if *inside
-                    && geo.beyond_sliver(s.pos, h.normal, |o, d, t| short_cast(scene, o, d, t))
-                {
-                    // The medium under the entry is thinner than the spawn offset: pass it,
-                    // in (as through a slab of no thickness) the direction the path came.
-                    *inside = false;
-                    s.dir = incoming;
-                }
-                if *inside {
-                    s.skip = geo.spawn_skip(h.normal, s.dir);
                 }
                 continue;
             }
-            if s.grid_pending {
-                s.grid_pending = false;
-                if let Some(grid) = &scene.grid {
-                    s.free = s.free.max(grid.radius(s.pos));
-                }
-            }
-            let drawn = -(1.0 - uniform(rng)).ln() / sigma;
-            if drawn < s.skip {
-                // A collision within the way the spawn passed happens at its own depth:
-                // back along the path from the spawn point, but at least a fiftieth of the
-                // way deep, clear of the face just crossed (SKIP_BACK; placed at the spawn
-                // point, such collisions lay too deep: 1.4 % dark at σ_t·eps = 0.4). Not
-                // across another face: the way back also runs sideways (to 18 eps at
-                // grazing entry) and near a convex edge it left the medium (36 % of the
-                // paths entering a cube's top face at |cos| = 0.05 by its edge leaked);
-                // there the collision stays at the spawn point. (The face must be clear by
-                // SKIP_CLEAR_OF_EPS, less than the floor, so the cast never meets the face
-                // the path came through.)
-                let back = (s.skip - drawn).min(SKIP_BACK * s.skip);
-                if geo
-                    .intersect(s.pos, -s.dir, back + SKIP_CLEAR_OF_EPS * geo.eps)
-                    .is_none()
-                {
-                    s.pos -= s.dir * back;
-                }
-            }
-            let t = (drawn - s.skip).max(0.0);
-            s.skip = 0.0;
-            let hit = if t < s.free {
-                None
-            } else {
-                // The cast looks FLIGHT_MARGIN beyond the collision: pos + t·dir is rounded,
-                // and a collision that rounds to the far side of a surface the ray test puts
-                // just beyond t would leave the path outside while it believes itself
-                // inside (seen ~1 in 10⁶ paths near the surface, each then a runaway
-                // firefly).
-                short_cast(scene, s.pos, s.dir, t + geo.flight_margin())
-            };
-            // A face found only thanks to the margin is not reached (`Geometry::flight_end`).
-            let (hit, t) = geo.flight_end(hit, s.dir, t);
-            if let Some(mut h) = hit {
-                s.free = 0.0;
-                let p = s.pos + s.dir * h.t;
-                let mut turned = false;
-                if let Some(pieces) = &geo.pieces {
-                    let past = geo.spawn(p, h.normal, s.dir);
-                    if geo.in_union(pieces, past, s.dir) {
-                        // A face within the union of overlapping pieces: into one more
-                        // of them, or out of one of several. No boundary; the flight goes
-                        // on, its rest redrawn past the face (flights have no memory),
-                        // from the face: the way to `past` is skipped like an entry's.
-                        // (A leak, met from outside while believed inside, is taken in
-                        // here too: with overlaps only the bounding-box net below counts
-                        // leaks.)
-                        s.pos = past;
-                        s.skip = geo.spawn_skip(h.normal, s.dir);
-                        *from_step = false;
-                        continue;
-                    }
-                    // Out of the medium: its boundary's normal faces the air ahead.
-                    if s.dir.dot(h.normal) < 0.0 {
-                        h.normal = -h.normal;
-                        turned = true;
-                    }
-                }
-                if s.dir.dot(h.normal) < 0.0 {
-                    // Met the surface from outside while believed inside. After a sphere step
-                    // the exit was not inside after all: count it. The path is placed past
-                    // the surface, believed outside; the next cast meets the far side from
-                    // within and the touching-parts rule above takes it in there, without a
-                    // Fresnel choice (no difference index-matched; leaks are 0 in every
-                    // measured render, so it was left so).
-                    if *from_step {
-                        stats.leaks += 1;
-                    }
-                    *inside = false;
-                    s.pos = geo.spawn(p, h.normal, s.dir);
-                    *from_step = false;
-                    continue;
-                }
-                match scene.boundary.ior() {
-                    None => *inside = false,
-                    Some(ior) => {
-                        let f = fresnel(s.dir.dot(h.normal).abs(), ior, 1.0);
-                        if uniform(rng) < f {
-                            s.dir = reflect(s.dir, h.normal);
-                            s.scattered = false; // (as above)
-                        } else {
-                            s.dir = refract(s.dir, h.normal, ior, 1.0).unwrap_or(s.dir);
-                            *inside = false;
-                        }
-                    }
-                }
-                if !*inside && !turned {
-                    // (A turned normal is not the one the triangle's escape cone is about.)
-                    *left_through = Some(h.prim);
-                }
-                s.pos = geo.spawn(p, h.normal, s.dir);
-                if *inside
-                    && geo.beyond_sliver(s.pos, h.normal, |o, d, t| short_cast(scene, o, d, t))
-                {
-                    // Reflected back inside where the medium is thinner than the offset.
-                    *inside = false;
-                }
-                if *inside {
-                    s.skip = geo.spawn_skip(h.normal, s.dir);
-                }
-                *from_step = false;
+            let (hit, t) = self.flight(scene);
+            if let Some(h) = hit {
+                self.reach_face(scene, h);
                 continue;
             }
+            let geo = &scene.geo;
+            let channel = self.channel;
+            let Self {
+                s,
+                rng,
+                stats,
+                inside,
+                from_step,
+                step,
+                ..
+            } = self;
             s.pos += s.dir * t;
             s.free = (s.free - t).max(0.0);
             if !geo.within_bounds(s.pos) {
                 // A collision outside the mesh's bounding box cannot be inside (a safety net:
-                // with the flight margin above none has been seen). A path left believing
+                // with `flight`'s margin none has been seen). A path left believing
                 // itself inside would scatter through the air for ~1/(1 − φ) events (10⁴–10⁵)
                 // with unshadowed NEE — radiance estimates in the thousands.
                 stats.leaks += 1;
@@ -564,15 +391,228 @@ impl Path {
             }
         }
         let m = set.path_nee();
+        let s = &mut self.s;
         if m > 0 {
-            s.radiance += s.nee.finish(scene, m, channel, rng);
+            s.radiance += s.nee.finish(scene, m, self.channel, &mut self.rng);
         }
         Advance::Done(if s.radiance.is_finite() {
             s.radiance
         } else {
-            stats.non_finite += 1;
+            self.stats.non_finite += 1;
             0.0
         })
+    }
+
+    /// Casts from the air: the path escapes (true: it has ended), passes a face inside a
+    /// cavity, or meets the medium's boundary and enters or is reflected.
+    #[inline]
+    fn cast_from_air(&mut self, scene: &SceneData, set: &IntegratorSettings) -> bool {
+        let geo = &scene.geo;
+        let channel = self.channel;
+        let Self {
+            s,
+            rng,
+            inside,
+            left_through,
+            first_hit,
+            ..
+        } = self;
+        let hit = match (first_hit.take(), left_through.take()) {
+            (Some(hit), _) => hit,
+            (None, Some(prim)) if geo.escapes_from(prim, s.dir) => None,
+            _ => geo.intersect(s.pos, s.dir, f32::INFINITY),
+        };
+        let Some(mut h) = hit else {
+            s.radiance += s.beta * escape(scene, s.dir, channel, !(set.nee && s.scattered));
+            return true;
+        };
+        let mut turned = false;
+        if let Some(pieces) = &geo.pieces {
+            let past = geo.spawn(s.pos + s.dir * h.t, h.normal, s.dir);
+            if !geo.in_union(pieces, past, s.dir) {
+                // A face crossed in air (within a cavity's piece): no boundary.
+                s.pos = past;
+                return false;
+            }
+            // Into the medium: its boundary's normal faces the air the path is in.
+            if s.dir.dot(h.normal) > 0.0 {
+                h.normal = -h.normal;
+                turned = true;
+            }
+        }
+        if s.dir.dot(h.normal) > 0.0 {
+            // Met a surface from inside while believed outside: the path left one
+            // part of the mesh into another across a gap of air thinner than eps
+            // (touching parts), and was spawned inside that one. It enters where
+            // it is, in its direction, as through a gap of no thickness (with a
+            // dielectric boundary the refraction out of the first part stays).
+            // Taken for an entry at the far face instead, the path would be
+            // spawned outside believing itself inside: air events with unshadowed
+            // NEE, as at a sliver.
+            *inside = true;
+            return false;
+        }
+        let p = s.pos + s.dir * h.t;
+        let incoming = s.dir;
+        match scene.boundary.ior() {
+            None => *inside = true,
+            Some(ior) => {
+                let f = fresnel(s.dir.dot(h.normal).abs(), 1.0, ior);
+                if uniform(rng) < f {
+                    s.dir = reflect(s.dir, h.normal);
+                    // Light the path meets from here on is not NEE's
+                    // (`PathState::scattered`).
+                    s.scattered = false;
+                    // (A turned normal is not the one the triangle's escape
+                    // cone is about.)
+                    *left_through = (!turned).then_some(h.prim);
+                } else {
+                    s.dir = refract(s.dir, h.normal, 1.0, ior).unwrap_or(s.dir);
+                    *inside = true;
+                }
+            }
+        }
+        s.pos = geo.spawn(p, h.normal, s.dir);
+        if *inside && geo.beyond_sliver(s.pos, h.normal, |o, d, t| short_cast(scene, o, d, t)) {
+            // The medium under the entry is thinner than the spawn offset: pass it,
+            // in (as through a slab of no thickness) the direction the path came.
+            *inside = false;
+            s.dir = incoming;
+        }
+        if *inside {
+            s.skip = geo.spawn_skip(h.normal, s.dir);
+        }
+        false
+    }
+
+    /// Draws a free flight inside the medium and casts it where it may reach the surface:
+    /// the face it meets first, if any, and the flight's length.
+    #[inline]
+    fn flight(&mut self, scene: &SceneData) -> (Option<Hit>, f32) {
+        let geo = &scene.geo;
+        let sigma = scene.sigma_t[self.channel];
+        let Self { s, rng, .. } = self;
+        if s.grid_pending {
+            s.grid_pending = false;
+            if let Some(grid) = &scene.grid {
+                s.free = s.free.max(grid.radius(s.pos));
+            }
+        }
+        let drawn = -(1.0 - uniform(rng)).ln() / sigma;
+        if drawn < s.skip {
+            // A collision within the way the spawn passed happens at its own depth:
+            // back along the path from the spawn point, but at least a fiftieth of the
+            // way deep, clear of the face just crossed (SKIP_BACK; placed at the spawn
+            // point, such collisions lay too deep: 1.4 % dark at σ_t·eps = 0.4). Not
+            // across another face: the way back also runs sideways (to 18 eps at
+            // grazing entry) and near a convex edge it left the medium (36 % of the
+            // paths entering a cube's top face at |cos| = 0.05 by its edge leaked);
+            // there the collision stays at the spawn point. (The face must be clear by
+            // SKIP_CLEAR_OF_EPS, less than the floor, so the cast never meets the face
+            // the path came through.)
+            let back = (s.skip - drawn).min(SKIP_BACK * s.skip);
+            if geo
+                .intersect(s.pos, -s.dir, back + SKIP_CLEAR_OF_EPS * geo.eps)
+                .is_none()
+            {
+                s.pos -= s.dir * back;
+            }
+        }
+        let t = (drawn - s.skip).max(0.0);
+        s.skip = 0.0;
+        let hit = if t < s.free {
+            None
+        } else {
+            // The cast looks FLIGHT_MARGIN beyond the collision: pos + t·dir is rounded,
+            // and a collision that rounds to the far side of a surface the ray test puts
+            // just beyond t would leave the path outside while it believes itself
+            // inside (seen ~1 in 10⁶ paths near the surface, each then a runaway
+            // firefly).
+            short_cast(scene, s.pos, s.dir, t + geo.flight_margin())
+        };
+        // A face found only thanks to the margin is not reached (`Geometry::flight_end`).
+        geo.flight_end(hit, s.dir, t)
+    }
+
+    /// The flight met face `h` from inside: the path passes into an overlapping piece,
+    /// leaves the medium, or is reflected back in.
+    #[inline]
+    fn reach_face(&mut self, scene: &SceneData, mut h: Hit) {
+        let geo = &scene.geo;
+        let Self {
+            s,
+            rng,
+            stats,
+            inside,
+            from_step,
+            left_through,
+            ..
+        } = self;
+        s.free = 0.0;
+        let p = s.pos + s.dir * h.t;
+        let mut turned = false;
+        if let Some(pieces) = &geo.pieces {
+            let past = geo.spawn(p, h.normal, s.dir);
+            if geo.in_union(pieces, past, s.dir) {
+                // A face within the union of overlapping pieces: into one more
+                // of them, or out of one of several. No boundary; the flight goes
+                // on, its rest redrawn past the face (flights have no memory),
+                // from the face: the way to `past` is skipped like an entry's.
+                // (A leak, met from outside while believed inside, is taken in
+                // here too: with overlaps only `advance`'s bounding-box net counts
+                // leaks.)
+                s.pos = past;
+                s.skip = geo.spawn_skip(h.normal, s.dir);
+                *from_step = false;
+                return;
+            }
+            // Out of the medium: its boundary's normal faces the air ahead.
+            if s.dir.dot(h.normal) < 0.0 {
+                h.normal = -h.normal;
+                turned = true;
+            }
+        }
+        if s.dir.dot(h.normal) < 0.0 {
+            // Met the surface from outside while believed inside. After a sphere step
+            // the exit was not inside after all: count it. The path is placed past
+            // the surface, believed outside; the next cast meets the far side from
+            // within and `cast_from_air`'s touching-parts rule takes it in there, without a
+            // Fresnel choice (no difference index-matched; leaks are 0 in every
+            // measured render, so it was left so).
+            if *from_step {
+                stats.leaks += 1;
+            }
+            *inside = false;
+            s.pos = geo.spawn(p, h.normal, s.dir);
+            *from_step = false;
+            return;
+        }
+        match scene.boundary.ior() {
+            None => *inside = false,
+            Some(ior) => {
+                let f = fresnel(s.dir.dot(h.normal).abs(), ior, 1.0);
+                if uniform(rng) < f {
+                    s.dir = reflect(s.dir, h.normal);
+                    s.scattered = false; // (as in `cast_from_air`)
+                } else {
+                    s.dir = refract(s.dir, h.normal, ior, 1.0).unwrap_or(s.dir);
+                    *inside = false;
+                }
+            }
+        }
+        if !*inside && !turned {
+            // (A turned normal is not the one the triangle's escape cone is about.)
+            *left_through = Some(h.prim);
+        }
+        s.pos = geo.spawn(p, h.normal, s.dir);
+        if *inside && geo.beyond_sliver(s.pos, h.normal, |o, d, t| short_cast(scene, o, d, t)) {
+            // Reflected back inside where the medium is thinner than the offset.
+            *inside = false;
+        }
+        if *inside {
+            s.skip = geo.spawn_skip(h.normal, s.dir);
+        }
+        *from_step = false;
     }
 }
 
