@@ -347,7 +347,7 @@ fn teaser(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             save_picture(ctx, &format!("teaser_k{}", k_name(k)), &both, exposure)?,
         ));
     }
-    rep.text(&format!("Both integrators at equal spp; speed-up = PT time / ST-CVAE time; var ratio = PT's per-pixel variance / ST-CVAE's (var_ratio_se: its standard error; heavy-tailed pixels make it swing); bias RMSE is noise-corrected (bias_upper95: its one-sided 95 % bound, not resolved where fewer than {} object pixels carry a term, as in sparse renders), in units of PT's brightest 1 % of object pixels. {}Pictures exposed so that PT's 99th-percentile pixel of the frame is 1.\n", super::measure::MIN_BIAS_TERMS, if ctx.cfg.nee() { "" } else { "Without NEE (most likely as the paper timed its speed-ups): light counted where a path escapes into a light's disk or the environment. " }));
+    rep.text(&format!("Both integrators at equal spp; speed-up = PT time / ST-CVAE time; var ratio = PT's per-pixel variance / ST-CVAE's (var_ratio_se: its standard error; heavy-tailed pixels make it swing); bias RMSE is noise-corrected (bias_upper95: {}), in units of PT's brightest 1 % of object pixels. {}Pictures exposed so that PT's 99th-percentile pixel of the frame is 1.\n", super::measure::bias_bound_words(), if ctx.cfg.nee() { "" } else { "Without NEE (most likely as the paper timed its speed-ups): light counted where a path escapes into a light's disk or the environment. " }));
     rep.table();
     for (k, f) in figs {
         rep.image(
@@ -447,7 +447,7 @@ fn quality(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             ));
         }
     }
-    rep.text(&format!("Both with NEE (ST-CVAE's through EventGen), unlike the paper's Fig. 6/7: the scene's lights are replaced by one delta light (the first light's irradiance) from the front or the back, which paths without NEE never reach. Noise-corrected bias RMSE of ST-CVAE against PT at equal spp, with its one-sided 95 % bound (in units of PT's brightest 1 % of object pixels). Speed-up = PT time / ST-CVAE time at equal spp; paper_speedup: the paper's, per density (its renders without NEE). Pictures exposed so that PT's 99th-percentile pixel of the frame is 1. The |difference| ×4 panel is the paper's, whose renders had 16,000 spp; at {} spp it is mostly the two renders' noise (most of the object clips), and the table's noise-corrected bias is the measure of their difference.\n", 2 * super::measure::half_spp(ctx.budget.spp())));
+    rep.text(&format!("Both with NEE (ST-CVAE's through EventGen), unlike the paper's Fig. 6/7: the scene's lights are replaced by one delta light (the first light's irradiance) from the front or the back, which paths without NEE never reach. Noise-corrected bias RMSE of ST-CVAE against PT at equal spp, with {} (in units of PT's brightest 1 % of object pixels). Speed-up = PT time / ST-CVAE time at equal spp; paper_speedup: the paper's, per density (its renders without NEE). Pictures exposed so that PT's 99th-percentile pixel of the frame is 1. The |difference| ×4 panel is the paper's, whose renders had 16,000 spp; at {} spp it is mostly the two renders' noise (most of the object clips), and the table's noise-corrected bias is the measure of their difference.\n", super::measure::bias_bound_words(), 2 * super::measure::half_spp(ctx.budget.spp())));
     rep.table();
     for (name, k, f) in figs {
         rep.image(
@@ -622,7 +622,7 @@ fn absorption(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         tp.push((a, pt.seconds));
         ts.push((a, st.seconds));
     }
-    rep.text("Albedo φ = 1 − absorption on all channels, equal spp. Bias RMSE is noise-corrected with its one-sided 95 % bound; offset is ST-CVAE's image total over PT's on the object, minus 1, in %, averaged over the channels, with the mean of the channels' standard errors (offset_se_pct: an upper bound on the average's standard error, as the channels share paths); the bias in units of PT's brightest 1 % of object pixels.\n");
+    rep.text(&format!("Albedo φ = 1 − absorption on all channels, equal spp. Bias RMSE is noise-corrected, with {}; offset is ST-CVAE's image total over PT's on the object, minus 1, in %, averaged over the channels, with the mean of the channels' standard errors (offset_se_pct: an upper bound on the average's standard error, as the channels share paths); the bias in units of PT's brightest 1 % of object pixels.\n", super::measure::bias_bound_words()));
     rep.table();
     plot(
         ctx,
@@ -840,7 +840,7 @@ fn fallback(ctx: &Ctx, rep: &mut Report) -> Result<()> {
             }
         }
     }
-    rep.text(&format!("Points where σ_t·r < min_tau take an ordinary PT event instead of a sphere step; a step of optical radius below exact_tau has its walk simulated exactly, above it drawn from the models. The authors draw every step from the models, however thin the free region: min_tau = 0 with exact_tau = 0. With the scene's exact_tau ({}) every threshold below it only trades exact walks for PT events. Speed-up against PT at equal spp; min_tau = 0 is drawn at {}. Steps per path count both kinds of step (the exact ones also apart, with the scattering events simulated inside them), over all pixels. Bias RMSE is noise-corrected, with its one-sided 95 % bound.\n", crate::progress::significant4(default_exact), crate::progress::significant4(zero_at)));
+    rep.text(&format!("Points where σ_t·r < min_tau take an ordinary PT event instead of a sphere step; a step of optical radius below exact_tau has its walk simulated exactly, above it drawn from the models. The authors draw every step from the models, however thin the free region: min_tau = 0 with exact_tau = 0. With the scene's exact_tau ({}) every threshold below it only trades exact walks for PT events. Speed-up against PT at equal spp; min_tau = 0 is drawn at {}. Steps per path count both kinds of step (the exact ones also apart, with the scattering events simulated inside them), over all pixels. Bias RMSE is noise-corrected, with {}.\n", crate::progress::significant4(default_exact), crate::progress::significant4(zero_at), super::measure::bias_bound_words()));
     rep.table();
     let s: Vec<_> = curves.into_iter().map(|(l, sp)| series(&l, sp)).collect();
     plot(

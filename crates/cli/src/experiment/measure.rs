@@ -395,6 +395,14 @@ fn bias_squared(reference: &Pair, other: &Pair, object: usize) -> (f64, f64, [f6
 /// noise RMSE of 1.57. Thirty is the usual floor for a mean's normal approximation.
 pub const MIN_BIAS_TERMS: usize = 30;
 
+/// How the reports name [`Comparison::bias_upper95`], and when it is left unresolved.
+pub fn bias_bound_words() -> String {
+    format!(
+        "its one-sided 95 % bound, not resolved where fewer than {MIN_BIAS_TERMS} object \
+         pixels carry a term, as in sparse renders"
+    )
+}
+
 pub fn compare(reference: &Pair, other: &Pair) -> Comparison {
     let scale = object_scale(reference, other);
     // Pixel-channels of the object: the background is the same constant in both renders
