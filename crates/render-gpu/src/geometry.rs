@@ -919,7 +919,7 @@ impl Geometry {
     }
 
     #[inline]
-    fn triangle_d2(&self, p: Vec3A, prim: u32) -> f32 {
+    pub(crate) fn triangle_d2(&self, p: Vec3A, prim: u32) -> f32 {
         let t = &self.tris[prim as usize];
         let n = Vec3A::from(self.normals[prim as usize]);
         point_triangle_d2(p, from_arr(t.v0), from_arr(t.v1), from_arr(t.v2), n)
