@@ -175,7 +175,7 @@ fn exit_on_usage(e: clap::Error) -> ! {
     std::process::exit(2)
 }
 
-/// Whether the command line gives the flag of clap's `arg` ("--out <OUT>") an empty value,
+/// Whether the command line gives the flag of clap's `arg` (`--out <OUT>`) an empty value,
 /// as `--out ""` or `--out=`.
 fn given_empty(arg: &str) -> bool {
     let Some(flag) = arg

@@ -588,7 +588,7 @@ fn loss_plot(path: &Path, trained: &[cvae::train::Trained]) -> Result<Option<Vec
 
 /// Narrows the file's ranges to what a decoder from elsewhere (`source`) was trained on:
 /// the file's ranges bound every decoder in it (the renderer's default max_tau is
-/// tau_range[1]), so with decoders from two trainings, only what both saw.
+/// `tau_range[1]`), so with decoders from two trainings, only what both saw.
 fn narrow(info: &mut TrainingInfo, other: ConditionRanges, source: &str) -> Result<()> {
     let both = |x: [f64; 2], y: [f64; 2]| [x[0].max(y[0]), x[1].min(y[1])];
     info.tau_range = both(info.tau_range, other.tau);

@@ -130,7 +130,7 @@ pub fn object_mesh(scene: &SceneFile, scene_dir: &Path) -> Result<TriMesh, Rende
 }
 
 /// The surface offset eps of the scene's object as the renderer places it (moved by
-/// [`recentre`]), without building its geometry: what [`check_density`] needs to check
+/// `recentre`), without building its geometry: what [`check_density`] needs to check
 /// media before a run renders anything (`experiment`'s densities).
 pub fn object_eps(scene: &SceneFile, scene_dir: &Path) -> Result<f32, RenderError> {
     let mut mesh = object_mesh(scene, scene_dir)?;

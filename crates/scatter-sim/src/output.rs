@@ -190,7 +190,7 @@ fn fixed_flags(path: &Path, follow: bool) -> libc::c_int {
 /// Refuses an output `path` that must not be replaced: an output is a finished file
 /// renamed over whatever is there, which would destroy a FIFO or a device node
 /// (`/dev/null` written as root), and cannot replace a directory. Nor is anything written
-/// into /dev, /proc or /sys ([`system_folder`]): `--out /dev/stdout` as root replaced
+/// into /dev, /proc or /sys (`system_folder`): `--out /dev/stdout` as root replaced
 /// that link with a file, for every process of the machine. A symbolic link is
 /// replaced like a file (its target is left as it is): following it would let another
 /// user's link in a shared folder such as /tmp aim an output at the writer's own files.
@@ -313,7 +313,7 @@ fn system_folder(dir: &Path) -> Option<PathBuf> {
 /// Ctrl-C calls `exit`) can still remove them: each is registered while its guard lives.
 static LIVE: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
 
-/// Keeps a temporary's path (a file, or a folder of them) in [`LIVE`] until dropped
+/// Keeps a temporary's path (a file, or a folder of them) in `LIVE` until dropped
 /// (after its rename or removal).
 pub struct Live(PathBuf);
 
@@ -351,7 +351,7 @@ pub fn remove_live_temporaries() {
 
 /// Removes the hidden temporaries an aborted write of `path` can leave beside it (its
 /// `.NAME.XXXXXX.partial` files) and says so: a second Ctrl-C exits without destructors,
-/// and a temporary made in the instant before its registration in [`LIVE`] is missed. For
+/// and a temporary made in the instant before its registration in `LIVE` is missed. For
 /// outputs only one command writes at a time (a training's checkpoints), called before it
 /// writes them again; the links a killed set left are [`restore_killed_sets`]'.
 pub fn remove_stale_temporaries_of(path: &Path) {
@@ -726,7 +726,7 @@ pub fn write_atomic_set(files: &[(&Path, &[u8])]) -> Result<(), (PathBuf, io::Er
 }
 
 /// [`write_atomic_set`], then `then` while the set's folder is still locked against other
-/// sets' renames (where it can be locked: [`lock_folder`]): what depends on the set just
+/// sets' renames (where it can be locked: `lock_folder`): what depends on the set just
 /// placed and on no other run's set landing in between (a render without --variance
 /// removing an OUT.var.exr that another render of the same output, with --variance, might
 /// be placing at that moment).

@@ -73,7 +73,7 @@ pub struct Standardisation {
 
 impl Standardisation {
     /// Whether `self` (a checkpoint's) standardises the same data as `now`: equal, but for
-    /// a column without spread, scaled by 10⁻⁶ before that scale became 1 ([`column_stats`]),
+    /// a column without spread, scaled by 10⁻⁶ before that scale became 1 (`column_stats`),
     /// which puts the training rows at the same input (0) either way.
     pub fn same_data(&self, now: &Standardisation) -> bool {
         let scales = |was: &[f32], is: &[f32]| {

@@ -149,7 +149,7 @@ impl Cvae {
         }
     }
 
-    /// Each row's negative ELBO [B] (a validation loss's mean and standard error).
+    /// Each row's negative ELBO, shape `[B]` (a validation loss's mean and standard error).
     pub fn row_losses(&self, cond: Tensor<2>, target: Tensor<2>, eps: Tensor<2>) -> Vec<f32> {
         let (nll, kl) = self.row_terms(cond, target, eps);
         (nll + kl)

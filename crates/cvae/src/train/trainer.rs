@@ -376,7 +376,7 @@ impl CheckpointInfo {
 }
 
 /// The most steps a model may train for, as configured or after `--steps-scale`, and so
-/// the most a checkpoint record may say it has taken ([`CheckpointInfo::check`]). At
+/// the most a checkpoint record may say it has taken (`CheckpointInfo::check`). At
 /// ~1 µs a step 2^40 is 13 days; the bound keeps step counts exact in f64 and in the
 /// learning-rate schedule.
 pub const MAX_STEPS: u64 = 1 << 40;

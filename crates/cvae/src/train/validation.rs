@@ -42,7 +42,7 @@ pub struct ValidationPoint {
     /// The same over the held-out walks.
     pub held_out: (f32, f32),
     /// How far the held-out walks' losses lie above the training walks': Welch's z of
-    /// the difference of their means after asinh ([`tempered`]), N(0, 1) while the model
+    /// the difference of their means after asinh (`tempered`), N(0, 1) while the model
     /// generalises. Tempered because a memorising model's held-out mean is ruled by a few
     /// walks it finds absurd (a mean of 728 against −0.29), whose spread hid the gap
     /// from a z of the plain means; a rank test, blind to how far those few lie, was

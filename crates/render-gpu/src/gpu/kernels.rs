@@ -383,7 +383,7 @@ pub fn committed_sq_vec4(path_nee_m: u32) -> u64 {
 }
 
 /// Which vec4 of a path slot holds the accumulated RGB and finished-sample count (`ACC`,
-/// prepended to the kernels from here by [`tied_constants_wgsl`]).
+/// prepended to the kernels from here by `tied_constants_wgsl`).
 pub const ACC_VEC4: u64 = 4;
 
 /// The full WGSL source of a kernel with `path_nee_m` path-level NEE reservoirs (0: a

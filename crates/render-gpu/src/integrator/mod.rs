@@ -83,7 +83,7 @@ pub struct IntegratorSettings<'a> {
 
 impl IntegratorSettings<'_> {
     /// The reservoirs of path-level NEE: `path_nee_rays` for ST-CVAE with NEE, else 0
-    /// (PT always casts a shadow ray at every event; see [`nee::PathNee`]).
+    /// (PT always casts a shadow ray at every event; see `nee::PathNee`).
     #[inline]
     pub fn path_nee(&self) -> usize {
         if self.nee && self.kind == IntegratorKind::Stcvae {

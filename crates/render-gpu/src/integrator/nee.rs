@@ -3,7 +3,7 @@
 //! The phase function is evaluated toward the light: cos = W·ω_light with ω_light =
 //! −(the direction the light travels). Transmittance sums every inside segment of the
 //! shadow ray (non-convex meshes re-enter). With a dielectric boundary the ray refracts
-//! where it first leaves the medium ([`shadow`]) and is multiplied by the Fresnel
+//! where it first leaves the medium (`shadow`) and is multiplied by the Fresnel
 //! transmittance at each crossing. The term then takes the camera side's radiance factor
 //! 1/ior² ([`crate::setup::Boundary::nee_scale`]).
 
@@ -40,7 +40,7 @@ pub const MAX_CROSSINGS: u32 = 64;
 /// probability: unbiased, and a surviving ray adds at most ROULETTE_BOUND·ρ_iso·E — a
 /// fiftieth of an average unshadowed event — so the added variance is small next to what
 /// events near the surface contribute. (Through a dielectric c is no strict bound: the
-/// refracted ray's phase value and length can beat it, [`phase_bound`]; the roulette stays
+/// refracted ray's phase value and length can beat it, `phase_bound`; the roulette stays
 /// unbiased.) Including the phase value matters for forward
 /// scattering: with g = 0.875 nine in ten directions toward the light have less than the
 /// mean phase, and their rays are skipped from shallower depths than the transmittance
@@ -85,8 +85,8 @@ pub fn direct(
     sum
 }
 
-/// The share of the largest turn refraction gives light ([`refraction_turn`]) over which
-/// [`phase_bound`] takes the phase function's largest value (the WGSL kernels get it from
+/// The share of the largest turn refraction gives light (`refraction_turn`) over which
+/// `phase_bound` takes the phase function's largest value (the WGSL kernels get it from
 /// here, gpu/kernels.rs).
 ///
 /// Measured (`stcvae render --variance`, 256 spp, RMS standard error of the image, two

@@ -161,7 +161,7 @@ pub type PieceTable = (Vec<u8>, Vec<usize>);
 /// any, which piece each triangle belongs to and how deep each piece is nested
 /// ([`crate::geometry::Pieces`]; at most [`MAX_OVERLAP_PIECES`] pieces, so that the set
 /// of pieces around a point fits in a u32's bits). Both read one survey of the pieces
-/// ([`Survey`]).
+/// (`Survey`).
 pub fn overlaps_and_pieces(m: &TriMesh) -> (Vec<(usize, usize)>, Option<PieceTable>) {
     let pieces = pieces(m);
     if pieces.len() < 2
@@ -285,7 +285,7 @@ pub(super) fn pieces(m: &TriMesh) -> Vec<Vec<usize>> {
 /// without one enclosing the other. The renderers then follow which pieces a path is in
 /// ([`crate::geometry::Pieces`]) to render their union, which an inside/outside flag
 /// does not (two overlapping boxes came out 4 % brighter than the one box they make).
-/// Found where some of a piece's probes ([`Survey::classified_probes`]: sampled ones,
+/// Found where some of a piece's probes (`Survey::classified_probes`: sampled ones,
 /// and where other pieces' surfaces cross it) lie clearly inside the other and some
 /// clearly outside; probes on the other's surface (touching parts) count as neither.
 /// Checked for meshes of at most 16 pieces (the pieces around a point are a u32's bits)
