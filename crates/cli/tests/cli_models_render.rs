@@ -1268,6 +1268,21 @@ fn max_tau_is_checked_against_the_training_range() {
             && e.trim().lines().count() == 1,
         "{e}"
     );
+    // Under a model trained below the default min_tau, the message says the 1 is the
+    // default: the scene has no min_tau line to look for.
+    let mut m = cvae::ModelSet::load(&root().join("models/default.stcvae")).unwrap();
+    m.training.tau_range = [0.1, 0.3];
+    let thin = d.path().join("thin.stcvae");
+    m.save(&thin).unwrap();
+    std::fs::write(&scene, sphere_scene_text(8)).unwrap();
+    let mut thin_args = args.to_vec();
+    thin_args.extend(["--model", thin.to_str().unwrap()]);
+    let e = fails(&stcvae(&thin_args));
+    assert!(
+        e.contains("render.min_tau = 1 (its default) is above the model's training maximum 0.3")
+            && e.trim().lines().count() == 1,
+        "{e}"
+    );
     // Within the tolerance that lets `max_tau = 300` past the shipped model's 299.9996, a
     // min_tau of 300 raises the default cap to it, as writing both would (it was refused
     // alone and rendered with max_tau = 300 beside it).

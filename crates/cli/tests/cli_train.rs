@@ -763,6 +763,13 @@ fn resume_needs_an_intact_checkpoint_and_the_last_loss_is_the_last_steps() {
             serde_json::json!([]),
             "history does not begin at step 1",
         ),
+        // A step beyond the run's, within 2^40: taken for a finished run and written into
+        // the model file's notes.
+        (
+            "/step",
+            serde_json::json!(999_999_999u64),
+            "step = 999999999 is 500 or more past the history's last entry (step 5)",
+        ),
         (
             "/norm/out_scale/0",
             serde_json::json!(0.0),

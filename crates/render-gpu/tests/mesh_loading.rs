@@ -237,6 +237,9 @@ fn broken_files_give_clear_errors() {
         // Vertex colours.
         "v 0 0 0 1 0 0\nv 1 0 0 0 1 0\nv 0 1 0 0 0 1\nv 0 0 1 1 1 1\n\
          f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n",
+        // Colours on some vertices only (tobj refused it: "face vertex color index out of
+        // bounds", naming no line); colours are not read.
+        "v 0 0 0 1 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n",
     ];
     for (i, text) in variants.iter().enumerate() {
         let name = format!("ok{i}.obj");
@@ -317,6 +320,14 @@ fn broken_files_give_clear_errors() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("cut.glb") && e.contains("truncated"), "{e}");
+    // Cut within its 12-byte header (gltf: "failed to fill whole buffer").
+    let e = load_mesh(&write(&d, "stub.glb", &glb[..11]))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("stub.glb") && e.contains("truncated GLB file: 11 bytes"),
+        "{e}"
+    );
     let mut long = glb.clone();
     long.extend_from_slice(&[0; 16]);
     assert!(load_mesh(&write(&d, "long.glb", &long)).is_ok());

@@ -344,6 +344,19 @@ impl CheckpointInfo {
                 self.step
             ));
         }
+        // A run reports every REPORT_EVERY steps and at its last, and saves after its
+        // report: it is always fewer than REPORT_EVERY steps past its history's last entry
+        // (an edited step of 999,999,999 on a run stopped at 4,366 was taken for a
+        // finished run, and its model written with that step count).
+        if let Some(&(last, _)) = self.history.last()
+            && self.step - last >= REPORT_EVERY
+        {
+            return Err(format!(
+                "step = {} is {REPORT_EVERY} or more past the history's last entry (step \
+                 {last}), where a run keeps one every {REPORT_EVERY} steps",
+                self.step
+            ));
+        }
         // Xoshiro never leaves the all-zero state (every draw 0): the latent noise's normal
         // sampler looped on it for ever, deaf to Ctrl-C.
         if let Some(s) = &self.stream {

@@ -210,9 +210,19 @@ fn parse_document(
         ));
     }
     // A file shorter than its GLB header's length (bytes 8..12) is cut short: said so, where
-    // gltf says "could not completely read the object". Bytes after the declared end are
+    // gltf says "could not completely read the object" (or, cut within the header, "failed
+    // to fill whole buffer"). Bytes after the declared end are
     // left to gltf, which ignores them (harmless, and some tools may pad).
-    if bytes.starts_with(b"glTF") && bytes.len() >= 12 {
+    if bytes.starts_with(b"glTF") && bytes.len() < 12 {
+        return Err(RenderError::mesh(
+            path,
+            format!(
+                "truncated GLB file: {} bytes, shorter than the 12-byte GLB header",
+                bytes.len()
+            ),
+        ));
+    }
+    if bytes.starts_with(b"glTF") {
         let declared = u32::from_le_bytes(bytes[8..12].try_into().unwrap()) as usize;
         if declared > bytes.len() {
             return Err(RenderError::mesh(

@@ -94,15 +94,25 @@ pub(super) fn load_obj(path: &Path) -> Result<TriMesh, RenderError> {
 /// The OBJ text with what the renderer does not use taken out before tobj reads it: its
 /// texture-coordinate and normal lines and the faces' references to them (tobj computed
 /// their offsets unchecked: an index of −3 into one `vt` overflowed, a panic in a build
-/// with overflow checks, a message without a line elsewhere), and polylines (`l`), which
+/// with overflow checks, a message without a line elsewhere), polylines (`l`), which
 /// tobj read as faces when of three points or more (a cube with a polyline was refused as
-/// "faces listed twice").
+/// "faces listed twice"), and vertex colours (a file with colours on some vertices only
+/// was refused as "face vertex color index out of bounds"). A weight stays: tobj divides
+/// x y z by it.
 fn positions_only(text: &str) -> String {
     let mut out = String::with_capacity(text.len());
     for line in text.lines() {
         let mut words = line.split_whitespace();
         match words.next() {
             Some("l" | "vt" | "vn" | "vp") => {}
+            // `obj_problem` has checked the line: x y z and a colour r g b.
+            Some("v") if line.split_whitespace().count() == 7 => {
+                out.push('v');
+                for w in words.take(3) {
+                    out.push(' ');
+                    out.push_str(w);
+                }
+            }
             Some("f") => {
                 out.push('f');
                 for w in words {
