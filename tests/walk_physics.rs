@@ -122,6 +122,25 @@ fn canonical_frame_invariants_and_round_trip() {
             assert!(c.exit.alpha.powi(2) + c.exit.beta.powi(2) <= 1.0 + 1e-12);
             assert!(c.event_pos.length() <= 1.0 + 1e-12);
             assert!((c.event_dir.length() - 1.0).abs() < 1e-12);
+            // The event keeps its place and heading relative to the exit, which is what
+            // EventGen learns: distances and angles between the canonical event and the
+            // canonical exit (rebuilt from the record alone) equal the raw walk's. Every
+            // other check here is blind to a turn about z, this one to none (a turn the
+            // wrong way moved the event off by up to twice its distance from the axis).
+            let (xc, wc) = from_canonical(c.exit);
+            for (got, want) in [
+                (
+                    (c.event_pos - xc).length(),
+                    (w.event_pos - w.exit_pos).length(),
+                ),
+                (c.event_pos.dot(wc), w.event_pos.dot(w.exit_dir)),
+                (c.event_dir.dot(xc), w.event_dir.dot(w.exit_pos)),
+                (c.event_dir.dot(wc), w.event_dir.dot(w.exit_dir)),
+            ] {
+                // 1e-9: the round trip's own tolerance below (from_canonical rebuilds
+                // ω from α, β and cos θ).
+                assert!((got - want).abs() < 1e-9, "event vs exit: {got} vs {want}");
+            }
             // e_b = normalize(ω_in × x) away from the poles.
             if e_n.y > 1e-6 {
                 let eb = DVec3::Z.cross(e_n).normalize();
