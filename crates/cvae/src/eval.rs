@@ -728,6 +728,71 @@ mod tests {
         assert!((v - expect).abs() < 1e-12 * expect, "{v} vs {expect}");
     }
 
+    /// Off the centre and with g ≠ 0, where the chord's side and the phase function's
+    /// lobe matter: the statistic against the integral (1/4π)∫ρ_g(W·L) e^{−τ·s(X, L)} dL it
+    /// stands for, computed here by the midpoint rule on 600 × 1,200 cells of (cos θ, φ)
+    /// with the chord and ρ_g written out. The 48-direction rule is within 2.6, 0.5 and
+    /// 0.1 % of the integral in the three cases (no randomness: the values are fixed), and
+    /// 3 % is allowed; a reversed g moves the first value 3.5×, a chord to the sphere's
+    /// far side more.
+    #[test]
+    fn sphere_nee_off_the_centre_is_the_integral() {
+        let hg =
+            |g: f64, c: f64| (1.0 - g * g) / (4.0 * PI * (1.0 + g * g - 2.0 * g * c).powf(1.5));
+        let cases = [
+            (
+                2.0,
+                0.6,
+                DVec3::new(0.2, -0.1, 0.6),
+                DVec3::new(0.3, 0.2, 0.9),
+            ),
+            (
+                2.0,
+                -0.6,
+                DVec3::new(0.2, -0.1, 0.6),
+                DVec3::new(0.3, 0.2, 0.9),
+            ),
+            (1.0, 0.3, DVec3::new(-0.5, 0.3, -0.2), DVec3::Y),
+        ];
+        use std::f64::consts::PI;
+        for (tau, g, x, w) in cases {
+            let w = w.normalize();
+            let (rows, cols) = (600, 1200);
+            let mut sum = 0.0;
+            for a in 0..rows {
+                let z = -1.0 + (a as f64 + 0.5) * 2.0 / rows as f64;
+                let r = (1.0 - z * z).sqrt();
+                for b in 0..cols {
+                    let phi = (b as f64 + 0.5) * 2.0 * PI / cols as f64;
+                    let l = DVec3::new(r * phi.cos(), r * phi.sin(), z);
+                    // |x + s·l| = 1 for s > 0.
+                    let (half_b, c) = (x.dot(l), x.length_squared() - 1.0);
+                    let s = -half_b + (half_b * half_b - c).sqrt();
+                    sum += hg(g, w.dot(l)) * (-tau * s).exp();
+                }
+            }
+            let want = 0.8 * sum / (rows * cols) as f64; // Λ(1) = φ = 0.8
+            let got = sphere_nee(tau, g, 0.8, 1, x, w);
+            assert!(
+                (got / want - 1.0).abs() < 0.03,
+                "tau {tau}, g {g}: {got} vs {want}"
+            );
+        }
+    }
+
+    /// The phase function's lobe toward the light: an event beside the surface ahead
+    /// (X = 0.9 ẑ), heading to it (W = +z) with g = 0.8, sees that side's light through
+    /// ρ_g(W·L) with W·L ≳ 0.6 for most of its lights; heading away it sees them through
+    /// the back of the lobe, (2.92/0.36)^{3/2} ≈ 23 times weaker at W·L = ±0.8. More than 5×
+    /// apart either way (a reversed g reverses the order).
+    #[test]
+    fn half_space_nee_follows_the_phase_lobe() {
+        let x = DVec3::new(0.0, 0.0, 0.9);
+        let toward = half_space_nee(3.0, 0.8, 1.0, 4, x, DVec3::Z)[2];
+        let away = half_space_nee(3.0, 0.8, 1.0, 4, x, -DVec3::Z)[2];
+        assert!(toward > 5.0 * away, "toward {toward}, away {away}");
+    }
+
     /// An event near the sphere's edge ahead of the walk (+z) is close to a surface
     /// ahead and a diameter away from one behind: at τ = 10 the first side must see
     /// e^{−0.1·10/⟨L·m⟩}-order light and the second e^{−1.9·10/…}, so at least 10⁴ times

@@ -435,18 +435,33 @@ fn sampler_output_is_always_valid() {
 }
 
 /// The exact branch: P(N = 1) = e^{−τ}; with 100,000 draws the fraction's standard
-/// error is ≤ 0.0016, and |z| < 4 fails a correct sampler with probability 6e-5.
+/// error is ≤ 0.0016, and |z| < 4 fails a correct sampler with probability 6e-5. Its
+/// exit leaves the centre in an HG direction: the cos θ of its walks follow the HG
+/// distribution of the walk's g (one-sample KS, p > 1e-4 for a correct sampler; over the
+/// ~74,000 N = 1 walks at τ = 0.3 that is D < ~0.016; drawn with g = −0.2 or 0.1 in
+/// place of 0.2, they gave D = 0.29 and 0.077).
 #[test]
 fn single_scattering_branch_probability() {
     let m = random_models(5, 1.0);
+    let g = 0.2;
     for (i, tau) in [0.3, 1.0, 3.0].into_iter().enumerate() {
         let mut rng = WalkRng::from_seed(50 + i as u64);
         let n = 100_000u64;
-        let hits = (0..n)
-            .filter(|_| m.sample_walk(tau, 0.2, 1.0, false, &mut rng).n == 1)
-            .count() as u64;
+        let mut cos: Vec<f64> = (0..n)
+            .map(|_| m.sample_walk(tau, g, 1.0, false, &mut rng))
+            .filter(|w| w.n == 1)
+            .map(|w| w.exit.cos_theta)
+            .collect();
+        let hits = cos.len() as u64;
         let z = scatter_sim::stats::proportion_z(hits, n, (-tau).exp());
         assert!(z.abs() < 4.0, "tau = {tau}: z = {z:.2}");
+        let d =
+            scatter_sim::stats::ks_one_sample(&mut cos, |c| scatter_sim::phase::hg_cos_cdf(g, c));
+        let p = scatter_sim::stats::ks_p_value(d, hits as f64);
+        assert!(
+            p > 1e-4,
+            "tau = {tau}: KS D = {d:.4} (p = {p:.1e}) against HG"
+        );
     }
 }
 
