@@ -231,3 +231,66 @@ impl ConditionSampler {
         Conditions { tau, g, albedo }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::ConditionSampler;
+    use crate::rng::WalkRng;
+    use crate::stats::{ks_one_sample, ks_p_value, proportion_z};
+
+    /// The authors' distribution (design brief, from their code) against its own CDFs,
+    /// written out from the formulas rather than from the sampler: τ = 300·u³ has
+    /// P(τ ≤ t) = (t/300)^{1/3}; g = clamp(2u − 1, ±0.999) is uniform on [−1, 1] with
+    /// atoms of 0.0005 at ±0.999; φ = min(1, 1 + 1e-6 − u⁶) has an atom at 1 of
+    /// P(u⁶ ≤ 1e-6) = 0.1 and below it P(φ ≤ a) = 1 − (1 + 1e-6 − a)^{1/6}. 200,000
+    /// draws: each KS test at p > 1e-4 and the atom's fraction at |z| < 4 fail a correct
+    /// sampler with probability ~1e-4 each. Drawn with u^{1/3} in place of u³, τ gave
+    /// D = 0.68; with u¹² in place of u⁶, φ = 1 in 32 % of draws (z = 325); with u² in
+    /// place of u, g gave D = 0.25.
+    #[test]
+    fn the_authors_conditions_follow_their_formulas() {
+        let sampler = ConditionSampler::authors();
+        let mut rng = WalkRng::from_seed(2024);
+        let n = 200_000;
+        let draws: Vec<_> = (0..n).map(|_| sampler.sample(&mut rng)).collect();
+        let ks = |mut v: Vec<f64>, cdf: &dyn Fn(f64) -> f64, what: &str| {
+            let m = v.len() as f64;
+            let d = ks_one_sample(&mut v, cdf);
+            let p = ks_p_value(d, m);
+            assert!(p > 1e-4, "{what}: KS D = {d:.4}, p = {p:.1e}");
+        };
+        ks(
+            draws.iter().map(|c| c.tau).collect(),
+            &|t| (t / 300.0).clamp(0.0, 1.0).cbrt(),
+            "tau",
+        );
+        ks(
+            draws.iter().map(|c| c.g).collect(),
+            &|g| {
+                if g >= 0.999 {
+                    1.0
+                } else {
+                    ((g + 1.0) / 2.0).clamp(0.0, 1.0)
+                }
+            },
+            "g",
+        );
+        let ones = draws.iter().filter(|c| c.albedo == 1.0).count() as u64;
+        let atom = 1e-6f64.powf(1.0 / 6.0);
+        let z = proportion_z(ones, n as u64, atom);
+        assert!(
+            z.abs() < 4.0,
+            "albedo = 1 in {ones} of {n} draws, z = {z:.2}"
+        );
+        // Below the atom, the CDF given φ < 1.
+        ks(
+            draws
+                .iter()
+                .map(|c| c.albedo)
+                .filter(|&a| a < 1.0)
+                .collect(),
+            &|a| ((1.0 - (1.0 + 1e-6 - a).powf(1.0 / 6.0)) / (1.0 - atom)).clamp(0.0, 1.0),
+            "albedo",
+        );
+    }
+}
