@@ -140,4 +140,44 @@ mod tests {
             assert!(r.x < 0.0 && r.y > 0.0, "{up:?} {fov}: {r}");
         }
     }
+
+    /// Pixels are square whatever the image's shape, the field of view horizontal
+    /// (Mitsuba's `fov_axis = "x"`): through a 60° camera, the rays through the middles of
+    /// the left and right edges are 30° off the axis, and those through the middles of the
+    /// top and bottom edges atan(tan 30° · h/w) off it, in the wide image (200 × 100:
+    /// 16.1°) and the tall one (100 × 200: 49.1°). Every shipped and test scene is
+    /// square, where a height/width ratio turned over gives the same rays. 1e-4 rad: f32
+    /// directions of unit length.
+    #[test]
+    fn pixels_are_square_in_any_image_shape() {
+        for (width, height) in [(200, 100), (100, 200)] {
+            let c = Camera::new(&CameraDesc {
+                width,
+                height,
+                ..desc([0.0, 1.0, 0.0], 60.0)
+            });
+            let (w, h) = (width as f32, height as f32);
+            let off_axis = |x: f32, y: f32| {
+                (c.ray_dir(x, y).as_dvec3().dot(glam::DVec3::NEG_Z))
+                    .clamp(-1.0, 1.0)
+                    .acos()
+            };
+            let half_x = 30f64.to_radians();
+            let half_y = (half_x.tan() * height as f64 / width as f64).atan();
+            for (x, y, want) in [
+                (0.0, h / 2.0, half_x),
+                (w, h / 2.0, half_x),
+                (w / 2.0, 0.0, half_y),
+                (w / 2.0, h, half_y),
+            ] {
+                let got = off_axis(x, y);
+                assert!(
+                    (got - want).abs() < 1e-4,
+                    "{width}×{height} at ({x}, {y}): {:.3}° off the axis, want {:.3}°",
+                    got.to_degrees(),
+                    want.to_degrees()
+                );
+            }
+        }
+    }
 }

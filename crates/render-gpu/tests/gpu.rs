@@ -1239,11 +1239,6 @@ fn cpu_gpu_agree_on_refracted_nee_through_flat_faces() {
     );
 }
 
-/// An environment map is read the same way on both devices (light.rs, Environment::lookup;
-/// its orientation is tested there): a map that changes along both its axes and in every
-/// channel, seen directly around −z (where u wraps from the last column to the first) and
-/// through the sphere. PT without NEE: the map, and the sun disk that escaping paths find,
-/// are the light.
 /// A 16×8 environment map with pixel (x, y) = `f(x, y)`, written as `sky.exr` in `d`.
 fn sky(d: &tempfile::TempDir, f: impl Fn(usize, usize) -> [f32; 3]) -> std::path::PathBuf {
     use render_gpu::image_io::{RenderTag, RgbImage, write_exr};
@@ -1264,6 +1259,13 @@ fn sky(d: &tempfile::TempDir, f: impl Fn(usize, usize) -> [f32; 3]) -> std::path
     path
 }
 
+/// An environment map is read the same way on both devices (light.rs, Environment::lookup;
+/// its orientation is tested there): a map that changes along both its axes and in every
+/// channel, seen directly around −z (where u wraps from the last column to the first) and
+/// through the sphere. PT without NEE: the map, and the sun disk that escaping paths find,
+/// are the light. The image is wide (32 × 16), as no other comparison's is: the kernels'
+/// camera rays for a non-square image (a height/width ratio turned over leaves square ones
+/// alike; `camera::tests::pixels_are_square_in_any_image_shape` checks the CPU's).
 #[test]
 fn cpu_gpu_agree_under_an_environment_map() {
     let d = tempfile::tempdir().unwrap();
@@ -1274,10 +1276,13 @@ fn cpu_gpu_agree_under_an_environment_map() {
             if x < 8 { 1.5 } else { 0.1 },
         ]
     });
-    let text = sphere_scene("kind = \"index-matched\"").replace(
-        "radiance = [0.1, 0.1, 0.1]",
-        &format!("file = {:?}", path.to_str().unwrap()),
-    );
+    let text = sphere_scene("kind = \"index-matched\"")
+        .replace(
+            "radiance = [0.1, 0.1, 0.1]",
+            &format!("file = {:?}", path.to_str().unwrap()),
+        )
+        .replace("width = 24\nheight = 24", "width = 32\nheight = 16");
+    assert!(text.contains("height = 16"));
     compare_devices(
         "PT under an environment map",
         &text,
