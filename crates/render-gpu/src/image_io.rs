@@ -694,7 +694,8 @@ mod tests {
 
     /// A diagram's values are its grey levels (0.5 → 128: a z-map's agreement is
     /// mid-grey), where a render's preview bends them by the sRGB curve (0.5 → 188);
-    /// values beyond [0, 1] clip and a NaN is black in both.
+    /// values beyond [0, 1] clip and a NaN is black in both. The preview's exposure
+    /// scales the values before the curve.
     #[test]
     fn diagrams_are_written_without_the_srgb_curve() {
         let mut img = RgbImage::new(3, 2);
@@ -730,6 +731,18 @@ mod tests {
         assert_eq!(linear, want);
         let preview = levels(encode_png(&img, 1.0).unwrap());
         assert_eq!((preview[1], linear[1]), (188, 128));
+        // The preview is the sRGB curve of exposure × value (IEC 61966-2-1; the levels
+        // below computed from it by hand): at exposure 4, 0.25 is white, 0.05 is
+        // sRGB(0.2) = 0.4845 → 124, 0.0005 on the curve's linear toe 12.92 × 0.002 → 7,
+        // 1 clips; at exposure 0.5, 0.5 is sRGB(0.25) → 137. An exposure that divided
+        // would give 71, 29, 0 and 137.
+        let mut img = RgbImage::new(2, 1);
+        img.pixels = vec![[0.25, 0.05, 0.0005], [1.0, 0.5, 0.0]];
+        assert_eq!(
+            levels(encode_png(&img, 4.0).unwrap())[..4],
+            [255, 124, 7, 255]
+        );
+        assert_eq!(levels(encode_png(&img, 0.5).unwrap())[4], 137);
     }
 
     fn image() -> RgbImage {
