@@ -619,7 +619,11 @@ mod tests {
     #[test]
     fn the_reference_noise_is_subtracted() {
         let (w, h) = (96, 96);
-        let truth = |i: usize, c: usize| 0.2 + 0.5 * ((i * 7 + c * 13) % 29) as f32 / 29.0;
+        // Channels of different brightness (1 : 1.5 : 2), so that a channel's ratio taken
+        // against another channel's reference shows.
+        let truth = |i: usize, c: usize| {
+            (0.2 + 0.5 * ((i * 7 + c * 13) % 29) as f32 / 29.0) * [1.0, 1.5, 2.0][c]
+        };
         let mut rng = WalkRng::from_seed(5);
         let (sr, st, b) = (0.2f32, 0.1f32, 0.05f32);
         let refs: Vec<RgbImage> = (0..4)
@@ -659,17 +663,21 @@ mod tests {
             (uncorrected - expected) > 10.0 * se,
             "the test must tell the corrected MSE from the uncorrected one (SE {se})"
         );
-        // The object's brightness ratio sees the bias: (mean truth + b) / mean truth.
-        let truth_mean = (0..w * h).map(|i| truth(i, 0) as f64).sum::<f64>() / (w * h) as f64;
-        let want = (truth_mean + b as f64) / truth_mean;
+        // Each channel's brightness ratio sees the bias: (mean truth + b) / mean truth.
         // The ratio's noise: the image's mean has σ_t/96 = 0.0010 and the reference's
-        // (σ_r/2)/96 = 0.0010, over a mean of ~0.45: a standard error of ~0.0033, so 0.015
-        // is ~4.5 of them, and the bias moves the ratio by ~0.11.
-        assert!(
-            (m.object_ratio[0] - want).abs() < 0.015,
-            "{:?} against {want}",
-            m.object_ratio
-        );
+        // (σ_r/2)/96 = 0.0010, over a mean of ~0.45 (channel 0; 0.68 and 0.9 the others):
+        // a standard error of at most ~0.0033, so 0.015 is ≥ 4.5 of them, and the bias
+        // moves the ratios by 0.11, 0.07 and 0.06 (a channel divided by channel 0's
+        // reference would be off by 0.5 and 1).
+        for c in 0..3 {
+            let truth_mean = (0..w * h).map(|i| truth(i, c) as f64).sum::<f64>() / (w * h) as f64;
+            let want = (truth_mean + b as f64) / truth_mean;
+            assert!(
+                (m.object_ratio[c] - want).abs() < 0.015,
+                "channel {c}: {:?} against {want}",
+                m.object_ratio
+            );
+        }
     }
 
     #[test]

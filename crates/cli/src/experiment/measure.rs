@@ -686,6 +686,17 @@ mod tests {
         let t = truth();
         let c = compare(&pair(&t, 1), &pair(&t, 2));
         assert_noise_chi2(&c);
+        // The null `bench render` prints beside the χ²: E t² and the sd of the mean over
+        // the blocks, from each block's own degrees of freedom. At ν = 32 they are 1.067
+        // and √(2.52/432) = 0.076; estimated per block from its pixels' variances, ν
+        // moves them a little (1.064 and 0.076 here), so 0.03 and 15 % are allowed. The
+        // sd of one block's t² in place of the mean's (1.58) failed nothing before.
+        let (null_mean, null_sd) = c.block_null;
+        assert!(
+            (null_mean - 32.0 / 30.0).abs() < 0.03 && (null_sd / 0.0764 - 1.0).abs() < 0.15,
+            "null {:?}",
+            c.block_null
+        );
         for (o, se) in c.channel_offset {
             assert!(o.abs() < 4.0 * se, "offset {o} ± {se}");
         }
@@ -879,5 +890,75 @@ mod tests {
         let sd = (zs.iter().map(|z| (z - m).powi(2)).sum::<f64>() / (zs.len() - 1) as f64).sqrt();
         eprintln!("spread of z {sd} (mean {m})");
         assert!((0.8..1.2).contains(&sd), "spread of z {sd} (mean {m})");
+    }
+
+    /// RMSE and MAE over every pixel-channel, in units where the reference's 99th
+    /// percentile is 1, by hand: a reference of four pixels at 2 (the unit 1/2) and
+    /// differences 0.1, −0.2, 0.3, −0.4 and 0.2 in five of its twelve channels give
+    /// √(0.34/12)/2 = 0.08416 and (1.2/12)/2 = 0.05 (a mean over pixels, not channels,
+    /// would be √3 and 3 times those).
+    #[test]
+    fn errors_by_hand() {
+        let mut reference = RgbImage::new(2, 2);
+        reference.pixels = vec![[2.0; 3]; 4];
+        let mut img = reference.clone();
+        img.pixels[0] = [2.1, 1.8, 2.3];
+        img.pixels[2] = [1.6, 2.0, 2.0];
+        img.pixels[3] = [2.0, 2.0, 2.2];
+        let (rmse, mae) = errors(&reference, &img);
+        let want = ((0.34f64 / 12.0).sqrt() / 2.0, 0.05);
+        assert!(
+            (rmse - want.0).abs() < 1e-6 && (mae - want.1).abs() < 1e-6,
+            "({rmse}, {mae}) against {want:?}"
+        );
+    }
+
+    /// The 95 % bound covers the bias it bounds: the third channel 10 % darker (the
+    /// bias in the comparison's units from the truth, as in `a_known_bias_is_measured`),
+    /// over 200 seed pairs. At the nominal 95 % about 190 ± 3 cover it (189 here), and
+    /// 180 is 3.2 sd below. A bound that added the standard error of the squared bias to
+    /// its root, not to the square (~100× too tight, and still above the estimate, which
+    /// is all the other tests asked), covered 113.
+    #[test]
+    fn the_bias_bound_covers_a_known_bias() {
+        let t = truth();
+        let darker: Vec<[f32; 3]> = t.iter().map(|p| [p[0], p[1], 0.9 * p[2]]).collect();
+        let object: Vec<&[f32; 3]> = t.iter().filter(|p| p[0] > 0.0).collect();
+        let truth_b2 = object
+            .iter()
+            .map(|p| (0.1 * p[2] as f64).powi(2) / 3.0)
+            .sum::<f64>()
+            / object.len() as f64;
+        let covered = (0..200u64)
+            .filter(|k| {
+                let (a, b) = (pair(&t, 1000 + 2 * k), pair(&darker, 1001 + 2 * k));
+                let c = compare(&a, &b);
+                c.bias_upper95.expect("6,912 object pixel-channels")
+                    >= truth_b2.sqrt() * object_scale(&a, &b)
+            })
+            .count();
+        assert!(
+            covered >= 180,
+            "the bound covered the bias in {covered} of 200"
+        );
+    }
+
+    /// The channel offsets' standard errors are their spread: over 200 unbiased seed pairs
+    /// the 600 z = offset / se (three independent channels a pair) have a standard
+    /// deviation near 1 (its own ~0.03, so [0.85, 1.15] is 5 of them; 0.996 here). The
+    /// other tests ask only |offset| < 4 se, which any se too large passes: one over r
+    /// where it should be over r² (~30× too large) gave a spread of 0.033.
+    #[test]
+    fn the_channel_offsets_standard_errors_are_their_spread() {
+        let t = truth();
+        let zs: Vec<f64> = (0..200u64)
+            .flat_map(|k| {
+                let c = compare(&pair(&t, 3000 + 2 * k), &pair(&t, 3001 + 2 * k));
+                c.channel_offset.map(|(o, se)| o / se)
+            })
+            .collect();
+        let m = zs.iter().sum::<f64>() / zs.len() as f64;
+        let sd = (zs.iter().map(|z| (z - m).powi(2)).sum::<f64>() / (zs.len() - 1) as f64).sqrt();
+        assert!((0.85..1.15).contains(&sd), "spread of z {sd} (mean {m})");
     }
 }
