@@ -246,6 +246,21 @@ fn broken_files_give_clear_errors() {
         let m = load_mesh(&write(&d, &name, text.as_bytes()));
         assert!(m.is_ok_and(|m| m.triangles.len() == 4), "{name}");
     }
+    // A weight divides x y z (the format's homogeneous coordinate, as tobj reads it):
+    // the tetrahedron written at twice its size with w = 2 is the unit one.
+    let weighted = tet_obj
+        .replace("v 1 0 0\n", "v 2 0 0 2\n")
+        .replace("v 0 1 0\n", "v 0 2 0 2\n")
+        .replace("v 0 0 1\n", "v 0 0 2 2\n");
+    assert!(
+        ["v 2 0 0 2\n", "v 0 2 0 2\n", "v 0 0 2 2\n"]
+            .iter()
+            .all(|v| weighted.contains(v))
+    );
+    let (lo, hi) = load_mesh(&write(&d, "w.obj", weighted.as_bytes()))
+        .unwrap()
+        .bounds();
+    assert_eq!((lo, hi), (glam::Vec3::ZERO, glam::Vec3::ONE), "w = 2");
     let cases = [
         (
             "v 0 0 1\n",
@@ -609,6 +624,25 @@ fn malformed_gltf_is_an_error_not_a_panic_or_a_hang() {
     assert!(
         e.contains("gone.gltf") && e.contains("cube.bin cannot be read"),
         "{e}"
+    );
+}
+
+/// `object.height` scales the mesh about its box's centre and puts that centre at the
+/// origin: a box from (4, 6, −3) to (6, 10, −2) made 1 high spans ±0.25 × ±0.5 × ±0.125.
+/// (Every other mesh it is tested on is centred already, where scaling first and moving
+/// after gives the same box.)
+#[test]
+fn height_scales_about_the_centre_and_centres_the_mesh() {
+    let mut m = mesh::cube(1.0);
+    for p in &mut m.positions {
+        *p = *p * glam::Vec3::new(2.0, 4.0, 1.0) + glam::Vec3::new(5.0, 8.0, -2.5);
+    }
+    m.normalise_height(1.0).unwrap();
+    let (lo, hi) = m.bounds();
+    let want = glam::Vec3::new(0.25, 0.5, 0.125);
+    assert!(
+        (lo + want).abs().max_element() < 1e-6 && (hi - want).abs().max_element() < 1e-6,
+        "{lo}..{hi}"
     );
 }
 
@@ -1497,7 +1531,10 @@ fn concave_faces_are_cut_inside_their_outline() {
         }
         let rot = |k: usize, z: usize| (k + start) % 6 + 1 + 6 * z;
         // Bottom cap seen from below (clockwise from above), top cap counter-clockwise.
-        let bottom: Vec<usize> = (0..6).rev().map(|k| rot(k, 0)).collect();
+        let mut bottom: Vec<usize> = (0..6).rev().map(|k| rot(k, 0)).collect();
+        // The bottom cap closed by listing its first vertex again at its end (as other
+        // exporters write), which must not send it back to the fan either.
+        bottom.push(bottom[0]);
         let mut top: Vec<usize> = (0..6).map(|k| rot(k, 1)).collect();
         // One vertex listed twice in a row on the top cap (as some exporters write): it
         // adds nothing, and must not send the cap back to the fan.
@@ -1609,6 +1646,34 @@ fn gltf_instances_scenes_uris_and_morph_weights() {
         (lo.to_array(), hi.to_array()),
         ([-0.5, 0.5, 2.5], [0.5, 1.5, 3.5])
     );
+    // A parent's rotation turns its child's offset: 90° about z takes the child's
+    // translation (3, 0, 0) to (0, 3, 0) (parent × child; child × parent leaves it at x =
+    // 3, which translations alone cannot tell). A node `matrix` is column-major, its
+    // translation in the last column: a parent matrix turning 90° about z and moving
+    // by (0, 0, 4), over a child at (2, 0, 0), puts the cube at (0, 2, 4).
+    let h = std::f32::consts::FRAC_1_SQRT_2;
+    for (nodes, centre) in [
+        (
+            format!(
+                r#"{{"children":[1],"rotation":[0,0,{h},{h}]}},{{"mesh":0,"translation":[3,0,0]}}"#
+            ),
+            [0.0, 3.0, 0.0],
+        ),
+        (
+            r#"{"children":[1],"matrix":[0,1,0,0, -1,0,0,0, 0,0,1,0, 0,0,4,1]},{"mesh":0,"translation":[2,0,0]}"#
+                .to_string(),
+            [0.0, 2.0, 4.0],
+        ),
+    ] {
+        let m = load(&format!(r#""nodes":[{nodes}],{}"#, mesh("")));
+        let (lo, hi) = m.bounds();
+        let got = ((lo + hi) * 0.5).to_array();
+        assert!(
+            got.iter().zip(centre).all(|(g, w)| (g - w).abs() < 1e-5)
+                && ((hi - lo) - glam::Vec3::ONE).abs().max_element() < 1e-5,
+            "{nodes}: the cube's box {lo}..{hi}, centre {got:?}, want {centre:?}"
+        );
+    }
     // Default morph weights: the mesh's, overridden by the node's.
     for (node_w, mesh_w, dx) in [
         ("", "", 0.0),
