@@ -364,6 +364,61 @@ impl Table {
 
 #[cfg(test)]
 mod tests {
+    use super::{ModelKind, SingleScattering, Table};
+    use crate::features;
+    use scatter_sim::WalkRng;
+
+    /// What the tables hold, against the walks they are built from. In exact mode N = 1
+    /// is drawn analytically, so LengthGen's and PathGen's tables keep exactly the walks
+    /// with N ≥ 2 (in order), and with N = 1 kept too in learned mode. LengthGen's target
+    /// is ln(N + u) − ln N_prior(τ, g) with u ~ U(0, 1) drawn afresh: de-standardised,
+    /// every target lies in [ln N, ln(N + 1)) less the walk's prior (1e-4: f32), and the
+    /// mean of e^(target + prior) − N over the 1,771 walks with N ≥ 2 is u's 1/2 (sd
+    /// 0.29/√1,771 = 0.0069, so ±0.03 is 4.3 of them). A target without the prior, or N = 1 walks in an
+    /// exact table, passed every other test.
+    #[test]
+    fn tables_hold_their_walks_and_lengthgen_its_dequantised_target() {
+        let sampler = scatter_sim::conditions::ConditionSampler::authors();
+        let rows: Vec<_> = (0..2_000)
+            .map(|i| scatter_sim::dataset::walk_row(7, &sampler, i).0)
+            .collect();
+        let long: Vec<_> = rows.iter().filter(|r| r.n >= 2).collect();
+        assert!(
+            long.len() > 1_000 && long.len() < rows.len(),
+            "{}",
+            long.len()
+        );
+        for (mode, kept) in [
+            (SingleScattering::Exact, long.len()),
+            (SingleScattering::Learned, rows.len()),
+        ] {
+            for kind in [ModelKind::LengthGen, ModelKind::PathGen] {
+                assert_eq!(
+                    Table::build(kind, &rows, mode).rows,
+                    kept,
+                    "{kind:?} {mode:?}"
+                );
+            }
+        }
+        let t = Table::build(ModelKind::LengthGen, &rows, SingleScattering::Exact);
+        let mut rng = WalkRng::from_seed(3);
+        let (mut cond, mut target) = (Vec::new(), Vec::new());
+        let mut excess = 0.0;
+        for (i, r) in long.iter().enumerate() {
+            t.push_row(i, &mut rng, &mut cond, &mut target);
+            let y = (target[i] * t.norm.out_scale[0] + t.norm.out_shift[0]) as f64;
+            let prior = features::log_n_prior(r.tau as f64, r.g as f64);
+            let n = r.n as f64;
+            assert!(
+                y >= n.ln() - prior - 1e-4 && y < (n + 1.0).ln() - prior + 1e-4,
+                "walk {i}: N = {n}, target {y}, prior {prior}"
+            );
+            excess += (y + prior).exp() - n;
+        }
+        let mean = excess / long.len() as f64;
+        assert!((mean - 0.5).abs() < 0.03, "mean dequantisation {mean}");
+    }
+
     /// A checkpoint from before constant columns kept scale 1 (10⁻⁶ then) standardises the
     /// same data; any other difference does not.
     #[test]
