@@ -146,8 +146,7 @@ fn canonical_frame_invariants_and_round_trip() {
                 let eb = DVec3::Z.cross(e_n).normalize();
                 assert!((eb - e_b).length() < 1e-12 && (e_b.cross(e_n) - e_t).length() < 1e-12);
             }
-            // Round trip: rebuild (x, ω) from (cos θ, α, β) and undo the azimuth.
-            let (xc, wc) = from_canonical(c.exit);
+            // Round trip: (x, ω) rebuilt from (cos θ, α, β) above, the azimuth undone.
             let rot = AzimuthRotation::aligning(w.exit_pos).inverse();
             assert!((rot.apply(xc) - w.exit_pos).length() < 1e-9, "x round trip");
             assert!(

@@ -665,9 +665,9 @@ mod tests {
         );
         // Each channel's brightness ratio sees the bias: (mean truth + b) / mean truth.
         // The ratio's noise: the image's mean has σ_t/96 = 0.0010 and the reference's
-        // (σ_r/2)/96 = 0.0010, over a mean of ~0.45 (channel 0; 0.68 and 0.9 the others):
-        // a standard error of at most ~0.0033, so 0.015 is ≥ 4.5 of them, and the bias
-        // moves the ratios by 0.11, 0.07 and 0.06 (a channel divided by channel 0's
+        // (σ_r/2)/96 = 0.0010, over a mean of 0.44 (channel 0; 0.66 and 0.88 the others):
+        // a standard error of at most ~0.0035, so 0.015 is ≥ 4.25 of them, and the bias
+        // moves the ratios by 0.113, 0.076 and 0.057 (a channel divided by channel 0's
         // reference would be off by 0.5 and 1).
         for c in 0..3 {
             let truth_mean = (0..w * h).map(|i| truth(i, c) as f64).sum::<f64>() / (w * h) as f64;

@@ -356,9 +356,9 @@ pub fn prepare(
         // the cap is the model's, known only now.
         (None, Some(m)) => crate::model_cmds::default_max_tau(min_tau, m).with_context(|| {
             format!(
-                "{}: render.min_tau = {}{} is above the model's training maximum {} (the \
+                "{}: render.min_tau = {}{} is above the model's training maximum {max} (the \
                  default max_tau): no sphere step could be taken (allowed: min_tau <= \
-                 max_tau; set render.min_tau or render.max_tau in the scene)",
+                 max_tau; set render.min_tau to at most {max} in the scene)",
                 scene_path.display(),
                 scatter_sim::ranges::num(min_tau),
                 // Said where the scene leaves it out, or the user looks for a line
@@ -368,7 +368,7 @@ pub fn prepare(
                 } else {
                     ""
                 },
-                scatter_sim::ranges::num(crate::model_cmds::trained_max_tau(m) as f32)
+                max = scatter_sim::ranges::num(crate::model_cmds::trained_max_tau(m) as f32)
             )
         })?,
     } as f32;

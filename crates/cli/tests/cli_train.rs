@@ -768,7 +768,7 @@ fn resume_needs_an_intact_checkpoint_and_the_last_loss_is_the_last_steps() {
         (
             "/step",
             serde_json::json!(999_999_999u64),
-            "step = 999999999 is 500 or more past the history's last entry (step 5)",
+            "step = 999999999 is 1000 or more past the history's last entry (step 5)",
         ),
         (
             "/norm/out_scale/0",

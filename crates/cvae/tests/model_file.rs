@@ -438,7 +438,7 @@ fn sampler_output_is_always_valid() {
 /// error is ≤ 0.0016, and |z| < 4 fails a correct sampler with probability 6e-5. Its
 /// exit leaves the centre in an HG direction: the cos θ of its walks follow the HG
 /// distribution of the walk's g (one-sample KS, p > 1e-4 for a correct sampler; over the
-/// ~74,000 N = 1 walks at τ = 0.3 that is D < ~0.016; drawn with g = −0.2 or 0.1 in
+/// ~74,000 N = 1 walks at τ = 0.3 that is D < ~0.0082; drawn with g = −0.2 or 0.1 in
 /// place of 0.2, they gave D = 0.29 and 0.077).
 #[test]
 fn single_scattering_branch_probability() {

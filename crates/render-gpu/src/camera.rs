@@ -145,8 +145,9 @@ mod tests {
     /// (Mitsuba's `fov_axis = "x"`): through a 60° camera, the rays through the middles of
     /// the left and right edges are 30° off the axis, and those through the middles of the
     /// top and bottom edges atan(tan 30° · h/w) off it, in the wide image (200 × 100:
-    /// 16.1°) and the tall one (100 × 200: 49.1°). Every shipped and test scene is
-    /// square, where a height/width ratio turned over gives the same rays. 1e-4 rad: f32
+    /// 16.1°) and the tall one (100 × 200: 49.1°). The shipped scenes and the renders the
+    /// other tests compare are square, where a height/width ratio turned over gives the
+    /// same rays. 1e-4 rad: f32
     /// directions of unit length.
     #[test]
     fn pixels_are_square_in_any_image_shape() {

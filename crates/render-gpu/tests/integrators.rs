@@ -245,7 +245,7 @@ fn nee_on_equals_nee_off_pt() {
     let (_, s) = scene(SUN_SCENE, false);
     let (on, son, _) = estimate(&s, &settings(IntegratorKind::Pt, true, None), 300_000, 1);
     let (off, soff, _) = estimate(&s, &settings(IntegratorKind::Pt, false, None), 300_000, 2);
-    // PT with and without NEE are both unbiased: |z| < 4 (84 such comparisons in this
+    // PT with and without NEE are both unbiased: |z| < 4 (90 such comparisons in this
     // file: 3 here, 3 through a dielectric (with a slack on top), 3 for ST-CVAE's NEE (with
     // a slack), 3 after a reflection and 3 under an oblique sun (with slacks), 18 in the
     // path-level NEE test, 6 in the touching-parts test, 36 in the overlapping-pieces test,

@@ -374,8 +374,8 @@ mod tests {
     /// is ln(N + u) − ln N_prior(τ, g) with u ~ U(0, 1) drawn afresh: de-standardised,
     /// every target lies in [ln N, ln(N + 1)) less the walk's prior (1e-4: f32), and the
     /// mean of e^(target + prior) − N over the 1,771 walks with N ≥ 2 is u's 1/2 (sd
-    /// 0.29/√1,771 = 0.0069, so ±0.03 is 4.3 of them). A target without the prior, or N = 1 walks in an
-    /// exact table, passed every other test.
+    /// 0.29/√1,771 = 0.0069, so ±0.03 is 4.3 of them). A target without the prior, or
+    /// N = 1 walks in an exact table, passed every other test.
     #[test]
     fn tables_hold_their_walks_and_lengthgen_its_dequantised_target() {
         let sampler = scatter_sim::conditions::ConditionSampler::authors();

@@ -345,16 +345,21 @@ impl CheckpointInfo {
             ));
         }
         // A run reports every REPORT_EVERY steps and at its last, and saves after its
-        // report: it is always fewer than REPORT_EVERY steps past its history's last entry
-        // (an edited step of 999,999,999 on a run stopped at 4,366 was taken for a
-        // finished run, and its model written with that step count).
+        // report, so a record is less than REPORT_EVERY steps past its history's last entry,
+        // but for a skipped report: one whose steps since the last read no loss (a finished
+        // run resumed with more steps 1 to 9 steps before a report step, or a record saved
+        // before streams were kept, whose resume restarted the readings) adds no entry,
+        // and the gap then reaches up to 2·REPORT_EVERY − 1. Twice that is refused: an edited
+        // step of 999,999,999 on a run stopped at 4,366 was taken for a finished run, and
+        // its model written with that step count.
         if let Some(&(last, _)) = self.history.last()
-            && self.step - last >= REPORT_EVERY
+            && self.step - last >= 2 * REPORT_EVERY
         {
             return Err(format!(
-                "step = {} is {REPORT_EVERY} or more past the history's last entry (step \
-                 {last}), where a run keeps one every {REPORT_EVERY} steps",
-                self.step
+                "step = {} is {} or more past the history's last entry (step {last}), where \
+                 a run keeps one every {REPORT_EVERY} steps",
+                self.step,
+                2 * REPORT_EVERY
             ));
         }
         // Xoshiro never leaves the all-zero state (every draw 0): the latent noise's normal
