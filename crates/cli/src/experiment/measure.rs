@@ -820,6 +820,23 @@ mod tests {
         assert!(c.block_chi2 > 1.6, "chi2/dof {}", c.block_chi2);
     }
 
+    /// `truth` with its third channel darker by the fraction `f`, and the squared bias
+    /// that makes per object pixel-channel: the mean over the object's pixels of
+    /// (f·v₃)²/3.
+    fn third_channel_darker(truth: &[[f32; 3]], f: f64) -> (Vec<[f32; 3]>, f64) {
+        let darker = truth
+            .iter()
+            .map(|p| [p[0], p[1], ((1.0 - f) * p[2] as f64) as f32])
+            .collect();
+        let object: Vec<&[f32; 3]> = truth.iter().filter(|p| p[0] > 0.0).collect();
+        let b2 = object
+            .iter()
+            .map(|p| (f * p[2] as f64).powi(2) / 3.0)
+            .sum::<f64>()
+            / object.len() as f64;
+        (darker, b2)
+    }
+
     /// A known bias: the third channel 20 % darker, so the squared bias per object
     /// pixel-channel is the mean over the object's pixels of (0.2·0.6v)²/3, computed here
     /// from the truth. The estimate lies within 4 of its standard errors of it (a false
@@ -831,16 +848,11 @@ mod tests {
     #[test]
     fn a_known_bias_is_measured() {
         let t = truth();
-        let darker: Vec<[f32; 3]> = t.iter().map(|p| [p[0], p[1], 0.8 * p[2]]).collect();
+        let (darker, truth_b2) = third_channel_darker(&t, 0.2);
         let (a, b) = (pair(&t, 3), pair(&darker, 4));
         let c = compare(&a, &b);
-        let object: Vec<&[f32; 3]> = t.iter().filter(|p| p[0] > 0.0).collect();
-        let truth_b2 = object
-            .iter()
-            .map(|p| (0.2 * p[2] as f64).powi(2) / 3.0)
-            .sum::<f64>()
-            / object.len() as f64;
-        let (est, se, ..) = bias_squared(&a, &b, object.len());
+        let object = t.iter().filter(|p| p[0] > 0.0).count();
+        let (est, se, ..) = bias_squared(&a, &b, object);
         assert!(
             (est - truth_b2).abs() < 4.0 * se,
             "bias² {est} ± {se}, truth {truth_b2}"
@@ -922,13 +934,7 @@ mod tests {
     #[test]
     fn the_bias_bound_covers_a_known_bias() {
         let t = truth();
-        let darker: Vec<[f32; 3]> = t.iter().map(|p| [p[0], p[1], 0.9 * p[2]]).collect();
-        let object: Vec<&[f32; 3]> = t.iter().filter(|p| p[0] > 0.0).collect();
-        let truth_b2 = object
-            .iter()
-            .map(|p| (0.1 * p[2] as f64).powi(2) / 3.0)
-            .sum::<f64>()
-            / object.len() as f64;
+        let (darker, truth_b2) = third_channel_darker(&t, 0.1);
         let covered = (0..200u64)
             .filter(|k| {
                 let (a, b) = (pair(&t, 1000 + 2 * k), pair(&darker, 1001 + 2 * k));
