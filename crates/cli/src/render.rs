@@ -356,18 +356,11 @@ pub fn prepare(
         // the cap is the model's, known only now.
         (None, Some(m)) => crate::model_cmds::default_max_tau(min_tau, m).with_context(|| {
             format!(
-                "{}: render.min_tau = {}{} is above the model's training maximum {max} (the \
-                 default max_tau): no sphere step could be taken (allowed: min_tau <= \
-                 max_tau; set render.min_tau to at most {max} in the scene)",
+                "{}: {} is above the model's training maximum {max} (the default max_tau): \
+                 no sphere step could be taken (allowed: min_tau <= max_tau; set \
+                 render.min_tau to at most {max} in the scene)",
                 scene_path.display(),
-                scatter_sim::ranges::num(min_tau),
-                // Said where the scene leaves it out, or the user looks for a line
-                // that is not there.
-                if file.render.min_tau.is_none() {
-                    " (its default)"
-                } else {
-                    ""
-                },
+                file.render.min_tau_words(),
                 max = scatter_sim::ranges::num(crate::model_cmds::trained_max_tau(m) as f32)
             )
         })?,

@@ -737,6 +737,7 @@ mod tests {
     /// far side more.
     #[test]
     fn sphere_nee_off_the_centre_is_the_integral() {
+        use std::f64::consts::PI;
         let hg =
             |g: f64, c: f64| (1.0 - g * g) / (4.0 * PI * (1.0 + g * g - 2.0 * g * c).powf(1.5));
         let cases = [
@@ -754,7 +755,6 @@ mod tests {
             ),
             (1.0, 0.3, DVec3::new(-0.5, 0.3, -0.2), DVec3::Y),
         ];
-        use std::f64::consts::PI;
         for (tau, g, x, w) in cases {
             let w = w.normalize();
             let (rows, cols) = (600, 1200);

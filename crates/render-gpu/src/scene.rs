@@ -526,6 +526,20 @@ impl RenderDesc {
     pub fn min_tau_or_default(&self) -> f64 {
         self.min_tau.unwrap_or(DEFAULT_MIN_TAU)
     }
+
+    /// "render.min_tau = v" for messages, with "(its default)" where the file leaves it
+    /// out: the user would look for a line that is not there.
+    pub fn min_tau_words(&self) -> String {
+        let default = if self.min_tau.is_none() {
+            " (its default)"
+        } else {
+            ""
+        };
+        format!(
+            "render.min_tau = {}{default}",
+            num(self.min_tau_or_default())
+        )
+    }
 }
 
 /// Largest image side accepted.
@@ -871,15 +885,10 @@ fn check_render(r: &RenderDesc) -> Result<(), String> {
         && (t as f32) < r.min_tau_or_default() as f32
     {
         return Err(format!(
-            "render.max_tau = {} is below render.min_tau = {}{}: no sphere step could be \
-             taken (allowed: max_tau >= min_tau)",
+            "render.max_tau = {} is below {}: no sphere step could be taken (allowed: \
+             max_tau >= min_tau)",
             num(t),
-            num(r.min_tau_or_default()),
-            if r.min_tau.is_none() {
-                " (its default)"
-            } else {
-                ""
-            }
+            r.min_tau_words()
         ));
     }
     Ok(())

@@ -209,20 +209,20 @@ fn parse_document(
             "not a valid GLB file: it does not start with the GLB magic `glTF`",
         ));
     }
-    // A file shorter than its GLB header's length (bytes 8..12) is cut short: said so, where
-    // gltf says "could not completely read the object" (or, cut within the header, "failed
-    // to fill whole buffer"). Bytes after the declared end are
-    // left to gltf, which ignores them (harmless, and some tools may pad).
-    if bytes.starts_with(b"glTF") && bytes.len() < 12 {
-        return Err(RenderError::mesh(
-            path,
-            format!(
-                "truncated GLB file: {} bytes, shorter than the 12-byte GLB header",
-                bytes.len()
-            ),
-        ));
-    }
+    // A file shorter than its GLB header's length (bytes 8..12), or than the header itself,
+    // is cut short: said so, where gltf says "could not completely read the object" (or
+    // "failed to fill whole buffer"). Bytes after the declared end are left to gltf, which
+    // ignores them (harmless, and some tools may pad).
     if bytes.starts_with(b"glTF") {
+        if bytes.len() < 12 {
+            return Err(RenderError::mesh(
+                path,
+                format!(
+                    "truncated GLB file: {} bytes, shorter than the 12-byte GLB header",
+                    bytes.len()
+                ),
+            ));
+        }
         let declared = u32::from_le_bytes(bytes[8..12].try_into().unwrap()) as usize;
         if declared > bytes.len() {
             return Err(RenderError::mesh(

@@ -106,7 +106,7 @@ fn positions_only(text: &str) -> String {
         match words.next() {
             Some("l" | "vt" | "vn" | "vp") => {}
             // `obj_problem` has checked the line: x y z and a colour r g b.
-            Some("v") if line.split_whitespace().count() == 7 => {
+            Some("v") if words.clone().count() == 6 => {
                 out.push('v');
                 for w in words.take(3) {
                     out.push(' ');
