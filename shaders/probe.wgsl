@@ -236,7 +236,11 @@ fn probe_local_hit(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local
 /// boundary in params). Out: nee.wgsl's transmittance in channels 0, 1, 2 at 0..2;
 /// whether the origin is in the medium (scene.wgsl, in_union, for meshes whose pieces
 /// overlap) at 3; whether the ray crossed more faces than the sorted list holds (u_more)
-/// at 4.
+/// at 4; nee.wgsl's shadow (refracted where it leaves a dielectric, the beam's r
+/// included) at 5, in the channel given at 3. One refracted shadow ray an item: on
+/// lavapipe (Mesa 22.3.6) the third in a row came out wrong for ~25 of 4,000 rays, only
+/// in 8-lane groups whose rays diverge (each such ray alone, or its first two calls,
+/// gave the CPU's value; with the traversal stack in workgroup or private memory alike).
 @compute @workgroup_size(WORKGROUP)
 fn probe_shadow(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
     stack_base = li * STACK_STRIDE;
@@ -254,12 +258,14 @@ fn probe_shadow(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_in
         t[c] = transmittance(o, d, c);
     }
     let inside = overlapping() && in_union(o, d);
+    let refracted = shadow(o, d, u32(item_f(i, 3u)));
     clear_item(i);
     set_f(i, 0u, t.x);
     set_f(i, 1u, t.y);
     set_f(i, 2u, t.z);
     set_f(i, 3u, select(0.0, 1.0, inside));
     set_f(i, 4u, select(0.0, 1.0, more));
+    set_f(i, 5u, refracted);
 }
 
 /// In: WalkFeatures (tau feature, g, log prior, relative log N) at 0..3; exit (cos θ, α,

@@ -2489,10 +2489,14 @@ fn slabs_scene(dir: &std::path::Path, boundary: &str) -> String {
 /// up to 16 crossings, the ordered walk beyond) equal the CPU's (nee.rs: transmittance,
 /// whose list holds 64, and transmittance_ordered for the rays the GPU walked in order),
 /// and in_union equals Geometry::in_union, for random rays from inside the eleven slabs
-/// (dielectric: Fresnel's factor only where the union's medium changes).
+/// (dielectric: Fresnel's factor only where the union's medium changes); so do the
+/// refracted ones the renders cast (nee.wgsl, shadow; nee.rs, transmittance_refracted),
+/// whose ordered walk scales the depth inside by r where it leaves.
 #[test]
 fn wgsl_shadow_rays_through_overlaps_match_rust() {
-    use render_gpu::integrator::nee::{transmittance, transmittance_ordered};
+    use render_gpu::integrator::nee::{
+        transmittance, transmittance_ordered, transmittance_refracted,
+    };
     let Some(ctx) = gpu() else { return };
     let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
     let dir = tempfile::tempdir().unwrap();
@@ -2509,11 +2513,15 @@ fn wgsl_shadow_rays_through_overlaps_match_rust() {
             (x, common::uniform_direction(&mut rng))
         })
         .collect();
+    // Each ray's refracted answer in one channel, the three in turn (probe_shadow).
+    let refracted_channel = |k: usize| k % 3;
     let items: Vec<Item> = rays
         .iter()
-        .map(|(x, d)| {
+        .enumerate()
+        .map(|(k, (x, d))| {
             let mut it = [0.0f32; 32];
             it[..3].copy_from_slice(&x.to_array());
+            it[3] = refracted_channel(k) as f32;
             it[4..7].copy_from_slice(&d.to_array());
             it
         })
@@ -2521,23 +2529,25 @@ fn wgsl_shadow_rays_through_overlaps_match_rust() {
     let out =
         render_gpu::gpu::probe::run_probe_on(&ctx, "probe_shadow", model(), &items, Some(&scene))
             .unwrap();
-    let (mut off, mut more, mut inside_off) = (0, 0, 0);
-    for ((x, d), o) in rays.iter().zip(&out) {
+    let (mut off, mut refracted_off, mut more, mut inside_off) = (0, 0, 0, 0);
+    // The two devices round differently (WGSL may fuse multiply-adds); the bound is
+    // shadow_rays.rs's for the sorted against the ordered walk, which differ by eps/cos per
+    // crossing. Written so that a NaN counts as off.
+    let differ = |gpu: f32, cpu: f32| !((gpu - cpu).abs() <= 2e-3 * cpu.max(1e-3) + 1e-6);
+    for (k, ((x, d), o)) in rays.iter().zip(&out).enumerate() {
         let walked = o[4] == 1.0;
         more += walked as usize;
-        for (c, &gpu) in o[..3].iter().enumerate() {
+        for c in 0..3 {
             let cpu = if walked {
                 transmittance_ordered(&scene, *x, *d, c)
             } else {
                 transmittance(&scene, *x, *d, c)
             };
-            // The two devices round differently (WGSL may fuse multiply-adds); the bound
-            // is shadow_rays.rs's for the sorted against the ordered walk, which differ
-            // by eps/cos per crossing. Written so that a NaN counts as off.
-            if !((gpu - cpu).abs() <= 2e-3 * cpu.max(1e-3) + 1e-6) {
-                off += 1;
-            }
+            off += differ(o[c], cpu) as usize;
         }
+        let c = refracted_channel(k);
+        let refracted = transmittance_refracted(&scene, *x, *d, c, walked);
+        refracted_off += differ(o[5], refracted) as usize;
         inside_off += ((o[3] == 1.0) != geo.in_union(pieces, *x, *d)) as usize;
     }
     // Grazing crossings may differ by more (rare for uniform directions): allow 0.1 %.
@@ -2545,6 +2555,13 @@ fn wgsl_shadow_rays_through_overlaps_match_rust() {
         off * 1000 <= 3 * rays.len(),
         "{off} of {} shadow-ray answers differ from the CPU's ({more} rays walked in order)",
         3 * rays.len()
+    );
+    // The refracted ones (the shadow rays the renders cast): the depth inside and the
+    // beam's factor r where the ray leaves, in both walks.
+    assert!(
+        refracted_off * 1000 <= rays.len(),
+        "{refracted_off} of {} refracted shadow-ray answers differ from the CPU's",
+        rays.len()
     );
     assert!(
         inside_off * 1000 <= rays.len(),

@@ -373,6 +373,23 @@ fn crossing_transmittance(scene: &SceneData, cos: f32) -> f32 {
     }
 }
 
+/// [`shadow`]'s transmittance toward `dir` (refracted where it leaves a dielectric, the
+/// beam's factor r included), from the sorted crossings or, with `ordered_walk`, by the
+/// ordered walk: the references for nee.wgsl's `shadow` in the kernels' tests.
+pub fn transmittance_refracted(
+    scene: &SceneData,
+    x: Vec3,
+    dir: Vec3,
+    channel: usize,
+    ordered_walk: bool,
+) -> f32 {
+    match (scene.boundary.ior(), ordered_walk) {
+        (ior, true) => ordered(scene, ior, x, dir, channel).0,
+        (Some(ior), false) => refracted_transmittance(scene, ior, x, dir, channel).0,
+        (None, false) => transmittance(scene, x, dir, channel),
+    }
+}
+
 /// Transmittance by walking the crossings in order (one closest-hit query each): the
 /// fallback for rays whose crossings do not pair up (or, where pieces overlap, that
 /// cross more than [`crate::geometry::MAX_UNION_CROSSINGS`] faces), and the reference in
