@@ -268,6 +268,23 @@ fn probe_shadow(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_in
     set_f(i, 5u, refracted);
 }
 
+/// In: an event's position at 0..2 and direction at 4..6, the channel at 3, its grid
+/// ball's radius at 7, its step's free ball (centre at 8..10, radius at 11). Out:
+/// nee_proxy (the path-level reservoirs' proxy; nee.rs, proxy) at 0.
+@compute @workgroup_size(WORKGROUP)
+fn probe_proxy(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gid.x;
+    if i >= params.image.x {
+        return;
+    }
+    let x = item_v3(i, 0u);
+    let w = item_v3(i, 1u);
+    let c = item_v3(i, 2u);
+    let q = nee_proxy(x, w, item_f(i, 7u), c, item_f(i, 11u), u32(item_f(i, 3u)));
+    clear_item(i);
+    set_f(i, 0u, q);
+}
+
 /// In: WalkFeatures (tau feature, g, log prior, relative log N) at 0..3; exit (cos θ, α,
 /// β) at 4..6; an RNG seed at 8. The test gives a learned-mode model (model.flags.x = 0),
 /// so the exact mode's centre event never comes up.

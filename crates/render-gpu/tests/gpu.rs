@@ -2573,6 +2573,141 @@ fn wgsl_shadow_rays_through_overlaps_match_rust() {
     assert!(more >= 100, "only {more} rays crossed more than 16 faces");
 }
 
+/// The kernels' path-NEE proxy (nee.wgsl, nee_proxy) equals the CPU's (nee::proxy, with
+/// the step's free-ball chord as sphere_step.rs gives it) on random events of a dense
+/// sphere: under a disk wider than the phase lobe (the largest phase value over the disk,
+/// `extreme_cos`, for g of either sign), a narrower one and a delta light, index-matched
+/// and dielectric (`phase_bound`'s refraction turn), and with the depth past
+/// nee::PROXY_DEPTH_CAP for many, where exp of the plain depth is 0 in f32 and the event
+/// would never be offered. No image test sees the cap: with it removed from the kernel a
+/// σ_t 200–600 sphere under an 80° disk rendered within noise of the CPU (signed sum
+/// −0.26), the events it saves carrying little light there.
+///
+/// Tolerance: the proxy is a product of f32 factors: exp of a depth of up to 40 (the cap),
+/// rounded to a few ulps (40 × 4e-7 relative), HG densities (1e-5 relative,
+/// `wgsl_hg_and_frame_match_rust`), and in `extreme_cos` and `phase_bound` an acos whose
+/// f32 error near cos = 1 is ~3e-4 rad, which moves HG's density by ≤ 2 × 10⁻³ relative
+/// at these g: 2e-3 relative, with a 1e-30 floor for f32's smallest values.
+#[test]
+fn wgsl_path_nee_proxy_matches_rust() {
+    use render_gpu::integrator::nee::{PROXY_DEPTH_CAP, proxy};
+    use render_gpu::integrator::sphere_step::BALL_CHORD_SHRINK;
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let delta = "[[light]]\nkind = \"directional\"\ndirection = [0.3, -0.8, 0.5]\n\
+                 irradiance = [1.0, 2.0, 0.5]\n";
+    let disk = |deg: f64, dir: &str| {
+        format!(
+            "[[light]]\nkind = \"directional\"\ndirection = {dir}\n\
+             irradiance = [2.0, 1.0, 3.0]\nangular_diameter_deg = {deg}\n"
+        )
+    };
+    let dense = |boundary: &str, g: &str, lights: String| {
+        let text = with_medium(
+            sphere_scene(boundary),
+            "[60.0, 200.0, 600.0]",
+            "[0.99, 0.95, 0.9]",
+        )
+        .replace("g = 0.5", &format!("g = {g}"))
+        .replace(SPHERE_SCENE_DISK, &lights);
+        assert!(text.contains(&lights) && text.contains(&format!("g = {g}")));
+        text
+    };
+    // g 0.5: the 80° disk (1.47 sr against the lobe's π(1 − g)² = 0.79) takes the largest
+    // value; g −0.6 (lobe 0.50 sr): the 80° disk does, the 40° one (0.38 sr) does not.
+    let scenes = [
+        dense(
+            "kind = \"index-matched\"",
+            "0.5",
+            format!("{}{delta}", disk(80.0, "[-0.5, -0.6, -0.62]")),
+        ),
+        dense(
+            "kind = \"dielectric\"\nior = 1.33",
+            "-0.6",
+            format!(
+                "{}{}{delta}",
+                disk(80.0, "[0.0, -1.0, 0.0]"),
+                disk(40.0, "[0.6, 0.2, -0.77]")
+            ),
+        ),
+    ];
+    let mut rng = WalkRng::from_seed(47);
+    for (n, text) in scenes.iter().enumerate() {
+        let scene = common::build_scene(text, false);
+        // (x, w, the free ball's centre c and radius f, the grid's ball at x, channel).
+        let events: Vec<(glam::Vec3, glam::Vec3, glam::Vec3, f32, f32, usize)> = (0..3000)
+            .map(|k| {
+                // A free ball inside the sphere, the event inside it.
+                let c = common::uniform_direction(&mut rng) * 0.45 * rng.uniform() as f32;
+                let f = (0.5 - c.length()) * rng.uniform() as f32;
+                let x = c + common::uniform_direction(&mut rng) * f * rng.uniform() as f32;
+                let grid_free = 0.02 * rng.uniform() as f32;
+                (
+                    x,
+                    common::uniform_direction(&mut rng),
+                    c,
+                    f,
+                    grid_free,
+                    k % 3,
+                )
+            })
+            .collect();
+        let items: Vec<Item> = events
+            .iter()
+            .map(|&(x, w, c, f, grid_free, channel)| {
+                let mut it = [0.0f32; 32];
+                it[..3].copy_from_slice(&x.to_array());
+                it[3] = channel as f32;
+                it[4..7].copy_from_slice(&w.to_array());
+                it[7] = grid_free;
+                it[8..11].copy_from_slice(&c.to_array());
+                it[11] = f;
+                it
+            })
+            .collect();
+        let out = render_gpu::gpu::probe::run_probe_on(
+            &ctx,
+            "probe_proxy",
+            model(),
+            &items,
+            Some(&scene),
+        )
+        .unwrap();
+        let (mut worst, mut capped) = (0.0f32, 0);
+        for (&(x, w, c, f, grid_free, channel), o) in events.iter().zip(&out) {
+            // The chord from x along ω_l to the free ball's edge (sphere_step.rs, complete),
+            // written out: d = x − c, chord = −d·ω + √((d·ω)² + f² − |d|²).
+            let free = |wl: glam::Vec3| {
+                let d = x - c;
+                let b = d.dot(wl);
+                let chord = -b + (b * b + (f * f - d.dot(d)).max(0.0)).sqrt();
+                (chord * BALL_CHORD_SHRINK).min(2.0 * f).max(grid_free)
+            };
+            let sigma = scene.sigma_t[channel];
+            capped += scene
+                .lights
+                .iter()
+                .any(|l| sigma * free(l.to_light) > PROXY_DEPTH_CAP) as usize;
+            let cpu = proxy(&scene, w, free, channel);
+            let relative = (o[0] - cpu).abs() / cpu.max(1e-30);
+            // Written so that a NaN fails.
+            assert!(
+                relative <= 2e-3,
+                "scene {n}: proxy {} on the GPU, {cpu} on the CPU at x {x}, w {w}, c {c}, \
+                 f {f}, channel {channel}",
+                o[0]
+            );
+            worst = worst.max(relative);
+        }
+        eprintln!("scene {n}: largest relative difference {worst:.1e}, {capped} events capped");
+        // Events past the cap must be tested (891 and 945 of the 3,000; 500 asked).
+        assert!(
+            capped >= 500,
+            "scene {n}: only {capped} events past the cap"
+        );
+    }
+}
+
 /// An image whose path slots exceed the adapter's storage binding limit renders in bands of
 /// rows (gpu/renderer.rs), and the bands give the image one binding gives, bit for bit: PT
 /// resumes a path exactly, and the seeds follow a pixel's index in the image, not in its

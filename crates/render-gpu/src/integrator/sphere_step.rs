@@ -31,7 +31,7 @@ pub(crate) const EXACT_DISTANCE_SHRINK: f32 = 1.0 - 1e-5;
 
 /// A shadow ray's chord through the free ball is shrunk by this factor, so that the
 /// medium it is known to cross stays strictly inside the ball.
-pub(crate) const BALL_CHORD_SHRINK: f32 = 1.0 - 1e-4;
+pub const BALL_CHORD_SHRINK: f32 = 1.0 - 1e-4;
 
 /// What [`begin`] did.
 pub(crate) enum Begun {
