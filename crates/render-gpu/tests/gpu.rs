@@ -2537,13 +2537,13 @@ fn wgsl_shadow_rays_through_overlaps_match_rust() {
     for (k, ((x, d), o)) in rays.iter().zip(&out).enumerate() {
         let walked = o[4] == 1.0;
         more += walked as usize;
-        for c in 0..3 {
+        for (c, &gpu) in o[..3].iter().enumerate() {
             let cpu = if walked {
                 transmittance_ordered(&scene, *x, *d, c)
             } else {
                 transmittance(&scene, *x, *d, c)
             };
-            off += differ(o[c], cpu) as usize;
+            off += differ(gpu, cpu) as usize;
         }
         let c = refracted_channel(k);
         let refracted = transmittance_refracted(&scene, *x, *d, c, walked);
