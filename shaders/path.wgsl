@@ -569,7 +569,7 @@ fn slot_of(gid: vec3<u32>) -> u32 {
     // cheap background rows or its expensive object rows alone. Within a workgroup the
     // slots stay neighbouring pixels, whose paths run alike in SIMD.
     let n_groups = (params.image.x * params.image.y * params.image.z + WORKGROUP - 1u) / WORKGROUP;
-    let w = gid.x / WORKGROUP + gid.y * 65535u;
+    let w = gid.x / WORKGROUP + gid.y * DISPATCH_ROW;
     if w >= n_groups {
         return NO_SLOT;
     }

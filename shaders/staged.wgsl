@@ -156,12 +156,12 @@ fn list_entry(i: u32) -> u32 {
 }
 
 /// Writes the dispatch arguments for `n` invocations at word `at` of the indirect buffer:
-/// WORKGROUP-sized groups as (x, y) within the 65,535 a dimension allows, as the host lays
-/// out direct dispatches.
+/// WORKGROUP-sized groups as (x, y), DISPATCH_ROW of them (65,535, the most a dimension
+/// allows, unless a test lowers it) a row, as the host lays out direct dispatches.
 fn dispatch_args(at: u32, n: u32) {
     let groups = (n + WORKGROUP - 1u) / WORKGROUP;
-    let y = max((groups + 65534u) / 65535u, 1u);
-    indirect[at] = select(groups, 65535u, y > 1u);
+    let y = max((groups + DISPATCH_ROW - 1u) / DISPATCH_ROW, 1u);
+    indirect[at] = select(groups, DISPATCH_ROW, y > 1u);
     indirect[at + 1u] = y;
     indirect[at + 2u] = 1u;
 }
@@ -206,7 +206,7 @@ fn list_args_main() {
 
 /// The linear index of invocation `gid` (dispatched as in render_main).
 fn invocation(gid: vec3<u32>) -> u32 {
-    return (gid.x / WORKGROUP + gid.y * 65535u) * WORKGROUP + gid.x % WORKGROUP;
+    return (gid.x / WORKGROUP + gid.y * DISPATCH_ROW) * WORKGROUP + gid.x % WORKGROUP;
 }
 
 @compute @workgroup_size(WORKGROUP)

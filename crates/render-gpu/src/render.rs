@@ -98,6 +98,9 @@ pub struct DispatchStats {
     pub redone: u64,
     /// Bands of rows the image was rendered in (1: one storage binding held it all).
     pub bands: u32,
+    /// The most rows of workgroups (the dispatch's y) a band took: 1 unless a band held
+    /// more than 65,535 workgroups (`KernelShape::dispatch_row`).
+    pub grid_rows: u32,
     /// Samples per pixel of the first chunk: a pixel's path slots times the samples each
     /// renders in it (`STCVAE_GPU_LANE_SAMPLES`, else 1), at most the spp asked for. A
     /// time budget shorter than this chunk's time still gets the chunk whole.

@@ -2755,6 +2755,56 @@ fn images_beyond_the_binding_limit_render_in_bands() {
     assert!(whole.image.pixels.iter().any(|p| p[0] > 0.0));
 }
 
+/// A dispatch of more workgroups than a dimension holds (65,535: images of more than ~4 M
+/// path slots, as a 1024² image at four lanes a pixel) lays them out in rows along y
+/// (renderer.rs, plan_bands; slot_of's `gid.y`, the staged render's indirect dispatches in
+/// dispatch_args and `invocation`), and renders what one row renders, bit for bit: the
+/// slots are the same, only the invocations they run on differ. On images small enough
+/// for lavapipe the test hook shortens a row to 5 workgroups, leaving the last row part
+/// full (the invocations past the band's slots must do nothing): PT and ST-CVAE in the single kernel,
+/// ST-CVAE staged.
+#[test]
+fn dispatches_in_rows_of_workgroups_render_as_in_one() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let text = sphere_scene("kind = \"index-matched\"");
+    for (set, staged) in [
+        (settings(IntegratorKind::Pt, true), "0"),
+        (settings(IntegratorKind::Stcvae, true), "0"),
+        (settings(IntegratorKind::Stcvae, true), "1"),
+    ] {
+        let what = format!("{:?}, staged {staged}", set.kind);
+        let s = common::build_scene(&text, set.kind == IntegratorKind::Stcvae);
+        let staged = [("STCVAE_GPU_STAGED", staged)];
+        let one = render_gpu_with_env(&ctx, &s, &set, &opts(16, 4), &staged).unwrap();
+        let rows = [staged[0], ("STCVAE_GPU_TEST_DISPATCH_ROW", "5")];
+        let out = render_gpu_with_env(&ctx, &s, &set, &opts(16, 4), &rows).unwrap();
+        assert_eq!(one.dispatch.grid_rows, 1, "{what}");
+        // On lavapipe 24² pixels at 7 lanes are 63 workgroups of 64: 13 rows of 5, the
+        // last of 3.
+        assert!(out.dispatch.grid_rows > 1, "{what}: {:?}", out.dispatch);
+        assert_same_render(&one, &out, &what);
+    }
+    for bad in ["0", "65536", "x"] {
+        let s = common::build_scene(&text, false);
+        let set = settings(IntegratorKind::Pt, true);
+        let e = refusal(
+            render_gpu_with_env(
+                &ctx,
+                &s,
+                &set,
+                &opts(1, 1),
+                &[("STCVAE_GPU_TEST_DISPATCH_ROW", bad)],
+            ),
+            bad,
+        );
+        assert!(
+            e.contains("STCVAE_GPU_TEST_DISPATCH_ROW") && e.contains("allowed 1 to 65535"),
+            "{e}"
+        );
+    }
+}
+
 /// A stop request mid-chunk drops the chunk, as the CPU drops an unfinished pass: the
 /// image holds the whole chunks before it, bit for bit a render of that many spp, and so
 /// do the counters. On a software adapter the 256×544 image renders in three bands (of at

@@ -83,7 +83,18 @@ pub struct KernelShape {
     /// what the host's NaN poison is for. Off, its branch in `slot_begin` is constant
     /// false. The one field of the shape that changes the image.
     pub unwritten_pixel: Option<u32>,
+    /// Workgroups a dispatch lays out along x before it takes further rows along y:
+    /// [`DISPATCH_ROW`], the most a dimension allows everywhere, which only images of
+    /// more than ~4 M path slots exceed. A test hook (`STCVAE_GPU_TEST_DISPATCH_ROW`)
+    /// lowers it, so that the second dimension (slot_of's `gid.y`, and the staged
+    /// render's indirect dispatches) runs on images small enough for lavapipe. Changes
+    /// no path.
+    pub dispatch_row: u32,
 }
+
+/// The most workgroups a dispatch dimension may hold on any adapter (WebGPU's default
+/// `max_compute_workgroups_per_dimension`).
+pub const DISPATCH_ROW: u32 = 65_535;
 
 impl Default for KernelShape {
     fn default() -> Self {
@@ -96,6 +107,7 @@ impl Default for KernelShape {
             steps: true,
             ahead: true,
             unwritten_pixel: None,
+            dispatch_row: DISPATCH_ROW,
         }
     }
 }
@@ -272,9 +284,10 @@ impl KernelShape {
         };
         format!(
             "const WORKGROUP: u32 = {}u;\nconst STACK_STRIDE: u32 = {stride}u;\n{stack}\n\
-             const UNWRITTEN_PIXEL: u32 = {}u;\n",
+             const UNWRITTEN_PIXEL: u32 = {}u;\nconst DISPATCH_ROW: u32 = {}u;\n",
             self.workgroup,
-            self.unwritten_pixel.unwrap_or(u32::MAX)
+            self.unwritten_pixel.unwrap_or(u32::MAX),
+            self.dispatch_row
         )
     }
 }

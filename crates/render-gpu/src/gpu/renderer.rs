@@ -81,7 +81,8 @@ fn parse_lane_samples(v: &str) -> Result<Option<u32>, RenderError> {
 /// `STCVAE_GPU_STACK` (`workgroup` or `private`), each [`KernelShape::default`]'s when
 /// unset. For measuring on hardware GPUs: the image does not depend on them. (Also the
 /// test hook `STCVAE_GPU_TEST_UNWRITTEN_PIXEL`, [`KernelShape::unwritten_pixel`], which
-/// makes the render fail.)
+/// makes the render fail, and `STCVAE_GPU_TEST_DISPATCH_ROW`,
+/// [`KernelShape::dispatch_row`].)
 pub fn kernel_shape() -> Result<KernelShape, RenderError> {
     let mut shape = KernelShape::default();
     if let Some(v) = env_value("STCVAE_GPU_WORKGROUP") {
@@ -150,6 +151,20 @@ pub fn kernel_shape() -> Result<KernelShape, RenderError> {
                     ))
                 })?,
         );
+    }
+    if let Some(v) = env_value("STCVAE_GPU_TEST_DISPATCH_ROW") {
+        shape.dispatch_row = v
+            .trim()
+            .parse::<u32>()
+            .ok()
+            .filter(|n| (1..=kernels::DISPATCH_ROW).contains(n))
+            .ok_or_else(|| {
+                RenderError::Gpu(format!(
+                    "STCVAE_GPU_TEST_DISPATCH_ROW={v:?} is out of range: allowed 1 to {} \
+                     workgroups a row (a test hook: unset it)",
+                    kernels::DISPATCH_ROW
+                ))
+            })?;
     }
     if let Some(v) = env_value("STCVAE_GPU_STACK") {
         shape.stack = parse_choice(
@@ -598,7 +613,7 @@ fn plan_bands(
     fit: u64,
     binding_bytes: u64,
     slot_bytes: u64,
-    workgroup: u32,
+    shape: &KernelShape,
 ) -> Result<Vec<Band>, RenderError> {
     let row_slots = cam.width as u64 * lanes as u64;
     let band_rows = band_rows(fit, row_slots, cam.height, ctx.adapter.software);
@@ -612,28 +627,39 @@ fn plan_bands(
             ctx.limits.max_storage_buffer_binding_size
         )));
     }
-    Ok((0..cam.height)
+    (0..cam.height)
         .step_by(band_rows as usize)
         .enumerate()
         .map(|(index, row0)| {
             let rows = band_rows.min(cam.height - row0);
             let threads = cam.width as u64 * rows as u64 * lanes as u64;
-            // Workgroups as (x, y) within the 65,535 a dimension allows.
-            let groups = threads.div_ceil(workgroup as u64);
-            Band {
+            // Workgroups as (x, y): rows of `dispatch_row` (65,535, the most a dimension
+            // allows, unless a test lowers it).
+            let groups = threads.div_ceil(shape.workgroup as u64);
+            let row = shape.dispatch_row as u64;
+            let grid = if groups <= row {
+                (groups as u32, 1)
+            } else {
+                (row as u32, groups.div_ceil(row))
+            };
+            if grid.1 > kernels::DISPATCH_ROW as u64 {
+                return Err(RenderError::Gpu(format!(
+                    "a band of {groups} workgroups takes {} rows of {row} \
+                     (STCVAE_GPU_TEST_DISPATCH_ROW), over the {} a dispatch allows",
+                    grid.1,
+                    kernels::DISPATCH_ROW
+                )));
+            }
+            Ok(Band {
                 index,
                 row0,
                 rows,
-                groups: if groups <= 65535 {
-                    (groups as u32, 1)
-                } else {
-                    (65535, groups.div_ceil(65535) as u32)
-                },
+                groups: (grid.0, grid.1 as u32),
                 stride: tile_stride(groups) as f32,
                 bytes: threads * slot_bytes,
-            }
+            })
         })
-        .collect())
+        .collect()
 }
 
 /// Poisons the accumulation buffers: a pixel the kernel never wrote stays NaN and is
@@ -931,7 +957,7 @@ pub fn render_gpu(
         ahead: shape.ahead && shape.staged && snapshot.is_none(),
         cancel,
     };
-    let mut dispatch = first_dispatch_stats(&shape, bands.len(), &kernels, gpu.ahead);
+    let mut dispatch = first_dispatch_stats(&shape, &bands, &kernels, gpu.ahead);
     let plan = ChunkPlan {
         lanes,
         spp,
@@ -1085,15 +1111,7 @@ fn plan_slots(
         .min(limits.max_buffer_size)
         / binding_bytes;
     let (lanes, spp) = lanes_and_spp(ctx, cam, fit, opts)?;
-    let bands = plan_bands(
-        ctx,
-        cam,
-        lanes,
-        fit,
-        binding_bytes,
-        slot_bytes,
-        shape.workgroup,
-    )?;
+    let bands = plan_bands(ctx, cam, lanes, fit, binding_bytes, slot_bytes, shape)?;
     Ok((lanes, spp, bands))
 }
 
@@ -1124,12 +1142,13 @@ impl SceneArrays {
 /// The dispatch statistics known before the first dispatch.
 fn first_dispatch_stats(
     shape: &KernelShape,
-    bands: usize,
+    bands: &[Band],
     kernels: &Kernels,
     ahead: bool,
 ) -> DispatchStats {
     DispatchStats {
-        bands: bands as u32,
+        bands: bands.len() as u32,
+        grid_rows: bands.iter().map(|b| b.groups.1).max().unwrap_or(1),
         workgroup: shape.workgroup,
         stack: Some(shape.stack),
         staged: shape.staged,
