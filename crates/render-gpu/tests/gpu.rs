@@ -979,9 +979,9 @@ const MIN_BLOCK_DOF: f64 = 20.0;
 /// null for k ≥ 30, ≥ 5 sd for k ≥ 56, and max
 /// |z| < 6.5) fail it while noise alone passes with a wide margin.
 ///
-/// Across the file (counted 2026-12-05): 41 render comparisons at 24² or 32² (at most 64
-/// blocks × 3 channels each) and two work maps at 48² (144 blocks, channel 0 only), at
-/// most ~8,200 block z's in all. At the floor ν = 20 each passes 6.5 with probability
+/// Across the file (counted 2026-12-07): 44 render comparisons at 24² or 32² (at most 64
+/// blocks × 3 channels each) and three work maps at 48² (144 blocks, channel 0 only), at
+/// most ~8,900 block z's in all. At the floor ν = 20 each passes 6.5 with probability
 /// 2.5e-6 (≈ 2 % over the file if every block sat there); most blocks have ν near 90
 /// (16 pixels × 3 per device), where it is 4e-9. The seeds are fixed, so that is the chance that a reseed or a change that only
 /// redraws the random numbers trips it, not a flaky run.
