@@ -343,6 +343,17 @@ fn broken_files_give_clear_errors() {
         e.contains("stub.glb") && e.contains("truncated GLB file: 11 bytes"),
         "{e}"
     );
+    // Cut within the magic itself: 1–3 bytes of "glTF" (other short files are not GLBs).
+    for n in 1..4 {
+        let e = load_mesh(&write(&d, "magic.glb", &glb[..n]))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(&format!("truncated GLB file: {n} bytes")), "{e}");
+    }
+    let e = load_mesh(&write(&d, "gx.glb", b"gx"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("GLB magic"), "{e}");
     let mut long = glb.clone();
     long.extend_from_slice(&[0; 16]);
     assert!(load_mesh(&write(&d, "long.glb", &long)).is_ok());

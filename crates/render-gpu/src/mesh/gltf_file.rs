@@ -198,12 +198,11 @@ fn parse_document(
     let glb = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("glb"));
+    // A .glb of 1–3 bytes that begin the magic is one cut within it.
+    let header_begun =
+        bytes.starts_with(b"glTF") || (glb && !bytes.is_empty() && b"glTF".starts_with(bytes));
     // (A JSON glTF under a .glb name, which gltf reads, is let through.)
-    if glb
-        && !bytes.is_empty()
-        && !bytes.starts_with(b"glTF")
-        && !bytes.trim_ascii_start().starts_with(b"{")
-    {
+    if glb && !bytes.is_empty() && !header_begun && !bytes.trim_ascii_start().starts_with(b"{") {
         return Err(RenderError::mesh(
             path,
             "not a valid GLB file: it does not start with the GLB magic `glTF`",
@@ -213,7 +212,7 @@ fn parse_document(
     // is cut short: said so, where gltf says "could not completely read the object" (or
     // "failed to fill whole buffer"). Bytes after the declared end are left to gltf, which
     // ignores them (harmless, and some tools may pad).
-    if bytes.starts_with(b"glTF") {
+    if header_begun {
         if bytes.len() < 12 {
             return Err(RenderError::mesh(
                 path,
