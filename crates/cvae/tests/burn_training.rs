@@ -293,6 +293,63 @@ fn a_resumed_run_equals_the_uninterrupted_one() {
     );
 }
 
+/// A finished run resumed with more steps reports at every report step after it, even
+/// one within the LOG_EVERY (10) steps past its end: finished at step 995, its reading
+/// window up to the report at step 1,000 holds steps 995..999 and no multiple of 10. That
+/// report was skipped (no history entry at 1,000) until the step before a report with no
+/// reading yet was read too. The history is the finished run's, then 1,000 and 1,200.
+#[test]
+fn a_finished_run_resumed_with_more_steps_skips_no_report() {
+    let s = scatter_sim::ConditionSampler::fixed(scatter_sim::Conditions {
+        tau: 5.0,
+        g: 0.3,
+        albedo: 1.0,
+    });
+    let rows: Vec<_> = (0..2000).map(|w| walk_row(23, &s, w).0).collect();
+    let table = Table::build(ModelKind::PathGen, &rows, SingleScattering::Exact);
+    let cfg = |steps| ModelConfig {
+        latent: 2,
+        hidden: vec![8],
+        encoder_hidden: None,
+        steps,
+        batch_size: 16,
+        lr: 5e-3,
+        lr_final: 1e-3,
+        warmup: Some(20),
+    };
+    let dev = Device::flex().autodiff();
+    let dir = tempfile::tempdir().unwrap();
+    let run = |steps: u64, resume: bool| {
+        let reports = std::sync::Mutex::new(Vec::new());
+        let report = |_: ModelKind, step: u64, _: f32, _: Option<&ValidationPoint>| {
+            reports.lock().unwrap().push(step);
+        };
+        let cancel = AtomicBool::new(false);
+        let trained = train_model(
+            ModelKind::PathGen,
+            &table,
+            &cfg(steps),
+            8,
+            &dev,
+            dir.path(),
+            0,
+            resume,
+            &cancel,
+            None,
+            &report,
+        )
+        .unwrap();
+        (trained, reports.into_inner().unwrap())
+    };
+    let (_, first) = run(995, false);
+    assert_eq!(first, [1, 500, 995]);
+    // The resumed run first says where it stands (step 995), then reports on.
+    let (more, rest) = run(1200, true);
+    assert_eq!(rest, [995, 1000, 1200]);
+    let steps: Vec<u64> = more.info.history.iter().map(|h| h.0).collect();
+    assert_eq!(steps, [1, 500, 995, 1000, 1200]);
+}
+
 /// PathGen on 20,000 walks at three fixed conditions: 600 Adamax steps lower the loss
 /// and the KS distance of cos θ to fresh simulator walks falls below the untrained one.
 #[test]

@@ -346,10 +346,10 @@ impl CheckpointInfo {
         }
         // A run reports every REPORT_EVERY steps and at its last, and saves after its
         // report, so a record is less than REPORT_EVERY steps past its history's last entry,
-        // but for a skipped report: one whose steps since the last read no loss (a finished
-        // run resumed with more steps 1 to 9 steps before a report step, or a record saved
-        // before streams were kept, whose resume restarted the readings) adds no entry,
-        // and the gap then reaches up to 2·REPORT_EVERY − 1. Twice that is refused: an edited
+        // but for a skipped report: one whose steps since the last read no loss (a record
+        // saved before streams were kept, whose resume restarted the readings, or one saved
+        // before 2026-12-07 by a finished run resumed with more steps 1 to 9 steps before a
+        // report step) adds no entry, and the gap then reaches up to 2·REPORT_EVERY − 1. Twice that is refused: an edited
         // step of 999,999,999 on a run stopped at 4,366 was taken for a finished run, and
         // its model written with that step count.
         if let Some(&(last, _)) = self.history.last()
@@ -740,8 +740,12 @@ pub fn train_model(
         let terms = model.loss(tc, tt, te);
         // Step 0 is always logged: it is the untrained model's loss; so is the last step,
         // whose report is the final loss (a run shorter than LOG_EVERY steps otherwise
-        // reported its first step's loss as the final one).
-        let log_now = info.step.is_multiple_of(LOG_EVERY) || info.step + 1 == cfg.steps;
+        // reported its first step's loss as the final one); and the step before a report
+        // whose window has no reading yet (a finished run resumed with more steps 1 to 9
+        // steps before a report step skipped that report). Only such a window changes.
+        let log_now = info.step.is_multiple_of(LOG_EVERY)
+            || info.step + 1 == cfg.steps
+            || (acc_n == 0 && (info.step + 1).is_multiple_of(REPORT_EVERY));
         if log_now {
             let v = terms.loss.clone().into_scalar::<f32>();
             if !v.is_finite() {
