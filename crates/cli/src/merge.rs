@@ -1001,6 +1001,21 @@ mod tests {
             &[render(2, "1"), render(1, "2"), render(2, "3")],
             &tag
         ));
+        // In any order of the inputs, and of seeds whose text sorts apart from their value
+        // (9 and 10).
+        assert!(renders_complete(
+            &[render(2, "3"), render(1, "2"), render(2, "1")],
+            &tag
+        ));
+        let nine_ten = RenderTag {
+            seeds: vec![9, 10],
+            spp: 3,
+            ..tag.clone()
+        };
+        assert!(renders_complete(
+            &[render(2, "9"), render(1, "10")],
+            &nine_ten
+        ));
         // A stale report (another seed, same spp), a missing one, spp that do not add up
         // or overflow, a render of unknown seed in the image.
         assert!(!renders_complete(&[render(2, "9"), merged.clone()], &tag));

@@ -342,6 +342,46 @@ fn merge_keeps_one_input_open() {
     assert!(whole == merged, "merged rows differ from the unsharded run");
 }
 
+/// A shard whose rows no longer match its checksum (one bit of its last row's τ flipped:
+/// 5 → 5.0000005, still a valid row) is refused by `merge`, naming it, and no output is
+/// left: the check runs as the rows are copied, at the read past each input's last row,
+/// and the output would otherwise carry a fresh checksum over the corrupt row.
+#[test]
+fn merge_refuses_an_input_whose_rows_fail_its_checksum() {
+    let dir = tempfile::tempdir().unwrap();
+    ok(&stcvae(
+        &words("generate --samples 50 --tau 5 --g 0 --albedo 1 --out a.bin"),
+        dir.path(),
+    ));
+    let mut bytes = fs::read(dir.path().join("a.bin")).unwrap();
+    // The rows end 12 bytes before the file does (CRC and end marker); a row is 56 bytes,
+    // τ its first f32.
+    let tau = bytes.len() - 12 - scatter_sim::dataset::ROW_BYTES;
+    assert_eq!(
+        f32::from_le_bytes(bytes[tau..tau + 4].try_into().unwrap()),
+        5.0
+    );
+    bytes[tau] ^= 1;
+    fs::write(dir.path().join("bad.bin"), &bytes).unwrap();
+    let out = stcvae(&words("merge bad.bin --out m.bin"), dir.path());
+    assert!(!out.status.success());
+    let e = stderr(&out);
+    assert!(e.contains("bad.bin: checksum mismatch"), "{e}");
+    assert!(!dir.path().join("m.bin").exists());
+}
+
+/// Fixed conditions without --samples simulate the 10,000 walks `--help` promises.
+#[test]
+fn fixed_conditions_default_to_ten_thousand_walks() {
+    let dir = tempfile::tempdir().unwrap();
+    ok(&stcvae(
+        &words("generate --tau 1 --g 0 --albedo 1 --out x.bin"),
+        dir.path(),
+    ));
+    let (header, rows) = read_dataset(&dir.path().join("x.bin")).unwrap();
+    assert_eq!((header.count, rows.len()), (10_000, 10_000));
+}
+
 #[test]
 fn shards_merge_into_the_unsharded_run() {
     let dir = tempfile::tempdir().unwrap();
@@ -919,6 +959,12 @@ fn bad_input_gives_one_line_errors() {
             "generate --config tauf.toml --out x.bin",
             "tauf.toml:3: invalid type: floating point `5.0`, expected a table such as \
              { kind = \"power\", max = 300.0, exponent = 3.0 } (kind: power, uniform or fixed)",
+        ),
+        // A config and fixed conditions: one or the other (the config's walks and seed
+        // were dropped for 10,000 walks at seed 1 had this check been lost).
+        (
+            "generate --config ok.toml --tau 5 --g 0 --albedo 1 --out x.bin",
+            "--config and --tau/--g/--albedo are exclusive",
         ),
         // An output that is the command's own input: the config would be replaced.
         (

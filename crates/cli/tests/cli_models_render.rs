@@ -393,6 +393,50 @@ fn an_interrupted_image_merge_writes_the_set_whole_or_not_at_all() {
     }
 }
 
+/// A merge of images wider than tall (every other merge test's are square): the merged
+/// image and its report keep width and height apart, and each pixel is the spp-weighted
+/// mean of the inputs', (1·a + 3·b)/4.
+#[test]
+fn a_merge_of_wide_images_keeps_their_shape() {
+    use render_gpu::image_io::{RenderTag, RgbImage, read_exr, write_exr};
+    let d = tempfile::tempdir().unwrap();
+    for (seed, spp, value) in [(1u64, 1u64, 1.0f32), (2, 3, 2.0)] {
+        let mut img = RgbImage::new(4, 2);
+        for (i, p) in img.pixels.iter_mut().enumerate() {
+            *p = [value * (i + 1) as f32, value, 0.5 * value];
+        }
+        let tag = RenderTag {
+            spp,
+            scene_hash: 7,
+            seeds: vec![seed],
+            partial: false,
+            unknown_digests: Vec::new(),
+            view_hash: None,
+        };
+        write_exr(&d.path().join(format!("r{seed}.exr")), &img, &tag).unwrap();
+    }
+    let o = common::stcvae(&["merge", "r1.exr", "r2.exr", "--out", "m"], d.path());
+    assert!(o.status.success(), "{}", common::stderr(&o));
+    let (merged, tag) = read_exr(&d.path().join("m.exr")).unwrap();
+    assert_eq!((merged.width, merged.height, tag.unwrap().spp), (4, 2, 4));
+    for (i, p) in merged.pixels.iter().enumerate() {
+        let want = [1.75 * (i + 1) as f32, 1.75, 0.875];
+        for (c, (&got, want)) in p.iter().zip(want).enumerate() {
+            assert!(
+                (got - want).abs() <= 1e-6 * want,
+                "pixel {i}, channel {c}: {got}"
+            );
+        }
+    }
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.path().join("m.json")).unwrap()).unwrap();
+    assert_eq!(
+        (&json["width"], &json["height"]),
+        (&4.into(), &2.into()),
+        "{json}"
+    );
+}
+
 #[test]
 fn render_writes_exr_png_json_and_merge_averages_by_spp() {
     let d = tempfile::tempdir().unwrap();

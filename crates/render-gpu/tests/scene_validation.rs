@@ -73,6 +73,24 @@ fn out_of_range_medium_names_the_field() {
     assert!(e.contains("medium.g") && e.contains("0.999"), "{e}");
     let e = err(&BASE.replace("g = 0.0", "g = -1.5"));
     assert!(e.contains("medium.g"), "{e}");
+    // NaN (TOML's `nan`) fails every comparison: each check must refuse it rather than
+    // let it through to the integrators.
+    for (from, to, field) in [
+        (
+            "sigma_t = [10.0, 10.0, 10.0]",
+            "sigma_t = [10.0, nan, 10.0]",
+            "medium.sigma_t[1]",
+        ),
+        (
+            "albedo = [0.99, 0.99, 0.99]",
+            "albedo = [nan, 0.99, 0.99]",
+            "medium.albedo[0]",
+        ),
+        ("g = 0.0", "g = nan", "medium.g"),
+    ] {
+        let e = err(&BASE.replace(from, to));
+        assert!(e.contains(field) && e.contains("out of range"), "{e}");
+    }
 }
 
 #[test]
@@ -85,6 +103,9 @@ fn other_fields_are_checked() {
         e.contains("camera.fov_deg = 1e-300 is out of range: allowed [0.0001, 180)"),
         "{e}"
     );
+    // 180° itself: tan 90° and a degenerate camera, outside the half-open range.
+    let e = err(&BASE.replace("fov_deg = 20.0", "fov_deg = 180.0"));
+    assert!(e.contains("camera.fov_deg = 180 is out of range"), "{e}");
     let e = err(&BASE.replace("width = 8", "width = 0"));
     assert!(e.contains("camera.width"), "{e}");
     let e = err(&BASE.replace("shape = \"sphere\"", "shape = \"sphere\"\nmesh = \"a.glb\""));
@@ -99,6 +120,18 @@ fn other_fields_are_checked() {
     ));
     assert!(
         e.contains("object.radius and object.height") && e.contains("no effect"),
+        "{e}"
+    );
+    // A cube's size beside a height, and a radius on a shape other than the sphere:
+    // either would be ignored without a word.
+    let e = err(&BASE.replace(
+        "shape = \"sphere\"",
+        "shape = \"cube\"\nsize = 2.0\nheight = 1.0",
+    ));
+    assert!(e.contains("object.size and object.height"), "{e}");
+    let e = err(&BASE.replace("shape = \"sphere\"", "shape = \"cube\"\nradius = 0.7"));
+    assert!(
+        e.contains("object.radius applies to shape = \"sphere\" only"),
         "{e}"
     );
     // Looking straight down with the default up: the message shows the value the file
@@ -131,6 +164,10 @@ fn other_fields_are_checked() {
         "{BASE}\n[render]\nintegrator = \"stcvae\"\nmin_tau = 0.0\nmax_tau = 1e-300\n"
     ));
     assert!(e.contains("render.max_tau = 1e-300 is out of range"), "{e}");
+    // max_tau equal to min_tau is allowed (max_tau >= min_tau): steps of one size.
+    let equal =
+        format!("{BASE}\n[render]\nintegrator = \"stcvae\"\nmin_tau = 5.0\nmax_tau = 5.0\n");
+    SceneFile::parse(Path::new("s.toml"), &equal).unwrap();
     for bad in ["-1.0", "51.0", "nan"] {
         let e = err(&format!("{BASE}\n[render]\nexact_tau = {bad}\n"));
         assert!(
