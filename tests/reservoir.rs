@@ -77,3 +77,41 @@ fn zero_albedo_keeps_the_centre_event() {
     let counts = choose_counts(20, 0.0, 1000, 3);
     assert_eq!(counts[1], 1000);
 }
+
+/// Long paths at albedos just below 1, where φ^k still falls by a factor of e^2.25 and
+/// e^0.5 over the path (N = 5,000 at φ = 0.99995 and 50,000 at 0.99999; the authors'
+/// τ = 300 walks have N ~ 4.5·10⁴ and a fifth of their albedos within 1e-4 of 1): the
+/// chi-square case above at 1 − 1e-6 has weights that vary by 2e-4 and would not see a
+/// reservoir that took such albedos for 1 (a uniform choice). The mean chosen index
+/// against Σkφ^k/Σφ^k summed directly, as a z-score with the exact sd of the choice
+/// over √trials: |z| < 4.5 (false alarm ~7e-6 per case). A uniform choice moves the
+/// means by z ≈ 10 and 9 (2500.5 for 2396.4 ± 10.2; 25000.5 for 22925.8 ± 227).
+#[test]
+fn long_paths_near_albedo_one_weigh_late_events_less() {
+    for (i, (n, albedo, trials)) in [(5_000u64, 0.99995, 20_000u64), (50_000, 0.99999, 4_000)]
+        .into_iter()
+        .enumerate()
+    {
+        let counts = choose_counts(n, albedo, trials, 60 + i as u64);
+        let (mut lambda, mut m1, mut m2) = (0.0f64, 0.0f64, 0.0f64);
+        for k in 1..=n {
+            let w = (k as f64 * f64::ln(albedo)).exp();
+            lambda += w;
+            m1 += k as f64 * w;
+            m2 += (k * k) as f64 * w;
+        }
+        let (mean, var) = (m1 / lambda, m2 / lambda - (m1 / lambda).powi(2));
+        let observed: f64 = counts
+            .iter()
+            .enumerate()
+            .map(|(k, &c)| k as f64 * c as f64)
+            .sum::<f64>()
+            / trials as f64;
+        let z = (observed - mean) / (var / trials as f64).sqrt();
+        assert!(
+            z.abs() < 4.5,
+            "N = {n}, phi = {albedo}: mean chosen index {observed:.1}, expected {mean:.1} \
+             (z = {z:.1})"
+        );
+    }
+}

@@ -403,6 +403,61 @@ mod tests {
         );
     }
 
+    /// `phase_share` switches the mixture on exactly where the lobe's π(1 − |g|)² sr is
+    /// below the disk's solid angle (cases on both sides of it, which a lobe of π(1 − |g|)
+    /// would put on the other side for the 80° disk at g = 0.5 and the sun at 0.999), and
+    /// `extreme_cos` gives the phase function's largest value over the disk, the path
+    /// proxy's bound: for 300 random w per case, at least the largest over 2,000 of the
+    /// disk's own draws (less 2e-3 for f32's acos and cos: an error of ~1e-4 rad at these
+    /// g moves HG's density by well under that), for g of both signs.
+    #[test]
+    fn the_phase_share_and_the_extreme_cosine_follow_the_lobe() {
+        use scatter_sim::phase::{hg_pdf, hg_pdf_between};
+        let light = |diameter: f64| {
+            DirectionalLight::new(&LightDesc {
+                kind: crate::scene::LightKind::Directional,
+                direction: [0.3, -1.0, -0.2],
+                irradiance: [2.0, 1.0, 0.5],
+                angular_diameter_deg: diameter,
+            })
+        };
+        // (diameter, g, share): the 80° disk holds 1.47 sr, the 40° one 0.38, the sun
+        // 6.7e-5; lobes 0.785 (g 0.5), 0.283 (0.7), 3.1e-6 (0.999), 3.1e-4 (0.99).
+        for (diameter, g, share) in [
+            (80.0, 0.5, 0.5),
+            (40.0, 0.5, 0.0),
+            (40.0, -0.7, 0.5),
+            (0.53, 0.999, 0.5),
+            (0.53, -0.99, 0.0),
+        ] {
+            assert_eq!(light(diameter).phase_share(g), share, "{diameter}°, g {g}");
+        }
+        let mut rng = scatter_sim::WalkRng::from_seed(29);
+        let mut u = move || crate::integrator::uniform(&mut rng);
+        for diameter in [80.0, 40.0] {
+            let l = light(diameter);
+            for g in [0.5f32, -0.6, 0.95, -0.95] {
+                for _ in 0..300 {
+                    let z = 2.0 * u() - 1.0;
+                    let phi = std::f32::consts::TAU * u();
+                    let r = (1.0 - z * z).max(0.0).sqrt();
+                    let w = Vec3::new(r * phi.cos(), r * phi.sin(), z);
+                    let bound = hg_pdf(g as f64, l.extreme_cos(w, g) as f64);
+                    let most = (0..2000)
+                        .map(|_| {
+                            let (dir, _) = l.sample(u(), u(), 0);
+                            hg_pdf_between(g as f64, w.as_dvec3(), dir.as_dvec3())
+                        })
+                        .fold(0.0, f64::max);
+                    assert!(
+                        bound >= (1.0 - 2e-3) * most,
+                        "{diameter}° disk, g {g}, w {w}: bound {bound}, a draw {most}"
+                    );
+                }
+            }
+        }
+    }
+
     /// A sun disk's irradiance on a plane facing it is the scene's E: ∫ L cos θ dω over the
     /// disk, summed here by the midpoint rule in θ (20,000 rings; its error is ~1e-9) with
     /// the radiance read through `radiance_toward` at each ring, so the disk's edge and

@@ -292,5 +292,38 @@ mod tests {
             &|a| ((1.0 - (1.0 + 1e-6 - a).powf(1.0 / 6.0)) / (1.0 - atom)).clamp(0.0, 1.0),
             "albedo",
         );
+        // Independent of each other (the marginals above would not see one drawn from
+        // another's uniform, which leaves every marginal exact): each mapped back to its
+        // uniform, Pearson's r of every pair within 4.5/√n (under independence r has sd
+        // 1/√n; a false alarm ~2e-5 over the three). One uniform used twice gives r ≈ 1.
+        let uniforms: Vec<[f64; 3]> = draws
+            .iter()
+            .map(|c| {
+                [
+                    (c.tau / 300.0).cbrt(),
+                    (c.g + 1.0) / 2.0,
+                    (1.0 + 1e-6 - c.albedo).powf(1.0 / 6.0),
+                ]
+            })
+            .collect();
+        let r = |a: usize, b: usize| {
+            let m = |i: usize| uniforms.iter().map(|u| u[i]).sum::<f64>() / n as f64;
+            let (ma, mb) = (m(a), m(b));
+            let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
+            for u in &uniforms {
+                let (x, y) = (u[a] - ma, u[b] - mb);
+                sab += x * y;
+                saa += x * x;
+                sbb += y * y;
+            }
+            sab / (saa * sbb).sqrt()
+        };
+        for (a, b) in [(0, 1), (0, 2), (1, 2)] {
+            let r = r(a, b);
+            assert!(
+                r.abs() < 4.5 / (n as f64).sqrt(),
+                "conditions {a} and {b} (tau, g, albedo) correlate: r = {r:.4}"
+            );
+        }
     }
 }

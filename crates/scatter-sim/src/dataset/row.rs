@@ -322,6 +322,9 @@ mod tests {
             (0, "1e308", "tau = 1e308 is out of range (beyond f32"),
             (0, "inf", "tau = \"inf\" is not a finite number"),
             (10, "nan", "ev_wx"),
+            // W = (0, 0, 0.8), |W|² = 0.64: too short as well as too long is refused.
+            (10, "0", "event"),
+            (10, "0.7", "event"),
         ] {
             let mut fields = good.clone();
             fields[col] = bad.to_string();
