@@ -5,7 +5,7 @@
 mod common;
 
 use glam::Vec3;
-use render_gpu::integrator::nee::{transmittance, transmittance_ordered};
+use render_gpu::integrator::nee::{transmittance, transmittance_ordered, transmittance_refracted};
 use render_gpu::setup::SceneData;
 use scatter_sim::WalkRng;
 
@@ -110,6 +110,64 @@ fn one_traversal_matches_ordered_walk_dielectric() {
 ior = 1.5"#,
         6,
     );
+}
+
+/// The refracted shadow rays NEE casts through a dielectric (nee.rs, shadow: the depth up
+/// to the first way out scaled by its r, the beam's r) from the one traversal against the
+/// ordered walk, on shapes where a ray leaves and enters again, so that its first crossing
+/// of the boundary is not its only one: the bunny (one mesh: Geometry::crossed's `first`),
+/// and the cube with a cavity as one mesh and as overlapping pieces (the union's walk:
+/// union_walk's first way out). Every convex scene has one crossing a ray and would not
+/// see the sum refract at the wrong one. The bound as in `compare`; at least 50
+/// re-entering rays a scene.
+#[test]
+fn refracted_shadow_rays_refract_at_their_first_way_out() {
+    let dielectric = "kind = \"dielectric\"\nior = 1.5";
+    let dir = tempfile::tempdir().unwrap();
+    let cavity = common::overlapping_parts_scenes(dir.path(), dielectric)
+        .into_iter()
+        .find(|s| s.0 == "cube with a cavity")
+        .unwrap();
+    let scenes = [
+        ("bunny".to_string(), bunny(dielectric)),
+        (
+            "cube with a cavity".to_string(),
+            common::build_scene(&cavity.1, false),
+        ),
+        (
+            "cube with a cavity, as overlapping pieces".to_string(),
+            common::build_scene(&cavity.2, false),
+        ),
+    ];
+    for (seed, (what, scene)) in scenes.iter().enumerate() {
+        assert_eq!(
+            scene.geo.pieces.is_some(),
+            what.contains("pieces"),
+            "{what}"
+        );
+        let mut rng = WalkRng::for_walk(40 + seed as u64, 0);
+        let (mut rays, mut off, mut reentering) = (0usize, 0usize, 0usize);
+        for _ in 0..2000 {
+            let x = common::random_interior(&scene.geo, &mut rng);
+            for _ in 0..4 {
+                let d = common::uniform_direction(&mut rng);
+                reentering += (crossing_count(scene, x, d) > 1) as usize;
+                for channel in 0..3 {
+                    let a = transmittance_refracted(scene, x, d, channel, false);
+                    let b = transmittance_refracted(scene, x, d, channel, true);
+                    rays += 1;
+                    if !((a - b).abs() <= 2e-3 * b.max(1e-3) + 1e-6) {
+                        off += 1;
+                    }
+                }
+            }
+        }
+        assert!(
+            off * 1000 <= rays,
+            "{what}: {off} of {rays} refracted shadow rays disagree with the ordered walk"
+        );
+        assert!(reentering >= 50, "{what}: only {reentering} rays re-enter");
+    }
 }
 
 #[test]
