@@ -724,3 +724,95 @@ fn non_finite_decoders_are_refused() {
         );
     }
 }
+
+/// EventGen's conditions in a render are the ones it was trained on: the training table
+/// builds them from a walk's row as `features::event_cond(τ, g, φ, N, cos θ, β, α)`
+/// (train/data.rs, the dataset's column order), and `event_draw` must give the same for
+/// a walk whose exit has those values (α ≠ β, so an exit passed as (α, β) shows; the
+/// model-file probes use α = β). Exact, f32 of the same f64s.
+#[test]
+fn event_draws_take_the_conditions_training_gave() {
+    use cvae::ModelWalk;
+    use cvae::features::WalkFeatures;
+    use scatter_sim::frame::CanonicalExit;
+    let m = random_models(6, 1.0);
+    let exit = CanonicalExit {
+        cos_theta: 0.3,
+        alpha: 0.1,
+        beta: -0.2,
+    };
+    let (tau, g, albedo, n) = (5.0, 0.3, 0.9, 6);
+    let walk = ModelWalk::multiple(n, exit, WalkFeatures::new(tau, g, albedo), albedo);
+    let mut rng = WalkRng::from_seed(4);
+    // Exact mode picks the centre with probability φ/Λ(6) (no decoder): draw until not.
+    let d = (0..100)
+        .find_map(|_| m.event_draw(&walk, &mut rng))
+        .expect("a decoder draw in 100 tries");
+    let trained = cvae::features::event_cond(tau, g, albedo, n, 0.3, -0.2, 0.1);
+    // The decoder's standardisation of the trained conditions, (c − shift)/scale.
+    let e = &m.event;
+    assert_eq!(e.cond, trained.len());
+    let want: Vec<f32> = (0..e.cond)
+        .map(|i| (trained[i] as f32 - e.cond_shift[i]) / e.cond_scale[i])
+        .collect();
+    assert_eq!(d.input[..e.cond], want[..]);
+}
+
+/// The exact single-scattering walk (N = 1, event 1 at the centre) carries Λ(1) = φ as
+/// its NEE weight and φ as its survival, summed here term by term: Λ(N) = N holds at
+/// φ = 1 only. At τ = 1e-9 the branch is taken with probability 1 − 1e-9.
+#[test]
+fn the_single_scattering_walk_weighs_its_one_event_by_the_albedo() {
+    use cvae::features::WalkFeatures;
+    let m = random_models(6, 1.0);
+    let mut rng = WalkRng::from_seed(8);
+    for albedo in [0.0, 0.3, 0.8, 0.99, 1.0] {
+        let w = m
+            .single_walk(
+                WalkFeatures::new(1e-9, 0.2, albedo),
+                1e-9,
+                0.2,
+                albedo,
+                &mut rng,
+            )
+            .expect("the N = 1 branch at τ = 1e-9");
+        let lambda: f64 = (1..=1).map(|k| albedo_pow(albedo, k)).sum();
+        assert_eq!(
+            (w.n, w.lambda, w.survival),
+            (1, lambda, albedo),
+            "φ = {albedo}"
+        );
+    }
+}
+
+/// `event_draws` with more than two draws a walk: pairs of a fresh draw and its mirror,
+/// each pair fresh (a third draw that mirrored the mirror would repeat the first, and
+/// four EventGen draws would buy what two do). Draws 0 and 2 never equal, 3 mirrors 2.
+#[test]
+fn event_draws_beyond_a_pair_are_fresh() {
+    use cvae::ModelWalk;
+    use cvae::features::WalkFeatures;
+    use scatter_sim::frame::CanonicalExit;
+    let m = random_models(6, 1.0);
+    let exit = CanonicalExit {
+        cos_theta: 0.3,
+        alpha: 0.1,
+        beta: -0.2,
+    };
+    let walk = ModelWalk::multiple(6, exit, WalkFeatures::new(5.0, 0.3, 0.9), 0.9);
+    let mut rng = WalkRng::from_seed(10);
+    let (mut draws, mut pairs) = (Vec::new(), 0);
+    for _ in 0..2000 {
+        draws.clear();
+        m.event_draws(&walk, 4, &mut rng, &mut draws);
+        if let [Some(a), _, Some(c), Some(d)] = &draws[..] {
+            pairs += 1;
+            assert_ne!(a.input, c.input, "draw 2 repeats draw 0");
+            assert_eq!(m.event.mirrored(c).input, d.input, "draw 3 mirrors draw 2");
+        }
+    }
+    assert!(
+        pairs > 1000,
+        "only {pairs} walks with draws 0, 2 and 3 from the decoder"
+    );
+}
