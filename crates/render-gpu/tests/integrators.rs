@@ -217,6 +217,50 @@ angular_diameter_deg = 40.0
 grid_resolution = 64
 "#;
 
+/// A sun disk in view: a camera ray that escapes without scattering sees the disk's
+/// radiance L = E/(π sin²θ) (θ its half-angle, written out here) over the environment,
+/// with NEE on as with NEE off. NEE stands only for light reached after a scattering
+/// (`PathState::scattered`); a path that started as scattered would lose the disk from
+/// every view of the sky with NEE on, and no other scene has a disk in view. A 1° lens
+/// looking along +x past the sphere toward a 10° disk: every sample is L + 0.1, up to
+/// f32 rounding (1e-4).
+#[test]
+fn a_sun_disk_in_view_is_seen_with_nee_on() {
+    let text = SUN_SCENE
+        .replace("target = [0.0, 0.0, 0.0]", "target = [1.0, 0.0, 4.0]")
+        .replace("fov_deg = 13.0", "fov_deg = 1.0")
+        .replace("width = 16\nheight = 16", "width = 4\nheight = 4")
+        .replace(
+            "direction = [0.3, -1.0, -0.2]",
+            "direction = [-1.0, 0.0, 0.0]",
+        )
+        .replace(
+            "irradiance = [1.0, 1.0, 1.0]",
+            "irradiance = [1.0, 2.0, 3.0]",
+        )
+        .replace("angular_diameter_deg = 40.0", "angular_diameter_deg = 10.0")
+        + "[environment]\nradiance = [0.1, 0.1, 0.1]\n";
+    assert!(text.contains("target = [1.0, 0.0, 4.0]") && text.contains("= 10.0"));
+    let (_, s) = scene(&text, true);
+    let m = model();
+    let sin = 5f64.to_radians().sin();
+    for kind in [IntegratorKind::Pt, IntegratorKind::Stcvae] {
+        for nee in [true, false] {
+            let set = settings(kind, nee, (kind == IntegratorKind::Stcvae).then_some(&m));
+            let out = render_quiet(&s, &set, 3, 1);
+            for p in &out.image.pixels {
+                for (c, &v) in p.iter().enumerate() {
+                    let want = 0.1 + (c + 1) as f64 / (std::f64::consts::PI * sin * sin);
+                    assert!(
+                        (v as f64 / want - 1.0).abs() < 1e-4,
+                        "{kind:?}, NEE {nee}, channel {c}: {v} for {want}"
+                    );
+                }
+            }
+        }
+    }
+}
+
 /// z-score of the difference of two independent means.
 fn z(a: f64, sa: f64, b: f64, sb: f64) -> f64 {
     (a - b) / (sa * sa + sb * sb).sqrt()
