@@ -308,6 +308,16 @@ mod tests {
         assert_eq!(env.lookup(Vec3::new(0.01, -1.0, -0.01).normalize(), 0), 6.0);
     }
 
+    /// A disk of `diameter` degrees from above and to one side, unequal in its channels.
+    fn light(diameter: f64) -> DirectionalLight {
+        DirectionalLight::new(&LightDesc {
+            kind: crate::scene::LightKind::Directional,
+            direction: [0.3, -1.0, -0.2],
+            irradiance: [2.0, 1.0, 0.5],
+            angular_diameter_deg: diameter,
+        })
+    }
+
     /// NEE's mixture (`sample_from`) estimates ∫_disk L ρ_g(w·ω) dω without bias, with
     /// bounded weights where the phase lobe is narrower than the disk. Concentric cases
     /// have closed forms through HG's cosine CDF: w = ω_c (the disk's centre) gives
@@ -323,14 +333,6 @@ mod tests {
     #[test]
     fn nee_mixture_is_unbiased_and_tames_narrow_lobes() {
         use scatter_sim::phase::{hg_cos_cdf, hg_pdf_between};
-        let light = |diameter: f64| {
-            DirectionalLight::new(&LightDesc {
-                kind: crate::scene::LightKind::Directional,
-                direction: [0.3, -1.0, -0.2],
-                irradiance: [2.0, 1.0, 0.5],
-                angular_diameter_deg: diameter,
-            })
-        };
         let mut rng = scatter_sim::WalkRng::from_seed(17);
         let mut u = move || crate::integrator::uniform(&mut rng);
         // Mean, standard error and relative sd of the NEE estimate factor · ρ_g.
@@ -413,14 +415,6 @@ mod tests {
     #[test]
     fn the_phase_share_and_the_extreme_cosine_follow_the_lobe() {
         use scatter_sim::phase::{hg_pdf, hg_pdf_between};
-        let light = |diameter: f64| {
-            DirectionalLight::new(&LightDesc {
-                kind: crate::scene::LightKind::Directional,
-                direction: [0.3, -1.0, -0.2],
-                irradiance: [2.0, 1.0, 0.5],
-                angular_diameter_deg: diameter,
-            })
-        };
         // (diameter, g, share): the 80° disk holds 1.47 sr, the 40° one 0.38, the sun
         // 6.7e-5; lobes 0.785 (g 0.5), 0.283 (0.7), 3.1e-6 (0.999), 3.1e-4 (0.99).
         for (diameter, g, share) in [
@@ -479,12 +473,7 @@ mod tests {
         });
         assert!(tiny.is_delta() && tiny.sample(0.5, 0.5, 0).1 == 1.0);
         for diameter in [0.53, 10.0, 40.0, 90.0] {
-            let light = DirectionalLight::new(&LightDesc {
-                kind: crate::scene::LightKind::Directional,
-                direction: [0.3, -1.0, -0.2],
-                irradiance: [2.0, 1.0, 0.5],
-                angular_diameter_deg: diameter,
-            });
+            let light = light(diameter);
             let half = (diameter / 2.0f64).to_radians();
             let (t, _) = basis(light.to_light);
             let rings = 20_000;
