@@ -268,8 +268,8 @@ fn probe_shadow(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_in
     set_f(i, 5u, refracted);
 }
 
-/// In: an event's position at 0..2 and direction at 4..6, the channel at 3, its grid
-/// ball's radius at 7, its step's free ball (centre at 8..10, radius at 11). Out:
+/// In: an event's position at 0..3 and direction at 4..7, the channel at 3, its grid
+/// ball's radius at 7, its step's free ball (centre at 8..11, radius at 11). Out:
 /// nee_proxy (the path-level reservoirs' proxy; nee.rs, proxy) at 0.
 @compute @workgroup_size(WORKGROUP)
 fn probe_proxy(@builtin(global_invocation_id) gid: vec3<u32>) {

@@ -78,7 +78,7 @@ fn zero_albedo_keeps_the_centre_event() {
     assert_eq!(counts[1], 1000);
 }
 
-/// Long paths at albedos just below 1, where φ^k still falls by a factor of e^2.25 and
+/// Long paths at albedos just below 1, where φ^k still falls by a factor of e^0.25 and
 /// e^0.5 over the path (N = 5,000 at φ = 0.99995 and 50,000 at 0.99999; the authors'
 /// τ = 300 walks have N ~ 4.5·10⁴ and a fifth of their albedos within 1e-4 of 1): the
 /// chi-square case above at 1 − 1e-6 has weights that vary by 2e-4 and would not see a

@@ -788,6 +788,9 @@ fn the_single_scattering_walk_weighs_its_one_event_by_the_albedo() {
 /// `event_draws` with more than two draws a walk: pairs of a fresh draw and its mirror,
 /// each pair fresh (a third draw that mirrored the mirror would repeat the first, and
 /// four EventGen draws would buy what two do). Draws 0 and 2 never equal, 3 mirrors 2.
+/// Each draw is the centre (no decoder) with probability φ/Λ(6) = 0.213, so 2,000 walks
+/// have draws 0, 2 and 3 all from the decoder 2000 × 0.787³ = 973 ± 22 times: at least
+/// 800 asked (8 sd below).
 #[test]
 fn event_draws_beyond_a_pair_are_fresh() {
     use cvae::ModelWalk;
@@ -812,7 +815,7 @@ fn event_draws_beyond_a_pair_are_fresh() {
         }
     }
     assert!(
-        pairs > 1000,
+        pairs >= 800,
         "only {pairs} walks with draws 0, 2 and 3 from the decoder"
     );
 }

@@ -410,18 +410,21 @@ mod tests {
     /// would put on the other side for the 80° disk at g = 0.5 and the sun at 0.999), and
     /// `extreme_cos` gives the phase function's largest value over the disk, the path
     /// proxy's bound: for 300 random w per case, at least the largest over 2,000 of the
-    /// disk's own draws (less 2e-3 for f32's acos and cos: an error of ~1e-4 rad at these
-    /// g moves HG's density by well under that), for g of both signs.
+    /// disk's own draws, and at most the largest over 3,600 points of its edge (or HG's
+    /// peak where w's lobe direction lies in the disk), for g of both signs. Tolerance
+    /// 2e-3: f32's acos and cos err by ~1e-6 rad where HG at g = ±0.95 is steepest (29
+    /// per radian), ~3e-5 of the density; the edge's 0.1° spacing leaves its maximum below
+    /// the true one, on the safe side of the upper check, by at most the same order.
     #[test]
     fn the_phase_share_and_the_extreme_cosine_follow_the_lobe() {
         use scatter_sim::phase::{hg_pdf, hg_pdf_between};
         // (diameter, g, share): the 80° disk holds 1.47 sr, the 40° one 0.38, the sun
         // 6.7e-5; lobes 0.785 (g 0.5), 0.283 (0.7), 3.1e-6 (0.999), 3.1e-4 (0.99).
         for (diameter, g, share) in [
-            (80.0, 0.5, 0.5),
+            (80.0, 0.5, PHASE_SHARE),
             (40.0, 0.5, 0.0),
-            (40.0, -0.7, 0.5),
-            (0.53, 0.999, 0.5),
+            (40.0, -0.7, PHASE_SHARE),
+            (0.53, 0.999, PHASE_SHARE),
             (0.53, -0.99, 0.0),
         ] {
             assert_eq!(light(diameter).phase_share(g), share, "{diameter}°, g {g}");
@@ -446,6 +449,27 @@ mod tests {
                     assert!(
                         bound >= (1.0 - 2e-3) * most,
                         "{diameter}° disk, g {g}, w {w}: bound {bound}, a draw {most}"
+                    );
+                    // The largest is on the edge, or HG's peak where the direction the
+                    // lobe points to (w, or −w for g < 0) lies in the disk.
+                    let lobe = if g >= 0.0 { w } else { -w };
+                    let peak = if lobe.dot(l.to_light) >= l.half_angle.cos() {
+                        hg_pdf(g as f64, if g >= 0.0 { 1.0 } else { -1.0 })
+                    } else {
+                        0.0
+                    };
+                    let (t, b) = basis(l.to_light);
+                    let (sin, cos) = l.half_angle.sin_cos();
+                    let edge = (0..3600)
+                        .map(|k| {
+                            let phi = k as f32 * std::f32::consts::TAU / 3600.0;
+                            let d = l.to_light * cos + (t * phi.cos() + b * phi.sin()) * sin;
+                            hg_pdf_between(g as f64, w.as_dvec3(), d.as_dvec3())
+                        })
+                        .fold(peak, f64::max);
+                    assert!(
+                        bound <= (1.0 + 2e-3) * edge,
+                        "{diameter}° disk, g {g}, w {w}: bound {bound}, the edge's largest {edge}"
                     );
                 }
             }

@@ -1188,6 +1188,7 @@ fn gpu_work_map_matches_the_counters_and_the_cpu() {
         ..settings(IntegratorKind::Stcvae, true)
     };
     let dense = with_medium(text.clone(), "[40.0, 80.0, 160.0]", "[0.99, 0.95, 0.9]");
+    assert!(dense.contains("sigma_t = [40.0, 80.0, 160.0]"));
     let cases = [
         (settings(IntegratorKind::Pt, true), &text),
         (settings(IntegratorKind::Stcvae, true), &text),
@@ -1363,6 +1364,43 @@ fn cpu_gpu_agree_stcvae_sphere() {
         ..all_exact
     };
     compare_devices_with("ST-CVAE all steps exact, no NEE", &im, &no_nee, 96);
+}
+
+/// A sun disk in view with NEE on, as `integrators.rs`'s
+/// `a_sun_disk_in_view_is_seen_with_nee_on`: a camera ray that escapes without scattering
+/// sees L = E/(π sin²θ) over the sky (path.wgsl's escape, `ps.scattered`), in every
+/// sample, to f32 rounding (1e-4); PT and ST-CVAE, NEE on and off. No other GPU scene has
+/// a disk in view.
+#[test]
+fn gpu_sees_a_sun_disk_in_view_with_nee_on() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let text = sphere_scene("kind = \"index-matched\"")
+        .replace("target = [0.0, 0.0, 0.0]", "target = [1.0, 0.0, 3.0]")
+        .replace("fov_deg = 22.0", "fov_deg = 1.0")
+        .replace("width = 24\nheight = 24", "width = 4\nheight = 4")
+        .replace(
+            SPHERE_SCENE_DISK,
+            "[[light]]\nkind = \"directional\"\ndirection = [-1.0, 0.0, 0.0]\n\
+             irradiance = [1.0, 2.0, 3.0]\nangular_diameter_deg = 10.0\n",
+        );
+    assert!(text.contains("target = [1.0, 0.0, 3.0]") && text.contains("= 10.0"));
+    let sin = 5f64.to_radians().sin();
+    for kind in [IntegratorKind::Pt, IntegratorKind::Stcvae] {
+        let s = common::build_scene(&text, kind == IntegratorKind::Stcvae);
+        for nee in [true, false] {
+            let out = on_gpu(&ctx, &s, &settings(kind, nee), &opts(3, 1));
+            for p in &out.image.pixels {
+                for (c, &v) in p.iter().enumerate() {
+                    let want = 0.1 + (c + 1) as f64 / (std::f64::consts::PI * sin * sin);
+                    assert!(
+                        (v as f64 / want - 1.0).abs() < 1e-4,
+                        "{kind:?}, NEE {nee}, channel {c}: {v} for {want}"
+                    );
+                }
+            }
+        }
+    }
 }
 
 /// NEE inside a dielectric from a sun disk wider than the phase lobe (g = 0.9 under
@@ -2755,8 +2793,9 @@ fn images_beyond_the_binding_limit_render_in_bands() {
     assert!(whole.image.pixels.iter().any(|p| p[0] > 0.0));
 }
 
-/// A dispatch of more workgroups than a dimension holds (65,535: images of more than ~4 M
-/// path slots, as a 1024² image at four lanes a pixel) lays them out in rows along y
+/// A dispatch of more workgroups than a dimension holds (65,535: a hardware band of 2²²
+/// path slots at the default 64 threads a workgroup, or of fewer at 8–32) lays them out in
+/// rows along y
 /// (renderer.rs, plan_bands; slot_of's `gid.y`, the staged render's indirect dispatches in
 /// dispatch_args and `invocation`), and renders what one row renders, bit for bit: the
 /// slots are the same, only the invocations they run on differ. On images small enough

@@ -389,6 +389,41 @@ fn touching_pieces_in_a_union_make_no_boundary() {
             }
         }
     }
+    // Faces apart by less than the spawn offset eps along their normal are one boundary
+    // for a ray at any angle: apart by g/|cos| along the ray, which at |cos| = 0.2 and 0.1
+    // is beyond eps for g = 1e-5 (eps is 2.4e-5 here), so the merge distance must grow as
+    // 1/|cos| too. One way out (the bottom face), not three: the product of the crossings'
+    // factors is 0.5, and the length the chord down to it (the gap inside it).
+    let apart = 1e-5f32;
+    std::fs::write(
+        &obj,
+        common::boxes_obj(&[
+            ([-0.5, -0.5, -0.5], [0.0, 0.5, 0.5]),
+            ([apart, -0.5, -0.5], [0.5, 0.5, 0.5]),
+            ([-0.2, -0.1, 0.4], [0.2, 0.1, 0.7]),
+        ]),
+    )
+    .unwrap();
+    let scene = common::build_scene(&text, false);
+    let pieces = scene.geo.pieces.as_ref().expect("the bar overlaps");
+    assert!(
+        apart < scene.geo.eps && apart / 0.2 > scene.geo.eps,
+        "eps {}",
+        scene.geo.eps
+    );
+    let x = Vec3::new(-0.02, 0.0, 0.0);
+    for dx in [0.2f32, 0.1] {
+        let d = Vec3::new(dx, 0.0, -(1.0 - dx * dx).sqrt());
+        let (length, product) = scene
+            .geo
+            .union_inside_length(pieces, x, d, |_, _| 0.5)
+            .unwrap();
+        let chord = 0.5 / -d.z;
+        assert!(
+            product == 0.5 && (length - chord).abs() < 1e-4,
+            "|cos| {dx}: length {length} (chord {chord}), product {product}"
+        );
+    }
     let cube = common::build_scene(&scenes[0].2, false);
     assert!(cube.geo.pieces.is_some());
     for (p, inside) in [

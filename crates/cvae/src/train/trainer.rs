@@ -346,10 +346,11 @@ impl CheckpointInfo {
         }
         // A run reports every REPORT_EVERY steps and at its last, and saves after its
         // report, so a record is less than REPORT_EVERY steps past its history's last entry,
-        // but for a skipped report: one whose steps since the last read no loss (a record
-        // saved before streams were kept, whose resume restarted the readings, or one saved
-        // before 2026-12-07 by a finished run resumed with more steps 1 to 9 steps before a
-        // report step) adds no entry, and the gap then reaches up to 2·REPORT_EVERY − 1. Twice that is refused: an edited
+        // but for a skipped report: one whose steps since the last read no loss adds no
+        // entry, and the gap then reaches up to 2·REPORT_EVERY − 1. Runs since 2026-12-07
+        // read the step before a report whose window has none; records saved before may
+        // hold such gaps (a finished run resumed with more steps 1 to 9 steps before a
+        // report step, or a resume of a record saved before streams were kept). Twice that is refused: an edited
         // step of 999,999,999 on a run stopped at 4,366 was taken for a finished run, and
         // its model written with that step count.
         if let Some(&(last, _)) = self.history.last()

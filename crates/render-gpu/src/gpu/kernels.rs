@@ -84,8 +84,10 @@ pub struct KernelShape {
     /// false. The one field of the shape that changes the image.
     pub unwritten_pixel: Option<u32>,
     /// Workgroups a dispatch lays out along x before it takes further rows along y:
-    /// [`DISPATCH_ROW`], the most a dimension allows everywhere, which only images of
-    /// more than ~4 M path slots exceed. A test hook (`STCVAE_GPU_TEST_DISPATCH_ROW`)
+    /// [`DISPATCH_ROW`], the most a dimension allows everywhere, which a band of more
+    /// than 65,535 × `workgroup` path slots exceeds (a hardware band holds up to 2²² =
+    /// 65,536 × 64 slots: one more workgroup than a row at the default 64, many more rows
+    /// with `STCVAE_GPU_WORKGROUP` 8–32). A test hook (`STCVAE_GPU_TEST_DISPATCH_ROW`)
     /// lowers it, so that the second dimension (slot_of's `gid.y`, and the staged
     /// render's indirect dispatches) runs on images small enough for lavapipe. Changes
     /// no path.

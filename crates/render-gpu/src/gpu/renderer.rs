@@ -1477,6 +1477,20 @@ mod tests {
                 .to_string();
             assert!(e.contains("STCVAE_GPU_TEST_UNWRITTEN_PIXEL"), "{e}");
         }
+        // The dispatch row's hook: 1 to 65,535 workgroups, unset the most a dimension holds.
+        for (v, want) in [("5", 5), (" 1 ", 1), ("65535", 65_535), ("", 65_535)] {
+            let r = with_one("STCVAE_GPU_TEST_DISPATCH_ROW", v);
+            assert_eq!(r.unwrap().dispatch_row, want, "{v:?}");
+        }
+        for bad in ["0", "65536", "-1", "x"] {
+            let e = with_one("STCVAE_GPU_TEST_DISPATCH_ROW", bad)
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("STCVAE_GPU_TEST_DISPATCH_ROW") && e.contains("allowed 1 to 65535"),
+                "{e}"
+            );
+        }
         let e = with("64", "shared").unwrap_err().to_string();
         assert!(
             e.contains("STCVAE_GPU_STACK") && e.contains("workgroup or private"),

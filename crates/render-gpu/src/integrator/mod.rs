@@ -787,4 +787,37 @@ mod tests {
             "escaped {mean:.5}, expected {want:.5} ± {se:.5}"
         );
     }
+
+    /// With path-level NEE (m ≥ 1 reservoirs) an event's NEE is offered to the path's
+    /// reservoirs and cast when the path ends, not at once: `add_nee` leaves the radiance
+    /// alone and the reservoir holds the light. `path_nee_rays = 1`, the default, is one
+    /// shadow ray a path; taken for 0 it would cast one at every event (the same mean, so
+    /// no image test sees it, at several times the shadow rays). With m = 0, at once.
+    #[test]
+    fn path_level_nee_defers_the_shadow_ray() {
+        let text = "[camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\n\
+                    fov_deg = 20.0\nwidth = 4\nheight = 4\n[object]\nshape = \"sphere\"\n\
+                    radius = 0.5\n[medium]\nsigma_t = [10.0, 10.0, 10.0]\n\
+                    albedo = [0.9, 0.9, 0.9]\ng = 0.0\n[[light]]\nkind = \"directional\"\n\
+                    direction = [0.0, -1.0, 0.0]\nirradiance = [1.0, 1.0, 1.0]\n";
+        let file = SceneFile::parse(std::path::Path::new("lit.toml"), text).unwrap();
+        let scene = SceneData::build(&file, std::path::Path::new("."), false, &[]).unwrap();
+        // 0.01 under the lit top, scattering upward: e^−0.1 of the light reaches it.
+        let event = (Vec3::new(0.0, 0.49, 0.0), Vec3::Y);
+        let mut rng = WalkRng::from_seed(5);
+        for m in [0, 1, 2] {
+            let mut path = Path::new(Vec3::ZERO, Vec3::Y, 0, WalkRng::from_seed(6));
+            path.s.add_nee(&scene, m, event, 1.0, |_| 0.0, 0, &mut rng);
+            let deferred = path.s.nee.finish(&scene, m, 0, &mut rng);
+            if m == 0 {
+                assert!(path.s.radiance > 0.0, "m = 0: no shadow ray cast");
+            } else {
+                assert!(
+                    path.s.radiance == 0.0 && deferred > 0.0,
+                    "m = {m}: radiance {} at the event, {deferred} at the end",
+                    path.s.radiance
+                );
+            }
+        }
+    }
 }

@@ -373,7 +373,7 @@ fn crossing_transmittance(scene: &SceneData, cos: f32) -> f32 {
     }
 }
 
-/// [`shadow`]'s transmittance toward `dir` (refracted where it leaves a dielectric, the
+/// The transmittance `shadow` reads toward `dir` (refracted where it leaves a dielectric, the
 /// beam's factor r included), from the sorted crossings or, with `ordered_walk`, by the
 /// ordered walk: the references for nee.wgsl's `shadow` in the kernels' tests.
 pub fn transmittance_refracted(
