@@ -332,6 +332,23 @@ pub fn overlapping_parts_scenes(dir: &Path, boundary: &str) -> Vec<(String, Stri
     ]
 }
 
+/// The sun-in-view scenes (integrators.rs and gpu.rs, `..._sun_disk_in_view_...`): a camera
+/// ray that escapes without scattering sees a 10° disk of irradiance E_c = c + 1 over a sky
+/// of 0.1, so every sample of channel c is 0.1 + E_c/(π sin² 5°) (L written out here, not
+/// taken from light.rs), to f32 rounding (1e-4). `what` names the render.
+pub fn assert_sun_disk_seen(image: &render_gpu::image_io::RgbImage, what: &str) {
+    let sin = 5f64.to_radians().sin();
+    for p in &image.pixels {
+        for (c, &v) in p.iter().enumerate() {
+            let want = 0.1 + (c + 1) as f64 / (std::f64::consts::PI * sin * sin);
+            assert!(
+                (v as f64 / want - 1.0).abs() < 1e-4,
+                "{what}, channel {c}: {v} for {want}"
+            );
+        }
+    }
+}
+
 /// A variance image of a render whose every sample is the same value (a white furnace):
 /// 0 up to rounding in every pixel and channel, below 1e-10 (`what` names the render).
 pub fn assert_noiseless(v: &render_gpu::image_io::RgbImage, what: &str) {
