@@ -9,22 +9,14 @@ use render_gpu::integrator::nee::{transmittance, transmittance_ordered, transmit
 use render_gpu::setup::SceneData;
 use scatter_sim::WalkRng;
 
+use common::fresnel;
+
 fn bunny(boundary: &str) -> SceneData {
     // The furnace bunny with σ_t = (1, 3, 8) per unit height: transmittances across the
     // bunny range from ~1 to ~1e-3, so lengths are compared where they matter.
     let text = common::furnace_scene(boundary)
         .replace("sigma_t = [5.0, 20.0, 60.0]", "sigma_t = [1.0, 3.0, 8.0]");
     common::build_scene(&text, false)
-}
-
-/// Fresnel's unpolarised reflectance from air into index `n` at incidence cosine `cos_i`,
-/// written out here rather than taken from `optics::fresnel`, the code under test.
-fn fresnel(cos_i: f64, n: f64) -> f64 {
-    let sin_t = (1.0 - cos_i * cos_i).sqrt() / n;
-    let cos_t = (1.0 - sin_t * sin_t).sqrt();
-    let rs = ((cos_i - n * cos_t) / (cos_i + n * cos_t)).powi(2);
-    let rp = ((n * cos_i - cos_t) / (n * cos_i + cos_t)).powi(2);
-    (rs + rp) / 2.0
 }
 
 /// Surface crossings of the ray from `x`, walked in order.
@@ -434,5 +426,63 @@ fn touching_pieces_in_a_union_make_no_boundary() {
         (Vec3::new(0.0, 0.6, 0.0), false),
     ] {
         assert_eq!(cube.geo.inside(p), inside, "{p}");
+    }
+}
+
+/// Through the combs of [`common::combs_obj`] (their teeth at up to 80 faces along a ray,
+/// beyond the 64 crossings the CPU's sorted list holds, `MAX_UNION_CROSSINGS`), from the
+/// points of [`common::comb_rays`]: in_union says whether the point is in a tooth, and from
+/// inside, the shadow ray's transmittance is [`common::CombRay::transmittance`] whatever the
+/// number of crossings (index-matched and dielectric). ~19 % of the points have more than
+/// 64 crossings ahead (at least 200 of 2,000 asked). With in_union's fallback OR-ing the
+/// pieces instead of flipping them, points between teeth there came out inside; with the
+/// ordered walk following at most 64 crossings (`nee::MAX_CROSSINGS`, until 2026-12-07),
+/// every such ray came out black. The bound is the ordered walk's of
+/// `transmittance_through_overlapping_pieces_has_its_closed_form` per pair of crossings.
+#[test]
+fn rays_through_more_crossings_than_the_list_holds() {
+    let dir = tempfile::tempdir().unwrap();
+    for (boundary, ior) in [
+        ("kind = \"index-matched\"", None),
+        ("kind = \"dielectric\"\nior = 1.5", Some(1.5)),
+    ] {
+        let (text, teeth) = common::combs_scene(dir.path(), boundary);
+        let scene = common::build_scene(&text, false);
+        let pieces = scene.geo.pieces.as_ref().expect("the combs' bases overlap");
+        let rays = common::comb_rays(&teeth, 2000, 17);
+        let mut wrong = Vec::new();
+        for r in &rays {
+            if scene.geo.in_union(pieces, r.p, r.d) != r.inside {
+                wrong.push((r.p, r.d, r.faces));
+            }
+            if !r.inside {
+                continue;
+            }
+            for channel in 0..3 {
+                let sigma = [4.0, 12.0, 40.0][channel];
+                let want = r.transmittance(sigma, ior);
+                let got = f64::from(transmittance(&scene, r.p, r.d, channel));
+                let bound = (sigma * 6e-4 + 1e-3) * r.faces as f64 / 2.0;
+                assert!(
+                    (got - want).abs() <= bound * want + 1e-12,
+                    "{boundary}: from {} along {}, {} faces ahead, channel {channel}: {got}, \
+                     want {want}",
+                    r.p,
+                    r.d,
+                    r.faces
+                );
+            }
+        }
+        assert!(
+            wrong.is_empty(),
+            "{boundary}: in_union wrong at (p, d, faces ahead) {wrong:?}"
+        );
+        let beyond = rays.iter().filter(|r| r.faces > 64).count();
+        assert!(
+            beyond >= 200,
+            "{boundary}: only {beyond} points beyond the list"
+        );
+        let inside = rays.iter().filter(|r| r.inside).count();
+        assert!(inside >= 500, "{boundary}: {inside} points inside");
     }
 }

@@ -736,6 +736,54 @@ mod tests {
         );
     }
 
+    /// A path that has scattered and left the medium meets the dielectric from outside at
+    /// 60° (a non-convex object's glint): the reflection clears `scattered`, so with NEE on
+    /// the path still sees the sun disk it is reflected into, as NEE never samples light that
+    /// reaches a point by way of a reflection. The cube (ior 1.5) absorbs whatever enters it
+    /// (σ_t 1,000, albedo 0) under a black sky, so each path brings the disk's radiance with
+    /// probability F(60°) and 0 otherwise. F from the textbook's angle form (R_s = 0.176571,
+    /// R_p = 0.001802), not `optics::fresnel`. 20,000 paths: σ = √(F(1 − F)/n) = 0.0020;
+    /// allowed 4σ. With `scattered` kept through the reflection the mean is 0, 44σ off.
+    #[test]
+    fn a_reflection_off_the_outside_after_scattering_sees_the_sun() {
+        let text = "[camera]\norigin = [0.0, 3.0, 0.0]\ntarget = [0.0, 0.0, 0.0]\n\
+                    up = [0.0, 0.0, 1.0]\nfov_deg = 30.0\nwidth = 4\nheight = 4\n\
+                    [object]\nshape = \"cube\"\n\
+                    [medium]\nsigma_t = [1000.0, 1000.0, 1000.0]\nalbedo = [0.0, 0.0, 0.0]\n\
+                    [boundary]\nkind = \"dielectric\"\nior = 1.5\n\
+                    [[light]]\nkind = \"directional\"\ndirection = [-0.8660254, -0.5, 0.0]\n\
+                    irradiance = [1.0, 1.0, 1.0]\nangular_diameter_deg = 10.0\n\
+                    [environment]\nradiance = [0.0, 0.0, 0.0]\n";
+        let file = SceneFile::parse(std::path::Path::new("glint.toml"), text).unwrap();
+        let scene = SceneData::build(&file, std::path::Path::new("."), false, &[]).unwrap();
+        // Meets the top face (y = 0.5) at its centre, 60° from its normal; the mirror
+        // direction is the sun's centre.
+        let d = Vec3::new(0.866_025_4, -0.5, 0.0);
+        let start = Vec3::new(0.0, 0.5, 0.0) - d;
+        let mirror = Vec3::new(d.x, -d.y, d.z);
+        let disk = scene.lights[0].radiance_toward(mirror, 0);
+        assert!(disk > 0.0);
+        let set = IntegratorSettings { nee: true, ..pt() };
+        let n = 20_000;
+        let mut total = 0.0;
+        for seed in 0..n {
+            let mut path = Path::new(start, d, 0, WalkRng::for_walk(13, seed));
+            path.s.scattered = true;
+            let Advance::Done(l) = path.advance(&scene, &set, &super::NEVER) else {
+                panic!("PT has no sphere steps")
+            };
+            assert!(l == 0.0 || l == disk, "seed {seed}: {l} (disk {disk})");
+            total += l;
+        }
+        let f = 0.5 * (0.176_571_5 + 0.001_801_9f32);
+        let sigma = (f * (1.0 - f) / n as f32).sqrt();
+        let mean = total / n as f32 / disk;
+        assert!(
+            (mean - f).abs() < 4.0 * sigma,
+            "mean {mean}, expected F(60°) = {f} ± {sigma}"
+        );
+    }
+
     /// A path inside a purely absorbing cube, eps (its spawn offset) below the top face and
     /// heading straight out, at σ_t·eps = 0.2 under a sky of 1: it escapes (1) with
     /// probability e^−0.2 = 0.81873 and is absorbed (0) otherwise. A face the cast finds

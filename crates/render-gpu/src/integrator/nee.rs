@@ -28,9 +28,15 @@ pub const MAX_OPTICAL_DEPTH: f32 = 50.0;
 /// positive proxy, which is all the reservoirs' unbiasedness needs; an event deeper than
 /// this is still offered with ~1e-17 of a surface event's weight.
 pub const PROXY_DEPTH_CAP: f32 = 40.0;
-/// Most surface crossings followed along one shadow ray (the WGSL kernels get it from
-/// here, gpu/kernels.rs).
-pub const MAX_CROSSINGS: u32 = 64;
+/// Most surface crossings followed along one shadow ray by the ordered walk (the WGSL
+/// kernels get it from here, gpu/kernels.rs); a ray with more is taken as shadowed. The
+/// walk serves the rays whose crossings exceed the sorted list where pieces overlap
+/// ([`crate::geometry::MAX_UNION_CROSSINGS`]), so it must follow more than those: at 64,
+/// the list's own size, every such ray came out black (two interleaved combs of 20 teeth,
+/// `rays_through_more_crossings_than_the_list_holds`: 0 where e^−2.6 was due). Walks end
+/// sooner at [`MAX_OPTICAL_DEPTH`]; only thin parts in the hundreds reach this.
+pub const MAX_CROSSINGS: u32 = 1024;
+const _: () = assert!(MAX_CROSSINGS as usize > crate::geometry::MAX_UNION_CROSSINGS);
 
 /// Shadow-ray roulette on a bound of the NEE term: with T ≤ exp(−σ_t·free(ω_l)) (the
 /// shadow ray along ω_l crosses at least free(ω_l) of medium, [`direct`]),

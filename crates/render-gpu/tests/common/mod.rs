@@ -429,6 +429,221 @@ pub fn prism_scene(dir: &Path) -> String {
     )
 }
 
+/// A glass cube [−0.5, 0.5]³ (ior 1.5, σ_t 2, albedo 0.9, isotropic) above a glass floor
+/// (y ∈ [−0.9, −0.7], x ∈ [−2, 10], z ∈ [−3, 3]; one mesh, written into `dir`) under a
+/// 20° sun 15° above the horizon toward +x, in a black sky, seen head-on through the
+/// cube's +x face. The floor's top face reflects F(75°) = 25 % of the sun onto that face
+/// (the beam that meets the face climbs 15° from floor points x ∈ [1.25, 5]): light that
+/// reaches the cube's events only by paths that leave the cube, meet the floor from
+/// outside and are reflected into the disk — glints off a non-convex object, which NEE's
+/// shadow rays (straight to the sun) never sample (gpu.rs, gpu_nee_counts_glints_off_the_outside).
+pub fn glint_scene(dir: &Path) -> String {
+    let mesh = dir.join("glint.obj");
+    let cube = ([-0.5; 3], [0.5; 3]);
+    let floor = ([-2.0, -0.9, -3.0], [10.0, -0.7, 3.0]);
+    std::fs::write(&mesh, boxes_obj(&[cube, floor])).unwrap();
+    format!(
+        "[camera]\norigin = [4.0, 0.0, 0.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 10.0\n\
+         width = 8\nheight = 8\n[object]\nmesh = {:?}\n[medium]\nsigma_t = [2.0, 2.0, 2.0]\n\
+         albedo = [0.9, 0.9, 0.9]\ng = 0.0\n[boundary]\nkind = \"dielectric\"\nior = 1.5\n\
+         [[light]]\nkind = \"directional\"\ndirection = [-0.9659258, -0.2588190, 0.0]\n\
+         irradiance = [1.0, 1.0, 1.0]\nangular_diameter_deg = 20.0\n\
+         [environment]\nradiance = [0.0, 0.0, 0.0]\n",
+        mesh.display().to_string()
+    )
+}
+
+/// Fresnel's unpolarised reflectance from air into index `n` at incidence cosine `cos_i`,
+/// written out here rather than taken from `optics::fresnel`, the code under test.
+pub fn fresnel(cos_i: f64, n: f64) -> f64 {
+    let sin_t = (1.0 - cos_i * cos_i).sqrt() / n;
+    let cos_t = (1.0 - sin_t * sin_t).sqrt();
+    let rs = ((cos_i - n * cos_t) / (cos_i + n * cos_t)).powi(2);
+    let rp = ((n * cos_i - cos_t) / (n * cos_i + cos_t)).powi(2);
+    (rs + rp) / 2.0
+}
+
+/// Appends the closed surface around the filled cells of a rectilinear grid (cell (i, j, k)
+/// spans axes[0][i]..axes[0][i + 1] and so on) to `pos` and `tris`: two triangles, wound
+/// outward, for each face between a filled cell and an empty one or the outside, on
+/// shared grid vertices, so that cells joined through faces make one closed piece.
+fn add_cells(
+    pos: &mut Vec<[f32; 3]>,
+    tris: &mut Vec<[usize; 3]>,
+    axes: [&[f32]; 3],
+    filled: impl Fn([usize; 3]) -> bool,
+) {
+    let n = axes.map(|a| a.len() - 1);
+    let mut index = std::collections::HashMap::new();
+    let mut vertex = |g: [usize; 3], pos: &mut Vec<[f32; 3]>| {
+        *index.entry(g).or_insert_with(|| {
+            pos.push([axes[0][g[0]], axes[1][g[1]], axes[2][g[2]]]);
+            pos.len() - 1
+        })
+    };
+    let open = |c: [isize; 3]| {
+        !((0..3).all(|a| c[a] >= 0 && (c[a] as usize) < n[a]) && filled(c.map(|v| v as usize)))
+    };
+    for i in 0..n[0] {
+        for j in 0..n[1] {
+            for k in 0..n[2] {
+                let c = [i, j, k];
+                if !filled(c) {
+                    continue;
+                }
+                for axis in 0..3 {
+                    for side in [0, 1] {
+                        let mut next = c.map(|v| v as isize);
+                        next[axis] += 2 * side as isize - 1;
+                        if !open(next) {
+                            continue;
+                        }
+                        // (u, v, axis) is a right-handed cycle: the corners in this order
+                        // turn about +axis, outward on the cell's + side.
+                        let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+                        let corner = |du: usize, dv: usize| {
+                            let mut g = c;
+                            g[axis] += side;
+                            g[u] += du;
+                            g[v] += dv;
+                            g
+                        };
+                        let q = [corner(0, 0), corner(1, 0), corner(1, 1), corner(0, 1)]
+                            .map(|g| vertex(g, pos));
+                        let q = if side == 1 {
+                            q
+                        } else {
+                            [q[0], q[3], q[2], q[1]]
+                        };
+                        tris.extend([[q[0], q[1], q[2]], [q[0], q[2], q[3]]]);
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Two combs, each one closed piece, their bases overlapping (so the mesh is a union of
+/// pieces) and their 20 teeth interleaved, in units of the tooth pitch 2 (scaled by 1/40
+/// in the OBJ): A's teeth x ∈ [2k, 2k + 1], B's [2k + 1.25, 2k + 1.75], k = 0..19, both
+/// across y ∈ [0.5, 3.5], z ∈ [1, 5] (no face of one in a plane of the other's). A ray
+/// along x through the teeth crosses up to 80 faces, beyond the 64 crossings the CPU's
+/// list holds (`MAX_UNION_CROSSINGS`): `Geometry::in_union` then flips each hit's piece,
+/// and shadow rays walk crossing by crossing. Returns the teeth as intervals of x.
+fn combs_obj() -> (String, Vec<(f32, f32)>) {
+    let (mut pos, mut tris) = (Vec::new(), Vec::new());
+    let a_xs: Vec<f32> = (0..=40).map(|i| i as f32).collect();
+    add_cells(
+        &mut pos,
+        &mut tris,
+        [&a_xs, &[0.0, 4.0], &[0.0, 1.0, 5.0]],
+        |c| c[2] == 0 || c[0] % 2 == 0,
+    );
+    let mut b_xs = vec![-0.5];
+    for k in 0..20 {
+        b_xs.extend([2.0 * k as f32 + 1.25, 2.0 * k as f32 + 1.75]);
+    }
+    b_xs.push(40.5);
+    add_cells(
+        &mut pos,
+        &mut tris,
+        [&b_xs, &[0.5, 3.5], &[-0.5, 0.5, 5.5]],
+        |c| c[2] == 0 || c[0] % 2 == 1,
+    );
+    let mut obj = String::new();
+    for p in &pos {
+        obj += &format!("v {} {} {}\n", p[0] / 40.0, p[1] / 40.0, p[2] / 40.0);
+    }
+    for t in &tris {
+        obj += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
+    }
+    let teeth = (0..20)
+        .flat_map(|k| {
+            let x = 2.0 * k as f32;
+            [(x, x + 1.0), (x + 1.25, x + 1.75)]
+        })
+        .collect();
+    (obj, teeth)
+}
+
+/// The combs of [`combs_obj`] (written into `dir`) as the mesh of the lit scene of
+/// [`overlapping_parts_scenes`] (σ_t 4, 12, 40) with `boundary` as the [boundary] table's
+/// body; returns the scene and the teeth.
+pub fn combs_scene(dir: &Path, boundary: &str) -> (String, Vec<(f32, f32)>) {
+    let (obj, teeth) = combs_obj();
+    let path = dir.join("combs.obj");
+    std::fs::write(&path, obj).unwrap();
+    let text = overlapping_parts_scenes(dir, boundary)[0].2.replace(
+        &dir.join("cube2.obj").display().to_string(),
+        &path.display().to_string(),
+    );
+    (text, teeth)
+}
+
+/// A ray through the teeth of [`combs_obj`] (in the OBJ's units): from `p` along `d`.
+pub struct CombRay {
+    pub p: glam::Vec3,
+    pub d: glam::Vec3,
+    /// Whether `p` is in a tooth (the medium).
+    pub inside: bool,
+    /// The teeth's faces ahead.
+    pub faces: usize,
+    /// The length in the teeth ahead.
+    pub length: f64,
+}
+
+impl CombRay {
+    /// The closed form of the shadow ray's transmittance from inside: e^(−σ·length) times,
+    /// with a dielectric boundary, 1 − F(|d_x|) at each face crossed.
+    pub fn transmittance(&self, sigma: f64, ior: Option<f64>) -> f64 {
+        let t_fresnel = ior.map_or(1.0, |n| {
+            (1.0 - fresnel(f64::from(self.d.x.abs()), n)).powi(self.faces as i32)
+        });
+        (-sigma * self.length).exp() * t_fresnel
+    }
+}
+
+/// `n` rays through the combs of [`combs_obj`] from random points of the teeth's band, 5e-3
+/// of the pitch clear of the teeth's faces (the spawn offset is ~8e-4 in those units), along
+/// ±x tilted by ~1e-3 so that no ray runs in a face's plane (it stays in the band).
+pub fn comb_rays(teeth: &[(f32, f32)], n: usize, seed: u64) -> Vec<CombRay> {
+    let mut rng = scatter_sim::WalkRng::for_walk(seed, 0);
+    let mut rays = Vec::new();
+    while rays.len() < n {
+        let x0 = -1.0 + 42.0 * rng.uniform() as f32;
+        let (y, z) = (
+            0.6 + 2.8 * rng.uniform() as f32,
+            1.1 + 3.8 * rng.uniform() as f32,
+        );
+        let sign = if rng.uniform() < 0.5 { 1.0 } else { -1.0 };
+        let clear = |e: f32| (x0 - e).abs() >= 5e-3;
+        if !teeth.iter().all(|&(lo, hi)| clear(lo) && clear(hi)) {
+            continue;
+        }
+        let d = glam::Vec3::new(sign, 1e-3, 7e-4).normalize();
+        let ahead = |x: f32| (x - x0) * sign > 0.0;
+        let run = |&(lo, hi): &(f32, f32)| {
+            let (lo, hi) = if sign > 0.0 {
+                (lo.max(x0), hi)
+            } else {
+                (lo, hi.min(x0))
+            };
+            f64::from((hi - lo).max(0.0))
+        };
+        rays.push(CombRay {
+            p: glam::Vec3::new(x0, y, z) / 40.0,
+            d,
+            inside: teeth.iter().any(|&(lo, hi)| lo < x0 && x0 < hi),
+            faces: teeth
+                .iter()
+                .map(|&(lo, hi)| ahead(lo) as usize + ahead(hi) as usize)
+                .sum(),
+            length: teeth.iter().map(run).sum::<f64>() / 40.0 / f64::from(d.x.abs()),
+        });
+    }
+    rays
+}
+
 /// A closed cylinder as OBJ text (radius 0.5, height 1, centred): `segments` side quads
 /// and two fan caps, long thin triangles (at 1,000 segments 0.003 wide for 1 long).
 pub fn cylinder_obj(segments: u32) -> String {
