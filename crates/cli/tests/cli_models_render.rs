@@ -3206,7 +3206,21 @@ fn render_variance_writes_a_variance_image() {
         serde_json::from_slice(&std::fs::read(d.path().join("v.json")).unwrap()).unwrap();
     // The bare name, beside the JSON (not a path from the render's working directory).
     assert_eq!(json["variance_file"].as_str().unwrap(), "v.var.exr");
-    assert_eq!(json["rms_standard_error_rgb"].as_array().unwrap().len(), 3);
+    // The root of the variance image's mean over all pixels, per channel (README): from
+    // the f32 pixels read back, summed in f64 as the render sums them, so only the JSON's
+    // decimal rounding separates the two (1e-9 relative). The mean variance itself (the
+    // root left out) is 0.009 here, 10× too small.
+    let rms = json["rms_standard_error_rgb"].as_array().unwrap();
+    assert_eq!(rms.len(), 3);
+    for c in 0..3 {
+        let mean = v.pixels.iter().map(|p| f64::from(p[c])).sum::<f64>() / v.pixels.len() as f64;
+        let got = rms[c].as_f64().unwrap();
+        assert!(
+            (got - mean.sqrt()).abs() <= 1e-9 * mean.sqrt(),
+            "channel {c}: JSON {got}, √(mean variance) {}",
+            mean.sqrt()
+        );
+    }
     // Nor does an image named v.var replace it: render and merge refuse, before the work
     // (render --out v.var replaced v's variance image without a word).
     let before = std::fs::read(&var).unwrap();

@@ -884,6 +884,82 @@ mod tests {
         assert!((se - big_se).abs() < 1e-12 * big_se, "{tiny:?} vs {big:?}");
     }
 
+    /// A walk summary with representative event X (the exit and W do not matter here).
+    fn walk_at(n: u64, x: DVec3) -> WalkSummary {
+        let exit = CanonicalExit {
+            cos_theta: 0.0,
+            alpha: 0.0,
+            beta: 0.0,
+        };
+        (n, exit, x, DVec3::Z)
+    }
+
+    /// The survival columns hold φ^N, the weight a sphere step leaves a path with, not
+    /// Λ(N), the NEE weight `walk_weights` returns beside it: walks of N = 1, 10 and 100
+    /// give 0.99^N and 0.95^N, computed here with powi, to 1e-12 relative. (Λ(N) agrees at
+    /// N = 1 only, Λ(1) = φ; at N = 10 it is 99·(1 − 0.99¹⁰) ≈ 9.47 against 0.99¹⁰ ≈ 0.904.)
+    #[test]
+    fn survival_samples_are_the_albedo_to_the_n() {
+        let ns = [1u64, 10, 100];
+        let c = Columns::from_walks(ns.iter().map(|&n| walk_at(n, DVec3::ZERO)).collect());
+        let [s99, s95] = c.survival_samples();
+        for (samples, phi) in [(s99, 0.99f64), (s95, 0.95)] {
+            assert_eq!(samples.len(), ns.len());
+            for (&got, &n) in samples.iter().zip(&ns) {
+                let want = phi.powi(n as i32);
+                assert!(
+                    (got / want - 1.0).abs() < 1e-12,
+                    "{phi}^{n}: {got} vs {want}"
+                );
+            }
+        }
+    }
+
+    /// The fine-shell table gives the model's count over the simulator's: 4 simulator and
+    /// 2 model events 7 % of the radius from the edge (|X| = 0.93, in the first band
+    /// [0.05, 0.1)) read "4: 0.50" (2/4; the inverse would read 2.00), and the six other
+    /// bands, empty in both, "0: 0 model events".
+    #[test]
+    fn fine_shells_give_the_model_over_the_simulator() {
+        let events =
+            |count: usize| Columns::from_walks(vec![walk_at(3, DVec3::new(0.0, 0.0, 0.93)); count]);
+        let table = fine_shells_table(&events(2), &events(4), 5.0, 0.0, 1.0);
+        let row = format!("\n| 4: 0.50 |{}\n", " 0: 0 model events |".repeat(6));
+        assert!(table.ends_with(&row), "{table}");
+    }
+
+    /// A simulator sample of one 1 among 99 zeros has mean 0.01 and a standard error as
+    /// large: sample variance (99·0.01² + 0.99²)/99 = 0.01, so √(0.01/100) = 0.01. A ratio
+    /// exists (the model's sample the same gives exactly 1, value 0) but the simulator's
+    /// mean is not known to 10 %: not resolved. Three values within ±10 % of their mean
+    /// (standard error 0.058 of 1) are resolved, as in `tiny_means_keep_a_finite_error`.
+    #[test]
+    fn a_simulator_mean_as_uncertain_as_itself_is_unresolved() {
+        let mut rare = vec![0.0; 99];
+        rare.push(1.0);
+        let r = ratio_error(&rare, &rare);
+        assert_eq!(r.value, Some(0.0), "{r:?}");
+        assert!(r.se.is_some_and(f64::is_finite), "{r:?}");
+        assert!(!r.resolved, "{r:?}");
+        let steady = [0.9, 1.0, 1.1];
+        assert!(ratio_error(&steady, &steady).resolved);
+    }
+
+    /// An event's distance from the sphere's surface is 1 − |X|: 0.003 at |X| = 0.997 and
+    /// 0.04 at |X| = 0.96, for points off the axes (|X| times the unit vector
+    /// (0.48, −0.6, 0.64)). 1 − |X|² would give 0.005991 and 0.0784, and move the first
+    /// event from the thinnest band of [`SHELLS`], [0, 0.005), to the one beside it.
+    #[test]
+    fn edge_distance_is_one_minus_the_radius() {
+        let unit = DVec3::new(0.48, -0.6, 0.64);
+        for (r, want) in [(0.997f64, 0.003), (0.96, 0.04)] {
+            let d = edge_distance(r * unit);
+            assert!((d - want).abs() < 1e-9, "|X| = {r}: {d}");
+        }
+        let c = Columns::from_walks(vec![walk_at(2, 0.997f64 * unit)]);
+        assert_eq!(c.shell_samples(), [vec![0.0], vec![1.0]]);
+    }
+
     /// The Fibonacci directions are unit vectors spread over the sphere: their mean is
     /// ~0 (a quadrature of the odd function L: |mean| < 0.05 for 48 points) and the
     /// mean of L_z² is 1/3 within 0.01.

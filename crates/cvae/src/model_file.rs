@@ -391,19 +391,7 @@ impl ModelSet {
     /// The probes' media: a 3 × 3 grid of the training range's (τ, g), τ spaced in
     /// ln(1 + τ).
     fn probe_media(&self) -> Vec<(f64, f64)> {
-        let t = &self.training;
-        let (lo, hi) = (t.tau_range[0].ln_1p(), t.tau_range[1].ln_1p());
-        let mut media = Vec::with_capacity(9);
-        for i in 0..3 {
-            let tau = (lo + (hi - lo) * i as f64 / 2.0).exp_m1();
-            for j in 0..3 {
-                media.push((
-                    tau,
-                    t.g_range[0] + (t.g_range[1] - t.g_range[0]) * j as f64 / 2.0,
-                ));
-            }
-        }
-        media
+        probe_media(&self.training)
     }
 
     /// One probe of [`Self::check_length_decoder`].
@@ -433,6 +421,22 @@ impl ModelSet {
             significant(g)
         ))
     }
+}
+
+/// [`ModelSet::probe_media`] of a training range.
+fn probe_media(t: &TrainingInfo) -> Vec<(f64, f64)> {
+    let (lo, hi) = (t.tau_range[0].ln_1p(), t.tau_range[1].ln_1p());
+    let mut media = Vec::with_capacity(9);
+    for i in 0..3 {
+        let tau = (lo + (hi - lo) * i as f64 / 2.0).exp_m1();
+        for j in 0..3 {
+            media.push((
+                tau,
+                t.g_range[0] + (t.g_range[1] - t.g_range[0]) * j as f64 / 2.0,
+            ));
+        }
+    }
+    media
 }
 
 /// The probes' latent points: the mean, then [`PROBE_LATENT`] out along each axis, + and −.
@@ -673,4 +677,36 @@ fn read_decoder(
         out_shift: spec.out_shift.clone(),
         out_scale: spec.out_scale.clone(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The load checks probe the training range's corners and middle: a file absurd only
+    /// at τ_max or at either end of g must meet a probe. For τ ∈ [0, 300] the middle in
+    /// ln(1 + τ) is √301 − 1 (ln(1 + τ) = ln(301)/2), for g ∈ [−0.9, 0.9] it is 0; the
+    /// nine probes are their 3 × 3 grid, each once.
+    #[test]
+    fn the_probes_span_the_training_range() {
+        let t = TrainingInfo {
+            tau_range: [0.0, 300.0],
+            g_range: [-0.9, 0.9],
+            albedo_range: [0.5, 1.0],
+            notes: String::new(),
+        };
+        let media = probe_media(&t);
+        assert_eq!(media.len(), 9);
+        for tau in [0.0, 301f64.sqrt() - 1.0, 300.0] {
+            for g in [-0.9, 0.0, 0.9] {
+                let found = media
+                    .iter()
+                    .filter(|&&(a, b)| {
+                        (a - tau).abs() <= 1e-9 * (1.0 + tau) && (b - g).abs() <= 1e-12
+                    })
+                    .count();
+                assert_eq!(found, 1, "(τ, g) = ({tau}, {g}) in {media:?}");
+            }
+        }
+    }
 }

@@ -254,7 +254,7 @@ fn trim(keep: &Path, most: u64) {
 mod tests {
     use std::time::{Duration, SystemTime};
 
-    use super::{CODE, cache_dir_from, note_unusable_entry, prune_stale, trim};
+    use super::{CODE, cache_dir_from, note_unusable_entry, prune_stale, read_or_build, trim};
 
     /// Where the cache lives for each environment: STCVAE_CACHE as given, XDG_CACHE_HOME
     /// and HOME only when absolute (a relative XDG_CACHE_HOME made a cache folder in the
@@ -309,6 +309,36 @@ mod tests {
         std::fs::create_dir(&entry).unwrap();
         assert!(!note_unusable_entry(&entry));
         assert!(entry.is_dir());
+    }
+
+    /// A build that took longer than `cached_from` seconds is written to its entry: with
+    /// `cached_from` = −1 every build does (it takes ≥ 0 s), so the entry then holds the
+    /// built bytes, and the next call reads them back instead of building (a build that
+    /// would fail here). Only builds replacing an unusable entry were written otherwise,
+    /// and a slow grid was rebuilt every run.
+    #[test]
+    fn a_slow_build_is_written_to_its_entry_and_read_back() {
+        let d = tempfile::tempdir().unwrap();
+        let entry = d.path().join(format!("grid-x-{CODE}.bin"));
+        let built = read_or_build(
+            Some(entry.as_path()),
+            -1.0,
+            |p| std::fs::read(p).ok(),
+            || Ok::<_, String>(b"built".to_vec()),
+            |p, v| std::fs::write(p, v),
+        )
+        .unwrap();
+        assert_eq!(built, b"built");
+        assert_eq!(std::fs::read(&entry).unwrap(), b"built");
+        let read = read_or_build(
+            Some(entry.as_path()),
+            -1.0,
+            |p| std::fs::read(p).ok(),
+            || Err::<Vec<u8>, _>("built again".to_string()),
+            |p, v| std::fs::write(p, v),
+        )
+        .unwrap();
+        assert_eq!(read, b"built");
     }
 
     /// Writing this code's cache file of a stem removes that stem's files written by other

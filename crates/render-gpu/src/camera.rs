@@ -181,4 +181,26 @@ mod tests {
             }
         }
     }
+
+    /// Camera rays start just short of the sphere around the object's box (by 1 % of its
+    /// radius and 10⁻⁶ of the distances), or at the camera itself (0) when the camera is
+    /// within that sphere: a negative start put the rays' origins behind the camera, where
+    /// they could begin inside the object or meet what lies behind it. From (0, 0, 4): the
+    /// box ±5 (radius 5√3 ≈ 8.66 > 4) gives 0; the box ±1 gives
+    /// 4 − 1.01·√3 − 10⁻⁶·(4 + 0 + 4) ≈ 2.2506 (f32: within 10⁻⁶).
+    #[test]
+    fn rays_start_at_the_camera_within_the_objects_sphere() {
+        let mut c = Camera::new(&desc([0.0, 1.0, 0.0], 40.0));
+        c.start_before(Vec3::splat(-5.0), Vec3::splat(5.0));
+        assert_eq!(c.start, 0.0);
+        let dir = c.ray_dir(4.0, 4.0);
+        assert_eq!(c.ray_origin(dir), c.origin);
+        c.start_before(Vec3::splat(-1.0), Vec3::splat(1.0));
+        let want = 4.0 - 1.01 * 3f64.sqrt() - 8e-6;
+        assert!(
+            (f64::from(c.start) - want).abs() < 1e-6,
+            "start {}, want {want}",
+            c.start
+        );
+    }
 }

@@ -773,6 +773,27 @@ mod tests {
         );
     }
 
+    /// A red-only EXR is refused naming the one channel it has: a part with some of R, G
+    /// and B is not an RGB part (it passed the check, and exr's own words for it named no
+    /// channel).
+    #[test]
+    fn an_exr_with_red_alone_names_its_channel() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("red.exr");
+        let channels = SpecificChannels::build()
+            .with_channel("R")
+            .with_pixel_fn(|_| (0.5f32,));
+        Image::from_channels((2, 2), channels)
+            .write()
+            .to_file(&p)
+            .unwrap();
+        let e = read_exr(&p).unwrap_err().to_string();
+        assert!(
+            e.contains("red.exr: no part of the file has channels named R, G and B (found R)"),
+            "{e}"
+        );
+    }
+
     /// The same image and tag encode to the same bytes every time (with the tag as three
     /// attributes, the exr crate's HashMap wrote them in a different order in most of
     /// these ten encodings), and the tag reads back.
@@ -933,6 +954,33 @@ mod tests {
                 "{e}"
             );
         }
+    }
+
+    /// Renders of one scene hash but different sizes are refused, naming both sizes: a
+    /// 4×2 and a 4×3 image (distinct seeds) differ in height only, and were summed pixel by
+    /// pixel over the first 8 as if the same image.
+    #[test]
+    fn merges_refuse_images_of_another_height() {
+        let dir = tempfile::tempdir().unwrap();
+        let paths = [("short.exr", 2, 1), ("tall.exr", 3, 2)].map(|(name, height, seed)| {
+            let mut img = RgbImage::new(4, height);
+            for (k, p) in img.pixels.iter_mut().enumerate() {
+                *p = [k as f32; 3];
+            }
+            let tag = RenderTag {
+                spp: 4,
+                scene_hash: 1,
+                seeds: vec![seed],
+                partial: false,
+                unknown_digests: Vec::new(),
+                view_hash: None,
+            };
+            let path = dir.path().join(name);
+            std::fs::write(&path, encode_exr(&img, &tag).unwrap()).unwrap();
+            path
+        });
+        let e = merge_exrs(&[&paths[0], &paths[1]]).unwrap_err().to_string();
+        assert!(e.contains("tall.exr: size 4x3 differs from 4x2"), "{e}");
     }
 
     /// Files written with the three attributes of earlier versions still give their tag.

@@ -141,6 +141,93 @@ fn obj_quads_load_and_an_open_mesh_is_refused() {
     assert!(e.contains("consistently oriented"), "{e}");
 }
 
+/// Each `o` (object) or `g` (group) line after faces starts a new model in tobj, which
+/// numbers every model's vertices from 0: the loader offsets them by the vertices of the
+/// models before. Two objects, A the cube [-1, 1]³ of CUBE_OBJ and B the same cube 3 along
+/// x (its vertices 9 to 16, numbered on through the file as OBJ counts), load as both: 24
+/// triangles, bounds [-1, 4] × [-1, 1]², volume 2 × 2³ = 16 (without the offset B's faces
+/// named A's vertices: A's faces twice). One cube split into two groups loads as the plain
+/// file.
+#[test]
+fn obj_objects_and_groups_keep_their_own_vertices() {
+    let d = tempfile::tempdir().unwrap();
+    let (verts, faces) = CUBE_OBJ.split_at(CUBE_OBJ.find('f').unwrap());
+    let shifted: String = verts
+        .lines()
+        .map(|l| {
+            let c: Vec<f32> = l[2..].split(' ').map(|w| w.parse().unwrap()).collect();
+            format!("v {} {} {}\n", c[0] + 3.0, c[1], c[2])
+        })
+        .collect();
+    let numbered_on: String = faces
+        .lines()
+        .map(|l| {
+            let idx: Vec<String> = l[2..]
+                .split(' ')
+                .map(|i| (i.parse::<u32>().unwrap() + 8).to_string())
+                .collect();
+            format!("f {}\n", idx.join(" "))
+        })
+        .collect();
+    let two = format!("o A\n{CUBE_OBJ}o B\n{shifted}{numbered_on}");
+    let m = load_mesh(&write(&d, "two.obj", two.as_bytes())).unwrap();
+    assert_eq!(m.triangles.len(), 24);
+    assert_eq!(
+        m.bounds(),
+        (
+            glam::Vec3::new(-1.0, -1.0, -1.0),
+            glam::Vec3::new(4.0, 1.0, 1.0)
+        )
+    );
+    let (v, _) = volume_and_area(&m);
+    assert!((v - 16.0).abs() < 1e-9, "volume {v}");
+    // The first three quads in group a, the last three in group b.
+    let grouped = CUBE_OBJ
+        .replacen("f ", "g a\nf ", 1)
+        .replace("f 3 7 8 4\n", "g b\nf 3 7 8 4\n");
+    assert_eq!(grouped.matches("\ng ").count(), 2, "{grouped}");
+    // The triangles by their corners' positions (the groups' vertices are welded).
+    let corners = |m: &mesh::TriMesh| {
+        let mut t: Vec<[[i32; 3]; 3]> = m
+            .triangles
+            .iter()
+            .map(|t| t.map(|i| m.positions[i as usize].to_array().map(|x| x as i32)))
+            .collect();
+        t.sort();
+        t
+    };
+    let plain = load_mesh(&write(&d, "cube.obj", CUBE_OBJ.as_bytes())).unwrap();
+    let m = load_mesh(&write(&d, "grouped.obj", grouped.as_bytes())).unwrap();
+    assert_eq!(m.positions.len(), 8);
+    assert_eq!(corners(&m), corners(&plain));
+}
+
+/// A mesh file's extension is matched whatever its case: `CUBE.OBJ` (as written by tools
+/// of upper-case file systems) loads as `cube.obj` does, instead of "unknown mesh format".
+#[test]
+fn mesh_extensions_are_read_in_any_case() {
+    let d = tempfile::tempdir().unwrap();
+    let lower = load_mesh(&write(&d, "cube.obj", CUBE_OBJ.as_bytes())).unwrap();
+    let upper = load_mesh(&write(&d, "CUBE.OBJ", CUBE_OBJ.as_bytes())).unwrap();
+    assert_eq!(upper.triangles, lower.triangles);
+    assert_eq!(upper.positions, lower.positions);
+}
+
+/// Vertices are welded by position with −0 equal to +0: a tetrahedron (volume 1/6) whose
+/// corner at the origin is written twice, once as `0 0 0` and once as `-0 -0 -0`, each copy
+/// used by some faces, is one closed surface of 4 vertices. By their bits the two copies
+/// differ (0x80000000), and the surface was refused as open.
+#[test]
+fn a_vertex_written_as_minus_zero_is_welded_to_zero() {
+    let d = tempfile::tempdir().unwrap();
+    let obj = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nv -0 -0 -0\n\
+               f 1 3 2\nf 1 2 4\nf 5 4 3\nf 2 3 4\n";
+    let m = load_mesh(&write(&d, "signed_zero.obj", obj.as_bytes())).unwrap();
+    assert_eq!((m.positions.len(), m.triangles.len()), (4, 4));
+    let (v, _) = volume_and_area(&m);
+    assert!((v - 1.0 / 6.0).abs() < 1e-7, "volume {v}");
+}
+
 #[test]
 fn broken_files_give_clear_errors() {
     let d = tempfile::tempdir().unwrap();
@@ -1887,6 +1974,48 @@ fn ply_header_ends_at_its_own_line() {
     }
 }
 
+/// Binary vertex coordinates of 8 bytes (`double`, or its other name `float64`) and face
+/// indices of 2 or 4 bytes (`ushort`, `uint`) are read at their own widths: the
+/// tetrahedron of TETRA_PLY loads with its corners exactly and volume 1/6. Doubles read as
+/// 4-byte floats misread the coordinates and the faces after them, and left bytes over.
+#[test]
+fn binary_ply_reads_doubles_and_unsigned_indices() {
+    let d = tempfile::tempdir().unwrap();
+    // (name, coordinate type, index type, bytes of an index)
+    type Case = (&'static str, &'static str, &'static str, fn(u32) -> Vec<u8>);
+    let cases: [Case; 2] = [
+        ("double.ply", "double", "uint", |i| i.to_le_bytes().to_vec()),
+        ("float64.ply", "float64", "ushort", |i| {
+            (i as u16).to_le_bytes().to_vec()
+        }),
+    ];
+    for (name, coord, index, index_bytes) in cases {
+        let mut b = format!(
+            "ply\nformat binary_little_endian 1.0\nelement vertex 4\nproperty {coord} x\n\
+             property {coord} y\nproperty {coord} z\nelement face 4\n\
+             property list uchar {index} vertex_indices\nend_header\n"
+        )
+        .into_bytes();
+        for p in [[0f64, 0., 0.], [1., 0., 0.], [0., 1., 0.], [0., 0., 1.]] {
+            p.iter().for_each(|x| b.extend_from_slice(&x.to_le_bytes()));
+        }
+        for f in [[0u32, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]] {
+            b.push(3);
+            f.iter().for_each(|&i| b.extend_from_slice(&index_bytes(i)));
+        }
+        let m = load_mesh(&write(&d, name, &b)).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let mut corners: Vec<[f32; 3]> = m.positions.iter().map(|p| p.to_array()).collect();
+        corners.sort_by(|p, q| p.partial_cmp(q).unwrap());
+        assert_eq!(
+            corners,
+            [[0f32, 0., 0.], [0., 0., 1.], [0., 1., 0.], [1., 0., 0.]],
+            "{name}"
+        );
+        let (v, _) = volume_and_area(&m);
+        assert!((v - 1.0 / 6.0).abs() < 1e-7, "{name}: volume {v}");
+    }
+}
+
 /// A surface closed only through a zero-area triangle (a T-junction's filler) is open
 /// once that triangle is dropped, and the message says why.
 #[test]
@@ -2174,6 +2303,37 @@ fn the_view_hash_is_the_scene_without_its_integrator() {
     // Another mesh: the cube stretched along x.
     write(&d, "m.obj", CUBE_OBJ.replace("v 1", "v 2").as_bytes());
     assert_ne!(build(base, &[]).1, view, "another mesh");
+}
+
+/// The scene hash holds `extra_hash`, the inputs outside the scene file (the ST-CVAE
+/// model's bytes: renders with another model converge to another image and must not
+/// merge), and the view hash does not (both show one picture). One scene and integrator
+/// here, so only the model can tell the hashes apart.
+#[test]
+fn the_scene_hash_holds_the_model_and_the_view_hash_does_not() {
+    let d = tempfile::tempdir().unwrap();
+    write(&d, "m.obj", CUBE_OBJ.as_bytes());
+    let f = render_gpu::scene::SceneFile::parse(
+        &d.path().join("s.toml"),
+        "[camera]\norigin = [0.0, 0.0, 6.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 30.0\n\
+         width = 8\nheight = 8\n[object]\nmesh = \"m.obj\"\n\
+         [medium]\nsigma_t = [1.0, 1.0, 1.0]\nalbedo = [0.5, 0.5, 0.5]\n\
+         [render]\nintegrator = \"stcvae\"\n",
+    )
+    .unwrap();
+    let build = |model: &[u8]| {
+        let s = render_gpu::setup::SceneData::build(&f, d.path(), false, model).unwrap();
+        (s.hash, s.view_hash)
+    };
+    let (hash, view) = build(b"model".as_slice());
+    assert_eq!(
+        build(b"model".as_slice()),
+        (hash, view),
+        "one model, one hash"
+    );
+    let (other_hash, other_view) = build(b"another model".as_slice());
+    assert_ne!(other_hash, hash, "another model, another scene hash");
+    assert_eq!(other_view, view, "another model, one view");
 }
 
 /// The torus knot is a tube around its curve: every triangle lies about the tube's radius

@@ -6,8 +6,8 @@ use render_gpu::integrator::IntegratorKind::{Pt, Stcvae};
 use render_gpu::scene::{LightDesc, SceneFile};
 
 use super::measure::{
-    Pair, compare, difference, errors, opts, pair_seeds, render_once, render_pair, save, save_map,
-    save_picture, scale_of, side_by_side, side_by_side_with, work_image,
+    Comparison, Pair, compare, difference, errors, opts, pair_seeds, render_once, render_pair,
+    save, save_map, save_picture, scale_of, side_by_side, side_by_side_with, work_image,
 };
 use super::report::{Cell, Report};
 use super::{Ctx, Kind};
@@ -27,6 +27,11 @@ pub fn run(ctx: &Ctx, rep: &mut Report) -> Result<()> {
 
 fn scale_density(k: f64) -> impl Fn(&mut SceneFile) {
     move |f: &mut SceneFile| f.medium.sigma_t = f.medium.sigma_t.map(|s| s * k)
+}
+
+/// The absorption experiment's edit: absorption `a` is albedo φ = 1 − a on every channel.
+fn absorb(a: f64) -> impl Fn(&mut SceneFile) {
+    move |f: &mut SceneFile| f.medium.albedo = [1.0 - a; 3]
 }
 
 /// The scene files the experiment renders.
@@ -267,28 +272,63 @@ fn series(name: &str, points: Vec<(f64, f64)>) -> Series {
     Series::new(name, points)
 }
 
+/// The teaser's figures table: its columns, in the order of [`teaser_row`]'s cells.
+const TEASER_COLUMNS: [&str; 17] = [
+    "density",
+    "sigma_t_r",
+    "pt_seconds",
+    "st_seconds",
+    "speedup",
+    "var_ratio",
+    "var_ratio_se",
+    "equal_error_speedup",
+    "pt_events_per_path",
+    "st_steps_per_path",
+    "st_fallback_events_per_path",
+    "bias_rmse",
+    "bias_upper95",
+    "noise_rmse",
+    "paper_speedup",
+    "pt_paths_per_second",
+    "st_paths_per_second",
+];
+
+/// The teaser's row for density ×`k` (σ_t `sigma` in the first channel): PT's and
+/// ST-CVAE's pairs, their comparison, and the paper's speed-up where the config gives one
+/// (without it the cell is empty: it read NaN).
+fn teaser_row(
+    k: f64,
+    sigma: f64,
+    pt: &Pair,
+    st: &Pair,
+    c: &Comparison,
+    paper: Option<f64>,
+) -> Vec<Cell> {
+    vec![
+        k.into(),
+        sigma.into(),
+        pt.seconds.into(),
+        st.seconds.into(),
+        c.speedup.into(),
+        c.var_ratio.into(),
+        c.var_ratio_se.into(),
+        (c.speedup * c.var_ratio).into(),
+        pt.per_path(pt.stats.events).into(),
+        st.per_path(st.stats.steps).into(),
+        st.per_path(st.stats.events).into(),
+        c.bias.into(),
+        c.bias_upper95.into(),
+        c.noise.into(),
+        paper.map_or_else(|| "".into(), Into::into),
+        pt.paths_per_second().into(),
+        st.paths_per_second().into(),
+    ]
+}
+
 /// Fig. 1: PT vs ST-CVAE at equal spp along the density ladder.
 fn teaser(ctx: &Ctx, rep: &mut Report) -> Result<()> {
     let scene = ctx.cfg.scene_path();
-    rep.columns(&[
-        "density",
-        "sigma_t_r",
-        "pt_seconds",
-        "st_seconds",
-        "speedup",
-        "var_ratio",
-        "var_ratio_se",
-        "equal_error_speedup",
-        "pt_events_per_path",
-        "st_steps_per_path",
-        "st_fallback_events_per_path",
-        "bias_rmse",
-        "bias_upper95",
-        "noise_rmse",
-        "paper_speedup",
-        "pt_paths_per_second",
-        "st_paths_per_second",
-    ]);
+    rep.columns(&TEASER_COLUMNS);
     let mut sp = Vec::new();
     let mut paper = Vec::new();
     let mut times = (Vec::new(), Vec::new());
@@ -300,27 +340,8 @@ fn teaser(ctx: &Ctx, rep: &mut Report) -> Result<()> {
         let c = compare(&pt, &st);
         let exposure = scale_of(&pt.mean) as f32;
         let sigma = SceneFile::load(&scene)?.medium.sigma_t[0] * k;
-        // A config without the paper's figure leaves the cell empty (it read NaN).
         let p = ctx.cfg.paper.get(i).copied();
-        rep.row(vec![
-            k.into(),
-            sigma.into(),
-            pt.seconds.into(),
-            st.seconds.into(),
-            c.speedup.into(),
-            c.var_ratio.into(),
-            c.var_ratio_se.into(),
-            (c.speedup * c.var_ratio).into(),
-            pt.per_path(pt.stats.events).into(),
-            st.per_path(st.stats.steps).into(),
-            st.per_path(st.stats.events).into(),
-            c.bias.into(),
-            c.bias_upper95.into(),
-            c.noise.into(),
-            p.map_or_else(|| "".into(), Into::into),
-            pt.paths_per_second().into(),
-            st.paths_per_second().into(),
-        ]);
+        rep.row(teaser_row(k, sigma, &pt, &st, &c, p));
         sp.push((k, c.speedup));
         if let Some(p) = p.filter(|p| p.is_finite()) {
             paper.push((k, p));
@@ -602,7 +623,7 @@ fn absorption(ctx: &Ctx, rep: &mut Report) -> Result<()> {
     ]);
     let (mut tp, mut ts) = (Vec::new(), Vec::new());
     for &a in &ctx.cfg.absorptions {
-        let edit = move |f: &mut SceneFile| f.medium.albedo = [1.0 - a; 3];
+        let edit = absorb(a);
         let pt = render_pair(ctx, &scene, Pt, &edit)?;
         let st = render_pair(ctx, &scene, Stcvae, &edit)?;
         let c = compare(&pt, &st);
@@ -889,5 +910,67 @@ mod tests {
         }
         assert!(super::densest_hint(5e-4).starts_with("no density"));
         assert!(super::densest_hint(f64::NAN).starts_with("no density"));
+    }
+
+    /// The teaser's equal-error speed-up is the time ratio times the variance ratio (PT's
+    /// time × variance over ST-CVAE's, the work each needs for one error): speed-up 3 and
+    /// variance ratio 0.5 give 1.5 (3 / 0.5 would give 6), in the column the header names,
+    /// and the row has a cell for every column.
+    #[test]
+    fn the_equal_error_speedup_is_the_speedup_times_the_variance_ratio() {
+        use super::{Cell, Comparison, Pair, TEASER_COLUMNS, teaser_row};
+        let pair = |seconds| Pair {
+            mean: render_gpu::image_io::RgbImage::new(1, 1),
+            var: vec![[1e-3; 3]],
+            seconds,
+            stats: render_gpu::integrator::PathStats {
+                paths: 10,
+                events: 40,
+                steps: 5,
+                ..Default::default()
+            },
+            work: vec![1.0],
+            spp: 2,
+            hash: 0,
+            view: None,
+        };
+        let c = Comparison {
+            speedup: 3.0,
+            var_ratio: 0.5,
+            var_ratio_se: 0.1,
+            bias: 0.0,
+            bias_upper95: None,
+            noise: 0.01,
+            channel_bias: [0.0; 3],
+            channel_offset: [(0.0, 0.01); 3],
+            block_chi2: 1.0,
+            blocks: 0,
+            block_null: (1.0, 0.0),
+        };
+        let row = teaser_row(1.0, 20.0, &pair(6.0), &pair(2.0), &c, None);
+        assert_eq!(row.len(), TEASER_COLUMNS.len());
+        let at = TEASER_COLUMNS
+            .iter()
+            .position(|&h| h == "equal_error_speedup")
+            .unwrap();
+        match &row[at] {
+            Cell::Num(v) => assert!((v - 1.5).abs() < 1e-12, "{v}"),
+            Cell::Text(t) => panic!("a number, not {t:?}"),
+        }
+    }
+
+    /// The absorption experiment renders at albedo φ = 1 − a on every channel (a, the
+    /// absorption, is what its config lists): a = 1/32 gives [31/32; 3], exact in binary,
+    /// whatever the scene's own albedo (the sphere scene's [0.999, 0.99, 0.95]).
+    #[test]
+    fn an_absorption_sets_the_albedo_to_one_minus_it() {
+        let path = std::path::Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../configs/scenes/sphere.toml"
+        ));
+        let mut f = render_gpu::scene::SceneFile::load(path).unwrap();
+        assert_eq!(f.medium.albedo, [0.999, 0.99, 0.95]);
+        super::absorb(1.0 / 32.0)(&mut f);
+        assert_eq!(f.medium.albedo, [31.0 / 32.0; 3]);
     }
 }

@@ -220,4 +220,21 @@ mod tests {
         assert_eq!(code_span("a `b` c"), "``a `b` c``");
         assert_eq!(code_span("x``y`"), "``` x``y` ```");
     }
+
+    /// Days since 1970-01-01 to the civil date, the report's "date": the epoch itself, a
+    /// leap day, the last day of a year and New Year's days (January and February are
+    /// the end of the algorithm's March-based year, so their year is one on). The day
+    /// counts are Python's `(date(y, m, d) - date(1970, 1, 1)).days`.
+    #[test]
+    fn days_since_the_epoch_are_civil_dates() {
+        for (days, date) in [
+            (0, (1970, 1, 1)),
+            (10_957, (2000, 1, 1)),
+            (19_782, (2024, 2, 29)),
+            (20_454, (2026, 1, 1)),
+            (20_818, (2026, 12, 31)),
+        ] {
+            assert_eq!(super::civil(days), date, "day {days}");
+        }
+    }
 }
