@@ -754,44 +754,27 @@ mod tests {
     }
 
     /// A grey (Y) or red-only EXR is refused naming the channels it has, instead of exr's
-    /// "no layer in the image matched your specified requirements".
+    /// "no layer in the image matched your specified requirements"; a part with some of R,
+    /// G and B is not an RGB part (the red-only file passed the check, and exr's own words
+    /// for it named no channel).
     #[test]
     fn an_exr_without_rgb_names_its_channels() {
         let dir = tempfile::tempdir().unwrap();
-        let p = dir.path().join("grey.exr");
-        let channels = SpecificChannels::build()
-            .with_channel("Y")
-            .with_pixel_fn(|_| (0.5f32,));
-        Image::from_channels((2, 2), channels)
-            .write()
-            .to_file(&p)
-            .unwrap();
-        let e = read_exr(&p).unwrap_err().to_string();
-        assert!(
-            e.contains("grey.exr: no part of the file has channels named R, G and B (found Y)"),
-            "{e}"
-        );
-    }
-
-    /// A red-only EXR is refused naming the one channel it has: a part with some of R, G
-    /// and B is not an RGB part (it passed the check, and exr's own words for it named no
-    /// channel).
-    #[test]
-    fn an_exr_with_red_alone_names_its_channel() {
-        let dir = tempfile::tempdir().unwrap();
-        let p = dir.path().join("red.exr");
-        let channels = SpecificChannels::build()
-            .with_channel("R")
-            .with_pixel_fn(|_| (0.5f32,));
-        Image::from_channels((2, 2), channels)
-            .write()
-            .to_file(&p)
-            .unwrap();
-        let e = read_exr(&p).unwrap_err().to_string();
-        assert!(
-            e.contains("red.exr: no part of the file has channels named R, G and B (found R)"),
-            "{e}"
-        );
+        for (name, channel) in [("grey.exr", "Y"), ("red.exr", "R")] {
+            let p = dir.path().join(name);
+            let channels = SpecificChannels::build()
+                .with_channel(channel)
+                .with_pixel_fn(|_| (0.5f32,));
+            Image::from_channels((2, 2), channels)
+                .write()
+                .to_file(&p)
+                .unwrap();
+            let e = read_exr(&p).unwrap_err().to_string();
+            let want = format!(
+                "{name}: no part of the file has channels named R, G and B (found {channel})"
+            );
+            assert!(e.contains(&want), "{e}");
+        }
     }
 
     /// The same image and tag encode to the same bytes every time (with the tag as three
