@@ -1501,4 +1501,68 @@ mod tests {
         assert_eq!(loss_rose(&[(1, 0.05), (30, 0.12)]), None);
         assert_eq!(loss_rose(&[]), None);
     }
+
+    /// The loss plot's dashed curve is the held-out walks' loss. Two histories alike but
+    /// for their held-out losses give two plots, and one history one plot. The held-out
+    /// values stay within the training losses' 2 to 5, so the axes are the same and only
+    /// the dashed curve can tell the plots apart.
+    #[test]
+    fn the_loss_plots_dashed_curve_is_the_held_out_loss() {
+        use cvae::train::validation::ValidationPoint;
+        let plot = |held_out: [f32; 3]| {
+            let validation = [1u64, 100, 1000]
+                .into_iter()
+                .zip([5.0f32, 3.0, 2.0])
+                .zip(held_out)
+                .map(|((step, train), h)| ValidationPoint {
+                    step,
+                    train: (train, 0.01),
+                    held_out: (h, 0.01),
+                    gap_z: 0.0,
+                })
+                .collect();
+            let info = cvae::train::trainer::CheckpointInfo {
+                feature_version: cvae::features::FEATURE_VERSION,
+                step: 1000,
+                seconds: 1.0,
+                norm: cvae::train::data::Standardisation {
+                    cond_shift: Vec::new(),
+                    cond_scale: Vec::new(),
+                    out_shift: Vec::new(),
+                    out_scale: Vec::new(),
+                },
+                history: vec![(1, 5.0), (1000, 2.0)],
+                crc32: None,
+                single_scattering: None,
+                ranges: None,
+                stream: None,
+                validation,
+                plan: None,
+            };
+            let decoder = cvae::decoder::Decoder {
+                cond: 0,
+                latent: 0,
+                out: 0,
+                layers: Vec::new(),
+                cond_shift: Vec::new(),
+                cond_scale: Vec::new(),
+                out_shift: Vec::new(),
+                out_scale: Vec::new(),
+            };
+            let trained = cvae::train::Trained {
+                kind: cvae::train::ModelKind::LengthGen,
+                decoder,
+                info,
+            };
+            super::loss_plot(std::path::Path::new("m.loss.png"), &[trained])
+                .unwrap()
+                .expect("a history with validation losses is plotted")
+        };
+        let near = plot([5.0, 3.5, 2.5]);
+        assert!(near == plot([5.0, 3.5, 2.5]), "one history, two plots");
+        assert!(
+            near != plot([5.0, 4.5, 3.5]),
+            "the held-out losses are not drawn"
+        );
+    }
 }

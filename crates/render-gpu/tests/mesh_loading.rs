@@ -725,6 +725,37 @@ fn malformed_gltf_is_an_error_not_a_panic_or_a_hang() {
     );
 }
 
+/// An accessor's own byteOffset counts in its bounds check (`check_accessor`, which the
+/// `gltf` reader relies on). The cube's 8 positions with a stride of 12 fill their
+/// 96-byte bufferView exactly. Started 4 bytes in, the last one ends at
+/// 7·12 + 12 + 4 = 100, past the view's end. Without the offset the sum is 96, the check
+/// passed, and the file read as "a primitive has no POSITION".
+#[test]
+fn an_accessors_byte_offset_counts_against_its_buffer_view() {
+    let d = tempfile::tempdir().unwrap();
+    let p = cube_gltf(&d, "offset.gltf", r#"[{"mesh":0}]"#, 5123, 12);
+    let text = std::fs::read_to_string(&p).unwrap();
+    let position = r#"{"bufferView":0,"componentType":5126"#;
+    assert_eq!(
+        text.matches(position).count(),
+        1,
+        "cube_gltf's POSITION changed"
+    );
+    let shifted = text.replace(
+        position,
+        r#"{"bufferView":0,"byteOffset":4,"componentType":5126"#,
+    );
+    let p = write(&d, "offset.gltf", shifted.as_bytes());
+    let e = load_mesh(&p).unwrap_err().to_string();
+    assert!(
+        e.contains("offset.gltf")
+            && e.contains(
+                "POSITION accessor 0 reaches past the end of its bufferView 0 or buffer 0"
+            ),
+        "{e}"
+    );
+}
+
 /// `object.height` scales the mesh about its box's centre and puts that centre at the
 /// origin: a box from (4, 6, −3) to (6, 10, −2) made 1 high spans ±0.25 × ±0.5 × ±0.125.
 /// (Every other mesh it is tested on is centred already, where scaling first and moving
@@ -2303,6 +2334,49 @@ fn the_view_hash_is_the_scene_without_its_integrator() {
     // Another mesh: the cube stretched along x.
     write(&d, "m.obj", CUBE_OBJ.replace("v 1", "v 2").as_bytes());
     assert_ne!(build(base, &[]).1, view, "another mesh");
+}
+
+/// The camera is checked against the object where the renderer puts them both. A mesh
+/// farther from the origin than its own extent is moved to the origin
+/// (`setup::recentre`), and the camera moves with it: here CUBE_OBJ (2 across) at
+/// x = 51,000, where it rendered not at all before recentring. A camera inside it
+/// (0.25, 0.5, 0 from its centre) is refused, named where the scene file put it.
+/// Checked at the scene file's position against the moved mesh, it lay 51,000 away and
+/// passed. A camera 40 in front still builds.
+#[test]
+fn a_camera_inside_a_far_mesh_is_refused_after_both_are_moved() {
+    let d = tempfile::tempdir().unwrap();
+    let obj: String = CUBE_OBJ
+        .lines()
+        .map(|l| match l.strip_prefix("v ") {
+            Some(v) => {
+                let c: Vec<f64> = v.split(' ').map(|t| t.parse().unwrap()).collect();
+                format!("v {} {} {}\n", c[0] + 51_000.0, c[1], c[2])
+            }
+            None => format!("{l}\n"),
+        })
+        .collect();
+    write(&d, "far.obj", obj.as_bytes());
+    let build = |origin: &str| {
+        let text = format!(
+            "[camera]\norigin = {origin}\ntarget = [51000.0, 0.0, -10.0]\nfov_deg = 30.0\n\
+             width = 8\nheight = 8\n[object]\nmesh = \"far.obj\"\n\
+             [medium]\nsigma_t = [1.0, 1.0, 1.0]\nalbedo = [0.5, 0.5, 0.5]\n"
+        );
+        let f = render_gpu::scene::SceneFile::parse(&d.path().join("s.toml"), &text).unwrap();
+        render_gpu::setup::SceneData::build(&f, d.path(), false, &[])
+            .map(|_| ())
+            .map_err(|e| e.to_string())
+    };
+    let e = build("[51000.25, 0.5, 0.0]").unwrap_err();
+    assert!(
+        e.contains(
+            "camera.origin = [51000.25, 0.5, 0] lies inside the object: the camera must be \
+             outside it (in air)"
+        ),
+        "{e}"
+    );
+    build("[51000.0, 0.0, 40.0]").unwrap();
 }
 
 /// The scene hash holds `extra_hash`, the inputs outside the scene file (the ST-CVAE
