@@ -836,6 +836,218 @@ mod tests {
         );
     }
 
+    /// Summing counters adds each field to its own: with a distinct power of two in every
+    /// field of each side, any field taken from another shows. (A leak count taken from
+    /// `capped` left the JSON's `leaks` at 0 and its warning silent.)
+    #[test]
+    fn path_stats_add_field_by_field() {
+        let stats = |k: u32| super::PathStats {
+            paths: 1 << k,
+            events: 2 << k,
+            steps: 4 << k,
+            exact_steps: 8 << k,
+            exact_events: 16 << k,
+            leaks: 32 << k,
+            capped: 64 << k,
+            non_finite: 128 << k,
+        };
+        let mut sum = stats(0);
+        sum.add(&stats(8));
+        let want = super::PathStats {
+            paths: 1 + (1 << 8),
+            events: 2 + (2 << 8),
+            steps: 4 + (4 << 8),
+            exact_steps: 8 + (8 << 8),
+            exact_events: 16 + (16 << 8),
+            leaks: 32 + (32 << 8),
+            capped: 64 + (64 << 8),
+            non_finite: 128 + (128 << 8),
+        };
+        assert_eq!(sum, want);
+    }
+
+    /// A non-finite path estimate (NaN or ±∞) is counted and replaced by 0, so that no
+    /// pixel sum turns NaN; a finite one passes unchanged.
+    #[test]
+    fn non_finite_estimates_are_counted_and_dropped() {
+        let scene = {
+            let dir = tempfile::tempdir().unwrap();
+            absorbing_boxes(
+                dir.path(),
+                &[([-0.5; 3], [0.5; 3])],
+                1.0,
+                "kind = \"index-matched\"",
+            )
+        };
+        for (radiance, want, counted) in [
+            (f32::NAN, 0.0, 1),
+            (f32::INFINITY, 0.0, 1),
+            (f32::NEG_INFINITY, 0.0, 1),
+            (0.25, 0.25, 0),
+        ] {
+            let mut path = Path::new(Vec3::splat(2.0), Vec3::X, 0, WalkRng::for_walk(29, 0));
+            path.s.radiance = radiance;
+            path.s.alive = false;
+            let Advance::Done(l) = path.advance(&scene, &pt(), &super::NEVER) else {
+                panic!("PT has no sphere steps")
+            };
+            assert_eq!((l, path.stats.non_finite), (want, counted), "{radiance}");
+        }
+    }
+
+    /// Axis-aligned boxes (lo, hi) as one mesh written into `dir`, purely absorbing at
+    /// `sigma`, with `boundary` as the [boundary] table's body, under a sky of 1.
+    fn absorbing_boxes(
+        dir: &std::path::Path,
+        boxes: &[([f32; 3], [f32; 3])],
+        sigma: f32,
+        boundary: &str,
+    ) -> SceneData {
+        let mut obj = String::new();
+        for (lo, hi) in boxes {
+            for k in 0..8 {
+                let c = |bit: usize, i: usize| if k >> bit & 1 == 1 { hi[i] } else { lo[i] };
+                obj += &format!("v {} {} {}\n", c(0, 0), c(1, 1), c(2, 2));
+            }
+        }
+        // Vertex k of a box has bits (x, y, z); faces counter-clockwise seen from outside.
+        for b in 0..boxes.len() {
+            for f in [
+                [0, 4, 6, 2],
+                [1, 3, 7, 5],
+                [0, 1, 5, 4],
+                [2, 6, 7, 3],
+                [0, 2, 3, 1],
+                [4, 5, 7, 6],
+            ] {
+                let v = f.map(|k| 1 + 8 * b + k);
+                obj += &format!("f {} {} {} {}\n", v[0], v[1], v[2], v[3]);
+            }
+        }
+        let mesh = dir.join("boxes.obj");
+        std::fs::write(&mesh, obj).unwrap();
+        let text = format!(
+            "[camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 20.0\n\
+             width = 4\nheight = 4\n[object]\nmesh = {:?}\n\
+             [medium]\nsigma_t = [{sigma:?}, {sigma:?}, {sigma:?}]\nalbedo = [0.0, 0.0, 0.0]\n\
+             [boundary]\n{boundary}\n[environment]\nradiance = [1.0, 1.0, 1.0]\n",
+            mesh.display().to_string()
+        );
+        let file = SceneFile::parse(std::path::Path::new("boxes.toml"), &text).unwrap();
+        SceneData::build(&file, dir, false, &[]).unwrap()
+    }
+
+    /// Where pieces overlap, a path crossing a face within the union is spawned eps past
+    /// it, and that way is taken off its next flight too. Two overlapping absorbing boxes,
+    /// A = [0, 20 eps] and B = [10 eps, 30 eps] in x (B narrower in y and z, so no faces
+    /// share planes), index-matched, σ_t·eps = 0.1: a ray along +x through both crosses
+    /// 30 eps of medium and two faces inside it, escaping with probability e^−3 = 0.04979.
+    /// Without the skip at the inner faces it passes 2 eps of medium unseen: e^−2.8 =
+    /// 0.06081. 10⁵ paths: standard error 6.9e-4, so that is 16 standard errors off;
+    /// allowed 4.
+    #[test]
+    fn a_face_inside_a_union_takes_its_spawn_offset_off_the_next_flight() {
+        let dir = tempfile::tempdir().unwrap();
+        let boxes = |e: f32| {
+            [
+                ([0.0, -0.5, -0.5], [20.0 * e, 0.5, 0.5]),
+                ([10.0 * e, -0.4, -0.4], [30.0 * e, 0.4, 0.4]),
+            ]
+        };
+        let eps = absorbing_boxes(dir.path(), &boxes(1e-4), 1.0, "kind = \"index-matched\"")
+            .geo
+            .eps;
+        let scene = absorbing_boxes(
+            dir.path(),
+            &boxes(eps),
+            0.1 / eps,
+            "kind = \"index-matched\"",
+        );
+        assert!(scene.geo.pieces.is_some(), "the boxes overlap");
+        assert!(
+            (scene.geo.eps - eps).abs() <= 1e-3 * eps,
+            "eps {eps}, {}",
+            scene.geo.eps
+        );
+        let set = pt();
+        let n = 100_000u64;
+        let escaped: f64 = (0..n)
+            .map(|i| {
+                let start = Vec3::new(-1.0, 0.1, 0.2);
+                let mut path = Path::new(start, Vec3::X, 0, WalkRng::for_walk(23, i));
+                let Advance::Done(l) = path.advance(&scene, &set, &super::NEVER) else {
+                    panic!("PT has no sphere steps")
+                };
+                l as f64
+            })
+            .sum();
+        let want = (-3.0f64).exp();
+        let mean = escaped / n as f64;
+        let se = (want * (1.0 - want) / n as f64).sqrt();
+        assert!(
+            (mean - want).abs() < 4.0 * se,
+            "escaped {mean:.5}, expected {want:.5} ± {se:.5}"
+        );
+    }
+
+    /// A path reflected back inside a dielectric is spawned eps deep, and that way is taken
+    /// off its next flight (`spawn_skip`), as after an entry. A purely absorbing glass slab
+    /// (ior 1.5) two spawn offsets thick (x ∈ [0, 2 eps], σ_t·eps = 0.1) under a sky of 1;
+    /// a path starts at its middle heading 40° from +x (near the critical angle, 41.8°, so
+    /// that F(40°) = 0.2453 from the textbook's angle form, R_s = 0.390518, R_p = 0.100064,
+    /// reflects often). With T = e^(−0.2/cos 40°) a crossing's transmittance it escapes with
+    /// probability √T·(1 − F)/(1 − F·T) = 0.81663. Without the skip each crossing after a
+    /// reflection passes only half the slab: 0.84405. 10⁵ paths: standard error 0.0012, so
+    /// that is 22 standard errors off; allowed 4.
+    #[test]
+    fn a_reflection_inside_takes_its_spawn_offset_off_the_next_flight() {
+        let dir = tempfile::tempdir().unwrap();
+        let slab = |x1: f32, sigma: f32| {
+            let slab = ([0.0, -0.5, -0.5], [x1, 0.5, 0.5]);
+            absorbing_boxes(
+                dir.path(),
+                &[slab],
+                sigma,
+                "kind = \"dielectric\"\nior = 1.5",
+            )
+        };
+        // eps follows the scene's size, which the slab's 1 × 1 face sets.
+        let eps = slab(1e-4, 1.0).geo.eps;
+        let scene = slab(2.0 * eps, 0.1 / eps);
+        assert!(
+            (scene.geo.eps - eps).abs() <= 1e-3 * eps,
+            "eps {eps}, {}",
+            scene.geo.eps
+        );
+        let set = pt();
+        let (c, s) = (40f32.to_radians().cos(), 40f32.to_radians().sin());
+        let n = 100_000u64;
+        let escaped: f64 = (0..n)
+            .map(|i| {
+                let mut path = Path::new(
+                    Vec3::new(eps, 0.0, 0.0),
+                    Vec3::new(c, s, 0.0),
+                    0,
+                    WalkRng::for_walk(19, i),
+                );
+                path.inside = true;
+                let Advance::Done(l) = path.advance(&scene, &set, &super::NEVER) else {
+                    panic!("PT has no sphere steps")
+                };
+                l as f64
+            })
+            .sum();
+        let f = 0.5 * (0.390_518 + 0.100_064);
+        let t = (-0.2 / 40f64.to_radians().cos()).exp();
+        let want = t.sqrt() * (1.0 - f) / (1.0 - f * t);
+        let mean = escaped / n as f64;
+        let se = (want * (1.0 - want) / n as f64).sqrt();
+        assert!(
+            (mean - want).abs() < 4.0 * se,
+            "escaped {mean:.5}, expected {want:.5} ± {se:.5}"
+        );
+    }
+
     /// With path-level NEE (m ≥ 1 reservoirs) an event's NEE is offered to the path's
     /// reservoirs and cast when the path ends, not at once: `add_nee` leaves the radiance
     /// alone and the reservoir holds the light. `path_nee_rays = 1`, the default, is one
