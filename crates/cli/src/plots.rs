@@ -650,31 +650,37 @@ mod tests {
         }
     }
 
-    /// Fig. 12's (cos θ, β) figure draws β, and its (cos θ, α) figure draws α. Two grids
-    /// alike but for β (all +0.9 in one, all −0.9 in the other, so every sample lands in
-    /// another row of the 40 × 40 density bins) give two β figures and one α figure. One
-    /// panel, at g = GS[2] (0.4), the g `render_all` takes for these figures.
+    /// Fig. 12's (cos θ, β) figure draws β, and its (cos θ, α) figure draws α. Grids alike
+    /// but for β (all +0.9 in one, all −0.9 in the other, so every sample lands in another
+    /// row of the 40 × 40 density bins) give two β figures and one α figure; grids alike but
+    /// for α (spread, or all +0.9), two α figures and one β figure. One panel, at g = GS[2]
+    /// (0.4), the g `render_all` takes for these figures.
     #[test]
     fn the_beta_figure_draws_beta_and_the_alpha_figure_alpha() {
         use super::{ALPHA, BETA, COS, LOG_N, render_all};
         use cvae::eval::{Columns, GS, TAUS};
-        let figures = |beta: f64| {
+        let figures = |alpha_spread: bool, beta: f64| {
             let n = 200;
             let mut c = Columns::default();
             c.0[LOG_N] = (0..n).map(|i| (1.0 + (i % 10) as f64).ln()).collect();
             c.0[COS] = (0..n).map(|i| -0.99 + 1.98 * i as f64 / n as f64).collect();
             c.0[ALPHA] = (0..n)
-                .map(|i| ((7 * i) % n) as f64 / n as f64 - 0.5)
+                .map(|i| match alpha_spread {
+                    true => ((7 * i) % n) as f64 / n as f64 - 0.5,
+                    false => 0.9,
+                })
                 .collect();
             c.0[BETA] = vec![beta; n];
             render_all(&[(TAUS[0], GS[2], &c, &c)]).unwrap()
         };
-        let (up, down) = (figures(0.9), figures(-0.9));
+        let (up, down, still) = (figures(true, 0.9), figures(true, -0.9), figures(false, 0.9));
         assert_eq!(
             (up[2].0.as_str(), up[3].0.as_str()),
             ("fig12_cos_alpha.png", "fig12_cos_beta.png")
         );
         assert!(up[3].1 != down[3].1, "the β figure does not show β");
         assert!(up[2].1 == down[2].1, "the α figure changed with β");
+        assert!(up[2].1 != still[2].1, "the α figure does not show α");
+        assert!(up[3].1 == still[3].1, "the β figure changed with α");
     }
 }

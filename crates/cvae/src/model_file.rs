@@ -324,8 +324,7 @@ impl ModelSet {
     /// overflow to inf, then NaN, loaded and rendered a plausible, wrong image (every exit
     /// at α = β = 0) without a word.
     fn check_finite_heads(&self) -> Result<(), String> {
-        let conditions: Vec<_> = self
-            .probe_media()
+        let conditions: Vec<_> = probe_media(&self.training)
             .into_iter()
             .flat_map(|(tau, g)| {
                 self.training
@@ -381,17 +380,11 @@ impl ModelSet {
     /// spreads below 1 at every probe.
     pub fn check_length_decoder(&self) -> Result<(), String> {
         for z in latent_probes(self.length.latent) {
-            for (tau, g) in self.probe_media() {
+            for (tau, g) in probe_media(&self.training) {
                 self.check_length_probe(tau, g, &z)?;
             }
         }
         Ok(())
-    }
-
-    /// The probes' media: a 3 × 3 grid of the training range's (τ, g), τ spaced in
-    /// ln(1 + τ).
-    fn probe_media(&self) -> Vec<(f64, f64)> {
-        probe_media(&self.training)
     }
 
     /// One probe of [`Self::check_length_decoder`].
@@ -423,7 +416,8 @@ impl ModelSet {
     }
 }
 
-/// [`ModelSet::probe_media`] of a training range.
+/// The load probes' media: a 3 × 3 grid of the training range's (τ, g), τ spaced in
+/// ln(1 + τ).
 fn probe_media(t: &TrainingInfo) -> Vec<(f64, f64)> {
     let (lo, hi) = (t.tau_range[0].ln_1p(), t.tau_range[1].ln_1p());
     let mut media = Vec::with_capacity(9);

@@ -918,25 +918,34 @@ mod tests {
             } else {
                 assert_eq!(bad.first_non_finite(), Some((3, 1)));
             }
-            let paths = [("good.exr", &good, 1), ("bad.exr", &bad, 2)].map(|(name, img, seed)| {
-                let tag = RenderTag {
-                    spp: 4,
-                    scene_hash: 1,
-                    seeds: vec![seed],
-                    partial: false,
-                    unknown_digests: Vec::new(),
-                    view_hash: None,
-                };
-                let path = dir.path().join(name);
-                std::fs::write(&path, encode_exr(img, &tag).unwrap()).unwrap();
-                path
-            });
+            let paths = [("good.exr", &good, 1), ("bad.exr", &bad, 2)]
+                .map(|(name, img, seed)| write_render(dir.path(), name, img, seed));
             let e = merge_exrs(&[&paths[0], &paths[1]]).unwrap_err().to_string();
             assert!(
                 e.contains("bad.exr") && e.contains(&format!("pixel (3, 1) {why}")),
                 "{e}"
             );
         }
+    }
+
+    /// `img` written into `dir` as a render of 4 spp of scene hash 1 with seed `seed`.
+    fn write_render(
+        dir: &std::path::Path,
+        name: &str,
+        img: &RgbImage,
+        seed: u64,
+    ) -> std::path::PathBuf {
+        let tag = RenderTag {
+            spp: 4,
+            scene_hash: 1,
+            seeds: vec![seed],
+            partial: false,
+            unknown_digests: Vec::new(),
+            view_hash: None,
+        };
+        let path = dir.join(name);
+        std::fs::write(&path, encode_exr(img, &tag).unwrap()).unwrap();
+        path
     }
 
     /// Renders of one scene hash but different sizes are refused, naming both sizes: a
@@ -950,17 +959,7 @@ mod tests {
             for (k, p) in img.pixels.iter_mut().enumerate() {
                 *p = [k as f32; 3];
             }
-            let tag = RenderTag {
-                spp: 4,
-                scene_hash: 1,
-                seeds: vec![seed],
-                partial: false,
-                unknown_digests: Vec::new(),
-                view_hash: None,
-            };
-            let path = dir.path().join(name);
-            std::fs::write(&path, encode_exr(&img, &tag).unwrap()).unwrap();
-            path
+            write_render(dir.path(), name, &img, seed)
         });
         let e = merge_exrs(&[&paths[0], &paths[1]]).unwrap_err().to_string();
         assert!(e.contains("tall.exr: size 4x3 differs from 4x2"), "{e}");

@@ -2358,9 +2358,9 @@ fn gpu_nee_counts_light_after_a_reflection() {
 /// reflected off the floor and escape into the disk. path.wgsl clears `scattered` at a
 /// reflection from the air as the CPU does (integrator/mod.rs,
 /// a_reflection_off_the_outside_after_scattering_sees_the_sun). That light is 19 % of the
-/// CPU's image with NEE on (NEE on / off − 1: −25.2 % ± 0.9 % with `scattered` kept, −5.6 %
-/// ± 1.3 % without: NEE's one face leaves out the light through the cube's other lit face,
-/// −8.6 % ± 1.0 % for the cube alone, as README says). GPU against CPU, NEE on, 16 seeds ×
+/// CPU's image with NEE on (NEE on / off − 1 in R: −25.2 % ± 0.9 % with `scattered` kept,
+/// −5.6 % ± 1.3 % without (G −7.4 %): NEE's one face leaves out the light through the
+/// cube's other lit face, −8.6 % ± 1.0 % for the cube alone, as README says). GPU against CPU, NEE on, 16 seeds ×
 /// 8² pixels × 1,280 spp each; |t| < 5.2.
 #[test]
 fn gpu_nee_counts_glints_off_the_outside() {

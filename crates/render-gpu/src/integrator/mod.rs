@@ -784,6 +784,34 @@ mod tests {
         );
     }
 
+    /// Asserts that of `n` PT paths (NEE off) from `start` along `dir`, inside the medium
+    /// if `inside`, each escaping to a sky of 1 or absorbed (0), the share escaping is
+    /// `want` within 4 standard errors of a Bernoulli mean.
+    fn assert_escapes(
+        scene: &SceneData,
+        (start, dir, inside): (Vec3, Vec3, bool),
+        seed: u64,
+        n: u64,
+        want: f64,
+    ) {
+        let escaped: f64 = (0..n)
+            .map(|i| {
+                let mut path = Path::new(start, dir, 0, WalkRng::for_walk(seed, i));
+                path.inside = inside;
+                let Advance::Done(l) = path.advance(scene, &pt(), &super::NEVER) else {
+                    panic!("PT has no sphere steps")
+                };
+                l as f64
+            })
+            .sum();
+        let mean = escaped / n as f64;
+        let se = (want * (1.0 - want) / n as f64).sqrt();
+        assert!(
+            (mean - want).abs() < 4.0 * se,
+            "escaped {mean:.5}, expected {want:.5} ± {se:.5}"
+        );
+    }
+
     /// A path inside a purely absorbing cube, eps (its spawn offset) below the top face and
     /// heading straight out, at σ_t·eps = 0.2 under a sky of 1: it escapes (1) with
     /// probability e^−0.2 = 0.81873 and is absorbed (0) otherwise. A face the cast finds
@@ -813,27 +841,9 @@ mod tests {
         )
         .unwrap();
         let scene = SceneData::build(&file, std::path::Path::new("."), false, &[]).unwrap();
-        let mut set = pt();
-        set.nee = false;
-        let n = 2_000_000u64;
         let start = Vec3::new(0.0, 0.5 - eps, 0.0);
-        let escaped: f64 = (0..n)
-            .map(|i| {
-                let mut path = Path::new(start, Vec3::Y, 0, WalkRng::for_walk(11, i));
-                path.inside = true;
-                let Advance::Done(l) = path.advance(&scene, &set, &super::NEVER) else {
-                    panic!("PT has no sphere steps")
-                };
-                l as f64
-            })
-            .sum();
-        let mean = escaped / n as f64;
         let want = (-(sigma * eps as f64)).exp();
-        let se = (want * (1.0 - want) / n as f64).sqrt();
-        assert!(
-            (mean - want).abs() < 4.0 * se,
-            "escaped {mean:.5}, expected {want:.5} ± {se:.5}"
-        );
+        assert_escapes(&scene, (start, Vec3::Y, true), 11, 2_000_000, want);
     }
 
     /// Summing counters adds each field to its own: with a distinct power of two in every
@@ -896,7 +906,9 @@ mod tests {
     }
 
     /// Axis-aligned boxes (lo, hi) as one mesh written into `dir`, purely absorbing at
-    /// `sigma`, with `boundary` as the [boundary] table's body, under a sky of 1.
+    /// `sigma`, with `boundary` as the [boundary] table's body, under a sky of 1. (The
+    /// integration tests' `common::boxes_obj` writes boxes the same way; unit tests cannot
+    /// reach it.)
     fn absorbing_boxes(
         dir: &std::path::Path,
         boxes: &[([f32; 3], [f32; 3])],
@@ -969,24 +981,13 @@ mod tests {
             "eps {eps}, {}",
             scene.geo.eps
         );
-        let set = pt();
-        let n = 100_000u64;
-        let escaped: f64 = (0..n)
-            .map(|i| {
-                let start = Vec3::new(-1.0, 0.1, 0.2);
-                let mut path = Path::new(start, Vec3::X, 0, WalkRng::for_walk(23, i));
-                let Advance::Done(l) = path.advance(&scene, &set, &super::NEVER) else {
-                    panic!("PT has no sphere steps")
-                };
-                l as f64
-            })
-            .sum();
-        let want = (-3.0f64).exp();
-        let mean = escaped / n as f64;
-        let se = (want * (1.0 - want) / n as f64).sqrt();
-        assert!(
-            (mean - want).abs() < 4.0 * se,
-            "escaped {mean:.5}, expected {want:.5} ± {se:.5}"
+        let start = Vec3::new(-1.0, 0.1, 0.2);
+        assert_escapes(
+            &scene,
+            (start, Vec3::X, false),
+            23,
+            100_000,
+            (-3.0f64).exp(),
         );
     }
 
@@ -1019,32 +1020,17 @@ mod tests {
             "eps {eps}, {}",
             scene.geo.eps
         );
-        let set = pt();
         let (c, s) = (40f32.to_radians().cos(), 40f32.to_radians().sin());
-        let n = 100_000u64;
-        let escaped: f64 = (0..n)
-            .map(|i| {
-                let mut path = Path::new(
-                    Vec3::new(eps, 0.0, 0.0),
-                    Vec3::new(c, s, 0.0),
-                    0,
-                    WalkRng::for_walk(19, i),
-                );
-                path.inside = true;
-                let Advance::Done(l) = path.advance(&scene, &set, &super::NEVER) else {
-                    panic!("PT has no sphere steps")
-                };
-                l as f64
-            })
-            .sum();
         let f = 0.5 * (0.390_518 + 0.100_064);
         let t = (-0.2 / 40f64.to_radians().cos()).exp();
         let want = t.sqrt() * (1.0 - f) / (1.0 - f * t);
-        let mean = escaped / n as f64;
-        let se = (want * (1.0 - want) / n as f64).sqrt();
-        assert!(
-            (mean - want).abs() < 4.0 * se,
-            "escaped {mean:.5}, expected {want:.5} ± {se:.5}"
+        let start = Vec3::new(eps, 0.0, 0.0);
+        assert_escapes(
+            &scene,
+            (start, Vec3::new(c, s, 0.0), true),
+            19,
+            100_000,
+            want,
         );
     }
 

@@ -33,7 +33,7 @@ pub const PROXY_DEPTH_CAP: f32 = 40.0;
 /// walk serves the rays whose crossings exceed the sorted list where pieces overlap
 /// ([`crate::geometry::MAX_UNION_CROSSINGS`]), so it must follow more than those: at 64,
 /// the list's own size, every such ray came out black (two interleaved combs of 20 teeth,
-/// `rays_through_more_crossings_than_the_list_holds`: 0 where e^−2.6 was due). Walks end
+/// `rays_through_more_crossings_than_the_list_holds`: 0 where 0.0745 was due). Walks end
 /// sooner at [`MAX_OPTICAL_DEPTH`]; only thin parts in the hundreds reach this.
 pub const MAX_CROSSINGS: u32 = 1024;
 const _: () = assert!(MAX_CROSSINGS as usize > crate::geometry::MAX_UNION_CROSSINGS);

@@ -525,8 +525,9 @@ fn add_cells(
 
 /// Two combs, each one closed piece, their bases overlapping (so the mesh is a union of
 /// pieces) and their 20 teeth interleaved, in units of the tooth pitch 2 (scaled by 1/40
-/// in the OBJ): A's teeth x ∈ [2k, 2k + 1], B's [2k + 1.25, 2k + 1.75], k = 0..19, both
-/// across y ∈ [0.5, 3.5], z ∈ [1, 5] (no face of one in a plane of the other's). A ray
+/// in the OBJ): A's teeth x ∈ [2k, 2k + 1] (y ∈ [0, 4], z ∈ [1, 5]), B's [2k + 1.25,
+/// 2k + 1.75] (y ∈ [0.5, 3.5], z ∈ [0.5, 5.5]), k = 0..19, overlapping in y ∈ [0.5, 3.5],
+/// z ∈ [1, 5] (no face of one in a plane of the other's). A ray
 /// along x through the teeth crosses up to 80 faces, beyond the 64 crossings the CPU's
 /// list holds (`MAX_UNION_CROSSINGS`): `Geometry::in_union` then flips each hit's piece,
 /// and shadow rays walk crossing by crossing. Returns the teeth as intervals of x.
@@ -566,18 +567,15 @@ fn combs_obj() -> (String, Vec<(f32, f32)>) {
     (obj, teeth)
 }
 
-/// The combs of [`combs_obj`] (written into `dir`) as the mesh of the lit scene of
-/// [`overlapping_parts_scenes`] (σ_t 4, 12, 40) with `boundary` as the [boundary] table's
-/// body; returns the scene and the teeth.
+/// The combs of [`combs_obj`] (written into `dir`) as the mesh of [`lit_mesh_scene`] (σ_t
+/// 4, 12, 40) with `boundary` as the [boundary] table's body and the sky of
+/// [`overlapping_parts_scenes`]; returns the scene and the teeth.
 pub fn combs_scene(dir: &Path, boundary: &str) -> (String, Vec<(f32, f32)>) {
     let (obj, teeth) = combs_obj();
     let path = dir.join("combs.obj");
     std::fs::write(&path, obj).unwrap();
-    let text = overlapping_parts_scenes(dir, boundary)[0].2.replace(
-        &dir.join("cube2.obj").display().to_string(),
-        &path.display().to_string(),
-    );
-    (text, teeth)
+    let tables = format!("[boundary]\n{boundary}\n[environment]\nradiance = [0.1, 0.2, 0.3]\n");
+    (lit_mesh_scene(&path, &tables), teeth)
 }
 
 /// A ray through the teeth of [`combs_obj`] (in the OBJ's units): from `p` along `d`.
@@ -604,7 +602,8 @@ impl CombRay {
 }
 
 /// `n` rays through the combs of [`combs_obj`] from random points of the teeth's band, 5e-3
-/// of the pitch clear of the teeth's faces (the spawn offset is ~8e-4 in those units), along
+/// (in [`combs_obj`]'s units, half a pitch) clear of the teeth's faces (the spawn offset is
+/// ~8e-4 in those units), along
 /// ±x tilted by ~1e-3 so that no ray runs in a face's plane (it stays in the band).
 pub fn comb_rays(teeth: &[(f32, f32)], n: usize, seed: u64) -> Vec<CombRay> {
     let mut rng = scatter_sim::WalkRng::for_walk(seed, 0);
