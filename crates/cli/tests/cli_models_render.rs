@@ -453,6 +453,24 @@ fn render_writes_exr_png_json_and_merge_averages_by_spp() {
         serde_json::from_str(&std::fs::read_to_string(a.with_extension("json")).unwrap()).unwrap();
     assert_eq!(json["spp"], 4);
     assert!(json["mean_sphere_steps_per_path"].as_f64().unwrap() > 0.0);
+    // The rates are the counters' own: paths over seconds, steps and events over paths
+    // (16² pixels × 4 spp, one path each).
+    let stat = |k: &str| json["stats"][k].as_f64().unwrap();
+    let field = |k: &str| json[k].as_f64().unwrap();
+    assert_eq!(stat("paths"), 1024.0, "{json}");
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-12 * b.abs();
+    assert!(
+        close(field("paths_per_second"), 1024.0 / field("seconds")),
+        "{json}"
+    );
+    assert!(
+        close(field("mean_sphere_steps_per_path"), stat("steps") / 1024.0),
+        "{json}"
+    );
+    assert!(
+        close(field("mean_pt_events_per_path"), stat("events") / 1024.0),
+        "{json}"
+    );
     // A CPU device names the CPU's model where the OS reports one (timings depend on it;
     // `auto` renders on a hardware GPU where there is one).
     let device = json["device"].as_str().unwrap();

@@ -347,8 +347,10 @@ fn bad_training_ranges_are_refused() {
 
 /// A decoder output that is not finite is reported by `sample_walk_checked` (and the walk
 /// is the one `sample_walk` draws from the same numbers, repaired into range); a model
-/// whose outputs are finite reports none. Here PathGen's and then EventGen's last bias is
-/// made NaN, so every walk with N ≥ 2 (and its event, where EventGen runs) is affected.
+/// whose outputs are finite reports none. Here LengthGen's, PathGen's and then EventGen's
+/// last bias is made NaN, so every walk with N ≥ 2 (and its event, where EventGen runs) is
+/// affected. A NaN length is clamped to a finite N before PathGen reads it, so only
+/// LengthGen's own check reports that one.
 #[test]
 fn non_finite_decoder_outputs_are_reported() {
     let clean = random_models(4, 1.0);
@@ -364,12 +366,12 @@ fn non_finite_decoder_outputs_are_reported() {
         (w, bad)
     };
     assert!((0..2_000).all(|s| !draw(&clean, s).1));
-    for which in ["path", "event"] {
+    for which in ["length", "path", "event"] {
         let mut m = random_models(4, 1.0);
-        let d = if which == "path" {
-            &mut m.path
-        } else {
-            &mut m.event
+        let d = match which {
+            "length" => &mut m.length,
+            "path" => &mut m.path,
+            _ => &mut m.event,
         };
         let last = d.layers.len() - 1;
         d.layers[last].bias[0] = f32::NAN;
@@ -386,10 +388,11 @@ fn non_finite_decoder_outputs_are_reported() {
                 expected += p;
                 variance += p * (1.0 - p);
             }
-            // PathGen runs for every walk with N ≥ 2; EventGen for those whose event is
-            // not event 1 (chosen with probability φ/Λ(N), and then at the centre, where a
-            // repaired event lands too, so the two cannot be told apart here).
-            if which == "path" {
+            // LengthGen and PathGen run for every walk with N ≥ 2; EventGen for those
+            // whose event is not event 1 (chosen with probability φ/Λ(N), and then at the
+            // centre, where a repaired event lands too, so the two cannot be told apart
+            // here).
+            if which != "event" {
                 assert_eq!(bad, !w.single, "{which}, seed {s}");
             } else {
                 assert!(!bad || !w.single, "{which}, seed {s}");

@@ -310,9 +310,8 @@ pub fn render(
     // must not be small either: each tile's pass ends with its wavefront draining (the
     // last paths' sphere steps in ever smaller batches), which cost ~17 % at 4 samples a
     // pixel per pass against 32 (default scene). So at least MIN_PASS samples a pass, at
-    // most 16 passes unless that would exceed MAX_PASS samples a pass; with a time budget (spp only a cap) the first pass takes one sample
-    // and later ones as many as fit in a twentieth of the budget (at most twice the last),
-    // keeping the overshoot near 5 %.
+    // most 16 passes unless that would exceed MAX_PASS samples a pass. With a time budget (spp
+    // only a cap) the first pass takes one sample and later ones `next_budget_pass`.
     let mut pass = if opts.time_budget.is_some() {
         1
     } else {
@@ -382,9 +381,7 @@ pub fn render(
             break;
         }
         if let Some(b) = opts.time_budget {
-            let per_sample = elapsed / s0 as f64;
-            // At most doubling from pass to pass, against a misestimate.
-            pass = ((0.05 * b / per_sample) as u32).clamp(1, pass.saturating_mul(2));
+            pass = next_budget_pass(b, elapsed, s0, pass);
         }
     }
     let seconds = if s0 == 0 {
@@ -393,6 +390,15 @@ pub fn render(
         seconds
     };
     sums.output(w, h, s0, opts, seconds)
+}
+
+/// Under a time budget of `budget` seconds, the samples a pixel of the next pass: as many
+/// as fit in a twentieth of the budget at the rate so far (`elapsed` seconds for `done`
+/// samples), so that the last pass overshoots the budget by about 5 %; at least 1, and at
+/// most twice `last`, against a misestimate from a short first pass.
+fn next_budget_pass(budget: f64, elapsed: f64, done: u32, last: u32) -> u32 {
+    let per_sample = elapsed / done.max(1) as f64;
+    ((0.05 * budget / per_sample) as u32).clamp(1, last.saturating_mul(2).max(1))
 }
 
 /// A tile's pixels: columns `x0..x1` of rows `y0..y1`.
@@ -587,7 +593,9 @@ pub fn pixel_variance(
 
 #[cfg(test)]
 mod tests {
-    use super::{MIN_VARIANCE_SPP, pixel_sample, pixel_variance, resolve_pixel, tile_side};
+    use super::{
+        MIN_VARIANCE_SPP, next_budget_pass, pixel_sample, pixel_variance, resolve_pixel, tile_side,
+    };
     use scatter_sim::rng::splitmix64;
 
     /// `pixel_variance` from the renderers' running sums (×3 estimates in `sum`, squares
@@ -701,6 +709,18 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// A time budget's passes: a twentieth of the budget at the rate measured so far,
+    /// never below 1 sample and never more than double the last pass.
+    #[test]
+    fn budget_passes_take_a_twentieth_of_the_budget() {
+        // A 16 s budget, 64 samples in 0.5 s: 0.8 s holds 102.4 samples, below 2 × 64.
+        assert_eq!(next_budget_pass(16.0, 0.5, 64, 64), 102);
+        // The same after a pass of 32: capped at 64.
+        assert_eq!(next_budget_pass(16.0, 0.5, 64, 32), 64);
+        // Slower than a twentieth of the budget a sample (1.5 s of 0.5 s): still 1.
+        assert_eq!(next_budget_pass(10.0, 3.0, 2, 8), 1);
     }
 
     /// 16-pixel tiles wherever they make at least 64 tiles, else 8.

@@ -1165,6 +1165,42 @@ fn a_stop_request_ends_the_render_within_a_pass() {
     assert_eq!(out.spp, 0);
 }
 
+/// The progress count is of pixel-samples, partial tiles counted by their own pixels: a
+/// 20 × 12 image has 8-pixel tiles (`tile_side`), so half of them are cut to 4 columns
+/// and 4 rows. Over 3 passes of 16 spp, the count reaches exactly width × height × spp (a
+/// partial tile counted as whole would reach 18,432 of 11,520) and never exceeds it.
+#[test]
+fn progress_counts_every_pixel_sample_once() {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    let text =
+        common::furnace_scene("kind = \"index-matched\"").replace("width = 12", "width = 20");
+    let (_, s) = scene(&text, false);
+    let set = settings(IntegratorKind::Pt, false, None);
+    let (most, calls, totals) = (AtomicU64::new(0), AtomicU64::new(0), AtomicU64::new(0));
+    let out = render(
+        &s,
+        &set,
+        &RenderOptions {
+            spp: 48,
+            seed: 2,
+            time_budget: None,
+            variance: false,
+        },
+        &|done, total| {
+            most.fetch_max(done, Ordering::Relaxed);
+            calls.fetch_add(1, Ordering::Relaxed);
+            totals.fetch_max(total, Ordering::Relaxed);
+        },
+        &AtomicBool::new(false),
+    );
+    assert_eq!(out.spp, 48);
+    let want = 20 * 12 * 48;
+    assert_eq!(totals.into_inner(), want);
+    assert_eq!(most.into_inner(), want);
+    // One call per tile and pass: 3 × 2 tiles across, 2 down, 3 passes.
+    assert_eq!(calls.into_inner(), 3 * 2 * 3);
+}
+
 /// A stop request is also answered inside one long path: started at the centre of a cube
 /// 20 across with σ_t = 500, albedo 1 (τ = 5,000 to every face, ~10⁷ events to get out), a
 /// PT path runs for seconds (to the 5·10⁷-iteration cap in a denser cube, ~23 s), which
