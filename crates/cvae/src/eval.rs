@@ -1015,4 +1015,188 @@ mod tests {
             );
         }
     }
+
+    /// The standard error of model/simulator − 1 by the delta method, Var(m/s) ≈
+    /// (se_m/s)² + (m/s · se_s/s)², on a case worked by hand: the model's {0.45, 0.5, 0.55}
+    /// (mean 0.5, standard error 0.05/√3) against the simulator's {0.9, 1, 1.1} (mean 1,
+    /// standard error 0.1/√3) give −0.5 ± √((0.05/√3)² + (0.5 · 0.1/√3)²) = 0.05·√(2/3) =
+    /// 0.040825. Without the ratio on the simulator's term it reads √(0.0125/3) = 0.064550;
+    /// the other tests of `ratio_error` have ratios near 1 (the simulator against itself)
+    /// or compare it with itself at another scale, where the two agree.
+    #[test]
+    fn ratio_error_of_a_worked_case() {
+        let r = ratio_error(&[0.45, 0.5, 0.55], &[0.9, 1.0, 1.1]);
+        let (value, se) = (r.value.unwrap(), r.se.unwrap());
+        assert!((value + 0.5).abs() < 1e-12, "{r:?}");
+        let want = 0.05 * (2.0f64 / 3.0).sqrt();
+        assert!(
+            (se / want - 1.0).abs() < 1e-9,
+            "{r:?}: standard error {se}, expected {want}"
+        );
+        assert!(r.resolved, "{r:?}");
+    }
+
+    /// Each joint statistic compares the columns its name says. Model and simulator exits
+    /// that agree in cos θ and α but not in β (0.2 against −0.2): the (cos θ, α) samples are
+    /// the same, 2-D KS 0; the (cos θ, β) ones are apart in β, so the quadrant left of and
+    /// below the simulator's last point holds all of its sample and none of the model's,
+    /// KS 1. A pair that read α's column for β's gives 0 for both; the shipped model's
+    /// figures for the two pairs (~0.035 each) and `eval`'s test of the JSON (between 0 and
+    /// 0.5) do not tell them apart.
+    #[test]
+    fn pairs_compare_the_columns_they_name() {
+        let walks = |beta: f64| -> Columns {
+            Columns::from_walks(
+                (0..20)
+                    .map(|i| {
+                        let exit = CanonicalExit {
+                            cos_theta: -0.95 + 0.1 * i as f64,
+                            alpha: 0.1 * (i % 3) as f64,
+                            beta,
+                        };
+                        (5, exit, DVec3::ZERO, DVec3::Z)
+                    })
+                    .collect(),
+            )
+        };
+        let metrics = compare_pairs(&walks(0.2), &walks(-0.2));
+        let ks = |name: &str| {
+            metrics
+                .iter()
+                .find(|m| m.quantity == name)
+                .unwrap_or_else(|| panic!("no {name} in {metrics:?}"))
+                .ks
+        };
+        assert_eq!(ks("cos_theta_alpha"), 0.0, "{metrics:?}");
+        assert_eq!(ks("cos_theta_beta"), 1.0, "{metrics:?}");
+        for (name, x, y) in PAIRS {
+            assert_eq!(name, format!("{}_{}", QUANTITIES[x], QUANTITIES[y]));
+        }
+    }
+
+    /// The half-space statistic carries the walk's NEE weight Λ(N) = Σ_{k≤N} φ^k; the tests
+    /// above all take φ = 1, where Λ(N) = N. Nothing else in it depends on φ, so at φ = 0.5
+    /// and N = 3 each side is Λ(3)/3 = (0.5 + 0.25 + 0.125)/3 = 0.291667 of its value at
+    /// φ = 1, to rounding (1e-12 allowed). N in Λ's place gives 1.
+    #[test]
+    fn half_space_nee_weighs_by_lambda() {
+        let (x, w) = (DVec3::new(0.3, -0.2, 0.5), DVec3::new(0.0, 0.6, 0.8));
+        let at = |albedo: f64| half_space_nee(4.0, 0.3, albedo, 3, x, w);
+        let (half, one) = (at(0.5), at(1.0));
+        for k in 0..3 {
+            assert!(one[k] > 0.0, "{one:?}");
+            let ratio = half[k] / one[k];
+            assert!(
+                (ratio - 0.875 / 3.0).abs() < 1e-12,
+                "side {k}: {} at φ = 0.5 against {} at φ = 1 (ratio {ratio})",
+                half[k],
+                one[k]
+            );
+        }
+    }
+
+    /// Each column holds the quantity [`QUANTITIES`] names: a walk of N = 20 with exit
+    /// (cos θ, α, β) = (0.3, −0.4, 0.5), event X = (0.2, −0.3, 0.6) (|X| = 0.7) and arriving
+    /// direction W = (0.48, 0.6, 0.64), whose eight values all differ. The shipped model's
+    /// KS figures do not tell the event's z from W's: KS(event_wz)'s stored means (0.014–
+    /// 0.016 at φ = 1, 0.019 at φ = 0.9) all lie below event_z's bounds (0.026–0.052), so
+    /// an event_z column filled from W's z went unseen.
+    #[test]
+    fn columns_hold_the_quantities_they_name() {
+        let exit = CanonicalExit {
+            cos_theta: 0.3,
+            alpha: -0.4,
+            beta: 0.5,
+        };
+        let (x, w) = (DVec3::new(0.2, -0.3, 0.6), DVec3::new(0.48, 0.6, 0.64));
+        let c = Columns::from_walks(vec![(20, exit, x, w)]);
+        for (name, want) in [
+            ("n", 20.0),
+            ("log_n", 20f64.ln()),
+            ("cos_theta", 0.3),
+            ("alpha", -0.4),
+            ("beta", 0.5),
+            ("event_radius", 0.7),
+            ("event_z", 0.6),
+            ("event_wz", 0.64),
+        ] {
+            let k = QUANTITIES.iter().position(|q| *q == name).unwrap();
+            assert_eq!(c.0[k].len(), 1, "{name}");
+            assert!(
+                (c.0[k][0] - want).abs() < 1e-12,
+                "{name}: {} against {want}",
+                c.0[k][0]
+            );
+        }
+    }
+
+    /// Each expectation in a setting's report is the mean of its own statistic, for the
+    /// model's walks and the simulator's: E[Λ(N)], E[0.99^N] and E[0.95^N] (Λ summed and
+    /// the powers raised here), the sphere NEE, the half-space NEE per side (by their
+    /// functions, tested above) and the two shells' shares. Three walks each at φ = 0.9,
+    /// with events in both shells (1 − |X| = 0.03, 0.002 and 0.05). The other tests take
+    /// one statistic at a time and would not see a field filled from another's samples (the
+    /// sphere NEE's from Λ(N)'s, say). 1e-12 relative: the report scales the samples by
+    /// the simulator's largest and back.
+    #[test]
+    fn report_fields_are_the_means_of_their_statistics() {
+        let (tau, g, albedo) = (3.0, 0.4, 0.9);
+        let exit = CanonicalExit {
+            cos_theta: 0.2,
+            alpha: 0.1,
+            beta: -0.3,
+        };
+        let u = DVec3::new(0.48, -0.6, 0.64);
+        let sim: Vec<WalkSummary> = vec![
+            (2, exit, DVec3::new(0.1, 0.2, 0.3), DVec3::Z),
+            (5, exit, 0.97f64 * u, DVec3::new(0.6, 0.0, 0.8)),
+            (9, exit, 0.998f64 * u, DVec3::new(0.0, 0.6, -0.8)),
+        ];
+        let model: Vec<WalkSummary> = vec![
+            (3, exit, DVec3::new(0.2, 0.0, 0.1), DVec3::Y),
+            (7, exit, -0.95f64 * u, -DVec3::Z),
+            (1, exit, DVec3::ZERO, DVec3::Z),
+        ];
+        let report = compare_setting(
+            &Columns::from_walks(model.clone()),
+            &Columns::from_walks(sim.clone()),
+            tau,
+            g,
+            albedo,
+        );
+        let check = |what: &str, r: &RatioError, f: &dyn Fn(&WalkSummary) -> f64| {
+            for (side, got, walks) in [
+                ("model", r.model_mean, &model),
+                ("simulator", r.sim_mean, &sim),
+            ] {
+                let want = walks.iter().map(f).sum::<f64>() / walks.len() as f64;
+                assert!(
+                    (got - want).abs() <= 1e-12 * want.abs(),
+                    "{what}, {side}: {got} against {want}"
+                );
+            }
+        };
+        check("E[Λ(N)]", &report.nee_weight, &|w: &WalkSummary| {
+            (1..=w.0).map(|k| albedo.powi(k as i32)).sum::<f64>()
+        });
+        for (k, phi) in SURVIVAL_ALBEDOS.into_iter().enumerate() {
+            check("E[φ^N]", &report.survival[k], &|w: &WalkSummary| {
+                phi.powi(w.0 as i32)
+            });
+        }
+        check("sphere NEE", &report.sphere_nee, &|w: &WalkSummary| {
+            sphere_nee(tau, g, albedo, w.0, w.2, w.3)
+        });
+        for (k, side) in SURFACE_SIDES.into_iter().enumerate() {
+            check(side, &report.half_space[k], &|w: &WalkSummary| {
+                half_space_nee(tau, g, albedo, w.0, w.2, w.3)[k]
+            });
+        }
+        for (k, [lo, hi]) in SHELLS.into_iter().enumerate() {
+            check("shell", &report.shells[k], &|w: &WalkSummary| {
+                let d = 1.0 - w.2.length();
+                if lo <= d && d < hi { 1.0 } else { 0.0 }
+            });
+        }
+    }
 }

@@ -326,4 +326,64 @@ mod tests {
             );
         }
     }
+
+    /// The uniform samplers (the simulator's fingerprint draws its walks with them, and a
+    /// dataset config may name them), which the test above never runs: τ uniform on
+    /// [2, 10], g on [−0.5, 0.8] (inside ±0.999, so the clamp leaves it alone), φ on
+    /// [0.3, 0.9]. 100,000 draws, each mapped back to the uniform it came from: each KS test
+    /// against U(0, 1) at p > 1e-4, and Pearson's r of every pair within 4.5/√n (a correct
+    /// sampler fails one of the six checks with probability ~3e-4). Worked out for two
+    /// slips: τ = min + max·u lands on [2, 12], whose CDF is 0.2 below the claimed one at
+    /// τ = 10 (D = 0.2, p ≈ 0); φ drawn from g's uniform keeps both marginals exact but
+    /// gives r = 1 between them.
+    #[test]
+    fn the_uniform_samplers_follow_their_ranges_independently() {
+        use super::{AlbedoSampler, GSampler, TauSampler};
+        let sampler = ConditionSampler {
+            tau: TauSampler::Uniform {
+                min: 2.0,
+                max: 10.0,
+            },
+            g: GSampler::Uniform {
+                min: -0.5,
+                max: 0.8,
+            },
+            albedo: AlbedoSampler::Uniform { min: 0.3, max: 0.9 },
+        };
+        sampler.validate().unwrap();
+        let mut rng = WalkRng::from_seed(2025);
+        let n = 100_000usize;
+        let uniforms: Vec<[f64; 3]> = (0..n)
+            .map(|_| {
+                let c = sampler.sample(&mut rng);
+                [
+                    (c.tau - 2.0) / 8.0,
+                    (c.g + 0.5) / 1.3,
+                    (c.albedo - 0.3) / 0.6,
+                ]
+            })
+            .collect();
+        for (k, what) in ["tau", "g", "albedo"].into_iter().enumerate() {
+            let mut v: Vec<f64> = uniforms.iter().map(|u| u[k]).collect();
+            let d = ks_one_sample(&mut v, |u| u.clamp(0.0, 1.0));
+            let p = ks_p_value(d, n as f64);
+            assert!(p > 1e-4, "{what}: KS D = {d:.4}, p = {p:.1e}");
+        }
+        let mean = |i: usize| uniforms.iter().map(|u| u[i]).sum::<f64>() / n as f64;
+        for (a, b) in [(0, 1), (0, 2), (1, 2)] {
+            let (ma, mb) = (mean(a), mean(b));
+            let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
+            for u in &uniforms {
+                let (x, y) = (u[a] - ma, u[b] - mb);
+                sab += x * y;
+                saa += x * x;
+                sbb += y * y;
+            }
+            let r = sab / (saa * sbb).sqrt();
+            assert!(
+                r.abs() < 4.5 / (n as f64).sqrt(),
+                "conditions {a} and {b} (tau, g, albedo) correlate: r = {r:.4}"
+            );
+        }
+    }
 }

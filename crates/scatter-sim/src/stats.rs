@@ -449,6 +449,30 @@ mod tests {
         assert!((wasserstein1(&mut [0.0, 1.0], &mut [3.0, 0.0]) - 1.0).abs() < 1e-15);
     }
 
+    /// Samples of unequal sizes, where each empirical CDF steps by its own 1/size (the
+    /// cases above, the sliced W1's and every caller in `stcvae eval` have equal sizes,
+    /// where the two sizes could be taken for each other unseen). {0} against {1, 2}:
+    /// F_a = 1 from 0 on, F_b = ½ on [1, 2), so W1 = 1·1 + ½·1 = 1.5 (the quantile
+    /// coupling's mean distance, (1 + 2)/2), in either order. {0, 1, 2} against
+    /// {0.5, 1.5}: |F_a − F_b| is 1/3, 1/6, 1/6, 1/3 on the four half-unit pieces of
+    /// [0, 2], so W1 = ½·(1/3 + 1/6 + 1/6 + 1/3) = 0.5. With the sizes swapped in the
+    /// CDFs these read 1.0, 1.0 and 0.833.
+    #[test]
+    fn wasserstein_of_samples_of_unequal_sizes() {
+        for (a, b, want) in [
+            (vec![0.0], vec![2.0, 1.0], 1.5),
+            (vec![1.0, 2.0], vec![0.0], 1.5),
+            (vec![0.0, 1.0, 2.0], vec![1.5, 0.5], 0.5),
+        ] {
+            let (mut a, mut b) = (a, b);
+            let w = wasserstein1(&mut a, &mut b);
+            assert!(
+                (w - want).abs() < 1e-12,
+                "{a:?} vs {b:?}: {w}, expected {want}"
+            );
+        }
+    }
+
     /// A NaN (a model that outputs NaN, in `stcvae eval`) or an empty sample makes both
     /// two-sample statistics NaN; the merge loops used to spin forever on a NaN.
     #[test]
