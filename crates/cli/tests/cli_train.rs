@@ -1144,6 +1144,38 @@ fn a_dataset_that_cannot_make_a_model_file_is_refused_before_training() {
     );
 }
 
+/// A learned-mode run (the paper's way: the models learn the walks of N = 1 too) writes a
+/// learned-mode file, and checkpoints that say so: read as exact, its N = 1 walks would be
+/// drawn twice, once by the sampler with probability e^(−τ) and again by a LengthGen that
+/// learned them (a brighter image, without a word). Every other run of these tests trains
+/// in exact mode, the default, where a file written "exact" whatever the config said
+/// passed them.
+#[test]
+fn a_learned_mode_run_writes_a_learned_mode_file() {
+    let dir = tempfile::tempdir().unwrap();
+    setup(dir.path());
+    let cfg = dir.path().join("train.toml");
+    replace_in(&cfg, "steps = 30", "steps = 5");
+    replace_in(
+        &cfg,
+        "checkpoint_dir = \"ck\"\n",
+        "checkpoint_dir = \"ck\"\nsingle_scattering = \"learned\"\n",
+    );
+    let out = stcvae(&["train", "--config", "train.toml"], dir.path());
+    assert!(out.status.success(), "train failed: {}", stderr(&out));
+    let set = ModelSet::load(&dir.path().join("m.stcvae")).unwrap();
+    assert_eq!(
+        set.single_scattering,
+        cvae::model_file::SingleScattering::Learned
+    );
+    for k in ["lengthgen", "pathgen", "eventgen"] {
+        let info: serde_json::Value =
+            serde_json::from_slice(&fs::read(dir.path().join(format!("ck/{k}.json"))).unwrap())
+                .unwrap();
+        assert_eq!(info["single_scattering"], "learned", "{k}");
+    }
+}
+
 /// A model record without its checkpoint JSON (removed by hand, or a kill between a first
 /// save's renames) cannot be resumed: `--resume` used to train that model from the start
 /// and a plain run to write over the record, both without a word. Both are refused naming

@@ -350,6 +350,187 @@ fn a_finished_run_resumed_with_more_steps_skips_no_report() {
     assert_eq!(steps, [1, 500, 995, 1000, 1200]);
 }
 
+/// Initial weights and biases are U(±1/√fan_in) (PyTorch's Linear default, which the
+/// authors trained from): a layer of 100 inputs and 3 outputs has all its 303 values within
+/// ±0.1 (1e-7 above it: the f32 of 0.1), spread over the range (the largest |v| above 0.09:
+/// all 303 below has probability 0.9³⁰³ = 1.4·10⁻¹⁴) and centred (the mean within 0.02 of
+/// 0, where its sd is 0.1/√3/√303 = 0.0033: 6 sd). A bound from the fan-out (1/√3 = 0.58)
+/// puts most values beyond 0.1; draws from U(0, a) or U(−a/2, a/2) fail the mean or the
+/// spread. No other test looks at the initial weights: the training tests compare the
+/// trained model with untrained ones drawn the same way.
+#[test]
+fn initial_weights_are_uniform_within_one_over_root_fan_in() {
+    let mut rng = WalkRng::from_seed(12);
+    let mlp = cvae::train::network::Mlp::new(&[100, 3], &mut rng, &Device::flex());
+    let layers = mlp.to_dense();
+    assert_eq!(layers.len(), 1);
+    let values: Vec<f64> = layers[0]
+        .weight
+        .iter()
+        .chain(&layers[0].bias)
+        .map(|&v| f64::from(v))
+        .collect();
+    assert_eq!(values.len(), 303);
+    let largest = values.iter().fold(0f64, |m, v| m.max(v.abs()));
+    let mean = values.iter().sum::<f64>() / values.len() as f64;
+    assert!(
+        largest <= 0.1 * (1.0 + 1e-7) && largest > 0.09 && mean.abs() < 0.02,
+        "largest |v| {largest}, mean {mean}"
+    );
+}
+
+/// The first Adamax step moves each parameter by the learning rate of step 0 times
+/// |g|/(|g| + ε): m₁/u₁ = (1 − β₁)g/|g| and the bias correction 1/(1 − β₁) cancel. So no
+/// decoder weight moves by more than lr(0), and those whose gradient is far above
+/// ε = 1e-8 (the output biases' are O(0.1)) by lr(0) itself. With a warm-up of 4 steps
+/// lr(0) is lr/4 = 2.5e-3: a trainer that stepped at lr (the schedule ignored) moved them
+/// by 1e-2, one that took step 1's rate by 5e-3. The run stops after its first step (its
+/// step-1 report sets the cancel flag), and its checkpoint holds the weights. Bounds: 1e-4
+/// of lr(0) above (f32 rounding of weights below 0.45 is 3e-8, 1.2e-5 of it) and 1e-3
+/// below (a gradient of 1e-5 or more).
+#[test]
+fn the_first_step_moves_each_weight_by_step_0s_rate() {
+    let s = scatter_sim::ConditionSampler::fixed(scatter_sim::Conditions {
+        tau: 5.0,
+        g: 0.3,
+        albedo: 1.0,
+    });
+    let rows: Vec<_> = (0..500).map(|w| walk_row(21, &s, w).0).collect();
+    let kind = ModelKind::PathGen;
+    let table = Table::build(kind, &rows, SingleScattering::Exact);
+    let cfg = ModelConfig {
+        latent: 2,
+        hidden: vec![8],
+        encoder_hidden: None,
+        steps: 4,
+        batch_size: 32,
+        lr: 1e-2,
+        lr_final: 1e-3,
+        warmup: Some(4),
+    };
+    let lr0 = cfg.learning_rate(0);
+    assert!((lr0 - 2.5e-3).abs() < 1e-15, "lr(0) = {lr0}");
+    let seed = 8;
+    let dir = tempfile::tempdir().unwrap();
+    let cancel = AtomicBool::new(false);
+    let report = |_: ModelKind, step: u64, _: f32, _: Option<&ValidationPoint>| {
+        if step == 1 {
+            cancel.store(true, std::sync::atomic::Ordering::Relaxed);
+        }
+    };
+    let stopped = train_model(
+        kind,
+        &table,
+        &cfg,
+        seed,
+        &Device::flex().autodiff(),
+        dir.path(),
+        0,
+        false,
+        &cancel,
+        None,
+        &report,
+    );
+    assert!(
+        matches!(stopped, Err(cvae::train::TrainError::Interrupted(_))),
+        "the run stops after its first step"
+    );
+    let (stepped, info) =
+        cvae::train::trainer::load_decoder(dir.path(), kind, &cfg.architecture()).unwrap();
+    assert_eq!(info.step, 1);
+    // The run's initial network: drawn from its stream before anything else.
+    let mut rng = WalkRng::for_walk(seed, kind as u64);
+    let initial = Cvae::new(
+        kind.cond(),
+        kind.out(),
+        &cfg.architecture(),
+        &mut rng,
+        &Device::flex(),
+    )
+    .decoder
+    .to_dense();
+    assert_eq!(initial.len(), stepped.layers.len());
+    let mut largest = 0f64;
+    for (a, b) in initial.iter().zip(&stepped.layers) {
+        assert_eq!((a.inputs, a.outputs), (b.inputs, b.outputs));
+        for (x, y) in a
+            .weight
+            .iter()
+            .chain(&a.bias)
+            .zip(b.weight.iter().chain(&b.bias))
+        {
+            let moved = (f64::from(*x) - f64::from(*y)).abs();
+            assert!(
+                moved <= lr0 * (1.0 + 1e-4),
+                "a parameter moved by {moved}, more than lr(0) = {lr0}"
+            );
+            largest = largest.max(moved);
+        }
+    }
+    assert!(
+        largest >= lr0 * (1.0 - 1e-3),
+        "the largest move {largest} is not lr(0) = {lr0}"
+    );
+}
+
+/// A resumed run's time counts the runs before it (the model file's note says "… s over
+/// all its runs"): the record's `seconds`, here edited to 1,000 (its checksums cover the
+/// weight files only), carries into the resumed run's. A finished run resumed with
+/// nothing left to train exports at once, so its time is 1,000 s and that export's
+/// milliseconds: at least 1,000 and far below 2,000. Started from 0 again, it was the
+/// export's milliseconds alone.
+#[test]
+fn a_resumed_run_counts_the_seconds_of_the_runs_before() {
+    let s = scatter_sim::ConditionSampler::fixed(scatter_sim::Conditions {
+        tau: 5.0,
+        g: 0.3,
+        albedo: 1.0,
+    });
+    let rows: Vec<_> = (0..500).map(|w| walk_row(21, &s, w).0).collect();
+    let table = Table::build(ModelKind::PathGen, &rows, SingleScattering::Exact);
+    let cfg = ModelConfig {
+        latent: 2,
+        hidden: vec![8],
+        encoder_hidden: None,
+        steps: 20,
+        batch_size: 16,
+        lr: 5e-3,
+        lr_final: 1e-3,
+        warmup: Some(5),
+    };
+    let dev = Device::flex().autodiff();
+    let dir = tempfile::tempdir().unwrap();
+    let run = |resume: bool| {
+        train_model(
+            ModelKind::PathGen,
+            &table,
+            &cfg,
+            8,
+            &dev,
+            dir.path(),
+            0,
+            resume,
+            &AtomicBool::new(false),
+            None,
+            &|_, _, _, _| {},
+        )
+        .unwrap()
+    };
+    assert_eq!(run(false).info.step, 20);
+    let record = dir.path().join("pathgen.json");
+    let mut v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&record).unwrap()).unwrap();
+    v["seconds"] = serde_json::json!(1000.0);
+    std::fs::write(&record, v.to_string()).unwrap();
+    let resumed = run(true);
+    assert_eq!(resumed.info.step, 20);
+    assert!(
+        (1000.0..2000.0).contains(&resumed.info.seconds),
+        "{} s",
+        resumed.info.seconds
+    );
+}
+
 /// PathGen on 20,000 walks at three fixed conditions: 600 Adamax steps lower the loss
 /// and the KS distance of cos θ to fresh simulator walks falls below the untrained one.
 #[test]
@@ -591,4 +772,73 @@ fn the_held_out_loss_tells_learning_from_memorising() {
     assert_eq!(many.step, 3000);
     assert!(many.gap_z.abs() < 4.0, "{many:?}");
     assert!(few.gap_z > 6.0, "{few:?}");
+}
+
+/// A checkpoint whose columns without spread carry the old scale of 10⁻⁶ (`same_data`
+/// takes it for the same data) is resumed with the table's scale of 1, which its next save
+/// records. Kept, `train --model X` exported the other models from their records
+/// (`load_decoder`) with the 10⁻⁶ scale: any condition off the training value then reached
+/// the network a million times larger (a render 26 % too bright, data.rs's column_stats).
+/// Here a fixed-condition PathGen (its conditions τ and g without spread; φ is not one)
+/// trained for 20 steps has its
+/// record's scales of 1 set to 10⁻⁶, and is resumed to 30 steps.
+#[test]
+fn a_resumed_run_records_the_tables_standardisation() {
+    let s = scatter_sim::ConditionSampler::fixed(scatter_sim::Conditions {
+        tau: 5.0,
+        g: 0.3,
+        albedo: 1.0,
+    });
+    let rows: Vec<_> = (0..500).map(|w| walk_row(22, &s, w).0).collect();
+    let table = Table::build(ModelKind::PathGen, &rows, SingleScattering::Exact);
+    let cfg = |steps| ModelConfig {
+        latent: 2,
+        hidden: vec![8],
+        encoder_hidden: None,
+        steps,
+        batch_size: 16,
+        lr: 5e-3,
+        lr_final: 1e-3,
+        warmup: Some(5),
+    };
+    let dev = Device::flex().autodiff();
+    let dir = tempfile::tempdir().unwrap();
+    let run = |steps: u64, resume: bool| {
+        train_model(
+            ModelKind::PathGen,
+            &table,
+            &cfg(steps),
+            8,
+            &dev,
+            dir.path(),
+            0,
+            resume,
+            &AtomicBool::new(false),
+            None,
+            &|_, _, _, _| {},
+        )
+        .unwrap()
+    };
+    assert_eq!(run(20, false).info.step, 20);
+    let record = dir.path().join("pathgen.json");
+    let read = || -> serde_json::Value {
+        serde_json::from_slice(&std::fs::read(&record).unwrap()).unwrap()
+    };
+    let mut v = read();
+    let mut old = 0;
+    for x in v["norm"]["cond_scale"].as_array_mut().unwrap() {
+        if x.as_f64() == Some(1.0) {
+            *x = serde_json::json!(1e-6f32);
+            old += 1;
+        }
+    }
+    assert_eq!(old, 2, "columns without spread");
+    std::fs::write(&record, v.to_string()).unwrap();
+    let resumed = run(30, true);
+    assert_eq!(resumed.info.step, 30);
+    assert_eq!(resumed.info.norm, table.norm);
+    let saved = &read()["norm"]["cond_scale"];
+    let want: Vec<f32> = table.norm.cond_scale.clone();
+    let got: Vec<f32> = serde_json::from_value(saved.clone()).unwrap();
+    assert_eq!(got, want);
 }

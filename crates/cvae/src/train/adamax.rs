@@ -140,4 +140,63 @@ mod tests {
         }
         assert_eq!(state.unwrap().time, 3);
     }
+
+    /// ε and β₂ as written (1e-8, 0.999), where the test above cannot see them: its
+    /// gradients are ≥ 1e-3 (ε/u ≤ 1e-5) and it takes three steps (β₂³ against 1 moves its
+    /// result by 3.7e-6, inside its 1e-5; β₂ = 0.9999 by 3.3e-6, ε = 1e-6 by 3.6e-6).
+    ///
+    /// ε: the first step is lr·g/(|g| + ε) (m₁ = (1 − β₁)g, u₁ = |g|, the bias correction
+    /// 1/(1 − β₁) cancels), so with lr = 0.01 from θ = 0 the gradients 1e-6, 1e-8 and −0.5
+    /// give θ = −0.01/1.01 = −0.00990099, −0.005 and +0.01 (−0.5/(0.5 + 1e-8) = −1 within
+    /// 2e-8). ε = 1e-6 gives −0.00495 and −9.9e-5, ε = 1e-7 −0.00909 and −9.1e-4.
+    ///
+    /// β₂: 300 steps whose first gradient (±1) is 100 and 50 times the rest (0.01, −0.02),
+    /// so u_t = β₂^(t−1) decays all the while, against the update rule in f64: θ ends at
+    /// (−0.0648954, 0.0995642). β₂ = 0.9999 ends 0.0092 away, no decay (β₂ = 1) 0.0101.
+    ///
+    /// Within 1e-7 for the one step (f32 rounding: ~1e-9 here) and 1e-5 for the 300 (f32
+    /// against f64: 1.4e-7, computed in numpy with the same f32 operations).
+    #[test]
+    fn epsilon_and_beta_2_are_the_papers() {
+        let dev = Device::flex();
+        let opt = Adamax::default();
+        let lr = 0.01;
+        let tensor = |v: &[f64]| {
+            Tensor::<1>::from_data(
+                TensorData::new(v.iter().map(|&x| x as f32).collect::<Vec<_>>(), [v.len()]),
+                &dev,
+            )
+        };
+        let (one, _) = opt.step(lr, tensor(&[0.0; 3]), tensor(&[1e-6, 1e-8, -0.5]), None);
+        let got: Vec<f32> = one.try_into_vec_as::<f32>().unwrap();
+        for (a, b) in got.iter().zip([-0.01 / 1.01, -0.005, 0.01f64]) {
+            assert!((*a as f64 - b).abs() < 1e-7, "one step: {got:?}");
+        }
+
+        let steps = 300;
+        let grad = |t: usize| -> [f64; 2] { if t == 0 { [1.0, -1.0] } else { [0.01, -0.02] } };
+        let mut t = tensor(&[0.0, 0.0]);
+        let mut state = None;
+        let (mut theta, mut m, mut u) = ([0.0f64; 2], [0.0f64; 2], [0.0f64; 2]);
+        for step in 0..steps {
+            let g = grad(step);
+            let (nt, ns) = opt.step(lr, t, tensor(&g), state);
+            t = nt;
+            state = ns;
+            for i in 0..2 {
+                m[i] = 0.9 * m[i] + 0.1 * g[i];
+                u[i] = (0.999 * u[i]).max(g[i].abs());
+                let bias = 1.0 - 0.9f64.powi(step as i32 + 1);
+                theta[i] -= lr / bias * m[i] / (u[i] + 1e-8);
+            }
+        }
+        assert!(
+            (theta[0] + 0.0648954).abs() < 1e-6 && (theta[1] - 0.0995642).abs() < 1e-6,
+            "the reference itself: {theta:?}"
+        );
+        let got: Vec<f32> = t.try_into_vec_as::<f32>().unwrap();
+        for (a, b) in got.iter().zip(&theta) {
+            assert!((*a as f64 - b).abs() < 1e-5, "{got:?} vs {theta:?}");
+        }
+    }
 }

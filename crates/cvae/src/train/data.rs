@@ -439,6 +439,98 @@ mod tests {
         assert!(!moved.same_data(&now));
     }
 
+    /// A checkpoint whose standardisation differs in any one of its four vectors is other
+    /// data (`resume_from` refuses it). The test above changes the conditions' vectors
+    /// only: a comparison that skipped the targets' shift or scale (or compared the
+    /// conditions' twice) resumed a checkpoint on another dataset's targets, its weights
+    /// reading them on another scale, without a word.
+    #[test]
+    fn a_change_in_any_standardisation_vector_is_other_data() {
+        let now = super::Standardisation {
+            cond_shift: vec![0.875, 3.0],
+            cond_scale: vec![1.0, 2.0],
+            out_shift: vec![0.25],
+            out_scale: vec![1.5],
+        };
+        for field in 0..4 {
+            let mut was = now.clone();
+            match field {
+                0 => was.cond_shift[1] = 3.5,
+                1 => was.cond_scale[1] = 2.5,
+                2 => was.out_shift[0] = 0.5,
+                _ => was.out_scale[0] = 1.25,
+            }
+            assert!(
+                !was.same_data(&now) && !now.same_data(&was),
+                "field {field}: {was:?}"
+            );
+        }
+    }
+
+    /// A held-out table is standardised with its training table's statistics, not its
+    /// own, so that a model reads held-out walks as it read its training walks (the
+    /// validation loss compares the two). Held-out walks at one condition (τ = 5, g = 0.3:
+    /// their own statistics differ, their τ and g columns being constant, scaled by 1)
+    /// against a training table of the authors' condition distribution: the held-out
+    /// table has the training table's standardisation, and each of its conditions and
+    /// targets is (raw − shift)/scale with the training table's shift and scale. The raw
+    /// features are the f32 of the same f64s and the operations the same, so the values
+    /// agree to the last bit; 1e-6 relative leaves room for nothing but that.
+    #[test]
+    fn held_out_tables_take_the_training_tables_standardisation() {
+        let sampler = scatter_sim::conditions::ConditionSampler::authors();
+        let rows: Vec<_> = (0..2_000)
+            .map(|i| scatter_sim::dataset::walk_row(7, &sampler, i).0)
+            .collect();
+        let fixed = scatter_sim::ConditionSampler::fixed(scatter_sim::Conditions {
+            tau: 5.0,
+            g: 0.3,
+            albedo: 1.0,
+        });
+        let held_rows: Vec<_> = (0..300)
+            .map(|i| scatter_sim::dataset::walk_row(8, &fixed, i).0)
+            .collect();
+        let kind = ModelKind::PathGen;
+        let t = Table::build(kind, &rows, SingleScattering::Exact);
+        let held = Table::like(&t, &held_rows);
+        assert_eq!(held.norm, t.norm);
+        let own = Table::build(kind, &held_rows, SingleScattering::Exact);
+        assert_ne!(
+            own.norm, t.norm,
+            "the held-out walks' own statistics differ"
+        );
+        let kept: Vec<_> = held_rows.iter().filter(|r| r.n >= 2).collect();
+        assert_eq!(held.rows, kept.len());
+        let (c, p) = (kind.cond(), kind.out());
+        let n = &t.norm;
+        let close = |got: f32, want: f32, what: &str| {
+            assert!(
+                (got - want).abs() <= 1e-6 * (1.0 + want.abs()),
+                "{what}: {got} against {want}"
+            );
+        };
+        for (i, r) in kept.iter().enumerate() {
+            let raw_c = features::path_cond(r.tau as f64, r.g as f64, r.n as u64);
+            for j in 0..c {
+                let want = (raw_c[j] as f32 - n.cond_shift[j]) / n.cond_scale[j];
+                close(
+                    held.cond[i * c + j],
+                    want,
+                    &format!("walk {i} condition {j}"),
+                );
+            }
+            let raw_t = features::path_target(r.cos_theta as f64, r.beta as f64, r.alpha as f64);
+            for j in 0..p {
+                let want = (raw_t[j] as f32 - n.out_shift[j]) / n.out_scale[j];
+                close(
+                    held.target[i * p + j],
+                    want,
+                    &format!("walk {i} target {j}"),
+                );
+            }
+        }
+    }
+
     /// A constant column is scaled by 1, not 10⁻⁶ (which multiplied any other value a
     /// million-fold at the network's input); a varying one by its standard deviation.
     #[test]

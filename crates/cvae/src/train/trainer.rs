@@ -952,6 +952,10 @@ fn resume_from(
                 .into(),
         ));
     }
+    // The same data, but a column without spread may carry the old scale of 10⁻⁶, which
+    // the run's saves would keep and `load_decoder` export (`column_stats`: a render 26 %
+    // too bright at another g); the table's is the one the run trains with.
+    info.norm = table.norm.clone();
     let plan = Plan::of(cfg, seed);
     if let Some(was) = &info.plan
         && info.step < was.steps
@@ -1086,6 +1090,48 @@ mod tests {
             e,
             "pathgen.warmup: 101 is out of range: allowed [0, steps = 100]"
         );
+    }
+
+    /// The schedule at its landmarks against the formula worked by hand, with lr = 1e-2,
+    /// lr_final = 1e-4 and a warm-up of 25 of 125 steps (a decay over 100): lr/25 = 4e-4
+    /// at step 0; lr at the warm-up's last step (24) and at the decay's first (25), never
+    /// above it; lr_final + (lr − lr_final)(1 + cos π/4)/2 = 8.550179e-3 a quarter into the
+    /// decay (step 50); (lr + lr_final)/2 = 5.05e-3 halfway (step 75); lr_final at step 125.
+    /// Within 1e-12 relative: f64 rounding (cos π/2 = 6e-17). The test above checks step 24,
+    /// the end and that step 60 lies between the two rates, which a decay from
+    /// lr + 2·lr_final (the difference written as a sum: 1.02e-2 at step 25, 5.15e-3 at 75)
+    /// passed, as did a warm-up one step too long (lr·26/25 at step 25).
+    #[test]
+    fn the_schedule_meets_its_landmarks() {
+        let c = config(125, Some(25));
+        let (lr, fin) = (1e-2, 1e-4);
+        for (step, want) in [
+            (0, lr / 25.0),
+            (24, lr),
+            (25, lr),
+            (
+                50,
+                fin + 0.5 * (lr - fin) * (1.0 + std::f64::consts::FRAC_1_SQRT_2),
+            ),
+            (75, 0.5 * (lr + fin)),
+            (125, fin),
+        ] {
+            let got = c.learning_rate(step);
+            assert!(
+                (got - want).abs() <= 1e-12 * want,
+                "step {step}: {got} against {want}"
+            );
+        }
+        // Rising through the warm-up, falling after it, never above lr.
+        for s in 0..125 {
+            let (a, b) = (c.learning_rate(s), c.learning_rate(s + 1));
+            assert!(a <= lr * (1.0 + 1e-12), "step {s}: {a}");
+            if s < 24 {
+                assert!(b > a, "warm-up step {s}: {a} then {b}");
+            } else {
+                assert!(b <= a * (1.0 + 1e-12), "decay step {s}: {a} then {b}");
+            }
+        }
     }
 
     /// A refused layer list names its count or its first bad width, not the whole list.
