@@ -28,7 +28,7 @@ enum What {
         #[arg(long, allow_negative_numbers = true, default_value_t = 16384,
               value_parser = crate::whole::whole::<u64>(1024, 1 << 24))]
         walks: u64,
-        /// Threads of the parallel measurement, 1 to 1,024 (default: all cores).
+        /// Threads of the parallel measurement, 1 to 1,024 (default: RAYON_NUM_THREADS where set, else all cores).
         #[arg(long, value_parser = crate::generate::threads_parser())]
         threads: Option<usize>,
     },

@@ -33,7 +33,7 @@ pub struct Args {
     #[arg(long, allow_negative_numbers = true, default_value_t = 64,
           value_parser = crate::whole::whole::<u32>(1, 1024))]
     rounds: u32,
-    /// Threads of the CPU's parallel measurement, 1 to 1,024 (default: all cores).
+    /// Threads of the CPU's parallel measurement, 1 to 1,024 (default: RAYON_NUM_THREADS where set, else all cores).
     #[arg(long, value_parser = crate::generate::threads_parser())]
     threads: Option<usize>,
     /// Model file (default: models/default.stcvae).

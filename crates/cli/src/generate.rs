@@ -54,7 +54,7 @@ pub struct Args {
     /// number, so CSV shards are joined in the order given: list them 0, 1, …, n − 1).
     #[arg(long, allow_hyphen_values = true)]
     shard: Option<Shard>,
-    /// Worker threads, 1 to 1,024 (default: all cores). The output does not depend on it.
+    /// Worker threads, 1 to 1,024 (default: RAYON_NUM_THREADS where set, else all cores). The output does not depend on it.
     #[arg(long, value_parser = crate::generate::threads_parser())]
     threads: Option<usize>,
 }
