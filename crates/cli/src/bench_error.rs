@@ -680,6 +680,29 @@ mod tests {
         }
     }
 
+    /// An image given as R.exr,G.exr,B.exr (a renderer run once per colour channel) takes
+    /// channel c from the c-th file. Worked case: file k holds 10k + c + 1 in channel c of
+    /// every pixel, a value of its own per (file, channel), so the image is (1, 12, 23);
+    /// every channel from the first file would read (1, 2, 3), each file's red (1, 11, 21).
+    #[test]
+    fn a_per_channel_triple_takes_each_channel_from_its_own_file() {
+        let d = tempfile::tempdir().unwrap();
+        let files: Vec<String> = (0..3)
+            .map(|k: usize| {
+                let img = image(2, 2, |_, c| (10 * k + c + 1) as f32);
+                let path = d.path().join(format!("c{k}.exr"));
+                let bytes = render_gpu::image_io::encode_untagged_exr(&img).unwrap();
+                std::fs::write(&path, bytes).unwrap();
+                path.to_str().unwrap().to_string()
+            })
+            .collect();
+        let img = load_spec(&files, 2, 2, &mut Seen::default()).unwrap();
+        assert_eq!((img.width, img.height), (2, 2));
+        for p in &img.pixels {
+            assert_eq!(*p, [1.0, 12.0, 23.0]);
+        }
+    }
+
     #[test]
     fn image_arguments_parse_or_say_why_not() {
         let v = |label: Option<&str>, names: &[&str], seconds| Spec {

@@ -789,6 +789,73 @@ mod tests {
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), files.len());
     }
 
+    /// `--save`'s pictures: both images at PT's exposure (its brightest 1 % at 1, so that
+    /// they compare by eye), and the z map's grey per 4×4 block, 0.5 + z/8 with z of
+    /// ST-CVAE − PT (brighter where ST-CVAE is brighter), in the block where it lies.
+    /// Worked case: an 8×8 pair, PT 0.5 everywhere, every pixel-channel's variance of the
+    /// mean 0.005 in both (a block's noise √(32 · 0.005) = 0.4, ν = 3·0.16²/0.0008 = 96 ≥
+    /// MIN_BLOCK_DOF); ST-CVAE 0.55 (top left), 0.4 (top right), 0.5 (bottom left) and
+    /// 0.7 (bottom right): z = 16·Δ/0.4 = 2, −4, 0 and 8, grey 0.75, 0, 0.5 and 1 (clamped),
+    /// PNG levels 191, 0, 128 and 255 (⌊255·v + 0.5⌋; f32 rounding moves z by < 1e-6).
+    /// ST-CVAE − PT taken the other way round gives 64, 255, 128, 0; blocks taken by
+    /// column, 191, 128, 0, 255. PT's exposure is 1/0.5 = 2 (a constant image's 99th
+    /// percentile), ST-CVAE's would be 1/0.7.
+    #[test]
+    fn the_saved_pictures_are_at_pts_exposure_and_the_z_map_shows_where_st_cvae_differs() {
+        use render_gpu::image_io::encode_png;
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            a: Args,
+        }
+        let a = Cli::try_parse_from(["bench"]).unwrap().a;
+        let dir = tempfile::tempdir().unwrap();
+        let block = |i: usize| (i / 8 / 4) * 2 + (i % 8) / 4;
+        let pair = |value: &dyn Fn(usize) -> f32| {
+            let mut mean = render_gpu::image_io::RgbImage::new(8, 8);
+            for (i, p) in mean.pixels.iter_mut().enumerate() {
+                *p = [value(i); 3];
+            }
+            Pair {
+                mean,
+                var: vec![[0.005; 3]; 64],
+                seconds: 1.0,
+                stats: Default::default(),
+                work: vec![1.0; 64],
+                spp: 2,
+                hash: 7,
+                view: None,
+            }
+        };
+        let pt = pair(&|_: usize| 0.5f32);
+        let st = pair(&|i: usize| [0.55f32, 0.4, 0.5, 0.7][block(i)]);
+        save_images(&a, dir.path(), 1.0, &pt, &st).unwrap();
+        let z = std::fs::read(super::saved_z(dir.path(), 1.0)).unwrap();
+        let mut dec = png::Decoder::new(std::io::Cursor::new(z))
+            .read_info()
+            .unwrap();
+        let mut grey = vec![0; dec.output_buffer_size()];
+        let info = dec.next_frame(&mut grey).unwrap();
+        assert_eq!((info.width, info.height, grey.len()), (8, 8, 8 * 8 * 3));
+        for (i, p) in grey.chunks(3).enumerate() {
+            let want = [191u8, 0, 128, 255][block(i)];
+            assert_eq!(p, &[want; 3][..], "pixel ({}, {})", i % 8, i / 8);
+        }
+        assert_ne!(
+            encode_png(&pt.mean, 2.0).unwrap(),
+            encode_png(&pt.mean, 1.0 / 0.7).unwrap()
+        );
+        for (name, p) in [("pt", &pt), ("stcvae", &st)] {
+            let file = crate::merge::image_out(&super::saved_stem(dir.path(), 1.0, name), "png");
+            assert_eq!(
+                std::fs::read(&file).unwrap(),
+                encode_png(&p.mean, 2.0).unwrap(),
+                "{}",
+                file.display()
+            );
+        }
+    }
+
     /// The ladder at k = 1 is the teaser's scene file, so that the bench's figures and
     /// `experiment teaser`'s are of one medium.
     #[test]

@@ -378,6 +378,25 @@ mod tests {
         assert!(err.contains("not a stored PT pair"), "{err}");
     }
 
+    /// A stored pair's identity names the host's CPU model once: a GPU's after its adapter
+    /// (PT's time on a GPU depends on the host too: a pair timed on one host must not give
+    /// the speed-up on another with the same adapter), a CPU's where its device words name
+    /// it already. Where the OS reports no model there is nothing to name.
+    #[test]
+    fn the_identity_names_the_cpu_model_once() {
+        let Some(m) = crate::device::cpu_model() else {
+            eprintln!("skipped: the OS reports no CPU model here");
+            return;
+        };
+        let gpu = identity("gpu: Adapter (Vulkan, DiscreteGpu)").unwrap();
+        assert!(
+            gpu.starts_with(&format!("gpu: Adapter (Vulkan, DiscreteGpu) / {m} / ")),
+            "{gpu}"
+        );
+        let cpu = identity(&format!("cpu (2 threads, {m})")).unwrap();
+        assert_eq!(cpu.matches(m.as_str()).count(), 1, "{cpu}");
+    }
+
     #[test]
     fn a_pair_that_would_read_as_damaged_is_not_stored() {
         let dir = tempfile::tempdir().unwrap();

@@ -1721,6 +1721,14 @@ fn the_render_json_describes_the_render() {
     );
     let view = tag.view_hash.expect("a render's tag records its view");
     assert_eq!(json["view_hash"], format!("{view:016x}"), "{json}");
+    // The PNG preview is the EXR at --exposure, the factor the JSON records: the same
+    // bytes as the EXR's pixels encoded at 2, which differ from those at 1 (the sky's 0.1
+    // a channel alone reads 0.2 at 2).
+    let (image, _) = render_gpu::image_io::read_exr(&tmp.path().join("r.exr")).unwrap();
+    let png = std::fs::read(tmp.path().join("r.png")).unwrap();
+    let at = |exposure: f32| render_gpu::image_io::encode_png(&image, exposure).unwrap();
+    assert_ne!(at(2.0), at(1.0));
+    assert!(png == at(2.0), "the PNG is not the EXR at --exposure 2");
     for key in [
         "model",
         "model_hash",
@@ -2616,6 +2624,48 @@ fn bench_error_ranks_renders_by_error_and_names_bad_inputs() {
     );
     assert_eq!(h[3], 1.0);
     assert!((l[3] - l[2] / h[2]).abs() <= 0.01 * l[3] + 0.01, "{text}");
+    // The figures themselves, recomputed from the EXRs: MSE = mean((image − reference)²) −
+    // mean(Var(reference mean)) (the three renders' sample variance over 3), raised to 0;
+    // the RMSE column is its root, printed to 4 decimals (±5e-5), and MSE·s the MSE times
+    // the seconds, to 4 significant digits (±5e-4 relative). Both stay within those with
+    // 1e-5 and 5e-4 to spare (the sums are the binary's, in the same order). With an MSE
+    // in (1e-6, 0.5) (here ~0.002 and ~0.07), its root differs from it by over 9e-4 and
+    // 41 %: an RMSE column that printed the MSE, or an MSE·s made of the RMSE, fails.
+    let pixels = |p: &str| {
+        render_gpu::image_io::read_exr(Path::new(p))
+            .unwrap()
+            .0
+            .pixels
+    };
+    let ref_pixels: Vec<Vec<[f32; 3]>> = refs.iter().map(|r| pixels(r)).collect();
+    let mse_of = |p: &str| -> f64 {
+        let img = pixels(p);
+        let (mut d2, mut noise) = (0.0f64, 0.0f64);
+        for (i, px) in img.iter().enumerate() {
+            for c in 0..3 {
+                let v: Vec<f64> = ref_pixels.iter().map(|r| f64::from(r[i][c])).collect();
+                let m = v.iter().sum::<f64>() / 3.0;
+                d2 += (f64::from(px[c]) - m).powi(2);
+                noise += v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / 2.0 / 3.0;
+            }
+        }
+        ((d2 - noise) / (3 * img.len()) as f64).max(0.0)
+    };
+    for (got, path, seconds) in [(&h, &high, 2.0), (&l, &low, 0.5)] {
+        let mse = mse_of(path);
+        assert!(mse > 1e-6 && mse < 0.5, "{path}: MSE {mse}: {text}");
+        assert!(
+            (got[1] - mse.sqrt()).abs() <= 6e-5,
+            "{path}: RMSE {} against √{mse}: {text}",
+            got[1]
+        );
+        assert!(
+            (got[2] - mse * seconds).abs() <= 1e-3 * mse * seconds,
+            "{path}: MSE·s {} against {}: {text}",
+            got[2],
+            mse * seconds
+        );
+    }
     // A threshold that every pixel, the sky's too, exceeds, or that none does, is said so:
     // the object column then measures the whole frame, or nothing. This scene's sky
     // (0.1 a channel, seen as R + G + B ≈ 0.29) is above the default 0.2.
@@ -2712,9 +2762,35 @@ fn bench_error_ranks_renders_by_error_and_names_bad_inputs() {
         "{e}"
     );
 
+    // `vs first` divides by the first timed image's MSE·s in every row, not by the row
+    // above's: here high's (~0.0045), where low's at 100 s (~6.8) would give ~0.004 for
+    // the third row instead of ~5.9.
+    let other = render("other", "4", "12", &scene);
+    let out = bench_error(&[
+        &format!("{high}:2"),
+        &format!("{low}:100"),
+        &format!("{other}:1"),
+    ]);
+    ok(&out);
+    let text = String::from_utf8_lossy(&out.stdout).into_owned();
+    let row_of = |path: &str| -> Vec<f64> {
+        let line = text
+            .lines()
+            .find(|l| l.starts_with(path))
+            .unwrap_or_else(|| panic!("no row for {path}: {text}"));
+        line[path.len()..]
+            .split([' ', ','])
+            .filter_map(|w| w.parse().ok())
+            .collect()
+    };
+    let (first, third) = (row_of(&high), row_of(&other));
+    assert!(
+        (third[3] - third[2] / first[2]).abs() <= 0.01 * third[3] + 0.01,
+        "{text}"
+    );
+
     // --plot: labelled images share a line. "PT" (the first line, black like the axes)
     // joins two points; "other" (the second, red) has one; a third line would be blue.
-    let other = render("other", "4", "12", &scene);
     let plot = d.path().join("error.png");
     let plot_of = |images: &[&str]| {
         let mut args = vec!["--plot", plot.to_str().unwrap()];
