@@ -610,4 +610,106 @@ mod tests {
         });
         assert!(wrapped.is_none());
     }
+
+    /// The box of `a_grid_read_back_answers_as_the_built_one`: a cube squashed to
+    /// 1 × 0.6 × 0.3 and moved off the origin, so that its grid's corner, cell counts
+    /// (8 × 5 × 3 at 8 cells) and axes all differ.
+    fn squashed_box() -> crate::geometry::Geometry {
+        let mut m = crate::mesh::cube(1.0);
+        for p in &mut m.positions {
+            *p = *p * glam::Vec3::new(1.0, 0.6, 0.3) + glam::Vec3::new(0.2, -0.1, 0.05);
+        }
+        crate::geometry::Geometry::new(m)
+    }
+
+    /// A grid read from the cache is the grid built: besides the cells and lists that the
+    /// file holds (`forged_cache_contents_are_rebuilt`), what `read` derives from them —
+    /// 1/cell, by which every lookup finds its cell, and near_surface, which decides where
+    /// lists are asked and how far a local hit trusts them — bit for bit, and so the same
+    /// radius and exact distance at 2,000 points of the box (all of its cells have lists,
+    /// the box being 2.4 cells thick). With 1/cell read as the cell, every point read cell
+    /// 0: radii from its centre stay below the distance, but its list's nearest triangle
+    /// is not every point's (an exact distance too large: a sphere step across the
+    /// surface). The renders read such files only where a build took over 0.1 s, into a
+    /// cache that begins empty for each version of this file.
+    #[test]
+    fn a_grid_read_back_answers_as_the_built_one() {
+        let geo = squashed_box();
+        let grid = DistanceGrid::build(&geo, 8).unwrap();
+        let d = tempfile::tempdir().unwrap();
+        let path = d.path().join("grid.bin");
+        grid.write(&path, 7).unwrap();
+        let back = DistanceGrid::read(&path, 7, &geo, 8).expect("its own file");
+        assert_eq!((back.lo, back.dims), (grid.lo, grid.dims));
+        for (what, got, built) in [
+            ("cell", back.cell, grid.cell),
+            ("1/cell", back.inv_cell, grid.inv_cell),
+            ("near_surface", back.near_surface, grid.near_surface),
+        ] {
+            assert_eq!(
+                got.to_bits(),
+                built.to_bits(),
+                "{what}: read {got}, built {built}"
+            );
+        }
+        let mut rng = scatter_sim::rng::WalkRng::from_seed(5);
+        let mut listed = 0;
+        for _ in 0..2000 {
+            let u = glam::Vec3::new(
+                rng.uniform() as f32,
+                rng.uniform() as f32,
+                rng.uniform() as f32,
+            );
+            let p = geo.lo + (geo.hi - geo.lo) * u;
+            assert_eq!(back.radius(p).to_bits(), grid.radius(p).to_bits(), "at {p}");
+            let exact = grid.exact_distance(&geo, p);
+            assert_eq!(back.exact_distance(&geo, p), exact, "at {p}");
+            listed += exact.is_some() as u32;
+        }
+        assert!(listed > 1000, "{listed} of 2,000 points have lists");
+    }
+
+    /// The checks of a cached grid's contents hold exactly at their limits: a candidate
+    /// equal to the mesh's triangle count (the first index out of bounds; the forged file
+    /// above used 10⁹, which a bound one too far also refuses) is refused, the last
+    /// triangle (11 of the cube's 12) read.
+    #[test]
+    fn a_candidate_one_past_the_last_triangle_is_rebuilt() {
+        let geo = crate::geometry::Geometry::new(crate::mesh::cube(1.0));
+        let d = tempfile::tempdir().unwrap();
+        let path = d.path().join("grid.bin");
+        let forge = |edit: &dyn Fn(&mut DistanceGrid)| {
+            let mut g = DistanceGrid::build(&geo, 8).unwrap();
+            edit(&mut g);
+            g.write(&path, 7).unwrap();
+            DistanceGrid::read(&path, 7, &geo, 8)
+        };
+        let last = geo.tris.len() as u32 - 1;
+        assert!(forge(&|g| g.candidates[0] = last).is_some());
+        assert!(forge(&|g| g.candidates[0] = last + 1).is_none());
+    }
+
+    /// A cached grid's corner must be this mesh's along every axis: the forged file above
+    /// moved it along x only. Read with its corner moved 0.25 (two cells) along z, every
+    /// point would take the distance stored for a centre two cells away, less its distance
+    /// from the moved centre: a radius that may exceed the point's distance.
+    #[test]
+    fn a_frame_moved_along_any_axis_is_rebuilt() {
+        let geo = squashed_box();
+        let d = tempfile::tempdir().unwrap();
+        let path = d.path().join("grid.bin");
+        let forge = |edit: &dyn Fn(&mut DistanceGrid)| {
+            let mut g = DistanceGrid::build(&geo, 8).unwrap();
+            edit(&mut g);
+            g.write(&path, 7).unwrap();
+            DistanceGrid::read(&path, 7, &geo, 8)
+        };
+        assert!(forge(&|_| {}).is_some());
+        for axis in 0..3 {
+            assert!(
+                forge(&|g| g.lo[axis] += 0.25).is_none(),
+                "corner moved along {axis}"
+            );
+        }
+    }
 }

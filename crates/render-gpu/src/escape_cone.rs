@@ -96,11 +96,20 @@ fn read(path: &std::path::Path, key: u64, n: usize) -> Option<Vec<f32>> {
         .chunks_exact(4)
         .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
         .collect();
-    cos.iter().all(|c| *c > 0.0 && *c <= NO_CONE).then_some(cos)
+    // Only the values `escape_cosines` makes: a forged cosine of 0.01 (a valid CRC) would
+    // let nearly every direction off its triangle skip the re-entry cast.
+    let made =
+        |c: f32| c == NO_CONE || (0..TANS.len()).any(|k| c.to_bits() == cone_cos(k).to_bits());
+    cos.iter().all(|&c| made(c)).then_some(cos)
 }
 
-/// cos θ of every triangle's escape cone ([`NO_CONE`] for none), made a little larger
-/// than the cone tested so that rounding of w·n never lets a direction outside it in.
+/// cos θ of the cone of tan θ = `TANS[k]`, made a little larger than the cone tested so
+/// that rounding of w·n never lets a direction outside it in.
+fn cone_cos(k: usize) -> f32 {
+    (1.0 / (1.0 + TANS[k] * TANS[k]).sqrt() + 1e-6) as f32
+}
+
+/// cos θ of every triangle's escape cone ([`NO_CONE`] for none; [`cone_cos`]).
 pub fn escape_cosines(geo: &Geometry) -> Vec<f32> {
     (0..geo.tris.len())
         .into_par_iter()
@@ -115,8 +124,7 @@ pub fn escape_cosines(geo: &Geometry) -> Vec<f32> {
                 let mid = (lo + hi) / 2;
                 if free(mid) { lo = mid } else { hi = mid }
             }
-            let cos = 1.0 / (1.0 + TANS[lo] * TANS[lo]).sqrt();
-            (cos + 1e-6) as f32
+            cone_cos(lo)
         })
         .collect()
 }
@@ -410,7 +418,7 @@ mod tests {
     fn cached_cones_round_trip_and_damage_is_refused() {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("c.bin");
-        let cos = vec![0.5, NO_CONE, 0.9];
+        let cos = vec![super::cone_cos(4), NO_CONE, super::cone_cos(0)];
         super::write(&p, 7, &cos).unwrap();
         assert_eq!(super::read(&p, 7, 3), Some(cos));
         assert_eq!(super::read(&p, 7, 4), None);
@@ -419,6 +427,102 @@ mod tests {
         b[21] ^= 1;
         std::fs::write(&p, &b).unwrap();
         assert_eq!(super::read(&p, 7, 3), None);
+    }
+
+    /// A cached cosine must be one `escape_cosines` makes (the check that refuses the
+    /// file): one of 0 or below (−0 included) would let every direction off the outer
+    /// side of its triangle, grazing ones included, skip its cast, and paths that must
+    /// meet the object again would escape; so would, nearly, a forged 0.01 or any value
+    /// between the cones'. The widest cone computed (tan θ = 3: cos θ = 0.316229) reads
+    /// back; a cosine one ulp from it does not.
+    #[test]
+    fn only_cosines_the_cones_make_are_read_back() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("c.bin");
+        let tan = TANS[TANS.len() - 1];
+        let widest = (1.0 / (1.0 + tan * tan).sqrt() + 1e-6) as f32;
+        assert_eq!(widest, super::cone_cos(TANS.len() - 1));
+        let next = f32::from_bits(widest.to_bits() + 1);
+        let cases = [
+            (widest, true),
+            (0.0, false),
+            (-0.0, false),
+            (-0.5, false),
+            (0.01, false),
+            (next, false),
+            (0.5, false),
+        ];
+        for (cos, usable) in cases {
+            let cones = [super::cone_cos(2), cos, NO_CONE];
+            super::write(&p, 7, &cones).unwrap();
+            let back = super::read(&p, 7, 3);
+            assert_eq!(back.is_some(), usable, "a cached cosine of {cos}: {back:?}");
+        }
+    }
+
+    /// The margin δ (eps/10) that a cone's region adds around its triangle, for an exit
+    /// point rounded past the triangle's edge: a face that close beside the edge must
+    /// close the cone. A unit cube with a slab 0.15 eps thick hovering beside its +x edge,
+    /// 0.6–0.75 eps above its top face (above the region's floor h₀ = eps/2) and `gap`
+    /// beyond the edge (eps = 3·10⁻⁵: the mesh's scale is 1.5, x from −0.5 to 1; f32
+    /// rounds its coordinates by 10⁻³ eps). The narrowest cone tried (tan θ = 0.2) reaches
+    /// 0.2·h, at most 0.15 eps, beyond the top's triangles at those heights, δ more with
+    /// the margin: the slab 0.17 eps beyond the edge is met only thanks to δ, so both of
+    /// the top's triangles (one along the edge, one touching it at a corner) have no cone;
+    /// the slab 0.3 eps beyond is clear of tan θ = 0.2's region (0.25 eps) and met by tan
+    /// θ = 0.4's (0.24 eps + δ at 0.6 eps), so both get tan θ = 0.2's cone. Without δ (or
+    /// with the floor at eps) the slab at 0.17 eps went unseen and the top's cones opened
+    /// to 11°.
+    #[test]
+    fn a_face_just_beside_a_triangles_edge_closes_its_cone() {
+        let with_slab = |gap: f32, eps: f32| {
+            let cube = crate::mesh::cube(1.0);
+            let slab = cube.positions.iter().map(|p| {
+                glam::Vec3::new(
+                    if p.x > 0.0 { 1.0 } else { 0.5 + gap * eps },
+                    if p.y > 0.0 {
+                        0.5 + 0.75 * eps
+                    } else {
+                        0.5 + 0.6 * eps
+                    },
+                    1.2 * p.z,
+                )
+            });
+            let base = cube.positions.len() as u32;
+            crate::mesh::TriMesh {
+                positions: cube.positions.iter().copied().chain(slab).collect(),
+                triangles: cube
+                    .triangles
+                    .iter()
+                    .copied()
+                    .chain(cube.triangles.iter().map(|t| t.map(|i| i + base)))
+                    .collect(),
+            }
+        };
+        // The scale (and eps) is the same whatever the gap.
+        let eps = crate::geometry::spawn_offset(&with_slab(0.0, 0.0));
+        // `cube`'s top face (y = +0.5): [2, 6, 7] touches the edge x = 0.5 at a corner,
+        // [2, 7, 3] lies along it.
+        let top = [6usize, 7];
+        let near = fresh(with_slab(0.17, eps));
+        assert_eq!(near.eps, eps);
+        for t in top {
+            assert!(
+                near.normals[t].y > 0.999,
+                "triangle {t}: {}",
+                near.normals[t]
+            );
+            assert_eq!(
+                near.escape_cos[t], NO_CONE,
+                "triangle {t}: a cone past a face 0.17 eps beside its edge"
+            );
+        }
+        let far = fresh(with_slab(0.3, eps));
+        let tan = TANS[0];
+        let narrowest = (1.0 / (1.0 + tan * tan).sqrt() + 1e-6) as f32;
+        for t in top {
+            assert_eq!(far.escape_cos[t], narrowest, "triangle {t}");
+        }
     }
 
     /// The cones must also be wide enough to spare casts: on the bunny 70 % of the area has

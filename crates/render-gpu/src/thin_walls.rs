@@ -176,4 +176,19 @@ mod tests {
         let share = thin_walls(&Geometry::new(bunny)).area_share;
         assert!(share < NOTE_AREA_SHARE, "{share}");
     }
+
+    /// The note's place (`at`) is the centroid of the largest face found thin, whichever
+    /// way the parallel reduction pairs them. In the shell of walls a quarter of the offset
+    /// thick every face is found; the outer cube's (area 0.5 each) are larger than the
+    /// cavity's (0.5·(1 − eps/2)², 1·10⁻⁵ less, far above f32's resolution), and their
+    /// centroids lie on the planes ±0.5 exactly (three coordinates ±0.5 summed and divided
+    /// by 3), the cavity's on ±0.5·(1 − eps/2) = ±0.499995. Picking the smaller of two
+    /// faces, the note pointed at the cavity.
+    #[test]
+    fn the_note_points_at_the_largest_thin_face() {
+        let eps = shell(0.5).eps;
+        let w = thin_walls(&shell(1.0 - 0.5 * eps));
+        let at = w.at.expect("thin walls are found");
+        assert_eq!(at.abs().max_element(), 0.5, "{at}");
+    }
 }
