@@ -1455,6 +1455,32 @@ fn the_variance_image_matches_the_spread_between_seeds() {
     );
 }
 
+/// A CPU render of exactly `MIN_VARIANCE_SPP` (6) samples a pixel, the fewest that give
+/// every channel the two samples a variance needs, has its variance image: the CLI takes
+/// `--variance` from 6 spp (it refuses 5, "--variance needs at least 6 spp"), and a render
+/// that then gave none would leave it without the image and with a note that 6 spp is
+/// below the 6 it needs. The furnace's every sample is L, so the image is zero to rounding
+/// (`common::assert_noiseless`). The seed-spread test above renders 13, 5 and 24 spp and
+/// render.rs's unit test calls `pixel_variance` itself at 6, so neither sees where the
+/// renderer draws the line (gpu.rs checks the GPU renderer's own).
+#[test]
+fn a_variance_image_comes_from_the_fewest_spp_it_needs() {
+    let (_, furnace) = scene(&furnace_scene("kind = \"index-matched\""), false);
+    let set = settings(IntegratorKind::Pt, true, None);
+    let least = render_gpu::render::MIN_VARIANCE_SPP;
+    assert_eq!(least, 6, "two samples a channel");
+    let opts = RenderOptions {
+        spp: least,
+        seed: 4,
+        time_budget: None,
+        variance: true,
+    };
+    let out = render(&furnace, &set, &opts, &|_, _| {}, &AtomicBool::new(false));
+    assert_eq!(out.spp, least);
+    let variance = out.variance.expect("a variance image at 6 spp");
+    common::assert_noiseless(&variance, "CPU at 6 spp");
+}
+
 /// A path entering the medium is spawned eps (2e-5 of the object's size) deep; without
 /// taking that way off its first flight (`PathState::skip`) it passed σ_t·eps of optical
 /// depth unattenuated and its first collisions lay too deep. A sphere of radius 0.5 (eps

@@ -106,4 +106,37 @@ mod tests {
             assert!(err.abs() < 3e-5, "log2({x}): error {err}");
         }
     }
+
+    /// The proxy weighs each of up to [`MAX_PROXY_LIGHTS`] lit lights (kept in order) and
+    /// turns flat (q = 1 for every event) only beyond them or where a light is dark in the
+    /// channel, as the WGSL kernel's `ex_lights` does. Flat where it need not be (a scene
+    /// of exactly four lights), an exact step's NEE events are chosen by φ^k alone, blind
+    /// to the side of the ball the lights are on: still unbiased, as any positive proxy
+    /// is, so no image test sees it, only more variance; and no scene in the tests has
+    /// four lights (they have one, two or six).
+    #[test]
+    fn the_proxy_is_flat_only_beyond_its_lights_or_for_a_dark_one() {
+        let lit = |n: usize| {
+            (0..n).map(|i| {
+                let d = Vec3::new(0.2 * i as f32 - 0.3, 0.6, 0.7).normalize();
+                (d, 1.0 + i as f32)
+            })
+        };
+        for n in 1..=MAX_PROXY_LIGHTS {
+            let p = Proxy::new(lit(n), 2.0, 1.5, 0.5);
+            assert!(!p.flat, "{n} lit lights: a flat proxy");
+            for (i, light) in lit(n).enumerate() {
+                assert_eq!(p.lights[i], light, "light {i} of {n}");
+            }
+        }
+        assert!(
+            Proxy::new(lit(MAX_PROXY_LIGHTS + 1), 2.0, 1.5, 0.5).flat,
+            "more lights than the proxy weighs"
+        );
+        let dark = [(Vec3::Y, 1.0f32), (Vec3::X, 0.0)];
+        assert!(
+            Proxy::new(dark.into_iter(), 2.0, 1.5, 0.5).flat,
+            "a light dark in the channel"
+        );
+    }
 }

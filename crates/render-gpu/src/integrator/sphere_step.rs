@@ -430,3 +430,92 @@ fn complete(
     grid.prefetch(s.pos);
     s.grid_pending = true;
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::integrator::IntegratorKind;
+    use crate::scene::SceneFile;
+
+    /// A sphere (radius 0.5, σ_t 2, 4, 8, g 0.5) under one delta light whose irradiance
+    /// differs by channel.
+    fn lit_sphere() -> SceneData {
+        let f = SceneFile::parse(
+            std::path::Path::new("t.toml"),
+            "[camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 20.0\n\
+             width = 8\nheight = 8\n[object]\nshape = \"sphere\"\nradius = 0.5\n\
+             [medium]\nsigma_t = [2.0, 4.0, 8.0]\nalbedo = [0.9, 0.9, 0.9]\ng = 0.5\n\
+             [[light]]\nkind = \"directional\"\ndirection = [0.3, -0.8, 0.5]\n\
+             irradiance = [1.0, 2.5, 0.5]\n",
+        )
+        .unwrap();
+        SceneData::build(&f, std::path::Path::new("."), false, &[]).unwrap()
+    }
+
+    /// An exact step's walk sees its NEE proxy over the free ball it stands in, not over
+    /// its own sphere: a step of radius r = 0.1 whose free ball is 0.25 (r capped below the
+    /// free radius, as by `max_tau` under `exact_tau`) must hand the lanes f² = (free/r)² =
+    /// 6.25 in units of its sphere, τ = σ_t·r of its channel, and the light in the walk's
+    /// frame (canonical z along the arriving direction) with its irradiance in that
+    /// channel. f² taken as (r/free)² is clamped to 1: the proxy's chords stop at the
+    /// walk's sphere, which still bounds the NEE (so the estimate stays unbiased and every
+    /// image test passes) but weighs the events' depth in the ball wrongly. No image test
+    /// has a step capped below its free radius with a light: the exact tests' balls stay
+    /// under max_tau 49 (σ_t·0.5 ≤ 40), and the half-space, where they reach it, is lit by
+    /// its sky alone. Values to f32 rounding (10⁻⁵ relative; 10⁻⁶ for the unit direction).
+    #[test]
+    fn an_exact_steps_proxy_spans_its_free_ball() {
+        let scene = lit_sphere();
+        let set = IntegratorSettings {
+            kind: IntegratorKind::Stcvae,
+            nee: true,
+            model: None,
+            min_tau: 0.0,
+            max_tau: 49.0,
+            exact_tau: 50.0,
+            nee_samples: 1,
+            exact_nee_samples: 2,
+            path_nee_rays: 1,
+        };
+        let channel = 1;
+        let dir = Vec3::new(0.3, -0.5, 0.8).normalize();
+        let path = crate::integrator::Path::new(
+            Vec3::new(0.05, -0.02, 0.1),
+            dir,
+            channel,
+            WalkRng::from_seed(3),
+        );
+        let mut rng = WalkRng::from_seed(4);
+        let (r, free) = (0.1f32, 0.25f32);
+        let step = ExactStep::new(&scene, &set, channel, &path.s, &mut rng, (r, free));
+        let p = &step.job.proxy;
+        assert!(!p.flat, "one lit light: no flat proxy");
+        assert!(
+            (p.f2 / 6.25 - 1.0).abs() < 1e-5,
+            "the free ball's radius² in units of the walk's sphere: {} for 6.25",
+            p.f2
+        );
+        let tau = scene.sigma_t[channel] * r;
+        assert!(
+            (step.job.tau / tau - 1.0).abs() < 1e-5
+                && (p.tau_log2e / (tau * std::f32::consts::LOG2_E) - 1.0).abs() < 1e-5,
+            "τ {} and τ·log₂e {} for τ = {tau}",
+            step.job.tau,
+            p.tau_log2e
+        );
+        // The light's direction in the walk's frame: its components along the frame's
+        // axes (the third the arriving direction), written out as dot products.
+        let light = &scene.lights[0];
+        let l = light.to_light.as_dvec3();
+        let b = step.ball.frame.basis;
+        assert!((b.z_axis - dir.as_dvec3()).length() < 1e-6);
+        let want = DVec3::new(b.x_axis.dot(l), b.y_axis.dot(l), b.z_axis.dot(l));
+        let (wl, e) = p.lights[0];
+        assert!(
+            (wl.as_dvec3() - want).length() < 1e-6,
+            "the light at {wl} in the walk's frame, {want} expected"
+        );
+        assert!(light.irradiance[channel] != light.irradiance[0]);
+        assert_eq!(e, light.irradiance[channel], "the channel's irradiance");
+    }
+}

@@ -804,4 +804,189 @@ mod tests {
             );
         }
     }
+
+    /// Each reservoir's q is the proxy of the event it holds, computed from its own walk's
+    /// constants: Σ_l E_l·ρ_g(W·ω_l)·e^(−τ·chord of the free ball from X along ω_l), written
+    /// out here in f64 (`scatter_sim`'s HG, `exp`), for walks under two lights of unequal
+    /// irradiance whose τ, free ball, light directions and irradiances (1 to 2 and 1.8 to
+    /// 3) differ from job to job, 600 jobs
+    /// through the 16 lanes (so lanes hold different walks and take new ones). The proxy
+    /// only chooses events: any positive proxy keeps the NEE unbiased, so no image test
+    /// sees one that is wrong, only more variance. `reservoir_estimates_are_unbiased` holds
+    /// the proxy to its formula too, but with one light and one job repeated, so it cannot
+    /// see the second light's term read with the first's irradiance (here 0.33–1.1 of it),
+    /// the first light's direction read for another's, or the loop over the lights cut
+    /// short, nor a lane reading another lane's constants. Bound: the fast log₂ is good to
+    /// 2·10⁻⁵ absolute (×1.5 in the exponent: 2·10⁻⁵ relative), 2^x to 4·10⁻⁶
+    /// (`fast_exp2_and_log2_are_accurate`); f32 rounding of d = 1 + g² − 2g·cos (≥ 0.0625
+    /// at g = 0.75) and of the exponent (|·| ≤ 40) adds < 10⁻⁵; 2·10⁻⁴ leaves ~5× room,
+    /// while the second light's term read with the first's irradiance misses it by far
+    /// wherever that light matters (the two never agree: E₀ ∈ {1, 1.5, 2}, E₁ ∈ {1.8, 2.2,
+    /// 2.6, 3}).
+    #[test]
+    fn slots_hold_the_proxy_of_their_own_events() {
+        let g = 0.75f32;
+        let shared = WalkShared {
+            g,
+            m: MAX_EVENTS,
+            n_lights: 2,
+        };
+        // Per job: τ, the free ball's radius² (≥ 1) and two lights (direction, irradiance).
+        let params: Vec<(f32, f32, [(Vec3, f32); 2])> = (0..600u32)
+            .map(|i| {
+                let t = i as f32;
+                let tau = 0.5 + (i % 11) as f32 * 0.7;
+                let f2 = 1.0 + (i % 5) as f32 * 0.6;
+                let l0 = Vec3::new(0.8, 0.4 * (0.7 * t).sin(), 0.5).normalize();
+                let l1 = Vec3::new(-0.4 * (0.3 * t).cos(), -0.9, 0.3).normalize();
+                let (e0, e1) = (1.0 + (i % 3) as f32 * 0.5, 3.0 - (i % 4) as f32 * 0.4);
+                (tau, f2, [(l0, e0), (l1, e1)])
+            })
+            .collect();
+        let jobs: Vec<WalkJob> = params
+            .iter()
+            .enumerate()
+            .map(|(i, &(tau, f2, lights))| WalkJob {
+                tau,
+                albedo: 0.95,
+                seed: splitmix64(i as u64 ^ 0x5107),
+                proxy: Proxy::new(lights.into_iter(), tau, f2, g),
+            })
+            .collect();
+        let mut worst = 0.0f64;
+        for (k, (&(tau, f2, lights), e)) in params.iter().zip(run(&jobs, &shared)).enumerate() {
+            for &(x, w, q) in &e.slots {
+                assert!(q > 0.0, "walk {k}: every slot holds an event");
+                let (x, w) = (x.as_dvec3(), w.as_dvec3());
+                let want: f64 = lights
+                    .iter()
+                    .map(|&(wl, el)| {
+                        let wl = wl.as_dvec3();
+                        let b = x.dot(wl);
+                        let chord = -b + (b * b + f2 as f64 - x.length_squared()).max(0.0).sqrt();
+                        el as f64
+                            * scatter_sim::phase::hg_pdf(g as f64, w.dot(wl))
+                            * (-(tau as f64) * chord).exp()
+                    })
+                    .sum();
+                let rel = (q as f64 / want - 1.0).abs();
+                assert!(
+                    rel < 2e-4,
+                    "walk {k} (τ {tau}, f² {f2}): q {q} for the event at {x}, {w}; its proxy is {want}"
+                );
+                worst = worst.max(rel);
+            }
+        }
+        eprintln!("largest relative difference of a slot's q from its proxy: {worst:.1e}");
+    }
+
+    /// The reservoirs choose independently: two slots of a walk hold the same event with
+    /// probability Σ_k p_k², p_k = φ^k q_k / Q. With a flat proxy (q = 1: the light is dark)
+    /// p_k = φ^k / Σ_{j ≤ N} φ^j follows from the walk's N alone, so for each pair of the
+    /// four slots the count of walks whose two slots coincide (the same X and W: distinct
+    /// events lie at distinct points) must match Σ_walks Σ_k p_k² to |z| < 4.5 (a binomial
+    /// sum over independent walks; 6 pairs: a false alarm ~4·10⁻⁵). 20,000 walks at τ = 3
+    /// (5.7 events each on average) give an expectation of ~5,500 coincidences a pair and a
+    /// spread of ~56 (from an independent f64 walk in Python). Slots that drew from one
+    /// uniform (slot 1 reusing slot 0's bits) always coincide, 20,000 (z ≈ 260): each alone
+    /// still holds event k with probability p_k, so every mean test
+    /// (`reservoir_estimates_are_unbiased`, the images, the GPU comparisons) passes, but a
+    /// step's two NEE events become one, its shadow ray's weight doubled: the variance of
+    /// a single reservoir where two were asked for.
+    #[test]
+    fn reservoirs_choose_independently() {
+        let (tau, g, albedo) = (3.0f32, 0.5f32, 0.9f32);
+        let shared = WalkShared {
+            g,
+            m: MAX_EVENTS,
+            n_lights: 1,
+        };
+        let n = 20_000u64;
+        let jobs: Vec<WalkJob> = (0..n)
+            .map(|i| {
+                job(
+                    tau,
+                    albedo,
+                    splitmix64(i ^ (0x1d << 40)),
+                    g,
+                    (Vec3::Z, 0.0),
+                    1.0,
+                )
+            })
+            .collect();
+        assert!(jobs[0].proxy.flat, "a dark light makes the proxy flat");
+        let pairs: Vec<(usize, usize)> = (0..MAX_EVENTS)
+            .flat_map(|s| (s + 1..MAX_EVENTS).map(move |t| (s, t)))
+            .collect();
+        let mut same = vec![0u64; pairs.len()];
+        let (mut expected, mut var) = (0.0f64, 0.0f64);
+        let a = albedo as f64;
+        for e in run(&jobs, &shared) {
+            let total: f64 = (1..=e.n).map(|k| a.powi(k as i32)).sum();
+            let pi: f64 = (1..=e.n).map(|k| (a.powi(k as i32) / total).powi(2)).sum();
+            expected += pi;
+            var += pi * (1.0 - pi);
+            for (count, &(s, t)) in same.iter_mut().zip(&pairs) {
+                let (x, y) = (e.slots[s], e.slots[t]);
+                *count += (x.0 == y.0 && x.1 == y.1) as u64;
+            }
+        }
+        for (&count, &(s, t)) in same.iter().zip(&pairs) {
+            let z = (count as f64 - expected) / var.sqrt();
+            assert!(
+                z.abs() < 4.5,
+                "slots {s} and {t}: {count} walks hold one event in both, {expected:.0} ± {:.0} expected (z = {z:.1})",
+                var.sqrt()
+            );
+        }
+    }
+
+    /// A flat proxy (more lights than [`MAX_PROXY_LIGHTS`], or one dark in the channel)
+    /// weighs every event by φ^k alone: q = 1 for the centre (`load`'s `proxy_q`) as for
+    /// the events after it (`event`), so each slot holds q = 1 and the total is
+    /// Σ_{k ≤ N} φ^k (f32 sums of ≤ a few hundred terms: 10⁻⁴ relative is ~10× their
+    /// rounding). Five lit lights here, of which the lanes hold four. The centre taken
+    /// with the four lights' terms instead of 1 (q ≈ 0.085 here) is consistent, as the same
+    /// q chooses and weighs it, so the NEE stays unbiased and no image test sees it; it
+    /// only makes the centre rare and heavy in the estimate.
+    #[test]
+    fn a_flat_proxy_weighs_every_event_alike() {
+        let (tau, g, albedo) = (2.5f32, 0.6f32, 0.9f32);
+        let lights: Vec<(Vec3, f32)> = (0..MAX_PROXY_LIGHTS + 1)
+            .map(|l| {
+                let d = Vec3::new(0.3 * l as f32 - 0.6, 0.5, 0.7).normalize();
+                (d, 1.0 + l as f32)
+            })
+            .collect();
+        let shared = WalkShared {
+            g,
+            m: MAX_EVENTS,
+            n_lights: MAX_PROXY_LIGHTS,
+        };
+        let jobs: Vec<WalkJob> = (0..2000u64)
+            .map(|i| WalkJob {
+                tau,
+                albedo,
+                seed: splitmix64(i ^ (0x2f << 40)),
+                proxy: Proxy::new(lights.iter().copied(), tau, 1.5, g),
+            })
+            .collect();
+        assert!(jobs[0].proxy.flat, "five lights make the proxy flat");
+        let a = albedo as f64;
+        let mut centres = 0;
+        for (k, e) in run(&jobs, &shared).iter().enumerate() {
+            let want: f64 = (1..=e.n).map(|j| a.powi(j as i32)).sum();
+            assert!(
+                (e.total as f64 / want - 1.0).abs() < 1e-4,
+                "walk {k} of {} events: total {} against Σ φ^k = {want}",
+                e.n,
+                e.total
+            );
+            for &(x, _, q) in &e.slots {
+                assert_eq!(q, 1.0, "walk {k}: a slot's q at {x}");
+                centres += (x == Vec3::ZERO) as usize;
+            }
+        }
+        assert!(centres > 0, "some slot must hold the centre");
+    }
 }
