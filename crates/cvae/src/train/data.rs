@@ -511,8 +511,9 @@ mod tests {
         };
         for (i, r) in kept.iter().enumerate() {
             let raw_c = features::path_cond(r.tau as f64, r.g as f64, r.n as u64);
-            for j in 0..c {
-                let want = (raw_c[j] as f32 - n.cond_shift[j]) / n.cond_scale[j];
+            assert_eq!(raw_c.len(), c);
+            for (j, &v) in raw_c.iter().enumerate() {
+                let want = (v as f32 - n.cond_shift[j]) / n.cond_scale[j];
                 close(
                     held.cond[i * c + j],
                     want,
@@ -520,8 +521,9 @@ mod tests {
                 );
             }
             let raw_t = features::path_target(r.cos_theta as f64, r.beta as f64, r.alpha as f64);
-            for j in 0..p {
-                let want = (raw_t[j] as f32 - n.out_shift[j]) / n.out_scale[j];
+            assert_eq!(raw_t.len(), p);
+            for (j, &v) in raw_t.iter().enumerate() {
+                let want = (v as f32 - n.out_shift[j]) / n.out_scale[j];
                 close(
                     held.target[i * p + j],
                     want,

@@ -832,7 +832,8 @@ mod tests {
             n_lights: 2,
         };
         // Per job: τ, the free ball's radius² (≥ 1) and two lights (direction, irradiance).
-        let params: Vec<(f32, f32, [(Vec3, f32); 2])> = (0..600u32)
+        type Job = (f32, f32, [(Vec3, f32); 2]);
+        let params: Vec<Job> = (0..600u32)
             .map(|i| {
                 let t = i as f32;
                 let tau = 0.5 + (i % 11) as f32 * 0.7;
