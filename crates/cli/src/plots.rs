@@ -683,4 +683,53 @@ mod tests {
         assert!(up[2].1 != still[2].1, "the α figure does not show α");
         assert!(up[3].1 == still[3].1, "the β figure changed with α");
     }
+
+    /// The plots read their columns by index into `eval`'s `QUANTITIES`: ln N, cos θ, α and
+    /// β must be those columns. An index one off drew the event's distance from the centre
+    /// as β, and the figure tests above, which fill the columns by the same indices, passed.
+    #[test]
+    fn the_plots_column_indices_name_their_quantities() {
+        use super::{ALPHA, BETA, COS, LOG_N};
+        use cvae::eval::QUANTITIES;
+        assert_eq!(
+            [
+                QUANTITIES[LOG_N],
+                QUANTITIES[COS],
+                QUANTITIES[ALPHA],
+                QUANTITIES[BETA]
+            ],
+            ["log_n", "cos_theta", "alpha", "beta"]
+        );
+    }
+
+    /// What `eval` keeps of a grid setting's samples for the plots (`plotted`): ln N and
+    /// cos θ at every g, and α and β too at g = 0.4, the g of the (cos θ, α) and (cos θ, β)
+    /// figures (`render_all` draws them from the panels at GS[2]); nothing else. α and β
+    /// kept at another g left those figures' panels blank (every density bin 0), without
+    /// an error.
+    #[test]
+    fn the_plotted_columns_keep_alpha_and_beta_at_the_figures_g() {
+        use super::{ALPHA, BETA, COS, LOG_N, plotted};
+        use cvae::eval::{Columns, GS};
+        let mut c = Columns::default();
+        for (q, col) in c.0.iter_mut().enumerate() {
+            *col = vec![q as f64 + 0.5; 3];
+        }
+        for g in GS {
+            let wanted: &[usize] = if g == 0.4 {
+                &[LOG_N, COS, ALPHA, BETA]
+            } else {
+                &[LOG_N, COS]
+            };
+            let kept = plotted(&c, g);
+            for (q, col) in kept.0.iter().enumerate() {
+                let want = if wanted.contains(&q) {
+                    c.0[q].clone()
+                } else {
+                    Vec::new()
+                };
+                assert_eq!(col, &want, "g = {g}, column {q}");
+            }
+        }
+    }
 }

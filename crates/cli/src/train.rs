@@ -1453,6 +1453,80 @@ mod tests {
 
     use super::{loss_plot_path, loss_rose, scaled_model};
 
+    /// A model file's ranges bound every decoder in it, so decoders taken from elsewhere
+    /// narrow them to what both trainings saw: each condition's range to its intersection
+    /// with the same condition's, at both ends (here each end comes from one side or the
+    /// other). Ranges that do not meet are refused, naming the source and the condition.
+    /// g narrowed by the other side's φ range passed the CLI tests: their datasets' g
+    /// spans [-0.999, 0.999], where they do not check the file's g range, or is fixed at
+    /// 0.25, inside the shipped model's φ range of about [0, 1].
+    #[test]
+    fn ranges_narrow_to_what_both_trainings_saw() {
+        use cvae::model_file::TrainingInfo;
+        use cvae::train::data::ConditionRanges;
+        let mut info = TrainingInfo {
+            tau_range: [0.0, 30.0],
+            g_range: [-0.9, 0.9],
+            albedo_range: [0.1, 1.0],
+            notes: String::new(),
+        };
+        let other = ConditionRanges {
+            tau: [0.5, 300.0],
+            g: [-0.5, 0.95],
+            albedo: [0.0, 0.8],
+        };
+        super::narrow(&mut info, other, "--base b.stcvae").unwrap();
+        assert_eq!(
+            (info.tau_range, info.g_range, info.albedo_range),
+            ([0.5, 30.0], [-0.5, 0.9], [0.1, 0.8])
+        );
+        let apart = ConditionRanges {
+            tau: [0.5, 30.0],
+            g: [-0.5, 0.9],
+            albedo: [0.9, 1.0],
+        };
+        let e = super::narrow(&mut info, apart, "x")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("x: its albedo range and the dataset's do not overlap"),
+            "{e}"
+        );
+    }
+
+    /// A dataset that holds part of its dataset_config's run (the first half of it, a
+    /// shard) is not that run, and `train` says so: pieces of the run are the whole run only
+    /// when their rows add up to its size. The whole run, in one piece or two, is not warned
+    /// about. (The CLI test changes the config's seed, which no piece then shares.)
+    #[test]
+    fn part_of_the_configs_run_is_not_the_run() {
+        use scatter_sim::dataset::{Header, Piece};
+        let dir = tempfile::tempdir().unwrap();
+        let config = dir.path().join("data.toml");
+        std::fs::write(&config, "walks = 100\nseed = 5\n").unwrap();
+        let sampler = crate::generate::load_config(&config).unwrap().conditions;
+        let piece = |first: u64, count: u64| Piece {
+            seed: 5,
+            sampler: sampler.clone(),
+            total_walks: 100,
+            first_walk: first,
+            count,
+            simulator: None,
+        };
+        let check = |pieces: Vec<Piece>| {
+            super::not_the_configs_run(std::path::Path::new("d.bin"), &config, &Header::new(pieces))
+        };
+        assert_eq!(check(vec![piece(0, 100)]), None);
+        assert_eq!(check(vec![piece(0, 50), piece(50, 50)]), None);
+        let w = check(vec![piece(0, 50)]).expect("half of the run taken for the run");
+        assert!(
+            w.contains(
+                "it holds 50 walks of a run with seed 5, 100 walks, the config's conditions"
+            ),
+            "{w}"
+        );
+    }
+
     /// NAME.stcvae plots to NAME.loss.png; any other name keeps its whole self, so models
     /// m.v1 and m.v2 get plots of their own.
     #[test]

@@ -220,3 +220,68 @@ pub fn held_out_rows(pieces: &[Piece], n: u64) -> Vec<Row> {
         .map(|(run, index)| walk_row(run.seed, &run.sampler, index).0)
         .collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::conditions::Conditions;
+
+    /// Walks `first .. first + count` of the run with `seed` of `total` walks, at τ = 2,
+    /// g = 0.3, φ = 0.9 (a few events a walk).
+    fn piece(seed: u64, total: u64, first: u64, count: u64) -> Piece {
+        Piece {
+            seed,
+            sampler: ConditionSampler::fixed(Conditions {
+                tau: 2.0,
+                g: 0.3,
+                albedo: 0.9,
+            }),
+            total_walks: total,
+            first_walk: first,
+            count,
+            simulator: None,
+        }
+    }
+
+    /// The rows of walks `indices` of `p`'s stream.
+    fn walks(p: &Piece, indices: Range<u64>) -> Vec<Row> {
+        indices.map(|i| walk_row(p.seed, &p.sampler, i).0).collect()
+    }
+
+    /// Held-out walks are walks no row of the dataset holds. A run of 10 walks merged with
+    /// the second half (walks 10..20) of a run of 20 of the same seed and sampler is one
+    /// stream holding walks 0..20: its held-out walks are 20, 21, 22, past the larger run's
+    /// end, in either order of the pieces. Starting after the smaller run (10, 11, 12) would
+    /// take the larger run's training rows as held-out walks, and the validation loss could
+    /// no longer tell memorising. (Every CLI training test has a single piece, where the
+    /// two starts agree.)
+    #[test]
+    fn held_out_walks_start_after_the_largest_run_of_their_stream() {
+        let (small, large) = (piece(7, 10, 0, 10), piece(7, 20, 10, 10));
+        let want = walks(&small, 20..23);
+        for pieces in [
+            [small.clone(), large.clone()],
+            [large.clone(), small.clone()],
+        ] {
+            assert_eq!(held_out_rows(&pieces, 3), want);
+        }
+        // One run: the walks it would have drawn next.
+        assert_eq!(
+            held_out_rows(std::slice::from_ref(&small), 2),
+            walks(&small, 10..12)
+        );
+    }
+
+    /// The held-out walks are shared among the streams by their rows, the walks left over
+    /// going to the largest remainders: 2 walks over streams of 1 and 2 rows are shares of
+    /// 2/3 and 4/3, so each stream gets one (1 + remainder 1/3 for the larger, 0 +
+    /// remainder 2/3 for the smaller). The left-over walk given to the smallest remainder
+    /// instead leaves the 1-row stream none and gives the other both.
+    #[test]
+    fn held_out_walks_are_shared_by_largest_remainder() {
+        let (one, two) = (piece(3, 5, 0, 1), piece(4, 8, 0, 2));
+        let mut want = walks(&one, 5..6);
+        want.extend(walks(&two, 8..9));
+        assert_eq!(held_out_rows(&[one, two], 2), want);
+    }
+}
