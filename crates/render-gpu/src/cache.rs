@@ -411,4 +411,47 @@ mod tests {
         assert!(!old.exists() && newest.exists());
         assert!(other.exists(), "a file that is no cache entry was removed");
     }
+
+    /// The entry just written counts toward the cap, though it is never removed itself: an
+    /// older entry of 400 bytes beside a kept one of 500 makes 900 over a cap of 600, so
+    /// the older goes. Counted without the kept entry (400, under the cap) it stayed, and
+    /// the cache held up to the cap plus the newest entry (a fine mesh's grid: GBs).
+    #[test]
+    fn the_kept_entry_counts_toward_the_cap() {
+        let d = tempfile::tempdir().unwrap();
+        let old = d.path().join(format!("grid-0001-64-{CODE}.bin"));
+        let kept = d.path().join(format!("grid-0002-64-{CODE}.bin"));
+        std::fs::write(&old, vec![0u8; 400]).unwrap();
+        std::fs::write(&kept, vec![0u8; 500]).unwrap();
+        trim(&kept, 600);
+        assert!(!old.exists() && kept.exists());
+    }
+
+    /// The key of what is cached for a mesh (its distance grid, its escape cones) holds
+    /// which vertices form each face and in what order the faces are listed, not only
+    /// where the vertices are: the cube with its top face cut along the other diagonal, or
+    /// with two faces listed in each other's places, has the same positions and as many
+    /// triangles, so another's grid (whose lists name triangles by index) or cones (one
+    /// per triangle) pass every check of a read entry but the key; under one key the
+    /// renders would use them.
+    #[test]
+    fn the_mesh_key_sees_the_faces_not_only_the_vertices() {
+        let key = |m: crate::mesh::TriMesh| {
+            super::mesh_hasher(&crate::geometry::Geometry::new(m), b"tag").finish()
+        };
+        let cube = || crate::mesh::cube(1.0);
+        let k = key(cube());
+        assert_eq!(k, key(cube()), "one mesh, one key");
+        let mut recut = cube();
+        // The face y = +h, [2, 6, 7] and [2, 7, 3], cut along 6–3 instead of 2–7.
+        assert_eq!(recut.triangles[6], [2, 6, 7]);
+        assert_eq!(recut.triangles[7], [2, 7, 3]);
+        recut.triangles[6] = [2, 6, 3];
+        recut.triangles[7] = [6, 7, 3];
+        assert_ne!(k, key(recut), "the other diagonal");
+        let mut listed = cube();
+        listed.triangles.swap(0, 11);
+        assert_ne!(k, key(listed), "the faces listed in another order");
+        assert_ne!(k, key(crate::mesh::cube(1.5)), "other positions");
+    }
 }

@@ -2723,3 +2723,179 @@ fn nesting_is_surveyed_up_to_its_overlap_limit() {
         assert!((v - want).abs() < 1e-4, "{n} cubes {step} apart: {v}");
     }
 }
+
+/// Binary vertex coordinates of the signed integer types (`char`, `short`, `int`, as
+/// quantising exporters write them) keep their sign: the cube [-1, 1]³ of CUBE_OBJ written
+/// with each loads with those bounds and its volume of 8. Read as unsigned, −1 becomes
+/// 255, 65,535 or 4,294,967,295, and the file still loads as a closed cube, [1, 255]³ and
+/// so on: far from where it was and ~10²–10⁹ times its size, without a word.
+#[test]
+fn binary_ply_reads_signed_integer_coordinates() {
+    let d = tempfile::tempdir().unwrap();
+    let (verts, faces) = CUBE_OBJ.split_at(CUBE_OBJ.find('f').unwrap());
+    let corners: Vec<Vec<i32>> = verts
+        .lines()
+        .map(|l| {
+            l[2..]
+                .split(' ')
+                .map(|w| w.parse::<i32>().unwrap())
+                .collect::<Vec<i32>>()
+        })
+        .collect();
+    // (name, coordinate type, bytes of a coordinate)
+    type Case = (&'static str, &'static str, fn(i32) -> Vec<u8>);
+    let cases: [Case; 3] = [
+        ("char.ply", "char", |x| (x as i8).to_le_bytes().to_vec()),
+        ("short.ply", "short", |x| (x as i16).to_le_bytes().to_vec()),
+        ("int.ply", "int", |x| x.to_le_bytes().to_vec()),
+    ];
+    for (name, coord, coord_bytes) in cases {
+        let mut b = format!(
+            "ply\nformat binary_little_endian 1.0\nelement vertex 8\nproperty {coord} x\n\
+             property {coord} y\nproperty {coord} z\nelement face 6\n\
+             property list uchar int vertex_indices\nend_header\n"
+        )
+        .into_bytes();
+        for p in &corners {
+            p.iter().for_each(|&x| b.extend_from_slice(&coord_bytes(x)));
+        }
+        for f in faces.lines() {
+            b.push(4);
+            for i in f[2..].split(' ') {
+                b.extend_from_slice(&(i.parse::<i32>().unwrap() - 1).to_le_bytes());
+            }
+        }
+        let m = load_mesh(&write(&d, name, &b)).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(
+            m.bounds(),
+            (glam::Vec3::splat(-1.0), glam::Vec3::ONE),
+            "{name}"
+        );
+        let (v, _) = volume_and_area(&m);
+        assert!((v - 8.0).abs() < 1e-9, "{name}: volume {v}");
+    }
+}
+
+/// The built-in sphere is the icosphere `mesh::sphere` documents: subdivision 5, 20,480
+/// triangles, every face within 0.03 % of the radius from the sphere (its plane's distance
+/// from the centre; at most 2.85e-4 of the radius here, computed by hand in python from the
+/// same construction), which the renders of `shape = "sphere"` and the tests that compare
+/// them with an exact sphere take for granted. One subdivision fewer passes
+/// `shapes_are_closed_and_outward` (its volume is 0.22 % short, within that test's 2 %) but
+/// sags by 1.14e-3 of the radius, 5,120 triangles; one more has 81,920.
+#[test]
+fn the_sphere_is_as_fine_as_documented() {
+    let r = 0.5f64;
+    let m = mesh::sphere(r as f32);
+    assert_eq!(m.triangles.len(), 20_480);
+    for t in &m.triangles {
+        let [a, b, c] = t.map(|i| m.positions[i as usize].as_dvec3());
+        let n = (b - a).cross(c - a).normalize();
+        let sag = 1.0 - n.dot(a).abs() / r;
+        assert!(
+            sag < 3e-4,
+            "face {t:?} lies {sag:.3e} of the radius inside the sphere"
+        );
+    }
+}
+
+/// CUBE_OBJ moved `x` along x.
+fn cube_obj_at(x: f64) -> String {
+    CUBE_OBJ
+        .lines()
+        .map(|l| match l.strip_prefix("v ") {
+            Some(v) => {
+                let c: Vec<f64> = v.split(' ').map(|t| t.parse().unwrap()).collect();
+                format!("v {} {} {}\n", c[0] + x, c[1], c[2])
+            }
+            None => format!("{l}\n"),
+        })
+        .collect()
+}
+
+/// The scene hash, like the view hash, holds where a mesh far from the origin was before
+/// `setup::recentre` moved it there: CUBE_OBJ at x = 40,000 and at 40,010 before one
+/// camera are the same positions once moved (checked) and the same scene file, so only
+/// the shift tells them apart. Hashed alike, `merge` took renders of the two for one
+/// scene, and `bench`'s PT reference cache (keyed by the scene hash) served the one's
+/// reference for the other.
+#[test]
+fn the_scene_hash_sees_where_a_far_mesh_was() {
+    let d = tempfile::tempdir().unwrap();
+    let build = |x: f64| {
+        write(&d, "far.obj", cube_obj_at(x).as_bytes());
+        let f = render_gpu::scene::SceneFile::parse(
+            &d.path().join("s.toml"),
+            "[camera]\norigin = [40005.0, 0.0, 40.0]\ntarget = [40005.0, 0.0, 0.0]\n\
+             fov_deg = 30.0\nwidth = 8\nheight = 8\n[object]\nmesh = \"far.obj\"\n\
+             [medium]\nsigma_t = [1.0, 1.0, 1.0]\nalbedo = [0.5, 0.5, 0.5]\n",
+        )
+        .unwrap();
+        let s = render_gpu::setup::SceneData::build(&f, d.path(), false, &[]).unwrap();
+        (s.hash, s.geo.mesh.positions.clone())
+    };
+    let (near, moved_near) = build(40_000.0);
+    let (far, moved_far) = build(40_010.0);
+    assert_eq!(moved_near, moved_far, "moved, the two are one mesh");
+    assert_ne!(near, far, "the mesh moved");
+}
+
+/// `setup::object_eps`, the surface offset that `experiment` checks its densities against
+/// before it renders anything, is the offset the render then uses: the moved mesh's.
+/// CUBE_OBJ (2 across) at x = 51,000 has 2 × EPS = 4e-5 once moved; of the file's
+/// coordinates it would be 51,001 × EPS ≈ 1.02, and every σ_t above ~1
+/// (MAX_SPAWN_DEPTH / eps) was refused as too dense for a cube that renders it.
+#[test]
+fn the_offset_checked_before_a_render_is_the_renders() {
+    let d = tempfile::tempdir().unwrap();
+    write(&d, "far.obj", cube_obj_at(51_000.0).as_bytes());
+    let f = render_gpu::scene::SceneFile::parse(
+        &d.path().join("s.toml"),
+        "[camera]\norigin = [51000.0, 0.0, 40.0]\ntarget = [51000.0, 0.0, 0.0]\n\
+         fov_deg = 30.0\nwidth = 8\nheight = 8\n[object]\nmesh = \"far.obj\"\n\
+         [medium]\nsigma_t = [1.0, 1.0, 1.0]\nalbedo = [0.5, 0.5, 0.5]\n",
+    )
+    .unwrap();
+    let eps = render_gpu::setup::object_eps(&f, d.path()).unwrap();
+    let rendered = render_gpu::setup::SceneData::build(&f, d.path(), false, &[])
+        .unwrap()
+        .geo
+        .eps;
+    assert_eq!(eps, rendered);
+    assert_eq!(eps, 2.0 * render_gpu::geometry::EPS);
+}
+
+/// The scene hash and the view hash hold the environment map's pixels and shape, not its
+/// name: one map named by another path (from another job folder, or copied elsewhere) is
+/// the same scene, as one mesh named by another path is
+/// (`the_scene_hash_ignores_paths_and_unread_settings`), so such renders merge and share
+/// `bench`'s PT reference.
+#[test]
+fn the_scene_hashes_ignore_the_environment_maps_path() {
+    let d = tempfile::tempdir().unwrap();
+    write(&d, "m.obj", CUBE_OBJ.as_bytes());
+    std::fs::create_dir(d.path().join("maps")).unwrap();
+    let map = render_gpu::image_io::RgbImage {
+        width: 8,
+        height: 4,
+        pixels: (0..32).map(|i| [i as f32 / 32.0, 0.5, 1.0]).collect(),
+    };
+    let bytes = render_gpu::image_io::encode_untagged_exr(&map).unwrap();
+    write(&d, "env.exr", &bytes);
+    write(&d, "maps/sky.exr", &bytes);
+    let hashes = |file: &str| {
+        let f = render_gpu::scene::SceneFile::parse(
+            &d.path().join("s.toml"),
+            &format!(
+                "[camera]\norigin = [0.0, 0.0, 6.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 30.0\n\
+                 width = 8\nheight = 8\n[object]\nmesh = \"m.obj\"\n\
+                 [medium]\nsigma_t = [1.0, 1.0, 1.0]\nalbedo = [0.5, 0.5, 0.5]\n\
+                 [environment]\nfile = \"{file}\"\n"
+            ),
+        )
+        .unwrap();
+        let s = render_gpu::setup::SceneData::build(&f, d.path(), false, &[]).unwrap();
+        (s.hash, s.view_hash)
+    };
+    assert_eq!(hashes("env.exr"), hashes("maps/sky.exr"));
+}

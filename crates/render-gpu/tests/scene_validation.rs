@@ -506,3 +506,30 @@ fn a_missing_mesh_names_its_field() {
         "{e}"
     );
 }
+
+/// A scene without a [render] table renders as one with an empty table, with the README's
+/// defaults (PT with NEE, spp 64, seed 1, grid_resolution 128): serde fills a missing
+/// table from `RenderDesc::default()`, but the missing fields of a table from their own
+/// default functions (`default_spp`, `one`, …), two copies of one list that must agree
+/// field by field (compared here as serialised, every field at once).
+#[test]
+fn a_missing_render_table_takes_the_documented_defaults() {
+    let none = SceneFile::parse(Path::new("s.toml"), BASE).unwrap().render;
+    let empty = SceneFile::parse(Path::new("s.toml"), &format!("{BASE}\n[render]\n"))
+        .unwrap()
+        .render;
+    assert_eq!(
+        serde_json::to_value(&none).unwrap(),
+        serde_json::to_value(&empty).unwrap()
+    );
+    assert_eq!(
+        (
+            none.integrator,
+            none.nee,
+            none.spp,
+            none.seed,
+            none.grid_resolution
+        ),
+        (render_gpu::scene::IntegratorKind::Pt, true, 64, 1, 128)
+    );
+}
