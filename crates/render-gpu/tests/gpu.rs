@@ -3068,6 +3068,193 @@ fn a_stop_before_the_first_submission_renders_nothing() {
     }
 }
 
+/// A PT render (whose path slots, without the variance's squares, are
+/// `slot_vec4s(0, false)` vec4s) with the environment `vars`, in bands of `rows` rows of
+/// one lane a pixel on any adapter: the adapter's largest buffer is lowered to that many
+/// slots (renderer.rs, plan_slots: a band's slots fit the smaller of the storage binding
+/// and the largest buffer), its storage binding left as it is, so that the scene's
+/// triangles, bound too, still fit it (`images_beyond_the_binding_limit_render_in_bands`
+/// lowers both limits to one value, on a 256² image). A stop is asked at the `stop_at`-th
+/// progress report (0: never). Returns the render and its progress reports (done, total),
+/// the limit and the variables restored first. The bands are checked: a band sized by the
+/// binding alone, or by the larger of the two limits, holds the whole image, and no test
+/// before lowered one limit without the other.
+fn render_in_bands(
+    ctx: &mut GpuContext,
+    rows: u64,
+    s: &SceneData,
+    set: &IntegratorSettings,
+    o: &RenderOptions,
+    vars: &[(&str, &str)],
+    stop_at: usize,
+) -> (RenderOutput, Vec<(u64, u64)>) {
+    assert!(
+        set.kind == IntegratorKind::Pt && !o.variance,
+        "PT's plain slots"
+    );
+    let (width, height) = (s.camera.width as u64, s.camera.height as u64);
+    assert!(rows < height, "fewer slots than pixels: one lane a pixel");
+    let slot = 16 * render_gpu::gpu::kernels::slot_vec4s(0, false);
+    let reports = Mutex::new(Vec::new());
+    let cancel = AtomicBool::new(false);
+    let progress = |done: u64, total: u64| {
+        let mut r = reports.lock().unwrap();
+        r.push((done, total));
+        if r.len() == stop_at {
+            cancel.store(true, Ordering::Relaxed);
+        }
+    };
+    let saved = ctx.limits.max_buffer_size;
+    ctx.limits.max_buffer_size = rows * width * slot;
+    // SAFETY: the caller holds the context's lock, as every render of this binary.
+    for (name, value) in vars {
+        unsafe { std::env::set_var(name, value) };
+    }
+    let out = render_gpu(ctx, s, set, o, &progress, &cancel);
+    for (name, _) in vars {
+        unsafe { std::env::remove_var(name) };
+    }
+    ctx.limits.max_buffer_size = saved;
+    let out = out.unwrap();
+    assert_eq!(
+        out.dispatch.bands as u64,
+        height.div_ceil(rows),
+        "bands of {rows} rows: {:?}",
+        out.dispatch
+    );
+    (out, reports.into_inner().unwrap())
+}
+
+/// The white furnace with its camera turned away from the bunny (as in
+/// `long_slot_sums_do_not_drift`): every camera ray meets the sky of 0.7 at its first
+/// bounce, so every slot finishes a chunk of one sample in one dispatch.
+fn furnace_looking_away() -> String {
+    let text = common::furnace_scene("kind = \"index-matched\"")
+        .replace("target = [0.0, 0.0, 0.0]", "target = [0.0, 0.0, 10.0]");
+    assert!(text.contains("target = [0.0, 0.0, 10.0]"));
+    text
+}
+
+/// Every pixel of a render in bands is resolved with its own hero channels: a channel's
+/// mean divides its sum by that channel's samples, which follow the pixel's index in the
+/// image (`render::resolve_pixel`, `channel_offset`), not its index within its band
+/// (renderer.rs, SlotReadout::read). The white furnace (every sample 0.7 in its channel)
+/// at 4 spp, whose channels have 2, 1 and 1 samples in the order the pixel's offset sets,
+/// in 3 bands of 4 rows: every pixel is 0.7 to f32 rounding (1e-4, as in
+/// `white_furnace_gpu`). A pixel resolved with another pixel's offset reads 1.4 or 0.35 in
+/// two channels, as about 2 in 3 of the 96 pixels past the first band would. The banded
+/// renders before could not see it: `images_beyond_the_binding_limit_render_in_bands`
+/// renders 6 spp, where every channel has 2 samples whatever the offset, and
+/// `a_stop_mid_chunk_keeps_the_whole_chunks` compares two banded renders (1 and 6 spp),
+/// which would share the mistake.
+#[test]
+fn banded_pixels_resolve_with_their_own_hero_channels() {
+    let Some(ctx) = gpu() else { return };
+    let mut ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let s = common::build_scene(&common::furnace_scene("kind = \"index-matched\""), false);
+    let set = settings(IntegratorKind::Pt, true);
+    let (out, _) = render_in_bands(&mut ctx, 4, &s, &set, &opts(4, 3), &[], 0);
+    assert_eq!((out.spp, out.stats.paths), (4, 12 * 12 * 4));
+    for (i, p) in out.image.pixels.iter().enumerate() {
+        for (c, v) in p.iter().enumerate() {
+            assert!(
+                (v - 0.7).abs() < 1e-4,
+                "pixel {i} (band {}) channel {c} = {v}",
+                i / 48
+            );
+        }
+    }
+}
+
+/// The progress reported after each band of each chunk counts the pixel-samples done: the
+/// chunks before in full, and this chunk's samples for every row up to the end of this
+/// band (renderer.rs, render_chunks), not for this band's own rows alone. The furnace
+/// looking away from its bunny, 12² pixels at 4 spp, 2 samples a slot and chunk, in 3
+/// bands of 4 rows: after the first chunk's bands 96, 192 and 288 of 576, after the
+/// second's 384, 480 and 576, each with the total 576, exactly (the chunks are fixed by
+/// STCVAE_GPU_LANE_SAMPLES, the bands and one lane a pixel by the lowered limit, on any
+/// adapter). A band's own rows would give 96, 96, 96, 384, 384, 384: a progress bar that
+/// falls back between bands and never reaches its end. The stop tests count the reports
+/// and nothing else reads them.
+#[test]
+fn progress_counts_every_row_up_to_the_band_done() {
+    let Some(ctx) = gpu() else { return };
+    let mut ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let s = common::build_scene(&furnace_looking_away(), false);
+    let set = settings(IntegratorKind::Pt, true);
+    let vars = [("STCVAE_GPU_LANE_SAMPLES", "2")];
+    let (out, reports) = render_in_bands(&mut ctx, 4, &s, &set, &opts(4, 1), &vars, 0);
+    assert_eq!(out.spp, 4);
+    let want: Vec<(u64, u64)> = [96, 192, 288, 384, 480, 576]
+        .into_iter()
+        .map(|done| (done, 576))
+        .collect();
+    assert_eq!(reports, want);
+}
+
+/// A stop asked while a chunk's last band renders, which that band's one submission
+/// finishes, keeps the chunk: every band has then finished it, and only a stop seen
+/// after a band that has one after it (not yet begun) drops the chunk (renderer.rs,
+/// render_chunks). The furnace looking away from its bunny
+/// (every slot done in one dispatch) in 3 bands of 4 rows, stopped at the report after
+/// the first chunk's second band: the third band renders and reports, and the render
+/// keeps that chunk's 1 spp (one lane a pixel, one sample a slot in the first chunk) and
+/// its 144 paths. Dropping it, as a check that took the last band for one with a band
+/// after it would, leaves 0 spp (a black image) and two reports. (In
+/// `a_stop_mid_chunk_keeps_the_whole_chunks` the stop comes before the last band, whose
+/// chunk is dropped either way.)
+#[test]
+fn a_stop_during_the_last_band_keeps_its_finished_chunk() {
+    let Some(ctx) = gpu() else { return };
+    let mut ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let s = common::build_scene(&furnace_looking_away(), false);
+    let set = settings(IntegratorKind::Pt, true);
+    let vars = [("STCVAE_GPU_LANE_SAMPLES", "1")];
+    let (out, reports) = render_in_bands(&mut ctx, 4, &s, &set, &opts(4, 1), &vars, 2);
+    assert_eq!(out.stats.events, 0, "no camera ray may reach the object");
+    assert_eq!(
+        (out.spp, out.stats.paths, reports.len()),
+        (1, 144, 3),
+        "{:?}",
+        out.dispatch
+    );
+}
+
+/// The work map of a render stopped mid-chunk (`RenderOutput::work`: PT events + sphere
+/// steps a path) divides each slot's events, which count every visit, the dropped
+/// chunk's too, by the paths that made them: the samples the slot finished (ACC's count),
+/// not the whole chunks' (COMMITTED's count, which the image of a band that had begun the
+/// dropped chunk reads; renderer.rs, SlotReadout::pixel_slots). The sphere (PT) in 3 bands
+/// of 11, 11 and 2 rows, 2 samples a slot and chunk, asked to stop at the report after
+/// the second chunk's first band: that band had finished the chunk, so its slots hold 4
+/// finished samples and their events, exactly those of a whole 4-spp render's first band
+/// (the samples and their paths follow the pixel and the sample index, and the event
+/// counts are whole numbers in f32), and its work map must equal that render's there, bit
+/// for bit. Divided by the 2 committed samples it doubles wherever the sphere is. The
+/// stop tests compare images and counters, never the work map, and the work-map test
+/// stops nothing.
+#[test]
+fn a_stopped_renders_work_map_divides_by_the_samples_finished() {
+    let Some(ctx) = gpu() else { return };
+    let mut ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let s = common::build_scene(&sphere_scene("kind = \"index-matched\""), false);
+    let set = settings(IntegratorKind::Pt, true);
+    let vars = [("STCVAE_GPU_LANE_SAMPLES", "2")];
+    // Reports 1–3: the first chunk's bands; 4: the second chunk's first band.
+    let (stopped, _) = render_in_bands(&mut ctx, 11, &s, &set, &opts(4, 8), &vars, 4);
+    let (whole, _) = render_in_bands(&mut ctx, 11, &s, &set, &opts(4, 8), &vars, 0);
+    assert_eq!((stopped.spp, whole.spp), (2, 4));
+    let band = 11 * 24;
+    let sum = |o: &RenderOutput| o.work[..band].iter().map(|&w| w as f64).sum::<f64>();
+    assert!(sum(&whole) > 0.0, "the first band sees the sphere");
+    assert!(
+        stopped.work[..band] == whole.work[..band],
+        "the first band's work map sums to {} stopped, {} whole",
+        sum(&stopped),
+        sum(&whole)
+    );
+}
+
 /// A path resumes exactly where it stopped, so the image does not depend on the dispatch
 /// schedule, and the staged render (`STCVAE_GPU_STAGED`: paths advanced to their next ray
 /// query or sphere step by one kernel, the queued queries traced by another and the queued

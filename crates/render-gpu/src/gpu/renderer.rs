@@ -1525,6 +1525,20 @@ mod tests {
         assert_eq!(band_rows(100, 4096, 4096, false), 0);
     }
 
+    /// A counter is a pair of u32 words, low then high (the kernels carry into the high
+    /// one: path.wgsl, add_counter_wide), read as one u64: a long render's events pass
+    /// 2^32 (1024² pixels × 256 spp × ~20 PT events a path), and the low word alone would
+    /// report them wrapped. Every render of the tests counts below 2^32, so only this
+    /// reads a high word that is not 0.
+    #[test]
+    fn counters_read_both_words_of_their_pair() {
+        let words: [u32; 6] = [u32::MAX, 0, 7, 3, 0, 1];
+        let c: Vec<u8> = words.iter().flat_map(|w| w.to_le_bytes()).collect();
+        assert_eq!(counter(&c, 0), u32::MAX as u64);
+        assert_eq!(counter(&c, 1), (3u64 << 32) | 7);
+        assert_eq!(counter(&c, 2), 1u64 << 32);
+    }
+
     #[test]
     fn bounce_budget_takes_only_counts_in_range() {
         assert_eq!(parse_bounces("64").unwrap(), 64);
