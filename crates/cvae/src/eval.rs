@@ -1099,8 +1099,9 @@ mod tests {
     /// (cos θ, α, β) = (0.3, −0.4, 0.5), event X = (0.2, −0.3, 0.6) (|X| = 0.7) and arriving
     /// direction W = (0.48, 0.6, 0.64), whose eight values all differ. The shipped model's
     /// KS figures do not tell the event's z from W's: KS(event_wz)'s stored means (0.014–
-    /// 0.016 at φ = 1, 0.019 at φ = 0.9) all lie below event_z's bounds (0.026–0.052), so
-    /// an event_z column filled from W's z went unseen.
+    /// 0.016 at φ = 1, 0.019 at φ = 0.9) each lie below event_z's bound at the same setting
+    /// in `shipped_model_quick_eval` (0.026–0.054), so an event_z column filled from W's z
+    /// went unseen.
     #[test]
     fn columns_hold_the_quantities_they_name() {
         let exit = CanonicalExit {

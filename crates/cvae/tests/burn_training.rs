@@ -18,6 +18,33 @@ use scatter_sim::dataset::walk_row;
 /// dec([c, z]), NLL = ½ Σ (log σ² + (x − μ)²/σ²), KL = ½ Σ (μ_z² + σ_z² − log σ_z² − 1),
 /// log-variances clamped to ±LOGVAR_CLAMP. Short training runs (below) only show that
 /// the loss falls, which a mis-weighted term (a doubled KL, a dropped ½) would too.
+
+/// Walks `walks` of stream `seed` in one medium (τ 5, g 0.3, φ 1): the data of the
+/// PathGen runs below, whose conditions τ and g have no spread.
+fn fixed_medium_rows(seed: u64, walks: std::ops::Range<u64>) -> Vec<scatter_sim::dataset::Row> {
+    let s = scatter_sim::ConditionSampler::fixed(scatter_sim::Conditions {
+        tau: 5.0,
+        g: 0.3,
+        albedo: 1.0,
+    });
+    walks.map(|w| walk_row(seed, &s, w).0).collect()
+}
+
+/// A PathGen small enough to train in a test (latent 2, one hidden layer of 8), its rate
+/// falling from `lr` to 1e-3 after `warmup` steps.
+fn small_pathgen(steps: u64, batch_size: usize, lr: f64, warmup: u64) -> ModelConfig {
+    ModelConfig {
+        latent: 2,
+        hidden: vec![8],
+        encoder_hidden: None,
+        steps,
+        batch_size,
+        lr,
+        lr_final: 1e-3,
+        warmup: Some(warmup),
+    }
+}
+
 #[test]
 fn row_losses_equal_the_elbo_by_hand() {
     let dev = Device::flex();
@@ -194,26 +221,12 @@ fn exported_decoder_equals_burn() {
 #[test]
 fn a_resumed_run_equals_the_uninterrupted_one() {
     use cvae::train::validation::Validation;
-    let s = scatter_sim::ConditionSampler::fixed(scatter_sim::Conditions {
-        tau: 5.0,
-        g: 0.3,
-        albedo: 1.0,
-    });
-    let rows: Vec<_> = (0..3000).map(|w| walk_row(21, &s, w).0).collect();
+    let rows = fixed_medium_rows(21, 0..3000);
     let table = Table::build(ModelKind::PathGen, &rows, SingleScattering::Exact);
-    let held_rows: Vec<_> = (3000..4000).map(|w| walk_row(21, &s, w).0).collect();
+    let held_rows = fixed_medium_rows(21, 3000..4000);
     let held = Table::like(&table, &held_rows);
     let validation = Validation::new(&table, &held, 2, 1).unwrap();
-    let cfg = ModelConfig {
-        latent: 2,
-        hidden: vec![8],
-        encoder_hidden: None,
-        steps: 1200,
-        batch_size: 32,
-        lr: 5e-3,
-        lr_final: 1e-3,
-        warmup: Some(20),
-    };
+    let cfg = small_pathgen(1200, 32, 5e-3, 20);
     let dev = Device::flex().autodiff();
     let copy_aside = tempfile::tempdir().unwrap();
     let run = |dir: &std::path::Path, resume: bool, stop_at: Option<u64>| {
@@ -300,23 +313,9 @@ fn a_resumed_run_equals_the_uninterrupted_one() {
 /// reading yet was read too. The history is the finished run's, then 1,000 and 1,200.
 #[test]
 fn a_finished_run_resumed_with_more_steps_skips_no_report() {
-    let s = scatter_sim::ConditionSampler::fixed(scatter_sim::Conditions {
-        tau: 5.0,
-        g: 0.3,
-        albedo: 1.0,
-    });
-    let rows: Vec<_> = (0..2000).map(|w| walk_row(23, &s, w).0).collect();
+    let rows = fixed_medium_rows(23, 0..2000);
     let table = Table::build(ModelKind::PathGen, &rows, SingleScattering::Exact);
-    let cfg = |steps| ModelConfig {
-        latent: 2,
-        hidden: vec![8],
-        encoder_hidden: None,
-        steps,
-        batch_size: 16,
-        lr: 5e-3,
-        lr_final: 1e-3,
-        warmup: Some(20),
-    };
+    let cfg = |steps| small_pathgen(steps, 16, 5e-3, 20);
     let dev = Device::flex().autodiff();
     let dir = tempfile::tempdir().unwrap();
     let run = |steps: u64, resume: bool| {
@@ -390,24 +389,10 @@ fn initial_weights_are_uniform_within_one_over_root_fan_in() {
 /// below (a gradient of 1e-5 or more).
 #[test]
 fn the_first_step_moves_each_weight_by_step_0s_rate() {
-    let s = scatter_sim::ConditionSampler::fixed(scatter_sim::Conditions {
-        tau: 5.0,
-        g: 0.3,
-        albedo: 1.0,
-    });
-    let rows: Vec<_> = (0..500).map(|w| walk_row(21, &s, w).0).collect();
+    let rows = fixed_medium_rows(21, 0..500);
     let kind = ModelKind::PathGen;
     let table = Table::build(kind, &rows, SingleScattering::Exact);
-    let cfg = ModelConfig {
-        latent: 2,
-        hidden: vec![8],
-        encoder_hidden: None,
-        steps: 4,
-        batch_size: 32,
-        lr: 1e-2,
-        lr_final: 1e-3,
-        warmup: Some(4),
-    };
+    let cfg = small_pathgen(4, 32, 1e-2, 4);
     let lr0 = cfg.learning_rate(0);
     assert!((lr0 - 2.5e-3).abs() < 1e-15, "lr(0) = {lr0}");
     let seed = 8;
@@ -481,23 +466,9 @@ fn the_first_step_moves_each_weight_by_step_0s_rate() {
 /// export's milliseconds alone.
 #[test]
 fn a_resumed_run_counts_the_seconds_of_the_runs_before() {
-    let s = scatter_sim::ConditionSampler::fixed(scatter_sim::Conditions {
-        tau: 5.0,
-        g: 0.3,
-        albedo: 1.0,
-    });
-    let rows: Vec<_> = (0..500).map(|w| walk_row(21, &s, w).0).collect();
+    let rows = fixed_medium_rows(21, 0..500);
     let table = Table::build(ModelKind::PathGen, &rows, SingleScattering::Exact);
-    let cfg = ModelConfig {
-        latent: 2,
-        hidden: vec![8],
-        encoder_hidden: None,
-        steps: 20,
-        batch_size: 16,
-        lr: 5e-3,
-        lr_final: 1e-3,
-        warmup: Some(5),
-    };
+    let cfg = small_pathgen(20, 16, 5e-3, 5);
     let dev = Device::flex().autodiff();
     let dir = tempfile::tempdir().unwrap();
     let run = |resume: bool| {
@@ -779,28 +750,15 @@ fn the_held_out_loss_tells_learning_from_memorising() {
 /// records. Kept, `train --model X` exported the other models from their records
 /// (`load_decoder`) with the 10⁻⁶ scale: any condition off the training value then reached
 /// the network a million times larger (a render 26 % too bright, data.rs's column_stats).
-/// Here a fixed-condition PathGen (its conditions τ and g without spread; φ is not one)
-/// trained for 20 steps has its
-/// record's scales of 1 set to 10⁻⁶, and is resumed to 30 steps.
+/// A record never resumed since is exported with 1 as well. Here a fixed-condition PathGen
+/// (its conditions τ and g without spread; φ is not one of PathGen's conditions) trained
+/// for 20 steps has its record's scales of 1 set to 10⁻⁶, is exported from that record,
+/// and is resumed to 30 steps.
 #[test]
 fn a_resumed_run_records_the_tables_standardisation() {
-    let s = scatter_sim::ConditionSampler::fixed(scatter_sim::Conditions {
-        tau: 5.0,
-        g: 0.3,
-        albedo: 1.0,
-    });
-    let rows: Vec<_> = (0..500).map(|w| walk_row(22, &s, w).0).collect();
+    let rows = fixed_medium_rows(22, 0..500);
     let table = Table::build(ModelKind::PathGen, &rows, SingleScattering::Exact);
-    let cfg = |steps| ModelConfig {
-        latent: 2,
-        hidden: vec![8],
-        encoder_hidden: None,
-        steps,
-        batch_size: 16,
-        lr: 5e-3,
-        lr_final: 1e-3,
-        warmup: Some(5),
-    };
+    let cfg = |steps| small_pathgen(steps, 16, 5e-3, 5);
     let dev = Device::flex().autodiff();
     let dir = tempfile::tempdir().unwrap();
     let run = |steps: u64, resume: bool| {
@@ -834,6 +792,12 @@ fn a_resumed_run_records_the_tables_standardisation() {
     }
     assert_eq!(old, 2, "columns without spread");
     std::fs::write(&record, v.to_string()).unwrap();
+    // Exported from the record as it is (`train --model X` does so for the others).
+    let (decoder, _) =
+        cvae::train::trainer::load_decoder(dir.path(), ModelKind::PathGen, &cfg(20).architecture())
+            .unwrap();
+    assert_eq!(decoder.cond_scale, table.norm.cond_scale);
+    assert_eq!(decoder.out_scale, table.norm.out_scale);
     let resumed = run(30, true);
     assert_eq!(resumed.info.step, 30);
     assert_eq!(resumed.info.norm, table.norm);

@@ -109,7 +109,8 @@ fn cone_cos(k: usize) -> f32 {
     (1.0 / (1.0 + TANS[k] * TANS[k]).sqrt() + 1e-6) as f32
 }
 
-/// cos θ of every triangle's escape cone ([`NO_CONE`] for none; [`cone_cos`]).
+/// cos θ of every triangle's escape cone ([`NO_CONE`] for none), made a little larger
+/// than the cone tested so that rounding of w·n never lets a direction outside it in.
 pub fn escape_cosines(geo: &Geometry) -> Vec<f32> {
     (0..geo.tris.len())
         .into_par_iter()

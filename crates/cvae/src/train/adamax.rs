@@ -148,7 +148,7 @@ mod tests {
     /// ε: the first step is lr·g/(|g| + ε) (m₁ = (1 − β₁)g, u₁ = |g|, the bias correction
     /// 1/(1 − β₁) cancels), so with lr = 0.01 from θ = 0 the gradients 1e-6, 1e-8 and −0.5
     /// give θ = −0.01/1.01 = −0.00990099, −0.005 and +0.01 (−0.5/(0.5 + 1e-8) = −1 within
-    /// 2e-8). ε = 1e-6 gives −0.00495 and −9.9e-5, ε = 1e-7 −0.00909 and −9.1e-4.
+    /// 2e-8). ε = 1e-6 gives −0.005 and −9.9e-5, ε = 1e-7 −0.00909 and −9.1e-4.
     ///
     /// β₂: 300 steps whose first gradient (±1) is 100 and 50 times the rest (0.01, −0.02),
     /// so u_t = β₂^(t−1) decays all the while, against the update rule in f64: θ ends at

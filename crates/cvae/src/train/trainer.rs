@@ -859,7 +859,8 @@ pub fn load_decoder(
     let mut rng = WalkRng::from_seed(0);
     let fresh = Cvae::new(kind.cond(), kind.out(), arch, &mut rng, &device);
     let model = loaded(kind, &m, || fresh.try_load_file(&m))?;
-    let decoder = model.export(&info.norm);
+    // A record never resumed since the scale of a column without spread became 1.
+    let decoder = model.export(&info.norm.clone().without_old_floor());
     if !within_bounds(&decoder) {
         return Err(err(&m, damaged_weights(kind)));
     }
