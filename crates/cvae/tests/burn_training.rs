@@ -12,13 +12,6 @@ use cvae::train::{ModelConfig, ModelKind, Table, train_model};
 use scatter_sim::WalkRng;
 use scatter_sim::dataset::walk_row;
 
-/// The training loss by hand: each row's negative ELBO from burn equals, within
-/// 1e-4·(1 + |value|) (burn sums in f32; here in f64), the formula evaluated in plain
-/// Rust on the same weights: h = enc([c, x]) = [μ_z | log σ_z²], z = μ_z + σ_z·ε, [μ | log σ²] =
-/// dec([c, z]), NLL = ½ Σ (log σ² + (x − μ)²/σ²), KL = ½ Σ (μ_z² + σ_z² − log σ_z² − 1),
-/// log-variances clamped to ±LOGVAR_CLAMP. Short training runs (below) only show that
-/// the loss falls, which a mis-weighted term (a doubled KL, a dropped ½) would too.
-
 /// Walks `walks` of stream `seed` in one medium (τ 5, g 0.3, φ 1): the data of the
 /// PathGen runs below, whose conditions τ and g have no spread.
 fn fixed_medium_rows(seed: u64, walks: std::ops::Range<u64>) -> Vec<scatter_sim::dataset::Row> {
@@ -45,6 +38,12 @@ fn small_pathgen(steps: u64, batch_size: usize, lr: f64, warmup: u64) -> ModelCo
     }
 }
 
+/// The training loss by hand: each row's negative ELBO from burn equals, within
+/// 1e-4·(1 + |value|) (burn sums in f32; here in f64), the formula evaluated in plain
+/// Rust on the same weights: h = enc([c, x]) = [μ_z | log σ_z²], z = μ_z + σ_z·ε, [μ | log σ²] =
+/// dec([c, z]), NLL = ½ Σ (log σ² + (x − μ)²/σ²), KL = ½ Σ (μ_z² + σ_z² − log σ_z² − 1),
+/// log-variances clamped to ±LOGVAR_CLAMP. Short training runs (below) only show that
+/// the loss falls, which a mis-weighted term (a doubled KL, a dropped ½) would too.
 #[test]
 fn row_losses_equal_the_elbo_by_hand() {
     let dev = Device::flex();

@@ -310,8 +310,8 @@ pub fn render(
     // must not be small either: each tile's pass ends with its wavefront draining (the
     // last paths' sphere steps in ever smaller batches), which cost ~17 % at 4 samples a
     // pixel per pass against 32 (default scene). So at least MIN_PASS samples a pass, at
-    // most 16 passes unless that would exceed MAX_PASS samples a pass. With a time budget (spp
-    // only a cap) the first pass takes one sample and later ones `next_budget_pass`.
+    // most 16 passes unless that would exceed MAX_PASS samples a pass. With a time budget
+    // (spp only a cap) the first pass takes one sample and later ones `next_budget_pass`.
     let mut pass = if opts.time_budget.is_some() {
         1
     } else {

@@ -3110,12 +3110,18 @@ fn render_in_bands(
     for (name, value) in vars {
         unsafe { std::env::set_var(name, value) };
     }
-    let out = render_gpu(ctx, s, set, o, &progress, &cancel);
+    // Restored even where the render panics: the tests after this one take the context's
+    // lock past the poisoning, and would all render in bands of `rows` rows.
+    let out = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        render_gpu(ctx, s, set, o, &progress, &cancel)
+    }));
     for (name, _) in vars {
         unsafe { std::env::remove_var(name) };
     }
     ctx.limits.max_buffer_size = saved;
-    let out = out.unwrap();
+    let out = out
+        .unwrap_or_else(|p| std::panic::resume_unwind(p))
+        .unwrap();
     assert_eq!(
         out.dispatch.bands as u64,
         height.div_ceil(rows),
@@ -3195,9 +3201,12 @@ fn progress_counts_every_row_up_to_the_band_done() {
 /// A stop asked while a chunk's last band renders, which that band's one submission
 /// finishes, keeps the chunk: every band has then finished it, and only a stop seen
 /// after a band that has one after it (not yet begun) drops the chunk (renderer.rs,
-/// render_chunks). The furnace looking away from its bunny
-/// (every slot done in one dispatch) in 3 bands of 4 rows, stopped at the report after
-/// the first chunk's second band: the third band renders and reports, and the render
+/// render_chunks). The stop is asked here at the report after the band before, which
+/// comes after that band's own look at the stop request; a band that finishes in one
+/// submission looks at none, so it is first seen after the last band, as one asked while
+/// that band renders would be, whatever the timing. The furnace looking away from its
+/// bunny (every slot done in one dispatch) in 3 bands of 4 rows, stopped at the report
+/// after the first chunk's second band: the third band renders and reports, and the render
 /// keeps that chunk's 1 spp (one lane a pixel, one sample a slot in the first chunk) and
 /// its 144 paths. Dropping it, as a check that took the last band for one with a band
 /// after it would, leaves 0 spp (a black image) and two reports. (In

@@ -1166,9 +1166,10 @@ fn a_stop_request_ends_the_render_within_a_pass() {
 }
 
 /// The progress count is of pixel-samples, partial tiles counted by their own pixels: a
-/// 20 × 12 image has 8-pixel tiles (`tile_side`), so half of them are cut to 4 columns
-/// and 4 rows. Over 3 passes of 16 spp, the count reaches exactly width × height × spp (a
-/// partial tile counted as whole would reach 18,432 of 11,520) and never exceeds it.
+/// 20 × 12 image has 8-pixel tiles (`tile_side`), 3 across and 2 down, of which 4 are
+/// partial (the third column's 4 pixels wide, the second row's 4 tall). Over 3 passes of
+/// 16 spp, the count reaches exactly width × height × spp (a partial tile counted as whole
+/// would reach 18,432 of 11,520) and never exceeds it.
 #[test]
 fn progress_counts_every_pixel_sample_once() {
     use std::sync::atomic::{AtomicU64, Ordering};

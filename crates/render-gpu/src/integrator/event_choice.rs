@@ -113,7 +113,8 @@ mod tests {
     /// of exactly four lights), an exact step's NEE events are chosen by φ^k alone, blind
     /// to the side of the ball the lights are on: still unbiased, as any positive proxy
     /// is, so no image test sees it, only more variance; and no scene in the tests has
-    /// four lights (they have one, two or six).
+    /// four lights (they have one, two or six; 65 in the CLI's test of the GPU's light
+    /// limit, with PT).
     #[test]
     fn the_proxy_is_flat_only_beyond_its_lights_or_for_a_dark_one() {
         let lit = |n: usize| {
