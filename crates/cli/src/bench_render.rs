@@ -738,6 +738,26 @@ mod tests {
     use crate::experiment::measure::Pair;
     use clap::Parser as _;
 
+    /// A `side`² grey pair of 2 spp, pixel i of value `value(i)` with variance `var` per
+    /// channel, as `save_images` reads it.
+    fn grey_pair(side: usize, var: f64, value: &dyn Fn(usize) -> f32) -> Pair {
+        let mut mean = render_gpu::image_io::RgbImage::new(side, side);
+        for (i, p) in mean.pixels.iter_mut().enumerate() {
+            *p = [value(i); 3];
+        }
+        let n = side * side;
+        Pair {
+            mean,
+            var: vec![[var; 3]; n],
+            seconds: 1.0,
+            stats: Default::default(),
+            work: vec![1.0; n],
+            spp: 2,
+            hash: 7,
+            view: None,
+        }
+    }
+
     /// A save that fails part way (the pixel table's name taken by a folder, after the
     /// images were written) leaves k's files as an earlier run left them: no new image
     /// beside an earlier run's z map and pixel table (of other seeds, read as one run's),
@@ -757,20 +777,7 @@ mod tests {
             std::fs::write(f, b"an earlier run's").unwrap();
         }
         std::fs::create_dir(table).unwrap();
-        let pair = |v: f32| {
-            let mut mean = render_gpu::image_io::RgbImage::new(4, 4);
-            mean.pixels.iter_mut().for_each(|p| *p = [v; 3]);
-            Pair {
-                mean,
-                var: vec![[0.01; 3]; 16],
-                seconds: 1.0,
-                stats: Default::default(),
-                work: vec![1.0; 16],
-                spp: 2,
-                hash: 7,
-                view: None,
-            }
-        };
+        let pair = |v: f32| grey_pair(4, 0.01, &|_| v);
         let e = save_images(&a, dir.path(), 1.0, &pair(0.5), &pair(0.4)).unwrap_err();
         assert!(
             format!("{e:#}").contains(&format!("cannot write {}", table.display())),
@@ -811,22 +818,7 @@ mod tests {
         let a = Cli::try_parse_from(["bench"]).unwrap().a;
         let dir = tempfile::tempdir().unwrap();
         let block = |i: usize| (i / 8 / 4) * 2 + (i % 8) / 4;
-        let pair = |value: &dyn Fn(usize) -> f32| {
-            let mut mean = render_gpu::image_io::RgbImage::new(8, 8);
-            for (i, p) in mean.pixels.iter_mut().enumerate() {
-                *p = [value(i); 3];
-            }
-            Pair {
-                mean,
-                var: vec![[0.005; 3]; 64],
-                seconds: 1.0,
-                stats: Default::default(),
-                work: vec![1.0; 64],
-                spp: 2,
-                hash: 7,
-                view: None,
-            }
-        };
+        let pair = |value: &dyn Fn(usize) -> f32| grey_pair(8, 0.005, value);
         let pt = pair(&|_: usize| 0.5f32);
         let st = pair(&|i: usize| [0.55f32, 0.4, 0.5, 0.7][block(i)]);
         save_images(&a, dir.path(), 1.0, &pt, &st).unwrap();

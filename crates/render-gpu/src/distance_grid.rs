@@ -669,6 +669,19 @@ mod tests {
         assert!(listed > 1000, "{listed} of 2,000 points have lists");
     }
 
+    /// `geo`'s grid of 8 cells a side, edited, written to `path` and read back: None where
+    /// `read` refuses the file.
+    fn edited_read_back(
+        geo: &crate::geometry::Geometry,
+        path: &std::path::Path,
+        edit: &dyn Fn(&mut DistanceGrid),
+    ) -> Option<DistanceGrid> {
+        let mut g = DistanceGrid::build(geo, 8).unwrap();
+        edit(&mut g);
+        g.write(path, 7).unwrap();
+        DistanceGrid::read(path, 7, geo, 8)
+    }
+
     /// The checks of a cached grid's contents hold exactly at their limits: a candidate
     /// equal to the mesh's triangle count (the first index out of bounds; the forged file
     /// above used 10⁹, which a bound one too far also refuses) is refused, the last
@@ -678,12 +691,7 @@ mod tests {
         let geo = crate::geometry::Geometry::new(crate::mesh::cube(1.0));
         let d = tempfile::tempdir().unwrap();
         let path = d.path().join("grid.bin");
-        let forge = |edit: &dyn Fn(&mut DistanceGrid)| {
-            let mut g = DistanceGrid::build(&geo, 8).unwrap();
-            edit(&mut g);
-            g.write(&path, 7).unwrap();
-            DistanceGrid::read(&path, 7, &geo, 8)
-        };
+        let forge = |edit: &dyn Fn(&mut DistanceGrid)| edited_read_back(&geo, &path, edit);
         let last = geo.tris.len() as u32 - 1;
         assert!(forge(&|g| g.candidates[0] = last).is_some());
         assert!(forge(&|g| g.candidates[0] = last + 1).is_none());
@@ -698,12 +706,7 @@ mod tests {
         let geo = squashed_box();
         let d = tempfile::tempdir().unwrap();
         let path = d.path().join("grid.bin");
-        let forge = |edit: &dyn Fn(&mut DistanceGrid)| {
-            let mut g = DistanceGrid::build(&geo, 8).unwrap();
-            edit(&mut g);
-            g.write(&path, 7).unwrap();
-            DistanceGrid::read(&path, 7, &geo, 8)
-        };
+        let forge = |edit: &dyn Fn(&mut DistanceGrid)| edited_read_back(&geo, &path, edit);
         assert!(forge(&|_| {}).is_some());
         for axis in 0..3 {
             assert!(
