@@ -150,6 +150,17 @@ fn every_experiment_runs_quick() {
                 let figure = |name: &str| cells[column(name)].parse::<f64>().unwrap();
                 let pt = figure("pt_events_per_path");
                 let st = figure("st_steps_per_path") + figure("st_fallback_events_per_path");
+                // The speed-up is PT's time over ST-CVAE's, as in the other tables: the CSV
+                // holds the times and the ratio at full precision (`{v}` round-trips an
+                // f64), so they agree to rounding (1e-9 relative allowed); ST-CVAE's over
+                // PT's is off by the ratio squared.
+                let ratio = figure("pt_seconds") / figure("st_seconds");
+                assert!(
+                    (figure("speedup") - ratio).abs() <= 1e-9 * ratio,
+                    "{}: speedup {} against pt_seconds / st_seconds = {ratio}",
+                    file.display(),
+                    figure("speedup")
+                );
                 for (what, map, table) in [("PT", mean(0), pt), ("ST-CVAE", mean(half + 2), st)] {
                     assert!(
                         (map - table).abs() <= 1e-4 * table && table > 0.0,

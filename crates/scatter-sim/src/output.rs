@@ -1918,4 +1918,145 @@ mod tests {
             }
         }
     }
+
+    /// Each temporary is registered in `LIVE` (for a second Ctrl-C's exit to remove) under
+    /// its own name while it is written, and only then: a target registered instead (the
+    /// user's earlier output) would be removed by that exit, and a dropped temporary's
+    /// entry, and only its own, goes. Only this test's own paths are looked at, as other
+    /// tests write at the same time (remove_live_temporaries is not called for that reason).
+    #[test]
+    fn a_temporary_is_registered_while_it_is_written() {
+        let d = tempfile::tempdir().unwrap();
+        let registered = |p: &Path| {
+            LIVE.lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .iter()
+                .any(|q| q.as_path() == p)
+        };
+        let (a_out, b_out) = (d.path().join("a.exr"), d.path().join("b.exr"));
+        fs::write(&a_out, b"old a").unwrap();
+        let a = AtomicFile::create(&a_out).unwrap();
+        let b = AtomicFile::create(&b_out).unwrap();
+        let a_tmp = a.writer.get_ref().0.path().to_path_buf();
+        let b_tmp = b.writer.get_ref().0.path().to_path_buf();
+        assert!(registered(&a_tmp) && registered(&b_tmp));
+        assert!(
+            !registered(&a_out) && !registered(&b_out),
+            "a target registered"
+        );
+        drop(a);
+        assert!(!registered(&a_tmp), "a dropped temporary stayed registered");
+        assert!(registered(&b_tmp), "a live temporary was unregistered");
+        b.commit().unwrap();
+        assert!(!registered(&b_tmp));
+        assert_eq!(fs::read(&a_out).unwrap(), b"old a");
+    }
+
+    /// An input that is a socket is refused by name, as a FIFO or a device is: opening it
+    /// fails with "No such device or address", which names no cause.
+    #[cfg(unix)]
+    #[test]
+    fn an_input_that_is_a_socket_is_refused() {
+        let d = tempfile::tempdir().unwrap();
+        let sock = d.path().join("scene.toml");
+        let Ok(_listener) = std::os::unix::net::UnixListener::bind(&sock) else {
+            eprintln!("skipped: no socket could be made at {}", sock.display());
+            return;
+        };
+        let e = check_input(&sock).unwrap_err();
+        assert_eq!(e.kind(), io::ErrorKind::InvalidInput);
+        assert!(e.to_string().contains("is a socket, not a file"), "{e}");
+        let e = read_input_to_string(&sock).unwrap_err();
+        assert!(e.to_string().contains("is a socket, not a file"), "{e}");
+        let file = d.path().join("file.toml");
+        fs::write(&file, "x").unwrap();
+        assert_eq!(read_input_to_string(&file).unwrap(), "x");
+    }
+
+    /// What an aborted write left beside an output only one command writes (a training's
+    /// checkpoint files) is removed before it is written again: its temporaries
+    /// (`.NAME.XXXXXX.partial`) and the links of versions before the sets' marks
+    /// (`.NAME.XXXXXX.previous`). Another output's temporary, a look-alike, a set's link
+    /// (`restore_killed_sets`' to deal with) and the output itself stay.
+    #[test]
+    fn stale_temporaries_and_old_links_are_removed() {
+        let d = tempfile::tempdir().unwrap();
+        let at = |n: &str| d.path().join(n);
+        let out = at("m.bpk");
+        fs::write(&out, b"model").unwrap();
+        let stale = [".m.bpk.AbC123.partial", ".m.bpk.XyZ987.previous"];
+        let kept = [
+            ".n.bpk.AbC123.partial",
+            ".m.bpk.seven77.previous",
+            ".m.bpk.AbC123.stcvae-previous",
+        ];
+        for n in stale.into_iter().chain(kept) {
+            fs::write(at(n), b"x").unwrap();
+        }
+        remove_stale_temporaries_of(&out);
+        for n in stale {
+            assert!(!at(n).exists(), "{n} was left");
+        }
+        for n in kept {
+            assert!(at(n).exists(), "{n} was removed");
+        }
+        assert_eq!(fs::read(&out).unwrap(), b"model");
+    }
+
+    /// A set killed after marking its folder but before keeping any file (a mark with no
+    /// link beside it), or while making its mark (`….marking`), leaves only marks: the next
+    /// sweep removes them all the same (they stayed for ever while no link was there). A
+    /// live set's marks (locked) stay.
+    #[cfg(unix)]
+    #[test]
+    fn a_killed_sets_lone_marks_are_removed() {
+        let d = tempfile::tempdir().unwrap();
+        let at = |n: &str| d.path().join(n);
+        fs::write(at("a.exr"), b"a").unwrap();
+        let (dead, half) = (
+            at(".stcvae-set.Dea123.renaming"),
+            at(".stcvae-set.Hal456.marking"),
+        );
+        let (live, making) = (
+            at(".stcvae-set.Liv789.renaming"),
+            at(".stcvae-set.Mak000.marking"),
+        );
+        for m in [&dead, &half, &live, &making] {
+            fs::write(m, b"").unwrap();
+        }
+        let held = [&live, &making].map(|m| {
+            let f = fs::File::open(m).unwrap();
+            f.try_lock().unwrap();
+            f
+        });
+        restore_killed_sets(d.path());
+        assert!(!dead.exists(), "a killed set's mark was left");
+        assert!(!half.exists(), "a killed set's half-made mark was left");
+        assert!(
+            live.exists() && making.exists(),
+            "a live set's mark was removed"
+        );
+        assert_eq!(fs::read(at("a.exr")).unwrap(), b"a");
+        drop(held);
+    }
+
+    /// A folder to write into that is /dev, /proc or /sys itself is refused as the folder
+    /// of devices it is (its own place is judged, not its parent's: `/`, which let `/dev`
+    /// through to the probe, and as root to the work).
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn a_system_folder_is_refused_as_an_output_folder() {
+        for dir in ["/dev", "/proc", "/sys"] {
+            if !Path::new(dir).is_dir() {
+                continue;
+            }
+            let e = check_output_folder(Path::new(dir)).unwrap_err();
+            assert!(
+                e.starts_with(&format!(
+                    "{dir} is in {dir}, a folder of devices and kernel entries"
+                )),
+                "{e}"
+            );
+        }
+    }
 }

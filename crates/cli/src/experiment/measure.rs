@@ -967,4 +967,109 @@ mod tests {
         let sd = (zs.iter().map(|z| (z - m).powi(2)).sum::<f64>() / (zs.len() - 1) as f64).sqrt();
         assert!((0.85..1.15).contains(&sd), "spread of z {sd} (mean {m})");
     }
+
+    /// A 2×2 image whose pixels' three channels are `v` (row-major).
+    fn grey4(v: [f32; 4]) -> RgbImage {
+        let mut img = RgbImage::new(2, 2);
+        for (p, x) in img.pixels.iter_mut().zip(v.iter()) {
+            *p = [*x; 3];
+        }
+        img
+    }
+
+    /// The noise RMSE is that of both renders' noises, by hand: three object pixels and a
+    /// background pixel (0 in every half, no noise: left out). The reference's halves 1
+    /// and 3 (mean 2, variance of the mean (3 − 1)²/4 = 1 per channel), the other's 4 and
+    /// 0 (mean 2, variance 4); the unit is 1/2 (the object's 99th percentile is 2). So
+    /// √((9·1 + 9·4)/9)/2 = √5/2 = 1.1180; the reference's noise alone would give 0.5,
+    /// the other's alone 1.0, the background counted √(45/12)/2 = 0.968. Exact in binary
+    /// up to the last rounding, so 1e-12.
+    #[test]
+    fn the_noise_rmse_is_that_of_both_renders() {
+        let reference = pair_of(grey4([1.0, 1.0, 1.0, 0.0]), grey4([3.0, 3.0, 3.0, 0.0]));
+        let other = pair_of(grey4([4.0, 4.0, 4.0, 0.0]), grey4([0.0; 4]));
+        let c = compare(&reference, &other);
+        let want = 5f64.sqrt() / 2.0;
+        assert!(
+            (c.noise - want).abs() < 1e-12,
+            "noise {} against {want}",
+            c.noise
+        );
+    }
+
+    /// The object is every pixel with noise in either render: one ST-CVAE lights where PT
+    /// leaves black (a leak) counts, with its whole error. Worked case: three pixels at 2
+    /// in both (halves 1.75 and 2.25: variance of the mean 0.0625 per channel each, e_c =
+    /// 0 − 2·0.0625 = −0.125), and a fourth that PT leaves at 0 in both halves while the
+    /// other's halves are 3 and 1 (mean 2, variance 1: e_c = 2² − 0 − 1 = 3). Per channel
+    /// Σe_c = 3·(−0.125) + 3 = 2.625 over 4 object pixels: bias² 0.65625, the unit 1/2
+    /// (PT's 99th percentile over the four is 2), so bias √0.65625/2 = 0.40505 and noise
+    /// √((9·0.0625 + 9·0.0625 + 3·1)/12)/2 = 0.29315. The object taken from PT's noise
+    /// alone (three pixels) gives 0.46771 and 0.33850. Exact in binary up to the last
+    /// rounding, so 1e-12.
+    #[test]
+    fn a_pixel_with_noise_in_the_other_render_alone_is_object() {
+        let reference = pair_of(
+            grey4([1.75, 1.75, 1.75, 0.0]),
+            grey4([2.25, 2.25, 2.25, 0.0]),
+        );
+        let other = pair_of(
+            grey4([1.75, 1.75, 1.75, 3.0]),
+            grey4([2.25, 2.25, 2.25, 1.0]),
+        );
+        let c = compare(&reference, &other);
+        let (bias, noise) = (0.65625f64.sqrt() / 2.0, (4.125f64 / 12.0).sqrt() / 2.0);
+        assert!(
+            (c.bias - bias).abs() < 1e-12 && (c.noise - noise).abs() < 1e-12,
+            "bias {} and noise {} against {bias} and {noise}",
+            c.bias,
+            c.noise
+        );
+    }
+
+    /// The exposure and the errors' unit is 1 / the 99th percentile of the pixels above
+    /// 1/1,000 of the brightest, by hand: 200 pixels of luminance 1, 2, …, 200 and 800 of
+    /// 0.1 (below 200/1,000 = 0.2: left out). Of the 200, index ⌊200·99/100⌋ = 198 holds
+    /// 199, so 1/199 exactly; index ⌊199·99/100⌋ = 197 would give 1/198, the 800 dark
+    /// pixels kept 1/191 (index 990 of 1,000), the 95th percentile 1/191.
+    #[test]
+    fn the_scale_is_the_99th_percentile_above_the_floor() {
+        let mut img = RgbImage::new(1000, 1);
+        for (i, p) in img.pixels.iter_mut().enumerate() {
+            *p = if i < 200 {
+                [(i + 1) as f32; 3]
+            } else {
+                [0.1; 3]
+            };
+        }
+        let s = scale_of(&img);
+        assert!((s - 1.0 / 199.0).abs() < 1e-15, "scale 1/{}", 1.0 / s);
+    }
+
+    /// The mean offset over the channels, and the mean of their standard errors (an upper
+    /// bound on the mean's whatever the channels' correlation, as the absorption report
+    /// says): offsets 3 %, −6 %, 0 % with errors 1 %, 2 %, 3 % give −1 % ± 2 %. As if
+    /// independent, √(1 + 4 + 9)/3 = 1.247 % (lower); the errors' mean in place of the
+    /// offsets', 2 %.
+    #[test]
+    fn the_mean_offset_and_its_error_bound() {
+        let c = Comparison {
+            speedup: 1.0,
+            var_ratio: 1.0,
+            var_ratio_se: 0.1,
+            bias: 0.0,
+            bias_upper95: None,
+            noise: 0.01,
+            channel_bias: [0.0; 3],
+            channel_offset: [(0.03, 0.01), (-0.06, 0.02), (0.0, 0.03)],
+            block_chi2: 1.0,
+            blocks: 0,
+            block_null: (1.0, 0.0),
+        };
+        let (o, se) = c.offset();
+        assert!(
+            (o + 0.01).abs() < 1e-12 && (se - 0.02).abs() < 1e-12,
+            "offset {o} ± {se}, expected -0.01 ± 0.02"
+        );
+    }
 }

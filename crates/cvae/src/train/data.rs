@@ -94,7 +94,7 @@ impl Standardisation {
     /// A checkpoint's standardisation with the old scale of 10⁻⁶ of a column without
     /// spread read as today's 1 (`same_data` takes the two for the same data). Exported
     /// with 10⁻⁶, any condition off the training value reached the network a million
-    /// times larger ([`column_stats`]); its training rows sat at 0 either way.
+    /// times larger (`column_stats`); its training rows sat at 0 either way.
     pub fn without_old_floor(mut self) -> Self {
         for v in self.cond_scale.iter_mut().chain(self.out_scale.iter_mut()) {
             if *v == 1e-6 {
