@@ -299,6 +299,10 @@ impl ModelSet {
         for (i, spec) in meta.decoders.iter().enumerate() {
             decoders.push(read_decoder(i, spec, &mut floats).map_err(invalid)?);
         }
+        for d in &mut decoders {
+            lift_old_floor(&mut d.cond_scale);
+            lift_old_floor(&mut d.out_scale);
+        }
         let event = decoders.pop().unwrap();
         let path_d = decoders.pop().unwrap();
         let length = decoders.pop().unwrap();
@@ -467,6 +471,18 @@ fn significant(x: f64) -> String {
 /// `MIN_SPREAD`, defined from it).
 pub const MAX_NORM: f32 = 100.0;
 pub const MIN_SCALE: f32 = 1e-6;
+
+/// Reads the scale older builds gave a column without spread, 10⁻⁶ (exactly
+/// [`MIN_SCALE`]), as today's 1. Decoded with 10⁻⁶, any condition off the training value
+/// reached the network a million times larger (a g = 0.875 model decoded N = 2 for every
+/// walk at g = 0.4: a render 26 % too bright); the training rows sat at 0 either way, so
+/// the decode is the one a model trained today gives. An output's 10⁻⁶ likewise (its
+/// targets sat at 0). Model files, `--base` inputs and checkpoint records all pass here.
+pub fn lift_old_floor(scales: &mut [f32]) {
+    for v in scales.iter_mut().filter(|v| **v == MIN_SCALE) {
+        *v = 1.0;
+    }
+}
 
 /// Checks the shifts and scales of a decoder with `cond` inputs and `out` outputs, naming
 /// the first field out of its range.

@@ -308,10 +308,17 @@ fn absurd_standardisation_is_refused() {
         let e = ModelSet::from_bytes(&m.to_bytes(), Path::new("n.stcvae")).unwrap_err();
         assert!(e.to_string().contains(msg), "{e}");
     }
-    // Training's floor for a column without spread is accepted.
+    // Older builds' scale for a column without spread, 10⁻⁶, is accepted and read as
+    // today's 1 (model_file::lift_old_floor: kept, any condition off the training value
+    // reached the network a million times larger); other scales are kept.
     let mut m = random_models(5, 1.0);
     m.path.cond_scale[1] = 1e-6f64 as f32;
-    ModelSet::from_bytes(&m.to_bytes(), Path::new("n.stcvae")).unwrap();
+    m.event.out_scale[0] = 1e-6f64 as f32;
+    let back = ModelSet::from_bytes(&m.to_bytes(), Path::new("n.stcvae")).unwrap();
+    assert_eq!(back.path.cond_scale[1], 1.0);
+    assert_eq!(back.event.out_scale[0], 1.0);
+    assert_eq!(back.length.cond_scale, m.length.cond_scale);
+    assert_eq!(back.path.cond_scale[0], m.path.cond_scale[0]);
 }
 
 /// The training ranges steer the renderers' τ cap and warnings: unordered or

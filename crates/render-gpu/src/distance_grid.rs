@@ -669,8 +669,9 @@ mod tests {
         assert!(listed > 1000, "{listed} of 2,000 points have lists");
     }
 
-    /// `geo`'s grid of 8 cells a side, edited, written to `path` and read back: None where
-    /// `read` refuses the file.
+    /// `geo`'s grid of 8 cells along its longest side (8 × 5 × 3 for `squashed_box`),
+    /// edited, written to `path` under key 7 and read back: None where `read` refuses the
+    /// file.
     fn edited_read_back(
         geo: &crate::geometry::Geometry,
         path: &std::path::Path,

@@ -92,15 +92,11 @@ impl Standardisation {
 
 impl Standardisation {
     /// A checkpoint's standardisation with the old scale of 10⁻⁶ of a column without
-    /// spread read as today's 1 (`same_data` takes the two for the same data). Exported
-    /// with 10⁻⁶, any condition off the training value reached the network a million
-    /// times larger (`column_stats`); its training rows sat at 0 either way.
+    /// spread read as today's 1 (`same_data` takes the two for the same data;
+    /// [`crate::model_file::lift_old_floor`] says why).
     pub fn without_old_floor(mut self) -> Self {
-        for v in self.cond_scale.iter_mut().chain(self.out_scale.iter_mut()) {
-            if *v == 1e-6 {
-                *v = 1.0;
-            }
-        }
+        crate::model_file::lift_old_floor(&mut self.cond_scale);
+        crate::model_file::lift_old_floor(&mut self.out_scale);
         self
     }
 }
@@ -490,9 +486,9 @@ mod tests {
     /// table has the training table's standardisation, and each of its conditions and
     /// targets is (raw − shift)/scale with the training table's shift and scale. The raw
     /// features are the f32 of the same f64s and the operations the same, so the values
-    /// should agree to the last bit; 1e-6·(1 + |value|) leaves room for an f32 rounding or
-    /// two (a fused multiply-add, say) and nothing more: another walk's or another
-    /// statistic's value differs by far more.
+    /// should agree to the last bit; 1e-6·(1 + |value|) leaves room for a few f32 roundings
+    /// (a fused multiply-add, say: the bound is 8 to 25 ulp where |value| ≥ 1, more below)
+    /// and nothing more: another walk's or another statistic's value differs by far more.
     #[test]
     fn held_out_tables_take_the_training_tables_standardisation() {
         let sampler = scatter_sim::conditions::ConditionSampler::authors();
