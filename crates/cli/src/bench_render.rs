@@ -738,6 +738,16 @@ mod tests {
     use crate::experiment::measure::Pair;
     use clap::Parser as _;
 
+    /// `bench render`'s arguments at their defaults.
+    fn default_args() -> Args {
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            a: Args,
+        }
+        Cli::try_parse_from(["bench"]).unwrap().a
+    }
+
     /// A `side`² grey pair of 2 spp, pixel i of value `value(i)` with variance `var` per
     /// channel, as `save_images` reads it.
     fn grey_pair(side: usize, var: f64, value: &dyn Fn(usize) -> f32) -> Pair {
@@ -764,12 +774,7 @@ mod tests {
     /// and the earlier run's set not removed either (it was, on a full disk).
     #[test]
     fn a_failed_save_leaves_the_earlier_set_whole() {
-        #[derive(clap::Parser)]
-        struct Cli {
-            #[command(flatten)]
-            a: Args,
-        }
-        let a = Cli::try_parse_from(["bench"]).unwrap().a;
+        let a = default_args();
         let dir = tempfile::tempdir().unwrap();
         let files = saved_files(dir.path(), 1.0);
         let (table, others) = files.split_last().unwrap();
@@ -810,12 +815,7 @@ mod tests {
     #[test]
     fn the_saved_pictures_are_at_pts_exposure_and_the_z_map_shows_where_st_cvae_differs() {
         use render_gpu::image_io::encode_png;
-        #[derive(clap::Parser)]
-        struct Cli {
-            #[command(flatten)]
-            a: Args,
-        }
-        let a = Cli::try_parse_from(["bench"]).unwrap().a;
+        let a = default_args();
         let dir = tempfile::tempdir().unwrap();
         let block = |i: usize| (i / 8 / 4) * 2 + (i % 8) / 4;
         let pair = |value: &dyn Fn(usize) -> f32| grey_pair(8, 0.005, value);

@@ -2647,6 +2647,18 @@ fn shipped_defaults_are_found_from_another_directory() {
     assert!(err.contains("configs/scenes/sphere.toml"), "{err}");
 }
 
+/// The numbers of `bench error`'s row for the image `path` in its printed table `text`.
+fn bench_error_row(text: &str, path: &str) -> Vec<f64> {
+    let line = text
+        .lines()
+        .find(|l| l.starts_with(path))
+        .unwrap_or_else(|| panic!("no row for {path}: {text}"));
+    line[path.len()..]
+        .split([' ', ','])
+        .filter_map(|w| w.parse().ok())
+        .collect()
+}
+
 /// `bench error` on renders of the sphere: a 2-spp image has a larger error than a 32-spp
 /// one against a reference of three 32-spp renders (the MSE falls as 1/spp, so the RMSEs
 /// should differ by ~4×; asserting 2× leaves room for the noise of an MSE estimated from
@@ -2685,16 +2697,7 @@ fn bench_error_ranks_renders_by_error_and_names_bad_inputs() {
     ok(&out);
     let text = String::from_utf8_lossy(&out.stdout).into_owned();
     assert!(text.contains("mean of 3 render(s), 16x16"), "{text}");
-    let row = |path: &str| -> Vec<f64> {
-        let line = text
-            .lines()
-            .find(|l| l.starts_with(path))
-            .unwrap_or_else(|| panic!("no row for {path}: {text}"));
-        line[path.len()..]
-            .split([' ', ','])
-            .filter_map(|w| w.parse().ok())
-            .collect()
-    };
+    let row = |path: &str| bench_error_row(&text, path);
     // seconds, RMSE, MSE·s, vs first, then the three object ratios.
     let (h, l) = (row(&high), row(&low));
     assert_eq!(h.len(), 7, "{text}");
@@ -2856,16 +2859,7 @@ fn bench_error_ranks_renders_by_error_and_names_bad_inputs() {
     ]);
     ok(&out);
     let text = String::from_utf8_lossy(&out.stdout).into_owned();
-    let row_of = |path: &str| -> Vec<f64> {
-        let line = text
-            .lines()
-            .find(|l| l.starts_with(path))
-            .unwrap_or_else(|| panic!("no row for {path}: {text}"));
-        line[path.len()..]
-            .split([' ', ','])
-            .filter_map(|w| w.parse().ok())
-            .collect()
-    };
+    let row_of = |path: &str| bench_error_row(&text, path);
     let (first, third) = (row_of(&high), row_of(&other));
     assert!(
         (third[3] - third[2] / first[2]).abs() <= 0.01 * third[3] + 0.01,

@@ -38,6 +38,30 @@ fn small_pathgen(steps: u64, batch_size: usize, lr: f64, warmup: u64) -> ModelCo
     }
 }
 
+/// A PathGen run of `cfg` on `table` in `dir` (seed 8, no validation, no reports, never
+/// stopped), resumed from its checkpoint there if `resume`.
+fn train_pathgen_quietly(
+    table: &Table,
+    cfg: &ModelConfig,
+    dir: &std::path::Path,
+    resume: bool,
+) -> cvae::train::Trained {
+    train_model(
+        ModelKind::PathGen,
+        table,
+        cfg,
+        8,
+        &Device::flex().autodiff(),
+        dir,
+        0,
+        resume,
+        &AtomicBool::new(false),
+        None,
+        &|_, _, _, _| {},
+    )
+    .unwrap()
+}
+
 /// The training loss by hand: each row's negative ELBO from burn equals, within
 /// 1e-4·(1 + |value|) (burn sums in f32; here in f64), the formula evaluated in plain
 /// Rust on the same weights: h = enc([c, x]) = [μ_z | log σ_z²], z = μ_z + σ_z·ε, [μ | log σ²] =
@@ -468,24 +492,8 @@ fn a_resumed_run_counts_the_seconds_of_the_runs_before() {
     let rows = fixed_medium_rows(21, 0..500);
     let table = Table::build(ModelKind::PathGen, &rows, SingleScattering::Exact);
     let cfg = small_pathgen(20, 16, 5e-3, 5);
-    let dev = Device::flex().autodiff();
     let dir = tempfile::tempdir().unwrap();
-    let run = |resume: bool| {
-        train_model(
-            ModelKind::PathGen,
-            &table,
-            &cfg,
-            8,
-            &dev,
-            dir.path(),
-            0,
-            resume,
-            &AtomicBool::new(false),
-            None,
-            &|_, _, _, _| {},
-        )
-        .unwrap()
-    };
+    let run = |resume: bool| train_pathgen_quietly(&table, &cfg, dir.path(), resume);
     assert_eq!(run(false).info.step, 20);
     let record = dir.path().join("pathgen.json");
     let mut v: serde_json::Value =
@@ -758,24 +766,9 @@ fn a_resumed_run_records_the_tables_standardisation() {
     let rows = fixed_medium_rows(22, 0..500);
     let table = Table::build(ModelKind::PathGen, &rows, SingleScattering::Exact);
     let cfg = |steps| small_pathgen(steps, 16, 5e-3, 5);
-    let dev = Device::flex().autodiff();
     let dir = tempfile::tempdir().unwrap();
-    let run = |steps: u64, resume: bool| {
-        train_model(
-            ModelKind::PathGen,
-            &table,
-            &cfg(steps),
-            8,
-            &dev,
-            dir.path(),
-            0,
-            resume,
-            &AtomicBool::new(false),
-            None,
-            &|_, _, _, _| {},
-        )
-        .unwrap()
-    };
+    let run =
+        |steps: u64, resume: bool| train_pathgen_quietly(&table, &cfg(steps), dir.path(), resume);
     assert_eq!(run(20, false).info.step, 20);
     let record = dir.path().join("pathgen.json");
     let read = || -> serde_json::Value {

@@ -98,8 +98,8 @@ fn read(path: &std::path::Path, key: u64, n: usize) -> Option<Vec<f32>> {
         .collect();
     // Only the values `escape_cosines` makes: a forged cosine of 0.01 (a valid CRC) would
     // let nearly every direction off its triangle skip the re-entry cast.
-    let made =
-        |c: f32| c == NO_CONE || (0..TANS.len()).any(|k| c.to_bits() == cone_cos(k).to_bits());
+    let cones: Vec<u32> = (0..TANS.len()).map(|k| cone_cos(k).to_bits()).collect();
+    let made = |c: f32| c == NO_CONE || cones.contains(&c.to_bits());
     cos.iter().all(|&c| made(c)).then_some(cos)
 }
 

@@ -2313,17 +2313,7 @@ fn the_view_hash_is_the_scene_without_its_integrator() {
     // The same cube 40,000 and 40,010 along x before the same camera: recentred, both
     // meshes are the same positions, and only where the mesh was tells the views apart.
     let far = |x: f64| {
-        let obj: String = CUBE_OBJ
-            .lines()
-            .map(|l| match l.strip_prefix("v ") {
-                Some(v) => {
-                    let c: Vec<f64> = v.split(' ').map(|t| t.parse().unwrap()).collect();
-                    format!("v {} {} {}\n", c[0] + x, c[1], c[2])
-                }
-                None => format!("{l}\n"),
-            })
-            .collect();
-        write(&d, "far.obj", obj.as_bytes());
+        write(&d, "far.obj", cube_obj_at(x).as_bytes());
         let text = base
             .replace("mesh = \"m.obj\"", "mesh = \"far.obj\"")
             .replace("origin = [0.0, 0.0, 6.0]", "origin = [40005.0, 0.0, 40.0]")

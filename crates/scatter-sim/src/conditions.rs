@@ -238,6 +238,21 @@ mod tests {
     use crate::rng::WalkRng;
     use crate::stats::{ks_one_sample, ks_p_value, proportion_z};
 
+    /// Pearson's r of columns `a` and `b` of `rows`.
+    fn pearson(rows: &[[f64; 3]], a: usize, b: usize) -> f64 {
+        let n = rows.len() as f64;
+        let mean = |i: usize| rows.iter().map(|u| u[i]).sum::<f64>() / n;
+        let (ma, mb) = (mean(a), mean(b));
+        let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
+        for u in rows {
+            let (x, y) = (u[a] - ma, u[b] - mb);
+            sab += x * y;
+            saa += x * x;
+            sbb += y * y;
+        }
+        sab / (saa * sbb).sqrt()
+    }
+
     /// The authors' distribution (design brief, from their code) against its own CDFs,
     /// written out from the formulas rather than from the sampler: τ = 300·u³ has
     /// P(τ ≤ t) = (t/300)^{1/3}; g = clamp(2u − 1, ±0.999) is uniform on [−1, 1] with
@@ -306,20 +321,8 @@ mod tests {
                 ]
             })
             .collect();
-        let r = |a: usize, b: usize| {
-            let m = |i: usize| uniforms.iter().map(|u| u[i]).sum::<f64>() / n as f64;
-            let (ma, mb) = (m(a), m(b));
-            let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
-            for u in &uniforms {
-                let (x, y) = (u[a] - ma, u[b] - mb);
-                sab += x * y;
-                saa += x * x;
-                sbb += y * y;
-            }
-            sab / (saa * sbb).sqrt()
-        };
         for (a, b) in [(0, 1), (0, 2), (1, 2)] {
-            let r = r(a, b);
+            let r = pearson(&uniforms, a, b);
             assert!(
                 r.abs() < 4.5 / (n as f64).sqrt(),
                 "conditions {a} and {b} (tau, g, albedo) correlate: r = {r:.4}"
@@ -369,17 +372,8 @@ mod tests {
             let p = ks_p_value(d, n as f64);
             assert!(p > 1e-4, "{what}: KS D = {d:.4}, p = {p:.1e}");
         }
-        let mean = |i: usize| uniforms.iter().map(|u| u[i]).sum::<f64>() / n as f64;
         for (a, b) in [(0, 1), (0, 2), (1, 2)] {
-            let (ma, mb) = (mean(a), mean(b));
-            let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
-            for u in &uniforms {
-                let (x, y) = (u[a] - ma, u[b] - mb);
-                sab += x * y;
-                saa += x * x;
-                sbb += y * y;
-            }
-            let r = sab / (saa * sbb).sqrt();
+            let r = pearson(&uniforms, a, b);
             assert!(
                 r.abs() < 4.5 / (n as f64).sqrt(),
                 "conditions {a} and {b} (tau, g, albedo) correlate: r = {r:.4}"
