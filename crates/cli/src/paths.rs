@@ -204,6 +204,68 @@ mod tests {
         assert!(check_not_input("--out", &input, &missing).is_ok());
     }
 
+    /// A count whose bytes pass u64 needs more than any disk holds: the need saturates.
+    /// 2^63 walks of 56 bytes (binary) or 26 (CSV) are 7·2^66 and 13·2^64 bytes, both 0
+    /// modulo 2^64, so a wrapped product would need nothing and let the run start. (The
+    /// command-line test's 2^64 − 1 walks wrap to just below 2^64 and are refused either
+    /// way.) Unix only: elsewhere the free space is not read.
+    #[cfg(unix)]
+    #[test]
+    fn a_need_past_u64_saturates() {
+        let dir = tempfile::tempdir().unwrap();
+        for name in ["x.bin", "x.csv"] {
+            let out = dir.path().join(name);
+            if free_bytes(&out).is_none() {
+                eprintln!("skipped: {} reports no sizes", dir.path().display());
+                return;
+            }
+            let e = check_room(&out, 1 << 63, "--samples")
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("9223372036854775808 walks need at least 16.00 EiB"),
+                "{e}"
+            );
+        }
+    }
+
+    /// The refusal's free space is the file system's (`free_bytes`), not the need again:
+    /// u64::MAX walks need 16.00 EiB, far beyond any disk, and the figure after "has" must
+    /// read back within a factor of 2 of what statvfs says just after (other writers may
+    /// change it between the two reads, by far less than that on a disk with room).
+    #[cfg(unix)]
+    #[test]
+    fn a_refusal_names_the_space_free() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("x.bin");
+        let e = match check_room(&out, u64::MAX, "--samples") {
+            Ok(()) => {
+                // A file system that reports no sizes: nothing is refused there.
+                assert!(free_bytes(&out).is_none());
+                eprintln!("skipped: {} reports no sizes", dir.path().display());
+                return;
+            }
+            Err(e) => e.to_string(),
+        };
+        let free = free_bytes(&out).unwrap() as f64;
+        // indicatif's HumanBytes: "512 B", "93.12 GiB".
+        let figure = e
+            .split_once("its file system has ")
+            .and_then(|(_, rest)| rest.split_once(" free"))
+            .unwrap_or_else(|| panic!("{e}"))
+            .0;
+        let (number, unit) = figure.split_once(' ').unwrap_or_else(|| panic!("{e}"));
+        let power = ["B", "KiB", "MiB", "GiB", "TiB", "PiB", "EiB"]
+            .iter()
+            .position(|u| *u == unit)
+            .unwrap_or_else(|| panic!("{e}"));
+        let shown = number.parse::<f64>().unwrap() * 1024f64.powi(power as i32);
+        assert!(
+            shown <= 2.0 * free.max(1.0) && free <= 2.0 * shown.max(1.0),
+            "{free} bytes free: {e}"
+        );
+    }
+
     /// Paths that do not exist yet resolve through their nearest existing ancestor, so a
     /// file within a folder still to be made lies within it (`train --out ck/m.stcvae`
     /// with checkpoint_dir = ck was missed: one side stayed relative).

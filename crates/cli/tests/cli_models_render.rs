@@ -1657,6 +1657,16 @@ fn a_terminated_render_keeps_its_passes_and_exits_143() {
     interrupt_a_render(libc::SIGTERM, "SIGTERM");
 }
 
+/// SIGHUP (the terminal closed) stops a render as Ctrl-C does, and the exit status and the
+/// message say which: 129 = 128 + 1. No other test sends it unignored (the render under
+/// `nohup` below must not stop for it), so a stop-signal list without it, whose stop would
+/// then read as Ctrl-C's (130, no name), went unseen.
+#[cfg(unix)]
+#[test]
+fn a_hung_up_render_keeps_its_passes_and_exits_129() {
+    interrupt_a_render(libc::SIGHUP, "SIGHUP");
+}
+
 /// The samples of one pass of [`logged_pt_render`]: 256 spp of the 16² pixels (100,000 spp
 /// takes the largest pass).
 #[cfg(unix)]
@@ -1751,8 +1761,18 @@ fn an_ignored_hangup_is_still_ignored() {
 /// Stops a render with `signal` after two passes and checks what it kept (the tests above).
 #[cfg(unix)]
 fn interrupt_a_render(signal: libc::c_int, name: &str) {
+    use std::os::unix::process::CommandExt;
     let d = tempfile::tempdir().unwrap();
     let (mut cmd, out) = logged_pt_render(d.path());
+    // SIGHUP at its default, as in a terminal: a suite run under `nohup` would pass it on
+    // ignored, and the render keeps it so (an_ignored_hangup_is_still_ignored).
+    // SAFETY: between fork and exec only `signal`, which is async-signal-safe.
+    unsafe {
+        cmd.pre_exec(|| {
+            libc::signal(libc::SIGHUP, libc::SIG_DFL);
+            Ok(())
+        });
+    }
     let mut child = cmd.spawn().unwrap();
     let err = signal_after_samples(&mut child, &[(signal, 2 * PASS)]);
     let status = child.wait().unwrap();
@@ -2474,6 +2494,10 @@ fn bench_devices_checks_the_software_gpus_memory() {
     assert!(!text.lines().any(|l| l.contains(" PT ")), "{text}");
 }
 
+/// `bench devices`' table: a row per density and integrator, each with both devices'
+/// times and paths/s, and a GPU/CPU ratio that is the GPU's paths/s over the CPU's; every
+/// render is of the bench's image (`--size`, both sides), so each device's rate times its
+/// time is that image's paths.
 #[test]
 fn bench_devices_prints_both_devices_and_their_ratio() {
     let Some(out) = on_vulkan(
@@ -2509,6 +2533,11 @@ fn bench_devices_prints_both_devices_and_their_ratio() {
         [("1", "PT"), ("1", "ST-CVAE"), ("2", "PT"), ("2", "ST-CVAE")],
         "{text}"
     );
+    let number = |f: &str| -> f64 {
+        f.trim_end_matches('x')
+            .parse()
+            .unwrap_or_else(|_| panic!("{f}: {text}"))
+    };
     for w in &rows {
         // The ratio is the one field ending in "x".
         let ratio: Vec<f64> = w
@@ -2519,6 +2548,47 @@ fn bench_devices_prints_both_devices_and_their_ratio() {
             ratio.len() == 1 && ratio[0].is_finite() && ratio[0] > 0.0,
             "{text}"
         );
+        // k, integrator, CPU s, GPU s (four significant digits: 5e-4 of each at most),
+        // then CPU's and GPU's paths/s, each a number with two decimals and, from 1,000
+        // on, a unit (`progress::si`), then the ratio.
+        let at_ratio = w.iter().position(|f| f.ends_with('x')).unwrap();
+        // (rate, half its last printed digit)
+        let mut rates: Vec<(f64, f64)> = Vec::new();
+        for f in &w[4..at_ratio] {
+            let scale = match *f {
+                "k" => 1e3,
+                "M" => 1e6,
+                "G" => 1e9,
+                _ => {
+                    rates.push((number(f), 0.005));
+                    continue;
+                }
+            };
+            let last = rates.last_mut().expect("a unit after its number");
+            *last = (last.0 * scale, last.1 * scale);
+        }
+        assert_eq!(rates.len(), 2, "{text}");
+        let [(cpu, cpu_half), (gpu, gpu_half)] = [rates[0], rates[1]];
+        // The ratio is the GPU's paths/s over the CPU's, not its inverse (which a ratio
+        // within the rounding of 1 on all four rows alone could pass). Allowed: its two
+        // printed decimals, and twice the rates' relative rounding.
+        let expected = gpu / cpu;
+        assert!(
+            (ratio[0] - expected).abs()
+                <= 0.006 + 2.0 * expected * (cpu_half / cpu + gpu_half / gpu),
+            "GPU/CPU {} where the rates give {expected}: {text}",
+            ratio[0]
+        );
+        // Each device rendered the bench's image, 16² pixels at 2 spp: its rate times its
+        // time is 512 paths (not a scene's own 128² camera left in one dimension), within
+        // twice the rounding of both.
+        let (cpu_s, gpu_s) = (number(w[2]), number(w[3]));
+        for (rate, half, seconds) in [(cpu, cpu_half, cpu_s), (gpu, gpu_half, gpu_s)] {
+            assert!(
+                (rate * seconds / 512.0 - 1.0).abs() <= 2.0 * (half / rate + 5e-4),
+                "{rate} paths/s for {seconds} s are not 512 paths: {text}"
+            );
+        }
     }
 }
 

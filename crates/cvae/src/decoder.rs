@@ -507,4 +507,73 @@ mod tests {
             }
         }
     }
+
+    /// The one-draw path (`head`: `Dense::apply`, columns of 8 outputs, inputs in pairs)
+    /// equals the lane path (`heads_with`: rows) for every chunk count `apply` dispatches
+    /// on and for odd input counts, which leave `apply_chunks` a last input without a
+    /// partner. Layers of 20, 27, 33, 41, 49, 57 and 64 outputs take 3, 4, 5, 6, 7, 8 and
+    /// 8 chunks; the inputs 11 (7 conditions + 4 latent), 27, 33, 41, 49 and 57 are odd,
+    /// the last with 3–8 chunks. The other tests' decoders are 4–16 wide with even inputs
+    /// (1–2 chunks, no lone input), and the 64-wide ones of the model-file tests are only
+    /// checked for finite outputs. Weights uniform in ±1.7/√fan-in keep the activations
+    /// O(1) through the eight layers, so f32 rounding stays near 1e-6 against the 1e-4
+    /// allowed (as in `every_lane_width_equals_single_draws`); a chunk count taken for
+    /// another is off by O(1), a lone input's weight read from the first chunk by up to
+    /// 0.08 (replayed in f64).
+    #[test]
+    fn every_chunk_count_and_odd_inputs_equal_the_lanes() {
+        let mut seed = 7u32;
+        let mut next = move || {
+            seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            (seed >> 8) as f32 / (1u32 << 24) as f32 - 0.5
+        };
+        let widths = [11usize, 20, 27, 33, 41, 49, 57, 64, 12];
+        let layers = widths
+            .windows(2)
+            .map(|w| {
+                let a = 3.4 / (w[0] as f32).sqrt();
+                let weight = (0..w[0] * w[1]).map(|_| a * next()).collect();
+                let bias = (0..w[1]).map(|_| next()).collect();
+                Dense::new(w[0], w[1], weight, bias)
+            })
+            .collect();
+        let d = Decoder {
+            cond: 7,
+            latent: 4,
+            out: 6,
+            layers,
+            cond_shift: vec![0.0; 7],
+            cond_scale: vec![1.0; 7],
+            out_shift: vec![0.0; 6],
+            out_scale: vec![1.0; 6],
+        };
+        let draws: Vec<Draw> = (0..21)
+            .map(|_| {
+                let cond: Vec<f64> = (0..7).map(|_| 4.0 * next() as f64).collect();
+                let z: Vec<f32> = (0..4).map(|_| 3.0 * next()).collect();
+                d.draw(&cond, &z, &[0.0; 6])
+            })
+            .collect();
+        let single: Vec<Head> = draws.iter().map(|x| d.head(x)).collect();
+        let mut heads = vec![[0f32; 2 * MAX_OUT]; draws.len()];
+        for width in 0..4 {
+            heads.fill([f32::NAN; 2 * MAX_OUT]);
+            match width {
+                0 => d.heads_with::<Separate, 8>(&draws, &mut heads),
+                1 => d.heads_with::<Separate, 16>(&draws, &mut heads),
+                2 => d.heads_with::<Fused, 8>(&draws, &mut heads),
+                _ => d.heads_with::<Fused, 16>(&draws, &mut heads),
+            }
+            for (a, b) in single.iter().zip(&heads) {
+                for j in 0..12 {
+                    assert!(
+                        a[j].is_finite() && (a[j] - b[j]).abs() <= 1e-4 * a[j].abs().max(1.0),
+                        "variant {width}, output {j}: one draw {} vs lanes {}",
+                        a[j],
+                        b[j]
+                    );
+                }
+            }
+        }
+    }
 }

@@ -1200,4 +1200,95 @@ mod tests {
             });
         }
     }
+
+    /// `compare` sets the model's column against the simulator's: model walks all of
+    /// N = 3 with events at |X| = 0.2 against simulator walks of N = 30 at |X| = 0.6 are
+    /// apart in every sample, so KS is 1 and W1 the distance between the two point masses,
+    /// 27 and 0.4. A column compared with itself gives 0 for both, which the shipped
+    /// model's bounds (upper bounds) let pass, and the CLI's eval tests read only the 2-D
+    /// statistic of the pairs (`compare_pairs`).
+    #[test]
+    fn compare_sets_the_model_against_the_simulator() {
+        let model = Columns::from_walks(vec![walk_at(3, DVec3::new(0.0, 0.0, 0.2)); 5]);
+        let sim = Columns::from_walks(vec![walk_at(30, DVec3::new(0.0, 0.6, 0.0)); 7]);
+        let metrics = compare(&model, &sim, &[0, 5]);
+        assert_eq!(metrics.len(), 2, "{metrics:?}");
+        for (m, (name, w1)) in metrics.iter().zip([("n", 27.0), ("event_radius", 0.4)]) {
+            assert_eq!(m.quantity, name, "{metrics:?}");
+            assert_eq!(m.ks, 1.0, "{m:?}");
+            assert!((m.w1 - w1).abs() < 1e-12, "{m:?}");
+        }
+    }
+
+    /// Each cell of a report's row in the Markdown table sits under its header: nine
+    /// expectations given the distinct ratios +1 % … +9 % read in the order of their
+    /// headers (E[Λ(N)], the two survival weights, the sphere NEE, the three half-space
+    /// sides, the two shells), a metric under its quantity, and the rule and the row have
+    /// as many cells as the header (22). Nothing else looks at the table's rows: the CLI
+    /// tests check its headers and the JSON.
+    #[test]
+    fn markdown_cells_sit_under_their_headers() {
+        let ratio = |v: f64| RatioError {
+            value: Some(v),
+            se: Some(0.001),
+            model_mean: 1.0 + v,
+            sim_mean: 1.0,
+            resolved: true,
+        };
+        let report = SettingReport {
+            tau: 5.0,
+            g: 0.4,
+            albedo: 1.0,
+            metrics: vec![Metric {
+                quantity: "event_z".into(),
+                ks: 0.0123,
+                w1: 0.25,
+            }],
+            nee_weight: ratio(0.01),
+            survival: [ratio(0.02), ratio(0.03)],
+            sphere_nee: ratio(0.04),
+            half_space: [ratio(0.05), ratio(0.06), ratio(0.07)],
+            shells: [ratio(0.08), ratio(0.09)],
+        };
+        let table = markdown_table(&[report]);
+        let cells = |line: &str| -> Vec<String> {
+            line.trim()
+                .trim_matches('|')
+                .split('|')
+                .map(|c| c.trim().to_string())
+                .collect()
+        };
+        let lines: Vec<&str> = table.lines().collect();
+        assert_eq!(lines.len(), 3, "{table}");
+        let (head, rule, row) = (cells(lines[0]), cells(lines[1]), cells(lines[2]));
+        assert_eq!(head.len(), 22, "{table}");
+        assert_eq!((rule.len(), row.len()), (22, 22), "{table}");
+        let names = [
+            "E[Λ(N)]",
+            "E[0.99^N]",
+            "E[0.95^N]",
+            "sphere NEE",
+            "surface behind",
+            "surface beside",
+            "surface ahead",
+            "events 0.5–10 %",
+            "events 0–0.5 %",
+        ];
+        let first = head.len() - names.len();
+        for (k, name) in names.into_iter().enumerate() {
+            assert!(
+                head[first + k].contains(name),
+                "{}: {table}",
+                head[first + k]
+            );
+            assert_eq!(
+                row[first + k],
+                format!("+{}.0 % ± 0.1 %", k + 1),
+                "under {}: {table}",
+                head[first + k]
+            );
+        }
+        let z = head.iter().position(|h| h == "event_z KS / W1").unwrap();
+        assert_eq!(row[z], "0.012 / 0.250", "{table}");
+    }
 }

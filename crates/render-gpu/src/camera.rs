@@ -203,4 +203,28 @@ mod tests {
             c.start
         );
     }
+
+    /// The start is measured from the object's centre, not from the scene's origin: the
+    /// renderer moves only meshes far from the origin there (setup::recentre), so a box
+    /// off it is common. From (0, 0, 4), the box [−0.5, 0.5]² × [2.5, 3.5] (centre
+    /// (0, 0, 3), radius √3/2) gives 1 − 1.01·√3/2 − 10⁻⁶·(4 + 3 + 1) = 0.125306 (f32:
+    /// within 10⁻⁶), and the ray through the image's centre starts before the box's near
+    /// face (z = 3.5). Measured from the origin instead (distance 4), the start was
+    /// 3.1253, beyond the whole box: the camera's rays started behind the object.
+    #[test]
+    fn rays_start_before_an_object_off_the_origin() {
+        let mut c = Camera::new(&desc([0.0, 1.0, 0.0], 40.0));
+        c.start_before(Vec3::new(-0.5, -0.5, 2.5), Vec3::new(0.5, 0.5, 3.5));
+        let want = 1.0 - 1.01 * 3f64.sqrt() / 2.0 - 8e-6;
+        assert!(
+            (f64::from(c.start) - want).abs() < 1e-6,
+            "start {}, want {want}",
+            c.start
+        );
+        let o = c.ray_origin(c.ray_dir(4.0, 4.0));
+        assert!(
+            o.z > 3.5,
+            "the centre ray starts at {o}, not before the box"
+        );
+    }
 }

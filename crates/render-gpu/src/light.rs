@@ -608,4 +608,26 @@ mod tests {
             }
         }
     }
+
+    /// Directions that land exactly on the map's far edges read its last row and column:
+    /// straight down, v = acos(−1)/π is exactly 1 (f32's acos(−1) is its π), the bottom
+    /// row; just left of −z, u = 1 − 1.6·10⁻¹⁰ rounds to exactly 1 in f32, the last
+    /// column (of the horizon's row 4, v = 0.5). Without the clamp on the row the first
+    /// indexes past the map's end (a panic mid-render); without the one on the column the
+    /// second reads the next row's first pixel (80 for 79). Each pixel here holds its index.
+    #[test]
+    fn map_edges_read_the_last_row_and_column() {
+        let mut m = RgbImage::new(16, 8);
+        for (i, p) in m.pixels.iter_mut().enumerate() {
+            *p = [i as f32; 3];
+        }
+        let env = Environment {
+            radiance: [1.0; 3],
+            map: Some(m),
+        };
+        let down = env.lookup(Vec3::NEG_Y, 0);
+        assert_eq!(down as usize / 16, 7, "straight down reads pixel {down}");
+        let seam = Vec3::new(-1e-9, 0.0, -1.0);
+        assert_eq!(env.lookup(seam, 0), (4 * 16 + 15) as f32, "just left of −z");
+    }
 }

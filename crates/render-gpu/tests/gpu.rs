@@ -5,6 +5,7 @@
 
 mod common;
 
+use std::ops::{Deref, DerefMut};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Mutex, OnceLock};
 
@@ -576,9 +577,74 @@ fn opts(spp: u32, seed: u64) -> RenderOptions {
     }
 }
 
-/// `render_gpu` with the environment variables `vars` set for this render only. The caller
-/// holds `ctx`'s lock, as every render of this binary does, so no render reads them while
-/// they change.
+/// Environment variables set until this is dropped, and removed then even where a test
+/// panics: the tests after it take the context's lock past the poisoning, and would read
+/// them.
+struct EnvVars<'a>(&'a [(&'a str, &'a str)]);
+
+impl<'a> EnvVars<'a> {
+    /// The caller holds the context's lock, as every render of this binary does, so no
+    /// render reads the variables while they change.
+    fn set(vars: &'a [(&'a str, &'a str)]) -> Self {
+        for (name, value) in vars {
+            // SAFETY: as above; nothing else in this binary reads the environment meanwhile.
+            unsafe { std::env::set_var(name, value) };
+        }
+        Self(vars)
+    }
+}
+
+impl Drop for EnvVars<'_> {
+    fn drop(&mut self) {
+        for (name, _) in self.0 {
+            // SAFETY: as in `EnvVars::set`.
+            unsafe { std::env::remove_var(name) };
+        }
+    }
+}
+
+/// The context with its limits (and largest subgroup) to be lowered or pretended, restored
+/// when this is dropped, even where a test panics: the tests after it take the context's
+/// lock past the poisoning, and would render under the changed limits.
+struct Limits<'a> {
+    ctx: &'a mut GpuContext,
+    // Named apart from the context's own fields: `guard.limits` must reach the context's
+    // (through DerefMut), not the copy kept for the restore.
+    saved_limits: wgpu::Limits,
+    saved_subgroup_max_size: u32,
+}
+
+impl<'a> Limits<'a> {
+    fn new(ctx: &'a mut GpuContext) -> Self {
+        Self {
+            saved_limits: ctx.limits.clone(),
+            saved_subgroup_max_size: ctx.subgroup_max_size,
+            ctx,
+        }
+    }
+}
+
+impl Deref for Limits<'_> {
+    type Target = GpuContext;
+    fn deref(&self) -> &GpuContext {
+        self.ctx
+    }
+}
+
+impl DerefMut for Limits<'_> {
+    fn deref_mut(&mut self) -> &mut GpuContext {
+        self.ctx
+    }
+}
+
+impl Drop for Limits<'_> {
+    fn drop(&mut self) {
+        self.ctx.limits = self.saved_limits.clone();
+        self.ctx.subgroup_max_size = self.saved_subgroup_max_size;
+    }
+}
+
+/// `render_gpu` with the environment variables `vars` set for this render only.
 fn render_gpu_with_env(
     ctx: &GpuContext,
     s: &SceneData,
@@ -586,15 +652,8 @@ fn render_gpu_with_env(
     o: &RenderOptions,
     vars: &[(&str, &str)],
 ) -> Result<RenderOutput, RenderError> {
-    // SAFETY: as above; nothing else in this binary reads the environment meanwhile.
-    for (name, value) in vars {
-        unsafe { std::env::set_var(name, value) };
-    }
-    let out = render_gpu(ctx, s, set, o, &|_, _| {}, &AtomicBool::new(false));
-    for (name, _) in vars {
-        unsafe { std::env::remove_var(name) };
-    }
-    out
+    let _env = EnvVars::set(vars);
+    render_gpu(ctx, s, set, o, &|_, _| {}, &AtomicBool::new(false))
 }
 
 /// The message of a render that must have been refused (`what` names it otherwise).
@@ -1892,6 +1951,10 @@ fn loop_limit_cut_off_is_redone_with_fewer_bounces() {
             d.redone > 0 && d.bounce_budget < 65535,
             "65,535 bounces were never cut off: {d:?}"
         );
+        // Each redo halves the budget, which nothing else changes: so many halvings of
+        // 65,535 (a budget cut faster would skip budgets that fit, losing bounces a
+        // dispatch for the rest of the render).
+        assert_eq!(d.bounce_budget, 65535u32 >> d.redone, "{d:?}");
     }
 }
 
@@ -2810,20 +2873,19 @@ fn images_beyond_the_binding_limit_render_in_bands() {
     let set = settings(IntegratorKind::Pt, true);
     // PT carries no path-level NEE reservoirs.
     let slot = 16 * render_gpu::gpu::kernels::slot_vec4s(0, false);
-    let saved = ctx.limits.clone();
     let mut run = |slots: u64| {
+        let mut ctx = Limits::new(&mut ctx);
         ctx.limits.max_storage_buffer_binding_size = slots * slot;
         ctx.limits.max_buffer_size = slots * slot;
-        let out = render_gpu(
+        render_gpu(
             &ctx,
             &s,
             &set,
             &opts(6, 3),
             &|_, _| {},
             &AtomicBool::new(false),
-        );
-        ctx.limits = saved.clone();
-        out.unwrap()
+        )
+        .unwrap()
     };
     let whole = run(256 * 256);
     let banded = run(256 * 80);
@@ -2891,6 +2953,62 @@ fn dispatches_in_rows_of_workgroups_render_as_in_one() {
     }
 }
 
+/// A dispatch undone from the snapshot and redone with half the bounce budget renders
+/// what that budget renders from the start, bit for bit, in every kernel: the snapshot
+/// holds what a dispatch writes (path states, accumulators, the staged render's queues,
+/// whose arguments are listed again before the redo's first turn). A real cut-off needs
+/// walks past lavapipe's loop limit, which `loop_limit_cut_off_is_redone_with_fewer_bounces`
+/// has for PT alone, so the test hook pretends that the first two dispatches that resume
+/// paths were cut off: 8 bounces a dispatch halved twice, against 2 from the start. PT and
+/// ST-CVAE with NEE in the single kernel, ST-CVAE staged. Only a software adapter keeps a
+/// snapshot (a hardware GPU has no loop limit); there the hook pretends nothing, and the
+/// two budgets render the same image all the same (paths resume where they stopped).
+#[test]
+fn a_dispatch_undone_renders_as_the_halved_budget_from_the_start() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
+    let text = sphere_scene("kind = \"index-matched\"");
+    for (set, staged) in [
+        (settings(IntegratorKind::Pt, true), "0"),
+        (settings(IntegratorKind::Stcvae, true), "0"),
+        (settings(IntegratorKind::Stcvae, true), "1"),
+    ] {
+        let what = format!("{:?}, staged {staged}", set.kind);
+        let s = common::build_scene(&text, set.kind == IntegratorKind::Stcvae);
+        let halved = [
+            ("STCVAE_GPU_STAGED", staged),
+            ("STCVAE_GPU_BOUNCES", "8"),
+            ("STCVAE_GPU_TEST_CUT_OFFS", "2"),
+        ];
+        let out = render_gpu_with_env(&ctx, &s, &set, &opts(4, 5), &halved).unwrap();
+        let from_start = [("STCVAE_GPU_STAGED", staged), ("STCVAE_GPU_BOUNCES", "2")];
+        let base = render_gpu_with_env(&ctx, &s, &set, &opts(4, 5), &from_start).unwrap();
+        let d = out.dispatch;
+        let want = if ctx.adapter.software { (2, 2) } else { (0, 8) };
+        assert_eq!((d.redone, d.bounce_budget), want, "{what}: {d:?}");
+        assert_eq!(base.dispatch.redone, 0, "{what}: {:?}", base.dispatch);
+        assert_same_render(&base, &out, &what);
+        assert!(out.image.pixels.iter().any(|p| p[0] > 0.0), "{what}");
+    }
+    let s = common::build_scene(&text, false);
+    for bad in ["17", "-1", "x"] {
+        let e = refusal(
+            render_gpu_with_env(
+                &ctx,
+                &s,
+                &settings(IntegratorKind::Pt, true),
+                &opts(1, 1),
+                &[("STCVAE_GPU_TEST_CUT_OFFS", bad)],
+            ),
+            bad,
+        );
+        assert!(
+            e.contains("STCVAE_GPU_TEST_CUT_OFFS") && e.contains("allowed 0 to 16"),
+            "{e}"
+        );
+    }
+}
+
 /// A stop request mid-chunk drops the chunk, as the CPU drops an unfinished pass: the
 /// image holds the whole chunks before it, bit for bit a render of that many spp, and so
 /// do the counters. On a software adapter the 256×544 image renders in three bands (of at
@@ -2935,10 +3053,7 @@ fn a_stop_mid_chunk_keeps_the_whole_chunks() {
             ("STCVAE_GPU_BOUNCES", "4"),
         ];
         vars.extend_from_slice(extra);
-        for &(name, value) in &vars {
-            // SAFETY: this test holds the context's lock, as every render of this binary.
-            unsafe { std::env::set_var(name, value) };
-        }
+        let env = EnvVars::set(&vars);
         let bands = if ctx.adapter.software { 3 } else { 1 };
         let stopped_after =
             |reports: usize, spp: u32| stopped_at(&ctx, &s, &set, &opts(spp, 8), reports);
@@ -2946,9 +3061,7 @@ fn a_stop_mid_chunk_keeps_the_whole_chunks() {
         let stopped = stopped_after(bands + 1, 4);
         let none = stopped_after(1, 4);
         let whole = stopped_after(0, stopped.spp.max(1));
-        for &(name, _) in &vars {
-            unsafe { std::env::remove_var(name) };
-        }
+        drop(env);
         let what = format!("{:?} {extra:?}", set.kind);
         assert_eq!(stopped.dispatch.bands as usize, bands, "{what}");
         assert_eq!(stopped.dispatch.staged, !extra.is_empty(), "{what}");
@@ -2975,10 +3088,7 @@ fn a_stop_mid_chunk_keeps_the_whole_chunks() {
         ("STCVAE_GPU_LANE_SAMPLES", "6"),
         ("STCVAE_GPU_BOUNCES", "4"),
     ];
-    for (name, value) in vars {
-        // SAFETY: this test holds the context's lock, as every render of this binary.
-        unsafe { std::env::set_var(name, value) };
-    }
+    let env = EnvVars::set(&vars);
     let bands = if ctx.adapter.software { 3 } else { 1 };
     let render = |reports: usize, spp: u32| {
         let o = RenderOptions {
@@ -2989,9 +3099,7 @@ fn a_stop_mid_chunk_keeps_the_whole_chunks() {
     };
     let stopped = render(bands + 1, 12);
     let whole = render(0, stopped.spp.max(1));
-    for (name, _) in vars {
-        unsafe { std::env::remove_var(name) };
-    }
+    drop(env);
     if ctx.adapter.software {
         assert_eq!(stopped.spp, 6);
     }
@@ -3104,24 +3212,12 @@ fn render_in_bands(
             cancel.store(true, Ordering::Relaxed);
         }
     };
-    let saved = ctx.limits.max_buffer_size;
-    ctx.limits.max_buffer_size = rows * width * slot;
-    // SAFETY: the caller holds the context's lock, as every render of this binary.
-    for (name, value) in vars {
-        unsafe { std::env::set_var(name, value) };
-    }
-    // Restored even where the render panics: the tests after this one take the context's
-    // lock past the poisoning, and would all render in bands of `rows` rows.
-    let out = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-        render_gpu(ctx, s, set, o, &progress, &cancel)
-    }));
-    for (name, _) in vars {
-        unsafe { std::env::remove_var(name) };
-    }
-    ctx.limits.max_buffer_size = saved;
-    let out = out
-        .unwrap_or_else(|p| std::panic::resume_unwind(p))
-        .unwrap();
+    let out = {
+        let mut ctx = Limits::new(ctx);
+        ctx.limits.max_buffer_size = rows * width * slot;
+        let _env = EnvVars::set(vars);
+        render_gpu(&ctx, s, set, o, &progress, &cancel).unwrap()
+    };
     assert_eq!(
         out.dispatch.bands as u64,
         height.div_ceil(rows),
@@ -3557,16 +3653,17 @@ fn kernel_shapes_render_the_same_image() {
         }
     }
     // A shape beyond the adapter's workgroup memory is refused, naming the way out.
-    let saved = ctx.limits.clone();
-    ctx.limits.max_compute_workgroup_storage_size = 1024;
-    let refused = render_gpu_with_env(
-        &ctx,
-        &s,
-        &settings(IntegratorKind::Pt, true),
-        &opts(1, 1),
-        &[],
-    );
-    ctx.limits = saved;
+    let refused = {
+        let mut ctx = Limits::new(&mut ctx);
+        ctx.limits.max_compute_workgroup_storage_size = 1024;
+        render_gpu_with_env(
+            &ctx,
+            &s,
+            &settings(IntegratorKind::Pt, true),
+            &opts(1, 1),
+            &[],
+        )
+    };
     let e = refusal(refused, "a kernel over the workgroup memory limit");
     assert!(
         e.contains("workgroup memory") && e.contains("STCVAE_GPU_STACK=private"),
@@ -3575,16 +3672,17 @@ fn kernel_shapes_render_the_same_image() {
     // So is an adapter with fewer storage buffers per shader stage than the kernels bind:
     // 7 (WebGPU's default of 8 allows it), 9 for the staged render.
     for (offered, staged, needed) in [(6, "0", "bind 7"), (8, "1", "binds 9")] {
-        let saved = ctx.limits.clone();
-        ctx.limits.max_storage_buffers_per_shader_stage = offered;
-        let refused = render_gpu_with_env(
-            &ctx,
-            &s,
-            &settings(IntegratorKind::Pt, true),
-            &opts(1, 1),
-            &[("STCVAE_GPU_STAGED", staged)],
-        );
-        ctx.limits = saved;
+        let refused = {
+            let mut ctx = Limits::new(&mut ctx);
+            ctx.limits.max_storage_buffers_per_shader_stage = offered;
+            render_gpu_with_env(
+                &ctx,
+                &s,
+                &settings(IntegratorKind::Pt, true),
+                &opts(1, 1),
+                &[("STCVAE_GPU_STAGED", staged)],
+            )
+        };
         let e = refusal(refused, "an adapter short of storage buffers");
         assert!(
             e.contains(needed) && e.contains(&format!("offers {offered}")),
@@ -3654,16 +3752,17 @@ fn lane_profile_counts_and_changes_nothing() {
     }
     // A workgroup narrower than the adapter's subgroups would understate their size: such a
     // profile is refused (an adapter with 64-lane subgroups is pretended here).
-    let saved = ctx.subgroup_max_size;
-    ctx.subgroup_max_size = 64;
-    let narrow = render_gpu_with_env(
-        &ctx,
-        &s,
-        &settings(IntegratorKind::Pt, true),
-        &opts(1, 1),
-        &[("STCVAE_GPU_PROFILE", "1"), ("STCVAE_GPU_WORKGROUP", "32")],
-    );
-    ctx.subgroup_max_size = saved;
+    let narrow = {
+        let mut ctx = Limits::new(&mut ctx);
+        ctx.subgroup_max_size = 64;
+        render_gpu_with_env(
+            &ctx,
+            &s,
+            &settings(IntegratorKind::Pt, true),
+            &opts(1, 1),
+            &[("STCVAE_GPU_PROFILE", "1"), ("STCVAE_GPU_WORKGROUP", "32")],
+        )
+    };
     let e = refusal(narrow, "a profile with workgroups narrower than a subgroup");
     assert!(
         e.contains("subgroup size, 64") && e.contains("is 32"),

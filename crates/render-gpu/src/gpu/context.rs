@@ -361,6 +361,38 @@ mod tests {
         assert!(before.is_empty());
     }
 
+    /// Adapters are tried best first, a CPU rasteriser last, and the hardware choice
+    /// (`--device auto`) never admits a CPU one: ranked any higher, lavapipe would be
+    /// opened before a hardware GPU beside it, and `auto` would render slower even than
+    /// the CPU path (lavapipe measured 0.12–0.15× of it, docs/BENCHMARKS.md).
+    #[test]
+    fn hardware_adapters_come_before_software_ones() {
+        use wgpu::DeviceType as T;
+        let mut types = [
+            T::Cpu,
+            T::Other,
+            T::VirtualGpu,
+            T::IntegratedGpu,
+            T::DiscreteGpu,
+        ];
+        types.sort_by_key(|&t| rank(t));
+        assert_eq!(
+            types,
+            [
+                T::DiscreteGpu,
+                T::IntegratedGpu,
+                T::VirtualGpu,
+                T::Other,
+                T::Cpu
+            ]
+        );
+        for t in types {
+            let info = wgpu::AdapterInfo::new(t, wgpu::Backend::Vulkan);
+            assert!(AdapterChoice::Any.admits(&info), "{t:?}");
+            assert_eq!(AdapterChoice::Hardware.admits(&info), t != T::Cpu, "{t:?}");
+        }
+    }
+
     /// wgpu's multi-line error text becomes one line, its blank lines and indents gone.
     #[test]
     fn gpu_errors_fit_on_one_line() {

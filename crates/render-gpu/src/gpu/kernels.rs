@@ -92,6 +92,12 @@ pub struct KernelShape {
     /// render's indirect dispatches) runs on images small enough for lavapipe. Changes
     /// no path.
     pub dispatch_row: u32,
+    /// So many of the render's dispatches that resume paths (not a chunk's first) and keep
+    /// a snapshot are taken as cut off by the loop limit, undone and redone as a real
+    /// cut-off is (`STCVAE_GPU_TEST_CUT_OFFS`; a test hook, 0 by default). A real cut-off
+    /// needs walks longer than lavapipe's limit, which no small scene of every kind has, so
+    /// the undo of the staged render's queues went untested. Changes no path.
+    pub cut_offs: u32,
 }
 
 /// The most workgroups a dispatch dimension may hold on any adapter (WebGPU's default
@@ -110,6 +116,7 @@ impl Default for KernelShape {
             ahead: true,
             unwritten_pixel: None,
             dispatch_row: DISPATCH_ROW,
+            cut_offs: 0,
         }
     }
 }

@@ -81,8 +81,8 @@ fn parse_lane_samples(v: &str) -> Result<Option<u32>, RenderError> {
 /// `STCVAE_GPU_STACK` (`workgroup` or `private`), each [`KernelShape::default`]'s when
 /// unset. For measuring on hardware GPUs: the image does not depend on them. (Also the
 /// test hook `STCVAE_GPU_TEST_UNWRITTEN_PIXEL`, [`KernelShape::unwritten_pixel`], which
-/// makes the render fail, and `STCVAE_GPU_TEST_DISPATCH_ROW`,
-/// [`KernelShape::dispatch_row`].)
+/// makes the render fail, `STCVAE_GPU_TEST_DISPATCH_ROW`, [`KernelShape::dispatch_row`],
+/// and `STCVAE_GPU_TEST_CUT_OFFS`, [`KernelShape::cut_offs`].)
 pub fn kernel_shape() -> Result<KernelShape, RenderError> {
     let mut shape = KernelShape::default();
     if let Some(v) = env_value("STCVAE_GPU_WORKGROUP") {
@@ -163,6 +163,19 @@ pub fn kernel_shape() -> Result<KernelShape, RenderError> {
                     "STCVAE_GPU_TEST_DISPATCH_ROW={v:?} is out of range: allowed 1 to {} \
                      workgroups a row (a test hook: unset it)",
                     kernels::DISPATCH_ROW
+                ))
+            })?;
+    }
+    if let Some(v) = env_value("STCVAE_GPU_TEST_CUT_OFFS") {
+        shape.cut_offs = v
+            .trim()
+            .parse::<u32>()
+            .ok()
+            .filter(|n| *n <= 16)
+            .ok_or_else(|| {
+                RenderError::Gpu(format!(
+                    "STCVAE_GPU_TEST_CUT_OFFS={v:?} is out of range: allowed 0 to 16 \
+                     dispatches (a test hook: unset it)"
                 ))
             })?;
     }
@@ -413,6 +426,8 @@ struct Dispatcher<'a> {
     ahead: bool,
     /// A stop request, looked at after each submission.
     cancel: &'a AtomicBool,
+    /// The test hook's cut-offs still to pretend ([`KernelShape::cut_offs`]).
+    pretended_cut_offs: std::cell::Cell<u32>,
 }
 
 impl Dispatcher<'_> {
@@ -493,8 +508,8 @@ impl Dispatcher<'_> {
             }
             let c = wait_for(ctx, read, dispatch)?;
             let pair = |k: u64| counter(&c, k);
-            if pair(slot::TRUNCATED) > 0
-                && let Some(snap) = snap
+            if let Some(snap) = snap
+                && (pair(slot::TRUNCATED) > 0 || (params.misc[3] == 0 && self.pretend_cut_off()))
             {
                 // Undo the cut-off dispatch and redo it with half the budget.
                 snap.restore(ctx, res, band);
@@ -523,6 +538,13 @@ impl Dispatcher<'_> {
                 return Ok(false);
             }
         }
+    }
+
+    /// Whether the test hook pretends this dispatch was cut off (one of its cut-offs used).
+    fn pretend_cut_off(&self) -> bool {
+        let left = self.pretended_cut_offs.get();
+        self.pretended_cut_offs.set(left.saturating_sub(1));
+        left > 0
     }
 }
 
@@ -956,6 +978,7 @@ pub fn render_gpu(
         rounds,
         ahead: shape.ahead && shape.staged && snapshot.is_none(),
         cancel,
+        pretended_cut_offs: shape.cut_offs.into(),
     };
     let mut dispatch = first_dispatch_stats(&shape, &bands, &kernels, gpu.ahead);
     let plan = ChunkPlan {

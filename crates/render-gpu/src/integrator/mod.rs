@@ -1066,4 +1066,86 @@ mod tests {
             }
         }
     }
+
+    /// `uniform` is the kernels' rand(): the top 24 bits k of the stream's next u64, over
+    /// 2^24, so that every draw is k/2^24 < 1 (never 1: its doc says why). Divided by
+    /// 2^24 − 1 instead (the largest k then gives exactly 1), every draw with k > 0 is off
+    /// that grid by 1–2 ulps, far below what a statistical test sees; compared here exactly.
+    #[test]
+    fn uniform_draws_are_the_top_24_bits_over_2_to_the_24() {
+        let mut rng = WalkRng::for_walk(31, 0);
+        for _ in 0..10_000 {
+            let k = rng.clone().next_u64() >> 40;
+            let u = super::uniform(&mut rng);
+            assert_eq!(u, k as f32 / 16_777_216.0, "k = {k}");
+            assert!(u < 1.0);
+        }
+    }
+
+    /// `trace` hands the caller's stream back where the path left it, so that paths traced
+    /// one after another from one stream are independent. Through a purely absorbing cube
+    /// (side 1, σ_t 1, index-matched) under a sky of 1, each path along −z (off the faces'
+    /// diagonals) escapes (1) with probability e^−1 = 0.36788, else is absorbed (0). 4,000
+    /// paths from one stream: standard error √(0.368·0.632/4000) = 0.0076; allowed 4.5 of
+    /// them. A stream handed back unadvanced repeats the first path every time: a mean of 0
+    /// or 1, 48 or 83 standard errors off.
+    #[test]
+    fn paths_traced_from_one_stream_are_independent() {
+        let scene = {
+            let dir = tempfile::tempdir().unwrap();
+            absorbing_boxes(
+                dir.path(),
+                &[([-0.5; 3], [0.5; 3])],
+                1.0,
+                "kind = \"index-matched\"",
+            )
+        };
+        let mut rng = WalkRng::for_walk(37, 0);
+        let mut stats = super::PathStats::default();
+        let n = 4_000;
+        let mut escaped = 0.0f64;
+        for _ in 0..n {
+            let origin = Vec3::new(0.1, 0.2, 4.0);
+            let l = super::trace(&scene, &pt(), origin, Vec3::NEG_Z, 0, &mut stats, &mut rng);
+            assert!(l == 0.0 || l == 1.0, "{l}");
+            escaped += f64::from(l);
+        }
+        assert_eq!(stats.paths, n);
+        let want = (-1.0f64).exp();
+        let se = (want * (1.0 - want) / n as f64).sqrt();
+        let mean = escaped / n as f64;
+        assert!(
+            (mean - want).abs() < 4.5 * se,
+            "escaped {mean:.4}, expected {want:.4} ± {se:.4}"
+        );
+    }
+
+    /// Path-level NEE is ST-CVAE's alone, with NEE on: PT casts a shadow ray at every
+    /// event whatever `path_nee_rays` says (as the GPU's PT kernel does; the setting is
+    /// ST-CVAE's), and the reservoirs are at most `nee::MAX_PATH_NEE_RAYS`. (PT with path
+    /// reservoirs has the same mean, so no image test would see it.)
+    #[test]
+    fn only_stcvae_with_nee_keeps_path_reservoirs() {
+        let st = |nee: bool, rays: u32| IntegratorSettings {
+            kind: IntegratorKind::Stcvae,
+            nee,
+            path_nee_rays: rays,
+            ..pt()
+        };
+        for rays in [0, 1, 2] {
+            let pt_nee = IntegratorSettings {
+                nee: true,
+                path_nee_rays: rays,
+                ..pt()
+            };
+            assert_eq!(pt_nee.path_nee(), 0, "PT, {rays} rays");
+            assert_eq!(
+                st(true, rays).path_nee(),
+                rays as usize,
+                "ST-CVAE, {rays} rays"
+            );
+            assert_eq!(st(false, rays).path_nee(), 0, "ST-CVAE without NEE");
+        }
+        assert_eq!(st(true, 100).path_nee(), super::nee::MAX_PATH_NEE_RAYS);
+    }
 }
