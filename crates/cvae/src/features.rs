@@ -360,8 +360,8 @@ mod tests {
     /// tangent exit direction (β, α) = (0.6, 0.8) as the f32 dataset holds it has β² + α²
     /// = 1 + 4.8e-8 in f64, and (0, 1) exactly 1; the poles cos θ = ±1 are what f32 makes
     /// of HG directions within 3e-8 of them (a few in 10⁴ single-scattering exits at
-    /// |g| → 1). Clamped 1e-7 inside, each maps to a finite target (|logit| ≤ 16.1,
-    /// radius √16.1) and back to within 2e-7 of itself; at r² = 1 the radial map's
+    /// |g| → 1). Clamped 1e-7 inside, each maps to a finite target (|logit| ≤ 16.12,
+    /// radius √16.12) and back to within 2e-7 of itself; at r² = 1 the radial map's
     /// −ln(1 − r²) is infinite, and at cos θ = 1 the logit. The round trip test draws
     /// r ≤ 0.999 and |cos θ| < 1, where no clamp acts.
     #[test]

@@ -204,13 +204,14 @@ mod tests {
         );
     }
 
-    /// The start is measured from the object's centre, not from the scene's origin: the
-    /// renderer moves only meshes far from the origin there (setup::recentre), so a box
-    /// off it is common. From (0, 0, 4), the box [−0.5, 0.5]² × [2.5, 3.5] (centre
-    /// (0, 0, 3), radius √3/2) gives 1 − 1.01·√3/2 − 10⁻⁶·(4 + 3 + 1) = 0.125306 (f32:
-    /// within 10⁻⁶), and the ray through the image's centre starts before the box's near
-    /// face (z = 3.5). Measured from the origin instead (distance 4), the start was
-    /// 3.1253, beyond the whole box: the camera's rays started behind the object.
+    /// The start is measured from the object's centre, not from the scene's origin:
+    /// setup::recentre moves a mesh to the origin only when its centre lies farther off,
+    /// along some axis, than its largest side, so a box off the origin by up to its size
+    /// reaches the camera as it is. From (0, 0, 4), the box [−0.5, 0.5]² × [2.5, 3.5]
+    /// (centre (0, 0, 3), radius √3/2) gives 1 − 1.01·√3/2 − 10⁻⁶·(4 + 3 + 1) = 0.125306
+    /// (f32: within 10⁻⁶), and the ray through the image's centre starts before the box's
+    /// near face (z = 3.5). Measured from the origin instead (distance 4), the start would
+    /// be 3.1253, beyond the whole box: the camera's rays would start behind the object.
     #[test]
     fn rays_start_before_an_object_off_the_origin() {
         let mut c = Camera::new(&desc([0.0, 1.0, 0.0], 40.0));

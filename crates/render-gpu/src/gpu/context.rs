@@ -364,7 +364,7 @@ mod tests {
     /// Adapters are tried best first, a CPU rasteriser last, and the hardware choice
     /// (`--device auto`) never admits a CPU one: ranked any higher, lavapipe would be
     /// opened before a hardware GPU beside it, and `auto` would render slower even than
-    /// the CPU path (lavapipe measured 0.12–0.15× of it, docs/BENCHMARKS.md).
+    /// the CPU path (lavapipe measured 0.1–0.4× of it by Mesa version, docs/BENCHMARKS.md).
     #[test]
     fn hardware_adapters_come_before_software_ones() {
         use wgpu::DeviceType as T;

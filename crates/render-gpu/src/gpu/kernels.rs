@@ -92,11 +92,14 @@ pub struct KernelShape {
     /// render's indirect dispatches) runs on images small enough for lavapipe. Changes
     /// no path.
     pub dispatch_row: u32,
-    /// So many of the render's dispatches that resume paths (not a chunk's first) and keep
-    /// a snapshot are taken as cut off by the loop limit, undone and redone as a real
-    /// cut-off is (`STCVAE_GPU_TEST_CUT_OFFS`; a test hook, 0 by default). A real cut-off
-    /// needs walks longer than lavapipe's limit, which no small scene of every kind has, so
-    /// the undo of the staged render's queues went untested. Changes no path.
+    /// This many of the render's dispatches that resume paths (not a chunk's first) and
+    /// keep a snapshot (a software adapter's, while the budget is above 1) are taken as
+    /// cut off by the loop limit, undone and redone as a real cut-off is; a redo counts
+    /// again (`STCVAE_GPU_TEST_CUT_OFFS`; a test hook, 0 by default). Resuming ones: they
+    /// start with paths in flight (and, staged, in the queues), whose undo is what a real
+    /// cut-off needs. A real one needs walks longer than lavapipe's limit, which of the GPU
+    /// tests' scenes only PT's dense bunny has, so the undo of ST-CVAE's and the staged
+    /// render's states went untested. Changes no path.
     pub cut_offs: u32,
 }
 

@@ -171,6 +171,8 @@ pub fn kernel_shape() -> Result<KernelShape, RenderError> {
             .trim()
             .parse::<u32>()
             .ok()
+            // More could never act: the budget, at most 65,535, halves to 1, where no
+            // snapshot is kept, within 16 redos.
             .filter(|n| *n <= 16)
             .ok_or_else(|| {
                 RenderError::Gpu(format!(
@@ -457,10 +459,11 @@ impl Dispatcher<'_> {
 
     /// Dispatches the chunk of samples in `params` over `band` until no path of it is
     /// pending (`first`: the render's first chunk, whose first dispatch clears the
-    /// accumulator). A dispatch cut off by a software adapter's loop limit is undone from
-    /// the snapshot and redone with half the `budget`, which stays halved for the rest of
-    /// the render. Returns false, with nothing left in flight, when `cancel` was set
-    /// before the chunk finished: the band's paths are then left where they were.
+    /// accumulator). A dispatch cut off by a software adapter's loop limit (or pretended
+    /// so, [`KernelShape::cut_offs`]) is undone from the snapshot and redone with half the
+    /// `budget`, which stays halved for the rest of the render. Returns false, with
+    /// nothing left in flight, when `cancel` was set before the chunk finished: the band's
+    /// paths are then left where they were.
     fn run_band(
         &self,
         band: &Band,
@@ -1511,6 +1514,20 @@ mod tests {
                 .to_string();
             assert!(
                 e.contains("STCVAE_GPU_TEST_DISPATCH_ROW") && e.contains("allowed 1 to 65535"),
+                "{e}"
+            );
+        }
+        // The cut-offs' hook: 0 to 16 dispatches, unset none.
+        for (v, want) in [("2", 2), (" 16 ", 16), ("0", 0), ("", 0)] {
+            let r = with_one("STCVAE_GPU_TEST_CUT_OFFS", v);
+            assert_eq!(r.unwrap().cut_offs, want, "{v:?}");
+        }
+        for bad in ["17", "-1", "x"] {
+            let e = with_one("STCVAE_GPU_TEST_CUT_OFFS", bad)
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("STCVAE_GPU_TEST_CUT_OFFS") && e.contains("allowed 0 to 16"),
                 "{e}"
             );
         }
