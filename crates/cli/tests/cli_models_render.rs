@@ -2552,21 +2552,7 @@ fn bench_devices_prints_both_devices_and_their_ratio() {
         // then CPU's and GPU's paths/s, each a number with two decimals and, from 1,000
         // on, a unit (`progress::si`), then the ratio.
         let at_ratio = w.iter().position(|f| f.ends_with('x')).unwrap();
-        // (rate, half its last printed digit)
-        let mut rates: Vec<(f64, f64)> = Vec::new();
-        for f in &w[4..at_ratio] {
-            let scale = match *f {
-                "k" => 1e3,
-                "M" => 1e6,
-                "G" => 1e9,
-                _ => {
-                    rates.push((number(f), 0.005));
-                    continue;
-                }
-            };
-            let last = rates.last_mut().expect("a unit after its number");
-            *last = (last.0 * scale, last.1 * scale);
-        }
+        let rates = printed_rates(&w[4..at_ratio], &text);
         assert_eq!(rates.len(), 2, "{text}");
         let [(cpu, cpu_half), (gpu, gpu_half)] = [rates[0], rates[1]];
         // The ratio is the GPU's paths/s over the CPU's, not its inverse (which a ratio
@@ -2643,21 +2629,7 @@ fn bench_render_prints_the_ladder_on_each_device() {
                 (equal - speed_up * var_ratio).abs() <= 0.005 * (speed_up + var_ratio) + 0.006,
                 "{text}"
             );
-            // (rate, half its last printed digit)
-            let mut rates: Vec<(f64, f64)> = Vec::new();
-            for f in &w[15..] {
-                let scale = match *f {
-                    "k" => 1e3,
-                    "M" => 1e6,
-                    "G" => 1e9,
-                    _ => {
-                        rates.push((number(f), 0.005));
-                        continue;
-                    }
-                };
-                let last = rates.last_mut().expect("a unit after its number");
-                *last = (last.0 * scale, last.1 * scale);
-            }
+            let rates = printed_rates(&w[15..], &text);
             assert_eq!(rates.len(), 2, "{text}");
             let [(pt_rate, pt_half), (st_rate, st_half)] = [rates[0], rates[1]];
             // Both render the same paths: PT's rate over ST-CVAE's is ST's time over PT's.
@@ -3872,4 +3844,27 @@ fn a_damaged_cache_entry_is_rebuilt_with_a_note() {
     assert_eq!(std::fs::read(&grids[0]).unwrap(), good, "rebuilt as before");
     let third = run();
     assert!(!common::stderr(&third).contains(note));
+}
+
+/// The paths/s figures among a bench row's `fields` (each printed with two decimals and,
+/// from 1,000 on, a unit: `progress::si`), each with half its last printed digit, so that
+/// a test can allow for the rounding: (rate, half a digit). `text` is the whole output,
+/// shown where a field is no number.
+fn printed_rates(fields: &[&str], text: &str) -> Vec<(f64, f64)> {
+    let mut rates: Vec<(f64, f64)> = Vec::new();
+    for f in fields {
+        let scale = match *f {
+            "k" => 1e3,
+            "M" => 1e6,
+            "G" => 1e9,
+            _ => {
+                let rate = f.parse().unwrap_or_else(|_| panic!("{f}: {text}"));
+                rates.push((rate, 0.005));
+                continue;
+            }
+        };
+        let last = rates.last_mut().expect("a unit after its number");
+        *last = (last.0 * scale, last.1 * scale);
+    }
+    rates
 }

@@ -2902,6 +2902,16 @@ fn images_beyond_the_binding_limit_render_in_bands() {
     assert!(whole.image.pixels.iter().any(|p| p[0] > 0.0));
 }
 
+/// PT and ST-CVAE (NEE on) in the single kernel, and ST-CVAE staged: the settings and
+/// `STCVAE_GPU_STAGED`'s value of each.
+fn every_kernel() -> [(IntegratorSettings<'static>, &'static str); 3] {
+    [
+        (settings(IntegratorKind::Pt, true), "0"),
+        (settings(IntegratorKind::Stcvae, true), "0"),
+        (settings(IntegratorKind::Stcvae, true), "1"),
+    ]
+}
+
 /// A dispatch of more workgroups than a dimension holds (65,535: a hardware band of 2²²
 /// path slots at the default 64 threads a workgroup, or of fewer at 8–32) lays them out in
 /// rows along y
@@ -2916,11 +2926,7 @@ fn dispatches_in_rows_of_workgroups_render_as_in_one() {
     let Some(ctx) = gpu() else { return };
     let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
     let text = sphere_scene("kind = \"index-matched\"");
-    for (set, staged) in [
-        (settings(IntegratorKind::Pt, true), "0"),
-        (settings(IntegratorKind::Stcvae, true), "0"),
-        (settings(IntegratorKind::Stcvae, true), "1"),
-    ] {
+    for (set, staged) in every_kernel() {
         let what = format!("{:?}, staged {staged}", set.kind);
         let s = common::build_scene(&text, set.kind == IntegratorKind::Stcvae);
         let staged = [("STCVAE_GPU_STAGED", staged)];
@@ -2971,11 +2977,7 @@ fn a_dispatch_undone_renders_as_the_halved_budget_from_the_start() {
     let Some(ctx) = gpu() else { return };
     let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
     let text = sphere_scene("kind = \"index-matched\"");
-    for (set, staged) in [
-        (settings(IntegratorKind::Pt, true), "0"),
-        (settings(IntegratorKind::Stcvae, true), "0"),
-        (settings(IntegratorKind::Stcvae, true), "1"),
-    ] {
+    for (set, staged) in every_kernel() {
         let what = format!("{:?}, staged {staged}", set.kind);
         let s = common::build_scene(&text, set.kind == IntegratorKind::Stcvae);
         let halved = [

@@ -880,15 +880,7 @@ mod tests {
     /// pixel sum turns NaN; a finite one passes unchanged.
     #[test]
     fn non_finite_estimates_are_counted_and_dropped() {
-        let scene = {
-            let dir = tempfile::tempdir().unwrap();
-            absorbing_boxes(
-                dir.path(),
-                &[([-0.5; 3], [0.5; 3])],
-                1.0,
-                "kind = \"index-matched\"",
-            )
-        };
+        let scene = absorbing_unit_cube();
         for (radiance, want, counted) in [
             (f32::NAN, 0.0, 1),
             (f32::INFINITY, 0.0, 1),
@@ -903,6 +895,18 @@ mod tests {
             };
             assert_eq!((l, path.stats.non_finite), (want, counted), "{radiance}");
         }
+    }
+
+    /// A purely absorbing cube of side 1 about the origin (σ_t 1, index-matched) under a
+    /// sky of 1.
+    fn absorbing_unit_cube() -> SceneData {
+        let dir = tempfile::tempdir().unwrap();
+        absorbing_boxes(
+            dir.path(),
+            &[([-0.5; 3], [0.5; 3])],
+            1.0,
+            "kind = \"index-matched\"",
+        )
     }
 
     /// Axis-aligned boxes (lo, hi) as one mesh written into `dir`, purely absorbing at
@@ -1091,15 +1095,7 @@ mod tests {
     /// or 1, 48 or 83 standard errors off.
     #[test]
     fn paths_traced_from_one_stream_are_independent() {
-        let scene = {
-            let dir = tempfile::tempdir().unwrap();
-            absorbing_boxes(
-                dir.path(),
-                &[([-0.5; 3], [0.5; 3])],
-                1.0,
-                "kind = \"index-matched\"",
-            )
-        };
+        let scene = absorbing_unit_cube();
         let mut rng = WalkRng::for_walk(37, 0);
         let mut stats = super::PathStats::default();
         let n = 4_000;
