@@ -2997,33 +2997,68 @@ fn a_dispatch_undone_renders_as_the_halved_budget_from_the_start() {
     }
 }
 
+/// A device compiles each kernel once (gpu/kernel_cache.rs: building the pipelines took
+/// 1.2–2.3 s a render on lavapipe): a second render of a scene finds every pipeline of the
+/// first and renders it bit for bit again, with new buffers and bind groups; another
+/// kernel (ST-CVAE after PT; the staged render's five: stage, trace, sphere step and the
+/// two arguments' kernels) is built. On a device of its own, whose cache no other test
+/// has filled; the shared one's lock is held so that the tests still take turns.
+#[test]
+fn a_device_compiles_each_kernel_once() {
+    let Some(shared) = gpu() else { return };
+    let _turn = shared.lock().unwrap_or_else(|e| e.into_inner());
+    let ctx = GpuContext::with_backends(AdapterChoice::Any, Some(wgpu::Backends::VULKAN))
+        .expect("a second device on the adapter");
+    let s = common::build_scene(&sphere_scene("kind = \"index-matched\""), true);
+    let (pt, st) = (
+        settings(IntegratorKind::Pt, true),
+        settings(IntegratorKind::Stcvae, true),
+    );
+    let counts = || ctx.kernel_cache.counts();
+    let first = on_gpu(&ctx, &s, &pt, &opts(2, 1));
+    assert_eq!(counts(), (0, 1), "(found, built)");
+    on_gpu(&ctx, &s, &st, &opts(2, 1));
+    assert_eq!(counts(), (0, 2), "(found, built)");
+    let again = on_gpu(&ctx, &s, &pt, &opts(2, 1));
+    assert_eq!(counts(), (1, 2), "(found, built)");
+    assert_same_render(&first, &again, "PT, its kernel found");
+    let staged = [("STCVAE_GPU_STAGED", "1")];
+    let first = render_gpu_with_env(&ctx, &s, &st, &opts(2, 1), &staged).unwrap();
+    assert_eq!(counts(), (1, 7), "(found, built)");
+    let again = render_gpu_with_env(&ctx, &s, &st, &opts(2, 1), &staged).unwrap();
+    assert_eq!(counts(), (6, 7), "(found, built)");
+    assert_same_render(&first, &again, "staged ST-CVAE, its kernels found");
+}
+
 /// A stop request mid-chunk drops the chunk, as the CPU drops an unfinished pass: the
 /// image holds the whole chunks before it, bit for bit a render of that many spp, and so
-/// do the counters. On a software adapter the 256×544 image renders in three bands (of at
-/// most 65,536 slots, so that a dispatch stays short: gpu/renderer.rs), with one lane a
-/// pixel, so with one sample a slot a chunk is one spp. The stop comes from the progress
-/// report after the second chunk's first band, so in that chunk one band has finished
-/// (its slots give back the accumulators committed at the chunk's start), one has begun
-/// (a stop is looked at after each submission: four bounces a dispatch here, fewer than
-/// many paths take) and one has not (its accumulators already hold the first chunk
-/// alone); it leaves 1 of 4 spp. A stop before the first chunk ends leaves no image
-/// (0 spp). Covered: ST-CVAE with a path-level NEE reservoir (the committed vec4 comes
-/// after the reservoirs), PT (in a thinner medium, for speed on lavapipe), and the staged
-/// ST-CVAE render, whose first turn commits, with a snapshot and sent ahead (one bounce a
-/// visit keeps no snapshot; the stop then also waits for the submission sent ahead). A
-/// hardware adapter renders one band whose lanes take all 4 spp in one chunk, which is
-/// then not stopped: there the test checks only that a render stopped late is whole.
-/// Last, with `--variance` at 6 samples a slot and chunk, the variance image of a render
-/// stopped in its second chunk equals that of the first chunk's whole render (below). On a
-/// hardware adapter, whose one band stops only at a chunk's end, that part compares a
-/// render with itself; the committed squares are checked where bands split a chunk (a
-/// software adapter: CI's lavapipe, where the stop's 6 spp is asserted).
+/// do the counters. The 64² image renders in three bands of at most 1,536 slots (the test
+/// hook `STCVAE_GPU_TEST_BAND_SLOTS` lowers the cap that keeps a dispatch short, 65,536
+/// slots on a software adapter: gpu/renderer.rs; a 256 × 544 image took 109 s here on
+/// lavapipe), with one lane a pixel (as on any adapter where a band holds fewer slots than
+/// the image has pixels), so with one sample a slot a chunk is one spp. The stop comes
+/// from the progress report after the second chunk's first band, so in that chunk one
+/// band has finished (its slots give back the accumulators committed at the chunk's
+/// start), one has begun (a stop is looked at after each submission: four bounces a
+/// dispatch here, fewer than many paths take) and one has not (its accumulators already
+/// hold the first chunk alone); it leaves 1 of 4 spp. A stop before the first chunk ends
+/// leaves no image (0 spp). Covered: ST-CVAE with a path-level NEE reservoir (the
+/// committed vec4 comes after the reservoirs), PT (in a thinner medium, for speed on
+/// lavapipe), and the staged ST-CVAE render, whose first turn commits, with a snapshot and
+/// sent ahead (one bounce a visit keeps no snapshot; the stop then also waits for the
+/// submission sent ahead). A hardware adapter keeps no snapshot and may finish a band in
+/// fewer submissions, so the stopped spp are asserted on a software adapter (CI's
+/// lavapipe); elsewhere the test checks that a render stopped is whole. Last, with
+/// `--variance` at 6 samples a slot and chunk, the variance image of a render stopped in
+/// its second chunk equals that of the first chunk's whole render (below).
 #[test]
 fn a_stop_mid_chunk_keeps_the_whole_chunks() {
     let Some(ctx) = gpu() else { return };
     let ctx = ctx.lock().unwrap_or_else(|e| e.into_inner());
     let text = sphere_scene("kind = \"index-matched\"")
-        .replace("width = 24\nheight = 24", "width = 256\nheight = 544");
+        .replace("width = 24\nheight = 24", "width = 64\nheight = 64");
+    // Bands of 24, 24 and 16 rows of 64 slots.
+    let (band_slots, bands) = (("STCVAE_GPU_TEST_BAND_SLOTS", "1536"), 3);
     let thin = with_medium(text.clone(), "[1.0, 2.0, 3.0]", "[0.9, 0.9, 0.9]");
     let stcvae = settings(IntegratorKind::Stcvae, true);
     let staged = ("STCVAE_GPU_STAGED", "1");
@@ -3039,10 +3074,10 @@ fn a_stop_mid_chunk_keeps_the_whole_chunks() {
         let mut vars = vec![
             ("STCVAE_GPU_LANE_SAMPLES", "1"),
             ("STCVAE_GPU_BOUNCES", "4"),
+            band_slots,
         ];
         vars.extend_from_slice(extra);
         let env = EnvVars::set(&vars);
-        let bands = if ctx.adapter.software { 3 } else { 1 };
         let stopped_after =
             |reports: usize, spp: u32| stopped_at(&ctx, &s, &set, &opts(spp, 8), reports);
         // A report a band: the one after the first chunk's is the second chunk's first.
@@ -3075,9 +3110,9 @@ fn a_stop_mid_chunk_keeps_the_whole_chunks() {
     let vars = [
         ("STCVAE_GPU_LANE_SAMPLES", "6"),
         ("STCVAE_GPU_BOUNCES", "4"),
+        band_slots,
     ];
     let env = EnvVars::set(&vars);
-    let bands = if ctx.adapter.software { 3 } else { 1 };
     let render = |reports: usize, spp: u32| {
         let o = RenderOptions {
             variance: true,

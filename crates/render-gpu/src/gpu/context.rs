@@ -93,6 +93,8 @@ pub struct GpuContext {
     /// The first error wgpu reported outside an error scope since the last wait
     /// ([`GpuContext::poll`]), on one line: wgpu's default handler panics.
     uncaptured: std::sync::Arc<std::sync::Mutex<Option<String>>>,
+    /// The layouts and pipelines made for earlier renders on this device.
+    pub kernel_cache: super::kernel_cache::KernelCache,
 }
 
 /// wgpu's error text ("Validation Error\n\nCaused by:\n  …") on one line.
@@ -282,6 +284,7 @@ impl GpuContext {
             subgroup_max_size: info.subgroup_max_size,
             passed_over,
             uncaptured,
+            kernel_cache: Default::default(),
         })
     }
 }

@@ -6,6 +6,7 @@ use std::borrow::Cow;
 use crate::error::RenderError;
 
 use super::context::GpuContext;
+use super::kernel_cache::LayoutKind;
 
 const COMMON: &str = include_str!("../../../../shaders/common.wgsl");
 const SCENE: &str = include_str!("../../../../shaders/scene.wgsl");
@@ -101,6 +102,13 @@ pub struct KernelShape {
     /// tests' scenes only PT's dense bunny has, so the undo of ST-CVAE's and the staged
     /// render's states went untested. Changes no path.
     pub cut_offs: u32,
+    /// The most path slots a band holds, below the adapter's cap (renderer.rs,
+    /// `SOFTWARE_BAND_SLOTS`, `HARDWARE_BAND_SLOTS`) where a test hook
+    /// (`STCVAE_GPU_TEST_BAND_SLOTS`) lowers it; `None` by default. So that a stop
+    /// between a chunk's bands is tested on a 64² image, not a 256 × 544 one (109 s on
+    /// lavapipe, 2026-12-07), and on either kind of adapter. Changes no path: seeds follow
+    /// a pixel's index in the image.
+    pub band_slots: Option<u32>,
 }
 
 /// The most workgroups a dispatch dimension may hold on any adapter (WebGPU's default
@@ -120,6 +128,7 @@ impl Default for KernelShape {
             unwritten_pixel: None,
             dispatch_row: DISPATCH_ROW,
             cut_offs: 0,
+            band_slots: None,
         }
     }
 }
@@ -632,12 +641,18 @@ pub fn bind_group_layout(
     if staged {
         entries.extend([storage(8, false), storage(9, false)]);
     }
-    Ok(ctx
-        .device
-        .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("stcvae scene"),
-            entries: &entries,
-        }))
+    let kind = if staged {
+        LayoutKind::Staged
+    } else {
+        LayoutKind::Single
+    };
+    Ok(ctx.kernel_cache.layout(kind, || {
+        ctx.device
+            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("stcvae scene"),
+                entries: &entries,
+            })
+    }))
 }
 
 /// The bind-group layout of the staged render's arguments' kernels (`args_main`,
@@ -645,16 +660,19 @@ pub fn bind_group_layout(
 /// dispatch arguments into. A buffer may not be bound as storage in a dispatch that reads
 /// it as indirect arguments, so the other kernels' layout leaves it out.
 pub fn args_layout(ctx: &GpuContext) -> wgpu::BindGroupLayout {
-    ctx.device
-        .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("stcvae dispatch arguments"),
-            entries: &[storage(2, false), storage(9, false), storage(10, false)],
-        })
+    ctx.kernel_cache.layout(LayoutKind::Arguments, || {
+        ctx.device
+            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("stcvae dispatch arguments"),
+                entries: &[storage(2, false), storage(9, false), storage(10, false)],
+            })
+    })
 }
 
 /// Compiles `entry` of `kernel` (with `path_nee_m` path-level NEE reservoirs, for a mesh
-/// with overlapping pieces or not, in `shape`, see [`source`]); shader or pipeline errors
-/// come back as errors, not panics (wgpu's default handler would abort).
+/// with overlapping pieces or not, in `shape`, see [`source`]), or finds it compiled for
+/// an earlier render (the context's [`super::kernel_cache::KernelCache`]); shader or
+/// pipeline errors come back as errors, not panics (wgpu's default handler would abort).
 #[allow(clippy::too_many_arguments)]
 pub fn pipeline(
     ctx: &GpuContext,
@@ -668,12 +686,25 @@ pub fn pipeline(
 ) -> Result<wgpu::ComputePipeline, RenderError> {
     shape.check(ctx)?;
     let src = source(kernel, model, path_nee_m, switches, shape.on(ctx))?;
+    ctx.kernel_cache.pipeline(layout, entry, src, |src| {
+        compile_pipeline(ctx, layout, kernel, src, entry)
+    })
+}
+
+/// The pipeline of `entry` in the WGSL `src`, built now.
+fn compile_pipeline(
+    ctx: &GpuContext,
+    layout: &wgpu::BindGroupLayout,
+    kernel: Kernel,
+    src: &str,
+    entry: &str,
+) -> Result<wgpu::ComputePipeline, RenderError> {
     let scope = ctx.device.push_error_scope(wgpu::ErrorFilter::Validation);
     let module = ctx
         .device
         .create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some(entry),
-            source: wgpu::ShaderSource::Wgsl(Cow::Owned(src)),
+            source: wgpu::ShaderSource::Wgsl(Cow::Borrowed(src)),
         });
     let pl = ctx
         .device

@@ -3,6 +3,7 @@
 
 pub mod context;
 pub mod decoder_gen;
+pub mod kernel_cache;
 pub mod kernels;
 pub mod model_buffers;
 pub mod probe;

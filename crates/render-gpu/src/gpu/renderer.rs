@@ -82,7 +82,8 @@ fn parse_lane_samples(v: &str) -> Result<Option<u32>, RenderError> {
 /// unset. For measuring on hardware GPUs: the image does not depend on them. (Also the
 /// test hook `STCVAE_GPU_TEST_UNWRITTEN_PIXEL`, [`KernelShape::unwritten_pixel`], which
 /// makes the render fail, `STCVAE_GPU_TEST_DISPATCH_ROW`, [`KernelShape::dispatch_row`],
-/// and `STCVAE_GPU_TEST_CUT_OFFS`, [`KernelShape::cut_offs`].)
+/// `STCVAE_GPU_TEST_CUT_OFFS`, [`KernelShape::cut_offs`], and
+/// `STCVAE_GPU_TEST_BAND_SLOTS`, [`KernelShape::band_slots`].)
 pub fn kernel_shape() -> Result<KernelShape, RenderError> {
     let mut shape = KernelShape::default();
     if let Some(v) = env_value("STCVAE_GPU_WORKGROUP") {
@@ -181,6 +182,14 @@ pub fn kernel_shape() -> Result<KernelShape, RenderError> {
                 ))
             })?;
     }
+    if let Some(v) = env_value("STCVAE_GPU_TEST_BAND_SLOTS") {
+        shape.band_slots = Some(parse_count(
+            "STCVAE_GPU_TEST_BAND_SLOTS",
+            &v,
+            HARDWARE_BAND_SLOTS as u32,
+            "path slots a band, a test hook",
+        )?);
+    }
     if let Some(v) = env_value("STCVAE_GPU_STACK") {
         shape.stack = parse_choice(
             "STCVAE_GPU_STACK",
@@ -261,16 +270,21 @@ const SOFTWARE_BAND_SLOTS: u64 = 1 << 16;
 /// would wait as long).
 const HARDWARE_BAND_SLOTS: u64 = 1 << 22;
 
-/// Rows of `row_slots` path slots a band holds: what one binding of `fit` slots takes, at
-/// most the image's `height`, and no more than the adapter's per-dispatch cap
-/// ([`SOFTWARE_BAND_SLOTS`], [`HARDWARE_BAND_SLOTS`]) allows but one row; 0 where not even
-/// a row fits a binding.
-fn band_rows(fit: u64, row_slots: u64, height: u32, software: bool) -> u32 {
-    let cap = if software {
+/// The most path slots a dispatch covers: the adapter's cap ([`SOFTWARE_BAND_SLOTS`],
+/// [`HARDWARE_BAND_SLOTS`]), or less where the test hook [`KernelShape::band_slots`] asks.
+fn band_cap(ctx: &GpuContext, shape: &KernelShape) -> u64 {
+    let cap = if ctx.adapter.software {
         SOFTWARE_BAND_SLOTS
     } else {
         HARDWARE_BAND_SLOTS
     };
+    shape.band_slots.map_or(cap, |n| cap.min(n as u64))
+}
+
+/// Rows of `row_slots` path slots a band holds: what one binding of `fit` slots takes, at
+/// most the image's `height`, and no more than the per-dispatch `cap` ([`band_cap`])
+/// allows but one row; 0 where not even a row fits a binding.
+fn band_rows(fit: u64, row_slots: u64, height: u32, cap: u64) -> u32 {
     let rows = fit / row_slots;
     rows.min((cap / row_slots).max(1)).min(height as u64) as u32
 }
@@ -641,7 +655,7 @@ fn plan_bands(
     shape: &KernelShape,
 ) -> Result<Vec<Band>, RenderError> {
     let row_slots = cam.width as u64 * lanes as u64;
-    let band_rows = band_rows(fit, row_slots, cam.height, ctx.adapter.software);
+    let band_rows = band_rows(fit, row_slots, cam.height, band_cap(ctx, shape));
     if band_rows == 0 {
         return Err(RenderError::SceneBeyondGpu(format!(
             "one row of {} pixels needs {} bytes of path state, over {}'s storage binding \
@@ -1136,7 +1150,7 @@ fn plan_slots(
         .max_storage_buffer_binding_size
         .min(limits.max_buffer_size)
         / binding_bytes;
-    let (lanes, spp) = lanes_and_spp(ctx, cam, fit, opts)?;
+    let (lanes, spp) = lanes_and_spp(ctx, cam, fit.min(band_cap(ctx, shape)), opts)?;
     let bands = plan_bands(ctx, cam, lanes, fit, binding_bytes, slot_bytes, shape)?;
     Ok((lanes, spp, bands))
 }
@@ -1187,7 +1201,9 @@ fn first_dispatch_stats(
 }
 
 /// The number of path slots per pixel (lanes) and the samples per pixel to render: as asked,
-/// or, under a time budget, at most what the slots' counts hold.
+/// or, under a time budget, at most what the slots' counts hold. `fit`: the slots a band
+/// may hold (a binding's, at most the band cap, which exceeds [`target_threads`] unless a
+/// test lowers it: then one lane a pixel, as on a large image).
 fn lanes_and_spp(
     ctx: &GpuContext,
     cam: &crate::camera::Camera,
@@ -1531,6 +1547,22 @@ mod tests {
                 "{e}"
             );
         }
+        // The band cap's hook: 1 to 2^22 slots (a hardware band's most), unset none.
+        for (v, want) in [("1536", Some(1536)), (" 1 ", Some(1)), ("", None)] {
+            let r = with_one("STCVAE_GPU_TEST_BAND_SLOTS", v);
+            assert_eq!(r.unwrap().band_slots, want, "{v:?}");
+        }
+        let r = with_one("STCVAE_GPU_TEST_BAND_SLOTS", "4194304");
+        assert_eq!(r.unwrap().band_slots, Some(1 << 22));
+        for bad in ["0", "4194305", "-1", "x"] {
+            let e = with_one("STCVAE_GPU_TEST_BAND_SLOTS", bad)
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains("STCVAE_GPU_TEST_BAND_SLOTS") && e.contains("allowed 1 to 4194304"),
+                "{e}"
+            );
+        }
         let e = with("64", "shared").unwrap_err().to_string();
         assert!(
             e.contains("STCVAE_GPU_STACK") && e.contains("workgroup or private"),
@@ -1555,14 +1587,15 @@ mod tests {
         // A 4096² image at one lane a pixel, a 2 GiB binding of 112-byte slots: one band of
         // every row before the cap; now 1,024 rows (4 M slots) a band.
         let fit = ((1u64 << 31) - 1) / 112;
-        assert_eq!(band_rows(fit, 4096, 4096, false), 1024);
-        assert_eq!(band_rows(fit, 4096, 4096, true), 16);
+        let (hard, soft) = (HARDWARE_BAND_SLOTS, SOFTWARE_BAND_SLOTS);
+        assert_eq!(band_rows(fit, 4096, 4096, hard), 1024);
+        assert_eq!(band_rows(fit, 4096, 4096, soft), 16);
         // A binding smaller than the cap decides; a row wider than the cap is a band alone;
         // a short image is one band; no row fits: 0.
-        assert_eq!(band_rows(1 << 20, 4096, 4096, false), 256);
-        assert_eq!(band_rows(fit, 1 << 23, 4096, false), 1);
-        assert_eq!(band_rows(fit, 4096, 100, false), 100);
-        assert_eq!(band_rows(100, 4096, 4096, false), 0);
+        assert_eq!(band_rows(1 << 20, 4096, 4096, hard), 256);
+        assert_eq!(band_rows(fit, 1 << 23, 4096, hard), 1);
+        assert_eq!(band_rows(fit, 4096, 100, hard), 100);
+        assert_eq!(band_rows(100, 4096, 4096, hard), 0);
     }
 
     /// A counter is a pair of u32 words, low then high (the kernels carry into the high
