@@ -213,7 +213,8 @@ pub fn run(a: Args) -> Result<()> {
     }
     println!(
         "GPU/CPU: GPU paths/s over CPU paths/s, rendering time only (the kernel's compilation, \
-         once per render on a cold driver cache, is the last column; on a hardware GPU \
+         on a cold driver cache and only where no row before built the same kernel, is the \
+         last column; on a hardware GPU \
          each timed render follows {GPU_WARM_UP_SECONDS} s of untimed work, which compiles it)"
     );
     Ok(())

@@ -3028,6 +3028,22 @@ fn a_device_compiles_each_kernel_once() {
     let again = render_gpu_with_env(&ctx, &s, &st, &opts(2, 1), &staged).unwrap();
     assert_eq!(counts(), (6, 7), "(found, built)");
     assert_same_render(&first, &again, "staged ST-CVAE, its kernels found");
+    // A kernel that does not compile is an error, and not kept: asked for again, it is
+    // built again.
+    use render_gpu::gpu::kernels::{Kernel, bind_group_layout, compile_pipeline};
+    let layout = bind_group_layout(&ctx, false).unwrap();
+    for built in [8, 9] {
+        let e = ctx
+            .kernel_cache
+            .pipeline(&layout, "render_main", "fn broken(".into(), |src| {
+                compile_pipeline(&ctx, &layout, Kernel::Pt, src, "render_main")
+            })
+            .unwrap_err();
+        assert!(e.to_string().contains("did not compile"), "{e}");
+        assert_eq!(counts(), (6, built), "(found, built)");
+    }
+    ctx.poll(wgpu::PollType::wait_indefinitely())
+        .expect("no error left uncaptured");
 }
 
 /// A stop request mid-chunk drops the chunk, as the CPU drops an unfinished pass: the
@@ -3059,6 +3075,17 @@ fn a_stop_mid_chunk_keeps_the_whole_chunks() {
         .replace("width = 24\nheight = 24", "width = 64\nheight = 64");
     // Bands of 24, 24 and 16 rows of 64 slots.
     let (band_slots, bands) = (("STCVAE_GPU_TEST_BAND_SLOTS", "1536"), 3);
+    // The hook lowers the lanes too, as a large image's pixels would: a 32² image's 1,024
+    // pixels would take 4 lanes at 4 spp (of 4,096 target threads, 2²⁰ on hardware), 8
+    // bands of 4 rows under a cap of 512 slots; one lane a pixel makes 2 bands of 16.
+    {
+        let small = text.replace("width = 64\nheight = 64", "width = 32\nheight = 32");
+        let s = common::build_scene(&small, false);
+        let hook = [("STCVAE_GPU_TEST_BAND_SLOTS", "512")];
+        let set = settings(IntegratorKind::Pt, true);
+        let out = render_gpu_with_env(&ctx, &s, &set, &opts(4, 8), &hook).unwrap();
+        assert_eq!(out.dispatch.bands, 2, "{:?}", out.dispatch);
+    }
     let thin = with_medium(text.clone(), "[1.0, 2.0, 3.0]", "[0.9, 0.9, 0.9]");
     let stcvae = settings(IntegratorKind::Stcvae, true);
     let staged = ("STCVAE_GPU_STAGED", "1");

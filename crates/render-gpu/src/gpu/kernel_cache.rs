@@ -1,8 +1,9 @@
 //! Kernels compiled for a device's earlier renders, kept for its later ones. Building a
-//! render's pipelines (naga's parse, validation and SPIR-V of the kernel source, then the
-//! driver's compile) took 1.2–2.3 s a render on lavapipe (2 cores, Mesa 22, 2026-12-07)
-//! even for a kernel built moments before, which a test or an experiment rendering the
-//! same scene for many seeds paid every time. A pipeline is found again by everything it
+//! render's pipelines (naga's parse, validation and SPIR-V of the kernel source, and the
+//! driver's pipeline) took 1.2–2.3 s a render on lavapipe (2 cores, Mesa 22, 2026-12-07;
+//! docs/BENCHMARKS.md) even for a kernel built moments before, which a test or an
+//! experiment rendering the same scene for many seeds paid every time; a kept pipeline
+//! also skips llvmpipe's compile at the first dispatch (renderer.rs, `compile`). A pipeline is found again by everything it
 //! is built from: the WGSL source (the scene switches, the model's sizes and the kernel
 //! shape are baked into it), the entry point and the bind-group layout.
 
@@ -13,7 +14,7 @@ use crate::error::RenderError;
 
 /// Pipelines kept: more distinct kernels than one process renders with, but for the test
 /// binaries (a pipeline holds its compiled code: on lavapipe a few MB).
-const MOST_PIPELINES: usize = 16;
+pub const MOST_PIPELINES: usize = 16;
 
 /// The bind-group layouts of the kernels ([`super::kernels::bind_group_layout`],
 /// [`super::kernels::args_layout`]), made once, so that a pipeline's layout is the same
@@ -78,15 +79,20 @@ impl<L: Clone + PartialEq, P: Clone> KernelCache<L, P> {
             .iter()
             .position(|k| k.entry == entry && k.layout == *layout && k.source == source);
         let mut counts = self.counts.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(i) = found {
+        if found.is_some() {
             counts.0 += 1;
+        } else {
+            counts.1 += 1;
+        }
+        // Not held while building, so that `counts` answers meanwhile.
+        drop(counts);
+        if let Some(i) = found {
             // Used last: kept longest.
             let k = kept.remove(i).expect("a found index");
             let p = k.pipeline.clone();
             kept.push_back(k);
             return Ok(p);
         }
-        counts.1 += 1;
         let pipeline = build(&source)?;
         if kept.len() == MOST_PIPELINES {
             kept.pop_front();
@@ -136,7 +142,7 @@ mod tests {
         assert_eq!(others, [2, 3, 4]);
         assert_eq!(cache.counts(), (1, 4));
         // Fill up: "a"/main is used again after 12 more kernels (16 kept), then 3 more
-        // evict the three built after it, not it.
+        // evict the three built after it, not it (a hit counts as a use).
         for n in 0..12 {
             get(0, "main", &format!("fill {n}"));
         }
@@ -144,6 +150,8 @@ mod tests {
         for n in 12..15 {
             get(0, "main", &format!("fill {n}"));
         }
+        // "b", built 4th, was evicted with them: 16 are kept, not 17.
+        assert_eq!(get(0, "main", "b"), built.get(), "\"b\" was kept");
         let (hits, misses) = cache.counts();
         assert_eq!(
             get(0, "main", "a"),

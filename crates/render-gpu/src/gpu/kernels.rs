@@ -82,7 +82,7 @@ pub struct KernelShape {
     /// A pixel whose slots the kernels leave alone (`STCVAE_GPU_TEST_UNWRITTEN_PIXEL`; a
     /// test hook, off by default): the render must then report it as unwritten, which is
     /// what the host's NaN poison is for. Off, its branch in `slot_begin` is constant
-    /// false. The one field of the shape that changes the image.
+    /// false. With `band_slots`, the fields of the shape that change the image.
     pub unwritten_pixel: Option<u32>,
     /// Workgroups a dispatch lays out along x before it takes further rows along y:
     /// [`DISPATCH_ROW`], the most a dimension allows everywhere, which a band of more
@@ -106,8 +106,9 @@ pub struct KernelShape {
     /// `SOFTWARE_BAND_SLOTS`, `HARDWARE_BAND_SLOTS`) where a test hook
     /// (`STCVAE_GPU_TEST_BAND_SLOTS`) lowers it; `None` by default. So that a stop
     /// between a chunk's bands is tested on a 64² image, not a 256 × 544 one (109 s on
-    /// lavapipe, 2026-12-07), and on either kind of adapter. Changes no path: seeds follow
-    /// a pixel's index in the image.
+    /// lavapipe, 2026-12-07), and on either kind of adapter. It lowers the lanes a pixel
+    /// too (at most the cap's slots over the pixels, at least 1), and so which samples are
+    /// drawn: a test hook only.
     pub band_slots: Option<u32>,
 }
 
@@ -691,15 +692,21 @@ pub fn pipeline(
     })
 }
 
-/// The pipeline of `entry` in the WGSL `src`, built now.
-fn compile_pipeline(
+/// The pipeline of `entry` in the WGSL `src`, built now; any error wgpu reports while
+/// building it is returned (not left to the uncaptured-error handler), so that
+/// [`super::kernel_cache::KernelCache`] never keeps an invalid pipeline.
+pub fn compile_pipeline(
     ctx: &GpuContext,
     layout: &wgpu::BindGroupLayout,
     kernel: Kernel,
     src: &str,
     entry: &str,
 ) -> Result<wgpu::ComputePipeline, RenderError> {
-    let scope = ctx.device.push_error_scope(wgpu::ErrorFilter::Validation);
+    // Every kind of error, not only validation: a driver's internal or out-of-memory
+    // failure would otherwise leave an invalid pipeline, which the cache would keep.
+    use wgpu::ErrorFilter as F;
+    let scopes =
+        [F::Validation, F::OutOfMemory, F::Internal].map(|f| ctx.device.push_error_scope(f));
     let module = ctx
         .device
         .create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -728,7 +735,12 @@ fn compile_pipeline(
             },
             cache: None,
         });
-    if let Some(e) = pollster::block_on(scope.pop()) {
+    // Innermost first, as scopes pop.
+    let errors = scopes
+        .into_iter()
+        .rev()
+        .filter_map(|s| pollster::block_on(s.pop()));
+    if let Some(e) = errors.collect::<Vec<_>>().first() {
         return Err(RenderError::Gpu(format!(
             "the {kernel:?} kernel did not compile on {}: {}",
             ctx.adapter,

@@ -270,15 +270,16 @@ const SOFTWARE_BAND_SLOTS: u64 = 1 << 16;
 /// would wait as long).
 const HARDWARE_BAND_SLOTS: u64 = 1 << 22;
 
-/// The most path slots a dispatch covers: the adapter's cap ([`SOFTWARE_BAND_SLOTS`],
-/// [`HARDWARE_BAND_SLOTS`]), or less where the test hook [`KernelShape::band_slots`] asks.
-fn band_cap(ctx: &GpuContext, shape: &KernelShape) -> u64 {
-    let cap = if ctx.adapter.software {
+/// The most path slots a dispatch covers: a `software` or hardware adapter's cap
+/// ([`SOFTWARE_BAND_SLOTS`], [`HARDWARE_BAND_SLOTS`]), or less where the test hook
+/// [`KernelShape::band_slots`] (`hook`) asks.
+fn band_cap(software: bool, hook: Option<u32>) -> u64 {
+    let cap = if software {
         SOFTWARE_BAND_SLOTS
     } else {
         HARDWARE_BAND_SLOTS
     };
-    shape.band_slots.map_or(cap, |n| cap.min(n as u64))
+    hook.map_or(cap, |n| cap.min(n as u64))
 }
 
 /// Rows of `row_slots` path slots a band holds: what one binding of `fit` slots takes, at
@@ -655,7 +656,12 @@ fn plan_bands(
     shape: &KernelShape,
 ) -> Result<Vec<Band>, RenderError> {
     let row_slots = cam.width as u64 * lanes as u64;
-    let band_rows = band_rows(fit, row_slots, cam.height, band_cap(ctx, shape));
+    let band_rows = band_rows(
+        fit,
+        row_slots,
+        cam.height,
+        band_cap(ctx.adapter.software, shape.band_slots),
+    );
     if band_rows == 0 {
         return Err(RenderError::SceneBeyondGpu(format!(
             "one row of {} pixels needs {} bytes of path state, over {}'s storage binding \
@@ -1150,7 +1156,12 @@ fn plan_slots(
         .max_storage_buffer_binding_size
         .min(limits.max_buffer_size)
         / binding_bytes;
-    let (lanes, spp) = lanes_and_spp(ctx, cam, fit.min(band_cap(ctx, shape)), opts)?;
+    let (lanes, spp) = lanes_and_spp(
+        ctx,
+        cam,
+        fit.min(band_cap(ctx.adapter.software, shape.band_slots)),
+        opts,
+    )?;
     let bands = plan_bands(ctx, cam, lanes, fit, binding_bytes, slot_bytes, shape)?;
     Ok((lanes, spp, bands))
 }
@@ -1596,6 +1607,11 @@ mod tests {
         assert_eq!(band_rows(fit, 1 << 23, 4096, hard), 1);
         assert_eq!(band_rows(fit, 4096, 100, hard), 100);
         assert_eq!(band_rows(100, 4096, 4096, hard), 0);
+        // Each kind of adapter its own cap; the test hook only lowers it.
+        assert_eq!((band_cap(false, None), band_cap(true, None)), (hard, soft));
+        assert_eq!(band_cap(true, Some(1536)), 1536);
+        assert_eq!(band_cap(true, Some(1 << 22)), soft);
+        assert_eq!(band_cap(false, Some(1 << 22)), hard);
     }
 
     /// A counter is a pair of u32 words, low then high (the kernels carry into the high
