@@ -82,8 +82,8 @@ fn render(
 /// has idled through the CPU render before it: on an H100 (2026-11-27) the bench without
 /// it timed ST-CVAE at 512², 64 spp, at 0.57 s (29 M paths/s) where `stcvae render` of the
 /// same scene, whose upload and compilation keep the GPU busy just before, took 0.40 s
-/// (40–42 M). Software adapters are left alone (each render there also compiles its
-/// kernel, seconds each time).
+/// (40–42 M). Software adapters are left alone (the adapter is the CPU, which the
+/// CPU render just before kept busy).
 pub(crate) const GPU_WARM_UP_SECONDS: f64 = 0.5;
 
 /// The scene as density `k` renders it: σ_t × k at the bench's image `size`.

@@ -175,8 +175,8 @@ impl Engine {
 
     /// Untimed work before a timed render, on a hardware GPU only: one idle through the
     /// CPU's preparation of a scene runs its first timed render slower (`bench devices`
-    /// measured ~30 % on an H100). Software adapters compile their kernel at every render,
-    /// so a warm-up would not help them; the CPU needs none.
+    /// measured ~30 % on an H100). A software adapter is the CPU, which that preparation
+    /// keeps busy anyway, so a warm-up would not help it; the CPU needs none.
     pub fn warm_up(
         &self,
         scene: &SceneData,

@@ -62,7 +62,8 @@ pub struct RenderOutput {
     pub seconds: f64,
     /// Time the GPU driver took to compile the kernel before the clock of `seconds` started
     /// (0 on the CPU). llvmpipe compiles at the first dispatch: 2–11 s for ST-CVAE on a cold
-    /// shader cache, which would otherwise count as rendering.
+    /// shader cache, which would otherwise count as rendering; ~0 where the device built
+    /// the kernel for an earlier render (`gpu::kernel_cache`).
     pub compile_seconds: f64,
     pub stats: PathStats,
     /// Per pixel, the mean number of PT scattering events plus sphere steps per path —

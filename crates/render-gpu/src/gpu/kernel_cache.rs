@@ -150,7 +150,7 @@ mod tests {
         for n in 12..15 {
             get(0, "main", &format!("fill {n}"));
         }
-        // "b", built 4th, was evicted with them: 16 are kept, not 17.
+        // "b", built 4th, was the third of them: 16 are kept, not 17.
         assert_eq!(get(0, "main", "b"), built.get(), "\"b\" was kept");
         let (hits, misses) = cache.counts();
         assert_eq!(
@@ -159,7 +159,7 @@ mod tests {
             "the kernel used last was evicted"
         );
         assert_eq!(cache.counts(), (hits + 1, misses));
-        // The oldest kept (built 2nd, layout 1) is gone: built again.
+        // The first the fills evicted (built 2nd, layout 1) is built again.
         assert_eq!(get(1, "main", "a"), built.get());
         assert_eq!(cache.counts(), (hits + 1, misses + 1));
         // A failed build is returned, and nothing kept: asked again, it builds again.

@@ -40,9 +40,9 @@ pub enum StackMemory {
 }
 
 /// How the kernels sit on the hardware: threads per workgroup and where the traversal
-/// stacks live (and a test hook, `unwritten_pixel`). Neither changes what any path computes (seeds follow the pixel and the
-/// sample, not the thread), so the image is the same bit for bit whatever the shape
-/// (tested); they differ in speed only, which hardware GPUs decide (occupancy, divergence
+/// stacks live (and test hooks). Neither changes what any path computes (seeds follow the
+/// pixel and the sample, not the thread), so the image is the same bit for bit whatever
+/// the shape (tested), but for two test hooks (`unwritten_pixel`, `band_slots`); they differ in speed only, which hardware GPUs decide (occupancy, divergence
 /// per warp) and which `STCVAE_GPU_WORKGROUP` / `STCVAE_GPU_STACK` let a device session
 /// measure without a rebuild (scripts/device/check).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -107,8 +107,9 @@ pub struct KernelShape {
     /// (`STCVAE_GPU_TEST_BAND_SLOTS`) lowers it; `None` by default. So that a stop
     /// between a chunk's bands is tested on a 64² image, not a 256 × 544 one (109 s on
     /// lavapipe, 2026-12-07), and on either kind of adapter. It lowers the lanes a pixel
-    /// too (at most the cap's slots over the pixels, at least 1), and so which samples are
-    /// drawn: a test hook only.
+    /// too (at most the cap's slots over the pixels, at least 1): the same samples are
+    /// drawn, but summed in other slots (other f32 roundings) and over other chunks, so
+    /// the image may differ in its last bits. A test hook only.
     pub band_slots: Option<u32>,
 }
 
@@ -322,7 +323,8 @@ impl KernelShape {
 /// docs/BENCHMARKS.md): the overlap code as a run-time flag cost PT 13 % on every mesh;
 /// the dielectric and environment-map branches as constants gained 8 % on an
 /// index-matched scene without a map, and the light count and NEE another 5–9 % for
-/// ST-CVAE. A kernel is compiled per render anyway.
+/// ST-CVAE. A kernel is compiled for its render's switches anyway (once a device, which
+/// keeps the 16 used last: [`super::kernel_cache`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct SceneSwitches {
     /// The mesh's pieces overlap (`OVERLAPS`; [`crate::geometry::Geometry::pieces`]).
@@ -692,9 +694,10 @@ pub fn pipeline(
     })
 }
 
-/// The pipeline of `entry` in the WGSL `src`, built now; any error wgpu reports while
+/// The pipeline of `entry` in the WGSL `src`, built now; every error wgpu reports while
 /// building it is returned (not left to the uncaptured-error handler), so that
-/// [`super::kernel_cache::KernelCache`] never keeps an invalid pipeline.
+/// [`super::kernel_cache::KernelCache`] keeps no pipeline that failed to build. (A lost
+/// device reports no error here; its context, cache and all, is then of no further use.)
 pub fn compile_pipeline(
     ctx: &GpuContext,
     layout: &wgpu::BindGroupLayout,
@@ -735,16 +738,18 @@ pub fn compile_pipeline(
             },
             cache: None,
         });
-    // Innermost first, as scopes pop.
-    let errors = scopes
+    // Innermost first, as scopes must pop; every error kept, one line each.
+    let [validation, memory, internal] = scopes;
+    let errors: Vec<String> = [internal, memory, validation]
         .into_iter()
-        .rev()
-        .filter_map(|s| pollster::block_on(s.pop()));
-    if let Some(e) = errors.collect::<Vec<_>>().first() {
+        .filter_map(|s| pollster::block_on(s.pop()))
+        .map(|e| super::context::one_line(&e.to_string()))
+        .collect();
+    if !errors.is_empty() {
         return Err(RenderError::Gpu(format!(
             "the {kernel:?} kernel did not compile on {}: {}",
             ctx.adapter,
-            super::context::one_line(&e.to_string())
+            errors.join("; ")
         )));
     }
     Ok(p)

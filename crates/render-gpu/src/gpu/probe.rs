@@ -67,8 +67,8 @@ pub fn run_counter_probe(
 /// one compilation and one upload, after an untimed first dispatch (lavapipe compiles a
 /// kernel at its first): the seconds of each timed dispatch, from its submission until the
 /// GPU is idle, and the items after the last. For throughput (`stcvae bench decoders`):
-/// a fresh pipeline and buffers a run, as [`run_probe`] makes, put their cost and its
-/// jitter into the time.
+/// fresh buffers a run, as [`run_probe`] makes (its pipeline the device's kept one after
+/// the first), put their cost and its jitter into the time.
 pub fn time_probe(
     ctx: &GpuContext,
     entry: &str,
