@@ -640,7 +640,8 @@ fn tally(
 
 /// The bands of rows an image is rendered in, one after another within every chunk of
 /// samples, each with its own accumulation buffer of `slot_bytes` a path slot (`lanes`
-/// slots a pixel). An image whose slots exceed one binding (`fit` slots; lavapipe's
+/// slots a pixel), at most `cap` slots a band ([`band_cap`]). An image whose slots
+/// exceed one binding (`fit` slots; lavapipe's
 /// 128 MiB holds 0.76–1.2 M pixels, 0.6–0.84 M with the variance's squares) takes
 /// several. Seeds follow the pixel's index in the image, so a band renders what the whole
 /// image would. A software adapter also bands an image of more than
@@ -650,18 +651,13 @@ fn plan_bands(
     ctx: &GpuContext,
     cam: &crate::camera::Camera,
     lanes: u32,
-    fit: u64,
+    (fit, cap): (u64, u64),
     binding_bytes: u64,
     slot_bytes: u64,
     shape: &KernelShape,
 ) -> Result<Vec<Band>, RenderError> {
     let row_slots = cam.width as u64 * lanes as u64;
-    let band_rows = band_rows(
-        fit,
-        row_slots,
-        cam.height,
-        band_cap(ctx.adapter.software, shape.band_slots),
-    );
+    let band_rows = band_rows(fit, row_slots, cam.height, cap);
     if band_rows == 0 {
         return Err(RenderError::SceneBeyondGpu(format!(
             "one row of {} pixels needs {} bytes of path state, over {}'s storage binding \
@@ -1156,13 +1152,17 @@ fn plan_slots(
         .max_storage_buffer_binding_size
         .min(limits.max_buffer_size)
         / binding_bytes;
-    let (lanes, spp) = lanes_and_spp(
+    let cap = band_cap(ctx.adapter.software, shape.band_slots);
+    let (lanes, spp) = lanes_and_spp(ctx, cam, fit.min(cap), opts)?;
+    let bands = plan_bands(
         ctx,
         cam,
-        fit.min(band_cap(ctx.adapter.software, shape.band_slots)),
-        opts,
+        lanes,
+        (fit, cap),
+        binding_bytes,
+        slot_bytes,
+        shape,
     )?;
-    let bands = plan_bands(ctx, cam, lanes, fit, binding_bytes, slot_bytes, shape)?;
     Ok((lanes, spp, bands))
 }
 
@@ -1519,6 +1519,13 @@ mod tests {
             e.contains("STCVAE_GPU_PROFILE") && e.contains("1 or true"),
             "{e}"
         );
+        // Each of `bad` refused, the message naming the variable and its `allowed` range.
+        let refused = |name: &str, bad: &[&str], allowed: &str| {
+            for b in bad {
+                let e = with_one(name, b).unwrap_err().to_string();
+                assert!(e.contains(name) && e.contains(allowed), "{e}");
+            }
+        };
         // The test hook: a pixel index, u32::MAX (its "none") refused.
         for (v, want) in [("7", Some(7)), (" 0 ", Some(0)), ("", None)] {
             let r = with_one("STCVAE_GPU_TEST_UNWRITTEN_PIXEL", v);
@@ -1535,29 +1542,21 @@ mod tests {
             let r = with_one("STCVAE_GPU_TEST_DISPATCH_ROW", v);
             assert_eq!(r.unwrap().dispatch_row, want, "{v:?}");
         }
-        for bad in ["0", "65536", "-1", "x"] {
-            let e = with_one("STCVAE_GPU_TEST_DISPATCH_ROW", bad)
-                .unwrap_err()
-                .to_string();
-            assert!(
-                e.contains("STCVAE_GPU_TEST_DISPATCH_ROW") && e.contains("allowed 1 to 65535"),
-                "{e}"
-            );
-        }
+        refused(
+            "STCVAE_GPU_TEST_DISPATCH_ROW",
+            &["0", "65536", "-1", "x"],
+            "allowed 1 to 65535",
+        );
         // The cut-offs' hook: 0 to 16 dispatches, unset none.
         for (v, want) in [("2", 2), (" 16 ", 16), ("0", 0), ("", 0)] {
             let r = with_one("STCVAE_GPU_TEST_CUT_OFFS", v);
             assert_eq!(r.unwrap().cut_offs, want, "{v:?}");
         }
-        for bad in ["17", "-1", "x"] {
-            let e = with_one("STCVAE_GPU_TEST_CUT_OFFS", bad)
-                .unwrap_err()
-                .to_string();
-            assert!(
-                e.contains("STCVAE_GPU_TEST_CUT_OFFS") && e.contains("allowed 0 to 16"),
-                "{e}"
-            );
-        }
+        refused(
+            "STCVAE_GPU_TEST_CUT_OFFS",
+            &["17", "-1", "x"],
+            "allowed 0 to 16",
+        );
         // The band cap's hook: 1 to 2^22 slots (a hardware band's most), unset none.
         for (v, want) in [("1536", Some(1536)), (" 1 ", Some(1)), ("", None)] {
             let r = with_one("STCVAE_GPU_TEST_BAND_SLOTS", v);
@@ -1565,15 +1564,11 @@ mod tests {
         }
         let r = with_one("STCVAE_GPU_TEST_BAND_SLOTS", "4194304");
         assert_eq!(r.unwrap().band_slots, Some(1 << 22));
-        for bad in ["0", "4194305", "-1", "x"] {
-            let e = with_one("STCVAE_GPU_TEST_BAND_SLOTS", bad)
-                .unwrap_err()
-                .to_string();
-            assert!(
-                e.contains("STCVAE_GPU_TEST_BAND_SLOTS") && e.contains("allowed 1 to 4194304"),
-                "{e}"
-            );
-        }
+        refused(
+            "STCVAE_GPU_TEST_BAND_SLOTS",
+            &["0", "4194305", "-1", "x"],
+            "allowed 1 to 4194304",
+        );
         let e = with("64", "shared").unwrap_err().to_string();
         assert!(
             e.contains("STCVAE_GPU_STACK") && e.contains("workgroup or private"),
