@@ -65,6 +65,11 @@ pub struct Args {
     /// build with `--features stcvae/wgpu-train`).
     #[arg(long, default_value = "flex", value_parser = ["flex", "wgpu"])]
     backend: String,
+    /// Write the model file although a decoder's loss ended above its untrained
+    /// network's (it diverged or learned nothing), which otherwise stops `train` before
+    /// writing it.
+    #[arg(long)]
+    keep_diverged: bool,
 }
 
 /// The training device of `--backend`, with autodiff.
@@ -1104,16 +1109,6 @@ fn trained_note(t: &cvae::train::Trained, steps: u64, resumed: bool) -> String {
         );
     }
     let last = t.info.history.last().map_or(f32::NAN, |h| h.1);
-    // A learning rate too high can leave a finite but useless model: its loss above the
-    // untrained network's (one run's EventGen went from 6.07 to 21,916 and was written
-    // without a word).
-    if let Some(first) = loss_rose(&t.info.history) {
-        eprintln!(
-            "warning: {}'s loss rose from {first:.4} (untrained) to {last:.4}: it diverged \
-             or learned nothing; lower lr or lr_final, or check the dataset",
-            t.kind.name()
-        );
-    }
     let held = t.info.validation.last();
     if let Some(v) = held
         && v.gap_z > GAP_WARNING_Z
@@ -1274,7 +1269,46 @@ pub fn run(a: Args) -> Result<()> {
         from_checkpoints,
         info,
     );
+    refuse_diverged(&a, &trained)?;
     write_model(&a, &cfg, &out, &set, &trained, seconds, &notes)
+}
+
+/// A learning rate too high can leave a finite but useless model, its loss above the
+/// untrained network's (one run's EventGen went from 6.07 to 21,916). Written with a
+/// warning and exit status 0, such a file went on into `train && render` scripts; it is
+/// now written only when `--keep-diverged` asks. The checkpoints are kept either way, so
+/// the file can still be had without training again.
+fn refuse_diverged(a: &Args, trained: &[cvae::train::Trained]) -> Result<()> {
+    let rose: Vec<String> = trained
+        .iter()
+        .filter_map(|t| {
+            let first = loss_rose(&t.info.history)?;
+            let last = t.info.history.last()?.1;
+            Some(format!(
+                "{}'s from {first:.4} (untrained) to {last:.4}",
+                t.kind.name()
+            ))
+        })
+        .collect();
+    if rose.is_empty() {
+        return Ok(());
+    }
+    if a.keep_diverged {
+        eprintln!(
+            "warning: the loss rose ({}): the model diverged or learned nothing; written \
+             as --keep-diverged asks",
+            rose.join(", ")
+        );
+        return Ok(());
+    }
+    bail!(
+        "the loss rose ({}): training diverged or learned nothing, so no model was written; \
+         lower lr or lr_final in {} (or check the dataset) and train again with --fresh, or \
+         write this one as it is with `{} --keep-diverged`",
+        rose.join(", "),
+        a.config.display(),
+        resume_command(a)
+    )
 }
 
 /// Refuses a --steps-scale out of range, or one that takes a model past the steps a config

@@ -605,6 +605,52 @@ fn wrong_outputs_and_csv_datasets_fail_before_any_work() {
     );
 }
 
+/// A model whose loss rose above its untrained network's is not written (it was, with a
+/// warning and exit status 0, and `train && render` went on to render with it); its
+/// checkpoints are, and `--resume --keep-diverged` writes it from them without training
+/// again. At lr 0.999 for 300 steps the loss of PathGen with hidden layers [32, 32] rises
+/// from 2.65 to ~1,200 (refused: more than 10 % above the first batch's).
+#[test]
+fn a_diverged_model_is_written_only_when_asked() {
+    let dir = tempfile::tempdir().unwrap();
+    setup(dir.path());
+    let cfg = dir.path().join("train.toml");
+    replace_in(
+        &cfg,
+        "lr = 3e-3\nlr_final = 3e-4",
+        "lr = 0.999\nlr_final = 0.999",
+    );
+    replace_in(&cfg, "steps = 30\n", "steps = 300\n");
+    replace_in(&cfg, "hidden = [4]\n", "hidden = [32, 32]\n");
+    let o = stcvae(&["train", "--config", "train.toml"], dir.path());
+    let err = stderr(&o);
+    assert!(
+        !o.status.success()
+            && err.contains("pathgen's from ")
+            && err.contains("training diverged or learned nothing, so no model was written")
+            && err.contains("`stcvae train --config train.toml --resume --keep-diverged`"),
+        "{err}"
+    );
+    assert!(!dir.path().join("m.stcvae").exists());
+    assert!(!dir.path().join("m.loss.png").exists());
+    let o = stcvae(
+        &[
+            "train",
+            "--config",
+            "train.toml",
+            "--resume",
+            "--keep-diverged",
+        ],
+        dir.path(),
+    );
+    let err = stderr(&o);
+    assert!(
+        o.status.success() && err.contains("written as --keep-diverged asks"),
+        "{err}"
+    );
+    ModelSet::load(&dir.path().join("m.stcvae")).unwrap();
+}
+
 /// What an aborted checkpoint save leaves (a staging folder, hidden temporaries of the
 /// three files) is removed when the model trains again; other files stay. Models that
 /// learn get no warning about a rising loss.
