@@ -553,7 +553,20 @@ fn merge_binary(a: &Args) -> Result<()> {
         progress::count(header.count, "row"),
         crate::paths::shown(&a.out)
     );
+    warn_if_empty(header.count, &a.out);
     Ok(())
+}
+
+/// A merge of inputs without rows (a header-only CSV, an empty shard) writes a valid
+/// empty dataset, which `train` refuses only later: said now, as `generate` says of a
+/// shard that holds no walk.
+fn warn_if_empty(rows: u64, out: &Path) {
+    if rows == 0 {
+        eprintln!(
+            "warning: the inputs hold no row: {} is an empty dataset (train refuses it)",
+            crate::paths::shown(out)
+        );
+    }
 }
 
 /// Each piece of each input, where its rows lie in the file; shards of one run go in
@@ -975,6 +988,7 @@ fn merge_csv(a: &Args) -> Result<()> {
         progress::count(rows, "row"),
         crate::paths::shown(&a.out)
     );
+    warn_if_empty(rows, &a.out);
     Ok(())
 }
 

@@ -518,6 +518,30 @@ fn shards_merge_into_the_unsharded_run() {
         read_dataset(&dir.path().join("empty.bin")).unwrap().0.count,
         0
     );
+    // Merged alone (binary, then as a header-only CSV), it makes an empty dataset, said
+    // as the shard's emptiness was (written without a word before).
+    for (input, out) in [
+        ("empty.bin", "empty2.bin"),
+        ("empty.bin", "empty.csv"),
+        ("empty.csv", "empty2.csv"),
+    ] {
+        let o = stcvae(&["merge", input, "--out", out], dir.path());
+        ok(&o);
+        assert!(
+            stderr(&o).contains(&format!(
+                "warning: the inputs hold no row: {out} is an empty dataset"
+            )),
+            "{}",
+            stderr(&o)
+        );
+    }
+    assert_eq!(
+        fs::read_to_string(dir.path().join("empty2.csv"))
+            .unwrap()
+            .lines()
+            .count(),
+        1
+    );
     // Shard 1 as another simulator drew it (its fingerprint changed; the rows are this
     // build's, which does not matter here): the merge is one run, but warns of the two.
     let fp = scatter_sim::dataset::simulator_fingerprint();

@@ -840,6 +840,23 @@ fn resume_needs_an_intact_checkpoint_and_the_last_loss_is_the_last_steps() {
             serde_json::json!([5.0, 0]),
             "stream.pending_loss = (5, 0)",
         ),
+        // Ranges (which become the model file's): reversed, reported as not overlapping
+        // the dataset's; beyond the parameters' ranges, taken.
+        (
+            "/ranges/tau",
+            serde_json::json!([5.0, 1.0]),
+            "ranges.tau = [5.0, 1.0]: expected 0 <= lo <= hi <= 1000",
+        ),
+        (
+            "/ranges/g",
+            serde_json::json!([-5.0, 5.0]),
+            "ranges.g = [-5.0, 5.0]: expected -0.999 <= lo <= hi <= 0.999",
+        ),
+        (
+            "/ranges/albedo",
+            serde_json::json!([0.5, 1.5]),
+            "ranges.albedo = [0.5, 1.5]",
+        ),
     ] {
         let mut v: serde_json::Value = serde_json::from_str(&kept).unwrap();
         *v.pointer_mut(field).unwrap() = value;

@@ -547,27 +547,41 @@ pub const MAX_FILE_BYTES: u64 = 16 << 20;
 /// The training ranges a model file may hold (`train` checks its dataset's before
 /// training).
 pub fn check_training(t: &TrainingInfo) -> Result<(), String> {
+    check_ranges(
+        [
+            "training.tau_range",
+            "training.g_range",
+            "training.albedo_range",
+        ],
+        [t.tau_range, t.g_range, t.albedo_range],
+    )
+}
+
+/// τ, g and albedo ranges (`names` are their fields, for the message) ordered and inside
+/// the project's parameter ranges: a model file's, or a training checkpoint's, whose
+/// ranges become the file's.
+pub fn check_ranges(names: [&str; 3], [tau, g, albedo]: [[f64; 2]; 3]) -> Result<(), String> {
     use scatter_sim::ranges::{G_MAX, TAU_LIMIT};
     // The slack absorbs the f32 storage of the training rows' g (0.999f32 > 0.999); the
     // other ends (0, 1, 1000) are exact in f32.
     let ok = |r: [f64; 2], lo: f64, hi: f64| lo <= r[0] && r[0] <= r[1] && r[1] <= hi;
     let slack = 1e-6;
-    if !(ok(t.tau_range, 0.0, TAU_LIMIT) && t.tau_range[1] > 0.0) {
+    if !(ok(tau, 0.0, TAU_LIMIT) && tau[1] > 0.0) {
         return Err(format!(
-            "training.tau_range = {:?}: expected 0 <= lo <= hi <= {TAU_LIMIT}, hi > 0",
-            t.tau_range
+            "{} = {tau:?}: expected 0 <= lo <= hi <= {TAU_LIMIT}, hi > 0",
+            names[0]
         ));
     }
-    if !ok(t.g_range, -G_MAX - slack, G_MAX + slack) {
+    if !ok(g, -G_MAX - slack, G_MAX + slack) {
         return Err(format!(
-            "training.g_range = {:?}: expected -{G_MAX} <= lo <= hi <= {G_MAX}",
-            t.g_range
+            "{} = {g:?}: expected -{G_MAX} <= lo <= hi <= {G_MAX}",
+            names[1]
         ));
     }
-    if !ok(t.albedo_range, 0.0, 1.0) {
+    if !ok(albedo, 0.0, 1.0) {
         return Err(format!(
-            "training.albedo_range = {:?}: expected 0 <= lo <= hi <= 1",
-            t.albedo_range
+            "{} = {albedo:?}: expected 0 <= lo <= hi <= 1",
+            names[2]
         ));
     }
     Ok(())

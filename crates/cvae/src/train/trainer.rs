@@ -384,6 +384,14 @@ impl CheckpointInfo {
                 ));
             }
         }
+        // The ranges become the model file's, bounding the renderers' τ_max: an edited
+        // [5, 1] was reported as not overlapping the dataset's, and [-5, 5] taken.
+        if let Some(r) = &self.ranges {
+            crate::model_file::check_ranges(
+                ["ranges.tau", "ranges.g", "ranges.albedo"],
+                [r.tau, r.g, r.albedo],
+            )?;
+        }
         let n = &self.norm;
         crate::model_file::check_norm(
             [&n.cond_shift, &n.cond_scale, &n.out_shift, &n.out_scale],
