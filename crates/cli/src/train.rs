@@ -66,8 +66,9 @@ pub struct Args {
     #[arg(long, default_value = "flex", value_parser = ["flex", "wgpu"])]
     backend: String,
     /// Write the model file although a decoder's loss ended above its untrained
-    /// network's (it diverged or learned nothing), which otherwise stops `train` before
-    /// writing it.
+    /// network's (above the first batch's by more than a tenth of it, or 0.1 where it is
+    /// below 1 in size: it diverged or learned nothing), which otherwise stops `train`
+    /// before writing it; so does such a decoder's checkpoint taken into the file.
     #[arg(long)]
     keep_diverged: bool,
 }
@@ -302,8 +303,15 @@ fn another_simulator(dataset: &Path, header: &scatter_sim::dataset::Header) -> O
 const MIN_ROWS: usize = 1000;
 
 /// A decoder read from its checkpoint: the decoder, its feature version, the condition
-/// ranges it was trained on (None for checkpoints that predate recording them) and its step.
-type CheckpointDecoder = (cvae::decoder::Decoder, u32, Option<ConditionRanges>, u64);
+/// ranges it was trained on (None for checkpoints that predate recording them), its step,
+/// and its untrained and last losses where the loss rose ([`loss_rose`]).
+type CheckpointDecoder = (
+    cvae::decoder::Decoder,
+    u32,
+    Option<ConditionRanges>,
+    u64,
+    Option<(f32, f32)>,
+);
 
 /// The decoder of `k` from the config's checkpoint folder, for a model file whose other
 /// decoders are trained now (see [`CheckpointDecoder`]).
@@ -378,7 +386,8 @@ fn checkpoint_decoder(
             }
         );
     }
-    Ok((d, version, info.ranges, info.step))
+    let rose = loss_rose(&info.history).zip(info.history.last().map(|h| h.1));
+    Ok((d, version, info.ranges, info.step, rose))
 }
 
 /// The command that goes on from an interrupted run's checkpoints: the run's own with
@@ -404,6 +413,9 @@ fn resume_command(a: &Args) -> String {
     }
     if a.backend != "flex" {
         c += &format!(" --backend {}", a.backend);
+    }
+    if a.keep_diverged {
+        c += " --keep-diverged";
     }
     c
 }
@@ -436,7 +448,7 @@ fn scaled_model(m: &ModelConfig, scale: f64) -> ModelConfig {
 
 /// The untrained loss when a run's last reported loss is above it by more than a tenth
 /// (of it, or of 1 near 0): the first report is one step's batch, so a margin keeps its
-/// noise from warning about a model that did learn. Losses may be negative (the
+/// noise from refusing a model that did learn. Losses may be negative (the
 /// log-variance heads).
 fn loss_rose(history: &[(u64, f32)]) -> Option<f32> {
     let (&(_, first), &(_, last)) = (history.first()?, history.last()?);
@@ -1025,7 +1037,8 @@ fn in_models_order(
 
 /// The model file's set: the decoders trained now, the others from `--base` or from their
 /// checkpoints (read before the training), with the notes that say where each came from.
-/// Warns where a trained model's losses show it diverged or learned the dataset's walks.
+/// Warns where a trained model's losses show it learned the dataset's walks (one whose
+/// loss rose is refused by [`refuse_diverged`]).
 fn model_set(
     a: &Args,
     cfg: &TrainConfig,
@@ -1068,7 +1081,7 @@ fn model_set(
                 .iter()
                 .position(|(c, _)| *c == k)
                 .expect("read before the training: no base, not trained now");
-            let (_, (d, version, _, step)) = from_checkpoints.swap_remove(at);
+            let (_, (d, version, _, step, _)) = from_checkpoints.swap_remove(at);
             notes.push(format!("{}: from checkpoint at step {step}", k.name()));
             if k == ModelKind::EventGen {
                 event_version = version;
@@ -1096,8 +1109,7 @@ fn model_set(
     (set, notes)
 }
 
-/// The warnings a trained model calls for (a step count past the one asked, a loss that
-/// rose, a model that learned its walks rather than their distribution), printed, and the
+/// The warnings a trained model calls for (a step count past the one asked, a model that learned its walks rather than their distribution), printed, and the
 /// model file's note on it (`resumed`: its seconds span several runs).
 fn trained_note(t: &cvae::train::Trained, steps: u64, resumed: bool) -> String {
     if t.info.step > steps {
@@ -1186,7 +1198,7 @@ fn training_info(
         narrow(&mut info, theirs, &format!("--base {base_name}"))?;
     }
     // Checked before the training, as the modes are above.
-    for (k, (_, _, ranges, _)) in from_checkpoints {
+    for (k, (_, _, ranges, _, _)) in from_checkpoints {
         if let Some(r) = ranges {
             narrow(&mut info, *r, &format!("the {} checkpoint", k.name()))?;
         }
@@ -1235,6 +1247,7 @@ pub fn run(a: Args) -> Result<()> {
             from_checkpoints.push((k, checkpoint_decoder(&cfg, k, a.steps_scale)?));
         }
     }
+    refuse_diverged_checkpoints(&a, &cfg, &from_checkpoints)?;
     let (header, rows, tables) = read_tables(&cfg, &kinds)?;
     let info = training_info(&cfg, &rows, base.as_ref(), &from_checkpoints)?;
     drop(rows);
@@ -1271,6 +1284,50 @@ pub fn run(a: Args) -> Result<()> {
     );
     refuse_diverged(&a, &trained)?;
     write_model(&a, &cfg, &out, &set, &trained, seconds, &notes)
+}
+
+/// A decoder whose checkpoint records a loss that rose ([`refuse_diverged`]) would go into
+/// the file as it is: refused before any training (a diverged run refused, then
+/// `--model lengthgen`, wrote the diverged PathGen with exit status 0), unless
+/// `--keep-diverged` asks.
+fn refuse_diverged_checkpoints(
+    a: &Args,
+    cfg: &TrainConfig,
+    from_checkpoints: &[(ModelKind, CheckpointDecoder)],
+) -> Result<()> {
+    let rose: Vec<(&ModelKind, String)> = from_checkpoints
+        .iter()
+        .filter_map(|(k, (.., rose))| {
+            let (first, last) = (*rose)?;
+            Some((
+                k,
+                format!("{}'s from {first:.4} (untrained) to {last:.4}", k.name()),
+            ))
+        })
+        .collect();
+    let Some((k, _)) = rose.first() else {
+        return Ok(());
+    };
+    let losses = rose
+        .iter()
+        .map(|r| r.1.as_str())
+        .collect::<Vec<_>>()
+        .join(", ");
+    let what = format!(
+        "checkpoints in {} record a loss that rose ({losses})",
+        cfg.checkpoint_dir.display()
+    );
+    if !a.keep_diverged {
+        bail!(
+            "{what}: diverged or learned nothing, and the model file would hold them; \
+             retrain them (e.g. train --model {} --fresh, with a lower lr or lr_final), take \
+             them from a model file with --base, or write them as they are with \
+             --keep-diverged",
+            k.name()
+        );
+    }
+    eprintln!("warning: {what}; written as --keep-diverged asks");
+    Ok(())
 }
 
 /// A learning rate too high can leave a finite but useless model, its loss above the

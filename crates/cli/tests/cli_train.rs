@@ -633,6 +633,27 @@ fn a_diverged_model_is_written_only_when_asked() {
     );
     assert!(!dir.path().join("m.stcvae").exists());
     assert!(!dir.path().join("m.loss.png").exists());
+    // Retraining another model would take the diverged PathGen from its checkpoint (written
+    // with exit status 0 before): refused before any training.
+    let o = stcvae(
+        &[
+            "train",
+            "--config",
+            "train.toml",
+            "--model",
+            "lengthgen",
+            "--fresh",
+        ],
+        dir.path(),
+    );
+    let err = stderr(&o);
+    assert!(
+        !o.status.success()
+            && err.contains("checkpoints in ck record a loss that rose (pathgen's from ")
+            && !err.contains("lengthgen: 300 steps"),
+        "{err}"
+    );
+    assert!(!dir.path().join("m.stcvae").exists());
     let o = stcvae(
         &[
             "train",
@@ -653,7 +674,7 @@ fn a_diverged_model_is_written_only_when_asked() {
 
 /// What an aborted checkpoint save leaves (a staging folder, hidden temporaries of the
 /// three files) is removed when the model trains again; other files stay. Models that
-/// learn get no warning about a rising loss.
+/// learn are not refused for a rising loss.
 #[test]
 fn stale_save_temporaries_are_removed() {
     let dir = tempfile::tempdir().unwrap();
@@ -840,8 +861,9 @@ fn resume_needs_an_intact_checkpoint_and_the_last_loss_is_the_last_steps() {
             serde_json::json!([5.0, 0]),
             "stream.pending_loss = (5, 0)",
         ),
-        // Ranges (which become the model file's): reversed, reported as not overlapping
-        // the dataset's; beyond the parameters' ranges, taken.
+        // Ranges (which become the model file's): replaced by the dataset's on --resume
+        // without a word; in a checkpoint taken as another run's decoder, reversed ones
+        // were reported as not overlapping the dataset's and [-5, 5] was taken.
         (
             "/ranges/tau",
             serde_json::json!([5.0, 1.0]),
