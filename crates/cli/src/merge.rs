@@ -563,7 +563,8 @@ fn merge_binary(a: &Args) -> Result<()> {
 fn warn_if_empty(rows: u64, out: &Path) {
     if rows == 0 {
         eprintln!(
-            "warning: the inputs hold no row: {} is an empty dataset, which no model can be trained on",
+            "warning: the inputs hold no row: {} is an empty dataset, which no model can be \
+             trained on",
             crate::paths::shown(out)
         );
     }

@@ -1109,8 +1109,9 @@ fn model_set(
     (set, notes)
 }
 
-/// The warnings a trained model calls for (a step count past the one asked, a model that learned its walks rather than their distribution), printed, and the
-/// model file's note on it (`resumed`: its seconds span several runs).
+/// The warnings a trained model calls for (a step count past the one asked, a model that
+/// learned its walks rather than their distribution), printed, and the model file's note
+/// on it (`resumed`: its seconds span several runs).
 fn trained_note(t: &cvae::train::Trained, steps: u64, resumed: bool) -> String {
     if t.info.step > steps {
         eprintln!(
