@@ -65,10 +65,10 @@ pub struct Args {
     /// build with `--features stcvae/wgpu-train`).
     #[arg(long, default_value = "flex", value_parser = ["flex", "wgpu"])]
     backend: String,
-    /// Write the model file although a decoder's loss ended above its untrained
-    /// network's (above the first batch's by more than a tenth of it, or 0.1 where it is
-    /// below 1 in size: it diverged or learned nothing), which otherwise stops `train`
-    /// before writing it; so does such a decoder's checkpoint taken into the file.
+    /// Write the model file although a decoder in it, trained now or taken from its
+    /// checkpoint, ended with a loss above its untrained network's (above the first
+    /// batch's by more than a tenth of it, or 0.1 where it is below 1 in size: it diverged
+    /// or learned nothing); without it `train` stops before writing such a file.
     #[arg(long)]
     keep_diverged: bool,
 }
