@@ -622,11 +622,17 @@ fn a_diverged_model_is_written_only_when_asked() {
     );
     replace_in(&cfg, "steps = 30\n", "steps = 300\n");
     replace_in(&cfg, "hidden = [4]\n", "hidden = [32, 32]\n");
-    let o = stcvae(&["train", "--config", "train.toml"], dir.path());
-    let err = stderr(&o);
+    // Each run's success and stderr.
+    let train = |extra: &[&str]| {
+        let o = stcvae(
+            &[&["train", "--config", "train.toml"], extra].concat(),
+            dir.path(),
+        );
+        (o.status.success(), stderr(&o))
+    };
+    let (ok, err) = train(&[]);
     assert!(
-        !o.status.success()
-            && err.contains("pathgen's from ")
+        !ok && err.contains("pathgen's from ")
             && err.contains("training diverged or learned nothing, so no model was written")
             && err.contains("`stcvae train --config train.toml --resume --keep-diverged`"),
         "{err}"
@@ -635,38 +641,16 @@ fn a_diverged_model_is_written_only_when_asked() {
     assert!(!dir.path().join("m.loss.png").exists());
     // Retraining another model would take the diverged PathGen from its checkpoint (written
     // with exit status 0 before): refused before any training.
-    let o = stcvae(
-        &[
-            "train",
-            "--config",
-            "train.toml",
-            "--model",
-            "lengthgen",
-            "--fresh",
-        ],
-        dir.path(),
-    );
-    let err = stderr(&o);
+    let (ok, err) = train(&["--model", "lengthgen", "--fresh"]);
     assert!(
-        !o.status.success()
-            && err.contains("checkpoints in ck record a loss that rose (pathgen's from ")
+        !ok && err.contains("checkpoints in ck record a loss that rose (pathgen's from ")
             && !err.contains("lengthgen: 300 steps"),
         "{err}"
     );
     assert!(!dir.path().join("m.stcvae").exists());
-    let o = stcvae(
-        &[
-            "train",
-            "--config",
-            "train.toml",
-            "--resume",
-            "--keep-diverged",
-        ],
-        dir.path(),
-    );
-    let err = stderr(&o);
+    let (ok, err) = train(&["--resume", "--keep-diverged"]);
     assert!(
-        o.status.success() && err.contains("written as --keep-diverged asks"),
+        ok && err.contains("written as --keep-diverged asks"),
         "{err}"
     );
     ModelSet::load(&dir.path().join("m.stcvae")).unwrap();
