@@ -304,13 +304,13 @@ const MIN_ROWS: usize = 1000;
 
 /// A decoder read from its checkpoint: the decoder, its feature version, the condition
 /// ranges it was trained on (None for checkpoints that predate recording them), its step,
-/// and its untrained and last losses where the loss rose ([`loss_rose`]).
+/// and its loss's rise where it rose ([`loss_rise`]).
 type CheckpointDecoder = (
     cvae::decoder::Decoder,
     u32,
     Option<ConditionRanges>,
     u64,
-    Option<(f32, f32)>,
+    Option<String>,
 );
 
 /// The decoder of `k` from the config's checkpoint folder, for a model file whose other
@@ -386,8 +386,8 @@ fn checkpoint_decoder(
             }
         );
     }
-    let rose = loss_rose(&info.history).zip(info.history.last().map(|h| h.1));
-    Ok((d, version, info.ranges, info.step, rose))
+    let rise = loss_rise(k, &info.history);
+    Ok((d, version, info.ranges, info.step, rise))
 }
 
 /// The command that goes on from an interrupted run's checkpoints: the run's own with
@@ -453,6 +453,17 @@ fn scaled_model(m: &ModelConfig, scale: f64) -> ModelConfig {
 fn loss_rose(history: &[(u64, f32)]) -> Option<f32> {
     let (&(_, first), &(_, last)) = (history.first()?, history.last()?);
     (last > first + 0.1 * first.abs().max(1.0)).then_some(first)
+}
+
+/// "K's from FIRST (untrained) to LAST" where `k`'s loss rose ([`loss_rose`]): how the
+/// refusals of a diverged model name it, trained now or taken from its checkpoint.
+fn loss_rise(k: ModelKind, history: &[(u64, f32)]) -> Option<String> {
+    let first = loss_rose(history)?;
+    let last = history.last()?.1;
+    Some(format!(
+        "{}'s from {first:.4} (untrained) to {last:.4}",
+        k.name()
+    ))
 }
 
 /// Held-out walks simulated for the validation loss: twice the rows a validation reads,
@@ -1296,24 +1307,14 @@ fn refuse_diverged_checkpoints(
     cfg: &TrainConfig,
     from_checkpoints: &[(ModelKind, CheckpointDecoder)],
 ) -> Result<()> {
-    let rose: Vec<(&ModelKind, String)> = from_checkpoints
+    let rose: Vec<(ModelKind, &str)> = from_checkpoints
         .iter()
-        .filter_map(|(k, (.., rose))| {
-            let (first, last) = (*rose)?;
-            Some((
-                k,
-                format!("{}'s from {first:.4} (untrained) to {last:.4}", k.name()),
-            ))
-        })
+        .filter_map(|(k, (.., rise))| Some((*k, rise.as_deref()?)))
         .collect();
     let Some((k, _)) = rose.first() else {
         return Ok(());
     };
-    let losses = rose
-        .iter()
-        .map(|r| r.1.as_str())
-        .collect::<Vec<_>>()
-        .join(", ");
+    let losses = rose.iter().map(|r| r.1).collect::<Vec<_>>().join(", ");
     let what = format!(
         "checkpoints in {} record a loss that rose ({losses})",
         cfg.checkpoint_dir.display()
@@ -1339,14 +1340,7 @@ fn refuse_diverged_checkpoints(
 fn refuse_diverged(a: &Args, trained: &[cvae::train::Trained]) -> Result<()> {
     let rose: Vec<String> = trained
         .iter()
-        .filter_map(|t| {
-            let first = loss_rose(&t.info.history)?;
-            let last = t.info.history.last()?.1;
-            Some(format!(
-                "{}'s from {first:.4} (untrained) to {last:.4}",
-                t.kind.name()
-            ))
-        })
+        .filter_map(|t| loss_rise(t.kind, &t.info.history))
         .collect();
     if rose.is_empty() {
         return Ok(());

@@ -3,9 +3,10 @@
 //! driver's pipeline) took 1.2–2.3 s a render on lavapipe (2 cores, Mesa 22, 2026-12-07;
 //! docs/BENCHMARKS.md) even for a kernel built moments before, which a test or an
 //! experiment rendering the same scene for many seeds paid every time; a kept pipeline
-//! also skips llvmpipe's compile at the first dispatch (renderer.rs, `compile`). A pipeline is found again by everything it
-//! is built from: the WGSL source (the scene switches, the model's sizes and the kernel
-//! shape are baked into it), the entry point and the bind-group layout.
+//! also skips llvmpipe's compile at the first dispatch (renderer.rs, `compile`). A
+//! pipeline is found again by everything it is built from: the WGSL source (the scene
+//! switches, the model's sizes and the kernel shape are baked into it), the entry point
+//! and the bind-group layout.
 
 use std::collections::VecDeque;
 use std::sync::Mutex;

@@ -42,9 +42,10 @@ pub enum StackMemory {
 /// How the kernels sit on the hardware: threads per workgroup and where the traversal
 /// stacks live (and test hooks). Neither changes what any path computes (seeds follow the
 /// pixel and the sample, not the thread), so the image is the same bit for bit whatever
-/// the shape (tested), but for two test hooks (`unwritten_pixel`, `band_slots`); they differ in speed only, which hardware GPUs decide (occupancy, divergence
-/// per warp) and which `STCVAE_GPU_WORKGROUP` / `STCVAE_GPU_STACK` let a device session
-/// measure without a rebuild (scripts/device/check).
+/// the shape (tested), but for two test hooks (`unwritten_pixel`, `band_slots`); they
+/// differ in speed only, which hardware GPUs decide (occupancy, divergence per warp) and
+/// which `STCVAE_GPU_WORKGROUP` / `STCVAE_GPU_STACK` let a device session measure without
+/// a rebuild (scripts/device/check).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct KernelShape {
     /// Threads per workgroup (`@workgroup_size(WORKGROUP)` in the WGSL).

@@ -640,11 +640,11 @@ fn tally(
 
 /// The bands of rows an image is rendered in, one after another within every chunk of
 /// samples, each with its own accumulation buffer of `slot_bytes` a path slot (`lanes`
-/// slots a pixel), at most `cap` slots a band ([`band_cap`]). An image whose slots
-/// exceed one binding (`fit` slots; lavapipe's
-/// 128 MiB holds 0.76–1.2 M pixels, 0.6–0.84 M with the variance's squares) takes
-/// several. Seeds follow the pixel's index in the image, so a band renders what the whole
-/// image would. A software adapter also bands an image of more than
+/// slots a pixel), at most `cap` slots a band ([`band_cap`]). An image whose slots exceed
+/// one binding (`fit` slots; lavapipe's 128 MiB holds 0.76–1.2 M pixels, 0.6–0.84 M with
+/// the variance's squares) takes several. Seeds follow the pixel's index in the image, so
+/// a band renders what the whole image would. A software adapter also bands an image of
+/// more than
 /// [`SOFTWARE_BAND_SLOTS`] slots, so that a dispatch stays short enough for a stop
 /// request, answered between dispatches, to be answered within seconds.
 fn plan_bands(
