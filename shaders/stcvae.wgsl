@@ -65,8 +65,8 @@ fn scatter_at(channel: u32) -> bool {
         step_tau = select(-1.0, tau, tau < params.consts3.x);
         return false;
     } else if tau < params.consts3.x {
-        // An exact step (sphere_step.rs, exact_step): the walk simulated in the ball, its
-        // NEE events chosen by importance with weights Q/q (ex_weight).
+        // An exact step (sphere_step.rs, ExactStep; walk_lanes.rs): the walk simulated in
+        // the ball, its NEE events chosen by importance with weights Q/q (ex_weight).
         exact = true;
         frame = walk_frame(ps.dir, vec2<f32>(1.0, 0.0));
         var m = 0u;
@@ -188,7 +188,7 @@ fn scatter_at(channel: u32) -> bool {
     return true;
 }
 
-// ---- exact sphere steps (crates/render-gpu/src/integrator/sphere_step.rs, exact_step) ----
+// ---- exact sphere steps (crates/render-gpu/src/integrator/sphere_step.rs, ExactStep) ----
 
 // MAX_EXACT_EVENTS = scene::MAX_EXACT_NEE_SAMPLES and MAX_PROXY_LIGHTS = the CPU's
 // (event_choice.rs), prepended by gpu/kernels.rs.

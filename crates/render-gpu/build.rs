@@ -9,22 +9,27 @@
 //! model sampling and simulator pieces they call), goes into each scene's
 //! identity hash: `merge` refuses to average renders made by builds that estimate
 //! differently (a render from before a bug fix with one from after), and the bench's PT
-//! cache misses.
+//! cache misses. A test (setup.rs, `every_source_that_decides_a_render_is_hashed`) fails
+//! for a source of this crate that is neither hashed nor listed there as unable to change
+//! a render.
 
 // The crate's own FNV-1a, the hash of every other cache key.
 #[path = "src/hash.rs"]
 mod hash;
 
-const SOURCES: [&str; 3] = [
+const SOURCES: [&str; 4] = [
     "src/distance_grid.rs",
     "src/escape_cone.rs",
     "src/geometry.rs",
+    // Geometry's ray-triangle test, which the escape cones' rays (and every render) use.
+    "src/watertight.rs",
 ];
 
 /// Beyond SOURCES: single files and whole folders (their files in name order).
 /// (The model's sampling and the simulator's phase function, frames and random numbers live
-/// in the sibling crates.)
-const RENDER_FILES: [&str; 12] = [
+/// in the sibling crates. The mesh's positions and triangles are hashed with the scene,
+/// but not which of its pieces overlap or nest, which the last two decide.)
+const RENDER_FILES: [&str; 14] = [
     "src/light.rs",
     "src/optics.rs",
     "src/camera.rs",
@@ -37,6 +42,8 @@ const RENDER_FILES: [&str; 12] = [
     "../scatter-sim/src/phase.rs",
     "../scatter-sim/src/frame.rs",
     "../scatter-sim/src/rng.rs",
+    "src/piece_survey.rs",
+    "src/mesh/pieces.rs",
 ];
 const RENDER_DIRS: [&str; 3] = ["src/integrator", "src/gpu", "../../shaders"];
 

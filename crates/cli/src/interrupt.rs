@@ -1,11 +1,14 @@
-//! Ctrl-C as a request to stop cleanly: long loops poll the flag, return an error, and
-//! their temporary output files are removed as they are dropped.
+//! Ctrl-C (or SIGTERM, SIGHUP, a closed output pipe) as a request to stop cleanly: long
+//! loops poll the flag and end early (a render writes the passes it finished, other
+//! commands return an error), and their temporary output files are removed as they are
+//! dropped.
 
 use std::sync::OnceLock;
 use std::sync::atomic::{AtomicBool, AtomicI32, Ordering};
 use std::time::{Duration, Instant};
 
-/// What long loops poll: set by Ctrl-C, or by [`stop_the_others`].
+/// What long loops poll: set by a stop signal, a closed output pipe, or
+/// [`stop_the_others`].
 static FLAG: AtomicBool = AtomicBool::new(false);
 /// Set by Ctrl-C (or SIGTERM, SIGHUP) only: whether the user asked (exit status 128 + the
 /// signal, "again" means abort).

@@ -1,4 +1,5 @@
-//! `stcvae merge`: join dataset shards.
+//! `stcvae merge`: join dataset shards (or any datasets), or average renders (.exr) of one
+//! scene.
 
 use std::fs::File;
 use std::hash::{DefaultHasher, Hasher};

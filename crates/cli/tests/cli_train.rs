@@ -1,5 +1,6 @@
-//! End-to-end check of `stcvae train --model K --base M`: retraining one model against an
-//! existing model file keeps the other two decoders bit for bit.
+//! End-to-end checks of `stcvae train`: one model retrained against an existing model
+//! file (`--model K --base M`) keeps the other two decoders bit for bit; resumed, fresh,
+//! diverged and memorising runs; edited and damaged checkpoints.
 
 mod common;
 

@@ -1,5 +1,5 @@
-//! The shipped model keeps its KS statistics (docs/TRAINING.md) at three settings of the
-//! paper's grid, so a regression in the sampling code (transforms,
+//! The shipped model keeps its KS statistics (docs/TRAINING.md) at four settings (three of
+//! the paper's grid at φ = 1, one at φ = 0.9), so a regression in the sampling code (transforms,
 //! frames, the exact branches) is caught without retraining.
 
 use std::path::Path;

@@ -544,7 +544,8 @@ impl RenderDesc {
 
 /// Largest image side accepted.
 pub const MAX_IMAGE_SIDE: u32 = 16384;
-/// Largest grid resolution accepted (512³ floats = 512 MiB).
+/// Largest grid resolution accepted (512³ cells of 8 bytes = 1 GiB, plus the candidate
+/// lists).
 pub const MAX_GRID: u32 = 512;
 /// Largest magnitude of a coordinate, length or extinction in scene units. The renderers
 /// work in f32 with offsets relative to the object's size; beyond this (or below its

@@ -493,4 +493,60 @@ mod tests {
         assert_eq!(Boundary::dielectric(1.0).ior(), Some(1.0));
         assert_ne!(Boundary::dielectric(1.0), Boundary::INDEX_MATCHED);
     }
+
+    /// Every source of this crate is in the render-code hash (build.rs: SOURCES,
+    /// RENDER_FILES, or a direct child of RENDER_DIRS), or listed here as unable to change
+    /// what a render converges to. watertight.rs (every ray cast) and the piece survey
+    /// (which pieces overlap) were left out of the hash, so `merge` and the PT cache would
+    /// have taken renders of builds that differed there as one scene's.
+    #[test]
+    fn every_source_that_decides_a_render_is_hashed() {
+        const UNHASHED: [&str; 14] = [
+            "src/lib.rs",        // module declarations
+            "src/cache.rs",      // where cached grids and cones are kept (keyed by code)
+            "src/error.rs",      // error types and their messages
+            "src/hash.rs",       // the hash function, not what a render estimates
+            "src/image_io.rs",   // output files; an environment map's pixels are hashed
+            "src/scene.rs",      // the parsed scene, which `scene_hashes` hashes
+            "src/thin_walls.rs", // a note only
+            // The mesh's positions and triangles, which `scene_hashes` hashes.
+            "src/mesh/mod.rs",
+            "src/mesh/gltf_file.rs",
+            "src/mesh/obj_file.rs",
+            "src/mesh/ply_file.rs",
+            "src/mesh/prepare.rs",
+            "src/mesh/shapes.rs",
+            "src/mesh/triangulate.rs",
+        ];
+        let build = include_str!("../build.rs");
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let mut missing = Vec::new();
+        let mut stack = vec![root.join("src")];
+        while let Some(dir) = stack.pop() {
+            for e in std::fs::read_dir(&dir).unwrap() {
+                let path = e.unwrap().path();
+                if path.is_dir() {
+                    stack.push(path);
+                    continue;
+                }
+                let rel = path.strip_prefix(root).unwrap().components();
+                let rel = rel
+                    .map(|c| c.as_os_str().to_string_lossy())
+                    .collect::<Vec<_>>()
+                    .join("/");
+                // build.rs reads RENDER_DIRS' direct children only.
+                let folder = rel.rsplit_once('/').map_or("", |(f, _)| f);
+                let hashed = build.contains(&format!("\"{rel}\""))
+                    || build.contains(&format!("\"{folder}\""));
+                if rel.ends_with(".rs") && !hashed && !UNHASHED.contains(&rel.as_str()) {
+                    missing.push(rel);
+                }
+            }
+        }
+        missing.sort();
+        assert!(
+            missing.is_empty(),
+            "not in build.rs's render-code hash nor listed as unhashed: {missing:?}"
+        );
+    }
 }

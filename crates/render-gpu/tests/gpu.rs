@@ -363,7 +363,7 @@ fn wgsl_event_pairs_are_mirrored() {
 /// PathGen (logit → cos θ, the disk's radial map → (β, α), repaired into the disk) equal
 /// the Rust ones (`length_result`, `path_result`) for the noise the WGSL drew, in both
 /// single-scattering modes (n_min 2 and 1). Tolerances: the decoder outputs agree within
-/// ~1e-5 (`wgsl_decoder_matches_rust`), which exp carries into N as a relative 1e-5, plus
+/// ~1e-5 (`wgsl_decoders_match_rust`), which exp carries into N as a relative 1e-5, plus
 /// f32's rounding of y + prior (|y + prior| < 20 here: 20 × 6e-8) and of N itself, and the
 /// floor can step by one: |ΔN| ≤ 1 + 3e-5 N. The exit's maps have slopes below 1 in y and
 /// (β, α), so 1e-4 absolute covers the 1e-5 of the outputs with f32 rounding to spare. A

@@ -1,5 +1,6 @@
-//! Integrator checks that need no external reference (design §5): white furnace, NEE on
-//! vs off, ST-CVAE vs PT. Fixed seeds, small images.
+//! Integrator checks (design §5): white furnace, NEE on vs off, ST-CVAE vs PT, and two
+//! absolute references (Chandrasekhar's half-space albedo, an independent walk through a
+//! sphere). Fixed seeds, small images.
 
 mod common;
 

@@ -1,6 +1,7 @@
 //! The one-traversal shadow-ray transmittance (Σ t(exits) − Σ t(entries) over unordered
-//! crossings) against the crossing-by-crossing walk it replaces, on the non-convex bunny
-//! where shadow rays leave and re-enter (ears, paws).
+//! crossings) against the crossing-by-crossing walk it replaces: on the non-convex bunny,
+//! where shadow rays leave and re-enter (ears, paws), on a sphere's closed forms, on
+//! overlapping pieces and on interleaved combs.
 
 mod common;
 

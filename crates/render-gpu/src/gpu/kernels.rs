@@ -1,5 +1,6 @@
 //! The WGSL kernels, composed from `shaders/` (WGSL has no includes: the shared files are
-//! concatenated in a fixed order), and the one bind-group layout they all share.
+//! concatenated in a fixed order), and their bind-group layouts: the single kernel's, the
+//! staged kernels' (two bindings more), and that of the staged render's arguments' kernels.
 
 use std::borrow::Cow;
 

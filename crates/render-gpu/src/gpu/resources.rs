@@ -1,4 +1,5 @@
-//! GPU buffers of one render (or probe run) and the bind group over them.
+//! GPU buffers of one render (or probe run) and their bind groups: one per band, and one
+//! for the staged render's arguments' kernels.
 
 use std::sync::mpsc;
 

@@ -523,7 +523,7 @@ impl Path {
         let hit = if t < s.free {
             None
         } else {
-            // The cast looks FLIGHT_MARGIN beyond the collision: pos + t·dir is rounded,
+            // The cast looks `geo.flight_margin()` beyond the collision: pos + t·dir is rounded,
             // and a collision that rounds to the far side of a surface the ray test puts
             // just beyond t would leave the path outside while it believes itself
             // inside (seen ~1 in 10⁶ paths near the surface, each then a runaway

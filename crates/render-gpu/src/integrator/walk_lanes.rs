@@ -420,8 +420,7 @@ fn event(st: &mut Lanes, g: f64, hg: &Hg, n_lights: usize, m: usize) -> [bool; L
         flight[i] = -ln(u) * st.inv_tau[i];
     }
     // The new direction: Duff et al. (2017)'s branchless orthonormal basis about the
-    // arriving direction, then one Newton step toward unit length, as in the simulator's
-    // f32 walk.
+    // arriving direction, then one Newton step toward unit length.
     let mut d = [[0.0f32; LANES]; 3];
     for i in 0..LANES {
         let (dx, dy, dz) = (st.dir[0][i], st.dir[1][i], st.dir[2][i]);
