@@ -1,5 +1,5 @@
-//! The checkpoint folder: its lock, the checkpoints a run resumes or refuses, the
-//! decoders taken from them, and the command that goes on from them.
+//! The checkpoint folder: its lock, the checkpoints a run resumes or refuses, and the
+//! decoders taken from them.
 
 use std::path::Path;
 
@@ -97,36 +97,6 @@ pub(super) fn checkpoint_decoder(
     }
     let rise = loss_rise(k, &info.history);
     Ok((d, version, info.ranges, info.step, rise))
-}
-
-/// The command that goes on from an interrupted run's checkpoints: the run's own with
-/// --resume for --fresh ("the same command with --resume" was `--fresh --resume`, which
-/// clap refuses).
-pub(super) fn resume_command(a: &Args) -> String {
-    let mut c = format!(
-        "stcvae train --config {}",
-        crate::paths::shell_word(&a.config)
-    );
-    if let Some(k) = a.model {
-        c += &format!(" --model {}", k.name());
-    }
-    if let Some(b) = &a.base {
-        c += &format!(" --base {}", crate::paths::shell_word(b));
-    }
-    c += " --resume";
-    if let Some(o) = &a.out {
-        c += &format!(" --out {}", crate::paths::shell_word(o));
-    }
-    if a.steps_scale != 1.0 {
-        c += &format!(" --steps-scale {}", scatter_sim::ranges::num(a.steps_scale));
-    }
-    if a.backend != "flex" {
-        c += &format!(" --backend {}", a.backend);
-    }
-    if a.keep_diverged {
-        c += " --keep-diverged";
-    }
-    c
 }
 
 /// The lock file a training run holds in its checkpoint_dir.

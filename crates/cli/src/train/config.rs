@@ -26,9 +26,9 @@ pub(super) struct TrainConfig {
         deserialize_with = "crate::generate::at_least_one"
     )]
     pub(super) checkpoint_every: u64,
-    pub(super) lengthgen: ModelConfig,
-    pub(super) pathgen: ModelConfig,
-    pub(super) eventgen: ModelConfig,
+    lengthgen: ModelConfig,
+    pathgen: ModelConfig,
+    eventgen: ModelConfig,
 }
 
 fn one() -> u64 {

@@ -15,7 +15,7 @@ use super::Args;
 use super::config::TrainConfig;
 use crate::progress;
 
-pub(super) fn ensure_dataset(cfg: &TrainConfig) -> Result<()> {
+fn ensure_dataset(cfg: &TrainConfig) -> Result<()> {
     if cfg.dataset.exists() {
         return Ok(());
     }
@@ -105,10 +105,7 @@ pub(super) fn not_the_configs_run(
 /// build's) is a warning: the validation loss compares its rows with held-out walks this
 /// build simulates, so a changed simulator reads as a gap between the two losses, and the
 /// model learns the old simulator's walks.
-pub(super) fn another_simulator(
-    dataset: &Path,
-    header: &scatter_sim::dataset::Header,
-) -> Option<String> {
+fn another_simulator(dataset: &Path, header: &scatter_sim::dataset::Header) -> Option<String> {
     let this = scatter_sim::dataset::simulator_fingerprint();
     let mut others = header.simulators().0;
     others.retain(|s| *s != this);
@@ -126,12 +123,12 @@ pub(super) fn another_simulator(
 
 /// Below this many usable walks per model `train` warns: a CVAE's conditional
 /// distribution cannot be learned from fewer, though a test may still want to try.
-pub(super) const MIN_ROWS: usize = 1000;
+const MIN_ROWS: usize = 1000;
 
 /// Held-out walks simulated for the validation loss: twice the rows a validation reads,
 /// so that models which leave walks out (N = 1 in exact mode, EventGen's centre events)
 /// still find enough.
-pub(super) const HELD_OUT_WALKS: u64 = 2 * VALIDATION_ROWS as u64;
+const HELD_OUT_WALKS: u64 = 2 * VALIDATION_ROWS as u64;
 
 /// Each model's validation batches: walks the dataset's run would have drawn next,
 /// simulated now, standardised as the model's table. A model with no usable held-out

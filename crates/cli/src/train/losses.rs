@@ -7,8 +7,7 @@ use anyhow::{Result, bail};
 use cvae::train::ModelKind;
 use cvae::train::validation::ValidationPoint;
 
-use super::Args;
-use super::checkpoints::resume_command;
+use super::{Args, resume_command};
 
 /// The untrained loss when a run's last reported loss is above it by more than a tenth
 /// (of it, or of 1 near 0): the first report is one step's batch, so a margin keeps its
@@ -34,7 +33,7 @@ pub(super) fn loss_rise(k: ModelKind, history: &[(u64, f32)]) -> Option<String> 
 /// while the model generalises) are reported as memorising: noise alone passes it with
 /// probability ~3·10⁻⁵ at 2,048 rows a side (~1.5·10⁻⁴ at the fewest, 20, where z follows
 /// Student's t with ~38 degrees of freedom).
-pub(super) const GAP_WARNING_Z: f32 = 4.0;
+const GAP_WARNING_Z: f32 = 4.0;
 
 /// Where the loss curves of model file `out` go: NAME.loss.png for NAME.stcvae, else the
 /// whole file name with .loss.png added (`with_extension` gave m.v1 and m.v2 one plot).

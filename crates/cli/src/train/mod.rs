@@ -20,7 +20,6 @@ mod output;
 
 use checkpoints::{
     checkpoint_decoder, checkpoints_to_resume, lock_checkpoint_dir, refuse_diverged_checkpoints,
-    resume_command,
 };
 use config::{DEFAULT_CONFIG, TrainConfig, load};
 use dataset::{check_dataset_source, read_tables, validations};
@@ -80,6 +79,36 @@ pub struct Args {
     /// or learned nothing); without it `train` stops before writing such a file.
     #[arg(long)]
     keep_diverged: bool,
+}
+
+/// The command that goes on from an interrupted run's checkpoints: the run's own with
+/// --resume for --fresh ("the same command with --resume" was `--fresh --resume`, which
+/// clap refuses).
+fn resume_command(a: &Args) -> String {
+    let mut c = format!(
+        "stcvae train --config {}",
+        crate::paths::shell_word(&a.config)
+    );
+    if let Some(k) = a.model {
+        c += &format!(" --model {}", k.name());
+    }
+    if let Some(b) = &a.base {
+        c += &format!(" --base {}", crate::paths::shell_word(b));
+    }
+    c += " --resume";
+    if let Some(o) = &a.out {
+        c += &format!(" --out {}", crate::paths::shell_word(o));
+    }
+    if a.steps_scale != 1.0 {
+        c += &format!(" --steps-scale {}", scatter_sim::ranges::num(a.steps_scale));
+    }
+    if a.backend != "flex" {
+        c += &format!(" --backend {}", a.backend);
+    }
+    if a.keep_diverged {
+        c += " --keep-diverged";
+    }
+    c
 }
 
 /// The training device of `--backend`, with autodiff.

@@ -8,10 +8,10 @@ use cvae::model_file::{ModelSet, TrainingInfo};
 use cvae::train::ModelKind;
 use cvae::train::data::ConditionRanges;
 
-use super::checkpoints::{CheckpointDecoder, resume_command};
+use super::checkpoints::CheckpointDecoder;
 use super::config::TrainConfig;
 use super::losses::{loss_plot, loss_plot_path, trained_note};
-use super::{Args, scaled_model};
+use super::{Args, resume_command, scaled_model};
 
 /// Narrows the file's ranges to what a decoder from elsewhere (`source`) was trained on:
 /// the file's ranges bound every decoder in it (the renderer's default max_tau is
@@ -257,7 +257,7 @@ pub(super) fn training_info(
         };
         narrow(&mut info, theirs, &format!("--base {base_name}"))?;
     }
-    // Checked before the training, as the modes are above.
+    // Checked before the training, as the modes are (`load_base`, `checkpoint_decoder`).
     for (k, (_, _, ranges, _, _)) in from_checkpoints {
         if let Some(r) = ranges {
             narrow(&mut info, *r, &format!("the {} checkpoint", k.name()))?;

@@ -7,9 +7,8 @@ use std::path::{Path, PathBuf};
 use tempfile::NamedTempFile;
 
 use super::checks::check_replaceable;
-use super::temporaries::{
-    Live, folder_of, locked_temporary, note, remove_killed_temporaries, temp_prefix,
-};
+use super::temporaries::{Live, locked_temporary, remove_killed_temporaries, temp_prefix};
+use super::{folder_of, note};
 
 /// A buffered writer to a temporary file that becomes `path` on [`AtomicFile::commit`].
 pub struct AtomicFile {

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use tempfile::NamedTempFile;
 
-use super::temporaries::folder_of;
+use super::folder_of;
 
 /// Checks, before long work starts, that [`AtomicFile::create`](super::AtomicFile::create) will be
 /// able to write `path`: the nearest existing ancestor of its directory is a directory in which
@@ -42,7 +42,7 @@ pub fn check_output_folder(dir: &Path) -> Result<(), String> {
 
 /// An error about `path`: the checks' own refusals read on from the path ("x is a
 /// directory"); an error of the system follows a colon.
-pub(super) fn after_path(path: &Path, e: &io::Error) -> String {
+fn after_path(path: &Path, e: &io::Error) -> String {
     let sep = if e.raw_os_error().is_some() { ":" } else { "" };
     format!("{}{sep} {e}", path.display())
 }
@@ -51,7 +51,7 @@ pub(super) fn after_path(path: &Path, e: &io::Error) -> String {
 /// which files can be made (the probe file, made there and returned), and, on Linux, one
 /// whose flags let them be renamed (None: nothing on the path exists, or the probe could
 /// not be removed from it again).
-pub(super) fn probe_folder(dir: &Path) -> Result<Option<NamedTempFile>, String> {
+fn probe_folder(dir: &Path) -> Result<Option<NamedTempFile>, String> {
     // The nearest ancestor that is there at all: a symbolic link counts even when it
     // points nowhere (exists() would step over it, and creating the directories would
     // then fail after the work).
@@ -116,7 +116,7 @@ pub(super) fn probe_folder(dir: &Path) -> Result<Option<NamedTempFile>, String> 
 /// "Operation not permitted" only once a render or a dataset was done. `probe`, a file
 /// just made in the folder, is owned by whoever this process writes as.
 #[cfg(unix)]
-pub(super) fn check_renamable(path: &Path, probe: &fs::File) -> Result<(), String> {
+fn check_renamable(path: &Path, probe: &fs::File) -> Result<(), String> {
     use std::os::unix::fs::MetadataExt;
     let (Ok(target), Ok(folder), Ok(me)) = (
         fs::symlink_metadata(path),
@@ -154,16 +154,15 @@ pub(super) fn sticky_keeps(me: u32, folder_mode: u32, folder_owner: u32, file_ow
 /// renamed over or out of, by root either; an append-only folder still takes new files and
 /// folders.
 #[cfg(target_os = "linux")]
-pub(super) const IMMUTABLE: libc::c_int = 0x10;
-
+const IMMUTABLE: libc::c_int = 0x10;
 #[cfg(target_os = "linux")]
-pub(super) const APPEND_ONLY: libc::c_int = 0x20;
+const APPEND_ONLY: libc::c_int = 0x20;
 
 /// The immutable and append-only flags of the file or folder at `path` (0 for one this user
 /// cannot open to read), through a symbolic link where `follow` (a folder reached through a
 /// link is the folder written into; a target that is a link is replaced itself).
 #[cfg(target_os = "linux")]
-pub(super) fn fixed_flags(path: &Path, follow: bool) -> libc::c_int {
+fn fixed_flags(path: &Path, follow: bool) -> libc::c_int {
     use std::os::fd::AsRawFd;
     use std::os::unix::fs::OpenOptionsExt;
     let nofollow = if follow { 0 } else { libc::O_NOFOLLOW };
@@ -229,7 +228,7 @@ pub fn check_replaceable(path: &Path) -> io::Result<()> {
 /// Refuses a place no output may be written: `path` going up (`..`) out of a folder that
 /// does not exist yet ([`missing_before_parent`]), and `dir` (the output's folder, or the
 /// folder itself) in /dev, /proc or /sys ([`system_folder`]).
-pub(super) fn check_place(dir: &Path, path: &Path) -> io::Result<()> {
+fn check_place(dir: &Path, path: &Path) -> io::Result<()> {
     if let Some(missing) = missing_before_parent(path) {
         return Err(io::Error::new(
             io::ErrorKind::InvalidInput,
@@ -266,7 +265,7 @@ pub(super) fn check_place(dir: &Path, path: &Path) -> io::Result<()> {
 /// write made `new` and renamed the output over `a.exr`, an input of the same command
 /// (and `new/../../dev/x` reached /dev). Refused rather than resolved by hand: the folder
 /// made for nothing would stay.
-pub(super) fn missing_before_parent(path: &Path) -> Option<PathBuf> {
+fn missing_before_parent(path: &Path) -> Option<PathBuf> {
     use std::path::Component;
     let mut at = PathBuf::new();
     let mut missing = None;
@@ -292,7 +291,7 @@ pub(super) fn missing_before_parent(path: &Path) -> Option<PathBuf> {
 /// `/dev/new/x` would make a folder in /dev. Folders below /dev that are there, such as
 /// the tmpfs /dev/shm, hold files and are let through. A folder not made yet resolves
 /// through its nearest existing ancestor.
-pub(super) fn system_folder(dir: &Path) -> Option<PathBuf> {
+fn system_folder(dir: &Path) -> Option<PathBuf> {
     let existing = dir.ancestors().find(|a| a.exists())?;
     let made = dir.strip_prefix(existing).ok()?;
     let real = fs::canonicalize(existing).ok()?;

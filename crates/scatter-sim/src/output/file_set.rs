@@ -8,7 +8,8 @@ use std::path::{Path, PathBuf};
 
 use super::atomic_file::{AtomicFile, Finished, MadeDirs};
 use super::set_marks::{LINK_SUFFIX, Marks, restore_killed_sets};
-use super::temporaries::{folder_of, note, temp_prefix};
+use super::temporaries::temp_prefix;
+use super::{folder_of, note};
 
 /// Writes several files as one output: every temporary is written first and only then
 /// are they renamed into place, so a failure while writing (a full disk, a path that is a
@@ -159,7 +160,7 @@ pub(super) fn write_set_with(
 ///
 /// Another program may hold a lock on the folder for long (`flock DIR cmd`, or anyone's on
 /// /tmp): after [`FOLDER_LOCK_WAIT`] the renames go ahead without it, with a note.
-pub(super) fn lock_folder(dir: &Path) -> Option<fs::File> {
+fn lock_folder(dir: &Path) -> Option<fs::File> {
     let locked = lock_folder_within(dir, FOLDER_LOCK_WAIT);
     if locked.is_err() {
         note(&format!(
@@ -175,7 +176,7 @@ pub(super) fn lock_folder(dir: &Path) -> Option<fs::File> {
 
 /// How long a set's renames wait for its folder's lock. Another stcvae holds it for the
 /// milliseconds of its own renames.
-pub(super) const FOLDER_LOCK_WAIT: std::time::Duration = std::time::Duration::from_secs(5);
+const FOLDER_LOCK_WAIT: std::time::Duration = std::time::Duration::from_secs(5);
 
 /// The folder's lock within `wait`: Ok(None) where it cannot be locked at all, Err(())
 /// where it stayed held by another for `wait`.

@@ -4,6 +4,9 @@
 //! it only once complete, so an error, a Ctrl-C or a crash never leaves a half-written
 //! file under the output name (the temporary is removed when dropped).
 
+use std::io::{self, Write};
+use std::path::Path;
+
 mod atomic_file;
 mod checks;
 mod file_set;
@@ -16,18 +19,35 @@ pub use checks::{
 };
 pub use file_set::{Contents, write_atomic_set, write_atomic_set_streamed, write_atomic_set_then};
 pub use set_marks::restore_killed_sets;
-pub use temporaries::{Live, note, remove_live_temporaries, remove_stale_temporaries_of};
+pub use temporaries::{Live, remove_live_temporaries, remove_stale_temporaries_of};
+
+/// A note on stderr that cannot end the process: std's `eprintln!` panics where stderr is
+/// a closed pipe (`stcvae … 2>&1 | less`, less quit), which the CLI takes as a request to
+/// stop cleanly.
+pub fn note(line: &str) {
+    let _ = writeln!(io::stderr(), "{line}");
+}
+
+/// The folder `path` lies in: its parent, or "." for a bare file name (whose parent is
+/// the empty path).
+fn folder_of(path: &Path) -> &Path {
+    match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    }
+}
 
 #[cfg(test)]
 mod tests {
+    use std::fs;
+    use std::io::{self, Write};
+    use std::path::{Path, PathBuf};
+
     use super::atomic_file::*;
     use super::checks::*;
     use super::file_set::*;
     use super::set_marks::*;
     use super::temporaries::*;
-    use std::fs;
-    use std::io::{self, Write};
-    use std::path::{Path, PathBuf};
 
     /// `bytes` written to `path`, last modified a minute ago: a temporary its run left
     /// behind, past [`remove_killed_temporaries`]' few seconds of grace.

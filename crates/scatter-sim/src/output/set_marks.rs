@@ -6,40 +6,39 @@ use std::fs;
 use std::io::{self, Write};
 use std::path::{Path, PathBuf};
 
-use super::temporaries::{folder_of, note, temp_prefix};
+use super::temporaries::temp_prefix;
+use super::{folder_of, note};
 
 /// A set's mark's name ([`Marks`]): `.stcvae-set.ID.renaming`, made as `….marking`.
-pub(super) const MARK_PREFIX: &str = ".stcvae-set.";
-
-pub(super) const MARK_SUFFIX: &str = ".renaming";
-
-pub(super) const MARKING_SUFFIX: &str = ".marking";
+const MARK_PREFIX: &str = ".stcvae-set.";
+const MARK_SUFFIX: &str = ".renaming";
+const MARKING_SUFFIX: &str = ".marking";
 
 /// A kept file's link is its temporaries' prefix, the set's id and this: a suffix of its
 /// own, so that no other program's `.x.backup.previous` is taken for one.
 pub(super) const LINK_SUFFIX: &str = ".stcvae-previous";
 
 /// The characters of a set's id.
-pub(super) const ID_LEN: usize = 6;
+const ID_LEN: usize = 6;
 
 /// Whether `id` has the form of a set's id: six ASCII letters or digits, as tempfile makes.
-pub(super) fn is_set_id(id: &str) -> bool {
+fn is_set_id(id: &str) -> bool {
     id.len() == ID_LEN && id.bytes().all(|b| b.is_ascii_alphanumeric())
 }
 
 /// The mark `.stcvae-set.ID` + `suffix` in `dir`.
-pub(super) fn mark_path(dir: &Path, id: &str, suffix: &str) -> PathBuf {
+fn mark_path(dir: &Path, id: &str, suffix: &str) -> PathBuf {
     dir.join(format!("{MARK_PREFIX}{id}{suffix}"))
 }
 
 /// The id of a mark's name (`.stcvae-set.ID` + `suffix`).
-pub(super) fn mark_id<'a>(name: &'a str, suffix: &str) -> Option<&'a str> {
+fn mark_id<'a>(name: &'a str, suffix: &str) -> Option<&'a str> {
     let id = name.strip_prefix(MARK_PREFIX)?.strip_suffix(suffix)?;
     is_set_id(id).then_some(id)
 }
 
 /// A link's name split into its file's temporaries' prefix and its set's id.
-pub(super) fn link_of(name: &str) -> Option<(&str, &str)> {
+fn link_of(name: &str) -> Option<(&str, &str)> {
     let rest = name.strip_suffix(LINK_SUFFIX)?;
     let cut = rest.len().checked_sub(ID_LEN)?;
     if !rest.is_char_boundary(cut) {
@@ -52,7 +51,7 @@ pub(super) fn link_of(name: &str) -> Option<(&str, &str)> {
 
 /// A folder's entries that are files or symbolic links, with their names as they are and
 /// as text (to match against; a name that is not UTF-8 is joined back as it is).
-pub(super) fn files_in(dir: &Path) -> Vec<(std::ffi::OsString, String, fs::FileType)> {
+fn files_in(dir: &Path) -> Vec<(std::ffi::OsString, String, fs::FileType)> {
     let Ok(entries) = fs::read_dir(dir) else {
         return Vec::new();
     };
@@ -174,7 +173,7 @@ pub fn restore_killed_sets(dir: &Path) {
 /// killed before that file's rename), or one whose file was replaced since by another run,
 /// is only removed. Returns whether the link is gone: one that stays (a rename refused)
 /// keeps its set's mark, for a later sweep.
-pub(super) fn put_back(link: &Path, target: &Path, placed: Option<u64>) -> bool {
+fn put_back(link: &Path, target: &Path, placed: Option<u64>) -> bool {
     #[cfg(unix)]
     {
         use std::os::unix::fs::MetadataExt;
@@ -214,7 +213,7 @@ pub(super) struct Marks {
 }
 
 /// A set's mark as [`restore_killed_sets`] finds it.
-pub(super) struct Mark;
+struct Mark;
 
 impl Mark {
     /// Whether the file at `path` can be locked: the run that made it is gone.
@@ -339,7 +338,7 @@ impl Marks {
 }
 
 /// How a mark is opened for writing, readable by others.
-pub(super) fn mark_file() -> fs::OpenOptions {
+fn mark_file() -> fs::OpenOptions {
     let mut o = fs::OpenOptions::new();
     o.write(true);
     #[cfg(unix)]

@@ -3,10 +3,12 @@
 //! them.
 
 use std::fs;
-use std::io::{self, Write};
+use std::io;
 use std::path::{Path, PathBuf};
 
 use tempfile::NamedTempFile;
+
+use super::{folder_of, note};
 
 /// The temporaries being written now, so that an abort that skips destructors (a second
 /// Ctrl-C calls `exit`) can still remove them: each is registered while its guard lives.
@@ -83,17 +85,10 @@ pub fn remove_stale_temporaries_of(path: &Path) {
 
 /// Whether `name` is a temporary tempfile made with `prefix` and `suffix`: its six random
 /// characters between the two (`x`'s prefix `.x.` also begins `x.json`'s temporaries).
-pub(super) fn is_temporary_name(name: &str, prefix: &str, suffix: &str) -> bool {
+fn is_temporary_name(name: &str, prefix: &str, suffix: &str) -> bool {
     name.len() == prefix.len() + 6 + suffix.len()
         && name.starts_with(prefix)
         && name.ends_with(suffix)
-}
-
-/// A note on stderr that cannot end the process: std's `eprintln!` panics where stderr is
-/// a closed pipe (`stcvae … 2>&1 | less`, less quit), which the CLI takes as a request to
-/// stop cleanly.
-pub fn note(line: &str) {
-    let _ = writeln!(io::stderr(), "{line}");
 }
 
 /// A new temporary in `dir`, locked: the lock is held while this process has the file open
@@ -135,7 +130,7 @@ pub(super) fn locked_temporary(
 /// tempfile's error without the temporary's path it adds ("… at path
 /// …/.x.exr.XXXXXX.partial"), a file that is gone by the time the message is read: the
 /// callers name the output itself.
-pub(super) fn without_temporary(e: io::Error) -> io::Error {
+fn without_temporary(e: io::Error) -> io::Error {
     match e.get_ref().and_then(|inner| inner.source()) {
         Some(cause) => io::Error::new(e.kind(), cause.to_string()),
         None => e,
@@ -178,15 +173,6 @@ pub(super) fn remove_killed_temporaries(path: &Path, prefix: &str) -> Vec<(PathB
         }
     }
     gone
-}
-
-/// The folder `path` lies in: its parent, or "." for a bare file name (whose parent is
-/// the empty path).
-pub(super) fn folder_of(path: &Path) -> &Path {
-    match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    }
 }
 
 /// The start of a temporary's name beside `path` (".NAME."): at most 64 bytes standing for
