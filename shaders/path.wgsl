@@ -593,7 +593,7 @@ fn slot_begin(idx: u32, kind: u32) -> bool {
     }
     sl_base = idx * SLOT;
     // An image too large for one accumulation binding is rendered in bands of rows
-    // (gpu/renderer.rs); `pixel` counts within the band, the seeds use the image's index.
+    // (gpu/bands.rs); `pixel` counts within the band, the seeds use the image's index.
     let row0 = u32(params.cam_right.w);
     sl_px = pixel % width;
     sl_py = pixel / width + row0;
@@ -805,7 +805,7 @@ fn add_counter_wide(slot: u32, lo: u32, hi: u32) {
 /// 65,535 loop iterations have run in total (one shared counter, BVH traversal and
 /// decoder loops included), so the work of one dispatch must stay bounded; a dispatch in
 /// which the limit ran out is counted (C_TRUNCATED), and the host redoes it with fewer
-/// bounces (gpu/renderer.rs, bounce_budget) or reports it.
+/// bounces (gpu/switches.rs, bounce_budget) or reports it.
 @compute @workgroup_size(WORKGROUP)
 fn render_main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_index) li: u32) {
     prof_begin(li);

@@ -1901,7 +1901,7 @@ fn image_means_agree(
 }
 
 /// A dispatch cut off by lavapipe's loop limit is undone and redone with half the bounce
-/// budget until it fits (gpu/renderer.rs, bounce_budget), and the image is the one a
+/// budget until it fits (gpu/switches.rs, bounce_budget), and the image is the one a
 /// budget of 64 gives from the start, bit for bit (PT resumes a path exactly where it
 /// stopped). The dense bunny (teaser ×8, 143 events per path) at 100,000 bounces per
 /// dispatch was cut off before the fallback existed ("12 invocations were stopped by
@@ -1961,7 +1961,7 @@ fn loop_limit_cut_off_is_redone_with_fewer_bounces() {
 /// Long exact walks exceed lavapipe's loop limit at any budget above a few bounces: every
 /// step exact up to τ = 49 (exact_tau 50) with g = 0 is a walk of ~1,200 events, ~6 loop
 /// iterations each. The renderer halves the bounce budget of a cut-off dispatch until one
-/// fits (gpu/renderer.rs, bounce_budget); the fourteenth session's binary, which fell back
+/// fits (gpu/switches.rs, bounce_budget); the fourteenth session's binary, which fell back
 /// once to 64 bounces, failed on this scene ("3 invocations were stopped by llvmpipe's
 /// loop limit"). The images must still agree with the CPU's within noise
 /// (`assert_same_image`).
@@ -2859,7 +2859,7 @@ fn wgsl_path_nee_proxy_matches_rust() {
 }
 
 /// An image whose path slots exceed the adapter's storage binding limit renders in bands of
-/// rows (gpu/renderer.rs), and the bands give the image one binding gives, bit for bit: PT
+/// rows (gpu/bands.rs), and the bands give the image one binding gives, bit for bit: PT
 /// resumes a path exactly, and the seeds follow a pixel's index in the image, not in its
 /// band. The limit is lowered so that the same 256² image takes one band, then three of 80
 /// rows and one of 16, with one lane a pixel both times (a lane count that differed would
@@ -2917,7 +2917,7 @@ fn every_kernel() -> [(IntegratorSettings<'static>, &'static str); 3] {
 /// A dispatch of more workgroups than a dimension holds (65,535: a hardware band of 2²²
 /// path slots at the default 64 threads a workgroup, or of fewer at 8–32) lays them out in
 /// rows along y
-/// (renderer.rs, plan_bands; slot_of's `gid.y`, the staged render's indirect dispatches in
+/// (bands.rs, plan_bands; slot_of's `gid.y`, the staged render's indirect dispatches in
 /// dispatch_args and `invocation`), and renders what one row renders, bit for bit: the
 /// slots are the same, only the invocations they run on differ. On images small enough
 /// for lavapipe the test hook shortens a row to 5 workgroups, leaving the last row part
@@ -2972,7 +2972,7 @@ fn dispatches_in_rows_of_workgroups_render_as_in_one() {
 /// fail otherwise). PT and ST-CVAE with NEE in the single kernel, ST-CVAE staged. Only a
 /// software adapter keeps a snapshot (a hardware GPU has no loop limit); there the hook
 /// pretends nothing, and the two budgets render the same image all the same (paths
-/// resume where they stopped). The hook's values are checked in renderer.rs's
+/// resume where they stopped). The hook's values are checked in switches.rs's
 /// `kernel_shape_takes_only_the_offered_values`, which needs no GPU.
 #[test]
 fn a_dispatch_undone_renders_as_the_halved_budget_from_the_start() {
@@ -3052,7 +3052,7 @@ fn a_device_compiles_each_kernel_once() {
 /// image holds the whole chunks before it, bit for bit a render of that many spp, and so
 /// do the counters. The 64² image renders in three bands of at most 1,536 slots (the test
 /// hook `STCVAE_GPU_TEST_BAND_SLOTS` lowers the cap that keeps a dispatch short, 65,536
-/// slots on a software adapter: gpu/renderer.rs; a 256 × 544 image took 109 s here on
+/// slots on a software adapter: gpu/bands.rs; a 256 × 544 image took 109 s here on
 /// lavapipe), with one lane a pixel (as on any adapter where a band holds fewer slots than
 /// the image has pixels), so with one sample a slot a chunk is one spp. The stop comes
 /// from the progress report after the second chunk's first band, so in that chunk one
@@ -3292,7 +3292,7 @@ fn furnace_looking_away() -> String {
 /// Every pixel of a render in bands is resolved with its own hero channels: a channel's
 /// mean divides its sum by that channel's samples, which follow the pixel's index in the
 /// image (`render::resolve_pixel`, `channel_offset`), not its index within its band
-/// (renderer.rs, SlotReadout::read). The white furnace (every sample 0.7 in its channel)
+/// (readout.rs, SlotReadout::read). The white furnace (every sample 0.7 in its channel)
 /// at 4 spp, whose channels have 2, 1 and 1 samples in the order the pixel's offset sets,
 /// in 3 bands of 4 rows: every pixel is 0.7 to f32 rounding (1e-4, as in
 /// `white_furnace_gpu`). A pixel resolved with another pixel's offset reads 1.4 or 0.35 in
@@ -3381,7 +3381,7 @@ fn a_stop_during_the_last_band_keeps_its_finished_chunk() {
 /// steps a path) divides each slot's events, which count every visit, the dropped
 /// chunk's too, by the paths that made them: the samples the slot finished (ACC's count),
 /// not the whole chunks' (COMMITTED's count, which the image of a band that had begun the
-/// dropped chunk reads; renderer.rs, SlotReadout::pixel_slots). The sphere (PT) in 3 bands
+/// dropped chunk reads; readout.rs, SlotReadout::pixel_slots). The sphere (PT) in 3 bands
 /// of 11, 11 and 2 rows, 2 samples a slot and chunk, asked to stop at the report after
 /// the second chunk's first band: that band had finished the chunk, so its slots hold 4
 /// finished samples and their events, exactly those of a whole 4-spp render's first band
@@ -3859,7 +3859,7 @@ fn more_samples_than_the_slots_hold_are_refused() {
 /// misses the object (the camera looks away from it) and meets a sky of 0.7, so every
 /// sample is 3 × 0.7 in its channel and every pixel's mean is 0.7 up to the final
 /// division's rounding. On a software adapter the 64 × 64 image takes one lane a pixel
-/// (gpu/renderer.rs, target_threads), so each slot sums all 16,384 samples of its pixel
+/// (gpu/bands.rs, target_threads), so each slot sums all 16,384 samples of its pixel
 /// (a hardware adapter gives it 256 lanes, 64 samples each: a weak check there). The
 /// plain sum was 2.1·10⁻⁵ off here (8.3·10⁻⁵ at 65,536 samples); a compensated sum is
 /// within a few ulps of the exact one (Neumaier: 2ε|sum| + O(nε²)), and f32(2.1)/3 is

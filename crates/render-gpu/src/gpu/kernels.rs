@@ -104,7 +104,7 @@ pub struct KernelShape {
     /// tests' scenes only PT's dense bunny has, so the undo of ST-CVAE's and the staged
     /// render's states went untested. Changes no path.
     pub cut_offs: u32,
-    /// The most path slots a band holds, below the adapter's cap (renderer.rs,
+    /// The most path slots a band holds, below the adapter's cap (bands.rs,
     /// `SOFTWARE_BAND_SLOTS`, `HARDWARE_BAND_SLOTS`) where a test hook
     /// (`STCVAE_GPU_TEST_BAND_SLOTS`) lowers it; `None` by default. So that a stop
     /// between a chunk's bands is tested on a 64² image, not a 256 × 544 one (109 s on
