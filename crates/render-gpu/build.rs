@@ -5,24 +5,27 @@
 //! rendered with whatever a warm cache held).
 //!
 //! A second hash, of the sources that decide what a render converges to (the integrators,
-//! optics, lights, camera, scene set-up, the GPU host code and every WGSL kernel, and the
-//! model sampling and simulator pieces they call), goes into each scene's
-//! identity hash: `merge` refuses to average renders made by builds that estimate
-//! differently (a render from before a bug fix with one from after), and the bench's PT
-//! cache misses. A test (setup.rs, `every_source_that_decides_a_render_is_hashed`) fails
-//! for a source of this crate that is neither hashed nor listed there as unable to change
-//! a render.
+//! optics, lights, camera, scene set-up, the GPU host code and every WGSL kernel, the
+//! model sampling and simulator pieces they call, and Cargo.lock's versions), goes into
+//! each scene's identity hash: `merge` refuses to average renders made by builds that
+//! estimate differently (a render from before a bug fix with one from after), and the
+//! bench's PT cache misses. A test (setup.rs, `every_source_that_decides_a_render_is_hashed`)
+//! fails for a source of this crate that is neither hashed nor listed there as unable to
+//! change a render.
 
 // The crate's own FNV-1a, the hash of every other cache key.
 #[path = "src/hash.rs"]
 mod hash;
 
-const SOURCES: [&str; 4] = [
+const SOURCES: [&str; 5] = [
     "src/distance_grid.rs",
     "src/escape_cone.rs",
     "src/geometry.rs",
     // Geometry's ray-triangle test, which the escape cones' rays (and every render) use.
     "src/watertight.rs",
+    // The mesh's scale, which sets the surface offset the grid's values are reduced by
+    // and the cones' probe distances.
+    "src/mesh/mod.rs",
 ];
 
 /// Beyond SOURCES: single files and whole folders (their files in name order).
@@ -76,6 +79,13 @@ fn main() {
         for f in &files {
             hash_file(&mut r, f);
         }
+    }
+    // The dependencies' versions (obvhs's traversal, rand_distr's normals, wgpu's shader
+    // compiler): a `cargo update` can change an image as an edit can. Absent where the
+    // crate is built outside this workspace.
+    let lock = "../../Cargo.lock";
+    if std::path::Path::new(lock).is_file() {
+        hash_file(&mut r, lock);
     }
     println!("cargo:rustc-env=STCVAE_RENDER_CODE={:016x}", r.finish());
 }

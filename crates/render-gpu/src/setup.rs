@@ -369,14 +369,12 @@ fn scene_hashes(
     ident.environment.file = ident.environment.file.map(|_| "map".into());
     // A default written out is the default (ior = 1.5 on a dielectric, a black sky
     // given as radiance = [0, 0, 0]): the same image hashed apart, and `merge` and
-    // `bench error` refused the pair. Taken to None, so scenes leaving them out keep
-    // their hashes.
-    if ident.boundary.ior == Some(crate::scene::DEFAULT_IOR) {
-        ident.boundary.ior = None;
+    // `bench error` refused the pair. Both are hashed as resolved, so that a changed
+    // default (scene.rs, outside the render-code hash) changes the hash too.
+    if ident.boundary.kind == crate::scene::BoundaryKind::Dielectric {
+        ident.boundary.ior = Some(ident.boundary.ior_or_default());
     }
-    if ident.environment.radiance == Some(ident.environment.default_radiance()) {
-        ident.environment.radiance = None;
-    }
+    ident.environment.radiance = Some(ident.environment.radiance_or_default());
     // The object's size settings are in the mesh's positions, hashed below, and a
     // threshold left at its default is the default: equivalent files (radius = 0.5 on
     // the default sphere, min_tau = 1 written out) hashed apart, and `merge` refused
@@ -501,16 +499,15 @@ mod tests {
     /// have taken renders of builds that differed there as one scene's.
     #[test]
     fn every_source_that_decides_a_render_is_hashed() {
-        const UNHASHED: [&str; 14] = [
+        const UNHASHED: [&str; 13] = [
             "src/lib.rs",        // module declarations
             "src/cache.rs",      // where cached grids and cones are kept (keyed by code)
             "src/error.rs",      // error types and their messages
             "src/hash.rs",       // the hash function, not what a render estimates
             "src/image_io.rs",   // output files; an environment map's pixels are hashed
-            "src/scene.rs",      // the parsed scene, which `scene_hashes` hashes
+            "src/scene.rs",      // the parsed scene, hashed with its defaults resolved
             "src/thin_walls.rs", // a note only
             // The mesh's positions and triangles, which `scene_hashes` hashes.
-            "src/mesh/mod.rs",
             "src/mesh/gltf_file.rs",
             "src/mesh/obj_file.rs",
             "src/mesh/ply_file.rs",

@@ -81,10 +81,13 @@ impl GenerateSpec {
     }
 }
 
-/// This build's simulator, as 8 hex digits: the CRC-32 of the rows of 64 fixed walks over
-/// moderate media (τ 0.5–12, |g| ≤ 0.95, φ 0.3–1; a few ms, once). Anything that changes
-/// a walk changes it: the walk, the phase function, the reservoir, the frames, the random
-/// streams, a dependency's numbers, the platform's libm. Hashing the sources instead would
+/// This build's simulator, as 8 hex digits: the CRC-32 of the rows of fixed walks (a few
+/// ms, once): 64 over moderate media (τ 0.5–12, |g| ≤ 0.95, φ 0.3–1), 16 from the authors'
+/// distribution (its power laws), 8 isotropic ones at φ = 1 (the phase function's and the
+/// reservoir's own branches) and 8 whose g is clamped to G_MAX. A review found the default
+/// dataset's samplers and branches outside the first 64 alone.
+/// Anything that changes a walk changes it: the walk, the phase function, the reservoir,
+/// the frames, the random streams, a dependency's numbers, the platform's libm. Hashing the sources instead would
 /// miss the last three and change with every comment. Datasets record it per piece, so
 /// that shards of different builds are not merged unsaid, and `train`, whose held-out
 /// walks this build simulates, can tell a dataset drawn by another.
@@ -102,11 +105,29 @@ pub fn simulator_fingerprint() -> &'static str {
             },
             albedo: AlbedoSampler::Uniform { min: 0.3, max: 1.0 },
         };
+        let isotropic = ConditionSampler::fixed(crate::conditions::Conditions {
+            tau: 5.0,
+            g: 0.0,
+            albedo: 1.0,
+        });
+        let clamped = ConditionSampler {
+            tau: TauSampler::Fixed { value: 3.0 },
+            g: GSampler::Uniform { min: 1.0, max: 1.0 },
+            albedo: AlbedoSampler::Fixed { value: 0.9 },
+        };
+        let runs = [
+            (&sampler, 64),
+            (&ConditionSampler::authors(), 16),
+            (&isotropic, 8),
+            (&clamped, 8),
+        ];
         let mut crc = crc32fast::Hasher::new();
         let mut bytes = [0u8; super::ROW_BYTES];
-        for i in 0..64 {
-            walk_row(0x5107_1A70, &sampler, i).0.encode(&mut bytes);
-            crc.update(&bytes);
+        for (sampler, walks) in runs {
+            for i in 0..walks {
+                walk_row(0x5107_1A70, sampler, i).0.encode(&mut bytes);
+                crc.update(&bytes);
+            }
         }
         format!("{:08x}", crc.finalize())
     })
