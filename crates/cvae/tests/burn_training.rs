@@ -444,7 +444,7 @@ fn the_first_step_moves_each_weight_by_step_0s_rate() {
         "the run stops after its first step"
     );
     let (stepped, info) =
-        cvae::train::trainer::load_decoder(dir.path(), kind, &cfg.architecture()).unwrap();
+        cvae::train::checkpoint::load_decoder(dir.path(), kind, &cfg.architecture()).unwrap();
     assert_eq!(info.step, 1);
     // The run's initial network: drawn from its stream before anything else.
     let mut rng = WalkRng::for_walk(seed, kind as u64);
@@ -785,9 +785,12 @@ fn a_resumed_run_records_the_tables_standardisation() {
     assert_eq!(old, 2, "columns without spread");
     std::fs::write(&record, v.to_string()).unwrap();
     // Exported from the record as it is (`train --model X` does so for the others).
-    let (decoder, _) =
-        cvae::train::trainer::load_decoder(dir.path(), ModelKind::PathGen, &cfg(20).architecture())
-            .unwrap();
+    let (decoder, _) = cvae::train::checkpoint::load_decoder(
+        dir.path(),
+        ModelKind::PathGen,
+        &cfg(20).architecture(),
+    )
+    .unwrap();
     assert_eq!(decoder.cond_scale, table.norm.cond_scale);
     assert_eq!(decoder.out_scale, table.norm.out_scale);
     let resumed = run(30, true);

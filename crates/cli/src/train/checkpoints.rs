@@ -30,11 +30,11 @@ pub(super) fn checkpoint_decoder(
     steps_scale: f64,
 ) -> Result<CheckpointDecoder> {
     let (d, info) =
-        cvae::train::trainer::load_decoder(&cfg.checkpoint_dir, k, &cfg.model(k).architecture())
+        cvae::train::checkpoint::load_decoder(&cfg.checkpoint_dir, k, &cfg.model(k).architecture())
             .with_context(|| {
                 // A checkpoint that is there but cannot be read is damaged or from another
                 // architecture: training it "first" is not the advice then.
-                if cvae::train::trainer::has_checkpoint(&cfg.checkpoint_dir, k) {
+                if cvae::train::checkpoint::has_checkpoint(&cfg.checkpoint_dir, k) {
                     format!(
                         "the model file needs {0}, whose checkpoint in {1} cannot be used: \
                          retrain it (train --model {0} --fresh), or take it from a model file \
@@ -151,7 +151,7 @@ pub(super) fn checkpoints_to_resume(
     if !a.fresh
         && let Some(p) = kinds
             .iter()
-            .find_map(|&k| cvae::train::trainer::orphan_record(&cfg.checkpoint_dir, k))
+            .find_map(|&k| cvae::train::checkpoint::orphan_record(&cfg.checkpoint_dir, k))
     {
         let stem = p.file_stem().unwrap_or_default().to_string_lossy();
         let name = stem.trim_end_matches("-optim");
@@ -166,7 +166,7 @@ pub(super) fn checkpoints_to_resume(
     let resumed: Vec<ModelKind> = kinds
         .iter()
         .copied()
-        .filter(|&k| a.resume && cvae::train::trainer::has_checkpoint(&cfg.checkpoint_dir, k))
+        .filter(|&k| a.resume && cvae::train::checkpoint::has_checkpoint(&cfg.checkpoint_dir, k))
         .collect();
     if a.resume {
         // Resuming from nothing used to start afresh without a word.
@@ -200,7 +200,7 @@ pub(super) fn checkpoints_to_resume(
         // --steps-scale 0.01) would silently end an hour-long run's chance to --resume.
         let held: Vec<&str> = kinds
             .iter()
-            .filter(|&&k| cvae::train::trainer::has_checkpoint(&cfg.checkpoint_dir, k))
+            .filter(|&&k| cvae::train::checkpoint::has_checkpoint(&cfg.checkpoint_dir, k))
             .map(|k| k.name())
             .collect();
         if !held.is_empty() {

@@ -366,9 +366,9 @@ pub fn run(a: Args) -> Result<()> {
         None => lock_checkpoint_dir(&cfg.checkpoint_dir, &a.config)?,
     };
     for &k in &kinds {
-        cvae::train::trainer::remove_stale_temporaries(&cfg.checkpoint_dir, k);
+        cvae::train::checkpoint::remove_stale_temporaries(&cfg.checkpoint_dir, k);
         if a.fresh {
-            cvae::train::trainer::remove_checkpoint(&cfg.checkpoint_dir, k)?;
+            cvae::train::checkpoint::remove_checkpoint(&cfg.checkpoint_dir, k)?;
         }
     }
     let (trained, seconds) =
@@ -397,7 +397,7 @@ fn check_steps_scale(a: &Args, cfg: &TrainConfig) -> Result<()> {
     }
     for k in trained_kinds(a.model) {
         let steps = scaled_steps(cfg.model(k).steps, a.steps_scale);
-        if steps > cvae::train::trainer::MAX_STEPS {
+        if steps > cvae::train::config::MAX_STEPS {
             bail!(
                 "--steps-scale {} gives {}.steps = {steps} in {}: allowed at most 2^40",
                 scatter_sim::ranges::num(a.steps_scale),
@@ -594,7 +594,7 @@ mod tests {
                     gap_z: 0.0,
                 })
                 .collect();
-            let info = cvae::train::trainer::CheckpointInfo {
+            let info = cvae::train::checkpoint::CheckpointInfo {
                 feature_version: cvae::features::FEATURE_VERSION,
                 step: 1000,
                 seconds: 1.0,
