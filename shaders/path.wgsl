@@ -442,7 +442,7 @@ fn add_counter(slot: u32, v: u32) {
 /// VARIANCE the squared sums (below); the rounding ACC's RGB lost (ACC_LO = SLOT − 2,
 /// add_sample), with the slot's PT events + sphere steps in w (the work map, slot_end);
 /// last ACC as the chunk began, its lost rounding added back (COMMITTED = SLOT − 1: what a
-/// render stopped mid-chunk keeps, gpu/renderer.rs).
+/// render stopped mid-chunk keeps, gpu/readout.rs).
 // ACC, ACC_LO and COMMITTED (SLOT − 2 and SLOT − 1) are prepended from kernels.rs
 // (ACC_VEC4, acc_lo_vec4, committed_vec4), the one layout the host reads back. With
 // VARIANCE (`render --variance`) three vec4s before ACC_LO hold the sums of the squared

@@ -32,7 +32,7 @@ const SOURCES: [&str; 5] = [
 /// (The model's sampling and the simulator's phase function, frames and random numbers live
 /// in the sibling crates. The mesh's positions and triangles are hashed with the scene,
 /// but not which of its pieces overlap or nest, which the last two decide.)
-const RENDER_FILES: [&str; 14] = [
+const RENDER_FILES: [&str; 15] = [
     "src/light.rs",
     "src/optics.rs",
     "src/camera.rs",
@@ -42,6 +42,8 @@ const RENDER_FILES: [&str; 14] = [
     "../cvae/src/decoder.rs",
     "../cvae/src/features.rs",
     "../cvae/src/fastmath.rs",
+    // How a model file's bytes become decoders (the scene hash holds the bytes).
+    "../cvae/src/model_file.rs",
     "../scatter-sim/src/phase.rs",
     "../scatter-sim/src/frame.rs",
     "../scatter-sim/src/rng.rs",
@@ -50,7 +52,9 @@ const RENDER_FILES: [&str; 14] = [
 ];
 const RENDER_DIRS: [&str; 3] = ["src/integrator", "src/gpu", "../../shaders"];
 
-fn hash_file(h: &mut hash::Fnv64, path: &str) {
+/// Hashes `path` into `h` and notes it in `hashed`.
+fn hash_file(h: &mut hash::Fnv64, path: &str, hashed: &mut Vec<String>) {
+    hashed.push(path.to_owned());
     println!("cargo:rerun-if-changed={path}");
     h.write(path.as_bytes());
     h.write(&std::fs::read(path).unwrap_or_else(|e| panic!("{path}: {e}")));
@@ -65,8 +69,9 @@ fn main() {
     println!("cargo:rustc-env=STCVAE_CACHE_CODE={:016x}", h.finish());
 
     let mut r = hash::Fnv64::new();
+    let mut hashed = Vec::new();
     for s in SOURCES.iter().chain(&RENDER_FILES) {
-        hash_file(&mut r, s);
+        hash_file(&mut r, s, &mut hashed);
     }
     for dir in RENDER_DIRS {
         println!("cargo:rerun-if-changed={dir}");
@@ -77,7 +82,7 @@ fn main() {
             .collect();
         files.sort();
         for f in &files {
-            hash_file(&mut r, f);
+            hash_file(&mut r, f, &mut hashed);
         }
     }
     // The dependencies' versions (obvhs's traversal, rand_distr's normals, wgpu's shader
@@ -85,7 +90,9 @@ fn main() {
     // crate is built outside this workspace.
     let lock = "../../Cargo.lock";
     if std::path::Path::new(lock).is_file() {
-        hash_file(&mut r, lock);
+        hash_file(&mut r, lock, &mut hashed);
     }
     println!("cargo:rustc-env=STCVAE_RENDER_CODE={:016x}", r.finish());
+    // The files hashed, for the test that every source is (setup.rs).
+    println!("cargo:rustc-env=STCVAE_RENDER_FILES={}", hashed.join(";"));
 }

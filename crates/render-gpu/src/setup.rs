@@ -374,7 +374,8 @@ fn scene_hashes(
     if ident.boundary.kind == crate::scene::BoundaryKind::Dielectric {
         ident.boundary.ior = Some(ident.boundary.ior_or_default());
     }
-    ident.environment.radiance = Some(ident.environment.radiance_or_default());
+    // (+ 0.0: a radiance written as -0.0, which the range check takes, hashed apart.)
+    ident.environment.radiance = Some(ident.environment.radiance_or_default().map(|v| v + 0.0));
     // The object's size settings are in the mesh's positions, hashed below, and a
     // threshold left at its default is the default: equivalent files (radius = 0.5 on
     // the default sphere, min_tau = 1 written out) hashed apart, and `merge` refused
@@ -500,12 +501,14 @@ mod tests {
     #[test]
     fn every_source_that_decides_a_render_is_hashed() {
         const UNHASHED: [&str; 13] = [
-            "src/lib.rs",        // module declarations
-            "src/cache.rs",      // where cached grids and cones are kept (keyed by code)
-            "src/error.rs",      // error types and their messages
-            "src/hash.rs",       // the hash function, not what a render estimates
-            "src/image_io.rs",   // output files; an environment map's pixels are hashed
-            "src/scene.rs",      // the parsed scene, hashed with its defaults resolved
+            "src/lib.rs",      // module declarations
+            "src/cache.rs",    // where cached grids and cones are kept (keyed by code)
+            "src/error.rs",    // error types and their messages
+            "src/hash.rs",     // the hash function, not what a render estimates
+            "src/image_io.rs", // output files; an environment map's pixels are hashed
+            // The parsed scene, hashed with its defaults resolved (MODEL_MAX_G, which decides
+            // where ST-CVAE takes model steps, by the CLI's `thresholds_hash`).
+            "src/scene.rs",
             "src/thin_walls.rs", // a note only
             // The mesh's positions and triangles, which `scene_hashes` hashes.
             "src/mesh/gltf_file.rs",
@@ -515,9 +518,11 @@ mod tests {
             "src/mesh/shapes.rs",
             "src/mesh/triangulate.rs",
         ];
-        let build = include_str!("../build.rs");
+        // What build.rs hashed, as it names them (relative to this crate).
+        let hashed: Vec<&str> = env!("STCVAE_RENDER_FILES").split(';').collect();
         let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
         let mut missing = Vec::new();
+        let mut sources = Vec::new();
         let mut stack = vec![root.join("src")];
         while let Some(dir) = stack.pop() {
             for e in std::fs::read_dir(&dir).unwrap() {
@@ -531,13 +536,13 @@ mod tests {
                     .map(|c| c.as_os_str().to_string_lossy())
                     .collect::<Vec<_>>()
                     .join("/");
-                // build.rs reads RENDER_DIRS' direct children only.
-                let folder = rel.rsplit_once('/').map_or("", |(f, _)| f);
-                let hashed = build.contains(&format!("\"{rel}\""))
-                    || build.contains(&format!("\"{folder}\""));
-                if rel.ends_with(".rs") && !hashed && !UNHASHED.contains(&rel.as_str()) {
-                    missing.push(rel);
+                if !rel.ends_with(".rs") {
+                    continue;
                 }
+                if !hashed.contains(&rel.as_str()) && !UNHASHED.contains(&rel.as_str()) {
+                    missing.push(rel.clone());
+                }
+                sources.push(rel);
             }
         }
         missing.sort();
@@ -545,5 +550,16 @@ mod tests {
             missing.is_empty(),
             "not in build.rs's render-code hash nor listed as unhashed: {missing:?}"
         );
+        // The list itself stays true: each entry a source of the crate, and not hashed.
+        for u in UNHASHED {
+            assert!(
+                sources.iter().any(|s| s == u),
+                "{u} is listed but not a source"
+            );
+            assert!(
+                !hashed.contains(&u),
+                "{u} is listed as unhashed but build.rs hashes it"
+            );
+        }
     }
 }

@@ -247,7 +247,7 @@ pub const MAX_STEPS: u64 = 1 << 40;
 
 /// A small model's settings for the crate's tests.
 #[cfg(test)]
-pub(crate) fn config(steps: u64, warmup: Option<u64>) -> ModelConfig {
+pub(super) fn config(steps: u64, warmup: Option<u64>) -> ModelConfig {
     ModelConfig {
         latent: 2,
         hidden: vec![4],

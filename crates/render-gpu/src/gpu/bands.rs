@@ -9,7 +9,7 @@ use super::kernels::{self, KernelShape};
 /// The most path slots a software adapter's dispatch covers (more render in bands): lavapipe
 /// on 2 cores runs 65,536 ST-CVAE paths in ~1 s, PT's in ~5 s (k = 1, 2026-11-27). A
 /// dispatch cannot be interrupted, so this bounds how long a stop request waits.
-pub(super) const SOFTWARE_BAND_SLOTS: u64 = 1 << 16;
+const SOFTWARE_BAND_SLOTS: u64 = 1 << 16;
 
 /// The most path slots a hardware GPU's dispatch covers. A band was as large as a storage
 /// binding allows: 16.8 M slots for a 4096² PT render, 16× the 2^20 invocations that the

@@ -61,7 +61,7 @@ fn parse_lane_samples(v: &str) -> Result<Option<u32>, RenderError> {
 /// makes the render fail, `STCVAE_GPU_TEST_DISPATCH_ROW`, [`KernelShape::dispatch_row`],
 /// `STCVAE_GPU_TEST_CUT_OFFS`, [`KernelShape::cut_offs`], and
 /// `STCVAE_GPU_TEST_BAND_SLOTS`, [`KernelShape::band_slots`].)
-pub fn kernel_shape() -> Result<KernelShape, RenderError> {
+pub(super) fn kernel_shape() -> Result<KernelShape, RenderError> {
     let mut shape = KernelShape::default();
     if let Some(v) = env_value("STCVAE_GPU_WORKGROUP") {
         shape.workgroup = v
