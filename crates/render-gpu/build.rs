@@ -52,9 +52,9 @@ const RENDER_FILES: [&str; 15] = [
 ];
 const RENDER_DIRS: [&str; 3] = ["src/integrator", "src/gpu", "../../shaders"];
 
-/// Hashes `path` into `h` and notes it in `hashed`.
+/// Hashes `path` into `h` and notes it in `hashed` (with `/`, as the test names files).
 fn hash_file(h: &mut hash::Fnv64, path: &str, hashed: &mut Vec<String>) {
-    hashed.push(path.to_owned());
+    hashed.push(path.replace('\\', "/"));
     println!("cargo:rerun-if-changed={path}");
     h.write(path.as_bytes());
     h.write(&std::fs::read(path).unwrap_or_else(|e| panic!("{path}: {e}")));
