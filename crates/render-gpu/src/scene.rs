@@ -86,10 +86,10 @@ pub fn describe_toml_error(path: &Path, text: &str, e: &toml::de::Error) -> Stri
 }
 
 /// A field toml reports missing at the document's start, placed: a scene's top level
-/// holds tables only, so a missing [camera], [object] or [medium] is that table, and any
+/// holds tables only, so a missing `[camera]`, `[object]` or `[medium]` is that table, and any
 /// other field missing there belongs to the table the file opens with (toml gives both
 /// the same place; [`describe_toml_error`], which serves every config, names both, and a
-/// missing [medium] in a file opening with [camera] read as "missing field `medium` (at
+/// missing `[medium]` in a file opening with `[camera]` read as "missing field `medium` (at
 /// the top level or in `[camera]`)"). None for any other error.
 fn missing_in_scene(path: &Path, text: &str, e: &toml::de::Error) -> Option<String> {
     let field = e

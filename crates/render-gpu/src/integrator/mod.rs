@@ -156,12 +156,12 @@ pub(crate) struct PathState {
     /// knows it from its free spheres; a free flight shorter than it cannot reach the
     /// surface, so it needs no ray cast. PT never sets it.
     pub free: f32,
-    /// Medium the path passed when it was last spawned inside ([`Geometry::spawn_skip`]),
-    /// taken off its next flight, which is so measured from the surface (a collision
-    /// drawn within it is moved back to its own depth). Spawned eps deep and flying from
-    /// there, every entering path passed σ_t·eps of optical depth unattenuated: images
-    /// came out 1 % dark at σ_t 3,000 on a sphere of size 1 and black at 10⁶, PT and
-    /// ST-CVAE alike.
+    /// Medium the path passed when it was last spawned inside
+    /// ([`Geometry::spawn_skip`](crate::geometry::Geometry::spawn_skip)), taken off its next
+    /// flight, which is so measured from the surface (a collision drawn within it is moved back
+    /// to its own depth). Spawned eps deep and flying from there, every entering path passed
+    /// σ_t·eps of optical depth unattenuated: images came out 1 % dark at σ_t 3,000 on a sphere
+    /// of size 1 and black at 10⁶, PT and ST-CVAE alike.
     pub skip: f32,
     /// `free` may grow by the grid's radius at `pos`, which is not looked up yet (it was
     /// prefetched; see `sphere_step::complete`).

@@ -5,7 +5,7 @@
 //! reported with the number of boundary edges rather than rendered with leaks.
 //!
 //! Each file format has its loader (`gltf_file`, `obj_file`, `ply_file`), which reads
-//! triangles as the file lists them; [`prepare`] then welds and checks them, and the
+//! triangles as the file lists them; [`prepare()`] then welds and checks them, and the
 //! `pieces` module winds nested pieces and finds overlapping ones.
 
 mod gltf_file;

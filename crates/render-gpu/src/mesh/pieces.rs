@@ -186,14 +186,14 @@ pub fn overlaps_and_pieces(m: &TriMesh) -> (Vec<(usize, usize)>, Option<PieceTab
 }
 
 /// Most pairs of pieces with overlapping bounding boxes, and most pieces, whose nesting
-/// [`prepare`](super::prepare) surveys (cavities wound inward); beyond either, each piece
+/// [`prepare`](super::prepare()) surveys (cavities wound inward); beyond either, each piece
 /// is wound outward by itself. The survey's cost grows with the pairs that overlap: 2,000
 /// cubes all overlapping (~2·10⁶ pairs) took 168 s and 2.6 GB, 200 (19,900 pairs) 2 s;
 /// pieces apart cost little each.
 pub const MAX_NESTING_PAIRS: usize = 20_000;
 pub const MAX_NESTING_PIECES: usize = 4096;
 
-/// Whether [`prepare`](super::prepare) surveys the nesting of pieces with these bounding
+/// Whether [`prepare`](super::prepare()) surveys the nesting of pieces with these bounding
 /// `boxes` (see [`MAX_NESTING_PAIRS`]).
 fn nesting_surveyed(boxes: &[(Vec3, Vec3)]) -> bool {
     if boxes.len() > MAX_NESTING_PIECES {
