@@ -81,15 +81,16 @@ impl GenerateSpec {
     }
 }
 
-/// This build's simulator, as 8 hex digits: the CRC-32 of the rows of fixed walks (10 ms at most,
-/// once): 64 over moderate media (τ 0.5–12, |g| ≤ 0.95, φ 0.3–1), 16 from the authors' distribution
-/// (its power laws), 8 isotropic ones at φ = 1 (the phase function's and the reservoir's own
-/// branches) and 8 whose g is clamped to G_MAX. A review found the default dataset's samplers and
-/// branches outside the first 64 alone. Anything that changes a walk changes it: the walk, the
-/// phase function, the reservoir, the frames, the random streams, a dependency's numbers, the
-/// platform's libm. Hashing the sources instead would miss the last three and change with every
-/// comment. Datasets record it per piece, so that shards of different builds are not merged unsaid,
-/// and `train`, whose held-out walks this build simulates, can tell a dataset drawn by another.
+/// This build's simulator, as 8 hex digits: the CRC-32 of the rows of fixed walks (10 ms at
+/// most, once): 64 over moderate media (τ 0.5–12, |g| ≤ 0.95, φ 0.3–1), 16 from the
+/// authors' distribution (its power laws), 8 isotropic ones at φ = 1 (the phase function's
+/// and the reservoir's own branches) and 8 whose g is clamped to G_MAX. A review found the
+/// default dataset's samplers and branches outside the first 64 alone. Anything that
+/// changes a walk changes it: the walk, the phase function, the reservoir, the frames, the
+/// random streams, a dependency's numbers, the platform's libm. Hashing the sources instead
+/// would miss the last three and change with every comment. Datasets record it per piece,
+/// so that shards of different builds are not merged unsaid, and `train`, whose held-out
+/// walks this build simulates, can tell a dataset drawn by another.
 pub fn simulator_fingerprint() -> &'static str {
     static FINGERPRINT: std::sync::OnceLock<String> = std::sync::OnceLock::new();
     FINGERPRINT.get_or_init(|| {
