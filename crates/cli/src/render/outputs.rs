@@ -145,7 +145,6 @@ pub(super) fn check_outputs(a: &Args, inputs: &[(String, PathBuf)]) -> Result<()
 
 #[cfg(test)]
 mod tests {
-
     /// An output named like a file the scene reads is refused, a glTF mesh's external
     /// buffer included: `render --out gb` wrote its gb.exr over the buffer of that name.
     #[test]
