@@ -1,6 +1,6 @@
 // Shared include: constants, the per-path RNG, small math helpers, Henyey–Greenstein
-// sampling and the canonical frame of a sphere walk. Mirrors crates/scatter-sim
-// (phase.rs, frame.rs) in f32; the equality tests live in crates/render-gpu/tests/gpu.rs.
+// sampling and the canonical frame of a sphere walk. Mirrors crates/scatter-sim (phase.rs,
+// frame.rs) in f32; the equality tests live in crates/render-gpu/tests/gpu/wgsl_blocks.rs.
 
 const PI: f32 = 3.14159265358979;
 const TWO_PI: f32 = 6.28318530717959;

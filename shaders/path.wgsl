@@ -703,7 +703,7 @@ fn bounce_done(casting: bool) {
 /// of that same f32 value 3·l to the squared sums (the host divides them by 9 for
 /// render.rs's pixel_variance, which reads Σl²). Squaring the value the RGB sum adds, and
 /// exactly (`exact_square`), keeps a constant pixel's variance at 0 to rounding: squares
-/// rounded to f32 left one 1.1–1.4·10⁻⁹ (gpu.rs, the furnace at 0.9).
+/// rounded to f32 left one 1.1–1.4·10⁻⁹ (tests/gpu/agreement.rs, the furnace at 0.9).
 /// Each sum keeps what the f32 addition rounded off (Neumaier's compensated sum,
 /// `compensated_add`): a plain f32 sum of many equal samples rounds the same way at every
 /// addition and drifted 1.2·10⁻⁴ of the mean (8.3·10⁻⁵ of 0.7) at 65,536 samples a slot

@@ -1,7 +1,7 @@
 // Test kernels: run the shared includes on inputs from the host so tests can compare them
-// with the Rust implementations (crates/render-gpu/tests/gpu.rs). Composed as common +
-// scene + nee + decoder + pt + path + probe. Items are 8 vec4s (32 floats) in `accum`;
-// params.image.x holds the item count.
+// with the Rust implementations (crates/render-gpu/tests/gpu/wgsl_blocks.rs). Composed as
+// common + scene + nee + decoder + pt + path + probe. Items are 8 vec4s (32 floats) in
+// `accum`; params.image.x holds the item count.
 
 fn item_f(i: u32, k: u32) -> f32 {
     return accum[i * 8u + k / 4u][k % 4u];

@@ -3146,7 +3146,7 @@ fn a_gpu_time_budget_renders_whole_chunks() {
     );
 }
 
-/// The two devices run one estimator (tested image against image in render-gpu's gpu.rs),
+/// The two devices run one estimator (tested image against image in render-gpu's tests/gpu),
 /// so an ST-CVAE render of the CPU and one of the GPU (lavapipe in CI) of the same scene,
 /// with different seeds, carry one scene hash and `merge` averages them. Skipped, with the
 /// reason, only where no Vulkan adapter exists and not under CI.
@@ -3378,9 +3378,9 @@ fn a_delta_light_lost_to_nee_off_is_noted() {
 }
 
 /// `render --variance` writes OUT.var.exr beside the image in the same set (its statistics
-/// are tested in render-gpu's integrators.rs and gpu.rs): finite, ≥ 0, zero on the constant sky and
-/// positive on the object; the JSON names it; `merge` refuses it as a render; too few spp
-/// are refused before the render; the GPU writes one too.
+/// are tested in render-gpu's integrators.rs and gpu/agreement.rs): finite, ≥ 0, zero on
+/// the constant sky and positive on the object; the JSON names it; `merge` refuses it as a
+/// render; too few spp are refused before the render; the GPU writes one too.
 #[test]
 fn render_variance_writes_a_variance_image() {
     let d = tempfile::tempdir().unwrap();
@@ -3577,9 +3577,9 @@ fn render_variance_writes_a_variance_image() {
         common::stderr(&e)
     );
     assert!(!d.path().join("few.exr").exists());
-    // The GPU keeps squared sums too (its statistics: render-gpu's gpu.rs): the same set,
-    // the sky's variance 0 to rounding, the object's positive. Skipped, with the reason,
-    // only where no Vulkan adapter exists and not under CI.
+    // The GPU keeps squared sums too (its statistics: render-gpu's gpu/agreement.rs): the
+    // same set, the sky's variance 0 to rounding, the object's positive. Skipped, with the
+    // reason, only where no Vulkan adapter exists and not under CI.
     let g = d.path().join("g");
     let args = [
         "render",
@@ -3617,8 +3617,9 @@ fn render_variance_writes_a_variance_image() {
 }
 
 /// Two closed boxes that overlap in one OBJ are rendered as their union (README; tested in
-/// render-gpu's integrators.rs and gpu.rs): `render` notes it, naming the scene and the
-/// pieces, and renders. A mesh of more pieces than are checked gets a note that says so.
+/// render-gpu's integrators.rs and gpu/hard_geometry.rs): `render` notes it, naming the
+/// scene and the pieces, and renders. A mesh of more pieces than are checked gets a note
+/// that says so.
 #[test]
 fn overlapping_mesh_pieces_are_noted() {
     let d = tempfile::tempdir().unwrap();

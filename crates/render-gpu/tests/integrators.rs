@@ -1464,7 +1464,7 @@ fn the_variance_image_matches_the_spread_between_seeds() {
 /// below the 6 it needs. The furnace's every sample is L, so the image is zero to rounding
 /// (`common::assert_noiseless`). The seed-spread test above renders 13, 5 and 24 spp and
 /// render.rs's unit test calls `pixel_variance` itself at 6, so neither sees where the
-/// renderer draws the line (gpu.rs checks the GPU renderer's own).
+/// renderer draws the line (gpu/agreement.rs checks the GPU renderer's own).
 #[test]
 fn a_variance_image_comes_from_the_fewest_spp_it_needs() {
     let (_, furnace) = scene(&furnace_scene("kind = \"index-matched\""), false);

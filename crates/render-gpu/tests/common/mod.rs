@@ -332,10 +332,11 @@ pub fn overlapping_parts_scenes(dir: &Path, boundary: &str) -> Vec<(String, Stri
     ]
 }
 
-/// The sun-in-view scenes (integrators.rs and gpu.rs, `..._sun_disk_in_view_...`): a camera
-/// ray that escapes without scattering sees a 10° disk of irradiance E_c = c + 1 over a sky
-/// of 0.1, so every sample of channel c is 0.1 + E_c/(π sin² 5°) (L written out here, not
-/// taken from light.rs), to f32 rounding (1e-4). `what` names the render.
+/// The sun-in-view scenes (integrators.rs and gpu/agreement.rs,
+/// `..._sun_disk_in_view_...`): a camera ray that escapes without scattering sees a 10°
+/// disk of irradiance E_c = c + 1 over a sky of 0.1, so every sample of channel c is 0.1 +
+/// E_c/(π sin² 5°) (L written out here, not taken from light.rs), to f32 rounding (1e-4).
+/// `what` names the render.
 pub fn assert_sun_disk_seen(image: &render_gpu::image_io::RgbImage, what: &str) {
     let sin = 5f64.to_radians().sin();
     for p in &image.pixels {
@@ -374,7 +375,8 @@ pub fn skip(reason: &str) {
 /// `direction`, seen 30° off its top face's normal (so the face's mirror image of the sun
 /// misses the camera for the suns the tests use) through a lens of `fov_deg` aimed at the
 /// face's centre, `pixels` square, its medium's phase function `g`: how NEE's shadow rays
-/// refract (integrators.rs; gpu.rs, `cpu_gpu_agree_on_refracted_nee_through_flat_faces`).
+/// refract (integrators.rs; gpu/agreement.rs,
+/// `cpu_gpu_agree_on_refracted_nee_through_flat_faces`).
 pub fn dielectric_cube_scene(fov_deg: f64, pixels: u32, g: f64, direction: &str) -> String {
     format!(
         r#"
@@ -434,9 +436,10 @@ pub fn prism_scene(dir: &Path) -> String {
 /// 20° sun 15° above the horizon toward +x, in a black sky, seen head-on through the
 /// cube's +x face. The floor's top face reflects F(75°) = 25 % of the sun onto that face
 /// (the beam that meets the face climbs 15° from floor points x ∈ [1.25, 5]): light that
-/// reaches the cube's events only by paths that leave the cube, meet the floor from
-/// outside and are reflected into the disk — glints off a non-convex object, which NEE's
-/// shadow rays (straight to the sun) never sample (gpu.rs, gpu_nee_counts_glints_off_the_outside).
+/// reaches the cube's events only by paths that leave the cube, meet the floor from outside
+/// and are reflected into the disk — glints off a non-convex object, which NEE's shadow
+/// rays (straight to the sun) never sample (gpu/hard_geometry.rs,
+/// gpu_nee_counts_glints_off_the_outside).
 pub fn glint_scene(dir: &Path) -> String {
     let mesh = dir.join("glint.obj");
     let cube = ([-0.5; 3], [0.5; 3]);
@@ -685,7 +688,7 @@ pub fn cylinder_scene(dir: &Path, camera: &str) -> String {
 /// A sphere of radius 0.5 (eps 2e-5) at `sigma`, albedo 0.9, lit head-on by a delta sun
 /// along the view, filling a 32² image: a half-space to the light at any density where
 /// the diffusion length is far below the radius (integrators.rs,
-/// the_image_does_not_darken_with_density; gpu.rs at the density bound).
+/// the_image_does_not_darken_with_density; gpu/hard_geometry.rs at the density bound).
 pub fn dense_sphere(sigma: f64) -> String {
     format!(
         "[camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 10.0\n\
