@@ -704,8 +704,9 @@ mod tests {
 
     /// A diagram's values are its grey levels (0.5 → 128: a z-map's agreement is
     /// mid-grey), where a render's preview bends them by the sRGB curve (0.5 → 188);
-    /// values beyond [0, 1] clip and a NaN is black in both. The preview's exposure
-    /// scales the values before the curve.
+    /// values beyond [0, 1] clip, and a NaN or an infinity is black in both (clipped, +∞
+    /// would pass for a bright pixel). The preview's exposure scales the values before the
+    /// curve.
     #[test]
     fn diagrams_are_written_without_the_srgb_curve() {
         let mut img = RgbImage::new(3, 2);
@@ -713,7 +714,7 @@ mod tests {
             [0.0, 0.5, 1.0],
             [0.25, -1.0, 2.0],
             [f32::NAN, 0.75, 0.001],
-            [0.1, 0.2, 0.3],
+            [f32::INFINITY, f32::NEG_INFINITY, 0.3],
             [0.4, 0.6, 0.7],
             [0.8, 0.9, 0.95],
         ];
@@ -723,7 +724,7 @@ mod tests {
             .iter()
             .flatten()
             .map(|&v| {
-                if v.is_nan() {
+                if !v.is_finite() {
                     0
                 } else {
                     (v.clamp(0.0, 1.0) * 255.0).round() as u8
@@ -733,6 +734,11 @@ mod tests {
         assert_eq!(linear, want);
         let preview = levels(encode_png(&img, 1.0).unwrap());
         assert_eq!((preview[1], linear[1]), (188, 128));
+        assert_eq!(
+            preview[6..11],
+            [0, 225, 3, 0, 0],
+            "NaN, 0.75, 0.001, +∞, −∞"
+        );
         // The preview is the sRGB curve of exposure × value (IEC 61966-2-1; the levels
         // below computed from it by hand): at exposure 4, 0.25 is white, 0.05 is
         // sRGB(0.2) = 0.4845 → 124, 0.0005 on the curve's linear toe 12.92 × 0.002 → 7,
@@ -952,48 +958,159 @@ mod tests {
 
     /// Renders of one scene hash but different sizes are refused, naming both sizes: a
     /// 4×2 and a 4×3 image (distinct seeds) differ in height only, and were summed pixel by
-    /// pixel over the first 8 as if the same image.
+    /// pixel over the first 8 as if the same image; a 4×2 and a 2×4 hold as many pixels.
     #[test]
-    fn merges_refuse_images_of_another_height() {
+    fn merges_refuse_images_of_another_shape() {
         let dir = tempfile::tempdir().unwrap();
-        let paths = [("short.exr", 2, 1), ("tall.exr", 3, 2)].map(|(name, height, seed)| {
-            let mut img = RgbImage::new(4, height);
-            for (k, p) in img.pixels.iter_mut().enumerate() {
-                *p = [k as f32; 3];
-            }
-            write_render(dir.path(), name, &img, seed)
-        });
-        let e = merge_exrs(&[&paths[0], &paths[1]]).unwrap_err().to_string();
-        assert!(e.contains("tall.exr: size 4x3 differs from 4x2"), "{e}");
+        for ((w, h), want) in [((4, 3), "size 4x3 differs"), ((2, 4), "size 2x4 differs")] {
+            let paths = [("wide.exr", 4, 2, 1), ("other.exr", w, h, 2)].map(
+                |(name, width, height, seed)| {
+                    let mut img = RgbImage::new(width, height);
+                    for (k, p) in img.pixels.iter_mut().enumerate() {
+                        *p = [k as f32; 3];
+                    }
+                    write_render(dir.path(), name, &img, seed)
+                },
+            );
+            let e = merge_exrs(&[&paths[0], &paths[1]]).unwrap_err().to_string();
+            assert!(e.contains(&format!("other.exr: {want} from 4x2")), "{e}");
+        }
     }
 
-    /// Files written with the three attributes of earlier versions still give their tag.
-    #[test]
-    fn exr_files_of_earlier_versions_keep_their_tag() {
-        let img = image();
+    /// `img` written to `path` as an EXR whose header holds the text attributes `attrs`
+    /// (tags as other versions, or damage, would write them).
+    fn exr_with_attrs(path: &Path, img: &RgbImage, attrs: &[(&str, &str)]) {
         let w = img.width;
         let channels = SpecificChannels::rgb(|pos: Vec2<usize>| {
             let p = img.pixels[pos.y() * w + pos.x()];
             (p[0], p[1], p[2])
         });
-        let mut attrs = LayerAttributes::default();
-        for (k, v) in [(ATTR_SPP, "12"), (ATTR_SCENE, "00000000000000ff")] {
-            attrs
+        let mut layer_attrs = LayerAttributes::default();
+        for &(k, v) in attrs {
+            layer_attrs
                 .other
                 .insert(Text::from(k), AttributeValue::Text(Text::from(v)));
         }
         let layer = Layer::new(
             Vec2(img.width, img.height),
-            attrs,
+            layer_attrs,
             Encoding::SMALL_LOSSLESS,
             channels,
         );
+        Image::from_layer(layer).write().to_file(path).unwrap();
+    }
+
+    /// Files written with the three attributes of earlier versions still give their tag,
+    /// with their seed where they have one.
+    #[test]
+    fn exr_files_of_earlier_versions_keep_their_tag() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("old.exr");
-        Image::from_layer(layer).write().to_file(&path).unwrap();
-        let (_, tag) = read_exr(&path).unwrap();
-        let tag = tag.unwrap();
-        assert_eq!((tag.spp, tag.scene_hash, tag.seeds), (12, 255, vec![]));
+        let old = [(ATTR_SPP, "12"), (ATTR_SCENE, "00000000000000ff")];
+        for (attrs, seeds) in [
+            (&old[..], vec![]),
+            (&[old[0], old[1], (ATTR_SEED, "5")][..], vec![5]),
+        ] {
+            exr_with_attrs(&path, &image(), attrs);
+            let tag = read_exr(&path).unwrap().1.unwrap();
+            assert_eq!(
+                (tag.spp, tag.scene_hash, tag.seeds, tag.partial),
+                (12, 255, seeds, false)
+            );
+        }
+    }
+
+    /// A tag may name a render of unknown seed once (`?`, a constant image) or by its
+    /// pixels' digest once each: repeating either is refused as the repeated seed is, since
+    /// `merge` would count that render twice. One of each, beside a seed, reads back.
+    #[test]
+    fn tags_repeating_a_render_of_unknown_seed_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let ok = dir.path().join("ok.exr");
+        let tag = |seeds: &str| format!("spp=4 scene=00000000000000ab seeds={seeds}");
+        exr_with_attrs(&ok, &image(), &[(ATTR_TAG, &tag("7,?000000000000000a"))]);
+        let read = read_exr(&ok).unwrap().1.unwrap();
+        assert_eq!(
+            (read.seeds, read.partial, read.unknown_digests),
+            (vec![7], true, vec![10])
+        );
+        for bad in ["?000000000000000a,?000000000000000a", "7,?,?"] {
+            let p = dir.path().join("rep.exr");
+            exr_with_attrs(&p, &image(), &[(ATTR_TAG, &tag(bad))]);
+            let e = read_exr(&p).unwrap_err().to_string();
+            assert!(e.contains("rep.exr: bad stcvaeTag attribute"), "{bad}: {e}");
+        }
+    }
+
+    /// An image of exactly the pixel limit is read; one pixel fewer allowed refuses it.
+    #[test]
+    fn an_image_of_exactly_the_pixel_limit_is_read() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = write_render(dir.path(), "a.exr", &image(), 1);
+        let (w, h) = (image().width, image().height);
+        let n = w * h;
+        assert_eq!(read_exr_at_most(&path, n).unwrap().0, image());
+        let e = read_exr_at_most(&path, n - 1).unwrap_err().to_string();
+        let want = format!(
+            "a.exr: the EXR header declares {w} x {h} pixels: allowed at most {}",
+            n - 1
+        );
+        assert!(e.contains(&want), "{e}");
+    }
+
+    /// A seedless copy of a seeded render (its pixels equal) is refused whichever comes
+    /// first: its samples would count twice.
+    #[test]
+    fn a_seedless_copy_of_a_seeded_render_is_refused_in_either_order() {
+        let dir = tempfile::tempdir().unwrap();
+        let img = image();
+        let seeded = write_render(dir.path(), "a.exr", &img, 1);
+        let copy = dir.path().join("old.exr");
+        let seedless = RenderTag {
+            spp: 4,
+            scene_hash: 1,
+            seeds: Vec::new(),
+            partial: false,
+            unknown_digests: Vec::new(),
+            view_hash: None,
+        };
+        std::fs::write(&copy, encode_exr(&img, &seedless).unwrap()).unwrap();
+        for (first, second) in [(&seeded, &copy), (&copy, &seeded)] {
+            let e = merge_exrs(&[first.as_path(), second.as_path()])
+                .unwrap_err()
+                .to_string();
+            let name = second.file_name().unwrap().to_str().unwrap();
+            assert!(
+                e.contains(&format!("{name}: holds the same render as")),
+                "{e}"
+            );
+        }
+    }
+
+    /// A merge whose first input is a seedless constant image is partial, and is written
+    /// so ("seeds=1,?"): written "seed=1", it would claim to be the whole render of seed 1.
+    #[test]
+    fn a_merge_led_by_a_seedless_constant_image_stays_partial() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut flat = RgbImage::new(image().width, image().height);
+        flat.pixels.fill([0.5; 3]);
+        let seedless = RenderTag {
+            spp: 4,
+            scene_hash: 1,
+            seeds: Vec::new(),
+            partial: false,
+            unknown_digests: Vec::new(),
+            view_hash: None,
+        };
+        let c = dir.path().join("c.exr");
+        std::fs::write(&c, encode_exr(&flat, &seedless).unwrap()).unwrap();
+        let a = write_render(dir.path(), "a.exr", &image(), 1);
+        let (img, tag) = merge_exrs(&[c.as_path(), a.as_path()]).unwrap();
+        assert_eq!((tag.spp, &tag.seeds, tag.partial), (8, &vec![1], true));
+        let m = dir.path().join("m.exr");
+        std::fs::write(&m, encode_exr(&img, &tag).unwrap()).unwrap();
+        let back = read_exr(&m).unwrap().1.unwrap();
+        assert_eq!((back.seeds, back.partial), (vec![1], true));
     }
 
     /// The preview's sRGB curve leaves its linear toe (12.92·v) for the power segment

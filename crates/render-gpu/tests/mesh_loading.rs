@@ -505,7 +505,8 @@ fn cube_gltf(
 
 /// A glTF's external buffers are listed (for the commands' output checks), and an index
 /// beyond the primitive's vertices is named with the allowed range (it said "invalid
-/// triangle indices").
+/// triangle indices"): 50, and 8, the first past the 8 vertices (taken, it panicked in
+/// the welding's look-up).
 #[test]
 fn gltf_buffers_are_listed_and_bad_indices_named() {
     let d = tempfile::tempdir().unwrap();
@@ -514,17 +515,16 @@ fn gltf_buffers_are_listed_and_bad_indices_named() {
         render_gpu::mesh::gltf_buffer_files(&p),
         vec![d.path().join("cube.bin")]
     );
-    let mut bin = cube_bin();
-    bin[96..98].copy_from_slice(&50u16.to_le_bytes());
-    write(&d, "cube.bin", &bin);
-    let e = load_mesh(&p).unwrap_err().to_string();
-    assert!(
-        e.contains("c.gltf")
-            && e.contains(
-                "mesh 0 primitive 0: index 50 names no vertex: allowed [0, 7] (8 vertices)"
-            ),
-        "{e}"
-    );
+    for index in [50u16, 8] {
+        let mut bin = cube_bin();
+        bin[96..98].copy_from_slice(&index.to_le_bytes());
+        write(&d, "cube.bin", &bin);
+        let e = load_mesh(&p).unwrap_err().to_string();
+        let want = format!(
+            "mesh 0 primitive 0: index {index} names no vertex: allowed [0, 7] (8 vertices)"
+        );
+        assert!(e.contains("c.gltf") && e.contains(&want), "{e}");
+    }
 }
 
 /// Files the `gltf` reader would panic or loop on give one-line errors instead.
@@ -619,21 +619,23 @@ fn malformed_gltf_is_an_error_not_a_panic_or_a_hang() {
         );
     }
     // A POSITION naming no accessor: gltf's own validation looked it up unchecked and
-    // panicked (index out of bounds).
+    // panicked (index out of bounds). 2 is the first past the file's 2 accessors.
     let good_text = std::fs::read_to_string(d.path().join("good.gltf")).unwrap();
     assert_eq!(good_text.matches(r#""POSITION":0"#).count(), 1);
     let missing = d.path().join("missing_position.gltf");
-    std::fs::write(
-        &missing,
-        good_text.replace(r#""POSITION":0"#, r#""POSITION":7"#),
-    )
-    .unwrap();
-    let e = load_mesh(&missing).unwrap_err().to_string();
-    assert!(
-        e.contains("missing_position.gltf")
-            && e.contains("POSITION names accessor 7, but the file has 2 accessors"),
-        "{e}"
-    );
+    for accessor in [7, 2] {
+        std::fs::write(
+            &missing,
+            good_text.replace(r#""POSITION":0"#, &format!(r#""POSITION":{accessor}"#)),
+        )
+        .unwrap();
+        let e = load_mesh(&missing).unwrap_err().to_string();
+        let want = format!("POSITION names accessor {accessor}, but the file has 2 accessors");
+        assert!(
+            e.contains("missing_position.gltf") && e.contains(&want),
+            "{e}"
+        );
+    }
     // A rotation rounded as exporters write it (length 1 − 3·10⁻⁶) is a rotation: a
     // quarter turn about z leaves the unit cube where it was.
     let bounds = |name: &str, nodes: &str| {
@@ -754,6 +756,34 @@ fn an_accessors_byte_offset_counts_against_its_buffer_view() {
             ),
         "{e}"
     );
+}
+
+/// A bufferView must lie inside its buffer as well as hold its accessor: cube.bin is 168
+/// bytes, and each view below is widened to end at 176 (gltf-json checks neither). Read
+/// anyway, the positions read as absent ("a primitive has no POSITION") and the indices as
+/// none, the primitive taken as unindexed.
+#[test]
+fn a_buffer_view_past_its_buffer_is_named() {
+    let d = tempfile::tempdir().unwrap();
+    let text =
+        std::fs::read_to_string(cube_gltf(&d, "v.gltf", r#"[{"mesh":0}]"#, 5123, 12)).unwrap();
+    for (from, to, want) in [
+        (
+            r#""byteLength":96,"byteStride":12"#,
+            r#""byteLength":176,"byteStride":12"#,
+            "POSITION accessor 0 reaches past the end of its bufferView 0 or buffer 0",
+        ),
+        (
+            r#""byteOffset":96,"byteLength":72"#,
+            r#""byteOffset":96,"byteLength":80"#,
+            "indices accessor 1 reaches past the end of its bufferView 1 or buffer 0",
+        ),
+    ] {
+        assert_eq!(text.matches(from).count(), 1, "cube_gltf's views changed");
+        let p = write(&d, "past_buffer.gltf", text.replace(from, to).as_bytes());
+        let e = load_mesh(&p).unwrap_err().to_string();
+        assert!(e.contains("past_buffer.gltf") && e.contains(want), "{e}");
+    }
 }
 
 /// `object.height` scales the mesh about its box's centre and puts that centre at the
@@ -1803,11 +1833,13 @@ fn gltf_instances_scenes_uris_and_morph_weights() {
             "{nodes}: the cube's box {lo}..{hi}, centre {got:?}, want {centre:?}"
         );
     }
-    // Default morph weights: the mesh's, overridden by the node's.
+    // Default morph weights: the mesh's, overridden by the node's. glTF allows negative
+    // weights: −0.5 moves the cube the other way (exact in f32).
     for (node_w, mesh_w, dx) in [
         ("", "", 0.0),
         ("", r#","weights":[0.5]"#, 0.5),
         (r#","weights":[0.25]"#, r#","weights":[0.5]"#, 0.25),
+        (r#","weights":[-0.5]"#, "", -0.5),
     ] {
         let m = load(&format!(
             r#""scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{{"mesh":0{node_w}}}],{}"#,
@@ -1849,6 +1881,67 @@ fn gltf_instances_scenes_uris_and_morph_weights() {
         &format!(r#""nodes":[{{"mesh":0}}],{}"#, mesh("")),
     );
     assert_eq!(load_mesh(&p).unwrap().triangles.len(), 12);
+}
+
+/// A mirrored instance's winding is reversed back triangle by triangle, not only as a
+/// whole: an open half-box welded to its own mirror image is one surface, which the
+/// loader's orientation of separate pieces cannot mend if one half is wound the wrong way
+/// ("not consistently oriented"). cube_doc's first 30 indices leave out the x = +0.5
+/// face: a box in [−1, 0] open at x = 0, and its mirror in [0, 1] open at x = 0, welded
+/// along the rim into a closed 2 × 1 × 1 box.
+#[test]
+fn a_mirrored_half_joins_its_original_into_one_closed_surface() {
+    let d = tempfile::tempdir().unwrap();
+    let p = cube_doc(
+        &d,
+        "halves.gltf",
+        "c.bin",
+        "c.bin",
+        r#""scene":0,"scenes":[{"nodes":[0,1]}],
+        "nodes":[{"mesh":0,"translation":[-0.5,0,0]},{"mesh":0,"translation":[0.5,0,0],"scale":[-1,1,1]}],
+        "meshes":[{"primitives":[{"attributes":{"POSITION":0},"indices":1}]}]"#,
+    );
+    let text = std::fs::read_to_string(&p).unwrap();
+    assert_eq!(
+        text.matches(r#""count":36"#).count(),
+        1,
+        "cube_doc's indices changed"
+    );
+    let p = write(
+        &d,
+        "halves.gltf",
+        text.replace(r#""count":36"#, r#""count":30"#).as_bytes(),
+    );
+    let m = load_mesh(&p).unwrap();
+    assert_eq!(m.triangles.len(), 20);
+    let (v, _) = volume_and_area(&m);
+    assert!((v - 2.0).abs() < 1e-9, "volume {v}");
+}
+
+/// A morph target of fewer positions than its primitive is refused, naming both counts
+/// (zipped, the last vertex went unmorphed without a word).
+#[test]
+fn a_morph_target_shorter_than_its_primitive_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let p = cube_doc(
+        &d,
+        "short_target.gltf",
+        "c.bin",
+        "c.bin",
+        r#""scene":0,"scenes":[{"nodes":[0]}],"nodes":[{"mesh":0,"weights":[0.5]}],
+        "meshes":[{"primitives":[{"attributes":{"POSITION":0},"indices":1,"targets":[{"POSITION":2}]}]}]"#,
+    );
+    let text = std::fs::read_to_string(&p).unwrap();
+    let target = r#""bufferView":2,"componentType":5126,"count":8"#;
+    assert_eq!(text.matches(target).count(), 1, "cube_doc's target changed");
+    let shorter = text.replace(target, r#""bufferView":2,"componentType":5126,"count":7"#);
+    let p = write(&d, "short_target.gltf", shorter.as_bytes());
+    let e = load_mesh(&p).unwrap_err().to_string();
+    assert!(
+        e.contains("short_target.gltf")
+            && e.contains("morph target 0 has 7 positions for the primitive's 8"),
+        "{e}"
+    );
 }
 
 /// A closed mesh flattened to a plane (its top and bottom weld into faces listed twice)
