@@ -193,14 +193,15 @@ fn transmittance_ordered_r(x: vec3<f32>, dir: vec3<f32>, channel: u32, refract: 
 /// The transmittance where pieces overlap (nee.rs, transmittance): the crossings of one
 /// traversal, sorted (scene.wgsl, union_keep), walked from the pieces around the origin
 /// (those crossed an odd number of times); the length counts where the pieces around
-/// the ray make medium, Fresnel's factor where that changes (geometry.rs, union_walk).
+/// the ray make medium, Fresnel's factor where that changes (geometry/mod.rs, union_walk).
 /// Beyond UNION_CROSSINGS crossings, the ordered walk.
 fn transmittance_union(x: vec3<f32>, dir: vec3<f32>, channel: u32, refract: bool) -> f32 {
     let c = crossings(x, dir);
     if u_more {
         return transmittance_ordered_r(x, dir, channel, refract);
     }
-    // The first crossing of the union's boundary, if a way out (geometry.rs, union_walk).
+    // The first crossing of the union's boundary, if a way out (geometry/mod.rs,
+    // union_walk).
     var first_t = 1e30;
     var first_prim = 0u;
     var boundary_seen = false;
@@ -221,8 +222,8 @@ fn transmittance_union(x: vec3<f32>, dir: vec3<f32>, channel: u32, refract: bool
             length += t - last;
         }
         last = t;
-        // The faces within the spawn offset of this one are crossed with it (geometry.rs,
-        // union_walk: touching pieces make no boundary).
+        // The faces within the spawn offset of this one are crossed with it
+        // (geometry/mod.rs, union_walk: touching pieces make no boundary).
         let reach = t + params.consts.z / max(cos, GRAZING_COS_FLOOR);
         loop {
             if i >= u_count || u_t[i] > reach {

@@ -39,7 +39,7 @@ struct Params {
                                 // camera rays' start (Camera::start)
     consts4: vec4<f32>,         // NEE's radiance factor (Boundary::nee_scale: 1/ior² or 1), 0, 0, 0
     // Where the mesh's pieces overlap, per nesting depth d (entry d / 4, component d % 4)
-    // the bits of the pieces at it (geometry.rs, Pieces); all 0 without overlaps.
+    // the bits of the pieces at it (geometry/mod.rs, Pieces); all 0 without overlaps.
     pieces: array<vec4<u32>, 4>,
 }
 
@@ -280,8 +280,8 @@ fn nearer_crossing(c: Crossings, t: f32, k: u32) -> Crossings {
     return n;
 }
 
-/// Whether the mesh's pieces overlap (geometry.rs, Geometry::pieces): the object is their
-/// union, and paths ask past each face whether they are in it (in_union).
+/// Whether the mesh's pieces overlap (geometry/mod.rs, Geometry::pieces): the object is
+/// their union, and paths ask past each face whether they are in it (in_union).
 fn overlapping() -> bool {
     // A constant (kernels.rs, SceneSwitches): kernels for other meshes carry none of
     // that code.
@@ -295,7 +295,7 @@ fn piece_bit(k: u32) -> u32 {
 }
 
 /// Whether a point inside exactly the pieces of `around` is in the medium: the most deeply
-/// nested of them is a solid (even depth; geometry.rs, Pieces::medium).
+/// nested of them is a solid (even depth; geometry/mod.rs, Pieces::medium).
 fn union_medium(around: u32) -> bool {
     for (var d = 15i; d >= 0; d--) {
         if (around & params.pieces[d / 4][d % 4]) != 0u {
@@ -314,12 +314,13 @@ fn in_union(p: vec3<f32>, d: vec3<f32>) -> bool {
 /// The crossings of the last `trace` with `all` set.
 var<private> tr_cross: Crossings;
 
-/// Where pieces overlap, `crossings` also keeps up to UNION_CROSSINGS crossings sorted by
-/// t (their triangles with them), for the shadow rays' walk (nee.wgsl, transmittance_union; the
-/// CPU's Geometry::union_inside_length): u_count of them, or more than that (u_more).
-/// 16 where the CPU sorts 64 (geometry.rs, MAX_UNION_CROSSINGS), for private memory: past
-/// 16 crossings the in-medium test takes the pieces' raw parity without dropping a face met
-/// twice at one point, so a ray through a shared edge (a set of measure zero) can count a
+/// Where pieces overlap, `crossings` also keeps up to UNION_CROSSINGS crossings sorted by t
+/// (their triangles with them), for the shadow rays' walk (nee.wgsl, transmittance_union;
+/// the CPU's Geometry::union_inside_length): u_count of them, or more than that (u_more).
+/// 16 where the CPU sorts 64 (geometry/mod.rs, MAX_UNION_CROSSINGS), for private memory:
+/// past 16 crossings the in-medium test takes the pieces' raw parity without dropping a
+/// face met twice at one point, so a ray through a shared edge (a set of measure zero) can
+/// count a
 /// piece twice there and not on the CPU. Shadow rays past 16 walk their crossings in order.
 const UNION_CROSSINGS: u32 = 16u;
 var<private> u_t: array<f32, UNION_CROSSINGS>;
@@ -328,9 +329,9 @@ var<private> u_count: u32;
 var<private> u_more: bool;
 
 /// Drops each face met twice at one point from the sorted list and returns the pieces
-/// crossed an odd number of times (geometry.rs, union_crossings: a ray through the edge
-/// two triangles of one face share hits both; twice = the same piece, the same side and
-/// t within a hundredth of the spawn offset over |cos|).
+/// crossed an odd number of times (geometry/rays.rs, union_crossings: a ray through the
+/// edge two triangles of one face share hits both; twice = the same piece, the same side
+/// and t within a hundredth of the spawn offset over |cos|).
 fn union_dedupe(d: vec3<f32>) -> u32 {
     let tol = params.consts.z * CROSSING_TOL_OF_EPS;
     var kept = 0u;
@@ -599,7 +600,7 @@ fn spawn(p: vec3<f32>, n: vec3<f32>, dir: vec3<f32>) -> vec3<f32> {
 
 /// Squared distance from p to triangle (a, b, c) with unit normal n: the plane's distance
 /// over the face, the nearest edge's beside it, decided by edge functions that stay exact
-/// on long thin triangles (geometry.rs, point_triangle_d2).
+/// on long thin triangles (geometry/distance.rs, point_triangle_d2).
 fn point_triangle_d2(p: vec3<f32>, a: vec3<f32>, b: vec3<f32>, c: vec3<f32>, n: vec3<f32>) -> f32 {
     let ab = b - a;
     let bc = c - b;
@@ -625,7 +626,7 @@ fn point_triangle_d2(p: vec3<f32>, a: vec3<f32>, b: vec3<f32>, c: vec3<f32>, n: 
 
 /// For a point vp from an edge's start: whether it lies on the face's side of edge e
 /// (within EDGE_TOLERANCE, erring towards the face), and whether beyond its line or
-/// within the tolerance of it (geometry.rs, point_triangle_d2).
+/// within the tolerance of it (geometry/distance.rs, point_triangle_d2).
 fn edge_side(vp: vec3<f32>, e: vec3<f32>, n: vec3<f32>) -> vec2<bool> {
     let s = dot(n, cross(e, vp));
     let near = s * s <= EDGE_TOLERANCE * EDGE_TOLERANCE * dot(e, e) * dot(vp, vp);

@@ -17,10 +17,13 @@
 #[path = "src/hash.rs"]
 mod hash;
 
-const SOURCES: [&str; 5] = [
+const SOURCES: [&str; 8] = [
     "src/distance_grid.rs",
     "src/escape_cone.rs",
-    "src/geometry.rs",
+    "src/geometry/mod.rs",
+    "src/geometry/distance.rs",
+    "src/geometry/rays.rs",
+    "src/geometry/spawn.rs",
     // Geometry's ray-triangle test, which the escape cones' rays (and every render) use.
     "src/watertight.rs",
     // The mesh's scale, which sets the surface offset the grid's values are reduced by
