@@ -586,7 +586,87 @@ fn axis_ranges(
 
 #[cfg(test)]
 mod tests {
-    use super::{Series, compact, ladder_ticks, log_ticks};
+    use super::{
+        BETA, COS, Series, axis_ranges, compact, density_pairs, histogram, ladder_ticks, log_ticks,
+        steps,
+    };
+    use cvae::eval::{Columns, GS, TAUS};
+
+    /// A histogram is a density over [lo, hi], both ends counted: bins [0, 0.5) and
+    /// [0.5, 1] hold 0 and 0.5, 1 and 1.0 (2.0 is outside), over 4 samples × width 0.5.
+    #[test]
+    fn a_histogram_is_a_density_with_both_ends_counted() {
+        assert_eq!(
+            histogram(&[0.0, 0.5, 1.0, 2.0], 0.0, 1.0, 2),
+            vec![0.5, 1.0]
+        );
+        assert_eq!(
+            steps(&[1.0, 2.0], 0.0, 1.0),
+            vec![(0.0, 1.0), (0.5, 1.0), (0.5, 2.0), (1.0, 2.0)]
+        );
+    }
+
+    /// The density figure puts cos θ across and the quantity up, the simulator's panel
+    /// left: the simulator's walks all at cos θ = 0.9, the model's at −0.9, both at
+    /// β = −0.9, fill one cell each, drawn pure blue (the row's top density). The image is
+    /// 900 × 300 with two 450-px panels, so the simulator's cell lies in the left panel's
+    /// right half, the model's in the right panel's left half, both in the lower half.
+    #[test]
+    fn the_density_figures_put_cos_theta_across_beta_up_and_the_simulator_left() {
+        let column = |cos: f64, beta: f64| {
+            let mut c = Columns::default();
+            c.0[COS] = vec![cos; 100];
+            c.0[BETA] = vec![beta; 100];
+            c
+        };
+        let (sim, model) = (column(0.9, -0.9), column(-0.9, -0.9));
+        let bytes = density_pairs(&[(TAUS[0], GS[2], &model, &sim)], BETA, "β").unwrap();
+        let mut dec = png::Decoder::new(std::io::Cursor::new(bytes))
+            .read_info()
+            .unwrap();
+        let mut buf = vec![0; dec.output_buffer_size()];
+        let info = dec.next_frame(&mut buf).unwrap();
+        let w = info.width as usize;
+        assert_eq!((w, info.height), (900, 300));
+        let blue: Vec<(usize, usize)> = buf
+            .chunks(3)
+            .enumerate()
+            .filter(|(_, p)| p[..] == [0u8, 0, 255][..])
+            .map(|(i, _)| (i % w, i / w))
+            .collect();
+        let (left, right): (Vec<&(usize, usize)>, Vec<_>) = blue.iter().partition(|p| p.0 < 450);
+        assert!(!left.is_empty() && !right.is_empty(), "{blue:?}");
+        assert!(
+            left.iter().all(|p| p.0 > 225),
+            "the simulator's cell: {left:?}"
+        );
+        assert!(
+            right.iter().all(|p| p.0 < 675),
+            "the model's cell: {right:?}"
+        );
+        assert!(blue.iter().all(|p| p.1 > 150), "β = −0.9 not low: {blue:?}");
+    }
+
+    /// The axes hold every drawable point: on a log x axis x = 0 is dropped and the range
+    /// widened by 1.3 either way; a linear y axis is padded by 8 % of its span (4), then
+    /// grown for the legend by f/(1 − f), f = 44/480 for one series; a log y axis by the
+    /// ratio to that power. The figures are those rules replayed by hand.
+    #[test]
+    fn the_axes_hold_every_drawable_point_with_room_for_the_legend() {
+        let near = |a: f64, b: f64| (a - b).abs() <= 1e-12 * b.abs().max(1.0);
+        let s = [Series::new("s", vec![(0.0, -1.0), (1.0, 1.0), (10.0, 3.0)])];
+        let p = std::path::Path::new("p.png");
+        let ((x0, x1), (y0, y1)) = axis_ranges(p, (true, false), &s).unwrap();
+        assert!(near(x0, 1.0 / 1.3) && near(x1, 13.0), "{x0} {x1}");
+        // 3.32 + 4.64 · (44/480)/(1 − 44/480)
+        assert!(near(y0, -1.32) && near(y1, 3.788256880733945), "{y0} {y1}");
+        let (_, (y0, y1)) = axis_ranges(p, (true, true), &s).unwrap();
+        // 3.9 · (3.9 · 1.3)^(f/(1 − f))
+        assert!(
+            near(y0, 1.0 / 1.3) && near(y1, 4.594224349477525),
+            "{y0} {y1}"
+        );
+    }
 
     /// A ladder shared by every series labels its own values (k = 4 and 8 had no label
     /// among 1, 2, 5, 10); times that differ between series, a single point or a training's
@@ -610,6 +690,13 @@ mod tests {
         // A short training's steps: 900 and 1,000 would overlap.
         let short: Vec<f64> = (1..=10).map(|i| 100.0 * i as f64).collect();
         assert_eq!(ladder_ticks(&[at(&short)], (77.0, 1300.0)), None);
+        // 10 rungs a factor 2 apart are labelled; 11 are one too many (MAX_LADDER_TICKS).
+        let rungs = |n: i32| (0..n).map(|i| 2f64.powi(i)).collect::<Vec<f64>>();
+        assert_eq!(
+            ladder_ticks(&[at(&rungs(10))], (0.77, 665.0)),
+            Some(rungs(10))
+        );
+        assert_eq!(ladder_ticks(&[at(&rungs(11))], (0.77, 1330.0)), None);
     }
 
     #[test]

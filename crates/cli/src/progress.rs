@@ -212,7 +212,10 @@ pub fn count(n: u64, noun: &str) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::significant4;
+    use super::{LogLines, LogState, si, significant4};
+    use indicatif::TermLike;
+    use std::sync::Mutex;
+    use std::time::{Duration, Instant};
 
     #[test]
     fn numbers_keep_four_significant_digits() {
@@ -227,8 +230,53 @@ mod tests {
             (12346.0, "1.235e4"),
             (-0.5, "-0.5"),
             (0.0, "0"),
+            // Negative values take their decimals from |v| (log10 of v is NaN).
+            (-13.827, "-13.83"),
+            (-9999.4, "-9999"),
+            (-1234.0, "-1234"),
+            // The lower end of the plain range is included.
+            (0.001, "0.001"),
         ] {
             assert_eq!(significant4(v), want, "{v}");
         }
+    }
+
+    #[test]
+    fn rates_take_k_m_and_g() {
+        assert_eq!(si(2.5e9), "2.50 G");
+        assert_eq!(si(1e9), "1.00 G");
+        assert_eq!(si(12.3e6), "12.30 M");
+        assert_eq!(si(4.2e3), "4.20 k");
+        assert_eq!(si(553.5), "553.50");
+    }
+
+    /// A log's draw that repeats the one written last is not written again (a spinner's
+    /// message between ticks), and the interval is counted from the last written one. The
+    /// 5 ms sleep only makes the two instants differ.
+    #[test]
+    fn a_draw_like_the_last_written_is_not_written_again() {
+        let t = LogLines {
+            every: Duration::ZERO,
+            state: Mutex::new(LogState {
+                last: Instant::now(),
+                lines: Vec::new(),
+                written: Vec::new(),
+            }),
+        };
+        t.write_line("a   ").unwrap();
+        t.flush().unwrap();
+        assert_eq!(t.state.lock().unwrap().written, ["a"]);
+        let first = t.state.lock().unwrap().last;
+        std::thread::sleep(Duration::from_millis(5));
+        t.write_line("a").unwrap();
+        t.flush().unwrap();
+        assert_eq!(
+            t.state.lock().unwrap().last,
+            first,
+            "the same draw written again"
+        );
+        t.write_line("b").unwrap();
+        t.flush().unwrap();
+        assert_eq!(t.state.lock().unwrap().written, ["b"]);
     }
 }

@@ -343,13 +343,21 @@ mod tests {
         std::fs::write(&f, sealed(&v)).unwrap();
         assert!(load(&f, p.hash, p.spp, (3, 2), &id).is_ok());
         type Edit = fn(&mut serde_json::Value);
-        let edits: [Edit; 3] = [
+        let edits: [Edit; 5] = [
             |v| v["var"][0][0] = 1e308.into(),
             |v| {
                 v["width"] = 2.into();
                 v["height"] = 3.into();
             },
             |v| v["work"][5] = (-1.0).into(),
+            // Another format version, sealed.
+            |v| v["version"] = (VERSION + 1).into(),
+            // 5 pixels for a 3×2 image, every list as long: only width × height refuses it.
+            |v| {
+                for k in ["mean", "var", "work"] {
+                    v[k].as_array_mut().unwrap().pop();
+                }
+            },
         ];
         for (i, edit) in edits.into_iter().enumerate() {
             let mut v = stored.clone();
@@ -376,6 +384,22 @@ mod tests {
             load(&f, p.hash, p.spp, (3, 2), &id).err().expect("refused")
         );
         assert!(err.contains("not a stored PT pair"), "{err}");
+        // A scene hash with leading zero digits reads back (named and stored with 16).
+        let z = pair(0x00ab_cdef_0123_4567);
+        let fz = path(dir.path(), 8.0, z.hash, z.spp, &id);
+        assert!(store(&fz, &z, &id).unwrap());
+        assert!(load(&fz, z.hash, z.spp, (3, 2), &id).unwrap().is_some());
+    }
+
+    /// A pair's age in seconds, minutes up to two hours, then hours; each figure holds if
+    /// the clock ticks a second during the test.
+    #[test]
+    fn a_pairs_age_reads_in_seconds_minutes_or_hours() {
+        let now = unix_now();
+        assert_eq!(age(u64::MAX), "0 seconds"); // measured "in the future": 0
+        assert_eq!(age(now - 300), "5 minutes");
+        assert_eq!(age(now - 3600), "60 minutes");
+        assert_eq!(age(now - 3 * 3600), "3.0 h"); // 10,800 s over 3,600
     }
 
     /// A stored pair's identity names the host's CPU model once: a GPU's after its adapter
@@ -401,13 +425,18 @@ mod tests {
     fn a_pair_that_would_read_as_damaged_is_not_stored() {
         let dir = tempfile::tempdir().unwrap();
         type Edit = fn(&mut Pair);
-        let edits: [Edit; 6] = [
+        let edits: [Edit; 10] = [
             |p| p.mean.pixels[1][2] = f32::NAN,
             |p| p.mean.pixels[1][2] = 1e20,
             |p| p.var[3][0] = 1e31,
             |p| p.work.truncate(2),
             |p| p.seconds = f64::INFINITY,
             |p| p.seconds = 0.0,
+            |p| p.var.truncate(5),
+            |p| p.mean.pixels[1][2] = -0.5,
+            |p| p.var[3][0] = -1e-3,
+            // JSON would write it as null.
+            |p| p.work[0] = f32::INFINITY,
         ];
         for (i, edit) in edits.into_iter().enumerate() {
             let mut p = pair(7);

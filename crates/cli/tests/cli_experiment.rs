@@ -254,6 +254,47 @@ fn every_experiment_runs_quick() {
     assert!(err.contains("teaser_k1.exr: no stcvae render tag"), "{err}");
 }
 
+/// The note of files an earlier run left names 12 of them, sorted, and counts the rest;
+/// hidden files, folders and links are not counted (13 plain files, a hidden one, a folder
+/// and a link left in the folder of an 8 × 8 teaser at 2 spp).
+#[test]
+fn the_left_over_note_names_twelve_sorted_files_and_counts_the_rest() {
+    let d = tempfile::tempdir().unwrap();
+    let scene = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../configs/scenes/sphere.toml"
+    );
+    let cfg = d.path().join("tiny.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "kind = \"teaser\"\ntitle = \"t\"\nscene = {scene:?}\ndensities = [1.0]\n\
+             [full]\nsize = 8\nspp = 2\n[quick]\nsize = 8\nspp = 2\n"
+        ),
+    )
+    .unwrap();
+    let out = d.path().join("results");
+    let folder = out.join("tiny-quick");
+    std::fs::create_dir_all(folder.join("a_dir")).unwrap();
+    // Written in reverse order, so that a listing in creation order is not sorted.
+    for i in (0..13).rev() {
+        std::fs::write(folder.join(format!("u{i:02}.txt")), "x").unwrap();
+    }
+    std::fs::write(folder.join(".hidden"), "x").unwrap();
+    #[cfg(unix)]
+    std::os::unix::fs::symlink("u00.txt", folder.join("a_link")).unwrap();
+    let o = quick_experiment(&cfg, &out);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    let names: Vec<String> = (0..12).map(|i| format!("u{i:02}.txt")).collect();
+    let want = format!(
+        "13 files of an earlier run that this one did not write (not in its report.md): {} \
+         and 1 more; delete",
+        names.join(", ")
+    );
+    assert!(err.contains(&want), "{err}");
+}
+
 /// A second run into the same folder with fewer densities names the first run's images
 /// it did not write again (they stayed beside the new report unsaid), and deletes none;
 /// a run that rewrites them all says nothing.

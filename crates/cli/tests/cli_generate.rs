@@ -1496,4 +1496,40 @@ fn progress_reaches_a_log_as_plain_lines() {
         "{}",
         stderr(&out)
     );
+    // Set but empty: the default, without a warning.
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args(words(
+            "generate --samples 2000 --tau 2 --g 0.4 --albedo 0.99 --seed 7 --out u.csv",
+        ))
+        .env("STCVAE_LOG_PROGRESS_EVERY", "")
+        .current_dir(dir.path())
+        .output()
+        .unwrap();
+    ok(&out);
+    assert!(
+        !stderr(&out).contains("STCVAE_LOG_PROGRESS_EVERY"),
+        "{}",
+        stderr(&out)
+    );
+}
+
+/// A closed standard output is a request to stop, not a lost table (`eval … | head`):
+/// eval ends with 0 and no write error, where a full disk (/dev/full, tested above) is
+/// an error.
+#[cfg(unix)]
+#[test]
+fn a_closed_stdout_is_no_write_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_stcvae"))
+        .args(words("eval --samples 200 --at 5,0.4,1 --out ev"))
+        .current_dir(dir.path())
+        .stdout(writer)
+        .stderr(std::process::Stdio::piped())
+        .output()
+        .unwrap();
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(0), "{err}");
+    assert!(!err.contains("cannot write standard output"), "{err}");
 }

@@ -26,6 +26,19 @@ fn bench_decoders_prints_each_decoder_and_the_branch_verdict() {
             .find(|l| l.trim_start().starts_with(name))
             .unwrap_or_else(|| panic!("no {name} row: {text}"));
         assert!(row.trim_end().ends_with('x'), "{row}");
+        // GPU/CPU is the GPU's rate over the CPU's on all threads, as printed (within the
+        // rounding of the three printed figures).
+        let fields: Vec<&str> = row.split_whitespace().skip(3).collect();
+        let (ratio, rates) = fields.split_last().unwrap();
+        let ratio: f64 = ratio.trim_end_matches('x').parse().unwrap();
+        let r = printed_rates(rates, &text);
+        assert_eq!(r.len(), 3, "{row}");
+        let ((cn, dcn), (g, dg)) = (r[1], r[2]);
+        let want = g / cn;
+        assert!(
+            (ratio - want).abs() <= 0.005 + want * (dg / g + dcn / cn) + 1e-9,
+            "{row}"
+        );
     }
     // Any of the three verdicts (runs this short may land between the outcomes); which
     // one a ratio gives is bench_decoders.rs's unit test.
