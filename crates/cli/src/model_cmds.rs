@@ -635,6 +635,76 @@ pub fn evaluate_into(
 
 #[cfg(test)]
 mod tests {
+    fn shipped_model() -> cvae::ModelSet {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+        cvae::ModelSet::load(&root.join("models/default.stcvae")).unwrap()
+    }
+
+    /// The grid settings outside the training range, by quantity; the shipped model
+    /// covers the whole grid.
+    #[test]
+    fn the_grid_settings_outside_the_training_range_are_named() {
+        let mut m = shipped_model();
+        assert_eq!(super::grid_outside_training(&m), None);
+        m.training.tau_range = [2.0, 100.0];
+        m.training.g_range = [-0.5, 0.5];
+        m.training.albedo_range = [0.95, 1.0];
+        assert_eq!(
+            super::grid_outside_training(&m).as_deref(),
+            Some(
+                "the grid's tau 1, 125 (trained [2, 100]); g -0.7, 0.9 (trained [-0.5, 0.5]); \
+                 albedo 0.9 (trained [0.95, 1]) lie outside the model's training range: its \
+                 figures at those settings measure an extrapolation"
+            )
+        );
+    }
+
+    /// `outside_training` allows 1e-6 + 1e-5 × the range's width either side: 0.002001 for
+    /// [100, 300], 1.1e-5 for [−0.5, 0.5], 1e-6 for a range of no width.
+    #[test]
+    fn outside_training_allows_its_tolerance_and_no_more() {
+        use super::outside_training as out;
+        for (v, want) in [
+            (200.0, false),
+            (300.0019, false),
+            (300.0021, true),
+            (99.9981, false),
+            (99.9979, true),
+        ] {
+            assert_eq!(out(v, [100.0, 300.0]), want, "{v}");
+        }
+        assert!(!out(0.500005, [-0.5, 0.5]) && out(0.500012, [-0.5, 0.5]));
+        assert!(!out(0.2500005, [0.25, 0.25]) && out(0.250002, [0.25, 0.25]));
+    }
+
+    /// Only a τ above the range, beyond its tolerance (0.002701 for [30, 300]), is beyond
+    /// it; one below is an extrapolation warned of elsewhere, not refused.
+    #[test]
+    fn only_a_tau_above_the_training_range_is_beyond_it() {
+        let mut m = shipped_model();
+        m.training.tau_range = [30.0, 300.0];
+        assert!(!super::beyond_trained_tau(20.0, &m));
+        assert!(!super::beyond_trained_tau(300.002, &m));
+        assert!(super::beyond_trained_tau(300.003, &m));
+        assert_eq!(super::default_max_tau(20.0, &m), Some(300.0));
+        assert_eq!(super::default_max_tau(300.002, &m), Some(300.002));
+        assert_eq!(super::default_max_tau(300.003, &m), None);
+    }
+
+    /// Training ranges print their own digits: small bounds in exponent form (0 as 0),
+    /// bounds recorded from f32 data by their shortest f32 digits, others as themselves.
+    #[test]
+    fn training_ranges_print_their_own_digits() {
+        use super::training_range as tr;
+        assert_eq!(tr([0.0, 0.005]), "[0, 0.005]");
+        assert_eq!(tr([2.794284463036867e-6, 1.0]), "[2.79e-6, 1]");
+        assert_eq!(
+            tr([8.068644611386843e-17, 299.9996337890625]),
+            "[8.07e-17, 299.99963]"
+        );
+        assert_eq!(tr([0.005, 0.9990000128746033]), "[0.005, 0.999]");
+    }
+
     /// `--at -0,-0,1` printed "-0" for tau and g in eval's tables.
     #[test]
     fn a_negative_zero_setting_reads_as_zero() {

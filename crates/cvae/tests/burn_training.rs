@@ -112,6 +112,12 @@ fn row_losses_equal_the_elbo_by_hand() {
         v
     };
     let (enc, dec) = (m.encoder.to_dense(), m.decoder.to_dense());
+    // The encoder has its own widths ([7]): cond + out = 5 in, 2·latent = 4 out; the
+    // decoder cond + latent = 5 in, hidden [6, 5], 2·out = 4 out.
+    let shapes =
+        |l: &[cvae::decoder::Dense]| l.iter().map(|d| (d.inputs, d.outputs)).collect::<Vec<_>>();
+    assert_eq!(shapes(&enc), [(5, 7), (7, 4)]);
+    assert_eq!(shapes(&dec), [(5, 6), (6, 5), (5, 4)]);
     let clamp = |t: f64| t.clamp(-LOGVAR_CLAMP as f64, LOGVAR_CLAMP as f64);
     for r in 0..batch {
         let cr: Vec<f64> = c[r * cond..(r + 1) * cond]
@@ -148,6 +154,58 @@ fn row_losses_equal_the_elbo_by_hand() {
 /// Random decoder inputs through burn and through the plain-Rust export: equal within
 /// 1e-5 (both are f32; the sums run in different orders, so bit equality is not expected,
 /// but the difference of a 16-wide dot product in f32 is ~1e-7 relative).
+/// A hand-made CVAE (one zero-weight layer each, so its outputs are the biases): encoder
+/// [μ_z, log σ_z²] = [0.5, 20], decoder [μ, log σ²] = [1, −20], both beyond
+/// ±LOGVAR_CLAMP (16), which the random networks above never reach. Per row
+/// KL = ½(0.25 + e¹⁶ − 16 − 1) and NLL = ½(−16 + (x − 1)²·e¹⁶) (unclamped: e²⁰, 55 times
+/// larger); `loss` is the batch's mean (Adamax could not tell a sum: its steps ignore
+/// the loss's scale). 1e-5 is ~100 f32 roundings of these sums.
+#[test]
+fn the_loss_clamps_both_log_variances_and_averages_the_rows() {
+    use burn::module::Param;
+    use burn::nn::Linear;
+    use cvae::train::network::Mlp;
+    let dev = Device::flex();
+    let layer = |bias: [f32; 2]| Linear {
+        weight: Param::from_data(TensorData::new(vec![0f32; 4], [2, 2]), &dev),
+        bias: Some(Param::from_data(TensorData::new(bias.to_vec(), [2]), &dev)),
+    };
+    let m = Cvae {
+        encoder: Mlp {
+            layers: vec![layer([0.5, 20.0])],
+        },
+        decoder: Mlp {
+            layers: vec![layer([1.0, -20.0])],
+        },
+        cond: 1,
+        out: 1,
+        latent: 1,
+    };
+    let col = |v: [f32; 2]| Tensor::<2>::from_data(TensorData::new(v.to_vec(), [2, 1]), &dev);
+    // Targets 2 and −1: (x − μ)² = 1 and 4; the conditions and ε weigh nothing.
+    let (c, x, eps) = ([0.3f32, -1.0], [2.0f32, -1.0], [0.7f32, -0.2]);
+    let e16 = 16f64.exp();
+    let kl = 0.5 * (0.25 + e16 - 16.0 - 1.0);
+    let nll = [1.0f64, 4.0].map(|d2| 0.5 * (-16.0 + d2 * e16));
+    let close = |got: f64, want: f64| (got - want).abs() <= 1e-5 * want.abs();
+    let rows = m.row_losses(col(c), col(x), col(eps));
+    for (r, got) in rows.iter().enumerate() {
+        assert!(
+            close(*got as f64, nll[r] + kl),
+            "row {r}: {got} vs {}",
+            nll[r] + kl
+        );
+    }
+    let terms = m.loss(col(c), col(x), col(eps));
+    let scalar = |t: Tensor<1>| f64::from(t.into_scalar::<f32>());
+    let (loss, n, k) = (scalar(terms.loss), scalar(terms.nll), scalar(terms.kl));
+    let mean_nll = (nll[0] + nll[1]) / 2.0;
+    assert!(
+        close(n, mean_nll) && close(k, kl) && close(loss, mean_nll + kl),
+        "loss {loss}, NLL {n}, KL {k}"
+    );
+}
+
 #[test]
 fn exported_decoder_equals_burn() {
     let dev = Device::flex();

@@ -601,6 +601,19 @@ mod tests {
         assert!(forge(&|g| g.candidates[0] = 1_000_000_000).is_none());
         assert!(forge(&|g| g.cells[0][0] = (-1.0f32).to_bits()).is_none());
         assert!(forge(&|g| g.cells[0][0] = f32::NAN.to_bits()).is_none());
+        assert!(forge(&|g| g.cells[0][0] = f32::INFINITY.to_bits()).is_none());
+        // Each edit breaks one check of the list offsets only: on the cube at 8 cells,
+        // cells 0, 1 and the last have lists (their centres lie 1/16 from a face).
+        assert!(forge(&|g| g.cells[0][1] = 1).is_none());
+        // Offsets that run backwards.
+        assert!(forge(&|g| g.cells[1][1] = g.candidates.len() as u32).is_none());
+        assert!(
+            forge(&|g| {
+                let n = g.cells.len() - 1;
+                g.cells[n][1] -= 1;
+            })
+            .is_none()
+        );
         // Dimensions whose product wraps to the file's cell count (2^64 → 0 in usize).
         let wrapped = forge(&|g| {
             g.dims = glam::UVec3::new(1 << 22, 1 << 22, 1 << 20);

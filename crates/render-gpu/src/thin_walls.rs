@@ -187,8 +187,63 @@ mod tests {
     #[test]
     fn the_note_points_at_the_largest_thin_face() {
         let eps = shell(0.5).eps;
-        let w = thin_walls(&shell(1.0 - 0.5 * eps));
-        let at = w.at.expect("thin walls are found");
+        let g = shell(1.0 - 0.5 * eps);
+        let at = thin_walls(&g).at.expect("thin walls are found");
         assert_eq!(at.abs().max_element(), 0.5, "{at}");
+        // A face's centroid, computed as thin_walls computes it (the same bits): a corner
+        // of the outer cube passes the check above too.
+        let centroid = |i: usize| {
+            let [a, b, c] = g.mesh.triangle(i);
+            (a + b + c) / 3.0
+        };
+        assert!(
+            (0..g.mesh.triangles.len()).any(|i| centroid(i) == at),
+            "{at}"
+        );
+    }
+
+    /// A plate eps/2 thick and a box 0.5 across sunk 0.2·eps into it (overlapping
+    /// pieces): the plate's bottom (area 1) and the box's bottom (0.25, past the thin plate
+    /// from outside) count as thin, of 3.50004 in all, 35.7 %; the plate's top lies in the
+    /// box's medium where the box stands and is covered. Tested from the point spawned
+    /// inward instead, the top would count, and the bottom not: 1/3.50004, at y = 0.
+    #[test]
+    fn a_thin_face_inside_another_piece_is_not_counted() {
+        let eps = Geometry::new(cube(1.0)).eps;
+        let place = |m: TriMesh, scale: Vec3, shift: Vec3| TriMesh {
+            positions: m.positions.iter().map(|p| *p * scale + shift).collect(),
+            triangles: m.triangles,
+        };
+        let thick = 0.5 * eps;
+        let plate = place(
+            cube(1.0),
+            Vec3::new(1.0, thick, 1.0),
+            Vec3::new(0.0, -0.5 * thick, 0.0),
+        );
+        let boxed = place(
+            cube(1.0),
+            Vec3::splat(0.5),
+            Vec3::new(0.0, 0.25 - 0.2 * eps, 0.0),
+        );
+        let base = plate.positions.len() as u32;
+        let m = TriMesh {
+            positions: [plate.positions, boxed.positions].concat(),
+            triangles: plate
+                .triangles
+                .into_iter()
+                .chain(boxed.triangles.iter().map(|t| t.map(|i| i + base)))
+                .collect(),
+        };
+        let g = Geometry::new(prepare(m).expect("two closed pieces"));
+        assert_eq!(g.eps, eps);
+        assert!(g.pieces.is_some(), "the box overlaps the plate");
+        let w = thin_walls(&g);
+        assert!(
+            (w.area_share - 1.25 / 3.50004).abs() < 1e-4,
+            "{}",
+            w.area_share
+        );
+        let at = w.at.expect("the plate's bottom is thin");
+        assert!(at.y < -0.25 * eps, "{at}");
     }
 }

@@ -82,6 +82,43 @@ fn sphere_grid_matches_the_radius() {
     let r = grid.radius(Vec3::ZERO);
     assert!(r > 0.5 - 2.0 * 0.0271 - 3e-4 && r <= 0.5, "r(0) = {r}");
     assert_eq!(grid.radius(Vec3::splat(2.0)), 0.0, "outside the grid");
+    // Half a cell outside each face of the grid, beside its corner cells (~0.3 from the
+    // sphere): no radius, no list, no local hit.
+    let (lo, cell, dims) = (grid.lo, grid.cell, grid.dims.as_vec3());
+    for axis in 0..3 {
+        for beyond in [-0.5, dims[axis] + 0.5] {
+            let mut u = Vec3::splat(0.5);
+            u[axis] = beyond;
+            let p = lo + u * cell;
+            assert_eq!(grid.radius(p), 0.0, "{p}");
+            assert_eq!(grid.exact_distance(&geo, p), None, "{p}");
+            assert!(grid.local_hit(&geo, p, Vec3::X, 0.0).is_none(), "{p}");
+        }
+    }
+}
+
+/// `distance_upper_bound` bounds the true distance from a cell's radius, even at the
+/// corner of a cell farthest from where its value was taken: the corner of a cell by the
+/// point (0.2, 0.2, 0.2) towards the sphere's centre is 1.70 cells farther from the
+/// surface than its radius says (replayed in Python); the bound allows √3·1.01 = 1.75
+/// cells, half of it would allow 0.87. And at 2,000 random interior points.
+#[test]
+fn the_distance_upper_bound_holds_at_a_cells_far_corner() {
+    let geo = Geometry::new(mesh::sphere(0.5));
+    let grid = DistanceGrid::build(&geo, 32).unwrap();
+    let k = ((Vec3::splat(0.2) - grid.lo) / grid.cell).floor();
+    let c = grid.lo + (k + 0.5) * grid.cell;
+    let p = c - Vec3::splat(0.49 * grid.cell);
+    let (r, d) = (grid.radius(p), geo.distance(p));
+    assert!(r > 0.0 && d - r > 1.2 * grid.cell, "r {r}, d {d}");
+    let bound = grid.distance_upper_bound(r);
+    assert!(d <= bound, "d {d} > {bound}");
+    let mut rng = WalkRng::for_walk(41, 0);
+    for _ in 0..2000 {
+        let p = common::random_interior(&geo, &mut rng);
+        let (r, d) = (grid.radius(p), geo.distance(p));
+        assert!(d <= grid.distance_upper_bound(r), "at {p}: d {d}, r {r}");
+    }
 }
 
 /// The per-cell candidate triangles give the exact distance wherever the integrator asks

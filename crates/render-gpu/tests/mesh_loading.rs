@@ -327,6 +327,9 @@ fn broken_files_give_clear_errors() {
         // Colours on some vertices only (tobj refused it: "face vertex color index out of
         // bounds", naming no line); colours are not read.
         "v 0 0 0 1 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n",
+        // A 1-D texture coordinate (`vt u`), which tobj refuses: texture coordinates are
+        // not read.
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nvt 0.5\nf 1/1 3/1 2/1\nf 1 2 4\nf 1 4 3\nf 2 3 4\n",
     ];
     for (i, text) in variants.iter().enumerate() {
         let name = format!("ok{i}.obj");
@@ -396,6 +399,12 @@ fn broken_files_give_clear_errors() {
             "f 2 3 4\n",
             "f 2 3/// 4\n",
             "line 8: face vertex `3///` is not",
+        ),
+        // One bad part of two is enough.
+        (
+            "f 2 3 4\n",
+            "f 2/1/x 3 4\n",
+            "line 8: face vertex `2/1/x` is not v, v/vt, v//vn or v/vt/vn",
         ),
     ];
     for (i, (from, to, needle)) in cases.into_iter().enumerate() {
@@ -2066,6 +2075,122 @@ fn ply_headers_repeating_names_or_without_a_face_list_are_named() {
             .to_string();
         assert!(e.contains(name) && e.contains(want), "{e}");
     }
+}
+
+/// A face list named `vertex_index` (some exporters' name) is read as `vertex_indices`.
+#[test]
+fn ply_face_lists_named_vertex_index_are_read() {
+    let d = tempfile::tempdir().unwrap();
+    let text = TETRA_PLY.replace("vertex_indices", "vertex_index");
+    let m = load_mesh(&write(&d, "vi.ply", text.as_bytes())).unwrap();
+    let (v, _) = volume_and_area(&m);
+    assert!((v - 1.0 / 6.0).abs() < 1e-7, "volume {v}");
+}
+
+/// A face index at or beyond the vertex count, a negative or fractional one, or a face of
+/// two vertices is named (the first panicked in the triangulation; a negative index read
+/// as vertex 0).
+#[test]
+fn ply_face_indices_out_of_range_negative_fractional_or_short_are_named() {
+    let d = tempfile::tempdir().unwrap();
+    let bad_index = "face 1: a face has a negative or fractional index";
+    for (name, text, want) in [
+        (
+            "idx4.ply",
+            TETRA_PLY.replace("3 1 2 3\n", "3 1 2 4\n"),
+            "a face refers to a vertex beyond the 4 vertices",
+        ),
+        (
+            "neg.ply",
+            TETRA_PLY.replace("3 0 2 1\n", "3 -1 2 1\n"),
+            bad_index,
+        ),
+        (
+            "frac.ply",
+            TETRA_PLY
+                .replace("list uchar int", "list uchar float")
+                .replace("3 0 2 1\n", "3 0.5 2 1\n"),
+            bad_index,
+        ),
+        (
+            "two.ply",
+            TETRA_PLY.replace("3 1 2 3\n", "2 1 2\n"),
+            "face 4: a face has fewer than 3 vertices",
+        ),
+    ] {
+        assert_ne!(text, TETRA_PLY, "{name}: the edit did not apply");
+        let e = load_mesh(&write(&d, name, text.as_bytes()))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(name) && e.contains(want), "{e}");
+    }
+}
+
+/// Binary PLY's sized type names (int8 … uint32, float32, float64) read as their widths:
+/// a tetrahedron whose x is float32, y float64, z int16, beside properties of the other
+/// sized types, and faces of uint8 counts and int32 indices.
+#[test]
+fn binary_ply_reads_the_sized_type_names() {
+    let d = tempfile::tempdir().unwrap();
+    let mut b = b"ply\nformat binary_little_endian 1.0\nelement vertex 4\n\
+        property float32 x\nproperty float64 y\nproperty int16 z\nproperty uint8 r\n\
+        property int8 s\nproperty uint16 t\nproperty uint32 u\nelement face 4\n\
+        property list uint8 int32 vertex_indices\nend_header\n"
+        .to_vec();
+    for [x, y, z] in [[0i16, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]] {
+        b.extend_from_slice(&f32::from(x).to_le_bytes());
+        b.extend_from_slice(&f64::from(y).to_le_bytes());
+        b.extend_from_slice(&z.to_le_bytes());
+        b.push(200);
+        b.extend_from_slice(&(-5i8).to_le_bytes());
+        b.extend_from_slice(&60_000u16.to_le_bytes());
+        b.extend_from_slice(&4_000_000_000u32.to_le_bytes());
+    }
+    for f in [[0i32, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]] {
+        b.push(3);
+        f.iter().for_each(|i| b.extend_from_slice(&i.to_le_bytes()));
+    }
+    let m = load_mesh(&write(&d, "sized.ply", &b)).unwrap_or_else(|e| panic!("{e}"));
+    let mut corners: Vec<[f32; 3]> = m.positions.iter().map(|p| p.to_array()).collect();
+    corners.sort_by(|p, q| p.partial_cmp(q).unwrap());
+    assert_eq!(
+        corners,
+        [[0f32, 0., 0.], [0., 0., 1.], [0., 1., 0.], [1., 0., 0.]]
+    );
+    let (v, _) = volume_and_area(&m);
+    assert!((v - 1.0 / 6.0).abs() < 1e-7, "volume {v}");
+}
+
+/// Negative OBJ indices count back over the vertices defined before the face, not the
+/// whole file's; an index past the file's vertices in a face before any vertex names the
+/// file's range only.
+#[test]
+fn obj_negative_indices_count_back_over_the_vertices_before_the_face() {
+    let d = tempfile::tempdir().unwrap();
+    let text = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -1 -4\nv 0 0 1\nf 1 2 4\nf 1 4 3\nf 2 3 4\n";
+    let e = load_mesh(&write(&d, "back.obj", text.as_bytes()))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("back.obj")
+            && e.contains(
+                "line 4: face index `-4` names no vertex: allowed [1, 4] for the file's 4 \
+                 vertices, or [-3, -1] counting back over the 3 defined before it"
+            ),
+        "{e}"
+    );
+    let first = b"f 1 2 9\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n";
+    let e = load_mesh(&write(&d, "first.obj", first))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("first.obj")
+            && e.contains(
+                "line 1: face index `9` names no vertex: allowed [1, 4] for the file's 4 vertices"
+            )
+            && !e.contains("counting back"),
+        "{e}"
+    );
 }
 
 /// The header ends only at an `end_header` line of its own (trailing blanks allowed): not

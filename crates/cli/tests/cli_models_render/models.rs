@@ -178,6 +178,64 @@ fn model_errors_are_one_line() {
         std::fs::read(&model).unwrap(),
         std::fs::read(root().join("models/default.stcvae")).unwrap()
     );
+    // `sample` writes CSV only: another extension is refused, and nothing is written.
+    let bin = d.path().join("s.bin");
+    let e = sample_fails(&root().join("models/default.stcvae"), &bin);
+    assert!(
+        e.contains("s.bin: sample writes CSV; name the file *.csv")
+            && e.trim().lines().count() == 1,
+        "{e}"
+    );
+    assert!(!bin.exists());
+}
+
+/// `sample` warns of each condition outside the model's training range, naming the flag
+/// and the range, and of no other (the warnings were tested for `eval` only).
+#[test]
+fn sample_warns_of_each_condition_outside_the_training_range() {
+    let d = tempfile::tempdir().unwrap();
+    let mut m = cvae::ModelSet::load(&root().join("models/default.stcvae")).unwrap();
+    m.training.tau_range = [2.0, 100.0];
+    m.training.g_range = [-0.5, 0.5];
+    m.training.albedo_range = [0.95, 1.0];
+    let model = d.path().join("narrow.stcvae");
+    m.save(&model).unwrap();
+    let csv = d.path().join("s.csv");
+    let warnings = |tau: &str, g: &str, albedo: &str| -> Vec<String> {
+        let err = ok(&stcvae(&[
+            "sample",
+            "--model",
+            model.to_str().unwrap(),
+            "--tau",
+            tau,
+            "--g",
+            g,
+            "--albedo",
+            albedo,
+            "--samples",
+            "3",
+            "--out",
+            csv.to_str().unwrap(),
+        ]));
+        err.lines()
+            .filter(|l| l.starts_with("warning:"))
+            .map(str::to_owned)
+            .collect()
+    };
+    let x = ": the samples are an extrapolation";
+    let range = "lies outside the model's training range";
+    assert_eq!(
+        warnings("5", "0.4", "0.9"),
+        [format!("warning: --albedo 0.9 {range} [0.95, 1]{x}")]
+    );
+    assert_eq!(
+        warnings("1", "-0.7", "1"),
+        [
+            format!("warning: --tau 1 {range} [2, 100]{x}"),
+            format!("warning: --g -0.7 {range} [-0.5, 0.5]{x}"),
+        ]
+    );
+    assert!(warnings("5", "0.4", "1").is_empty());
 }
 
 /// `eval --at`: only the given settings, in metrics.md and on stdout, with the table of
