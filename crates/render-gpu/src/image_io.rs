@@ -943,10 +943,21 @@ mod tests {
         img: &RgbImage,
         seed: u64,
     ) -> std::path::PathBuf {
+        write_tagged(dir, name, img, vec![seed])
+    }
+
+    /// `img` written into `dir` as a render of 4 spp of scene hash 1 with `seeds` (none:
+    /// a render of an earlier version, which recorded no seed).
+    fn write_tagged(
+        dir: &std::path::Path,
+        name: &str,
+        img: &RgbImage,
+        seeds: Vec<u64>,
+    ) -> std::path::PathBuf {
         let tag = RenderTag {
             spp: 4,
             scene_hash: 1,
-            seeds: vec![seed],
+            seeds,
             partial: false,
             unknown_digests: Vec::new(),
             view_hash: None,
@@ -1065,16 +1076,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let img = image();
         let seeded = write_render(dir.path(), "a.exr", &img, 1);
-        let copy = dir.path().join("old.exr");
-        let seedless = RenderTag {
-            spp: 4,
-            scene_hash: 1,
-            seeds: Vec::new(),
-            partial: false,
-            unknown_digests: Vec::new(),
-            view_hash: None,
-        };
-        std::fs::write(&copy, encode_exr(&img, &seedless).unwrap()).unwrap();
+        let copy = write_tagged(dir.path(), "old.exr", &img, Vec::new());
         for (first, second) in [(&seeded, &copy), (&copy, &seeded)] {
             let e = merge_exrs(&[first.as_path(), second.as_path()])
                 .unwrap_err()
@@ -1094,16 +1096,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let mut flat = RgbImage::new(image().width, image().height);
         flat.pixels.fill([0.5; 3]);
-        let seedless = RenderTag {
-            spp: 4,
-            scene_hash: 1,
-            seeds: Vec::new(),
-            partial: false,
-            unknown_digests: Vec::new(),
-            view_hash: None,
-        };
-        let c = dir.path().join("c.exr");
-        std::fs::write(&c, encode_exr(&flat, &seedless).unwrap()).unwrap();
+        let c = write_tagged(dir.path(), "c.exr", &flat, Vec::new());
         let a = write_render(dir.path(), "a.exr", &image(), 1);
         let (img, tag) = merge_exrs(&[c.as_path(), a.as_path()]).unwrap();
         assert_eq!((tag.spp, &tag.seeds, tag.partial), (8, &vec![1], true));

@@ -112,32 +112,35 @@ mod tests {
         Geometry::new(prepare(m).expect("a closed shell"))
     }
 
+    /// A unit cube scaled by `scale`, then moved by `shift`.
+    fn placed_cube(scale: Vec3, shift: Vec3) -> TriMesh {
+        let m = cube(1.0);
+        TriMesh {
+            positions: m.positions.iter().map(|p| *p * scale + shift).collect(),
+            triangles: m.triangles,
+        }
+    }
+
+    /// Two pieces as one mesh.
+    fn joined(a: TriMesh, b: TriMesh) -> TriMesh {
+        let base = a.positions.len() as u32;
+        TriMesh {
+            positions: [a.positions, b.positions].concat(),
+            triangles: a
+                .triangles
+                .into_iter()
+                .chain(b.triangles.iter().map(|t| t.map(|i| i + base)))
+                .collect(),
+        }
+    }
+
     /// A slab 2 × 0.5 × 2 below y = 0 and a box 0.5 across standing on it, its base `sunk`
     /// below y = 0 (no edge of one lies on the other, so the two stay apart when welded).
     fn slab_and_box(sunk: f32) -> TriMesh {
-        let place = |m: TriMesh, scale: Vec3, shift: Vec3| TriMesh {
-            positions: m.positions.iter().map(|p| *p * scale + shift).collect(),
-            triangles: m.triangles,
-        };
-        let slab = place(
-            cube(1.0),
-            Vec3::new(2.0, 0.5, 2.0),
-            Vec3::new(0.0, -0.25, 0.0),
-        );
-        let boxed = place(
-            cube(1.0),
-            Vec3::splat(0.5),
-            Vec3::new(0.0, 0.25 - sunk, 0.0),
-        );
-        let base = slab.positions.len() as u32;
-        TriMesh {
-            positions: [slab.positions, boxed.positions].concat(),
-            triangles: slab
-                .triangles
-                .into_iter()
-                .chain(boxed.triangles.iter().map(|t| t.map(|i| i + base)))
-                .collect(),
-        }
+        joined(
+            placed_cube(Vec3::new(2.0, 0.5, 2.0), Vec3::new(0.0, -0.25, 0.0)),
+            placed_cube(Vec3::splat(0.5), Vec3::new(0.0, 0.25 - sunk, 0.0)),
+        )
     }
 
     /// Walls of a quarter of the offset are found everywhere (both of their sides, the
@@ -210,30 +213,14 @@ mod tests {
     #[test]
     fn a_thin_face_inside_another_piece_is_not_counted() {
         let eps = Geometry::new(cube(1.0)).eps;
-        let place = |m: TriMesh, scale: Vec3, shift: Vec3| TriMesh {
-            positions: m.positions.iter().map(|p| *p * scale + shift).collect(),
-            triangles: m.triangles,
-        };
         let thick = 0.5 * eps;
-        let plate = place(
-            cube(1.0),
-            Vec3::new(1.0, thick, 1.0),
-            Vec3::new(0.0, -0.5 * thick, 0.0),
+        let m = joined(
+            placed_cube(
+                Vec3::new(1.0, thick, 1.0),
+                Vec3::new(0.0, -0.5 * thick, 0.0),
+            ),
+            placed_cube(Vec3::splat(0.5), Vec3::new(0.0, 0.25 - 0.2 * eps, 0.0)),
         );
-        let boxed = place(
-            cube(1.0),
-            Vec3::splat(0.5),
-            Vec3::new(0.0, 0.25 - 0.2 * eps, 0.0),
-        );
-        let base = plate.positions.len() as u32;
-        let m = TriMesh {
-            positions: [plate.positions, boxed.positions].concat(),
-            triangles: plate
-                .triangles
-                .into_iter()
-                .chain(boxed.triangles.iter().map(|t| t.map(|i| i + base)))
-                .collect(),
-        };
         let g = Geometry::new(prepare(m).expect("two closed pieces"));
         assert_eq!(g.eps, eps);
         assert!(g.pieces.is_some(), "the box overlaps the plate");

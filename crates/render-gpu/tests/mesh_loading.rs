@@ -2044,6 +2044,16 @@ fn ply_format_without_version_and_collapsed_faces_are_named() {
     );
 }
 
+/// Loading `text`, an edit of TETRA_PLY (checked to differ from it), as `name` fails
+/// with an error that names the file and says `want`.
+fn assert_ply_refused(d: &tempfile::TempDir, name: &str, text: &str, want: &str) {
+    assert_ne!(text, TETRA_PLY, "{name}: the edit did not apply");
+    let e = load_mesh(&write(d, name, text.as_bytes()))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains(name) && e.contains(want), "{e}");
+}
+
 /// A header that repeats an element or a property, or whose faces have no
 /// `vertex_indices` list, is named for it: the first two were read without a word (a
 /// second `property float x` over the first), the last said "no triangles".
@@ -2069,11 +2079,7 @@ fn ply_headers_repeating_names_or_without_a_face_list_are_named() {
             "the face element has no `vertex_indices` (or `vertex_index`) list",
         ),
     ] {
-        assert_ne!(text, TETRA_PLY, "{name}: the edit did not apply");
-        let e = load_mesh(&write(&d, name, text.as_bytes()))
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains(name) && e.contains(want), "{e}");
+        assert_ply_refused(&d, name, &text, want);
     }
 }
 
@@ -2118,11 +2124,7 @@ fn ply_face_indices_out_of_range_negative_fractional_or_short_are_named() {
             "face 4: a face has fewer than 3 vertices",
         ),
     ] {
-        assert_ne!(text, TETRA_PLY, "{name}: the edit did not apply");
-        let e = load_mesh(&write(&d, name, text.as_bytes()))
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains(name) && e.contains(want), "{e}");
+        assert_ply_refused(&d, name, &text, want);
     }
 }
 
