@@ -129,6 +129,15 @@ fn damaged_files_are_rejected_with_clear_errors() {
         );
         assert!(msg.contains("cut.bin"), "error names the file: {msg}");
     }
+    // One byte past the end marker: the size must equal the header's, not only cover it.
+    let mut padded = bytes.clone();
+    padded.push(0);
+    let e = expect_err(&put("padded.bin", &padded));
+    assert!(
+        matches!(e, DatasetError::Truncated { expected, found, .. }
+            if expected == bytes.len() as u64 && found == expected + 1),
+        "{e}"
+    );
     // A flipped bit in a row value: caught by the row check or the checksum.
     let mut flipped = bytes.clone();
     let at = bytes.len() - 12 - 56 * 100 + 30;
@@ -258,6 +267,26 @@ fn a_header_too_large_to_read_back_is_not_written() {
         panic!("a header claiming 2^24 + 1 bytes was read")
     };
     assert!(e.to_string().contains("beyond the 16777216 allowed"), "{e}");
+    // A header of exactly 2^24 bytes, the largest allowed, is written and read back.
+    let mut h = Header::new(vec![scatter_sim::dataset::Piece {
+        count: 0,
+        ..one.clone()
+    }]);
+    h.generator.clear();
+    let probe = dir.path().join("probe.bin");
+    create_sink(&probe, h.clone()).unwrap().finish().unwrap();
+    let bare = u32::from_le_bytes(fs::read(&probe).unwrap()[12..16].try_into().unwrap()) as usize;
+    // Each 'x' is one byte of JSON.
+    h.generator = "x".repeat((1 << 24) - bare);
+    let exact = dir.path().join("exact.bin");
+    create_sink(&exact, h.clone()).unwrap().finish().unwrap();
+    let exact_bytes = fs::read(&exact).unwrap();
+    assert_eq!(
+        u32::from_le_bytes(exact_bytes[12..16].try_into().unwrap()),
+        1 << 24
+    );
+    let (back, rows) = read_dataset(&exact).unwrap();
+    assert!(rows.is_empty() && back == h);
 }
 
 /// A header whose checksum is right but whose content no generate run writes: an unknown
@@ -313,6 +342,26 @@ fn foreign_headers_with_valid_checksums_are_refused() {
         "{msg}"
     );
     assert!(msg.contains("extra.bin"), "{msg}");
+
+    // Walks 10..60 of a run of 50, and piece counts that no longer add up: both refused.
+    let beyond = json.replacen("\"first_walk\":0", "\"first_walk\":10", 1);
+    assert_ne!(beyond, json);
+    let e = expect_err(&rebuilt("beyond.bin", &beyond));
+    assert!(
+        matches!(e, DatasetError::Header { .. })
+            && e.to_string()
+                .contains("a piece holds walks 10 + 50 of a run of 50: beyond the run's end"),
+        "{e}"
+    );
+    let at = json.rfind("\"count\":50").expect("the piece's count");
+    let short = format!("{}\"count\":49{}", &json[..at], &json[at + 10..]);
+    let e = expect_err(&rebuilt("sum.bin", &short));
+    assert!(
+        matches!(e, DatasetError::Header { .. })
+            && e.to_string()
+                .contains("piece counts do not add up to the row count"),
+        "{e}"
+    );
 
     let wide = json.replacen("\"max\":40.0", "\"max\":4000.0", 1);
     assert_ne!(wide, json, "the header holds tau's max as written");

@@ -600,6 +600,44 @@ mod tests {
     use super::*;
     use scatter_sim::rng::WalkRng;
 
+    /// With one reference render there is no spread to estimate its noise from: nothing
+    /// is subtracted (0/0 made the noise, and every figure, NaN).
+    #[test]
+    fn one_reference_render_has_no_noise_to_subtract() {
+        let r = Reference::new(&[image(2, 2, |i, c| (i + c) as f32)], 0.0);
+        assert_eq!(r.noise_mse, 0.0);
+        // 0.5 above the reference in every channel of every pixel: an MSE of 0.25 exactly.
+        let m = measure(&r, &image(2, 2, |i, c| (i + c) as f32 + 0.5));
+        assert_eq!(m.mse, 0.25);
+    }
+
+    /// Constant images (the object out of view or unlit: every seed gives them) have no
+    /// digest and are never taken for copies; varied ones still are.
+    #[test]
+    fn constant_images_are_not_taken_for_copies() {
+        fn seen(d: &[(&str, Option<u64>)]) -> Seen {
+            Seen {
+                tags: Vec::new(),
+                digests: d.iter().map(|&(p, h)| (PathBuf::from(p), h)).collect(),
+            }
+        }
+        let flat = image(2, 2, |_, _| 0.1).pixel_digest();
+        let varied = image(2, 2, |i, c| (3 * i + c) as f32).pixel_digest();
+        assert!(flat.is_none() && varied.is_some());
+        check_shared_seeds(
+            &seen(&[("r1.exr", flat), ("r2.exr", flat)]),
+            &seen(&[("a.exr", flat), ("b.exr", varied)]),
+        )
+        .unwrap();
+        let e = check_shared_seeds(
+            &seen(&[("r1.exr", varied), ("r2.exr", flat)]),
+            &seen(&[("a.exr", varied)]),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("r1.exr and a.exr hold the same pixels"), "{e}");
+    }
+
     fn image(w: usize, h: usize, mut f: impl FnMut(usize, usize) -> f32) -> RgbImage {
         let mut img = RgbImage::new(w, h);
         for (i, p) in img.pixels.iter_mut().enumerate() {

@@ -1000,6 +1000,33 @@ mod tests {
     use render_gpu::image_io::RenderTag;
     use serde_json::json;
 
+    /// The merge names an integrator only where every input's report names that one: a
+    /// render whose report is missing may have been drawn by another.
+    #[test]
+    fn the_integrator_is_named_only_where_every_report_agrees() {
+        let pt = json!({"integrator": "pt", "device": "cpu: X"});
+        assert_eq!(
+            inputs_origin(&[Some(pt.clone()), None]),
+            (None, vec!["cpu: X".to_string()])
+        );
+        let st = json!({"integrator": "stcvae"});
+        assert_eq!(inputs_origin(&[Some(pt.clone()), Some(st)]).0, None);
+        assert_eq!(
+            inputs_origin(&[Some(pt.clone()), Some(pt)]).0.as_deref(),
+            Some("pt")
+        );
+    }
+
+    /// A recorded exposure of 0 (an edited report) is no preview exposure: taken as none,
+    /// the merged preview is at 1, not black at 0.
+    #[test]
+    fn a_recorded_exposure_of_zero_is_none() {
+        let inputs = [PathBuf::from("a.exr"), PathBuf::from("b.exr")];
+        let at = |e: f64| Some(json!({ "exposure": e }));
+        assert_eq!(inputs_exposure(&inputs, &[at(0.0), at(0.0)]), 1.0);
+        assert_eq!(inputs_exposure(&inputs, &[at(4.0), at(4.0)]), 4.0);
+    }
+
     #[test]
     fn the_renders_list_is_complete_only_with_every_sample_and_seed() {
         let tag = RenderTag {

@@ -1533,3 +1533,25 @@ fn a_closed_stdout_is_no_write_error() {
     assert_eq!(out.status.code(), Some(0), "{err}");
     assert!(!err.contains("cannot write standard output"), "{err}");
 }
+
+/// Two header-only CSVs (shards that drew no walk) hold no rows alike, so neither is a
+/// copy of the other: they merge into an empty dataset.
+#[test]
+fn header_only_csvs_are_no_duplicates() {
+    let dir = tempfile::tempdir().unwrap();
+    let head = scatter_sim::dataset::COLUMNS.join(",") + "\n";
+    for name in ["e1.csv", "e2.csv"] {
+        fs::write(dir.path().join(name), &head).unwrap();
+    }
+    let out = stcvae(
+        &["merge", "e1.csv", "e2.csv", "--out", "e3.csv"],
+        dir.path(),
+    );
+    ok(&out);
+    assert!(
+        stderr(&out).contains("merged 2 files, 0 rows -> e3.csv"),
+        "{}",
+        stderr(&out)
+    );
+    assert_eq!(fs::read_to_string(dir.path().join("e3.csv")).unwrap(), head);
+}

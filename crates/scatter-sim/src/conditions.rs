@@ -234,7 +234,137 @@ impl ConditionSampler {
 
 #[cfg(test)]
 mod tests {
-    use super::ConditionSampler;
+    use super::{AlbedoSampler, ConditionSampler, GSampler, TauSampler};
+
+    /// `validate` refuses each field that could put a draw out of range, naming the field
+    /// and its range, and accepts the edges (only tau.max was tested, through the CLI;
+    /// with albedo.epsilon unchecked, ε = −0.5 drew φ = 0.5 − u⁶ < 0).
+    #[test]
+    fn validation_names_each_out_of_range_field() {
+        let a = ConditionSampler::authors();
+        let tau = |t: TauSampler| ConditionSampler {
+            tau: t,
+            ..a.clone()
+        };
+        let g = |g: GSampler| ConditionSampler { g, ..a.clone() };
+        let alb = |al: AlbedoSampler| ConditionSampler {
+            albedo: al,
+            ..a.clone()
+        };
+        let power =
+            |epsilon: f64, exponent: f64| AlbedoSampler::OneMinusPower { epsilon, exponent };
+        for ok in [
+            a.clone(),
+            tau(TauSampler::Uniform { min: 3.0, max: 3.0 }),
+            tau(TauSampler::Fixed { value: 0.0 }),
+            alb(AlbedoSampler::Uniform { min: 0.0, max: 1.0 }),
+            alb(power(0.0, 6.0)),
+            alb(power(1.0, 6.0)),
+        ] {
+            assert_eq!(ok.validate(), Ok(()), "{ok:?}");
+        }
+        let (t, gr, al, ord) = (
+            "[0, 1000]",
+            "[-1, 1] (values are then clamped to +-0.999)",
+            "[0, 1]",
+            "min <= max",
+        );
+        let cases = [
+            (alb(power(-0.5, 6.0)), "albedo.epsilon", al),
+            (alb(power(1.5, 6.0)), "albedo.epsilon", al),
+            (alb(power(1e-6, 0.0)), "albedo.exponent", "(0, inf)"),
+            (
+                alb(AlbedoSampler::Uniform {
+                    min: -0.1,
+                    max: 1.0,
+                }),
+                "albedo.min",
+                al,
+            ),
+            (
+                alb(AlbedoSampler::Uniform { min: 0.2, max: 1.5 }),
+                "albedo.max",
+                al,
+            ),
+            (
+                alb(AlbedoSampler::Uniform { min: 0.9, max: 0.3 }),
+                "albedo.min",
+                ord,
+            ),
+            (alb(AlbedoSampler::Fixed { value: 1.5 }), "albedo.value", al),
+            (
+                tau(TauSampler::Power {
+                    max: 5000.0,
+                    exponent: 3.0,
+                }),
+                "tau.max",
+                t,
+            ),
+            (
+                tau(TauSampler::Power {
+                    max: 30.0,
+                    exponent: 0.0,
+                }),
+                "tau.exponent",
+                "(0, inf)",
+            ),
+            (
+                tau(TauSampler::Uniform {
+                    min: -1.0,
+                    max: 10.0,
+                }),
+                "tau.min",
+                t,
+            ),
+            (
+                tau(TauSampler::Uniform {
+                    min: 2.0,
+                    max: 2000.0,
+                }),
+                "tau.max",
+                t,
+            ),
+            (
+                tau(TauSampler::Uniform { min: 5.0, max: 2.0 }),
+                "tau.min",
+                ord,
+            ),
+            (tau(TauSampler::Fixed { value: -1.0 }), "tau.value", t),
+            (
+                g(GSampler::Uniform {
+                    min: -1.5,
+                    max: 1.0,
+                }),
+                "g.min",
+                gr,
+            ),
+            (
+                g(GSampler::Uniform {
+                    min: -1.0,
+                    max: 1.5,
+                }),
+                "g.max",
+                gr,
+            ),
+            (
+                g(GSampler::Uniform {
+                    min: 0.5,
+                    max: -0.5,
+                }),
+                "g.min",
+                ord,
+            ),
+            (
+                g(GSampler::Fixed { value: 0.9995 }),
+                "g.value",
+                "[-0.999, 0.999]",
+            ),
+        ];
+        for (s, field, allowed) in cases {
+            let e = s.validate().expect_err(field);
+            assert_eq!((e.field.as_str(), e.allowed), (field, allowed), "{s:?}");
+        }
+    }
     use crate::rng::WalkRng;
     use crate::stats::{ks_one_sample, ks_p_value, proportion_z};
 

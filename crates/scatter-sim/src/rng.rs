@@ -93,3 +93,26 @@ impl WalkRng {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::{WalkRng, splitmix64};
+
+    /// `uniform_open0` is `uniform`'s draw one step of 2⁻⁵³ up, so in (0, 1] and never 0,
+    /// which −ln takes: exactly, since k·2⁻⁵³ + 2⁻⁵³ = (k + 1)·2⁻⁵³ with k + 1 ≤ 2⁵³. And
+    /// `splitmix64` is SplitMix64: its first three outputs from state 0, as the reference
+    /// implementation gives them (prng.di.unimi.it/splitmix64.c).
+    #[test]
+    fn open0_is_uniform_one_step_up_and_splitmix_is_the_reference() {
+        let step = 1.0 / (1u64 << 53) as f64;
+        let mut a = WalkRng::from_seed(3);
+        let mut b = a.clone();
+        for _ in 0..1000 {
+            assert_eq!(a.uniform_open0(), b.uniform() + step);
+        }
+        const GAMMA: u64 = 0x9E37_79B9_7F4A_7C15;
+        assert_eq!(splitmix64(0), 0xE220_A839_7B1D_CDAF);
+        assert_eq!(splitmix64(GAMMA), 0x6E78_9E6A_A1B9_65F4);
+        assert_eq!(splitmix64(GAMMA.wrapping_mul(2)), 0x06C4_5D18_8009_454F);
+    }
+}

@@ -438,6 +438,10 @@ mod tests {
     fn sliced_wasserstein_of_two_points() {
         let w = sliced_wasserstein1(&[(0.0, 0.0)], &[(3.0, 0.0)], 720);
         assert!((w - 6.0 / std::f64::consts::PI).abs() < 1e-4, "{w}");
+        // Apart along (3, 4): projections 5·|cos(t − t₀)| apart, mean 10/π (3.1831014 with
+        // K = 720, off by 2.5e-6). y read as x would give 2.7009.
+        let w = sliced_wasserstein1(&[(0.0, 0.0)], &[(3.0, 4.0)], 720);
+        assert!((w - 10.0 / std::f64::consts::PI).abs() < 1e-4, "{w}");
         assert!(sliced_wasserstein1(&[], &[(3.0, 0.0)], 8).is_nan());
     }
 

@@ -442,3 +442,72 @@ impl Config {
             .join(self.scene.as_deref().unwrap_or(Path::new("")))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `text` parsed and validated as `Config::load` does (without a file), its error as
+    /// text.
+    fn check(text: &str) -> std::result::Result<(), String> {
+        let c: Config = toml::from_str(text).map_err(|e| e.to_string())?;
+        c.validate().map_err(|e| e.to_string())
+    }
+
+    /// A nee config whose [full] and [quick] hold `full` and `quick` beside the size.
+    fn nee(full: &str, quick: &str) -> String {
+        format!(
+            "kind = \"nee\"\ntitle = \"t\"\nscene = \"s.toml\"\n[full]\nsize = 8\n{full}\n\
+             [quick]\nsize = 8\n{quick}\n"
+        )
+    }
+
+    const BOTH: &str = "seconds = 1.0\nreference_spp = 4";
+
+    /// Each of the four budget fields of the nee kind, left out in turn, is refused (a
+    /// missing reference_spp read as 0 spp, a missing seconds as 0 s).
+    #[test]
+    fn nee_needs_seconds_and_reference_spp_in_both_budgets() {
+        check(&nee(BOTH, BOTH)).unwrap();
+        for (full, quick) in [
+            ("seconds = 1.0", BOTH),
+            ("reference_spp = 4", BOTH),
+            (BOTH, "seconds = 1.0"),
+            (BOTH, "reference_spp = 4"),
+        ] {
+            let e = check(&nee(full, quick)).unwrap_err();
+            assert!(
+                e.contains("kind = \"nee\" needs full/quick seconds and reference_spp"),
+                "{full} / {quick}: {e}"
+            );
+        }
+    }
+
+    /// The equal-time budget lies in (0, 86400] s: 0 is refused, a millisecond is not.
+    #[test]
+    fn nee_seconds_must_be_above_zero() {
+        check(&nee("seconds = 0.001\nreference_spp = 4", BOTH)).unwrap();
+        let e = check(&nee("seconds = 0.0\nreference_spp = 4", BOTH)).unwrap_err();
+        assert!(
+            e.contains("full.seconds = 0 is out of range: allowed (0, 86400]"),
+            "{e}"
+        );
+    }
+
+    /// Absorptions are 1 − φ and lie below 1: exactly 1 (an albedo of 0) is refused.
+    #[test]
+    fn an_absorption_of_one_is_refused() {
+        let absorption = |list: &str| {
+            format!(
+                "kind = \"absorption\"\ntitle = \"t\"\nscene = \"s.toml\"\n\
+                 absorptions = [{list}]\n[full]\nsize = 8\nspp = 2\n[quick]\nsize = 8\nspp = 2\n"
+            )
+        };
+        check(&absorption("0.5, 0.999")).unwrap();
+        let e = check(&absorption("0.5, 1.0")).unwrap_err();
+        assert!(
+            e.contains("absorptions are 1 − φ and must be below 1"),
+            "{e}"
+        );
+    }
+}

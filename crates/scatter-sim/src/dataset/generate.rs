@@ -202,7 +202,9 @@ pub fn generate(
 /// the largest run's end (the smaller run's next walks are the larger one's rows). The
 /// `n` walks are shared among the streams by their row counts (largest remainder), and
 /// returned stream by stream. Held-out walks for a validation loss cost a simulation of
-/// `n` walks, not rows taken from training.
+/// `n` walks, not rows taken from training. A stream has none past walk index 2^64 − 1
+/// (a run of u64::MAX walks has one): fewer than `n` are returned then, rather than
+/// indices that wrap round to the run's own first rows.
 pub fn held_out_rows(pieces: &[Piece], n: u64) -> Vec<Row> {
     // (a piece of the stream, where its held-out walks start, its rows)
     let mut streams: Vec<(&Piece, u64, u64)> = Vec::new();
@@ -235,7 +237,9 @@ pub fn held_out_rows(pieces: &[Piece], n: u64) -> Vec<Row> {
     let jobs: Vec<(&Piece, u64)> = streams
         .iter()
         .zip(&share)
-        .flat_map(|(&(run, start, _), (k, _))| (0..*k).map(move |j| (run, start.wrapping_add(j))))
+        .flat_map(|(&(run, start, _), (k, _))| {
+            (0..*k).map_while(move |j| start.checked_add(j).map(|i| (run, i)))
+        })
         .collect();
     jobs.into_par_iter()
         .map(|(run, index)| walk_row(run.seed, &run.sampler, index).0)
@@ -267,6 +271,19 @@ mod tests {
     /// The rows of walks `indices` of `p`'s stream.
     fn walks(p: &Piece, indices: Range<u64>) -> Vec<Row> {
         indices.map(|i| walk_row(p.seed, &p.sampler, i).0).collect()
+    }
+
+    /// A run of u64::MAX walks (`generate --samples 18446744073709551615 --shard …` writes
+    /// one) has a single walk past its end, index 2^64 − 1: its held-out walks stop there
+    /// instead of wrapping round to walks 0, 1, …, the run's own rows, which would have
+    /// made the validation loss a training loss.
+    #[test]
+    fn held_out_walks_never_wrap_into_the_dataset() {
+        let p = piece(7, u64::MAX, 0, 5);
+        let rows = walks(&p, 0..5);
+        let held = held_out_rows(std::slice::from_ref(&p), 3);
+        assert_eq!(held, vec![walk_row(p.seed, &p.sampler, u64::MAX).0]);
+        assert!(held.iter().all(|h| !rows.contains(h)));
     }
 
     /// Held-out walks are walks no row of the dataset holds. A run of 10 walks merged with

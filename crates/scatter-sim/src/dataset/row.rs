@@ -298,6 +298,35 @@ mod tests {
         assert_eq!(format!("{}", Short(123456.75f32)), "123456.75");
     }
 
+    /// NaN in any column (a foreign binary row with a right checksum) is refused by the
+    /// finiteness check: the range checks after it are comparisons that NaN passes.
+    #[test]
+    fn nan_in_any_column_is_refused() {
+        for k in 0..11 {
+            let mut r = sample_row();
+            let v = match k {
+                0 => &mut r.tau,
+                1 => &mut r.g,
+                2 => &mut r.cos_theta,
+                3 => &mut r.beta,
+                4 => &mut r.alpha,
+                5..=7 => &mut r.ev_pos[k - 5],
+                _ => &mut r.ev_dir[k - 8],
+            };
+            *v = f32::NAN;
+            assert_eq!(
+                r.validate(),
+                Err("non-finite value".to_string()),
+                "f32 column {k}"
+            );
+        }
+        let r = Row {
+            albedo: f64::NAN,
+            ..sample_row()
+        };
+        assert_eq!(r.validate(), Err("non-finite value".to_string()));
+    }
+
     /// Each column out of its range (or not a number) is refused, naming the column.
     #[test]
     fn csv_rows_out_of_range_are_refused() {
@@ -317,6 +346,11 @@ mod tests {
             (3, "2.5", "n = "),
             (3, "0", "n = 0"),
             (4, "7", "exit"),
+            // Negative values out of range, and each exit-disk column, are refused too.
+            (4, "-7", "exit"),
+            (1, "-7.5", "g = -7.5"),
+            (5, "2", "exit"),
+            (6, "-2", "exit"),
             (7, "1e30", "event"),
             (7, "1e39", "ev_x = 1e39 is out of range (beyond f32"),
             (0, "1e308", "tau = 1e308 is out of range (beyond f32"),
