@@ -255,6 +255,25 @@ fn meets(tri: &[DVec3; 3], planes: &[Plane; 12]) -> bool {
 
 #[cfg(test)]
 mod tests {
+    /// An entry of another format (an earlier version's tag, its checksum made again) is a
+    /// miss.
+    #[test]
+    fn an_entry_of_another_format_is_a_miss() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("c.bin");
+        let cos = vec![super::cone_cos(4), super::NO_CONE, super::cone_cos(0)];
+        super::write(&p, 7, &cos).unwrap();
+        assert_eq!(super::read(&p, 7, 3), Some(cos.clone()));
+        let mut b = std::fs::read(&p).unwrap();
+        assert_eq!(&b[..8], b"STCVEC02");
+        b[7] = b'1';
+        let body = b.len() - 4;
+        let crc = crc32fast::hash(&b[..body]).to_le_bytes();
+        b[body..].copy_from_slice(&crc);
+        std::fs::write(&p, &b).unwrap();
+        assert_eq!(super::read(&p, 7, 3), None);
+    }
+
     /// A cache entry that is a named pipe or a device is a miss (`distance_grid`'s test).
     #[cfg(unix)]
     #[test]
@@ -516,6 +535,12 @@ mod tests {
             assert_eq!(
                 near.escape_cos[t], NO_CONE,
                 "triangle {t}: a cone past a face 0.17 eps beside its edge"
+            );
+            // Not even the normal itself (exactly (0, 1, 0) here, w·n = 1) escapes a
+            // triangle without a cone.
+            assert!(
+                !near.escapes_from(t as u32, near.normals[t]),
+                "triangle {t}: its normal escapes though it has no cone"
             );
         }
         let far = fresh(with_slab(0.3, eps));

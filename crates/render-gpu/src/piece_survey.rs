@@ -418,3 +418,37 @@ impl<'a> Survey<'a> {
             .collect()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use glam::{DVec3, Vec3};
+
+    use super::Survey;
+    use crate::mesh::TriMesh;
+
+    /// An open surface above a point (piece 1: a large triangle at z = 1, and a small one
+    /// far off at z = −1 so that the piece's box holds the point): rays a, −b and −c cross
+    /// it once, −a, b and c never. Rays that disagree leave the side undecided, rather
+    /// than ray a's answer standing for all.
+    #[test]
+    fn rays_that_disagree_leave_the_side_undecided() {
+        let v = Vec3::new;
+        let m = TriMesh {
+            positions: vec![
+                v(-0.1, -0.1, 0.0),
+                v(0.1, -0.1, 0.0),
+                v(0.0, 0.1, 0.0),
+                v(-100.0, -100.0, 1.0),
+                v(100.0, -100.0, 1.0),
+                v(0.0, 100.0, 1.0),
+                v(50.0, 50.0, -1.0),
+                v(51.0, 50.0, -1.0),
+                v(50.0, 51.0, -1.0),
+            ],
+            triangles: vec![[0, 1, 2], [3, 4, 5], [6, 7, 8]],
+        };
+        let pieces = vec![vec![0], vec![1, 2]];
+        let survey = Survey::new(&m, &pieces);
+        assert_eq!(survey.sides(DVec3::ZERO, 0).of(1), None);
+    }
+}

@@ -103,6 +103,16 @@ fn the_scene_hash_ignores_paths_and_unread_settings() {
         ),
         "ST-CVAE's settings under PT"
     );
+    // Every other ST-CVAE setting is unread under PT too (merge refused such pairs).
+    assert_eq!(
+        pt,
+        hash(
+            "m.obj",
+            "integrator = \"pt\"\ngrid_resolution = 32\nmax_tau = 50.0\nexact_tau = 8.0\n\
+             exact_nee_samples = 2\npath_nee_rays = 2"
+        ),
+        "ST-CVAE's grid and thresholds under PT"
+    );
     assert_ne!(
         pt,
         hash("m.obj", "integrator = \"pt\"\nnee = false"),
@@ -157,6 +167,11 @@ fn the_scene_hash_ignores_paths_and_unread_settings() {
         sphere("[environment]\nradiance = [0.0, 0.0, 0.0]"),
         "a black sky written out"
     );
+    assert_eq!(
+        sphere(""),
+        sphere("[environment]\nradiance = [-0.0, 0.0, 0.0]"),
+        "a black sky written with -0.0"
+    );
     assert_ne!(
         sphere(""),
         sphere("[environment]\nradiance = [0.0, 0.0, 0.1]"),
@@ -168,6 +183,33 @@ fn the_scene_hash_ignores_paths_and_unread_settings() {
         st("nee = false\nnee_samples = 4"),
         "unread without NEE"
     );
+    assert_eq!(
+        st("nee = false"),
+        st("nee = false\nexact_nee_samples = 2\npath_nee_rays = 2"),
+        "NEE's other settings unread without NEE"
+    );
+    // A cube's default size, or the height it already has, written out is the same scene.
+    let cube = |object: &str| {
+        let f = render_gpu::scene::SceneFile::parse(
+            &d.path().join("s.toml"),
+            &format!(
+                "[camera]\norigin = [0.0, 0.0, 6.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 30.0\n\
+                 width = 8\nheight = 8\n[object]\nshape = \"cube\"\n{object}\n\
+                 [medium]\nsigma_t = [1.0, 1.0, 1.0]\nalbedo = [0.5, 0.5, 0.5]\n"
+            ),
+        )
+        .unwrap();
+        render_gpu::setup::SceneData::build(&f, d.path(), false, &[])
+            .unwrap()
+            .hash
+    };
+    assert_eq!(cube(""), cube("size = 1.0"), "the default size written out");
+    assert_eq!(
+        cube(""),
+        cube("height = 1.0"),
+        "the cube's own height written out"
+    );
+    assert_ne!(cube(""), cube("size = 1.5"), "another size");
 }
 
 /// The view hash (what `bench error` compares) is one for every integrator and setting
@@ -392,6 +434,67 @@ fn the_offset_checked_before_a_render_is_the_renders() {
         .eps;
     assert_eq!(eps, rendered);
     assert_eq!(eps, 2.0 * render_gpu::geometry::EPS);
+    // Far on the negative side too: moved by the centre's distance, not by its largest
+    // signed coordinate (0 here: left in place, eps would be ≈ 51,001 × EPS).
+    write(&d, "far.obj", cube_obj_at(-51_000.0).as_bytes());
+    let f = render_gpu::scene::SceneFile::parse(
+        &d.path().join("s.toml"),
+        "[camera]\norigin = [-51000.0, 0.0, 40.0]\ntarget = [-51000.0, 0.0, 0.0]\n\
+         fov_deg = 30.0\nwidth = 8\nheight = 8\n[object]\nmesh = \"far.obj\"\n\
+         [medium]\nsigma_t = [1.0, 1.0, 1.0]\nalbedo = [0.5, 0.5, 0.5]\n",
+    )
+    .unwrap();
+    assert_eq!(
+        render_gpu::setup::object_eps(&f, d.path()).unwrap(),
+        2.0 * render_gpu::geometry::EPS
+    );
+}
+
+/// A thin-walls note names its place in the scene file's coordinates: a shell (CUBE_OBJ
+/// and CUBE_OBJ shrunk by 1e-5: walls a quarter of the offset, 4e-5) centred at x = 3 is
+/// moved to the origin (3 is beyond its extent, 2), and the note's point must lie where
+/// the file put the shell, x in [2, 4] (it reads 3.3333; the shift subtracted instead of
+/// added would give −2.6667).
+#[test]
+fn a_thin_walls_note_names_the_place_where_the_file_put_it() {
+    let d = tempfile::tempdir().unwrap();
+    let mut obj = String::new();
+    for (base, s) in [(0u32, 1.0f64), (8, 1.0 - 1e-5)] {
+        for l in CUBE_OBJ.lines() {
+            if let Some(v) = l.strip_prefix("v ") {
+                let c: Vec<f64> = v.split(' ').map(|t| t.parse().unwrap()).collect();
+                obj += &format!("v {} {} {}\n", c[0] * s + 3.0, c[1] * s, c[2] * s);
+            } else if let Some(f) = l.strip_prefix("f ") {
+                let f: Vec<String> = f
+                    .split(' ')
+                    .map(|i| (i.parse::<u32>().unwrap() + base).to_string())
+                    .collect();
+                obj += &format!("f {}\n", f.join(" "));
+            }
+        }
+    }
+    write(&d, "shell.obj", obj.as_bytes());
+    let f = render_gpu::scene::SceneFile::parse(
+        &d.path().join("s.toml"),
+        "[camera]\norigin = [3.0, 0.0, 6.0]\ntarget = [3.0, 0.0, 0.0]\nfov_deg = 30.0\n\
+         width = 8\nheight = 8\n[object]\nmesh = \"shell.obj\"\n\
+         [medium]\nsigma_t = [1.0, 1.0, 1.0]\nalbedo = [0.5, 0.5, 0.5]\n",
+    )
+    .unwrap();
+    let notes = render_gpu::setup::SceneData::build(&f, d.path(), false, &[])
+        .unwrap()
+        .notes;
+    let note = notes
+        .iter()
+        .find(|n| n.contains("of a far side, such as at ["))
+        .unwrap_or_else(|| panic!("no thin-walls note with a place: {notes:?}"));
+    let x: f64 = note
+        .split("such as at [")
+        .nth(1)
+        .and_then(|r| r.split(',').next())
+        .and_then(|x| x.trim().parse().ok())
+        .unwrap_or_else(|| panic!("{note}"));
+    assert!((2.0..=4.0).contains(&x), "{note}");
 }
 
 /// The scene hash and the view hash hold the environment map's pixels and shape, not its
