@@ -320,8 +320,8 @@ var<private> tr_cross: Crossings;
 /// 16 where the CPU sorts 64 (geometry/mod.rs, MAX_UNION_CROSSINGS), for private memory:
 /// past 16 crossings the in-medium test takes the pieces' raw parity without dropping a
 /// face met twice at one point, so a ray through a shared edge (a set of measure zero) can
-/// count a
-/// piece twice there and not on the CPU. Shadow rays past 16 walk their crossings in order.
+/// count a piece twice there and not on the CPU. Shadow rays past 16 walk their crossings
+/// in order.
 const UNION_CROSSINGS: u32 = 16u;
 var<private> u_t: array<f32, UNION_CROSSINGS>;
 var<private> u_tri: array<u32, UNION_CROSSINGS>;

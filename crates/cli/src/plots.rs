@@ -592,8 +592,9 @@ mod tests {
     };
     use cvae::eval::{Columns, GS, TAUS};
 
-    /// A histogram is a density over [lo, hi], both ends counted: bins [0, 0.5) and
-    /// [0.5, 1] hold 0 and 0.5, 1 and 1.0 (2.0 is outside), over 4 samples × width 0.5.
+    /// A histogram is a density over [lo, hi], both ends counted: of 0, 0.5, 1 and 2, bin
+    /// [0, 0.5) holds 0 and bin [0.5, 1] holds 0.5 and 1 (2 is outside): densities 1/2 =
+    /// 0.5 and 2/2 = 1.0, over 4 samples × width 0.5.
     #[test]
     fn a_histogram_is_a_density_with_both_ends_counted() {
         assert_eq!(

@@ -276,8 +276,8 @@ fn the_left_over_note_names_twelve_sorted_files_and_counts_the_rest() {
     let out = d.path().join("results");
     let folder = out.join("tiny-quick");
     std::fs::create_dir_all(folder.join("a_dir")).unwrap();
-    // Written in reverse order, so that a listing in creation order is not sorted.
-    for i in (0..13).rev() {
+    // Neither creation order nor its reverse is sorted (tmpfs lists the newest first).
+    for i in [7, 2, 12, 0, 9, 4, 11, 1, 6, 10, 3, 8, 5] {
         std::fs::write(folder.join(format!("u{i:02}.txt")), "x").unwrap();
     }
     std::fs::write(folder.join(".hidden"), "x").unwrap();

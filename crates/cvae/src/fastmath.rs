@@ -191,7 +191,7 @@ mod tests {
     /// Past its degree-7 Taylor error (~5e-9) exp's error is f32 rounding, which averages
     /// out: over x ∈ [−0.346, −0.300] (no range reduction, the polynomial's widest
     /// argument) the mean signed relative error is −4.5e-9 in an f32 replay; a polynomial
-    /// short of its y⁷/7! term is biased by ~+9e-8. Bar 3e-8.
+    /// short of its y⁷/7! term is biased by ~+1.0e-7. Bar 3e-8.
     #[test]
     fn exp_is_unbiased_at_the_edge_of_its_reduction() {
         for fused in [false, true] {

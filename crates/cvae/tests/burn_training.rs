@@ -151,9 +151,6 @@ fn row_losses_equal_the_elbo_by_hand() {
     }
 }
 
-/// Random decoder inputs through burn and through the plain-Rust export: equal within
-/// 1e-5 (both are f32; the sums run in different orders, so bit equality is not expected,
-/// but the difference of a 16-wide dot product in f32 is ~1e-7 relative).
 /// A hand-made CVAE (one zero-weight layer each, so its outputs are the biases): encoder
 /// [μ_z, log σ_z²] = [0.5, 20], decoder [μ, log σ²] = [1, −20], both beyond
 /// ±LOGVAR_CLAMP (16), which the random networks above never reach. Per row
@@ -206,6 +203,9 @@ fn the_loss_clamps_both_log_variances_and_averages_the_rows() {
     );
 }
 
+/// Random decoder inputs through burn and through the plain-Rust export: equal within
+/// 1e-5 (both are f32; the sums run in different orders, so bit equality is not expected,
+/// but the difference of a 16-wide dot product in f32 is ~1e-7 relative).
 #[test]
 fn exported_decoder_equals_burn() {
     let dev = Device::flex();

@@ -255,25 +255,6 @@ fn meets(tri: &[DVec3; 3], planes: &[Plane; 12]) -> bool {
 
 #[cfg(test)]
 mod tests {
-    /// An entry of another format (an earlier version's tag, its checksum made again) is a
-    /// miss.
-    #[test]
-    fn an_entry_of_another_format_is_a_miss() {
-        let dir = tempfile::tempdir().unwrap();
-        let p = dir.path().join("c.bin");
-        let cos = vec![super::cone_cos(4), super::NO_CONE, super::cone_cos(0)];
-        super::write(&p, 7, &cos).unwrap();
-        assert_eq!(super::read(&p, 7, 3), Some(cos.clone()));
-        let mut b = std::fs::read(&p).unwrap();
-        assert_eq!(&b[..8], b"STCVEC02");
-        b[7] = b'1';
-        let body = b.len() - 4;
-        let crc = crc32fast::hash(&b[..body]).to_le_bytes();
-        b[body..].copy_from_slice(&crc);
-        std::fs::write(&p, &b).unwrap();
-        assert_eq!(super::read(&p, 7, 3), None);
-    }
-
     /// A cache entry that is a named pipe or a device is a miss (`distance_grid`'s test).
     #[cfg(unix)]
     #[test]
@@ -433,7 +414,8 @@ mod tests {
     }
 
     /// The cache file round-trips, and a damaged file or one for another mesh is not read:
-    /// one of as many triangles but another key (a file copied under another name) too.
+    /// one of as many triangles but another key (a file copied under another name) too, or
+    /// one of another format.
     #[test]
     fn cached_cones_round_trip_and_damage_is_refused() {
         let dir = tempfile::tempdir().unwrap();
@@ -445,6 +427,15 @@ mod tests {
         assert_eq!(super::read(&p, 8, 3), None);
         let mut b = std::fs::read(&p).unwrap();
         b[21] ^= 1;
+        std::fs::write(&p, &b).unwrap();
+        assert_eq!(super::read(&p, 7, 3), None);
+        // Another format (an earlier version's tag, its checksum made again) is a miss.
+        b[21] ^= 1;
+        assert_eq!(&b[..8], b"STCVEC02");
+        b[7] = b'1';
+        let body = b.len() - 4;
+        let crc = crc32fast::hash(&b[..body]).to_le_bytes();
+        b[body..].copy_from_slice(&crc);
         std::fs::write(&p, &b).unwrap();
         assert_eq!(super::read(&p, 7, 3), None);
     }

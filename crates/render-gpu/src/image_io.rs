@@ -1033,7 +1033,7 @@ mod tests {
 
     /// A tag may name a render of unknown seed once (`?`, a constant image) or by its
     /// pixels' digest once each: repeating either is refused as the repeated seed is, since
-    /// `merge` would count that render twice. One of each, beside a seed, reads back.
+    /// `merge` would count that render twice. A digest beside a seed reads back.
     #[test]
     fn tags_repeating_a_render_of_unknown_seed_are_refused() {
         let dir = tempfile::tempdir().unwrap();

@@ -82,7 +82,7 @@ fn sphere_grid_matches_the_radius() {
     let r = grid.radius(Vec3::ZERO);
     assert!(r > 0.5 - 2.0 * 0.0271 - 3e-4 && r <= 0.5, "r(0) = {r}");
     assert_eq!(grid.radius(Vec3::splat(2.0)), 0.0, "outside the grid");
-    // Half a cell outside each face of the grid, beside its corner cells (~0.3 from the
+    // Half a cell outside each face of the grid, beside its corner cells (~0.36 from the
     // sphere): no radius, no list, no local hit.
     let (lo, cell, dims) = (grid.lo, grid.cell, grid.dims.as_vec3());
     for axis in 0..3 {

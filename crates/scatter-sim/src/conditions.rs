@@ -238,7 +238,7 @@ mod tests {
 
     /// `validate` refuses each field that could put a draw out of range, naming the field
     /// and its range, and accepts the edges (only tau.max was tested, through the CLI;
-    /// with albedo.epsilon unchecked, ε = −0.5 drew φ = 0.5 − u⁶ < 0).
+    /// with albedo.epsilon unchecked, ε = −0.5 drew φ = 0.5 − u⁶, below 0 for u > 0.89).
     #[test]
     fn validation_names_each_out_of_range_field() {
         let a = ConditionSampler::authors();

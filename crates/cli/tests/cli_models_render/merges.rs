@@ -502,10 +502,10 @@ fn tag_of(p: &Path) -> u64 {
         .scene_hash
 }
 
-/// The two devices run one estimator (tested image against image in render-gpu's tests/gpu),
-/// so an ST-CVAE render of the CPU and one of the GPU (lavapipe in CI) of the same scene,
-/// with different seeds, carry one scene hash and `merge` averages them. Skipped, with the
-/// reason, only where no Vulkan adapter exists and not under CI.
+/// The two devices run one estimator (tested image against image in render-gpu's
+/// tests/gpu), so an ST-CVAE render of the CPU and one of the GPU (lavapipe in CI) of the
+/// same scene, with different seeds, carry one scene hash and `merge` averages them.
+/// Skipped, with the reason, only where no Vulkan adapter exists and not under CI.
 #[test]
 fn merge_averages_stcvae_renders_of_both_devices() {
     let d = tempfile::tempdir().unwrap();

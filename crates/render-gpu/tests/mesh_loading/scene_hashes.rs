@@ -1,5 +1,7 @@
 //! The scene and view hashes of what is loaded: what they see (faces, a far mesh's place,
-//! the model, the environment map's shape) and what they ignore (paths, unread settings).
+//! the model, the environment map's shape) and what they ignore (paths, unread settings);
+//! and a mesh far from the origin, moved to it: the camera check, the surface offset and
+//! the thin-walls note in the scene file's frame.
 
 use super::*;
 
@@ -129,12 +131,12 @@ fn the_scene_hash_ignores_paths_and_unread_settings() {
     assert_ne!(st(""), st("exact_tau = 8.0"), "read by ST-CVAE");
     // An object's size setting is in its mesh: the default sphere's radius written out is
     // the same scene, another radius is not.
-    let sphere = |object: &str| {
+    let shape = |kind: &str, object: &str| {
         let f = render_gpu::scene::SceneFile::parse(
             &d.path().join("s.toml"),
             &format!(
                 "[camera]\norigin = [0.0, 0.0, 6.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 30.0\n\
-                 width = 8\nheight = 8\n[object]\nshape = \"sphere\"\n{object}\n\
+                 width = 8\nheight = 8\n[object]\nshape = \"{kind}\"\n{object}\n\
                  [medium]\nsigma_t = [1.0, 1.0, 1.0]\nalbedo = [0.5, 0.5, 0.5]\n"
             ),
         )
@@ -143,6 +145,7 @@ fn the_scene_hash_ignores_paths_and_unread_settings() {
             .unwrap()
             .hash
     };
+    let sphere = |object: &str| shape("sphere", object);
     assert_eq!(
         sphere(""),
         sphere("radius = 0.5"),
@@ -189,20 +192,7 @@ fn the_scene_hash_ignores_paths_and_unread_settings() {
         "NEE's other settings unread without NEE"
     );
     // A cube's default size, or the height it already has, written out is the same scene.
-    let cube = |object: &str| {
-        let f = render_gpu::scene::SceneFile::parse(
-            &d.path().join("s.toml"),
-            &format!(
-                "[camera]\norigin = [0.0, 0.0, 6.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 30.0\n\
-                 width = 8\nheight = 8\n[object]\nshape = \"cube\"\n{object}\n\
-                 [medium]\nsigma_t = [1.0, 1.0, 1.0]\nalbedo = [0.5, 0.5, 0.5]\n"
-            ),
-        )
-        .unwrap();
-        render_gpu::setup::SceneData::build(&f, d.path(), false, &[])
-            .unwrap()
-            .hash
-    };
+    let cube = |object: &str| shape("cube", object);
     assert_eq!(cube(""), cube("size = 1.0"), "the default size written out");
     assert_eq!(
         cube(""),
@@ -419,14 +409,20 @@ fn the_scene_hash_sees_where_a_far_mesh_was() {
 #[test]
 fn the_offset_checked_before_a_render_is_the_renders() {
     let d = tempfile::tempdir().unwrap();
-    write(&d, "far.obj", cube_obj_at(51_000.0).as_bytes());
-    let f = render_gpu::scene::SceneFile::parse(
-        &d.path().join("s.toml"),
-        "[camera]\norigin = [51000.0, 0.0, 40.0]\ntarget = [51000.0, 0.0, 0.0]\n\
-         fov_deg = 30.0\nwidth = 8\nheight = 8\n[object]\nmesh = \"far.obj\"\n\
-         [medium]\nsigma_t = [1.0, 1.0, 1.0]\nalbedo = [0.5, 0.5, 0.5]\n",
-    )
-    .unwrap();
+    // CUBE_OBJ at x before a camera on the same line.
+    let far = |x: f64| {
+        write(&d, "far.obj", cube_obj_at(x).as_bytes());
+        render_gpu::scene::SceneFile::parse(
+            &d.path().join("s.toml"),
+            &format!(
+                "[camera]\norigin = [{x:?}, 0.0, 40.0]\ntarget = [{x:?}, 0.0, 0.0]\n\
+                 fov_deg = 30.0\nwidth = 8\nheight = 8\n[object]\nmesh = \"far.obj\"\n\
+                 [medium]\nsigma_t = [1.0, 1.0, 1.0]\nalbedo = [0.5, 0.5, 0.5]\n"
+            ),
+        )
+        .unwrap()
+    };
+    let f = far(51_000.0);
     let eps = render_gpu::setup::object_eps(&f, d.path()).unwrap();
     let rendered = render_gpu::setup::SceneData::build(&f, d.path(), false, &[])
         .unwrap()
@@ -436,14 +432,7 @@ fn the_offset_checked_before_a_render_is_the_renders() {
     assert_eq!(eps, 2.0 * render_gpu::geometry::EPS);
     // Far on the negative side too: moved by the centre's distance, not by its largest
     // signed coordinate (0 here: left in place, eps would be ≈ 51,001 × EPS).
-    write(&d, "far.obj", cube_obj_at(-51_000.0).as_bytes());
-    let f = render_gpu::scene::SceneFile::parse(
-        &d.path().join("s.toml"),
-        "[camera]\norigin = [-51000.0, 0.0, 40.0]\ntarget = [-51000.0, 0.0, 0.0]\n\
-         fov_deg = 30.0\nwidth = 8\nheight = 8\n[object]\nmesh = \"far.obj\"\n\
-         [medium]\nsigma_t = [1.0, 1.0, 1.0]\nalbedo = [0.5, 0.5, 0.5]\n",
-    )
-    .unwrap();
+    let f = far(-51_000.0);
     assert_eq!(
         render_gpu::setup::object_eps(&f, d.path()).unwrap(),
         2.0 * render_gpu::geometry::EPS
