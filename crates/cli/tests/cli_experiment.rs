@@ -254,25 +254,34 @@ fn every_experiment_runs_quick() {
     assert!(err.contains("teaser_k1.exr: no stcvae render tag"), "{err}");
 }
 
+/// The shipped sphere scene, by absolute path (configs written to temporary folders name it).
+const SPHERE_SCENE: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/../../configs/scenes/sphere.toml"
+);
+
+/// A teaser of the sphere at `densities` (a TOML list's items), 8 × 8 at 2 spp in both
+/// budgets, written to `cfg`.
+fn write_tiny_teaser(cfg: &Path, densities: &str) {
+    let scene = SPHERE_SCENE;
+    std::fs::write(
+        cfg,
+        format!(
+            "kind = \"teaser\"\ntitle = \"t\"\nscene = {scene:?}\ndensities = [{densities}]\n\
+             [full]\nsize = 8\nspp = 2\n[quick]\nsize = 8\nspp = 2\n"
+        ),
+    )
+    .unwrap();
+}
+
 /// The note of files an earlier run left names 12 of them, sorted, and counts the rest;
 /// hidden files, folders and links are not counted (13 plain files, a hidden one, a folder
 /// and a link left in the folder of an 8 × 8 teaser at 2 spp).
 #[test]
 fn the_left_over_note_names_twelve_sorted_files_and_counts_the_rest() {
     let d = tempfile::tempdir().unwrap();
-    let scene = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../../configs/scenes/sphere.toml"
-    );
     let cfg = d.path().join("tiny.toml");
-    std::fs::write(
-        &cfg,
-        format!(
-            "kind = \"teaser\"\ntitle = \"t\"\nscene = {scene:?}\ndensities = [1.0]\n\
-             [full]\nsize = 8\nspp = 2\n[quick]\nsize = 8\nspp = 2\n"
-        ),
-    )
-    .unwrap();
+    write_tiny_teaser(&cfg, "1.0");
     let out = d.path().join("results");
     let folder = out.join("tiny-quick");
     std::fs::create_dir_all(folder.join("a_dir")).unwrap();
@@ -301,21 +310,9 @@ fn the_left_over_note_names_twelve_sorted_files_and_counts_the_rest() {
 #[test]
 fn files_of_an_earlier_run_are_named() {
     let d = tempfile::tempdir().unwrap();
-    let scene = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../../configs/scenes/sphere.toml"
-    );
+    let scene = SPHERE_SCENE;
     let cfg = d.path().join("tiny.toml");
-    let write = |densities: &str| {
-        std::fs::write(
-            &cfg,
-            format!(
-                "kind = \"teaser\"\ntitle = \"t\"\nscene = {scene:?}\ndensities = [{densities}]\n\
-                 [full]\nsize = 8\nspp = 2\n[quick]\nsize = 8\nspp = 2\n"
-            ),
-        )
-        .unwrap()
-    };
+    let write = |densities: &str| write_tiny_teaser(&cfg, densities);
     let out = d.path().join("results");
     let run = || {
         let o = quick_experiment(&cfg, &out);
@@ -423,10 +420,7 @@ fn bad_experiment_config_is_a_clear_error() {
     );
     // A fallback threshold above the model's range (no max_tau in the scene) fails before
     // any render, not after PT's pair and the thresholds before it.
-    let scene = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../../configs/scenes/sphere.toml"
-    );
+    let scene = SPHERE_SCENE;
     // A fallback experiment of `scene` at the given thresholds, written to `cfg`.
     let fallback = |scene: &std::path::Path, thresholds: &str| {
         std::fs::write(

@@ -1458,14 +1458,19 @@ fn an_interrupted_merge_leaves_no_files() {
 #[test]
 fn progress_reaches_a_log_as_plain_lines() {
     let dir = tempfile::tempdir().unwrap();
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_stcvae"))
-        .args(words(
-            "generate --samples 20000 --tau 20 --g 0.4 --albedo 0.99 --seed 7 --out w.csv",
-        ))
-        .env("STCVAE_LOG_PROGRESS_EVERY", "0")
-        .current_dir(dir.path())
-        .output()
-        .unwrap();
+    // `stcvae ARGS` with STCVAE_LOG_PROGRESS_EVERY = `every` (stderr is a pipe here).
+    let logged = |args: &str, every: &str| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_stcvae"))
+            .args(words(args))
+            .env("STCVAE_LOG_PROGRESS_EVERY", every)
+            .current_dir(dir.path())
+            .output()
+            .unwrap()
+    };
+    let out = logged(
+        "generate --samples 20000 --tau 20 --g 0.4 --albedo 0.99 --seed 7 --out w.csv",
+        "0",
+    );
     ok(&out);
     let err = stderr(&out);
     let bars: Vec<&str> = err
@@ -1479,14 +1484,10 @@ fn progress_reaches_a_log_as_plain_lines() {
         "{err}"
     );
     // A value that is no number of seconds is said once (it was ignored without a word).
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_stcvae"))
-        .args(words(
-            "generate --samples 2000 --tau 2 --g 0.4 --albedo 0.99 --seed 7 --out v.csv",
-        ))
-        .env("STCVAE_LOG_PROGRESS_EVERY", "-1")
-        .current_dir(dir.path())
-        .output()
-        .unwrap();
+    let out = logged(
+        "generate --samples 2000 --tau 2 --g 0.4 --albedo 0.99 --seed 7 --out v.csv",
+        "-1",
+    );
     ok(&out);
     assert_eq!(
         stderr(&out)
@@ -1497,14 +1498,10 @@ fn progress_reaches_a_log_as_plain_lines() {
         stderr(&out)
     );
     // Set but empty: the default, without a warning.
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_stcvae"))
-        .args(words(
-            "generate --samples 2000 --tau 2 --g 0.4 --albedo 0.99 --seed 7 --out u.csv",
-        ))
-        .env("STCVAE_LOG_PROGRESS_EVERY", "")
-        .current_dir(dir.path())
-        .output()
-        .unwrap();
+    let out = logged(
+        "generate --samples 2000 --tau 2 --g 0.4 --albedo 0.99 --seed 7 --out u.csv",
+        "",
+    );
     ok(&out);
     assert!(
         !stderr(&out).contains("STCVAE_LOG_PROGRESS_EVERY"),
