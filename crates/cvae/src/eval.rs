@@ -1291,4 +1291,145 @@ mod tests {
         let z = head.iter().position(|h| h == "event_z KS / W1").unwrap();
         assert_eq!(row[z], "0.012 / 0.250", "{table}");
     }
+
+    /// `max_ks` is the largest KS of a quantity over the reports that measured it (the
+    /// "Max KS over these settings" line of metrics.md and `max_ks` in metrics.json), and
+    /// None where none did. Three reports: N measured at two settings (0.02, then 0.07),
+    /// event_z at three (0.05 first, then 0.03 and 0.04), α at none. N's largest is its
+    /// last value and event_z's its first, so a minimum, a first or a last value in its
+    /// place gives another number for one of them at least. Exact equality: `max`
+    /// returns one of its inputs unchanged.
+    #[test]
+    fn max_ks_is_the_largest_over_the_reports() {
+        let none = RatioError {
+            value: None,
+            se: None,
+            model_mean: 0.0,
+            sim_mean: 0.0,
+            resolved: false,
+        };
+        let report = |albedo: f64, ks: Vec<(&'static str, f64)>| SettingReport {
+            tau: 5.0,
+            g: 0.4,
+            albedo,
+            metrics: ks
+                .into_iter()
+                .map(|(q, ks)| Metric {
+                    quantity: q.to_string(),
+                    ks,
+                    w1: 0.0,
+                })
+                .collect(),
+            nee_weight: none,
+            survival: [none; 2],
+            sphere_nee: none,
+            half_space: [none; 3],
+            shells: [none; 2],
+        };
+        let reports = [
+            report(1.0, vec![("n", 0.02), ("event_z", 0.05)]),
+            report(1.0, vec![("n", 0.07), ("event_z", 0.03)]),
+            report(0.9, vec![("event_z", 0.04)]),
+        ];
+        assert_eq!(max_ks(&reports, "n"), Some(0.07));
+        assert_eq!(max_ks(&reports, "event_z"), Some(0.05));
+        assert_eq!(max_ks(&reports, "alpha"), None);
+    }
+
+    /// `evaluate_grid` hands each setting's model samples to `seen` as the model's and the
+    /// simulator's as the simulator's (the CLI's plots draw them under those labels): the
+    /// grid's first setting, (τ, g, φ) = (1, −0.7, 1) at the grid's seed, holds exactly
+    /// the columns `model_columns` and `simulator_columns` draw there (same streams, so
+    /// equality is exact; the two sets of walks differ in every column). A progress
+    /// callback answering false stops the grid after that setting, so 200 walks a side at
+    /// τ = 1 keep the test well under a second.
+    #[test]
+    fn the_grid_passes_model_and_simulator_samples_in_their_places() {
+        let m = crate::model_file::ModelSet::load(std::path::Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../models/default.stcvae"
+        )))
+        .unwrap();
+        let samples: usize = 200;
+        let seed: u64 = 7;
+        let mut calls = 0;
+        let reports = evaluate_grid(
+            &m,
+            samples,
+            seed,
+            &AtomicBool::new(false),
+            |_, _| false,
+            |(t, g, a), model, sim| {
+                calls += 1;
+                assert_eq!((t, g, a), (TAUS[0], GS[0], ALBEDOS[0]));
+                let want_model = model_columns(&m, t, g, a, samples, seed);
+                let want_sim = simulator_columns(t, g, a, samples, seed);
+                assert_ne!(want_model.0, want_sim.0, "the two samples must differ");
+                assert_eq!(model.0, want_model.0, "`seen`'s model columns");
+                assert_eq!(sim.0, want_sim.0, "`seen`'s simulator columns");
+            },
+        );
+        assert_eq!(calls, 1);
+        assert_eq!(reports.len(), 1);
+    }
+
+    /// An event on the sphere's surface (|X| = 1 exactly, 1 − |X| = 0: where an event
+    /// repaired onto the surface lands) lies in the thinnest shell of [`SHELLS`], [0, 0.005)
+    /// — its lower end is closed — and in no other. Exact: |Z| and |−X| are exactly 1.
+    #[test]
+    fn an_event_on_the_surface_lies_in_the_thinnest_shell() {
+        let c = Columns::from_walks(vec![walk_at(2, DVec3::Z), walk_at(3, -DVec3::X)]);
+        assert_eq!(c.shell_samples(), [vec![0.0, 0.0], vec![1.0, 1.0]]);
+    }
+
+    /// An event whose |X| reads a rounding above 1 (a normalised or repaired point can:
+    /// here z = 1 + 4ε, whose length is 1 + 4ε in f64) is on the surface: its distance
+    /// 1 − |X| is 0, not −8.9e-16, so it lies in the thinnest shell [0, 0.005) rather than
+    /// in none. Exact comparisons: the clamp gives exactly 0.
+    #[test]
+    fn an_event_a_rounding_beyond_the_surface_is_on_it() {
+        let x = DVec3::new(0.0, 0.0, 1.0 + 4.0 * f64::EPSILON);
+        assert!(x.length() > 1.0, "|X| = {}", x.length());
+        assert_eq!(edge_distance(x), 0.0);
+        let c = Columns::from_walks(vec![walk_at(2, x)]);
+        assert_eq!(c.shell_samples(), [vec![0.0], vec![1.0]]);
+    }
+
+    /// The half-space statistic's geometry: per side, 2 × [`PLANE_AZIMUTHS`] outward
+    /// normals m, each a unit vector (so the plane x·m = 1 touches the unit sphere) whose
+    /// m_z is one of its side's two band mid-points, and each with its lights L, unit
+    /// vectors with L·m equal to the stored cosine, which exceeds [`MIN_LIGHT_COS`]. The
+    /// other tests of `half_space_nee` compare it with itself (sides, azimuths, albedos)
+    /// or take the event at the centre, where every normal's depth is 1 whatever its
+    /// length. 1e-12: unit vectors built from sines and cosines are exact to ~1e-16.
+    #[test]
+    fn half_space_normals_and_lights_are_unit_vectors() {
+        for (side, normals) in plane_geometry().iter().enumerate() {
+            assert_eq!(normals.len(), 2 * PLANE_AZIMUTHS, "side {side}");
+            for (m, lights) in normals {
+                assert!(
+                    (m.length() - 1.0).abs() < 1e-12,
+                    "side {side}: normal {m}, |m| = {}",
+                    m.length()
+                );
+                assert!(
+                    PLANE_BANDS[side].iter().any(|&mz| (m.z - mz).abs() < 1e-12),
+                    "side {side}: normal {m}"
+                );
+                assert!(!lights.is_empty(), "side {side}: normal {m} has no lights");
+                for &(l, lm) in lights {
+                    assert!(
+                        (l.length() - 1.0).abs() < 1e-12,
+                        "side {side}, normal {m}: light {l}, |L| = {}",
+                        l.length()
+                    );
+                    assert!(
+                        (l.dot(*m) - lm).abs() < 1e-12 && lm > MIN_LIGHT_COS,
+                        "side {side}, normal {m}: light {l}, L·m = {} against {lm}",
+                        l.dot(*m)
+                    );
+                }
+            }
+        }
+    }
 }

@@ -829,3 +829,95 @@ fn event_draws_beyond_a_pair_are_fresh() {
         "only {pairs} walks with draws 0, 2 and 3 from the decoder"
     );
 }
+
+/// A hidden layer of width 0 (a damaged or hand-edited file, its size and checksum
+/// consistent with the metadata) is refused by name like one too wide; read, its layers
+/// have no outputs, and evaluating the decoder (the load probes, every render) indexes
+/// past them and panics. LengthGen with hidden [0, 8]: 4 inputs → 0 → 8 → 2, its weights
+/// and biases the lengths that shape needs (the second layer has only its bias).
+#[test]
+fn a_hidden_layer_of_width_zero_is_refused() {
+    let mut m = random_models(5, 1.0);
+    let inputs = m.length.cond + m.length.latent;
+    m.length.layers = vec![
+        Dense::new(inputs, 0, Vec::new(), Vec::new()),
+        Dense::new(0, 8, Vec::new(), vec![0.1; 8]),
+        Dense::new(8, 2, vec![0.1; 16], vec![0.0; 2]),
+    ];
+    let e = ModelSet::from_bytes(&m.to_bytes(), Path::new("w.stcvae"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains(
+            "w.stcvae: invalid model: lengthgen: layer widths [4, 0, 8, 2] out of range: \
+             allowed [1, 64] each"
+        ),
+        "{e}"
+    );
+}
+
+/// LengthGen's load probes go out along each latent axis both ways: a LengthGen sane at
+/// the latent mean and at z = +3 but absurd at z = −3 is refused, naming the latent point.
+/// The network is set by hand (random_models' LengthGen: 2 conditions + 2 latent inputs,
+/// hidden [8, 8], one output): every first-layer unit reads the latent inputs with weight
+/// −1000 (within the ±1e4 bound) and nothing else, the second layer and the mean head
+/// average their inputs (weights 1/8), the log-variance head is 0. Softplus between the
+/// layers: at z = 0 the median relative ln N is softplus(softplus(0)) = ln 3 ≈ 1.1 and the
+/// spread e^0 = 1 (within ±8 and 4); at z = +3 the first layer is softplus(−3000) ≈ 0,
+/// the median ln 2 ≈ 0.7; at z = −3 it is softplus(3000) = 3000 and so is the median,
+/// far beyond ±8. The existing test sets the latent weights to +1e4, which the probe at
+/// z = +3 already refuses.
+#[test]
+fn lengthgen_absurd_only_below_the_latent_mean_is_refused() {
+    let mut m = random_models(5, 1.0);
+    let (cond, latent) = (m.length.cond, m.length.latent);
+    let inputs = cond + latent;
+    let mut first = vec![0.0f32; 8 * inputs];
+    for o in 0..8 {
+        for i in cond..inputs {
+            first[o * inputs + i] = -1000.0;
+        }
+    }
+    let mut head = vec![0.125f32; 8];
+    head.extend([0.0f32; 8]);
+    m.length.layers = vec![
+        Dense::new(inputs, 8, first, vec![0.0; 8]),
+        Dense::new(8, 8, vec![0.125; 64], vec![0.0; 8]),
+        Dense::new(8, 2, head, vec![0.0; 2]),
+    ];
+    let e = ModelSet::from_bytes(&m.to_bytes(), Path::new("n.stcvae"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("n.stcvae: invalid model: lengthgen: ")
+            && e.contains("and latent [-3.0, 0.0] it decodes")
+            && e.contains("damaged or hand-edited"),
+        "{e}"
+    );
+}
+
+/// A non-finite decoder output is reported whichever of the decoder's outputs holds it,
+/// not only the first: PathGen's last bias made NaN at index 2 (the head is [means |
+/// log-variances], so that is the mean of output 2, α's target) leaves outputs 0 and 1
+/// finite and the exit repaired to α = β = 0, which `sample_walk_checked` must flag for
+/// every walk with N ≥ 2 (`sample` warns about them); the walks of the exact N = 1 branch
+/// run no decoder and are not flagged. The test above makes the first bias NaN only.
+/// 300 walks at τ = 5: N = 1 with probability e^−5 = 0.0067 (about 2 walks; more than
+/// 100 of them has probability far below 1e-100), so at least 200 walks with N ≥ 2 are
+/// asked for.
+#[test]
+fn a_non_finite_later_output_is_reported_too() {
+    let mut m = random_models(4, 1.0);
+    let head = m.path.layers.last_mut().unwrap();
+    let mut bias = head.bias.clone();
+    bias[2] = f32::NAN;
+    *head = Dense::new(head.inputs, head.outputs, head.weight.clone(), bias);
+    let mut multiple = 0u32;
+    for s in 0..300u64 {
+        let mut rng = WalkRng::from_seed(s);
+        let (w, bad) = m.sample_walk_checked(5.0, 0.3, 0.99, true, &mut rng);
+        assert_eq!(bad, !w.single, "seed {s}: N = {}", w.n);
+        multiple += u32::from(!w.single);
+    }
+    assert!(multiple >= 200, "only {multiple} of 300 walks had N ≥ 2");
+}
