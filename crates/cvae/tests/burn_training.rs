@@ -859,3 +859,203 @@ fn a_resumed_run_records_the_tables_standardisation() {
     let got: Vec<f32> = serde_json::from_value(saved.clone()).unwrap();
     assert_eq!(got, want);
 }
+
+/// An unfinished run resumed under another plan is refused whichever setting differs, not
+/// only its steps: its learning rate would jump mid-decay, its batches change size, or its
+/// batch stream and validation walks come from another seed, and it is no longer the run an
+/// uninterrupted one would have been. A PathGen run of 20 steps is stopped after its first
+/// (a Ctrl-C standing from the start), then resumed with one setting changed at a time
+/// (the CLI test changes only `steps`, which a comparison of the steps alone passed); with
+/// its own settings it resumes and finishes.
+#[test]
+fn an_unfinished_run_resumed_under_another_plan_is_refused() {
+    let rows = fixed_medium_rows(24, 0..500);
+    let kind = ModelKind::PathGen;
+    let table = Table::build(kind, &rows, SingleScattering::Exact);
+    let cfg = small_pathgen(20, 16, 5e-3, 5);
+    let dev = Device::flex().autodiff();
+    let dir = tempfile::tempdir().unwrap();
+    let run = |cfg: &ModelConfig, seed: u64, resume: bool, stop: bool| {
+        train_model(
+            kind,
+            &table,
+            cfg,
+            seed,
+            &dev,
+            dir.path(),
+            0,
+            resume,
+            &AtomicBool::new(stop),
+            None,
+            &|_, _, _, _| {},
+        )
+    };
+    let stopped = run(&cfg, 8, false, true);
+    assert!(
+        matches!(stopped, Err(cvae::train::TrainError::Interrupted(_))),
+        "the run stops after its first step"
+    );
+    for (changed, seed, says) in [
+        (
+            ModelConfig {
+                lr: 4e-3,
+                ..cfg.clone()
+            },
+            8,
+            "this run has lr = ",
+        ),
+        (
+            ModelConfig {
+                lr_final: 5e-4,
+                ..cfg.clone()
+            },
+            8,
+            "this run has lr_final = ",
+        ),
+        (
+            ModelConfig {
+                warmup: Some(6),
+                ..cfg.clone()
+            },
+            8,
+            "this run has warmup = 6",
+        ),
+        (
+            ModelConfig {
+                batch_size: 8,
+                ..cfg.clone()
+            },
+            8,
+            "this run has batch_size = 8",
+        ),
+        (cfg.clone(), 9, "this run has seed = 9"),
+    ] {
+        let e = match run(&changed, seed, true, false) {
+            Ok(t) => panic!(
+                "resumed under another plan ({says}) and trained to step {}",
+                t.info.step
+            ),
+            Err(e) => e.to_string(),
+        };
+        assert!(
+            e.contains("pathgen.json: the checkpoint's run stopped at step 1 of 20")
+                && e.contains(says),
+            "{says}: {e}"
+        );
+    }
+    let resumed = run(&cfg, 8, true, false).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(resumed.info.step, 20);
+}
+
+/// A damaged optimiser state is refused on resume by its checksum, naming its file, as a
+/// damaged weights file is (the CLI test flips a byte of the weights only, and drops the
+/// checksums where it damages the optimiser file): a damaged state that burn's loader
+/// still reads went into every later update without a word. One flipped bit always
+/// changes a CRC-32. With the file restored the same checkpoint resumes (a finished run:
+/// it exports at once).
+#[test]
+fn a_damaged_optimiser_state_is_refused_by_its_checksum() {
+    let rows = fixed_medium_rows(25, 0..500);
+    let table = Table::build(ModelKind::PathGen, &rows, SingleScattering::Exact);
+    let cfg = small_pathgen(20, 16, 5e-3, 5);
+    let dir = tempfile::tempdir().unwrap();
+    assert_eq!(
+        train_pathgen_quietly(&table, &cfg, dir.path(), false)
+            .info
+            .step,
+        20
+    );
+    let optim = dir.path().join("pathgen-optim.bpk");
+    let kept = std::fs::read(&optim).unwrap();
+    let mut bytes = kept.clone();
+    let i = bytes.len() / 2;
+    bytes[i] ^= 0x10;
+    std::fs::write(&optim, &bytes).unwrap();
+    let resumed = train_model(
+        ModelKind::PathGen,
+        &table,
+        &cfg,
+        8,
+        &Device::flex().autodiff(),
+        dir.path(),
+        0,
+        true,
+        &AtomicBool::new(false),
+        None,
+        &|_, _, _, _| {},
+    );
+    let e = match resumed {
+        Ok(_) => panic!("a checkpoint with a damaged optimiser state was resumed"),
+        Err(e) => e.to_string(),
+    };
+    assert!(
+        e.contains("pathgen-optim.bpk: checksum") && e.contains("--fresh --model pathgen"),
+        "{e}"
+    );
+    std::fs::write(&optim, &kept).unwrap();
+    assert_eq!(
+        train_pathgen_quietly(&table, &cfg, dir.path(), true)
+            .info
+            .step,
+        20
+    );
+}
+
+/// Versions 2 and 3 of the features differ in EventGen's targets only, so a version-2
+/// checkpoint of PathGen (or LengthGen) resumes and is saved as this build's version,
+/// while a version-2 EventGen checkpoint is refused (its targets were made the old way).
+/// No test resumed a version-2 checkpoint: the upgrade applied to the wrong models left
+/// every LengthGen and PathGen checkpoint from before version 3 unresumable and let an old
+/// EventGen go on against the new targets. Both models train 20 steps on one medium's
+/// walks, their records' feature_version is set to the oldest version (the checksums cover
+/// the weight files only), and they are resumed with nothing left to train.
+#[test]
+fn version_2_checkpoints_resume_except_eventgens() {
+    use cvae::features::{FEATURE_VERSION, OLDEST_FEATURE_VERSION};
+    let rows = fixed_medium_rows(26, 0..500);
+    let cfg = small_pathgen(20, 16, 5e-3, 5);
+    let dev = Device::flex().autodiff();
+    for kind in [ModelKind::PathGen, ModelKind::EventGen] {
+        let table = Table::build(kind, &rows, SingleScattering::Exact);
+        let dir = tempfile::tempdir().unwrap();
+        let run = |resume: bool| {
+            train_model(
+                kind,
+                &table,
+                &cfg,
+                8,
+                &dev,
+                dir.path(),
+                0,
+                resume,
+                &AtomicBool::new(false),
+                None,
+                &|_, _, _, _| {},
+            )
+        };
+        let first = run(false).unwrap_or_else(|e| panic!("{kind:?}: {e}"));
+        assert_eq!(first.info.feature_version, FEATURE_VERSION, "{kind:?}");
+        let record = dir.path().join(format!("{}.json", kind.name()));
+        let mut v: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(&record).unwrap()).unwrap();
+        v["feature_version"] = serde_json::json!(OLDEST_FEATURE_VERSION);
+        std::fs::write(&record, v.to_string()).unwrap();
+        match (kind, run(true)) {
+            (ModelKind::EventGen, Ok(_)) => panic!("a version-2 EventGen checkpoint was resumed"),
+            (ModelKind::EventGen, Err(e)) => {
+                let e = e.to_string();
+                assert!(
+                    e.contains(&format!(
+                        "eventgen.json: checkpoint has feature version {OLDEST_FEATURE_VERSION}"
+                    )),
+                    "{e}"
+                );
+            }
+            (_, Ok(t)) => {
+                assert_eq!(t.info.step, 20, "{kind:?}");
+                assert_eq!(t.info.feature_version, FEATURE_VERSION, "{kind:?}");
+            }
+            (_, Err(e)) => panic!("{kind:?}: a version-2 checkpoint was refused: {e}"),
+        }
+    }
+}

@@ -638,4 +638,81 @@ mod tests {
             "the held-out losses are not drawn"
         );
     }
+
+    /// A model file's feature version says how its EventGen is read (versions 2 and 3
+    /// differ there only), so where EventGen comes from a checkpoint the file takes that
+    /// checkpoint's version, whatever the other decoders' are. The CLI test checks the
+    /// version of an EventGen from `--base` only: written as this build's version, a
+    /// version-2 EventGen checkpoint's decoder was read with the new radial map (events in
+    /// the wrong places, a wrong render, without a word). The decoders are placeholders
+    /// (model_set neither evaluates nor checks them); distinct `cond` tells them apart.
+    #[test]
+    fn a_model_file_takes_the_feature_version_of_its_eventgen_checkpoint() {
+        use cvae::features::{FEATURE_VERSION, OLDEST_FEATURE_VERSION};
+        use cvae::train::ModelKind;
+        let model = "{ latent = 2, hidden = [4], steps = 10, lr = 1e-3, lr_final = 1e-4 }";
+        let cfg: super::config::TrainConfig = toml::from_str(&format!(
+            "dataset = \"d.bin\"\nout = \"m.stcvae\"\ncheckpoint_dir = \"ck\"\n\
+             lengthgen = {model}\npathgen = {model}\neventgen = {model}\n"
+        ))
+        .unwrap();
+        let a = super::Args {
+            config: "train.toml".into(),
+            model: None,
+            base: None,
+            resume: false,
+            fresh: false,
+            out: None,
+            steps_scale: 1.0,
+            backend: "flex".into(),
+            keep_diverged: false,
+        };
+        let decoder = |cond: usize| cvae::decoder::Decoder {
+            cond,
+            latent: 0,
+            out: 0,
+            layers: Vec::new(),
+            cond_shift: Vec::new(),
+            cond_scale: Vec::new(),
+            out_shift: Vec::new(),
+            out_scale: Vec::new(),
+        };
+        let info = cvae::model_file::TrainingInfo {
+            tau_range: [0.0, 30.0],
+            g_range: [-0.9, 0.9],
+            albedo_range: [0.0, 1.0],
+            notes: String::new(),
+        };
+        let set_of = |length_version: u32, event_version: u32| {
+            let from = vec![
+                (
+                    ModelKind::LengthGen,
+                    (decoder(1), length_version, None, 7, None),
+                ),
+                (
+                    ModelKind::PathGen,
+                    (decoder(2), FEATURE_VERSION, None, 7, None),
+                ),
+                (
+                    ModelKind::EventGen,
+                    (decoder(3), event_version, None, 7, None),
+                ),
+            ];
+            super::output::model_set(&a, &cfg, &[], &[], None, from, info.clone()).0
+        };
+        let set = set_of(FEATURE_VERSION, OLDEST_FEATURE_VERSION);
+        assert_eq!(set.feature_version, OLDEST_FEATURE_VERSION);
+        assert_eq!(set.event, decoder(3));
+        assert!(
+            set.training
+                .notes
+                .contains("eventgen: from checkpoint at step 7"),
+            "{}",
+            set.training.notes
+        );
+        // An old LengthGen beside a new EventGen: the file is of EventGen's version.
+        let set = set_of(OLDEST_FEATURE_VERSION, FEATURE_VERSION);
+        assert_eq!(set.feature_version, FEATURE_VERSION);
+        assert_eq!(set.length, decoder(1));
+    }
 }

@@ -670,4 +670,40 @@ mod tests {
             check_crcs(&saved, &[&m, &o], kind).unwrap();
         }
     }
+
+    /// A record's history is its run's reports in order: one edited out of order (here
+    /// step 300 after step 500) is refused by name, as the CLI test refuses an emptied one.
+    /// The same record in order passes, and the out-of-order entry is within every other
+    /// bound (at most the record's step, a finite loss, 300 steps before the record's step
+    /// where 1,000 is refused), so only the order check can refuse it.
+    #[test]
+    fn a_history_out_of_order_is_refused() {
+        let kind = ModelKind::LengthGen;
+        let info = |history: Vec<(u64, f32)>| CheckpointInfo {
+            feature_version: crate::features::FEATURE_VERSION,
+            step: 600,
+            seconds: 1.0,
+            norm: Standardisation {
+                cond_shift: vec![0.0; kind.cond()],
+                cond_scale: vec![1.0; kind.cond()],
+                out_shift: vec![0.0; kind.out()],
+                out_scale: vec![1.0; kind.out()],
+            },
+            history,
+            crc32: None,
+            single_scattering: None,
+            ranges: None,
+            stream: None,
+            validation: Vec::new(),
+            plan: None,
+        };
+        assert_eq!(
+            info(vec![(1, 3.0), (500, 2.0), (600, 1.5)]).check(kind),
+            Ok(())
+        );
+        let e = info(vec![(1, 3.0), (500, 2.0), (300, 1.5)])
+            .check(kind)
+            .unwrap_err();
+        assert!(e.contains("history entry (300, 1.5)"), "{e}");
+    }
 }

@@ -399,4 +399,45 @@ mod tests {
              width [1, 1024]"
         );
     }
+
+    /// A negative final learning rate is refused naming lr_final: the cosine decay would
+    /// cross 0 before the run's end and its last steps climb the loss (gradient ascent).
+    /// With lr = 1e-2, lr_final = −1e-4 and the default warm-up of 25 of 100 steps, step
+    /// 99's rate is −1e-4 + (1.01e-2/2)(1 + cos(74π/75)) = −9.6e-5 < 0, which the schedule
+    /// assert below shows. 0 is allowed. (The CLI test refuses only a final rate above lr.)
+    #[test]
+    fn a_negative_final_learning_rate_is_refused() {
+        let mut c = config(100, None);
+        c.lr_final = -1e-4;
+        assert!(c.learning_rate(99) < 0.0, "{}", c.learning_rate(99));
+        let e = c.validate("pathgen").unwrap_err();
+        assert!(
+            e.starts_with("pathgen.lr_final: ") && e.contains("is out of range: allowed [0, lr = "),
+            "{e}"
+        );
+        c.lr_final = 0.0;
+        assert!(c.validate("pathgen").is_ok());
+    }
+
+    /// A peak learning rate of 0 or below, or of 1 and above, is refused naming lr: at 0
+    /// (with lr_final = 0, which lr_final's own check allows) every step's rate is 0 and the
+    /// run exports its untrained network after hours; a negative rate climbs the loss. No
+    /// test refused such an lr (the CLI tests only lr_final above lr). Within the range
+    /// (lr = 1e-2, lr_final = 0) the config passes.
+    #[test]
+    fn a_peak_learning_rate_outside_0_1_is_refused() {
+        for lr in [0.0, -1e-3, 1.0, 2.0] {
+            let mut c = config(100, None);
+            c.lr = lr;
+            c.lr_final = 0.0;
+            let e = c.validate("eventgen").unwrap_err();
+            assert!(
+                e.starts_with("eventgen.lr: ") && e.ends_with("is out of range: allowed (0, 1)"),
+                "lr = {lr}: {e}"
+            );
+        }
+        let mut c = config(100, None);
+        c.lr_final = 0.0;
+        assert!(c.validate("eventgen").is_ok());
+    }
 }
