@@ -504,4 +504,54 @@ mod tests {
         let (m, se) = mean_and_sem(&[1.0, 2.0, 3.0, 4.0]);
         assert!((m - 2.5).abs() < 1e-15 && (se - (5.0f64 / 12.0).sqrt()).abs() < 1e-15);
     }
+
+    /// An empty second sample gives the 2-D statistic NaN as an empty first one does (only
+    /// the first was tried): otherwise every share difference is x/0 = NaN, which
+    /// `f64::max` drops, and the statistic came out 0, a perfect fit that passes every
+    /// `d < bound` (an `eval` whose model draws were all filtered out).
+    #[test]
+    fn two_dimensional_ks_of_an_empty_sample_on_either_side_is_nan() {
+        let a = [(0.25, 0.5), (0.75, 0.125)];
+        assert!(ks_two_sample_2d(&a, &[]).is_nan());
+        assert!(ks_two_sample_2d(&[], &a).is_nan());
+        // Non-empty on both sides: a number.
+        assert!(ks_two_sample_2d(&a, &a[..1]).is_finite());
+    }
+
+    /// A proportion's z where p ≠ ½. The worked case above has p = ½, where p(1 − p) = p²
+    /// = ¼, so a variance of n·p², or the bound n/4, gave the same 2; away from ½ those
+    /// shrink or swell z (n/4 at p = e^(−5) divides it by 6), and every |z| < 4 check of
+    /// the simulator and the models then tests nothing. Hand-worked: 30 of 100 at p = 0.1
+    /// is (30 − 10)/√(100·0.1·0.9) = 20/3; 50 of 100 at p = 0.8 is (50 − 80)/√16 = −7.5.
+    /// 1e-12: a few f64 roundings of numbers of order 10 are ~1e-15; the wrong variances
+    /// are off by more than 1.
+    #[test]
+    fn proportion_z_away_from_one_half() {
+        let z = proportion_z(30, 100, 0.1);
+        assert!((z - 20.0 / 3.0).abs() < 1e-12, "{z}");
+        let z = proportion_z(50, 100, 0.8);
+        assert!((z + 7.5).abs() < 1e-12, "{z}");
+    }
+
+    /// A NaN x (a model whose exit point is NaN, in `stcvae eval`) makes the 2-D statistic
+    /// NaN at once, as a NaN y does (only y was tried): the sweep groups the points by equal
+    /// x, and NaN equals no x, so a NaN x that reached it looped for ever. The call runs on
+    /// a thread so that a hang fails the test rather than stalling the suite; it takes
+    /// microseconds, and 30 s only tells an endless loop from a loaded machine (this is
+    /// not a timing check: the correct code never comes near it).
+    #[test]
+    fn two_dimensional_ks_of_a_nan_x_is_nan() {
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let b = [(0.25, 0.25), (0.75, 0.5)];
+            // A NaN sorts last (total_cmp), a negative NaN first: both are refused.
+            let first = ks_two_sample_2d(&[(f64::NAN, 0.5)], &b);
+            let second = ks_two_sample_2d(&b, &[(0.5, 0.5), (-f64::NAN, 0.25)]);
+            let _ = tx.send((first, second));
+        });
+        let (first, second) = rx
+            .recv_timeout(std::time::Duration::from_secs(30))
+            .expect("ks_two_sample_2d did not return on a NaN x");
+        assert!(first.is_nan() && second.is_nan(), "{first} {second}");
+    }
 }

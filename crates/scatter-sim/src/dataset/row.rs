@@ -382,4 +382,90 @@ mod tests {
         assert!(at(0.999_01).is_err());
         assert!(at(f32::from_bits((crate::ranges::G_MAX as f32).to_bits() + 1)).is_err());
     }
+
+    /// Row::new puts each quantity of the walk in its own column, with its own sign, and
+    /// keeps φ in f64. The dataset tests only compare rows with rows made by this same
+    /// function (walk_row), so a column fed the wrong quantity passed them; α with the
+    /// wrong sign passes every marginal statistic too (its law is symmetric about 0 by the
+    /// mirror symmetry x → −x), while it breaks α's pairing with the event (ev_x, ev_wx)
+    /// that EventGen learns. Every value below differs from every other, and each is
+    /// exact in f32 except ev_dir's, which are compared with their own f32 roundings.
+    #[test]
+    fn a_rows_columns_are_its_walks_quantities() {
+        let c = crate::conditions::Conditions {
+            tau: 7.5,
+            g: -0.25,
+            albedo: 0.999_999_3,
+        };
+        let w = crate::walk::CanonicalWalk {
+            n: 17,
+            exit: crate::frame::CanonicalExit {
+                cos_theta: -0.375,
+                alpha: 0.5,
+                beta: -0.625,
+            },
+            event_pos: glam::DVec3::new(0.125, -0.25, 0.5),
+            // A unit vector: 0.2304 + 0.36 + 0.4096 = 1.
+            event_dir: glam::DVec3::new(0.48, -0.6, 0.64),
+        };
+        let r = Row::new(c, &w);
+        assert_eq!(
+            r,
+            Row {
+                tau: 7.5,
+                g: -0.25,
+                albedo: 0.999_999_3,
+                n: 17,
+                cos_theta: -0.375,
+                beta: -0.625,
+                alpha: 0.5,
+                ev_pos: [0.125, -0.25, 0.5],
+                ev_dir: [0.48f64 as f32, -0.6f64 as f32, 0.64f64 as f32],
+            }
+        );
+        r.validate().unwrap();
+    }
+
+    /// A negative albedo is refused, directly and in a CSV row as `merge` reads one: only
+    /// φ > 1 was ever tried (2.0 above), so a check of the upper bound alone passed. Both
+    /// bounds are albedos (φ = 0: everything absorbed; φ = 1: nothing).
+    #[test]
+    fn a_negative_albedo_is_refused() {
+        let at = |albedo: f64| Row {
+            albedo,
+            ..sample_row()
+        };
+        assert!(at(0.0).validate().is_ok());
+        assert!(at(1.0).validate().is_ok());
+        let e = at(-0.25).validate().unwrap_err();
+        assert!(e.contains("albedo = -0.25 outside [0, 1]"), "{e}");
+        let mut line = Vec::new();
+        at(-0.25).write_csv(&mut line).unwrap();
+        let line = String::from_utf8(line).unwrap();
+        let e = Row::parse_csv(line.trim_end()).unwrap_err();
+        assert!(e.contains("albedo = -0.25 outside [0, 1]"), "{line}: {e}");
+    }
+
+    /// τ is held to TAU_LIMIT (1000) from above as well as to 0 from below: only −5 and
+    /// values beyond f32 were tried, so a row of τ = 1500 (an edited CSV, a foreign file)
+    /// passed a check of the lower bound alone, and a model trained on it failed the model
+    /// file's training-range check (hi ≤ TAU_LIMIT) only after the training.
+    #[test]
+    fn tau_beyond_its_limit_is_refused() {
+        let limit = crate::ranges::TAU_LIMIT as f32;
+        let at = |tau: f32| Row {
+            tau,
+            ..sample_row()
+        };
+        assert!(at(limit).validate().is_ok());
+        // The next f32 above the limit.
+        assert!(at(f32::from_bits(limit.to_bits() + 1)).validate().is_err());
+        let e = at(1500.0).validate().unwrap_err();
+        assert!(e.contains("tau = 1500 outside [0, 1000]"), "{e}");
+        let mut line = Vec::new();
+        at(1500.0).write_csv(&mut line).unwrap();
+        let line = String::from_utf8(line).unwrap();
+        let e = Row::parse_csv(line.trim_end()).unwrap_err();
+        assert!(e.contains("tau = 1500 outside [0, 1000]"), "{line}: {e}");
+    }
 }

@@ -823,4 +823,115 @@ mod tests {
         }
         assert!(checked > 0, "none of /dev, /proc and /sys is a folder here");
     }
+
+    /// A set killed between its renames, in the state its own writer left: the tests above
+    /// write the mark by hand, so what `write_set_with` notes in it (the inode it places
+    /// at each name, which the sweep compares with the file there) was never read back.
+    /// Here a.exr was placed and a.json not yet when the run died; the next sweep must put
+    /// the earlier a.exr back, leaving the earlier set whole and nothing else.
+    ///
+    /// The kill is made from a rename hook: it keeps every file the folder holds at that
+    /// moment as a hard link in a second temporary folder (same inodes, same file system),
+    /// lets the rollback run (which a kill would skip), then moves the kept files back.
+    #[cfg(unix)]
+    #[test]
+    fn a_set_killed_by_its_own_writer_is_put_back() {
+        let d = tempfile::tempdir().unwrap();
+        let frozen = tempfile::tempdir().unwrap();
+        let (exr, json) = (d.path().join("a.exr"), d.path().join("a.json"));
+        fs::write(&exr, b"old exr").unwrap();
+        fs::write(&json, b"old json").unwrap();
+        let set: [(&Path, &[u8]); 2] = [(&exr, b"new exr"), (&json, b"new json")];
+        let names = || {
+            let mut v: Vec<String> = fs::read_dir(d.path())
+                .unwrap()
+                .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+                .collect();
+            v.sort();
+            v
+        };
+        let mut k = 0;
+        let r = write_set_with(
+            bytes_of(&set),
+            |f| {
+                k += 1;
+                if k == 1 {
+                    return f.persist();
+                }
+                // Killed before the second rename. Its temporary is left out (a killed
+                // run's temporaries are another sweep's).
+                let here: Vec<_> = fs::read_dir(d.path())
+                    .unwrap()
+                    .map(|e| e.unwrap().file_name())
+                    .collect();
+                for name in here {
+                    if !name.to_string_lossy().ends_with(".partial") {
+                        fs::hard_link(d.path().join(&name), frozen.path().join(&name)).unwrap();
+                    }
+                }
+                Err(io::Error::other("killed"))
+            },
+            Previous::keep,
+            || (),
+        );
+        assert!(r.is_err());
+        // The killed run's files back in place, its process gone (no lock is held).
+        let kept: Vec<_> = fs::read_dir(frozen.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        for name in kept {
+            // (a.json is the same inode as the one there: rename leaves both names.)
+            fs::rename(frozen.path().join(&name), d.path().join(&name)).unwrap();
+        }
+        assert_eq!(
+            fs::read(&exr).unwrap(),
+            b"new exr",
+            "the killed state is a mix"
+        );
+        assert_eq!(fs::read(&json).unwrap(), b"old json");
+        assert!(
+            names()
+                .iter()
+                .any(|n| n.starts_with(".stcvae-set.") && n.ends_with(".renaming")),
+            "no mark at the kill: {:?}",
+            names()
+        );
+        restore_killed_sets(d.path());
+        assert_eq!(fs::read(&exr).unwrap(), b"old exr");
+        assert_eq!(fs::read(&json).unwrap(), b"old json");
+        assert_eq!(names(), ["a.exr", "a.json"]);
+    }
+
+    /// A killed set's file whose name holds a space (`--out "my render"`) is put back like
+    /// any other: its mark's line is "INODE NAME", split at the first space, so the name
+    /// keeps its own spaces (the killed-set tests above use names without one).
+    #[cfg(unix)]
+    #[test]
+    fn a_killed_sets_file_with_a_space_in_its_name_is_put_back() {
+        use std::os::unix::fs::MetadataExt;
+        let d = tempfile::tempdir().unwrap();
+        let file = d.path().join("my render.exr");
+        fs::write(&file, b"old").unwrap();
+        let link = d
+            .path()
+            .join(format!("{}Kil123.stcvae-previous", temp_prefix(&file)));
+        fs::hard_link(&file, &link).unwrap();
+        let new = d.path().join("new");
+        fs::write(&new, b"new").unwrap();
+        fs::rename(&new, &file).unwrap();
+        let ino = fs::metadata(&file).unwrap().ino();
+        fs::write(
+            d.path().join(".stcvae-set.Kil123.renaming"),
+            format!("{ino} my render.exr\n"),
+        )
+        .unwrap();
+        restore_killed_sets(d.path());
+        assert_eq!(fs::read(&file).unwrap(), b"old");
+        let left: Vec<String> = fs::read_dir(d.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        assert_eq!(left, ["my render.exr"]);
+    }
 }
