@@ -533,3 +533,118 @@ fn a_missing_render_table_takes_the_documented_defaults() {
         (render_gpu::scene::IntegratorKind::Pt, true, 64, 1, 128)
     );
 }
+
+/// A light's irradiance must be non-negative (README: "each in [0, 1e12]"): a negative
+/// one is a light that takes energy away, and rendered negative pixels without a word.
+/// Checked for a delta light and for a 10° disk, whose radiance bound E/(π sin²θ) ≤ 1e12
+/// does not see the sign either; zero, the range's lower end, stays allowed.
+#[test]
+fn a_negative_irradiance_is_refused() {
+    let light = |irradiance: &str, extra: &str| {
+        format!(
+            "{BASE}\n[[light]]\nkind = \"directional\"\ndirection = [0.0, 0.0, -1.0]\nirradiance = {irradiance}\n{extra}"
+        )
+    };
+    for extra in ["", "angular_diameter_deg = 10.0\n"] {
+        let e = err(&light("[1.0, -0.5, 1.0]", extra));
+        assert!(
+            e.contains("light[0].irradiance[1]")
+                && e.contains("is out of range: allowed [0, 1e12]"),
+            "{extra}: {e}"
+        );
+    }
+    SceneFile::parse(Path::new("s.toml"), &light("[0.0, 0.0, 0.0]", "")).unwrap();
+}
+
+/// The environment's radiance must be non-negative (README: allowed [0, 1e12]): a
+/// negative sky subtracts light from every path that escapes, negative pixels without a
+/// word. Refused alone and as a map's scale (the scene check runs before the map is read,
+/// so no file is needed; `Environment::new`'s product check bounds it from above only).
+#[test]
+fn a_negative_environment_radiance_is_refused() {
+    let e = err(&format!(
+        "{BASE}\n[environment]\nradiance = [1.0, -0.5, 1.0]\n"
+    ));
+    assert!(
+        e.contains("environment.radiance[1]") && e.contains("is out of range: allowed [0, 1e12]"),
+        "{e}"
+    );
+    let e = err(&format!(
+        "{BASE}\n[environment]\nradiance = [-2.0, 1.0, 1.0]\nfile = \"sky.exr\"\n"
+    ));
+    assert!(e.contains("environment.radiance[0]"), "{e}");
+}
+
+/// A sun disk's angular diameter is in [0, 90] (README): a negative one was silently a
+/// delta light (`disk_sin2` sees a half-angle below 1e-6 rad), one beyond 90° a disk
+/// outside the range the renderers assume (θ_max ≤ 45° in `radiance_toward`). Both ends
+/// of the range, and the sun's 0.53°, stay allowed.
+#[test]
+fn the_disk_diameter_is_checked_at_both_ends() {
+    let disk = |d: &str| {
+        format!(
+            "{BASE}\n[[light]]\nkind = \"directional\"\ndirection = [0.0, 0.0, -1.0]\nirradiance = [1.0, 1.0, 1.0]\nangular_diameter_deg = {d}\n"
+        )
+    };
+    for bad in ["-10.0", "-1e-9", "90.5", "120.0", "nan"] {
+        let e = err(&disk(bad));
+        assert!(
+            e.contains("light[0].angular_diameter_deg")
+                && e.contains("is out of range: allowed [0, 90]"),
+            "{bad}: {e}"
+        );
+    }
+    for good in ["0.0", "0.53", "90.0"] {
+        SceneFile::parse(Path::new("s.toml"), &disk(good))
+            .unwrap_or_else(|e| panic!("angular_diameter_deg = {good} refused: {e}"));
+    }
+}
+
+/// `object.height` is range-checked like radius and size ([1e-6, 1e6]), for a shape and
+/// for a mesh: a negative height scaled the object by a negative factor (mirrored through
+/// its centre, its triangles' winding reversed), 0 collapsed it, 2e6 is beyond the scene-value bound of the
+/// other lengths, and NaN is refused as every other field's is.
+#[test]
+fn object_height_is_range_checked() {
+    for bad in ["-1.0", "0.0", "1e-9", "2e6", "nan"] {
+        for object in ["shape = \"sphere\"", "mesh = \"a.obj\""] {
+            let text = BASE.replace("shape = \"sphere\"", &format!("{object}\nheight = {bad}"));
+            let e = err(&text);
+            assert!(
+                e.contains("object.height = ")
+                    && e.contains("is out of range: allowed [1e-6, 1e6]"),
+                "{object}, height {bad}: {e}"
+            );
+        }
+    }
+    SceneFile::parse(
+        Path::new("s.toml"),
+        &BASE.replace("shape = \"sphere\"", "shape = \"sphere\"\nheight = 2.0"),
+    )
+    .unwrap();
+}
+
+/// `object.size` is the cube's edge and nothing else's (README: "cube only: size"): on a
+/// sphere, the torus knot or a mesh it would be read and ignored (`setup::object_mesh`
+/// uses it for the cube alone), the object rendered at its default size without a word.
+/// The cube keeps it.
+#[test]
+fn a_size_on_a_shape_other_than_the_cube_is_refused() {
+    for object in [
+        "shape = \"sphere\"",
+        "shape = \"torus-knot\"",
+        "mesh = \"a.obj\"",
+    ] {
+        let text = BASE.replace("shape = \"sphere\"", &format!("{object}\nsize = 2.0"));
+        let e = err(&text);
+        assert!(
+            e.contains("object.size applies to shape = \"cube\" only"),
+            "{object}: {e}"
+        );
+    }
+    SceneFile::parse(
+        Path::new("s.toml"),
+        &BASE.replace("shape = \"sphere\"", "shape = \"cube\"\nsize = 2.0"),
+    )
+    .unwrap();
+}
