@@ -917,4 +917,179 @@ mod tests {
             assert!(parse_k(bad).is_err(), "{bad}");
         }
     }
+
+    /// The pixel table's columns hold what their names say: PT's mean and the variance
+    /// of PT's mean, then ST-CVAE's, at x = i mod side and y = i div side. A 4×4 pair
+    /// whose pixel i reads i (PT) and 100 + i (ST-CVAE), with variances of the mean 0.01
+    /// (PT) and 0.02 (ST-CVAE) per channel. Every value is printed with `{:e}`, which
+    /// round-trips (integers and the f64 0.01 and 0.02 exactly), so they are compared
+    /// exactly. The integration test checks only the means and that the variances are
+    /// ≥ 0: ST-CVAE's variance written under pt_var passed it.
+    #[test]
+    fn the_pixel_table_holds_each_renders_mean_and_variance_in_its_column() {
+        let a = default_args();
+        let dir = tempfile::tempdir().unwrap();
+        let pt = grey_pair(4, 0.01, &|i: usize| i as f32);
+        let st = grey_pair(4, 0.02, &|i: usize| 100.0 + i as f32);
+        save_images(&a, dir.path(), 1.0, &pt, &st).unwrap();
+        let csv = std::fs::read_to_string(super::saved_pixels(dir.path(), 1.0)).unwrap();
+        let mut lines = csv.lines();
+        assert_eq!(
+            lines.next(),
+            Some("x,y,channel,pt_mean,pt_var,stcvae_mean,stcvae_var")
+        );
+        let mut rows = 0;
+        for line in lines {
+            let r: Vec<f64> = line.split(',').map(|v| v.parse().unwrap()).collect();
+            assert_eq!(r.len(), 7, "{line}");
+            let i = (r[1] * 4.0 + r[0]) as usize;
+            assert_eq!(
+                &r[3..],
+                &[i as f64, 0.01, 100.0 + i as f64, 0.02][..],
+                "{line}"
+            );
+            rows += 1;
+        }
+        // 16 pixels × 3 channels.
+        assert_eq!(rows, 4 * 4 * 3);
+    }
+
+    /// The z map of an image whose side is no multiple of 4 (`--size 10`: three blocks a
+    /// row, the last two pixels wide): every pixel shows its own block's z. PT 0.5
+    /// everywhere; ST-CVAE 0.55 in the first block of the second block row (x < 4,
+    /// 4 ≤ y < 8) and 0.5 elsewhere; every pixel-channel's variance of the mean 0.005 in
+    /// both. That block's z = 16·0.05/√(32·0.005) = 2, grey 0.75, PNG level 191
+    /// (⌊255·0.75 + 0.5⌋; the f32 rounding of 0.55 − 0.5 moves z by ~5e-7, far from a
+    /// level's edge); every other block has z = 0 exactly, level 128. All blocks have
+    /// ν = 3·(pixel-values in the block) ≥ 24 ≥ MIN_BLOCK_DOF (the 2×2 corner: 8 values),
+    /// so all are judged. With ⌊10/4⌋ = 2 blocks a row the marked pixels showed the
+    /// first row's third block (128) and the middle block of the second row showed 191.
+    #[test]
+    fn the_z_map_finds_each_pixels_block_when_the_side_is_no_multiple_of_four() {
+        let a = default_args();
+        let dir = tempfile::tempdir().unwrap();
+        let marked = |i: usize| i % 10 < 4 && (4..8).contains(&(i / 10));
+        let pt = grey_pair(10, 0.005, &|_: usize| 0.5f32);
+        let st = grey_pair(10, 0.005, &|i: usize| if marked(i) { 0.55f32 } else { 0.5 });
+        save_images(&a, dir.path(), 1.0, &pt, &st).unwrap();
+        let z = std::fs::read(super::saved_z(dir.path(), 1.0)).unwrap();
+        let mut dec = png::Decoder::new(std::io::Cursor::new(z))
+            .read_info()
+            .unwrap();
+        let mut grey = vec![0; dec.output_buffer_size()];
+        let info = dec.next_frame(&mut grey).unwrap();
+        assert_eq!((info.width, info.height, grey.len()), (10, 10, 10 * 10 * 3));
+        for (i, p) in grey.chunks(3).enumerate() {
+            let want = if marked(i) { 191u8 } else { 128 };
+            assert_eq!(p, &[want; 3][..], "pixel ({}, {})", i % 10, i / 10);
+        }
+    }
+
+    /// Blocks whose z cannot be judged are mid-grey (level 128) in the z map, as `--save`'s
+    /// help says: the background (no noise in either render) and a silhouette block whose
+    /// noise comes from one pixel (ν = 3·(2v)²/(2v²) = 6 < MIN_BLOCK_DOF = 10), even where
+    /// that pixel's renders differ by 0.3 (z = 0.3/√0.01 = 3, which a judged block would
+    /// draw at 0.875). 8×8: both 0 without noise in the top left block; in the top right
+    /// block both 0.5 without noise but pixel (5, 1), where PT reads 0.5 and ST-CVAE 0.8,
+    /// each with variance 0.005; the bottom blocks 0.5 in both with variance 0.005 (z = 0:
+    /// 128 too). Drawn at 0 (black, "ST-CVAE far darker"), the background read as the
+    /// strongest bias in the picture.
+    #[test]
+    fn unjudged_blocks_are_mid_grey_in_the_z_map() {
+        let a = default_args();
+        let dir = tempfile::tempdir().unwrap();
+        let block = |i: usize| (i / 8 / 4) * 2 + (i % 8) / 4;
+        let lone = 8 + 5;
+        let mut pt = grey_pair(8, 0.005, &|i: usize| {
+            if block(i) == 0 { 0.0f32 } else { 0.5 }
+        });
+        let mut st = grey_pair(8, 0.005, &|i: usize| match block(i) {
+            0 => 0.0f32,
+            _ if i == lone => 0.8,
+            _ => 0.5,
+        });
+        for p in [&mut pt, &mut st] {
+            for i in 0..64 {
+                if block(i) < 2 && i != lone {
+                    p.var[i] = [0.0; 3];
+                }
+            }
+        }
+        // Both top blocks are unjudged (None), the bottom ones judged at z = 0.
+        let zs = crate::experiment::measure::block_z(&pt, &st);
+        assert_eq!((zs[0], zs[1]), ([None; 3], [None; 3]));
+        assert_eq!((zs[2], zs[3]), ([Some(0.0); 3], [Some(0.0); 3]));
+        save_images(&a, dir.path(), 1.0, &pt, &st).unwrap();
+        let z = std::fs::read(super::saved_z(dir.path(), 1.0)).unwrap();
+        let mut dec = png::Decoder::new(std::io::Cursor::new(z))
+            .read_info()
+            .unwrap();
+        let mut grey = vec![0; dec.output_buffer_size()];
+        let info = dec.next_frame(&mut grey).unwrap();
+        assert_eq!((info.width, info.height, grey.len()), (8, 8, 8 * 8 * 3));
+        for (i, p) in grey.chunks(3).enumerate() {
+            // ⌊255·0.5 + 0.5⌋ = 128 for every block, judged at z = 0 or not judged.
+            assert_eq!(p, &[128u8; 3][..], "pixel ({}, {})", i % 8, i / 8);
+        }
+    }
+
+    /// The ladder's scene: the teaser medium times k whatever the scene file's own
+    /// medium (the sphere's is σ_t 20, albedo (0.999, 0.99, 0.95), g 0.4), the bench's
+    /// size on both sides, and for ST-CVAE each override in its own field; PT's render
+    /// settings stay the file's (so that its scene hash, and `--pt-cache`, ignore
+    /// ST-CVAE's options). Every override differs from the sphere file's value and from
+    /// the others (defaults: nee_samples 2, exact_nee_samples 1, path_nee_rays 1, taus
+    /// unset), so a flag applied to another field, or not at all, fails. All values are
+    /// exact in binary (150·2, 187.5·2, 125·2), so compared exactly.
+    #[test]
+    fn the_ladder_applies_each_st_cvae_override_to_its_own_field() {
+        use render_gpu::integrator::IntegratorKind;
+        let mut a = default_args();
+        a.size = 16;
+        a.min_tau = Some(0.5);
+        a.max_tau = Some(30.0);
+        a.exact_tau = Some(7.0);
+        a.nee_samples = Some(5);
+        a.exact_nee_samples = Some(3);
+        a.path_nee_rays = Some(2);
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../configs/scenes/sphere.toml");
+        let base = render_gpu::scene::SceneFile::load(&path).unwrap();
+        assert_eq!(
+            (
+                base.render.nee_samples,
+                base.render.exact_nee_samples,
+                base.render.path_nee_rays
+            ),
+            (2, 1, 1)
+        );
+        let mut st = base.clone();
+        super::ladder_scene(&a, IntegratorKind::Stcvae, 2.0, &mut st);
+        assert_eq!(st.medium.sigma_t, [300.0, 375.0, 250.0]);
+        assert_eq!(st.medium.albedo, super::LADDER_ALBEDO);
+        assert_eq!(st.medium.g, super::LADDER_G);
+        assert_eq!((st.camera.width, st.camera.height), (16, 16));
+        let r = &st.render;
+        assert_eq!(
+            (r.min_tau, r.max_tau, r.exact_tau),
+            (Some(0.5), Some(30.0), Some(7.0))
+        );
+        assert_eq!(
+            (r.nee_samples, r.exact_nee_samples, r.path_nee_rays),
+            (5, 3, 2)
+        );
+        let mut pt = base.clone();
+        super::ladder_scene(&a, IntegratorKind::Pt, 2.0, &mut pt);
+        assert_eq!(pt.medium.sigma_t, [300.0, 375.0, 250.0]);
+        assert_eq!((pt.camera.width, pt.camera.height), (16, 16));
+        let (b, r) = (&base.render, &pt.render);
+        assert_eq!(
+            (r.min_tau, r.max_tau, r.exact_tau),
+            (b.min_tau, b.max_tau, b.exact_tau)
+        );
+        assert_eq!(
+            (r.nee_samples, r.exact_nee_samples, r.path_nee_rays),
+            (b.nee_samples, b.exact_nee_samples, b.path_nee_rays)
+        );
+    }
 }

@@ -973,4 +973,30 @@ mod tests {
         super::absorb(1.0 / 32.0)(&mut f);
         assert_eq!(f.medium.albedo, [31.0 / 32.0; 3]);
     }
+
+    /// Two scenes of one file stem are refused wherever they stand in the list (their
+    /// images, named after the stem, would overwrite each other): here the first and the
+    /// third of a complexity config's scenes, with another stem between them. Scenes of
+    /// distinct stems pass.
+    #[test]
+    fn two_scenes_of_one_stem_are_refused_wherever_they_are_listed() {
+        let cfg: super::super::config::Config = toml::from_str(
+            "kind = \"complexity\"\ntitle = \"t\"\nscene = \"a/bunny.toml\"\n\
+             scenes = [\"torus_knot.toml\", \"b/bunny.toml\"]\ndensities = [1.0]\n\
+             [full]\nsize = 8\nspp = 2\n[quick]\nsize = 8\nspp = 2\n",
+        )
+        .unwrap();
+        let scenes = super::scene_paths(&cfg);
+        assert_eq!(scenes.len(), 3, "{scenes:?}");
+        let e = super::check_names(&cfg, &scenes).unwrap_err();
+        assert!(
+            e.to_string().contains("two scenes share a file name"),
+            "{e}"
+        );
+        let distinct: Vec<std::path::PathBuf> = ["a/bunny.toml", "torus_knot.toml", "sphere.toml"]
+            .into_iter()
+            .map(std::path::PathBuf::from)
+            .collect();
+        super::check_names(&cfg, &distinct).unwrap();
+    }
 }

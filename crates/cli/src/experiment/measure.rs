@@ -1072,4 +1072,58 @@ mod tests {
             "offset {o} ± {se}, expected -0.01 ± 0.02"
         );
     }
+
+    /// Where the reference is black on every object pixel (PT dark where the other render
+    /// is lit: a leak), its 99th percentile there is 0, and the unit falls back to the
+    /// whole frame's ([`scale_of`]): here a background pixel of 4, so 1/4 (exact). Worked
+    /// case: PT 0 in three pixels (both halves) beside a background pixel of 4 without
+    /// noise; the other's halves 1 and 3 there (mean 2, variance of the mean 1 per
+    /// channel) and 4 in the background. Per object pixel-channel e = 2² − 0 − 1 = 3, so
+    /// bias √3/4 = 0.4330 and noise √(9·1/9)/4 = 0.25. The inverse percentile of the black
+    /// object is 1/1e-12, which is exactly 1e12 in f64: kept as the unit (a guard of ≤
+    /// rather than <), it made the bias 1.7e12. Exact in binary up to the last rounding,
+    /// so 1e-12.
+    #[test]
+    fn a_black_reference_object_takes_the_frames_scale() {
+        let reference = pair_of(grey4([0.0, 0.0, 0.0, 4.0]), grey4([0.0, 0.0, 0.0, 4.0]));
+        let other = pair_of(grey4([1.0, 1.0, 1.0, 4.0]), grey4([3.0, 3.0, 3.0, 4.0]));
+        assert_eq!(object_scale(&reference, &other), 0.25);
+        let c = compare(&reference, &other);
+        let (bias, noise) = (3f64.sqrt() / 4.0, 0.25);
+        assert!(
+            (c.bias - bias).abs() < 1e-12 && (c.noise - noise).abs() < 1e-12,
+            "bias {} and noise {} against {bias} and {noise}",
+            c.bias,
+            c.noise
+        );
+    }
+
+    /// The exposure and the errors' unit take a pixel's luminance as the mean of its
+    /// three channels: a red, a green and a blue pixel of 6 each read 2, so the scale is
+    /// 1/2 (exact in binary). A luminance that counted the green channel twice in place of
+    /// the blue read 2, 4 and 0 (scale 1/4); red alone 6, 0, 0 (1/6). The other tests use
+    /// grey images, or compute the unit with the same function on both sides, which cannot
+    /// tell them apart.
+    #[test]
+    fn the_scale_weighs_the_three_channels_alike() {
+        let mut img = RgbImage::new(3, 1);
+        img.pixels = vec![[6.0, 0.0, 0.0], [0.0, 6.0, 0.0], [0.0, 0.0, 6.0]];
+        assert_eq!(scale_of(&img), 0.5);
+        assert_eq!(lum([1.0, 2.0, 6.0]), 3.0);
+    }
+
+    /// The quality figure's third panel is |A − B| × gain per channel, by hand: pixels
+    /// (1, 2, 3) and (0.5, 0.5, 0.5) against (2, 2, 1) and (0.25, 0.75, 0.5) at gain 4 give
+    /// (4, 0, 8) and (1, 1, 0), all exact in binary. A signed difference gave −4 and −1
+    /// where B is the brighter, which the PNG clips to black: half the differences unseen.
+    #[test]
+    fn the_difference_is_absolute_and_scaled() {
+        let mut a = RgbImage::new(2, 1);
+        a.pixels = vec![[1.0, 2.0, 3.0], [0.5, 0.5, 0.5]];
+        let mut b = RgbImage::new(2, 1);
+        b.pixels = vec![[2.0, 2.0, 1.0], [0.25, 0.75, 0.5]];
+        let d = difference(&a, &b, 4.0);
+        assert_eq!((d.width, d.height), (2, 1));
+        assert_eq!(d.pixels, vec![[4.0, 0.0, 8.0], [1.0, 1.0, 0.0]]);
+    }
 }
