@@ -654,3 +654,87 @@ impl Readback {
 pub fn wait(ctx: &GpuContext) -> Result<(), RenderError> {
     ctx.poll(wgpu::PollType::wait_indefinitely())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gpu::context::AdapterChoice;
+
+    /// `check_binding_sizes` on inputs of the given sizes (no buffer is made).
+    fn check(
+        ctx: &GpuContext,
+        accum_bytes: &[u64],
+        env: &[[f32; 4]],
+        grid: &[u32],
+    ) -> Result<(), RenderError> {
+        let params = Params::default();
+        let model = ModelParams::default();
+        check_binding_sizes(
+            ctx,
+            &Inputs {
+                params: &params,
+                accum_bytes,
+                nodes: &[],
+                tris: &[],
+                env,
+                grid,
+                model: &model,
+                stage_slots: 0,
+            },
+        )
+    }
+
+    /// The message of a refusal as beyond the GPU.
+    fn refused(r: Result<(), RenderError>) -> String {
+        match r {
+            Err(RenderError::SceneBeyondGpu(m)) => m,
+            other => panic!("not refused as beyond the GPU: {other:?}"),
+        }
+    }
+
+    /// Inputs that one storage binding cannot hold are refused before any buffer is made,
+    /// naming the biggest of them and what would make it smaller; inputs exactly at the
+    /// limit bind. (The message once blamed the grid and mesh for an environment map too
+    /// large.) Skipped, saying so, only where no Vulkan adapter exists outside CI.
+    #[test]
+    fn inputs_beyond_the_binding_limit_are_named() {
+        let vulkan = Some(wgpu::Backends::VULKAN);
+        let mut ctx = match GpuContext::with_backends(AdapterChoice::Any, vulkan) {
+            Ok(c) => c,
+            Err(RenderError::NoAdapter(e)) => {
+                assert!(std::env::var_os("CI").is_none(), "CI must have Vulkan: {e}");
+                use std::io::Write;
+                let _ = writeln!(
+                    std::io::stderr(),
+                    "skipping inputs_beyond_the_binding_limit_are_named: {e}"
+                );
+                return;
+            }
+            Err(e) => panic!("{e}"),
+        };
+        // A limit of 1,024 bytes (64 texels of 16 bytes, 256 grid words), so that small
+        // inputs reach it; only check_binding_sizes reads it here.
+        ctx.limits.max_storage_buffer_binding_size = 1024;
+        let texels = |n: usize| vec![[0.0f32; 4]; n];
+        // Exactly at the limit: binds.
+        assert!(check(&ctx, &[1024], &texels(64), &[0; 256]).is_ok());
+        // 65 texels are 1,040 bytes, 16 over.
+        let m = refused(check(&ctx, &[16], &texels(65), &[]));
+        assert!(
+            m.contains("a buffer of 1040 bytes") && m.contains("the environment map"),
+            "{m}"
+        );
+        // Two too large: the grid's 300 words (1,200 bytes) are named, not the map's 1,040.
+        let m = refused(check(&ctx, &[16], &texels(65), &[0; 300]));
+        assert!(
+            m.contains("a buffer of 1200 bytes") && m.contains("the distance grid"),
+            "{m}"
+        );
+        // The largest band is checked, wherever it lies in the list.
+        let m = refused(check(&ctx, &[16, 1028], &[], &[]));
+        assert!(
+            m.contains("a buffer of 1028 bytes") && m.contains("band of samples"),
+            "{m}"
+        );
+    }
+}

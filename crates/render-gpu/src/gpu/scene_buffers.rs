@@ -435,4 +435,66 @@ mod tests {
             }
         }
     }
+
+    /// Both halves of the 64-bit seed reach the kernels (sampling.z = low word, sampling.w
+    /// = high word): seeds that differ only above bit 31 (e.g. --seed 7 and 4294967303)
+    /// must draw different samples. Every GPU test uses seeds below 2^32.
+    #[test]
+    fn both_halves_of_the_seed_reach_the_kernels() {
+        // The scene of integrator/sphere_step.rs's `lit_sphere` (a unit test there builds it).
+        let f = crate::scene::SceneFile::parse(
+            std::path::Path::new("t.toml"),
+            "[camera]\norigin = [0.0, 0.0, 4.0]\ntarget = [0.0, 0.0, 0.0]\nfov_deg = 20.0\n\
+             width = 8\nheight = 8\n[object]\nshape = \"sphere\"\nradius = 0.5\n\
+             [medium]\nsigma_t = [2.0, 4.0, 8.0]\nalbedo = [0.9, 0.9, 0.9]\ng = 0.5\n\
+             [[light]]\nkind = \"directional\"\ndirection = [0.3, -0.8, 0.5]\n\
+             irradiance = [1.0, 2.5, 0.5]\n",
+        )
+        .unwrap();
+        let scene =
+            crate::setup::SceneData::build(&f, std::path::Path::new("."), false, &[]).unwrap();
+        let set = crate::integrator::IntegratorSettings {
+            kind: crate::integrator::IntegratorKind::Pt,
+            nee: false,
+            model: None,
+            min_tau: 0.0,
+            max_tau: 0.0,
+            exact_tau: 0.0,
+            nee_samples: 1,
+            exact_nee_samples: 1,
+            path_nee_rays: 0,
+        };
+        let p = scene_params(&scene, &set, 0x0123_4567_89ab_cdef);
+        assert_eq!(
+            [p.sampling[2], p.sampling[3]],
+            [0x89ab_cdef_u32, 0x0123_4567_u32]
+        );
+        let low = scene_params(&scene, &set, 7).sampling;
+        let high = scene_params(&scene, &set, 7 + (1u64 << 32)).sampling;
+        assert_ne!(low, high);
+    }
+
+    /// bvh_depth is exactly the levels below the root (0 for a root leaf), as an
+    /// independent recursive count gives them: the renderer refuses a tree when depth + 1
+    /// exceeds the kernels' 48-entry stack, so one level too many refuses a tree that fits,
+    /// and one too few lets a tree overflow the stack.
+    #[test]
+    fn bvh_depth_counts_the_levels_below_the_root_exactly() {
+        fn levels(bvh: &obvhs::bvh2::Bvh2, i: usize) -> usize {
+            let n = &bvh.nodes[i];
+            if n.prim_count > 0 {
+                0
+            } else {
+                let f = n.first_index as usize;
+                1 + levels(bvh, f).max(levels(bvh, f + 1))
+            }
+        }
+        for (name, mesh) in [
+            ("sphere", crate::mesh::sphere(0.5)),
+            ("cube", crate::mesh::cube(1.0)),
+        ] {
+            let geo = Geometry::new(mesh);
+            assert_eq!(bvh_depth(&geo.bvh), levels(&geo.bvh, 0), "{name}");
+        }
+    }
 }

@@ -394,4 +394,80 @@ mod tests {
             assert!(e.contains("allowed 1 to 65535"), "{bad:?}: {e}");
         }
     }
+
+    /// A switch reads every offered spelling as documented: "false" is off like "0", and
+    /// "true" on like "1" (the existing test never tries "false").
+    #[test]
+    fn switches_read_false_as_off() {
+        for (v, on) in [("false", false), ("0", false), ("true", true), ("1", true)] {
+            let got = parse_switch("STCVAE_GPU_STAGED_AHEAD", v, "w").unwrap();
+            assert_eq!(got, on, "{v:?}");
+        }
+    }
+
+    /// A switch's or a choice's value is read trimmed, as every count here is: env_value
+    /// passes a non-blank value on untrimmed, so " 1" or "private " must still be taken.
+    #[test]
+    fn switch_and_choice_values_are_read_trimmed() {
+        assert!(parse_switch("STCVAE_GPU_STAGED", " 1\n", "w").unwrap());
+        assert!(!parse_switch("STCVAE_GPU_STAGED", "\tfalse ", "w").unwrap());
+        let stack = parse_choice(
+            "STCVAE_GPU_STACK",
+            " private ",
+            &[
+                ("workgroup", StackMemory::Workgroup),
+                ("private", StackMemory::Private),
+            ],
+            "a stack memory",
+        )
+        .unwrap();
+        assert_eq!(stack, StackMemory::Private);
+    }
+
+    /// A value that is not Unicode is passed on (lossily) so that the range check refuses
+    /// it by name, never dropped as if unset (which would render with the default).
+    #[cfg(unix)]
+    #[test]
+    fn a_value_that_is_not_unicode_is_refused_not_ignored() {
+        use std::os::unix::ffi::OsStrExt;
+        // A variable of this test alone (no switch reads it), so no other test sees it.
+        let name = "STCVAE_TEST_SWITCHES_NOT_UNICODE";
+        // SAFETY: no other test of this binary reads or writes this variable.
+        unsafe { std::env::set_var(name, std::ffi::OsStr::from_bytes(b"12\xff")) };
+        let v = env_value(name);
+        unsafe { std::env::remove_var(name) };
+        let v = v.expect("a set, non-blank value that is not Unicode is passed on");
+        assert_eq!(v, "12\u{fffd}");
+        let e = parse_bounces(&v).unwrap_err().to_string();
+        assert!(e.contains("STCVAE_GPU_BOUNCES"), "{e}");
+    }
+
+    /// `STCVAE_GPU_STAGED_ROUNDS` takes 1 to MAX_STAGED_ROUNDS (4096) as documented, the
+    /// default 8 when unset or blank, and refuses the rest by name.
+    #[test]
+    fn staged_rounds_take_the_documented_range() {
+        let name = "STCVAE_GPU_STAGED_ROUNDS";
+        // SAFETY: no other test of this binary reads this variable (only a GPU render
+        // does, and no unit test of this crate renders).
+        let with = |v: &str| {
+            unsafe { std::env::set_var(name, v) };
+            let r = staged_rounds();
+            unsafe { std::env::remove_var(name) };
+            r
+        };
+        unsafe { std::env::remove_var(name) };
+        assert_eq!(staged_rounds().unwrap(), STAGED_ROUNDS);
+        assert_eq!(with("").unwrap(), STAGED_ROUNDS);
+        assert_eq!(with("1").unwrap(), 1);
+        // 64: above the default 8, inside the documented 1..=4096.
+        assert_eq!(with("64").unwrap(), 64);
+        assert_eq!(with(" 4096 ").unwrap(), MAX_STAGED_ROUNDS);
+        for bad in ["0", "4097", "-1", "x"] {
+            let e = with(bad).unwrap_err().to_string();
+            assert!(
+                e.contains(name) && e.contains("allowed 1 to 4096"),
+                "{bad:?}: {e}"
+            );
+        }
+    }
 }
