@@ -454,4 +454,74 @@ mod tests {
         assert_ne!(k, key(listed), "the faces listed in another order");
         assert_ne!(k, key(crate::mesh::cube(1.5)), "other positions");
     }
+
+    /// An entry that `read_or_build` reads back is marked as used: its modification time,
+    /// by which `trim` evicts the entries used longest ago, becomes now. Here the entry's
+    /// time is set 100,000 s in the past; after the read it must be later than 50,000 s
+    /// ago. That midpoint leaves half a day of margin on both sides ("touched" is ~0 s
+    /// ago, "not touched" 100,000 s ago), whatever the file system's timestamp resolution
+    /// or the test's speed. Without the touch, a grid read on every run kept the time it
+    /// was written and was the first evicted when the cache went over its cap.
+    #[test]
+    fn an_entry_read_back_is_marked_used() {
+        let d = tempfile::tempdir().unwrap();
+        let entry = d.path().join(format!("grid-x-{CODE}.bin"));
+        std::fs::write(&entry, b"cached").unwrap();
+        let long_ago = SystemTime::now() - Duration::from_secs(100_000);
+        std::fs::File::options()
+            .write(true)
+            .open(&entry)
+            .unwrap()
+            .set_modified(long_ago)
+            .unwrap();
+        let read = read_or_build(
+            Some(entry.as_path()),
+            -1.0,
+            |p| std::fs::read(p).ok(),
+            || Err::<Vec<u8>, _>("built instead of read".to_string()),
+            |p, v| std::fs::write(p, v),
+        )
+        .unwrap();
+        assert_eq!(read, b"cached");
+        let modified = std::fs::metadata(&entry).unwrap().modified().unwrap();
+        assert!(
+            modified > long_ago + Duration::from_secs(50_000),
+            "the entry read back kept its old modification time: {modified:?}"
+        );
+    }
+
+    /// Writing an entry through `read_or_build` tidies the cache: the same stem's file
+    /// written by other code (no build of this code can read it; a grid is up to tens of
+    /// MB) is removed, another mesh's is kept. `prune_stale` alone is tested above; this
+    /// checks that the one way entries are written calls it. `cached_from` = −1: every
+    /// build (≥ 0 s) is written.
+    #[test]
+    fn writing_an_entry_removes_its_stems_files_of_other_code() {
+        let d = tempfile::tempdir().unwrap();
+        let other_code = if CODE == "0123456789abcdef" {
+            "fedcba9876543210"
+        } else {
+            "0123456789abcdef"
+        };
+        let entry = d.path().join(format!("grid-00ab-64-{CODE}.bin"));
+        let stale = d.path().join(format!("grid-00ab-64-{other_code}.bin"));
+        let other_mesh = d.path().join(format!("grid-00cd-64-{other_code}.bin"));
+        std::fs::write(&stale, b"old code").unwrap();
+        std::fs::write(&other_mesh, b"another mesh").unwrap();
+        let built = read_or_build(
+            Some(entry.as_path()),
+            -1.0,
+            |p| std::fs::read(p).ok(),
+            || Ok::<_, String>(b"built".to_vec()),
+            |p, v| std::fs::write(p, v),
+        )
+        .unwrap();
+        assert_eq!(built, b"built");
+        assert_eq!(std::fs::read(&entry).unwrap(), b"built");
+        assert!(
+            !stale.exists(),
+            "the stem's file of other code stayed after this code's entry was written"
+        );
+        assert!(other_mesh.exists(), "another mesh's file was removed");
+    }
 }

@@ -648,3 +648,97 @@ fn a_size_on_a_shape_other_than_the_cube_is_refused() {
     )
     .unwrap();
 }
+
+/// render.grid_resolution is checked against its documented range [4, MAX_GRID = 512]
+/// (512³ cells of 8 bytes is already 1 GiB before the candidate lists). The deserializer
+/// (`whole`) takes any whole number a u32 holds and leaves the range to `validate`, so
+/// without that check 513 or 100000 (10¹⁵ cells) went on to the grid's allocation and 3
+/// gave a grid coarser than the least allowed. The bounds themselves are accepted.
+#[test]
+fn the_grid_resolution_is_checked_against_its_range() {
+    for bad in ["3", "513", "100000"] {
+        let e = err(&format!("{BASE}\n[render]\ngrid_resolution = {bad}\n"));
+        assert!(
+            e.contains(&format!(
+                "render.grid_resolution = {bad} is out of range: allowed [4, 512]"
+            )),
+            "{e}"
+        );
+    }
+    for good in ["4", "512"] {
+        let text = format!("{BASE}\n[render]\ngrid_resolution = {good}\n");
+        let s = SceneFile::parse(Path::new("s.toml"), &text).unwrap();
+        assert_eq!(s.render.grid_resolution.to_string(), good);
+    }
+}
+
+/// An index of refraction given to an index-matched boundary (the default kind, or named)
+/// is refused: index-matched means ior = 1, so `[boundary] ior = 1.5` without
+/// `kind = "dielectric"` would render with no refraction and no Fresnel reflection while
+/// the file asks for glass. Index-matched without an ior and a dielectric with one stay
+/// valid.
+#[test]
+fn an_index_matched_boundary_refuses_an_ior() {
+    for boundary in ["ior = 1.5", "kind = \"index-matched\"\nior = 1.33"] {
+        let e = err(&format!("{BASE}\n[boundary]\n{boundary}\n"));
+        assert!(
+            e.contains("boundary.ior applies to kind = \"dielectric\" only"),
+            "{boundary}: {e}"
+        );
+    }
+    for boundary in [
+        "kind = \"index-matched\"",
+        "kind = \"dielectric\"\nior = 1.33",
+    ] {
+        SceneFile::parse(
+            Path::new("s.toml"),
+            &format!("{BASE}\n[boundary]\n{boundary}\n"),
+        )
+        .unwrap();
+    }
+}
+
+/// Coordinates are bounded in magnitude, below −MAX_SCENE_VALUE (−1e6) as above +1e6:
+/// the existing cases are all positive. −2e6 is finite in f32 but past the bound the
+/// renderers' f32 offsets rely on; −1e39 overflows f32 to −inf, which must be named by
+/// its field rather than reported as "target equals origin". A light's direction of
+/// −1e39 normalises in f64 but is out of range all the same. The bound itself is accepted.
+#[test]
+fn coordinates_below_minus_the_bound_are_refused() {
+    for (from, to, field) in [
+        (
+            "origin = [0.0, 0.0, 4.0]",
+            "origin = [-2e6, 0.0, 4.0]",
+            "camera.origin[0]",
+        ),
+        (
+            "target = [0.0, 0.0, 0.0]",
+            "target = [-2e6, 0.0, 0.0]",
+            "camera.target[0]",
+        ),
+        (
+            "origin = [0.0, 0.0, 4.0]",
+            "origin = [0.0, 0.0, -1e39]",
+            "camera.origin[2]",
+        ),
+    ] {
+        let e = err(&BASE.replace(from, to));
+        assert!(
+            e.contains(field) && e.contains("allowed [-1e6, 1e6]"),
+            "{to}: {e}"
+        );
+    }
+    let e = err(&format!(
+        "{BASE}\n[[light]]\nkind = \"directional\"\ndirection = [-1e39, 0.0, -1.0]\n\
+         irradiance = [1.0, 1.0, 1.0]\n"
+    ));
+    assert!(
+        e.contains("light[0].direction[0]") && e.contains("allowed [-1e6, 1e6]"),
+        "{e}"
+    );
+    SceneFile::parse(
+        Path::new("s.toml"),
+        &BASE.replace("origin = [0.0, 0.0, 4.0]", "origin = [-1e6, 0.0, 4.0]"),
+    )
+    .unwrap();
+}

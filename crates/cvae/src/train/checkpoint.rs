@@ -706,4 +706,62 @@ mod tests {
             .unwrap_err();
         assert!(e.contains("history entry (300, 1.5)"), "{e}");
     }
+
+    /// A decoder taken from a checkpoint into a model file (`train --model X` exports the
+    /// other models with `load_decoder`) is checked against its record's checksum, as a
+    /// resume is: a weights file replaced by another run's (valid, finite, of the same
+    /// shapes) was exported into the model file under the record's step, mode and ranges.
+    /// Two 20-step LengthGen runs (seeds 1 and 2); the first's decoder loads, and with the
+    /// second's weights file in its place it is refused naming that file.
+    #[test]
+    fn a_replaced_weights_file_is_refused_when_its_decoder_is_taken() {
+        use std::sync::atomic::AtomicBool;
+        let kind = ModelKind::LengthGen;
+        let sampler = scatter_sim::ConditionSampler::authors();
+        let rows: Vec<_> = (0..400)
+            .map(|i| scatter_sim::dataset::walk_row(9, &sampler, i).0)
+            .collect();
+        let table = Table::build(kind, &rows, crate::SingleScattering::Exact);
+        let cfg = config(20, Some(0));
+        let device = Device::flex().autodiff();
+        let run = |dir: &Path, seed: u64| {
+            crate::train::trainer::train_model(
+                kind,
+                &table,
+                &cfg,
+                seed,
+                &device,
+                dir,
+                0,
+                false,
+                &AtomicBool::new(false),
+                None,
+                &|_, _, _, _| {},
+            )
+        };
+        let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+        assert_eq!(run(a.path(), 1).unwrap().info.step, 20);
+        assert_eq!(run(b.path(), 2).unwrap().info.step, 20);
+        let (weights_a, _, _) = paths(a.path(), kind);
+        let (weights_b, _, _) = paths(b.path(), kind);
+        let arch = cfg.architecture();
+        let (_, info) = load_decoder(a.path(), kind, &arch).unwrap();
+        assert_eq!(info.step, 20);
+        let other = std::fs::read(&weights_b).unwrap();
+        assert_ne!(
+            std::fs::read(&weights_a).unwrap(),
+            other,
+            "two runs of other seeds hold other weights"
+        );
+        std::fs::write(&weights_a, &other).unwrap();
+        match load_decoder(a.path(), kind, &arch) {
+            Err(TrainError::Checkpoint { path, msg }) => assert!(
+                path == weights_a && msg.contains("checksum"),
+                "{}: {msg}",
+                path.display()
+            ),
+            Err(e) => panic!("refused for another reason: {e}"),
+            Ok(_) => panic!("another run's weights were taken as this checkpoint's"),
+        }
+    }
 }

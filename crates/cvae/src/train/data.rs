@@ -609,4 +609,114 @@ mod tests {
             assert_eq!(held.rows, held_rows.len(), "{kind:?}");
         }
     }
+
+    /// EventGen's table in exact mode holds the walks with N ≥ 2 whose representative
+    /// event is not event 1 (the centre, which the exact sampler draws itself with
+    /// probability φ/Λ(N)); in learned mode it holds every walk, centre events included,
+    /// since the learned sampler never draws the centre itself (`centre_event` is false
+    /// there): a learned-mode table without them trained an EventGen that never put the
+    /// representative event at the centre, N = 1 walks included. The other tests count
+    /// LengthGen's and PathGen's rows only.
+    #[test]
+    fn eventgen_tables_drop_centre_events_in_exact_mode_only() {
+        let sampler = scatter_sim::conditions::ConditionSampler::authors();
+        let rows: Vec<_> = (0..2_000)
+            .map(|i| scatter_sim::dataset::walk_row(7, &sampler, i).0)
+            .collect();
+        let centre = rows
+            .iter()
+            .filter(|r| features::is_centre_event(r.ev_pos))
+            .count();
+        let exact_rows = rows
+            .iter()
+            .filter(|r| r.n >= 2 && !features::is_centre_event(r.ev_pos))
+            .count();
+        // Both kinds of walk are there, so each count below is a real check: τ = 300u³
+        // gives N = 1 to ~13 % of the walks (∫ e^(−300u³) du ≈ 0.13: some 260 of the
+        // 2,000, each a centre event), and the first test finds over 1,000 walks with
+        // N ≥ 2 in these same rows.
+        assert!(
+            centre > 0 && exact_rows > 0 && exact_rows < rows.len(),
+            "{centre} centre events, {exact_rows} other walks with N >= 2"
+        );
+        let kind = ModelKind::EventGen;
+        assert_eq!(
+            Table::build(kind, &rows, SingleScattering::Learned).rows,
+            rows.len(),
+            "learned mode keeps every walk"
+        );
+        assert_eq!(
+            Table::build(kind, &rows, SingleScattering::Exact).rows,
+            exact_rows,
+            "exact mode keeps the walks with N >= 2 and an event off the centre"
+        );
+    }
+
+    /// EventGen's table holds, for each kept walk in order, its conditions (τ, g, φ,
+    /// relative log N, cos θ, β, α) and its event's target, standardised with the table's
+    /// statistics: the held-out test checks PathGen's columns only, and nothing checked
+    /// EventGen's (an albedo column of constant 1 trained a model blind to absorption).
+    /// Walks of the authors' condition distribution, whose albedo spreads over (0, 1]
+    /// (1 − u⁶): the kept walks' albedos must span more than 0.1, so a column that lost φ
+    /// cannot match. The tolerance is the held-out test's, 1e-6·(1 + |value|): the same
+    /// f32 of the same f64s through the same operations, a few f32 roundings at most.
+    #[test]
+    fn eventgen_tables_hold_each_walks_conditions_and_event() {
+        let sampler = scatter_sim::conditions::ConditionSampler::authors();
+        let rows: Vec<_> = (0..2_000)
+            .map(|i| scatter_sim::dataset::walk_row(7, &sampler, i).0)
+            .collect();
+        let kind = ModelKind::EventGen;
+        let t = Table::build(kind, &rows, SingleScattering::Exact);
+        let kept: Vec<_> = rows
+            .iter()
+            .filter(|r| r.n >= 2 && !features::is_centre_event(r.ev_pos))
+            .collect();
+        assert_eq!(t.rows, kept.len());
+        // ~1,500 of the 2,000 walks are kept (the first test finds over 1,000 with N ≥ 2);
+        // 100 only guards against a near-empty table that would check next to nothing.
+        assert!(kept.len() > 100, "{} walks kept", kept.len());
+        let (lo, hi) = kept
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), r| {
+                (lo.min(r.albedo), hi.max(r.albedo))
+            });
+        // 0.1: φ = 1 + 10⁻⁶ − u⁶ (capped at 1) is below 0.9 for u > 0.68, a third of the
+        // walks, so a thousand-odd walks span far more; and far above f32 noise.
+        assert!(hi - lo > 0.1, "albedos of the kept walks span [{lo}, {hi}]");
+        let (c, p) = (kind.cond(), kind.out());
+        let n = &t.norm;
+        let close = |got: f32, want: f32, what: &str| {
+            assert!(
+                (got - want).abs() <= 1e-6 * (1.0 + want.abs()),
+                "{what}: {got} against {want}"
+            );
+        };
+        for (i, r) in kept.iter().enumerate() {
+            let raw_c = features::event_cond(
+                r.tau as f64,
+                r.g as f64,
+                r.albedo,
+                r.n as u64,
+                r.cos_theta as f64,
+                r.beta as f64,
+                r.alpha as f64,
+            );
+            assert_eq!(raw_c.len(), c);
+            for (j, &v) in raw_c.iter().enumerate() {
+                let want = (v as f32 - n.cond_shift[j]) / n.cond_scale[j];
+                close(t.cond[i * c + j], want, &format!("walk {i} condition {j}"));
+            }
+            let raw_t = features::event_target(
+                features::EventRadial::CURRENT,
+                r.ev_pos.map(f64::from),
+                r.ev_dir.map(f64::from),
+            );
+            assert_eq!(raw_t.len(), p);
+            for (j, &v) in raw_t.iter().enumerate() {
+                let want = (v as f32 - n.out_shift[j]) / n.out_scale[j];
+                close(t.target[i * p + j], want, &format!("walk {i} target {j}"));
+            }
+        }
+    }
 }
