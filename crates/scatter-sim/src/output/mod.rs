@@ -934,4 +934,36 @@ mod tests {
             .collect();
         assert_eq!(left, ["my render.exr"]);
     }
+
+    /// A name over 64 bytes whose 55th byte falls inside a character (é is two bytes, at
+    /// even offsets here, so byte 55 is the second half of one) has its temporaries'
+    /// prefix cut at the character before, and is written, alone and in a set. (In
+    /// `the_longest_names_are_written` the é's start at odd offsets: byte 55 is a
+    /// boundary there, and the cut's step back was never taken.)
+    #[test]
+    fn a_long_name_cut_inside_a_character_is_written() {
+        let d = tempfile::tempdir().unwrap();
+        // 40 é's (80 bytes) + ".exr": 84 bytes, over the 64 kept whole.
+        let name = format!("{}.exr", "é".repeat(40));
+        assert!(!name.is_char_boundary(55));
+        let p = d.path().join(&name);
+        let prefix = temp_prefix(&p);
+        // 27 é's (54 bytes, the boundary before byte 55), then the checksum.
+        assert!(
+            prefix.starts_with(&format!(".{}~", "é".repeat(27))),
+            "{prefix}"
+        );
+        // "." + 54 + "~" + 8 hex digits + "." = 65 bytes, within the 66 of a 64-byte name.
+        assert_eq!(prefix.len(), 65, "{prefix}");
+        write_atomic(&p, b"x").unwrap();
+        assert_eq!(fs::read(&p).unwrap(), b"x");
+        // Replaced in a set: its predecessor kept as a link named by the same prefix.
+        write_atomic_set(&[(p.as_path(), &b"y"[..])]).unwrap();
+        assert_eq!(fs::read(&p).unwrap(), b"y");
+        assert_eq!(
+            fs::read_dir(d.path()).unwrap().count(),
+            1,
+            "files left beside it"
+        );
+    }
 }
