@@ -602,8 +602,8 @@ fn the_disk_diameter_is_checked_at_both_ends() {
 
 /// `object.height` is range-checked like radius and size ([1e-6, 1e6]), for a shape and
 /// for a mesh: a negative height scaled the object by a negative factor (mirrored through
-/// its centre, its triangles' winding reversed), 0 collapsed it, 2e6 is beyond the scene-value bound of the
-/// other lengths, and NaN is refused as every other field's is.
+/// its centre, its triangles' winding reversed), 0 collapsed it, 2e6 is beyond the
+/// scene-value bound of the other lengths, and NaN is refused as every other field's is.
 #[test]
 fn object_height_is_range_checked() {
     for bad in ["-1.0", "0.0", "1e-9", "2e6", "nan"] {

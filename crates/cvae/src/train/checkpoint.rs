@@ -673,9 +673,10 @@ mod tests {
 
     /// A record's history is its run's reports in order: one edited out of order (here
     /// step 300 after step 500) is refused by name, as the CLI test refuses an emptied one.
-    /// The same record in order passes, and the out-of-order entry is within every other
-    /// bound (at most the record's step, a finite loss, 300 steps before the record's step
-    /// where 1,000 is refused), so only the order check can refuse it.
+    /// A record whose history is in order, (1, 500, 600), passes, and the out-of-order
+    /// entry is within every other bound (at most the record's step, a finite loss, 300
+    /// steps before the record's step where 1,000 is refused), so only the order check can
+    /// refuse it.
     #[test]
     fn a_history_out_of_order_is_refused() {
         let kind = ModelKind::LengthGen;

@@ -632,9 +632,9 @@ mod tests {
             .filter(|r| r.n >= 2 && !features::is_centre_event(r.ev_pos))
             .count();
         // Both kinds of walk are there, so each count below is a real check: τ = 300u³
-        // gives N = 1 to ~13 % of the walks (∫ e^(−300u³) du ≈ 0.13: some 260 of the
-        // 2,000, each a centre event), and the first test finds over 1,000 walks with
-        // N ≥ 2 in these same rows.
+        // gives N = 1 to ~13 % of the walks (∫ e^(−300u³) du ≈ 0.13; these rows hold 229,
+        // 2,000 less the 1,771 with N ≥ 2 that the first test counts, each a centre
+        // event), and the first test finds over 1,000 walks with N ≥ 2 in these same rows.
         assert!(
             centre > 0 && exact_rows > 0 && exact_rows < rows.len(),
             "{centre} centre events, {exact_rows} other walks with N >= 2"

@@ -210,7 +210,14 @@ fn parse_choice<T: Copy>(
 /// script that clears a setting means the default, as a shell's unset would; a value that
 /// is not Unicode is passed on lossily, so that the range error shows it).
 fn env_value(name: &str) -> Option<String> {
-    match std::env::var(name) {
+    value_of(std::env::var(name))
+}
+
+/// [`env_value`]'s rule on what `std::env::var` gave, apart so that tests need not set
+/// variables while other tests of the binary start Vulkan (whose loader reads the
+/// environment through libc, outside std's lock).
+fn value_of(var: Result<String, std::env::VarError>) -> Option<String> {
+    match var {
         Ok(v) if v.trim().is_empty() => None,
         Ok(v) => Some(v),
         Err(std::env::VarError::NotPresent) => None,
@@ -248,7 +255,12 @@ const STAGED_ROUNDS: u32 = 8;
 const MAX_STAGED_ROUNDS: u32 = 4096;
 
 pub(super) fn staged_rounds() -> Result<u32, RenderError> {
-    env_value("STCVAE_GPU_STAGED_ROUNDS").map_or(Ok(STAGED_ROUNDS), |v| {
+    staged_rounds_from(env_value("STCVAE_GPU_STAGED_ROUNDS"))
+}
+
+/// [`staged_rounds`] from the variable's value as [`env_value`] reads it.
+fn staged_rounds_from(value: Option<String>) -> Result<u32, RenderError> {
+    value.map_or(Ok(STAGED_ROUNDS), |v| {
         parse_count(
             "STCVAE_GPU_STAGED_ROUNDS",
             &v,
@@ -429,13 +441,9 @@ mod tests {
     #[cfg(unix)]
     #[test]
     fn a_value_that_is_not_unicode_is_refused_not_ignored() {
-        use std::os::unix::ffi::OsStrExt;
-        // A variable of this test alone (no switch reads it), so no other test sees it.
-        let name = "STCVAE_TEST_SWITCHES_NOT_UNICODE";
-        // SAFETY: no other test of this binary reads or writes this variable.
-        unsafe { std::env::set_var(name, std::ffi::OsStr::from_bytes(b"12\xff")) };
-        let v = env_value(name);
-        unsafe { std::env::remove_var(name) };
+        use std::os::unix::ffi::OsStringExt;
+        let raw = std::ffi::OsString::from_vec(b"12\xff".to_vec());
+        let v = value_of(Err(std::env::VarError::NotUnicode(raw)));
         let v = v.expect("a set, non-blank value that is not Unicode is passed on");
         assert_eq!(v, "12\u{fffd}");
         let e = parse_bounces(&v).unwrap_err().to_string();
@@ -447,16 +455,9 @@ mod tests {
     #[test]
     fn staged_rounds_take_the_documented_range() {
         let name = "STCVAE_GPU_STAGED_ROUNDS";
-        // SAFETY: no other test of this binary reads this variable (only a GPU render
-        // does, and no unit test of this crate renders).
-        let with = |v: &str| {
-            unsafe { std::env::set_var(name, v) };
-            let r = staged_rounds();
-            unsafe { std::env::remove_var(name) };
-            r
-        };
-        unsafe { std::env::remove_var(name) };
-        assert_eq!(staged_rounds().unwrap(), STAGED_ROUNDS);
+        // The variable's value as it would be read, without setting it (see `value_of`).
+        let with = |v: &str| staged_rounds_from(value_of(Ok(v.to_string())));
+        assert_eq!(staged_rounds_from(None).unwrap(), STAGED_ROUNDS);
         assert_eq!(with("").unwrap(), STAGED_ROUNDS);
         assert_eq!(with("1").unwrap(), 1);
         // 64: above the default 8, inside the documented 1..=4096.

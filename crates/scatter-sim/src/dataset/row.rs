@@ -404,7 +404,7 @@ mod tests {
                 alpha: 0.5,
                 beta: -0.625,
             },
-            event_pos: glam::DVec3::new(0.125, -0.25, 0.5),
+            event_pos: glam::DVec3::new(0.125, -0.1875, 0.4375),
             // A unit vector: 0.2304 + 0.36 + 0.4096 = 1.
             event_dir: glam::DVec3::new(0.48, -0.6, 0.64),
         };
@@ -419,7 +419,7 @@ mod tests {
                 cos_theta: -0.375,
                 beta: -0.625,
                 alpha: 0.5,
-                ev_pos: [0.125, -0.25, 0.5],
+                ev_pos: [0.125, -0.1875, 0.4375],
                 ev_dir: [0.48f64 as f32, -0.6f64 as f32, 0.64f64 as f32],
             }
         );

@@ -935,10 +935,10 @@ mod tests {
         assert_eq!(left, ["my render.exr"]);
     }
 
-    /// A name over 64 bytes whose 55th byte falls inside a character (é is two bytes, at
-    /// even offsets here, so byte 55 is the second half of one) has its temporaries'
-    /// prefix cut at the character before, and is written, alone and in a set. (In
-    /// `the_longest_names_are_written` the é's start at odd offsets: byte 55 is a
+    /// A name over 64 bytes whose byte at offset 55 (the cut) falls inside a character (é
+    /// is two bytes, at even offsets here, so byte 55 is the second half of one) has its
+    /// temporaries' prefix cut at the character before, and is written, alone and in a
+    /// set. (In `the_longest_names_are_written` the é's start at odd offsets: byte 55 is a
     /// boundary there, and the cut's step back was never taken.)
     #[test]
     fn a_long_name_cut_inside_a_character_is_written() {
