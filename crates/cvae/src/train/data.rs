@@ -379,6 +379,15 @@ mod tests {
     use crate::features;
     use scatter_sim::WalkRng;
 
+    /// The first `count` rows of seed `seed`'s run over the authors' condition
+    /// distribution, as `generate` writes them.
+    fn authors_rows(seed: u64, count: u64) -> Vec<scatter_sim::dataset::Row> {
+        let sampler = scatter_sim::conditions::ConditionSampler::authors();
+        (0..count)
+            .map(|i| scatter_sim::dataset::walk_row(seed, &sampler, i).0)
+            .collect()
+    }
+
     /// What the tables hold, against the walks they are built from. In exact mode N = 1
     /// is drawn analytically, so LengthGen's and PathGen's tables keep exactly the walks
     /// with N ≥ 2 (in order), and with N = 1 kept too in learned mode. LengthGen's target
@@ -389,10 +398,7 @@ mod tests {
     /// N = 1 walks in an exact table, passed every other test.
     #[test]
     fn tables_hold_their_walks_and_lengthgen_its_dequantised_target() {
-        let sampler = scatter_sim::conditions::ConditionSampler::authors();
-        let rows: Vec<_> = (0..2_000)
-            .map(|i| scatter_sim::dataset::walk_row(7, &sampler, i).0)
-            .collect();
+        let rows = authors_rows(7, 2_000);
         let long: Vec<_> = rows.iter().filter(|r| r.n >= 2).collect();
         assert!(
             long.len() > 1_000 && long.len() < rows.len(),
@@ -491,10 +497,7 @@ mod tests {
     /// and nothing more: another walk's or another statistic's value differs by far more.
     #[test]
     fn held_out_tables_take_the_training_tables_standardisation() {
-        let sampler = scatter_sim::conditions::ConditionSampler::authors();
-        let rows: Vec<_> = (0..2_000)
-            .map(|i| scatter_sim::dataset::walk_row(7, &sampler, i).0)
-            .collect();
+        let rows = authors_rows(7, 2_000);
         let fixed = scatter_sim::ConditionSampler::fixed(scatter_sim::Conditions {
             tau: 5.0,
             g: 0.3,
@@ -593,12 +596,7 @@ mod tests {
     /// is deterministic.
     #[test]
     fn held_out_tables_keep_the_training_tables_mode() {
-        let sampler = scatter_sim::conditions::ConditionSampler::authors();
-        let walks = |seed: u64| -> Vec<_> {
-            (0..500)
-                .map(|i| scatter_sim::dataset::walk_row(seed, &sampler, i).0)
-                .collect()
-        };
+        let walks = |seed: u64| authors_rows(seed, 500);
         let (rows, held_rows) = (walks(7), walks(8));
         let single = held_rows.iter().filter(|r| r.n < 2).count();
         assert!(single > 0, "no held-out walk of N = 1");
@@ -619,10 +617,7 @@ mod tests {
     /// LengthGen's and PathGen's rows only.
     #[test]
     fn eventgen_tables_drop_centre_events_in_exact_mode_only() {
-        let sampler = scatter_sim::conditions::ConditionSampler::authors();
-        let rows: Vec<_> = (0..2_000)
-            .map(|i| scatter_sim::dataset::walk_row(7, &sampler, i).0)
-            .collect();
+        let rows = authors_rows(7, 2_000);
         let centre = rows
             .iter()
             .filter(|r| features::is_centre_event(r.ev_pos))
@@ -662,10 +657,7 @@ mod tests {
     /// f32 of the same f64s through the same operations, a few f32 roundings at most.
     #[test]
     fn eventgen_tables_hold_each_walks_conditions_and_event() {
-        let sampler = scatter_sim::conditions::ConditionSampler::authors();
-        let rows: Vec<_> = (0..2_000)
-            .map(|i| scatter_sim::dataset::walk_row(7, &sampler, i).0)
-            .collect();
+        let rows = authors_rows(7, 2_000);
         let kind = ModelKind::EventGen;
         let t = Table::build(kind, &rows, SingleScattering::Exact);
         let kept: Vec<_> = rows
