@@ -748,6 +748,19 @@ mod tests {
         Cli::try_parse_from(["bench"]).unwrap().a
     }
 
+    /// Saves `pt` and `st` into `dir` as `bench render --save` does (at k = 1) and reads
+    /// the z map back: its width, height and RGB bytes.
+    fn saved_z_map(dir: &std::path::Path, pt: &Pair, st: &Pair) -> (u32, u32, Vec<u8>) {
+        save_images(&default_args(), dir, 1.0, pt, st).unwrap();
+        let z = std::fs::read(super::saved_z(dir, 1.0)).unwrap();
+        let mut dec = png::Decoder::new(std::io::Cursor::new(z))
+            .read_info()
+            .unwrap();
+        let mut grey = vec![0; dec.output_buffer_size()];
+        let info = dec.next_frame(&mut grey).unwrap();
+        (info.width, info.height, grey)
+    }
+
     /// A `side`² grey pair of 2 spp, pixel i of value `value(i)` with variance `var` per
     /// channel, as `save_images` reads it.
     fn grey_pair(side: usize, var: f64, value: &dyn Fn(usize) -> f32) -> Pair {
@@ -815,20 +828,13 @@ mod tests {
     #[test]
     fn the_saved_pictures_are_at_pts_exposure_and_the_z_map_shows_where_st_cvae_differs() {
         use render_gpu::image_io::encode_png;
-        let a = default_args();
         let dir = tempfile::tempdir().unwrap();
         let block = |i: usize| (i / 8 / 4) * 2 + (i % 8) / 4;
         let pair = |value: &dyn Fn(usize) -> f32| grey_pair(8, 0.005, value);
         let pt = pair(&|_: usize| 0.5f32);
         let st = pair(&|i: usize| [0.55f32, 0.4, 0.5, 0.7][block(i)]);
-        save_images(&a, dir.path(), 1.0, &pt, &st).unwrap();
-        let z = std::fs::read(super::saved_z(dir.path(), 1.0)).unwrap();
-        let mut dec = png::Decoder::new(std::io::Cursor::new(z))
-            .read_info()
-            .unwrap();
-        let mut grey = vec![0; dec.output_buffer_size()];
-        let info = dec.next_frame(&mut grey).unwrap();
-        assert_eq!((info.width, info.height, grey.len()), (8, 8, 8 * 8 * 3));
+        let (width, height, grey) = saved_z_map(dir.path(), &pt, &st);
+        assert_eq!((width, height, grey.len()), (8, 8, 8 * 8 * 3));
         for (i, p) in grey.chunks(3).enumerate() {
             let want = [191u8, 0, 128, 255][block(i)];
             assert_eq!(p, &[want; 3][..], "pixel ({}, {})", i % 8, i / 8);
@@ -966,19 +972,12 @@ mod tests {
     /// first row's third block (128) and the middle block of the second row showed 191.
     #[test]
     fn the_z_map_finds_each_pixels_block_when_the_side_is_no_multiple_of_four() {
-        let a = default_args();
         let dir = tempfile::tempdir().unwrap();
         let marked = |i: usize| i % 10 < 4 && (4..8).contains(&(i / 10));
         let pt = grey_pair(10, 0.005, &|_: usize| 0.5f32);
         let st = grey_pair(10, 0.005, &|i: usize| if marked(i) { 0.55f32 } else { 0.5 });
-        save_images(&a, dir.path(), 1.0, &pt, &st).unwrap();
-        let z = std::fs::read(super::saved_z(dir.path(), 1.0)).unwrap();
-        let mut dec = png::Decoder::new(std::io::Cursor::new(z))
-            .read_info()
-            .unwrap();
-        let mut grey = vec![0; dec.output_buffer_size()];
-        let info = dec.next_frame(&mut grey).unwrap();
-        assert_eq!((info.width, info.height, grey.len()), (10, 10, 10 * 10 * 3));
+        let (width, height, grey) = saved_z_map(dir.path(), &pt, &st);
+        assert_eq!((width, height, grey.len()), (10, 10, 10 * 10 * 3));
         for (i, p) in grey.chunks(3).enumerate() {
             let want = if marked(i) { 191u8 } else { 128 };
             assert_eq!(p, &[want; 3][..], "pixel ({}, {})", i % 10, i / 10);
@@ -996,7 +995,6 @@ mod tests {
     /// strongest bias in the picture.
     #[test]
     fn unjudged_blocks_are_mid_grey_in_the_z_map() {
-        let a = default_args();
         let dir = tempfile::tempdir().unwrap();
         let block = |i: usize| (i / 8 / 4) * 2 + (i % 8) / 4;
         let lone = 8 + 5;
@@ -1019,14 +1017,8 @@ mod tests {
         let zs = crate::experiment::measure::block_z(&pt, &st);
         assert_eq!((zs[0], zs[1]), ([None; 3], [None; 3]));
         assert_eq!((zs[2], zs[3]), ([Some(0.0); 3], [Some(0.0); 3]));
-        save_images(&a, dir.path(), 1.0, &pt, &st).unwrap();
-        let z = std::fs::read(super::saved_z(dir.path(), 1.0)).unwrap();
-        let mut dec = png::Decoder::new(std::io::Cursor::new(z))
-            .read_info()
-            .unwrap();
-        let mut grey = vec![0; dec.output_buffer_size()];
-        let info = dec.next_frame(&mut grey).unwrap();
-        assert_eq!((info.width, info.height, grey.len()), (8, 8, 8 * 8 * 3));
+        let (width, height, grey) = saved_z_map(dir.path(), &pt, &st);
+        assert_eq!((width, height, grey.len()), (8, 8, 8 * 8 * 3));
         for (i, p) in grey.chunks(3).enumerate() {
             // ⌊255·0.5 + 0.5⌋ = 128 for every block, judged at z = 0 or not judged.
             assert_eq!(p, &[128u8; 3][..], "pixel ({}, {})", i % 8, i / 8);

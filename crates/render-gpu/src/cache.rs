@@ -256,6 +256,22 @@ mod tests {
 
     use super::{CODE, cache_dir_from, note_unusable_entry, prune_stale, read_or_build, trim};
 
+    /// [`read_or_build`] of a file entry of bytes, with `cached_from` = −1 s (every build
+    /// takes longer, so whatever is built is written): the entry's bytes where it holds
+    /// any, else `build`'s.
+    fn bytes_entry(
+        entry: &std::path::Path,
+        build: impl FnOnce() -> Result<Vec<u8>, String>,
+    ) -> Result<Vec<u8>, String> {
+        read_or_build(
+            Some(entry),
+            -1.0,
+            |p| std::fs::read(p).ok(),
+            build,
+            |p, v| std::fs::write(p, v),
+        )
+    }
+
     /// Where the cache lives for each environment: STCVAE_CACHE as given, XDG_CACHE_HOME
     /// and HOME only when absolute (a relative XDG_CACHE_HOME made a cache folder in the
     /// working directory), empty values as unset, and no folder without any.
@@ -320,24 +336,10 @@ mod tests {
     fn a_slow_build_is_written_to_its_entry_and_read_back() {
         let d = tempfile::tempdir().unwrap();
         let entry = d.path().join(format!("grid-x-{CODE}.bin"));
-        let built = read_or_build(
-            Some(entry.as_path()),
-            -1.0,
-            |p| std::fs::read(p).ok(),
-            || Ok::<_, String>(b"built".to_vec()),
-            |p, v| std::fs::write(p, v),
-        )
-        .unwrap();
+        let built = bytes_entry(&entry, || Ok(b"built".to_vec())).unwrap();
         assert_eq!(built, b"built");
         assert_eq!(std::fs::read(&entry).unwrap(), b"built");
-        let read = read_or_build(
-            Some(entry.as_path()),
-            -1.0,
-            |p| std::fs::read(p).ok(),
-            || Err::<Vec<u8>, _>("built again".to_string()),
-            |p, v| std::fs::write(p, v),
-        )
-        .unwrap();
+        let read = bytes_entry(&entry, || Err("built again".to_string())).unwrap();
         assert_eq!(read, b"built");
     }
 
@@ -474,14 +476,7 @@ mod tests {
             .unwrap()
             .set_modified(long_ago)
             .unwrap();
-        let read = read_or_build(
-            Some(entry.as_path()),
-            -1.0,
-            |p| std::fs::read(p).ok(),
-            || Err::<Vec<u8>, _>("built instead of read".to_string()),
-            |p, v| std::fs::write(p, v),
-        )
-        .unwrap();
+        let read = bytes_entry(&entry, || Err("built instead of read".to_string())).unwrap();
         assert_eq!(read, b"cached");
         let modified = std::fs::metadata(&entry).unwrap().modified().unwrap();
         assert!(
@@ -508,14 +503,7 @@ mod tests {
         let other_mesh = d.path().join(format!("grid-00cd-64-{other_code}.bin"));
         std::fs::write(&stale, b"old code").unwrap();
         std::fs::write(&other_mesh, b"another mesh").unwrap();
-        let built = read_or_build(
-            Some(entry.as_path()),
-            -1.0,
-            |p| std::fs::read(p).ok(),
-            || Ok::<_, String>(b"built".to_vec()),
-            |p, v| std::fs::write(p, v),
-        )
-        .unwrap();
+        let built = bytes_entry(&entry, || Ok(b"built".to_vec())).unwrap();
         assert_eq!(built, b"built");
         assert_eq!(std::fs::read(&entry).unwrap(), b"built");
         assert!(
