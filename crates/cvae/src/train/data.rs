@@ -72,6 +72,18 @@ pub struct Standardisation {
 }
 
 impl Standardisation {
+    /// No change to any column of `kind`'s (shift 0, scale 1), for tests that need a
+    /// standardisation without caring which.
+    #[cfg(test)]
+    pub(crate) fn identity(kind: ModelKind) -> Self {
+        Standardisation {
+            cond_shift: vec![0.0; kind.cond()],
+            cond_scale: vec![1.0; kind.cond()],
+            out_shift: vec![0.0; kind.out()],
+            out_scale: vec![1.0; kind.out()],
+        }
+    }
+
     /// Whether `self` (a checkpoint's) standardises the same data as `now`: equal, but for
     /// a column without spread, scaled by 10⁻⁶ before that scale became 1 (`column_stats`),
     /// which puts the training rows at the same input (0) either way.

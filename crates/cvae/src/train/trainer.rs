@@ -373,12 +373,7 @@ mod tests {
         let kind = ModelKind::PathGen;
         let arch = config(10, None).architecture();
         let model = Cvae::new(kind.cond(), kind.out(), &arch, &mut rng, &Device::flex());
-        let norm = Standardisation {
-            cond_shift: vec![0.0; kind.cond()],
-            cond_scale: vec![1.0; kind.cond()],
-            out_shift: vec![0.0; kind.out()],
-            out_scale: vec![1.0; kind.out()],
-        };
+        let norm = Standardisation::identity(kind);
         assert!(exportable(&model, &norm));
         let good = model.valid().export(&norm);
         for bad in [
